@@ -1,0 +1,1 @@
+//! The configurator library: link, commands, offline tools.

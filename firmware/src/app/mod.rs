@@ -1,0 +1,2 @@
+//! The portable flight-controller application.
+pub mod hal;

@@ -1,0 +1,8 @@
+//! The flight-controller firmware as a library.
+//!
+//! [`app`] is the portable application: the 2 kHz control step, the link server that speaks the
+//! protocol, and the background work. It builds and is tested on the host, and the simulator runs
+//! exactly this code. The STM32H743 board layer (`board`) only exists for the target.
+#![cfg_attr(target_os = "none", no_std)]
+
+pub mod app;

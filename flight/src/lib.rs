@@ -1,0 +1,6 @@
+//! The mathematics of the flight controller: estimators, solvers and controllers.
+//!
+//! Everything here is `no_std`, `f32` and allocation-free so that the same code runs in the 2 kHz
+//! control step on the STM32H743 and in the host simulator and offline tools. No I/O, no clocks,
+//! no HAL: callers pass samples and time steps in.
+#![cfg_attr(not(feature = "std"), no_std)]

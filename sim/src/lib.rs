@@ -1,0 +1,1 @@
+//! The simulator: physics, sensors, motors, airframes, and the SITL server.
