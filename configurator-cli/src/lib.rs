@@ -1,1 +1,3 @@
-//! The configurator library: link, commands, offline tools.
+//! The configurator library: the link to a board or the SITL, the commands, the offline tools.
+
+pub mod offline;

@@ -1,0 +1,1 @@
+//! `fit imu-offset`: see the module docs once written.

@@ -1,0 +1,1 @@
+//! `solve thrust-axis`: see the module docs once written.
