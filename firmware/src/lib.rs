@@ -6,3 +6,5 @@
 #![cfg_attr(target_os = "none", no_std)]
 
 pub mod app;
+#[cfg(target_os = "none")]
+pub mod board;
