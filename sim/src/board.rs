@@ -1,0 +1,319 @@
+//! [`SimBoard`]: the simulated flight-controller board, implementing the application's hardware
+//! traits [`Imu`] and [`Motors`] from the physics, so `firmware::app` runs unchanged on the host.
+//!
+//! # API
+//! ```
+//! use firmware::app::hal::{Imu, Motors};
+//! use sim::{airframe::Airframe, board::{SimBoard, SimConfig}};
+//!
+//! let airframe = Airframe::builtin("paper-quad").unwrap();
+//! let mut board = SimBoard::new(&airframe, &SimConfig::default());
+//! for _ in 0..10 {
+//!     board.tick(); // 500 µs of physics (4 IMU samples at 8 kHz, averaged into one)
+//!     let now_us = board.now_us();
+//!     let (imu, motors) = board.ports(); // disjoint borrows for `ControlLoop::step`
+//!     let _sample = imu.read(); // Some(..) once per tick
+//!     motors.set_commands(&[0.0; 4]); // applied from the next tick on
+//!     let _ = now_us;
+//! }
+//! let _truth = board.physics().state(); // position, attitude, rates, rotor speeds
+//! ```
+//! - One [`SimBoard::tick`] advances one 2 kHz control period: the physics at
+//!   `sample_rate_hz × physics_steps_per_imu_sample`, the IMU at its sample rate (8 kHz in the
+//!   library), the average of the tick's samples becomes the one sample [`Imu::read`] returns
+//!   (then `None` until the next tick), and the RPM telemetry is updated.
+//! - Commands set through [`Motors::set_commands`] are held until changed (zero-order hold, as a
+//!   DShot output) and act from the next tick. The steady-state speed for a command follows
+//!   [`MotorParams::steady_speed_rad_s`](crate::airframe::MotorParams::steady_speed_rad_s).
+//! - Arming: the `Motors` trait has no arm/disarm, so the board decides ([`Arming`]); by default
+//!   the motors stay stopped until the first command above zero arrives (like an ESC that is sent
+//!   DShot 0 until the craft arms), and then idle at δ = 0. [`SimMotors::disarm`] stops them.
+//! - [`Motors::speeds_rad_s`] returns what bidirectional DShot would: quantised by the eRPM period
+//!   encoding ([`crate::dshot`]) and delayed by the motor's `telemetry_delay_s` (whole ticks);
+//!   `None` before the first report has arrived.
+//! - The hand and the truth are reached through [`SimBoard::physics`] / [`SimBoard::physics_mut`].
+
+use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use nalgebra::{UnitQuaternion, Vector3};
+
+use crate::airframe::{Airframe, MotorParams, MAX_ROTORS};
+use crate::dshot;
+use crate::imu::{ImuModel, RawSample};
+use crate::physics::Physics;
+
+/// The application's control rate, Hz (DESIGN.md: 2 kHz control step).
+pub const CONTROL_RATE_HZ: f64 = 2000.0;
+/// One control period, µs.
+pub const CONTROL_PERIOD_US: u64 = 500;
+/// Longest telemetry delay the ring holds, control ticks (0.05 s, the validated maximum).
+const MAX_TELEMETRY_DELAY_TICKS: usize = 100;
+
+/// When the simulated ESCs run their motors.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Arming {
+    /// Stopped until the first command above zero, then armed (idle at δ = 0).
+    #[default]
+    OnFirstCommand,
+    /// Armed from the start.
+    Armed,
+    /// Never spin.
+    Disarmed,
+}
+
+/// How to build a [`SimBoard`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimConfig {
+    /// Physics steps per raw IMU sample (1 = physics at the IMU rate, 8 kHz in the library).
+    pub physics_steps_per_imu_sample: u32,
+    /// Seed of the sensor noise.
+    pub seed: u64,
+    /// Read the IMU without errors (for tests of the physics).
+    pub ideal_imu: bool,
+    /// Motor arming policy.
+    pub arming: Arming,
+    /// Where the hand holds the vehicle at the start, world NED, m.
+    pub start_position_ned_m: Vector3<f64>,
+    /// Attitude at the start, `q_world_body`.
+    pub start_attitude: UnitQuaternion<f64>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            physics_steps_per_imu_sample: 1,
+            seed: 1,
+            ideal_imu: false,
+            arming: Arming::OnFirstCommand,
+            start_position_ned_m: Vector3::new(0.0, 0.0, -1.0),
+            start_attitude: UnitQuaternion::identity(),
+        }
+    }
+}
+
+/// The simulated IMU port: the newest 2 kHz sample, taken by [`Imu::read`].
+#[derive(Clone, Debug, Default)]
+pub struct SimImu {
+    latest: Option<ImuSample>,
+}
+
+impl Imu for SimImu {
+    fn read(&mut self) -> Option<ImuSample> {
+        self.latest.take()
+    }
+}
+
+/// The simulated motor outputs and RPM telemetry.
+#[derive(Clone, Debug)]
+pub struct SimMotors {
+    count: u8,
+    commands: [f32; MAX_MOTORS],
+    arming: Arming,
+    armed: bool,
+    speeds_rad_s: [Option<f32>; MAX_MOTORS],
+}
+
+impl SimMotors {
+    /// The commands now held, δ ∈ [0, 1] (first `count()` entries).
+    pub fn commands(&self) -> &[f32] {
+        &self.commands[..self.count as usize]
+    }
+
+    /// Whether the ESCs run the motors.
+    pub fn is_armed(&self) -> bool {
+        self.armed
+    }
+
+    /// Stops the motors (until the arming policy arms them again).
+    pub fn disarm(&mut self) {
+        self.armed = false;
+        if self.arming == Arming::OnFirstCommand {
+            self.arming = Arming::Disarmed;
+        }
+    }
+
+    /// Arms the motors now.
+    pub fn arm(&mut self) {
+        self.armed = true;
+    }
+}
+
+impl Motors for SimMotors {
+    fn count(&self) -> u8 {
+        self.count
+    }
+
+    fn set_commands(&mut self, commands: &[f32]) {
+        for (dst, src) in self.commands.iter_mut().zip(commands).take(self.count as usize) {
+            // A NaN command is treated as 0, as a DShot driver clamps before encoding.
+            *dst = if src.is_nan() { 0.0 } else { src.clamp(0.0, 1.0) };
+        }
+        if self.arming == Arming::OnFirstCommand && self.commands().iter().any(|c| *c > 0.0) {
+            self.armed = true;
+        }
+    }
+
+    fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
+        self.speeds_rad_s
+    }
+}
+
+/// The simulated board (see the module doc).
+#[derive(Clone, Debug)]
+pub struct SimBoard {
+    physics: Physics,
+    imu_model: ImuModel,
+    imu: SimImu,
+    motors: SimMotors,
+    motor_params: Vec<MotorParams>,
+    telemetry_delay_ticks: Vec<usize>,
+    /// Ring of decoded telemetry speeds per tick, rad/s.
+    telemetry_ring: Vec<[f32; MAX_MOTORS]>,
+    samples_per_tick: u32,
+    steps_per_sample: u32,
+    ticks: u64,
+    last_sample: ImuSample,
+    last_truth_sample: RawSample,
+}
+
+impl SimBoard {
+    /// A board on `airframe` (validated), the vehicle held by the hand at the configured pose.
+    pub fn new(airframe: &Airframe, config: &SimConfig) -> Self {
+        let steps_per_sample = config.physics_steps_per_imu_sample.max(1);
+        let sample_rate_hz = airframe.imu.sample_rate_hz;
+        let physics = Physics::new(
+            airframe,
+            config.start_position_ned_m,
+            config.start_attitude,
+            sample_rate_hz * f64::from(steps_per_sample),
+        );
+        let m = airframe.rotor_count();
+        let motor_params: Vec<MotorParams> =
+            (0..m).map(|i| airframe.rotor_motor(i).clone()).collect();
+        let telemetry_delay_ticks = motor_params
+            .iter()
+            .map(|p| {
+                ((p.telemetry_delay_s * CONTROL_RATE_HZ).round() as usize)
+                    .min(MAX_TELEMETRY_DELAY_TICKS)
+            })
+            .collect();
+        Self {
+            physics,
+            imu_model: ImuModel::new(airframe, config.seed, config.ideal_imu),
+            imu: SimImu::default(),
+            motors: SimMotors {
+                count: m as u8,
+                commands: [0.0; MAX_MOTORS],
+                arming: config.arming,
+                armed: config.arming == Arming::Armed,
+                speeds_rad_s: [None; MAX_MOTORS],
+            },
+            motor_params,
+            telemetry_delay_ticks,
+            telemetry_ring: vec![[0.0; MAX_MOTORS]; MAX_TELEMETRY_DELAY_TICKS + 1],
+            samples_per_tick: (sample_rate_hz / CONTROL_RATE_HZ).round() as u32,
+            steps_per_sample,
+            ticks: 0,
+            last_sample: ImuSample::default(),
+            last_truth_sample: RawSample::default(),
+        }
+    }
+
+    /// Advances one control period (500 µs): physics, IMU, telemetry.
+    pub fn tick(&mut self) {
+        let mut targets = [0.0; MAX_ROTORS];
+        if self.motors.armed {
+            for (i, p) in self.motor_params.iter().enumerate() {
+                targets[i] = p.steady_speed_rad_s(f64::from(self.motors.commands[i]));
+            }
+        }
+        self.physics.set_rotor_targets(&targets);
+
+        let mut sum = RawSample::default();
+        let mut sum_truth = RawSample::default();
+        for _ in 0..self.samples_per_tick {
+            for _ in 0..self.steps_per_sample {
+                self.physics.step();
+            }
+            let (state, derivative) = (self.physics.state(), self.physics.derivative());
+            let s = self.imu_model.sample(state, derivative, self.physics.rotor_angle_rad());
+            let t = self.imu_model.truth(state, derivative);
+            sum.gyro_rad_s += s.gyro_rad_s;
+            sum.accel_mps2 += s.accel_mps2;
+            sum_truth.gyro_rad_s += t.gyro_rad_s;
+            sum_truth.accel_mps2 += t.accel_mps2;
+        }
+        let n = f64::from(self.samples_per_tick);
+        let to_f32 = |v: Vector3<f64>| [v.x as f32, v.y as f32, v.z as f32];
+        self.last_sample = ImuSample {
+            gyro_rad_s: to_f32(sum.gyro_rad_s / n),
+            accel_mps2: to_f32(sum.accel_mps2 / n),
+        };
+        self.last_truth_sample = RawSample {
+            gyro_rad_s: sum_truth.gyro_rad_s / n,
+            accel_mps2: sum_truth.accel_mps2 / n,
+        };
+        self.imu.latest = Some(self.last_sample);
+
+        self.ticks += 1;
+        let ring_len = self.telemetry_ring.len();
+        let slot = (self.ticks as usize) % ring_len;
+        let speeds = self.physics.state().rotor_speed_rad_s;
+        for (i, p) in self.motor_params.iter().enumerate() {
+            self.telemetry_ring[slot][i] = dshot::quantise_speed(speeds[i], p.pole_pairs) as f32;
+        }
+        for (i, delay) in self.telemetry_delay_ticks.iter().enumerate() {
+            self.motors.speeds_rad_s[i] = (self.ticks as usize > *delay)
+                .then(|| self.telemetry_ring[(slot + ring_len - delay) % ring_len][i]);
+        }
+    }
+
+    /// The IMU and motor ports, borrowed together for one application step.
+    pub fn ports(&mut self) -> (&mut SimImu, &mut SimMotors) {
+        (&mut self.imu, &mut self.motors)
+    }
+
+    /// The motor port.
+    pub fn motors(&self) -> &SimMotors {
+        &self.motors
+    }
+
+    /// The motor port, mutably (arming, disarming, commands from a scenario).
+    pub fn motors_mut(&mut self) -> &mut SimMotors {
+        &mut self.motors
+    }
+
+    /// Board time at the end of the last tick, µs (what the application's `now_us` is).
+    pub fn now_us(&self) -> u64 {
+        self.ticks * CONTROL_PERIOD_US
+    }
+
+    /// Board time, s.
+    pub fn time_s(&self) -> f64 {
+        self.now_us() as f64 * 1e-6
+    }
+
+    /// The 2 kHz sample produced by the last tick (also after the application has read it).
+    pub fn last_sample(&self) -> ImuSample {
+        self.last_sample
+    }
+
+    /// The error-free counterpart of [`Self::last_sample`] (same averaging), IMU axes, f64.
+    pub fn last_truth_sample(&self) -> RawSample {
+        self.last_truth_sample
+    }
+
+    /// The physics (state, hand, model).
+    pub fn physics(&self) -> &Physics {
+        &self.physics
+    }
+
+    /// The physics, mutably (throw, catch, release, set state).
+    pub fn physics_mut(&mut self) -> &mut Physics {
+        &mut self.physics
+    }
+
+    /// The IMU model (its pose on the body).
+    pub fn imu_model(&self) -> &ImuModel {
+        &self.imu_model
+    }
+}

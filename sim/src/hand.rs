@@ -1,0 +1,230 @@
+//! The hand that holds, throws and catches the vehicle.
+//!
+//! The hand is kinematic: while it acts, it *prescribes* the CoG acceleration and the body's
+//! angular acceleration, whatever the motors and gravity do (it supplies the difference, as a
+//! firm hand would). Because the prescription enters the dynamics' derivative, RK4 integrates
+//! it like any other motion, and the accelerometer sees exactly the specific force of that
+//! motion — so the firmware's throw detector sees a real throw (algorithms.md §1: |a| > 20 m/s²
+//! with a momentum above 4 m/s).
+//!
+//! Phases:
+//! - **Holding**: velocity and body rate are zero.
+//! - **Throwing**: constant acceleration from rest to the release velocity and a constant angular
+//!   acceleration to the release body rate over the throw duration (rounded to whole physics
+//!   steps so the release values are exact), then release.
+//! - **Free**: the dynamics alone act.
+//! - **Catching**: once the falling vehicle comes back down through the catch height, velocity
+//!   and body rate decay exponentially with the catch time constant; after six time constants the
+//!   hand holds again.
+
+use nalgebra::Vector3;
+
+use crate::airframe::STANDARD_GRAVITY_MPS2;
+use crate::dynamics::State;
+
+/// Which accelerations the hand imposes on the dynamics.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Constraint {
+    /// No hand: the dynamics act alone.
+    Free,
+    /// Zero acceleration and angular acceleration (the state is at rest).
+    Hold,
+    /// Given CoG acceleration (world NED, m/s²) and angular acceleration (body, rad/s²).
+    Prescribed {
+        /// CoG acceleration, world NED, m/s².
+        accel_ned_mps2: Vector3<f64>,
+        /// Angular acceleration, body, rad/s².
+        rate_dot_body_rad_s2: Vector3<f64>,
+    },
+    /// Velocity and body rate decay with this time constant, s.
+    Damp {
+        /// Time constant, s.
+        tau_s: f64,
+    },
+}
+
+impl Constraint {
+    /// The accelerations `(CoG world NED, angular body)` given the free ones and the state.
+    pub fn apply(
+        &self,
+        free_accel_ned: Vector3<f64>,
+        free_rate_dot_body: Vector3<f64>,
+        velocity_ned: Vector3<f64>,
+        rate_body: Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
+        match *self {
+            Constraint::Free => (free_accel_ned, free_rate_dot_body),
+            Constraint::Hold => (Vector3::zeros(), Vector3::zeros()),
+            Constraint::Prescribed { accel_ned_mps2, rate_dot_body_rad_s2 } => {
+                (accel_ned_mps2, rate_dot_body_rad_s2)
+            }
+            Constraint::Damp { tau_s } => (-velocity_ned / tau_s, -rate_body / tau_s),
+        }
+    }
+}
+
+/// A throw: the velocity and body rate the vehicle has when the hand lets go.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ThrowSpec {
+    /// CoG velocity at release, world NED, m/s.
+    pub release_velocity_ned_mps: Vector3<f64>,
+    /// Body rate at release, body axes, rad/s.
+    pub release_rate_body_rad_s: Vector3<f64>,
+    /// How long the hand accelerates the vehicle, s (typically 0.1–0.2).
+    pub duration_s: f64,
+}
+
+impl ThrowSpec {
+    /// A vertical throw that rises `apex_above_release_m` above the release point (in vacuum).
+    pub fn vertical(apex_above_release_m: f64, rate_body_rad_s: Vector3<f64>, duration_s: f64) -> Self {
+        let up_mps = (2.0 * STANDARD_GRAVITY_MPS2 * apex_above_release_m.max(0.0)).sqrt();
+        Self {
+            release_velocity_ned_mps: Vector3::new(0.0, 0.0, -up_mps),
+            release_rate_body_rad_s: rate_body_rad_s,
+            duration_s,
+        }
+    }
+}
+
+/// Where and how the hand catches a falling vehicle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CatchSpec {
+    /// The hand closes when the descending CoG reaches this NED z, m (e.g. −1.2 for 1.2 m above
+    /// the ground).
+    pub catch_ned_z_m: f64,
+    /// Time constant of the catch's deceleration, s.
+    pub tau_s: f64,
+}
+
+/// What the hand is doing, for logs (`hand` column: the discriminant).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum HandPhase {
+    /// Not touching the vehicle.
+    Free = 0,
+    /// Holding it still.
+    Holding = 1,
+    /// Accelerating it towards release.
+    Throwing = 2,
+    /// Stopping it after a catch.
+    Catching = 3,
+}
+
+/// The hand's state machine (see the module doc).
+#[derive(Clone, Debug)]
+pub struct Hand {
+    phase: HandPhase,
+    constraint: Constraint,
+    /// Throwing: release time; Catching: time the catch started. s.
+    phase_time_s: f64,
+    catch: Option<CatchSpec>,
+    catch_tau_s: f64,
+    released_at_s: Option<f64>,
+    caught_at_s: Option<f64>,
+}
+
+impl Hand {
+    /// A hand holding the vehicle.
+    pub fn holding() -> Self {
+        Self {
+            phase: HandPhase::Holding,
+            constraint: Constraint::Hold,
+            phase_time_s: 0.0,
+            catch: None,
+            catch_tau_s: 0.05,
+            released_at_s: None,
+            caught_at_s: None,
+        }
+    }
+
+    /// No hand: the vehicle starts free.
+    pub fn free() -> Self {
+        Self { phase: HandPhase::Free, constraint: Constraint::Free, ..Self::holding() }
+    }
+
+    /// Current phase.
+    pub fn phase(&self) -> HandPhase {
+        self.phase
+    }
+
+    /// The accelerations the hand imposes now.
+    pub fn constraint(&self) -> &Constraint {
+        &self.constraint
+    }
+
+    /// When the last throw released the vehicle, s.
+    pub fn released_at_s(&self) -> Option<f64> {
+        self.released_at_s
+    }
+
+    /// When the last catch started, s.
+    pub fn caught_at_s(&self) -> Option<f64> {
+        self.caught_at_s
+    }
+
+    /// Arms (or disarms, with `None`) catching after the next release.
+    pub fn set_catch(&mut self, catch: Option<CatchSpec>) {
+        self.catch = catch;
+    }
+
+    /// Grips the vehicle where it is: velocity and body rate become zero.
+    pub fn grip(&mut self, state: &mut State) {
+        state.velocity_ned_mps = Vector3::zeros();
+        state.rate_body_rad_s = Vector3::zeros();
+        self.phase = HandPhase::Holding;
+        self.constraint = Constraint::Hold;
+    }
+
+    /// Lets go immediately.
+    pub fn release(&mut self, now_s: f64) {
+        self.phase = HandPhase::Free;
+        self.constraint = Constraint::Free;
+        self.released_at_s = Some(now_s);
+    }
+
+    /// Starts a throw at `now_s` from the current velocity and rate. The duration is rounded to
+    /// whole steps of `step_s` (at least one).
+    pub fn throw(&mut self, spec: &ThrowSpec, state: &State, now_s: f64, step_s: f64) {
+        let steps = (spec.duration_s / step_s).round().max(1.0);
+        let duration_s = steps * step_s;
+        self.phase = HandPhase::Throwing;
+        self.phase_time_s = now_s + duration_s;
+        self.constraint = Constraint::Prescribed {
+            accel_ned_mps2: (spec.release_velocity_ned_mps - state.velocity_ned_mps) / duration_s,
+            rate_dot_body_rad_s2: (spec.release_rate_body_rad_s - state.rate_body_rad_s)
+                / duration_s,
+        };
+    }
+
+    /// Advances the phase after a physics step ending at `now_s`; may change `state` (a grip
+    /// zeroes the residual velocity). Returns `true` when the constraint changed.
+    pub fn update(&mut self, now_s: f64, step_s: f64, state: &mut State) -> bool {
+        let tolerance_s = 0.25 * step_s;
+        match self.phase {
+            HandPhase::Throwing if now_s + tolerance_s >= self.phase_time_s => {
+                self.release(now_s);
+                true
+            }
+            HandPhase::Free => match self.catch {
+                Some(c)
+                    if self.released_at_s.is_some()
+                        && state.velocity_ned_mps.z > 0.0
+                        && state.position_ned_m.z >= c.catch_ned_z_m =>
+                {
+                    self.phase = HandPhase::Catching;
+                    self.phase_time_s = now_s;
+                    self.catch_tau_s = c.tau_s;
+                    self.constraint = Constraint::Damp { tau_s: c.tau_s };
+                    self.caught_at_s = Some(now_s);
+                    true
+                }
+                _ => false,
+            },
+            HandPhase::Catching if now_s - self.phase_time_s >= 6.0 * self.catch_tau_s => {
+                self.grip(state);
+                true
+            }
+            _ => false,
+        }
+    }
+}
