@@ -4,3 +4,4 @@
 //! control step on the STM32H743 and in the host simulator and offline tools. No I/O, no clocks,
 //! no HAL: callers pass samples and time steps in.
 #![cfg_attr(not(feature = "std"), no_std)]
+pub mod thrust_axis;

@@ -1,0 +1,654 @@
+//! The hover thrust axis `q_U^T` (seed paper §3.3): the most efficient direction in which the
+//! motors can produce force without producing torque, and the rotation that maps the thrust frame
+//! into the IMU frame.
+//!
+//! # Problem (paper eq. 6)
+//! With `f = G1f u` (specific force, m/s², IMU coordinates) and `τ = G1τ u` (angular acceleration,
+//! rad/s²) for a motor command `u ∈ ℝᵐ`, `4 ≤ m ≤ 8`:
+//!
+//! ```text
+//! min uᵀ W u   s.t.   ‖G1f u‖ = g,   G1τ u = 0,   u_min ≤ u ≤ u_max
+//! ```
+//!
+//! # Method
+//! 1. **Weights by scaling.** `u = W^{-1/2} ũ` turns the cost into `ũᵀũ` (the paper's `H = I`)
+//!    with `G̃ = G W^{-1/2}` and bounds `W^{1/2} u_min ≤ ũ ≤ W^{1/2} u_max`. Everything below
+//!    works on the scaled problem.
+//! 2. **Null space of G1τ.** Column-pivoting Householder QR of `G̃1τᵀ` (`m × 3`) with the full
+//!    `Q` in product form ([`householder`]); the rank test on `R`'s diagonal rejects airframes
+//!    whose torque map is rank-deficient. `N = Q[:, 3..m]`.
+//! 3. **Dominant eigen-pair.** The paper iterates on `A = (G̃1f N)ᵀ(G̃1f N)` (`(m−3)²`). We use
+//!    `B = G̃1f N` (`3 × (m−3)`, read straight off `Qᵀ G̃1fᵀ`) and iterate on `C = B Bᵀ`, which is
+//!    always 3 × 3 and has the same non-zero eigenvalues: if `C w = λ w` then `v = Bᵀw/‖Bᵀw‖` is
+//!    the paper's eigenvector of `A`. Two reasons: the cost does not grow with `m`, and the
+//!    iterate `w` is the thrust direction itself in IMU coordinates, so the warm start kept in
+//!    [`ThrustAxisSolver`] between calls is independent of the null-space basis (which can flip or
+//!    rotate from one call to the next when the pivot order changes). The power iteration is
+//!    accelerated by repeated squaring (`C ← C²/tr`, so `k` squarings are `2ᵏ` power steps),
+//!    stopped when `C` is numerically rank one and capped at [`SolverConfig::max_squarings`];
+//!    the warm-start vector is re-seeded from the dominant column when `‖C w‖` collapses.
+//! 4. **Scaling and sign.** `η = Bᵀw · g/‖C w‖` (the paper's `η = v g/√(vᵀAv)`, which makes
+//!    `‖G1f u‖ = g` exact for any `w`), `ũ = ±Q [0; η]`, with the sign that keeps `u` within the
+//!    bounds (both fit: the one with positive command sum, as in the published code).
+//! 5. **Bounded optimum.** When neither sign fits, the heuristic's answer is not the solution of
+//!    problem (6); [`bounded`] then searches every active set of clamped motors for the true
+//!    bounded optimum, and the result is flagged `bounded = true`.
+//! 6. **Attitude.** `d = G1f u*`; `q_thrust_to_imu` is the shortest arc taking `(0, 0, −1)` to
+//!    `d/|d|` ([`rotation`]).
+//!
+//! Everything is `f32`, fixed-size (`[_; MOTORS_MAX]` plus a count) and allocation-free.
+
+// `!(x > limit)` is deliberate throughout: it is also true for NaN, which must take the safe
+// branch. Index loops are kept where they mirror the matrix notation of the derivation.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
+mod bounded;
+mod eigen3;
+mod householder;
+mod rotation;
+
+pub use rotation::{euler_zyx, rotate, shortest_arc_from_down, EulerZyx, THRUST_DIR_THRUST_FRAME};
+
+use householder::PivotedQr3;
+
+/// Fewest motors the solver accepts: with fewer than four, `G1τ u = 0` (three equations) leaves
+/// no thrust direction to choose.
+pub const MOTORS_MIN: usize = 4;
+/// Most motors the solver accepts (fixed-capacity storage).
+pub const MOTORS_MAX: usize = 8;
+
+/// Standard gravity, m/s² (the default `g` of the offline contract).
+pub const STANDARD_GRAVITY_MPS2: f32 = 9.81;
+
+/// Largest magnitude accepted for any input number (effectiveness entries, bounds, weights, g).
+///
+/// Unit: that of the input. Origin: squares of inputs appear in the solver; 1e6² = 1e12 leaves
+/// f32 (max 3e38) ample head-room for sums over eight motors and for squaring 3 × 3 matrices,
+/// while physical effectiveness values are below 1e4 (m/s² or rad/s² per unit command).
+pub const MAX_INPUT_MAGNITUDE: f32 = 1e6;
+
+/// Smallest accepted motor weight (dimensionless); with [`MAX_INPUT_MAGNITUDE`] it bounds the
+/// scaling `W^{-1/2}` to 1e3 so that scaled entries stay within f32's comfortable range.
+pub const MIN_WEIGHT: f32 = 1e-6;
+
+/// Relative threshold below which the dominant eigenvalue counts as zero: `λ ≤ ZERO_EIGEN · ‖G̃1f‖²_F`.
+///
+/// Unit: dimensionless. Origin: f32 projection errors in `C` are a few round-offs (6e-8) of
+/// `‖G̃1f‖²_F`; 1e-6 is well above that and means "the zero-torque commands produce less than
+/// 0.1 % of the force the motors could produce": no hover.
+const ZERO_EIGEN: f32 = 1e-6;
+
+/// `e₂(C) / tr(C)² ≤ POWER_CONVERGED` stops the squarings: the second elementary symmetric
+/// function of the eigenvalues (sum of principal 2 × 2 minors) relative to the trace squared is
+/// about `λ₂/λ₁`, so the iterate is then within about 1e-6 rad of the dominant eigenvector.
+/// f32 round-off in the minors is about 2e-7, so this is reachable.
+const POWER_CONVERGED: f32 = 1e-6;
+
+/// Re-seed when `‖C w‖ < POWER_RESEED · max_j C_jj` (trace-normalised `C`): the warm-start vector
+/// is then within about 6° of orthogonal to the dominant eigenvector and would converge slowly.
+const POWER_RESEED: f32 = 0.1;
+
+/// Tolerance on the motor bounds, relative to `|u_min| + |u_max|` of each motor (f32 round-off
+/// of the solve is about 1e-6 of the command scale). Commands within it are clamped onto the bound.
+const BOUND_TOLERANCE: f32 = 1e-5;
+
+/// Which input a validation error refers to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Input {
+    /// `G1f`, specific force per unit command (m/s²).
+    G1f,
+    /// `G1τ`, angular acceleration per unit command (rad/s²).
+    G1Tau,
+    /// Lower motor bounds.
+    UMin,
+    /// Upper motor bounds.
+    UMax,
+    /// Motor weights.
+    Weights,
+    /// Gravity, m/s².
+    Gravity,
+}
+
+impl core::fmt::Display for Input {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Input::G1f => "g1_f",
+            Input::G1Tau => "g1_tau",
+            Input::UMin => "u_min",
+            Input::UMax => "u_max",
+            Input::Weights => "weights",
+            Input::Gravity => "g",
+        })
+    }
+}
+
+/// Why a problem was refused or has no hover solution.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ThrustAxisError {
+    /// Input: the motor count is outside `MOTORS_MIN..=MOTORS_MAX`.
+    MotorCount {
+        /// The count given.
+        motors: usize,
+    },
+    /// Input: a row or vector has a different length from the motor count.
+    Length {
+        /// Which input.
+        input: Input,
+        /// Its length.
+        found: usize,
+        /// The motor count.
+        expected: usize,
+    },
+    /// Input: NaN, infinite, or larger in magnitude than [`MAX_INPUT_MAGNITUDE`].
+    OutOfRange {
+        /// Which input.
+        input: Input,
+        /// Motor (column) index; 0 for the scalar `g`.
+        motor: usize,
+    },
+    /// Input: `u_min > u_max` for a motor.
+    InvertedBounds {
+        /// Motor index.
+        motor: usize,
+    },
+    /// Input: a weight below [`MIN_WEIGHT`], or `g ≤ 0`.
+    NotPositive {
+        /// Which input.
+        input: Input,
+        /// Motor index; 0 for `g`.
+        motor: usize,
+    },
+    /// No hover: `G1τ` has rank below 3, so torques cannot all be controlled.
+    TorqueRankDeficient {
+        /// Numerical rank found (0 to 2).
+        rank: u8,
+    },
+    /// No hover: the dominant eigenvalue is ≈ 0: commands that produce no torque produce no force.
+    NoZeroTorqueThrust,
+    /// No hover: neither sign of the heuristic's `u*` fits the bounds, and no bounded optimum
+    /// exists (or the bounded search is disabled in [`SolverConfig`]).
+    NoHoverWithinBounds,
+    /// The arithmetic produced a non-finite result (should not happen for validated inputs).
+    NumericalFailure,
+}
+
+impl core::fmt::Display for ThrustAxisError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            ThrustAxisError::MotorCount { motors } => write!(
+                f,
+                "{motors} motors: the thrust-axis solver needs {MOTORS_MIN} to {MOTORS_MAX}"
+            ),
+            ThrustAxisError::Length { input, found, expected } => {
+                write!(f, "{input} has length {found}, expected {expected} (one per motor)")
+            }
+            ThrustAxisError::OutOfRange { input, motor } => write!(
+                f,
+                "{input} entry for motor {motor} is NaN, infinite or beyond ±{MAX_INPUT_MAGNITUDE:e}"
+            ),
+            ThrustAxisError::InvertedBounds { motor } => {
+                write!(f, "u_min > u_max for motor {motor}")
+            }
+            ThrustAxisError::NotPositive { input: Input::Gravity, .. } => {
+                write!(f, "g must be positive")
+            }
+            ThrustAxisError::NotPositive { input, motor } => {
+                write!(f, "{input} for motor {motor} must be at least {MIN_WEIGHT:e}")
+            }
+            ThrustAxisError::TorqueRankDeficient { rank } => write!(
+                f,
+                "G1tau has rank {rank} < 3: the motors cannot control all three torques, no hover"
+            ),
+            ThrustAxisError::NoZeroTorqueThrust => write!(
+                f,
+                "the commands that produce no torque produce no force (eigenvalue ~ 0): no hover"
+            ),
+            ThrustAxisError::NoHoverWithinBounds => write!(
+                f,
+                "no torque-free command producing thrust g lies within the motor bounds: no hover"
+            ),
+            ThrustAxisError::NumericalFailure => write!(f, "numerical failure (non-finite result)"),
+        }
+    }
+}
+
+/// A validated hover problem: effectiveness, bounds, weights and gravity for `m` motors.
+///
+/// Storage is fixed-capacity; entries beyond `motors()` are zero and never read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HoverProblem {
+    motors: usize,
+    /// Rows of `G1f` (m/s² per unit command), IMU coordinates.
+    g1_f: [[f32; MOTORS_MAX]; 3],
+    /// Rows of `G1τ` (rad/s² per unit command), IMU coordinates.
+    g1_tau: [[f32; MOTORS_MAX]; 3],
+    u_min: [f32; MOTORS_MAX],
+    u_max: [f32; MOTORS_MAX],
+    weights: [f32; MOTORS_MAX],
+    g_mps2: f32,
+}
+
+impl HoverProblem {
+    /// A problem from the rows of `G1f` (m/s² per unit command) and `G1τ` (rad/s² per unit
+    /// command), with the defaults of the offline contract: bounds `[0, 1]`, unit weights,
+    /// `g` = [`STANDARD_GRAVITY_MPS2`]. All six rows must have the same length `m`, 4 ≤ m ≤ 8.
+    pub fn new(g1_f: [&[f32]; 3], g1_tau: [&[f32]; 3]) -> Result<Self, ThrustAxisError> {
+        let motors = g1_f[0].len();
+        if !(MOTORS_MIN..=MOTORS_MAX).contains(&motors) {
+            return Err(ThrustAxisError::MotorCount { motors });
+        }
+        let mut problem = HoverProblem {
+            motors,
+            g1_f: [[0.0; MOTORS_MAX]; 3],
+            g1_tau: [[0.0; MOTORS_MAX]; 3],
+            u_min: [0.0; MOTORS_MAX],
+            u_max: [0.0; MOTORS_MAX],
+            weights: [0.0; MOTORS_MAX],
+            g_mps2: STANDARD_GRAVITY_MPS2,
+        };
+        problem.u_max[..motors].fill(1.0);
+        problem.weights[..motors].fill(1.0);
+        for k in 0..3 {
+            problem.g1_f[k] = problem.checked(Input::G1f, g1_f[k])?;
+            problem.g1_tau[k] = problem.checked(Input::G1Tau, g1_tau[k])?;
+        }
+        Ok(problem)
+    }
+
+    /// Replace the motor bounds (command units, one per motor, `u_min ≤ u_max`).
+    pub fn with_bounds(mut self, u_min: &[f32], u_max: &[f32]) -> Result<Self, ThrustAxisError> {
+        let lower = self.checked(Input::UMin, u_min)?;
+        let upper = self.checked(Input::UMax, u_max)?;
+        if let Some(motor) = (0..self.motors).find(|&i| lower[i] > upper[i]) {
+            return Err(ThrustAxisError::InvertedBounds { motor });
+        }
+        self.u_min = lower;
+        self.u_max = upper;
+        Ok(self)
+    }
+
+    /// Replace the diagonal of the actuator weight matrix `W` (dimensionless, ≥ [`MIN_WEIGHT`]):
+    /// the cost is `Σ wᵢ uᵢ²`, e.g. a motor's power per unit command squared.
+    pub fn with_weights(mut self, weights: &[f32]) -> Result<Self, ThrustAxisError> {
+        let weights = self.checked(Input::Weights, weights)?;
+        if let Some(motor) = (0..self.motors).find(|&i| weights[i] < MIN_WEIGHT) {
+            return Err(ThrustAxisError::NotPositive { input: Input::Weights, motor });
+        }
+        self.weights = weights;
+        Ok(self)
+    }
+
+    /// Replace the gravity (m/s², positive): the specific force the hover must produce.
+    pub fn with_gravity(mut self, g_mps2: f32) -> Result<Self, ThrustAxisError> {
+        let out_of_range = ThrustAxisError::OutOfRange { input: Input::Gravity, motor: 0 };
+        if !(g_mps2.is_finite() && libm::fabsf(g_mps2) <= MAX_INPUT_MAGNITUDE) {
+            return Err(out_of_range);
+        }
+        if g_mps2 <= 0.0 {
+            return Err(ThrustAxisError::NotPositive { input: Input::Gravity, motor: 0 });
+        }
+        self.g_mps2 = g_mps2;
+        Ok(self)
+    }
+
+    /// Number of motors `m`.
+    pub fn motors(&self) -> usize {
+        self.motors
+    }
+
+    /// Gravity, m/s².
+    pub fn g_mps2(&self) -> f32 {
+        self.g_mps2
+    }
+
+    /// Row `axis` of `G1f`, m/s² per unit command (`motors()` entries).
+    pub fn g1_f_row(&self, axis: usize) -> &[f32] {
+        &self.g1_f[axis.min(2)][..self.motors]
+    }
+
+    /// Row `axis` of `G1τ`, rad/s² per unit command (`motors()` entries).
+    pub fn g1_tau_row(&self, axis: usize) -> &[f32] {
+        &self.g1_tau[axis.min(2)][..self.motors]
+    }
+
+    /// Lower motor bounds.
+    pub fn u_min(&self) -> &[f32] {
+        &self.u_min[..self.motors]
+    }
+
+    /// Upper motor bounds.
+    pub fn u_max(&self) -> &[f32] {
+        &self.u_max[..self.motors]
+    }
+
+    /// Motor weights (diagonal of `W`).
+    pub fn weights(&self) -> &[f32] {
+        &self.weights[..self.motors]
+    }
+
+    fn checked(&self, input: Input, values: &[f32]) -> Result<[f32; MOTORS_MAX], ThrustAxisError> {
+        if values.len() != self.motors {
+            return Err(ThrustAxisError::Length {
+                input,
+                found: values.len(),
+                expected: self.motors,
+            });
+        }
+        let mut out = [0.0; MOTORS_MAX];
+        for (motor, (&value, slot)) in values.iter().zip(out.iter_mut()).enumerate() {
+            if !(value.is_finite() && libm::fabsf(value) <= MAX_INPUT_MAGNITUDE) {
+                return Err(ThrustAxisError::OutOfRange { input, motor });
+            }
+            *slot = value;
+        }
+        Ok(out)
+    }
+}
+
+/// Tuning of [`ThrustAxisSolver`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SolverConfig {
+    /// Cap on repeated squarings of the 3 × 3 matrix per call: at most `2^max_squarings` power
+    /// steps. Default 6 (64 steps): an eigenvalue ratio λ₂/λ₁ = 0.8 converges to 1e-6 in one
+    /// call; closer ratios keep improving across calls through the warm start.
+    pub max_squarings: u8,
+    /// Search for the true bounded optimum of problem (6) when the heuristic's `u*` leaves the
+    /// bounds (default true). Its cost grows with the number of active sets (about 1,700 faces
+    /// at m = 8), so a caller with a hard deadline may turn it off and get
+    /// [`ThrustAxisError::NoHoverWithinBounds`] instead.
+    pub bounded_search: bool,
+}
+
+impl Default for SolverConfig {
+    fn default() -> Self {
+        SolverConfig { max_squarings: 6, bounded_search: true }
+    }
+}
+
+/// A hover solution.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HoverSolution {
+    motors: usize,
+    u_hover: [f32; MOTORS_MAX],
+    /// Unit vector along `G1f · u_hover`, IMU coordinates.
+    pub thrust_dir_imu: [f32; 3],
+    /// Shortest-arc rotation taking `(0, 0, −1)` to `thrust_dir_imu`, `[w, x, y, z]`: maps
+    /// thrust-frame coordinates into IMU coordinates (the paper's `q_U^T`).
+    pub q_thrust_to_imu: [f32; 4],
+    /// Dominant eigenvalue `λ` of `A = (G̃1f N)ᵀ(G̃1f N)` (weighted), (m/s²)² per unit command²:
+    /// the unbounded optimum costs `g²/λ`.
+    pub eigenvalue: f32,
+    /// `true` when the heuristic's `u*` left the bounds and this is the bounded optimum.
+    pub bounded: bool,
+    /// The cost `u_hoverᵀ W u_hover` (command units squared).
+    pub cost: f32,
+}
+
+impl HoverSolution {
+    /// The hover command, one entry per motor.
+    pub fn u_hover(&self) -> &[f32] {
+        &self.u_hover[..self.motors]
+    }
+
+    /// ZYX Euler angles of `q_thrust_to_imu`, radians.
+    pub fn euler_zyx(&self) -> EulerZyx {
+        euler_zyx(self.q_thrust_to_imu)
+    }
+}
+
+/// The problem after the weight substitution `u = W^{-1/2} ũ` (so the cost is `ũᵀũ`).
+#[derive(Clone, Copy, Debug)]
+struct ScaledProblem {
+    motors: usize,
+    g1_f: [[f32; MOTORS_MAX]; 3],
+    g1_tau: [[f32; MOTORS_MAX]; 3],
+    lower: [f32; MOTORS_MAX],
+    upper: [f32; MOTORS_MAX],
+    /// `1/√wᵢ`: `uᵢ = ũᵢ · inv_sqrt_weight[i]`.
+    inv_sqrt_weight: [f32; MOTORS_MAX],
+    g_mps2: f32,
+}
+
+impl ScaledProblem {
+    fn new(p: &HoverProblem) -> Self {
+        let mut s = ScaledProblem {
+            motors: p.motors,
+            g1_f: [[0.0; MOTORS_MAX]; 3],
+            g1_tau: [[0.0; MOTORS_MAX]; 3],
+            lower: [0.0; MOTORS_MAX],
+            upper: [0.0; MOTORS_MAX],
+            inv_sqrt_weight: [0.0; MOTORS_MAX],
+            g_mps2: p.g_mps2,
+        };
+        for i in 0..p.motors {
+            let sqrt_weight = libm::sqrtf(p.weights[i]);
+            let inv = 1.0 / sqrt_weight;
+            s.inv_sqrt_weight[i] = inv;
+            for k in 0..3 {
+                s.g1_f[k][i] = p.g1_f[k][i] * inv;
+                s.g1_tau[k][i] = p.g1_tau[k][i] * inv;
+            }
+            s.lower[i] = p.u_min[i] * sqrt_weight;
+            s.upper[i] = p.u_max[i] * sqrt_weight;
+        }
+        s
+    }
+}
+
+/// The thrust-axis solver. Keeps the last dominant direction (IMU coordinates) to warm-start the
+/// power iteration of the next call: the effectiveness estimate changes slowly, so successive
+/// calls keep improving the same eigenvector (paper §3.3, step 4).
+#[derive(Clone, Copy, Debug)]
+pub struct ThrustAxisSolver {
+    config: SolverConfig,
+    /// Unit vector, IMU coordinates: the last dominant eigenvector of `C`.
+    warm_dir: [f32; 3],
+}
+
+impl Default for ThrustAxisSolver {
+    fn default() -> Self {
+        Self::new(SolverConfig::default())
+    }
+}
+
+impl ThrustAxisSolver {
+    /// A solver with no history: the first iterate is "thrust along −z of the IMU" (a board
+    /// mounted flat, FRD), a good guess for most airframes.
+    pub const fn new(config: SolverConfig) -> Self {
+        ThrustAxisSolver { config, warm_dir: THRUST_DIR_THRUST_FRAME }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> SolverConfig {
+        self.config
+    }
+
+    /// Solve problem (6) for `problem`. Bounded time: one 3-column QR, at most
+    /// `max_squarings` 3 × 3 squarings, and (only when the heuristic's `u*` leaves the bounds
+    /// and `bounded_search` is on) the active-set search of [`bounded`].
+    pub fn solve(&mut self, problem: &HoverProblem) -> Result<HoverSolution, ThrustAxisError> {
+        let s = ScaledProblem::new(problem);
+        let m = s.motors;
+
+        // Step 2: null space of G̃1τ by pivoted QR of G̃1τᵀ (columns = rows of G̃1τ).
+        let qr = PivotedQr3::factor(s.g1_tau, m);
+        if qr.rank < 3 {
+            return Err(ThrustAxisError::TorqueRankDeficient { rank: qr.rank as u8 });
+        }
+        // Rows of Qᵀ G̃1fᵀ; entries 3..m of row k are row k of B = G̃1f N.
+        let mut b = s.g1_f;
+        let mut force_scale2 = 0.0;
+        for row in b.iter_mut() {
+            force_scale2 += row[..m].iter().map(|x| x * x).sum::<f32>();
+            qr.apply_qt(row);
+        }
+
+        // Step 3: C = B Bᵀ and its dominant eigenvector by warm-started power iteration.
+        let mut c = [[0.0f32; 3]; 3];
+        for i in 0..3 {
+            for j in i..3 {
+                let dot: f32 = (3..m).map(|l| b[i][l] * b[j][l]).sum();
+                c[i][j] = dot;
+                c[j][i] = dot;
+            }
+        }
+        let w = dominant_direction(&c, self.warm_dir, self.config.max_squarings);
+        let cw = mat3_vec(&c, w);
+        let eigenvalue = dot3(w, cw);
+        if !(eigenvalue > ZERO_EIGEN * force_scale2) {
+            return if eigenvalue.is_finite() {
+                Err(ThrustAxisError::NoZeroTorqueThrust)
+            } else {
+                Err(ThrustAxisError::NumericalFailure)
+            };
+        }
+        self.warm_dir = w;
+
+        // Step 4: η = Bᵀw g/‖Cw‖, ũ = Q [0; η].
+        let scale = s.g_mps2 / norm3(cw);
+        let mut u_scaled = [0.0f32; MOTORS_MAX];
+        for (l, slot) in u_scaled.iter_mut().enumerate().take(m).skip(3) {
+            *slot = (b[0][l] * w[0] + b[1][l] * w[1] + b[2][l] * w[2]) * scale;
+        }
+        qr.apply_q(&mut u_scaled);
+
+        let mut bounded = false;
+        let u_scaled = match pick_sign(&s, &u_scaled) {
+            Some(u) => u,
+            None if self.config.bounded_search => {
+                bounded = true;
+                bounded::optimum(&s, force_scale2).ok_or(ThrustAxisError::NoHoverWithinBounds)?
+            }
+            None => return Err(ThrustAxisError::NoHoverWithinBounds),
+        };
+        finish(problem, &s, &u_scaled, eigenvalue, bounded)
+    }
+}
+
+/// Step 6 and the final checks: unscale, `d = G1f u`, quaternion.
+fn finish(
+    problem: &HoverProblem,
+    s: &ScaledProblem,
+    u_scaled: &[f32; MOTORS_MAX],
+    eigenvalue: f32,
+    bounded: bool,
+) -> Result<HoverSolution, ThrustAxisError> {
+    let m = s.motors;
+    let mut u_hover = [0.0f32; MOTORS_MAX];
+    let mut cost = 0.0;
+    for i in 0..m {
+        u_hover[i] = (u_scaled[i] * s.inv_sqrt_weight[i]).clamp(problem.u_min[i], problem.u_max[i]);
+        cost += u_scaled[i] * u_scaled[i];
+    }
+    let mut d = [0.0f32; 3];
+    for (k, dk) in d.iter_mut().enumerate() {
+        *dk = (0..m).map(|i| problem.g1_f[k][i] * u_hover[i]).sum();
+    }
+    let d_norm = norm3(d);
+    if !(d_norm > 0.0 && d_norm.is_finite() && cost.is_finite()) {
+        return Err(ThrustAxisError::NumericalFailure);
+    }
+    let thrust_dir_imu = [d[0] / d_norm, d[1] / d_norm, d[2] / d_norm];
+    Ok(HoverSolution {
+        motors: m,
+        u_hover,
+        thrust_dir_imu,
+        q_thrust_to_imu: shortest_arc_from_down(thrust_dir_imu),
+        eigenvalue,
+        bounded,
+        cost,
+    })
+}
+
+/// Power iteration on the symmetric positive semi-definite 3 × 3 `c` from `warm` (unit), by
+/// repeated squaring; returns a unit vector (the warm vector itself if `c` is zero or invalid).
+fn dominant_direction(c: &[[f32; 3]; 3], warm: [f32; 3], max_squarings: u8) -> [f32; 3] {
+    let mut p = *c;
+    let trace = p[0][0] + p[1][1] + p[2][2];
+    if !(trace > 0.0 && trace.is_finite()) {
+        return warm;
+    }
+    scale3(&mut p, 1.0 / trace);
+    for _ in 0..max_squarings {
+        // e₂ = Σ principal 2 × 2 minors; tr(p) = 1 here.
+        let e2 = p[0][0] * p[1][1] - p[0][1] * p[0][1] + p[0][0] * p[2][2] - p[0][2] * p[0][2]
+            + p[1][1] * p[2][2]
+            - p[1][2] * p[1][2];
+        if e2 <= POWER_CONVERGED {
+            break;
+        }
+        let mut sq = [[0.0f32; 3]; 3];
+        for i in 0..3 {
+            for j in i..3 {
+                let v = p[i][0] * p[0][j] + p[i][1] * p[1][j] + p[i][2] * p[2][j];
+                sq[i][j] = v;
+                sq[j][i] = v;
+            }
+        }
+        let t = sq[0][0] + sq[1][1] + sq[2][2];
+        if !(t > 0.0) {
+            break;
+        }
+        scale3(&mut sq, 1.0 / t);
+        p = sq;
+    }
+    let mut x = mat3_vec(&p, warm);
+    let mut dominant = 0;
+    for j in 1..3 {
+        if p[j][j] > p[dominant][dominant] {
+            dominant = j;
+        }
+    }
+    if !(norm3(x) >= POWER_RESEED * p[dominant][dominant]) {
+        x = [p[0][dominant], p[1][dominant], p[2][dominant]];
+    }
+    let n = norm3(x);
+    if !(n > 0.0 && n.is_finite()) {
+        return warm;
+    }
+    [x[0] / n, x[1] / n, x[2] / n]
+}
+
+/// The sign of `ũ` (or `−ũ`) that fits the scaled bounds, as the paper prescribes; both fit:
+/// the one with the positive command sum. Entries within [`BOUND_TOLERANCE`] are accepted.
+fn pick_sign(s: &ScaledProblem, u: &[f32; MOTORS_MAX]) -> Option<[f32; MOTORS_MAX]> {
+    let positive = within_bounds(s, u, 1.0);
+    let negative = within_bounds(s, u, -1.0);
+    let sum: f32 = u[..s.motors].iter().sum();
+    let sign = match (positive, negative) {
+        (true, true) if sum >= 0.0 => 1.0,
+        (true, true) => -1.0,
+        (true, false) => 1.0,
+        (false, true) => -1.0,
+        (false, false) => return None,
+    };
+    let mut out = [0.0; MOTORS_MAX];
+    for i in 0..s.motors {
+        out[i] = sign * u[i];
+    }
+    Some(out)
+}
+
+fn within_bounds(s: &ScaledProblem, u: &[f32; MOTORS_MAX], sign: f32) -> bool {
+    (0..s.motors).all(|i| {
+        let tolerance = BOUND_TOLERANCE * (libm::fabsf(s.lower[i]) + libm::fabsf(s.upper[i]));
+        let value = sign * u[i];
+        value >= s.lower[i] - tolerance && value <= s.upper[i] + tolerance
+    })
+}
+
+fn mat3_vec(a: &[[f32; 3]; 3], x: [f32; 3]) -> [f32; 3] {
+    [dot3(a[0], x), dot3(a[1], x), dot3(a[2], x)]
+}
+
+fn dot3(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn norm3(a: [f32; 3]) -> f32 {
+    libm::sqrtf(dot3(a, a))
+}
+
+fn scale3(a: &mut [[f32; 3]; 3], factor: f32) {
+    a.iter_mut().flatten().for_each(|x| *x *= factor);
+}
