@@ -1,0 +1,203 @@
+//! Framing: how one message becomes bytes on the link, and how a byte stream becomes messages.
+//!
+//! ```text
+//! raw   = id: u8 | seq: u16 (postcard varint) | payload (postcard) | crc: u32 LE
+//! frame = COBS(raw) | 0x00
+//! ```
+//! The CRC is CRC-32C (Castagnoli, [`crc::CRC_32_ISCSI`]) over `id | seq | payload`: it detects all
+//! burst errors up to 32 bits and has Hamming distance 6 for frames of our size. COBS makes 0x00 a
+//! reliable frame delimiter, so a decoder that lost sync (garbage, a truncated frame, a reset
+//! board) is back in step at the next 0x00.
+//!
+//! Encoding serialises the message straight into the caller's transmit buffer through postcard's
+//! CRC and COBS flavors: no intermediate copy. Decoding accumulates one frame, COBS-decodes it in
+//! place, checks the CRC and hands out the payload as a borrowed slice.
+
+use serde::Serialize;
+
+/// Largest encoded frame, bytes on the wire including the 0x00 delimiter. 256 keeps a frame in
+/// four USB full-speed CDC packets and bounds every buffer on the board.
+pub const MAX_FRAME_LEN: usize = 256;
+/// Largest raw frame (before COBS): COBS adds one byte per started 254 bytes, plus the delimiter.
+/// COBS needs at most one byte per 254 raw bytes plus one: 253 raw bytes encode in at most 254.
+pub const MAX_RAW_LEN: usize = 253;
+/// Bytes of the CRC at the end of every raw frame.
+pub const CRC_LEN: usize = 4;
+/// Smallest raw frame: id (1 byte), seq (at least 1 byte) and the CRC.
+pub const MIN_RAW_LEN: usize = 2 + CRC_LEN;
+
+/// The frame CRC: CRC-32C.
+pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+
+/// A frame that passed COBS and CRC checks, borrowing the decoder's buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Frame<'a> {
+    /// Message id from the table in `messages.rs`.
+    pub id: u8,
+    /// Sequence number: the request's for a request and its response, per topic for telemetry.
+    pub seq: u16,
+    /// The postcard-encoded message body.
+    pub payload: &'a [u8],
+}
+
+/// Why bytes did not make a frame. The decoder has already dropped them and is looking for the
+/// next delimiter; nothing else is affected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameError {
+    /// More than [`MAX_FRAME_LEN`] bytes without a delimiter; discarded up to the next 0x00.
+    Oversize,
+    /// The bytes between two delimiters are not valid COBS.
+    BadCobs,
+    /// Too short to hold an id, a sequence number and a CRC (`len` raw bytes).
+    TooShort { len: u16 },
+    /// The CRC did not match: a corrupted frame.
+    BadCrc { expected: u32, actual: u32 },
+    /// The sequence number did not decode.
+    BadHeader,
+}
+
+/// Why a message could not be encoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EncodeError {
+    /// The output buffer (or [`MAX_FRAME_LEN`]) is too small for this message.
+    BufferFull,
+}
+
+/// Encode one message into `out`, returning the number of bytes written (delimiter included).
+///
+/// At most [`MAX_FRAME_LEN`] bytes of `out` are used; a message that does not fit is an error and
+/// leaves `out`'s contents unspecified but nothing else changed.
+pub fn encode<T: Serialize + ?Sized>(
+    id: u8,
+    seq: u16,
+    payload: &T,
+    out: &mut [u8],
+) -> Result<usize, EncodeError> {
+    let limit = out.len().min(MAX_FRAME_LEN);
+    let flavor =
+        postcard::ser_flavors::Cobs::try_new(postcard::ser_flavors::Slice::new(&mut out[..limit]))
+            .map_err(|_| EncodeError::BufferFull)?;
+    let flavor = postcard::ser_flavors::crc::CrcModifier::new(flavor, CRC.digest());
+    let written = postcard::serialize_with_flavor(&(id, seq, payload), flavor)
+        .map_err(|_| EncodeError::BufferFull)?;
+    Ok(written.len())
+}
+
+/// A streaming frame decoder: feed it any bytes, one at a time; it never panics, never allocates,
+/// and resynchronises at the next 0x00 after any error.
+pub struct Decoder {
+    buffer: [u8; MAX_FRAME_LEN],
+    len: usize,
+    /// Set after an oversize frame: drop bytes until the next delimiter.
+    discarding: bool,
+}
+
+impl Default for Decoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Decoder {
+    pub const fn new() -> Self {
+        Self { buffer: [0; MAX_FRAME_LEN], len: 0, discarding: false }
+    }
+
+    /// Push one byte. Returns a frame or an error when `byte` completes (or overflows) one;
+    /// `None` while a frame is still being received, and for empty frames (consecutive 0x00,
+    /// which senders may use to flush a receiver).
+    pub fn push(&mut self, byte: u8) -> Option<Result<Frame<'_>, FrameError>> {
+        if byte != 0 {
+            if self.discarding {
+                return None;
+            }
+            if self.len == MAX_FRAME_LEN - 1 {
+                self.len = 0;
+                self.discarding = true;
+                return Some(Err(FrameError::Oversize));
+            }
+            self.buffer[self.len] = byte;
+            self.len += 1;
+            return None;
+        }
+        let encoded_len = core::mem::replace(&mut self.len, 0);
+        if core::mem::replace(&mut self.discarding, false) || encoded_len == 0 {
+            return None;
+        }
+        Some(parse(&mut self.buffer[..encoded_len]))
+    }
+}
+
+/// COBS-decode `encoded` in place, check its CRC and split the header from the payload.
+fn parse(encoded: &mut [u8]) -> Result<Frame<'_>, FrameError> {
+    let raw_len = cobs::decode_in_place(encoded).map_err(|_| FrameError::BadCobs)?;
+    let raw = &encoded[..raw_len];
+    if raw_len < MIN_RAW_LEN {
+        return Err(FrameError::TooShort { len: raw_len as u16 });
+    }
+    let (body, crc_bytes) = raw.split_at(raw_len - CRC_LEN);
+    let expected = u32::from_le_bytes([crc_bytes[0], crc_bytes[1], crc_bytes[2], crc_bytes[3]]);
+    let actual = CRC.checksum(body);
+    if expected != actual {
+        return Err(FrameError::BadCrc { expected, actual });
+    }
+    let (id, rest) = (body[0], &body[1..]);
+    let (seq, payload) =
+        postcard::take_from_bytes::<u16>(rest).map_err(|_| FrameError::BadHeader)?;
+    Ok(Frame { id, seq, payload })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn decode_all(bytes: &[u8]) -> Vec<Result<(u8, u16, Vec<u8>), FrameError>> {
+        let mut decoder = Decoder::new();
+        let mut out = Vec::new();
+        for &byte in bytes {
+            if let Some(result) = decoder.push(byte) {
+                out.push(result.map(|f| (f.id, f.seq, f.payload.to_vec())));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn largest_message_fits_the_frame_limit_and_one_byte_more_does_not() {
+        let mut out = [0u8; 2 * MAX_FRAME_LEN];
+        let fits = |n: usize, out: &mut [u8]| encode(0x42, 0xFFFF, &vec![0xAAu8; n][..], out);
+        let largest = (0..MAX_FRAME_LEN).rev().find(|&n| fits(n, &mut out).is_ok()).unwrap();
+        // id 1 + seq 3 (varint of 0xFFFF) + length 2 (varint of ≥ 128) + payload + CRC 4 ≤ raw limit.
+        assert_eq!(1 + 3 + 2 + largest + CRC_LEN, MAX_RAW_LEN);
+        let len = fits(largest, &mut out).unwrap();
+        assert_eq!(len, MAX_FRAME_LEN - 1, "253 raw bytes without zeros: 254 COBS bytes + 0x00");
+        let decoded = decode_all(&out[..len]);
+        assert!(fits(largest + 1, &mut out).is_err());
+        let Ok((0x42, 0xFFFF, payload)) = &decoded[0] else { panic!("{decoded:?}") };
+        assert_eq!(payload.len(), largest + 2);
+        assert!(payload[2..].iter().all(|&b| b == 0xAA));
+    }
+
+    #[test]
+    fn oversize_input_is_reported_once_and_the_next_frame_decodes() {
+        let mut stream = vec![0x55u8; 1000];
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let len = encode(1, 2, &3u8, &mut frame).unwrap();
+        stream.push(0);
+        stream.extend_from_slice(&frame[..len]);
+        let results = decode_all(&stream);
+        assert_eq!(results, vec![Err(FrameError::Oversize), Ok((1, 2, vec![3]))]);
+    }
+
+    #[test]
+    fn corrupted_byte_is_a_crc_error() {
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let len = encode(1, 2, &[1u8, 2, 3, 4], &mut frame).unwrap();
+        frame[4] ^= 0x10;
+        let results = decode_all(&frame[..len]);
+        assert!(matches!(
+            results[..],
+            [Err(FrameError::BadCrc { .. })] | [Err(FrameError::BadCobs)]
+        ));
+    }
+}

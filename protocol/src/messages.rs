@@ -1,0 +1,323 @@
+//! The message table: every type that crosses the link, in this one file.
+//!
+//! The schema hash ([`crate::SCHEMA_HASH`]) is computed from this file's text with comments and
+//! white space removed, so any change to a wire type changes the hash. A change to the golden
+//! bytes in `tests/golden.rs` is a protocol version change: bump [`crate::PROTOCOL_VERSION`].
+//!
+//! Frozen across all major versions, so that two sides of different majors can still tell each
+//! other so: the ids of [`Request::Hello`] and [`DeviceMessage::Response`], the layout of
+//! [`Hello`], the `Result` envelope of [`Response`], [`Reply::Hello`] being variant 0 with
+//! [`Info::protocol`] as its first field, and [`DeviceError::IncompatibleProtocol`] being variant 0.
+//!
+//! Only fixed-size types go on the wire: integers of stated width, `f32`, arrays, and
+//! `heapless::String` with a stated capacity. Never `usize`.
+
+use heapless::String;
+use serde::{Deserialize, Serialize};
+
+/// Capacity of the board-name string, bytes of UTF-8.
+pub const BOARD_NAME_LEN: usize = 32;
+/// Capacity of a parameter or field name in an error, bytes of UTF-8.
+pub const NAME_LEN: usize = 24;
+/// Capacity of a unit label in an error, bytes of UTF-8.
+pub const UNIT_LEN: usize = 8;
+/// Maximum number of motors an airframe may have; fixes array sizes on the wire.
+pub const MAX_MOTORS: usize = 8;
+/// Number of telemetry topics (the variants of [`Topic`]).
+pub const TOPIC_COUNT: usize = 3;
+/// Highest telemetry rate a host may request for one topic, Hz (half the 2 kHz control rate, so
+/// a topic never needs more than every second control step).
+pub const MAX_TELEMETRY_RATE_HZ: u16 = 1000;
+
+/// A protocol version. Different majors cannot talk (both sides refuse, naming both versions);
+/// a newer minor on either side degrades to what the older side knows.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Version {
+    pub major: u8,
+    pub minor: u8,
+}
+
+/// A firmware release version (semantic versioning).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FirmwareVersion {
+    pub major: u8,
+    pub minor: u8,
+    pub patch: u8,
+}
+
+/// What a board can do, as bit flags (`Capabilities::IMU | ...`).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Capabilities(pub u32);
+
+impl Capabilities {
+    /// An IMU driver is present and delivers samples.
+    pub const IMU: u32 = 1 << 0;
+    /// Motor outputs are driven.
+    pub const MOTORS: u32 = 1 << 1;
+    /// Motors report their speed (bidirectional DShot or the simulator).
+    pub const MOTOR_RPM: u32 = 1 << 2;
+    /// Telemetry topics can be streamed.
+    pub const TELEMETRY: u32 = 1 << 3;
+    /// Settings persist in flash.
+    pub const PERSISTENT_STORE: u32 = 1 << 4;
+    /// This is the software-in-the-loop simulator, not hardware.
+    pub const SIMULATOR: u32 = 1 << 5;
+
+    /// Whether every flag in `flags` is set.
+    pub fn has(self, flags: u32) -> bool {
+        self.0 & flags == flags
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Host → device
+// ---------------------------------------------------------------------------------------------
+
+/// The first request on every connection. Frozen layout.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Hello {
+    /// The host's protocol version.
+    pub protocol: Version,
+    /// The host's [`crate::SCHEMA_HASH`].
+    pub schema_hash: u64,
+}
+
+/// A telemetry topic.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Topic {
+    /// Raw IMU samples ([`ImuTelemetry`]).
+    Imu,
+    /// Control-loop timing and health ([`ControlTelemetry`]).
+    Control,
+    /// Motor commands and speeds ([`MotorTelemetry`]).
+    Motors,
+}
+
+impl Topic {
+    /// All topics, in wire order.
+    pub const ALL: [Topic; TOPIC_COUNT] = [Topic::Imu, Topic::Control, Topic::Motors];
+
+    /// The topic's index into [`Topic::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// Set how often a topic is streamed.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SetTelemetryRate {
+    pub topic: Topic,
+    /// 0 stops the topic; 1 to [`MAX_TELEMETRY_RATE_HZ`] Hz.
+    pub rate_hz: u16,
+}
+
+/// Echo request for measuring round trips.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ping {
+    pub nonce: u32,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Device → host
+// ---------------------------------------------------------------------------------------------
+
+/// The answer to every request (matched by the frame's sequence number).
+pub type Response = Result<Reply, DeviceError>;
+
+/// A successful answer.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub enum Reply {
+    /// Answer to [`Request::Hello`]: the board's identity. Variant 0, frozen.
+    Hello(Info),
+    /// Answer to [`Request::GetInfo`].
+    Info(Info),
+    /// Answer to [`Request::GetStatus`].
+    Status(Status),
+    /// The request was carried out; nothing to report.
+    Done,
+    /// Answer to [`Request::Ping`], echoing its nonce.
+    Pong(Ping),
+}
+
+/// Why a request was not carried out. Each variant's doc states what the host should do.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub enum DeviceError {
+    /// Major protocol versions differ: nothing else will be answered. Update the older side.
+    /// Variant 0, frozen.
+    IncompatibleProtocol { device: Version, host: Version },
+    /// Only [`Request::Hello`] is answered before a successful handshake: send it first.
+    HandshakeRequired,
+    /// The request's message id is not in the device's table (a newer host?): not carried out.
+    UnknownRequest { id: u8 },
+    /// The request's payload did not decode for its id: not carried out; a host bug.
+    Malformed { id: u8 },
+    /// A value is outside its allowed range: nothing was changed.
+    BadValue { name: String<NAME_LEN>, value: f32, min: f32, max: f32, unit: String<UNIT_LEN> },
+    /// The device is busy with an operation that excludes this one: retry later.
+    Busy,
+    /// Refused because the craft is armed: disarm first.
+    RefusedWhileArmed,
+}
+
+/// The board's identity and abilities (the handshake reply).
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct Info {
+    /// The device's protocol version. First field, frozen.
+    pub protocol: Version,
+    /// The device's [`crate::SCHEMA_HASH`].
+    pub schema_hash: u64,
+    pub firmware: FirmwareVersion,
+    /// Board name, e.g. "STM32H743" or "SITL".
+    pub board: String<BOARD_NAME_LEN>,
+    /// Unique id of this board (the MCU's UID in hex, or the simulator's instance id).
+    pub serial: String<BOARD_NAME_LEN>,
+    pub capabilities: Capabilities,
+    /// Rate of the control step, Hz.
+    pub control_rate_hz: u16,
+    /// Number of motor outputs configured.
+    pub motor_count: u8,
+}
+
+/// A snapshot of the board's state.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct Status {
+    /// Time since start-up, ms.
+    pub uptime_ms: u32,
+    pub armed: bool,
+    pub control: ControlStatus,
+    pub imu: ImuStatus,
+    pub link: LinkCounters,
+}
+
+/// Health of the 2 kHz control step and of the queue into the background task.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct ControlStatus {
+    /// Control steps run since start-up.
+    pub steps: u32,
+    /// Measured mean step rate over the last second, Hz.
+    pub rate_hz: f32,
+    /// Steps that started more than half a period late (missed deadlines).
+    pub late_steps: u32,
+    /// Longest interval between two steps, µs.
+    pub max_interval_us: u32,
+    /// Learner samples the background task has processed.
+    pub samples_processed: u32,
+    /// Learner samples dropped because the queue to the background task was full.
+    pub samples_dropped: u32,
+}
+
+/// The IMU as the control step sees it.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct ImuStatus {
+    /// Whether samples are arriving.
+    pub present: bool,
+    /// Samples received since start-up.
+    pub samples: u32,
+    /// Control steps that found no new sample.
+    pub missing: u32,
+    /// Latest angular rate, rad/s, IMU axes.
+    pub gyro_rad_s: [f32; 3],
+    /// Latest specific force, m/s², IMU axes.
+    pub accel_mps2: [f32; 3],
+    /// Gyro mean over the last completed one-second window, rad/s (the bias when at rest).
+    pub gyro_mean_rad_s: [f32; 3],
+    /// Gyro standard deviation over that window, rad/s (the noise when at rest).
+    pub gyro_std_rad_s: [f32; 3],
+    /// Accelerometer standard deviation over that window, m/s².
+    pub accel_std_mps2: [f32; 3],
+}
+
+/// Frame counters of the device's side of the link.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct LinkCounters {
+    /// Valid frames received.
+    pub frames_rx: u32,
+    /// Frames sent (responses, telemetry, events).
+    pub frames_tx: u32,
+    /// Frames whose CRC did not match.
+    pub bad_crc: u32,
+    /// Frames with invalid COBS or too short to hold a header and CRC.
+    pub bad_framing: u32,
+    /// Frames longer than [`crate::MAX_FRAME_LEN`].
+    pub oversize: u32,
+    /// Frames with a message id the device does not know.
+    pub unknown_id: u32,
+    /// Frames whose payload did not decode.
+    pub malformed: u32,
+    /// Telemetry frames dropped for lack of transmit space.
+    pub telemetry_dropped: u32,
+    /// Responses dropped for lack of transmit space (the host sent requests without reading).
+    pub responses_dropped: u32,
+}
+
+/// One telemetry sample; the frame's sequence number counts samples of its topic, so the host
+/// sees every dropped one as a gap.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub enum Telemetry {
+    Imu(ImuTelemetry),
+    Control(ControlTelemetry),
+    Motors(MotorTelemetry),
+}
+
+/// The latest IMU sample.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct ImuTelemetry {
+    /// Device time of the sample, µs since start-up.
+    pub t_us: u64,
+    pub gyro_rad_s: [f32; 3],
+    pub accel_mps2: [f32; 3],
+}
+
+/// Control-loop health.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct ControlTelemetry {
+    pub t_us: u64,
+    pub steps: u32,
+    pub late_steps: u32,
+    pub samples_dropped: u32,
+}
+
+/// Motor commands and speeds.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct MotorTelemetry {
+    pub t_us: u64,
+    /// Commands δ ∈ [0, 1].
+    pub commands: [f32; MAX_MOTORS],
+    /// Speeds from RPM telemetry, rad/s; `None` where a motor has not reported.
+    pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
+}
+
+/// An asynchronous notice; the frame's sequence number counts events.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub enum Event {
+    /// Bad frames arrived since the last such event (at most one per 100 ms); totals so far.
+    LinkErrors(LinkCounters),
+}
+
+// ---------------------------------------------------------------------------------------------
+// The table: message ids. Requests go host → device; device messages go device → host.
+// ---------------------------------------------------------------------------------------------
+
+crate::table::message_table! {
+    /// Everything the host sends.
+    pub enum Request {
+        /// Handshake. Frozen id.
+        0x01 => Hello(Hello),
+        0x02 => GetInfo(()),
+        0x03 => GetStatus(()),
+        0x04 => SetTelemetryRate(SetTelemetryRate),
+        0x05 => Ping(Ping),
+    }
+}
+
+crate::table::message_table! {
+    /// Everything the device sends.
+    pub enum DeviceMessage {
+        /// The answer to the request with the same sequence number. Frozen id.
+        0x81 => Response(Response),
+        /// Sequence number: per topic.
+        0x82 => Telemetry(Telemetry),
+        /// Sequence number: per link.
+        0x83 => Event(Event),
+    }
+}
