@@ -162,3 +162,20 @@ fn a_truncated_frame_without_a_delimiter_swallows_only_the_frame_it_runs_into() 
     assert!(outcome[0].is_err());
     assert_eq!(outcome[1].clone().map(|(id, seq, _)| (id, seq)), Ok((0x02, 3)));
 }
+
+#[test]
+fn largest_message_fits_the_frame_limit_and_one_byte_more_does_not() {
+    use protocol::frame::{CRC_LEN, MAX_RAW_LEN};
+    let mut out = [0u8; 2 * MAX_FRAME_LEN];
+    let fits = |n: usize, out: &mut [u8]| encode(0x42, 0xFFFF, &vec![0xAAu8; n][..], out);
+    let largest = (0..MAX_FRAME_LEN).rev().find(|&n| fits(n, &mut out).is_ok()).unwrap();
+    // id 1 + seq 3 (varint of 0xFFFF) + length 2 (varint of ≥ 128) + payload + CRC = raw limit.
+    assert_eq!(1 + 3 + 2 + largest + CRC_LEN, MAX_RAW_LEN);
+    let len = fits(largest, &mut out).unwrap();
+    assert_eq!(len, MAX_FRAME_LEN - 1, "253 raw bytes without zeros: 254 COBS bytes + 0x00");
+    let outcome = decode_stream(&out[..len]);
+    let Ok((0x42, 0xFFFF, payload)) = &outcome[0] else { panic!("{outcome:?}") };
+    assert_eq!(payload.len(), largest + 2);
+    assert!(payload[2..].iter().all(|&b| b == 0xAA));
+    assert!(fits(largest + 1, &mut out).is_err());
+}
