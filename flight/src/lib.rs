@@ -5,3 +5,8 @@
 //! no HAL: callers pass samples and time steps in.
 #![cfg_attr(not(feature = "std"), no_std)]
 pub mod thrust_axis;
+
+pub mod filters;
+pub mod imu_offset;
+#[cfg(any(test, feature = "std"))]
+pub mod testing;

@@ -1,0 +1,396 @@
+//! IMU offset `r`: where the IMU sits relative to the centre of gravity, learned from throws.
+//!
+//! # What
+//! In free fall no external force acts (apart from a little drag), so an accelerometer at offset
+//! `r` from the centre of gravity reads only the rotational terms (seed paper §3.2, eq. 2–3):
+//! `f = Ω̇ × r + Ω × (Ω × r) = X(Ω, Ω̇) r`, linear in `r`. Throwing the craft (spinning) and
+//! catching it gives hundreds of milliseconds of such data. This module
+//! 1. finds the free-fall segments in the IMU stream (the published firmware had no free-fall
+//!    detector) and trims their edges so the hand never contributes ([`ImuOffsetEstimator`]);
+//! 2. filters gyro and accelerometer with the same low-pass and differentiates the filtered gyro
+//!    with a central difference, so `X(Ω, Ω̇)` and `f` line up in time ([`front_end`]);
+//! 3. accumulates the least-squares normal equations recursively (constant memory, `f32` on the
+//!    board; the information form of RLS, see `moments`), or in `f64` over logs ([`BatchFitter`]);
+//! 4. reports `r̂` with an *honest* 95 % confidence ellipsoid and a verdict on the excitation
+//!    ([`Estimate`], [`Verdict`]); optionally a constant accelerometer bias is fitted jointly.
+//!
+//! # Why the ellipsoid is corrected
+//! The paper's ellipsoid `Σ = SE² (XᵀX)⁻¹`, `SE² = ‖y − X r̂‖² / (N − 3)` assumes independent
+//! residuals. After a 50 Hz low-pass at several kHz, neighbouring residuals are strongly
+//! correlated, so the effective number of independent samples is far below `N` and the paper's
+//! ellipsoid is too small (measured: the truth fell inside it in well under half of simulated
+//! two-throw fits). We replace `SE²` by the residuals' *long-run variance* estimated by batch
+//! means: the rows are grouped in blocks of [`Config::block_s`] (20 ms, several correlation times
+//! of the filter), and `σ²_LR = Σ_b ‖Σ_{n∈b} e_n‖² / (L (3 n_b − p))` for `n_b` blocks of `L` rows
+//! and `p` unknowns. Then `Σ = σ²_LR (XᵀX)⁻¹`. This is exact for white noise (`σ²_LR = σ²`), and
+//! for correlated noise it is the standard (Newey–West-style) variance of least squares with
+//! slowly varying regressors. The ratio `σ²_LR / SE²` is reported as
+//! [`Estimate::variance_inflation`] (the factor by which the paper's `N` overstates the number of
+//! independent samples). Coverage measured in Monte Carlo: see the tests of this module.
+//!
+//! # Units and frames
+//! IMU frame throughout; rates in rad/s, specific force in m/s², offsets in m, times in s.
+
+mod batch;
+pub mod front_end;
+mod moments;
+mod solve;
+mod stream;
+#[cfg(test)]
+mod tests;
+
+pub use batch::{BatchFitter, LogSegment};
+pub use front_end::{regressor, AlignedSample, FrontEnd};
+pub use stream::{ImuOffsetEstimator, OffsetRls};
+
+use nalgebra::{Matrix3, RealField, Vector3};
+
+/// The scalar types the estimator runs in: `f32` on the board, `f64` on the host.
+pub trait Scalar: RealField + Copy + From<f32> {}
+impl Scalar for f32 {}
+impl Scalar for f64 {}
+
+/// One raw IMU sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuSample {
+    /// Body rate (rad/s, IMU frame).
+    pub gyro_radps: Vector3<f32>,
+    /// Specific force (m/s², IMU frame): what the accelerometer reads (−g·ẑ when level at rest).
+    pub acc_mps2: Vector3<f32>,
+}
+
+/// Lowest accepted IMU sample rate (Hz): the 50 Hz default low-pass needs at least 4× margin to
+/// Nyquist for its design figures to hold (`filters::MAX_CUTOFF_FRACTION`), and typical IMU
+/// output data rates start here.
+pub const MIN_RATE_HZ: f32 = 500.0;
+/// Highest accepted IMU sample rate (Hz): the ICM-42688-P's fastest useful output rate; the
+/// sample counters and `f32` sums are sized for it.
+pub const MAX_RATE_HZ: f32 = 8000.0;
+
+/// χ²₃(0.95): the 95 % quantile of the chi-squared distribution with 3 degrees of freedom
+/// (`iCDF(χ²₃, 0.95)`, seed paper §4.1).
+pub const CHI2_3DOF_95: f32 = 7.8147;
+
+/// Most free-fall segments one estimator keeps; further throws are counted and ignored.
+pub const MAX_SEGMENTS: usize = 16;
+
+/// Which unknowns are fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Model {
+    /// `r` only (3 unknowns), as in the seed paper.
+    Offset,
+    /// `r` and a constant accelerometer bias `b` (6 unknowns): `f = X r + b`.
+    OffsetAndAccBias,
+}
+
+/// Tunables of the estimator. [`Config::default`] documents the origin of every default.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Config {
+    /// Unknowns to fit.
+    pub model: Model,
+    /// Cut-off of the matched 2nd-order Butterworth low-pass on gyro and accelerometer (Hz).
+    pub cutoff_hz: f32,
+    /// Free-fall test: `|f| < acc_floor_mps2 + max_offset_m (|Ω̇| + |Ω|²)` (filtered signals).
+    /// The floor covers noise, drag and accelerometer bias (m/s²).
+    pub acc_floor_mps2: f32,
+    /// Largest IMU offset the free-fall test allows for (m): in free fall `|f| ≤ |r| (|Ω̇| + |Ω|²)`.
+    pub max_offset_m: f32,
+    /// Shortest free fall accepted as a throw (s), measured before trimming.
+    pub min_free_fall_s: f32,
+    /// Samples dropped at each edge of a free fall (s): the hand's last and first touch plus the
+    /// low-pass settling.
+    pub trim_s: f32,
+    /// Block length for the batch-means variance and the end-of-segment rollback (s).
+    pub block_s: f32,
+    /// Largest 95 % semi-axis (m) for `r` to count as well determined.
+    pub max_semi_axis_m: f32,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            model: Model::Offset,
+            // Seed paper: 50 Hz offline. A tumble's content is a few Hz, so 50 Hz passes it with
+            // negligible distortion while removing most of the differentiated gyro noise.
+            cutoff_hz: 50.0,
+            // 0.3 g: far below the ≥ 1 g of any hand phase (holding, throwing, catching), far
+            // above noise (0.03 m/s²), drag at throwing speeds (≲ 0.2 m/s²) and MEMS bias.
+            acc_floor_mps2: 3.0,
+            // 5 cm: flight controllers of craft up to ~7-inch props sit closer than this to the
+            // centre of gravity. Raise for larger craft.
+            max_offset_m: 0.05,
+            // A throw worth fitting climbs ≥ 0.1 m (≥ 0.28 s of flight); hand motions that unload
+            // the IMU (a quick drop of the hand) last well under 0.15 s.
+            min_free_fall_s: 0.15,
+            // 40 ms = 18 ms low-pass settling at 50 Hz (4 time constants, `filters`) + ~20 ms for
+            // the hand's force to die out around the detection threshold.
+            trim_s: 0.04,
+            // 20 ms ≈ 4.4 filter time constants at 50 Hz, short enough for ≥ 15 blocks per throw.
+            block_s: 0.02,
+            // 2 mm: an offset error δr makes the centripetal compensation wrong by |Ω|² δr, i.e.
+            // 0.2 m/s² (1.2° of apparent tilt for an accelerometer-aided attitude filter) at
+            // 10 rad/s. The seed paper reports sub-millimetre bounds after two good throws.
+            max_semi_axis_m: 0.002,
+        }
+    }
+}
+
+/// A free-fall segment actually used for the fit: raw-sample indices `[start_index, end_index)`
+/// of the stream (index 0 = first sample fed), after trimming.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Segment {
+    /// First sample used.
+    pub start_index: u32,
+    /// One past the last sample used.
+    pub end_index: u32,
+}
+
+impl Segment {
+    /// Number of samples used.
+    pub fn len(&self) -> u32 {
+        self.end_index.saturating_sub(self.start_index)
+    }
+
+    /// True when no sample is used (never the case for a reported segment).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Time of the first sample used (s after the first sample fed).
+    pub fn t_start_s(&self, rate_hz: f32) -> f32 {
+        self.start_index as f32 / rate_hz
+    }
+
+    /// Time of the last sample used (s after the first sample fed).
+    pub fn t_end_s(&self, rate_hz: f32) -> f32 {
+        self.end_index.saturating_sub(1) as f32 / rate_hz
+    }
+}
+
+/// Why no estimate could be produced. Every fallible entry point returns one of these; nothing
+/// here panics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ImuOffsetError {
+    /// The sample rate is outside [`MIN_RATE_HZ`, `MAX_RATE_HZ`] or not finite.
+    RateOutOfRange {
+        /// The rejected rate (Hz).
+        rate_hz: f32,
+    },
+    /// A configuration value is out of range; the text names it.
+    InvalidConfig(&'static str),
+    /// A sample contains NaN or ±∞; the throw in progress (if any) is discarded.
+    NonFiniteInput {
+        /// Index of the offending sample in the stream or log.
+        index: u32,
+    },
+    /// A sample exceeds any IMU's range (|gyro| > 100 rad/s or |acc| > 2000 m/s² on an axis):
+    /// treated as corrupt, like a non-finite sample.
+    InputOutOfRange {
+        /// Index of the offending sample in the stream or log.
+        index: u32,
+    },
+    /// Logs of different sample rates cannot be pooled in one batch fit.
+    RateMismatch {
+        /// Rate of the logs already added (Hz).
+        expected_hz: f32,
+        /// Rate of the rejected log (Hz).
+        found_hz: f32,
+    },
+    /// No free-fall segment long enough was found.
+    NoFreeFall,
+    /// Too little data for a fit with an honest variance.
+    TooFewSamples {
+        /// Samples available.
+        used: u32,
+        /// Samples needed.
+        required: u32,
+    },
+    /// The normal equations are singular (no rotation at all in the data): `r` is unobservable.
+    Singular,
+}
+
+impl core::fmt::Display for ImuOffsetError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::RateOutOfRange { rate_hz } => {
+                write!(f, "sample rate {rate_hz} Hz is outside {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz")
+            }
+            Self::InvalidConfig(what) => write!(f, "invalid configuration: {what}"),
+            Self::NonFiniteInput { index } => write!(f, "sample {index} is NaN or infinite"),
+            Self::InputOutOfRange { index } => {
+                write!(f, "sample {index} exceeds any IMU's range (corrupt data)")
+            }
+            Self::RateMismatch { expected_hz, found_hz } => {
+                write!(f, "log at {found_hz} Hz cannot be pooled with logs at {expected_hz} Hz")
+            }
+            Self::NoFreeFall => f.write_str("no free fall found (throw the craft, spinning)"),
+            Self::TooFewSamples { used, required } => {
+                write!(f, "too few free-fall samples: {used} used, at least {required} needed")
+            }
+            Self::Singular => f.write_str("no rotation in the free-fall data: r is unobservable"),
+        }
+    }
+}
+
+/// An IMU axis, to tell the user what to spin about next.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ImuAxis {
+    /// IMU x (forward).
+    X,
+    /// IMU y (right).
+    Y,
+    /// IMU z (down).
+    Z,
+}
+
+impl ImuAxis {
+    /// The IMU axis most nearly perpendicular to `direction`.
+    pub fn most_perpendicular_to<T: Scalar>(direction: &Vector3<T>) -> Self {
+        let a = direction.map(|v| v.abs());
+        if a.x <= a.y && a.x <= a.z {
+            Self::X
+        } else if a.y <= a.z {
+            Self::Y
+        } else {
+            Self::Z
+        }
+    }
+
+    /// Lower-case name (`"x"`, `"y"`, `"z"`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::X => "x",
+            Self::Y => "y",
+            Self::Z => "z",
+        }
+    }
+}
+
+/// Is the excitation sufficient, and if not, what to do.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Verdict<T: Scalar> {
+    /// Every 95 % semi-axis is within [`Config::max_semi_axis_m`].
+    WellDetermined {
+        /// Largest 95 % semi-axis (m).
+        largest_semi_axis_m: T,
+    },
+    /// `r` is poorly determined along `direction_imu` (typically the spin axis of a throw about a
+    /// principal axis, where `Ω̇ ≈ 0` and eq. 4 loses that component): throw again spinning about
+    /// another axis.
+    PoorlyDetermined {
+        /// Unit vector (IMU frame) of the largest semi-axis of the 95 % ellipsoid of `r`.
+        direction_imu: Vector3<T>,
+        /// That semi-axis (m).
+        semi_axis_m: T,
+        /// The IMU axis most perpendicular to `direction_imu`: a spin about it observes it.
+        spin_next_about: ImuAxis,
+    },
+    /// `r` alone is well determined, but with a fitted accelerometer bias it is not: along
+    /// `direction_imu` the offset's centripetal term was nearly constant over the data and cannot
+    /// be told apart from a bias. Throw again at a different spin rate, about another axis.
+    BiasNotSeparable {
+        /// Unit vector (IMU frame) of the largest semi-axis of the 95 % ellipsoid of `r`.
+        direction_imu: Vector3<T>,
+        /// That semi-axis (m).
+        semi_axis_m: T,
+        /// The IMU axis most perpendicular to `direction_imu`.
+        spin_next_about: ImuAxis,
+    },
+}
+
+impl<T: Scalar> Verdict<T> {
+    /// True for [`Verdict::WellDetermined`].
+    pub fn is_well_determined(&self) -> bool {
+        matches!(self, Self::WellDetermined { .. })
+    }
+}
+
+/// The advice in words (no allocation: written straight into the formatter).
+impl<T: Scalar> core::fmt::Display for Verdict<T> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let mm: T = nalgebra::convert(1000.0);
+        match self {
+            Self::WellDetermined { largest_semi_axis_m } => write!(
+                f,
+                "well determined: largest 95 % semi-axis {:.2} mm",
+                *largest_semi_axis_m * mm
+            ),
+            Self::PoorlyDetermined { direction_imu: d, semi_axis_m, spin_next_about } => write!(
+                f,
+                "poorly determined along ({:.2}, {:.2}, {:.2}) in IMU axes (95 % semi-axis \
+                 {:.1} mm): throw again spinning about another axis, e.g. the IMU {} axis",
+                d.x,
+                d.y,
+                d.z,
+                *semi_axis_m * mm,
+                spin_next_about.name()
+            ),
+            Self::BiasNotSeparable { direction_imu: d, semi_axis_m, spin_next_about } => write!(
+                f,
+                "accelerometer bias and offset cannot be separated along ({:.2}, {:.2}, {:.2}) \
+                 in IMU axes (95 % semi-axis {:.1} mm): throw again at a different spin rate, \
+                 e.g. about the IMU {} axis, or fit without bias",
+                d.x,
+                d.y,
+                d.z,
+                *semi_axis_m * mm,
+                spin_next_about.name()
+            ),
+        }
+    }
+}
+
+/// A 95 % confidence ellipsoid `(r − r̂)ᵀ Σ⁻¹ (r − r̂) ≤ χ²₃(0.95)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ellipsoid<T: Scalar> {
+    /// Semi-axes (m), largest first: `√(λᵢ χ²₃(0.95))` for the eigenvalues `λᵢ` of `Σ`.
+    pub semi_axes_m: [T; 3],
+    /// Unit vectors (IMU frame) along the semi-axes, same order; sign chosen so the component
+    /// of largest magnitude is positive.
+    pub axes: [Vector3<T>; 3],
+}
+
+/// The fitted IMU offset with its uncertainty and verdict.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate<T: Scalar> {
+    /// Which unknowns were fitted.
+    pub model: Model,
+    /// Offset of the IMU from the centre of gravity (m, IMU frame).
+    pub r_imu_m: Vector3<T>,
+    /// Constant accelerometer bias (m/s², IMU frame), with [`Model::OffsetAndAccBias`].
+    pub acc_bias_mps2: Option<Vector3<T>>,
+    /// Covariance of `r_imu_m` (m²), corrected for correlated residuals.
+    pub covariance_m2: Matrix3<T>,
+    /// Covariance of `acc_bias_mps2` ((m/s²)²), with [`Model::OffsetAndAccBias`].
+    pub acc_bias_covariance_m2ps4: Option<Matrix3<T>>,
+    /// 95 % confidence ellipsoid of `r_imu_m`.
+    pub ellipsoid: Ellipsoid<T>,
+    /// RMS of the residuals per axis (m/s²).
+    pub residual_rms_mps2: T,
+    /// Long-run variance over white-noise variance of the residuals: the factor by which the
+    /// paper's ellipsoid volume-scale is corrected (the variance is multiplied by it).
+    pub variance_inflation: T,
+    /// Samples (rows of eq. 3) in the fit.
+    pub samples_used: u32,
+    /// Whether the excitation suffices, and advice if not.
+    pub verdict: Verdict<T>,
+}
+
+/// Check one raw sample: finite and within any IMU's range.
+pub(crate) fn validate_sample(sample: &ImuSample, index: u32) -> Result<(), ImuOffsetError> {
+    /// No MEMS gyro measures beyond ±6000 °/s (105 rad/s); values above are corrupt.
+    const MAX_GYRO_RADPS: f32 = 100.0;
+    /// No MEMS accelerometer measures beyond ±200 g; values above are corrupt.
+    const MAX_ACC_MPS2: f32 = 2000.0;
+    let values = sample.gyro_radps.iter().chain(sample.acc_mps2.iter());
+    if values.clone().any(|v| !v.is_finite()) {
+        return Err(ImuOffsetError::NonFiniteInput { index });
+    }
+    let gyro_ok = sample.gyro_radps.iter().all(|v| v.abs() <= MAX_GYRO_RADPS);
+    let acc_ok = sample.acc_mps2.iter().all(|v| v.abs() <= MAX_ACC_MPS2);
+    if gyro_ok && acc_ok {
+        Ok(())
+    } else {
+        Err(ImuOffsetError::InputOutOfRange { index })
+    }
+}

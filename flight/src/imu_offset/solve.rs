@@ -1,0 +1,186 @@
+//! From accumulated moments to an [`Estimate`]: the 3 × 3 solves for both models, the
+//! batch-means covariance, the 95 % ellipsoid and the verdict.
+//!
+//! With a bias, the 6 × 6 normal equations `[[ΣXᵀX, ΣXᵀ], [ΣX, N I]]` are reduced to 3 × 3 by the
+//! Schur complement of the (diagonal) bias block, `S = ΣXᵀX − (ΣX)ᵀ(ΣX)/N`: no 6 × 6 solve is ever
+//! needed, and `S` shows directly how much of `XᵀX` is left once constant parts are explained
+//! by a bias.
+
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+
+use super::moments::{count_as, Moments};
+use super::{Ellipsoid, Estimate, ImuAxis, ImuOffsetError, Model, Scalar, Verdict, CHI2_3DOF_95};
+
+/// Fewest blocks for a fit: the batch-means variance then has at least `3·6 − 6 = 12` degrees of
+/// freedom even with a bias (its relative standard error ≈ √(2/12) ≈ 40 %, the worst we accept).
+pub(crate) const MIN_BLOCKS: u32 = 6;
+
+/// Iteration cap for the 3 × 3 symmetric eigen-decomposition (it converges in < 10 sweeps).
+const EIGEN_MAX_ITERATIONS: usize = 100;
+
+/// The accumulated problem: sample rows and block sums, relative to `r_ref`.
+pub(crate) struct Problem<'a, T: Scalar> {
+    pub rows: &'a Moments<T>,
+    pub blocks: &'a Moments<T>,
+    /// Rows per block.
+    pub block_len: u32,
+    /// Reference offset the measurements are relative to (m).
+    pub r_ref: Vector3<T>,
+}
+
+/// One model's fit.
+struct Fit<T: Scalar> {
+    r_imu_m: Vector3<T>,
+    acc_bias_mps2: Option<Vector3<T>>,
+    covariance_m2: Matrix3<T>,
+    acc_bias_covariance: Option<Matrix3<T>>,
+    ellipsoid: Ellipsoid<T>,
+    residual_rms_mps2: T,
+    variance_inflation: T,
+}
+
+/// Just `r̂` of the offset-only model (used to move the reference between segments).
+pub(crate) fn offset_only<T: Scalar>(rows: &Moments<T>, r_ref: &Vector3<T>) -> Option<Vector3<T>> {
+    let d = rows.xtx().cholesky()?.solve(&rows.xty);
+    let r = r_ref + d;
+    r.iter().all(|v| v.is_finite()).then_some(r)
+}
+
+/// Fit, ellipsoid and verdict.
+pub(crate) fn estimate<T: Scalar>(
+    p: &Problem<'_, T>,
+    model: Model,
+    max_semi_axis_m: T,
+) -> Result<Estimate<T>, ImuOffsetError> {
+    if p.blocks.count < MIN_BLOCKS {
+        return Err(ImuOffsetError::TooFewSamples {
+            used: p.rows.count,
+            required: MIN_BLOCKS.saturating_mul(p.block_len),
+        });
+    }
+    let offset = fit(p, Model::Offset)?;
+    let poor = |fit: &Fit<T>| {
+        let semi_axis_m = fit.ellipsoid.semi_axes_m[0];
+        let direction_imu = fit.ellipsoid.axes[0];
+        (semi_axis_m > max_semi_axis_m).then_some((
+            direction_imu,
+            semi_axis_m,
+            ImuAxis::most_perpendicular_to(&direction_imu),
+        ))
+    };
+    let (chosen, verdict) = match model {
+        Model::Offset => {
+            let verdict = match poor(&offset) {
+                Some((direction_imu, semi_axis_m, spin_next_about)) => {
+                    Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about }
+                }
+                None => {
+                    Verdict::WellDetermined { largest_semi_axis_m: offset.ellipsoid.semi_axes_m[0] }
+                }
+            };
+            (offset, verdict)
+        }
+        Model::OffsetAndAccBias => {
+            let joint = fit(p, Model::OffsetAndAccBias)?;
+            let verdict = match (poor(&offset), poor(&joint)) {
+                (Some((direction_imu, semi_axis_m, spin_next_about)), _) => {
+                    Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about }
+                }
+                (None, Some((direction_imu, semi_axis_m, spin_next_about))) => {
+                    Verdict::BiasNotSeparable { direction_imu, semi_axis_m, spin_next_about }
+                }
+                (None, None) => {
+                    Verdict::WellDetermined { largest_semi_axis_m: joint.ellipsoid.semi_axes_m[0] }
+                }
+            };
+            (joint, verdict)
+        }
+    };
+    Ok(Estimate {
+        model,
+        r_imu_m: chosen.r_imu_m,
+        acc_bias_mps2: chosen.acc_bias_mps2,
+        covariance_m2: chosen.covariance_m2,
+        acc_bias_covariance_m2ps4: chosen.acc_bias_covariance,
+        ellipsoid: chosen.ellipsoid,
+        residual_rms_mps2: chosen.residual_rms_mps2,
+        variance_inflation: chosen.variance_inflation,
+        samples_used: p.rows.count,
+        verdict,
+    })
+}
+
+fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetError> {
+    let rows = p.rows;
+    let n: T = count_as(rows.count);
+    let three: T = nalgebra::convert(3.0);
+    let (information, rhs, unknowns) = match model {
+        Model::Offset => (rows.xtx(), rows.xty, 3u32),
+        Model::OffsetAndAccBias => (
+            rows.xtx() - rows.xsum.tr_mul(&rows.xsum) / n,
+            rows.xty - rows.xsum.tr_mul(&rows.ysum) / n,
+            6u32,
+        ),
+    };
+    let chol = information.cholesky().ok_or(ImuOffsetError::Singular)?;
+    let d = chol.solve(&rhs);
+    let information_inv = chol.inverse();
+    let bias = match model {
+        Model::Offset => None,
+        Model::OffsetAndAccBias => Some((rows.ysum - rows.xsum * d) / n),
+    };
+    let b = bias.unwrap_or_else(Vector3::zeros);
+
+    // Degrees of freedom: 3 per row; 3 per block (batch means).
+    let dof_rows: T = count_as(rows.count.saturating_mul(3).saturating_sub(unknowns));
+    let dof_blocks: T = count_as(p.blocks.count.saturating_mul(3).saturating_sub(unknowns));
+    let block_len: T = count_as(p.block_len);
+    let rss = rows.sum_sq_residual(&d, &b, T::one()).max(T::zero());
+    let block_ss = p.blocks.sum_sq_residual(&d, &b, block_len).max(T::zero());
+    let white_variance = rss / dof_rows;
+    let long_run_variance = block_ss / (block_len * dof_blocks);
+
+    let covariance_m2 = information_inv * long_run_variance;
+    let acc_bias_covariance = bias.map(|_| {
+        (Matrix3::identity() / n + rows.xsum * information_inv * rows.xsum.transpose() / (n * n))
+            * long_run_variance
+    });
+    let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
+    let values_finite = d.iter().chain(b.iter()).chain(covariance_m2.iter()).all(|v| v.is_finite());
+    if !values_finite {
+        return Err(ImuOffsetError::Singular);
+    }
+    Ok(Fit {
+        r_imu_m: p.r_ref + d,
+        acc_bias_mps2: bias,
+        covariance_m2,
+        acc_bias_covariance,
+        ellipsoid,
+        residual_rms_mps2: (rss / (n * three)).sqrt(),
+        variance_inflation: if white_variance > T::zero() {
+            long_run_variance / white_variance
+        } else {
+            T::one()
+        },
+    })
+}
+
+/// Semi-axes and directions of the 95 % ellipsoid of a 3 × 3 covariance.
+pub(crate) fn ellipsoid<T: Scalar>(covariance: &Matrix3<T>) -> Option<Ellipsoid<T>> {
+    let chi2: T = CHI2_3DOF_95.into();
+    let eig = SymmetricEigen::try_new(*covariance, T::default_epsilon(), EIGEN_MAX_ITERATIONS)?;
+    let mut order = [0usize, 1, 2];
+    order.sort_unstable_by(|&i, &j| {
+        eig.eigenvalues[j].partial_cmp(&eig.eigenvalues[i]).unwrap_or(core::cmp::Ordering::Equal)
+    });
+    let mut semi_axes_m = [T::zero(); 3];
+    let mut axes = [Vector3::zeros(); 3];
+    for ((semi, axis), &k) in semi_axes_m.iter_mut().zip(axes.iter_mut()).zip(order.iter()) {
+        *semi = (eig.eigenvalues[k].max(T::zero()) * chi2).sqrt();
+        let v: Vector3<T> = eig.eigenvectors.column(k).into_owned();
+        let v = v.normalize();
+        let largest = v.iter().fold(T::zero(), |acc, c| if c.abs() > acc.abs() { *c } else { acc });
+        *axis = if largest < T::zero() { -v } else { v };
+    }
+    Some(Ellipsoid { semi_axes_m, axes })
+}

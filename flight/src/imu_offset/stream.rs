@@ -1,0 +1,381 @@
+//! The onboard estimator: free-fall detection, edge trimming and recursive accumulation, `f32`,
+//! constant memory (about 2.5 KB), no allocation, no panics.
+//!
+//! # Free-fall detection
+//! On the filtered, aligned signals, a sample is in free fall when
+//! `|f| < acc_floor + max_offset (|Ω̇| + |Ω|²)`: in free fall `|f| = |Ω̇ × r + Ω × (Ω × r)|` is
+//! bounded by `|r| (|Ω̇| + |Ω|²)`, while in the hand `|f|` is at least about g (holding) and 2–3 g
+//! (throwing, catching). A run of such samples at least [`Config::min_free_fall_s`] long is a
+//! throw.
+//!
+//! # Trimming, and why samples are held back
+//! The first [`Config::trim_s`] of a free fall are skipped (the hand's force dies out around the
+//! threshold, and the low-pass still carries it while settling). At the end the free fall is only
+//! detected once the catch has begun, so the last `trim_s` before detection must not count either.
+//! A recursive estimator cannot take rows back, so rows are first summed into blocks of
+//! [`Config::block_s`]; a finished block waits in a small queue until the free fall has lasted
+//! `trim_s` beyond it, and only then joins the segment. At the catch the waiting blocks (and the
+//! unfinished one) are dropped. The blocks are also what the batch-means variance needs.
+//!
+//! # Cost
+//! Per sample: two 3-axis biquads and a difference (front end), the free-fall test, and one
+//! [`OffsetRls`]-style update of about 45 multiply-adds (`moments`). Once per block (20 ms) a
+//! merge of two moment sets; once per throw a 3 × 3 Cholesky solve to move the reference offset.
+
+use nalgebra::Vector3;
+
+use super::front_end::{regressor, AlignedSample, FrontEnd};
+use super::moments::Moments;
+use super::solve::{self, Problem};
+use super::{
+    validate_sample, Config, Estimate, ImuOffsetError, ImuSample, Scalar, Segment, MAX_RATE_HZ,
+    MAX_SEGMENTS, MIN_RATE_HZ,
+};
+
+/// Most finished blocks waiting for the free fall to outlast them by `trim_s`
+/// (`⌈trim / block⌉ + 1` are needed; 8 allows `trim_s` up to 7 blocks).
+const PENDING_CAPACITY: usize = 8;
+
+/// Shortest segment kept after trimming, in blocks (fewer cannot say much about `r`).
+const MIN_SEGMENT_BLOCKS: u32 = 2;
+
+/// Add one aligned sample as a row of eq. 3 relative to `r_ref`: `y' = f − X r_ref`.
+/// Shared by the onboard and the batch estimator, so both use identical rows.
+#[inline]
+pub(crate) fn accumulate_aligned<T: Scalar>(
+    moments: &mut Moments<T>,
+    s: &AlignedSample,
+    r_ref: &Vector3<T>,
+) {
+    let w = s.gyro_radps.map(T::from);
+    let w_dot = s.gyro_dot_radps2.map(T::from);
+    let x = regressor(&w, &w_dot);
+    let y = s.acc_mps2.map(T::from) - x * r_ref;
+    moments.accumulate(&x, &y);
+}
+
+/// Recursive least squares for eq. 3 alone, in information form (forgetting factor 1): the unit
+/// that `cargo xtask bench-m7` counts as "one IMU-offset RLS update". [`OffsetRls::estimate`]
+/// equals batch least squares over the same rows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OffsetRls {
+    moments: Moments<f32>,
+    r_ref_m: Vector3<f32>,
+}
+
+impl OffsetRls {
+    /// No data; measurements are taken relative to `r_ref_m` (any prior guess, e.g. zero).
+    pub fn new(r_ref_m: Vector3<f32>) -> Self {
+        Self { moments: Moments::new(), r_ref_m }
+    }
+
+    /// Add one aligned sample (build `X(Ω, Ω̇)`, accumulate the normal equations).
+    #[inline]
+    pub fn update(&mut self, sample: &AlignedSample) {
+        accumulate_aligned(&mut self.moments, sample, &self.r_ref_m);
+    }
+
+    /// Least-squares `r̂` (m) over all rows so far, or `None` while unobservable.
+    pub fn estimate(&self) -> Option<Vector3<f32>> {
+        solve::offset_only(&self.moments, &self.r_ref_m)
+    }
+
+    /// Rows accumulated.
+    pub fn rows(&self) -> u32 {
+        self.moments.count
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// Not in free fall.
+    Held,
+    /// In free fall since aligned sample `start`.
+    Falling { start: u32 },
+}
+
+/// A finished block waiting to be committed, with its end index (exclusive).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct PendingBlock {
+    moments: Moments<f32>,
+    end: u32,
+}
+
+/// Streaming IMU-offset estimator for the board (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct ImuOffsetEstimator {
+    config: Config,
+    rate_hz: f32,
+    front: FrontEnd,
+    trim_len: u32,
+    block_len: u32,
+    min_free_fall_len: u32,
+    phase: Phase,
+    /// Reference offset the moments are relative to (m); moved to `r̂` after each throw.
+    r_ref_m: Vector3<f32>,
+    block: Moments<f32>,
+    /// FIFO of finished blocks: `pending[(pending_head + k) % PENDING_CAPACITY]`, `k < pending_len`.
+    pending: [PendingBlock; PENDING_CAPACITY],
+    pending_head: usize,
+    pending_len: usize,
+    /// Committed rows and block sums of the throw in progress, and its first used / next index.
+    segment_rows: Moments<f32>,
+    segment_blocks: Moments<f32>,
+    segment_first: u32,
+    segment_end: u32,
+    /// All accepted throws.
+    rows: Moments<f32>,
+    blocks: Moments<f32>,
+    segments: [Segment; MAX_SEGMENTS],
+    segments_len: usize,
+    segments_ignored: u32,
+}
+
+impl ImuOffsetEstimator {
+    /// An estimator for a stream at `rate_hz` (500 Hz – 8 kHz).
+    pub fn new(rate_hz: f32, config: Config) -> Result<Self, ImuOffsetError> {
+        if !(rate_hz.is_finite() && (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz)) {
+            return Err(ImuOffsetError::RateOutOfRange { rate_hz });
+        }
+        let front = FrontEnd::new(config.cutoff_hz, rate_hz)
+            .map_err(|_| ImuOffsetError::InvalidConfig("cutoff_hz must be in (0, rate/4]"))?;
+        let samples = |seconds: f32, what: &'static str| {
+            let n = libm::roundf(seconds * rate_hz);
+            if seconds.is_finite() && (0.0..=1.0e6).contains(&n) {
+                Ok(n as u32)
+            } else {
+                Err(ImuOffsetError::InvalidConfig(what))
+            }
+        };
+        let trim_len = samples(config.trim_s, "trim_s must be finite and non-negative")?;
+        let block_len = samples(config.block_s, "block_s must be finite and positive")?;
+        let min_free_fall_len = samples(config.min_free_fall_s, "min_free_fall_s out of range")?;
+        if block_len < 2 {
+            return Err(ImuOffsetError::InvalidConfig("block_s must span at least 2 samples"));
+        }
+        if trim_len.div_ceil(block_len) as usize + 1 > PENDING_CAPACITY {
+            return Err(ImuOffsetError::InvalidConfig("trim_s may be at most 7 × block_s"));
+        }
+        let positive = |v: f32| v.is_finite() && v > 0.0;
+        if !(positive(config.acc_floor_mps2) && config.max_offset_m.is_finite())
+            || config.max_offset_m < 0.0
+        {
+            return Err(ImuOffsetError::InvalidConfig("free-fall thresholds out of range"));
+        }
+        if !positive(config.max_semi_axis_m) {
+            return Err(ImuOffsetError::InvalidConfig("max_semi_axis_m must be positive"));
+        }
+        let empty = PendingBlock { moments: Moments::new(), end: 0 };
+        Ok(Self {
+            config,
+            rate_hz,
+            front,
+            trim_len,
+            block_len,
+            min_free_fall_len,
+            phase: Phase::Held,
+            r_ref_m: Vector3::zeros(),
+            block: Moments::new(),
+            pending: [empty; PENDING_CAPACITY],
+            pending_head: 0,
+            pending_len: 0,
+            segment_rows: Moments::new(),
+            segment_blocks: Moments::new(),
+            segment_first: 0,
+            segment_end: 0,
+            rows: Moments::new(),
+            blocks: Moments::new(),
+            segments: [Segment { start_index: 0, end_index: 0 }; MAX_SEGMENTS],
+            segments_len: 0,
+            segments_ignored: 0,
+        })
+    }
+
+    /// Feed the next raw sample (the control-rate path: bounded time, no allocation, no panic).
+    ///
+    /// Returns the segment when a throw has just been accepted. A non-finite or impossible sample
+    /// is rejected with an error, the throw in progress (if any) is discarded, and the filters
+    /// restart; sample indices keep counting so later segments still map to stream time.
+    pub fn update(&mut self, sample: &ImuSample) -> Result<Option<Segment>, ImuOffsetError> {
+        if let Err(e) = validate_sample(sample, self.next_index()) {
+            self.front.skip();
+            self.front.restart();
+            self.abandon_free_fall();
+            return Err(e);
+        }
+        Ok(self.front.update(sample).and_then(|s| self.process(&s)))
+    }
+
+    /// End of the stream: a free fall still in progress ends here (trimmed as at a catch).
+    pub fn finish(&mut self) -> Option<Segment> {
+        match self.phase {
+            Phase::Falling { start } => {
+                let end = self.next_index().saturating_sub(1);
+                self.end_free_fall(start, end)
+            }
+            Phase::Held => None,
+        }
+    }
+
+    /// The estimate over all accepted throws so far (call from a background task: it performs
+    /// two 3 × 3 solves and a 3 × 3 eigen-decomposition).
+    pub fn estimate(&self) -> Result<Estimate<f32>, ImuOffsetError> {
+        if self.segments_len == 0 {
+            return Err(ImuOffsetError::NoFreeFall);
+        }
+        let problem = Problem {
+            rows: &self.rows,
+            blocks: &self.blocks,
+            block_len: self.block_len,
+            r_ref: self.r_ref_m,
+        };
+        solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
+    }
+
+    /// The accepted throws, in order.
+    pub fn segments(&self) -> &[Segment] {
+        self.segments.get(..self.segments_len).unwrap_or(&[])
+    }
+
+    /// Throws accepted after [`MAX_SEGMENTS`] was reached, and therefore ignored.
+    pub fn segments_ignored(&self) -> u32 {
+        self.segments_ignored
+    }
+
+    /// True while a free fall is in progress.
+    pub fn in_free_fall(&self) -> bool {
+        matches!(self.phase, Phase::Falling { .. })
+    }
+
+    /// Samples (rows of eq. 3) in the accepted throws.
+    pub fn samples_used(&self) -> u32 {
+        self.rows.count
+    }
+
+    /// The stream's sample rate (Hz).
+    pub fn rate_hz(&self) -> f32 {
+        self.rate_hz
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// Shortest accepted free fall (samples).
+    pub(crate) fn min_free_fall_len(&self) -> u32 {
+        self.min_free_fall_len
+    }
+
+    /// Rows per block (samples).
+    pub(crate) fn block_len(&self) -> u32 {
+        self.block_len
+    }
+
+    fn next_index(&self) -> u32 {
+        self.front.next_index()
+    }
+
+    fn is_free_fall(&self, s: &AlignedSample) -> bool {
+        let bound = self.config.acc_floor_mps2
+            + self.config.max_offset_m * (s.gyro_dot_radps2.norm() + s.gyro_radps.norm_squared());
+        s.acc_mps2.norm() < bound
+    }
+
+    fn process(&mut self, s: &AlignedSample) -> Option<Segment> {
+        let free = self.is_free_fall(s);
+        match self.phase {
+            Phase::Held => {
+                if free {
+                    self.begin_free_fall(s.index);
+                }
+                None
+            }
+            Phase::Falling { start } if !free => self.end_free_fall(start, s.index),
+            Phase::Falling { start } => {
+                if s.index >= start.saturating_add(self.trim_len) {
+                    accumulate_aligned(&mut self.block, s, &self.r_ref_m);
+                    if self.block.count >= self.block_len {
+                        let end = s.index.saturating_add(1);
+                        self.push_pending(end);
+                    }
+                }
+                self.commit_ready(s.index.saturating_add(1));
+                None
+            }
+        }
+    }
+
+    fn begin_free_fall(&mut self, start: u32) {
+        self.phase = Phase::Falling { start };
+        self.block = Moments::new();
+        self.pending_len = 0;
+        self.segment_rows = Moments::new();
+        self.segment_blocks = Moments::new();
+        self.segment_first = start.saturating_add(self.trim_len);
+        self.segment_end = self.segment_first;
+    }
+
+    fn abandon_free_fall(&mut self) {
+        self.phase = Phase::Held;
+        self.block = Moments::new();
+        self.pending_len = 0;
+    }
+
+    fn push_pending(&mut self, end: u32) {
+        let block = core::mem::replace(&mut self.block, Moments::new());
+        if self.pending_len >= PENDING_CAPACITY {
+            // Unreachable with a validated configuration; dropping keeps the rollback safe.
+            return;
+        }
+        let slot = (self.pending_head + self.pending_len) % PENDING_CAPACITY;
+        if let Some(p) = self.pending.get_mut(slot) {
+            *p = PendingBlock { moments: block, end };
+            self.pending_len += 1;
+        }
+    }
+
+    /// Commit every waiting block that ends at least `trim_len` before `limit` (the first index
+    /// that may be contaminated by the catch is `limit` or later).
+    fn commit_ready(&mut self, limit: u32) {
+        while self.pending_len > 0 {
+            let Some(&oldest) = self.pending.get(self.pending_head) else { return };
+            if oldest.end.saturating_add(self.trim_len) > limit {
+                return;
+            }
+            self.segment_rows.merge(&oldest.moments);
+            self.segment_blocks.accumulate(&oldest.moments.xsum, &oldest.moments.ysum);
+            self.segment_end = oldest.end;
+            self.pending_head = (self.pending_head + 1) % PENDING_CAPACITY;
+            self.pending_len -= 1;
+        }
+    }
+
+    /// Free fall from aligned index `start` ended at `end` (first sample no longer free).
+    fn end_free_fall(&mut self, start: u32, end: u32) -> Option<Segment> {
+        self.commit_ready(end);
+        self.abandon_free_fall();
+        let long_enough = end.saturating_sub(start) >= self.min_free_fall_len
+            && self.segment_blocks.count >= MIN_SEGMENT_BLOCKS;
+        if !long_enough {
+            return None;
+        }
+        let segment = Segment { start_index: self.segment_first, end_index: self.segment_end };
+        let Some(slot) = self.segments.get_mut(self.segments_len) else {
+            self.segments_ignored = self.segments_ignored.saturating_add(1);
+            return None;
+        };
+        *slot = segment;
+        self.segments_len += 1;
+        self.rows.merge(&self.segment_rows);
+        self.blocks.merge(&self.segment_blocks);
+        // Move the reference to the new estimate so later sums stay small (f32 precision).
+        if let Some(r) = solve::offset_only(&self.rows, &self.r_ref_m) {
+            let delta = r - self.r_ref_m;
+            self.rows.recentre(&delta);
+            self.blocks.recentre(&delta);
+            self.r_ref_m = r;
+        }
+        Some(segment)
+    }
+}

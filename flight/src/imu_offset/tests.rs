@@ -1,0 +1,403 @@
+//! Tests of the IMU-offset estimator on synthetic throws (`crate::testing::throws`): physical
+//! checks in millimetres and degrees against the simulated truth.
+//!
+//! Run with `cargo test -p flight imu_offset -- --nocapture` to see the measured figures.
+
+extern crate std;
+
+use std::vec::Vec;
+use std::{eprintln, vec};
+
+use nalgebra::{UnitQuaternion, Vector3};
+use proptest::prelude::*;
+
+use super::*;
+use crate::testing::rng::Rng;
+use crate::testing::throws::ThrowSpec;
+
+/// Principal axes of the simulated craft, rotated away from the IMU axes (as when the flight
+/// controller is mounted at an angle), so that "the right axis" is not trivially an IMU axis.
+fn principal_axes() -> UnitQuaternion<f64> {
+    UnitQuaternion::from_euler_angles(0.35, -0.25, 0.6)
+}
+
+/// A principal axis (0, 1, 2 = smallest to largest inertia) in IMU coordinates.
+fn principal_axis(k: usize) -> Vector3<f64> {
+    principal_axes() * Vector3::ith(k, 1.0)
+}
+
+fn r_true() -> Vector3<f64> {
+    // The seed paper's vehicle: r ≈ (−10, −13, 8) mm.
+    Vector3::new(-0.010, -0.013, 0.008)
+}
+
+/// A spin of `rate_radps` mostly about principal axis `k`, with `wobble` of it about the others
+/// (which makes the body nutate, so Ω̇ ≠ 0).
+fn spin_about(k: usize, rate_radps: f64, wobble: f64) -> Vector3<f64> {
+    let others = principal_axis((k + 1) % 3) + principal_axis((k + 2) % 3) * 0.7;
+    (principal_axis(k) + others * wobble).normalize() * rate_radps
+}
+
+fn samples(spec: &ThrowSpec) -> Vec<ImuSample> {
+    spec.samples().collect()
+}
+
+fn throw(rate_hz: f64, release_rate: Vector3<f64>, seed: u64) -> ThrowSpec {
+    ThrowSpec::typical(rate_hz, r_true(), principal_axes(), release_rate, seed)
+}
+
+/// Two throws in one stream (the craft is held between them).
+fn two_throws(rate_hz: f64, seed: u64) -> Vec<ImuSample> {
+    let mut all = samples(&throw(rate_hz, spin_about(2, 12.0, 0.25), seed));
+    all.extend(samples(&throw(rate_hz, spin_about(0, 9.0, 0.25), seed + 1)));
+    all
+}
+
+fn stream_fit(samples: &[ImuSample], rate_hz: f64, config: Config) -> ImuOffsetEstimator {
+    let mut est = ImuOffsetEstimator::new(rate_hz as f32, config).unwrap();
+    for s in samples {
+        est.update(s).unwrap();
+    }
+    est.finish();
+    est
+}
+
+fn batch_fit(logs: &[&[ImuSample]], rate_hz: f64, config: Config) -> BatchFitter {
+    let mut fitter = BatchFitter::new(config);
+    for log in logs {
+        fitter.add_log(log, rate_hz as f32).unwrap();
+    }
+    fitter
+}
+
+fn mm(v: f64) -> f64 {
+    v * 1000.0
+}
+
+fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    // Directions: the sign of an axis is arbitrary.
+    let c = (a.dot(b) / (a.norm() * b.norm())).abs().min(1.0);
+    libm::acos(c).to_degrees()
+}
+
+#[test]
+fn segments_cover_the_free_fall_and_exclude_the_hand() {
+    for rate_hz in [500.0, 2000.0, 8000.0] {
+        let spec = throw(rate_hz, spin_about(2, 12.0, 0.25), 7);
+        let est = stream_fit(&samples(&spec), rate_hz, Config::default());
+        let segments = est.segments();
+        assert_eq!(segments.len(), 1, "{rate_hz} Hz: one throw, one segment");
+        let seg = segments[0];
+        let release = spec.release_index() as u32;
+        let catch = spec.catch_index() as u32;
+        let margin = (0.02 * rate_hz) as u32; // 20 ms clear of the hand at both ends
+        assert!(seg.start_index >= release + margin, "{rate_hz} Hz: starts in the hand");
+        assert!(seg.end_index + margin <= catch, "{rate_hz} Hz: ends in the hand");
+        let used_s = f64::from(seg.len()) / rate_hz;
+        assert!(used_s > 0.4, "{rate_hz} Hz: only {used_s} s of a 0.6 s free fall used");
+    }
+}
+
+#[test]
+fn two_throws_about_different_axes_give_r_within_1mm() {
+    for (rate_hz, seed) in [(500.0, 11), (1000.0, 12), (2000.0, 13), (8000.0, 14)] {
+        let data = two_throws(rate_hz, seed);
+        let stream = stream_fit(&data, rate_hz, Config::default());
+        assert_eq!(stream.segments().len(), 2);
+        let board = stream.estimate().unwrap();
+        let host = batch_fit(&[&data], rate_hz, Config::default()).estimate().unwrap();
+        let err_board = mm((board.r_imu_m.cast::<f64>() - r_true()).norm());
+        let err_host = mm((host.r_imu_m - r_true()).norm());
+        eprintln!(
+            "{rate_hz} Hz two throws: error {err_host:.3} mm (host f64), {err_board:.3} mm \
+             (board f32); 95 % semi-axes {:.3?} mm; variance inflation {:.1}",
+            host.ellipsoid.semi_axes_m.map(mm),
+            host.variance_inflation
+        );
+        assert!(err_host < 1.0, "{rate_hz} Hz: r off by {err_host} mm");
+        assert!(err_board < 1.0, "{rate_hz} Hz: r off by {err_board} mm");
+        assert!(host.verdict.is_well_determined(), "{rate_hz} Hz: {}", host.verdict);
+        assert!(board.verdict.is_well_determined(), "{rate_hz} Hz: {}", board.verdict);
+    }
+}
+
+#[test]
+fn one_throw_about_a_principal_axis_is_flagged_with_that_axis() {
+    for (k, rate) in [(2usize, 12.0), (0, 9.0)] {
+        let spec = throw(2000.0, spin_about(k, rate, 0.002), 21 + k as u64);
+        let est = batch_fit(&[&samples(&spec)], 2000.0, Config::default()).estimate().unwrap();
+        let Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about } =
+            est.verdict
+        else {
+            panic!("spin about principal axis {k} not flagged: {}", est.verdict);
+        };
+        let angle = angle_deg(&direction_imu, &principal_axis(k));
+        eprintln!(
+            "one throw about principal axis {k}: flagged direction {angle:.2}° from it, \
+             semi-axis {:.1} mm; advice: {}",
+            mm(semi_axis_m),
+            est.verdict
+        );
+        assert!(angle < 10.0, "flagged direction {angle}° from the spin axis");
+        // The suggested IMU axis is far from the flagged direction (it can observe it).
+        let suggested = match spin_next_about {
+            ImuAxis::X => Vector3::x(),
+            ImuAxis::Y => Vector3::y(),
+            ImuAxis::Z => Vector3::z(),
+        };
+        assert!(angle_deg(&suggested, &direction_imu) > 45.0);
+        // The well-observed directions are still sub-millimetre.
+        assert!(mm(est.ellipsoid.semi_axes_m[1]) < 1.0);
+    }
+}
+
+#[test]
+fn recursive_equals_batch_within_0_1mm() {
+    for (rate_hz, seed) in [(500.0, 31), (8000.0, 32)] {
+        let data = two_throws(rate_hz, seed);
+        let stream = stream_fit(&data, rate_hz, Config::default());
+        let batch = batch_fit(&[&data], rate_hz, Config::default());
+        let board = stream.estimate().unwrap();
+        let host = batch.estimate().unwrap();
+        assert_eq!(stream.samples_used(), batch.samples_used(), "same samples");
+        let diff_mm = mm((board.r_imu_m.cast::<f64>() - host.r_imu_m).norm());
+        let axes_diff = (0..3)
+            .map(|i| (f64::from(board.ellipsoid.semi_axes_m[i]) / host.ellipsoid.semi_axes_m[i]))
+            .fold(0.0f64, |m, ratio| m.max((ratio - 1.0).abs()));
+        eprintln!(
+            "{rate_hz} Hz: recursive f32 vs batch f64 differ by {:.5} mm; semi-axes by {:.2} %",
+            diff_mm,
+            100.0 * axes_diff
+        );
+        assert!(diff_mm < 0.1, "{rate_hz} Hz: {diff_mm} mm apart");
+        assert!(axes_diff < 0.05, "{rate_hz} Hz: ellipsoids differ by {axes_diff}");
+    }
+}
+
+#[test]
+fn offset_rls_unit_equals_batch() {
+    // The benchmarked unit alone: OffsetRls over the aligned samples of a noisy free fall.
+    let spec = throw(2000.0, spin_about(1, 10.0, 0.6), 41);
+    let data = samples(&spec);
+    let mut front = FrontEnd::new(50.0, 2000.0).unwrap();
+    let mut rls = OffsetRls::new(Vector3::zeros());
+    let (lo, hi) = (spec.release_index() as u32 + 200, spec.catch_index() as u32 - 200);
+    for s in &data {
+        if let Some(a) = front.update(s) {
+            if (lo..hi).contains(&a.index) {
+                rls.update(&a);
+            }
+        }
+    }
+    let r = rls.estimate().unwrap().cast::<f64>();
+    assert!(mm((r - r_true()).norm()) < 1.0, "OffsetRls off by {} mm", mm((r - r_true()).norm()));
+}
+
+fn bias() -> Vector3<f64> {
+    Vector3::new(0.15, -0.10, 0.20)
+}
+
+#[test]
+fn bias_is_estimated_jointly_with_the_offset() {
+    let rate_hz = 2000.0;
+    let config = Config { model: Model::OffsetAndAccBias, ..Config::default() };
+    // Tumbling throws (well off the principal axes) at different rates: the centripetal term
+    // varies, so a constant bias is distinguishable from it.
+    let mut a = throw(rate_hz, spin_about(2, 13.0, 0.6), 51);
+    let mut b = throw(rate_hz, spin_about(0, 8.0, 0.6), 52);
+    a.acc_bias_mps2 = bias();
+    b.acc_bias_mps2 = bias();
+    let (a, b) = (samples(&a), samples(&b));
+    let joint = batch_fit(&[&a, &b], rate_hz, config).estimate().unwrap();
+    let plain = batch_fit(&[&a, &b], rate_hz, Config::default()).estimate().unwrap();
+    let err_joint = mm((joint.r_imu_m - r_true()).norm());
+    let err_plain = mm((plain.r_imu_m - r_true()).norm());
+    let bias_est = joint.acc_bias_mps2.unwrap();
+    let err_bias = (bias_est - bias()).norm();
+    eprintln!(
+        "bias 0.27 m/s²: r error {err_joint:.3} mm with joint bias (bias error {err_bias:.4} m/s²), \
+         {err_plain:.2} mm ignoring it; verdict: {}",
+        joint.verdict
+    );
+    assert!(err_joint < 1.0, "joint fit: r off by {err_joint} mm");
+    assert!(err_bias < 0.02, "bias off by {err_bias} m/s²");
+    assert!(err_plain > err_joint, "fitting the bias should help when there is one");
+    assert!(joint.verdict.is_well_determined(), "{}", joint.verdict);
+}
+
+#[test]
+fn bias_and_offset_inseparable_at_one_constant_spin_rate() {
+    // Two clean spins about principal axes at the same rate: the centripetal term is constant in
+    // each throw and has the same size in both, so along the axis perpendicular to both spins a
+    // bias and an offset look the same. Offset alone is fine.
+    let rate_hz = 2000.0;
+    let mut a = throw(rate_hz, spin_about(2, 11.0, 0.0), 61);
+    let mut b = throw(rate_hz, spin_about(0, 11.0, 0.0), 62);
+    a.acc_bias_mps2 = bias();
+    b.acc_bias_mps2 = bias();
+    let (a, b) = (samples(&a), samples(&b));
+    let config = Config { model: Model::OffsetAndAccBias, ..Config::default() };
+    let joint = batch_fit(&[&a, &b], rate_hz, config).estimate().unwrap();
+    let Verdict::BiasNotSeparable { direction_imu, semi_axis_m, .. } = joint.verdict else {
+        panic!("expected bias/offset confusion, got: {}", joint.verdict);
+    };
+    let angle = angle_deg(&direction_imu, &principal_axis(1));
+    eprintln!(
+        "equal-rate principal spins: {} ({angle:.1}° from the common perpendicular)",
+        joint.verdict
+    );
+    assert!(mm(semi_axis_m) > 2.0);
+    assert!(angle < 10.0, "confused direction {angle}° from the axis perpendicular to both");
+}
+
+/// Monte Carlo: how often does the truth lie inside the reported 95 % ellipsoid?
+/// Returns (corrected coverage, paper-formula coverage).
+fn coverage(trials: u32, rate_hz: f64, seed: u64) -> (f64, f64) {
+    let chi2 = f64::from(CHI2_3DOF_95);
+    let mut rng = Rng::new(seed);
+    let (mut inside, mut inside_paper) = (0u32, 0u32);
+    for trial in 0..trials {
+        let r = rng.unit_vector() * rng.range(0.0, 0.03);
+        let axes = UnitQuaternion::from_scaled_axis(rng.unit_vector() * rng.range(0.0, 3.14));
+        let spin_a = rng.unit_vector() * rng.range(8.0, 15.0);
+        // The second throw about an axis at least 45° from the first.
+        let spin_b = loop {
+            let v = rng.unit_vector();
+            if angle_deg(&v, &spin_a) > 45.0 {
+                break v * rng.range(8.0, 15.0);
+            }
+        };
+        let seed_a = seed.wrapping_mul(1000).wrapping_add(u64::from(trial) * 2);
+        let a: Vec<_> = ThrowSpec::typical(rate_hz, r, axes, spin_a, seed_a).samples().collect();
+        let b: Vec<_> =
+            ThrowSpec::typical(rate_hz, r, axes, spin_b, seed_a + 1).samples().collect();
+        let est = batch_fit(&[&a, &b], rate_hz, Config::default()).estimate().unwrap();
+        let e = est.r_imu_m - r;
+        let Some(inv) = est.covariance_m2.try_inverse() else { continue };
+        let d2 = e.dot(&(inv * e));
+        inside += u32::from(d2 <= chi2);
+        inside_paper += u32::from(d2 * est.variance_inflation <= chi2);
+    }
+    (f64::from(inside) / f64::from(trials), f64::from(inside_paper) / f64::from(trials))
+}
+
+#[test]
+fn ellipsoid_coverage_is_about_95_percent() {
+    // 200 trials per rate: the binomial standard error at 95 % is 1.5 %, so [90 %, 99 %] is a
+    // ±3σ band around 95 % that a correct ellipsoid passes and the paper's formula (far below)
+    // fails.
+    let trials = 200;
+    for (rate_hz, seed) in [(1000.0, 71), (4000.0, 72)] {
+        let (corrected, paper) = coverage(trials, rate_hz, seed);
+        eprintln!(
+            "{rate_hz} Hz, {trials} two-throw fits: truth inside the 95 % ellipsoid {:.1} % \
+             (corrected), {:.1} % (paper's SE² formula)",
+            100.0 * corrected,
+            100.0 * paper
+        );
+        assert!((0.90..=0.99).contains(&corrected), "coverage {corrected}");
+    }
+}
+
+#[test]
+fn errors_are_typed() {
+    let rate_hz = 2000.0;
+    // Unsupported rate.
+    assert!(matches!(
+        ImuOffsetEstimator::new(100.0, Config::default()),
+        Err(ImuOffsetError::RateOutOfRange { .. })
+    ));
+    // Held still: no free fall.
+    let mut still = throw(rate_hz, Vector3::zeros(), 81);
+    still.windup_peak_mps2 = 0.0;
+    still.free_fall_s = 0.0;
+    still.catch_s = 0.0;
+    let fitter = batch_fit(&[&samples(&still)], rate_hz, Config::default());
+    assert_eq!(fitter.estimate().unwrap_err(), ImuOffsetError::NoFreeFall);
+    // A free fall too short for an honest variance.
+    let mut short = throw(rate_hz, spin_about(2, 12.0, 0.3), 82);
+    short.free_fall_s = 0.17;
+    let fitter = batch_fit(&[&samples(&short)], rate_hz, Config::default());
+    assert!(matches!(fitter.estimate(), Err(ImuOffsetError::TooFewSamples { .. })));
+    // A log shorter than any throw.
+    let mut fitter = BatchFitter::new(Config::default());
+    let tiny = &samples(&still)[..10];
+    assert!(matches!(fitter.add_log(tiny, 2000.0), Err(ImuOffsetError::TooFewSamples { .. })));
+    // NaN input: typed error with the sample index, from both estimators.
+    let mut data = samples(&throw(rate_hz, spin_about(2, 12.0, 0.3), 83));
+    data[1234].acc_mps2.y = f32::NAN;
+    let mut fitter = BatchFitter::new(Config::default());
+    assert_eq!(
+        fitter.add_log(&data, 2000.0).unwrap_err(),
+        ImuOffsetError::NonFiniteInput { index: 1234 }
+    );
+    let mut est = ImuOffsetEstimator::new(2000.0, Config::default()).unwrap();
+    let errors: Vec<_> = data.iter().filter_map(|s| est.update(s).err()).collect();
+    assert_eq!(errors, vec![ImuOffsetError::NonFiniteInput { index: 1234 }]);
+    // Logs at different rates are not pooled.
+    let mut fitter = BatchFitter::new(Config::default());
+    fitter.add_log(&data[..2000], 2000.0).unwrap_err();
+    let ok = samples(&throw(1000.0, spin_about(2, 12.0, 0.3), 84));
+    fitter.add_log(&ok, 1000.0).unwrap();
+    assert!(matches!(fitter.add_log(&ok, 2000.0), Err(ImuOffsetError::RateMismatch { .. })));
+}
+
+fn any_value() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => -50.0f32..50.0,
+        1 => Just(f32::NAN),
+        1 => Just(f32::INFINITY),
+        1 => prop::num::f32::ANY,
+        1 => Just(0.0f32),
+    ]
+}
+
+fn any_sample() -> impl Strategy<Value = ImuSample> {
+    prop::array::uniform6(any_value()).prop_map(|v| ImuSample {
+        gyro_radps: Vector3::new(v[0], v[1], v[2]),
+        acc_mps2: Vector3::new(v[3], v[4], v[5]),
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// Arbitrary input (finite, huge, NaN, ∞) never panics: every outcome is a value or a typed
+    /// error, and any estimate produced is finite.
+    #[test]
+    fn never_panics(samples in prop::collection::vec(any_sample(), 0..3000), rate in 400.0f32..9000.0) {
+        if let Ok(mut est) = ImuOffsetEstimator::new(rate, Config::default()) {
+            for s in &samples {
+                let _ = est.update(s);
+            }
+            est.finish();
+            if let Ok(e) = est.estimate() {
+                prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
+            }
+        }
+        let mut fitter = BatchFitter::new(Config { model: Model::OffsetAndAccBias, ..Config::default() });
+        let _ = fitter.add_log(&samples, rate);
+        if let Ok(e) = fitter.estimate() {
+            prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
+        }
+    }
+
+    /// Free-fall-like random rotation data (no hand phases at all): still no panic, and any
+    /// estimate is finite.
+    #[test]
+    fn never_panics_on_tumbling_noise(seed in any::<u64>(), n in 0usize..4000) {
+        let mut rng = Rng::new(seed);
+        let samples: Vec<ImuSample> = (0..n)
+            .map(|_| ImuSample {
+                gyro_radps: (rng.unit_vector() * rng.range(0.0, 20.0)).cast(),
+                acc_mps2: (rng.unit_vector() * rng.range(0.0, 2.0)).cast(),
+            })
+            .collect();
+        let mut fitter = BatchFitter::new(Config::default());
+        let _ = fitter.add_log(&samples, 1000.0);
+        if let Ok(e) = fitter.estimate() {
+            prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
+            prop_assert!(e.ellipsoid.semi_axes_m.iter().all(|v| v.is_finite()));
+        }
+    }
+}
