@@ -72,7 +72,9 @@ pub enum AirframeError {
         reason: String,
     },
     /// Neither a file nor a built-in airframe has this name.
-    #[error("unknown airframe `{name}`: not a file, and not one of the built-in airframes ({known})")]
+    #[error(
+        "unknown airframe `{name}`: not a file, and not one of the built-in airframes ({known})"
+    )]
     Unknown {
         /// The name asked for.
         name: String,
@@ -442,7 +444,10 @@ impl Airframe {
         }
         let path = std::path::Path::new(name_or_path);
         if !path.exists() {
-            return Err(AirframeError::Unknown { name: name_or_path.into(), known: builtin_names() });
+            return Err(AirframeError::Unknown {
+                name: name_or_path.into(),
+                known: builtin_names(),
+            });
         }
         let text = std::fs::read_to_string(path)
             .map_err(|source| AirframeError::Io { path: name_or_path.into(), source })?;
@@ -465,7 +470,8 @@ impl Airframe {
         if a + b < cc || a + cc < b || b + cc < a {
             return Err(AirframeError::Invalid {
                 field: "inertia_diag_kg_m2".into(),
-                reason: "a real body needs Ixx + Iyy ≥ Izz, Ixx + Izz ≥ Iyy and Iyy + Izz ≥ Ixx".into(),
+                reason: "a real body needs Ixx + Iyy ≥ Izz, Ixx + Izz ≥ Iyy and Iyy + Izz ≥ Ixx"
+                    .into(),
             });
         }
         c.range3("inertia_products_kg_m2", &self.inertia_products_kg_m2, -100.0, 100.0, "kg·m²")?;
@@ -644,14 +650,8 @@ impl Airframe {
     /// when no such speeds exist within `[ω_idle, ω_max]` of each motor.
     pub fn hover_speeds_rad_s(&self) -> Result<Vec<f64>, AirframeError> {
         let b = self.wrench_per_speed_squared();
-        let target = DVector::from_vec(vec![
-            0.0,
-            0.0,
-            -self.mass_kg * STANDARD_GRAVITY_MPS2,
-            0.0,
-            0.0,
-            0.0,
-        ]);
+        let target =
+            DVector::from_vec(vec![0.0, 0.0, -self.mass_kg * STANDARD_GRAVITY_MPS2, 0.0, 0.0, 0.0]);
         let svd = b.clone().svd(true, true);
         let w2 = svd.solve(&target, 1e-12).map_err(|e| AirframeError::CannotHover {
             name: self.name.clone(),
@@ -661,7 +661,9 @@ impl Airframe {
         if residual > 1e-6 * self.mass_kg * STANDARD_GRAVITY_MPS2 {
             return Err(AirframeError::CannotHover {
                 name: self.name.clone(),
-                reason: format!("no rotor speeds balance force and torque (residual {residual:.3e})"),
+                reason: format!(
+                    "no rotor speeds balance force and torque (residual {residual:.3e})"
+                ),
             });
         }
         let mut speeds = Vec::with_capacity(w2.len());
@@ -783,7 +785,11 @@ fn random_candidate(rng: &mut Rng, seed: u64) -> Airframe {
             sample_rate_hz: 8000.0,
             gyro: GyroParams {
                 noise_density_rad_s_per_sqrt_hz: 4.9e-5,
-                bias_rad_s: [rng.range(-0.01, 0.01), rng.range(-0.01, 0.01), rng.range(-0.01, 0.01)],
+                bias_rad_s: [
+                    rng.range(-0.01, 0.01),
+                    rng.range(-0.01, 0.01),
+                    rng.range(-0.01, 0.01),
+                ],
                 range_rad_s: 34.9,
                 bits: 16,
             },

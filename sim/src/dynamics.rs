@@ -215,16 +215,11 @@ impl VehicleModel {
             torque_body -= self.inertia_kg_m2 * omega / GROUND_FRICTION_TIME_CONSTANT_S;
         }
 
-        let free_accel_ned =
-            gravity_ned_mps2() + (rot * force_body + external_ned) / self.mass_kg;
+        let free_accel_ned = gravity_ned_mps2() + (rot * force_body + external_ned) / self.mass_kg;
         let free_rate_dot = self.inertia_inv
             * (torque_body - omega.cross(&(self.inertia_kg_m2 * omega + h_body)) - h_dot_body);
-        let (accel_ned, rate_dot) = constraint.apply(
-            free_accel_ned,
-            free_rate_dot,
-            s.velocity_ned_mps,
-            omega,
-        );
+        let (accel_ned, rate_dot) =
+            constraint.apply(free_accel_ned, free_rate_dot, s.velocity_ned_mps, omega);
         let specific_force_body = rot.transpose() * (accel_ned - gravity_ned_mps2());
         Derivative {
             velocity_ned_mps: s.velocity_ned_mps,
@@ -266,7 +261,8 @@ impl VehicleModel {
                     + k4.velocity_ned_mps)
                     * w,
             velocity_ned_mps: s.velocity_ned_mps
-                + (k1.accel_ned_mps2 + 2.0 * (k2.accel_ned_mps2 + k3.accel_ned_mps2)
+                + (k1.accel_ned_mps2
+                    + 2.0 * (k2.accel_ned_mps2 + k3.accel_ned_mps2)
                     + k4.accel_ned_mps2)
                     * w,
             q_world_body: q.normalize(),

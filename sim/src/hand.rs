@@ -76,7 +76,11 @@ pub struct ThrowSpec {
 
 impl ThrowSpec {
     /// A vertical throw that rises `apex_above_release_m` above the release point (in vacuum).
-    pub fn vertical(apex_above_release_m: f64, rate_body_rad_s: Vector3<f64>, duration_s: f64) -> Self {
+    pub fn vertical(
+        apex_above_release_m: f64,
+        rate_body_rad_s: Vector3<f64>,
+        duration_s: f64,
+    ) -> Self {
         let up_mps = (2.0 * STANDARD_GRAVITY_MPS2 * apex_above_release_m.max(0.0)).sqrt();
         Self {
             release_velocity_ned_mps: Vector3::new(0.0, 0.0, -up_mps),

@@ -87,8 +87,7 @@ impl ImuModel {
             .map(|i| {
                 let n = airframe.thrust_axis(i);
                 // Any vector not parallel to n gives a plane basis.
-                let seed_axis =
-                    if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+                let seed_axis = if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
                 let e1 = n.cross(&seed_axis).normalize();
                 (e1, n.cross(&e1))
             })
@@ -126,7 +125,8 @@ impl ImuModel {
         let w = state.rate_body_rad_s;
         let w_dot = derivative.rate_dot_body_rad_s2;
         let r = self.r_imu_m;
-        let f_imu_body = derivative.specific_force_body_mps2 + w_dot.cross(&r) + w.cross(&w.cross(&r));
+        let f_imu_body =
+            derivative.specific_force_body_mps2 + w_dot.cross(&r) + w.cross(&w.cross(&r));
         RawSample { gyro_rad_s: self.rot_imu_body * w, accel_mps2: self.rot_imu_body * f_imu_body }
     }
 
@@ -152,7 +152,9 @@ impl ImuModel {
             }
         }
         RawSample {
-            gyro_rad_s: self.gyro.read(truth.gyro_rad_s + self.rot_imu_body * vib_gyro, &mut self.rng),
+            gyro_rad_s: self
+                .gyro
+                .read(truth.gyro_rad_s + self.rot_imu_body * vib_gyro, &mut self.rng),
             accel_mps2: self
                 .accel
                 .read(truth.accel_mps2 + self.rot_imu_body * vib_accel, &mut self.rng),

@@ -2,9 +2,13 @@
 
 pub mod airframe;
 pub mod board;
+pub mod bridge;
 pub mod dshot;
 pub mod dynamics;
 pub mod hand;
 pub mod imu;
+pub mod log;
+pub mod monte_carlo;
 pub mod physics;
 pub mod rng;
+pub mod scenario;

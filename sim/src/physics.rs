@@ -80,9 +80,7 @@ impl Physics {
         let now = self.time_s();
         self.hand.update(now, self.step_s, &mut self.state);
         self.refresh_derivative();
-        for (angle, w) in
-            self.rotor_angle_rad.iter_mut().zip(self.state.rotor_speed_rad_s.iter())
-        {
+        for (angle, w) in self.rotor_angle_rad.iter_mut().zip(self.state.rotor_speed_rad_s.iter()) {
             *angle = (*angle + w * self.step_s) % std::f64::consts::TAU;
         }
     }

@@ -1,0 +1,247 @@
+//! `scenario`: runs a simulator scenario and writes the configurator's CSV log, lists and shows
+//! airframes, measures the simulator's speed, and serves the lockstep bridge.
+//!
+//! ```text
+//! cargo run -p sim --release --bin scenario -- throw-catch --airframe paper-quad --out log.csv
+//! cargo run -p sim --release --bin scenario -- list
+//! cargo run -p sim --release --bin scenario -- bench --seconds 120
+//! cargo run -p sim --release --bin scenario -- monte-carlo --runs 1000 --threads 2
+//! cargo run -p sim --release --bin scenario -- bridge --listen 127.0.0.1:9003
+//! ```
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use nalgebra::Vector3;
+use sim::airframe::{Airframe, LIBRARY};
+use sim::bridge::{BridgeError, BridgeServer};
+use sim::log::CsvLog;
+use sim::monte_carlo;
+use sim::scenario::{self, NoApp, ScenarioConfig, ScenarioKind};
+
+#[derive(Parser)]
+#[command(about = "Multirotor simulator scenarios, airframes, benchmarks and the lockstep bridge")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Hold the craft still in the hand.
+    HoldStill(RunArgs),
+    /// Throw the craft with spin and catch it (data for the IMU-offset fit).
+    ThrowCatch(RunArgs),
+    /// Throw the craft and let the application fly it (needs firmware::app::ControlLoop; today
+    /// the application commands nothing and the craft falls).
+    ThrowFly(RunArgs),
+    /// List the built-in airframes.
+    List,
+    /// Print an airframe's TOML (built-in name or file; `random:<seed>` for a random one).
+    Show {
+        /// Airframe name, file, or `random:<seed>`.
+        airframe: String,
+    },
+    /// Measure simulated seconds per wall-clock second on one thread.
+    Bench {
+        /// Airframe name or file.
+        #[arg(long, default_value = "paper-quad")]
+        airframe: String,
+        /// Simulated seconds to run (repeated throw-and-fly runs of 6 s).
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+    },
+    /// Run a Monte Carlo batch of throw-and-catch runs on random airframes.
+    MonteCarlo {
+        /// Number of runs.
+        #[arg(long, default_value_t = 1000)]
+        runs: usize,
+        /// Worker threads.
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Seed of the first run.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Serve the lockstep UDP bridge for an external simulator (see docs/sim-bridge.md).
+    Bridge {
+        /// Address to listen on for sensor packets.
+        #[arg(long, default_value = "127.0.0.1:9003")]
+        listen: String,
+        /// Stop after this many seconds without a packet.
+        #[arg(long, default_value_t = 10.0)]
+        idle_timeout_s: f64,
+    },
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// Airframe: a built-in name (see `list`), a TOML file, or `random:<seed>`.
+    #[arg(long, default_value = "paper-quad")]
+    airframe: String,
+    /// Output CSV log.
+    #[arg(long)]
+    out: PathBuf,
+    /// Sensor-noise seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Body rate at release, °/s, as `x,y,z` (default: the scenario's).
+    #[arg(long, value_delimiter = ',', num_args = 3, allow_negative_numbers = true)]
+    rate_dps: Option<Vec<f64>>,
+    /// Apex of the throw above the release point, m (default: the scenario's).
+    #[arg(long)]
+    apex_m: Option<f64>,
+    /// Height of the hand at the start, m.
+    #[arg(long)]
+    height_m: Option<f64>,
+    /// Longest run, s (default: the scenario's).
+    #[arg(long)]
+    duration_s: Option<f64>,
+}
+
+fn load_airframe(spec: &str) -> Result<Airframe> {
+    if let Some(seed) = spec.strip_prefix("random:") {
+        let seed: u64 = seed.parse().with_context(|| format!("`{seed}` is not a seed (u64)"))?;
+        return Ok(Airframe::random(seed));
+    }
+    Ok(Airframe::load(spec)?)
+}
+
+fn run_scenario(kind: ScenarioKind, args: RunArgs) -> Result<()> {
+    let airframe = load_airframe(&args.airframe)?;
+    let mut config = ScenarioConfig::new(kind);
+    config.board.seed = args.seed;
+    if let Some(r) = &args.rate_dps {
+        config.throw_rate_body_rad_s = Vector3::new(r[0], r[1], r[2]).map(f64::to_radians);
+    }
+    if let Some(a) = args.apex_m {
+        config.throw_apex_m = a;
+    }
+    if let Some(h) = args.height_m {
+        config.hold_height_m = h;
+    }
+    if let Some(d) = args.duration_s {
+        config.duration_s = d;
+    }
+    let file = File::create(&args.out)
+        .with_context(|| format!("cannot create the log file {}", args.out.display()))?;
+    let mut log = CsvLog::new(BufWriter::new(file), airframe.rotor_count())?;
+    let mut last_shown = -1.0;
+    let mut progress = |t: f64, total: f64| {
+        if t - last_shown >= 0.5 {
+            eprint!("\r{:?} on {}: {t:5.1} / {total:.1} s", kind, airframe.name);
+            last_shown = t;
+        }
+    };
+    // The firmware's ControlLoop replaces NoApp here once it exists (see the crate docs).
+    let outcome = scenario::run(&airframe, &config, &mut NoApp, Some(&mut log), &mut progress)?;
+    log.finish()?.flush()?;
+    eprintln!();
+    println!(
+        "{} rows ({:.3} s) written to {}",
+        outcome.ticks,
+        outcome.duration_s,
+        args.out.display()
+    );
+    if let Some(t) = outcome.released_at_s {
+        println!("released at {t:.3} s");
+    }
+    if let Some(t) = outcome.caught_at_s {
+        println!("caught at {t:.3} s");
+    }
+    println!(
+        "max height {:.2} m, max body rate {:.0} °/s, touched ground: {}",
+        outcome.max_height_m,
+        outcome.max_rate_rad_s.to_degrees(),
+        outcome.touched_ground
+    );
+    if kind == ScenarioKind::ThrowFly {
+        println!(
+            "note: firmware::app::ControlLoop does not exist yet; the application commanded nothing"
+        );
+    }
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::HoldStill(a) => run_scenario(ScenarioKind::HoldStill, a),
+        Command::ThrowCatch(a) => run_scenario(ScenarioKind::ThrowCatch, a),
+        Command::ThrowFly(a) => run_scenario(ScenarioKind::ThrowFly, a),
+        Command::List => {
+            for (name, _) in LIBRARY {
+                let a = Airframe::builtin(name)?;
+                println!(
+                    "{name:12} {} rotors, {:.2} kg  {}",
+                    a.rotor_count(),
+                    a.mass_kg,
+                    a.description
+                );
+            }
+            Ok(())
+        }
+        Command::Show { airframe } => {
+            print!("{}", load_airframe(&airframe)?.to_toml_string());
+            Ok(())
+        }
+        Command::Bench { airframe, seconds } => {
+            let airframe = load_airframe(&airframe)?;
+            let config = ScenarioConfig::new(ScenarioKind::ThrowFly);
+            let (sim_s, wall_s) =
+                monte_carlo::realtime_factor(&airframe, &config, &mut NoApp, seconds)?;
+            println!(
+                "{}: {sim_s:.1} simulated s in {wall_s:.3} wall s = {:.0}x real time \
+                 (physics {:.0} Hz RK4, IMU {:.0} Hz, application 2 kHz, one thread)",
+                airframe.name,
+                sim_s / wall_s,
+                airframe.imu.sample_rate_hz * f64::from(config.board.physics_steps_per_imu_sample),
+                airframe.imu.sample_rate_hz,
+            );
+            Ok(())
+        }
+        Command::MonteCarlo { runs, threads, seed } => {
+            eprintln!("{runs} throw-and-catch runs on random airframes, {threads} threads ...");
+            let s = monte_carlo::throw_catch_batch(runs, seed, threads)?;
+            println!(
+                "{} runs ({} caught), {:.0} simulated s in {:.2} wall s on {} threads \
+                 ({:.0}x real time overall)",
+                s.runs,
+                s.caught,
+                s.simulated_s,
+                s.wall.as_secs_f64(),
+                s.threads,
+                s.simulated_s / s.wall.as_secs_f64()
+            );
+            if s.caught != s.runs {
+                bail!("{} runs were not caught", s.runs - s.caught);
+            }
+            Ok(())
+        }
+        Command::Bridge { listen, idle_timeout_s } => {
+            let mut server = BridgeServer::bind(&listen)
+                .with_context(|| format!("cannot listen on {listen}"))?;
+            eprintln!(
+                "bridge listening on {} (sensor packets in, motor packets back)",
+                server.local_addr()?
+            );
+            let timeout = Duration::from_secs_f64(idle_timeout_s);
+            let mut steps = 0u64;
+            loop {
+                match server.step(&mut NoApp, timeout) {
+                    Ok(_) => steps += 1,
+                    Err(BridgeError::Timeout(_)) => {
+                        eprintln!("no packet for {idle_timeout_s} s after {steps} steps; stopping");
+                        return Ok(());
+                    }
+                    Err(e @ BridgeError::Io(_)) => return Err(e.into()),
+                    Err(e) => eprintln!("ignored a malformed packet: {e}"),
+                }
+            }
+        }
+    }
+}
