@@ -1,2 +1,91 @@
-//! The portable flight-controller application.
+//! The portable flight-controller application: the same code on the STM32H743 and in the SITL.
+//!
+//! Three parts, one per RTIC task priority (DESIGN.md, "Data flow at 2 kHz"):
+//! - [`ControlLoop`] (highest priority, 2 kHz timer): IMU in, motor commands out, one compact
+//!   [`LearnerSample`] per IMU sample into a lock-free queue;
+//! - [`LinkServer`] (middle priority, USB): the protocol, answering from a [`StatusView`];
+//! - [`Background`] (lowest priority): drains the queue and runs what is too slow for the step.
+//!
+//! The parts share nothing but small `Copy` snapshots ([`ControlSnapshot`],
+//! [`BackgroundResults`]), which the board copies under a short lock: no computation ever happens
+//! under a lock. The board supplies the hardware through the traits in [`hal`].
+
+mod background;
+mod control;
 pub mod hal;
+mod link;
+mod queue;
+
+pub use background::{Background, BackgroundResults, STATS_WINDOW_US};
+pub use control::{ControlConfig, ControlLoop, ControlSnapshot, CONTROL_RATE_HZ};
+pub use link::{LinkServer, TX_CAPACITY};
+pub use queue::{
+    split_queue, LearnerSample, SampleConsumer, SampleProducer, SampleQueue, SAMPLE_QUEUE_LEN,
+};
+
+use protocol::{
+    Capabilities, FirmwareVersion, Info, BOARD_NAME_LEN, PROTOCOL_VERSION, SCHEMA_HASH,
+};
+
+/// This firmware's version, from the crate version.
+pub const FIRMWARE_VERSION: FirmwareVersion = FirmwareVersion {
+    major: parse_u8(env!("CARGO_PKG_VERSION_MAJOR")),
+    minor: parse_u8(env!("CARGO_PKG_VERSION_MINOR")),
+    patch: parse_u8(env!("CARGO_PKG_VERSION_PATCH")),
+};
+
+/// What the board tells the host about itself.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoardInfo {
+    /// Board name, e.g. "STM32H743" or "SITL" (at most 32 bytes; longer is cut).
+    pub board: &'static str,
+    /// Unique id of this board: the MCU UID in hex, or the simulator instance (at most 32 bytes).
+    pub serial: heapless::String<BOARD_NAME_LEN>,
+    /// [`Capabilities`] flags.
+    pub capabilities: u32,
+    pub control_rate_hz: u16,
+    pub motor_count: u8,
+}
+
+impl BoardInfo {
+    /// The handshake/info reply for this board.
+    pub fn info(&self) -> Info {
+        let mut board = heapless::String::new();
+        for c in self.board.chars() {
+            if board.push(c).is_err() {
+                break;
+            }
+        }
+        Info {
+            protocol: PROTOCOL_VERSION,
+            schema_hash: SCHEMA_HASH,
+            firmware: FIRMWARE_VERSION,
+            board,
+            serial: self.serial.clone(),
+            capabilities: Capabilities(self.capabilities),
+            control_rate_hz: self.control_rate_hz,
+            motor_count: self.motor_count,
+        }
+    }
+}
+
+/// Everything the link reads to answer status requests and sample telemetry: copies of the
+/// control and background snapshots.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StatusView {
+    pub control: ControlSnapshot,
+    pub background: BackgroundResults,
+}
+
+/// Parse a decimal `u8` at compile time (crate version components).
+const fn parse_u8(text: &str) -> u8 {
+    let bytes = text.as_bytes();
+    let mut value: u32 = 0;
+    let mut i = 0;
+    while i < bytes.len() {
+        value = value * 10 + (bytes[i] - b'0') as u32;
+        i += 1;
+    }
+    assert!(value <= 255, "version component exceeds 255");
+    value as u8
+}

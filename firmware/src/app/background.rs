@@ -1,0 +1,180 @@
+//! The background task's work: everything too slow for the 2 kHz step, fed by the sample queue.
+//!
+//! Today it keeps one-second statistics of the IMU stream (mean and standard deviation per axis:
+//! at rest these are the gyro bias and the sensor noise, which the status reports and later
+//! calibration flows use). The learner's estimators (IMU offset, effectiveness RLS, thrust axis)
+//! join here; their results reach the control step through [`BackgroundResults`], copied under a
+//! short lock by the board, never computed under it.
+
+use super::queue::{LearnerSample, SampleConsumer};
+
+/// Length of one statistics window, µs (one second).
+pub const STATS_WINDOW_US: u64 = 1_000_000;
+
+/// What the background task publishes (a small `Copy` value, swapped whole).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BackgroundResults {
+    /// Samples taken from the queue since start-up.
+    pub samples_processed: u32,
+    /// Whether a full window has completed (the statistics below are meaningful).
+    pub stats_valid: bool,
+    /// Gyro mean over the last completed window, rad/s.
+    pub gyro_mean_rad_s: [f32; 3],
+    /// Gyro standard deviation over that window, rad/s.
+    pub gyro_std_rad_s: [f32; 3],
+    /// Accelerometer mean over that window, m/s².
+    pub accel_mean_mps2: [f32; 3],
+    /// Accelerometer standard deviation over that window, m/s².
+    pub accel_std_mps2: [f32; 3],
+}
+
+/// The background worker.
+pub struct Background<'q> {
+    samples: SampleConsumer<'q>,
+    gyro: [RunningStats; 3],
+    accel: [RunningStats; 3],
+    window_start_us: Option<u64>,
+    results: BackgroundResults,
+}
+
+impl<'q> Background<'q> {
+    pub fn new(samples: SampleConsumer<'q>) -> Self {
+        Self {
+            samples,
+            gyro: Default::default(),
+            accel: Default::default(),
+            window_start_us: None,
+            results: BackgroundResults::default(),
+        }
+    }
+
+    /// Process every waiting sample. Returns the number processed.
+    pub fn run_pending(&mut self) -> u32 {
+        let mut processed = 0;
+        while let Some(sample) = self.samples.pop() {
+            self.process(&sample);
+            processed += 1;
+        }
+        processed
+    }
+
+    /// The latest results.
+    pub fn results(&self) -> BackgroundResults {
+        self.results
+    }
+
+    fn process(&mut self, sample: &LearnerSample) {
+        self.results.samples_processed = self.results.samples_processed.wrapping_add(1);
+        let start = *self.window_start_us.get_or_insert(sample.t_us);
+        if sample.t_us.saturating_sub(start) >= STATS_WINDOW_US {
+            self.publish_window();
+            self.window_start_us = Some(sample.t_us);
+        }
+        for axis in 0..3 {
+            self.gyro[axis].add(sample.imu.gyro_rad_s[axis]);
+            self.accel[axis].add(sample.imu.accel_mps2[axis]);
+        }
+    }
+
+    fn publish_window(&mut self) {
+        if self.gyro[0].count < 2 {
+            return;
+        }
+        for axis in 0..3 {
+            self.results.gyro_mean_rad_s[axis] = self.gyro[axis].mean;
+            self.results.gyro_std_rad_s[axis] = self.gyro[axis].std();
+            self.results.accel_mean_mps2[axis] = self.accel[axis].mean;
+            self.results.accel_std_mps2[axis] = self.accel[axis].std();
+        }
+        self.results.stats_valid = true;
+        self.gyro = Default::default();
+        self.accel = Default::default();
+    }
+}
+
+/// Welford's running mean and variance (numerically stable in f32 over a few thousand samples).
+#[derive(Clone, Copy, Debug, Default)]
+struct RunningStats {
+    count: u32,
+    mean: f32,
+    sum_sq_dev: f32,
+}
+
+impl RunningStats {
+    fn add(&mut self, x: f32) {
+        if !x.is_finite() {
+            return;
+        }
+        self.count += 1;
+        let delta = x - self.mean;
+        self.mean += delta / self.count as f32;
+        self.sum_sq_dev += delta * (x - self.mean);
+    }
+
+    /// Sample standard deviation.
+    fn std(&self) -> f32 {
+        if self.count < 2 {
+            return 0.0;
+        }
+        libm::sqrtf(self.sum_sq_dev / (self.count - 1) as f32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::hal::ImuSample;
+    use super::super::queue::{split_queue, SampleQueue};
+    use super::*;
+
+    /// Deterministic standard-normal samples (xorshift + Box-Muller), so the test needs no crate.
+    fn gaussian(state: &mut u64) -> f32 {
+        let mut uniform = || {
+            *state ^= *state << 13;
+            *state ^= *state >> 7;
+            *state ^= *state << 17;
+            ((*state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let (u1, u2) = (uniform(), uniform());
+        ((-2.0 * u1.ln()).sqrt() * (2.0 * core::f64::consts::PI * u2).cos()) as f32
+    }
+
+    #[test]
+    fn one_second_windows_recover_bias_and_noise_of_a_resting_imu() {
+        let (bias_rad_s, noise_rad_s, accel_noise_mps2) = ([0.01, -0.02, 0.005], 0.002, 0.03);
+        let mut queue = SampleQueue::new();
+        let (mut producer, consumer) = split_queue(&mut queue);
+        let mut background = Background::new(consumer);
+        let mut rng = 0x2545_f491_4f6c_dd1d;
+        // 2.5 s at 2 kHz: two full windows, the second one published when the third starts.
+        for step in 0..5000u64 {
+            let mut imu = ImuSample::default();
+            for (axis, bias) in bias_rad_s.iter().enumerate() {
+                imu.gyro_rad_s[axis] = bias + noise_rad_s * gaussian(&mut rng);
+                imu.accel_mps2[axis] = accel_noise_mps2 * gaussian(&mut rng);
+            }
+            imu.accel_mps2[2] -= 9.81;
+            producer.push(LearnerSample { t_us: step * 500, imu, commands: [0.0; 8] });
+            background.run_pending();
+        }
+        let results = background.results();
+        assert_eq!(results.samples_processed, 5000);
+        assert!(results.stats_valid);
+        for (axis, bias) in bias_rad_s.iter().enumerate() {
+            // 2000 samples: the mean's standard error is 0.002/√2000 ≈ 4.5e-5 rad/s.
+            assert!((results.gyro_mean_rad_s[axis] - bias).abs() < 2.5e-4);
+            assert!((results.gyro_std_rad_s[axis] / noise_rad_s - 1.0).abs() < 0.08);
+            assert!((results.accel_std_mps2[axis] / accel_noise_mps2 - 1.0).abs() < 0.08);
+        }
+        assert!((results.accel_mean_mps2[2] + 9.81).abs() < 0.01);
+    }
+
+    #[test]
+    fn non_finite_samples_do_not_poison_the_statistics() {
+        let mut stats = RunningStats::default();
+        for x in [1.0, f32::NAN, 3.0, f32::INFINITY] {
+            stats.add(x);
+        }
+        assert_eq!(stats.count, 2);
+        assert_eq!(stats.mean, 2.0);
+    }
+}

@@ -1,0 +1,258 @@
+//! The 2 kHz control step: reads the IMU, drives the motors, feeds the background task.
+//!
+//! Deadline: one control period (500 µs at 2 kHz). The step never blocks, never allocates and
+//! never panics: a missing IMU sample is counted, a full queue drops and counts, and motor outputs
+//! are always written (zero while disarmed). The attitude filter, the learner's schedule and INDI
+//! join here in later issues.
+
+use super::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use super::queue::{LearnerSample, SampleProducer};
+
+/// Control-step rate, Hz: the published system's INDI and learner rate (algorithms.md §8).
+pub const CONTROL_RATE_HZ: u16 = 2000;
+
+/// Consecutive steps without an IMU sample after which the IMU counts as absent (10 ms at 2 kHz).
+const IMU_ABSENT_AFTER_STEPS: u32 = 20;
+
+/// How the control loop is set up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ControlConfig {
+    /// Step rate, Hz; the board's timer must call [`ControlLoop::step`] at this rate.
+    pub rate_hz: u16,
+}
+
+impl Default for ControlConfig {
+    fn default() -> Self {
+        Self { rate_hz: CONTROL_RATE_HZ }
+    }
+}
+
+/// What the control step publishes for the link and status (a small `Copy` value).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ControlSnapshot {
+    /// Time of the latest step, µs since start-up.
+    pub t_us: u64,
+    pub steps: u32,
+    /// Mean step rate over the last completed second, Hz.
+    pub rate_hz: f32,
+    /// Steps that began more than half a period after the previous one was due.
+    pub late_steps: u32,
+    /// Longest interval between consecutive steps, µs.
+    pub max_interval_us: u32,
+    pub samples_dropped: u32,
+    pub armed: bool,
+    pub imu_present: bool,
+    pub imu_samples: u32,
+    pub imu_missing: u32,
+    /// The latest IMU sample and its time, µs.
+    pub imu: ImuSample,
+    pub imu_t_us: u64,
+    pub motor_count: u8,
+    pub commands: [f32; MAX_MOTORS],
+    pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
+}
+
+/// The control loop's state: the highest-priority task's local resource.
+pub struct ControlLoop<'q> {
+    period_us: u32,
+    samples: SampleProducer<'q>,
+    snapshot: ControlSnapshot,
+    previous_step_us: Option<u64>,
+    steps_without_imu: u32,
+    rate_window_start_us: u64,
+    rate_window_steps: u32,
+}
+
+impl<'q> ControlLoop<'q> {
+    pub fn new(config: ControlConfig, samples: SampleProducer<'q>) -> Self {
+        let rate_hz = config.rate_hz.max(1);
+        Self {
+            period_us: 1_000_000 / u32::from(rate_hz),
+            samples,
+            snapshot: ControlSnapshot::default(),
+            previous_step_us: None,
+            steps_without_imu: 0,
+            rate_window_start_us: 0,
+            rate_window_steps: 0,
+        }
+    }
+
+    /// One control step at time `now_us` (µs since start-up, monotonic). Returns whether samples
+    /// are waiting for the background task (the board then schedules it).
+    pub fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) -> bool {
+        self.account_timing(now_us);
+        let snapshot = &mut self.snapshot;
+        let sample = imu.read().filter(is_finite_sample);
+        match sample {
+            Some(sample) => {
+                snapshot.imu = sample;
+                snapshot.imu_t_us = now_us;
+                snapshot.imu_samples = snapshot.imu_samples.wrapping_add(1);
+                snapshot.imu_present = true;
+                self.steps_without_imu = 0;
+            }
+            None => {
+                snapshot.imu_missing = snapshot.imu_missing.wrapping_add(1);
+                self.steps_without_imu = self.steps_without_imu.saturating_add(1);
+                if self.steps_without_imu >= IMU_ABSENT_AFTER_STEPS {
+                    snapshot.imu_present = false;
+                }
+            }
+        }
+
+        // Disarmed: every motor at zero. The armed path (learner, INDI) arrives with its issue.
+        let motor_count = usize::from(motors.count()).min(MAX_MOTORS);
+        snapshot.motor_count = motor_count as u8;
+        snapshot.commands = [0.0; MAX_MOTORS];
+        motors.set_commands(&snapshot.commands[..motor_count]);
+        snapshot.speeds_rad_s = motors.speeds_rad_s();
+
+        if let Some(imu) = sample {
+            self.samples.push(LearnerSample { t_us: now_us, imu, commands: snapshot.commands });
+        }
+        snapshot.samples_dropped = self.samples.dropped();
+        self.samples.has_waiting()
+    }
+
+    /// The latest state, for the link and the status.
+    pub fn snapshot(&self) -> ControlSnapshot {
+        self.snapshot
+    }
+
+    fn account_timing(&mut self, now_us: u64) {
+        let snapshot = &mut self.snapshot;
+        snapshot.t_us = now_us;
+        snapshot.steps = snapshot.steps.wrapping_add(1);
+        if let Some(previous) = self.previous_step_us {
+            let interval_us = now_us.saturating_sub(previous).min(u64::from(u32::MAX)) as u32;
+            snapshot.max_interval_us = snapshot.max_interval_us.max(interval_us);
+            if interval_us > self.period_us + self.period_us / 2 {
+                snapshot.late_steps = snapshot.late_steps.wrapping_add(1);
+            }
+        } else {
+            self.rate_window_start_us = now_us;
+        }
+        self.previous_step_us = Some(now_us);
+        self.rate_window_steps += 1;
+        let window_us = now_us.saturating_sub(self.rate_window_start_us);
+        if window_us >= 1_000_000 {
+            // Steps completed in the window divided by its length.
+            snapshot.rate_hz = (self.rate_window_steps - 1) as f32 * 1e6 / window_us as f32;
+            self.rate_window_start_us = now_us;
+            self.rate_window_steps = 1;
+        }
+    }
+}
+
+fn is_finite_sample(sample: &ImuSample) -> bool {
+    sample.gyro_rad_s.iter().chain(&sample.accel_mps2).all(|x| x.is_finite())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::hal::NoMotors;
+    use super::super::queue::{split_queue, SampleQueue};
+    use super::*;
+
+    /// An IMU that delivers a sample on the steps the test chooses.
+    struct ScriptedImu {
+        deliver: fn(u32) -> bool,
+        calls: u32,
+    }
+
+    impl Imu for ScriptedImu {
+        fn read(&mut self) -> Option<ImuSample> {
+            self.calls += 1;
+            (self.deliver)(self.calls)
+                .then_some(ImuSample { gyro_rad_s: [0.1, 0.2, 0.3], accel_mps2: [0.0, 0.0, -9.81] })
+        }
+    }
+
+    /// Motors that remember what they were told.
+    struct RecordingMotors {
+        commands: Vec<f32>,
+    }
+
+    impl Motors for RecordingMotors {
+        fn count(&self) -> u8 {
+            4
+        }
+        fn set_commands(&mut self, commands: &[f32]) {
+            self.commands = commands.to_vec();
+        }
+        fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
+            [Some(100.0), Some(101.0), Some(102.0), Some(103.0), None, None, None, None]
+        }
+    }
+
+    #[test]
+    fn two_seconds_at_2khz_measure_2khz_with_no_late_steps() {
+        let mut queue = SampleQueue::new();
+        let (producer, mut consumer) = split_queue(&mut queue);
+        let mut control = ControlLoop::new(ControlConfig::default(), producer);
+        let mut imu = ScriptedImu { deliver: |_| true, calls: 0 };
+        let mut motors = RecordingMotors { commands: vec![] };
+        for step in 0..4001u64 {
+            control.step(step * 500, &mut imu, &mut motors);
+            while consumer.pop().is_some() {}
+        }
+        let snapshot = control.snapshot();
+        assert_eq!(snapshot.steps, 4001);
+        assert!((snapshot.rate_hz - 2000.0).abs() < 0.5, "{}", snapshot.rate_hz);
+        assert_eq!(snapshot.late_steps, 0);
+        assert_eq!(snapshot.max_interval_us, 500);
+        assert_eq!(motors.commands, vec![0.0; 4], "disarmed: all four motors at zero");
+        assert_eq!(snapshot.speeds_rad_s[3], Some(103.0));
+        assert!(snapshot.imu_present);
+    }
+
+    #[test]
+    fn a_late_step_and_missing_samples_are_counted() {
+        let mut queue = SampleQueue::new();
+        let (producer, _consumer) = split_queue(&mut queue);
+        let mut control = ControlLoop::new(ControlConfig::default(), producer);
+        // Every third read has no sample.
+        let mut imu = ScriptedImu { deliver: |call| call % 3 != 0, calls: 0 };
+        let times_us = [0, 500, 1000, 1800, 2300, 2800];
+        for t in times_us {
+            control.step(t, &mut imu, &mut NoMotors);
+        }
+        let snapshot = control.snapshot();
+        assert_eq!(snapshot.late_steps, 1, "the 800 µs interval is late, 500 µs ones are not");
+        assert_eq!(snapshot.max_interval_us, 800);
+        assert_eq!(snapshot.imu_missing, 2);
+        assert_eq!(snapshot.imu_samples, 4);
+        assert_eq!(snapshot.motor_count, 0);
+    }
+
+    #[test]
+    fn without_an_imu_the_loop_runs_and_reports_it_absent() {
+        let mut queue = SampleQueue::new();
+        let (producer, mut consumer) = split_queue(&mut queue);
+        let mut control = ControlLoop::new(ControlConfig::default(), producer);
+        let mut imu = ScriptedImu { deliver: |_| false, calls: 0 };
+        let mut waiting = false;
+        for step in 0..100u64 {
+            waiting |= control.step(step * 500, &mut imu, &mut NoMotors);
+        }
+        assert!(!control.snapshot().imu_present);
+        assert_eq!(control.snapshot().imu_missing, 100);
+        assert!(!waiting && consumer.pop().is_none(), "nothing is queued without samples");
+    }
+
+    #[test]
+    fn non_finite_imu_samples_are_treated_as_missing() {
+        struct NanImu;
+        impl Imu for NanImu {
+            fn read(&mut self) -> Option<ImuSample> {
+                Some(ImuSample { gyro_rad_s: [f32::NAN, 0.0, 0.0], accel_mps2: [0.0; 3] })
+            }
+        }
+        let mut queue = SampleQueue::new();
+        let (producer, mut consumer) = split_queue(&mut queue);
+        let mut control = ControlLoop::new(ControlConfig::default(), producer);
+        control.step(0, &mut NanImu, &mut NoMotors);
+        assert_eq!(control.snapshot().imu_missing, 1);
+        assert!(consumer.pop().is_none());
+    }
+}

@@ -1,0 +1,313 @@
+//! The link server: the device's side of the protocol, on any byte transport (USB CDC on the
+//! board; a pseudo-terminal or TCP in the simulator).
+//!
+//! Bytes in → frames → requests → one response each (ok or a typed error), matched by sequence
+//! number. Telemetry topics are sampled at the rate the host chose and serialised straight into
+//! the transmit buffer; each topic counts its samples in the frame sequence number, so a sample
+//! dropped for lack of transmit space is a gap the host can count. Bad frames are counted and
+//! reported as an event at most every 100 ms. Nothing here blocks or allocates.
+
+use super::{BoardInfo, StatusView};
+use protocol::{
+    ControlStatus, ControlTelemetry, DecodeError, Decoder, DeviceError, DeviceMessage, Event,
+    FrameError, ImuStatus, ImuTelemetry, LinkCounters, MotorTelemetry, Reply, Request, Response,
+    SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_TELEMETRY_RATE_HZ,
+    PROTOCOL_VERSION, TOPIC_COUNT,
+};
+
+/// Transmit buffer size, bytes: eight maximum frames (about 4 ms of USB full-speed bulk traffic).
+pub const TX_CAPACITY: usize = 8 * MAX_FRAME_LEN;
+/// Transmit space telemetry and events must leave free, bytes: room for two maximum-size
+/// responses, so a request is answered even while telemetry saturates the link.
+const RESPONSE_RESERVE: usize = 2 * MAX_FRAME_LEN;
+/// Shortest interval between two link-error events, µs.
+const LINK_ERROR_EVENT_INTERVAL_US: u64 = 100_000;
+
+/// Per-topic streaming state.
+#[derive(Clone, Copy, Debug, Default)]
+struct TopicState {
+    /// Sampling period, µs; 0 when the topic is off.
+    period_us: u32,
+    next_due_us: u64,
+    /// Samples taken so far (sent or dropped): the frame sequence number.
+    seq: u16,
+}
+
+/// The device's protocol endpoint: the link task's local resource.
+pub struct LinkServer {
+    info: protocol::Info,
+    decoder: Decoder,
+    tx: TxBuffer,
+    /// The host's protocol version once a handshake succeeded.
+    host_version: Option<Version>,
+    topics: [TopicState; TOPIC_COUNT],
+    counters: LinkCounters,
+    event_seq: u16,
+    /// Errors arrived since the last link-error event.
+    errors_unreported: bool,
+    last_error_event_us: Option<u64>,
+}
+
+impl LinkServer {
+    pub fn new(board: BoardInfo) -> Self {
+        Self {
+            info: board.info(),
+            decoder: Decoder::new(),
+            tx: TxBuffer::new(),
+            host_version: None,
+            topics: [TopicState::default(); TOPIC_COUNT],
+            counters: LinkCounters::default(),
+            event_seq: 0,
+            errors_unreported: false,
+            last_error_event_us: None,
+        }
+    }
+
+    /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit`].
+    pub fn receive(&mut self, bytes: &[u8], now_us: u64, view: &StatusView) {
+        for &byte in bytes {
+            let Some(result) = self.decoder.push(byte) else { continue };
+            let (seq, decoded) = match result {
+                Ok(frame) => (frame.seq, Request::decode(&frame)),
+                Err(error) => {
+                    self.count_frame_error(error);
+                    continue;
+                }
+            };
+            self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
+            let response = match decoded {
+                Ok(request) => self.handle(request, now_us, view),
+                Err(DecodeError::UnknownId { id }) => {
+                    self.counters.unknown_id = self.counters.unknown_id.wrapping_add(1);
+                    Err(DeviceError::UnknownRequest { id })
+                }
+                Err(DecodeError::Malformed { id }) => {
+                    self.counters.malformed = self.counters.malformed.wrapping_add(1);
+                    Err(DeviceError::Malformed { id })
+                }
+            };
+            if self.send(&DeviceMessage::Response(response), seq, 0).is_err() {
+                self.counters.responses_dropped = self.counters.responses_dropped.wrapping_add(1);
+            }
+        }
+    }
+
+    /// Sample the telemetry topics that are due and emit pending events. Call at least as often
+    /// as the fastest topic (the board calls it every millisecond).
+    pub fn poll(&mut self, now_us: u64, view: &StatusView) {
+        for topic in Topic::ALL {
+            let state = self.topics[topic.index()];
+            if state.period_us == 0 || now_us < state.next_due_us {
+                continue;
+            }
+            let period_us = u64::from(state.period_us);
+            // Keep the cadence; after a stall, restart it rather than sending a burst.
+            let next_due_us = if now_us - state.next_due_us >= period_us {
+                now_us + period_us
+            } else {
+                state.next_due_us + period_us
+            };
+            let message = DeviceMessage::Telemetry(sample_topic(topic, view));
+            if self.send(&message, state.seq, RESPONSE_RESERVE).is_err() {
+                self.counters.telemetry_dropped = self.counters.telemetry_dropped.wrapping_add(1);
+            }
+            let state = &mut self.topics[topic.index()];
+            state.seq = state.seq.wrapping_add(1);
+            state.next_due_us = next_due_us;
+        }
+        let event_due = self
+            .last_error_event_us
+            .is_none_or(|last| now_us.saturating_sub(last) >= LINK_ERROR_EVENT_INTERVAL_US);
+        if self.errors_unreported && event_due {
+            let event = DeviceMessage::Event(Event::LinkErrors(self.counters));
+            if self.send(&event, self.event_seq, RESPONSE_RESERVE).is_ok() {
+                self.event_seq = self.event_seq.wrapping_add(1);
+                self.errors_unreported = false;
+                self.last_error_event_us = Some(now_us);
+            }
+        }
+    }
+
+    /// Move queued bytes into `out`; returns how many. Call until it returns 0 or the transport
+    /// is full.
+    pub fn transmit(&mut self, out: &mut [u8]) -> usize {
+        self.tx.drain(out)
+    }
+
+    /// Bytes waiting to be transmitted.
+    pub fn pending_tx(&self) -> usize {
+        self.tx.len()
+    }
+
+    /// The link's frame counters.
+    pub fn counters(&self) -> LinkCounters {
+        self.counters
+    }
+
+    fn handle(&mut self, request: Request, now_us: u64, view: &StatusView) -> Response {
+        match request {
+            Request::Hello(hello) => self.handshake(hello.protocol),
+            _ if self.host_version.is_none() => Err(DeviceError::HandshakeRequired),
+            Request::GetInfo(()) => Ok(Reply::Info(self.info.clone())),
+            Request::GetStatus(()) => Ok(Reply::Status(self.status(view))),
+            Request::SetTelemetryRate(setting) => self.set_rate(setting, now_us),
+            Request::Ping(ping) => Ok(Reply::Pong(ping)),
+        }
+    }
+
+    fn handshake(&mut self, host: Version) -> Response {
+        if host.major != PROTOCOL_VERSION.major {
+            self.host_version = None;
+            return Err(DeviceError::IncompatibleProtocol { device: PROTOCOL_VERSION, host });
+        }
+        // A new session: nothing streams until the host asks for it.
+        self.host_version = Some(host);
+        self.topics = [TopicState::default(); TOPIC_COUNT];
+        Ok(Reply::Hello(self.info.clone()))
+    }
+
+    fn set_rate(&mut self, setting: SetTelemetryRate, now_us: u64) -> Response {
+        if setting.rate_hz > MAX_TELEMETRY_RATE_HZ {
+            return Err(DeviceError::BadValue {
+                name: short_text("rate_hz"),
+                value: f32::from(setting.rate_hz),
+                min: 0.0,
+                max: f32::from(MAX_TELEMETRY_RATE_HZ),
+                unit: short_text("Hz"),
+            });
+        }
+        let state = &mut self.topics[setting.topic.index()];
+        state.period_us =
+            if setting.rate_hz == 0 { 0 } else { 1_000_000 / u32::from(setting.rate_hz) };
+        state.next_due_us = now_us;
+        Ok(Reply::Done)
+    }
+
+    fn status(&self, view: &StatusView) -> Status {
+        let control = &view.control;
+        let background = &view.background;
+        Status {
+            uptime_ms: (control.t_us / 1000).min(u64::from(u32::MAX)) as u32,
+            armed: control.armed,
+            control: ControlStatus {
+                steps: control.steps,
+                rate_hz: control.rate_hz,
+                late_steps: control.late_steps,
+                max_interval_us: control.max_interval_us,
+                samples_processed: background.samples_processed,
+                samples_dropped: control.samples_dropped,
+            },
+            imu: ImuStatus {
+                present: control.imu_present,
+                samples: control.imu_samples,
+                missing: control.imu_missing,
+                gyro_rad_s: control.imu.gyro_rad_s,
+                accel_mps2: control.imu.accel_mps2,
+                gyro_mean_rad_s: background.gyro_mean_rad_s,
+                gyro_std_rad_s: background.gyro_std_rad_s,
+                accel_std_mps2: background.accel_std_mps2,
+            },
+            link: self.counters,
+        }
+    }
+
+    /// Encode a message into the transmit buffer, leaving `reserve` bytes free.
+    fn send(&mut self, message: &DeviceMessage, seq: u16, reserve: usize) -> Result<(), TxFull> {
+        self.tx.push(message, seq, reserve)?;
+        self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
+        Ok(())
+    }
+
+    fn count_frame_error(&mut self, error: FrameError) {
+        let counters = &mut self.counters;
+        let counter = match error {
+            FrameError::Oversize => &mut counters.oversize,
+            FrameError::BadCrc { .. } => &mut counters.bad_crc,
+            FrameError::BadCobs | FrameError::TooShort { .. } | FrameError::BadHeader => {
+                &mut counters.bad_framing
+            }
+        };
+        *counter = counter.wrapping_add(1);
+        self.errors_unreported = true;
+    }
+}
+
+fn sample_topic(topic: Topic, view: &StatusView) -> Telemetry {
+    let control = &view.control;
+    match topic {
+        Topic::Imu => Telemetry::Imu(ImuTelemetry {
+            t_us: control.imu_t_us,
+            gyro_rad_s: control.imu.gyro_rad_s,
+            accel_mps2: control.imu.accel_mps2,
+        }),
+        Topic::Control => Telemetry::Control(ControlTelemetry {
+            t_us: control.t_us,
+            steps: control.steps,
+            late_steps: control.late_steps,
+            samples_dropped: control.samples_dropped,
+        }),
+        Topic::Motors => Telemetry::Motors(MotorTelemetry {
+            t_us: control.t_us,
+            commands: control.commands,
+            speeds_rad_s: control.speeds_rad_s,
+        }),
+    }
+}
+
+fn short_text<const N: usize>(text: &str) -> heapless::String<N> {
+    let mut out = heapless::String::new();
+    for c in text.chars() {
+        if out.push(c).is_err() {
+            break;
+        }
+    }
+    out
+}
+
+/// Not enough transmit space for the frame (with the reserve the caller asked to keep).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct TxFull;
+
+/// A linear transmit buffer that frames are encoded into in place; drained from the front,
+/// compacted when the tail has no room for a maximum-size frame.
+struct TxBuffer {
+    bytes: [u8; TX_CAPACITY],
+    start: usize,
+    end: usize,
+}
+
+impl TxBuffer {
+    const fn new() -> Self {
+        Self { bytes: [0; TX_CAPACITY], start: 0, end: 0 }
+    }
+
+    fn len(&self) -> usize {
+        self.end - self.start
+    }
+
+    fn push(&mut self, message: &DeviceMessage, seq: u16, reserve: usize) -> Result<(), TxFull> {
+        if TX_CAPACITY - self.len() < MAX_FRAME_LEN + reserve {
+            return Err(TxFull);
+        }
+        if TX_CAPACITY - self.end < MAX_FRAME_LEN {
+            self.bytes.copy_within(self.start..self.end, 0);
+            self.end -= self.start;
+            self.start = 0;
+        }
+        // Cannot fail: MAX_FRAME_LEN bytes are free and every message fits a frame (tested).
+        let written = message.encode(seq, &mut self.bytes[self.end..]).map_err(|_| TxFull)?;
+        self.end += written;
+        Ok(())
+    }
+
+    fn drain(&mut self, out: &mut [u8]) -> usize {
+        let n = out.len().min(self.len());
+        out[..n].copy_from_slice(&self.bytes[self.start..self.start + n]);
+        self.start += n;
+        if self.start == self.end {
+            self.start = 0;
+            self.end = 0;
+        }
+        n
+    }
+}

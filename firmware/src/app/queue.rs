@@ -1,0 +1,87 @@
+//! The queue from the 2 kHz control step to the background task.
+//!
+//! A single-producer single-consumer ring (heapless `spsc`, lock-free): the control step pushes one
+//! compact [`LearnerSample`] per IMU sample and never waits; when the ring is full the sample is
+//! dropped and counted, so a slow background task shows up as a number in the status, never as a
+//! late control step.
+
+use super::hal::{ImuSample, MAX_MOTORS};
+use heapless::spsc::{Consumer, Producer, Queue};
+
+/// Ring capacity, samples: 64 samples are 32 ms at 2 kHz, far longer than any background job
+/// may hold the CPU. (heapless' ring keeps one slot free, so 63 are usable.)
+pub const SAMPLE_QUEUE_LEN: usize = 64;
+
+/// What the control step hands to the background estimators for each IMU sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LearnerSample {
+    /// Time of the control step that read the sample, µs since start-up.
+    pub t_us: u64,
+    pub imu: ImuSample,
+    /// Motor commands δ ∈ [0, 1] in force while the sample was taken.
+    pub commands: [f32; MAX_MOTORS],
+}
+
+/// The ring's storage; split it once with [`SampleQueue::split`].
+pub type SampleQueue = Queue<LearnerSample, SAMPLE_QUEUE_LEN>;
+
+/// The control step's end of the queue: pushes without blocking and counts what it drops.
+pub struct SampleProducer<'q> {
+    inner: Producer<'q, LearnerSample>,
+    dropped: u32,
+}
+
+/// The background task's end of the queue.
+pub struct SampleConsumer<'q> {
+    inner: Consumer<'q, LearnerSample>,
+}
+
+/// Split a queue into its two ends.
+pub fn split_queue(queue: &mut SampleQueue) -> (SampleProducer<'_>, SampleConsumer<'_>) {
+    let (inner_producer, inner_consumer) = queue.split();
+    (SampleProducer { inner: inner_producer, dropped: 0 }, SampleConsumer { inner: inner_consumer })
+}
+
+impl SampleProducer<'_> {
+    /// Push a sample; when the ring is full, drop it and count it. Never blocks.
+    pub fn push(&mut self, sample: LearnerSample) {
+        if self.inner.enqueue(sample).is_err() {
+            self.dropped = self.dropped.wrapping_add(1);
+        }
+    }
+
+    /// Samples dropped so far because the ring was full.
+    pub fn dropped(&self) -> u32 {
+        self.dropped
+    }
+
+    /// Whether samples are waiting for the consumer.
+    pub fn has_waiting(&self) -> bool {
+        !self.inner.is_empty()
+    }
+}
+
+impl SampleConsumer<'_> {
+    /// The oldest waiting sample, if any.
+    pub fn pop(&mut self) -> Option<LearnerSample> {
+        self.inner.dequeue()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_full_queue_drops_and_counts_instead_of_blocking() {
+        let mut queue = SampleQueue::new();
+        let (mut producer, mut consumer) = split_queue(&mut queue);
+        let usable = SAMPLE_QUEUE_LEN - 1;
+        for i in 0..usable + 10 {
+            producer.push(LearnerSample { t_us: i as u64, ..Default::default() });
+        }
+        assert_eq!(producer.dropped(), 10);
+        let received: Vec<u64> = core::iter::from_fn(|| consumer.pop()).map(|s| s.t_us).collect();
+        assert_eq!(received, (0..usable as u64).collect::<Vec<_>>(), "oldest kept, in order");
+    }
+}
