@@ -1,8 +1,258 @@
-//! The STM32H743 firmware binary (RTIC). On the host this file builds to an empty program so
-//! that `cargo build --workspace` works; the application itself is `firmware::app`.
+//! The STM32H743 firmware binary: an RTIC 1 application that runs the portable
+//! [`firmware::app`] on the board.
+//!
+//! It is deliberately thin (in the manner of stabilizer's `dual-iir.rs`): it sets up clocks and
+//! peripherals through [`firmware::board`], then gives each part of DESIGN.md's data flow a task:
+//!
+//! | task | bound to | priority | what |
+//! |---|---|---|---|
+//! | `control_tick` | TIM2 update, 2 kHz | 3 (highest) | one control step; pends `usb_service` at 1 kHz, spawns `background` when samples wait |
+//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | USB device, CDC bytes ↔ link server, telemetry |
+//! | `background` | software task (dispatcher `DCMI`) | 1 | drains the learner-sample queue, publishes results |
+//! | `idle` | — | 0 | sleeps (`wfi`) |
+//!
+//! Shared resources are only handoffs: the control step's `Copy` status snapshot and the
+//! background results, each written and read under a lock held for a copy. Everything else is a
+//! task's `#[local]` state. Task bodies live outside the `#[app]` module (RTIC v1 book), in
+//! [`tasks`].
+//!
+//! On the host this file builds to a stub `main` so that `cargo build --workspace` works; the
+//! simulator runs the same `firmware::app` code instead.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!("the firmware binary only runs on the STM32H743; run the simulator instead: cargo run -p sim --bin sitl");
+}
+
+#[cfg(target_os = "none")]
+use {defmt_rtt as _, panic_probe as _};
+
+// The RTIC application: resources, initialisation and the task table.
+#[cfg(target_os = "none")]
+#[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
+mod app {
+    use crate::tasks::{background, control_tick, usb_service};
+    use firmware::app::hal::Motors;
+    use firmware::app::{
+        split_queue, Background, BackgroundResults, BoardInfo, ControlConfig, ControlLoop,
+        ControlSnapshot, LinkServer, SampleQueue,
+    };
+    use firmware::board::config::{HCLK_HZ, SYS_CK_HZ, TIME_BASE_HZ};
+    use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
+    use firmware::board::imu::BoardImu;
+    use firmware::board::motors::BoardMotors;
+    use firmware::board::time::MicrosClock;
+    use firmware::board::usb::{self, UsbSerial, UsbStorage, EP_MEMORY_WORDS};
+    use firmware::board::BOARD;
+    use protocol::Capabilities;
+    use stm32h7xx_hal::pac;
+    use stm32h7xx_hal::prelude::*;
+    use stm32h7xx_hal::rcc::rec::UsbClkSel;
+    use stm32h7xx_hal::timer::{Event, Timer};
+    use stm32h7xx_hal::usb_hs::USB2;
+    use usb_device::bus::UsbBusAllocator;
+
+    /// Handoffs between tasks: small `Copy` values, locked only for the copy.
+    #[shared]
+    struct Shared {
+        /// Written by `control_tick` every step, read by `usb_service`.
+        control: ControlSnapshot,
+        /// Written by `background` after each batch, read by `usb_service`.
+        background: BackgroundResults,
+    }
+
+    /// Each task's own state.
+    #[local]
+    struct Local {
+        control_timer: Timer<pac::TIM2>,
+        control_clock: MicrosClock,
+        control: ControlLoop<'static>,
+        imu: BoardImu,
+        motors: BoardMotors,
+        usb_clock: MicrosClock,
+        usb: UsbSerial,
+        link: LinkServer,
+        background: Background<'static>,
+    }
+
+    #[init(local = [
+        samples: SampleQueue = SampleQueue::new(),
+        ep_memory: [u32; EP_MEMORY_WORDS] = [0; EP_MEMORY_WORDS],
+        usb_bus: Option<UsbBusAllocator<usb::Bus>> = None,
+        uid_text: [u8; UID_HEX_CHARS] = [0; UID_HEX_CHARS],
+    ])]
+    fn init(cx: init::Context) -> (Shared, Local, init::Monotonics) {
+        let dp = cx.device;
+
+        // Keep the debug port alive while the core sleeps in `wfi`, so probe-rs and defmt-rtt
+        // keep working (RM0433 §60.5.8, DBGMCU_CR).
+        dp.DBGMCU
+            .cr
+            .modify(|_, w| w.dbgsleep_d1().set_bit().dbgstop_d1().set_bit().dbgstby_d1().set_bit());
+
+        // Clocks: LDO supply at VOS1 (the HAL's default), HSE → PLL1 → 400 MHz (see
+        // `board::config` for why not 480 MHz), USB from the 48 MHz internal RC (HSI48).
+        let pwrcfg = dp.PWR.constrain().freeze();
+        let mut rcc =
+            dp.RCC.constrain().use_hse(BOARD.hse_hz.Hz()).sys_ck(SYS_CK_HZ.Hz()).hclk(HCLK_HZ.Hz());
+        if BOARD.hse_bypass {
+            rcc = rcc.bypass_hse();
+        }
+        let mut ccdr = rcc.freeze(pwrcfg, &dp.SYSCFG);
+        if ccdr.clocks.hsi48_ck().is_none() {
+            defmt::panic!("HSI48 is not running: USB has no clock");
+        }
+        ccdr.peripheral.kernel_usb_clk_mux(UsbClkSel::Hsi48);
+
+        // Time base: TIM5 counting microseconds.
+        let time_base = dp.TIM5.tick_timer(TIME_BASE_HZ.Hz(), ccdr.peripheral.TIM5, &ccdr.clocks);
+        let clock = MicrosClock::new(time_base);
+
+        // USB CDC on OTG2's internal full-speed PHY (PA11 = D−, PA12 = D+, AF10).
+        let gpioa = dp.GPIOA.split(ccdr.peripheral.GPIOA);
+        let usb_peripheral = USB2::new(
+            dp.OTG2_HS_GLOBAL,
+            dp.OTG2_HS_DEVICE,
+            dp.OTG2_HS_PWRCLK,
+            gpioa.pa11.into_alternate(),
+            gpioa.pa12.into_alternate(),
+            ccdr.peripheral.USB2OTG,
+            &ccdr.clocks,
+        );
+        let uid_text: &'static str = uid_hex(cx.local.uid_text);
+        let usb = UsbSerial::new(
+            usb_peripheral,
+            UsbStorage { ep_memory: cx.local.ep_memory, bus: cx.local.usb_bus },
+            uid_text,
+        );
+
+        // The portable application: control loop → sample queue → background worker.
+        let config = ControlConfig::default();
+        let motors = BoardMotors::default();
+        let (producer, consumer) = split_queue(cx.local.samples);
+        let control = ControlLoop::new(config, producer);
+        let background = Background::new(consumer);
+        let mut serial = heapless::String::new();
+        // The 24-character UID always fits the protocol's 32-byte field.
+        let _ = serial.push_str(uid_text);
+        let link = LinkServer::new(BoardInfo {
+            board: BOARD.name,
+            serial,
+            // No IMU driver and no motor outputs yet: say so (see `board::imu`, `board::motors`).
+            capabilities: Capabilities::TELEMETRY,
+            control_rate_hz: config.rate_hz,
+            motor_count: motors.count(),
+        });
+        let shared = Shared { control: control.snapshot(), background: background.results() };
+
+        // The control tick at the application's rate (2 kHz), started last so the first step
+        // finds everything ready.
+        let control_rate_hz = u32::from(config.rate_hz);
+        let mut control_timer =
+            dp.TIM2.timer(control_rate_hz.Hz(), ccdr.peripheral.TIM2, &ccdr.clocks);
+        control_timer.listen(Event::TimeOut);
+
+        defmt::info!(
+            "STM32H743 {=str} up: sys_ck {} Hz, hclk {} Hz, control {} Hz",
+            uid_text,
+            ccdr.clocks.sys_ck().raw(),
+            ccdr.clocks.hclk().raw(),
+            control_rate_hz
+        );
+
+        let local = Local {
+            control_timer,
+            control_clock: clock,
+            control,
+            imu: BoardImu,
+            motors,
+            usb_clock: clock,
+            usb,
+            link,
+            background,
+        };
+        (shared, local, init::Monotonics())
+    }
+
+    /// Nothing to do between interrupts: sleep until the next one.
+    #[idle]
+    fn idle(_: idle::Context) -> ! {
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    extern "Rust" {
+        #[task(
+            binds = TIM2,
+            priority = 3,
+            local = [control_timer, control_clock, control, imu, motors, ticks: u32 = 0],
+            shared = [control]
+        )]
+        fn control_tick(cx: control_tick::Context);
+
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link], shared = [control, background])]
+        fn usb_service(cx: usb_service::Context);
+
+        #[task(priority = 1, local = [background], shared = [background])]
+        fn background(cx: background::Context);
+    }
+}
+
+/// The task bodies (RTIC v1 "extern" tasks): what each task does, apart from the task table.
+#[cfg(target_os = "none")]
+mod tasks {
+    use crate::app::{background, control_tick, usb_service};
+    use firmware::app::StatusView;
+    use firmware::board::config::USB_SERVICE_DIVIDER;
+    use rtic::mutex_prelude::*;
+    use stm32h7xx_hal::pac::Interrupt;
+
+    /// One control step, on every TIM2 update at 2 kHz, at the highest priority.
+    ///
+    /// Deadline: 500 µs (one period of the 2 kHz loop; the next IMU sample is due then). It
+    /// never blocks and never allocates: the IMU and motor adapters return at once, the sample
+    /// queue drops and counts when full, and the only lock is an uncontended copy of the status
+    /// snapshot (no higher-priority task shares it).
+    pub fn control_tick(mut cx: control_tick::Context) {
+        cx.local.control_timer.clear_irq();
+        let now_us = cx.local.control_clock.now_us();
+        let samples_waiting = cx.local.control.step(now_us, cx.local.imu, cx.local.motors);
+        let snapshot = cx.local.control.snapshot();
+        cx.shared.control.lock(|control| *control = snapshot);
+
+        if samples_waiting {
+            // `Err` means a run is already queued; it drains everything, so nothing is lost.
+            let _ = background::spawn();
+        }
+        *cx.local.ticks = cx.local.ticks.wrapping_add(1);
+        if cx.local.ticks.is_multiple_of(USB_SERVICE_DIVIDER) {
+            // Telemetry must flow even when the host sends nothing (no USB interrupt).
+            rtic::pend(Interrupt::OTG_FS);
+        }
+    }
+
+    /// The USB link, on every OTG2 interrupt and at 1 kHz from the control step: services the
+    /// USB device, feeds received bytes to the link server, lets it queue due telemetry, and
+    /// sends what it produced until it has nothing more or the endpoint is full. Never blocks.
+    pub fn usb_service(mut cx: usb_service::Context) {
+        let now_us = cx.local.usb_clock.now_us();
+        let view = StatusView {
+            control: cx.shared.control.lock(|control| *control),
+            background: cx.shared.background.lock(|background| *background),
+        };
+        let link = cx.local.link;
+        cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view));
+        link.poll(now_us, &view);
+        cx.local.usb.transmit(|out| link.transmit(out));
+    }
+
+    /// Background work at the lowest priority: drain the learner-sample queue through the
+    /// portable worker and publish its results (a copy under a short lock).
+    pub fn background(mut cx: background::Context) {
+        cx.local.background.run_pending();
+        let results = cx.local.background.results();
+        cx.shared.background.lock(|shared| *shared = results);
+    }
 }

@@ -36,13 +36,10 @@ pub const SYS_CK_HZ: u32 = 400_000_000;
 /// USB OTG needs hclk ≥ 30 MHz (RM0433 §57.4.4).
 pub const HCLK_HZ: u32 = SYS_CK_HZ / 2;
 
-/// Control-loop rate, Hz: one control step per IMU sample at the ICM-42688-P's 2 kHz ODR
-/// (DESIGN.md "Data flow at 2 kHz"). The deadline of a step is therefore 1 / 2 kHz = 500 µs.
-pub const CONTROL_RATE_HZ: u32 = 2_000;
-
-/// The USB task is pended by the control step every this many control ticks, so telemetry flows
-/// at up to 2 kHz / 2 = 1 kHz even when the host sends nothing (the OTG interrupt only fires on
-/// bus events).
+/// The USB task is pended by the control step every this many control ticks, so the link is
+/// serviced at 2 kHz / 2 = 1 kHz (every 1 ms) even when the host sends nothing: the OTG interrupt
+/// only fires on bus events, and telemetry must flow without them. The control rate itself is
+/// the portable application's (`crate::app::ControlConfig::rate_hz`, 2 kHz).
 pub const USB_SERVICE_DIVIDER: u32 = 2;
 
 /// Frequency of the microsecond time base ([`crate::board::time`]), Hz: 1 tick = 1 µs.

@@ -6,6 +6,7 @@
 //! simulator runs unchanged. The RTIC application that wires the two together is `src/main.rs`.
 
 pub mod config;
+pub mod identity;
 pub mod imu;
 pub mod motors;
 pub mod time;

@@ -20,12 +20,6 @@ pub type Bus = UsbBus<USB2>;
 /// so it may live in DTCM.
 pub const EP_MEMORY_WORDS: usize = 1024;
 
-/// Bytes of the 96-bit unique device ID (RM0433 §61.1, at 0x1FF1_E800).
-pub const UID_BYTES: usize = 12;
-
-/// The USB serial number: the unique device ID as upper-case hex, two characters per byte.
-pub const SERIAL_NUMBER_CHARS: usize = 2 * UID_BYTES;
-
 /// CDC receive buffer, bytes: several 64-byte full-speed packets, so the host can send a whole
 /// request frame while the USB task is busy.
 const RX_BUFFER_BYTES: usize = 256;
@@ -48,8 +42,6 @@ pub struct UsbStorage {
     pub ep_memory: &'static mut [u32; EP_MEMORY_WORDS],
     /// The bus allocator the device and the serial class borrow.
     pub bus: &'static mut Option<UsbBusAllocator<Bus>>,
-    /// Backing text of the serial-number string descriptor.
-    pub serial_number: &'static mut [u8; SERIAL_NUMBER_CHARS],
 }
 
 /// The CDC-ACM serial link: the USB device, its serial class, and the bytes the link server
@@ -63,11 +55,10 @@ pub struct UsbSerial {
 }
 
 impl UsbSerial {
-    /// Enumerate as a CDC-ACM device with the project's VID/PID and the chip's unique ID as the
-    /// serial number (so several boards on one host can be told apart).
-    pub fn new(usb: USB2, storage: UsbStorage, uid: &[u8; UID_BYTES]) -> Self {
+    /// Enumerate as a CDC-ACM device with the project's VID/PID and `serial_number` (the chip's
+    /// unique ID, [`crate::board::identity`], so several boards on one host can be told apart).
+    pub fn new(usb: USB2, storage: UsbStorage, serial_number: &'static str) -> Self {
         let bus = storage.bus.insert(UsbBus::new(usb, storage.ep_memory));
-        let serial_number = hex_upper(uid, storage.serial_number);
         let serial = SerialPort::new_with_store(bus, [0; RX_BUFFER_BYTES], [0; TX_BUFFER_BYTES]);
         let device = UsbDeviceBuilder::new(bus, UsbVidPid(protocol::USB_VID, protocol::USB_PID))
             .strings(&[StringDescriptors::default()
@@ -130,15 +121,4 @@ impl UsbSerial {
         // Push what is buffered into the endpoint; WouldBlock only means "more next time".
         let _ = self.serial.flush();
     }
-}
-
-/// Write `bytes` as upper-case hex into `text` and return it as a string.
-fn hex_upper<'a>(bytes: &[u8; UID_BYTES], text: &'a mut [u8; SERIAL_NUMBER_CHARS]) -> &'a str {
-    const DIGITS: &[u8; 16] = b"0123456789ABCDEF";
-    for (pair, byte) in text.chunks_exact_mut(2).zip(bytes) {
-        pair[0] = DIGITS[usize::from(byte >> 4)];
-        pair[1] = DIGITS[usize::from(byte & 0x0F)];
-    }
-    // Only ASCII hex digits were written.
-    core::str::from_utf8(text).unwrap_or("")
 }
