@@ -49,6 +49,7 @@ mod app {
     use stm32h7xx_hal::pac;
     use stm32h7xx_hal::prelude::*;
     use stm32h7xx_hal::rcc::rec::UsbClkSel;
+    use stm32h7xx_hal::rcc::PllConfigStrategy;
     use stm32h7xx_hal::timer::{Event, Timer};
     use stm32h7xx_hal::usb_hs::USB2;
     use usb_device::bus::UsbBusAllocator;
@@ -94,8 +95,16 @@ mod app {
         // Clocks: LDO supply at VOS1 (the HAL's default), HSE → PLL1 → 400 MHz (see
         // `board::config` for why not 480 MHz), USB from the 48 MHz internal RC (HSI48).
         let pwrcfg = dp.PWR.constrain().freeze();
-        let mut rcc =
-            dp.RCC.constrain().use_hse(BOARD.hse_hz.Hz()).sys_ck(SYS_CK_HZ.Hz()).hclk(HCLK_HZ.Hz());
+        // PLL1 in the wide VCO range (the HAL's `Iterative` strategy): 8 MHz / M 1 × N 100 = an
+        // 800 MHz VCO, / P 2 = 400 MHz, the textbook H743 setting (an even P divider; the
+        // `Normal` strategy would run the VCO at 400 MHz with P = 1).
+        let mut rcc = dp
+            .RCC
+            .constrain()
+            .use_hse(BOARD.hse_hz.Hz())
+            .sys_ck(SYS_CK_HZ.Hz())
+            .hclk(HCLK_HZ.Hz())
+            .pll1_strategy(PllConfigStrategy::Iterative);
         if BOARD.hse_bypass {
             rcc = rcc.bypass_hse();
         }

@@ -13,7 +13,8 @@ pub struct BoardConfig {
     ///
     /// Assumption: an 8 MHz crystal, as fitted on most H743 flight controllers (Matek H743,
     /// Holybro Kakute H7, …). A different crystal only needs this value; the PLL is solved
-    /// by stm32h7xx-hal from it.
+    /// by stm32h7xx-hal from it. With no HSE fitted, start-up hangs waiting for HSERDY (the
+    /// HAL's documented behaviour): a board without a crystal must switch to HSI in `init`.
     pub hse_hz: u32,
     /// `true` when HSE is an external clock *signal* rather than a crystal (the NUCLEO-H743ZI
     /// feeds 8 MHz from the ST-LINK's MCO and needs the oscillator bypassed).
