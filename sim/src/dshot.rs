@@ -23,7 +23,7 @@ pub const STOPPED_PERIOD_US: u32 = 0x1FF << 7;
 pub fn encode_speed(omega_rad_s: f64, pole_pairs: u32) -> u16 {
     let electrical_hz = omega_rad_s.abs() / TAU * pole_pairs as f64;
     let period_us = if electrical_hz > 0.0 { 1e6 / electrical_hz } else { f64::INFINITY };
-    if !(period_us < STOPPED_PERIOD_US as f64) {
+    if period_us.is_nan() || period_us >= STOPPED_PERIOD_US as f64 {
         return encode_period(STOPPED_PERIOD_US);
     }
     encode_period(period_us as u32)

@@ -12,3 +12,4 @@ pub mod monte_carlo;
 pub mod physics;
 pub mod rng;
 pub mod scenario;
+pub mod sitl;

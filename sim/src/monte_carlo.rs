@@ -34,7 +34,7 @@ pub struct BatchSummary {
 /// The scenario of run `seed`: throw-and-catch on a random airframe with a random spin.
 pub fn random_throw_catch(seed: u64) -> (Airframe, ScenarioConfig) {
     let airframe = Airframe::random(seed);
-    let mut rng = Rng::new(seed ^ 0x5EED_0F_7409);
+    let mut rng = Rng::new(seed ^ 0x5EED_0F7E_7409);
     let direction = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
     let mut config = ScenarioConfig::new(ScenarioKind::ThrowCatch);
     config.throw_rate_body_rad_s = direction * rng.range(4.0, 10.0);

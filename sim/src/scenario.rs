@@ -161,7 +161,8 @@ impl ScenarioConfig {
                 return Err(ScenarioError::OutOfRange { field, value, allowed });
             }
         }
-        if !(self.throw_rate_body_rad_s.norm() <= 60.0) {
+        let rate = self.throw_rate_body_rad_s.norm();
+        if rate.is_nan() || rate > 60.0 {
             return Err(ScenarioError::OutOfRange {
                 field: "throw_rate_body_rad_s",
                 value: self.throw_rate_body_rad_s.norm(),
@@ -253,12 +254,13 @@ pub fn run<A: FlightApp, W: Write>(
         outcome.touched_ground |= s.position_ned_m.z > 0.0;
         outcome.ticks = tick + 1;
         let hand = board.physics().hand();
-        if config.kind == ScenarioKind::ThrowCatch && hand.caught_at_s().is_some() {
-            if hand.phase() == HandPhase::Holding {
-                let since = *held_since_s.get_or_insert(board.time_s());
-                if board.time_s() - since >= config.after_catch_s {
-                    break;
-                }
+        if config.kind == ScenarioKind::ThrowCatch
+            && hand.caught_at_s().is_some()
+            && hand.phase() == HandPhase::Holding
+        {
+            let since = *held_since_s.get_or_insert(board.time_s());
+            if board.time_s() - since >= config.after_catch_s {
+                break;
             }
         }
         if (tick + 1) % progress_every == 0 {

@@ -1,0 +1,79 @@
+//! `sitl`: run the flight-controller application on a simulated board and serve the protocol.
+//!
+//! ```text
+//! cargo run -p sim --bin sitl -- --airframe paper-quad --pty-link /tmp/fc-sitl --tcp-port 5760
+//! configurator-cli --port /tmp/fc-sitl info
+//! ```
+
+use clap::Parser;
+use sim::sitl::{Sitl, SitlConfig};
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(
+    version,
+    about = "Software-in-the-loop flight controller: firmware::app on a simulated board"
+)]
+struct Args {
+    /// Airframe: a built-in name (paper-quad, racer-5in, quad-3in, hex-flat, hex-tilted,
+    /// octo-flat) or a path to a TOML file.
+    #[arg(long, default_value = "paper-quad")]
+    airframe: String,
+    /// Do not serve on a pseudo-terminal.
+    #[arg(long)]
+    no_pty: bool,
+    /// Make this path a symlink to the pseudo-terminal.
+    #[arg(long)]
+    pty_link: Option<PathBuf>,
+    /// Serve on TCP at 127.0.0.1 on this port (0 picks a free one).
+    #[arg(long)]
+    tcp_port: Option<u16>,
+    /// Simulated seconds per wall-clock second.
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Seed of the sensor noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Stop after this many wall-clock seconds (default: run until interrupted).
+    #[arg(long)]
+    duration_s: Option<f64>,
+}
+
+fn main() -> std::process::ExitCode {
+    let args = Args::parse();
+    let config = SitlConfig {
+        airframe: args.airframe.clone(),
+        pty: !args.no_pty,
+        pty_link: args.pty_link,
+        tcp_port: args.tcp_port,
+        speed: args.speed,
+        seed: args.seed,
+    };
+    let sitl = match Sitl::start(&config) {
+        Ok(sitl) => sitl,
+        Err(error) => {
+            eprintln!("sitl: {error}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    println!("SITL running airframe `{}` at {}× real time", args.airframe, args.speed);
+    if let Some(path) = &sitl.pty_path {
+        println!("  serial (pseudo-terminal): {}", path.display());
+    }
+    if let Some(link) = &config.pty_link {
+        println!("  serial link:              {}", link.display());
+    }
+    if let Some(addr) = sitl.tcp_addr {
+        println!("  TCP:                      {addr}");
+    }
+    println!("Stop with Ctrl-C.");
+    let started = std::time::Instant::now();
+    while sitl.is_running() {
+        if args.duration_s.is_some_and(|d| started.elapsed().as_secs_f64() >= d) {
+            return std::process::ExitCode::SUCCESS;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    eprintln!("sitl: the simulation thread stopped unexpectedly");
+    std::process::ExitCode::FAILURE
+}
