@@ -9,12 +9,16 @@
 //! | `control_tick` | TIM2 update, 2 kHz | 3 (highest) | one control step; pends `usb_service` at 1 kHz, spawns `background` when samples wait |
 //! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | USB device, CDC bytes ↔ link server, telemetry |
 //! | `background` | software task (dispatcher `DCMI`) | 1 | drains the learner-sample queue, publishes results |
-//! | `idle` | — | 0 | sleeps (`wfi`) |
+//! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
 //! Shared resources are only handoffs: the control step's `Copy` status snapshot and the
 //! background results, each written and read under a lock held for a copy. Everything else is a
 //! task's `#[local]` state. Task bodies live outside the `#[app]` module (RTIC v1 book), in
 //! [`tasks`].
+//!
+//! Clocks: 8 MHz HSE → PLL1 → sys_ck 400 MHz, hclk 200 MHz; USB from HSI48 (see
+//! [`firmware::board::config`]). Time: TIM5 as a 1 MHz counter extended to 64-bit microseconds
+//! ([`firmware::board::time`]), read by the control and USB tasks.
 //!
 //! On the host this file builds to a stub `main` so that `cargo build --workspace` works; the
 //! simulator runs the same `firmware::app` code instead.
@@ -43,6 +47,7 @@ mod app {
     use firmware::board::imu::BoardImu;
     use firmware::board::motors::BoardMotors;
     use firmware::board::time::MicrosClock;
+    use firmware::board::timing::{step_stats, StepStats, StepTimer};
     use firmware::board::usb::{self, UsbSerial, UsbStorage, EP_MEMORY_WORDS};
     use firmware::board::BOARD;
     use protocol::Capabilities;
@@ -67,6 +72,7 @@ mod app {
     #[local]
     struct Local {
         control_timer: Timer<pac::TIM2>,
+        step_timer: StepTimer,
         control_clock: MicrosClock,
         control: ControlLoop<'static>,
         imu: BoardImu,
@@ -85,6 +91,7 @@ mod app {
     ])]
     fn init(cx: init::Context) -> (Shared, Local, init::Monotonics) {
         let dp = cx.device;
+        let mut core = cx.core;
 
         // Keep the debug port alive while the core sleeps in `wfi`, so probe-rs and defmt-rtt
         // keep working (RM0433 §60.5.8, DBGMCU_CR).
@@ -158,6 +165,7 @@ mod app {
         // The control tick at the application's rate (2 kHz), started last so the first step
         // finds everything ready.
         let control_rate_hz = u32::from(config.rate_hz);
+        let step_timer = StepTimer::new(&mut core.DCB, core.DWT, 1_000_000 / control_rate_hz);
         let mut control_timer =
             dp.TIM2.timer(control_rate_hz.Hz(), ccdr.peripheral.TIM2, &ccdr.clocks);
         control_timer.listen(Event::TimeOut);
@@ -172,6 +180,7 @@ mod app {
 
         let local = Local {
             control_timer,
+            step_timer,
             control_clock: clock,
             control,
             imu: BoardImu,
@@ -184,10 +193,20 @@ mod app {
         (shared, local, init::Monotonics())
     }
 
-    /// Nothing to do between interrupts: sleep until the next one.
-    #[idle]
-    fn idle(_: idle::Context) -> ! {
+    /// Between interrupts: report the control step's timing over defmt when it changed (here,
+    /// where waiting on the debug probe delays nobody), then sleep until the next interrupt.
+    #[idle(local = [reported: StepStats = StepStats { max_us: 0, overruns: 0 }])]
+    fn idle(cx: idle::Context) -> ! {
         loop {
+            let stats = step_stats();
+            if stats != *cx.local.reported {
+                defmt::info!(
+                    "control step: longest {} us, {} over the deadline",
+                    stats.max_us,
+                    stats.overruns
+                );
+                *cx.local.reported = stats;
+            }
             cortex_m::asm::wfi();
         }
     }
@@ -196,7 +215,7 @@ mod app {
         #[task(
             binds = TIM2,
             priority = 3,
-            local = [control_timer, control_clock, control, imu, motors, ticks: u32 = 0],
+            local = [control_timer, step_timer, control_clock, control, imu, motors, ticks: u32 = 0],
             shared = [control]
         )]
         fn control_tick(cx: control_tick::Context);
@@ -225,6 +244,7 @@ mod tasks {
     /// queue drops and counts when full, and the only lock is an uncontended copy of the status
     /// snapshot (no higher-priority task shares it).
     pub fn control_tick(mut cx: control_tick::Context) {
+        let started = cx.local.step_timer.start();
         cx.local.control_timer.clear_irq();
         let now_us = cx.local.control_clock.now_us();
         let samples_waiting = cx.local.control.step(now_us, cx.local.imu, cx.local.motors);
@@ -240,6 +260,7 @@ mod tasks {
             // Telemetry must flow even when the host sends nothing (no USB interrupt).
             rtic::pend(Interrupt::OTG_FS);
         }
+        cx.local.step_timer.finish(started);
     }
 
     /// The USB link, on every OTG2 interrupt and at 1 kHz from the control step: services the

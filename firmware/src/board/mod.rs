@@ -10,6 +10,7 @@ pub mod identity;
 pub mod imu;
 pub mod motors;
 pub mod time;
+pub mod timing;
 pub mod usb;
 
 pub use config::{BoardConfig, BOARD};
