@@ -187,7 +187,8 @@ fn require_probe() -> Result<()> {
 fn require_dfu_device() -> Result<()> {
     let output =
         Command::new("dfu-util").arg("-l").output().context("could not run `dfu-util -l`")?;
-    let text = String::from_utf8_lossy(&output.stdout);
+    // Versions differ in which stream lists the devices: look at both.
+    let text = String::from_utf8_lossy(&output.stdout) + String::from_utf8_lossy(&output.stderr);
     if !text.contains(&format!("[{DFU_VID_PID}]")) {
         bail!(
             "no STM32 DFU device ({DFU_VID_PID}) found: hold the board's BOOT button while plugging \
