@@ -1,3 +1,11 @@
 //! The configurator library: the link to a board or the SITL, the commands, the offline tools.
+//!
+//! - [`link`]: the protocol client (handshake, requests, telemetry);
+//! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
+//! - [`report`]: what the board says, in words with units, or as JSON;
+//! - [`offline`]: the `flight` estimators applied to recorded logs and files.
 
+pub mod connect;
+pub mod link;
 pub mod offline;
+pub mod report;

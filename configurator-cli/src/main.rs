@@ -1,1 +1,306 @@
-fn main() {}
+//! `configurator-cli`: talk to a flight controller (USB serial, TCP, or the built-in simulator)
+//! and run the offline tools.
+//!
+//! Exit codes: 0 done; 1 the board could not be reached or refused; 2 bad input or usage.
+
+use clap::{Parser, Subcommand};
+use configurator_cli::connect::{connect, ConnectError, Target};
+use configurator_cli::link::{Client, LinkError};
+use configurator_cli::offline::{self, InputError};
+use configurator_cli::report;
+use protocol::{Reply, Request, SetTelemetryRate, Telemetry, Topic};
+use serde_json::json;
+use std::process::ExitCode;
+use std::time::Duration;
+
+#[derive(Parser, Debug)]
+#[command(version, about = "Configurator for the self-learning multirotor flight controller")]
+struct Cli {
+    /// Serial port of the board (default: the one USB board with our VID/PID).
+    #[arg(long, global = true, conflicts_with_all = ["tcp", "sitl"])]
+    port: Option<String>,
+    /// Connect over TCP instead (e.g. a SITL's 127.0.0.1:5760).
+    #[arg(long, global = true, conflicts_with = "sitl")]
+    tcp: Option<String>,
+    /// Start the built-in simulator (SITL) and connect to it through its pseudo-terminal.
+    #[arg(long, global = true)]
+    sitl: bool,
+    /// Airframe of the built-in simulator: a built-in name or a TOML file.
+    #[arg(long, global = true, default_value = "paper-quad")]
+    airframe: String,
+    /// Print JSON instead of text.
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Handshake, then print the board's identity and status.
+    Info,
+    /// Print the board's status.
+    Status,
+    /// Stream a telemetry topic and count what arrives and what is missing.
+    Stream {
+        /// imu, control or motors.
+        #[arg(long, default_value = "imu")]
+        topic: String,
+        /// Samples per second, 1 to 1000.
+        #[arg(long, default_value_t = 500)]
+        rate_hz: u16,
+        /// How long to listen, s.
+        #[arg(long, default_value_t = 2.0)]
+        duration_s: f64,
+    },
+    /// List serial ports and mark flight controllers.
+    Ports,
+    /// Offline fits on recorded logs.
+    #[command(subcommand)]
+    Fit(FitCommand),
+    /// Offline solvers on files.
+    #[command(subcommand)]
+    Solve(SolveCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum FitCommand {
+    /// The IMU's position relative to the centre of gravity, from free-fall throws.
+    ImuOffset(ImuOffsetPending),
+}
+
+#[derive(Subcommand, Debug)]
+enum SolveCommand {
+    /// The most efficient hover thrust axis from effectiveness matrices.
+    ThrustAxis(offline::thrust_axis::Args),
+}
+
+/// Everything that can end a command early, with its exit code.
+enum Failure {
+    Input(InputError),
+    Connect(ConnectError),
+}
+
+impl From<ConnectError> for Failure {
+    fn from(e: ConnectError) -> Self {
+        Self::Connect(e)
+    }
+}
+
+impl From<LinkError> for Failure {
+    fn from(e: LinkError) -> Self {
+        Self::Connect(ConnectError::Link(e))
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(&cli) {
+        Ok(output) => {
+            print!("{output}");
+            ExitCode::SUCCESS
+        }
+        Err(Failure::Input(error)) => {
+            eprintln!("error: {error}");
+            ExitCode::from(2)
+        }
+        Err(Failure::Connect(error)) => {
+            eprintln!("error: {error}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn run(cli: &Cli) -> Result<String, Failure> {
+    match &cli.command {
+        Command::Fit(FitCommand::ImuOffset(_)) => {
+            Err(Failure::Input(InputError("fit imu-offset: WIRING PENDING".into())))
+        }
+        Command::Solve(SolveCommand::ThrustAxis(args)) => {
+            offline::thrust_axis::run(args).map_err(Failure::Input)
+        }
+        Command::Ports => ports(cli.json),
+        Command::Info | Command::Status | Command::Stream { .. } => with_board(cli),
+    }
+}
+
+/// Connect (starting a SITL if asked), then run the board command.
+fn with_board(cli: &Cli) -> Result<String, Failure> {
+    // Validate arguments before touching any port.
+    let stream_topic = match &cli.command {
+        Command::Stream { topic, rate_hz, duration_s } => {
+            Some(stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?)
+        }
+        _ => None,
+    };
+    let _sitl; // keeps the simulator alive for the whole command
+    let target = if cli.sitl {
+        let config = sim::sitl::SitlConfig { airframe: cli.airframe.clone(), ..Default::default() };
+        let sitl = sim::sitl::Sitl::start(&config).map_err(ConnectError::from)?;
+        let path = sitl.pty_path.clone().expect("the SITL serves a pseudo-terminal when asked");
+        eprintln!("started the simulator (airframe `{}`) on {}", cli.airframe, path.display());
+        _sitl = sitl;
+        Target::Serial(path.display().to_string())
+    } else if let Some(address) = &cli.tcp {
+        Target::Tcp(address.clone())
+    } else if let Some(port) = &cli.port {
+        Target::Serial(port.clone())
+    } else {
+        Target::Discover
+    };
+    let mut client = connect(&target)?;
+    if !client.schema_matches() {
+        eprintln!("warning: the board's message table differs from this configurator's; some fields may be missing");
+    }
+    if cli.sitl && !matches!(cli.command, Command::Stream { .. }) {
+        // Let the simulated board run one full statistics window so the status has figures.
+        eprintln!("letting the simulator run for 1.1 s…");
+        client.listen(Duration::from_millis(1100))?;
+    }
+    match &cli.command {
+        Command::Info => {
+            let status = fetch_status(&mut client)?;
+            Ok(if cli.json {
+                format!(
+                    "{:#}\n",
+                    json!({
+                        "info": report::info_json(&client.info, client.port()),
+                        "status": report::status_json(&status),
+                    })
+                )
+            } else {
+                format!(
+                    "{}{}",
+                    report::info_text(&client.info, client.port()),
+                    report::status_text(&status)
+                )
+            })
+        }
+        Command::Status => {
+            let status = fetch_status(&mut client)?;
+            Ok(if cli.json {
+                format!("{:#}\n", report::status_json(&status))
+            } else {
+                report::status_text(&status)
+            })
+        }
+        Command::Stream { rate_hz, duration_s, .. } => {
+            let topic = stream_topic.expect("validated above");
+            stream(&mut client, topic, *rate_hz, *duration_s, cli.json)
+        }
+        _ => unreachable!("board commands only"),
+    }
+}
+
+fn fetch_status(client: &mut Client) -> Result<protocol::Status, Failure> {
+    match client.request(&Request::GetStatus(()), "the status request")? {
+        Reply::Status(status) => Ok(status),
+        other => Err(LinkError::Unexpected(format!("{other:?} to the status request")).into()),
+    }
+}
+
+fn stream_arguments(topic: &str, rate_hz: u16, duration_s: f64) -> Result<Topic, InputError> {
+    let topic = match topic {
+        "imu" => Topic::Imu,
+        "control" => Topic::Control,
+        "motors" => Topic::Motors,
+        other => {
+            return Err(InputError(format!(
+                "unknown topic `{other}`; choose imu, control or motors"
+            )))
+        }
+    };
+    if !(1..=protocol::MAX_TELEMETRY_RATE_HZ).contains(&rate_hz) {
+        return Err(InputError(format!(
+            "--rate-hz {rate_hz} is outside 1 to {} Hz",
+            protocol::MAX_TELEMETRY_RATE_HZ
+        )));
+    }
+    if !(duration_s.is_finite() && (0.1..=3600.0).contains(&duration_s)) {
+        return Err(InputError(format!("--duration-s {duration_s} is outside 0.1 to 3600 s")));
+    }
+    Ok(topic)
+}
+
+/// Stream a topic and count samples and gaps (from the per-topic sequence numbers).
+fn stream(
+    client: &mut Client,
+    topic: Topic,
+    rate_hz: u16,
+    duration_s: f64,
+    json_output: bool,
+) -> Result<String, Failure> {
+    let set = |rate_hz| Request::SetTelemetryRate(SetTelemetryRate { topic, rate_hz });
+    client.request(&set(rate_hz), "the telemetry rate request")?;
+    client.listen(Duration::from_secs_f64(duration_s))?;
+    client.request(&set(0), "the request to stop telemetry")?;
+    let samples: Vec<_> = client.telemetry.drain(..).collect();
+    let received = samples.len() as u64;
+    let gaps: u64 =
+        samples.windows(2).map(|w| u64::from(w[1].seq.wrapping_sub(w[0].seq)) - 1).sum();
+    let last_imu = samples.iter().rev().find_map(|s| match s.data {
+        Telemetry::Imu(imu) => Some(imu),
+        _ => None,
+    });
+    let achieved_hz = received as f64 / duration_s;
+    if json_output {
+        return Ok(format!(
+            "{:#}\n",
+            json!({
+                "topic": format!("{topic:?}").to_lowercase(),
+                "requested_rate_hz": rate_hz,
+                "duration_s": duration_s,
+                "received": received,
+                "gaps": gaps,
+                "received_rate_hz": achieved_hz,
+                "bad_frames": client.bad_frames,
+            })
+        ));
+    }
+    let mut out = format!(
+        "{topic:?}: {received} samples in {duration_s:.1} s ({achieved_hz:.1} Hz of {rate_hz} Hz requested), {gaps} missing, {} bad frames\n",
+        client.bad_frames
+    );
+    if let Some(imu) = last_imu {
+        out.push_str(&format!(
+            "last sample at {:.4} s: gyro ({:+.4}, {:+.4}, {:+.4}) rad/s, accel ({:+.3}, {:+.3}, {:+.3}) m/s²\n",
+            imu.t_us as f64 * 1e-6,
+            imu.gyro_rad_s[0], imu.gyro_rad_s[1], imu.gyro_rad_s[2],
+            imu.accel_mps2[0], imu.accel_mps2[1], imu.accel_mps2[2]
+        ));
+    }
+    Ok(out)
+}
+
+fn ports(json_output: bool) -> Result<String, Failure> {
+    let ports = serialport::available_ports().map_err(ConnectError::Enumerate)?;
+    let rows: Vec<(String, String)> = ports
+        .iter()
+        .map(|port| {
+            let kind = match &port.port_type {
+                serialport::SerialPortType::UsbPort(usb)
+                    if usb.vid == protocol::USB_VID && usb.pid == protocol::USB_PID =>
+                {
+                    "flight controller".to_string()
+                }
+                serialport::SerialPortType::UsbPort(usb) => {
+                    format!("USB {:04x}:{:04x}", usb.vid, usb.pid)
+                }
+                other => format!("{other:?}"),
+            };
+            (port.port_name.clone(), kind)
+        })
+        .collect();
+    if json_output {
+        let list: Vec<_> =
+            rows.iter().map(|(name, kind)| json!({"port": name, "kind": kind})).collect();
+        return Ok(format!("{:#}\n", json!(list)));
+    }
+    if rows.is_empty() {
+        return Ok("no serial ports found\n".into());
+    }
+    Ok(rows.iter().map(|(name, kind)| format!("{name}  {kind}\n")).collect())
+}
+
+#[derive(clap::Args, Debug)]
+struct ImuOffsetPending {}

@@ -298,6 +298,11 @@ pub enum Event {
 // The table: message ids. Requests go host → device; device messages go device → host.
 // ---------------------------------------------------------------------------------------------
 
+/// Id of [`Request::Hello`] (first in its table), frozen across all versions.
+pub const HELLO_ID: u8 = Request::IDS[0];
+/// Id of [`DeviceMessage::Response`] (first in its table), frozen across all versions.
+pub const RESPONSE_ID: u8 = DeviceMessage::IDS[0];
+
 crate::table::message_table! {
     /// Everything the host sends.
     pub enum Request {

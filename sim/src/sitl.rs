@@ -26,11 +26,11 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-/// Most control ticks run in one pass of the loop (100 ms of simulated time): beyond that the
-/// simulation falls behind the wall clock rather than starving the links.
-const MAX_TICKS_PER_PASS: u64 = 200;
-/// Wall-clock period of the link pass.
-const LINK_PERIOD: Duration = Duration::from_millis(1);
+/// Simulated time between two passes of the link task, µs (the board pends its USB task at
+/// 1 kHz).
+const LINK_PERIOD_US: u64 = 1000;
+/// How long the loop sleeps when the simulation is ahead of the wall clock.
+const IDLE_SLEEP: Duration = Duration::from_micros(250);
 
 /// How to start a SITL.
 #[derive(Clone, Debug)]
@@ -234,17 +234,22 @@ impl Runner {
         let mut clients: Vec<Connection<TcpStream>> = Vec::new();
 
         let start = Instant::now();
+        let ticks_per_link_pass = (LINK_PERIOD_US / firmware_period_us()).max(1);
         while !self.stop.load(Ordering::Relaxed) {
             let due_us = (start.elapsed().as_secs_f64() * self.speed * 1e6) as u64;
-            let mut ticks = 0;
-            while board.now_us() < due_us && ticks < MAX_TICKS_PER_PASS {
+            if board.now_us() >= due_us {
+                std::thread::sleep(IDLE_SLEEP);
+                continue;
+            }
+            // One link period of simulated time: control ticks, then the link task, as the
+            // board's timer pends its USB task once per millisecond.
+            for _ in 0..ticks_per_link_pass {
                 board.tick();
                 let now_us = board.now_us();
                 let (imu, motors) = board.ports();
                 if control.step(now_us, imu, motors) {
                     background.run_pending();
                 }
-                ticks += 1;
             }
             let view = StatusView { control: control.snapshot(), background: background.results() };
             let now_us = board.now_us();
@@ -252,10 +257,8 @@ impl Runner {
                 while let Ok((stream, _)) = listener.accept() {
                     if stream.set_nonblocking(true).is_ok() {
                         let _ = stream.set_nodelay(true);
-                        clients.push(Connection {
-                            transport: stream,
-                            link: LinkServer::new(info.clone()),
-                        });
+                        let link = LinkServer::new(info.clone());
+                        clients.push(Connection { transport: stream, link });
                     }
                 }
             }
@@ -263,9 +266,13 @@ impl Runner {
                 connection.service(now_us, &view);
             }
             clients.retain_mut(|client| client.service(now_us, &view));
-            std::thread::sleep(LINK_PERIOD);
         }
     }
+}
+
+/// The control period, µs.
+fn firmware_period_us() -> u64 {
+    1_000_000 / u64::from(CONTROL_RATE_HZ)
 }
 
 impl Transport for TcpStream {

@@ -134,6 +134,14 @@ impl LinkServer {
         self.tx.drain(out)
     }
 
+    /// Offer the queued bytes to `write`, which returns how many it took (0 when the transport is
+    /// full); those are removed, the rest wait for the next call. Returns the bytes taken.
+    pub fn transmit_to(&mut self, mut write: impl FnMut(&[u8]) -> usize) -> usize {
+        let taken = write(self.tx.pending()).min(self.tx.len());
+        self.tx.consume(taken);
+        taken
+    }
+
     /// Bytes waiting to be transmitted.
     pub fn pending_tx(&self) -> usize {
         self.tx.len()
@@ -300,14 +308,22 @@ impl TxBuffer {
         Ok(())
     }
 
-    fn drain(&mut self, out: &mut [u8]) -> usize {
-        let n = out.len().min(self.len());
-        out[..n].copy_from_slice(&self.bytes[self.start..self.start + n]);
-        self.start += n;
+    fn pending(&self) -> &[u8] {
+        &self.bytes[self.start..self.end]
+    }
+
+    fn consume(&mut self, n: usize) {
+        self.start += n.min(self.len());
         if self.start == self.end {
             self.start = 0;
             self.end = 0;
         }
+    }
+
+    fn drain(&mut self, out: &mut [u8]) -> usize {
+        let n = out.len().min(self.len());
+        out[..n].copy_from_slice(&self.pending()[..n]);
+        self.consume(n);
         n
     }
 }

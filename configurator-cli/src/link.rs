@@ -1,0 +1,265 @@
+//! The host's side of the protocol: a client over any byte transport (a serial port, a
+//! pseudo-terminal, TCP).
+//!
+//! Every request carries a fresh sequence number and waits for the response with that number;
+//! telemetry and events that arrive meanwhile are kept for the caller. Frames start with a 0x00
+//! so a board whose decoder holds garbage from an earlier session resynchronises at once.
+
+use protocol::{
+    peek_hello_version, Decoder, DeviceError, DeviceMessage, Event, Hello, Info, Reply, Request,
+    Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID, SCHEMA_HASH,
+};
+use std::collections::VecDeque;
+use std::io::{ErrorKind, Read, Write};
+use std::time::{Duration, Instant};
+
+/// How long a request waits for its response by default.
+pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(1500);
+
+/// A byte transport: anything readable and writable whose reads time out (serial ports and
+/// sockets with a read timeout set).
+pub trait Transport: Read + Write + Send {}
+impl<T: Read + Write + Send> Transport for T {}
+
+/// Why talking to the board failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    #[error("I/O error on {port}: {source}")]
+    Io { port: String, source: std::io::Error },
+    #[error("no answer from {port} within {timeout_ms} ms to {what} (is it a flight controller running our firmware?)")]
+    Timeout { port: String, timeout_ms: u128, what: &'static str },
+    #[error("incompatible protocol: the board speaks {device}, this configurator speaks {host}; update the {older}")]
+    Incompatible { device: VersionText, host: VersionText, older: &'static str },
+    #[error("the board refused the request: {0}")]
+    Device(DeviceErrorText),
+    #[error("unexpected answer from the board: {0}")]
+    Unexpected(String),
+}
+
+/// A protocol version for messages: "1.0".
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VersionText(pub Version);
+
+impl std::fmt::Display for VersionText {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "protocol {}.{}", self.0.major, self.0.minor)
+    }
+}
+
+/// A device error in words.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceErrorText(pub DeviceError);
+
+impl std::fmt::Display for DeviceErrorText {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.0 {
+            DeviceError::IncompatibleProtocol { device, host } => write!(
+                f,
+                "incompatible protocol (board {}.{}, configurator {}.{})",
+                device.major, device.minor, host.major, host.minor
+            ),
+            DeviceError::HandshakeRequired => write!(f, "handshake required first"),
+            DeviceError::UnknownRequest { id } => {
+                write!(f, "the board does not know request 0x{id:02x} (older firmware?)")
+            }
+            DeviceError::Malformed { id } => write!(f, "request 0x{id:02x} was malformed"),
+            DeviceError::BadValue { name, value, min, max, unit } => {
+                write!(
+                    f,
+                    "{name} = {value} {unit} is outside the allowed range {min} to {max} {unit}"
+                )
+            }
+            DeviceError::Busy => write!(f, "the board is busy; try again"),
+            DeviceError::RefusedWhileArmed => write!(f, "refused while armed; disarm first"),
+        }
+    }
+}
+
+/// A telemetry sample with its per-topic sequence number.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TelemetrySample {
+    pub seq: u16,
+    pub data: Telemetry,
+}
+
+/// A connected, handshaken board.
+pub struct Client {
+    transport: Box<dyn Transport>,
+    port: String,
+    decoder: Decoder,
+    next_seq: u16,
+    timeout: Duration,
+    /// The board's identity from the handshake.
+    pub info: Info,
+    /// Telemetry that arrived while waiting for responses, oldest first.
+    pub telemetry: VecDeque<TelemetrySample>,
+    /// Events that arrived, oldest first.
+    pub events: VecDeque<Event>,
+    /// Frames from the board that failed to decode (CRC, framing) since connecting.
+    pub bad_frames: u32,
+}
+
+impl Client {
+    /// Handshake over `transport` (named `port` in messages). Refuses another major version.
+    pub fn connect(transport: Box<dyn Transport>, port: &str) -> Result<Self, LinkError> {
+        let mut client = Self {
+            transport,
+            port: port.to_string(),
+            decoder: Decoder::new(),
+            next_seq: 1,
+            timeout: DEFAULT_TIMEOUT,
+            info: placeholder_info(),
+            telemetry: VecDeque::new(),
+            events: VecDeque::new(),
+            bad_frames: 0,
+        };
+        let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
+        let seq = client.send(&hello)?;
+        let info = match client.await_response(seq, "the handshake")? {
+            Ok(Reply::Hello(info)) => info,
+            Err(DeviceError::IncompatibleProtocol { device, host }) => {
+                return Err(incompatible(device, host));
+            }
+            Err(error) => return Err(LinkError::Device(DeviceErrorText(error))),
+            Ok(other) => return Err(LinkError::Unexpected(format!("{other:?} to the handshake"))),
+        };
+        if info.protocol.major != PROTOCOL_VERSION.major {
+            return Err(incompatible(info.protocol, PROTOCOL_VERSION));
+        }
+        client.info = info;
+        Ok(client)
+    }
+
+    /// Whether both sides were built from the same message table.
+    pub fn schema_matches(&self) -> bool {
+        self.info.schema_hash == SCHEMA_HASH && self.info.protocol == PROTOCOL_VERSION
+    }
+
+    /// The port's name.
+    pub fn port(&self) -> &str {
+        &self.port
+    }
+
+    /// Send a request and wait for its response; a device error becomes [`LinkError::Device`].
+    pub fn request(&mut self, request: &Request, what: &'static str) -> Result<Reply, LinkError> {
+        let seq = self.send(request)?;
+        self.await_response(seq, what)?.map_err(|e| LinkError::Device(DeviceErrorText(e)))
+    }
+
+    /// Read for `duration`, collecting telemetry and events.
+    pub fn listen(&mut self, duration: Duration) -> Result<(), LinkError> {
+        let deadline = Instant::now() + duration;
+        while Instant::now() < deadline {
+            self.read_some(|_, _| {})?;
+        }
+        Ok(())
+    }
+
+    fn send(&mut self, request: &Request) -> Result<u16, LinkError> {
+        let seq = self.next_seq;
+        self.next_seq = self.next_seq.wrapping_add(1);
+        let mut frame = [0u8; MAX_FRAME_LEN + 1];
+        let len = request
+            .encode(seq, &mut frame[1..])
+            .map_err(|e| LinkError::Unexpected(format!("request does not fit a frame: {e:?}")))?;
+        self.transport.write_all(&frame[..=len]).map_err(|source| self.io(source))?;
+        self.transport.flush().map_err(|source| self.io(source))?;
+        Ok(seq)
+    }
+
+    fn await_response(
+        &mut self,
+        seq: u16,
+        what: &'static str,
+    ) -> Result<Result<Reply, DeviceError>, LinkError> {
+        let deadline = Instant::now() + self.timeout;
+        let mut answer = None;
+        let mut undecodable_hello = None;
+        while answer.is_none() && undecodable_hello.is_none() {
+            if Instant::now() >= deadline {
+                return Err(LinkError::Timeout {
+                    port: self.port.clone(),
+                    timeout_ms: self.timeout.as_millis(),
+                    what,
+                });
+            }
+            self.read_some(|frame_seq, message| match message {
+                Ok(DeviceMessage::Response(response)) if frame_seq == seq => {
+                    answer = Some(response)
+                }
+                Err(payload) if frame_seq == seq => undecodable_hello = Some(payload),
+                _ => {}
+            })?;
+        }
+        if let Some(payload) = undecodable_hello {
+            // A response we cannot decode: if it is a handshake reply, name the board's version.
+            return Err(match peek_hello_version(&payload) {
+                Some(device) if device.major != PROTOCOL_VERSION.major => {
+                    incompatible(device, PROTOCOL_VERSION)
+                }
+                _ => LinkError::Unexpected(format!("undecodable response to {what}")),
+            });
+        }
+        Ok(answer.expect("loop ends with an answer"))
+    }
+
+    /// Read what is available (waiting up to the transport's read timeout) and dispatch frames:
+    /// telemetry and events are queued, other messages (and undecodable response payloads)
+    /// are handed to `on_message`.
+    fn read_some(
+        &mut self,
+        mut on_message: impl FnMut(u16, Result<DeviceMessage, Vec<u8>>),
+    ) -> Result<(), LinkError> {
+        let mut buffer = [0u8; 1024];
+        let n = match self.transport.read(&mut buffer) {
+            Ok(n) => n,
+            Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => 0,
+            Err(e) if e.kind() == ErrorKind::Interrupted => 0,
+            Err(source) => return Err(self.io(source)),
+        };
+        if n == 0 {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        for &byte in &buffer[..n] {
+            let Some(result) = self.decoder.push(byte) else { continue };
+            let Ok(frame) = result else {
+                self.bad_frames += 1;
+                continue;
+            };
+            match DeviceMessage::decode(&frame) {
+                Ok(DeviceMessage::Telemetry(data)) => {
+                    self.telemetry.push_back(TelemetrySample { seq: frame.seq, data })
+                }
+                Ok(DeviceMessage::Event(event)) => self.events.push_back(event),
+                Ok(message) => on_message(frame.seq, Ok(message)),
+                Err(_) if frame.id == RESPONSE_ID => {
+                    on_message(frame.seq, Err(frame.payload.to_vec()))
+                }
+                Err(_) => self.bad_frames += 1,
+            }
+        }
+        Ok(())
+    }
+
+    fn io(&self, source: std::io::Error) -> LinkError {
+        LinkError::Io { port: self.port.clone(), source }
+    }
+}
+
+fn incompatible(device: Version, host: Version) -> LinkError {
+    let older = if device.major < host.major { "board's firmware" } else { "configurator" };
+    LinkError::Incompatible { device: VersionText(device), host: VersionText(host), older }
+}
+
+fn placeholder_info() -> Info {
+    Info {
+        protocol: PROTOCOL_VERSION,
+        schema_hash: 0,
+        firmware: protocol::FirmwareVersion { major: 0, minor: 0, patch: 0 },
+        board: heapless::String::new(),
+        serial: heapless::String::new(),
+        capabilities: protocol::Capabilities(0),
+        control_rate_hz: 0,
+        motor_count: 0,
+    }
+}

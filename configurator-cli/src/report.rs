@@ -1,0 +1,160 @@
+//! What the board says, for people (aligned text, units on every number) and for programs (JSON
+//! with units in the key names).
+
+use protocol::{Capabilities, Info, Status, PROTOCOL_VERSION, SCHEMA_HASH};
+use serde_json::{json, Value};
+use std::fmt::Write as _;
+
+const CAPABILITY_NAMES: [(u32, &str); 6] = [
+    (Capabilities::IMU, "imu"),
+    (Capabilities::MOTORS, "motors"),
+    (Capabilities::MOTOR_RPM, "motor_rpm"),
+    (Capabilities::TELEMETRY, "telemetry"),
+    (Capabilities::PERSISTENT_STORE, "persistent_store"),
+    (Capabilities::SIMULATOR, "simulator"),
+];
+
+fn capability_list(capabilities: Capabilities) -> Vec<&'static str> {
+    CAPABILITY_NAMES.iter().filter(|(flag, _)| capabilities.has(*flag)).map(|(_, n)| *n).collect()
+}
+
+/// Board identity as JSON.
+pub fn info_json(info: &Info, port: &str) -> Value {
+    json!({
+        "port": port,
+        "board": info.board.as_str(),
+        "serial": info.serial.as_str(),
+        "firmware_version": format!("{}.{}.{}", info.firmware.major, info.firmware.minor, info.firmware.patch),
+        "protocol_version": format!("{}.{}", info.protocol.major, info.protocol.minor),
+        "schema_hash": format!("{:016x}", info.schema_hash),
+        "schema_matches": info.schema_hash == SCHEMA_HASH,
+        "capabilities": capability_list(info.capabilities),
+        "control_rate_hz": info.control_rate_hz,
+        "motor_count": info.motor_count,
+    })
+}
+
+/// Board identity as text.
+pub fn info_text(info: &Info, port: &str) -> String {
+    let mut out = String::new();
+    let schema = if info.schema_hash == SCHEMA_HASH {
+        "matches this configurator".to_string()
+    } else {
+        format!(
+            "differs from this configurator's {:016x} (protocol {}.{}): fields may be missing",
+            SCHEMA_HASH, PROTOCOL_VERSION.major, PROTOCOL_VERSION.minor
+        )
+    };
+    let _ = writeln!(out, "Board {} (serial {}) on {port}", info.board, info.serial);
+    let _ = writeln!(
+        out,
+        "  firmware        {}.{}.{}",
+        info.firmware.major, info.firmware.minor, info.firmware.patch
+    );
+    let _ = writeln!(out, "  protocol        {}.{}", info.protocol.major, info.protocol.minor);
+    let _ = writeln!(out, "  schema          {:016x}, {schema}", info.schema_hash);
+    let _ = writeln!(out, "  capabilities    {}", capability_list(info.capabilities).join(", "));
+    let _ = writeln!(out, "  control rate    {} Hz", info.control_rate_hz);
+    let _ = writeln!(out, "  motors          {}", info.motor_count);
+    out
+}
+
+/// Status as JSON.
+pub fn status_json(status: &Status) -> Value {
+    let c = &status.control;
+    let imu = &status.imu;
+    let l = &status.link;
+    json!({
+        "uptime_s": f64::from(status.uptime_ms) / 1000.0,
+        "armed": status.armed,
+        "control": {
+            "rate_hz": c.rate_hz,
+            "steps": c.steps,
+            "late_steps": c.late_steps,
+            "max_interval_us": c.max_interval_us,
+            "samples_processed": c.samples_processed,
+            "samples_dropped": c.samples_dropped,
+        },
+        "imu": {
+            "present": imu.present,
+            "samples": imu.samples,
+            "missing": imu.missing,
+            "gyro_rad_s": imu.gyro_rad_s,
+            "accel_mps2": imu.accel_mps2,
+            "gyro_mean_rad_s": imu.gyro_mean_rad_s,
+            "gyro_std_rad_s": imu.gyro_std_rad_s,
+            "accel_std_mps2": imu.accel_std_mps2,
+        },
+        "link": {
+            "frames_rx": l.frames_rx,
+            "frames_tx": l.frames_tx,
+            "bad_crc": l.bad_crc,
+            "bad_framing": l.bad_framing,
+            "oversize": l.oversize,
+            "unknown_id": l.unknown_id,
+            "malformed": l.malformed,
+            "telemetry_dropped": l.telemetry_dropped,
+            "responses_dropped": l.responses_dropped,
+        },
+    })
+}
+
+fn vector(v: [f32; 3], scale: f32, decimals: usize) -> String {
+    format!("({:+.d$}, {:+.d$}, {:+.d$})", v[0] * scale, v[1] * scale, v[2] * scale, d = decimals)
+}
+
+/// Status as text.
+pub fn status_text(status: &Status) -> String {
+    let c = &status.control;
+    let imu = &status.imu;
+    let l = &status.link;
+    let norm = |v: [f32; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let mut out = String::new();
+    let _ = writeln!(out, "Status");
+    let _ = writeln!(out, "  uptime          {:.3} s", f64::from(status.uptime_ms) / 1000.0);
+    let _ = writeln!(out, "  armed           {}", if status.armed { "yes" } else { "no" });
+    let _ = writeln!(
+        out,
+        "  control loop    {:.1} Hz, {} steps, {} late, longest interval {} µs",
+        c.rate_hz, c.steps, c.late_steps, c.max_interval_us
+    );
+    let _ = writeln!(
+        out,
+        "  background      {} samples processed, {} dropped",
+        c.samples_processed, c.samples_dropped
+    );
+    if imu.present {
+        let _ = writeln!(out, "  imu             {} samples, {} missing", imu.samples, imu.missing);
+        let _ = writeln!(
+            out,
+            "  gyro            {} °/s",
+            vector(imu.gyro_rad_s, 180.0 / std::f32::consts::PI, 2)
+        );
+        let _ = writeln!(
+            out,
+            "  accelerometer   {} m/s² (|a| = {:.3} m/s²)",
+            vector(imu.accel_mps2, 1.0, 3),
+            norm(imu.accel_mps2)
+        );
+        let _ = writeln!(
+            out,
+            "  gyro noise      {} mrad/s (1σ over 1 s), bias {} mrad/s",
+            vector(imu.gyro_std_rad_s, 1000.0, 2),
+            vector(imu.gyro_mean_rad_s, 1000.0, 2)
+        );
+        let _ = writeln!(
+            out,
+            "  accel noise     {} m/s² (1σ over 1 s)",
+            vector(imu.accel_std_mps2, 1.0, 4)
+        );
+    } else {
+        let _ = writeln!(out, "  imu             absent ({} steps without a sample)", imu.missing);
+    }
+    let _ = writeln!(
+        out,
+        "  link            {} frames in, {} out; errors: {} CRC, {} framing, {} oversize, {} unknown id, {} malformed; dropped: {} telemetry, {} responses",
+        l.frames_rx, l.frames_tx, l.bad_crc, l.bad_framing, l.oversize, l.unknown_id, l.malformed,
+        l.telemetry_dropped, l.responses_dropped
+    );
+    out
+}
