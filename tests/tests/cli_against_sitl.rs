@@ -1,0 +1,162 @@
+//! End to end: the configurator binary against the SITL over the real transports (the
+//! pseudo-terminal it opens exactly like a USB serial port, and TCP), and against a fake board
+//! that speaks another major protocol version.
+
+use protocol::{
+    Capabilities, DeviceMessage, FirmwareVersion, Info, Reply, Request, Version, MAX_FRAME_LEN,
+    PROTOCOL_VERSION,
+};
+use serde_json::Value;
+use sim::sitl::{Sitl, SitlConfig};
+use std::io::{Read, Write};
+use std::net::TcpListener;
+use std::time::Duration;
+use tests::run_cli;
+
+fn start_sitl(tcp: bool) -> Sitl {
+    let config = SitlConfig { tcp_port: tcp.then_some(0), ..SitlConfig::default() };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    // One full one-second statistics window, so the status carries noise figures.
+    std::thread::sleep(Duration::from_millis(1200));
+    sitl
+}
+
+fn json_of(output: &std::process::Output) -> Value {
+    assert!(
+        output.status.success(),
+        "configurator failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).expect("stdout is one JSON object")
+}
+
+fn norm(v: &Value) -> f64 {
+    v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap().powi(2)).sum::<f64>().sqrt()
+}
+
+#[test]
+fn info_over_the_pseudo_terminal_reports_the_handshake_and_a_board_at_rest() {
+    let sitl = start_sitl(false);
+    let port = sitl.pty_path.clone().unwrap();
+    let output = run_cli(&["--port", port.to_str().unwrap(), "--json", "info"]);
+    let report = json_of(&output);
+
+    let info = &report["info"];
+    assert_eq!(info["board"], "SITL");
+    assert_eq!(
+        info["protocol_version"],
+        format!("{}.{}", PROTOCOL_VERSION.major, PROTOCOL_VERSION.minor)
+    );
+    assert_eq!(info["schema_matches"], true);
+    assert_eq!(info["control_rate_hz"], 2000);
+    assert_eq!(info["motor_count"], 4, "the paper's quad");
+    assert!(info["capabilities"].as_array().unwrap().contains(&Value::from("simulator")));
+
+    let status = &report["status"];
+    assert_eq!(status["armed"], false);
+    let control = &status["control"];
+    assert!((control["rate_hz"].as_f64().unwrap() - 2000.0).abs() < 1.0, "{control}");
+    assert_eq!(control["late_steps"], 0);
+    assert_eq!(control["samples_dropped"], 0);
+    assert!(status["uptime_s"].as_f64().unwrap() >= 1.0);
+    let imu = &status["imu"];
+    assert_eq!(imu["present"], true);
+    // Held still by the simulated hand: the accelerometer reads 1 g of specific force, the gyro
+    // reads its bias and noise only.
+    let accel_mps2 = norm(&imu["accel_mps2"]);
+    assert!((accel_mps2 - 9.81).abs() < 0.15, "|a| = {accel_mps2} m/s²");
+    assert!(norm(&imu["gyro_rad_s"]) < 0.05);
+    for sigma in imu["gyro_std_rad_s"].as_array().unwrap() {
+        let sigma = sigma.as_f64().unwrap();
+        assert!(sigma > 1e-4 && sigma < 0.02, "gyro noise {sigma} rad/s");
+    }
+    let link = &status["link"];
+    assert_eq!(link["bad_crc"], 0);
+    assert_eq!(link["frames_rx"], 2, "hello and status");
+}
+
+#[test]
+fn status_text_has_units_and_tcp_reaches_the_same_board() {
+    let sitl = start_sitl(true);
+    let address = sitl.tcp_addr.unwrap().to_string();
+    let output = run_cli(&["--tcp", &address, "status"]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let text = String::from_utf8(output.stdout).unwrap();
+    for expected in ["Hz", "m/s²", "°/s", "µs", "uptime"] {
+        assert!(text.contains(expected), "`{expected}` missing from:\n{text}");
+    }
+}
+
+#[test]
+fn streaming_imu_telemetry_over_the_pseudo_terminal_has_no_gaps() {
+    let sitl = start_sitl(false);
+    let port = sitl.pty_path.clone().unwrap();
+    let args = ["--port", port.to_str().unwrap(), "--json", "stream", "--topic", "imu"];
+    let output = run_cli(&[&args[..], &["--rate-hz", "500", "--duration-s", "1"]].concat());
+    let report = json_of(&output);
+    let received = report["received"].as_u64().unwrap();
+    // 500 Hz for 1 s of wall time; the SITL is paced to the wall clock.
+    assert!((400..=560).contains(&received), "received {received}");
+    assert_eq!(report["gaps"], 0);
+    assert_eq!(report["bad_frames"], 0);
+}
+
+#[test]
+fn a_missing_port_is_a_clear_error_with_exit_code_1() {
+    let output = run_cli(&["--port", "/dev/does-not-exist", "info"]);
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("cannot open /dev/does-not-exist"), "{stderr}");
+    assert!(output.stdout.is_empty());
+}
+
+#[test]
+fn an_out_of_range_stream_rate_is_refused_before_connecting() {
+    let output = run_cli(&["--port", "/dev/does-not-exist", "stream", "--rate-hz", "5000"]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&output.stderr).contains("outside 1 to 1000 Hz"));
+}
+
+/// A fake board on TCP that answers the handshake as protocol 2.0 would.
+#[test]
+fn a_board_of_another_major_version_is_refused_naming_both_versions() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = listener.local_addr().unwrap().to_string();
+    let board = std::thread::spawn(move || {
+        let (mut stream, _) = listener.accept().unwrap();
+        stream.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        let mut decoder = protocol::Decoder::new();
+        let mut buffer = [0u8; 256];
+        loop {
+            let n = stream.read(&mut buffer).unwrap();
+            assert!(n > 0, "the configurator hung up before the handshake");
+            for &byte in &buffer[..n] {
+                let Some(Ok(frame)) = decoder.push(byte) else { continue };
+                assert!(matches!(Request::decode(&frame), Ok(Request::Hello(_))));
+                let future = Info {
+                    protocol: Version { major: PROTOCOL_VERSION.major + 1, minor: 0 },
+                    schema_hash: 0,
+                    firmware: FirmwareVersion { major: 9, minor: 0, patch: 0 },
+                    board: heapless::String::try_from("FUTURE").unwrap(),
+                    serial: heapless::String::new(),
+                    capabilities: Capabilities(0),
+                    control_rate_hz: 2000,
+                    motor_count: 4,
+                };
+                let reply = DeviceMessage::Response(Ok(Reply::Hello(future)));
+                let mut out = [0u8; MAX_FRAME_LEN];
+                let len = reply.encode(frame.seq, &mut out).unwrap();
+                stream.write_all(&out[..len]).unwrap();
+                return;
+            }
+        }
+    });
+    let output = run_cli(&["--tcp", &address, "info"]);
+    board.join().unwrap();
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    let device = format!("protocol {}.0", PROTOCOL_VERSION.major + 1);
+    let host = format!("protocol {}.{}", PROTOCOL_VERSION.major, PROTOCOL_VERSION.minor);
+    assert!(stderr.contains(&device) && stderr.contains(&host), "{stderr}");
+    assert!(stderr.contains("update the configurator"), "{stderr}");
+}
