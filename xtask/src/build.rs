@@ -122,7 +122,7 @@ pub fn flash(args: &[String]) -> Result<()> {
 }
 
 /// `rustup target add` the firmware target unless it is installed already.
-fn ensure_target_installed() -> Result<()> {
+pub(crate) fn ensure_target_installed() -> Result<()> {
     let output = Command::new("rustup")
         .args(["target", "list", "--installed"])
         .output()
@@ -135,7 +135,7 @@ fn ensure_target_installed() -> Result<()> {
 }
 
 /// `cargo install flip-link` unless it is on PATH (it is the firmware's linker).
-fn ensure_flip_link() -> Result<()> {
+pub(crate) fn ensure_flip_link() -> Result<()> {
     if util::on_path("flip-link") {
         return Ok(());
     }
