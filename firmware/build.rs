@@ -1,4 +1,4 @@
-//! Build script: hand `memory.x` to the linker for the STM32H743 target.
+//! Build script: hand `memory.x` and the linker scripts to the linker for the STM32H743 target.
 //!
 //! cortex-m-rt's `link.x` does `INCLUDE memory.x`, so the file must be on the linker's search
 //! path. Host builds (the portable `app` tested on the PC, the simulator) need nothing here.
@@ -16,4 +16,10 @@ fn main() {
     let out_dir = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
     fs::copy("memory.x", out_dir.join("memory.x")).expect("copy memory.x into OUT_DIR");
     println!("cargo:rustc-link-search={}", out_dir.display());
+    // Linker scripts for the firmware binary only (see `.cargo/config.toml` for why not there):
+    // `--nmagic` keeps sections unaligned to pages (flash is not paged), `link.x` is
+    // cortex-m-rt's (it includes `memory.x`), `defmt.x` places defmt's interned strings.
+    for arg in ["--nmagic", "-Tlink.x", "-Tdefmt.x"] {
+        println!("cargo:rustc-link-arg-bins={arg}");
+    }
 }
