@@ -9,7 +9,7 @@
 use nalgebra::Vector3;
 
 use super::front_end::FrontEnd;
-use super::moments::Moments;
+use super::moments::{BatchMeans, Moments};
 use super::solve::{self, Problem};
 use super::stream::{accumulate_aligned, ImuOffsetEstimator};
 use super::{validate_sample, Config, Estimate, ImuOffsetError, ImuSample, Segment, MAX_SEGMENTS};
@@ -30,7 +30,7 @@ pub struct BatchFitter {
     rate_hz: Option<f32>,
     block_len: u32,
     rows: Moments<f64>,
-    blocks: Moments<f64>,
+    batches: Option<BatchMeans<f64>>,
     logs_added: u32,
     segments: [LogSegment; MAX_SEGMENTS],
     segments_len: usize,
@@ -45,7 +45,7 @@ impl BatchFitter {
             rate_hz: None,
             block_len: 0,
             rows: Moments::new(),
-            blocks: Moments::new(),
+            batches: None,
             logs_added: 0,
             segments: [none; MAX_SEGMENTS],
             segments_len: 0,
@@ -80,6 +80,7 @@ impl BatchFitter {
         detector.finish();
         let found = detector.segments();
         let block_len = detector.block_len();
+        let batches = self.batches.get_or_insert(BatchMeans::new(detector.long_batch_blocks()));
 
         // Pass 2: the same front end, accumulating exactly the detected segments in f64.
         let mut front = FrontEnd::new(self.config.cutoff_hz, rate_hz)
@@ -91,18 +92,20 @@ impl BatchFitter {
             let Some(s) = front.update(sample) else { continue };
             while next.peek().is_some_and(|seg| s.index >= seg.end_index) {
                 next.next();
+                batches.end_segment();
             }
             let inside = next.peek().is_some_and(|seg| s.index >= seg.start_index);
             if inside {
                 accumulate_aligned(&mut block, &s, &r_ref);
                 if block.count >= block_len {
                     self.rows.merge(&block);
-                    self.blocks.accumulate(&block.xsum, &block.ysum);
+                    batches.add_block(&block);
                     block = Moments::new();
                 }
             }
         }
 
+        batches.end_segment();
         let log = self.logs_added;
         self.logs_added = self.logs_added.saturating_add(1);
         self.rate_hz = Some(rate_hz);
@@ -128,12 +131,12 @@ impl BatchFitter {
 
     /// The estimate over all throws added.
     pub fn estimate(&self) -> Result<Estimate<f64>, ImuOffsetError> {
-        if self.segments_len == 0 {
+        let Some(batches) = self.batches.as_ref().filter(|_| self.segments_len > 0) else {
             return Err(ImuOffsetError::NoFreeFall);
-        }
+        };
         let problem = Problem {
             rows: &self.rows,
-            blocks: &self.blocks,
+            batches,
             block_len: self.block_len,
             r_ref: Vector3::zeros(),
         };

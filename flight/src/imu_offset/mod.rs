@@ -97,11 +97,18 @@ pub struct Config {
     pub max_offset_m: f32,
     /// Shortest free fall accepted as a throw (s), measured before trimming.
     pub min_free_fall_s: f32,
-    /// Samples dropped at each edge of a free fall (s): the hand's last and first touch plus the
-    /// low-pass settling.
-    pub trim_s: f32,
+    /// Free-fall test: the bound never exceeds this (m/s²), so that a craft spun up in the hand
+    /// (which feels ≥ 1 g) is never taken for free fall.
+    pub acc_ceiling_mps2: f32,
+    /// Samples dropped after the free fall is detected (s): the low-pass settling after release.
+    pub trim_start_s: f32,
+    /// Samples dropped before the end of free fall is detected (s): the catching hand's force
+    /// rises for a while before it crosses the threshold.
+    pub trim_end_s: f32,
     /// Block length for the batch-means variance and the end-of-segment rollback (s).
     pub block_s: f32,
+    /// Length of the long batches of the batch-means variance (s), a whole number of blocks.
+    pub long_batch_s: f32,
     /// Largest 95 % semi-axis (m) for `r` to count as well determined.
     pub max_semi_axis_m: f32,
 }
@@ -122,11 +129,21 @@ impl Default for Config {
             // A throw worth fitting climbs ≥ 0.1 m (≥ 0.28 s of flight); hand motions that unload
             // the IMU (a quick drop of the hand) last well under 0.15 s.
             min_free_fall_s: 0.15,
-            // 40 ms = 18 ms low-pass settling at 50 Hz (4 time constants, `filters`) + ~20 ms for
-            // the hand's force to die out around the detection threshold.
-            trim_s: 0.04,
+            // 0.6 g: well below the 1 g a hand holding the craft must apply; allows
+            // |Ω̇ × r + Ω × (Ω × r)| up to 5.9 m/s² (2 cm at 13 rad/s even while tumbling).
+            acc_ceiling_mps2: 0.6 * 9.80665,
+            // 40 ms = 18 ms low-pass settling at 50 Hz (4 time constants, `filters`) + 22 ms for
+            // the hand's last touch around the release.
+            trim_start_s: 0.04,
+            // 60 ms: a soft catch (force rising as sin² over 0.3 s to ~2 g) crosses the 0.6 g
+            // ceiling ~25–40 ms after first contact; 60 ms leaves ≥ 20 ms clear of the hand.
+            trim_end_s: 0.06,
             // 20 ms ≈ 4.4 filter time constants at 50 Hz, short enough for ≥ 15 blocks per throw.
             block_s: 0.02,
+            // 100 ms: drag changes over the flight (∝ v², rotating with the spin at 1–3 rev/s);
+            // measured coverage (tests) rises from ~47 % with 20 ms batches alone to the figures
+            // reported there; longer batches leave too few per throw to estimate anything.
+            long_batch_s: 0.2,
             // 2 mm: an offset error δr makes the centripetal compensation wrong by |Ω|² δr, i.e.
             // 0.2 m/s² (1.2° of apparent tilt for an accelerometer-aided attitude filter) at
             // 10 rad/s. The seed paper reports sub-millimetre bounds after two good throws.
@@ -361,6 +378,9 @@ pub struct Estimate<T: Scalar> {
     pub acc_bias_mps2: Option<Vector3<T>>,
     /// Covariance of `r_imu_m` (m²), corrected for correlated residuals.
     pub covariance_m2: Matrix3<T>,
+    /// The seed paper's covariance `SE² (XᵀX)⁻¹` (m²), which assumes white residuals: for
+    /// comparison only (it is far too small for filtered data).
+    pub white_noise_covariance_m2: Matrix3<T>,
     /// Covariance of `acc_bias_mps2` ((m/s²)²), with [`Model::OffsetAndAccBias`].
     pub acc_bias_covariance_m2ps4: Option<Matrix3<T>>,
     /// 95 % confidence ellipsoid of `r_imu_m`.

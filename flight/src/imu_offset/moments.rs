@@ -116,6 +116,68 @@ impl<T: Scalar> Moments<T> {
     }
 }
 
+/// Block sums for the batch-means variance at two batch lengths: `short` gets one row per block
+/// (`X̄_b`, `Ȳ_b`), `long` one per `group` consecutive blocks of a segment. Short batches measure
+/// the filtered sensor noise precisely (many batches); long ones also catch slowly varying
+/// unmodelled forces such as drag (few batches). An unfinished long batch at the end of a segment
+/// is dropped (its rows still count in the fit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct BatchMeans<T: Scalar> {
+    pub(crate) short: Moments<T>,
+    pub(crate) long: Moments<T>,
+    /// Blocks per long batch.
+    pub(crate) group: u32,
+    partial_xsum: Matrix3<T>,
+    partial_ysum: Vector3<T>,
+    partial_count: u32,
+}
+
+impl<T: Scalar> BatchMeans<T> {
+    /// No batches; `group` blocks make a long batch (at least 1).
+    pub(crate) fn new(group: u32) -> Self {
+        Self {
+            short: Moments::new(),
+            long: Moments::new(),
+            group: group.max(1),
+            partial_xsum: Matrix3::zeros(),
+            partial_ysum: Vector3::zeros(),
+            partial_count: 0,
+        }
+    }
+
+    /// Add a finished block of rows.
+    pub(crate) fn add_block(&mut self, block: &Moments<T>) {
+        self.short.accumulate(&block.xsum, &block.ysum);
+        self.partial_xsum += block.xsum;
+        self.partial_ysum += block.ysum;
+        self.partial_count += 1;
+        if self.partial_count >= self.group {
+            self.long.accumulate(&self.partial_xsum, &self.partial_ysum);
+            self.end_segment();
+        }
+    }
+
+    /// The segment ended: drop an unfinished long batch.
+    pub(crate) fn end_segment(&mut self) {
+        self.partial_xsum = Matrix3::zeros();
+        self.partial_ysum = Vector3::zeros();
+        self.partial_count = 0;
+    }
+
+    /// Add the finished batches of `other`.
+    pub(crate) fn merge(&mut self, other: &Self) {
+        self.short.merge(&other.short);
+        self.long.merge(&other.long);
+    }
+
+    /// See [`Moments::recentre`].
+    pub(crate) fn recentre(&mut self, delta: &Vector3<T>) {
+        self.short.recentre(delta);
+        self.long.recentre(delta);
+        self.partial_ysum -= self.partial_xsum * delta;
+    }
+}
+
 /// A count as a scalar (exact below 2²⁴ for `f32`).
 pub(crate) fn count_as<T: Scalar>(n: u32) -> T {
     // u32 → f64 is exact; f64 → T rounds once.

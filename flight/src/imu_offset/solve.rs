@@ -8,12 +8,60 @@
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-use super::moments::{count_as, Moments};
+use super::moments::{count_as, BatchMeans, Moments};
 use super::{Ellipsoid, Estimate, ImuAxis, ImuOffsetError, Model, Scalar, Verdict, CHI2_3DOF_95};
 
 /// Fewest blocks for a fit: the batch-means variance then has at least `3·6 − 6 = 12` degrees of
 /// freedom even with a bias (its relative standard error ≈ √(2/12) ≈ 40 %, the worst we accept).
 pub(crate) const MIN_BLOCKS: u32 = 6;
+
+/// 95 % quantiles of Fisher's F distribution with (3, m) degrees of freedom, for the listed m
+/// (standard statistical tables; the last entry is m = ∞, where 3·F → χ²₃(0.95) = 7.8147).
+const F3_95: [(f32, f32); 17] = [
+    (3.0, 9.277),
+    (4.0, 6.591),
+    (5.0, 5.409),
+    (6.0, 4.757),
+    (7.0, 4.347),
+    (8.0, 4.066),
+    (9.0, 3.863),
+    (10.0, 3.708),
+    (12.0, 3.490),
+    (15.0, 3.287),
+    (20.0, 3.098),
+    (24.0, 3.009),
+    (30.0, 2.922),
+    (40.0, 2.839),
+    (60.0, 2.758),
+    (120.0, 2.680),
+    (f32::INFINITY, 2.605),
+];
+
+/// Factor by which `χ²₃(0.95)` must grow when the covariance scale is itself estimated with `ν`
+/// degrees of freedom: the 95 % quantile of Hotelling's `T²(3, ν)`,
+/// `3ν/(ν − 2) · F₃,ν₋₂(0.95)`, divided by `χ²₃(0.95)`. Interpolated linearly in `1/m` between
+/// table entries; 1 in the limit of many degrees of freedom.
+pub(crate) fn small_sample_factor(dof: f32) -> f32 {
+    let m = dof - 2.0;
+    let (m_lo, f_lo) = F3_95[0];
+    let f = if m <= m_lo {
+        f_lo
+    } else {
+        let mut f = F3_95[F3_95.len() - 1].1;
+        for pair in F3_95.windows(2) {
+            let [(m0, f0), (m1, f1)] = [pair[0], pair[1]];
+            if m <= m1 {
+                // Interpolate in 1/m (1/∞ = 0).
+                let (u, u0, u1) = (1.0 / m, 1.0 / m0, 1.0 / m1);
+                f = f1 + (f0 - f1) * (u - u1) / (u0 - u1);
+                break;
+            }
+        }
+        f
+    };
+    let t2 = 3.0 * dof / m.max(1.0) * f;
+    (t2 / CHI2_3DOF_95).max(1.0)
+}
 
 /// Iteration cap for the 3 × 3 symmetric eigen-decomposition (it converges in < 10 sweeps).
 const EIGEN_MAX_ITERATIONS: usize = 100;
@@ -21,7 +69,7 @@ const EIGEN_MAX_ITERATIONS: usize = 100;
 /// The accumulated problem: sample rows and block sums, relative to `r_ref`.
 pub(crate) struct Problem<'a, T: Scalar> {
     pub rows: &'a Moments<T>,
-    pub blocks: &'a Moments<T>,
+    pub batches: &'a BatchMeans<T>,
     /// Rows per block.
     pub block_len: u32,
     /// Reference offset the measurements are relative to (m).
@@ -29,10 +77,16 @@ pub(crate) struct Problem<'a, T: Scalar> {
 }
 
 /// One model's fit.
+#[derive(Clone, Copy)]
 struct Fit<T: Scalar> {
+    /// Inverse of the (reduced) information matrix: `(ΣXᵀX)⁻¹`, or the Schur complement's.
+    information_inv: Matrix3<T>,
+    /// Covariance scale: long-run variance times the small-sample factor.
+    scale: T,
     r_imu_m: Vector3<T>,
     acc_bias_mps2: Option<Vector3<T>>,
     covariance_m2: Matrix3<T>,
+    white_noise_covariance_m2: Matrix3<T>,
     acc_bias_covariance: Option<Matrix3<T>>,
     ellipsoid: Ellipsoid<T>,
     residual_rms_mps2: T,
@@ -52,7 +106,7 @@ pub(crate) fn estimate<T: Scalar>(
     model: Model,
     max_semi_axis_m: T,
 ) -> Result<Estimate<T>, ImuOffsetError> {
-    if p.blocks.count < MIN_BLOCKS {
+    if p.batches.short.count < MIN_BLOCKS {
         return Err(ImuOffsetError::TooFewSamples {
             used: p.rows.count,
             required: MIN_BLOCKS.saturating_mul(p.block_len),
@@ -82,7 +136,12 @@ pub(crate) fn estimate<T: Scalar>(
         }
         Model::OffsetAndAccBias => {
             let joint = fit(p, Model::OffsetAndAccBias)?;
-            let verdict = match (poor(&offset), poor(&joint)) {
+            // Excitation alone: the offset-only geometry `(ΣXᵀX)⁻¹` at the joint fit's residual
+            // scale (the offset-only residuals also contain the bias, which would inflate it).
+            let mut excitation = offset;
+            excitation.ellipsoid = ellipsoid(&(offset.information_inv * joint.scale))
+                .ok_or(ImuOffsetError::Singular)?;
+            let verdict = match (poor(&excitation), poor(&joint)) {
                 (Some((direction_imu, semi_axis_m, spin_next_about)), _) => {
                     Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about }
                 }
@@ -101,6 +160,7 @@ pub(crate) fn estimate<T: Scalar>(
         r_imu_m: chosen.r_imu_m,
         acc_bias_mps2: chosen.acc_bias_mps2,
         covariance_m2: chosen.covariance_m2,
+        white_noise_covariance_m2: chosen.white_noise_covariance_m2,
         acc_bias_covariance_m2ps4: chosen.acc_bias_covariance,
         ellipsoid: chosen.ellipsoid,
         residual_rms_mps2: chosen.residual_rms_mps2,
@@ -131,19 +191,28 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
     };
     let b = bias.unwrap_or_else(Vector3::zeros);
 
-    // Degrees of freedom: 3 per row; 3 per block (batch means).
+    // Degrees of freedom: 3 per row.
     let dof_rows: T = count_as(rows.count.saturating_mul(3).saturating_sub(unknowns));
-    let dof_blocks: T = count_as(p.blocks.count.saturating_mul(3).saturating_sub(unknowns));
-    let block_len: T = count_as(p.block_len);
     let rss = rows.sum_sq_residual(&d, &b, T::one()).max(T::zero());
-    let block_ss = p.blocks.sum_sq_residual(&d, &b, block_len).max(T::zero());
     let white_variance = rss / dof_rows;
-    let long_run_variance = block_ss / (block_len * dof_blocks);
+    // Long-run variance from short and long batches, each widened for its own degrees of
+    // freedom; the larger (more conservative) one is used.
+    let short = batch_means_variance(&p.batches.short, p.block_len, &d, &b, unknowns);
+    let long_len = p.block_len.saturating_mul(p.batches.group);
+    let long = batch_means_variance(&p.batches.long, long_len, &d, &b, unknowns);
+    let (long_run_variance, scale) = match (short, long) {
+        (Some(s), Some(l)) if l.1 > s.1 => l,
+        (Some(s), _) => s,
+        (None, _) => return Err(ImuOffsetError::TooFewSamples {
+            used: rows.count,
+            required: MIN_BLOCKS.saturating_mul(p.block_len),
+        }),
+    };
 
-    let covariance_m2 = information_inv * long_run_variance;
+    let covariance_m2 = information_inv * scale;
     let acc_bias_covariance = bias.map(|_| {
         (Matrix3::identity() / n + rows.xsum * information_inv * rows.xsum.transpose() / (n * n))
-            * long_run_variance
+            * scale
     });
     let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
     let values_finite = d.iter().chain(b.iter()).chain(covariance_m2.iter()).all(|v| v.is_finite());
@@ -151,9 +220,12 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
         return Err(ImuOffsetError::Singular);
     }
     Ok(Fit {
+        information_inv,
+        scale,
         r_imu_m: p.r_ref + d,
         acc_bias_mps2: bias,
         covariance_m2,
+        white_noise_covariance_m2: information_inv * white_variance,
         acc_bias_covariance,
         ellipsoid,
         residual_rms_mps2: (rss / (n * three)).sqrt(),
@@ -163,6 +235,27 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
             T::one()
         },
     })
+}
+
+/// Batch-means long-run variance per row and axis, `σ²_LR = Σ_b ‖Σ_{n∈b} e_n‖² / (L (3 n_b − p))`,
+/// and the covariance scale: `σ²_LR` times the small-sample factor for `3 n_b − p` degrees of
+/// freedom (the estimated scale makes the ellipsoid a Hotelling `T²` region, wider than `χ²₃`).
+/// `None` with fewer than 2 degrees of freedom.
+fn batch_means_variance<T: Scalar>(
+    batches: &Moments<T>,
+    batch_len: u32,
+    d: &Vector3<T>,
+    b: &Vector3<T>,
+    unknowns: u32,
+) -> Option<(T, T)> {
+    let dof = batches.count.saturating_mul(3).saturating_sub(unknowns);
+    if dof < 2 || batch_len == 0 {
+        return None;
+    }
+    let len: T = count_as(batch_len);
+    let ss = batches.sum_sq_residual(d, b, len).max(T::zero());
+    let variance = ss / (len * count_as(dof));
+    Some((variance, variance * T::from(small_sample_factor(dof as f32))))
 }
 
 /// Semi-axes and directions of the 95 % ellipsoid of a 3 × 3 covariance.

@@ -3,18 +3,20 @@
 //!
 //! # Free-fall detection
 //! On the filtered, aligned signals, a sample is in free fall when
-//! `|f| < acc_floor + max_offset (|Ω̇| + |Ω|²)`: in free fall `|f| = |Ω̇ × r + Ω × (Ω × r)|` is
-//! bounded by `|r| (|Ω̇| + |Ω|²)`, while in the hand `|f|` is at least about g (holding) and 2–3 g
-//! (throwing, catching). A run of such samples at least [`Config::min_free_fall_s`] long is a
-//! throw.
+//! `|f| < min(acc_floor + max_offset (|Ω̇| + |Ω|²), acc_ceiling)`: in free fall
+//! `|f| = |Ω̇ × r + Ω × (Ω × r)|` is bounded by `|r| (|Ω̇| + |Ω|²)`, while in the hand `|f|` is at
+//! least about g (holding, even while spinning the craft up) and 2–3 g (throwing, catching); the
+//! ceiling keeps a fast spin in the hand from passing as free fall. A run of such samples at least
+//! [`Config::min_free_fall_s`] long is a throw.
 //!
 //! # Trimming, and why samples are held back
-//! The first [`Config::trim_s`] of a free fall are skipped (the hand's force dies out around the
-//! threshold, and the low-pass still carries it while settling). At the end the free fall is only
-//! detected once the catch has begun, so the last `trim_s` before detection must not count either.
+//! The first [`Config::trim_start_s`] of a free fall are skipped (the low-pass still carries the
+//! hand's force while settling). At the end the free fall is only detected once the catching
+//! hand's force has grown past the threshold, so the last [`Config::trim_end_s`] before detection
+//! must not count either.
 //! A recursive estimator cannot take rows back, so rows are first summed into blocks of
 //! [`Config::block_s`]; a finished block waits in a small queue until the free fall has lasted
-//! `trim_s` beyond it, and only then joins the segment. At the catch the waiting blocks (and the
+//! `trim_end_s` beyond it, and only then joins the segment. At the catch the waiting blocks (and the
 //! unfinished one) are dropped. The blocks are also what the batch-means variance needs.
 //!
 //! # Cost
@@ -25,15 +27,15 @@
 use nalgebra::Vector3;
 
 use super::front_end::{regressor, AlignedSample, FrontEnd};
-use super::moments::Moments;
+use super::moments::{BatchMeans, Moments};
 use super::solve::{self, Problem};
 use super::{
     validate_sample, Config, Estimate, ImuOffsetError, ImuSample, Scalar, Segment, MAX_RATE_HZ,
     MAX_SEGMENTS, MIN_RATE_HZ,
 };
 
-/// Most finished blocks waiting for the free fall to outlast them by `trim_s`
-/// (`⌈trim / block⌉ + 1` are needed; 8 allows `trim_s` up to 7 blocks).
+/// Most finished blocks waiting for the free fall to outlast them by `trim_end_s`
+/// (`⌈trim_end / block⌉ + 1` are needed; 8 allows `trim_end_s` up to 7 blocks).
 const PENDING_CAPACITY: usize = 8;
 
 /// Shortest segment kept after trimming, in blocks (fewer cannot say much about `r`).
@@ -107,7 +109,8 @@ pub struct ImuOffsetEstimator {
     config: Config,
     rate_hz: f32,
     front: FrontEnd,
-    trim_len: u32,
+    trim_start_len: u32,
+    trim_end_len: u32,
     block_len: u32,
     min_free_fall_len: u32,
     phase: Phase,
@@ -120,12 +123,12 @@ pub struct ImuOffsetEstimator {
     pending_len: usize,
     /// Committed rows and block sums of the throw in progress, and its first used / next index.
     segment_rows: Moments<f32>,
-    segment_blocks: Moments<f32>,
+    segment_batches: BatchMeans<f32>,
     segment_first: u32,
     segment_end: u32,
     /// All accepted throws.
     rows: Moments<f32>,
-    blocks: Moments<f32>,
+    batches: BatchMeans<f32>,
     segments: [Segment; MAX_SEGMENTS],
     segments_len: usize,
     segments_ignored: u32,
@@ -147,17 +150,20 @@ impl ImuOffsetEstimator {
                 Err(ImuOffsetError::InvalidConfig(what))
             }
         };
-        let trim_len = samples(config.trim_s, "trim_s must be finite and non-negative")?;
+        let trim_start_len = samples(config.trim_start_s, "trim_start_s must be finite, ≥ 0")?;
+        let trim_end_len = samples(config.trim_end_s, "trim_end_s must be finite, ≥ 0")?;
         let block_len = samples(config.block_s, "block_s must be finite and positive")?;
         let min_free_fall_len = samples(config.min_free_fall_s, "min_free_fall_s out of range")?;
         if block_len < 2 {
             return Err(ImuOffsetError::InvalidConfig("block_s must span at least 2 samples"));
         }
-        if trim_len.div_ceil(block_len) as usize + 1 > PENDING_CAPACITY {
-            return Err(ImuOffsetError::InvalidConfig("trim_s may be at most 7 × block_s"));
+        if trim_end_len.div_ceil(block_len) as usize + 1 > PENDING_CAPACITY {
+            return Err(ImuOffsetError::InvalidConfig("trim_end_s may be at most 7 × block_s"));
         }
         let positive = |v: f32| v.is_finite() && v > 0.0;
-        if !(positive(config.acc_floor_mps2) && config.max_offset_m.is_finite())
+        if !(positive(config.acc_floor_mps2)
+            && positive(config.acc_ceiling_mps2)
+            && config.max_offset_m.is_finite())
             || config.max_offset_m < 0.0
         {
             return Err(ImuOffsetError::InvalidConfig("free-fall thresholds out of range"));
@@ -165,12 +171,18 @@ impl ImuOffsetEstimator {
         if !positive(config.max_semi_axis_m) {
             return Err(ImuOffsetError::InvalidConfig("max_semi_axis_m must be positive"));
         }
+        let group = libm::roundf(config.long_batch_s / config.block_s);
+        if !(1.0..=1000.0).contains(&group) {
+            return Err(ImuOffsetError::InvalidConfig("long_batch_s must be 1 to 1000 blocks"));
+        }
+        let group = group as u32;
         let empty = PendingBlock { moments: Moments::new(), end: 0 };
         Ok(Self {
             config,
             rate_hz,
             front,
-            trim_len,
+            trim_start_len,
+            trim_end_len,
             block_len,
             min_free_fall_len,
             phase: Phase::Held,
@@ -180,11 +192,11 @@ impl ImuOffsetEstimator {
             pending_head: 0,
             pending_len: 0,
             segment_rows: Moments::new(),
-            segment_blocks: Moments::new(),
+            segment_batches: BatchMeans::new(group),
             segment_first: 0,
             segment_end: 0,
             rows: Moments::new(),
-            blocks: Moments::new(),
+            batches: BatchMeans::new(group),
             segments: [Segment { start_index: 0, end_index: 0 }; MAX_SEGMENTS],
             segments_len: 0,
             segments_ignored: 0,
@@ -225,7 +237,7 @@ impl ImuOffsetEstimator {
         }
         let problem = Problem {
             rows: &self.rows,
-            blocks: &self.blocks,
+            batches: &self.batches,
             block_len: self.block_len,
             r_ref: self.r_ref_m,
         };
@@ -267,6 +279,11 @@ impl ImuOffsetEstimator {
         self.min_free_fall_len
     }
 
+    /// Blocks per long batch of the batch-means variance.
+    pub(crate) fn long_batch_blocks(&self) -> u32 {
+        self.batches.group
+    }
+
     /// Rows per block (samples).
     pub(crate) fn block_len(&self) -> u32 {
         self.block_len
@@ -277,9 +294,9 @@ impl ImuOffsetEstimator {
     }
 
     fn is_free_fall(&self, s: &AlignedSample) -> bool {
-        let bound = self.config.acc_floor_mps2
+        let rotational_bound_mps2 = self.config.acc_floor_mps2
             + self.config.max_offset_m * (s.gyro_dot_radps2.norm() + s.gyro_radps.norm_squared());
-        s.acc_mps2.norm() < bound
+        s.acc_mps2.norm() < rotational_bound_mps2.min(self.config.acc_ceiling_mps2)
     }
 
     fn process(&mut self, s: &AlignedSample) -> Option<Segment> {
@@ -293,7 +310,7 @@ impl ImuOffsetEstimator {
             }
             Phase::Falling { start } if !free => self.end_free_fall(start, s.index),
             Phase::Falling { start } => {
-                if s.index >= start.saturating_add(self.trim_len) {
+                if s.index >= start.saturating_add(self.trim_start_len) {
                     accumulate_aligned(&mut self.block, s, &self.r_ref_m);
                     if self.block.count >= self.block_len {
                         let end = s.index.saturating_add(1);
@@ -311,8 +328,8 @@ impl ImuOffsetEstimator {
         self.block = Moments::new();
         self.pending_len = 0;
         self.segment_rows = Moments::new();
-        self.segment_blocks = Moments::new();
-        self.segment_first = start.saturating_add(self.trim_len);
+        self.segment_batches = BatchMeans::new(self.batches.group);
+        self.segment_first = start.saturating_add(self.trim_start_len);
         self.segment_end = self.segment_first;
     }
 
@@ -335,16 +352,16 @@ impl ImuOffsetEstimator {
         }
     }
 
-    /// Commit every waiting block that ends at least `trim_len` before `limit` (the first index
+    /// Commit every waiting block that ends at least `trim_end_len` before `limit` (the first index
     /// that may be contaminated by the catch is `limit` or later).
     fn commit_ready(&mut self, limit: u32) {
         while self.pending_len > 0 {
             let Some(&oldest) = self.pending.get(self.pending_head) else { return };
-            if oldest.end.saturating_add(self.trim_len) > limit {
+            if oldest.end.saturating_add(self.trim_end_len) > limit {
                 return;
             }
             self.segment_rows.merge(&oldest.moments);
-            self.segment_blocks.accumulate(&oldest.moments.xsum, &oldest.moments.ysum);
+            self.segment_batches.add_block(&oldest.moments);
             self.segment_end = oldest.end;
             self.pending_head = (self.pending_head + 1) % PENDING_CAPACITY;
             self.pending_len -= 1;
@@ -356,7 +373,7 @@ impl ImuOffsetEstimator {
         self.commit_ready(end);
         self.abandon_free_fall();
         let long_enough = end.saturating_sub(start) >= self.min_free_fall_len
-            && self.segment_blocks.count >= MIN_SEGMENT_BLOCKS;
+            && self.segment_batches.short.count >= MIN_SEGMENT_BLOCKS;
         if !long_enough {
             return None;
         }
@@ -368,12 +385,12 @@ impl ImuOffsetEstimator {
         *slot = segment;
         self.segments_len += 1;
         self.rows.merge(&self.segment_rows);
-        self.blocks.merge(&self.segment_blocks);
+        self.batches.merge(&self.segment_batches);
         // Move the reference to the new estimate so later sums stay small (f32 precision).
         if let Some(r) = solve::offset_only(&self.rows, &self.r_ref_m) {
             let delta = r - self.r_ref_m;
             self.rows.recentre(&delta);
-            self.blocks.recentre(&delta);
+            self.batches.recentre(&delta);
             self.r_ref_m = r;
         }
         Some(segment)

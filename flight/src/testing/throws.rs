@@ -7,8 +7,8 @@
 //!    the body up smoothly (`Ω = Ω_release · smoothstep(s)`), `s ∈ [0, 1]`.
 //! 3. *free fall*: gravity and quadratic drag `−k |v| v` only; torque-free Euler equations
 //!    `I Ω̇ = −Ω × (I Ω)` for the given (full, possibly non-diagonal) inertia tensor.
-//! 4. *catch*: the hand cancels the velocity and gravity with a `sin²` pulse and stops the spin
-//!    smoothly.
+//! 4. *catch*: the hand takes up the weight smoothly (`g (1 − smoothstep(s))` of fall left) and
+//!    cancels the velocity with a `sin²` pulse, and stops the spin smoothly.
 //! 5. *rest* again.
 //!
 //! The state (attitude, rate, velocity) is integrated with RK4 at no less than 8 kHz. Each sample
@@ -247,9 +247,11 @@ impl ThrowSamples {
             }
             Phase::Catch => {
                 let (w_c, v_c) = self.at_catch.unwrap_or((Vector3::zeros(), Vector3::zeros()));
-                let (_, ds) = smoothstep(s);
-                let hand = -(v_c / spec.catch_s + g) * (2.0 * sin2(s));
-                (-w_c * ds / spec.catch_s, g + hand)
+                // Gravity support grows smoothly (ending at rest, a = 0) while a sin² pulse
+                // removes the remaining velocity: ∫ g (1 − S) dt = g T/2.
+                let (support, ds) = smoothstep(s);
+                let hand = -(v_c + g * (0.5 * spec.catch_s)) * (2.0 / spec.catch_s * sin2(s));
+                (-w_c * ds / spec.catch_s, g * (1.0 - support) + hand)
             }
         }
     }
