@@ -235,8 +235,7 @@ impl SimBoard {
                 self.physics.step();
             }
             let (state, derivative) = (self.physics.state(), self.physics.derivative());
-            let s = self.imu_model.sample(state, derivative, self.physics.rotor_angle_rad());
-            let t = self.imu_model.truth(state, derivative);
+            let (s, t) = self.imu_model.sample(state, derivative, self.physics.rotor_angle_rad());
             sum.gyro_rad_s += s.gyro_rad_s;
             sum.accel_mps2 += s.accel_mps2;
             sum_truth.gyro_rad_s += t.gyro_rad_s;

@@ -130,16 +130,17 @@ impl ImuModel {
         RawSample { gyro_rad_s: self.rot_imu_body * w, accel_mps2: self.rot_imu_body * f_imu_body }
     }
 
-    /// One sample with all sensor errors. `rotor_angle_rad` drives the vibration.
+    /// One sample with all sensor errors, and the error-free reading it came from.
+    /// `rotor_angle_rad` drives the vibration.
     pub fn sample(
         &mut self,
         state: &State,
         derivative: &Derivative,
         rotor_angle_rad: &[f64; MAX_ROTORS],
-    ) -> RawSample {
+    ) -> (RawSample, RawSample) {
         let truth = self.truth(state, derivative);
         if self.ideal {
-            return truth;
+            return (truth, truth);
         }
         let (mut vib_gyro, mut vib_accel) = (Vector3::zeros(), Vector3::zeros());
         if self.vibration_accel_mps2 > 0.0 || self.vibration_gyro_rad_s > 0.0 {
@@ -151,14 +152,15 @@ impl ImuModel {
                 vib_gyro += dir * (level * self.vibration_gyro_rad_s);
             }
         }
-        RawSample {
+        let measured = RawSample {
             gyro_rad_s: self
                 .gyro
                 .read(truth.gyro_rad_s + self.rot_imu_body * vib_gyro, &mut self.rng),
             accel_mps2: self
                 .accel
                 .read(truth.accel_mps2 + self.rot_imu_body * vib_accel, &mut self.rng),
-        }
+        };
+        (measured, truth)
     }
 
     /// IMU position relative to the CoG, body, m.

@@ -80,8 +80,15 @@ impl Physics {
         let now = self.time_s();
         self.hand.update(now, self.step_s, &mut self.state);
         self.refresh_derivative();
-        for (angle, w) in self.rotor_angle_rad.iter_mut().zip(self.state.rotor_speed_rad_s.iter()) {
-            *angle = (*angle + w * self.step_s) % std::f64::consts::TAU;
+        let m = self.model.rotor_count();
+        for (angle, w) in
+            self.rotor_angle_rad.iter_mut().zip(self.state.rotor_speed_rad_s.iter()).take(m)
+        {
+            // One step turns a rotor far less than a revolution: a subtraction wraps it.
+            *angle += w * self.step_s;
+            while *angle >= std::f64::consts::TAU {
+                *angle -= std::f64::consts::TAU;
+            }
         }
     }
 
