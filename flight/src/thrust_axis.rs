@@ -46,10 +46,12 @@ mod bounded;
 mod eigen3;
 mod householder;
 mod rotation;
+mod sqrt;
 
 pub use rotation::{euler_zyx, rotate, shortest_arc_from_down, EulerZyx, THRUST_DIR_THRUST_FRAME};
 
 use householder::PivotedQr3;
+use sqrt::sqrt;
 
 /// Fewest motors the solver accepts: with fewer than four, `G1τ u = 0` (three equations) leaves
 /// no thrust direction to choose.
@@ -225,6 +227,10 @@ pub struct HoverProblem {
     u_min: [f32; MOTORS_MAX],
     u_max: [f32; MOTORS_MAX],
     weights: [f32; MOTORS_MAX],
+    /// `1/√wᵢ`, computed when the weights are set.
+    inv_sqrt_weight: [f32; MOTORS_MAX],
+    /// All weights are 1 (the scaling is skipped).
+    unit_weights: bool,
     g_mps2: f32,
 }
 
@@ -244,10 +250,13 @@ impl HoverProblem {
             u_min: [0.0; MOTORS_MAX],
             u_max: [0.0; MOTORS_MAX],
             weights: [0.0; MOTORS_MAX],
+            inv_sqrt_weight: [0.0; MOTORS_MAX],
+            unit_weights: true,
             g_mps2: STANDARD_GRAVITY_MPS2,
         };
         problem.u_max[..motors].fill(1.0);
         problem.weights[..motors].fill(1.0);
+        problem.inv_sqrt_weight[..motors].fill(1.0);
         for k in 0..3 {
             problem.g1_f[k] = problem.checked(Input::G1f, g1_f[k])?;
             problem.g1_tau[k] = problem.checked(Input::G1Tau, g1_tau[k])?;
@@ -275,6 +284,10 @@ impl HoverProblem {
             return Err(ThrustAxisError::NotPositive { input: Input::Weights, motor });
         }
         self.weights = weights;
+        for i in 0..self.motors {
+            self.inv_sqrt_weight[i] = 1.0 / sqrt(weights[i]);
+        }
+        self.unit_weights = weights[..self.motors].iter().all(|&w| w == 1.0);
         Ok(self)
     }
 
@@ -417,19 +430,17 @@ impl ScaledProblem {
             g1_tau: [[0.0; MOTORS_MAX]; 3],
             lower: [0.0; MOTORS_MAX],
             upper: [0.0; MOTORS_MAX],
-            inv_sqrt_weight: [0.0; MOTORS_MAX],
+            inv_sqrt_weight: p.inv_sqrt_weight,
             g_mps2: p.g_mps2,
         };
-        for i in 0..p.motors {
-            let sqrt_weight = libm::sqrtf(p.weights[i]);
-            let inv = 1.0 / sqrt_weight;
-            s.inv_sqrt_weight[i] = inv;
+        for i in 0..p.motors.min(MOTORS_MAX) {
+            let inv = p.inv_sqrt_weight[i];
             for k in 0..3 {
                 s.g1_f[k][i] = p.g1_f[k][i] * inv;
                 s.g1_tau[k][i] = p.g1_tau[k][i] * inv;
             }
-            s.lower[i] = p.u_min[i] * sqrt_weight;
-            s.upper[i] = p.u_max[i] * sqrt_weight;
+            s.lower[i] = p.u_min[i] / inv;
+            s.upper[i] = p.u_max[i] / inv;
         }
         s
     }
@@ -467,27 +478,59 @@ impl ThrustAxisSolver {
     /// `max_squarings` 3 × 3 squarings, and (only when the heuristic's `u*` leaves the bounds
     /// and `bounded_search` is on) the active-set search of [`bounded`].
     pub fn solve(&mut self, problem: &HoverProblem) -> Result<HoverSolution, ThrustAxisError> {
-        let s = ScaledProblem::new(problem);
-        let m = s.motors;
+        // One dispatch on the motor count; below it every loop has a fixed trip count.
+        match problem.motors {
+            4 => self.solve_fixed::<4>(problem),
+            5 => self.solve_fixed::<5>(problem),
+            6 => self.solve_fixed::<6>(problem),
+            7 => self.solve_fixed::<7>(problem),
+            8 => self.solve_fixed::<8>(problem),
+            motors => Err(ThrustAxisError::MotorCount { motors }),
+        }
+    }
+
+    /// [`Self::solve`] for `M == problem.motors` motors.
+    fn solve_fixed<const M: usize>(
+        &mut self,
+        problem: &HoverProblem,
+    ) -> Result<HoverSolution, ThrustAxisError> {
+        // Step 1: weights by scaling (G̃ = G W^{-1/2}); a plain copy for identical motors.
+        let mut tau = [[0.0f32; M]; 3];
+        let mut b = [[0.0f32; M]; 3];
+        for k in 0..3 {
+            tau[k].copy_from_slice(&problem.g1_tau[k][..M]);
+            b[k].copy_from_slice(&problem.g1_f[k][..M]);
+        }
+        if !problem.unit_weights {
+            for k in 0..3 {
+                for i in 0..M {
+                    tau[k][i] *= problem.inv_sqrt_weight[i];
+                    b[k][i] *= problem.inv_sqrt_weight[i];
+                }
+            }
+        }
 
         // Step 2: null space of G̃1τ by pivoted QR of G̃1τᵀ (columns = rows of G̃1τ).
-        let qr = PivotedQr3::factor(s.g1_tau, m);
+        let qr = PivotedQr3::<M>::factor(tau);
         if qr.rank < 3 {
             return Err(ThrustAxisError::TorqueRankDeficient { rank: qr.rank as u8 });
         }
-        // Rows of Qᵀ G̃1fᵀ; entries 3..m of row k are row k of B = G̃1f N.
-        let mut b = s.g1_f;
+        // Rows of Qᵀ G̃1fᵀ; entries 3..M of row k are row k of B = G̃1f N. Qᵀ is orthogonal,
+        // so the sum of all squares is ‖G̃1f‖²_F.
         let mut force_scale2 = 0.0;
         for row in b.iter_mut() {
-            force_scale2 += row[..m].iter().map(|x| x * x).sum::<f32>();
             qr.apply_qt(row);
+            force_scale2 += row.iter().map(|x| x * x).sum::<f32>();
         }
 
         // Step 3: C = B Bᵀ and its dominant eigenvector by warm-started power iteration.
         let mut c = [[0.0f32; 3]; 3];
         for i in 0..3 {
             for j in i..3 {
-                let dot: f32 = (3..m).map(|l| b[i][l] * b[j][l]).sum();
+                let mut dot = 0.0;
+                for l in 3..M {
+                    dot += b[i][l] * b[j][l];
+                }
                 c[i][j] = dot;
                 c[j][i] = dot;
             }
@@ -504,45 +547,56 @@ impl ThrustAxisSolver {
         }
         self.warm_dir = w;
 
-        // Step 4: η = Bᵀw g/‖Cw‖, ũ = Q [0; η].
-        let scale = s.g_mps2 / norm3(cw);
-        let mut u_scaled = [0.0f32; MOTORS_MAX];
-        for (l, slot) in u_scaled.iter_mut().enumerate().take(m).skip(3) {
-            *slot = (b[0][l] * w[0] + b[1][l] * w[1] + b[2][l] * w[2]) * scale;
+        // Step 4: η = Bᵀw g/‖Cw‖, ũ = Q [0; η], u = W^{-1/2} ũ.
+        let scale = problem.g_mps2 / norm3(cw);
+        let mut u = [0.0f32; M];
+        for l in 3..M {
+            u[l] = (b[0][l] * w[0] + b[1][l] * w[1] + b[2][l] * w[2]) * scale;
         }
-        qr.apply_q(&mut u_scaled);
-
-        let mut bounded = false;
-        let u_scaled = match pick_sign(&s, &u_scaled) {
-            Some(u) => u,
-            None if self.config.bounded_search => {
-                bounded = true;
-                bounded::optimum(&s, force_scale2).ok_or(ThrustAxisError::NoHoverWithinBounds)?
+        qr.apply_q(&mut u);
+        if !problem.unit_weights {
+            for i in 0..M {
+                u[i] *= problem.inv_sqrt_weight[i];
             }
-            None => return Err(ThrustAxisError::NoHoverWithinBounds),
-        };
-        finish(problem, &s, &u_scaled, eigenvalue, bounded)
+        }
+
+        // The sign that fits the bounds, else the bounded optimum (step 5).
+        match sign_within_bounds(problem, &u) {
+            Some(sign) => {
+                u.iter_mut().for_each(|x| *x *= sign);
+                finish(problem, &u, eigenvalue, false)
+            }
+            None if self.config.bounded_search => {
+                let scaled = ScaledProblem::new(problem);
+                let u_scaled = bounded::optimum(&scaled, force_scale2)
+                    .ok_or(ThrustAxisError::NoHoverWithinBounds)?;
+                for i in 0..M {
+                    u[i] = u_scaled[i] * scaled.inv_sqrt_weight[i];
+                }
+                finish(problem, &u, eigenvalue, true)
+            }
+            None => Err(ThrustAxisError::NoHoverWithinBounds),
+        }
     }
 }
 
-/// Step 6 and the final checks: unscale, `d = G1f u`, quaternion.
-fn finish(
+/// Step 6 and the final checks: clamp round-off onto the bounds, cost, `d = G1f u`, quaternion.
+fn finish<const M: usize>(
     problem: &HoverProblem,
-    s: &ScaledProblem,
-    u_scaled: &[f32; MOTORS_MAX],
+    u: &[f32; M],
     eigenvalue: f32,
     bounded: bool,
 ) -> Result<HoverSolution, ThrustAxisError> {
-    let m = s.motors;
     let mut u_hover = [0.0f32; MOTORS_MAX];
     let mut cost = 0.0;
-    for i in 0..m {
-        u_hover[i] = (u_scaled[i] * s.inv_sqrt_weight[i]).clamp(problem.u_min[i], problem.u_max[i]);
-        cost += u_scaled[i] * u_scaled[i];
-    }
     let mut d = [0.0f32; 3];
-    for (k, dk) in d.iter_mut().enumerate() {
-        *dk = (0..m).map(|i| problem.g1_f[k][i] * u_hover[i]).sum();
+    for i in 0..M {
+        let ui = u[i].clamp(problem.u_min[i], problem.u_max[i]);
+        u_hover[i] = ui;
+        cost += problem.weights[i] * ui * ui;
+        for k in 0..3 {
+            d[k] += problem.g1_f[k][i] * ui;
+        }
     }
     let d_norm = norm3(d);
     if !(d_norm > 0.0 && d_norm.is_finite() && cost.is_finite()) {
@@ -550,7 +604,7 @@ fn finish(
     }
     let thrust_dir_imu = [d[0] / d_norm, d[1] / d_norm, d[2] / d_norm];
     Ok(HoverSolution {
-        motors: m,
+        motors: M,
         u_hover,
         thrust_dir_imu,
         q_thrust_to_imu: shortest_arc_from_down(thrust_dir_imu),
@@ -609,32 +663,25 @@ fn dominant_direction(c: &[[f32; 3]; 3], warm: [f32; 3], max_squarings: u8) -> [
     [x[0] / n, x[1] / n, x[2] / n]
 }
 
-/// The sign of `ũ` (or `−ũ`) that fits the scaled bounds, as the paper prescribes; both fit:
-/// the one with the positive command sum. Entries within [`BOUND_TOLERANCE`] are accepted.
-fn pick_sign(s: &ScaledProblem, u: &[f32; MOTORS_MAX]) -> Option<[f32; MOTORS_MAX]> {
-    let positive = within_bounds(s, u, 1.0);
-    let negative = within_bounds(s, u, -1.0);
-    let sum: f32 = u[..s.motors].iter().sum();
-    let sign = match (positive, negative) {
-        (true, true) if sum >= 0.0 => 1.0,
-        (true, true) => -1.0,
-        (true, false) => 1.0,
-        (false, true) => -1.0,
-        (false, false) => return None,
-    };
-    let mut out = [0.0; MOTORS_MAX];
-    for i in 0..s.motors {
-        out[i] = sign * u[i];
+/// The sign (`+1` or `−1`) with which `u` fits the bounds, as the paper prescribes; if both
+/// fit, the one with the positive command sum (as the published code). Entries within
+/// [`BOUND_TOLERANCE`] of a bound count as inside.
+fn sign_within_bounds<const M: usize>(problem: &HoverProblem, u: &[f32; M]) -> Option<f32> {
+    let (mut positive, mut negative, mut sum) = (true, true, 0.0);
+    for i in 0..M {
+        let (lower, upper) = (problem.u_min[i], problem.u_max[i]);
+        let tolerance = BOUND_TOLERANCE * (libm::fabsf(lower) + libm::fabsf(upper));
+        let (lower, upper) = (lower - tolerance, upper + tolerance);
+        positive &= u[i] >= lower && u[i] <= upper;
+        negative &= -u[i] >= lower && -u[i] <= upper;
+        sum += u[i];
     }
-    Some(out)
-}
-
-fn within_bounds(s: &ScaledProblem, u: &[f32; MOTORS_MAX], sign: f32) -> bool {
-    (0..s.motors).all(|i| {
-        let tolerance = BOUND_TOLERANCE * (libm::fabsf(s.lower[i]) + libm::fabsf(s.upper[i]));
-        let value = sign * u[i];
-        value >= s.lower[i] - tolerance && value <= s.upper[i] + tolerance
-    })
+    match (positive, negative) {
+        (true, true) => Some(if sum >= 0.0 { 1.0 } else { -1.0 }),
+        (true, false) => Some(1.0),
+        (false, true) => Some(-1.0),
+        (false, false) => None,
+    }
 }
 
 fn mat3_vec(a: &[[f32; 3]; 3], x: [f32; 3]) -> [f32; 3] {
@@ -646,7 +693,7 @@ fn dot3(a: [f32; 3], b: [f32; 3]) -> f32 {
 }
 
 fn norm3(a: [f32; 3]) -> f32 {
-    libm::sqrtf(dot3(a, a))
+    sqrt(dot3(a, a))
 }
 
 fn scale3(a: &mut [[f32; 3]; 3], factor: f32) {

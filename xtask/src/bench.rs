@@ -1,11 +1,192 @@
 //! `cargo xtask bench` (host, criterion) and `cargo xtask bench-m7` (QEMU Cortex-M7 counts).
+//!
+//! `bench-m7` builds the `bench-m7/` crate (outside the workspace) for `thumbv7em-none-eabihf`
+//! with `-C target-cpu=cortex-m7`, runs it on QEMU's `mps2-an500` with one translation block per
+//! instruction and an execution trace, and counts the trace lines between the two marker
+//! functions `bench_region_start` / `bench_region_end` (addresses from the ELF symbol table).
+//! The binary prints its region names over semihosting in the order it runs them; the first
+//! region is empty and measures the marker overhead, which is subtracted from the others.
+//! Counts are instructions, not cycles, and repeat exactly from run to run.
 
-use anyhow::{bail, Result};
+use crate::util::{cargo, on_path, root, run};
+use anyhow::{bail, Context, Result};
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
 
-pub fn host(_args: &[String]) -> Result<()> {
-    bail!("host benchmarks not wired yet")
+/// Criterion benchmarks of `flight` (thrust-axis solve at m = 4, 6, 8 against the dense f64
+/// reference, and the bounded search). Extra arguments go to criterion (e.g. a filter).
+pub fn host(args: &[String]) -> Result<()> {
+    run(cargo().args(["bench", "--package", "flight", "--bench", "thrust_axis", "--"]).args(args))?;
+    eprintln!("criterion reports: {}", root().join("target/criterion").display());
+    Ok(())
 }
 
-pub fn m7(_args: &[String]) -> Result<()> {
-    bail!("Cortex-M7 benchmarks not wired yet")
+/// QEMU machine and CPU with the same core (and single-precision FPU) as the STM32H743.
+const QEMU: &str = "qemu-system-arm";
+const QEMU_MACHINE: &str = "mps2-an500";
+const QEMU_CPU: &str = "cortex-m7";
+/// The bench binary's target and its rustflags (set through `RUSTFLAGS`, which replaces the
+/// workspace's firmware flags for this target: flip-link and defmt are not used here).
+const TARGET: &str = "thumbv7em-none-eabihf";
+const RUSTFLAGS: &str = "-C link-arg=-Tlink.x -C target-cpu=cortex-m7";
+/// Semihosting line announcing a region, in run order.
+const REGION_PREFIX: &str = "bench-m7 region: ";
+/// Targets from issue 3 (instructions), matched by region-name prefix.
+const TARGETS: [(&str, u64); 3] = [
+    ("thrust-axis solve m=4", 1_000),
+    ("thrust-axis solve m=8", 4_000),
+    ("imu-offset RLS update", 300),
+];
+
+/// Instruction counts on QEMU's Cortex-M7; prints a table.
+pub fn m7(args: &[String]) -> Result<()> {
+    if let Some(arg) = args.first() {
+        bail!("bench-m7 takes no arguments (got `{arg}`)");
+    }
+    if !on_path(QEMU) {
+        bail!(
+            "`{QEMU}` not found on PATH: bench-m7 runs the benchmark on QEMU's {QEMU_MACHINE} \
+             (Cortex-M7). Install it, e.g. `sudo apt-get install qemu-system-arm` (Debian/Ubuntu) \
+             or `brew install qemu` (macOS), then run `cargo xtask bench-m7` again."
+        );
+    }
+    let crate_dir = root().join("bench-m7");
+    run(cargo()
+        .current_dir(&crate_dir)
+        .args(["build", "--release", "--target", TARGET])
+        .env("RUSTFLAGS", RUSTFLAGS)
+        .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld"))?;
+    let target_dir = crate_dir.join("target");
+    let elf = target_dir.join(TARGET).join("release/bench-m7");
+    let trace = target_dir.join("trace.log");
+
+    let symbols = elf_symbols(&elf)?;
+    let start = *symbols.get("bench_region_start").context("no bench_region_start in the ELF")?;
+    let end = *symbols.get("bench_region_end").context("no bench_region_end in the ELF")?;
+
+    let mut qemu = Command::new(QEMU);
+    qemu.args(["-machine", QEMU_MACHINE, "-cpu", QEMU_CPU, "-icount", "shift=0", "-nographic"])
+        .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
+        .arg(&elf)
+        .args(["-d", "exec,nochain", "-singlestep", "-D"])
+        .arg(&trace)
+        .stdin(Stdio::null());
+    eprintln!(
+        "$ {QEMU} -machine {QEMU_MACHINE} -cpu {QEMU_CPU} -icount shift=0 ... -D {}",
+        trace.display()
+    );
+    let output = qemu.output().with_context(|| format!("could not start {QEMU}"))?;
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    if !output.status.success() {
+        bail!("the benchmark failed on QEMU ({}):\n{stdout}", output.status);
+    }
+    let names: Vec<&str> = stdout.lines().filter_map(|l| l.strip_prefix(REGION_PREFIX)).collect();
+    let counts = count_regions(&trace, start, end)?;
+    if counts.len() != names.len() || counts.is_empty() {
+        bail!(
+            "{} regions announced but {} measured in {}",
+            names.len(),
+            counts.len(),
+            trace.display()
+        );
+    }
+    let overhead = counts[0];
+    println!(
+        "Cortex-M7 instruction counts (QEMU {QEMU_MACHINE}, -icount shift=0, one instruction per \
+         trace line; marker overhead of {overhead} subtracted)\n"
+    );
+    println!("| region | instructions | target |");
+    println!("|---|---:|---:|");
+    for (name, count) in names.iter().zip(&counts).skip(1) {
+        let net = count.saturating_sub(overhead);
+        let target = TARGETS.iter().find(|(prefix, _)| name.starts_with(prefix));
+        let verdict = match target {
+            Some((_, limit)) if net <= *limit => format!("≤ {limit} ok"),
+            Some((_, limit)) => format!("≤ {limit} OVER"),
+            None => "—".to_string(),
+        };
+        println!("| {name} | {net} | {verdict} |");
+    }
+    for line in stdout.lines().filter(|l| l.starts_with("bench-m7 check:")) {
+        println!("{line}");
+    }
+    Ok(())
+}
+
+/// Addresses (Thumb bit cleared) and sizes of the function symbols of a 32-bit little-endian
+/// ELF, by name: `(address, size)`.
+fn elf_symbols(path: &Path) -> Result<HashMap<String, (u32, u32)>> {
+    let data = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let u16_at = |offset: usize| -> Result<u16> {
+        let bytes = data.get(offset..offset + 2).context("truncated ELF")?;
+        Ok(u16::from_le_bytes([bytes[0], bytes[1]]))
+    };
+    let u32_at = |offset: usize| -> Result<u32> {
+        let bytes = data.get(offset..offset + 4).context("truncated ELF")?;
+        Ok(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]))
+    };
+    if data.get(0..6) != Some(&[0x7f, b'E', b'L', b'F', 1, 1][..]) {
+        bail!("{} is not a 32-bit little-endian ELF", path.display());
+    }
+    let section_offset = u32_at(0x20)? as usize;
+    let section_size = u16_at(0x2E)? as usize;
+    let sections = u16_at(0x30)? as usize;
+    let header = |index: usize| section_offset + index * section_size;
+    const SHT_SYMTAB: u32 = 2;
+    let symtab = (0..sections)
+        .find(|&i| u32_at(header(i) + 4).is_ok_and(|kind| kind == SHT_SYMTAB))
+        .context("ELF has no symbol table")?;
+    let (sym_offset, sym_size) = (u32_at(header(symtab) + 16)?, u32_at(header(symtab) + 20)?);
+    let strtab = u32_at(header(symtab) + 24)? as usize;
+    let str_offset = u32_at(header(strtab) + 16)? as usize;
+    let mut symbols = HashMap::new();
+    for entry in (sym_offset as usize..(sym_offset + sym_size) as usize).step_by(16) {
+        let name_offset = str_offset + u32_at(entry)? as usize;
+        let name_bytes = data.get(name_offset..).context("bad symbol name")?;
+        let name_end = name_bytes.iter().position(|&b| b == 0).unwrap_or(name_bytes.len());
+        let name = String::from_utf8_lossy(&name_bytes[..name_end]).into_owned();
+        symbols.insert(name, (u32_at(entry + 4)? & !1, u32_at(entry + 8)?));
+    }
+    Ok(symbols)
+}
+
+/// For each execution of the start marker, the number of trace lines from the first
+/// instruction after it returns up to (not including) the first instruction of the end marker.
+fn count_regions(trace: &Path, start: (u32, u32), end: (u32, u32)) -> Result<Vec<u64>> {
+    let file =
+        std::fs::File::open(trace).with_context(|| format!("cannot read {}", trace.display()))?;
+    let in_start = |pc: u32| pc >= start.0 && pc < start.0 + start.1.max(2);
+    let mut counts = Vec::new();
+    let mut inside_start = false;
+    let mut counting: Option<u64> = None;
+    for line in BufReader::new(file).lines() {
+        let line = line?;
+        // "Trace 0: 0x7f... [00800408/00000400/00000110/ff020201] symbol": the PC is field 2.
+        let Some(pc) = line
+            .split_once('[')
+            .and_then(|(_, rest)| rest.split('/').nth(1))
+            .and_then(|hex| u32::from_str_radix(hex, 16).ok())
+        else {
+            continue;
+        };
+        if in_start(pc) {
+            inside_start = true;
+            continue;
+        }
+        if inside_start {
+            inside_start = false;
+            counting = Some(0);
+        }
+        if let Some(count) = counting.as_mut() {
+            if pc == end.0 {
+                counts.push(*count);
+                counting = None;
+            } else {
+                *count += 1;
+            }
+        }
+    }
+    Ok(counts)
 }

@@ -41,6 +41,7 @@
 
 use super::eigen3::symmetric_eigen3;
 use super::householder::PivotedQr3;
+use super::sqrt::sqrt;
 use super::{ScaledProblem, BOUND_TOLERANCE, MOTORS_MAX};
 
 /// `|aᵢ| ≤ HARD_CASE_LOW · g` is treated as exactly zero in the secular equation (dimensionless;
@@ -115,7 +116,7 @@ struct Reduced {
     free: usize,
     /// The full command with clamped motors at their bounds (free entries filled per candidate).
     fixed_u: [f32; MOTORS_MAX],
-    qr: PivotedQr3,
+    qr: PivotedQr3<MOTORS_MAX>,
     /// Particular-solution coordinates (first `qr.rank`), in the `Q` basis.
     y: [f32; 3],
     /// Rows of `Qᵀ G_Fᵀ`; entries `rank..free` of row k are row k of `M`.
@@ -172,7 +173,8 @@ impl Face<'_> {
                 force_clamped[k] += s.g1_f[k][i] * value;
             }
         }
-        let qr = PivotedQr3::factor(t_columns, free);
+        // Zero-padded to MOTORS_MAX rows (see the householder module docs).
+        let qr = PivotedQr3::factor(t_columns);
         let y = qr.min_norm_coordinates(torque_rhs)?;
         let rank = qr.rank;
         if free <= rank {
@@ -335,7 +337,7 @@ impl Reduced {
             }
             let rest2 = remaining2 - used2;
             if valid && rest2 >= 0.0 {
-                let fi = libm::sqrtf(rest2);
+                let fi = sqrt(rest2);
                 f[i] = fi;
                 push(f, out);
                 f[i] = -fi;
@@ -351,7 +353,7 @@ impl Reduced {
         if !(free2 > 0.0 && free2.is_finite()) {
             return None;
         }
-        let scale = libm::sqrtf(remaining2 / free2);
+        let scale = sqrt(remaining2 / free2);
         for i in 0..3 {
             if !self.zero[i] {
                 f[i] *= scale;

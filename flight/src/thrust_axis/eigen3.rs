@@ -4,6 +4,8 @@
 //! face it visits. Jacobi is unconditionally stable, accurate for small eigenvalues relative to
 //! the largest, and converges quadratically: a handful of sweeps for 3 × 3.
 
+use super::sqrt::sqrt;
+
 /// Maximum number of sweeps (three rotations each). Quadratic convergence reaches f32 precision
 /// in 4–6 sweeps for 3 × 3; 12 is a safe cap that bounds the run time.
 const MAX_SWEEPS: usize = 12;
@@ -31,9 +33,9 @@ pub(crate) fn symmetric_eigen3(a: [[f32; 3]; 3]) -> ([f32; 3], [[f32; 3]; 3]) {
                 0.5 / theta
             } else {
                 let sign = if theta >= 0.0 { 1.0 } else { -1.0 };
-                sign / (libm::fabsf(theta) + libm::sqrtf(theta * theta + 1.0))
+                sign / (libm::fabsf(theta) + sqrt(theta * theta + 1.0))
             };
-            let c = 1.0 / libm::sqrtf(t * t + 1.0);
+            let c = 1.0 / sqrt(t * t + 1.0);
             let s = t * c;
             a[p][p] -= t * apq;
             a[q][q] += t * apq;

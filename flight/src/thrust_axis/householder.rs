@@ -6,10 +6,13 @@
 //! `p × 3` factor. Three reflectors applied to fixed-size arrays are also much cheaper on the
 //! Cortex-M7 than nalgebra's generic paths (see `docs/benchmarks.md`).
 //!
-//! The matrix is given by its three columns, each an `[f32; MOTORS_MAX]` of which the first `p`
-//! entries are used: for `X = G1τᵀ` those columns are simply the three rows of `G1τ`.
+//! The matrix is given by its three columns, each an `[f32; P]`: for `X = G1τᵀ` those columns are
+//! simply the three rows of `G1τ`. The row count `P` is a const parameter so that every loop has
+//! a fixed trip count and unrolls without bounds checks (the solver dispatches once on the
+//! motor count); callers with a varying row count pad with zero rows, which leaves the
+//! factorisation of the non-zero block unchanged (`Q` acts as the identity on zero rows).
 
-use super::MOTORS_MAX;
+use super::sqrt::sqrt;
 
 /// Relative threshold on `|R_kk| / |R_00|` below which a pivot is treated as zero (rank test).
 ///
@@ -22,90 +25,102 @@ pub(crate) const RANK_TOLERANCE: f32 = 1e-4;
 /// `X Π = Q R` for `X` of size `p × 3`: `Q = H0 H1 H2` (Householder reflectors
 /// `Hk = I − beta_k v_k v_kᵀ`, `v_k` zero above row `k`), `R` upper triangular, `Π` a column
 /// permutation with `X[:, perm[k]] = (Q R)[:, k]`.
+///
+/// Storage is in place, as LAPACK's: after the factorisation `cols[j][k]` (`k < j`) holds
+/// `R[k][j]`, and `cols[k][k+1..p]` holds the tail of `v_k`, which equals the untouched part of
+/// the pivot column (`v_k = x − R_kk e_k` changes only entry `k`, kept in `head[k]`).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct PivotedQr3 {
-    /// Number of rows `p` (3 ≤ p ≤ 8).
-    pub rows: usize,
+pub(crate) struct PivotedQr3<const P: usize> {
     /// Numerical rank (0 to 3) from the diagonal of `R` and [`RANK_TOLERANCE`].
     pub rank: usize,
-    /// Householder vectors; `v[k][i] = 0` for `i < k`.
-    v: [[f32; MOTORS_MAX]; 3],
+    /// The factored columns (see the type docs).
+    cols: [[f32; P]; 3],
+    /// Entry `k` of `v_k`.
+    head: [f32; 3],
     /// Householder scalars `beta_k = 2 / (v_kᵀ v_k)` (0 for an identity reflector).
     beta: [f32; 3],
-    /// Upper-triangular `R` (row, column).
-    r: [[f32; 3]; 3],
+    /// Diagonal of `R`.
+    diag: [f32; 3],
     /// Column permutation: column `k` of `Q R` is column `perm[k]` of `X`.
     perm: [usize; 3],
 }
 
-impl PivotedQr3 {
-    /// Factor the `rows × 3` matrix whose columns are `columns[0..3][0..rows]`.
-    ///
-    /// `rows` is clamped to `3..=MOTORS_MAX` so that bad callers cannot index out of range.
-    pub fn factor(mut columns: [[f32; MOTORS_MAX]; 3], rows: usize) -> Self {
-        let rows = rows.clamp(3, MOTORS_MAX);
+impl<const P: usize> PivotedQr3<P> {
+    /// Compile-time check: at least as many rows as columns.
+    const TALL: () = assert!(P >= 3, "PivotedQr3 needs at least three rows");
+
+    /// Factor the `P × 3` matrix whose columns are `columns`.
+    #[inline]
+    pub fn factor(columns: [[f32; P]; 3]) -> Self {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::TALL;
         let mut qr = PivotedQr3 {
-            rows,
             rank: 0,
-            v: [[0.0; MOTORS_MAX]; 3],
+            cols: columns,
+            head: [0.0; 3],
             beta: [0.0; 3],
-            r: [[0.0; 3]; 3],
+            diag: [0.0; 3],
             perm: [0, 1, 2],
         };
         for k in 0..3 {
             // Pivot: the remaining column with the largest norm below row k.
             let mut best = k;
-            let mut best_norm2 = -1.0;
-            for (j, column) in columns.iter().enumerate().skip(k) {
-                let norm2 = sum_squares(&column[k..rows]);
+            let mut best_norm2 = sum_squares(&qr.cols[k][k..]);
+            for j in k + 1..3 {
+                let norm2 = sum_squares(&qr.cols[j][k..]);
                 if norm2 > best_norm2 {
                     best_norm2 = norm2;
                     best = j;
                 }
             }
-            columns.swap(k, best);
-            qr.perm.swap(k, best);
-            qr.r.iter_mut().for_each(|row| row.swap(k, best));
-
-            // Reflector taking columns[k][k..] onto a multiple of e_k.
-            let alpha = libm::sqrtf(best_norm2.max(0.0));
-            let x0 = columns[k][k];
+            if best != k {
+                qr.cols.swap(k, best);
+                qr.perm.swap(k, best);
+            }
+            // Reflector taking cols[k][k..] onto R_kk e_k.
+            let alpha = sqrt(best_norm2);
+            let x0 = qr.cols[k][k];
             if alpha > 0.0 && alpha.is_finite() {
                 let diagonal = if x0 >= 0.0 { -alpha } else { alpha };
-                let v = &mut qr.v[k];
-                v[k] = x0 - diagonal;
-                v[k + 1..rows].copy_from_slice(&columns[k][k + 1..rows]);
+                qr.head[k] = x0 - diagonal;
                 // vᵀv = 2 α (α + |x0|)
                 qr.beta[k] = 1.0 / (alpha * (alpha + libm::fabsf(x0)));
-                qr.r[k][k] = diagonal;
-                for j in k + 1..3 {
-                    reflect(&qr.v[k], qr.beta[k], k, rows, &mut columns[j]);
-                    qr.r[k][j] = columns[j][k];
-                }
-            } else {
-                for j in k + 1..3 {
-                    qr.r[k][j] = columns[j][k];
+                qr.diag[k] = diagonal;
+                let (done, rest) = qr.cols.split_at_mut(k + 1);
+                for column in rest.iter_mut() {
+                    reflect(&done[k], qr.head[k], qr.beta[k], k, column);
                 }
             }
         }
-        let r00 = libm::fabsf(qr.r[0][0]);
+        let r00 = libm::fabsf(qr.diag[0]);
         qr.rank = (0..3)
-            .take_while(|&k| r00 > 0.0 && libm::fabsf(qr.r[k][k]) > RANK_TOLERANCE * r00)
+            .take_while(|&k| r00 > 0.0 && libm::fabsf(qr.diag[k]) > RANK_TOLERANCE * r00)
             .count();
         qr
     }
 
-    /// `x ← Qᵀ x` (first `rows` entries).
-    pub fn apply_qt(&self, x: &mut [f32; MOTORS_MAX]) {
-        for k in 0..3 {
-            reflect(&self.v[k], self.beta[k], k, self.rows, x);
+    /// `R[i][k]` for `i ≤ k`.
+    fn r(&self, i: usize, k: usize) -> f32 {
+        if i == k {
+            self.diag[k]
+        } else {
+            self.cols[k][i]
         }
     }
 
-    /// `x ← Q x` (first `rows` entries).
-    pub fn apply_q(&self, x: &mut [f32; MOTORS_MAX]) {
+    /// `x ← Qᵀ x`.
+    #[inline]
+    pub fn apply_qt(&self, x: &mut [f32; P]) {
+        for k in 0..3 {
+            reflect(&self.cols[k], self.head[k], self.beta[k], k, x);
+        }
+    }
+
+    /// `x ← Q x`.
+    #[inline]
+    pub fn apply_q(&self, x: &mut [f32; P]) {
         for k in (0..3).rev() {
-            reflect(&self.v[k], self.beta[k], k, self.rows, x);
+            reflect(&self.cols[k], self.head[k], self.beta[k], k, x);
         }
     }
 
@@ -123,11 +138,11 @@ impl PivotedQr3 {
             // Magnitude of the terms summed, for a cancellation-aware consistency test.
             let mut magnitude = libm::fabsf(rhs);
             for (i, yi) in y.iter().enumerate().take(k.min(self.rank)) {
-                rhs -= self.r[i][k] * yi;
-                magnitude += libm::fabsf(self.r[i][k] * yi);
+                rhs -= self.r(i, k) * yi;
+                magnitude += libm::fabsf(self.r(i, k) * yi);
             }
             if k < self.rank {
-                y[k] = rhs / self.r[k][k];
+                y[k] = rhs / self.diag[k];
             } else if libm::fabsf(rhs) > RANK_TOLERANCE * magnitude.max(f32::MIN_POSITIVE) {
                 return None;
             }
@@ -136,16 +151,17 @@ impl PivotedQr3 {
     }
 }
 
-/// `x ← (I − beta v vᵀ) x` over rows `from..rows` (v is zero above `from`).
+/// `x ← (I − beta v vᵀ) x` with `v = (0, …, 0, head, tail[from+1..P])`, `from < 3 ≤ P`.
 #[inline(always)]
-fn reflect(v: &[f32; MOTORS_MAX], beta: f32, from: usize, rows: usize, x: &mut [f32; MOTORS_MAX]) {
-    let mut dot = 0.0;
-    for i in from..rows {
-        dot += v[i] * x[i];
+fn reflect<const P: usize>(tail: &[f32; P], head: f32, beta: f32, from: usize, x: &mut [f32; P]) {
+    let mut dot = head * x[from];
+    for i in from + 1..P {
+        dot += tail[i] * x[i];
     }
     let scale = beta * dot;
-    for i in from..rows {
-        x[i] -= scale * v[i];
+    x[from] -= scale * head;
+    for i in from + 1..P {
+        x[i] -= scale * tail[i];
     }
 }
 
@@ -157,8 +173,8 @@ fn sum_squares(x: &[f32]) -> f32 {
 mod tests {
     use super::*;
 
-    fn columns(x: &[[f32; 3]]) -> [[f32; MOTORS_MAX]; 3] {
-        let mut c = [[0.0; MOTORS_MAX]; 3];
+    fn columns<const P: usize>(x: &[[f32; 3]; P]) -> [[f32; P]; 3] {
+        let mut c = [[0.0; P]; 3];
         for (i, row) in x.iter().enumerate() {
             for j in 0..3 {
                 c[j][i] = row[j];
@@ -176,11 +192,11 @@ mod tests {
             [0.5, 0.5, 1.5],
             [0.0, -0.4, 0.9],
         ];
-        let qr = PivotedQr3::factor(columns(&x), 5);
+        let qr = PivotedQr3::factor(columns(&x));
         assert_eq!(qr.rank, 3);
         for j in 3..5 {
             // Null-space column j of Q: Q e_j, orthogonal to every column of X.
-            let mut e = [0.0; MOTORS_MAX];
+            let mut e = [0.0; 5];
             e[j] = 1.0;
             qr.apply_q(&mut e);
             let norm: f32 = e.iter().map(|v| v * v).sum();
@@ -195,10 +211,10 @@ mod tests {
     #[test]
     fn min_norm_solution_solves_the_system() {
         let x = [[1.0, 0.0, 2.0], [0.0, 1.0, 1.0], [1.0, 1.0, 0.0], [2.0, -1.0, 1.0]];
-        let qr = PivotedQr3::factor(columns(&x), 4);
+        let qr = PivotedQr3::factor(columns(&x));
         let t = [0.5, -1.0, 2.0];
         let y = qr.min_norm_coordinates(t).expect("full rank");
-        let mut sol = [0.0; MOTORS_MAX];
+        let mut sol = [0.0; 4];
         sol[..3].copy_from_slice(&y);
         qr.apply_q(&mut sol);
         for c in 0..3 {
@@ -211,7 +227,7 @@ mod tests {
     fn rank_deficiency_is_detected_and_inconsistency_refused() {
         // Third column = first + second.
         let x = [[1.0, 2.0, 3.0], [0.0, 1.0, 1.0], [4.0, -1.0, 3.0], [1.0, 1.0, 2.0]];
-        let qr = PivotedQr3::factor(columns(&x), 4);
+        let qr = PivotedQr3::factor(columns(&x));
         assert_eq!(qr.rank, 2);
         assert!(qr.min_norm_coordinates([1.0, 1.0, 5.0]).is_none());
         assert!(qr.min_norm_coordinates([1.0, 1.0, 2.0]).is_some());

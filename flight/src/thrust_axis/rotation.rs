@@ -6,6 +6,8 @@
 //! of the thrust frame, and `q_thrust_to_imu` maps thrust-frame coordinates into IMU coordinates
 //! (the seed paper's `q_U^T`).
 
+use super::sqrt::sqrt;
+
 /// The thrust direction in thrust-frame coordinates: "up" in FRD.
 pub const THRUST_DIR_THRUST_FRAME: [f32; 3] = [0.0, 0.0, -1.0];
 
@@ -27,7 +29,7 @@ pub struct EulerZyx {
 /// cancellation near the antiparallel case; exactly antiparallel (`dir` along `+z`) gives 180°
 /// about x, `[0, 1, 0, 0]`. A zero or non-finite `dir` gives the identity.
 pub fn shortest_arc_from_down(dir: [f32; 3]) -> [f32; 4] {
-    let norm = libm::sqrtf(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    let norm = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
     if !(norm > 0.0 && norm.is_finite()) {
         return [1.0, 0.0, 0.0, 0.0];
     }
@@ -36,7 +38,7 @@ pub fn shortest_arc_from_down(dir: [f32; 3]) -> [f32; 4] {
     let horizontal2 = bx * bx + by * by;
     let w = if bz > 0.0 { horizontal2 / (1.0 + bz) } else { 1.0 - bz };
     let q = [w, by, -bx, 0.0];
-    let q_norm = libm::sqrtf(w * w + horizontal2);
+    let q_norm = sqrt(w * w + horizontal2);
     if !(q_norm > 1e-30) {
         return [0.0, 1.0, 0.0, 0.0];
     }

@@ -1,0 +1,141 @@
+//! Cortex-M7 instruction counts of `flight` code, for `cargo xtask bench-m7`.
+//!
+//! Runs on QEMU's `mps2-an500` (Cortex-M7, single-precision FPU as on the STM32H743) under
+//! `-icount shift=0 -singlestep -d exec,nochain`: every executed instruction is one trace line.
+//! Each measured region sits between calls of the two marker functions below; xtask finds
+//! their addresses in the ELF symbol table and counts the trace lines between them. Region
+//! names are printed first over semihosting, in the order the regions run, and an empty region
+//! runs first so that xtask can subtract the marker overhead.
+//!
+//! The figures are instruction counts, not cycles: QEMU does not model dual issue, FPU latency,
+//! caches or wait states.
+#![no_std]
+#![no_main]
+
+use core::hint::black_box;
+use cortex_m_rt::entry;
+use cortex_m_semihosting::{debug, hprintln};
+use flight::imu_offset::{AlignedSample, OffsetRls};
+use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
+use nalgebra::Vector3;
+
+/// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
+#[inline(never)]
+#[no_mangle]
+pub extern "C" fn bench_region_start(inputs: *const u8) {
+    // SAFETY: a no-op instruction; the register operand only pins the pointer.
+    unsafe { core::arch::asm!("nop", in("r0") inputs) }
+}
+
+/// End of a measured region. `outputs` is consumed so that no result is sunk below the call.
+/// Its body differs from the start marker's so that LTO cannot merge the two.
+#[inline(never)]
+#[no_mangle]
+pub extern "C" fn bench_region_end(outputs: *const u8) {
+    // SAFETY: no-op instructions; the register operand only pins the pointer.
+    unsafe { core::arch::asm!("nop", "nop", in("r0") outputs) }
+}
+
+/// Run `f` between the markers.
+#[inline(always)]
+fn region<I, O>(inputs: &mut I, f: impl FnOnce(&mut I) -> O) -> O {
+    bench_region_start(inputs as *mut I as *const u8);
+    let out = f(inputs);
+    bench_region_end(&out as *const O as *const u8);
+    out
+}
+
+/// A planar multirotor: `motors` rotors on a circle of radius 0.15 m with alternating spin and
+/// ±10 % strengths, seen from an IMU rotated by the seed paper's `q_U^T`
+/// (0.837 − 0.491i + 0.242j).
+fn airframe(motors: usize) -> HoverProblem {
+    let q = [0.837f32, -0.491, 0.242, 0.0];
+    let n = libm::sqrtf(q.iter().map(|v| v * v).sum());
+    let [w, x, y, z] = q.map(|v| v / n);
+    let r = [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ];
+    let mut f = [[0.0f32; MOTORS_MAX]; 3];
+    let mut t = [[0.0f32; MOTORS_MAX]; 3];
+    for i in 0..motors {
+        let angle = 2.0 * core::f32::consts::PI * (i as f32 + 0.5) / motors as f32;
+        let (px, py) = (0.15 * libm::cosf(angle), 0.15 * libm::sinf(angle));
+        let strength = 9.81 / (0.4 * motors as f32) * (1.0 + 0.1 * libm::sinf(3.0 * i as f32));
+        let spin = if i % 2 == 0 { 1.0 } else { -1.0 };
+        let force = [0.0, 0.0, -strength];
+        let angular =
+            [-py * strength / 0.01, px * strength / 0.012, spin * 0.015 * strength / 0.02];
+        for row in 0..3 {
+            f[row][i] = (0..3).map(|k| r[row][k] * force[k]).sum();
+            t[row][i] = (0..3).map(|k| r[row][k] * angular[k]).sum();
+        }
+    }
+    let f_rows = [&f[0][..motors], &f[1][..motors], &f[2][..motors]];
+    let t_rows = [&t[0][..motors], &t[1][..motors], &t[2][..motors]];
+    match HoverProblem::new(f_rows, t_rows) {
+        Ok(problem) => problem,
+        Err(_) => fail("airframe refused"),
+    }
+}
+
+fn fail(message: &str) -> ! {
+    hprintln!("bench-m7 error: {}", message);
+    debug::exit(debug::EXIT_FAILURE);
+    loop {}
+}
+
+#[entry]
+fn main() -> ! {
+    const MOTOR_COUNTS: [usize; 3] = [4, 6, 8];
+    hprintln!("bench-m7 region: empty (marker overhead)");
+    for m in MOTOR_COUNTS {
+        hprintln!("bench-m7 region: thrust-axis solve m={} cold", m);
+        hprintln!("bench-m7 region: thrust-axis solve m={} warm", m);
+    }
+    hprintln!("bench-m7 region: imu-offset RLS update");
+
+    let mut nothing = 0u32;
+    region(&mut nothing, |n| black_box(*n));
+
+    for m in MOTOR_COUNTS {
+        let problem = airframe(m);
+        let mut state = (ThrustAxisSolver::default(), problem);
+        let cold = region(&mut state, |(solver, problem)| solver.solve(black_box(problem)));
+        let warm = region(&mut state, |(solver, problem)| solver.solve(black_box(problem)));
+        match (cold, warm) {
+            (Ok(a), Ok(b)) if !a.bounded && !b.bounded => {
+                let e = b.euler_zyx();
+                hprintln!(
+                    "bench-m7 check: m={} roll {} pitch {} yaw {} deg",
+                    m,
+                    e.roll_rad.to_degrees(),
+                    e.pitch_rad.to_degrees(),
+                    e.yaw_rad.to_degrees()
+                );
+            }
+            _ => fail("thrust-axis solve failed or needed the bounded search"),
+        }
+    }
+
+    let sample = AlignedSample {
+        index: 7,
+        gyro_radps: Vector3::new(6.1, -2.3, 1.4),
+        gyro_dot_radps2: Vector3::new(-12.0, 30.5, 4.2),
+        acc_mps2: Vector3::new(0.9, -1.7, 0.35),
+    };
+    let mut rls = (OffsetRls::new(Vector3::zeros()), sample);
+    rls.0.update(&rls.1);
+    region(&mut rls, |(rls, sample)| rls.update(black_box(sample)));
+    black_box(&rls);
+
+    hprintln!("bench-m7 done");
+    debug::exit(debug::EXIT_SUCCESS);
+    loop {}
+}
+
+#[panic_handler]
+fn panic(_: &core::panic::PanicInfo) -> ! {
+    fail("panic")
+}
