@@ -203,10 +203,12 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
     let (long_run_variance, scale) = match (short, long) {
         (Some(s), Some(l)) if l.1 > s.1 => l,
         (Some(s), _) => s,
-        (None, _) => return Err(ImuOffsetError::TooFewSamples {
-            used: rows.count,
-            required: MIN_BLOCKS.saturating_mul(p.block_len),
-        }),
+        (None, _) => {
+            return Err(ImuOffsetError::TooFewSamples {
+                used: rows.count,
+                required: MIN_BLOCKS.saturating_mul(p.block_len),
+            })
+        }
     };
 
     let covariance_m2 = information_inv * scale;

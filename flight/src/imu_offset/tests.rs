@@ -91,10 +91,8 @@ fn segments_cover_the_free_fall_and_exclude_the_hand() {
         let release = spec.release_index() as u32;
         let catch = spec.catch_index() as u32;
         let ms = |samples: u32| f64::from(samples) * 1000.0 / rate_hz;
-        let (after_release_ms, before_catch_ms) = (
-            ms(seg.start_index.saturating_sub(release)),
-            ms(catch.saturating_sub(seg.end_index)),
-        );
+        let (after_release_ms, before_catch_ms) =
+            (ms(seg.start_index.saturating_sub(release)), ms(catch.saturating_sub(seg.end_index)));
         eprintln!(
             "{rate_hz} Hz: segment starts {after_release_ms:.1} ms after the release and ends \
              {before_catch_ms:.1} ms before the catch"
@@ -137,8 +135,7 @@ fn one_throw_about_a_principal_axis_is_flagged_with_that_axis() {
     for (k, rate) in [(2usize, 12.0), (0, 9.0)] {
         let spec = throw(2000.0, spin_about(k, rate, 0.002), 21 + k as u64);
         let est = batch_fit(&[&samples(&spec)], 2000.0, Config::default()).estimate().unwrap();
-        let Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about } =
-            est.verdict
+        let Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about } = est.verdict
         else {
             panic!("spin about principal axis {k} not flagged: {}", est.verdict);
         };
@@ -431,5 +428,3 @@ proptest! {
         }
     }
 }
-
-
