@@ -170,7 +170,7 @@ fn recursive_equals_batch_within_0_1mm() {
         assert_eq!(stream.samples_used(), batch.samples_used(), "same samples");
         let diff_mm = mm((board.r_imu_m.cast::<f64>() - host.r_imu_m).norm());
         let axes_diff = (0..3)
-            .map(|i| (f64::from(board.ellipsoid.semi_axes_m[i]) / host.ellipsoid.semi_axes_m[i]))
+            .map(|i| f64::from(board.ellipsoid.semi_axes_m[i]) / host.ellipsoid.semi_axes_m[i])
             .fold(0.0f64, |m, ratio| m.max((ratio - 1.0).abs()));
         eprintln!(
             "{rate_hz} Hz: recursive f32 vs batch f64 differ by {:.5} mm; semi-axes by {:.2} %",
@@ -267,7 +267,9 @@ fn coverage(trials: u32, rate_hz: f64, seed: u64, drag_per_m: f64) -> (f64, f64)
     for trial in 0..trials {
         // Within the detector's envelope: |r| (|Ω̇| + |Ω|²) stays below the 0.6 g ceiling.
         let r = rng.unit_vector() * rng.range(0.0, 0.02);
-        let axes = UnitQuaternion::from_scaled_axis(rng.unit_vector() * rng.range(0.0, 3.14));
+        let axes = UnitQuaternion::from_scaled_axis(
+            rng.unit_vector() * rng.range(0.0, core::f64::consts::PI),
+        );
         let spin_a = rng.unit_vector() * rng.range(7.0, 13.0);
         // The second throw about an axis at least 45° from the first.
         let spin_b = loop {
