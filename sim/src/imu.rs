@@ -70,7 +70,8 @@ pub struct ImuModel {
     accel: Channel,
     vibration_accel_mps2: f64,
     vibration_gyro_rad_s: f64,
-    /// Per rotor: two unit vectors spanning its rotor plane (body axes).
+    /// Per rotor: two unit vectors `(e1, e2)` spanning its rotor plane (body axes), with
+    /// `e2 = s n × e1` so that `e1 cos φ + e2 sin φ` turns the way the rotor spins.
     rotor_plane: Vec<(Vector3<f64>, Vector3<f64>)>,
     rotor_max_rad_s: Vec<f64>,
     rng: Rng,
@@ -89,7 +90,7 @@ impl ImuModel {
                 // Any vector not parallel to n gives a plane basis.
                 let seed_axis = if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
                 let e1 = n.cross(&seed_axis).normalize();
-                (e1, n.cross(&e1))
+                (e1, n.cross(&e1) * airframe.rotors[i].spin.sign())
             })
             .collect();
         Self {

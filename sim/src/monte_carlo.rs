@@ -4,7 +4,7 @@
 //! Each run `i` of a batch uses [`Airframe::random`]`(seed + i)` and a throw whose body rate has
 //! a random direction and a magnitude of 4–10 rad/s, drawn from the same per-run seed, so any
 //! run can be replayed alone. Runs are independent: the batch result does not depend on the
-//! thread count.
+//! thread count. The application is the firmware's ([`with_firmware_app`]).
 
 use std::time::{Duration, Instant};
 
@@ -13,7 +13,7 @@ use nalgebra::Vector3;
 use crate::airframe::Airframe;
 use crate::rng::Rng;
 use crate::scenario::{
-    self, FlightApp, NoApp, Outcome, ScenarioConfig, ScenarioError, ScenarioKind,
+    self, with_firmware_app, FlightApp, Outcome, ScenarioConfig, ScenarioError, ScenarioKind,
 };
 
 /// Summary of a batch.
@@ -60,13 +60,9 @@ pub fn throw_catch_batch(
             .into_par_iter()
             .map(|i| {
                 let (airframe, config) = random_throw_catch(seed + i);
-                scenario::run::<_, std::io::Sink>(
-                    &airframe,
-                    &config,
-                    &mut NoApp,
-                    None,
-                    &mut |_, _| {},
-                )
+                with_firmware_app(|app| {
+                    scenario::run::<_, std::io::Sink>(&airframe, &config, app, None, &mut |_, _| {})
+                })
             })
             .collect::<Result<_, _>>()
     })?;

@@ -10,16 +10,19 @@
 //!   height, hold for `after_catch_s`. The free flight is the data the IMU-offset fit uses.
 //! - **throw-and-fly**: the same throw, higher (3.5 m apex) with the seed paper's body rate
 //!   (400, 400, 100) °/s, no catch: the application must recover, or the craft hits the ground.
-//!   It needs the firmware's controller (`firmware::app::ControlLoop`, a later issue); until that
-//!   exists the default application commands nothing and the craft falls.
+//!   It needs the firmware's controller (the armed path of `firmware::app::ControlLoop`, a later
+//!   issue); until then the craft falls.
 //!
-//! The application is anything implementing [`FlightApp`]: the firmware's control loop,
-//! [`NoApp`] (reads the IMU, commands nothing) or [`OpenLoop`] (a scenario-supplied command
-//! function of time).
+//! The application is anything implementing [`FlightApp`]: [`FirmwareApp`] (the firmware's
+//! `ControlLoop` and background task, exactly as the board and the SITL run them), [`NoApp`]
+//! (reads the IMU, commands nothing) or [`OpenLoop`] (a scenario-supplied command function of
+//! time). Today's `ControlLoop` keeps the motors at zero (its armed path arrives with the
+//! controller issue), so with [`FirmwareApp`] throw-and-fly still ends on the ground.
 
 use std::io::Write;
 
 use firmware::app::hal::{Imu, Motors};
+use firmware::app::{split_queue, Background, ControlConfig, ControlLoop, SampleQueue};
 use nalgebra::Vector3;
 
 use crate::airframe::{Airframe, AirframeError, STANDARD_GRAVITY_MPS2};
@@ -33,6 +36,36 @@ use crate::log::CsvLog;
 pub trait FlightApp {
     /// One control step at board time `now_us` (µs): read the IMU, set the motor commands.
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M);
+}
+
+/// The firmware application as the board runs it: the 2 kHz [`ControlLoop`] and, whenever it
+/// has queued samples, the background task (run to completion between steps, as the board's
+/// low-priority task would be with time to spare). Build it with [`with_firmware_app`].
+pub struct FirmwareApp<'q> {
+    /// The control step.
+    pub control: ControlLoop<'q>,
+    /// The background task.
+    pub background: Background<'q>,
+}
+
+impl FlightApp for FirmwareApp<'_> {
+    fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
+        if self.control.step(now_us, imu, motors) {
+            self.background.run_pending();
+        }
+    }
+}
+
+/// Runs `f` with a fresh [`FirmwareApp`] (default control configuration) whose sample queue
+/// lives for the call.
+pub fn with_firmware_app<R>(f: impl FnOnce(&mut FirmwareApp<'_>) -> R) -> R {
+    let mut queue = SampleQueue::new();
+    let (producer, consumer) = split_queue(&mut queue);
+    let mut app = FirmwareApp {
+        control: ControlLoop::new(ControlConfig::default(), producer),
+        background: Background::new(consumer),
+    };
+    f(&mut app)
 }
 
 /// Reads the IMU and commands nothing (motors stay stopped).

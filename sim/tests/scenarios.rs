@@ -201,3 +201,61 @@ fn an_out_of_range_scenario_parameter_is_an_error() {
         other => panic!("expected OutOfRange, got {other:?}"),
     }
 }
+
+/// Hold the racer at δ = 0.5 with sensor errors off (vibration optionally on) and return the
+/// 2 kHz accelerometer samples of the last second and the rotor frequency, Hz.
+fn vibration_run(vibration: bool) -> (Vec<Vector3<f64>>, f64) {
+    let mut airframe = Airframe::builtin("racer-5in").unwrap();
+    airframe.imu.accel.noise_density_mps2_per_sqrt_hz = 0.0;
+    airframe.imu.accel.bias_mps2 = [0.0; 3];
+    airframe.imu.accel.bits = 0;
+    if !vibration {
+        airframe.imu.vibration = Default::default();
+    }
+    assert!(airframe.imu.vibration.accel_mps2_at_max_speed > 0.0 || !vibration);
+    let mut config = ScenarioConfig::new(ScenarioKind::HoldStill);
+    config.duration_s = 1.5;
+    /// Commands δ = 0.5 on every motor and records the accelerometer.
+    struct Probe(Vec<Vector3<f64>>);
+    impl FlightApp for Probe {
+        fn step<I: Imu, M: Motors>(&mut self, _now_us: u64, imu: &mut I, motors: &mut M) {
+            self.0.push(v(imu.read().expect("one sample per tick").accel_mps2));
+            motors.set_commands(&[0.5; 8][..motors.count() as usize]);
+        }
+    }
+    let mut probe = Probe(Vec::new());
+    scenario::run::<_, std::io::Sink>(&airframe, &config, &mut probe, None, &mut |_, _| {})
+        .unwrap();
+    let rotor_hz = airframe.motor.steady_speed_rad_s(0.5) / std::f64::consts::TAU;
+    let last_second = probe.0.split_off(probe.0.len() - 2000);
+    (last_second, rotor_hz)
+}
+
+/// Amplitude of the component at `f_hz` (single-sided DFT magnitude), per axis summed in
+/// quadrature, m/s².
+fn amplitude_at(samples: &[Vector3<f64>], f_hz: f64) -> f64 {
+    let n = samples.len() as f64;
+    let mean = samples.iter().sum::<Vector3<f64>>() / n;
+    let (mut c, mut s) = (Vector3::<f64>::zeros(), Vector3::<f64>::zeros());
+    for (k, x) in samples.iter().enumerate() {
+        let phase = std::f64::consts::TAU * f_hz * k as f64 / 2000.0;
+        c += (x - mean) * phase.cos();
+        s += (x - mean) * phase.sin();
+    }
+    2.0 / n * (c.norm_squared() + s.norm_squared()).sqrt()
+}
+
+#[test]
+fn motor_vibration_appears_at_the_rotor_frequency() {
+    let (quiet, rotor_hz) = vibration_run(false);
+    let (shaking, _) = vibration_run(true);
+    // The spectrum's peak over 20–990 Hz (1 Hz bins) sits at the rotor frequency.
+    let peak_hz = (20..990)
+        .map(f64::from)
+        .max_by(|a, b| amplitude_at(&shaking, *a).total_cmp(&amplitude_at(&shaking, *b)))
+        .unwrap();
+    assert!((peak_hz - rotor_hz).abs() <= 1.5, "peak {peak_hz} Hz, rotor {rotor_hz:.1} Hz");
+    let amplitude = amplitude_at(&shaking, rotor_hz);
+    assert!(amplitude > 0.3, "vibration amplitude {amplitude} m/s²");
+    assert!(amplitude_at(&quiet, rotor_hz) < 1e-6, "vibration without vibration configured");
+}

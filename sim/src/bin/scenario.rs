@@ -21,7 +21,7 @@ use sim::airframe::{Airframe, LIBRARY};
 use sim::bridge::{BridgeError, BridgeServer};
 use sim::log::CsvLog;
 use sim::monte_carlo;
-use sim::scenario::{self, NoApp, ScenarioConfig, ScenarioKind};
+use sim::scenario::{self, with_firmware_app, ScenarioConfig, ScenarioKind};
 
 #[derive(Parser)]
 #[command(about = "Multirotor simulator scenarios, airframes, benchmarks and the lockstep bridge")]
@@ -36,8 +36,8 @@ enum Command {
     HoldStill(RunArgs),
     /// Throw the craft with spin and catch it (data for the IMU-offset fit).
     ThrowCatch(RunArgs),
-    /// Throw the craft and let the application fly it (needs firmware::app::ControlLoop; today
-    /// the application commands nothing and the craft falls).
+    /// Throw the craft and let the application fly it (needs the armed path of
+    /// firmware::app::ControlLoop; today it commands zero and the craft falls).
     ThrowFly(RunArgs),
     /// List the built-in airframes.
     List,
@@ -137,8 +137,9 @@ fn run_scenario(kind: ScenarioKind, args: RunArgs) -> Result<()> {
             last_shown = t;
         }
     };
-    // The firmware's ControlLoop replaces NoApp here once it exists (see the crate docs).
-    let outcome = scenario::run(&airframe, &config, &mut NoApp, Some(&mut log), &mut progress)?;
+    let outcome = with_firmware_app(|app| {
+        scenario::run(&airframe, &config, app, Some(&mut log), &mut progress)
+    })?;
     log.finish()?.flush()?;
     eprintln!();
     println!(
@@ -161,7 +162,8 @@ fn run_scenario(kind: ScenarioKind, args: RunArgs) -> Result<()> {
     );
     if kind == ScenarioKind::ThrowFly {
         println!(
-            "note: firmware::app::ControlLoop does not exist yet; the application commanded nothing"
+            "note: firmware::app::ControlLoop has no armed path yet (controller issue): it \
+             commanded zero and the craft fell"
         );
     }
     Ok(())
@@ -192,8 +194,9 @@ fn main() -> Result<()> {
         Command::Bench { airframe, seconds } => {
             let airframe = load_airframe(&airframe)?;
             let config = ScenarioConfig::new(ScenarioKind::ThrowFly);
-            let (sim_s, wall_s) =
-                monte_carlo::realtime_factor(&airframe, &config, &mut NoApp, seconds)?;
+            let (sim_s, wall_s) = with_firmware_app(|app| {
+                monte_carlo::realtime_factor(&airframe, &config, app, seconds)
+            })?;
             println!(
                 "{}: {sim_s:.1} simulated s in {wall_s:.3} wall s = {:.0}x real time \
                  (physics {:.0} Hz RK4, IMU {:.0} Hz, application 2 kHz, one thread)",
@@ -231,8 +234,8 @@ fn main() -> Result<()> {
             );
             let timeout = Duration::from_secs_f64(idle_timeout_s);
             let mut steps = 0u64;
-            loop {
-                match server.step(&mut NoApp, timeout) {
+            with_firmware_app(|app| loop {
+                match server.step(app, timeout) {
                     Ok(_) => steps += 1,
                     Err(BridgeError::Timeout(_)) => {
                         eprintln!("no packet for {idle_timeout_s} s after {steps} steps; stopping");
@@ -241,7 +244,7 @@ fn main() -> Result<()> {
                     Err(e @ BridgeError::Io(_)) => return Err(e.into()),
                     Err(e) => eprintln!("ignored a malformed packet: {e}"),
                 }
-            }
+            })
         }
     }
 }
