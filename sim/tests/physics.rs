@@ -237,3 +237,38 @@ fn motor_step_response_has_the_configured_time_constant() {
     println!("τ fitted {tau_fit:.9} s, configured {tau_s} s");
     assert!(((tau_fit - tau_s) / tau_s).abs() < 1e-4, "τ {tau_fit} vs {tau_s}");
 }
+
+#[test]
+fn spinning_up_a_rotor_turns_the_body_the_other_way() {
+    // Rotor inertia alone (thrust and drag torque negligible): total angular momentum — body
+    // plus rotors — stays zero, so the body ends at Ω = −I⁻¹ h_rotors (the G2 reaction torque
+    // and the gyroscopic term −Ω × h together).
+    let mut airframe = drag_free("paper-quad");
+    airframe.motor.thrust_coefficient_n_per_rad2_s2 = 1e-15;
+    airframe.motor.torque_coefficient_nm_per_rad2_s2 = 0.0;
+    let mut board = held_board(&airframe);
+    board.physics_mut().release();
+    board.motors_mut().set_commands(&[0.9, 0.0, 0.0, 0.3]);
+    for _ in 0..400 {
+        board.tick(); // 0.2 s: motors 0 and 3 (both CW) accelerate at different rates
+    }
+    let model = board.physics().model();
+    let s = board.physics().state();
+    let h_rotors: Vector3<f64> = model
+        .rotors
+        .iter()
+        .enumerate()
+        .map(|(i, r)| r.axis * (r.motor.rotor_inertia_kg_m2 * r.spin_sign * s.rotor_speed_rad_s[i]))
+        .sum();
+    let expected = -(airframe.inertia_matrix().try_inverse().unwrap() * h_rotors);
+    let w = s.rate_body_rad_s;
+    assert!(expected.norm() > 0.5, "reaction too small to test: {expected}");
+    assert!((w - expected).norm() / expected.norm() < 1e-6, "Ω {w} vs {expected}");
+    let l_world = model.angular_momentum_world(s).norm();
+    let rel = (w - expected).norm() / expected.norm();
+    println!(
+        "|Ω − Ω_expected|/|Ω_expected| = {rel:.2e}, |L|/|h| = {:.2e}",
+        l_world / h_rotors.norm()
+    );
+    assert!(l_world / h_rotors.norm() < 1e-6, "total angular momentum {l_world}");
+}
