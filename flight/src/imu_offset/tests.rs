@@ -335,14 +335,21 @@ fn errors_are_typed() {
     still.catch_s = 0.0;
     let fitter = batch_fit(&[&samples(&still)], rate_hz, Config::default());
     assert_eq!(fitter.estimate().unwrap_err(), ImuOffsetError::NoFreeFall);
-    // With the detector accepting 0.1 s free falls, the shortest one found is too short for an
-    // honest variance (fewer than 6 blocks of 20 ms after trimming).
-    let lenient = Config { min_free_fall_s: 0.1, ..Config::default() };
+    // Free falls cut short by an abrupt catch (held still from then on): the shortest one the
+    // detector accepts is too short for an honest variance (fewer than 6 blocks of 20 ms).
+    let full = throw(rate_hz, spin_about(2, 12.0, 0.3), 82);
+    let release = full.release_index();
     let shortest = (10..40)
         .map(|centiseconds| {
-            let mut short = throw(rate_hz, spin_about(2, 12.0, 0.3), 82);
-            short.free_fall_s = f64::from(centiseconds) * 0.01;
-            batch_fit(&[&samples(&short)], rate_hz, lenient)
+            let cut = release + centiseconds * rate_hz as usize / 100;
+            let mut data = samples(&full);
+            for s in data.iter_mut().skip(cut) {
+                *s = ImuSample {
+                    gyro_radps: Vector3::zeros(),
+                    acc_mps2: Vector3::new(0.0, 0.0, -9.81),
+                };
+            }
+            batch_fit(&[&data], rate_hz, Config::default())
         })
         .find(|fitter| !fitter.segments().is_empty())
         .unwrap();
