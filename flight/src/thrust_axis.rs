@@ -48,6 +48,7 @@ mod householder;
 mod rotation;
 mod sqrt;
 
+use rotation::shortest_arc_from_down_unit;
 pub use rotation::{euler_zyx, rotate, shortest_arc_from_down, EulerZyx, THRUST_DIR_THRUST_FRAME};
 
 use householder::PivotedQr3;
@@ -226,6 +227,9 @@ pub struct HoverProblem {
     g1_tau: [[f32; MOTORS_MAX]; 3],
     u_min: [f32; MOTORS_MAX],
     u_max: [f32; MOTORS_MAX],
+    /// `u_min` and `u_max` widened by [`BOUND_TOLERANCE`] (for the sign test), set with the bounds.
+    u_min_tolerant: [f32; MOTORS_MAX],
+    u_max_tolerant: [f32; MOTORS_MAX],
     weights: [f32; MOTORS_MAX],
     /// `1/√wᵢ`, computed when the weights are set.
     inv_sqrt_weight: [f32; MOTORS_MAX],
@@ -249,12 +253,15 @@ impl HoverProblem {
             g1_tau: [[0.0; MOTORS_MAX]; 3],
             u_min: [0.0; MOTORS_MAX],
             u_max: [0.0; MOTORS_MAX],
+            u_min_tolerant: [0.0; MOTORS_MAX],
+            u_max_tolerant: [0.0; MOTORS_MAX],
             weights: [0.0; MOTORS_MAX],
             inv_sqrt_weight: [0.0; MOTORS_MAX],
             unit_weights: true,
             g_mps2: STANDARD_GRAVITY_MPS2,
         };
         problem.u_max[..motors].fill(1.0);
+        problem.set_tolerant_bounds();
         problem.weights[..motors].fill(1.0);
         problem.inv_sqrt_weight[..motors].fill(1.0);
         for k in 0..3 {
@@ -273,7 +280,17 @@ impl HoverProblem {
         }
         self.u_min = lower;
         self.u_max = upper;
+        self.set_tolerant_bounds();
         Ok(self)
+    }
+
+    fn set_tolerant_bounds(&mut self) {
+        for i in 0..self.motors {
+            let tolerance =
+                BOUND_TOLERANCE * (libm::fabsf(self.u_min[i]) + libm::fabsf(self.u_max[i]));
+            self.u_min_tolerant[i] = self.u_min[i] - tolerance;
+            self.u_max_tolerant[i] = self.u_max[i] + tolerance;
+        }
     }
 
     /// Replace the diagonal of the actuator weight matrix `W` (dimensionless, ≥ [`MIN_WEIGHT`]):
@@ -520,38 +537,50 @@ impl ThrustAxisSolver {
         let mut force_scale2 = 0.0;
         for row in b.iter_mut() {
             qr.apply_qt(row);
-            force_scale2 += row.iter().map(|x| x * x).sum::<f32>();
+            for x in row.iter() {
+                force_scale2 += x * x;
+            }
         }
 
         // Step 3: C = B Bᵀ and its dominant eigenvector by warm-started power iteration.
-        let mut c = [[0.0f32; 3]; 3];
-        for i in 0..3 {
-            for j in i..3 {
-                let mut dot = 0.0;
-                for l in 3..M {
-                    dot += b[i][l] * b[j][l];
-                }
-                c[i][j] = dot;
-                c[j][i] = dot;
-            }
-        }
-        let w = dominant_direction(&c, self.warm_dir, self.config.max_squarings);
-        let cw = mat3_vec(&c, w);
-        let eigenvalue = dot3(w, cw);
-        if !(eigenvalue > ZERO_EIGEN * force_scale2) {
-            return if eigenvalue.is_finite() {
-                Err(ThrustAxisError::NoZeroTorqueThrust)
-            } else {
-                Err(ThrustAxisError::NumericalFailure)
-            };
-        }
-        self.warm_dir = w;
-
-        // Step 4: η = Bᵀw g/‖Cw‖, ũ = Q [0; η], u = W^{-1/2} ũ.
-        let scale = problem.g_mps2 / norm3(cw);
+        // Step 4: η = Bᵀw g/‖Cw‖, ũ = Q [0; η] (η in entries 3..M).
         let mut u = [0.0f32; M];
-        for l in 3..M {
-            u[l] = (b[0][l] * w[0] + b[1][l] * w[1] + b[2][l] * w[2]) * scale;
+        let eigenvalue;
+        if M == 4 {
+            // One-dimensional null space: A = ‖b‖² is 1 × 1, C = b bᵀ, w = b/‖b‖ exactly and
+            // η = g/‖b‖ (the power iteration would converge in one step to the same).
+            let column = [b[0][3], b[1][3], b[2][3]];
+            eigenvalue = dot3(column, column);
+            if !(eigenvalue > ZERO_EIGEN * force_scale2) {
+                return Err(no_thrust(eigenvalue));
+            }
+            let norm = sqrt(eigenvalue);
+            let inv = 1.0 / norm;
+            self.warm_dir = [column[0] * inv, column[1] * inv, column[2] * inv];
+            u[3] = problem.g_mps2 * inv;
+        } else {
+            let mut c = [[0.0f32; 3]; 3];
+            for i in 0..3 {
+                for j in i..3 {
+                    let mut dot = 0.0;
+                    for l in 3..M {
+                        dot += b[i][l] * b[j][l];
+                    }
+                    c[i][j] = dot;
+                    c[j][i] = dot;
+                }
+            }
+            let w = dominant_direction(&c, self.warm_dir, self.config.max_squarings);
+            let cw = mat3_vec(&c, w);
+            eigenvalue = dot3(w, cw);
+            if !(eigenvalue > ZERO_EIGEN * force_scale2) {
+                return Err(no_thrust(eigenvalue));
+            }
+            self.warm_dir = w;
+            let scale = problem.g_mps2 / norm3(cw);
+            for l in 3..M {
+                u[l] = (b[0][l] * w[0] + b[1][l] * w[1] + b[2][l] * w[2]) * scale;
+            }
         }
         qr.apply_q(&mut u);
         if !problem.unit_weights {
@@ -580,6 +609,15 @@ impl ThrustAxisSolver {
     }
 }
 
+/// The error for a dominant eigenvalue that is not clearly positive.
+fn no_thrust(eigenvalue: f32) -> ThrustAxisError {
+    if eigenvalue.is_finite() {
+        ThrustAxisError::NoZeroTorqueThrust
+    } else {
+        ThrustAxisError::NumericalFailure
+    }
+}
+
 /// Step 6 and the final checks: clamp round-off onto the bounds, cost, `d = G1f u`, quaternion.
 fn finish<const M: usize>(
     problem: &HoverProblem,
@@ -602,12 +640,13 @@ fn finish<const M: usize>(
     if !(d_norm > 0.0 && d_norm.is_finite() && cost.is_finite()) {
         return Err(ThrustAxisError::NumericalFailure);
     }
-    let thrust_dir_imu = [d[0] / d_norm, d[1] / d_norm, d[2] / d_norm];
+    let inv = 1.0 / d_norm;
+    let thrust_dir_imu = [d[0] * inv, d[1] * inv, d[2] * inv];
     Ok(HoverSolution {
         motors: M,
         u_hover,
         thrust_dir_imu,
-        q_thrust_to_imu: shortest_arc_from_down(thrust_dir_imu),
+        q_thrust_to_imu: shortest_arc_from_down_unit(thrust_dir_imu),
         eigenvalue,
         bounded,
         cost,
@@ -653,14 +692,16 @@ fn dominant_direction(c: &[[f32; 3]; 3], warm: [f32; 3], max_squarings: u8) -> [
             dominant = j;
         }
     }
-    if !(norm3(x) >= POWER_RESEED * p[dominant][dominant]) {
+    let threshold = POWER_RESEED * p[dominant][dominant];
+    if !(dot3(x, x) >= threshold * threshold) {
         x = [p[0][dominant], p[1][dominant], p[2][dominant]];
     }
     let n = norm3(x);
     if !(n > 0.0 && n.is_finite()) {
         return warm;
     }
-    [x[0] / n, x[1] / n, x[2] / n]
+    let inv = 1.0 / n;
+    [x[0] * inv, x[1] * inv, x[2] * inv]
 }
 
 /// The sign (`+1` or `−1`) with which `u` fits the bounds, as the paper prescribes; if both
@@ -669,9 +710,7 @@ fn dominant_direction(c: &[[f32; 3]; 3], warm: [f32; 3], max_squarings: u8) -> [
 fn sign_within_bounds<const M: usize>(problem: &HoverProblem, u: &[f32; M]) -> Option<f32> {
     let (mut positive, mut negative, mut sum) = (true, true, 0.0);
     for i in 0..M {
-        let (lower, upper) = (problem.u_min[i], problem.u_max[i]);
-        let tolerance = BOUND_TOLERANCE * (libm::fabsf(lower) + libm::fabsf(upper));
-        let (lower, upper) = (lower - tolerance, upper + tolerance);
+        let (lower, upper) = (problem.u_min_tolerant[i], problem.u_max_tolerant[i]);
         positive &= u[i] >= lower && u[i] <= upper;
         negative &= -u[i] >= lower && -u[i] <= upper;
         sum += u[i];

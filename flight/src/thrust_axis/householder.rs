@@ -62,41 +62,48 @@ impl<const P: usize> PivotedQr3<P> {
             diag: [0.0; 3],
             perm: [0, 1, 2],
         };
-        for k in 0..3 {
-            // Pivot: the remaining column with the largest norm below row k.
-            let mut best = k;
-            let mut best_norm2 = sum_squares(&qr.cols[k][k..]);
-            for j in k + 1..3 {
-                let norm2 = sum_squares(&qr.cols[j][k..]);
-                if norm2 > best_norm2 {
-                    best_norm2 = norm2;
-                    best = j;
-                }
-            }
-            if best != k {
-                qr.cols.swap(k, best);
-                qr.perm.swap(k, best);
-            }
-            // Reflector taking cols[k][k..] onto R_kk e_k.
-            let alpha = sqrt(best_norm2);
-            let x0 = qr.cols[k][k];
-            if alpha > 0.0 && alpha.is_finite() {
-                let diagonal = if x0 >= 0.0 { -alpha } else { alpha };
-                qr.head[k] = x0 - diagonal;
-                // vᵀv = 2 α (α + |x0|)
-                qr.beta[k] = 1.0 / (alpha * (alpha + libm::fabsf(x0)));
-                qr.diag[k] = diagonal;
-                let (done, rest) = qr.cols.split_at_mut(k + 1);
-                for column in rest.iter_mut() {
-                    reflect(&done[k], qr.head[k], qr.beta[k], k, column);
-                }
-            }
-        }
+        // Three explicit steps so that `k` is a constant in each (full unrolling).
+        qr.step(0);
+        qr.step(1);
+        qr.step(2);
         let r00 = libm::fabsf(qr.diag[0]);
         qr.rank = (0..3)
             .take_while(|&k| r00 > 0.0 && libm::fabsf(qr.diag[k]) > RANK_TOLERANCE * r00)
             .count();
         qr
+    }
+
+    /// Householder step `k`: pivot, reflector, update of the remaining columns.
+    #[inline(always)]
+    fn step(&mut self, k: usize) {
+        // Pivot: the remaining column with the largest norm below row k.
+        let mut best = k;
+        let mut best_norm2 = sum_squares_from(&self.cols[k], k);
+        for j in k + 1..3 {
+            let norm2 = sum_squares_from(&self.cols[j], k);
+            if norm2 > best_norm2 {
+                best_norm2 = norm2;
+                best = j;
+            }
+        }
+        if best != k {
+            self.cols.swap(k, best);
+            self.perm.swap(k, best);
+        }
+        // Reflector taking cols[k][k..] onto R_kk e_k.
+        let alpha = sqrt(best_norm2);
+        let x0 = self.cols[k][k];
+        if alpha > 0.0 && alpha.is_finite() {
+            let diagonal = if x0 >= 0.0 { -alpha } else { alpha };
+            self.head[k] = x0 - diagonal;
+            // vᵀv = 2 α (α + |x0|)
+            self.beta[k] = 1.0 / (alpha * (alpha + libm::fabsf(x0)));
+            self.diag[k] = diagonal;
+            let (done, rest) = self.cols.split_at_mut(k + 1);
+            for column in rest.iter_mut() {
+                reflect(&done[k], self.head[k], self.beta[k], k, column);
+            }
+        }
     }
 
     /// `R[i][k]` for `i ≤ k`.
@@ -165,8 +172,14 @@ fn reflect<const P: usize>(tail: &[f32; P], head: f32, beta: f32, from: usize, x
     }
 }
 
-fn sum_squares(x: &[f32]) -> f32 {
-    x.iter().map(|value| value * value).sum()
+/// `Σ_{i ≥ from} x[i]²`.
+#[inline(always)]
+fn sum_squares_from<const P: usize>(x: &[f32; P], from: usize) -> f32 {
+    let mut sum = 0.0;
+    for value in &x[from..] {
+        sum += value * value;
+    }
+    sum
 }
 
 #[cfg(test)]

@@ -33,16 +33,21 @@ pub fn shortest_arc_from_down(dir: [f32; 3]) -> [f32; 4] {
     if !(norm > 0.0 && norm.is_finite()) {
         return [1.0, 0.0, 0.0, 0.0];
     }
-    let [bx, by, bz] = [dir[0] / norm, dir[1] / norm, dir[2] / norm];
-    // a·b = −b_z; a × b = (b_y, −b_x, 0).
+    let inv = 1.0 / norm;
+    shortest_arc_from_down_unit([dir[0] * inv, dir[1] * inv, dir[2] * inv])
+}
+
+/// [`shortest_arc_from_down`] for a direction already of unit length.
+pub(crate) fn shortest_arc_from_down_unit([bx, by, bz]: [f32; 3]) -> [f32; 4] {
+    // a·b = −b_z; a × b = (b_y, −b_x, 0); |q|² = w² + b_x² + b_y² = 2w for unit b.
     let horizontal2 = bx * bx + by * by;
     let w = if bz > 0.0 { horizontal2 / (1.0 + bz) } else { 1.0 - bz };
-    let q = [w, by, -bx, 0.0];
     let q_norm = sqrt(w * w + horizontal2);
     if !(q_norm > 1e-30) {
         return [0.0, 1.0, 0.0, 0.0];
     }
-    [q[0] / q_norm, q[1] / q_norm, q[2] / q_norm, q[3] / q_norm]
+    let inv = 1.0 / q_norm;
+    [w * inv, by * inv, -bx * inv, 0.0]
 }
 
 /// Rotate a vector by a unit quaternion: `q ⊗ v ⊗ q*`.
