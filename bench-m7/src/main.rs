@@ -45,10 +45,11 @@ fn region<I, O>(inputs: &mut I, f: impl FnOnce(&mut I) -> O) -> O {
     out
 }
 
-/// A planar multirotor: `motors` rotors on a circle of radius 0.15 m with alternating spin and
-/// ±10 % strengths, seen from an IMU rotated by the seed paper's `q_U^T`
-/// (0.837 − 0.491i + 0.242j).
-fn airframe(motors: usize) -> HoverProblem {
+/// A multirotor: `motors` rotors on a circle of radius 0.15 m with alternating spin, ±10 %
+/// strengths, and rotor axes tilted alternately by ±`tilt_rad` about the arm (0: planar; 20°:
+/// a fully actuated frame, whose 3 × 3 force matrix has full rank so the power iteration has
+/// work to do), seen from an IMU rotated by the seed paper's `q_U^T` (0.837 − 0.491i + 0.242j).
+fn airframe(motors: usize, tilt_rad: f32) -> HoverProblem {
     let q = [0.837f32, -0.491, 0.242, 0.0];
     let n = libm::sqrtf(q.iter().map(|v| v * v).sum());
     let [w, x, y, z] = q.map(|v| v / n);
@@ -64,9 +65,18 @@ fn airframe(motors: usize) -> HoverProblem {
         let (px, py) = (0.15 * libm::cosf(angle), 0.15 * libm::sinf(angle));
         let strength = 9.81 / (0.4 * motors as f32) * (1.0 + 0.1 * libm::sinf(3.0 * i as f32));
         let spin = if i % 2 == 0 { 1.0 } else { -1.0 };
-        let force = [0.0, 0.0, -strength];
-        let angular =
-            [-py * strength / 0.01, px * strength / 0.012, spin * 0.015 * strength / 0.02];
+        // Tilt about the arm: the axis leans along the tangent, alternately either way.
+        let lean = if i % 2 == 0 { tilt_rad } else { -tilt_rad };
+        let (tangent_x, tangent_y) = (-libm::sinf(angle), libm::cosf(angle));
+        let (s, c) = (libm::sinf(lean), libm::cosf(lean));
+        let force = [strength * s * tangent_x, strength * s * tangent_y, -strength * c];
+        // r × F plus rotor drag along the axis, over a diagonal inertia (kg m²).
+        let moment = [
+            py * force[2] + spin * 0.015 * force[0],
+            -px * force[2] + spin * 0.015 * force[1],
+            px * force[1] - py * force[0] + spin * 0.015 * force[2],
+        ];
+        let angular = [moment[0] / 0.01, moment[1] / 0.012, moment[2] / 0.02];
         for row in 0..3 {
             f[row][i] = (0..3).map(|k| r[row][k] * force[k]).sum();
             t[row][i] = (0..3).map(|k| r[row][k] * angular[k]).sum();
@@ -89,18 +99,26 @@ fn fail(message: &str) -> ! {
 #[entry]
 fn main() -> ! {
     const MOTOR_COUNTS: [usize; 3] = [4, 6, 8];
+    const TILTED_MOTOR_COUNTS: [usize; 2] = [6, 8];
+    const TILT_RAD: f32 = 20.0 * core::f32::consts::PI / 180.0;
     hprintln!("bench-m7 region: empty (marker overhead)");
     for m in MOTOR_COUNTS {
         hprintln!("bench-m7 region: thrust-axis solve m={} cold", m);
         hprintln!("bench-m7 region: thrust-axis solve m={} warm", m);
+    }
+    for m in TILTED_MOTOR_COUNTS {
+        hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, cold", m);
+        hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, warm", m);
     }
     hprintln!("bench-m7 region: imu-offset RLS update");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
 
-    for m in MOTOR_COUNTS {
-        let problem = airframe(m);
+    let planar = MOTOR_COUNTS.map(|m| (m, 0.0));
+    let tilted = TILTED_MOTOR_COUNTS.map(|m| (m, TILT_RAD));
+    for (m, tilt_rad) in planar.into_iter().chain(tilted) {
+        let problem = airframe(m, tilt_rad);
         let mut state = (ThrustAxisSolver::default(), problem);
         let cold = region(&mut state, |(solver, problem)| solver.solve(black_box(problem)));
         let warm = region(&mut state, |(solver, problem)| solver.solve(black_box(problem)));
@@ -108,8 +126,9 @@ fn main() -> ! {
             (Ok(a), Ok(b)) if !a.bounded && !b.bounded => {
                 let e = b.euler_zyx();
                 hprintln!(
-                    "bench-m7 check: m={} roll {} pitch {} yaw {} deg",
+                    "bench-m7 check: m={} tilt {} deg: roll {} pitch {} yaw {} deg",
                     m,
+                    tilt_rad.to_degrees(),
                     e.roll_rad.to_degrees(),
                     e.pitch_rad.to_degrees(),
                     e.yaw_rad.to_degrees()
