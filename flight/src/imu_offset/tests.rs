@@ -321,6 +321,14 @@ fn ellipsoid_coverage_is_about_95_percent() {
 }
 
 #[test]
+fn onboard_state_is_small() {
+    // Constant memory, small enough for the control task's RAM budget.
+    let bytes = core::mem::size_of::<ImuOffsetEstimator>();
+    eprintln!("ImuOffsetEstimator: {bytes} bytes");
+    assert!(bytes < 4096, "{bytes} bytes");
+}
+
+#[test]
 fn errors_are_typed() {
     let rate_hz = 2000.0;
     // Unsupported rate.
