@@ -43,16 +43,16 @@ pub const LIBRARY: &[(&str, &str)] = &[
 #[derive(Debug, thiserror::Error)]
 pub enum AirframeError {
     /// The file could not be read.
-    #[error("cannot read airframe file `{path}`: {source}")]
+    #[error("cannot read airframe file `{path}`: {error}")]
     Io {
         /// Path as given.
         path: String,
-        /// Operating-system error.
-        source: std::io::Error,
+        /// Operating-system error (in the message, so not also a `source`).
+        error: std::io::Error,
     },
     /// Not TOML, or a key is missing, unknown or of the wrong type (the message names it).
     #[error("airframe file is not a valid airframe: {0}")]
-    Parse(#[from] toml::de::Error),
+    Parse(toml::de::Error),
     /// A number lies outside its allowed range.
     #[error("`{field}` = {value} is out of range: allowed {allowed}")]
     OutOfRange {
@@ -89,6 +89,12 @@ pub enum AirframeError {
         /// Why.
         reason: String,
     },
+}
+
+impl From<toml::de::Error> for AirframeError {
+    fn from(error: toml::de::Error) -> Self {
+        Self::Parse(error)
+    }
 }
 
 /// One multirotor. The TOML file is this struct (see the files in `sim/airframes/`).
@@ -450,7 +456,7 @@ impl Airframe {
             });
         }
         let text = std::fs::read_to_string(path)
-            .map_err(|source| AirframeError::Io { path: name_or_path.into(), source })?;
+            .map_err(|error| AirframeError::Io { path: name_or_path.into(), error })?;
         Self::from_toml_str(&text)
     }
 

@@ -40,7 +40,7 @@ pub const MAX_PACKET_LEN: usize = SENSOR_HEADER_LEN + 4 * MAX_MOTORS;
 pub enum BridgeError {
     /// Socket error.
     #[error("bridge socket: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
     /// Nothing arrived in time.
     #[error("no packet within {0:?}")]
     Timeout(Duration),
@@ -61,6 +61,12 @@ pub enum BridgeError {
     /// Motor count outside 1..=8.
     #[error("motor count {0} is out of range: allowed [1, {MAX_MOTORS}]")]
     MotorCount(u8),
+}
+
+impl From<std::io::Error> for BridgeError {
+    fn from(error: std::io::Error) -> Self {
+        Self::Io(error)
+    }
 }
 
 /// Simulator → application, `48 + 4m` bytes.

@@ -137,7 +137,7 @@ pub enum ScenarioError {
     Airframe(#[from] AirframeError),
     /// Writing the log failed.
     #[error("cannot write the log: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
     /// A scenario parameter is out of range.
     #[error("scenario `{field}` = {value} is out of range: allowed {allowed}")]
     OutOfRange {
@@ -148,6 +148,12 @@ pub enum ScenarioError {
         /// Allowed range with unit.
         allowed: &'static str,
     },
+}
+
+impl From<std::io::Error> for ScenarioError {
+    fn from(error: std::io::Error) -> Self {
+        Self::Io(error)
+    }
 }
 
 impl ScenarioConfig {

@@ -12,6 +12,7 @@
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
@@ -90,7 +91,7 @@ struct RunArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Body rate at release, °/s, as `x,y,z` (default: the scenario's).
-    #[arg(long, value_delimiter = ',', num_args = 3, allow_negative_numbers = true)]
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     rate_dps: Option<Vec<f64>>,
     /// Apex of the throw above the release point, m (default: the scenario's).
     #[arg(long)]
@@ -116,6 +117,9 @@ fn run_scenario(kind: ScenarioKind, args: RunArgs) -> Result<()> {
     let mut config = ScenarioConfig::new(kind);
     config.board.seed = args.seed;
     if let Some(r) = &args.rate_dps {
+        if r.len() != 3 {
+            bail!("--rate-dps needs three values x,y,z in °/s, got {}", r.len());
+        }
         config.throw_rate_body_rad_s = Vector3::new(r[0], r[1], r[2]).map(f64::to_radians);
     }
     if let Some(a) = args.apex_m {
@@ -169,8 +173,17 @@ fn run_scenario(kind: ScenarioKind, args: RunArgs) -> Result<()> {
     Ok(())
 }
 
-fn main() -> Result<()> {
-    let cli = Cli::parse();
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::HoldStill(a) => run_scenario(ScenarioKind::HoldStill, a),
         Command::ThrowCatch(a) => run_scenario(ScenarioKind::ThrowCatch, a),
