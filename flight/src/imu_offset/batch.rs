@@ -53,8 +53,9 @@ impl BatchFitter {
     }
 
     /// Find the throws in one log sampled at `rate_hz` and add their samples to the fit; returns
-    /// the number of throws found (possibly 0). Logs must share one rate. A non-finite or corrupt
-    /// sample rejects the whole log (nothing is added).
+    /// the number of throws used (possibly 0; at most [`MAX_SEGMENTS`] over all logs, later
+    /// throws are ignored). Logs must share one rate. A non-finite or corrupt sample rejects the
+    /// whole log (nothing is added).
     pub fn add_log(
         &mut self,
         samples: &[ImuSample],
@@ -78,7 +79,10 @@ impl BatchFitter {
             detector.update(sample)?;
         }
         detector.finish();
-        let found = detector.segments();
+        // Only as many throws as the segment list can still name are used, so every sample in
+        // the fit belongs to a reported segment.
+        let room = MAX_SEGMENTS.saturating_sub(self.segments_len);
+        let found = detector.segments().get(..room).unwrap_or(detector.segments());
         let block_len = detector.block_len();
         let batches = self.batches.get_or_insert(BatchMeans::new(detector.long_batch_blocks()));
 
