@@ -66,7 +66,7 @@ enum Command {
 #[derive(Subcommand, Debug)]
 enum FitCommand {
     /// The IMU's position relative to the centre of gravity, from free-fall throws.
-    ImuOffset(ImuOffsetPending),
+    ImuOffset(offline::imu_offset::Args),
 }
 
 #[derive(Subcommand, Debug)]
@@ -113,8 +113,8 @@ fn main() -> ExitCode {
 
 fn run(cli: &Cli) -> Result<String, Failure> {
     match &cli.command {
-        Command::Fit(FitCommand::ImuOffset(_)) => {
-            Err(Failure::Input(InputError("fit imu-offset: WIRING PENDING".into())))
+        Command::Fit(FitCommand::ImuOffset(args)) => {
+            offline::imu_offset::run(args).map_err(Failure::Input)
         }
         Command::Solve(SolveCommand::ThrustAxis(args)) => {
             offline::thrust_axis::run(args).map_err(Failure::Input)
@@ -301,6 +301,3 @@ fn ports(json_output: bool) -> Result<String, Failure> {
     }
     Ok(rows.iter().map(|(name, kind)| format!("{name}  {kind}\n")).collect())
 }
-
-#[derive(clap::Args, Debug)]
-struct ImuOffsetPending {}
