@@ -265,7 +265,8 @@ mod tasks {
 
     /// The USB link, on every OTG2 interrupt and at 1 kHz from the control step: services the
     /// USB device, feeds received bytes to the link server, lets it queue due telemetry, and
-    /// sends what it produced until it has nothing more or the endpoint is full. Never blocks.
+    /// offers what it queued to the CDC buffer until it has nothing more or the buffer is full (the
+    /// rest stays queued in the link server for the next service). Never blocks.
     pub fn usb_service(mut cx: usb_service::Context) {
         let now_us = cx.local.usb_clock.now_us();
         let view = StatusView {
@@ -275,7 +276,9 @@ mod tasks {
         let link = cx.local.link;
         cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view));
         link.poll(now_us, &view);
-        cx.local.usb.transmit(|out| link.transmit(out));
+        let usb = cx.local.usb;
+        while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}
+        usb.flush();
     }
 
     /// Background work at the lowest priority: drain the learner-sample queue through the

@@ -9,7 +9,6 @@ use usb_device::bus::UsbBusAllocator;
 use usb_device::device::{
     StringDescriptors, UsbDevice, UsbDeviceBuilder, UsbDeviceState, UsbVidPid,
 };
-use usb_device::UsbError;
 use usbd_serial::SerialPort;
 
 /// The USB bus of this board.
@@ -27,7 +26,7 @@ const RX_BUFFER_BYTES: usize = 256;
 /// CDC transmit buffer, bytes: room for several telemetry frames between two USB services.
 const TX_BUFFER_BYTES: usize = 1024;
 
-/// Bytes the USB task takes from the link server per chunk: one full-speed bulk packet.
+/// Bytes read from the CDC receive buffer per chunk: one full-speed bulk packet.
 pub const CHUNK_BYTES: usize = 64;
 
 /// Manufacturer string descriptor.
@@ -44,14 +43,10 @@ pub struct UsbStorage {
     pub bus: &'static mut Option<UsbBusAllocator<Bus>>,
 }
 
-/// The CDC-ACM serial link: the USB device, its serial class, and the bytes the link server
-/// produced that the endpoint has not accepted yet.
+/// The CDC-ACM serial link: the USB device and its serial class.
 pub struct UsbSerial {
     device: UsbDevice<'static, Bus>,
     serial: SerialPort<'static, Bus, [u8; RX_BUFFER_BYTES], [u8; TX_BUFFER_BYTES]>,
-    pending: [u8; CHUNK_BYTES],
-    pending_start: usize,
-    pending_end: usize,
 }
 
 impl UsbSerial {
@@ -69,7 +64,7 @@ impl UsbSerial {
             .unwrap_or_else(|_| defmt::panic!("USB string descriptors rejected"))
             .device_class(usbd_serial::USB_CLASS_CDC)
             .build();
-        Self { device, serial, pending: [0; CHUNK_BYTES], pending_start: 0, pending_end: 0 }
+        Self { device, serial }
     }
 
     /// Service the USB device (enumeration, control requests, endpoint events), then hand every
@@ -89,36 +84,22 @@ impl UsbSerial {
         self.device.state() == UsbDeviceState::Configured
     }
 
-    /// Move bytes from `fill` (which writes up to `buffer.len()` bytes and returns how many) to the
-    /// host until `fill` has nothing more or the endpoint buffers are full. Bytes the endpoint did
-    /// not accept are kept and sent first next time, so nothing is lost or reordered. Does nothing
-    /// until the host has configured the device: the producer's own queue applies back-pressure.
-    /// Never blocks.
-    pub fn transmit(&mut self, mut fill: impl FnMut(&mut [u8]) -> usize) {
-        if !self.is_configured() {
-            return;
+    /// Offer `bytes` to the host; returns how many the CDC buffer took (0 when it is full or the
+    /// host has not configured the device yet). Bytes not taken stay with the caller (the link
+    /// server keeps them queued), so nothing is lost or reordered. Never blocks.
+    pub fn write(&mut self, bytes: &[u8]) -> usize {
+        if bytes.is_empty() || !self.is_configured() {
+            return 0;
         }
-        loop {
-            if self.pending_start == self.pending_end {
-                let produced = fill(&mut self.pending).min(CHUNK_BYTES);
-                if produced == 0 {
-                    break;
-                }
-                self.pending_start = 0;
-                self.pending_end = produced;
-            }
-            match self.serial.write(&self.pending[self.pending_start..self.pending_end]) {
-                Ok(written) => self.pending_start += written,
-                Err(UsbError::WouldBlock) => break,
-                Err(_) => {
-                    // A bus error (e.g. the host went away mid-transfer): drop this chunk. The
-                    // host's frame decoder resynchronises at the next frame delimiter.
-                    self.pending_start = self.pending_end;
-                    break;
-                }
-            }
-        }
-        // Push what is buffered into the endpoint; WouldBlock only means "more next time".
+        // `WouldBlock`: the buffer is full, nothing taken. Other errors (bus trouble, the host
+        // went away mid-transfer) also count as nothing taken, although usbd-serial may already
+        // have buffered some of the bytes: the host may then see a repeated chunk, which its
+        // frame decoder rejects (CRC) and resynchronises after.
+        self.serial.write(bytes).unwrap_or(0)
+    }
+
+    /// Push buffered bytes into the IN endpoint. Never blocks; what does not fit goes next time.
+    pub fn flush(&mut self) {
         let _ = self.serial.flush();
     }
 }
