@@ -241,8 +241,10 @@ mod tasks {
     ///
     /// Deadline: 500 µs (one period of the 2 kHz loop; the next IMU sample is due then). It
     /// never blocks and never allocates: the IMU and motor adapters return at once, the sample
-    /// queue drops and counts when full, and the only lock is an uncontended copy of the status
-    /// snapshot (no higher-priority task shares it).
+    /// queue drops and counts when full, the snapshot lock is uncontended (no higher-priority
+    /// task exists) and held for a copy, and the only interrupts-off sections are a few
+    /// instructions long (the clock's 64-bit extension, RTIC's spawn queue). Its own duration is
+    /// measured against the deadline (`board::timing`) and reported from `idle`.
     pub fn control_tick(mut cx: control_tick::Context) {
         let started = cx.local.step_timer.start();
         cx.local.control_timer.clear_irq();
