@@ -49,6 +49,12 @@ pub struct RotorModel {
     pub motor: MotorParams,
     /// `r × n`, body, m.
     r_cross_axis: Vector3<f64>,
+    /// `1/τ`, 1/s.
+    inv_tau_per_s: f64,
+    /// `s k_m`, N·m/(rad/s)².
+    signed_torque_coefficient: f64,
+    /// `s J_r`, kg·m².
+    signed_rotor_inertia: f64,
 }
 
 /// The vehicle's constant physical model, derived from a validated [`Airframe`].
@@ -74,12 +80,17 @@ impl VehicleModel {
             .map(|i| {
                 let axis = airframe.thrust_axis(i);
                 let position_m = Vector3::from(airframe.rotors[i].position_m);
+                let motor = airframe.rotor_motor(i).clone();
+                let spin_sign = airframe.rotors[i].spin.sign();
                 RotorModel {
                     position_m,
                     axis,
-                    spin_sign: airframe.rotors[i].spin.sign(),
-                    motor: airframe.rotor_motor(i).clone(),
+                    spin_sign,
                     r_cross_axis: position_m.cross(&axis),
+                    inv_tau_per_s: 1.0 / motor.tau_s,
+                    signed_torque_coefficient: spin_sign * motor.torque_coefficient_nm_per_rad2_s2,
+                    signed_rotor_inertia: spin_sign * motor.rotor_inertia_kg_m2,
+                    motor,
                 }
             })
             .collect();
@@ -184,16 +195,14 @@ impl VehicleModel {
         let mut rotor_accel = [0.0; MAX_ROTORS];
         for (i, r) in self.rotors.iter().enumerate() {
             let w = s.rotor_speed_rad_s[i];
-            let w_dot = (target_rad_s[i] - w) / r.motor.tau_s;
+            let w_dot = (target_rad_s[i] - w) * r.inv_tau_per_s;
             rotor_accel[i] = w_dot;
             let w2 = w * w;
             let thrust = r.motor.thrust_coefficient_n_per_rad2_s2 * w2;
             force_body += r.axis * thrust;
-            torque_body += r.r_cross_axis * thrust
-                - r.axis * (r.spin_sign * r.motor.torque_coefficient_nm_per_rad2_s2 * w2);
-            let j_s = r.motor.rotor_inertia_kg_m2 * r.spin_sign;
-            h_body += r.axis * (j_s * w);
-            h_dot_body += r.axis * (j_s * w_dot);
+            torque_body += r.r_cross_axis * thrust - r.axis * (r.signed_torque_coefficient * w2);
+            h_body += r.axis * (r.signed_rotor_inertia * w);
+            h_dot_body += r.axis * (r.signed_rotor_inertia * w_dot);
         }
 
         let v_body = rot.transpose() * s.velocity_ned_mps;

@@ -2,8 +2,8 @@
 //!
 //! Why our own: simulations must be reproducible from one `u64` seed across platforms and crate
 //! versions, and the simulator needs only uniform and Gaussian draws. The generator is
-//! xoshiro256++ (Blackman and Vigna, 2019) seeded through SplitMix64; Gaussian draws use the
-//! Box–Muller transform, caching the second value.
+//! xoshiro256++ (Blackman and Vigna, 2019) seeded through SplitMix64; Gaussian draws use
+//! Marsaglia's polar method (no trigonometry), caching the second value.
 
 /// Deterministic pseudo-random source (xoshiro256++), seeded from one `u64`.
 #[derive(Clone, Debug)]
@@ -56,13 +56,18 @@ impl Rng {
         if let Some(z) = self.spare_normal.take() {
             return z;
         }
-        // 1 − U lies in (0, 1], so the logarithm is finite.
-        let u1 = 1.0 - self.uniform();
-        let u2 = self.uniform();
-        let radius = (-2.0 * u1.ln()).sqrt();
-        let angle = std::f64::consts::TAU * u2;
-        self.spare_normal = Some(radius * angle.sin());
-        radius * angle.cos()
+        // Marsaglia polar method: a uniform point in the unit disc (accepted with probability
+        // π/4) gives two independent normals.
+        loop {
+            let x = 2.0 * self.uniform() - 1.0;
+            let y = 2.0 * self.uniform() - 1.0;
+            let s = x * x + y * y;
+            if s > 0.0 && s < 1.0 {
+                let scale = (-2.0 * s.ln() / s).sqrt();
+                self.spare_normal = Some(y * scale);
+                return x * scale;
+            }
+        }
     }
 
     /// An independent generator derived from this one (for per-run streams in Monte Carlo).
