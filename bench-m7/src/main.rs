@@ -110,6 +110,7 @@ fn main() -> ! {
         hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, cold", m);
         hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, warm", m);
     }
+    hprintln!("bench-m7 region: thrust-axis bounded search m=6 (one motor capped)");
     hprintln!("bench-m7 region: imu-offset RLS update");
 
     let mut nothing = 0u32;
@@ -136,6 +137,18 @@ fn main() -> ! {
             }
             _ => fail("thrust-axis solve failed or needed the bounded search"),
         }
+    }
+
+    // The bounded search: the planar hexa with motor 0 capped below its heuristic command, so
+    // the heuristic's u* leaves the bounds and the active-set search runs.
+    let capped = airframe(6, 0.0).with_bounds(&[0.0; 6], &[0.3, 1.0, 1.0, 1.0, 1.0, 1.0]);
+    let Ok(capped) = capped else { fail("bounds refused") };
+    let mut state = (ThrustAxisSolver::default(), capped);
+    match region(&mut state, |(solver, problem)| solver.solve(black_box(problem))) {
+        Ok(solution) if solution.bounded => {
+            hprintln!("bench-m7 check: bounded m=6 u_hover {:?}", solution.u_hover());
+        }
+        _ => fail("bounded search did not run or found nothing"),
     }
 
     let sample = AlignedSample {
