@@ -100,6 +100,7 @@ fn fail(message: &str) -> ! {
 fn main() -> ! {
     const MOTOR_COUNTS: [usize; 3] = [4, 6, 8];
     const TILTED_MOTOR_COUNTS: [usize; 2] = [6, 8];
+    const BOUNDED_MOTOR_COUNTS: [usize; 2] = [6, 8];
     const TILT_RAD: f32 = 20.0 * core::f32::consts::PI / 180.0;
     hprintln!("bench-m7 region: empty (marker overhead)");
     for m in MOTOR_COUNTS {
@@ -110,7 +111,9 @@ fn main() -> ! {
         hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, cold", m);
         hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, warm", m);
     }
-    hprintln!("bench-m7 region: thrust-axis bounded search m=6 (one motor capped)");
+    for m in BOUNDED_MOTOR_COUNTS {
+        hprintln!("bench-m7 region: thrust-axis bounded search m={} (one motor capped)", m);
+    }
     hprintln!("bench-m7 region: imu-offset RLS update");
 
     let mut nothing = 0u32;
@@ -139,16 +142,20 @@ fn main() -> ! {
         }
     }
 
-    // The bounded search: the planar hexa with motor 0 capped below its heuristic command, so
-    // the heuristic's u* leaves the bounds and the active-set search runs.
-    let capped = airframe(6, 0.0).with_bounds(&[0.0; 6], &[0.3, 1.0, 1.0, 1.0, 1.0, 1.0]);
-    let Ok(capped) = capped else { fail("bounds refused") };
-    let mut state = (ThrustAxisSolver::default(), capped);
-    match region(&mut state, |(solver, problem)| solver.solve(black_box(problem))) {
-        Ok(solution) if solution.bounded => {
-            hprintln!("bench-m7 check: bounded m=6 u_hover {:?}", solution.u_hover());
+    // The bounded search: the planar hexa and octo with motor 0 capped below its heuristic
+    // command, so the heuristic's u* leaves the bounds and the active-set search runs.
+    for m in BOUNDED_MOTOR_COUNTS {
+        let mut upper = [1.0f32; MOTORS_MAX];
+        upper[0] = 0.3;
+        let capped = airframe(m, 0.0).with_bounds(&[0.0; MOTORS_MAX][..m], &upper[..m]);
+        let Ok(capped) = capped else { fail("bounds refused") };
+        let mut state = (ThrustAxisSolver::default(), capped);
+        match region(&mut state, |(solver, problem)| solver.solve(black_box(problem))) {
+            Ok(solution) if solution.bounded => {
+                hprintln!("bench-m7 check: bounded m={} u_hover {:?}", m, solution.u_hover());
+            }
+            _ => fail("bounded search did not run or found nothing"),
         }
-        _ => fail("bounded search did not run or found nothing"),
     }
 
     let sample = AlignedSample {

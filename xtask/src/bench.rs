@@ -84,6 +84,8 @@ pub fn m7(args: &[String]) -> Result<()> {
     }
     let names: Vec<&str> = stdout.lines().filter_map(|l| l.strip_prefix(REGION_PREFIX)).collect();
     let counts = count_regions(&trace, start, end)?;
+    // The trace is large (about 250 MB, mostly the m = 8 bounded search); keep only the counts.
+    std::fs::remove_file(&trace).with_context(|| format!("cannot remove {}", trace.display()))?;
     if counts.len() != names.len() || counts.is_empty() {
         bail!(
             "{} regions announced but {} measured in {}",
