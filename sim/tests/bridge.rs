@@ -67,3 +67,51 @@ fn bridge_times_out_without_a_simulator() {
         other => panic!("expected a timeout, got {other:?}"),
     }
 }
+
+#[test]
+fn the_simulator_flies_an_application_through_the_bridge_in_lockstep() {
+    use sim::airframe::Airframe;
+    use sim::board::{SimBoard, SimConfig};
+    use sim::scenario::OpenLoop;
+
+    // The application side: open-loop hover commands for the racer, served over UDP.
+    let airframe = Airframe::builtin("racer-5in").unwrap();
+    let hover = airframe.hover_speeds_rad_s().unwrap();
+    let commands: Vec<f32> = hover
+        .iter()
+        .enumerate()
+        .map(|(i, w)| airframe.rotor_motor(i).command_for_speed(*w) as f32)
+        .collect();
+    let steps = 600; // 0.3 s at 2 kHz
+    let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
+    let server_addr = server.local_addr().unwrap();
+    let served = commands.clone();
+    let handle = std::thread::spawn(move || {
+        let mut app = OpenLoop(move |_t: f64, c: &mut [f32]| c.copy_from_slice(&served));
+        (0..steps)
+            .map(|_| server.step(&mut app, TIMEOUT).map(|_| ()))
+            .collect::<Result<Vec<_>, _>>()
+    });
+
+    // The simulator side: our own physics as the "external" simulator.
+    let mut board = SimBoard::new(&airframe, &SimConfig::default());
+    let mut client = BridgeClient::connect("127.0.0.1:0", server_addr).unwrap();
+    for sequence in 0..steps as u64 {
+        board.tick();
+        let packet = SensorPacket {
+            sequence,
+            time_s: board.time_s(),
+            imu: board.last_sample(),
+            motor_count: board.motors().count(),
+            speeds_rad_s: board.motors().speeds_rad_s(),
+        };
+        let reply = client.exchange(&packet, TIMEOUT).unwrap();
+        assert_eq!(reply.sequence, sequence);
+        board.motors_mut().set_commands(&reply.commands[..reply.motor_count as usize]);
+    }
+    handle.join().unwrap().unwrap();
+    // After 0.3 s (12 motor time constants) the rotors run at the hover speed.
+    for (i, w) in board.physics().state().rotor_speed_rad_s[..4].iter().enumerate() {
+        assert!(((w - hover[i]) / hover[i]).abs() < 1e-4, "rotor {i}: {w} vs {}", hover[i]);
+    }
+}
