@@ -77,39 +77,45 @@ pub(super) fn optimum(s: &ScaledProblem, force_scale2: f32) -> Option<[f32; MOTO
     // motors are found first and prune the rest. A face: a set of clamped motors (bit mask) and,
     // for each of them, lower or upper bound (`upper_bits`, one bit per clamped motor in order).
     for clamped in 0..=m - 4 {
-        for mask in 0u32..(1 << m) {
-            if mask.count_ones() as usize != clamped {
-                continue;
-            }
+        // Masks with `clamped` bits set, in increasing order (Gosper's hack).
+        let mut mask: u32 = (1 << clamped) - 1;
+        while mask < 1 << m {
             for upper_bits in 0u32..(1 << clamped) {
-                let mut state = [0u8; MOTORS_MAX];
+                let mut state = [FREE; MOTORS_MAX];
                 let mut clamped_cost = 0.0;
                 let mut slot = 0;
-                for (i, state_i) in state.iter_mut().enumerate().take(m) {
-                    if mask & (1 << i) == 0 {
-                        continue;
+                for i in 0..m {
+                    if mask & (1 << i) != 0 {
+                        let value = if upper_bits & (1 << slot) == 0 {
+                            state[i] = LOWER;
+                            s.lower[i]
+                        } else {
+                            state[i] = UPPER;
+                            s.upper[i]
+                        };
+                        clamped_cost += value * value;
+                        slot += 1;
                     }
-                    if upper_bits & (1 << slot) == 0 {
-                        *state_i = LOWER;
-                        clamped_cost += s.lower[i] * s.lower[i];
-                    } else {
-                        *state_i = UPPER;
-                        clamped_cost += s.upper[i] * s.upper[i];
-                    }
-                    slot += 1;
                 }
                 // The clamped motors alone must not already cost more than the best so far.
                 if clamped_cost < best.cost {
                     let face = Face { s, state: &state, force_scale2, torque_scale2 };
-                    face.search(clamped_cost, &mut best);
+                    face.search(m - clamped, clamped_cost, &mut best);
                 }
             }
+            if mask == 0 {
+                break;
+            }
+            let lowest = mask & mask.wrapping_neg();
+            let ripple = mask + lowest;
+            mask = ripple | (((mask ^ ripple) >> 2) / lowest);
         }
     }
     best.cost.is_finite().then_some(best.u)
 }
 
-/// Face state of a motor: free (0), clamped at its lower bound, clamped at its upper bound.
+/// Face state of a motor: free, clamped at its lower bound, clamped at its upper bound.
+const FREE: u8 = 0;
 const LOWER: u8 = 1;
 const UPPER: u8 = 2;
 
@@ -125,19 +131,25 @@ struct Face<'a> {
     torque_scale2: f32,
 }
 
-/// The face problem reduced to force space: eigenbasis of `C`, `a` in it, and what is needed to
-/// map a candidate force back to motor commands.
-struct Reduced {
-    /// Free motor indices (first `free` entries).
-    free_index: [usize; MOTORS_MAX],
-    free: usize,
+/// The face problem with `P` free motors, reduced to force space, with what is needed to map a
+/// candidate force back to motor commands.
+struct Reduced<const P: usize> {
+    /// Free motor indices.
+    free_index: [usize; P],
     /// The full command with clamped motors at their bounds (free entries filled per candidate).
     fixed_u: [f32; MOTORS_MAX],
-    qr: PivotedQr3<MOTORS_MAX>,
+    qr: PivotedQr3<P>,
     /// Particular-solution coordinates (first `qr.rank`), in the `Q` basis.
     y: [f32; 3],
-    /// Rows of `Qᵀ G_Fᵀ`; entries `rank..free` of row k are row k of `M`.
-    g_q: [[f32; MOTORS_MAX]; 3],
+    /// Rows of `Qᵀ G_Fᵀ`; entries `rank..P` of row k are row k of `M`.
+    g_q: [[f32; P]; 3],
+    force: ForceSpace,
+    /// Cost of the clamped motors plus `‖x₀‖²`.
+    base_cost: f32,
+}
+
+/// The face problem in force space: `min ‖z‖² s.t. ‖a + M z‖ = g`, in the eigenbasis of `C = M Mᵀ`.
+struct ForceSpace {
     /// Eigenvalues of `C` and eigenvectors (columns).
     c: [f32; 3],
     v: [[f32; 3]; 3],
@@ -145,16 +157,27 @@ struct Reduced {
     a: [f32; 3],
     /// Which eigen-directions carry no force (`cᵢ ≈ 0`).
     zero: [bool; 3],
-    /// Cost of the clamped motors plus `‖x₀‖²`.
-    base_cost: f32,
 }
 
 impl Face<'_> {
-    fn search(&self, clamped_cost: f32, best: &mut Best) {
-        let Some(reduced) = self.reduce(clamped_cost, best.cost) else { return };
+    /// Search the face with `free` free motors: one dispatch to a body with fixed sizes.
+    fn search(&self, free: usize, clamped_cost: f32, best: &mut Best) {
+        match free {
+            4 => self.search_fixed::<4>(clamped_cost, best),
+            5 => self.search_fixed::<5>(clamped_cost, best),
+            6 => self.search_fixed::<6>(clamped_cost, best),
+            7 => self.search_fixed::<7>(clamped_cost, best),
+            8 => self.search_fixed::<8>(clamped_cost, best),
+            _ => {}
+        }
+    }
+
+    #[inline(always)]
+    fn search_fixed<const P: usize>(&self, clamped_cost: f32, best: &mut Best) {
+        let Some(reduced) = self.reduce::<P>(clamped_cost, best.cost) else { return };
         let g = self.s.g_mps2;
         let mut candidates = [[0.0f32; 3]; MAX_CANDIDATES];
-        let count = reduced.candidates(g, &mut candidates);
+        let count = reduced.force.candidates(g, &mut candidates);
         for f in candidates.iter().take(count) {
             self.evaluate(&reduced, *f, best);
         }
@@ -162,13 +185,14 @@ impl Face<'_> {
 
     /// The face problem in the eigenbasis of `C`; `None` when the face is empty, degenerate, or
     /// provably no cheaper than `best_cost`.
-    fn reduce(&self, clamped_cost: f32, best_cost: f32) -> Option<Reduced> {
+    #[inline(always)]
+    fn reduce<const P: usize>(&self, clamped_cost: f32, best_cost: f32) -> Option<Reduced<P>> {
         let s = self.s;
-        let m = s.motors;
-        let mut free_index = [0usize; MOTORS_MAX];
+        let m = s.motors.min(MOTORS_MAX);
+        let mut free_index = [0usize; P];
         let mut free = 0;
-        let mut t_columns = [[0.0f32; MOTORS_MAX]; 3];
-        let mut g_q = [[0.0f32; MOTORS_MAX]; 3];
+        let mut t_columns = [[0.0f32; P]; 3];
+        let mut g_q = [[0.0f32; P]; 3];
         let mut torque_rhs = [0.0f32; 3];
         let mut force_clamped = [0.0f32; 3];
         let mut fixed_u = [0.0f32; MOTORS_MAX];
@@ -176,6 +200,7 @@ impl Face<'_> {
             let value = match self.state[i] {
                 LOWER => s.lower[i],
                 UPPER => s.upper[i],
+                _ if free >= P => return None,
                 _ => {
                     free_index[free] = i;
                     for k in 0..3 {
@@ -192,11 +217,10 @@ impl Face<'_> {
                 force_clamped[k] += s.g1_f[k][i] * value;
             }
         }
-        // Zero-padded to MOTORS_MAX rows (see the householder module docs).
         let qr = PivotedQr3::factor(t_columns);
         let y = qr.min_norm_coordinates(torque_rhs)?;
         let rank = qr.rank;
-        if free <= rank {
+        if free != P || P <= rank {
             return None;
         }
         for row in g_q.iter_mut() {
@@ -209,7 +233,7 @@ impl Face<'_> {
         let mut c_matrix = [[0.0f32; 3]; 3];
         for i in 0..3 {
             for j in i..3 {
-                let dot: f32 = (rank..free).map(|l| g_q[i][l] * g_q[j][l]).sum();
+                let dot: f32 = (rank..P).map(|l| g_q[i][l] * g_q[j][l]).sum();
                 c_matrix[i][j] = dot;
                 c_matrix[j][i] = dot;
             }
@@ -228,27 +252,29 @@ impl Face<'_> {
             a[i] = v[0][i] * a_imu[0] + v[1][i] * a_imu[1] + v[2][i] * a_imu[2];
             zero[i] = !(c[i] > ZERO_FORCE * self.force_scale2);
         }
-        Some(Reduced { free_index, free, fixed_u, qr, y, g_q, c, v, a, zero, base_cost })
+        let force = ForceSpace { c, v, a, zero };
+        Some(Reduced { free_index, fixed_u, qr, y, g_q, force, base_cost })
     }
 
     /// Map a candidate force (eigenbasis) to a command, check it, and keep it if cheapest.
-    fn evaluate(&self, r: &Reduced, f: [f32; 3], best: &mut Best) {
+    fn evaluate<const P: usize>(&self, r: &Reduced<P>, f: [f32; 3], best: &mut Best) {
         let s = self.s;
         let rank = r.qr.rank;
+        let force = &r.force;
         // φ = C⁺ (f − a) in IMU coordinates; z = Mᵀ φ.
         let mut phi = [0.0f32; 3];
         for i in 0..3 {
-            if !r.zero[i] {
-                let weight = (f[i] - r.a[i]) / r.c[i];
+            if !force.zero[i] {
+                let weight = (f[i] - force.a[i]) / force.c[i];
                 for (k, phi_k) in phi.iter_mut().enumerate() {
-                    *phi_k += r.v[k][i] * weight;
+                    *phi_k += force.v[k][i] * weight;
                 }
             }
         }
-        let mut x = [0.0f32; MOTORS_MAX];
+        let mut x = [0.0f32; P];
         x[..rank].copy_from_slice(&r.y[..rank]);
         let mut cost = r.base_cost;
-        for (l, slot) in x.iter_mut().enumerate().take(r.free).skip(rank) {
+        for (l, slot) in x.iter_mut().enumerate().skip(rank) {
             let z = r.g_q[0][l] * phi[0] + r.g_q[1][l] * phi[1] + r.g_q[2][l] * phi[2];
             *slot = z;
             cost += z * z;
@@ -258,7 +284,7 @@ impl Face<'_> {
         }
         r.qr.apply_q(&mut x);
         let mut u = r.fixed_u;
-        for (j, &i) in r.free_index.iter().enumerate().take(r.free) {
+        for (j, &i) in r.free_index.iter().enumerate() {
             let tolerance = BOUND_TOLERANCE * (libm::fabsf(s.lower[i]) + libm::fabsf(s.upper[i]));
             if !(x[j] >= s.lower[i] - tolerance && x[j] <= s.upper[i] + tolerance) {
                 return;
@@ -290,7 +316,7 @@ impl Face<'_> {
     }
 }
 
-impl Reduced {
+impl ForceSpace {
     /// All KKT forces of the face problem (eigenbasis coordinates), written into `out`;
     /// returns how many.
     fn candidates(&self, g: f32, out: &mut [[f32; 3]; MAX_CANDIDATES]) -> usize {
