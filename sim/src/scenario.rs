@@ -200,6 +200,14 @@ impl ScenarioConfig {
                 return Err(ScenarioError::OutOfRange { field, value, allowed });
             }
         }
+        let horizontal = self.throw_horizontal_mps[0].hypot(self.throw_horizontal_mps[1]);
+        if horizontal.is_nan() || horizontal > 30.0 {
+            return Err(ScenarioError::OutOfRange {
+                field: "throw_horizontal_mps",
+                value: horizontal,
+                allowed: "a speed within [0, 30] m/s",
+            });
+        }
         let rate = self.throw_rate_body_rad_s.norm();
         if rate.is_nan() || rate > 60.0 {
             return Err(ScenarioError::OutOfRange {

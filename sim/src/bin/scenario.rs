@@ -93,6 +93,9 @@ struct RunArgs {
     /// Body rate at release, °/s, as `x,y,z` (default: the scenario's).
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     rate_dps: Option<Vec<f64>>,
+    /// Horizontal release velocity, m/s, as `north,east` (default 0,0).
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    horizontal_mps: Option<Vec<f64>>,
     /// Apex of the throw above the release point, m (default: the scenario's).
     #[arg(long)]
     apex_m: Option<f64>,
@@ -121,6 +124,12 @@ fn run_scenario(kind: ScenarioKind, args: RunArgs) -> Result<()> {
             bail!("--rate-dps needs three values x,y,z in °/s, got {}", r.len());
         }
         config.throw_rate_body_rad_s = Vector3::new(r[0], r[1], r[2]).map(f64::to_radians);
+    }
+    if let Some(v) = &args.horizontal_mps {
+        if v.len() != 2 {
+            bail!("--horizontal-mps needs two values north,east in m/s, got {}", v.len());
+        }
+        config.throw_horizontal_mps = [v[0], v[1]];
     }
     if let Some(a) = args.apex_m {
         config.throw_apex_m = a;
