@@ -827,6 +827,17 @@ mod tests {
     }
 
     #[test]
+    fn paper_quad_has_the_seed_papers_imu_pose() {
+        let a = Airframe::builtin("paper-quad").unwrap();
+        // algorithms.md §11: ZYX Euler roll −64°, pitch 24°, yaw −15°; §10: r ≈ (−10, −13, 8) mm.
+        let (roll, pitch, yaw) = a.q_imu_body().euler_angles();
+        for (got, want) in [(roll, -64.0), (pitch, 24.0), (yaw, -15.0)] {
+            assert!((got.to_degrees() - want).abs() < 0.5, "{} vs {want}", got.to_degrees());
+        }
+        assert_eq!(a.imu.position_m, [-0.010, -0.013, 0.008]);
+    }
+
+    #[test]
     fn command_curve_inverts() {
         let a = Airframe::builtin("quad-3in").unwrap();
         for d in [0.0, 0.01, 0.2, 0.5, 0.93, 1.0] {
