@@ -694,7 +694,9 @@ impl Airframe {
     /// A random but plausible airframe that can hover level, for Monte Carlo runs: 4 to 8
     /// rotors at jittered angles and arm lengths, a CoG off the geometric centre, per-motor
     /// spread of ±10 % in the coefficients, a random IMU position (±30 mm) and orientation, and
-    /// sizes from a 3-inch to a 7-inch class. The same seed gives the same airframe.
+    /// sizes from a 3-inch to a 7-inch class. About a third of the 6- and 8-rotor airframes have
+    /// their rotors tilted alternately by ±10–30° about their arms (fully actuated, like
+    /// `hex-tilted`). The same seed gives the same airframe.
     pub fn random(seed: u64) -> Self {
         let mut rng = Rng::new(seed);
         loop {
@@ -745,6 +747,11 @@ fn random_candidate(rng: &mut Rng, seed: u64) -> Airframe {
         telemetry_delay_s: 0.0005,
     };
     let cog_offset = [rng.range(-0.1, 0.1) * arm_m, rng.range(-0.1, 0.1) * arm_m, 0.0];
+    let tilt_rad = if m % 2 == 0 && m >= 6 && rng.uniform() < 0.35 {
+        rng.range(10.0f64, 30.0).to_radians()
+    } else {
+        0.0
+    };
     let rotors = (0..m)
         .map(|i| {
             let angle = std::f64::consts::TAU * (i as f64 + 0.5) / m as f64 + rng.range(-0.1, 0.1);
@@ -759,7 +766,11 @@ fn random_candidate(rng: &mut Rng, seed: u64) -> Airframe {
                     arm * angle.sin() - cog_offset[1],
                     rng.range(-0.02, 0.0) * s,
                 ],
-                thrust_axis: thrust_up(),
+                // Tilted about the arm: the axis leans tangentially, alternating in sign.
+                thrust_axis: {
+                    let t = if i % 2 == 0 { tilt_rad } else { -tilt_rad };
+                    [-angle.sin() * t.sin(), angle.cos() * t.sin(), -t.cos()]
+                },
                 spin: if i % 2 == 0 { Spin::Ccw } else { Spin::Cw },
                 motor: Some(motor),
             }
@@ -884,6 +895,21 @@ mod tests {
         let mut a = Airframe::builtin("racer-5in").unwrap();
         a.inertia_products_kg_m2 = [0.01, 0.0, 0.0];
         assert!(matches!(a.validate(), Err(AirframeError::Invalid { .. })));
+    }
+
+    #[test]
+    fn random_airframes_cover_rotor_counts_and_tilts() {
+        let mut counts = [0usize; MAX_ROTORS + 1];
+        let mut tilted = 0;
+        for seed in 0..200 {
+            let a = Airframe::random(seed);
+            counts[a.rotor_count()] += 1;
+            if (0..a.rotor_count()).any(|i| a.thrust_axis(i).z > -0.99) {
+                tilted += 1;
+            }
+        }
+        assert!(counts[MIN_ROTORS..].iter().all(|c| *c > 10), "rotor counts {counts:?}");
+        assert!(tilted > 10, "only {tilted} tilted airframes in 200");
     }
 
     #[test]
