@@ -747,7 +747,7 @@ fn random_candidate(rng: &mut Rng, seed: u64) -> Airframe {
         telemetry_delay_s: 0.0005,
     };
     let cog_offset = [rng.range(-0.1, 0.1) * arm_m, rng.range(-0.1, 0.1) * arm_m, 0.0];
-    let tilt_rad = if m % 2 == 0 && m >= 6 && rng.uniform() < 0.35 {
+    let tilt_rad = if m.is_multiple_of(2) && m >= 6 && rng.uniform() < 0.35 {
         rng.range(10.0f64, 30.0).to_radians()
     } else {
         0.0
