@@ -21,7 +21,9 @@
 //! - One [`SimBoard::tick`] advances one 2 kHz control period: the physics at
 //!   `sample_rate_hz × physics_steps_per_imu_sample`, the IMU at its sample rate (8 kHz in the
 //!   library), the average of the tick's samples becomes the one sample [`Imu::read`] returns
-//!   (then `None` until the next tick), and the RPM telemetry is updated.
+//!   (then `None` until the next tick), and the RPM telemetry is updated. The average of four
+//!   8 kHz samples taken 125, 250, 375 and 500 µs into the tick is centred 187.5 µs before
+//!   `now_us` (the decimation's group delay).
 //! - Commands set through [`Motors::set_commands`] are held until changed (zero-order hold, as a
 //!   DShot output) and act from the next tick. The steady-state speed for a command follows
 //!   [`MotorParams::steady_speed_rad_s`](crate::airframe::MotorParams::steady_speed_rad_s).

@@ -105,6 +105,9 @@ struct RunArgs {
     /// Longest run, s (default: the scenario's).
     #[arg(long)]
     duration_s: Option<f64>,
+    /// Physics (RK4) steps per raw IMU sample: 1 runs the physics at the IMU rate (8 kHz).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    physics_steps_per_imu_sample: u32,
 }
 
 fn load_airframe(spec: &str) -> Result<Airframe> {
@@ -119,6 +122,7 @@ fn run_scenario(kind: ScenarioKind, args: RunArgs) -> Result<()> {
     let airframe = load_airframe(&args.airframe)?;
     let mut config = ScenarioConfig::new(kind);
     config.board.seed = args.seed;
+    config.board.physics_steps_per_imu_sample = args.physics_steps_per_imu_sample;
     if let Some(r) = &args.rate_dps {
         if r.len() != 3 {
             bail!("--rate-dps needs three values x,y,z in °/s, got {}", r.len());
