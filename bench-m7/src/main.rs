@@ -93,7 +93,10 @@ fn airframe(motors: usize, tilt_rad: f32) -> HoverProblem {
 fn fail(message: &str) -> ! {
     hprintln!("bench-m7 error: {}", message);
     debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    // Unreachable under QEMU (semihosting exit ends it); on a board without a debugger, sleep.
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
 
 #[entry]
@@ -171,7 +174,9 @@ fn main() -> ! {
 
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
 
 #[panic_handler]

@@ -40,7 +40,7 @@
 //! Everything is `f32`, fixed-size (`[_; MOTORS_MAX]` plus a count) and allocation-free. The
 //! solve dispatches once on the motor count to a const-generic body, so every loop has a fixed
 //! trip count; square roots use FPU multiplies only ([`sqrt`]). Cost on the Cortex-M7 (QEMU,
-//! `cargo xtask bench-m7`): about 930 instructions at m = 4 and 2,250–2,400 at m = 8 (heuristic
+//! `cargo xtask bench-m7`): about 900 instructions at m = 4 and 1,850–2,000 at m = 8 (heuristic
 //! path); see `docs/benchmarks.md`.
 
 // `!(x > limit)` is deliberate throughout: it is also true for NaN, which must take the safe
@@ -713,13 +713,24 @@ fn dominant_direction(c: &[[f32; 3]; 3], warm: [f32; 3], max_squarings: u8) -> [
 /// fit, the one with the positive command sum (as the published code). Entries within
 /// [`BOUND_TOLERANCE`] of a bound count as inside.
 fn sign_within_bounds<const M: usize>(problem: &HoverProblem, u: &[f32; M]) -> Option<f32> {
-    let (mut positive, mut negative, mut sum) = (true, true, 0.0);
+    // Branch-free: the smallest margin to a lower bound and the largest excess over an upper
+    // bound, for +u and −u (vminnm/vmaxnm on the Cortex-M7).
+    let mut sum = 0.0;
+    let (mut low_plus, mut high_plus) = (f32::INFINITY, f32::NEG_INFINITY);
+    let (mut low_minus, mut high_minus) = (f32::INFINITY, f32::NEG_INFINITY);
     for i in 0..M {
         let (lower, upper) = (problem.u_min_tolerant[i], problem.u_max_tolerant[i]);
-        positive &= u[i] >= lower && u[i] <= upper;
-        negative &= -u[i] >= lower && -u[i] <= upper;
+        low_plus = low_plus.min(u[i] - lower);
+        high_plus = high_plus.max(u[i] - upper);
+        low_minus = low_minus.min(-u[i] - lower);
+        high_minus = high_minus.max(-u[i] - upper);
         sum += u[i];
     }
+    if !sum.is_finite() {
+        return None;
+    }
+    let positive = low_plus >= 0.0 && high_plus <= 0.0;
+    let negative = low_minus >= 0.0 && high_minus <= 0.0;
     match (positive, negative) {
         (true, true) => Some(if sum >= 0.0 { 1.0 } else { -1.0 }),
         (true, false) => Some(1.0),

@@ -31,8 +31,8 @@
 //!   a 3-column QR and, unless pruned, a 3 × 3 Jacobi and a few bisections. Faces are visited in
 //!   order of the number of clamped motors and pruned by the lower bound
 //!   `‖x₀‖² + Σ clamped² + (g − ‖a‖)²/tr(C)`, which skips most of them once a good point is
-//!   known. Measured (`docs/benchmarks.md`): about 47,000 Cortex-M7 instructions at m = 6 and
-//!   1.2 million at m = 8 (0.43 ms on the host). It runs only when the heuristic fails, and can be disabled
+//!   known. Measured (`docs/benchmarks.md`): about 42,000 Cortex-M7 instructions at m = 6 and
+//!   1.1 million at m = 8 (0.43 ms on the host). It runs only when the heuristic fails, and can be disabled
 //!   ([`super::SolverConfig::bounded_search`]).
 //! - Degenerate inputs: an optimum where the constraint gradient vanishes on its face (LICQ
 //!   fails), or where `C` has a repeated eigenvalue in the hard case (a whole circle of
@@ -65,6 +65,11 @@ const MAX_CANDIDATES: usize = 18;
 
 /// The global optimum `ũ` of the scaled bounded problem, or `None` when no feasible point exists.
 /// `force_scale2 = ‖G̃1f‖²_F` sets the scale of the zero tests.
+///
+/// Never inlined and marked cold: it is the rare fallback, and inlining it into the solver's
+/// hot path costs the heuristic path registers and instructions.
+#[cold]
+#[inline(never)]
 pub(super) fn optimum(s: &ScaledProblem, force_scale2: f32) -> Option<[f32; MOTORS_MAX]> {
     let m = s.motors.min(MOTORS_MAX);
     if m < 4 {

@@ -50,7 +50,10 @@ impl<const P: usize> PivotedQr3<P> {
     const TALL: () = assert!(P >= 3, "PivotedQr3 needs at least three rows");
 
     /// Factor the `P × 3` matrix whose columns are `columns`.
-    #[inline]
+    ///
+    /// Always inlined: as a call it returns the factorisation through a stack copy (about 100
+    /// instructions of `memcpy` at P = 4 on the Cortex-M7, measured).
+    #[inline(always)]
     pub fn factor(columns: [[f32; P]; 3]) -> Self {
         #[allow(clippy::let_unit_value)]
         let () = Self::TALL;
@@ -116,7 +119,7 @@ impl<const P: usize> PivotedQr3<P> {
     }
 
     /// `x ← Qᵀ x`.
-    #[inline]
+    #[inline(always)]
     pub fn apply_qt(&self, x: &mut [f32; P]) {
         for k in 0..3 {
             reflect(&self.cols[k], self.head[k], self.beta[k], k, x);
@@ -124,7 +127,7 @@ impl<const P: usize> PivotedQr3<P> {
     }
 
     /// `x ← Q x`.
-    #[inline]
+    #[inline(always)]
     pub fn apply_q(&self, x: &mut [f32; P]) {
         for k in (0..3).rev() {
             reflect(&self.cols[k], self.head[k], self.beta[k], k, x);
