@@ -496,6 +496,17 @@ impl ThrustAxisSolver {
         self.config
     }
 
+    /// The warm-start direction (unit, IMU coordinates): the dominant eigenvector of the last
+    /// successful call, or `(0, 0, −1)` before any.
+    pub fn warm_direction(&self) -> [f32; 3] {
+        self.warm_dir
+    }
+
+    /// Forget the history (e.g. after the airframe or the IMU mounting changed).
+    pub fn reset(&mut self) {
+        self.warm_dir = THRUST_DIR_THRUST_FRAME;
+    }
+
     /// Solve problem (6) for `problem`. Bounded time: one 3-column QR, at most
     /// `max_squarings` 3 × 3 squarings, and (only when the heuristic's `u*` leaves the bounds
     /// and `bounded_search` is on) the active-set search of [`bounded`].

@@ -40,8 +40,9 @@
 //!   data are non-generic (exact symmetries) and the solver then reports the best point it did
 //!   find, or no hover.
 //! - Components with `|aᵢ|` between [`HARD_CASE_LOW`] and [`HARD_CASE_HIGH`] times `g` are
-//!   treated both ways (regular root and hard case) and the cheaper feasible point is kept, so
-//!   f32 round-off near the poles costs at most about 1e-4 of relative cost.
+//!   treated both ways (regular root and hard case) and the cheaper feasible point is kept, which
+//!   limits the loss of f32 accuracy near the poles; against an f64 sampling optimiser on 120
+//!   random bounded cases the worst relative cost excess was 8e-6 (`flight/tests/thrust_axis.rs`).
 
 use super::eigen3::symmetric_eigen3;
 use super::householder::PivotedQr3;
