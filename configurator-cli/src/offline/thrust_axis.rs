@@ -228,6 +228,40 @@ mod tests {
         format!(r#"{{"g1_f": {f:?}, "g1_tau": {t:?}{extra}}}"#)
     }
 
+    /// A flat hexarotor (radius 0.15 m, alternating spin, hover at 40 %), IMU aligned with FRD.
+    fn hexa_json(extra: &str) -> String {
+        let k = 9.81 / 2.4;
+        let mut f = vec![vec![0.0; 6]; 3];
+        let mut t = vec![vec![0.0; 6]; 3];
+        for i in 0..6 {
+            let angle = std::f64::consts::PI * (i as f64 + 0.5) / 3.0;
+            let (px, py) = (0.15 * angle.cos(), 0.15 * angle.sin());
+            let spin = if i % 2 == 0 { 1.0 } else { -1.0 };
+            f[2][i] = -k;
+            t[0][i] = -py * k / 0.01;
+            t[1][i] = px * k / 0.01;
+            t[2][i] = spin * 0.015 * k / 0.02;
+        }
+        format!(r#"{{"g1_f": {f:?}, "g1_tau": {t:?}{extra}}}"#)
+    }
+
+    #[test]
+    fn capped_motor_gives_the_bounded_optimum() {
+        // Unbounded, every motor would hover at 0.4; motor 0 may give at most 0.3.
+        let out = run_on(&hexa_json(r#", "u_max": [0.3, 1, 1, 1, 1, 1]"#), true).unwrap();
+        let v: Value = serde_json::from_str(&out).unwrap();
+        assert_eq!(v["feasible"], true, "{out}");
+        assert_eq!(v["bounded"], true, "{out}");
+        let u: Vec<f64> =
+            v["u_hover"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        assert!(u[0] <= 0.3 + 1e-6 && u.iter().all(|&x| (0.0..=1.0).contains(&x)), "{u:?}");
+        // Still hovering straight up in the IMU frame (the frame is symmetric about z).
+        let d = v["thrust_dir_imu"].as_array().unwrap();
+        assert!((d[2].as_f64().unwrap() + 1.0).abs() < 1e-3, "{d:?}");
+        let text = run_on(&hexa_json(r#", "u_max": [0.3, 1, 1, 1, 1, 1]"#), false).unwrap();
+        assert!(text.contains("bounded"), "{text}");
+    }
+
     fn paper_q() -> [f64; 4] {
         let q = [0.837f64, -0.491, 0.242, 0.0];
         let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
