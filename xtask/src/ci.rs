@@ -22,7 +22,14 @@ pub fn test(args: &[String]) -> Result<()> {
         util::run(util::cargo().args(["fmt", "--all", "--", "--check"]))
     })?;
     step("lint: clippy on the host workspace", || {
-        util::run(util::cargo().args(["clippy", "--workspace", "--all-targets", "--", "-D", "warnings"]))
+        util::run(util::cargo().args([
+            "clippy",
+            "--workspace",
+            "--all-targets",
+            "--",
+            "-D",
+            "warnings",
+        ]))
     })?;
     step("lint: clippy on the firmware for the STM32H743", || {
         util::run(util::cargo().args([
