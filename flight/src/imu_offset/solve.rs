@@ -123,17 +123,29 @@ pub(crate) fn estimate<T: Scalar>(
         ))
     };
     let (chosen, verdict) = match model {
-        Model::Offset => {
-            let verdict = match poor(&offset) {
-                Some((direction_imu, semi_axis_m, spin_next_about)) => {
-                    Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about }
-                }
-                None => {
-                    Verdict::WellDetermined { largest_semi_axis_m: offset.ellipsoid.semi_axes_m[0] }
-                }
-            };
-            (offset, verdict)
-        }
+        Model::Offset => match poor(&offset) {
+            // The excitation is insufficient: say so; a bias figure would mean nothing here.
+            Some((direction_imu, semi_axis_m, spin_next_about)) => {
+                (offset, Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about })
+            }
+            None => {
+                // Without a joint fit (bias not separable) there is no bias figure to add.
+                let corrected = match fit(p, Model::OffsetAndAccBias) {
+                    Ok(joint) => with_unmodelled_bias(&offset, &joint, p.rows)?,
+                    Err(_) => offset,
+                };
+                let verdict = match poor(&corrected) {
+                    // Poor because of the bias, not the excitation: fitting it is the remedy.
+                    Some((direction_imu, semi_axis_m, _)) => {
+                        Verdict::BiasSuspected { direction_imu, semi_axis_m }
+                    }
+                    None => Verdict::WellDetermined {
+                        largest_semi_axis_m: corrected.ellipsoid.semi_axes_m[0],
+                    },
+                };
+                (corrected, verdict)
+            }
+        },
         Model::OffsetAndAccBias => {
             let joint = fit(p, Model::OffsetAndAccBias)?;
             // Excitation alone: the offset-only geometry `(ΣXᵀX)⁻¹` at the joint fit's residual
@@ -168,6 +180,41 @@ pub(crate) fn estimate<T: Scalar>(
         samples_used: p.rows.count,
         verdict,
     })
+}
+
+/// The offset-only fit with the error an accelerometer bias would cause, when the data reveal
+/// one. An unmodelled constant bias `b` moves the offset-only estimate by `A b`,
+/// `A = (ΣXᵀX)⁻¹ (ΣX)ᵀ`, the same in every batch, so batch means cannot see it. Its size is taken
+/// from the joint fit, `b̂`, but not its direction (`b̂` also absorbs drag, and its direction is
+/// what is least certain): `b` is treated as isotropic with `E[b bᵀ] = |b̂|²/3 · I` (which, through
+/// `E|b̂|² = |b|² + tr Cov(b̂)`, also carries the joint fit's uncertainty). The statistical part
+/// uses the joint fit's residual scale, which does not count the bias's constant residual as
+/// noise. A bias indistinguishable from zero (`b̂ᵀ Cov(b̂)⁻¹ b̂ ≤ χ²₃(0.95)`) leaves the fit as it
+/// is. Returns the corrected fit and the systematic part's largest 95 % semi-axis.
+fn with_unmodelled_bias<T: Scalar>(
+    offset: &Fit<T>,
+    joint: &Fit<T>,
+    rows: &Moments<T>,
+) -> Result<Fit<T>, ImuOffsetError> {
+    let (Some(b), Some(cov_b)) = (joint.acc_bias_mps2, joint.acc_bias_covariance) else {
+        return Ok(*offset);
+    };
+    let three: T = nalgebra::convert(3.0);
+    let significant = cov_b.cholesky().is_some_and(|c| b.dot(&c.solve(&b)) > three);
+    if !significant {
+        return Ok(*offset);
+    }
+    let with_covariance = |covariance_m2: Matrix3<T>| -> Result<Fit<T>, ImuOffsetError> {
+        if !covariance_m2.iter().all(|v| v.is_finite()) {
+            return Err(ImuOffsetError::Singular);
+        }
+        let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
+        Ok(Fit { covariance_m2, ellipsoid, ..*offset })
+    };
+    let statistical = offset.information_inv * joint.scale;
+    let a = offset.information_inv * rows.xsum.transpose();
+    let systematic = a * a.transpose() * (b.norm_squared() / three);
+    with_covariance(statistical + systematic)
 }
 
 fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetError> {

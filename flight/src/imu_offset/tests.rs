@@ -155,7 +155,7 @@ fn one_throw_about_a_principal_axis_is_flagged_with_that_axis() {
         };
         assert!(angle_deg(&suggested, &direction_imu) > 45.0);
         // The other directions are well determined (within the 2 mm threshold).
-        assert!(mm(est.ellipsoid.semi_axes_m[1]) < 2.0);
+        assert!(mm(est.ellipsoid.semi_axes_m[1]) < 2.0, "{:?}", est.ellipsoid.semi_axes_m);
     }
 }
 
