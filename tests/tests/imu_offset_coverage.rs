@@ -5,8 +5,9 @@
 //! quadratic drag, the ICM-42688-P noise, bias and quantisation, 8 kHz averaged to 2 kHz): each fit
 //! throws one airframe twice, with random spin axes at least 60° apart, random rates of
 //! 400–800 °/s, random apex heights and noise seeds, and fits the offset with
-//! `flight::imu_offset::BatchFitter` (the configurator's fitter), offset only and jointly with an
-//! accelerometer bias. Recorded per model: the error distribution (median and 95th percentile,
+//! `flight::imu_offset::BatchFitter` (the configurator's fitter) four ways: offset only, jointly
+//! with an accelerometer bias, and each of these with the per-throw drag model
+//! (`DragModel::VerticalQuadratic`, `fit imu-offset --drag`). Recorded per model: the error distribution (median and 95th percentile,
 //! mm), the coverage of the reported 95 % ellipsoid, and the coverage of the seed paper's
 //! white-noise ellipsoid (`white_noise_covariance_m2`), for comparison.
 //!
@@ -16,7 +17,9 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use firmware::app::hal::{Imu, Motors};
-use flight::imu_offset::{BatchFitter, Config, Estimate, ImuSample, Model, CHI2_3DOF_95};
+use flight::imu_offset::{
+    BatchFitter, Config, DragModel, Estimate, ImuSample, Model, CHI2_3DOF_95,
+};
 use nalgebra::{Matrix3, Vector3};
 use sim::airframe::Airframe;
 use sim::rng::Rng;
@@ -109,11 +112,18 @@ impl Outcome {
     }
 }
 
+/// The fitted models, in the order of [`MODELS`].
+const MODELS: [(&str, Model, DragModel); 4] = [
+    ("offset", Model::Offset, DragModel::Ignored),
+    ("bias", Model::OffsetAndAccBias, DragModel::Ignored),
+    ("drag", Model::Offset, DragModel::VerticalQuadratic),
+    ("bias+drag", Model::OffsetAndAccBias, DragModel::VerticalQuadratic),
+];
+
 #[derive(Clone, Copy, Debug)]
 struct Fit {
     airframe: usize,
-    offset: Outcome,
-    bias: Outcome,
+    outcomes: [Outcome; MODELS.len()],
 }
 
 fn fit_one(index: u64, airframes: &[Airframe]) -> Fit {
@@ -127,8 +137,8 @@ fn fit_one(index: u64, airframes: &[Airframe]) -> Fit {
         .enumerate()
         .map(|(k, spin)| throw(airframe, *spin, rng.range(0.8, 1.2), seed * 2 + k as u64))
         .collect();
-    let fit = |model| {
-        let mut fitter = BatchFitter::new(Config { model, ..Config::default() });
+    let fit = |(_, model, drag_model): (&str, Model, DragModel)| {
+        let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
         for log in &logs {
             let found = fitter.add_log(log, RATE_HZ).expect("a valid log");
             assert_eq!(found, 1, "fit {index}: one free fall per throw, found {found}");
@@ -136,7 +146,7 @@ fn fit_one(index: u64, airframes: &[Airframe]) -> Fit {
         let estimate = fitter.estimate().expect("two spinning throws give an estimate");
         Outcome::new(&estimate, &truth)
     };
-    Fit { airframe: which, offset: fit(Model::Offset), bias: fit(Model::OffsetAndAccBias) }
+    Fit { airframe: which, outcomes: MODELS.map(fit) }
 }
 
 /// Largest |specific force| (m/s²) an airframe's IMU can feel in free fall at `rate_rad_s`: the
@@ -222,22 +232,22 @@ fn two_throw_fits_on_the_simulator_are_accurate_and_their_ellipsoids_cover_the_t
 
     println!("IMU offset, two-throw fits on the simulator ({fits} fits, 400–800 °/s):");
     println!(
-        "{:<12} {:<7} {:>5} {:>9} {:>9} {:>9} {:>11}",
+        "{:<12} {:<9} {:>5} {:>9} {:>9} {:>9} {:>11}",
         "airframe", "model", "fits", "median", "p95", "coverage", "paper's"
     );
     let mut overall = Vec::new();
     for (which, name) in
         AIRFRAMES.iter().enumerate().map(|(i, n)| (Some(i), *n)).chain([(None, "all")])
     {
-        for model in ["offset", "bias"] {
+        for (m, (model, _, _)) in MODELS.iter().enumerate() {
             let outcomes: Vec<Outcome> = results
                 .iter()
                 .filter(|(_, f)| which.is_none_or(|w| w == f.airframe))
-                .map(|(_, f)| if model == "offset" { f.offset } else { f.bias })
+                .map(|(_, f)| f.outcomes[m])
                 .collect();
             let s = summarise(&outcomes);
             println!(
-                "{name:<12} {model:<7} {:>5} {:>6.3} mm {:>6.3} mm {:>8.1} % {:>9.1} %",
+                "{name:<12} {model:<9} {:>5} {:>6.3} mm {:>6.3} mm {:>8.1} % {:>9.1} %",
                 outcomes.len(),
                 s.median_mm,
                 s.p95_mm,
@@ -273,7 +283,16 @@ fn two_throw_fits_on_the_simulator_are_accurate_and_their_ellipsoids_cover_the_t
         assert!(s.median_mm < 1.0, "{model}: median error {:.3} mm", s.median_mm);
         assert!(s.p95_mm < 2.5, "{model}: 95th percentile error {:.3} mm", s.p95_mm);
     }
-    // With a real accelerometer bias (0.1 m/s² on these airframes) fitting it jointly helps.
-    let (offset, bias) = (&overall[0].1, &overall[1].1);
+    // With a real accelerometer bias (0.1 m/s² on these airframes) fitting it jointly helps, and
+    // with drag (0.3–0.8 m/s² at release) modelling it helps further, in the bulk and the tail.
+    let [offset, bias, _, bias_drag] = [0, 1, 2, 3].map(|m| &overall[m].1);
     assert!(bias.median_mm < offset.median_mm, "joint bias fit should be more accurate");
+    assert!(
+        bias_drag.median_mm < 0.6 * bias.median_mm && bias_drag.p95_mm < 0.75 * bias.p95_mm,
+        "drag model: median {:.3} mm, p95 {:.3} mm vs {:.3} / {:.3} mm without",
+        bias_drag.median_mm,
+        bias_drag.p95_mm,
+        bias.median_mm,
+        bias.p95_mm
+    );
 }

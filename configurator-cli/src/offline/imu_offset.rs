@@ -1,4 +1,4 @@
-//! `fit imu-offset [--bias] [--json] LOG.csv...`: the IMU's offset from the centre of gravity,
+//! `fit imu-offset [--bias] [--drag] [--json] LOG.csv...`: the IMU's offset from the centre of gravity,
 //! fitted offline from recorded calibration throws, with its 95 % confidence ellipsoid and advice.
 //!
 //! The fit is `flight::imu_offset::BatchFitter`, i.e. the board's own free-fall detection, edge
@@ -13,7 +13,8 @@
 use std::path::{Path, PathBuf};
 
 use flight::imu_offset::{
-    BatchFitter, Config, Estimate, ImuOffsetError, ImuSample, Model, MAX_RATE_HZ, MIN_RATE_HZ,
+    BatchFitter, Config, DragModel, Estimate, ImuOffsetError, ImuSample, Model, MAX_RATE_HZ,
+    MIN_RATE_HZ,
 };
 use nalgebra::Vector3;
 use serde_json::json;
@@ -26,6 +27,11 @@ pub struct Args {
     /// Also fit a constant accelerometer bias (6 unknowns instead of 3).
     #[arg(long)]
     pub bias: bool,
+    /// Also fit the air drag of each throw (3 unknowns per throw: quadratic drag along the world
+    /// vertical, apex at mid-flight). For vertical throws caught at release height; with `--bias`
+    /// it removes most of the drag error (measured on the simulator: median 0.47 → 0.17 mm).
+    #[arg(long)]
+    pub drag: bool,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
@@ -59,7 +65,8 @@ pub fn run(args: &Args) -> Result<String, InputError> {
     }
     let logs = args.logs.iter().map(|p| read_log(p)).collect::<Result<Vec<_>, _>>()?;
     let model = if args.bias { Model::OffsetAndAccBias } else { Model::Offset };
-    let mut fitter = BatchFitter::new(Config { model, ..Config::default() });
+    let drag_model = if args.drag { DragModel::VerticalQuadratic } else { DragModel::Ignored };
+    let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
     for log in &logs {
         let found =
             fitter.add_log(&log.samples, log.rate_hz).map_err(|e| log_error(&log.path, &e))?;
@@ -84,9 +91,9 @@ pub fn run(args: &Args) -> Result<String, InputError> {
         })
         .collect();
     Ok(if args.json {
-        json_output(&estimate, &segments)
+        json_output(&estimate, &segments, args.drag)
     } else {
-        text_output(&estimate, &segments)
+        text_output(&estimate, &segments, args.drag)
     })
 }
 
@@ -108,7 +115,7 @@ fn vec3(v: &Vector3<f64>) -> [f64; 3] {
     [v.x, v.y, v.z]
 }
 
-fn json_output(e: &Estimate<f64>, segments: &[(String, f64, f64)]) -> String {
+fn json_output(e: &Estimate<f64>, segments: &[(String, f64, f64)], drag: bool) -> String {
     let c = &e.covariance_m2;
     let mut out = json!({
         "r_imu_m": vec3(&e.r_imu_m),
@@ -126,12 +133,15 @@ fn json_output(e: &Estimate<f64>, segments: &[(String, f64, f64)]) -> String {
     if let (Some(bias), Some(object)) = (e.acc_bias_mps2, out.as_object_mut()) {
         object.insert("acc_bias_mps2".into(), json!(vec3(&bias)));
     }
+    if let (true, Some(object)) = (drag, out.as_object_mut()) {
+        object.insert("drag_model".into(), json!("vertical-quadratic"));
+    }
     let mut text = serde_json::to_string_pretty(&out).unwrap_or_default();
     text.push('\n');
     text
 }
 
-fn text_output(e: &Estimate<f64>, segments: &[(String, f64, f64)]) -> String {
+fn text_output(e: &Estimate<f64>, segments: &[(String, f64, f64)], drag: bool) -> String {
     use std::fmt::Write;
     let mm = |v: f64| v * 1000.0;
     let r = &e.r_imu_m;
@@ -151,6 +161,9 @@ fn text_output(e: &Estimate<f64>, segments: &[(String, f64, f64)]) -> String {
     }
     if let Some(b) = e.acc_bias_mps2 {
         let _ = writeln!(s, "Accelerometer bias: ({:.3}, {:.3}, {:.3}) m/s²", b.x, b.y, b.z);
+    }
+    if drag {
+        let _ = writeln!(s, "Drag: fitted per throw (quadratic, along the world vertical)");
     }
     let _ = writeln!(
         s,
@@ -319,7 +332,7 @@ mod tests {
     fn json_from_two_throws_is_within_1mm() {
         let logs = two_logs("json", 2000.0);
         for bias in [false, true] {
-            let out = run(&Args { bias, json: true, logs: logs.clone() }).unwrap();
+            let out = run(&Args { bias, drag: false, json: true, logs: logs.clone() }).unwrap();
             let v: serde_json::Value = serde_json::from_str(&out).unwrap();
             let r = parse_vec3(&v["r_imu_m"]);
             let err_mm = (r - r_true()).norm() * 1000.0;
@@ -358,9 +371,32 @@ mod tests {
     }
 
     #[test]
+    fn drag_model_keeps_the_contract_and_the_accuracy() {
+        let logs = two_logs("drag", 2000.0);
+        let out = run(&Args { bias: true, drag: true, json: true, logs }).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        for key in [
+            "r_imu_m",
+            "ci95_semi_axes_m",
+            "ci95_axes",
+            "covariance_m2",
+            "well_determined",
+            "advice",
+            "segments",
+            "samples_used",
+            "acc_bias_mps2",
+        ] {
+            assert!(v.get(key).is_some(), "missing `{key}`");
+        }
+        assert_eq!(v["drag_model"], "vertical-quadratic");
+        let err_mm = (parse_vec3(&v["r_imu_m"]) - r_true()).norm() * 1000.0;
+        assert!(err_mm < 1.0, "r off by {err_mm} mm");
+    }
+
+    #[test]
     fn text_output_has_units_and_advice() {
         let logs = two_logs("text", 1000.0);
-        let out = run(&Args { bias: false, json: false, logs }).unwrap();
+        let out = run(&Args { bias: false, drag: false, json: false, logs }).unwrap();
         assert!(out.contains(" mm"), "{out}");
         assert!(out.contains("Advice: well determined"), "{out}");
         assert!(out.contains("throw_b.csv"), "{out}");
@@ -371,7 +407,7 @@ mod tests {
         let dir = scratch("one");
         let path = dir.join("one.csv");
         write_log(&path, &spec(1000.0, Vector3::new(0.0, 0.0, 12.0), 3), 0.0);
-        let out = run(&Args { bias: false, json: true, logs: vec![path] }).unwrap();
+        let out = run(&Args { bias: false, drag: false, json: true, logs: vec![path] }).unwrap();
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         assert_eq!(v["well_determined"], serde_json::Value::Bool(false));
         assert!(v["advice"].as_str().unwrap().contains("throw again"));
@@ -380,7 +416,8 @@ mod tests {
     fn expect_error(name: &str, csv: &str, needles: &[&str]) {
         let path = scratch(name).join("bad.csv");
         std::fs::write(&path, csv).unwrap();
-        let err = run(&Args { bias: false, json: true, logs: vec![path] }).unwrap_err();
+        let err =
+            run(&Args { bias: false, drag: false, json: true, logs: vec![path] }).unwrap_err();
         for needle in needles {
             assert!(err.0.contains(needle), "`{}` does not mention `{needle}`", err.0);
         }
@@ -414,7 +451,8 @@ mod tests {
         expect_error("still", &still_rows(1000.0, 3000), &["no free fall"]);
         expect_error("short", &still_rows(1000.0, 50), &["too few"]);
         let missing = scratch("absent").join("does-not-exist.csv");
-        let err = run(&Args { bias: false, json: false, logs: vec![missing] }).unwrap_err();
+        let err =
+            run(&Args { bias: false, drag: false, json: false, logs: vec![missing] }).unwrap_err();
         assert!(err.0.contains("cannot read"), "{}", err.0);
     }
 }

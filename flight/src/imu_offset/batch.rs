@@ -8,11 +8,14 @@
 
 use nalgebra::Vector3;
 
+use super::drag::DragSums;
 use super::front_end::FrontEnd;
 use super::moments::{BatchMeans, Moments};
 use super::solve::{self, Problem};
 use super::stream::{accumulate_aligned, ImuOffsetEstimator};
-use super::{validate_sample, Config, Estimate, ImuOffsetError, ImuSample, Segment, MAX_SEGMENTS};
+use super::{
+    validate_sample, Config, DragModel, Estimate, ImuOffsetError, ImuSample, Segment, MAX_SEGMENTS,
+};
 
 /// A segment of one of the logs given to [`BatchFitter::add_log`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -31,6 +34,8 @@ pub struct BatchFitter {
     block_len: u32,
     rows: Moments<f64>,
     batches: Option<BatchMeans<f64>>,
+    /// The drag-extended sums, with [`DragModel::VerticalQuadratic`].
+    drag: Option<DragSums>,
     logs_added: u32,
     segments: [LogSegment; MAX_SEGMENTS],
     segments_len: usize,
@@ -46,6 +51,7 @@ impl BatchFitter {
             block_len: 0,
             rows: Moments::new(),
             batches: None,
+            drag: None,
             logs_added: 0,
             segments: [none; MAX_SEGMENTS],
             segments_len: 0,
@@ -66,7 +72,8 @@ impl BatchFitter {
                 return Err(ImuOffsetError::RateMismatch { expected_hz, found_hz: rate_hz });
             }
         }
-        let mut detector = ImuOffsetEstimator::new(rate_hz, self.config)?;
+        let detection = Config { drag_model: DragModel::Ignored, ..self.config };
+        let mut detector = ImuOffsetEstimator::new(rate_hz, detection)?;
         let required = detector.min_free_fall_len();
         let used = u32::try_from(samples.len()).unwrap_or(u32::MAX);
         if used < required {
@@ -85,6 +92,12 @@ impl BatchFitter {
         let found = detector.segments().get(..room).unwrap_or(detector.segments());
         let block_len = detector.block_len();
         let batches = self.batches.get_or_insert(BatchMeans::new(detector.long_batch_blocks()));
+        let mut drag = match self.config.drag_model {
+            DragModel::Ignored => None,
+            DragModel::VerticalQuadratic => {
+                Some(self.drag.get_or_insert(DragSums::new(detector.long_batch_blocks())))
+            }
+        };
 
         // Pass 2: the same front end, accumulating exactly the detected segments in f64.
         let mut front = FrontEnd::new(self.config.cutoff_hz, rate_hz)
@@ -92,24 +105,42 @@ impl BatchFitter {
         let r_ref = Vector3::zeros();
         let mut block = Moments::<f64>::new();
         let mut next = found.iter().peekable();
+        let mut drag_open = false;
         for sample in samples {
             let Some(s) = front.update(sample) else { continue };
             while next.peek().is_some_and(|seg| s.index >= seg.end_index) {
                 next.next();
                 batches.end_segment();
+                if let Some(d) = drag.as_deref_mut().filter(|_| drag_open) {
+                    d.end_segment();
+                }
+                drag_open = false;
             }
-            let inside = next.peek().is_some_and(|seg| s.index >= seg.start_index);
-            if inside {
-                accumulate_aligned(&mut block, &s, &r_ref);
-                if block.count >= block_len {
-                    self.rows.merge(&block);
-                    batches.add_block(&block);
-                    block = Moments::new();
+            let Some(seg) = next.peek().filter(|seg| s.index >= seg.start_index) else {
+                continue;
+            };
+            accumulate_aligned(&mut block, &s, &r_ref);
+            if let Some(d) = drag.as_deref_mut() {
+                if !drag_open {
+                    d.begin_segment(seg.start_index, seg.end_index, rate_hz);
+                    drag_open = true;
+                }
+                d.add_row(&s, s.index - seg.start_index);
+            }
+            if block.count >= block_len {
+                self.rows.merge(&block);
+                batches.add_block(&block);
+                block = Moments::new();
+                if let Some(d) = drag.as_deref_mut() {
+                    d.end_block();
                 }
             }
         }
 
         batches.end_segment();
+        if let Some(d) = drag.filter(|_| drag_open) {
+            d.end_segment();
+        }
         let log = self.logs_added;
         self.logs_added = self.logs_added.saturating_add(1);
         self.rate_hz = Some(rate_hz);
@@ -143,6 +174,7 @@ impl BatchFitter {
             batches,
             block_len: self.block_len,
             r_ref: Vector3::zeros(),
+            drag: self.drag.as_ref(),
         };
         solve::estimate(&problem, self.config.model, f64::from(self.config.max_semi_axis_m))
     }

@@ -75,6 +75,7 @@
 //! IMU frame throughout; rates in rad/s, specific force in m/s², offsets in m, times in s.
 
 mod batch;
+mod drag;
 pub mod front_end;
 mod moments;
 mod solve;
@@ -83,6 +84,7 @@ mod stream;
 mod tests;
 
 pub use batch::{BatchFitter, LogSegment};
+pub use drag::DragModel;
 pub use front_end::{regressor, AlignedSample, FrontEnd};
 pub use stream::{ImuOffsetEstimator, OffsetRls};
 
@@ -131,6 +133,9 @@ pub enum Model {
 pub struct Config {
     /// Unknowns to fit.
     pub model: Model,
+    /// Drag treatment: [`DragModel::VerticalQuadratic`] adds a drag vector per throw
+    /// ([`BatchFitter`] only; the onboard [`ImuOffsetEstimator`] refuses it).
+    pub drag_model: DragModel,
     /// Cut-off of the matched 2nd-order Butterworth low-pass on gyro and accelerometer (Hz).
     pub cutoff_hz: f32,
     /// Free-fall test: `|f| < acc_floor_mps2 + max_offset_m (|Ω̇| + |Ω|²)` (filtered signals).
@@ -160,6 +165,8 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             model: Model::Offset,
+            // The seed paper's eq. 3; the drag model is an offline option.
+            drag_model: DragModel::Ignored,
             // Seed paper: 50 Hz offline. A tumble's content is a few Hz, so 50 Hz passes it with
             // negligible distortion while removing most of the differentiated gyro noise.
             cutoff_hz: 50.0,

@@ -8,7 +8,10 @@
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
+use super::drag::DragSums;
 use super::moments::{count_as, BatchMeans, Moments};
+#[cfg(doc)]
+use super::DragModel;
 use super::{Ellipsoid, Estimate, ImuAxis, ImuOffsetError, Model, Scalar, Verdict, CHI2_3DOF_95};
 
 /// Fewest blocks for a fit: the batch-means variance then has at least `3·6 − 6 = 12` degrees of
@@ -74,6 +77,9 @@ pub(crate) struct Problem<'a, T: Scalar> {
     pub block_len: u32,
     /// Reference offset the measurements are relative to (m).
     pub r_ref: Vector3<T>,
+    /// The drag-extended sums ([`DragModel::VerticalQuadratic`], batch fitter, `r_ref = 0`):
+    /// when present, the fit uses them instead of `rows` and `batches`.
+    pub drag: Option<&'a DragSums>,
 }
 
 /// One model's fit.
@@ -83,6 +89,9 @@ struct Fit<T: Scalar> {
     information_inv: Matrix3<T>,
     /// Covariance scale: long-run variance times the small-sample factor.
     scale: T,
+    /// `Q_rb`, the offset–bias block of the normal equations (`Σ Xᵀ` without drag): an
+    /// unmodelled bias `b` moves the offset-only estimate by `(ΣXᵀX)⁻¹ Q_rb b`.
+    bias_coupling: Matrix3<T>,
     r_imu_m: Vector3<T>,
     acc_bias_mps2: Option<Vector3<T>>,
     covariance_m2: Matrix3<T>,
@@ -131,7 +140,7 @@ pub(crate) fn estimate<T: Scalar>(
             None => {
                 // Without a joint fit (bias not separable) there is no bias figure to add.
                 let corrected = match fit(p, Model::OffsetAndAccBias) {
-                    Ok(joint) => with_unmodelled_bias(&offset, &joint, p.rows)?,
+                    Ok(joint) => with_unmodelled_bias(&offset, &joint)?,
                     Err(_) => offset,
                 };
                 let verdict = match poor(&corrected) {
@@ -194,7 +203,6 @@ pub(crate) fn estimate<T: Scalar>(
 fn with_unmodelled_bias<T: Scalar>(
     offset: &Fit<T>,
     joint: &Fit<T>,
-    rows: &Moments<T>,
 ) -> Result<Fit<T>, ImuOffsetError> {
     let (Some(b), Some(cov_b)) = (joint.acc_bias_mps2, joint.acc_bias_covariance) else {
         return Ok(*offset);
@@ -212,12 +220,15 @@ fn with_unmodelled_bias<T: Scalar>(
         Ok(Fit { covariance_m2, ellipsoid, ..*offset })
     };
     let statistical = offset.information_inv * joint.scale;
-    let a = offset.information_inv * rows.xsum.transpose();
+    let a = offset.information_inv * offset.bias_coupling;
     let systematic = a * a.transpose() * (b.norm_squared() / three);
     with_covariance(statistical + systematic)
 }
 
 fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetError> {
+    if let Some(sums) = p.drag {
+        return fit_with_drag(p, sums, model);
+    }
     let rows = p.rows;
     let n: T = count_as(rows.count);
     let three: T = nalgebra::convert(3.0);
@@ -271,6 +282,7 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
     Ok(Fit {
         information_inv,
         scale,
+        bias_coupling: rows.xsum.transpose(),
         r_imu_m: p.r_ref + d,
         acc_bias_mps2: bias,
         covariance_m2,
@@ -283,6 +295,94 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
         } else {
             T::one()
         },
+    })
+}
+
+/// [`fit`] with per-segment drag ([`DragModel::VerticalQuadratic`]): the same estimates from the
+/// 6 × 6 quadratic forms in `θ = [r; b]` left after profiling out each segment's drag vector.
+/// The drag vectors count as unknowns in every degree-of-freedom figure.
+fn fit_with_drag<T: Scalar>(
+    p: &Problem<'_, T>,
+    sums: &DragSums,
+    model: Model,
+) -> Result<Fit<T>, ImuOffsetError> {
+    use nalgebra::{Matrix6, Vector6};
+    let rows = &sums.rows;
+    let q_rr: Matrix3<f64> = rows.q.fixed_view::<3, 3>(0, 0).into_owned();
+    let g_r: Vector3<f64> = rows.g.fixed_rows::<3>(0).into_owned();
+    let (theta, information_inv, bias_information_inv, unknowns) = match model {
+        Model::Offset => {
+            let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
+            let r = chol.solve(&g_r);
+            let mut theta = Vector6::zeros();
+            theta.fixed_rows_mut::<3>(0).copy_from(&r);
+            (theta, chol.inverse(), None, 3u32)
+        }
+        Model::OffsetAndAccBias => {
+            let chol = rows.q.cholesky().ok_or(ImuOffsetError::Singular)?;
+            let inv: Matrix6<f64> = chol.inverse();
+            let rr: Matrix3<f64> = inv.fixed_view::<3, 3>(0, 0).into_owned();
+            let bb: Matrix3<f64> = inv.fixed_view::<3, 3>(3, 3).into_owned();
+            (chol.solve(&rows.g), rr, Some(bb), 6u32)
+        }
+    };
+    let unknowns = unknowns.saturating_add(sums.segments.saturating_mul(3));
+    let dof_rows = rows.count.saturating_mul(3).saturating_sub(unknowns);
+    if dof_rows == 0 {
+        return Err(ImuOffsetError::TooFewSamples {
+            used: rows.count,
+            required: MIN_BLOCKS.saturating_mul(p.block_len),
+        });
+    }
+    let rss = rows.at(&theta).max(0.0);
+    let white_variance = rss / f64::from(dof_rows);
+    let variance = |q: &super::drag::Quadratic, batch_len: u32| -> Option<(f64, f64)> {
+        let dof = q.count.saturating_mul(3).saturating_sub(unknowns);
+        if dof < 2 || batch_len == 0 {
+            return None;
+        }
+        let v = q.at(&theta).max(0.0) / (f64::from(batch_len) * f64::from(dof));
+        Some((v, v * f64::from(small_sample_factor(dof as f32))))
+    };
+    let short = variance(&sums.short, p.block_len);
+    let long = variance(&sums.long, p.block_len.saturating_mul(p.batches.group));
+    let (long_run_variance, scale) = match (short, long) {
+        (Some(s), Some(l)) if l.1 > s.1 => l,
+        (Some(s), _) => s,
+        (None, _) => {
+            return Err(ImuOffsetError::TooFewSamples {
+                used: rows.count,
+                required: MIN_BLOCKS.saturating_mul(p.block_len),
+            })
+        }
+    };
+    let to_t = |m: Matrix3<f64>| m.map(|v| nalgebra::convert::<f64, T>(v));
+    let r: Vector3<f64> = theta.fixed_rows::<3>(0).into_owned();
+    let b: Vector3<f64> = theta.fixed_rows::<3>(3).into_owned();
+    let covariance_m2 = information_inv * scale;
+    let values_finite = theta.iter().chain(covariance_m2.iter()).all(|v| v.is_finite());
+    if !values_finite {
+        return Err(ImuOffsetError::Singular);
+    }
+    let covariance_m2 = to_t(covariance_m2);
+    let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
+    let n = f64::from(rows.count.max(1));
+    Ok(Fit {
+        information_inv: to_t(information_inv),
+        scale: nalgebra::convert(scale),
+        bias_coupling: to_t(rows.q.fixed_view::<3, 3>(0, 3).into_owned()),
+        r_imu_m: p.r_ref + r.map(|v| nalgebra::convert::<f64, T>(v)),
+        acc_bias_mps2: bias_information_inv.map(|_| b.map(|v| nalgebra::convert::<f64, T>(v))),
+        covariance_m2,
+        white_noise_covariance_m2: to_t(information_inv * white_variance),
+        acc_bias_covariance: bias_information_inv.map(|bb| to_t(bb * scale)),
+        ellipsoid,
+        residual_rms_mps2: nalgebra::convert(libm::sqrt(rss / (n * 3.0))),
+        variance_inflation: nalgebra::convert(if white_variance > 0.0 {
+            long_run_variance / white_variance
+        } else {
+            1.0
+        }),
     })
 }
 

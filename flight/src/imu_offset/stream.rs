@@ -33,8 +33,8 @@ use super::front_end::{regressor, AlignedSample, FrontEnd};
 use super::moments::{BatchMeans, Moments};
 use super::solve::{self, Problem};
 use super::{
-    validate_sample, Config, Estimate, ImuOffsetError, ImuSample, Scalar, Segment, MAX_RATE_HZ,
-    MAX_SEGMENTS, MIN_RATE_HZ,
+    validate_sample, Config, DragModel, Estimate, ImuOffsetError, ImuSample, Scalar, Segment,
+    MAX_RATE_HZ, MAX_SEGMENTS, MIN_RATE_HZ,
 };
 
 /// Most finished blocks waiting for the free fall to outlast them by `trim_end_s`
@@ -143,6 +143,9 @@ impl ImuOffsetEstimator {
         if !(rate_hz.is_finite() && (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz)) {
             return Err(ImuOffsetError::RateOutOfRange { rate_hz });
         }
+        if config.drag_model != DragModel::Ignored {
+            return Err(ImuOffsetError::InvalidConfig("drag_model is for the batch fitter only"));
+        }
         let front = FrontEnd::new(config.cutoff_hz, rate_hz)
             .map_err(|_| ImuOffsetError::InvalidConfig("cutoff_hz must be in (0, rate/4]"))?;
         let samples = |seconds: f32, what: &'static str| {
@@ -243,6 +246,7 @@ impl ImuOffsetEstimator {
             batches: &self.batches,
             block_len: self.block_len,
             r_ref: self.r_ref_m,
+            drag: None,
         };
         solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
     }
