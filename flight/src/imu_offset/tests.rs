@@ -465,10 +465,13 @@ proptest! {
                 prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
             }
         }
-        let mut fitter = BatchFitter::new(Config { model: Model::OffsetAndAccBias, ..Config::default() });
-        let _ = fitter.add_log(&samples, rate);
-        if let Ok(e) = fitter.estimate() {
-            prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
+        for drag_model in [DragModel::Ignored, DragModel::VerticalQuadratic] {
+            let config = Config { model: Model::OffsetAndAccBias, drag_model, ..Config::default() };
+            let mut fitter = BatchFitter::new(config);
+            let _ = fitter.add_log(&samples, rate);
+            if let Ok(e) = fitter.estimate() {
+                prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
+            }
         }
     }
 
@@ -483,11 +486,17 @@ proptest! {
                 acc_mps2: (rng.unit_vector() * rng.range(0.0, 2.0)).cast(),
             })
             .collect();
-        let mut fitter = BatchFitter::new(Config::default());
-        let _ = fitter.add_log(&samples, 1000.0);
-        if let Ok(e) = fitter.estimate() {
-            prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
-            prop_assert!(e.ellipsoid.semi_axes_m.iter().all(|v| v.is_finite()));
+        for (model, drag_model) in [
+            (Model::Offset, DragModel::Ignored),
+            (Model::Offset, DragModel::VerticalQuadratic),
+            (Model::OffsetAndAccBias, DragModel::VerticalQuadratic),
+        ] {
+            let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
+            let _ = fitter.add_log(&samples, 1000.0);
+            if let Ok(e) = fitter.estimate() {
+                prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
+                prop_assert!(e.ellipsoid.semi_axes_m.iter().all(|v| v.is_finite()));
+            }
         }
     }
 }
