@@ -369,6 +369,10 @@ fn onboard_state_is_small() {
     let bytes = core::mem::size_of::<ImuOffsetEstimator>();
     eprintln!("ImuOffsetEstimator: {bytes} bytes");
     assert!(bytes < 4096, "{bytes} bytes");
+    // The offline fitter, drag sums included, is still a small fixed-size value.
+    let batch = core::mem::size_of::<BatchFitter>();
+    eprintln!("BatchFitter: {batch} bytes");
+    assert!(batch < 16384, "{batch} bytes");
 }
 
 #[test]
