@@ -38,8 +38,8 @@ pub enum DragModel {
     /// the throw's mid-time (its apex, for a catch at release height), and one unknown 3-vector
     /// `w_k` per throw (drag coefficient over mass times g², along the vertical seen in IMU axes
     /// at the first sample). 3 more unknowns per throw, profiled out when the throw ends, so the
-    /// fitter's memory stays constant (4.5 KB more: 5.5 KB in all). Assumes a vertical throw caught at
-    /// release height; horizontal speed, linear and anisotropic drag remain unmodelled.
+    /// fitter's memory stays constant (4.5 KB more: 5.5 KB in all). Assumes a vertical throw
+    /// caught at release height; horizontal speed, linear and anisotropic drag remain unmodelled.
     /// [`BatchFitter`](super::BatchFitter) only: the onboard estimator refuses it.
     VerticalQuadratic,
 }
