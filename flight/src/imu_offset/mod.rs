@@ -39,8 +39,9 @@
 //!    (`b̂ᵀ Cov(b̂)⁻¹ b̂ > 3`, the value expected from noise alone), the offset-only covariance
 //!    becomes `(ΣXᵀX)⁻¹ σ²_joint + A Aᵀ |b̂|²/3`: the joint fit's residual scale (which does not
 //!    count the bias's constant residual as noise) plus a bias of the size found, in any
-//!    direction. If that term makes `r` poorly determined the verdict is
-//!    [`Verdict::BiasSuspected`] (fit the bias), not "throw again".
+//!    direction. If the excitation suffices (judged at the joint fit's residual scale) but this
+//!    term makes `r` poorly determined, the verdict is [`Verdict::BiasSuspected`] (fit the bias),
+//!    not "throw again".
 //!
 //! The ratio `σ²_LR / SE²` is reported as [`Estimate::variance_inflation`], the paper's
 //! covariance as [`Estimate::white_noise_covariance_m2`].
@@ -73,9 +74,9 @@
 //! | model | error median | error p95 | reported 95 % ellipsoid | axes × | paper's ellipsoid |
 //! |---|---|---|---|---|---|
 //! | offset only, before correction 4 | 0.80 mm | 1.61 mm | 49.0 % (paper-quad 7 %) | — | 0 % |
-//! | offset only | 0.80 mm | 1.61 mm | 94.0 % | 1.05 | 0 % |
+//! | offset only | 0.80 mm | 1.61 mm | 94.5 % | 1.01 | 0 % |
 //! | offset and bias | 0.47 mm | 1.75 mm | 99.0 % | 0.66 | 0 % |
-//! | offset, drag model | 0.80 mm | 1.50 mm | 97.0 % | 0.79 | 0 % |
+//! | offset, drag model | 0.80 mm | 1.50 mm | 99.0 % | 0.71 | 0 % |
 //! | offset and bias, drag model | 0.17 mm | 0.85 mm | 99.5 % | 0.76 | 0 % |
 //!
 //! What limits accuracy on the simulator is not noise (without drag and bias the median error is

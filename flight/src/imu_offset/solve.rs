@@ -132,29 +132,39 @@ pub(crate) fn estimate<T: Scalar>(
         ))
     };
     let (chosen, verdict) = match model {
-        Model::Offset => match poor(&offset) {
-            // The excitation is insufficient: say so; a bias figure would mean nothing here.
-            Some((direction_imu, semi_axis_m, spin_next_about)) => {
-                (offset, Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about })
+        Model::Offset => {
+            // Without a joint fit (bias not separable at all) there is no bias figure to use.
+            let joint = fit(p, Model::OffsetAndAccBias).ok();
+            // Excitation alone: the offset-only geometry at the joint fit's residual scale (the
+            // offset-only residuals also contain any bias, which is not a lack of excitation).
+            let excitation = match &joint {
+                Some(joint) => rescaled(&offset, offset.information_inv * joint.scale)?,
+                None => offset,
+            };
+            match poor(&excitation) {
+                // The excitation is insufficient: say so; a bias figure would mean nothing here.
+                Some((direction_imu, semi_axis_m, spin_next_about)) => (
+                    offset,
+                    Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about },
+                ),
+                None => {
+                    let corrected = match &joint {
+                        Some(joint) => with_unmodelled_bias(&offset, joint)?,
+                        None => offset,
+                    };
+                    let verdict = match poor(&corrected) {
+                        // Poor because of the bias, not the excitation: fitting it is the remedy.
+                        Some((direction_imu, semi_axis_m, _)) => {
+                            Verdict::BiasSuspected { direction_imu, semi_axis_m }
+                        }
+                        None => Verdict::WellDetermined {
+                            largest_semi_axis_m: corrected.ellipsoid.semi_axes_m[0],
+                        },
+                    };
+                    (corrected, verdict)
+                }
             }
-            None => {
-                // Without a joint fit (bias not separable) there is no bias figure to add.
-                let corrected = match fit(p, Model::OffsetAndAccBias) {
-                    Ok(joint) => with_unmodelled_bias(&offset, &joint)?,
-                    Err(_) => offset,
-                };
-                let verdict = match poor(&corrected) {
-                    // Poor because of the bias, not the excitation: fitting it is the remedy.
-                    Some((direction_imu, semi_axis_m, _)) => {
-                        Verdict::BiasSuspected { direction_imu, semi_axis_m }
-                    }
-                    None => Verdict::WellDetermined {
-                        largest_semi_axis_m: corrected.ellipsoid.semi_axes_m[0],
-                    },
-                };
-                (corrected, verdict)
-            }
-        },
+        }
         Model::OffsetAndAccBias => {
             let joint = fit(p, Model::OffsetAndAccBias)?;
             // Excitation alone: the offset-only geometry `(ΣXᵀX)⁻¹` at the joint fit's residual
@@ -212,17 +222,19 @@ fn with_unmodelled_bias<T: Scalar>(
     if !significant {
         return Ok(*offset);
     }
-    let with_covariance = |covariance_m2: Matrix3<T>| -> Result<Fit<T>, ImuOffsetError> {
-        if !covariance_m2.iter().all(|v| v.is_finite()) {
-            return Err(ImuOffsetError::Singular);
-        }
-        let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
-        Ok(Fit { covariance_m2, ellipsoid, ..*offset })
-    };
     let statistical = offset.information_inv * joint.scale;
     let a = offset.information_inv * offset.bias_coupling;
     let systematic = a * a.transpose() * (b.norm_squared() / three);
-    with_covariance(statistical + systematic)
+    rescaled(offset, statistical + systematic)
+}
+
+/// `fit` with another covariance of `r` (and its ellipsoid).
+fn rescaled<T: Scalar>(fit: &Fit<T>, covariance_m2: Matrix3<T>) -> Result<Fit<T>, ImuOffsetError> {
+    if !covariance_m2.iter().all(|v| v.is_finite()) {
+        return Err(ImuOffsetError::Singular);
+    }
+    let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
+    Ok(Fit { covariance_m2, ellipsoid, ..*fit })
 }
 
 fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetError> {

@@ -234,6 +234,31 @@ fn bias_is_estimated_jointly_with_the_offset() {
 }
 
 #[test]
+fn offset_only_fit_with_a_large_bias_advises_fitting_it() {
+    // A 0.5 m/s² bias (a poorly calibrated accelerometer) moves the offset-only estimate by
+    // millimetres. The offset-only ellipsoid must say so (contain the truth) and the verdict must
+    // name the bias, not ask for more throws.
+    let rate_hz = 2000.0;
+    let mut a = throw(rate_hz, spin_about(2, 13.0, 0.6), 71);
+    let mut b = throw(rate_hz, spin_about(0, 8.0, 0.6), 72);
+    a.acc_bias_mps2 = bias().normalize() * 0.5;
+    b.acc_bias_mps2 = bias().normalize() * 0.5;
+    let (a, b) = (samples(&a), samples(&b));
+    let plain = batch_fit(&[&a, &b], rate_hz, Config::default()).estimate().unwrap();
+    let e = plain.r_imu_m - r_true();
+    let m = e.dot(&(plain.covariance_m2.try_inverse().unwrap() * e)) / f64::from(CHI2_3DOF_95);
+    eprintln!(
+        "bias 0.5 m/s², offset only: error {:.2} mm, Mahalanobis²/χ² {m:.2}; {}",
+        mm(e.norm()),
+        plain.verdict
+    );
+    assert!(mm(e.norm()) > 1.0, "the bias should matter here");
+    assert!(m <= 1.0, "truth outside the offset-only ellipsoid ({m:.2})");
+    assert!(matches!(plain.verdict, Verdict::BiasSuspected { .. }), "{}", plain.verdict);
+    assert!(std::format!("{}", plain.verdict).contains("--bias"));
+}
+
+#[test]
 fn bias_and_offset_inseparable_at_one_constant_spin_rate() {
     // Two clean spins about principal axes at the same rate: the centripetal term is constant in
     // each throw and has the same size in both, so along the axis perpendicular to both spins a
