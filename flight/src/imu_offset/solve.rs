@@ -5,6 +5,10 @@
 //! Schur complement of the (diagonal) bias block, `S = ΣXᵀX − (ΣX)ᵀ(ΣX)/N`: no 6 × 6 solve is ever
 //! needed, and `S` shows directly how much of `XᵀX` is left once constant parts are explained
 //! by a bias.
+//!
+//! With the drag model (`DragModel::VerticalQuadratic`, batch only) the sums are 6 × 6 quadratic
+//! forms in `θ = [r; b]` with each throw's drag vector already profiled out (`drag`); the fit
+//! solves them directly (`f64`), counting 3 unknowns per throw in every degree-of-freedom figure.
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
@@ -208,8 +212,9 @@ pub(crate) fn estimate<T: Scalar>(
 /// what is least certain): `b` is treated as isotropic with `E[b bᵀ] = |b̂|²/3 · I` (which, through
 /// `E|b̂|² = |b|² + tr Cov(b̂)`, also carries the joint fit's uncertainty). The statistical part
 /// uses the joint fit's residual scale, which does not count the bias's constant residual as
-/// noise. A bias indistinguishable from zero (`b̂ᵀ Cov(b̂)⁻¹ b̂ ≤ χ²₃(0.95)`) leaves the fit as it
-/// is. Returns the corrected fit and the systematic part's largest 95 % semi-axis.
+/// noise. A bias no larger than its own noise (`b̂ᵀ Cov(b̂)⁻¹ b̂ ≤ 3`, the mean of that statistic
+/// when there is no bias) leaves the fit as it is: `b̂` is then noise already in the statistical
+/// error. With the drag model, `(ΣX)ᵀ` is the profiled offset–bias block `Q_rb`.
 fn with_unmodelled_bias<T: Scalar>(
     offset: &Fit<T>,
     joint: &Fit<T>,
