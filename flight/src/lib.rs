@@ -4,9 +4,10 @@
 //! control step on the STM32H743 and in the host simulator and offline tools. No I/O, no clocks,
 //! no HAL: callers pass samples and time steps in.
 #![cfg_attr(not(feature = "std"), no_std)]
-pub mod thrust_axis;
 
 pub mod filters;
 pub mod imu_offset;
+pub mod rng;
 #[cfg(any(test, feature = "std"))]
 pub mod testing;
+pub mod thrust_axis;

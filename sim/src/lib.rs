@@ -10,6 +10,7 @@ pub mod imu;
 pub mod log;
 pub mod monte_carlo;
 pub mod physics;
-pub mod rng;
+/// The workspace's deterministic random-number generator (sensor noise, random airframes).
+pub use flight::rng;
 pub mod scenario;
 pub mod sitl;

@@ -126,31 +126,19 @@ mod tests {
     use super::super::queue::{split_queue, SampleQueue};
     use super::*;
 
-    /// Deterministic standard-normal samples (xorshift + Box-Muller), so the test needs no crate.
-    fn gaussian(state: &mut u64) -> f32 {
-        let mut uniform = || {
-            *state ^= *state << 13;
-            *state ^= *state >> 7;
-            *state ^= *state << 17;
-            ((*state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        let (u1, u2) = (uniform(), uniform());
-        ((-2.0 * u1.ln()).sqrt() * (2.0 * core::f64::consts::PI * u2).cos()) as f32
-    }
-
     #[test]
     fn one_second_windows_recover_bias_and_noise_of_a_resting_imu() {
         let (bias_rad_s, noise_rad_s, accel_noise_mps2) = ([0.01, -0.02, 0.005], 0.002, 0.03);
         let mut queue = SampleQueue::new();
         let (mut producer, consumer) = split_queue(&mut queue);
         let mut background = Background::new(consumer);
-        let mut rng = 0x2545_f491_4f6c_dd1d;
+        let mut rng = flight::rng::Rng::new(0x2545_f491_4f6c_dd1d);
         // 2.5 s at 2 kHz: two full windows, the second one published when the third starts.
         for step in 0..5000u64 {
             let mut imu = ImuSample::default();
             for (axis, bias) in bias_rad_s.iter().enumerate() {
-                imu.gyro_rad_s[axis] = bias + noise_rad_s * gaussian(&mut rng);
-                imu.accel_mps2[axis] = accel_noise_mps2 * gaussian(&mut rng);
+                imu.gyro_rad_s[axis] = bias + noise_rad_s * rng.normal() as f32;
+                imu.accel_mps2[axis] = accel_noise_mps2 * rng.normal() as f32;
             }
             imu.accel_mps2[2] -= 9.81;
             producer.push(LearnerSample { t_us: step * 500, imu, commands: [0.0; 8] });

@@ -4,5 +4,4 @@
 //! Nothing here uses the estimators under test: the physics is written independently (rigid
 //! body, Euler's equations, cross products), so agreement is evidence, not tautology.
 
-pub mod rng;
 pub mod throws;

@@ -17,8 +17,8 @@
 
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
-use super::rng::Rng;
 use crate::imu_offset::ImuSample;
+use crate::rng::Rng;
 
 /// Standard gravity (m/s²), down in NED.
 pub const G_MPS2: f64 = 9.80665;

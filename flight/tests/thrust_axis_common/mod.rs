@@ -13,45 +13,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-/// Deterministic random numbers (SplitMix64), so failures reproduce.
-pub struct Rng(u64);
-
-impl Rng {
-    pub fn new(seed: u64) -> Self {
-        Rng(seed)
-    }
-
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    pub fn range(&mut self, low: f64, high: f64) -> f64 {
-        low + (high - low) * self.uniform()
-    }
-
-    /// Standard normal (Box–Muller).
-    pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
-
-    /// Uniformly distributed unit quaternion `[w, x, y, z]`.
-    pub fn quaternion(&mut self) -> [f64; 4] {
-        let q = [self.normal(), self.normal(), self.normal(), self.normal()];
-        let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-        [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
-    }
-}
+pub use flight::rng::Rng;
 
 /// Rotation matrix of a unit quaternion `[w, x, y, z]` (Hamilton).
 pub fn rotation_matrix(q: [f64; 4]) -> [[f64; 3]; 3] {
@@ -95,7 +57,7 @@ const DRAG_TO_THRUST_M: f64 = 0.015;
 /// A random airframe: `motors` rotors around the centre of gravity at random radius, azimuth
 /// jitter, height, spin, tilt and strength, seen from an IMU with a random orientation.
 pub fn random_airframe(rng: &mut Rng, motors: usize, kind: Kind) -> Airframe {
-    let q_imu_body = rng.quaternion();
+    let q_imu_body = rng.unit_quaternion();
     let r = rotation_matrix(q_imu_body);
     let g = 9.81;
     let mut g1_f = [vec![0.0; motors], vec![0.0; motors], vec![0.0; motors]];

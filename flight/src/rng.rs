@@ -1,7 +1,9 @@
-//! A small deterministic random-number generator for sensor noise and random airframes.
+//! A small deterministic random-number generator: sensor noise and random airframes in the
+//! simulator, synthetic data in tests.
 //!
-//! Why our own: simulations must be reproducible from one `u64` seed across platforms and crate
-//! versions, and the simulator needs only uniform and Gaussian draws. The generator is
+//! Why our own: simulations and tests must be reproducible from one `u64` seed across platforms
+//! and crate versions, and they need only uniform and Gaussian draws. `no_std` (libm), so every
+//! crate of the workspace can use this one generator. The generator is
 //! xoshiro256++ (Blackman and Vigna, 2019) seeded through SplitMix64; Gaussian draws use
 //! Marsaglia's polar method (no trigonometry), caching the second value.
 
@@ -63,7 +65,7 @@ impl Rng {
             let y = 2.0 * self.uniform() - 1.0;
             let s = x * x + y * y;
             if s > 0.0 && s < 1.0 {
-                let scale = (-2.0 * s.ln() / s).sqrt();
+                let scale = libm::sqrt(-2.0 * libm::log(s) / s);
                 self.spare_normal = Some(y * scale);
                 return x * scale;
             }
@@ -73,6 +75,28 @@ impl Rng {
     /// An independent generator derived from this one (for per-run streams in Monte Carlo).
     pub fn fork(&mut self) -> Self {
         Self::new(self.next_u64())
+    }
+
+    /// A unit vector uniformly distributed on the sphere.
+    pub fn unit_vector(&mut self) -> nalgebra::Vector3<f64> {
+        loop {
+            let v = nalgebra::Vector3::new(self.normal(), self.normal(), self.normal());
+            let n = v.norm();
+            if n > 1e-6 {
+                return v / n;
+            }
+        }
+    }
+
+    /// A uniformly distributed unit quaternion `[w, x, y, z]`.
+    pub fn unit_quaternion(&mut self) -> [f64; 4] {
+        loop {
+            let q = [self.normal(), self.normal(), self.normal(), self.normal()];
+            let n = libm::sqrt(q.iter().map(|v| v * v).sum::<f64>());
+            if n > 1e-6 {
+                return q.map(|v| v / n);
+            }
+        }
     }
 }
 
