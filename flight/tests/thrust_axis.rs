@@ -271,15 +271,16 @@ fn upside_down_imu_gives_half_turn_about_x() {
 
 #[test]
 fn warm_start_keeps_improving_across_calls() {
-    // A tilted octo whose two largest eigenvalues are close: with one squaring per call (two
-    // power steps) a single call is not converged, later calls are.
+    // A tilted octo whose second eigenvalue is not negligible (random tilted octos mostly have
+    // λ₂/λ₁ of 0.02–0.17; above 0.12 is common enough to find at once): with one squaring per
+    // call (two power steps) a single call is not converged, later calls are.
     let mut rng = Rng::new(0x5EED_0003);
     let (frame, reference) = loop {
         let mut frame = random_airframe(&mut rng, 8, Kind::Tilted);
         frame.u_min = vec![-1.0; 8];
         let Some(reference) = dense_unbounded(&frame) else { continue };
         let ratio = reference.eigenvalues[1] / reference.eigenvalues[0];
-        if reference.u.is_some() && (0.6..0.8).contains(&ratio) {
+        if reference.u.is_some() && (0.12..0.9).contains(&ratio) {
             break (frame, reference);
         }
     };
@@ -292,6 +293,7 @@ fn warm_start_keeps_improving_across_calls() {
         let solution = solver.solve(&problem).unwrap();
         errors.push(angle_deg(dir_f64(&solution), expected));
     }
+    assert!(errors[0] > ANGLE_TOLERANCE_DEG, "one capped call should not converge: {errors:?}");
     assert!(errors[39] < ANGLE_TOLERANCE_DEG, "after 40 calls: {}°", errors[39]);
     assert!(errors[39] <= errors[0], "{errors:?}");
     // And the full default cap converges in one call.
