@@ -275,16 +275,7 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
     let short = batch_means_variance(&p.batches.short, p.block_len, &d, &b, unknowns);
     let long_len = p.block_len.saturating_mul(p.batches.group);
     let long = batch_means_variance(&p.batches.long, long_len, &d, &b, unknowns);
-    let (long_run_variance, scale) = match (short, long) {
-        (Some(s), Some(l)) if l.1 > s.1 => l,
-        (Some(s), _) => s,
-        (None, _) => {
-            return Err(ImuOffsetError::TooFewSamples {
-                used: rows.count,
-                required: MIN_BLOCKS.saturating_mul(p.block_len),
-            })
-        }
-    };
+    let (long_run_variance, scale) = more_conservative(short, long, rows.count, p.block_len)?;
 
     let covariance_m2 = information_inv * scale;
     let acc_bias_covariance = bias.map(|_| {
@@ -363,16 +354,7 @@ fn fit_with_drag<T: Scalar>(
     };
     let short = variance(&sums.short, p.block_len);
     let long = variance(&sums.long, p.block_len.saturating_mul(p.batches.group));
-    let (long_run_variance, scale) = match (short, long) {
-        (Some(s), Some(l)) if l.1 > s.1 => l,
-        (Some(s), _) => s,
-        (None, _) => {
-            return Err(ImuOffsetError::TooFewSamples {
-                used: rows.count,
-                required: MIN_BLOCKS.saturating_mul(p.block_len),
-            })
-        }
-    };
+    let (long_run_variance, scale) = more_conservative(short, long, rows.count, p.block_len)?;
     let to_t = |m: Matrix3<f64>| m.map(|v| nalgebra::convert::<f64, T>(v));
     let r: Vector3<f64> = theta.fixed_rows::<3>(0).into_owned();
     let b: Vector3<f64> = theta.fixed_rows::<3>(3).into_owned();
@@ -407,6 +389,24 @@ fn fit_with_drag<T: Scalar>(
 /// and the covariance scale: `σ²_LR` times the small-sample factor for `3 n_b − p` degrees of
 /// freedom (the estimated scale makes the ellipsoid a Hotelling `T²` region, wider than `χ²₃`).
 /// `None` with fewer than 2 degrees of freedom.
+/// The more conservative (larger scale) of the short- and long-batch `(variance, scale)`
+/// estimates; too few samples when not even the short batches could be formed.
+fn more_conservative<V, S: PartialOrd>(
+    short: Option<(V, S)>,
+    long: Option<(V, S)>,
+    samples_used: u32,
+    block_len: u32,
+) -> Result<(V, S), ImuOffsetError> {
+    match (short, long) {
+        (Some(s), Some(l)) if l.1 > s.1 => Ok(l),
+        (Some(s), _) => Ok(s),
+        (None, _) => Err(ImuOffsetError::TooFewSamples {
+            used: samples_used,
+            required: MIN_BLOCKS.saturating_mul(block_len),
+        }),
+    }
+}
+
 fn batch_means_variance<T: Scalar>(
     batches: &Moments<T>,
     batch_len: u32,
