@@ -85,6 +85,14 @@ pub fn status_json(status: &Status) -> Value {
             "gyro_std_rad_s": imu.gyro_std_rad_s,
             "accel_std_mps2": imu.accel_std_mps2,
         },
+        "imu_offset": {
+            "throws": status.imu_offset.throws,
+            "in_free_fall": status.imu_offset.in_free_fall,
+            "estimated": status.imu_offset.estimated,
+            "r_imu_m": status.imu_offset.r_imu_m,
+            "ci95_semi_axes_m": status.imu_offset.ci95_semi_axes_m,
+            "well_determined": status.imu_offset.well_determined,
+        },
         "link": {
             "frames_rx": l.frames_rx,
             "frames_tx": l.frames_tx,
@@ -149,6 +157,27 @@ pub fn status_text(status: &Status) -> String {
         );
     } else {
         let _ = writeln!(out, "  imu             absent ({} steps without a sample)", imu.missing);
+    }
+    let offset = &status.imu_offset;
+    let throws = match offset.throws {
+        1 => "1 throw".to_string(),
+        n => format!("{n} throws"),
+    };
+    if offset.estimated {
+        let verdict = if offset.well_determined {
+            "well determined"
+        } else {
+            "not yet well determined: throw again spinning about another axis"
+        };
+        let _ = writeln!(
+            out,
+            "  imu offset      {} mm from the CoG (IMU axes), 95 % semi-axes {} mm, {throws}, {verdict}",
+            vector(offset.r_imu_m, 1000.0, 2),
+            vector(offset.ci95_semi_axes_m, 1000.0, 2).replace('+', ""),
+        );
+    } else {
+        let _ =
+            writeln!(out, "  imu offset      no throw yet (throw the craft spinning and catch it)");
     }
     let _ = writeln!(
         out,

@@ -186,6 +186,7 @@ pub struct Status {
     pub armed: bool,
     pub control: ControlStatus,
     pub imu: ImuStatus,
+    pub imu_offset: ImuOffsetStatus,
     pub link: LinkCounters,
 }
 
@@ -225,6 +226,25 @@ pub struct ImuStatus {
     pub gyro_std_rad_s: [f32; 3],
     /// Accelerometer standard deviation over that window, m/s².
     pub accel_std_mps2: [f32; 3],
+}
+
+/// The onboard IMU-offset estimator (seed paper §3.2), fed by every IMU sample: throws are
+/// detected as free fall, and the offset is re-estimated after each one.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct ImuOffsetStatus {
+    /// Throws (free-fall segments) accepted so far.
+    pub throws: u8,
+    /// Whether the craft is in free fall right now.
+    pub in_free_fall: bool,
+    /// Whether an estimate exists (at least one throw).
+    pub estimated: bool,
+    /// Position of the IMU relative to the centre of gravity, m, IMU axes.
+    pub r_imu_m: [f32; 3],
+    /// Semi-axes of the 95 % confidence ellipsoid of `r_imu_m`, m, largest first.
+    pub ci95_semi_axes_m: [f32; 3],
+    /// Whether every semi-axis is small enough to use the estimate; if not, throw again
+    /// spinning about another axis.
+    pub well_determined: bool,
 }
 
 /// Frame counters of the device's side of the link.

@@ -58,6 +58,14 @@ fn status() -> Status {
             gyro_std_rad_s: [0.002; 3],
             accel_std_mps2: [0.03; 3],
         },
+        imu_offset: ImuOffsetStatus {
+            throws: 2,
+            in_free_fall: false,
+            estimated: true,
+            r_imu_m: [-0.01, -0.013, 0.008],
+            ci95_semi_axes_m: [0.0005, 0.0003, 0.0002],
+            well_determined: true,
+        },
         link: LinkCounters { frames_rx: 2, frames_tx: 1, ..LinkCounters::default() },
     }
 }
@@ -80,7 +88,7 @@ fn request_frames_are_pinned() {
 fn response_frames_are_pinned() {
     assert_eq!(device(DeviceMessage::Response(Ok(Reply::Hello(info()))), 1), "03 81 01 01 02 01 0a ef 9b af cd f8 ac d1 91 01 02 01 13 04 53 49 54 4c 04 30 30 30 31 21 d0 0f 04 b3 9b a0 9b 00");
     assert_eq!(device(DeviceMessage::Response(Ok(Reply::Info(info()))), 2), "03 81 02 03 01 01 0a ef 9b af cd f8 ac d1 91 01 02 01 13 04 53 49 54 4c 04 30 30 30 31 21 d0 0f 04 01 f1 92 e5 00");
-    assert_eq!(device(DeviceMessage::Response(Ok(Reply::Status(status()))), 3), "03 81 03 04 02 dc 0b 03 b8 17 01 08 fa 44 01 ee 05 ae 17 04 01 b8 17 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 05 c3 f5 1c c1 01 01 01 01 01 01 01 01 01 01 01 1b 6f 12 03 3b 6f 12 03 3b 6f 12 03 3b 8f c2 f5 3c 8f c2 f5 3c 8f c2 f5 3c 02 01 01 01 01 01 01 01 05 71 dd 3c 94 00");
+    assert_eq!(device(DeviceMessage::Response(Ok(Reply::Status(status()))), 3), "03 81 03 04 02 dc 0b 03 b8 17 01 08 fa 44 01 ee 05 ae 17 04 01 b8 17 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 05 c3 f5 1c c1 01 01 01 01 01 01 01 01 01 01 01 1a 6f 12 03 3b 6f 12 03 3b 6f 12 03 3b 8f c2 f5 3c 8f c2 f5 3c 8f c2 f5 3c 02 1d 01 0a d7 23 bc f4 fd 54 bc 6f 12 03 3c 6f 12 03 3a 52 49 9d 39 17 b7 51 39 01 02 01 01 01 01 01 01 01 05 91 37 66 24 00");
     assert_eq!(
         device(DeviceMessage::Response(Ok(Reply::Done)), 4),
         "03 81 04 06 03 ae 7f 0c 4a 00"
@@ -151,4 +159,30 @@ fn the_handshake_reply_exposes_the_device_version_at_a_frozen_offset() {
         buffer[..len].iter().find_map(|&b| decoder.push(b).map(|r| r.map(|f| f.payload.to_vec())));
     let payload = frame.unwrap().unwrap();
     assert_eq!(peek_hello_version(&payload), Some(Version { major: 1, minor: 0 }));
+}
+
+#[test]
+fn the_largest_status_fits_one_frame() {
+    // Every counter at its maximum (5-byte varints), every float present: the biggest Status.
+    let mut status = status();
+    status.uptime_ms = u32::MAX;
+    let c = &mut status.control;
+    (c.steps, c.late_steps, c.max_interval_us) = (u32::MAX, u32::MAX, u32::MAX);
+    (c.samples_processed, c.samples_dropped) = (u32::MAX, u32::MAX);
+    (status.imu.samples, status.imu.missing) = (u32::MAX, u32::MAX);
+    status.link = LinkCounters {
+        frames_rx: u32::MAX,
+        frames_tx: u32::MAX,
+        bad_crc: u32::MAX,
+        bad_framing: u32::MAX,
+        oversize: u32::MAX,
+        unknown_id: u32::MAX,
+        malformed: u32::MAX,
+        telemetry_dropped: u32::MAX,
+        responses_dropped: u32::MAX,
+    };
+    let mut buffer = [0u8; MAX_FRAME_LEN];
+    let len = DeviceMessage::Response(Ok(Reply::Status(status))).encode(u16::MAX, &mut buffer);
+    let len = len.expect("the largest status fits a frame");
+    assert!(len <= MAX_FRAME_LEN - 40, "{len} bytes: less than 40 bytes of room left to grow");
 }

@@ -70,6 +70,13 @@ fn info_over_the_pseudo_terminal_reports_the_handshake_and_a_board_at_rest() {
         let sigma = sigma.as_f64().unwrap();
         assert!(sigma > 1e-4 && sigma < 0.02, "gyro noise {sigma} rad/s");
     }
+    // Held still: no free fall, no throw, no estimate yet.
+    let offset = &status["imu_offset"];
+    assert_eq!(
+        (&offset["throws"], &offset["in_free_fall"]),
+        (&Value::from(0), &Value::from(false))
+    );
+    assert_eq!(offset["estimated"], false);
     let link = &status["link"];
     assert_eq!(link["bad_crc"], 0);
     assert_eq!(link["frames_rx"], 2, "hello and status");

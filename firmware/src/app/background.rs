@@ -1,12 +1,20 @@
 //! The background task's work: everything too slow for the 2 kHz step, fed by the sample queue.
 //!
-//! Today it keeps one-second statistics of the IMU stream (mean and standard deviation per axis:
-//! at rest these are the gyro bias and the sensor noise, which the status reports and later
-//! calibration flows use). The learner's estimators (IMU offset, effectiveness RLS, thrust axis)
-//! join here; their results reach the control step through [`BackgroundResults`], copied under a
-//! short lock by the board, never computed under it.
+//! - One-second statistics of the IMU stream (mean and standard deviation per axis: at rest these
+//!   are the gyro bias and the sensor noise, which the status reports and calibration flows use).
+//! - The onboard IMU-offset estimator (`flight::imu_offset`, seed paper §3.2): every sample goes
+//!   in, throws are detected as free fall, and after each accepted throw the offset, its 95 %
+//!   ellipsoid and the verdict are re-estimated (a few 3 × 3 solves, once per throw).
+//!
+//! The learner's other estimators (effectiveness RLS, thrust axis) join here; results reach the
+//! control step through [`BackgroundResults`], copied under a short lock by the board, never
+//! computed under it.
 
+use super::control::CONTROL_RATE_HZ;
 use super::queue::{LearnerSample, SampleConsumer};
+use flight::imu_offset::{self, ImuOffsetEstimator, Model, Verdict};
+use nalgebra::Vector3;
+use protocol::ImuOffsetStatus;
 
 /// Length of one statistics window, µs (one second).
 pub const STATS_WINDOW_US: u64 = 1_000_000;
@@ -26,6 +34,8 @@ pub struct BackgroundResults {
     pub accel_mean_mps2: [f32; 3],
     /// Accelerometer standard deviation over that window, m/s².
     pub accel_std_mps2: [f32; 3],
+    /// The IMU-offset estimator's state and latest estimate.
+    pub imu_offset: ImuOffsetStatus,
 }
 
 /// The background worker.
@@ -34,6 +44,8 @@ pub struct Background<'q> {
     gyro: [RunningStats; 3],
     accel: [RunningStats; 3],
     window_start_us: Option<u64>,
+    /// `None` only if the estimator rejected its configuration (then the status shows no throws).
+    imu_offset: Option<ImuOffsetEstimator>,
     results: BackgroundResults,
 }
 
@@ -44,6 +56,8 @@ impl<'q> Background<'q> {
             gyro: Default::default(),
             accel: Default::default(),
             window_start_us: None,
+            imu_offset: ImuOffsetEstimator::new(f32::from(CONTROL_RATE_HZ), imu_offset_config())
+                .ok(),
             results: BackgroundResults::default(),
         }
     }
@@ -74,6 +88,29 @@ impl<'q> Background<'q> {
             self.gyro[axis].add(sample.imu.gyro_rad_s[axis]);
             self.accel[axis].add(sample.imu.accel_mps2[axis]);
         }
+        self.update_imu_offset(sample);
+    }
+
+    fn update_imu_offset(&mut self, sample: &LearnerSample) {
+        let Some(estimator) = &mut self.imu_offset else { return };
+        let imu = imu_offset::ImuSample {
+            gyro_radps: Vector3::from(sample.imu.gyro_rad_s),
+            acc_mps2: Vector3::from(sample.imu.accel_mps2),
+        };
+        // A rejected sample (corrupt values) only abandons the throw in progress.
+        let accepted_throw = matches!(estimator.update(&imu), Ok(Some(_)));
+        let status = &mut self.results.imu_offset;
+        status.in_free_fall = estimator.in_free_fall();
+        if !accepted_throw {
+            return;
+        }
+        status.throws = u8::try_from(estimator.segments().len()).unwrap_or(u8::MAX);
+        if let Ok(estimate) = estimator.estimate() {
+            status.estimated = true;
+            status.r_imu_m = estimate.r_imu_m.into();
+            status.ci95_semi_axes_m = estimate.ellipsoid.semi_axes_m;
+            status.well_determined = matches!(estimate.verdict, Verdict::WellDetermined { .. });
+        }
     }
 
     fn publish_window(&mut self) {
@@ -90,6 +127,13 @@ impl<'q> Background<'q> {
         self.gyro = Default::default();
         self.accel = Default::default();
     }
+}
+
+/// The onboard estimator's configuration: the library defaults, with the accelerometer bias
+/// fitted jointly (simulated and real MEMS accelerometers carry a bias of ~0.1 m/s², which
+/// otherwise shifts `r` by about a millimetre; see docs/benchmarks.md).
+fn imu_offset_config() -> imu_offset::Config {
+    imu_offset::Config { model: Model::OffsetAndAccBias, ..imu_offset::Config::default() }
 }
 
 /// Welford's running mean and variance (numerically stable in f32 over a few thousand samples).

@@ -215,6 +215,7 @@ impl LinkServer {
                 gyro_std_rad_s: background.gyro_std_rad_s,
                 accel_std_mps2: background.accel_std_mps2,
             },
+            imu_offset: background.imu_offset,
             link: self.counters,
         }
     }
