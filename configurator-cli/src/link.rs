@@ -174,8 +174,21 @@ impl Client {
     ) -> Result<Result<Reply, DeviceError>, LinkError> {
         let deadline = Instant::now() + self.timeout;
         let mut answer = None;
-        let mut undecodable_hello = None;
-        while answer.is_none() && undecodable_hello.is_none() {
+        let mut undecodable: Option<Vec<u8>> = None;
+        loop {
+            if let Some(payload) = undecodable.take() {
+                // A response we cannot decode: if it is a handshake reply, name the board's
+                // version.
+                return Err(match peek_hello_version(&payload) {
+                    Some(device) if device.major != PROTOCOL_VERSION.major => {
+                        incompatible(device, PROTOCOL_VERSION)
+                    }
+                    _ => LinkError::Unexpected(format!("undecodable response to {what}")),
+                });
+            }
+            if let Some(response) = answer.take() {
+                return Ok(response);
+            }
             if Instant::now() >= deadline {
                 return Err(LinkError::Timeout {
                     port: self.port.clone(),
@@ -187,20 +200,10 @@ impl Client {
                 Ok(DeviceMessage::Response(response)) if frame_seq == seq => {
                     answer = Some(response)
                 }
-                Err(payload) if frame_seq == seq => undecodable_hello = Some(payload),
+                Err(payload) if frame_seq == seq => undecodable = Some(payload),
                 _ => {}
             })?;
         }
-        if let Some(payload) = undecodable_hello {
-            // A response we cannot decode: if it is a handshake reply, name the board's version.
-            return Err(match peek_hello_version(&payload) {
-                Some(device) if device.major != PROTOCOL_VERSION.major => {
-                    incompatible(device, PROTOCOL_VERSION)
-                }
-                _ => LinkError::Unexpected(format!("undecodable response to {what}")),
-            });
-        }
-        Ok(answer.expect("loop ends with an answer"))
     }
 
     /// Read what is available (waiting up to the transport's read timeout) and dispatch frames:

@@ -120,19 +120,27 @@ fn run(cli: &Cli) -> Result<String, Failure> {
             offline::thrust_axis::run(args).map_err(Failure::Input)
         }
         Command::Ports => ports(cli.json),
-        Command::Info | Command::Status | Command::Stream { .. } => with_board(cli),
+        Command::Info => with_board(cli, BoardCommand::Info),
+        Command::Status => with_board(cli, BoardCommand::Status),
+        Command::Stream { topic, rate_hz, duration_s } => {
+            // Validate arguments before touching any port.
+            let topic = stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?;
+            let command =
+                BoardCommand::Stream { topic, rate_hz: *rate_hz, duration_s: *duration_s };
+            with_board(cli, command)
+        }
     }
 }
 
+/// A command that talks to a board, with its arguments validated.
+enum BoardCommand {
+    Info,
+    Status,
+    Stream { topic: Topic, rate_hz: u16, duration_s: f64 },
+}
+
 /// Connect (starting a SITL if asked), then run the board command.
-fn with_board(cli: &Cli) -> Result<String, Failure> {
-    // Validate arguments before touching any port.
-    let stream_topic = match &cli.command {
-        Command::Stream { topic, rate_hz, duration_s } => {
-            Some(stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?)
-        }
-        _ => None,
-    };
+fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
     let _sitl; // keeps the simulator alive for the whole command
     let target = if cli.sitl {
         let config = sim::sitl::SitlConfig { airframe: cli.airframe.clone(), ..Default::default() };
@@ -152,13 +160,13 @@ fn with_board(cli: &Cli) -> Result<String, Failure> {
     if !client.schema_matches() {
         eprintln!("warning: the board's message table differs from this configurator's; some fields may be missing");
     }
-    if cli.sitl && !matches!(cli.command, Command::Stream { .. }) {
+    if cli.sitl && !matches!(command, BoardCommand::Stream { .. }) {
         // Let the simulated board run one full statistics window so the status has figures.
         eprintln!("letting the simulator run for 1.1 s…");
         client.listen(Duration::from_millis(1100))?;
     }
-    match &cli.command {
-        Command::Info => {
+    match command {
+        BoardCommand::Info => {
             let status = fetch_status(&mut client)?;
             Ok(if cli.json {
                 format!(
@@ -176,7 +184,7 @@ fn with_board(cli: &Cli) -> Result<String, Failure> {
                 )
             })
         }
-        Command::Status => {
+        BoardCommand::Status => {
             let status = fetch_status(&mut client)?;
             Ok(if cli.json {
                 format!("{:#}\n", report::status_json(&status))
@@ -184,11 +192,9 @@ fn with_board(cli: &Cli) -> Result<String, Failure> {
                 report::status_text(&status)
             })
         }
-        Command::Stream { rate_hz, duration_s, .. } => {
-            let topic = stream_topic.expect("validated above");
-            stream(&mut client, topic, *rate_hz, *duration_s, cli.json)
+        BoardCommand::Stream { topic, rate_hz, duration_s } => {
+            stream(&mut client, topic, rate_hz, duration_s, cli.json)
         }
-        _ => unreachable!("board commands only"),
     }
 }
 
