@@ -74,6 +74,8 @@ pub fn status_json(status: &Status) -> Value {
             "max_interval_us": c.max_interval_us,
             "samples_processed": c.samples_processed,
             "samples_dropped": c.samples_dropped,
+            "max_step_us": c.step_time.map(|t| t.max_us),
+            "step_overruns": c.step_time.map(|t| t.overruns),
         },
         "imu": {
             "present": imu.present,
@@ -126,6 +128,14 @@ pub fn status_text(status: &Status) -> String {
         "  control loop    {:.1} Hz, {} steps, {} late, longest interval {} µs",
         c.rate_hz, c.steps, c.late_steps, c.max_interval_us
     );
+    let _ = match c.step_time {
+        Some(t) => writeln!(
+            out,
+            "  step time       longest {} µs, {} over the deadline",
+            t.max_us, t.overruns
+        ),
+        None => writeln!(out, "  step time       not measured on this board (simulator)"),
+    };
     let _ = writeln!(
         out,
         "  background      {} samples processed, {} dropped",

@@ -234,6 +234,8 @@ mod tasks {
     use crate::app::{background, control_tick, usb_service};
     use firmware::app::StatusView;
     use firmware::board::config::USB_SERVICE_DIVIDER;
+    use firmware::board::timing::step_stats;
+    use protocol::StepTime;
     use rtic::mutex_prelude::*;
     use stm32h7xx_hal::pac::Interrupt;
 
@@ -271,9 +273,11 @@ mod tasks {
     /// rest stays queued in the link server for the next service). Never blocks.
     pub fn usb_service(mut cx: usb_service::Context) {
         let now_us = cx.local.usb_clock.now_us();
+        let step = step_stats();
         let view = StatusView {
             control: cx.shared.control.lock(|control| *control),
             background: cx.shared.background.lock(|background| *background),
+            step_time: Some(StepTime { max_us: step.max_us, overruns: step.overruns }),
         };
         let link = cx.local.link;
         cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view));

@@ -17,6 +17,7 @@ fn board() -> BoardInfo {
 fn view_at(t_us: u64) -> StatusView {
     StatusView {
         control: ControlSnapshot { t_us, steps: (t_us / 500) as u32, ..Default::default() },
+        step_time: Some(StepTime { max_us: 17, overruns: 1 }),
         ..Default::default()
     }
 }
@@ -251,6 +252,22 @@ fn corrupted_frames_are_counted_and_reported_as_one_event() {
         DeviceMessage::Event(Event::LinkErrors(counters)) => {
             assert_eq!(counters.bad_crc + counters.bad_framing, 3);
             assert_eq!(counters.oversize, 1);
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn status_reports_uptime_steps_and_the_boards_step_time() {
+    let mut host = Host::new();
+    host.handshake();
+    host.now_us = 2_500_000;
+    match host.request(&Request::GetStatus(()), 2) {
+        Ok(Reply::Status(status)) => {
+            assert_eq!(status.uptime_ms, 2500);
+            assert_eq!(status.control.steps, 5000);
+            assert_eq!(status.control.step_time, Some(StepTime { max_us: 17, overruns: 1 }));
+            assert_eq!(status.link.frames_rx, 2, "the handshake and this request");
         }
         other => panic!("{other:?}"),
     }

@@ -205,6 +205,18 @@ pub struct ControlStatus {
     pub samples_processed: u32,
     /// Learner samples dropped because the queue to the background task was full.
     pub samples_dropped: u32,
+    /// The step's own execution time, where the board measures it (the H743's cycle counter;
+    /// `None` in the simulator, where host time says nothing about the flight controller).
+    pub step_time: Option<StepTime>,
+}
+
+/// Execution time of the control step since start-up.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct StepTime {
+    /// Longest step, µs.
+    pub max_us: u32,
+    /// Steps that ran past their deadline (one control period).
+    pub overruns: u32,
 }
 
 /// The IMU as the control step sees it.

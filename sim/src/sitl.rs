@@ -251,7 +251,11 @@ impl Runner {
                     background.run_pending();
                 }
             }
-            let view = StatusView { control: control.snapshot(), background: background.results() };
+            let view = StatusView {
+                control: control.snapshot(),
+                background: background.results(),
+                step_time: None,
+            };
             let now_us = board.now_us();
             if let Some(listener) = &self.listener {
                 while let Ok((stream, _)) = listener.accept() {

@@ -204,6 +204,7 @@ impl LinkServer {
                 max_interval_us: control.max_interval_us,
                 samples_processed: background.samples_processed,
                 samples_dropped: control.samples_dropped,
+                step_time: view.step_time,
             },
             imu: ImuStatus {
                 present: control.imu_present,

@@ -70,11 +70,13 @@ impl BoardInfo {
 }
 
 /// Everything the link reads to answer status requests and sample telemetry: copies of the
-/// control and background snapshots.
+/// control and background snapshots, and the board's measurement of the step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StatusView {
     pub control: ControlSnapshot,
     pub background: BackgroundResults,
+    /// The control step's execution time, when the board measures it.
+    pub step_time: Option<protocol::StepTime>,
 }
 
 /// Parse a decimal `u8` at compile time (crate version components).
