@@ -28,6 +28,10 @@ struct Cli {
     /// Airframe of the built-in simulator: a built-in name or a TOML file.
     #[arg(long, global = true, default_value = "paper-quad")]
     airframe: String,
+    /// With --sitl: let the simulated hand throw the craft (spinning, 1 m up) and catch it this
+    /// many times before the command runs, so the board learns its IMU offset (4× real time).
+    #[arg(long, global = true, default_value_t = 0, requires = "sitl")]
+    sitl_throws: u8,
     /// Print JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
@@ -143,7 +147,14 @@ enum BoardCommand {
 fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
     let _sitl; // keeps the simulator alive for the whole command
     let target = if cli.sitl {
-        let config = sim::sitl::SitlConfig { airframe: cli.airframe.clone(), ..Default::default() };
+        let throwing = cli.sitl_throws > 0;
+        let config = sim::sitl::SitlConfig {
+            airframe: cli.airframe.clone(),
+            auto_throw_every_s: throwing.then_some(SITL_THROW_INTERVAL_S),
+            auto_throw_count: Some(usize::from(cli.sitl_throws)),
+            speed: if throwing { SITL_THROW_SPEED } else { 1.0 },
+            ..Default::default()
+        };
         let sitl = sim::sitl::Sitl::start(&config).map_err(ConnectError::from)?;
         let path = sitl.pty_path.clone().expect("the SITL serves a pseudo-terminal when asked");
         eprintln!("started the simulator (airframe `{}`) on {}", cli.airframe, path.display());
@@ -160,7 +171,9 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
     if !client.schema_matches() {
         eprintln!("warning: the board's message table differs from this configurator's; some fields may be missing");
     }
-    if cli.sitl && !matches!(command, BoardCommand::Stream { .. }) {
+    if cli.sitl_throws > 0 {
+        watch_throws(&mut client, cli.sitl_throws)?;
+    } else if cli.sitl && !matches!(command, BoardCommand::Stream { .. }) {
         // Let the simulated board run one full statistics window so the status has figures.
         eprintln!("letting the simulator run for 1.1 s…");
         client.listen(Duration::from_millis(1100))?;
@@ -196,6 +209,44 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
             stream(&mut client, topic, rate_hz, duration_s, cli.json)
         }
     }
+}
+
+/// Simulated seconds between the SITL's automatic throws.
+const SITL_THROW_INTERVAL_S: f64 = 2.0;
+/// Simulation speed while the SITL throws, × real time.
+const SITL_THROW_SPEED: f64 = 4.0;
+
+/// Follow the board's onboard IMU-offset estimate while the simulated hand throws `count` times.
+fn watch_throws(client: &mut Client, count: u8) -> Result<(), Failure> {
+    let wall_s_per_throw = SITL_THROW_INTERVAL_S / SITL_THROW_SPEED;
+    let deadline = std::time::Instant::now()
+        + Duration::from_secs_f64(2.0 * wall_s_per_throw * f64::from(count) + 5.0);
+    let mut reported = 0;
+    eprintln!("the simulated hand throws the craft {count} times (spinning, 1 m up)…");
+    while reported < count {
+        if std::time::Instant::now() > deadline {
+            return Err(LinkError::Unexpected(format!(
+                "the board saw {reported} of {count} throws before the time ran out"
+            ))
+            .into());
+        }
+        client.listen(Duration::from_millis(100))?;
+        let offset = fetch_status(client)?.imu_offset;
+        if offset.throws > reported {
+            reported = offset.throws;
+            let r_mm = offset.r_imu_m.map(|x| x * 1000.0);
+            let largest_mm = offset.ci95_semi_axes_m[0] * 1000.0;
+            let verdict = if offset.well_determined { "well determined" } else { "throw again" };
+            eprintln!(
+                "  throw {reported}: IMU offset ({:+.2}, {:+.2}, {:+.2}) mm, largest 95 % semi-axis {largest_mm:.2} mm: {verdict}",
+                r_mm[0], r_mm[1], r_mm[2]
+            );
+        }
+    }
+    // Let the craft rest in the hand for a full one-second statistics window after the catch
+    // (2.4 simulated seconds at 4× speed) before the command's own status.
+    client.listen(Duration::from_millis(600))?;
+    Ok(())
 }
 
 fn fetch_status(client: &mut Client) -> Result<protocol::Status, Failure> {

@@ -156,13 +156,13 @@ pub fn status_text(status: &Status) -> String {
         );
         let _ = writeln!(
             out,
-            "  gyro noise      {} mrad/s (1σ over 1 s), bias {} mrad/s",
+            "  gyro spread     {} mrad/s (1σ over the last second: the noise at rest), mean {} mrad/s",
             vector(imu.gyro_std_rad_s, 1000.0, 2),
             vector(imu.gyro_mean_rad_s, 1000.0, 2)
         );
         let _ = writeln!(
             out,
-            "  accel noise     {} m/s² (1σ over 1 s)",
+            "  accel spread    {} m/s² (1σ over the last second)",
             vector(imu.accel_std_mps2, 1.0, 4)
         );
     } else {

@@ -104,6 +104,16 @@ impl Physics {
         self.refresh_derivative();
     }
 
+    /// Starts a throw now and arms the hand to catch the vehicle when it comes back down to the
+    /// height at which it will be released (the hand accelerates it uniformly over
+    /// `spec.duration_s`, so release is half the release speed × duration above the start).
+    pub fn throw_and_catch_at_release_height(&mut self, spec: &ThrowSpec, catch_tau_s: f64) {
+        let rise_m = 0.5 * spec.release_velocity_ned_mps.z.abs() * spec.duration_s;
+        let catch_ned_z_m = self.state.position_ned_m.z - rise_m;
+        self.set_catch(Some(CatchSpec { catch_ned_z_m, tau_s: catch_tau_s }));
+        self.throw(spec);
+    }
+
     /// Lets go of the vehicle now.
     pub fn release(&mut self) {
         let now = self.time_s();

@@ -27,7 +27,7 @@ use nalgebra::Vector3;
 
 use crate::airframe::{Airframe, AirframeError, STANDARD_GRAVITY_MPS2};
 use crate::board::{SimBoard, SimConfig};
-use crate::hand::{CatchSpec, HandPhase, ThrowSpec};
+use crate::hand::{HandPhase, ThrowSpec};
 use crate::log::CsvLog;
 
 /// A flight application stepped at 2 kHz on the simulated board's ports.
@@ -268,14 +268,6 @@ pub fn run<A: FlightApp, W: Write>(
     board_config.start_position_ned_m = Vector3::new(0.0, 0.0, -config.hold_height_m);
     let mut board = SimBoard::new(airframe, &board_config);
     let throws = config.kind != ScenarioKind::HoldStill;
-    if config.kind == ScenarioKind::ThrowCatch {
-        // The hand closes where it let go: the release height.
-        let release_z = -config.hold_height_m
-            - 0.5 * config.throw_spec().release_velocity_ned_mps.z.abs() * config.throw_duration_s;
-        board
-            .physics_mut()
-            .set_catch(Some(CatchSpec { catch_ned_z_m: release_z, tau_s: config.catch_tau_s }));
-    }
     let total_ticks = (config.duration_s * crate::board::CONTROL_RATE_HZ).round() as u64;
     let throw_tick = (config.hold_before_s * crate::board::CONTROL_RATE_HZ).round() as u64;
     let progress_every = (0.1 * crate::board::CONTROL_RATE_HZ) as u64;
@@ -284,7 +276,12 @@ pub fn run<A: FlightApp, W: Write>(
     for tick in 0..total_ticks {
         if throws && tick == throw_tick {
             let spec = config.throw_spec();
-            board.physics_mut().throw(&spec);
+            if config.kind == ScenarioKind::ThrowCatch {
+                // The hand closes where it let go: the release height.
+                board.physics_mut().throw_and_catch_at_release_height(&spec, config.catch_tau_s);
+            } else {
+                board.physics_mut().throw(&spec);
+            }
         }
         board.tick();
         let now_us = board.now_us();

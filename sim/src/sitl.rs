@@ -13,6 +13,7 @@
 
 use crate::airframe::{Airframe, AirframeError};
 use crate::board::{SimBoard, SimConfig};
+use crate::hand::{HandPhase, ThrowSpec};
 use firmware::app::{
     split_queue, Background, BoardInfo, ControlConfig, ControlLoop, LinkServer, SampleQueue,
     StatusView, CONTROL_RATE_HZ,
@@ -47,7 +48,26 @@ pub struct SitlConfig {
     pub speed: f64,
     /// Seed of the sensor noise.
     pub seed: u64,
+    /// Have the simulated hand throw the craft (spinning, 1 m up) and catch it every this many
+    /// simulated seconds, cycling through [`AUTO_THROW_RATES_DPS`]: the calibration throws,
+    /// without a person.
+    pub auto_throw_every_s: Option<f64>,
+    /// Stop the automatic throws after this many (`None`: keep throwing).
+    pub auto_throw_count: Option<usize>,
 }
+
+/// Body rates of the automatic throws, °/s: about two revolutions per second about three
+/// clearly different axes, as the seed paper asks of calibration throws (§3.2).
+pub const AUTO_THROW_RATES_DPS: [[f64; 3]; 3] =
+    [[700.0, 350.0, 180.0], [-180.0, 230.0, 700.0], [300.0, -650.0, 250.0]];
+/// Apex of an automatic throw above the release point, m (the seed paper's 1 m throws).
+const AUTO_THROW_APEX_M: f64 = 1.0;
+/// How long the hand accelerates the craft, s.
+const AUTO_THROW_DURATION_S: f64 = 0.15;
+/// Time constant of the catch, s.
+const AUTO_CATCH_TAU_S: f64 = 0.05;
+/// Shortest interval between automatic throws, s (a 1 m throw flies about 0.9 s).
+const MIN_AUTO_THROW_INTERVAL_S: f64 = 2.0;
 
 impl Default for SitlConfig {
     fn default() -> Self {
@@ -58,6 +78,8 @@ impl Default for SitlConfig {
             tcp_port: None,
             speed: 1.0,
             seed: 1,
+            auto_throw_every_s: None,
+            auto_throw_count: None,
         }
     }
 }
@@ -75,6 +97,10 @@ pub enum SitlError {
     Tcp { port: u16, source: std::io::Error },
     #[error("speed must be between 0.01 and 1000 (got {0})")]
     Speed(f64),
+    #[error(
+        "automatic throws need at least {MIN_AUTO_THROW_INTERVAL_S} s between them (got {0} s)"
+    )]
+    AutoThrowInterval(f64),
 }
 
 /// A running SITL. Stops when dropped.
@@ -93,6 +119,11 @@ impl Sitl {
     pub fn start(config: &SitlConfig) -> Result<Self, SitlError> {
         if !(0.01..=1000.0).contains(&config.speed) {
             return Err(SitlError::Speed(config.speed));
+        }
+        if let Some(every_s) = config.auto_throw_every_s {
+            if !(every_s.is_finite() && every_s >= MIN_AUTO_THROW_INTERVAL_S) {
+                return Err(SitlError::AutoThrowInterval(every_s));
+            }
         }
         let airframe = Airframe::load(&config.airframe)?;
         let pty = if config.pty { Some(Pty::open().map_err(SitlError::Pty)?) } else { None };
@@ -117,6 +148,8 @@ impl Sitl {
             airframe,
             seed: config.seed,
             speed: config.speed,
+            auto_throw_every_s: config.auto_throw_every_s,
+            auto_throw_count: config.auto_throw_count,
             pty,
             listener,
             stop: stop.clone(),
@@ -215,6 +248,8 @@ struct Runner {
     airframe: Airframe,
     seed: u64,
     speed: f64,
+    auto_throw_every_s: Option<f64>,
+    auto_throw_count: Option<usize>,
     pty: Option<Pty>,
     listener: Option<TcpListener>,
     stop: Arc<AtomicBool>,
@@ -233,6 +268,7 @@ impl Runner {
             self.pty.map(|transport| Connection { transport, link: LinkServer::new(info.clone()) });
         let mut clients: Vec<Connection<TcpStream>> = Vec::new();
 
+        let mut throws_done = 0usize;
         let start = Instant::now();
         let ticks_per_link_pass = (LINK_PERIOD_US / firmware_period_us()).max(1);
         while !self.stop.load(Ordering::Relaxed) {
@@ -244,6 +280,10 @@ impl Runner {
             // One link period of simulated time: control ticks, then the link task, as the
             // board's timer pends its USB task once per millisecond.
             for _ in 0..ticks_per_link_pass {
+                let more_throws = self.auto_throw_count.is_none_or(|count| throws_done < count);
+                if let (Some(every_s), true) = (self.auto_throw_every_s, more_throws) {
+                    auto_throw(&mut board, every_s, &mut throws_done);
+                }
                 board.tick();
                 let now_us = board.now_us();
                 let (imu, motors) = board.ports();
@@ -272,6 +312,19 @@ impl Runner {
             clients.retain_mut(|client| client.service(now_us, &view));
         }
     }
+}
+
+/// Throw the craft when the next automatic throw is due and the hand holds it.
+fn auto_throw(board: &mut SimBoard, every_s: f64, throws_done: &mut usize) {
+    let due_s = every_s * (*throws_done + 1) as f64;
+    if board.time_s() < due_s || board.physics().hand().phase() != HandPhase::Holding {
+        return;
+    }
+    let rate_dps = AUTO_THROW_RATES_DPS[*throws_done % AUTO_THROW_RATES_DPS.len()];
+    let rate_rad_s = nalgebra::Vector3::from(rate_dps).map(f64::to_radians);
+    let spec = ThrowSpec::vertical(AUTO_THROW_APEX_M, rate_rad_s, AUTO_THROW_DURATION_S);
+    board.physics_mut().throw_and_catch_at_release_height(&spec, AUTO_CATCH_TAU_S);
+    *throws_done += 1;
 }
 
 /// The control period, µs.

@@ -167,3 +167,53 @@ fn a_board_of_another_major_version_is_refused_naming_both_versions() {
     assert!(stderr.contains(&device) && stderr.contains(&host), "{stderr}");
     assert!(stderr.contains("update the configurator"), "{stderr}");
 }
+
+#[test]
+fn the_sitl_board_learns_its_imu_offset_from_automatic_throws_and_reports_it_over_the_link() {
+    // Three throws, 2 simulated seconds apart, at 4× real time: about 2 s of wall time.
+    let config = SitlConfig { auto_throw_every_s: Some(2.0), speed: 4.0, ..SitlConfig::default() };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let port = sitl.pty_path.clone().unwrap();
+    let port = port.to_str().unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let offset = loop {
+        let status = json_of(&run_cli(&["--port", port, "--json", "status"]));
+        let offset = status["imu_offset"].clone();
+        if offset["well_determined"] == true || std::time::Instant::now() > deadline {
+            break offset;
+        }
+        std::thread::sleep(Duration::from_millis(300));
+    };
+    assert_eq!(offset["well_determined"], true, "{offset}");
+    let throws = offset["throws"].as_u64().unwrap();
+    assert!((2..=4).contains(&throws), "{offset}");
+    let airframe = sim::airframe::Airframe::builtin("paper-quad").unwrap();
+    let truth = airframe.q_imu_body() * airframe.r_imu_m();
+    let r: Vec<f64> =
+        offset["r_imu_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let error_mm = ((r[0] - truth.x).powi(2) + (r[1] - truth.y).powi(2) + (r[2] - truth.z).powi(2))
+        .sqrt()
+        * 1e3;
+    assert!(error_mm < 1.0, "onboard estimate over the link off by {error_mm:.3} mm: {offset}");
+}
+
+#[test]
+fn too_frequent_automatic_throws_are_refused() {
+    let config = SitlConfig { auto_throw_every_s: Some(0.5), ..SitlConfig::default() };
+    let error = Sitl::start(&config).err().expect("refused");
+    assert!(error.to_string().contains("at least 2 s"), "{error}");
+}
+
+#[test]
+fn sitl_throws_from_the_configurator_end_with_the_offset_in_the_status() {
+    let report = json_of(&run_cli(&["--sitl", "--sitl-throws", "2", "--json", "status"]));
+    let offset = &report["imu_offset"];
+    assert_eq!(offset["throws"], 2, "{offset}");
+    assert_eq!(offset["estimated"], true);
+    assert_eq!(offset["in_free_fall"], false);
+    // At rest in the hand again, with a full quiet statistics window.
+    let accel_mps2 = norm(&report["imu"]["accel_mps2"]);
+    assert!((accel_mps2 - 9.81).abs() < 0.15, "|a| = {accel_mps2} m/s²");
+    let output = run_cli(&["--sitl-throws", "2", "status"]);
+    assert_eq!(output.status.code(), Some(2), "--sitl-throws needs --sitl");
+}

@@ -59,12 +59,13 @@ pub fn test(args: &[String]) -> Result<()> {
 }
 
 /// Run the configurator against the built-in simulator: `cargo xtask sitl [CONFIGURATOR ARGS]`
-/// (default `info`).
+/// (default `--sitl-throws 3 info`: the simulated hand throws the craft three times, the board
+/// learns its IMU offset onboard, and the configurator prints the board's info and status).
 pub fn sitl(args: &[String]) -> Result<()> {
     let mut command = util::cargo();
     command.args(["run", "--quiet", "-p", "configurator-cli", "--", "--sitl"]);
     if args.is_empty() {
-        command.arg("info");
+        command.args(["--sitl-throws", "3", "info"]);
     } else {
         command.args(args);
     }

@@ -34,6 +34,13 @@ struct Args {
     /// Seed of the sensor noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Throw the craft (spinning, 1 m up) and catch it every this many seconds, so the
+    /// board's onboard IMU-offset estimate can be watched with `configurator-cli status`.
+    #[arg(long)]
+    throw_every_s: Option<f64>,
+    /// Stop throwing after this many throws (default: keep throwing).
+    #[arg(long, requires = "throw_every_s")]
+    throws: Option<usize>,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -48,6 +55,8 @@ fn main() -> std::process::ExitCode {
         tcp_port: args.tcp_port,
         speed: args.speed,
         seed: args.seed,
+        auto_throw_every_s: args.throw_every_s,
+        auto_throw_count: args.throws,
     };
     let sitl = match Sitl::start(&config) {
         Ok(sitl) => sitl,
@@ -65,6 +74,9 @@ fn main() -> std::process::ExitCode {
     }
     if let Some(addr) = sitl.tcp_addr {
         println!("  TCP:                      {addr}");
+    }
+    if let Some(every_s) = args.throw_every_s {
+        println!("  throwing the craft every {every_s} s (spinning, 1 m up) and catching it");
     }
     println!("Stop with Ctrl-C.");
     let started = std::time::Instant::now();
