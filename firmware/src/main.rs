@@ -148,7 +148,7 @@ mod app {
         let motors = BoardMotors::default();
         let (producer, consumer) = split_queue(cx.local.samples);
         let control = ControlLoop::new(config, producer);
-        let background = Background::new(consumer);
+        let background = Background::new(consumer, config.rate_hz);
         let mut serial = heapless::String::new();
         // The 24-character UID always fits the protocol's 32-byte field.
         let _ = serial.push_str(uid_text);
@@ -193,8 +193,10 @@ mod app {
         (shared, local, init::Monotonics())
     }
 
-    /// Between interrupts: report the control step's timing over defmt when it changed (here,
-    /// where waiting on the debug probe delays nobody), then sleep until the next interrupt.
+    /// Between interrupts: report the control step's timing over defmt when it changed, then
+    /// sleep until the next interrupt. defmt-rtt writes with interrupts masked for the few µs a
+    /// message takes and, built with `disable-blocking-mode`, drops messages rather than wait
+    /// for the probe, so logging here delays the control interrupt by microseconds at most.
     #[idle(local = [reported: StepStats = StepStats { max_us: 0, overruns: 0 }])]
     fn idle(cx: idle::Context) -> ! {
         loop {

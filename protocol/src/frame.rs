@@ -18,8 +18,9 @@ use serde::Serialize;
 /// Largest encoded frame, bytes on the wire including the 0x00 delimiter. 256 keeps a frame in
 /// four USB full-speed CDC packets and bounds every buffer on the board.
 pub const MAX_FRAME_LEN: usize = 256;
-/// Largest raw frame (before COBS): COBS adds one byte per started 254 bytes, plus the delimiter.
-/// COBS needs at most one byte per 254 raw bytes plus one: 253 raw bytes encode in at most 254.
+/// Largest raw frame (before COBS) that always fits [`MAX_FRAME_LEN`]: COBS adds at most one
+/// byte per 254 raw bytes plus one, so 253 raw bytes encode in at most 254, plus the delimiter.
+/// (A raw frame containing zeros may be slightly longer and still fit; the encoder checks.)
 pub const MAX_RAW_LEN: usize = 253;
 /// Bytes of the CRC at the end of every raw frame.
 pub const CRC_LEN: usize = 4;

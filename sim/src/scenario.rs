@@ -61,9 +61,10 @@ impl FlightApp for FirmwareApp<'_> {
 pub fn with_firmware_app<R>(f: impl FnOnce(&mut FirmwareApp<'_>) -> R) -> R {
     let mut queue = SampleQueue::new();
     let (producer, consumer) = split_queue(&mut queue);
+    let config = ControlConfig::default();
     let mut app = FirmwareApp {
-        control: ControlLoop::new(ControlConfig::default(), producer),
-        background: Background::new(consumer),
+        control: ControlLoop::new(config, producer),
+        background: Background::new(consumer, config.rate_hz),
     };
     f(&mut app)
 }

@@ -8,8 +8,9 @@
 //!
 //! One thread runs everything in the order the board's priorities impose: every 500 µs of
 //! simulated time a physics tick and a control step, then the background work, and once per
-//! millisecond of wall time the links. Simulated time follows the wall clock × `speed`; when the
-//! host cannot keep up, the lag is counted, never hidden.
+//! millisecond of simulated time the links. Simulated time follows the wall clock × `speed`;
+//! when the host cannot keep up, the simulation runs slower than asked rather than skipping
+//! steps (the status's uptime then trails the wall clock).
 
 use crate::airframe::{Airframe, AirframeError};
 use crate::board::{SimBoard, SimConfig};
@@ -220,7 +221,9 @@ impl<T: Transport> Connection<T> {
     /// Receive, poll telemetry, transmit. Returns false when the transport has closed.
     fn service(&mut self, now_us: u64, view: &StatusView) -> bool {
         let mut buffer = [0u8; 512];
-        loop {
+        // At most 4 KiB per pass (4 MB/s), so a client that never stops writing cannot stall
+        // the simulation.
+        for _ in 0..8 {
             match self.transport.read_available(&mut buffer) {
                 Ok(0) => break,
                 Ok(n) => self.link.receive(&buffer[..n], now_us, view),
@@ -262,8 +265,9 @@ impl Runner {
         let info = board_info(self.airframe.rotor_count() as u8, self.seed);
         let mut queue = SampleQueue::new();
         let (producer, consumer) = split_queue(&mut queue);
-        let mut control = ControlLoop::new(ControlConfig::default(), producer);
-        let mut background = Background::new(consumer);
+        let control_config = ControlConfig::default();
+        let mut control = ControlLoop::new(control_config, producer);
+        let mut background = Background::new(consumer, control_config.rate_hz);
         let mut pty =
             self.pty.map(|transport| Connection { transport, link: LinkServer::new(info.clone()) });
         let mut clients: Vec<Connection<TcpStream>> = Vec::new();

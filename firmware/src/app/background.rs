@@ -10,7 +10,6 @@
 //! control step through [`BackgroundResults`], copied under a short lock by the board, never
 //! computed under it.
 
-use super::control::CONTROL_RATE_HZ;
 use super::queue::{LearnerSample, SampleConsumer};
 use flight::imu_offset::{self, ImuOffsetEstimator, Model, Verdict};
 use nalgebra::Vector3;
@@ -46,18 +45,25 @@ pub struct Background<'q> {
     window_start_us: Option<u64>,
     /// `None` only if the estimator rejected its configuration (then the status shows no throws).
     imu_offset: Option<ImuOffsetEstimator>,
+    /// One control period, µs: the spacing of consecutive samples when none is lost.
+    period_us: u64,
+    /// Time of the previous sample, µs.
+    previous_t_us: Option<u64>,
     results: BackgroundResults,
 }
 
 impl<'q> Background<'q> {
-    pub fn new(samples: SampleConsumer<'q>) -> Self {
+    /// The background worker for samples taken once per control step at `control_rate_hz`.
+    pub fn new(samples: SampleConsumer<'q>, control_rate_hz: u16) -> Self {
+        let rate_hz = control_rate_hz.max(1);
         Self {
             samples,
             gyro: Default::default(),
             accel: Default::default(),
             window_start_us: None,
-            imu_offset: ImuOffsetEstimator::new(f32::from(CONTROL_RATE_HZ), imu_offset_config())
-                .ok(),
+            imu_offset: ImuOffsetEstimator::new(f32::from(rate_hz), imu_offset_config()).ok(),
+            period_us: 1_000_000 / u64::from(rate_hz),
+            previous_t_us: None,
             results: BackgroundResults::default(),
         }
     }
@@ -93,6 +99,15 @@ impl<'q> Background<'q> {
 
     fn update_imu_offset(&mut self, sample: &LearnerSample) {
         let Some(estimator) = &mut self.imu_offset else { return };
+        // Samples missing from the stream (no IMU sample in a step, or dropped from a full
+        // queue) would splice two stretches of data: tell the estimator about the gap.
+        if let Some(previous) = self.previous_t_us.replace(sample.t_us) {
+            let elapsed_us = sample.t_us.saturating_sub(previous);
+            if elapsed_us > self.period_us + self.period_us / 2 {
+                let missing = (elapsed_us + self.period_us / 2) / self.period_us - 1;
+                estimator.gap(u32::try_from(missing).unwrap_or(u32::MAX));
+            }
+        }
         let imu = imu_offset::ImuSample {
             gyro_radps: Vector3::from(sample.imu.gyro_rad_s),
             acc_mps2: Vector3::from(sample.imu.accel_mps2),
@@ -105,11 +120,20 @@ impl<'q> Background<'q> {
             return;
         }
         status.throws = u8::try_from(estimator.segments().len()).unwrap_or(u8::MAX);
-        if let Ok(estimate) = estimator.estimate() {
-            status.estimated = true;
-            status.r_imu_m = estimate.r_imu_m.into();
-            status.ci95_semi_axes_m = estimate.ellipsoid.semi_axes_m;
-            status.well_determined = matches!(estimate.verdict, Verdict::WellDetermined { .. });
+        match estimator.estimate() {
+            Ok(estimate) => {
+                status.estimated = true;
+                status.r_imu_m = estimate.r_imu_m.into();
+                status.ci95_semi_axes_m = estimate.ellipsoid.semi_axes_m;
+                status.well_determined = matches!(estimate.verdict, Verdict::WellDetermined { .. });
+            }
+            // Never leave an earlier estimate on show as if it were current.
+            Err(_) => {
+                status.estimated = false;
+                status.well_determined = false;
+                status.r_imu_m = [0.0; 3];
+                status.ci95_semi_axes_m = [0.0; 3];
+            }
         }
     }
 
@@ -175,7 +199,7 @@ mod tests {
         let (bias_rad_s, noise_rad_s, accel_noise_mps2) = ([0.01, -0.02, 0.005], 0.002, 0.03);
         let mut queue = SampleQueue::new();
         let (mut producer, consumer) = split_queue(&mut queue);
-        let mut background = Background::new(consumer);
+        let mut background = Background::new(consumer, 2000);
         let mut rng = flight::rng::Rng::new(0x2545_f491_4f6c_dd1d);
         // 2.5 s at 2 kHz: two full windows, the second one published when the third starts.
         for step in 0..5000u64 {

@@ -133,11 +133,12 @@ impl<'q> ControlLoop<'q> {
             self.rate_window_start_us = now_us;
         }
         self.previous_step_us = Some(now_us);
-        self.rate_window_steps += 1;
+        self.rate_window_steps = self.rate_window_steps.wrapping_add(1);
         let window_us = now_us.saturating_sub(self.rate_window_start_us);
         if window_us >= 1_000_000 {
             // Steps completed in the window divided by its length.
-            snapshot.rate_hz = (self.rate_window_steps - 1) as f32 * 1e6 / window_us as f32;
+            snapshot.rate_hz =
+                self.rate_window_steps.saturating_sub(1) as f32 * 1e6 / window_us as f32;
             self.rate_window_start_us = now_us;
             self.rate_window_steps = 1;
         }

@@ -164,13 +164,13 @@ impl LinkServer {
     }
 
     fn handshake(&mut self, host: Version) -> Response {
+        // Either way a new session begins: nothing streams until the host asks for it.
+        self.topics = [TopicState::default(); TOPIC_COUNT];
         if host.major != PROTOCOL_VERSION.major {
             self.host_version = None;
             return Err(DeviceError::IncompatibleProtocol { device: PROTOCOL_VERSION, host });
         }
-        // A new session: nothing streams until the host asks for it.
         self.host_version = Some(host);
-        self.topics = [TopicState::default(); TOPIC_COUNT];
         Ok(Reply::Hello(self.info.clone()))
     }
 

@@ -61,7 +61,12 @@ impl FrontEnd {
     /// Count a raw sample that is not fed through the filters (rejected input), so later indices
     /// still match the raw stream.
     pub fn skip(&mut self) {
-        self.next_index = self.next_index.saturating_add(1);
+        self.skip_many(1);
+    }
+
+    /// Count `count` raw samples that never arrived.
+    pub fn skip_many(&mut self, count: u32) {
+        self.next_index = self.next_index.saturating_add(count);
     }
 
     /// Index the next raw sample will get (samples fed or skipped so far).

@@ -224,6 +224,15 @@ impl ImuOffsetEstimator {
         Ok(self.front.update(sample).and_then(|s| self.process(&s)))
     }
 
+    /// `missing` samples were lost upstream (a gap in the stream): the filters restart and a
+    /// throw in progress is abandoned, since Ω̇ and the filtered signals across a gap would be
+    /// wrong; indices skip the gap so later segments still map to stream time.
+    pub fn gap(&mut self, missing: u32) {
+        self.front.skip_many(missing);
+        self.front.restart();
+        self.abandon_free_fall();
+    }
+
     /// End of the stream: a free fall still in progress ends here (trimmed as at a catch).
     pub fn finish(&mut self) -> Option<Segment> {
         match self.phase {
