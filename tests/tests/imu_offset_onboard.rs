@@ -91,7 +91,7 @@ impl scenario::FlightApp for LossyImuApp<'_, '_> {
         motors: &mut M,
     ) {
         self.steps += 1;
-        let mut lossy = Lossy { imu, drop: self.steps % 400 == 0 };
+        let mut lossy = Lossy { imu, drop: self.steps.is_multiple_of(400) };
         self.app.step(now_us, &mut lossy, motors);
     }
 }
