@@ -26,6 +26,8 @@ impl<T: Read + Write + Send> Transport for T {}
 pub enum LinkError {
     #[error("I/O error on {port}: {source}")]
     Io { port: String, source: std::io::Error },
+    #[error("{port} was closed by the other side (board unplugged or simulator stopped?)")]
+    Closed { port: String },
     #[error("no answer from {port} within {timeout_ms} ms to {what} (is it a flight controller running our firmware?)")]
     Timeout { port: String, timeout_ms: u128, what: &'static str },
     #[error("incompatible protocol: the board speaks {device}, this configurator speaks {host}; update the {older}")]
@@ -106,13 +108,14 @@ impl Client {
             transport,
             port: port.to_string(),
             decoder: Decoder::new(),
-            next_seq: 1,
+            next_seq: initial_seq(),
             timeout: DEFAULT_TIMEOUT,
             info: placeholder_info(),
             telemetry: VecDeque::new(),
             events: VecDeque::new(),
             bad_frames: 0,
         };
+        client.discard_stale_input()?;
         let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
         let seq = client.send(&hello)?;
         let info = match client.await_response(seq, "the handshake")? {
@@ -152,6 +155,40 @@ impl Client {
         while Instant::now() < deadline {
             self.read_some(|_, _| {})?;
         }
+        Ok(())
+    }
+
+    /// Read for `duration`, handing each telemetry sample to `on_sample` as it arrives (nothing
+    /// is kept, so a long stream needs no memory).
+    pub fn listen_with(
+        &mut self,
+        duration: Duration,
+        mut on_sample: impl FnMut(TelemetrySample),
+    ) -> Result<(), LinkError> {
+        let deadline = Instant::now() + duration;
+        while Instant::now() < deadline {
+            self.read_some(|_, _| {})?;
+            self.telemetry.drain(..).for_each(&mut on_sample);
+        }
+        Ok(())
+    }
+
+    /// Drop whatever the port holds from an earlier session (late responses, telemetry nobody
+    /// stopped) so it cannot be taken for an answer: read until the line has been quiet for
+    /// [`QUIET_BEFORE_HELLO`], for at most [`MAX_DISCARD_TIME`].
+    fn discard_stale_input(&mut self) -> Result<(), LinkError> {
+        let started = Instant::now();
+        let mut last_byte = Instant::now();
+        let mut buffer = [0u8; 1024];
+        while last_byte.elapsed() < QUIET_BEFORE_HELLO && started.elapsed() < MAX_DISCARD_TIME {
+            match self.transport.read(&mut buffer) {
+                Ok(0) => return Err(self.io(ErrorKind::UnexpectedEof.into())),
+                Ok(_) => last_byte = Instant::now(),
+                Err(e) if is_no_data(&e) => {}
+                Err(source) => return Err(self.io(source)),
+            }
+        }
+        self.decoder = Decoder::new();
         Ok(())
     }
 
@@ -215,9 +252,10 @@ impl Client {
     ) -> Result<(), LinkError> {
         let mut buffer = [0u8; 1024];
         let n = match self.transport.read(&mut buffer) {
+            // End of file: the board closed the connection (TCP) or hung up (serial).
+            Ok(0) => return Err(self.io(ErrorKind::UnexpectedEof.into())),
             Ok(n) => n,
-            Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => 0,
-            Err(e) if e.kind() == ErrorKind::Interrupted => 0,
+            Err(e) if is_no_data(&e) => 0,
             Err(source) => return Err(self.io(source)),
         };
         if n == 0 {
@@ -245,8 +283,36 @@ impl Client {
     }
 
     fn io(&self, source: std::io::Error) -> LinkError {
-        LinkError::Io { port: self.port.clone(), source }
+        let port = self.port.clone();
+        match source.kind() {
+            ErrorKind::UnexpectedEof
+            | ErrorKind::ConnectionReset
+            | ErrorKind::ConnectionAborted
+            | ErrorKind::BrokenPipe => LinkError::Closed { port },
+            _ => LinkError::Io { port, source },
+        }
     }
+}
+
+/// How long the line must be quiet before the handshake is sent.
+const QUIET_BEFORE_HELLO: Duration = Duration::from_millis(20);
+/// Longest time spent discarding stale input (a board streaming telemetry from an earlier
+/// session never goes quiet; its frames are then told apart by sequence number).
+const MAX_DISCARD_TIME: Duration = Duration::from_millis(300);
+
+/// A read that found nothing (yet), as opposed to a broken link.
+fn is_no_data(error: &std::io::Error) -> bool {
+    matches!(error.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock | ErrorKind::Interrupted)
+}
+
+/// A sequence number to start from that differs between sessions, so a late answer to an
+/// earlier session's request is not mistaken for the answer to this one's.
+fn initial_seq() -> u16 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
+    (nanos ^ std::process::id()) as u16 | 1
 }
 
 fn incompatible(device: Version, host: Version) -> LinkError {

@@ -30,7 +30,8 @@ struct Cli {
     airframe: String,
     /// With --sitl: let the simulated hand throw the craft (spinning, 1 m up) and catch it this
     /// many times before the command runs, so the board learns its IMU offset (4× real time).
-    #[arg(long, global = true, default_value_t = 0, requires = "sitl")]
+    #[arg(long, global = true, default_value_t = 0, requires = "sitl",
+          value_parser = clap::value_parser!(u8).range(0..=16))]
     sitl_throws: u8,
     /// Print JSON instead of text.
     #[arg(long, global = true)]
@@ -279,6 +280,16 @@ fn stream_arguments(topic: &str, rate_hz: u16, duration_s: f64) -> Result<Topic,
     Ok(topic)
 }
 
+/// Whether a telemetry sample belongs to `topic`.
+fn is_topic(data: &Telemetry, topic: Topic) -> bool {
+    matches!(
+        (data, topic),
+        (Telemetry::Imu(_), Topic::Imu)
+            | (Telemetry::Control(_), Topic::Control)
+            | (Telemetry::Motors(_), Topic::Motors)
+    )
+}
+
 /// Stream a topic and count samples and gaps (from the per-topic sequence numbers).
 fn stream(
     client: &mut Client,
@@ -289,16 +300,24 @@ fn stream(
 ) -> Result<String, Failure> {
     let set = |rate_hz| Request::SetTelemetryRate(SetTelemetryRate { topic, rate_hz });
     client.request(&set(rate_hz), "the telemetry rate request")?;
-    client.listen(Duration::from_secs_f64(duration_s))?;
+    // Count as samples arrive (nothing is kept): only this topic, only from now on.
+    client.telemetry.clear();
+    let (mut received, mut gaps, mut previous_seq) = (0u64, 0u64, None::<u16>);
+    let mut last_imu = None;
+    client.listen_with(Duration::from_secs_f64(duration_s), |sample| {
+        if !is_topic(&sample.data, topic) {
+            return;
+        }
+        received += 1;
+        if let Some(previous) = previous_seq {
+            gaps += u64::from(sample.seq.wrapping_sub(previous).wrapping_sub(1));
+        }
+        previous_seq = Some(sample.seq);
+        if let Telemetry::Imu(imu) = sample.data {
+            last_imu = Some(imu);
+        }
+    })?;
     client.request(&set(0), "the request to stop telemetry")?;
-    let samples: Vec<_> = client.telemetry.drain(..).collect();
-    let received = samples.len() as u64;
-    let gaps: u64 =
-        samples.windows(2).map(|w| u64::from(w[1].seq.wrapping_sub(w[0].seq)) - 1).sum();
-    let last_imu = samples.iter().rev().find_map(|s| match s.data {
-        Telemetry::Imu(imu) => Some(imu),
-        _ => None,
-    });
     let achieved_hz = received as f64 / duration_s;
     if json_output {
         return Ok(format!(

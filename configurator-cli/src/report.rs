@@ -185,6 +185,11 @@ pub fn status_text(status: &Status) -> String {
             vector(offset.r_imu_m, 1000.0, 2),
             vector(offset.ci95_semi_axes_m, 1000.0, 2).replace('+', ""),
         );
+    } else if offset.throws > 0 {
+        let _ = writeln!(
+            out,
+            "  imu offset      {throws}, too little free fall to estimate from yet: throw again, higher"
+        );
     } else {
         let _ =
             writeln!(out, "  imu offset      no throw yet (throw the craft spinning and catch it)");

@@ -124,13 +124,34 @@ fn an_out_of_range_stream_rate_is_refused_before_connecting() {
     assert!(String::from_utf8_lossy(&output.stderr).contains("outside 1 to 1000 Hz"));
 }
 
-/// A fake board on TCP that answers the handshake as protocol 2.0 would.
-#[test]
-fn a_board_of_another_major_version_is_refused_naming_both_versions() {
+/// A fake board's identity reply with the given protocol version and board name.
+fn fake_info(protocol: Version, board: &str) -> Info {
+    Info {
+        protocol,
+        schema_hash: 0,
+        firmware: FirmwareVersion { major: 9, minor: 0, patch: 0 },
+        board: heapless::String::try_from(board).unwrap(),
+        serial: heapless::String::new(),
+        capabilities: Capabilities(0),
+        control_rate_hz: 2000,
+        motor_count: 4,
+    }
+}
+
+fn frame(message: &DeviceMessage, seq: u16) -> Vec<u8> {
+    let mut out = [0u8; MAX_FRAME_LEN];
+    let len = message.encode(seq, &mut out).unwrap();
+    out[..len].to_vec()
+}
+
+/// A fake board on TCP at the returned address: on connection it first sends `stale` bytes,
+/// then answers the first Hello with `Ok(Reply::Hello(info))`, then hangs up.
+fn fake_board(stale: Vec<u8>, info: Info) -> (String, std::thread::JoinHandle<()>) {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let address = listener.local_addr().unwrap().to_string();
     let board = std::thread::spawn(move || {
         let (mut stream, _) = listener.accept().unwrap();
+        stream.write_all(&stale).unwrap();
         stream.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
         let mut decoder = protocol::Decoder::new();
         let mut buffer = [0u8; 256];
@@ -138,26 +159,23 @@ fn a_board_of_another_major_version_is_refused_naming_both_versions() {
             let n = stream.read(&mut buffer).unwrap();
             assert!(n > 0, "the configurator hung up before the handshake");
             for &byte in &buffer[..n] {
-                let Some(Ok(frame)) = decoder.push(byte) else { continue };
-                assert!(matches!(Request::decode(&frame), Ok(Request::Hello(_))));
-                let future = Info {
-                    protocol: Version { major: PROTOCOL_VERSION.major + 1, minor: 0 },
-                    schema_hash: 0,
-                    firmware: FirmwareVersion { major: 9, minor: 0, patch: 0 },
-                    board: heapless::String::try_from("FUTURE").unwrap(),
-                    serial: heapless::String::new(),
-                    capabilities: Capabilities(0),
-                    control_rate_hz: 2000,
-                    motor_count: 4,
-                };
-                let reply = DeviceMessage::Response(Ok(Reply::Hello(future)));
-                let mut out = [0u8; MAX_FRAME_LEN];
-                let len = reply.encode(frame.seq, &mut out).unwrap();
-                stream.write_all(&out[..len]).unwrap();
+                let Some(Ok(request)) = decoder.push(byte) else { continue };
+                assert!(matches!(Request::decode(&request), Ok(Request::Hello(_))));
+                let reply = DeviceMessage::Response(Ok(Reply::Hello(info)));
+                stream.write_all(&frame(&reply, request.seq)).unwrap();
+                // Stay up long enough for a status request to time out, if one is made.
+                std::thread::sleep(Duration::from_millis(100));
                 return;
             }
         }
     });
+    (address, board)
+}
+
+#[test]
+fn a_board_of_another_major_version_is_refused_naming_both_versions() {
+    let future = Version { major: PROTOCOL_VERSION.major + 1, minor: 0 };
+    let (address, board) = fake_board(Vec::new(), fake_info(future, "FUTURE"));
     let output = run_cli(&["--tcp", &address, "info"]);
     board.join().unwrap();
     assert_eq!(output.status.code(), Some(1));
@@ -166,6 +184,32 @@ fn a_board_of_another_major_version_is_refused_naming_both_versions() {
     let host = format!("protocol {}.{}", PROTOCOL_VERSION.major, PROTOCOL_VERSION.minor);
     assert!(stderr.contains(&device) && stderr.contains(&host), "{stderr}");
     assert!(stderr.contains("update the configurator"), "{stderr}");
+}
+
+#[test]
+fn stale_answers_from_an_earlier_session_are_not_taken_for_the_handshake() {
+    // Late handshake replies of an earlier session, for every sequence number a new session
+    // could start with (a future-major board name, so accepting one would fail the command),
+    // then the board that answers this session (it then hangs up).
+    let stale_info = fake_info(Version { major: PROTOCOL_VERSION.major + 1, minor: 0 }, "STALE");
+    let stale_reply = DeviceMessage::Response(Ok(Reply::Hello(stale_info)));
+    let stale: Vec<u8> = (0..=u16::MAX).flat_map(|seq| frame(&stale_reply, seq)).collect();
+    let (address, board) = fake_board(stale, fake_info(PROTOCOL_VERSION, "FRESH"));
+    let output = run_cli(&["--tcp", &address, "status"]);
+    board.join().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    // The handshake succeeded with the fresh board; the status request then finds the
+    // connection closed, which is reported as such, not as a timeout or a version clash.
+    assert!(!stderr.contains("incompatible"), "a stale reply was taken: {stderr}");
+    assert_eq!(output.status.code(), Some(1));
+    assert!(stderr.contains("closed by the other side"), "{stderr}");
+}
+
+#[test]
+fn too_many_sitl_throws_are_refused() {
+    let output = run_cli(&["--sitl", "--sitl-throws", "17", "status"]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&output.stderr).contains("17"));
 }
 
 #[test]
