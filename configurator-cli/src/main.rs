@@ -237,7 +237,11 @@ fn watch_throws(client: &mut Client, count: u8) -> Result<(), Failure> {
             reported = offset.throws;
             let r_mm = offset.r_imu_m.map(|x| x * 1000.0);
             let largest_mm = offset.ci95_semi_axes_m[0] * 1000.0;
-            let verdict = if offset.well_determined { "well determined" } else { "throw again" };
+            let verdict = if offset.well_determined {
+                "well determined".to_string()
+            } else {
+                report::advice_text(&offset.advice)
+            };
             eprintln!(
                 "  throw {reported}: IMU offset ({:+.2}, {:+.2}, {:+.2}) mm, largest 95 % semi-axis {largest_mm:.2} mm: {verdict}",
                 r_mm[0], r_mm[1], r_mm[2]

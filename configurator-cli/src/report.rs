@@ -1,7 +1,7 @@
 //! What the board says, for people (aligned text, units on every number) and for programs (JSON
 //! with units in the key names).
 
-use protocol::{Capabilities, Info, Status, PROTOCOL_VERSION, SCHEMA_HASH};
+use protocol::{Capabilities, Info, OffsetAdvice, Status, PROTOCOL_VERSION, SCHEMA_HASH};
 use serde_json::{json, Value};
 use std::fmt::Write as _;
 
@@ -94,6 +94,7 @@ pub fn status_json(status: &Status) -> Value {
             "r_imu_m": status.imu_offset.r_imu_m,
             "ci95_semi_axes_m": status.imu_offset.ci95_semi_axes_m,
             "well_determined": status.imu_offset.well_determined,
+            "advice": advice_text(&status.imu_offset.advice),
         },
         "link": {
             "frames_rx": l.frames_rx,
@@ -111,6 +112,28 @@ pub fn status_json(status: &Status) -> Value {
 
 fn vector(v: [f32; 3], scale: f32, decimals: usize) -> String {
     format!("({:+.d$}, {:+.d$}, {:+.d$})", v[0] * scale, v[1] * scale, v[2] * scale, d = decimals)
+}
+
+/// The board's IMU-offset advice in words.
+pub fn advice_text(advice: &OffsetAdvice) -> String {
+    const AXES: [&str; 3] = ["x (forward)", "y (right)", "z (down)"];
+    let axis = |index: u8| AXES.get(usize::from(index)).copied().unwrap_or("another axis");
+    let direction = |d: &[f32; 3]| format!("({:+.2}, {:+.2}, {:+.2})", d[0], d[1], d[2]);
+    match advice {
+        OffsetAdvice::None => String::new(),
+        OffsetAdvice::ThrowAgain { direction_imu, spin_about_axis } => format!(
+            "poorly determined along {} (IMU axes): throw again spinning about IMU {}",
+            direction(direction_imu),
+            axis(*spin_about_axis)
+        ),
+        OffsetAdvice::BiasNotSeparable { direction_imu, spin_about_axis } => format!(
+            "along {} the offset cannot be told from an accelerometer bias: throw again at a \
+             different spin rate, about IMU {}",
+            direction(direction_imu),
+            axis(*spin_about_axis)
+        ),
+        OffsetAdvice::FitBias => "an accelerometer bias spoils the fit: fit the bias too".into(),
+    }
 }
 
 /// Status as text.
@@ -175,9 +198,9 @@ pub fn status_text(status: &Status) -> String {
     };
     if offset.estimated {
         let verdict = if offset.well_determined {
-            "well determined"
+            "well determined".to_string()
         } else {
-            "not yet well determined: throw again spinning about another axis"
+            format!("not yet well determined: {}", advice_text(&offset.advice))
         };
         let _ = writeln!(
             out,

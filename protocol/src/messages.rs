@@ -254,9 +254,26 @@ pub struct ImuOffsetStatus {
     pub r_imu_m: [f32; 3],
     /// Semi-axes of the 95 % confidence ellipsoid of `r_imu_m`, m, largest first.
     pub ci95_semi_axes_m: [f32; 3],
-    /// Whether every semi-axis is small enough to use the estimate; if not, throw again
-    /// spinning about another axis.
+    /// Whether every semi-axis is small enough to use the estimate.
     pub well_determined: bool,
+    /// What to do next when it is not.
+    pub advice: OffsetAdvice,
+}
+
+/// The IMU-offset estimator's advice to the person throwing.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub enum OffsetAdvice {
+    /// Nothing to do (well determined), or no estimate yet.
+    #[default]
+    None,
+    /// The offset is poorly determined along `direction_imu` (unit vector, IMU axes): throw
+    /// again spinning about IMU axis `spin_about_axis` (0 = x, 1 = y, 2 = z).
+    ThrowAgain { direction_imu: [f32; 3], spin_about_axis: u8 },
+    /// Along `direction_imu` the offset cannot be told apart from an accelerometer bias: throw
+    /// again at a different spin rate, about IMU axis `spin_about_axis`.
+    BiasNotSeparable { direction_imu: [f32; 3], spin_about_axis: u8 },
+    /// An accelerometer bias the model ignores spoils the offset: fit the bias jointly.
+    FitBias,
 }
 
 /// Frame counters of the device's side of the link.

@@ -66,6 +66,7 @@ fn status() -> Status {
             r_imu_m: [-0.01, -0.013, 0.008],
             ci95_semi_axes_m: [0.0005, 0.0003, 0.0002],
             well_determined: true,
+            advice: OffsetAdvice::None,
         },
         link: LinkCounters { frames_rx: 2, frames_tx: 1, ..LinkCounters::default() },
     }
@@ -89,7 +90,7 @@ fn request_frames_are_pinned() {
 fn response_frames_are_pinned() {
     assert_eq!(device(DeviceMessage::Response(Ok(Reply::Hello(info()))), 1), "03 81 01 01 02 01 0a ef 9b af cd f8 ac d1 91 01 02 01 13 04 53 49 54 4c 04 30 30 30 31 21 d0 0f 04 b3 9b a0 9b 00");
     assert_eq!(device(DeviceMessage::Response(Ok(Reply::Info(info()))), 2), "03 81 02 03 01 01 0a ef 9b af cd f8 ac d1 91 01 02 01 13 04 53 49 54 4c 04 30 30 30 31 21 d0 0f 04 01 f1 92 e5 00");
-    assert_eq!(device(DeviceMessage::Response(Ok(Reply::Status(status()))), 3), "03 81 03 04 02 dc 0b 03 b8 17 01 08 fa 44 01 ee 05 ae 17 03 01 2a 04 01 b8 17 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 05 c3 f5 1c c1 01 01 01 01 01 01 01 01 01 01 01 1a 6f 12 03 3b 6f 12 03 3b 6f 12 03 3b 8f c2 f5 3c 8f c2 f5 3c 8f c2 f5 3c 02 1d 01 0a d7 23 bc f4 fd 54 bc 6f 12 03 3c 6f 12 03 3a 52 49 9d 39 17 b7 51 39 01 02 01 01 01 01 01 01 01 05 01 90 09 67 00");
+    assert_eq!(device(DeviceMessage::Response(Ok(Reply::Status(status()))), 3), "03 81 03 04 02 dc 0b 03 b8 17 01 08 fa 44 01 ee 05 ae 17 03 01 2a 04 01 b8 17 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 05 c3 f5 1c c1 01 01 01 01 01 01 01 01 01 01 01 1a 6f 12 03 3b 6f 12 03 3b 6f 12 03 3b 8f c2 f5 3c 8f c2 f5 3c 8f c2 f5 3c 02 1b 01 0a d7 23 bc f4 fd 54 bc 6f 12 03 3c 6f 12 03 3a 52 49 9d 39 17 b7 51 39 01 03 02 01 01 01 01 01 01 01 05 77 29 a2 63 00");
     assert_eq!(
         device(DeviceMessage::Response(Ok(Reply::Done)), 4),
         "03 81 04 06 03 ae 7f 0c 4a 00"
@@ -171,6 +172,8 @@ fn the_largest_status_fits_one_frame() {
     (c.steps, c.late_steps, c.max_interval_us) = (u32::MAX, u32::MAX, u32::MAX);
     (c.samples_processed, c.samples_dropped) = (u32::MAX, u32::MAX);
     c.step_time = Some(StepTime { max_us: u32::MAX, overruns: u32::MAX });
+    let advice = OffsetAdvice::BiasNotSeparable { direction_imu: [1.0; 3], spin_about_axis: 2 };
+    status.imu_offset.advice = advice;
     (status.imu.samples, status.imu.missing) = (u32::MAX, u32::MAX);
     status.link = LinkCounters {
         frames_rx: u32::MAX,

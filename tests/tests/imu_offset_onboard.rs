@@ -57,6 +57,18 @@ fn one_throw_about_one_axis_is_not_well_determined_onboard() {
         let offset = app.background.results().imu_offset;
         assert_eq!(offset.throws, 1);
         assert!(offset.estimated && !offset.well_determined, "{offset:?}");
+        // The advice names the poorly determined direction: the spin axis, in IMU axes, and an
+        // IMU axis to spin about next that is nearly perpendicular to it.
+        let protocol::OffsetAdvice::ThrowAgain { direction_imu, spin_about_axis } = offset.advice
+        else {
+            panic!("expected advice to throw again: {offset:?}");
+        };
+        let spin_axis_imu = airframe.q_imu_body() * Vector3::z();
+        let direction = Vector3::from(direction_imu).cast::<f64>();
+        let angle_deg = direction.dot(&spin_axis_imu).abs().min(1.0).acos().to_degrees();
+        assert!(angle_deg < 10.0, "advised direction {angle_deg:.1}° from the spin axis");
+        let next_axis = Vector3::ith(usize::from(spin_about_axis), 1.0);
+        assert!(next_axis.dot(&direction).abs() < 0.7, "spin next about a different axis");
     });
 }
 

@@ -13,7 +13,7 @@
 use super::queue::{LearnerSample, SampleConsumer};
 use flight::imu_offset::{self, ImuOffsetEstimator, Model, Verdict};
 use nalgebra::Vector3;
-use protocol::ImuOffsetStatus;
+use protocol::{ImuOffsetStatus, OffsetAdvice};
 
 /// Length of one statistics window, µs (one second).
 pub const STATS_WINDOW_US: u64 = 1_000_000;
@@ -126,11 +126,13 @@ impl<'q> Background<'q> {
                 status.r_imu_m = estimate.r_imu_m.into();
                 status.ci95_semi_axes_m = estimate.ellipsoid.semi_axes_m;
                 status.well_determined = matches!(estimate.verdict, Verdict::WellDetermined { .. });
+                status.advice = advice(&estimate.verdict);
             }
             // Never leave an earlier estimate on show as if it were current.
             Err(_) => {
                 status.estimated = false;
                 status.well_determined = false;
+                status.advice = OffsetAdvice::None;
                 status.r_imu_m = [0.0; 3];
                 status.ci95_semi_axes_m = [0.0; 3];
             }
@@ -150,6 +152,31 @@ impl<'q> Background<'q> {
         self.results.stats_valid = true;
         self.gyro = Default::default();
         self.accel = Default::default();
+    }
+}
+
+/// The estimator's verdict as advice on the wire.
+fn advice(verdict: &Verdict<f32>) -> OffsetAdvice {
+    let axis_index = |axis: imu_offset::ImuAxis| match axis {
+        imu_offset::ImuAxis::X => 0,
+        imu_offset::ImuAxis::Y => 1,
+        imu_offset::ImuAxis::Z => 2,
+    };
+    match *verdict {
+        Verdict::WellDetermined { .. } => OffsetAdvice::None,
+        Verdict::PoorlyDetermined { direction_imu, spin_next_about, .. } => {
+            OffsetAdvice::ThrowAgain {
+                direction_imu: direction_imu.into(),
+                spin_about_axis: axis_index(spin_next_about),
+            }
+        }
+        Verdict::BiasNotSeparable { direction_imu, spin_next_about, .. } => {
+            OffsetAdvice::BiasNotSeparable {
+                direction_imu: direction_imu.into(),
+                spin_about_axis: axis_index(spin_next_about),
+            }
+        }
+        Verdict::BiasSuspected { .. } => OffsetAdvice::FitBias,
     }
 }
 
