@@ -60,7 +60,11 @@ impl Host {
         let mut out = Vec::new();
         let mut packet = [0u8; 64];
         loop {
-            let n = self.server.transmit(&mut packet);
+            let n = self.server.transmit_to(|bytes| {
+                let n = bytes.len().min(packet.len());
+                packet[..n].copy_from_slice(&bytes[..n]);
+                n
+            });
             if n == 0 {
                 return out;
             }

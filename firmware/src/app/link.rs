@@ -128,23 +128,12 @@ impl LinkServer {
         }
     }
 
-    /// Move queued bytes into `out`; returns how many. Call until it returns 0 or the transport
-    /// is full.
-    pub fn transmit(&mut self, out: &mut [u8]) -> usize {
-        self.tx.drain(out)
-    }
-
     /// Offer the queued bytes to `write`, which returns how many it took (0 when the transport is
     /// full); those are removed, the rest wait for the next call. Returns the bytes taken.
     pub fn transmit_to(&mut self, mut write: impl FnMut(&[u8]) -> usize) -> usize {
         let taken = write(self.tx.pending()).min(self.tx.len());
         self.tx.consume(taken);
         taken
-    }
-
-    /// Bytes waiting to be transmitted.
-    pub fn pending_tx(&self) -> usize {
-        self.tx.len()
     }
 
     /// The link's frame counters.
@@ -320,12 +309,5 @@ impl TxBuffer {
             self.start = 0;
             self.end = 0;
         }
-    }
-
-    fn drain(&mut self, out: &mut [u8]) -> usize {
-        let n = out.len().min(self.len());
-        out[..n].copy_from_slice(&self.pending()[..n]);
-        self.consume(n);
-        n
     }
 }
