@@ -128,6 +128,11 @@ impl Butterworth2x3 {
         Ok(Self { channels: [one; 3] })
     }
 
+    /// Three identical filters with the given (already designed) coefficients, state at zero.
+    pub fn from_coefficients(c: BiquadCoefficients) -> Self {
+        Self { channels: [Butterworth2::from_coefficients(c); 3] }
+    }
+
     /// Start every channel in steady state at `x` (no start-up transient).
     pub fn reset_to(&mut self, x: &Vector3<f32>) {
         for (channel, value) in self.channels.iter_mut().zip(x.iter()) {

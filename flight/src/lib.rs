@@ -7,6 +7,7 @@
 
 pub mod filters;
 pub mod imu_offset;
+pub mod learner;
 pub mod rng;
 #[cfg(any(test, feature = "std"))]
 pub mod testing;

@@ -24,7 +24,7 @@ pub const UNIT_LEN: usize = 8;
 /// Maximum number of motors an airframe may have; fixes array sizes on the wire.
 pub const MAX_MOTORS: usize = 8;
 /// Number of telemetry topics (the variants of [`Topic`]).
-pub const TOPIC_COUNT: usize = 3;
+pub const TOPIC_COUNT: usize = 4;
 /// Highest telemetry rate a host may request for one topic, Hz (half the 2 kHz control rate, so
 /// a topic never needs more than every second control step).
 pub const MAX_TELEMETRY_RATE_HZ: u16 = 1000;
@@ -91,11 +91,13 @@ pub enum Topic {
     Control,
     /// Motor commands and speeds ([`MotorTelemetry`]).
     Motors,
+    /// The in-flight learner's state and estimates ([`LearnerTelemetry`]).
+    Learner,
 }
 
 impl Topic {
     /// All topics, in wire order.
-    pub const ALL: [Topic; TOPIC_COUNT] = [Topic::Imu, Topic::Control, Topic::Motors];
+    pub const ALL: [Topic; TOPIC_COUNT] = [Topic::Imu, Topic::Control, Topic::Motors, Topic::Learner];
 
     /// The topic's index into [`Topic::ALL`].
     pub fn index(self) -> usize {
@@ -109,6 +111,16 @@ pub struct SetTelemetryRate {
     pub topic: Topic,
     /// 0 stops the topic; 1 to [`MAX_TELEMETRY_RATE_HZ`] Hz.
     pub rate_hz: u16,
+}
+
+/// A pose from an external source (motion capture, a ground station): where the centre of
+/// gravity is and which way the body points. Forwarded to the control step as it arrives.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct ExternalPose {
+    /// Position of the centre of gravity, m, world NED.
+    pub position_ned_m: [f32; 3],
+    /// Heading: yaw of the body (thrust) frame about world z (down), rad.
+    pub heading_rad: f32,
 }
 
 /// Echo request for measuring round trips.
@@ -137,6 +149,8 @@ pub enum Reply {
     Done,
     /// Answer to [`Request::Ping`], echoing its nonce.
     Pong(Ping),
+    /// Answer to [`Request::GetLearner`].
+    Learner(LearnerTelemetry),
 }
 
 /// Why a request was not carried out. Each variant's doc states what the host should do.
@@ -306,6 +320,85 @@ pub enum Telemetry {
     Imu(ImuTelemetry),
     Control(ControlTelemetry),
     Motors(MotorTelemetry),
+    Learner(LearnerTelemetry),
+}
+
+/// Where the throw-to-fly identification stands (algorithms.md §1–2).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LearnerPhase {
+    /// Not armed for a throw: nothing spins.
+    #[default]
+    Idle,
+    /// Armed: waiting for a throw (momentum above the threshold).
+    WaitingForThrow,
+    /// A throw is under way (acceleration high, momentum building).
+    Throwing,
+    /// Released: the release delay runs and free fall is being checked (motors still off).
+    Released,
+    /// The motors are being pulsed one after the other while the estimators learn.
+    Exciting,
+    /// The excitation is over; the results stand (the controller takes over from here).
+    Done,
+    /// Identification stopped: see [`LearnerTelemetry::failure`].
+    Failed,
+}
+
+/// Why an identification attempt ended without a result.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LearnerFailure {
+    /// No failure.
+    #[default]
+    None,
+    /// Released, but the accelerometer did not read free fall (the craft was still held, or hit
+    /// something): the motors never started.
+    NotFreeFall,
+    /// Armed for longer than the give-up time (3 s) after a throw began without a release.
+    ThrowTimedOut,
+    /// The torque effectiveness never reached full rank: no hover thrust axis exists.
+    RankDeficient,
+    /// A thrust axis was found, but hovering along it needs a motor outside [0, 1].
+    NoHover,
+    /// Disarmed by request during the attempt.
+    Disarmed,
+    /// The IMU stopped delivering samples during the attempt.
+    ImuLost,
+}
+
+/// The in-flight learner: phase, and the estimates so far. `g1_rows` carries three rows of the
+/// 6 × m effectiveness G1 per sample, alternating between the specific-force rows and the
+/// angular-acceleration rows (`g1_block`), so the whole matrix arrives every second sample.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct LearnerTelemetry {
+    /// Device time, µs since start-up.
+    pub t_us: u64,
+    pub phase: LearnerPhase,
+    pub failure: LearnerFailure,
+    /// Motors the learner identifies.
+    pub motor_count: u8,
+    /// The motor being pulsed now, during [`LearnerPhase::Exciting`].
+    pub exciting_motor: Option<u8>,
+    /// Time since the excitation began, ms (0 before).
+    pub excitation_ms: u16,
+    /// First-order time constant of each motor, s (0 where not yet identified).
+    pub tau_s: [f32; MAX_MOTORS],
+    /// Speed at full command of each motor, rad/s (0 where not yet identified).
+    pub omega_max_rad_s: [f32; MAX_MOTORS],
+    /// Bit i set: motor i's model has converged.
+    pub motors_converged: u8,
+    /// Bit i set: column i of G1 has converged.
+    pub g1_converged: u8,
+    /// Whether a hover thrust axis has been found (then the next three fields hold it).
+    pub thrust_axis_valid: bool,
+    /// `q_U^T`: rotation taking thrust-frame coordinates into IMU coordinates, `[w, x, y, z]`.
+    pub q_thrust_to_imu: [f32; 4],
+    /// ZYX Euler angles of `q_U^T`: roll, pitch, yaw, rad.
+    pub euler_zyx_rad: [f32; 3],
+    /// Which rows `g1_rows` holds: 0 = specific force (x, y, z), 1 = angular acceleration
+    /// (p, q, r).
+    pub g1_block: u8,
+    /// Three rows of G1 per unit normalised thrust u (u = ω²/ω_max²): m/s² (block 0) or rad/s²
+    /// (block 1), IMU axes.
+    pub g1_rows: [[f32; MAX_MOTORS]; 3],
 }
 
 /// The latest IMU sample.
@@ -361,6 +454,14 @@ crate::table::message_table! {
         0x03 => GetStatus(()),
         0x04 => SetTelemetryRate(SetTelemetryRate),
         0x05 => Ping(Ping),
+        /// Arm the throw detector: the next throw starts the motor excitation.
+        0x06 => ArmThrowToFly(()),
+        /// Stop every motor now and leave any armed state. Always accepted.
+        0x07 => Disarm(()),
+        /// A pose from motion capture or a ground station.
+        0x08 => SetExternalPose(ExternalPose),
+        /// The learner's state ([`Reply::Learner`]).
+        0x09 => GetLearner(()),
     }
 }
 

@@ -1,0 +1,229 @@
+//! The excitation schedule: after the throw, each motor in index order is pulsed while the
+//! estimators watch the response (algorithms.md §2).
+//!
+//! Per motor: a step to [`ExcitationConfig::step_command`] for `step_s`, a jump to
+//! `jump_command`, then a linear ramp back to 0 over `ramp_s`. The next motor starts
+//! `overlap_s` before the current one ends, so motor `i` starts at `delay_s + i·(step_s + ramp_s
+//! − overlap_s)`. Motors not being pulsed get δ = 0 (idle while the ESCs are armed).
+//!
+//! Timing: the published schedule (50 ms step, 100 ms ramp, 50 ms overlap) starts a quad's fourth
+//! motor 300 ms into the excitation, so no thrust axis can exist before then, and a hexarotor or
+//! octorotor needs 500–700 ms (algorithms.md §12). Our default is half as long per motor: a 30 ms
+//! step (more than one time constant of a 20–27 ms motor, so τ is seen), a 60 ms ramp and a 30 ms
+//! overlap, which starts motor `i` at `60·i` ms: a quad is fully excited at 270 ms, an octorotor
+//! at 510 ms.
+//!
+//! **Gyro guard**: when motor `i` (0-based) of `m` starts, each rate axis gets the bounds
+//! `Ω₀ + (Ω_max − Ω₀)/(m − i)` and `Ω₀ − (Ω_max + Ω₀)/(m − i)` around the rate `Ω₀` at that
+//! moment: each motor may use its share of the head-room left to `±Ω_max`. Leaving them ends
+//! that motor's pulse at once (its command returns to 0); the schedule of the others is kept.
+//!
+//! **Safety timeout**: the excitation ends at `min(max_s, delay_s + m·(step_s + ramp_s) −
+//! (m − 1)·overlap_s + 10 ms)` whatever happens.
+//!
+//! Runs in the 2 kHz control step: constant time, no allocation.
+
+/// Most motors the schedule handles.
+pub const MAX_MOTORS: usize = 8;
+
+/// The schedule's shape.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExcitationConfig {
+    /// Motors off after the throw is confirmed, before the first pulse, s.
+    pub delay_s: f32,
+    /// Length of the first level of each pulse, s.
+    pub step_s: f32,
+    /// Command of the first level, δ.
+    pub step_command: f32,
+    /// Command the pulse jumps to at the end of the step, δ, from which it ramps down to 0.
+    pub jump_command: f32,
+    /// Length of the ramp from `jump_command` to 0, s.
+    pub ramp_s: f32,
+    /// How long a motor's pulse overlaps the next motor's, s.
+    pub overlap_s: f32,
+    /// Rate bound of the gyro guard, rad/s (published: 1150–1600 °/s).
+    pub rate_limit_rad_s: f32,
+    /// Longest excitation whatever the motor count, s.
+    pub max_s: f32,
+}
+
+impl Default for ExcitationConfig {
+    fn default() -> Self {
+        Self {
+            delay_s: 0.0,
+            step_s: 0.030,
+            step_command: 0.35,
+            jump_command: 0.70,
+            ramp_s: 0.060,
+            overlap_s: 0.030,
+            rate_limit_rad_s: 1400.0_f32.to_radians(),
+            max_s: 1.0,
+        }
+    }
+}
+
+/// What the schedule asks for at one instant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExcitationOutput {
+    /// Commands δ ∈ [0, 1] for every motor (first `m` used).
+    pub commands: [f32; MAX_MOTORS],
+    /// The motor whose pulse started most recently and is still running.
+    pub active_motor: Option<u8>,
+    /// Whether the excitation is over (safety timeout reached).
+    pub finished: bool,
+}
+
+/// The running schedule of one excitation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Excitation {
+    config: ExcitationConfig,
+    motors: usize,
+    elapsed_s: f32,
+    /// Gyro-guard bounds of each motor's pulse, set when it starts: `[lower, upper]` per axis.
+    bounds: [[[f32; 2]; 3]; MAX_MOTORS],
+    started: [bool; MAX_MOTORS],
+    /// Pulses cut short by the gyro guard.
+    stopped: [bool; MAX_MOTORS],
+}
+
+impl Excitation {
+    /// The schedule for `motors` motors (clamped to 1..=8), at time 0.
+    pub fn new(config: ExcitationConfig, motors: usize) -> Self {
+        Self {
+            config,
+            motors: motors.clamp(1, MAX_MOTORS),
+            elapsed_s: 0.0,
+            bounds: [[[0.0; 2]; 3]; MAX_MOTORS],
+            started: [false; MAX_MOTORS],
+            stopped: [false; MAX_MOTORS],
+        }
+    }
+
+    /// Time from the start of the excitation to the start of motor `i`'s pulse, s.
+    pub fn start_s(&self, motor: usize) -> f32 {
+        let c = &self.config;
+        c.delay_s + motor as f32 * (c.step_s + c.ramp_s - c.overlap_s)
+    }
+
+    /// Total length including the 10 ms margin, capped at `max_s`, s.
+    pub fn duration_s(&self) -> f32 {
+        let c = &self.config;
+        let m = self.motors as f32;
+        (c.delay_s + m * (c.step_s + c.ramp_s) - (m - 1.0) * c.overlap_s + 0.010).min(c.max_s)
+    }
+
+    /// Time since the excitation began, s.
+    pub fn elapsed_s(&self) -> f32 {
+        self.elapsed_s
+    }
+
+    /// Whether motor `i`'s pulse was ended early by the gyro guard.
+    pub fn cut_short(&self, motor: usize) -> bool {
+        self.stopped.get(motor).copied().unwrap_or(false)
+    }
+
+    /// Advance by `dt_s` with the body rate `gyro_rad_s` now; returns the commands to apply.
+    pub fn update(&mut self, gyro_rad_s: [f32; 3], dt_s: f32) -> ExcitationOutput {
+        let c = self.config;
+        let t = self.elapsed_s;
+        let mut out =
+            ExcitationOutput { commands: [0.0; MAX_MOTORS], active_motor: None, finished: false };
+        if t >= self.duration_s() {
+            out.finished = true;
+            return out;
+        }
+        let pulse_s = c.step_s + c.ramp_s;
+        for i in 0..self.motors {
+            let local = t - self.start_s(i);
+            if local < 0.0 || local >= pulse_s {
+                continue;
+            }
+            if !self.started[i] {
+                self.started[i] = true;
+                let share = (self.motors - i) as f32;
+                for (axis, rate) in gyro_rad_s.iter().enumerate() {
+                    let rate = if rate.is_finite() { *rate } else { 0.0 };
+                    self.bounds[i][axis] = [
+                        rate - (c.rate_limit_rad_s + rate) / share,
+                        rate + (c.rate_limit_rad_s - rate) / share,
+                    ];
+                }
+            }
+            let outside = gyro_rad_s
+                .iter()
+                .zip(&self.bounds[i])
+                .any(|(rate, [lower, upper])| !(*rate >= *lower && *rate <= *upper));
+            if outside {
+                self.stopped[i] = true;
+            }
+            if self.stopped[i] {
+                continue;
+            }
+            out.commands[i] = if local < c.step_s {
+                c.step_command
+            } else {
+                c.jump_command * (1.0 - (local - c.step_s) / c.ramp_s)
+            };
+            out.active_motor = Some(i as u8);
+        }
+        self.elapsed_s = t + dt_s;
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::vec::Vec;
+
+    const DT: f32 = 0.0005;
+
+    #[test]
+    fn published_schedule_for_a_quad_has_its_documented_timing() {
+        let config = ExcitationConfig {
+            step_s: 0.05,
+            ramp_s: 0.1,
+            overlap_s: 0.05,
+            ..ExcitationConfig::default()
+        };
+        let mut e = Excitation::new(config, 4);
+        assert!((e.start_s(3) - 0.300).abs() < 1e-6);
+        assert!((e.duration_s() - 0.460).abs() < 1e-6, "450 ms + 10 ms margin");
+        let mut trace = Vec::new();
+        loop {
+            let out = e.update([0.0; 3], DT);
+            if out.finished {
+                break;
+            }
+            trace.push(out.commands);
+        }
+        // Samples at 0.5 ms: motor 0 at 0.35 for 50 ms, jumps to 0.7, ramps to 0 by 150 ms.
+        assert_eq!(trace[10][0], 0.35);
+        assert!((trace[101][0] - 0.7 * (1.0 - 0.0005 / 0.1)).abs() < 1e-4);
+        assert!((trace[200][0] - 0.35).abs() < 1e-6 && trace[200][1] > 0.0);
+        assert_eq!(trace[302][0], 0.0, "motor 0 is done at 150 ms");
+        assert_eq!(trace[650][3], 0.35, "motor 3 is in its step at 325 ms");
+        assert!((919..=921).contains(&trace.len()), "{} samples of 0.5 ms", trace.len());
+    }
+
+    #[test]
+    fn the_gyro_guard_ends_a_pulse_that_spins_the_craft_too_fast() {
+        let mut e = Excitation::new(ExcitationConfig::default(), 4);
+        let limit = ExcitationConfig::default().rate_limit_rad_s;
+        // Motor 0 starts at rate 0: its share is ±limit/4.
+        assert_eq!(e.update([0.0; 3], DT).commands[0], 0.35);
+        assert!(e.update([0.2 * limit, 0.0, 0.0], DT).commands[0] > 0.0);
+        let out = e.update([0.26 * limit, 0.0, 0.0], DT);
+        assert_eq!(out.commands[0], 0.0);
+        assert!(e.cut_short(0) && !e.cut_short(1));
+    }
+
+    #[test]
+    fn the_default_schedule_excites_every_quad_motor_within_300_ms() {
+        let e = Excitation::new(ExcitationConfig::default(), 4);
+        assert!(e.start_s(3) + 0.03 < 0.3);
+        let octo = Excitation::new(ExcitationConfig::default(), 8);
+        assert!(octo.duration_s() <= 1.0);
+    }
+}

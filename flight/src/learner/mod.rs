@@ -1,0 +1,437 @@
+//! In-flight identification of an unknown multirotor: throw-to-arm, motor excitation, recursive
+//! least squares of the motor models and of the effectiveness, and the hover thrust axis from
+//! what was learned (seed paper §3.1, §3.3; algorithms.md §1–5, §11).
+//!
+//! Two halves, split the way the firmware's tasks are:
+//! - [`ThrowToFly`] runs in the 2 kHz control step: [`throw_detector`] decides that the craft has
+//!   been thrown and is falling freely, then [`excitation`] pulses each motor in turn. A few dozen
+//!   operations per step.
+//! - [`Learner`] runs in the background task on every sample of the excitation:
+//!   [`motor_model`] per motor, [`effectiveness`] (G1, G2) and, once every motor has been pulsed,
+//!   the [`crate::thrust_axis`] solver on the learned G1. It publishes a [`LearnedModel`]: the
+//!   interface the controller (INDI) builds on.
+//!
+//! Units of the learned effectiveness: G1 is kept per unit *squared motor speed* (m/s² or rad/s²
+//! per (rad/s)²), which is what the physics says and what the regression sees. Per unit of
+//! normalised thrust `u = ω²/ω_full²` (the convention of the papers and of the thrust-axis
+//! problem, `u ∈ [0, 1]`), G1 is scaled by each motor's `ω_full²` from its learned model:
+//! [`LearnedModel::g1_per_unit_thrust`].
+//!
+//! Time alignment (algorithms.md §12): a motor's reported speed is paired with the command that
+//! was driving it when the speed was measured, [`LearnerConfig::command_to_speed_delay_steps`]
+//! control steps earlier (one step of output latency plus the telemetry's age).
+
+pub mod effectiveness;
+pub mod excitation;
+pub mod motor_model;
+pub mod rls;
+pub mod throw_detector;
+
+use crate::filters::{BiquadCoefficients, FilterDesignError};
+use crate::thrust_axis::{self, HoverProblem, ThrustAxisSolver};
+use effectiveness::EffectivenessEstimator;
+use excitation::{Excitation, ExcitationConfig};
+use motor_model::{MotorModel, MotorModelEstimator};
+use rls::RlsConfig;
+use throw_detector::{ThrowConfig, ThrowDetector, ThrowEvent, ThrowState};
+
+/// Most motors the learner handles.
+pub const MAX_MOTORS: usize = 8;
+/// Fewest motors the learner handles (three torque equations need at least four).
+pub const MIN_MOTORS: usize = 4;
+
+/// Low-pass cut-off of the effectiveness signals, Hz (algorithms.md §5: 20 Hz).
+pub const EFFECTIVENESS_CUTOFF_HZ: f32 = 20.0;
+/// Low-pass cut-off of the motor-model signals, Hz (algorithms.md §4: 40 Hz).
+pub const MOTOR_MODEL_CUTOFF_HZ: f32 = 40.0;
+/// Information needed before a motor's G1 column is used in the thrust-axis problem: its
+/// covariance diagonal below this fraction of the prior (roughly: the pulse has begun and the
+/// motor's speed has changed by a few hundred rad/s).
+pub const AXIS_INFORMATION_FRACTION: f32 = 0.05;
+/// Relative one-sigma uncertainty of a G1 column below which it counts as converged.
+pub const G1_CONVERGED_RELATIVE_STD: f32 = 0.02;
+
+/// A reported speed above which a motor counts as running (armed ESC), rad/s: far below any
+/// idle speed (300 rad/s on a 3-inch quad), far above DShot's speed resolution at standstill.
+pub const RUNNING_SPEED_RAD_S: f32 = 50.0;
+
+/// How the learner is set up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LearnerConfig {
+    /// Sample (control) rate, Hz.
+    pub rate_hz: f32,
+    /// IMU position relative to the centre of gravity, IMU axes, m.
+    pub r_imu_m: [f32; 3],
+    /// Control steps from a command to the speed report it explains (output + telemetry delay).
+    pub command_to_speed_delay_steps: u8,
+    /// Effectiveness RLS tuning.
+    pub effectiveness_rls: RlsConfig,
+    /// Motor-model RLS tuning.
+    pub motor_rls: RlsConfig,
+}
+
+impl Default for LearnerConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 2000.0,
+            r_imu_m: [0.0; 3],
+            command_to_speed_delay_steps: 2,
+            effectiveness_rls: RlsConfig { lambda: 1.0, p0: 100.0, p_max: 1e4 },
+            motor_rls: RlsConfig { lambda: 1.0, p0: 100.0, p_max: 1e4 },
+        }
+    }
+}
+
+/// Why a learner could not be built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LearnerError {
+    /// The motor count is outside 4..=8.
+    MotorCount { motors: usize },
+    /// The rate does not allow the filters' cut-offs.
+    Filter(FilterDesignError),
+    /// The IMU offset is not finite or larger than 1 m.
+    ImuOffset,
+}
+
+/// The hover thrust axis found from the learned G1.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LearnedThrustAxis {
+    /// `q_U^T`: thrust-frame coordinates into IMU coordinates, `[w, x, y, z]`.
+    pub q_thrust_to_imu: [f32; 4],
+    /// Unit thrust direction, IMU axes.
+    pub thrust_dir_imu: [f32; 3],
+    /// Hover command per motor, normalised thrust u.
+    pub u_hover: [f32; MAX_MOTORS],
+    /// ZYX Euler angles of `q_U^T`: roll, pitch, yaw, rad.
+    pub euler_zyx_rad: [f32; 3],
+}
+
+/// Why the thrust axis is not (yet) known.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AxisStatus {
+    /// Not every motor has been excited enough yet.
+    #[default]
+    Waiting,
+    /// Found.
+    Found,
+    /// G1τ is rank deficient: the motors cannot produce every torque.
+    RankDeficient,
+    /// No hover within the motor bounds along any axis.
+    NoHover,
+}
+
+/// Everything learned so far: the interface to the controller.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LearnedModel {
+    /// Motors identified.
+    pub motors: u8,
+    /// G1 per unit squared speed: rows 0–2 specific force (m/s²), rows 3–5 angular acceleration
+    /// (rad/s²), per (rad/s)², IMU axes; columns are motors.
+    pub g1_per_speed2: [[f32; MAX_MOTORS]; 6],
+    /// G2: angular acceleration per motor acceleration, rad/s² per rad/s², IMU axes.
+    pub g2: [[f32; MAX_MOTORS]; 3],
+    /// The motor models.
+    pub motor: [MotorModel; MAX_MOTORS],
+    /// Bit i: G1 column i has converged (relative σ below [`G1_CONVERGED_RELATIVE_STD`]).
+    pub g1_converged: u8,
+    /// Bit i: motor i's model has converged.
+    pub motors_converged: u8,
+    /// The thrust axis, when found.
+    pub thrust_axis: Option<LearnedThrustAxis>,
+    /// Where the thrust-axis solution stands.
+    pub axis_status: AxisStatus,
+    /// Samples learned from.
+    pub samples: u32,
+}
+
+impl LearnedModel {
+    /// G1 per unit normalised thrust `u = ω²/ω_full²`: column i scaled by motor i's `ω_full²`.
+    pub fn g1_per_unit_thrust(&self) -> [[f32; MAX_MOTORS]; 6] {
+        let mut g1 = self.g1_per_speed2;
+        for i in 0..usize::from(self.motors).min(MAX_MOTORS) {
+            let full = self.motor[i].omega_full_rad_s();
+            for row in g1.iter_mut() {
+                row[i] *= full * full;
+            }
+        }
+        g1
+    }
+
+    /// Largest time constant of the motors, s (0 before any is known).
+    pub fn tau_max_s(&self) -> f32 {
+        self.motor[..usize::from(self.motors).min(MAX_MOTORS)]
+            .iter()
+            .map(|m| m.tau_s)
+            .fold(0.0, f32::max)
+    }
+}
+
+/// The background half: every estimator of the identification.
+#[derive(Clone, Debug)]
+pub struct Learner {
+    config: LearnerConfig,
+    motors: usize,
+    motor_models: [MotorModelEstimator; MAX_MOTORS],
+    effectiveness: EffectivenessEstimator,
+    solver: ThrustAxisSolver,
+    /// The last commands, newest first, for the time alignment.
+    commands: [[f32; MAX_MOTORS]; 8],
+    /// Whether the ESCs run the motors: since the first non-zero command of the attempt, or
+    /// since a motor reported a running speed.
+    armed: bool,
+    model: LearnedModel,
+}
+
+impl Learner {
+    /// A learner for `motors` motors.
+    pub fn new(motors: usize, config: LearnerConfig) -> Result<Self, LearnerError> {
+        if !(MIN_MOTORS..=MAX_MOTORS).contains(&motors) {
+            return Err(LearnerError::MotorCount { motors });
+        }
+        check_offset(config.r_imu_m)?;
+        let slow = BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, config.rate_hz)
+            .map_err(LearnerError::Filter)?;
+        let fast = BiquadCoefficients::butterworth_lowpass(MOTOR_MODEL_CUTOFF_HZ, config.rate_hz)
+            .map_err(LearnerError::Filter)?;
+        let motor = MotorModelEstimator::new(fast, config.rate_hz, config.motor_rls);
+        Ok(Self {
+            config,
+            motors,
+            motor_models: core::array::from_fn(|_| motor.clone()),
+            effectiveness: EffectivenessEstimator::new(
+                motors,
+                config.rate_hz,
+                slow,
+                config.r_imu_m,
+                config.effectiveness_rls,
+            ),
+            solver: ThrustAxisSolver::new(thrust_axis::SolverConfig::default()),
+            commands: [[0.0; MAX_MOTORS]; 8],
+            armed: false,
+            model: LearnedModel { motors: motors as u8, ..LearnedModel::default() },
+        })
+    }
+
+    /// Start a new identification with the IMU offset `r_imu_m` (IMU axes, m).
+    pub fn restart(&mut self, r_imu_m: [f32; 3]) -> Result<(), LearnerError> {
+        check_offset(r_imu_m)?;
+        self.config.r_imu_m = r_imu_m;
+        for m in &mut self.motor_models {
+            m.reset();
+        }
+        self.effectiveness.reset(r_imu_m);
+        self.solver.reset();
+        self.commands = [[0.0; MAX_MOTORS]; 8];
+        self.armed = false;
+        self.model = LearnedModel { motors: self.motors as u8, ..LearnedModel::default() };
+        Ok(())
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &LearnerConfig {
+        &self.config
+    }
+
+    /// One control-rate sample: IMU (IMU axes), the commands applied in this step and the motor
+    /// speeds reported in it (rad/s; NaN where a motor did not report).
+    pub fn update(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        commands: &[f32; MAX_MOTORS],
+        speeds_rad_s: &[f32; MAX_MOTORS],
+    ) {
+        self.commands.copy_within(0..7, 1);
+        self.commands[0] = *commands;
+        let delay = usize::from(self.config.command_to_speed_delay_steps).min(7);
+        let driving = self.commands[delay];
+        let m = self.motors;
+        self.armed |= driving[..m].iter().any(|&d| d > 0.0)
+            || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
+        for i in 0..m {
+            self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
+        }
+        self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
+        self.model.samples = self.model.samples.saturating_add(1);
+        self.publish();
+    }
+
+    /// The model learned so far.
+    pub fn model(&self) -> &LearnedModel {
+        &self.model
+    }
+
+    fn publish(&mut self) {
+        let m = self.motors;
+        let model = &mut self.model;
+        model.g1_per_speed2 = self.effectiveness.g1_per_speed2();
+        model.g2 = self.effectiveness.g2();
+        model.g1_converged = 0;
+        model.motors_converged = 0;
+        let mut all_informed = true;
+        for i in 0..m {
+            model.motor[i] = self.motor_models[i].model();
+            if model.motor[i].converged {
+                model.motors_converged |= 1 << i;
+            }
+            let (force_std, torque_std) = self.effectiveness.column_relative_std(i);
+            if force_std.max(torque_std) < G1_CONVERGED_RELATIVE_STD {
+                model.g1_converged |= 1 << i;
+            }
+            let (force_left, torque_left) =
+                self.effectiveness.information_left(i, self.config.effectiveness_rls.p0);
+            all_informed &= force_left.max(torque_left) < AXIS_INFORMATION_FRACTION;
+        }
+        if !all_informed {
+            model.axis_status = AxisStatus::Waiting;
+            return;
+        }
+        let g1 = model.g1_per_unit_thrust();
+        let rows = |k: usize| &g1[k][..m];
+        let problem = HoverProblem::new([rows(0), rows(1), rows(2)], [rows(3), rows(4), rows(5)]);
+        let solution = problem.and_then(|p| self.solver.solve(&p));
+        match solution {
+            Ok(solution) => {
+                let euler = solution.euler_zyx();
+                let mut u_hover = [0.0; MAX_MOTORS];
+                u_hover[..m].copy_from_slice(solution.u_hover());
+                model.thrust_axis = Some(LearnedThrustAxis {
+                    q_thrust_to_imu: solution.q_thrust_to_imu,
+                    thrust_dir_imu: solution.thrust_dir_imu,
+                    u_hover,
+                    euler_zyx_rad: [euler.roll_rad, euler.pitch_rad, euler.yaw_rad],
+                });
+                model.axis_status = AxisStatus::Found;
+            }
+            Err(thrust_axis::ThrustAxisError::TorqueRankDeficient { .. }) => {
+                model.axis_status = AxisStatus::RankDeficient;
+            }
+            Err(_) => model.axis_status = AxisStatus::NoHover,
+        }
+    }
+}
+
+fn check_offset(r: [f32; 3]) -> Result<(), LearnerError> {
+    if r.iter().all(|x| x.is_finite() && x.abs() <= 1.0) {
+        Ok(())
+    } else {
+        Err(LearnerError::ImuOffset)
+    }
+}
+
+/// Where a throw-to-fly attempt stands (the control step's half).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FlightPhase {
+    /// Not armed: nothing spins.
+    #[default]
+    Idle,
+    /// Armed, waiting for a throw.
+    WaitingForThrow,
+    /// The hand is accelerating the craft.
+    Throwing,
+    /// Released: the release delay and the free-fall check run, motors off.
+    Released,
+    /// Pulsing the motors.
+    Exciting,
+    /// The excitation is over.
+    Done,
+}
+
+/// What a [`ThrowToFly`] step asks of the motors and reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ThrowToFlyOutput {
+    /// Commands δ for every motor (0 unless exciting).
+    pub commands: [f32; MAX_MOTORS],
+    /// The motor being pulsed.
+    pub active_motor: Option<u8>,
+    /// What the throw detector concluded in this step.
+    pub event: ThrowEvent,
+}
+
+/// The control step's half of the identification: throw detection, then the excitation.
+#[derive(Clone, Copy, Debug)]
+pub struct ThrowToFly {
+    throw_config: ThrowConfig,
+    excitation_config: ExcitationConfig,
+    motors: usize,
+    phase: FlightPhase,
+    detector: ThrowDetector,
+    excitation: Excitation,
+}
+
+impl ThrowToFly {
+    /// Idle, for `motors` motors.
+    pub fn new(throw: ThrowConfig, excitation: ExcitationConfig, motors: usize) -> Self {
+        Self {
+            throw_config: throw,
+            excitation_config: excitation,
+            motors,
+            phase: FlightPhase::Idle,
+            detector: ThrowDetector::new(throw),
+            excitation: Excitation::new(excitation, motors),
+        }
+    }
+
+    /// Arm the throw detector (from any phase: a new attempt).
+    pub fn arm(&mut self) {
+        self.detector = ThrowDetector::new(self.throw_config);
+        self.phase = FlightPhase::WaitingForThrow;
+    }
+
+    /// Back to idle: every motor at zero from the next step on.
+    pub fn disarm(&mut self) {
+        self.phase = FlightPhase::Idle;
+    }
+
+    /// The phase.
+    pub fn phase(&self) -> FlightPhase {
+        self.phase
+    }
+
+    /// Time since the excitation began, s (0 before).
+    pub fn excitation_elapsed_s(&self) -> f32 {
+        match self.phase {
+            FlightPhase::Exciting | FlightPhase::Done => self.excitation.elapsed_s(),
+            _ => 0.0,
+        }
+    }
+
+    /// One control step with the IMU sample (IMU axes), `dt_s` after the previous one.
+    pub fn update(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        dt_s: f32,
+    ) -> ThrowToFlyOutput {
+        let mut out = ThrowToFlyOutput {
+            commands: [0.0; MAX_MOTORS],
+            active_motor: None,
+            event: ThrowEvent::None,
+        };
+        match self.phase {
+            FlightPhase::Idle | FlightPhase::Done => {}
+            FlightPhase::WaitingForThrow | FlightPhase::Throwing | FlightPhase::Released => {
+                out.event = self.detector.update(accel_mps2, gyro_rad_s, dt_s);
+                self.phase = match self.detector.state() {
+                    ThrowState::Waiting => FlightPhase::WaitingForThrow,
+                    ThrowState::Throwing { .. } => FlightPhase::Throwing,
+                    ThrowState::Released { .. } => FlightPhase::Released,
+                    ThrowState::Thrown => {
+                        self.excitation = Excitation::new(self.excitation_config, self.motors);
+                        FlightPhase::Exciting
+                    }
+                };
+            }
+            FlightPhase::Exciting => {
+                let excitation = self.excitation.update(gyro_rad_s, dt_s);
+                if excitation.finished {
+                    self.phase = FlightPhase::Done;
+                } else {
+                    out.commands = excitation.commands;
+                    out.active_motor = excitation.active_motor;
+                }
+            }
+        }
+        out
+    }
+}
