@@ -66,6 +66,9 @@ mod app {
         control: ControlSnapshot,
         /// Written by `background` after each batch, read by `usb_service`.
         background: BackgroundResults,
+        /// Commands from the link for the control step (arm, disarm, pose): pushed by
+        /// `usb_service`, taken by `control_tick` at the start of its next step.
+        commands: heapless::Deque<ControlCommand, 4>,
     }
 
     /// Each task's own state.
@@ -160,7 +163,11 @@ mod app {
             control_rate_hz: config.rate_hz,
             motor_count: motors.count(),
         });
-        let shared = Shared { control: control.snapshot(), background: background.results() };
+        let shared = Shared {
+            control: control.snapshot(),
+            background: background.results(),
+            commands: heapless::Deque::new(),
+        };
 
         // The control tick at the application's rate (2 kHz), started last so the first step
         // finds everything ready.
@@ -218,11 +225,11 @@ mod app {
             binds = TIM2,
             priority = 3,
             local = [control_timer, step_timer, control_clock, control, imu, motors, ticks: u32 = 0],
-            shared = [control]
+            shared = [control, commands]
         )]
         fn control_tick(cx: control_tick::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link], shared = [control, background])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link], shared = [control, background, commands])]
         fn usb_service(cx: usb_service::Context);
 
         #[task(priority = 1, local = [background], shared = [background])]
@@ -234,7 +241,7 @@ mod app {
 #[cfg(target_os = "none")]
 mod tasks {
     use crate::app::{background, control_tick, usb_service};
-    use firmware::app::StatusView;
+    use firmware::app::{ControlCommand, StatusView};
     use firmware::board::config::USB_SERVICE_DIVIDER;
     use firmware::board::timing::step_stats;
     use protocol::StepTime;
@@ -253,6 +260,12 @@ mod tasks {
         let started = cx.local.step_timer.start();
         cx.local.control_timer.clear_irq();
         let now_us = cx.local.control_clock.now_us();
+        let control = &mut *cx.local.control;
+        cx.shared.commands.lock(|commands| {
+            while let Some(command) = commands.pop_front() {
+                control.command(command, now_us);
+            }
+        });
         let samples_waiting = cx.local.control.step(now_us, cx.local.imu, cx.local.motors);
         let snapshot = cx.local.control.snapshot();
         cx.shared.control.lock(|control| *control = snapshot);
@@ -283,6 +296,15 @@ mod tasks {
         };
         let link = cx.local.link;
         cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view));
+        cx.shared.commands.lock(|commands| {
+            while let Some(command) = link.take_command() {
+                // A disarm always finds room: it replaces whatever still waits.
+                if command == ControlCommand::Disarm {
+                    commands.clear();
+                }
+                let _ = commands.push_back(command);
+            }
+        });
         link.poll(now_us, &view);
         let usb = cx.local.usb;
         while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}

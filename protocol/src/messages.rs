@@ -97,7 +97,8 @@ pub enum Topic {
 
 impl Topic {
     /// All topics, in wire order.
-    pub const ALL: [Topic; TOPIC_COUNT] = [Topic::Imu, Topic::Control, Topic::Motors, Topic::Learner];
+    pub const ALL: [Topic; TOPIC_COUNT] =
+        [Topic::Imu, Topic::Control, Topic::Motors, Topic::Learner];
 
     /// The topic's index into [`Topic::ALL`].
     pub fn index(self) -> usize {

@@ -6,12 +6,18 @@
 //!   in, throws are detected as free fall, and after each accepted throw the offset, its 95 %
 //!   ellipsoid and the verdict are re-estimated (a few 3 × 3 solves, once per throw).
 //!
-//! The learner's other estimators (effectiveness RLS, thrust axis) join here; results reach the
-//! control step through [`BackgroundResults`], copied under a short lock by the board, never
-//! computed under it.
+//! - The in-flight learner (`flight::learner::Learner`): while the control step excites the
+//!   motors after a throw, every sample updates the motor models, G1/G2 and the thrust axis.
+//!   Its accelerometer is moved to the centre of gravity with the IMU offset: the configured one
+//!   ([`Background::set_imu_offset`]), else the onboard estimate once it is well determined,
+//!   else none (and the status says which).
+//!
+//! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
+//! board, never computed under it.
 
 use super::queue::{LearnerSample, SampleConsumer};
 use flight::imu_offset::{self, ImuOffsetEstimator, Model, Verdict};
+use flight::learner::{FlightPhase, LearnedModel, Learner, LearnerConfig};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetStatus, OffsetAdvice};
 
@@ -35,6 +41,24 @@ pub struct BackgroundResults {
     pub accel_std_mps2: [f32; 3],
     /// The IMU-offset estimator's state and latest estimate.
     pub imu_offset: ImuOffsetStatus,
+    /// What the in-flight learner has learned in the latest attempt.
+    pub learned: LearnedModel,
+    /// Where the IMU offset used by the latest attempt came from.
+    pub learner_offset: OffsetSource,
+}
+
+/// Where the learner's IMU offset came from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum OffsetSource {
+    /// No attempt yet.
+    #[default]
+    NotUsed,
+    /// Configured ([`Background::set_imu_offset`]).
+    Configured,
+    /// The onboard estimate (well determined).
+    Onboard,
+    /// None known: zero was used (the specific-force rows are then biased at high rates).
+    Zero,
 }
 
 /// The background worker.
@@ -49,6 +73,12 @@ pub struct Background<'q> {
     period_us: u64,
     /// Time of the previous sample, µs.
     previous_t_us: Option<u64>,
+    /// The in-flight learner, built at the first excitation (it needs the motor count).
+    learner: Option<Learner>,
+    /// The IMU offset to use, IMU axes, m, when configured.
+    configured_offset_m: Option<[f32; 3]>,
+    rate_hz: f32,
+    previous_phase: FlightPhase,
     results: BackgroundResults,
 }
 
@@ -64,8 +94,18 @@ impl<'q> Background<'q> {
             imu_offset: ImuOffsetEstimator::new(f32::from(rate_hz), imu_offset_config()).ok(),
             period_us: 1_000_000 / u64::from(rate_hz),
             previous_t_us: None,
+            learner: None,
+            configured_offset_m: None,
+            rate_hz: f32::from(rate_hz),
+            previous_phase: FlightPhase::Idle,
             results: BackgroundResults::default(),
         }
+    }
+
+    /// Use `r_imu_m` (IMU position relative to the centre of gravity, IMU axes, m) for the next
+    /// identifications instead of the onboard estimate; `None` goes back to the onboard one.
+    pub fn set_imu_offset(&mut self, r_imu_m: Option<[f32; 3]>) {
+        self.configured_offset_m = r_imu_m.filter(|r| r.iter().all(|x| x.is_finite()));
     }
 
     /// Process every waiting sample. Returns the number processed.
@@ -95,6 +135,55 @@ impl<'q> Background<'q> {
             self.accel[axis].add(sample.imu.accel_mps2[axis]);
         }
         self.update_imu_offset(sample);
+        self.update_learner(sample);
+    }
+
+    fn update_learner(&mut self, sample: &LearnerSample) {
+        let phase = sample.phase;
+        let starting =
+            phase == FlightPhase::Exciting && self.previous_phase != FlightPhase::Exciting;
+        self.previous_phase = phase;
+        if starting {
+            let (r_imu_m, source) = self.learner_offset();
+            let motors = usize::from(sample.motor_count);
+            let reuse =
+                self.learner.as_ref().is_some_and(|l| l.model().motors == sample.motor_count);
+            if !reuse {
+                let config =
+                    LearnerConfig { rate_hz: self.rate_hz, r_imu_m, ..LearnerConfig::default() };
+                self.learner = Learner::new(motors, config).ok();
+            }
+            if let Some(learner) = &mut self.learner {
+                // Cannot fail: the offset was checked finite and the onboard one is bounded.
+                let _ = learner.restart(r_imu_m);
+            }
+            self.results.learner_offset = source;
+        }
+        if phase != FlightPhase::Exciting {
+            return;
+        }
+        if let Some(learner) = &mut self.learner {
+            learner.update(
+                sample.imu.gyro_rad_s,
+                sample.imu.accel_mps2,
+                &sample.commands,
+                &sample.speeds_rad_s,
+            );
+            self.results.learned = *learner.model();
+        }
+    }
+
+    /// The IMU offset for a new identification and where it came from.
+    fn learner_offset(&self) -> ([f32; 3], OffsetSource) {
+        if let Some(r) = self.configured_offset_m {
+            return (r, OffsetSource::Configured);
+        }
+        let onboard = &self.results.imu_offset;
+        if onboard.well_determined {
+            (onboard.r_imu_m, OffsetSource::Onboard)
+        } else {
+            ([0.0; 3], OffsetSource::Zero)
+        }
     }
 
     fn update_imu_offset(&mut self, sample: &LearnerSample) {
@@ -236,7 +325,7 @@ mod tests {
                 imu.accel_mps2[axis] = accel_noise_mps2 * rng.normal() as f32;
             }
             imu.accel_mps2[2] -= 9.81;
-            producer.push(LearnerSample { t_us: step * 500, imu, commands: [0.0; 8] });
+            producer.push(LearnerSample { t_us: step * 500, imu, ..Default::default() });
             background.run_pending();
         }
         let results = background.results();

@@ -2,11 +2,32 @@
 //!
 //! Deadline: one control period (500 µs at 2 kHz). The step never blocks, never allocates and
 //! never panics: a missing IMU sample is counted, a full queue drops and counts, and motor outputs
-//! are always written (zero while disarmed). The attitude filter, the learner's schedule and INDI
-//! join here in later issues.
+//! are always written (zero unless a throw-to-fly attempt is exciting the motors).
+//!
+//! Throw-to-fly (`flight::learner::ThrowToFly`): armed by [`ControlCommand::ArmThrowToFly`], the
+//! step runs the throw detector on every sample and, once the craft is thrown and falling
+//! freely, the excitation schedule, whose commands it writes. Every sample goes to the background
+//! task with the commands, the reported motor speeds and the phase; the background learner
+//! does all the estimation there (no RLS in this step). [`ControlCommand::Disarm`] stops every
+//! motor from the step it arrives in. The attitude filter and INDI join in the controller issue.
 
 use super::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use super::queue::{LearnerSample, SampleProducer};
+use flight::learner::excitation::ExcitationConfig;
+use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
+use flight::learner::{FlightPhase, ThrowToFly};
+use protocol::{ExternalPose, LearnerFailure};
+
+/// What the other tasks ask of the control step (from the link, the receiver, the simulator).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ControlCommand {
+    /// Arm the throw detector: the next throw starts the identification.
+    ArmThrowToFly,
+    /// Stop every motor and leave any armed state, now.
+    Disarm,
+    /// A pose from motion capture or a ground station.
+    ExternalPose(ExternalPose),
+}
 
 /// Control-step rate, Hz: the published system's INDI and learner rate (algorithms.md §8).
 pub const CONTROL_RATE_HZ: u16 = 2000;
@@ -50,11 +71,24 @@ pub struct ControlSnapshot {
     pub motor_count: u8,
     pub commands: [f32; MAX_MOTORS],
     pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
+    /// Where the throw-to-fly attempt stands.
+    pub phase: FlightPhase,
+    /// Why the last attempt ended without a result (or was refused), if it did.
+    pub failure: LearnerFailure,
+    /// The motor being pulsed.
+    pub exciting_motor: Option<u8>,
+    /// Time since the excitation began, ms (0 before).
+    pub excitation_ms: u16,
+    /// Releases refused because the craft was not falling freely.
+    pub releases_refused: u16,
+    /// The latest external pose and its arrival time, µs.
+    pub external_pose: Option<(ExternalPose, u64)>,
 }
 
 /// The control loop's state: the highest-priority task's local resource.
 pub struct ControlLoop<'q> {
     period_us: u32,
+    throw_to_fly: ThrowToFly,
     samples: SampleProducer<'q>,
     snapshot: ControlSnapshot,
     previous_step_us: Option<u64>,
@@ -68,6 +102,11 @@ impl<'q> ControlLoop<'q> {
         let rate_hz = config.rate_hz.max(1);
         Self {
             period_us: 1_000_000 / u32::from(rate_hz),
+            throw_to_fly: ThrowToFly::new(
+                ThrowConfig::default(),
+                ExcitationConfig::default(),
+                MAX_MOTORS,
+            ),
             samples,
             snapshot: ControlSnapshot::default(),
             previous_step_us: None,
@@ -75,6 +114,32 @@ impl<'q> ControlLoop<'q> {
             rate_window_start_us: 0,
             rate_window_steps: 0,
         }
+    }
+
+    /// Carry out a command from another task (takes effect in this step or the next).
+    pub fn command(&mut self, command: ControlCommand, now_us: u64) {
+        match command {
+            ControlCommand::ArmThrowToFly => {
+                self.throw_to_fly.arm();
+                self.snapshot.failure = LearnerFailure::None;
+            }
+            ControlCommand::Disarm => {
+                let attempt =
+                    !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
+                self.throw_to_fly.disarm();
+                if attempt {
+                    self.snapshot.failure = LearnerFailure::Disarmed;
+                }
+            }
+            ControlCommand::ExternalPose(pose) => {
+                let finite = pose.position_ned_m.iter().all(|x| x.is_finite())
+                    && pose.heading_rad.is_finite();
+                if finite {
+                    self.snapshot.external_pose = Some((pose, now_us));
+                }
+            }
+        }
+        self.publish_phase();
     }
 
     /// One control step at time `now_us` (µs since start-up, monotonic). Returns whether samples
@@ -100,18 +165,64 @@ impl<'q> ControlLoop<'q> {
             }
         }
 
-        // Disarmed: every motor at zero. The armed path (learner, INDI) arrives with its issue.
         let motor_count = usize::from(motors.count()).min(MAX_MOTORS);
         snapshot.motor_count = motor_count as u8;
+        if motor_count != self.throw_to_fly.motors() {
+            self.throw_to_fly =
+                ThrowToFly::new(ThrowConfig::default(), ExcitationConfig::default(), motor_count);
+        }
+        // An attempt in progress ends when the IMU goes away: nothing may spin blind.
+        let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
+        if attempt && !snapshot.imu_present {
+            self.throw_to_fly.disarm();
+            snapshot.failure = LearnerFailure::ImuLost;
+        }
+        let dt_s = self.period_us as f32 * 1e-6;
         snapshot.commands = [0.0; MAX_MOTORS];
+        snapshot.exciting_motor = None;
+        if let Some(imu) = sample {
+            let out = self.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, dt_s);
+            // Never a non-finite or out-of-range command (the schedule's are in [0, 1] already).
+            for (dst, src) in snapshot.commands.iter_mut().zip(out.commands).take(motor_count) {
+                *dst = if src.is_finite() { src.clamp(0.0, 1.0) } else { 0.0 };
+            }
+            snapshot.exciting_motor = out.active_motor;
+            match out.event {
+                ThrowEvent::NotFreeFall => {
+                    snapshot.failure = LearnerFailure::NotFreeFall;
+                    snapshot.releases_refused = snapshot.releases_refused.wrapping_add(1);
+                }
+                ThrowEvent::TimedOut => snapshot.failure = LearnerFailure::ThrowTimedOut,
+                ThrowEvent::Thrown => snapshot.failure = LearnerFailure::None,
+                _ => {}
+            }
+        }
         motors.set_commands(&snapshot.commands[..motor_count]);
         snapshot.speeds_rad_s = motors.speeds_rad_s();
+        self.publish_phase();
 
         if let Some(imu) = sample {
-            self.samples.push(LearnerSample { t_us: now_us, imu, commands: snapshot.commands });
+            let snapshot = &self.snapshot;
+            self.samples.push(LearnerSample {
+                t_us: now_us,
+                imu,
+                commands: snapshot.commands,
+                speeds_rad_s: snapshot.speeds_rad_s.map(|s| s.unwrap_or(f32::NAN)),
+                phase: snapshot.phase,
+                motor_count: snapshot.motor_count,
+            });
         }
-        snapshot.samples_dropped = self.samples.dropped();
+        self.snapshot.samples_dropped = self.samples.dropped();
         self.samples.has_waiting()
+    }
+
+    fn publish_phase(&mut self) {
+        let phase = self.throw_to_fly.phase();
+        let snapshot = &mut self.snapshot;
+        snapshot.phase = phase;
+        snapshot.armed = !matches!(phase, FlightPhase::Idle | FlightPhase::Done);
+        snapshot.excitation_ms =
+            (self.throw_to_fly.excitation_elapsed_s() * 1000.0).clamp(0.0, 65_535.0) as u16;
     }
 
     /// The latest state, for the link and the status.

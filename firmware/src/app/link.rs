@@ -7,13 +7,18 @@
 //! dropped for lack of transmit space is a gap the host can count. Bad frames are counted and
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
-use super::{BoardInfo, StatusView};
+use super::{BoardInfo, ControlCommand, StatusView};
+use flight::learner::{AxisStatus, FlightPhase};
 use protocol::{
     ControlStatus, ControlTelemetry, DecodeError, Decoder, DeviceError, DeviceMessage, Event,
-    FrameError, ImuStatus, ImuTelemetry, LinkCounters, MotorTelemetry, Reply, Request, Response,
-    SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_TELEMETRY_RATE_HZ,
-    PROTOCOL_VERSION, TOPIC_COUNT,
+    FrameError, ImuStatus, ImuTelemetry, LearnerFailure, LearnerPhase, LearnerTelemetry,
+    LinkCounters, MotorTelemetry, Reply, Request, Response, SetTelemetryRate, Status, Telemetry,
+    Topic, Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION,
+    TOPIC_COUNT,
 };
+
+/// Commands for the control step that may wait between two link passes.
+const COMMAND_QUEUE_LEN: usize = 4;
 
 /// Transmit buffer size, bytes: eight maximum frames (about 4 ms of USB full-speed bulk traffic).
 pub const TX_CAPACITY: usize = 8 * MAX_FRAME_LEN;
@@ -46,6 +51,8 @@ pub struct LinkServer {
     /// Errors arrived since the last link-error event.
     errors_unreported: bool,
     last_error_event_us: Option<u64>,
+    /// Commands for the control step, taken by the board with [`LinkServer::take_command`].
+    commands: heapless::Deque<ControlCommand, COMMAND_QUEUE_LEN>,
 }
 
 impl LinkServer {
@@ -60,7 +67,14 @@ impl LinkServer {
             event_seq: 0,
             errors_unreported: false,
             last_error_event_us: None,
+            commands: heapless::Deque::new(),
         }
+    }
+
+    /// The oldest command for the control step (arm, disarm, external pose), if any. The board
+    /// passes each to `ControlLoop::command` after every link pass.
+    pub fn take_command(&mut self) -> Option<ControlCommand> {
+        self.commands.pop_front()
     }
 
     /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit`].
@@ -107,7 +121,7 @@ impl LinkServer {
             } else {
                 state.next_due_us + period_us
             };
-            let message = DeviceMessage::Telemetry(sample_topic(topic, view));
+            let message = DeviceMessage::Telemetry(sample_topic(topic, view, state.seq));
             if self.send(&message, state.seq, RESPONSE_RESERVE).is_err() {
                 self.counters.telemetry_dropped = self.counters.telemetry_dropped.wrapping_add(1);
             }
@@ -149,6 +163,45 @@ impl LinkServer {
             Request::GetStatus(()) => Ok(Reply::Status(self.status(view))),
             Request::SetTelemetryRate(setting) => self.set_rate(setting, now_us),
             Request::Ping(ping) => Ok(Reply::Pong(ping)),
+            Request::ArmThrowToFly(()) => {
+                if usize::from(view.control.motor_count) < flight::learner::MIN_MOTORS {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("motor_count"),
+                        value: f32::from(view.control.motor_count),
+                        min: flight::learner::MIN_MOTORS as f32,
+                        max: MAX_MOTORS as f32,
+                        unit: short_text(""),
+                    });
+                }
+                self.commands
+                    .push_back(ControlCommand::ArmThrowToFly)
+                    .map(|_| Reply::Done)
+                    .map_err(|_| DeviceError::Busy)
+            }
+            Request::Disarm(()) => {
+                // Always accepted: whatever waits is dropped, the disarm goes through.
+                self.commands.clear();
+                let _ = self.commands.push_back(ControlCommand::Disarm);
+                Ok(Reply::Done)
+            }
+            Request::SetExternalPose(pose) => {
+                let finite = pose.position_ned_m.iter().all(|x| x.is_finite())
+                    && pose.heading_rad.is_finite();
+                if !finite {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("pose"),
+                        value: f32::NAN,
+                        min: -f32::MAX,
+                        max: f32::MAX,
+                        unit: short_text("m, rad"),
+                    });
+                }
+                self.commands
+                    .push_back(ControlCommand::ExternalPose(pose))
+                    .map(|_| Reply::Done)
+                    .map_err(|_| DeviceError::Busy)
+            }
+            Request::GetLearner(()) => Ok(Reply::Learner(learner_telemetry(view, 0))),
         }
     }
 
@@ -231,9 +284,10 @@ impl LinkServer {
     }
 }
 
-fn sample_topic(topic: Topic, view: &StatusView) -> Telemetry {
+fn sample_topic(topic: Topic, view: &StatusView, seq: u16) -> Telemetry {
     let control = &view.control;
     match topic {
+        Topic::Learner => Telemetry::Learner(learner_telemetry(view, (seq % 2) as u8)),
         Topic::Imu => Telemetry::Imu(ImuTelemetry {
             t_us: control.imu_t_us,
             gyro_rad_s: control.imu.gyro_rad_s,
@@ -251,6 +305,68 @@ fn sample_topic(topic: Topic, view: &StatusView) -> Telemetry {
             speeds_rad_s: control.speeds_rad_s,
         }),
     }
+}
+
+/// The learner's state for the wire, with rows `3·block .. 3·block + 3` of G1 (per unit
+/// normalised thrust).
+pub fn learner_telemetry(view: &StatusView, block: u8) -> LearnerTelemetry {
+    let control = &view.control;
+    let learned = &view.background.learned;
+    let m = usize::from(learned.motors).min(MAX_MOTORS);
+    let attempt_over = control.phase == FlightPhase::Done;
+    let axis_failure = match learned.axis_status {
+        AxisStatus::RankDeficient => LearnerFailure::RankDeficient,
+        AxisStatus::NoHover => LearnerFailure::NoHover,
+        AxisStatus::Waiting | AxisStatus::Found => LearnerFailure::None,
+    };
+    let failure = if control.failure != LearnerFailure::None {
+        control.failure
+    } else if attempt_over && learned.thrust_axis.is_none() {
+        if axis_failure == LearnerFailure::None {
+            LearnerFailure::RankDeficient
+        } else {
+            axis_failure
+        }
+    } else {
+        LearnerFailure::None
+    };
+    let phase = match control.phase {
+        _ if attempt_over && failure != LearnerFailure::None => LearnerPhase::Failed,
+        FlightPhase::Idle if failure != LearnerFailure::None => LearnerPhase::Failed,
+        FlightPhase::Idle => LearnerPhase::Idle,
+        FlightPhase::WaitingForThrow => LearnerPhase::WaitingForThrow,
+        FlightPhase::Throwing => LearnerPhase::Throwing,
+        FlightPhase::Released => LearnerPhase::Released,
+        FlightPhase::Exciting => LearnerPhase::Exciting,
+        FlightPhase::Done => LearnerPhase::Done,
+    };
+    let mut out = LearnerTelemetry {
+        t_us: control.t_us,
+        phase,
+        failure,
+        motor_count: learned.motors,
+        exciting_motor: control.exciting_motor,
+        excitation_ms: control.excitation_ms,
+        motors_converged: learned.motors_converged,
+        g1_converged: learned.g1_converged,
+        g1_block: block.min(1),
+        ..LearnerTelemetry::default()
+    };
+    for i in 0..m {
+        out.tau_s[i] = learned.motor[i].tau_s;
+        out.omega_max_rad_s[i] = learned.motor[i].omega_full_rad_s();
+    }
+    if let Some(axis) = &learned.thrust_axis {
+        out.thrust_axis_valid = true;
+        out.q_thrust_to_imu = axis.q_thrust_to_imu;
+        out.euler_zyx_rad = axis.euler_zyx_rad;
+    }
+    let g1 = learned.g1_per_unit_thrust();
+    let first = 3 * usize::from(out.g1_block);
+    for (row, source) in out.g1_rows.iter_mut().zip(&g1[first..first + 3]) {
+        row[..m].copy_from_slice(&source[..m]);
+    }
+    out
 }
 
 fn short_text<const N: usize>(text: &str) -> heapless::String<N> {

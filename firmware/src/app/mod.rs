@@ -16,8 +16,8 @@ pub mod hal;
 mod link;
 mod queue;
 
-pub use background::{Background, BackgroundResults, STATS_WINDOW_US};
-pub use control::{ControlConfig, ControlLoop, ControlSnapshot, CONTROL_RATE_HZ};
+pub use background::{Background, BackgroundResults, OffsetSource, STATS_WINDOW_US};
+pub use control::{ControlCommand, ControlConfig, ControlLoop, ControlSnapshot, CONTROL_RATE_HZ};
 pub use link::{LinkServer, TX_CAPACITY};
 pub use queue::{
     split_queue, LearnerSample, SampleConsumer, SampleProducer, SampleQueue, SAMPLE_QUEUE_LEN,

@@ -6,10 +6,11 @@
 //! late control step.
 
 use super::hal::{ImuSample, MAX_MOTORS};
+use flight::learner::FlightPhase;
 use heapless::spsc::{Consumer, Producer, Queue};
 
 /// Ring capacity, samples: 64 samples are 32 ms at 2 kHz, far longer than any background job
-/// may hold the CPU. (heapless' ring keeps one slot free, so 63 are usable.)
+/// may hold the CPU. (heapless' ring keeps one slot free, so 63 are usable.) About 6.7 KB.
 pub const SAMPLE_QUEUE_LEN: usize = 64;
 
 /// What the control step hands to the background estimators for each IMU sample.
@@ -18,8 +19,14 @@ pub struct LearnerSample {
     /// Time of the control step that read the sample, µs since start-up.
     pub t_us: u64,
     pub imu: ImuSample,
-    /// Motor commands δ ∈ [0, 1] in force while the sample was taken.
+    /// Motor commands δ ∈ [0, 1] set by this step.
     pub commands: [f32; MAX_MOTORS],
+    /// Motor speeds reported in this step, rad/s; NaN where a motor did not report.
+    pub speeds_rad_s: [f32; MAX_MOTORS],
+    /// Where the throw-to-fly attempt stood in this step (the learner runs while exciting).
+    pub phase: FlightPhase,
+    /// Motors connected.
+    pub motor_count: u8,
 }
 
 /// The ring's storage; split it once with [`SampleQueue::split`].

@@ -383,6 +383,11 @@ impl ThrowToFly {
         self.phase = FlightPhase::Idle;
     }
 
+    /// Number of motors.
+    pub fn motors(&self) -> usize {
+        self.motors
+    }
+
     /// The phase.
     pub fn phase(&self) -> FlightPhase {
         self.phase
