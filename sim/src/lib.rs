@@ -6,6 +6,7 @@ pub mod bridge;
 pub mod dshot;
 pub mod dynamics;
 pub mod hand;
+pub mod identification;
 pub mod imu;
 pub mod log;
 pub mod monte_carlo;

@@ -159,7 +159,9 @@ impl<'q> Background<'q> {
             }
             self.results.learner_offset = source;
         }
-        if phase != FlightPhase::Exciting {
+        // The learner runs from the start of the excitation until the next attempt (after the
+        // excitation the motors settle at idle, which still carries information).
+        if !matches!(phase, FlightPhase::Exciting | FlightPhase::Done) {
             return;
         }
         if let Some(learner) = &mut self.learner {

@@ -167,10 +167,7 @@ impl<'q> ControlLoop<'q> {
 
         let motor_count = usize::from(motors.count()).min(MAX_MOTORS);
         snapshot.motor_count = motor_count as u8;
-        if motor_count != self.throw_to_fly.motors() {
-            self.throw_to_fly =
-                ThrowToFly::new(ThrowConfig::default(), ExcitationConfig::default(), motor_count);
-        }
+        self.throw_to_fly.set_motors(motor_count);
         // An attempt in progress ends when the IMU goes away: nothing may spin blind.
         let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
         if attempt && !snapshot.imu_present {

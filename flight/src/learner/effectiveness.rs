@@ -15,9 +15,17 @@
 //! **Specific-force rows.** The accelerometer is moved to the centre of gravity with the stored
 //! IMU offset `r`: `f_cog = f_imu − Ω̇×r − Ω×(Ω×r)`. The rest `f_rest` is mostly aerodynamic drag,
 //! which on a tumbling craft is fixed in the *world*, not the body: in body axes it turns at −Ω,
-//! so its increment is `−(Ω dt) × f_rest`, not zero (the main error of the published recipe,
-//! §12). We add that increment back with `f_rest` from the current estimate:
-//! `Δf_cog + (Ω dt) × (f_cog − Ĝ1f ω²) = G1f Δ(ω²)`.
+//! so its increment is `−w × f_rest` (`w = Ω dt`), not zero (the main error of the published
+//! recipe, §12). Substituting `f_rest = f_cog − G1f ω²` gives an equation that is still linear
+//! in G1f, and exact:
+//! `Δf_cog + w × f_cog = G1f Δ(ω²) + w × (G1f ω²)`.
+//! Its three rows have different regressors (the cross product mixes them), so the force rows
+//! are one RLS over all `3m` entries of G1f with three scalar updates per sample. A constant
+//! accelerometer bias `b` is fixed in the *body* and leaves `−w × b` in the equation instead:
+//! three more parameters (`b`, index `3m..3m+3`) with the regressor `−w ×`. (Estimating
+//! `f_rest` from the current G1f instead is cheaper but biased: early in the excitation G1f is
+//! still far off, and the rotation term is a quarter of the signal at 400 °/s; it gave 15–30 %
+//! errors on the seed paper's quad.)
 //!
 //! **Angular-acceleration rows.** The Euler and rotor-gyroscopic terms are quadratic in the
 //! rates and spoil G1τ when ignored (§12). With `h = −I G2 ω` (the definition of G2),
@@ -25,8 +33,8 @@
 //! products `Ωₐ v_b`. Those nine join the regressors (with `v` from the current G2 estimate):
 //! `ΔΩ̇ = G1τ Δ(ω²) + G2 Δω̇ + E Δ(Ω ⊗ v)`, E (3 × 9) estimated and discarded.
 //!
-//! Each group of three rows shares its regressors, so one [`Rls`] with a shared covariance
-//! serves it: `m` regressors for the force rows, `2m + 9` for the rotational rows.
+//! The three rotational rows share their regressors, so one [`Rls`] with a shared covariance
+//! serves them (`2m + 9` regressors); the force rows are one `3m`-parameter RLS.
 //!
 //! Scaling for f32: ω² in (krad/s)², ω̇ in 100 krad/s², rate products in (10 rad/s)².
 
@@ -34,6 +42,19 @@ use super::rls::{Rls, RlsConfig};
 use super::MAX_MOTORS;
 use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3};
 use nalgebra::Vector3;
+
+/// How much older the motor-speed reports are than the IMU sample of the same step, s: the
+/// simulated board's IMU sample is the mean of four 8 kHz samples (centred 187.5 µs before the
+/// step) and its speed report is one 500 µs tick old, so 312.5 µs. Compensated by moving the
+/// filtered squared speeds forward along their derivative.
+pub const SPEED_LAG_S: f32 = 312.5e-6;
+
+/// Corner of the first-order high-pass applied to every regressor and output of the increment
+/// regressions, Hz. What remains of drag after the world-frame correction (its change with
+/// airspeed and with the body's anisotropy) varies at the rotation rate, 1–2 Hz, while the
+/// motor pulses carry 5–20 Hz: the high-pass (a linear time-invariant filter applied alike to
+/// both sides, so the linear relation between them is kept) removes most of the former.
+pub const HIGH_PASS_HZ: f32 = 4.0;
 
 /// Squared-speed unit of the regression, (rad/s)².
 pub const SPEED2_SCALE: f32 = 1e6;
@@ -45,6 +66,20 @@ const RATE2_SCALE: f32 = 100.0;
 const RATE_PRODUCTS: usize = 9;
 /// Capacity of the rotational regression: `2·8 + 9`.
 pub const ROT_REGRESSORS_MAX: usize = 2 * MAX_MOTORS + RATE_PRODUCTS;
+/// Capacity of the force regression: the `3·8` entries of G1f (index `3i + axis`) and the
+/// accelerometer bias (the last three).
+pub const FORCE_PARAMETERS_MAX: usize = 3 * MAX_MOTORS + 3;
+
+/// One sample of every filtered signal.
+#[derive(Clone, Copy, Debug, Default)]
+struct Filtered {
+    gyro: Vector3<f32>,
+    /// Accelerometer less the centripetal term `Ω×(Ω×r)` (formed before filtering).
+    accel: Vector3<f32>,
+    speed: [f32; MAX_MOTORS],
+    speed2: [f32; MAX_MOTORS],
+    products: [f32; RATE_PRODUCTS],
+}
 
 /// One centred sample of the filtered signals.
 #[derive(Clone, Copy, Debug, Default)]
@@ -58,6 +93,8 @@ struct Centred {
     rate: Vector3<f32>,
     rate_dot: Vector3<f32>,
     f_cog: Vector3<f32>,
+    /// Filtered `Ωₐ v_b / RATE2_SCALE`.
+    products: [f32; RATE_PRODUCTS],
 }
 
 /// The G1/G2 estimator.
@@ -71,11 +108,23 @@ pub struct EffectivenessEstimator {
     gyro: Butterworth2x3,
     accel: Butterworth2x3,
     speed: [Butterworth2; MAX_MOTORS],
-    /// Filtered (gyro, accel, speeds) of the two previous samples, newest first.
-    history: [(Vector3<f32>, Vector3<f32>, [f32; MAX_MOTORS]); 2],
+    /// Filters of the squared speeds (ω²/SPEED2_SCALE): the model is linear in ω², and the
+    /// square of a filtered speed is not the filtered square while the speed changes fast.
+    speed2: [Butterworth2; MAX_MOTORS],
+    /// Filters of the rate products `Ωₐ v_b` (formed from raw samples, then filtered: the
+    /// product of filtered signals is not the filtered product at 400 °/s).
+    products: [Butterworth2; RATE_PRODUCTS],
+    /// The filtered signals of the two previous samples, newest first.
+    history: [Filtered; 2],
     seen: u8,
     previous: Option<Centred>,
-    force: Rls<MAX_MOTORS, 3>,
+    force: Rls<FORCE_PARAMETERS_MAX, 1>,
+    /// High-pass of each force row's regressors and output (the output last).
+    force_high_pass: [HighPass<{ FORCE_PARAMETERS_MAX + 1 }>; 3],
+    /// High-pass of the rotational regressors and outputs (the outputs last).
+    rotation_high_pass: HighPass<{ ROT_REGRESSORS_MAX + 3 }>,
+    /// Pole of the first-order high-passes, `exp(−2π f_c / f_s)`.
+    high_pass_pole: f32,
     rotation: Rls<ROT_REGRESSORS_MAX, 3>,
 }
 
@@ -99,10 +148,15 @@ impl EffectivenessEstimator {
             gyro: Butterworth2x3::from_coefficients(filter),
             accel: Butterworth2x3::from_coefficients(filter),
             speed: [Butterworth2::from_coefficients(filter); MAX_MOTORS],
-            history: [(Vector3::zeros(), Vector3::zeros(), [0.0; MAX_MOTORS]); 2],
+            speed2: [Butterworth2::from_coefficients(filter); MAX_MOTORS],
+            products: [Butterworth2::from_coefficients(filter); RATE_PRODUCTS],
+            history: [Filtered::default(); 2],
             seen: 0,
             previous: None,
-            force: Rls::new(motors, config),
+            force: Rls::new(3 * motors + 3, config),
+            force_high_pass: [HighPass::default(); 3],
+            rotation_high_pass: HighPass::default(),
+            high_pass_pole: libm::expf(-core::f32::consts::TAU * HIGH_PASS_HZ / rate_hz),
             rotation: Rls::new(2 * motors + RATE_PRODUCTS, config),
         }
     }
@@ -120,8 +174,12 @@ impl EffectivenessEstimator {
         self.gyro = Butterworth2x3::from_coefficients(self.filter);
         self.accel = Butterworth2x3::from_coefficients(self.filter);
         self.speed = [Butterworth2::from_coefficients(self.filter); MAX_MOTORS];
+        self.speed2 = [Butterworth2::from_coefficients(self.filter); MAX_MOTORS];
+        self.products = [Butterworth2::from_coefficients(self.filter); RATE_PRODUCTS];
         self.seen = 0;
         self.previous = None;
+        self.force_high_pass = [HighPass::default(); 3];
+        self.rotation_high_pass = HighPass::default();
     }
 
     /// One sample: gyro (rad/s) and accelerometer (m/s²) in IMU axes, motor speeds (rad/s).
@@ -134,36 +192,58 @@ impl EffectivenessEstimator {
             return;
         }
         let gyro = Vector3::from(gyro_rad_s);
-        let accel = Vector3::from(accel_mps2);
+        let r = self.r_imu_m;
+        let accel = Vector3::from(accel_mps2) - gyro.cross(&gyro.cross(&r));
+        let mut speed2 = [0.0; MAX_MOTORS];
+        for i in 0..m {
+            speed2[i] = speeds_rad_s[i] * speeds_rad_s[i] / SPEED2_SCALE;
+        }
+        let products = self.rate_products(&gyro, &speeds_rad_s[..m]);
         if self.seen == 0 {
             self.gyro.reset_to(&gyro);
             self.accel.reset_to(&accel);
-            for (f, s) in self.speed.iter_mut().zip(speeds_rad_s).take(m) {
-                f.reset_to(*s);
+            for i in 0..m {
+                self.speed[i].reset_to(speeds_rad_s[i]);
+                self.speed2[i].reset_to(speed2[i]);
+            }
+            for (f, x) in self.products.iter_mut().zip(products) {
+                f.reset_to(x);
             }
         }
-        let gyro_f = self.gyro.update(&gyro);
-        let accel_f = self.accel.update(&accel);
-        let mut speed_f = [0.0; MAX_MOTORS];
+        let mut filtered = Filtered {
+            gyro: self.gyro.update(&gyro),
+            accel: self.accel.update(&accel),
+            ..Filtered::default()
+        };
         for i in 0..m {
-            speed_f[i] = self.speed[i].update(speeds_rad_s[i]);
+            filtered.speed[i] = self.speed[i].update(speeds_rad_s[i]);
+            filtered.speed2[i] = self.speed2[i].update(speed2[i]);
+        }
+        for j in 0..RATE_PRODUCTS {
+            filtered.products[j] = self.products[j].update(products[j]);
         }
         let [previous, before] = self.history;
-        self.history = [(gyro_f, accel_f, speed_f), previous];
+        self.history = [filtered, previous];
         if self.seen < 2 {
             self.seen += 1;
             return;
         }
         // Centred on the previous sample: central differences of gyro and speeds.
-        let (rate, accel_c, speed_c) = previous;
-        let rate_dot = (gyro_f - before.0) * self.half_rate_hz;
-        let r = self.r_imu_m;
-        let f_cog = accel_c - rate_dot.cross(&r) - rate.cross(&rate.cross(&r));
-        let mut now = Centred { rate, rate_dot, f_cog, ..Centred::default() };
+        let rate_dot = (filtered.gyro - before.gyro) * self.half_rate_hz;
+        let f_cog = previous.accel - rate_dot.cross(&r);
+        let mut now = Centred {
+            rate: previous.gyro,
+            rate_dot,
+            f_cog,
+            products: previous.products,
+            ..Centred::default()
+        };
+        let lead = SPEED_LAG_S * self.half_rate_hz;
         for i in 0..m {
-            now.speed[i] = speed_c[i];
-            now.speed2[i] = speed_c[i] * speed_c[i] / SPEED2_SCALE;
-            now.speed_dot[i] = (speed_f[i] - before.2[i]) * self.half_rate_hz / SPEED_DOT_SCALE;
+            now.speed[i] = previous.speed[i];
+            now.speed2[i] = previous.speed2[i] + (filtered.speed2[i] - before.speed2[i]) * lead;
+            now.speed_dot[i] =
+                (filtered.speed[i] - before.speed[i]) * self.half_rate_hz / SPEED_DOT_SCALE;
         }
         if let Some(last) = self.previous.replace(now) {
             self.regress(&last, &now);
@@ -172,40 +252,59 @@ impl EffectivenessEstimator {
 
     fn regress(&mut self, last: &Centred, now: &Centred) {
         let m = self.motors;
-        // Force rows: Δf_cog + (Ω dt) × f_rest = G1f Δ(ω²).
-        let mut x = [0.0f32; ROT_REGRESSORS_MAX];
+        // Force rows: Δf_cog + w × f_cog = G1f Δ(ω²) + w × (G1f ω²), parameters G1f[axis][i] at
+        // index 3i + axis. Row k's regressor: Δ(ω²)ᵢ on (i, k) and the cross-product terms.
+        let w = now.rate * self.dt_s;
+        let y = (now.f_cog - last.f_cog) + w.cross(&last.f_cog);
+        let mut x = [0.0f32; FORCE_PARAMETERS_MAX + 1];
+        for k in 0..3 {
+            for i in 0..m {
+                let (du, u) = (now.speed2[i] - last.speed2[i], last.speed2[i]);
+                let column = &mut x[3 * i..3 * i + 3];
+                // (w × g)ₖ = w_{k+1} g_{k+2} − w_{k+2} g_{k+1} (indices mod 3).
+                column[k] = du;
+                column[(k + 2) % 3] = w[(k + 1) % 3] * u;
+                column[(k + 1) % 3] = -w[(k + 2) % 3] * u;
+            }
+            // −(w × b)ₖ = −w_{k+1} b_{k+2} + w_{k+2} b_{k+1}.
+            let bias = &mut x[3 * m..3 * m + 3];
+            bias[k] = 0.0;
+            bias[(k + 2) % 3] = -w[(k + 1) % 3];
+            bias[(k + 1) % 3] = w[(k + 2) % 3];
+            let n = 3 * m + 3;
+            x[n] = y[k];
+            self.force_high_pass[k].apply(&mut x[..n + 1], self.high_pass_pole);
+            let _ = self.force.update(&x[..n], &[x[n]]);
+        }
+        let mut x = [0.0f32; ROT_REGRESSORS_MAX + 3];
         for i in 0..m {
             x[i] = now.speed2[i] - last.speed2[i];
         }
-        let predicted = self.force.predict(&last.speed2[..m]);
-        let f_rest = last.f_cog - Vector3::from(predicted);
-        let y = (now.f_cog - last.f_cog) + (now.rate * self.dt_s).cross(&f_rest);
-        let _ = self.force.update(&x[..m], &[y.x, y.y, y.z]);
 
         // Rotational rows: ΔΩ̇ = G1τ Δ(ω²) + G2 Δω̇ + E Δ(Ω ⊗ v), v = Ω − G2 ω.
         for i in 0..m {
             x[m + i] = now.speed_dot[i] - last.speed_dot[i];
         }
-        let products_now = self.rate_products(now);
-        let products_last = self.rate_products(last);
         for j in 0..RATE_PRODUCTS {
-            x[2 * m + j] = products_now[j] - products_last[j];
+            x[2 * m + j] = now.products[j] - last.products[j];
         }
+        let n = 2 * m + RATE_PRODUCTS;
         let y = now.rate_dot - last.rate_dot;
-        let _ = self.rotation.update(&x[..2 * m + RATE_PRODUCTS], &[y.x, y.y, y.z]);
+        x[n..n + 3].copy_from_slice(&[y.x, y.y, y.z]);
+        self.rotation_high_pass.apply(&mut x[..n + 3], self.high_pass_pole);
+        let _ = self.rotation.update(&x[..n], &[x[n], x[n + 1], x[n + 2]]);
     }
 
     /// The nine products `Ωₐ v_b / RATE2_SCALE` with `v = Ω − G2 ω` from the current estimate.
-    fn rate_products(&self, s: &Centred) -> [f32; RATE_PRODUCTS] {
-        let mut v = s.rate;
-        for i in 0..self.motors {
-            let g2 = self.g2_column(i);
-            v -= g2 * s.speed[i];
+    fn rate_products(&self, rate: &Vector3<f32>, speeds_rad_s: &[f32]) -> [f32; RATE_PRODUCTS] {
+        let mut v = *rate;
+        for (i, speed) in speeds_rad_s.iter().enumerate() {
+            v -= self.g2_column(i) * *speed;
         }
         let mut out = [0.0; RATE_PRODUCTS];
         for a in 0..3 {
             for b in 0..3 {
-                out[3 * a + b] = s.rate[a] * v[b] / RATE2_SCALE;
+                out[3 * a + b] = rate[a] * v[b] / RATE2_SCALE;
             }
         }
         out
@@ -231,7 +330,7 @@ impl EffectivenessEstimator {
         let mut g1 = [[0.0; MAX_MOTORS]; 6];
         for i in 0..self.motors {
             for k in 0..3 {
-                g1[k][i] = self.force.theta(i, k) / SPEED2_SCALE;
+                g1[k][i] = self.force.theta(3 * i + k, 0) / SPEED2_SCALE;
                 g1[3 + k][i] = self.rotation.theta(i, k) / SPEED2_SCALE;
             }
         }
@@ -254,7 +353,8 @@ impl EffectivenessEstimator {
     /// squared-speed regressor relative to the prior, for the force and the rotational rows
     /// (1: nothing yet; small: well excited).
     pub fn information_left(&self, i: usize, p0: f32) -> (f32, f32) {
-        (self.force.p_diag(i) / p0, self.rotation.p_diag(i) / p0)
+        let force = (0..3).map(|k| self.force.p_diag(3 * i + k)).fold(0.0, f32::max);
+        (force / p0, self.rotation.p_diag(i) / p0)
     }
 
     /// Relative standard deviation of column `i` of G1f and of G1τ (one σ of the column's norm
@@ -270,9 +370,9 @@ impl EffectivenessEstimator {
             }
         };
         let f = relative(
-            self.force.p_diag(i),
-            core::array::from_fn(|k| self.force.error_var(k)),
-            core::array::from_fn(|k| self.force.theta(i, k)),
+            (0..3).map(|k| self.force.p_diag(3 * i + k)).fold(0.0, f32::max),
+            [self.force.error_var(0); 3],
+            core::array::from_fn(|k| self.force.theta(3 * i + k, 0)),
         );
         let t = relative(
             self.rotation.p_diag(i),
@@ -280,5 +380,34 @@ impl EffectivenessEstimator {
             core::array::from_fn(|k| self.rotation.theta(i, k)),
         );
         (f, t)
+    }
+}
+
+/// A first-order high-pass (DC blocker) over `N` channels: `y[n] = p·y[n−1] + x[n] − x[n−1]`.
+#[derive(Clone, Copy, Debug)]
+struct HighPass<const N: usize> {
+    input: [f32; N],
+    output: [f32; N],
+    primed: bool,
+}
+
+impl<const N: usize> Default for HighPass<N> {
+    fn default() -> Self {
+        Self { input: [0.0; N], output: [0.0; N], primed: false }
+    }
+}
+
+impl<const N: usize> HighPass<N> {
+    /// Filter `x` in place (its first `x.len()` channels). The first call only primes the state
+    /// with the input, so a signal that starts at a non-zero level gives no transient.
+    fn apply(&mut self, x: &mut [f32], pole: f32) {
+        for (j, value) in x.iter_mut().enumerate().take(N) {
+            let out =
+                if self.primed { pole * self.output[j] + *value - self.input[j] } else { 0.0 };
+            self.input[j] = *value;
+            self.output[j] = out;
+            *value = out;
+        }
+        self.primed = true;
     }
 }

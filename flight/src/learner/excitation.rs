@@ -8,10 +8,11 @@
 //!
 //! Timing: the published schedule (50 ms step, 100 ms ramp, 50 ms overlap) starts a quad's fourth
 //! motor 300 ms into the excitation, so no thrust axis can exist before then, and a hexarotor or
-//! octorotor needs 500–700 ms (algorithms.md §12). Our default is half as long per motor: a 30 ms
-//! step (more than one time constant of a 20–27 ms motor, so τ is seen), a 60 ms ramp and a 30 ms
-//! overlap, which starts motor `i` at `60·i` ms: a quad is fully excited at 270 ms, an octorotor
-//! at 510 ms.
+//! octorotor needs 500–700 ms (algorithms.md §12). Our default is half as long per motor: a 25 ms
+//! step (one time constant of a 20–27 ms motor, so τ is seen), a 50 ms ramp and a 25 ms overlap,
+//! after a 40 ms spin-up of every motor at δ = 0.02 (the ESCs start the motors together before
+//! the first pulse, instead of during it). Motor `i` starts at `40 + 50·i` ms: a quad's last
+//! pulse ends at 265 ms, an octorotor's at 465 ms.
 //!
 //! **Gyro guard**: when motor `i` (0-based) of `m` starts, each rate axis gets the bounds
 //! `Ω₀ + (Ω_max − Ω₀)/(m − i)` and `Ω₀ − (Ω_max + Ω₀)/(m − i)` around the rate `Ω₀` at that
@@ -29,8 +30,13 @@ pub const MAX_MOTORS: usize = 8;
 /// The schedule's shape.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ExcitationConfig {
-    /// Motors off after the throw is confirmed, before the first pulse, s.
+    /// Time after the throw is confirmed before the first pulse, s, with every motor at
+    /// `spin_up_command`.
     pub delay_s: f32,
+    /// Command of every motor during `delay_s`, δ: low, so the craft is barely pushed, but
+    /// above zero, so the ESCs start the motors and they settle near idle before the first
+    /// pulse (a spin-up of all motors at once during a pulse blurs which motor did what).
+    pub spin_up_command: f32,
     /// Length of the first level of each pulse, s.
     pub step_s: f32,
     /// Command of the first level, δ.
@@ -50,12 +56,13 @@ pub struct ExcitationConfig {
 impl Default for ExcitationConfig {
     fn default() -> Self {
         Self {
-            delay_s: 0.0,
-            step_s: 0.030,
+            delay_s: 0.040,
+            spin_up_command: 0.02,
+            step_s: 0.025,
             step_command: 0.35,
             jump_command: 0.70,
-            ramp_s: 0.060,
-            overlap_s: 0.030,
+            ramp_s: 0.050,
+            overlap_s: 0.025,
             rate_limit_rad_s: 1400.0_f32.to_radians(),
             max_s: 1.0,
         }
@@ -133,6 +140,9 @@ impl Excitation {
             return out;
         }
         let pulse_s = c.step_s + c.ramp_s;
+        if t < c.delay_s {
+            out.commands[..self.motors].fill(c.spin_up_command);
+        }
         for i in 0..self.motors {
             let local = t - self.start_s(i);
             if local < 0.0 || local >= pulse_s {
@@ -182,6 +192,7 @@ mod tests {
     #[test]
     fn published_schedule_for_a_quad_has_its_documented_timing() {
         let config = ExcitationConfig {
+            delay_s: 0.0,
             step_s: 0.05,
             ramp_s: 0.1,
             overlap_s: 0.05,
@@ -209,8 +220,9 @@ mod tests {
 
     #[test]
     fn the_gyro_guard_ends_a_pulse_that_spins_the_craft_too_fast() {
-        let mut e = Excitation::new(ExcitationConfig::default(), 4);
-        let limit = ExcitationConfig::default().rate_limit_rad_s;
+        let config = ExcitationConfig { delay_s: 0.0, ..ExcitationConfig::default() };
+        let mut e = Excitation::new(config, 4);
+        let limit = config.rate_limit_rad_s;
         // Motor 0 starts at rate 0: its share is ±limit/4.
         assert_eq!(e.update([0.0; 3], DT).commands[0], 0.35);
         assert!(e.update([0.2 * limit, 0.0, 0.0], DT).commands[0] > 0.0);
@@ -222,7 +234,8 @@ mod tests {
     #[test]
     fn the_default_schedule_excites_every_quad_motor_within_300_ms() {
         let e = Excitation::new(ExcitationConfig::default(), 4);
-        assert!(e.start_s(3) + 0.03 < 0.3);
+        // The last pulse ends early enough for the filters (20 Hz: ~20 ms) to settle by 300 ms.
+        assert!(e.duration_s() < 0.28, "{}", e.duration_s());
         let octo = Excitation::new(ExcitationConfig::default(), 8);
         assert!(octo.duration_s() <= 1.0);
     }

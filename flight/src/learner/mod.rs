@@ -18,8 +18,9 @@
 //! [`LearnedModel::g1_per_unit_thrust`].
 //!
 //! Time alignment (algorithms.md §12): a motor's reported speed is paired with the command that
-//! was driving it when the speed was measured, [`LearnerConfig::command_to_speed_delay_steps`]
-//! control steps earlier (one step of output latency plus the telemetry's age).
+//! was driving it when the speed was measured, [`LearnerConfig::command_to_speed_delay_half_steps`]
+//! half control steps earlier (one step of output latency, the telemetry's age, and the half
+//! step by which a held command lags its samples).
 
 pub mod effectiveness;
 pub mod excitation;
@@ -62,8 +63,12 @@ pub struct LearnerConfig {
     pub rate_hz: f32,
     /// IMU position relative to the centre of gravity, IMU axes, m.
     pub r_imu_m: [f32; 3],
-    /// Control steps from a command to the speed report it explains (output + telemetry delay).
-    pub command_to_speed_delay_steps: u8,
+    /// Delay from a command to the speed report it explains, in half control steps (output +
+    /// telemetry delay + the half step by which a zero-order-held command lags its samples).
+    /// Default 3: the command is sent one step before it acts, the speed report is one step
+    /// old, and the held command's centre is half a step earlier (odd values average two
+    /// consecutive commands).
+    pub command_to_speed_delay_half_steps: u8,
     /// Effectiveness RLS tuning.
     pub effectiveness_rls: RlsConfig,
     /// Motor-model RLS tuning.
@@ -75,9 +80,9 @@ impl Default for LearnerConfig {
         Self {
             rate_hz: 2000.0,
             r_imu_m: [0.0; 3],
-            command_to_speed_delay_steps: 2,
-            effectiveness_rls: RlsConfig { lambda: 1.0, p0: 100.0, p_max: 1e4 },
-            motor_rls: RlsConfig { lambda: 1.0, p0: 100.0, p_max: 1e4 },
+            command_to_speed_delay_half_steps: 3,
+            effectiveness_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
+            motor_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
         }
     }
 }
@@ -243,8 +248,9 @@ impl Learner {
     ) {
         self.commands.copy_within(0..7, 1);
         self.commands[0] = *commands;
-        let delay = usize::from(self.config.command_to_speed_delay_steps).min(7);
-        let driving = self.commands[delay];
+        let half_steps = usize::from(self.config.command_to_speed_delay_half_steps).min(13);
+        let (early, late) = (self.commands[half_steps / 2], self.commands[(half_steps + 1) / 2]);
+        let driving: [f32; MAX_MOTORS] = core::array::from_fn(|i| 0.5 * (early[i] + late[i]));
         let m = self.motors;
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
             || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
@@ -386,6 +392,18 @@ impl ThrowToFly {
     /// Number of motors.
     pub fn motors(&self) -> usize {
         self.motors
+    }
+
+    /// Set the number of motors (a board learns it at start-up). During an excitation the
+    /// attempt is abandoned (back to idle): the schedule was made for the old count.
+    pub fn set_motors(&mut self, motors: usize) {
+        if motors == self.motors {
+            return;
+        }
+        self.motors = motors;
+        if self.phase == FlightPhase::Exciting {
+            self.phase = FlightPhase::Idle;
+        }
     }
 
     /// The phase.
