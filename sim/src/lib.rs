@@ -14,4 +14,5 @@ pub mod physics;
 /// The workspace's deterministic random-number generator (sensor noise, random airframes).
 pub use flight::rng;
 pub mod scenario;
+pub mod serve;
 pub mod sitl;

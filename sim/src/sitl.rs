@@ -3,8 +3,10 @@
 //!
 //! The pseudo-terminal is the point: the configurator opens its slave side exactly as it opens a
 //! board's USB CDC port (`/dev/ttyACM0`), so the same code path is exercised end to end. The TCP
-//! port serves tools that prefer sockets; each connection gets its own [`LinkServer`], as a
-//! second USB host would.
+//! port serves tools that prefer sockets; each connection gets its own
+//! [`LinkServer`](firmware::app::LinkServer), as a second USB host would (the transports are in
+//! [`crate::serve`]). After every link pass the commands the links received (arm, disarm,
+//! external pose) go to the control step, as on the board.
 //!
 //! One thread runs everything in the order the board's priorities impose: every 500 µs of
 //! simulated time a physics tick and a control step, then the background work, and once per
@@ -15,13 +17,12 @@
 use crate::airframe::{Airframe, AirframeError};
 use crate::board::{SimBoard, SimConfig};
 use crate::hand::{HandPhase, ThrowSpec};
+use crate::serve::{simulator_board_info, status_view, Connection, Pty, TcpLinks};
 use firmware::app::{
-    split_queue, Background, BoardInfo, ControlConfig, ControlLoop, LinkServer, SampleQueue,
-    StatusView, CONTROL_RATE_HZ,
+    split_queue, Background, BoardInfo, ControlCommand, ControlConfig, ControlLoop, SampleQueue,
+    CONTROL_RATE_HZ,
 };
-use protocol::Capabilities;
-use std::io::{ErrorKind, Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -55,7 +56,17 @@ pub struct SitlConfig {
     pub auto_throw_every_s: Option<f64>,
     /// Stop the automatic throws after this many (`None`: keep throwing).
     pub auto_throw_count: Option<usize>,
+    /// Arm the control loop for throw-to-fly at start (as the protocol's `ArmThrowToFly`
+    /// request would): the first throw the board sees starts the motor excitation.
+    pub throw_to_fly: bool,
+    /// The IMU offset the in-flight learner uses: the IMU's position relative to the centre of
+    /// gravity, IMU axes, m (each component finite, within ±[`MAX_IMU_OFFSET_M`]). `None`: the
+    /// board's onboard estimate (or zero without one).
+    pub imu_offset_m: Option<[f32; 3]>,
 }
+
+/// Largest accepted IMU offset component, m.
+pub const MAX_IMU_OFFSET_M: f32 = 1.0;
 
 /// Body rates of the automatic throws, °/s: about two revolutions per second about three
 /// clearly different axes, as the seed paper asks of calibration throws (§3.2).
@@ -81,6 +92,8 @@ impl Default for SitlConfig {
             seed: 1,
             auto_throw_every_s: None,
             auto_throw_count: None,
+            throw_to_fly: false,
+            imu_offset_m: None,
         }
     }
 }
@@ -102,6 +115,10 @@ pub enum SitlError {
         "automatic throws need at least {MIN_AUTO_THROW_INTERVAL_S} s between them (got {0} s)"
     )]
     AutoThrowInterval(f64),
+    #[error(
+        "the IMU offset must be finite and within ±{MAX_IMU_OFFSET_M} m on each axis (got {0:?} m)"
+    )]
+    ImuOffset([f32; 3]),
 }
 
 /// A running SITL. Stops when dropped.
@@ -126,24 +143,28 @@ impl Sitl {
                 return Err(SitlError::AutoThrowInterval(every_s));
             }
         }
+        if let Some(offset_m) = config.imu_offset_m {
+            if !offset_m.iter().all(|x| x.is_finite() && x.abs() <= MAX_IMU_OFFSET_M) {
+                return Err(SitlError::ImuOffset(offset_m));
+            }
+        }
         let airframe = Airframe::load(&config.airframe)?;
+        let info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
         let pty = if config.pty { Some(Pty::open().map_err(SitlError::Pty)?) } else { None };
-        let pty_path = pty.as_ref().map(|p| p.slave_path.clone());
+        let pty_path = pty.as_ref().map(|p| p.slave_path().to_path_buf());
         if let (Some(link), Some(target)) = (&config.pty_link, &pty_path) {
             let _ = std::fs::remove_file(link);
             std::os::unix::fs::symlink(target, link)
                 .map_err(|source| SitlError::PtyLink { path: link.clone(), source })?;
         }
-        let listener = match config.tcp_port {
-            Some(port) => {
-                let listener = TcpListener::bind(("127.0.0.1", port))
-                    .map_err(|source| SitlError::Tcp { port, source })?;
-                listener.set_nonblocking(true).map_err(|source| SitlError::Tcp { port, source })?;
-                Some(listener)
-            }
+        let tcp = match config.tcp_port {
+            Some(port) => Some(
+                TcpLinks::bind(port, info.clone())
+                    .map_err(|source| SitlError::Tcp { port, source })?,
+            ),
             None => None,
         };
-        let tcp_addr = listener.as_ref().and_then(|l| l.local_addr().ok());
+        let tcp_addr = tcp.as_ref().and_then(|t| t.local_addr().ok());
         let stop = Arc::new(AtomicBool::new(false));
         let runner = Runner {
             airframe,
@@ -151,8 +172,11 @@ impl Sitl {
             speed: config.speed,
             auto_throw_every_s: config.auto_throw_every_s,
             auto_throw_count: config.auto_throw_count,
+            throw_to_fly: config.throw_to_fly,
+            imu_offset_m: config.imu_offset_m,
+            info,
             pty,
-            listener,
+            tcp,
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -186,75 +210,17 @@ impl Drop for Sitl {
     }
 }
 
-/// What the SITL tells the host about itself.
-fn board_info(motor_count: u8, seed: u64) -> BoardInfo {
-    let mut serial = heapless::String::new();
-    let _ = core::fmt::Write::write_fmt(&mut serial, format_args!("SITL-{seed:08X}"));
-    BoardInfo {
-        board: "SITL",
-        serial,
-        capabilities: Capabilities::IMU
-            | Capabilities::MOTORS
-            | Capabilities::MOTOR_RPM
-            | Capabilities::TELEMETRY
-            | Capabilities::SIMULATOR,
-        control_rate_hz: CONTROL_RATE_HZ,
-        motor_count,
-    }
-}
-
-/// A byte transport the link pass serves: the pseudo-terminal master or a TCP stream.
-trait Transport {
-    /// Read what is available without blocking; `Ok(0)` when nothing is, `Err` when closed.
-    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize>;
-    /// Write without blocking; returns how many bytes were taken.
-    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize>;
-}
-
-/// One served connection: its transport and its own protocol endpoint.
-struct Connection<T> {
-    transport: T,
-    link: LinkServer,
-}
-
-impl<T: Transport> Connection<T> {
-    /// Receive, poll telemetry, transmit. Returns false when the transport has closed.
-    fn service(&mut self, now_us: u64, view: &StatusView) -> bool {
-        let mut buffer = [0u8; 512];
-        // At most 4 KiB per pass (4 MB/s), so a client that never stops writing cannot stall
-        // the simulation.
-        for _ in 0..8 {
-            match self.transport.read_available(&mut buffer) {
-                Ok(0) => break,
-                Ok(n) => self.link.receive(&buffer[..n], now_us, view),
-                Err(_) => return false,
-            }
-        }
-        self.link.poll(now_us, view);
-        // What the transport does not take now waits in the link's buffer for the next pass.
-        let mut closed = false;
-        self.link.transmit_to(|bytes| match self.transport.write_some(bytes) {
-            Ok(n) => n,
-            Err(_) => {
-                closed = true;
-                0
-            }
-        });
-        if closed {
-            return false;
-        }
-        true
-    }
-}
-
 struct Runner {
     airframe: Airframe,
     seed: u64,
     speed: f64,
     auto_throw_every_s: Option<f64>,
     auto_throw_count: Option<usize>,
+    throw_to_fly: bool,
+    imu_offset_m: Option<[f32; 3]>,
+    info: BoardInfo,
     pty: Option<Pty>,
-    listener: Option<TcpListener>,
+    tcp: Option<TcpLinks>,
     stop: Arc<AtomicBool>,
 }
 
@@ -262,15 +228,19 @@ impl Runner {
     fn run(self) {
         let config = SimConfig { seed: self.seed, ..SimConfig::default() };
         let mut board = SimBoard::new(&self.airframe, &config);
-        let info = board_info(self.airframe.rotor_count() as u8, self.seed);
         let mut queue = SampleQueue::new();
         let (producer, consumer) = split_queue(&mut queue);
         let control_config = ControlConfig::default();
         let mut control = ControlLoop::new(control_config, producer);
         let mut background = Background::new(consumer, control_config.rate_hz);
-        let mut pty =
-            self.pty.map(|transport| Connection { transport, link: LinkServer::new(info.clone()) });
-        let mut clients: Vec<Connection<TcpStream>> = Vec::new();
+        if self.imu_offset_m.is_some() {
+            background.set_imu_offset(self.imu_offset_m);
+        }
+        if self.throw_to_fly {
+            control.command(ControlCommand::ArmThrowToFly, 0);
+        }
+        let mut pty = self.pty.map(|transport| Connection::new(transport, self.info.clone()));
+        let mut tcp = self.tcp;
 
         let mut throws_done = 0usize;
         let start = Instant::now();
@@ -295,25 +265,17 @@ impl Runner {
                     background.run_pending();
                 }
             }
-            let view = StatusView {
-                control: control.snapshot(),
-                background: background.results(),
-                step_time: None,
-            };
+            let view = status_view(&control, &background);
             let now_us = board.now_us();
-            if let Some(listener) = &self.listener {
-                while let Ok((stream, _)) = listener.accept() {
-                    if stream.set_nonblocking(true).is_ok() {
-                        let _ = stream.set_nodelay(true);
-                        let link = LinkServer::new(info.clone());
-                        clients.push(Connection { transport: stream, link });
-                    }
-                }
-            }
+            // Every command a link received goes to the control step after the pass, as the
+            // board's link task hands them over.
+            let mut command = |cmd| control.command(cmd, now_us);
             if let Some(connection) = &mut pty {
-                connection.service(now_us, &view);
+                connection.pass(now_us, &view, &mut command);
             }
-            clients.retain_mut(|client| client.service(now_us, &view));
+            if let Some(tcp) = &mut tcp {
+                tcp.pass(now_us, &view, &mut command);
+            }
         }
     }
 }
@@ -336,97 +298,47 @@ fn firmware_period_us() -> u64 {
     1_000_000 / u64::from(CONTROL_RATE_HZ)
 }
 
-impl Transport for TcpStream {
-    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
-        match self.read(buffer) {
-            Ok(0) => Err(ErrorKind::UnexpectedEof.into()),
-            Ok(n) => Ok(n),
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            Err(e) => Err(e),
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::serve::TestHost;
+    use protocol::{Reply, Request};
+
+    fn armed(host: &mut TestHost) -> bool {
+        match host.request(Request::GetStatus(())) {
+            Ok(Reply::Status(status)) => status.armed,
+            other => panic!("expected the status, got {other:?}"),
         }
     }
 
-    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-        match self.write(bytes) {
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            other => other,
-        }
-    }
-}
-
-/// A pseudo-terminal: the SITL keeps the master and holds the slave open (in raw mode, so the
-/// line discipline neither echoes nor translates bytes, and a client closing it does not hang
-/// up the master).
-struct Pty {
-    master: std::fs::File,
-    _slave: std::fs::File,
-    slave_path: PathBuf,
-}
-
-impl Pty {
-    fn open() -> std::io::Result<Self> {
-        use std::os::fd::FromRawFd;
-        // SAFETY: plain libc calls on a descriptor we own; every return value is checked and the
-        // descriptor is wrapped in a `File` (closed on drop) before any early return.
-        unsafe {
-            let fd = libc::posix_openpt(libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK);
-            if fd < 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            let master = std::fs::File::from_raw_fd(fd);
-            if libc::grantpt(fd) != 0 || libc::unlockpt(fd) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            let mut name = [0 as libc::c_char; 128];
-            if libc::ptsname_r(fd, name.as_mut_ptr(), name.len()) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            let slave_path = PathBuf::from(
-                std::ffi::CStr::from_ptr(name.as_ptr()).to_string_lossy().into_owned(),
-            );
-            let slave = std::fs::OpenOptions::new()
-                .read(true)
-                .write(true)
-                .custom_flags(libc::O_NOCTTY)
-                .open(&slave_path)?;
-            set_raw(&slave)?;
-            Ok(Self { master, _slave: slave, slave_path })
-        }
-    }
-}
-
-use std::os::unix::fs::OpenOptionsExt;
-
-fn set_raw(file: &std::fs::File) -> std::io::Result<()> {
-    use std::os::fd::AsRawFd;
-    // SAFETY: termios is plain data; tcgetattr fills it before use.
-    unsafe {
-        let mut termios: libc::termios = std::mem::zeroed();
-        if libc::tcgetattr(file.as_raw_fd(), &mut termios) != 0 {
-            return Err(std::io::Error::last_os_error());
-        }
-        libc::cfmakeraw(&mut termios);
-        if libc::tcsetattr(file.as_raw_fd(), libc::TCSANOW, &termios) != 0 {
-            return Err(std::io::Error::last_os_error());
-        }
-    }
-    Ok(())
-}
-
-impl Transport for Pty {
-    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
-        match self.master.read(buffer) {
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            // EIO: no client has the slave open right now; not an error for the server.
-            Err(e) if e.raw_os_error() == Some(libc::EIO) => Ok(0),
-            other => other,
-        }
+    #[test]
+    fn armed_at_start_and_disarmed_over_tcp() {
+        let config = SitlConfig {
+            pty: false,
+            tcp_port: Some(0),
+            throw_to_fly: true,
+            imu_offset_m: Some([0.01, -0.02, 0.0]),
+            ..SitlConfig::default()
+        };
+        let sitl = Sitl::start(&config).unwrap();
+        let mut host = TestHost::connect(sitl.tcp_addr.unwrap());
+        assert!(matches!(host.hello(), Ok(Reply::Hello(_))));
+        assert!(armed(&mut host), "--throw-to-fly arms the control loop at start");
+        assert_eq!(host.request(Request::Disarm(())), Ok(Reply::Done));
+        // The command reaches the control step after the link pass that received it.
+        assert!(!armed(&mut host), "the link's disarm reached the control loop");
+        assert_eq!(host.request(Request::ArmThrowToFly(())), Ok(Reply::Done));
+        assert!(armed(&mut host), "the link's arm reached the control loop");
     }
 
-    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-        match self.master.write(bytes) {
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            other => other,
+    #[test]
+    fn an_imu_offset_out_of_range_is_refused() {
+        for offset_m in [[0.0, 1.5, 0.0], [f32::NAN, 0.0, 0.0], [0.0, 0.0, -1.001]] {
+            let config =
+                SitlConfig { pty: false, imu_offset_m: Some(offset_m), ..SitlConfig::default() };
+            assert!(matches!(Sitl::start(&config), Err(SitlError::ImuOffset(_))), "{offset_m:?}");
         }
+        assert!(!SitlConfig::default().throw_to_fly);
+        assert_eq!(SitlConfig::default().imu_offset_m, None);
     }
 }

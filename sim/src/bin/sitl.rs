@@ -4,8 +4,12 @@
 //! cargo run -p sim --bin sitl -- --airframe paper-quad --pty-link /tmp/fc-sitl --tcp-port 5760
 //! configurator-cli --port /tmp/fc-sitl info
 //! ```
+//!
+//! `--throw-to-fly` arms the board for throw-to-fly at start; `--imu-offset-mm X,Y,Z` gives the
+//! learner the IMU offset instead of the onboard estimate. Bad input exits with code 2.
 
 use clap::Parser;
+use sim::serve::parse_imu_offset_mm;
 use sim::sitl::{Sitl, SitlConfig};
 use std::path::PathBuf;
 
@@ -41,6 +45,14 @@ struct Args {
     /// Stop throwing after this many throws (default: keep throwing).
     #[arg(long, requires = "throw_every_s")]
     throws: Option<usize>,
+    /// Arm the board for throw-to-fly at start: the first throw starts the motor excitation
+    /// (as `ArmThrowToFly` over the protocol would).
+    #[arg(long)]
+    throw_to_fly: bool,
+    /// IMU offset for the in-flight learner: the IMU's position relative to the centre of
+    /// gravity, IMU axes, mm, as `X,Y,Z` (each within ±1000). Default: the onboard estimate.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_imu_offset_mm)]
+    imu_offset_mm: Option<[f32; 3]>,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -57,6 +69,8 @@ fn main() -> std::process::ExitCode {
         seed: args.seed,
         auto_throw_every_s: args.throw_every_s,
         auto_throw_count: args.throws,
+        throw_to_fly: args.throw_to_fly,
+        imu_offset_m: args.imu_offset_mm,
     };
     let sitl = match Sitl::start(&config) {
         Ok(sitl) => sitl,
@@ -77,6 +91,17 @@ fn main() -> std::process::ExitCode {
     }
     if let Some(every_s) = args.throw_every_s {
         println!("  throwing the craft every {every_s} s (spinning, 1 m up) and catching it");
+    }
+    if args.throw_to_fly {
+        println!("  armed for throw-to-fly: the first throw starts the motor excitation");
+    }
+    if let Some([x, y, z]) = args.imu_offset_mm {
+        println!(
+            "  IMU offset for the learner: ({:.1}, {:.1}, {:.1}) mm, IMU axes",
+            x * 1000.0,
+            y * 1000.0,
+            z * 1000.0
+        );
     }
     println!("Stop with Ctrl-C.");
     let started = std::time::Instant::now();

@@ -1,0 +1,511 @@
+//! Serving the configurator protocol from the simulator: the byte transports (a pseudo-terminal,
+//! TCP at 127.0.0.1), one [`LinkServer`] per connection, and the hand-over of the commands the
+//! links receive (arm, disarm, external pose) to the control step.
+//!
+//! Shared by the SITL ([`crate::sitl`]) and the lockstep bridge (`scenario bridge --tcp-port`).
+//! Everything here is non-blocking: a link pass reads what is available, answers, samples the
+//! telemetry that is due and writes what the transport takes now; the rest waits in the link's
+//! buffer for the next pass. The caller runs a pass once per simulated millisecond, as the
+//! board's timer pends its USB task, and passes each command to `ControlLoop::command` right
+//! after the pass (as the RTIC app does).
+
+use std::io::{ErrorKind, Read, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+
+use firmware::app::{
+    Background, BoardInfo, ControlCommand, ControlLoop, LinkServer, StatusView, CONTROL_RATE_HZ,
+};
+use protocol::{Capabilities, BOARD_NAME_LEN};
+
+/// Capabilities of every simulated board: IMU, motors with RPM telemetry, telemetry streaming,
+/// and the simulator flag.
+pub const SIMULATOR_CAPABILITIES: u32 = Capabilities::IMU
+    | Capabilities::MOTORS
+    | Capabilities::MOTOR_RPM
+    | Capabilities::TELEMETRY
+    | Capabilities::SIMULATOR;
+
+/// A simulated board's identity: `board` (e.g. "SITL", "BRIDGE"), the serial
+/// `"{board}-{seed:08X}"`, [`SIMULATOR_CAPABILITIES`], the 2 kHz control rate and `motor_count`.
+pub fn simulator_board_info(board: &'static str, seed: u64, motor_count: u8) -> BoardInfo {
+    let mut serial = heapless::String::<BOARD_NAME_LEN>::new();
+    let _ = core::fmt::Write::write_fmt(&mut serial, format_args!("{board}-{seed:08X}"));
+    BoardInfo {
+        board,
+        serial,
+        capabilities: SIMULATOR_CAPABILITIES,
+        control_rate_hz: CONTROL_RATE_HZ,
+        motor_count,
+    }
+}
+
+/// What the links answer from: copies of the control and background snapshots (the simulator
+/// does not measure the step's execution time).
+pub fn status_view(control: &ControlLoop<'_>, background: &Background<'_>) -> StatusView {
+    StatusView { control: control.snapshot(), background: background.results(), step_time: None }
+}
+
+/// A byte transport a link pass serves: the pseudo-terminal master or a TCP stream.
+pub trait Transport {
+    /// Read what is available without blocking; `Ok(0)` when nothing is, `Err` when closed.
+    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize>;
+    /// Write without blocking; returns how many bytes were taken.
+    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize>;
+}
+
+/// One served connection: its transport and its own protocol endpoint.
+pub struct Connection<T> {
+    transport: T,
+    link: LinkServer,
+}
+
+impl<T: Transport> Connection<T> {
+    /// A connection answering as `info`.
+    pub fn new(transport: T, info: BoardInfo) -> Self {
+        Self { transport, link: LinkServer::new(info) }
+    }
+
+    /// One link pass: receive, poll telemetry, transmit, then hand every command the link
+    /// received to `commands` (oldest first). Returns false when the transport has closed (the
+    /// commands received before are still handed over).
+    pub fn pass(
+        &mut self,
+        now_us: u64,
+        view: &StatusView,
+        commands: &mut dyn FnMut(ControlCommand),
+    ) -> bool {
+        let open = self.service(now_us, view);
+        while let Some(command) = self.link.take_command() {
+            commands(command);
+        }
+        open
+    }
+
+    /// The protocol endpoint (counters).
+    pub fn link(&self) -> &LinkServer {
+        &self.link
+    }
+
+    /// The transport.
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+
+    fn service(&mut self, now_us: u64, view: &StatusView) -> bool {
+        let mut buffer = [0u8; 512];
+        // At most 4 KiB per pass (4 MB/s), so a client that never stops writing cannot stall
+        // the simulation.
+        for _ in 0..8 {
+            match self.transport.read_available(&mut buffer) {
+                Ok(0) => break,
+                Ok(n) => self.link.receive(&buffer[..n], now_us, view),
+                Err(_) => return false,
+            }
+        }
+        self.link.poll(now_us, view);
+        // What the transport does not take now waits in the link's buffer for the next pass.
+        let mut closed = false;
+        self.link.transmit_to(|bytes| match self.transport.write_some(bytes) {
+            Ok(n) => n,
+            Err(_) => {
+                closed = true;
+                0
+            }
+        });
+        !closed
+    }
+}
+
+/// The TCP side: a non-blocking listener on 127.0.0.1 and one [`Connection`] per accepted
+/// client, as a second USB host would be.
+pub struct TcpLinks {
+    listener: TcpListener,
+    clients: Vec<Connection<TcpStream>>,
+    info: BoardInfo,
+}
+
+impl TcpLinks {
+    /// Listens on 127.0.0.1:`port` (0 picks a free one); connections answer as `info`.
+    pub fn bind(port: u16, info: BoardInfo) -> std::io::Result<Self> {
+        let listener = TcpListener::bind(("127.0.0.1", port))?;
+        listener.set_nonblocking(true)?;
+        Ok(Self { listener, clients: Vec::new(), info })
+    }
+
+    /// The address served.
+    pub fn local_addr(&self) -> std::io::Result<SocketAddr> {
+        self.listener.local_addr()
+    }
+
+    /// The motor count connections accepted from now on report in their info (those already
+    /// open keep theirs, as a board's info does not change during a session).
+    pub fn set_motor_count(&mut self, motor_count: u8) {
+        self.info.motor_count = motor_count;
+    }
+
+    /// Open connections.
+    pub fn connections(&self) -> usize {
+        self.clients.len()
+    }
+
+    /// Accept waiting clients, then run one link pass on every connection (see
+    /// [`Connection::pass`]); closed connections are dropped after their commands are handed
+    /// over.
+    pub fn pass(
+        &mut self,
+        now_us: u64,
+        view: &StatusView,
+        commands: &mut dyn FnMut(ControlCommand),
+    ) {
+        while let Ok((stream, _)) = self.listener.accept() {
+            if stream.set_nonblocking(true).is_ok() {
+                let _ = stream.set_nodelay(true);
+                self.clients.push(Connection::new(stream, self.info.clone()));
+            }
+        }
+        self.clients.retain_mut(|client| client.pass(now_us, view, commands));
+    }
+}
+
+impl Transport for TcpStream {
+    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+        match self.read(buffer) {
+            Ok(0) => Err(ErrorKind::UnexpectedEof.into()),
+            Ok(n) => Ok(n),
+            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
+            Err(e) => Err(e),
+        }
+    }
+
+    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        match self.write(bytes) {
+            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
+            other => other,
+        }
+    }
+}
+
+/// A pseudo-terminal: the server keeps the master and holds the slave open (in raw mode, so the
+/// line discipline neither echoes nor translates bytes, and a client closing it does not hang
+/// up the master).
+pub struct Pty {
+    master: std::fs::File,
+    _slave: std::fs::File,
+    slave_path: PathBuf,
+}
+
+impl Pty {
+    /// Opens a new pseudo-terminal (non-blocking master, raw slave).
+    pub fn open() -> std::io::Result<Self> {
+        use std::os::fd::FromRawFd;
+        use std::os::unix::fs::OpenOptionsExt;
+        // SAFETY: plain libc calls on a descriptor we own; every return value is checked and the
+        // descriptor is wrapped in a `File` (closed on drop) before any early return.
+        unsafe {
+            let fd = libc::posix_openpt(libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK);
+            if fd < 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            let master = std::fs::File::from_raw_fd(fd);
+            if libc::grantpt(fd) != 0 || libc::unlockpt(fd) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            let mut name = [0 as libc::c_char; 128];
+            if libc::ptsname_r(fd, name.as_mut_ptr(), name.len()) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            let slave_path = PathBuf::from(
+                std::ffi::CStr::from_ptr(name.as_ptr()).to_string_lossy().into_owned(),
+            );
+            let slave = std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .custom_flags(libc::O_NOCTTY)
+                .open(&slave_path)?;
+            set_raw(&slave)?;
+            Ok(Self { master, _slave: slave, slave_path })
+        }
+    }
+
+    /// The slave's path, to open like a serial port.
+    pub fn slave_path(&self) -> &Path {
+        &self.slave_path
+    }
+}
+
+fn set_raw(file: &std::fs::File) -> std::io::Result<()> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: termios is plain data; tcgetattr fills it before use.
+    unsafe {
+        let mut termios: libc::termios = std::mem::zeroed();
+        if libc::tcgetattr(file.as_raw_fd(), &mut termios) != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        libc::cfmakeraw(&mut termios);
+        if libc::tcsetattr(file.as_raw_fd(), libc::TCSANOW, &termios) != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+    }
+    Ok(())
+}
+
+impl Transport for Pty {
+    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+        match self.master.read(buffer) {
+            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
+            // EIO: no client has the slave open right now; not an error for the server.
+            Err(e) if e.raw_os_error() == Some(libc::EIO) => Ok(0),
+            other => other,
+        }
+    }
+
+    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        match self.master.write(bytes) {
+            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
+            other => other,
+        }
+    }
+}
+
+/// Parses `X,Y,Z` in millimetres (three comma-separated finite numbers, each within
+/// ±[`MAX_IMU_OFFSET_MM`]) into metres: the `--imu-offset-mm` option of `sitl` and
+/// `scenario bridge`.
+pub fn parse_imu_offset_mm(text: &str) -> Result<[f32; 3], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!(
+            "expected three comma-separated numbers X,Y,Z in mm (IMU axes), got {} value(s) in \
+             `{text}`",
+            parts.len()
+        ));
+    }
+    let mut offset_m = [0.0f32; 3];
+    for (axis, (part, out)) in ["X", "Y", "Z"].iter().zip(parts.iter().zip(&mut offset_m)) {
+        let mm: f64 = part.parse().map_err(|_| format!("{axis} = `{part}` is not a number"))?;
+        if !mm.is_finite() || mm.abs() > MAX_IMU_OFFSET_MM {
+            return Err(format!(
+                "{axis} = {part} mm is out of range: allowed [-{MAX_IMU_OFFSET_MM}, \
+                 {MAX_IMU_OFFSET_MM}] mm"
+            ));
+        }
+        *out = (mm / 1000.0) as f32;
+    }
+    Ok(offset_m)
+}
+
+/// Largest accepted IMU offset component, mm.
+pub const MAX_IMU_OFFSET_MM: f64 = 1000.0;
+
+/// A configurator's side of the protocol over TCP, just enough for the unit tests.
+#[cfg(test)]
+pub(crate) struct TestHost {
+    stream: TcpStream,
+    decoder: protocol::Decoder,
+    seq: u16,
+}
+
+#[cfg(test)]
+impl TestHost {
+    pub(crate) fn connect(addr: SocketAddr) -> Self {
+        let stream = TcpStream::connect(addr).unwrap();
+        stream.set_read_timeout(Some(std::time::Duration::from_millis(10))).unwrap();
+        Self { stream, decoder: protocol::Decoder::new(), seq: 0 }
+    }
+
+    /// Sends `request` and waits (up to 2 s) for its response.
+    pub(crate) fn request(&mut self, request: protocol::Request) -> protocol::Response {
+        use protocol::DeviceMessage;
+        self.seq += 1;
+        let mut frame = [0u8; 256];
+        let n = request.encode(self.seq, &mut frame).unwrap();
+        self.stream.write_all(&frame[..n]).unwrap();
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(2);
+        let mut buffer = [0u8; 512];
+        while std::time::Instant::now() < deadline {
+            let Ok(n) = self.stream.read(&mut buffer) else { continue };
+            assert!(n > 0, "the server closed the connection");
+            for &byte in &buffer[..n] {
+                if let Some(Ok(frame)) = self.decoder.push(byte) {
+                    let seq = frame.seq;
+                    if let Ok(DeviceMessage::Response(response)) = DeviceMessage::decode(&frame) {
+                        if seq == self.seq {
+                            return response;
+                        }
+                    }
+                }
+            }
+        }
+        panic!("no answer to request {}", self.seq);
+    }
+
+    /// The handshake.
+    pub(crate) fn hello(&mut self) -> protocol::Response {
+        self.request(protocol::Request::Hello(protocol::Hello {
+            protocol: protocol::PROTOCOL_VERSION,
+            schema_hash: protocol::SCHEMA_HASH,
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request};
+    use std::collections::VecDeque;
+    use std::time::{Duration, Instant};
+
+    /// An in-memory transport: bytes the host wrote, bytes the device wrote, and whether the
+    /// host has hung up.
+    #[derive(Default)]
+    struct Memory {
+        to_device: VecDeque<u8>,
+        to_host: Vec<u8>,
+        closed: bool,
+    }
+
+    impl Transport for Memory {
+        fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+            if self.to_device.is_empty() && self.closed {
+                return Err(ErrorKind::UnexpectedEof.into());
+            }
+            let n = buffer.len().min(self.to_device.len());
+            for (dst, src) in buffer.iter_mut().zip(self.to_device.drain(..n)) {
+                *dst = src;
+            }
+            Ok(n)
+        }
+        fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.to_host.extend_from_slice(bytes);
+            Ok(bytes.len())
+        }
+    }
+
+    fn frame(request: &Request, seq: u16) -> Vec<u8> {
+        let mut out = [0u8; 256];
+        let n = request.encode(seq, &mut out).unwrap();
+        out[..n].to_vec()
+    }
+
+    fn hello() -> Request {
+        Request::Hello(Hello {
+            protocol: protocol::PROTOCOL_VERSION,
+            schema_hash: protocol::SCHEMA_HASH,
+        })
+    }
+
+    /// Every response in `bytes`, with its sequence number.
+    fn responses(bytes: &[u8]) -> Vec<(u16, protocol::Response)> {
+        let mut decoder = Decoder::new();
+        let mut out = Vec::new();
+        for &b in bytes {
+            if let Some(Ok(frame)) = decoder.push(b) {
+                if let Ok(DeviceMessage::Response(r)) = DeviceMessage::decode(&frame) {
+                    out.push((frame.seq, r));
+                }
+            }
+        }
+        out
+    }
+
+    const POSE: ExternalPose =
+        ExternalPose { position_ned_m: [1.0, -2.0, -3.5], heading_rad: 0.75 };
+
+    #[test]
+    fn a_pass_answers_and_hands_over_the_commands_in_order() {
+        let info = simulator_board_info("BRIDGE", 7, 4);
+        let mut connection = Connection::new(Memory::default(), info);
+        let mut bytes = frame(&hello(), 1);
+        // (A disarm drops the commands waiting before it, so it comes first here.)
+        bytes.extend(frame(&Request::Disarm(()), 2));
+        bytes.extend(frame(&Request::SetExternalPose(POSE), 3));
+        connection.transport.to_device.extend(bytes);
+        let mut commands = Vec::new();
+        let view = StatusView::default();
+        assert!(connection.pass(1000, &view, &mut |c| commands.push(c)));
+        assert_eq!(commands, vec![ControlCommand::Disarm, ControlCommand::ExternalPose(POSE)]);
+        let answers = responses(&connection.transport().to_host);
+        assert_eq!(answers.len(), 3);
+        match &answers[0] {
+            (1, Ok(Reply::Hello(info))) => {
+                assert_eq!(info.board.as_str(), "BRIDGE");
+                assert_eq!(info.serial.as_str(), "BRIDGE-00000007");
+                assert_eq!(info.motor_count, 4);
+                assert_eq!(info.capabilities.0, SIMULATOR_CAPABILITIES);
+            }
+            other => panic!("expected the hello reply, got {other:?}"),
+        }
+        assert_eq!(answers[1], (2, Ok(Reply::Done)));
+        assert_eq!(answers[2], (3, Ok(Reply::Done)));
+        // Nothing is handed over twice.
+        assert!(connection.pass(2000, &view, &mut |c| commands.push(c)));
+        assert_eq!(commands.len(), 2);
+    }
+
+    #[test]
+    fn a_closed_connection_still_hands_over_what_it_received() {
+        let mut connection = Connection::new(Memory::default(), simulator_board_info("SITL", 1, 4));
+        let mut bytes = frame(&hello(), 1);
+        bytes.extend(frame(&Request::Disarm(()), 2));
+        connection.transport.to_device.extend(bytes);
+        connection.transport.closed = true;
+        let mut commands = Vec::new();
+        assert!(!connection.pass(0, &StatusView::default(), &mut |c| commands.push(c)));
+        assert_eq!(commands, vec![ControlCommand::Disarm]);
+    }
+
+    #[test]
+    fn tcp_links_accept_answer_and_drop_closed_clients() {
+        let mut links = TcpLinks::bind(0, simulator_board_info("BRIDGE", 1, 0)).unwrap();
+        links.set_motor_count(6);
+        let addr = links.local_addr().unwrap();
+        let mut client = TcpStream::connect(addr).unwrap();
+        client.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
+        client.write_all(&frame(&hello(), 9)).unwrap();
+        client.write_all(&frame(&Request::SetExternalPose(POSE), 10)).unwrap();
+        let view = StatusView::default();
+        let mut commands = Vec::new();
+        let mut received = Vec::new();
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while responses(&received).len() < 2 && Instant::now() < deadline {
+            links.pass(0, &view, &mut |c| commands.push(c));
+            let mut buffer = [0u8; 1024];
+            if let Ok(n) = client.read(&mut buffer) {
+                received.extend_from_slice(&buffer[..n]);
+            }
+        }
+        assert_eq!(links.connections(), 1);
+        let answers = responses(&received);
+        assert!(
+            matches!(&answers[0], (9, Ok(Reply::Hello(info))) if info.motor_count == 6),
+            "{answers:?}"
+        );
+        assert_eq!(answers[1], (10, Ok(Reply::Done)));
+        assert_eq!(commands, vec![ControlCommand::ExternalPose(POSE)]);
+        drop(client);
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while links.connections() > 0 && Instant::now() < deadline {
+            links.pass(0, &view, &mut |_| {});
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(links.connections(), 0, "the closed client is dropped");
+    }
+
+    #[test]
+    fn imu_offsets_parse_in_millimetres_and_bad_ones_say_why() {
+        assert_eq!(parse_imu_offset_mm("10,-20.5, 30").unwrap(), [0.01, -0.0205, 0.03]);
+        assert_eq!(parse_imu_offset_mm("-1000,0,1000").unwrap(), [-1.0, 0.0, 1.0]);
+        for (bad, says) in [
+            ("1,2", "three"),
+            ("1,2,3,4", "three"),
+            ("1,x,3", "Y = `x` is not a number"),
+            ("1,2,1000.5", "Z = 1000.5 mm is out of range"),
+            ("nan,0,0", "X = nan mm is out of range"),
+            ("inf,0,0", "out of range"),
+            ("", "three"),
+        ] {
+            let error = parse_imu_offset_mm(bad).unwrap_err();
+            assert!(error.contains(says), "`{bad}`: {error}");
+        }
+    }
+}
