@@ -9,21 +9,36 @@
 //! 9002 out); a simulator that binds 9002 and sends to 9003 works unchanged with both.
 //!
 //! The byte layouts (little-endian, fixed-size, versioned) are in `docs/sim-bridge.md` and in
-//! [`SensorPacket`] and [`MotorPacket`].
+//! [`SensorPacket`] and [`MotorPacket`]. Version 2 lets the sensor packet carry an external pose
+//! (what motion capture would give the board); version 1 packets stay valid.
+//!
+//! [`serve_firmware`] is the loop behind `scenario bridge`: the firmware application behind the
+//! bridge, optionally serving the configurator protocol on TCP meanwhile.
 
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::app::ControlCommand;
+use protocol::ExternalPose;
 
-use crate::scenario::FlightApp;
+use crate::scenario::{FirmwareApp, FlightApp};
+use crate::serve::{status_view, TcpLinks};
 
 /// Port the flight-application side listens on (Betaflight SITL's FDM input port).
 pub const DEFAULT_FC_PORT: u16 = 9003;
 /// Port an external simulator usually listens on (Betaflight SITL's motor output port).
 pub const DEFAULT_SIM_PORT: u16 = 9002;
-/// Protocol version carried in byte 4 of both packets.
-pub const BRIDGE_VERSION: u8 = 1;
+/// Highest bridge version this side speaks (byte 4 of both packets); every version from
+/// [`MIN_BRIDGE_VERSION`] up is accepted.
+pub const BRIDGE_VERSION: u8 = 2;
+/// Oldest bridge version accepted.
+pub const MIN_BRIDGE_VERSION: u8 = 1;
+/// Sensor-packet flag (version 2 and later): an external pose follows the motor speeds.
+pub const FLAG_POSE: u16 = 1 << 0;
+/// Length of the external pose in a sensor packet, bytes: position NED (3 × f32, m) and
+/// heading (f32, rad).
+pub const POSE_LEN: usize = 16;
 /// Magic of the sensor packet, bytes 0–3 (ASCII).
 pub const SENSOR_MAGIC: [u8; 4] = *b"FCSN";
 /// Magic of the motor packet, bytes 0–3 (ASCII).
@@ -32,8 +47,8 @@ pub const MOTOR_MAGIC: [u8; 4] = *b"FCMO";
 pub const SENSOR_HEADER_LEN: usize = 48;
 /// Motor packet header length before the commands, bytes.
 pub const MOTOR_HEADER_LEN: usize = 16;
-/// Longest packet, bytes (sensor packet with 8 motors).
-pub const MAX_PACKET_LEN: usize = SENSOR_HEADER_LEN + 4 * MAX_MOTORS;
+/// Longest packet, bytes (version-2 sensor packet with 8 motors and a pose).
+pub const MAX_PACKET_LEN: usize = SENSOR_HEADER_LEN + 4 * MAX_MOTORS + POSE_LEN;
 
 /// Why a packet or an exchange failed.
 #[derive(Debug, thiserror::Error)]
@@ -44,7 +59,7 @@ pub enum BridgeError {
     /// Nothing arrived in time.
     #[error("no packet within {0:?}")]
     Timeout(Duration),
-    /// The packet is shorter than its header or its motor count needs.
+    /// The packet is shorter than its header, its motor count or its pose needs.
     #[error("packet of {len} bytes is too short: {need} bytes needed")]
     TooShort {
         /// Received length.
@@ -56,7 +71,10 @@ pub enum BridgeError {
     #[error("bad magic {0:?}: expected {1:?}")]
     BadMagic([u8; 4], [u8; 4]),
     /// Unsupported version.
-    #[error("bridge version {0} is not supported (this side speaks {BRIDGE_VERSION})")]
+    #[error(
+        "bridge version {0} is not supported (this side speaks {MIN_BRIDGE_VERSION} to \
+         {BRIDGE_VERSION})"
+    )]
     Version(u8),
     /// Motor count outside 1..=8.
     #[error("motor count {0} is out of range: allowed [1, {MAX_MOTORS}]")]
@@ -69,21 +87,29 @@ impl From<std::io::Error> for BridgeError {
     }
 }
 
-/// Simulator → application, `48 + 4m` bytes.
+/// Simulator → application, `48 + 4m` bytes, `+ 16` with a pose.
 ///
 /// | offset | type | field |
 /// |---|---|---|
 /// | 0 | `[u8; 4]` | magic `"FCSN"` |
-/// | 4 | `u8` | version (1) |
+/// | 4 | `u8` | version (1 or 2) |
 /// | 5 | `u8` | motor count m (1–8) |
-/// | 6 | `u16` | flags, 0 (reserved) |
+/// | 6 | `u16` | flags: bit 0 ([`FLAG_POSE`]) = a pose follows (version 2; ignored in version 1) |
 /// | 8 | `u64` | sequence number, echoed in the reply |
 /// | 16 | `f64` | simulation time, s |
 /// | 24 | `f32 × 3` | gyro, rad/s, IMU axes |
 /// | 36 | `f32 × 3` | specific force, m/s², IMU axes |
 /// | 48 | `f32 × m` | motor speeds, rad/s; NaN = not reported |
+/// | 48 + 4m | `f32 × 3` | with [`FLAG_POSE`]: position of the centre of gravity, world NED, m |
+/// | 60 + 4m | `f32` | with [`FLAG_POSE`]: heading (yaw of the body frame about world z), rad |
+///
+/// [`SensorPacket::encode`] writes version 2 when [`SensorPacket::pose`] is set or
+/// [`SensorPacket::version`] is 2 or more, version 1 otherwise; [`SensorPacket::decode`] fills
+/// `version` from the packet.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorPacket {
+    /// Version to write (1 or 2; a pose always makes it 2); as received when decoded.
+    pub version: u8,
     /// Sequence number.
     pub sequence: u64,
     /// Simulation time, s.
@@ -94,20 +120,25 @@ pub struct SensorPacket {
     pub motor_count: u8,
     /// Motor speeds, rad/s (`None` = not reported).
     pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
+    /// The external pose (version 2 with [`FLAG_POSE`]): motion capture's centre-of-gravity
+    /// position and heading. The only truth that crosses the bridge, and only when sent.
+    pub pose: Option<ExternalPose>,
 }
 
-/// Application → simulator, `16 + 4m` bytes.
+/// Application → simulator, `16 + 4m` bytes, the same layout in both versions.
 ///
 /// | offset | type | field |
 /// |---|---|---|
 /// | 0 | `[u8; 4]` | magic `"FCMO"` |
-/// | 4 | `u8` | version (1) |
+/// | 4 | `u8` | version: that of the sensor packet answered (1 or 2) |
 /// | 5 | `u8` | motor count m (1–8) |
 /// | 6 | `u16` | flags, 0 (reserved) |
 /// | 8 | `u64` | sequence number of the sensor packet answered |
 /// | 16 | `f32 × m` | commands δ ∈ [0, 1] |
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MotorPacket {
+    /// Version (1 or 2): the answered sensor packet's; written clamped to the versions spoken.
+    pub version: u8,
     /// Sequence number of the sensor packet this answers.
     pub sequence: u64,
     /// Number of motors, 1..=8.
@@ -116,7 +147,12 @@ pub struct MotorPacket {
     pub commands: [f32; MAX_MOTORS],
 }
 
-fn check_header(bytes: &[u8], magic: [u8; 4], header_len: usize) -> Result<usize, BridgeError> {
+/// Checks magic, version, motor count and the length they need; returns (version, m).
+fn check_header(
+    bytes: &[u8],
+    magic: [u8; 4],
+    header_len: usize,
+) -> Result<(u8, usize), BridgeError> {
     if bytes.len() < header_len {
         return Err(BridgeError::TooShort { len: bytes.len(), need: header_len });
     }
@@ -124,8 +160,9 @@ fn check_header(bytes: &[u8], magic: [u8; 4], header_len: usize) -> Result<usize
     if got != magic {
         return Err(BridgeError::BadMagic(got, magic));
     }
-    if bytes[4] != BRIDGE_VERSION {
-        return Err(BridgeError::Version(bytes[4]));
+    let version = bytes[4];
+    if !(MIN_BRIDGE_VERSION..=BRIDGE_VERSION).contains(&version) {
+        return Err(BridgeError::Version(version));
     }
     let m = bytes[5];
     if m == 0 || m as usize > MAX_MOTORS {
@@ -135,27 +172,50 @@ fn check_header(bytes: &[u8], magic: [u8; 4], header_len: usize) -> Result<usize
     if bytes.len() < need {
         return Err(BridgeError::TooShort { len: bytes.len(), need });
     }
-    Ok(m as usize)
+    Ok((version, m as usize))
+}
+
+/// A version as written: within the versions spoken.
+fn wire_version(version: u8) -> u8 {
+    version.clamp(MIN_BRIDGE_VERSION, BRIDGE_VERSION)
 }
 
 fn f32_at(bytes: &[u8], offset: usize) -> f32 {
     f32::from_le_bytes(bytes[offset..offset + 4].try_into().expect("4 bytes"))
 }
 
-fn write_header(out: &mut Vec<u8>, magic: [u8; 4], motor_count: u8, sequence: u64) {
+fn write_header(
+    out: &mut Vec<u8>,
+    magic: [u8; 4],
+    version: u8,
+    motor_count: u8,
+    flags: u16,
+    sequence: u64,
+) {
     out.extend_from_slice(&magic);
-    out.push(BRIDGE_VERSION);
+    out.push(version);
     out.push(motor_count);
-    out.extend_from_slice(&0u16.to_le_bytes());
+    out.extend_from_slice(&flags.to_le_bytes());
     out.extend_from_slice(&sequence.to_le_bytes());
 }
 
 impl SensorPacket {
-    /// The packet's bytes.
+    /// The version [`SensorPacket::encode`] writes: 2 with a pose or when `version` ≥ 2, else 1.
+    pub fn wire_version(&self) -> u8 {
+        if self.pose.is_some() {
+            2
+        } else {
+            wire_version(self.version)
+        }
+    }
+
+    /// The packet's bytes: `48 + 4m`, `+ 16` with a pose.
     pub fn encode(&self) -> Vec<u8> {
         let m = self.motor_count as usize;
-        let mut out = Vec::with_capacity(SENSOR_HEADER_LEN + 4 * m);
-        write_header(&mut out, SENSOR_MAGIC, self.motor_count, self.sequence);
+        let flags = if self.pose.is_some() { FLAG_POSE } else { 0 };
+        let mut out = Vec::with_capacity(SENSOR_HEADER_LEN + 4 * m + POSE_LEN);
+        let version = self.wire_version();
+        write_header(&mut out, SENSOR_MAGIC, version, self.motor_count, flags, self.sequence);
         out.extend_from_slice(&self.time_s.to_le_bytes());
         for v in self.imu.gyro_rad_s.iter().chain(self.imu.accel_mps2.iter()) {
             out.extend_from_slice(&v.to_le_bytes());
@@ -163,18 +223,39 @@ impl SensorPacket {
         for s in &self.speeds_rad_s[..m] {
             out.extend_from_slice(&s.unwrap_or(f32::NAN).to_le_bytes());
         }
+        if let Some(pose) = &self.pose {
+            for v in pose.position_ned_m.iter().chain([&pose.heading_rad]) {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
         out
     }
 
-    /// Parses a packet.
+    /// Parses a packet. Version 1 ignores the flags; version 2 reads the pose when bit 0 of the
+    /// flags is set (other bits are ignored). Bytes after the packet are ignored.
     pub fn decode(bytes: &[u8]) -> Result<Self, BridgeError> {
-        let m = check_header(bytes, SENSOR_MAGIC, SENSOR_HEADER_LEN)?;
+        let (version, m) = check_header(bytes, SENSOR_MAGIC, SENSOR_HEADER_LEN)?;
         let mut speeds_rad_s = [None; MAX_MOTORS];
         for (i, s) in speeds_rad_s.iter_mut().enumerate().take(m) {
             let v = f32_at(bytes, SENSOR_HEADER_LEN + 4 * i);
             *s = (!v.is_nan()).then_some(v);
         }
+        let flags = u16::from_le_bytes([bytes[6], bytes[7]]);
+        let pose = if version >= 2 && flags & FLAG_POSE != 0 {
+            let at = SENSOR_HEADER_LEN + 4 * m;
+            let need = at + POSE_LEN;
+            if bytes.len() < need {
+                return Err(BridgeError::TooShort { len: bytes.len(), need });
+            }
+            Some(ExternalPose {
+                position_ned_m: [f32_at(bytes, at), f32_at(bytes, at + 4), f32_at(bytes, at + 8)],
+                heading_rad: f32_at(bytes, at + 12),
+            })
+        } else {
+            None
+        };
         Ok(Self {
+            version,
             sequence: u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")),
             time_s: f64::from_le_bytes(bytes[16..24].try_into().expect("8 bytes")),
             imu: ImuSample {
@@ -183,6 +264,7 @@ impl SensorPacket {
             },
             motor_count: m as u8,
             speeds_rad_s,
+            pose,
         })
     }
 }
@@ -192,7 +274,8 @@ impl MotorPacket {
     pub fn encode(&self) -> Vec<u8> {
         let m = self.motor_count as usize;
         let mut out = Vec::with_capacity(MOTOR_HEADER_LEN + 4 * m);
-        write_header(&mut out, MOTOR_MAGIC, self.motor_count, self.sequence);
+        let version = wire_version(self.version);
+        write_header(&mut out, MOTOR_MAGIC, version, self.motor_count, 0, self.sequence);
         for c in &self.commands[..m] {
             out.extend_from_slice(&c.to_le_bytes());
         }
@@ -201,12 +284,13 @@ impl MotorPacket {
 
     /// Parses a packet.
     pub fn decode(bytes: &[u8]) -> Result<Self, BridgeError> {
-        let m = check_header(bytes, MOTOR_MAGIC, MOTOR_HEADER_LEN)?;
+        let (version, m) = check_header(bytes, MOTOR_MAGIC, MOTOR_HEADER_LEN)?;
         let mut commands = [0.0; MAX_MOTORS];
         for (i, c) in commands.iter_mut().enumerate().take(m) {
             *c = f32_at(bytes, MOTOR_HEADER_LEN + 4 * i);
         }
         Ok(Self {
+            version,
             sequence: u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")),
             motor_count: m as u8,
             commands,
@@ -274,15 +358,18 @@ impl BridgeServer {
         Ok(self.socket.local_addr()?)
     }
 
-    /// Waits up to `timeout` for one sensor packet, runs one application step on it and sends
-    /// the motor packet back to the sender. Returns the packet answered. Malformed packets are
-    /// answered with nothing and reported as errors (the caller decides whether to go on).
+    /// Waits up to `timeout` (at least 1 µs) for one sensor packet, runs one application step on
+    /// it and sends the motor packet (with the sensor packet's version and sequence number) back
+    /// to the sender. A pose in the packet goes to the application first, as
+    /// [`ControlCommand::ExternalPose`] at the packet's time. Returns the packet answered.
+    /// Malformed packets are answered with nothing and reported as errors (the caller decides
+    /// whether to go on).
     pub fn step<A: FlightApp>(
         &mut self,
         app: &mut A,
         timeout: Duration,
     ) -> Result<(SensorPacket, MotorPacket), BridgeError> {
-        self.socket.set_read_timeout(Some(timeout))?;
+        self.socket.set_read_timeout(Some(timeout.max(Duration::from_micros(1))))?;
         let (len, from) = self.socket.recv_from(&mut self.buf).map_err(|e| match e.kind() {
             std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut => {
                 BridgeError::Timeout(timeout)
@@ -296,15 +383,94 @@ impl BridgeServer {
         }
         self.motors.speeds_rad_s = sensor.speeds_rad_s;
         let mut imu = BridgeImu(Some(sensor.imu));
-        let now_us = (sensor.time_s.max(0.0) * 1e6).round() as u64;
+        let now_us = packet_time_us(&sensor);
+        if let Some(pose) = sensor.pose {
+            app.command(ControlCommand::ExternalPose(pose), now_us);
+        }
         app.step(now_us, &mut imu, &mut self.motors);
         let reply = MotorPacket {
+            version: sensor.version,
             sequence: sensor.sequence,
             motor_count: sensor.motor_count,
             commands: self.motors.commands,
         };
         self.socket.send_to(&reply.encode(), from)?;
         Ok((sensor, reply))
+    }
+}
+
+/// The application time of a sensor packet, µs: `round(t · 10⁶)` (negative times count as 0).
+pub fn packet_time_us(packet: &SensorPacket) -> u64 {
+    (packet.time_s.max(0.0) * 1e6).round() as u64
+}
+
+/// How long [`serve_firmware`] waits for a packet before it serves the TCP links again.
+pub const LINK_WAIT: Duration = Duration::from_millis(5);
+/// Sensor packets per link pass while packets flow: 2 = once per simulated millisecond at
+/// 2 kHz, as the board pends its USB task.
+pub const PACKETS_PER_LINK_PASS: u64 = 2;
+
+/// What a [`serve_firmware`] run did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BridgeSummary {
+    /// Sensor packets answered (application steps run).
+    pub steps: u64,
+    /// Datagrams rejected as malformed (not answered).
+    pub malformed: u64,
+}
+
+/// Serves the firmware application `app` on `server` until no datagram arrived for
+/// `idle_timeout`: one application step per sensor packet (see [`BridgeServer::step`]).
+///
+/// With `links`, the configurator protocol is served meanwhile: a link pass after every
+/// [`PACKETS_PER_LINK_PASS`] sensor packets, and every [`LINK_WAIT`] while no packet arrives
+/// (simulated time then stands still at the last packet's), so a configurator can connect and
+/// ask while the external simulator pauses. After every pass the commands the links received
+/// (arm, disarm, external pose) go to the control loop. Connections accepted after the first
+/// packet report its motor count in their info (0 before).
+///
+/// Malformed datagrams are handed to `on_malformed` and not answered; a socket error ends the
+/// run.
+pub fn serve_firmware(
+    server: &mut BridgeServer,
+    app: &mut FirmwareApp<'_>,
+    mut links: Option<&mut TcpLinks>,
+    idle_timeout: Duration,
+    on_malformed: &mut dyn FnMut(&BridgeError),
+) -> Result<BridgeSummary, BridgeError> {
+    let mut summary = BridgeSummary::default();
+    let mut last_datagram = Instant::now();
+    let mut now_us = 0u64;
+    loop {
+        let idle = last_datagram.elapsed();
+        if idle >= idle_timeout {
+            return Ok(summary);
+        }
+        let wait =
+            (idle_timeout - idle).min(if links.is_some() { LINK_WAIT } else { idle_timeout });
+        let link_pass_due = match server.step(app, wait) {
+            Ok((sensor, _)) => {
+                last_datagram = Instant::now();
+                summary.steps += 1;
+                now_us = packet_time_us(&sensor);
+                if let Some(links) = links.as_deref_mut() {
+                    links.set_motor_count(sensor.motor_count);
+                }
+                summary.steps % PACKETS_PER_LINK_PASS == 0
+            }
+            Err(BridgeError::Timeout(_)) => true,
+            Err(error @ BridgeError::Io(_)) => return Err(error),
+            Err(error) => {
+                last_datagram = Instant::now();
+                summary.malformed += 1;
+                on_malformed(&error);
+                false
+            }
+        };
+        if let (true, Some(links)) = (link_pass_due, links.as_deref_mut()) {
+            let view = status_view(&app.control, &app.background);
+            links.pass(now_us, &view, &mut |command| app.command(command, now_us));
+        }
     }
 }
 
@@ -371,12 +537,103 @@ mod tests {
             Some(7.0),
         ]);
         SensorPacket {
+            version: 1,
             sequence: 0x0102_0304_0506_0708,
             time_s: 12.5,
             imu: ImuSample { gyro_rad_s: [0.1, -0.2, 0.3], accel_mps2: [1.0, 2.0, -9.80665] },
             motor_count: 6,
             speeds_rad_s,
+            pose: None,
         }
+    }
+
+    const POSE: ExternalPose =
+        ExternalPose { position_ned_m: [1.5, -2.0, -0.5], heading_rad: 0.25 };
+
+    /// A small packet with exactly representable values, for byte-exact checks.
+    fn small(pose: Option<ExternalPose>) -> SensorPacket {
+        let mut speeds_rad_s = [None; MAX_MOTORS];
+        speeds_rad_s[0] = Some(2.0);
+        SensorPacket {
+            version: 1,
+            sequence: 0x0102,
+            time_s: 0.5,
+            imu: ImuSample { gyro_rad_s: [1.0, -1.0, 0.0], accel_mps2: [0.0, 0.0, -2.0] },
+            motor_count: 2,
+            speeds_rad_s,
+            pose,
+        }
+    }
+
+    /// The bytes of `small(..)` up to the motor speeds, for `version` and `flags`.
+    fn small_head(version: u8, flags: u8) -> Vec<u8> {
+        let v = vec![
+            0x46, 0x43, 0x53, 0x4E, // "FCSN"
+            version, 0x02, flags, 0x00, // version, m = 2, flags
+            0x02, 0x01, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, // sequence 0x0102
+            0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0xE0, 0x3F, // time 0.5 (f64)
+            0x00, 0x00, 0x80, 0x3F, // gyro x 1.0
+            0x00, 0x00, 0x80, 0xBF, // gyro y -1.0
+            0x00, 0x00, 0x00, 0x00, // gyro z 0.0
+            0x00, 0x00, 0x00, 0x00, // accel x 0.0
+            0x00, 0x00, 0x00, 0x00, // accel y 0.0
+            0x00, 0x00, 0x00, 0xC0, // accel z -2.0
+            0x00, 0x00, 0x00, 0x40, // motor 0: 2.0 rad/s
+            0x00, 0x00, 0xC0, 0x7F, // motor 1: NaN (not reported)
+        ];
+        assert_eq!(v.len(), 48 + 4 * 2);
+        v
+    }
+
+    #[test]
+    fn version_1_golden_bytes() {
+        let bytes = small(None).encode();
+        assert_eq!(bytes, small_head(1, 0));
+        assert_eq!(SensorPacket::decode(&bytes).unwrap(), small(None));
+    }
+
+    #[test]
+    fn version_2_golden_bytes_with_a_pose() {
+        let packet = small(Some(POSE));
+        let bytes = packet.encode();
+        let mut expected = small_head(2, 0x01);
+        expected.extend_from_slice(&[
+            0x00, 0x00, 0xC0, 0x3F, // north 1.5 m
+            0x00, 0x00, 0x00, 0xC0, // east -2.0 m
+            0x00, 0x00, 0x00, 0xBF, // down -0.5 m
+            0x00, 0x00, 0x80, 0x3E, // heading 0.25 rad
+        ]);
+        assert_eq!(bytes.len(), 48 + 4 * 2 + 16);
+        assert_eq!(bytes, expected);
+        let decoded = SensorPacket::decode(&bytes).unwrap();
+        assert_eq!(decoded, SensorPacket { version: 2, ..packet });
+        assert_eq!(decoded.pose, Some(POSE));
+    }
+
+    #[test]
+    fn version_2_without_a_pose_has_no_trailer() {
+        let packet = SensorPacket { version: 2, ..small(None) };
+        let bytes = packet.encode();
+        assert_eq!(bytes, small_head(2, 0));
+        assert_eq!(SensorPacket::decode(&bytes).unwrap(), packet);
+    }
+
+    #[test]
+    fn version_1_ignores_the_flags_and_version_2_ignores_unknown_bits() {
+        // Version 1 with bit 0 set and trailing bytes: no pose.
+        let mut v1 = small_head(1, 0x01);
+        v1.extend_from_slice(&[0xAA; 16]);
+        v1[7] = 0x80;
+        assert_eq!(SensorPacket::decode(&v1).unwrap(), small(None));
+        // Version 2 with unknown bits only: no pose, no trailer needed.
+        let mut v2 = small_head(2, 0xFE);
+        v2[7] = 0xFF;
+        assert_eq!(SensorPacket::decode(&v2).unwrap().pose, None);
+        // Version 2 with bit 0 and unknown bits: the pose.
+        let mut v2 = small(Some(POSE)).encode();
+        v2[6] |= 0x06;
+        v2[7] = 0x40;
+        assert_eq!(SensorPacket::decode(&v2).unwrap().pose, Some(POSE));
     }
 
     #[test]
@@ -385,17 +642,49 @@ mod tests {
         let bytes = s.encode();
         assert_eq!(bytes.len(), 48 + 4 * 6);
         assert_eq!(&bytes[0..4], b"FCSN");
+        assert_eq!(bytes[4], 1, "no pose: version 1");
         assert_eq!(bytes[8], 0x08, "sequence is little-endian");
         assert_eq!(SensorPacket::decode(&bytes).unwrap(), s);
+        let with_pose = SensorPacket { version: 2, pose: Some(POSE), ..s };
+        let bytes = with_pose.encode();
+        assert_eq!(bytes.len(), 48 + 4 * 6 + 16);
+        assert_eq!(SensorPacket::decode(&bytes).unwrap(), with_pose);
+        assert_eq!(
+            SensorPacket { version: 1, ..with_pose }.wire_version(),
+            2,
+            "a pose always makes it version 2"
+        );
+        for version in [1, 2] {
+            let m = MotorPacket {
+                version,
+                sequence: 9,
+                motor_count: 3,
+                commands: [0.25, 0.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            };
+            let bytes = m.encode();
+            assert_eq!(bytes.len(), 16 + 4 * 3, "same layout in both versions");
+            assert_eq!(bytes[4], version);
+            assert_eq!(&bytes[16..20], &0.25f32.to_le_bytes());
+            assert_eq!(MotorPacket::decode(&bytes).unwrap(), m);
+        }
+    }
+
+    #[test]
+    fn motor_packet_golden_bytes() {
         let m = MotorPacket {
-            sequence: 9,
-            motor_count: 3,
-            commands: [0.25, 0.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            version: 2,
+            sequence: 5,
+            motor_count: 1,
+            commands: [0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
         };
-        let bytes = m.encode();
-        assert_eq!(bytes.len(), 16 + 4 * 3);
-        assert_eq!(&bytes[16..20], &0.25f32.to_le_bytes());
-        assert_eq!(MotorPacket::decode(&bytes).unwrap(), m);
+        assert_eq!(
+            m.encode(),
+            [
+                0x46, 0x43, 0x4D, 0x4F, 0x02, 0x01, 0x00, 0x00, // "FCMO", v2, m = 1, flags 0
+                0x05, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, // sequence 5
+                0x00, 0x00, 0x00, 0x3F, // 0.5
+            ]
+        );
     }
 
     #[test]
@@ -407,10 +696,23 @@ mod tests {
         ));
         assert!(matches!(MotorPacket::decode(&bytes), Err(BridgeError::BadMagic(..))));
         let mut v = bytes.clone();
-        v[4] = 2;
-        assert!(matches!(SensorPacket::decode(&v), Err(BridgeError::Version(2))));
+        v[4] = 3;
+        assert!(matches!(SensorPacket::decode(&v), Err(BridgeError::Version(3))));
+        v[4] = 0;
+        assert!(matches!(SensorPacket::decode(&v), Err(BridgeError::Version(0))));
         let mut v = bytes;
         v[5] = 9;
         assert!(matches!(SensorPacket::decode(&v), Err(BridgeError::MotorCount(9))));
+        // Version 2 announcing a pose it does not carry (in full).
+        let v2 = SensorPacket { pose: Some(POSE), ..sensor() }.encode();
+        assert_eq!(v2.len(), 88);
+        assert!(matches!(
+            SensorPacket::decode(&v2[..72]),
+            Err(BridgeError::TooShort { len: 72, need: 88 })
+        ));
+        assert!(matches!(
+            SensorPacket::decode(&v2[..87]),
+            Err(BridgeError::TooShort { len: 87, need: 88 })
+        ));
     }
 }

@@ -22,7 +22,9 @@
 use std::io::Write;
 
 use firmware::app::hal::{Imu, Motors};
-use firmware::app::{split_queue, Background, ControlConfig, ControlLoop, SampleQueue};
+use firmware::app::{
+    split_queue, Background, ControlCommand, ControlConfig, ControlLoop, SampleQueue,
+};
 use nalgebra::Vector3;
 
 use crate::airframe::{Airframe, AirframeError, STANDARD_GRAVITY_MPS2};
@@ -36,6 +38,10 @@ use crate::log::CsvLog;
 pub trait FlightApp {
     /// One control step at board time `now_us` (µs): read the IMU, set the motor commands.
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M);
+
+    /// A command from another task (a link, the bridge's external pose) at time `now_us`, before
+    /// the next step. Applications without commands ignore it.
+    fn command(&mut self, _command: ControlCommand, _now_us: u64) {}
 }
 
 /// The firmware application as the board runs it: the 2 kHz [`ControlLoop`] and, whenever it
@@ -53,6 +59,10 @@ impl FlightApp for FirmwareApp<'_> {
         if self.control.step(now_us, imu, motors) {
             self.background.run_pending();
         }
+    }
+
+    fn command(&mut self, command: ControlCommand, now_us: u64) {
+        self.control.command(command, now_us);
     }
 }
 

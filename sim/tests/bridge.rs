@@ -1,10 +1,22 @@
-//! The lockstep bridge round-trips packets over loopback UDP, bounded by timeouts.
+//! The lockstep bridge round-trips packets over loopback UDP, bounded by timeouts; version 2
+//! carries an external pose to the application; the firmware behind the bridge is armed for
+//! throw-to-fly and excites the motors when the simulator throws the craft; the configurator
+//! protocol is served on TCP meanwhile.
 
-use std::time::Duration;
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::time::{Duration, Instant};
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
-use sim::bridge::{BridgeClient, BridgeError, BridgeServer, SensorPacket};
-use sim::scenario::FlightApp;
+use firmware::app::{ControlCommand, ControlSnapshot};
+use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request, Response};
+use sim::airframe::Airframe;
+use sim::board::{SimBoard, SimConfig};
+use sim::bridge::{
+    serve_firmware, BridgeClient, BridgeError, BridgeServer, BridgeSummary, SensorPacket,
+};
+use sim::scenario::{with_firmware_app, FlightApp, ScenarioConfig, ScenarioKind};
+use sim::serve::{simulator_board_info, TcpLinks};
 
 /// Echoes what it saw into the commands: |gyro x|, the first motor speed / 1000, and the time.
 struct Echo;
@@ -38,14 +50,17 @@ fn bridge_round_trips_a_packet_over_loopback() {
     let mut speeds_rad_s = [None; MAX_MOTORS];
     speeds_rad_s[0] = Some(750.0);
     let mut packet = SensorPacket {
+        version: 1,
         sequence: 41,
         time_s: 0.25,
         imu: ImuSample { gyro_rad_s: [-0.5, 0.0, 0.0], accel_mps2: [0.0, 0.0, -9.81] },
         motor_count: 6,
         speeds_rad_s,
+        pose: None,
     };
     let reply = client.exchange(&packet, TIMEOUT).unwrap();
     assert_eq!(reply.sequence, 41);
+    assert_eq!(reply.version, 1, "a version-1 packet is answered in version 1");
     assert_eq!(reply.motor_count, 6);
     assert_eq!(&reply.commands[..4], &[0.5, 0.75, 0.25, 1.0]);
     packet.sequence = 42;
@@ -70,8 +85,6 @@ fn bridge_times_out_without_a_simulator() {
 
 #[test]
 fn the_simulator_flies_an_application_through_the_bridge_in_lockstep() {
-    use sim::airframe::Airframe;
-    use sim::board::{SimBoard, SimConfig};
     use sim::scenario::OpenLoop;
 
     // The application side: open-loop hover commands for the racer, served over UDP.
@@ -98,13 +111,7 @@ fn the_simulator_flies_an_application_through_the_bridge_in_lockstep() {
     let mut client = BridgeClient::connect("127.0.0.1:0", server_addr).unwrap();
     for sequence in 0..steps as u64 {
         board.tick();
-        let packet = SensorPacket {
-            sequence,
-            time_s: board.time_s(),
-            imu: board.last_sample(),
-            motor_count: board.motors().count(),
-            speeds_rad_s: board.motors().speeds_rad_s(),
-        };
+        let packet = sensor_packet(&board, sequence, None);
         let reply = client.exchange(&packet, TIMEOUT).unwrap();
         assert_eq!(reply.sequence, sequence);
         board.motors_mut().set_commands(&reply.commands[..reply.motor_count as usize]);
@@ -114,4 +121,192 @@ fn the_simulator_flies_an_application_through_the_bridge_in_lockstep() {
     for (i, w) in board.physics().state().rotor_speed_rad_s[..4].iter().enumerate() {
         assert!(((w - hover[i]) / hover[i]).abs() < 1e-4, "rotor {i}: {w} vs {}", hover[i]);
     }
+}
+
+/// The sensor packet for the board's latest tick.
+fn sensor_packet(board: &SimBoard, sequence: u64, pose: Option<ExternalPose>) -> SensorPacket {
+    SensorPacket {
+        version: 1,
+        sequence,
+        time_s: board.time_s(),
+        imu: board.last_sample(),
+        motor_count: board.motors().count(),
+        speeds_rad_s: board.motors().speeds_rad_s(),
+        pose,
+    }
+}
+
+const POSE: ExternalPose = ExternalPose { position_ned_m: [0.5, -1.25, -2.0], heading_rad: -0.5 };
+
+/// Runs the firmware application behind a bridge in a thread (armed for throw-to-fly if asked),
+/// serving TCP links too if given, until `idle` passes without a packet; returns the run's
+/// summary and the control loop's final snapshot.
+fn firmware_bridge(
+    arm: bool,
+    mut links: Option<TcpLinks>,
+    idle: Duration,
+) -> (std::net::SocketAddr, std::thread::JoinHandle<(BridgeSummary, ControlSnapshot)>) {
+    let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
+    let addr = server.local_addr().unwrap();
+    let handle = std::thread::spawn(move || {
+        with_firmware_app(|app| {
+            if arm {
+                app.control.command(ControlCommand::ArmThrowToFly, 0);
+            }
+            let summary = serve_firmware(&mut server, app, links.as_mut(), idle, &mut |e| {
+                panic!("malformed packet: {e}")
+            })
+            .unwrap();
+            (summary, app.control.snapshot())
+        })
+    });
+    (addr, handle)
+}
+
+#[test]
+fn a_version_2_pose_reaches_the_application() {
+    let (addr, handle) = firmware_bridge(false, None, Duration::from_millis(200));
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let mut board = SimBoard::new(&Airframe::builtin("paper-quad").unwrap(), &SimConfig::default());
+    board.tick();
+    let packet = sensor_packet(&board, 7, Some(POSE));
+    assert_eq!(packet.encode()[4], 2, "a pose makes it version 2");
+    let reply = client.exchange(&packet, TIMEOUT).unwrap();
+    assert_eq!((reply.version, reply.sequence, reply.motor_count), (2, 7, 4));
+    // A version-1 packet next: answered in version 1, the pose stays the last one received.
+    board.tick();
+    let reply = client.exchange(&sensor_packet(&board, 8, None), TIMEOUT).unwrap();
+    assert_eq!((reply.version, reply.sequence), (1, 8));
+    let (summary, snapshot) = handle.join().unwrap();
+    assert_eq!(summary, BridgeSummary { steps: 2, malformed: 0 });
+    assert_eq!(snapshot.external_pose, Some((POSE, 500)), "the pose at the packet's time");
+}
+
+/// Throws the paper quad (the throw-and-fly scenario's throw) in our own physics, exchanging
+/// every tick's packet with a firmware bridge; returns the largest command before the release,
+/// the largest within 0.4 s after it, and the largest over the run.
+fn throw_through_the_bridge(arm: bool) -> (f32, f32, f32) {
+    let (addr, handle) = firmware_bridge(arm, None, Duration::from_millis(200));
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let mut board = SimBoard::new(&airframe, &SimConfig::default());
+    let spec = ScenarioConfig::new(ScenarioKind::ThrowFly).throw_spec();
+    let hold_ticks = 600; // 0.3 s in the hand
+    let (mut before, mut after, mut all) = (0.0f32, 0.0f32, 0.0f32);
+    for sequence in 0..hold_ticks + 1200 {
+        if sequence == hold_ticks {
+            board.physics_mut().throw(&spec);
+        }
+        board.tick();
+        let reply = client.exchange(&sensor_packet(&board, sequence, None), TIMEOUT).unwrap();
+        let commands = &reply.commands[..reply.motor_count as usize];
+        board.motors_mut().set_commands(commands);
+        let max = commands.iter().copied().fold(0.0f32, f32::max);
+        all = all.max(max);
+        match board.physics().hand().released_at_s() {
+            None => before = before.max(max),
+            Some(t) if board.time_s() - t <= 0.4 => after = after.max(max),
+            Some(_) => {}
+        }
+    }
+    assert!(board.physics().hand().released_at_s().is_some(), "the hand let go");
+    let (summary, _) = handle.join().unwrap();
+    assert_eq!(summary.steps, hold_ticks + 1200);
+    (before, after, all)
+}
+
+#[test]
+fn armed_for_throw_to_fly_the_firmware_excites_the_motors_after_a_throw() {
+    let (before, after, _) = throw_through_the_bridge(true);
+    assert_eq!(before, 0.0, "nothing spins in the hand");
+    assert!(after > 0.3, "the excitation within 0.4 s of the release: max command {after}");
+}
+
+#[test]
+fn not_armed_the_firmware_never_commands_the_motors() {
+    let (_, _, all) = throw_through_the_bridge(false);
+    assert_eq!(all, 0.0);
+}
+
+/// A configurator's side of the protocol over TCP, just enough for the test.
+struct Host {
+    stream: TcpStream,
+    decoder: Decoder,
+    seq: u16,
+}
+
+impl Host {
+    fn connect(addr: std::net::SocketAddr) -> Self {
+        let stream = TcpStream::connect(addr).unwrap();
+        stream.set_read_timeout(Some(Duration::from_millis(10))).unwrap();
+        Self { stream, decoder: Decoder::new(), seq: 100 }
+    }
+
+    fn request(&mut self, request: Request) -> Response {
+        self.seq += 1;
+        let mut frame = [0u8; 256];
+        let n = request.encode(self.seq, &mut frame).unwrap();
+        self.stream.write_all(&frame[..n]).unwrap();
+        let deadline = Instant::now() + TIMEOUT;
+        let mut buffer = [0u8; 512];
+        while Instant::now() < deadline {
+            let Ok(n) = self.stream.read(&mut buffer) else { continue };
+            assert!(n > 0, "the bridge closed the connection");
+            for &byte in &buffer[..n] {
+                if let Some(Ok(frame)) = self.decoder.push(byte) {
+                    let seq = frame.seq;
+                    if let Ok(DeviceMessage::Response(response)) = DeviceMessage::decode(&frame) {
+                        if seq == self.seq {
+                            return response;
+                        }
+                    }
+                }
+            }
+        }
+        panic!("no answer to request {}", self.seq);
+    }
+}
+
+#[test]
+fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
+    let links = TcpLinks::bind(0, simulator_board_info("BRIDGE", 1, 0)).unwrap();
+    let tcp = links.local_addr().unwrap();
+    let (addr, handle) = firmware_bridge(false, Some(links), Duration::from_millis(400));
+    // No packet yet: the links are served while the bridge waits.
+    let mut host = Host::connect(tcp);
+    let hello = Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: protocol::SCHEMA_HASH };
+    match host.request(Request::Hello(hello)) {
+        Ok(Reply::Hello(info)) => {
+            assert_eq!(info.board.as_str(), "BRIDGE");
+            assert_eq!(info.motor_count, 0, "no packet yet");
+        }
+        other => panic!("expected the hello reply, got {other:?}"),
+    }
+    assert_eq!(host.request(Request::SetExternalPose(POSE)), Ok(Reply::Done));
+    // Packets flow: the motor count is known, arming is accepted and reaches the control loop.
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let mut board = SimBoard::new(&Airframe::builtin("paper-quad").unwrap(), &SimConfig::default());
+    for sequence in 0..10 {
+        board.tick();
+        client.exchange(&sensor_packet(&board, sequence, None), TIMEOUT).unwrap();
+    }
+    assert_eq!(host.request(Request::ArmThrowToFly(())), Ok(Reply::Done));
+    match host.request(Request::GetStatus(())) {
+        Ok(Reply::Status(status)) => {
+            assert!(status.armed, "armed by the request");
+            assert_eq!(status.uptime_ms, 5, "simulated time stands at the last packet's");
+        }
+        other => panic!("expected the status, got {other:?}"),
+    }
+    // A second connection now reports the packets' motor count.
+    let mut second = Host::connect(tcp);
+    match second.request(Request::Hello(hello)) {
+        Ok(Reply::Hello(info)) => assert_eq!(info.motor_count, 4),
+        other => panic!("expected the hello reply, got {other:?}"),
+    }
+    drop((host, second));
+    let (summary, snapshot) = handle.join().unwrap();
+    assert_eq!(summary.steps, 10);
+    assert!(snapshot.armed);
+    assert_eq!(snapshot.external_pose.map(|(pose, _)| pose), Some(POSE));
 }

@@ -7,6 +7,7 @@
 //! cargo run -p sim --release --bin scenario -- bench --seconds 120
 //! cargo run -p sim --release --bin scenario -- monte-carlo --runs 1000 --threads 2
 //! cargo run -p sim --release --bin scenario -- bridge --listen 127.0.0.1:9003
+//! cargo run -p sim --release --bin scenario -- bridge --throw-to-fly --tcp-port 5760
 //! ```
 
 use std::fs::File;
@@ -17,12 +18,14 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use firmware::app::ControlCommand;
 use nalgebra::Vector3;
 use sim::airframe::{Airframe, LIBRARY};
-use sim::bridge::{BridgeError, BridgeServer};
+use sim::bridge::{serve_firmware, BridgeServer};
 use sim::log::CsvLog;
 use sim::monte_carlo;
 use sim::scenario::{self, with_firmware_app, ScenarioConfig, ScenarioKind};
+use sim::serve::{parse_imu_offset_mm, simulator_board_info, TcpLinks};
 
 #[derive(Parser)]
 #[command(about = "Multirotor simulator scenarios, airframes, benchmarks and the lockstep bridge")]
@@ -73,9 +76,26 @@ enum Command {
         /// Address to listen on for sensor packets.
         #[arg(long, default_value = "127.0.0.1:9003")]
         listen: String,
-        /// Stop after this many seconds without a packet.
-        #[arg(long, default_value_t = 10.0)]
+        /// Stop after this many seconds without a packet (0.01 to 86400).
+        #[arg(long, default_value_t = 10.0, value_parser = parse_idle_timeout_s)]
         idle_timeout_s: f64,
+        /// Arm the application for throw-to-fly at start: the first throw the sensor packets
+        /// show starts the motor excitation.
+        #[arg(long)]
+        throw_to_fly: bool,
+        /// IMU offset for the in-flight learner: the IMU's position relative to the centre of
+        /// gravity, IMU axes, mm, as `X,Y,Z` (each within ±1000). Default: the onboard estimate.
+        #[arg(
+            long,
+            value_name = "X,Y,Z",
+            allow_hyphen_values = true,
+            value_parser = parse_imu_offset_mm
+        )]
+        imu_offset_mm: Option<[f32; 3]>,
+        /// Also serve the configurator protocol on TCP at 127.0.0.1:PORT (0 picks a free one),
+        /// as the SITL does: `configurator-cli --tcp 127.0.0.1:PORT status`.
+        #[arg(long, value_name = "PORT")]
+        tcp_port: Option<u16>,
     },
 }
 
@@ -108,6 +128,14 @@ struct RunArgs {
     /// Physics (RK4) steps per raw IMU sample: 1 runs the physics at the IMU rate (8 kHz).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
     physics_steps_per_imu_sample: u32,
+}
+
+fn parse_idle_timeout_s(text: &str) -> Result<f64, String> {
+    let s: f64 = text.parse().map_err(|_| format!("`{text}` is not a number of seconds"))?;
+    if !(0.01..=86_400.0).contains(&s) {
+        return Err(format!("{text} s is out of range: allowed [0.01, 86400] s"));
+    }
+    Ok(s)
 }
 
 fn load_airframe(spec: &str) -> Result<Airframe> {
@@ -251,25 +279,51 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Bridge { listen, idle_timeout_s } => {
+        Command::Bridge { listen, idle_timeout_s, throw_to_fly, imu_offset_mm, tcp_port } => {
             let mut server = BridgeServer::bind(&listen)
                 .with_context(|| format!("cannot listen on {listen}"))?;
-            eprintln!(
-                "bridge listening on {} (sensor packets in, motor packets back)",
-                server.local_addr()?
-            );
-            let timeout = Duration::from_secs_f64(idle_timeout_s);
-            let mut steps = 0u64;
-            with_firmware_app(|app| loop {
-                match server.step(app, timeout) {
-                    Ok(_) => steps += 1,
-                    Err(BridgeError::Timeout(_)) => {
-                        eprintln!("no packet for {idle_timeout_s} s after {steps} steps; stopping");
-                        return Ok(());
-                    }
-                    Err(e @ BridgeError::Io(_)) => return Err(e.into()),
-                    Err(e) => eprintln!("ignored a malformed packet: {e}"),
+            let udp = server.local_addr()?;
+            eprintln!("bridge listening on {udp} (sensor packets in, motor packets back)");
+            // The motor count comes with the packets: 0 in the info until the first one.
+            let info = simulator_board_info("BRIDGE", u64::from(udp.port()), 0);
+            let mut links = match tcp_port {
+                Some(port) => {
+                    let links = TcpLinks::bind(port, info)
+                        .with_context(|| format!("cannot listen on 127.0.0.1:{port}"))?;
+                    eprintln!("configurator protocol on TCP {}", links.local_addr()?);
+                    Some(links)
                 }
+                None => None,
+            };
+            if throw_to_fly {
+                eprintln!("armed for throw-to-fly: the first throw starts the motor excitation");
+            }
+            if let Some([x, y, z]) = imu_offset_mm {
+                eprintln!(
+                    "IMU offset for the learner: ({:.1}, {:.1}, {:.1}) mm, IMU axes",
+                    x * 1000.0,
+                    y * 1000.0,
+                    z * 1000.0
+                );
+            }
+            let timeout = Duration::from_secs_f64(idle_timeout_s);
+            with_firmware_app(|app| {
+                if imu_offset_mm.is_some() {
+                    app.background.set_imu_offset(imu_offset_mm);
+                }
+                if throw_to_fly {
+                    app.control.command(ControlCommand::ArmThrowToFly, 0);
+                }
+                let summary =
+                    serve_firmware(&mut server, app, links.as_mut(), timeout, &mut |e| {
+                        eprintln!("ignored a malformed packet: {e}")
+                    })?;
+                eprintln!(
+                    "no packet for {idle_timeout_s} s after {} steps ({} malformed packets); \
+                     stopping",
+                    summary.steps, summary.malformed
+                );
+                Ok(())
             })
         }
     }
