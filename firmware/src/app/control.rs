@@ -178,7 +178,9 @@ impl<'q> ControlLoop<'q> {
         snapshot.commands = [0.0; MAX_MOTORS];
         snapshot.exciting_motor = None;
         if let Some(imu) = sample {
-            let out = self.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, dt_s);
+            // The speeds reported in the previous step (this step's come after the commands).
+            let speeds = snapshot.speeds_rad_s.map(|s| s.unwrap_or(f32::NAN));
+            let out = self.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, &speeds, dt_s);
             // Never a non-finite or out-of-range command (the schedule's are in [0, 1] already).
             for (dst, src) in snapshot.commands.iter_mut().zip(out.commands).take(motor_count) {
                 *dst = if src.is_finite() { src.clamp(0.0, 1.0) } else { 0.0 };

@@ -29,9 +29,13 @@
 //!
 //! **Angular-acceleration rows.** The Euler and rotor-gyroscopic terms are quadratic in the
 //! rates and spoil G1τ when ignored (§12). With `h = −I G2 ω` (the definition of G2),
-//! `I⁻¹ Ω × (I Ω + h) = I⁻¹ Ω × I v` with `v = Ω − G2 ω`: a fixed linear map of the nine
-//! products `Ωₐ v_b`. Those nine join the regressors (with `v` from the current G2 estimate):
-//! `ΔΩ̇ = G1τ Δ(ω²) + G2 Δω̇ + E Δ(Ω ⊗ v)`, E (3 × 9) estimated and discarded.
+//! `I⁻¹ Ω × (I Ω + h) = I⁻¹ Ω × I Ω + I⁻¹ Ω × I δv` with `δv = −G2 ω`: fixed linear maps of the
+//! six distinct products `Ωₐ Ω_b` and of the nine `Ωₐ δv_b`. Those fifteen join the regressors
+//! (with `δv` from the current G2 estimate):
+//! `ΔΩ̇ = G1τ Δ(ω²) + G2 Δω̇ + E Δ(products)`, E (3 × 15) estimated and discarded. (Writing the
+//! term as nine products `Ωₐ v_b` with `v = Ω + δv` is shorter but three pairs of them are
+//! identical while G2 is still zero, and that exact collinearity wrecked the f32 covariance:
+//! 30–90 % errors on an octorotor.)
 //!
 //! The three rotational rows share their regressors, so one [`Rls`] with a shared covariance
 //! serves them (`2m + 9` regressors); the force rows are one `3m`-parameter RLS.
@@ -63,8 +67,8 @@ pub const SPEED_DOT_SCALE: f32 = 1e5;
 /// Rate-product unit of the regression, (rad/s)².
 const RATE2_SCALE: f32 = 100.0;
 /// Regressors of the rotational rows besides the motors': the nine products `Ωₐ v_b`.
-const RATE_PRODUCTS: usize = 9;
-/// Capacity of the rotational regression: `2·8 + 9`.
+const RATE_PRODUCTS: usize = 6 + 9;
+/// Capacity of the rotational regression: `2·8 + 15`.
 pub const ROT_REGRESSORS_MAX: usize = 2 * MAX_MOTORS + RATE_PRODUCTS;
 /// Capacity of the force regression: the `3·8` entries of G1f (index `3i + axis`) and the
 /// accelerometer bias (the last three).
@@ -93,7 +97,7 @@ struct Centred {
     rate: Vector3<f32>,
     rate_dot: Vector3<f32>,
     f_cog: Vector3<f32>,
-    /// Filtered `Ωₐ v_b / RATE2_SCALE`.
+    /// Filtered rate products (see `rate_products`).
     products: [f32; RATE_PRODUCTS],
 }
 
@@ -111,8 +115,8 @@ pub struct EffectivenessEstimator {
     /// Filters of the squared speeds (ω²/SPEED2_SCALE): the model is linear in ω², and the
     /// square of a filtered speed is not the filtered square while the speed changes fast.
     speed2: [Butterworth2; MAX_MOTORS],
-    /// Filters of the rate products `Ωₐ v_b` (formed from raw samples, then filtered: the
-    /// product of filtered signals is not the filtered product at 400 °/s).
+    /// Filters of the rate products (formed from raw samples, then filtered: the product of
+    /// filtered signals is not the filtered product at 400 °/s).
     products: [Butterworth2; RATE_PRODUCTS],
     /// The filtered signals of the two previous samples, newest first.
     history: [Filtered; 2],
@@ -295,16 +299,24 @@ impl EffectivenessEstimator {
         let _ = self.rotation.update(&x[..n], &[x[n], x[n + 1], x[n + 2]]);
     }
 
-    /// The nine products `Ωₐ v_b / RATE2_SCALE` with `v = Ω − G2 ω` from the current estimate.
+    /// The rate products `/ RATE2_SCALE`: the six distinct `Ωₐ Ω_b` (a ≤ b), then the nine
+    /// `Ωₐ δv_b` with `δv = −G2 ω` from the current estimate (the rotors' momentum term).
     fn rate_products(&self, rate: &Vector3<f32>, speeds_rad_s: &[f32]) -> [f32; RATE_PRODUCTS] {
-        let mut v = *rate;
+        let mut dv = Vector3::zeros();
         for (i, speed) in speeds_rad_s.iter().enumerate() {
-            v -= self.g2_column(i) * *speed;
+            dv -= self.g2_column(i) * *speed;
         }
         let mut out = [0.0; RATE_PRODUCTS];
+        let mut j = 0;
+        for a in 0..3 {
+            for b in a..3 {
+                out[j] = rate[a] * rate[b] / RATE2_SCALE;
+                j += 1;
+            }
+        }
         for a in 0..3 {
             for b in 0..3 {
-                out[3 * a + b] = rate[a] * v[b] / RATE2_SCALE;
+                out[6 + 3 * a + b] = rate[a] * dv[b] / RATE2_SCALE;
             }
         }
         out

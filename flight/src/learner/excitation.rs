@@ -19,6 +19,15 @@
 //! moment: each motor may use its share of the head-room left to `±Ω_max`. Leaving them ends
 //! that motor's pulse at once (its command returns to 0); the schedule of the others is kept.
 //!
+//! **Pulses scaled to the motors.** A pulse much shorter than the motor's time constant barely
+//! moves its speed (a 1.5 kg hexarotor's motors with τ = 50 ms reach a fifth of their range in a
+//! 25 ms step), and one much longer wastes the half second. So the spin-up doubles as a
+//! measurement: the mean reported speed of all motors, a first-order response from standstill,
+//! is read at half the spin-up and at its end; `ω(2T)/ω(T) = 1 + e^(−T/τ)` gives τ, and the
+//! step, ramp and overlap are scaled by `τ / reference_tau_s` (clamped to
+//! [`ExcitationConfig::tau_range_s`]). Without speed reports, or when the ratio is not that of
+//! a first-order response, the times stay as configured (for `reference_tau_s`).
+//!
 //! **Safety timeout**: the excitation ends at `min(max_s, delay_s + m·(step_s + ramp_s) −
 //! (m − 1)·overlap_s + 10 ms)` whatever happens.
 //!
@@ -51,6 +60,10 @@ pub struct ExcitationConfig {
     pub rate_limit_rad_s: f32,
     /// Longest excitation whatever the motor count, s.
     pub max_s: f32,
+    /// Motor time constant the step, ramp and overlap above are meant for, s.
+    pub reference_tau_s: f32,
+    /// Range of the time constant measured during the spin-up that the pulses are scaled to, s.
+    pub tau_range_s: [f32; 2],
 }
 
 impl Default for ExcitationConfig {
@@ -65,6 +78,8 @@ impl Default for ExcitationConfig {
             overlap_s: 0.025,
             rate_limit_rad_s: 1400.0_f32.to_radians(),
             max_s: 1.0,
+            reference_tau_s: 0.025,
+            tau_range_s: [0.012, 0.055],
         }
     }
 }
@@ -91,6 +106,12 @@ pub struct Excitation {
     started: [bool; MAX_MOTORS],
     /// Pulses cut short by the gyro guard.
     stopped: [bool; MAX_MOTORS],
+    /// Mean motor speed at half the spin-up, rad/s.
+    spin_up_half_speed: Option<f32>,
+    /// Motor time constant measured during the spin-up, s (when it could be).
+    measured_tau_s: Option<f32>,
+    /// Whether the pulse times have been scaled (at the end of the spin-up).
+    scaled: bool,
 }
 
 impl Excitation {
@@ -103,7 +124,46 @@ impl Excitation {
             bounds: [[[0.0; 2]; 3]; MAX_MOTORS],
             started: [false; MAX_MOTORS],
             stopped: [false; MAX_MOTORS],
+            spin_up_half_speed: None,
+            measured_tau_s: None,
+            scaled: false,
         }
+    }
+
+    /// The motor time constant measured during the spin-up, s, if it could be.
+    pub fn measured_tau_s(&self) -> Option<f32> {
+        self.measured_tau_s
+    }
+
+    /// Measure during the spin-up and, at its end, scale the pulses (see the module doc).
+    fn spin_up(&mut self, t: f32, dt_s: f32, mean_speed_rad_s: Option<f32>) {
+        let c = self.config;
+        let half = 0.5 * c.delay_s;
+        if self.spin_up_half_speed.is_none() && t + 0.5 * dt_s >= half {
+            self.spin_up_half_speed = mean_speed_rad_s.filter(|s| s.is_finite() && *s > 0.0);
+        }
+        if self.scaled || t + 0.5 * dt_s < c.delay_s {
+            return;
+        }
+        self.scaled = true;
+        let ratio = match (self.spin_up_half_speed, mean_speed_rad_s) {
+            (Some(first), Some(second)) if second.is_finite() => second / first,
+            _ => return,
+        };
+        // ω(2T)/ω(T) = 1 + e^(−T/τ) lies in (1, 2) for a first-order response from rest.
+        if !(ratio > 1.0 && ratio < 2.0) {
+            return;
+        }
+        let tau = -half / libm::logf(ratio - 1.0);
+        if !tau.is_finite() {
+            return;
+        }
+        let tau = tau.clamp(c.tau_range_s[0], c.tau_range_s[1]);
+        self.measured_tau_s = Some(tau);
+        let scale = tau / c.reference_tau_s;
+        self.config.step_s *= scale;
+        self.config.ramp_s *= scale;
+        self.config.overlap_s *= scale;
     }
 
     /// Time from the start of the excitation to the start of motor `i`'s pulse, s.
@@ -129,10 +189,17 @@ impl Excitation {
         self.stopped.get(motor).copied().unwrap_or(false)
     }
 
-    /// Advance by `dt_s` with the body rate `gyro_rad_s` now; returns the commands to apply.
-    pub fn update(&mut self, gyro_rad_s: [f32; 3], dt_s: f32) -> ExcitationOutput {
-        let c = self.config;
+    /// Advance by `dt_s` with the body rate `gyro_rad_s` and the mean reported motor speed
+    /// now; returns the commands to apply.
+    pub fn update(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        mean_speed_rad_s: Option<f32>,
+        dt_s: f32,
+    ) -> ExcitationOutput {
         let t = self.elapsed_s;
+        self.spin_up(t, dt_s, mean_speed_rad_s);
+        let c = self.config;
         let mut out =
             ExcitationOutput { commands: [0.0; MAX_MOTORS], active_motor: None, finished: false };
         if t >= self.duration_s() {
@@ -203,7 +270,7 @@ mod tests {
         assert!((e.duration_s() - 0.460).abs() < 1e-6, "450 ms + 10 ms margin");
         let mut trace = Vec::new();
         loop {
-            let out = e.update([0.0; 3], DT);
+            let out = e.update([0.0; 3], None, DT);
             if out.finished {
                 break;
             }
@@ -224,11 +291,39 @@ mod tests {
         let mut e = Excitation::new(config, 4);
         let limit = config.rate_limit_rad_s;
         // Motor 0 starts at rate 0: its share is ±limit/4.
-        assert_eq!(e.update([0.0; 3], DT).commands[0], 0.35);
-        assert!(e.update([0.2 * limit, 0.0, 0.0], DT).commands[0] > 0.0);
-        let out = e.update([0.26 * limit, 0.0, 0.0], DT);
+        assert_eq!(e.update([0.0; 3], None, DT).commands[0], 0.35);
+        assert!(e.update([0.2 * limit, 0.0, 0.0], None, DT).commands[0] > 0.0);
+        let out = e.update([0.26 * limit, 0.0, 0.0], None, DT);
         assert_eq!(out.commands[0], 0.0);
         assert!(e.cut_short(0) && !e.cut_short(1));
+    }
+
+    #[test]
+    fn pulses_are_scaled_to_the_time_constant_seen_in_the_spin_up() {
+        for tau in [0.02f32, 0.05] {
+            let config = ExcitationConfig::default();
+            let mut e = Excitation::new(config, 6);
+            let mut t = 0.0;
+            let mut out = e.update([0.0; 3], Some(0.0), DT);
+            while t < config.delay_s + 0.002 {
+                t += DT;
+                // Mean speed of motors starting from rest towards 400 rad/s.
+                let speed = 400.0 * (1.0 - libm::expf(-t / tau));
+                out = e.update([0.0; 3], Some(speed), DT);
+            }
+            let measured = e.measured_tau_s().unwrap();
+            assert!((measured - tau).abs() < 0.03 * tau, "τ {tau} measured {measured}");
+            let expected_spacing = 2.0 * tau;
+            assert!(((e.start_s(1) - e.start_s(0)) - expected_spacing).abs() < 1e-3);
+            assert_eq!(out.commands[0], config.step_command, "motor 0's pulse has begun");
+        }
+        // No speed reports: the configured times stay.
+        let mut e = Excitation::new(ExcitationConfig::default(), 4);
+        for _ in 0..200 {
+            e.update([0.0; 3], None, DT);
+        }
+        assert_eq!(e.measured_tau_s(), None);
+        assert!((e.start_s(1) - e.start_s(0) - 0.05).abs() < 1e-6);
     }
 
     #[test]

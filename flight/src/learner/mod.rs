@@ -81,7 +81,7 @@ impl Default for LearnerConfig {
             rate_hz: 2000.0,
             r_imu_m: [0.0; 3],
             command_to_speed_delay_half_steps: 3,
-            effectiveness_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
+            effectiveness_rls: RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 },
             motor_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
         }
     }
@@ -411,6 +411,14 @@ impl ThrowToFly {
         self.phase
     }
 
+    /// The motor time constant measured during the spin-up of the current excitation, s.
+    pub fn measured_tau_s(&self) -> Option<f32> {
+        match self.phase {
+            FlightPhase::Exciting | FlightPhase::Done => self.excitation.measured_tau_s(),
+            _ => None,
+        }
+    }
+
     /// Time since the excitation began, s (0 before).
     pub fn excitation_elapsed_s(&self) -> f32 {
         match self.phase {
@@ -419,11 +427,13 @@ impl ThrowToFly {
         }
     }
 
-    /// One control step with the IMU sample (IMU axes), `dt_s` after the previous one.
+    /// One control step with the IMU sample (IMU axes) and the motor speeds reported (rad/s,
+    /// NaN where none), `dt_s` after the previous one.
     pub fn update(
         &mut self,
         gyro_rad_s: [f32; 3],
         accel_mps2: [f32; 3],
+        speeds_rad_s: &[f32; MAX_MOTORS],
         dt_s: f32,
     ) -> ThrowToFlyOutput {
         let mut out = ThrowToFlyOutput {
@@ -446,7 +456,10 @@ impl ThrowToFly {
                 };
             }
             FlightPhase::Exciting => {
-                let excitation = self.excitation.update(gyro_rad_s, dt_s);
+                let m = self.motors.min(MAX_MOTORS);
+                let sum: f32 = speeds_rad_s[..m].iter().sum();
+                let mean = (sum.is_finite() && m > 0).then(|| sum / m as f32);
+                let excitation = self.excitation.update(gyro_rad_s, mean, dt_s);
                 if excitation.finished {
                     self.phase = FlightPhase::Done;
                 } else {

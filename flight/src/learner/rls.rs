@@ -17,6 +17,13 @@
 //! - **bad input**: a non-finite regressor or output is refused with [`RlsError`] and changes
 //!   nothing.
 //!
+//! Arithmetic is `f64` inside (inputs and outputs are `f32`): the effectiveness regressions mix
+//! parameters whose information differs by ten orders of magnitude (a motor's column during its
+//! pulse, the Euler-term coefficients fed only by slow rate changes), and the covariance update
+//! `P − a aᵀ/(λ + s)` then cancels catastrophically in single precision (estimates off by 10⁷ on
+//! the simulator's octorotor). The Cortex-M7 of the H743 has a double-precision FPU
+//! (`-C target-cpu=cortex-m7`), so this costs about the same instruction count as `f32`.
+//!
 //! `no_std`, fixed capacity (`N` regressors at most), no allocation; `update` is `O(n²)`.
 
 /// Largest fraction of `tr P` one update may remove (published: 90 %).
@@ -57,11 +64,11 @@ pub struct Rls<const N: usize, const M: usize> {
     n: usize,
     config: RlsConfig,
     /// `theta[j][k]`: coefficient of regressor `j` in output `k`.
-    theta: [[f32; M]; N],
-    p: [[f32; N]; N],
+    theta: [[f64; M]; N],
+    p: [[f64; N]; N],
     /// Exponentially weighted mean of the squared a-priori errors per output (time constant
     /// about [`NOISE_WINDOW`] updates): the noise variance used for parameter uncertainty.
-    error_var: [f32; M],
+    error_var: [f64; M],
     updates: u32,
 }
 
@@ -88,7 +95,7 @@ impl<const N: usize, const M: usize> Rls<N, M> {
         self.theta = [[0.0; M]; N];
         self.p = [[0.0; N]; N];
         for i in 0..self.n {
-            self.p[i][i] = self.config.p0;
+            self.p[i][i] = f64::from(self.config.p0);
         }
         self.error_var = [0.0; M];
         self.updates = 0;
@@ -112,33 +119,37 @@ impl<const N: usize, const M: usize> Rls<N, M> {
     /// Coefficient of regressor `j` in output `k`.
     #[inline]
     pub fn theta(&self, j: usize, k: usize) -> f32 {
-        self.theta[j][k]
+        self.theta[j][k] as f32
     }
 
     /// Overwrite coefficient `j` of output `k` (e.g. to carry an earlier estimate over).
     pub fn set_theta(&mut self, j: usize, k: usize, value: f32) {
         if j < self.n && k < M && value.is_finite() {
-            self.theta[j][k] = value;
+            self.theta[j][k] = f64::from(value);
         }
     }
 
     /// Covariance diagonal entry `P[j][j]` (relative variance of regressor `j`'s coefficients).
     #[inline]
     pub fn p_diag(&self, j: usize) -> f32 {
-        self.p[j][j]
+        self.p[j][j] as f32
     }
 
     /// Mean squared a-priori error of output `k` (the noise variance estimate).
     pub fn error_var(&self, k: usize) -> f32 {
-        self.error_var[k]
+        self.error_var[k] as f32
     }
 
     /// The prediction `xᵀ θₖ` for each output.
     pub fn predict(&self, x: &[f32]) -> [f32; M] {
+        self.predict_f64(x).map(|y| y as f32)
+    }
+
+    fn predict_f64(&self, x: &[f32]) -> [f64; M] {
         let mut y = [0.0; M];
         for (j, xj) in x.iter().enumerate().take(self.n) {
             for (k, yk) in y.iter_mut().enumerate() {
-                *yk += xj * self.theta[j][k];
+                *yk += f64::from(*xj) * self.theta[j][k];
             }
         }
         y
@@ -154,37 +165,41 @@ impl<const N: usize, const M: usize> Rls<N, M> {
             return Err(RlsError::NonFinite);
         }
         // a = P x, s = xᵀ P x.
-        let mut px = [0.0f32; N];
-        let mut s = 0.0f32;
-        let mut trace = 0.0f32;
-        let mut max_diag = 0.0f32;
+        let mut xd = [0.0f64; N];
+        for (d, v) in xd.iter_mut().zip(x) {
+            *d = f64::from(*v);
+        }
+        let mut px = [0.0f64; N];
+        let mut s = 0.0f64;
+        let mut trace = 0.0f64;
+        let mut max_diag = 0.0f64;
         for i in 0..n {
             let row = &self.p[i];
             let mut acc = 0.0;
             for j in 0..n {
-                acc += row[j] * x[j];
+                acc += row[j] * xd[j];
             }
             px[i] = acc;
-            s += x[i] * acc;
+            s += xd[i] * acc;
             trace += row[i];
             max_diag = max_diag.max(row[i]);
         }
-        let lambda =
-            if max_diag > self.config.p_max { 1.0 / WINDUP_SHRINK } else { self.config.lambda };
+        let lambda = if max_diag > f64::from(self.config.p_max) {
+            1.0 / f64::from(WINDUP_SHRINK)
+        } else {
+            f64::from(self.config.lambda)
+        };
         let denominator = lambda + s;
         if !(denominator.is_finite() && denominator > 0.0) {
             return Err(RlsError::NonFinite);
         }
         let inv = 1.0 / denominator;
         // A-priori errors and parameter update θₖ += K eₖ with K = P x / (λ + s).
-        let error = {
-            let predicted = self.predict(x);
-            let mut e = [0.0; M];
-            for k in 0..M {
-                e[k] = y[k] - predicted[k];
-            }
-            e
-        };
+        let predicted = self.predict_f64(x);
+        let mut error = [0.0f64; M];
+        for k in 0..M {
+            error[k] = f64::from(y[k]) - predicted[k];
+        }
         for j in 0..n {
             let kj = px[j] * inv;
             for k in 0..M {
@@ -198,11 +213,8 @@ impl<const N: usize, const M: usize> Rls<N, M> {
             removed += a * a;
         }
         removed *= inv;
-        let alpha = if removed > MAX_TRACE_DECREASE * trace && removed > 0.0 {
-            MAX_TRACE_DECREASE * trace / removed
-        } else {
-            1.0
-        };
+        let limit = f64::from(MAX_TRACE_DECREASE) * trace;
+        let alpha = if removed > limit && removed > 0.0 { limit / removed } else { 1.0 };
         let gain = alpha * inv;
         let inv_lambda = 1.0 / lambda;
         for i in 0..n {
@@ -213,12 +225,12 @@ impl<const N: usize, const M: usize> Rls<N, M> {
                 self.p[j][i] = value;
             }
         }
-        let w = 1.0 / NOISE_WINDOW.min(self.updates as f32 + 1.0);
+        let w = 1.0 / f64::from(NOISE_WINDOW.min(self.updates as f32 + 1.0));
         for k in 0..M {
             self.error_var[k] += w * (error[k] * error[k] - self.error_var[k]);
         }
         self.updates = self.updates.saturating_add(1);
-        Ok(error)
+        Ok(error.map(|e| e as f32))
     }
 }
 
