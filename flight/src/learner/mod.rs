@@ -69,6 +69,11 @@ pub struct LearnerConfig {
     /// old, and the held command's centre is half a step earlier (odd values average two
     /// consecutive commands).
     pub command_to_speed_delay_half_steps: u8,
+    /// How much older the motor-speed reports are than the IMU sample of the same step, s. The
+    /// simulated board (and the H743 with its 8 kHz IMU and DShot telemetry) delivers the mean
+    /// of four 8 kHz IMU samples, centred 187.5 µs before the step, and speeds one 500 µs step
+    /// old: 312.5 µs.
+    pub speed_report_lag_s: f32,
     /// Effectiveness RLS tuning.
     pub effectiveness_rls: RlsConfig,
     /// Motor-model RLS tuning.
@@ -81,6 +86,7 @@ impl Default for LearnerConfig {
             rate_hz: 2000.0,
             r_imu_m: [0.0; 3],
             command_to_speed_delay_half_steps: 3,
+            speed_report_lag_s: 312.5e-6,
             effectiveness_rls: RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 },
             motor_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
         }
@@ -208,6 +214,7 @@ impl Learner {
                 config.rate_hz,
                 slow,
                 config.r_imu_m,
+                config.speed_report_lag_s,
                 config.effectiveness_rls,
             ),
             solver: ThrustAxisSolver::new(thrust_axis::SolverConfig::default()),
