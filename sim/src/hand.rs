@@ -179,6 +179,12 @@ impl Hand {
         self.constraint = Constraint::Hold;
     }
 
+    /// Moves the vehicle while holding it (see `Physics::move_with_hand`).
+    pub fn move_with(&mut self, accel_ned_mps2: Vector3<f64>, rate_dot_body_rad_s2: Vector3<f64>) {
+        self.phase = HandPhase::Holding;
+        self.constraint = Constraint::Prescribed { accel_ned_mps2, rate_dot_body_rad_s2 };
+    }
+
     /// Lets go immediately.
     pub fn release(&mut self, now_s: f64) {
         self.phase = HandPhase::Free;

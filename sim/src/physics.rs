@@ -121,6 +121,18 @@ impl Physics {
         self.refresh_derivative();
     }
 
+    /// Moves the vehicle with the hand: from now on, until the next call, grip, throw or
+    /// release, the CoG accelerates at `accel_ned_mps2` (world NED) and the body turns with
+    /// `rate_dot_body_rad_s2` (a shake, a swing). The hand keeps holding.
+    pub fn move_with_hand(
+        &mut self,
+        accel_ned_mps2: Vector3<f64>,
+        rate_dot_body_rad_s2: Vector3<f64>,
+    ) {
+        self.hand.move_with(accel_ned_mps2, rate_dot_body_rad_s2);
+        self.refresh_derivative();
+    }
+
     /// Grips the vehicle where it is.
     pub fn grip(&mut self) {
         self.hand.grip(&mut self.state);

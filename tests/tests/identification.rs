@@ -1,88 +1,201 @@
-//! In-flight identification against the simulator's truth: the firmware application, armed for
-//! throw-to-fly, is thrown on the seed paper's parabola; its learner must find each motor's time
-//! constant, the effectiveness G1 and the hover thrust axis (the IMU's rotation) within the
-//! issue's bounds. The craft falls afterwards: recovery is the controller's issue.
+//! In-flight identification against the simulator's truth: the firmware application
+//! (`firmware::app`, exactly as the board runs it), armed for throw-to-fly, is thrown on the seed
+//! paper's parabola; its learner must find each motor's time constant, the effectiveness G1 and
+//! the hover thrust axis (the IMU's rotation) within the issue's bounds. The craft falls
+//! afterwards: recovery is the controller's issue. Also: what is not a throw never spins a motor.
+//!
+//! `cargo test -p tests --test identification -- --nocapture` prints the measured figures.
 
+use firmware::app::hal::{Imu, Motors};
+use firmware::app::ControlCommand;
+use flight::learner::FlightPhase;
+use nalgebra::Vector3;
 use sim::airframe::Airframe;
-use sim::identification::{identify, IdentifyConfig, Scores};
+use sim::board::{SimBoard, SimConfig};
+use sim::identification::{identify, IdentifyConfig, IdentifyReport, Scores};
+use sim::scenario::{with_firmware_app, FlightApp};
 
-fn report(name: &str, config: &IdentifyConfig) -> (Scores, sim::identification::IdentifyReport) {
+fn run(name: &str, capture_after_s: f64) -> (Scores, IdentifyReport) {
     let airframe = Airframe::builtin(name).unwrap();
-    let report = identify(&airframe, config);
-    let learned = report.at_capture.expect("the excitation ran");
+    let mut config = IdentifyConfig::paper();
+    config.capture_after_s = capture_after_s;
+    let report = identify(&airframe, &config);
+    let learned = report.at_capture.expect("the throw was detected and the excitation ran");
     let scores = Scores::of(&learned, &report.truth);
     eprintln!(
-        "{name}: G1 rows {:?} %, τ error {:.3} ms, axis {:.3}°, euler errors {:?}°, release→excitation {:?} s, excitation→axis {:?} s",
+        "{name}: G1 rows (fx fy fz p q r) {:?} %, largest τ error {:.3} ms, thrust axis {:.3}° off, \
+         roll/pitch/yaw errors {:?}°, release → excitation {:.1} ms, excitation → first axis \
+         {:.1} ms",
         scores.g1_row_rel.map(|e| (e * 1000.0).round() / 10.0),
         scores.tau_error_max_s * 1e3,
         scores.axis_angle_rad.to_degrees(),
         scores.euler_error_rad.map(|e| (e.to_degrees() * 1000.0).round() / 1000.0),
-        report.release_to_excitation_s,
-        report.excitation_to_axis_s,
+        report.release_to_excitation_s.unwrap_or(f64::NAN) * 1e3,
+        report.excitation_to_axis_s.unwrap_or(f64::NAN) * 1e3,
     );
-    eprintln!("  axis status {:?}", learned.axis_status);
-    for k in 0..6 {
-        eprintln!(
-            "  G1 row {k}: learned {:?}",
-            (0..report.truth.motors).map(|i| learned.g1_per_speed2[k][i] * 1e6).collect::<Vec<_>>()
-        );
-        eprintln!(
-            "            truth   {:?}",
-            (0..report.truth.motors)
-                .map(|i| report.truth.g1_per_speed2[k][i] * 1e6)
-                .collect::<Vec<_>>()
-        );
-    }
-    for k in 0..3 {
-        eprintln!(
-            "  G2 row {k}: learned {:?}",
-            (0..report.truth.motors).map(|i| learned.g2[k][i] * 1e3).collect::<Vec<_>>()
-        );
-        eprintln!(
-            "            truth   {:?}",
-            (0..report.truth.motors).map(|i| report.truth.g2[k][i] * 1e3).collect::<Vec<_>>()
-        );
-    }
     for i in 0..report.truth.motors {
-        eprintln!(
-            "  motor {i}: τ {:.2} ms (true {:.2})",
-            learned.motor[i].tau_s * 1e3,
-            report.truth.tau_s[i] * 1e3
+        assert!(
+            (f64::from(learned.motor[i].tau_s) - report.truth.tau_s[i]).abs() < 1e-3,
+            "{name}: motor {i} τ {} s, true {} s",
+            learned.motor[i].tau_s,
+            report.truth.tau_s[i]
         );
     }
     (scores, report)
 }
 
 #[test]
-fn paper_quad_identifies_within_300_ms_of_the_excitation() {
-    let (scores, _) = report("paper-quad", &IdentifyConfig::paper());
-    assert!(scores.axis_found);
+fn seed_paper_quad_is_identified_within_300_ms_of_the_excitation() {
+    let (scores, report) = run("paper-quad", 0.300);
+    assert!(scores.axis_found, "a thrust axis within 300 ms");
+    assert!(report.excitation_to_axis_s.unwrap() < 0.300);
+    for (row, error) in scores.g1_row_rel.iter().enumerate() {
+        assert!(*error <= 0.05, "G1 row {row}: relative RMS error {error}");
+    }
+    let [roll, pitch, yaw] = scores.euler_error_rad.map(f64::to_degrees);
+    assert!(roll.abs() <= 0.5 && pitch.abs() <= 0.5, "roll {roll}°, pitch {pitch}°");
+    assert!(yaw.abs() <= 1.0, "yaw {yaw}°");
+    // The release delay (150 ms) passes before the excitation starts.
+    assert!((report.release_to_excitation_s.unwrap() - 0.150).abs() < 0.002);
+}
+
+/// Larger airframes with slower motors (τ = 50 ms): the pulses are scaled to τ, so the
+/// excitation takes 0.7–0.9 s; scored at its end. These do not reach the quad's 5 % per row
+/// (hex-tilted's worst row is about 14 %, octo-flat's 9 %; see docs/benchmarks.md), but the
+/// thrust axis and the time constants do.
+#[test]
+fn hexarotor_with_tilted_rotors_and_flat_octorotor_are_identified() {
+    for name in ["hex-tilted", "octo-flat"] {
+        let (scores, _) = run(name, 2.0);
+        assert!(scores.axis_found, "{name}: a thrust axis");
+        assert!(scores.axis_angle_rad.to_degrees() < 1.5, "{name}: axis {scores:?}");
+        let worst = scores.g1_force_rel().max(scores.g1_rotation_rel());
+        assert!(worst < 0.2, "{name}: worst G1 row {worst}");
+    }
+}
+
+/// What the firmware did while the hand moved the craft.
+#[derive(Debug, Default)]
+struct Seen {
+    max_command: f32,
+    excited: bool,
+    /// A throw began (acceleration above 20 m/s²) at least once.
+    throw_started: bool,
+    /// Releases refused by the free-fall check.
+    releases_refused: u16,
+}
+
+/// A script for the hand at every 2 kHz tick; the firmware is armed for throw-to-fly throughout.
+fn armed_through(hold_height_m: f64, ticks: u64, mut hand: impl FnMut(u64, &mut SimBoard)) -> Seen {
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config = SimConfig {
+        start_position_ned_m: Vector3::new(0.0, 0.0, -hold_height_m),
+        ..SimConfig::default()
+    };
+    let mut board = SimBoard::new(&airframe, &config);
+    with_firmware_app(|app| {
+        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        let mut seen = Seen::default();
+        for tick in 0..ticks {
+            hand(tick, &mut board);
+            board.tick();
+            let now_us = board.now_us();
+            let (imu, motors) = board.ports();
+            app.step(now_us, imu, motors);
+            let snapshot = app.control.snapshot();
+            seen.max_command = snapshot.commands.iter().copied().fold(seen.max_command, f32::max);
+            seen.excited |= snapshot.phase == FlightPhase::Exciting;
+            seen.throw_started |=
+                matches!(snapshot.phase, FlightPhase::Throwing | FlightPhase::Released);
+            seen.releases_refused = snapshot.releases_refused;
+            assert!(snapshot.armed, "stays armed for a real throw");
+        }
+        eprintln!("{seen:?}");
+        seen
+    })
 }
 
 #[test]
-fn scratch_effects() {
-    for (label, drag, ideal, rotor_inertia) in [
-        ("base", true, false, true),
-        ("no drag", false, false, true),
-        ("ideal imu", true, true, true),
-        ("no drag ideal", false, true, true),
-        ("no Jr", false, true, false),
-    ] {
-        let mut airframe = Airframe::builtin("paper-quad").unwrap();
-        if !drag {
-            airframe.drag = Default::default();
+fn a_craft_shaken_in_the_hand_never_starts_the_motors() {
+    // Shaken violently up and down at 2 Hz with ±60 m/s² (±6 g: enough momentum for a throw),
+    // turning ±3 rad/s about x, and never let go.
+    let seen = armed_through(1.0, 8000, |tick, board| {
+        let t = tick as f64 / 2000.0;
+        let w = std::f64::consts::TAU * 2.0;
+        let accel = Vector3::new(0.0, 0.0, 60.0 * (w * t).sin());
+        let spin = Vector3::new(3.0 * w * (w * t).cos(), 0.0, 0.0);
+        board.physics_mut().move_with_hand(accel, spin);
+    });
+    assert!(seen.throw_started, "the shake looked like the start of a throw");
+    assert!(seen.releases_refused > 0, "and some like a release, refused: not free fall");
+    assert!(!seen.excited && seen.max_command == 0.0, "a shake spun the motors: {seen:?}");
+}
+
+#[test]
+fn a_craft_put_down_hard_never_starts_the_motors() {
+    // Held 15 cm above the ground, pushed down to 2 m/s in 0.1 s and let go just above it: it
+    // hits the ground hard and lies there.
+    let seen = armed_through(0.15, 6000, |tick, board| {
+        if tick == 1000 {
+            let spec = sim::hand::ThrowSpec {
+                release_velocity_ned_mps: Vector3::new(0.0, 0.0, 2.0),
+                release_rate_body_rad_s: Vector3::zeros(),
+                duration_s: 0.05,
+            };
+            board.physics_mut().throw(&spec);
         }
-        if !rotor_inertia {
-            airframe.motor.rotor_inertia_kg_m2 = 0.0;
+    });
+    assert!(seen.throw_started, "the impact looked like the start of a throw");
+    assert!(!seen.excited && seen.max_command == 0.0, "a hard landing spun the motors: {seen:?}");
+}
+
+#[test]
+fn a_craft_dropped_from_10_cm_never_starts_the_motors() {
+    let seen = armed_through(0.10, 6000, |tick, board| {
+        if tick == 1000 {
+            board.physics_mut().release();
         }
-        let mut config = IdentifyConfig::paper();
-        config.board.ideal_imu = ideal;
-        let report = identify(&airframe, &config);
-        let s = Scores::of(&report.at_capture.unwrap(), &report.truth);
-        eprintln!(
-            "{label}: rows {:?} axis {:.2}°",
-            s.g1_row_rel.map(|e| (e * 1000.0).round() / 10.0),
-            s.axis_angle_rad.to_degrees()
+    });
+    assert!(seen.throw_started, "the impact looked like the start of a throw");
+    assert!(!seen.excited && seen.max_command == 0.0, "a drop spun the motors: {seen:?}");
+}
+
+#[test]
+fn a_disarm_during_the_excitation_stops_every_motor_in_the_same_step() {
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config =
+        SimConfig { start_position_ned_m: Vector3::new(0.0, 0.0, -1.5), ..SimConfig::default() };
+    let mut board = SimBoard::new(&airframe, &config);
+    with_firmware_app(|app| {
+        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        let spec = sim::hand::ThrowSpec::vertical(
+            3.5,
+            Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
+            0.15,
         );
-    }
+        let mut disarmed_at = None;
+        for tick in 0..4000u64 {
+            if tick == 1000 {
+                board.physics_mut().throw(&spec);
+            }
+            board.tick();
+            let now_us = board.now_us();
+            let snapshot = app.control.snapshot();
+            if disarmed_at.is_none() && snapshot.commands.iter().any(|c| *c > 0.3) {
+                app.control.command(ControlCommand::Disarm, now_us);
+                disarmed_at = Some(tick);
+            }
+            let (imu, motors) = board.ports();
+            app.step(now_us, imu, motors);
+            if disarmed_at.is_some() {
+                let snapshot = app.control.snapshot();
+                assert!(snapshot.commands.iter().all(|c| *c == 0.0), "tick {tick}: {snapshot:?}");
+                assert_eq!(snapshot.failure, protocol::LearnerFailure::Disarmed);
+                assert!(!snapshot.armed);
+                let _ = imu.read();
+                assert!(motors.commands().iter().all(|c| *c == 0.0));
+            }
+        }
+        assert!(disarmed_at.is_some(), "the excitation started");
+    });
 }
