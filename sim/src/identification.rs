@@ -119,6 +119,9 @@ fn quaternion(wxyz: [f32; 4]) -> UnitQuaternion<f64> {
 pub struct Scores {
     /// Relative RMS error of each G1 row (see the module doc).
     pub g1_row_rel: [f64; 6],
+    /// Relative RMS error of the specific-force block (rows 0–2) and of the angular-acceleration
+    /// block (rows 3–5): RMS of all the block's errors over the RMS of its true entries.
+    pub g1_block_rel: [f64; 2],
     /// Largest |τ − τ_true| over the motors, s.
     pub tau_error_max_s: f64,
     /// Angle between the learned and the true thrust direction, rad (NaN without an axis).
@@ -151,6 +154,7 @@ impl Scores {
             };
             let block_rms =
                 (rows.clone().map(|k| rms(k).powi(2)).sum::<f64>() / 3.0).sqrt().max(1e-300);
+            let mut block_error2 = 0.0;
             for k in rows {
                 let error = ((0..m)
                     .map(|i| {
@@ -161,7 +165,9 @@ impl Scores {
                     .sqrt();
                 let scale = if rms(k) < 0.1 * block_rms { block_rms } else { rms(k) };
                 scores.g1_row_rel[k] = error / scale;
+                block_error2 += error * error / 3.0;
             }
+            scores.g1_block_rel[block] = block_error2.sqrt() / block_rms;
         }
         scores.tau_error_max_s = (0..m)
             .map(|i| (f64::from(learned.motor[i].tau_s) - truth.tau_s[i]).abs())
