@@ -6,7 +6,7 @@
 //!
 //! `cargo test -p tests --test identification -- --nocapture` prints the measured figures.
 
-use firmware::app::hal::{Imu, Motors};
+use firmware::app::hal::Imu;
 use firmware::app::ControlCommand;
 use flight::learner::FlightPhase;
 use nalgebra::Vector3;

@@ -42,6 +42,10 @@
 //!
 //! Scaling for f32: ω² in (krad/s)², ω̇ in 100 krad/s², rate products in (10 rad/s)².
 
+// Index loops are kept where they mirror the matrix notation of the derivation (rows, columns,
+// regressors by index), as in `thrust_axis`.
+#![allow(clippy::needless_range_loop)]
+
 use super::rls::{Rls, RlsConfig};
 use super::MAX_MOTORS;
 use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3};

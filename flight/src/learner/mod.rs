@@ -256,7 +256,7 @@ impl Learner {
         self.commands.copy_within(0..7, 1);
         self.commands[0] = *commands;
         let half_steps = usize::from(self.config.command_to_speed_delay_half_steps).min(13);
-        let (early, late) = (self.commands[half_steps / 2], self.commands[(half_steps + 1) / 2]);
+        let (early, late) = (self.commands[half_steps / 2], self.commands[half_steps.div_ceil(2)]);
         let driving: [f32; MAX_MOTORS] = core::array::from_fn(|i| 0.5 * (early[i] + late[i]));
         let m = self.motors;
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)

@@ -26,6 +26,10 @@
 //!
 //! `no_std`, fixed capacity (`N` regressors at most), no allocation; `update` is `O(n²)`.
 
+// Index loops are kept where they mirror the matrix notation of the derivation (rows, columns,
+// regressors by index), as in `thrust_axis`.
+#![allow(clippy::needless_range_loop)]
+
 /// Largest fraction of `tr P` one update may remove (published: 90 %).
 pub const MAX_TRACE_DECREASE: f32 = 0.9;
 /// Factor applied to `P` per step while a diagonal exceeds `p_max` (i.e. `λ = 1/0.99 > 1`).
