@@ -39,8 +39,8 @@ mod app {
     use crate::tasks::{background, control_tick, usb_service};
     use firmware::app::hal::Motors;
     use firmware::app::{
-        split_queue, Background, BackgroundResults, BoardInfo, ControlConfig, ControlLoop,
-        ControlSnapshot, LinkServer, SampleQueue,
+        split_queue, Background, BackgroundResults, BoardInfo, ControlCommand, ControlConfig,
+        ControlLoop, ControlSnapshot, LinkServer, SampleQueue,
     };
     use firmware::board::config::{HCLK_HZ, SYS_CK_HZ, TIME_BASE_HZ};
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};

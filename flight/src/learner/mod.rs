@@ -56,6 +56,13 @@ pub const G1_CONVERGED_RELATIVE_STD: f32 = 0.02;
 /// idle speed (300 rad/s on a 3-inch quad), far above DShot's speed resolution at standstill.
 pub const RUNNING_SPEED_RAD_S: f32 = 50.0;
 
+/// The thrust-axis solver as the learner calls it, once per sample: the heuristic only. The
+/// exhaustive bounded search costs up to about 1.1 million Cortex-M7 instructions at m = 8
+/// (docs/benchmarks.md), far beyond one 2 kHz period of the background task, and a craft whose
+/// most efficient hover needs a motor at a bound is reported as `NoHover` instead.
+pub const SOLVER_CONFIG: thrust_axis::SolverConfig =
+    thrust_axis::SolverConfig { max_squarings: 6, bounded_search: false };
+
 /// How the learner is set up.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LearnerConfig {
@@ -217,7 +224,7 @@ impl Learner {
                 config.speed_report_lag_s,
                 config.effectiveness_rls,
             ),
-            solver: ThrustAxisSolver::new(thrust_axis::SolverConfig::default()),
+            solver: ThrustAxisSolver::new(SOLVER_CONFIG),
             commands: [[0.0; MAX_MOTORS]; 8],
             armed: false,
             model: LearnedModel { motors: motors as u8, ..LearnedModel::default() },
