@@ -1,6 +1,6 @@
 //! Cortex-M7 instruction counts of `flight` code, for `cargo xtask bench-m7`.
 //!
-//! Runs on QEMU's `mps2-an500` (Cortex-M7, single-precision FPU as on the STM32H743) under
+//! Runs on QEMU's `mps2-an500` (Cortex-M7 with the double-precision FPU of the STM32H743) under
 //! `-icount shift=0 -singlestep -d exec,nochain`: every executed instruction is one trace line.
 //! Each measured region sits between calls of the two marker functions below; xtask finds
 //! their addresses in the ELF symbol table and counts the trace lines between them. Region
@@ -16,6 +16,7 @@ use core::hint::black_box;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
 use flight::imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
+use flight::learner::{AxisStatus, Learner, LearnerConfig};
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
 use nalgebra::Vector3;
 
@@ -90,6 +91,54 @@ fn airframe(motors: usize, tilt_rad: f32) -> HoverProblem {
     }
 }
 
+/// Motor counts of the learner regions.
+const LEARNER_MOTOR_COUNTS: [usize; 2] = [4, 8];
+
+/// One synthetic sample: gyro, accelerometer, commands, speeds.
+type Sample = ([f32; 3], [f32; 3], [f32; 8], [f32; 8]);
+
+/// A synthetic sample of a craft pulsing its motors: the motor speeds follow `command` through
+/// the model `ω = 300 + 2700(0.4δ + 0.6√δ)`, and the body's specific force and angular
+/// acceleration are linear in the squared speeds (the planar airframe above); `rate` is the
+/// body rate, integrated by the caller from the angular acceleration returned.
+fn synthetic_sample(m: usize, level: f32, t_s: f32, rate: [f32; 3]) -> (Sample, [f32; 3]) {
+    let problem = airframe(m, 0.0);
+    let mut commands = [0.0f32; 8];
+    let mut speeds = [0.0f32; 8];
+    let mut accel = [0.0f32; 3];
+    let mut angular = [0.0f32; 3];
+    for i in 0..m {
+        // Each motor in turn, 50 ms apart, with a slow wobble so that no two are collinear.
+        let phase = t_s - 0.05 * i as f32;
+        let pulse = if (0.0..0.075).contains(&phase) { level } else { 0.0 };
+        commands[i] = pulse;
+        let speed = 300.0 + 2700.0 * (0.4 * pulse + 0.6 * libm::sqrtf(pulse));
+        speeds[i] = speed * (1.0 + 0.02 * libm::sinf(40.0 * t_s + i as f32));
+        let u = (speeds[i] / 3000.0) * (speeds[i] / 3000.0);
+        for k in 0..3 {
+            accel[k] += problem.g1_f_row(k)[i] * u;
+            angular[k] += problem.g1_tau_row(k)[i] * u;
+        }
+    }
+    ((rate, accel, commands, speeds), angular)
+}
+
+/// A learner fed 0.6 s of a synthetic excitation of `m` motors, so that every G1 column has
+/// information and the thrust axis exists.
+fn primed_learner(m: usize) -> Learner {
+    let Ok(mut learner) = Learner::new(m, LearnerConfig::default()) else { fail("learner") };
+    let mut rate = [7.0f32, 7.0, 1.7];
+    for n in 0..1200 {
+        let ((gyro, accel, commands, speeds), angular) =
+            synthetic_sample(m, 0.7, n as f32 / 2000.0, rate);
+        learner.update(gyro, accel, &commands, &speeds);
+        for k in 0..3 {
+            rate[k] += angular[k] / 2000.0;
+        }
+    }
+    learner
+}
+
 fn fail(message: &str) -> ! {
     hprintln!("bench-m7 error: {}", message);
     debug::exit(debug::EXIT_FAILURE);
@@ -120,6 +169,15 @@ fn main() -> ! {
     hprintln!("bench-m7 region: imu-offset RLS update");
     hprintln!("bench-m7 region: imu-offset estimator per sample, held");
     hprintln!("bench-m7 region: imu-offset estimator per sample, free fall");
+    for m in LEARNER_MOTOR_COUNTS {
+        hprintln!(
+            "bench-m7 region: learner step m={} (every RLS update and one thrust-axis solve)",
+            m
+        );
+    }
+    hprintln!("bench-m7 region: learner part: effectiveness update m=4 (force and rotational RLS, filters)");
+    hprintln!("bench-m7 region: learner part: one motor model update");
+    hprintln!("bench-m7 region: learner part: RLS update, 23 regressors, 3 outputs (quad rotational rows)");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
@@ -198,6 +256,69 @@ fn main() -> ! {
     let _ = region(&mut state, |(estimator, sample)| estimator.update(black_box(sample)));
     black_box(&state);
 
+    // One background learner step in the middle of an identification, for a quad and an
+    // octorotor: every RLS update (each motor model, the force rows, the rotational rows) and
+    // the thrust-axis solve that follows once every G1 column is informed.
+    for m in LEARNER_MOTOR_COUNTS {
+        let mut learner = primed_learner(m);
+        let mut state = (learner.clone(), synthetic_sample(m, 0.7, 0.6, [7.0, 7.0, 1.7]).0);
+        let _ = region(&mut state, |(learner, (gyro, accel, commands, speeds))| {
+            learner.update(*gyro, *accel, black_box(commands), black_box(speeds))
+        });
+        learner = state.0;
+        if learner.model().axis_status != AxisStatus::Found {
+            fail("the learner had no thrust axis after its excitation");
+        }
+        let axis = learner.model().thrust_axis.map(|a| a.thrust_dir_imu).unwrap_or_default();
+        hprintln!("bench-m7 check: learner m={} thrust direction {:?}", m, axis);
+    }
+
+    // Where a quad's learner step goes: its three largest parts on their own.
+    {
+        let filter = flight::filters::BiquadCoefficients::butterworth_lowpass(20.0, 2000.0)
+            .unwrap_or_else(|_| fail("filter"));
+        let config = flight::learner::rls::RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
+        let mut est = flight::learner::effectiveness::EffectivenessEstimator::new(
+            4,
+            2000.0,
+            filter,
+            [0.01, 0.0, 0.0],
+            3e-4,
+            config,
+        );
+        let mut rate = [7.0f32, 7.0, 1.7];
+        for n in 0..400 {
+            let ((gyro, accel, _c, speeds), angular) =
+                synthetic_sample(4, 0.7, n as f32 / 2000.0, rate);
+            est.update(gyro, accel, &speeds[..4]);
+            for k in 0..3 {
+                rate[k] += angular[k] / 2000.0;
+            }
+        }
+        let ((gyro, accel, _c, speeds), _) = synthetic_sample(4, 0.7, 0.2, rate);
+        let mut state = (est, gyro, accel, speeds);
+        region(&mut state, |(est, gyro, accel, speeds)| {
+            est.update(black_box(*gyro), *accel, &speeds[..4])
+        });
+        black_box(&state);
+        let fast = flight::filters::BiquadCoefficients::butterworth_lowpass(40.0, 2000.0)
+            .unwrap_or_else(|_| fail("filter"));
+        let mut mm = flight::learner::motor_model::MotorModelEstimator::new(fast, 2000.0, config);
+        for n in 0..100 {
+            mm.update(0.3, true, 1000.0 + n as f32);
+        }
+        let mut st = (mm, 0.4f32, 1200.0f32);
+        region(&mut st, |(mm, c, w)| mm.update(black_box(*c), true, *w));
+        black_box(&st);
+        let mut rls = flight::learner::rls::Rls::<31, 3>::new(23, config);
+        let x = [0.1f32; 23];
+        for _ in 0..10 {
+            let _ = rls.update(&x, &[1.0, 2.0, 3.0]);
+        }
+        let mut st = (rls, x);
+        let _ = region(&mut st, |(rls, x)| rls.update(black_box(&x[..]), &[1.0, 2.0, 3.0]));
+        black_box(&st);
+    }
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
     loop {

@@ -23,7 +23,8 @@ pub fn host(args: &[String]) -> Result<()> {
     Ok(())
 }
 
-/// QEMU machine and CPU with the same core (and single-precision FPU) as the STM32H743.
+/// QEMU machine and CPU with the same core (Cortex-M7 with its double-precision FPU) as the
+/// STM32H743.
 const QEMU: &str = "qemu-system-arm";
 const QEMU_MACHINE: &str = "mps2-an500";
 const QEMU_CPU: &str = "cortex-m7";
@@ -33,25 +34,23 @@ const TARGET: &str = "thumbv7em-none-eabihf";
 const RUSTFLAGS: &str = "-C link-arg=-Tlink.x -C target-cpu=cortex-m7";
 /// Semihosting line announcing a region, in run order.
 const REGION_PREFIX: &str = "bench-m7 region: ";
-/// Targets from issue 3 (instructions), matched by region-name prefix.
-const TARGETS: [(&str, u64); 3] = [
+/// Targets from issues 3 and 7 (instructions), matched by region-name prefix.
+const TARGETS: [(&str, u64); 5] = [
     ("thrust-axis solve m=4", 1_000),
     ("thrust-axis solve m=8", 4_000),
     ("imu-offset RLS update", 300),
+    ("learner step m=4", 12_000),
+    ("learner step m=8", 40_000),
 ];
+/// Debian package that provides `qemu-system-arm`.
+const QEMU_PACKAGE: &str = "qemu-system-arm";
 
 /// Instruction counts on QEMU's Cortex-M7; prints a table.
 pub fn m7(args: &[String]) -> Result<()> {
     if let Some(arg) = args.first() {
         bail!("bench-m7 takes no arguments (got `{arg}`)");
     }
-    if !on_path(QEMU) {
-        bail!(
-            "`{QEMU}` not found on PATH: bench-m7 runs the benchmark on QEMU's {QEMU_MACHINE} \
-             (Cortex-M7). Install it, e.g. `sudo apt-get install qemu-system-arm` (Debian/Ubuntu) \
-             or `brew install qemu` (macOS), then run `cargo xtask bench-m7` again."
-        );
-    }
+    ensure_qemu()?;
     let crate_dir = root().join("bench-m7");
     run(cargo()
         .current_dir(&crate_dir)
@@ -191,4 +190,41 @@ fn count_regions(trace: &Path, start: (u32, u32), end: (u32, u32)) -> Result<Vec
         }
     }
     Ok(counts)
+}
+
+/// Install QEMU with the distribution's package manager when it is missing (as `cargo xtask
+/// test` installs its tools): `apt-get update` once, then `apt-get install -y qemu-system-arm`,
+/// through `sudo` when not root.
+fn ensure_qemu() -> Result<()> {
+    if on_path(QEMU) {
+        return Ok(());
+    }
+    if !on_path("apt-get") {
+        bail!(
+            "`{QEMU}` not found on PATH and there is no apt-get to install it: bench-m7 runs the \
+             benchmark on QEMU's {QEMU_MACHINE} (Cortex-M7). Install the package providing \
+             `{QEMU}` (Debian/Ubuntu: `{QEMU_PACKAGE}`; macOS: `brew install qemu`), then run \
+             `cargo xtask bench-m7` again."
+        );
+    }
+    let root_user = Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false);
+    let apt = |args: &[&str]| {
+        let mut command = if root_user { Command::new("apt-get") } else { Command::new("sudo") };
+        if !root_user {
+            command.arg("apt-get");
+        }
+        command.args(args).env("DEBIAN_FRONTEND", "noninteractive");
+        command
+    };
+    eprintln!("bench-m7: `{QEMU}` is missing; installing the Debian package `{QEMU_PACKAGE}`");
+    run(&mut apt(&["update"]))?;
+    run(&mut apt(&["install", "-y", QEMU_PACKAGE]))?;
+    if !on_path(QEMU) {
+        bail!("installed `{QEMU_PACKAGE}` but `{QEMU}` is still not on PATH");
+    }
+    Ok(())
 }

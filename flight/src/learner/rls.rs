@@ -168,22 +168,20 @@ impl<const N: usize, const M: usize> Rls<N, M> {
         if !(x.iter().all(|v| v.is_finite()) && y.iter().all(|v| v.is_finite())) {
             return Err(RlsError::NonFinite);
         }
-        // a = P x, s = xᵀ P x.
+        // a = P x, s = xᵀ P x. Slices of length n throughout: no bounds check in the loops.
         let mut xd = [0.0f64; N];
         for (d, v) in xd.iter_mut().zip(x) {
             *d = f64::from(*v);
         }
-        let mut px = [0.0f64; N];
+        let xd = &xd[..n];
+        let mut px_store = [0.0f64; N];
+        let px = &mut px_store[..n];
         let mut s = 0.0f64;
         let mut trace = 0.0f64;
         let mut max_diag = 0.0f64;
-        for i in 0..n {
-            let row = &self.p[i];
-            let mut acc = 0.0;
-            for j in 0..n {
-                acc += row[j] * xd[j];
-            }
-            px[i] = acc;
+        for (i, (row, a)) in self.p[..n].iter().zip(px.iter_mut()).enumerate() {
+            let acc: f64 = row[..n].iter().zip(xd).map(|(p, x)| p * x).sum();
+            *a = acc;
             s += xd[i] * acc;
             trace += row[i];
             max_diag = max_diag.max(row[i]);
@@ -201,22 +199,19 @@ impl<const N: usize, const M: usize> Rls<N, M> {
         // A-priori errors and parameter update θₖ += K eₖ with K = P x / (λ + s).
         let predicted = self.predict_f64(x);
         let mut error = [0.0f64; M];
-        for k in 0..M {
-            error[k] = f64::from(y[k]) - predicted[k];
+        for ((e, y), p) in error.iter_mut().zip(y).zip(&predicted) {
+            *e = f64::from(*y) - p;
         }
-        for j in 0..n {
-            let kj = px[j] * inv;
-            for k in 0..M {
-                self.theta[j][k] += kj * error[k];
+        for (theta, a) in self.theta[..n].iter_mut().zip(px.iter()) {
+            let kj = a * inv;
+            for (t, e) in theta.iter_mut().zip(&error) {
+                *t += kj * e;
             }
         }
         // Covariance: P ← (P − α K xᵀ P)/λ with K xᵀ P = a aᵀ/(λ + s); the trace it removes is
-        // ‖a‖²/(λ + s), limited to MAX_TRACE_DECREASE of tr P by α ≤ 1.
-        let mut removed = 0.0;
-        for &a in px.iter().take(n) {
-            removed += a * a;
-        }
-        removed *= inv;
+        // ‖a‖²/(λ + s), limited to MAX_TRACE_DECREASE of tr P by α ≤ 1. The upper triangle is
+        // computed and mirrored, so P stays exactly symmetric.
+        let removed = px.iter().map(|a| a * a).sum::<f64>() * inv;
         let limit = f64::from(MAX_TRACE_DECREASE) * trace;
         let alpha = if removed > limit && removed > 0.0 { limit / removed } else { 1.0 };
         let gain = alpha * inv;
