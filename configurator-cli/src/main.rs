@@ -5,7 +5,7 @@
 
 use clap::{Parser, Subcommand};
 use configurator_cli::connect::{connect, ConnectError, Target};
-use configurator_cli::link::{Client, LinkError};
+use configurator_cli::link::{Client, DeviceErrorText, LinkError};
 use configurator_cli::offline::{self, InputError};
 use configurator_cli::report;
 use protocol::{Reply, Request, SetTelemetryRate, Telemetry, Topic};
@@ -44,11 +44,15 @@ struct Cli {
 enum Command {
     /// Handshake, then print the board's identity and status.
     Info,
-    /// Print the board's status.
+    /// Print the board's status (with the in-flight identification's).
     Status,
+    /// Arm throw-to-fly: the next throw starts the motor excitation. Motors WILL spin.
+    ArmThrowToFly,
+    /// Stop every motor now and leave any armed state.
+    Disarm,
     /// Stream a telemetry topic and count what arrives and what is missing.
     Stream {
-        /// imu, control or motors.
+        /// imu, control, motors or learner.
         #[arg(long, default_value = "imu")]
         topic: String,
         /// Samples per second, 1 to 1000.
@@ -127,6 +131,8 @@ fn run(cli: &Cli) -> Result<String, Failure> {
         Command::Ports => ports(cli.json),
         Command::Info => with_board(cli, BoardCommand::Info),
         Command::Status => with_board(cli, BoardCommand::Status),
+        Command::ArmThrowToFly => with_board(cli, BoardCommand::Arm),
+        Command::Disarm => with_board(cli, BoardCommand::Disarm),
         Command::Stream { topic, rate_hz, duration_s } => {
             // Validate arguments before touching any port.
             let topic = stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?;
@@ -141,6 +147,8 @@ fn run(cli: &Cli) -> Result<String, Failure> {
 enum BoardCommand {
     Info,
     Status,
+    Arm,
+    Disarm,
     Stream { topic: Topic, rate_hz: u16, duration_s: f64 },
 }
 
@@ -174,7 +182,7 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
     }
     if cli.sitl_throws > 0 {
         watch_throws(&mut client, cli.sitl_throws)?;
-    } else if cli.sitl && !matches!(command, BoardCommand::Stream { .. }) {
+    } else if cli.sitl && matches!(command, BoardCommand::Info | BoardCommand::Status) {
         // Let the simulated board run one full statistics window so the status has figures.
         eprintln!("letting the simulator run for 1.1 s…");
         client.listen(Duration::from_millis(1100))?;
@@ -200,10 +208,39 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
         }
         BoardCommand::Status => {
             let status = fetch_status(&mut client)?;
+            let learner = fetch_learner(&mut client)?;
             Ok(if cli.json {
-                format!("{:#}\n", report::status_json(&status))
+                let mut value = report::status_json(&status);
+                if let (Some(learner), Some(map)) = (&learner, value.as_object_mut()) {
+                    map.insert("learner".into(), report::learner_json(learner));
+                }
+                format!("{value:#}\n")
             } else {
-                report::status_text(&status)
+                let mut text = report::status_text(&status);
+                if let Some(learner) = &learner {
+                    text.push_str(&report::learner_text(learner));
+                }
+                text
+            })
+        }
+        BoardCommand::Arm => {
+            eprintln!(
+                "warning: armed for throw-to-fly: the motors will spin after the next throw. \
+                 Stop them at any time with `configurator-cli disarm`."
+            );
+            client.request(&Request::ArmThrowToFly(()), "the arm request")?;
+            Ok(if cli.json {
+                format!("{:#}\n", json!({"armed": true}))
+            } else {
+                "armed for throw-to-fly\n".into()
+            })
+        }
+        BoardCommand::Disarm => {
+            client.request(&Request::Disarm(()), "the disarm request")?;
+            Ok(if cli.json {
+                format!("{:#}\n", json!({"disarmed": true}))
+            } else {
+                "disarmed: every motor stopped\n".into()
             })
         }
         BoardCommand::Stream { topic, rate_hz, duration_s } => {
@@ -261,14 +298,27 @@ fn fetch_status(client: &mut Client) -> Result<protocol::Status, Failure> {
     }
 }
 
+/// The learner's state, or `None` from a board that does not know the request (protocol 1.0).
+fn fetch_learner(client: &mut Client) -> Result<Option<protocol::LearnerTelemetry>, Failure> {
+    match client.request(&Request::GetLearner(()), "the learner request") {
+        Ok(Reply::Learner(learner)) => Ok(Some(learner)),
+        Ok(other) => Err(LinkError::Unexpected(format!("{other:?} to the learner request")).into()),
+        Err(LinkError::Device(DeviceErrorText(protocol::DeviceError::UnknownRequest {
+            ..
+        }))) => Ok(None),
+        Err(error) => Err(error.into()),
+    }
+}
+
 fn stream_arguments(topic: &str, rate_hz: u16, duration_s: f64) -> Result<Topic, InputError> {
     let topic = match topic {
         "imu" => Topic::Imu,
         "control" => Topic::Control,
         "motors" => Topic::Motors,
+        "learner" => Topic::Learner,
         other => {
             return Err(InputError(format!(
-                "unknown topic `{other}`; choose imu, control or motors"
+                "unknown topic `{other}`; choose imu, control, motors or learner"
             )))
         }
     };
@@ -291,6 +341,7 @@ fn is_topic(data: &Telemetry, topic: Topic) -> bool {
         (Telemetry::Imu(_), Topic::Imu)
             | (Telemetry::Control(_), Topic::Control)
             | (Telemetry::Motors(_), Topic::Motors)
+            | (Telemetry::Learner(_), Topic::Learner)
     )
 }
 
@@ -308,6 +359,7 @@ fn stream(
     client.telemetry.clear();
     let (mut received, mut gaps, mut previous_seq) = (0u64, 0u64, None::<u16>);
     let mut last_imu = None;
+    let mut last_learner = None;
     client.listen_with(Duration::from_secs_f64(duration_s), |sample| {
         if !is_topic(&sample.data, topic) {
             return;
@@ -317,8 +369,10 @@ fn stream(
             gaps += u64::from(sample.seq.wrapping_sub(previous).wrapping_sub(1));
         }
         previous_seq = Some(sample.seq);
-        if let Telemetry::Imu(imu) = sample.data {
-            last_imu = Some(imu);
+        match sample.data {
+            Telemetry::Imu(imu) => last_imu = Some(imu),
+            Telemetry::Learner(learner) => last_learner = Some(learner),
+            _ => {}
         }
     })?;
     client.request(&set(0), "the request to stop telemetry")?;
@@ -348,6 +402,9 @@ fn stream(
             imu.gyro_rad_s[0], imu.gyro_rad_s[1], imu.gyro_rad_s[2],
             imu.accel_mps2[0], imu.accel_mps2[1], imu.accel_mps2[2]
         ));
+    }
+    if let Some(learner) = last_learner {
+        out.push_str(&report::learner_text(&learner));
     }
     Ok(out)
 }

@@ -1,7 +1,10 @@
 //! What the board says, for people (aligned text, units on every number) and for programs (JSON
 //! with units in the key names).
 
-use protocol::{Capabilities, Info, OffsetAdvice, Status, PROTOCOL_VERSION, SCHEMA_HASH};
+use protocol::{
+    Capabilities, Info, LearnerFailure, LearnerPhase, LearnerTelemetry, OffsetAdvice, Status,
+    PROTOCOL_VERSION, SCHEMA_HASH,
+};
 use serde_json::{json, Value};
 use std::fmt::Write as _;
 
@@ -224,4 +227,98 @@ pub fn status_text(status: &Status) -> String {
         l.telemetry_dropped, l.responses_dropped
     );
     out
+}
+
+/// The in-flight learner's state in words.
+fn learner_phase_text(learner: &LearnerTelemetry) -> String {
+    let failure = match learner.failure {
+        LearnerFailure::None => "",
+        LearnerFailure::NotFreeFall => {
+            "the last release was refused: the craft was not falling freely (motors never started)"
+        }
+        LearnerFailure::ThrowTimedOut => "a throw began but no release followed within 3 s",
+        LearnerFailure::RankDeficient => {
+            "the motors cannot produce every torque (rank-deficient effectiveness): no hover axis"
+        }
+        LearnerFailure::NoHover => "no hover within the motor limits along any thrust axis",
+        LearnerFailure::Disarmed => "stopped by a disarm request",
+        LearnerFailure::ImuLost => "stopped: the IMU stopped delivering samples",
+    };
+    let phase = match learner.phase {
+        LearnerPhase::Idle => "idle (not armed: nothing spins)".to_string(),
+        LearnerPhase::WaitingForThrow => "armed: waiting for a throw".to_string(),
+        LearnerPhase::Throwing => "a throw is under way".to_string(),
+        LearnerPhase::Released => "released: checking free fall, motors off".to_string(),
+        LearnerPhase::Exciting => format!(
+            "pulsing the motors ({} ms in{})",
+            learner.excitation_ms,
+            learner.exciting_motor.map(|m| format!(", motor {}", m + 1)).unwrap_or_default()
+        ),
+        LearnerPhase::Done => format!("done after {} ms of excitation", learner.excitation_ms),
+        LearnerPhase::Failed => "failed".to_string(),
+    };
+    if failure.is_empty() {
+        phase
+    } else {
+        format!("{phase}: {failure}")
+    }
+}
+
+/// The learner's state and estimates, for people.
+pub fn learner_text(learner: &LearnerTelemetry) -> String {
+    let mut out = String::new();
+    let m = usize::from(learner.motor_count).min(protocol::MAX_MOTORS);
+    let _ = writeln!(out, "  identification  {}", learner_phase_text(learner));
+    if m == 0 {
+        return out;
+    }
+    let list = |values: &[f32], scale: f32, decimals: usize| {
+        values[..m]
+            .iter()
+            .map(|v| format!("{:.*}", decimals, v * scale))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let _ = writeln!(out, "  motor τ         {} ms", list(&learner.tau_s, 1000.0, 1));
+    let _ = writeln!(out, "  motor ω_full    {} rad/s", list(&learner.omega_max_rad_s, 1.0, 0));
+    let converged = |bits: u8| (0..m).filter(|i| bits & (1 << i) != 0).count();
+    let _ = writeln!(
+        out,
+        "  converged       {} of {m} motor models, {} of {m} effectiveness columns",
+        converged(learner.motors_converged),
+        converged(learner.g1_converged)
+    );
+    if learner.thrust_axis_valid {
+        let [w, x, y, z] = learner.q_thrust_to_imu;
+        let [roll, pitch, yaw] = learner.euler_zyx_rad.map(f32::to_degrees);
+        let _ = writeln!(
+            out,
+            "  thrust axis     q_U^T = {w:+.4} {x:+.4}i {y:+.4}j {z:+.4}k (roll {roll:+.2}°, pitch {pitch:+.2}°, yaw {yaw:+.2}°)"
+        );
+    } else {
+        let _ = writeln!(out, "  thrust axis     not found yet");
+    }
+    out
+}
+
+/// The learner's state and estimates, for programs.
+pub fn learner_json(learner: &LearnerTelemetry) -> Value {
+    let m = usize::from(learner.motor_count).min(protocol::MAX_MOTORS);
+    json!({
+        "phase": format!("{:?}", learner.phase),
+        "failure": format!("{:?}", learner.failure),
+        "description": learner_phase_text(learner),
+        "motor_count": learner.motor_count,
+        "exciting_motor": learner.exciting_motor,
+        "excitation_ms": learner.excitation_ms,
+        "tau_s": &learner.tau_s[..m],
+        "omega_full_rad_s": &learner.omega_max_rad_s[..m],
+        "motors_converged_mask": learner.motors_converged,
+        "g1_columns_converged_mask": learner.g1_converged,
+        "thrust_axis_valid": learner.thrust_axis_valid,
+        "q_thrust_to_imu_wxyz": learner.q_thrust_to_imu,
+        "euler_zyx_deg": learner.euler_zyx_rad.map(f32::to_degrees),
+        "g1_block": if learner.g1_block == 0 { "specific_force_mps2_per_unit_thrust" } else { "angular_accel_radps2_per_unit_thrust" },
+        "g1_rows": learner.g1_rows.iter().map(|row| row[..m].to_vec()).collect::<Vec<_>>(),
+    })
 }

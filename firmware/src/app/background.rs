@@ -21,6 +21,10 @@ use flight::learner::{FlightPhase, LearnedModel, Learner, LearnerConfig};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetStatus, OffsetAdvice};
 
+/// How long the learner keeps learning after the excitation ends, s: the last motor's speed
+/// settles back to idle in about three time constants (75 ms for a 25 ms motor).
+pub const LEARN_AFTER_EXCITATION_S: f32 = 0.1;
+
 /// Length of one statistics window, µs (one second).
 pub const STATS_WINDOW_US: u64 = 1_000_000;
 
@@ -79,6 +83,10 @@ pub struct Background<'q> {
     configured_offset_m: Option<[f32; 3]>,
     rate_hz: f32,
     previous_phase: FlightPhase,
+    /// Samples learned from since the excitation ended.
+    samples_since_excitation: u32,
+    /// How many samples after the excitation the learner still takes ([`LEARN_AFTER_EXCITATION_S`]).
+    settle_samples: u32,
     results: BackgroundResults,
 }
 
@@ -98,6 +106,8 @@ impl<'q> Background<'q> {
             configured_offset_m: None,
             rate_hz: f32::from(rate_hz),
             previous_phase: FlightPhase::Idle,
+            samples_since_excitation: 0,
+            settle_samples: (LEARN_AFTER_EXCITATION_S * f32::from(rate_hz)) as u32,
             results: BackgroundResults::default(),
         }
     }
@@ -159,9 +169,15 @@ impl<'q> Background<'q> {
             }
             self.results.learner_offset = source;
         }
-        // The learner runs from the start of the excitation until the next attempt (after the
-        // excitation the motors settle at idle, which still carries information).
-        if !matches!(phase, FlightPhase::Exciting | FlightPhase::Done) {
+        // The learner runs from the start of the excitation until the motors have settled after
+        // it (the last pulse's ramp still carries information). Not longer: without the
+        // controller the craft falls or is caught, and a catch is a force no motor made.
+        if phase == FlightPhase::Exciting {
+            self.samples_since_excitation = 0;
+        } else if phase == FlightPhase::Done && self.samples_since_excitation < self.settle_samples
+        {
+            self.samples_since_excitation += 1;
+        } else {
             return;
         }
         if let Some(learner) = &mut self.learner {

@@ -11,13 +11,16 @@
 //!    for free fall: in flight the accelerometer reads only drag and the rotational terms
 //!    `Ω̇×r + Ω×(Ω×r)`, far below g, while a craft still in the hand, caught, or lying on the
 //!    ground reads about g. Each sample must stay below [`ThrowConfig::free_fall_max_mps2`] and
-//!    their mean below [`ThrowConfig::free_fall_mean_mps2`]; otherwise the attempt is refused
-//!    (the detector goes back to waiting, nothing spins).
+//!    their mean below [`ThrowConfig::free_fall_mean_mps2`], both raised by the centripetal
+//!    reading `Ω² r_max` of an IMU up to [`ThrowConfig::max_imu_offset_m`] from the centre of
+//!    gravity; otherwise the attempt is refused (the detector goes back to waiting, nothing
+//!    spins). A release seen from the body rate (a spinning throw passes 600 °/s while the hand
+//!    still pushes) starts the delay only when the push ends, within 100 ms.
 //! 4. **Thrown**: the release delay passed in free fall: the excitation may start.
 //!
-//! The check uses the raw accelerometer, so it needs no IMU offset: with the offset up to 30 mm
-//! and 600 °/s the rotational terms stay below 3.3 m/s², and drag at 9 m/s below 2 m/s² for the
-//! airframes in the library, together under the 0.5 g mean limit.
+//! The check uses the raw accelerometer and the gyro, so it needs no IMU offset: the
+//! centripetal allowance covers any offset up to 30 mm, and drag at 9 m/s stays below 2 m/s² for
+//! the airframes in the library, under the 0.5 g mean limit.
 //!
 //! Runs in the 2 kHz control step: a handful of multiplications per sample, no allocation.
 
@@ -41,6 +44,13 @@ pub struct ThrowConfig {
     pub free_fall_max_mps2: f32,
     /// Largest mean `|f|` over the release delay, m/s² (0.5 g).
     pub free_fall_mean_mps2: f32,
+    /// Largest IMU offset from the centre of gravity the free-fall check allows for, m: at body
+    /// rate Ω the accelerometer of a freely falling craft reads up to `Ω² r` (centripetal), so
+    /// both limits above grow by `Ω² · max_imu_offset_m`.
+    pub max_imu_offset_m: f32,
+    /// After a release seen from the body rate while the hand still pushes (|f| above
+    /// `acc_high_mps2`), longest wait for the push to end before the release delay starts, s.
+    pub push_end_wait_s: f32,
     /// Gravity, m/s².
     pub g_mps2: f32,
 }
@@ -56,6 +66,8 @@ impl Default for ThrowConfig {
             give_up_s: 3.0,
             free_fall_max_mps2: 0.8 * 9.81,
             free_fall_mean_mps2: 0.5 * 9.81,
+            max_imu_offset_m: 0.03,
+            push_end_wait_s: 0.1,
             g_mps2: 9.81,
         }
     }
@@ -68,8 +80,10 @@ pub enum ThrowState {
     Waiting,
     /// Accelerating: the momentum so far, m/s, and the time since it began, s.
     Throwing { momentum_mps: f32, elapsed_s: f32 },
-    /// Released: time since release, s, and the sum of `|f|` so far (for the mean), and samples.
-    Released { elapsed_s: f32, sum_acc_mps2: f32, samples: u32 },
+    /// Released: time since release, s, and the sum of the free-fall margins `|f| − Ω² r_max`
+    /// so far (for the mean), and samples. `pushing` while a release seen from the body rate
+    /// waits for the hand's push to end (the delay starts then).
+    Released { elapsed_s: f32, sum_acc_mps2: f32, samples: u32, pushing: bool },
     /// Thrown and falling freely since the release delay passed: the excitation may start.
     Thrown,
 }
@@ -145,8 +159,14 @@ impl ThrowDetector {
                 let elapsed_s = elapsed_s + dt_s;
                 let released = finite && (acc < c.acc_high_mps2 || rate > c.release_rate_rad_s);
                 if released && momentum_mps >= c.momentum_mps {
+                    let pushing = acc >= c.acc_high_mps2;
                     (
-                        ThrowState::Released { elapsed_s: 0.0, sum_acc_mps2: 0.0, samples: 0 },
+                        ThrowState::Released {
+                            elapsed_s: 0.0,
+                            sum_acc_mps2: 0.0,
+                            samples: 0,
+                            pushing,
+                        },
                         ThrowEvent::Released,
                     )
                 } else if finite && acc < c.acc_high_mps2 {
@@ -158,11 +178,35 @@ impl ThrowDetector {
                     (ThrowState::Throwing { momentum_mps, elapsed_s }, ThrowEvent::None)
                 }
             }
-            ThrowState::Released { elapsed_s, sum_acc_mps2, samples } => {
+            ThrowState::Released { elapsed_s, pushing: true, .. } => {
                 let elapsed_s = elapsed_s + dt_s;
-                let sum_acc_mps2 = sum_acc_mps2 + acc;
+                if finite && acc < c.acc_high_mps2 {
+                    let state = ThrowState::Released {
+                        elapsed_s: 0.0,
+                        sum_acc_mps2: 0.0,
+                        samples: 0,
+                        pushing: false,
+                    };
+                    (state, ThrowEvent::None)
+                } else if elapsed_s > c.push_end_wait_s {
+                    (ThrowState::Waiting, ThrowEvent::NotFreeFall)
+                } else {
+                    let state = ThrowState::Released {
+                        elapsed_s,
+                        sum_acc_mps2: 0.0,
+                        samples: 0,
+                        pushing: true,
+                    };
+                    (state, ThrowEvent::None)
+                }
+            }
+            ThrowState::Released { elapsed_s, sum_acc_mps2, samples, pushing: false } => {
+                let elapsed_s = elapsed_s + dt_s;
+                let centripetal = rate * rate * c.max_imu_offset_m;
+                let margin = acc - centripetal;
+                let sum_acc_mps2 = sum_acc_mps2 + margin;
                 let samples = samples + 1;
-                if !(finite && acc <= c.free_fall_max_mps2) {
+                if !(finite && margin <= c.free_fall_max_mps2) {
                     (ThrowState::Waiting, ThrowEvent::NotFreeFall)
                 } else if elapsed_s + 0.5 * dt_s >= c.release_delay_s {
                     if sum_acc_mps2 / samples as f32 <= c.free_fall_mean_mps2 {
@@ -171,7 +215,9 @@ impl ThrowDetector {
                         (ThrowState::Waiting, ThrowEvent::NotFreeFall)
                     }
                 } else {
-                    (ThrowState::Released { elapsed_s, sum_acc_mps2, samples }, ThrowEvent::None)
+                    let state =
+                        ThrowState::Released { elapsed_s, sum_acc_mps2, samples, pushing: false };
+                    (state, ThrowEvent::None)
                 }
             }
         };
@@ -213,6 +259,20 @@ mod tests {
         assert!(matches!(d.state(), ThrowState::Released { .. }));
         assert_eq!(feed(&mut d, -1.5, 7.0, 0.002), vec![ThrowEvent::Thrown]);
         assert_eq!(d.state(), ThrowState::Thrown);
+    }
+
+    #[test]
+    fn a_fast_spinning_throw_released_before_the_push_ends_is_accepted() {
+        let mut d = ThrowDetector::new(ThrowConfig::default());
+        // The hand spins the craft past 600 °/s (12.2 rad/s) while still pushing at 39 m/s².
+        assert_eq!(
+            feed(&mut d, -39.0, 12.2, 0.15),
+            vec![ThrowEvent::ThrowStarted, ThrowEvent::Released]
+        );
+        // Free flight at 12.2 rad/s with the IMU 25 mm from the centre of gravity: the
+        // accelerometer reads the centripetal 3.7 m/s² plus drag.
+        let events = feed(&mut d, -(12.2f32 * 12.2 * 0.025 + 1.0), 12.2, 0.16);
+        assert_eq!(events, vec![ThrowEvent::Thrown]);
     }
 
     #[test]
