@@ -1,7 +1,10 @@
 //! The link server against a scripted host: handshake rules, one response per request, typed
-//! errors, telemetry rates and sequence numbers, bad-frame accounting.
+//! errors, telemetry rates and sequence numbers, bad-frame accounting, the throw-to-fly commands
+//! and the learner topic.
 
-use firmware::app::{BoardInfo, ControlSnapshot, LinkServer, StatusView};
+use firmware::app::{BoardInfo, ControlCommand, ControlSnapshot, LinkServer, StatusView};
+use flight::learner::motor_model::MotorModel;
+use flight::learner::LearnedModel;
 use protocol::*;
 
 fn board() -> BoardInfo {
@@ -27,6 +30,8 @@ struct Host {
     server: LinkServer,
     decoder: Decoder,
     now_us: u64,
+    /// What the board's other tasks publish; the time and step count follow `now_us`.
+    view: StatusView,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -37,22 +42,42 @@ struct Received {
 
 impl Host {
     fn new() -> Self {
-        Self { server: LinkServer::new(board()), decoder: Decoder::new(), now_us: 0 }
+        Self::with_view(view_at(0))
+    }
+
+    fn with_view(view: StatusView) -> Self {
+        Self { server: LinkServer::new(board()), decoder: Decoder::new(), now_us: 0, view }
+    }
+
+    /// The view at the current time.
+    fn view(&self) -> StatusView {
+        let mut view = self.view;
+        view.control.t_us = self.now_us;
+        view.control.steps = (self.now_us / 500) as u32;
+        view
     }
 
     fn send(&mut self, request: &Request, seq: u16) {
         let mut frame = [0u8; MAX_FRAME_LEN];
         let len = request.encode(seq, &mut frame).unwrap();
-        self.server.receive(&frame[..len], self.now_us, &view_at(self.now_us));
+        let view = self.view();
+        self.server.receive(&frame[..len], self.now_us, &view);
     }
 
     fn send_raw(&mut self, bytes: &[u8]) {
-        self.server.receive(bytes, self.now_us, &view_at(self.now_us));
+        let view = self.view();
+        self.server.receive(bytes, self.now_us, &view);
     }
 
     fn advance(&mut self, dt_us: u64) {
         self.now_us += dt_us;
-        self.server.poll(self.now_us, &view_at(self.now_us));
+        let view = self.view();
+        self.server.poll(self.now_us, &view);
+    }
+
+    /// Every command the server has queued for the control step, oldest first.
+    fn commands(&mut self) -> Vec<ControlCommand> {
+        std::iter::from_fn(|| self.server.take_command()).collect()
     }
 
     /// Drain the server's transmit buffer in USB-packet-sized pieces.
@@ -272,6 +297,180 @@ fn status_reports_uptime_steps_and_the_boards_step_time() {
             assert_eq!(status.control.steps, 5000);
             assert_eq!(status.control.step_time, Some(StepTime { max_us: 17, overruns: 1 }));
             assert_eq!(status.link.frames_rx, 2, "the handshake and this request");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+/// The learned time constants of the motors in [`learner_view`], s.
+const TAU_S: [f32; MAX_MOTORS] = [0.020, 0.025, 0.030, 0.035, 0.040, 0.045, 0.050, 0.055];
+
+/// A view of a board with `motors` motors connected and learned: time constants [`TAU_S`],
+/// 1000 rad/s at full command, G1 per unit squared speed `(10·row + motor + 1)·10⁻⁶`.
+fn learner_view(motors: u8) -> StatusView {
+    let mut view = view_at(0);
+    view.control.motor_count = motors;
+    let learned: &mut LearnedModel = &mut view.background.learned;
+    learned.motors = motors;
+    for i in 0..usize::from(motors) {
+        // ω_full = a + b + ω_idle = 1000 rad/s for every motor, so G1 per unit thrust is G1 per
+        // squared speed × 10⁶.
+        learned.motor[i] = MotorModel {
+            a_rad_s: 600.0,
+            b_rad_s: 300.0,
+            omega_idle_rad_s: 100.0,
+            tau_s: TAU_S[i],
+            ..MotorModel::default()
+        };
+        for (row, values) in learned.g1_per_speed2.iter_mut().enumerate() {
+            values[i] = (10 * row + i + 1) as f32 * 1e-6;
+        }
+    }
+    view
+}
+
+fn bad_value_name(response: &Response) -> Option<&str> {
+    match response {
+        Err(DeviceError::BadValue { name, .. }) => Some(name.as_str()),
+        _ => None,
+    }
+}
+
+#[test]
+fn arming_throw_to_fly_queues_the_command_with_four_motors_or_more() {
+    for motors in [4, 6, 8] {
+        let mut host = Host::with_view(learner_view(motors));
+        host.handshake();
+        assert_eq!(host.request(&Request::ArmThrowToFly(()), 2), Ok(Reply::Done), "{motors}");
+        assert_eq!(host.commands(), vec![ControlCommand::ArmThrowToFly], "{motors} motors");
+    }
+}
+
+#[test]
+fn arming_with_fewer_than_four_motors_names_motor_count_and_queues_nothing() {
+    for motors in [0, 3] {
+        let mut host = Host::with_view(learner_view(motors));
+        host.handshake();
+        let response = host.request(&Request::ArmThrowToFly(()), 2);
+        assert_eq!(bad_value_name(&response), Some("motor_count"), "{response:?}");
+        let Err(DeviceError::BadValue { value, min, max, .. }) = response else { unreachable!() };
+        assert_eq!((value, min, max), (f32::from(motors), 4.0, 8.0));
+        assert_eq!(host.commands(), vec![], "nothing queued with {motors} motors");
+    }
+}
+
+#[test]
+fn disarm_is_always_done_and_goes_first_even_behind_a_full_queue() {
+    let mut host = Host::with_view(learner_view(4));
+    host.handshake();
+    // Fill the command queue with poses until the board says it is busy.
+    let pose = ExternalPose { position_ned_m: [1.0, 2.0, -3.0], heading_rad: 0.5 };
+    let mut queued = 0;
+    let mut seq = 2;
+    loop {
+        seq += 1;
+        match host.request(&Request::SetExternalPose(pose), seq) {
+            Ok(Reply::Done) => queued += 1,
+            Err(DeviceError::Busy) => break,
+            other => panic!("{other:?}"),
+        }
+        assert!(queued <= 64, "the command queue never filled");
+    }
+    assert!(queued >= 1);
+    assert_eq!(host.request(&Request::Disarm(()), seq + 1), Ok(Reply::Done));
+    assert_eq!(host.commands(), vec![ControlCommand::Disarm], "nothing waits before the disarm");
+    // And with nothing queued, or twice in a row, or with an arm waiting: still Done, still first.
+    assert_eq!(host.request(&Request::Disarm(()), seq + 2), Ok(Reply::Done));
+    assert_eq!(host.request(&Request::ArmThrowToFly(()), seq + 3), Ok(Reply::Done));
+    assert_eq!(host.request(&Request::Disarm(()), seq + 4), Ok(Reply::Done));
+    assert_eq!(host.commands(), vec![ControlCommand::Disarm]);
+    // A board without enough motors to arm is still disarmed.
+    let mut host = Host::with_view(learner_view(0));
+    host.handshake();
+    assert_eq!(host.request(&Request::Disarm(()), 2), Ok(Reply::Done));
+    assert_eq!(host.commands(), vec![ControlCommand::Disarm]);
+}
+
+#[test]
+fn a_pose_with_a_nan_is_refused_and_a_finite_one_is_queued() {
+    let mut host = Host::with_view(learner_view(4));
+    host.handshake();
+    let finite = ExternalPose { position_ned_m: [1.5, -2.0, -0.5], heading_rad: -1.0 };
+    let mut seq = 1;
+    for index in 0..4 {
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let mut pose = finite;
+            if index < 3 {
+                pose.position_ned_m[index] = bad;
+            } else {
+                pose.heading_rad = bad;
+            }
+            seq += 1;
+            let response = host.request(&Request::SetExternalPose(pose), seq);
+            assert_eq!(bad_value_name(&response), Some("pose"), "{pose:?}: {response:?}");
+            assert_eq!(host.commands(), vec![], "nothing queued for {pose:?}");
+        }
+    }
+    assert_eq!(host.request(&Request::SetExternalPose(finite), seq + 1), Ok(Reply::Done));
+    assert_eq!(host.commands(), vec![ControlCommand::ExternalPose(finite)]);
+}
+
+#[test]
+fn the_learner_topic_at_1000_hz_alternates_the_g1_blocks_with_consecutive_sequence_numbers() {
+    let view = learner_view(4);
+    let mut host = Host::with_view(view);
+    host.handshake();
+    let setting = SetTelemetryRate { topic: Topic::Learner, rate_hz: 1000 };
+    assert_eq!(host.request(&Request::SetTelemetryRate(setting), 2), Ok(Reply::Done));
+    let mut received = Vec::new();
+    for _ in 0..100 {
+        host.advance(1000);
+        received.extend(host.read());
+    }
+    assert!((99..=101).contains(&received.len()), "{}", received.len());
+    let tau_s = [TAU_S[0], TAU_S[1], TAU_S[2], TAU_S[3], 0.0, 0.0, 0.0, 0.0];
+    for (i, sample) in received.iter().enumerate() {
+        assert_eq!(usize::from(sample.seq), i, "consecutive sequence numbers");
+        let DeviceMessage::Telemetry(Telemetry::Learner(learner)) = &sample.message else {
+            panic!("{sample:?}")
+        };
+        let block = i % 2;
+        assert_eq!(usize::from(learner.g1_block), block, "sample {i}");
+        assert_eq!(learner.tau_s, tau_s, "the view's learned time constants");
+        assert_eq!(learner.omega_max_rad_s[..4], [1000.0; 4]);
+        assert_eq!(learner.motor_count, 4);
+        assert_eq!(learner.phase, LearnerPhase::Idle);
+        // Rows 3·block .. 3·block + 3 of G1 per unit thrust (× ω_full² = 10⁶), zero beyond m.
+        for (r, row) in learner.g1_rows.iter().enumerate() {
+            for (motor, &value) in row.iter().enumerate() {
+                let expected =
+                    if motor < 4 { (10 * (3 * block + r) + motor + 1) as f32 } else { 0.0 };
+                assert!((value - expected).abs() <= 1e-4 * expected.abs(), "row {r}: {row:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn get_learner_needs_the_handshake_and_then_answers_with_the_view() {
+    let mut host = Host::with_view(learner_view(4));
+    assert_eq!(host.request(&Request::GetLearner(()), 1), Err(DeviceError::HandshakeRequired));
+    for request in [Request::ArmThrowToFly(()), Request::Disarm(())] {
+        assert_eq!(host.request(&request, 2), Err(DeviceError::HandshakeRequired));
+    }
+    assert_eq!(host.commands(), vec![], "nothing reaches the control step before the handshake");
+    host.handshake();
+    host.now_us = 1_234_000;
+    match host.request(&Request::GetLearner(()), 3) {
+        Ok(Reply::Learner(learner)) => {
+            assert_eq!(learner.t_us, 1_234_000);
+            assert_eq!(learner.g1_block, 0, "the reply carries the specific-force rows");
+            assert_eq!(learner.tau_s[..4], TAU_S[..4]);
+            assert_eq!(
+                (learner.phase, learner.failure),
+                (LearnerPhase::Idle, LearnerFailure::None)
+            );
+            assert!(!learner.thrust_axis_valid);
         }
         other => panic!("{other:?}"),
     }

@@ -5,8 +5,9 @@
 use proptest::prelude::*;
 use protocol::frame::{encode, MAX_FRAME_LEN};
 use protocol::{
-    DecodeError, Decoder, DeviceMessage, FrameError, Hello, Ping, Request, SetTelemetryRate, Topic,
-    Version,
+    DecodeError, Decoder, DeviceMessage, ExternalPose, FrameError, Hello, LearnerFailure,
+    LearnerPhase, LearnerTelemetry, Ping, Reply, Request, SetTelemetryRate, Telemetry, Topic,
+    Version, TOPIC_COUNT,
 };
 
 /// Everything the decoder said about a byte stream: frames as `(id, seq, payload)` or errors.
@@ -36,15 +37,111 @@ fn any_request() -> impl Strategy<Value = Request> {
         }),
         Just(Request::GetInfo(())),
         Just(Request::GetStatus(())),
-        (0usize..3, any::<u16>()).prop_map(|(topic, rate_hz)| {
+        (0usize..TOPIC_COUNT, any::<u16>()).prop_map(|(topic, rate_hz)| {
             Request::SetTelemetryRate(SetTelemetryRate { topic: Topic::ALL[topic], rate_hz })
         }),
         any::<u32>().prop_map(|nonce| Request::Ping(Ping { nonce })),
+        Just(Request::ArmThrowToFly(())),
+        Just(Request::Disarm(())),
+        // Finite values only: a NaN never equals itself, so the round trip could not compare.
+        (proptest::array::uniform3(-1e6f32..1e6), -10f32..10.0).prop_map(
+            |(position_ned_m, heading_rad)| {
+                Request::SetExternalPose(ExternalPose { position_ned_m, heading_rad })
+            }
+        ),
+        Just(Request::GetLearner(())),
     ]
+}
+
+#[test]
+fn the_request_strategy_covers_every_id_in_the_table() {
+    use proptest::strategy::ValueTree;
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let mut seen = std::collections::BTreeSet::new();
+    for _ in 0..2000 {
+        seen.insert(any_request().new_tree(&mut runner).unwrap().current().id());
+    }
+    let table: std::collections::BTreeSet<u8> = Request::IDS.iter().copied().collect();
+    assert_eq!(seen, table, "add the new request to any_request()");
+}
+
+/// Any learner sample with finite floats (NaN would not compare equal after the round trip).
+fn any_learner() -> impl Strategy<Value = LearnerTelemetry> {
+    let float = || -1e9f32..1e9;
+    let motors = move || proptest::array::uniform8(float());
+    (
+        (any::<u64>(), 0usize..7, 0usize..7, any::<u8>(), any::<Option<u8>>(), any::<u16>()),
+        (motors(), motors(), any::<u8>(), any::<u8>(), any::<bool>()),
+        (proptest::array::uniform4(float()), proptest::array::uniform3(float()), 0u8..2),
+        proptest::array::uniform3(motors()),
+    )
+        .prop_map(|(head, motor, axis, g1_rows)| {
+            const PHASES: [LearnerPhase; 7] = [
+                LearnerPhase::Idle,
+                LearnerPhase::WaitingForThrow,
+                LearnerPhase::Throwing,
+                LearnerPhase::Released,
+                LearnerPhase::Exciting,
+                LearnerPhase::Done,
+                LearnerPhase::Failed,
+            ];
+            const FAILURES: [LearnerFailure; 7] = [
+                LearnerFailure::None,
+                LearnerFailure::NotFreeFall,
+                LearnerFailure::ThrowTimedOut,
+                LearnerFailure::RankDeficient,
+                LearnerFailure::NoHover,
+                LearnerFailure::Disarmed,
+                LearnerFailure::ImuLost,
+            ];
+            let (t_us, phase, failure, motor_count, exciting_motor, excitation_ms) = head;
+            let (tau_s, omega_max_rad_s, motors_converged, g1_converged, thrust_axis_valid) = motor;
+            let (q_thrust_to_imu, euler_zyx_rad, g1_block) = axis;
+            LearnerTelemetry {
+                t_us,
+                phase: PHASES[phase],
+                failure: FAILURES[failure],
+                motor_count,
+                exciting_motor,
+                excitation_ms,
+                tau_s,
+                omega_max_rad_s,
+                motors_converged,
+                g1_converged,
+                thrust_axis_valid,
+                q_thrust_to_imu,
+                euler_zyx_rad,
+                g1_block,
+                g1_rows,
+            }
+        })
+}
+
+fn device_round_trip(message: &DeviceMessage, seq: u16) -> Result<DeviceMessage, String> {
+    let mut buffer = [0u8; MAX_FRAME_LEN];
+    let len = message.encode(seq, &mut buffer).map_err(|e| format!("does not fit: {e:?}"))?;
+    let outcome = decode_stream(&buffer[..len]);
+    let [Ok((id, got_seq, payload))] = &outcome[..] else { return Err(format!("{outcome:?}")) };
+    if *got_seq != seq {
+        return Err(format!("seq {got_seq} instead of {seq}"));
+    }
+    let frame = protocol::Frame { id: *id, seq, payload };
+    DeviceMessage::decode(&frame).map_err(|e| format!("{e:?}"))
 }
 
 proptest! {
     #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
+
+    #[test]
+    fn every_learner_sample_and_reply_round_trips_in_one_frame(
+        learner in any_learner(),
+        seq in any::<u16>(),
+    ) {
+        let telemetry = DeviceMessage::Telemetry(Telemetry::Learner(learner));
+        prop_assert_eq!(device_round_trip(&telemetry, seq), Ok(telemetry));
+        let reply = DeviceMessage::Response(Ok(Reply::Learner(learner)));
+        prop_assert_eq!(device_round_trip(&reply, seq), Ok(reply));
+    }
 
     #[test]
     fn random_bytes_never_panic_and_never_yield_an_unchecked_frame(

@@ -36,6 +36,32 @@ fn info() -> Info {
     }
 }
 
+/// A fully populated learner sample: eight motors, every `Option` `Some`, every float non-zero.
+fn learner() -> LearnerTelemetry {
+    let column = |i: usize| 1.0 + 0.125 * i as f32;
+    LearnerTelemetry {
+        t_us: 2_500_000,
+        phase: LearnerPhase::Exciting,
+        failure: LearnerFailure::NoHover,
+        motor_count: 8,
+        exciting_motor: Some(5),
+        excitation_ms: 140,
+        tau_s: [0.020, 0.022, 0.024, 0.026, 0.028, 0.030, 0.032, 0.034],
+        omega_max_rad_s: [2000.0, 2050.0, 2100.0, 2150.0, 2200.0, 2250.0, 2300.0, 2350.0],
+        motors_converged: 0b0001_1111,
+        g1_converged: 0b0000_0111,
+        thrust_axis_valid: true,
+        q_thrust_to_imu: [0.5, -0.5, 0.25, 0.75],
+        euler_zyx_rad: [0.1, -0.2, 1.5],
+        g1_block: 1,
+        g1_rows: [
+            core::array::from_fn(column),
+            core::array::from_fn(|i| -column(i)),
+            core::array::from_fn(|i| 2.0 * column(i)),
+        ],
+    }
+}
+
 fn status() -> Status {
     Status {
         uptime_ms: 1500,
@@ -87,6 +113,18 @@ fn request_frames_are_pinned() {
 }
 
 #[test]
+fn protocol_1_1_request_frames_are_pinned() {
+    assert_eq!(request(Request::ArmThrowToFly(()), 6), "07 06 06 08 c1 0f be 00");
+    assert_eq!(request(Request::Disarm(()), 7), "07 07 07 7c da c6 5f 00");
+    let pose = ExternalPose { position_ned_m: [1.5, -2.25, -0.75], heading_rad: 0.5 };
+    assert_eq!(
+        request(Request::SetExternalPose(pose), 8),
+        "03 08 08 01 03 c0 3f 01 03 10 c0 01 03 40 bf 01 01 06 3f a7 9c eb 88 00"
+    );
+    assert_eq!(request(Request::GetLearner(()), 9), "07 09 09 d1 f7 65 07 00");
+}
+
+#[test]
 fn response_frames_are_pinned() {
     assert_eq!(device(DeviceMessage::Response(Ok(Reply::Hello(info()))), 1), "03 81 01 01 02 01 0a ef 9b af cd f8 ac d1 91 01 02 01 13 04 53 49 54 4c 04 30 30 30 31 21 d0 0f 04 b3 9b a0 9b 00");
     assert_eq!(device(DeviceMessage::Response(Ok(Reply::Info(info()))), 2), "03 81 02 03 01 01 0a ef 9b af cd f8 ac d1 91 01 02 01 13 04 53 49 54 4c 04 30 30 30 31 21 d0 0f 04 01 f1 92 e5 00");
@@ -99,6 +137,44 @@ fn response_frames_are_pinned() {
         device(DeviceMessage::Response(Ok(Reply::Pong(Ping { nonce: 7 }))), 5),
         "03 81 05 07 04 07 b9 52 e6 2f 00"
     );
+}
+
+#[test]
+fn learner_frames_are_pinned() {
+    assert_eq!(device(DeviceMessage::Response(Ok(Reply::Learner(learner()))), 6), "03 81 06 2d 05 a0 cb 98 01 04 04 08 01 05 8c 01 0a d7 a3 3c 58 39 b4 3c a6 9b c4 3c f4 fd d4 3c 42 60 e5 3c 8f c2 f5 3c 6f 12 03 3d 96 43 0b 3d 01 03 fa 44 02 20 02 45 04 40 03 45 04 60 06 45 04 80 09 45 04 a0 0c 45 04 c0 0f 45 07 e0 12 45 1f 07 01 01 01 02 3f 01 01 02 bf 01 03 80 3e 01 0b 40 3f cd cc cc 3d cd cc 4c be 01 04 c0 3f 01 01 03 80 3f 01 03 90 3f 01 03 a0 3f 01 03 b0 3f 01 03 c0 3f 01 03 d0 3f 01 03 e0 3f 01 03 f0 3f 01 03 80 bf 01 03 90 bf 01 03 a0 bf 01 03 b0 bf 01 03 c0 bf 01 03 d0 bf 01 03 e0 bf 01 03 f0 bf 01 01 02 40 01 03 10 40 01 03 20 40 01 03 30 40 01 03 40 40 01 03 50 40 01 03 60 40 01 07 70 40 fe 61 8a 16 00");
+    assert_eq!(device(DeviceMessage::Telemetry(Telemetry::Learner(learner())), 14), "2f 82 0e 03 a0 cb 98 01 04 04 08 01 05 8c 01 0a d7 a3 3c 58 39 b4 3c a6 9b c4 3c f4 fd d4 3c 42 60 e5 3c 8f c2 f5 3c 6f 12 03 3d 96 43 0b 3d 01 03 fa 44 02 20 02 45 04 40 03 45 04 60 06 45 04 80 09 45 04 a0 0c 45 04 c0 0f 45 07 e0 12 45 1f 07 01 01 01 02 3f 01 01 02 bf 01 03 80 3e 01 0b 40 3f cd cc cc 3d cd cc 4c be 01 04 c0 3f 01 01 03 80 3f 01 03 90 3f 01 03 a0 3f 01 03 b0 3f 01 03 c0 3f 01 03 d0 3f 01 03 e0 3f 01 03 f0 3f 01 03 80 bf 01 03 90 bf 01 03 a0 bf 01 03 b0 bf 01 03 c0 bf 01 03 d0 bf 01 03 e0 bf 01 03 f0 bf 01 01 02 40 01 03 10 40 01 03 20 40 01 03 30 40 01 03 40 40 01 03 50 40 01 03 60 40 01 07 70 40 c3 75 a3 d8 00");
+}
+
+#[test]
+fn learner_enums_keep_their_wire_indices() {
+    let phases = [
+        LearnerPhase::Idle,
+        LearnerPhase::WaitingForThrow,
+        LearnerPhase::Throwing,
+        LearnerPhase::Released,
+        LearnerPhase::Exciting,
+        LearnerPhase::Done,
+        LearnerPhase::Failed,
+    ];
+    let failures = [
+        LearnerFailure::None,
+        LearnerFailure::NotFreeFall,
+        LearnerFailure::ThrowTimedOut,
+        LearnerFailure::RankDeficient,
+        LearnerFailure::NoHover,
+        LearnerFailure::Disarmed,
+        LearnerFailure::ImuLost,
+    ];
+    let mut buffer = [0u8; 4];
+    for (index, phase) in phases.iter().enumerate() {
+        assert_eq!(postcard::to_slice(phase, &mut buffer).unwrap(), [index as u8], "{phase:?}");
+    }
+    for (index, failure) in failures.iter().enumerate() {
+        let bytes = postcard::to_slice(failure, &mut buffer).unwrap();
+        assert_eq!(bytes, [index as u8], "{failure:?}");
+    }
+    assert_eq!(Topic::Learner.index(), 3);
+    assert_eq!(postcard::to_slice(&Topic::Learner, &mut buffer).unwrap(), [3]);
 }
 
 #[test]
@@ -190,4 +266,44 @@ fn the_largest_status_fits_one_frame() {
     let len = DeviceMessage::Response(Ok(Reply::Status(status))).encode(u16::MAX, &mut buffer);
     let len = len.expect("the largest status fits a frame");
     assert!(len <= MAX_FRAME_LEN - 40, "{len} bytes: less than 40 bytes of room left to grow");
+}
+
+/// The largest possible learner sample: every varint at its longest (`u64::MAX` time,
+/// `u16::MAX` excitation time), every `Option` `Some`, the highest enum variants.
+fn largest_learner() -> LearnerTelemetry {
+    LearnerTelemetry {
+        t_us: u64::MAX,
+        phase: LearnerPhase::Failed,
+        failure: LearnerFailure::ImuLost,
+        motor_count: u8::MAX,
+        exciting_motor: Some(u8::MAX),
+        excitation_ms: u16::MAX,
+        tau_s: [f32::MAX; MAX_MOTORS],
+        omega_max_rad_s: [f32::MAX; MAX_MOTORS],
+        motors_converged: u8::MAX,
+        g1_converged: u8::MAX,
+        thrust_axis_valid: true,
+        q_thrust_to_imu: [f32::MAX; 4],
+        euler_zyx_rad: [f32::MAX; 3],
+        g1_block: u8::MAX,
+        g1_rows: [[f32::MAX; MAX_MOTORS]; 3],
+    }
+}
+
+/// Bytes left in a frame after the largest learner sample, as telemetry and as a reply.
+const LEARNER_MARGIN_BYTES: usize = 34;
+
+#[test]
+fn the_largest_learner_telemetry_fits_one_frame() {
+    let mut buffer = [0u8; MAX_FRAME_LEN];
+    let largest = largest_learner();
+    let telemetry =
+        DeviceMessage::Telemetry(Telemetry::Learner(largest)).encode(u16::MAX, &mut buffer);
+    let telemetry = telemetry.expect("the largest learner sample fits a frame");
+    let reply = DeviceMessage::Response(Ok(Reply::Learner(largest))).encode(u16::MAX, &mut buffer);
+    let reply = reply.expect("the largest learner reply fits a frame");
+    // The reply carries two more enum tags (`Ok`, `Reply::Learner`) than the telemetry's one.
+    assert_eq!(reply, telemetry + 1);
+    println!("largest learner telemetry: {telemetry} bytes, reply: {reply} bytes, frame: {MAX_FRAME_LEN} bytes");
+    assert_eq!(MAX_FRAME_LEN - reply, LEARNER_MARGIN_BYTES, "the margin is pinned: {reply} bytes");
 }
