@@ -77,35 +77,7 @@ fn main() -> std::process::ExitCode {
             };
             let s = Scores::of(&learned, &report.truth);
             if matrices {
-                let m = report.truth.motors;
-                for k in 0..6 {
-                    println!(
-                        "  G1 row {k} ×1e6: learned {:?}",
-                        (0..m)
-                            .map(|i| (learned.g1_per_speed2[k][i] * 1e8).round() / 100.0)
-                            .collect::<Vec<_>>()
-                    );
-                    println!(
-                        "                 truth   {:?}",
-                        (0..m)
-                            .map(|i| (report.truth.g1_per_speed2[k][i] * 1e8).round() / 100.0)
-                            .collect::<Vec<_>>()
-                    );
-                }
-                for k in 0..3 {
-                    println!(
-                        "  G2 row {k} ×1e3: learned {:?}",
-                        (0..m)
-                            .map(|i| (learned.g2[k][i] * 1e5).round() / 100.0)
-                            .collect::<Vec<_>>()
-                    );
-                    println!(
-                        "                 truth   {:?}",
-                        (0..m)
-                            .map(|i| (report.truth.g2[k][i] * 1e5).round() / 100.0)
-                            .collect::<Vec<_>>()
-                    );
-                }
+                print_matrices(&learned, &report.truth);
                 println!("  axis status {:?}", learned.axis_status);
             }
             println!("airframe {} ({} motors)", airframe.name, report.truth.motors);
@@ -146,20 +118,7 @@ fn main() -> std::process::ExitCode {
                 config.rate_body_rad_s.as_slice(),
                 config.apex_m
             );
-            for k in 0..6 {
-                println!(
-                    "  G1 row {k} ×1e6: learned {:?}",
-                    (0..m)
-                        .map(|i| (learned.g1_per_speed2[k][i] * 1e8).round() / 100.0)
-                        .collect::<Vec<_>>()
-                );
-                println!(
-                    "                 truth   {:?}",
-                    (0..m)
-                        .map(|i| (report.truth.g1_per_speed2[k][i] * 1e8).round() / 100.0)
-                        .collect::<Vec<_>>()
-                );
-            }
+            print_matrices(&learned, &report.truth);
             println!("  G1 relative RMS error per row: {}", percent(&s.g1_row_rel));
             println!(
                 "  τ error {:.3} ms, axis {:.2}°",
@@ -260,6 +219,25 @@ fn main() -> std::process::ExitCode {
             }
             std::process::ExitCode::SUCCESS
         }
+    }
+}
+
+/// The learned and the true G1 (×1e6, per (rad/s)²) and G2 (×1e3), row by row.
+fn print_matrices(learned: &flight::learner::LearnedModel, truth: &sim::identification::TrueModel) {
+    let m = truth.motors;
+    let row = |values: &[f32], scale: f32| {
+        values[..m].iter().map(|v| (v * scale * 100.0).round() / 100.0).collect::<Vec<_>>()
+    };
+    let true_row = |values: &[f64], scale: f64| {
+        values[..m].iter().map(|v| (v * scale * 100.0).round() / 100.0).collect::<Vec<_>>()
+    };
+    for k in 0..6 {
+        println!("  G1 row {k} ×1e6: learned {:?}", row(&learned.g1_per_speed2[k], 1e6));
+        println!("                 truth   {:?}", true_row(&truth.g1_per_speed2[k], 1e6));
+    }
+    for k in 0..3 {
+        println!("  G2 row {k} ×1e3: learned {:?}", row(&learned.g2[k], 1e3));
+        println!("                 truth   {:?}", true_row(&truth.g2[k], 1e3));
     }
 }
 
