@@ -65,10 +65,14 @@ impl std::fmt::Display for DeviceErrorText {
                 write!(f, "the board does not know request 0x{id:02x} (older firmware?)")
             }
             DeviceError::Malformed { id } => write!(f, "request 0x{id:02x} was malformed"),
+            DeviceError::BadValue { name, value, .. } if !value.is_finite() => {
+                write!(f, "{name} is not a finite number")
+            }
             DeviceError::BadValue { name, value, min, max, unit } => {
+                let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
                 write!(
                     f,
-                    "{name} = {value} {unit} is outside the allowed range {min} to {max} {unit}"
+                    "{name} = {value}{unit} is outside the allowed range {min} to {max}{unit}"
                 )
             }
             DeviceError::Busy => write!(f, "the board is busy; try again"),
@@ -330,5 +334,37 @@ fn placeholder_info() -> Info {
         capabilities: protocol::Capabilities(0),
         control_rate_hz: 0,
         motor_count: 0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bad_value(name: &str, value: f32, min: f32, max: f32, unit: &str) -> String {
+        let error = DeviceError::BadValue {
+            name: name.try_into().unwrap(),
+            value,
+            min,
+            max,
+            unit: unit.try_into().unwrap(),
+        };
+        DeviceErrorText(error).to_string()
+    }
+
+    #[test]
+    fn out_of_range_values_read_well_with_and_without_a_unit() {
+        assert_eq!(
+            bad_value("rate_hz", 5000.0, 0.0, 1000.0, "Hz"),
+            "rate_hz = 5000 Hz is outside the allowed range 0 to 1000 Hz"
+        );
+        assert_eq!(
+            bad_value("motor_count", 3.0, 4.0, 8.0, ""),
+            "motor_count = 3 is outside the allowed range 4 to 8"
+        );
+        assert_eq!(
+            bad_value("pose", f32::NAN, -f32::MAX, f32::MAX, "m, rad"),
+            "pose is not a finite number"
+        );
     }
 }

@@ -10,6 +10,7 @@ use configurator_cli::offline::{self, InputError};
 use configurator_cli::report;
 use protocol::{Reply, Request, SetTelemetryRate, Telemetry, Topic};
 use serde_json::json;
+use std::io::Write as _;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -50,7 +51,9 @@ enum Command {
     ArmThrowToFly,
     /// Stop every motor now and leave any armed state.
     Disarm,
-    /// Stream a telemetry topic and count what arrives and what is missing.
+    /// Stream a telemetry topic and count what arrives and what is missing. The learner topic
+    /// prints every sample on its own line (with --json, one JSON object per line, then the
+    /// summary on the last line).
     Stream {
         /// imu, control, motors or learner.
         #[arg(long, default_value = "imu")]
@@ -224,11 +227,11 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
             })
         }
         BoardCommand::Arm => {
-            eprintln!(
-                "warning: armed for throw-to-fly: the motors will spin after the next throw. \
-                 Stop them at any time with `configurator-cli disarm`."
-            );
             client.request(&Request::ArmThrowToFly(()), "the arm request")?;
+            eprintln!(
+                "WARNING: armed for throw-to-fly: the motors WILL SPIN after the next throw. \
+                 Keep clear of the propellers; stop them at any time with `configurator-cli disarm`."
+            );
             Ok(if cli.json {
                 format!("{:#}\n", json!({"armed": true}))
             } else {
@@ -358,8 +361,9 @@ fn stream(
     // Count as samples arrive (nothing is kept): only this topic, only from now on.
     client.telemetry.clear();
     let (mut received, mut gaps, mut previous_seq) = (0u64, 0u64, None::<u16>);
-    let mut last_imu = None;
-    let mut last_learner = None;
+    let (mut last_imu, mut last_learner) = (None, None);
+    // Learner samples are printed as they arrive, one line each (text or JSON).
+    let mut stdout = std::io::stdout().lock();
     client.listen_with(Duration::from_secs_f64(duration_s), |sample| {
         if !is_topic(&sample.data, topic) {
             return;
@@ -371,25 +375,38 @@ fn stream(
         previous_seq = Some(sample.seq);
         match sample.data {
             Telemetry::Imu(imu) => last_imu = Some(imu),
-            Telemetry::Learner(learner) => last_learner = Some(learner),
+            Telemetry::Learner(learner) => {
+                last_learner = Some(learner);
+                // A closed stdout (the reader went away) only stops the printing.
+                let _ = if json_output {
+                    writeln!(stdout, "{}", report::learner_sample_json(sample.seq, &learner))
+                } else {
+                    write!(stdout, "{}", report::learner_sample_text(sample.seq, &learner))
+                };
+            }
             _ => {}
         }
     })?;
+    let _ = stdout.flush();
+    drop(stdout);
     client.request(&set(0), "the request to stop telemetry")?;
     let achieved_hz = received as f64 / duration_s;
     if json_output {
-        return Ok(format!(
-            "{:#}\n",
-            json!({
-                "topic": format!("{topic:?}").to_lowercase(),
-                "requested_rate_hz": rate_hz,
-                "duration_s": duration_s,
-                "received": received,
-                "gaps": gaps,
-                "received_rate_hz": achieved_hz,
-                "bad_frames": client.bad_frames,
-            })
-        ));
+        let summary = json!({
+            "topic": format!("{topic:?}").to_lowercase(),
+            "requested_rate_hz": rate_hz,
+            "duration_s": duration_s,
+            "received": received,
+            "gaps": gaps,
+            "received_rate_hz": achieved_hz,
+            "bad_frames": client.bad_frames,
+        });
+        // After one JSON object per learner sample, the summary too takes one line.
+        return Ok(if topic == Topic::Learner {
+            format!("{summary}\n")
+        } else {
+            format!("{summary:#}\n")
+        });
     }
     let mut out = format!(
         "{topic:?}: {received} samples in {duration_s:.1} s ({achieved_hz:.1} Hz of {rate_hz} Hz requested), {gaps} missing, {} bad frames\n",
@@ -404,6 +421,8 @@ fn stream(
         ));
     }
     if let Some(learner) = last_learner {
+        // The last sample in full: ω_full, convergence and the thrust axis too.
+        out.push_str("last sample:\n");
         out.push_str(&report::learner_text(&learner));
     }
     Ok(out)

@@ -301,9 +301,17 @@ pub fn learner_text(learner: &LearnerTelemetry) -> String {
     out
 }
 
-/// The learner's state and estimates, for programs.
+/// The learner's state and estimates, for programs. `exciting_motor` and the bits of the masks
+/// are motor indices from 0 (the text numbers motors from 1); `thrust_axis` is null until found.
 pub fn learner_json(learner: &LearnerTelemetry) -> Value {
     let m = usize::from(learner.motor_count).min(protocol::MAX_MOTORS);
+    let thrust_axis = learner.thrust_axis_valid.then(|| {
+        let [roll, pitch, yaw] = learner.euler_zyx_rad.map(f32::to_degrees);
+        json!({
+            "q_thrust_to_imu": learner.q_thrust_to_imu,
+            "euler_zyx_deg": { "roll": roll, "pitch": pitch, "yaw": yaw },
+        })
+    });
     json!({
         "phase": format!("{:?}", learner.phase),
         "failure": format!("{:?}", learner.failure),
@@ -316,9 +324,177 @@ pub fn learner_json(learner: &LearnerTelemetry) -> Value {
         "motors_converged_mask": learner.motors_converged,
         "g1_columns_converged_mask": learner.g1_converged,
         "thrust_axis_valid": learner.thrust_axis_valid,
-        "q_thrust_to_imu_wxyz": learner.q_thrust_to_imu,
-        "euler_zyx_deg": learner.euler_zyx_rad.map(f32::to_degrees),
+        "thrust_axis": thrust_axis,
         "g1_block": if learner.g1_block == 0 { "specific_force_mps2_per_unit_thrust" } else { "angular_accel_radps2_per_unit_thrust" },
         "g1_rows": learner.g1_rows.iter().map(|row| row[..m].to_vec()).collect::<Vec<_>>(),
     })
+}
+
+/// The phase in one or two words, for one line per sample.
+fn learner_phase_short(learner: &LearnerTelemetry) -> String {
+    let failure = match learner.failure {
+        LearnerFailure::None => "",
+        LearnerFailure::NotFreeFall => "not free fall",
+        LearnerFailure::ThrowTimedOut => "throw timed out",
+        LearnerFailure::RankDeficient => "rank deficient",
+        LearnerFailure::NoHover => "no hover",
+        LearnerFailure::Disarmed => "disarmed",
+        LearnerFailure::ImuLost => "IMU lost",
+    };
+    let phase = match learner.phase {
+        LearnerPhase::Idle => "idle",
+        LearnerPhase::WaitingForThrow => "waiting for a throw",
+        LearnerPhase::Throwing => "throwing",
+        LearnerPhase::Released => "released",
+        LearnerPhase::Exciting => "exciting",
+        LearnerPhase::Done => "done",
+        LearnerPhase::Failed => "failed",
+    };
+    if failure.is_empty() {
+        phase.to_string()
+    } else {
+        format!("{phase} ({failure})")
+    }
+}
+
+/// The G1 rows a sample carries: what they are, their unit, their axis names.
+fn g1_block_names(block: u8) -> (&'static str, &'static str, [&'static str; 3]) {
+    if block == 0 {
+        ("specific force", "m/s²", ["x", "y", "z"])
+    } else {
+        ("angular acceleration", "rad/s²", ["p", "q", "r"])
+    }
+}
+
+/// One learner telemetry sample on one line: sequence number, time, phase, the motor being
+/// pulsed, the time constants and the sample's three G1 rows (per unit normalised thrust).
+pub fn learner_sample_text(seq: u16, learner: &LearnerTelemetry) -> String {
+    let m = usize::from(learner.motor_count).min(protocol::MAX_MOTORS);
+    let mut out =
+        format!("#{seq} {:.4} s {}", learner.t_us as f64 * 1e-6, learner_phase_short(learner));
+    if let Some(motor) = learner.exciting_motor {
+        let _ = write!(out, ", motor {} pulsed", u16::from(motor) + 1);
+    }
+    if learner.phase == LearnerPhase::Exciting {
+        let _ = write!(out, ", {} ms into the excitation", learner.excitation_ms);
+    } else if learner.excitation_ms > 0 {
+        let _ = write!(out, ", after {} ms of excitation", learner.excitation_ms);
+    }
+    if m == 0 {
+        return out + "\n";
+    }
+    let numbers = |values: &[f32], scale: f32, decimals: usize| {
+        values[..m].iter().map(|v| format!("{:.*}", decimals, v * scale)).collect::<Vec<_>>()
+    };
+    let _ = write!(out, " | τ {} ms", numbers(&learner.tau_s, 1000.0, 1).join(" "));
+    let (what, unit, axes) = g1_block_names(learner.g1_block);
+    let _ = write!(out, " | G1 {what} per unit thrust ({unit}):");
+    for (axis, row) in axes.iter().zip(&learner.g1_rows) {
+        let row: Vec<String> = row[..m].iter().map(|v| format!("{v:+.2}")).collect();
+        let _ = write!(out, " {axis} [{}]", row.join(" "));
+    }
+    out + "\n"
+}
+
+/// One learner telemetry sample as one JSON object (for one line per sample): [`learner_json`]
+/// with the sequence number and the device time, and the G1 rows under a key that names what
+/// they are and their unit (`g1_specific_force_mps2_per_unit_thrust` or
+/// `g1_angular_accel_rad_s2_per_unit_thrust`).
+pub fn learner_sample_json(seq: u16, learner: &LearnerTelemetry) -> Value {
+    let m = usize::from(learner.motor_count).min(protocol::MAX_MOTORS);
+    let mut value = learner_json(learner);
+    if let Some(map) = value.as_object_mut() {
+        // The rows go under a key naming what they are and their unit instead.
+        map.remove("g1_rows");
+        map.remove("g1_block");
+        map.insert("seq".into(), json!(seq));
+        map.insert("t_s".into(), json!(learner.t_us as f64 * 1e-6));
+        let key = if learner.g1_block == 0 {
+            "g1_specific_force_mps2_per_unit_thrust"
+        } else {
+            "g1_angular_accel_rad_s2_per_unit_thrust"
+        };
+        let rows: Vec<&[f32]> = learner.g1_rows.iter().map(|row| &row[..m]).collect();
+        map.insert(key.into(), json!(rows));
+    }
+    value
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn exciting_quad(block: u8) -> LearnerTelemetry {
+        let mut learner = LearnerTelemetry {
+            t_us: 12_345_600,
+            phase: LearnerPhase::Exciting,
+            motor_count: 4,
+            exciting_motor: Some(2),
+            excitation_ms: 112,
+            g1_block: block,
+            ..LearnerTelemetry::default()
+        };
+        learner.tau_s[..4].copy_from_slice(&[0.0201, 0.025, 0.0302, 0.035]);
+        learner.g1_rows[0][..4].copy_from_slice(&[1.25, -1.5, 2.0, 0.5]);
+        learner
+    }
+
+    #[test]
+    fn a_learner_sample_line_has_the_phase_the_motor_the_time_constants_and_units() {
+        let line = learner_sample_text(41, &exciting_quad(0));
+        assert_eq!(line.lines().count(), 1, "{line}");
+        for expected in [
+            "#41 12.3456 s exciting",
+            "motor 3 pulsed",
+            "112 ms into the excitation",
+            "τ 20.1 25.0 30.2 35.0 ms",
+            "G1 specific force per unit thrust (m/s²): x [+1.25 -1.50 +2.00 +0.50]",
+        ] {
+            assert!(line.contains(expected), "`{expected}` missing from {line}");
+        }
+        let line = learner_sample_text(42, &exciting_quad(1));
+        assert!(line.contains("angular acceleration per unit thrust (rad/s²): p ["), "{line}");
+        let idle = learner_sample_text(0, &LearnerTelemetry::default());
+        assert_eq!(idle, "#0 0.0000 s idle\n");
+    }
+
+    #[test]
+    fn a_learner_sample_in_json_names_its_g1_block_and_units() {
+        let value = learner_sample_json(7, &exciting_quad(0));
+        assert_eq!(value["seq"], 7);
+        assert_eq!(value["phase"], "Exciting");
+        assert_eq!(value["exciting_motor"], 2);
+        assert!((value["t_s"].as_f64().unwrap() - 12.3456).abs() < 1e-9);
+        let rows = &value["g1_specific_force_mps2_per_unit_thrust"];
+        assert_eq!(rows[0], json!([1.25, -1.5, 2.0, 0.5]));
+        assert_eq!(rows.as_array().unwrap().len(), 3);
+        let value = learner_sample_json(8, &exciting_quad(1));
+        assert!(value["g1_angular_accel_rad_s2_per_unit_thrust"].is_array());
+        assert!(value.get("g1_specific_force_mps2_per_unit_thrust").is_none());
+        assert!(value.get("g1_rows").is_none());
+        assert!(!value.to_string().contains('\n'), "one line per sample");
+    }
+
+    #[test]
+    fn status_learner_text_names_failures_and_the_thrust_axis_in_degrees() {
+        let mut learner = exciting_quad(0);
+        learner.phase = LearnerPhase::Failed;
+        learner.failure = LearnerFailure::NoHover;
+        let text = learner_text(&learner);
+        assert!(text.contains("failed: no hover within the motor limits"), "{text}");
+        assert!(text.contains("thrust axis     not found yet"), "{text}");
+        learner.phase = LearnerPhase::Done;
+        learner.failure = LearnerFailure::None;
+        learner.thrust_axis_valid = true;
+        learner.q_thrust_to_imu = [1.0, 0.0, 0.0, 0.0];
+        learner.euler_zyx_rad = [0.0, 0.0, std::f32::consts::FRAC_PI_2];
+        let text = learner_text(&learner);
+        assert!(text.contains("yaw +90.00°"), "{text}");
+        let axis = &learner_json(&learner)["thrust_axis"];
+        assert_eq!(axis["q_thrust_to_imu"], json!([1.0, 0.0, 0.0, 0.0]));
+        assert!((axis["euler_zyx_deg"]["yaw"].as_f64().unwrap() - 90.0).abs() < 1e-4, "{axis}");
+        learner.thrust_axis_valid = false;
+        assert!(learner_json(&learner)["thrust_axis"].is_null());
+        assert!(text.contains("20.1, 25.0, 30.2, 35.0 ms"), "{text}");
+    }
 }

@@ -261,3 +261,45 @@ fn sitl_throws_from_the_configurator_end_with_the_offset_in_the_status() {
     let output = run_cli(&["--sitl-throws", "2", "status"]);
     assert_eq!(output.status.code(), Some(2), "--sitl-throws needs --sitl");
 }
+
+#[test]
+fn sitl_disarm_is_done_at_once() {
+    let output = run_cli(&["--sitl", "disarm"]);
+    assert_eq!(output.status.code(), Some(0), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(String::from_utf8_lossy(&output.stdout).contains("disarmed"));
+}
+
+#[test]
+fn sitl_status_json_carries_an_idle_learner() {
+    let report = json_of(&run_cli(&["--sitl", "--json", "status"]));
+    let learner = &report["learner"];
+    assert_eq!(learner["phase"], "Idle", "{learner}");
+    assert_eq!(learner["failure"], "None", "{learner}");
+    assert_eq!(learner["exciting_motor"], Value::Null);
+    assert_eq!(learner["thrust_axis"], Value::Null, "no thrust axis before a throw");
+    // The status itself is unchanged by the learner request that follows it.
+    assert_eq!(report["link"]["frames_rx"], 2, "hello and status");
+}
+
+#[test]
+fn sitl_learner_stream_in_json_is_one_object_per_sample_then_the_summary() {
+    let args = ["--sitl", "--json", "stream", "--topic", "learner"];
+    let output = run_cli(&[&args[..], &["--rate-hz", "200", "--duration-s", "0.5"]].concat());
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let lines: Vec<Value> = String::from_utf8(output.stdout)
+        .unwrap()
+        .lines()
+        .map(|line| serde_json::from_str(line).expect("every line is one JSON object"))
+        .collect();
+    let (summary, samples) = lines.split_last().expect("at least the summary");
+    assert_eq!(summary["topic"], "learner");
+    assert_eq!(summary["received"].as_u64(), Some(samples.len() as u64));
+    assert!(samples.len() >= 50, "{} samples at 200 Hz for 0.5 s", samples.len());
+    for pair in samples.windows(2) {
+        assert_eq!(pair[1]["seq"].as_u64(), pair[0]["seq"].as_u64().map(|s| s + 1));
+        // The G1 blocks alternate: specific force, then angular acceleration.
+        let force = |v: &Value| v.get("g1_specific_force_mps2_per_unit_thrust").is_some();
+        assert_ne!(force(&pair[0]), force(&pair[1]));
+    }
+    assert!(samples.iter().all(|s| s["phase"] == "Idle"));
+}
