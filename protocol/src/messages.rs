@@ -376,13 +376,13 @@ pub struct LearnerTelemetry {
     pub failure: LearnerFailure,
     /// Motors the learner identifies.
     pub motor_count: u8,
-    /// The motor being pulsed now, during [`LearnerPhase::Exciting`].
+    /// The motor being pulsed now (index from 0), during [`LearnerPhase::Exciting`].
     pub exciting_motor: Option<u8>,
     /// Time since the excitation began, ms (0 before).
     pub excitation_ms: u16,
     /// First-order time constant of each motor, s (0 where not yet identified).
     pub tau_s: [f32; MAX_MOTORS],
-    /// Speed at full command of each motor, rad/s (0 where not yet identified).
+    /// Speed at full command of each motor, ω_full, rad/s (0 where not yet identified).
     pub omega_max_rad_s: [f32; MAX_MOTORS],
     /// Bit i set: motor i's model has converged.
     pub motors_converged: u8,
@@ -455,13 +455,18 @@ crate::table::message_table! {
         0x03 => GetStatus(()),
         0x04 => SetTelemetryRate(SetTelemetryRate),
         0x05 => Ping(Ping),
-        /// Arm the throw detector: the next throw starts the motor excitation.
+        /// Arm the throw detector: the next throw starts the motor excitation. Refused with
+        /// [`DeviceError::BadValue`] (`motor_count`) on a board with fewer than four motors, with
+        /// [`DeviceError::Busy`] while the control step has not yet taken earlier commands.
         0x06 => ArmThrowToFly(()),
-        /// Stop every motor now and leave any armed state. Always accepted.
+        /// Stop every motor now and leave any armed state. Always accepted after the handshake;
+        /// commands still waiting for the control step (arm, pose) are dropped.
         0x07 => Disarm(()),
-        /// A pose from motion capture or a ground station.
+        /// A pose from motion capture or a ground station. Non-finite values are refused with
+        /// [`DeviceError::BadValue`] (`pose`).
         0x08 => SetExternalPose(ExternalPose),
-        /// The learner's state ([`Reply::Learner`]).
+        /// The learner's state ([`Reply::Learner`], always with G1 block 0: the specific-force
+        /// rows).
         0x09 => GetLearner(()),
     }
 }
