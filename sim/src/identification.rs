@@ -299,15 +299,6 @@ fn run(
         let snapshot = app.control.snapshot();
         report.max_command = snapshot.commands.iter().copied().fold(report.max_command, f32::max);
         let learned = app.background.results().learned;
-        if std::env::var("IDENTIFY_TRACE").is_ok() && (tick < 3 || tick % 20 == 0) {
-            eprintln!(
-                "t {t_s:.3} phase {:?} failure {:?} acc {:?} pos {:?}",
-                snapshot.phase,
-                snapshot.failure,
-                snapshot.imu.accel_mps2,
-                board.physics().state().position_ned_m
-            );
-        }
         match snapshot.phase {
             FlightPhase::Exciting => {
                 let start = *excitation_start_s.get_or_insert(t_s);
