@@ -225,7 +225,7 @@ mod app {
             binds = TIM2,
             priority = 3,
             local = [control_timer, step_timer, control_clock, control, imu, motors, ticks: u32 = 0],
-            shared = [control, commands]
+            shared = [control, background, commands]
         )]
         fn control_tick(cx: control_tick::Context);
 
@@ -266,6 +266,8 @@ mod tasks {
                 control.command(command, now_us);
             }
         });
+        // What the background task learned (copied only when it changed).
+        cx.shared.background.lock(|results| control.receive(results));
         let samples_waiting = cx.local.control.step(now_us, cx.local.imu, cx.local.motors);
         let snapshot = cx.local.control.snapshot();
         cx.shared.control.lock(|control| *control = snapshot);

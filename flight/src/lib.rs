@@ -5,9 +5,15 @@
 //! no HAL: callers pass samples and time steps in.
 #![cfg_attr(not(feature = "std"), no_std)]
 
+pub mod allocation;
+pub mod attitude;
+pub mod controller;
 pub mod filters;
 pub mod imu_offset;
+pub mod indi;
 pub mod learner;
+pub mod navigation;
+pub mod position;
 pub mod rng;
 #[cfg(any(test, feature = "std"))]
 pub mod testing;

@@ -56,13 +56,27 @@ pub struct FirmwareApp<'q> {
 
 impl FlightApp for FirmwareApp<'_> {
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
-        if self.control.step(now_us, imu, motors) {
-            self.background.run_pending();
-        }
+        step_firmware(&mut self.control, &mut self.background, now_us, imu, motors);
     }
 
     fn command(&mut self, command: ControlCommand, now_us: u64) {
         self.control.command(command, now_us);
+    }
+}
+
+/// One control step of the firmware, then the background task until it has caught up, then the
+/// handoff of its results to the control step (what the board's tasks do between two timer
+/// interrupts when the background task has time to spare).
+pub fn step_firmware<I: Imu, M: Motors>(
+    control: &mut ControlLoop<'_>,
+    background: &mut Background<'_>,
+    now_us: u64,
+    imu: &mut I,
+    motors: &mut M,
+) {
+    if control.step(now_us, imu, motors) {
+        background.run_pending();
+        control.receive(background.results_ref());
     }
 }
 

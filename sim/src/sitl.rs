@@ -261,9 +261,7 @@ impl Runner {
                 board.tick();
                 let now_us = board.now_us();
                 let (imu, motors) = board.ports();
-                if control.step(now_us, imu, motors) {
-                    background.run_pending();
-                }
+                crate::scenario::step_firmware(&mut control, &mut background, now_us, imu, motors);
             }
             let view = status_view(&control, &background);
             let now_us = board.now_us();

@@ -49,6 +49,8 @@ pub struct BackgroundResults {
     pub learned: LearnedModel,
     /// Where the IMU offset used by the latest attempt came from.
     pub learner_offset: OffsetSource,
+    /// That offset, IMU axes, m (the controller compensates the accelerometer with it too).
+    pub learner_r_imu_m: [f32; 3],
 }
 
 /// Where the learner's IMU offset came from.
@@ -133,6 +135,11 @@ impl<'q> Background<'q> {
         self.results
     }
 
+    /// The latest results, borrowed (no copy).
+    pub fn results_ref(&self) -> &BackgroundResults {
+        &self.results
+    }
+
     fn process(&mut self, sample: &LearnerSample) {
         self.results.samples_processed = self.results.samples_processed.wrapping_add(1);
         let start = *self.window_start_us.get_or_insert(sample.t_us);
@@ -168,6 +175,7 @@ impl<'q> Background<'q> {
                 let _ = learner.restart(r_imu_m);
             }
             self.results.learner_offset = source;
+            self.results.learner_r_imu_m = r_imu_m;
         }
         // The learner runs from the start of the excitation until the motors have settled after
         // it (the last pulse's ramp still carries information). Not longer: without the

@@ -9,9 +9,15 @@
 //! freely, the excitation schedule, whose commands it writes. Every sample goes to the background
 //! task with the commands, the reported motor speeds and the phase; the background learner
 //! does all the estimation there (no RLS in this step). [`ControlCommand::Disarm`] stops every
-//! motor from the step it arrives in. The attitude filter and INDI join in the controller issue.
+//! motor from the step it arrives in.
+//!
+//! Flight (`super::pilot::Pilot`): the attitude filter and position estimator run on every
+//! sample; when the excitation ends the step engages the controller on the model the background
+//! task published ([`ControlLoop::receive`]) and flies it until disarmed or a failsafe stops it.
 
+use super::background::BackgroundResults;
 use super::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use super::pilot::{Failsafe, IdentificationFailure, Pilot, PilotStatus};
 use super::queue::{LearnerSample, SampleProducer};
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
@@ -83,12 +89,17 @@ pub struct ControlSnapshot {
     pub releases_refused: u16,
     /// The latest external pose and its arrival time, µs.
     pub external_pose: Option<(ExternalPose, u64)>,
+    /// Flight on the learned model: attitude, position, setpoints, failsafes.
+    pub pilot: PilotStatus,
 }
 
 /// The control loop's state: the highest-priority task's local resource.
 pub struct ControlLoop<'q> {
     period_us: u32,
     throw_to_fly: ThrowToFly,
+    pilot: Pilot,
+    /// `LearnedModel::samples` of the model last received (to copy only what changed).
+    model_samples: Option<u32>,
     samples: SampleProducer<'q>,
     snapshot: ControlSnapshot,
     previous_step_us: Option<u64>,
@@ -107,6 +118,8 @@ impl<'q> ControlLoop<'q> {
                 ExcitationConfig::default(),
                 MAX_MOTORS,
             ),
+            pilot: Pilot::new(f32::from(rate_hz)),
+            model_samples: None,
             samples,
             snapshot: ControlSnapshot::default(),
             previous_step_us: None,
@@ -127,6 +140,7 @@ impl<'q> ControlLoop<'q> {
                 let attempt =
                     !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
                 self.throw_to_fly.disarm();
+                self.pilot.disarm();
                 if attempt {
                     self.snapshot.failure = LearnerFailure::Disarmed;
                 }
@@ -136,10 +150,21 @@ impl<'q> ControlLoop<'q> {
                     && pose.heading_rad.is_finite();
                 if finite {
                     self.snapshot.external_pose = Some((pose, now_us));
+                    self.pilot.pose(&pose, now_us);
                 }
             }
         }
         self.publish_phase();
+    }
+
+    /// Take what the background task published: the learned model (copied only when it changed)
+    /// and the IMU offset it was learned with. Call it with the latest results before a step.
+    pub fn receive(&mut self, results: &BackgroundResults) {
+        let samples = results.learned.samples;
+        if self.model_samples != Some(samples) {
+            self.model_samples = Some(samples);
+            self.pilot.set_model(&results.learned, results.learner_r_imu_m);
+        }
     }
 
     /// One control step at time `now_us` (µs since start-up, monotonic). Returns whether samples
@@ -174,18 +199,43 @@ impl<'q> ControlLoop<'q> {
             self.throw_to_fly.disarm();
             snapshot.failure = LearnerFailure::ImuLost;
         }
+        if !snapshot.imu_present {
+            let _ = self.pilot.imu_lost();
+        }
         let dt_s = self.period_us as f32 * 1e-6;
+        let previous_commands = snapshot.commands;
         snapshot.commands = [0.0; MAX_MOTORS];
         snapshot.exciting_motor = None;
         if let Some(imu) = sample {
+            let phase_before = self.throw_to_fly.phase();
+            let disarmed = matches!(phase_before, FlightPhase::Idle | FlightPhase::WaitingForThrow)
+                && !self.pilot.flying();
+            self.pilot.observe(&imu, now_us, disarmed);
             // The speeds reported in the previous step (this step's come after the commands).
             let speeds = snapshot.speeds_rad_s.map(|s| s.unwrap_or(f32::NAN));
             let out = self.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, &speeds, dt_s);
+            if phase_before == FlightPhase::Exciting
+                && self.throw_to_fly.phase() == FlightPhase::Done
+            {
+                // The excitation is over: fly what was learned, from the last commands.
+                if let Err(failsafe) = self.pilot.engage(&imu, &previous_commands, &speeds) {
+                    snapshot.failure = learner_failure(failsafe);
+                }
+            }
             // Never a non-finite or out-of-range command (the schedule's are in [0, 1] already).
             for (dst, src) in snapshot.commands.iter_mut().zip(out.commands).take(motor_count) {
                 *dst = if src.is_finite() { src.clamp(0.0, 1.0) } else { 0.0 };
             }
             snapshot.exciting_motor = out.active_motor;
+            if self.pilot.flying() {
+                match self.pilot.step(&imu, now_us) {
+                    Ok(commands) => {
+                        snapshot.commands[..motor_count].copy_from_slice(&commands[..motor_count])
+                    }
+                    // The pilot has stopped: motors at zero from this step.
+                    Err(_) => self.throw_to_fly.disarm(),
+                }
+            }
             match out.event {
                 ThrowEvent::NotFreeFall => {
                     snapshot.failure = LearnerFailure::NotFreeFall;
@@ -219,7 +269,9 @@ impl<'q> ControlLoop<'q> {
         let phase = self.throw_to_fly.phase();
         let snapshot = &mut self.snapshot;
         snapshot.phase = phase;
-        snapshot.armed = !matches!(phase, FlightPhase::Idle | FlightPhase::Done);
+        snapshot.pilot = *self.pilot.status();
+        snapshot.armed =
+            !matches!(phase, FlightPhase::Idle | FlightPhase::Done) || self.pilot.flying();
         snapshot.excitation_ms =
             (self.throw_to_fly.excitation_elapsed_s() * 1000.0).clamp(0.0, 65_535.0) as u16;
     }
@@ -252,6 +304,18 @@ impl<'q> ControlLoop<'q> {
             self.rate_window_start_us = now_us;
             self.rate_window_steps = 1;
         }
+    }
+}
+
+/// How a failed handover shows in the learner's status.
+fn learner_failure(failsafe: Failsafe) -> LearnerFailure {
+    match failsafe {
+        Failsafe::Identification(IdentificationFailure::RankDeficient) => {
+            LearnerFailure::RankDeficient
+        }
+        Failsafe::Identification(IdentificationFailure::NoHover) => LearnerFailure::NoHover,
+        Failsafe::ImuLost => LearnerFailure::ImuLost,
+        _ => LearnerFailure::NoHover,
     }
 }
 

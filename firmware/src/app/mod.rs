@@ -14,11 +14,13 @@ mod background;
 mod control;
 pub mod hal;
 mod link;
+mod pilot;
 mod queue;
 
 pub use background::{Background, BackgroundResults, OffsetSource, STATS_WINDOW_US};
 pub use control::{ControlCommand, ControlConfig, ControlLoop, ControlSnapshot, CONTROL_RATE_HZ};
 pub use link::{LinkServer, TX_CAPACITY};
+pub use pilot::{Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus};
 pub use queue::{
     split_queue, LearnerSample, SampleConsumer, SampleProducer, SampleQueue, SAMPLE_QUEUE_LEN,
 };

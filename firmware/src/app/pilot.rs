@@ -1,0 +1,410 @@
+//! The closed-loop half of the control step: attitude and position estimation on every sample,
+//! and, once an identification has ended, flight on the learned model with its failsafes.
+//!
+//! - **Always** (armed or not): the attitude filter and the position estimator run on every IMU
+//!   sample, so the attitude is known at the moment of release, and the status shows it on the
+//!   bench. While the craft sits still and disarmed the velocity is held at zero, so the dead
+//!   reckoning of a flight without position fixes starts from a true zero.
+//! - **Engage** at the end of the excitation: the model published by the background task must
+//!   have a thrust axis and usable motors; the controller is primed with the last excitation
+//!   commands, so the motors continue without a jump.
+//! - **Guidance**: with a recent external pose the craft holds the position setpoint (by default
+//!   the position at which it engaged, brought to rest there); without one it holds its thrust axis
+//!   up and zero vertical speed, and says so.
+//! - **Failsafes**, each an [`Failsafe`] with its reason, counted: a non-finite or out-of-range
+//!   command (zero and disarm), the allocation failing for [`ALLOCATION_FAILURE_STEPS`] steps
+//!   (disarm), an identification without a flyable model (disarm), the thrust axis more than
+//!   [`LOST_ATTITUDE_TILT_RAD`] from up for [`LOST_ATTITUDE_S`] (disarm), a lost IMU (disarm, by
+//!   the control step), a lost pose (fall back to level hold).
+
+use flight::attitude::{yaw_of, AttitudeConfig, AttitudeFilter};
+use flight::controller::{Controller, ControllerInput, ControllerOutput, Guidance};
+use flight::indi::{IndiConfig, IndiModel, ModelError};
+use flight::learner::{AxisStatus, LearnedModel};
+use flight::navigation::{HeadingAlignment, PositionEstimator, STANDARD_GRAVITY_MPS2};
+use nalgebra::{UnitQuaternion, Vector3};
+use protocol::ExternalPose;
+
+use super::hal::{ImuSample, MAX_MOTORS};
+
+/// Consecutive failed allocations after which the craft disarms (10 ms at 2 kHz; the published
+/// system disarmed after "many consecutive" NaN results).
+pub const ALLOCATION_FAILURE_STEPS: u16 = 20;
+
+/// Tilt of the thrust axis from its setpoint beyond which the attitude counts as lost, rad (150°).
+pub const LOST_ATTITUDE_TILT_RAD: f32 = 150.0 * core::f32::consts::PI / 180.0;
+
+/// How long the tilt may stay beyond [`LOST_ATTITUDE_TILT_RAD`] before the craft disarms, s. A
+/// craft released upside down needs a few hundred milliseconds to turn over.
+pub const LOST_ATTITUDE_S: f32 = 1.0;
+
+/// Rate below which a disarmed craft counts as still, rad/s.
+const STILL_RATE_RAD_S: f32 = 0.2;
+
+/// Deviation of |f| from g below which a disarmed craft counts as still, m/s².
+const STILL_ACCEL_MPS2: f32 = 0.5;
+
+/// Why flight stopped or changed mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Failsafe {
+    /// A command was not finite or outside [0, 1]: zero written, disarmed.
+    BadCommand,
+    /// The allocation failed for [`ALLOCATION_FAILURE_STEPS`] steps: disarmed.
+    AllocationFailed,
+    /// The identification produced no flyable model: disarmed.
+    Identification(IdentificationFailure),
+    /// The thrust axis stayed far from up too long: disarmed.
+    AttitudeLost,
+    /// The IMU stopped delivering: disarmed.
+    ImuLost,
+    /// The external pose stopped arriving: level hold without position.
+    PoseLost,
+}
+
+/// Why a learned model cannot be flown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IdentificationFailure {
+    /// G1τ rank deficient: the motors cannot make every torque.
+    RankDeficient,
+    /// No hover within the motor bounds.
+    NoHover,
+    /// The thrust axis was not found by the end of the excitation.
+    NoThrustAxis,
+    /// A motor's model is unusable.
+    Motor(u8),
+    /// The model has non-finite entries or the wrong motor count.
+    Invalid,
+}
+
+/// Counts of every failsafe since start-up.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FailsafeCounts {
+    pub bad_command: u16,
+    pub allocation_failed: u16,
+    pub identification: u16,
+    pub attitude_lost: u16,
+    pub imu_lost: u16,
+    pub pose_lost: u16,
+}
+
+impl FailsafeCounts {
+    fn count(&mut self, failsafe: Failsafe) {
+        let counter = match failsafe {
+            Failsafe::BadCommand => &mut self.bad_command,
+            Failsafe::AllocationFailed => &mut self.allocation_failed,
+            Failsafe::Identification(_) => &mut self.identification,
+            Failsafe::AttitudeLost => &mut self.attitude_lost,
+            Failsafe::ImuLost => &mut self.imu_lost,
+            Failsafe::PoseLost => &mut self.pose_lost,
+        };
+        *counter = counter.saturating_add(1);
+    }
+}
+
+/// What the pilot reports (part of the control snapshot).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PilotStatus {
+    /// Flying on the learned model.
+    pub flying: bool,
+    /// Holding a position from external fixes (else level hold).
+    pub position_hold: bool,
+    /// Attitude of the IMU in the world, `[w, x, y, z]`.
+    pub q_world_imu: [f32; 4],
+    /// Attitude of the thrust frame in the world while flying, `[w, x, y, z]`.
+    pub q_world_thrust: [f32; 4],
+    /// Position and velocity estimates of the CoG, world NED (m, m/s).
+    pub position_ned_m: [f32; 3],
+    pub velocity_ned_mps: [f32; 3],
+    /// Whether a position fix is recent.
+    pub has_fix: bool,
+    /// Whether the yaw between the attitude filter and the poses' world is known.
+    pub heading_aligned: bool,
+    /// The position setpoint while holding one, world NED, m.
+    pub position_sp_ned_m: [f32; 3],
+    /// Rate setpoint, thrust frame, rad/s.
+    pub rate_sp_rad_s: [f32; 3],
+    /// Thrust axis from its setpoint, rad.
+    pub tilt_error_rad: f32,
+    /// Consecutive failed allocations now.
+    pub allocation_failures: u16,
+    /// Motors at a bound (bit i: motor i).
+    pub saturated: u8,
+    /// The last failsafe, if any.
+    pub last_failsafe: Option<Failsafe>,
+    pub failsafes: FailsafeCounts,
+}
+
+/// The closed-loop pilot.
+pub struct Pilot {
+    rate_hz: f32,
+    attitude: AttitudeFilter,
+    navigation: PositionEstimator,
+    /// The yaw from the attitude filter's world to the world of the external poses.
+    alignment: HeadingAlignment,
+    /// Filter yaw minus pose heading at the first pose, rad: the pose heading plus this is the
+    /// heading the filter is held to (only the heading's changes matter, see `observe`).
+    heading_offset_rad: Option<f32>,
+    /// Yaw setpoint of the thrust frame in the filter's world, rad.
+    yaw_sp_filter_rad: f32,
+    /// The latest model from the background task, its offset, and the results version.
+    model: Option<(LearnedModel, [f32; 3])>,
+    controller: Option<Controller>,
+    guidance: Guidance,
+    /// The position to hold, world NED, m: where the craft was when position hold began.
+    position_sp_ned_m: Option<Vector3<f32>>,
+    /// Time of the last pose, µs.
+    last_pose_us: Option<u64>,
+    heading_rad: Option<f32>,
+    /// Time the tilt has been beyond the limit, s.
+    tilted_s: f32,
+    status: PilotStatus,
+}
+
+impl Pilot {
+    /// A pilot for steps at `rate_hz`, disarmed.
+    pub fn new(rate_hz: f32) -> Self {
+        Self {
+            rate_hz,
+            attitude: AttitudeFilter::new(AttitudeConfig::default()),
+            navigation: PositionEstimator::default(),
+            alignment: HeadingAlignment::default(),
+            heading_offset_rad: None,
+            yaw_sp_filter_rad: 0.0,
+            model: None,
+            controller: None,
+            guidance: Guidance::Level { yaw_rad: 0.0 },
+            position_sp_ned_m: None,
+            last_pose_us: None,
+            heading_rad: None,
+            tilted_s: 0.0,
+            status: PilotStatus::default(),
+        }
+    }
+
+    /// The status.
+    pub fn status(&self) -> &PilotStatus {
+        &self.status
+    }
+
+    /// Whether the controller is flying.
+    pub fn flying(&self) -> bool {
+        self.controller.is_some()
+    }
+
+    /// The model the background task published, with the IMU offset it was learned with.
+    pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3]) {
+        self.model = Some((*model, r_imu_m));
+    }
+
+    /// An external pose (position of the CoG, heading) at `now_us`.
+    pub fn pose(&mut self, pose: &ExternalPose, now_us: u64) {
+        let dt_fix_s = self
+            .last_pose_us
+            .map(|t| now_us.saturating_sub(t) as f32 * 1e-6)
+            .filter(|dt| *dt > 0.0)
+            .unwrap_or(0.01);
+        let position = Vector3::from(pose.position_ned_m);
+        if self.navigation.correct(&position, dt_fix_s).is_ok() {
+            self.alignment.fix(&position);
+            self.last_pose_us = Some(now_us);
+            let offset = *self
+                .heading_offset_rad
+                .get_or_insert_with(|| yaw_of(&self.attitude.quaternion()) - pose.heading_rad);
+            self.heading_rad = Some(pose.heading_rad + offset);
+        }
+    }
+
+    /// Estimation on every sample; `still_allowed` when the craft is disarmed (a still craft
+    /// then has zero velocity).
+    pub fn observe(&mut self, imu: &ImuSample, now_us: u64, still_allowed: bool) {
+        let dt_s = 1.0 / self.rate_hz;
+        let gyro = Vector3::from(imu.gyro_rad_s);
+        let r = self.model.map(|(_, r)| Vector3::from(r)).unwrap_or_else(Vector3::zeros);
+        // The accelerometer at the CoG; the Ω̇ × r term is left out (a raw derivative is too
+        // noisy, and the filter only uses the accelerometer near 1 g, where Ω̇ is small).
+        let f = Vector3::from(imu.accel_mps2) - gyro.cross(&gyro.cross(&r));
+        let pose_fresh = self.last_pose_us.is_some_and(|t| {
+            now_us.saturating_sub(t) <= (flight::navigation::FIX_TIMEOUT_S * 1e6) as u64
+        });
+        let heading = if pose_fresh { self.heading_rad } else { None };
+        let _ = self.attitude.update(&gyro, &f, heading, dt_s);
+        let q_filter = self.attitude.quaternion();
+        if f.iter().all(|x| x.is_finite()) {
+            let gravity = Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
+            self.alignment.predict(&(q_filter * f + gravity), dt_s);
+        }
+        let q = self.q_world_imu();
+        let _ = self.navigation.predict(&q, &f, dt_s);
+        let still = gyro.norm() < STILL_RATE_RAD_S
+            && (f.norm() - STANDARD_GRAVITY_MPS2).abs() < STILL_ACCEL_MPS2;
+        if still_allowed && still {
+            self.navigation.hold_still();
+        }
+        let nav = self.navigation.state();
+        let status = &mut self.status;
+        status.q_world_imu = quaternion_array(&q);
+        status.heading_aligned = self.alignment.yaw_rad().is_some();
+        status.position_ned_m = nav.position_ned_m.into();
+        status.velocity_ned_mps = nav.velocity_ned_mps.into();
+        status.has_fix = nav.has_fix;
+    }
+
+    /// The yaw from the filter's world to the poses' world, rad (0 until known).
+    fn alignment_yaw_rad(&self) -> f32 {
+        self.alignment.yaw_rad().unwrap_or(0.0)
+    }
+
+    /// The attitude of the IMU in the poses' world (the filter's world until aligned).
+    fn q_world_imu(&self) -> UnitQuaternion<f32> {
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), self.alignment_yaw_rad())
+            * self.attitude.quaternion()
+    }
+
+    /// What to fly now: the position setpoint when poses arrive and the world is aligned, else
+    /// level hold; the yaw setpoint in the world the controller sees.
+    fn guidance_now(&self, position_sp_ned_m: Option<Vector3<f32>>) -> Guidance {
+        let yaw_rad = self.yaw_sp_filter_rad + self.alignment_yaw_rad();
+        let nav = self.navigation.state();
+        match position_sp_ned_m {
+            Some(position_ned_m) if nav.has_fix && self.alignment.yaw_rad().is_some() => {
+                Guidance::Position { position_ned_m, yaw_rad }
+            }
+            _ => Guidance::Level { yaw_rad },
+        }
+    }
+
+    /// Take over at the end of an identification, from the commands (δ) and speeds (rad/s, NaN
+    /// where unknown) of the last excitation step.
+    pub fn engage(
+        &mut self,
+        imu: &ImuSample,
+        commands: &[f32; MAX_MOTORS],
+        speeds_rad_s: &[f32; MAX_MOTORS],
+    ) -> Result<(), Failsafe> {
+        let result = self.build_controller();
+        let mut controller = match result {
+            Ok(controller) => controller,
+            Err(failure) => return Err(self.fail(Failsafe::Identification(failure))),
+        };
+        controller.start(imu.gyro_rad_s, imu.accel_mps2, commands, speeds_rad_s);
+        // Hold the heading the thrust frame has now (in the filter's world).
+        self.yaw_sp_filter_rad =
+            yaw_of(&(self.attitude.quaternion() * controller.indi().model().q_imu_thrust));
+        self.controller = Some(controller);
+        self.tilted_s = 0.0;
+        self.status.allocation_failures = 0;
+        self.status.flying = true;
+        self.position_sp_ned_m = None;
+        self.guidance = self.guidance_now(None);
+        Ok(())
+    }
+
+    fn build_controller(&self) -> Result<Controller, IdentificationFailure> {
+        let Some((learned, r_imu_m)) = &self.model else {
+            return Err(IdentificationFailure::NoThrustAxis);
+        };
+        match learned.axis_status {
+            AxisStatus::RankDeficient => return Err(IdentificationFailure::RankDeficient),
+            AxisStatus::NoHover => return Err(IdentificationFailure::NoHover),
+            AxisStatus::Waiting | AxisStatus::Found => {}
+        }
+        let model = IndiModel::from_learned(learned).map_err(|e| match e {
+            ModelError::NoThrustAxis => IdentificationFailure::NoThrustAxis,
+            ModelError::Motor { motor } => IdentificationFailure::Motor(motor),
+            ModelError::MotorCount { .. } | ModelError::NonFinite => IdentificationFailure::Invalid,
+        })?;
+        let config = IndiConfig { rate_hz: self.rate_hz, ..IndiConfig::default() };
+        Controller::new(model, *r_imu_m, config).map_err(|_| IdentificationFailure::Invalid)
+    }
+
+    /// One closed-loop step: the motor commands δ, or the failsafe that stopped the flight
+    /// (motors then at zero).
+    pub fn step(&mut self, imu: &ImuSample, now_us: u64) -> Result<[f32; MAX_MOTORS], Failsafe> {
+        if self.controller.is_none() {
+            return Ok([0.0; MAX_MOTORS]);
+        }
+        // Guidance: position hold from where the craft is once poses arrive and the world is
+        // aligned; a lost pose falls back to level hold (and the next hold starts afresh).
+        let nav = *self.navigation.state();
+        let was_holding = matches!(self.guidance, Guidance::Position { .. });
+        let can_hold = nav.has_fix && self.alignment.yaw_rad().is_some();
+        if was_holding && !can_hold {
+            self.status.failsafes.count(Failsafe::PoseLost);
+            self.status.last_failsafe = Some(Failsafe::PoseLost);
+            self.position_sp_ned_m = None;
+        } else if can_hold && self.position_sp_ned_m.is_none() {
+            self.position_sp_ned_m = Some(nav.position_ned_m);
+        }
+        self.guidance = self.guidance_now(self.position_sp_ned_m);
+        let input = ControllerInput {
+            gyro_rad_s: imu.gyro_rad_s,
+            accel_mps2: imu.accel_mps2,
+            q_world_imu: self.q_world_imu(),
+            navigation: nav,
+        };
+        let Some(controller) = &mut self.controller else {
+            return Ok([0.0; MAX_MOTORS]);
+        };
+        let _ = now_us;
+        let output = match controller.update(&input, &self.guidance) {
+            Ok(output) => output,
+            Err(_) => return Err(self.fail(Failsafe::BadCommand)),
+        };
+        self.report(&output);
+        let commands = output.indi.commands;
+        if !commands.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c)) {
+            return Err(self.fail(Failsafe::BadCommand));
+        }
+        if matches!(output.indi.allocation, flight::allocation::AllocationStatus::Failed(_)) {
+            self.status.allocation_failures = self.status.allocation_failures.saturating_add(1);
+            if self.status.allocation_failures >= ALLOCATION_FAILURE_STEPS {
+                return Err(self.fail(Failsafe::AllocationFailed));
+            }
+        } else {
+            self.status.allocation_failures = 0;
+        }
+        if output.tilt_error_rad > LOST_ATTITUDE_TILT_RAD {
+            self.tilted_s += 1.0 / self.rate_hz;
+            if self.tilted_s > LOST_ATTITUDE_S {
+                return Err(self.fail(Failsafe::AttitudeLost));
+            }
+        } else {
+            self.tilted_s = 0.0;
+        }
+        Ok(commands)
+    }
+
+    fn report(&mut self, output: &ControllerOutput) {
+        let status = &mut self.status;
+        status.q_world_thrust = quaternion_array(&output.q_world_thrust);
+        status.rate_sp_rad_s = output.rate_sp_rad_s.into();
+        status.tilt_error_rad = output.tilt_error_rad;
+        status.saturated = output.indi.saturated;
+        status.position_hold = matches!(self.guidance, Guidance::Position { .. });
+        if let Guidance::Position { position_ned_m, .. } = self.guidance {
+            status.position_sp_ned_m = position_ned_m.into();
+        }
+    }
+
+    /// The IMU stopped while flying: stop.
+    pub fn imu_lost(&mut self) -> Option<Failsafe> {
+        self.flying().then(|| self.fail(Failsafe::ImuLost))
+    }
+
+    /// Stop flying (a disarm request): no failsafe is recorded.
+    pub fn disarm(&mut self) {
+        self.controller = None;
+        self.status.flying = false;
+    }
+
+    fn fail(&mut self, failsafe: Failsafe) -> Failsafe {
+        self.disarm();
+        self.status.failsafes.count(failsafe);
+        self.status.last_failsafe = Some(failsafe);
+        failsafe
+    }
+}
+
+fn quaternion_array(q: &UnitQuaternion<f32>) -> [f32; 4] {
+    [q.w, q.i, q.j, q.k]
+}

@@ -1,0 +1,470 @@
+//! Incremental nonlinear dynamic inversion (INDI) of the learned actuators, in the thrust frame.
+//!
+//! INDI does not need a model of the airframe's dynamics, only of its actuators: the
+//! angular acceleration and specific force it measures already contain every unmodelled moment
+//! and force, so it asks the motors only for the *increment* that turns the measured `ν₀` into
+//! the wanted `ν_ref`. What the learner identified is exactly what this needs
+//! (algorithms.md §6, seed paper §3.4):
+//!
+//! ```text
+//! ν = [f; Ω̇]  (thrust frame)            specific force at the CoG, angular acceleration
+//! dv = ν_ref − ν₀,  dv_rot += G2 ω̇₀      horizontal force rows: dv = 0 (no sideways thrust)
+//! G  = G1 (+ G2 ω_full²/(2 τ ω₀) on the rotational rows, ω₀ ≥ 0.1 ω_full)
+//! du = WLS-allocate(G, dv, −u₀ + u_min ≤ du ≤ 1 − u₀)
+//! u  = u₀ + du   →  ω = ω_full √u  →  δ from ω = a δ + b √δ + ω_idle
+//! ```
+//!
+//! - **Synchronised signals.** Ω, f and the actuator state u₀ pass the *same* 2nd-order
+//!   Butterworth low-pass (15 Hz, published), so the increment compares like with like; Ω̇₀ is the
+//!   backward difference of the filtered Ω, ω̇₀ that of the filtered actuator speed.
+//! - **Actuator model.** u₀ is not measured: each motor is a first-order lag of its commanded
+//!   speed with the learned τ (exact discretisation), and `u = ω²/ω_full²`. Telemetry speeds are not
+//!   needed, so a motor whose eRPM is missing flies the same.
+//! - **The G2 term.** A motor's speed change accelerates the rotor and reacts on the frame: a
+//!   commanded increment Δu gives at once `Δω̇ = ω_full² Δu / (2 ω₀ τ)`, so the rotational rows
+//!   gain `G2 ω_full²/(2 τ ω₀)`. That is what makes yaw (mostly rotor reaction) controllable fast.
+//! - **Frames.** The learner's G1 and G2 are in IMU axes; [`IndiModel::from_learned`] rotates their
+//!   rows into the thrust frame `T` (from `q_U^T`), whose −z is the hover thrust direction. The
+//!   allocation weights (1, 1, 50, 50, 50, 5) then mean: horizontal force barely, thrust and
+//!   tilt strongly, yaw (about the thrust axis) weakly.
+//! - **The accelerometer** is moved to the centre of gravity after filtering,
+//!   `f = f_imu − Ω̇×r − Ω×(Ω×r)`, so a board mounted off-centre does not feel a fake thrust
+//!   change when the craft turns.
+//!
+//! The step never allocates and never produces a non-finite command: non-finite inputs are
+//! refused ([`IndiError`]) with nothing changed, and a failed allocation holds the last command
+//! ([`IndiOutput::allocation`] says so; the caller counts and disarms if it persists).
+
+use nalgebra::{UnitQuaternion, Vector3};
+
+use crate::allocation::{AllocationConfig, AllocationError, AllocationStatus, Allocator};
+use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3, FilterDesignError};
+use crate::learner::motor_model::MotorModel;
+use crate::learner::{LearnedModel, MAX_MOTORS, MIN_MOTORS};
+
+/// Cut-off of the synchronising low-pass on Ω, f and u₀, Hz (algorithms.md §6, published).
+pub const SYNC_CUTOFF_HZ: f32 = 15.0;
+
+/// Floor of the motor speed in the G2 term, fraction of ω_full (algorithms.md §6, published):
+/// `ω_full²/(2τω₀)` grows without bound as ω₀ → 0.
+pub const OMEGA_FLOOR_FRACTION: f32 = 0.1;
+
+/// Largest usable motor time constant, s: a motor slower than this is not a propeller motor
+/// (the excitation clamps τ to 55 ms; 0.2 s is the gain schedule's clamp, algorithms.md §7).
+pub const MAX_TAU_S: f32 = 0.2;
+
+/// Smallest usable motor time constant, s (the gain schedule's clamp, algorithms.md §7).
+pub const MIN_TAU_S: f32 = 0.01;
+
+/// The learned actuators as INDI uses them: thrust-frame effectiveness per unit thrust and the
+/// motor models.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndiModel {
+    /// Motors.
+    pub motors: usize,
+    /// G1 per unit thrust `u = ω²/ω_full²`, thrust-frame rows: specific force (m/s²), then
+    /// angular acceleration (rad/s²).
+    pub g1: [[f32; MAX_MOTORS]; 6],
+    /// G2 in the thrust frame: angular acceleration per motor acceleration, rad/s² per rad/s².
+    pub g2: [[f32; MAX_MOTORS]; 3],
+    /// The motor models (thrust curve and τ).
+    pub motor: [MotorModel; MAX_MOTORS],
+    /// `q_U^T`: thrust-frame coordinates into IMU coordinates.
+    pub q_imu_thrust: UnitQuaternion<f32>,
+    /// Smallest thrust of each motor while armed (its idle speed), normalised thrust.
+    pub u_idle: [f32; MAX_MOTORS],
+    /// Hover thrust of each motor, normalised thrust (the thrust-axis solution).
+    pub u_hover: [f32; MAX_MOTORS],
+}
+
+/// Why a learned model cannot be flown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModelError {
+    /// The motor count is outside 4..=8.
+    MotorCount { motors: usize },
+    /// No hover thrust axis was found.
+    NoThrustAxis,
+    /// Motor `motor`'s model is not usable (no positive speed gain, τ outside the clamp, or
+    /// non-finite).
+    Motor { motor: u8 },
+    /// The effectiveness contains a non-finite entry.
+    NonFinite,
+}
+
+impl IndiModel {
+    /// The flyable model from what the learner found. τ is clamped to
+    /// [`MIN_TAU_S`]..=[`MAX_TAU_S`].
+    pub fn from_learned(learned: &LearnedModel) -> Result<Self, ModelError> {
+        let motors = usize::from(learned.motors);
+        if !(MIN_MOTORS..=MAX_MOTORS).contains(&motors) {
+            return Err(ModelError::MotorCount { motors });
+        }
+        let axis = learned.thrust_axis.ok_or(ModelError::NoThrustAxis)?;
+        let [w, x, y, z] = axis.q_thrust_to_imu;
+        if ![w, x, y, z].iter().all(|v| v.is_finite()) {
+            return Err(ModelError::NonFinite);
+        }
+        let q_imu_thrust = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+        let g1_imu = learned.g1_per_unit_thrust();
+        let mut model = Self {
+            motors,
+            g1: [[0.0; MAX_MOTORS]; 6],
+            g2: [[0.0; MAX_MOTORS]; 3],
+            motor: learned.motor,
+            q_imu_thrust,
+            u_idle: [0.0; MAX_MOTORS],
+            u_hover: axis.u_hover,
+        };
+        let to_thrust = q_imu_thrust.inverse();
+        for j in 0..motors {
+            let m = &mut model.motor[j];
+            let full = m.omega_full_rad_s();
+            if !m.is_usable() || !full.is_finite() || full <= 0.0 || !m.tau_s.is_finite() {
+                return Err(ModelError::Motor { motor: j as u8 });
+            }
+            m.tau_s = m.tau_s.clamp(MIN_TAU_S, MAX_TAU_S);
+            let idle = m.omega_idle_rad_s.max(0.0) / full;
+            model.u_idle[j] = (idle * idle).min(0.5);
+            for (block, rows) in [(0, 0..3), (1, 3..6)] {
+                let column = Vector3::new(
+                    g1_imu[rows.start][j],
+                    g1_imu[rows.start + 1][j],
+                    g1_imu[rows.start + 2][j],
+                );
+                let rotated = to_thrust * column;
+                for k in 0..3 {
+                    model.g1[3 * block + k][j] = rotated[k];
+                }
+            }
+            let column = Vector3::new(learned.g2[0][j], learned.g2[1][j], learned.g2[2][j]);
+            let rotated = to_thrust * column;
+            for k in 0..3 {
+                model.g2[k][j] = rotated[k];
+            }
+        }
+        let finite = model.g1.iter().chain(&model.g2).flatten().all(|v| v.is_finite())
+            && model.u_hover.iter().all(|v| v.is_finite());
+        if !finite {
+            return Err(ModelError::NonFinite);
+        }
+        Ok(model)
+    }
+
+    /// The motor command δ ∈ [0, 1] that holds motor `j` at normalised thrust `u`: the inverse
+    /// of the steady thrust curve `ω = a δ + b √δ + ω_idle` at `ω = ω_full √u`.
+    pub fn command_for_thrust(&self, j: usize, u: f32) -> f32 {
+        let m = &self.motor[j];
+        let omega = m.omega_full_rad_s() * libm::sqrtf(u.clamp(0.0, 1.0));
+        command_for_speed(m, omega)
+    }
+}
+
+/// The command δ ∈ [0, 1] at which the steady speed of `m` is `omega_rad_s`: the positive root
+/// `s = √δ` of `a s² + b s − (ω − ω_idle) = 0`.
+pub fn command_for_speed(m: &MotorModel, omega_rad_s: f32) -> f32 {
+    let excess = omega_rad_s - m.omega_idle_rad_s;
+    if !(excess > 0.0) {
+        return 0.0;
+    }
+    let (a, b) = (m.a_rad_s, m.b_rad_s);
+    let s = if a.abs() < 1e-3 * (a.abs() + b.abs()) {
+        // Practically pure square-root curve.
+        excess / b
+    } else {
+        let discriminant = b * b + 4.0 * a * excess;
+        if discriminant <= 0.0 {
+            // Beyond the curve's reach (a < 0 bends it back): full command.
+            return 1.0;
+        }
+        // The numerically stable form of (−b + √disc)/(2a).
+        2.0 * excess / (b + libm::sqrtf(discriminant))
+    };
+    let delta = s * s;
+    if delta.is_finite() {
+        delta.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// How the INDI loop is set up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndiConfig {
+    /// Step rate, Hz.
+    pub rate_hz: f32,
+    /// The synchronising low-pass cut-off, Hz.
+    pub sync_cutoff_hz: f32,
+    /// The allocation's weights and iteration budget.
+    pub allocation: AllocationConfig,
+}
+
+impl Default for IndiConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 2000.0,
+            sync_cutoff_hz: SYNC_CUTOFF_HZ,
+            allocation: AllocationConfig::default(),
+        }
+    }
+}
+
+/// Why an INDI loop could not be built or a step was refused.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum IndiError {
+    Filter(FilterDesignError),
+    Model(ModelError),
+    Allocation(AllocationError),
+    /// An input was not finite; nothing changed.
+    NonFiniteInput,
+}
+
+/// What one INDI step asks of the motors.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndiOutput {
+    /// Motor commands δ ∈ [0, 1].
+    pub commands: [f32; MAX_MOTORS],
+    /// Commanded normalised thrust per motor.
+    pub u: [f32; MAX_MOTORS],
+    /// How the allocation ended.
+    pub allocation: AllocationStatus,
+    /// Motors at a bound of their thrust range after the allocation (bit i: motor i).
+    pub saturated: u8,
+}
+
+/// One step's wish: thrust-frame specific-force z and angular acceleration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndiReference {
+    /// Wanted specific force along the thrust frame's z, m/s² (hover: −g; negative is upward
+    /// thrust).
+    pub specific_force_z_mps2: f32,
+    /// Wanted angular acceleration, thrust frame, rad/s².
+    pub angular_accel_rad_s2: Vector3<f32>,
+}
+
+/// The filtered state INDI increments from (thrust frame), for telemetry and the outer loops.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct IndiState {
+    /// Filtered body rate, rad/s.
+    pub rate_rad_s: Vector3<f32>,
+    /// Its derivative, rad/s².
+    pub angular_accel_rad_s2: Vector3<f32>,
+    /// Filtered specific force at the CoG, m/s².
+    pub specific_force_mps2: Vector3<f32>,
+}
+
+/// The INDI inner loop.
+#[derive(Clone, Debug)]
+pub struct Indi {
+    model: IndiModel,
+    rate_hz: f32,
+    /// IMU position relative to the CoG, thrust frame, m.
+    r_thrust_m: Vector3<f32>,
+    allocator: Allocator,
+    rate_filter: Butterworth2x3,
+    force_filter: Butterworth2x3,
+    /// The actuator model's speed per motor, rad/s (unfiltered).
+    omega_model_rad_s: [f32; MAX_MOTORS],
+    /// One synchronising filter per motor on the model speed.
+    omega_filter: [Butterworth2; MAX_MOTORS],
+    /// Previous filtered rate and motor speeds (for the differences).
+    previous_rate: Vector3<f32>,
+    previous_omega: [f32; MAX_MOTORS],
+    /// Per-step actuator-model gains `1 − exp(−dt/τ)`.
+    lag_gain: [f32; MAX_MOTORS],
+    state: IndiState,
+    last: IndiOutput,
+}
+
+impl Indi {
+    /// An INDI loop for `model`, with the IMU at `r_imu_m` from the CoG (IMU axes, m), starting
+    /// from the motors at `commands` (δ) and the body at rest in the synchronising filters
+    /// until [`Indi::start`] primes them.
+    pub fn new(model: IndiModel, r_imu_m: [f32; 3], config: IndiConfig) -> Result<Self, IndiError> {
+        let c = BiquadCoefficients::butterworth_lowpass(config.sync_cutoff_hz, config.rate_hz)
+            .map_err(IndiError::Filter)?;
+        let allocator =
+            Allocator::new(model.motors, config.allocation).map_err(IndiError::Allocation)?;
+        let r = Vector3::from(r_imu_m);
+        if !r.iter().all(|x| x.is_finite()) {
+            return Err(IndiError::NonFiniteInput);
+        }
+        let dt = 1.0 / config.rate_hz;
+        let mut lag_gain = [0.0; MAX_MOTORS];
+        for (gain, m) in lag_gain.iter_mut().zip(&model.motor).take(model.motors) {
+            *gain = 1.0 - libm::expf(-dt / m.tau_s);
+        }
+        Ok(Self {
+            r_thrust_m: model.q_imu_thrust.inverse() * r,
+            model,
+            rate_hz: config.rate_hz,
+            allocator,
+            rate_filter: Butterworth2x3::from_coefficients(c),
+            force_filter: Butterworth2x3::from_coefficients(c),
+            omega_model_rad_s: [0.0; MAX_MOTORS],
+            omega_filter: [Butterworth2::from_coefficients(c); MAX_MOTORS],
+            previous_rate: Vector3::zeros(),
+            previous_omega: [0.0; MAX_MOTORS],
+            lag_gain,
+            state: IndiState::default(),
+            last: IndiOutput {
+                commands: [0.0; MAX_MOTORS],
+                u: [0.0; MAX_MOTORS],
+                allocation: AllocationStatus::Optimal,
+                saturated: 0,
+            },
+        })
+    }
+
+    /// Prime the filters for a handover: the body at `gyro_rad_s` and `accel_mps2` (IMU axes),
+    /// the motors running at the speeds their last commands `commands` (δ) settle to, or at
+    /// `speeds_rad_s` where those are known (finite). The first step then increments from there
+    /// without a start-up transient.
+    pub fn start(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        commands: &[f32; MAX_MOTORS],
+        speeds_rad_s: &[f32; MAX_MOTORS],
+    ) {
+        let to_thrust = self.model.q_imu_thrust.inverse();
+        let rate = to_thrust * Vector3::from(gyro_rad_s);
+        let force =
+            to_thrust * Vector3::from(accel_mps2) - rate.cross(&rate.cross(&self.r_thrust_m));
+        let (rate, force) = if rate.iter().chain(force.iter()).all(|x| x.is_finite()) {
+            (rate, force)
+        } else {
+            (Vector3::zeros(), Vector3::zeros())
+        };
+        self.rate_filter.reset_to(&rate);
+        self.force_filter.reset_to(&force);
+        self.previous_rate = rate;
+        for j in 0..self.model.motors {
+            let m = &self.model.motor[j];
+            let steady = m.steady_speed_rad_s(commands[j]);
+            let omega = if speeds_rad_s[j].is_finite() && speeds_rad_s[j] >= 0.0 {
+                speeds_rad_s[j]
+            } else {
+                steady
+            };
+            self.omega_model_rad_s[j] = omega;
+            self.omega_filter[j].reset_to(omega);
+            self.previous_omega[j] = omega;
+            let full = m.omega_full_rad_s();
+            self.last.u[j] = (omega / full) * (omega / full);
+            self.last.commands[j] = commands[j].clamp(0.0, 1.0);
+        }
+        self.state = IndiState {
+            rate_rad_s: rate,
+            angular_accel_rad_s2: Vector3::zeros(),
+            specific_force_mps2: force,
+        };
+        self.allocator.reset();
+    }
+
+    /// The model flown.
+    pub fn model(&self) -> &IndiModel {
+        &self.model
+    }
+
+    /// The filtered state of the latest step.
+    pub fn state(&self) -> &IndiState {
+        &self.state
+    }
+
+    /// The latest output.
+    pub fn last_output(&self) -> &IndiOutput {
+        &self.last
+    }
+
+    /// One step: the raw IMU sample (IMU axes) and the wish; returns the motor commands.
+    pub fn update(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        reference: &IndiReference,
+    ) -> Result<IndiOutput, IndiError> {
+        let finite = gyro_rad_s.iter().chain(&accel_mps2).all(|x| x.is_finite())
+            && reference.specific_force_z_mps2.is_finite()
+            && reference.angular_accel_rad_s2.iter().all(|x| x.is_finite());
+        if !finite {
+            return Err(IndiError::NonFiniteInput);
+        }
+        let m = self.model.motors;
+        let to_thrust = self.model.q_imu_thrust.inverse();
+
+        // Measurements, filtered, in the thrust frame.
+        let rate = self.rate_filter.update(&(to_thrust * Vector3::from(gyro_rad_s)));
+        let force_imu = self.force_filter.update(&(to_thrust * Vector3::from(accel_mps2)));
+        let angular_accel = (rate - self.previous_rate) * self.rate_hz;
+        self.previous_rate = rate;
+        let r = self.r_thrust_m;
+        let force = force_imu - angular_accel.cross(&r) - rate.cross(&rate.cross(&r));
+        self.state = IndiState {
+            rate_rad_s: rate,
+            angular_accel_rad_s2: angular_accel,
+            specific_force_mps2: force,
+        };
+
+        // The actuators' filtered state.
+        let mut u0 = [0.0f32; MAX_MOTORS];
+        let mut omega_dot = [0.0f32; MAX_MOTORS];
+        let mut g = [[0.0f32; MAX_MOTORS]; 6];
+        for j in 0..m {
+            let motor = &self.model.motor[j];
+            let full = motor.omega_full_rad_s();
+            let omega = self.omega_filter[j].update(self.omega_model_rad_s[j]);
+            omega_dot[j] = (omega - self.previous_omega[j]) * self.rate_hz;
+            self.previous_omega[j] = omega;
+            u0[j] = (omega / full) * (omega / full);
+            let omega_floor = omega.max(OMEGA_FLOOR_FRACTION * full);
+            let reaction = full * full / (2.0 * motor.tau_s * omega_floor);
+            for k in 0..3 {
+                g[k][j] = self.model.g1[k][j];
+                g[3 + k][j] = self.model.g1[3 + k][j] + self.model.g2[k][j] * reaction;
+            }
+        }
+
+        // The increment wanted.
+        let mut g2_omega_dot = Vector3::zeros();
+        for j in 0..m {
+            for k in 0..3 {
+                g2_omega_dot[k] += self.model.g2[k][j] * omega_dot[j];
+            }
+        }
+        let rot = reference.angular_accel_rad_s2 - angular_accel + g2_omega_dot;
+        let dv = [0.0, 0.0, reference.specific_force_z_mps2 - force.z, rot.x, rot.y, rot.z];
+
+        let mut du_min = [0.0f32; MAX_MOTORS];
+        let mut du_max = [0.0f32; MAX_MOTORS];
+        let mut du_pref = [0.0f32; MAX_MOTORS];
+        for j in 0..m {
+            du_min[j] = (self.model.u_idle[j] - u0[j]).min(0.0);
+            du_max[j] = (1.0 - u0[j]).max(0.0);
+            du_pref[j] = (self.model.u_hover[j] - u0[j]).clamp(du_min[j], du_max[j]);
+        }
+        let solution = self.allocator.solve(&g, &dv, &du_min, &du_max, &du_pref);
+
+        let mut out = self.last;
+        out.allocation = solution.status;
+        if !matches!(solution.status, AllocationStatus::Failed(_)) {
+            out.saturated = 0;
+            for j in 0..m {
+                let u = u0[j] + solution.du[j];
+                let u =
+                    if u.is_finite() { u.clamp(self.model.u_idle[j], 1.0) } else { self.last.u[j] };
+                out.u[j] = u;
+                out.commands[j] = self.model.command_for_thrust(j, u);
+                if solution.du[j] <= du_min[j] + 1e-6 || solution.du[j] >= du_max[j] - 1e-6 {
+                    out.saturated |= 1 << j;
+                }
+            }
+        }
+        // The actuator model follows what was commanded.
+        for j in 0..m {
+            let target = self.model.motor[j].steady_speed_rad_s(out.commands[j]);
+            self.omega_model_rad_s[j] += (target - self.omega_model_rad_s[j]) * self.lag_gain[j];
+        }
+        self.last = out;
+        Ok(out)
+    }
+}

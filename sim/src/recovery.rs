@@ -1,0 +1,246 @@
+//! Throw-and-fly end to end: the firmware application (exactly as the board runs it) is armed,
+//! thrown, identifies its actuators, and must recover to a hover and hold a position; scored
+//! against the simulator's truth in metres, seconds and degrees.
+//!
+//! - [`fly`]: one run. The hand throws the craft on a parabola; after the excitation the
+//!   firmware's controller takes over. With [`FlyConfig::mocap`] the simulator sends the true
+//!   pose of the centre of gravity (position, heading) at 100 Hz with millimetre noise, as a
+//!   motion-capture system would, through the same command the bridge and the protocol use.
+//! - [`FlyReport`]: whether and when it hovered, the worst altitude loss below the release point,
+//!   the position error over the hold, and how the run ended ([`Outcome`]).
+//!
+//! "Hovering" means: the body rate below [`HOVER_RATE_RAD_S`], the vertical speed below
+//! [`HOVER_CLIMB_MPS`] and the thrust axis within [`HOVER_TILT_RAD`] of up, held for
+//! [`HOVER_HOLD_S`].
+
+use nalgebra::{UnitQuaternion, Vector3};
+
+use crate::airframe::Airframe;
+use crate::board::{SimBoard, SimConfig};
+use crate::hand::ThrowSpec;
+use crate::identification::TrueModel;
+use crate::rng::Rng;
+use crate::scenario::{with_firmware_app, FlightApp};
+use firmware::app::{ControlCommand, Failsafe};
+use flight::learner::FlightPhase;
+use protocol::ExternalPose;
+
+/// Body rate below which the craft may count as hovering, rad/s (20 °/s).
+pub const HOVER_RATE_RAD_S: f64 = 0.35;
+/// Vertical speed below which the craft may count as hovering, m/s.
+pub const HOVER_CLIMB_MPS: f64 = 0.3;
+/// Tilt of the true thrust axis from up below which the craft may count as hovering, rad (10°).
+pub const HOVER_TILT_RAD: f64 = 0.175;
+/// How long those must hold to call it a hover, s.
+pub const HOVER_HOLD_S: f64 = 0.5;
+/// Motion-capture rate, Hz.
+pub const MOCAP_RATE_HZ: f64 = 100.0;
+/// Motion-capture position noise, one standard deviation per axis, m.
+pub const MOCAP_NOISE_M: f64 = 0.001;
+/// Motion-capture heading noise, one standard deviation, rad (0.1°).
+pub const MOCAP_HEADING_NOISE_RAD: f64 = 0.0017;
+
+/// One throw-and-fly run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FlyConfig {
+    /// Body rate at release, rad/s.
+    pub rate_body_rad_s: Vector3<f64>,
+    /// Apex above the release point, m.
+    pub apex_m: f64,
+    /// Horizontal release velocity (north, east), m/s.
+    pub horizontal_mps: [f64; 2],
+    /// Give the firmware the true IMU offset (a calibrated board).
+    pub known_imu_offset: bool,
+    /// Send the pose at [`MOCAP_RATE_HZ`].
+    pub mocap: bool,
+    /// How long to fly after the release, s.
+    pub flight_s: f64,
+    /// Board (noise seed, start position).
+    pub board: SimConfig,
+}
+
+impl FlyConfig {
+    /// The seed paper's experiment: a 3.5 m parabola released at (400, 400, 100) °/s from 1.5 m,
+    /// motion capture on, 13 s of flight.
+    pub fn paper() -> Self {
+        Self {
+            rate_body_rad_s: Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
+            apex_m: 3.5,
+            horizontal_mps: [0.0, 0.0],
+            known_imu_offset: true,
+            mocap: true,
+            flight_s: 13.0,
+            board: SimConfig {
+                start_position_ned_m: Vector3::new(0.0, 0.0, -1.5),
+                ..SimConfig::default()
+            },
+        }
+    }
+}
+
+/// How a run ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// Still flying at the end.
+    Flying,
+    /// Hit the ground (NED z ≥ 0).
+    Ground,
+    /// The firmware stopped the motors with this failsafe.
+    Failsafe(Failsafe),
+    /// The throw was never detected or the excitation never ended.
+    NoIdentification,
+}
+
+/// What a run measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FlyReport {
+    pub outcome: Outcome,
+    /// Release → the controller engaged, s.
+    pub release_to_engage_s: Option<f64>,
+    /// Release → hovering (see the module docs), s.
+    pub release_to_hover_s: Option<f64>,
+    /// Height of the release point, NED z, m.
+    pub release_z_m: f64,
+    /// Largest depth below the release point after it, m (positive: lower).
+    pub max_drop_below_release_m: f64,
+    /// The position setpoint the firmware held, NED, m.
+    pub setpoint_ned_m: Option<Vector3<f64>>,
+    /// Largest distance from the setpoint over the last `hold_window_s`, m.
+    pub max_hold_error_m: Option<f64>,
+    /// The window over which `max_hold_error_m` was measured, s.
+    pub hold_window_s: f64,
+}
+
+/// Fly `airframe` once.
+pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
+    let truth = TrueModel::of(airframe);
+    // The true hover thrust direction in body axes.
+    let thrust_dir_body =
+        airframe.q_imu_body().inverse() * (truth.q_thrust_to_imu * Vector3::new(0.0, 0.0, -1.0));
+    let mut board = SimBoard::new(airframe, &config.board);
+    let mut rng = Rng::new(config.board.seed ^ 0x6d6f_6361_70);
+    let hold_window_s = 10.0f64.min(config.flight_s * 0.8);
+    with_firmware_app(|app| {
+        if config.known_imu_offset {
+            let r = truth.r_imu_m;
+            app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
+        }
+        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        let mut report = FlyReport {
+            outcome: Outcome::NoIdentification,
+            release_to_engage_s: None,
+            release_to_hover_s: None,
+            release_z_m: 0.0,
+            max_drop_below_release_m: 0.0,
+            setpoint_ned_m: None,
+            max_hold_error_m: None,
+            hold_window_s,
+        };
+        let hold_ticks = 1000u64; // 0.5 s in the hand
+        let mut spec = ThrowSpec::vertical(config.apex_m, config.rate_body_rad_s, 0.15);
+        spec.release_velocity_ned_mps.x = config.horizontal_mps[0];
+        spec.release_velocity_ned_mps.y = config.horizontal_mps[1];
+        let mocap_every = (2000.0 / MOCAP_RATE_HZ).round() as u64;
+        let mut hover_since: Option<f64> = None;
+        let mut end_s = f64::INFINITY;
+        let max_ticks = hold_ticks + ((1.0 + config.flight_s) * 2000.0) as u64;
+        for tick in 0..max_ticks {
+            if tick == hold_ticks {
+                board.physics_mut().throw(&spec);
+            }
+            board.tick();
+            let now_us = board.now_us();
+            if config.mocap && tick % mocap_every == 0 {
+                let state = board.physics().state();
+                let p = state.position_ned_m;
+                let noise = |rng: &mut Rng, sigma: f64| (rng.normal() * sigma) as f32;
+                let pose = ExternalPose {
+                    position_ned_m: [
+                        p.x as f32 + noise(&mut rng, MOCAP_NOISE_M),
+                        p.y as f32 + noise(&mut rng, MOCAP_NOISE_M),
+                        p.z as f32 + noise(&mut rng, MOCAP_NOISE_M),
+                    ],
+                    heading_rad: heading(&state.attitude()) as f32
+                        + noise(&mut rng, MOCAP_HEADING_NOISE_RAD),
+                };
+                app.command(ControlCommand::ExternalPose(pose), now_us);
+            }
+            {
+                let (imu, motors) = board.ports();
+                app.step(now_us, imu, motors);
+            }
+            let t_s = board.time_s();
+            let snapshot = app.control.snapshot();
+            let state = board.physics().state().clone();
+            let Some(released_s) = board.physics().hand().released_at_s() else { continue };
+            if report.release_to_engage_s.is_none() {
+                report.release_z_m = state.position_ned_m.z;
+            }
+            let since_release = t_s - released_s;
+            report.max_drop_below_release_m =
+                report.max_drop_below_release_m.max(state.position_ned_m.z - report.release_z_m);
+            if snapshot.pilot.flying {
+                report.release_to_engage_s.get_or_insert(since_release);
+                report.outcome = Outcome::Flying;
+                if snapshot.pilot.position_hold {
+                    let sp = Vector3::from(snapshot.pilot.position_sp_ned_m).cast::<f64>();
+                    report.setpoint_ned_m = Some(sp);
+                    if t_s >= end_s - hold_window_s {
+                        let error = (state.position_ned_m - sp).norm();
+                        let worst = report.max_hold_error_m.get_or_insert(0.0);
+                        *worst = worst.max(error);
+                    }
+                }
+                let hovering = state.rate_body_rad_s.norm() < HOVER_RATE_RAD_S
+                    && state.velocity_ned_mps.z.abs() < HOVER_CLIMB_MPS
+                    && thrust_tilt_rad(&state.attitude(), &thrust_dir_body) < HOVER_TILT_RAD;
+                if hovering {
+                    let since = *hover_since.get_or_insert(since_release);
+                    if since_release - since >= HOVER_HOLD_S && report.release_to_hover_s.is_none()
+                    {
+                        report.release_to_hover_s = Some(since);
+                    }
+                } else {
+                    hover_since = None;
+                }
+            } else if report.release_to_engage_s.is_some() {
+                report.outcome = match snapshot.pilot.last_failsafe {
+                    Some(failsafe) => Outcome::Failsafe(failsafe),
+                    None => Outcome::Ground,
+                };
+                break;
+            } else if snapshot.phase == FlightPhase::Done && snapshot.pilot.last_failsafe.is_some()
+            {
+                report.outcome = Outcome::Failsafe(snapshot.pilot.last_failsafe.unwrap());
+                break;
+            }
+            if end_s.is_infinite() {
+                end_s = released_s + config.flight_s;
+            }
+            if state.position_ned_m.z >= 0.0 {
+                report.outcome = if report.release_to_engage_s.is_some() {
+                    Outcome::Ground
+                } else {
+                    Outcome::NoIdentification
+                };
+                break;
+            }
+            if t_s >= end_s {
+                break;
+            }
+        }
+        report
+    })
+}
+
+/// Heading of the body frame: yaw of its x axis about world z, rad.
+pub fn heading(q_world_body: &UnitQuaternion<f64>) -> f64 {
+    let x = q_world_body * Vector3::x();
+    x.y.atan2(x.x)
+}
+
+/// Angle between the true hover thrust axis (`thrust_dir_body`, body axes) and up, rad.
+fn thrust_tilt_rad(q_world_body: &UnitQuaternion<f64>, thrust_dir_body: &Vector3<f64>) -> f64 {
+    let up = q_world_body * thrust_dir_body;
+    (-up.z).clamp(-1.0, 1.0).acos()
+}
