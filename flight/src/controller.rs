@@ -52,8 +52,9 @@ pub const YAW_CONTROL_MAX_TILT_RAD: f32 = core::f32::consts::FRAC_PI_2;
 pub enum Guidance {
     /// Hold a position (world NED, m) and heading (rad) from external position fixes.
     Position { position_ned_m: Vector3<f32>, yaw_rad: f32 },
-    /// No position: thrust axis up, zero vertical speed (dead reckoning), heading `yaw_rad`.
-    Level { yaw_rad: f32 },
+    /// No position: thrust axis up, the velocity `velocity_ned_mps` (an estimate by dead
+    /// reckoning, world NED, m/s) brought to zero, heading `yaw_rad`.
+    Level { yaw_rad: f32, velocity_ned_mps: Vector3<f32> },
 }
 
 /// One step's measurements.
@@ -150,12 +151,14 @@ impl Controller {
                     .unwrap_or(Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_MPS2));
                 (f, yaw_rad)
             }
-            Guidance::Level { yaw_rad } => {
-                // Zero climb rate: the velocity loop's P on the vertical speed, nothing sideways.
-                let climb_accel = -self.gains.k_velocity * nav.velocity_ned_mps.z;
-                let climb_accel = climb_accel
-                    .clamp(-crate::position::MAX_ACCEL_MPS2, crate::position::MAX_ACCEL_MPS2);
-                (Vector3::new(0.0, 0.0, climb_accel - STANDARD_GRAVITY_MPS2), yaw_rad)
+            Guidance::Level { yaw_rad, velocity_ned_mps } => {
+                // Zero velocity: the velocity loop's P alone (no integral on a drifting estimate).
+                let accel = crate::position::limit_split(
+                    &(velocity_ned_mps * -self.gains.k_velocity),
+                    crate::position::MAX_ACCEL_MPS2,
+                );
+                let f = accel - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
+                (crate::position::limit_tilt(&f), yaw_rad)
             }
         };
         let (rate_sp, tilt_error_rad, thrust) =

@@ -92,6 +92,15 @@ impl PositionEstimator {
         self.state.velocity_ned_mps = Vector3::zeros();
     }
 
+    /// Replace the velocity (world NED, m/s) and forget the accelerometer bias: the world the
+    /// accelerometer was turned into has changed (a new heading alignment).
+    pub fn set_velocity(&mut self, velocity_ned_mps: &Vector3<f32>) {
+        if velocity_ned_mps.iter().all(|x| x.is_finite()) {
+            self.state.velocity_ned_mps = *velocity_ned_mps;
+            self.state.accel_bias_ned_mps2 = Vector3::zeros();
+        }
+    }
+
     /// Integrate one step of `dt_s` with the specific force at the CoG `f_body_mps2` (body axes)
     /// and the attitude `q_world_body`.
     pub fn predict(
@@ -153,9 +162,10 @@ impl PositionEstimator {
 /// times the motion-capture noise).
 pub const ALIGNMENT_WINDOW_FIXES: usize = 10;
 
-/// Evidence (Σ |D'|·|D|, m²) after which the heading alignment is trusted: about twenty windows
-/// of 2 m/s² (4 mm of second difference each; the recovery after a throw gives far more).
-pub const ALIGNMENT_EVIDENCE_M2: f32 = 20.0 * 0.02 * 0.02 * 0.01;
+/// Evidence needed before the heading alignment is trusted, m²: `|Σ D'·D + i Σ D'×D|`, the
+/// coherent sum (noise and unrelated motion average out of it, unlike a sum of magnitudes):
+/// about twenty windows of 2 m/s² (2 cm of second difference each).
+pub const ALIGNMENT_EVIDENCE_M2: f32 = 20.0 * 0.02 * 0.02;
 
 /// The yaw between the attitude filter's world and the world of the position fixes.
 ///
@@ -179,6 +189,8 @@ pub struct HeadingAlignment {
     cross: f32,
     dot: f32,
     evidence_m2: f32,
+    /// The yaw, once the evidence sufficed.
+    trusted_yaw_rad: Option<f32>,
 }
 
 impl Default for HeadingAlignment {
@@ -192,6 +204,7 @@ impl Default for HeadingAlignment {
             cross: 0.0,
             dot: 0.0,
             evidence_m2: 0.0,
+            trusted_yaw_rad: None,
         }
     }
 }
@@ -226,13 +239,26 @@ impl HeadingAlignment {
         let d_filter = q0 - q1 * 2.0 + q2;
         self.cross += d_filter.x * d.y - d_filter.y * d.x;
         self.dot += d_filter.x * d.x + d_filter.y * d.y;
-        let magnitude = |v: Vector3<f32>| libm::sqrtf(v.x * v.x + v.y * v.y);
-        self.evidence_m2 += magnitude(d) * magnitude(d_filter);
+        self.evidence_m2 = libm::sqrtf(self.cross * self.cross + self.dot * self.dot);
+        if self.evidence_m2 >= ALIGNMENT_EVIDENCE_M2 {
+            self.trusted_yaw_rad = Some(libm::atan2f(self.cross, self.dot));
+        }
+    }
+
+    /// The craft is at rest: the dead-reckoned velocity is zero.
+    pub fn hold_still(&mut self) {
+        self.dead_velocity = Vector3::zeros();
+    }
+
+    /// The velocity by dead reckoning (accelerometer only since the last rest), in the
+    /// filter's world, m/s.
+    pub fn dead_reckoned_velocity_mps(&self) -> Vector3<f32> {
+        self.dead_velocity
     }
 
     /// The yaw from the filter's world to the fixes' world, rad, once the evidence suffices.
     pub fn yaw_rad(&self) -> Option<f32> {
-        (self.evidence_m2 >= ALIGNMENT_EVIDENCE_M2).then(|| libm::atan2f(self.cross, self.dot))
+        self.trusted_yaw_rad
     }
 
     /// Evidence gathered so far, m² (see [`ALIGNMENT_EVIDENCE_M2`]).

@@ -160,7 +160,7 @@ impl PositionController {
 }
 
 /// `v` with its horizontal part limited to a norm of `limit` and its vertical part to ±`limit`.
-fn limit_split(v: &Vector3<f32>, limit: f32) -> Vector3<f32> {
+pub fn limit_split(v: &Vector3<f32>, limit: f32) -> Vector3<f32> {
     let horizontal = libm::sqrtf(v.x * v.x + v.y * v.y);
     let scale = if horizontal > limit { limit / horizontal } else { 1.0 };
     Vector3::new(v.x * scale, v.y * scale, v.z.clamp(-limit, limit))

@@ -55,6 +55,8 @@ pub struct FlyConfig {
     pub mocap: bool,
     /// How long to fly after the release, s.
     pub flight_s: f64,
+    /// Print the flight every 100 ms on stderr (time, position, setpoint, rates, mode).
+    pub trace: bool,
     /// Board (noise seed, start position).
     pub board: SimConfig,
 }
@@ -70,6 +72,7 @@ impl FlyConfig {
             known_imu_offset: true,
             mocap: true,
             flight_s: 13.0,
+            trace: false,
             board: SimConfig {
                 start_position_ned_m: Vector3::new(0.0, 0.0, -1.5),
                 ..SimConfig::default()
@@ -179,6 +182,34 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             let since_release = t_s - released_s;
             report.max_drop_below_release_m =
                 report.max_drop_below_release_m.max(state.position_ned_m.z - report.release_z_m);
+            if config.trace && tick % 200 == 0 {
+                let p = snapshot.pilot;
+                // The true yaw between the filter's world and the world.
+                let q_true = state.attitude() * airframe.q_imu_body().inverse();
+                let [w, x, y, z] = p.q_world_imu.map(f64::from);
+                let q_filter =
+                    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+                let true_alignment = heading(&(q_true * q_filter.inverse()));
+                eprint!(
+                    "true align {:6.1}°  f_sp {:5.2} {:5.2} {:5.2}  ",
+                    true_alignment.to_degrees(),
+                    p.specific_force_sp_ned_mps2[0],
+                    p.specific_force_sp_ned_mps2[1],
+                    p.specific_force_sp_ned_mps2[2]
+                );
+                eprintln!(
+                    "t {:6.2} s  pos {:6.2} {:6.2} {:6.2} m  vel {:5.2} {:5.2} {:5.2} m/s  rate {:6.1} °/s  \
+                     flying {} hold {} aligned {} {:5.1}° sp {:5.2} {:5.2} {:5.2}  est {:5.2} {:5.2} {:5.2}  tilt err {:5.1}°  sat {:04b}",
+                    since_release,
+                    state.position_ned_m.x, state.position_ned_m.y, state.position_ned_m.z,
+                    state.velocity_ned_mps.x, state.velocity_ned_mps.y, state.velocity_ned_mps.z,
+                    state.rate_body_rad_s.norm().to_degrees(),
+                    p.flying, p.position_hold, p.heading_aligned, p.heading_alignment_rad.to_degrees(),
+                    p.position_sp_ned_m[0], p.position_sp_ned_m[1], p.position_sp_ned_m[2],
+                    p.velocity_ned_mps[0], p.velocity_ned_mps[1], p.velocity_ned_mps[2],
+                    p.tilt_error_rad.to_degrees(), p.saturated,
+                );
+            }
             if snapshot.pilot.flying {
                 report.release_to_engage_s.get_or_insert(since_release);
                 report.outcome = Outcome::Flying;

@@ -9,7 +9,10 @@ use sim::recovery::{fly, FlyConfig, FlyReport, Outcome};
 
 fn run(name: &str, config: &FlyConfig) -> FlyReport {
     let airframe = Airframe::builtin(name).unwrap();
-    let report = fly(&airframe, config);
+    let mut config = config.clone();
+    config.trace = std::env::var_os("RECOVERY_TRACE").is_some();
+    config.board.ideal_imu = std::env::var_os("RECOVERY_IDEAL").is_some();
+    let report = fly(&airframe, &config);
     eprintln!(
         "{name}: {:?}; release → engage {:.0} ms, → hover {:.2} s; worst drop below release {:.2} m; \
          hold error {:.3} m over {:.0} s",

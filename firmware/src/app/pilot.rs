@@ -38,6 +38,10 @@ pub const LOST_ATTITUDE_TILT_RAD: f32 = 150.0 * core::f32::consts::PI / 180.0;
 /// craft released upside down needs a few hundred milliseconds to turn over.
 pub const LOST_ATTITUDE_S: f32 = 1.0;
 
+/// Rate below which the external heading steers the filter, rad/s (30 °/s: hover, not a
+/// manoeuvre or a tumble).
+const STEADY_RATE_RAD_S: f32 = 0.5;
+
 /// Rate below which a disarmed craft counts as still, rad/s.
 const STILL_RATE_RAD_S: f32 = 0.2;
 
@@ -119,10 +123,14 @@ pub struct PilotStatus {
     pub has_fix: bool,
     /// Whether the yaw between the attitude filter and the poses' world is known.
     pub heading_aligned: bool,
+    /// That yaw, rad (0 until known).
+    pub heading_alignment_rad: f32,
     /// The position setpoint while holding one, world NED, m.
     pub position_sp_ned_m: [f32; 3],
     /// Rate setpoint, thrust frame, rad/s.
     pub rate_sp_rad_s: [f32; 3],
+    /// Wanted specific force, world NED, m/s².
+    pub specific_force_sp_ned_mps2: [f32; 3],
     /// Thrust axis from its setpoint, rad.
     pub tilt_error_rad: f32,
     /// Consecutive failed allocations now.
@@ -141,8 +149,9 @@ pub struct Pilot {
     navigation: PositionEstimator,
     /// The yaw from the attitude filter's world to the world of the external poses.
     alignment: HeadingAlignment,
-    /// Filter yaw minus pose heading at the first pose, rad: the pose heading plus this is the
-    /// heading the filter is held to (only the heading's changes matter, see `observe`).
+    /// Filter yaw minus pose heading when the current steady stretch began, rad: the pose
+    /// heading plus this is the heading the filter is held to, so only the heading's *changes*
+    /// steer the filter (see `observe`); `None` outside a steady stretch.
     heading_offset_rad: Option<f32>,
     /// Yaw setpoint of the thrust frame in the filter's world, rad.
     yaw_sp_filter_rad: f32,
@@ -172,7 +181,7 @@ impl Pilot {
             yaw_sp_filter_rad: 0.0,
             model: None,
             controller: None,
-            guidance: Guidance::Level { yaw_rad: 0.0 },
+            guidance: Guidance::Level { yaw_rad: 0.0, velocity_ned_mps: Vector3::zeros() },
             position_sp_ned_m: None,
             last_pose_us: None,
             heading_rad: None,
@@ -205,12 +214,14 @@ impl Pilot {
             .unwrap_or(0.01);
         let position = Vector3::from(pose.position_ned_m);
         if self.navigation.correct(&position, dt_fix_s).is_ok() {
+            let before = self.alignment.yaw_rad();
             self.alignment.fix(&position);
+            if self.alignment.yaw_rad().is_some() && before.is_none() {
+                // The accelerometer's world turned: restart the velocity from dead reckoning.
+                self.navigation.set_velocity(&self.dead_reckoned_velocity());
+            }
             self.last_pose_us = Some(now_us);
-            let offset = *self
-                .heading_offset_rad
-                .get_or_insert_with(|| yaw_of(&self.attitude.quaternion()) - pose.heading_rad);
-            self.heading_rad = Some(pose.heading_rad + offset);
+            self.heading_rad = Some(pose.heading_rad);
         }
     }
 
@@ -226,7 +237,26 @@ impl Pilot {
         let pose_fresh = self.last_pose_us.is_some_and(|t| {
             now_us.saturating_sub(t) <= (flight::navigation::FIX_TIMEOUT_S * 1e6) as u64
         });
-        let heading = if pose_fresh { self.heading_rad } else { None };
+        // The pose's heading is that of a frame whose yaw relative to the IMU is unknown, and
+        // the two headings move together only under rotations about the vertical. So it steers
+        // the filter only through its changes within a steady stretch (slow, near 1 g: the
+        // attitude does not change between its start and now except in yaw); each stretch
+        // starts with the offset between the two as it is.
+        let steady = gyro.norm() < STEADY_RATE_RAD_S
+            && (f.norm() - STANDARD_GRAVITY_MPS2).abs()
+                < flight::attitude::ACCEL_TRUST_BAND * STANDARD_GRAVITY_MPS2;
+        let heading = match (pose_fresh && steady, self.heading_rad) {
+            (true, Some(pose_heading)) => {
+                let offset = *self
+                    .heading_offset_rad
+                    .get_or_insert_with(|| yaw_of(&self.attitude.quaternion()) - pose_heading);
+                Some(pose_heading + offset)
+            }
+            _ => {
+                self.heading_offset_rad = None;
+                None
+            }
+        };
         let _ = self.attitude.update(&gyro, &f, heading, dt_s);
         let q_filter = self.attitude.quaternion();
         if f.iter().all(|x| x.is_finite()) {
@@ -239,11 +269,13 @@ impl Pilot {
             && (f.norm() - STANDARD_GRAVITY_MPS2).abs() < STILL_ACCEL_MPS2;
         if still_allowed && still {
             self.navigation.hold_still();
+            self.alignment.hold_still();
         }
         let nav = self.navigation.state();
         let status = &mut self.status;
         status.q_world_imu = quaternion_array(&q);
         status.heading_aligned = self.alignment.yaw_rad().is_some();
+        status.heading_alignment_rad = self.alignment.yaw_rad().unwrap_or(0.0);
         status.position_ned_m = nav.position_ned_m.into();
         status.velocity_ned_mps = nav.velocity_ned_mps.into();
         status.has_fix = nav.has_fix;
@@ -260,6 +292,12 @@ impl Pilot {
             * self.attitude.quaternion()
     }
 
+    /// The velocity by dead reckoning since the last rest, in the world the controller sees.
+    fn dead_reckoned_velocity(&self) -> Vector3<f32> {
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), self.alignment_yaw_rad())
+            * self.alignment.dead_reckoned_velocity_mps()
+    }
+
     /// What to fly now: the position setpoint when poses arrive and the world is aligned, else
     /// level hold; the yaw setpoint in the world the controller sees.
     fn guidance_now(&self, position_sp_ned_m: Option<Vector3<f32>>) -> Guidance {
@@ -269,7 +307,7 @@ impl Pilot {
             Some(position_ned_m) if nav.has_fix && self.alignment.yaw_rad().is_some() => {
                 Guidance::Position { position_ned_m, yaw_rad }
             }
-            _ => Guidance::Level { yaw_rad },
+            _ => Guidance::Level { yaw_rad, velocity_ned_mps: self.dead_reckoned_velocity() },
         }
     }
 
@@ -332,7 +370,11 @@ impl Pilot {
             self.status.failsafes.count(Failsafe::PoseLost);
             self.status.last_failsafe = Some(Failsafe::PoseLost);
             self.position_sp_ned_m = None;
-        } else if can_hold && self.position_sp_ned_m.is_none() {
+        } else if can_hold
+            && self.position_sp_ned_m.is_none()
+            && Vector3::from(imu.gyro_rad_s).norm() < STEADY_RATE_RAD_S
+        {
+            // The hold starts where the craft is once it has stopped turning (recovered).
             self.position_sp_ned_m = Some(nav.position_ned_m);
         }
         self.guidance = self.guidance_now(self.position_sp_ned_m);
@@ -378,6 +420,7 @@ impl Pilot {
         let status = &mut self.status;
         status.q_world_thrust = quaternion_array(&output.q_world_thrust);
         status.rate_sp_rad_s = output.rate_sp_rad_s.into();
+        status.specific_force_sp_ned_mps2 = output.specific_force_sp_ned_mps2.into();
         status.tilt_error_rad = output.tilt_error_rad;
         status.saturated = output.indi.saturated;
         status.position_hold = matches!(self.guidance, Guidance::Position { .. });
