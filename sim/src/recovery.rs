@@ -145,6 +145,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         spec.release_velocity_ned_mps.y = config.horizontal_mps[1];
         let mocap_every = (2000.0 / MOCAP_RATE_HZ).round() as u64;
         let mut hover_since: Option<f64> = None;
+        let mut release_z: Option<f64> = None;
         let mut end_s = f64::INFINITY;
         let max_ticks = hold_ticks + ((1.0 + config.flight_s) * 2000.0) as u64;
         for tick in 0..max_ticks {
@@ -176,9 +177,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             let snapshot = app.control.snapshot();
             let state = board.physics().state().clone();
             let Some(released_s) = board.physics().hand().released_at_s() else { continue };
-            if report.release_to_engage_s.is_none() {
-                report.release_z_m = state.position_ned_m.z;
-            }
+            let release_z_m = *release_z.get_or_insert(state.position_ned_m.z);
+            report.release_z_m = release_z_m;
             let since_release = t_s - released_s;
             report.max_drop_below_release_m =
                 report.max_drop_below_release_m.max(state.position_ned_m.z - report.release_z_m);
