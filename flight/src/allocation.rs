@@ -28,6 +28,10 @@
 //! inconsistent input is refused with [`AllocationStatus::Failed`] and the warm start is left as
 //! it was; the increment returned then is zero clamped into the bounds (or zero).
 
+// Index loops over motors and rows mirror the matrix algebra they implement (several arrays
+// indexed together), and `!(x > 0)` is deliberate: it also rejects NaN.
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::learner::{MAX_MOTORS, MIN_MOTORS};
 
 /// Published weights of the virtual controls: fx, fy, fz, roll, pitch, yaw.
@@ -482,11 +486,11 @@ mod tests {
         best
     }
 
-    fn random_problem(
-        m: usize,
-        seed: u64,
-    ) -> ([[f32; MAX_MOTORS]; 6], [f32; 6], [f32; MAX_MOTORS], [f32; MAX_MOTORS], [f32; MAX_MOTORS])
-    {
+    /// G, dv, lower and upper bounds, preference.
+    type Problem =
+        ([[f32; MAX_MOTORS]; 6], [f32; 6], [f32; MAX_MOTORS], [f32; MAX_MOTORS], [f32; MAX_MOTORS]);
+
+    fn random_problem(m: usize, seed: u64) -> Problem {
         let mut rng = Rng::new(seed);
         let g = airframe(m, &mut rng);
         let mut lo = [0.0f32; MAX_MOTORS];

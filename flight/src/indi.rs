@@ -35,6 +35,10 @@
 //! refused ([`IndiError`]) with nothing changed, and a failed allocation holds the last command
 //! ([`IndiOutput::allocation`] says so; the caller counts and disarms if it persists).
 
+// Index loops over motors and rows mirror the matrix algebra they implement (several arrays
+// indexed together), and `!(x > 0)` is deliberate: it also rejects NaN.
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+
 use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::allocation::{AllocationConfig, AllocationError, AllocationStatus, Allocator};

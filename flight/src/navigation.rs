@@ -109,7 +109,7 @@ impl PositionEstimator {
         f_body_mps2: &Vector3<f32>,
         dt_s: f32,
     ) -> Result<(), NavigationError> {
-        if !(dt_s > 0.0 && dt_s.is_finite()) || !f_body_mps2.iter().all(|x| x.is_finite()) {
+        if !is_step(dt_s) || !f_body_mps2.iter().all(|x| x.is_finite()) {
             return Err(NavigationError::BadInput);
         }
         let s = &mut self.state;
@@ -130,9 +130,7 @@ impl PositionEstimator {
         position_ned_m: &Vector3<f32>,
         dt_fix_s: f32,
     ) -> Result<(), NavigationError> {
-        if !position_ned_m.iter().all(|x| x.is_finite())
-            || !(dt_fix_s > 0.0 && dt_fix_s.is_finite())
-        {
+        if !position_ned_m.iter().all(|x| x.is_finite()) || !is_step(dt_fix_s) {
             return Err(NavigationError::BadInput);
         }
         let s = &mut self.state;
@@ -155,6 +153,11 @@ impl PositionEstimator {
         s.has_fix = true;
         Ok(())
     }
+}
+
+/// Whether `dt_s` is a usable time step: finite and positive.
+fn is_step(dt_s: f32) -> bool {
+    dt_s.is_finite() && dt_s > 0.0
 }
 
 /// Fix spacing of the window over which [`HeadingAlignment`] compares accelerations, fixes

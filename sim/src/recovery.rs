@@ -121,7 +121,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
     let thrust_dir_body =
         airframe.q_imu_body().inverse() * (truth.q_thrust_to_imu * Vector3::new(0.0, 0.0, -1.0));
     let mut board = SimBoard::new(airframe, &config.board);
-    let mut rng = Rng::new(config.board.seed ^ 0x6d6f_6361_70);
+    let mut rng = Rng::new(config.board.seed ^ 0x6d_6f63_6170);
     let hold_window_s = 10.0f64.min(config.flight_s * 0.8);
     with_firmware_app(|app| {
         if config.known_imu_offset {
@@ -175,7 +175,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             }
             let t_s = board.time_s();
             let snapshot = app.control.snapshot();
-            let state = board.physics().state().clone();
+            let state = *board.physics().state();
             let Some(released_s) = board.physics().hand().released_at_s() else { continue };
             let release_z_m = *release_z.get_or_insert(state.position_ned_m.z);
             report.release_z_m = release_z_m;
@@ -240,9 +240,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     None => Outcome::Ground,
                 };
                 break;
-            } else if snapshot.phase == FlightPhase::Done && snapshot.pilot.last_failsafe.is_some()
+            } else if let (FlightPhase::Done, Some(failsafe)) =
+                (snapshot.phase, snapshot.pilot.last_failsafe)
             {
-                report.outcome = Outcome::Failsafe(snapshot.pilot.last_failsafe.unwrap());
+                report.outcome = Outcome::Failsafe(failsafe);
                 break;
             }
             if end_s.is_infinite() {
