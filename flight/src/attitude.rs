@@ -19,8 +19,7 @@
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
-/// Standard gravity, m/s² (ISO 80000-3).
-const STANDARD_GRAVITY_MPS2: f32 = 9.806_65;
+use crate::navigation::STANDARD_GRAVITY_MPS2;
 
 /// Band of |f| around g within which the accelerometer corrects the tilt, fraction of g
 /// (±20 %, algorithms.md §9).

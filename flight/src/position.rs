@@ -14,8 +14,7 @@
 
 use nalgebra::Vector3;
 
-/// Standard gravity, m/s² (ISO 80000-3).
-const STANDARD_GRAVITY_MPS2: f32 = 9.806_65;
+use crate::navigation::STANDARD_GRAVITY_MPS2;
 
 /// Damping of the rate loop (published).
 pub const ZETA_RATE: f32 = 0.9;
