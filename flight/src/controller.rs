@@ -17,6 +17,15 @@
 //!   thrust axis; each becomes a rate setpoint through the attitude gain, tilt limited to
 //!   [`MAX_TILT_RATE_RAD_S`] and yaw to [`MAX_YAW_RATE_RAD_S`], so a craft tumbling after the
 //!   excitation first stops its rotation and then levels.
+//! - **Large tilts** (ours): the linear law `k_attitude·e` turns a craft lying on its back at
+//!   only `π·k_attitude` (430 °/s for τ = 50 ms), and a slow craft thrown to its apex then falls
+//!   for a second before it is level. Beyond [`LINEAR_TILT_RAD`] the tilt rate gains a
+//!   square-root term, `k·e + √(2α(e − e_lin))`: the rate from which the deceleration α still
+//!   brings the craft back to the linear region (as time-optimal attitude controllers do), with α
+//!   a quarter of the tilt authority of the learned G1 ([`tilt_authority_rad_s2`]). Along that
+//!   curve the rate setpoint falls at α, which the rate loop is given as a feed-forward angular
+//!   acceleration so it does not lag behind the planned deceleration. Within 30° of the wanted
+//!   axis the loop is exactly the published one.
 //! - **Thrust**: the wanted specific force projected on the *current* thrust axis (no thrust is
 //!   wasted pushing sideways while tilted), at least [`MIN_THRUST_FRACTION`] of it so the motors
 //!   keep authority when upside down.
@@ -46,6 +55,116 @@ pub const MIN_THRUST_FRACTION: f32 = 0.2;
 /// Tilt beyond which the yaw error is ignored, rad (90°): the heading of a craft on its side is
 /// undefined, and righting it comes first.
 pub const YAW_CONTROL_MAX_TILT_RAD: f32 = core::f32::consts::FRAC_PI_2;
+
+/// Fraction of the tilt authority the square-root law plans to decelerate with (ours): half the
+/// authority goes to the differential thrust that decelerates while the rest keeps the total
+/// thrust, and half of that is margin for a model learned in half a second.
+pub const TILT_DECELERATION_FRACTION: f32 = 0.25;
+
+/// Tilt error below which the attitude loop is the published linear one, rad (30°, ours): the
+/// square-root term only speeds up recoveries from large tilts.
+pub const LINEAR_TILT_RAD: f32 = 30.0 * core::f32::consts::PI / 180.0;
+
+/// Largest vertical acceleration the level hold asks for, m/s² (1 g, ours). The level hold is
+/// what catches a falling craft after the excitation; the published 5 m/s² is a position-control
+/// limit and would take a second and 2.5 m to stop a 5 m/s fall. Twice the hover thrust is within
+/// reach of any craft that can be thrown to fly (thrust-to-weight ≥ 2); a weaker one saturates
+/// and the allocation keeps the attitude first.
+pub const LEVEL_MAX_VERTICAL_ACCEL_MPS2: f32 = STANDARD_GRAVITY_MPS2;
+
+/// The lead of the square-root tilt law, in motor time constants (ours, from the test
+/// `a_slow_craft_rights_itself_much_faster_overshooting_less_than_8_degrees`).
+pub const TILT_LAG_TAUS: f32 = 2.0;
+
+/// Time constant of the measured thrust direction, s (ours): long against the attitude loop, so
+/// the trim is a slow correction of the model and not a loop of its own.
+pub const THRUST_DIRECTION_TIME_S: f32 = 0.5;
+
+/// Largest angle the measured thrust direction may take from the model's axis, rad (15°, ours):
+/// beyond that the model is wrong in a way a trim should not hide.
+pub const THRUST_DIRECTION_MAX_RAD: f32 = 15.0 * core::f32::consts::PI / 180.0;
+
+/// Smallest specific force the thrust direction is measured from, m/s² (half a g: thrust, not the
+/// excitation's pulses or free fall).
+const THRUST_DIRECTION_MIN_FORCE_MPS2: f32 = 0.5 * STANDARD_GRAVITY_MPS2;
+
+/// Largest rate the thrust direction is measured at, rad/s (rotation adds no specific force at
+/// the CoG, but a tumble is no time to trust a low-passed direction).
+const THRUST_DIRECTION_MAX_RATE_RAD_S: f32 = 1.0;
+
+/// The direction the motors really push along, measured (ours).
+///
+/// The specific force at the centre of gravity is the thrust (plus a drag that is small at hover
+/// speeds) divided by the mass, whatever the craft's acceleration: its direction in the thrust
+/// frame is where the motors push, measured. The learned thrust axis is only as good as G1 after
+/// half a second of excitation; a few degrees off, and a craft "level" in the thrust frame
+/// accelerates sideways at `g·sin(error)` (1.5 m/s² for 9°, seen on the tilted hex) until the
+/// position loop's slow integral catches up. Pointing the *measured* direction along the wanted
+/// specific force removes that error at its source. Low-passed over
+/// [`THRUST_DIRECTION_TIME_S`], only from thrusting, slowly turning samples, within
+/// [`THRUST_DIRECTION_MAX_RAD`] of the model's axis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ThrustDirection {
+    /// The craft's "down" as the motors push it: −(specific force direction), thrust frame.
+    down: Vector3<f32>,
+}
+
+impl Default for ThrustDirection {
+    fn default() -> Self {
+        Self { down: Vector3::z() }
+    }
+}
+
+impl ThrustDirection {
+    /// One step with the filtered specific force at the CoG and the rate (thrust frame).
+    pub fn update(
+        &mut self,
+        specific_force_mps2: &Vector3<f32>,
+        rate_rad_s: &Vector3<f32>,
+        dt_s: f32,
+    ) {
+        let force = specific_force_mps2.norm();
+        let usable = force > THRUST_DIRECTION_MIN_FORCE_MPS2
+            && rate_rad_s.norm() < THRUST_DIRECTION_MAX_RATE_RAD_S
+            && force.is_finite()
+            && dt_s > 0.0;
+        if !usable {
+            return;
+        }
+        let measured = -specific_force_mps2 / force;
+        let blended =
+            self.down + (measured - self.down) * (dt_s / THRUST_DIRECTION_TIME_S).min(1.0);
+        let Some(down) = blended.try_normalize(1e-6) else { return };
+        // Within the cone about the model's axis.
+        let angle = libm::acosf(down.z.clamp(-1.0, 1.0));
+        self.down = if angle > THRUST_DIRECTION_MAX_RAD {
+            let side = Vector3::new(down.x, down.y, 0.0).normalize();
+            side * libm::sinf(THRUST_DIRECTION_MAX_RAD)
+                + Vector3::z() * libm::cosf(THRUST_DIRECTION_MAX_RAD)
+        } else {
+            down
+        };
+    }
+
+    /// The craft's "down" as the motors push it (unit, thrust frame; (0, 0, 1) on the model).
+    pub fn down(&self) -> Vector3<f32> {
+        self.down
+    }
+}
+
+/// What the attitude loop asks of the rate loop.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AttitudeCommand {
+    /// Rate setpoint, thrust frame, rad/s.
+    pub rate_sp_rad_s: Vector3<f32>,
+    /// Feed-forward angular acceleration along the planned tilt deceleration, thrust frame,
+    /// rad/s².
+    pub accel_ff_rad_s2: Vector3<f32>,
+    /// Angle between the thrust axis and the wanted one, rad.
+    pub tilt_error_rad: f32,
+    /// Thrust, specific force along the thrust axis, m/s² (positive).
+    pub thrust_mps2: f32,
+}
 
 /// What the craft is asked to do.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -94,6 +213,9 @@ pub struct Controller {
     gains: Gains,
     position: PositionController,
     rate_hz: f32,
+    /// Deceleration the square-root tilt law plans with, rad/s².
+    tilt_decel_rad_s2: f32,
+    thrust_direction: ThrustDirection,
 }
 
 impl Controller {
@@ -101,7 +223,10 @@ impl Controller {
     pub fn new(model: IndiModel, r_imu_m: [f32; 3], config: IndiConfig) -> Result<Self, IndiError> {
         let tau_max = model.motor[..model.motors].iter().map(|m| m.tau_s).fold(0.0, f32::max);
         let gains = Gains::from_tau(tau_max);
+        let tilt_decel_rad_s2 = TILT_DECELERATION_FRACTION * tilt_authority_rad_s2(&model);
         Ok(Self {
+            tilt_decel_rad_s2,
+            thrust_direction: ThrustDirection::default(),
             indi: Indi::new(model, r_imu_m, config)?,
             position: PositionController::new(gains),
             gains,
@@ -120,6 +245,12 @@ impl Controller {
     ) {
         self.indi.start(gyro_rad_s, accel_mps2, commands, speeds_rad_s);
         self.position.reset();
+        self.thrust_direction = ThrustDirection::default();
+    }
+
+    /// The direction the motors are measured to push along, thrust frame (unit).
+    pub fn thrust_direction(&self) -> Vector3<f32> {
+        -self.thrust_direction.down()
     }
 
     /// The gains in use.
@@ -153,21 +284,37 @@ impl Controller {
             }
             Guidance::Level { yaw_rad, velocity_ned_mps } => {
                 // Zero velocity: the velocity loop's P alone (no integral on a drifting estimate).
-                let accel = crate::position::limit_split(
-                    &(velocity_ned_mps * -self.gains.k_velocity),
+                // Vertically the thrust acts through the motors alone, not behind the attitude
+                // loop: the rate loop's gain (designed around the motor lag) applies there.
+                let gain =
+                    Vector3::new(self.gains.k_velocity, self.gains.k_velocity, self.gains.k_rate);
+                let accel = crate::position::limit_horizontal_vertical(
+                    &(-velocity_ned_mps.component_mul(&gain)),
                     crate::position::MAX_ACCEL_MPS2,
+                    LEVEL_MAX_VERTICAL_ACCEL_MPS2,
                 );
                 let f = accel - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
                 (crate::position::limit_tilt(&f), yaw_rad)
             }
         };
-        let (rate_sp, tilt_error_rad, thrust) =
-            attitude_loop(&q_world_thrust, &f_sp, yaw_sp, &self.gains);
         let to_thrust = self.indi.model().q_imu_thrust.inverse();
         let rate = to_thrust * Vector3::from(input.gyro_rad_s);
-        let accel_sp = (rate_sp - rate) * self.gains.k_rate;
-        let reference =
-            IndiReference { specific_force_z_mps2: -thrust, angular_accel_rad_s2: accel_sp };
+        self.thrust_direction.update(&self.indi.state().specific_force_mps2, &rate, dt_s);
+        let command = attitude_loop(
+            &q_world_thrust,
+            &self.thrust_direction.down(),
+            &rate,
+            &f_sp,
+            yaw_sp,
+            &self.gains,
+            self.tilt_decel_rad_s2,
+        );
+        let (rate_sp, tilt_error_rad) = (command.rate_sp_rad_s, command.tilt_error_rad);
+        let accel_sp = (rate_sp - rate) * self.gains.k_rate + command.accel_ff_rad_s2;
+        let reference = IndiReference {
+            specific_force_z_mps2: -command.thrust_mps2,
+            angular_accel_rad_s2: accel_sp,
+        };
         let indi = self.indi.update(input.gyro_rad_s, input.accel_mps2, &reference)?;
         Ok(ControllerOutput {
             indi,
@@ -180,28 +327,87 @@ impl Controller {
     }
 }
 
-/// The attitude loop: rate setpoint (thrust frame, rad/s), tilt error (rad) and thrust (m/s²) for
-/// a wanted specific force `f_sp` (world NED) and heading `yaw_sp_rad`.
+/// The smaller of the two tilt axes' angular-acceleration authority of `model`, rad/s²: the
+/// angular acceleration about thrust-frame x (and y) from every motor at the middle of its
+/// range moved to the end that helps, `½ Σ |G1_row,i| (1 − u_idle,i)`.
+pub fn tilt_authority_rad_s2(model: &IndiModel) -> f32 {
+    let about = |row: usize| -> f32 {
+        (0..model.motors).map(|i| 0.5 * model.g1[row][i].abs() * (1.0 - model.u_idle[i])).sum()
+    };
+    about(3).min(about(4))
+}
+
+/// Tilt rate setpoint, rad/s, for a tilt error `error_rad` ≥ 0 closing at `closing_rad_s`:
+/// `k·e` within [`LINEAR_TILT_RAD`], `k·e + √(2α(e − lead − e_lin))` beyond, where
+/// `lead = closing · lag_s` is the angle the craft turns before a change of demand takes effect;
+/// at most [`MAX_TILT_RATE_RAD_S`]. A non-positive or non-finite α keeps the linear law.
+pub fn tilt_rate_rad_s(
+    error_rad: f32,
+    closing_rad_s: f32,
+    k_attitude: f32,
+    decel_rad_s2: f32,
+    lag_s: f32,
+) -> f32 {
+    let linear = k_attitude * error_rad;
+    let beyond = error_rad - closing_rad_s.max(0.0) * lag_s - LINEAR_TILT_RAD;
+    let rate = if decel_rad_s2 > 0.0 && decel_rad_s2.is_finite() && beyond > 0.0 {
+        linear + libm::sqrtf(2.0 * decel_rad_s2 * beyond)
+    } else {
+        linear
+    };
+    rate.min(MAX_TILT_RATE_RAD_S)
+}
+
+/// The tilt rate setpoint ([`tilt_rate_rad_s`]) and the feed-forward angular acceleration along
+/// it, rad/s and rad/s²: along the square-root curve its planned part falls at
+/// α·(closing rate / planned rate), and the rate loop is told so it decelerates on time. None at
+/// the rate limit (the setpoint is flat there) or within the linear region. The lead is taken
+/// over [`TILT_LAG_TAUS`] motor time constants: the motors' own lag and about as much again for
+/// the rate loop and the filters (one τ overshot by 14° in the test below, two by 6°).
+pub fn tilt_rate_and_feed_forward(
+    error_rad: f32,
+    closing_rad_s: f32,
+    gains: &Gains,
+    decel_rad_s2: f32,
+) -> (f32, f32) {
+    let lag_s = TILT_LAG_TAUS * gains.tau_s;
+    let rate = tilt_rate_rad_s(error_rad, closing_rad_s, gains.k_attitude, decel_rad_s2, lag_s);
+    let planned = rate - gains.k_attitude * error_rad;
+    let ff = if planned > 0.0 && rate < MAX_TILT_RATE_RAD_S {
+        -decel_rad_s2 * (closing_rad_s.max(0.0) / planned).min(1.0)
+    } else {
+        0.0
+    };
+    (rate, ff)
+}
+
+/// The attitude loop for a wanted specific force `f_sp` (world NED, m/s²) and heading
+/// `yaw_sp_rad`, with the thrust frame at `q_world_thrust` turning at `rate_rad_s` (thrust frame),
+/// the motors pushing the craft towards `−thrust_down_t` (unit, thrust frame; (0, 0, 1) for the
+/// model's axis, see [`ThrustDirection`]), planning to decelerate large tilts at
+/// `tilt_decel_rad_s2` ([`tilt_rate_rad_s`]).
 pub fn attitude_loop(
     q_world_thrust: &UnitQuaternion<f32>,
+    thrust_down_t: &Vector3<f32>,
+    rate_rad_s: &Vector3<f32>,
     f_sp: &Vector3<f32>,
     yaw_sp_rad: f32,
     gains: &Gains,
-) -> (Vector3<f32>, f32, f32) {
+    tilt_decel_rad_s2: f32,
+) -> AttitudeCommand {
     let f_norm = f_sp.norm();
     // The wanted thrust-frame z ("down" of the craft) in the world: opposite the specific force.
     let z_wanted_world = if f_norm > 1e-3 { -f_sp / f_norm } else { Vector3::new(0.0, 0.0, 1.0) };
     let z_wanted = q_world_thrust.inverse() * z_wanted_world;
-    // Tilt: rotate the body z onto the wanted one about e3 × z_wanted.
-    let axis = Vector3::new(-z_wanted.y, z_wanted.x, 0.0);
+    // Tilt: rotate the axis the motors really push along onto the wanted one.
+    let axis = thrust_down_t.cross(&z_wanted);
     let sin_tilt = axis.norm();
-    let tilt = libm::atan2f(sin_tilt, z_wanted.z);
+    let tilt = libm::atan2f(sin_tilt, thrust_down_t.dot(&z_wanted));
     let tilt_axis = if sin_tilt > 1e-6 { axis / sin_tilt } else { Vector3::new(1.0, 0.0, 0.0) };
-    let mut rate_sp = tilt_axis * (gains.k_attitude * tilt);
-    let tilt_rate = rate_sp.norm();
-    if tilt_rate > MAX_TILT_RATE_RAD_S {
-        rate_sp *= MAX_TILT_RATE_RAD_S / tilt_rate;
-    }
+    let closing = rate_rad_s.dot(&tilt_axis).max(0.0);
+    let (tilt_rate_sp, ff) = tilt_rate_and_feed_forward(tilt, closing, gains, tilt_decel_rad_s2);
+    let mut rate_sp = tilt_axis * tilt_rate_sp;
+    let accel_ff = tilt_axis * ff;
     // Yaw: the heading error once tilted onto the wanted axis.
     if tilt < YAW_CONTROL_MAX_TILT_RAD {
         let tilt_world =
@@ -213,6 +419,88 @@ pub fn attitude_loop(
         let error = wrap_pi(yaw_sp_rad - yaw);
         rate_sp.z = (gains.k_attitude * error).clamp(-MAX_YAW_RATE_RAD_S, MAX_YAW_RATE_RAD_S);
     }
-    let thrust = (f_norm * libm::cosf(tilt)).max(MIN_THRUST_FRACTION * f_norm);
-    (rate_sp, tilt, thrust)
+    let thrust_mps2 = (f_norm * libm::cosf(tilt)).max(MIN_THRUST_FRACTION * f_norm);
+    AttitudeCommand {
+        rate_sp_rad_s: rate_sp,
+        accel_ff_rad_s2: accel_ff,
+        tilt_error_rad: tilt,
+        thrust_mps2,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One tilt axis: the error `e` closes at the rate `r`, the angular acceleration follows the
+    /// rate loop's demand through the motors' lag τ and saturates at the authority. Returns the
+    /// time to come within 5° (s) and the worst overshoot past level (rad).
+    fn right_from(error_rad: f32, tau_s: f32, authority_rad_s2: f32, shaped: bool) -> (f32, f32) {
+        let gains = Gains::from_tau(tau_s);
+        let decel = if shaped { TILT_DECELERATION_FRACTION * authority_rad_s2 } else { 0.0 };
+        let dt = 1.0 / 2000.0;
+        let (mut e, mut r, mut accel) = (error_rad, 0.0f32, 0.0f32);
+        let (mut settled_s, mut overshoot) = (f32::NAN, 0.0f32);
+        for step in 0..20_000 {
+            let (rate_sp, ff) = tilt_rate_and_feed_forward(e.max(0.0), r, &gains, decel);
+            let demand =
+                (gains.k_rate * (rate_sp - r) + ff).clamp(-authority_rad_s2, authority_rad_s2);
+            accel += (demand - accel) * (dt / tau_s);
+            r += accel * dt;
+            e -= r * dt;
+            overshoot = overshoot.max(-e);
+            if settled_s.is_nan() && e < 5f32.to_radians() {
+                settled_s = step as f32 * dt;
+            }
+        }
+        (settled_s, overshoot)
+    }
+
+    #[test]
+    fn tilt_law_is_the_published_one_within_30_degrees_and_continuous_beyond() {
+        let k = 2.4;
+        for e in [0.0, 0.1, 0.3, LINEAR_TILT_RAD] {
+            assert_eq!(tilt_rate_rad_s(e, 0.0, k, 40.0, 0.05), k * e);
+        }
+        let just_beyond = tilt_rate_rad_s(LINEAR_TILT_RAD + 1e-4, 0.0, k, 40.0, 0.05);
+        assert!((just_beyond - k * LINEAR_TILT_RAD).abs() < 0.2, "{just_beyond}");
+        // Upside down at rest: k·π + √(2·40·(π − π/6)) = 7.5 + 14.5 rad/s, capped at 800 °/s.
+        let upside_down = tilt_rate_rad_s(core::f32::consts::PI, 0.0, k, 40.0, 0.05);
+        assert_eq!(upside_down, MAX_TILT_RATE_RAD_S);
+        // Closing at 10 rad/s with a 50 ms lag: the curve is taken 0.5 rad further on.
+        let closing = tilt_rate_rad_s(1.6, 10.0, k, 40.0, 0.05);
+        let expected = k * 1.6 + libm::sqrtf(2.0 * 40.0 * (1.6 - 0.5 - LINEAR_TILT_RAD));
+        assert!((closing - expected).abs() < 1e-4, "{closing} vs {expected}");
+        assert_eq!(tilt_rate_rad_s(2.0, 0.0, k, f32::NAN, 0.05), k * 2.0);
+    }
+
+    #[test]
+    fn a_slow_craft_rights_itself_much_faster_overshooting_less_than_8_degrees() {
+        // The hex of the simulator: τ = 50 ms, about 150 rad/s² of tilt authority.
+        let (linear_s, linear_overshoot) = right_from(150f32.to_radians(), 0.05, 150.0, false);
+        let (shaped_s, shaped_overshoot) = right_from(150f32.to_radians(), 0.05, 150.0, true);
+        // Measured: 0.52 s against 0.86 s to within 5°; overshoot 6.3° against 1.3°.
+        assert!(shaped_s < 0.65 * linear_s, "shaped {shaped_s} s, linear {linear_s} s");
+        assert!(
+            shaped_overshoot < 8f32.to_radians(),
+            "overshoot shaped {shaped_overshoot} rad, linear {linear_overshoot} rad"
+        );
+    }
+
+    #[test]
+    fn tilt_authority_is_half_the_differential_range_of_the_weaker_axis() {
+        let mut model = IndiModel {
+            motors: 4,
+            g1: [[0.0; crate::learner::MAX_MOTORS]; 6],
+            g2: [[0.0; crate::learner::MAX_MOTORS]; 3],
+            motor: [crate::learner::motor_model::MotorModel::default(); crate::learner::MAX_MOTORS],
+            q_imu_thrust: UnitQuaternion::identity(),
+            u_idle: [0.1; crate::learner::MAX_MOTORS],
+            u_hover: [0.4; crate::learner::MAX_MOTORS],
+        };
+        model.g1[3][..4].copy_from_slice(&[-100.0, 100.0, 100.0, -100.0]);
+        model.g1[4][..4].copy_from_slice(&[80.0, 80.0, -80.0, -80.0]);
+        // About y: ½ · 4 · 80 · 0.9 = 144 rad/s².
+        assert!((tilt_authority_rad_s2(&model) - 144.0).abs() < 1e-3);
+    }
 }

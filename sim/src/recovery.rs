@@ -190,6 +190,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 let q_filter =
                     UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
                 let true_alignment = heading(&(q_true * q_filter.inverse()));
+                let down_true = q_true.inverse() * Vector3::z();
+                let down_filter = q_filter.inverse() * Vector3::z();
+                eprint!("filter tilt err {:5.2}°  ", down_true.angle(&down_filter).to_degrees());
                 eprint!(
                     "true align {:6.1}°  f_sp {:5.2} {:5.2} {:5.2}  ",
                     true_alignment.to_degrees(),

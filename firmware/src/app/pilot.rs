@@ -42,6 +42,15 @@ pub const LOST_ATTITUDE_S: f32 = 1.0;
 /// manoeuvre or a tumble).
 const STEADY_RATE_RAD_S: f32 = 0.5;
 
+/// Speed below which the position hold may start, m/s (ours): the level hold first brings the
+/// recovered craft nearly to rest, so the hold starts where it stopped rather than where it was
+/// still coasting (a hold started at 2 m/s overshoots its setpoint by a metre).
+const HOLD_START_SPEED_MPS: f32 = 0.3;
+
+/// Time constant of the acceleration taken from the fixes, s (ours): smooths the derivative of
+/// the navigation velocity, short against the manoeuvres it compensates.
+const FIX_ACCEL_TIME_S: f32 = 0.05;
+
 /// Rate below which a disarmed craft counts as still, rad/s.
 const STILL_RATE_RAD_S: f32 = 0.2;
 
@@ -153,6 +162,11 @@ pub struct Pilot {
     /// heading plus this is the heading the filter is held to, so only the heading's *changes*
     /// steer the filter (see `observe`); `None` outside a steady stretch.
     heading_offset_rad: Option<f32>,
+    /// The CoG's acceleration from the fixes (the navigation velocity's derivative, low-passed),
+    /// poses' world, m/s²; zero without fixes.
+    accel_world_mps2: Vector3<f32>,
+    /// The navigation velocity of the previous sample while fixes arrive, m/s.
+    previous_velocity_mps: Option<Vector3<f32>>,
     /// Yaw setpoint of the thrust frame in the filter's world, rad.
     yaw_sp_filter_rad: f32,
     /// The latest model from the background task, its offset, and the results version.
@@ -178,6 +192,8 @@ impl Pilot {
             navigation: PositionEstimator::default(),
             alignment: HeadingAlignment::default(),
             heading_offset_rad: None,
+            accel_world_mps2: Vector3::zeros(),
+            previous_velocity_mps: None,
             yaw_sp_filter_rad: 0.0,
             model: None,
             controller: None,
@@ -257,7 +273,28 @@ impl Pilot {
                 None
             }
         };
-        let _ = self.attitude.update(&gyro, &f, heading, dt_s);
+        // The accelerometer measures the thrust, which is also what accelerates the craft: a
+        // sustained manoeuvre (braking from 5 m/s) would pull the filter's "level" towards the
+        // thrust by degrees. With fixes the acceleration is known: the filter gets the
+        // accelerometer minus it, i.e. gravity alone.
+        let aligned = self.alignment.yaw_rad().is_some();
+        let nav_before = self.navigation.state();
+        if pose_fresh && aligned && nav_before.has_fix {
+            let velocity = nav_before.velocity_ned_mps;
+            if let Some(previous) = self.previous_velocity_mps {
+                let raw = (velocity - previous) / dt_s;
+                self.accel_world_mps2 += (raw - self.accel_world_mps2) * (dt_s / FIX_ACCEL_TIME_S);
+            }
+            self.previous_velocity_mps = Some(velocity);
+        } else {
+            self.accel_world_mps2 = Vector3::zeros();
+            self.previous_velocity_mps = None;
+        }
+        let to_filter_world =
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -self.alignment_yaw_rad());
+        let accel_imu =
+            self.attitude.quaternion().inverse() * (to_filter_world * self.accel_world_mps2);
+        let _ = self.attitude.update(&gyro, &(f - accel_imu), heading, dt_s);
         let q_filter = self.attitude.quaternion();
         if f.iter().all(|x| x.is_finite()) {
             let gravity = Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
@@ -303,10 +340,11 @@ impl Pilot {
     fn guidance_now(&self, position_sp_ned_m: Option<Vector3<f32>>) -> Guidance {
         let yaw_rad = self.yaw_sp_filter_rad + self.alignment_yaw_rad();
         let nav = self.navigation.state();
+        let positioned = nav.has_fix && self.alignment.yaw_rad().is_some();
         match position_sp_ned_m {
-            Some(position_ned_m) if nav.has_fix && self.alignment.yaw_rad().is_some() => {
-                Guidance::Position { position_ned_m, yaw_rad }
-            }
+            Some(position_ned_m) if positioned => Guidance::Position { position_ned_m, yaw_rad },
+            // Before the hold starts, the velocity from the fixes when there are fixes.
+            _ if positioned => Guidance::Level { yaw_rad, velocity_ned_mps: nav.velocity_ned_mps },
             _ => Guidance::Level { yaw_rad, velocity_ned_mps: self.dead_reckoned_velocity() },
         }
     }
@@ -373,8 +411,9 @@ impl Pilot {
         } else if can_hold
             && self.position_sp_ned_m.is_none()
             && Vector3::from(imu.gyro_rad_s).norm() < STEADY_RATE_RAD_S
+            && nav.velocity_ned_mps.norm() < HOLD_START_SPEED_MPS
         {
-            // The hold starts where the craft is once it has stopped turning (recovered).
+            // The hold starts where the craft is once it has stopped turning and moving.
             self.position_sp_ned_m = Some(nav.position_ned_m);
         }
         self.guidance = self.guidance_now(self.position_sp_ned_m);
