@@ -17,3 +17,4 @@ pub use flight::rng;
 pub mod scenario;
 pub mod serve;
 pub mod sitl;
+pub mod stats;

@@ -10,6 +10,7 @@
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
 use sim::identification::{identify, monte_carlo, IdentifyConfig, Scores};
+use sim::stats::quantile;
 
 #[derive(Parser, Debug)]
 #[command(version, about = "In-flight identification against the simulator's truth")]
@@ -243,15 +244,4 @@ fn print_matrices(learned: &flight::learner::LearnedModel, truth: &sim::identifi
 
 fn percent(values: &[f64; 6]) -> String {
     values.iter().map(|v| format!("{:.1} %", 100.0 * v)).collect::<Vec<_>>().join(", ")
-}
-
-/// The `q` quantile (nearest rank) of `values`; NaN when empty.
-fn quantile(values: &[f64], q: f64) -> f64 {
-    if values.is_empty() {
-        return f64::NAN;
-    }
-    let mut sorted = values.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let rank = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
-    sorted[rank - 1]
 }

@@ -1,0 +1,166 @@
+//! `fly`: throw-and-fly end to end (identification, recovery, position hold of the firmware
+//! application) against the simulator's truth, one airframe or a Monte Carlo over random
+//! airframes and throws, with every failure classified.
+//!
+//! ```text
+//! cargo run -p sim --release --bin fly -- paper --airframe hex-tilted
+//! cargo run -p sim --release --bin fly -- monte-carlo --runs 1000 --threads 2
+//! cargo run -p sim --release --bin fly -- case --seed 21 --trace   # one Monte Carlo run again
+//! ```
+
+use std::collections::BTreeMap;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use sim::airframe::Airframe;
+use sim::recovery::{fly, monte_carlo, random_case, FlyConfig, FlyReport, Verdict};
+use sim::stats::quantile;
+
+#[derive(Parser, Debug)]
+#[command(version, about = "Throw-and-fly against the simulator's truth")]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// The seed paper's experiment: a 3.5 m parabola released at (400, 400, 100) °/s.
+    Paper {
+        /// Airframe: a built-in name or a TOML file.
+        #[arg(long, default_value = "paper-quad")]
+        airframe: String,
+        /// Noise seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print the flight every 100 ms.
+        #[arg(long)]
+        trace: bool,
+    },
+    /// One Monte Carlo case, replayed alone.
+    Case {
+        /// The case's seed (as printed by `monte-carlo`).
+        #[arg(long)]
+        seed: u64,
+        /// Print the flight every 100 ms.
+        #[arg(long)]
+        trace: bool,
+    },
+    /// Random airframes (4–8 motors, tilted rotors, any IMU pose) and random throws (300–600 °/s
+    /// about a random axis, 2.5–4.5 m apex, up to 2 m/s sideways).
+    MonteCarlo {
+        /// Number of runs.
+        #[arg(long, default_value_t = 1000)]
+        runs: usize,
+        /// First seed (run i uses seed + i).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Worker threads.
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+    },
+}
+
+fn print_report(name: &str, report: &FlyReport) {
+    println!("{name}: {:?} ({:?})", Verdict::of(report), report.outcome);
+    println!(
+        "  release → engage {:.0} ms, → hover {:.2} s",
+        report.release_to_engage_s.unwrap_or(f64::NAN) * 1e3,
+        report.release_to_hover_s.unwrap_or(f64::NAN)
+    );
+    println!("  worst drop below the release point {:.2} m", report.max_drop_below_release_m);
+    println!(
+        "  worst distance from the position setpoint over the last {:.0} s: {:.3} m",
+        report.hold_window_s,
+        report.max_hold_error_m.unwrap_or(f64::NAN)
+    );
+}
+
+fn main() -> ExitCode {
+    match Args::parse().command {
+        Command::Paper { airframe, seed, trace } => {
+            let airframe = match Airframe::load(&airframe) {
+                Ok(a) => a,
+                Err(e) => {
+                    eprintln!("fly: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            let mut config = FlyConfig::paper();
+            config.board.seed = seed;
+            config.trace = trace;
+            print_report(&airframe.name, &fly(&airframe, &config));
+        }
+        Command::Case { seed, trace } => {
+            let (airframe, mut config) = random_case(seed);
+            config.trace = trace;
+            println!(
+                "case {seed}: {} motors, rate {:.0?} °/s, apex {:.2} m, sideways {:.2?} m/s",
+                airframe.rotor_count(),
+                config.rate_body_rad_s.map(f64::to_degrees).as_slice(),
+                config.apex_m,
+                config.horizontal_mps
+            );
+            print_report(&format!("case {seed}"), &fly(&airframe, &config));
+        }
+        Command::MonteCarlo { runs, seed, threads } => {
+            let started = std::time::Instant::now();
+            let results = monte_carlo(runs, seed, threads, &|done| {
+                if done % 50 == 0 || done == runs {
+                    eprintln!("fly: {done}/{runs} runs");
+                }
+            });
+            println!(
+                "{runs} runs in {:.0} s on {threads} threads",
+                started.elapsed().as_secs_f64()
+            );
+            let mut verdicts: BTreeMap<String, Vec<u64>> = BTreeMap::new();
+            for r in &results {
+                verdicts.entry(format!("{:?}", r.verdict)).or_default().push(r.seed);
+            }
+            for (verdict, seeds) in &verdicts {
+                let examples: Vec<String> = seeds.iter().take(5).map(u64::to_string).collect();
+                println!(
+                    "  {verdict}: {} ({:.1} %), e.g. seeds {}",
+                    seeds.len(),
+                    100.0 * seeds.len() as f64 / runs.max(1) as f64,
+                    examples.join(", ")
+                );
+            }
+            let hover: Vec<f64> =
+                results.iter().filter_map(|r| r.report.release_to_hover_s).collect();
+            let hold: Vec<f64> = results.iter().filter_map(|r| r.report.max_hold_error_m).collect();
+            let drop: Vec<f64> = results
+                .iter()
+                .filter(|r| r.report.release_to_engage_s.is_some())
+                .map(|r| r.report.max_drop_below_release_m)
+                .collect();
+            println!(
+                "release → hover: median {:.2} s, 90th {:.2} s, 99th {:.2} s",
+                quantile(&hover, 0.5),
+                quantile(&hover, 0.9),
+                quantile(&hover, 0.99)
+            );
+            println!(
+                "worst distance from the setpoint over the hold: median {:.3} m, 90th {:.3} m, 99th {:.3} m",
+                quantile(&hold, 0.5),
+                quantile(&hold, 0.9),
+                quantile(&hold, 0.99)
+            );
+            println!(
+                "drop below the release point: median {:.2} m, 90th {:.2} m, 99th {:.2} m",
+                quantile(&drop, 0.5),
+                quantile(&drop, 0.9),
+                quantile(&drop, 0.99)
+            );
+            for motors in 4..=8 {
+                let of: Vec<&_> = results.iter().filter(|r| r.motors == motors).collect();
+                if !of.is_empty() {
+                    let held = of.iter().filter(|r| r.verdict == Verdict::Held).count();
+                    println!("  {motors} motors: {} runs, held {held}", of.len());
+                }
+            }
+        }
+    }
+    ExitCode::SUCCESS
+}
