@@ -176,6 +176,14 @@ impl AttitudeFilter {
         &self.config
     }
 
+    /// Change the tuning, keeping the attitude and the bias learned; refused (nothing changed)
+    /// when the tuning is invalid.
+    pub fn set_config(&mut self, config: AttitudeConfig) -> Result<(), AttitudeError> {
+        config.validate()?;
+        self.config = config;
+        Ok(())
+    }
+
     /// Start from a known attitude `q_world_body` (renormalised). The gyro-bias estimate is
     /// kept: it belongs to the sensor, not to the attitude.
     pub fn reset_to(&mut self, q_world_body: UnitQuaternion<f32>) -> Result<(), AttitudeError> {
