@@ -488,6 +488,40 @@ mod tests {
     }
 
     #[test]
+    fn the_measured_thrust_direction_follows_the_specific_force_slowly_and_within_its_cone() {
+        let dt = 1.0 / 2000.0;
+        let g = STANDARD_GRAVITY_MPS2;
+        let still = Vector3::zeros();
+        // Thrust 4° off the model's axis about x: after 3 s (6 time constants) within 0.02°.
+        let tilt = 4f32.to_radians();
+        let force = Vector3::new(0.0, libm::sinf(tilt), -libm::cosf(tilt)) * g;
+        let mut direction = ThrustDirection::default();
+        for _ in 0..1000 {
+            direction.update(&force, &still, dt);
+        }
+        let half_s = libm::acosf(direction.down().z);
+        // After one time constant: 1 − e⁻¹ of the way.
+        assert!((half_s - tilt * (1.0 - libm::expf(-1.0))).abs() < 0.05 * tilt, "{half_s}");
+        for _ in 0..5000 {
+            direction.update(&force, &still, dt);
+        }
+        assert!((libm::acosf(direction.down().z) - tilt).abs() < 0.02f32.to_radians());
+        // Free fall, a tumble and non-finite input leave it alone.
+        let before = direction;
+        direction.update(&Vector3::new(0.0, 0.0, -1.0), &still, dt);
+        direction.update(&force, &Vector3::new(3.0, 0.0, 0.0), dt);
+        direction.update(&Vector3::new(f32::NAN, 0.0, -g), &still, dt);
+        assert_eq!(direction, before);
+        // 40° off: held at the 15° cone.
+        let far = Vector3::new(libm::sinf(0.7), 0.0, -libm::cosf(0.7)) * g;
+        for _ in 0..20_000 {
+            direction.update(&far, &still, dt);
+        }
+        let angle = libm::acosf(direction.down().z);
+        assert!((angle - THRUST_DIRECTION_MAX_RAD).abs() < 1e-3, "{angle}");
+    }
+
+    #[test]
     fn tilt_authority_is_half_the_differential_range_of_the_weaker_axis() {
         let mut model = IndiModel {
             motors: 4,
