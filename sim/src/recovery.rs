@@ -17,6 +17,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
+use crate::dynamics::State;
 use crate::hand::ThrowSpec;
 use crate::identification::TrueModel;
 use crate::rng::Rng;
@@ -39,6 +40,41 @@ pub const MOCAP_RATE_HZ: f64 = 100.0;
 pub const MOCAP_NOISE_M: f64 = 0.001;
 /// Motion-capture heading noise, one standard deviation, rad (0.1°).
 pub const MOCAP_HEADING_NOISE_RAD: f64 = 0.0017;
+
+/// A motion-capture system: the true pose of the centre of gravity (world NED position, heading
+/// of the body frame) at [`MOCAP_RATE_HZ`] with [`MOCAP_NOISE_M`] and [`MOCAP_HEADING_NOISE_RAD`]
+/// of Gaussian noise, as the throw-and-fly runs and the SITL's `--mocap` send it.
+#[derive(Clone, Debug)]
+pub struct MotionCapture {
+    rng: Rng,
+    next_us: u64,
+}
+
+impl MotionCapture {
+    /// A system whose noise is drawn from `seed`.
+    pub fn new(seed: u64) -> Self {
+        Self { rng: Rng::new(seed ^ 0x6d_6f63_6170), next_us: 0 }
+    }
+
+    /// The pose when one is due at `now_us`.
+    pub fn sample(&mut self, state: &State, now_us: u64) -> Option<ExternalPose> {
+        if now_us < self.next_us {
+            return None;
+        }
+        self.next_us = now_us + (1e6 / MOCAP_RATE_HZ) as u64;
+        let p = state.position_ned_m;
+        let rng = &mut self.rng;
+        let mut noisy = |value: f64, sigma: f64| (value + rng.normal() * sigma) as f32;
+        Some(ExternalPose {
+            position_ned_m: [
+                noisy(p.x, MOCAP_NOISE_M),
+                noisy(p.y, MOCAP_NOISE_M),
+                noisy(p.z, MOCAP_NOISE_M),
+            ],
+            heading_rad: noisy(heading(&state.attitude()), MOCAP_HEADING_NOISE_RAD),
+        })
+    }
+}
 
 /// One throw-and-fly run.
 #[derive(Clone, Debug, PartialEq)]
@@ -121,7 +157,6 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
     let thrust_dir_body =
         airframe.q_imu_body().inverse() * (truth.q_thrust_to_imu * Vector3::new(0.0, 0.0, -1.0));
     let mut board = SimBoard::new(airframe, &config.board);
-    let mut rng = Rng::new(config.board.seed ^ 0x6d_6f63_6170);
     let hold_window_s = 10.0f64.min(config.flight_s * 0.8);
     with_firmware_app(|app| {
         if config.known_imu_offset {
@@ -143,7 +178,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         let mut spec = ThrowSpec::vertical(config.apex_m, config.rate_body_rad_s, 0.15);
         spec.release_velocity_ned_mps.x = config.horizontal_mps[0];
         spec.release_velocity_ned_mps.y = config.horizontal_mps[1];
-        let mocap_every = (2000.0 / MOCAP_RATE_HZ).round() as u64;
+        let mut mocap = config.mocap.then(|| MotionCapture::new(config.board.seed));
         let mut hover_since: Option<f64> = None;
         let mut release_z: Option<f64> = None;
         let mut end_s = f64::INFINITY;
@@ -154,19 +189,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             }
             board.tick();
             let now_us = board.now_us();
-            if config.mocap && tick % mocap_every == 0 {
-                let state = board.physics().state();
-                let p = state.position_ned_m;
-                let noise = |rng: &mut Rng, sigma: f64| (rng.normal() * sigma) as f32;
-                let pose = ExternalPose {
-                    position_ned_m: [
-                        p.x as f32 + noise(&mut rng, MOCAP_NOISE_M),
-                        p.y as f32 + noise(&mut rng, MOCAP_NOISE_M),
-                        p.z as f32 + noise(&mut rng, MOCAP_NOISE_M),
-                    ],
-                    heading_rad: heading(&state.attitude()) as f32
-                        + noise(&mut rng, MOCAP_HEADING_NOISE_RAD),
-                };
+            if let Some(pose) =
+                mocap.as_mut().and_then(|m| m.sample(board.physics().state(), now_us))
+            {
                 app.command(ControlCommand::ExternalPose(pose), now_us);
             }
             {
@@ -372,4 +397,39 @@ pub fn monte_carlo(
             })
             .collect()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn motion_capture_sends_100_poses_a_second_with_millimetre_noise() {
+        let airframe = Airframe::builtin("paper-quad").unwrap();
+        let board = SimBoard::new(&airframe, &SimConfig::default());
+        let state = *board.physics().state();
+        let mut mocap = MotionCapture::new(7);
+        let mut poses = Vec::new();
+        for tick in 0..20_000u64 {
+            // 2 kHz for 10 s.
+            if let Some(pose) = mocap.sample(&state, tick * 500) {
+                poses.push(pose);
+            }
+        }
+        assert_eq!(poses.len(), 1000);
+        let truth = state.position_ned_m;
+        let n = poses.len() as f64;
+        let rms =
+            (poses.iter().map(|p| (f64::from(p.position_ned_m[0]) - truth.x).powi(2)).sum::<f64>()
+                / n)
+                .sqrt();
+        assert!((rms - MOCAP_NOISE_M).abs() < 0.15 * MOCAP_NOISE_M, "{rms} m");
+        let heading_rms = (poses
+            .iter()
+            .map(|p| (f64::from(p.heading_rad) - heading(&state.attitude())).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt();
+        assert!((heading_rms - MOCAP_HEADING_NOISE_RAD).abs() < 0.15 * MOCAP_HEADING_NOISE_RAD);
+    }
 }

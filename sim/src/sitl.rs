@@ -63,6 +63,10 @@ pub struct SitlConfig {
     /// gravity, IMU axes, m (each component finite, within ±[`MAX_IMU_OFFSET_M`]). `None`: the
     /// board's onboard estimate (or zero without one).
     pub imu_offset_m: Option<[f32; 3]>,
+    /// Send the simulator's true pose to the firmware as a motion-capture system would
+    /// ([`crate::recovery::MotionCapture`]: 100 Hz, 1 mm and 0.1° noise), so a throw-to-fly
+    /// holds a position.
+    pub mocap: bool,
 }
 
 /// Largest accepted IMU offset component, m.
@@ -93,6 +97,7 @@ impl Default for SitlConfig {
             auto_throw_every_s: None,
             auto_throw_count: None,
             throw_to_fly: false,
+            mocap: false,
             imu_offset_m: None,
         }
     }
@@ -173,6 +178,7 @@ impl Sitl {
             auto_throw_every_s: config.auto_throw_every_s,
             auto_throw_count: config.auto_throw_count,
             throw_to_fly: config.throw_to_fly,
+            mocap: config.mocap,
             imu_offset_m: config.imu_offset_m,
             info,
             pty,
@@ -218,6 +224,7 @@ struct Runner {
     auto_throw_count: Option<usize>,
     throw_to_fly: bool,
     imu_offset_m: Option<[f32; 3]>,
+    mocap: bool,
     info: BoardInfo,
     pty: Option<Pty>,
     tcp: Option<TcpLinks>,
@@ -242,6 +249,7 @@ impl Runner {
         let mut pty = self.pty.map(|transport| Connection::new(transport, self.info.clone()));
         let mut tcp = self.tcp;
 
+        let mut mocap = self.mocap.then(|| crate::recovery::MotionCapture::new(self.seed));
         let mut throws_done = 0usize;
         let start = Instant::now();
         let ticks_per_link_pass = (LINK_PERIOD_US / firmware_period_us()).max(1);
@@ -260,6 +268,11 @@ impl Runner {
                 }
                 board.tick();
                 let now_us = board.now_us();
+                if let Some(pose) =
+                    mocap.as_mut().and_then(|m| m.sample(board.physics().state(), now_us))
+                {
+                    control.command(ControlCommand::ExternalPose(pose), now_us);
+                }
                 let (imu, motors) = board.ports();
                 crate::scenario::step_firmware(&mut control, &mut background, now_us, imu, motors);
             }

@@ -53,6 +53,10 @@ struct Args {
     /// gravity, IMU axes, mm, as `X,Y,Z` (each within ±1000). Default: the onboard estimate.
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_imu_offset_mm)]
     imu_offset_mm: Option<[f32; 3]>,
+    /// Send the simulator's true pose to the firmware as motion capture would (100 Hz, 1 mm and
+    /// 0.1° noise), so the craft holds a position after a throw-to-fly.
+    #[arg(long)]
+    mocap: bool,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -71,6 +75,7 @@ fn main() -> std::process::ExitCode {
         auto_throw_count: args.throws,
         throw_to_fly: args.throw_to_fly,
         imu_offset_m: args.imu_offset_mm,
+        mocap: args.mocap,
     };
     let sitl = match Sitl::start(&config) {
         Ok(sitl) => sitl,
@@ -94,6 +99,9 @@ fn main() -> std::process::ExitCode {
     }
     if args.throw_to_fly {
         println!("  armed for throw-to-fly: the first throw starts the motor excitation");
+    }
+    if args.mocap {
+        println!("  motion capture: the true pose at 100 Hz (1 mm, 0.1° noise)");
     }
     if let Some([x, y, z]) = args.imu_offset_mm {
         println!(
