@@ -336,17 +336,23 @@ fn run(
     report
 }
 
-/// One Monte Carlo case: a random airframe and a random throw.
+/// A random throw of the Monte Carlo batches: body rate 300–600 °/s about a random axis (rad/s),
+/// apex 2.5–4.5 m above the release, up to 2 m/s sideways in a random direction (north, east).
+pub fn random_throw(rng: &mut Rng) -> (Vector3<f64>, f64, [f64; 2]) {
+    let direction = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+    let rate_body_rad_s = direction * rng.range(300.0, 600.0).to_radians();
+    let apex_m = rng.range(2.5, 4.5);
+    let heading = rng.range(0.0, std::f64::consts::TAU);
+    let speed = rng.range(0.0, 2.0);
+    (rate_body_rad_s, apex_m, [speed * heading.cos(), speed * heading.sin()])
+}
+
+/// One Monte Carlo case: a random airframe and a random throw ([`random_throw`]).
 pub fn random_case(seed: u64) -> (Airframe, IdentifyConfig) {
     let airframe = Airframe::random(seed);
     let mut rng = Rng::new(seed ^ 0x1D_E471_F1CA_7104);
-    let direction = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
     let mut config = IdentifyConfig::paper();
-    config.rate_body_rad_s = direction * rng.range(300.0, 600.0).to_radians();
-    config.apex_m = rng.range(2.5, 4.5);
-    let heading = rng.range(0.0, std::f64::consts::TAU);
-    let speed = rng.range(0.0, 2.0);
-    config.horizontal_mps = [speed * heading.cos(), speed * heading.sin()];
+    (config.rate_body_rad_s, config.apex_m, config.horizontal_mps) = random_throw(&mut rng);
     config.capture_after_s = 10.0; // the end of the excitation
     config.board.seed = seed;
     (airframe, config)
@@ -370,22 +376,10 @@ pub fn monte_carlo(
     threads: usize,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Vec<CaseResult> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads.max(1))
-        .build()
-        .expect("a rayon pool with a positive thread count builds");
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    pool.install(|| {
-        use rayon::prelude::*;
-        (0..runs as u64)
-            .into_par_iter()
-            .map(|i| {
-                let (airframe, config) = random_case(seed + i);
-                let report = identify(&airframe, &config);
-                let scores = report.at_end.as_ref().map(|m| Scores::of(m, &report.truth));
-                progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
-                CaseResult { seed: seed + i, motors: airframe.rotor_count(), scores }
-            })
-            .collect()
+    crate::stats::run_seeds(runs, seed, threads, progress, |seed| {
+        let (airframe, config) = random_case(seed);
+        let report = identify(&airframe, &config);
+        let scores = report.at_end.as_ref().map(|m| Scores::of(m, &report.truth));
+        CaseResult { seed, motors: airframe.rotor_count(), scores }
     })
 }

@@ -311,13 +311,9 @@ fn thrust_tilt_rad(q_world_body: &UnitQuaternion<f64>, thrust_dir_body: &Vector3
 pub fn random_case(seed: u64) -> (Airframe, FlyConfig) {
     let airframe = Airframe::random(seed);
     let mut rng = Rng::new(seed ^ 0x00F1_7EC0_7E57);
-    let direction = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
     let mut config = FlyConfig::paper();
-    config.rate_body_rad_s = direction * rng.range(300.0, 600.0).to_radians();
-    config.apex_m = rng.range(2.5, 4.5);
-    let heading = rng.range(0.0, std::f64::consts::TAU);
-    let speed = rng.range(0.0, 2.0);
-    config.horizontal_mps = [speed * heading.cos(), speed * heading.sin()];
+    (config.rate_body_rad_s, config.apex_m, config.horizontal_mps) =
+        crate::identification::random_throw(&mut rng);
     config.board.seed = seed;
     (airframe, config)
 }
@@ -379,23 +375,11 @@ pub fn monte_carlo(
     threads: usize,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Vec<CaseResult> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads.max(1))
-        .build()
-        .expect("a rayon pool with a positive thread count builds");
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    pool.install(|| {
-        use rayon::prelude::*;
-        (0..runs as u64)
-            .into_par_iter()
-            .map(|i| {
-                let (airframe, config) = random_case(seed + i);
-                let report = fly(&airframe, &config);
-                progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
-                let verdict = Verdict::of(&report);
-                CaseResult { seed: seed + i, motors: airframe.rotor_count(), report, verdict }
-            })
-            .collect()
+    crate::stats::run_seeds(runs, seed, threads, progress, |seed| {
+        let (airframe, config) = random_case(seed);
+        let report = fly(&airframe, &config);
+        let verdict = Verdict::of(&report);
+        CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
     })
 }
 

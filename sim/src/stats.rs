@@ -1,4 +1,31 @@
-//! Small statistics for the Monte Carlo reports.
+//! Small statistics for the Monte Carlo reports, and the parallel runner they share.
+
+/// Runs `run(seed + i)` for `i` in `0..runs` on `threads` workers (rayon) and returns the
+/// results in seed order; `progress` is called with the number done after each run.
+pub fn run_seeds<T: Send>(
+    runs: usize,
+    seed: u64,
+    threads: usize,
+    progress: &(dyn Fn(usize) + Sync),
+    run: impl Fn(u64) -> T + Sync,
+) -> Vec<T> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .build()
+        .expect("a rayon pool with a positive thread count builds");
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    pool.install(|| {
+        use rayon::prelude::*;
+        (0..runs as u64)
+            .into_par_iter()
+            .map(|i| {
+                let result = run(seed + i);
+                progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+                result
+            })
+            .collect()
+    })
+}
 
 /// The `q` quantile (nearest rank) of `values`; NaN when empty.
 pub fn quantile(values: &[f64], q: f64) -> f64 {
