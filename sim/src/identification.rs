@@ -200,15 +200,56 @@ fn wrap(angle: f64) -> f64 {
 /// the last motor's speed settles back to idle (about three time constants).
 pub const SETTLE_AFTER_EXCITATION_S: f64 = 0.08;
 
-/// One throw-to-fly identification run.
-#[derive(Clone, Debug, PartialEq)]
-pub struct IdentifyConfig {
+/// A throw of the throw-to-fly runs (identification and recovery): straight up from the hand.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Throw {
     /// Body rate at release, rad/s.
     pub rate_body_rad_s: Vector3<f64>,
     /// Apex above the release point, m.
     pub apex_m: f64,
     /// Horizontal release velocity (north, east), m/s.
     pub horizontal_mps: [f64; 2],
+}
+
+impl Throw {
+    /// The seed paper's: a 3.5 m parabola released at (400, 400, 100) °/s.
+    pub fn paper() -> Self {
+        Self {
+            rate_body_rad_s: Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
+            apex_m: 3.5,
+            horizontal_mps: [0.0, 0.0],
+        }
+    }
+
+    /// A random throw of the Monte Carlo batches: body rate 300–600 °/s about a random axis, apex
+    /// 2.5–4.5 m above the release, up to 2 m/s sideways in a random direction.
+    pub fn random(rng: &mut Rng) -> Self {
+        let direction = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+        let rate_body_rad_s = direction * rng.range(300.0, 600.0).to_radians();
+        let apex_m = rng.range(2.5, 4.5);
+        let heading = rng.range(0.0, std::f64::consts::TAU);
+        let speed = rng.range(0.0, 2.0);
+        Self {
+            rate_body_rad_s,
+            apex_m,
+            horizontal_mps: [speed * heading.cos(), speed * heading.sin()],
+        }
+    }
+
+    /// What the hand does (a 0.15 s throw).
+    pub fn spec(&self) -> ThrowSpec {
+        let mut spec = ThrowSpec::vertical(self.apex_m, self.rate_body_rad_s, 0.15);
+        spec.release_velocity_ned_mps.x = self.horizontal_mps[0];
+        spec.release_velocity_ned_mps.y = self.horizontal_mps[1];
+        spec
+    }
+}
+
+/// One throw-to-fly identification run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IdentifyConfig {
+    /// The throw.
+    pub throw: Throw,
     /// Capture the learned model this long after the excitation began, s.
     pub capture_after_s: f64,
     /// Give the firmware the true IMU offset (as a calibrated board has); otherwise zero.
@@ -221,9 +262,7 @@ impl IdentifyConfig {
     /// The seed paper's experiment: a 3.5 m parabola released at (400, 400, 100) °/s.
     pub fn paper() -> Self {
         Self {
-            rate_body_rad_s: Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
-            apex_m: 3.5,
-            horizontal_mps: [0.0, 0.0],
+            throw: Throw::paper(),
             capture_after_s: 0.300,
             known_imu_offset: true,
             board: SimConfig {
@@ -282,9 +321,7 @@ fn run(
     let hold_ticks = 1000; // 0.5 s in the hand
     let mut excitation_start_s: Option<f64> = None;
     let mut excitation_end_s: Option<f64> = None;
-    let mut spec = ThrowSpec::vertical(config.apex_m, config.rate_body_rad_s, 0.15);
-    spec.release_velocity_ned_mps.x = config.horizontal_mps[0];
-    spec.release_velocity_ned_mps.y = config.horizontal_mps[1];
+    let spec = config.throw.spec();
     for tick in 0..10_000u64 {
         if tick == hold_ticks {
             board.physics_mut().throw(&spec);
@@ -336,23 +373,12 @@ fn run(
     report
 }
 
-/// A random throw of the Monte Carlo batches: body rate 300–600 °/s about a random axis (rad/s),
-/// apex 2.5–4.5 m above the release, up to 2 m/s sideways in a random direction (north, east).
-pub fn random_throw(rng: &mut Rng) -> (Vector3<f64>, f64, [f64; 2]) {
-    let direction = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
-    let rate_body_rad_s = direction * rng.range(300.0, 600.0).to_radians();
-    let apex_m = rng.range(2.5, 4.5);
-    let heading = rng.range(0.0, std::f64::consts::TAU);
-    let speed = rng.range(0.0, 2.0);
-    (rate_body_rad_s, apex_m, [speed * heading.cos(), speed * heading.sin()])
-}
-
-/// One Monte Carlo case: a random airframe and a random throw ([`random_throw`]).
+/// One Monte Carlo case: a random airframe and a random throw ([`Throw::random`]).
 pub fn random_case(seed: u64) -> (Airframe, IdentifyConfig) {
     let airframe = Airframe::random(seed);
     let mut rng = Rng::new(seed ^ 0x1D_E471_F1CA_7104);
     let mut config = IdentifyConfig::paper();
-    (config.rate_body_rad_s, config.apex_m, config.horizontal_mps) = random_throw(&mut rng);
+    config.throw = Throw::random(&mut rng);
     config.capture_after_s = 10.0; // the end of the excitation
     config.board.seed = seed;
     (airframe, config)

@@ -18,8 +18,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
 use crate::dynamics::State;
-use crate::hand::ThrowSpec;
-use crate::identification::TrueModel;
+use crate::identification::{Throw, TrueModel};
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FlightApp};
 use firmware::app::{ControlCommand, Failsafe};
@@ -79,12 +78,8 @@ impl MotionCapture {
 /// One throw-and-fly run.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FlyConfig {
-    /// Body rate at release, rad/s.
-    pub rate_body_rad_s: Vector3<f64>,
-    /// Apex above the release point, m.
-    pub apex_m: f64,
-    /// Horizontal release velocity (north, east), m/s.
-    pub horizontal_mps: [f64; 2],
+    /// The throw.
+    pub throw: Throw,
     /// Give the firmware the true IMU offset (a calibrated board).
     pub known_imu_offset: bool,
     /// Send the pose at [`MOCAP_RATE_HZ`].
@@ -102,9 +97,7 @@ impl FlyConfig {
     /// motion capture on, 13 s of flight.
     pub fn paper() -> Self {
         Self {
-            rate_body_rad_s: Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
-            apex_m: 3.5,
-            horizontal_mps: [0.0, 0.0],
+            throw: Throw::paper(),
             known_imu_offset: true,
             mocap: true,
             flight_s: 13.0,
@@ -175,9 +168,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             hold_window_s,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
-        let mut spec = ThrowSpec::vertical(config.apex_m, config.rate_body_rad_s, 0.15);
-        spec.release_velocity_ned_mps.x = config.horizontal_mps[0];
-        spec.release_velocity_ned_mps.y = config.horizontal_mps[1];
+        let spec = config.throw.spec();
         let mut mocap = config.mocap.then(|| MotionCapture::new(config.board.seed));
         let mut hover_since: Option<f64> = None;
         let mut release_z: Option<f64> = None;
@@ -312,8 +303,7 @@ pub fn random_case(seed: u64) -> (Airframe, FlyConfig) {
     let airframe = Airframe::random(seed);
     let mut rng = Rng::new(seed ^ 0x00F1_7EC0_7E57);
     let mut config = FlyConfig::paper();
-    (config.rate_body_rad_s, config.apex_m, config.horizontal_mps) =
-        crate::identification::random_throw(&mut rng);
+    config.throw = Throw::random(&mut rng);
     config.board.seed = seed;
     (airframe, config)
 }

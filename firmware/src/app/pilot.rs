@@ -295,8 +295,11 @@ impl Pilot {
         let aligned = self.alignment.yaw_rad().is_some();
         let nav_before = self.navigation.state();
         let compensated = pose_fresh && aligned && nav_before.has_fix;
-        let tuning = if compensated { COMPENSATED_ATTITUDE } else { AttitudeConfig::default() };
-        let _ = self.attitude.set_config(tuning);
+        if compensated != self.previous_velocity_mps.is_some() {
+            // Compensation starts or stops: retune the filter (only then, not every step).
+            let tuning = if compensated { COMPENSATED_ATTITUDE } else { AttitudeConfig::default() };
+            let _ = self.attitude.set_config(tuning);
+        }
         if compensated {
             let velocity = nav_before.velocity_ned_mps;
             if let Some(previous) = self.previous_velocity_mps {

@@ -97,9 +97,9 @@ fn main() -> ExitCode {
             println!(
                 "case {seed}: {} motors, rate {:.0?} °/s, apex {:.2} m, sideways {:.2?} m/s",
                 airframe.rotor_count(),
-                config.rate_body_rad_s.map(f64::to_degrees).as_slice(),
-                config.apex_m,
-                config.horizontal_mps
+                config.throw.rate_body_rad_s.map(f64::to_degrees).as_slice(),
+                config.throw.apex_m,
+                config.throw.horizontal_mps
             );
             print_report(&format!("case {seed}"), &fly(&airframe, &config));
         }

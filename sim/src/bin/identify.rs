@@ -116,8 +116,8 @@ fn main() -> std::process::ExitCode {
             let m = report.truth.motors;
             println!(
                 "case {seed}: {m} motors, rate {:?} rad/s, apex {:.2} m",
-                config.rate_body_rad_s.as_slice(),
-                config.apex_m
+                config.throw.rate_body_rad_s.as_slice(),
+                config.throw.apex_m
             );
             print_matrices(&learned, &report.truth);
             println!("  G1 relative RMS error per row: {}", percent(&s.g1_row_rel));
