@@ -2,6 +2,7 @@
 
 pub mod airframe;
 pub mod board;
+pub mod calibration;
 pub mod bridge;
 pub mod dshot;
 pub mod dynamics;

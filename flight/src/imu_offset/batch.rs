@@ -11,6 +11,7 @@ use nalgebra::Vector3;
 use super::drag::DragSums;
 use super::front_end::FrontEnd;
 use super::moments::{BatchMeans, Moments};
+use super::rest::{RestModel, RestPoses};
 use super::solve::{self, Problem};
 use super::stream::{accumulate_aligned, ImuOffsetEstimator};
 use super::{
@@ -36,6 +37,8 @@ pub struct BatchFitter {
     batches: Option<BatchMeans<f64>>,
     /// The drag-extended sums, with [`DragModel::VerticalQuadratic`].
     drag: Option<DragSums>,
+    /// Rest poses of all logs, as the onboard detector found them.
+    rest: RestPoses,
     logs_added: u32,
     segments: [LogSegment; MAX_SEGMENTS],
     segments_len: usize,
@@ -52,6 +55,7 @@ impl BatchFitter {
             rows: Moments::new(),
             batches: None,
             drag: None,
+            rest: RestPoses::new(),
             logs_added: 0,
             segments: [none; MAX_SEGMENTS],
             segments_len: 0,
@@ -86,6 +90,7 @@ impl BatchFitter {
             detector.update(sample)?;
         }
         detector.finish();
+        self.rest.extend(detector.rest_pose_list());
         // Only as many throws as the segment list can still name are used, so every sample in
         // the fit belongs to a reported segment.
         let room = MAX_SEGMENTS.saturating_sub(self.segments_len);
@@ -159,6 +164,11 @@ impl BatchFitter {
         self.segments.get(..self.segments_len).unwrap_or(&[])
     }
 
+    /// Rest poses found in the logs.
+    pub fn rest_poses(&self) -> u32 {
+        self.rest.as_slice().len() as u32
+    }
+
     /// Samples (rows of eq. 3) in the fit.
     pub fn samples_used(&self) -> u32 {
         self.rows.count
@@ -175,6 +185,11 @@ impl BatchFitter {
             block_len: self.block_len,
             r_ref: Vector3::zeros(),
             drag: self.drag.as_ref(),
+            rest: Some(RestModel {
+                poses: self.rest.as_slice(),
+                gravity_mps2: self.config.gravity_mps2,
+                gravity_sigma_mps2: self.config.gravity_sigma_mps2,
+            }),
         };
         solve::estimate(&problem, self.config.model, f64::from(self.config.max_semi_axis_m))
     }

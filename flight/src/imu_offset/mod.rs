@@ -103,6 +103,7 @@ mod batch;
 mod drag;
 pub mod front_end;
 mod moments;
+mod rest;
 mod solve;
 mod stream;
 #[cfg(test)]
@@ -110,6 +111,10 @@ mod tests;
 
 pub use batch::{BatchFitter, LogSegment};
 pub use drag::DragModel;
+pub use rest::{
+    RestPose, MAX_REST_POSES, MIN_POSE_BLOCKS, POSE_SIGMA_FLOOR_MPS2, REST_BLOCK_S, REST_MAX_DEVIATION_MPS2,
+    REST_MAX_RATE_RAD_S,
+};
 pub use front_end::{regressor, AlignedSample, FrontEnd};
 pub use stream::{ImuOffsetEstimator, OffsetRls};
 
@@ -184,12 +189,19 @@ pub struct Config {
     pub long_batch_s: f32,
     /// Largest 95 % semi-axis (m) for `r` to count as well determined.
     pub max_semi_axis_m: f32,
+    /// Nominal gravity `g₀` (m/s²) of the rest equations `|f − b| = g` (`rest`).
+    pub gravity_mps2: f32,
+    /// Prior standard deviation of the local gravity about `gravity_mps2` (m/s²).
+    pub gravity_sigma_mps2: f32,
 }
 
 impl Default for Config {
     fn default() -> Self {
         Self {
-            model: Model::Offset,
+            // The bias is fitted with the offset: a real ICM-42688-P carries up to ±20 mg
+            // (0.2 m/s²), which moves an offset-only estimate by millimetres; the rest poses
+            // separate the two.
+            model: Model::OffsetAndAccBias,
             // The seed paper's eq. 3; the drag model is an offline option.
             drag_model: DragModel::Ignored,
             // Seed paper: 50 Hz offline. A tumble's content is a few Hz, so 50 Hz passes it with
@@ -215,15 +227,34 @@ impl Default for Config {
             trim_end_s: 0.06,
             // 20 ms ≈ 4.4 filter time constants at 50 Hz, short enough for ≥ 15 blocks per throw.
             block_s: 0.02,
-            // 200 ms: drag changes over the flight (∝ v², rotating with the spin at 1–3 rev/s).
-            // Measured coverage with drag k = 0.01 /m at 1 kHz: 47 % with 20 ms batches alone,
-            // 79 % adding 100 ms, 86–94 % with 150 ms, 95.5 % with 200 ms (two per throw; the
-            // small-sample widening then dominates, so longer would only be wider).
-            long_batch_s: 0.2,
-            // 2 mm: an offset error δr makes the centripetal compensation wrong by |Ω|² δr, i.e.
-            // 0.2 m/s² (1.2° of apparent tilt for an accelerometer-aided attitude filter) at
-            // 10 rad/s. The seed paper reports sub-millimetre bounds after two good throws.
+            // 150 ms: drag changes over the flight (∝ v², rotating with the spin at 1–3 rev/s),
+            // which 20 ms batches do not see. The length is what calibrates the ellipsoid of the
+            // default model (offset and bias with rest poses); longer batches have fewer degrees
+            // of freedom and a larger small-sample widening. Truth inside the 95 % ellipsoid:
+            // - 200 sessions on the built-in quads (`calibrate monte-carlo`, bias 0.02 / 0.2
+            //   m/s²): 95.3 / 94.0 % at 100 ms, 98.0 / 96.5 % at 150 ms, 100 / 98.7 % at 170 ms;
+            // - 200 synthetic two-throw fits with quadratic drag (`flight::testing`, 1 / 4 kHz):
+            //   81.5 % / — at 100 ms, 94.0 / 86.0 % at 140 ms, 96.0 / 88.5 % at 150 ms,
+            //   98.5 / 97.0 % at 170 ms, 100 % at 200 ms.
+            // 150 ms is where the two models of drag bracket 95 %.
+            long_batch_s: 0.15,
+            // 2 mm, from what the offset is for: the identification compensates the
+            // accelerometer to the centre of gravity, and an offset error δr adds `ΔΩ̇ × δr` to
+            // every specific-force increment of a motor pulse, a relative error of up to
+            // `k |δr|` on the force rows of G1, with `k = |ΔΩ̇|/|Δf|` per motor: 29–54 /m on the
+            // built-in quads (racer-5in 28.8, paper-quad 34.6, quad-3in 53.7; 11–13 /m on the
+            // hexacopters and the octocopter). A 95 % bound of 2 mm keeps that error within
+            // 10 % (the identification's target for the worst G1 row) at k = 50 /m, and within
+            // 7 % on a 5-inch quad.
             max_semi_axis_m: 0.002,
+            // Standard gravity (CGPM 1901).
+            gravity_mps2: 9.80665,
+            // Local gravity is 9.780 m/s² at the equator and 9.832 at the poles (International
+            // Gravity Formula), 9.797–9.815 between latitudes 35° and 55° at sea level, and drops
+            // 3 mm/s² per km of altitude: 1σ = 0.01 m/s² about standard gravity covers where
+            // most users live; elsewhere set `gravity_mps2` to the local value (`--gravity`).
+            // A wrong g reads as a bias along "up" of the rest poses.
+            gravity_sigma_mps2: 0.01,
         }
     }
 }
@@ -407,42 +438,57 @@ impl<T: Scalar> Verdict<T> {
     }
 }
 
-/// The advice in words (no allocation: written straight into the formatter).
+/// Relative error added to the force rows of G1 per metre of offset error (1/m): `|ΔΩ̇|/|Δf|` of
+/// one motor's pulse, rounded up from the largest of the built-in quads (quad-3in, 53.7 /m; see
+/// [`Config::max_semi_axis_m`]). Turns a semi-axis into the consequence the advice states.
+pub const FORCE_ROW_ERROR_PER_M: f32 = 50.0;
+
+/// The advice in words (no allocation: written straight into the formatter). Every figure is the
+/// reported ellipsoid's, with its consequence for the identification.
 impl<T: Scalar> core::fmt::Display for Verdict<T> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         let mm: T = nalgebra::convert(1000.0);
+        let percent_per_m: T = nalgebra::convert(100.0 * FORCE_ROW_ERROR_PER_M);
+        let consequence = |semi: T| semi * percent_per_m;
         match self {
             Self::WellDetermined { largest_semi_axis_m } => write!(
                 f,
-                "well determined: largest 95 % semi-axis {:.2} mm",
-                *largest_semi_axis_m * mm
+                "well determined: within {:.2} mm (largest 95 % semi-axis), which adds at most \
+                 {:.0} % to the motor force effectiveness learned in flight",
+                *largest_semi_axis_m * mm,
+                consequence(*largest_semi_axis_m)
             ),
             Self::PoorlyDetermined { direction_imu: d, semi_axis_m, spin_next_about } => write!(
                 f,
-                "poorly determined along ({:.2}, {:.2}, {:.2}) in IMU axes (95 % semi-axis \
-                 {:.1} mm): throw again spinning about another axis, e.g. the IMU {} axis",
+                "poorly determined along ({:.2}, {:.2}, {:.2}) in IMU axes: within {:.2} mm \
+                 (largest 95 % semi-axis), up to {:.0} % error in the motor force effectiveness \
+                 learned in flight: throw again spinning about another axis, e.g. the IMU {} axis",
                 d.x,
                 d.y,
                 d.z,
                 *semi_axis_m * mm,
+                consequence(*semi_axis_m),
                 spin_next_about.name()
             ),
             Self::BiasNotSeparable { direction_imu: d, semi_axis_m, spin_next_about } => write!(
                 f,
                 "accelerometer bias and offset cannot be separated along ({:.2}, {:.2}, {:.2}) \
-                 in IMU axes (95 % semi-axis {:.1} mm): throw again at a different spin rate, \
-                 e.g. about the IMU {} axis, or fit without bias",
+                 in IMU axes: within {:.2} mm (largest 95 % semi-axis), up to {:.0} % error in \
+                 the motor force effectiveness learned in flight: hold the craft still for a \
+                 second before and after each throw, in different attitudes, or throw again at \
+                 a different spin rate, e.g. about the IMU {} axis",
                 d.x,
                 d.y,
                 d.z,
                 *semi_axis_m * mm,
+                consequence(*semi_axis_m),
                 spin_next_about.name()
             ),
             Self::BiasSuspected { direction_imu: d, semi_axis_m } => write!(
                 f,
-                "poorly determined along ({:.2}, {:.2}, {:.2}) in IMU axes (95 % semi-axis \
-                 {:.1} mm) because of an accelerometer bias the offset-only model ignores: fit \
-                 the bias jointly (--bias)",
+                "poorly determined along ({:.2}, {:.2}, {:.2}) in IMU axes: within {:.2} mm \
+                 (largest 95 % semi-axis) because of an accelerometer bias the offset-only model \
+                 ignores: fit the bias jointly (--bias)",
                 d.x,
                 d.y,
                 d.z,
@@ -487,6 +533,8 @@ pub struct Estimate<T: Scalar> {
     pub variance_inflation: T,
     /// Samples (rows of eq. 3) in the fit.
     pub samples_used: u32,
+    /// Rest poses whose bias information the fit used ([`Model::OffsetAndAccBias`] only).
+    pub rest_poses: u32,
     /// Whether the excitation suffices, and advice if not.
     pub verdict: Verdict<T>,
 }

@@ -10,10 +10,11 @@
 //! forms in `θ = [r; b]` with each throw's drag vector already profiled out (`drag`); the fit
 //! solves them directly (`f64`), counting 3 unknowns per throw in every degree-of-freedom figure.
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
 
 use super::drag::DragSums;
 use super::moments::{count_as, BatchMeans, Moments};
+use super::rest::RestModel;
 #[cfg(doc)]
 use super::DragModel;
 use super::{Ellipsoid, Estimate, ImuAxis, ImuOffsetError, Model, Scalar, Verdict, CHI2_3DOF_95};
@@ -84,14 +85,16 @@ pub(crate) struct Problem<'a, T: Scalar> {
     /// The drag-extended sums ([`DragModel::VerticalQuadratic`], batch fitter, `r_ref = 0`):
     /// when present, the fit uses them instead of `rows` and `batches`.
     pub drag: Option<&'a DragSums>,
+    /// The rest poses (`rest`), which the joint model uses for the accelerometer bias.
+    pub rest: Option<RestModel<'a>>,
 }
 
 /// One model's fit.
 #[derive(Clone, Copy)]
 struct Fit<T: Scalar> {
-    /// Inverse of the (reduced) information matrix: `(ΣXᵀX)⁻¹`, or the Schur complement's.
+    /// Covariance of `r` per unit covariance scale: `(ΣXᵀX)⁻¹`, or the joint model's `r` block.
     information_inv: Matrix3<T>,
-    /// Covariance scale: long-run variance times the small-sample factor.
+    /// Covariance scale of the free-fall rows: long-run variance times the small-sample factor.
     scale: T,
     /// `Q_rb`, the offset–bias block of the normal equations (`Σ Xᵀ` without drag): an
     /// unmodelled bias `b` moves the offset-only estimate by `(ΣXᵀX)⁻¹ Q_rb b`.
@@ -114,6 +117,9 @@ pub(crate) fn offset_only<T: Scalar>(rows: &Moments<T>, r_ref: &Vector3<T>) -> O
 }
 
 /// Fit, ellipsoid and verdict.
+///
+/// The semi-axes the verdict states are always those of the reported ellipsoid; the analyses
+/// behind it (is the excitation lacking, or a bias?) only choose which advice is given.
 pub(crate) fn estimate<T: Scalar>(
     p: &Problem<'_, T>,
     model: Model,
@@ -126,69 +132,35 @@ pub(crate) fn estimate<T: Scalar>(
         });
     }
     let offset = fit(p, Model::Offset)?;
-    let poor = |fit: &Fit<T>| {
-        let semi_axis_m = fit.ellipsoid.semi_axes_m[0];
-        let direction_imu = fit.ellipsoid.axes[0];
-        (semi_axis_m > max_semi_axis_m).then_some((
-            direction_imu,
-            semi_axis_m,
-            ImuAxis::most_perpendicular_to(&direction_imu),
-        ))
+    // Without bias information a joint fit may be impossible (bias not separable at all).
+    let joint = fit(p, Model::OffsetAndAccBias);
+    // Excitation alone: the offset-only geometry at the joint fit's residual scale (the
+    // offset-only residuals also contain any bias, which is not a lack of excitation).
+    let excitation = match &joint {
+        Ok(joint) => rescaled(&offset, offset.information_inv * joint.scale)?,
+        Err(_) => offset,
     };
-    let (chosen, verdict) = match model {
-        Model::Offset => {
-            // Without a joint fit (bias not separable at all) there is no bias figure to use.
-            let joint = fit(p, Model::OffsetAndAccBias).ok();
-            // Excitation alone: the offset-only geometry at the joint fit's residual scale (the
-            // offset-only residuals also contain any bias, which is not a lack of excitation).
-            let excitation = match &joint {
-                Some(joint) => rescaled(&offset, offset.information_inv * joint.scale)?,
-                None => offset,
-            };
-            match poor(&excitation) {
-                // The excitation is insufficient: say so; a bias figure would mean nothing here.
-                Some((direction_imu, semi_axis_m, spin_next_about)) => (
-                    offset,
-                    Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about },
-                ),
-                None => {
-                    let corrected = match &joint {
-                        Some(joint) => with_unmodelled_bias(&offset, joint)?,
-                        None => offset,
-                    };
-                    let verdict = match poor(&corrected) {
-                        // Poor because of the bias, not the excitation: fitting it is the remedy.
-                        Some((direction_imu, semi_axis_m, _)) => {
-                            Verdict::BiasSuspected { direction_imu, semi_axis_m }
-                        }
-                        None => Verdict::WellDetermined {
-                            largest_semi_axis_m: corrected.ellipsoid.semi_axes_m[0],
-                        },
-                    };
-                    (corrected, verdict)
-                }
-            }
-        }
-        Model::OffsetAndAccBias => {
-            let joint = fit(p, Model::OffsetAndAccBias)?;
-            // Excitation alone: the offset-only geometry `(ΣXᵀX)⁻¹` at the joint fit's residual
-            // scale (the offset-only residuals also contain the bias, which would inflate it).
-            let mut excitation = offset;
-            excitation.ellipsoid = ellipsoid(&(offset.information_inv * joint.scale))
-                .ok_or(ImuOffsetError::Singular)?;
-            let verdict = match (poor(&excitation), poor(&joint)) {
-                (Some((direction_imu, semi_axis_m, spin_next_about)), _) => {
-                    Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about }
-                }
-                (None, Some((direction_imu, semi_axis_m, spin_next_about))) => {
-                    Verdict::BiasNotSeparable { direction_imu, semi_axis_m, spin_next_about }
-                }
-                (None, None) => {
-                    Verdict::WellDetermined { largest_semi_axis_m: joint.ellipsoid.semi_axes_m[0] }
-                }
-            };
-            (joint, verdict)
-        }
+    let excitation_lacking = excitation.ellipsoid.semi_axes_m[0] > max_semi_axis_m;
+    let chosen = match model {
+        // An unmodelled bias the data reveal widens the offset-only ellipsoid.
+        Model::Offset => match &joint {
+            Ok(joint) if !excitation_lacking => with_unmodelled_bias(&offset, joint)?,
+            _ => offset,
+        },
+        Model::OffsetAndAccBias => joint?,
+    };
+    let semi_axis_m = chosen.ellipsoid.semi_axes_m[0];
+    let direction_imu = chosen.ellipsoid.axes[0];
+    let spin_next_about = ImuAxis::most_perpendicular_to(&direction_imu);
+    let verdict = if semi_axis_m <= max_semi_axis_m {
+        Verdict::WellDetermined { largest_semi_axis_m: semi_axis_m }
+    } else if excitation_lacking {
+        Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about }
+    } else if model == Model::Offset {
+        // Poor because of the bias, not the excitation: fitting it is the remedy.
+        Verdict::BiasSuspected { direction_imu, semi_axis_m }
+    } else {
+        Verdict::BiasNotSeparable { direction_imu, semi_axis_m, spin_next_about }
     };
     Ok(Estimate {
         model,
@@ -201,6 +173,10 @@ pub(crate) fn estimate<T: Scalar>(
         residual_rms_mps2: chosen.residual_rms_mps2,
         variance_inflation: chosen.variance_inflation,
         samples_used: p.rows.count,
+        rest_poses: match model {
+            Model::OffsetAndAccBias => p.rest.map_or(0, |r| r.poses.len() as u32),
+            Model::Offset => 0,
+        },
         verdict,
     })
 }
@@ -242,146 +218,210 @@ fn rescaled<T: Scalar>(fit: &Fit<T>, covariance_m2: Matrix3<T>) -> Result<Fit<T>
     Ok(Fit { covariance_m2, ellipsoid, ..*fit })
 }
 
-fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetError> {
-    if let Some(sums) = p.drag {
-        return fit_with_drag(p, sums, model);
+/// The free-fall sums seen as quadratic forms in `θ = [d; b]` (offset relative to the reference,
+/// bias): the normal equations `Q θ = g`, and the residual figures at any `θ`.
+enum Sums<'a, T: Scalar> {
+    /// The rows of eq. 3 and their block sums.
+    Rows { rows: &'a Moments<T>, batches: &'a BatchMeans<T>, block_len: u32 },
+    /// The drag-extended sums, each throw's drag vector profiled out (3 more unknowns a throw).
+    Drag { sums: &'a DragSums, block_len: u32, group: u32 },
+}
+
+/// Residual figures of a fit at one `θ`.
+#[derive(Clone, Copy)]
+struct Residuals<T: Scalar> {
+    /// Residual sum of squares over the rows.
+    rss: T,
+    /// `rss` per degree of freedom (the white-noise variance).
+    white_variance: T,
+    /// The batch-means long-run variance chosen, and the covariance scale (it times the
+    /// small-sample factor).
+    long_run_variance: T,
+    scale: T,
+}
+
+impl<T: Scalar> Sums<'_, T> {
+    fn new<'a>(p: &Problem<'a, T>) -> Sums<'a, T> {
+        match p.drag {
+            Some(sums) => Sums::Drag { sums, block_len: p.block_len, group: p.batches.group },
+            None => Sums::Rows { rows: p.rows, batches: p.batches, block_len: p.block_len },
+        }
     }
-    let rows = p.rows;
-    let n: T = count_as(rows.count);
-    let three: T = nalgebra::convert(3.0);
-    let (information, rhs, unknowns) = match model {
-        Model::Offset => (rows.xtx(), rows.xty, 3u32),
-        Model::OffsetAndAccBias => (
-            rows.xtx() - rows.xsum.tr_mul(&rows.xsum) / n,
-            rows.xty - rows.xsum.tr_mul(&rows.ysum) / n,
-            6u32,
-        ),
-    };
-    let chol = information.cholesky().ok_or(ImuOffsetError::Singular)?;
-    let d = chol.solve(&rhs);
-    let information_inv = chol.inverse();
-    let bias = match model {
-        Model::Offset => None,
-        Model::OffsetAndAccBias => Some((rows.ysum - rows.xsum * d) / n),
-    };
-    let b = bias.unwrap_or_else(Vector3::zeros);
 
-    // Degrees of freedom: 3 per row.
-    let dof_rows: T = count_as(rows.count.saturating_mul(3).saturating_sub(unknowns));
-    let rss = rows.sum_sq_residual(&d, &b, T::one()).max(T::zero());
-    let white_variance = rss / dof_rows;
-    // Long-run variance from short and long batches, each widened for its own degrees of
-    // freedom; the larger (more conservative) one is used.
-    let short = batch_means_variance(&p.batches.short, p.block_len, &d, &b, unknowns);
-    let long_len = p.block_len.saturating_mul(p.batches.group);
-    let long = batch_means_variance(&p.batches.long, long_len, &d, &b, unknowns);
-    let (long_run_variance, scale) = more_conservative(short, long, rows.count, p.block_len)?;
+    fn count(&self) -> u32 {
+        match self {
+            Sums::Rows { rows, .. } => rows.count,
+            Sums::Drag { sums, .. } => sums.rows.count,
+        }
+    }
 
-    let covariance_m2 = information_inv * scale;
-    let acc_bias_covariance = bias.map(|_| {
-        (Matrix3::identity() / n + rows.xsum * information_inv * rows.xsum.transpose() / (n * n))
-            * scale
-    });
-    let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
-    let values_finite = d.iter().chain(b.iter()).chain(covariance_m2.iter()).all(|v| v.is_finite());
-    if !values_finite {
+    /// Unknowns besides `θ`'s: each throw's drag vector.
+    fn extra_unknowns(&self) -> u32 {
+        match self {
+            Sums::Rows { .. } => 0,
+            Sums::Drag { sums, .. } => sums.segments.saturating_mul(3),
+        }
+    }
+
+    /// `Q` and `g` of the normal equations in `θ = [d; b]`.
+    fn normal_equations(&self) -> (Matrix6<T>, Vector6<T>) {
+        match self {
+            Sums::Rows { rows, .. } => {
+                let n: T = count_as(rows.count);
+                let mut q = Matrix6::zeros();
+                q.fixed_view_mut::<3, 3>(0, 0).copy_from(&rows.xtx());
+                q.fixed_view_mut::<3, 3>(0, 3).copy_from(&rows.xsum.transpose());
+                q.fixed_view_mut::<3, 3>(3, 0).copy_from(&rows.xsum);
+                q.fixed_view_mut::<3, 3>(3, 3).copy_from(&(Matrix3::identity() * n));
+                let mut g = Vector6::zeros();
+                g.fixed_rows_mut::<3>(0).copy_from(&rows.xty);
+                g.fixed_rows_mut::<3>(3).copy_from(&rows.ysum);
+                (q, g)
+            }
+            Sums::Drag { sums, .. } => (sums.rows.q.map(to_scalar), sums.rows.g.map(to_scalar)),
+        }
+    }
+
+    /// Residual figures at `θ` with `unknowns` fitted (besides the drag vectors).
+    fn residuals(&self, theta: &Vector6<T>, unknowns: u32) -> Result<Residuals<T>, ImuOffsetError> {
+        let unknowns = unknowns.saturating_add(self.extra_unknowns());
+        let too_few = |block_len: u32| ImuOffsetError::TooFewSamples {
+            used: self.count(),
+            required: MIN_BLOCKS.saturating_mul(block_len),
+        };
+        let (rss, short, long, block_len) = match self {
+            Sums::Rows { rows, batches, block_len } => {
+                let d: Vector3<T> = theta.fixed_rows::<3>(0).into_owned();
+                let b: Vector3<T> = theta.fixed_rows::<3>(3).into_owned();
+                let rss = rows.sum_sq_residual(&d, &b, T::one());
+                let short = batch_means_variance(&batches.short, *block_len, &d, &b, unknowns);
+                let long_len = block_len.saturating_mul(batches.group);
+                let long = batch_means_variance(&batches.long, long_len, &d, &b, unknowns);
+                (rss, short, long, *block_len)
+            }
+            Sums::Drag { sums, block_len, group } => {
+                let theta = theta.map(|v| nalgebra::try_convert::<T, f64>(v).unwrap_or(f64::NAN));
+                let variance = |q: &super::drag::Quadratic, batch_len: u32| -> Option<(T, T)> {
+                    let dof = q.count.saturating_mul(3).saturating_sub(unknowns);
+                    if dof < 2 || batch_len == 0 {
+                        return None;
+                    }
+                    let v = q.at(&theta).max(0.0) / (f64::from(batch_len) * f64::from(dof));
+                    let scale = v * f64::from(small_sample_factor(dof as f32));
+                    Some((to_scalar(v), to_scalar(scale)))
+                };
+                let short = variance(&sums.short, *block_len);
+                let long = variance(&sums.long, block_len.saturating_mul(*group));
+                (to_scalar(sums.rows.at(&theta)), short, long, *block_len)
+            }
+        };
+        let dof_rows = self.count().saturating_mul(3).saturating_sub(unknowns);
+        if dof_rows == 0 {
+            return Err(too_few(block_len));
+        }
+        let rss = rss.max(T::zero());
+        let (long_run_variance, scale) = more_conservative(short, long, self.count(), block_len)?;
+        Ok(Residuals { rss, white_variance: rss / count_as(dof_rows), long_run_variance, scale })
+    }
+}
+
+fn to_scalar<T: Scalar>(v: f64) -> T {
+    nalgebra::convert(v)
+}
+
+/// Fit one model. The offset-only model is the joint one with `b = 0`.
+///
+/// With rest poses the joint model weighs the free-fall rows by the inverse of their covariance
+/// scale and adds the rest poses' bias information `J` (already in (m/s²)⁻²):
+/// `(Q/s + diag(0, J)) θ = g/s + (0, J b̂_rest)`. The scale `s` is measured at the solution, so the
+/// solve is repeated twice (the first time at the free-fall solution's scale).
+fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetError> {
+    let sums = Sums::new(p);
+    let (q, g) = sums.normal_equations();
+    let q_rr: Matrix3<T> = q.fixed_view::<3, 3>(0, 0).into_owned();
+    let bias_coupling: Matrix3<T> = q.fixed_view::<3, 3>(0, 3).into_owned();
+    let (theta, residuals, covariance) = match model {
+        Model::Offset => {
+            let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
+            let mut theta = Vector6::zeros();
+            theta.fixed_rows_mut::<3>(0).copy_from(&chol.solve(&g.fixed_rows::<3>(0)));
+            let residuals = sums.residuals(&theta, 3)?;
+            let mut covariance = Matrix6::zeros();
+            covariance.fixed_view_mut::<3, 3>(0, 0).copy_from(&chol.inverse());
+            (theta, residuals, covariance * residuals.scale)
+        }
+        Model::OffsetAndAccBias => match p.rest.filter(|r| !r.poses.is_empty()) {
+            None => {
+                let chol = q.cholesky().ok_or(ImuOffsetError::Singular)?;
+                let theta = chol.solve(&g);
+                let residuals = sums.residuals(&theta, 6)?;
+                let covariance = chol.inverse() * residuals.scale;
+                (theta, residuals, covariance)
+            }
+            Some(rest) => {
+                // Solve at covariance scale `s`, the rest equations linearised about `b0`.
+                let solve = |scale: T, b0: &Vector3<T>| {
+                    let info = rest.bias_information(b0).ok_or(ImuOffsetError::Singular)?;
+                    let mut m = q / scale;
+                    let mut rhs = g / scale;
+                    let mut bb = m.fixed_view_mut::<3, 3>(3, 3);
+                    bb += info.information;
+                    let mut hb = rhs.fixed_rows_mut::<3>(3);
+                    hb += info.rhs;
+                    let chol = m.cholesky().ok_or(ImuOffsetError::Singular)?;
+                    Ok::<_, ImuOffsetError>((chol.solve(&rhs), chol.inverse()))
+                };
+                // First scale: at the free-fall joint solution, or offset-only without bias.
+                let start = match q.cholesky() {
+                    Some(chol) => chol.solve(&g),
+                    None => {
+                        let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
+                        let mut theta = Vector6::zeros();
+                        theta.fixed_rows_mut::<3>(0).copy_from(&chol.solve(&g.fixed_rows::<3>(0)));
+                        theta
+                    }
+                };
+                let mut residuals = sums.residuals(&start, 6)?;
+                let mut solution = solve(residuals.scale, &Vector3::zeros())?;
+                for _ in 0..2 {
+                    residuals = sums.residuals(&solution.0, 6)?;
+                    let b0: Vector3<T> = solution.0.fixed_rows::<3>(3).into_owned();
+                    solution = solve(residuals.scale, &b0)?;
+                }
+                (solution.0, residuals, solution.1)
+            }
+        },
+    };
+    let covariance_m2: Matrix3<T> = covariance.fixed_view::<3, 3>(0, 0).into_owned();
+    let acc_bias_covariance = (model == Model::OffsetAndAccBias)
+        .then(|| covariance.fixed_view::<3, 3>(3, 3).into_owned());
+    let d: Vector3<T> = theta.fixed_rows::<3>(0).into_owned();
+    let acc_bias_mps2 =
+        (model == Model::OffsetAndAccBias).then(|| theta.fixed_rows::<3>(3).into_owned());
+    let values_finite = theta.iter().chain(covariance_m2.iter()).all(|v| v.is_finite());
+    if !values_finite || residuals.scale <= T::zero() {
         return Err(ImuOffsetError::Singular);
     }
+    let information_inv = covariance_m2 / residuals.scale;
+    let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
+    let three: T = nalgebra::convert(3.0);
+    let n: T = count_as(sums.count().max(1));
     Ok(Fit {
         information_inv,
-        scale,
-        bias_coupling: rows.xsum.transpose(),
+        scale: residuals.scale,
+        bias_coupling,
         r_imu_m: p.r_ref + d,
-        acc_bias_mps2: bias,
+        acc_bias_mps2,
         covariance_m2,
-        white_noise_covariance_m2: information_inv * white_variance,
+        white_noise_covariance_m2: information_inv * residuals.white_variance,
         acc_bias_covariance,
         ellipsoid,
-        residual_rms_mps2: (rss / (n * three)).sqrt(),
-        variance_inflation: if white_variance > T::zero() {
-            long_run_variance / white_variance
+        residual_rms_mps2: (residuals.rss / (n * three)).sqrt(),
+        variance_inflation: if residuals.white_variance > T::zero() {
+            residuals.long_run_variance / residuals.white_variance
         } else {
             T::one()
         },
-    })
-}
-
-/// [`fit`] with per-segment drag ([`DragModel::VerticalQuadratic`]): the same estimates from the
-/// 6 × 6 quadratic forms in `θ = [r; b]` left after profiling out each segment's drag vector.
-/// The drag vectors count as unknowns in every degree-of-freedom figure.
-fn fit_with_drag<T: Scalar>(
-    p: &Problem<'_, T>,
-    sums: &DragSums,
-    model: Model,
-) -> Result<Fit<T>, ImuOffsetError> {
-    use nalgebra::{Matrix6, Vector6};
-    let rows = &sums.rows;
-    let q_rr: Matrix3<f64> = rows.q.fixed_view::<3, 3>(0, 0).into_owned();
-    let g_r: Vector3<f64> = rows.g.fixed_rows::<3>(0).into_owned();
-    let (theta, information_inv, bias_information_inv, unknowns) = match model {
-        Model::Offset => {
-            let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
-            let r = chol.solve(&g_r);
-            let mut theta = Vector6::zeros();
-            theta.fixed_rows_mut::<3>(0).copy_from(&r);
-            (theta, chol.inverse(), None, 3u32)
-        }
-        Model::OffsetAndAccBias => {
-            let chol = rows.q.cholesky().ok_or(ImuOffsetError::Singular)?;
-            let inv: Matrix6<f64> = chol.inverse();
-            let rr: Matrix3<f64> = inv.fixed_view::<3, 3>(0, 0).into_owned();
-            let bb: Matrix3<f64> = inv.fixed_view::<3, 3>(3, 3).into_owned();
-            (chol.solve(&rows.g), rr, Some(bb), 6u32)
-        }
-    };
-    let unknowns = unknowns.saturating_add(sums.segments.saturating_mul(3));
-    let dof_rows = rows.count.saturating_mul(3).saturating_sub(unknowns);
-    if dof_rows == 0 {
-        return Err(ImuOffsetError::TooFewSamples {
-            used: rows.count,
-            required: MIN_BLOCKS.saturating_mul(p.block_len),
-        });
-    }
-    let rss = rows.at(&theta).max(0.0);
-    let white_variance = rss / f64::from(dof_rows);
-    let variance = |q: &super::drag::Quadratic, batch_len: u32| -> Option<(f64, f64)> {
-        let dof = q.count.saturating_mul(3).saturating_sub(unknowns);
-        if dof < 2 || batch_len == 0 {
-            return None;
-        }
-        let v = q.at(&theta).max(0.0) / (f64::from(batch_len) * f64::from(dof));
-        Some((v, v * f64::from(small_sample_factor(dof as f32))))
-    };
-    let short = variance(&sums.short, p.block_len);
-    let long = variance(&sums.long, p.block_len.saturating_mul(p.batches.group));
-    let (long_run_variance, scale) = more_conservative(short, long, rows.count, p.block_len)?;
-    let to_t = |m: Matrix3<f64>| m.map(|v| nalgebra::convert::<f64, T>(v));
-    let r: Vector3<f64> = theta.fixed_rows::<3>(0).into_owned();
-    let b: Vector3<f64> = theta.fixed_rows::<3>(3).into_owned();
-    let covariance_m2 = information_inv * scale;
-    let values_finite = theta.iter().chain(covariance_m2.iter()).all(|v| v.is_finite());
-    if !values_finite {
-        return Err(ImuOffsetError::Singular);
-    }
-    let covariance_m2 = to_t(covariance_m2);
-    let ellipsoid = ellipsoid(&covariance_m2).ok_or(ImuOffsetError::Singular)?;
-    let n = f64::from(rows.count.max(1));
-    Ok(Fit {
-        information_inv: to_t(information_inv),
-        scale: nalgebra::convert(scale),
-        bias_coupling: to_t(rows.q.fixed_view::<3, 3>(0, 3).into_owned()),
-        r_imu_m: p.r_ref + r.map(|v| nalgebra::convert::<f64, T>(v)),
-        acc_bias_mps2: bias_information_inv.map(|_| b.map(|v| nalgebra::convert::<f64, T>(v))),
-        covariance_m2,
-        white_noise_covariance_m2: to_t(information_inv * white_variance),
-        acc_bias_covariance: bias_information_inv.map(|bb| to_t(bb * scale)),
-        ellipsoid,
-        residual_rms_mps2: nalgebra::convert(libm::sqrt(rss / (n * 3.0))),
-        variance_inflation: nalgebra::convert(if white_variance > 0.0 {
-            long_run_variance / white_variance
-        } else {
-            1.0
-        }),
     })
 }
 

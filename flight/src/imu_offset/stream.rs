@@ -31,6 +31,7 @@ use nalgebra::Vector3;
 
 use super::front_end::{regressor, AlignedSample, FrontEnd};
 use super::moments::{BatchMeans, Moments};
+use super::rest::{RestDetector, RestModel, RestPoses};
 use super::solve::{self, Problem};
 use super::{
     validate_sample, Config, DragModel, Estimate, ImuOffsetError, ImuSample, Scalar, Segment,
@@ -135,6 +136,9 @@ pub struct ImuOffsetEstimator {
     segments: [Segment; MAX_SEGMENTS],
     segments_len: usize,
     segments_ignored: u32,
+    /// Rest poses between throws (the accelerometer bias, see `rest`).
+    rest: RestDetector,
+    rest_poses: RestPoses,
 }
 
 impl ImuOffsetEstimator {
@@ -174,6 +178,9 @@ impl ImuOffsetEstimator {
         {
             return Err(ImuOffsetError::InvalidConfig("free-fall thresholds out of range"));
         }
+        if !(positive(config.gravity_mps2) && positive(config.gravity_sigma_mps2)) {
+            return Err(ImuOffsetError::InvalidConfig("gravity and its sigma must be positive"));
+        }
         if !positive(config.max_semi_axis_m) {
             return Err(ImuOffsetError::InvalidConfig("max_semi_axis_m must be positive"));
         }
@@ -206,6 +213,8 @@ impl ImuOffsetEstimator {
             segments: [Segment { start_index: 0, end_index: 0 }; MAX_SEGMENTS],
             segments_len: 0,
             segments_ignored: 0,
+            rest: RestDetector::new(rate_hz, config.gravity_mps2),
+            rest_poses: RestPoses::new(),
         })
     }
 
@@ -219,6 +228,7 @@ impl ImuOffsetEstimator {
             self.front.skip();
             self.front.restart();
             self.abandon_free_fall();
+            self.end_rest();
             return Err(e);
         }
         Ok(self.front.update(sample).and_then(|s| self.process(&s)))
@@ -231,10 +241,13 @@ impl ImuOffsetEstimator {
         self.front.skip_many(missing);
         self.front.restart();
         self.abandon_free_fall();
+        self.end_rest();
     }
 
-    /// End of the stream: a free fall still in progress ends here (trimmed as at a catch).
+    /// End of the stream: a free fall still in progress ends here (trimmed as at a catch), and
+    /// so does a rest pose.
     pub fn finish(&mut self) -> Option<Segment> {
+        self.end_rest();
         match self.phase {
             Phase::Falling { start } => {
                 let end = self.next_index().saturating_sub(1);
@@ -256,8 +269,28 @@ impl ImuOffsetEstimator {
             block_len: self.block_len,
             r_ref: self.r_ref_m,
             drag: None,
+            rest: Some(self.rest_model()),
         };
         solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
+    }
+
+    /// Rest poses found so far (each an attitude held still; see `rest`).
+    pub fn rest_poses(&self) -> u32 {
+        self.rest_poses.as_slice().len() as u32
+    }
+
+    /// The rest poses, for the batch fitter (which uses exactly the poses found here).
+    pub(crate) fn rest_pose_list(&self) -> &RestPoses {
+        &self.rest_poses
+    }
+
+    /// The rest poses with this estimator's gravity model.
+    fn rest_model(&self) -> RestModel<'_> {
+        RestModel {
+            poses: self.rest_poses.as_slice(),
+            gravity_mps2: self.config.gravity_mps2,
+            gravity_sigma_mps2: self.config.gravity_sigma_mps2,
+        }
     }
 
     /// The accepted throws, in order.
@@ -320,7 +353,10 @@ impl ImuOffsetEstimator {
         match self.phase {
             Phase::Held => {
                 if free {
+                    self.end_rest();
                     self.begin_free_fall(s.index);
+                } else if let Some(pose) = self.rest.update(s) {
+                    self.rest_poses.push(pose);
                 }
                 None
             }
@@ -336,6 +372,13 @@ impl ImuOffsetEstimator {
                 self.commit_ready(s.index.saturating_add(1));
                 None
             }
+        }
+    }
+
+    /// A rest pose in progress ends; it is kept when long enough.
+    fn end_rest(&mut self) {
+        if let Some(pose) = self.rest.end() {
+            self.rest_poses.push(pose);
         }
     }
 

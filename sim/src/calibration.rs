@@ -1,0 +1,252 @@
+//! IMU-offset calibration sessions on the simulator: two throw-and-catches of one airframe, held
+//! still before and after each, fitted as the configurator fits them (`fit imu-offset`), with the
+//! truth to compare against.
+//!
+//! A session is drawn as a new user would throw: apexes of 0.8–1.5 m, spins of 300–600 °/s about
+//! axes at least 50° apart, a constant accelerometer bias drawn per axis from `N(0, σ²)`, the
+//! airframe's own drag, the ICM-42688-P noise and quantisation at 8 kHz averaged to 2 kHz, and a
+//! rest of [`REST_S`] in the hand before the throw and after the catch (the catch leaves the craft
+//! in a new attitude). [`monte_carlo`] runs many sessions and summarises what a user would see:
+//! how often two throws are declared enough, how often the truth lies inside the reported 95 %
+//! ellipsoid, and the error.
+
+use flight::imu_offset::{BatchFitter, Config, Estimate, ImuSample, Model, CHI2_3DOF_95};
+use nalgebra::{Matrix3, Vector3};
+
+use crate::airframe::Airframe;
+use crate::rng::Rng;
+use crate::scenario::{self, FlightApp, ScenarioConfig, ScenarioKind};
+use crate::stats;
+
+/// The simulator's IMU rate as the application sees it (Hz): 8 kHz averaged in fours.
+pub const RATE_HZ: f32 = 2000.0;
+
+/// Rest in the hand before each throw and after each catch (s): a user holds the craft for a
+/// moment before throwing and looks at it after catching.
+pub const REST_S: f64 = 0.6;
+
+/// Airframes the sessions cycle through by default: the built-in quads (0.18–0.6 kg, the craft a
+/// hand throws spinning and catches). The 1.5 kg hexacopters and the octocopter can be chosen
+/// alone (`--airframe`); their drag, ten times the quads' per unit mass, limits the fit.
+pub const AIRFRAMES: [&str; 3] = ["paper-quad", "quad-3in", "racer-5in"];
+
+/// One drawn session: the airframe (with its bias), the two spins and apexes.
+#[derive(Debug, Clone)]
+pub struct Session {
+    /// The airframe thrown, its accelerometer bias replaced by the drawn one.
+    pub airframe: Airframe,
+    /// The drawn accelerometer bias (m/s², IMU axes).
+    pub acc_bias_mps2: Vector3<f64>,
+    /// Body rates at release (rad/s, body axes).
+    pub spins_rad_s: [Vector3<f64>; 2],
+    /// Apex heights above release (m).
+    pub apexes_m: [f64; 2],
+    /// Noise seed of the simulator.
+    pub seed: u64,
+}
+
+impl Session {
+    /// Session `seed` with accelerometer bias `bias_sigma_mps2` (1σ per axis).
+    /// `airframe` replaces the default cycle through [`AIRFRAMES`].
+    pub fn random(seed: u64, bias_sigma_mps2: f64, airframe: Option<&Airframe>) -> Self {
+        let mut rng = Rng::new(seed ^ 0xCA1_1B8A7E);
+        let name = AIRFRAMES[(seed % AIRFRAMES.len() as u64) as usize];
+        let mut airframe = match airframe {
+            Some(a) => a.clone(),
+            None => Airframe::builtin(name).expect("built-in airframes parse"),
+        };
+        let acc_bias_mps2 = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * bias_sigma_mps2;
+        airframe.imu.accel.bias_mps2 = acc_bias_mps2.into();
+        let unit = |rng: &mut Rng| Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+        let first = unit(&mut rng);
+        // At least 50° apart (as lines: a spin about −a is the same axis).
+        let second = loop {
+            let b = unit(&mut rng);
+            if first.dot(&b).abs() <= 50f64.to_radians().cos() {
+                break b;
+            }
+        };
+        let spins_rad_s = [first, second].map(|axis| axis * rng.range(300.0, 600.0).to_radians());
+        let apexes_m = [rng.range(0.8, 1.5), rng.range(0.8, 1.5)];
+        Self { airframe, acc_bias_mps2, spins_rad_s, apexes_m, seed }
+    }
+
+    /// The true offset (m, IMU axes).
+    pub fn truth_m(&self) -> Vector3<f64> {
+        self.airframe.q_imu_body() * self.airframe.r_imu_m()
+    }
+
+    /// The IMU logs of the two throws (each: rest, throw, free fall, catch, rest).
+    pub fn logs(&self) -> [Vec<ImuSample>; 2] {
+        [0, 1].map(|k| {
+            let mut config = ScenarioConfig::new(ScenarioKind::ThrowCatch);
+            config.throw_rate_body_rad_s = self.spins_rad_s[k];
+            config.throw_apex_m = self.apexes_m[k];
+            config.hold_before_s = REST_S;
+            config.after_catch_s = REST_S;
+            config.board.seed = self.seed.wrapping_mul(2).wrapping_add(k as u64);
+            let mut recorder = Recorder::default();
+            scenario::run::<_, std::io::Sink>(
+                &self.airframe,
+                &config,
+                &mut recorder,
+                None,
+                &mut |_, _| {},
+            )
+            .expect("a calibration throw runs");
+            recorder.0
+        })
+    }
+}
+
+/// Reads every IMU sample into memory, commands nothing.
+#[derive(Default)]
+struct Recorder(Vec<ImuSample>);
+
+impl FlightApp for Recorder {
+    fn step<I: firmware::app::hal::Imu, M: firmware::app::hal::Motors>(
+        &mut self,
+        _now_us: u64,
+        imu: &mut I,
+        _motors: &mut M,
+    ) {
+        if let Some(s) = imu.read() {
+            self.0.push(ImuSample {
+                gyro_radps: Vector3::from(s.gyro_rad_s),
+                acc_mps2: Vector3::from(s.accel_mps2),
+            });
+        }
+    }
+}
+
+/// One fit of a session, judged against the truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Judged {
+    /// Declared well determined.
+    pub well_determined: bool,
+    /// `|r̂ − r|` (m).
+    pub error_m: f64,
+    /// `(r̂ − r)ᵀ Σ⁻¹ (r̂ − r) / χ²₃(0.95)`: at most 1 when the truth is inside the ellipsoid.
+    pub normalised_mahalanobis: f64,
+    /// Largest reported 95 % semi-axis (m).
+    pub largest_semi_axis_m: f64,
+    /// Rest poses used.
+    pub rest_poses: u32,
+    /// `|b̂ − b|` (m/s²), when the bias was fitted.
+    pub bias_error_mps2: Option<f64>,
+}
+
+impl Judged {
+    /// `estimate` against the truth.
+    pub fn new(estimate: &Estimate<f64>, truth_m: &Vector3<f64>, bias_mps2: &Vector3<f64>) -> Self {
+        let error = estimate.r_imu_m - truth_m;
+        let inverse = estimate.covariance_m2.try_inverse().unwrap_or_else(Matrix3::zeros);
+        Self {
+            well_determined: estimate.verdict.is_well_determined(),
+            error_m: error.norm(),
+            normalised_mahalanobis: error.dot(&(inverse * error)) / f64::from(CHI2_3DOF_95),
+            largest_semi_axis_m: estimate.ellipsoid.semi_axes_m[0],
+            rest_poses: estimate.rest_poses,
+            bias_error_mps2: estimate.acc_bias_mps2.map(|b| (b - bias_mps2).norm()),
+        }
+    }
+}
+
+/// Fit a session's logs with `model`, as `fit imu-offset` does.
+pub fn fit(logs: &[Vec<ImuSample>], model: Model) -> Result<Estimate<f64>, String> {
+    let drag_model = if std::env::var_os("CAL_DRAG").is_some() { flight::imu_offset::DragModel::VerticalQuadratic } else { flight::imu_offset::DragModel::Ignored };
+    let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
+    for log in logs {
+        fitter.add_log(log, RATE_HZ).map_err(|e| e.to_string())?;
+    }
+    fitter.estimate().map_err(|e| e.to_string())
+}
+
+/// Both models' results of one session (`None` where the fit failed).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SessionResult {
+    /// Session seed.
+    pub seed: u64,
+    /// Offset only ([`Model::Offset`]).
+    pub offset_only: Option<Judged>,
+    /// Offset and bias with the rest poses ([`Model::OffsetAndAccBias`], the default).
+    pub with_bias: Option<Judged>,
+}
+
+/// Draw and fit session `seed`.
+pub fn run_session(seed: u64, bias_sigma_mps2: f64, airframe: Option<&Airframe>) -> SessionResult {
+    let session = Session::random(seed, bias_sigma_mps2, airframe);
+    let logs = session.logs();
+    let truth = session.truth_m();
+    let judge = |model| {
+        fit(&logs, model).ok().map(|e| Judged::new(&e, &truth, &session.acc_bias_mps2))
+    };
+    SessionResult {
+        seed,
+        offset_only: judge(Model::Offset),
+        with_bias: judge(Model::OffsetAndAccBias),
+    }
+}
+
+/// What a batch of sessions shows for one model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Summary {
+    /// Sessions fitted.
+    pub fits: usize,
+    /// Sessions where the fit failed (no estimate).
+    pub failed: usize,
+    /// Fraction declared well determined.
+    pub well_determined: f64,
+    /// Fraction with the truth inside the reported 95 % ellipsoid.
+    pub coverage: f64,
+    /// Error median, 99th percentile and worst (m).
+    pub error_median_m: f64,
+    pub error_p99_m: f64,
+    pub error_max_m: f64,
+    /// Median largest 95 % semi-axis (m).
+    pub semi_axis_median_m: f64,
+    /// Factor the semi-axes would need for exactly 95 % coverage (below 1: too wide).
+    pub axes_factor: f64,
+    /// Median bias error (m/s²), when the bias was fitted.
+    pub bias_error_median_mps2: Option<f64>,
+}
+
+impl Summary {
+    /// Summarise judged fits (`None` = failed).
+    pub fn of(fits: &[Option<Judged>]) -> Self {
+        let ok: Vec<&Judged> = fits.iter().flatten().collect();
+        let n = ok.len().max(1) as f64;
+        let fraction = |f: &dyn Fn(&Judged) -> bool| ok.iter().filter(|j| f(j)).count() as f64 / n;
+        let errors: Vec<f64> = ok.iter().map(|j| j.error_m).collect();
+        let semi: Vec<f64> = ok.iter().map(|j| j.largest_semi_axis_m).collect();
+        let mahalanobis: Vec<f64> = ok.iter().map(|j| j.normalised_mahalanobis).collect();
+        let bias: Vec<f64> = ok.iter().filter_map(|j| j.bias_error_mps2).collect();
+        Self {
+            fits: fits.len(),
+            failed: fits.len() - ok.len(),
+            well_determined: fraction(&|j| j.well_determined),
+            coverage: fraction(&|j| j.normalised_mahalanobis <= 1.0),
+            error_median_m: stats::quantile(&errors, 0.5),
+            error_p99_m: stats::quantile(&errors, 0.99),
+            error_max_m: stats::quantile(&errors, 1.0),
+            semi_axis_median_m: stats::quantile(&semi, 0.5),
+            axes_factor: stats::quantile(&mahalanobis, 0.95).sqrt(),
+            bias_error_median_mps2: (!bias.is_empty()).then(|| stats::quantile(&bias, 0.5)),
+        }
+    }
+}
+
+/// Run `sessions` sessions from `seed` on `threads` workers (all on `airframe` when given);
+/// `progress` gets the count done.
+pub fn monte_carlo(
+    sessions: usize,
+    seed: u64,
+    bias_sigma_mps2: f64,
+    airframe: Option<&Airframe>,
+    threads: usize,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Vec<SessionResult> {
+    stats::run_seeds(sessions, seed, threads, progress, |s| {
+        run_session(s, bias_sigma_mps2, airframe)
+    })
+}
