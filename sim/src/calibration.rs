@@ -10,7 +10,9 @@
 //! how often two throws are declared enough, how often the truth lies inside the reported 95 %
 //! ellipsoid, and the error.
 
-use flight::imu_offset::{BatchFitter, Config, Estimate, ImuSample, Model, CHI2_3DOF_95};
+use flight::imu_offset::{
+    BatchFitter, Config, DragModel, Estimate, ImuSample, Model, CHI2_3DOF_95,
+};
 use nalgebra::{Matrix3, Vector3};
 
 use crate::airframe::Airframe;
@@ -55,9 +57,11 @@ impl Session {
             Some(a) => a.clone(),
             None => Airframe::builtin(name).expect("built-in airframes parse"),
         };
-        let acc_bias_mps2 = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * bias_sigma_mps2;
+        let acc_bias_mps2 =
+            Vector3::new(rng.normal(), rng.normal(), rng.normal()) * bias_sigma_mps2;
         airframe.imu.accel.bias_mps2 = acc_bias_mps2.into();
-        let unit = |rng: &mut Rng| Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+        let unit =
+            |rng: &mut Rng| Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
         let first = unit(&mut rng);
         // At least 50° apart (as lines: a spin about −a is the same axis).
         let second = loop {
@@ -152,9 +156,12 @@ impl Judged {
     }
 }
 
-/// Fit a session's logs with `model`, as `fit imu-offset` does.
-pub fn fit(logs: &[Vec<ImuSample>], model: Model) -> Result<Estimate<f64>, String> {
-    let drag_model = if std::env::var_os("CAL_DRAG").is_some() { flight::imu_offset::DragModel::VerticalQuadratic } else { flight::imu_offset::DragModel::Ignored };
+/// Fit a session's logs with `model` and `drag_model`, as `fit imu-offset [--drag]` does.
+pub fn fit(
+    logs: &[Vec<ImuSample>],
+    model: Model,
+    drag_model: DragModel,
+) -> Result<Estimate<f64>, String> {
     let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
     for log in logs {
         fitter.add_log(log, RATE_HZ).map_err(|e| e.to_string())?;
@@ -173,13 +180,26 @@ pub struct SessionResult {
     pub with_bias: Option<Judged>,
 }
 
+/// How the sessions are drawn and fitted.
+#[derive(Debug, Clone, Copy)]
+pub struct Plan<'a> {
+    /// Accelerometer bias, 1σ per axis (m/s²).
+    pub bias_sigma_mps2: f64,
+    /// One airframe for every session instead of the cycle through [`AIRFRAMES`].
+    pub airframe: Option<&'a Airframe>,
+    /// Drag treatment of the fits (`--drag`).
+    pub drag_model: DragModel,
+}
+
 /// Draw and fit session `seed`.
-pub fn run_session(seed: u64, bias_sigma_mps2: f64, airframe: Option<&Airframe>) -> SessionResult {
-    let session = Session::random(seed, bias_sigma_mps2, airframe);
+pub fn run_session(seed: u64, plan: &Plan<'_>) -> SessionResult {
+    let session = Session::random(seed, plan.bias_sigma_mps2, plan.airframe);
     let logs = session.logs();
     let truth = session.truth_m();
     let judge = |model| {
-        fit(&logs, model).ok().map(|e| Judged::new(&e, &truth, &session.acc_bias_mps2))
+        fit(&logs, model, plan.drag_model)
+            .ok()
+            .map(|e| Judged::new(&e, &truth, &session.acc_bias_mps2))
     };
     SessionResult {
         seed,
@@ -236,17 +256,13 @@ impl Summary {
     }
 }
 
-/// Run `sessions` sessions from `seed` on `threads` workers (all on `airframe` when given);
-/// `progress` gets the count done.
+/// Run `sessions` sessions from `seed` on `threads` workers; `progress` gets the count done.
 pub fn monte_carlo(
     sessions: usize,
     seed: u64,
-    bias_sigma_mps2: f64,
-    airframe: Option<&Airframe>,
+    plan: &Plan<'_>,
     threads: usize,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Vec<SessionResult> {
-    stats::run_seeds(sessions, seed, threads, progress, |s| {
-        run_session(s, bias_sigma_mps2, airframe)
-    })
+    stats::run_seeds(sessions, seed, threads, progress, |s| run_session(s, plan))
 }

@@ -2,8 +2,8 @@
 
 pub mod airframe;
 pub mod board;
-pub mod calibration;
 pub mod bridge;
+pub mod calibration;
 pub mod dshot;
 pub mod dynamics;
 pub mod hand;

@@ -24,9 +24,18 @@ use super::InputError;
 /// Arguments of `fit imu-offset`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Also fit a constant accelerometer bias (6 unknowns instead of 3).
-    #[arg(long)]
+    /// Fit a constant accelerometer bias with the offset (the default; kept for old scripts).
+    /// The bias is measured where the craft rests in the hand before and after each throw
+    /// (|f − b| = g in several attitudes) and in the free fall.
+    #[arg(long, conflicts_with = "offset_only")]
     pub bias: bool,
+    /// Fit the offset alone, assuming no accelerometer bias (the seed paper's eq. 3).
+    #[arg(long)]
+    pub offset_only: bool,
+    /// Local gravity (m/s²) for the rest poses, if far from standard gravity (9.80665): e.g.
+    /// 9.780 at the equator, 9.832 at the poles. Within 0.01 m/s² it makes no difference.
+    #[arg(long, value_name = "M/S²", value_parser = parse_gravity)]
+    pub gravity: Option<f32>,
     /// Also fit the air drag of each throw (3 unknowns per throw: quadratic drag along the world
     /// vertical, apex at mid-flight). For vertical throws caught at release height; with `--bias`
     /// it removes most of the drag error (measured on the simulator: median 0.47 → 0.17 mm).
@@ -38,6 +47,34 @@ pub struct Args {
     /// IMU logs (CSV with a header containing t,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z).
     #[arg(required = true, value_name = "LOG.csv")]
     pub logs: Vec<PathBuf>,
+}
+
+/// Uncertainty of a local gravity the user typed (m/s²): the International Gravity Formula is
+/// good to about 1 mm/s² at sea level for a known latitude.
+const KNOWN_GRAVITY_SIGMA_MPS2: f32 = 0.001;
+
+/// Accepted `--gravity` values (m/s²): anywhere on the Earth's surface, with margin.
+const GRAVITY_RANGE_MPS2: core::ops::RangeInclusive<f32> = 9.7..=9.9;
+
+fn parse_gravity(text: &str) -> Result<f32, String> {
+    let value: f32 = text.trim().parse().map_err(|_| format!("`{text}` is not a number (m/s²)"))?;
+    if GRAVITY_RANGE_MPS2.contains(&value) {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value} m/s² is not a gravity on the Earth's surface (allowed {}–{} m/s²)",
+            GRAVITY_RANGE_MPS2.start(),
+            GRAVITY_RANGE_MPS2.end()
+        ))
+    }
+}
+
+/// 95 % semi-axes (largest first) of a 3 × 3 covariance: `√(λ χ²₃(0.95))`.
+fn semi_axes_95(covariance: &nalgebra::Matrix3<f64>) -> [f64; 3] {
+    let mut eig: Vec<f64> = covariance.symmetric_eigenvalues().iter().copied().collect();
+    eig.sort_by(|a, b| b.total_cmp(a));
+    let chi2 = f64::from(flight::imu_offset::CHI2_3DOF_95);
+    [0, 1, 2].map(|i| (eig[i].max(0.0) * chi2).sqrt())
 }
 
 /// The required columns, in the order they are stored in [`LogColumns`].
@@ -64,9 +101,16 @@ pub fn run(args: &Args) -> Result<String, InputError> {
         return Err(InputError("fit imu-offset: give at least one LOG.csv".into()));
     }
     let logs = args.logs.iter().map(|p| read_log(p)).collect::<Result<Vec<_>, _>>()?;
-    let model = if args.bias { Model::OffsetAndAccBias } else { Model::Offset };
+    let model = if args.offset_only { Model::Offset } else { Model::OffsetAndAccBias };
     let drag_model = if args.drag { DragModel::VerticalQuadratic } else { DragModel::Ignored };
-    let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
+    let defaults = Config::default();
+    let mut config = Config { model, drag_model, ..defaults };
+    if let Some(gravity_mps2) = args.gravity {
+        // The user knows their local gravity: it is then known to about 1 mm/s².
+        config.gravity_mps2 = gravity_mps2;
+        config.gravity_sigma_mps2 = KNOWN_GRAVITY_SIGMA_MPS2;
+    }
+    let mut fitter = BatchFitter::new(config);
     for log in &logs {
         let found =
             fitter.add_log(&log.samples, log.rate_hz).map_err(|e| log_error(&log.path, &e))?;
@@ -129,9 +173,14 @@ fn json_output(e: &Estimate<f64>, segments: &[(String, f64, f64)], drag: bool) -
             .map(|(file, t_start, t_end)| json!({"file": file, "t_start": t_start, "t_end": t_end}))
             .collect::<Vec<_>>(),
         "samples_used": e.samples_used,
+        "model": match e.model { Model::Offset => "offset", Model::OffsetAndAccBias => "offset+bias" },
     });
     if let (Some(bias), Some(object)) = (e.acc_bias_mps2, out.as_object_mut()) {
         object.insert("acc_bias_mps2".into(), json!(vec3(&bias)));
+        if let Some(c) = e.acc_bias_covariance_m2ps4 {
+            object.insert("acc_bias_ci95_semi_axes_mps2".into(), json!(semi_axes_95(&c)));
+        }
+        object.insert("rest_poses".into(), json!(e.rest_poses));
     }
     if let (true, Some(object)) = (drag, out.as_object_mut()) {
         object.insert("drag_model".into(), json!("vertical-quadratic"));
@@ -160,7 +209,18 @@ fn text_output(e: &Estimate<f64>, segments: &[(String, f64, f64)], drag: bool) -
         );
     }
     if let Some(b) = e.acc_bias_mps2 {
-        let _ = writeln!(s, "Accelerometer bias: ({:.3}, {:.3}, {:.3}) m/s²", b.x, b.y, b.z);
+        let known = e
+            .acc_bias_covariance_m2ps4
+            .map(|c| {
+                format!(", known within {:.3} m/s² (largest 95 % semi-axis)", semi_axes_95(&c)[0])
+            })
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "Accelerometer bias: ({:.3}, {:.3}, {:.3}) m/s²{known}, from the free fall and {} \
+             rest pose(s) in the hand",
+            b.x, b.y, b.z, e.rest_poses
+        );
     }
     if drag {
         let _ = writeln!(s, "Drag: fitted per throw (quadratic, along the world vertical)");
@@ -332,7 +392,15 @@ mod tests {
     fn json_from_two_throws_is_within_1mm() {
         let logs = two_logs("json", 2000.0);
         for bias in [false, true] {
-            let out = run(&Args { bias, drag: false, json: true, logs: logs.clone() }).unwrap();
+            let out = run(&Args {
+                bias,
+                offset_only: !bias,
+                gravity: None,
+                drag: false,
+                json: true,
+                logs: logs.clone(),
+            })
+            .unwrap();
             let v: serde_json::Value = serde_json::from_str(&out).unwrap();
             let r = parse_vec3(&v["r_imu_m"]);
             let err_mm = (r - r_true()).norm() * 1000.0;
@@ -354,7 +422,12 @@ mod tests {
             assert_eq!(cov.len(), 3);
             assert!(cov.iter().all(|row| row.as_array().unwrap().len() == 3));
             assert_eq!(v["well_determined"], serde_json::Value::Bool(true));
-            assert!(v["advice"].as_str().unwrap().contains("well determined"));
+            let advice = v["advice"].as_str().unwrap();
+            assert!(advice.contains("well determined"));
+            // The advice states the reported ellipsoid's largest semi-axis, to the hundredth of
+            // a millimetre it prints.
+            let stated = format!("within {:.2} mm", semi[0] * 1000.0);
+            assert!(advice.contains(&stated), "advice `{advice}` does not say `{stated}`");
             let segments = v["segments"].as_array().unwrap();
             assert_eq!(segments.len(), 2);
             // First log starts at t = 12.5 s; release at 0.6 s into it, free fall for 0.6 s.
@@ -373,7 +446,15 @@ mod tests {
     #[test]
     fn drag_model_keeps_the_contract_and_the_accuracy() {
         let logs = two_logs("drag", 2000.0);
-        let out = run(&Args { bias: true, drag: true, json: true, logs }).unwrap();
+        let out = run(&Args {
+            bias: true,
+            offset_only: false,
+            gravity: None,
+            drag: true,
+            json: true,
+            logs,
+        })
+        .unwrap();
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         for key in [
             "r_imu_m",
@@ -396,7 +477,15 @@ mod tests {
     #[test]
     fn text_output_has_units_and_advice() {
         let logs = two_logs("text", 1000.0);
-        let out = run(&Args { bias: false, drag: false, json: false, logs }).unwrap();
+        let out = run(&Args {
+            bias: false,
+            offset_only: false,
+            gravity: None,
+            drag: false,
+            json: false,
+            logs,
+        })
+        .unwrap();
         assert!(out.contains(" mm"), "{out}");
         assert!(out.contains("Advice: well determined"), "{out}");
         assert!(out.contains("throw_b.csv"), "{out}");
@@ -407,7 +496,15 @@ mod tests {
         let dir = scratch("one");
         let path = dir.join("one.csv");
         write_log(&path, &spec(1000.0, Vector3::new(0.0, 0.0, 12.0), 3), 0.0);
-        let out = run(&Args { bias: false, drag: false, json: true, logs: vec![path] }).unwrap();
+        let out = run(&Args {
+            bias: false,
+            offset_only: false,
+            gravity: None,
+            drag: false,
+            json: true,
+            logs: vec![path],
+        })
+        .unwrap();
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         assert_eq!(v["well_determined"], serde_json::Value::Bool(false));
         assert!(v["advice"].as_str().unwrap().contains("throw again"));
@@ -416,8 +513,15 @@ mod tests {
     fn expect_error(name: &str, csv: &str, needles: &[&str]) {
         let path = scratch(name).join("bad.csv");
         std::fs::write(&path, csv).unwrap();
-        let err =
-            run(&Args { bias: false, drag: false, json: true, logs: vec![path] }).unwrap_err();
+        let err = run(&Args {
+            bias: false,
+            offset_only: false,
+            gravity: None,
+            drag: false,
+            json: true,
+            logs: vec![path],
+        })
+        .unwrap_err();
         for needle in needles {
             assert!(err.0.contains(needle), "`{}` does not mention `{needle}`", err.0);
         }
@@ -451,8 +555,15 @@ mod tests {
         expect_error("still", &still_rows(1000.0, 3000), &["no free fall"]);
         expect_error("short", &still_rows(1000.0, 50), &["too few"]);
         let missing = scratch("absent").join("does-not-exist.csv");
-        let err =
-            run(&Args { bias: false, drag: false, json: false, logs: vec![missing] }).unwrap_err();
+        let err = run(&Args {
+            bias: false,
+            offset_only: false,
+            gravity: None,
+            drag: false,
+            json: false,
+            logs: vec![missing],
+        })
+        .unwrap_err();
         assert!(err.0.contains("cannot read"), "{}", err.0);
     }
 }

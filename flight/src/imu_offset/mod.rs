@@ -28,7 +28,7 @@
 //!    the variance least squares actually has (Newey–West in batch form).
 //! 2. *Two batch lengths.* Short batches ([`Config::block_s`], 20 ms ≈ 4 filter time constants)
 //!    measure the filtered sensor noise precisely; long batches ([`Config::long_batch_s`],
-//!    200 ms) also see drag, which changes over the flight and rotates with the spin. The larger
+//!    150 ms) also see drag, which changes over the flight and rotates with the spin. The larger
 //!    of the two covariance scales is used.
 //! 3. *Small-sample widening.* The scale is estimated with `ν = 3 n_b − p` degrees of freedom, so
 //!    the 95 % region is Hotelling's `T²(3, ν)`, not `χ²₃`. `Σ` is multiplied by
@@ -60,41 +60,34 @@
 //! model ignores) `|τ|τ` still helps (0.70 → 0.46 mm). The onboard RLS is unchanged (3 unknowns,
 //! the Cortex-M7 budget is for [`OffsetRls::update`]); the board refuses the option.
 //!
-//! # Measured accuracy and coverage
-//! *Synthetic throws* (`flight::testing`, no bias, isotropic drag; 200 random two-throw fits each,
-//! `cargo test -p flight imu_offset -- --nocapture`): 99.0 % without drag, 96.0 % (1 kHz) and
-//! 97.5 % (4 kHz) with quadratic drag `k = 0.01 /m`; the paper's formula 15 %, 0.5 % and 0 %.
+//! # The accelerometer bias: rest poses ([`Model::OffsetAndAccBias`], the default)
+//! Two throws alone separate a bias from the offset poorly (a constant bias looks like the
+//! constant part of `X r`). Every calibration session also holds the craft still before and after
+//! each throw, and the catch leaves it in a new attitude: at rest `|f − b| = g`, one equation in
+//! `b` per attitude, independent of `r` (`rest`). The rest poses' bias information (local gravity
+//! profiled out under a prior, [`Config::gravity_sigma_mps2`]) is added to the free-fall normal
+//! equations weighted by their covariance scale, and the fit is repeated at the scale measured at
+//! its own solution. [`Estimate::acc_bias_covariance_m2ps4`] says how well the bias is known.
 //!
-//! *The simulator* (`sim`: anisotropic linear + quadratic drag, accelerometer bias
-//! (0.05, −0.04, 0.08) m/s², 8 kHz averaged to 2 kHz; 200 two-throw fits, half on `paper-quad`
-//! and half on `quad-3in`, spins of 400–800 °/s about axes ≥ 60° apart;
-//! `cargo test -p tests --test imu_offset_coverage -- --nocapture`). "Axes ×" is the factor the
-//! reported semi-axes would need for exactly 95 % coverage (below 1: conservative).
+//! # Measured accuracy and coverage (default model, 150 ms long batches)
+//! *The simulator*, 200 two-throw sessions on the built-in quads (apex 0.8–1.5 m, 300–600 °/s
+//! about axes ≥ 50° apart, 0.6 s rests, anisotropic linear + quadratic drag, ICM-42688-P noise;
+//! `cargo run -p sim --release --bin calibrate -- monte-carlo --bias B`):
 //!
-//! | model | error median | error p95 | reported 95 % ellipsoid | axes × | paper's ellipsoid |
-//! |---|---|---|---|---|---|
-//! | offset only, before correction 4 | 0.80 mm | 1.61 mm | 49.0 % (paper-quad 7 %) | — | 0 % |
-//! | offset only | 0.80 mm | 1.61 mm | 94.5 % | 1.01 | 0 % |
-//! | offset and bias | 0.47 mm | 1.75 mm | 99.0 % | 0.66 | 0 % |
-//! | offset, drag model | 0.80 mm | 1.50 mm | 99.0 % | 0.71 | 0 % |
-//! | offset and bias, drag model | 0.17 mm | 0.85 mm | 99.5 % | 0.76 | 0 % |
+//! | bias 1σ per axis | well determined | truth in 95 % ellipsoid | error median / p99 | semi-axis median |
+//! |---|---|---|---|---|
+//! | 0.02 m/s² | 63.0 % | 98.0 % | 0.41 / 2.33 mm | 1.66 mm |
+//! | 0.05 m/s² | 63.0 % | 98.0 % | 0.41 / 2.33 mm | 1.66 mm |
+//! | 0.2 m/s² | 60.5 % | 96.5 % | 0.43 / 2.49 mm | 1.73 mm |
 //!
-//! What limits accuracy on the simulator is not noise (without drag and bias the median error is
-//! 0.01 mm) but the two unmodelled forces. Switching them off one at a time: the bias alone makes
-//! the offset-only error 0.84 mm (median; the joint fit removes it: 0.018 mm); drag alone makes
-//! the joint fit's error 0.35 mm (paper-quad) and 0.67 mm (quad-3in, 0.18 kg: twice the drag per
-//! mass), the offset-only fit's 0.11 mm and 0.25 mm. Drag is a slowly varying, rotating force
-//! that a constant bias partly absorbs, which is why it hurts the joint fit more; the drag model
-//! removes most of that (0.47 → 0.17 mm). What remains is the drag the model does not describe:
-//! the simulator's drag is anisotropic (body z 2.4 × x/y on the quads) and partly linear.
-//! Trimming more of the fast start and end of the flight (where drag ∝ v² is largest) instead
-//! helps little (0.47 → 0.42 mm with 100/120 ms trims).
+//! The offset-only model on the same sessions: 93.0 / 87.0 / 77.5 % coverage, median error 0.63 /
+//! 1.19 / 4.54 mm. *Synthetic throws* (`flight::testing`, isotropic quadratic drag, no bias, 200
+//! fits; `cargo test -p flight --release ellipsoid_coverage -- --nocapture`): 98.5 % without drag,
+//! 96.0 % (1 kHz) and 88.5 % (4 kHz) with `k = 0.01 /m`; the paper's formula 18.5 %, 0 %, 0 %.
 //!
-//! The ellipsoids of the joint fits are conservative (semi-axes 1.3–1.5 × what exact 95 %
-//! coverage needs): the 200 ms batch means carry few degrees of freedom, and the Hotelling
-//! widening for them is large. The long-batch figure is also sensitive to the batch length on
-//! this data (joint fit with drag model: 84.5 % at 100 ms, 93 % at 140 ms, 99.5 % at 200 ms), so
-//! the default was left at 200 ms, on the safe side.
+//! What limits accuracy is drag, not noise or bias: the errors above 1 mm are nearly all on the
+//! 3-inch quad (0.18 kg, the most drag per unit mass), and on the 1.5 kg hexacopters the median
+//! error is about 0.6 mm. The per-throw drag model below (offline) roughly halves it.
 //!
 //! # Units and frames
 //! IMU frame throughout; rates in rad/s, specific force in m/s², offsets in m, times in s.
@@ -111,11 +104,11 @@ mod tests;
 
 pub use batch::{BatchFitter, LogSegment};
 pub use drag::DragModel;
-pub use rest::{
-    RestPose, MAX_REST_POSES, MIN_POSE_BLOCKS, POSE_SIGMA_FLOOR_MPS2, REST_BLOCK_S, REST_MAX_DEVIATION_MPS2,
-    REST_MAX_RATE_RAD_S,
-};
 pub use front_end::{regressor, AlignedSample, FrontEnd};
+pub use rest::{
+    RestPose, MAX_REST_POSES, MIN_POSE_BLOCKS, POSE_SIGMA_FLOOR_MPS2, REST_BLOCK_S,
+    REST_MAX_DEVIATION_MPS2, REST_MAX_RATE_RAD_S,
+};
 pub use stream::{ImuOffsetEstimator, OffsetRls};
 
 use nalgebra::{Matrix3, RealField, Vector3};

@@ -31,9 +31,9 @@
 
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 
+use super::front_end::AlignedSample;
 #[cfg(doc)]
 use super::Config;
-use super::front_end::AlignedSample;
 use super::Scalar;
 
 /// Largest filtered body rate at rest (rad/s): the centripetal term at an offset of 5 cm is then
@@ -171,7 +171,8 @@ impl RestDetector {
         let n = run.blocks as f32;
         let mean_dev = run.norm_dev_sum / n;
         let spread_var = ((run.norm_dev_sq_sum - n * mean_dev * mean_dev) / (n - 1.0)).max(0.0);
-        let sigma_mps2 = libm::sqrtf(spread_var / n + POSE_SIGMA_FLOOR_MPS2 * POSE_SIGMA_FLOOR_MPS2);
+        let sigma_mps2 =
+            libm::sqrtf(spread_var / n + POSE_SIGMA_FLOOR_MPS2 * POSE_SIGMA_FLOOR_MPS2);
         let up_imu = run.unit_sum.try_normalize(f32::EPSILON)?;
         let pose = RestPose {
             up_imu,
@@ -224,8 +225,12 @@ pub(crate) struct RestModel<'a> {
 
 impl RestPoses {
     pub(crate) fn new() -> Self {
-        let none =
-            RestPose { up_imu: Vector3::zeros(), specific_force_mps2: 0.0, sigma_mps2: 1.0, blocks: 0 };
+        let none = RestPose {
+            up_imu: Vector3::zeros(),
+            specific_force_mps2: 0.0,
+            sigma_mps2: 1.0,
+            blocks: 0,
+        };
         Self { poses: [none; MAX_REST_POSES], len: 0, ignored: 0 }
     }
 
@@ -258,7 +263,10 @@ impl RestModel<'_> {
     ///
     /// Pose `k`: `|f_k − b| = g₀ + δg` ≈ `|f_k − b0| − u_kᵀ (b − b0)`, `u_k = (f_k − b0)/|f_k − b0|`,
     /// so `u_kᵀ b + δg = |f_k − b0| + u_kᵀ b0 − g₀` with weight `1/σ_k²`.
-    pub(crate) fn bias_information<T: Scalar>(&self, b0: &Vector3<T>) -> Option<BiasInformation<T>> {
+    pub(crate) fn bias_information<T: Scalar>(
+        &self,
+        b0: &Vector3<T>,
+    ) -> Option<BiasInformation<T>> {
         if self.poses.is_empty() {
             return None;
         }

@@ -147,7 +147,9 @@ pub(crate) fn estimate<T: Scalar>(
             Ok(joint) if !excitation_lacking => with_unmodelled_bias(&offset, joint)?,
             _ => offset,
         },
-        Model::OffsetAndAccBias => joint?,
+        // Bias and offset inseparable (e.g. one spin about a principal axis, one rest attitude):
+        // the offset-only fit is reported, and the verdict says what is missing.
+        Model::OffsetAndAccBias => joint.unwrap_or(offset),
     };
     let semi_axis_m = chosen.ellipsoid.semi_axes_m[0];
     let direction_imu = chosen.ellipsoid.axes[0];

@@ -4,13 +4,15 @@
 //!
 //! ```text
 //! cargo run -p sim --release --bin calibrate -- monte-carlo --sessions 200 --bias 0.02
+//! cargo run -p sim --release --bin calibrate -- monte-carlo --airframe hex-flat --drag
 //! ```
 
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use flight::imu_offset::DragModel;
 use sim::airframe::Airframe;
-use sim::calibration::{monte_carlo, Judged, Summary, AIRFRAMES, REST_S};
+use sim::calibration::{monte_carlo, Judged, Plan, Summary, AIRFRAMES, REST_S};
 
 #[derive(Parser, Debug)]
 #[command(version, about = "IMU-offset calibration sessions against the simulator's truth")]
@@ -39,11 +41,18 @@ enum Command {
         /// One airframe for every session (a built-in name or a TOML file) instead of the quads.
         #[arg(long)]
         airframe: Option<String>,
+        /// Fit with the per-throw drag model, as `fit imu-offset --drag` (offline only).
+        #[arg(long)]
+        drag: bool,
+        /// Print every session's result.
+        #[arg(long)]
+        verbose: bool,
     },
 }
 
 fn main() -> ExitCode {
-    let Command::MonteCarlo { sessions, bias, seed, threads, airframe } = Args::parse().command;
+    let Command::MonteCarlo { sessions, bias, seed, threads, airframe, drag, verbose } =
+        Args::parse().command;
     if !(bias.is_finite() && (0.0..=1.0).contains(&bias)) {
         eprintln!("calibrate: --bias must be within 0–1 m/s² (got {bias})");
         return ExitCode::FAILURE;
@@ -61,7 +70,9 @@ fn main() -> ExitCode {
         None => AIRFRAMES.join(", "),
     };
     let started = std::time::Instant::now();
-    let results = monte_carlo(sessions, seed, bias, airframe.as_ref(), threads, &|done| {
+    let drag_model = if drag { DragModel::VerticalQuadratic } else { DragModel::Ignored };
+    let plan = Plan { bias_sigma_mps2: bias, airframe: airframe.as_ref(), drag_model };
+    let results = monte_carlo(sessions, seed, &plan, threads, &|done| {
         if done % 20 == 0 || done == sessions {
             eprintln!("calibrate: {done}/{sessions} sessions");
         }
@@ -71,9 +82,12 @@ fn main() -> ExitCode {
         airframes,
         started.elapsed().as_secs_f64()
     );
-    if std::env::var_os("CALIBRATE_VERBOSE").is_some() {
+    if verbose {
         for r in &results {
-            println!("{:?}\n   {:?}", r.offset_only, r.with_bias);
+            println!(
+                "session {}: offset only {:?}; with bias {:?}",
+                r.seed, r.offset_only, r.with_bias
+            );
         }
     }
     let columns: [(&str, Vec<Option<Judged>>); 2] = [
