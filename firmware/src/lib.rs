@@ -8,3 +8,4 @@
 pub mod app;
 #[cfg(target_os = "none")]
 pub mod board;
+pub mod drivers;
