@@ -16,7 +16,7 @@
 //! board, never computed under it.
 
 use super::queue::{LearnerSample, SampleConsumer};
-use flight::imu_offset::{self, ImuOffsetEstimator, Model, Verdict};
+use flight::imu_offset::{self, ImuOffsetEstimator, Verdict};
 use flight::learner::{FlightPhase, LearnedModel, Learner, LearnerConfig};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetStatus, OffsetAdvice};
@@ -295,11 +295,12 @@ fn advice(verdict: &Verdict<f32>) -> OffsetAdvice {
     }
 }
 
-/// The onboard estimator's configuration: the library defaults, with the accelerometer bias
-/// fitted jointly (simulated and real MEMS accelerometers carry a bias of ~0.1 m/s², which
-/// otherwise shifts `r` by about a millimetre; see docs/benchmarks.md).
+/// The onboard estimator's configuration: the library defaults, which fit the accelerometer bias
+/// jointly with the help of the rest poses (a real MEMS accelerometer carries up to 0.2 m/s²,
+/// which otherwise shifts `r` by millimetres; see docs/benchmarks.md), exactly as
+/// `fit imu-offset` does offline.
 fn imu_offset_config() -> imu_offset::Config {
-    imu_offset::Config { model: Model::OffsetAndAccBias, ..imu_offset::Config::default() }
+    imu_offset::Config::default()
 }
 
 /// Welford's running mean and variance (numerically stable in f32 over a few thousand samples).

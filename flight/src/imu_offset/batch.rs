@@ -11,7 +11,7 @@ use nalgebra::Vector3;
 use super::drag::DragSums;
 use super::front_end::FrontEnd;
 use super::moments::{BatchMeans, Moments};
-use super::rest::{RestModel, RestPoses};
+use super::rest::RestPoses;
 use super::solve::{self, Problem};
 use super::stream::{accumulate_aligned, ImuOffsetEstimator};
 use super::{
@@ -185,11 +185,7 @@ impl BatchFitter {
             block_len: self.block_len,
             r_ref: Vector3::zeros(),
             drag: self.drag.as_ref(),
-            rest: Some(RestModel {
-                poses: self.rest.as_slice(),
-                gravity_mps2: self.config.gravity_mps2,
-                gravity_sigma_mps2: self.config.gravity_sigma_mps2,
-            }),
+            rest: Some(self.rest.model(&self.config)),
         };
         solve::estimate(&problem, self.config.model, f64::from(self.config.max_semi_axis_m))
     }

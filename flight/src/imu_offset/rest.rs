@@ -32,9 +32,7 @@
 use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 
 use super::front_end::AlignedSample;
-#[cfg(doc)]
-use super::Config;
-use super::Scalar;
+use super::{Config, Scalar};
 
 /// Largest filtered body rate at rest (rad/s): the centripetal term at an offset of 5 cm is then
 /// below `0.3² · 0.05 = 4.5 mm/s²`, a fifth of the smallest bias worth knowing (0.02 m/s²); a hand
@@ -193,8 +191,7 @@ impl RestPose {
     }
 }
 
-/// Most rest poses kept (a calibration session has two per throw); later ones are counted and
-/// ignored.
+/// Most rest poses kept (a calibration session has two per throw); later ones are ignored.
 pub const MAX_REST_POSES: usize = 32;
 
 /// The rest poses found so far (fixed capacity, no allocation).
@@ -202,7 +199,6 @@ pub const MAX_REST_POSES: usize = 32;
 pub(crate) struct RestPoses {
     poses: [RestPose; MAX_REST_POSES],
     len: usize,
-    ignored: u32,
 }
 
 /// The rest equations reduced to the bias: information `J` ((m/s²)⁻²) and `h = J b̂_rest`, with
@@ -231,17 +227,14 @@ impl RestPoses {
             sigma_mps2: 1.0,
             blocks: 0,
         };
-        Self { poses: [none; MAX_REST_POSES], len: 0, ignored: 0 }
+        Self { poses: [none; MAX_REST_POSES], len: 0 }
     }
 
-    /// Keep one pose (or count it as ignored when full).
+    /// Keep one pose (ignored when full).
     pub(crate) fn push(&mut self, pose: RestPose) {
-        match self.poses.get_mut(self.len) {
-            Some(slot) => {
-                *slot = pose;
-                self.len += 1;
-            }
-            None => self.ignored = self.ignored.saturating_add(1),
+        if let Some(slot) = self.poses.get_mut(self.len) {
+            *slot = pose;
+            self.len += 1;
         }
     }
 
@@ -254,6 +247,15 @@ impl RestPoses {
 
     pub(crate) fn as_slice(&self) -> &[RestPose] {
         self.poses.get(..self.len).unwrap_or(&[])
+    }
+
+    /// The poses read with `config`'s gravity model.
+    pub(crate) fn model(&self, config: &Config) -> RestModel<'_> {
+        RestModel {
+            poses: self.as_slice(),
+            gravity_mps2: config.gravity_mps2,
+            gravity_sigma_mps2: config.gravity_sigma_mps2,
+        }
     }
 }
 

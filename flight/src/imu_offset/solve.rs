@@ -341,15 +341,20 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
     let sums = Sums::new(p);
     let (q, g) = sums.normal_equations();
     let q_rr: Matrix3<T> = q.fixed_view::<3, 3>(0, 0).into_owned();
+    // The offset-only solution `θ = [d; 0]` and the inverse of `Q_rr`.
+    let offset_only = || {
+        let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
+        let mut theta = Vector6::zeros();
+        theta.fixed_rows_mut::<3>(0).copy_from(&chol.solve(&g.fixed_rows::<3>(0)));
+        Ok::<_, ImuOffsetError>((theta, chol.inverse()))
+    };
     let bias_coupling: Matrix3<T> = q.fixed_view::<3, 3>(0, 3).into_owned();
     let (theta, residuals, covariance) = match model {
         Model::Offset => {
-            let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
-            let mut theta = Vector6::zeros();
-            theta.fixed_rows_mut::<3>(0).copy_from(&chol.solve(&g.fixed_rows::<3>(0)));
+            let (theta, q_rr_inv) = offset_only()?;
             let residuals = sums.residuals(&theta, 3)?;
             let mut covariance = Matrix6::zeros();
-            covariance.fixed_view_mut::<3, 3>(0, 0).copy_from(&chol.inverse());
+            covariance.fixed_view_mut::<3, 3>(0, 0).copy_from(&q_rr_inv);
             (theta, residuals, covariance * residuals.scale)
         }
         Model::OffsetAndAccBias => match p.rest.filter(|r| !r.poses.is_empty()) {
@@ -376,12 +381,7 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
                 // First scale: at the free-fall joint solution, or offset-only without bias.
                 let start = match q.cholesky() {
                     Some(chol) => chol.solve(&g),
-                    None => {
-                        let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
-                        let mut theta = Vector6::zeros();
-                        theta.fixed_rows_mut::<3>(0).copy_from(&chol.solve(&g.fixed_rows::<3>(0)));
-                        theta
-                    }
+                    None => offset_only()?.0,
                 };
                 let mut residuals = sums.residuals(&start, 6)?;
                 let mut solution = solve(residuals.scale, &Vector3::zeros())?;

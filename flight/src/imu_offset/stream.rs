@@ -31,7 +31,7 @@ use nalgebra::Vector3;
 
 use super::front_end::{regressor, AlignedSample, FrontEnd};
 use super::moments::{BatchMeans, Moments};
-use super::rest::{RestDetector, RestModel, RestPoses};
+use super::rest::{RestDetector, RestPoses};
 use super::solve::{self, Problem};
 use super::{
     validate_sample, Config, DragModel, Estimate, ImuOffsetError, ImuSample, Scalar, Segment,
@@ -269,7 +269,7 @@ impl ImuOffsetEstimator {
             block_len: self.block_len,
             r_ref: self.r_ref_m,
             drag: None,
-            rest: Some(self.rest_model()),
+            rest: Some(self.rest_poses.model(&self.config)),
         };
         solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
     }
@@ -282,15 +282,6 @@ impl ImuOffsetEstimator {
     /// The rest poses, for the batch fitter (which uses exactly the poses found here).
     pub(crate) fn rest_pose_list(&self) -> &RestPoses {
         &self.rest_poses
-    }
-
-    /// The rest poses with this estimator's gravity model.
-    fn rest_model(&self) -> RestModel<'_> {
-        RestModel {
-            poses: self.rest_poses.as_slice(),
-            gravity_mps2: self.config.gravity_mps2,
-            gravity_sigma_mps2: self.config.gravity_sigma_mps2,
-        }
     }
 
     /// The accepted throws, in order.
