@@ -7,7 +7,7 @@
 
 use protocol::{
     peek_hello_version, Decoder, DeviceError, DeviceMessage, Event, Hello, Info, Reply, Request,
-    Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID, SCHEMA_HASH,
+    StorageStage, Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID, SCHEMA_HASH,
 };
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Read, Write};
@@ -77,6 +77,27 @@ impl std::fmt::Display for DeviceErrorText {
             }
             DeviceError::Busy => write!(f, "the board is busy; try again"),
             DeviceError::RefusedWhileArmed => write!(f, "refused while armed; disarm first"),
+            DeviceError::UnknownParam { name } => {
+                write!(f, "no parameter is called `{name}` (`dump` lists them)")
+            }
+            DeviceError::WrongLength { name, expected, got } => write!(
+                f,
+                "{name} takes {expected} value{} (comma-separated), not {got}",
+                if *expected == 1 { "" } else { "s" }
+            ),
+            DeviceError::NotAnInteger { name, value } => {
+                write!(f, "{name} takes whole numbers, not {value}")
+            }
+            DeviceError::StorageFailed { stage } => {
+                let stage = match stage {
+                    StorageStage::NoStore => "the board has no configuration store",
+                    StorageStage::Read => "reading the flash failed",
+                    StorageStage::Write => "writing the flash failed",
+                    StorageStage::TooLarge => "the configuration is too large (firmware bug)",
+                };
+                write!(f, "save failed: {stage}; the saved configuration is unchanged")
+            }
+            DeviceError::NotReady => write!(f, "not ready (see `status`)"),
         }
     }
 }

@@ -2,7 +2,10 @@
 //! errors, telemetry rates and sequence numbers, bad-frame accounting, the throw-to-fly commands
 //! and the learner topic.
 
-use firmware::app::{BoardInfo, ControlCommand, ControlSnapshot, LinkServer, StatusView};
+use firmware::app::{
+    BoardInfo, ControlCommand, ControlSnapshot, LinkRequest, LinkServer, NoFlash, Settings,
+    StatusView,
+};
 use flight::learner::motor_model::MotorModel;
 use flight::learner::LearnedModel;
 use protocol::*;
@@ -28,6 +31,8 @@ fn view_at(t_us: u64) -> StatusView {
 /// A scripted host: encodes requests, collects everything the server sends.
 struct Host {
     server: LinkServer,
+    /// The parameters (no flash: a save is refused with a typed error).
+    settings: Settings<NoFlash>,
     decoder: Decoder,
     now_us: u64,
     /// What the board's other tasks publish; the time and step count follow `now_us`.
@@ -46,7 +51,13 @@ impl Host {
     }
 
     fn with_view(view: StatusView) -> Self {
-        Self { server: LinkServer::new(board()), decoder: Decoder::new(), now_us: 0, view }
+        Self {
+            server: LinkServer::new(board()),
+            settings: Settings::without_store(),
+            decoder: Decoder::new(),
+            now_us: 0,
+            view,
+        }
     }
 
     /// The view at the current time.
@@ -61,12 +72,12 @@ impl Host {
         let mut frame = [0u8; MAX_FRAME_LEN];
         let len = request.encode(seq, &mut frame).unwrap();
         let view = self.view();
-        self.server.receive(&frame[..len], self.now_us, &view);
+        self.server.receive(&frame[..len], self.now_us, &view, &mut self.settings);
     }
 
     fn send_raw(&mut self, bytes: &[u8]) {
         let view = self.view();
-        self.server.receive(bytes, self.now_us, &view);
+        self.server.receive(bytes, self.now_us, &view, &mut self.settings);
     }
 
     fn advance(&mut self, dt_us: u64) {
@@ -77,7 +88,12 @@ impl Host {
 
     /// Every command the server has queued for the control step, oldest first.
     fn commands(&mut self) -> Vec<ControlCommand> {
-        std::iter::from_fn(|| self.server.take_command()).collect()
+        std::iter::from_fn(|| self.server.take_request())
+            .map(|request| match request {
+                LinkRequest::Control(command) => command,
+                other => panic!("expected a control command, got {other:?}"),
+            })
+            .collect()
     }
 
     /// Drain the server's transmit buffer in USB-packet-sized pieces.

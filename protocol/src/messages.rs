@@ -28,6 +28,12 @@ pub const TOPIC_COUNT: usize = 4;
 /// Highest telemetry rate a host may request for one topic, Hz (half the 2 kHz control rate, so
 /// a topic never needs more than every second control step).
 pub const MAX_TELEMETRY_RATE_HZ: u16 = 1000;
+/// Most elements one parameter may have (one per motor for the per-motor arrays).
+pub const PARAM_MAX_LEN: usize = 8;
+/// Capacity of a parameter's unit label, bytes of UTF-8 ("rad/s²/(rad/s²)" fits).
+pub const PARAM_UNIT_LEN: usize = 20;
+/// Capacity of a parameter's help text on the wire, bytes of UTF-8.
+pub const PARAM_HELP_LEN: usize = 72;
 
 /// A protocol version. Different majors cannot talk (both sides refuse, naming both versions);
 /// a newer minor on either side degrades to what the older side knows.
@@ -130,6 +136,48 @@ pub struct Ping {
     pub nonce: u32,
 }
 
+/// The elements of one parameter's value (a scalar has one).
+pub type ParamValues = heapless::Vec<f32, PARAM_MAX_LEN>;
+
+/// Which parameter: by its place in the registry (for listing them all) or by name.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq, Eq)]
+pub enum ParamRef {
+    /// 0 to [`ParamInfo::count`] − 1.
+    Index(u16),
+    Name(String<NAME_LEN>),
+}
+
+/// Give a parameter a new value: every element, validated as a whole (nothing changes when any
+/// element is refused).
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct SetParam {
+    pub name: String<NAME_LEN>,
+    pub values: ParamValues,
+}
+
+/// End the IMU-offset calibration.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StopCalibration {
+    /// Store the estimate (offset, and the accelerometer bias when fitted) in the parameters;
+    /// refused with [`DeviceError::NotReady`] unless it is well determined.
+    pub accept: bool,
+}
+
+/// Spin one motor for a test (propellers off!). Repeat at least every
+/// [`MOTOR_TEST_KEEPALIVE_MS`] to keep it spinning.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct MotorTest {
+    /// Motor index from 0.
+    pub motor: u8,
+    /// Command δ, 0 to [`MOTOR_TEST_MAX_COMMAND`].
+    pub command: f32,
+}
+
+/// A motor test stops by itself this long after its last request, ms.
+pub const MOTOR_TEST_KEEPALIVE_MS: u32 = 3000;
+/// Highest command a motor test may ask for (a bench test needs no more).
+pub const MOTOR_TEST_MAX_COMMAND: f32 = 0.5;
+
 // ---------------------------------------------------------------------------------------------
 // Device → host
 // ---------------------------------------------------------------------------------------------
@@ -152,6 +200,11 @@ pub enum Reply {
     Pong(Ping),
     /// Answer to [`Request::GetLearner`].
     Learner(LearnerTelemetry),
+    /// Answer to [`Request::GetParam`] and [`Request::SetParam`] (with the value now in force).
+    Param(ParamInfo),
+    /// Answer to [`Request::GetConfig`], [`Request::SaveConfig`], [`Request::ResetConfig`] and
+    /// an accepted [`Request::StopCalibration`].
+    Config(ConfigStatus),
 }
 
 /// Why a request was not carried out. Each variant's doc states what the host should do.
@@ -172,6 +225,31 @@ pub enum DeviceError {
     Busy,
     /// Refused because the craft is armed: disarm first.
     RefusedWhileArmed,
+    /// No parameter has this name (or index): nothing was changed. `dump` lists them.
+    UnknownParam { name: String<NAME_LEN> },
+    /// The parameter has `expected` elements, the request gave `got`: nothing was changed.
+    WrongLength { name: String<NAME_LEN>, expected: u8, got: u8 },
+    /// The parameter takes whole numbers (or 0/1 for a flag): nothing was changed.
+    NotAnInteger { name: String<NAME_LEN>, value: f32 },
+    /// The flash refused the configuration (`stage` says where): the configuration in force is
+    /// unchanged and the previously saved one is still there.
+    StorageFailed { stage: StorageStage },
+    /// The operation needs something that is not there yet (a well-determined calibration, a
+    /// running calibration): see the status.
+    NotReady,
+}
+
+/// Where a configuration save or load failed.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StorageStage {
+    /// The board has no configuration store.
+    NoStore,
+    /// Reading the stored configuration.
+    Read,
+    /// Writing or erasing the flash.
+    Write,
+    /// The configuration did not fit the store's buffer (a firmware bug).
+    TooLarge,
 }
 
 /// The board's identity and abilities (the handshake reply).
@@ -289,6 +367,92 @@ pub enum OffsetAdvice {
     BiasNotSeparable { direction_imu: [f32; 3], spin_about_axis: u8 },
     /// An accelerometer bias the model ignores spoils the offset: fit the bias jointly.
     FitBias,
+}
+
+/// How a parameter's elements are read.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ParamKind {
+    /// Any finite number in the range.
+    Real,
+    /// Whole numbers in the range.
+    Integer,
+    /// 0 (off) or 1 (on).
+    Flag,
+}
+
+/// One parameter of the registry: what it is, what it may be, and what it is now.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct ParamInfo {
+    /// Its place in the registry, 0 to `count` − 1.
+    pub index: u16,
+    /// Parameters in the registry.
+    pub count: u16,
+    pub name: String<NAME_LEN>,
+    pub kind: ParamKind,
+    /// Unit of every element ("" for pure numbers).
+    pub unit: String<PARAM_UNIT_LEN>,
+    /// Smallest allowed element.
+    pub min: f32,
+    /// Largest allowed element.
+    pub max: f32,
+    /// The default value (every element).
+    pub default: ParamValues,
+    /// The value in force now.
+    pub value: ParamValues,
+    /// Whether calibration or identification writes it (it is still settable by hand).
+    pub learned: bool,
+    pub help: String<PARAM_HELP_LEN>,
+}
+
+/// Where the configuration in force came from at start-up.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ConfigOrigin {
+    /// Nothing was stored: every parameter has its default.
+    #[default]
+    Defaults,
+    /// Loaded from flash.
+    Loaded,
+    /// The stored configuration has a layout this firmware does not know (a newer firmware
+    /// wrote it): defaults are in force, and the stored bytes stay untouched until `save`.
+    UnknownLayout { version: u16 },
+    /// The stored configuration could not be read: defaults are in force; the bytes stay
+    /// untouched until `save`.
+    Unreadable,
+    /// The board has no configuration store: changes last until power-off.
+    NoStore,
+}
+
+/// The configuration store's state.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct ConfigStatus {
+    pub origin: ConfigOrigin,
+    /// Layout version this firmware writes.
+    pub layout_version: u16,
+    /// Parameters in the registry.
+    pub param_count: u16,
+    /// Whether the configuration in force differs from the one stored (or, with nothing
+    /// stored, from the defaults).
+    pub unsaved_changes: bool,
+    /// Stored values refused at start-up (outside their range now, or the wrong length): those
+    /// parameters took their defaults.
+    pub rejected_at_load: u16,
+    /// Successful saves since start-up.
+    pub saves: u32,
+    /// Whether an IMU-offset calibration is running.
+    pub calibrating: bool,
+    /// Whether a motor test is spinning a motor.
+    pub motor_test: bool,
+}
+
+/// One throw seen during an IMU-offset calibration, and the estimate after it.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct CalibrationThrow {
+    /// Length of this throw's free fall, ms.
+    pub free_fall_ms: u16,
+    /// The estimate with every throw of the calibration so far (`throws` counts them).
+    pub estimate: ImuOffsetStatus,
+    /// The accelerometer bias fitted with the offset, m/s², IMU axes (zero when not fitted).
+    pub acc_bias_mps2: [f32; 3],
 }
 
 /// Frame counters of the device's side of the link.
@@ -435,6 +599,10 @@ pub struct MotorTelemetry {
 pub enum Event {
     /// Bad frames arrived since the last such event (at most one per 100 ms); totals so far.
     LinkErrors(LinkCounters),
+    /// A calibration throw was accepted ([`Request::StartCalibration`]).
+    CalibrationThrow(CalibrationThrow),
+    /// The motor test stopped by itself: no keep-alive for [`MOTOR_TEST_KEEPALIVE_MS`].
+    MotorTestTimedOut { motor: u8 },
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -468,6 +636,28 @@ crate::table::message_table! {
         /// The learner's state ([`Reply::Learner`], always with G1 block 0: the specific-force
         /// rows).
         0x09 => GetLearner(()),
+        /// One parameter: its description and value ([`Reply::Param`]).
+        0x0A => GetParam(ParamRef),
+        /// Set a parameter (not saved until [`Request::SaveConfig`]). Refused while armed.
+        0x0B => SetParam(SetParam),
+        /// Write the configuration in force to flash. Refused while armed.
+        0x0C => SaveConfig(()),
+        /// Every parameter back to its default (not saved until [`Request::SaveConfig`]).
+        /// Refused while armed.
+        0x0D => ResetConfig(()),
+        /// The configuration store's state ([`Reply::Config`]).
+        0x0E => GetConfig(()),
+        /// Start an IMU-offset calibration: the onboard estimator starts afresh, and each throw
+        /// it accepts is reported as [`Event::CalibrationThrow`]. Refused while armed.
+        0x0F => StartCalibration(()),
+        /// End the calibration, storing the estimate when `accept`.
+        0x10 => StopCalibration(StopCalibration),
+        /// Spin one motor (propellers off); repeat as the keep-alive. Refused while armed
+        /// (a running test is not "armed" for this: its own repeats are accepted).
+        0x11 => MotorTest(MotorTest),
+        /// Restart the board (the SITL restarts its application, keeping its flash file).
+        /// Refused while armed. Answered before the restart.
+        0x12 => Reboot(()),
     }
 }
 

@@ -6,8 +6,9 @@ use proptest::prelude::*;
 use protocol::frame::{encode, MAX_FRAME_LEN};
 use protocol::{
     DecodeError, Decoder, DeviceMessage, ExternalPose, FrameError, Hello, LearnerFailure,
-    LearnerPhase, LearnerTelemetry, Ping, Reply, Request, SetTelemetryRate, Telemetry, Topic,
-    Version, TOPIC_COUNT,
+    LearnerPhase, LearnerTelemetry, MotorTest, ParamRef, ParamValues, Ping, Reply, Request,
+    SetParam, SetTelemetryRate, StopCalibration, Telemetry, Topic, Version, PARAM_MAX_LEN,
+    TOPIC_COUNT,
 };
 
 /// Everything the decoder said about a byte stream: frames as `(id, seq, payload)` or errors.
@@ -50,6 +51,26 @@ fn any_request() -> impl Strategy<Value = Request> {
             }
         ),
         Just(Request::GetLearner(())),
+        prop_oneof![
+            any::<u16>().prop_map(|index| Request::GetParam(ParamRef::Index(index))),
+            "[a-z_]{1,24}".prop_map(|name| Request::GetParam(ParamRef::Name(
+                heapless::String::try_from(name.as_str()).unwrap()
+            ))),
+        ],
+        ("[a-z_]{1,24}", proptest::collection::vec(-1e6f32..1e6, 0..=PARAM_MAX_LEN)).prop_map(
+            |(name, values)| Request::SetParam(SetParam {
+                name: heapless::String::try_from(name.as_str()).unwrap(),
+                values: ParamValues::from_slice(&values).unwrap(),
+            })
+        ),
+        Just(Request::SaveConfig(())),
+        Just(Request::ResetConfig(())),
+        Just(Request::GetConfig(())),
+        Just(Request::StartCalibration(())),
+        any::<bool>().prop_map(|accept| Request::StopCalibration(StopCalibration { accept })),
+        (any::<u8>(), 0f32..1.0)
+            .prop_map(|(motor, command)| Request::MotorTest(MotorTest { motor, command })),
+        Just(Request::Reboot(())),
     ]
 }
 

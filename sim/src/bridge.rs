@@ -19,7 +19,7 @@ use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
 use std::time::{Duration, Instant};
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
-use firmware::app::ControlCommand;
+use firmware::app::{ControlCommand, NoFlash, Settings};
 use protocol::ExternalPose;
 
 use crate::scenario::{FirmwareApp, FlightApp};
@@ -439,6 +439,12 @@ pub fn serve_firmware(
     on_malformed: &mut dyn FnMut(&BridgeError),
 ) -> Result<BridgeSummary, BridgeError> {
     let mut summary = BridgeSummary::default();
+    // The parameters start from the application's state: an IMU offset given on the command
+    // line is in force as if calibrated (not saved: the bridge has no flash).
+    let settings = &mut Settings::<NoFlash>::without_store();
+    if let Some(r_imu_m) = app.background.configured_imu_offset() {
+        settings.update(|params| params.store_calibration(r_imu_m, None));
+    }
     let mut last_datagram = Instant::now();
     let mut now_us = 0u64;
     loop {
@@ -469,7 +475,14 @@ pub fn serve_firmware(
         };
         if let (true, Some(links)) = (link_pass_due, links.as_deref_mut()) {
             let view = status_view(&app.control, &app.background);
-            links.pass(now_us, &view, &mut |command| app.command(command, now_us));
+            // The bridge has no flash: parameters last for the run. A restart request is
+            // answered but not carried out (the external simulator owns the time line).
+            links.pass(now_us, &view, settings, &mut |request| {
+                app.dispatch(request, now_us);
+            });
+            if let Some(params) = settings.service(&view) {
+                app.configure(&params, now_us);
+            }
         }
     }
 }

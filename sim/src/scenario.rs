@@ -23,7 +23,8 @@ use std::io::Write;
 
 use firmware::app::hal::{Imu, Motors};
 use firmware::app::{
-    split_queue, Background, ControlCommand, ControlConfig, ControlLoop, SampleQueue,
+    split_queue, Background, ControlCommand, ControlConfig, ControlLoop, ControlSettings,
+    LinkRequest, Params, SampleQueue,
 };
 use nalgebra::Vector3;
 
@@ -52,6 +53,25 @@ pub struct FirmwareApp<'q> {
     pub control: ControlLoop<'q>,
     /// The background task.
     pub background: Background<'q>,
+}
+
+impl FirmwareApp<'_> {
+    /// Hand what a link asked to the task it is for, as the board's link task does after a
+    /// pass. Returns whether it is a restart (the caller restarts the application).
+    pub fn dispatch(&mut self, request: LinkRequest, now_us: u64) -> bool {
+        match request {
+            LinkRequest::Control(command) => self.control.command(command, now_us),
+            LinkRequest::Background(command) => self.background.command(command),
+            LinkRequest::Reboot => return true,
+        }
+        false
+    }
+
+    /// Hand changed parameters to the control step and the background task.
+    pub fn configure(&mut self, params: &Params, now_us: u64) {
+        self.control.command(ControlCommand::Configure(ControlSettings::from(params)), now_us);
+        self.background.configure(params);
+    }
 }
 
 impl FlightApp for FirmwareApp<'_> {

@@ -9,12 +9,14 @@
 //! board's timer pends its USB task, and passes each command to `ControlLoop::command` right
 //! after the pass (as the RTIC app does).
 
+use embedded_storage::nor_flash::NorFlash;
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 
 use firmware::app::{
-    Background, BoardInfo, ControlCommand, ControlLoop, LinkServer, StatusView, CONTROL_RATE_HZ,
+    Background, BoardInfo, ControlLoop, LinkRequest, LinkServer, Settings, StatusView,
+    CONTROL_RATE_HZ,
 };
 use protocol::{Capabilities, BOARD_NAME_LEN};
 
@@ -66,20 +68,36 @@ impl<T: Transport> Connection<T> {
         Self { transport, link: LinkServer::new(info) }
     }
 
-    /// One link pass: receive, poll telemetry, transmit, then hand every command the link
-    /// received to `commands` (oldest first). Returns false when the transport has closed (the
-    /// commands received before are still handed over).
-    pub fn pass(
+    /// One link pass: receive (parameter requests read and change `settings`), poll telemetry,
+    /// transmit, then hand everything the host asked of the other tasks to `requests` (oldest
+    /// first). Returns false when the transport has closed (the requests received before are
+    /// still handed over, then what a closed link stops: its motor test).
+    pub fn pass<F: NorFlash>(
         &mut self,
         now_us: u64,
         view: &StatusView,
-        commands: &mut dyn FnMut(ControlCommand),
+        settings: &mut Settings<F>,
+        requests: &mut dyn FnMut(LinkRequest),
     ) -> bool {
-        let open = self.service(now_us, view);
-        while let Some(command) = self.link.take_command() {
-            commands(command);
+        let open = self.service(now_us, view, settings);
+        if !open {
+            self.link.disconnected();
+        }
+        while let Some(request) = self.link.take_request() {
+            requests(request);
         }
         open
+    }
+
+    /// Give the transport back (the link session ends with it).
+    pub fn into_transport(self) -> T {
+        self.transport
+    }
+
+    /// Offer what waits in the transmit buffer to the transport once more (before a restart).
+    pub fn flush(&mut self) {
+        let transport = &mut self.transport;
+        self.link.transmit_to(|bytes| transport.write_some(bytes).unwrap_or(0));
     }
 
     /// The protocol endpoint (counters).
@@ -92,14 +110,19 @@ impl<T: Transport> Connection<T> {
         &self.transport
     }
 
-    fn service(&mut self, now_us: u64, view: &StatusView) -> bool {
+    fn service<F: NorFlash>(
+        &mut self,
+        now_us: u64,
+        view: &StatusView,
+        settings: &mut Settings<F>,
+    ) -> bool {
         let mut buffer = [0u8; 512];
         // At most 4 KiB per pass (4 MB/s), so a client that never stops writing cannot stall
         // the simulation.
         for _ in 0..8 {
             match self.transport.read_available(&mut buffer) {
                 Ok(0) => break,
-                Ok(n) => self.link.receive(&buffer[..n], now_us, view),
+                Ok(n) => self.link.receive(&buffer[..n], now_us, view, settings),
                 Err(_) => return false,
             }
         }
@@ -144,6 +167,20 @@ impl TcpLinks {
         self.info.motor_count = motor_count;
     }
 
+    /// Send what waits for every client, then close every connection (a restart: USB
+    /// re-enumerates).
+    pub fn close_all(&mut self) {
+        self.flush();
+        self.clients.clear();
+    }
+
+    /// Offer what waits in every connection's transmit buffer once more.
+    pub fn flush(&mut self) {
+        for client in &mut self.clients {
+            client.flush();
+        }
+    }
+
     /// Open connections.
     pub fn connections(&self) -> usize {
         self.clients.len()
@@ -152,11 +189,12 @@ impl TcpLinks {
     /// Accept waiting clients, then run one link pass on every connection (see
     /// [`Connection::pass`]); closed connections are dropped after their commands are handed
     /// over.
-    pub fn pass(
+    pub fn pass<F: NorFlash>(
         &mut self,
         now_us: u64,
         view: &StatusView,
-        commands: &mut dyn FnMut(ControlCommand),
+        settings: &mut Settings<F>,
+        requests: &mut dyn FnMut(LinkRequest),
     ) {
         while let Ok((stream, _)) = self.listener.accept() {
             if stream.set_nonblocking(true).is_ok() {
@@ -164,7 +202,7 @@ impl TcpLinks {
                 self.clients.push(Connection::new(stream, self.info.clone()));
             }
         }
-        self.clients.retain_mut(|client| client.pass(now_us, view, commands));
+        self.clients.retain_mut(|client| client.pass(now_us, view, settings, requests));
     }
 }
 
@@ -351,6 +389,7 @@ impl TestHost {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use firmware::app::ControlCommand;
     use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request};
     use std::collections::VecDeque;
     use std::time::{Duration, Instant};
@@ -408,6 +447,14 @@ mod tests {
         out
     }
 
+    fn settings() -> Settings<firmware::app::NoFlash> {
+        Settings::without_store()
+    }
+
+    fn control(command: ControlCommand) -> LinkRequest {
+        LinkRequest::Control(command)
+    }
+
     const POSE: ExternalPose =
         ExternalPose { position_ned_m: [1.0, -2.0, -3.5], heading_rad: 0.75 };
 
@@ -422,8 +469,11 @@ mod tests {
         connection.transport.to_device.extend(bytes);
         let mut commands = Vec::new();
         let view = StatusView::default();
-        assert!(connection.pass(1000, &view, &mut |c| commands.push(c)));
-        assert_eq!(commands, vec![ControlCommand::Disarm, ControlCommand::ExternalPose(POSE)]);
+        assert!(connection.pass(1000, &view, &mut settings(), &mut |c| commands.push(c)));
+        assert_eq!(
+            commands,
+            vec![control(ControlCommand::Disarm), control(ControlCommand::ExternalPose(POSE))]
+        );
         let answers = responses(&connection.transport().to_host);
         assert_eq!(answers.len(), 3);
         match &answers[0] {
@@ -438,7 +488,7 @@ mod tests {
         assert_eq!(answers[1], (2, Ok(Reply::Done)));
         assert_eq!(answers[2], (3, Ok(Reply::Done)));
         // Nothing is handed over twice.
-        assert!(connection.pass(2000, &view, &mut |c| commands.push(c)));
+        assert!(connection.pass(2000, &view, &mut settings(), &mut |c| commands.push(c)));
         assert_eq!(commands.len(), 2);
     }
 
@@ -450,8 +500,10 @@ mod tests {
         connection.transport.to_device.extend(bytes);
         connection.transport.closed = true;
         let mut commands = Vec::new();
-        assert!(!connection.pass(0, &StatusView::default(), &mut |c| commands.push(c)));
-        assert_eq!(commands, vec![ControlCommand::Disarm]);
+        assert!(
+            !connection.pass(0, &StatusView::default(), &mut settings(), &mut |c| commands.push(c))
+        );
+        assert_eq!(commands, vec![control(ControlCommand::Disarm)]);
     }
 
     #[test]
@@ -468,7 +520,7 @@ mod tests {
         let mut received = Vec::new();
         let deadline = Instant::now() + Duration::from_secs(2);
         while responses(&received).len() < 2 && Instant::now() < deadline {
-            links.pass(0, &view, &mut |c| commands.push(c));
+            links.pass(0, &view, &mut settings(), &mut |c| commands.push(c));
             let mut buffer = [0u8; 1024];
             if let Ok(n) = client.read(&mut buffer) {
                 received.extend_from_slice(&buffer[..n]);
@@ -481,11 +533,11 @@ mod tests {
             "{answers:?}"
         );
         assert_eq!(answers[1], (10, Ok(Reply::Done)));
-        assert_eq!(commands, vec![ControlCommand::ExternalPose(POSE)]);
+        assert_eq!(commands, vec![control(ControlCommand::ExternalPose(POSE))]);
         drop(client);
         let deadline = Instant::now() + Duration::from_secs(2);
         while links.connections() > 0 && Instant::now() < deadline {
-            links.pass(0, &view, &mut |_| {});
+            links.pass(0, &view, &mut settings(), &mut |_| {});
             std::thread::sleep(Duration::from_millis(1));
         }
         assert_eq!(links.connections(), 0, "the closed client is dropped");

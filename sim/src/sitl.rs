@@ -16,12 +16,12 @@
 
 use crate::airframe::{Airframe, AirframeError};
 use crate::board::{SimBoard, SimConfig};
+use crate::flash::{FileFlash, FlashFileError};
 use crate::hand::{HandPhase, ThrowSpec};
+use crate::scenario::{with_firmware_app, FirmwareApp};
 use crate::serve::{simulator_board_info, status_view, Connection, Pty, TcpLinks};
-use firmware::app::{
-    split_queue, Background, BoardInfo, ControlCommand, ControlConfig, ControlLoop, SampleQueue,
-    CONTROL_RATE_HZ,
-};
+use firmware::app::{BoardInfo, ControlCommand, Settings, CONTROL_RATE_HZ};
+use protocol::Capabilities;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -67,6 +67,9 @@ pub struct SitlConfig {
     /// ([`crate::recovery::MotionCapture`]: 100 Hz, 1 mm and 0.1° noise), so a throw-to-fly
     /// holds a position.
     pub mocap: bool,
+    /// The flash file holding the saved configuration (created erased when missing); `None`:
+    /// no configuration store (changes last until the SITL stops).
+    pub flash_file: Option<PathBuf>,
 }
 
 /// Largest accepted IMU offset component, m.
@@ -99,6 +102,7 @@ impl Default for SitlConfig {
             throw_to_fly: false,
             mocap: false,
             imu_offset_m: None,
+            flash_file: None,
         }
     }
 }
@@ -124,6 +128,8 @@ pub enum SitlError {
         "the IMU offset must be finite and within ±{MAX_IMU_OFFSET_M} m on each axis (got {0:?} m)"
     )]
     ImuOffset([f32; 3]),
+    #[error(transparent)]
+    Flash(#[from] FlashFileError),
 }
 
 /// A running SITL. Stops when dropped.
@@ -154,7 +160,11 @@ impl Sitl {
             }
         }
         let airframe = Airframe::load(&config.airframe)?;
-        let info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
+        let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
+        let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
+        if flash.is_some() {
+            info.capabilities |= Capabilities::PERSISTENT_STORE;
+        }
         let pty = if config.pty { Some(Pty::open().map_err(SitlError::Pty)?) } else { None };
         let pty_path = pty.as_ref().map(|p| p.slave_path().to_path_buf());
         if let (Some(link), Some(target)) = (&config.pty_link, &pty_path) {
@@ -183,6 +193,7 @@ impl Sitl {
             info,
             pty,
             tcp,
+            flash,
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -228,66 +239,144 @@ struct Runner {
     info: BoardInfo,
     pty: Option<Pty>,
     tcp: Option<TcpLinks>,
+    flash: Option<FileFlash>,
     stop: Arc<AtomicBool>,
 }
 
+/// How one run of the application ended.
+enum Ending {
+    /// The SITL is stopping.
+    Stop,
+    /// A link asked for a restart.
+    Reboot,
+}
+
 impl Runner {
-    fn run(self) {
+    /// Boot the application, serve until stopped, and boot it again after every restart
+    /// request: the physics and the links' endpoints go on, the application and its link
+    /// sessions start afresh, and the configuration is loaded from the flash file again.
+    fn run(mut self) {
         let config = SimConfig { seed: self.seed, ..SimConfig::default() };
         let mut board = SimBoard::new(&self.airframe, &config);
-        let mut queue = SampleQueue::new();
-        let (producer, consumer) = split_queue(&mut queue);
-        let control_config = ControlConfig::default();
-        let mut control = ControlLoop::new(control_config, producer);
-        let mut background = Background::new(consumer, control_config.rate_hz);
-        if self.imu_offset_m.is_some() {
-            background.set_imu_offset(self.imu_offset_m);
-        }
-        if self.throw_to_fly {
-            control.command(ControlCommand::ArmThrowToFly, 0);
-        }
-        let mut pty = self.pty.map(|transport| Connection::new(transport, self.info.clone()));
-        let mut tcp = self.tcp;
-
         let mut mocap = self.mocap.then(|| crate::recovery::MotionCapture::new(self.seed));
         let mut throws_done = 0usize;
         let start = Instant::now();
+        let mut first_boot = true;
+        loop {
+            let mut settings = match self.flash.take() {
+                Some(flash) => Settings::load(flash, FileFlash::store_range()),
+                None => Settings::without_store(),
+            };
+            if let Some(r_imu_m) = self.imu_offset_m {
+                // The command line's offset is in force as if calibrated (not saved).
+                settings.update(|params| params.store_calibration(r_imu_m, None));
+            }
+            let ending = with_firmware_app(|app| {
+                if self.throw_to_fly && first_boot {
+                    app.control.command(ControlCommand::ArmThrowToFly, 0);
+                }
+                let mut clock = Clock { board: &mut board, boot_us: 0, start };
+                clock.boot_us = clock.board.now_us();
+                self.serve(app, &mut settings, &mut clock, &mut mocap, &mut throws_done)
+            });
+            first_boot = false;
+            self.flash = settings.into_flash();
+            match ending {
+                Ending::Stop => return,
+                Ending::Reboot => {
+                    if let Some(tcp) = &mut self.tcp {
+                        tcp.close_all();
+                    }
+                }
+            }
+        }
+    }
+
+    /// Run the application until the SITL stops or a link asks for a restart.
+    fn serve(
+        &mut self,
+        app: &mut FirmwareApp<'_>,
+        settings: &mut Settings<FileFlash>,
+        clock: &mut Clock<'_>,
+        mocap: &mut Option<crate::recovery::MotionCapture>,
+        throws_done: &mut usize,
+    ) -> Ending {
+        let mut pty =
+            self.pty.take().map(|transport| Connection::new(transport, self.info.clone()));
         let ticks_per_link_pass = (LINK_PERIOD_US / firmware_period_us()).max(1);
-        while !self.stop.load(Ordering::Relaxed) {
-            let due_us = (start.elapsed().as_secs_f64() * self.speed * 1e6) as u64;
-            if board.now_us() >= due_us {
+        let ending = loop {
+            if self.stop.load(Ordering::Relaxed) {
+                break Ending::Stop;
+            }
+            let due_us = (clock.start.elapsed().as_secs_f64() * self.speed * 1e6) as u64;
+            if clock.board.now_us() >= due_us {
                 std::thread::sleep(IDLE_SLEEP);
                 continue;
             }
             // One link period of simulated time: control ticks, then the link task, as the
             // board's timer pends its USB task once per millisecond.
             for _ in 0..ticks_per_link_pass {
-                let more_throws = self.auto_throw_count.is_none_or(|count| throws_done < count);
+                let more_throws = self.auto_throw_count.is_none_or(|count| *throws_done < count);
                 if let (Some(every_s), true) = (self.auto_throw_every_s, more_throws) {
-                    auto_throw(&mut board, every_s, &mut throws_done);
+                    auto_throw(clock.board, every_s, throws_done);
                 }
-                board.tick();
-                let now_us = board.now_us();
-                if let Some(pose) =
-                    mocap.as_mut().and_then(|m| m.sample(board.physics().state(), now_us))
-                {
-                    control.command(ControlCommand::ExternalPose(pose), now_us);
+                clock.board.tick();
+                let now_us = clock.firmware_us();
+                let state = clock.board.physics().state();
+                if let Some(pose) = mocap.as_mut().and_then(|m| m.sample(state, now_us)) {
+                    app.control.command(ControlCommand::ExternalPose(pose), now_us);
                 }
-                let (imu, motors) = board.ports();
-                crate::scenario::step_firmware(&mut control, &mut background, now_us, imu, motors);
+                let (imu, motors) = clock.board.ports();
+                crate::scenario::step_firmware(
+                    &mut app.control,
+                    &mut app.background,
+                    now_us,
+                    imu,
+                    motors,
+                );
             }
-            let view = status_view(&control, &background);
-            let now_us = board.now_us();
-            // Every command a link received goes to the control step after the pass, as the
-            // board's link task hands them over.
-            let mut command = |cmd| control.command(cmd, now_us);
+            let view = status_view(&app.control, &app.background);
+            let now_us = clock.firmware_us();
+            // Everything a link asked of the other tasks goes to them after the pass, as the
+            // board's link task hands it over; a restart waits until the reply has gone out.
+            let mut reboot = false;
+            let mut dispatch = |request| reboot |= app.dispatch(request, now_us);
             if let Some(connection) = &mut pty {
-                connection.pass(now_us, &view, &mut command);
+                connection.pass(now_us, &view, settings, &mut dispatch);
             }
-            if let Some(tcp) = &mut tcp {
-                tcp.pass(now_us, &view, &mut command);
+            if let Some(tcp) = &mut self.tcp {
+                tcp.pass(now_us, &view, settings, &mut dispatch);
             }
-        }
+            if let Some(params) = settings.service(&view) {
+                app.configure(&params, now_us);
+            }
+            if reboot {
+                if let Some(connection) = &mut pty {
+                    connection.flush();
+                }
+                if let Some(tcp) = &mut self.tcp {
+                    tcp.flush();
+                }
+                break Ending::Reboot;
+            }
+        };
+        self.pty = pty.map(Connection::into_transport);
+        ending
+    }
+}
+
+/// Simulated time, and the firmware's time since its latest boot.
+struct Clock<'b> {
+    board: &'b mut SimBoard,
+    /// Simulated time of the boot, µs.
+    boot_us: u64,
+    /// Wall-clock start of the SITL.
+    start: Instant,
+}
+
+impl Clock<'_> {
+    fn firmware_us(&self) -> u64 {
+        self.board.now_us() - self.boot_us
     }
 }
 

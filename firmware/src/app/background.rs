@@ -51,6 +51,29 @@ pub struct BackgroundResults {
     pub learner_offset: OffsetSource,
     /// That offset, IMU axes, m (the controller compensates the accelerometer with it too).
     pub learner_r_imu_m: [f32; 3],
+    /// The IMU-offset calibration the host started ([`Background::start_calibration`]), if one
+    /// is running.
+    pub calibration: Option<CalibrationState>,
+}
+
+/// What the link asks of the background task.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BackgroundCommand {
+    /// [`Background::start_calibration`].
+    StartCalibration,
+    /// [`Background::stop_calibration`].
+    StopCalibration,
+}
+
+/// A running IMU-offset calibration: the estimator started afresh when it began, so
+/// `imu_offset` holds this calibration's throws only.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CalibrationState {
+    /// Free-fall length of the latest accepted throw, ms.
+    pub last_free_fall_ms: u16,
+    /// The accelerometer bias fitted with the offset, m/s², IMU axes (the residual after the
+    /// configured bias was subtracted), when the model fits one.
+    pub acc_bias_mps2: Option<[f32; 3]>,
 }
 
 /// Where the learner's IMU offset came from.
@@ -75,6 +98,8 @@ pub struct Background<'q> {
     window_start_us: Option<u64>,
     /// `None` only if the estimator rejected its configuration (then the status shows no throws).
     imu_offset: Option<ImuOffsetEstimator>,
+    /// The estimator's configuration (from the parameters), used from the next calibration.
+    imu_offset_config: imu_offset::Config,
     /// One control period, µs: the spacing of consecutive samples when none is lost.
     period_us: u64,
     /// Time of the previous sample, µs.
@@ -102,6 +127,7 @@ impl<'q> Background<'q> {
             accel: Default::default(),
             window_start_us: None,
             imu_offset: ImuOffsetEstimator::new(f32::from(rate_hz), imu_offset_config()).ok(),
+            imu_offset_config: imu_offset_config(),
             period_us: 1_000_000 / u64::from(rate_hz),
             previous_t_us: None,
             learner: None,
@@ -118,6 +144,50 @@ impl<'q> Background<'q> {
     /// identifications instead of the onboard estimate; `None` goes back to the onboard one.
     pub fn set_imu_offset(&mut self, r_imu_m: Option<[f32; 3]>) {
         self.configured_offset_m = r_imu_m.filter(|r| r.iter().all(|x| x.is_finite()));
+    }
+
+    /// Take the parameters: the configured IMU offset at once, the estimator's configuration
+    /// from the next calibration (or now, while it has seen no throw).
+    pub fn configure(&mut self, params: &super::params::Params) {
+        self.set_imu_offset(params.configured_offset_m());
+        let config = params.imu_offset_config();
+        if config != self.imu_offset_config {
+            self.imu_offset_config = config;
+            if self.imu_offset.as_ref().is_none_or(|e| e.segments().is_empty()) {
+                self.restart_imu_offset();
+            }
+        }
+    }
+
+    /// Carry out a command from the link.
+    pub fn command(&mut self, command: BackgroundCommand) {
+        match command {
+            BackgroundCommand::StartCalibration => self.start_calibration(),
+            BackgroundCommand::StopCalibration => self.stop_calibration(),
+        }
+    }
+
+    /// Start an IMU-offset calibration: the estimator forgets earlier throws, and
+    /// [`BackgroundResults::calibration`] follows this calibration's throws.
+    pub fn start_calibration(&mut self) {
+        self.restart_imu_offset();
+        self.results.calibration = Some(CalibrationState::default());
+    }
+
+    /// End the calibration (the estimate stays on show in the status).
+    pub fn stop_calibration(&mut self) {
+        self.results.calibration = None;
+    }
+
+    fn restart_imu_offset(&mut self) {
+        self.imu_offset = ImuOffsetEstimator::new(self.rate_hz, self.imu_offset_config).ok();
+        self.results.imu_offset = ImuOffsetStatus::default();
+        self.previous_t_us = None;
+    }
+
+    /// The configured IMU offset ([`Background::set_imu_offset`]), if any.
+    pub fn configured_imu_offset(&self) -> Option<[f32; 3]> {
+        self.configured_offset_m
     }
 
     /// Process every waiting sample. Returns the number processed.
@@ -228,12 +298,14 @@ impl<'q> Background<'q> {
             acc_mps2: Vector3::from(sample.imu.accel_mps2),
         };
         // A rejected sample (corrupt values) only abandons the throw in progress.
-        let accepted_throw = matches!(estimator.update(&imu), Ok(Some(_)));
+        let accepted_throw = match estimator.update(&imu) {
+            Ok(Some(segment)) => Some(segment),
+            _ => None,
+        };
         let status = &mut self.results.imu_offset;
         status.in_free_fall = estimator.in_free_fall();
-        if !accepted_throw {
-            return;
-        }
+        let Some(segment) = accepted_throw else { return };
+        let free_fall_ms = (u64::from(segment.len()) * self.period_us / 1000).min(65_535) as u16;
         status.throws = u8::try_from(estimator.segments().len()).unwrap_or(u8::MAX);
         match estimator.estimate() {
             Ok(estimate) => {
@@ -242,6 +314,10 @@ impl<'q> Background<'q> {
                 status.ci95_semi_axes_m = estimate.ellipsoid.semi_axes_m;
                 status.well_determined = matches!(estimate.verdict, Verdict::WellDetermined { .. });
                 status.advice = advice(&estimate.verdict);
+                if let Some(calibration) = &mut self.results.calibration {
+                    calibration.last_free_fall_ms = free_fall_ms;
+                    calibration.acc_bias_mps2 = estimate.acc_bias_mps2.map(Into::into);
+                }
             }
             // Never leave an earlier estimate on show as if it were current.
             Err(_) => {
@@ -250,6 +326,10 @@ impl<'q> Background<'q> {
                 status.advice = OffsetAdvice::None;
                 status.r_imu_m = [0.0; 3];
                 status.ci95_semi_axes_m = [0.0; 3];
+                if let Some(calibration) = &mut self.results.calibration {
+                    calibration.last_free_fall_ms = free_fall_ms;
+                    calibration.acc_bias_mps2 = None;
+                }
             }
         }
     }

@@ -22,17 +22,62 @@ use super::queue::{LearnerSample, SampleProducer};
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
 use flight::learner::{FlightPhase, ThrowToFly};
-use protocol::{ExternalPose, LearnerFailure};
+use protocol::{ExternalPose, LearnerFailure, MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND};
 
 /// What the other tasks ask of the control step (from the link, the receiver, the simulator).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ControlCommand {
-    /// Arm the throw detector: the next throw starts the identification.
+    /// Arm the throw detector: the next throw starts the identification (ends a motor test).
     ArmThrowToFly,
     /// Stop every motor and leave any armed state, now.
     Disarm,
     /// A pose from motion capture or a ground station.
     ExternalPose(ExternalPose),
+    /// The parameters changed: take these (applied when nothing is armed; kept until then).
+    Configure(ControlSettings),
+    /// Spin `motor` at `command` (clamped to [`MOTOR_TEST_MAX_COMMAND`]) until
+    /// [`MOTOR_TEST_KEEPALIVE_MS`] after the latest such command. Ignored while armed otherwise.
+    MotorTest { motor: u8, command: f32 },
+    /// End a motor test (the host went away).
+    StopMotorTest,
+}
+
+/// What the control step takes from the parameters (`super::params::Params`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ControlSettings {
+    pub throw: ThrowConfig,
+    pub excitation: ExcitationConfig,
+    /// Subtracted from every accelerometer sample, m/s², IMU axes.
+    pub acc_bias_mps2: [f32; 3],
+}
+
+impl Default for ControlSettings {
+    fn default() -> Self {
+        Self {
+            throw: ThrowConfig::default(),
+            excitation: ExcitationConfig::default(),
+            acc_bias_mps2: [0.0; 3],
+        }
+    }
+}
+
+impl From<&super::params::Params> for ControlSettings {
+    fn from(params: &super::params::Params) -> Self {
+        Self {
+            throw: params.throw_config(),
+            excitation: params.excitation_config(),
+            acc_bias_mps2: params.acc_bias_mps2(),
+        }
+    }
+}
+
+/// A running motor test.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct MotorTestState {
+    motor: u8,
+    command: f32,
+    /// It stops by itself at this time, µs.
+    until_us: u64,
 }
 
 /// Control-step rate, Hz: the published system's INDI and learner rate (algorithms.md §8).
@@ -91,12 +136,20 @@ pub struct ControlSnapshot {
     pub external_pose: Option<(ExternalPose, u64)>,
     /// Flight on the learned model: attitude, position, setpoints, failsafes.
     pub pilot: PilotStatus,
+    /// The motor a motor test spins now.
+    pub motor_test: Option<u8>,
+    /// Motor tests that stopped by themselves (no keep-alive in time).
+    pub motor_test_timeouts: u16,
 }
 
 /// The control loop's state: the highest-priority task's local resource.
 pub struct ControlLoop<'q> {
     period_us: u32,
     throw_to_fly: ThrowToFly,
+    /// The settings in force, and newer ones waiting for the craft to be disarmed.
+    settings: ControlSettings,
+    pending_settings: Option<ControlSettings>,
+    motor_test: Option<MotorTestState>,
     pilot: Pilot,
     /// `LearnedModel::samples` of the model last received (to copy only what changed).
     model_samples: Option<u32>,
@@ -118,6 +171,9 @@ impl<'q> ControlLoop<'q> {
                 ExcitationConfig::default(),
                 MAX_MOTORS,
             ),
+            settings: ControlSettings::default(),
+            pending_settings: None,
+            motor_test: None,
             pilot: Pilot::new(f32::from(rate_hz)),
             model_samples: None,
             samples,
@@ -133,10 +189,12 @@ impl<'q> ControlLoop<'q> {
     pub fn command(&mut self, command: ControlCommand, now_us: u64) {
         match command {
             ControlCommand::ArmThrowToFly => {
+                self.motor_test = None;
                 self.throw_to_fly.arm();
                 self.snapshot.failure = LearnerFailure::None;
             }
             ControlCommand::Disarm => {
+                self.motor_test = None;
                 let attempt =
                     !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
                 self.throw_to_fly.disarm();
@@ -153,8 +211,43 @@ impl<'q> ControlLoop<'q> {
                     self.pilot.pose(&pose, now_us);
                 }
             }
+            ControlCommand::Configure(settings) => self.pending_settings = Some(settings),
+            ControlCommand::MotorTest { motor, command } => {
+                let flight_armed = self.flight_armed();
+                let valid = usize::from(motor) < usize::from(self.snapshot.motor_count)
+                    && command.is_finite();
+                if valid && !flight_armed {
+                    self.motor_test = Some(MotorTestState {
+                        motor,
+                        command: command.clamp(0.0, MOTOR_TEST_MAX_COMMAND),
+                        until_us: now_us + u64::from(MOTOR_TEST_KEEPALIVE_MS) * 1000,
+                    });
+                }
+            }
+            ControlCommand::StopMotorTest => self.motor_test = None,
         }
+        self.apply_pending_settings();
         self.publish_phase();
+    }
+
+    /// Whether a throw-to-fly attempt or a flight is under way (a motor test aside).
+    fn flight_armed(&self) -> bool {
+        !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done)
+            || self.pilot.flying()
+    }
+
+    /// Take waiting settings once nothing is armed. The throw detector is rebuilt only when
+    /// its configuration changed (it would otherwise forget the last attempt's outcome).
+    fn apply_pending_settings(&mut self) {
+        if self.flight_armed() || self.motor_test.is_some() {
+            return;
+        }
+        let Some(settings) = self.pending_settings.take() else { return };
+        if settings.throw != self.settings.throw || settings.excitation != self.settings.excitation
+        {
+            self.throw_to_fly = ThrowToFly::new(settings.throw, settings.excitation, MAX_MOTORS);
+        }
+        self.settings = settings;
     }
 
     /// Take what the background task published: the learned model (copied only when it changed)
@@ -172,7 +265,13 @@ impl<'q> ControlLoop<'q> {
     pub fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) -> bool {
         self.account_timing(now_us);
         let snapshot = &mut self.snapshot;
-        let sample = imu.read().filter(is_finite_sample);
+        let bias = self.settings.acc_bias_mps2;
+        let sample = imu.read().filter(is_finite_sample).map(|mut sample| {
+            for (a, b) in sample.accel_mps2.iter_mut().zip(bias) {
+                *a -= b;
+            }
+            sample
+        });
         match sample {
             Some(sample) => {
                 snapshot.imu = sample;
@@ -246,8 +345,11 @@ impl<'q> ControlLoop<'q> {
                 _ => {}
             }
         }
+        self.run_motor_test(now_us, motor_count);
+        let snapshot = &mut self.snapshot;
         motors.set_commands(&snapshot.commands[..motor_count]);
         snapshot.speeds_rad_s = motors.speeds_rad_s();
+        self.apply_pending_settings();
         self.publish_phase();
 
         if let Some(imu) = sample {
@@ -265,13 +367,28 @@ impl<'q> ControlLoop<'q> {
         self.samples.has_waiting()
     }
 
+    /// A motor test's command, or its end: by itself after the keep-alive, or when a flight
+    /// begins (nothing else may drive the motors then).
+    fn run_motor_test(&mut self, now_us: u64, motor_count: usize) {
+        let Some(test) = self.motor_test else { return };
+        if now_us >= test.until_us {
+            self.motor_test = None;
+            self.snapshot.motor_test_timeouts = self.snapshot.motor_test_timeouts.wrapping_add(1);
+        } else if self.flight_armed() || usize::from(test.motor) >= motor_count {
+            self.motor_test = None;
+        } else {
+            self.snapshot.commands[usize::from(test.motor)] = test.command;
+        }
+    }
+
     fn publish_phase(&mut self) {
         let phase = self.throw_to_fly.phase();
+        let flight_armed = self.flight_armed();
         let snapshot = &mut self.snapshot;
         snapshot.phase = phase;
         snapshot.pilot = *self.pilot.status();
-        snapshot.armed =
-            !matches!(phase, FlightPhase::Idle | FlightPhase::Done) || self.pilot.flying();
+        snapshot.motor_test = self.motor_test.map(|test| test.motor);
+        snapshot.armed = flight_armed || snapshot.motor_test.is_some();
         snapshot.excitation_ms =
             (self.throw_to_fly.excitation_elapsed_s() * 1000.0).clamp(0.0, 65_535.0) as u16;
     }

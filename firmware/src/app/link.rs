@@ -7,14 +7,17 @@
 //! dropped for lack of transmit space is a gap the host can count. Bad frames are counted and
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
-use super::{BoardInfo, ControlCommand, StatusView};
+use super::params::{self, text as short_text};
+use super::settings::Settings;
+use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
+use embedded_storage::nor_flash::NorFlash;
 use flight::learner::{AxisStatus, FlightPhase};
 use protocol::{
-    ControlStatus, ControlTelemetry, DecodeError, Decoder, DeviceError, DeviceMessage, Event,
-    FrameError, ImuStatus, ImuTelemetry, LearnerFailure, LearnerPhase, LearnerTelemetry,
-    LinkCounters, MotorTelemetry, Reply, Request, Response, SetTelemetryRate, Status, Telemetry,
-    Topic, Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION,
-    TOPIC_COUNT,
+    CalibrationThrow, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError, Decoder,
+    DeviceError, DeviceMessage, Event, FrameError, ImuStatus, ImuTelemetry, LearnerFailure,
+    LearnerPhase, LearnerTelemetry, LinkCounters, MotorTelemetry, ParamRef, Reply, Request,
+    Response, SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS,
+    MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
 };
 
 /// Commands for the control step that may wait between two link passes.
@@ -27,6 +30,17 @@ pub const TX_CAPACITY: usize = 8 * MAX_FRAME_LEN;
 const RESPONSE_RESERVE: usize = 2 * MAX_FRAME_LEN;
 /// Shortest interval between two link-error events, µs.
 const LINK_ERROR_EVENT_INTERVAL_US: u64 = 100_000;
+
+/// What a host asked of the other tasks, handed over by the board after each link pass.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LinkRequest {
+    /// For `ControlLoop::command`.
+    Control(ControlCommand),
+    /// For `Background::command`.
+    Background(BackgroundCommand),
+    /// Restart the board once the transmit buffer has drained (the reply is in it).
+    Reboot,
+}
 
 /// Per-topic streaming state.
 #[derive(Clone, Copy, Debug, Default)]
@@ -53,6 +67,16 @@ pub struct LinkServer {
     last_error_event_us: Option<u64>,
     /// Commands for the control step, taken by the board with [`LinkServer::take_command`].
     commands: heapless::Deque<ControlCommand, COMMAND_QUEUE_LEN>,
+    /// Commands for the background task ([`LinkServer::take_background_command`]).
+    background_commands: heapless::Deque<BackgroundCommand, COMMAND_QUEUE_LEN>,
+    /// Calibration throws already reported as events.
+    calibration_throws_reported: u8,
+    /// Motor-test timeouts already reported as events.
+    motor_test_timeouts_reported: u16,
+    /// The motor this link's host last asked to test (stopped when the host goes away).
+    motor_test_started: Option<u8>,
+    /// The host asked for a restart ([`LinkServer::take_reboot`]).
+    reboot_requested: bool,
 }
 
 impl LinkServer {
@@ -68,17 +92,46 @@ impl LinkServer {
             errors_unreported: false,
             last_error_event_us: None,
             commands: heapless::Deque::new(),
+            background_commands: heapless::Deque::new(),
+            calibration_throws_reported: 0,
+            motor_test_timeouts_reported: 0,
+            motor_test_started: None,
+            reboot_requested: false,
         }
     }
 
-    /// The oldest command for the control step (arm, disarm, external pose), if any. The board
-    /// passes each to `ControlLoop::command` after every link pass.
-    pub fn take_command(&mut self) -> Option<ControlCommand> {
-        self.commands.pop_front()
+    /// The host went away (USB unplugged or its port closed): a motor test it started stops
+    /// now. Nothing else changes (a flight goes on without its configurator).
+    pub fn disconnected(&mut self) {
+        if self.motor_test_started.take().is_some() {
+            let _ = self.commands.push_back(ControlCommand::StopMotorTest);
+        }
+        self.host_version = None;
+        self.topics = [TopicState::default(); TOPIC_COUNT];
+    }
+
+    /// The oldest thing the host asked of another task, if any: commands for the control step
+    /// first (arm, disarm, pose, motor test), then the background task's, then a restart. The
+    /// board hands each over after every link pass.
+    pub fn take_request(&mut self) -> Option<LinkRequest> {
+        if let Some(command) = self.commands.pop_front() {
+            return Some(LinkRequest::Control(command));
+        }
+        if let Some(command) = self.background_commands.pop_front() {
+            return Some(LinkRequest::Background(command));
+        }
+        core::mem::take(&mut self.reboot_requested).then_some(LinkRequest::Reboot)
     }
 
     /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit`].
-    pub fn receive(&mut self, bytes: &[u8], now_us: u64, view: &StatusView) {
+    /// Parameter requests read and change `settings` (a save writes its flash).
+    pub fn receive<F: NorFlash>(
+        &mut self,
+        bytes: &[u8],
+        now_us: u64,
+        view: &StatusView,
+        settings: &mut Settings<F>,
+    ) {
         for &byte in bytes {
             let Some(result) = self.decoder.push(byte) else { continue };
             let (seq, decoded) = match result {
@@ -90,7 +143,7 @@ impl LinkServer {
             };
             self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
             let response = match decoded {
-                Ok(request) => self.handle(request, now_us, view),
+                Ok(request) => self.handle(request, now_us, view, settings),
                 Err(DecodeError::UnknownId { id }) => {
                     self.counters.unknown_id = self.counters.unknown_id.wrapping_add(1);
                     Err(DeviceError::UnknownRequest { id })
@@ -129,6 +182,7 @@ impl LinkServer {
             state.seq = state.seq.wrapping_add(1);
             state.next_due_us = next_due_us;
         }
+        self.report_operations(view);
         let event_due = self
             .last_error_event_us
             .is_none_or(|last| now_us.saturating_sub(last) >= LINK_ERROR_EVENT_INTERVAL_US);
@@ -155,7 +209,63 @@ impl LinkServer {
         self.counters
     }
 
-    fn handle(&mut self, request: Request, now_us: u64, view: &StatusView) -> Response {
+    /// Events for what the background and control tasks did on this link's behalf: each new
+    /// calibration throw, a motor test that stopped by itself.
+    fn report_operations(&mut self, view: &StatusView) {
+        let offset = &view.background.imu_offset;
+        match &view.background.calibration {
+            Some(calibration) if offset.throws > self.calibration_throws_reported => {
+                let event = Event::CalibrationThrow(CalibrationThrow {
+                    free_fall_ms: calibration.last_free_fall_ms,
+                    estimate: *offset,
+                    acc_bias_mps2: calibration.acc_bias_mps2.unwrap_or([0.0; 3]),
+                });
+                if self.send_event(event).is_ok() {
+                    self.calibration_throws_reported = offset.throws;
+                }
+            }
+            Some(_) => {}
+            None => self.calibration_throws_reported = 0,
+        }
+        let timeouts = view.control.motor_test_timeouts;
+        if timeouts != self.motor_test_timeouts_reported {
+            if let Some(motor) = self.motor_test_started {
+                if self.send_event(Event::MotorTestTimedOut { motor }).is_err() {
+                    return;
+                }
+                self.motor_test_started = None;
+            }
+            self.motor_test_timeouts_reported = timeouts;
+        }
+    }
+
+    fn send_event(&mut self, event: Event) -> Result<(), TxFull> {
+        self.send(&DeviceMessage::Event(event), self.event_seq, RESPONSE_RESERVE)?;
+        self.event_seq = self.event_seq.wrapping_add(1);
+        Ok(())
+    }
+
+    fn handle<F: NorFlash>(
+        &mut self,
+        request: Request,
+        now_us: u64,
+        view: &StatusView,
+        settings: &mut Settings<F>,
+    ) -> Response {
+        // Requests that change the configuration or start an operation wait for a disarm; a
+        // running motor test counts as armed for them (disarm ends it).
+        let armed = view.control.armed;
+        let refuse_if_armed = matches!(
+            request,
+            Request::SetParam(_)
+                | Request::SaveConfig(())
+                | Request::ResetConfig(())
+                | Request::StartCalibration(())
+                | Request::Reboot(())
+        );
+        if refuse_if_armed && armed && self.host_version.is_some() {
+            return Err(DeviceError::RefusedWhileArmed);
+        }
         match request {
             Request::Hello(hello) => self.handshake(hello.protocol),
             _ if self.host_version.is_none() => Err(DeviceError::HandshakeRequired),
@@ -202,6 +312,96 @@ impl LinkServer {
                     .map_err(|_| DeviceError::Busy)
             }
             Request::GetLearner(()) => Ok(Reply::Learner(learner_telemetry(view, 0))),
+            Request::GetParam(reference) => {
+                let index = match &reference {
+                    ParamRef::Index(index) => Some(usize::from(*index)),
+                    ParamRef::Name(name) => params::find(name),
+                };
+                let info = index.and_then(|i| settings.params().info(i));
+                info.map(Reply::Param).ok_or_else(|| DeviceError::UnknownParam {
+                    name: match reference {
+                        ParamRef::Name(name) => name,
+                        ParamRef::Index(index) => index_text(index),
+                    },
+                })
+            }
+            Request::SetParam(set) => {
+                let index = settings.set(&set.name, &set.values)?;
+                settings.params().info(index).map(Reply::Param).ok_or(DeviceError::NotReady)
+            }
+            Request::SaveConfig(()) => {
+                settings.save().map_err(|stage| DeviceError::StorageFailed { stage })?;
+                Ok(Reply::Config(config_status(settings, view)))
+            }
+            Request::ResetConfig(()) => {
+                settings.reset();
+                Ok(Reply::Config(config_status(settings, view)))
+            }
+            Request::GetConfig(()) => Ok(Reply::Config(config_status(settings, view))),
+            Request::StartCalibration(()) => {
+                self.calibration_throws_reported = 0;
+                self.background_commands
+                    .push_back(BackgroundCommand::StartCalibration)
+                    .map(|_| Reply::Done)
+                    .map_err(|_| DeviceError::Busy)
+            }
+            Request::StopCalibration(stop) => {
+                let Some(calibration) = view.background.calibration else {
+                    return Err(DeviceError::NotReady);
+                };
+                let offset = &view.background.imu_offset;
+                if stop.accept {
+                    if !offset.well_determined || armed {
+                        return Err(if armed {
+                            DeviceError::RefusedWhileArmed
+                        } else {
+                            DeviceError::NotReady
+                        });
+                    }
+                    settings
+                        .update(|p| p.store_calibration(offset.r_imu_m, calibration.acc_bias_mps2));
+                }
+                self.background_commands
+                    .push_back(BackgroundCommand::StopCalibration)
+                    .map_err(|_| DeviceError::Busy)?;
+                let mut status = config_status(settings, view);
+                status.calibrating = false;
+                Ok(Reply::Config(status))
+            }
+            Request::MotorTest(test) => {
+                let flight_armed = armed && view.control.motor_test.is_none();
+                if flight_armed {
+                    return Err(DeviceError::RefusedWhileArmed);
+                }
+                let motors = view.control.motor_count;
+                if test.motor >= motors {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("motor"),
+                        value: f32::from(test.motor),
+                        min: 0.0,
+                        max: f32::from(motors) - 1.0,
+                        unit: short_text(""),
+                    });
+                }
+                if !(0.0..=protocol::MOTOR_TEST_MAX_COMMAND).contains(&test.command) {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("command"),
+                        value: test.command,
+                        min: 0.0,
+                        max: protocol::MOTOR_TEST_MAX_COMMAND,
+                        unit: short_text(""),
+                    });
+                }
+                let command =
+                    ControlCommand::MotorTest { motor: test.motor, command: test.command };
+                self.commands.push_back(command).map_err(|_| DeviceError::Busy)?;
+                self.motor_test_started = Some(test.motor);
+                Ok(Reply::Done)
+            }
+            Request::Reboot(()) => {
+                self.reboot_requested = true;
+                Ok(Reply::Done)
+            }
         }
     }
 
@@ -369,13 +569,19 @@ pub fn learner_telemetry(view: &StatusView, block: u8) -> LearnerTelemetry {
     out
 }
 
-fn short_text<const N: usize>(text: &str) -> heapless::String<N> {
-    let mut out = heapless::String::new();
-    for c in text.chars() {
-        if out.push(c).is_err() {
-            break;
-        }
+/// The configuration status with what the other tasks run.
+fn config_status<F: NorFlash>(settings: &Settings<F>, view: &StatusView) -> ConfigStatus {
+    ConfigStatus {
+        calibrating: view.background.calibration.is_some(),
+        motor_test: view.control.motor_test.is_some(),
+        ..settings.status()
     }
+}
+
+/// "#12" for a parameter index that does not exist.
+fn index_text(index: u16) -> heapless::String<{ protocol::NAME_LEN }> {
+    let mut out = heapless::String::new();
+    let _ = core::fmt::write(&mut out, format_args!("#{index}"));
     out
 }
 

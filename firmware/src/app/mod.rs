@@ -14,16 +14,25 @@ mod background;
 mod control;
 pub mod hal;
 mod link;
+pub mod params;
 mod pilot;
 mod queue;
+pub mod settings;
 
-pub use background::{Background, BackgroundResults, OffsetSource, STATS_WINDOW_US};
-pub use control::{ControlCommand, ControlConfig, ControlLoop, ControlSnapshot, CONTROL_RATE_HZ};
-pub use link::{LinkServer, TX_CAPACITY};
+pub use background::{
+    Background, BackgroundCommand, BackgroundResults, CalibrationState, OffsetSource,
+    STATS_WINDOW_US,
+};
+pub use control::{
+    ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot, CONTROL_RATE_HZ,
+};
+pub use link::{LinkRequest, LinkServer, TX_CAPACITY};
+pub use params::{Param, Params};
 pub use pilot::{Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus};
 pub use queue::{
     split_queue, LearnerSample, SampleConsumer, SampleProducer, SampleQueue, SAMPLE_QUEUE_LEN,
 };
+pub use settings::{NoFlash, Settings};
 
 use protocol::{
     Capabilities, FirmwareVersion, Info, BOARD_NAME_LEN, PROTOCOL_VERSION, SCHEMA_HASH,

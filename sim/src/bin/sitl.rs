@@ -6,7 +6,9 @@
 //! ```
 //!
 //! `--throw-to-fly` arms the board for throw-to-fly at start; `--imu-offset-mm X,Y,Z` gives the
-//! learner the IMU offset instead of the onboard estimate. Bad input exits with code 2.
+//! learner the IMU offset instead of the onboard estimate. The saved configuration lives in
+//! `--flash-file PATH` (default: `sitl-flash.bin` in the user's data directory), so it survives
+//! a restart of the SITL as a board's survives a power cycle. Bad input exits with code 2.
 
 use clap::Parser;
 use sim::serve::parse_imu_offset_mm;
@@ -57,6 +59,13 @@ struct Args {
     /// 0.1° noise), so the craft holds a position after a throw-to-fly.
     #[arg(long)]
     mocap: bool,
+    /// The flash file holding the saved configuration (`save` writes it; created erased when
+    /// missing). Default: sitl-flash.bin in the user's data directory.
+    #[arg(long, value_name = "PATH")]
+    flash_file: Option<PathBuf>,
+    /// Run without a configuration store (nothing is saved).
+    #[arg(long, conflicts_with = "flash_file")]
+    no_flash: bool,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -76,6 +85,8 @@ fn main() -> std::process::ExitCode {
         throw_to_fly: args.throw_to_fly,
         imu_offset_m: args.imu_offset_mm,
         mocap: args.mocap,
+        flash_file: (!args.no_flash)
+            .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
     };
     let sitl = match Sitl::start(&config) {
         Ok(sitl) => sitl,
@@ -93,6 +104,10 @@ fn main() -> std::process::ExitCode {
     }
     if let Some(addr) = sitl.tcp_addr {
         println!("  TCP:                      {addr}");
+    }
+    match &config.flash_file {
+        Some(path) => println!("  configuration flash:      {}", path.display()),
+        None => println!("  no configuration flash: `save` is refused"),
     }
     if let Some(every_s) = args.throw_every_s {
         println!("  throwing the craft every {every_s} s (spinning, 1 m up) and catching it");

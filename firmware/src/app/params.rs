@@ -1,0 +1,460 @@
+//! The parameter registry: every tunable and every learned value of the board, in one table.
+//!
+//! Each parameter has a name, a kind (real, integer, flag), a length (a scalar, or a small fixed
+//! array: one element per motor, per axis), a unit, an allowed range, a default, a help line and
+//! whether calibration or identification writes it. [`Params`] holds the values in force; every
+//! change goes through [`Params::set`], which validates the whole value first and changes nothing
+//! when any element is refused (the typed error names the range). The configuration store
+//! (`super::settings`) saves and loads them by name.
+//!
+//! The values reach the application through typed views ([`Params::throw_config`],
+//! [`Params::configured_offset_m`], ...), so no code outside this file knows a parameter's slot.
+
+use flight::imu_offset;
+use flight::learner::excitation::ExcitationConfig;
+use flight::learner::throw_detector::ThrowConfig;
+use flight::learner::{LearnedModel, MAX_MOTORS};
+use protocol::{
+    DeviceError, ParamInfo, ParamKind, ParamValues, PARAM_HELP_LEN, PARAM_MAX_LEN, PARAM_UNIT_LEN,
+    UNIT_LEN,
+};
+
+/// One parameter's description.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ParamSpec {
+    pub name: &'static str,
+    /// Elements (1 for a scalar, at most [`PARAM_MAX_LEN`]).
+    pub len: usize,
+    pub kind: ParamKind,
+    pub unit: &'static str,
+    pub min: f32,
+    pub max: f32,
+    /// The default: one value for every element, or one per element.
+    pub default: &'static [f32],
+    /// Written by calibration or identification.
+    pub learned: bool,
+    pub help: &'static str,
+}
+
+impl ParamSpec {
+    /// Element `i` of the default.
+    pub fn default_at(&self, i: usize) -> f32 {
+        if self.default.len() == 1 {
+            self.default[0]
+        } else {
+            self.default[i]
+        }
+    }
+
+    /// Check one element against the kind and range.
+    fn check(&self, value: f32) -> Result<(), DeviceError> {
+        let integral = matches!(self.kind, ParamKind::Integer | ParamKind::Flag);
+        if integral && value.is_finite() && libm::roundf(value) != value {
+            return Err(DeviceError::NotAnInteger { name: text(self.name), value });
+        }
+        if !(value >= self.min && value <= self.max) {
+            return Err(DeviceError::BadValue {
+                name: text(self.name),
+                value,
+                min: self.min,
+                max: self.max,
+                unit: text::<UNIT_LEN>(self.unit),
+            });
+        }
+        Ok(())
+    }
+
+    /// Check a whole value: length, then every element.
+    pub fn validate(&self, values: &[f32]) -> Result<(), DeviceError> {
+        if values.len() != self.len {
+            return Err(DeviceError::WrongLength {
+                name: text(self.name),
+                expected: self.len as u8,
+                got: values.len().min(usize::from(u8::MAX)) as u8,
+            });
+        }
+        values.iter().try_for_each(|&v| self.check(v))
+    }
+}
+
+/// Declare the registry: the [`Param`] enum (its discriminant is the table index) and [`SPECS`].
+macro_rules! registry {
+    ($( $(#[$doc:meta])* $variant:ident = $name:literal, $len:expr, $kind:ident, $unit:literal,
+        $min:expr, $max:expr, [$($default:expr),+], $learned:literal, $help:literal; )*) => {
+        /// A parameter of the registry.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        #[repr(u16)]
+        pub enum Param { $( $(#[$doc])* $variant, )* }
+
+        /// Every parameter's description, in registry order (the order of [`Param`]).
+        pub const SPECS: &[ParamSpec] = &[ $( ParamSpec {
+            name: $name,
+            len: $len,
+            kind: ParamKind::$kind,
+            unit: $unit,
+            min: $min,
+            max: $max,
+            default: &[$($default),+],
+            learned: $learned,
+            help: $help,
+        }, )* ];
+    };
+}
+
+/// Largest IMU offset component a parameter accepts, m (a board 0.5 m from the centre of
+/// gravity is no longer on the same craft).
+const MAX_OFFSET_M: f32 = 0.5;
+
+registry! {
+    // Learned by the IMU-offset calibration.
+    ImuOffsetValid = "imu_offset_valid", 1, Flag, "", 0.0, 1.0, [0.0], true,
+        "1: the learner uses imu_offset_m; 0: the onboard estimate";
+    ImuOffsetM = "imu_offset_m", 3, Real, "m", -MAX_OFFSET_M, MAX_OFFSET_M, [0.0], true,
+        "IMU position relative to the centre of gravity, IMU axes";
+    AccBiasMps2 = "acc_bias_mps2", 3, Real, "m/s²", -2.0, 2.0, [0.0], true,
+        "accelerometer bias, subtracted from every sample, IMU axes";
+    // Learned by the in-flight identification (throw-to-fly).
+    ModelMotors = "model_motors", 1, Integer, "", 0.0, MAX_MOTORS as f32, [0.0], true,
+        "motors in the learned model below (0: nothing learned yet)";
+    MotorTauS = "motor_tau_s", PARAM_MAX_LEN, Real, "s", 0.0, 0.5, [0.0], true,
+        "first-order time constant of each motor";
+    MotorARadS = "motor_a_rad_s", PARAM_MAX_LEN, Real, "rad/s", -5000.0, 10000.0, [0.0], true,
+        "motor model: speed per unit command (linear term)";
+    MotorBRadS = "motor_b_rad_s", PARAM_MAX_LEN, Real, "rad/s", -5000.0, 10000.0, [0.0], true,
+        "motor model: speed per square root of the command";
+    MotorIdleRadS = "motor_idle_rad_s", PARAM_MAX_LEN, Real, "rad/s", 0.0, 5000.0, [0.0], true,
+        "motor model: speed at zero command while armed";
+    G1Fx = "g1_fx", PARAM_MAX_LEN, Real, "m/s² per u", -500.0, 500.0, [0.0], true,
+        "G1 specific force x per unit thrust u = (w/w_full)^2, IMU axes";
+    G1Fy = "g1_fy", PARAM_MAX_LEN, Real, "m/s² per u", -500.0, 500.0, [0.0], true,
+        "G1 specific force y per unit thrust, IMU axes";
+    G1Fz = "g1_fz", PARAM_MAX_LEN, Real, "m/s² per u", -500.0, 500.0, [0.0], true,
+        "G1 specific force z per unit thrust, IMU axes";
+    G1P = "g1_p", PARAM_MAX_LEN, Real, "rad/s² per u", -50000.0, 50000.0, [0.0], true,
+        "G1 angular acceleration about x per unit thrust, IMU axes";
+    G1Q = "g1_q", PARAM_MAX_LEN, Real, "rad/s² per u", -50000.0, 50000.0, [0.0], true,
+        "G1 angular acceleration about y per unit thrust, IMU axes";
+    G1R = "g1_r", PARAM_MAX_LEN, Real, "rad/s² per u", -50000.0, 50000.0, [0.0], true,
+        "G1 angular acceleration about z per unit thrust, IMU axes";
+    G2P = "g2_p", PARAM_MAX_LEN, Real, "rad/s² per rad/s²", -10.0, 10.0, [0.0], true,
+        "G2 rotor reaction about x per motor acceleration, IMU axes";
+    G2Q = "g2_q", PARAM_MAX_LEN, Real, "rad/s² per rad/s²", -10.0, 10.0, [0.0], true,
+        "G2 rotor reaction about y per motor acceleration, IMU axes";
+    G2R = "g2_r", PARAM_MAX_LEN, Real, "rad/s² per rad/s²", -10.0, 10.0, [0.0], true,
+        "G2 rotor reaction about z per motor acceleration, IMU axes";
+    ThrustAxisQ = "thrust_axis_q", 4, Real, "", -1.0, 1.0, [1.0, 0.0, 0.0, 0.0], true,
+        "q_U^T: rotation from the thrust frame to the IMU axes, w x y z";
+    // Tunables.
+    ThrowMomentumMps = "throw_momentum_mps", 1, Real, "m/s", 2.0, 10.0, [4.0], false,
+        "throw detection: speed gained above which a throw begins";
+    ThrowReleaseDelayS = "throw_release_delay_s", 1, Real, "s", 0.05, 0.5, [0.150], false,
+        "free fall checked this long after release before any motor spins";
+    ExcitationStepCmd = "excitation_step_cmd", 1, Real, "", 0.2, 0.8, [0.5], false,
+        "identification: command of each motor's pulse (0 to 1)";
+    CalMaxSemiAxisMm = "cal_max_semi_axis_mm", 1, Real, "mm", 0.5, 20.0, [2.0], false,
+        "IMU-offset calibration done when every 95 % semi-axis is below this";
+    GravityMps2 = "gravity_mps2", 1, Real, "m/s²", 9.7, 9.9, [9.80665], false,
+        "local gravity for the rest poses of the calibration";
+}
+
+/// Number of parameters.
+pub const PARAM_COUNT: usize = SPECS.len();
+
+/// Slots of every parameter's elements laid end to end.
+const SLOTS: usize = {
+    let mut total = 0;
+    let mut i = 0;
+    while i < SPECS.len() {
+        total += SPECS[i].len;
+        i += 1;
+    }
+    total
+};
+
+/// First slot of each parameter.
+const OFFSETS: [usize; PARAM_COUNT] = {
+    let mut offsets = [0; PARAM_COUNT];
+    let mut i = 1;
+    while i < PARAM_COUNT {
+        offsets[i] = offsets[i - 1] + SPECS[i - 1].len;
+        i += 1;
+    }
+    offsets
+};
+
+impl Param {
+    /// Every parameter, in registry order.
+    pub fn all() -> impl Iterator<Item = usize> {
+        0..PARAM_COUNT
+    }
+
+    pub fn spec(self) -> &'static ParamSpec {
+        &SPECS[self as usize]
+    }
+}
+
+/// The index of the parameter called `name`.
+pub fn find(name: &str) -> Option<usize> {
+    SPECS.iter().position(|spec| spec.name == name)
+}
+
+/// The values in force of every parameter.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Params {
+    slots: [f32; SLOTS],
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        let mut slots = [0.0; SLOTS];
+        for (index, spec) in SPECS.iter().enumerate() {
+            for i in 0..spec.len {
+                slots[OFFSETS[index] + i] = spec.default_at(i);
+            }
+        }
+        Self { slots }
+    }
+}
+
+impl Params {
+    /// Parameter `index`'s value.
+    pub fn values(&self, index: usize) -> &[f32] {
+        &self.slots[OFFSETS[index]..OFFSETS[index] + SPECS[index].len]
+    }
+
+    /// A parameter's value.
+    pub fn get(&self, param: Param) -> &[f32] {
+        self.values(param as usize)
+    }
+
+    /// A scalar parameter's value.
+    pub fn scalar(&self, param: Param) -> f32 {
+        self.get(param)[0]
+    }
+
+    /// Set parameter `index` to `values` after validating all of them; nothing changes on an
+    /// error. Returns whether the value changed.
+    pub fn set(&mut self, index: usize, values: &[f32]) -> Result<bool, DeviceError> {
+        let spec = SPECS.get(index).ok_or_else(|| DeviceError::UnknownParam { name: text("") })?;
+        spec.validate(values)?;
+        let slots = &mut self.slots[OFFSETS[index]..OFFSETS[index] + spec.len];
+        let changed = slots != values;
+        slots.copy_from_slice(values);
+        Ok(changed)
+    }
+
+    /// Set a parameter the firmware computed (calibration, identification): elements are
+    /// clamped into range and non-finite ones take the default, so a learned value is always a
+    /// valid parameter.
+    pub fn set_learned(&mut self, param: Param, values: &[f32]) {
+        let spec = param.spec();
+        let slots = &mut self.slots[OFFSETS[param as usize]..][..spec.len];
+        for (i, slot) in slots.iter_mut().enumerate() {
+            let value = values.get(i).copied().unwrap_or(0.0);
+            *slot = if value.is_finite() {
+                value.clamp(spec.min, spec.max)
+            } else {
+                spec.default_at(i)
+            };
+        }
+    }
+
+    /// Parameter `index` described for the wire, with its value in force.
+    pub fn info(&self, index: usize) -> Option<ParamInfo> {
+        let spec = SPECS.get(index)?;
+        let default: ParamValues = (0..spec.len).map(|i| spec.default_at(i)).collect();
+        Some(ParamInfo {
+            index: index as u16,
+            count: PARAM_COUNT as u16,
+            name: text(spec.name),
+            kind: spec.kind,
+            unit: text::<PARAM_UNIT_LEN>(spec.unit),
+            min: spec.min,
+            max: spec.max,
+            default,
+            value: self.values(index).iter().copied().collect(),
+            learned: spec.learned,
+            help: text::<PARAM_HELP_LEN>(spec.help),
+        })
+    }
+
+    // ---- Typed views for the application --------------------------------------------------
+
+    /// The calibrated IMU offset (IMU position relative to the CoG, IMU axes, m), when stored.
+    pub fn configured_offset_m(&self) -> Option<[f32; 3]> {
+        (self.scalar(Param::ImuOffsetValid) == 1.0).then(|| vec3(self.get(Param::ImuOffsetM)))
+    }
+
+    /// The accelerometer bias to subtract from every sample, m/s², IMU axes.
+    pub fn acc_bias_mps2(&self) -> [f32; 3] {
+        vec3(self.get(Param::AccBiasMps2))
+    }
+
+    /// The throw detector's configuration.
+    pub fn throw_config(&self) -> ThrowConfig {
+        ThrowConfig {
+            momentum_mps: self.scalar(Param::ThrowMomentumMps),
+            release_delay_s: self.scalar(Param::ThrowReleaseDelayS),
+            ..ThrowConfig::default()
+        }
+    }
+
+    /// The excitation schedule's configuration.
+    pub fn excitation_config(&self) -> ExcitationConfig {
+        ExcitationConfig {
+            step_command: self.scalar(Param::ExcitationStepCmd),
+            ..ExcitationConfig::default()
+        }
+    }
+
+    /// The IMU-offset estimator's configuration.
+    pub fn imu_offset_config(&self) -> imu_offset::Config {
+        imu_offset::Config {
+            max_semi_axis_m: 1e-3 * self.scalar(Param::CalMaxSemiAxisMm),
+            gravity_mps2: self.scalar(Param::GravityMps2),
+            ..imu_offset::Config::default()
+        }
+    }
+
+    /// Store an accepted calibration: the offset, and the bias when it was fitted (`None`
+    /// keeps the bias in force).
+    pub fn store_calibration(&mut self, r_imu_m: [f32; 3], acc_bias_mps2: Option<[f32; 3]>) {
+        self.set_learned(Param::ImuOffsetM, &r_imu_m);
+        self.set_learned(Param::ImuOffsetValid, &[1.0]);
+        if let Some(bias) = acc_bias_mps2 {
+            // The fitted bias is what remains after the bias in force was subtracted.
+            let total: [f32; 3] = core::array::from_fn(|i| self.acc_bias_mps2()[i] + bias[i]);
+            self.set_learned(Param::AccBiasMps2, &total);
+        }
+    }
+
+    /// Store what an identification learned: motor models, G1 per unit thrust, G2 and the
+    /// thrust axis.
+    pub fn store_learned(&mut self, learned: &LearnedModel) {
+        let m = usize::from(learned.motors).min(MAX_MOTORS);
+        let per_motor = |f: &dyn Fn(usize) -> f32| -> [f32; PARAM_MAX_LEN] {
+            core::array::from_fn(|i| if i < m { f(i) } else { 0.0 })
+        };
+        self.set_learned(Param::ModelMotors, &[m as f32]);
+        self.set_learned(Param::MotorTauS, &per_motor(&|i| learned.motor[i].tau_s));
+        self.set_learned(Param::MotorARadS, &per_motor(&|i| learned.motor[i].a_rad_s));
+        self.set_learned(Param::MotorBRadS, &per_motor(&|i| learned.motor[i].b_rad_s));
+        self.set_learned(Param::MotorIdleRadS, &per_motor(&|i| learned.motor[i].omega_idle_rad_s));
+        let g1 = learned.g1_per_unit_thrust();
+        let g1_params = [Param::G1Fx, Param::G1Fy, Param::G1Fz, Param::G1P, Param::G1Q, Param::G1R];
+        for (param, row) in g1_params.into_iter().zip(&g1) {
+            self.set_learned(param, &per_motor(&|i| row[i]));
+        }
+        for (param, row) in [Param::G2P, Param::G2Q, Param::G2R].into_iter().zip(&learned.g2) {
+            self.set_learned(param, &per_motor(&|i| row[i]));
+        }
+        if let Some(axis) = &learned.thrust_axis {
+            self.set_learned(Param::ThrustAxisQ, &axis.q_thrust_to_imu);
+        }
+    }
+}
+
+fn vec3(values: &[f32]) -> [f32; 3] {
+    [values[0], values[1], values[2]]
+}
+
+/// `text` as a bounded string, cut at a character boundary when too long.
+pub(crate) fn text<const N: usize>(text: &str) -> heapless::String<N> {
+    let mut out = heapless::String::new();
+    for c in text.chars() {
+        if out.push(c).is_err() {
+            break;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::NAME_LEN;
+
+    #[test]
+    fn every_description_fits_the_wire_and_its_default_is_allowed() {
+        for (index, spec) in SPECS.iter().enumerate() {
+            assert!(spec.name.len() <= NAME_LEN, "{}", spec.name);
+            assert!(spec.unit.len() <= PARAM_UNIT_LEN, "{}: unit {}", spec.name, spec.unit);
+            assert!(
+                spec.help.len() <= PARAM_HELP_LEN,
+                "{}: help {} bytes",
+                spec.name,
+                spec.help.len()
+            );
+            assert!((1..=PARAM_MAX_LEN).contains(&spec.len), "{}", spec.name);
+            assert!(spec.default.len() == 1 || spec.default.len() == spec.len, "{}", spec.name);
+            assert!(spec.min < spec.max, "{}", spec.name);
+            let defaults: ParamValues = (0..spec.len).map(|i| spec.default_at(i)).collect();
+            assert_eq!(spec.validate(&defaults), Ok(()), "{}", spec.name);
+            assert_eq!(find(spec.name), Some(index), "{} is not unique", spec.name);
+            assert!(spec
+                .name
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_'));
+        }
+    }
+
+    #[test]
+    fn the_largest_description_fits_one_frame() {
+        let params = Params::default();
+        let mut buffer = [0u8; protocol::MAX_FRAME_LEN];
+        for index in 0..PARAM_COUNT {
+            let mut info = params.info(index).unwrap();
+            info.value = (0..info.value.len()).map(|_| f32::MAX).collect();
+            let reply = protocol::DeviceMessage::Response(Ok(protocol::Reply::Param(info)));
+            let len = reply.encode(u16::MAX, &mut buffer).expect("a parameter fits a frame");
+            assert!(len <= protocol::MAX_FRAME_LEN, "{}", SPECS[index].name);
+        }
+    }
+
+    #[test]
+    fn the_registry_defaults_are_the_flight_defaults() {
+        let params = Params::default();
+        assert_eq!(params.throw_config(), ThrowConfig::default());
+        assert_eq!(params.excitation_config(), ExcitationConfig::default());
+        assert_eq!(params.imu_offset_config(), imu_offset::Config::default());
+        assert_eq!(params.configured_offset_m(), None);
+        assert_eq!(params.get(Param::ThrustAxisQ), &[1.0, 0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn a_refused_value_changes_nothing_and_names_the_range() {
+        let mut params = Params::default();
+        let before = params;
+        let index = Param::ImuOffsetM as usize;
+        let error = params.set(index, &[0.01, 0.7, 0.0]).unwrap_err();
+        match error {
+            DeviceError::BadValue { name, value, min, max, unit } => {
+                assert_eq!((name.as_str(), value, min, max), ("imu_offset_m", 0.7, -0.5, 0.5));
+                assert_eq!(unit.as_str(), "m");
+            }
+            other => panic!("unexpected error {other:?}"),
+        }
+        assert_eq!(params, before);
+        let error = params.set(index, &[0.01, 0.02]).unwrap_err();
+        assert!(matches!(error, DeviceError::WrongLength { expected: 3, got: 2, .. }), "{error:?}");
+        let error = params.set(Param::ModelMotors as usize, &[2.5]).unwrap_err();
+        assert!(matches!(error, DeviceError::NotAnInteger { value: 2.5, .. }), "{error:?}");
+        let error = params.set(index, &[f32::NAN, 0.0, 0.0]).unwrap_err();
+        assert!(matches!(error, DeviceError::BadValue { .. }), "{error:?}");
+        assert_eq!(params, before);
+        assert_eq!(params.set(index, &[0.01, -0.02, 0.03]), Ok(true));
+        assert_eq!(params.get(Param::ImuOffsetM), &[0.01, -0.02, 0.03]);
+        assert_eq!(params.set(index, &[0.01, -0.02, 0.03]), Ok(false));
+    }
+
+    #[test]
+    fn a_calibration_adds_its_residual_bias_to_the_bias_in_force() {
+        let mut params = Params::default();
+        params.set(Param::AccBiasMps2 as usize, &[0.1, 0.0, -0.2]).unwrap();
+        params.store_calibration([0.012, -0.004, 0.03], Some([0.05, 0.01, 0.0]));
+        assert_eq!(params.configured_offset_m(), Some([0.012, -0.004, 0.03]));
+        let bias = params.acc_bias_mps2();
+        assert!((bias[0] - 0.15).abs() < 1e-6 && (bias[1] - 0.01).abs() < 1e-6, "{bias:?}");
+        assert!((bias[2] + 0.2).abs() < 1e-6);
+    }
+}
