@@ -39,8 +39,8 @@ mod app {
     use crate::tasks::{background, control_tick, usb_service};
     use firmware::app::hal::Motors;
     use firmware::app::{
-        split_queue, Background, BackgroundResults, BoardInfo, ControlCommand, ControlConfig,
-        ControlLoop, ControlSnapshot, LinkServer, SampleQueue,
+        split_queue, Background, BackgroundCommand, BackgroundResults, BoardInfo, ControlCommand,
+        ControlConfig, ControlLoop, ControlSnapshot, LinkServer, NoFlash, SampleQueue, Settings,
     };
     use firmware::board::config::{HCLK_HZ, SYS_CK_HZ, TIME_BASE_HZ};
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
@@ -66,9 +66,19 @@ mod app {
         control: ControlSnapshot,
         /// Written by `background` after each batch, read by `usb_service`.
         background: BackgroundResults,
-        /// Commands from the link for the control step (arm, disarm, pose): pushed by
-        /// `usb_service`, taken by `control_tick` at the start of its next step.
+        /// Commands from the link for the control step (arm, disarm, pose, settings, motor
+        /// test): pushed by `usb_service`, taken by `control_tick` at the start of its next step.
         commands: heapless::Deque<ControlCommand, 4>,
+        /// Commands from the link for the background task (calibration start and stop, new
+        /// parameters): pushed by `usb_service`, taken by `background` when it next runs.
+        background_commands: heapless::Deque<BackgroundWork, 4>,
+    }
+
+    /// What the link task hands the background task.
+    #[derive(Clone, Copy)]
+    pub enum BackgroundWork {
+        Command(BackgroundCommand),
+        Configure(firmware::app::Params),
     }
 
     /// Each task's own state.
@@ -83,6 +93,9 @@ mod app {
         usb_clock: MicrosClock,
         usb: UsbSerial,
         link: LinkServer,
+        /// The parameters. No flash store yet: the H743's configuration sectors need a driver
+        /// that reports ECC errors instead of faulting on a torn word (see `app::settings`).
+        settings: Settings<NoFlash>,
         background: Background<'static>,
     }
 
@@ -167,6 +180,7 @@ mod app {
             control: control.snapshot(),
             background: background.results(),
             commands: heapless::Deque::new(),
+            background_commands: heapless::Deque::new(),
         };
 
         // The control tick at the application's rate (2 kHz), started last so the first step
@@ -195,6 +209,7 @@ mod app {
             usb_clock: clock,
             usb,
             link,
+            settings: Settings::without_store(),
             background,
         };
         (shared, local, init::Monotonics())
@@ -229,10 +244,10 @@ mod app {
         )]
         fn control_tick(cx: control_tick::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link], shared = [control, background, commands])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link, settings], shared = [control, background, commands, background_commands])]
         fn usb_service(cx: usb_service::Context);
 
-        #[task(priority = 1, local = [background], shared = [background])]
+        #[task(priority = 1, local = [background], shared = [background, background_commands])]
         fn background(cx: background::Context);
     }
 }
@@ -240,8 +255,8 @@ mod app {
 /// The task bodies (RTIC v1 "extern" tasks): what each task does, apart from the task table.
 #[cfg(target_os = "none")]
 mod tasks {
-    use crate::app::{background, control_tick, usb_service};
-    use firmware::app::{ControlCommand, StatusView};
+    use crate::app::{background, control_tick, usb_service, BackgroundWork};
+    use firmware::app::{ControlCommand, ControlSettings, LinkRequest, StatusView};
     use firmware::board::config::USB_SERVICE_DIVIDER;
     use firmware::board::timing::step_stats;
     use protocol::StepTime;
@@ -297,25 +312,61 @@ mod tasks {
             step_time: Some(StepTime { max_us: step.max_us, overruns: step.overruns }),
         };
         let link = cx.local.link;
-        cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view));
+        let settings = cx.local.settings;
+        cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view, settings));
+        let mut reboot = false;
+        let mut work = heapless::Vec::<BackgroundWork, 4>::new();
         cx.shared.commands.lock(|commands| {
-            while let Some(command) = link.take_command() {
-                // A disarm always finds room: it replaces whatever still waits.
-                if command == ControlCommand::Disarm {
-                    commands.clear();
+            while let Some(request) = link.take_request() {
+                match request {
+                    // A disarm always finds room: it replaces whatever still waits.
+                    LinkRequest::Control(command) => {
+                        if command == ControlCommand::Disarm {
+                            commands.clear();
+                        }
+                        let _ = commands.push_back(command);
+                    }
+                    LinkRequest::Background(command) => {
+                        let _ = work.push(BackgroundWork::Command(command));
+                    }
+                    LinkRequest::Reboot => reboot = true,
                 }
-                let _ = commands.push_back(command);
+            }
+            if let Some(params) = settings.service(&view) {
+                let _ =
+                    commands.push_back(ControlCommand::Configure(ControlSettings::from(&params)));
+                let _ = work.push(BackgroundWork::Configure(params));
             }
         });
+        if !work.is_empty() {
+            cx.shared.background_commands.lock(|queue| {
+                for item in work {
+                    let _ = queue.push_back(item);
+                }
+            });
+            let _ = background::spawn();
+        }
         link.poll(now_us, &view);
         let usb = cx.local.usb;
         while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}
         usb.flush();
+        if reboot {
+            // The reply is in the USB buffer; give the host a moment to take it.
+            cortex_m::asm::delay(firmware::board::config::SYS_CK_HZ / 20);
+            cortex_m::peripheral::SCB::sys_reset();
+        }
     }
 
     /// Background work at the lowest priority: drain the learner-sample queue through the
     /// portable worker and publish its results (a copy under a short lock).
     pub fn background(mut cx: background::Context) {
+        let worker = &mut *cx.local.background;
+        while let Some(item) = cx.shared.background_commands.lock(|queue| queue.pop_front()) {
+            match item {
+                BackgroundWork::Command(command) => worker.command(command),
+                BackgroundWork::Configure(params) => worker.configure(&params),
+            }
+        }
         cx.local.background.run_pending();
         let results = cx.local.background.results();
         cx.shared.background.lock(|shared| *shared = results);
