@@ -1,11 +1,17 @@
 //! The configurator library: the link to a board or the SITL, the commands, the offline tools.
 //!
 //! - [`link`]: the protocol client (handshake, requests, telemetry);
+//! - [`config`]: the board's parameters: get, set, dump, diff, apply;
 //! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
 //! - [`report`]: what the board says, in words with units, or as JSON;
-//! - [`offline`]: the `flight` estimators applied to recorded logs and files.
+//! - [`offline`]: the `flight` estimators applied to recorded logs and files;
+//! - [`plot`]: recordings and calibration ellipsoids drawn to PNG or SVG;
+//! - [`shell`]: the interactive shell (line editing, completion, history).
 
+pub mod config;
 pub mod connect;
 pub mod link;
 pub mod offline;
+pub mod plot;
 pub mod report;
+pub mod shell;

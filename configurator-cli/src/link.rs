@@ -163,6 +163,12 @@ impl Client {
         self.info.schema_hash == SCHEMA_HASH && self.info.protocol == PROTOCOL_VERSION
     }
 
+    /// How long requests wait for their response (a save erasing a 128 KiB flash sector on the
+    /// board takes about two seconds).
+    pub fn set_timeout(&mut self, timeout: Duration) {
+        self.timeout = timeout;
+    }
+
     /// The port's name.
     pub fn port(&self) -> &str {
         &self.port

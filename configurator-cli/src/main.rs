@@ -4,6 +4,7 @@
 //! Exit codes: 0 done; 1 the board could not be reached or refused; 2 bad input or usage.
 
 use clap::{Parser, Subcommand};
+use configurator_cli::config;
 use configurator_cli::connect::{connect, ConnectError, Target};
 use configurator_cli::link::{Client, DeviceErrorText, LinkError};
 use configurator_cli::offline::{self, InputError};
@@ -34,6 +35,10 @@ struct Cli {
     #[arg(long, global = true, default_value_t = 0, requires = "sitl",
           value_parser = clap::value_parser!(u8).range(0..=16))]
     sitl_throws: u8,
+    /// With --sitl: the simulator's flash file (the saved configuration). Default:
+    /// sitl-flash.bin in the user's data directory, as `sitl` uses.
+    #[arg(long, global = true, requires = "sitl")]
+    sitl_flash_file: Option<std::path::PathBuf>,
     /// Print JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
@@ -67,6 +72,65 @@ enum Command {
     },
     /// List serial ports and mark flight controllers.
     Ports,
+    /// Print one parameter: value, unit, range, default and meaning.
+    Get {
+        /// Parameter name (`dump` lists them).
+        name: String,
+    },
+    /// Set a parameter (not saved until `save`): `set NAME = VALUE`, arrays comma-separated.
+    /// Refused while armed.
+    Set {
+        /// `NAME = VALUE` (or `NAME=VALUE`).
+        #[arg(required = true, num_args = 1.., allow_hyphen_values = true)]
+        assignment: Vec<String>,
+    },
+    /// Print every parameter as `set` lines (with a comment giving meaning, unit and range).
+    Dump,
+    /// Print the parameters that differ from their defaults, as `set` lines.
+    Diff,
+    /// Write the parameters in force to the board's flash. Refused while armed.
+    Save,
+    /// Every parameter back to its default (not saved until `save`). Refused while armed.
+    Defaults,
+    /// Print the board's and this configurator's versions.
+    Version,
+    /// Apply a pasted `dump` or `diff` (`-` reads standard input) as one batch; the first bad
+    /// line stops it with its line number and nothing changes. Not saved until `save`.
+    Apply {
+        /// The file, or `-`.
+        file: String,
+    },
+    /// Restart the board (the SITL restarts its application and reloads its flash).
+    Reboot,
+    /// Guided calibration on the board.
+    #[command(subcommand)]
+    Calibrate(CalibrateCommand),
+    /// Spin one motor to check its wiring and direction. PROPELLERS OFF. It stops by itself 3 s
+    /// after the configurator stops asking, and at once on disconnect or Ctrl-C.
+    MotorTest {
+        /// Motor index from 0.
+        #[arg(long)]
+        motor: u8,
+        /// Command δ, 0 to 0.5.
+        #[arg(long, default_value_t = 0.1)]
+        command: f32,
+        /// How long to spin, s.
+        #[arg(long, default_value_t = 2.0)]
+        duration_s: f64,
+        /// Confirm that the propellers are off without asking.
+        #[arg(long)]
+        yes: bool,
+    },
+    /// An interactive shell: the same commands, with history, tab completion and `help`.
+    Shell,
+    /// Render a recording (CSV) to PNG or SVG (by the output's extension).
+    Plot {
+        /// The recording.
+        input: std::path::PathBuf,
+        /// The image to write (.png or .svg).
+        #[arg(short, long)]
+        output: std::path::PathBuf,
+    },
     /// Offline fits on recorded logs.
     #[command(subcommand)]
     Fit(FitCommand),
@@ -79,6 +143,23 @@ enum Command {
 enum FitCommand {
     /// The IMU's position relative to the centre of gravity, from free-fall throws.
     ImuOffset(offline::imu_offset::Args),
+}
+
+#[derive(Subcommand, Debug)]
+enum CalibrateCommand {
+    /// Where the IMU sits relative to the centre of gravity: throw the craft (spinning) and
+    /// catch it, hold it still a moment between throws; stores the offset when you accept.
+    ImuOffset {
+        /// Store the result without asking once it is well determined.
+        #[arg(long)]
+        yes: bool,
+        /// Give up after this many throws.
+        #[arg(long, default_value_t = 6)]
+        max_throws: u8,
+        /// Give up after this long without a throw, s.
+        #[arg(long, default_value_t = 120.0)]
+        timeout_s: f64,
+    },
 }
 
 #[derive(Subcommand, Debug)]
@@ -118,7 +199,17 @@ fn main() -> ExitCode {
         }
         Err(Failure::Connect(error)) => {
             eprintln!("error: {error}");
-            ExitCode::from(1)
+            // A value the board refused is bad input too (nothing was changed).
+            let bad_input = matches!(
+                &error,
+                ConnectError::Link(LinkError::Device(DeviceErrorText(
+                    protocol::DeviceError::BadValue { .. }
+                        | protocol::DeviceError::UnknownParam { .. }
+                        | protocol::DeviceError::WrongLength { .. }
+                        | protocol::DeviceError::NotAnInteger { .. }
+                )))
+            );
+            ExitCode::from(if bad_input { 2 } else { 1 })
         }
     }
 }
@@ -132,6 +223,7 @@ fn run(cli: &Cli) -> Result<String, Failure> {
             offline::thrust_axis::run(args).map_err(Failure::Input)
         }
         Command::Ports => ports(cli.json),
+        Command::Plot { input, output } => plot(input, output, cli.json),
         Command::Info => with_board(cli, BoardCommand::Info),
         Command::Status => with_board(cli, BoardCommand::Status),
         Command::ArmThrowToFly => with_board(cli, BoardCommand::Arm),
@@ -143,7 +235,67 @@ fn run(cli: &Cli) -> Result<String, Failure> {
                 BoardCommand::Stream { topic, rate_hz: *rate_hz, duration_s: *duration_s };
             with_board(cli, command)
         }
+        command => {
+            let command = configuration_command(command)?;
+            with_board(cli, command)
+        }
     }
+}
+
+/// A configuration command with its arguments checked (before any port is touched).
+fn configuration_command(command: &Command) -> Result<BoardCommand, Failure> {
+    let input = |message: String| Failure::Input(InputError(message));
+    Ok(match command {
+        Command::Get { name } => BoardCommand::Get(name.clone()),
+        Command::Set { assignment } => {
+            let words: Vec<&str> = assignment.iter().map(String::as_str).collect();
+            let (name, values) = config::parse_assignment(&words).map_err(input)?;
+            BoardCommand::Set { name, values }
+        }
+        Command::Dump => BoardCommand::Dump,
+        Command::Diff => BoardCommand::Diff,
+        Command::Save => BoardCommand::Save,
+        Command::Defaults => BoardCommand::Defaults,
+        Command::Version => BoardCommand::Version,
+        Command::Reboot => BoardCommand::Reboot,
+        Command::Shell => BoardCommand::Shell,
+        Command::Apply { file } => {
+            let text = if file == "-" {
+                std::io::read_to_string(std::io::stdin())
+                    .map_err(|e| input(format!("apply: reading standard input: {e}")))?
+            } else {
+                std::fs::read_to_string(file).map_err(|e| input(format!("apply: {file}: {e}")))?
+            };
+            BoardCommand::Apply { file: file.clone(), text }
+        }
+        Command::Calibrate(CalibrateCommand::ImuOffset { yes, max_throws, timeout_s }) => {
+            if !(timeout_s.is_finite() && (1.0..=3600.0).contains(timeout_s)) {
+                return Err(input(format!("--timeout-s {timeout_s} is outside 1 to 3600 s")));
+            }
+            if !(1..=32).contains(max_throws) {
+                return Err(input(format!("--max-throws {max_throws} is outside 1 to 32")));
+            }
+            BoardCommand::Calibrate { yes: *yes, max_throws: *max_throws, timeout_s: *timeout_s }
+        }
+        Command::MotorTest { motor, command, duration_s, yes } => {
+            if !(0.0..=protocol::MOTOR_TEST_MAX_COMMAND).contains(command) {
+                return Err(input(format!(
+                    "--command {command} is outside 0 to {}",
+                    protocol::MOTOR_TEST_MAX_COMMAND
+                )));
+            }
+            if !(duration_s.is_finite() && (0.1..=60.0).contains(duration_s)) {
+                return Err(input(format!("--duration-s {duration_s} is outside 0.1 to 60 s")));
+            }
+            BoardCommand::MotorTest {
+                motor: *motor,
+                command: *command,
+                duration_s: *duration_s,
+                yes: *yes,
+            }
+        }
+        other => return Err(input(format!("{other:?} does not talk to a board"))),
+    })
 }
 
 /// A command that talks to a board, with its arguments validated.
@@ -153,6 +305,18 @@ enum BoardCommand {
     Arm,
     Disarm,
     Stream { topic: Topic, rate_hz: u16, duration_s: f64 },
+    Get(String),
+    Set { name: String, values: Vec<f32> },
+    Dump,
+    Diff,
+    Save,
+    Defaults,
+    Version,
+    Reboot,
+    Shell,
+    Apply { file: String, text: String },
+    Calibrate { yes: bool, max_throws: u8, timeout_s: f64 },
+    MotorTest { motor: u8, command: f32, duration_s: f64, yes: bool },
 }
 
 /// Connect (starting a SITL if asked), then run the board command.
@@ -162,6 +326,9 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
         let throwing = cli.sitl_throws > 0;
         let config = sim::sitl::SitlConfig {
             airframe: cli.airframe.clone(),
+            flash_file: Some(
+                cli.sitl_flash_file.clone().unwrap_or_else(sim::flash::default_flash_path),
+            ),
             auto_throw_every_s: throwing.then_some(SITL_THROW_INTERVAL_S),
             auto_throw_count: Some(usize::from(cli.sitl_throws)),
             speed: if throwing { SITL_THROW_SPEED } else { 1.0 },
@@ -190,9 +357,14 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
         eprintln!("letting the simulator run for 1.1 s…");
         client.listen(Duration::from_millis(1100))?;
     }
+    run_on_board(cli, &mut client, command)
+}
+
+/// Run one board command on a connected client (the one-shot commands and the shell).
+fn run_on_board(cli: &Cli, client: &mut Client, command: BoardCommand) -> Result<String, Failure> {
     match command {
         BoardCommand::Info => {
-            let status = fetch_status(&mut client)?;
+            let status = fetch_status(client)?;
             Ok(if cli.json {
                 format!(
                     "{:#}\n",
@@ -210,18 +382,32 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
             })
         }
         BoardCommand::Status => {
-            let status = fetch_status(&mut client)?;
-            let learner = fetch_learner(&mut client)?;
+            let status = fetch_status(client)?;
+            let learner = fetch_learner(client)?;
+            let config = match client.request(&Request::GetConfig(()), "the configuration request")
+            {
+                Ok(Reply::Config(config)) => Some(config),
+                Ok(_) | Err(LinkError::Device(_)) => None,
+                Err(error) => return Err(error.into()),
+            };
             Ok(if cli.json {
                 let mut value = report::status_json(&status);
-                if let (Some(learner), Some(map)) = (&learner, value.as_object_mut()) {
-                    map.insert("learner".into(), report::learner_json(learner));
+                if let Some(map) = value.as_object_mut() {
+                    if let Some(learner) = &learner {
+                        map.insert("learner".into(), report::learner_json(learner));
+                    }
+                    if let Some(config) = &config {
+                        map.insert("config".into(), report::config_json(config));
+                    }
                 }
                 format!("{value:#}\n")
             } else {
                 let mut text = report::status_text(&status);
                 if let Some(learner) = &learner {
                     text.push_str(&report::learner_text(learner));
+                }
+                if let Some(config) = &config {
+                    text.push_str(&report::config_text(config));
                 }
                 text
             })
@@ -247,9 +433,372 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
             })
         }
         BoardCommand::Stream { topic, rate_hz, duration_s } => {
-            stream(&mut client, topic, rate_hz, duration_s, cli.json)
+            stream(client, topic, rate_hz, duration_s, cli.json)
+        }
+        BoardCommand::Get(name) => {
+            let info = config::fetch(client, protocol::ParamRef::Name(config::bounded(&name)))?;
+            Ok(if cli.json {
+                format!("{:#}\n", param_json(&info))
+            } else {
+                config::describe(&info)
+            })
+        }
+        BoardCommand::Set { name, values } => {
+            let info = config::set(client, &name, &values)?;
+            Ok(if cli.json {
+                format!("{:#}\n", param_json(&info))
+            } else {
+                format!(
+                    "{} = {} (not saved: `save` stores it)\n",
+                    info.name,
+                    config::format_values(&info.value)
+                )
+            })
+        }
+        BoardCommand::Dump | BoardCommand::Diff => {
+            let only_changed = matches!(command, BoardCommand::Diff);
+            let params = config::fetch_all(client)?;
+            if cli.json {
+                let list: Vec<_> = params
+                    .iter()
+                    .filter(|p| !only_changed || p.value != p.default)
+                    .map(param_json)
+                    .collect();
+                return Ok(format!("{:#}\n", json!(list)));
+            }
+            let header = format!(
+                "{} of {} {} (firmware {}.{}.{}), {} parameters",
+                if only_changed { "diff" } else { "dump" },
+                client.info.board,
+                client.info.serial,
+                client.info.firmware.major,
+                client.info.firmware.minor,
+                client.info.firmware.patch,
+                params.len()
+            );
+            Ok(config::listing(&params, only_changed, &header))
+        }
+        BoardCommand::Save => {
+            client.set_timeout(SAVE_TIMEOUT);
+            let reply = client.request(&Request::SaveConfig(()), "the save request");
+            client.set_timeout(configurator_cli::link::DEFAULT_TIMEOUT);
+            let status = config_reply(reply?)?;
+            Ok(if cli.json {
+                format!("{:#}\n", report::config_json(&status))
+            } else {
+                format!("saved to flash ({} saves since start-up)\n", status.saves)
+            })
+        }
+        BoardCommand::Defaults => {
+            let status =
+                config_reply(client.request(&Request::ResetConfig(()), "the defaults request")?)?;
+            Ok(if cli.json {
+                format!("{:#}\n", report::config_json(&status))
+            } else {
+                "every parameter is at its default (not saved: `save` stores it)\n".into()
+            })
+        }
+        BoardCommand::Version => {
+            let info = &client.info;
+            Ok(if cli.json {
+                format!(
+                    "{:#}\n",
+                    json!({
+                        "configurator": env!("CARGO_PKG_VERSION"),
+                        "firmware": format!("{}.{}.{}", info.firmware.major, info.firmware.minor, info.firmware.patch),
+                        "board_protocol": format!("{}.{}", info.protocol.major, info.protocol.minor),
+                        "configurator_protocol": format!("{}.{}", protocol::PROTOCOL_VERSION.major, protocol::PROTOCOL_VERSION.minor),
+                    })
+                )
+            } else {
+                format!(
+                    "configurator {} (protocol {}.{}); board {} firmware {}.{}.{} (protocol {}.{})\n",
+                    env!("CARGO_PKG_VERSION"),
+                    protocol::PROTOCOL_VERSION.major,
+                    protocol::PROTOCOL_VERSION.minor,
+                    info.board,
+                    info.firmware.major,
+                    info.firmware.minor,
+                    info.firmware.patch,
+                    info.protocol.major,
+                    info.protocol.minor
+                )
+            })
+        }
+        BoardCommand::Reboot => {
+            client.request(&Request::Reboot(()), "the reboot request")?;
+            Ok("the board is restarting; connect again in a moment\n".into())
+        }
+        BoardCommand::Apply { file, text } => {
+            let before = config::fetch_all(client)?;
+            let batch = config::parse_apply(&text, &before)
+                .map_err(|e| Failure::Input(InputError(format!("apply {file}: {e}"))))?;
+            let changed = config::apply(client, &batch, &before).map_err(|e| {
+                Failure::Connect(ConnectError::Link(LinkError::Unexpected(format!(
+                    "apply {file}: {e}"
+                ))))
+            })?;
+            Ok(format!(
+                "applied {} lines from {file} ({changed} values changed; not saved: `save` stores them)\n",
+                batch.len()
+            ))
+        }
+        BoardCommand::Calibrate { yes, max_throws, timeout_s } => {
+            calibrate_imu_offset(client, yes, max_throws, timeout_s, cli.json)
+        }
+        BoardCommand::MotorTest { motor, command, duration_s, yes } => {
+            motor_test(client, motor, command, duration_s, yes)
+        }
+        BoardCommand::Shell => shell(cli, client),
+    }
+}
+
+/// How long a save may take on the board (a sector erase is about 2 s), before giving up.
+const SAVE_TIMEOUT: Duration = Duration::from_secs(6);
+
+fn config_reply(reply: Reply) -> Result<protocol::ConfigStatus, Failure> {
+    match reply {
+        Reply::Config(status) => Ok(status),
+        other => Err(LinkError::Unexpected(format!("{other:?} to a configuration request")).into()),
+    }
+}
+
+fn param_json(info: &protocol::ParamInfo) -> serde_json::Value {
+    json!({
+        "name": info.name.as_str(),
+        "value": info.value.as_slice(),
+        "default": info.default.as_slice(),
+        "unit": info.unit.as_str(),
+        "min": info.min,
+        "max": info.max,
+        "kind": format!("{:?}", info.kind).to_lowercase(),
+        "learned": info.learned,
+        "help": info.help.as_str(),
+    })
+}
+
+/// Ask a yes/no question on the terminal; `false` without one (scripts use `--yes`).
+fn confirm(question: &str) -> bool {
+    use std::io::IsTerminal as _;
+    if !std::io::stdin().is_terminal() {
+        eprintln!("{question} [y/N] (no terminal to ask: use --yes)");
+        return false;
+    }
+    eprint!("{question} [y/N] ");
+    let mut answer = String::new();
+    let _ = std::io::stdin().read_line(&mut answer);
+    matches!(answer.trim(), "y" | "Y" | "yes" | "Yes")
+}
+
+/// The guided IMU-offset calibration: start, report each throw, ask, store.
+fn calibrate_imu_offset(
+    client: &mut Client,
+    yes: bool,
+    max_throws: u8,
+    timeout_s: f64,
+    json_output: bool,
+) -> Result<String, Failure> {
+    client.request(&Request::StartCalibration(()), "the calibration request")?;
+    client.events.clear();
+    eprintln!(
+        "calibrating the IMU offset: throw the craft about 1 m up, spinning (about two turns per \
+         second, a different axis each time), catch it, and hold it still for a second between \
+         throws. Up to {max_throws} throws; Ctrl-C stops."
+    );
+    let mut last: Option<protocol::CalibrationThrow> = None;
+    let mut throws = 0u8;
+    let mut waited = std::time::Instant::now();
+    let stop = |client: &mut Client, accept: bool| {
+        let request = Request::StopCalibration(protocol::StopCalibration { accept });
+        client.request(&request, "the request to end the calibration")
+    };
+    while throws < max_throws {
+        if waited.elapsed().as_secs_f64() > timeout_s {
+            let _ = stop(client, false);
+            return Err(LinkError::Unexpected(format!(
+                "no throw seen for {timeout_s} s; calibration stopped, nothing stored"
+            ))
+            .into());
+        }
+        client.listen(Duration::from_millis(100))?;
+        while let Some(event) = client.events.pop_front() {
+            let protocol::Event::CalibrationThrow(throw) = event else { continue };
+            throws = throw.estimate.throws;
+            waited = std::time::Instant::now();
+            eprintln!("{}", report::calibration_throw_text(&throw));
+            last = Some(throw);
+        }
+        if last.is_some_and(|t| t.estimate.well_determined) {
+            break;
         }
     }
+    let Some(result) = last.filter(|t| t.estimate.well_determined) else {
+        let _ = stop(client, false);
+        return Err(LinkError::Unexpected(format!(
+            "the offset is not well determined after {throws} throws; nothing stored (run the \
+             calibration again, following the advice)"
+        ))
+        .into());
+    };
+    if !yes && !confirm("store this IMU offset in the board's parameters?") {
+        stop(client, false)?;
+        return Ok("calibration ended; nothing stored\n".into());
+    }
+    let status = config_reply(stop(client, true)?)?;
+    let r_mm = result.estimate.r_imu_m.map(|x| 1000.0 * x);
+    let axes_mm = result.estimate.ci95_semi_axes_m.map(|x| 1000.0 * x);
+    Ok(if json_output {
+        format!(
+            "{:#}\n",
+            json!({
+                "stored": true,
+                "throws": result.estimate.throws,
+                "r_imu_mm": r_mm,
+                "ci95_semi_axes_mm": axes_mm,
+                "acc_bias_mps2": result.acc_bias_mps2,
+                "unsaved_changes": status.unsaved_changes,
+            })
+        )
+    } else {
+        format!(
+            "stored: IMU offset ({:+.2}, {:+.2}, {:+.2}) mm, 95 % semi-axes {:.2}, {:.2}, {:.2} mm \
+             (not saved: `save` writes it to flash)\n",
+            r_mm[0], r_mm[1], r_mm[2], axes_mm[0], axes_mm[1], axes_mm[2]
+        )
+    })
+}
+
+/// Spin one motor for `duration_s`, keeping it alive every 0.5 s; the board stops it 3 s after
+/// the last keep-alive, so a configurator that dies cannot leave it spinning.
+fn motor_test(
+    client: &mut Client,
+    motor: u8,
+    command: f32,
+    duration_s: f64,
+    yes: bool,
+) -> Result<String, Failure> {
+    if !yes && !confirm("MOTOR TEST: are the propellers OFF?") {
+        return Ok("motor test cancelled: nothing spun\n".into());
+    }
+    let request = Request::MotorTest(protocol::MotorTest { motor, command });
+    let started = std::time::Instant::now();
+    eprintln!(
+        "spinning motor {motor} at {command} for {duration_s} s (Ctrl-C stops it within 3 s)"
+    );
+    while started.elapsed().as_secs_f64() < duration_s {
+        client.request(&request, "the motor test request")?;
+        client.listen(Duration::from_millis(500).min(Duration::from_secs_f64(
+            (duration_s - started.elapsed().as_secs_f64()).max(0.0),
+        )))?;
+    }
+    client.request(&Request::Disarm(()), "the request to stop the motor")?;
+    Ok(format!("motor {motor} stopped after {:.1} s\n", started.elapsed().as_secs_f64()))
+}
+
+/// The interactive shell on a connected board.
+fn shell(cli: &Cli, client: &mut Client) -> Result<String, Failure> {
+    use configurator_cli::shell::{self as sh, CommandHelp, Next, Vocabulary};
+    let parameters = config::fetch_all(client)?.iter().map(|p| p.name.to_string()).collect();
+    let commands = SHELL_COMMANDS
+        .iter()
+        .map(|&(name, usage, help)| CommandHelp { name, usage, help })
+        .collect();
+    let vocabulary = Vocabulary::new(commands, parameters);
+    eprintln!(
+        "connected to {} {}; `help` lists the commands, Tab completes, Ctrl-D leaves",
+        client.info.board, client.info.serial
+    );
+    let history = sh::default_history_path();
+    let result = sh::run(&vocabulary, history.as_deref(), "fc> ", |words| {
+        let args = std::iter::once("configurator-cli".to_string()).chain(words.iter().cloned());
+        let parsed = match Cli::try_parse_from(args) {
+            Ok(parsed) => parsed,
+            Err(error) => {
+                eprintln!("{}", error.render().to_string().trim_end());
+                return Next::Continue;
+            }
+        };
+        let outcome = match &parsed.command {
+            Command::Shell => Err(Failure::Input(InputError("already in the shell".into()))),
+            Command::Fit(_) | Command::Solve(_) | Command::Plot { .. } | Command::Ports => {
+                run(&parsed)
+            }
+            other => match board_command(other) {
+                Ok(command) => {
+                    let cli = Cli { json: parsed.json || cli.json, ..parsed };
+                    run_on_board(&cli, client, command)
+                }
+                Err(failure) => Err(failure),
+            },
+        };
+        match outcome {
+            Ok(text) => print!("{text}"),
+            Err(Failure::Input(error)) => eprintln!("error: {error}"),
+            Err(Failure::Connect(error)) => eprintln!("error: {error}"),
+        }
+        Next::Continue
+    });
+    result.map_err(|e| LinkError::Unexpected(format!("the shell's terminal failed: {e}")))?;
+    Ok(String::new())
+}
+
+/// A board command from a parsed command line.
+fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
+    Ok(match command {
+        Command::Info => BoardCommand::Info,
+        Command::Status => BoardCommand::Status,
+        Command::ArmThrowToFly => BoardCommand::Arm,
+        Command::Disarm => BoardCommand::Disarm,
+        Command::Stream { topic, rate_hz, duration_s } => BoardCommand::Stream {
+            topic: stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?,
+            rate_hz: *rate_hz,
+            duration_s: *duration_s,
+        },
+        other => configuration_command(other)?,
+    })
+}
+
+/// The shell's commands: name, usage, help.
+const SHELL_COMMANDS: &[(&str, &str, &str)] = &[
+    ("get", "get NAME", "print a parameter: value, unit, range, default"),
+    ("set", "set NAME = VALUE", "set a parameter (arrays comma-separated); `save` stores it"),
+    ("dump", "dump", "every parameter as set lines"),
+    ("diff", "diff", "the parameters not at their default"),
+    ("save", "save", "write the parameters to flash"),
+    ("defaults", "defaults", "every parameter back to its default (not saved)"),
+    ("apply", "apply FILE", "apply a dump or diff file as one batch"),
+    ("status", "status", "the board's state, the IMU offset and the identification"),
+    ("info", "info", "the board's identity and status"),
+    ("version", "version", "firmware and configurator versions"),
+    ("calibrate", "calibrate imu-offset [--yes]", "guided IMU-offset calibration"),
+    ("motor-test", "motor-test --motor N [--command 0.1]", "spin one motor (propellers off!)"),
+    ("stream", "stream --topic imu [--rate-hz 500]", "stream a telemetry topic, count gaps"),
+    ("arm-throw-to-fly", "arm-throw-to-fly", "the motors spin after the next throw"),
+    ("disarm", "disarm", "stop every motor now"),
+    ("reboot", "reboot", "restart the board"),
+    ("plot", "plot FILE.csv -o OUT.png", "render a recording"),
+];
+
+fn plot(
+    input: &std::path::Path,
+    output: &std::path::Path,
+    json_output: bool,
+) -> Result<String, Failure> {
+    let summary = configurator_cli::plot::plot_recording(input, output)
+        .map_err(|e| Failure::Input(InputError(format!("plot: {e}"))))?;
+    Ok(if json_output {
+        format!(
+            "{:#}\n",
+            json!({"output": output.display().to_string(), "panels": summary.panels, "samples": summary.samples})
+        )
+    } else {
+        format!(
+            "wrote {} ({} samples; panels: {})\n",
+            output.display(),
+            summary.samples,
+            summary.panels.join(", ")
+        )
+    })
 }
 
 /// Simulated seconds between the SITL's automatic throws.

@@ -1,0 +1,658 @@
+//! `configurator-cli plot`: a recording (CSV) or a calibration ellipsoid rendered to PNG or SVG.
+//!
+//! Pictures are how a flight is checked at a glance: the IMU, the attitude, the motors and the
+//! learner's G1 estimate stacked on one time axis, or the IMU-offset uncertainty as the three
+//! 95 % ellipses it projects onto the body planes. Everything is pure Rust ([`plotters`]): text
+//! is laid out and rasterised by `ab_glyph` with DejaVu Sans embedded in the binary
+//! (`assets/DejaVuSans.ttf`, licence beside it), so no fontconfig or FreeType is needed.
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::register_font;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// DejaVu Sans (Bitstream Vera licence, see `assets/DejaVuSans-LICENSE.txt`).
+static FONT_TTF: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+/// The family every text in the pictures uses (plotters' default family too).
+const FONT: &str = "sans-serif";
+/// Image width of a recording plot, px.
+pub const RECORDING_WIDTH_PX: u32 = 1400;
+/// Height of one recording panel, px.
+pub const PANEL_HEIGHT_PX: u32 = 300;
+/// Height of the figure title strip, px.
+pub const TITLE_HEIGHT_PX: u32 = 40;
+/// Size (width, height) of an ellipsoid plot, px: three projections side by side.
+pub const ELLIPSOID_SIZE_PX: (u32, u32) = (1500, 560);
+/// χ² quantile for 95 % with 3 degrees of freedom (dimensionless).
+pub const CHI2_95_3DOF: f64 = 7.815;
+/// Points on a drawn ellipse (the first is repeated at the end to close it).
+const ELLIPSE_POINTS: usize = 360;
+/// Font sizes, px: figure title, panel caption, tick and legend labels.
+const TITLE_FONT_PX: u32 = 24;
+const CAPTION_FONT_PX: u32 = 18;
+const LABEL_FONT_PX: u32 = 13;
+/// Chart margin and label-area sizes, px.
+const MARGIN_PX: u32 = 10;
+const X_LABEL_AREA_PX: u32 = 40;
+const Y_LABEL_AREA_PX: u32 = 80;
+/// Metres to millimetres.
+const MM_PER_M: f64 = 1000.0;
+
+/// What can go wrong while reading an input or drawing a picture.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("{}: {source}", path.display())]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{}: output must end in .png or .svg", .0.display())]
+    UnsupportedFormat(PathBuf),
+    #[error("{file}: empty file (no header row)")]
+    Empty { file: String },
+    #[error("{file}: the header has no `t` column")]
+    NoTimeColumn { file: String },
+    #[error("{file}:{line}: {found} fields, the header has {expected}")]
+    FieldCount { file: String, line: usize, found: usize, expected: usize },
+    #[error("{file}:{line}: column {column} (`{name}`): `{text}` is not a number")]
+    BadNumber { file: String, line: usize, column: usize, name: String, text: String },
+    #[error("{file}:{line}: the time `t` is empty")]
+    MissingTime { file: String, line: usize },
+    #[error("{file}: no samples")]
+    NoSamples { file: String },
+    #[error(
+        "{file}: no known columns to plot (gyro_*, acc_*, *_deg, rate_*, cmd_*, speed_*, g1_*)"
+    )]
+    NoPanels { file: String },
+    #[error("{title}: the covariance is not symmetric positive-definite")]
+    NotPositiveDefinite { title: String },
+    #[error("the χ² scale must be finite and positive, not {0}")]
+    BadChi2Scale(f64),
+    #[error("the embedded font could not be loaded")]
+    Font,
+    #[error("drawing failed: {0}")]
+    Draw(String),
+}
+
+fn draw_err(e: impl std::fmt::Display) -> PlotError {
+    PlotError::Draw(e.to_string())
+}
+
+/// Image formats, chosen by the output's extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    Png,
+    Svg,
+}
+
+/// The format of `out` from its extension (`.png` or `.svg`, any case).
+pub fn format_of(out: &Path) -> Result<Format, PlotError> {
+    match out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("png") => Ok(Format::Png),
+        Some("svg") => Ok(Format::Svg),
+        _ => Err(PlotError::UnsupportedFormat(out.to_path_buf())),
+    }
+}
+
+/// Registers the embedded font once; every later call is free.
+fn ensure_font() -> Result<(), PlotError> {
+    static OK: OnceLock<bool> = OnceLock::new();
+    let ok = *OK.get_or_init(|| register_font(FONT, FontStyle::Normal, FONT_TTF).is_ok());
+    ok.then_some(()).ok_or(PlotError::Font)
+}
+
+/// One panel of a recording plot: a caption, a y-axis label with unit, the columns drawn.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Panel {
+    pub title: &'static str,
+    pub y_label: &'static str,
+    pub columns: Vec<String>,
+}
+
+/// One parsed column: `None` where the field was empty (or not finite).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Column {
+    pub name: String,
+    pub values: Vec<Option<f64>>,
+}
+
+/// A parsed recording: the time, the columns of known panels (others are dropped), the panels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recording {
+    pub file_name: String,
+    /// Sample times, s.
+    pub t: Vec<f64>,
+    pub columns: Vec<Column>,
+    pub panels: Vec<Panel>,
+}
+
+/// What [`plot_recording`] drew.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlotSummary {
+    /// Panel captions, top to bottom.
+    pub panels: Vec<String>,
+    /// Rows (samples) read.
+    pub samples: usize,
+    /// Image size (width, height), px.
+    pub size_px: (u32, u32),
+}
+
+/// The panels whose columns appear in `header`, in the fixed order, each with the present columns.
+pub fn choose_panels(header: &[String]) -> Vec<Panel> {
+    let has = |n: &str| header.iter().any(|h| h == n);
+    let fixed = |names: &[&str]| names.iter().filter(|n| has(n)).map(|n| n.to_string()).collect();
+    let numbered =
+        |prefix: &str| (0..8).map(|i| format!("{prefix}{i}")).filter(|n| has(n)).collect();
+    let groups: [(&'static str, &'static str, Vec<String>); 7] = [
+        ("angular rate", "angular rate [rad/s]", fixed(&["gyro_x", "gyro_y", "gyro_z"])),
+        ("specific force", "specific force [m/s²]", fixed(&["acc_x", "acc_y", "acc_z"])),
+        ("attitude", "attitude [°]", fixed(&["roll_deg", "pitch_deg", "yaw_deg"])),
+        ("body rates", "body rate [rad/s]", fixed(&["rate_p", "rate_q", "rate_r"])),
+        ("motor command", "command [0–1]", numbered("cmd_")),
+        ("motor speed", "motor speed [rad/s]", numbered("speed_")),
+        (
+            "G1 convergence",
+            "G1 [per unit thrust]",
+            header.iter().filter(|h| h.starts_with("g1_")).cloned().collect(),
+        ),
+    ];
+    groups
+        .into_iter()
+        .filter(|(_, _, columns)| !columns.is_empty())
+        .map(|(title, y_label, columns)| Panel { title, y_label, columns })
+        .collect()
+}
+
+/// An empty field is missing (`None`), as is a non-finite number; anything else must parse.
+fn parse_field(text: &str) -> Result<Option<f64>, ()> {
+    let text = text.trim();
+    if text.is_empty() {
+        return Ok(None);
+    }
+    text.parse::<f64>().map(|v| v.is_finite().then_some(v)).map_err(|_| ())
+}
+
+/// Parses a recording CSV (`file_name` is used in errors and as the title). Lines and columns
+/// in errors are 1-based; the header is line 1. Blank lines are skipped.
+pub fn parse_recording(text: &str, file_name: &str) -> Result<Recording, PlotError> {
+    let file = || file_name.to_string();
+    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r')));
+    let (_, header) = lines.next().ok_or_else(|| PlotError::Empty { file: file() })?;
+    let header: Vec<String> = header.split(',').map(|s| s.trim().to_string()).collect();
+    let t_index = header
+        .iter()
+        .position(|h| h == "t")
+        .ok_or_else(|| PlotError::NoTimeColumn { file: file() })?;
+    let panels = choose_panels(&header);
+    let wanted: Vec<usize> = panels
+        .iter()
+        .flat_map(|p| &p.columns)
+        .map(|name| header.iter().position(|h| h == name).expect("chosen from the header"))
+        .collect();
+    let mut columns: Vec<Column> =
+        wanted.iter().map(|&i| Column { name: header[i].clone(), values: Vec::new() }).collect();
+    let mut t = Vec::new();
+    for (line, row) in lines.filter(|(_, l)| !l.trim().is_empty()) {
+        let fields: Vec<&str> = row.split(',').collect();
+        if fields.len() != header.len() {
+            let (found, expected) = (fields.len(), header.len());
+            return Err(PlotError::FieldCount { file: file(), line, found, expected });
+        }
+        let parse = |i: usize| {
+            parse_field(fields[i]).map_err(|()| PlotError::BadNumber {
+                file: file(),
+                line,
+                column: i + 1,
+                name: header[i].clone(),
+                text: fields[i].trim().to_string(),
+            })
+        };
+        t.push(parse(t_index)?.ok_or_else(|| PlotError::MissingTime { file: file(), line })?);
+        for (column, &i) in columns.iter_mut().zip(&wanted) {
+            column.values.push(parse(i)?);
+        }
+    }
+    Ok(Recording { file_name: file(), t, columns, panels })
+}
+
+/// `lo..hi` enclosing the values with 5 % padding; a degenerate or empty set gets a unit span.
+fn padded_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
+    let (lo, hi) =
+        values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    if lo > hi {
+        return -1.0..1.0;
+    }
+    let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5f64.max(0.05 * lo.abs()) };
+    lo - pad..hi + pad
+}
+
+/// Runs of consecutive present points: a missing value breaks the line.
+fn segments(t: &[f64], values: &[Option<f64>]) -> Vec<Vec<(f64, f64)>> {
+    let mut out = vec![Vec::new()];
+    for (&t, v) in t.iter().zip(values) {
+        match v {
+            Some(v) => out.last_mut().expect("never empty").push((t, *v)),
+            None if out.last().is_some_and(|s| !s.is_empty()) => out.push(Vec::new()),
+            None => {}
+        }
+    }
+    out.retain(|s| !s.is_empty());
+    out
+}
+
+fn draw_recording<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    rec: &Recording,
+) -> Result<(), PlotError> {
+    root.fill(&WHITE).map_err(draw_err)?;
+    let body = root.titled(&rec.file_name, (FONT, TITLE_FONT_PX)).map_err(draw_err)?;
+    let time = padded_range(rec.t.iter().copied());
+    for (panel, area) in rec.panels.iter().zip(body.split_evenly((rec.panels.len(), 1))) {
+        let cols: Vec<&Column> = panel
+            .columns
+            .iter()
+            .filter_map(|n| rec.columns.iter().find(|c| &c.name == n))
+            .collect();
+        let y = padded_range(cols.iter().flat_map(|c| c.values.iter().flatten().copied()));
+        let mut chart = ChartBuilder::on(&area)
+            .caption(panel.title, (FONT, CAPTION_FONT_PX))
+            .margin(MARGIN_PX)
+            .x_label_area_size(X_LABEL_AREA_PX)
+            .y_label_area_size(Y_LABEL_AREA_PX)
+            .build_cartesian_2d(time.clone(), y)
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .x_desc("time [s]")
+            .y_desc(panel.y_label)
+            .label_style((FONT, LABEL_FONT_PX))
+            .draw()
+            .map_err(draw_err)?;
+        for (i, col) in cols.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            chart
+                .draw_series(LineSeries::new(std::iter::empty(), colour))
+                .map_err(draw_err)?
+                .label(col.name.as_str())
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 18, y)], colour.stroke_width(2))
+                });
+            for segment in segments(&rec.t, &col.values) {
+                chart.draw_series(LineSeries::new(segment, colour)).map_err(draw_err)?;
+            }
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font((FONT, LABEL_FONT_PX))
+            .draw()
+            .map_err(draw_err)?;
+    }
+    root.present().map_err(draw_err)
+}
+
+/// Reads the recording at `csv_path` and draws its panels to `out` (`.png` or `.svg`).
+pub fn plot_recording(csv_path: &Path, out: &Path) -> Result<PlotSummary, PlotError> {
+    let format = format_of(out)?;
+    let text = std::fs::read_to_string(csv_path)
+        .map_err(|source| PlotError::Io { path: csv_path.to_path_buf(), source })?;
+    let name = csv_path
+        .file_name()
+        .map_or_else(|| csv_path.display().to_string(), |n| n.to_string_lossy().into());
+    let rec = parse_recording(&text, &name)?;
+    if rec.t.is_empty() {
+        return Err(PlotError::NoSamples { file: name });
+    }
+    if rec.panels.is_empty() {
+        return Err(PlotError::NoPanels { file: name });
+    }
+    ensure_font()?;
+    let size = (RECORDING_WIDTH_PX, TITLE_HEIGHT_PX + PANEL_HEIGHT_PX * rec.panels.len() as u32);
+    match format {
+        Format::Png => draw_recording(&BitMapBackend::new(out, size).into_drawing_area(), &rec)?,
+        Format::Svg => draw_recording(&SVGBackend::new(out, size).into_drawing_area(), &rec)?,
+    }
+    let panels = rec.panels.iter().map(|p| p.title.to_string()).collect();
+    Ok(PlotSummary { panels, samples: rec.t.len(), size_px: size })
+}
+
+/// A calibration ellipsoid {x : (x − c)ᵀ Σ⁻¹ (x − c) ≤ k} to draw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EllipsoidPlot {
+    pub title: String,
+    /// Centre c, m.
+    pub centre_m: [f64; 3],
+    /// Covariance Σ, m² (symmetric positive-definite).
+    pub covariance_m2: [[f64; 3]; 3],
+    /// k, e.g. [`CHI2_95_3DOF`] for the 95 % region.
+    pub chi2_scale: f64,
+}
+
+/// `n` points (then the first again) on the ellipse {p : (p − c)ᵀ S⁻¹ (p − c) = k}: p = c + L u
+/// with S = L Lᵀ (Cholesky) and |u|² = k. `None` if S is not symmetric positive-definite, k is
+/// not positive or `n` is 0.
+pub fn ellipse_points(
+    centre: [f64; 2],
+    s: [[f64; 2]; 2],
+    k: f64,
+    n: usize,
+) -> Option<Vec<(f64, f64)>> {
+    let symmetric = (s[0][1] - s[1][0]).abs() <= 1e-12 * (s[0][0].abs() + s[1][1].abs());
+    let l00 = s[0][0].sqrt();
+    let l10 = s[1][0] / l00;
+    let l11 = (s[1][1] - l10 * l10).sqrt();
+    if !(symmetric && l00 > 0.0 && l11 > 0.0 && l10.is_finite() && k > 0.0 && n > 0) {
+        return None;
+    }
+    let r = k.sqrt();
+    let point = |i: usize| {
+        let a = std::f64::consts::TAU * (i % n) as f64 / n as f64;
+        let (u0, u1) = (r * a.cos(), r * a.sin());
+        (centre[0] + l00 * u0, centre[1] + l10 * u0 + l11 * u1)
+    };
+    Some((0..=n).map(point).collect())
+}
+
+/// True if the 3 × 3 matrix is symmetric and its leading minors are all positive.
+fn is_spd3(m: &[[f64; 3]; 3]) -> bool {
+    let scale = (0..3).map(|i| m[i][i].abs()).sum::<f64>();
+    let symmetric = (0..3).all(|i| (0..3).all(|j| (m[i][j] - m[j][i]).abs() <= 1e-12 * scale));
+    let d2 = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    let d3 = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    symmetric && m[0][0] > 0.0 && d2 > 0.0 && d3 > 0.0
+}
+
+/// The (horizontal, vertical) axis indices and names of the three projections.
+const PLANES: [(usize, usize, &str, &str); 3] =
+    [(0, 1, "x", "y"), (0, 2, "x", "z"), (1, 2, "y", "z")];
+
+/// One projection: the closed ellipse and its centre, mm.
+type Projection = (Vec<(f64, f64)>, (f64, f64));
+
+/// The three projected ellipses (in [`PLANES`] order), after checking Σ and k.
+fn projections(e: &EllipsoidPlot) -> Result<Vec<Projection>, PlotError> {
+    if !(e.chi2_scale.is_finite() && e.chi2_scale > 0.0) {
+        return Err(PlotError::BadChi2Scale(e.chi2_scale));
+    }
+    let not_spd = || PlotError::NotPositiveDefinite { title: e.title.clone() };
+    if !is_spd3(&e.covariance_m2) {
+        return Err(not_spd());
+    }
+    let (c, s) = (e.centre_m, e.covariance_m2);
+    PLANES
+        .iter()
+        .map(|&(i, j, _, _)| {
+            let sub = [[s[i][i], s[i][j]], [s[j][i], s[j][j]]];
+            let points = ellipse_points([c[i], c[j]], sub, e.chi2_scale, ELLIPSE_POINTS)
+                .ok_or_else(not_spd)?;
+            let mm = points.into_iter().map(|(x, y)| (x * MM_PER_M, y * MM_PER_M)).collect();
+            Ok((mm, (c[i] * MM_PER_M, c[j] * MM_PER_M)))
+        })
+        .collect()
+}
+
+/// Axis ranges centred on `centre` enclosing `points` with 10 % room, in the plotting area's
+/// aspect ratio (`w_px` × `h_px`) so that one mm is as long on both axes.
+fn equal_scale_ranges(
+    points: &[(f64, f64)],
+    centre: (f64, f64),
+    w_px: u32,
+    h_px: u32,
+) -> [std::ops::Range<f64>; 2] {
+    let (dx, dy) = points.iter().fold((0.0f64, 0.0f64), |(dx, dy), p| {
+        (dx.max((p.0 - centre.0).abs()), dy.max((p.1 - centre.1).abs()))
+    });
+    let mm_per_px = 1.1 * (2.0 * dx / f64::from(w_px)).max(2.0 * dy / f64::from(h_px));
+    let (hx, hy) = (0.5 * mm_per_px * f64::from(w_px), 0.5 * mm_per_px * f64::from(h_px));
+    [centre.0 - hx..centre.0 + hx, centre.1 - hy..centre.1 + hy]
+}
+
+fn draw_ellipsoid<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    e: &EllipsoidPlot,
+) -> Result<(), PlotError> {
+    let projections = projections(e)?;
+    root.fill(&WHITE).map_err(draw_err)?;
+    let body = root.titled(&e.title, (FONT, TITLE_FONT_PX)).map_err(draw_err)?;
+    for ((points, centre), (area, &(_, _, h, v))) in
+        projections.iter().zip(body.split_evenly((1, 3)).iter().zip(&PLANES))
+    {
+        let area = area
+            .titled(&format!("{h}–{v} projection (95 %)"), (FONT, CAPTION_FONT_PX))
+            .map_err(draw_err)?;
+        let (w, hh) = area.dim_in_pixel();
+        let plot_w = w.saturating_sub(2 * MARGIN_PX + Y_LABEL_AREA_PX).max(1);
+        let plot_h = hh.saturating_sub(2 * MARGIN_PX + X_LABEL_AREA_PX).max(1);
+        let [xr, yr] = equal_scale_ranges(points, *centre, plot_w, plot_h);
+        let mut chart = ChartBuilder::on(&area)
+            .margin(MARGIN_PX)
+            .x_label_area_size(X_LABEL_AREA_PX)
+            .y_label_area_size(Y_LABEL_AREA_PX)
+            .build_cartesian_2d(xr, yr)
+            .map_err(draw_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(format!("{h} [mm]"))
+            .y_desc(format!("{v} [mm]"))
+            .label_style((FONT, LABEL_FONT_PX))
+            .draw()
+            .map_err(draw_err)?;
+        let blue = BLUE.stroke_width(2);
+        chart
+            .draw_series(LineSeries::new(points.iter().copied(), blue))
+            .map_err(draw_err)?
+            .label("95 % region")
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], blue));
+        chart
+            .draw_series(std::iter::once(Cross::new(*centre, 6, RED.stroke_width(2))))
+            .map_err(draw_err)?
+            .label(format!("centre ({:.1}, {:.1}) mm", centre.0, centre.1))
+            .legend(|(x, y)| Cross::new((x + 9, y), 5, RED.stroke_width(2)));
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font((FONT, LABEL_FONT_PX))
+            .draw()
+            .map_err(draw_err)?;
+    }
+    root.present().map_err(draw_err)
+}
+
+/// Draws the x–y, x–z and y–z projections of the ellipsoid, in mm, to `out` (`.png` or `.svg`).
+pub fn plot_ellipsoid(e: &EllipsoidPlot, out: &Path) -> Result<(), PlotError> {
+    let format = format_of(out)?;
+    projections(e)?; // check before creating the file
+    ensure_font()?;
+    match format {
+        Format::Png => {
+            draw_ellipsoid(&BitMapBackend::new(out, ELLIPSOID_SIZE_PX).into_drawing_area(), e)
+        }
+        Format::Svg => {
+            draw_ellipsoid(&SVGBackend::new(out, ELLIPSOID_SIZE_PX).into_drawing_area(), e)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A fresh directory under the system temp dir, unique to this process and test.
+    fn temp_dir(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("configurator-plot-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    const CSV: &str = "t,gyro_x,gyro_y,gyro_z,cmd_0,cmd_2,speed_0,g1_fz_0,note\n\
+                       0.0,0.1,0.2,0.3,0.5,0.5,,1.0,a\n\
+                       0.1,0.2,0.1,0.0,0.6,0.4,100,1.1,b\n\
+                       0.2,0.3,0.0,-0.1,0.7,0.3,110,1.2,c\n";
+
+    #[test]
+    fn panels_are_chosen_from_the_columns_in_order() {
+        let rec = parse_recording(CSV, "r.csv").unwrap();
+        let titles: Vec<_> = rec.panels.iter().map(|p| p.title).collect();
+        assert_eq!(titles, ["angular rate", "motor command", "motor speed", "G1 convergence"]);
+        assert_eq!(rec.panels[1].columns, ["cmd_0", "cmd_2"]);
+        assert_eq!(rec.t, [0.0, 0.1, 0.2]);
+        let speed = rec.columns.iter().find(|c| c.name == "speed_0").unwrap();
+        assert_eq!(speed.values, [None, Some(100.0), Some(110.0)]);
+        assert!(rec.columns.iter().all(|c| c.name != "note"), "unknown columns are dropped");
+    }
+
+    #[test]
+    fn a_gap_splits_the_line() {
+        let t = [0.0, 1.0, 2.0, 3.0];
+        let segs = segments(&t, &[Some(1.0), None, Some(2.0), Some(3.0)]);
+        assert_eq!(segs, vec![vec![(0.0, 1.0)], vec![(2.0, 2.0), (3.0, 3.0)]]);
+    }
+
+    #[test]
+    fn parse_errors_name_file_line_and_column() {
+        let err = parse_recording("t,acc_x,acc_y\n0,1,2\n0.1,1,x2\n", "f.csv").unwrap_err();
+        assert!(
+            matches!(&err, PlotError::BadNumber { line: 3, column: 3, name, .. } if name == "acc_y")
+        );
+        assert_eq!(err.to_string(), "f.csv:3: column 3 (`acc_y`): `x2` is not a number");
+        let err = parse_recording("t,acc_x\n0,1\n0.1\n", "f.csv").unwrap_err();
+        assert!(matches!(err, PlotError::FieldCount { line: 3, found: 1, expected: 2, .. }));
+        let err = parse_recording("acc_x\n1\n", "f.csv").unwrap_err();
+        assert!(matches!(err, PlotError::NoTimeColumn { .. }));
+        let err = parse_recording("t,acc_x\n,1\n", "f.csv").unwrap_err();
+        assert!(matches!(err, PlotError::MissingTime { line: 2, .. }));
+        // A bad field in an ignored column is not an error.
+        assert!(parse_recording("t,acc_x,junk\n0,1,??\n", "f.csv").is_ok());
+    }
+
+    #[test]
+    fn the_output_format_comes_from_the_extension() {
+        assert_eq!(format_of(Path::new("a.PNG")).unwrap(), Format::Png);
+        assert_eq!(format_of(Path::new("a.svg")).unwrap(), Format::Svg);
+        assert!(matches!(format_of(Path::new("a.jpg")), Err(PlotError::UnsupportedFormat(_))));
+        assert!(matches!(format_of(Path::new("a")), Err(PlotError::UnsupportedFormat(_))));
+    }
+
+    #[test]
+    fn an_svg_recording_holds_the_panel_titles() {
+        let dir = temp_dir("svg");
+        let (csv, out) = (dir.join("flight.csv"), dir.join("flight.svg"));
+        std::fs::write(&csv, CSV).unwrap();
+        let summary = plot_recording(&csv, &out).unwrap();
+        assert_eq!(summary.samples, 3);
+        assert_eq!(summary.size_px, (RECORDING_WIDTH_PX, TITLE_HEIGHT_PX + 4 * PANEL_HEIGHT_PX));
+        let svg = std::fs::read_to_string(&out).unwrap();
+        for title in [
+            "flight.csv",
+            "angular rate",
+            "motor command",
+            "motor speed",
+            "G1 convergence",
+            "gyro_z",
+        ] {
+            assert!(svg.contains(title), "missing {title}");
+        }
+        assert!(svg.contains("angular rate [rad/s]") && svg.contains("time [s]"));
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_png_recording_has_the_signature_and_the_size() {
+        let dir = temp_dir("png");
+        let (csv, out) = (dir.join("flight.csv"), dir.join("flight.png"));
+        std::fs::write(&csv, CSV).unwrap();
+        let summary = plot_recording(&csv, &out).unwrap();
+        let png = std::fs::read(&out).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+        assert_eq!(&png[12..16], b"IHDR");
+        let width = u32::from_be_bytes(png[16..20].try_into().unwrap());
+        let height = u32::from_be_bytes(png[20..24].try_into().unwrap());
+        assert_eq!((width, height), summary.size_px);
+        assert!(matches!(
+            plot_recording(&csv, &dir.join("x.gif")),
+            Err(PlotError::UnsupportedFormat(_))
+        ));
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    fn ellipsoid() -> EllipsoidPlot {
+        EllipsoidPlot {
+            title: "IMU offset".into(),
+            centre_m: [0.01, -0.02, 0.005],
+            covariance_m2: [
+                [4e-6, 1.5e-6, -0.5e-6],
+                [1.5e-6, 2e-6, 0.3e-6],
+                [-0.5e-6, 0.3e-6, 1e-6],
+            ],
+            chi2_scale: CHI2_95_3DOF,
+        }
+    }
+
+    #[test]
+    fn projected_ellipse_points_lie_on_the_quadratic_form() {
+        let s = [[4e-6, 1.5e-6], [1.5e-6, 2e-6]];
+        let det = s[0][0] * s[1][1] - s[0][1] * s[1][0];
+        let inv = [[s[1][1] / det, -s[0][1] / det], [-s[1][0] / det, s[0][0] / det]];
+        let c = [0.01, -0.02];
+        let points = ellipse_points(c, s, CHI2_95_3DOF, 100).unwrap();
+        assert_eq!(points.len(), 101);
+        assert_eq!(points[0], points[100]);
+        for (x, y) in points {
+            let (dx, dy) = (x - c[0], y - c[1]);
+            let q = dx * (inv[0][0] * dx + inv[0][1] * dy) + dy * (inv[1][0] * dx + inv[1][1] * dy);
+            assert!((q - CHI2_95_3DOF).abs() < 1e-9, "q = {q}");
+        }
+    }
+
+    #[test]
+    fn a_covariance_that_is_not_positive_definite_is_refused() {
+        let dir = temp_dir("npd");
+        let mut e = ellipsoid();
+        e.covariance_m2 = [[1e-6, 2e-6, 0.0], [2e-6, 1e-6, 0.0], [0.0, 0.0, 1e-6]]; // eigenvalue −1e-6
+        let out = dir.join("e.svg");
+        assert!(matches!(plot_ellipsoid(&e, &out), Err(PlotError::NotPositiveDefinite { .. })));
+        assert!(!out.exists());
+        e.covariance_m2 = ellipsoid().covariance_m2;
+        e.chi2_scale = 0.0;
+        assert!(matches!(plot_ellipsoid(&e, &out), Err(PlotError::BadChi2Scale(_))));
+        assert!(ellipse_points([0.0; 2], [[1.0, 0.0], [0.0, 0.0]], 1.0, 8).is_none());
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn ellipsoid_plots_render_with_equal_axis_scales() {
+        let dir = temp_dir("ellipsoid");
+        plot_ellipsoid(&ellipsoid(), &dir.join("e.svg")).unwrap();
+        let svg = std::fs::read_to_string(dir.join("e.svg")).unwrap();
+        for text in ["IMU offset", "x–y projection", "x–z projection", "y–z projection", "z [mm]"]
+        {
+            assert!(svg.contains(text), "missing {text}");
+        }
+        let out = dir.join("e.png");
+        plot_ellipsoid(&ellipsoid(), &out).unwrap();
+        assert_eq!(&std::fs::read(&out).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+        // The computed plotting area is the one plotters makes, so a mm is as long on x as on y.
+        let mut sink = String::new();
+        let area = SVGBackend::with_string(&mut sink, (500, 480)).into_drawing_area();
+        let (w, h) = area.dim_in_pixel();
+        let (pw, ph) = (w - 2 * MARGIN_PX - Y_LABEL_AREA_PX, h - 2 * MARGIN_PX - X_LABEL_AREA_PX);
+        let [xr, yr] = equal_scale_ranges(&[(3.0, 1.0), (-1.0, 0.0)], (0.0, 0.0), pw, ph);
+        let chart = ChartBuilder::on(&area)
+            .margin(MARGIN_PX)
+            .x_label_area_size(X_LABEL_AREA_PX)
+            .y_label_area_size(Y_LABEL_AREA_PX)
+            .build_cartesian_2d(xr.clone(), yr.clone())
+            .unwrap();
+        let (px, py) = chart.plotting_area().get_pixel_range();
+        let x_scale = f64::from(px.end - px.start) / (xr.end - xr.start);
+        let y_scale = f64::from(py.end - py.start) / (yr.end - yr.start);
+        assert!((x_scale / y_scale - 1.0).abs() < 1e-9, "{x_scale} vs {y_scale} px/mm");
+        assert!(xr.end >= 3.0 && xr.start <= -3.0, "the centred range holds every point");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

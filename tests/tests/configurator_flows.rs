@@ -1,0 +1,218 @@
+//! End to end: the configurator binary against the SITL over its pseudo-terminal, as a user
+//! works with a board: calibrate, save, restart and find it again; `diff` → `defaults` → apply
+//! the diff → the same `dump`; a bad line in an applied file changes nothing; everything that
+//! must wait for a disarm is refused while armed; a motor test stops by itself.
+
+use configurator_cli::connect::{connect, Target};
+use protocol::{Event, MotorTest, Reply, Request, SetTelemetryRate, Telemetry, Topic};
+use serde_json::Value;
+use sim::sitl::{Sitl, SitlConfig};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+use tests::run_cli;
+
+/// A flash file of its own for each test, removed first.
+fn flash_file(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fc-flows-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("{test}.bin"));
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+fn start(flash: &Path, config: SitlConfig) -> (Sitl, String) {
+    let config = SitlConfig { flash_file: Some(flash.to_path_buf()), ..config };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let port = sitl.pty_path.clone().unwrap().display().to_string();
+    (sitl, port)
+}
+
+/// Run the configurator on `port`; returns (exit code, stdout, stderr).
+fn cli(port: &str, args: &[&str]) -> (i32, String, String) {
+    let mut all = vec!["--port", port];
+    all.extend_from_slice(args);
+    let output = run_cli(&all);
+    (
+        output.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&output.stdout).into_owned(),
+        String::from_utf8_lossy(&output.stderr).into_owned(),
+    )
+}
+
+fn ok(port: &str, args: &[&str]) -> String {
+    let (code, stdout, stderr) = cli(port, args);
+    assert_eq!(code, 0, "{args:?} failed: {stderr}");
+    stdout
+}
+
+fn values(json: &Value) -> Vec<f64> {
+    json["value"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect()
+}
+
+#[test]
+fn two_throws_calibrate_the_offset_which_survives_a_restart_of_the_sitl() {
+    let flash = flash_file("calibration");
+    let throwing = SitlConfig {
+        speed: 4.0,
+        auto_throw_every_s: Some(2.0),
+        auto_throw_count: Some(4),
+        ..SitlConfig::default()
+    };
+    let (sitl, port) = start(&flash, throwing);
+    let report: Value = serde_json::from_str(&ok(
+        &port,
+        &["--json", "calibrate", "imu-offset", "--yes", "--max-throws", "2", "--timeout-s", "20"],
+    ))
+    .unwrap();
+    assert_eq!(report["stored"], true);
+    let throws = report["throws"].as_u64().unwrap();
+    assert!((1..=2).contains(&throws), "{throws} throws");
+    // The estimate is the airframe's offset: compare lengths (the IMU axes are rotated).
+    let truth_mm = sim::airframe::Airframe::load("paper-quad").unwrap().r_imu_m().norm() * 1e3;
+    let r_mm: Vec<f64> =
+        report["r_imu_mm"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let norm_mm = r_mm.iter().map(|x| x * x).sum::<f64>().sqrt();
+    assert!((norm_mm - truth_mm).abs() < 1.5, "|r| {norm_mm:.2} mm, truth {truth_mm:.2} mm");
+    let stored: Value =
+        serde_json::from_str(&ok(&port, &["--json", "get", "imu_offset_m"])).unwrap();
+    let stored_m = values(&stored);
+    for (m, mm) in stored_m.iter().zip(&r_mm) {
+        assert!((m * 1e3 - mm).abs() < 1e-3, "stored {stored_m:?} m, reported {r_mm:?} mm");
+    }
+    assert!(ok(&port, &["status"]).contains("unsaved changes"));
+    ok(&port, &["save"]);
+    drop(sitl);
+
+    // The SITL restarted on the same flash file: the offset is still there, to the bit.
+    let (_sitl, port) = start(&flash, SitlConfig::default());
+    let again: Value =
+        serde_json::from_str(&ok(&port, &["--json", "get", "imu_offset_m"])).unwrap();
+    assert_eq!(values(&again), stored_m);
+    let valid: Value =
+        serde_json::from_str(&ok(&port, &["--json", "get", "imu_offset_valid"])).unwrap();
+    assert_eq!(values(&valid), vec![1.0]);
+    let status: Value = serde_json::from_str(&ok(&port, &["--json", "status"])).unwrap();
+    assert_eq!(status["config"]["origin"], "loaded from flash");
+    assert_eq!(status["config"]["unsaved_changes"], false);
+}
+
+#[test]
+fn a_diff_applied_after_defaults_gives_back_the_same_dump_and_a_bad_line_changes_nothing() {
+    let flash = flash_file("diff");
+    let (_sitl, port) = start(&flash, SitlConfig::default());
+    ok(&port, &["set", "imu_offset_m", "=", "0.0125,-0.003,0.0301"]);
+    ok(&port, &["set", "throw_momentum_mps=5.25"]);
+    ok(&port, &["set", "motor_tau_s", "=", "0.021,0.022,0.023,0.024,0,0,0,0"]);
+    let dump = ok(&port, &["dump"]);
+    let diff = ok(&port, &["diff"]);
+    assert_eq!(diff.lines().filter(|l| l.starts_with("set ")).count(), 3, "{diff}");
+    let diff_file = flash.with_extension("diff.txt");
+    std::fs::write(&diff_file, &diff).unwrap();
+
+    ok(&port, &["defaults"]);
+    assert_eq!(ok(&port, &["diff"]).lines().filter(|l| l.starts_with("set ")).count(), 0);
+    let applied = ok(&port, &["apply", diff_file.to_str().unwrap()]);
+    assert!(applied.contains("applied 3 lines"), "{applied}");
+    assert_eq!(ok(&port, &["dump"]), dump, "the dump after defaults and the diff is identical");
+
+    // A file whose third `set` is out of range: refused with its line number, nothing applied.
+    let bad = "# a pasted diff\nset throw_momentum_mps = 3\n\nset imu_offset_m = 0,0,0\nset gravity_mps2 = 12\nset excitation_step_cmd = 0.6\n";
+    let bad_file = flash.with_extension("bad.txt");
+    std::fs::write(&bad_file, bad).unwrap();
+    let (code, stdout, stderr) = cli(&port, &["apply", bad_file.to_str().unwrap()]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stdout.is_empty());
+    assert!(stderr.contains("line 5") && stderr.contains("gravity_mps2"), "{stderr}");
+    assert_eq!(ok(&port, &["dump"]), dump, "nothing changed");
+    // A refused `set` changes nothing either, and is bad input (exit code 2).
+    let (code, _, stderr) = cli(&port, &["set", "imu_offset_m", "=", "0,0,0.9"]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("outside the allowed range -0.5 to 0.5 m"), "{stderr}");
+    let (code, _, _) = cli(&port, &["set", "no_such_thing", "=", "1"]);
+    assert_eq!(code, 2);
+    assert_eq!(ok(&port, &["dump"]), dump);
+}
+
+#[test]
+fn everything_that_changes_the_board_is_refused_while_armed() {
+    let flash = flash_file("armed");
+    let (_sitl, port) = start(&flash, SitlConfig { throw_to_fly: true, ..SitlConfig::default() });
+    let dump = ok(&port, &["dump"]);
+    let refused: [&[&str]; 6] = [
+        &["set", "throw_momentum_mps", "=", "5"],
+        &["save"],
+        &["defaults"],
+        &["calibrate", "imu-offset", "--yes", "--timeout-s", "2"],
+        &["motor-test", "--motor", "0", "--yes", "--duration-s", "0.5"],
+        &["reboot"],
+    ];
+    for args in refused {
+        let (code, _, stderr) = cli(&port, args);
+        assert_eq!(code, 1, "{args:?}: {stderr}");
+        assert!(stderr.contains("refused while armed"), "{args:?}: {stderr}");
+    }
+    assert_eq!(ok(&port, &["dump"]), dump, "nothing changed");
+    ok(&port, &["disarm"]);
+    ok(&port, &["set", "throw_momentum_mps", "=", "5"]);
+    ok(&port, &["save"]);
+}
+
+/// The motor command the SITL reports for `motor`, from one motors-topic sample.
+fn motor_command(client: &mut configurator_cli::link::Client, motor: usize) -> f32 {
+    client.telemetry.clear();
+    let deadline = Instant::now() + Duration::from_secs(2);
+    while Instant::now() < deadline {
+        client.listen(Duration::from_millis(20)).unwrap();
+        if let Some(sample) = client.telemetry.drain(..).last() {
+            if let Telemetry::Motors(motors) = sample.data {
+                return motors.commands[motor];
+            }
+        }
+    }
+    panic!("no motor telemetry");
+}
+
+#[test]
+fn a_motor_test_stops_by_itself_without_keep_alive_and_at_once_on_disconnect() {
+    let config = SitlConfig { pty: false, tcp_port: Some(0), ..SitlConfig::default() };
+    let sitl = Sitl::start(&config).unwrap();
+    let target = Target::Tcp(sitl.tcp_addr.unwrap().to_string());
+    let mut client = connect(&target).unwrap();
+    let rate = SetTelemetryRate { topic: Topic::Motors, rate_hz: 100 };
+    client.request(&Request::SetTelemetryRate(rate), "rate").unwrap();
+    let test = Request::MotorTest(MotorTest { motor: 2, command: 0.15 });
+    assert_eq!(client.request(&test, "motor test").unwrap(), Reply::Done);
+    assert_eq!(motor_command(&mut client, 2), 0.15);
+    assert_eq!(motor_command(&mut client, 1), 0.0, "only the motor asked for");
+    // No keep-alive: stopped 3 s after the request, with an event saying so.
+    let started = Instant::now();
+    while motor_command(&mut client, 2) > 0.0 {
+        assert!(started.elapsed() < Duration::from_secs(4), "still spinning after 4 s");
+    }
+    let stopped_after = started.elapsed();
+    assert!(stopped_after > Duration::from_millis(2700), "stopped after {stopped_after:?}");
+    client.listen(Duration::from_millis(50)).unwrap();
+    assert!(
+        client.events.iter().any(|e| matches!(e, Event::MotorTestTimedOut { motor: 2 })),
+        "{:?}",
+        client.events
+    );
+    // Spinning again, then the host goes away: it stops at once.
+    assert_eq!(client.request(&test, "motor test").unwrap(), Reply::Done);
+    assert_eq!(motor_command(&mut client, 2), 0.15);
+    drop(client);
+    let mut watcher = connect(&target).unwrap();
+    watcher.request(&Request::SetTelemetryRate(rate), "rate").unwrap();
+    let dropped = Instant::now();
+    while motor_command(&mut watcher, 2) > 0.0 {
+        assert!(
+            dropped.elapsed() < Duration::from_millis(500),
+            "still spinning after the disconnect"
+        );
+    }
+    // A bad motor index or command is refused.
+    let bad = Request::MotorTest(MotorTest { motor: 4, command: 0.1 });
+    assert!(watcher.request(&bad, "motor test").is_err());
+    let bad = Request::MotorTest(MotorTest { motor: 0, command: 0.9 });
+    assert!(watcher.request(&bad, "motor test").is_err());
+}
