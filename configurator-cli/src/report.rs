@@ -420,6 +420,80 @@ pub fn learner_sample_json(seq: u16, learner: &LearnerTelemetry) -> Value {
     value
 }
 
+/// The configuration store's state as JSON.
+pub fn config_json(status: &protocol::ConfigStatus) -> Value {
+    json!({
+        "origin": origin_text(status.origin),
+        "layout_version": status.layout_version,
+        "param_count": status.param_count,
+        "unsaved_changes": status.unsaved_changes,
+        "rejected_at_load": status.rejected_at_load,
+        "saves": status.saves,
+        "calibrating": status.calibrating,
+        "motor_test": status.motor_test,
+    })
+}
+
+/// The configuration store's state in words.
+pub fn config_text(status: &protocol::ConfigStatus) -> String {
+    let mut out = format!(
+        "configuration: {} parameters, {}; {}\n",
+        status.param_count,
+        origin_text(status.origin),
+        if status.unsaved_changes { "unsaved changes (`save` stores them)" } else { "saved" },
+    );
+    if status.rejected_at_load > 0 {
+        out.push_str(&format!(
+            "  {} stored values were outside their range and took their defaults\n",
+            status.rejected_at_load
+        ));
+    }
+    out
+}
+
+fn origin_text(origin: protocol::ConfigOrigin) -> String {
+    match origin {
+        protocol::ConfigOrigin::Defaults => "nothing stored yet (defaults)".into(),
+        protocol::ConfigOrigin::Loaded => "loaded from flash".into(),
+        protocol::ConfigOrigin::UnknownLayout { version } => format!(
+            "the flash holds layout {version}, unknown to this firmware: defaults in force, the \
+             stored bytes are kept until `save`"
+        ),
+        protocol::ConfigOrigin::Unreadable => {
+            "the stored configuration could not be read: defaults in force".into()
+        }
+        protocol::ConfigOrigin::NoStore => {
+            "no flash store on this board (lost at power-off)".into()
+        }
+    }
+}
+
+/// One calibration throw in words: the free fall, the estimate, its ellipsoid and the advice.
+pub fn calibration_throw_text(throw: &protocol::CalibrationThrow) -> String {
+    let estimate = &throw.estimate;
+    let r_mm = estimate.r_imu_m.map(|x| x * 1000.0);
+    let axes_mm = estimate.ci95_semi_axes_m.map(|x| x * 1000.0);
+    let verdict = if estimate.well_determined {
+        "well determined".to_string()
+    } else if !estimate.estimated {
+        "no estimate yet: throw again, spinning".to_string()
+    } else {
+        advice_text(&estimate.advice)
+    };
+    format!(
+        "  throw {}: {} ms of free fall; IMU offset ({:+.2}, {:+.2}, {:+.2}) mm, 95 % semi-axes \
+         {:.2}, {:.2}, {:.2} mm: {verdict}",
+        estimate.throws,
+        throw.free_fall_ms,
+        r_mm[0],
+        r_mm[1],
+        r_mm[2],
+        axes_mm[0],
+        axes_mm[1],
+        axes_mm[2]
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -497,78 +571,4 @@ mod tests {
         assert!(learner_json(&learner)["thrust_axis"].is_null());
         assert!(text.contains("20.1, 25.0, 30.2, 35.0 ms"), "{text}");
     }
-}
-
-/// The configuration store's state as JSON.
-pub fn config_json(status: &protocol::ConfigStatus) -> Value {
-    json!({
-        "origin": origin_text(status.origin),
-        "layout_version": status.layout_version,
-        "param_count": status.param_count,
-        "unsaved_changes": status.unsaved_changes,
-        "rejected_at_load": status.rejected_at_load,
-        "saves": status.saves,
-        "calibrating": status.calibrating,
-        "motor_test": status.motor_test,
-    })
-}
-
-/// The configuration store's state in words.
-pub fn config_text(status: &protocol::ConfigStatus) -> String {
-    let mut out = format!(
-        "configuration: {} parameters, {}; {}\n",
-        status.param_count,
-        origin_text(status.origin),
-        if status.unsaved_changes { "unsaved changes (`save` stores them)" } else { "saved" },
-    );
-    if status.rejected_at_load > 0 {
-        out.push_str(&format!(
-            "  {} stored values were outside their range and took their defaults\n",
-            status.rejected_at_load
-        ));
-    }
-    out
-}
-
-fn origin_text(origin: protocol::ConfigOrigin) -> String {
-    match origin {
-        protocol::ConfigOrigin::Defaults => "nothing stored yet (defaults)".into(),
-        protocol::ConfigOrigin::Loaded => "loaded from flash".into(),
-        protocol::ConfigOrigin::UnknownLayout { version } => format!(
-            "the flash holds layout {version}, unknown to this firmware: defaults in force, the \
-             stored bytes are kept until `save`"
-        ),
-        protocol::ConfigOrigin::Unreadable => {
-            "the stored configuration could not be read: defaults in force".into()
-        }
-        protocol::ConfigOrigin::NoStore => {
-            "no flash store on this board (lost at power-off)".into()
-        }
-    }
-}
-
-/// One calibration throw in words: the free fall, the estimate, its ellipsoid and the advice.
-pub fn calibration_throw_text(throw: &protocol::CalibrationThrow) -> String {
-    let estimate = &throw.estimate;
-    let r_mm = estimate.r_imu_m.map(|x| x * 1000.0);
-    let axes_mm = estimate.ci95_semi_axes_m.map(|x| x * 1000.0);
-    let verdict = if estimate.well_determined {
-        "well determined".to_string()
-    } else if !estimate.estimated {
-        "no estimate yet: throw again, spinning".to_string()
-    } else {
-        advice_text(&estimate.advice)
-    };
-    format!(
-        "  throw {}: {} ms of free fall; IMU offset ({:+.2}, {:+.2}, {:+.2}) mm, 95 % semi-axes \
-         {:.2}, {:.2}, {:.2} mm: {verdict}",
-        estimate.throws,
-        throw.free_fall_ms,
-        r_mm[0],
-        r_mm[1],
-        r_mm[2],
-        axes_mm[0],
-        axes_mm[1],
-        axes_mm[2]
-    )
 }

@@ -122,7 +122,7 @@ impl NorFlash for SimFlash {
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
         let (from, to) = (from as usize, to as usize);
-        if from % SECTOR != 0 || to % SECTOR != 0 {
+        if !from.is_multiple_of(SECTOR) || !to.is_multiple_of(SECTOR) {
             return Err(FlashError::NotAligned);
         }
         if !self.powered {
@@ -147,7 +147,7 @@ impl NorFlash for SimFlash {
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
         let offset = offset as usize;
-        if offset % WORD != 0 || bytes.len() % WORD != 0 {
+        if !offset.is_multiple_of(WORD) || !bytes.len().is_multiple_of(WORD) {
             return Err(FlashError::NotAligned);
         }
         if !self.powered {

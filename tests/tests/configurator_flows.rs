@@ -163,7 +163,7 @@ fn motor_command(client: &mut configurator_cli::link::Client, motor: usize) -> f
     let deadline = Instant::now() + Duration::from_secs(2);
     while Instant::now() < deadline {
         client.listen(Duration::from_millis(20)).unwrap();
-        if let Some(sample) = client.telemetry.drain(..).last() {
+        if let Some(sample) = client.telemetry.drain(..).next_back() {
             if let Telemetry::Motors(motors) = sample.data {
                 return motors.commands[motor];
             }

@@ -62,14 +62,83 @@ pub fn test(args: &[String]) -> Result<()> {
 /// (default `--sitl-throws 3 info`: the simulated hand throws the craft three times, the board
 /// learns its IMU offset onboard, and the configurator prints the board's info and status).
 pub fn sitl(args: &[String]) -> Result<()> {
-    let mut command = util::cargo();
-    command.args(["run", "--quiet", "-p", "configurator-cli", "--", "--sitl"]);
-    if args.is_empty() {
-        command.args(["--sitl-throws", "3", "info"]);
-    } else {
+    if !args.is_empty() {
+        let mut command = util::cargo();
+        command.args(["run", "--quiet", "-p", "configurator-cli", "--", "--sitl"]);
         command.args(args);
+        return util::run(&mut command);
     }
-    util::run(&mut command)
+    walkthrough()
+}
+
+/// The walkthrough's steps: what the newcomer reads, then the configurator's arguments.
+const WALKTHROUGH: [(&str, &[&str]); 6] = [
+    ("the board: identity and state (nothing configured yet)", &["info"]),
+    (
+        "calibrate the IMU offset: the simulated hand throws the craft, spinning, and catches it",
+        &["calibrate", "imu-offset", "--yes"],
+    ),
+    ("save the configuration to the board's flash", &["save"]),
+    ("restart the board: it loads the saved configuration", &["reboot"]),
+    ("what differs from the defaults (paste it into `apply` to restore it)", &["diff"]),
+    ("the status, with the configuration's origin", &["status"]),
+];
+
+/// The README's main job: a SITL with a flash file and a hand that throws the craft every 2.5
+/// simulated seconds (4× real time), and the configurator walking through calibrate → save →
+/// restart → diff against it.
+fn walkthrough() -> Result<()> {
+    util::run(util::cargo().args([
+        "build",
+        "--quiet",
+        "-p",
+        "sim",
+        "--bin",
+        "sitl",
+        "-p",
+        "configurator-cli",
+        "--bin",
+        "configurator-cli",
+    ]))?;
+    let bin = util::root().join("target").join("debug");
+    let work = util::root().join("target").join("walkthrough");
+    std::fs::create_dir_all(&work)?;
+    let flash = work.join("sitl-flash.bin");
+    let link = work.join("fc-sitl");
+    // A fresh board each time: nothing stored.
+    let _ = std::fs::remove_file(&flash);
+    let mut sitl = Command::new(bin.join("sitl"))
+        .args(["--pty-link", &link.display().to_string()])
+        .args(["--flash-file", &flash.display().to_string()])
+        .args(["--speed", "4", "--throw-every-s", "2.5", "--throws", "8"])
+        .stdout(std::process::Stdio::null())
+        .spawn()?;
+    let started = Instant::now();
+    while !link.exists() && started.elapsed().as_secs() < 10 {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let mut result = Ok(());
+    for (index, (what, args)) in WALKTHROUGH.iter().enumerate() {
+        eprintln!("\n==> {}. {what}: configurator-cli {}", index + 1, args.join(" "));
+        let mut command = Command::new(bin.join("configurator-cli"));
+        command.args(["--port", &link.display().to_string()]).args(*args);
+        result = util::run(&mut command);
+        if result.is_err() {
+            break;
+        }
+        if args[0] == "reboot" {
+            std::thread::sleep(std::time::Duration::from_millis(500));
+        }
+    }
+    let _ = sitl.kill();
+    let _ = sitl.wait();
+    result?;
+    eprintln!(
+        "\nThe saved configuration is in {}; `cargo run -p sim --bin sitl -- --flash-file PATH` \
+         serves it again, `configurator-cli shell` explores it.",
+        flash.display()
+    );
+    Ok(())
 }
 
 fn step(name: &str, action: impl FnOnce() -> Result<()>) -> Result<()> {
