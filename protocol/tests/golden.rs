@@ -307,3 +307,51 @@ fn the_largest_learner_telemetry_fits_one_frame() {
     println!("largest learner telemetry: {telemetry} bytes, reply: {reply} bytes, frame: {MAX_FRAME_LEN} bytes");
     assert_eq!(MAX_FRAME_LEN - reply, LEARNER_MARGIN_BYTES, "the margin is pinned: {reply} bytes");
 }
+
+#[test]
+fn protocol_1_2_frames_are_pinned() {
+    let name = |s: &str| heapless::String::<NAME_LEN>::try_from(s).unwrap();
+    let values = |v: &[f32]| ParamValues::from_slice(v).unwrap();
+    let get_index = request(Request::GetParam(ParamRef::Index(3)), 10);
+    let get_name = request(Request::GetParam(ParamRef::Name(name("imu_offset_m"))), 11);
+    let set = request(
+        Request::SetParam(SetParam { name: name("gravity_mps2"), values: values(&[9.79]) }),
+        12,
+    );
+    let test = request(Request::MotorTest(MotorTest { motor: 2, command: 0.25 }), 13);
+    let stop = request(Request::StopCalibration(StopCalibration { accept: true }), 14);
+    let config = ConfigStatus {
+        origin: ConfigOrigin::UnknownLayout { version: 9 },
+        layout_version: 1,
+        param_count: 23,
+        unsaved_changes: true,
+        rejected_at_load: 2,
+        saves: 300,
+        calibrating: false,
+        motor_test: true,
+    };
+    let config = device(DeviceMessage::Response(Ok(Reply::Config(config))), 15);
+    let refused = device(
+        DeviceMessage::Response(Err(DeviceError::WrongLength {
+            name: name("imu_offset_m"),
+            expected: 3,
+            got: 2,
+        })),
+        16,
+    );
+    let timed_out = device(DeviceMessage::Event(Event::MotorTestTimedOut { motor: 2 }), 17);
+    assert_eq!(get_index, "03 0a 0a 06 03 9c 94 2a 65 00");
+    assert_eq!(get_name, "15 0a 0b 01 0c 69 6d 75 5f 6f 66 66 73 65 74 5f 6d 62 f5 92 0a 00");
+    assert_eq!(
+        set,
+        "19 0b 0c 0c 67 72 61 76 69 74 79 5f 6d 70 73 32 01 d7 a3 1c 41 3d e4 e2 14 00"
+    );
+    assert_eq!(test, "04 11 0d 02 01 07 80 3e 45 2b df 65 00");
+    assert_eq!(stop, "08 10 0e 01 79 cf 76 16 00");
+    assert_eq!(config, "03 81 0f 0a 07 02 09 01 17 01 02 ac 02 06 01 c9 7d ab 7e 00");
+    assert_eq!(
+        refused,
+        "18 81 10 01 08 0c 69 6d 75 5f 6f 66 66 73 65 74 5f 6d 03 02 9f 3d e0 a6 00"
+    );
+    assert_eq!(timed_out, "09 83 11 02 02 2c a4 78 6b 00");
+}
