@@ -72,6 +72,20 @@ pub enum PlotError {
     Draw(String),
 }
 
+/// The legend of a panel, in its upper right corner.
+fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+) -> Result<(), PlotError> {
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font((FONT, LABEL_FONT_PX))
+        .draw()
+        .map_err(draw_err)
+}
+
 fn draw_err(e: impl std::fmt::Display) -> PlotError {
     PlotError::Draw(e.to_string())
 }
@@ -279,14 +293,7 @@ fn draw_recording<DB: DrawingBackend>(
                 chart.draw_series(LineSeries::new(segment, colour)).map_err(draw_err)?;
             }
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font((FONT, LABEL_FONT_PX))
-            .draw()
-            .map_err(draw_err)?;
+        draw_legend(&mut chart)?;
     }
     root.present().map_err(draw_err)
 }
@@ -450,14 +457,7 @@ fn draw_ellipsoid<DB: DrawingBackend>(
             .map_err(draw_err)?
             .label(format!("centre ({:.1}, {:.1}) mm", centre.0, centre.1))
             .legend(|(x, y)| Cross::new((x + 9, y), 5, RED.stroke_width(2)));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font((FONT, LABEL_FONT_PX))
-            .draw()
-            .map_err(draw_err)?;
+        draw_legend(&mut chart)?;
     }
     root.present().map_err(draw_err)
 }
