@@ -13,7 +13,9 @@
 //! `diff` → `defaults` → `apply` → `dump` gives back the very same text.
 
 use crate::link::{Client, LinkError};
-use protocol::{ParamInfo, ParamKind, ParamRef, ParamValues, Reply, Request, SetParam};
+use protocol::{
+    text as bounded, ParamInfo, ParamKind, ParamRef, ParamValues, Reply, Request, SetParam,
+};
 use std::fmt::Write as _;
 
 /// Every parameter of the board, in registry order.
@@ -44,17 +46,6 @@ pub fn set(client: &mut Client, name: &str, values: &[f32]) -> Result<ParamInfo,
         Reply::Param(info) => Ok(info),
         other => Err(LinkError::Unexpected(format!("{other:?} to the set request"))),
     }
-}
-
-/// `name` as a wire name (cut at the capacity; the board then answers that it is unknown).
-pub fn bounded<const N: usize>(name: &str) -> heapless::String<N> {
-    let mut out = heapless::String::new();
-    for c in name.chars() {
-        if out.push(c).is_err() {
-            break;
-        }
-    }
-    out
 }
 
 /// Values as `a,b,c`, each in the shortest form that reads back to the same `f32`.

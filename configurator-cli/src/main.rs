@@ -224,28 +224,25 @@ fn run(cli: &Cli) -> Result<String, Failure> {
         }
         Command::Ports => ports(cli.json),
         Command::Plot { input, output } => plot(input, output, cli.json),
-        Command::Info => with_board(cli, BoardCommand::Info),
-        Command::Status => with_board(cli, BoardCommand::Status),
-        Command::ArmThrowToFly => with_board(cli, BoardCommand::Arm),
-        Command::Disarm => with_board(cli, BoardCommand::Disarm),
-        Command::Stream { topic, rate_hz, duration_s } => {
-            // Validate arguments before touching any port.
-            let topic = stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?;
-            let command =
-                BoardCommand::Stream { topic, rate_hz: *rate_hz, duration_s: *duration_s };
-            with_board(cli, command)
-        }
-        command => {
-            let command = configuration_command(command)?;
-            with_board(cli, command)
-        }
+        // Arguments are validated before any port is touched.
+        command => with_board(cli, board_command(command)?),
     }
 }
 
-/// A configuration command with its arguments checked (before any port is touched).
-fn configuration_command(command: &Command) -> Result<BoardCommand, Failure> {
+/// The board command of a parsed command line, its arguments checked (before any port is
+/// touched).
+fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
     let input = |message: String| Failure::Input(InputError(message));
     Ok(match command {
+        Command::Info => BoardCommand::Info,
+        Command::Status => BoardCommand::Status,
+        Command::ArmThrowToFly => BoardCommand::Arm,
+        Command::Disarm => BoardCommand::Disarm,
+        Command::Stream { topic, rate_hz, duration_s } => BoardCommand::Stream {
+            topic: stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?,
+            rate_hz: *rate_hz,
+            duration_s: *duration_s,
+        },
         Command::Get { name } => BoardCommand::Get(name.clone()),
         Command::Set { assignment } => {
             let words: Vec<&str> = assignment.iter().map(String::as_str).collect();
@@ -436,7 +433,7 @@ fn run_on_board(cli: &Cli, client: &mut Client, command: BoardCommand) -> Result
             stream(client, topic, rate_hz, duration_s, cli.json)
         }
         BoardCommand::Get(name) => {
-            let info = config::fetch(client, protocol::ParamRef::Name(config::bounded(&name)))?;
+            let info = config::fetch(client, protocol::ParamRef::Name(protocol::text(&name)))?;
             Ok(if cli.json {
                 format!("{:#}\n", param_json(&info))
             } else {
@@ -740,22 +737,6 @@ fn shell(cli: &Cli, client: &mut Client) -> Result<String, Failure> {
     });
     result.map_err(|e| LinkError::Unexpected(format!("the shell's terminal failed: {e}")))?;
     Ok(String::new())
-}
-
-/// A board command from a parsed command line.
-fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
-    Ok(match command {
-        Command::Info => BoardCommand::Info,
-        Command::Status => BoardCommand::Status,
-        Command::ArmThrowToFly => BoardCommand::Arm,
-        Command::Disarm => BoardCommand::Disarm,
-        Command::Stream { topic, rate_hz, duration_s } => BoardCommand::Stream {
-            topic: stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?,
-            rate_hz: *rate_hz,
-            duration_s: *duration_s,
-        },
-        other => configuration_command(other)?,
-    })
 }
 
 /// The shell's commands: name, usage, help.

@@ -29,6 +29,18 @@ pub const USB_VID: u16 = 0x1209;
 /// USB product ID: pid.codes' test PID, used until the project is allocated its own.
 pub const USB_PID: u16 = 0x0001;
 
+/// `text` as a wire string of capacity `N`, cut at a character boundary when too long (names,
+/// units and help texts are built from `&str` on both sides).
+pub fn text<const N: usize>(text: &str) -> heapless::String<N> {
+    let mut out = heapless::String::new();
+    for c in text.chars() {
+        if out.push(c).is_err() {
+            break;
+        }
+    }
+    out
+}
+
 /// FNV-1a over the bytes of `source` that are neither white space nor inside `//` comments.
 const fn schema_hash(source: &str) -> u64 {
     const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;

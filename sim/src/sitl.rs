@@ -275,8 +275,8 @@ impl Runner {
                 if self.throw_to_fly && first_boot {
                     app.control.command(ControlCommand::ArmThrowToFly, 0);
                 }
-                let mut clock = Clock { board: &mut board, boot_us: 0, start };
-                clock.boot_us = clock.board.now_us();
+                let boot_us = board.now_us();
+                let mut clock = Clock { board: &mut board, boot_us, start };
                 self.serve(app, &mut settings, &mut clock, &mut mocap, &mut throws_done)
             });
             first_boot = false;

@@ -345,6 +345,11 @@ mod tests {
     use nalgebra::UnitQuaternion;
     use std::fmt::Write as _;
 
+    /// The default fit (offset and bias, no drag) of `logs`, as text or JSON.
+    fn fit_args(logs: Vec<std::path::PathBuf>, json: bool) -> Args {
+        Args { bias: false, offset_only: false, gravity: None, drag: false, json, logs }
+    }
+
     fn r_true() -> Vector3<f64> {
         Vector3::new(-0.010, -0.013, 0.008)
     }
@@ -392,15 +397,8 @@ mod tests {
     fn json_from_two_throws_is_within_1mm() {
         let logs = two_logs("json", 2000.0);
         for bias in [false, true] {
-            let out = run(&Args {
-                bias,
-                offset_only: !bias,
-                gravity: None,
-                drag: false,
-                json: true,
-                logs: logs.clone(),
-            })
-            .unwrap();
+            let out =
+                run(&Args { bias, offset_only: !bias, ..fit_args(logs.clone(), true) }).unwrap();
             let v: serde_json::Value = serde_json::from_str(&out).unwrap();
             let r = parse_vec3(&v["r_imu_m"]);
             let err_mm = (r - r_true()).norm() * 1000.0;
@@ -446,15 +444,7 @@ mod tests {
     #[test]
     fn drag_model_keeps_the_contract_and_the_accuracy() {
         let logs = two_logs("drag", 2000.0);
-        let out = run(&Args {
-            bias: true,
-            offset_only: false,
-            gravity: None,
-            drag: true,
-            json: true,
-            logs,
-        })
-        .unwrap();
+        let out = run(&Args { bias: true, drag: true, ..fit_args(logs, true) }).unwrap();
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         for key in [
             "r_imu_m",
@@ -496,15 +486,7 @@ mod tests {
         let dir = scratch("one");
         let path = dir.join("one.csv");
         write_log(&path, &spec(1000.0, Vector3::new(0.0, 0.0, 12.0), 3), 0.0);
-        let out = run(&Args {
-            bias: false,
-            offset_only: false,
-            gravity: None,
-            drag: false,
-            json: true,
-            logs: vec![path],
-        })
-        .unwrap();
+        let out = run(&fit_args(vec![path], true)).unwrap();
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         assert_eq!(v["well_determined"], serde_json::Value::Bool(false));
         assert!(v["advice"].as_str().unwrap().contains("throw again"));
@@ -513,15 +495,7 @@ mod tests {
     fn expect_error(name: &str, csv: &str, needles: &[&str]) {
         let path = scratch(name).join("bad.csv");
         std::fs::write(&path, csv).unwrap();
-        let err = run(&Args {
-            bias: false,
-            offset_only: false,
-            gravity: None,
-            drag: false,
-            json: true,
-            logs: vec![path],
-        })
-        .unwrap_err();
+        let err = run(&fit_args(vec![path], true)).unwrap_err();
         for needle in needles {
             assert!(err.0.contains(needle), "`{}` does not mention `{needle}`", err.0);
         }
@@ -555,15 +529,7 @@ mod tests {
         expect_error("still", &still_rows(1000.0, 3000), &["no free fall"]);
         expect_error("short", &still_rows(1000.0, 50), &["too few"]);
         let missing = scratch("absent").join("does-not-exist.csv");
-        let err = run(&Args {
-            bias: false,
-            offset_only: false,
-            gravity: None,
-            drag: false,
-            json: false,
-            logs: vec![missing],
-        })
-        .unwrap_err();
+        let err = run(&fit_args(vec![missing], false)).unwrap_err();
         assert!(err.0.contains("cannot read"), "{}", err.0);
     }
 }

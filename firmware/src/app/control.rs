@@ -43,22 +43,12 @@ pub enum ControlCommand {
 }
 
 /// What the control step takes from the parameters (`super::params::Params`).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ControlSettings {
     pub throw: ThrowConfig,
     pub excitation: ExcitationConfig,
     /// Subtracted from every accelerometer sample, m/s², IMU axes.
     pub acc_bias_mps2: [f32; 3],
-}
-
-impl Default for ControlSettings {
-    fn default() -> Self {
-        Self {
-            throw: ThrowConfig::default(),
-            excitation: ExcitationConfig::default(),
-            acc_bias_mps2: [0.0; 3],
-        }
-    }
 }
 
 impl From<&super::params::Params> for ControlSettings {
@@ -239,7 +229,7 @@ impl<'q> ControlLoop<'q> {
     /// Take waiting settings once nothing is armed. The throw detector is rebuilt only when
     /// its configuration changed (it would otherwise forget the last attempt's outcome).
     fn apply_pending_settings(&mut self) {
-        if self.flight_armed() || self.motor_test.is_some() {
+        if self.pending_settings.is_none() || self.flight_armed() || self.motor_test.is_some() {
             return;
         }
         let Some(settings) = self.pending_settings.take() else { return };

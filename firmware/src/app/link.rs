@@ -7,11 +7,12 @@
 //! dropped for lack of transmit space is a gap the host can count. Bad frames are counted and
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
-use super::params::{self, text as short_text};
+use super::params;
 use super::settings::Settings;
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::{AxisStatus, FlightPhase};
+use protocol::text as short_text;
 use protocol::{
     CalibrationThrow, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError, Decoder,
     DeviceError, DeviceMessage, Event, FrameError, ImuStatus, ImuTelemetry, LearnerFailure,

@@ -61,17 +61,11 @@ pub struct BoardInfo {
 impl BoardInfo {
     /// The handshake/info reply for this board.
     pub fn info(&self) -> Info {
-        let mut board = heapless::String::new();
-        for c in self.board.chars() {
-            if board.push(c).is_err() {
-                break;
-            }
-        }
         Info {
             protocol: PROTOCOL_VERSION,
             schema_hash: SCHEMA_HASH,
             firmware: FIRMWARE_VERSION,
-            board,
+            board: protocol::text(self.board),
             serial: self.serial.clone(),
             capabilities: Capabilities(self.capabilities),
             control_rate_hz: self.control_rate_hz,

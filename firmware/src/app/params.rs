@@ -15,8 +15,8 @@ use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::ThrowConfig;
 use flight::learner::{LearnedModel, MAX_MOTORS};
 use protocol::{
-    DeviceError, ParamInfo, ParamKind, ParamValues, PARAM_HELP_LEN, PARAM_MAX_LEN, PARAM_UNIT_LEN,
-    UNIT_LEN,
+    text, DeviceError, ParamInfo, ParamKind, ParamValues, PARAM_HELP_LEN, PARAM_MAX_LEN,
+    PARAM_UNIT_LEN, UNIT_LEN,
 };
 
 /// One parameter's description.
@@ -183,11 +183,6 @@ const OFFSETS: [usize; PARAM_COUNT] = {
 };
 
 impl Param {
-    /// Every parameter, in registry order.
-    pub fn all() -> impl Iterator<Item = usize> {
-        0..PARAM_COUNT
-    }
-
     pub fn spec(self) -> &'static ParamSpec {
         &SPECS[self as usize]
     }
@@ -356,17 +351,6 @@ impl Params {
 
 fn vec3(values: &[f32]) -> [f32; 3] {
     [values[0], values[1], values[2]]
-}
-
-/// `text` as a bounded string, cut at a character boundary when too long.
-pub(crate) fn text<const N: usize>(text: &str) -> heapless::String<N> {
-    let mut out = heapless::String::new();
-    for c in text.chars() {
-        if out.push(c).is_err() {
-            break;
-        }
-    }
-    out
 }
 
 #[cfg(test)]

@@ -213,15 +213,10 @@ impl<F: NorFlash> Settings<F> {
         &self.params
     }
 
-    /// Counts changes to the values in force.
-    pub fn generation(&self) -> u32 {
-        self.generation
-    }
-
     /// Set parameter `name` (validated as a whole; nothing changes on an error).
     pub fn set(&mut self, name: &str, values: &[f32]) -> Result<usize, DeviceError> {
         let index = params::find(name)
-            .ok_or_else(|| DeviceError::UnknownParam { name: params::text(name) })?;
+            .ok_or_else(|| DeviceError::UnknownParam { name: protocol::text(name) })?;
         if self.params.set(index, values)? {
             self.generation = self.generation.wrapping_add(1);
         }
