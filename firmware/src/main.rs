@@ -41,6 +41,7 @@ mod app {
     use firmware::app::{
         split_queue, Background, BackgroundCommand, BackgroundResults, BoardInfo, ControlCommand,
         ControlConfig, ControlLoop, ControlSnapshot, LinkServer, NoFlash, SampleQueue, Settings,
+        StepConsumer, StepRing,
     };
     use firmware::board::config::{HCLK_HZ, SYS_CK_HZ, TIME_BASE_HZ};
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
@@ -95,6 +96,8 @@ mod app {
         usb_clock: MicrosClock,
         usb: UsbSerial,
         link: LinkServer,
+        /// The link task's end of the telemetry ring (one record per control step).
+        telemetry: StepConsumer<'static>,
         /// The parameters. No flash store yet: the H743's configuration sectors need a driver
         /// that reports ECC errors instead of faulting on a torn word (see `app::settings`).
         settings: Settings<NoFlash>,
@@ -103,6 +106,7 @@ mod app {
 
     #[init(local = [
         samples: SampleQueue = SampleQueue::new(),
+        step_ring: StepRing = StepRing::new(),
         ep_memory: [u32; EP_MEMORY_WORDS] = [0; EP_MEMORY_WORDS],
         usb_bus: Option<UsbBusAllocator<usb::Bus>> = None,
         uid_text: [u8; UID_HEX_CHARS] = [0; UID_HEX_CHARS],
@@ -165,7 +169,8 @@ mod app {
         let config = ControlConfig::default();
         let motors = BoardMotors::default();
         let (producer, consumer) = split_queue(cx.local.samples);
-        let control = ControlLoop::new(config, producer);
+        let (ring_producer, telemetry) = split_queue(cx.local.step_ring);
+        let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
         let background = Background::new(consumer, config.rate_hz);
         let mut serial = heapless::String::new();
         // The 24-character UID always fits the protocol's 32-byte field.
@@ -211,6 +216,7 @@ mod app {
             usb_clock: clock,
             usb,
             link,
+            telemetry,
             settings: Settings::without_store(),
             background,
         };
@@ -246,7 +252,7 @@ mod app {
         )]
         fn control_tick(cx: control_tick::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link, settings], shared = [control, background, commands, background_commands])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link, telemetry, settings], shared = [control, background, commands, background_commands])]
         fn usb_service(cx: usb_service::Context);
 
         #[task(priority = 1, local = [background], shared = [background, background_commands])]
@@ -348,8 +354,14 @@ mod tasks {
             });
             let _ = background::spawn();
         }
-        link.poll(now_us, &view);
+        // Every control step's record, each offered to USB at once so the transmit buffer never
+        // holds more than a few frames; what does not fit is dropped whole (a counted gap).
         let usb = cx.local.usb;
+        while let Some(record) = cx.local.telemetry.pop() {
+            link.stream(&record);
+            while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}
+        }
+        link.poll(now_us, &view);
         while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}
         usb.flush();
         if reboot {

@@ -2,9 +2,10 @@
 //! errors, telemetry rates and sequence numbers, bad-frame accounting, the throw-to-fly commands
 //! and the learner topic.
 
+use firmware::app::hal::ImuSample;
 use firmware::app::{
     BoardInfo, ControlCommand, ControlSnapshot, LinkRequest, LinkServer, NoFlash, Settings,
-    StatusView,
+    StatusView, StepRecord,
 };
 use flight::learner::motor_model::MotorModel;
 use flight::learner::LearnedModel;
@@ -17,6 +18,27 @@ fn board() -> BoardInfo {
         capabilities: Capabilities::TELEMETRY,
         control_rate_hz: 2000,
         motor_count: 4,
+    }
+}
+
+/// The control period at 2 kHz, µs.
+const STEP_US: u64 = 500;
+
+/// The record of the control step at `t_us` (step n at n · 500 µs; every third step without an
+/// IMU sample).
+fn step_record(t_us: u64) -> StepRecord {
+    let step = (t_us / STEP_US) as u32;
+    StepRecord {
+        step,
+        t_us,
+        imu: (!step.is_multiple_of(3)).then_some(ImuSample {
+            gyro_rad_s: [0.1, 0.2, step as f32],
+            accel_mps2: [0.0, 0.0, -9.81],
+        }),
+        motor_count: 4,
+        commands: [0.25, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        speeds_rad_s: [Some(900.0), None, None, None, None, None, None, None],
+        ..StepRecord::default()
     }
 }
 
@@ -80,8 +102,16 @@ impl Host {
         self.server.receive(bytes, self.now_us, &view, &mut self.settings);
     }
 
+    /// Let `dt_us` pass: a control step every 500 µs, each streaming its record, then a poll
+    /// (the board's link task drains the ring and polls once per millisecond).
     fn advance(&mut self, dt_us: u64) {
-        self.now_us += dt_us;
+        let end_us = self.now_us + dt_us;
+        while self.now_us + STEP_US <= end_us {
+            self.now_us += STEP_US;
+            let record = step_record(self.now_us);
+            self.server.stream(&record);
+        }
+        self.now_us = end_us;
         let view = self.view();
         self.server.poll(self.now_us, &view);
     }
@@ -213,7 +243,7 @@ fn an_out_of_range_rate_names_the_allowed_range_and_changes_nothing() {
     match host.request(&Request::SetTelemetryRate(setting), 3) {
         Err(DeviceError::BadValue { name, value, min, max, unit }) => {
             assert_eq!((name.as_str(), unit.as_str()), ("rate_hz", "Hz"));
-            assert_eq!((value, min, max), (5000.0, 0.0, 1000.0));
+            assert_eq!((value, min, max), (5000.0, 0.0, 2000.0));
         }
         other => panic!("{other:?}"),
     }
@@ -241,13 +271,76 @@ fn telemetry_streams_at_the_chosen_rate_with_consecutive_sequence_numbers() {
 }
 
 #[test]
+fn every_control_step_streams_at_2khz_and_a_divided_rate_keeps_consecutive_numbers() {
+    let mut host = Host::new();
+    host.handshake();
+    let state = SetTelemetryRate { topic: Topic::State, rate_hz: 2000 };
+    assert_eq!(host.request(&Request::SetTelemetryRate(state), 2), Ok(Reply::Done));
+    let motors = SetTelemetryRate { topic: Topic::Motors, rate_hz: 500 };
+    assert_eq!(host.request(&Request::SetTelemetryRate(motors), 3), Ok(Reply::Done));
+    let first_step = (host.now_us / STEP_US) as u32 + 1;
+    let mut received = Vec::new();
+    for _ in 0..1000 {
+        host.advance(1000);
+        received.extend(host.read());
+    }
+    let states: Vec<(u16, StateTelemetry)> = received
+        .iter()
+        .filter_map(|r| match r.message {
+            DeviceMessage::Telemetry(Telemetry::State(s)) => Some((r.seq, s)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(states.len(), 2000, "one state sample per control step for 1 s");
+    for (i, (seq, state)) in states.iter().enumerate() {
+        let step = first_step + i as u32;
+        assert_eq!(u32::from(*seq), step, "the sequence number is the step number");
+        assert_eq!(state.t_us, u64::from(step) * STEP_US);
+        assert_eq!(state.imu_fresh, !step.is_multiple_of(3));
+        assert_eq!((state.motor_count, state.commands[1]), (4, 0.5));
+    }
+    let motor_seqs: Vec<u16> = received
+        .iter()
+        .filter(|r| matches!(r.message, DeviceMessage::Telemetry(Telemetry::Motors(_))))
+        .map(|r| r.seq)
+        .collect();
+    assert_eq!(motor_seqs.len(), 500, "500 Hz is every fourth step");
+    assert!(motor_seqs.windows(2).all(|w| w[1] == w[0] + 1), "no gaps at 500 Hz");
+    assert_eq!(host.server.counters().telemetry_dropped, 0);
+}
+
+#[test]
+fn imu_samples_a_step_did_not_have_are_gaps_in_the_imu_topic() {
+    let mut host = Host::new();
+    host.handshake();
+    let imu = SetTelemetryRate { topic: Topic::Imu, rate_hz: 2000 };
+    assert_eq!(host.request(&Request::SetTelemetryRate(imu), 2), Ok(Reply::Done));
+    let mut received = Vec::new();
+    for _ in 0..30 {
+        host.advance(1000);
+        received.extend(host.read());
+    }
+    let seqs: Vec<u16> = received
+        .iter()
+        .filter(|r| matches!(r.message, DeviceMessage::Telemetry(Telemetry::Imu(_))))
+        .map(|r| r.seq)
+        .collect();
+    // 60 steps, every third without a sample: 40 samples, 20 gaps.
+    assert_eq!(seqs.len(), 40);
+    let gaps: u32 = seqs.windows(2).map(|w| u32::from(w[1] - w[0] - 1)).sum();
+    assert_eq!(gaps, 19, "the gaps between the first and last sample (one more after the last)");
+    assert!(seqs.iter().all(|&seq| seq % 3 != 0));
+}
+
+#[test]
 fn a_host_that_stops_reading_sees_gaps_but_its_requests_are_still_answered() {
     let mut host = Host::new();
     host.handshake();
-    let setting = SetTelemetryRate { topic: Topic::Motors, rate_hz: 1000 };
+    let setting = SetTelemetryRate { topic: Topic::State, rate_hz: 2000 };
     assert_eq!(host.request(&Request::SetTelemetryRate(setting), 2), Ok(Reply::Done));
+    let first_step = (host.now_us / STEP_US) as u16 + 1;
     for _ in 0..200 {
-        host.advance(1000); // nobody reads for 200 ms
+        host.advance(1000); // nobody reads for 200 ms: 400 steps
     }
     host.send(&Request::Ping(Ping { nonce: 99 }), 3);
     let received = host.read();
@@ -261,19 +354,20 @@ fn a_host_that_stops_reading_sees_gaps_but_its_requests_are_still_answered() {
         .filter(|r| matches!(r.message, DeviceMessage::Telemetry(_)))
         .map(|r| r.seq)
         .collect();
-    // 200 samples were taken (seq 0..=199); the buffer kept the oldest, the rest were dropped.
-    assert!(seqs.len() < 200, "the transmit buffer cannot hold 200 ms of 1 kHz telemetry");
+    assert!(seqs.len() < 400, "the transmit buffer cannot hold 200 ms of 2 kHz telemetry");
+    assert_eq!(seqs.first(), Some(&first_step), "the oldest samples are kept");
     assert!(seqs.windows(2).all(|w| w[1] > w[0]));
-    let dropped = 200 - seqs.len() as u32;
+    let dropped = 400 - seqs.len() as u32;
     assert_eq!(host.server.counters().telemetry_dropped, dropped);
-    host.advance(1000);
+    host.advance(500);
     let next = host.read().iter().find_map(|r| match r.message {
         DeviceMessage::Telemetry(_) => Some(r.seq),
         _ => None,
     });
     let last_seen = *seqs.last().unwrap();
-    assert_eq!(next, Some(200), "the next sample continues the count");
-    assert_eq!(u32::from(200 - last_seen - 1), dropped, "the host counts every drop as a gap");
+    assert_eq!(next, Some(first_step + 400), "the next sample continues the count");
+    let gaps = u32::from(first_step + 400 - last_seen - 1);
+    assert_eq!(gaps, dropped, "the host counts every drop as a gap");
     assert_eq!(host.server.counters().responses_dropped, 0);
 }
 

@@ -24,10 +24,11 @@ pub const UNIT_LEN: usize = 8;
 /// Maximum number of motors an airframe may have; fixes array sizes on the wire.
 pub const MAX_MOTORS: usize = 8;
 /// Number of telemetry topics (the variants of [`Topic`]).
-pub const TOPIC_COUNT: usize = 4;
-/// Highest telemetry rate a host may request for one topic, Hz (half the 2 kHz control rate, so
-/// a topic never needs more than every second control step).
-pub const MAX_TELEMETRY_RATE_HZ: u16 = 1000;
+pub const TOPIC_COUNT: usize = 5;
+/// Highest telemetry rate a host may request for one topic, Hz: the 2 kHz control rate. The
+/// per-step topics ([`Topic::is_per_step`]) reach it, every control step's sample; the others are
+/// sampled by the link task, at most once per pass (1 kHz on the board and in the SITL).
+pub const MAX_TELEMETRY_RATE_HZ: u16 = 2000;
 /// Most elements one parameter may have (one per motor for the per-motor arrays).
 pub const PARAM_MAX_LEN: usize = 8;
 /// Capacity of a parameter's unit label, bytes of UTF-8 ("rad/s²/(rad/s²)" fits).
@@ -99,16 +100,27 @@ pub enum Topic {
     Motors,
     /// The in-flight learner's state and estimates ([`LearnerTelemetry`]).
     Learner,
+    /// Every control step's state: IMU, attitude, motor commands and speeds, phase
+    /// ([`StateTelemetry`]). Protocol 1.3.
+    State,
 }
 
 impl Topic {
     /// All topics, in wire order.
     pub const ALL: [Topic; TOPIC_COUNT] =
-        [Topic::Imu, Topic::Control, Topic::Motors, Topic::Learner];
+        [Topic::Imu, Topic::Control, Topic::Motors, Topic::Learner, Topic::State];
 
     /// The topic's index into [`Topic::ALL`].
     pub fn index(self) -> usize {
         self as usize
+    }
+
+    /// Whether the control step writes this topic's samples (every step, into a ring the link
+    /// drains), rather than the link sampling the latest state. A per-step topic at `rate_hz`
+    /// sends every `round(control rate / rate_hz)`-th step, and its sequence number is the step
+    /// count divided by that, so every sample lost anywhere is a gap.
+    pub fn is_per_step(self) -> bool {
+        matches!(self, Topic::Imu | Topic::Motors | Topic::State)
     }
 }
 
@@ -486,6 +498,7 @@ pub enum Telemetry {
     Control(ControlTelemetry),
     Motors(MotorTelemetry),
     Learner(LearnerTelemetry),
+    State(StateTelemetry),
 }
 
 /// Where the throw-to-fly identification stands (algorithms.md §1–2).
@@ -589,6 +602,32 @@ pub struct ControlTelemetry {
 pub struct MotorTelemetry {
     pub t_us: u64,
     /// Commands δ ∈ [0, 1].
+    pub commands: [f32; MAX_MOTORS],
+    /// Speeds from RPM telemetry, rad/s; `None` where a motor has not reported.
+    pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
+}
+
+/// One control step's state, written by the step itself (the 2 kHz topic).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct StateTelemetry {
+    /// Device time of the step, µs since start-up.
+    pub t_us: u64,
+    /// Where the throw-to-fly attempt stands.
+    pub phase: LearnerPhase,
+    /// Flying on the learned model (closed loop).
+    pub flying: bool,
+    /// Whether the step had a new IMU sample (else `gyro_rad_s` and `accel_mps2` repeat the
+    /// previous one).
+    pub imu_fresh: bool,
+    /// Angular rate, rad/s, IMU axes.
+    pub gyro_rad_s: [f32; 3],
+    /// Specific force with the stored accelerometer bias removed, m/s², IMU axes.
+    pub accel_mps2: [f32; 3],
+    /// Attitude of the IMU in the world (NED), `[w, x, y, z]`, from the attitude filter.
+    pub q_world_imu: [f32; 4],
+    /// Motors connected; elements past it are zero.
+    pub motor_count: u8,
+    /// Commands δ ∈ [0, 1] written by this step.
     pub commands: [f32; MAX_MOTORS],
     /// Speeds from RPM telemetry, rad/s; `None` where a motor has not reported.
     pub speeds_rad_s: [Option<f32>; MAX_MOTORS],

@@ -355,3 +355,27 @@ fn protocol_1_2_frames_are_pinned() {
     );
     assert_eq!(timed_out, "09 83 11 02 02 2c a4 78 6b 00");
 }
+
+#[test]
+fn protocol_1_3_state_frames_are_pinned() {
+    let mut speeds = [None; MAX_MOTORS];
+    speeds[0] = Some(1000.0);
+    let state = StateTelemetry {
+        t_us: 500,
+        phase: LearnerPhase::Exciting,
+        flying: false,
+        imu_fresh: true,
+        gyro_rad_s: [0.5, -1.0, 0.0],
+        accel_mps2: [0.0, 0.0, -9.81],
+        q_world_imu: [1.0, 0.0, 0.0, 0.0],
+        motor_count: 4,
+        commands: [0.25, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        speeds_rad_s: speeds,
+    };
+    let frame = device(DeviceMessage::Telemetry(Telemetry::State(state)), 7);
+    assert_eq!(frame, "07 82 07 04 f4 03 04 02 01 01 01 02 3f 01 03 80 bf 01 01 01 01 01 01 01 01 01 01 01 05 c3 f5 1c c1 01 03 80 3f 01 01 01 01 01 01 01 01 01 01 01 02 04 01 03 80 3e 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 02 01 01 03 7a 44 01 01 01 01 01 01 05 24 84 30 92 00");
+    let rate = SetTelemetryRate { topic: Topic::State, rate_hz: 2000 };
+    assert_eq!(request(Request::SetTelemetryRate(rate), 5), "0a 04 05 04 d0 0f 8c 06 8c f8 00");
+    assert_eq!(Topic::State.index(), 4, "wire index of the new topic");
+    assert_eq!(Topic::ALL.iter().filter(|t| t.is_per_step()).count(), 3);
+}

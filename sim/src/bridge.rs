@@ -447,6 +447,7 @@ pub fn serve_firmware(
     }
     let mut last_datagram = Instant::now();
     let mut now_us = 0u64;
+    let mut step_records = Vec::with_capacity(firmware::app::STEP_RING_LEN);
     loop {
         let idle = last_datagram.elapsed();
         if idle >= idle_timeout {
@@ -475,9 +476,10 @@ pub fn serve_firmware(
         };
         if let (true, Some(links)) = (link_pass_due, links.as_deref_mut()) {
             let view = status_view(&app.control, &app.background);
+            app.drain_telemetry(&mut step_records);
             // The bridge has no flash: parameters last for the run. A restart request is
             // answered but not carried out (the external simulator owns the time line).
-            links.pass(now_us, &view, settings, &mut |request| {
+            links.pass(now_us, &view, &step_records, settings, &mut |request| {
                 app.dispatch(request, now_us);
             });
             if let Some(params) = settings.service(&view) {

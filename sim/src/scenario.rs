@@ -24,7 +24,7 @@ use std::io::Write;
 use firmware::app::hal::{Imu, Motors};
 use firmware::app::{
     split_queue, Background, ControlCommand, ControlConfig, ControlLoop, ControlSettings,
-    LinkRequest, Params, SampleQueue,
+    LinkRequest, Params, SampleQueue, StepConsumer, StepRecord, StepRing,
 };
 use nalgebra::Vector3;
 
@@ -53,6 +53,8 @@ pub struct FirmwareApp<'q> {
     pub control: ControlLoop<'q>,
     /// The background task.
     pub background: Background<'q>,
+    /// The link task's end of the telemetry ring (one record per control step).
+    pub telemetry: StepConsumer<'q>,
 }
 
 impl FirmwareApp<'_> {
@@ -65,6 +67,13 @@ impl FirmwareApp<'_> {
             LinkRequest::Reboot => return true,
         }
         false
+    }
+
+    /// Take every step record waiting in the telemetry ring into `records` (cleared first), as
+    /// the board's link task drains the ring before serving its host.
+    pub fn drain_telemetry(&mut self, records: &mut Vec<StepRecord>) {
+        records.clear();
+        records.extend(core::iter::from_fn(|| self.telemetry.pop()));
     }
 
     /// Hand changed parameters to the control step and the background task.
@@ -105,10 +114,13 @@ pub fn step_firmware<I: Imu, M: Motors>(
 pub fn with_firmware_app<R>(f: impl FnOnce(&mut FirmwareApp<'_>) -> R) -> R {
     let mut queue = SampleQueue::new();
     let (producer, consumer) = split_queue(&mut queue);
+    let mut ring = StepRing::new();
+    let (ring_producer, ring_consumer) = split_queue(&mut ring);
     let config = ControlConfig::default();
     let mut app = FirmwareApp {
-        control: ControlLoop::new(config, producer),
+        control: ControlLoop::new(config, producer).with_telemetry(ring_producer),
         background: Background::new(consumer, config.rate_hz),
+        telemetry: ring_consumer,
     };
     f(&mut app)
 }

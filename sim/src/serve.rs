@@ -15,7 +15,7 @@ use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 
 use firmware::app::{
-    Background, BoardInfo, ControlLoop, LinkRequest, LinkServer, Settings, StatusView,
+    Background, BoardInfo, ControlLoop, LinkRequest, LinkServer, Settings, StatusView, StepRecord,
     CONTROL_RATE_HZ,
 };
 use protocol::{Capabilities, BOARD_NAME_LEN};
@@ -76,10 +76,11 @@ impl<T: Transport> Connection<T> {
         &mut self,
         now_us: u64,
         view: &StatusView,
+        records: &[StepRecord],
         settings: &mut Settings<F>,
         requests: &mut dyn FnMut(LinkRequest),
     ) -> bool {
-        let open = self.service(now_us, view, settings);
+        let open = self.service(now_us, view, records, settings);
         if !open {
             self.link.disconnected();
         }
@@ -114,6 +115,7 @@ impl<T: Transport> Connection<T> {
         &mut self,
         now_us: u64,
         view: &StatusView,
+        records: &[StepRecord],
         settings: &mut Settings<F>,
     ) -> bool {
         let mut buffer = [0u8; 512];
@@ -126,17 +128,29 @@ impl<T: Transport> Connection<T> {
                 Err(_) => return false,
             }
         }
-        self.link.poll(now_us, view);
-        // What the transport does not take now waits in the link's buffer for the next pass.
+        // Each step's record is offered to the transport at once, as the board does, so the
+        // transmit buffer holds a few frames at most. What the transport does not take now
+        // waits in the link's buffer for the next pass.
         let mut closed = false;
-        self.link.transmit_to(|bytes| match self.transport.write_some(bytes) {
+        for record in records {
+            self.link.stream(record);
+            self.transmit(&mut closed);
+        }
+        self.link.poll(now_us, view);
+        self.transmit(&mut closed);
+        !closed
+    }
+
+    /// Offer the link's transmit buffer to the transport; `closed` is set when it has closed.
+    fn transmit(&mut self, closed: &mut bool) {
+        let transport = &mut self.transport;
+        self.link.transmit_to(|bytes| match transport.write_some(bytes) {
             Ok(n) => n,
             Err(_) => {
-                closed = true;
+                *closed = true;
                 0
             }
         });
-        !closed
     }
 }
 
@@ -193,6 +207,7 @@ impl TcpLinks {
         &mut self,
         now_us: u64,
         view: &StatusView,
+        records: &[StepRecord],
         settings: &mut Settings<F>,
         requests: &mut dyn FnMut(LinkRequest),
     ) {
@@ -202,7 +217,7 @@ impl TcpLinks {
                 self.clients.push(Connection::new(stream, self.info.clone()));
             }
         }
-        self.clients.retain_mut(|client| client.pass(now_us, view, settings, requests));
+        self.clients.retain_mut(|client| client.pass(now_us, view, records, settings, requests));
     }
 }
 
@@ -469,7 +484,7 @@ mod tests {
         connection.transport.to_device.extend(bytes);
         let mut commands = Vec::new();
         let view = StatusView::default();
-        assert!(connection.pass(1000, &view, &mut settings(), &mut |c| commands.push(c)));
+        assert!(connection.pass(1000, &view, &[], &mut settings(), &mut |c| commands.push(c)));
         assert_eq!(
             commands,
             vec![control(ControlCommand::Disarm), control(ControlCommand::ExternalPose(POSE))]
@@ -488,7 +503,7 @@ mod tests {
         assert_eq!(answers[1], (2, Ok(Reply::Done)));
         assert_eq!(answers[2], (3, Ok(Reply::Done)));
         // Nothing is handed over twice.
-        assert!(connection.pass(2000, &view, &mut settings(), &mut |c| commands.push(c)));
+        assert!(connection.pass(2000, &view, &[], &mut settings(), &mut |c| commands.push(c)));
         assert_eq!(commands.len(), 2);
     }
 
@@ -500,9 +515,8 @@ mod tests {
         connection.transport.to_device.extend(bytes);
         connection.transport.closed = true;
         let mut commands = Vec::new();
-        assert!(
-            !connection.pass(0, &StatusView::default(), &mut settings(), &mut |c| commands.push(c))
-        );
+        assert!(!connection
+            .pass(0, &StatusView::default(), &[], &mut settings(), &mut |c| commands.push(c)));
         assert_eq!(commands, vec![control(ControlCommand::Disarm)]);
     }
 
@@ -520,7 +534,7 @@ mod tests {
         let mut received = Vec::new();
         let deadline = Instant::now() + Duration::from_secs(2);
         while responses(&received).len() < 2 && Instant::now() < deadline {
-            links.pass(0, &view, &mut settings(), &mut |c| commands.push(c));
+            links.pass(0, &view, &[], &mut settings(), &mut |c| commands.push(c));
             let mut buffer = [0u8; 1024];
             if let Ok(n) = client.read(&mut buffer) {
                 received.extend_from_slice(&buffer[..n]);
@@ -537,7 +551,7 @@ mod tests {
         drop(client);
         let deadline = Instant::now() + Duration::from_secs(2);
         while links.connections() > 0 && Instant::now() < deadline {
-            links.pass(0, &view, &mut settings(), &mut |_| {});
+            links.pass(0, &view, &[], &mut settings(), &mut |_| {});
             std::thread::sleep(Duration::from_millis(1));
         }
         assert_eq!(links.connections(), 0, "the closed client is dropped");

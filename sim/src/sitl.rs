@@ -304,6 +304,7 @@ impl Runner {
         let mut pty =
             self.pty.take().map(|transport| Connection::new(transport, self.info.clone()));
         let ticks_per_link_pass = (LINK_PERIOD_US / firmware_period_us()).max(1);
+        let mut step_records = Vec::with_capacity(firmware::app::STEP_RING_LEN);
         let ending = loop {
             if self.stop.load(Ordering::Relaxed) {
                 break Ending::Stop;
@@ -337,15 +338,17 @@ impl Runner {
             }
             let view = status_view(&app.control, &app.background);
             let now_us = clock.firmware_us();
+            app.drain_telemetry(&mut step_records);
+            let records = step_records.as_slice();
             // Everything a link asked of the other tasks goes to them after the pass, as the
             // board's link task hands it over; a restart waits until the reply has gone out.
             let mut reboot = false;
             let mut dispatch = |request| reboot |= app.dispatch(request, now_us);
             if let Some(connection) = &mut pty {
-                connection.pass(now_us, &view, settings, &mut dispatch);
+                connection.pass(now_us, &view, records, settings, &mut dispatch);
             }
             if let Some(tcp) = &mut self.tcp {
-                tcp.pass(now_us, &view, settings, &mut dispatch);
+                tcp.pass(now_us, &view, records, settings, &mut dispatch);
             }
             if let Some(params) = settings.service(&view) {
                 app.configure(&params, now_us);

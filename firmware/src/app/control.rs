@@ -19,6 +19,7 @@ use super::background::BackgroundResults;
 use super::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use super::pilot::{Failsafe, IdentificationFailure, Pilot, PilotStatus};
 use super::queue::{LearnerSample, SampleProducer};
+use super::telemetry::{StepProducer, StepRecord};
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
 use flight::learner::{FlightPhase, ThrowToFly};
@@ -144,6 +145,8 @@ pub struct ControlLoop<'q> {
     /// `LearnedModel::samples` of the model last received (to copy only what changed).
     model_samples: Option<u32>,
     samples: SampleProducer<'q>,
+    /// The telemetry ring to the link task, when the board streams per-step topics.
+    telemetry: Option<StepProducer<'q>>,
     snapshot: ControlSnapshot,
     previous_step_us: Option<u64>,
     steps_without_imu: u32,
@@ -167,12 +170,19 @@ impl<'q> ControlLoop<'q> {
             pilot: Pilot::new(f32::from(rate_hz)),
             model_samples: None,
             samples,
+            telemetry: None,
             snapshot: ControlSnapshot::default(),
             previous_step_us: None,
             steps_without_imu: 0,
             rate_window_start_us: 0,
             rate_window_steps: 0,
         }
+    }
+
+    /// Write one [`StepRecord`] per step into `ring` for the link's per-step telemetry.
+    pub fn with_telemetry(mut self, ring: StepProducer<'q>) -> Self {
+        self.telemetry = Some(ring);
+        self
     }
 
     /// Carry out a command from another task (takes effect in this step or the next).
@@ -354,6 +364,21 @@ impl<'q> ControlLoop<'q> {
             });
         }
         self.snapshot.samples_dropped = self.samples.dropped();
+        if let Some(ring) = &mut self.telemetry {
+            let snapshot = &self.snapshot;
+            ring.push(StepRecord {
+                step: snapshot.steps,
+                t_us: now_us,
+                imu: sample,
+                q_world_imu: snapshot.pilot.q_world_imu,
+                phase: snapshot.phase,
+                failed: snapshot.failure != LearnerFailure::None,
+                flying: snapshot.pilot.flying,
+                motor_count: snapshot.motor_count,
+                commands: snapshot.commands,
+                speeds_rad_s: snapshot.speeds_rad_s,
+            });
+        }
         self.samples.has_waiting()
     }
 

@@ -2,23 +2,26 @@
 //! board; a pseudo-terminal or TCP in the simulator).
 //!
 //! Bytes in → frames → requests → one response each (ok or a typed error), matched by sequence
-//! number. Telemetry topics are sampled at the rate the host chose and serialised straight into
-//! the transmit buffer; each topic counts its samples in the frame sequence number, so a sample
-//! dropped for lack of transmit space is a gap the host can count. Bad frames are counted and
+//! number. Telemetry is serialised straight into the transmit buffer at the rate the host chose:
+//! the per-step topics from the control step's records ([`LinkServer::stream`]), the others
+//! sampled from the latest snapshot ([`LinkServer::poll`]). Each topic counts its samples in the
+//! frame sequence number, so a sample dropped for lack of transmit space is a gap the host can
+//! count. Bad frames are counted and
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
 use super::params;
 use super::settings::Settings;
+use super::telemetry::{wire_phase, StepRecord};
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::{AxisStatus, FlightPhase};
 use protocol::text as short_text;
 use protocol::{
     CalibrationThrow, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError, Decoder,
-    DeviceError, DeviceMessage, Event, FrameError, ImuStatus, ImuTelemetry, LearnerFailure,
-    LearnerPhase, LearnerTelemetry, LinkCounters, MotorTelemetry, ParamRef, Reply, Request,
-    Response, SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS,
-    MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
+    DeviceError, DeviceMessage, Event, FrameError, ImuStatus, LearnerFailure, LearnerPhase,
+    LearnerTelemetry, LinkCounters, ParamRef, Reply, Request, Response, SetTelemetryRate, Status,
+    Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION,
+    TOPIC_COUNT,
 };
 
 /// Commands for the control step that may wait between two link passes.
@@ -49,7 +52,9 @@ struct TopicState {
     /// Sampling period, µs; 0 when the topic is off.
     period_us: u32,
     next_due_us: u64,
-    /// Samples taken so far (sent or dropped): the frame sequence number.
+    /// A per-step topic sends every this many control steps (0 when off).
+    step_divider: u32,
+    /// Samples taken so far (sent or dropped): the frame sequence number of a sampled topic.
     seq: u16,
 }
 
@@ -160,8 +165,27 @@ impl LinkServer {
         }
     }
 
-    /// Sample the telemetry topics that are due and emit pending events. Call at least as often
-    /// as the fastest topic (the board calls it every millisecond).
+    /// Serialise one control step's samples of the per-step topics that are on and due (every
+    /// `step_divider`-th step). Feed it every record the ring holds, oldest first, before
+    /// [`LinkServer::poll`]. A sample that does not fit the transmit buffer is dropped whole and
+    /// counted; its sequence number (the step count over the divider) is then a gap.
+    pub fn stream(&mut self, record: &StepRecord) {
+        for topic in Topic::ALL.into_iter().filter(|t| t.is_per_step()) {
+            let divider = self.topics[topic.index()].step_divider;
+            if divider == 0 || !record.step.is_multiple_of(divider) {
+                continue;
+            }
+            let Some(sample) = record.sample(topic) else { continue };
+            let seq = (record.step / divider) as u16;
+            if self.send(&DeviceMessage::Telemetry(sample), seq, RESPONSE_RESERVE).is_err() {
+                self.counters.telemetry_dropped = self.counters.telemetry_dropped.wrapping_add(1);
+            }
+        }
+    }
+
+    /// Sample the telemetry topics the link samples itself (not the per-step ones) that are due,
+    /// and emit pending events. Call at least as often as the fastest topic (the board calls it
+    /// every millisecond).
     pub fn poll(&mut self, now_us: u64, view: &StatusView) {
         for topic in Topic::ALL {
             let state = self.topics[topic.index()];
@@ -175,7 +199,8 @@ impl LinkServer {
             } else {
                 state.next_due_us + period_us
             };
-            let message = DeviceMessage::Telemetry(sample_topic(topic, view, state.seq));
+            let Some(sample) = sample_topic(topic, view, state.seq) else { continue };
+            let message = DeviceMessage::Telemetry(sample);
             if self.send(&message, state.seq, RESPONSE_RESERVE).is_err() {
                 self.counters.telemetry_dropped = self.counters.telemetry_dropped.wrapping_add(1);
             }
@@ -428,9 +453,13 @@ impl LinkServer {
             });
         }
         let state = &mut self.topics[setting.topic.index()];
-        state.period_us =
-            if setting.rate_hz == 0 { 0 } else { 1_000_000 / u32::from(setting.rate_hz) };
+        let rate_hz = u32::from(setting.rate_hz);
+        state.period_us = 1_000_000u32.checked_div(rate_hz).unwrap_or(0);
         state.next_due_us = now_us;
+        // The nearest whole number of control steps per sample.
+        let control_hz = u32::from(self.info.control_rate_hz).max(1);
+        state.step_divider =
+            (control_hz + rate_hz / 2).checked_div(rate_hz).map_or(0, |divider| divider.max(1));
         Ok(Reply::Done)
     }
 
@@ -485,26 +514,19 @@ impl LinkServer {
     }
 }
 
-fn sample_topic(topic: Topic, view: &StatusView, seq: u16) -> Telemetry {
+/// A sample of a topic the link samples itself, from the latest snapshot (`None` for the
+/// per-step topics, which [`LinkServer::stream`] sends).
+fn sample_topic(topic: Topic, view: &StatusView, seq: u16) -> Option<Telemetry> {
     let control = &view.control;
     match topic {
-        Topic::Learner => Telemetry::Learner(learner_telemetry(view, (seq % 2) as u8)),
-        Topic::Imu => Telemetry::Imu(ImuTelemetry {
-            t_us: control.imu_t_us,
-            gyro_rad_s: control.imu.gyro_rad_s,
-            accel_mps2: control.imu.accel_mps2,
-        }),
-        Topic::Control => Telemetry::Control(ControlTelemetry {
+        Topic::Learner => Some(Telemetry::Learner(learner_telemetry(view, (seq % 2) as u8))),
+        Topic::Control => Some(Telemetry::Control(ControlTelemetry {
             t_us: control.t_us,
             steps: control.steps,
             late_steps: control.late_steps,
             samples_dropped: control.samples_dropped,
-        }),
-        Topic::Motors => Telemetry::Motors(MotorTelemetry {
-            t_us: control.t_us,
-            commands: control.commands,
-            speeds_rad_s: control.speeds_rad_s,
-        }),
+        })),
+        Topic::Imu | Topic::Motors | Topic::State => None,
     }
 }
 
@@ -533,13 +555,7 @@ pub fn learner_telemetry(view: &StatusView, block: u8) -> LearnerTelemetry {
     };
     let phase = match control.phase {
         _ if attempt_over && failure != LearnerFailure::None => LearnerPhase::Failed,
-        FlightPhase::Idle if failure != LearnerFailure::None => LearnerPhase::Failed,
-        FlightPhase::Idle => LearnerPhase::Idle,
-        FlightPhase::WaitingForThrow => LearnerPhase::WaitingForThrow,
-        FlightPhase::Throwing => LearnerPhase::Throwing,
-        FlightPhase::Released => LearnerPhase::Released,
-        FlightPhase::Exciting => LearnerPhase::Exciting,
-        FlightPhase::Done => LearnerPhase::Done,
+        phase => wire_phase(phase, failure != LearnerFailure::None),
     };
     let mut out = LearnerTelemetry {
         t_us: control.t_us,

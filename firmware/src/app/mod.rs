@@ -2,8 +2,10 @@
 //!
 //! Three parts, one per RTIC task priority (DESIGN.md, "Data flow at 2 kHz"):
 //! - [`ControlLoop`] (highest priority, 2 kHz timer): IMU in, motor commands out, one compact
-//!   [`LearnerSample`] per IMU sample into a lock-free queue;
-//! - [`LinkServer`] (middle priority, USB): the protocol, answering from a [`StatusView`];
+//!   [`LearnerSample`] per IMU sample into a lock-free queue, one [`StepRecord`] per step into
+//!   the telemetry ring;
+//! - [`LinkServer`] (middle priority, USB): the protocol, answering from a [`StatusView`] and
+//!   streaming the step records;
 //! - [`Background`] (lowest priority): drains the queue and runs what is too slow for the step.
 //!
 //! The parts share nothing but small `Copy` snapshots ([`ControlSnapshot`],
@@ -18,6 +20,7 @@ pub mod params;
 mod pilot;
 mod queue;
 pub mod settings;
+mod telemetry;
 
 pub use background::{
     Background, BackgroundCommand, BackgroundResults, CalibrationState, OffsetSource,
@@ -30,9 +33,11 @@ pub use link::{LinkRequest, LinkServer, TX_CAPACITY};
 pub use params::{Param, Params};
 pub use pilot::{Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus};
 pub use queue::{
-    split_queue, LearnerSample, SampleConsumer, SampleProducer, SampleQueue, SAMPLE_QUEUE_LEN,
+    split_queue, LearnerSample, RingConsumer, RingProducer, SampleConsumer, SampleProducer,
+    SampleQueue, SAMPLE_QUEUE_LEN,
 };
 pub use settings::{NoFlash, Settings};
+pub use telemetry::{StepConsumer, StepProducer, StepRecord, StepRing, STEP_RING_LEN};
 
 use protocol::{
     Capabilities, FirmwareVersion, Info, BOARD_NAME_LEN, PROTOCOL_VERSION, SCHEMA_HASH,

@@ -1,9 +1,10 @@
-//! The queue from the 2 kHz control step to the background task.
+//! The rings out of the 2 kHz control step: learner samples to the background task, step records
+//! to the link task.
 //!
-//! A single-producer single-consumer ring (heapless `spsc`, lock-free): the control step pushes one
-//! compact [`LearnerSample`] per IMU sample and never waits; when the ring is full the sample is
-//! dropped and counted, so a slow background task shows up as a number in the status, never as a
-//! late control step.
+//! Single-producer single-consumer rings (heapless `spsc`, lock-free): the control step pushes
+//! and never waits; when a ring is full the item is dropped whole and counted, so a slow consumer
+//! shows up as a number (or as a gap in a telemetry topic's sequence numbers), never as a late
+//! control step.
 
 use super::hal::{ImuSample, MAX_MOTORS};
 use flight::learner::FlightPhase;
@@ -32,45 +33,52 @@ pub struct LearnerSample {
 /// The ring's storage; split it once with [`SampleQueue::split`].
 pub type SampleQueue = Queue<LearnerSample, SAMPLE_QUEUE_LEN>;
 
-/// The control step's end of the queue: pushes without blocking and counts what it drops.
-pub struct SampleProducer<'q> {
-    inner: Producer<'q, LearnerSample>,
+/// The control step's end of the learner-sample ring.
+pub type SampleProducer<'q> = RingProducer<'q, LearnerSample>;
+/// The background task's end of the learner-sample ring.
+pub type SampleConsumer<'q> = RingConsumer<'q, LearnerSample>;
+
+/// The producing end of a ring: pushes without blocking and counts what it drops.
+pub struct RingProducer<'q, T> {
+    inner: Producer<'q, T>,
     dropped: u32,
 }
 
-/// The background task's end of the queue.
-pub struct SampleConsumer<'q> {
-    inner: Consumer<'q, LearnerSample>,
+/// The consuming end of a ring.
+pub struct RingConsumer<'q, T> {
+    inner: Consumer<'q, T>,
 }
 
-/// Split a queue into its two ends.
-pub fn split_queue(queue: &mut SampleQueue) -> (SampleProducer<'_>, SampleConsumer<'_>) {
+/// Split a ring into its two ends (once, at start-up).
+pub fn split_queue<T, const N: usize>(
+    queue: &mut Queue<T, N>,
+) -> (RingProducer<'_, T>, RingConsumer<'_, T>) {
     let (inner_producer, inner_consumer) = queue.split();
-    (SampleProducer { inner: inner_producer, dropped: 0 }, SampleConsumer { inner: inner_consumer })
+    (RingProducer { inner: inner_producer, dropped: 0 }, RingConsumer { inner: inner_consumer })
 }
 
-impl SampleProducer<'_> {
-    /// Push a sample; when the ring is full, drop it and count it. Never blocks.
-    pub fn push(&mut self, sample: LearnerSample) {
-        if self.inner.enqueue(sample).is_err() {
+impl<T> RingProducer<'_, T> {
+    /// Push an item; when the ring is full, drop it and count it. Never blocks.
+    pub fn push(&mut self, item: T) {
+        if self.inner.enqueue(item).is_err() {
             self.dropped = self.dropped.wrapping_add(1);
         }
     }
 
-    /// Samples dropped so far because the ring was full.
+    /// Items dropped so far because the ring was full.
     pub fn dropped(&self) -> u32 {
         self.dropped
     }
 
-    /// Whether samples are waiting for the consumer.
+    /// Whether items are waiting for the consumer.
     pub fn has_waiting(&self) -> bool {
         !self.inner.is_empty()
     }
 }
 
-impl SampleConsumer<'_> {
-    /// The oldest waiting sample, if any.
-    pub fn pop(&mut self) -> Option<LearnerSample> {
+impl<T> RingConsumer<'_, T> {
+    /// The oldest waiting item, if any.
+    pub fn pop(&mut self) -> Option<T> {
         self.inner.dequeue()
     }
 }
