@@ -6,6 +6,7 @@
 //! - [`report`]: what the board says, in words with units, or as JSON;
 //! - [`offline`]: the `flight` estimators applied to recorded logs and files;
 //! - [`plot`]: recordings and calibration ellipsoids drawn to PNG or SVG;
+//! - [`record`]: telemetry topics written to CSV;
 //! - [`shell`]: the interactive shell (line editing, completion, history).
 
 pub mod config;
@@ -13,5 +14,6 @@ pub mod connect;
 pub mod link;
 pub mod offline;
 pub mod plot;
+pub mod record;
 pub mod report;
 pub mod shell;

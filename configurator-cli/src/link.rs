@@ -124,6 +124,8 @@ pub struct Client {
     pub events: VecDeque<Event>,
     /// Frames from the board that failed to decode (CRC, framing) since connecting.
     pub bad_frames: u32,
+    /// Bytes received from the board since connecting.
+    pub bytes_rx: u64,
 }
 
 impl Client {
@@ -139,6 +141,7 @@ impl Client {
             telemetry: VecDeque::new(),
             events: VecDeque::new(),
             bad_frames: 0,
+            bytes_rx: 0,
         };
         client.discard_stale_input()?;
         let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
@@ -281,7 +284,8 @@ impl Client {
         &mut self,
         mut on_message: impl FnMut(u16, Result<DeviceMessage, Vec<u8>>),
     ) -> Result<(), LinkError> {
-        let mut buffer = [0u8; 1024];
+        // 4 KiB: 16 ms of the 2 kHz state topic per read.
+        let mut buffer = [0u8; 4096];
         let n = match self.transport.read(&mut buffer) {
             // End of file: the board closed the connection (TCP) or hung up (serial).
             Ok(0) => return Err(self.io(ErrorKind::UnexpectedEof.into())),
@@ -292,6 +296,7 @@ impl Client {
         if n == 0 {
             std::thread::sleep(Duration::from_millis(1));
         }
+        self.bytes_rx += n as u64;
         for &byte in &buffer[..n] {
             let Some(result) = self.decoder.push(byte) else { continue };
             let Ok(frame) = result else {

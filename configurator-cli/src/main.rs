@@ -60,15 +60,29 @@ enum Command {
     /// prints every sample on its own line (with --json, one JSON object per line, then the
     /// summary on the last line).
     Stream {
-        /// imu, control, motors or learner.
+        /// imu, control, motors, learner or state (every control step: attitude, rates, motor
+        /// commands and speeds).
         #[arg(long, default_value = "imu")]
         topic: String,
-        /// Samples per second, 1 to 1000.
+        /// Samples per second, 1 to 2000 (imu, motors and state reach every 2 kHz control step;
+        /// control and learner at most 1000).
         #[arg(long, default_value_t = 500)]
         rate_hz: u16,
         /// How long to listen, s.
         #[arg(long, default_value_t = 2.0)]
         duration_s: f64,
+    },
+    /// Record telemetry to CSV: one row per control step (state or imu: the log `fit
+    /// imu-offset` reads), the slower topics' latest values in their own columns.
+    Record {
+        /// Comma-separated topics: state, imu, motors, learner, control.
+        #[arg(long, default_value = "state")]
+        topic: String,
+        /// How long to record, s.
+        #[arg(long, default_value_t = 10.0)]
+        duration_s: f64,
+        /// The CSV file to write (replaced if it exists).
+        output: std::path::PathBuf,
     },
     /// List serial ports and mark flight controllers.
     Ports,
@@ -243,6 +257,11 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
             rate_hz: *rate_hz,
             duration_s: *duration_s,
         },
+        Command::Record { topic, duration_s, output } => {
+            let topics = configurator_cli::record::parse_topics(topic).map_err(input)?;
+            check_duration(*duration_s).map_err(Failure::Input)?;
+            BoardCommand::Record { topics, duration_s: *duration_s, output: output.clone() }
+        }
         Command::Get { name } => BoardCommand::Get(name.clone()),
         Command::Set { assignment } => {
             let words: Vec<&str> = assignment.iter().map(String::as_str).collect();
@@ -302,6 +321,7 @@ enum BoardCommand {
     Arm,
     Disarm,
     Stream { topic: Topic, rate_hz: u16, duration_s: f64 },
+    Record { topics: Vec<Topic>, duration_s: f64, output: std::path::PathBuf },
     Get(String),
     Set { name: String, values: Vec<f32> },
     Dump,
@@ -431,6 +451,9 @@ fn run_on_board(cli: &Cli, client: &mut Client, command: BoardCommand) -> Result
         }
         BoardCommand::Stream { topic, rate_hz, duration_s } => {
             stream(client, topic, rate_hz, duration_s, cli.json)
+        }
+        BoardCommand::Record { topics, duration_s, output } => {
+            record(client, &topics, duration_s, &output, cli.json)
         }
         BoardCommand::Get(name) => {
             let info = config::fetch(client, protocol::ParamRef::Name(protocol::text(&name)))?;
@@ -844,38 +867,94 @@ fn fetch_learner(client: &mut Client) -> Result<Option<protocol::LearnerTelemetr
 }
 
 fn stream_arguments(topic: &str, rate_hz: u16, duration_s: f64) -> Result<Topic, InputError> {
-    let topic = match topic {
-        "imu" => Topic::Imu,
-        "control" => Topic::Control,
-        "motors" => Topic::Motors,
-        "learner" => Topic::Learner,
-        other => {
-            return Err(InputError(format!(
-                "unknown topic `{other}`; choose imu, control, motors or learner"
-            )))
-        }
-    };
+    let topic = configurator_cli::record::parse_topic(topic).map_err(InputError)?;
     if !(1..=protocol::MAX_TELEMETRY_RATE_HZ).contains(&rate_hz) {
         return Err(InputError(format!(
             "--rate-hz {rate_hz} is outside 1 to {} Hz",
             protocol::MAX_TELEMETRY_RATE_HZ
         )));
     }
-    if !(duration_s.is_finite() && (0.1..=3600.0).contains(&duration_s)) {
-        return Err(InputError(format!("--duration-s {duration_s} is outside 0.1 to 3600 s")));
-    }
+    check_duration(duration_s)?;
     Ok(topic)
 }
 
-/// Whether a telemetry sample belongs to `topic`.
-fn is_topic(data: &Telemetry, topic: Topic) -> bool {
-    matches!(
-        (data, topic),
-        (Telemetry::Imu(_), Topic::Imu)
-            | (Telemetry::Control(_), Topic::Control)
-            | (Telemetry::Motors(_), Topic::Motors)
-            | (Telemetry::Learner(_), Topic::Learner)
-    )
+/// A listening time between 0.1 s and one hour.
+fn check_duration(duration_s: f64) -> Result<(), InputError> {
+    if !(duration_s.is_finite() && (0.1..=3600.0).contains(&duration_s)) {
+        return Err(InputError(format!("--duration-s {duration_s} is outside 0.1 to 3600 s")));
+    }
+    Ok(())
+}
+
+/// Record topics to a CSV file; the file is created only once the board is connected.
+fn record(
+    client: &mut Client,
+    topics: &[Topic],
+    duration_s: f64,
+    output: &std::path::Path,
+    json_output: bool,
+) -> Result<String, Failure> {
+    use configurator_cli::record::{self, RecordError};
+    let file = std::fs::File::create(output).map_err(|e| {
+        Failure::Input(InputError(format!("record: cannot create {}: {e}", output.display())))
+    })?;
+    let names: Vec<&str> = topics.iter().map(|&t| record::topic_name(t)).collect();
+    eprintln!("recording {} for {duration_s} s into {}…", names.join(", "), output.display());
+    let duration = Duration::from_secs_f64(duration_s);
+    let (summary, bytes) =
+        match record::record(client, topics, duration, std::io::BufWriter::new(file)) {
+            Ok(done) => done,
+            Err(RecordError::Link(error)) => return Err(error.into()),
+            Err(RecordError::Write(error)) => {
+                return Err(LinkError::Unexpected(format!(
+                    "record: writing {}: {error}",
+                    output.display()
+                ))
+                .into())
+            }
+        };
+    let bytes_per_s = bytes as f64 / duration_s;
+    if json_output {
+        let topics: Vec<_> = summary
+            .topics
+            .iter()
+            .map(|c| {
+                json!({"topic": record::topic_name(c.topic), "received": c.received, "gaps": c.gaps})
+            })
+            .collect();
+        return Ok(format!(
+            "{:#}\n",
+            json!({
+                "output": output.display().to_string(),
+                "rows": summary.rows,
+                "span_s": summary.span_s,
+                "gaps": summary.gaps(),
+                "topics": topics,
+                "bytes": bytes,
+                "bytes_per_s": bytes_per_s,
+                "bad_frames": client.bad_frames,
+            })
+        ));
+    }
+    let mut out = format!(
+        "wrote {}: {} rows over {:.3} s of board time; {:.0} kB/s received\n",
+        output.display(),
+        summary.rows,
+        summary.span_s,
+        bytes_per_s / 1000.0
+    );
+    for count in &summary.topics {
+        out.push_str(&format!(
+            "  {}: {} samples, {} missing\n",
+            record::topic_name(count.topic),
+            count.received,
+            count.gaps
+        ));
+    }
+    if summary.gaps() > 0 {
+        out.push_str("  samples are missing: the link could not keep up (see the gaps above)\n");
+    }
+    Ok(out)
 }
 
 /// Stream a topic and count samples and gaps (from the per-topic sequence numbers).
@@ -890,15 +969,20 @@ fn stream(
     client.request(&set(rate_hz), "the telemetry rate request")?;
     // Count as samples arrive (nothing is kept): only this topic, only from now on.
     client.telemetry.clear();
+    let bytes_before = client.bytes_rx;
     let (mut received, mut gaps, mut previous_seq) = (0u64, 0u64, None::<u16>);
+    let (mut first_t_us, mut last_t_us) = (None::<u64>, 0u64);
     let (mut last_imu, mut last_learner) = (None, None);
     // Learner samples are printed as they arrive, one line each (text or JSON).
     let mut stdout = std::io::stdout().lock();
     client.listen_with(Duration::from_secs_f64(duration_s), |sample| {
-        if !is_topic(&sample.data, topic) {
+        if configurator_cli::record::topic_of(&sample.data) != topic {
             return;
         }
         received += 1;
+        let t_us = configurator_cli::record::time_us(&sample.data);
+        first_t_us.get_or_insert(t_us);
+        last_t_us = t_us;
         if let Some(previous) = previous_seq {
             gaps += u64::from(sample.seq.wrapping_sub(previous).wrapping_sub(1));
         }
@@ -919,8 +1003,10 @@ fn stream(
     })?;
     let _ = stdout.flush();
     drop(stdout);
+    let bytes_per_s = (client.bytes_rx - bytes_before) as f64 / duration_s;
     client.request(&set(0), "the request to stop telemetry")?;
     let achieved_hz = received as f64 / duration_s;
+    let span_s = first_t_us.map_or(0.0, |first| (last_t_us - first) as f64 * 1e-6);
     if json_output {
         let summary = json!({
             "topic": format!("{topic:?}").to_lowercase(),
@@ -929,6 +1015,8 @@ fn stream(
             "received": received,
             "gaps": gaps,
             "received_rate_hz": achieved_hz,
+            "board_time_span_s": span_s,
+            "bytes_per_s": bytes_per_s,
             "bad_frames": client.bad_frames,
         });
         // After one JSON object per learner sample, the summary too takes one line.
@@ -939,8 +1027,9 @@ fn stream(
         });
     }
     let mut out = format!(
-        "{topic:?}: {received} samples in {duration_s:.1} s ({achieved_hz:.1} Hz of {rate_hz} Hz requested), {gaps} missing, {} bad frames\n",
-        client.bad_frames
+        "{topic:?}: {received} samples in {duration_s:.1} s ({achieved_hz:.1} Hz of {rate_hz} Hz requested, {span_s:.3} s of board time), {gaps} missing, {} bad frames, {:.0} kB/s\n",
+        client.bad_frames,
+        bytes_per_s / 1000.0
     );
     if let Some(imu) = last_imu {
         out.push_str(&format!(

@@ -5,6 +5,7 @@
 mod bench;
 mod build;
 mod ci;
+mod telemetry;
 mod util;
 
 use std::process::ExitCode;
@@ -17,6 +18,7 @@ commands:
   build       build the release firmware ELF for the STM32H743 and print flash and RAM use
   flash       program a board through probe-rs, or through the ROM DFU bootloader (dfu-util)
   sitl        run the configurator against the built-in simulator (the README's main job)
+  telemetry   stream the SITL's 2 kHz state topic for 60 s (or SECONDS) and count gaps
   bench       host benchmarks (criterion)
   bench-m7    Cortex-M7 instruction counts under QEMU (mps2-an500)
 ";
@@ -33,6 +35,7 @@ fn main() -> ExitCode {
         "build" => build::build(rest).map(|_| ()),
         "flash" => build::flash(rest),
         "sitl" => ci::sitl(rest),
+        "telemetry" => telemetry::telemetry(rest),
         "bench" => bench::host(rest),
         "bench-m7" => bench::m7(rest),
         "-h" | "--help" | "help" => {

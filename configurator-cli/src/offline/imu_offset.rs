@@ -86,13 +86,13 @@ const REQUIRED_COLUMNS: [&str; 7] = ["t", "gyro_x", "gyro_y", "gyro_z", "acc_x",
 const MAX_INTERVAL_DEVIATION: f64 = 0.10;
 
 /// One log, read and checked.
-struct Log {
+pub(crate) struct Log {
     path: PathBuf,
     /// Time of each sample (s), as in the file.
     t_s: Vec<f64>,
-    samples: Vec<ImuSample>,
+    pub(crate) samples: Vec<ImuSample>,
     /// Sample rate (Hz), rounded to a whole number of hertz.
-    rate_hz: f32,
+    pub(crate) rate_hz: f32,
 }
 
 /// Run the command; returns the complete stdout text.
@@ -243,7 +243,7 @@ fn text_output(e: &Estimate<f64>, segments: &[(String, f64, f64)], drag: bool) -
 }
 
 /// Read and check one log.
-fn read_log(path: &Path) -> Result<Log, InputError> {
+pub(crate) fn read_log(path: &Path) -> Result<Log, InputError> {
     let file = path.display();
     let text = std::fs::read_to_string(path)
         .map_err(|e| InputError(format!("{file}: cannot read: {e}")))?;
