@@ -3,6 +3,7 @@
 //! - [`link`]: the protocol client (handshake, requests, telemetry);
 //! - [`config`]: the board's parameters: get, set, dump, diff, apply;
 //! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
+//! - [`identify`]: the guided throw-and-fly identification;
 //! - [`report`]: what the board says, in words with units, or as JSON;
 //! - [`offline`]: the `flight` estimators applied to recorded logs and files;
 //! - [`plot`]: recordings and calibration ellipsoids drawn to PNG or SVG;
@@ -11,6 +12,7 @@
 
 pub mod config;
 pub mod connect;
+pub mod identify;
 pub mod link;
 pub mod offline;
 pub mod plot;

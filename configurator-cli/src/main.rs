@@ -119,6 +119,21 @@ enum Command {
     /// Guided calibration on the board.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
+    /// Throw-and-fly identification: arm, throw the craft, and the board pulses each motor,
+    /// learns its actuators and flies on what it learned. MOTORS WILL SPIN. The learned model
+    /// goes into the parameters (`save` stores it).
+    Identify {
+        /// Confirm that the craft is ready to fly (propellers on, area clear) without asking.
+        #[arg(long)]
+        yes: bool,
+        /// Disarm when no throw has come this long after arming, s.
+        #[arg(long, default_value_t = 60.0)]
+        timeout_s: f64,
+        /// Disarm this long after the craft flies on the learned model, s (default: leave it
+        /// flying; `disarm` stops it).
+        #[arg(long)]
+        disarm_after_s: Option<f64>,
+    },
     /// Spin one motor to check its wiring and direction. PROPELLERS OFF. It stops by itself 3 s
     /// after the configurator stops asking, and at once on disconnect or Ctrl-C.
     MotorTest {
@@ -293,6 +308,23 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
             }
             BoardCommand::Calibrate { yes: *yes, max_throws: *max_throws, timeout_s: *timeout_s }
         }
+        Command::Identify { yes, timeout_s, disarm_after_s } => {
+            if !(timeout_s.is_finite() && (1.0..=3600.0).contains(timeout_s)) {
+                return Err(input(format!("--timeout-s {timeout_s} is outside 1 to 3600 s")));
+            }
+            if let Some(hold_s) = disarm_after_s {
+                if !(hold_s.is_finite() && (0.0..=600.0).contains(hold_s)) {
+                    return Err(input(format!("--disarm-after-s {hold_s} is outside 0 to 600 s")));
+                }
+            }
+            BoardCommand::Identify {
+                yes: *yes,
+                options: configurator_cli::identify::IdentifyOptions {
+                    throw_timeout_s: *timeout_s,
+                    disarm_after_s: *disarm_after_s,
+                },
+            }
+        }
         Command::MotorTest { motor, command, duration_s, yes } => {
             if !(0.0..=protocol::MOTOR_TEST_MAX_COMMAND).contains(command) {
                 return Err(input(format!(
@@ -333,6 +365,7 @@ enum BoardCommand {
     Shell,
     Apply { file: String, text: String },
     Calibrate { yes: bool, max_throws: u8, timeout_s: f64 },
+    Identify { yes: bool, options: configurator_cli::identify::IdentifyOptions },
     MotorTest { motor: u8, command: f32, duration_s: f64, yes: bool },
 }
 
@@ -349,6 +382,8 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
             auto_throw_every_s: throwing.then_some(SITL_THROW_INTERVAL_S),
             auto_throw_count: Some(usize::from(cli.sitl_throws)),
             speed: if throwing { SITL_THROW_SPEED } else { 1.0 },
+            // The built-in simulator has a person to throw the craft for `identify`.
+            hand_throws_to_fly: true,
             ..Default::default()
         };
         let sitl = sim::sitl::Sitl::start(&config).map_err(ConnectError::from)?;
@@ -566,6 +601,7 @@ fn run_on_board(cli: &Cli, client: &mut Client, command: BoardCommand) -> Result
         BoardCommand::Calibrate { yes, max_throws, timeout_s } => {
             calibrate_imu_offset(client, yes, max_throws, timeout_s, cli.json)
         }
+        BoardCommand::Identify { yes, options } => identify(client, yes, options, cli.json),
         BoardCommand::MotorTest { motor, command, duration_s, yes } => {
             motor_test(client, motor, command, duration_s, yes)
         }
@@ -688,6 +724,52 @@ fn calibrate_imu_offset(
     })
 }
 
+/// The guided throw-and-fly identification: confirm, arm, follow, show the model in units.
+fn identify(
+    client: &mut Client,
+    yes: bool,
+    options: configurator_cli::identify::IdentifyOptions,
+    json_output: bool,
+) -> Result<String, Failure> {
+    use configurator_cli::identify::{self as id, IdentifyError};
+    if !yes
+        && !confirm(
+            "IDENTIFY: the motors WILL SPIN after the next throw. Propellers on, area clear, ready to throw?",
+        )
+    {
+        return Ok("identification cancelled: nothing armed\n".into());
+    }
+    let found = match id::identify(client, options, &mut |line| eprintln!("{line}")) {
+        Ok(found) => found,
+        Err(IdentifyError::Link(error)) => return Err(error.into()),
+        Err(error) => return Err(LinkError::Unexpected(error.to_string()).into()),
+    };
+    let [force, rotation] = &found.blocks;
+    let stored = found.config.is_some_and(|c| c.unsaved_changes);
+    if json_output {
+        let mut value = report::learner_json(force);
+        if let Some(map) = value.as_object_mut() {
+            map.insert("g1_per_unit_thrust".into(), report::g1_json(force, rotation));
+            map.insert("flew".into(), json!(found.flew));
+            map.insert("disarmed".into(), json!(found.disarmed));
+            map.insert("stored_in_parameters".into(), json!(stored));
+        }
+        return Ok(format!("{value:#}\n"));
+    }
+    let mut out = String::from("learned model:\n");
+    out.push_str(&report::learner_text(force));
+    out.push_str(&report::g1_text(force, rotation));
+    out.push_str(if stored {
+        "stored in the parameters (not saved: `save` writes them to flash; `diff` shows them)\n"
+    } else {
+        "the parameters did not change (the board stores a model only with a hover thrust axis)\n"
+    });
+    if found.flew && !found.disarmed {
+        out.push_str("the craft is flying on the learned model: `configurator-cli disarm` stops the motors\n");
+    }
+    Ok(out)
+}
+
 /// Spin one motor for `duration_s`, keeping it alive every 0.5 s; the board stops it 3 s after
 /// the last keep-alive, so a configurator that dies cannot leave it spinning.
 fn motor_test(
@@ -775,6 +857,8 @@ const SHELL_COMMANDS: &[(&str, &str, &str)] = &[
     ("info", "info", "the board's identity and status"),
     ("version", "version", "firmware and configurator versions"),
     ("calibrate", "calibrate imu-offset [--yes]", "guided IMU-offset calibration"),
+    ("identify", "identify [--disarm-after-s 5]", "throw-and-fly: learn the motors and fly"),
+    ("record", "record --topic state --duration-s 10 FILE.csv", "record telemetry to CSV"),
     ("motor-test", "motor-test --motor N [--command 0.1]", "spin one motor (propellers off!)"),
     ("stream", "stream --topic imu [--rate-hz 500]", "stream a telemetry topic, count gaps"),
     ("arm-throw-to-fly", "arm-throw-to-fly", "the motors spin after the next throw"),

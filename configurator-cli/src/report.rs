@@ -301,6 +301,42 @@ pub fn learner_text(learner: &LearnerTelemetry) -> String {
     out
 }
 
+/// G1 per unit normalised thrust as a table: a column per motor, the specific-force rows (m/s²)
+/// from `force` (block 0) and the angular-acceleration rows (rad/s²) from `rotation` (block 1).
+pub fn g1_text(force: &LearnerTelemetry, rotation: &LearnerTelemetry) -> String {
+    let m = usize::from(force.motor_count).min(protocol::MAX_MOTORS);
+    let mut out = format!("  {:<30}", "G1 per unit thrust, IMU axes");
+    for i in 0..m {
+        let _ = write!(out, "{:>10}", format!("motor {}", i + 1));
+    }
+    out.push('\n');
+    let rows = [
+        ("specific force x", "m/s²", force.g1_rows[0]),
+        ("specific force y", "m/s²", force.g1_rows[1]),
+        ("specific force z", "m/s²", force.g1_rows[2]),
+        ("angular accel. x", "rad/s²", rotation.g1_rows[0]),
+        ("angular accel. y", "rad/s²", rotation.g1_rows[1]),
+        ("angular accel. z", "rad/s²", rotation.g1_rows[2]),
+    ];
+    for (name, unit, row) in rows {
+        let _ = write!(out, "    {name:<17} {unit:<10}");
+        for value in &row[..m] {
+            let _ = write!(out, "{value:>10.1}");
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// G1 per unit normalised thrust for programs: six rows (fx, fy, fz in m/s²; p, q, r in rad/s²)
+/// of one value per motor.
+pub fn g1_json(force: &LearnerTelemetry, rotation: &LearnerTelemetry) -> Value {
+    let m = usize::from(force.motor_count).min(protocol::MAX_MOTORS);
+    let rows: Vec<&[f32]> =
+        force.g1_rows.iter().chain(&rotation.g1_rows).map(|r| &r[..m]).collect();
+    json!({ "rows": ["fx_mps2", "fy_mps2", "fz_mps2", "p_radps2", "q_radps2", "r_radps2"], "values": rows })
+}
+
 /// The learner's state and estimates, for programs. `exciting_motor` and the bits of the masks
 /// are motor indices from 0 (the text numbers motors from 1); `thrust_axis` is null until found.
 pub fn learner_json(learner: &LearnerTelemetry) -> Value {

@@ -70,7 +70,17 @@ pub struct SitlConfig {
     /// The flash file holding the saved configuration (created erased when missing); `None`:
     /// no configuration store (changes last until the SITL stops).
     pub flash_file: Option<PathBuf>,
+    /// Have the simulated hand throw the craft for flight, as a person would, once the board
+    /// has been armed for throw-to-fly for [`ARMED_TO_THROW_S`]: the seed paper's throw (a
+    /// 3.5 m parabola released at (400, 400, 100) °/s), nothing to catch it; the hand grips the
+    /// craft again where it is as soon as the board disarms (or its attempt fails). The
+    /// automatic calibration throws pause while the board is armed.
+    pub hand_throws_to_fly: bool,
 }
+
+/// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
+/// simulated s (the person reads the prompt and throws).
+pub const ARMED_TO_THROW_S: f64 = 1.0;
 
 /// Largest accepted IMU offset component, m.
 pub const MAX_IMU_OFFSET_M: f32 = 1.0;
@@ -103,6 +113,7 @@ impl Default for SitlConfig {
             mocap: false,
             imu_offset_m: None,
             flash_file: None,
+            hand_throws_to_fly: false,
         }
     }
 }
@@ -188,6 +199,7 @@ impl Sitl {
             auto_throw_every_s: config.auto_throw_every_s,
             auto_throw_count: config.auto_throw_count,
             throw_to_fly: config.throw_to_fly,
+            hand_throws_to_fly: config.hand_throws_to_fly,
             mocap: config.mocap,
             imu_offset_m: config.imu_offset_m,
             info,
@@ -234,6 +246,7 @@ struct Runner {
     auto_throw_every_s: Option<f64>,
     auto_throw_count: Option<usize>,
     throw_to_fly: bool,
+    hand_throws_to_fly: bool,
     imu_offset_m: Option<[f32; 3]>,
     mocap: bool,
     info: BoardInfo,
@@ -260,6 +273,7 @@ impl Runner {
         let mut board = SimBoard::new(&self.airframe, &config);
         let mut mocap = self.mocap.then(|| crate::recovery::MotionCapture::new(self.seed));
         let mut throws_done = 0usize;
+        let mut flight_hand = FlightHand::default();
         let start = Instant::now();
         let mut first_boot = true;
         loop {
@@ -277,7 +291,8 @@ impl Runner {
                 }
                 let boot_us = board.now_us();
                 let mut clock = Clock { board: &mut board, boot_us, start };
-                self.serve(app, &mut settings, &mut clock, &mut mocap, &mut throws_done)
+                let hands = Hands { throws_done: &mut throws_done, flight: &mut flight_hand };
+                self.serve(app, &mut settings, &mut clock, &mut mocap, hands)
             });
             first_boot = false;
             self.flash = settings.into_flash();
@@ -299,8 +314,9 @@ impl Runner {
         settings: &mut Settings<FileFlash>,
         clock: &mut Clock<'_>,
         mocap: &mut Option<crate::recovery::MotionCapture>,
-        throws_done: &mut usize,
+        hands: Hands<'_>,
     ) -> Ending {
+        let Hands { throws_done, flight: flight_hand } = hands;
         let mut pty =
             self.pty.take().map(|transport| Connection::new(transport, self.info.clone()));
         let ticks_per_link_pass = (LINK_PERIOD_US / firmware_period_us()).max(1);
@@ -317,9 +333,15 @@ impl Runner {
             // One link period of simulated time: control ticks, then the link task, as the
             // board's timer pends its USB task once per millisecond.
             for _ in 0..ticks_per_link_pass {
+                let snapshot = app.control.snapshot();
                 let more_throws = self.auto_throw_count.is_none_or(|count| *throws_done < count);
-                if let (Some(every_s), true) = (self.auto_throw_every_s, more_throws) {
+                if let (Some(every_s), true, false) =
+                    (self.auto_throw_every_s, more_throws, snapshot.armed)
+                {
                     auto_throw(clock.board, every_s, throws_done);
+                }
+                if self.hand_throws_to_fly {
+                    flight_hand.act(clock.board, &snapshot);
                 }
                 clock.board.tick();
                 let now_us = clock.firmware_us();
@@ -380,6 +402,48 @@ struct Clock<'b> {
 impl Clock<'_> {
     fn firmware_us(&self) -> u64 {
         self.board.now_us() - self.boot_us
+    }
+}
+
+/// The simulated hand's state across restarts: calibration throws done, the flight throw.
+struct Hands<'h> {
+    throws_done: &'h mut usize,
+    flight: &'h mut FlightHand,
+}
+
+/// The person who throws the craft for a throw-to-fly and catches it after the flight.
+#[derive(Debug, Default)]
+struct FlightHand {
+    /// When the board was first seen armed and waiting while held, simulated s.
+    armed_since_s: Option<f64>,
+    /// A flight throw is in the air.
+    in_flight: bool,
+}
+
+impl FlightHand {
+    fn act(&mut self, board: &mut SimBoard, snapshot: &firmware::app::ControlSnapshot) {
+        let now_s = board.time_s();
+        let holding = board.physics().hand().phase() == HandPhase::Holding;
+        let waiting = snapshot.phase == flight::learner::FlightPhase::WaitingForThrow;
+        if self.in_flight {
+            if !snapshot.armed {
+                board.physics_mut().grip();
+                self.in_flight = false;
+            }
+            return;
+        }
+        if !(holding && waiting) {
+            self.armed_since_s = None;
+            return;
+        }
+        let since_s = *self.armed_since_s.get_or_insert(now_s);
+        if now_s - since_s >= ARMED_TO_THROW_S {
+            let physics = board.physics_mut();
+            physics.set_catch(None);
+            physics.throw(&crate::identification::Throw::paper().spec());
+            self.in_flight = true;
+            self.armed_since_s = None;
+        }
     }
 }
 

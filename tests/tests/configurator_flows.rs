@@ -269,3 +269,45 @@ fn a_recording_holds_every_control_step_and_its_attitude_agrees_with_its_acceler
     assert_eq!(rows.last().unwrap()[column("phase")], "idle");
     let _ = std::fs::remove_file(&csv_path);
 }
+
+#[test]
+fn identify_learns_the_motors_and_the_thrust_axis_flies_and_stores_the_model() {
+    let flash = flash_file("identify");
+    let (_sitl, port) =
+        start(&flash, SitlConfig { hand_throws_to_fly: true, ..SitlConfig::default() });
+    let (code, stdout, stderr) =
+        cli(&port, &["--json", "identify", "--yes", "--timeout-s", "20", "--disarm-after-s", "1"]);
+    assert_eq!(code, 0, "identify failed: {stderr}");
+    for step in ["armed", "throw detected", "pulsing motor 4", "identified", "flying", "disarmed"] {
+        assert!(stderr.contains(step), "no `{step}` in the progress: {stderr}");
+    }
+    let report: Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!((report["phase"].as_str(), report["flew"].as_bool()), (Some("Done"), Some(true)));
+    assert_eq!(report["stored_in_parameters"], true, "{report}");
+    let airframe = sim::airframe::Airframe::load("paper-quad").unwrap();
+    let truth = sim::identification::TrueModel::of(&airframe);
+    // The thrust axis: the learned −z of the thrust frame against the truth, in IMU axes.
+    let q: Vec<f64> = report["thrust_axis"]["q_thrust_to_imu"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let learned = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        q[0], q[1], q[2], q[3],
+    ));
+    let down = nalgebra::Vector3::new(0.0, 0.0, -1.0);
+    let angle_deg = (learned * down).angle(&(truth.q_thrust_to_imu * down)).to_degrees();
+    assert!(angle_deg < 3.0, "thrust axis {angle_deg:.2}° from the truth");
+    // The motor time constants, in the report and in the parameters now in force.
+    let tau: Value = serde_json::from_str(&ok(&port, &["--json", "get", "motor_tau_s"])).unwrap();
+    for (i, tau_s) in values(&tau).iter().enumerate() {
+        assert!(
+            (tau_s - truth.tau_s[i]).abs() < 0.003,
+            "motor {i}: τ {tau_s} s vs {}",
+            truth.tau_s[i]
+        );
+    }
+    let diff = ok(&port, &["diff"]);
+    assert!(diff.contains("set thrust_axis_q") && diff.contains("set g1_fz"), "{diff}");
+}

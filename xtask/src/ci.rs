@@ -72,7 +72,7 @@ pub fn sitl(args: &[String]) -> Result<()> {
 }
 
 /// The walkthrough's steps: what the newcomer reads, then the configurator's arguments.
-const WALKTHROUGH: [(&str, &[&str]); 6] = [
+const WALKTHROUGH: [(&str, &[&str]); 8] = [
     ("the board: identity and state (nothing configured yet)", &["info"]),
     (
         "calibrate the IMU offset: the simulated hand throws the craft, spinning, and catches it",
@@ -80,13 +80,19 @@ const WALKTHROUGH: [(&str, &[&str]); 6] = [
     ),
     ("save the configuration to the board's flash", &["save"]),
     ("restart the board: it loads the saved configuration", &["reboot"]),
+    (
+        "throw-and-fly: the hand throws the craft, the board pulses each motor, learns its \
+         actuators and the hover thrust axis, and flies on them (disarmed after 3 s)",
+        &["identify", "--yes", "--disarm-after-s", "3"],
+    ),
+    ("save the learned model", &["save"]),
     ("what differs from the defaults (paste it into `apply` to restore it)", &["diff"]),
     ("the status, with the configuration's origin", &["status"]),
 ];
 
-/// The README's main job: a SITL with a flash file and a hand that throws the craft every 2.5
-/// simulated seconds (4× real time), and the configurator walking through calibrate → save →
-/// restart → diff against it.
+/// The README's main job: a SITL with a flash file and a hand that throws the craft three times,
+/// every 2.5 simulated seconds (4× real time), then throws it to fly once it is armed, and the
+/// configurator walking through calibrate → save → restart → identify → save → diff against it.
 fn walkthrough() -> Result<()> {
     util::run(util::cargo().args([
         "build",
@@ -110,7 +116,8 @@ fn walkthrough() -> Result<()> {
     let mut sitl = Command::new(bin.join("sitl"))
         .args(["--pty-link", &link.display().to_string()])
         .args(["--flash-file", &flash.display().to_string()])
-        .args(["--speed", "4", "--throw-every-s", "2.5", "--throws", "8"])
+        .args(["--speed", "4", "--throw-every-s", "2.5", "--throws", "3"])
+        .arg("--hand-throws-to-fly")
         .stdout(std::process::Stdio::null())
         .spawn()?;
     let started = Instant::now();

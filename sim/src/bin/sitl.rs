@@ -51,6 +51,11 @@ struct Args {
     /// (as `ArmThrowToFly` over the protocol would).
     #[arg(long)]
     throw_to_fly: bool,
+    /// Have the simulated hand throw the craft for flight (the seed paper's 3.5 m throw at
+    /// (400, 400, 100) °/s) one second after the board is armed for throw-to-fly, and grip it
+    /// again when the board disarms: `configurator-cli identify` then needs no person.
+    #[arg(long)]
+    hand_throws_to_fly: bool,
     /// IMU offset for the in-flight learner: the IMU's position relative to the centre of
     /// gravity, IMU axes, mm, as `X,Y,Z` (each within ±1000). Default: the onboard estimate.
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_imu_offset_mm)]
@@ -83,6 +88,7 @@ fn main() -> std::process::ExitCode {
         auto_throw_every_s: args.throw_every_s,
         auto_throw_count: args.throws,
         throw_to_fly: args.throw_to_fly,
+        hand_throws_to_fly: args.hand_throws_to_fly,
         imu_offset_m: args.imu_offset_mm,
         mocap: args.mocap,
         flash_file: (!args.no_flash)
@@ -114,6 +120,9 @@ fn main() -> std::process::ExitCode {
     }
     if args.throw_to_fly {
         println!("  armed for throw-to-fly: the first throw starts the motor excitation");
+    }
+    if args.hand_throws_to_fly {
+        println!("  the hand throws the craft for flight 1 s after the board is armed");
     }
     if args.mocap {
         println!("  motion capture: the true pose at 100 Hz (1 mm, 0.1° noise)");
