@@ -56,6 +56,27 @@ pub fn connect(target: &Target) -> Result<Client, ConnectError> {
     Ok(Client::connect(transport, &name)?)
 }
 
+/// How long [`reconnect`] waits for a restarting board to come back.
+pub const RECONNECT_TIMEOUT: Duration = Duration::from_secs(15);
+/// Pause between two attempts to find and open a restarting board.
+const RECONNECT_RETRY: Duration = Duration::from_millis(250);
+
+/// Open the target again after the board restarted (its USB port disappears and comes back,
+/// perhaps under another name, which [`Target::Discover`] follows): retry [`connect`] until it
+/// succeeds or `timeout` has passed. Close the old client first (serial ports are opened
+/// exclusively). Returns the client and how long the board took to come back.
+pub fn reconnect(target: &Target, timeout: Duration) -> Result<(Client, Duration), ConnectError> {
+    let started = std::time::Instant::now();
+    loop {
+        std::thread::sleep(RECONNECT_RETRY);
+        match connect(target) {
+            Ok(client) => return Ok((client, started.elapsed())),
+            Err(error) if started.elapsed() >= timeout => return Err(error),
+            Err(_) => {}
+        }
+    }
+}
+
 /// The serial port of the one attached board with our VID/PID.
 pub fn discover() -> Result<String, ConnectError> {
     let ports = serialport::available_ports().map_err(ConnectError::Enumerate)?;

@@ -102,6 +102,24 @@ impl std::fmt::Display for DeviceErrorText {
     }
 }
 
+/// The transport of a closed client.
+struct Closed;
+
+impl Read for Closed {
+    fn read(&mut self, _: &mut [u8]) -> std::io::Result<usize> {
+        Ok(0)
+    }
+}
+
+impl Write for Closed {
+    fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+        Err(ErrorKind::NotConnected.into())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
 /// A telemetry sample with its per-topic sequence number.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TelemetrySample {
@@ -159,6 +177,12 @@ impl Client {
         }
         client.info = info;
         Ok(client)
+    }
+
+    /// Close the transport now (the board is restarting, or the port must be reopened); every
+    /// later request fails with [`LinkError::Closed`].
+    pub fn close(&mut self) {
+        self.transport = Box::new(Closed);
     }
 
     /// Whether both sides were built from the same message table.

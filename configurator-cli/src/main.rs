@@ -409,11 +409,16 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
         eprintln!("letting the simulator run for 1.1 s…");
         client.listen(Duration::from_millis(1100))?;
     }
-    run_on_board(cli, &mut client, command)
+    run_on_board(cli, &mut client, &target, command)
 }
 
 /// Run one board command on a connected client (the one-shot commands and the shell).
-fn run_on_board(cli: &Cli, client: &mut Client, command: BoardCommand) -> Result<String, Failure> {
+fn run_on_board(
+    cli: &Cli,
+    client: &mut Client,
+    target: &Target,
+    command: BoardCommand,
+) -> Result<String, Failure> {
     match command {
         BoardCommand::Info => {
             let status = fetch_status(client)?;
@@ -582,7 +587,17 @@ fn run_on_board(cli: &Cli, client: &mut Client, command: BoardCommand) -> Result
         }
         BoardCommand::Reboot => {
             client.request(&Request::Reboot(()), "the reboot request")?;
-            Ok("the board is restarting; connect again in a moment\n".into())
+            eprintln!("the board is restarting…");
+            *client = reconnect(client, target)?;
+            let origin = match client.request(&Request::GetConfig(()), "the configuration request")
+            {
+                Ok(Reply::Config(config)) => report::config_text(&config),
+                _ => String::new(),
+            };
+            Ok(format!(
+                "the board restarted{}",
+                if origin.is_empty() { "\n".into() } else { format!("; {}", origin.trim_start()) }
+            ))
         }
         BoardCommand::Apply { file, text } => {
             let before = config::fetch_all(client)?;
@@ -605,7 +620,7 @@ fn run_on_board(cli: &Cli, client: &mut Client, command: BoardCommand) -> Result
         BoardCommand::MotorTest { motor, command, duration_s, yes } => {
             motor_test(client, motor, command, duration_s, yes)
         }
-        BoardCommand::Shell => shell(cli, client),
+        BoardCommand::Shell => shell(cli, client, target),
     }
 }
 
@@ -797,8 +812,34 @@ fn motor_test(
     Ok(format!("motor {motor} stopped after {:.1} s\n", started.elapsed().as_secs_f64()))
 }
 
+/// Close `client` and open the board again once it has restarted; says so.
+fn reconnect(client: &mut Client, target: &Target) -> Result<Client, Failure> {
+    let port = client.port().to_string();
+    client.close();
+    let (new, took) =
+        configurator_cli::connect::reconnect(target, configurator_cli::connect::RECONNECT_TIMEOUT)
+            .map_err(Failure::Connect)?;
+    eprintln!(
+        "reconnected to {} {} on {} after {:.1} s{}",
+        new.info.board,
+        new.info.serial,
+        new.port(),
+        took.as_secs_f64(),
+        if new.port() == port { String::new() } else { format!(" (was {port})") }
+    );
+    Ok(new)
+}
+
+/// A failure in words.
+fn failure_text(failure: &Failure) -> String {
+    match failure {
+        Failure::Input(error) => error.to_string(),
+        Failure::Connect(error) => error.to_string(),
+    }
+}
+
 /// The interactive shell on a connected board.
-fn shell(cli: &Cli, client: &mut Client) -> Result<String, Failure> {
+fn shell(cli: &Cli, client: &mut Client, target: &Target) -> Result<String, Failure> {
     use configurator_cli::shell::{self as sh, CommandHelp, Next, Vocabulary};
     let parameters = config::fetch_all(client)?.iter().map(|p| p.name.to_string()).collect();
     let commands = SHELL_COMMANDS
@@ -828,7 +869,7 @@ fn shell(cli: &Cli, client: &mut Client) -> Result<String, Failure> {
             other => match board_command(other) {
                 Ok(command) => {
                     let cli = Cli { json: parsed.json || cli.json, ..parsed };
-                    run_on_board(&cli, client, command)
+                    run_on_board(&cli, client, target, command)
                 }
                 Err(failure) => Err(failure),
             },
@@ -836,7 +877,20 @@ fn shell(cli: &Cli, client: &mut Client) -> Result<String, Failure> {
         match outcome {
             Ok(text) => print!("{text}"),
             Err(Failure::Input(error)) => eprintln!("error: {error}"),
-            Err(Failure::Connect(error)) => eprintln!("error: {error}"),
+            Err(Failure::Connect(error)) => {
+                eprintln!("error: {error}");
+                // The board went away (unplugged, restarted by a button): find it again.
+                if matches!(
+                    error,
+                    ConnectError::Link(LinkError::Closed { .. } | LinkError::Io { .. })
+                ) {
+                    eprintln!("the connection was lost; looking for the board again…");
+                    match reconnect(client, target) {
+                        Ok(new) => *client = new,
+                        Err(error) => eprintln!("error: {}", failure_text(&error)),
+                    }
+                }
+            }
         }
         Next::Continue
     });

@@ -242,11 +242,22 @@ impl Transport for TcpStream {
 /// A pseudo-terminal: the server keeps the master and holds the slave open (in raw mode, so the
 /// line discipline neither echoes nor translates bytes, and a client closing it does not hang
 /// up the master).
+///
+/// Bytes the master does not take at once wait in a write-behind buffer of
+/// [`PTY_HOST_BUFFER_BYTES`]: a Linux pseudo-terminal holds about 17 KB for a reader that pauses,
+/// while a USB host's CDC-ACM driver keeps reading the board's endpoint into its tty buffer
+/// (64 KiB) whatever the application does. With the buffer, a configurator that pauses for a
+/// moment loses telemetry on the SITL exactly when it would on a board.
 pub struct Pty {
     master: std::fs::File,
     _slave: std::fs::File,
     slave_path: PathBuf,
+    host_buffer: std::collections::VecDeque<u8>,
 }
+
+/// What a USB host buffers for a CDC-ACM reader beyond the endpoint, bytes (the Linux tty
+/// layer's flip-buffer limit, 64 KiB).
+pub const PTY_HOST_BUFFER_BYTES: usize = 64 * 1024;
 
 impl Pty {
     /// Opens a new pseudo-terminal (non-blocking master, raw slave).
@@ -277,7 +288,12 @@ impl Pty {
                 .custom_flags(libc::O_NOCTTY)
                 .open(&slave_path)?;
             set_raw(&slave)?;
-            Ok(Self { master, _slave: slave, slave_path })
+            Ok(Self {
+                master,
+                _slave: slave,
+                slave_path,
+                host_buffer: std::collections::VecDeque::with_capacity(PTY_HOST_BUFFER_BYTES),
+            })
         }
     }
 
@@ -313,11 +329,30 @@ impl Transport for Pty {
         }
     }
 
+    /// Takes as much of `bytes` as the write-behind buffer has room for, and offers the buffer
+    /// to the master before and after.
     fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-        match self.master.write(bytes) {
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            other => other,
+        self.flush_host_buffer()?;
+        let taken = bytes.len().min(PTY_HOST_BUFFER_BYTES - self.host_buffer.len());
+        self.host_buffer.extend(&bytes[..taken]);
+        self.flush_host_buffer()?;
+        Ok(taken)
+    }
+}
+
+impl Pty {
+    /// Writes what the master takes now from the write-behind buffer.
+    fn flush_host_buffer(&mut self) -> std::io::Result<()> {
+        while !self.host_buffer.is_empty() {
+            let (front, _) = self.host_buffer.as_slices();
+            match self.master.write(front) {
+                Ok(0) => break,
+                Ok(n) => drop(self.host_buffer.drain(..n)),
+                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                Err(e) => return Err(e),
+            }
         }
+        Ok(())
     }
 }
 

@@ -311,3 +311,28 @@ fn identify_learns_the_motors_and_the_thrust_axis_flies_and_stores_the_model() {
     let diff = ok(&port, &["diff"]);
     assert!(diff.contains("set thrust_axis_q") && diff.contains("set g1_fz"), "{diff}");
 }
+
+#[test]
+fn the_shell_reconnects_by_itself_after_a_reboot_and_finds_the_saved_value() {
+    use std::io::Write as _;
+    let flash = flash_file("reconnect");
+    let (_sitl, port) = start(&flash, SitlConfig::default());
+    let mut child = std::process::Command::new(tests::cli_binary())
+        .args(["--port", &port, "shell"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let script = "set gravity_mps2 = 9.79\nsave\nreboot\nget gravity_mps2\nstatus\n";
+    child.stdin.take().unwrap().write_all(script.as_bytes()).unwrap();
+    let output = child.wait_with_output().unwrap();
+    let (stdout, stderr) =
+        (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("reconnected to SITL"), "the shell says it reconnected: {stderr}");
+    assert!(!stderr.contains("error"), "every command after the reboot worked: {stderr}");
+    assert!(stdout.contains("the board restarted; configuration: 23 parameters, loaded from flash"));
+    let after = stdout.split("the board restarted").nth(1).unwrap();
+    assert!(after.contains("gravity_mps2 = 9.79\n"), "the saved value after the reboot: {after}");
+}

@@ -133,9 +133,6 @@ fn walkthrough() -> Result<()> {
         if result.is_err() {
             break;
         }
-        if args[0] == "reboot" {
-            std::thread::sleep(std::time::Duration::from_millis(500));
-        }
     }
     let _ = sitl.kill();
     let _ = sitl.wait();
