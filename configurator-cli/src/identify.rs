@@ -7,7 +7,7 @@
 //! learned model into its parameters by itself (the `g1_*`, `motor_*` and `thrust_axis_q`
 //! parameters), to be saved with `save`.
 
-use crate::link::{Client, LinkError};
+use crate::link::{Client, LinkError, TelemetrySample};
 use protocol::{
     ConfigStatus, LearnerFailure, LearnerPhase, LearnerTelemetry, Reply, Request, SetTelemetryRate,
     StateTelemetry, Telemetry, Topic,
@@ -28,6 +28,8 @@ pub struct IdentifyOptions {
     pub throw_timeout_s: f64,
     /// Disarm this long after the craft flies on the learned model (`None`: leave it flying).
     pub disarm_after_s: Option<f64>,
+    /// Stream the state topic at every control step (for a recording) instead of 50 Hz.
+    pub every_step: bool,
 }
 
 /// What the identification found.
@@ -73,19 +75,21 @@ pub fn failure_text(failure: LearnerFailure) -> &'static str {
 }
 
 /// Arm, follow, report; `say` prints progress lines for the person.
+/// Every telemetry sample goes to `on_sample` too (a recording).
 pub fn identify(
     client: &mut Client,
     options: IdentifyOptions,
     say: &mut dyn FnMut(String),
+    on_sample: &mut dyn FnMut(&TelemetrySample),
 ) -> Result<Identified, IdentifyError> {
     let rate = |topic, rate_hz| Request::SetTelemetryRate(SetTelemetryRate { topic, rate_hz });
     client.request(&Request::ArmThrowToFly(()), "the arm request")?;
     say("armed: throw the craft now (up, about 3 m, spinning is fine); the motors start after the release. `configurator-cli disarm` or Ctrl-C stops everything.".into());
-    for topic in [Topic::Learner, Topic::State] {
-        client.request(&rate(topic, WATCH_RATE_HZ), "the telemetry rate request")?;
-    }
+    let state_hz = if options.every_step { client.info.control_rate_hz } else { WATCH_RATE_HZ };
+    client.request(&rate(Topic::Learner, WATCH_RATE_HZ), "the telemetry rate request")?;
+    client.request(&rate(Topic::State, state_hz), "the telemetry rate request")?;
     client.telemetry.clear();
-    let result = follow(client, options, say);
+    let result = follow(client, options, say, on_sample);
     if matches!(result, Err(IdentifyError::NoThrow(_))) {
         client.request(&Request::Disarm(()), "the disarm request")?;
     }
@@ -99,6 +103,7 @@ fn follow(
     client: &mut Client,
     options: IdentifyOptions,
     say: &mut dyn FnMut(String),
+    on_sample: &mut dyn FnMut(&TelemetrySample),
 ) -> Result<Identified, IdentifyError> {
     let armed_at = Instant::now();
     let mut phase = LearnerPhase::WaitingForThrow;
@@ -109,6 +114,7 @@ fn follow(
     loop {
         client.listen(LISTEN_SLICE)?;
         for sample in client.telemetry.drain(..) {
+            on_sample(&sample);
             match sample.data {
                 Telemetry::State(s) => state = Some(s),
                 Telemetry::Learner(learner) => {
@@ -156,7 +162,7 @@ fn follow(
         let mut disarmed = false;
         if let (true, Some(hold_s)) = (flying, options.disarm_after_s) {
             say(format!("holding for {hold_s} s, then disarming"));
-            client.listen(Duration::from_secs_f64(hold_s))?;
+            client.listen_with(Duration::from_secs_f64(hold_s), |sample| on_sample(&sample))?;
             client.request(&Request::Disarm(()), "the disarm request")?;
             say("disarmed: every motor stopped".into());
             disarmed = true;

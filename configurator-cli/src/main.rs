@@ -133,6 +133,10 @@ enum Command {
         /// flying; `disarm` stops it).
         #[arg(long)]
         disarm_after_s: Option<f64>,
+        /// Record the attempt (every control step's state, the learner at 100 Hz) to this CSV
+        /// (`plot` draws it: attitude, motors, G1 convergence).
+        #[arg(long, value_name = "FILE.csv")]
+        record: Option<std::path::PathBuf>,
     },
     /// Spin one motor to check its wiring and direction. PROPELLERS OFF. It stops by itself 3 s
     /// after the configurator stops asking, and at once on disconnect or Ctrl-C.
@@ -152,7 +156,9 @@ enum Command {
     },
     /// An interactive shell: the same commands, with history, tab completion and `help`.
     Shell,
-    /// Render a recording (CSV) to PNG or SVG (by the output's extension).
+    /// Render a recording (CSV from `record`: IMU, attitude, motor and G1-convergence panels) or
+    /// an IMU-offset fit (the JSON of `fit imu-offset --json`: its 95 % ellipsoid) to PNG or SVG
+    /// (by the output's extension).
     Plot {
         /// The recording.
         input: std::path::PathBuf,
@@ -308,7 +314,7 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
             }
             BoardCommand::Calibrate { yes: *yes, max_throws: *max_throws, timeout_s: *timeout_s }
         }
-        Command::Identify { yes, timeout_s, disarm_after_s } => {
+        Command::Identify { yes, timeout_s, disarm_after_s, record } => {
             if !(timeout_s.is_finite() && (1.0..=3600.0).contains(timeout_s)) {
                 return Err(input(format!("--timeout-s {timeout_s} is outside 1 to 3600 s")));
             }
@@ -322,7 +328,9 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
                 options: configurator_cli::identify::IdentifyOptions {
                     throw_timeout_s: *timeout_s,
                     disarm_after_s: *disarm_after_s,
+                    every_step: record.is_some(),
                 },
+                record: record.clone(),
             }
         }
         Command::MotorTest { motor, command, duration_s, yes } => {
@@ -352,10 +360,21 @@ enum BoardCommand {
     Status,
     Arm,
     Disarm,
-    Stream { topic: Topic, rate_hz: u16, duration_s: f64 },
-    Record { topics: Vec<Topic>, duration_s: f64, output: std::path::PathBuf },
+    Stream {
+        topic: Topic,
+        rate_hz: u16,
+        duration_s: f64,
+    },
+    Record {
+        topics: Vec<Topic>,
+        duration_s: f64,
+        output: std::path::PathBuf,
+    },
     Get(String),
-    Set { name: String, values: Vec<f32> },
+    Set {
+        name: String,
+        values: Vec<f32>,
+    },
     Dump,
     Diff,
     Save,
@@ -363,10 +382,26 @@ enum BoardCommand {
     Version,
     Reboot,
     Shell,
-    Apply { file: String, text: String },
-    Calibrate { yes: bool, max_throws: u8, timeout_s: f64 },
-    Identify { yes: bool, options: configurator_cli::identify::IdentifyOptions },
-    MotorTest { motor: u8, command: f32, duration_s: f64, yes: bool },
+    Apply {
+        file: String,
+        text: String,
+    },
+    Calibrate {
+        yes: bool,
+        max_throws: u8,
+        timeout_s: f64,
+    },
+    Identify {
+        yes: bool,
+        options: configurator_cli::identify::IdentifyOptions,
+        record: Option<std::path::PathBuf>,
+    },
+    MotorTest {
+        motor: u8,
+        command: f32,
+        duration_s: f64,
+        yes: bool,
+    },
 }
 
 /// Connect (starting a SITL if asked), then run the board command.
@@ -616,7 +651,9 @@ fn run_on_board(
         BoardCommand::Calibrate { yes, max_throws, timeout_s } => {
             calibrate_imu_offset(client, yes, max_throws, timeout_s, cli.json)
         }
-        BoardCommand::Identify { yes, options } => identify(client, yes, options, cli.json),
+        BoardCommand::Identify { yes, options, record } => {
+            identify(client, yes, options, record.as_deref(), cli.json)
+        }
         BoardCommand::MotorTest { motor, command, duration_s, yes } => {
             motor_test(client, motor, command, duration_s, yes)
         }
@@ -744,9 +781,11 @@ fn identify(
     client: &mut Client,
     yes: bool,
     options: configurator_cli::identify::IdentifyOptions,
+    record_to: Option<&std::path::Path>,
     json_output: bool,
 ) -> Result<String, Failure> {
     use configurator_cli::identify::{self as id, IdentifyError};
+    use configurator_cli::record::Recorder;
     if !yes
         && !confirm(
             "IDENTIFY: the motors WILL SPIN after the next throw. Propellers on, area clear, ready to throw?",
@@ -754,7 +793,44 @@ fn identify(
     {
         return Ok("identification cancelled: nothing armed\n".into());
     }
-    let found = match id::identify(client, options, &mut |line| eprintln!("{line}")) {
+    let mut recorder = match record_to {
+        Some(path) => {
+            let file = std::fs::File::create(path).map_err(|e| {
+                Failure::Input(InputError(format!(
+                    "--record: cannot create {}: {e}",
+                    path.display()
+                )))
+            })?;
+            let topics = [protocol::Topic::Learner, protocol::Topic::State];
+            let writer = std::io::BufWriter::new(file);
+            Some(Recorder::new(writer, &topics, client.info.motor_count).map_err(|e| {
+                Failure::Input(InputError(format!("--record: {}: {e}", path.display())))
+            })?)
+        }
+        None => None,
+    };
+    let mut write_error = None;
+    let mut on_sample = |sample: &configurator_cli::link::TelemetrySample| {
+        if let Some(recorder) = recorder.as_mut() {
+            if let Err(e) = recorder.push(sample) {
+                write_error.get_or_insert(e);
+            }
+        }
+    };
+    let found = id::identify(client, options, &mut |line| eprintln!("{line}"), &mut on_sample);
+    if let (Some(recorder), Some(path)) = (recorder, record_to) {
+        let summary = recorder.summary();
+        match recorder.finish().err().or(write_error) {
+            Some(e) => eprintln!("warning: the recording {} is incomplete: {e}", path.display()),
+            None => eprintln!(
+                "recorded {} rows ({} samples missing) to {}",
+                summary.rows,
+                summary.gaps(),
+                path.display()
+            ),
+        }
+    }
+    let found = match found {
         Ok(found) => found,
         Err(IdentifyError::Link(error)) => return Err(error.into()),
         Err(error) => return Err(LinkError::Unexpected(error.to_string()).into()),
@@ -926,8 +1002,22 @@ fn plot(
     output: &std::path::Path,
     json_output: bool,
 ) -> Result<String, Failure> {
-    let summary = configurator_cli::plot::plot_recording(input, output)
-        .map_err(|e| Failure::Input(InputError(format!("plot: {e}"))))?;
+    let plot_error = |e| Failure::Input(InputError(format!("plot: {e}")));
+    if input.extension().is_some_and(|ext| ext == "json") {
+        configurator_cli::plot::plot_fit(input, output).map_err(plot_error)?;
+        return Ok(if json_output {
+            format!(
+                "{:#}\n",
+                json!({"output": output.display().to_string(), "panels": ["xy", "xz", "yz"]})
+            )
+        } else {
+            format!(
+                "wrote {} (the 95 % ellipsoid projected on the xy, xz and yz planes)\n",
+                output.display()
+            )
+        });
+    }
+    let summary = configurator_cli::plot::plot_recording(input, output).map_err(plot_error)?;
     Ok(if json_output {
         format!(
             "{:#}\n",

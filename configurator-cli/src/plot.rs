@@ -66,6 +66,8 @@ pub enum PlotError {
     NotPositiveDefinite { title: String },
     #[error("the χ² scale must be finite and positive, not {0}")]
     BadChi2Scale(f64),
+    #[error("{file}: not the JSON of `fit imu-offset --json` ({reason})")]
+    NotAFit { file: String, reason: String },
     #[error("the embedded font could not be loaded")]
     Font,
     #[error("drawing failed: {0}")]
@@ -155,7 +157,10 @@ pub fn choose_panels(header: &[String]) -> Vec<Panel> {
     let fixed = |names: &[&str]| names.iter().filter(|n| has(n)).map(|n| n.to_string()).collect();
     let numbered =
         |prefix: &str| (0..8).map(|i| format!("{prefix}{i}")).filter(|n| has(n)).collect();
-    let groups: [(&'static str, &'static str, Vec<String>); 7] = [
+    let starting = |prefixes: &[&str]| {
+        header.iter().filter(|h| prefixes.iter().any(|p| h.starts_with(p))).cloned().collect()
+    };
+    let groups: [(&'static str, &'static str, Vec<String>); 8] = [
         ("angular rate", "angular rate [rad/s]", fixed(&["gyro_x", "gyro_y", "gyro_z"])),
         ("specific force", "specific force [m/s²]", fixed(&["acc_x", "acc_y", "acc_z"])),
         ("attitude", "attitude [°]", fixed(&["roll_deg", "pitch_deg", "yaw_deg"])),
@@ -163,9 +168,14 @@ pub fn choose_panels(header: &[String]) -> Vec<Panel> {
         ("motor command", "command [0–1]", numbered("cmd_")),
         ("motor speed", "motor speed [rad/s]", numbered("speed_")),
         (
-            "G1 convergence",
-            "G1 [per unit thrust]",
-            header.iter().filter(|h| h.starts_with("g1_")).cloned().collect(),
+            "G1 convergence: specific force",
+            "G1 [m/s² per unit thrust]",
+            starting(&["g1_fx_", "g1_fy_", "g1_fz_"]),
+        ),
+        (
+            "G1 convergence: angular acceleration",
+            "G1 [rad/s² per unit thrust]",
+            starting(&["g1_p_", "g1_q_", "g1_r_"]),
         ),
     ];
     groups
@@ -321,6 +331,47 @@ pub fn plot_recording(csv_path: &Path, out: &Path) -> Result<PlotSummary, PlotEr
     }
     let panels = rec.panels.iter().map(|p| p.title.to_string()).collect();
     Ok(PlotSummary { panels, samples: rec.t.len(), size_px: size })
+}
+
+/// The 95 % ellipsoid of an IMU-offset fit, from the JSON `fit imu-offset --json` prints
+/// (`r_imu_m`, `covariance_m2`); `file_name` titles it.
+pub fn ellipsoid_from_fit_json(text: &str, file_name: &str) -> Result<EllipsoidPlot, PlotError> {
+    let not_a_fit =
+        |reason: &str| PlotError::NotAFit { file: file_name.into(), reason: reason.into() };
+    let value: serde_json::Value =
+        serde_json::from_str(text).map_err(|e| not_a_fit(&e.to_string()))?;
+    let numbers = |v: &serde_json::Value| -> Option<Vec<f64>> {
+        v.as_array()?.iter().map(serde_json::Value::as_f64).collect()
+    };
+    let centre = numbers(&value["r_imu_m"])
+        .filter(|c| c.len() == 3)
+        .ok_or_else(|| not_a_fit("no `r_imu_m` of three numbers"))?;
+    let rows: Vec<Vec<f64>> = value["covariance_m2"]
+        .as_array()
+        .and_then(|rows| rows.iter().map(numbers).collect())
+        .filter(|rows: &Vec<Vec<f64>>| rows.len() == 3 && rows.iter().all(|r| r.len() == 3))
+        .ok_or_else(|| not_a_fit("no 3 × 3 `covariance_m2`"))?;
+    let mut covariance_m2 = [[0.0; 3]; 3];
+    for (dst, src) in covariance_m2.iter_mut().zip(&rows) {
+        dst.copy_from_slice(src);
+    }
+    Ok(EllipsoidPlot {
+        title: format!("IMU offset, 95 % ellipsoid: {file_name}"),
+        centre_m: [centre[0], centre[1], centre[2]],
+        covariance_m2,
+        chi2_scale: CHI2_95_3DOF,
+    })
+}
+
+/// Reads a fit (`fit imu-offset --json` output) and draws its ellipsoid to `out`.
+pub fn plot_fit(json_path: &Path, out: &Path) -> Result<(), PlotError> {
+    format_of(out)?;
+    let text = std::fs::read_to_string(json_path)
+        .map_err(|source| PlotError::Io { path: json_path.to_path_buf(), source })?;
+    let name = json_path
+        .file_name()
+        .map_or_else(|| json_path.display().to_string(), |n| n.to_string_lossy().into());
+    plot_ellipsoid(&ellipsoid_from_fit_json(&text, &name)?, out)
 }
 
 /// A calibration ellipsoid {x : (x − c)ᵀ Σ⁻¹ (x − c) ≤ k} to draw.
@@ -498,7 +549,10 @@ mod tests {
     fn panels_are_chosen_from_the_columns_in_order() {
         let rec = parse_recording(CSV, "r.csv").unwrap();
         let titles: Vec<_> = rec.panels.iter().map(|p| p.title).collect();
-        assert_eq!(titles, ["angular rate", "motor command", "motor speed", "G1 convergence"]);
+        assert_eq!(
+            titles,
+            ["angular rate", "motor command", "motor speed", "G1 convergence: specific force"]
+        );
         assert_eq!(rec.panels[1].columns, ["cmd_0", "cmd_2"]);
         assert_eq!(rec.t, [0.0, 0.1, 0.2]);
         let speed = rec.columns.iter().find(|c| c.name == "speed_0").unwrap();
@@ -578,6 +632,23 @@ mod tests {
             Err(PlotError::UnsupportedFormat(_))
         ));
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_fit_json_gives_its_centre_and_covariance_and_anything_else_is_refused() {
+        let fit = r#"{"r_imu_m": [0.01, -0.013, 0.008],
+            "covariance_m2": [[4e-6, 1e-7, 0], [1e-7, 1e-6, 0], [0, 0, 2.5e-7]]}"#;
+        let e = ellipsoid_from_fit_json(fit, "fit.json").unwrap();
+        assert_eq!(e.centre_m, [0.01, -0.013, 0.008]);
+        assert_eq!(e.covariance_m2[0], [4e-6, 1e-7, 0.0]);
+        assert_eq!(e.chi2_scale, CHI2_95_3DOF);
+        for bad in ["{}", "[1, 2]", r#"{"r_imu_m": [1, 2, 3], "covariance_m2": [[1, 0], [0, 1]]}"#]
+        {
+            assert!(matches!(
+                ellipsoid_from_fit_json(bad, "x.json"),
+                Err(PlotError::NotAFit { .. })
+            ));
+        }
     }
 
     fn ellipsoid() -> EllipsoidPlot {
