@@ -121,7 +121,7 @@ fn a_missing_port_is_a_clear_error_with_exit_code_1() {
 fn an_out_of_range_stream_rate_is_refused_before_connecting() {
     let output = run_cli(&["--port", "/dev/does-not-exist", "stream", "--rate-hz", "5000"]);
     assert_eq!(output.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&output.stderr).contains("outside 1 to 1000 Hz"));
+    assert!(String::from_utf8_lossy(&output.stderr).contains("outside 1 to 2000 Hz"));
 }
 
 /// A fake board's identity reply with the given protocol version and board name.
