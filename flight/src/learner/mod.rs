@@ -9,7 +9,10 @@
 //! - [`Learner`] runs in the background task on every sample of the excitation:
 //!   [`motor_model`] per motor, [`effectiveness`] (G1, G2) and, once every motor has been pulsed,
 //!   the [`crate::thrust_axis`] solver on the learned G1. It publishes a [`LearnedModel`]: the
-//!   interface the controller (INDI) builds on.
+//!   interface the controller (INDI) builds on. Every sample runs the motor models and the
+//!   filters but only one of the four effectiveness regressions, and the publication is split
+//!   over two samples ([`PUBLISH_INTERVAL_SAMPLES`]), so that the worst sample stays within the
+//!   background task's budget on the Cortex-M7 (docs/benchmarks.md, issue 7).
 //!
 //! Units of the learned effectiveness: G1 is kept per unit *squared motor speed* (m/s² or rad/s²
 //! per (rad/s)²), which is what the physics says and what the regression sees. Per unit of
@@ -30,7 +33,7 @@ pub mod throw_detector;
 
 use crate::filters::{BiquadCoefficients, FilterDesignError};
 use crate::thrust_axis::{self, HoverProblem, ThrustAxisSolver};
-use effectiveness::EffectivenessEstimator;
+use effectiveness::{EffectivenessEstimator, Regression};
 use excitation::{Excitation, ExcitationConfig};
 use motor_model::{MotorModel, MotorModelEstimator};
 use rls::RlsConfig;
@@ -51,6 +54,18 @@ pub const MOTOR_MODEL_CUTOFF_HZ: f32 = 40.0;
 pub const AXIS_INFORMATION_FRACTION: f32 = 0.05;
 /// Relative one-sigma uncertainty of a G1 column below which it counts as converged.
 pub const G1_CONVERGED_RELATIVE_STD: f32 = 0.02;
+
+/// Most samples between two publications of the [`LearnedModel`] while the effectiveness
+/// regressions do not run (filters starting, gaps).
+///
+/// While they run (one per sample, four per cycle: [`effectiveness::REGRESSION_DECIMATION`]),
+/// the model is published once per cycle in two halves that share a sample with the cheaper
+/// force-row regressions, never with the rotational one: the sample of force row x stages the
+/// model (the copy of G1, G2 and the motor models, the convergence statistics), the sample of
+/// force row y solves the thrust axis of the staged G1 and publishes the whole at once. No
+/// sample pays for the copy, the statistics and the solve together (docs/benchmarks.md,
+/// issue 7); the published model is one sample older than the estimators.
+pub const PUBLISH_INTERVAL_SAMPLES: u8 = 4;
 
 /// A reported speed above which a motor counts as running (armed ESC), rad/s: far below any
 /// idle speed (300 rad/s on a 3-inch quad), far above DShot's speed resolution at standstill.
@@ -192,11 +207,20 @@ pub struct Learner {
     motor_models: [MotorModelEstimator; MAX_MOTORS],
     effectiveness: EffectivenessEstimator,
     solver: ThrustAxisSolver,
-    /// The last commands, newest first, for the time alignment.
+    /// The last commands, for the time alignment: a ring, the newest at `newest_command`.
     commands: [[f32; MAX_MOTORS]; 8],
+    newest_command: usize,
     /// Whether the ESCs run the motors: since the first non-zero command of the attempt, or
     /// since a motor reported a running speed.
     armed: bool,
+    /// Samples since the model was last published.
+    since_publish: u8,
+    /// Samples learned from.
+    samples: u32,
+    /// The model being published (see [`PUBLISH_INTERVAL_SAMPLES`]).
+    staging: LearnedModel,
+    /// `Some(every G1 column informed)` once the first half of a publication is done.
+    staged: Option<bool>,
     model: LearnedModel,
 }
 
@@ -226,7 +250,12 @@ impl Learner {
             ),
             solver: ThrustAxisSolver::new(SOLVER_CONFIG),
             commands: [[0.0; MAX_MOTORS]; 8],
+            newest_command: 0,
             armed: false,
+            since_publish: 0,
+            samples: 0,
+            staging: LearnedModel { motors: motors as u8, ..LearnedModel::default() },
+            staged: None,
             model: LearnedModel { motors: motors as u8, ..LearnedModel::default() },
         })
     }
@@ -241,8 +270,13 @@ impl Learner {
         self.effectiveness.reset(r_imu_m);
         self.solver.reset();
         self.commands = [[0.0; MAX_MOTORS]; 8];
+        self.newest_command = 0;
         self.armed = false;
+        self.since_publish = 0;
         self.model = LearnedModel { motors: self.motors as u8, ..LearnedModel::default() };
+        self.samples = 0;
+        self.staging = self.model;
+        self.staged = None;
         Ok(())
     }
 
@@ -252,7 +286,9 @@ impl Learner {
     }
 
     /// One control-rate sample: IMU (IMU axes), the commands applied in this step and the motor
-    /// speeds reported in it (rad/s; NaN where a motor did not report).
+    /// speeds reported in it (rad/s; NaN where a motor did not report). The model is published
+    /// every fourth sample (see [`PUBLISH_INTERVAL_SAMPLES`]), so [`Learner::model`] may be up
+    /// to four samples behind.
     pub fn update(
         &mut self,
         gyro_rad_s: [f32; 3],
@@ -260,10 +296,12 @@ impl Learner {
         commands: &[f32; MAX_MOTORS],
         speeds_rad_s: &[f32; MAX_MOTORS],
     ) {
-        self.commands.copy_within(0..7, 1);
-        self.commands[0] = *commands;
+        let ring = self.commands.len();
+        self.newest_command = (self.newest_command + 1) % ring;
+        self.commands[self.newest_command] = *commands;
         let half_steps = usize::from(self.config.command_to_speed_delay_half_steps).min(13);
-        let (early, late) = (self.commands[half_steps / 2], self.commands[half_steps.div_ceil(2)]);
+        let back = |steps: usize| &self.commands[(self.newest_command + ring - steps) % ring];
+        let (early, late) = (back(half_steps / 2), back(half_steps.div_ceil(2)));
         let driving: [f32; MAX_MOTORS] = core::array::from_fn(|i| 0.5 * (early[i] + late[i]));
         let m = self.motors;
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
@@ -271,9 +309,25 @@ impl Learner {
         for i in 0..m {
             self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
         }
-        self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
-        self.model.samples = self.model.samples.saturating_add(1);
-        self.publish();
+        let regression =
+            self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
+        self.samples = self.samples.saturating_add(1);
+        self.since_publish = self.since_publish.saturating_add(1);
+        match regression {
+            Regression::ForceRow(0) => self.stage(),
+            Regression::ForceRow(1) => self.publish_staged(),
+            Regression::ForceRow(_) | Regression::Rotation => {}
+            Regression::All => {
+                self.stage();
+                self.publish_staged();
+            }
+            Regression::None => {
+                if self.since_publish >= PUBLISH_INTERVAL_SAMPLES {
+                    self.stage();
+                    self.publish_staged();
+                }
+            }
+        }
     }
 
     /// The model learned so far.
@@ -281,9 +335,11 @@ impl Learner {
         &self.model
     }
 
-    fn publish(&mut self) {
+    /// First half of a publication: the estimates and their convergence into `staging`.
+    fn stage(&mut self) {
         let m = self.motors;
-        let model = &mut self.model;
+        let model = &mut self.staging;
+        model.samples = self.samples;
         model.g1_per_speed2 = self.effectiveness.g1_per_speed2();
         model.g2 = self.effectiveness.g2();
         model.g1_converged = 0;
@@ -302,14 +358,29 @@ impl Learner {
                 self.effectiveness.information_left(i, self.config.effectiveness_rls.p0);
             all_informed &= force_left.max(torque_left) < AXIS_INFORMATION_FRACTION;
         }
+        self.staged = Some(all_informed);
+    }
+
+    /// Second half: the thrust axis of the staged G1 (once every column is informed), then the
+    /// staged model is published.
+    fn publish_staged(&mut self) {
+        let Some(all_informed) = self.staged.take() else { return };
+        self.since_publish = 0;
+        let m = self.motors;
+        let model = &mut self.staging;
         if !all_informed {
             model.axis_status = AxisStatus::Waiting;
+            self.model = *model;
             return;
         }
         let g1 = model.g1_per_unit_thrust();
         let rows = |k: usize| &g1[k][..m];
         let problem = HoverProblem::new([rows(0), rows(1), rows(2)], [rows(3), rows(4), rows(5)]);
-        let solution = problem.and_then(|p| self.solver.solve(&p));
+        // Solved in place: `and_then` would move (copy) the problem.
+        let solution = match &problem {
+            Ok(problem) => self.solver.solve(problem),
+            Err(e) => Err(*e),
+        };
         match solution {
             Ok(solution) => {
                 let euler = solution.euler_zyx();
@@ -328,6 +399,7 @@ impl Learner {
             }
             Err(_) => model.axis_status = AxisStatus::NoHover,
         }
+        self.model = *model;
     }
 }
 
@@ -483,5 +555,52 @@ impl ThrowToFly {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+
+    /// A quad's samples with a slowly changing spin, motors running: every estimator updates.
+    fn sample(n: usize) -> ([f32; 3], [f32; 3], [f32; MAX_MOTORS], [f32; MAX_MOTORS]) {
+        let t = n as f32 / 2000.0;
+        let speed = |i: usize| 1000.0 + 300.0 * libm::sinf(20.0 * t + i as f32);
+        let commands = core::array::from_fn(|i| if i < 4 { 0.3 } else { 0.0 });
+        let speeds = core::array::from_fn(|i| if i < 4 { speed(i) } else { f32::NAN });
+        ([1.0, 2.0 * t, -0.5], [0.1, -0.2, -9.0 - t], commands, speeds)
+    }
+
+    /// The model is published once per cycle of the four effectiveness regressions (staged in
+    /// one sample, published with the thrust axis in the next), and every
+    /// [`PUBLISH_INTERVAL_SAMPLES`] while a gap keeps the regressions from running.
+    #[test]
+    fn the_model_is_published_once_per_cycle_and_through_gaps() {
+        let mut learner = Learner::new(4, LearnerConfig::default()).unwrap();
+        let mut publications = std::vec::Vec::new();
+        let mut last = learner.model().samples;
+        for n in 0..40 {
+            let (gyro, accel, commands, mut speeds) = sample(n);
+            if (30..40).contains(&n) {
+                speeds[0] = f32::NAN;
+            }
+            learner.update(gyro, accel, &commands, &speeds);
+            let samples = learner.model().samples;
+            if samples != last {
+                publications.push((n, samples));
+                last = samples;
+            }
+        }
+        // (sample index, samples learned from). The filters take two samples, the regressions
+        // four centred ones: they run from sample 6, force row x staging at 6, 10, ... and force
+        // row y publishing at 7, 11, ... what was learned from 7, 11, ... samples. Before that,
+        // and from the gap at sample 30 on (each sample restarts the filters): every fourth.
+        let expected = [(3, 4), (7, 7), (11, 11), (15, 15), (19, 19), (23, 23), (27, 27)];
+        assert_eq!(&publications[..expected.len()], &expected);
+        let gap: std::vec::Vec<usize> =
+            publications[expected.len()..].iter().map(|p| p.0).collect();
+        assert_eq!(gap, [31, 35, 39]);
+        assert!(learner.model().motor[1].a_rad_s != 0.0, "the motor models learned");
     }
 }

@@ -21,7 +21,7 @@
 //! when the speed was measured (algorithms.md §12: pairing with the command of the same step
 //! biases τ by about +1 ms).
 
-use super::rls::{Rls, RlsConfig};
+use super::rls::{packed_len, Rls, RlsConfig};
 use crate::filters::{BiquadCoefficients, Butterworth2};
 
 /// Speed unit of the regression, rad/s (krad/s keeps ω of order one).
@@ -82,7 +82,7 @@ impl MotorModel {
 /// The estimator of one motor's model.
 #[derive(Clone, Debug)]
 pub struct MotorModelEstimator {
-    rls: Rls<4, 1>,
+    rls: Rls<4, 1, { packed_len(4) }>,
     filter: BiquadCoefficients,
     /// Filters of δ, √δ, A (armed) and ω (in that order).
     lowpass: [Butterworth2; 4],
