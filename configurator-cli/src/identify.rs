@@ -113,6 +113,11 @@ fn follow(
     let mut done_at: Option<Instant> = None;
     loop {
         client.listen(LISTEN_SLICE)?;
+        for event in client.events.drain(..) {
+            if let protocol::Event::Failsafe { reason, action, count } = event {
+                say(crate::report::failsafe_event_text(reason, action, count));
+            }
+        }
         for sample in client.telemetry.drain(..) {
             on_sample(&sample);
             match sample.data {
@@ -158,6 +163,11 @@ fn follow(
         }
         if flying {
             say("flying on the learned model (INDI, in the thrust frame found)".into());
+            if let Ok(Reply::Flight(flight)) =
+                client.request(&Request::GetFlight(()), "the flight request")
+            {
+                say(crate::report::flight_text(&flight).trim_end().to_string());
+            }
         }
         let mut disarmed = false;
         if let (true, Some(hold_s)) = (flying, options.disarm_after_s) {

@@ -98,6 +98,7 @@ impl std::fmt::Display for DeviceErrorText {
                 write!(f, "save failed: {stage}; the saved configuration is unchanged")
             }
             DeviceError::NotReady => write!(f, "not ready (see `status`)"),
+            DeviceError::Unsupported => write!(f, "this device cannot do that"),
         }
     }
 }

@@ -116,6 +116,25 @@ enum Command {
     },
     /// Restart the board (the SITL restarts its application and reloads its flash).
     Reboot,
+    /// Restart the board into its ROM bootloader (USB DFU) to update the firmware. Refused while
+    /// armed and by the simulator.
+    Dfu,
+    /// Where to hold while flying with an external pose (motion capture): the position of the
+    /// centre of gravity in the poses' world (NED, m) and the heading.
+    Setpoint {
+        /// North, m.
+        #[arg(long, allow_hyphen_values = true)]
+        north_m: f32,
+        /// East, m.
+        #[arg(long, allow_hyphen_values = true)]
+        east_m: f32,
+        /// Down, m (negative is up: -1.5 holds 1.5 m above the origin).
+        #[arg(long, allow_hyphen_values = true)]
+        down_m: f32,
+        /// Heading, degrees (yaw of the thrust frame about down).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        heading_deg: f32,
+    },
     /// Guided calibration on the board.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
@@ -295,6 +314,17 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
         Command::Defaults => BoardCommand::Defaults,
         Command::Version => BoardCommand::Version,
         Command::Reboot => BoardCommand::Reboot,
+        Command::Dfu => BoardCommand::Dfu,
+        Command::Setpoint { north_m, east_m, down_m, heading_deg } => {
+            let values = [*north_m, *east_m, *down_m, *heading_deg];
+            if !values.iter().all(|v| v.is_finite()) {
+                return Err(input("setpoint values must be finite numbers".into()));
+            }
+            BoardCommand::Setpoint(protocol::PositionSetpoint {
+                position_ned_m: [*north_m, *east_m, *down_m],
+                heading_rad: heading_deg.to_radians(),
+            })
+        }
         Command::Shell => BoardCommand::Shell,
         Command::Apply { file } => {
             let text = if file == "-" {
@@ -381,6 +411,8 @@ enum BoardCommand {
     Defaults,
     Version,
     Reboot,
+    Dfu,
+    Setpoint(protocol::PositionSetpoint),
     Shell,
     Apply {
         file: String,
@@ -457,18 +489,25 @@ fn run_on_board(
     match command {
         BoardCommand::Info => {
             let status = fetch_status(client)?;
+            let board = fetch_optional(client, Request::GetBoard(()), "the board request")?;
+            let board = board.and_then(|reply| match reply {
+                Reply::Board(board) => Some(board),
+                _ => None,
+            });
             Ok(if cli.json {
                 format!(
                     "{:#}\n",
                     json!({
                         "info": report::info_json(&client.info, client.port()),
+                        "board": board.as_ref().map(report::board_json),
                         "status": report::status_json(&status),
                     })
                 )
             } else {
                 format!(
-                    "{}{}",
+                    "{}{}{}",
                     report::info_text(&client.info, client.port()),
+                    board.as_ref().map(report::board_text).unwrap_or_default(),
                     report::status_text(&status)
                 )
             })
@@ -476,6 +515,11 @@ fn run_on_board(
         BoardCommand::Status => {
             let status = fetch_status(client)?;
             let learner = fetch_learner(client)?;
+            let flight = fetch_optional(client, Request::GetFlight(()), "the flight request")?;
+            let flight = flight.and_then(|reply| match reply {
+                Reply::Flight(flight) => Some(flight),
+                _ => None,
+            });
             let config = match client.request(&Request::GetConfig(()), "the configuration request")
             {
                 Ok(Reply::Config(config)) => Some(config),
@@ -491,12 +535,18 @@ fn run_on_board(
                     if let Some(config) = &config {
                         map.insert("config".into(), report::config_json(config));
                     }
+                    if let Some(flight) = &flight {
+                        map.insert("flight".into(), report::flight_json(flight));
+                    }
                 }
                 format!("{value:#}\n")
             } else {
                 let mut text = report::status_text(&status);
                 if let Some(learner) = &learner {
                     text.push_str(&report::learner_text(learner));
+                }
+                if let Some(flight) = &flight {
+                    text.push_str(&report::flight_text(flight));
                 }
                 if let Some(config) = &config {
                     text.push_str(&report::config_text(config));
@@ -633,6 +683,32 @@ fn run_on_board(
                 "the board restarted{}",
                 if origin.is_empty() { "\n".into() } else { format!("; {}", origin.trim_start()) }
             ))
+        }
+        BoardCommand::Dfu => {
+            client.request(&Request::RebootToBootloader(()), "the bootloader request")?;
+            Ok(if cli.json {
+                format!("{:#}\n", json!({"bootloader": true}))
+            } else {
+                "the board restarts into its USB DFU bootloader (USB id 0483:df11); flash it with \
+                 `cargo xtask flash --dfu`, or unplug it to start the firmware again\n"
+                    .into()
+            })
+        }
+        BoardCommand::Setpoint(setpoint) => {
+            client.request(&Request::SetPositionSetpoint(setpoint), "the setpoint request")?;
+            let [n, e, d] = setpoint.position_ned_m;
+            let heading_deg = setpoint.heading_rad.to_degrees();
+            Ok(if cli.json {
+                format!(
+                    "{:#}\n",
+                    json!({"position_sp_ned_m": [n, e, d], "heading_sp_deg": heading_deg})
+                )
+            } else {
+                format!(
+                    "holding N {n:+.3} m, E {e:+.3} m, D {d:+.3} m, heading {heading_deg:+.1}° \
+                     whenever an external pose arrives\n"
+                )
+            })
         }
         BoardCommand::Apply { file, text } => {
             let before = config::fetch_all(client)?;
@@ -994,6 +1070,8 @@ const SHELL_COMMANDS: &[(&str, &str, &str)] = &[
     ("arm-throw-to-fly", "arm-throw-to-fly", "the motors spin after the next throw"),
     ("disarm", "disarm", "stop every motor now"),
     ("reboot", "reboot", "restart the board"),
+    ("dfu", "dfu", "restart into the USB DFU bootloader (firmware update)"),
+    ("setpoint", "setpoint --north-m N --east-m E --down-m D", "where to hold with a pose"),
     ("plot", "plot FILE.csv -o OUT.png", "render a recording"),
 ];
 
@@ -1087,6 +1165,22 @@ fn fetch_learner(client: &mut Client) -> Result<Option<protocol::LearnerTelemetr
     match client.request(&Request::GetLearner(()), "the learner request") {
         Ok(Reply::Learner(learner)) => Ok(Some(learner)),
         Ok(other) => Err(LinkError::Unexpected(format!("{other:?} to the learner request")).into()),
+        Err(LinkError::Device(DeviceErrorText(protocol::DeviceError::UnknownRequest {
+            ..
+        }))) => Ok(None),
+        Err(error) => Err(error.into()),
+    }
+}
+
+/// A request a board of an older protocol may not know: `None` when it answers
+/// `UnknownRequest`.
+fn fetch_optional(
+    client: &mut Client,
+    request: Request,
+    what: &'static str,
+) -> Result<Option<Reply>, Failure> {
+    match client.request(&request, what) {
+        Ok(reply) => Ok(Some(reply)),
         Err(LinkError::Device(DeviceErrorText(protocol::DeviceError::UnknownRequest {
             ..
         }))) => Ok(None),

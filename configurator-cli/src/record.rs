@@ -19,8 +19,8 @@
 
 use crate::link::TelemetrySample;
 use protocol::{
-    ControlTelemetry, ImuTelemetry, LearnerTelemetry, MotorTelemetry, StateTelemetry, Telemetry,
-    Topic,
+    ControlTelemetry, FlightMode, FlightTelemetry, ImuTelemetry, LearnerTelemetry, MotorTelemetry,
+    StateTelemetry, Telemetry, Topic,
 };
 use std::fmt::Write as _;
 use std::io::Write;
@@ -33,6 +33,7 @@ pub fn topic_name(topic: Topic) -> &'static str {
         Topic::Motors => "motors",
         Topic::Learner => "learner",
         Topic::State => "state",
+        Topic::Flight => "flight",
     }
 }
 
@@ -61,12 +62,14 @@ pub fn parse_topics(list: &str) -> Result<Vec<Topic>, String> {
 }
 
 /// The telemetry rate a topic is recorded at, Hz: every control step for the per-step topics,
-/// 100 Hz for the learner (G1 arrives in two halves, so the whole matrix at 50 Hz), 10 Hz for
-/// the control topic.
+/// 100 Hz for the learner (G1 arrives in two halves, so the whole matrix at 50 Hz), 500 Hz for
+/// the flight topic (the link samples it at most once per 1 ms pass), 10 Hz for the control
+/// topic.
 pub fn recording_rate_hz(topic: Topic, control_rate_hz: u16) -> u16 {
     match topic {
         Topic::Imu | Topic::Motors | Topic::State => control_rate_hz,
         Topic::Learner => 100,
+        Topic::Flight => 500,
         Topic::Control => 10,
     }
 }
@@ -79,6 +82,7 @@ pub fn topic_of(data: &Telemetry) -> Topic {
         Telemetry::Motors(_) => Topic::Motors,
         Telemetry::Learner(_) => Topic::Learner,
         Telemetry::State(_) => Topic::State,
+        Telemetry::Flight(_) => Topic::Flight,
     }
 }
 
@@ -140,6 +144,7 @@ struct Table {
     has_motors: bool,
     has_control: bool,
     has_learner: bool,
+    has_flight: bool,
     motor_count: usize,
     state: Option<StateTelemetry>,
     imu: Option<ImuTelemetry>,
@@ -147,6 +152,7 @@ struct Table {
     control: Option<ControlTelemetry>,
     /// G1 rows arrive alternately: block 0 (specific force) and block 1 (angular acceleration).
     learner: [Option<LearnerTelemetry>; 2],
+    flight: Option<FlightTelemetry>,
 }
 
 /// The G1 rows' names, specific force then angular acceleration.
@@ -194,6 +200,35 @@ impl Table {
                 field(Name::Motor("speed_", i), number(motors.and_then(|(_, s)| s[i])));
             }
         }
+        if self.has_flight {
+            let f = self.flight;
+            field(Name::Fixed("mode"), f.map_or(Value::Empty, |f| Value::Text(mode_name(f.mode))));
+            let euler = f.map(|f| f.euler_zyx_rad.map(f32::to_degrees));
+            let names = ["thrust_roll_deg", "thrust_pitch_deg", "thrust_yaw_deg"];
+            for (k, name) in names.into_iter().enumerate() {
+                field(Name::Fixed(name), number(euler.map(|e| e[k])));
+            }
+            let vectors: [(&[&'static str; 3], Option<[f32; 3]>); 6] = [
+                (&["rate_p", "rate_q", "rate_r"], f.map(|f| f.rate_rad_s)),
+                (&["rate_sp_p", "rate_sp_q", "rate_sp_r"], f.map(|f| f.rate_sp_rad_s)),
+                (
+                    &["force_sp_n", "force_sp_e", "force_sp_d"],
+                    f.map(|f| f.specific_force_sp_ned_mps2),
+                ),
+                (&["pos_n", "pos_e", "pos_d"], f.and_then(|f| f.position_ned_m)),
+                (&["vel_n", "vel_e", "vel_d"], f.and_then(|f| f.velocity_ned_mps)),
+                (&["pos_sp_n", "pos_sp_e", "pos_sp_d"], f.and_then(|f| f.position_sp_ned_m)),
+            ];
+            for (names, values) in vectors {
+                for (k, name) in names.iter().enumerate() {
+                    field(Name::Fixed(name), number(values.map(|v| v[k])));
+                }
+            }
+            field(Name::Fixed("tilt_error_rad"), number(f.map(|f| f.tilt_error_rad)));
+            let failures = f.map(|f| u32::from(f.allocation_failures));
+            field(Name::Fixed("allocation_failures"), count(failures));
+            field(Name::Fixed("saturated_mask"), count(f.map(|f| u32::from(f.saturated))));
+        }
         if self.has_control {
             let c = self.control;
             field(Name::Fixed("steps"), count(c.map(|c| c.steps)));
@@ -231,6 +266,7 @@ impl Table {
             Telemetry::Motors(m) => self.motors = Some(m),
             Telemetry::Control(c) => self.control = Some(c),
             Telemetry::Learner(l) => self.learner[usize::from(l.g1_block.min(1))] = Some(l),
+            Telemetry::Flight(f) => self.flight = Some(f),
         }
     }
 }
@@ -243,6 +279,16 @@ pub fn time_us(data: &Telemetry) -> u64 {
         Telemetry::Motors(m) => m.t_us,
         Telemetry::Control(c) => c.t_us,
         Telemetry::Learner(l) => l.t_us,
+        Telemetry::Flight(f) => f.t_us,
+    }
+}
+
+/// The flight mode's name as the status prints it.
+pub fn mode_name(mode: FlightMode) -> &'static str {
+    match mode {
+        FlightMode::Off => "off",
+        FlightMode::LevelHold => "level-hold",
+        FlightMode::PositionHold => "position-hold",
     }
 }
 
@@ -303,16 +349,24 @@ impl<W: Write> Recorder<W> {
     /// A recorder of `topics` (at least one) for a board with `motor_count` motors; writes the
     /// header at once.
     pub fn new(mut out: W, topics: &[Topic], motor_count: u8) -> std::io::Result<Self> {
-        let row_topic = [Topic::State, Topic::Imu, Topic::Motors, Topic::Learner, Topic::Control]
-            .into_iter()
-            .find(|t| topics.contains(t))
-            .unwrap_or(Topic::State);
+        let row_topic = [
+            Topic::State,
+            Topic::Imu,
+            Topic::Motors,
+            Topic::Flight,
+            Topic::Learner,
+            Topic::Control,
+        ]
+        .into_iter()
+        .find(|t| topics.contains(t))
+        .unwrap_or(Topic::State);
         let table = Table {
             has_state: topics.contains(&Topic::State),
             has_imu: topics.contains(&Topic::Imu),
             has_motors: topics.contains(&Topic::Motors),
             has_control: topics.contains(&Topic::Control),
             has_learner: topics.contains(&Topic::Learner),
+            has_flight: topics.contains(&Topic::Flight),
             motor_count: usize::from(motor_count).min(protocol::MAX_MOTORS),
             ..Table::default()
         };

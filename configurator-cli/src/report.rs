@@ -2,19 +2,22 @@
 //! with units in the key names).
 
 use protocol::{
-    Capabilities, Info, LearnerFailure, LearnerPhase, LearnerTelemetry, OffsetAdvice, Status,
+    BoardHealth, Capabilities, FailsafeAction, FailsafeReason, FlightMode, FlightTelemetry,
+    ImuDriverState, Info, LearnerFailure, LearnerPhase, LearnerTelemetry, OffsetAdvice, Status,
     PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use serde_json::{json, Value};
 use std::fmt::Write as _;
 
-const CAPABILITY_NAMES: [(u32, &str); 6] = [
+const CAPABILITY_NAMES: [(u32, &str); 8] = [
     (Capabilities::IMU, "imu"),
     (Capabilities::MOTORS, "motors"),
     (Capabilities::MOTOR_RPM, "motor_rpm"),
     (Capabilities::TELEMETRY, "telemetry"),
     (Capabilities::PERSISTENT_STORE, "persistent_store"),
     (Capabilities::SIMULATOR, "simulator"),
+    (Capabilities::BOOTLOADER, "bootloader"),
+    (Capabilities::RECEIVER, "receiver"),
 ];
 
 fn capability_list(capabilities: Capabilities) -> Vec<&'static str> {
@@ -528,6 +531,251 @@ pub fn calibration_throw_text(throw: &protocol::CalibrationThrow) -> String {
         axes_mm[1],
         axes_mm[2]
     )
+}
+
+/// A failsafe's reason in words.
+pub fn failsafe_reason_text(reason: FailsafeReason) -> String {
+    match reason {
+        FailsafeReason::BadCommand => "a motor command was not finite or out of range".into(),
+        FailsafeReason::AllocationFailed => "the control allocation kept failing".into(),
+        FailsafeReason::Identification(failure) => {
+            format!("the identification gave no flyable model ({failure:?})")
+        }
+        FailsafeReason::AttitudeLost => "the attitude was lost (thrust axis far from up)".into(),
+        FailsafeReason::ImuLost => "the IMU stopped delivering samples".into(),
+        FailsafeReason::ImuFault => "the IMU delivered implausible samples".into(),
+        FailsafeReason::PoseLost => "the external pose stopped arriving".into(),
+        FailsafeReason::RcLost => "the radio link was lost".into(),
+        FailsafeReason::Kill => "the kill switch".into(),
+    }
+}
+
+/// A failsafe event in words.
+pub fn failsafe_event_text(reason: FailsafeReason, action: FailsafeAction, count: u16) -> String {
+    let action = match action {
+        FailsafeAction::Disarmed => "every motor stopped, disarmed",
+        FailsafeAction::LevelHold => "flying on in level hold (no position)",
+        FailsafeAction::HeldLastSample => "flying on with the last good IMU sample",
+    };
+    format!("FAILSAFE: {}: {action} ({count}× since start-up)", failsafe_reason_text(reason))
+}
+
+fn mode_text(mode: FlightMode) -> &'static str {
+    match mode {
+        FlightMode::Off => "not flying",
+        FlightMode::LevelHold => "level hold (no external pose: the position drifts)",
+        FlightMode::PositionHold => "position hold (external pose)",
+    }
+}
+
+/// The closed loop's state as text.
+pub fn flight_text(flight: &FlightTelemetry) -> String {
+    let mut out = String::new();
+    let deg = 180.0 / std::f32::consts::PI;
+    let _ = writeln!(out, "  flight          {}", mode_text(flight.mode));
+    let [roll, pitch, yaw] = flight.euler_zyx_rad.map(|a| a * deg);
+    let frame = if flight.mode == FlightMode::Off { "IMU" } else { "thrust frame" };
+    let _ = writeln!(
+        out,
+        "  attitude        roll {roll:+.1}°, pitch {pitch:+.1}°, yaw {yaw:+.1}° ({frame} in NED)"
+    );
+    if flight.mode != FlightMode::Off {
+        let _ = writeln!(
+            out,
+            "  rates           {} °/s, setpoint {} °/s",
+            vector(flight.rate_rad_s, deg, 1),
+            vector(flight.rate_sp_rad_s, deg, 1)
+        );
+        let _ = writeln!(
+            out,
+            "  thrust axis     {:.1}° from its setpoint; allocation {}; motors at a bound: {}",
+            flight.tilt_error_rad * deg,
+            match flight.allocation_failures {
+                0 => "ok".to_string(),
+                n => format!("failing for {n} steps"),
+            },
+            bits_text(flight.saturated)
+        );
+    }
+    match flight.position_ned_m {
+        Some(p) => {
+            let _ = writeln!(
+                out,
+                "  position        {} m NED{}",
+                vector(p, 1.0, 3),
+                if flight.pose_fresh { "" } else { " (pose not recent)" }
+            );
+        }
+        None => {
+            let _ = writeln!(out, "  position        unknown (no external pose received)");
+        }
+    }
+    if let Some(v) = flight.velocity_ned_mps {
+        let _ = writeln!(out, "  velocity        {} m/s NED", vector(v, 1.0, 3));
+    }
+    if let Some(sp) = flight.position_sp_ned_m {
+        let _ = writeln!(out, "  setpoint        {} m NED", vector(sp, 1.0, 3));
+    }
+    let f = &flight.failsafes;
+    let total = [
+        f.bad_command,
+        f.allocation_failed,
+        f.identification,
+        f.attitude_lost,
+        f.imu_lost,
+        f.imu_fault,
+        f.pose_lost,
+        f.rc_lost,
+        f.kill,
+    ]
+    .iter()
+    .map(|&n| u32::from(n))
+    .sum::<u32>();
+    match flight.last_failsafe {
+        Some(reason) => {
+            let _ = writeln!(
+                out,
+                "  failsafes       {total} since start-up; last: {}",
+                failsafe_reason_text(reason)
+            );
+        }
+        None => {
+            let _ = writeln!(out, "  failsafes       none since start-up");
+        }
+    }
+    out
+}
+
+/// The closed loop's state as JSON (units in the key names).
+pub fn flight_json(flight: &FlightTelemetry) -> Value {
+    json!({
+        "mode": format!("{:?}", flight.mode),
+        "q_world_thrust": flight.q_world_thrust,
+        "euler_zyx_deg": flight.euler_zyx_rad.map(f32::to_degrees),
+        "rate_deg_s": flight.rate_rad_s.map(f32::to_degrees),
+        "rate_sp_deg_s": flight.rate_sp_rad_s.map(f32::to_degrees),
+        "specific_force_sp_ned_mps2": flight.specific_force_sp_ned_mps2,
+        "tilt_error_deg": flight.tilt_error_rad.to_degrees(),
+        "position_ned_m": flight.position_ned_m,
+        "velocity_ned_mps": flight.velocity_ned_mps,
+        "position_sp_ned_m": flight.position_sp_ned_m,
+        "pose_fresh": flight.pose_fresh,
+        "allocation_failures": flight.allocation_failures,
+        "saturated_motors": (0..8).filter(|i| flight.saturated & (1 << i) != 0).collect::<Vec<u8>>(),
+        "last_failsafe": flight.last_failsafe.map(|r| format!("{r:?}")),
+        "failsafes": {
+            "bad_command": flight.failsafes.bad_command,
+            "allocation_failed": flight.failsafes.allocation_failed,
+            "identification": flight.failsafes.identification,
+            "attitude_lost": flight.failsafes.attitude_lost,
+            "imu_lost": flight.failsafes.imu_lost,
+            "imu_fault": flight.failsafes.imu_fault,
+            "pose_lost": flight.failsafes.pose_lost,
+            "rc_lost": flight.failsafes.rc_lost,
+            "kill": flight.failsafes.kill,
+        },
+    })
+}
+
+fn bits_text(bits: u8) -> String {
+    let set: Vec<String> = (0..8).filter(|i| bits & (1 << i) != 0).map(|i| i.to_string()).collect();
+    if set.is_empty() {
+        "none".into()
+    } else {
+        set.join(", ")
+    }
+}
+
+fn imu_driver_text(state: ImuDriverState) -> String {
+    match state {
+        ImuDriverState::NotFitted => "no IMU driver".into(),
+        ImuDriverState::Running => "running".into(),
+        ImuDriverState::WrongIdentity { expected, found } => format!(
+            "FAULT: identity register read 0x{found:02x}, expected 0x{expected:02x} (wrong part, or no answer on the bus)"
+        ),
+        ImuDriverState::ConfigMismatch { register, written, read } => format!(
+            "FAULT: register 0x{register:02x} read back 0x{read:02x} after 0x{written:02x} was written"
+        ),
+        ImuDriverState::BusError => "FAULT: the SPI bus reported an error".into(),
+        ImuDriverState::Simulated => "simulated".into(),
+    }
+}
+
+/// The board's hardware as text.
+pub fn board_text(board: &BoardHealth) -> String {
+    let mut out = String::new();
+    match (board.core_clock_hz, board.silicon_revision) {
+        (Some(hz), revision) => {
+            let revision = match revision {
+                Some(0x1003) => ", silicon revision Y".to_string(),
+                Some(0x2003) => ", silicon revision V".to_string(),
+                Some(other) => format!(", silicon revision 0x{other:04x}"),
+                None => String::new(),
+            };
+            let _ = writeln!(out, "  core clock      {:.0} MHz{revision}", f64::from(hz) / 1e6);
+        }
+        (None, _) => {
+            let _ = writeln!(out, "  core clock      none (simulator)");
+        }
+    }
+    let _ = writeln!(out, "  imu driver      {}", imu_driver_text(board.imu));
+    match &board.motors {
+        Some(m) => {
+            let n = usize::from(m.motor_count).min(protocol::MAX_MOTORS);
+            let per_motor = (0..n)
+                .map(|i| format!("{}: {} ok / {} bad", i, m.reports[i], m.report_errors[i]))
+                .collect::<Vec<_>>()
+                .join("; ");
+            let _ = writeln!(
+                out,
+                "  motor outputs   {} (DShot), {} frames sent; speed reports {per_motor}",
+                m.motor_count, m.frames_sent
+            );
+        }
+        None => {
+            let _ = writeln!(out, "  motor outputs   no DShot link on this device");
+        }
+    }
+    match &board.receiver {
+        Some(r) => {
+            let link = if r.link_up {
+                format!("link up, {} % link quality, {} dBm", r.link_quality_pct, r.rssi_dbm)
+            } else {
+                "NO SIGNAL".to_string()
+            };
+            let _ = writeln!(
+                out,
+                "  receiver        CRSF, {link}; {} frames, {} bad",
+                r.frames, r.frame_errors
+            );
+        }
+        None => {
+            let _ = writeln!(out, "  receiver        none");
+        }
+    }
+    out
+}
+
+/// The board's hardware as JSON.
+pub fn board_json(board: &BoardHealth) -> Value {
+    json!({
+        "core_clock_hz": board.core_clock_hz,
+        "silicon_revision": board.silicon_revision,
+        "imu_driver": format!("{:?}", board.imu),
+        "motors": board.motors.map(|m| json!({
+            "motor_count": m.motor_count,
+            "frames_sent": m.frames_sent,
+            "reports": m.reports[..usize::from(m.motor_count).min(8)].to_vec(),
+            "report_errors": m.report_errors[..usize::from(m.motor_count).min(8)].to_vec(),
+        })),
+        "receiver": board.receiver.map(|r| json!({
+            "link_up": r.link_up,
+            "link_quality_pct": r.link_quality_pct,
+            "rssi_dbm": r.rssi_dbm,
+            "frames": r.frames,
+            "frame_errors": r.frame_errors,
+        })),
+    })
 }
 
 #[cfg(test)]

@@ -318,6 +318,7 @@ mod tasks {
             control: cx.shared.control.lock(|control| *control),
             background: cx.shared.background.lock(|background| *background),
             step_time: Some(StepTime { max_us: step.max_us, overruns: step.overruns }),
+            board: protocol::BoardHealth::default(),
         };
         let link = cx.local.link;
         let settings = cx.local.settings;
@@ -338,6 +339,8 @@ mod tasks {
                         let _ = work.push(BackgroundWork::Command(command));
                     }
                     LinkRequest::Reboot => reboot = true,
+                    // Refused by the link until the board announces `Capabilities::BOOTLOADER`.
+                    LinkRequest::RebootToBootloader => {}
                 }
             }
             if let Some(params) = settings.service(&view) {

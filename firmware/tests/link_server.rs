@@ -585,3 +585,128 @@ fn get_learner_needs_the_handshake_and_then_answers_with_the_view() {
         other => panic!("{other:?}"),
     }
 }
+
+#[test]
+fn a_setpoint_with_a_nan_is_refused_and_a_finite_one_is_queued() {
+    let mut host = Host::new();
+    host.handshake();
+    let bad = PositionSetpoint { position_ned_m: [1.0, f32::NAN, -1.0], heading_rad: 0.0 };
+    let response = host.request(&Request::SetPositionSetpoint(bad), 2);
+    assert_eq!(bad_value_name(&response), Some("setpoint"));
+    assert!(host.commands().is_empty(), "nothing queued for a refused setpoint");
+    let good = PositionSetpoint { position_ned_m: [1.0, -2.0, -1.5], heading_rad: 0.3 };
+    assert_eq!(host.request(&Request::SetPositionSetpoint(good), 3), Ok(Reply::Done));
+    assert_eq!(host.commands(), vec![ControlCommand::PositionSetpoint(good)]);
+}
+
+#[test]
+fn get_board_answers_the_boards_health_and_a_simulator_refuses_the_bootloader() {
+    let mut view = view_at(0);
+    view.board.core_clock_hz = Some(480_000_000);
+    view.board.imu = ImuDriverState::WrongIdentity { expected: 0x47, found: 0x00 };
+    let mut host = Host::with_view(view);
+    host.handshake();
+    match host.request(&Request::GetBoard(()), 2) {
+        Ok(Reply::Board(board)) => {
+            assert_eq!(board.core_clock_hz, Some(480_000_000));
+            assert_eq!(board.imu, ImuDriverState::WrongIdentity { expected: 0x47, found: 0x00 });
+        }
+        other => panic!("expected the board's health, got {other:?}"),
+    }
+    // This test board has no `Capabilities::BOOTLOADER`: refused, nothing requested.
+    assert_eq!(host.request(&Request::RebootToBootloader(()), 3), Err(DeviceError::Unsupported));
+    assert_eq!(host.server.take_request(), None);
+}
+
+#[test]
+fn the_bootloader_restart_is_refused_while_armed_and_requested_when_disarmed() {
+    let mut board_info = board();
+    board_info.capabilities |= Capabilities::BOOTLOADER;
+    let mut host = Host::new();
+    host.server = LinkServer::new(board_info);
+    host.handshake();
+    host.view.control.armed = true;
+    assert_eq!(
+        host.request(&Request::RebootToBootloader(()), 2),
+        Err(DeviceError::RefusedWhileArmed)
+    );
+    assert_eq!(host.server.take_request(), None);
+    host.view.control.armed = false;
+    assert_eq!(host.request(&Request::RebootToBootloader(()), 3), Ok(Reply::Done));
+    assert_eq!(host.server.take_request(), Some(LinkRequest::RebootToBootloader));
+}
+
+#[test]
+fn each_failsafe_is_reported_once_as_an_event_with_its_reason_action_and_count() {
+    let mut host = Host::new();
+    host.handshake();
+    host.advance(1_000);
+    assert!(host.read().is_empty(), "no failsafe yet, no event");
+    host.view.control.pilot.failsafes.pose_lost = 1;
+    host.view.control.pilot.last_failsafe = Some(firmware::app::Failsafe::PoseLost);
+    host.advance(1_000);
+    let events: Vec<Event> = host
+        .read()
+        .into_iter()
+        .filter_map(|r| match r.message {
+            DeviceMessage::Event(event) => Some(event),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        events,
+        vec![Event::Failsafe {
+            reason: FailsafeReason::PoseLost,
+            action: FailsafeAction::LevelHold,
+            count: 1
+        }]
+    );
+    host.advance(1_000);
+    assert!(host.read().is_empty(), "reported once");
+    host.view.control.pilot.failsafes.attitude_lost = 1;
+    host.view.control.pilot.last_failsafe = Some(firmware::app::Failsafe::AttitudeLost);
+    host.advance(1_000);
+    let received = host.read();
+    assert!(
+        received.iter().any(|r| r.message
+            == DeviceMessage::Event(Event::Failsafe {
+                reason: FailsafeReason::AttitudeLost,
+                action: FailsafeAction::Disarmed,
+                count: 1
+            })),
+        "{received:?}"
+    );
+}
+
+#[test]
+fn the_flight_topic_reports_the_mode_setpoint_and_position() {
+    let mut view = view_at(0);
+    let pilot = &mut view.control.pilot;
+    pilot.flying = true;
+    pilot.position_hold = true;
+    pilot.q_world_thrust = [1.0, 0.0, 0.0, 0.0];
+    pilot.position_ned_m = [0.5, 0.25, -1.0];
+    pilot.position_sp_ned_m = [0.5, 0.0, -1.0];
+    pilot.has_fix = true;
+    view.control.external_pose =
+        Some((ExternalPose { position_ned_m: [0.5, 0.25, -1.0], heading_rad: 0.0 }, 0));
+    let mut host = Host::with_view(view);
+    host.handshake();
+    let rate = SetTelemetryRate { topic: Topic::Flight, rate_hz: 100 };
+    assert_eq!(host.request(&Request::SetTelemetryRate(rate), 2), Ok(Reply::Done));
+    host.advance(50_000);
+    let flights: Vec<(u16, FlightTelemetry)> = host
+        .read()
+        .into_iter()
+        .filter_map(|r| match r.message {
+            DeviceMessage::Telemetry(Telemetry::Flight(f)) => Some((r.seq, f)),
+            _ => None,
+        })
+        .collect();
+    assert!(!flights.is_empty(), "the flight topic streams");
+    let (_, flight) = flights[0];
+    assert_eq!(flight.mode, FlightMode::PositionHold);
+    assert_eq!(flight.position_ned_m, Some([0.5, 0.25, -1.0]));
+    assert_eq!(flight.position_sp_ned_m, Some([0.5, 0.0, -1.0]));
+    assert!(flight.pose_fresh);
+}

@@ -24,7 +24,7 @@ pub const UNIT_LEN: usize = 8;
 /// Maximum number of motors an airframe may have; fixes array sizes on the wire.
 pub const MAX_MOTORS: usize = 8;
 /// Number of telemetry topics (the variants of [`Topic`]).
-pub const TOPIC_COUNT: usize = 5;
+pub const TOPIC_COUNT: usize = 6;
 /// Highest telemetry rate a host may request for one topic, Hz: the 2 kHz control rate. The
 /// per-step topics ([`Topic::is_per_step`]) reach it, every control step's sample; the others are
 /// sampled by the link task, at most once per pass (1 kHz on the board and in the SITL).
@@ -69,6 +69,10 @@ impl Capabilities {
     pub const PERSISTENT_STORE: u32 = 1 << 4;
     /// This is the software-in-the-loop simulator, not hardware.
     pub const SIMULATOR: u32 = 1 << 5;
+    /// The board can restart into a bootloader for firmware updates (protocol 1.4).
+    pub const BOOTLOADER: u32 = 1 << 6;
+    /// A radio receiver is configured (protocol 1.4).
+    pub const RECEIVER: u32 = 1 << 7;
 
     /// Whether every flag in `flags` is set.
     pub fn has(self, flags: u32) -> bool {
@@ -103,12 +107,15 @@ pub enum Topic {
     /// Every control step's state: IMU, attitude, motor commands and speeds, phase
     /// ([`StateTelemetry`]). Protocol 1.3.
     State,
+    /// Closed-loop flight: attitude, rates, setpoints, allocation, position, failsafes
+    /// ([`FlightTelemetry`]). Protocol 1.4.
+    Flight,
 }
 
 impl Topic {
     /// All topics, in wire order.
     pub const ALL: [Topic; TOPIC_COUNT] =
-        [Topic::Imu, Topic::Control, Topic::Motors, Topic::Learner, Topic::State];
+        [Topic::Imu, Topic::Control, Topic::Motors, Topic::Learner, Topic::State, Topic::Flight];
 
     /// The topic's index into [`Topic::ALL`].
     pub fn index(self) -> usize {
@@ -139,6 +146,15 @@ pub struct ExternalPose {
     /// Position of the centre of gravity, m, world NED.
     pub position_ned_m: [f32; 3],
     /// Heading: yaw of the body (thrust) frame about world z (down), rad.
+    pub heading_rad: f32,
+}
+
+/// Where the craft should hold itself while flying with external poses (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct PositionSetpoint {
+    /// Position of the centre of gravity to hold, m, world NED (the poses' world).
+    pub position_ned_m: [f32; 3],
+    /// Heading to hold: yaw of the thrust frame about world z (down), rad.
     pub heading_rad: f32,
 }
 
@@ -217,6 +233,10 @@ pub enum Reply {
     /// Answer to [`Request::GetConfig`], [`Request::SaveConfig`], [`Request::ResetConfig`] and
     /// an accepted [`Request::StopCalibration`].
     Config(ConfigStatus),
+    /// Answer to [`Request::GetFlight`]. Protocol 1.4.
+    Flight(FlightTelemetry),
+    /// Answer to [`Request::GetBoard`]. Protocol 1.4.
+    Board(BoardHealth),
 }
 
 /// Why a request was not carried out. Each variant's doc states what the host should do.
@@ -249,6 +269,9 @@ pub enum DeviceError {
     /// The operation needs something that is not there yet (a well-determined calibration, a
     /// running calibration): see the status.
     NotReady,
+    /// This device cannot do that (the simulator has no bootloader): nothing was changed.
+    /// Protocol 1.4.
+    Unsupported,
 }
 
 /// Where a configuration save or load failed.
@@ -499,6 +522,164 @@ pub enum Telemetry {
     Motors(MotorTelemetry),
     Learner(LearnerTelemetry),
     State(StateTelemetry),
+    Flight(FlightTelemetry),
+}
+
+/// What the closed loop is doing (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum FlightMode {
+    /// Not flying on a learned model (disarmed, waiting for a throw, or identifying).
+    #[default]
+    Off,
+    /// Flying without a recent external pose: thrust axis up, zero vertical speed from the
+    /// accelerometer; the horizontal position drifts.
+    LevelHold,
+    /// Flying with external poses: holding [`FlightTelemetry::position_sp_ned_m`].
+    PositionHold,
+}
+
+/// Why a failsafe acted (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FailsafeReason {
+    /// A motor command was not finite or outside [0, 1]: zero was written instead.
+    BadCommand,
+    /// The control allocation failed for many consecutive steps.
+    AllocationFailed,
+    /// The identification produced no flyable model (the learner's failure says why).
+    Identification(LearnerFailure),
+    /// The thrust axis stayed far from up for too long.
+    AttitudeLost,
+    /// The IMU stopped delivering samples.
+    ImuLost,
+    /// The IMU delivers implausible samples (non-finite, a stuck axis, saturation).
+    ImuFault,
+    /// The external pose stopped arriving while position hold needed it.
+    PoseLost,
+    /// The radio link was lost (receiver failsafe or no frames).
+    RcLost,
+    /// The pilot's kill switch.
+    Kill,
+}
+
+/// What a failsafe did (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FailsafeAction {
+    /// Every motor stopped, disarmed.
+    Disarmed,
+    /// Flight goes on without a position: level hold.
+    LevelHold,
+    /// Flight goes on with the IMU sample replaced by the previous good one (a short glitch).
+    HeldLastSample,
+}
+
+/// How often each failsafe acted since start-up (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct FailsafeCounters {
+    pub bad_command: u16,
+    pub allocation_failed: u16,
+    pub identification: u16,
+    pub attitude_lost: u16,
+    pub imu_lost: u16,
+    pub imu_fault: u16,
+    pub pose_lost: u16,
+    pub rc_lost: u16,
+    pub kill: u16,
+}
+
+/// The closed loop's state (protocol 1.4): what [`Topic::Flight`] streams and
+/// [`Request::GetFlight`] answers. Vectors of the thrust frame are in its axes (z along minus the
+/// thrust); world vectors are NED in the poses' world.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct FlightTelemetry {
+    /// Device time, µs since start-up.
+    pub t_us: u64,
+    pub mode: FlightMode,
+    /// Attitude of the thrust frame in the world, `[w, x, y, z]` (the IMU's before flight).
+    pub q_world_thrust: [f32; 4],
+    /// ZYX Euler angles of `q_world_thrust`: roll, pitch, yaw, rad.
+    pub euler_zyx_rad: [f32; 3],
+    /// Angular rate, rad/s, thrust frame.
+    pub rate_rad_s: [f32; 3],
+    /// Rate setpoint, rad/s, thrust frame.
+    pub rate_sp_rad_s: [f32; 3],
+    /// Wanted specific force, m/s², world NED.
+    pub specific_force_sp_ned_mps2: [f32; 3],
+    /// Angle between the thrust axis and its setpoint, rad.
+    pub tilt_error_rad: f32,
+    /// Position setpoint, m, world NED (while holding a position).
+    pub position_sp_ned_m: Option<[f32; 3]>,
+    /// Position of the centre of gravity, m, world NED (when a pose has been received).
+    pub position_ned_m: Option<[f32; 3]>,
+    /// Velocity of the centre of gravity, m/s, world NED (when known).
+    pub velocity_ned_mps: Option<[f32; 3]>,
+    /// Whether the latest pose is recent.
+    pub pose_fresh: bool,
+    /// Consecutive steps the allocation failed (0 when it succeeds).
+    pub allocation_failures: u16,
+    /// Bit i set: motor i is at a bound of its command.
+    pub saturated: u8,
+    /// The latest failsafe, if any.
+    pub last_failsafe: Option<FailsafeReason>,
+    pub failsafes: FailsafeCounters,
+}
+
+/// The board's hardware as its drivers see it (protocol 1.4, [`Request::GetBoard`]). `None`
+/// where the device has no such part (the simulator has no receiver and no clock tree).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct BoardHealth {
+    /// Core clock, Hz.
+    pub core_clock_hz: Option<u32>,
+    /// Silicon revision of the MCU (DBGMCU_IDCODE.REV_ID, e.g. 0x2003 = revision V).
+    pub silicon_revision: Option<u16>,
+    pub imu: ImuDriverState,
+    pub motors: Option<MotorLinkHealth>,
+    pub receiver: Option<ReceiverHealth>,
+}
+
+/// The IMU driver's state after its start-up checks (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ImuDriverState {
+    /// No IMU driver on this device.
+    #[default]
+    NotFitted,
+    /// Identified, configured and read back: delivering samples.
+    Running,
+    /// The identity register held `found` instead of `expected`: wrong part or no answer.
+    WrongIdentity { expected: u8, found: u8 },
+    /// A configuration register read back `read` after `written` was written.
+    ConfigMismatch { register: u8, written: u8, read: u8 },
+    /// The bus reported an error.
+    BusError,
+    /// The simulator's model of the IMU.
+    Simulated,
+}
+
+/// The motor outputs and their speed reports (bidirectional DShot), per motor (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct MotorLinkHealth {
+    /// Motor outputs driven.
+    pub motor_count: u8,
+    /// Frames sent to each motor.
+    pub frames_sent: u32,
+    /// Speed reports decoded per motor.
+    pub reports: [u32; MAX_MOTORS],
+    /// Speed reports rejected per motor (bad GCR code, CRC, or no answer).
+    pub report_errors: [u32; MAX_MOTORS],
+}
+
+/// The radio receiver (CRSF) (protocol 1.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct ReceiverHealth {
+    /// Channels arrived within the failsafe timeout.
+    pub link_up: bool,
+    /// Uplink link quality, %.
+    pub link_quality_pct: u8,
+    /// Uplink RSSI of the better antenna, dBm.
+    pub rssi_dbm: i16,
+    /// Frames accepted.
+    pub frames: u32,
+    /// Frames rejected (CRC, length, truncation).
+    pub frame_errors: u32,
 }
 
 /// Where the throw-to-fly identification stands (algorithms.md §1–2).
@@ -642,6 +823,9 @@ pub enum Event {
     CalibrationThrow(CalibrationThrow),
     /// The motor test stopped by itself: no keep-alive for [`MOTOR_TEST_KEEPALIVE_MS`].
     MotorTestTimedOut { motor: u8 },
+    /// A failsafe acted (protocol 1.4); `count` is how often this reason has acted since
+    /// start-up.
+    Failsafe { reason: FailsafeReason, action: FailsafeAction, count: u16 },
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -697,6 +881,18 @@ crate::table::message_table! {
         /// Restart the board (the SITL restarts its application, keeping its flash file).
         /// Refused while armed. Answered before the restart.
         0x12 => Reboot(()),
+        /// Where to hold while flying with external poses (protocol 1.4). Non-finite values
+        /// are refused with [`DeviceError::BadValue`] (`setpoint`). Accepted any time; the
+        /// setpoint in force is reported in [`FlightTelemetry::position_sp_ned_m`].
+        0x13 => SetPositionSetpoint(PositionSetpoint),
+        /// The closed loop's state ([`Reply::Flight`]). Protocol 1.4.
+        0x14 => GetFlight(()),
+        /// The board's drivers and clocks ([`Reply::Board`]). Protocol 1.4.
+        0x15 => GetBoard(()),
+        /// Restart into the MCU's ROM bootloader (USB DFU) for a firmware update. Refused while
+        /// armed; [`DeviceError::Unsupported`] in the simulator. Answered before the restart.
+        /// Protocol 1.4.
+        0x16 => RebootToBootloader(()),
     }
 }
 

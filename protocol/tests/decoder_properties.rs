@@ -6,9 +6,9 @@ use proptest::prelude::*;
 use protocol::frame::{encode, MAX_FRAME_LEN};
 use protocol::{
     DecodeError, Decoder, DeviceMessage, ExternalPose, FrameError, Hello, LearnerFailure,
-    LearnerPhase, LearnerTelemetry, MotorTest, ParamRef, ParamValues, Ping, Reply, Request,
-    SetParam, SetTelemetryRate, StopCalibration, Telemetry, Topic, Version, PARAM_MAX_LEN,
-    TOPIC_COUNT,
+    LearnerPhase, LearnerTelemetry, MotorTest, ParamRef, ParamValues, Ping, PositionSetpoint,
+    Reply, Request, SetParam, SetTelemetryRate, StopCalibration, Telemetry, Topic, Version,
+    PARAM_MAX_LEN, TOPIC_COUNT,
 };
 
 /// Everything the decoder said about a byte stream: frames as `(id, seq, payload)` or errors.
@@ -71,6 +71,14 @@ fn any_request() -> impl Strategy<Value = Request> {
         (any::<u8>(), 0f32..1.0)
             .prop_map(|(motor, command)| Request::MotorTest(MotorTest { motor, command })),
         Just(Request::Reboot(())),
+        (proptest::array::uniform3(-1e6f32..1e6), -10f32..10.0).prop_map(
+            |(position_ned_m, heading_rad)| {
+                Request::SetPositionSetpoint(PositionSetpoint { position_ned_m, heading_rad })
+            }
+        ),
+        Just(Request::GetFlight(())),
+        Just(Request::GetBoard(())),
+        Just(Request::RebootToBootloader(())),
     ]
 }
 

@@ -379,3 +379,63 @@ fn protocol_1_3_state_frames_are_pinned() {
     assert_eq!(Topic::State.index(), 4, "wire index of the new topic");
     assert_eq!(Topic::ALL.iter().filter(|t| t.is_per_step()).count(), 3);
 }
+
+#[test]
+fn protocol_1_4_flight_board_and_setpoint_frames_are_pinned() {
+    let setpoint = PositionSetpoint { position_ned_m: [1.0, -2.0, -1.5], heading_rad: 0.0 };
+    assert_eq!(
+        request(Request::SetPositionSetpoint(setpoint), 3),
+        "03 13 03 01 03 80 3f 01 01 02 c0 01 03 c0 bf 01 01 01 05 33 45 59 b2 00"
+    );
+    assert_eq!(request(Request::GetFlight(()), 4), "07 14 04 90 70 b4 47 00");
+    assert_eq!(request(Request::GetBoard(()), 5), "07 15 05 e4 6b 7d a6 00");
+    assert_eq!(request(Request::RebootToBootloader(()), 6), "07 16 06 89 30 ca 81 00");
+    let flight = FlightTelemetry {
+        t_us: 1_000,
+        mode: FlightMode::PositionHold,
+        q_world_thrust: [1.0, 0.0, 0.0, 0.0],
+        euler_zyx_rad: [0.0, 0.0, 0.5],
+        rate_rad_s: [0.1, 0.0, 0.0],
+        rate_sp_rad_s: [0.0, 0.0, 0.0],
+        specific_force_sp_ned_mps2: [0.0, 0.0, -9.81],
+        tilt_error_rad: 0.01,
+        position_sp_ned_m: Some([1.0, -2.0, -1.5]),
+        position_ned_m: Some([1.0, -2.0, -1.5]),
+        velocity_ned_mps: None,
+        pose_fresh: true,
+        allocation_failures: 0,
+        saturated: 0b0001,
+        last_failsafe: Some(FailsafeReason::PoseLost),
+        failsafes: FailsafeCounters { pose_lost: 1, ..FailsafeCounters::default() },
+    };
+    assert_eq!(device(DeviceMessage::Telemetry(Telemetry::Flight(flight)), 9), "07 82 09 05 e8 07 02 01 03 80 3f 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 06 3f cd cc cc 3d 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 0a c3 f5 1c c1 0a d7 23 3c 01 01 03 80 3f 01 01 02 c0 01 04 c0 bf 01 01 03 80 3f 01 01 02 c0 01 03 c0 bf 02 01 04 01 01 06 01 01 01 01 01 02 01 01 05 f1 ab 97 70 00");
+    let board = BoardHealth {
+        core_clock_hz: Some(480_000_000),
+        silicon_revision: Some(0x2003),
+        imu: ImuDriverState::WrongIdentity { expected: 0x47, found: 0xff },
+        motors: None,
+        receiver: Some(ReceiverHealth {
+            link_up: true,
+            link_quality_pct: 100,
+            rssi_dbm: -60,
+            frames: 10,
+            frame_errors: 1,
+        }),
+    };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::Board(board))), 5),
+        "03 81 05 0e 09 01 80 f0 f0 e4 01 01 83 40 02 47 ff 0b 01 01 64 77 0a 01 f0 a4 20 ce 00"
+    );
+    let event = Event::Failsafe {
+        reason: FailsafeReason::Kill,
+        action: FailsafeAction::Disarmed,
+        count: 2,
+    };
+    assert_eq!(device(DeviceMessage::Event(event), 1), "05 83 01 03 08 06 02 21 a8 c7 fc 00");
+    assert_eq!(
+        device(DeviceMessage::Response(Err(DeviceError::Unsupported)), 6),
+        "09 81 06 01 0c f0 89 d2 48 00"
+    );
+    assert_eq!(Topic::Flight.index(), 5, "wire index of the new topic");
+    assert!(!Topic::Flight.is_per_step(), "the link samples the flight topic");
+}

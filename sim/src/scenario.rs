@@ -65,6 +65,8 @@ impl FirmwareApp<'_> {
             LinkRequest::Control(command) => self.control.command(command, now_us),
             LinkRequest::Background(command) => self.background.command(command),
             LinkRequest::Reboot => return true,
+            // Never reaches a simulator: its link refuses it (no `Capabilities::BOOTLOADER`).
+            LinkRequest::RebootToBootloader => {}
         }
         false
     }

@@ -18,7 +18,7 @@ use firmware::app::{
     Background, BoardInfo, ControlLoop, LinkRequest, LinkServer, Settings, StatusView, StepRecord,
     CONTROL_RATE_HZ,
 };
-use protocol::{Capabilities, BOARD_NAME_LEN};
+use protocol::{BoardHealth, Capabilities, ImuDriverState, BOARD_NAME_LEN};
 
 /// Capabilities of every simulated board: IMU, motors with RPM telemetry, telemetry streaming,
 /// and the simulator flag.
@@ -42,10 +42,25 @@ pub fn simulator_board_info(board: &'static str, seed: u64, motor_count: u8) -> 
     }
 }
 
+/// What a simulated board reports of its hardware: the simulator's IMU model; no clock tree, no
+/// DShot link (the motors are modelled behind the application's motor seam) and no receiver.
+pub const SITL_BOARD_HEALTH: BoardHealth = BoardHealth {
+    core_clock_hz: None,
+    silicon_revision: None,
+    imu: ImuDriverState::Simulated,
+    motors: None,
+    receiver: None,
+};
+
 /// What the links answer from: copies of the control and background snapshots (the simulator
 /// does not measure the step's execution time).
 pub fn status_view(control: &ControlLoop<'_>, background: &Background<'_>) -> StatusView {
-    StatusView { control: control.snapshot(), background: background.results(), step_time: None }
+    StatusView {
+        control: control.snapshot(),
+        background: background.results(),
+        step_time: None,
+        board: SITL_BOARD_HEALTH,
+    }
 }
 
 /// A byte transport a link pass serves: the pseudo-terminal master or a TCP stream.

@@ -17,13 +17,15 @@
 
 use super::background::BackgroundResults;
 use super::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
-use super::pilot::{Failsafe, IdentificationFailure, Pilot, PilotStatus};
+use super::pilot::{Failsafe, Pilot, PilotStatus};
 use super::queue::{LearnerSample, SampleProducer};
 use super::telemetry::{StepProducer, StepRecord};
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
 use flight::learner::{FlightPhase, ThrowToFly};
-use protocol::{ExternalPose, LearnerFailure, MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND};
+use protocol::{
+    ExternalPose, LearnerFailure, PositionSetpoint, MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND,
+};
 
 /// What the other tasks ask of the control step (from the link, the receiver, the simulator).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -34,6 +36,8 @@ pub enum ControlCommand {
     Disarm,
     /// A pose from motion capture or a ground station.
     ExternalPose(ExternalPose),
+    /// Where to hold while poses arrive (the link refuses non-finite values).
+    PositionSetpoint(PositionSetpoint),
     /// The parameters changed: take these (applied when nothing is armed; kept until then).
     Configure(ControlSettings),
     /// Spin `motor` at `command` (clamped to [`MOTOR_TEST_MAX_COMMAND`]) until
@@ -210,6 +214,9 @@ impl<'q> ControlLoop<'q> {
                     self.snapshot.external_pose = Some((pose, now_us));
                     self.pilot.pose(&pose, now_us);
                 }
+            }
+            ControlCommand::PositionSetpoint(setpoint) => {
+                self.pilot.set_position_setpoint(&setpoint);
             }
             ControlCommand::Configure(settings) => self.pending_settings = Some(settings),
             ControlCommand::MotorTest { motor, command } => {
@@ -442,10 +449,7 @@ impl<'q> ControlLoop<'q> {
 /// How a failed handover shows in the learner's status.
 fn learner_failure(failsafe: Failsafe) -> LearnerFailure {
     match failsafe {
-        Failsafe::Identification(IdentificationFailure::RankDeficient) => {
-            LearnerFailure::RankDeficient
-        }
-        Failsafe::Identification(IdentificationFailure::NoHover) => LearnerFailure::NoHover,
+        Failsafe::Identification(failure) => failure.learner_failure(),
         Failsafe::ImuLost => LearnerFailure::ImuLost,
         _ => LearnerFailure::NoHover,
     }

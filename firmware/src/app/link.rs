@@ -10,18 +10,20 @@
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
 use super::params;
+use super::pilot::{Failsafe, IdentificationFailure};
 use super::settings::Settings;
 use super::telemetry::{wire_phase, StepRecord};
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::{AxisStatus, FlightPhase};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use protocol::text as short_text;
 use protocol::{
-    CalibrationThrow, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError, Decoder,
-    DeviceError, DeviceMessage, Event, FrameError, ImuStatus, LearnerFailure, LearnerPhase,
-    LearnerTelemetry, LinkCounters, ParamRef, Reply, Request, Response, SetTelemetryRate, Status,
-    Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION,
-    TOPIC_COUNT,
+    CalibrationThrow, Capabilities, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError,
+    Decoder, DeviceError, DeviceMessage, Event, FailsafeCounters, FlightMode, FlightTelemetry,
+    FrameError, ImuStatus, LearnerFailure, LearnerPhase, LearnerTelemetry, LinkCounters, ParamRef,
+    Reply, Request, Response, SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN,
+    MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
 };
 
 /// Commands for the control step that may wait between two link passes.
@@ -44,6 +46,8 @@ pub enum LinkRequest {
     Background(BackgroundCommand),
     /// Restart the board once the transmit buffer has drained (the reply is in it).
     Reboot,
+    /// Restart into the ROM bootloader (USB DFU), likewise.
+    RebootToBootloader,
 }
 
 /// Per-topic streaming state.
@@ -81,8 +85,10 @@ pub struct LinkServer {
     motor_test_timeouts_reported: u16,
     /// The motor this link's host last asked to test (stopped when the host goes away).
     motor_test_started: Option<u8>,
-    /// The host asked for a restart ([`LinkServer::take_reboot`]).
-    reboot_requested: bool,
+    /// The host asked for a restart ([`LinkServer::take_request`]).
+    reboot_requested: Option<LinkRequest>,
+    /// Failsafe counts already reported as events.
+    failsafes_reported: FailsafeCounters,
 }
 
 impl LinkServer {
@@ -102,7 +108,8 @@ impl LinkServer {
             calibration_throws_reported: 0,
             motor_test_timeouts_reported: 0,
             motor_test_started: None,
-            reboot_requested: false,
+            reboot_requested: None,
+            failsafes_reported: FailsafeCounters::default(),
         }
     }
 
@@ -126,7 +133,7 @@ impl LinkServer {
         if let Some(command) = self.background_commands.pop_front() {
             return Some(LinkRequest::Background(command));
         }
-        core::mem::take(&mut self.reboot_requested).then_some(LinkRequest::Reboot)
+        self.reboot_requested.take()
     }
 
     /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit`].
@@ -253,6 +260,7 @@ impl LinkServer {
             Some(_) => {}
             None => self.calibration_throws_reported = 0,
         }
+        self.report_failsafes(view);
         let timeouts = view.control.motor_test_timeouts;
         if timeouts != self.motor_test_timeouts_reported {
             if let Some(motor) = self.motor_test_started {
@@ -263,6 +271,30 @@ impl LinkServer {
             }
             self.motor_test_timeouts_reported = timeouts;
         }
+    }
+
+    /// One event per failsafe that acted since the last report (the latest reason; a counter
+    /// that rose without being the latest is reported with its own reason and count).
+    fn report_failsafes(&mut self, view: &StatusView) {
+        let counts = view.control.pilot.failsafes;
+        if counts == self.failsafes_reported {
+            return;
+        }
+        let last = view.control.pilot.last_failsafe;
+        for (failsafe, now, reported) in failsafe_counts(&counts, &self.failsafes_reported, last) {
+            if now <= reported {
+                continue;
+            }
+            let event = Event::Failsafe {
+                reason: failsafe.reason(),
+                action: failsafe.action(),
+                count: now,
+            };
+            if self.send_event(event).is_err() {
+                return;
+            }
+        }
+        self.failsafes_reported = counts;
     }
 
     fn send_event(&mut self, event: Event) -> Result<(), TxFull> {
@@ -288,6 +320,7 @@ impl LinkServer {
                 | Request::ResetConfig(())
                 | Request::StartCalibration(())
                 | Request::Reboot(())
+                | Request::RebootToBootloader(())
         );
         if refuse_if_armed && armed && self.host_version.is_some() {
             return Err(DeviceError::RefusedWhileArmed);
@@ -425,7 +458,33 @@ impl LinkServer {
                 Ok(Reply::Done)
             }
             Request::Reboot(()) => {
-                self.reboot_requested = true;
+                self.reboot_requested = Some(LinkRequest::Reboot);
+                Ok(Reply::Done)
+            }
+            Request::SetPositionSetpoint(setpoint) => {
+                let finite = setpoint.position_ned_m.iter().all(|x| x.is_finite())
+                    && setpoint.heading_rad.is_finite();
+                if !finite {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("setpoint"),
+                        value: f32::NAN,
+                        min: -f32::MAX,
+                        max: f32::MAX,
+                        unit: short_text("m, rad"),
+                    });
+                }
+                self.commands
+                    .push_back(ControlCommand::PositionSetpoint(setpoint))
+                    .map(|_| Reply::Done)
+                    .map_err(|_| DeviceError::Busy)
+            }
+            Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
+            Request::GetBoard(()) => Ok(Reply::Board(view.board)),
+            Request::RebootToBootloader(()) => {
+                if !self.info.capabilities.has(Capabilities::BOOTLOADER) {
+                    return Err(DeviceError::Unsupported);
+                }
+                self.reboot_requested = Some(LinkRequest::RebootToBootloader);
                 Ok(Reply::Done)
             }
         }
@@ -526,7 +585,74 @@ fn sample_topic(topic: Topic, view: &StatusView, seq: u16) -> Option<Telemetry> 
             late_steps: control.late_steps,
             samples_dropped: control.samples_dropped,
         })),
+        Topic::Flight => Some(Telemetry::Flight(flight_telemetry(view))),
         Topic::Imu | Topic::Motors | Topic::State => None,
+    }
+}
+
+/// Each failsafe with its count now and its count already reported. For the identification
+/// failure the latest reason is used when it is one (its detail is not counted separately).
+fn failsafe_counts(
+    now: &FailsafeCounters,
+    reported: &FailsafeCounters,
+    last: Option<Failsafe>,
+) -> [(Failsafe, u16, u16); 9] {
+    let identification = match last {
+        Some(failsafe @ Failsafe::Identification(_)) => failsafe,
+        _ => Failsafe::Identification(IdentificationFailure::NoHover),
+    };
+    [
+        (Failsafe::BadCommand, now.bad_command, reported.bad_command),
+        (Failsafe::AllocationFailed, now.allocation_failed, reported.allocation_failed),
+        (identification, now.identification, reported.identification),
+        (Failsafe::AttitudeLost, now.attitude_lost, reported.attitude_lost),
+        (Failsafe::ImuLost, now.imu_lost, reported.imu_lost),
+        (Failsafe::ImuFault, now.imu_fault, reported.imu_fault),
+        (Failsafe::PoseLost, now.pose_lost, reported.pose_lost),
+        (Failsafe::RcLost, now.rc_lost, reported.rc_lost),
+        (Failsafe::Kill, now.kill, reported.kill),
+    ]
+}
+
+/// The closed loop's state for the wire.
+pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
+    let control = &view.control;
+    let pilot = &control.pilot;
+    let mode = match (pilot.flying, pilot.position_hold) {
+        (false, _) => FlightMode::Off,
+        (true, false) => FlightMode::LevelHold,
+        (true, true) => FlightMode::PositionHold,
+    };
+    let q = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
+    let attitude = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]));
+    let (roll, pitch, yaw) = attitude.euler_angles();
+    // The rate in the thrust frame: the IMU's rate turned by the learned q_U^T while flying.
+    let gyro = Vector3::from(control.imu.gyro_rad_s);
+    let rate = match (&view.background.learned.thrust_axis, pilot.flying) {
+        (Some(axis), true) => {
+            let [w, x, y, z] = axis.q_thrust_to_imu;
+            UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)).inverse() * gyro
+        }
+        _ => gyro,
+    };
+    let known = control.external_pose.is_some();
+    FlightTelemetry {
+        t_us: control.t_us,
+        mode,
+        q_world_thrust: [attitude.w, attitude.i, attitude.j, attitude.k],
+        euler_zyx_rad: [roll, pitch, yaw],
+        rate_rad_s: rate.into(),
+        rate_sp_rad_s: pilot.rate_sp_rad_s,
+        specific_force_sp_ned_mps2: pilot.specific_force_sp_ned_mps2,
+        tilt_error_rad: pilot.tilt_error_rad,
+        position_sp_ned_m: pilot.position_hold.then_some(pilot.position_sp_ned_m),
+        position_ned_m: known.then_some(pilot.position_ned_m),
+        velocity_ned_mps: (known || pilot.flying).then_some(pilot.velocity_ned_mps),
+        pose_fresh: pilot.has_fix,
+        allocation_failures: pilot.allocation_failures,
+        saturated: pilot.saturated,
+        last_failsafe: pilot.last_failsafe.map(Failsafe::reason),
+        failsafes: pilot.failsafes,
     }
 }
 

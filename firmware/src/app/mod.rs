@@ -31,7 +31,7 @@ pub use control::{
 };
 pub use link::{LinkRequest, LinkServer, TX_CAPACITY};
 pub use params::{Param, Params};
-pub use pilot::{Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus};
+pub use pilot::{count_failsafe, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus};
 pub use queue::{
     split_queue, LearnerSample, RingConsumer, RingProducer, SampleConsumer, SampleProducer,
     SampleQueue, SAMPLE_QUEUE_LEN,
@@ -87,6 +87,8 @@ pub struct StatusView {
     pub background: BackgroundResults,
     /// The control step's execution time, when the board measures it.
     pub step_time: Option<protocol::StepTime>,
+    /// The board's drivers and clocks (what [`protocol::Request::GetBoard`] answers).
+    pub board: protocol::BoardHealth,
 }
 
 /// Parse a decimal `u8` at compile time (crate version components).

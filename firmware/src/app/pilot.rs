@@ -23,7 +23,10 @@ use flight::indi::{IndiConfig, IndiModel, ModelError};
 use flight::learner::{AxisStatus, LearnedModel};
 use flight::navigation::{HeadingAlignment, PositionEstimator, STANDARD_GRAVITY_MPS2};
 use nalgebra::{UnitQuaternion, Vector3};
-use protocol::ExternalPose;
+use protocol::{
+    ExternalPose, FailsafeAction, FailsafeCounters, FailsafeReason, LearnerFailure,
+    PositionSetpoint,
+};
 
 use super::hal::{ImuSample, MAX_MOTORS};
 
@@ -85,8 +88,43 @@ pub enum Failsafe {
     AttitudeLost,
     /// The IMU stopped delivering: disarmed.
     ImuLost,
+    /// The IMU delivered implausible samples (non-finite, stuck, saturated).
+    ImuFault,
     /// The external pose stopped arriving: level hold without position.
     PoseLost,
+    /// The radio link was lost.
+    RcLost,
+    /// The pilot's kill switch: disarmed.
+    Kill,
+}
+
+impl Failsafe {
+    /// The reason as the protocol names it.
+    pub fn reason(self) -> FailsafeReason {
+        match self {
+            Failsafe::BadCommand => FailsafeReason::BadCommand,
+            Failsafe::AllocationFailed => FailsafeReason::AllocationFailed,
+            Failsafe::Identification(failure) => {
+                FailsafeReason::Identification(failure.learner_failure())
+            }
+            Failsafe::AttitudeLost => FailsafeReason::AttitudeLost,
+            Failsafe::ImuLost => FailsafeReason::ImuLost,
+            Failsafe::ImuFault => FailsafeReason::ImuFault,
+            Failsafe::PoseLost => FailsafeReason::PoseLost,
+            Failsafe::RcLost => FailsafeReason::RcLost,
+            Failsafe::Kill => FailsafeReason::Kill,
+        }
+    }
+}
+
+impl Failsafe {
+    /// What the control step does about it.
+    pub fn action(self) -> FailsafeAction {
+        match self {
+            Failsafe::PoseLost => FailsafeAction::LevelHold,
+            _ => FailsafeAction::Disarmed,
+        }
+    }
 }
 
 /// Why a learned model cannot be flown.
@@ -104,29 +142,37 @@ pub enum IdentificationFailure {
     Invalid,
 }
 
-/// Counts of every failsafe since start-up.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct FailsafeCounts {
-    pub bad_command: u16,
-    pub allocation_failed: u16,
-    pub identification: u16,
-    pub attitude_lost: u16,
-    pub imu_lost: u16,
-    pub pose_lost: u16,
+impl IdentificationFailure {
+    /// The learner's failure as the protocol names it.
+    pub fn learner_failure(self) -> LearnerFailure {
+        match self {
+            IdentificationFailure::RankDeficient => LearnerFailure::RankDeficient,
+            IdentificationFailure::NoHover => LearnerFailure::NoHover,
+            IdentificationFailure::NoThrustAxis
+            | IdentificationFailure::Motor(_)
+            | IdentificationFailure::Invalid => LearnerFailure::NoHover,
+        }
+    }
 }
 
-impl FailsafeCounts {
-    fn count(&mut self, failsafe: Failsafe) {
-        let counter = match failsafe {
-            Failsafe::BadCommand => &mut self.bad_command,
-            Failsafe::AllocationFailed => &mut self.allocation_failed,
-            Failsafe::Identification(_) => &mut self.identification,
-            Failsafe::AttitudeLost => &mut self.attitude_lost,
-            Failsafe::ImuLost => &mut self.imu_lost,
-            Failsafe::PoseLost => &mut self.pose_lost,
-        };
-        *counter = counter.saturating_add(1);
-    }
+/// Counts of every failsafe since start-up: the protocol's [`FailsafeCounters`].
+pub type FailsafeCounts = FailsafeCounters;
+
+/// Count one more `failsafe` in `counts` (saturating) and return the new count.
+pub fn count_failsafe(counts: &mut FailsafeCounts, failsafe: Failsafe) -> u16 {
+    let counter = match failsafe {
+        Failsafe::BadCommand => &mut counts.bad_command,
+        Failsafe::AllocationFailed => &mut counts.allocation_failed,
+        Failsafe::Identification(_) => &mut counts.identification,
+        Failsafe::AttitudeLost => &mut counts.attitude_lost,
+        Failsafe::ImuLost => &mut counts.imu_lost,
+        Failsafe::ImuFault => &mut counts.imu_fault,
+        Failsafe::PoseLost => &mut counts.pose_lost,
+        Failsafe::RcLost => &mut counts.rc_lost,
+        Failsafe::Kill => &mut counts.kill,
+    };
+    *counter = counter.saturating_add(1);
+    *counter
 }
 
 /// What the pilot reports (part of the control snapshot).
@@ -190,6 +236,9 @@ pub struct Pilot {
     guidance: Guidance,
     /// The position to hold, world NED, m: where the craft was when position hold began.
     position_sp_ned_m: Option<Vector3<f32>>,
+    /// The setpoint a ground station asked for, poses' world; `None`: hold where the craft
+    /// stopped.
+    requested_sp: Option<PositionSetpoint>,
     /// Time of the last pose, µs.
     last_pose_us: Option<u64>,
     heading_rad: Option<f32>,
@@ -214,6 +263,7 @@ impl Pilot {
             controller: None,
             guidance: Guidance::Level { yaw_rad: 0.0, velocity_ned_mps: Vector3::zeros() },
             position_sp_ned_m: None,
+            requested_sp: None,
             last_pose_us: None,
             heading_rad: None,
             tilted_s: 0.0,
@@ -234,6 +284,26 @@ impl Pilot {
     /// The model the background task published, with the IMU offset it was learned with.
     pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3]) {
         self.model = Some((*model, r_imu_m));
+    }
+
+    /// Hold `setpoint` (position of the CoG and heading, in the poses' world) whenever poses
+    /// arrive, from now on and in later flights, instead of the place where the craft stopped.
+    /// Non-finite setpoints are ignored (the link refuses them first).
+    pub fn set_position_setpoint(&mut self, setpoint: &PositionSetpoint) {
+        let finite = setpoint.position_ned_m.iter().all(|x| x.is_finite())
+            && setpoint.heading_rad.is_finite();
+        if finite {
+            self.requested_sp = Some(*setpoint);
+            if self.position_sp_ned_m.is_some() {
+                self.hold_requested(setpoint);
+            }
+        }
+    }
+
+    /// Take a requested setpoint as the one held now.
+    fn hold_requested(&mut self, setpoint: &PositionSetpoint) {
+        self.position_sp_ned_m = Some(Vector3::from(setpoint.position_ned_m));
+        self.yaw_sp_filter_rad = setpoint.heading_rad - self.alignment_yaw_rad();
     }
 
     /// An external pose (position of the CoG, heading) at `now_us`.
@@ -426,7 +496,7 @@ impl Pilot {
         let was_holding = matches!(self.guidance, Guidance::Position { .. });
         let can_hold = nav.has_fix && self.alignment.yaw_rad().is_some();
         if was_holding && !can_hold {
-            self.status.failsafes.count(Failsafe::PoseLost);
+            count_failsafe(&mut self.status.failsafes, Failsafe::PoseLost);
             self.status.last_failsafe = Some(Failsafe::PoseLost);
             self.position_sp_ned_m = None;
         } else if can_hold
@@ -434,8 +504,12 @@ impl Pilot {
             && Vector3::from(imu.gyro_rad_s).norm() < STEADY_RATE_RAD_S
             && nav.velocity_ned_mps.norm() < HOLD_START_SPEED_MPS
         {
-            // The hold starts where the craft is once it has stopped turning and moving.
-            self.position_sp_ned_m = Some(nav.position_ned_m);
+            // The hold starts once the craft has stopped turning and moving: at the requested
+            // setpoint if there is one, else where the craft is.
+            match self.requested_sp {
+                Some(setpoint) => self.hold_requested(&setpoint),
+                None => self.position_sp_ned_m = Some(nav.position_ned_m),
+            }
         }
         self.guidance = self.guidance_now(self.position_sp_ned_m);
         let input = ControllerInput {
@@ -502,7 +576,7 @@ impl Pilot {
 
     fn fail(&mut self, failsafe: Failsafe) -> Failsafe {
         self.disarm();
-        self.status.failsafes.count(failsafe);
+        count_failsafe(&mut self.status.failsafes, failsafe);
         self.status.last_failsafe = Some(failsafe);
         failsafe
     }

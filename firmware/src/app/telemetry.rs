@@ -94,7 +94,7 @@ impl StepRecord {
                     speeds_rad_s: self.speeds_rad_s,
                 }))
             }
-            Topic::Control | Topic::Learner => None,
+            Topic::Control | Topic::Learner | Topic::Flight => None,
         }
     }
 }
