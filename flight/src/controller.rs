@@ -26,9 +26,13 @@
 //!   curve the rate setpoint falls at α, which the rate loop is given as a feed-forward angular
 //!   acceleration so it does not lag behind the planned deceleration. Within 30° of the wanted
 //!   axis the loop is exactly the published one.
-//! - **Thrust**: the wanted specific force projected on the *current* thrust axis (no thrust is
-//!   wasted pushing sideways while tilted), at least [`MIN_THRUST_FRACTION`] of it so the motors
-//!   keep authority when upside down.
+//! - **Thrust**: the magnitude of the wanted specific force, whatever the tilt (ours). Projecting
+//!   it on the current thrust axis, as a level flight controller would, starves a tumbling craft
+//!   of rotor speed: near idle the differential thrust that stops the spin is small, and the
+//!   craft falls spinning. Measured on 300 Monte Carlo throws (`fly monte-carlo --runs 300`):
+//!   projected with a floor of 20 % of the magnitude, 21 hit the ground; floors of 50 % and
+//!   80 %, 16 and 12; the full magnitude, 4; the projection only beyond 30°, 10; more than the
+//!   magnitude (1/cos of the tilt up to 60°), 13.
 //! - **Gains** from the slowest motor's τ ([`crate::position::Gains`], §7).
 //!
 //! A plain struct with [`Controller::update`]; the application decides when it runs and what
@@ -46,11 +50,6 @@ pub const MAX_TILT_RATE_RAD_S: f32 = 800.0 * core::f32::consts::PI / 180.0;
 
 /// Largest yaw rate the attitude loop asks for, rad/s (400 °/s, algorithms.md §7).
 pub const MAX_YAW_RATE_RAD_S: f32 = 400.0 * core::f32::consts::PI / 180.0;
-
-/// Smallest thrust while the thrust axis points away from the wanted one, fraction of the wanted
-/// specific force: a tumbling craft keeps enough spin on its rotors for differential thrust to
-/// right it, without driving itself into the ground.
-pub const MIN_THRUST_FRACTION: f32 = 0.2;
 
 /// Tilt beyond which the yaw error is ignored, rad (90°): the heading of a craft on its side is
 /// undefined, and righting it comes first.
@@ -419,7 +418,7 @@ pub fn attitude_loop(
         let error = wrap_pi(yaw_sp_rad - yaw);
         rate_sp.z = (gains.k_attitude * error).clamp(-MAX_YAW_RATE_RAD_S, MAX_YAW_RATE_RAD_S);
     }
-    let thrust_mps2 = (f_norm * libm::cosf(tilt)).max(MIN_THRUST_FRACTION * f_norm);
+    let thrust_mps2 = f_norm;
     AttitudeCommand {
         rate_sp_rad_s: rate_sp,
         accel_ff_rad_s2: accel_ff,
