@@ -6,19 +6,24 @@
 //!
 //! | task | bound to | priority | what |
 //! |---|---|---|---|
-//! | `control_tick` | TIM2 update, 2 kHz | 3 (highest) | one control step; pends `usb_service` at 1 kHz, spawns `background` when samples wait |
-//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | USB device, CDC bytes ↔ link server, telemetry |
+//! | `control_tick` | TIM7 update, 2 kHz | 3 (highest) | receiver bytes → arm/disarm; one control step (IMU mean in, DShot frames out); pends `usb_service` at 1 kHz, spawns `background` when samples wait |
+//! | `imu_data_ready` | EXTI2 (ICM-42688-P INT1), 8 kHz | 3 | starts the SPI DMA read of one sample (returns at once) |
+//! | `imu_transfer_done` | DMA1 stream 0 complete | 3 | ends the read, adds the sample to the 8 kHz → 2 kHz mean |
+//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | USB device, CDC bytes ↔ link server, telemetry, configuration saves (flash erase) |
 //! | `background` | software task (dispatcher `DCMI`) | 1 | drains the learner-sample queue, publishes results |
 //! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
-//! Shared resources are only handoffs: the control step's `Copy` status snapshot and the
-//! background results, each written and read under a lock held for a copy. Everything else is a
-//! task's `#[local]` state. Task bodies live outside the `#[app]` module (RTIC v1 book), in
+//! Shared resources are only handoffs: the control step's `Copy` status snapshot, the board's
+//! health and the background results, each written and read under a lock held for a copy; and
+//! the IMU, shared lock-free by the three priority-3 tasks (equal priorities never preempt each
+//! other). Everything else is a task's `#[local]` state. Task bodies live outside the `#[app]` module (RTIC v1 book), in
 //! [`tasks`].
 //!
-//! Clocks: 8 MHz HSE → PLL1 → sys_ck 400 MHz, hclk 200 MHz; USB from HSI48 (see
-//! [`firmware::board::config`]). Time: TIM5 as a 1 MHz counter extended to 64-bit microseconds
-//! ([`firmware::board::time`]), read by the control and USB tasks.
+//! The board (pins, timers, DMA streams) is [`firmware::boards::SELECTED`], the Matek H743 V3.
+//! Clocks: the silicon revision is read first (DBGMCU_IDCODE); 8 MHz HSE → PLL1 → sys_ck
+//! 480 MHz at VOS0 on revision V, 400 MHz at VOS1 otherwise, hclk = sys_ck / 2; USB from HSI48
+//! (see [`firmware::board::config`]). Time: TIM2 as a 1 MHz counter extended to 64-bit
+//! microseconds ([`firmware::board::time`]), read by the control and USB tasks.
 //!
 //! On the host this file builds to a stub `main` so that `cargo build --workspace` works; the
 //! simulator runs the same `firmware::app` code instead.
@@ -36,22 +41,26 @@ use {defmt_rtt as _, panic_probe as _};
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
 mod app {
-    use crate::tasks::{background, control_tick, usb_service};
+    use crate::tasks::{background, control_tick, imu_data_ready, imu_transfer_done, usb_service};
     use firmware::app::hal::Motors;
     use firmware::app::{
         split_queue, Background, BackgroundCommand, BackgroundResults, BoardInfo, ControlCommand,
-        ControlConfig, ControlLoop, ControlSnapshot, LinkServer, NoFlash, SampleQueue, Settings,
+        ControlConfig, ControlLoop, ControlSnapshot, LinkServer, SampleQueue, Settings,
         StepConsumer, StepRing,
     };
-    use firmware::board::config::{HCLK_HZ, SYS_CK_HZ, TIME_BASE_HZ};
+    use firmware::board::config::{clock_plan, silicon_revision, TIME_BASE_HZ};
+    use firmware::board::flash::ConfigSectors;
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
     use firmware::board::imu::BoardImu;
     use firmware::board::motors::BoardMotors;
+    use firmware::board::receiver::BoardReceiver;
     use firmware::board::time::MicrosClock;
     use firmware::board::timing::{step_stats, StepStats, StepTimer};
     use firmware::board::usb::{self, UsbSerial, UsbStorage, EP_MEMORY_WORDS};
-    use firmware::board::BOARD;
-    use protocol::Capabilities;
+    use firmware::board::{bootloader, BOARD};
+    use firmware::drivers::receiver::CraftState;
+    use protocol::{BoardHealth, Capabilities, ImuDriverState};
+    use stm32h7xx_hal::flash::FlashExt;
     use stm32h7xx_hal::pac;
     use stm32h7xx_hal::prelude::*;
     use stm32h7xx_hal::rcc::rec::UsbClkSel;
@@ -60,6 +69,14 @@ mod app {
     use stm32h7xx_hal::usb_hs::USB2;
     use usb_device::bus::UsbBusAllocator;
 
+    // The interrupts bound below must be the board's: EXTI line of the IMU's data-ready pin and
+    // the IMU's RX DMA stream (`boards::FIRMWARE_IMU_*`, checked on the host too).
+    const _: () = assert!(
+        BOARD.imu.data_ready.number == 2
+            && BOARD.imu.rx_dma.controller == 1
+            && BOARD.imu.rx_dma.stream == 0
+    );
+
     /// Handoffs between tasks: small `Copy` values, locked only for the copy.
     #[shared]
     struct Shared {
@@ -67,12 +84,19 @@ mod app {
         control: ControlSnapshot,
         /// Written by `background` after each batch, read by `usb_service`.
         background: BackgroundResults,
+        /// Clocks and drivers: written by `init` and (motors, receiver) by `control_tick` at
+        /// 1 kHz, read by `usb_service` (`GetBoard`).
+        board: BoardHealth,
         /// Commands from the link for the control step (arm, disarm, pose, settings, motor
         /// test): pushed by `usb_service`, taken by `control_tick` at the start of its next step.
         commands: heapless::Deque<ControlCommand, 4>,
         /// Commands from the link for the background task (calibration start and stop, new
         /// parameters): pushed by `usb_service`, taken by `background` when it next runs.
         background_commands: heapless::Deque<BackgroundWork, 4>,
+        /// The IMU: its data-ready and DMA tasks fill the 8 kHz mean, the control step takes it.
+        /// All three run at priority 3, so no lock is needed.
+        #[lock_free]
+        imu: BoardImu,
     }
 
     /// What the link task hands the background task. The parameters travel whole (about
@@ -87,20 +111,19 @@ mod app {
     /// Each task's own state.
     #[local]
     struct Local {
-        control_timer: Timer<pac::TIM2>,
+        control_timer: Timer<pac::TIM7>,
         step_timer: StepTimer,
         control_clock: MicrosClock,
         control: ControlLoop<'static>,
-        imu: BoardImu,
         motors: BoardMotors,
+        receiver: BoardReceiver,
         usb_clock: MicrosClock,
         usb: UsbSerial,
         link: LinkServer,
         /// The link task's end of the telemetry ring (one record per control step).
         telemetry: StepConsumer<'static>,
-        /// The parameters. No flash store yet: the H743's configuration sectors need a driver
-        /// that reports ECC errors instead of faulting on a torn word (see `app::settings`).
-        settings: Settings<NoFlash>,
+        /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads).
+        settings: Settings<ConfigSectors>,
         background: Background<'static>,
     }
 
@@ -112,6 +135,12 @@ mod app {
         uid_text: [u8; UID_HEX_CHARS] = [0; UID_HEX_CHARS],
     ])]
     fn init(cx: init::Context) -> (Shared, Local, init::Monotonics) {
+        // First of all, before any clock or peripheral is touched: did the previous run ask for
+        // the ROM bootloader?
+        if bootloader::take_request() {
+            // SAFETY: nothing is configured yet (see `jump_to_bootloader`).
+            unsafe { bootloader::jump_to_bootloader() }
+        }
         let dp = cx.device;
         let mut core = cx.core;
 
@@ -120,19 +149,22 @@ mod app {
         dp.DBGMCU
             .cr
             .modify(|_, w| w.dbgsleep_d1().set_bit().dbgstop_d1().set_bit().dbgstby_d1().set_bit());
+        core.SCB.enable_icache();
 
-        // Clocks: LDO supply at VOS1 (the HAL's default), HSE → PLL1 → 400 MHz (see
-        // `board::config` for why not 480 MHz), USB from the 48 MHz internal RC (HSI48).
-        let pwrcfg = dp.PWR.constrain().freeze();
-        // PLL1 in the wide VCO range (the HAL's `Iterative` strategy): 8 MHz / M 1 × N 100 = an
-        // 800 MHz VCO, / P 2 = 400 MHz, the textbook H743 setting (an even P divider; the
-        // `Normal` strategy would run the VCO at 400 MHz with P = 1).
+        // Clocks: the silicon revision decides 480 MHz (VOS0) or 400 MHz (VOS1); LDO supply;
+        // HSE → PLL1 (wide VCO, the HAL's `Iterative` strategy: 8 MHz / 1 × 120 = 960 MHz / 2 =
+        // 480 MHz, or × 100 = 800 MHz / 2 = 400 MHz); USB from the 48 MHz internal RC (HSI48).
+        let revision = silicon_revision();
+        let plan = clock_plan(revision);
+        let pwr = dp.PWR.constrain();
+        let pwr = if plan.vos0 { pwr.vos0(&dp.SYSCFG) } else { pwr };
+        let pwrcfg = pwr.freeze();
         let mut rcc = dp
             .RCC
             .constrain()
             .use_hse(BOARD.hse_hz.Hz())
-            .sys_ck(SYS_CK_HZ.Hz())
-            .hclk(HCLK_HZ.Hz())
+            .sys_ck(plan.sys_ck_hz.Hz())
+            .hclk(plan.hclk_hz.Hz())
             .pll1_strategy(PllConfigStrategy::Iterative);
         if BOARD.hse_bypass {
             rcc = rcc.bypass_hse();
@@ -142,12 +174,15 @@ mod app {
             defmt::panic!("HSI48 is not running: USB has no clock");
         }
         ccdr.peripheral.kernel_usb_clk_mux(UsbClkSel::Hsi48);
+        let sys_ck_hz = ccdr.clocks.sys_ck().raw();
+        let cycles_per_us = sys_ck_hz / 1_000_000;
 
-        // Time base: TIM5 counting microseconds.
-        let time_base = dp.TIM5.tick_timer(TIME_BASE_HZ.Hz(), ccdr.peripheral.TIM5, &ccdr.clocks);
+        // Time base: TIM2 counting microseconds.
+        let time_base = dp.TIM2.tick_timer(TIME_BASE_HZ.Hz(), ccdr.peripheral.TIM2, &ccdr.clocks);
         let clock = MicrosClock::new(time_base);
 
-        // USB CDC on OTG2's internal full-speed PHY (PA11 = D−, PA12 = D+, AF10).
+        // USB CDC on OTG2's internal full-speed PHY (PA11 = D−, PA12 = D+, AF10). GPIOA is split
+        // (enabled and reset by the HAL) before the board's other pins on port A are set up.
         let gpioa = dp.GPIOA.split(ccdr.peripheral.GPIOA);
         let usb_peripheral = USB2::new(
             dp.OTG2_HS_GLOBAL,
@@ -165,9 +200,33 @@ mod app {
             uid_text,
         );
 
+        // The configuration store: bank 2's configuration sectors, read through DMA.
+        let (_bank1, bank2) = dp.FLASH.split();
+        let settings = match bank2 {
+            Some(bank2) => {
+                let sectors =
+                    ConfigSectors::new(bank2, BOARD.config_bank_offsets(), BOARD.flash_read_dma);
+                let capacity = BOARD.flash.config_len;
+                Settings::load(sectors, 0..capacity)
+            }
+            None => Settings::without_store(),
+        };
+
+        // The drivers.
+        let imu = BoardImu::new(BOARD.imu, cycles_per_us);
+        let motors = BoardMotors::new(BOARD, ccdr.clocks.timx_ker_ck().raw());
+        let receiver = BoardReceiver::new(BOARD.receiver, ccdr.clocks.pclk2().raw());
+        let imu_state = imu.state();
+        let board = BoardHealth {
+            core_clock_hz: Some(sys_ck_hz),
+            silicon_revision: Some(revision),
+            imu: imu_state,
+            motors: Some(motors.health()),
+            receiver: Some(receiver.health(0)),
+        };
+
         // The portable application: control loop → sample queue → background worker.
         let config = ControlConfig::default();
-        let motors = BoardMotors::default();
         let (producer, consumer) = split_queue(cx.local.samples);
         let (ring_producer, telemetry) = split_queue(cx.local.step_ring);
         let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
@@ -175,33 +234,48 @@ mod app {
         let mut serial = heapless::String::new();
         // The 24-character UID always fits the protocol's 32-byte field.
         let _ = serial.push_str(uid_text);
+        let mut capabilities = Capabilities::TELEMETRY
+            | Capabilities::MOTORS
+            | Capabilities::RECEIVER
+            | Capabilities::BOOTLOADER;
+        if imu_state == ImuDriverState::Running {
+            capabilities |= Capabilities::IMU;
+        }
+        if settings.status().origin != protocol::ConfigOrigin::NoStore {
+            capabilities |= Capabilities::PERSISTENT_STORE;
+        }
         let link = LinkServer::new(BoardInfo {
             board: BOARD.name,
             serial,
-            // No IMU driver and no motor outputs yet: say so (see `board::imu`, `board::motors`).
-            capabilities: Capabilities::TELEMETRY,
+            // No bidirectional DShot capture yet: no MOTOR_RPM (see `board::motors`).
+            capabilities,
             control_rate_hz: config.rate_hz,
             motor_count: motors.count(),
         });
         let shared = Shared {
             control: control.snapshot(),
             background: background.results(),
+            board,
             commands: heapless::Deque::new(),
             background_commands: heapless::Deque::new(),
+            imu,
         };
 
         // The control tick at the application's rate (2 kHz), started last so the first step
         // finds everything ready.
         let control_rate_hz = u32::from(config.rate_hz);
-        let step_timer = StepTimer::new(&mut core.DCB, core.DWT, 1_000_000 / control_rate_hz);
+        let step_timer =
+            StepTimer::new(&mut core.DCB, core.DWT, 1_000_000 / control_rate_hz, sys_ck_hz);
         let mut control_timer =
-            dp.TIM2.timer(control_rate_hz.Hz(), ccdr.peripheral.TIM2, &ccdr.clocks);
+            dp.TIM7.timer(control_rate_hz.Hz(), ccdr.peripheral.TIM7, &ccdr.clocks);
         control_timer.listen(Event::TimeOut);
 
         defmt::info!(
-            "STM32H743 {=str} up: sys_ck {} Hz, hclk {} Hz, control {} Hz",
+            "{=str} {=str} up: REV_ID {=u16:#x}, sys_ck {} Hz, hclk {} Hz, control {} Hz",
+            BOARD.name,
             uid_text,
-            ccdr.clocks.sys_ck().raw(),
+            revision,
+            sys_ck_hz,
             ccdr.clocks.hclk().raw(),
             control_rate_hz
         );
@@ -211,13 +285,13 @@ mod app {
             step_timer,
             control_clock: clock,
             control,
-            imu: BoardImu,
             motors,
+            receiver,
             usb_clock: clock,
             usb,
             link,
             telemetry,
-            settings: Settings::without_store(),
+            settings,
             background,
         };
         (shared, local, init::Monotonics())
@@ -245,14 +319,24 @@ mod app {
 
     extern "Rust" {
         #[task(
-            binds = TIM2,
+            binds = TIM7,
             priority = 3,
-            local = [control_timer, step_timer, control_clock, control, imu, motors, ticks: u32 = 0],
-            shared = [control, background, commands]
+            local = [
+                control_timer, step_timer, control_clock, control, motors, receiver,
+                ticks: u32 = 0,
+                craft: CraftState = CraftState { armed: false, in_flight: false },
+            ],
+            shared = [control, background, commands, board, imu]
         )]
         fn control_tick(cx: control_tick::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link, telemetry, settings], shared = [control, background, commands, background_commands])]
+        #[task(binds = EXTI2, priority = 3, shared = [imu])]
+        fn imu_data_ready(cx: imu_data_ready::Context);
+
+        #[task(binds = DMA1_STR0, priority = 3, shared = [imu])]
+        fn imu_transfer_done(cx: imu_transfer_done::Context);
+
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link, telemetry, settings], shared = [control, background, board, commands, background_commands])]
         fn usb_service(cx: usb_service::Context);
 
         #[task(priority = 1, local = [background], shared = [background, background_commands])]
@@ -263,22 +347,31 @@ mod app {
 /// The task bodies (RTIC v1 "extern" tasks): what each task does, apart from the task table.
 #[cfg(target_os = "none")]
 mod tasks {
-    use crate::app::{background, control_tick, usb_service, BackgroundWork};
+    use crate::app::{
+        background, control_tick, imu_data_ready, imu_transfer_done, usb_service, BackgroundWork,
+    };
     use firmware::app::{ControlCommand, ControlSettings, LinkRequest, StatusView};
+    use firmware::board::bootloader;
     use firmware::board::config::USB_SERVICE_DIVIDER;
-    use firmware::board::timing::step_stats;
+    use firmware::board::timing::{cycles_per_us, step_stats};
+    use firmware::drivers::receiver::CraftState;
+    use flight::learner::FlightPhase;
     use protocol::StepTime;
     use rtic::mutex_prelude::*;
     use stm32h7xx_hal::pac::Interrupt;
 
-    /// One control step, on every TIM2 update at 2 kHz, at the highest priority.
+    /// One control step, on every TIM7 update at 2 kHz, at the highest priority.
     ///
-    /// Deadline: 500 µs (one period of the 2 kHz loop; the next IMU sample is due then). It
-    /// never blocks and never allocates: the IMU and motor adapters return at once, the sample
-    /// queue drops and counts when full, the snapshot lock is uncontended (no higher-priority
+    /// Deadline: 500 µs (one period of the 2 kHz loop; the next IMU mean is due then). It
+    /// never blocks and never allocates: the receiver drains at most one DMA ring of bytes, the
+    /// IMU hands over a mean already summed, the motor outputs restart three DMA streams, the
+    /// sample queue drops and counts when full, the locks are uncontended (no higher-priority
     /// task exists) and held for a copy, and the only interrupts-off sections are a few
     /// instructions long (the clock's 64-bit extension, RTIC's spawn queue). Its own duration is
     /// measured against the deadline (`board::timing`) and reported from `idle`.
+    ///
+    /// Order: the link's commands, then the receiver's (so a kill switch's disarm is the last
+    /// word, applied in this very step), then the step itself.
     pub fn control_tick(mut cx: control_tick::Context) {
         let started = cx.local.step_timer.start();
         cx.local.control_timer.clear_irq();
@@ -289,10 +382,20 @@ mod tasks {
                 control.command(command, now_us);
             }
         });
+        if let Some(command) = cx.local.receiver.poll(now_us, *cx.local.craft) {
+            control.command(command, now_us);
+        }
         // What the background task learned (copied only when it changed).
         cx.shared.background.lock(|results| control.receive(results));
-        let samples_waiting = cx.local.control.step(now_us, cx.local.imu, cx.local.motors);
-        let snapshot = cx.local.control.snapshot();
+        let motors = &mut *cx.local.motors;
+        let samples_waiting = control.step(now_us, cx.shared.imu, motors);
+        let snapshot = control.snapshot();
+        motors.set_armed(snapshot.armed);
+        *cx.local.craft = CraftState {
+            armed: snapshot.armed,
+            in_flight: snapshot.pilot.flying
+                || matches!(snapshot.phase, FlightPhase::Released | FlightPhase::Exciting),
+        };
         cx.shared.control.lock(|control| *control = snapshot);
 
         if samples_waiting {
@@ -301,16 +404,34 @@ mod tasks {
         }
         *cx.local.ticks = cx.local.ticks.wrapping_add(1);
         if cx.local.ticks.is_multiple_of(USB_SERVICE_DIVIDER) {
+            let motors = cx.local.motors.health();
+            let receiver = cx.local.receiver.health(now_us);
+            cx.shared.board.lock(|board| {
+                board.motors = Some(motors);
+                board.receiver = Some(receiver);
+            });
             // Telemetry must flow even when the host sends nothing (no USB interrupt).
             rtic::pend(Interrupt::OTG_FS);
         }
         cx.local.step_timer.finish(started);
     }
 
+    /// The IMU's data-ready line (8 kHz): start the DMA read of one sample.
+    pub fn imu_data_ready(cx: imu_data_ready::Context) {
+        cx.shared.imu.on_data_ready();
+    }
+
+    /// The IMU's RX DMA stream finished: add the sample to the mean.
+    pub fn imu_transfer_done(cx: imu_transfer_done::Context) {
+        cx.shared.imu.on_transfer_complete();
+    }
+
     /// The USB link, on every OTG2 interrupt and at 1 kHz from the control step: services the
     /// USB device, feeds received bytes to the link server, lets it queue due telemetry, and
     /// offers what it queued to the CDC buffer until it has nothing more or the buffer is full (the
-    /// rest stays queued in the link server for the next service). Never blocks.
+    /// rest stays queued in the link server for the next service). Never blocks, except for a
+    /// configuration save, which erases a flash sector (up to seconds, at this priority: the
+    /// control step preempts it).
     pub fn usb_service(mut cx: usb_service::Context) {
         let now_us = cx.local.usb_clock.now_us();
         let step = step_stats();
@@ -318,12 +439,12 @@ mod tasks {
             control: cx.shared.control.lock(|control| *control),
             background: cx.shared.background.lock(|background| *background),
             step_time: Some(StepTime { max_us: step.max_us, overruns: step.overruns }),
-            board: protocol::BoardHealth::default(),
+            board: cx.shared.board.lock(|board| *board),
         };
         let link = cx.local.link;
         let settings = cx.local.settings;
         cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view, settings));
-        let mut reboot = false;
+        let mut reboot = None;
         let mut work = heapless::Vec::<BackgroundWork, 4>::new();
         cx.shared.commands.lock(|commands| {
             while let Some(request) = link.take_request() {
@@ -338,9 +459,10 @@ mod tasks {
                     LinkRequest::Background(command) => {
                         let _ = work.push(BackgroundWork::Command(command));
                     }
-                    LinkRequest::Reboot => reboot = true,
-                    // Refused by the link until the board announces `Capabilities::BOOTLOADER`.
-                    LinkRequest::RebootToBootloader => {}
+                    // Both are refused by the link while anything is armed.
+                    LinkRequest::Reboot | LinkRequest::RebootToBootloader => {
+                        reboot = Some(request);
+                    }
                 }
             }
             if let Some(params) = settings.service(&view) {
@@ -367,9 +489,13 @@ mod tasks {
         link.poll(now_us, &view);
         while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}
         usb.flush();
-        if reboot {
-            // The reply is in the USB buffer; give the host a moment to take it.
-            cortex_m::asm::delay(firmware::board::config::SYS_CK_HZ / 20);
+        if let Some(request) = reboot {
+            // The reply is in the USB buffer; give the host 50 ms to take it. The motors are
+            // stopped (nothing is armed), so the control step may starve meanwhile.
+            cortex_m::asm::delay(cycles_per_us().saturating_mul(50_000));
+            if request == LinkRequest::RebootToBootloader {
+                bootloader::restart_into_bootloader();
+            }
             cortex_m::peripheral::SCB::sys_reset();
         }
     }

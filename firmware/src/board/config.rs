@@ -1,41 +1,24 @@
-//! Board constants: the assumptions this firmware makes about the PCB and the clock tree, each
-//! with its unit and where it comes from (in the manner of stabilizer's `design_parameters.rs`).
-//!
-//! One `const` [`BOARD`] collects the choices that differ between H743 boards, so porting to a
-//! different flight controller is an edit here and nowhere else.
+//! Board constants and the clock choice: the assumptions this firmware makes about the clock
+//! tree, each with its unit and where it comes from (in the manner of stabilizer's
+//! `design_parameters.rs`). What differs between boards (pins, timers, DMA streams, crystal) is
+//! data in [`crate::boards`]; [`BOARD`] is the one this firmware is built for.
 
-/// What differs between STM32H743 boards.
-#[derive(Clone, Copy, Debug)]
-pub struct BoardConfig {
-    /// Human-readable board name, reported in the protocol handshake.
-    pub name: &'static str,
-    /// Frequency of the external high-speed clock (HSE), Hz.
-    ///
-    /// Assumption: an 8 MHz crystal, as fitted on most H743 flight controllers (Matek H743,
-    /// Holybro Kakute H7, …). A different crystal only needs this value; the PLL is solved
-    /// by stm32h7xx-hal from it. With no HSE fitted, start-up hangs waiting for HSERDY (the
-    /// HAL's documented behaviour): a board without a crystal must switch to HSI in `init`.
-    pub hse_hz: u32,
-    /// `true` when HSE is an external clock *signal* rather than a crystal (the NUCLEO-H743ZI
-    /// feeds 8 MHz from the ST-LINK's MCO and needs the oscillator bypassed).
-    pub hse_bypass: bool,
+use crate::boards::{ClockPlan, SiliconRevision};
+
+pub use crate::boards::SELECTED as BOARD;
+
+/// The silicon revision: DBGMCU_IDCODE.REV_ID (RM0433 rev 8 §61.5.8; 0x1003 = Y, 0x2003 = V).
+pub fn silicon_revision() -> u16 {
+    // SAFETY: DBGMCU_IDCODE is a read-only identity register.
+    unsafe { (*stm32h7xx_hal::pac::DBGMCU::ptr()).idc.read().rev_id().bits() }
 }
 
-/// The board this firmware is built for.
-pub const BOARD: BoardConfig =
-    BoardConfig { name: "STM32H743", hse_hz: 8_000_000, hse_bypass: false };
-
-/// Core clock (sys_ck), Hz.
-///
-/// 400 MHz at voltage scale 1 (VOS1): the maximum for every H743 silicon revision (revision Y
-/// is limited to 400 MHz; 480 MHz needs revision V *and* VOS0, RM0433 rev 8 §6.6.2 and the
-/// datasheet DS12110 table 23). Chosen because it is correct on all boards; 480 MHz is a later
-/// optimisation worth +20 % of CPU time.
-pub const SYS_CK_HZ: u32 = 400_000_000;
-
-/// AHB/AXI clock (hclk), Hz: sys_ck / 2, the maximum the AHB allows (200 MHz, DS12110).
-/// USB OTG needs hclk ≥ 30 MHz (RM0433 §57.4.4).
-pub const HCLK_HZ: u32 = SYS_CK_HZ / 2;
+/// The clock plan for this chip: 480 MHz at VOS0 on revision V, 400 MHz at VOS1 otherwise
+/// (revision Y is limited to 400 MHz; DS12110 table 23, errata ES0392). Read before the clocks
+/// are configured; reported in `BoardHealth`.
+pub fn clock_plan(revision: u16) -> ClockPlan {
+    ClockPlan::for_revision(SiliconRevision::from_rev_id(revision))
+}
 
 /// The USB task is pended by the control step every this many control ticks, so the link is
 /// serviced at 2 kHz / 2 = 1 kHz (every 1 ms) even when the host sends nothing: the OTG interrupt

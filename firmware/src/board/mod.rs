@@ -1,16 +1,23 @@
-//! The STM32H743 board layer: clocks, the microsecond time base, USB, and the hardware seams
-//! (IMU, motors) the portable [`crate::app`] runs against.
+//! The STM32H743 board layer: clocks, the microsecond time base, USB, the flash store, the
+//! bootloader hand-over and the drivers behind the hardware seams (IMU, motors, receiver) the
+//! portable [`crate::app`] runs against.
 //!
 //! Only compiled for the target (`target_os = "none"`). Everything here is hardware set-up and
-//! adapters; the behaviour (control step, link server, background work) lives in `app`, which the
-//! simulator runs unchanged. The RTIC application that wires the two together is `src/main.rs`.
+//! adapters, driven by the board description in [`crate::boards`] (pins, timers, DMA streams);
+//! the behaviour (control step, link server, background work, CRSF and DShot framing, the IMU's
+//! register sequence) lives in portable code the simulator and the host tests run. The RTIC
+//! application that wires the two together is `src/main.rs`.
 
+pub mod bootloader;
+pub mod chip;
 pub mod config;
+pub mod flash;
 pub mod identity;
 pub mod imu;
 pub mod motors;
+pub mod receiver;
 pub mod time;
 pub mod timing;
 pub mod usb;
 
-pub use config::{BoardConfig, BOARD};
+pub use config::BOARD;

@@ -320,6 +320,18 @@ impl CrsfParser {
         None
     }
 
+    /// The next event already decidable from the bytes queued for re-parsing, without a new
+    /// byte: when one [`CrsfParser::push`] completes several events (a failed candidate, then a
+    /// good frame found while resynchronising), call this until `None` to take them all now.
+    pub fn next_event(&mut self) -> Option<Result<CrsfFrame, CrsfError>> {
+        while let Some(b) = self.pop_front() {
+            if let Some(event) = self.step(b) {
+                return Some(event);
+            }
+        }
+        None
+    }
+
     /// Abandon the frame in progress (call on an inter-byte timeout the board detects, e.g. UART
     /// idle line). Returns [`CrsfError::Truncated`] if a frame was in progress; also clears any
     /// bytes queued for re-parsing.

@@ -251,6 +251,18 @@ pub fn throttle_frame(command: f32, telemetry: bool, bidirectional: bool) -> u16
     (v12 << 4) | checksum(v12, bidirectional)
 }
 
+/// The frame a motor output sends for the application's command δ: motor stop (value 0) for
+/// δ ≤ 0 (the application writes exactly 0 to every motor when nothing is armed, and ESCs only
+/// arm on stop frames), otherwise [`throttle_frame`] (48..=2047; NaN idles at 48, see
+/// [`throttle_value`]). Telemetry bit clear.
+pub fn output_frame(command: f32, bidirectional: bool) -> u16 {
+    if command <= 0.0 {
+        motor_stop_frame(bidirectional)
+    } else {
+        throttle_frame(command, false, bidirectional)
+    }
+}
+
 /// Encode a special command, refusing it while armed. Settings commands get the telemetry bit
 /// set as the specification requires; the caller repeats the frame
 /// [`SpecialCommand::min_repeats`] times.
@@ -610,6 +622,16 @@ mod tests {
         assert_eq!(throttle_value(f32::NAN), 48);
         assert_eq!(throttle_value(f32::INFINITY), 2047);
         assert_eq!(throttle_frame(1.0, true, false), 0xFFFF);
+    }
+
+    #[test]
+    fn output_frames_stop_at_zero_and_throttle_above() {
+        assert_eq!(output_frame(0.0, false), 0x0000);
+        assert_eq!(output_frame(-1.0, false), 0x0000);
+        assert_eq!(output_frame(0.0, true), 0x000F);
+        assert_eq!(output_frame(1.0, false), throttle_frame(1.0, false, false));
+        assert_eq!(output_frame(1e-6, false) >> 5, THROTTLE_MIN);
+        assert_eq!(output_frame(f32::NAN, false) >> 5, THROTTLE_MIN);
     }
 
     #[test]

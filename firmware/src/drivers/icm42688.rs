@@ -244,6 +244,25 @@ pub enum Icm42688Error<E> {
     },
 }
 
+/// The protocol's driver state for the result of [`Icm42688::init`] (what `GetBoard` reports).
+pub fn driver_state<E>(result: &Result<(), Icm42688Error<E>>) -> protocol::ImuDriverState {
+    use protocol::ImuDriverState;
+    match result {
+        Ok(()) => ImuDriverState::Running,
+        Err(Icm42688Error::Bus(_)) => ImuDriverState::BusError,
+        Err(Icm42688Error::WhoAmI { read }) => {
+            ImuDriverState::WrongIdentity { expected: WHO_AM_I_VALUE, found: *read }
+        }
+        Err(Icm42688Error::ReadBack { register, expected, read }) => {
+            ImuDriverState::ConfigMismatch {
+                register: register.address,
+                written: *expected,
+                read: *read,
+            }
+        }
+    }
+}
+
 /// One raw sample as the device sends it (big-endian registers, sensor axes).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RawSample {
@@ -699,6 +718,26 @@ mod tests {
         assert!(close(s.gyro_rad_s[0], -34.872, 1e-3));
         assert!(close(s.temperature_c, 35.0015, 1e-3));
         assert_eq!(s.to_imu_sample().accel_mps2, [0.0, 0.0, 9.80665]);
+    }
+
+    #[test]
+    fn start_up_results_become_driver_states() {
+        use protocol::ImuDriverState;
+        assert_eq!(driver_state::<()>(&Ok(())), ImuDriverState::Running);
+        assert_eq!(driver_state(&Err(Icm42688Error::Bus(()))), ImuDriverState::BusError);
+        assert_eq!(
+            driver_state::<()>(&Err(Icm42688Error::WhoAmI { read: 0xFF })),
+            ImuDriverState::WrongIdentity { expected: 0x47, found: 0xFF }
+        );
+        let register = CONFIG_REGISTERS[4];
+        assert_eq!(
+            driver_state::<()>(&Err(Icm42688Error::ReadBack {
+                register,
+                expected: 0x03,
+                read: 0x06
+            })),
+            ImuDriverState::ConfigMismatch { register: 0x4F, written: 0x03, read: 0x06 }
+        );
     }
 
     #[test]

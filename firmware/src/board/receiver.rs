@@ -1,0 +1,102 @@
+//! The CRSF receiver on a UART: 420 kbaud 8N1 received by a circular DMA into AXI SRAM, drained
+//! by the control task at the start of every step.
+//!
+//! No interrupt per byte and no interrupt at all: the DMA writes the ring continuously (at most
+//! 42 bytes per millisecond, 21 per 500 µs step, the ring holds 256), and [`BoardReceiver::poll`]
+//! hands the bytes since the previous step to the portable [`Receiver`] (parser, switch mapping,
+//! failsafe policy), whose command the control task applies before the step runs. A kill switch
+//! therefore disarms within one control step of its frame's arrival.
+
+use super::chip::{self, cr, Dma};
+use crate::app::ControlCommand;
+use crate::boards::{h743, uart_brr, ReceiverWiring};
+use crate::drivers::crsf::RcLinkConfig;
+use crate::drivers::receiver::{CraftState, Receiver};
+use core::ptr::addr_of_mut;
+use protocol::ReceiverHealth;
+
+/// CRSF serial rate, baud.
+pub const CRSF_BAUD: u32 = 420_000;
+/// Receive ring, bytes (a power of two is not required).
+const RING_LEN: usize = 256;
+
+#[link_section = ".axisram.crsf"]
+static mut RING: core::mem::MaybeUninit<[u8; RING_LEN]> = core::mem::MaybeUninit::uninit();
+
+/// USART registers and bits (RM0433 §48.7).
+mod usart {
+    pub const CR1: u32 = 0x00;
+    pub const CR3: u32 = 0x08;
+    pub const BRR: u32 = 0x0C;
+    pub const ICR: u32 = 0x20;
+    pub const RDR: u32 = 0x24;
+    pub const CR1_UE: u32 = 1 << 0;
+    pub const CR1_RE: u32 = 1 << 2;
+    pub const CR1_TE: u32 = 1 << 3;
+    pub const CR3_DMAR: u32 = 1 << 6;
+    /// Overrun does not stop reception (a lost byte is a CRC error for the parser).
+    pub const CR3_OVRDIS: u32 = 1 << 12;
+}
+
+/// The board's receiver.
+pub struct BoardReceiver {
+    dma: Dma,
+    read_index: usize,
+    receiver: Receiver,
+}
+
+impl BoardReceiver {
+    /// Configure the UART at 420 kbaud from its kernel clock `pclk_hz` (rcc_pclk2 for USART1/6,
+    /// the reset-default kernel clock) and start receiving.
+    pub fn new(wiring: ReceiverWiring, pclk_hz: u32) -> Self {
+        let info = h743::uart(wiring.uart);
+        chip::enable_clock(info.enable);
+        chip::alternate(wiring.rx, true);
+        chip::alternate(wiring.tx, false);
+        let dma = Dma::new(wiring.rx_dma);
+        dma.route(wiring.rx_dma, info.rx_request);
+        let base = info.base;
+        // SAFETY: the UART and its stream belong to the receiver. The ring is in AXI SRAM and
+        // only read by `poll` (volatile, behind the DMA's write position).
+        unsafe {
+            chip::write(base + usart::CR1, 0);
+            chip::write(base + usart::BRR, uart_brr(pclk_hz, CRSF_BAUD));
+            chip::write(base + usart::CR3, usart::CR3_DMAR | usart::CR3_OVRDIS);
+            chip::write(base + usart::ICR, 0xFFFF_FFFF);
+            dma.start(
+                base + usart::RDR,
+                addr_of_mut!(RING) as u32,
+                RING_LEN as u16,
+                cr::PERIPHERAL_TO_MEMORY | cr::MINC | cr::CIRC | cr::PRIORITY_HIGH,
+            );
+            chip::write(base + usart::CR1, usart::CR1_UE | usart::CR1_RE | usart::CR1_TE);
+        }
+        // The default switches (channels 5, 6, 7) are valid by construction.
+        let receiver = match Receiver::new(RcLinkConfig::default()) {
+            Ok(receiver) => receiver,
+            Err(_) => defmt::panic!("RC switch channel out of range"),
+        };
+        Self { dma, read_index: 0, receiver }
+    }
+
+    /// Parse what arrived since the previous call and decide (see
+    /// [`crate::drivers::receiver`]). Never blocks; at most one ring's worth of bytes.
+    pub fn poll(&mut self, now_us: u64, craft: CraftState) -> Option<ControlCommand> {
+        let write_index = RING_LEN - (self.dma.remaining() as usize).min(RING_LEN);
+        let mut chunk = [0u8; RING_LEN];
+        let mut len = 0;
+        let ring = addr_of_mut!(RING) as *const u8;
+        while self.read_index != write_index {
+            // SAFETY: index < RING_LEN; a volatile byte read of the DMA's ring.
+            chunk[len] = unsafe { core::ptr::read_volatile(ring.add(self.read_index)) };
+            len += 1;
+            self.read_index = (self.read_index + 1) % RING_LEN;
+        }
+        self.receiver.poll(&chunk[..len], now_us, craft)
+    }
+
+    /// What the status reports.
+    pub fn health(&self, now_us: u64) -> ReceiverHealth {
+        self.receiver.health(now_us)
+    }
+}

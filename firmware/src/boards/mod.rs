@@ -1,0 +1,524 @@
+//! Board descriptions: which pin, timer channel, DMA stream and UART each function of the
+//! flight controller uses, as plain data that builds and is tested on the host.
+//!
+//! The STM32H743 board layer (`crate::board`, target only) has no per-board code: it reads the
+//! [`BoardDescription`] selected by [`SELECTED`] and programs the GPIO, DMA, DMAMUX, timer, SPI and
+//! UART registers from it, with the chip facts (register addresses, DMAMUX request numbers,
+//! clock-enable bits, alternate functions) from [`h743`]. Porting to another H743 flight
+//! controller is one new file beside [`matek_h743`] and a change of [`SELECTED`]; the host test
+//! `firmware/tests/board_description.rs` then checks it with [`BoardDescription::check`]: no pin,
+//! DMA stream or timer channel used twice, every motor on a timer channel with a burst DMA
+//! stream, every alternate function one the chip really has, the configuration flash sectors
+//! outside the firmware's.
+//!
+//! Two things are fixed by the firmware rather than the board, and checked here against it: the
+//! microsecond time base is TIM2 and the 2 kHz control tick is TIM7 (`src/main.rs` binds their
+//! interrupts), and the IMU's data-ready EXTI line and DMA completion interrupt are bound by name
+//! in `src/main.rs` ([`FIRMWARE_IMU_EXTI_LINE`], [`FIRMWARE_IMU_RX_DMA`]).
+
+pub mod h743;
+pub mod matek_h743;
+
+use h743::{Function, Timer};
+
+/// The board this firmware is built for.
+pub const SELECTED: &BoardDescription = &matek_h743::MATEK_H743_V3;
+
+/// The EXTI line `src/main.rs` binds the IMU's data-ready task to (`EXTI2`).
+pub const FIRMWARE_IMU_EXTI_LINE: u8 = 2;
+/// The DMA stream whose completion interrupt `src/main.rs` binds the IMU's read task to
+/// (`DMA1_STR0`).
+pub const FIRMWARE_IMU_RX_DMA: DmaStream = DmaStream { controller: 1, stream: 0 };
+/// The timer of the microsecond time base (`board::time`), 32 bits.
+pub const FIRMWARE_TIME_BASE: Timer = Timer::Tim2;
+/// The timer of the 2 kHz control tick (`src/main.rs` binds `TIM7`).
+pub const FIRMWARE_CONTROL_TICK: Timer = Timer::Tim7;
+
+/// A GPIO port.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Port {
+    A,
+    B,
+    C,
+    D,
+    E,
+}
+
+impl Port {
+    /// 0 for A, 1 for B, …: the port's register block is `GPIOA + 0x400 · index` and its clock
+    /// enable is bit `index` of RCC_AHB4ENR.
+    pub const fn index(self) -> u8 {
+        self as u8
+    }
+}
+
+/// A pin: port and number 0..=15.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Pin {
+    pub port: Port,
+    pub number: u8,
+}
+
+/// Shorthand for a [`Pin`].
+pub const fn pin(port: Port, number: u8) -> Pin {
+    Pin { port, number }
+}
+
+/// A pin in alternate-function mode: which function, through which AF number.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AltPin {
+    pub pin: Pin,
+    pub function: Function,
+    /// AF0..=AF15 (datasheet DS12110 "Alternate function" tables).
+    pub af: u8,
+}
+
+/// One stream of DMA1 or DMA2 (the DMAMUX1 channel is `8 · (controller − 1) + stream`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DmaStream {
+    /// 1 or 2.
+    pub controller: u8,
+    /// 0..=7.
+    pub stream: u8,
+}
+
+impl DmaStream {
+    /// The DMAMUX1 channel routed to this stream (RM0433 §17.3.2: channels 0–7 → DMA1 streams
+    /// 0–7, channels 8–15 → DMA2 streams 0–7).
+    pub const fn dmamux_channel(self) -> u8 {
+        8 * (self.controller - 1) + self.stream
+    }
+}
+
+/// The ICM-42688-P: SPI pins, chip select, data-ready line and the two DMA streams.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImuWiring {
+    pub spi: h743::Spi,
+    pub sck: AltPin,
+    pub miso: AltPin,
+    pub mosi: AltPin,
+    /// Chip select, active low, driven as a GPIO.
+    pub cs: Pin,
+    /// INT1 (data ready), rising edge through EXTI.
+    pub data_ready: Pin,
+    /// Peripheral → memory (the sample bytes).
+    pub rx_dma: DmaStream,
+    /// Memory → peripheral (the address byte and dummies).
+    pub tx_dma: DmaStream,
+    /// SPI clock for the start-up register sequence, Hz (slow and safe).
+    pub init_clock_hz: u32,
+    /// SPI clock for the sample reads, Hz (the ICM-42688-P allows 24 MHz).
+    pub read_clock_hz: u32,
+}
+
+/// One motor output: its pin and the timer channel that drives it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MotorOutput {
+    pub pin: AltPin,
+    pub timer: Timer,
+    /// 1..=4.
+    pub channel: u8,
+}
+
+/// A timer that drives motor outputs with DShot: its update event requests a DMA burst that
+/// writes the next bit's compare values of all its motor channels (TIMx_DCR/DMAR).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MotorTimer {
+    pub timer: Timer,
+    pub dma: DmaStream,
+}
+
+/// The CRSF receiver's UART (RX by circular DMA; TX wired for telemetry, unused yet).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReceiverWiring {
+    pub uart: h743::Uart,
+    pub rx: AltPin,
+    pub tx: AltPin,
+    pub rx_dma: DmaStream,
+}
+
+/// Where the firmware and the configuration store live in the internal flash.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FlashLayout {
+    /// Start of the firmware image (bank 1, sector 0), address.
+    pub firmware_start: u32,
+    /// Flash reserved for the firmware image, bytes (the `FLASH` region of `memory.x`).
+    pub firmware_len: u32,
+    /// First configuration sector, address (bank 2, so erasing never stalls code fetches from
+    /// bank 1: the banks read while the other one writes).
+    pub config_start: u32,
+    /// Configuration sectors, bytes (whole sectors, at least two for sequential-storage).
+    pub config_len: u32,
+}
+
+/// Everything that differs between H743 flight controllers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoardDescription {
+    /// Reported in the handshake (at most 32 bytes).
+    pub name: &'static str,
+    /// Where the pin map comes from.
+    pub source: &'static str,
+    /// External crystal, Hz.
+    pub hse_hz: u32,
+    /// `true` when HSE is a clock signal (oscillator bypassed), not a crystal.
+    pub hse_bypass: bool,
+    pub imu: ImuWiring,
+    /// Motor outputs in the order the application numbers its motors (M1 first).
+    pub motors: &'static [MotorOutput],
+    /// Motors the firmware drives: the first this many of `motors` (4..=8).
+    pub motor_count: u8,
+    /// One entry per timer in `motors`.
+    pub motor_timers: &'static [MotorTimer],
+    /// Motor pole pairs (14 poles = 7 pairs, the common 22xx/23xx motor), for eRPM → rad/s.
+    pub motor_pole_pairs: u8,
+    pub receiver: ReceiverWiring,
+    /// USB OTG2 full-speed pins (D−, D+).
+    pub usb_dm: AltPin,
+    pub usb_dp: AltPin,
+    /// The DMA stream the flash driver copies configuration words with (memory to memory, so a
+    /// torn word's ECC error is a transfer error instead of a CPU bus fault).
+    pub flash_read_dma: DmaStream,
+    pub flash: FlashLayout,
+}
+
+/// Why a [`BoardDescription`] is inconsistent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BoardError {
+    PinUsedTwice(Pin),
+    DmaStreamUsedTwice(DmaStream),
+    DmaStreamOutOfRange(DmaStream),
+    TimerChannelUsedTwice {
+        timer: Timer,
+        channel: u8,
+    },
+    /// A motor's channel is not 1..=4.
+    BadChannel {
+        motor: u8,
+    },
+    /// A motor's timer has no [`MotorTimer`] entry (no DMA burst to drive it).
+    MotorTimerMissing {
+        motor: u8,
+        timer: Timer,
+    },
+    /// A [`MotorTimer`] entry drives no motor, or a timer is listed twice.
+    MotorTimerUnused(Timer),
+    /// A timer drives motors and is also the firmware's time base or control tick.
+    TimerReserved(Timer),
+    /// The motors of one timer must use consecutive channels (one DMA burst writes them).
+    ChannelsNotConsecutive(Timer),
+    /// `motor_count` is outside 1..=8 or above the outputs listed.
+    MotorCount,
+    /// The chip has no such alternate function on that pin.
+    NoSuchAlternateFunction(AltPin),
+    /// The function on a pin is not the one its role needs (e.g. a TIM4 pin for a TIM3 motor).
+    WrongFunction(AltPin),
+    /// The IMU's data-ready line or RX DMA stream differs from the interrupts `src/main.rs`
+    /// binds.
+    ImuInterruptBinding,
+    /// The configuration sectors are not whole sectors of bank 2, fewer than two, or overlap
+    /// the firmware.
+    FlashLayout,
+    /// The board asks for a timer the chip table does not know as a DShot-capable timer.
+    NotAMotorTimer(Timer),
+}
+
+impl BoardDescription {
+    /// The motors the firmware drives.
+    pub fn driven_motors(&self) -> &'static [MotorOutput] {
+        let count = usize::from(self.motor_count).min(self.motors.len());
+        &self.motors[..count]
+    }
+
+    /// Every alternate-function pin of the board, with its role's required function.
+    fn alt_pins(&self) -> impl Iterator<Item = (AltPin, Function)> + '_ {
+        let imu = &self.imu;
+        let fixed = [
+            (imu.sck, Function::SpiSck(imu.spi)),
+            (imu.miso, Function::SpiMiso(imu.spi)),
+            (imu.mosi, Function::SpiMosi(imu.spi)),
+            (self.receiver.rx, Function::UartRx(self.receiver.uart)),
+            (self.receiver.tx, Function::UartTx(self.receiver.uart)),
+            (self.usb_dm, Function::UsbDm),
+            (self.usb_dp, Function::UsbDp),
+        ];
+        let motors =
+            self.motors.iter().map(|m| (m.pin, Function::TimerChannel(m.timer, m.channel)));
+        fixed.into_iter().chain(motors)
+    }
+
+    /// Every DMA stream the board uses.
+    fn dma_streams(&self) -> impl Iterator<Item = DmaStream> + '_ {
+        [self.imu.rx_dma, self.imu.tx_dma, self.receiver.rx_dma, self.flash_read_dma]
+            .into_iter()
+            .chain(self.motor_timers.iter().map(|t| t.dma))
+    }
+
+    /// Check the description (see [`BoardError`]); the first problem found is returned.
+    pub fn check(&self) -> Result<(), BoardError> {
+        // Pins: alternate-function pins, chip select, data ready.
+        let mut pins: heapless::Vec<Pin, 32> = heapless::Vec::new();
+        let plain = [self.imu.cs, self.imu.data_ready];
+        for p in self.alt_pins().map(|(a, _)| a.pin).chain(plain) {
+            if pins.contains(&p) {
+                return Err(BoardError::PinUsedTwice(p));
+            }
+            let _ = pins.push(p);
+        }
+        for (alt, needed) in self.alt_pins() {
+            if alt.function != needed {
+                return Err(BoardError::WrongFunction(alt));
+            }
+            if h743::alternate_function(alt.pin, alt.function) != Some(alt.af) {
+                return Err(BoardError::NoSuchAlternateFunction(alt));
+            }
+        }
+        // DMA streams.
+        let mut streams: heapless::Vec<DmaStream, 16> = heapless::Vec::new();
+        for s in self.dma_streams() {
+            if !(1..=2).contains(&s.controller) || s.stream > 7 {
+                return Err(BoardError::DmaStreamOutOfRange(s));
+            }
+            if streams.contains(&s) {
+                return Err(BoardError::DmaStreamUsedTwice(s));
+            }
+            let _ = streams.push(s);
+        }
+        if self.imu.rx_dma != FIRMWARE_IMU_RX_DMA
+            || self.imu.data_ready.number != FIRMWARE_IMU_EXTI_LINE
+        {
+            return Err(BoardError::ImuInterruptBinding);
+        }
+        // Motors and their timers.
+        if self.motor_count == 0
+            || usize::from(self.motor_count) > self.motors.len()
+            || self.motors.len() > crate::app::hal::MAX_MOTORS
+        {
+            return Err(BoardError::MotorCount);
+        }
+        let mut channels: heapless::Vec<(Timer, u8), 8> = heapless::Vec::new();
+        for (index, m) in self.motors.iter().enumerate() {
+            let motor = index as u8;
+            if !(1..=4).contains(&m.channel) {
+                return Err(BoardError::BadChannel { motor });
+            }
+            if channels.contains(&(m.timer, m.channel)) {
+                return Err(BoardError::TimerChannelUsedTwice {
+                    timer: m.timer,
+                    channel: m.channel,
+                });
+            }
+            let _ = channels.push((m.timer, m.channel));
+            if !self.motor_timers.iter().any(|t| t.timer == m.timer) {
+                return Err(BoardError::MotorTimerMissing { motor, timer: m.timer });
+            }
+        }
+        for (i, t) in self.motor_timers.iter().enumerate() {
+            if !self.motors.iter().any(|m| m.timer == t.timer)
+                || self.motor_timers[..i].iter().any(|u| u.timer == t.timer)
+            {
+                return Err(BoardError::MotorTimerUnused(t.timer));
+            }
+            if t.timer == FIRMWARE_TIME_BASE || t.timer == FIRMWARE_CONTROL_TICK {
+                return Err(BoardError::TimerReserved(t.timer));
+            }
+            if h743::timer(t.timer).is_none() {
+                return Err(BoardError::NotAMotorTimer(t.timer));
+            }
+            let (first, count) = self.burst_channels(t.timer);
+            let used = self.motors.iter().filter(|m| m.timer == t.timer).count() as u8;
+            if used != count || first == 0 {
+                return Err(BoardError::ChannelsNotConsecutive(t.timer));
+            }
+        }
+        self.check_flash()
+    }
+
+    fn check_flash(&self) -> Result<(), BoardError> {
+        let f = &self.flash;
+        let bank2 = h743::FLASH_BANK2_START..h743::FLASH_BANK2_START + h743::FLASH_BANK_LEN;
+        let sector = h743::FLASH_SECTOR_LEN;
+        let config_end = f.config_start + f.config_len;
+        let firmware_end = f.firmware_start + f.firmware_len;
+        let ok = f.config_start.is_multiple_of(sector)
+            && f.config_len.is_multiple_of(sector)
+            && f.config_len >= 2 * sector
+            && bank2.contains(&f.config_start)
+            && config_end <= bank2.end
+            && (config_end <= f.firmware_start || f.config_start >= firmware_end)
+            && f.firmware_start == h743::FLASH_BANK1_START;
+        if ok {
+            Ok(())
+        } else {
+            Err(BoardError::FlashLayout)
+        }
+    }
+
+    /// The DMA burst of `timer`'s motors: (first channel, number of channels), i.e. the burst
+    /// writes CCR`first` .. CCR`first + count − 1`. (0, 0) when the timer drives no motor.
+    pub fn burst_channels(&self, timer: Timer) -> (u8, u8) {
+        let mut low = u8::MAX;
+        let mut high = 0u8;
+        for m in self.motors.iter().filter(|m| m.timer == timer) {
+            low = low.min(m.channel);
+            high = high.max(m.channel);
+        }
+        if high == 0 {
+            (0, 0)
+        } else {
+            (low, high - low + 1)
+        }
+    }
+
+    /// The configuration sectors as offsets within flash bank 2 (what the HAL's bank driver
+    /// takes).
+    pub fn config_bank_offsets(&self) -> core::ops::Range<u32> {
+        let start = self.flash.config_start - h743::FLASH_BANK2_START;
+        start..start + self.flash.config_len
+    }
+}
+
+/// The silicon revision in DBGMCU_IDCODE.REV_ID (RM0433 rev 8 §61.5.8, errata ES0392).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SiliconRevision {
+    /// REV_ID 0x1003: limited to 400 MHz (VOS1).
+    Y,
+    /// REV_ID 0x2003: 480 MHz with VOS0.
+    V,
+    /// Anything else: treated like revision Y (the rate every revision supports).
+    Unknown(u16),
+}
+
+impl SiliconRevision {
+    pub const fn from_rev_id(rev_id: u16) -> Self {
+        match rev_id {
+            0x1003 => Self::Y,
+            0x2003 => Self::V,
+            other => Self::Unknown(other),
+        }
+    }
+}
+
+/// The clock tree the firmware runs for a silicon revision.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ClockPlan {
+    /// Core clock (sys_ck), Hz.
+    pub sys_ck_hz: u32,
+    /// AHB/AXI clock (hclk), Hz: sys_ck / 2, the AHB maximum (240 MHz at VOS0, 200 MHz at VOS1).
+    pub hclk_hz: u32,
+    /// Voltage scale 0 (required above 400 MHz, revision V only; DS12110 table 23).
+    pub vos0: bool,
+}
+
+impl ClockPlan {
+    /// 480 MHz at VOS0 on revision V; 400 MHz at VOS1 otherwise (revision Y's maximum, and a
+    /// safe choice for a revision this firmware does not know).
+    pub const fn for_revision(revision: SiliconRevision) -> Self {
+        match revision {
+            SiliconRevision::V => Self { sys_ck_hz: 480_000_000, hclk_hz: 240_000_000, vos0: true },
+            _ => Self { sys_ck_hz: 400_000_000, hclk_hz: 200_000_000, vos0: false },
+        }
+    }
+
+    /// The APB1/APB2 timer kernel clock, Hz: the HAL runs pclk = hclk / 2 and the timers at
+    /// twice their APB clock (RCC_CFGR.TIMPRE = 0, RM0433 §8.5.7), i.e. hclk.
+    pub const fn timer_clock_hz(&self) -> u32 {
+        self.hclk_hz
+    }
+
+    /// The APB2 peripheral clock (USART6's kernel clock by default), Hz: hclk / 2.
+    pub const fn pclk2_hz(&self) -> u32 {
+        self.hclk_hz / 2
+    }
+}
+
+/// The value [`crate::boards`]' bootloader request leaves in RAM across a reset: "ROM DFU".
+pub const BOOTLOADER_MAGIC: u32 = 0xB007_DF00;
+
+/// Whether a reset should go to the ROM bootloader, given the word found in the reset-surviving
+/// RAM location. Any other value (including RAM noise after a power cycle) boots the firmware.
+pub const fn boot_to_bootloader(word: u32) -> bool {
+    word == BOOTLOADER_MAGIC
+}
+
+/// A USART baud-rate divider: kernel clock / baud, rounded to nearest (oversampling by 16,
+/// RM0433 §48.5.7).
+pub const fn uart_brr(kernel_clock_hz: u32, baud: u32) -> u32 {
+    (kernel_clock_hz + baud / 2) / baud
+}
+
+/// The SPI clock divider exponent (CFG1.MBR: divide by 2^(MBR+1)) for the fastest clock not
+/// above `max_hz` from `kernel_hz`; 7 (÷256) at most.
+pub const fn spi_mbr(kernel_hz: u32, max_hz: u32) -> u8 {
+    let mut mbr = 0u8;
+    while mbr < 7 && kernel_hz >> (mbr + 1) > max_hz {
+        mbr += 1;
+    }
+    mbr
+}
+
+/// Interleave per-motor DShot compare values into one timer's DMA burst buffer: for each bit,
+/// the compare values of the timer's channels in register order (`out[bit · n + k]` is channel
+/// `first + k`'s value for `bit`). Channels without a motor get 0 (line idle). `values[k]` is
+/// `None` for such a channel. `out` must hold `COMPARE_BUFFER_LEN · values.len()` words; extra
+/// words are left untouched.
+pub fn interleave_burst(
+    values: &[Option<[u16; crate::drivers::dshot::COMPARE_BUFFER_LEN]>],
+    out: &mut [u32],
+) {
+    let n = values.len();
+    for (k, channel) in values.iter().enumerate() {
+        for bit in 0..crate::drivers::dshot::COMPARE_BUFFER_LEN {
+            if let Some(slot) = out.get_mut(bit * n + k) {
+                *slot = channel.map_or(0, |v| u32::from(v[bit]));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn revisions_and_clock_plans() {
+        assert_eq!(SiliconRevision::from_rev_id(0x1003), SiliconRevision::Y);
+        assert_eq!(SiliconRevision::from_rev_id(0x2003), SiliconRevision::V);
+        assert_eq!(SiliconRevision::from_rev_id(0x1001), SiliconRevision::Unknown(0x1001));
+        let v = ClockPlan::for_revision(SiliconRevision::V);
+        assert_eq!((v.sys_ck_hz, v.hclk_hz, v.vos0), (480_000_000, 240_000_000, true));
+        let y = ClockPlan::for_revision(SiliconRevision::Y);
+        assert_eq!((y.sys_ck_hz, y.hclk_hz, y.vos0), (400_000_000, 200_000_000, false));
+        assert_eq!(ClockPlan::for_revision(SiliconRevision::Unknown(7)), y);
+        assert_eq!(v.timer_clock_hz(), 240_000_000);
+    }
+
+    #[test]
+    fn dividers() {
+        // 420 kbaud CRSF from pclk2 = 120 MHz and 100 MHz.
+        assert_eq!(uart_brr(120_000_000, 420_000), 286);
+        assert_eq!(uart_brr(100_000_000, 420_000), 238);
+        // 64 MHz per_ck: 16 MHz (÷4) for samples, 2 MHz (÷32) at start-up.
+        assert_eq!(spi_mbr(64_000_000, 24_000_000), 1);
+        assert_eq!(spi_mbr(64_000_000, 16_000_000), 1);
+        assert_eq!(spi_mbr(64_000_000, 2_000_000), 4);
+        assert_eq!(spi_mbr(64_000_000, 1), 7);
+    }
+
+    #[test]
+    fn bootloader_magic_only_on_the_exact_word() {
+        assert!(boot_to_bootloader(BOOTLOADER_MAGIC));
+        assert!(!boot_to_bootloader(0));
+        assert!(!boot_to_bootloader(!BOOTLOADER_MAGIC));
+    }
+
+    #[test]
+    fn burst_interleaving() {
+        let a = [1u16; 17];
+        let mut b = [2u16; 17];
+        b[16] = 0;
+        let mut out = [9u32; 17 * 3];
+        interleave_burst(&[Some(a), None, Some(b)], &mut out);
+        assert_eq!(&out[..6], &[1, 0, 2, 1, 0, 2]);
+        assert_eq!(&out[48..], &[1, 0, 0]);
+    }
+}

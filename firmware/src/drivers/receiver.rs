@@ -1,0 +1,290 @@
+//! The pilot's radio as the control step sees it: CRSF bytes in, at most one
+//! [`ControlCommand`] out per control step, and the [`ReceiverHealth`] for the status.
+//!
+//! The board drains the UART's receive buffer at the start of every control step and hands the
+//! bytes to [`Receiver::poll`] together with the state of the previous step; the command it
+//! returns is applied before the step runs, so a kill switch disarms within one control step
+//! (500 µs at 2 kHz) of its frame's last byte arriving in the buffer.
+//!
+//! # Switches (the mapping of [`RcLink`], channels 5/6/7 by default)
+//! - Kill on: [`ControlCommand::Disarm`] on every step while anything is armed, whatever the
+//!   other switches say.
+//! - Arm and throw-to-fly on: [`ControlCommand::ArmThrowToFly`], once, on the step the request
+//!   first appears, and only after the receiver has seen the arm switch off since start-up or
+//!   since its last failsafe (a craft never arms because it powered up with the switch on).
+//! - Arm switch turned off (after arm on): [`ControlCommand::Disarm`], once.
+//!
+//! # Failsafe (no valid RC frame for 250 ms, [`crate::drivers::crsf::DEFAULT_FAILSAFE_TIMEOUT_US`])
+//! - On the ground (nothing armed, or armed and waiting for or being thrown):
+//!   [`ControlCommand::Disarm`] at once.
+//! - In flight (released, exciting the motors, or the controller flying): the craft keeps doing
+//!   what it does (the learner's schedule and then the hover controller need no stick input) for
+//!   [`FLIGHT_FAILSAFE_GRACE_US`]; if no valid frame returned by then, it disarms. A link that
+//!   comes back within the grace cancels the failsafe; re-arming needs the arm switch cycled.
+//!
+//! A receiver that has never delivered a valid RC frame since start-up is treated as absent: it
+//! commands nothing, so the board can be armed over USB without a radio (bench, SITL-like use).
+
+use super::crsf::{
+    CrsfFrame, CrsfParser, LinkStatistics, PilotRequest, RcConfigError, RcLink, RcLinkConfig,
+};
+use crate::app::ControlCommand;
+use protocol::ReceiverHealth;
+
+/// How long a craft in flight keeps flying after the radio link is lost, µs.
+pub const FLIGHT_FAILSAFE_GRACE_US: u64 = 1_000_000;
+
+/// What the control step was doing at its previous step (from its snapshot).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CraftState {
+    /// Anything armed (throw detector, flight, motor test).
+    pub armed: bool,
+    /// In the air: released from the hand, exciting, or flying on the controller.
+    pub in_flight: bool,
+}
+
+/// The receiver: parser, switch mapping, failsafe policy, counters.
+#[derive(Debug, Clone)]
+pub struct Receiver {
+    parser: CrsfParser,
+    link: RcLink,
+    statistics: Option<LinkStatistics>,
+    /// A valid RC frame has arrived since start-up.
+    present: bool,
+    /// The arm switch was seen off since start-up or the last failsafe: arming is allowed.
+    interlock_clear: bool,
+    previous: PilotRequest,
+    /// When the failsafe began in flight, µs.
+    failsafe_since_us: Option<u64>,
+}
+
+impl Receiver {
+    /// A receiver with the given switch mapping.
+    pub fn new(config: RcLinkConfig) -> Result<Self, RcConfigError> {
+        Ok(Self {
+            parser: CrsfParser::new(),
+            link: RcLink::new(config)?,
+            statistics: None,
+            present: false,
+            interlock_clear: false,
+            previous: PilotRequest::Failsafe,
+            failsafe_since_us: None,
+        })
+    }
+
+    /// Feed the bytes received since the last call, then decide. Never blocks, never allocates.
+    pub fn poll(&mut self, bytes: &[u8], now_us: u64, craft: CraftState) -> Option<ControlCommand> {
+        for &byte in bytes {
+            self.push(byte, now_us);
+        }
+        self.decide(now_us, craft)
+    }
+
+    fn push(&mut self, byte: u8, now_us: u64) {
+        // One byte can complete several events (a failed candidate, then a good frame found
+        // while resynchronising): take them all now, so none waits for the next byte.
+        let mut event = self.parser.push(byte);
+        while let Some(result) = event {
+            match result {
+                Ok(CrsfFrame::RcChannels(channels)) => {
+                    self.link.on_channels(&channels, now_us);
+                    self.present = true;
+                }
+                Ok(CrsfFrame::LinkStatistics(statistics)) => self.statistics = Some(statistics),
+                // Counted by the parser.
+                Err(_) => {}
+            }
+            event = self.parser.next_event();
+        }
+    }
+
+    fn decide(&mut self, now_us: u64, craft: CraftState) -> Option<ControlCommand> {
+        if !self.present {
+            return None;
+        }
+        let request = self.link.request(now_us);
+        let previous = core::mem::replace(&mut self.previous, request);
+        if request != PilotRequest::Failsafe {
+            self.failsafe_since_us = None;
+        }
+        match request {
+            PilotRequest::Kill => craft.armed.then_some(ControlCommand::Disarm),
+            PilotRequest::Disarmed => {
+                self.interlock_clear = true;
+                (craft.armed && matches!(previous, PilotRequest::Armed | PilotRequest::ThrowToFly))
+                    .then_some(ControlCommand::Disarm)
+            }
+            PilotRequest::Armed => None,
+            PilotRequest::ThrowToFly => {
+                (self.interlock_clear && previous != PilotRequest::ThrowToFly && !craft.armed)
+                    .then_some(ControlCommand::ArmThrowToFly)
+            }
+            PilotRequest::Failsafe => {
+                self.interlock_clear = false;
+                if !craft.armed {
+                    self.failsafe_since_us = None;
+                    return None;
+                }
+                if !craft.in_flight {
+                    return Some(ControlCommand::Disarm);
+                }
+                let since = *self.failsafe_since_us.get_or_insert(now_us);
+                (now_us.saturating_sub(since) >= FLIGHT_FAILSAFE_GRACE_US)
+                    .then_some(ControlCommand::Disarm)
+            }
+        }
+    }
+
+    /// What the status reports.
+    pub fn health(&self, now_us: u64) -> ReceiverHealth {
+        let stats = self.parser.stats();
+        let (link_quality_pct, rssi_dbm) = self.statistics.map_or((0, 0), |s| {
+            let rssi =
+                if s.active_antenna == 0 { s.uplink_rssi_ant1_dbm } else { s.uplink_rssi_ant2_dbm };
+            (s.uplink_link_quality_pct, rssi)
+        });
+        ReceiverHealth {
+            link_up: self.link.is_fresh(now_us),
+            link_quality_pct,
+            rssi_dbm,
+            frames: stats.good_frames,
+            frame_errors: stats
+                .crc_errors
+                .saturating_add(stats.length_errors)
+                .saturating_add(stats.truncated),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drivers::crsf::{crc8_dvb_s2, TYPE_RC_CHANNELS_PACKED};
+
+    /// A CRSF RC-channels frame with every channel at `default_us` except the ones given.
+    fn frame(arm: bool, throw: bool, kill: bool) -> heapless::Vec<u8, 26> {
+        let us = |on: bool| if on { 2000.0f32 } else { 1000.0 };
+        let mut values = [992u16; 16];
+        // µs → raw: raw = 992 + (us − 1500) · 8/5.
+        let raw = |us: f32| (992.0 + (us - 1500.0) * 1.6) as u16;
+        values[4] = raw(us(arm));
+        values[5] = raw(us(throw));
+        values[6] = raw(us(kill));
+        let mut payload = [0u8; 22];
+        let mut bit = 0usize;
+        for v in values {
+            for b in 0..11 {
+                if (v >> b) & 1 == 1 {
+                    payload[bit / 8] |= 1 << (bit % 8);
+                }
+                bit += 1;
+            }
+        }
+        let mut out = heapless::Vec::new();
+        out.extend_from_slice(&[0xC8, 24, TYPE_RC_CHANNELS_PACKED]).unwrap();
+        out.extend_from_slice(&payload).unwrap();
+        out.push(crc8_dvb_s2(&out[2..])).unwrap();
+        out
+    }
+
+    const GROUND_ARMED: CraftState = CraftState { armed: true, in_flight: false };
+    const FLYING: CraftState = CraftState { armed: true, in_flight: true };
+    const IDLE: CraftState = CraftState { armed: false, in_flight: false };
+
+    fn receiver() -> Receiver {
+        Receiver::new(RcLinkConfig::default()).unwrap()
+    }
+
+    #[test]
+    fn absent_receiver_commands_nothing() {
+        let mut rx = receiver();
+        for t in 0..10 {
+            assert_eq!(rx.poll(&[], t * 1_000_000, FLYING), None);
+        }
+        assert!(!rx.health(0).link_up);
+    }
+
+    #[test]
+    fn arming_needs_the_switch_seen_off_first() {
+        let mut rx = receiver();
+        // Powered up with arm and throw-to-fly on: no arm.
+        assert_eq!(rx.poll(&frame(true, true, false), 1_000, IDLE), None);
+        assert_eq!(rx.poll(&frame(true, true, false), 2_000, IDLE), None);
+        // Switch off, then on again: one arm command, not repeated.
+        assert_eq!(rx.poll(&frame(false, false, false), 3_000, IDLE), None);
+        assert_eq!(
+            rx.poll(&frame(true, true, false), 4_000, IDLE),
+            Some(ControlCommand::ArmThrowToFly)
+        );
+        assert_eq!(rx.poll(&frame(true, true, false), 5_000, GROUND_ARMED), None);
+        // Arm switch off: one disarm.
+        assert_eq!(
+            rx.poll(&frame(false, false, false), 6_000, GROUND_ARMED),
+            Some(ControlCommand::Disarm)
+        );
+        assert_eq!(rx.poll(&frame(false, false, false), 7_000, IDLE), None);
+        let health = rx.health(7_000);
+        assert!(health.link_up);
+        assert_eq!((health.frames, health.frame_errors), (7, 0));
+    }
+
+    #[test]
+    fn kill_disarms_in_the_step_its_frame_arrives_and_every_step_after() {
+        let mut rx = receiver();
+        rx.poll(&frame(false, false, false), 0, IDLE);
+        rx.poll(&frame(true, true, false), 500, IDLE);
+        assert_eq!(rx.poll(&frame(true, true, true), 1_000, FLYING), Some(ControlCommand::Disarm));
+        // No new frame, still armed (say the disarm was lost): disarm again.
+        assert_eq!(rx.poll(&[], 1_500, FLYING), Some(ControlCommand::Disarm));
+        assert_eq!(rx.poll(&[], 2_000, IDLE), None);
+    }
+
+    #[test]
+    fn failsafe_on_the_ground_disarms_at_once() {
+        let mut rx = receiver();
+        rx.poll(&frame(false, false, false), 0, IDLE);
+        assert_eq!(rx.poll(&[], 200_000, GROUND_ARMED), None);
+        assert_eq!(rx.poll(&[], 250_000, GROUND_ARMED), Some(ControlCommand::Disarm));
+        assert_eq!(rx.poll(&[], 260_000, IDLE), None);
+    }
+
+    #[test]
+    fn failsafe_in_flight_keeps_flying_then_disarms() {
+        let mut rx = receiver();
+        rx.poll(&frame(false, false, false), 0, IDLE);
+        rx.poll(&frame(true, true, false), 1_000, IDLE);
+        // Lost at 1 ms; failsafe from 251 ms; disarm 1 s later.
+        assert_eq!(rx.poll(&[], 251_000, FLYING), None);
+        assert_eq!(rx.poll(&[], 1_250_000, FLYING), None);
+        assert_eq!(rx.poll(&[], 1_251_000, FLYING), Some(ControlCommand::Disarm));
+    }
+
+    #[test]
+    fn link_back_within_the_grace_cancels_and_rearming_needs_a_switch_cycle() {
+        let mut rx = receiver();
+        rx.poll(&frame(false, false, false), 0, IDLE);
+        rx.poll(&frame(true, true, false), 1_000, IDLE);
+        assert_eq!(rx.poll(&[], 500_000, FLYING), None);
+        assert_eq!(rx.poll(&frame(true, true, false), 600_000, FLYING), None);
+        assert_eq!(rx.poll(&[], 1_700_000, FLYING), None, "grace restarts after the link returned");
+        // Landed and disarmed by USB while the link is up: switches still on, no re-arm.
+        assert_eq!(rx.poll(&frame(true, true, false), 1_800_000, IDLE), None);
+    }
+
+    #[test]
+    fn corrupted_frames_are_counted_and_ignored() {
+        let mut rx = receiver();
+        let mut bad = frame(false, false, true);
+        let last = bad.len() - 1;
+        bad[last] ^= 0x01;
+        assert_eq!(rx.poll(&bad, 0, FLYING), None);
+        // Truncated frame followed by a good one.
+        let good = frame(false, false, false);
+        assert_eq!(rx.poll(&good[..10], 100, IDLE), None);
+        assert_eq!(rx.poll(&good, 200, IDLE), None);
+        let health = rx.health(200);
+        assert!(health.link_up);
+        assert_eq!(health.frames, 1);
+        assert!(health.frame_errors >= 2, "{health:?}");
+    }
+}
