@@ -439,3 +439,64 @@ fn protocol_1_4_flight_board_and_setpoint_frames_are_pinned() {
     assert_eq!(Topic::Flight.index(), 5, "wire index of the new topic");
     assert!(!Topic::Flight.is_per_step(), "the link samples the flight topic");
 }
+
+#[test]
+fn the_largest_flight_sample_and_board_health_fit_one_frame() {
+    let counts = FailsafeCounters {
+        bad_command: u16::MAX,
+        allocation_failed: u16::MAX,
+        identification: u16::MAX,
+        attitude_lost: u16::MAX,
+        imu_lost: u16::MAX,
+        imu_fault: u16::MAX,
+        pose_lost: u16::MAX,
+        rc_lost: u16::MAX,
+        kill: u16::MAX,
+    };
+    let flight = FlightTelemetry {
+        t_us: u64::MAX,
+        mode: FlightMode::PositionHold,
+        q_world_thrust: [1.0; 4],
+        euler_zyx_rad: [1.0; 3],
+        rate_rad_s: [1.0; 3],
+        rate_sp_rad_s: [1.0; 3],
+        specific_force_sp_ned_mps2: [1.0; 3],
+        tilt_error_rad: 1.0,
+        position_sp_ned_m: Some([1.0; 3]),
+        position_ned_m: Some([1.0; 3]),
+        velocity_ned_mps: Some([1.0; 3]),
+        pose_fresh: true,
+        allocation_failures: u16::MAX,
+        saturated: u8::MAX,
+        last_failsafe: Some(FailsafeReason::Identification(LearnerFailure::NoHover)),
+        failsafes: counts,
+    };
+    let board = BoardHealth {
+        core_clock_hz: Some(u32::MAX),
+        silicon_revision: Some(u16::MAX),
+        imu: ImuDriverState::ConfigMismatch { register: 0xff, written: 0xff, read: 0xff },
+        motors: Some(MotorLinkHealth {
+            motor_count: 8,
+            frames_sent: u32::MAX,
+            reports: [u32::MAX; MAX_MOTORS],
+            report_errors: [u32::MAX; MAX_MOTORS],
+        }),
+        receiver: Some(ReceiverHealth {
+            link_up: true,
+            link_quality_pct: 100,
+            rssi_dbm: i16::MIN,
+            frames: u32::MAX,
+            frame_errors: u32::MAX,
+        }),
+    };
+    let messages = [
+        DeviceMessage::Telemetry(Telemetry::Flight(flight)),
+        DeviceMessage::Response(Ok(Reply::Flight(flight))),
+        DeviceMessage::Response(Ok(Reply::Board(board))),
+    ];
+    for message in messages {
+        let mut buffer = [0u8; MAX_FRAME_LEN];
+        let len = message.encode(u16::MAX, &mut buffer).expect("fits a frame");
+        assert!(len <= MAX_FRAME_LEN - 24, "{len} bytes: less than 24 bytes of room to grow");
+    }
+}
