@@ -56,3 +56,72 @@ fn every_builtin_airframe_recovers_hovers_and_holds() {
         assert!(error < 0.3, "{name}: worst distance from the setpoint {error} m");
     }
 }
+
+/// A ground station moves the hold: the seed paper's quad recovers and holds where it stopped;
+/// then a `SetPositionSetpoint` 1 m north, 1 m east and 0.5 m up (heading 30°) arrives through
+/// the same command the protocol carries, and the craft's true centre of gravity settles within
+/// 0.15 m of it and its heading within 5° (flown here step by step, as `fly` does).
+#[test]
+fn a_position_setpoint_from_the_ground_station_moves_the_hover() {
+    use firmware::app::ControlCommand;
+    use protocol::PositionSetpoint;
+    use sim::board::SimBoard;
+    use sim::recovery::{heading, MotionCapture};
+    use sim::scenario::{with_firmware_app, FlightApp};
+
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config = FlyConfig::paper();
+    let truth = sim::identification::TrueModel::of(&airframe);
+    let q_body_thrust = airframe.q_imu_body().inverse() * truth.q_thrust_to_imu;
+    let mut board = SimBoard::new(&airframe, &config.board);
+    with_firmware_app(|app| {
+        let r = truth.r_imu_m;
+        app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
+        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        let mut mocap = MotionCapture::new(config.board.seed);
+        let mut target: Option<PositionSetpoint> = None;
+        let mut errors = Vec::new();
+        for tick in 0..(1000 + 2000 * 14) {
+            if tick == 1000 {
+                board.physics_mut().throw(&config.throw.spec());
+            }
+            board.tick();
+            let now_us = board.now_us();
+            if let Some(pose) = mocap.sample(board.physics().state(), now_us) {
+                app.command(ControlCommand::ExternalPose(pose), now_us);
+            }
+            let (imu, motors) = board.ports();
+            app.step(now_us, imu, motors);
+            let pilot = app.control.snapshot().pilot;
+            let state = *board.physics().state();
+            assert!(state.position_ned_m.z < 0.0, "hit the ground at {:.2} s", board.time_s());
+            // Once holding where it stopped, the ground station asks for somewhere else.
+            if target.is_none() && pilot.position_hold && board.time_s() > 5.0 {
+                let here = state.position_ned_m;
+                let setpoint = PositionSetpoint {
+                    position_ned_m: [here.x as f32 + 1.0, here.y as f32 + 1.0, here.z as f32 - 0.5],
+                    heading_rad: 30f32.to_radians(),
+                };
+                app.command(ControlCommand::PositionSetpoint(setpoint), now_us);
+                target = Some(setpoint);
+            }
+            // The last 2 s of the flight, 6 s or more after the new setpoint.
+            if let (Some(setpoint), true) = (target, board.time_s() > 13.0) {
+                let goal = nalgebra::Vector3::from(setpoint.position_ned_m).cast::<f64>();
+                let thrust_heading = heading(&(state.attitude() * q_body_thrust));
+                let heading_error =
+                    (thrust_heading - f64::from(setpoint.heading_rad)).sin().asin().abs();
+                errors.push(((state.position_ned_m - goal).norm(), heading_error));
+            }
+        }
+        let target = target.expect("the craft held a position by 5 s");
+        let worst_m = errors.iter().map(|e| e.0).fold(0.0, f64::max);
+        let worst_heading_deg = errors.iter().map(|e| e.1).fold(0.0, f64::max).to_degrees();
+        eprintln!(
+            "setpoint {:?}: worst distance {worst_m:.3} m, worst heading error {worst_heading_deg:.1}° over the last 2 s",
+            target.position_ned_m
+        );
+        assert!(worst_m < 0.15, "worst distance from the new setpoint {worst_m:.3} m");
+        assert!(worst_heading_deg < 5.0, "worst heading error {worst_heading_deg:.1}°");
+    });
+}
