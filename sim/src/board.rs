@@ -40,6 +40,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::airframe::{Airframe, MotorParams, MAX_ROTORS};
 use crate::dshot;
+use crate::faults::{FaultInjector, FaultSchedule};
 use crate::imu::{ImuModel, RawSample};
 use crate::physics::Physics;
 
@@ -77,6 +78,8 @@ pub struct SimConfig {
     pub start_position_ned_m: Vector3<f64>,
     /// Attitude at the start, `q_world_body`.
     pub start_attitude: UnitQuaternion<f64>,
+    /// Faults to inject ([`crate::faults`]; empty: none).
+    pub faults: FaultSchedule,
 }
 
 impl Default for SimConfig {
@@ -88,6 +91,7 @@ impl Default for SimConfig {
             arming: Arming::OnFirstCommand,
             start_position_ned_m: Vector3::new(0.0, 0.0, -1.0),
             start_attitude: UnitQuaternion::identity(),
+            faults: FaultSchedule::default(),
         }
     }
 }
@@ -175,6 +179,8 @@ pub struct SimBoard {
     ticks: u64,
     last_sample: ImuSample,
     last_truth_sample: RawSample,
+    /// Fault injection ([`crate::faults`]).
+    faults: FaultInjector,
 }
 
 impl SimBoard {
@@ -217,6 +223,7 @@ impl SimBoard {
             ticks: 0,
             last_sample: ImuSample::default(),
             last_truth_sample: RawSample::default(),
+            faults: FaultInjector::new(&config.faults),
         }
     }
 
@@ -229,6 +236,11 @@ impl SimBoard {
             }
         }
         self.physics.set_rotor_targets(&targets);
+        // Fault injection: a rotor's thrust scaled from this tick on (nothing without faults).
+        let tick_end_s = ((self.ticks + 1) * CONTROL_PERIOD_US) as f64 * 1e-6;
+        if let Some(factors) = self.faults.thrust_factors(tick_end_s) {
+            self.physics.set_rotor_thrust_factors(&factors);
+        }
 
         let mut sum = RawSample::default();
         let mut sum_truth = RawSample::default();
@@ -249,6 +261,8 @@ impl SimBoard {
             gyro_rad_s: to_f32(sum.gyro_rad_s / n),
             accel_mps2: to_f32(sum.accel_mps2 / n),
         };
+        // Fault injection: the sample as a failing IMU delivers it (unchanged without faults).
+        self.faults.corrupt_imu(tick_end_s, &mut self.last_sample);
         self.last_truth_sample = RawSample {
             gyro_rad_s: sum_truth.gyro_rad_s / n,
             accel_mps2: sum_truth.accel_mps2 / n,
@@ -311,6 +325,17 @@ impl SimBoard {
     /// The physics, mutably (throw, catch, release, set state).
     pub fn physics_mut(&mut self) -> &mut Physics {
         &mut self.physics
+    }
+
+    /// The fault injector ([`crate::faults`]): add faults while flying.
+    pub fn faults_mut(&mut self) -> &mut FaultInjector {
+        &mut self.faults
+    }
+
+    /// Whether the external pose is lost now (a [`crate::faults::FaultKind::PoseLost`] is active
+    /// at [`Self::now_us`]): whoever sends poses for this board skips them.
+    pub fn pose_lost(&self) -> bool {
+        self.faults.pose_lost(self.time_s())
     }
 
     /// The IMU model (its pose on the body).

@@ -109,6 +109,19 @@ impl VehicleModel {
     pub fn rotor_count(&self) -> usize {
         self.rotors.len()
     }
+
+    /// This model with each rotor's thrust and drag-torque coefficients scaled by `factors`
+    /// (fault injection, [`crate::faults`]: a damaged propeller pushes and drags less at the same
+    /// speed).
+    pub fn with_thrust_factors(&self, factors: &[f64; MAX_ROTORS]) -> Self {
+        let mut model = self.clone();
+        for (rotor, factor) in model.rotors.iter_mut().zip(factors) {
+            rotor.motor.thrust_coefficient_n_per_rad2_s2 *= factor;
+            rotor.motor.torque_coefficient_nm_per_rad2_s2 *= factor;
+            rotor.signed_torque_coefficient *= factor;
+        }
+        model
+    }
 }
 
 /// The integrated state.

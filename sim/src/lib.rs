@@ -6,6 +6,7 @@ pub mod bridge;
 pub mod calibration;
 pub mod dshot;
 pub mod dynamics;
+pub mod faults;
 pub mod flash;
 pub mod hand;
 pub mod identification;

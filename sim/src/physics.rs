@@ -24,6 +24,8 @@ pub struct Physics {
     target_rad_s: [f64; MAX_ROTORS],
     derivative: Derivative,
     rotor_angle_rad: [f64; MAX_ROTORS],
+    /// The airframe's model while a fault scales rotors ([`Physics::set_rotor_thrust_factors`]).
+    nominal_model: Option<VehicleModel>,
 }
 
 impl Physics {
@@ -49,6 +51,7 @@ impl Physics {
             target_rad_s,
             derivative,
             rotor_angle_rad: [0.0; MAX_ROTORS],
+            nominal_model: None,
         }
     }
 
@@ -90,6 +93,14 @@ impl Physics {
                 *angle -= std::f64::consts::TAU;
             }
         }
+    }
+
+    /// Scales each rotor's thrust and drag-torque coefficients by `factors`, relative to the
+    /// airframe's (fault injection, [`crate::faults`]); all ones restores them.
+    pub fn set_rotor_thrust_factors(&mut self, factors: &[f64; MAX_ROTORS]) {
+        let nominal = self.nominal_model.get_or_insert_with(|| self.model.clone());
+        self.model = nominal.with_thrust_factors(factors);
+        self.refresh_derivative();
     }
 
     fn refresh_derivative(&mut self) {

@@ -180,8 +180,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             }
             board.tick();
             let now_us = board.now_us();
-            if let Some(pose) =
-                mocap.as_mut().and_then(|m| m.sample(board.physics().state(), now_us))
+            // `pose_lost`: fault injection (`SimConfig::faults`), never without faults.
+            if let Some(pose) = mocap
+                .as_mut()
+                .and_then(|m| m.sample(board.physics().state(), now_us))
+                .filter(|_| !board.pose_lost())
             {
                 app.command(ControlCommand::ExternalPose(pose), now_us);
             }

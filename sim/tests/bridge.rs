@@ -310,3 +310,136 @@ fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
     assert!(snapshot.armed);
     assert_eq!(snapshot.external_pose.map(|(pose, _)| pose), Some(POSE));
 }
+
+/// The firmware behind the bridge, recording what its pilot did at every step.
+struct Recorded<'a, 'q> {
+    app: &'a mut sim::scenario::FirmwareApp<'q>,
+    /// Per step: flying, holding a position, the position setpoint (NED, m).
+    log: Vec<(bool, bool, [f32; 3])>,
+}
+
+impl FlightApp for Recorded<'_, '_> {
+    fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
+        self.app.step(now_us, imu, motors);
+        let pilot = self.app.control.snapshot().pilot;
+        self.log.push((pilot.flying, pilot.position_hold, pilot.position_sp_ned_m));
+    }
+    fn command(&mut self, command: ControlCommand, now_us: u64) {
+        self.app.command(command, now_us);
+    }
+}
+
+/// The seed paper's throw-and-fly (`sim::recovery::FlyConfig::paper`, 8 s of flight) with the
+/// physics on the simulator's side of the bridge: our own rigid-body simulation stands in for an
+/// external simulator, sends version-2 sensor packets (the IMU sample, the motor speeds, and the
+/// motion-capture pose at 100 Hz) through the reference client, and applies the commands it gets
+/// back. The firmware behind the bridge knows only what the packets carry. It must recover to a
+/// hover and hold its position within 0.3 m, as the built-in simulator's run of the same throw
+/// does: release → hover within 0.1 s and the hold error within 2 cm of the built-in figures (the
+/// bridge passes every value the built-in board hands the application, in the same types, at the
+/// same times, so the two runs agree exactly; the tolerances say what "the same recovery" means).
+#[test]
+fn the_seed_paper_throw_flown_through_the_bridge_recovers_as_in_the_built_in_simulator() {
+    use sim::identification::TrueModel;
+    use sim::recovery::{
+        fly, FlyConfig, MotionCapture, Outcome, HOVER_CLIMB_MPS, HOVER_HOLD_S, HOVER_RATE_RAD_S,
+        HOVER_TILT_RAD,
+    };
+
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let mut config = FlyConfig::paper();
+    config.flight_s = 8.0;
+    let builtin = fly(&airframe, &config);
+    assert_eq!(builtin.outcome, Outcome::Flying, "{builtin:?}");
+
+    let truth = TrueModel::of(&airframe);
+    let r = truth.r_imu_m;
+    let r_imu_m = [r.x as f32, r.y as f32, r.z as f32];
+    let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
+    let addr = server.local_addr().unwrap();
+    let handle = std::thread::spawn(move || {
+        with_firmware_app(|app| {
+            app.background.set_imu_offset(Some(r_imu_m));
+            app.control.command(ControlCommand::ArmThrowToFly, 0);
+            let mut recorded = Recorded { app, log: Vec::new() };
+            loop {
+                match server.step(&mut recorded, Duration::from_millis(500)) {
+                    Ok(_) => {}
+                    Err(BridgeError::Timeout(_)) => return recorded.log,
+                    Err(error) => panic!("bridge: {error}"),
+                }
+            }
+        })
+    });
+
+    // The external simulator: physics, IMU, motion capture; version 2 with a pose every 10 ms.
+    let mut board = SimBoard::new(&airframe, &config.board);
+    let mut mocap = MotionCapture::new(config.board.seed);
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let spec = config.throw.spec();
+    let mut states = Vec::new();
+    let mut end_s = f64::INFINITY;
+    for sequence in 0u64.. {
+        if sequence == 1000 {
+            board.physics_mut().throw(&spec);
+        }
+        board.tick();
+        let pose = mocap.sample(board.physics().state(), board.now_us());
+        let packet = SensorPacket { version: 2, ..sensor_packet(&board, sequence, pose) };
+        let reply = client.exchange(&packet, TIMEOUT).unwrap();
+        assert_eq!((reply.version, reply.sequence), (2, sequence));
+        board.motors_mut().set_commands(&reply.commands[..reply.motor_count as usize]);
+        states.push((board.time_s(), *board.physics().state()));
+        if let Some(released_s) = board.physics().hand().released_at_s() {
+            end_s = end_s.min(released_s + config.flight_s);
+        }
+        if board.time_s() >= end_s {
+            break;
+        }
+    }
+    let released_s = board.physics().hand().released_at_s().expect("released");
+    let log = handle.join().unwrap();
+    assert_eq!(log.len(), states.len(), "one step per packet");
+
+    // The built-in run's measures (`sim::recovery::fly`), from the truth and the pilot's log.
+    let thrust_dir_body =
+        airframe.q_imu_body().inverse() * (truth.q_thrust_to_imu * nalgebra::Vector3::z() * -1.0);
+    let hold_window_s = builtin.hold_window_s;
+    let (mut hover_since, mut release_to_hover_s, mut hold_error_m) = (None, None, None::<f64>);
+    for ((t_s, state), (flying, hold, sp)) in states.iter().zip(&log) {
+        let since_release = t_s - released_s;
+        if since_release < 0.0 || !flying {
+            continue;
+        }
+        if *hold && *t_s >= end_s - hold_window_s {
+            let sp = nalgebra::Vector3::from(*sp).cast::<f64>();
+            let error = (state.position_ned_m - sp).norm();
+            hold_error_m = Some(hold_error_m.unwrap_or(0.0).max(error));
+        }
+        let up = state.attitude() * thrust_dir_body;
+        let hovering = state.rate_body_rad_s.norm() < HOVER_RATE_RAD_S
+            && state.velocity_ned_mps.z.abs() < HOVER_CLIMB_MPS
+            && (-up.z).clamp(-1.0, 1.0).acos() < HOVER_TILT_RAD;
+        if hovering {
+            let since = *hover_since.get_or_insert(since_release);
+            if since_release - since >= HOVER_HOLD_S && release_to_hover_s.is_none() {
+                release_to_hover_s = Some(since);
+            }
+        } else {
+            hover_since = None;
+        }
+    }
+    assert!(log.last().unwrap().0, "still flying at the end");
+    let bridge_hover_s = release_to_hover_s.expect("hovered through the bridge");
+    let bridge_error_m = hold_error_m.expect("held a position through the bridge");
+    let builtin_hover_s = builtin.release_to_hover_s.expect("hovered in the built-in simulator");
+    let builtin_error_m = builtin.max_hold_error_m.expect("held in the built-in simulator");
+    eprintln!(
+        "paper quad, release → hover: bridge {bridge_hover_s:.4} s, built-in {builtin_hover_s:.4} \
+         s; worst distance from the setpoint over the last {hold_window_s:.1} s: bridge \
+         {bridge_error_m:.4} m, built-in {builtin_error_m:.4} m"
+    );
+    assert!(bridge_error_m < 0.3, "held within {bridge_error_m} m");
+    assert!((bridge_hover_s - builtin_hover_s).abs() <= 0.1, "release → hover differs");
+    assert!((bridge_error_m - builtin_error_m).abs() <= 0.02, "hold error differs");
+}

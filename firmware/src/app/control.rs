@@ -14,6 +14,19 @@
 //! Flight (`super::pilot::Pilot`): the attitude filter and position estimator run on every
 //! sample; when the excitation ends the step engages the controller on the model the background
 //! task published ([`ControlLoop::receive`]) and flies it until disarmed or a failsafe stops it.
+//!
+//! **IMU checks** (before anything uses the sample; `docs/failsafes.md` has the reasoning). The
+//! reaction is in force in the very step whose sample shows the fault: that step writes zero to
+//! every motor, and the failsafe is counted in the pilot's status ([`Failsafe::ImuFault`]).
+//! - A **non-finite** value (NaN, ±∞): the sample is never used (it counts as missing). During a
+//!   throw-to-fly attempt or a flight it disarms at once: the ICM-42688-P delivers 16-bit
+//!   integers, so a non-finite value means the data path itself is broken.
+//! - A **stuck gyro axis**: [`STUCK_GYRO_SAMPLES`] consecutive bit-identical readings of one axis
+//!   while another axis changed meanwhile. Tracked always; while flying it disarms.
+//! - A **saturated accelerometer**: an axis at or beyond [`ACCEL_SATURATED_MPS2`]. While flying,
+//!   the step uses the last unsaturated accelerometer reading instead (attitude filter, position
+//!   estimator and INDI alike; the gyro is used as read), counted in
+//!   [`ControlSnapshot::accel_held`]; [`ACCEL_SATURATED_STEPS`] saturated samples in a row disarm.
 
 use super::background::BackgroundResults;
 use super::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
@@ -81,6 +94,72 @@ pub const CONTROL_RATE_HZ: u16 = 2000;
 /// Consecutive steps without an IMU sample after which the IMU counts as absent (10 ms at 2 kHz).
 const IMU_ABSENT_AFTER_STEPS: u32 = 20;
 
+/// Consecutive bit-identical readings of one gyro axis (while another axis changes) after which
+/// the axis counts as stuck (16 ms at 2 kHz). Origin: at rest on the bench, the ICM-42688-P's gyro
+/// noise (2.8 mdps/√Hz, about 1 LSB at ±2000 °/s over its ~500 Hz band) makes two consecutive
+/// readings equal with probability ≲ 0.3, so 32 equal readings come by chance with probability
+/// ≲ 0.3³¹ ≈ 10⁻¹⁶ per step; in flight, motor vibration makes it far smaller. The simulator's
+/// IMU (average of four 8 kHz samples of 16-bit codes) repeats with probability about 0.03.
+pub const STUCK_GYRO_SAMPLES: u16 = 32;
+
+/// Accelerometer reading at or beyond which an axis counts as saturated, m/s² (15.5 g). Origin:
+/// the ICM-42688-P at ±16 g full scale (156.9 m/s²), less 0.5 g of margin so that a reading a
+/// code or two below the rail counts too; no multirotor thrust comes near it (thrust-to-weight
+/// 2.5–5 in the simulator's airframes, ≲ 10 for racers), so a reading there is an impact or a
+/// failed sensor, and the true value is unknown.
+pub const ACCEL_SATURATED_MPS2: f32 = 15.5 * 9.806_65;
+
+/// Consecutive saturated accelerometer samples after which the IMU counts as faulty (10 ms at
+/// 2 kHz, as [`IMU_ABSENT_AFTER_STEPS`]): a longer saturation is not a bump.
+pub const ACCEL_SATURATED_STEPS: u16 = 20;
+
+/// The IMU checks' state (see the module doc).
+#[derive(Clone, Copy, Debug, Default)]
+struct ImuMonitor {
+    /// The previous finite sample's gyro, as bits.
+    previous_gyro_bits: Option<[u32; 3]>,
+    /// Readings of each gyro axis equal to the previous one, consecutive.
+    repeats: [u16; 3],
+    /// The latest accelerometer reading with no axis saturated (raw, before the bias).
+    last_unsaturated_accel: Option<[f32; 3]>,
+    /// Consecutive saturated samples.
+    saturated_steps: u16,
+}
+
+impl ImuMonitor {
+    /// Track a finite sample: returns whether a gyro axis is stuck, and whether the accelerometer
+    /// is saturated (then `sample`'s accelerometer is replaced by the last unsaturated reading
+    /// when `hold` and there is one).
+    fn check(&mut self, sample: &mut ImuSample, hold: bool) -> (bool, bool) {
+        let bits = sample.gyro_rad_s.map(f32::to_bits);
+        match self.previous_gyro_bits {
+            Some(previous) => {
+                for ((repeats, now), before) in self.repeats.iter_mut().zip(bits).zip(previous) {
+                    *repeats = if now == before { repeats.saturating_add(1) } else { 0 };
+                }
+            }
+            None => self.repeats = [0; 3],
+        }
+        self.previous_gyro_bits = Some(bits);
+        // N equal readings are N − 1 repeats; "another axis changed" = its run is shorter.
+        let stuck_axis = |r: u16| r.saturating_add(1) >= STUCK_GYRO_SAMPLES;
+        let stuck = (0..3).any(|i| {
+            stuck_axis(self.repeats[i]) && (0..3).any(|j| j != i && !stuck_axis(self.repeats[j]))
+        });
+        let saturated = sample.accel_mps2.iter().any(|a| a.abs() >= ACCEL_SATURATED_MPS2);
+        if saturated {
+            self.saturated_steps = self.saturated_steps.saturating_add(1);
+            if let (true, Some(good)) = (hold, self.last_unsaturated_accel) {
+                sample.accel_mps2 = good;
+            }
+        } else {
+            self.saturated_steps = 0;
+            self.last_unsaturated_accel = Some(sample.accel_mps2);
+        }
+        (stuck, saturated)
+    }
+}
+
 /// How the control loop is set up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ControlConfig {
@@ -135,6 +214,8 @@ pub struct ControlSnapshot {
     pub motor_test: Option<u8>,
     /// Motor tests that stopped by themselves (no keep-alive in time).
     pub motor_test_timeouts: u16,
+    /// Samples whose accelerometer was saturated while flying and replaced by the last good one.
+    pub accel_held: u32,
 }
 
 /// The control loop's state: the highest-priority task's local resource.
@@ -154,6 +235,7 @@ pub struct ControlLoop<'q> {
     snapshot: ControlSnapshot,
     previous_step_us: Option<u64>,
     steps_without_imu: u32,
+    imu_monitor: ImuMonitor,
     rate_window_start_us: u64,
     rate_window_steps: u32,
 }
@@ -178,6 +260,7 @@ impl<'q> ControlLoop<'q> {
             snapshot: ControlSnapshot::default(),
             previous_step_us: None,
             steps_without_imu: 0,
+            imu_monitor: ImuMonitor::default(),
             rate_window_start_us: 0,
             rate_window_steps: 0,
         }
@@ -271,14 +354,26 @@ impl<'q> ControlLoop<'q> {
     /// are waiting for the background task (the board then schedules it).
     pub fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) -> bool {
         self.account_timing(now_us);
-        let snapshot = &mut self.snapshot;
         let bias = self.settings.acc_bias_mps2;
-        let sample = imu.read().filter(is_finite_sample).map(|mut sample| {
+        let raw = imu.read();
+        let flying = self.pilot.flying();
+        // The IMU checks (module doc): a non-finite sample is never used; a stuck gyro axis or a
+        // lasting saturation is a fault while flying; a saturated accelerometer is held.
+        let mut imu_fault = raw.is_some_and(|sample| !is_finite_sample(&sample));
+        let sample = raw.filter(is_finite_sample).map(|mut sample| {
+            let (stuck, saturated) = self.imu_monitor.check(&mut sample, flying);
+            if flying && saturated {
+                self.snapshot.accel_held = self.snapshot.accel_held.wrapping_add(1);
+            }
+            imu_fault |= flying
+                && (stuck
+                    || (saturated && self.imu_monitor.saturated_steps >= ACCEL_SATURATED_STEPS));
             for (a, b) in sample.accel_mps2.iter_mut().zip(bias) {
                 *a -= b;
             }
             sample
         });
+        let snapshot = &mut self.snapshot;
         match sample {
             Some(sample) => {
                 snapshot.imu = sample;
@@ -307,6 +402,15 @@ impl<'q> ControlLoop<'q> {
         }
         if !snapshot.imu_present {
             let _ = self.pilot.imu_lost();
+        }
+        // An IMU fault during an attempt or a flight: everything stops in this step.
+        let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
+        if imu_fault && (attempt || self.pilot.flying()) {
+            self.pilot.imu_fault();
+            self.throw_to_fly.disarm();
+            if attempt {
+                snapshot.failure = LearnerFailure::ImuLost;
+            }
         }
         let dt_s = self.period_us as f32 * 1e-6;
         let previous_commands = snapshot.commands;
@@ -549,6 +653,46 @@ mod tests {
         assert!(!control.snapshot().imu_present);
         assert_eq!(control.snapshot().imu_missing, 100);
         assert!(!waiting && consumer.pop().is_none(), "nothing is queued without samples");
+    }
+
+    #[test]
+    fn a_gyro_axis_repeating_while_another_changes_counts_as_stuck_after_the_window() {
+        let mut monitor = ImuMonitor::default();
+        for i in 0..STUCK_GYRO_SAMPLES + 3 {
+            let x = f32::from(i);
+            let mut sample = ImuSample { gyro_rad_s: [0.25, x, 0.5], accel_mps2: [0.0, 0.0, -9.8] };
+            let (stuck, saturated) = monitor.check(&mut sample, true);
+            assert_eq!(stuck, i + 1 >= STUCK_GYRO_SAMPLES, "sample {i}");
+            assert!(!saturated);
+        }
+        // Every axis constant (an ideal IMU at rest): no axis counts as stuck.
+        let mut monitor = ImuMonitor::default();
+        for _ in 0..2 * STUCK_GYRO_SAMPLES {
+            let mut sample = ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, 0.0, -9.8] };
+            assert_eq!(monitor.check(&mut sample, true), (false, false));
+        }
+    }
+
+    #[test]
+    fn a_saturated_accelerometer_is_replaced_by_the_last_good_reading_only_when_held() {
+        let mut monitor = ImuMonitor::default();
+        let good = ImuSample { gyro_rad_s: [0.1, 0.2, 0.3], accel_mps2: [1.0, 2.0, -9.8] };
+        let mut sample = good;
+        assert_eq!(monitor.check(&mut sample, true), (false, false));
+        let rail = ImuSample { accel_mps2: [1.0, -156.9, -9.8], ..good };
+        let mut sample = rail;
+        assert_eq!(monitor.check(&mut sample, false), (false, true));
+        assert_eq!(sample, rail, "not flying: left as read");
+        for steps in 2..=ACCEL_SATURATED_STEPS {
+            let mut sample = rail;
+            assert_eq!(monitor.check(&mut sample, true), (false, true));
+            assert_eq!(sample.accel_mps2, good.accel_mps2);
+            assert_eq!(sample.gyro_rad_s, good.gyro_rad_s);
+            assert_eq!(monitor.saturated_steps, steps);
+        }
+        let mut sample = good;
+        let _ = monitor.check(&mut sample, true);
+        assert_eq!(monitor.saturated_steps, 0);
     }
 
     #[test]

@@ -27,7 +27,8 @@ pub use background::{
     STATS_WINDOW_US,
 };
 pub use control::{
-    ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot, CONTROL_RATE_HZ,
+    ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot,
+    ACCEL_SATURATED_MPS2, ACCEL_SATURATED_STEPS, CONTROL_RATE_HZ, STUCK_GYRO_SAMPLES,
 };
 pub use link::{LinkRequest, LinkServer, TX_CAPACITY};
 pub use params::{Param, Params};

@@ -15,7 +15,20 @@
 //!   command (zero and disarm), the allocation failing for [`ALLOCATION_FAILURE_STEPS`] steps
 //!   (disarm), an identification without a flyable model (disarm), the thrust axis more than
 //!   [`LOST_ATTITUDE_TILT_RAD`] from up for [`LOST_ATTITUDE_S`] (disarm), a lost IMU (disarm, by
-//!   the control step), a lost pose (fall back to level hold).
+//!   the control step), an implausible IMU sample (non-finite, a stuck gyro axis, a lasting
+//!   accelerometer saturation: disarm, detected by the control step, see `super::control`), a
+//!   lost pose (fall back to level hold).
+//! - **A lost pose**: the fixes stop for more than `flight::navigation::FIX_TIMEOUT_S` (0.2 s)
+//!   while the flight used them (position hold, or the level hold of the recovery steered by the
+//!   fixes' velocity): [`Failsafe::PoseLost`] is counted in the step the estimator lets the fix
+//!   go, and the craft flies level hold with zero vertical speed from that step, on the position
+//!   estimator's velocity (the accelerometer integrated from the last fixed velocity, with the
+//!   bias the fixes taught it), not on the raw dead reckoning since the last rest. When fixes
+//!   come back, the position hold starts afresh where the craft stops.
+//! - **A motor that loses thrust** (a damaged propeller): no failsafe. INDI is incremental: it
+//!   measures the angular acceleration and specific force the commands produced and adds what
+//!   is missing, so the other motors and the weak one's higher command take over within the rate
+//!   loop's time constant, as long as the motors' bounds allow it (`docs/failsafes.md`).
 
 use flight::attitude::{yaw_of, AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, ControllerOutput, Guidance};
@@ -244,6 +257,11 @@ pub struct Pilot {
     heading_rad: Option<f32>,
     /// Time the tilt has been beyond the limit, s.
     tilted_s: f32,
+    /// The previous flying step had a fix.
+    flying_with_fix: bool,
+    /// The fixes stopped during this flight (and have not come back): level hold on the
+    /// position estimator's velocity.
+    fixes_lost: bool,
     status: PilotStatus,
 }
 
@@ -267,6 +285,8 @@ impl Pilot {
             last_pose_us: None,
             heading_rad: None,
             tilted_s: 0.0,
+            flying_with_fix: false,
+            fixes_lost: false,
             status: PilotStatus::default(),
         }
     }
@@ -436,6 +456,11 @@ impl Pilot {
             Some(position_ned_m) if positioned => Guidance::Position { position_ned_m, yaw_rad },
             // Before the hold starts, the velocity from the fixes when there are fixes.
             _ if positioned => Guidance::Level { yaw_rad, velocity_ned_mps: nav.velocity_ned_mps },
+            // The fixes stopped after the worlds were aligned: the estimator's velocity goes on
+            // from the last fixed one (before, its world is the filter's: dead reckoning).
+            _ if self.fixes_lost && self.alignment.yaw_rad().is_some() => {
+                Guidance::Level { yaw_rad, velocity_ned_mps: nav.velocity_ned_mps }
+            }
             _ => Guidance::Level { yaw_rad, velocity_ned_mps: self.dead_reckoned_velocity() },
         }
     }
@@ -459,6 +484,8 @@ impl Pilot {
             yaw_of(&(self.attitude.quaternion() * controller.indi().model().q_imu_thrust));
         self.controller = Some(controller);
         self.tilted_s = 0.0;
+        self.flying_with_fix = false;
+        self.fixes_lost = false;
         self.status.allocation_failures = 0;
         self.status.flying = true;
         self.position_sp_ned_m = None;
@@ -495,7 +522,15 @@ impl Pilot {
         let nav = *self.navigation.state();
         let was_holding = matches!(self.guidance, Guidance::Position { .. });
         let can_hold = nav.has_fix && self.alignment.yaw_rad().is_some();
-        if was_holding && !can_hold {
+        // The fixes stopped while the flight used them (hold, or the recovery's level hold).
+        let fixes_stopped = self.flying_with_fix && !nav.has_fix;
+        self.flying_with_fix = nav.has_fix;
+        if nav.has_fix {
+            self.fixes_lost = false;
+        } else if fixes_stopped {
+            self.fixes_lost = true;
+        }
+        if (was_holding && !can_hold) || fixes_stopped {
             count_failsafe(&mut self.status.failsafes, Failsafe::PoseLost);
             self.status.last_failsafe = Some(Failsafe::PoseLost);
             self.position_sp_ned_m = None;
@@ -566,6 +601,12 @@ impl Pilot {
     /// The IMU stopped while flying: stop.
     pub fn imu_lost(&mut self) -> Option<Failsafe> {
         self.flying().then(|| self.fail(Failsafe::ImuLost))
+    }
+
+    /// The control step found the IMU's samples implausible during a flight or a throw-to-fly
+    /// attempt: stop (if flying), count it.
+    pub fn imu_fault(&mut self) -> Failsafe {
+        self.fail(Failsafe::ImuFault)
     }
 
     /// Stop flying (a disarm request): no failsafe is recorded.

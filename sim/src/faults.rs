@@ -1,0 +1,270 @@
+//! Fault injection: a schedule of sensor, actuator and pose faults the simulated board applies as
+//! it produces the IMU samples, turns the rotors and (through the flight harness) sends poses.
+//!
+//! # API
+//! ```
+//! use sim::faults::{Fault, FaultKind, FaultSchedule};
+//!
+//! // From 2.0 s of board time on, gyro y reads its last value; from 3.0 s for 0.5 s, motor 1
+//! // makes half its thrust and drag torque.
+//! let schedule = FaultSchedule::default()
+//!     .with(Fault::from(2.0, FaultKind::GyroStuck { axis: 1 }))
+//!     .with(Fault { start_s: 3.0, duration_s: 0.5, kind: FaultKind::MotorThrust { motor: 1, factor: 0.5 } });
+//! assert_eq!(schedule.faults().len(), 2);
+//! ```
+//! Put the schedule in [`SimConfig::faults`](crate::board::SimConfig::faults), or add faults while
+//! flying with [`SimBoard::faults_mut`](crate::board::SimBoard::faults_mut).
+//!
+//! - **When.** A fault acts on every control tick (500 µs) whose *end* (the board time
+//!   [`SimBoard::now_us`](crate::board::SimBoard::now_us) after the tick, which is the time of the
+//!   tick's IMU sample) lies in `[start_s, start_s + duration_s)`; so the first faulty sample is
+//!   the one the application reads at `now_us ≥ start_s`. A pose is lost while a
+//!   [`FaultKind::PoseLost`] is active at the time it would be sent.
+//! - **What** (each as the hardware would fail):
+//!   - [`FaultKind::ImuNan`]: every gyro and accelerometer value of the sample is NaN (a broken data
+//!     path: the ICM-42688-P's registers are 16-bit integers and cannot hold one);
+//!   - [`FaultKind::ImuInf`]: one accelerometer axis reads +∞ (the same, through a bad scale);
+//!   - [`FaultKind::GyroStuck`]: one gyro axis repeats the value it had in the last sample before
+//!     the fault, bit for bit (a frozen register), the others stay live;
+//!   - [`FaultKind::AccelSaturated`]: one accelerometer axis reads the ±16 g full scale of the
+//!     ICM-42688-P ([`ACCEL_FULL_SCALE_MPS2`]: +32767 or −32768 codes at 2048 LSB/g);
+//!   - [`FaultKind::MotorThrust`]: one rotor's thrust and drag-torque coefficients are scaled by
+//!     `factor` (a chipped or loose propeller: the motor still turns at the commanded speed and
+//!     reports it, but it pushes less);
+//!   - [`FaultKind::PoseLost`]: the external pose stops arriving (motion capture lost the craft).
+//! - An empty schedule changes nothing: flights without faults are bit-identical to flights on a
+//!   board built without one.
+
+use firmware::app::hal::ImuSample;
+
+use crate::airframe::{MAX_ROTORS, STANDARD_GRAVITY_MPS2};
+
+/// The accelerometer's full scale, m/s²: the ICM-42688-P at ±16 g (the library airframes'
+/// `range_mps2` = 156.9). A saturated axis reads +32767/32768 of it or −1 times it.
+pub const ACCEL_FULL_SCALE_MPS2: f64 = 16.0 * STANDARD_GRAVITY_MPS2;
+
+/// One kind of fault.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FaultKind {
+    /// Every value of the IMU sample is NaN.
+    ImuNan,
+    /// Accelerometer axis `axis` (0–2, IMU axes) reads +∞.
+    ImuInf {
+        /// The axis.
+        axis: usize,
+    },
+    /// Gyro axis `axis` (0–2, IMU axes) repeats its last value before the fault.
+    GyroStuck {
+        /// The axis.
+        axis: usize,
+    },
+    /// Accelerometer axis `axis` (0–2, IMU axes) reads full scale, `+` or `−` ([`ACCEL_FULL_SCALE_MPS2`]).
+    AccelSaturated {
+        /// The axis.
+        axis: usize,
+        /// At −16 g rather than +16 g.
+        negative: bool,
+    },
+    /// Rotor `motor`'s thrust and drag torque are scaled by `factor` (e.g. 0.5).
+    MotorThrust {
+        /// The rotor (motor order).
+        motor: usize,
+        /// The factor, in (0, 1] for a loss.
+        factor: f64,
+    },
+    /// No external pose is sent.
+    PoseLost,
+}
+
+/// One fault: what, from when, for how long.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fault {
+    /// Board time it starts, s.
+    pub start_s: f64,
+    /// How long it lasts, s (`f64::INFINITY`: to the end).
+    pub duration_s: f64,
+    /// What fails.
+    pub kind: FaultKind,
+}
+
+impl Fault {
+    /// `kind` from `start_s` to the end of the run.
+    pub fn from(start_s: f64, kind: FaultKind) -> Self {
+        Self { start_s, duration_s: f64::INFINITY, kind }
+    }
+
+    /// Whether it acts on the tick ending at board time `t_s`.
+    pub fn active(&self, t_s: f64) -> bool {
+        t_s >= self.start_s && t_s < self.start_s + self.duration_s
+    }
+}
+
+/// A schedule of faults (the configuration; [`FaultInjector`] applies it).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FaultSchedule {
+    faults: Vec<Fault>,
+}
+
+impl FaultSchedule {
+    /// The schedule with `fault` added.
+    pub fn with(mut self, fault: Fault) -> Self {
+        self.faults.push(fault);
+        self
+    }
+
+    /// The faults, in the order added.
+    pub fn faults(&self) -> &[Fault] {
+        &self.faults
+    }
+}
+
+/// Applies a [`FaultSchedule`] tick by tick (what [`SimBoard`](crate::board::SimBoard) holds).
+#[derive(Clone, Debug, Default)]
+pub struct FaultInjector {
+    schedule: FaultSchedule,
+    /// The gyro of the last sample delivered (for a stuck axis).
+    last_gyro_rad_s: Option<[f32; 3]>,
+    /// The thrust factor each rotor has now.
+    factors: [f64; MAX_ROTORS],
+}
+
+impl FaultInjector {
+    /// An injector for `schedule`.
+    pub fn new(schedule: &FaultSchedule) -> Self {
+        Self { schedule: schedule.clone(), last_gyro_rad_s: None, factors: [1.0; MAX_ROTORS] }
+    }
+
+    /// Add `fault` to the schedule (e.g. when the flight reaches a state).
+    pub fn add(&mut self, fault: Fault) {
+        self.schedule.faults.push(fault);
+    }
+
+    /// The schedule.
+    pub fn schedule(&self) -> &FaultSchedule {
+        &self.schedule
+    }
+
+    fn active(&self, t_s: f64) -> impl Iterator<Item = &FaultKind> {
+        self.schedule.faults.iter().filter(move |f| f.active(t_s)).map(|f| &f.kind)
+    }
+
+    /// The thrust factor of every rotor on the tick ending at `t_s`, and whether any changed
+    /// since the previous call (only then must the physics be told).
+    pub fn thrust_factors(&mut self, t_s: f64) -> Option<[f64; MAX_ROTORS]> {
+        if self.schedule.faults.is_empty() {
+            return None;
+        }
+        let mut factors = [1.0; MAX_ROTORS];
+        for kind in self.active(t_s) {
+            if let FaultKind::MotorThrust { motor, factor } = *kind {
+                if let Some(f) = factors.get_mut(motor) {
+                    *f *= factor;
+                }
+            }
+        }
+        let changed = factors != self.factors;
+        self.factors = factors;
+        changed.then_some(factors)
+    }
+
+    /// Corrupt the sample of the tick ending at `t_s` as the active IMU faults say.
+    pub fn corrupt_imu(&mut self, t_s: f64, sample: &mut ImuSample) {
+        if self.schedule.faults.is_empty() {
+            // Remembered for a stuck axis added later.
+            self.last_gyro_rad_s = Some(sample.gyro_rad_s);
+            return;
+        }
+        let last = self.last_gyro_rad_s;
+        let kinds: Vec<FaultKind> = self.active(t_s).copied().collect();
+        for kind in kinds {
+            match kind {
+                FaultKind::ImuNan => {
+                    sample.gyro_rad_s = [f32::NAN; 3];
+                    sample.accel_mps2 = [f32::NAN; 3];
+                }
+                FaultKind::ImuInf { axis } => sample.accel_mps2[axis % 3] = f32::INFINITY,
+                FaultKind::GyroStuck { axis } => {
+                    if let Some(last) = last {
+                        sample.gyro_rad_s[axis % 3] = last[axis % 3];
+                    }
+                }
+                FaultKind::AccelSaturated { axis, negative } => {
+                    sample.accel_mps2[axis % 3] = if negative {
+                        -ACCEL_FULL_SCALE_MPS2 as f32
+                    } else {
+                        (ACCEL_FULL_SCALE_MPS2 * 32767.0 / 32768.0) as f32
+                    };
+                }
+                FaultKind::MotorThrust { .. } | FaultKind::PoseLost => {}
+            }
+        }
+        self.last_gyro_rad_s = Some(sample.gyro_rad_s);
+    }
+
+    /// Whether the external pose is lost at board time `t_s`.
+    pub fn pose_lost(&self, t_s: f64) -> bool {
+        self.active(t_s).any(|kind| *kind == FaultKind::PoseLost)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(x: f32) -> ImuSample {
+        ImuSample { gyro_rad_s: [x, x + 1.0, x + 2.0], accel_mps2: [0.0, 0.0, -9.8] }
+    }
+
+    #[test]
+    fn faults_act_from_their_start_for_their_duration() {
+        let fault = Fault { start_s: 1.0, duration_s: 0.001, kind: FaultKind::PoseLost };
+        let injector = FaultInjector::new(&FaultSchedule::default().with(fault));
+        assert!(!injector.pose_lost(0.9995));
+        assert!(injector.pose_lost(1.0) && injector.pose_lost(1.0005));
+        assert!(!injector.pose_lost(1.001));
+    }
+
+    #[test]
+    fn a_stuck_axis_repeats_the_last_value_before_the_fault() {
+        let schedule =
+            FaultSchedule::default().with(Fault::from(1.0, FaultKind::GyroStuck { axis: 1 }));
+        let mut injector = FaultInjector::new(&schedule);
+        let mut s = sample(0.5);
+        injector.corrupt_imu(0.9995, &mut s);
+        assert_eq!(s, sample(0.5));
+        for (i, t) in [1.0, 1.0005, 1.001].into_iter().enumerate() {
+            let mut s = sample(i as f32);
+            injector.corrupt_imu(t, &mut s);
+            assert_eq!(s.gyro_rad_s, [i as f32, 1.5, i as f32 + 2.0]);
+        }
+    }
+
+    #[test]
+    fn saturation_reads_the_register_extremes_and_nan_and_inf_replace_values() {
+        let schedule = FaultSchedule::default()
+            .with(Fault::from(0.0, FaultKind::AccelSaturated { axis: 2, negative: true }))
+            .with(Fault::from(0.0, FaultKind::ImuInf { axis: 0 }));
+        let mut s = sample(0.0);
+        FaultInjector::new(&schedule).corrupt_imu(0.0, &mut s);
+        assert_eq!(s.accel_mps2, [f32::INFINITY, 0.0, -156.9064]);
+        let mut s = sample(0.0);
+        let schedule = FaultSchedule::default().with(Fault::from(0.0, FaultKind::ImuNan));
+        FaultInjector::new(&schedule).corrupt_imu(0.0, &mut s);
+        assert!(s.gyro_rad_s.iter().chain(&s.accel_mps2).all(|x| x.is_nan()));
+    }
+
+    #[test]
+    fn thrust_factors_are_reported_when_they_change() {
+        let fault = Fault {
+            start_s: 1.0,
+            duration_s: 1.0,
+            kind: FaultKind::MotorThrust { motor: 2, factor: 0.5 },
+        };
+        let mut injector = FaultInjector::new(&FaultSchedule::default().with(fault));
+        assert_eq!(injector.thrust_factors(0.5), None);
+        let factors = injector.thrust_factors(1.0).expect("changed");
+        assert_eq!(factors[..4], [1.0, 1.0, 0.5, 1.0]);
+        assert_eq!(injector.thrust_factors(1.5), None);
+        assert_eq!(injector.thrust_factors(2.0).map(|f| f[2]), Some(1.0));
+    }
+}

@@ -1,0 +1,386 @@
+//! Fault injection during the seed paper's throw-and-fly (`sim::faults`): the firmware
+//! application, exactly as the board runs it, flies the paper quad from a throw, and a fault
+//! strikes either *during the recovery* (50 ms after the controller engaged, the craft still
+//! tumbling and braking) or *in hover* (after 1 s of position hold). For every fault:
+//!
+//! - no motor command the application writes is ever non-finite or outside [0, 1] (checked on
+//!   the commands as the application hands them to the motors, before any driver clamps them);
+//! - the documented reaction (`docs/failsafes.md`) is in force no later than 2 control steps after
+//!   the first step at which the fault is detectable by its documented rule; the failsafe is
+//!   counted and the link reports it as an event with its action.
+//!
+//! `cargo test -p tests --release --test faults -- --nocapture` prints the measured figures.
+
+use firmware::app::hal::{Motors, MAX_MOTORS};
+use firmware::app::{
+    ControlCommand, Failsafe, LinkServer, ACCEL_SATURATED_STEPS, STUCK_GYRO_SAMPLES,
+};
+use nalgebra::Vector3;
+use protocol::{Decoder, DeviceMessage, Event, FailsafeAction, FailsafeCounters, FailsafeReason};
+use sim::airframe::Airframe;
+use sim::board::{SimBoard, SimMotors};
+use sim::faults::{Fault, FaultKind};
+use sim::identification::TrueModel;
+use sim::recovery::{FlyConfig, MotionCapture, HOVER_RATE_RAD_S, HOVER_TILT_RAD};
+use sim::scenario::{with_firmware_app, FlightApp};
+use sim::serve::{simulator_board_info, status_view};
+
+/// When the fault strikes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum When {
+    /// 50 ms after the controller engaged (the recovery from the throw).
+    Recovery,
+    /// After 1 s of position hold.
+    Hover,
+}
+
+/// The motors as the application sees them, checking every command it writes.
+struct Checked<'a> {
+    motors: &'a mut SimMotors,
+    /// Commands written that were non-finite or outside [0, 1].
+    bad: &'a mut u32,
+    written: &'a mut [f32; MAX_MOTORS],
+}
+
+impl Motors for Checked<'_> {
+    fn count(&self) -> u8 {
+        self.motors.count()
+    }
+    fn set_commands(&mut self, commands: &[f32]) {
+        for (i, c) in commands.iter().enumerate() {
+            if !(c.is_finite() && (0.0..=1.0).contains(c)) {
+                *self.bad += 1;
+            }
+            self.written[i] = *c;
+        }
+        self.motors.set_commands(commands);
+    }
+    fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
+        self.motors.speeds_rad_s()
+    }
+}
+
+/// One control step as the test saw it.
+#[derive(Clone, Copy, Debug)]
+struct Step {
+    flying: bool,
+    position_hold: bool,
+    commands: [f32; MAX_MOTORS],
+    failsafes: FailsafeCounters,
+    last_failsafe: Option<Failsafe>,
+    accel_held: u32,
+    /// Truth: position (m), body rate (rad/s), tilt of the true thrust axis (rad).
+    position_ned_m: Vector3<f64>,
+    rate_rad_s: f64,
+    tilt_rad: f64,
+}
+
+/// A flight with one fault.
+struct Flight {
+    steps: Vec<Step>,
+    /// Index into `steps` of the first step whose sample (or tick) the fault acts on.
+    fault_step: usize,
+    /// Index of the step that received the last pose before the fault.
+    last_pose_step: Option<usize>,
+    /// Commands written outside [0, 1] or non-finite, over the whole flight.
+    bad_commands: u32,
+    /// The failsafe events the link emitted.
+    events: Vec<(FailsafeReason, FailsafeAction, u16)>,
+    /// The position setpoint held when the fault struck, if any.
+    setpoint_ned_m: Option<Vector3<f64>>,
+}
+
+/// Flies the paper quad's throw (`FlyConfig::paper`: motion capture, the IMU offset known) with
+/// `kind` striking at `when`, for `after_s` after the fault.
+fn fly(kind: FaultKind, when: When, after_s: f64) -> Flight {
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config = FlyConfig::paper();
+    let truth = TrueModel::of(&airframe);
+    let thrust_dir_body =
+        airframe.q_imu_body().inverse() * (truth.q_thrust_to_imu * Vector3::new(0.0, 0.0, -1.0));
+    let mut board = SimBoard::new(&airframe, &config.board);
+    let mut link = LinkServer::new(simulator_board_info("SITL", 1, 4));
+    let mut tx = Vec::new();
+    with_firmware_app(|app| {
+        let r = truth.r_imu_m;
+        app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
+        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        let mut mocap = MotionCapture::new(config.board.seed);
+        let (mut bad, mut written) = (0u32, [0.0f32; MAX_MOTORS]);
+        let mut steps = Vec::new();
+        let mut fault_at_us: Option<u64> = None;
+        let (mut fault_step, mut last_pose_step, mut setpoint) = (None, None, None);
+        let mut hold_steps = 0u32;
+        let hold_ticks = 1000u64;
+        for tick in 0..hold_ticks + 40_000 {
+            if tick == hold_ticks {
+                board.physics_mut().throw(&config.throw.spec());
+            }
+            board.tick();
+            let now_us = board.now_us();
+            if let Some(pose) = mocap.sample(board.physics().state(), now_us) {
+                if !board.pose_lost() {
+                    app.command(ControlCommand::ExternalPose(pose), now_us);
+                    if fault_at_us.is_none_or(|t| now_us < t) {
+                        last_pose_step = Some(steps.len());
+                    }
+                }
+            }
+            {
+                let (imu, motors) = board.ports();
+                let mut checked = Checked { motors, bad: &mut bad, written: &mut written };
+                app.step(now_us, imu, &mut checked);
+            }
+            if tick % 2 == 0 {
+                link.poll(now_us, &status_view(&app.control, &app.background));
+                link.transmit_to(|bytes| {
+                    tx.extend_from_slice(bytes);
+                    bytes.len()
+                });
+            }
+            let snapshot = app.control.snapshot();
+            let pilot = snapshot.pilot;
+            let state = board.physics().state();
+            let up = state.attitude() * thrust_dir_body;
+            steps.push(Step {
+                flying: pilot.flying,
+                position_hold: pilot.position_hold,
+                commands: written,
+                failsafes: pilot.failsafes,
+                last_failsafe: pilot.last_failsafe,
+                accel_held: snapshot.accel_held,
+                position_ned_m: state.position_ned_m,
+                rate_rad_s: state.rate_body_rad_s.norm(),
+                tilt_rad: (-up.z).clamp(-1.0, 1.0).acos(),
+            });
+            if fault_at_us == Some(now_us) {
+                fault_step = Some(steps.len() - 1);
+            }
+            hold_steps = if pilot.position_hold { hold_steps + 1 } else { 0 };
+            let trigger = match when {
+                When::Recovery => pilot.flying,
+                When::Hover => hold_steps >= 2000,
+            };
+            if fault_at_us.is_none() && trigger {
+                // 50 ms from now (recovery) or the next step (hover).
+                let delay_us = if when == When::Recovery { 50_000 } else { 500 };
+                let start_us = now_us + delay_us;
+                board.faults_mut().add(Fault::from(start_us as f64 * 1e-6, kind));
+                fault_at_us = Some(start_us);
+                setpoint = pilot
+                    .position_hold
+                    .then(|| Vector3::from(pilot.position_sp_ned_m).cast::<f64>());
+            }
+            if fault_at_us.is_some_and(|t| now_us as f64 * 1e-6 >= t as f64 * 1e-6 + after_s) {
+                break;
+            }
+        }
+        let mut decoder = Decoder::new();
+        let mut events = Vec::new();
+        for byte in &tx {
+            let Some(Ok(frame)) = decoder.push(*byte) else { continue };
+            if let Ok(DeviceMessage::Event(Event::Failsafe { reason, action, count })) =
+                DeviceMessage::decode(&frame)
+            {
+                events.push((reason, action, count));
+            }
+        }
+        Flight {
+            fault_step: fault_step.expect("the fault struck"),
+            steps,
+            last_pose_step,
+            bad_commands: bad,
+            events,
+            setpoint_ned_m: setpoint,
+        }
+    })
+}
+
+/// The first step from the fault on at which `reaction` holds, as an offset from the fault.
+fn reaction_offset(flight: &Flight, reaction: impl Fn(&Step) -> bool) -> Option<usize> {
+    flight.steps[flight.fault_step..].iter().position(reaction)
+}
+
+fn disarmed(step: &Step) -> bool {
+    !step.flying && step.commands.iter().all(|c| *c == 0.0) && step.failsafes.imu_fault == 1
+}
+
+/// An IMU fault that must disarm: flying before it, never a bad command, disarmed (zero written,
+/// `ImuFault` counted and reported) within 2 steps of the step it is detectable at
+/// (`detectable`: steps after the first faulty sample), motors at zero from then on.
+fn assert_imu_fault_disarms(kind: FaultKind, when: When, detectable: usize) -> (Flight, usize) {
+    let flight = fly(kind, when, 0.1);
+    let name = format!("{kind:?} during {when:?}");
+    assert_eq!(flight.bad_commands, 0, "{name}: bad commands written");
+    assert!(flight.steps[flight.fault_step - 1].flying, "{name}: flying before the fault");
+    let reaction = reaction_offset(&flight, disarmed).expect("disarmed");
+    eprintln!("{name}: detectable at step {detectable}, disarmed at step {reaction}");
+    assert!(reaction <= detectable + 2, "{name}: disarmed {reaction} steps after the fault");
+    let after = &flight.steps[flight.fault_step + reaction..];
+    assert!(after.iter().all(disarmed), "{name}: motors at zero from the reaction on");
+    assert_eq!(after[0].last_failsafe, Some(Failsafe::ImuFault));
+    let counts = FailsafeCounters { imu_fault: 1, ..FailsafeCounters::default() };
+    assert_eq!(after.last().unwrap().failsafes, counts, "{name}: only the IMU fault counted");
+    assert_eq!(
+        flight.events,
+        vec![(FailsafeReason::ImuFault, FailsafeAction::Disarmed, 1)],
+        "{name}: the link's events"
+    );
+    (flight, reaction)
+}
+
+#[test]
+fn a_nan_imu_sample_disarms_in_the_step_it_arrives() {
+    for when in [When::Recovery, When::Hover] {
+        assert_imu_fault_disarms(FaultKind::ImuNan, when, 0);
+    }
+}
+
+#[test]
+fn an_infinite_accelerometer_reading_disarms_in_the_step_it_arrives() {
+    for when in [When::Recovery, When::Hover] {
+        assert_imu_fault_disarms(FaultKind::ImuInf { axis: 2 }, when, 0);
+    }
+}
+
+/// The axis repeats the last sample before the fault: that one and the next
+/// `STUCK_GYRO_SAMPLES − 1` make the run that is detectable.
+#[test]
+fn a_stuck_gyro_axis_disarms_once_it_has_repeated_for_the_detection_window() {
+    let detectable = usize::from(STUCK_GYRO_SAMPLES) - 2;
+    for (when, axis) in [(When::Recovery, 0), (When::Hover, 2)] {
+        let (_, reaction) =
+            assert_imu_fault_disarms(FaultKind::GyroStuck { axis }, when, detectable);
+        // Not before the rule allows (a chance repeat just before the fault may add one).
+        assert!(reaction + 1 >= detectable, "{when:?}: disarmed at step {reaction}");
+    }
+}
+
+/// Held at once (the step uses the last unsaturated reading); disarmed when the saturation has
+/// lasted `ACCEL_SATURATED_STEPS` samples.
+#[test]
+fn a_saturated_accelerometer_is_held_at_once_and_disarms_when_it_lasts() {
+    let detectable = usize::from(ACCEL_SATURATED_STEPS) - 1;
+    for (when, axis, negative) in [(When::Recovery, 2, true), (When::Hover, 0, false)] {
+        let kind = FaultKind::AccelSaturated { axis, negative };
+        let (flight, reaction) = assert_imu_fault_disarms(kind, when, detectable);
+        let held = flight.steps[flight.fault_step - 1].accel_held;
+        let steps = &flight.steps[flight.fault_step..];
+        assert_eq!(held, 0, "nothing held before the fault");
+        assert_eq!(steps[0].accel_held, 1, "{when:?}: held from the first saturated sample");
+        assert!(reaction + 1 >= detectable, "{when:?}: disarmed at step {reaction}");
+        assert!(steps[..reaction].iter().all(|s| s.flying), "{when:?}: flying while held");
+        assert_eq!(steps[reaction - 1].accel_held as usize, reaction);
+    }
+}
+
+/// INDI absorbs a propeller that lost half its thrust: no failsafe, the craft recovers or stays
+/// in hover, and holds its position.
+#[test]
+fn a_motor_losing_half_its_thrust_is_absorbed_and_the_position_held() {
+    for when in [When::Recovery, When::Hover] {
+        let kind = FaultKind::MotorThrust { motor: 0, factor: 0.5 };
+        let flight = fly(kind, when, 6.0);
+        assert_eq!(flight.bad_commands, 0);
+        let last = flight.steps.last().unwrap();
+        assert!(last.flying, "{when:?}: still flying");
+        assert_eq!(last.failsafes, FailsafeCounters::default(), "{when:?}: no failsafe");
+        assert!(flight.events.is_empty());
+        let after = &flight.steps[flight.fault_step..];
+        // The worst distance from the setpoint held at the fault (hover), and over the last 3 s.
+        let last_3_s = &after[after.len() - 6000..];
+        assert!(last_3_s.iter().all(|s| s.position_hold), "{when:?}: holding a position");
+        let hovering =
+            last_3_s.iter().all(|s| s.rate_rad_s < HOVER_RATE_RAD_S && s.tilt_rad < HOVER_TILT_RAD);
+        let before = flight.steps[flight.fault_step - 1].commands[0];
+        let max_motor = after.iter().map(|s| s.commands[0]).fold(0.0f32, f32::max);
+        match flight.setpoint_ned_m {
+            Some(setpoint) => {
+                let worst =
+                    after.iter().map(|s| (s.position_ned_m - setpoint).norm()).fold(0.0, f64::max);
+                eprintln!("{when:?}: worst distance from the setpoint after the fault {worst:.3} m, motor 0 from {before:.2} up to {max_motor:.2}");
+                assert!(worst < 0.3, "{when:?}: {worst} m from the setpoint");
+            }
+            None => {
+                let spread = last_3_s
+                    .iter()
+                    .map(|s| (s.position_ned_m - last_3_s[0].position_ned_m).norm())
+                    .fold(0.0, f64::max);
+                eprintln!("{when:?}: position spread over the last 3 s {spread:.3} m, motor 0 from {before:.2} up to {max_motor:.2}");
+                assert!(spread < 0.3, "{when:?}: moved {spread} m");
+            }
+        }
+        assert!(hovering, "{when:?}: hovering over the last 3 s");
+    }
+}
+
+/// A lost pose: `PoseLost` counted and reported with the level-hold action within 2 steps of the
+/// estimator's fix timeout (0.2 s after the last pose), and the craft flies level hold on.
+#[test]
+fn a_lost_pose_falls_back_to_level_hold() {
+    for when in [When::Recovery, When::Hover] {
+        let flight = fly(FaultKind::PoseLost, when, 3.0);
+        assert_eq!(flight.bad_commands, 0);
+        let last_pose = flight.last_pose_step.expect("poses before the fault");
+        // The step FIX_TIMEOUT_S (400 steps) after the last pose: the estimator lets the fix go
+        // there or, rounding its summed step times, one step later.
+        let timeout_steps = (flight::navigation::FIX_TIMEOUT_S * 2000.0).round() as usize;
+        let detectable = last_pose + timeout_steps;
+        let reaction = flight.steps[last_pose..]
+            .iter()
+            .position(|s| s.failsafes.pose_lost == 1 && !s.position_hold && s.flying)
+            .map(|i| last_pose + i)
+            .expect("level hold");
+        eprintln!(
+            "PoseLost during {when:?}: detectable at step {detectable}, level hold at {reaction} (steps after the last pose)"
+        );
+        assert!(
+            reaction + 2 >= detectable && reaction <= detectable + 2,
+            "{when:?}: {reaction} vs {detectable}"
+        );
+        let after = &flight.steps[reaction..];
+        if std::env::var_os("FAULTS_TRACE").is_some() {
+            for s in after.iter().step_by(100) {
+                eprintln!(
+                    "  pos {:6.2} {:6.2} {:6.2}  rate {:5.2}  tilt {:5.1}°  {:?}",
+                    s.position_ned_m.x,
+                    s.position_ned_m.y,
+                    s.position_ned_m.z,
+                    s.rate_rad_s,
+                    s.tilt_rad.to_degrees(),
+                    &s.commands[..4]
+                );
+            }
+        }
+        assert_eq!(after[0].last_failsafe, Some(Failsafe::PoseLost));
+        assert!(after.iter().all(|s| s.flying && !s.position_hold), "{when:?}: level hold on");
+        let start = after[0].position_ned_m;
+        let drift = after.iter().map(|s| (s.position_ned_m - start).norm()).fold(0.0, f64::max);
+        let climb = after.iter().map(|s| (s.position_ned_m.z - start.z).abs()).fold(0.0, f64::max);
+        let max_tilt = after.iter().map(|s| s.tilt_rad).fold(0.0, f64::max);
+        let end = &after[after.len() - 500..];
+        let end_tilt = end.iter().map(|s| s.tilt_rad).fold(0.0, f64::max);
+        let end_rate = end.iter().map(|s| s.rate_rad_s).fold(0.0, f64::max);
+        eprintln!(
+            "  over {:.1} s of level hold: drift {drift:.2} m, height change {climb:.2} m, \
+             largest tilt {:.1}°, in the last 0.25 s tilt ≤ {:.1}° and rate ≤ {:.2} rad/s",
+            after.len() as f64 / 2000.0,
+            max_tilt.to_degrees(),
+            end_tilt.to_degrees(),
+            end_rate
+        );
+        assert!(climb < 0.5, "{when:?}: height changed by {climb} m");
+        assert!(
+            end_tilt < HOVER_TILT_RAD && end_rate < HOVER_RATE_RAD_S,
+            "{when:?}: level at the end"
+        );
+        if when == When::Hover {
+            // From a hover, level hold keeps it level and near where it was.
+            assert!(max_tilt < HOVER_TILT_RAD, "{when:?}: tilt {max_tilt} rad");
+            assert!(drift < 1.0, "{when:?}: drifted {drift} m");
+        }
+        let counts = FailsafeCounters { pose_lost: 1, ..FailsafeCounters::default() };
+        assert_eq!(flight.steps.last().unwrap().failsafes, counts);
+        assert_eq!(flight.events, vec![(FailsafeReason::PoseLost, FailsafeAction::LevelHold, 1)]);
+    }
+}
