@@ -9,16 +9,26 @@
 //!
 //! The figures are instruction counts, not cycles: QEMU does not model dual issue, FPU latency,
 //! caches or wait states.
+//!
+//! The crate is compiled as the firmware is: the profile of `Cargo.toml` mirrors the root's
+//! `[profile.firmware]`, and `flight` is built without its default feature `bounded-search`
+//! (the firmware's choice); the feature `bounded-search` of this crate turns it back on and
+//! adds the bounded-search regions.
 #![no_std]
 #![no_main]
 
 use core::hint::black_box;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
+use flight::allocation::{AllocationConfig, Allocator};
+use flight::attitude::{AttitudeConfig, AttitudeFilter};
+use flight::controller::{Controller, ControllerInput, Guidance};
 use flight::imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
-use flight::learner::{AxisStatus, Learner, LearnerConfig};
+use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
+use flight::learner::{AxisStatus, Learner, LearnerConfig, MAX_MOTORS};
+use flight::navigation::PositionEstimator;
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
-use nalgebra::Vector3;
+use nalgebra::{UnitQuaternion, Vector3};
 
 /// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
 #[inline(never)]
@@ -108,6 +118,24 @@ const LEARNER_CYCLE: [&str; 4] = [
     "sample 4: rotational rows",
 ];
 
+/// The closed-loop control-step regions of each learner airframe (`closed_loop_regions`).
+const CLOSED_LOOP_REGIONS: [&str; 3] = [
+    "hover, position hold",
+    "hover, position hold, pose fix (position estimator corrected)",
+    "recovery 10 ms after a 60° tilt, position hold (allocation saturated)",
+];
+
+/// The parts of the hover step on their own.
+const CLOSED_LOOP_PARTS: [&str; 7] = [
+    "attitude filter update",
+    "position estimator predict",
+    "controller update, hover (position, attitude, rate, INDI, allocation)",
+    "controller update, recovery (allocation saturated)",
+    "INDI update, hover (filters, increments, allocation, commands)",
+    "allocation solve, hover increment (warm start)",
+    "allocation solve, increment beyond the motors' range (warm start)",
+];
+
 /// One synthetic sample: gyro, accelerometer, commands, speeds.
 type Sample = ([f32; 3], [f32; 3], [f32; 8], [f32; 8]);
 
@@ -153,6 +181,218 @@ fn primed_learner(m: usize) -> Learner {
     learner
 }
 
+/// The control rate, Hz, and step, s.
+const RATE_HZ: f32 = 2000.0;
+const DT_S: f32 = 1.0 / RATE_HZ;
+
+/// Steps between external position fixes (100 Hz motion capture at the 2 kHz control rate).
+const FIX_EVERY_STEPS: usize = 20;
+
+/// The closed-loop half of the firmware's 2 kHz control step (`firmware::app::pilot`: `observe`
+/// then `step`), from `flight`'s parts: the attitude filter, the position estimator (predict on
+/// every step, a correction on the steps a pose arrives), and the controller cascade (position
+/// hold → attitude → rate → INDI with one allocation solve). The pilot's bookkeeping around them
+/// (heading alignment, failsafe counters, status) is left out: a few hundred instructions.
+#[derive(Clone)]
+struct ClosedLoop {
+    attitude: AttitudeFilter,
+    navigation: PositionEstimator,
+    controller: Controller,
+    guidance: Guidance,
+    r_imu_m: Vector3<f32>,
+}
+
+impl ClosedLoop {
+    /// One step with the IMU sample `gyro`/`accel` and, when one arrived, a position fix.
+    #[inline(always)]
+    fn step(&mut self, gyro: [f32; 3], accel: [f32; 3], fix: Option<&Vector3<f32>>) -> IndiOutput {
+        let w = Vector3::from(gyro);
+        let f = Vector3::from(accel) - w.cross(&w.cross(&self.r_imu_m));
+        let _ = self.attitude.update(&w, &f, None, DT_S);
+        let q = self.attitude.quaternion();
+        if let Some(position) = fix {
+            let _ = self.navigation.correct(position, FIX_EVERY_STEPS as f32 * DT_S);
+        }
+        let _ = self.navigation.predict(&q, &f, DT_S);
+        let input = ControllerInput {
+            gyro_rad_s: gyro,
+            accel_mps2: accel,
+            q_world_imu: q,
+            navigation: *self.navigation.state(),
+        };
+        match self.controller.update(&input, &self.guidance) {
+            Ok(output) => output.indi,
+            Err(_) => fail("controller step refused"),
+        }
+    }
+}
+
+/// A hover sample of a craft flying `model`: a small wobble of the body rate (rad/s) and the
+/// specific force of hover (`−g` along the thrust frame's z), IMU axes.
+fn hover_sample(model: &IndiModel, n: usize) -> ([f32; 3], [f32; 3]) {
+    let t = n as f32 * DT_S;
+    let rate_thrust = Vector3::new(
+        0.05 * libm::sinf(31.0 * t),
+        0.04 * libm::sinf(23.0 * t + 1.0),
+        0.02 * libm::sinf(7.0 * t),
+    );
+    let force_thrust = Vector3::new(0.0, 0.0, -flight::navigation::STANDARD_GRAVITY_MPS2);
+    let gyro = model.q_imu_thrust * rate_thrust;
+    let accel = model.q_imu_thrust * force_thrust;
+    (gyro.into(), accel.into())
+}
+
+/// The closed loop of a craft that learned its model with `learner` (the primed learner of the
+/// learner regions: the model the firmware would fly after that excitation), engaged at hover
+/// with its thrust frame level and holding its position at the origin, then flown for 0.2 s of
+/// hover samples with a fix every [`FIX_EVERY_STEPS`] so that every filter has settled.
+///
+/// The synthetic excitation's motors follow their command without lag, so the learned time
+/// constants are not usable: every motor model is taken as the synthetic curve
+/// (`ω = 300 + 1080 δ + 1620 √δ` rad/s) with τ = 30 ms, a 5-inch motor's.
+fn hovering_closed_loop(learner: &Learner) -> (ClosedLoop, usize) {
+    let mut learned = *learner.model();
+    for motor in &mut learned.motor[..usize::from(learned.motors)] {
+        motor.a_rad_s = 1080.0;
+        motor.b_rad_s = 1620.0;
+        motor.omega_idle_rad_s = 300.0;
+        motor.tau_s = 0.03;
+        motor.converged = true;
+    }
+    let model = match IndiModel::from_learned(&learned) {
+        Ok(model) => model,
+        Err(error) => {
+            hprintln!("bench-m7 error: learned model refused: {:?}", error);
+            fail("learned model refused")
+        }
+    };
+    let r_imu_m = [0.01, -0.013, 0.008];
+    let config = IndiConfig { rate_hz: RATE_HZ, ..IndiConfig::default() };
+    let Ok(mut controller) = Controller::new(model, r_imu_m, config) else { fail("controller") };
+    let mut commands = [0.0f32; MAX_MOTORS];
+    let mut speeds = [0.0f32; MAX_MOTORS];
+    for j in 0..model.motors {
+        commands[j] = model.command_for_thrust(j, model.u_hover[j]);
+        speeds[j] = model.motor[j].omega_full_rad_s() * libm::sqrtf(model.u_hover[j]);
+    }
+    let (gyro, accel) = hover_sample(&model, 0);
+    controller.start(gyro, accel, &commands, &speeds);
+    let mut attitude = AttitudeFilter::new(AttitudeConfig::default());
+    // Thrust frame level: q_world_imu = q_world_thrust · q_thrust_imu with q_world_thrust = 1.
+    if attitude.reset_to(model.q_imu_thrust.inverse()).is_err() {
+        fail("attitude reset");
+    }
+    let mut closed = ClosedLoop {
+        attitude,
+        navigation: PositionEstimator::default(),
+        controller,
+        guidance: Guidance::Position { position_ned_m: Vector3::zeros(), yaw_rad: 0.0 },
+        r_imu_m: Vector3::from(r_imu_m),
+    };
+    let origin = Vector3::zeros();
+    let steps = 400;
+    for n in 1..=steps {
+        let (gyro, accel) = hover_sample(&model, n);
+        let fix = (n % FIX_EVERY_STEPS == 0).then_some(&origin);
+        closed.step(gyro, accel, fix);
+    }
+    (closed, steps + 1)
+}
+
+/// The closed-loop 2 kHz control step of the craft `learner` identified (`m` motors), in the
+/// order of [`CLOSED_LOOP_REGIONS`] and [`CLOSED_LOOP_PARTS`].
+fn closed_loop_regions(m: usize, learner: &Learner) {
+    let (hover, n) = hovering_closed_loop(learner);
+    let model = *hover.controller.indi().model();
+    let (gyro, accel) = hover_sample(&model, n);
+    let origin = Vector3::<f32>::zeros();
+
+    let mut state = (hover.clone(), gyro, accel);
+    let out = region(&mut state, |(c, gyro, accel)| c.step(black_box(*gyro), *accel, None));
+    hprintln!(
+        "bench-m7 check: closed loop m={} hover: commands {:?}, allocation {:?}, saturated {:#x}",
+        m,
+        &out.commands[..m],
+        out.allocation,
+        out.saturated
+    );
+    let mut state = (hover.clone(), gyro, accel, origin);
+    let _ = region(&mut state, |(c, gyro, accel, fix)| c.step(black_box(*gyro), *accel, Some(fix)));
+
+    // Recovery: the filter told the craft is tilted 60° about the thrust frame's x, then 10 ms
+    // of steps, so the rate loop asks for the largest tilt rate and the allocation saturates.
+    let mut tilted = hover.clone();
+    let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 60f32.to_radians());
+    if tilted.attitude.reset_to(tilt * model.q_imu_thrust.inverse()).is_err() {
+        fail("attitude reset");
+    }
+    for k in 1..=20 {
+        let (gyro, accel) = hover_sample(&model, n + k);
+        tilted.step(gyro, accel, None);
+    }
+    let (gyro_t, accel_t) = hover_sample(&model, n + 21);
+    let mut state = (tilted.clone(), gyro_t, accel_t);
+    let out = region(&mut state, |(c, gyro, accel)| c.step(black_box(*gyro), *accel, None));
+    hprintln!(
+        "bench-m7 check: closed loop m={} recovery: commands {:?}, allocation {:?}, saturated {:#x}",
+        m,
+        &out.commands[..m],
+        out.allocation,
+        out.saturated
+    );
+
+    // The parts of the hover step.
+    let w = Vector3::from(gyro);
+    let f = Vector3::from(accel);
+    let mut state = (hover.attitude, w, f);
+    let _ = region(&mut state, |(a, w, f)| a.update(black_box(w), f, None, DT_S));
+    let q = hover.attitude.quaternion();
+    let mut state = (hover.navigation, q, f);
+    let _ = region(&mut state, |(nav, q, f)| nav.predict(black_box(q), f, DT_S));
+    for (closed, gyro, accel) in [(&hover, gyro, accel), (&tilted, gyro_t, accel_t)] {
+        let input = ControllerInput {
+            gyro_rad_s: gyro,
+            accel_mps2: accel,
+            q_world_imu: closed.attitude.quaternion(),
+            navigation: *closed.navigation.state(),
+        };
+        let mut state = (closed.controller.clone(), input, closed.guidance);
+        let _ = region(&mut state, |(c, input, guidance)| c.update(black_box(input), guidance));
+        black_box(&state);
+    }
+    let reference = IndiReference {
+        specific_force_z_mps2: -flight::navigation::STANDARD_GRAVITY_MPS2,
+        angular_accel_rad_s2: Vector3::new(0.5, -0.3, 0.1),
+    };
+    let mut state = (hover.controller.indi().clone(), gyro, accel, reference);
+    let _ = region(&mut state, |(indi, gyro, accel, r)| indi.update(black_box(*gyro), *accel, r));
+    black_box(&state);
+
+    // The allocation alone on the model's G1: a hover-sized increment, then one no motor set
+    // can give (the working set changes), each after a first call from the same problem.
+    let Ok(mut allocator) = Allocator::new(m, AllocationConfig::default()) else { fail("alloc") };
+    let mut du_min = [0.0f32; MAX_MOTORS];
+    let mut du_max = [0.0f32; MAX_MOTORS];
+    for j in 0..m {
+        du_min[j] = model.u_idle[j] - model.u_hover[j];
+        du_max[j] = 1.0 - model.u_hover[j];
+    }
+    let du_pref = [0.0f32; MAX_MOTORS];
+    for dv in [[0.0, 0.0, -0.3, 2.0, -1.5, 0.5], [0.0, 0.0, -4.0, 900.0, -700.0, 300.0]] {
+        let _ = allocator.solve(&model.g1, &dv, &du_min, &du_max, &du_pref);
+        let mut state = (allocator.clone(), dv);
+        let out = region(&mut state, |(a, dv)| {
+            a.solve(black_box(&model.g1), dv, &du_min, &du_max, &du_pref)
+        });
+        hprintln!(
+            "bench-m7 check: allocation m={}: {:?} after {} iterations",
+            m,
+            out.status,
+            out.iterations
+        );
+    }
+}
+
 fn fail(message: &str) -> ! {
     hprintln!("bench-m7 error: {}", message);
     debug::exit(debug::EXIT_FAILURE);
@@ -166,6 +406,7 @@ fn fail(message: &str) -> ! {
 fn main() -> ! {
     const MOTOR_COUNTS: [usize; 3] = [4, 6, 8];
     const TILTED_MOTOR_COUNTS: [usize; 2] = [6, 8];
+    #[cfg(feature = "bounded-search")]
     const BOUNDED_MOTOR_COUNTS: [usize; 2] = [6, 8];
     const TILT_RAD: f32 = 20.0 * core::f32::consts::PI / 180.0;
     hprintln!("bench-m7 region: empty (marker overhead)");
@@ -177,6 +418,7 @@ fn main() -> ! {
         hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, cold", m);
         hprintln!("bench-m7 region: thrust-axis solve m={} tilted 20°, warm", m);
     }
+    #[cfg(feature = "bounded-search")]
     for m in BOUNDED_MOTOR_COUNTS {
         hprintln!("bench-m7 region: thrust-axis bounded search m={} (one motor capped)", m);
     }
@@ -188,6 +430,12 @@ fn main() -> ! {
             hprintln!("bench-m7 region: learner step m={}, {}", m, what);
         }
         hprintln!("bench-m7 region: learner cycle m={}: the same four samples in one region", m);
+        for what in CLOSED_LOOP_REGIONS {
+            hprintln!("bench-m7 region: closed-loop step m={}, {}", m, what);
+        }
+        for what in CLOSED_LOOP_PARTS {
+            hprintln!("bench-m7 region: closed-loop part m={}: {}", m, what);
+        }
     }
     hprintln!("bench-m7 region: learner part: effectiveness update m=4, force-row sample (filters, one force row)");
     hprintln!("bench-m7 region: learner part: effectiveness update m=4, rotational-row sample (filters, rotational rows)");
@@ -195,6 +443,12 @@ fn main() -> ! {
     hprintln!("bench-m7 region: learner part: RLS update, 23 regressors, 3 outputs (quad rotational rows)");
     hprintln!(
         "bench-m7 region: learner part: RLS update, 15 regressors, 1 output (one quad force row)"
+    );
+    hprintln!(
+        "bench-m7 region: libm part: one libm::sqrtf call (the allocation makes 2-3 per motor)"
+    );
+    hprintln!(
+        "bench-m7 region: libm part: one libm::hypotf call (Givens rotations of the allocation)"
     );
 
     let mut nothing = 0u32;
@@ -224,7 +478,11 @@ fn main() -> ! {
     }
 
     // The bounded search: the planar hexa and octo with motor 0 capped below its heuristic
-    // command, so the heuristic's u* leaves the bounds and the active-set search runs.
+    // command, so the heuristic's u* leaves the bounds and the active-set search runs. Only with
+    // the feature `bounded-search` (`cargo xtask bench-m7 --bounded-search`): the firmware is
+    // built without it, and so is the default bench, so that the other regions are compiled as
+    // the firmware compiles them.
+    #[cfg(feature = "bounded-search")]
     for m in BOUNDED_MOTOR_COUNTS {
         let mut upper = [1.0f32; MOTORS_MAX];
         upper[0] = 0.3;
@@ -289,13 +547,13 @@ fn main() -> ! {
         let mut learner = primed.clone();
         for sample in &samples {
             let mut state = (learner, *sample);
-            let _ = region(&mut state, |(learner, (gyro, accel, commands, speeds))| {
+            region(&mut state, |(learner, (gyro, accel, commands, speeds))| {
                 learner.update(*gyro, *accel, black_box(commands), black_box(speeds))
             });
             learner = state.0;
         }
         let mut state = (primed, samples);
-        let _ = region(&mut state, |(learner, samples)| {
+        region(&mut state, |(learner, samples)| {
             for (gyro, accel, commands, speeds) in samples.iter() {
                 learner.update(*gyro, *accel, black_box(commands), black_box(speeds));
             }
@@ -306,6 +564,7 @@ fn main() -> ! {
         }
         let axis = learner.model().thrust_axis.map(|a| a.thrust_dir_imu).unwrap_or_default();
         hprintln!("bench-m7 check: learner m={} thrust direction {:?}", m, axis);
+        closed_loop_regions(m, &learner);
     }
 
     // Where a quad's learner step goes: its three largest parts on their own.
@@ -365,6 +624,10 @@ fn main() -> ! {
         let _ = region(&mut st, |(rls, x)| rls.update(black_box(&x[..]), &[1.0]));
         black_box(&st);
     }
+    // libm's square root is software on this target (no `vsqrt.f32` path): what one call costs.
+    let mut x = (2.0f32, 3.0f32);
+    let _ = region(&mut x, |(a, _)| libm::sqrtf(black_box(*a)));
+    let _ = region(&mut x, |(a, b)| libm::hypotf(black_box(*a), *b));
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
     loop {

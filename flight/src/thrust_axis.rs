@@ -380,6 +380,14 @@ impl HoverProblem {
     }
 }
 
+/// Whether the bounded search of [`bounded`] is compiled in (cargo feature `bounded-search`, on
+/// by default). Without it [`SolverConfig::bounded_search`] has no effect: a heuristic `u*`
+/// outside the bounds gives [`ThrustAxisError::NoHoverWithinBounds`]. The firmware builds
+/// without it: its learner never runs the search (`bounded_search: false`, the 2 kHz deadline),
+/// and the search is about 48 KB of code at `opt-level = 3` (docs/benchmarks.md, "Firmware
+/// size").
+pub const BOUNDED_SEARCH_COMPILED: bool = cfg!(feature = "bounded-search");
+
 /// Tuning of [`ThrustAxisSolver`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SolverConfig {
@@ -611,7 +619,7 @@ impl ThrustAxisSolver {
                 u.iter_mut().for_each(|x| *x *= sign);
                 finish(problem, &u, eigenvalue, false)
             }
-            None if self.config.bounded_search => {
+            None if BOUNDED_SEARCH_COMPILED && self.config.bounded_search => {
                 let scaled = ScaledProblem::new(problem);
                 let u_scaled = bounded::optimum(&scaled, force_scale2)
                     .ok_or(ThrustAxisError::NoHoverWithinBounds)?;

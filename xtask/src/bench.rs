@@ -34,64 +34,89 @@ const TARGET: &str = "thumbv7em-none-eabihf";
 const RUSTFLAGS: &str = "-C link-arg=-Tlink.x -C target-cpu=cortex-m7";
 /// Semihosting line announcing a region, in run order.
 const REGION_PREFIX: &str = "bench-m7 region: ";
-/// Targets from issues 3 and 7 (instructions), matched by region-name prefix.
-const TARGETS: [(&str, u64); 5] = [
+/// Targets from issues 3, 7 and 8 (instructions), matched by region-name prefix.
+const TARGETS: [(&str, u64); 7] = [
     ("thrust-axis solve m=4", 1_000),
     ("thrust-axis solve m=8", 4_000),
     ("imu-offset RLS update", 300),
     ("learner step m=4", 12_000),
     ("learner step m=8", 40_000),
+    ("closed-loop step m=4", 12_000),
+    ("closed-loop step m=8", 20_000),
 ];
+/// The argument that adds the thrust-axis bounded search (the bench crate's feature of the same
+/// name, which also compiles `flight` with it, unlike the firmware).
+const BOUNDED_SEARCH_ARG: &str = "--bounded-search";
 /// Debian package that provides `qemu-system-arm`.
 const QEMU_PACKAGE: &str = "qemu-system-arm";
 
-/// Instruction counts on QEMU's Cortex-M7; prints a table.
+/// Instruction counts on QEMU's Cortex-M7; prints a table. `--bounded-search` adds the
+/// thrust-axis bounded-search regions (and compiles `flight` with that feature, as the firmware
+/// does not).
 pub fn m7(args: &[String]) -> Result<()> {
-    if let Some(arg) = args.first() {
-        bail!("bench-m7 takes no arguments (got `{arg}`)");
+    let mut bounded_search = false;
+    for arg in args {
+        match arg.as_str() {
+            BOUNDED_SEARCH_ARG => bounded_search = true,
+            other => bail!("bench-m7: unknown argument `{other}` (usage: cargo xtask bench-m7 [{BOUNDED_SEARCH_ARG}])"),
+        }
     }
     ensure_qemu()?;
     let crate_dir = root().join("bench-m7");
-    run(cargo()
+    // Its own target directory (a workspace of its own), under CARGO_TARGET_DIR when set.
+    let target_dir = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) => root().join(dir).join("bench-m7"),
+        None => crate_dir.join("target"),
+    };
+    let mut build = cargo();
+    build
         .current_dir(&crate_dir)
-        .args(["build", "--release", "--target", TARGET])
+        .args(["build", "--release", "--target", TARGET, "--target-dir"])
+        .arg(&target_dir)
         .env("RUSTFLAGS", RUSTFLAGS)
-        .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld"))?;
-    let target_dir = crate_dir.join("target");
+        .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld");
+    if bounded_search {
+        build.args(["--features", "bounded-search"]);
+    }
+    run(&mut build)?;
     let elf = target_dir.join(TARGET).join("release/bench-m7");
-    let trace = target_dir.join("trace.log");
 
     let symbols = elf_symbols(&elf)?;
     let start = *symbols.get("bench_region_start").context("no bench_region_start in the ELF")?;
     let end = *symbols.get("bench_region_end").context("no bench_region_end in the ELF")?;
 
+    // The trace goes to QEMU's stderr, a pipe counted as it streams: it is one line per
+    // executed instruction (tens of GB for the whole run), never written to disk.
     let mut qemu = Command::new(QEMU);
     qemu.args(["-machine", QEMU_MACHINE, "-cpu", QEMU_CPU, "-icount", "shift=0", "-nographic"])
         .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
         .arg(&elf)
-        .args(["-d", "exec,nochain", "-singlestep", "-D"])
-        .arg(&trace)
-        .stdin(Stdio::null());
+        .args(["-d", "exec,nochain", "-singlestep", "-D", "/dev/stderr"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
     eprintln!(
-        "$ {QEMU} -machine {QEMU_MACHINE} -cpu {QEMU_CPU} -icount shift=0 ... -D {}",
-        trace.display()
+        "$ {QEMU} -machine {QEMU_MACHINE} -cpu {QEMU_CPU} -icount shift=0 -nographic \
+         -semihosting-config enable=on,target=native -kernel {} -d exec,nochain -singlestep \
+         -D /dev/stderr",
+        elf.display()
     );
-    let output = qemu.output().with_context(|| format!("could not start {QEMU}"))?;
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    if !output.status.success() {
-        bail!("the benchmark failed on QEMU ({}):\n{stdout}", output.status);
+    let mut child = qemu.spawn().with_context(|| format!("could not start {QEMU}"))?;
+    let mut stdout_pipe = child.stdout.take().context("no stdout pipe")?;
+    let reader = std::thread::spawn(move || {
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut stdout_pipe, &mut text).map(|_| text)
+    });
+    let trace = BufReader::with_capacity(1 << 20, child.stderr.take().context("no stderr pipe")?);
+    let counts = count_regions(trace, start, end)?;
+    let status = child.wait()?;
+    let stdout = reader.join().map_err(|_| anyhow::anyhow!("stdout reader panicked"))??;
+    if !status.success() {
+        bail!("the benchmark failed on QEMU ({status}):\n{stdout}");
     }
     let names: Vec<&str> = stdout.lines().filter_map(|l| l.strip_prefix(REGION_PREFIX)).collect();
-    let counts = count_regions(&trace, start, end)?;
-    // The trace is large (about 250 MB, mostly the m = 8 bounded search); keep only the counts.
-    std::fs::remove_file(&trace).with_context(|| format!("cannot remove {}", trace.display()))?;
     if counts.len() != names.len() || counts.is_empty() {
-        bail!(
-            "{} regions announced but {} measured in {}",
-            names.len(),
-            counts.len(),
-            trace.display()
-        );
+        bail!("{} regions announced but {} measured in the trace", names.len(), counts.len());
     }
     let overhead = counts[0];
     println!(
@@ -155,15 +180,14 @@ fn elf_symbols(path: &Path) -> Result<HashMap<String, (u32, u32)>> {
 
 /// For each execution of the start marker, the number of trace lines from the first
 /// instruction after it returns up to (not including) the first instruction of the end marker.
-fn count_regions(trace: &Path, start: (u32, u32), end: (u32, u32)) -> Result<Vec<u64>> {
-    let file =
-        std::fs::File::open(trace).with_context(|| format!("cannot read {}", trace.display()))?;
+fn count_regions(trace: impl BufRead, start: (u32, u32), end: (u32, u32)) -> Result<Vec<u64>> {
     let in_start = |pc: u32| pc >= start.0 && pc < start.0 + start.1.max(2);
     let mut counts = Vec::new();
     let mut inside_start = false;
     let mut counting: Option<u64> = None;
-    for line in BufReader::new(file).lines() {
+    for line in trace.split(b'\n') {
         let line = line?;
+        let line = String::from_utf8_lossy(&line);
         // "Trace 0: 0x7f... [00800408/00000400/00000110/ff020201] symbol": the PC is field 2.
         let Some(pc) = line
             .split_once('[')

@@ -1,8 +1,9 @@
 //! `cargo xtask build` and `cargo xtask flash`: the STM32H743 firmware.
 //!
-//! `build` installs what the cross build needs (the rustup target, flip-link), builds the release
-//! ELF and prints its flash and RAM use, read from the ELF's section headers by a small reader
-//! below (no binutils needed). `flash` programs a board through a debug probe (probe-rs) or
+//! `build` installs what the cross build needs (the rustup target, flip-link), builds the
+//! firmware ELF (cargo profile `firmware`: release at `opt-level = "z"`) and prints its flash and
+//! RAM use, read from the ELF's section headers by a small reader below (no binutils needed);
+//! it warns when the image exceeds its 128 KiB flash budget. `flash` programs a board through a debug probe (probe-rs) or
 //! through the STM32's ROM DFU bootloader (dfu-util), and says what to install or connect when
 //! neither is possible.
 
@@ -42,29 +43,57 @@ const FLASH_SECTIONS: &[&str] = &[".vector_table", ".text", ".rodata", ".data", 
 /// Sections that occupy DTCM statically.
 const RAM_SECTIONS: &[&str] = &[".data", ".bss", ".uninit"];
 
-/// Build the release firmware ELF and print its flash and RAM use; returns the ELF's path.
+/// The cargo profile of the firmware (root `Cargo.toml`: the release profile at `opt-level =
+/// "z"`, so the image fits the 128 KiB flash budget; `bench-m7` mirrors it).
+pub const PROFILE: &str = "firmware";
+
+/// Flash budget of the firmware image, bytes (the board issue's target: 128 KiB).
+const FLASH_BUDGET_BYTES: u64 = 128 * 1024;
+
+/// Build the firmware ELF (profile [`PROFILE`]) and print its flash and RAM use; returns the
+/// ELF's path. Warns when the image exceeds [`FLASH_BUDGET_BYTES`].
 ///
 /// Extra `args` are passed to `cargo build` (e.g. `--features ...`).
+///
+/// `--stack` (not passed to cargo) adds the worst-case stack of every interrupt handler and of
+/// `main` (init, idle), from the ELF's code: see [`stack_report`].
 pub fn build(args: &[String]) -> Result<PathBuf> {
     ensure_target_installed()?;
     ensure_flip_link()?;
+    let stack = args.iter().any(|arg| arg == STACK_ARG);
 
     let mut cargo = util::cargo();
-    cargo.args(["build", "--release", "-p", "firmware", "--bin", "firmware", "--target", TARGET]);
-    cargo.args(args);
+    cargo.args(["build", "--profile", PROFILE, "-p", "firmware", "--bin", "firmware"]);
+    cargo.args(["--target", TARGET]);
+    cargo.args(args.iter().filter(|arg| *arg != STACK_ARG));
     if std::env::var_os("DEFMT_LOG").is_none() {
         // defmt compiles out everything below `error` unless told otherwise.
         cargo.env("DEFMT_LOG", "info");
     }
     util::run(&mut cargo)?;
 
-    let elf = target_dir().join(TARGET).join("release").join("firmware");
+    let elf = target_dir().join(TARGET).join(PROFILE).join("firmware");
     ensure!(elf.is_file(), "the build succeeded but {} is missing", elf.display());
     let bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
     let sections = elf32_sections(&bytes).with_context(|| format!("parsing {}", elf.display()))?;
-    print!("{}", MemoryUse::of(&sections).report(&elf));
+    let used = MemoryUse::of(&sections);
+    print!("{}", used.report(&elf));
+    if used.flash_bytes > FLASH_BUDGET_BYTES {
+        // A warning, not an error, until the image is back within budget (docs/benchmarks.md).
+        eprintln!(
+            "warning: the firmware uses {} B of flash, over its budget of {FLASH_BUDGET_BYTES} B \
+             (128 KiB): see docs/benchmarks.md, \"Firmware size\", for what takes the space",
+            used.flash_bytes
+        );
+    }
+    if stack {
+        print!("{}", stack_report(&bytes, &sections)?);
+    }
     Ok(elf)
 }
+
+/// The `build` argument that adds the stack analysis.
+const STACK_ARG: &str = "--stack";
 
 /// Program a board: `cargo xtask flash` through a debug probe with probe-rs, or
 /// `cargo xtask flash --dfu` through the ROM DFU bootloader with dfu-util.
@@ -80,14 +109,18 @@ pub fn flash(args: &[String]) -> Result<()> {
     if dfu {
         require_tool(
             "dfu-util",
-            "install dfu-util (Debian/Ubuntu: `sudo apt-get install dfu-util`, macOS: `brew install dfu-util`)",
+            "install dfu-util (Debian/Ubuntu: `sudo apt-get install dfu-util`, macOS: \
+             `brew install dfu-util`), then start the board in DFU mode (hold its BOOT button \
+             while plugging in USB) and retry; or flash through a debug probe: `cargo xtask flash`",
         )?;
         require_dfu_device()?;
     } else {
         require_tool(
             "probe-rs",
-            "install probe-rs (`cargo install probe-rs-tools --locked`, see https://probe.rs), \
-             or use the ROM bootloader: `cargo xtask flash --dfu`",
+            "install probe-rs (`cargo install probe-rs-tools --locked`, see https://probe.rs) and \
+             connect an ST-LINK, J-Link or CMSIS-DAP debug probe to the board's SWD pins; or, \
+             without a probe, use the ROM bootloader over USB: `cargo xtask flash --dfu` (needs \
+             dfu-util and the board in DFU mode)",
         )?;
         require_probe()?;
     }
@@ -198,6 +231,349 @@ fn require_dfu_device() -> Result<()> {
     Ok(())
 }
 
+/// Bytes the core pushes on exception entry with the FPU context (Cortex-M7, lazy stacking
+/// reserves it whenever the interrupted code has used the FPU): 26 words plus the alignment
+/// word (ARMv7-M ARM, B1.5.7). Without FPU context it is 8 words.
+const EXCEPTION_FRAME_FPU_BYTES: u64 = 104;
+
+/// One function of the disassembly, for the stack analysis.
+#[derive(Clone, Debug, Default)]
+struct Function {
+    name: String,
+    start: u64,
+    /// Bytes its own code moves the stack pointer down by, summed over every `push`, `vpush`,
+    /// `sub sp` and pre-indexed store to `sp` in its body (an upper bound of its frame: a
+    /// function with two exits that each push counts both).
+    frame_bytes: u64,
+    /// Addresses it calls (`bl`, `blx #imm`) or branches to outside itself (tail calls).
+    targets: Vec<u64>,
+    /// Calls through a register (`blx rN`, `bx rN` other than `lr`): their callees are unknown.
+    indirect_calls: u32,
+    /// The stack pointer moved by a register amount (a dynamic allocation): frame unknown.
+    dynamic: bool,
+}
+
+/// The worst path from one function.
+#[derive(Clone, Debug, Default)]
+struct StackPath {
+    bytes: u64,
+    /// Function indices from the root down.
+    path: Vec<usize>,
+}
+
+/// Worst-case stack per root of `elf`, from its disassembly (`llvm-objdump`, from rustup's
+/// `llvm-tools`): each function's frame from its stack adjustments, the call graph from its
+/// `bl` and tail branches, the longest path from each interrupt handler of the vector table and
+/// from `main` (init, then idle). Indirect calls (through a function pointer or a trait object)
+/// and recursion cannot be followed: they are counted and reported, not bounded. A second
+/// column leaves out paths into the panic handler (a panic ends the flight; its stack is
+/// needed once, at the end).
+fn stack_report(elf: &[u8], sections: &[Section]) -> Result<String> {
+    let functions = disassembled_functions(&llvm_objdump_disassembly(elf)?);
+    ensure!(!functions.is_empty(), "llvm-objdump listed no functions");
+    let index_of = |address: u64| -> Option<usize> {
+        let i = functions.partition_point(|f| f.start <= address);
+        i.checked_sub(1)
+    };
+    // Call edges as function indices (branches within a function are not edges).
+    let edges: Vec<Vec<usize>> = functions
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let mut callees: Vec<usize> = f
+                .targets
+                .iter()
+                .filter_map(|&t| index_of(t))
+                .filter(|&callee| callee != i)
+                .collect();
+            callees.sort_unstable();
+            callees.dedup();
+            callees
+        })
+        .collect();
+    // core's panic entry points (`panic_bounds_check`, `unwrap_failed`, `len_mismatch_fail`, ...)
+    // and the handler.
+    let is_panic = |i: usize| {
+        let name = short_name(&functions[i].name);
+        name.contains("panic")
+            || name.contains("rust_begin_unwind")
+            || name.ends_with("_fail")
+            || name.ends_with("_failed")
+    };
+
+    let mut roots: Vec<(String, usize)> = Vec::new();
+    if let Some(main) = functions.iter().position(|f| f.name == "main") {
+        roots.push(("main (init, then idle)".into(), main));
+    }
+    if let Some(idle) = functions.iter().position(|f| short_name(&f.name).ends_with("::idle")) {
+        roots.push((format!("{} (from main)", short_name(&functions[idle].name)), idle));
+    }
+    let table = sections
+        .iter()
+        .find(|s| s.name == ".vector_table")
+        .context("the ELF has no .vector_table")?;
+    let from = table.file_offset as usize;
+    let words =
+        elf.get(from..from + table.size_bytes as usize).context("vector table truncated")?;
+    for (number, word) in words.chunks_exact(4).enumerate().skip(2) {
+        let address = u64::from(u32::from_le_bytes([word[0], word[1], word[2], word[3]]) & !1);
+        if let Some(i) = index_of(address).filter(|&i| functions[i].start == address) {
+            let name = &functions[i].name;
+            let default = name.contains("DefaultHandler") || name.contains("HardFault");
+            if !default && !roots.iter().any(|(_, r)| *r == i) {
+                let irq = if number >= 16 {
+                    format!("IRQ {}", number - 16)
+                } else {
+                    format!("exception {number}")
+                };
+                roots.push((format!("{} ({irq})", short_name(name)), i));
+            }
+        }
+    }
+
+    let mut out = format!(
+        "\nworst-case stack per root (own code; add the exception frame, \
+         {EXCEPTION_FRAME_FPU_BYTES} B with FPU context, per interrupt level):\n"
+    );
+    out.push_str("| root | stack, B | without the panic path, B | indirect calls reached | recursion | worst path |\n");
+    out.push_str("|---|---:|---:|---:|---|---|\n");
+    for (label, root) in roots {
+        let mut all = Search::new(&functions, &edges, |_| false);
+        let worst = all.worst(root);
+        let mut quiet = Search::new(&functions, &edges, is_panic);
+        let no_panic = quiet.worst(root);
+        let indirect: u32 = all.reached.iter().map(|&i| functions[i].indirect_calls).sum();
+        let dynamic = all.reached.iter().any(|&i| functions[i].dynamic);
+        let path: Vec<String> = no_panic
+            .path
+            .iter()
+            .map(|&i| format!("{} ({})", short_name(&functions[i].name), functions[i].frame_bytes))
+            .collect();
+        out.push_str(&format!(
+            "| {label} | {}{} | {} | {indirect} | {} | {} |\n",
+            worst.bytes,
+            if dynamic { " + dynamic" } else { "" },
+            no_panic.bytes,
+            match all.recursion {
+                Some((caller, callee)) => format!(
+                    "cut: {} → {}",
+                    short_name(&functions[caller].name),
+                    short_name(&functions[callee].name)
+                ),
+                None => "no".into(),
+            },
+            path.join(" → ")
+        ));
+    }
+    Ok(out)
+}
+
+/// Depth-first longest path over the call graph, memoised; back edges (recursion) are cut.
+struct Search<'a, F: Fn(usize) -> bool> {
+    functions: &'a [Function],
+    edges: &'a [Vec<usize>],
+    skip: F,
+    memo: Vec<Option<StackPath>>,
+    on_path: Vec<bool>,
+    /// The first back edge found (caller, callee).
+    recursion: Option<(usize, usize)>,
+    reached: Vec<usize>,
+}
+
+impl<'a, F: Fn(usize) -> bool> Search<'a, F> {
+    fn new(functions: &'a [Function], edges: &'a [Vec<usize>], skip: F) -> Self {
+        let n = functions.len();
+        Search {
+            functions,
+            edges,
+            skip,
+            memo: vec![None; n],
+            on_path: vec![false; n],
+            recursion: None,
+            reached: Vec::new(),
+        }
+    }
+
+    fn worst(&mut self, i: usize) -> StackPath {
+        if let Some(known) = &self.memo[i] {
+            return known.clone();
+        }
+        self.on_path[i] = true;
+        self.reached.push(i);
+        let mut deepest = StackPath::default();
+        for &callee in &self.edges[i] {
+            if (self.skip)(callee) {
+                continue;
+            }
+            if self.on_path[callee] {
+                self.recursion.get_or_insert((i, callee));
+                continue;
+            }
+            let below = self.worst(callee);
+            if below.bytes > deepest.bytes || deepest.path.is_empty() {
+                deepest = below;
+            }
+        }
+        self.on_path[i] = false;
+        let mut path = vec![i];
+        path.extend(deepest.path);
+        let result = StackPath { bytes: self.functions[i].frame_bytes + deepest.bytes, path };
+        self.memo[i] = Some(result.clone());
+        result
+    }
+}
+
+/// A demangled name without its hash suffix (`::h0123456789abcdef`).
+fn short_name(name: &str) -> &str {
+    match name.rfind("::h") {
+        Some(at) if name.len() - at == 19 => &name[..at],
+        _ => name,
+    }
+}
+
+/// `llvm-objdump -d --demangle` of `elf`, with rustup's llvm-tools (or one on PATH).
+fn llvm_objdump_disassembly(elf: &[u8]) -> Result<String> {
+    let sysroot = Command::new("rustc").args(["--print", "sysroot"]).output().ok();
+    let host = Command::new("rustc").arg("-vV").output().ok().and_then(|o| {
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .find_map(|l| l.strip_prefix("host: ").map(str::to_owned))
+    });
+    let bundled = match (sysroot, host) {
+        (Some(sysroot), Some(host)) => {
+            let root = PathBuf::from(String::from_utf8_lossy(&sysroot.stdout).trim());
+            Some(root.join("lib/rustlib").join(host).join("bin/llvm-objdump"))
+        }
+        _ => None,
+    };
+    let objdump = match bundled {
+        Some(path) if path.is_file() => path,
+        _ if util::on_path("llvm-objdump") => PathBuf::from("llvm-objdump"),
+        _ => bail!("the stack analysis needs llvm-objdump: `rustup component add llvm-tools`"),
+    };
+    let file = std::env::temp_dir().join(format!("xtask-stack-{}.elf", std::process::id()));
+    std::fs::write(&file, elf).with_context(|| format!("writing {}", file.display()))?;
+    let output = Command::new(&objdump)
+        .args(["-d", "--no-show-raw-insn", "--demangle"])
+        .arg(&file)
+        .output()
+        .with_context(|| format!("could not run {}", objdump.display()));
+    let _ = std::fs::remove_file(&file);
+    let output = output?;
+    ensure!(
+        output.status.success(),
+        "{} failed: {}",
+        objdump.display(),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    Ok(String::from_utf8_lossy(&output.stdout).into_owned())
+}
+
+/// Parse `llvm-objdump -d --no-show-raw-insn` output (Thumb-2) into functions, sorted by
+/// address.
+fn disassembled_functions(text: &str) -> Vec<Function> {
+    let mut functions: Vec<Function> = Vec::new();
+    for line in text.lines() {
+        // "08000298 <name>:" starts a function.
+        if let Some((address, rest)) = line.split_once(" <") {
+            if let (Ok(start), Some(name)) =
+                (u64::from_str_radix(address, 16), rest.strip_suffix(">:"))
+            {
+                if !name.starts_with('$') {
+                    functions.push(Function {
+                        name: name.to_owned(),
+                        start,
+                        ..Function::default()
+                    });
+                }
+                continue;
+            }
+        }
+        // " 80002fc:      \tsub.w\tsp, sp, #0x500" is an instruction.
+        let Some(function) = functions.last_mut() else { continue };
+        let Some((_, instruction)) = line.trim_start().split_once(':') else { continue };
+        let mut fields = instruction.split('\t').map(str::trim).filter(|f| !f.is_empty());
+        let (Some(mnemonic), operands) = (fields.next(), fields.next().unwrap_or("")) else {
+            continue;
+        };
+        let operands = operands.split(" @").next().unwrap_or("").trim();
+        let base = mnemonic.trim_end_matches(".w");
+        match base {
+            "push" | "vpush" => function.frame_bytes += register_list_bytes(operands),
+            "stmdb" | "stmfd" if operands.starts_with("sp!") => {
+                function.frame_bytes += register_list_bytes(operands)
+            }
+            "sub" | "subw" if operands.starts_with("sp,") => match operands.rsplit_once('#') {
+                Some((_, imm)) => function.frame_bytes += parse_imm(imm).unwrap_or(0),
+                None => function.dynamic = true,
+            },
+            "bl" | "blx" | "b" | "bx" | "beq" | "bne" | "bhs" | "blo" | "bmi" | "bpl" | "bvs"
+            | "bvc" | "bhi" | "bls" | "bge" | "blt" | "bgt" | "ble" | "bcs" | "bcc" => {
+                if let Some(target) = operands.strip_prefix("0x").and_then(|t| {
+                    u64::from_str_radix(t.split_whitespace().next().unwrap_or(""), 16).ok()
+                }) {
+                    // Branches within the function are dropped once its end is known.
+                    function.targets.push(target);
+                } else if (base == "blx" || base == "bx") && operands != "lr" {
+                    function.indirect_calls += 1;
+                }
+            }
+            _ if base.starts_with("str")
+                && operands.contains("[sp, #-")
+                && operands.ends_with("]!") =>
+            {
+                let imm = operands.rsplit_once("#-").map(|(_, v)| v.trim_end_matches("]!"));
+                function.frame_bytes += imm.and_then(parse_imm).unwrap_or(0);
+            }
+            _ => {}
+        }
+    }
+    functions.sort_by_key(|f| f.start);
+    // Keep only branches that leave the function (calls and tail calls).
+    let ends: Vec<u64> = functions.iter().skip(1).map(|f| f.start).chain([u64::MAX]).collect();
+    for (function, end) in functions.iter_mut().zip(ends) {
+        let start = function.start;
+        function.targets.retain(|&t| t < start || t >= end);
+    }
+    functions
+}
+
+/// Bytes pushed by a register list such as `{r4, r5, r6, r7, lr}`, `{r4-r11}` or `{d8-d9}`.
+fn register_list_bytes(operands: &str) -> u64 {
+    let Some(list) = operands.split_once('{').and_then(|(_, l)| l.split_once('}')).map(|(l, _)| l)
+    else {
+        return 0;
+    };
+    list.split(',')
+        .map(str::trim)
+        .map(|register| {
+            let width = if register.starts_with('d') { 8 } else { 4 };
+            let count = match register.split_once('-') {
+                Some((first, last)) => {
+                    let number = |r: &str| {
+                        r.trim_start_matches(|c: char| c.is_alphabetic()).parse::<u64>().ok()
+                    };
+                    match (number(first), number(last)) {
+                        (Some(a), Some(b)) if b >= a => b - a + 1,
+                        _ => 1,
+                    }
+                }
+                None => 1,
+            };
+            width * count
+        })
+        .sum()
+}
+
+/// `0x18` or `24`.
+fn parse_imm(text: &str) -> Option<u64> {
+    let text = text.trim();
+    match text.strip_prefix("0x") {
+        Some(hex) => u64::from_str_radix(hex, 16).ok(),
+        None => text.parse().ok(),
+    }
+}
+
 /// One section header of an ELF32 file: the fields this tool needs.
 #[derive(Clone, Debug, PartialEq, Eq)]
 struct Section {
@@ -205,6 +581,8 @@ struct Section {
     /// Virtual (run-time) address.
     address: u64,
     size_bytes: u64,
+    /// Where its bytes are in the file (meaningless for `NOBITS` sections such as `.bss`).
+    file_offset: u64,
     /// `SHF_ALLOC`: the section occupies memory on the target.
     allocated: bool,
 }
@@ -268,6 +646,7 @@ fn elf32_sections(elf: &[u8]) -> Result<Vec<Section>> {
             name: String::from_utf8_lossy(&name_bytes[..name_end]).into_owned(),
             allocated: r.u32(base + 8)? & SHF_ALLOC != 0, // sh_flags
             address: u64::from(r.u32(base + 12)?),        // sh_addr
+            file_offset: u64::from(r.u32(base + 16)?),    // sh_offset
             size_bytes: u64::from(r.u32(base + 20)?),     // sh_size
         });
     }
