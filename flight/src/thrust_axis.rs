@@ -653,7 +653,9 @@ fn finish<const M: usize>(
     let mut cost = 0.0;
     let mut d = [0.0f32; 3];
     for i in 0..M {
-        let ui = u[i].clamp(problem.u_min[i], problem.u_max[i]);
+        // `max`/`min`, not `f32::clamp`: clamp asserts min ≤ max with a formatted panic message,
+        // which links core's float formatting into the firmware unless nothing else does.
+        let ui = u[i].max(problem.u_min[i]).min(problem.u_max[i]);
         u_hover[i] = ui;
         cost += problem.weights[i] * ui * ui;
         for k in 0..3 {

@@ -247,7 +247,8 @@ impl Params {
         for (i, slot) in slots.iter_mut().enumerate() {
             let value = values.get(i).copied().unwrap_or(0.0);
             *slot = if value.is_finite() {
-                value.clamp(spec.min, spec.max)
+                // Not `f32::clamp`: its min ≤ max assertion links float formatting (flash).
+                value.max(spec.min).min(spec.max)
             } else {
                 spec.default_at(i)
             };
