@@ -291,9 +291,7 @@ impl<'q> ControlLoop<'q> {
                 }
             }
             ControlCommand::ExternalPose(pose) => {
-                let finite = pose.position_ned_m.iter().all(|x| x.is_finite())
-                    && pose.heading_rad.is_finite();
-                if finite {
+                if super::is_finite_pose(&pose.position_ned_m, pose.heading_rad) {
                     self.snapshot.external_pose = Some((pose, now_us));
                     self.pilot.pose(&pose, now_us);
                 }

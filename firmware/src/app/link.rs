@@ -10,7 +10,7 @@
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
 use super::params;
-use super::pilot::{Failsafe, IdentificationFailure};
+use super::pilot::{failsafe_counter, Failsafe, FAILSAFE_KINDS};
 use super::settings::Settings;
 use super::telemetry::{wire_phase, StepRecord};
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
@@ -273,18 +273,24 @@ impl LinkServer {
         }
     }
 
-    /// One event per failsafe that acted since the last report (the latest reason; a counter
-    /// that rose without being the latest is reported with its own reason and count).
+    /// One event per failsafe whose counter rose since the last report, with its reason and
+    /// count; a counter is marked reported only once its event is in the transmit buffer.
     fn report_failsafes(&mut self, view: &StatusView) {
-        let counts = view.control.pilot.failsafes;
+        let mut counts = view.control.pilot.failsafes;
         if counts == self.failsafes_reported {
             return;
         }
         let last = view.control.pilot.last_failsafe;
-        for (failsafe, now, reported) in failsafe_counts(&counts, &self.failsafes_reported, last) {
-            if now <= reported {
+        for kind in FAILSAFE_KINDS {
+            let now = *failsafe_counter(&mut counts, kind);
+            if now <= *failsafe_counter(&mut self.failsafes_reported, kind) {
                 continue;
             }
+            // The identification's detail comes from the latest failsafe when it is one.
+            let failsafe = match (kind, last) {
+                (Failsafe::Identification(_), Some(latest @ Failsafe::Identification(_))) => latest,
+                _ => kind,
+            };
             let event = Event::Failsafe {
                 reason: failsafe.reason(),
                 action: failsafe.action(),
@@ -293,8 +299,8 @@ impl LinkServer {
             if self.send_event(event).is_err() {
                 return;
             }
+            *failsafe_counter(&mut self.failsafes_reported, kind) = now;
         }
-        self.failsafes_reported = counts;
     }
 
     fn send_event(&mut self, event: Event) -> Result<(), TxFull> {
@@ -354,17 +360,7 @@ impl LinkServer {
                 Ok(Reply::Done)
             }
             Request::SetExternalPose(pose) => {
-                let finite = pose.position_ned_m.iter().all(|x| x.is_finite())
-                    && pose.heading_rad.is_finite();
-                if !finite {
-                    return Err(DeviceError::BadValue {
-                        name: short_text("pose"),
-                        value: f32::NAN,
-                        min: -f32::MAX,
-                        max: f32::MAX,
-                        unit: short_text("m, rad"),
-                    });
-                }
+                refuse_non_finite("pose", &pose.position_ned_m, pose.heading_rad)?;
                 self.commands
                     .push_back(ControlCommand::ExternalPose(pose))
                     .map(|_| Reply::Done)
@@ -462,17 +458,7 @@ impl LinkServer {
                 Ok(Reply::Done)
             }
             Request::SetPositionSetpoint(setpoint) => {
-                let finite = setpoint.position_ned_m.iter().all(|x| x.is_finite())
-                    && setpoint.heading_rad.is_finite();
-                if !finite {
-                    return Err(DeviceError::BadValue {
-                        name: short_text("setpoint"),
-                        value: f32::NAN,
-                        min: -f32::MAX,
-                        max: f32::MAX,
-                        unit: short_text("m, rad"),
-                    });
-                }
+                refuse_non_finite("setpoint", &setpoint.position_ned_m, setpoint.heading_rad)?;
                 self.commands
                     .push_back(ControlCommand::PositionSetpoint(setpoint))
                     .map(|_| Reply::Done)
@@ -590,28 +576,22 @@ fn sample_topic(topic: Topic, view: &StatusView, seq: u16) -> Option<Telemetry> 
     }
 }
 
-/// Each failsafe with its count now and its count already reported. For the identification
-/// failure the latest reason is used when it is one (its detail is not counted separately).
-fn failsafe_counts(
-    now: &FailsafeCounters,
-    reported: &FailsafeCounters,
-    last: Option<Failsafe>,
-) -> [(Failsafe, u16, u16); 9] {
-    let identification = match last {
-        Some(failsafe @ Failsafe::Identification(_)) => failsafe,
-        _ => Failsafe::Identification(IdentificationFailure::NoHover),
-    };
-    [
-        (Failsafe::BadCommand, now.bad_command, reported.bad_command),
-        (Failsafe::AllocationFailed, now.allocation_failed, reported.allocation_failed),
-        (identification, now.identification, reported.identification),
-        (Failsafe::AttitudeLost, now.attitude_lost, reported.attitude_lost),
-        (Failsafe::ImuLost, now.imu_lost, reported.imu_lost),
-        (Failsafe::ImuFault, now.imu_fault, reported.imu_fault),
-        (Failsafe::PoseLost, now.pose_lost, reported.pose_lost),
-        (Failsafe::RcLost, now.rc_lost, reported.rc_lost),
-        (Failsafe::Kill, now.kill, reported.kill),
-    ]
+/// `BadValue` naming `name` when a pose or setpoint is not finite.
+fn refuse_non_finite(
+    name: &str,
+    position_m: &[f32; 3],
+    heading_rad: f32,
+) -> Result<(), DeviceError> {
+    if super::is_finite_pose(position_m, heading_rad) {
+        return Ok(());
+    }
+    Err(DeviceError::BadValue {
+        name: short_text(name),
+        value: f32::NAN,
+        min: -f32::MAX,
+        max: f32::MAX,
+        unit: short_text("m, rad"),
+    })
 }
 
 /// The closed loop's state for the wire.

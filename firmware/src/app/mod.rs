@@ -92,6 +92,12 @@ pub struct StatusView {
     pub board: protocol::BoardHealth,
 }
 
+/// Whether a pose or setpoint (position, m; heading, rad) is finite: what the link, the control
+/// step and the pilot require before using one.
+pub(crate) fn is_finite_pose(position_m: &[f32; 3], heading_rad: f32) -> bool {
+    position_m.iter().all(|x| x.is_finite()) && heading_rad.is_finite()
+}
+
 /// Parse a decimal `u8` at compile time (crate version components).
 const fn parse_u8(text: &str) -> u8 {
     let bytes = text.as_bytes();

@@ -171,9 +171,23 @@ impl IdentificationFailure {
 /// Counts of every failsafe since start-up: the protocol's [`FailsafeCounters`].
 pub type FailsafeCounts = FailsafeCounters;
 
-/// Count one more `failsafe` in `counts` (saturating) and return the new count.
-pub fn count_failsafe(counts: &mut FailsafeCounts, failsafe: Failsafe) -> u16 {
-    let counter = match failsafe {
+/// Every kind of failsafe once, in the order of [`FailsafeCounters`]' fields (the
+/// identification's detail is not counted separately).
+pub const FAILSAFE_KINDS: [Failsafe; 9] = [
+    Failsafe::BadCommand,
+    Failsafe::AllocationFailed,
+    Failsafe::Identification(IdentificationFailure::NoHover),
+    Failsafe::AttitudeLost,
+    Failsafe::ImuLost,
+    Failsafe::ImuFault,
+    Failsafe::PoseLost,
+    Failsafe::RcLost,
+    Failsafe::Kill,
+];
+
+/// The counter of `failsafe` in `counts`.
+pub fn failsafe_counter(counts: &mut FailsafeCounts, failsafe: Failsafe) -> &mut u16 {
+    match failsafe {
         Failsafe::BadCommand => &mut counts.bad_command,
         Failsafe::AllocationFailed => &mut counts.allocation_failed,
         Failsafe::Identification(_) => &mut counts.identification,
@@ -183,7 +197,12 @@ pub fn count_failsafe(counts: &mut FailsafeCounts, failsafe: Failsafe) -> u16 {
         Failsafe::PoseLost => &mut counts.pose_lost,
         Failsafe::RcLost => &mut counts.rc_lost,
         Failsafe::Kill => &mut counts.kill,
-    };
+    }
+}
+
+/// Count one more `failsafe` in `counts` (saturating) and return the new count.
+pub fn count_failsafe(counts: &mut FailsafeCounts, failsafe: Failsafe) -> u16 {
+    let counter = failsafe_counter(counts, failsafe);
     *counter = counter.saturating_add(1);
     *counter
 }
@@ -310,9 +329,7 @@ impl Pilot {
     /// arrive, from now on and in later flights, instead of the place where the craft stopped.
     /// Non-finite setpoints are ignored (the link refuses them first).
     pub fn set_position_setpoint(&mut self, setpoint: &PositionSetpoint) {
-        let finite = setpoint.position_ned_m.iter().all(|x| x.is_finite())
-            && setpoint.heading_rad.is_finite();
-        if finite {
+        if super::is_finite_pose(&setpoint.position_ned_m, setpoint.heading_rad) {
             self.requested_sp = Some(*setpoint);
             if self.position_sp_ned_m.is_some() {
                 self.hold_requested(setpoint);
