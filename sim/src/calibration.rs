@@ -156,7 +156,7 @@ impl Judged {
     }
 }
 
-/// Fit a session's logs with `model` and `drag_model`, as `fit imu-offset [--drag]` does.
+/// Fit a session's logs with `model` and `drag_model`, as `fit imu-offset [--no-drag]` does.
 pub fn fit(
     logs: &[Vec<ImuSample>],
     model: Model,
@@ -187,7 +187,7 @@ pub struct Plan<'a> {
     pub bias_sigma_mps2: f64,
     /// One airframe for every session instead of the cycle through [`AIRFRAMES`].
     pub airframe: Option<&'a Airframe>,
-    /// Drag treatment of the fits (`--drag`).
+    /// Drag treatment of the fits (`--no-drag` for none).
     pub drag_model: DragModel,
 }
 

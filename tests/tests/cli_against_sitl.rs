@@ -229,8 +229,11 @@ fn the_sitl_board_learns_its_imu_offset_from_automatic_throws_and_reports_it_ove
         std::thread::sleep(Duration::from_millis(300));
     };
     assert_eq!(offset["well_determined"], true, "{offset}");
+    // One throw may suffice: the first spins at (700, 350, 180) °/s, about no principal axis,
+    // so the nutation excites every direction of r, and with the drag modelled its estimate is
+    // within the 2 mm the verdict asks (the error is asserted below).
     let throws = offset["throws"].as_u64().unwrap();
-    assert!((2..=4).contains(&throws), "{offset}");
+    assert!((1..=4).contains(&throws), "{offset}");
     let airframe = sim::airframe::Airframe::builtin("paper-quad").unwrap();
     let truth = airframe.q_imu_body() * airframe.r_imu_m();
     let r: Vec<f64> =

@@ -7,7 +7,7 @@
 //! 400–800 °/s, random apex heights and noise seeds, and fits the offset with
 //! `flight::imu_offset::BatchFitter` (the configurator's fitter) four ways: offset only, jointly
 //! with an accelerometer bias, and each of these with the per-throw drag model
-//! (`DragModel::VerticalQuadratic`, `fit imu-offset --drag`). Recorded per model: the error distribution (median and 95th percentile,
+//! (`DragModel::VerticalQuadratic`, the default of `fit imu-offset` and the board). Recorded per model: the error distribution (median and 95th percentile,
 //! mm), the coverage of the reported 95 % ellipsoid, and the coverage of the seed paper's
 //! white-noise ellipsoid (`white_noise_covariance_m2`), for comparison.
 //!
@@ -291,17 +291,21 @@ fn two_throw_fits_on_the_simulator_are_accurate_and_their_ellipsoids_cover_the_t
     // Coverage band: with n independent fits and a true coverage of 95 %, the observed fraction
     // has standard deviation √(0.95·0.05/n) (1.5 % at n = 200); ±3σ (4.6 %) is crossed by chance
     // with probability 0.3 %. Above, a conservative ellipsoid is tolerated up to 99.5 % (at
-    // n = 200, 99.5 % is 4.5σ above 95 %: clearly too wide, but wasting throws misleads no one).
+    // n = 200, 99.5 % is 4.5σ above 95 %: clearly too wide, but wasting throws misleads no one);
+    // the offset-only models may reach 100 %: their allowance for an unmodelled bias is a bound
+    // (a bias of the size found, in the worst direction), not an estimate.
     let n = fits as f64;
     let sigma = (0.95 * 0.05 / n).sqrt();
     let lower = 0.95 - 3.0 * sigma;
-    for (model, s) in &overall {
+    for (m, (model, s)) in overall.iter().enumerate() {
+        let upper = if MODELS[m].1 == Model::Offset { 1.0 } else { 0.995 };
         assert!(
-            s.coverage >= lower && s.coverage <= 0.995,
+            s.coverage >= lower && s.coverage <= upper,
             "{model}: the reported 95 % ellipsoid holds the truth in {:.1} % of {fits} fits \
-             (band {:.1}–99.5 %)",
+             (band {:.1}–{:.1} %)",
             100.0 * s.coverage,
-            100.0 * lower
+            100.0 * lower,
+            100.0 * upper
         );
         // Not uselessly wide either: semi-axes at most 1/0.6 ≈ 1.7 × what exact 95 % coverage
         // needs (the verdict would otherwise reject good throws).

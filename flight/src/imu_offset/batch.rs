@@ -8,12 +8,12 @@
 
 use nalgebra::Vector3;
 
-use super::drag::DragSums;
+use super::drag::{DragSums, DragThrow};
 use super::front_end::FrontEnd;
 use super::moments::{BatchMeans, Moments};
 use super::rest::RestPoses;
 use super::solve::{self, Problem};
-use super::stream::{accumulate_aligned, ImuOffsetEstimator};
+use super::stream::{aligned_row, ImuOffsetEstimator};
 use super::{
     validate_sample, Config, DragModel, Estimate, ImuOffsetError, ImuSample, Segment, MAX_SEGMENTS,
 };
@@ -76,8 +76,7 @@ impl BatchFitter {
                 return Err(ImuOffsetError::RateMismatch { expected_hz, found_hz: rate_hz });
             }
         }
-        let detection = Config { drag_model: DragModel::Ignored, ..self.config };
-        let mut detector = ImuOffsetEstimator::new(rate_hz, detection)?;
+        let mut detector = ImuOffsetEstimator::new(rate_hz, self.config)?;
         let required = detector.min_free_fall_len();
         let used = u32::try_from(samples.len()).unwrap_or(u32::MAX);
         if used < required {
@@ -96,55 +95,60 @@ impl BatchFitter {
         let room = MAX_SEGMENTS.saturating_sub(self.segments_len);
         let found = detector.segments().get(..room).unwrap_or(detector.segments());
         let block_len = detector.block_len();
-        let batches = self.batches.get_or_insert(BatchMeans::new(detector.long_batch_blocks()));
+        let group = detector.long_batch_blocks();
+        let batches = self.batches.get_or_insert(BatchMeans::new(group));
         let mut drag = match self.config.drag_model {
             DragModel::Ignored => None,
-            DragModel::VerticalQuadratic => {
-                Some(self.drag.get_or_insert(DragSums::new(detector.long_batch_blocks())))
-            }
+            DragModel::VerticalQuadratic => Some(self.drag.get_or_insert(DragSums::new())),
         };
 
-        // Pass 2: the same front end, accumulating exactly the detected segments in f64.
+        // Pass 2: the same front end, accumulating exactly the detected segments in f64, block
+        // by block as the board commits them.
         let mut front = FrontEnd::new(self.config.cutoff_hz, rate_hz)
             .map_err(|_| ImuOffsetError::InvalidConfig("cutoff_hz must be in (0, rate/4]"))?;
         let r_ref = Vector3::zeros();
         let mut block = Moments::<f64>::new();
+        let mut segment_rows = Moments::<f64>::new();
+        let mut throw = DragThrow::<f64>::new(rate_hz);
         let mut next = found.iter().peekable();
-        let mut drag_open = false;
+        let mut open = false;
         for sample in samples {
             let Some(s) = front.update(sample) else { continue };
-            while next.peek().is_some_and(|seg| s.index >= seg.end_index) {
-                next.next();
-                batches.end_segment();
-                if let Some(d) = drag.as_deref_mut().filter(|_| drag_open) {
-                    d.end_segment();
+            while let Some(seg) = next.next_if(|seg| s.index >= seg.end_index) {
+                if open {
+                    batches.end_segment();
+                    if let Some(d) = drag.as_deref_mut() {
+                        d.add_throw(&throw, &segment_rows, seg, block_len, group, rate_hz);
+                    }
+                    open = false;
                 }
-                drag_open = false;
             }
-            let Some(seg) = next.peek().filter(|seg| s.index >= seg.start_index) else {
+            let Some(_) = next.peek().filter(|seg| s.index >= seg.start_index) else {
                 continue;
             };
-            accumulate_aligned(&mut block, &s, &r_ref);
-            if let Some(d) = drag.as_deref_mut() {
-                if !drag_open {
-                    d.begin_segment(seg.start_index, seg.end_index, rate_hz);
-                    drag_open = true;
-                }
-                d.add_row(&s, s.index - seg.start_index);
+            if !open {
+                (block, segment_rows, open) = (Moments::new(), Moments::new(), true);
+                throw.begin();
+            }
+            let (x, y, w) = aligned_row(&s, &r_ref);
+            block.accumulate(&x, &y);
+            if drag.is_some() {
+                throw.add_row(&x, &y, &w);
             }
             if block.count >= block_len {
                 self.rows.merge(&block);
+                segment_rows.merge(&block);
                 batches.add_block(&block);
+                let drag_sums = throw.take_block();
+                throw.commit(&block.xsum, &block.ysum, drag_sums);
                 block = Moments::new();
-                if let Some(d) = drag.as_deref_mut() {
-                    d.end_block();
-                }
             }
         }
-
-        batches.end_segment();
-        if let Some(d) = drag.filter(|_| drag_open) {
-            d.end_segment();
+        if let Some(seg) = next.next().filter(|_| open) {
+            batches.end_segment();
+            if let Some(d) = drag {
+                d.add_throw(&throw, &segment_rows, seg, block_len, group, rate_hz);
+            }
         }
         let log = self.logs_added;
         self.logs_added = self.logs_added.saturating_add(1);

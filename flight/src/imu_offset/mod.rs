@@ -13,7 +13,7 @@
 //!    board; the information form of RLS, see `moments`), or in `f64` over logs ([`BatchFitter`]);
 //! 4. reports `r̂` with an *honest* 95 % confidence ellipsoid and a verdict on the excitation
 //!    ([`Estimate`], [`Verdict`]); optionally a constant accelerometer bias is fitted jointly
-//!    ([`Model::OffsetAndAccBias`]) and, offline, a drag force per throw
+//!    ([`Model::OffsetAndAccBias`]) and so is a drag force per throw
 //!    ([`DragModel::VerticalQuadratic`], see below).
 //!
 //! # Why the ellipsoid is corrected, and how
@@ -28,8 +28,9 @@
 //!    the variance least squares actually has (Newey–West in batch form).
 //! 2. *Two batch lengths.* Short batches ([`Config::block_s`], 20 ms ≈ 4 filter time constants)
 //!    measure the filtered sensor noise precisely; long batches ([`Config::long_batch_s`],
-//!    150 ms) also see drag, which changes over the flight and rotates with the spin. The larger
-//!    of the two covariance scales is used.
+//!    160 ms) also see what the model leaves out (horizontal release speed, anisotropic drag),
+//!    which changes over the flight and rotates with the spin. The larger of the two covariance
+//!    scales is used.
 //! 3. *Small-sample widening.* The scale is estimated with `ν = 3 n_b − p` degrees of freedom, so
 //!    the 95 % region is Hotelling's `T²(3, ν)`, not `χ²₃`. `Σ` is multiplied by
 //!    `T²₀.₉₅(3, ν) / χ²₃(0.95)` so that the stated semi-axes `√(eig(Σ) χ²₃(0.95))` hold.
@@ -48,18 +49,19 @@
 //!
 //! # Drag
 //! Drag is the one force eq. 3 leaves out, and on the simulator it is what limits the joint fit.
-//! [`DragModel::VerticalQuadratic`] (offline, [`BatchFitter`]; `fit imu-offset --drag`) models
-//! it per throw as quadratic drag along the world vertical, `s(τ) R_rel(t)ᵀ w_k`, with the known
-//! profile `s(τ) = |τ| τ` around the segment's mid-time (apex), `R_rel` integrated from the
-//! filtered gyro, and one unknown 3-vector `w_k` per throw, profiled out at the end of each throw
-//! so the sums stay constant-size (details in `drag`). It was chosen by trying, on 100 simulated
-//! two-throw fits with bias, per-throw rotating regressors `R_relᵀ` times: nothing (median error
-//! 0.46 mm), `1` (1.10 mm: a rotating constant is confounded with the bias along the spin axis),
-//! `[1, τ]` (0.52 mm), `[1, τ, τ²]` (1.03 mm), `|τ|τ` (0.18 mm), `[|τ|τ, τ]` (0.22 mm),
-//! `[|τ|τ, |τ|]` (0.17 mm, but a longer tail); with 2 m/s of horizontal release speed (which the
-//! model ignores) `|τ|τ` still helps (0.70 → 0.46 mm). The onboard RLS is unchanged (3 unknowns,
-//! the Cortex-M7 budget is for [`OffsetRls::update`]); the board refuses the option.
-//!
+//! [`DragModel::VerticalQuadratic`] (the default, onboard and offline; `fit imu-offset --no-drag`
+//! leaves it out) models it per throw as quadratic drag along the world vertical,
+//! `s(τ) R_rel(t)ᵀ w_k`, with the known profile `s(τ) = |τ| τ` around the segment's mid-time
+//! (apex), `R_rel` integrated from the filtered gyro, and one unknown 3-vector `w_k` per throw.
+//! The apex is known only when the throw ends, so the throw's blocks are kept until then (10.6 KB
+//! on the board) and `w_k` is profiled out at the catch, which keeps the sums constant-size
+//! (details in `drag`). The profile was chosen by trying, on 100 simulated two-throw fits with
+//! bias, per-throw rotating regressors `R_relᵀ` times: nothing (median error 0.46 mm), `1` (1.10
+//! mm: a rotating constant is confounded with the bias along the spin axis), `[1, τ]` (0.52 mm),
+//! `[1, τ, τ²]` (1.03 mm), `|τ|τ` (0.18 mm), `[|τ|τ, τ]` (0.22 mm), `[|τ|τ, |τ|]` (0.17 mm, but a
+//! longer tail); with 2 m/s of horizontal release speed (which the model ignores) `|τ|τ` still
+//! helps (0.70 → 0.46 mm).
+
 //! # The accelerometer bias: rest poses ([`Model::OffsetAndAccBias`], the default)
 //! Two throws alone separate a bias from the offset poorly (a constant bias looks like the
 //! constant part of `X r`). Every calibration session also holds the craft still before and after
@@ -69,25 +71,22 @@
 //! equations weighted by their covariance scale, and the fit is repeated at the scale measured at
 //! its own solution. [`Estimate::acc_bias_covariance_m2ps4`] says how well the bias is known.
 //!
-//! # Measured accuracy and coverage (default model, 150 ms long batches)
+//! # Measured accuracy and coverage (default model: offset, bias and drag; 160 ms long batches)
 //! *The simulator*, 200 two-throw sessions on the built-in quads (apex 0.8–1.5 m, 300–600 °/s
 //! about axes ≥ 50° apart, 0.6 s rests, anisotropic linear + quadratic drag, ICM-42688-P noise;
 //! `cargo run -p sim --release --bin calibrate -- monte-carlo --bias B`):
 //!
 //! | bias 1σ per axis | well determined | truth in 95 % ellipsoid | error median / p99 | semi-axis median |
 //! |---|---|---|---|---|
-//! | 0.02 m/s² | 63.0 % | 98.0 % | 0.41 / 2.33 mm | 1.66 mm |
-//! | 0.05 m/s² | 63.0 % | 98.0 % | 0.41 / 2.33 mm | 1.66 mm |
-//! | 0.2 m/s² | 60.5 % | 96.5 % | 0.43 / 2.49 mm | 1.73 mm |
+//! | 0.02 m/s² | 94.5 % | 95.0 % | 0.24 / 1.15 mm | 0.67 mm |
+//! | 0.2 m/s² | 94.5 % | 94.5 % | 0.23 / 1.76 mm | 0.69 mm |
 //!
-//! The offset-only model on the same sessions: 93.0 / 87.0 / 77.5 % coverage, median error 0.63 /
-//! 1.19 / 4.54 mm. *Synthetic throws* (`flight::testing`, isotropic quadratic drag, no bias, 200
-//! fits; `cargo test -p flight --release ellipsoid_coverage -- --nocapture`): 98.5 % without drag,
-//! 96.0 % (1 kHz) and 88.5 % (4 kHz) with `k = 0.01 /m`; the paper's formula 18.5 %, 0 %, 0 %.
-//!
-//! What limits accuracy is drag, not noise or bias: the errors above 1 mm are nearly all on the
-//! 3-inch quad (0.18 kg, the most drag per unit mass), and on the 1.5 kg hexacopters the median
-//! error is about 0.6 mm. The per-throw drag model below (offline) roughly halves it.
+//! Without the drag model the same sessions give a median error of 0.41 mm and a 99th percentile
+//! of 2.3 mm, and only about 60 % are well determined after two throws. *Synthetic sessions* of
+//! the same kind (`flight::testing`, quadratic drag, bias 0.02 m/s², 300 sessions;
+//! `cargo test -p flight --release ellipsoid_coverage -- --nocapture` with 300 trials): truth
+//! inside the ellipsoid in 95.3 % (vertical, k = 0.01 /m), 92.3 % (vertical, k = 0.05 /m) and
+//! 95.7 % (17° from vertical, k = 0.03 /m) of sessions; the paper's formula 0–4 %.
 //!
 //! # Units and frames
 //! IMU frame throughout; rates in rad/s, specific force in m/s², offsets in m, times in s.
@@ -103,7 +102,7 @@ mod stream;
 mod tests;
 
 pub use batch::{BatchFitter, LogSegment};
-pub use drag::DragModel;
+pub use drag::{DragModel, MAX_THROW_BLOCKS};
 pub use front_end::{regressor, AlignedSample, FrontEnd};
 pub use rest::{
     RestPose, MAX_REST_POSES, MIN_POSE_BLOCKS, POSE_SIGMA_FLOOR_MPS2, REST_BLOCK_S,
@@ -156,8 +155,8 @@ pub enum Model {
 pub struct Config {
     /// Unknowns to fit.
     pub model: Model,
-    /// Drag treatment: [`DragModel::VerticalQuadratic`] adds a drag vector per throw
-    /// ([`BatchFitter`] only; the onboard [`ImuOffsetEstimator`] refuses it).
+    /// Drag treatment: [`DragModel::VerticalQuadratic`] (the default) adds a drag vector per
+    /// throw; [`DragModel::Ignored`] is the seed paper's eq. 3.
     pub drag_model: DragModel,
     /// Cut-off of the matched 2nd-order Butterworth low-pass on gyro and accelerometer (Hz).
     pub cutoff_hz: f32,
@@ -195,8 +194,9 @@ impl Default for Config {
             // (0.2 m/s²), which moves an offset-only estimate by millimetres; the rest poses
             // separate the two.
             model: Model::OffsetAndAccBias,
-            // The seed paper's eq. 3; the drag model is an offline option.
-            drag_model: DragModel::Ignored,
+            // Drag, not noise or bias, is what limits eq. 3 on real throws (docs/benchmarks.md):
+            // a drag vector per throw, on the board as offline.
+            drag_model: DragModel::VerticalQuadratic,
             // Seed paper: 50 Hz offline. A tumble's content is a few Hz, so 50 Hz passes it with
             // negligible distortion while removing most of the differentiated gyro noise.
             cutoff_hz: 50.0,
@@ -220,17 +220,20 @@ impl Default for Config {
             trim_end_s: 0.06,
             // 20 ms ≈ 4.4 filter time constants at 50 Hz, short enough for ≥ 15 blocks per throw.
             block_s: 0.02,
-            // 150 ms: drag changes over the flight (∝ v², rotating with the spin at 1–3 rev/s),
-            // which 20 ms batches do not see. The length is what calibrates the ellipsoid of the
-            // default model (offset and bias with rest poses); longer batches have fewer degrees
-            // of freedom and a larger small-sample widening. Truth inside the 95 % ellipsoid:
+            // 160 ms (8 blocks): what the model leaves out (horizontal release speed, linear and
+            // anisotropic drag, the apex not exactly at mid-flight) changes over the flight and
+            // rotates with the spin at 1–3 rev/s, which 20 ms batches do not see. The length is
+            // what calibrates the ellipsoid (longer batches see more of it but have fewer degrees
+            // of freedom and a larger small-sample widening). Truth inside the 95 % ellipsoid of
+            // the default model (offset, bias and drag), 8 blocks / 9 blocks:
             // - 200 sessions on the built-in quads (`calibrate monte-carlo`, bias 0.02 / 0.2
-            //   m/s²): 95.3 / 94.0 % at 100 ms, 98.0 / 96.5 % at 150 ms, 100 / 98.7 % at 170 ms;
-            // - 200 synthetic two-throw fits with quadratic drag (`flight::testing`, 1 / 4 kHz):
-            //   81.5 % / — at 100 ms, 94.0 / 86.0 % at 140 ms, 96.0 / 88.5 % at 150 ms,
-            //   98.5 / 97.0 % at 170 ms, 100 % at 200 ms.
-            // 150 ms is where the two models of drag bracket 95 %.
-            long_batch_s: 0.15,
+            //   m/s²): 95.0 / 94.5 % and 96.5 / 97.0 %;
+            // - 300 synthetic sessions of issue 11's kind (`flight::testing`, vertical, drag
+            //   k = 0.01 / 0.05 /m; 17° from vertical, k = 0.03 /m): 95.3 / 92.3 / 95.7 % and
+            //   96.7 / 98.0 / 96.3 %.
+            // 8 blocks centres both families on 95 % (the semi-axes need × 0.97–1.07 for exactly
+            // 95 % against × 0.87–0.96 at 9 blocks).
+            long_batch_s: 0.16,
             // 2 mm, from what the offset is for: the identification compensates the
             // accelerometer to the centre of gravity, and an offset error δr adds `ΔΩ̇ × δr` to
             // every specific-force increment of a motor pulse, a relative error of up to

@@ -6,9 +6,10 @@
 //! needed, and `S` shows directly how much of `XᵀX` is left once constant parts are explained
 //! by a bias.
 //!
-//! With the drag model (`DragModel::VerticalQuadratic`, batch only) the sums are 6 × 6 quadratic
-//! forms in `θ = [r; b]` with each throw's drag vector already profiled out (`drag`); the fit
-//! solves them directly (`f64`), counting 3 unknowns per throw in every degree-of-freedom figure.
+//! With the drag model (`DragModel::VerticalQuadratic`, the default) the sums are 6 × 6 quadratic
+//! forms in `θ = [r; b]` with each throw's drag vector already profiled out (`drag`, `f64` on
+//! the board too: they are built once per throw); the fit solves them directly, counting 3
+//! unknowns per throw in every degree-of-freedom figure.
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
 
@@ -82,8 +83,8 @@ pub(crate) struct Problem<'a, T: Scalar> {
     pub block_len: u32,
     /// Reference offset the measurements are relative to (m).
     pub r_ref: Vector3<T>,
-    /// The drag-extended sums ([`DragModel::VerticalQuadratic`], batch fitter, `r_ref = 0`):
-    /// when present, the fit uses them instead of `rows` and `batches`.
+    /// The drag-profiled sums ([`DragModel::VerticalQuadratic`], relative to `r_ref`): when
+    /// present, the fit uses them instead of `rows` and `batches`.
     pub drag: Option<&'a DragSums>,
     /// The rest poses (`rest`), which the joint model uses for the accelerometer bias.
     pub rest: Option<RestModel<'a>>,

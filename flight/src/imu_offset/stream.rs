@@ -1,5 +1,6 @@
 //! The onboard estimator: free-fall detection, edge trimming and recursive accumulation, `f32`,
-//! constant memory (2.2 KB), no allocation, no panics.
+//! constant memory (15 KB, of which 10.6 KB hold the drag model's blocks of the throw in
+//! progress), no allocation, no panics.
 //!
 //! # Free-fall detection
 //! On the filtered, aligned signals, a sample is in free fall when
@@ -24,11 +25,13 @@
 //! [`OffsetRls`]-style update (build `X`, about 45 multiply-adds into `moments`). The update alone
 //! compiles to 145 Cortex-M7 instructions, branch-free (static count from `llvm-objdump` of
 //! `OffsetRls::update`, release, LTO, `-C target-cpu=cortex-m7`; to be confirmed by
-//! `cargo xtask bench-m7`). Once per block (20 ms) a merge of two moment sets; once per throw a
-//! 3 × 3 Cholesky solve to move the reference offset.
+//! `cargo xtask bench-m7`), and with the drag model a quaternion step and the drag columns' sums
+//! (`drag`). Once per block (20 ms) a merge of two moment sets; once per throw the drag model's
+//! fold (9 × 9 normal equations in `f64`) and a 3 × 3 Cholesky solve to move the reference offset.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
+use super::drag::{BlockDragSums, DragSums, DragThrow};
 use super::front_end::{regressor, AlignedSample, FrontEnd};
 use super::moments::{BatchMeans, Moments};
 use super::rest::{RestDetector, RestPoses};
@@ -45,18 +48,28 @@ const PENDING_CAPACITY: usize = 8;
 /// Shortest segment kept after trimming, in blocks (fewer cannot say much about `r`).
 const MIN_SEGMENT_BLOCKS: u32 = 2;
 
-/// Add one aligned sample as a row of eq. 3 relative to `r_ref`: `y' = f − X r_ref`.
+/// One aligned sample as a row of eq. 3 relative to `r_ref`: `(X, y' = f − X r_ref, Ω)`.
 /// Shared by the onboard and the batch estimator, so both use identical rows.
+#[inline]
+pub(crate) fn aligned_row<T: Scalar>(
+    s: &AlignedSample,
+    r_ref: &Vector3<T>,
+) -> (Matrix3<T>, Vector3<T>, Vector3<T>) {
+    let w = s.gyro_radps.map(T::from);
+    let w_dot = s.gyro_dot_radps2.map(T::from);
+    let x = regressor(&w, &w_dot);
+    let y = s.acc_mps2.map(T::from) - x * r_ref;
+    (x, y, w)
+}
+
+/// Add one aligned sample to `moments` as a row of eq. 3 relative to `r_ref`.
 #[inline]
 pub(crate) fn accumulate_aligned<T: Scalar>(
     moments: &mut Moments<T>,
     s: &AlignedSample,
     r_ref: &Vector3<T>,
 ) {
-    let w = s.gyro_radps.map(T::from);
-    let w_dot = s.gyro_dot_radps2.map(T::from);
-    let x = regressor(&w, &w_dot);
-    let y = s.acc_mps2.map(T::from) - x * r_ref;
+    let (x, y, _) = aligned_row(s, r_ref);
     moments.accumulate(&x, &y);
 }
 
@@ -104,6 +117,7 @@ enum Phase {
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct PendingBlock {
     moments: Moments<f32>,
+    drag: BlockDragSums<f32>,
     end: u32,
 }
 
@@ -139,6 +153,12 @@ pub struct ImuOffsetEstimator {
     /// Rest poses between throws (the accelerometer bias, see `rest`).
     rest: RestDetector,
     rest_poses: RestPoses,
+    /// The drag model ([`DragModel::VerticalQuadratic`]): the throw in progress, and every
+    /// accepted throw with its drag vector profiled out (relative to `r_ref_m`).
+    drag_throw: DragThrow<f32>,
+    drag: DragSums,
+    /// Free falls not used because they outlasted the drag model's block store.
+    throws_too_long: u32,
 }
 
 impl ImuOffsetEstimator {
@@ -146,9 +166,6 @@ impl ImuOffsetEstimator {
     pub fn new(rate_hz: f32, config: Config) -> Result<Self, ImuOffsetError> {
         if !(rate_hz.is_finite() && (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz)) {
             return Err(ImuOffsetError::RateOutOfRange { rate_hz });
-        }
-        if config.drag_model != DragModel::Ignored {
-            return Err(ImuOffsetError::InvalidConfig("drag_model is for the batch fitter only"));
         }
         let front = FrontEnd::new(config.cutoff_hz, rate_hz)
             .map_err(|_| ImuOffsetError::InvalidConfig("cutoff_hz must be in (0, rate/4]"))?;
@@ -189,7 +206,7 @@ impl ImuOffsetEstimator {
             return Err(ImuOffsetError::InvalidConfig("long_batch_s must be 1 to 1000 blocks"));
         }
         let group = group as u32;
-        let empty = PendingBlock { moments: Moments::new(), end: 0 };
+        let empty = PendingBlock { moments: Moments::new(), drag: BlockDragSums::new(), end: 0 };
         Ok(Self {
             config,
             rate_hz,
@@ -215,6 +232,9 @@ impl ImuOffsetEstimator {
             segments_ignored: 0,
             rest: RestDetector::new(rate_hz, config.gravity_mps2),
             rest_poses: RestPoses::new(),
+            drag_throw: DragThrow::new(rate_hz),
+            drag: DragSums::new(),
+            throws_too_long: 0,
         })
     }
 
@@ -268,7 +288,7 @@ impl ImuOffsetEstimator {
             batches: &self.batches,
             block_len: self.block_len,
             r_ref: self.r_ref_m,
-            drag: None,
+            drag: self.drag_modelled().then_some(&self.drag),
             rest: Some(self.rest_poses.model(&self.config)),
         };
         solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
@@ -292,6 +312,16 @@ impl ImuOffsetEstimator {
     /// Throws accepted after [`MAX_SEGMENTS`] was reached, and therefore ignored.
     pub fn segments_ignored(&self) -> u32 {
         self.segments_ignored
+    }
+
+    /// Free falls not used because they lasted longer than the drag model keeps
+    /// ([`MAX_THROW_BLOCKS`](super::MAX_THROW_BLOCKS) blocks: 1.6 s at the default block length).
+    pub fn throws_too_long(&self) -> u32 {
+        self.throws_too_long
+    }
+
+    fn drag_modelled(&self) -> bool {
+        self.config.drag_model == DragModel::VerticalQuadratic
     }
 
     /// True while a free fall is in progress.
@@ -354,7 +384,11 @@ impl ImuOffsetEstimator {
             Phase::Falling { start } if !free => self.end_free_fall(start, s.index),
             Phase::Falling { start } => {
                 if s.index >= start.saturating_add(self.trim_start_len) {
-                    accumulate_aligned(&mut self.block, s, &self.r_ref_m);
+                    let (x, y, w) = aligned_row(s, &self.r_ref_m);
+                    self.block.accumulate(&x, &y);
+                    if self.drag_modelled() {
+                        self.drag_throw.add_row(&x, &y, &w);
+                    }
                     if self.block.count >= self.block_len {
                         let end = s.index.saturating_add(1);
                         self.push_pending(end);
@@ -381,6 +415,7 @@ impl ImuOffsetEstimator {
         self.segment_batches = BatchMeans::new(self.batches.group);
         self.segment_first = start.saturating_add(self.trim_start_len);
         self.segment_end = self.segment_first;
+        self.drag_throw.begin();
     }
 
     fn abandon_free_fall(&mut self) {
@@ -391,13 +426,14 @@ impl ImuOffsetEstimator {
 
     fn push_pending(&mut self, end: u32) {
         let block = core::mem::replace(&mut self.block, Moments::new());
+        let drag = self.drag_throw.take_block();
         if self.pending_len >= PENDING_CAPACITY {
             // Unreachable with a validated configuration; dropping keeps the rollback safe.
             return;
         }
         let slot = (self.pending_head + self.pending_len) % PENDING_CAPACITY;
         if let Some(p) = self.pending.get_mut(slot) {
-            *p = PendingBlock { moments: block, end };
+            *p = PendingBlock { moments: block, drag, end };
             self.pending_len += 1;
         }
     }
@@ -412,6 +448,10 @@ impl ImuOffsetEstimator {
             }
             self.segment_rows.merge(&oldest.moments);
             self.segment_batches.add_block(&oldest.moments);
+            if self.drag_modelled() {
+                let m = &oldest.moments;
+                self.drag_throw.commit(&m.xsum, &m.ysum, oldest.drag);
+            }
             self.segment_end = oldest.end;
             self.pending_head = (self.pending_head + 1) % PENDING_CAPACITY;
             self.pending_len -= 1;
@@ -427,6 +467,10 @@ impl ImuOffsetEstimator {
         if !long_enough {
             return None;
         }
+        if self.drag_modelled() && self.drag_throw.overflowed() {
+            self.throws_too_long = self.throws_too_long.saturating_add(1);
+            return None;
+        }
         let segment = Segment { start_index: self.segment_first, end_index: self.segment_end };
         let Some(slot) = self.segments.get_mut(self.segments_len) else {
             self.segments_ignored = self.segments_ignored.saturating_add(1);
@@ -436,11 +480,17 @@ impl ImuOffsetEstimator {
         self.segments_len += 1;
         self.rows.merge(&self.segment_rows);
         self.batches.merge(&self.segment_batches);
+        if self.drag_modelled() {
+            let (rows, group) = (&self.segment_rows, self.batches.group);
+            let throw = &self.drag_throw;
+            self.drag.add_throw(throw, rows, &segment, self.block_len, group, self.rate_hz);
+        }
         // Move the reference to the new estimate so later sums stay small (f32 precision).
         if let Some(r) = solve::offset_only(&self.rows, &self.r_ref_m) {
             let delta = r - self.r_ref_m;
             self.rows.recentre(&delta);
             self.batches.recentre(&delta);
+            self.drag.recentre(&delta.cast::<f64>());
             self.r_ref_m = r;
         }
         Some(segment)

@@ -369,33 +369,59 @@ fn vertical_drag_model_removes_most_of_the_drag_error() {
     assert!(modelled < 0.5 * ignored, "{modelled} mm vs {ignored} mm");
 }
 
-/// Monte Carlo: how often does the truth lie inside the reported 95 % ellipsoid?
-/// Returns (corrected coverage, paper-formula coverage).
-fn coverage(trials: u32, rate_hz: f64, seed: u64, drag_per_m: f64) -> (f64, f64) {
+/// Coverage of one set of fits: the share with the truth inside the reported 95 % ellipsoid, the
+/// same for the paper's white-noise ellipsoid, and the factor the reported semi-axes would need
+/// for exactly 95 % (below 1: too wide).
+struct Coverage {
+    reported: f64,
+    paper: f64,
+    axes_factor: f64,
+}
+
+/// Monte Carlo over calibration sessions of the kind a user makes (and issue 11 describes): two
+/// vertical throw-and-catches, apex 0.8–1.5 m (0.81–1.11 s of free fall), 300–600 °/s about
+/// random axes at least 50° apart, held still 0.6 s before and after each throw, quadratic drag
+/// `k` (1/m), a constant accelerometer bias of 0.02 m/s² per axis (1σ), gyro noise 0.002 rad/s
+/// and accelerometer noise 0.03 m/s² per sample, 16-bit quantisation; random offsets up to 2 cm
+/// and principal axes; `horizontal_fraction` of the release speed is horizontal.
+fn coverage(trials: u32, rate_hz: f64, seed: u64, drag_per_m: f64, horizontal: f64) -> Coverage {
     let chi2 = f64::from(CHI2_3DOF_95);
     let mut rng = Rng::new(seed);
     let (mut inside, mut inside_paper) = (0u32, 0u32);
+    let mut normalised = Vec::new();
     for trial in 0..trials {
         // Within the detector's envelope: |r| (|Ω̇| + |Ω|²) stays below the 0.6 g ceiling.
         let r = rng.unit_vector() * rng.range(0.0, 0.02);
         let axes = UnitQuaternion::from_scaled_axis(
             rng.unit_vector() * rng.range(0.0, core::f64::consts::PI),
         );
-        let spin_a = rng.unit_vector() * rng.range(7.0, 13.0);
-        // The second throw about an axis at least 45° from the first.
+        let spin_a = rng.unit_vector();
         let spin_b = loop {
             let v = rng.unit_vector();
-            if angle_deg(&v, &spin_a) > 45.0 {
-                break v * rng.range(7.0, 13.0);
+            if angle_deg(&v, &spin_a) > 50.0 {
+                break v;
             }
         };
+        let bias = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.02;
         let seed_a = seed.wrapping_mul(1000).wrapping_add(u64::from(trial) * 2);
-        let mut sa = ThrowSpec::typical(rate_hz, r, axes, spin_a, seed_a);
-        let mut sb = ThrowSpec::typical(rate_hz, r, axes, spin_b, seed_a + 1);
-        sa.drag_per_m = drag_per_m;
-        sb.drag_per_m = drag_per_m;
-        let (a, b): (Vec<_>, Vec<_>) = (sa.samples().collect(), sb.samples().collect());
-        let est = batch_fit(&[&a, &b], rate_hz, Config::default()).estimate().unwrap();
+        let logs: Vec<Vec<ImuSample>> = [(spin_a, seed_a), (spin_b, seed_a + 1)]
+            .into_iter()
+            .map(|(axis, noise_seed)| {
+                let rate_radps = rng.range(300.0, 600.0).to_radians();
+                let mut spec = ThrowSpec::typical(rate_hz, r, axes, axis * rate_radps, noise_seed);
+                let apex_m = rng.range(0.8, 1.5);
+                let speed_mps = libm::sqrt(2.0 * crate::testing::throws::G_MPS2 * apex_m);
+                spec.free_fall_s = 2.0 * speed_mps / crate::testing::throws::G_MPS2;
+                spec.windup_peak_mps2 = 2.0 * speed_mps / spec.windup_s;
+                spec.throw_dir_world = Vector3::new(horizontal, 0.0, -1.0).normalize();
+                spec.drag_per_m = drag_per_m;
+                spec.acc_bias_mps2 = bias;
+                spec.rest_before_s = 0.6;
+                spec.rest_after_s = 0.6;
+                samples(&spec)
+            })
+            .collect();
+        let est = batch_fit(&[&logs[0], &logs[1]], rate_hz, Config::default()).estimate().unwrap();
         let e = est.r_imu_m - r;
         let (Some(inv), Some(inv_paper)) =
             (est.covariance_m2.try_inverse(), est.white_noise_covariance_m2.try_inverse())
@@ -404,49 +430,74 @@ fn coverage(trials: u32, rate_hz: f64, seed: u64, drag_per_m: f64) -> (f64, f64)
         };
         inside += u32::from(e.dot(&(inv * e)) <= chi2);
         inside_paper += u32::from(e.dot(&(inv_paper * e)) <= chi2);
+        normalised.push(e.dot(&(inv * e)) / chi2);
     }
-    (f64::from(inside) / f64::from(trials), f64::from(inside_paper) / f64::from(trials))
+    normalised.sort_by(f64::total_cmp);
+    let p95 = normalised.get(normalised.len() * 95 / 100).copied().unwrap_or(f64::NAN);
+    Coverage {
+        reported: f64::from(inside) / f64::from(trials),
+        paper: f64::from(inside_paper) / f64::from(trials),
+        axes_factor: libm::sqrt(p95),
+    }
 }
 
 #[test]
 fn ellipsoid_coverage_is_about_95_percent() {
-    // 200 random two-throw fits per case (random r up to 2 cm, random principal axes, random spin
-    // axes at least 45° apart, 7–13 rad/s). The binomial standard error at 95 % is 1.5 %, so
-    // ±3σ is [90.4 %, 99.6 %]. With drag (a per-throw systematic error the residuals reveal only
-    // partly) we accept down to 88 %. Without drag or bias the ellipsoid is conservative: the
-    // small-sample widening (few 150 ms batches per throw) assumes systematic errors that are
-    // absent here, and 197–200 of 200 fits land inside; the upper bound is therefore 100 % for
-    // that case only. (Default model: offset and bias with the rest poses of each throw.) The 95 % band with realistic drag and bias is held by the simulator test
-    // `tests/tests/imu_offset_coverage.rs`. The seed paper's white-noise ellipsoid is far below
-    // every case.
-    let trials = 200;
-    for (rate_hz, seed, drag_per_m, lowest, highest) in [
-        (1000.0, 71, 0.0, 0.90, 1.0),
-        (1000.0, 72, 0.01, 0.88, 0.996),
-        (4000.0, 73, 0.01, 0.88, 0.996),
-    ] {
-        let (corrected, paper) = coverage(trials, rate_hz, seed, drag_per_m);
+    // 100 sessions per case at 2 kHz (`coverage`). The binomial standard error at 95 % is 2.2 %
+    // with 100 fits; the band asserted, 90–99 %, is about ±2σ around 95 % (and excludes the
+    // 100 % of an ellipsoid that is merely safe). The drag model takes out vertical quadratic
+    // drag; a horizontal release speed (the third case: 0.3 of it, 17° from vertical) is not
+    // modelled, and the long batches widen the ellipsoid for it. Release figures (200 sessions,
+    // `cargo test -p flight --release ellipsoid_coverage -- --nocapture` with `trials = 200`) are
+    // in docs/benchmarks.md. The seed paper's white-noise ellipsoid is far below every case.
+    let trials = 100;
+    for (seed, drag_per_m, horizontal) in [(71, 0.01, 0.0), (72, 0.05, 0.0), (73, 0.03, 0.3)] {
+        let c = coverage(trials, 2000.0, seed, drag_per_m, horizontal);
         eprintln!(
-            "{rate_hz} Hz, drag k = {drag_per_m} /m, {trials} two-throw fits: truth inside the \
-             95 % ellipsoid {:.1} % (corrected), {:.1} % (paper's SE² (XᵀX)⁻¹)",
-            100.0 * corrected,
-            100.0 * paper
+            "drag k = {drag_per_m} /m, horizontal {horizontal}, {trials} sessions: truth inside \
+             the 95 % ellipsoid {:.1} % (axes × {:.2} for exactly 95 %), {:.1} % for the \
+             paper's SE² (XᵀX)⁻¹",
+            100.0 * c.reported,
+            c.axes_factor,
+            100.0 * c.paper
         );
-        assert!((lowest..=highest).contains(&corrected), "coverage {corrected}");
-        assert!(paper < 0.5, "the uncorrected ellipsoid should be overconfident here");
+        assert!((0.90..=0.99).contains(&c.reported), "coverage {}", c.reported);
+        assert!(c.paper < 0.5, "the uncorrected ellipsoid should be overconfident here");
     }
 }
 
 #[test]
 fn onboard_state_is_small() {
-    // Constant memory, small enough for the control task's RAM budget.
+    // Constant memory: 3 KB of sums and the drag model's store of one throw's blocks
+    // (`MAX_THROW_BLOCKS` × 33 f32 = 10.6 KB).
     let bytes = core::mem::size_of::<ImuOffsetEstimator>();
     eprintln!("ImuOffsetEstimator: {bytes} bytes");
-    assert!(bytes < 4096, "{bytes} bytes");
-    // The offline fitter, drag sums included, is still a small fixed-size value.
+    assert!(bytes < 16 * 1024, "{bytes} bytes");
+    // The offline fitter keeps the throw in progress on the stack only while reading a log.
     let batch = core::mem::size_of::<BatchFitter>();
     eprintln!("BatchFitter: {batch} bytes");
     assert!(batch < 16384, "{batch} bytes");
+}
+
+#[test]
+fn a_free_fall_longer_than_the_drag_store_is_counted_not_used() {
+    // 1.9 s of free fall (an 4.4 m apex) outlasts the 80 blocks of 20 ms the drag model keeps:
+    // the throw is counted as too long, by the board and offline alike; without the drag model
+    // the same throw is used.
+    let rate_hz = 2000.0;
+    let mut spec = throw(rate_hz, spin_about(2, 10.0, 0.3), 85);
+    spec.free_fall_s = 1.9;
+    spec.windup_peak_mps2 = 2.0 * (crate::testing::throws::G_MPS2 * 0.95) / spec.windup_s;
+    let data = samples(&spec);
+    let board = stream_fit(&data, rate_hz, Config::default());
+    assert_eq!((board.segments().len(), board.throws_too_long()), (0, 1));
+    let host = batch_fit(&[&data], rate_hz, Config::default());
+    assert!(host.segments().is_empty());
+    let ignored = Config { drag_model: DragModel::Ignored, ..Config::default() };
+    let board = stream_fit(&data, rate_hz, ignored);
+    assert_eq!((board.segments().len(), board.throws_too_long()), (1, 0));
+    let used_s = board.segments()[0].len() as f64 / rate_hz;
+    assert!(used_s > 1.6, "{used_s} s used");
 }
 
 #[test]
@@ -457,9 +508,6 @@ fn errors_are_typed() {
         ImuOffsetEstimator::new(100.0, Config::default()),
         Err(ImuOffsetError::RateOutOfRange { .. })
     ));
-    // The drag model is offline only.
-    let drag = Config { drag_model: DragModel::VerticalQuadratic, ..Config::default() };
-    assert!(matches!(ImuOffsetEstimator::new(2000.0, drag), Err(ImuOffsetError::InvalidConfig(_))));
     // Held still: no free fall.
     let mut still = throw(rate_hz, Vector3::zeros(), 81);
     still.windup_peak_mps2 = 0.0;

@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! cargo run -p sim --release --bin calibrate -- monte-carlo --sessions 200 --bias 0.02
-//! cargo run -p sim --release --bin calibrate -- monte-carlo --airframe hex-flat --drag
+//! cargo run -p sim --release --bin calibrate -- monte-carlo --airframe hex-flat --no-drag
 //! ```
 
 use std::process::ExitCode;
@@ -41,9 +41,10 @@ enum Command {
         /// One airframe for every session (a built-in name or a TOML file) instead of the quads.
         #[arg(long)]
         airframe: Option<String>,
-        /// Fit with the per-throw drag model, as `fit imu-offset --drag` (offline only).
+        /// Fit without the per-throw drag model (the seed paper's eq. 3), as
+        /// `fit imu-offset --no-drag`.
         #[arg(long)]
-        drag: bool,
+        no_drag: bool,
         /// Print every session's result.
         #[arg(long)]
         verbose: bool,
@@ -51,7 +52,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let Command::MonteCarlo { sessions, bias, seed, threads, airframe, drag, verbose } =
+    let Command::MonteCarlo { sessions, bias, seed, threads, airframe, no_drag, verbose } =
         Args::parse().command;
     if !(bias.is_finite() && (0.0..=1.0).contains(&bias)) {
         eprintln!("calibrate: --bias must be within 0–1 m/s² (got {bias})");
@@ -70,7 +71,7 @@ fn main() -> ExitCode {
         None => AIRFRAMES.join(", "),
     };
     let started = std::time::Instant::now();
-    let drag_model = if drag { DragModel::VerticalQuadratic } else { DragModel::Ignored };
+    let drag_model = if no_drag { DragModel::Ignored } else { DragModel::VerticalQuadratic };
     let plan = Plan { bias_sigma_mps2: bias, airframe: airframe.as_ref(), drag_model };
     let results = monte_carlo(sessions, seed, &plan, threads, &|done| {
         if done % 20 == 0 || done == sessions {
