@@ -124,6 +124,10 @@ mod app {
         telemetry: StepConsumer<'static>,
         /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads).
         settings: Settings<ConfigSectors>,
+        /// The learner, the thrust-axis solver and the IMU-offset estimator (with the drag
+        /// model's store of a throw's blocks): 30 KB that only the lowest-priority task touches,
+        /// in AXI SRAM so that DTCM keeps room for the stack (docs/budget.md).
+        #[link_section = ".axisram.background"]
         background: Background<'static>,
     }
 

@@ -179,8 +179,18 @@ impl<'q> Background<'q> {
         self.results.calibration = None;
     }
 
+    // Not inlined: a first construction builds the estimator by value, and its temporaries
+    // would otherwise stay in the frame of every caller (the background task's worst path).
+    #[inline(never)]
     fn restart_imu_offset(&mut self) {
-        self.imu_offset = ImuOffsetEstimator::new(self.rate_hz, self.imu_offset_config).ok();
+        // In place: the estimator is 15 KB, too large for a temporary on this task's stack.
+        let restarted = match &mut self.imu_offset {
+            Some(estimator) => estimator.restart(self.imu_offset_config).is_ok(),
+            None => false,
+        };
+        if !restarted {
+            self.imu_offset = ImuOffsetEstimator::new(self.rate_hz, self.imu_offset_config).ok();
+        }
         self.results.imu_offset = ImuOffsetStatus::default();
         self.previous_t_us = None;
     }

@@ -126,47 +126,29 @@ struct PendingBlock {
 pub struct ImuOffsetEstimator {
     config: Config,
     rate_hz: f32,
+    settings: Settings,
+    state: State,
+    /// The drag model's store of the throw in progress ([`DragModel::VerticalQuadratic`]):
+    /// 10.6 KB, kept out of [`State`] so that a restart clears it in place.
+    drag_throw: DragThrow<f32>,
+}
+
+/// What the configuration fixes, validated: sample counts and the front end's design.
+#[derive(Debug, Clone, Copy)]
+struct Settings {
+    /// The front end as configured, before any sample.
     front: FrontEnd,
     trim_start_len: u32,
     trim_end_len: u32,
     block_len: u32,
     min_free_fall_len: u32,
-    phase: Phase,
-    /// Reference offset the moments are relative to (m); moved to `r̂` after each throw.
-    r_ref_m: Vector3<f32>,
-    block: Moments<f32>,
-    /// FIFO of finished blocks: `pending[(pending_head + k) % PENDING_CAPACITY]`, `k < pending_len`.
-    pending: [PendingBlock; PENDING_CAPACITY],
-    pending_head: usize,
-    pending_len: usize,
-    /// Committed rows and block sums of the throw in progress, and its first used / next index.
-    segment_rows: Moments<f32>,
-    segment_batches: BatchMeans<f32>,
-    segment_first: u32,
-    segment_end: u32,
-    /// All accepted throws.
-    rows: Moments<f32>,
-    batches: BatchMeans<f32>,
-    segments: [Segment; MAX_SEGMENTS],
-    segments_len: usize,
-    segments_ignored: u32,
-    /// Rest poses between throws (the accelerometer bias, see `rest`).
-    rest: RestDetector,
-    rest_poses: RestPoses,
-    /// The drag model ([`DragModel::VerticalQuadratic`]): the throw in progress, and every
-    /// accepted throw with its drag vector profiled out (relative to `r_ref_m`).
-    drag_throw: DragThrow<f32>,
-    drag: DragSums,
-    /// Free falls not used because they outlasted the drag model's block store.
-    throws_too_long: u32,
+    /// Blocks per long batch.
+    group: u32,
 }
 
-impl ImuOffsetEstimator {
-    /// An estimator for a stream at `rate_hz` (500 Hz – 8 kHz).
-    pub fn new(rate_hz: f32, config: Config) -> Result<Self, ImuOffsetError> {
-        if !(rate_hz.is_finite() && (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz)) {
-            return Err(ImuOffsetError::RateOutOfRange { rate_hz });
-        }
+impl Settings {
+    /// Validate `config` for a stream at `rate_hz`.
+    fn new(rate_hz: f32, config: &Config) -> Result<Self, ImuOffsetError> {
         let front = FrontEnd::new(config.cutoff_hz, rate_hz)
             .map_err(|_| ImuOffsetError::InvalidConfig("cutoff_hz must be in (0, rate/4]"))?;
         let samples = |seconds: f32, what: &'static str| {
@@ -205,16 +187,55 @@ impl ImuOffsetEstimator {
         if !(1.0..=1000.0).contains(&group) {
             return Err(ImuOffsetError::InvalidConfig("long_batch_s must be 1 to 1000 blocks"));
         }
-        let group = group as u32;
-        let empty = PendingBlock { moments: Moments::new(), drag: BlockDragSums::new(), end: 0 };
         Ok(Self {
-            config,
-            rate_hz,
             front,
             trim_start_len,
             trim_end_len,
             block_len,
             min_free_fall_len,
+            group: group as u32,
+        })
+    }
+}
+
+/// Everything the stream has taught the estimator (3.6 KB), cleared by a restart.
+#[derive(Debug, Clone)]
+struct State {
+    front: FrontEnd,
+    phase: Phase,
+    /// Reference offset the moments are relative to (m); moved to `r̂` after each throw.
+    r_ref_m: Vector3<f32>,
+    block: Moments<f32>,
+    /// FIFO of finished blocks: `pending[(pending_head + k) % PENDING_CAPACITY]`, `k < pending_len`.
+    pending: [PendingBlock; PENDING_CAPACITY],
+    pending_head: usize,
+    pending_len: usize,
+    /// Committed rows and block sums of the throw in progress, and its first used / next index.
+    segment_rows: Moments<f32>,
+    segment_batches: BatchMeans<f32>,
+    segment_first: u32,
+    segment_end: u32,
+    /// All accepted throws.
+    rows: Moments<f32>,
+    batches: BatchMeans<f32>,
+    segments: [Segment; MAX_SEGMENTS],
+    segments_len: usize,
+    segments_ignored: u32,
+    /// Rest poses between throws (the accelerometer bias, see `rest`).
+    rest: RestDetector,
+    rest_poses: RestPoses,
+    /// Every accepted throw with its drag vector profiled out (relative to `r_ref_m`), with
+    /// [`DragModel::VerticalQuadratic`].
+    drag: DragSums,
+    /// Free falls not used because they outlasted the drag model's block store.
+    throws_too_long: u32,
+}
+
+impl State {
+    fn new(settings: &Settings, rate_hz: f32, gravity_mps2: f32) -> Self {
+        let empty = PendingBlock { moments: Moments::new(), drag: BlockDragSums::new(), end: 0 };
+        Self {
+            front: settings.front,
             phase: Phase::Held,
             r_ref_m: Vector3::zeros(),
             block: Moments::new(),
@@ -222,20 +243,48 @@ impl ImuOffsetEstimator {
             pending_head: 0,
             pending_len: 0,
             segment_rows: Moments::new(),
-            segment_batches: BatchMeans::new(group),
+            segment_batches: BatchMeans::new(settings.group),
             segment_first: 0,
             segment_end: 0,
             rows: Moments::new(),
-            batches: BatchMeans::new(group),
+            batches: BatchMeans::new(settings.group),
             segments: [Segment { start_index: 0, end_index: 0 }; MAX_SEGMENTS],
             segments_len: 0,
             segments_ignored: 0,
-            rest: RestDetector::new(rate_hz, config.gravity_mps2),
+            rest: RestDetector::new(rate_hz, gravity_mps2),
             rest_poses: RestPoses::new(),
-            drag_throw: DragThrow::new(rate_hz),
             drag: DragSums::new(),
             throws_too_long: 0,
+        }
+    }
+}
+
+impl ImuOffsetEstimator {
+    /// An estimator for a stream at `rate_hz` (500 Hz – 8 kHz).
+    pub fn new(rate_hz: f32, config: Config) -> Result<Self, ImuOffsetError> {
+        if !(rate_hz.is_finite() && (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz)) {
+            return Err(ImuOffsetError::RateOutOfRange { rate_hz });
+        }
+        let settings = Settings::new(rate_hz, &config)?;
+        Ok(Self {
+            config,
+            rate_hz,
+            state: State::new(&settings, rate_hz, config.gravity_mps2),
+            settings,
+            drag_throw: DragThrow::new(rate_hz),
         })
+    }
+
+    /// Forget everything and start again with `config`, in place (the board's background task
+    /// restarts a calibration without a 15 KB temporary on its stack). An invalid `config` is
+    /// refused and changes nothing.
+    pub fn restart(&mut self, config: Config) -> Result<(), ImuOffsetError> {
+        let settings = Settings::new(self.rate_hz, &config)?;
+        self.state = State::new(&settings, self.rate_hz, config.gravity_mps2);
+        self.settings = settings;
+        self.config = config;
+        self.drag_throw.begin();
+        Ok(())
     }
 
     /// Feed the next raw sample (the control-rate path: bounded time, no allocation, no panic).
@@ -245,21 +294,21 @@ impl ImuOffsetEstimator {
     /// restart; sample indices keep counting so later segments still map to stream time.
     pub fn update(&mut self, sample: &ImuSample) -> Result<Option<Segment>, ImuOffsetError> {
         if let Err(e) = validate_sample(sample, self.next_index()) {
-            self.front.skip();
-            self.front.restart();
+            self.state.front.skip();
+            self.state.front.restart();
             self.abandon_free_fall();
             self.end_rest();
             return Err(e);
         }
-        Ok(self.front.update(sample).and_then(|s| self.process(&s)))
+        Ok(self.state.front.update(sample).and_then(|s| self.process(&s)))
     }
 
     /// `missing` samples were lost upstream (a gap in the stream): the filters restart and a
     /// throw in progress is abandoned, since Ω̇ and the filtered signals across a gap would be
     /// wrong; indices skip the gap so later segments still map to stream time.
     pub fn gap(&mut self, missing: u32) {
-        self.front.skip_many(missing);
-        self.front.restart();
+        self.state.front.skip_many(missing);
+        self.state.front.restart();
         self.abandon_free_fall();
         self.end_rest();
     }
@@ -268,7 +317,7 @@ impl ImuOffsetEstimator {
     /// so does a rest pose.
     pub fn finish(&mut self) -> Option<Segment> {
         self.end_rest();
-        match self.phase {
+        match self.state.phase {
             Phase::Falling { start } => {
                 let end = self.next_index().saturating_sub(1);
                 self.end_free_fall(start, end)
@@ -280,44 +329,44 @@ impl ImuOffsetEstimator {
     /// The estimate over all accepted throws so far (call from a background task: it performs
     /// two 3 × 3 solves and a 3 × 3 eigen-decomposition).
     pub fn estimate(&self) -> Result<Estimate<f32>, ImuOffsetError> {
-        if self.segments_len == 0 {
+        if self.state.segments_len == 0 {
             return Err(ImuOffsetError::NoFreeFall);
         }
         let problem = Problem {
-            rows: &self.rows,
-            batches: &self.batches,
-            block_len: self.block_len,
-            r_ref: self.r_ref_m,
-            drag: self.drag_modelled().then_some(&self.drag),
-            rest: Some(self.rest_poses.model(&self.config)),
+            rows: &self.state.rows,
+            batches: &self.state.batches,
+            block_len: self.settings.block_len,
+            r_ref: self.state.r_ref_m,
+            drag: self.drag_modelled().then_some(&self.state.drag),
+            rest: Some(self.state.rest_poses.model(&self.config)),
         };
         solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
     }
 
     /// Rest poses found so far (each an attitude held still; see `rest`).
     pub fn rest_poses(&self) -> u32 {
-        self.rest_poses.as_slice().len() as u32
+        self.state.rest_poses.as_slice().len() as u32
     }
 
     /// The rest poses, for the batch fitter (which uses exactly the poses found here).
     pub(crate) fn rest_pose_list(&self) -> &RestPoses {
-        &self.rest_poses
+        &self.state.rest_poses
     }
 
     /// The accepted throws, in order.
     pub fn segments(&self) -> &[Segment] {
-        self.segments.get(..self.segments_len).unwrap_or(&[])
+        self.state.segments.get(..self.state.segments_len).unwrap_or(&[])
     }
 
     /// Throws accepted after [`MAX_SEGMENTS`] was reached, and therefore ignored.
     pub fn segments_ignored(&self) -> u32 {
-        self.segments_ignored
+        self.state.segments_ignored
     }
 
     /// Free falls not used because they lasted longer than the drag model keeps
     /// ([`MAX_THROW_BLOCKS`](super::MAX_THROW_BLOCKS) blocks: 1.6 s at the default block length).
     pub fn throws_too_long(&self) -> u32 {
-        self.throws_too_long
+        self.state.throws_too_long
     }
 
     fn drag_modelled(&self) -> bool {
@@ -326,12 +375,12 @@ impl ImuOffsetEstimator {
 
     /// True while a free fall is in progress.
     pub fn in_free_fall(&self) -> bool {
-        matches!(self.phase, Phase::Falling { .. })
+        matches!(self.state.phase, Phase::Falling { .. })
     }
 
     /// Samples (rows of eq. 3) in the accepted throws.
     pub fn samples_used(&self) -> u32 {
-        self.rows.count
+        self.state.rows.count
     }
 
     /// The stream's sample rate (Hz).
@@ -346,21 +395,21 @@ impl ImuOffsetEstimator {
 
     /// Shortest accepted free fall (samples).
     pub(crate) fn min_free_fall_len(&self) -> u32 {
-        self.min_free_fall_len
+        self.settings.min_free_fall_len
     }
 
     /// Blocks per long batch of the batch-means variance.
     pub(crate) fn long_batch_blocks(&self) -> u32 {
-        self.batches.group
+        self.state.batches.group
     }
 
     /// Rows per block (samples).
     pub(crate) fn block_len(&self) -> u32 {
-        self.block_len
+        self.settings.block_len
     }
 
     fn next_index(&self) -> u32 {
-        self.front.next_index()
+        self.state.front.next_index()
     }
 
     fn is_free_fall(&self, s: &AlignedSample) -> bool {
@@ -371,25 +420,25 @@ impl ImuOffsetEstimator {
 
     fn process(&mut self, s: &AlignedSample) -> Option<Segment> {
         let free = self.is_free_fall(s);
-        match self.phase {
+        match self.state.phase {
             Phase::Held => {
                 if free {
                     self.end_rest();
                     self.begin_free_fall(s.index);
-                } else if let Some(pose) = self.rest.update(s) {
-                    self.rest_poses.push(pose);
+                } else if let Some(pose) = self.state.rest.update(s) {
+                    self.state.rest_poses.push(pose);
                 }
                 None
             }
             Phase::Falling { start } if !free => self.end_free_fall(start, s.index),
             Phase::Falling { start } => {
-                if s.index >= start.saturating_add(self.trim_start_len) {
-                    let (x, y, w) = aligned_row(s, &self.r_ref_m);
-                    self.block.accumulate(&x, &y);
+                if s.index >= start.saturating_add(self.settings.trim_start_len) {
+                    let (x, y, w) = aligned_row(s, &self.state.r_ref_m);
+                    self.state.block.accumulate(&x, &y);
                     if self.drag_modelled() {
                         self.drag_throw.add_row(&x, &y, &w);
                     }
-                    if self.block.count >= self.block_len {
+                    if self.state.block.count >= self.settings.block_len {
                         let end = s.index.saturating_add(1);
                         self.push_pending(end);
                     }
@@ -402,59 +451,59 @@ impl ImuOffsetEstimator {
 
     /// A rest pose in progress ends; it is kept when long enough.
     fn end_rest(&mut self) {
-        if let Some(pose) = self.rest.end() {
-            self.rest_poses.push(pose);
+        if let Some(pose) = self.state.rest.end() {
+            self.state.rest_poses.push(pose);
         }
     }
 
     fn begin_free_fall(&mut self, start: u32) {
-        self.phase = Phase::Falling { start };
-        self.block = Moments::new();
-        self.pending_len = 0;
-        self.segment_rows = Moments::new();
-        self.segment_batches = BatchMeans::new(self.batches.group);
-        self.segment_first = start.saturating_add(self.trim_start_len);
-        self.segment_end = self.segment_first;
+        self.state.phase = Phase::Falling { start };
+        self.state.block = Moments::new();
+        self.state.pending_len = 0;
+        self.state.segment_rows = Moments::new();
+        self.state.segment_batches = BatchMeans::new(self.state.batches.group);
+        self.state.segment_first = start.saturating_add(self.settings.trim_start_len);
+        self.state.segment_end = self.state.segment_first;
         self.drag_throw.begin();
     }
 
     fn abandon_free_fall(&mut self) {
-        self.phase = Phase::Held;
-        self.block = Moments::new();
-        self.pending_len = 0;
+        self.state.phase = Phase::Held;
+        self.state.block = Moments::new();
+        self.state.pending_len = 0;
     }
 
     fn push_pending(&mut self, end: u32) {
-        let block = core::mem::replace(&mut self.block, Moments::new());
+        let block = core::mem::replace(&mut self.state.block, Moments::new());
         let drag = self.drag_throw.take_block();
-        if self.pending_len >= PENDING_CAPACITY {
+        if self.state.pending_len >= PENDING_CAPACITY {
             // Unreachable with a validated configuration; dropping keeps the rollback safe.
             return;
         }
-        let slot = (self.pending_head + self.pending_len) % PENDING_CAPACITY;
-        if let Some(p) = self.pending.get_mut(slot) {
+        let slot = (self.state.pending_head + self.state.pending_len) % PENDING_CAPACITY;
+        if let Some(p) = self.state.pending.get_mut(slot) {
             *p = PendingBlock { moments: block, drag, end };
-            self.pending_len += 1;
+            self.state.pending_len += 1;
         }
     }
 
     /// Commit every waiting block that ends at least `trim_end_len` before `limit` (the first index
     /// that may be contaminated by the catch is `limit` or later).
     fn commit_ready(&mut self, limit: u32) {
-        while self.pending_len > 0 {
-            let Some(&oldest) = self.pending.get(self.pending_head) else { return };
-            if oldest.end.saturating_add(self.trim_end_len) > limit {
+        while self.state.pending_len > 0 {
+            let Some(&oldest) = self.state.pending.get(self.state.pending_head) else { return };
+            if oldest.end.saturating_add(self.settings.trim_end_len) > limit {
                 return;
             }
-            self.segment_rows.merge(&oldest.moments);
-            self.segment_batches.add_block(&oldest.moments);
+            self.state.segment_rows.merge(&oldest.moments);
+            self.state.segment_batches.add_block(&oldest.moments);
             if self.drag_modelled() {
                 let m = &oldest.moments;
                 self.drag_throw.commit(&m.xsum, &m.ysum, oldest.drag);
             }
-            self.segment_end = oldest.end;
-            self.pending_head = (self.pending_head + 1) % PENDING_CAPACITY;
-            self.pending_len -= 1;
+            self.state.segment_end = oldest.end;
+            self.state.pending_head = (self.state.pending_head + 1) % PENDING_CAPACITY;
+            self.state.pending_len -= 1;
         }
     }
 
@@ -462,36 +511,44 @@ impl ImuOffsetEstimator {
     fn end_free_fall(&mut self, start: u32, end: u32) -> Option<Segment> {
         self.commit_ready(end);
         self.abandon_free_fall();
-        let long_enough = end.saturating_sub(start) >= self.min_free_fall_len
-            && self.segment_batches.short.count >= MIN_SEGMENT_BLOCKS;
+        let long_enough = end.saturating_sub(start) >= self.settings.min_free_fall_len
+            && self.state.segment_batches.short.count >= MIN_SEGMENT_BLOCKS;
         if !long_enough {
             return None;
         }
         if self.drag_modelled() && self.drag_throw.overflowed() {
-            self.throws_too_long = self.throws_too_long.saturating_add(1);
+            self.state.throws_too_long = self.state.throws_too_long.saturating_add(1);
             return None;
         }
-        let segment = Segment { start_index: self.segment_first, end_index: self.segment_end };
-        let Some(slot) = self.segments.get_mut(self.segments_len) else {
-            self.segments_ignored = self.segments_ignored.saturating_add(1);
+        let segment =
+            Segment { start_index: self.state.segment_first, end_index: self.state.segment_end };
+        let Some(slot) = self.state.segments.get_mut(self.state.segments_len) else {
+            self.state.segments_ignored = self.state.segments_ignored.saturating_add(1);
             return None;
         };
         *slot = segment;
-        self.segments_len += 1;
-        self.rows.merge(&self.segment_rows);
-        self.batches.merge(&self.segment_batches);
+        self.state.segments_len += 1;
+        self.state.rows.merge(&self.state.segment_rows);
+        self.state.batches.merge(&self.state.segment_batches);
         if self.drag_modelled() {
-            let (rows, group) = (&self.segment_rows, self.batches.group);
+            let (rows, group) = (&self.state.segment_rows, self.state.batches.group);
             let throw = &self.drag_throw;
-            self.drag.add_throw(throw, rows, &segment, self.block_len, group, self.rate_hz);
+            self.state.drag.add_throw(
+                throw,
+                rows,
+                &segment,
+                self.settings.block_len,
+                group,
+                self.rate_hz,
+            );
         }
         // Move the reference to the new estimate so later sums stay small (f32 precision).
-        if let Some(r) = solve::offset_only(&self.rows, &self.r_ref_m) {
-            let delta = r - self.r_ref_m;
-            self.rows.recentre(&delta);
-            self.batches.recentre(&delta);
-            self.drag.recentre(&delta.cast::<f64>());
-            self.r_ref_m = r;
+        if let Some(r) = solve::offset_only(&self.state.rows, &self.state.r_ref_m) {
+            let delta = r - self.state.r_ref_m;
+            self.state.rows.recentre(&delta);
+            self.state.batches.recentre(&delta);
+            self.state.drag.recentre(&delta.cast::<f64>());
+            self.state.r_ref_m = r;
         }
         Some(segment)
     }

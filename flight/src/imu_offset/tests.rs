@@ -501,6 +501,29 @@ fn a_free_fall_longer_than_the_drag_store_is_counted_not_used() {
 }
 
 #[test]
+fn a_restart_in_place_forgets_the_throws_and_refuses_a_bad_configuration() {
+    let rate_hz = 2000.0;
+    let data = two_throws(rate_hz, 87);
+    let mut est = stream_fit(&data, rate_hz, Config::default());
+    assert_eq!(est.segments().len(), 2);
+    let fitted = est.estimate().unwrap();
+    // A bad configuration changes nothing.
+    let bad = Config { block_s: -1.0, ..Config::default() };
+    assert!(matches!(est.restart(bad), Err(ImuOffsetError::InvalidConfig(_))));
+    assert_eq!(est.segments().len(), 2);
+    assert_eq!(est.estimate().unwrap().r_imu_m, fitted.r_imu_m);
+    // A good one starts again: nothing learnt, and the same data give the same estimate.
+    est.restart(Config::default()).unwrap();
+    assert!(est.segments().is_empty() && est.samples_used() == 0);
+    assert_eq!(est.estimate().unwrap_err(), ImuOffsetError::NoFreeFall);
+    for s in &data {
+        est.update(s).unwrap();
+    }
+    est.finish();
+    assert_eq!(est.estimate().unwrap().r_imu_m, fitted.r_imu_m);
+}
+
+#[test]
 fn errors_are_typed() {
     let rate_hz = 2000.0;
     // Unsupported rate.
