@@ -93,6 +93,18 @@ fn one_throw_about_the_yaw_axis_is_flagged_as_not_determining_that_axis() {
     let largest_mm = vector(&report["ci95_semi_axes_m"]).x * 1e3;
     eprintln!("one yaw throw: 95 % extent {extent_mm:.2} mm along the spin axis, largest semi-axis {largest_mm:.2} mm");
     assert!(extent_mm > 2.0, "spin axis determined within {extent_mm:.2} mm: {report}");
+    // The advice names the spin axis (the direction the throw did not excite), with that extent.
+    let advice = report["advice"].as_str().unwrap();
+    let named: Vec<f64> = advice
+        .split_once("along (")
+        .and_then(|(_, rest)| rest.split_once(')'))
+        .map(|(list, _)| list.split(", ").map(|v| v.parse().unwrap()).collect())
+        .unwrap_or_default();
+    assert_eq!(named.len(), 3, "no direction in `{advice}`");
+    let named = Vector3::new(named[0], named[1], named[2]).normalize();
+    let angle_deg = named.dot(&spin_axis_imu).abs().min(1.0).acos().to_degrees();
+    assert!(angle_deg < 10.0, "advice names a direction {angle_deg:.1}° from the spin axis");
+    assert!(advice.contains(&format!("within {extent_mm:.2} mm along it")), "{advice}");
     assert!(report["advice"].as_str().unwrap().to_lowercase().contains("throw"));
     let _ = std::fs::remove_file(log);
 }

@@ -398,9 +398,12 @@ pub enum Verdict<T: Scalar> {
     /// principal axis, where `Ω̇ ≈ 0` and eq. 4 loses that component): throw again spinning about
     /// another axis.
     PoorlyDetermined {
-        /// Unit vector (IMU frame) of the largest semi-axis of the 95 % ellipsoid of `r`.
+        /// Unit vector (IMU frame) of the direction the throws did not excite (the spin axis of
+        /// a single throw): the longest axis of the ellipsoid `r` would have from the free fall
+        /// alone.
         direction_imu: Vector3<T>,
-        /// That semi-axis (m).
+        /// How far the reported 95 % ellipsoid reaches along `direction_imu` (m): at most its
+        /// largest semi-axis.
         semi_axis_m: T,
         /// The IMU axis most perpendicular to `direction_imu`: a spin about it observes it.
         spin_next_about: ImuAxis,
@@ -456,9 +459,10 @@ impl<T: Scalar> core::fmt::Display for Verdict<T> {
             ),
             Self::PoorlyDetermined { direction_imu: d, semi_axis_m, spin_next_about } => write!(
                 f,
-                "poorly determined along ({:.2}, {:.2}, {:.2}) in IMU axes: within {:.2} mm \
-                 (largest 95 % semi-axis), up to {:.0} % error in the motor force effectiveness \
-                 learned in flight: throw again spinning about another axis, e.g. the IMU {} axis",
+                "poorly determined along ({:.2}, {:.2}, {:.2}) in IMU axes, which the throws \
+                 did not excite: within {:.2} mm along it (95 %), up to {:.0} % error in the \
+                 motor force effectiveness learned in flight: throw again spinning about another \
+                 axis, e.g. the IMU {} axis",
                 d.x,
                 d.y,
                 d.z,

@@ -119,8 +119,9 @@ pub(crate) fn offset_only<T: Scalar>(rows: &Moments<T>, r_ref: &Vector3<T>) -> O
 
 /// Fit, ellipsoid and verdict.
 ///
-/// The semi-axes the verdict states are always those of the reported ellipsoid; the analyses
-/// behind it (is the excitation lacking, or a bias?) only choose which advice is given.
+/// The figures the verdict states are always the reported ellipsoid's (its largest semi-axis,
+/// or its extent along the direction the throws did not excite); the analyses behind it (is the
+/// excitation lacking, or a bias?) choose which advice is given and about which direction.
 pub(crate) fn estimate<T: Scalar>(
     p: &Problem<'_, T>,
     model: Model,
@@ -158,7 +159,16 @@ pub(crate) fn estimate<T: Scalar>(
     let verdict = if semi_axis_m <= max_semi_axis_m {
         Verdict::WellDetermined { largest_semi_axis_m: semi_axis_m }
     } else if excitation_lacking {
-        Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about }
+        // The direction the throws did not excite (a single spin's axis), which another spin
+        // observes, and how far the reported ellipsoid reaches along it. It need not be the
+        // ellipsoid's longest axis: with one rest attitude the bias also leaves the plane across
+        // the spin uncertain, which the next throw fixes too.
+        let direction_imu = excitation.ellipsoid.axes[0];
+        Verdict::PoorlyDetermined {
+            direction_imu,
+            semi_axis_m: extent_95(&chosen.covariance_m2, &direction_imu),
+            spin_next_about: ImuAxis::most_perpendicular_to(&direction_imu),
+        }
     } else if model == Model::Offset {
         // Poor because of the bias, not the excitation: fitting it is the remedy.
         Verdict::BiasSuspected { direction_imu, semi_axis_m }
@@ -465,6 +475,13 @@ fn batch_means_variance<T: Scalar>(
     let ss = batches.sum_sq_residual(d, b, len).max(T::zero());
     let variance = ss / (len * count_as(dof));
     Some((variance, variance * T::from(small_sample_factor(dof as f32))))
+}
+
+/// How far the 95 % ellipsoid of `covariance` reaches along the unit vector `direction`:
+/// `√(χ²₃(0.95) dᵀΣd)` (m).
+fn extent_95<T: Scalar>(covariance: &Matrix3<T>, direction: &Vector3<T>) -> T {
+    let chi2: T = CHI2_3DOF_95.into();
+    (direction.dot(&(covariance * direction)).max(T::zero()) * chi2).sqrt()
 }
 
 /// Semi-axes and directions of the 95 % ellipsoid of a 3 × 3 covariance.
