@@ -47,6 +47,72 @@ fn spinning_throws_teach_the_firmware_its_imu_offset_within_a_millimetre() {
 }
 
 #[test]
+fn the_board_and_fit_imu_offset_agree_on_the_same_throws() {
+    // Two throws flown with the firmware app (the board's f32 estimator in its background task)
+    // and logged as the configurator records them; `fit imu-offset` (f64) on the logs must give
+    // the board's estimate and ellipsoid.
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let dir = std::env::temp_dir();
+    let paths: Vec<std::path::PathBuf> = (0..2)
+        .map(|k| dir.join(format!("fc-{}-onboard-vs-fit-{k}.csv", std::process::id())))
+        .collect();
+    let board = with_firmware_app(|app| {
+        for (path, (rate_dps, seed)) in
+            paths.iter().zip([([700.0, 350.0, 180.0], 3), ([-180.0, 230.0, 700.0], 4)])
+        {
+            let mut config = ScenarioConfig::new(ScenarioKind::ThrowCatch);
+            config.throw_rate_body_rad_s = Vector3::from(rate_dps).map(f64::to_radians);
+            config.board.seed = seed;
+            let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+            let mut log = CsvLog::new(file, airframe.rotor_count()).unwrap();
+            scenario::run(&airframe, &config, app, Some(&mut log), &mut |_, _| {}).unwrap();
+            log.finish().unwrap();
+        }
+        app.background.results().imu_offset
+    });
+    assert_eq!(board.throws, 2, "{board:?}");
+    // The board saw one continuous stream (the second run follows the first at once): so does
+    // the fit, from one log of both runs' IMU columns at the simulator's 2 kHz.
+    let combined = dir.join(format!("fc-{}-onboard-vs-fit.csv", std::process::id()));
+    let mut csv = String::from("t,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z\n");
+    let mut row = 0u32;
+    for path in &paths {
+        let text = std::fs::read_to_string(path).unwrap();
+        let mut lines = text.lines();
+        let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+        let columns = ["gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"].map(column);
+        for line in lines {
+            let fields: Vec<&str> = line.split(',').collect();
+            let values: Vec<&str> = columns.iter().map(|&c| fields[c]).collect();
+            csv.push_str(&format!("{:.6},{}\n", f64::from(row) / 2000.0, values.join(",")));
+            row += 1;
+        }
+    }
+    std::fs::write(&combined, csv).unwrap();
+    let args = ["fit", "imu-offset", "--json", combined.to_str().unwrap()];
+    let output = tests::run_cli(&args);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let host: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let vector = |v: &serde_json::Value| {
+        let v: Vec<f64> = v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        Vector3::new(v[0], v[1], v[2])
+    };
+    let difference_mm =
+        (vector(&host["r_imu_m"]) - Vector3::from(board.r_imu_m).cast()).norm() * 1e3;
+    let host_axes = vector(&host["ci95_semi_axes_m"]);
+    let board_axes = Vector3::from(board.ci95_semi_axes_m).cast::<f64>();
+    let axes_ratio = board_axes.component_div(&host_axes);
+    eprintln!("board vs fit imu-offset: {difference_mm:.4} mm apart, semi-axes × {axes_ratio:?}");
+    assert!(difference_mm < 0.01, "board and host estimates {difference_mm:.4} mm apart");
+    assert!(axes_ratio.iter().all(|r| (r - 1.0).abs() < 0.01), "semi-axes × {axes_ratio:?}");
+    assert_eq!(host["well_determined"].as_bool(), Some(board.well_determined));
+    for path in paths.iter().chain([&combined]) {
+        let _ = std::fs::remove_file(path);
+    }
+}
+
+#[test]
 fn one_throw_about_one_axis_is_not_well_determined_onboard() {
     let airframe = Airframe::builtin("paper-quad").unwrap();
     with_firmware_app(|app| {

@@ -308,14 +308,28 @@ impl<'q> Background<'q> {
             acc_mps2: Vector3::from(sample.imu.accel_mps2),
         };
         // A rejected sample (corrupt values) only abandons the throw in progress.
+        let rest_before = estimator.rest_progress();
         let accepted_throw = match estimator.update(&imu) {
             Ok(Some(segment)) => Some(segment),
             _ => None,
         };
         let status = &mut self.results.imu_offset;
         status.in_free_fall = estimator.in_free_fall();
-        let Some(segment) = accepted_throw else { return };
-        let free_fall_ms = (u64::from(segment.len()) * self.period_us / 1000).min(65_535) as u16;
+        // The estimate changes with each throw and, after one, with each 50 ms of rest (the
+        // craft held still after the catch tells the bias apart): the status follows both, so
+        // that it is what `fit imu-offset` gives on the samples so far.
+        let more_rest =
+            estimator.rest_progress() != rest_before && !estimator.segments().is_empty();
+        if accepted_throw.is_none() && !more_rest {
+            return;
+        }
+        let free_fall_ms = match (accepted_throw, &self.results.calibration) {
+            (Some(segment), _) => {
+                (u64::from(segment.len()) * self.period_us / 1000).min(65_535) as u16
+            }
+            (None, Some(calibration)) => calibration.last_free_fall_ms,
+            (None, None) => 0,
+        };
         status.throws = u8::try_from(estimator.segments().len()).unwrap_or(u8::MAX);
         match estimator.estimate() {
             Ok(estimate) => {

@@ -159,6 +159,17 @@ impl RestDetector {
         None
     }
 
+    /// The pose the run in progress would give if it ended now ([`Self::end`] on a copy).
+    pub(crate) fn in_progress(&self) -> Option<RestPose> {
+        let mut copy = *self;
+        copy.end()
+    }
+
+    /// Blocks kept by the run in progress (0 when none): it changes once per kept block.
+    pub(crate) fn kept_blocks(&self) -> u32 {
+        self.run.map_or(0, |run| run.blocks)
+    }
+
     /// The run in progress ends here (its last complete block and partial block are dropped);
     /// returns its pose when it was long enough.
     pub(crate) fn end(&mut self) -> Option<RestPose> {

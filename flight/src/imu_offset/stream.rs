@@ -326,11 +326,17 @@ impl ImuOffsetEstimator {
         }
     }
 
-    /// The estimate over all accepted throws so far (call from a background task: it performs
-    /// two 3 × 3 solves and a 3 × 3 eigen-decomposition).
+    /// The estimate over all accepted throws so far, with the rest poses found so far and the
+    /// one in progress as if it ended now (so that it equals the offline fit of a log that ends
+    /// here). Call from a background task: it performs a few 3 × 3 and 6 × 6 solves and a 3 × 3
+    /// eigen-decomposition.
     pub fn estimate(&self) -> Result<Estimate<f32>, ImuOffsetError> {
         if self.state.segments_len == 0 {
             return Err(ImuOffsetError::NoFreeFall);
+        }
+        let mut rest_poses = self.state.rest_poses;
+        if let Some(pose) = self.state.rest.in_progress() {
+            rest_poses.push(pose);
         }
         let problem = Problem {
             rows: &self.state.rows,
@@ -338,14 +344,21 @@ impl ImuOffsetEstimator {
             block_len: self.settings.block_len,
             r_ref: self.state.r_ref_m,
             drag: self.drag_modelled().then_some(&self.state.drag),
-            rest: Some(self.state.rest_poses.model(&self.config)),
+            rest: Some(rest_poses.model(&self.config)),
         };
         solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
     }
 
-    /// Rest poses found so far (each an attitude held still; see `rest`).
+    /// Rest poses found so far (each an attitude held still; see `rest`), not counting the one
+    /// in progress.
     pub fn rest_poses(&self) -> u32 {
         self.state.rest_poses.as_slice().len() as u32
+    }
+
+    /// How much rest the estimate has seen: finished poses and the blocks of the one in
+    /// progress. It changes whenever [`Self::estimate`] would change without a new throw.
+    pub fn rest_progress(&self) -> (u32, u32) {
+        (self.rest_poses(), self.state.rest.kept_blocks())
     }
 
     /// The rest poses, for the batch fitter (which uses exactly the poses found here).
