@@ -22,7 +22,8 @@
 //!   throw-to-fly attempt or a flight it disarms at once: the ICM-42688-P delivers 16-bit
 //!   integers, so a non-finite value means the data path itself is broken.
 //! - A **stuck gyro axis**: [`STUCK_GYRO_SAMPLES`] consecutive bit-identical readings of one axis
-//!   while another axis changed meanwhile. Tracked always; while flying it disarms.
+//!   while another axis changed meanwhile, except at the sensor's rail ([`GYRO_RAIL_RAD_S`]: a
+//!   tumble faster than the gyro measures). Tracked always; while flying it disarms.
 //! - A **saturated accelerometer**: an axis at or beyond [`ACCEL_SATURATED_MPS2`]. While flying,
 //!   the step uses the last unsaturated accelerometer reading instead (attitude filter, position
 //!   estimator and INDI alike; the gyro is used as read), counted in
@@ -102,6 +103,13 @@ const IMU_ABSENT_AFTER_STEPS: u32 = 20;
 /// IMU (average of four 8 kHz samples of 16-bit codes) repeats with probability about 0.03.
 pub const STUCK_GYRO_SAMPLES: u16 = 32;
 
+/// Gyro reading at or beyond which an axis is at its rail, rad/s (1,990 °/s). Origin: the
+/// ICM-42688-P at ±2,000 °/s full scale, less 10 °/s of margin for the codes next to the rail. An
+/// axis held there repeats its reading because the craft turns faster than the sensor measures
+/// (a violent tumble), not because the sensor froze: such repeats do not count as stuck, and the
+/// attitude failsafe judges whether the flight is lost.
+pub const GYRO_RAIL_RAD_S: f32 = 1990.0 * core::f32::consts::PI / 180.0;
+
 /// Accelerometer reading at or beyond which an axis counts as saturated, m/s² (15.5 g). Origin:
 /// the ICM-42688-P at ±16 g full scale (156.9 m/s²), less 0.5 g of margin so that a reading a
 /// code or two below the rail counts too; no multirotor thrust comes near it (thrust-to-weight
@@ -135,7 +143,9 @@ impl ImuMonitor {
         match self.previous_gyro_bits {
             Some(previous) => {
                 for ((repeats, now), before) in self.repeats.iter_mut().zip(bits).zip(previous) {
-                    *repeats = if now == before { repeats.saturating_add(1) } else { 0 };
+                    let at_rail = f32::from_bits(now).abs() >= GYRO_RAIL_RAD_S;
+                    *repeats =
+                        if now == before && !at_rail { repeats.saturating_add(1) } else { 0 };
                 }
             }
             None => self.repeats = [0; 3],
@@ -668,6 +678,16 @@ mod tests {
         for _ in 0..2 * STUCK_GYRO_SAMPLES {
             let mut sample = ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, 0.0, -9.8] };
             assert_eq!(monitor.check(&mut sample, true), (false, false));
+        }
+        // An axis pinned at the ±2,000 °/s rail (a tumble faster than the sensor measures) while
+        // another changes: saturated, not stuck, however long it lasts.
+        let mut monitor = ImuMonitor::default();
+        let rail_rad_s = 2000f32.to_radians();
+        for i in 0..4 * STUCK_GYRO_SAMPLES {
+            let x = f32::from(i) * 0.01;
+            let mut sample =
+                ImuSample { gyro_rad_s: [-rail_rad_s, x, -x], accel_mps2: [0.0, 0.0, -9.8] };
+            assert_eq!(monitor.check(&mut sample, true), (false, false), "sample {i}");
         }
     }
 
