@@ -616,21 +616,7 @@ pub fn flight_text(flight: &FlightTelemetry) -> String {
     if let Some(sp) = flight.position_sp_ned_m {
         let _ = writeln!(out, "  setpoint        {} m NED", vector(sp, 1.0, 3));
     }
-    let f = &flight.failsafes;
-    let total = [
-        f.bad_command,
-        f.allocation_failed,
-        f.identification,
-        f.attitude_lost,
-        f.imu_lost,
-        f.imu_fault,
-        f.pose_lost,
-        f.rc_lost,
-        f.kill,
-    ]
-    .iter()
-    .map(|&n| u32::from(n))
-    .sum::<u32>();
+    let total = flight.failsafes.total();
     match flight.last_failsafe {
         Some(reason) => {
             let _ = writeln!(
@@ -663,17 +649,12 @@ pub fn flight_json(flight: &FlightTelemetry) -> Value {
         "allocation_failures": flight.allocation_failures,
         "saturated_motors": (0..8).filter(|i| flight.saturated & (1 << i) != 0).collect::<Vec<u8>>(),
         "last_failsafe": flight.last_failsafe.map(|r| format!("{r:?}")),
-        "failsafes": {
-            "bad_command": flight.failsafes.bad_command,
-            "allocation_failed": flight.failsafes.allocation_failed,
-            "identification": flight.failsafes.identification,
-            "attitude_lost": flight.failsafes.attitude_lost,
-            "imu_lost": flight.failsafes.imu_lost,
-            "imu_fault": flight.failsafes.imu_fault,
-            "pose_lost": flight.failsafes.pose_lost,
-            "rc_lost": flight.failsafes.rc_lost,
-            "kill": flight.failsafes.kill,
-        },
+        "failsafes": flight
+            .failsafes
+            .named()
+            .iter()
+            .map(|&(name, count)| (name.to_string(), json!(count)))
+            .collect::<serde_json::Map<String, Value>>(),
     })
 }
 

@@ -586,6 +586,28 @@ pub struct FailsafeCounters {
     pub kill: u16,
 }
 
+impl FailsafeCounters {
+    /// Every counter with its name (the field's), in declaration order.
+    pub fn named(&self) -> [(&'static str, u16); 9] {
+        [
+            ("bad_command", self.bad_command),
+            ("allocation_failed", self.allocation_failed),
+            ("identification", self.identification),
+            ("attitude_lost", self.attitude_lost),
+            ("imu_lost", self.imu_lost),
+            ("imu_fault", self.imu_fault),
+            ("pose_lost", self.pose_lost),
+            ("rc_lost", self.rc_lost),
+            ("kill", self.kill),
+        ]
+    }
+
+    /// Failsafes of every kind since start-up.
+    pub fn total(&self) -> u32 {
+        self.named().iter().map(|&(_, n)| u32::from(n)).sum()
+    }
+}
+
 /// The closed loop's state (protocol 1.4): what [`Topic::Flight`] streams and
 /// [`Request::GetFlight`] answers. Vectors of the thrust frame are in its axes (z along minus the
 /// thrust); world vectors are NED in the poses' world.
