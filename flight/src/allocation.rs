@@ -56,23 +56,38 @@
 //! (octorotor); this QR by up to 1.1·10⁻⁵, 3.4·10⁻⁵, 4.4·10⁻⁵ — the limit set by storing `W_v G`
 //! in f32 at all (`ε/√γ²_rel` ≈ 6·10⁻⁵ in the null directions).
 //!
-//! **Cost**, for m motors and n free variables (multiply-adds unless noted; to be benchmarked on
-//! the Cortex-M7):
-//! - per call: input checks, 9m + 6 comparisons; building A and b, 7m + 6; Householder QR of
-//!   the (6 + m) × m matrix applied to b, `Σ_{i=1..m} (6 + i)(2i + 1)` = 214 (quad), 491
-//!   (hexarotor), 924 (octorotor), plus 2m square roots and 2m divisions; column norms, m²/2;
-//!   the residual `G du − dv`, 6m.
+//! **Cost**, for m motors and n free variables (multiply-adds unless noted):
+//! - per call: input checks, 9m + 6 comparisons in one pass; building A and b, 7m + 6;
+//!   Householder QR of the (6 + m) × m matrix applied to b, `7m(m + 2)` = 168 (quad), 336
+//!   (hexarotor), 560 (octorotor), plus m + 1 square roots and m(m + 1)/2 divisions (the
+//!   γ W_u block is diagonal, so each reflection touches 7 rows, not 6 + m − k; dense, it was
+//!   `Σ_{i=1..m} (6 + i)(2i + 1)` = 214, 491, 924); the residual `G du − dv`, 6m.
 //! - per iteration: the right-hand side of the bounded columns, ≤ m(m − n); re-triangularising
 //!   the free columns, Σᵢ (index of the i-th free variable − i) ≤ n(m − n) ≤ m²/4 Givens
 //!   rotations (one `hypot` and two divisions each) of ≤ m + 1 entry pairs at 4 multiplies —
-//!   none when all variables are free, at most 80 multiplies on a quad and 576 on an octorotor;
-//!   back substitution, n²/2 and n divisions; the step, ≤ m divisions; the multipliers,
-//!   2(m − n)² and 2(m − n) + 2 square roots.
+//!   none when all variables are free (R is then used as it is), at most 80 multiplies on a quad
+//!   and 576 on an octorotor; back substitution, n²/2 and n divisions; the step, ≤ m
+//!   divisions; the multipliers, (m − n)², and only for a negative one its tolerance, ≤ 2m and
+//!   2 square roots (and once per iteration another ≤ 2m and 2 square roots).
 //!
-//! Bound for one call with the default 10 iterations: ≈ 1600 multiply-adds and ~300
-//! divisions/roots on a quad, ≈ 8000 and ~800 on an octorotor (every iteration at its worst
+//! Bound for one call with the default 10 iterations: ≈ 1550 multiply-adds and ~300
+//! divisions/roots on a quad, ≈ 7650 and ~800 on an octorotor (every iteration at its worst
 //! working set, which does not happen in practice). The warm-started steady state is one
-//! iteration with all or most variables free: the QR plus ~100 multiply-adds.
+//! iteration with all or most variables free: the QR plus ~100 multiply-adds. Nothing is carried
+//! over but the warm start: the caller's G changes on every INDI step (its rotor-reaction term
+//! scales with 1/ω₀ of each motor), and γ and the box with it, so the QR is redone each call.
+//!
+//! Measured on the Cortex-M7 (`cargo xtask bench-m7`: QEMU instruction counts;
+//! docs/benchmarks.md, "Closed-loop control step"), a warm-started call on the bench's learned
+//! model takes 4,030 instructions on a quad (hover increment, one iteration) and 7,999 on an
+//! octorotor (one motor bounded: 7 Givens rotations); 3,564 and 10,567 (two iterations) for an
+//! increment beyond the motors' range. With the dense QR and the input checked in two passes it
+//! was 6,466 / 15,340 and 6,337 / 20,080. Measured and not adopted: the solver compiled once per
+//! motor count (a const-generic body behind one dispatch on m, so that every loop over the
+//! motors has a fixed trip count) takes another 630 instructions off the quad's control step
+//! and 500–700 off the octorotor's, for 34 KB more flash (50.1 KB for this module against
+//! 16.2 KB), with the firmware already over its flash budget (docs/benchmarks.md, "Firmware
+//! size").
 //!
 //! Never allocates, never panics, never returns a non-finite increment: non-finite, out-of-range
 //! or inconsistent input is refused with [`AllocationStatus::Failed`] and leaves the warm start as
@@ -88,8 +103,15 @@ use crate::learner::{MAX_MOTORS, MIN_MOTORS};
 /// (rad/s²).
 pub const VIRTUAL_CONTROLS: usize = 6;
 
-/// Rows of the stacked least-squares matrix `A = [W_v G; γ W_u]`.
+/// Rows of the stacked least-squares matrix `A = [W_v G; γ W_u]` at the largest motor count.
 const STACKED_ROWS: usize = VIRTUAL_CONTROLS + MAX_MOTORS;
+
+/// The sign bit of an f32.
+const SIGN_BIT: u32 = 1 << 31;
+
+/// Rows of A that one Householder reflection touches: column k is nonzero only in rows
+/// `k..=k + 6` by then (`householder_qr`), whatever the motor count.
+const REFLECTION_ROWS: usize = VIRTUAL_CONTROLS + 1;
 
 /// Published weights of the virtual controls fx, fy, fz, roll, pitch, yaw (algorithms.md §6):
 /// thrust and tilt 50, yaw 5, horizontal force 1 (the caller zeroes its demand there anyway).
@@ -240,8 +262,9 @@ enum Bound {
     Upper,
 }
 
-/// Upper-triangular factor (row-major, only `j ≥ i` used) or a working copy of its columns.
-type Square = [[f32; MAX_MOTORS]; MAX_MOTORS];
+/// The stacked matrix by columns: `a[j][i]` is row i of column j (rows beyond 6 + m and columns
+/// beyond m unused).
+type Columns = [[f32; STACKED_ROWS]; MAX_MOTORS];
 
 /// The allocator for one airframe, with its warm start (last solution and working set).
 #[derive(Clone, Debug)]
@@ -306,53 +329,53 @@ impl Allocator {
         du_pref: &[f32; MAX_MOTORS],
     ) -> AllocationResult {
         let m = self.motors;
-        let inputs = || {
-            g.iter()
-                .flat_map(|row| &row[..m])
-                .chain(dv)
-                .chain(&du_min[..m])
-                .chain(&du_max[..m])
-                .chain(&du_pref[..m])
-        };
-        if !inputs().all(|x| x.is_finite()) {
-            return fallback(m, du_min, du_max, AllocationFailure::NonFinite);
+        // One pass over the input: the bit pattern of |x| orders like |x|, with ∞ and NaN above
+        // every finite value, so its largest one says whether everything is finite and within
+        // the limit. Which check failed is only worked out for a refusal.
+        let magnitude = |x: &f32| x.to_bits() & !SIGN_BIT;
+        let mut largest = dv.iter().map(magnitude).fold(0, u32::max);
+        let mut crossed = false;
+        for j in 0..m {
+            for row in g {
+                largest = largest.max(magnitude(&row[j]));
+            }
+            largest = largest
+                .max(magnitude(&du_min[j]))
+                .max(magnitude(&du_max[j]))
+                .max(magnitude(&du_pref[j]));
+            crossed |= du_min[j] > du_max[j];
         }
-        if !inputs().all(|x| x.abs() <= MAX_INPUT_MAGNITUDE) {
-            return fallback(m, du_min, du_max, AllocationFailure::OutOfRange);
-        }
-        if (0..m).any(|j| du_min[j] > du_max[j]) {
-            return fallback(m, du_min, du_max, AllocationFailure::Bounds);
+        if largest > MAX_INPUT_MAGNITUDE.to_bits() || crossed {
+            return refusal(m, g, dv, du_min, du_max, du_pref);
         }
 
-        // The stacked problem A du ≈ b.
-        let mut a = [[0.0f32; MAX_MOTORS]; STACKED_ROWS];
+        // The stacked problem A du ≈ b, A by columns.
+        let mut a: Columns = [[0.0; STACKED_ROWS]; MAX_MOTORS];
         let mut b = [0.0f32; STACKED_ROWS];
         let mut trace = 0.0f32;
         for k in 0..VIRTUAL_CONTROLS {
             let w = self.config.wv[k];
             for j in 0..m {
-                a[k][j] = w * g[k][j];
-                trace += a[k][j] * a[k][j];
+                a[j][k] = w * g[k][j];
+                trace += a[j][k] * a[j][k];
             }
             b[k] = w * dv[k];
         }
         let gamma = libm::sqrtf(self.config.gamma2_relative * (trace / m as f32).max(TRACE_FLOOR));
         for j in 0..m {
             let gamma_j = gamma * self.config.wu[j];
-            a[VIRTUAL_CONTROLS + j][j] = gamma_j;
+            a[j][VIRTUAL_CONTROLS + j] = gamma_j;
             b[VIRTUAL_CONTROLS + j] = gamma_j * du_pref[j];
         }
-        let Some((r, c)) = householder_qr(&mut a, &mut b, m) else {
+        // Filled in place: returned by value, the factor was copied (288 B).
+        let mut factor = Factor { r: [[0.0; MAX_MOTORS]; MAX_MOTORS], c: [0.0; MAX_MOTORS] };
+        if !householder_qr(&mut a, &mut b, &mut factor, m) {
             return fallback(m, du_min, du_max, AllocationFailure::Singular);
-        };
-        let mut column_norms = [0.0f32; MAX_MOTORS];
-        for j in 0..m {
-            column_norms[j] = libm::sqrtf((0..=j).map(|i| r[i][j] * r[i][j]).sum::<f32>());
         }
 
         // Warm start, moved into the new box.
-        let mut x = self.du;
         let mut working = self.working;
+        let mut x = self.du;
         for j in 0..m {
             x[j] = match working[j] {
                 Bound::Lower => du_min[j],
@@ -366,7 +389,7 @@ impl Allocator {
         while iterations < self.config.max_iterations {
             iterations += 1;
             let Some(FreeSolution { optimum, release }) =
-                solve_free(&r, &column_norms, &c, &x, &working, du_min, du_max, m)
+                solve_free(&factor, &x, &working, du_min, du_max, m)
             else {
                 return fallback(m, du_min, du_max, AllocationFailure::Singular);
             };
@@ -424,7 +447,39 @@ impl Allocator {
     }
 }
 
+/// Why the input of an m-motor call was refused (non-finite first, then out of range, then
+/// crossed bounds), and the fallback.
+#[cold]
+#[inline(never)]
+fn refusal(
+    m: usize,
+    g: &[[f32; MAX_MOTORS]; VIRTUAL_CONTROLS],
+    dv: &[f32; VIRTUAL_CONTROLS],
+    du_min: &[f32; MAX_MOTORS],
+    du_max: &[f32; MAX_MOTORS],
+    du_pref: &[f32; MAX_MOTORS],
+) -> AllocationResult {
+    let inputs = || {
+        g.iter()
+            .flat_map(|row| &row[..m])
+            .chain(dv)
+            .chain(&du_min[..m])
+            .chain(&du_max[..m])
+            .chain(&du_pref[..m])
+    };
+    let failure = if !inputs().all(|x| x.is_finite()) {
+        AllocationFailure::NonFinite
+    } else if !inputs().all(|x| x.abs() <= MAX_INPUT_MAGNITUDE) {
+        AllocationFailure::OutOfRange
+    } else {
+        AllocationFailure::Bounds
+    };
+    fallback(m, du_min, du_max, failure)
+}
+
 /// The refusal: zero increment moved into whichever bounds are finite and ordered.
+#[cold]
+#[inline(never)]
 fn fallback(
     m: usize,
     du_min: &[f32; MAX_MOTORS],
@@ -445,44 +500,70 @@ fn fallback(
     }
 }
 
-/// Householder QR of the `(6 + m) × m` matrix `a`, applied to `b` as well: returns `R` (upper
-/// triangle, m × m) and `c`, the first m entries of `Qᵀb`. `None` if a diagonal of R is zero or
-/// not finite.
+/// The reduced problem of one call: the cost is `½‖R du − c‖²` plus a constant.
+struct Factor {
+    /// R, upper triangular, by columns: `r[j][i]` (i ≤ j) is row i of column j.
+    r: [[f32; MAX_MOTORS]; MAX_MOTORS],
+    /// The first m entries of `Qᵀb` (zero beyond).
+    c: [f32; MAX_MOTORS],
+}
+
+impl Factor {
+    /// `‖R e_j‖`, the length of column j.
+    fn column_norm(&self, j: usize) -> f32 {
+        libm::sqrtf(self.r[j][..=j].iter().map(|v| v * v).sum::<f32>())
+    }
+}
+
+/// Householder QR of the `(6 + m) × m` matrix `a` (by columns), applied to `b` as well, into
+/// `factor` (whose R must be zero below the diagonal). False if a diagonal of R is zero or not
+/// finite.
+///
+/// Only rows `k..k + REFLECTION_ROWS` of column k are nonzero when its reflection is built: the
+/// γ W_u block is diagonal, column j starts with one nonzero below row 5 (row 6 + j), and
+/// reflection k fills rows up to k + 6 only. The rows left out hold exact zeros, so skipping
+/// them changes no result (the sums add the same terms in the same order).
 fn householder_qr(
-    a: &mut [[f32; MAX_MOTORS]; STACKED_ROWS],
+    a: &mut Columns,
     b: &mut [f32; STACKED_ROWS],
+    factor: &mut Factor,
     m: usize,
-) -> Option<(Square, [f32; MAX_MOTORS])> {
-    let rows = VIRTUAL_CONTROLS + m;
-    let mut r: Square = [[0.0; MAX_MOTORS]; MAX_MOTORS];
+) -> bool {
+    let r = &mut factor.r;
     for k in 0..m {
-        let norm = libm::sqrtf((k..rows).map(|i| a[i][k] * a[i][k]).sum::<f32>());
+        let (head, tail) = a.split_at_mut(k + 1);
+        let v = &mut head[k];
+        let norm = libm::sqrtf((k..k + REFLECTION_ROWS).map(|i| v[i] * v[i]).sum::<f32>());
         if !(norm > 0.0) || !norm.is_finite() {
-            return None;
+            return false;
         }
         // Reflect onto −sign(a_kk)·‖a‖ e_k (no cancellation in v_k = a_kk + sign·‖a‖).
-        let alpha = if a[k][k] >= 0.0 { -norm } else { norm };
-        a[k][k] -= alpha;
+        let alpha = if v[k] >= 0.0 { -norm } else { norm };
+        v[k] -= alpha;
         // vᵀv = 2‖a‖(‖a‖ + |a_kk|).
-        let v_norm2 = 2.0 * norm * (norm + (a[k][k] + alpha).abs());
-        for j in k + 1..m {
-            let t = 2.0 * (k..rows).map(|i| a[i][k] * a[i][j]).sum::<f32>() / v_norm2;
-            for i in k..rows {
-                a[i][j] -= t * a[i][k];
-            }
+        let v_norm2 = 2.0 * norm * (norm + (v[k] + alpha).abs());
+        for column in &mut tail[..m - k - 1] {
+            reflect(v, column, k, v_norm2);
         }
-        let t = 2.0 * (k..rows).map(|i| a[i][k] * b[i]).sum::<f32>() / v_norm2;
-        for i in k..rows {
-            b[i] -= t * a[i][k];
-        }
+        reflect(v, b, k, v_norm2);
         r[k][k] = alpha;
         for j in k + 1..m {
-            r[k][j] = a[k][j];
+            r[j][k] = a[j][k];
         }
     }
-    let mut c = [0.0f32; MAX_MOTORS];
-    c[..m].copy_from_slice(&b[..m]);
-    c[..m].iter().all(|v| v.is_finite()).then_some((r, c))
+    factor.c[..m].copy_from_slice(&b[..m]);
+    factor.c.iter().all(|v| v.is_finite())
+}
+
+/// Apply the Householder reflection `I − 2vvᵀ/vᵀv` of step k (`v` nonzero in rows
+/// `k..k + REFLECTION_ROWS`, `v_norm2 = vᵀv`) to `x`.
+#[inline(always)]
+fn reflect(v: &[f32; STACKED_ROWS], x: &mut [f32; STACKED_ROWS], k: usize, v_norm2: f32) {
+    let rows = k..k + REFLECTION_ROWS;
+    let t = 2.0 * rows.clone().map(|i| v[i] * x[i]).sum::<f32>() / v_norm2;
+    for i in rows {
+        x[i] -= t * v[i];
+    }
 }
 
 /// One iteration's subproblem: the free optimum, and which bounded variable to release if the
@@ -508,18 +589,18 @@ struct FreeSolution {
 /// which is also the curvature of freeing j, so the tolerance means the same in every
 /// direction. Of the multipliers below `−tolerance`, the one with the largest predicted descent
 /// `λ_j / ‖s_{≥n, j}‖` is released. Variables with equal bounds cannot move and are never
-/// released. `None` if a diagonal vanishes or a value is not finite.
-#[allow(clippy::too_many_arguments)]
+/// released. The tolerance (three square roots and a column norm) is only worked out for a
+/// negative multiplier: it is never negative. `None` if a diagonal vanishes or a value is not
+/// finite.
 fn solve_free(
-    r: &Square,
-    column_norms: &[f32; MAX_MOTORS],
-    c: &[f32; MAX_MOTORS],
+    factor: &Factor,
     x: &[f32; MAX_MOTORS],
     working: &[Bound; MAX_MOTORS],
     du_min: &[f32; MAX_MOTORS],
     du_max: &[f32; MAX_MOTORS],
     m: usize,
 ) -> Option<FreeSolution> {
+    let (r, c) = (&factor.r, &factor.c);
     // Column order: free variables first.
     let mut order = [0usize; MAX_MOTORS];
     let mut n = 0;
@@ -536,60 +617,68 @@ fn solve_free(
             next += 1;
         }
     }
-    // s: R's columns in that order; d = c − R_B x_B, with the magnitudes it was summed from.
-    let mut s: Square = [[0.0; MAX_MOTORS]; MAX_MOTORS];
+    // d = c − R_B x_B, with the magnitudes it was summed from.
     let mut d = *c;
     let mut size = c.map(f32::abs);
-    for col in 0..m {
-        let j = order[col];
+    for &j in &order[n..m] {
         for i in 0..=j {
-            s[i][col] = r[i][j];
-        }
-        if col >= n {
-            for i in 0..=j {
-                let t = r[i][j] * x[j];
-                d[i] -= t;
-                size[i] += t.abs();
-            }
+            let t = r[j][i] * x[j];
+            d[i] -= t;
+            size[i] += t.abs();
         }
     }
-    // Free column i is nonzero in rows 0..=order[i] (order[i] ≥ i, increasing): rotate rows
-    // (row − 1, row) from the bottom up to zero it below the diagonal. These rotations touch
-    // only rows ≤ order[i], inside the nonzero pattern of every later free column.
-    for i in 0..n {
-        for row in (i + 1..=order[i]).rev() {
-            let (p, q) = (s[row - 1][i], s[row][i]);
-            if q == 0.0 {
-                continue;
-            }
-            let h = libm::hypotf(p, q);
-            let (cos, sin) = (p / h, q / h);
-            for col in i..m {
-                let (u, v) = (s[row - 1][col], s[row][col]);
-                s[row - 1][col] = cos * u + sin * v;
-                s[row][col] = cos * v - sin * u;
-            }
-            let (u, v) = (d[row - 1], d[row]);
-            d[row - 1] = cos * u + sin * v;
-            d[row] = cos * v - sin * u;
+    // s: R's columns in that order, re-triangularised. With every variable free that is R
+    // itself (the usual warm-started call), used as it is.
+    let mut rotated;
+    let s = if n == m {
+        r
+    } else {
+        rotated = [[0.0f32; MAX_MOTORS]; MAX_MOTORS];
+        for (column, &j) in rotated.iter_mut().zip(&order[..m]) {
+            *column = r[j];
         }
-    }
-    // Back substitution in the leading n × n triangle.
-    let mut optimum = *x;
+        // Free column i is nonzero in rows 0..=order[i] (order[i] ≥ i, increasing): rotate
+        // rows (row − 1, row) from the bottom up to zero it below the diagonal. These rotations
+        // touch only rows ≤ order[i], inside the nonzero pattern of every later free column.
+        for i in 0..n {
+            for row in (i + 1..=order[i]).rev() {
+                let (p, q) = (rotated[i][row - 1], rotated[i][row]);
+                if q == 0.0 {
+                    continue;
+                }
+                let h = libm::hypotf(p, q);
+                let (cos, sin) = (p / h, q / h);
+                for column in &mut rotated[i..m] {
+                    let (u, v) = (column[row - 1], column[row]);
+                    column[row - 1] = cos * u + sin * v;
+                    column[row] = cos * v - sin * u;
+                }
+                let (u, v) = (d[row - 1], d[row]);
+                d[row - 1] = cos * u + sin * v;
+                d[row] = cos * v - sin * u;
+            }
+        }
+        &rotated
+    };
+    // Back substitution in the leading n × n triangle (z: the free optimum in column order).
+    let mut z = [0.0f32; MAX_MOTORS];
     for i in (0..n).rev() {
-        let sum: f32 = (i + 1..n).map(|k| s[i][k] * optimum[order[k]]).sum();
+        let sum: f32 = (i + 1..n).map(|k| s[k][i] * z[k]).sum();
         if !(s[i][i].abs() > 0.0) {
             return None;
         }
-        optimum[order[i]] = (d[i] - sum) / s[i][i];
+        z[i] = (d[i] - sum) / s[i][i];
+    }
+    let mut optimum = *x;
+    for i in 0..n {
+        optimum[order[i]] = z[i];
     }
     if !optimum.iter().all(|v| v.is_finite()) {
         return None;
     }
 
     // Multipliers of the bounded variables at that point.
-    let size_norm = libm::sqrtf(size[..m].iter().map(|v| v * v).sum::<f32>());
-    let residual_norm = libm::sqrtf(d[n..m].iter().map(|v| v * v).sum::<f32>());
+    let mut norms = None;
     let mut release: Option<(f32, usize)> = None;
     for col in n..m {
         let j = order[col];
@@ -599,11 +688,20 @@ fn solve_free(
             Bound::Upper => -1.0,
             Bound::Free => continue,
         };
-        let multiplier = -sign * (n..m).map(|k| s[k][col] * d[k]).sum::<f32>();
-        let unexplained = libm::sqrtf((n..m).map(|k| s[k][col] * s[k][col]).sum::<f32>());
+        let multiplier = -sign * (n..m).map(|k| s[col][k] * d[k]).sum::<f32>();
+        if !(multiplier < 0.0) {
+            continue;
+        }
+        let (size_norm, residual_norm) = *norms.get_or_insert_with(|| {
+            (
+                libm::sqrtf(size.iter().map(|v| v * v).sum::<f32>()),
+                libm::sqrtf(d[n..m].iter().map(|v| v * v).sum::<f32>()),
+            )
+        });
+        let unexplained = libm::sqrtf((n..m).map(|k| s[col][k] * s[col][k]).sum::<f32>());
         let tolerance = MULTIPLIER_TOLERANCE_ULPS
             * f32::EPSILON
-            * (unexplained * size_norm + column_norms[j] * residual_norm);
+            * (unexplained * size_norm + factor.column_norm(j) * residual_norm);
         if multiplier < -tolerance && unexplained > 0.0 {
             let descent = multiplier / unexplained;
             if release.is_none_or(|(best, _)| descent < best) {
