@@ -92,7 +92,7 @@ pub const THRUST_DIRECTION_MAX_RAD: f32 = 15.0 * core::f32::consts::PI / 180.0;
 /// 0.9 → 0.1 %, release to hover median 2.44 → 2.41 s; at 1.0 (full feed-forward only at the
 /// setpoint's rate) 92.0 % held, but the motors' lag keeps a decelerating craft below its
 /// setpoint and the righting from 150° overshoots 10° (test below) instead of 6°.
-const FOLLOWING_FRACTION: f32 = 0.5;
+pub const FOLLOWING_FRACTION: f32 = 0.5;
 
 /// Smallest specific force the thrust direction is measured from, m/s² (half a g: thrust, not the
 /// excitation's pulses or free fall).

@@ -152,7 +152,7 @@ impl Butterworth2x3 {
 /// `ẋ[n−1] = (x[n] − x[n−2]) / (2 dt)`.
 ///
 /// The derivative is *centred* on the previous sample: to line it up with other signals, pair it
-/// with their values delayed by one sample ([`CentralDifference3::centre`] returns the signal
+/// with their values delayed by one sample ([`CentralDifference3::update`] also returns the signal
 /// itself at that instant). Its gain is `sin(ωT)/T` instead of `ω`: −1.6 % at a tenth of the
 /// Nyquist rate, negligible for a signal already low-passed well below Nyquist.
 #[derive(Debug, Clone, Copy, PartialEq)]
