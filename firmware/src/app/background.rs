@@ -323,13 +323,11 @@ impl<'q> Background<'q> {
         if accepted_throw.is_none() && !more_rest {
             return;
         }
-        let free_fall_ms = match (accepted_throw, &self.results.calibration) {
-            (Some(segment), _) => {
-                (u64::from(segment.len()) * self.period_us / 1000).min(65_535) as u16
-            }
-            (None, Some(calibration)) => calibration.last_free_fall_ms,
-            (None, None) => 0,
-        };
+        if let (Some(segment), Some(calibration)) = (accepted_throw, &mut self.results.calibration)
+        {
+            calibration.last_free_fall_ms =
+                (u64::from(segment.len()) * self.period_us / 1000).min(65_535) as u16;
+        }
         status.throws = u8::try_from(estimator.segments().len()).unwrap_or(u8::MAX);
         match estimator.estimate() {
             Ok(estimate) => {
@@ -339,7 +337,6 @@ impl<'q> Background<'q> {
                 status.well_determined = matches!(estimate.verdict, Verdict::WellDetermined { .. });
                 status.advice = advice(&estimate.verdict);
                 if let Some(calibration) = &mut self.results.calibration {
-                    calibration.last_free_fall_ms = free_fall_ms;
                     calibration.acc_bias_mps2 = estimate.acc_bias_mps2.map(Into::into);
                 }
             }
@@ -351,7 +348,6 @@ impl<'q> Background<'q> {
                 status.r_imu_m = [0.0; 3];
                 status.ci95_semi_axes_m = [0.0; 3];
                 if let Some(calibration) = &mut self.results.calibration {
-                    calibration.last_free_fall_ms = free_fall_ms;
                     calibration.acc_bias_mps2 = None;
                 }
             }

@@ -132,15 +132,18 @@ impl BatchFitter {
             }
             let (x, y, w) = aligned_row(&s, &r_ref);
             block.accumulate(&x, &y);
-            if drag.is_some() {
+            let modelled = drag.is_some();
+            if modelled {
                 throw.add_row(&x, &y, &w);
             }
             if block.count >= block_len {
                 self.rows.merge(&block);
                 segment_rows.merge(&block);
                 batches.add_block(&block);
-                let drag_sums = throw.take_block();
-                throw.commit(&block.xsum, &block.ysum, drag_sums);
+                if modelled {
+                    let drag_sums = throw.take_block();
+                    throw.commit(&block.xsum, &block.ysum, drag_sums);
+                }
                 block = Moments::new();
             }
         }
