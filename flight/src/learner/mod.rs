@@ -10,7 +10,7 @@
 //!   [`motor_model`] per motor, [`effectiveness`] (G1, G2) and, once every motor has been pulsed,
 //!   the [`crate::thrust_axis`] solver on the learned G1. It publishes a [`LearnedModel`]: the
 //!   interface the controller (INDI) builds on. Every sample runs the motor models and the
-//!   filters but only one of the four effectiveness regressions, and the publication is split
+//!   filters but only one of the six effectiveness regressions, and the publication is split
 //!   over two samples ([`PUBLISH_INTERVAL_SAMPLES`]), so that the worst sample stays within the
 //!   background task's budget on the Cortex-M7 (docs/benchmarks.md, issue 7).
 //!
@@ -58,14 +58,14 @@ pub const G1_CONVERGED_RELATIVE_STD: f32 = 0.02;
 /// Most samples between two publications of the [`LearnedModel`] while the effectiveness
 /// regressions do not run (filters starting, gaps).
 ///
-/// While they run (one per sample, four per cycle: [`effectiveness::REGRESSION_DECIMATION`]),
+/// While they run (one per sample, six per cycle: [`effectiveness::REGRESSION_DECIMATION`]),
 /// the model is published once per cycle in two halves that share a sample with the cheaper
-/// force-row regressions, never with the rotational one: the sample of force row x stages the
+/// force-row regressions, never with the rotational ones: the sample of force row x stages the
 /// model (the copy of G1, G2 and the motor models, the convergence statistics), the sample of
 /// force row y solves the thrust axis of the staged G1 and publishes the whole at once. No
 /// sample pays for the copy, the statistics and the solve together (docs/benchmarks.md,
 /// issue 7); the published model is one sample older than the estimators.
-pub const PUBLISH_INTERVAL_SAMPLES: u8 = 4;
+pub const PUBLISH_INTERVAL_SAMPLES: u8 = effectiveness::REGRESSION_DECIMATION;
 
 /// A reported speed above which a motor counts as running (armed ESC), rad/s: far below any
 /// idle speed (300 rad/s on a 3-inch quad), far above DShot's speed resolution at standstill.
@@ -287,8 +287,8 @@ impl Learner {
 
     /// One control-rate sample: IMU (IMU axes), the commands applied in this step and the motor
     /// speeds reported in it (rad/s; NaN where a motor did not report). The model is published
-    /// every fourth sample (see [`PUBLISH_INTERVAL_SAMPLES`]), so [`Learner::model`] may be up
-    /// to four samples behind.
+    /// every sixth sample (see [`PUBLISH_INTERVAL_SAMPLES`]), so [`Learner::model`] may be up
+    /// to six samples behind.
     pub fn update(
         &mut self,
         gyro_rad_s: [f32; 3],
@@ -316,7 +316,7 @@ impl Learner {
         match regression {
             Regression::ForceRow(0) => self.stage(),
             Regression::ForceRow(1) => self.publish_staged(),
-            Regression::ForceRow(_) | Regression::Rotation => {}
+            Regression::ForceRow(_) | Regression::RotationRow(_) => {}
             Regression::All => {
                 self.stage();
                 self.publish_staged();
@@ -572,7 +572,7 @@ mod tests {
         ([1.0, 2.0 * t, -0.5], [0.1, -0.2, -9.0 - t], commands, speeds)
     }
 
-    /// The model is published once per cycle of the four effectiveness regressions (staged in
+    /// The model is published once per cycle of the six effectiveness regressions (staged in
     /// one sample, published with the thrust axis in the next), and every
     /// [`PUBLISH_INTERVAL_SAMPLES`] while a gap keeps the regressions from running.
     #[test]
@@ -593,14 +593,14 @@ mod tests {
             }
         }
         // (sample index, samples learned from). The filters take two samples, the regressions
-        // four centred ones: they run from sample 6, force row x staging at 6, 10, ... and force
-        // row y publishing at 7, 11, ... what was learned from 7, 11, ... samples. Before that,
-        // and from the gap at sample 30 on (each sample restarts the filters): every fourth.
-        let expected = [(3, 4), (7, 7), (11, 11), (15, 15), (19, 19), (23, 23), (27, 27)];
+        // six centred ones: they run from sample 8, force row x staging at 8, 14, ... and force
+        // row y publishing at 9, 15, ... what was learned from 9, 15, ... samples. Before that,
+        // and from the gap at sample 30 on (each sample restarts the filters): every sixth.
+        let expected = [(5, 6), (9, 9), (15, 15), (21, 21), (27, 27)];
         assert_eq!(&publications[..expected.len()], &expected);
         let gap: std::vec::Vec<usize> =
             publications[expected.len()..].iter().map(|p| p.0).collect();
-        assert_eq!(gap, [31, 35, 39]);
+        assert_eq!(gap, [33, 39]);
         assert!(learner.model().motor[1].a_rad_s != 0.0, "the motor models learned");
     }
 }

@@ -130,6 +130,14 @@ impl<const N: usize, const M: usize, const L: usize> Rls<N, M, L> {
         self.updates = 0;
     }
 
+    /// Sets the prior variance `P[j][j]` of parameter `j` (before any update: a prior).
+    pub fn set_prior_variance(&mut self, j: usize, variance: f32) {
+        if j < self.n {
+            let at = self.row_start(j);
+            self.p[at] = f64::from(variance);
+        }
+    }
+
     /// Index of `P[i][i]` in the packed storage: rows `0..i` hold `n, n − 1, …, n − i + 1`
     /// entries.
     #[inline]
@@ -417,6 +425,30 @@ mod tests {
         }
         // Noise variance 1e-4 (σ = 0.01), seen through the a-priori errors.
         assert!((rls.error_var(0) / 1e-4 - 1.0).abs() < 0.3, "{}", rls.error_var(0));
+    }
+
+    /// A tight prior on one parameter holds it near its prior value where the data cannot tell
+    /// it from another (two identical regressors), while the loose one takes the rest: the
+    /// minimum-norm split of the data's sum without it.
+    #[test]
+    fn a_tight_prior_holds_a_parameter_the_data_leave_free() {
+        let config = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
+        let mut rls = Rls::<2, 1, 3>::new(2, config);
+        rls.set_theta(1, 0, 0.5);
+        rls.set_prior_variance(1, 1e-4);
+        for _ in 0..200 {
+            // y = 3 = θ₀ + θ₁ with x = (1, 1): only the sum is observed.
+            rls.update(&[1.0, 1.0], &[3.0]).unwrap();
+        }
+        assert!((rls.theta(1, 0) - 0.5).abs() < 1e-3, "θ₁ = {}", rls.theta(1, 0));
+        assert!((rls.theta(0, 0) - 2.5).abs() < 1e-3, "θ₀ = {}", rls.theta(0, 0));
+        let mut free = Rls::<2, 1, 3>::new(2, config);
+        free.set_theta(1, 0, 0.5);
+        for _ in 0..200 {
+            free.update(&[1.0, 1.0], &[3.0]).unwrap();
+        }
+        // Without the prior the sum's excess is split evenly: θ₁ = 0.5 + (3 − 0.5)/2.
+        assert!((free.theta(1, 0) - 1.75).abs() < 1e-3, "θ₁ = {}", free.theta(1, 0));
     }
 
     #[test]

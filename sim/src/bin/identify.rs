@@ -180,6 +180,22 @@ fn main() -> std::process::ExitCode {
                 100.0 * quantile(&g1_block, 0.9),
                 100.0 * quantile(&g1_block, 0.99)
             );
+            for (name, block) in [("specific-force", 0), ("angular-acceleration", 1)] {
+                let rows: Vec<f64> = scored
+                    .iter()
+                    .map(
+                        |(_, _, s)| if block == 0 { s.g1_force_rel() } else { s.g1_rotation_rel() },
+                    )
+                    .collect();
+                let all: Vec<f64> = scored.iter().map(|(_, _, s)| s.g1_block_rel[block]).collect();
+                println!(
+                    "  {name} rows: worst row median {:.2} %, 99th {:.2} %; block median {:.2} %, 99th {:.2} %",
+                    100.0 * quantile(&rows, 0.5),
+                    100.0 * quantile(&rows, 0.99),
+                    100.0 * quantile(&all, 0.5),
+                    100.0 * quantile(&all, 0.99)
+                );
+            }
             println!(
                 "largest τ error: median {:.3} ms, 99th {:.3} ms; within 1 ms in {:.1} %",
                 1e3 * quantile(&tau, 0.5),
