@@ -12,6 +12,7 @@ pub mod filters;
 pub mod imu_offset;
 pub mod indi;
 pub mod learner;
+pub mod math;
 pub mod navigation;
 pub mod position;
 pub mod rng;

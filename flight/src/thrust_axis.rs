@@ -51,13 +51,12 @@ mod bounded;
 mod eigen3;
 mod householder;
 mod rotation;
-mod sqrt;
 
 use rotation::shortest_arc_from_down_unit;
 pub use rotation::{euler_zyx, rotate, shortest_arc_from_down, EulerZyx, THRUST_DIR_THRUST_FRAME};
 
+use crate::math::sqrt;
 use householder::PivotedQr3;
-use sqrt::sqrt;
 
 /// Fewest motors the solver accepts: with fewer than four, `G1τ u = 0` (three equations) leaves
 /// no thrust direction to choose.

@@ -126,7 +126,7 @@ impl MotorModelEstimator {
         }
         let d = command.clamp(0.0, 1.0);
         let armed = if armed { 1.0 } else { 0.0 };
-        let raw = [d, libm::sqrtf(d), armed, speed_rad_s / SPEED_SCALE_RAD_S];
+        let raw = [d, crate::math::sqrt(d), armed, speed_rad_s / SPEED_SCALE_RAD_S];
         if self.seen == 0 {
             for (f, x) in self.lowpass.iter_mut().zip(raw) {
                 f.reset_to(x);

@@ -46,8 +46,8 @@
 
 use super::eigen3::symmetric_eigen3;
 use super::householder::PivotedQr3;
-use super::sqrt::sqrt;
 use super::{ScaledProblem, BOUND_TOLERANCE, MOTORS_MAX};
+use crate::math::sqrt;
 
 /// `|aᵢ| ≤ HARD_CASE_LOW · g` is treated as exactly zero in the secular equation (dimensionless;
 /// f32 round-off of `a` is about 1e-7 g).

@@ -4,7 +4,7 @@
 //! face it visits. Jacobi is unconditionally stable, accurate for small eigenvalues relative to
 //! the largest, and converges quadratically: a handful of sweeps for 3 × 3.
 
-use super::sqrt::sqrt;
+use crate::math::sqrt;
 
 /// Maximum number of sweeps (three rotations each). Quadratic convergence reaches f32 precision
 /// in 4–6 sweeps for 3 × 3; 12 is a safe cap that bounds the run time.

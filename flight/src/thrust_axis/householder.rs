@@ -12,7 +12,7 @@
 //! motor count); callers with a varying row count pad with zero rows, which leaves the
 //! factorisation of the non-zero block unchanged (`Q` acts as the identity on zero rows).
 
-use super::sqrt::sqrt;
+use crate::math::sqrt;
 
 /// Relative threshold on `|R_kk| / |R_00|` below which a pivot is treated as zero (rank test).
 ///

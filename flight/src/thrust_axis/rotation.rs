@@ -6,7 +6,7 @@
 //! of the thrust frame, and `q_thrust_to_imu` maps thrust-frame coordinates into IMU coordinates
 //! (the seed paper's `q_U^T`).
 
-use super::sqrt::sqrt;
+use crate::math::sqrt;
 
 /// The thrust direction in thrust-frame coordinates: "up" in FRD.
 pub const THRUST_DIR_THRUST_FRAME: [f32; 3] = [0.0, 0.0, -1.0];

@@ -1,8 +1,9 @@
 //! Square root from FPU multiplies: the same arithmetic on the host and on the Cortex-M7.
 //!
-//! Why not `libm::sqrtf`: libm has no ARM fast path, so on `thumbv7em` it is a bit-by-bit
-//! integer routine of a few hundred instructions, and the solver takes about eight roots per
-//! call (measured: it was most of the m = 4 instruction count, see `docs/benchmarks.md`). The
+//! Why not `libm::sqrtf`: libm has no ARM fast path, so on `thumbv7em` it is an integer
+//! routine (53 instructions a call in `cargo xtask bench-m7`), and the thrust-axis solver takes
+//! about eight roots per call (measured: it was most of the m = 4 instruction count, see
+//! `docs/benchmarks.md`); the learner's motor models take one per motor and sample. The
 //! `vsqrt.f32` instruction is reachable from stable Rust only through inline assembly that needs
 //! the double-precision `vfp2` feature (not in the baseline `thumbv7em-none-eabihf`), so instead:
 //! the classic bit-level estimate of `1/√x`, three Newton steps (relative error 2e-3 → 5e-6 →
