@@ -128,8 +128,8 @@ const INERTIA_PARAMETERS: usize = 5;
 /// 99th-percentile G1τ error was 42 % (the learned `J` had principal moments above half the
 /// trace, which no rigid body has). This weak prior pulls only such directions towards the
 /// sphere. Chosen on the simulator's Monte Carlo (300 random airframes, block error median /
-/// 99th percentile): 1 → 3.4 / 36 %, 0.1 → 2.8 / 16 %, 0.02 → see docs/benchmarks.md,
-/// 0.003 → 3.2 / 11 %.
+/// 99th percentile): 1 → 3.4 / 36 %, 0.1 → 2.8 / 16 %, 0.02 → 2.7 / 11 %, 0.003 → 3.2 / 11 %
+/// (1,000 airframes at 0.02: docs/benchmarks.md).
 pub const INERTIA_PRIOR_VARIANCE: f32 = 2e-2;
 /// Capacity of the rotational regression: the torques `T` (`3·8`), the rotor momenta `K`
 /// (`3·8`) and the normalised inertia.
@@ -564,9 +564,10 @@ impl EffectivenessEstimator {
     /// Not rescaled for the decimation: the learner's gate on it
     /// ([`super::AXIS_INFORMATION_FRACTION`]) is crossed in the first milliseconds of a pulse,
     /// while the prior still dominates `P`, and the decimated regressions cross it when the
-    /// every-sample ones did (the simulator's paper quad: first thrust axis 163.5 ms into the
-    /// excitation, 161.5 ms at every sample; referring `P` to one-sample increments, × 4, would
-    /// delay it to 221.5 ms).
+    /// every-sample ones did (the simulator's paper quad, measured with four regressions per
+    /// cycle: first thrust axis 163.5 ms into the excitation, 161.5 ms at every sample;
+    /// referring `P` to one-sample increments, × 4, would delay it to 221.5 ms; with the six of
+    /// the angular-momentum balance: 166.5 ms).
     pub fn information_left(&self, i: usize, p0: f32) -> (f32, f32) {
         let force = (0..3).map(|k| self.force.p_diag(3 * i + k)).fold(0.0, f32::max);
         let torque = (0..3).map(|k| self.rotation.p_diag(3 * i + k)).fold(0.0, f32::max);
