@@ -209,8 +209,8 @@ pub struct EffectivenessEstimator {
     high_pass_pole: f32,
     /// Sample rate, Hz (for the pole when the decimation changes).
     rate_hz: f32,
-    /// The angular-momentum balance: `T` at `3i + axis`, `K` at `3m + 3i + axis`, `J` from
-    /// `6m` (see the module doc).
+    /// The angular-momentum balance: `T` at `axis·m + i` ([`Self::torque_index`]), `K` at
+    /// `3m + 3i + axis`, `J` from `6m` (see the module doc).
     rotation: Rls<ROT_PARAMETERS_MAX, 1, { packed_len(ROT_PARAMETERS_MAX) }>,
 }
 
@@ -448,21 +448,27 @@ impl EffectivenessEstimator {
         bias[(k + 2) % 3] = -w[(k + 1) % 3];
         bias[(k + 1) % 3] = w[(k + 2) % 3];
         x[n] = y[k];
-        self.force_high_pass[k].apply(&mut x[..n + 1], self.high_pass_pole);
+        let all = 0..n + 1;
+        self.force_high_pass[k].apply(&mut x, [all], self.high_pass_pole);
         let _ = self.force.update(&x[..n], &[x[n]]);
     }
 
     /// Rotational row `k` of the angular-momentum balance
     /// `J Ω̇ + Ω × (J Ω) + Ω × (K ω) + K ω̇ = T ω²` on increments, with `J_zz = 1 − J_xx − J_yy`
-    /// moved to the output side: `T` at `3i + axis` (regressor Δ(ω²)ᵢ on row k), `K` at
+    /// moved to the output side: `T` at `axis·m + i` (regressor Δ(ω²)ᵢ on row k only), `K` at
     /// `3m + 3i + axis`, the five free entries of `J` from `6m`.
+    ///
+    /// Row k's torque regressors of the other two axes are zero by construction: the torques
+    /// are stored axis by axis so that they form two whole blocks, which the high-pass skips and
+    /// the RLS's product `P x` skips in pairs ([`super::rls`]): on the quad's balance-row
+    /// sample, the row's 8 zero regressors of 29.
     fn regress_rotation_row(&mut self, k: usize, last: &Centred, now: &Centred) {
         let m = self.motors;
         let n = 6 * m + INERTIA_PARAMETERS;
         let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
         let mut x = [0.0f32; ROT_PARAMETERS_MAX + 1];
         for i in 0..m {
-            x[3 * i + k] = now.speed2[i] - last.speed2[i];
+            x[Self::torque_index(m, i, k)] = now.speed2[i] - last.speed2[i];
             // −(Ω × Kᵢ ωᵢ + Kᵢ ω̇ᵢ)ₖ with (Ω × v)ₖ = Ω_{k+1} v_{k+2} − Ω_{k+2} v_{k+1}.
             let d = |a: usize| now.momentum_products[3 * i + a] - last.momentum_products[3 * i + a];
             let momentum = &mut x[3 * m + 3 * i..3 * m + 3 * i + 3];
@@ -492,7 +498,9 @@ impl EffectivenessEstimator {
         inertia[3] = -(l[0][2] + l[2][0]);
         inertia[4] = -(l[1][2] + l[2][1]);
         x[n] = zz;
-        self.rotation_high_pass[k].apply(&mut x[..n + 1], self.high_pass_pole);
+        // The other axes' torque regressors stay zero: not filtered.
+        let channels = [k * m..(k + 1) * m, 3 * m..n + 1];
+        self.rotation_high_pass[k].apply(&mut x, channels, self.high_pass_pole);
         let _ = self.rotation.update(&x[..n], &[x[n]]);
     }
 
@@ -514,11 +522,17 @@ impl EffectivenessEstimator {
         Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, 1.0 - xx - yy)
     }
 
+    /// Index of `T[axis][i]` (motor `i`'s torque about `axis` over `tr I`) in the balance's
+    /// parameters, for `m` motors: axis by axis.
+    const fn torque_index(m: usize, i: usize, axis: usize) -> usize {
+        axis * m + i
+    }
+
     /// Column `i` of `T` (torque per squared speed over `tr I`) and of `K` (rotor momentum per
     /// speed over `tr I`), in the regression's units.
     fn torque_and_momentum(&self, i: usize) -> (Vector3<f32>, Vector3<f32>) {
         let m = self.motors;
-        let t = Vector3::from_fn(|k, _| self.rotation.theta(3 * i + k, 0));
+        let t = Vector3::from_fn(|k, _| self.rotation.theta(Self::torque_index(m, i, k), 0));
         let h = Vector3::from_fn(|k, _| self.rotation.theta(3 * m + 3 * i + k, 0));
         (t, h)
     }
@@ -570,7 +584,8 @@ impl EffectivenessEstimator {
     /// the angular-momentum balance: 166.5 ms).
     pub fn information_left(&self, i: usize, p0: f32) -> (f32, f32) {
         let force = (0..3).map(|k| self.force.p_diag(3 * i + k)).fold(0.0, f32::max);
-        let torque = (0..3).map(|k| self.rotation.p_diag(3 * i + k)).fold(0.0, f32::max);
+        let torque_p = |k| self.rotation.p_diag(Self::torque_index(self.motors, i, k));
+        let torque = (0..3).map(torque_p).fold(0.0, f32::max);
         (force / p0, torque / p0)
     }
 
@@ -596,9 +611,11 @@ impl EffectivenessEstimator {
             core::array::from_fn(|k| self.force.theta(3 * i + k, 0)),
         );
         let t = relative(
-            (0..3).map(|k| self.rotation.p_diag(3 * i + k)).fold(0.0, f32::max),
+            (0..3)
+                .map(|k| self.rotation.p_diag(Self::torque_index(self.motors, i, k)))
+                .fold(0.0, f32::max),
             [self.rotation.error_var(0); 3],
-            core::array::from_fn(|k| self.rotation.theta(3 * i + k, 0)),
+            core::array::from_fn(|k| self.rotation.theta(Self::torque_index(self.motors, i, k), 0)),
         );
         (f, t)
     }
@@ -619,15 +636,25 @@ impl<const N: usize> Default for HighPass<N> {
 }
 
 impl<const N: usize> HighPass<N> {
-    /// Filter `x` in place (its first `x.len()` channels). The first call only primes the state
+    /// Filter the channels in the ranges `channels` of `x` in place (the others are left
+    /// alone: channels that are zero by construction). The first call only primes the state
     /// with the input, so a signal that starts at a non-zero level gives no transient.
-    fn apply(&mut self, x: &mut [f32], pole: f32) {
-        for (j, value) in x.iter_mut().enumerate().take(N) {
-            let out =
-                if self.primed { pole * self.output[j] + *value - self.input[j] } else { 0.0 };
-            self.input[j] = *value;
-            self.output[j] = out;
-            *value = out;
+    fn apply<const R: usize>(
+        &mut self,
+        x: &mut [f32],
+        channels: [core::ops::Range<usize>; R],
+        pole: f32,
+    ) {
+        for range in channels {
+            let end = range.end.min(N).min(x.len());
+            let start = range.start.min(end);
+            let states = self.input[start..end].iter_mut().zip(&mut self.output[start..end]);
+            for (value, (input, output)) in x[start..end].iter_mut().zip(states) {
+                let out = if self.primed { pole * *output + *value - *input } else { 0.0 };
+                *input = *value;
+                *output = out;
+                *value = out;
+            }
         }
         self.primed = true;
     }
