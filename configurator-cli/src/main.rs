@@ -173,6 +173,17 @@ enum Command {
         #[arg(long)]
         yes: bool,
     },
+    /// Send an ESC command (a DShot special command) to one motor's ESC or to all: `beep1` to
+    /// find a motor, `spin-direction-reversed` then `save-settings` to turn a motor round for
+    /// good. The motors must be stopped (refused while armed). `esc list` names them all.
+    Esc {
+        /// The command: `beep1`…`beep5`, `esc-info`, `spin-direction-normal`,
+        /// `spin-direction-reversed`, `3d-mode-on`/`-off`, `save-settings`, … or `list`.
+        command: String,
+        /// Motor index from 0 (default: every motor).
+        #[arg(long)]
+        motor: Option<u8>,
+    },
     /// An interactive shell: the same commands, with history, tab completion and `help`.
     Shell,
     /// Render a recording (CSV from `record`: IMU, attitude, motor and G1-convergence panels) or
@@ -278,6 +289,7 @@ fn run(cli: &Cli) -> Result<String, Failure> {
         }
         Command::Ports => ports(cli.json),
         Command::Plot { input, output } => plot(input, output, cli.json),
+        Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
         // Arguments are validated before any port is touched.
         command => with_board(cli, board_command(command)?),
     }
@@ -380,8 +392,38 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
                 yes: *yes,
             }
         }
+        Command::Esc { command, motor } => {
+            let Some(parsed) = protocol::DshotCommand::from_name(command) else {
+                return Err(input(format!(
+                    "unknown ESC command `{command}`; `esc list` names them: {}",
+                    esc_command_names()
+                )));
+            };
+            if *motor == Some(protocol::ESC_ALL_MOTORS) {
+                return Err(input(format!("--motor {} is not a motor index", motor.unwrap_or(0))));
+            }
+            BoardCommand::Esc { command: parsed, motor: *motor }
+        }
         other => return Err(input(format!("{other:?} does not talk to a board"))),
     })
+}
+
+/// The ESC commands, one per line: name, DShot number, whether it changes a setting.
+fn esc_command_list() -> String {
+    let mut out =
+        String::from("ESC commands (DShot special commands; the motors must be stopped):\n");
+    for command in protocol::DshotCommand::ALL {
+        let kind = if command.changes_settings() { "setting" } else { "" };
+        let line = format!("  {:<26} {:>2}  {kind}", command.name(), command.value());
+        out += line.trim_end();
+        out.push('\n');
+    }
+    out
+}
+
+/// Every ESC command's name, comma-separated.
+fn esc_command_names() -> String {
+    protocol::DshotCommand::ALL.map(|c| c.name()).join(", ")
 }
 
 /// A command that talks to a board, with its arguments validated.
@@ -433,6 +475,10 @@ enum BoardCommand {
         command: f32,
         duration_s: f64,
         yes: bool,
+    },
+    Esc {
+        command: protocol::DshotCommand,
+        motor: Option<u8>,
     },
 }
 
@@ -733,6 +779,7 @@ fn run_on_board(
         BoardCommand::MotorTest { motor, command, duration_s, yes } => {
             motor_test(client, motor, command, duration_s, yes)
         }
+        BoardCommand::Esc { command, motor } => esc_command(client, command, motor),
         BoardCommand::Shell => shell(cli, client, target),
     }
 }
@@ -964,6 +1011,29 @@ fn motor_test(
     Ok(format!("motor {motor} stopped after {:.1} s\n", started.elapsed().as_secs_f64()))
 }
 
+/// Send one ESC command; says which motors it went to and what an ESC does with it.
+fn esc_command(
+    client: &mut Client,
+    command: protocol::DshotCommand,
+    motor: Option<u8>,
+) -> Result<String, Failure> {
+    let request = Request::EscCommand(protocol::EscCommand {
+        motor: motor.unwrap_or(protocol::ESC_ALL_MOTORS),
+        command: command.value() as u8,
+    });
+    client.request(&request, "the ESC command")?;
+    let to = match motor {
+        Some(m) => format!("motor {m}'s ESC"),
+        None => "every ESC".to_string(),
+    };
+    let note = if command.changes_settings() {
+        format!(" ({} frames in a row, as the DShot specification asks)", command.min_repeats())
+    } else {
+        String::new()
+    };
+    Ok(format!("sent {} (DShot command {}) to {to}{note}\n", command.name(), command.value()))
+}
+
 /// Close `client` and open the board again once it has restarted; says so.
 fn reconnect(client: &mut Client, target: &Target) -> Result<Client, Failure> {
     let port = client.port().to_string();
@@ -1018,6 +1088,7 @@ fn shell(cli: &Cli, client: &mut Client, target: &Target) -> Result<String, Fail
             Command::Fit(_) | Command::Solve(_) | Command::Plot { .. } | Command::Ports => {
                 run(&parsed)
             }
+            Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
             other => match board_command(other) {
                 Ok(command) => {
                     let cli = Cli { json: parsed.json || cli.json, ..parsed };
@@ -1066,6 +1137,7 @@ const SHELL_COMMANDS: &[(&str, &str, &str)] = &[
     ("identify", "identify [--disarm-after-s 5]", "throw-and-fly: learn the motors and fly"),
     ("record", "record --topic state --duration-s 10 FILE.csv", "record telemetry to CSV"),
     ("motor-test", "motor-test --motor N [--command 0.1]", "spin one motor (propellers off!)"),
+    ("esc", "esc beep1 [--motor N] | esc list", "send an ESC command (beep, direction, save)"),
     ("stream", "stream --topic imu [--rate-hz 500]", "stream a telemetry topic, count gaps"),
     ("arm-throw-to-fly", "arm-throw-to-fly", "the motors spin after the next throw"),
     ("disarm", "disarm", "stop every motor now"),

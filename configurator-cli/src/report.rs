@@ -9,7 +9,7 @@ use protocol::{
 use serde_json::{json, Value};
 use std::fmt::Write as _;
 
-const CAPABILITY_NAMES: [(u32, &str); 8] = [
+const CAPABILITY_NAMES: [(u32, &str); 9] = [
     (Capabilities::IMU, "imu"),
     (Capabilities::MOTORS, "motors"),
     (Capabilities::MOTOR_RPM, "motor_rpm"),
@@ -18,6 +18,7 @@ const CAPABILITY_NAMES: [(u32, &str); 8] = [
     (Capabilities::SIMULATOR, "simulator"),
     (Capabilities::BOOTLOADER, "bootloader"),
     (Capabilities::RECEIVER, "receiver"),
+    (Capabilities::ESC_COMMANDS, "esc_commands"),
 ];
 
 fn capability_list(capabilities: Capabilities) -> Vec<&'static str> {

@@ -241,7 +241,8 @@ mod app {
         let mut capabilities = Capabilities::TELEMETRY
             | Capabilities::MOTORS
             | Capabilities::RECEIVER
-            | Capabilities::BOOTLOADER;
+            | Capabilities::BOOTLOADER
+            | Capabilities::ESC_COMMANDS;
         if imu_state == ImuDriverState::Running {
             capabilities |= Capabilities::IMU;
         }

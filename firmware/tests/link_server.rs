@@ -710,3 +710,40 @@ fn the_flight_topic_reports_the_mode_setpoint_and_position() {
     assert_eq!(flight.position_sp_ned_m, Some([0.5, 0.0, -1.0]));
     assert!(flight.pose_fresh);
 }
+
+/// ESC commands: unsupported where the board has no `Capabilities::ESC_COMMANDS` (the bridge),
+/// refused while armed, an unknown motor or command number named in a typed error; a beep to
+/// one motor and a save to all are queued for the control step as the driver's commands.
+#[test]
+fn esc_commands_are_checked_and_queued_for_the_control_step() {
+    let beep = EscCommand { motor: 2, command: DshotCommand::Beep1.value() as u8 };
+    let mut host = Host::with_view(learner_view(4));
+    host.handshake();
+    assert_eq!(host.request(&Request::EscCommand(beep), 2), Err(DeviceError::Unsupported));
+    let mut board_info = board();
+    board_info.capabilities |= Capabilities::ESC_COMMANDS;
+    host.server = LinkServer::new(board_info);
+    host.handshake();
+    host.view.control.armed = true;
+    assert_eq!(host.request(&Request::EscCommand(beep), 3), Err(DeviceError::RefusedWhileArmed));
+    host.view.control.armed = false;
+    let wrong_motor = EscCommand { motor: 4, ..beep };
+    assert_eq!(bad_value_name(&host.request(&Request::EscCommand(wrong_motor), 4)), Some("motor"));
+    // 16 is reserved in the DShot specification, 48 is a throttle value.
+    for number in [0u8, 16, 48] {
+        let unknown = EscCommand { command: number, ..beep };
+        let response = host.request(&Request::EscCommand(unknown), 5);
+        assert_eq!(bad_value_name(&response), Some("command"), "{number}");
+    }
+    assert!(host.commands().is_empty(), "nothing queued for a refused command");
+    assert_eq!(host.request(&Request::EscCommand(beep), 6), Ok(Reply::Done));
+    let save = EscCommand { motor: ESC_ALL_MOTORS, command: 12 };
+    assert_eq!(host.request(&Request::EscCommand(save), 7), Ok(Reply::Done));
+    assert_eq!(
+        host.commands(),
+        vec![
+            ControlCommand::EscCommand { command: DshotCommand::Beep1, motor: Some(2) },
+            ControlCommand::EscCommand { command: DshotCommand::SaveSettings, motor: None },
+        ]
+    );
+}

@@ -1,6 +1,7 @@
 //! Every message that crosses the link between the configurator and the flight controller.
 //!
 //! - [`messages`]: the one table of message types and ids;
+//! - [`esc`]: the ESC commands (DShot special commands) a host may send;
 //! - [`frame`]: postcard in COBS frames with a CRC-32C, a streaming decoder that never panics;
 //! - [`PROTOCOL_VERSION`] and [`SCHEMA_HASH`]: what the handshake compares.
 //!
@@ -8,17 +9,19 @@
 //! Behaviour (who answers what) lives in `firmware::app` and the configurator, not here.
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 
+pub mod esc;
 pub mod frame;
 pub mod messages;
 mod table;
 
+pub use esc::DshotCommand;
 pub use frame::{Decoder, EncodeError, Frame, FrameError, MAX_FRAME_LEN};
 pub use messages::*;
 pub use table::DecodeError;
 
 /// This protocol's version. Bump the minor for additions an older peer can ignore, the major
 /// for anything else (any change to the golden bytes of an existing message).
-pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 4 };
+pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 5 };
 
 /// Hash of the message table: FNV-1a (64 bit) of `messages.rs` with comments and white space
 /// removed. Equal hashes mean both sides were built from the same table.

@@ -73,6 +73,8 @@ impl Capabilities {
     pub const BOOTLOADER: u32 = 1 << 6;
     /// A radio receiver is configured (protocol 1.4).
     pub const RECEIVER: u32 = 1 << 7;
+    /// The motor outputs can send ESC commands ([`Request::EscCommand`], protocol 1.5).
+    pub const ESC_COMMANDS: u32 = 1 << 8;
 
     /// Whether every flag in `flags` is set.
     pub fn has(self, flags: u32) -> bool {
@@ -200,6 +202,21 @@ pub struct MotorTest {
     /// Command δ, 0 to [`MOTOR_TEST_MAX_COMMAND`].
     pub command: f32,
 }
+
+/// Send an ESC command (a DShot special command: [`crate::DshotCommand`]) to one motor's ESC or
+/// to all of them. The motors must be stopped: refused while a flight, an identification or a
+/// motor test is armed.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EscCommand {
+    /// Motor index from 0, or [`ESC_ALL_MOTORS`].
+    pub motor: u8,
+    /// The command's DShot number ([`crate::DshotCommand::value`]); other numbers are refused
+    /// with [`DeviceError::BadValue`] (`command`).
+    pub command: u8,
+}
+
+/// [`EscCommand::motor`] meaning every motor.
+pub const ESC_ALL_MOTORS: u8 = 0xFF;
 
 /// A motor test stops by itself this long after its last request, ms.
 pub const MOTOR_TEST_KEEPALIVE_MS: u32 = 3000;
@@ -915,6 +932,10 @@ crate::table::message_table! {
         /// armed; [`DeviceError::Unsupported`] in the simulator. Answered before the restart.
         /// Protocol 1.4.
         0x16 => RebootToBootloader(()),
+        /// An ESC command (beep, spin direction, save, …) → `Done` once queued for the motor
+        /// outputs; refused while armed, [`DeviceError::Unsupported`] where the motor outputs
+        /// cannot send them (the bridge). Protocol 1.5.
+        0x17 => EscCommand(EscCommand),
     }
 }
 

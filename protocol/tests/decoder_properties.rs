@@ -79,6 +79,9 @@ fn any_request() -> impl Strategy<Value = Request> {
         Just(Request::GetFlight(())),
         Just(Request::GetBoard(())),
         Just(Request::RebootToBootloader(())),
+        (any::<u8>(), any::<u8>()).prop_map(|(motor, command)| Request::EscCommand(
+            protocol::EscCommand { motor, command }
+        )),
     ]
 }
 

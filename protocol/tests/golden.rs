@@ -500,3 +500,12 @@ fn the_largest_flight_sample_and_board_health_fit_one_frame() {
         assert!(len <= MAX_FRAME_LEN - 24, "{len} bytes: less than 24 bytes of room to grow");
     }
 }
+
+#[test]
+fn protocol_1_5_esc_command_is_pinned() {
+    // Beep 1 (DShot number 1) to every motor; then spin direction reversed (21) to motor 2.
+    let beep = EscCommand { motor: ESC_ALL_MOTORS, command: DshotCommand::Beep1.value() as u8 };
+    assert_eq!(request(Request::EscCommand(beep), 7), "09 17 07 ff 01 d9 81 7b 9d 00");
+    let reverse = EscCommand { motor: 2, command: 21 };
+    assert_eq!(request(Request::EscCommand(reverse), 8), "09 17 08 02 15 68 9f b8 82 00");
+}

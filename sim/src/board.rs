@@ -35,7 +35,8 @@
 //!   `None` before the first report has arrived.
 //! - The hand and the truth are reached through [`SimBoard::physics`] / [`SimBoard::physics_mut`].
 
-use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::app::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::drivers::dshot::{CommandQueue, DshotCommand};
 use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::airframe::{Airframe, MotorParams, MAX_ROTORS};
@@ -116,9 +117,80 @@ pub struct SimMotors {
     arming: Arming,
     armed: bool,
     speeds_rad_s: [Option<f32>; MAX_MOTORS],
+    /// Special commands waiting for the stop frames, as on the board.
+    special: CommandQueue,
+    escs: [SimEsc; MAX_MOTORS],
+}
+
+/// What a simulated ESC made of the DShot special commands on its wire: the frames are encoded
+/// by the board's [`CommandQueue`] and read back here as an ESC firmware reads them (BLHeli_32,
+/// Bluejay: a beep on its first frame, a settings command after six frames in a row). The
+/// motor's physics does not change (a reversed direction is recorded, not flown).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SimEsc {
+    /// Beeps sounded (one per beep command).
+    pub beeps: u32,
+    /// Spin direction reversed (`SpinDirectionReversed` or `SpinDirection2`; back to normal
+    /// with `SpinDirectionNormal` or `SpinDirection1`).
+    pub reversed: bool,
+    /// Settings saved (`SaveSettings`).
+    pub saves: u32,
+    /// Settings commands refused for too few repeats (the run of frames broke before six).
+    pub settings_incomplete: u32,
+    /// The command of the last frame and how many frames of it in a row.
+    run: Option<(DshotCommand, u8)>,
+}
+
+/// Frames in a row an ESC needs before it acts on a settings command (the DShot specification's
+/// minimum; [`DshotCommand::min_repeats`]).
+const SETTINGS_FRAMES: u8 = 6;
+
+impl SimEsc {
+    /// One frame on the wire (normal DShot).
+    fn receive(&mut self, frame: u16) {
+        let command = u8::try_from(frame >> 5).ok().and_then(DshotCommand::from_value);
+        let Some(command) = command else {
+            if let Some((run, frames)) = self.run.take() {
+                if run.changes_settings() && frames < SETTINGS_FRAMES {
+                    self.settings_incomplete += 1;
+                }
+            }
+            return;
+        };
+        let frames = match self.run {
+            Some((run, frames)) if run == command => frames.saturating_add(1),
+            _ => 1,
+        };
+        self.run = Some((command, frames));
+        let act_now =
+            if command.changes_settings() { frames == SETTINGS_FRAMES } else { frames == 1 };
+        if !act_now {
+            return;
+        }
+        match command {
+            DshotCommand::Beep1
+            | DshotCommand::Beep2
+            | DshotCommand::Beep3
+            | DshotCommand::Beep4
+            | DshotCommand::Beep5 => self.beeps += 1,
+            DshotCommand::SpinDirectionReversed | DshotCommand::SpinDirection2 => {
+                self.reversed = true
+            }
+            DshotCommand::SpinDirectionNormal | DshotCommand::SpinDirection1 => {
+                self.reversed = false
+            }
+            DshotCommand::SaveSettings => self.saves += 1,
+            _ => {}
+        }
+    }
 }
 
 impl SimMotors {
+    /// The simulated ESCs (first `count()` entries).
+    pub fn escs(&self) -> &[SimEsc] {
+        &self.escs[..self.count as usize]
+    }
+
     /// The commands now held, δ ∈ [0, 1] (first `count()` entries).
     pub fn commands(&self) -> &[f32] {
         &self.commands[..self.count as usize]
@@ -156,6 +228,21 @@ impl Motors for SimMotors {
         if self.arming == Arming::OnFirstCommand && self.commands().iter().any(|c| *c > 0.0) {
             self.armed = true;
         }
+        // Each ESC reads the frame the board would send it; special commands only while every
+        // motor is commanded to stop.
+        self.special.set_armed(self.commands().iter().any(|c| *c > 0.0));
+        for (i, esc) in self.escs.iter_mut().enumerate().take(usize::from(self.count)) {
+            esc.receive(self.special.frame(i as u8, self.commands[i], false));
+        }
+        self.special.frame_sent();
+    }
+
+    fn send_command(
+        &mut self,
+        command: DshotCommand,
+        motor: Option<u8>,
+    ) -> Result<(), EscCommandError> {
+        self.special.queue(command, motor).map_err(|_| EscCommandError::Armed)
     }
 
     fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
@@ -214,6 +301,8 @@ impl SimBoard {
                 arming: config.arming,
                 armed: config.arming == Arming::Armed,
                 speeds_rad_s: [None; MAX_MOTORS],
+                special: CommandQueue::default(),
+                escs: [SimEsc::default(); MAX_MOTORS],
             },
             motor_params,
             telemetry_delay_ticks,

@@ -173,6 +173,8 @@ impl Sitl {
         let airframe = Airframe::load(&config.airframe)?;
         let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
         let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
+        // The simulated ESCs take DShot special commands (`SimMotors::escs`); the bridge's do not.
+        info.capabilities |= Capabilities::ESC_COMMANDS;
         if flash.is_some() {
             info.capabilities |= Capabilities::PERSISTENT_STORE;
         }

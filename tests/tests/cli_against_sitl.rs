@@ -124,6 +124,36 @@ fn an_out_of_range_stream_rate_is_refused_before_connecting() {
     assert!(String::from_utf8_lossy(&output.stderr).contains("outside 1 to 2000 Hz"));
 }
 
+/// `esc`: a beep to one motor and a save to every ESC are sent to the SITL's simulated ESCs (the
+/// SITL announces `esc_commands`), a motor the board does not have is refused naming the range,
+/// and an unknown command is refused before connecting, naming the known ones.
+#[test]
+fn esc_commands_reach_the_sitl_and_bad_ones_are_refused_with_their_range() {
+    let sitl = start_sitl(false);
+    let port = sitl.pty_path.clone().unwrap();
+    let port = port.to_str().unwrap();
+    let info = json_of(&run_cli(&["--port", port, "--json", "info"]));
+    assert!(info["info"]["capabilities"]
+        .as_array()
+        .unwrap()
+        .contains(&Value::from("esc_commands")));
+    let beep = run_cli(&["--port", port, "esc", "beep1", "--motor", "2"]);
+    assert!(beep.status.success(), "{}", String::from_utf8_lossy(&beep.stderr));
+    assert_eq!(
+        String::from_utf8_lossy(&beep.stdout),
+        "sent beep1 (DShot command 1) to motor 2's ESC\n"
+    );
+    let save = run_cli(&["--port", port, "esc", "save-settings"]);
+    assert!(String::from_utf8_lossy(&save.stdout).contains("to every ESC (6 frames in a row"));
+    let wrong = run_cli(&["--port", port, "esc", "beep1", "--motor", "7"]);
+    assert_eq!(wrong.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&wrong.stderr);
+    assert!(stderr.contains("motor = 7 is outside the allowed range 0 to 3"), "{stderr}");
+    let unknown = run_cli(&["--port", "/dev/does-not-exist", "esc", "beep9"]);
+    assert_eq!(unknown.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&unknown.stderr).contains("spin-direction-reversed"));
+}
+
 /// A fake board's identity reply with the given protocol version and board name.
 fn fake_info(protocol: Version, board: &str) -> Info {
     Info {

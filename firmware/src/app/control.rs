@@ -30,7 +30,7 @@
 //!   [`ControlSnapshot::accel_held`]; [`ACCEL_SATURATED_STEPS`] saturated samples in a row disarm.
 
 use super::background::BackgroundResults;
-use super::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use super::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
 use super::pilot::{Failsafe, Pilot, PilotStatus};
 use super::queue::{LearnerSample, SampleProducer};
 use super::telemetry::{StepProducer, StepRecord};
@@ -38,7 +38,8 @@ use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
 use flight::learner::{FlightPhase, ThrowToFly};
 use protocol::{
-    ExternalPose, LearnerFailure, PositionSetpoint, MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND,
+    DshotCommand, ExternalPose, LearnerFailure, PositionSetpoint, MOTOR_TEST_KEEPALIVE_MS,
+    MOTOR_TEST_MAX_COMMAND,
 };
 
 /// What the other tasks ask of the control step (from the link, the receiver, the simulator).
@@ -59,6 +60,9 @@ pub enum ControlCommand {
     MotorTest { motor: u8, command: f32 },
     /// End a motor test (the host went away).
     StopMotorTest,
+    /// Send an ESC command to `motor` (`None` = every motor) with the next stop frames. Ignored
+    /// while a flight, an identification or a motor test is armed.
+    EscCommand { command: DshotCommand, motor: Option<u8> },
 }
 
 /// What the control step takes from the parameters (`super::params::Params`).
@@ -226,6 +230,10 @@ pub struct ControlSnapshot {
     pub motor_test_timeouts: u16,
     /// Samples whose accelerometer was saturated while flying and replaced by the last good one.
     pub accel_held: u32,
+    /// ESC commands the motor outputs took, and those they or the step refused (armed, or
+    /// outputs that send none).
+    pub esc_commands_sent: u16,
+    pub esc_commands_refused: u16,
 }
 
 /// The control loop's state: the highest-priority task's local resource.
@@ -236,6 +244,8 @@ pub struct ControlLoop<'q> {
     settings: ControlSettings,
     pending_settings: Option<ControlSettings>,
     motor_test: Option<MotorTestState>,
+    /// An ESC command for the motor outputs, handed over in the next step.
+    esc_command: Option<(DshotCommand, Option<u8>)>,
     pilot: Pilot,
     /// `LearnedModel::samples` of the model last received (to copy only what changed).
     model_samples: Option<u32>,
@@ -263,6 +273,7 @@ impl<'q> ControlLoop<'q> {
             settings: ControlSettings::default(),
             pending_settings: None,
             motor_test: None,
+            esc_command: None,
             pilot: Pilot::new(f32::from(rate_hz)),
             model_samples: None,
             samples,
@@ -292,6 +303,7 @@ impl<'q> ControlLoop<'q> {
             }
             ControlCommand::Disarm => {
                 self.motor_test = None;
+                self.esc_command = None;
                 let attempt =
                     !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
                 self.throw_to_fly.disarm();
@@ -323,6 +335,9 @@ impl<'q> ControlLoop<'q> {
                 }
             }
             ControlCommand::StopMotorTest => self.motor_test = None,
+            ControlCommand::EscCommand { command, motor } => {
+                self.esc_command = Some((command, motor));
+            }
         }
         self.apply_pending_settings();
         self.publish_phase();
@@ -465,6 +480,19 @@ impl<'q> ControlLoop<'q> {
             }
         }
         self.run_motor_test(now_us, motor_count);
+        if let Some((command, motor)) = self.esc_command.take() {
+            // The link refused it while armed; an arming since then has the last word.
+            let taken = if self.flight_armed() || self.motor_test.is_some() {
+                Err(EscCommandError::Armed)
+            } else {
+                motors.send_command(command, motor)
+            };
+            let counter = match taken {
+                Ok(()) => &mut self.snapshot.esc_commands_sent,
+                Err(_) => &mut self.snapshot.esc_commands_refused,
+            };
+            *counter = counter.wrapping_add(1);
+        }
         let snapshot = &mut self.snapshot;
         motors.set_commands(&snapshot.commands[..motor_count]);
         snapshot.speeds_rad_s = motors.speeds_rad_s();

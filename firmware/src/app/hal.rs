@@ -31,6 +31,24 @@ pub trait Motors {
     /// Latest motor speeds in rad/s from RPM telemetry (bidirectional DShot), `None` where a
     /// motor has not reported.
     fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS];
+    /// Queue an ESC command (a DShot special command) for `motor` (`None` = every motor), sent
+    /// with the next stop frames. Outputs that cannot send one keep this default.
+    fn send_command(
+        &mut self,
+        _command: protocol::DshotCommand,
+        _motor: Option<u8>,
+    ) -> Result<(), EscCommandError> {
+        Err(EscCommandError::Unsupported)
+    }
+}
+
+/// Why the motor outputs did not take an ESC command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EscCommandError {
+    /// These outputs send no special commands (the bridge's external simulator, no motors).
+    Unsupported,
+    /// The motors are armed: a command never reaches a spinning motor.
+    Armed,
 }
 
 /// The motor outputs of a board that has none connected (or whose driver is not there yet):

@@ -20,10 +20,10 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use protocol::text as short_text;
 use protocol::{
     CalibrationThrow, Capabilities, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError,
-    Decoder, DeviceError, DeviceMessage, Event, FailsafeCounters, FlightMode, FlightTelemetry,
-    FrameError, ImuStatus, LearnerFailure, LearnerPhase, LearnerTelemetry, LinkCounters, ParamRef,
-    Reply, Request, Response, SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN,
-    MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
+    Decoder, DeviceError, DeviceMessage, DshotCommand, Event, FailsafeCounters, FlightMode,
+    FlightTelemetry, FrameError, ImuStatus, LearnerFailure, LearnerPhase, LearnerTelemetry,
+    LinkCounters, ParamRef, Reply, Request, Response, SetTelemetryRate, Status, Telemetry, Topic,
+    Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
 };
 
 /// Commands for the control step that may wait between two link passes.
@@ -327,6 +327,7 @@ impl LinkServer {
                 | Request::StartCalibration(())
                 | Request::Reboot(())
                 | Request::RebootToBootloader(())
+                | Request::EscCommand(_)
         );
         if refuse_if_armed && armed && self.host_version.is_some() {
             return Err(DeviceError::RefusedWhileArmed);
@@ -472,6 +473,36 @@ impl LinkServer {
                 }
                 self.reboot_requested = Some(LinkRequest::RebootToBootloader);
                 Ok(Reply::Done)
+            }
+            Request::EscCommand(request) => {
+                if !self.info.capabilities.has(Capabilities::ESC_COMMANDS) {
+                    return Err(DeviceError::Unsupported);
+                }
+                let motors = view.control.motor_count;
+                if request.motor >= motors && request.motor != protocol::ESC_ALL_MOTORS {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("motor"),
+                        value: f32::from(request.motor),
+                        min: 0.0,
+                        max: f32::from(motors.max(1)) - 1.0,
+                        unit: short_text(""),
+                    });
+                }
+                let Some(command) = DshotCommand::from_value(request.command) else {
+                    let numbers = DshotCommand::ALL.map(|c| f32::from(c.value()));
+                    return Err(DeviceError::BadValue {
+                        name: short_text("command"),
+                        value: f32::from(request.command),
+                        min: numbers.iter().copied().fold(f32::INFINITY, f32::min),
+                        max: numbers.iter().copied().fold(0.0, f32::max),
+                        unit: short_text(""),
+                    });
+                };
+                let motor = (request.motor != protocol::ESC_ALL_MOTORS).then_some(request.motor);
+                self.commands
+                    .push_back(ControlCommand::EscCommand { command, motor })
+                    .map(|_| Reply::Done)
+                    .map_err(|_| DeviceError::Busy)
             }
         }
     }

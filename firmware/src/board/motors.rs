@@ -1,8 +1,8 @@
 //! DShot600 motor outputs: one timer DMA burst per motor timer.
 //!
 //! Every control step [`BoardMotors::set_commands`] turns each motor's command into a 16-bit
-//! frame ([`dshot::output_frame`]: motor stop at δ ≤ 0, throttle 48..=2047 above), the frames
-//! into compare values ([`dshot::compare_values`]: 75 % / 37.5 % of the 1.667 µs bit), and
+//! frame (`dshot::output_frame`: motor stop at δ ≤ 0, throttle 48..=2047 above), the frames
+//! into compare values (`dshot::compare_values`: 75 % / 37.5 % of the 1.667 µs bit), and
 //! interleaves them per timer ([`interleave_burst`]) in an AXI SRAM buffer. The timer runs
 //! continuously at the DShot600 bit period with preloaded CCRs in PWM mode 1; its update event
 //! requests a DMA burst (TIMx_DCR/DMAR, RM0433 §39.4.25) that writes the next bit's compare
@@ -19,16 +19,16 @@
 //! capture after the frame and a capture DMA per channel, or GPIO sampling) is the remaining
 //! work, see `docs/board.md`.
 //!
-//! Special commands ([`BoardMotors::send_command`]: beep, spin direction, save, …) are refused
-//! while armed ([`dshot::command_frame`]) and repeated as the specification asks; no protocol
-//! request reaches them yet.
+//! Special commands (`Motors::send_command`: beep, spin direction, save, …; the protocol's
+//! `EscCommand` request) are refused while armed and repeated as the specification asks
+//! (`dshot::CommandQueue`, shared with the simulator's ESCs).
 
 use super::chip::{self, cr, Dma};
-use crate::app::hal::{Motors, MAX_MOTORS};
+use crate::app::hal::{EscCommandError, Motors, MAX_MOTORS};
 use crate::boards::{h743, interleave_burst, BoardDescription};
 use crate::drivers::dshot::{
-    self, bit_period_ticks, command_frame, compare_values, DshotError, SpecialCommand,
-    COMPARE_BUFFER_LEN, DSHOT600_BIT_RATE_HZ,
+    bit_period_ticks, compare_values, CommandQueue, DshotCommand, COMPARE_BUFFER_LEN,
+    DSHOT600_BIT_RATE_HZ,
 };
 use core::ptr::addr_of_mut;
 use protocol::MotorLinkHealth;
@@ -78,22 +78,13 @@ struct BurstTimer {
     buffer: usize,
 }
 
-/// A special command waiting to be sent: command, motor (`None` = all), frames still to send.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct PendingCommand {
-    command: SpecialCommand,
-    motor: Option<u8>,
-    repeats: u8,
-}
-
 /// The board's motor outputs (see the module documentation).
 pub struct BoardMotors {
     timers: [Option<BurstTimer>; MAX_TIMERS],
     count: u8,
     period_ticks: u16,
     frames_sent: u32,
-    armed: bool,
-    pending: Option<PendingCommand>,
+    special: CommandQueue,
 }
 
 impl BoardMotors {
@@ -152,30 +143,14 @@ impl BoardMotors {
             count: board.motor_count.min(MAX_MOTORS as u8),
             period_ticks,
             frames_sent: 0,
-            armed: false,
-            pending: None,
+            special: CommandQueue::default(),
         }
     }
 
     /// Tell the outputs whether anything is armed (special commands are refused while it is, and
     /// a waiting one is dropped).
     pub fn set_armed(&mut self, armed: bool) {
-        self.armed = armed;
-        if armed {
-            self.pending = None;
-        }
-    }
-
-    /// Queue a special command for `motor` (`None` = every motor), sent instead of the stop
-    /// frame on the following steps as often as the specification asks. Refused while armed.
-    pub fn send_command(
-        &mut self,
-        command: SpecialCommand,
-        motor: Option<u8>,
-    ) -> Result<(), DshotError> {
-        command_frame(command, self.armed, false)?;
-        self.pending = Some(PendingCommand { command, motor, repeats: command.min_repeats() });
-        Ok(())
+        self.special.set_armed(armed);
     }
 
     /// Counters for `BoardHealth.motors`. No speed reports: see the module documentation.
@@ -186,17 +161,6 @@ impl BoardMotors {
             reports: [0; MAX_MOTORS],
             report_errors: [0; MAX_MOTORS],
         }
-    }
-
-    fn frame(&self, motor: u8, command: f32) -> u16 {
-        if let Some(pending) = self.pending {
-            if !self.armed && pending.motor.is_none_or(|m| m == motor) {
-                if let Ok(frame) = command_frame(pending.command, false, false) {
-                    return frame;
-                }
-            }
-        }
-        dshot::output_frame(command, false)
     }
 }
 
@@ -214,7 +178,7 @@ impl Motors for BoardMotors {
             for (slot, motor) in timer.motors.iter().enumerate().take(n) {
                 values[slot] = motor.map(|m| {
                     let command = commands.get(usize::from(m)).copied().unwrap_or(0.0);
-                    compare_values(self.frame(m, command), period)
+                    compare_values(self.special.frame(m, command, false), period)
                 });
             }
             // SAFETY: the stream of this timer is stopped before its buffer is rewritten (the
@@ -241,12 +205,17 @@ impl Motors for BoardMotors {
             }
         }
         self.frames_sent = self.frames_sent.wrapping_add(1);
-        if let Some(pending) = &mut self.pending {
-            pending.repeats = pending.repeats.saturating_sub(1);
-            if pending.repeats == 0 {
-                self.pending = None;
-            }
-        }
+        self.special.frame_sent();
+    }
+
+    /// Queue a special command for `motor` (`None` = every motor), sent instead of the stop
+    /// frame on the following steps as often as the specification asks. Refused while armed.
+    fn send_command(
+        &mut self,
+        command: DshotCommand,
+        motor: Option<u8>,
+    ) -> Result<(), EscCommandError> {
+        self.special.queue(command, motor).map_err(|_| EscCommandError::Armed)
     }
 
     /// `None` for every motor: no bidirectional DShot capture yet.

@@ -16,7 +16,7 @@
 //! [ value (11 bits) ][ T ][ checksum ]
 //! ```
 //!
-//! - `value`: 0 = motor stop / disarmed, 1..=47 special commands ([`SpecialCommand`]),
+//! - `value`: 0 = motor stop / disarmed, 1..=47 special commands ([`DshotCommand`]),
 //!   48..=2047 throttle (2000 steps).
 //! - `T`: telemetry request bit.
 //! - `checksum` over the 12 bits `v = value << 1 | T`: `(v ^ v >> 4 ^ v >> 8) & 0xF`. For
@@ -41,6 +41,8 @@
 //! Turning captured samples into the 21 raw bits is the driver's job; [`raw_from_samples`] (a
 //! buffer of line samples at a known oversampling) and [`raw_from_edges`] (edge timestamps) are
 //! two simple decoders whose assumptions are documented on each.
+
+pub use protocol::DshotCommand;
 
 /// DShot600 bit rate, bit/s (the protocol's name is its rate in kbit/s).
 pub const DSHOT600_BIT_RATE_HZ: u32 = 600_000;
@@ -85,7 +87,7 @@ pub enum DshotError {
     /// spin-direction changes or beeps must never reach a spinning motor).
     CommandWhileArmed {
         /// The command refused.
-        command: SpecialCommand,
+        command: DshotCommand,
     },
     /// A telemetry quintet was not one of the 16 GCR codes.
     GcrSymbol {
@@ -106,102 +108,6 @@ pub enum DshotError {
     },
     /// A timing parameter was zero or does not fit the timer (e.g. oversampling 0, period 0).
     BadTiming,
-}
-
-/// The DShot special commands (values 1..=47), with their standard numbers (Betaflight
-/// `dshotCommands_e`, BLHeli_32 and KISS documentation). Value 0 (motor stop) is not a command:
-/// see [`VALUE_MOTOR_STOP`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub enum SpecialCommand {
-    /// Beep (beacon) tone 1.
-    Beep1 = 1,
-    /// Beep tone 2.
-    Beep2 = 2,
-    /// Beep tone 3.
-    Beep3 = 3,
-    /// Beep tone 4.
-    Beep4 = 4,
-    /// Beep tone 5.
-    Beep5 = 5,
-    /// Request ESC information (answered over the telemetry wire).
-    EscInfo = 6,
-    /// Spin direction 1.
-    SpinDirection1 = 7,
-    /// Spin direction 2.
-    SpinDirection2 = 8,
-    /// 3D mode off.
-    ThreeDModeOff = 9,
-    /// 3D mode on.
-    ThreeDModeOn = 10,
-    /// Settings request (not implemented by most ESCs).
-    SettingsRequest = 11,
-    /// Save settings to the ESC's flash.
-    SaveSettings = 12,
-    /// Enable extended DShot telemetry (EDT).
-    ExtendedTelemetryEnable = 13,
-    /// Disable extended DShot telemetry.
-    ExtendedTelemetryDisable = 14,
-    /// Spin direction normal (as configured).
-    SpinDirectionNormal = 20,
-    /// Spin direction reversed.
-    SpinDirectionReversed = 21,
-    /// LED 0 on (BLHeli_32).
-    Led0On = 22,
-    /// LED 1 on (BLHeli_32).
-    Led1On = 23,
-    /// LED 2 on (BLHeli_32).
-    Led2On = 24,
-    /// LED 3 on (BLHeli_32).
-    Led3On = 25,
-    /// LED 0 off (BLHeli_32).
-    Led0Off = 26,
-    /// LED 1 off (BLHeli_32).
-    Led1Off = 27,
-    /// LED 2 off (BLHeli_32).
-    Led2Off = 28,
-    /// LED 3 off (BLHeli_32).
-    Led3Off = 29,
-    /// Audio stream mode on/off (KISS).
-    AudioStreamModeToggle = 30,
-    /// Silent mode on/off (KISS).
-    SilentModeToggle = 31,
-}
-
-impl SpecialCommand {
-    /// The command's 11-bit DShot value.
-    pub const fn value(self) -> u16 {
-        self as u16
-    }
-
-    /// Whether the command changes ESC settings. Those must be sent with the telemetry bit set
-    /// and repeated ([`SpecialCommand::min_repeats`]) for the ESC to accept them (DShot
-    /// specification; Betaflight `dshotCommandWrite`).
-    pub const fn changes_settings(self) -> bool {
-        matches!(
-            self,
-            Self::SpinDirection1
-                | Self::SpinDirection2
-                | Self::ThreeDModeOff
-                | Self::ThreeDModeOn
-                | Self::SettingsRequest
-                | Self::SaveSettings
-                | Self::ExtendedTelemetryEnable
-                | Self::ExtendedTelemetryDisable
-                | Self::SpinDirectionNormal
-                | Self::SpinDirectionReversed
-        )
-    }
-
-    /// How many consecutive frames the command must be sent in: 6 for settings commands (the
-    /// specification's minimum; Betaflight sends 10), 1 otherwise.
-    pub const fn min_repeats(self) -> u8 {
-        if self.changes_settings() {
-            6
-        } else {
-            1
-        }
-    }
 }
 
 /// The 4-bit checksum of a 12-bit word `v` (value << 1 | telemetry bit): `(v ^ v>>4 ^ v>>8) & 0xF`,
@@ -265,9 +171,9 @@ pub fn output_frame(command: f32, bidirectional: bool) -> u16 {
 
 /// Encode a special command, refusing it while armed. Settings commands get the telemetry bit
 /// set as the specification requires; the caller repeats the frame
-/// [`SpecialCommand::min_repeats`] times.
+/// [`DshotCommand::min_repeats`] times.
 pub fn command_frame(
-    command: SpecialCommand,
+    command: DshotCommand,
     armed: bool,
     bidirectional: bool,
 ) -> Result<u16, DshotError> {
@@ -275,6 +181,68 @@ pub fn command_frame(
         return Err(DshotError::CommandWhileArmed { command });
     }
     encode_frame(command.value(), command.changes_settings(), bidirectional)
+}
+
+/// A special command waiting to be sent: command, motor (`None` = all), frames still to send.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PendingCommand {
+    command: DshotCommand,
+    motor: Option<u8>,
+    repeats: u8,
+}
+
+/// The special command a motor output sends instead of its stop frames, for as many frames as
+/// the specification asks ([`DshotCommand::min_repeats`]): one at a time, refused while armed
+/// and dropped when the motors arm. The board's motor driver and the simulator's ESCs share it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CommandQueue {
+    pending: Option<PendingCommand>,
+    armed: bool,
+}
+
+impl CommandQueue {
+    /// Tell the queue whether the motors are armed (a waiting command is dropped when they are).
+    pub fn set_armed(&mut self, armed: bool) {
+        self.armed = armed;
+        if armed {
+            self.pending = None;
+        }
+    }
+
+    /// Queue `command` for `motor` (`None` = every motor), replacing any command still waiting.
+    /// Refused while armed.
+    pub fn queue(&mut self, command: DshotCommand, motor: Option<u8>) -> Result<(), DshotError> {
+        command_frame(command, self.armed, false)?;
+        self.pending = Some(PendingCommand { command, motor, repeats: command.min_repeats() });
+        Ok(())
+    }
+
+    /// The command waiting and its motor (`None` = all), if any.
+    pub fn pending(&self) -> Option<(DshotCommand, Option<u8>)> {
+        self.pending.map(|p| (p.command, p.motor))
+    }
+
+    /// The frame `motor` sends this step for the application's command δ: the waiting special
+    /// command while its motor stops (δ ≤ 0, nothing armed), otherwise [`output_frame`].
+    pub fn frame(&self, motor: u8, command: f32, bidirectional: bool) -> u16 {
+        match self.pending {
+            Some(p) if !self.armed && command <= 0.0 && p.motor.is_none_or(|m| m == motor) => {
+                command_frame(p.command, false, bidirectional)
+                    .unwrap_or_else(|_| motor_stop_frame(bidirectional))
+            }
+            _ => output_frame(command, bidirectional),
+        }
+    }
+
+    /// One frame went to every motor: one repeat fewer.
+    pub fn frame_sent(&mut self) {
+        if let Some(pending) = &mut self.pending {
+            pending.repeats = pending.repeats.saturating_sub(1);
+            if pending.repeats == 0 {
+                self.pending = None;
+            }
+        }
+    }
 }
 
 /// Timer ticks per DShot bit for a timer clock and bit rate, rounded to nearest
@@ -637,32 +605,64 @@ mod tests {
     #[test]
     fn commands_refused_while_armed() {
         assert_eq!(
-            command_frame(SpecialCommand::Beep1, true, false),
-            Err(DshotError::CommandWhileArmed { command: SpecialCommand::Beep1 })
+            command_frame(DshotCommand::Beep1, true, false),
+            Err(DshotError::CommandWhileArmed { command: DshotCommand::Beep1 })
         );
         // Beep1 = 1, no telemetry bit: v = 2, crc 2.
-        assert_eq!(command_frame(SpecialCommand::Beep1, false, false), Ok(0x0022));
+        assert_eq!(command_frame(DshotCommand::Beep1, false, false), Ok(0x0022));
         // SaveSettings = 12 with telemetry bit: v = 25 = 0x019, crc = 9 ^ 1 = 8.
-        assert_eq!(command_frame(SpecialCommand::SaveSettings, false, false), Ok((25 << 4) | 8));
-        assert_eq!(SpecialCommand::SaveSettings.min_repeats(), 6);
-        assert_eq!(SpecialCommand::Beep3.min_repeats(), 1);
+        assert_eq!(command_frame(DshotCommand::SaveSettings, false, false), Ok((25 << 4) | 8));
+        assert_eq!(DshotCommand::SaveSettings.min_repeats(), 6);
+        assert_eq!(DshotCommand::Beep3.min_repeats(), 1);
+    }
+
+    /// A beep goes to its motor alone, once; a save to every motor, six frames with the
+    /// telemetry bit; the other motors keep their stop frames; nothing is queued while armed,
+    /// and arming drops what waits.
+    #[test]
+    fn the_command_queue_sends_each_command_as_often_as_the_specification_asks() {
+        let stop = motor_stop_frame(false);
+        let mut queue = CommandQueue::default();
+        queue.queue(DshotCommand::Beep1, Some(2)).unwrap();
+        let frames: [u16; 4] = core::array::from_fn(|m| queue.frame(m as u8, 0.0, false));
+        assert_eq!(frames, [stop, stop, 0x0022, stop]);
+        queue.frame_sent();
+        assert_eq!(queue.frame(2, 0.0, false), stop, "one beep frame only");
+        queue.queue(DshotCommand::SaveSettings, None).unwrap();
+        let mut saves = 0;
+        while queue.frame(0, 0.0, false) == (25 << 4) | 8 {
+            assert_eq!(queue.frame(3, 0.0, false), (25 << 4) | 8);
+            saves += 1;
+            queue.frame_sent();
+        }
+        assert_eq!(saves, 6);
+        // A motor with a throttle command (a motor test) keeps its throttle frame.
+        queue.queue(DshotCommand::Beep2, None).unwrap();
+        assert_eq!(queue.frame(1, 0.5, false), throttle_frame(0.5, false, false));
+        queue.set_armed(true);
+        assert_eq!(queue.pending(), None);
+        assert_eq!(
+            queue.queue(DshotCommand::Beep1, Some(0)),
+            Err(DshotError::CommandWhileArmed { command: DshotCommand::Beep1 })
+        );
+        assert_eq!(queue.frame(0, 0.0, false), stop);
     }
 
     #[test]
     fn command_numbers() {
-        let expected: [(SpecialCommand, u16); 12] = [
-            (SpecialCommand::Beep1, 1),
-            (SpecialCommand::Beep5, 5),
-            (SpecialCommand::EscInfo, 6),
-            (SpecialCommand::SpinDirection1, 7),
-            (SpecialCommand::SpinDirection2, 8),
-            (SpecialCommand::ThreeDModeOff, 9),
-            (SpecialCommand::ThreeDModeOn, 10),
-            (SpecialCommand::SaveSettings, 12),
-            (SpecialCommand::ExtendedTelemetryEnable, 13),
-            (SpecialCommand::SpinDirectionNormal, 20),
-            (SpecialCommand::SpinDirectionReversed, 21),
-            (SpecialCommand::SilentModeToggle, 31),
+        let expected: [(DshotCommand, u16); 12] = [
+            (DshotCommand::Beep1, 1),
+            (DshotCommand::Beep5, 5),
+            (DshotCommand::EscInfo, 6),
+            (DshotCommand::SpinDirection1, 7),
+            (DshotCommand::SpinDirection2, 8),
+            (DshotCommand::ThreeDModeOff, 9),
+            (DshotCommand::ThreeDModeOn, 10),
+            (DshotCommand::SaveSettings, 12),
+            (DshotCommand::ExtendedTelemetryEnable, 13),
+            (DshotCommand::SpinDirectionNormal, 20),
+            (DshotCommand::SpinDirectionReversed, 21),
+            (DshotCommand::SilentModeToggle, 31),
         ];
         for (cmd, value) in expected {
             assert_eq!(cmd.value(), value);
