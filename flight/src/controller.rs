@@ -42,6 +42,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::attitude::wrap_pi;
 use crate::indi::{Indi, IndiConfig, IndiError, IndiModel, IndiOutput, IndiReference};
+use crate::learner::LearnedModel;
 use crate::navigation::{NavigationState, STANDARD_GRAVITY_MPS2};
 use crate::position::{Gains, PositionController, PositionSetpoint};
 
@@ -266,6 +267,12 @@ impl Controller {
     /// The gains in use.
     pub fn gains(&self) -> &Gains {
         &self.gains
+    }
+
+    /// Move the flown G1 and G2 a fraction `gain` towards `learned` (the in-flight refinement,
+    /// [`IndiModel::refine_effectiveness`]). Returns whether it did.
+    pub fn refine_effectiveness(&mut self, learned: &LearnedModel, gain: f32) -> bool {
+        self.indi.refine_effectiveness(learned, gain)
     }
 
     /// The INDI loop (its model and filtered state).

@@ -158,6 +158,41 @@ impl IndiModel {
         Ok(model)
     }
 
+    /// Move G1 and G2 a fraction `gain` (0..=1) of the way towards what `learned` says now, in
+    /// this model's thrust frame and per unit of this model's thrust (its motor models, thrust
+    /// frame, idle and hover thrusts stay): the in-flight refinement. Returns `false` and
+    /// changes nothing when `learned` is for another motor count or has a non-finite entry.
+    pub fn refine_effectiveness(&mut self, learned: &LearnedModel, gain: f32) -> bool {
+        let motors = self.motors;
+        if usize::from(learned.motors) != motors || !(0.0..=1.0).contains(&gain) {
+            return false;
+        }
+        let to_thrust = self.q_imu_thrust.inverse();
+        let mut g1 = self.g1;
+        let mut g2 = self.g2;
+        for j in 0..motors {
+            let full = self.motor[j].omega_full_rad_s();
+            let column = |rows: [[f32; MAX_MOTORS]; 3], scale: f32| {
+                to_thrust * Vector3::new(rows[0][j], rows[1][j], rows[2][j]) * scale
+            };
+            let g = &learned.g1_per_speed2;
+            let force = column([g[0], g[1], g[2]], full * full);
+            let torque = column([g[3], g[4], g[5]], full * full);
+            let reaction = column(learned.g2, 1.0);
+            for k in 0..3 {
+                g1[k][j] += gain * (force[k] - g1[k][j]);
+                g1[3 + k][j] += gain * (torque[k] - g1[3 + k][j]);
+                g2[k][j] += gain * (reaction[k] - g2[k][j]);
+            }
+        }
+        if !g1.iter().chain(&g2).flatten().all(|v| v.is_finite()) {
+            return false;
+        }
+        self.g1 = g1;
+        self.g2 = g2;
+        true
+    }
+
     /// The motor command δ ∈ [0, 1] that holds motor `j` at normalised thrust `u`: the inverse
     /// of the steady thrust curve `ω = a δ + b √δ + ω_idle` at `ω = ω_full √u`.
     pub fn command_for_thrust(&self, j: usize, u: f32) -> f32 {
@@ -369,6 +404,12 @@ impl Indi {
         self.allocator.reset();
     }
 
+    /// Move the flown G1 and G2 a fraction `gain` towards `learned`
+    /// ([`IndiModel::refine_effectiveness`]): the in-flight refinement. Returns whether it did.
+    pub fn refine_effectiveness(&mut self, learned: &LearnedModel, gain: f32) -> bool {
+        self.model.refine_effectiveness(learned, gain)
+    }
+
     /// The model flown.
     pub fn model(&self) -> &IndiModel {
         &self.model
@@ -473,5 +514,93 @@ impl Indi {
             self.omega_model_rad_s[j] += (target - self.omega_model_rad_s[j]) * self.lag_gain[j];
         }
         Ok(*out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::learner::LearnedThrustAxis;
+
+    /// A quad in X whose IMU is rolled 90° from its thrust frame, motors with ω_full = 2,000 rad/s.
+    fn learned_quad() -> LearnedModel {
+        let motor = MotorModel {
+            a_rad_s: 1000.0,
+            b_rad_s: 800.0,
+            omega_idle_rad_s: 200.0,
+            tau_s: 0.03,
+            tau_std_s: 1e-4,
+            converged: true,
+        };
+        let half = core::f32::consts::FRAC_1_SQRT_2;
+        let mut learned = LearnedModel {
+            motors: 4,
+            motor: [motor; MAX_MOTORS],
+            thrust_axis: Some(LearnedThrustAxis {
+                q_thrust_to_imu: [half, half, 0.0, 0.0],
+                thrust_dir_imu: [0.0, 1.0, 0.0],
+                u_hover: [0.3, 0.3, 0.3, 0.3, 0.0, 0.0, 0.0, 0.0],
+                euler_zyx_rad: [core::f32::consts::FRAC_PI_2, 0.0, 0.0],
+            }),
+            ..LearnedModel::default()
+        };
+        for j in 0..4 {
+            let sign = |bit: usize| if (j >> bit) & 1 == 0 { 1.0 } else { -1.0 };
+            // IMU axes: thrust along +y (IMU), torques about x and z (IMU), yaw about y.
+            learned.g1_per_speed2[1][j] = -4e-6;
+            learned.g1_per_speed2[3][j] = 5e-5 * sign(0);
+            learned.g1_per_speed2[4][j] = 3e-6 * sign(0) * sign(1);
+            learned.g1_per_speed2[5][j] = 5e-5 * sign(1);
+            learned.g2[1][j] = 2e-3 * sign(0) * sign(1);
+        }
+        learned
+    }
+
+    /// The refinement moves G1 and G2 the given fraction towards the new estimate, in the frame
+    /// and per unit of the thrust the model was built with; the motor models, the frame and
+    /// the hover thrusts stay; a model for another motor count or with a non-finite entry, or
+    /// a gain outside 0..=1, changes nothing.
+    #[test]
+    fn the_refinement_moves_the_effectiveness_a_fraction_of_the_way_and_nothing_else() {
+        let learned = learned_quad();
+        let mut model = IndiModel::from_learned(&learned).unwrap();
+        let before = model;
+        // The craft turns out 10 % stronger in roll (IMU x) and its thrust frame is re-solved.
+        let mut newer = learned;
+        for j in 0..4 {
+            newer.g1_per_speed2[3][j] *= 1.1;
+        }
+        if let Some(axis) = &mut newer.thrust_axis {
+            axis.q_thrust_to_imu = [1.0, 0.0, 0.0, 0.0];
+        }
+        assert!(model.refine_effectiveness(&newer, 0.25));
+        let full2 = 2000.0f32 * 2000.0;
+        for j in 0..4 {
+            // IMU x is thrust-frame x (a roll about x keeps x).
+            let target = newer.g1_per_speed2[3][j] * full2;
+            let expected = before.g1[3][j] + 0.25 * (target - before.g1[3][j]);
+            assert!((model.g1[3][j] - expected).abs() < 1e-4 * target.abs(), "motor {j}");
+            // A quarter of the 10 % step: 2.5 % of the old value.
+            assert!((model.g1[3][j] / before.g1[3][j] - 1.025).abs() < 1e-5);
+            for k in [0, 1, 2, 4, 5] {
+                // Within rounding of the rotation (entries up to 200 rad/s²).
+                assert!((model.g1[k][j] - before.g1[k][j]).abs() < 1e-3, "row {k} moved");
+            }
+        }
+        let g2_moved = model.g2.iter().flatten().zip(before.g2.iter().flatten());
+        assert!(g2_moved.map(|(a, b)| (a - b).abs()).fold(0.0, f32::max) < 1e-7, "G2 stays");
+        assert_eq!(model.q_imu_thrust, before.q_imu_thrust);
+        assert_eq!(model.motor, before.motor);
+        assert_eq!(model.u_hover, before.u_hover);
+        let refined = model;
+        let mut other = newer;
+        other.motors = 6;
+        assert!(!model.refine_effectiveness(&other, 0.25));
+        let mut broken = newer;
+        broken.g2[0][1] = f32::NAN;
+        assert!(!model.refine_effectiveness(&broken, 0.25));
+        assert!(!model.refine_effectiveness(&newer, 1.5));
+        assert!(!model.refine_effectiveness(&newer, f32::NAN));
+        assert_eq!(model, refined, "refused refinements change nothing");
     }
 }

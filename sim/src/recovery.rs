@@ -18,9 +18,9 @@ use nalgebra::{UnitQuaternion, Vector3};
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
 use crate::dynamics::State;
-use crate::identification::{Throw, TrueModel};
+use crate::identification::{Scores, Throw, TrueModel};
 use crate::rng::Rng;
-use crate::scenario::{with_firmware_app, FlightApp};
+use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
 use firmware::app::{ControlCommand, Failsafe};
 use flight::learner::FlightPhase;
 use protocol::ExternalPose;
@@ -141,6 +141,32 @@ pub struct FlyReport {
     pub max_hold_error_m: Option<f64>,
     /// The window over which `max_hold_error_m` was measured, s.
     pub hold_window_s: f64,
+    /// Relative RMS error of the specific-force and angular-acceleration blocks of G1 against
+    /// the truth ([`Scores::g1_block_rel`]): the learner's model when the controller engaged,
+    /// the learner's model at the end (refined in flight) and the model flown at the end.
+    pub g1_block_rel_at_engage: Option<[f64; 2]>,
+    pub g1_block_rel_learned_at_end: Option<[f64; 2]>,
+    pub g1_block_rel_flown_at_end: Option<[f64; 2]>,
+    /// Models the flying controller moved towards (`PilotStatus::refinements`).
+    pub refinements: u32,
+}
+
+/// G1 of the model `app` flies, back in the learner's terms (IMU axes, per squared speed),
+/// scored against `truth`.
+fn flown_scores(app: &FirmwareApp<'_>, truth: &TrueModel) -> Option<[f64; 2]> {
+    let flown = app.control.flown_model()?;
+    let mut learned = app.background.results().learned;
+    for j in 0..flown.motors {
+        let full2 = flown.motor[j].omega_full_rad_s().powi(2);
+        for block in 0..2 {
+            let column = flown.q_imu_thrust
+                * nalgebra::Vector3::from_fn(|k, _| flown.g1[3 * block + k][j] / full2);
+            for k in 0..3 {
+                learned.g1_per_speed2[3 * block + k][j] = column[k];
+            }
+        }
+    }
+    Some(Scores::of(&learned, truth).g1_block_rel)
 }
 
 /// Fly `airframe` once.
@@ -166,6 +192,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             setpoint_ned_m: None,
             max_hold_error_m: None,
             hold_window_s,
+            g1_block_rel_at_engage: None,
+            g1_block_rel_learned_at_end: None,
+            g1_block_rel_flown_at_end: None,
+            refinements: 0,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -233,6 +263,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 );
             }
             if snapshot.pilot.flying {
+                if report.release_to_engage_s.is_none() {
+                    let learned = app.background.results().learned;
+                    report.g1_block_rel_at_engage = Some(Scores::of(&learned, &truth).g1_block_rel);
+                }
                 report.release_to_engage_s.get_or_insert(since_release);
                 report.outcome = Outcome::Flying;
                 if snapshot.pilot.position_hold {
@@ -283,6 +317,12 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 break;
             }
         }
+        if report.outcome == Outcome::Flying {
+            let learned = app.background.results().learned;
+            report.g1_block_rel_learned_at_end = Some(Scores::of(&learned, &truth).g1_block_rel);
+            report.g1_block_rel_flown_at_end = flown_scores(app, &truth);
+        }
+        report.refinements = app.control.snapshot().pilot.refinements;
         report
     })
 }

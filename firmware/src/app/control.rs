@@ -507,6 +507,7 @@ impl<'q> ControlLoop<'q> {
                 commands: snapshot.commands,
                 speeds_rad_s: snapshot.speeds_rad_s.map(|s| s.unwrap_or(f32::NAN)),
                 phase: snapshot.phase,
+                flying: snapshot.pilot.flying,
                 motor_count: snapshot.motor_count,
             });
         }
@@ -553,6 +554,11 @@ impl<'q> ControlLoop<'q> {
         snapshot.armed = flight_armed || snapshot.motor_test.is_some();
         snapshot.excitation_ms =
             (self.throw_to_fly.excitation_elapsed_s() * 1000.0).clamp(0.0, 65_535.0) as u16;
+    }
+
+    /// The model the pilot flies (G1 and G2 refined in flight), while it flies.
+    pub fn flown_model(&self) -> Option<&flight::indi::IndiModel> {
+        self.pilot.flown_model()
     }
 
     /// The latest state, for the link and the status.

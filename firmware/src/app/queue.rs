@@ -26,6 +26,8 @@ pub struct LearnerSample {
     pub speeds_rad_s: [f32; MAX_MOTORS],
     /// Where the throw-to-fly attempt stood in this step (the learner runs while exciting).
     pub phase: FlightPhase,
+    /// Whether the craft flies on the learned model in this step (the learner keeps refining).
+    pub flying: bool,
     /// Motors connected.
     pub motor_count: u8,
 }

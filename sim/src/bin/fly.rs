@@ -153,6 +153,24 @@ fn main() -> ExitCode {
                 quantile(&drop, 0.9),
                 quantile(&drop, 0.99)
             );
+            // The learner's G1 (worse block) when the controller engaged and after the flight's
+            // in-flight refinement, and the model flown at the end, over the runs still flying.
+            let g1 = |pick: fn(&sim::recovery::FlyReport) -> Option<[f64; 2]>| -> Vec<f64> {
+                results.iter().filter_map(|r| pick(&r.report)).map(|[f, t]| f.max(t)).collect()
+            };
+            for (name, values) in [
+                ("at engage", g1(|r| r.g1_block_rel_at_engage)),
+                ("learned at the end", g1(|r| r.g1_block_rel_learned_at_end)),
+                ("flown at the end", g1(|r| r.g1_block_rel_flown_at_end)),
+            ] {
+                println!(
+                    "G1 error of the worse block {name}: median {:.2} %, 90th {:.2} %, 99th {:.2} % ({} runs)",
+                    100.0 * quantile(&values, 0.5),
+                    100.0 * quantile(&values, 0.9),
+                    100.0 * quantile(&values, 0.99),
+                    values.len()
+                );
+            }
             for motors in 4..=8 {
                 let of: Vec<&_> = results.iter().filter(|r| r.motors == motors).collect();
                 if !of.is_empty() {
