@@ -277,14 +277,11 @@ impl<'q> Background<'q> {
         // [`REFINE_IN_FLIGHT_S`] of the flight on the learned model: the in-flight refinement.
         // Not when the craft neither flies nor settles: without the controller it falls or is
         // caught, and a catch is a force no motor made.
+        let refining = if sample.flying { self.refine_samples } else { 0 };
         if phase == FlightPhase::Exciting {
             self.samples_since_excitation = 0;
-        } else if phase == FlightPhase::Done && self.samples_since_excitation < self.settle_samples
-        {
-            self.samples_since_excitation += 1;
         } else if phase == FlightPhase::Done
-            && sample.flying
-            && self.samples_since_excitation < self.settle_samples + self.refine_samples
+            && self.samples_since_excitation < self.settle_samples + refining
         {
             self.samples_since_excitation += 1;
         } else {
