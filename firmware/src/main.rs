@@ -9,6 +9,7 @@
 //! | `control_tick` | TIM7 update, 2 kHz | 3 (highest) | receiver bytes → arm/disarm; one control step (IMU mean in, DShot frames out); pends `usb_service` at 1 kHz, spawns `background` when samples wait |
 //! | `imu_data_ready` | EXTI2 (ICM-42688-P INT1), 8 kHz | 3 | starts the SPI DMA read of one sample (returns at once) |
 //! | `imu_transfer_done` | DMA1 stream 0 complete | 3 | ends the read, adds the sample to the 8 kHz → 2 kHz mean |
+//! | `motor_burst_0..2` | DMA1 streams 2–4 complete (the motor timers' DShot bursts) | 4 | switches the timer's outputs to capture the ESCs' bidirectional answers (a few dozen register writes, 28 µs after the step started the frame; the answer starts 30 µs after the frame, too soon to wait for the step to end) |
 //! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | USB device, CDC bytes ↔ link server, telemetry, configuration saves (flash erase) |
 //! | `background` | software task (dispatcher `DCMI`) | 1 | drains the learner-sample queue, publishes results |
 //! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
@@ -16,7 +17,8 @@
 //! Shared resources are only handoffs: the control step's `Copy` status snapshot, the board's
 //! health and the background results, each written and read under a lock held for a copy; and
 //! the IMU, shared lock-free by the three priority-3 tasks (equal priorities never preempt each
-//! other). Everything else is a task's `#[local]` state. Task bodies live outside the `#[app]` module (RTIC v1 book), in
+//! other). Everything else is a task's `#[local]` state; the motor-burst tasks and the control
+//! step touch the same motor timers at different times by construction (`board::motors`). Task bodies live outside the `#[app]` module (RTIC v1 book), in
 //! [`tasks`].
 //!
 //! The board (pins, timers, DMA streams) is [`firmware::boards::SELECTED`], the Matek H743 V3.
@@ -41,7 +43,10 @@ use {defmt_rtt as _, panic_probe as _};
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
 mod app {
-    use crate::tasks::{background, control_tick, imu_data_ready, imu_transfer_done, usb_service};
+    use crate::tasks::{
+        background, control_tick, imu_data_ready, imu_transfer_done, motor_burst_0, motor_burst_1,
+        motor_burst_2, usb_service,
+    };
     use firmware::app::hal::Motors;
     use firmware::app::{
         split_queue, Background, BackgroundCommand, BackgroundResults, BoardInfo, ControlCommand,
@@ -52,7 +57,7 @@ mod app {
     use firmware::board::flash::ConfigSectors;
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
     use firmware::board::imu::BoardImu;
-    use firmware::board::motors::BoardMotors;
+    use firmware::board::motors::{BoardMotors, BurstCompletion};
     use firmware::board::receiver::BoardReceiver;
     use firmware::board::time::MicrosClock;
     use firmware::board::timing::{step_stats, StepStats, StepTimer};
@@ -116,6 +121,11 @@ mod app {
         control_clock: MicrosClock,
         control: ControlLoop<'static>,
         motors: BoardMotors,
+        /// Each motor timer's switch to capture, for its burst task (`None`: no such timer, or
+        /// ESCs without bidirectional DShot).
+        burst_0: Option<BurstCompletion>,
+        burst_1: Option<BurstCompletion>,
+        burst_2: Option<BurstCompletion>,
         receiver: BoardReceiver,
         usb_clock: MicrosClock,
         usb: UsbSerial,
@@ -246,13 +256,16 @@ mod app {
         if imu_state == ImuDriverState::Running {
             capabilities |= Capabilities::IMU;
         }
+        if BOARD.motor_bidirectional {
+            // The ESCs answer every frame with their eRPM (`board::motors`).
+            capabilities |= Capabilities::MOTOR_RPM;
+        }
         if settings.status().origin != protocol::ConfigOrigin::NoStore {
             capabilities |= Capabilities::PERSISTENT_STORE;
         }
         let link = LinkServer::new(BoardInfo {
             board: BOARD.name,
             serial,
-            // No bidirectional DShot capture yet: no MOTOR_RPM (see `board::motors`).
             capabilities,
             control_rate_hz: config.rate_hz,
             motor_count: motors.count(),
@@ -290,6 +303,9 @@ mod app {
             step_timer,
             control_clock: clock,
             control,
+            burst_0: motors.completion(0),
+            burst_1: motors.completion(1),
+            burst_2: motors.completion(2),
             motors,
             receiver,
             usb_clock: clock,
@@ -341,6 +357,17 @@ mod app {
         #[task(binds = DMA1_STR0, priority = 3, shared = [imu])]
         fn imu_transfer_done(cx: imu_transfer_done::Context);
 
+        // The motor timers' burst streams (`boards::FIRMWARE_MOTOR_BURST_DMA`), above the
+        // control step: see `board::motors`.
+        #[task(binds = DMA1_STR2, priority = 4, local = [burst_0])]
+        fn motor_burst_0(cx: motor_burst_0::Context);
+
+        #[task(binds = DMA1_STR3, priority = 4, local = [burst_1])]
+        fn motor_burst_1(cx: motor_burst_1::Context);
+
+        #[task(binds = DMA1_STR4, priority = 4, local = [burst_2])]
+        fn motor_burst_2(cx: motor_burst_2::Context);
+
         #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link, telemetry, settings], shared = [control, background, board, commands, background_commands])]
         fn usb_service(cx: usb_service::Context);
 
@@ -353,7 +380,8 @@ mod app {
 #[cfg(target_os = "none")]
 mod tasks {
     use crate::app::{
-        background, control_tick, imu_data_ready, imu_transfer_done, usb_service, BackgroundWork,
+        background, control_tick, imu_data_ready, imu_transfer_done, motor_burst_0, motor_burst_1,
+        motor_burst_2, usb_service, BackgroundWork,
     };
     use firmware::app::{ControlCommand, ControlSettings, LinkRequest, StatusView};
     use firmware::board::bootloader;
@@ -429,6 +457,27 @@ mod tasks {
     /// The IMU's RX DMA stream finished: add the sample to the mean.
     pub fn imu_transfer_done(cx: imu_transfer_done::Context) {
         cx.shared.imu.on_transfer_complete();
+    }
+
+    /// A motor timer's DShot burst has ended: its outputs capture the ESCs' answers.
+    pub fn motor_burst_0(cx: motor_burst_0::Context) {
+        if let Some(burst) = cx.local.burst_0 {
+            burst.on_burst_complete();
+        }
+    }
+
+    /// See [`motor_burst_0`].
+    pub fn motor_burst_1(cx: motor_burst_1::Context) {
+        if let Some(burst) = cx.local.burst_1 {
+            burst.on_burst_complete();
+        }
+    }
+
+    /// See [`motor_burst_0`].
+    pub fn motor_burst_2(cx: motor_burst_2::Context) {
+        if let Some(burst) = cx.local.burst_2 {
+            burst.on_burst_complete();
+        }
     }
 
     /// The USB link, on every OTG2 interrupt and at 1 kHz from the control step: services the

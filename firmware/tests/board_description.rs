@@ -56,6 +56,11 @@ fn dmamux_request_numbers_match_rm0433() {
     assert_eq!(h743::timer(Timer::Tim3).unwrap().update_request, 27);
     assert_eq!(h743::timer(Timer::Tim4).unwrap().update_request, 32);
     assert_eq!(h743::timer(Timer::Tim5).unwrap().update_request, 59);
+    // The channels' capture requests (TIMx_CH1..4); TIM4 has none for CH4.
+    assert_eq!(h743::timer(Timer::Tim3).unwrap().channel_requests, [23, 24, 25, 26]);
+    assert_eq!(h743::timer(Timer::Tim4).unwrap().channel_requests, [29, 30, 31, 0]);
+    assert_eq!(h743::timer(Timer::Tim5).unwrap().channel_requests, [55, 56, 57, 58]);
+    assert_eq!(h743::timer(Timer::Tim8).unwrap().channel_requests, [47, 48, 49, 50]);
     assert_eq!(h743::uart(h743::Uart::Usart6).rx_request, 71);
     assert_eq!(DmaStream { controller: 2, stream: 7 }.dmamux_channel(), 15);
     assert_eq!(DmaStream { controller: 1, stream: 3 }.dmamux_channel(), 3);
@@ -85,6 +90,7 @@ static TWICE: [MotorOutput; 2] = [
         },
         timer: Timer::Tim3,
         channel: 3,
+        capture_dma: DmaStream { controller: 1, stream: 6 },
     },
     MotorOutput {
         pin: AltPin {
@@ -94,6 +100,7 @@ static TWICE: [MotorOutput; 2] = [
         },
         timer: Timer::Tim3,
         channel: 3,
+        capture_dma: DmaStream { controller: 1, stream: 7 },
     },
 ];
 
@@ -133,6 +140,7 @@ fn pins_reserved_timers_and_missing_bursts_are_refused() {
         },
         timer: Timer::Tim2,
         channel: 1,
+        capture_dma: DmaStream { controller: 1, stream: 6 },
     }];
     static TIM2: [MotorTimer; 1] =
         [MotorTimer { timer: Timer::Tim2, dma: DmaStream { controller: 1, stream: 2 } }];
@@ -153,4 +161,57 @@ fn alternate_functions_and_flash_layout_are_checked() {
     assert_eq!(broken(|b| b.flash.config_len = 0x2_0000), Err(BoardError::FlashLayout));
     assert_eq!(broken(|b| b.flash.config_start = 0x080C_0000), Err(BoardError::FlashLayout));
     assert_eq!(broken(|b| b.flash.config_start = 0x081C_1000), Err(BoardError::FlashLayout));
+}
+
+/// Bidirectional DShot: every motor has its own capture stream (shared with nothing else), on a
+/// channel with a capture DMA request, and the bursts' completions are the interrupts
+/// `src/main.rs` binds.
+#[test]
+fn every_motor_can_capture_its_escs_answer() {
+    let board = boards::SELECTED;
+    assert!(board.motor_bidirectional);
+    for (motor, output) in board.motors.iter().enumerate() {
+        let requests = h743::timer(output.timer).unwrap().channel_requests;
+        assert_ne!(requests[usize::from(output.channel - 1)], 0, "motor {motor}");
+    }
+    // M1's capture stream taken by the receiver: refused as a stream used twice.
+    let m1 = board.motors[0].capture_dma;
+    assert_eq!(broken(|b| b.receiver.rx_dma = m1), Err(BoardError::DmaStreamUsedTwice(m1)));
+    // A burst stream whose completion `src/main.rs` does not bind.
+    static UNBOUND: [MotorTimer; 3] = [
+        MotorTimer { timer: Timer::Tim3, dma: DmaStream { controller: 2, stream: 6 } },
+        MotorTimer { timer: Timer::Tim5, dma: DmaStream { controller: 1, stream: 3 } },
+        MotorTimer { timer: Timer::Tim4, dma: DmaStream { controller: 1, stream: 4 } },
+    ];
+    let stream = UNBOUND[0].dma;
+    assert_eq!(
+        broken(|b| b.motor_timers = &UNBOUND),
+        Err(BoardError::MotorBurstInterruptBinding(stream))
+    );
+    // TIM4 CH4 has no capture request: a motor there cannot answer.
+    static ON_TIM4_CH4: [MotorOutput; 1] = [MotorOutput {
+        pin: AltPin {
+            pin: pin(Port::D, 15),
+            function: Function::TimerChannel(Timer::Tim4, 4),
+            af: 2,
+        },
+        timer: Timer::Tim4,
+        channel: 4,
+        capture_dma: DmaStream { controller: 1, stream: 6 },
+    }];
+    static TIM4: [MotorTimer; 1] =
+        [MotorTimer { timer: Timer::Tim4, dma: DmaStream { controller: 1, stream: 2 } }];
+    let result = broken(|b| {
+        b.motors = &ON_TIM4_CH4;
+        b.motor_count = 1;
+        b.motor_timers = &TIM4;
+    });
+    assert_eq!(result, Err(BoardError::NoCaptureRequest { motor: 0 }));
+    let without = broken(|b| {
+        b.motors = &ON_TIM4_CH4;
+        b.motor_count = 1;
+        b.motor_timers = &TIM4;
+        b.motor_bidirectional = false;
+    });
+    assert_eq!(without, Ok(()), "normal DShot needs no capture");
 }

@@ -1,23 +1,36 @@
-//! DShot600 motor outputs: one timer DMA burst per motor timer.
+//! DShot600 motor outputs, bidirectional: one timer DMA burst per motor timer out, one input
+//! capture DMA per motor back.
 //!
-//! Every control step [`BoardMotors::set_commands`] turns each motor's command into a 16-bit
-//! frame (`dshot::output_frame`: motor stop at δ ≤ 0, throttle 48..=2047 above), the frames
-//! into compare values (`dshot::compare_values`: 75 % / 37.5 % of the 1.667 µs bit), and
-//! interleaves them per timer ([`interleave_burst`]) in an AXI SRAM buffer. The timer runs
-//! continuously at the DShot600 bit period with preloaded CCRs in PWM mode 1; its update event
-//! requests a DMA burst (TIMx_DCR/DMAR, RM0433 §39.4.25) that writes the next bit's compare
-//! values of all its motor channels at once, so the motors of one timer switch bits on the same
-//! tick. After 17 updates (16 bits and a trailing 0) the stream stops and the line stays low
-//! until the next step's frame. A frame takes 28 µs of the 500 µs step; the CPU only writes
-//! the buffer and restarts the streams (no interrupt).
+//! **Out.** Every control step [`BoardMotors::set_commands`] turns each motor's command into a
+//! 16-bit frame (`dshot::output_frame`: motor stop at δ ≤ 0, throttle 48..=2047 above; the
+//! inverted checksum when the ESCs speak bidirectional DShot), the frames into compare values
+//! (`dshot::compare_values`: 75 % / 37.5 % of the 1.667 µs bit), and interleaves them per timer
+//! ([`interleave_burst`]) in an AXI SRAM buffer. The timer runs at the DShot600 bit period with
+//! preloaded CCRs in PWM mode 1 (active low when bidirectional: the line idles high); its update
+//! event requests a DMA burst (TIMx_DCR/DMAR, RM0433 §39.4.25) that writes the next bit's
+//! compare values of all its motor channels at once. After 18 updates (16 bits and two idle
+//! values) the stream completes. A frame takes 30 µs of the 500 µs step.
 //!
-//! Not done: bidirectional DShot (the ESC's eRPM answer on the same wire). The frames are
-//! normal DShot (idle low, normal checksum), so ESCs do not answer, `speeds_rad_s` is `None`
-//! for every motor and the board does not announce `MOTOR_RPM`. The portable half of the
-//! bidirectional path (inverted checksum, GCR decoding, eRPM → rad/s, error counters) is in
-//! [`crate::drivers::dshot`] and tested; the board half (switching each channel to input
-//! capture after the frame and a capture DMA per channel, or GPIO sampling) is the remaining
-//! work, see `docs/board.md`.
+//! **Back** (bidirectional DShot). About 30 µs after its frame each ESC answers on the same wire
+//! with its electrical period (21 bits at 750 kbit/s, GCR). The burst stream's transfer-complete
+//! interrupt ([`BurstCompletion::on_burst_complete`], a task above the control step's priority
+//! in `src/main.rs`, a few register writes) switches the timer's channels to input capture of
+//! both edges with the counter free-running, and starts one DMA per channel that copies each
+//! captured timestamp (CCRx) into the motor's edge buffer. At the next step, before the next
+//! frame, `set_commands` stops the captures, decodes each motor's edges
+//! (`dshot::telemetry_from_edges`: edges → 21 line bits → GCR → checksum → eRPM → rad/s, with the
+//! per-motor counters of `dshot::MotorTelemetry`) and switches the channels back to output.
+//! `speeds_rad_s` then reports each motor's speed, one step old; a motor whose answers failed
+//! [`crate::drivers::dshot::STALE_ANSWERS`] times in a row reads `None`.
+//!
+//! What runs in which task: the control task owns [`BoardMotors`] (frames, decoding, the switch
+//! back); the burst task owns a [`BurstCompletion`] per timer (the switch to capture). They touch
+//! the same timer at different times by construction: the completion interrupt comes 28 µs after
+//! `set_commands` started the burst, and `set_commands` touches the timer again only in the next
+//! step, 500 µs later, after taking the captures ([`CAPTURING`] says whether there are any).
+//!
+//! Not verified on hardware (no board here): this is compile-checked register code; the
+//! decoding it feeds is tested on the host (`drivers::dshot`).
 //!
 //! Special commands (`Motors::send_command`: beep, spin direction, save, …; the protocol's
 //! `EscCommand` request) are refused while armed and repeated as the specification asks
@@ -27,15 +40,17 @@ use super::chip::{self, cr, Dma};
 use crate::app::hal::{EscCommandError, Motors, MAX_MOTORS};
 use crate::boards::{h743, interleave_burst, BoardDescription};
 use crate::drivers::dshot::{
-    bit_period_ticks, compare_values, CommandQueue, DshotCommand, COMPARE_BUFFER_LEN,
-    DSHOT600_BIT_RATE_HZ,
+    bit_period_ticks, compare_values, telemetry_from_edges, CommandQueue, DshotCommand,
+    MotorTelemetry, CAPTURE_EDGES, COMPARE_BUFFER_LEN, DSHOT600_BIT_RATE_HZ,
+    DSHOT600_TELEMETRY_BIT_RATE_HZ,
 };
-use core::ptr::addr_of_mut;
+use core::ptr::{addr_of, addr_of_mut};
+use core::sync::atomic::{AtomicBool, Ordering};
 use protocol::MotorLinkHealth;
 
 /// Most motor timers a board may use.
 const MAX_TIMERS: usize = 4;
-/// Words per timer buffer: 17 bits × 4 channels.
+/// Words per timer buffer: 18 bit values × 4 channels.
 const BURST_WORDS: usize = COMPARE_BUFFER_LEN * 4;
 
 /// The burst buffers, in AXI SRAM (DMA1 cannot reach DTCM). NOLOAD: written before each use.
@@ -43,10 +58,21 @@ const BURST_WORDS: usize = COMPARE_BUFFER_LEN * 4;
 static mut BURSTS: core::mem::MaybeUninit<[[u32; BURST_WORDS]; MAX_TIMERS]> =
     core::mem::MaybeUninit::uninit();
 
+/// The captured edge timestamps of each motor's answer, in AXI SRAM (written by the capture
+/// DMAs, read by the control task in the next step). NOLOAD.
+#[link_section = ".axisram.dshot"]
+static mut CAPTURES: core::mem::MaybeUninit<[[u32; CAPTURE_EDGES]; MAX_MOTORS]> =
+    core::mem::MaybeUninit::uninit();
+
+/// Per timer: its channels capture an answer (set by the burst task when it switched them,
+/// cleared by the control task when it took the captures).
+pub static CAPTURING: [AtomicBool; MAX_TIMERS] = [const { AtomicBool::new(false) }; MAX_TIMERS];
+
 /// Timer register offsets and bits (RM0433 §39.4, general-purpose timers TIM2–TIM5).
 mod tim {
     pub const CR1: u32 = 0x00;
     pub const DIER: u32 = 0x0C;
+    pub const SR: u32 = 0x10;
     pub const EGR: u32 = 0x14;
     pub const CCMR1: u32 = 0x18;
     pub const CCER: u32 = 0x20;
@@ -59,10 +85,118 @@ mod tim {
     pub const CR1_CEN: u32 = 1 << 0;
     pub const CR1_ARPE: u32 = 1 << 7;
     pub const DIER_UDE: u32 = 1 << 8;
+    /// CC1DE; channel c (1..=4) is bit 8 + c.
+    pub const DIER_CC1DE: u32 = 1 << 9;
     pub const EGR_UG: u32 = 1 << 0;
     /// OCxM = PWM mode 1 (0b0110) with the compare preload (OCxPE), for an odd channel; an even
     /// channel's field is 8 bits higher.
     pub const CCMR_PWM1_PRELOAD: u32 = (0b110 << 4) | (1 << 3);
+    /// CCxS = 01 (input capture on TIx) with ICxF = 0011 (8 samples at the timer clock: 33 ns
+    /// at 240 MHz, well below the 1.33 µs answer bit), for an odd channel.
+    pub const CCMR_INPUT_FILTERED: u32 = 0b01 | (0b0011 << 4);
+    /// CCER bits of channel c (0-based) at 4c: enable, polarity (output: active low; input:
+    /// with CCxNP both edges), and CCxNP.
+    pub const CCER_E: u32 = 1 << 0;
+    pub const CCER_P: u32 = 1 << 1;
+    pub const CCER_NP: u32 = 1 << 3;
+}
+
+/// A channel's answer capture: its motor and DMA stream.
+#[derive(Clone, Copy)]
+struct Capture {
+    motor: u8,
+    dma: Dma,
+}
+
+/// Channel mode, for [`configure_channels`].
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum ChannelMode {
+    /// PWM output of the frame's bits (inverted when bidirectional).
+    Output { inverted: bool },
+    /// Input capture of both edges (the answer).
+    Capture,
+}
+
+/// Set CCMR1/2 and CCER of `count` channels from `first` (stopped or about to be reprogrammed):
+/// CCxS may only change while the channel is disabled, so CCER is cleared first.
+///
+/// # Safety
+/// `base` is a motor timer this task owns at the moment (see the module doc).
+unsafe fn configure_channels(base: u32, first: u8, count: u8, mode: ChannelMode) {
+    let mut ccmr = [0u32; 2];
+    let mut ccer = 0u32;
+    for channel in first..first + count {
+        let c = u32::from(channel - 1);
+        let (mode_bits, enable) = match mode {
+            ChannelMode::Output { inverted } => {
+                (tim::CCMR_PWM1_PRELOAD, tim::CCER_E | if inverted { tim::CCER_P } else { 0 })
+            }
+            ChannelMode::Capture => {
+                (tim::CCMR_INPUT_FILTERED, tim::CCER_E | tim::CCER_P | tim::CCER_NP)
+            }
+        };
+        ccmr[(c / 2) as usize] |= mode_bits << (8 * (c % 2));
+        ccer |= enable << (4 * c);
+    }
+    chip::write(base + tim::CCER, 0);
+    chip::write(base + tim::CCMR1, ccmr[0]);
+    chip::write(base + tim::CCMR1 + 4, ccmr[1]);
+    chip::write(base + tim::CCER, ccer);
+}
+
+/// The burst task's half of one motor timer: on the burst stream's transfer-complete, switch
+/// the timer's channels to capture the ESCs' answers (see the module doc). `Copy` register
+/// addresses only; built by [`BoardMotors::completion`].
+#[derive(Clone, Copy)]
+pub struct BurstCompletion {
+    index: usize,
+    base: u32,
+    burst: Dma,
+    first: u8,
+    count: u8,
+    captures: [Option<Capture>; 4],
+}
+
+impl BurstCompletion {
+    /// The interrupt's work: acknowledge the stream; stop the bit clock; channels to input
+    /// capture of both edges, the counter free-running from 0 (16-bit: 273 µs at 240 MHz, longer
+    /// than the answer's window); start each channel's capture DMA. A few dozen register writes.
+    pub fn on_burst_complete(&self) {
+        self.burst.clear_flags();
+        let base = self.base;
+        // SAFETY: the control task is done with this timer until its next step (module doc);
+        // the capture buffers are DMA-reachable statics only the DMA writes until then.
+        unsafe {
+            chip::write(base + tim::DIER, 0);
+            chip::write(base + tim::CR1, 0);
+            configure_channels(base, self.first, 0, ChannelMode::Capture);
+            chip::write(base + tim::ARR, 0xFFFF);
+            chip::write(base + tim::CNT, 0);
+            let captures = addr_of_mut!(CAPTURES) as *mut [u32; CAPTURE_EDGES];
+            let mut requests = 0;
+            for (slot, capture) in self.captures.iter().enumerate() {
+                let Some(capture) = capture else { continue };
+                let channel = u32::from(self.first) + slot as u32;
+                let buffer = captures.add(usize::from(capture.motor));
+                capture.dma.start(
+                    base + tim::CCR1 + 4 * (channel - 1),
+                    buffer as u32,
+                    CAPTURE_EDGES as u16,
+                    cr::PERIPHERAL_TO_MEMORY
+                        | cr::MINC
+                        | cr::PSIZE_32
+                        | cr::MSIZE_32
+                        | cr::PRIORITY_HIGH,
+                );
+                requests |= tim::DIER_CC1DE << (channel - 1);
+            }
+            configure_channels(base, self.first, self.count, ChannelMode::Capture);
+            chip::write(base + tim::SR, 0);
+            chip::write(base + tim::DIER, requests);
+            chip::write(base + tim::CR1, tim::CR1_CEN);
+        }
+        CAPTURING[self.index].store(true, Ordering::Release);
+    }
 }
 
 /// One motor timer and its burst.
@@ -71,7 +205,10 @@ struct BurstTimer {
     base: u32,
     dma: Dma,
     /// Channels in the burst: `first`..`first + count`.
+    first: u8,
     count: u8,
+    /// The answer capture of each burst slot (bidirectional DShot).
+    captures: [Option<Capture>; 4],
     /// The motor (application index) on each burst slot, if any.
     motors: [Option<u8>; 4],
     /// Index into `BURSTS`.
@@ -85,6 +222,12 @@ pub struct BoardMotors {
     period_ticks: u16,
     frames_sent: u32,
     special: CommandQueue,
+    /// The ESCs answer with their eRPM (inverted frames, captures).
+    bidirectional: bool,
+    /// Timer ticks per answer bit (240 MHz / 750 kbit/s = 320).
+    answer_bit_ticks: u32,
+    pole_pairs: u8,
+    telemetry: [MotorTelemetry; MAX_MOTORS],
 }
 
 impl BoardMotors {
@@ -103,8 +246,21 @@ impl BoardMotors {
                     motors[usize::from(output.channel - first)] = Some(m as u8);
                 }
             }
+            let mut captures = [None; 4];
             for output in board.motors.iter().filter(|o| o.timer == motor_timer.timer) {
-                chip::alternate(output.pin, false);
+                // Pulled up when bidirectional: the line idles high between frame and answer.
+                chip::alternate(output.pin, board.motor_bidirectional);
+            }
+            if board.motor_bidirectional {
+                for (m, output) in board.driven_motors().iter().enumerate() {
+                    let request = info.channel_requests[usize::from(output.channel - 1)];
+                    if output.timer == motor_timer.timer && request != 0 {
+                        let dma = Dma::new(output.capture_dma);
+                        dma.route(output.capture_dma, request);
+                        captures[usize::from(output.channel - first)] =
+                            Some(Capture { motor: m as u8, dma });
+                    }
+                }
             }
             chip::enable_clock(info.enable);
             let base = info.base;
@@ -116,17 +272,11 @@ impl BoardMotors {
                 chip::write(base + tim::DIER, 0);
                 chip::write(base + tim::PSC, 0);
                 chip::write(base + tim::ARR, u32::from(period_ticks) - 1);
-                let mut ccmr = [0u32; 2];
-                let mut ccer = 0u32;
                 for channel in first..first + count {
-                    let c = u32::from(channel - 1);
-                    ccmr[(c / 2) as usize] |= tim::CCMR_PWM1_PRELOAD << (8 * (c % 2));
-                    ccer |= 1 << (4 * c);
-                    chip::write(base + tim::CCR1 + 4 * c, 0);
+                    chip::write(base + tim::CCR1 + 4 * u32::from(channel - 1), 0);
                 }
-                chip::write(base + tim::CCMR1, ccmr[0]);
-                chip::write(base + tim::CCMR1 + 4, ccmr[1]);
-                chip::write(base + tim::CCER, ccer);
+                let inverted = board.motor_bidirectional;
+                configure_channels(base, first, count, ChannelMode::Output { inverted });
                 // Burst: DBA = CCR`first` (register index 13 + first − 1), DBL = count − 1.
                 let dba = (tim::CCR1 / 4) + u32::from(first - 1);
                 chip::write(base + tim::DCR, (u32::from(count - 1) << 8) | dba);
@@ -136,7 +286,8 @@ impl BoardMotors {
             }
             let dma = Dma::new(motor_timer.dma);
             dma.route(motor_timer.dma, info.update_request);
-            timers[index] = Some(BurstTimer { base, dma, count, motors, buffer: index });
+            timers[index] =
+                Some(BurstTimer { base, dma, first, count, captures, motors, buffer: index });
         }
         Self {
             timers,
@@ -144,6 +295,65 @@ impl BoardMotors {
             period_ticks,
             frames_sent: 0,
             special: CommandQueue::default(),
+            bidirectional: board.motor_bidirectional,
+            answer_bit_ticks: u32::from(
+                bit_period_ticks(timer_clock_hz, DSHOT600_TELEMETRY_BIT_RATE_HZ).unwrap_or(320),
+            ),
+            pole_pairs: board.motor_pole_pairs,
+            telemetry: [MotorTelemetry::default(); MAX_MOTORS],
+        }
+    }
+
+    /// The burst task's half of motor timer `index` (the order of the board's motor timers), if
+    /// the ESCs answer (bidirectional DShot) and the timer exists.
+    pub fn completion(&self, index: usize) -> Option<BurstCompletion> {
+        let timer = self.timers.get(index).copied().flatten()?;
+        self.bidirectional.then_some(BurstCompletion {
+            index,
+            base: timer.base,
+            burst: timer.dma,
+            first: timer.first,
+            count: timer.count,
+            captures: timer.captures,
+        })
+    }
+
+    /// Take timer `timer`'s captured answers (if its channels captured since the last frame),
+    /// decode them into the motors' speeds, and switch its channels back to output.
+    fn take_answers(&mut self, index: usize, timer: &BurstTimer) {
+        if !CAPTURING[index].swap(false, Ordering::Acquire) {
+            return;
+        }
+        let base = timer.base;
+        // SAFETY: the burst task switched this timer to capture 470 µs ago and is done with it
+        // until the next burst completes (module doc).
+        unsafe {
+            chip::write(base + tim::DIER, 0);
+            chip::write(base + tim::CR1, 0);
+        }
+        let captures = addr_of!(CAPTURES) as *const [u32; CAPTURE_EDGES];
+        for capture in timer.captures.iter().flatten() {
+            capture.dma.disable();
+            let edges = (CAPTURE_EDGES as u32).saturating_sub(capture.dma.remaining()) as usize;
+            // SAFETY: the stream is stopped: the DMA no longer writes this motor's buffer.
+            let buffer = unsafe { &*captures.add(usize::from(capture.motor)) };
+            let answer =
+                telemetry_from_edges(&buffer[..edges.min(CAPTURE_EDGES)], self.answer_bit_ticks);
+            if let Some(motor) = self.telemetry.get_mut(usize::from(capture.motor)) {
+                motor.record(answer, self.pole_pairs);
+            }
+        }
+        // SAFETY: as above; back to the frame's bit clock and PWM output.
+        unsafe {
+            configure_channels(
+                base,
+                timer.first,
+                timer.count,
+                ChannelMode::Output { inverted: true },
+            );
+            chip::write(base + tim::ARR, u32::from(self.period_ticks) - 1);
+            chip::write(base + tim::CNT, 0);
+            chip::write(base + tim::CR1, tim::CR1_ARPE | tim::CR1_CEN);
         }
     }
 
@@ -153,13 +363,20 @@ impl BoardMotors {
         self.special.set_armed(armed);
     }
 
-    /// Counters for `BoardHealth.motors`. No speed reports: see the module documentation.
+    /// Counters for `BoardHealth.motors`: frames sent, and per motor the answers decoded and
+    /// those lost (no answer, cut short, bad GCR or checksum).
     pub fn health(&self) -> MotorLinkHealth {
+        let counters = self.telemetry.map(|t| t.counters);
         MotorLinkHealth {
             motor_count: self.count,
             frames_sent: self.frames_sent,
-            reports: [0; MAX_MOTORS],
-            report_errors: [0; MAX_MOTORS],
+            reports: counters.map(|c| c.frames_ok),
+            report_errors: counters.map(|c| {
+                c.crc_errors
+                    .saturating_add(c.gcr_symbol_errors)
+                    .saturating_add(c.timeouts)
+                    .saturating_add(c.other_errors)
+            }),
         }
     }
 }
@@ -172,13 +389,18 @@ impl Motors for BoardMotors {
     /// Send one frame to every motor output. Never blocks: the previous frame ended 470 µs ago.
     fn set_commands(&mut self, commands: &[f32]) {
         let period = self.period_ticks;
-        for timer in self.timers.iter().flatten() {
+        let bidirectional = self.bidirectional;
+        for index in 0..MAX_TIMERS {
+            let Some(timer) = self.timers[index] else { continue };
+            if bidirectional {
+                self.take_answers(index, &timer);
+            }
             let n = usize::from(timer.count);
             let mut values = [None; 4];
             for (slot, motor) in timer.motors.iter().enumerate().take(n) {
                 values[slot] = motor.map(|m| {
                     let command = commands.get(usize::from(m)).copied().unwrap_or(0.0);
-                    compare_values(self.special.frame(m, command, false), period)
+                    compare_values(self.special.frame(m, command, bidirectional), period)
                 });
             }
             // SAFETY: the stream of this timer is stopped before its buffer is rewritten (the
@@ -197,7 +419,9 @@ impl Motors for BoardMotors {
                         | cr::MINC
                         | cr::PSIZE_32
                         | cr::MSIZE_32
-                        | cr::PRIORITY_VERY_HIGH,
+                        | cr::PRIORITY_VERY_HIGH
+                        // The completion switches the channels to capture the answers.
+                        | if bidirectional { cr::TCIE } else { 0 },
                 );
                 chip::modify(timer.base + tim::DIER, 0, tim::DIER_UDE);
                 // Restart the bit clock: this update requests the first burst at once.
@@ -218,8 +442,13 @@ impl Motors for BoardMotors {
         self.special.queue(command, motor).map_err(|_| EscCommandError::Armed)
     }
 
-    /// `None` for every motor: no bidirectional DShot capture yet.
+    /// Each motor's speed from its last answers (bidirectional DShot; `None` without, or when
+    /// the answers went stale).
     fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
-        [None; MAX_MOTORS]
+        let mut speeds = [None; MAX_MOTORS];
+        for (speed, motor) in speeds.iter_mut().zip(&self.telemetry).take(usize::from(self.count)) {
+            *speed = motor.speed_rad_s();
+        }
+        speeds
     }
 }

@@ -102,6 +102,9 @@ pub struct TimerInfo {
     pub enable: RccEnable,
     /// DMAMUX1 request of the update event (TIMx_UP).
     pub update_request: u8,
+    /// DMAMUX1 requests of the capture/compare channels 1–4 (TIMx_CHn; 0: the channel has none,
+    /// as TIM4 CH4). RM0433 table "DMAMUX1: assignment of multiplexer inputs to resources".
+    pub channel_requests: [u8; 4],
     /// Counter width, bits.
     pub bits: u8,
 }
@@ -114,21 +117,50 @@ pub const fn timer(timer: Timer) -> Option<TimerInfo> {
     }
     Some(match timer {
         Timer::Tim2 => {
-            TimerInfo { base: 0x4000_0000, enable: apb1(0), update_request: 22, bits: 32 }
+            let channel_requests = [18, 19, 20, 21];
+            TimerInfo {
+                base: 0x4000_0000,
+                enable: apb1(0),
+                update_request: 22,
+                channel_requests,
+                bits: 32,
+            }
         }
         Timer::Tim3 => {
-            TimerInfo { base: 0x4000_0400, enable: apb1(1), update_request: 27, bits: 16 }
+            let channel_requests = [23, 24, 25, 26];
+            TimerInfo {
+                base: 0x4000_0400,
+                enable: apb1(1),
+                update_request: 27,
+                channel_requests,
+                bits: 16,
+            }
         }
         Timer::Tim4 => {
-            TimerInfo { base: 0x4000_0800, enable: apb1(2), update_request: 32, bits: 16 }
+            let channel_requests = [29, 30, 31, 0];
+            TimerInfo {
+                base: 0x4000_0800,
+                enable: apb1(2),
+                update_request: 32,
+                channel_requests,
+                bits: 16,
+            }
         }
         Timer::Tim5 => {
-            TimerInfo { base: 0x4000_0C00, enable: apb1(3), update_request: 59, bits: 32 }
+            let channel_requests = [55, 56, 57, 58];
+            TimerInfo {
+                base: 0x4000_0C00,
+                enable: apb1(3),
+                update_request: 59,
+                channel_requests,
+                bits: 32,
+            }
         }
         Timer::Tim8 => TimerInfo {
             base: 0x4001_0400,
             enable: RccEnable { register: RccRegister::Apb2, bit: 1 },
             update_request: 51,
+            channel_requests: [47, 48, 49, 50],
             bits: 16,
         },
         Timer::Tim7 => return None,

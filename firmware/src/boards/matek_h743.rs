@@ -13,7 +13,8 @@
 //!
 //! DMA streams are this firmware's own choice (any stream can take any request through
 //! DMAMUX1): DMA1 S0/S1 for the IMU, DMA1 S2–S4 for the three motor timers' bursts, DMA1 S5 for
-//! the receiver, DMA2 S7 for ECC-safe flash reads.
+//! the receiver, DMA1 S6/S7 and DMA2 S0–S5 to capture the ESCs' bidirectional answers on M1–M8,
+//! DMA2 S7 for ECC-safe flash reads.
 
 use super::h743::{Function, Spi, Timer, Uart};
 use super::Port::{A, B, C, D};
@@ -26,8 +27,9 @@ const fn alt(pin: Pin, function: Function, af: u8) -> AltPin {
     AltPin { pin, function, af }
 }
 
-const fn motor(pin: Pin, timer: Timer, channel: u8) -> MotorOutput {
-    MotorOutput { pin: alt(pin, Function::TimerChannel(timer, channel), 2), timer, channel }
+const fn motor(pin: Pin, timer: Timer, channel: u8, capture_dma: DmaStream) -> MotorOutput {
+    let pin = alt(pin, Function::TimerChannel(timer, channel), 2);
+    MotorOutput { pin, timer, channel, capture_dma }
 }
 
 const fn dma(controller: u8, stream: u8) -> DmaStream {
@@ -36,14 +38,14 @@ const fn dma(controller: u8, stream: u8) -> DmaStream {
 
 /// The eight motor outputs, M1..M8 = the board's S1..S8 pads.
 const MOTORS: [MotorOutput; 8] = [
-    motor(pin(B, 0), Timer::Tim3, 3),
-    motor(pin(B, 1), Timer::Tim3, 4),
-    motor(pin(A, 0), Timer::Tim5, 1),
-    motor(pin(A, 1), Timer::Tim5, 2),
-    motor(pin(A, 2), Timer::Tim5, 3),
-    motor(pin(A, 3), Timer::Tim5, 4),
-    motor(pin(D, 12), Timer::Tim4, 1),
-    motor(pin(D, 13), Timer::Tim4, 2),
+    motor(pin(B, 0), Timer::Tim3, 3, dma(1, 6)),
+    motor(pin(B, 1), Timer::Tim3, 4, dma(1, 7)),
+    motor(pin(A, 0), Timer::Tim5, 1, dma(2, 0)),
+    motor(pin(A, 1), Timer::Tim5, 2, dma(2, 1)),
+    motor(pin(A, 2), Timer::Tim5, 3, dma(2, 2)),
+    motor(pin(A, 3), Timer::Tim5, 4, dma(2, 3)),
+    motor(pin(D, 12), Timer::Tim4, 1, dma(2, 4)),
+    motor(pin(D, 13), Timer::Tim4, 2, dma(2, 5)),
 ];
 
 const MOTOR_TIMERS: [MotorTimer; 3] = [
@@ -75,6 +77,7 @@ pub const MATEK_H743_V3: BoardDescription = BoardDescription {
     motor_count: 4,
     motor_timers: &MOTOR_TIMERS,
     motor_pole_pairs: 7,
+    motor_bidirectional: true,
     receiver: ReceiverWiring {
         uart: Uart::Usart6,
         rx: alt(pin(C, 7), Function::UartRx(Uart::Usart6), 7),

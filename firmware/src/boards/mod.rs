@@ -14,7 +14,9 @@
 //! Two things are fixed by the firmware rather than the board, and checked here against it: the
 //! microsecond time base is TIM2 and the 2 kHz control tick is TIM7 (`src/main.rs` binds their
 //! interrupts), and the IMU's data-ready EXTI line and DMA completion interrupt are bound by name
-//! in `src/main.rs` ([`FIRMWARE_IMU_EXTI_LINE`], [`FIRMWARE_IMU_RX_DMA`]).
+//! in `src/main.rs` ([`FIRMWARE_IMU_EXTI_LINE`], [`FIRMWARE_IMU_RX_DMA`]), as are the motor
+//! bursts' completion interrupts that switch the outputs to capture the ESCs' answers
+//! ([`FIRMWARE_MOTOR_BURST_DMA`]).
 
 pub mod h743;
 pub mod matek_h743;
@@ -29,6 +31,15 @@ pub const FIRMWARE_IMU_EXTI_LINE: u8 = 2;
 /// The DMA stream whose completion interrupt `src/main.rs` binds the IMU's read task to
 /// (`DMA1_STR0`).
 pub const FIRMWARE_IMU_RX_DMA: DmaStream = DmaStream { controller: 1, stream: 0 };
+/// The DMA streams whose completion interrupts `src/main.rs` binds to the motor-burst task
+/// (`DMA1_STR2`, `DMA1_STR3`, `DMA1_STR4`), in the order of the board's motor timers: the task
+/// switches that timer's outputs to capture the bidirectional DShot answer
+/// (`board::motors`).
+pub const FIRMWARE_MOTOR_BURST_DMA: [DmaStream; 3] = [
+    DmaStream { controller: 1, stream: 2 },
+    DmaStream { controller: 1, stream: 3 },
+    DmaStream { controller: 1, stream: 4 },
+];
 /// The timer of the microsecond time base (`board::time`), 32 bits.
 pub const FIRMWARE_TIME_BASE: Timer = Timer::Tim2;
 /// The timer of the 2 kHz control tick (`src/main.rs` binds `TIM7`).
@@ -111,13 +122,15 @@ pub struct ImuWiring {
     pub read_clock_hz: u32,
 }
 
-/// One motor output: its pin and the timer channel that drives it.
+/// One motor output: its pin, the timer channel that drives it, and the DMA stream that
+/// captures the ESC's bidirectional DShot answer on that channel (input capture of both edges).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MotorOutput {
     pub pin: AltPin,
     pub timer: Timer,
     /// 1..=4.
     pub channel: u8,
+    pub capture_dma: DmaStream,
 }
 
 /// A timer that drives motor outputs with DShot: its update event requests a DMA burst that
@@ -171,6 +184,9 @@ pub struct BoardDescription {
     pub motor_timers: &'static [MotorTimer],
     /// Motor pole pairs (14 poles = 7 pairs, the common 22xx/23xx motor), for eRPM → rad/s.
     pub motor_pole_pairs: u8,
+    /// Whether the ESCs speak bidirectional DShot (BLHeli_32, Bluejay, AM32 do; BLHeli_S
+    /// without Bluejay does not): inverted frames, each answered with the motor's eRPM.
+    pub motor_bidirectional: bool,
     pub receiver: ReceiverWiring,
     /// USB OTG2 full-speed pins (D−, D+).
     pub usb_dm: AltPin,
@@ -220,6 +236,13 @@ pub enum BoardError {
     FlashLayout,
     /// The board asks for a timer the chip table does not know as a DShot-capable timer.
     NotAMotorTimer(Timer),
+    /// A motor's timer channel has no DMA request to capture the ESC's answer with (TIM4 CH4).
+    NoCaptureRequest {
+        motor: u8,
+    },
+    /// A motor timer's burst stream is not one whose completion interrupt `src/main.rs` binds
+    /// ([`FIRMWARE_MOTOR_BURST_DMA`]).
+    MotorBurstInterruptBinding(DmaStream),
 }
 
 impl BoardDescription {
@@ -251,6 +274,7 @@ impl BoardDescription {
         [self.imu.rx_dma, self.imu.tx_dma, self.receiver.rx_dma, self.flash_read_dma]
             .into_iter()
             .chain(self.motor_timers.iter().map(|t| t.dma))
+            .chain(self.motors.iter().map(|m| m.capture_dma))
     }
 
     /// Check the description (see [`BoardError`]); the first problem found is returned.
@@ -273,7 +297,7 @@ impl BoardDescription {
             }
         }
         // DMA streams.
-        let mut streams: heapless::Vec<DmaStream, 16> = heapless::Vec::new();
+        let mut streams: heapless::Vec<DmaStream, 24> = heapless::Vec::new();
         for s in self.dma_streams() {
             if !(1..=2).contains(&s.controller) || s.stream > 7 {
                 return Err(BoardError::DmaStreamOutOfRange(s));
@@ -311,6 +335,11 @@ impl BoardDescription {
             if !self.motor_timers.iter().any(|t| t.timer == m.timer) {
                 return Err(BoardError::MotorTimerMissing { motor, timer: m.timer });
             }
+            let capture =
+                h743::timer(m.timer).map(|t| t.channel_requests[usize::from(m.channel - 1)]);
+            if self.motor_bidirectional && capture.unwrap_or(0) == 0 {
+                return Err(BoardError::NoCaptureRequest { motor });
+            }
         }
         for (i, t) in self.motor_timers.iter().enumerate() {
             if !self.motors.iter().any(|m| m.timer == t.timer)
@@ -323,6 +352,9 @@ impl BoardDescription {
             }
             if h743::timer(t.timer).is_none() {
                 return Err(BoardError::NotAMotorTimer(t.timer));
+            }
+            if FIRMWARE_MOTOR_BURST_DMA.get(i) != Some(&t.dma) {
+                return Err(BoardError::MotorBurstInterruptBinding(t.dma));
             }
             let (first, count) = self.burst_channels(t.timer);
             let used = self.motors.iter().filter(|m| m.timer == t.timer).count() as u8;
@@ -513,12 +545,12 @@ mod tests {
 
     #[test]
     fn burst_interleaving() {
-        let a = [1u16; 17];
-        let mut b = [2u16; 17];
-        b[16] = 0;
-        let mut out = [9u32; 17 * 3];
+        let a = [1u16; 18];
+        let mut b = [2u16; 18];
+        b[17] = 0;
+        let mut out = [9u32; 18 * 3];
         interleave_burst(&[Some(a), None, Some(b)], &mut out);
         assert_eq!(&out[..6], &[1, 0, 2, 1, 0, 2]);
-        assert_eq!(&out[48..], &[1, 0, 0]);
+        assert_eq!(&out[48..], &[1, 0, 2, 1, 0, 0]);
     }
 }

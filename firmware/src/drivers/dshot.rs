@@ -70,8 +70,18 @@ pub const DUTY_ONE_NUMERATOR: u32 = 6;
 pub const DUTY_ZERO_NUMERATOR: u32 = 3;
 /// Common denominator of the duties (eighths of a bit period).
 pub const DUTY_DENOMINATOR: u32 = 8;
-/// Length of the DMA compare buffer: 16 bits plus one trailing 0 (line idle).
-pub const COMPARE_BUFFER_LEN: usize = 17;
+/// Length of the DMA compare buffer: 16 bits plus two trailing 0s (line idle). A burst is
+/// written one bit period before it takes effect (preloaded compare registers), so the
+/// stream's transfer-complete comes one period before its last value is output: with two idle
+/// values it comes after the frame's last data bit, when the outputs may switch to capture the
+/// bidirectional answer.
+pub const COMPARE_BUFFER_LEN: usize = 18;
+/// Edge timestamps captured per motor and answer: the 21 line bits of an answer have at most 21
+/// level changes, plus margin for glitches.
+pub const CAPTURE_EDGES: usize = 32;
+/// Failed answers in a row after which a motor's speed counts as unknown (2 ms at 2 kHz): a
+/// single answer lost to a bit error keeps the last speed.
+pub const STALE_ANSWERS: u8 = 4;
 /// Telemetry value meaning "motor stopped" (the longest period the format can carry).
 pub const TELEMETRY_STOPPED: u16 = 0x0FFF;
 
@@ -483,6 +493,45 @@ pub fn raw_from_edges(edges_ticks: &[u32], bit_ticks: u32) -> Result<u32, DshotE
     builder.finish(level)
 }
 
+/// The 12-bit telemetry value of one answer from its edge timestamps ([`raw_from_edges`], then
+/// [`gcr_decode`] with its checksum).
+pub fn telemetry_from_edges(edges_ticks: &[u32], bit_ticks: u32) -> Result<u16, DshotError> {
+    gcr_decode(raw_from_edges(edges_ticks, bit_ticks)?)
+}
+
+/// One motor's speed from its bidirectional answers, with their counters.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MotorTelemetry {
+    pub counters: MotorTelemetryCounters,
+    speed_rad_s: f32,
+    /// Failed answers since the last good one ([`STALE_ANSWERS`] or more: unknown).
+    failed_in_a_row: u8,
+    /// Whether any answer was good yet.
+    heard: bool,
+}
+
+impl MotorTelemetry {
+    /// Take one answer's outcome (a telemetry value or why there was none) for a motor with
+    /// `pole_pairs` pole pairs.
+    pub fn record(&mut self, answer: Result<u16, DshotError>, pole_pairs: u8) {
+        self.counters.record(&answer);
+        match answer {
+            Ok(value) => {
+                self.speed_rad_s = mechanical_rad_s(erpm_from_telemetry(value), pole_pairs);
+                self.failed_in_a_row = 0;
+                self.heard = true;
+            }
+            Err(_) => self.failed_in_a_row = self.failed_in_a_row.saturating_add(1),
+        }
+    }
+
+    /// The motor's speed, rad/s: the last good answer's, unless [`STALE_ANSWERS`] answers
+    /// in a row failed since (or none was good yet).
+    pub fn speed_rad_s(&self) -> Option<f32> {
+        (self.heard && self.failed_in_a_row < STALE_ANSWERS).then_some(self.speed_rad_s)
+    }
+}
+
 /// Telemetry error and success counters for one motor.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct MotorTelemetryCounters {
@@ -883,6 +932,58 @@ mod tests {
         assert_eq!(raw_from_edges(&[5, 10], 0), Err(DshotError::BadTiming));
         // Ends low after a falling edge: truncated.
         assert_eq!(raw_from_edges(&[0, 320, 640], 320), Err(DshotError::Truncated { bits: 2 }));
+    }
+
+    /// Timestamps of an answer carrying `value12`, starting at tick `t0`, `bit_ticks` per bit.
+    fn answer_edges(value12: u16, t0: u32, bit_ticks: u32) -> heapless::Vec<u32, 22> {
+        let raw = reference_raw(value12);
+        let mut edges = heapless::Vec::new();
+        let _ = edges.push(t0);
+        let mut previous = 0;
+        for i in (0..20).rev() {
+            let level = (raw >> i) & 1;
+            if level != previous {
+                let _ = edges.push(t0 + (20 - i) * bit_ticks);
+                previous = level;
+            }
+        }
+        edges
+    }
+
+    /// A motor at 21,000 eRPM on 7 pole pairs (3,000 RPM, 314 rad/s): the answer's period is
+    /// 1e6/350 = 2,857 µs → mantissa 357, exponent 3 (2,856 µs); decoded through the edges to
+    /// the speed; a corrupted answer is counted and keeps the last speed until
+    /// [`STALE_ANSWERS`] failures in a row.
+    #[test]
+    fn a_captured_answer_becomes_the_motors_speed_and_failures_go_stale() {
+        let bit_ticks = 320; // 240 MHz / 750 kbit/s
+        let value = (3u16 << 9) | 357;
+        let edges = answer_edges(value, 1_000, bit_ticks);
+        assert_eq!(telemetry_from_edges(&edges, bit_ticks), Ok(value));
+        let mut motor = MotorTelemetry::default();
+        assert_eq!(motor.speed_rad_s(), None, "nothing heard yet");
+        motor.record(telemetry_from_edges(&edges, bit_ticks), 7);
+        let expected = 60e6 / 2856.0 / 7.0 * core::f32::consts::TAU / 60.0;
+        let speed = motor.speed_rad_s().unwrap();
+        assert!((speed - expected).abs() < 0.05, "{speed} rad/s vs {expected}");
+        // One edge missing: the answer's bits shift and the checksum or a quintet fails.
+        let mut broken = edges.clone();
+        broken.remove(5);
+        let failed = telemetry_from_edges(&broken, bit_ticks);
+        assert!(failed.is_err(), "{failed:?}");
+        for _ in 1..STALE_ANSWERS {
+            motor.record(failed, 7);
+            assert_eq!(motor.speed_rad_s(), Some(speed), "a lost answer keeps the speed");
+        }
+        motor.record(Err(DshotError::NoResponse), 7);
+        assert_eq!(motor.speed_rad_s(), None, "stale after {STALE_ANSWERS} failures");
+        let c = motor.counters;
+        assert_eq!(c.frames_ok, 1);
+        assert_eq!(c.crc_errors + c.gcr_symbol_errors + c.timeouts, u32::from(STALE_ANSWERS));
+        // The stopped value reads 0 rad/s.
+        let stopped = answer_edges(TELEMETRY_STOPPED, 0, bit_ticks);
+        motor.record(telemetry_from_edges(&stopped, bit_ticks), 7);
+        assert_eq!(motor.speed_rad_s(), Some(0.0));
     }
 
     #[test]
