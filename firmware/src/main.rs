@@ -39,6 +39,13 @@ fn main() {
 #[cfg(target_os = "none")]
 use {defmt_rtt as _, panic_probe as _};
 
+/// The background worker's storage (AXI SRAM, NOLOAD): `init` builds the worker in place
+/// (`Background::build_in`), so it is never a temporary on `init`'s stack.
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.background"]
+static mut BACKGROUND: core::mem::MaybeUninit<firmware::app::Background<'static>> =
+    core::mem::MaybeUninit::uninit();
+
 // The RTIC application: resources, initialisation and the task table.
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
@@ -135,10 +142,10 @@ mod app {
         /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads).
         settings: Settings<ConfigSectors>,
         /// The learner, the thrust-axis solver and the IMU-offset estimator (with the drag
-        /// model's store of a throw's blocks): 30 KB that only the lowest-priority task touches,
-        /// in AXI SRAM so that DTCM keeps room for the stack (docs/budget.md).
-        #[link_section = ".axisram.background"]
-        background: Background<'static>,
+        /// model's store of a throw's blocks): 55 KB that only the lowest-priority task touches,
+        /// in AXI SRAM so that DTCM keeps room for the stack, built there in place by `init`
+        /// ([`BACKGROUND`]; docs/budget.md).
+        background: &'static mut Background<'static>,
     }
 
     #[init(local = [
@@ -244,7 +251,9 @@ mod app {
         let (producer, consumer) = split_queue(cx.local.samples);
         let (ring_producer, telemetry) = split_queue(cx.local.step_ring);
         let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
-        let background = Background::new(consumer, config.rate_hz);
+        // SAFETY: `init` runs once, before any task: this is the storage's only reference.
+        let storage = unsafe { &mut *core::ptr::addr_of_mut!(crate::BACKGROUND) };
+        let background = Background::build_in(storage, consumer, config.rate_hz);
         let mut serial = heapless::String::new();
         // The 24-character UID always fits the protocol's 32-byte field.
         let _ = serial.push_str(uid_text);

@@ -16,8 +16,10 @@
 //! board, never computed under it.
 
 use super::queue::{LearnerSample, SampleConsumer};
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use flight::imu_offset::{self, ImuOffsetEstimator, Verdict};
-use flight::learner::{FlightPhase, LearnedModel, Learner, LearnerConfig};
+use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetStatus, OffsetAdvice};
 
@@ -117,7 +119,7 @@ pub struct Background<'q> {
     /// Time of the previous sample, µs.
     previous_t_us: Option<u64>,
     /// The in-flight learner, built at the first excitation (it needs the motor count).
-    learner: Option<Learner>,
+    learner: LearnerSlot,
     /// The IMU offset to use, IMU axes, m, when configured.
     configured_offset_m: Option<[f32; 3]>,
     rate_hz: f32,
@@ -134,24 +136,45 @@ pub struct Background<'q> {
 impl<'q> Background<'q> {
     /// The background worker for samples taken once per control step at `control_rate_hz`.
     pub fn new(samples: SampleConsumer<'q>, control_rate_hz: u16) -> Self {
+        let mut slot = MaybeUninit::uninit();
+        Self::build_in(&mut slot, samples, control_rate_hz);
+        // SAFETY: `build_in` wrote every field.
+        unsafe { slot.assume_init() }
+    }
+
+    /// [`Background::new`] in place, field by field: the worker is about 55 KB (the learner's
+    /// storage, the IMU-offset estimator), and the board keeps it in a static that `init`
+    /// builds this way instead of holding it whole on its stack (docs/budget.md).
+    pub fn build_in<'s>(
+        slot: &'s mut MaybeUninit<Self>,
+        samples: SampleConsumer<'q>,
+        control_rate_hz: u16,
+    ) -> &'s mut Self {
         let rate_hz = control_rate_hz.max(1);
-        Self {
-            samples,
-            gyro: Default::default(),
-            accel: Default::default(),
-            window_start_us: None,
-            imu_offset: ImuOffsetEstimator::new(f32::from(rate_hz), imu_offset_config()).ok(),
-            imu_offset_config: imu_offset_config(),
-            period_us: 1_000_000 / u64::from(rate_hz),
-            previous_t_us: None,
-            learner: None,
-            configured_offset_m: None,
-            rate_hz: f32::from(rate_hz),
-            previous_phase: FlightPhase::Idle,
-            samples_since_excitation: 0,
-            settle_samples: (LEARN_AFTER_EXCITATION_S * f32::from(rate_hz)) as u32,
-            refine_samples: (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32,
-            results: BackgroundResults::default(),
+        let worker = slot.as_mut_ptr();
+        // SAFETY: each field is written exactly once through raw field pointers before the
+        // reference is formed; the learner's storage needs only its flag (`LearnerSlot`).
+        unsafe {
+            addr_of_mut!((*worker).samples).write(samples);
+            addr_of_mut!((*worker).gyro).write(Default::default());
+            addr_of_mut!((*worker).accel).write(Default::default());
+            addr_of_mut!((*worker).window_start_us).write(None);
+            addr_of_mut!((*worker).imu_offset)
+                .write(ImuOffsetEstimator::new(f32::from(rate_hz), imu_offset_config()).ok());
+            addr_of_mut!((*worker).imu_offset_config).write(imu_offset_config());
+            addr_of_mut!((*worker).period_us).write(1_000_000 / u64::from(rate_hz));
+            addr_of_mut!((*worker).previous_t_us).write(None);
+            LearnerSlot::init_empty(addr_of_mut!((*worker).learner));
+            addr_of_mut!((*worker).configured_offset_m).write(None);
+            addr_of_mut!((*worker).rate_hz).write(f32::from(rate_hz));
+            addr_of_mut!((*worker).previous_phase).write(FlightPhase::Idle);
+            addr_of_mut!((*worker).samples_since_excitation).write(0);
+            let settle = (LEARN_AFTER_EXCITATION_S * f32::from(rate_hz)) as u32;
+            addr_of_mut!((*worker).settle_samples).write(settle);
+            let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
+            addr_of_mut!((*worker).refine_samples).write(refine);
+            addr_of_mut!((*worker).results).write(BackgroundResults::default());
+            slot.assume_init_mut()
         }
     }
 
@@ -258,14 +281,14 @@ impl<'q> Background<'q> {
         if starting {
             let (r_imu_m, source) = self.learner_offset();
             let motors = usize::from(sample.motor_count);
-            let reuse =
-                self.learner.as_ref().is_some_and(|l| l.model().motors == sample.motor_count);
+            let reuse = self.learner.get().is_some_and(|l| l.model().motors == sample.motor_count);
             if !reuse {
                 let config =
                     LearnerConfig { rate_hz: self.rate_hz, r_imu_m, ..LearnerConfig::default() };
-                self.learner = Learner::new(motors, config).ok();
+                // In place: the learner is 25 KB (docs/budget.md).
+                let _ = self.learner.build(motors, config);
             }
-            if let Some(learner) = &mut self.learner {
+            if let Some(learner) = self.learner.get_mut() {
                 // Cannot fail: the offset was checked finite and the onboard one is bounded.
                 let _ = learner.restart(r_imu_m);
             }
@@ -287,7 +310,7 @@ impl<'q> Background<'q> {
         } else {
             return;
         }
-        if let Some(learner) = &mut self.learner {
+        if let Some(learner) = self.learner.get_mut() {
             learner.update(
                 sample.imu.gyro_rad_s,
                 sample.imu.accel_mps2,

@@ -62,6 +62,8 @@
 use super::rls::{packed_len, Rls, RlsConfig, NOISE_WINDOW};
 use super::MAX_MOTORS;
 use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3};
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use nalgebra::{Matrix3, Vector3};
 
 /// Corner of the first-order high-pass applied to every regressor and output of the increment
@@ -227,36 +229,66 @@ impl EffectivenessEstimator {
         speed_lag_s: f32,
         config: RlsConfig,
     ) -> Self {
+        let mut slot = MaybeUninit::uninit();
+        // SAFETY: a local slot, valid and aligned; `build_at` writes every field.
+        unsafe {
+            Self::build_at(
+                slot.as_mut_ptr(),
+                motors,
+                rate_hz,
+                filter,
+                r_imu_m,
+                speed_lag_s,
+                config,
+            );
+            slot.assume_init()
+        }
+    }
+
+    /// [`EffectivenessEstimator::new`] in place at `this`, field by field (the estimator is
+    /// 21 KB; its covariances are built in place too: [`Rls::build_at`]).
+    ///
+    /// # Safety
+    /// `this` must be valid for writes and aligned; every field is written before use.
+    pub unsafe fn build_at(
+        this: *mut Self,
+        motors: usize,
+        rate_hz: f32,
+        filter: BiquadCoefficients,
+        r_imu_m: [f32; 3],
+        speed_lag_s: f32,
+        config: RlsConfig,
+    ) {
         let motors = motors.clamp(1, MAX_MOTORS);
-        let mut estimator = Self {
-            motors,
-            decimation: 1,
-            increment_s: 0.0,
-            half_rate_hz: 0.5 * rate_hz,
-            r_imu_m: Vector3::from(r_imu_m),
-            speed_lag_s: if speed_lag_s.is_finite() { speed_lag_s } else { 0.0 },
-            filter,
-            gyro: Butterworth2x3::from_coefficients(filter),
-            accel: Butterworth2x3::from_coefficients(filter),
-            speed: [Butterworth2::from_coefficients(filter); MAX_MOTORS],
-            speed2: [Butterworth2::from_coefficients(filter); MAX_MOTORS],
-            rate_products: [Butterworth2::from_coefficients(filter); RATE_PRODUCTS],
-            momentum_products: [Butterworth2::from_coefficients(filter); 3 * MAX_MOTORS],
-            history: [Filtered::default(); 3],
-            newest: 0,
-            seen: 0,
-            centred: [Centred::default(); CENTRED_RING],
-            centred_count: 0,
-            force: Rls::new(3 * motors + 3, config),
-            force_high_pass: [HighPass::default(); 3],
-            rotation_high_pass: [HighPass::default(); 3],
-            high_pass_pole: 0.0,
-            rate_hz,
-            rotation: Rls::new(6 * motors + INERTIA_PARAMETERS, config),
-        };
+        addr_of_mut!((*this).motors).write(motors);
+        addr_of_mut!((*this).decimation).write(1);
+        addr_of_mut!((*this).increment_s).write(0.0);
+        addr_of_mut!((*this).half_rate_hz).write(0.5 * rate_hz);
+        addr_of_mut!((*this).r_imu_m).write(Vector3::from(r_imu_m));
+        let lag = if speed_lag_s.is_finite() { speed_lag_s } else { 0.0 };
+        addr_of_mut!((*this).speed_lag_s).write(lag);
+        addr_of_mut!((*this).filter).write(filter);
+        let butterworth = Butterworth2::from_coefficients(filter);
+        addr_of_mut!((*this).gyro).write(Butterworth2x3::from_coefficients(filter));
+        addr_of_mut!((*this).accel).write(Butterworth2x3::from_coefficients(filter));
+        addr_of_mut!((*this).speed).write([butterworth; MAX_MOTORS]);
+        addr_of_mut!((*this).speed2).write([butterworth; MAX_MOTORS]);
+        addr_of_mut!((*this).rate_products).write([butterworth; RATE_PRODUCTS]);
+        addr_of_mut!((*this).momentum_products).write([butterworth; 3 * MAX_MOTORS]);
+        addr_of_mut!((*this).history).write([Filtered::default(); 3]);
+        addr_of_mut!((*this).newest).write(0);
+        addr_of_mut!((*this).seen).write(0);
+        addr_of_mut!((*this).centred).write([Centred::default(); CENTRED_RING]);
+        addr_of_mut!((*this).centred_count).write(0);
+        Rls::build_at(addr_of_mut!((*this).force), 3 * motors + 3, config);
+        addr_of_mut!((*this).force_high_pass).write([HighPass::default(); 3]);
+        addr_of_mut!((*this).rotation_high_pass).write([HighPass::default(); 3]);
+        addr_of_mut!((*this).high_pass_pole).write(0.0);
+        addr_of_mut!((*this).rate_hz).write(rate_hz);
+        Rls::build_at(addr_of_mut!((*this).rotation), 6 * motors + INERTIA_PARAMETERS, config);
+        let estimator = &mut *this;
         estimator.reset_inertia();
         estimator.set_decimation(REGRESSION_DECIMATION);
-        estimator
     }
 
     /// The same estimator with its regressions on every `decimation`-th centred sample: 1 (every

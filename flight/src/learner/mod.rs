@@ -33,6 +33,8 @@ pub mod throw_detector;
 
 use crate::filters::{BiquadCoefficients, FilterDesignError};
 use crate::thrust_axis::{self, HoverProblem, ThrustAxisSolver};
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use effectiveness::{EffectivenessEstimator, Regression};
 use excitation::{Excitation, ExcitationConfig};
 use motor_model::{MotorModel, MotorModelEstimator};
@@ -199,6 +201,60 @@ impl LearnedModel {
     }
 }
 
+/// Storage for a [`Learner`] built in place ([`Learner::build_in`]): empty until the first
+/// build, rebuilt in place for another motor count.
+pub struct LearnerSlot {
+    slot: MaybeUninit<Learner>,
+    built: bool,
+}
+
+impl LearnerSlot {
+    /// No learner yet (nothing is constructed).
+    pub const fn empty() -> Self {
+        // A learner owns no resources: overwriting one in place leaks nothing.
+        const { assert!(!core::mem::needs_drop::<Learner>()) };
+        Self { slot: MaybeUninit::uninit(), built: false }
+    }
+
+    /// An empty slot written in place: only its flag (the storage needs no initialisation).
+    ///
+    /// # Safety
+    /// `this` must be valid for writes and aligned (a field of a value being built in place).
+    pub unsafe fn init_empty(this: *mut Self) {
+        addr_of_mut!((*this).built).write(false);
+    }
+
+    /// Build a learner for `motors` motors in place, replacing any earlier one.
+    pub fn build(
+        &mut self,
+        motors: usize,
+        config: LearnerConfig,
+    ) -> Result<&mut Learner, LearnerError> {
+        self.built = false;
+        let learner = Learner::build_in(&mut self.slot, motors, config)?;
+        self.built = true;
+        Ok(learner)
+    }
+
+    /// The learner, once built.
+    pub fn get(&self) -> Option<&Learner> {
+        // SAFETY: `built` is set only after `build_in` wrote every field.
+        self.built.then(|| unsafe { self.slot.assume_init_ref() })
+    }
+
+    /// The learner, once built.
+    pub fn get_mut(&mut self) -> Option<&mut Learner> {
+        // SAFETY: as in `get`.
+        self.built.then(|| unsafe { self.slot.assume_init_mut() })
+    }
+}
+
+impl core::fmt::Debug for LearnerSlot {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("LearnerSlot").field("learner", &self.get()).finish()
+    }
+}
+
 /// The background half: every estimator of the identification.
 #[derive(Clone, Debug)]
 pub struct Learner {
@@ -227,6 +283,22 @@ pub struct Learner {
 impl Learner {
     /// A learner for `motors` motors.
     pub fn new(motors: usize, config: LearnerConfig) -> Result<Self, LearnerError> {
+        let mut slot = MaybeUninit::uninit();
+        Self::build_in(&mut slot, motors, config)?;
+        // SAFETY: `build_in` returned `Ok`: every field is written.
+        Ok(unsafe { slot.assume_init() })
+    }
+
+    /// Build a learner for `motors` motors in `slot`, field by field, its effectiveness
+    /// estimator and covariances too: the 25 KB learner is never a temporary on the stack. On
+    /// the board the background task builds it at the first excitation,
+    /// and a by-value construction took 75–100 KB of stack there, more than the task's share
+    /// (docs/budget.md). On `Err` the slot is left uninitialised.
+    pub fn build_in(
+        slot: &mut MaybeUninit<Self>,
+        motors: usize,
+        config: LearnerConfig,
+    ) -> Result<&mut Self, LearnerError> {
         if !(MIN_MOTORS..=MAX_MOTORS).contains(&motors) {
             return Err(LearnerError::MotorCount { motors });
         }
@@ -236,28 +308,37 @@ impl Learner {
         let fast = BiquadCoefficients::butterworth_lowpass(MOTOR_MODEL_CUTOFF_HZ, config.rate_hz)
             .map_err(LearnerError::Filter)?;
         let motor = MotorModelEstimator::new(fast, config.rate_hz, config.motor_rls);
-        Ok(Self {
-            config,
-            motors,
-            motor_models: core::array::from_fn(|_| motor.clone()),
-            effectiveness: EffectivenessEstimator::new(
+        let empty = LearnedModel { motors: motors as u8, ..LearnedModel::default() };
+        let learner = slot.as_mut_ptr();
+        // SAFETY: each field of the slot is written exactly once, through raw field pointers
+        // (no reference to the uninitialised whole), before the reference is formed.
+        unsafe {
+            addr_of_mut!((*learner).config).write(config);
+            addr_of_mut!((*learner).motors).write(motors);
+            let models = addr_of_mut!((*learner).motor_models).cast::<MotorModelEstimator>();
+            for i in 0..MAX_MOTORS {
+                models.add(i).write(motor.clone());
+            }
+            EffectivenessEstimator::build_at(
+                addr_of_mut!((*learner).effectiveness),
                 motors,
                 config.rate_hz,
                 slow,
                 config.r_imu_m,
                 config.speed_report_lag_s,
                 config.effectiveness_rls,
-            ),
-            solver: ThrustAxisSolver::new(SOLVER_CONFIG),
-            commands: [[0.0; MAX_MOTORS]; 8],
-            newest_command: 0,
-            armed: false,
-            since_publish: 0,
-            samples: 0,
-            staging: LearnedModel { motors: motors as u8, ..LearnedModel::default() },
-            staged: None,
-            model: LearnedModel { motors: motors as u8, ..LearnedModel::default() },
-        })
+            );
+            addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
+            addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
+            addr_of_mut!((*learner).newest_command).write(0);
+            addr_of_mut!((*learner).armed).write(false);
+            addr_of_mut!((*learner).since_publish).write(0);
+            addr_of_mut!((*learner).samples).write(0);
+            addr_of_mut!((*learner).staging).write(empty);
+            addr_of_mut!((*learner).staged).write(None);
+            addr_of_mut!((*learner).model).write(empty);
+            Ok(slot.assume_init_mut())
+        }
     }
 
     /// Start a new identification with the IMU offset `r_imu_m` (IMU axes, m).
@@ -575,6 +656,31 @@ mod tests {
     /// The model is published once per cycle of the six effectiveness regressions (staged in
     /// one sample, published with the thrust axis in the next), and every
     /// [`PUBLISH_INTERVAL_SAMPLES`] while a gap keeps the regressions from running.
+    /// The slot builds a learner in place, rebuilds it for another motor count, and a refused
+    /// build leaves it empty; a learner built in place equals one built by value.
+    #[test]
+    fn the_slot_builds_in_place_and_a_refused_build_leaves_it_empty() {
+        let mut slot = LearnerSlot::empty();
+        assert!(slot.get().is_none());
+        let config = LearnerConfig::default();
+        assert_eq!(slot.build(4, config).map(|l| l.motors), Ok(4));
+        assert_eq!(slot.get().map(|l| l.model().motors), Some(4));
+        assert_eq!(slot.build(8, config).map(|l| l.motors), Ok(8));
+        let by_value = Learner::new(8, config).unwrap();
+        let in_place = slot.get().unwrap();
+        assert_eq!(in_place.effectiveness.g1_per_speed2(), by_value.effectiveness.g1_per_speed2());
+        assert_eq!(
+            in_place.effectiveness.normalised_inertia(),
+            by_value.effectiveness.normalised_inertia()
+        );
+        assert_eq!(in_place.model(), by_value.model());
+        assert_eq!(slot.build(9, config).err(), Some(LearnerError::MotorCount { motors: 9 }));
+        assert!(slot.get().is_none(), "refused: nothing half-built is handed out");
+        let far = LearnerConfig { r_imu_m: [f32::NAN, 0.0, 0.0], ..config };
+        assert!(slot.build(4, far).is_err());
+        assert!(slot.get_mut().is_none());
+    }
+
     #[test]
     fn the_model_is_published_once_per_cycle_and_through_gaps() {
         let mut learner = Learner::new(4, LearnerConfig::default()).unwrap();

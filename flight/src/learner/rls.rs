@@ -99,18 +99,30 @@ pub const NOISE_WINDOW: f32 = 200.0;
 impl<const N: usize, const M: usize, const L: usize> Rls<N, M, L> {
     /// An estimator with `n` regressors (clamped to `1..=N`), θ = 0 and `P = P₀ I`.
     pub fn new(n: usize, config: RlsConfig) -> Self {
+        let mut slot = core::mem::MaybeUninit::uninit();
+        // SAFETY: a local slot, valid and aligned; `build_at` writes every field.
+        unsafe {
+            Self::build_at(slot.as_mut_ptr(), n, config);
+            slot.assume_init()
+        }
+    }
+
+    /// [`Rls::new`] in place at `this` (the covariance is up to 11 KB: never a temporary).
+    ///
+    /// # Safety
+    /// `this` must be valid for writes and aligned.
+    pub unsafe fn build_at(this: *mut Self, n: usize, config: RlsConfig) {
         const { assert!(L == packed_len(N), "Rls<N, M, L> needs L = packed_len(N)") };
-        let mut rls = Self {
-            n: n.clamp(1, N),
-            config,
-            theta: [[0.0; M]; N],
-            p: [0.0; L],
-            error_var: [0.0; M],
-            noise_window: NOISE_WINDOW,
-            updates: 0,
-        };
-        rls.reset();
-        rls
+        use core::ptr::addr_of_mut;
+        addr_of_mut!((*this).n).write(n.clamp(1, N));
+        addr_of_mut!((*this).config).write(config);
+        // All-zero bytes are 0.0: the arrays are zeroed where they lie.
+        addr_of_mut!((*this).theta).write_bytes(0, 1);
+        addr_of_mut!((*this).p).write_bytes(0, 1);
+        addr_of_mut!((*this).error_var).write_bytes(0, 1);
+        addr_of_mut!((*this).noise_window).write(NOISE_WINDOW);
+        addr_of_mut!((*this).updates).write(0);
+        (*this).reset();
     }
 
     /// Average the noise variance over `updates` updates (at least one) instead of
