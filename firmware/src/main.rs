@@ -235,7 +235,9 @@ mod app {
 
         // The drivers.
         let imu = BoardImu::new(BOARD.imu, cycles_per_us);
-        let motors = BoardMotors::new(BOARD, ccdr.clocks.timx_ker_ck().raw());
+        // Bidirectional DShot when the board can and the parameter says the ESCs answer.
+        let bidirectional = BOARD.motor_bidirectional && settings.params().bidirectional_dshot();
+        let motors = BoardMotors::new(BOARD, ccdr.clocks.timx_ker_ck().raw(), bidirectional);
         let receiver = BoardReceiver::new(BOARD.receiver, ccdr.clocks.pclk2().raw());
         let imu_state = imu.state();
         let board = BoardHealth {
@@ -265,7 +267,7 @@ mod app {
         if imu_state == ImuDriverState::Running {
             capabilities |= Capabilities::IMU;
         }
-        if BOARD.motor_bidirectional {
+        if bidirectional {
             // The ESCs answer every frame with their eRPM (`board::motors`).
             capabilities |= Capabilities::MOTOR_RPM;
         }

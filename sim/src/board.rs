@@ -119,6 +119,9 @@ pub struct SimMotors {
     speeds_rad_s: [Option<f32>; MAX_MOTORS],
     /// Special commands waiting for the stop frames, as on the board.
     special: CommandQueue,
+    /// Whether the ESCs answer with their speed (bidirectional DShot; `motor_bidir_dshot`):
+    /// without, no speed is reported, as on a board with BLHeli_S ESCs.
+    bidirectional: bool,
     escs: [SimEsc; MAX_MOTORS],
 }
 
@@ -186,6 +189,11 @@ impl SimEsc {
 }
 
 impl SimMotors {
+    /// Bidirectional DShot on or off (the SITL sets it from `motor_bidir_dshot` at each start).
+    pub fn set_bidirectional(&mut self, bidirectional: bool) {
+        self.bidirectional = bidirectional;
+    }
+
     /// The simulated ESCs (first `count()` entries).
     pub fn escs(&self) -> &[SimEsc] {
         &self.escs[..self.count as usize]
@@ -246,7 +254,11 @@ impl Motors for SimMotors {
     }
 
     fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
-        self.speeds_rad_s
+        if self.bidirectional {
+            self.speeds_rad_s
+        } else {
+            [None; MAX_MOTORS]
+        }
     }
 }
 
@@ -302,6 +314,7 @@ impl SimBoard {
                 armed: config.arming == Arming::Armed,
                 speeds_rad_s: [None; MAX_MOTORS],
                 special: CommandQueue::default(),
+                bidirectional: true,
                 escs: [SimEsc::default(); MAX_MOTORS],
             },
             motor_params,

@@ -287,6 +287,8 @@ impl Runner {
                 // The command line's offset is in force as if calibrated (not saved).
                 settings.update(|params| params.store_calibration(r_imu_m, None));
             }
+            // Read at start-up, as the board's motor outputs do.
+            board.ports().1.set_bidirectional(settings.params().bidirectional_dshot());
             let ending = with_firmware_app(|app| {
                 if self.throw_to_fly && first_boot {
                     app.control.command(ControlCommand::ArmThrowToFly, 0);

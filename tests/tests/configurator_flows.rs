@@ -337,7 +337,36 @@ fn the_shell_reconnects_by_itself_after_a_reboot_and_finds_the_saved_value() {
     assert!(output.status.success(), "{stderr}");
     assert!(stderr.contains("reconnected to SITL"), "the shell says it reconnected: {stderr}");
     assert!(!stderr.contains("error"), "every command after the reboot worked: {stderr}");
-    assert!(stdout.contains("the board restarted; configuration: 23 parameters, loaded from flash"));
+    assert!(stdout.contains("the board restarted; configuration: 24 parameters, loaded from flash"));
     let after = stdout.split("the board restarted").nth(1).unwrap();
     assert!(after.contains("gravity_mps2 = 9.79\n"), "the saved value after the reboot: {after}");
+}
+
+/// `motor_bidir_dshot = 0` (ESCs without bidirectional DShot) takes effect at the next start:
+/// the SITL's ESCs then report no speed, as BLHeli_S ESCs would; with the default (1) a stopped
+/// motor reads 0 rad/s.
+#[test]
+fn the_bidirectional_dshot_parameter_decides_after_a_restart_whether_speeds_are_reported() {
+    let flash = flash_file("bidir");
+    let (_sitl, port) = start(&flash, SitlConfig::default());
+    let dir = flash.parent().unwrap();
+    let record = |name: &str| {
+        let csv = dir.join(name);
+        ok(&port, &["record", "--topic", "motors", "--duration-s", "0.1", csv.to_str().unwrap()]);
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let last = text.lines().last().unwrap().to_string();
+        // t, four commands, four speeds.
+        last.split(',').skip(5).map(str::to_string).collect::<Vec<_>>()
+    };
+    assert_eq!(record("bidir-on.csv"), vec!["0"; 4], "a stopped motor reads 0 rad/s");
+    ok(&port, &["set", "motor_bidir_dshot", "=", "0"]);
+    ok(&port, &["save"]);
+    assert_eq!(record("bidir-saved.csv"), vec!["0"; 4], "in force from the next start only");
+    ok(&port, &["reboot"]);
+    let off = record("bidir-off.csv");
+    assert!(off.iter().all(|speed| speed != "0"), "no speed reported: {off:?}");
+    // The learner needs the speeds: arming for a throw is refused, naming the parameter.
+    let (code, _, stderr) = cli(&port, &["arm-throw-to-fly"]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("motor_bidir_dshot"), "{stderr}");
 }

@@ -349,6 +349,17 @@ impl LinkServer {
                         unit: short_text(""),
                     });
                 }
+                if !settings.params().bidirectional_dshot() {
+                    // The learner needs every motor's speed: ESCs without bidirectional DShot
+                    // give none (`motor_bidir_dshot`).
+                    return Err(DeviceError::BadValue {
+                        name: short_text("motor_bidir_dshot"),
+                        value: 0.0,
+                        min: 1.0,
+                        max: 1.0,
+                        unit: short_text(""),
+                    });
+                }
                 self.commands
                     .push_back(ControlCommand::ArmThrowToFly)
                     .map(|_| Reply::Done)

@@ -155,6 +155,8 @@ registry! {
         "IMU-offset calibration done when every 95 % semi-axis is below this";
     GravityMps2 = "gravity_mps2", 1, Real, "m/s²", 9.7, 9.9, [9.80665], false,
         "local gravity for the rest poses of the calibration";
+    MotorBidirDshot = "motor_bidir_dshot", 1, Flag, "", 0.0, 1.0, [1.0], false,
+        "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
 }
 
 /// Number of parameters.
@@ -279,6 +281,12 @@ impl Params {
     /// The calibrated IMU offset (IMU position relative to the CoG, IMU axes, m), when stored.
     pub fn configured_offset_m(&self) -> Option<[f32; 3]> {
         (self.scalar(Param::ImuOffsetValid) == 1.0).then(|| vec3(self.get(Param::ImuOffsetM)))
+    }
+
+    /// Whether the ESCs speak bidirectional DShot (the motor outputs read it at start-up; the
+    /// learner needs the speeds it reports).
+    pub fn bidirectional_dshot(&self) -> bool {
+        self.scalar(Param::MotorBidirDshot) == 1.0
     }
 
     /// The accelerometer bias to subtract from every sample, m/s², IMU axes.

@@ -232,8 +232,10 @@ pub struct BoardMotors {
 
 impl BoardMotors {
     /// Set up the board's motor timers for DShot600 at `timer_clock_hz` (the APB1/APB2 timer
-    /// kernel clock) and send motor-stop frames from the first step on.
-    pub fn new(board: &BoardDescription, timer_clock_hz: u32) -> Self {
+    /// kernel clock) and send motor-stop frames from the first step on; bidirectional when
+    /// `bidirectional` (the `motor_bidir_dshot` parameter) and the board can capture.
+    pub fn new(board: &BoardDescription, timer_clock_hz: u32, bidirectional: bool) -> Self {
+        let bidirectional = bidirectional && board.motor_bidirectional;
         // 240 MHz / 600 kbit/s = 400 ticks; 200 MHz → 333. Both fit; the fallback never runs.
         let period_ticks = bit_period_ticks(timer_clock_hz, DSHOT600_BIT_RATE_HZ).unwrap_or(333);
         let mut timers = [None; MAX_TIMERS];
@@ -249,9 +251,9 @@ impl BoardMotors {
             let mut captures = [None; 4];
             for output in board.motors.iter().filter(|o| o.timer == motor_timer.timer) {
                 // Pulled up when bidirectional: the line idles high between frame and answer.
-                chip::alternate(output.pin, board.motor_bidirectional);
+                chip::alternate(output.pin, bidirectional);
             }
-            if board.motor_bidirectional {
+            if bidirectional {
                 for (m, output) in board.driven_motors().iter().enumerate() {
                     let request = info.channel_requests[usize::from(output.channel - 1)];
                     if output.timer == motor_timer.timer && request != 0 {
@@ -275,7 +277,7 @@ impl BoardMotors {
                 for channel in first..first + count {
                     chip::write(base + tim::CCR1 + 4 * u32::from(channel - 1), 0);
                 }
-                let inverted = board.motor_bidirectional;
+                let inverted = bidirectional;
                 configure_channels(base, first, count, ChannelMode::Output { inverted });
                 // Burst: DBA = CCR`first` (register index 13 + first − 1), DBL = count − 1.
                 let dba = (tim::CCR1 / 4) + u32::from(first - 1);
@@ -295,7 +297,7 @@ impl BoardMotors {
             period_ticks,
             frames_sent: 0,
             special: CommandQueue::default(),
-            bidirectional: board.motor_bidirectional,
+            bidirectional,
             answer_bit_ticks: u32::from(
                 bit_period_ticks(timer_clock_hz, DSHOT600_TELEMETRY_BIT_RATE_HZ).unwrap_or(320),
             ),
