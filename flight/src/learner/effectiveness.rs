@@ -250,7 +250,7 @@ impl EffectivenessEstimator {
     ///
     /// # Safety
     /// `this` must be valid for writes and aligned; every field is written before use.
-    pub unsafe fn build_at(
+    pub(crate) unsafe fn build_at(
         this: *mut Self,
         motors: usize,
         rate_hz: f32,

@@ -111,7 +111,7 @@ impl<const N: usize, const M: usize, const L: usize> Rls<N, M, L> {
     ///
     /// # Safety
     /// `this` must be valid for writes and aligned.
-    pub unsafe fn build_at(this: *mut Self, n: usize, config: RlsConfig) {
+    pub(crate) unsafe fn build_at(this: *mut Self, n: usize, config: RlsConfig) {
         const { assert!(L == packed_len(N), "Rls<N, M, L> needs L = packed_len(N)") };
         use core::ptr::addr_of_mut;
         addr_of_mut!((*this).n).write(n.clamp(1, N));
