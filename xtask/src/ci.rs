@@ -72,8 +72,12 @@ pub fn sitl(args: &[String]) -> Result<()> {
 }
 
 /// The walkthrough's steps: what the newcomer reads, then the configurator's arguments.
-const WALKTHROUGH: [(&str, &[&str]); 8] = [
+const WALKTHROUGH: [(&str, &[&str]); 9] = [
     ("the board: identity and state (nothing configured yet)", &["info"]),
+    (
+        "find the motors: an ESC command makes every ESC beep (only ever sent to stopped motors)",
+        &["esc", "beep1"],
+    ),
     (
         "calibrate the IMU offset: the simulated hand throws the craft, spinning, and catches it",
         &["calibrate", "imu-offset", "--yes"],
@@ -92,7 +96,8 @@ const WALKTHROUGH: [(&str, &[&str]); 8] = [
 
 /// The README's main job: a SITL with a flash file and a hand that throws the craft three times,
 /// every 2.5 simulated seconds (4× real time), then throws it to fly once it is armed, and the
-/// configurator walking through calibrate → save → restart → identify → save → diff against it.
+/// configurator walking through an ESC beep → calibrate → save → restart → identify → save → diff
+/// against it.
 fn walkthrough() -> Result<()> {
     util::run(util::cargo().args([
         "build",
