@@ -347,9 +347,7 @@ impl Pilot {
         // In flight the learner keeps learning (the background task feeds it while the craft
         // flies); the controller follows at a lower gain, in the frame it engaged with.
         if let Some(controller) = &mut self.controller {
-            if self.status.flying
-                && controller.refine_effectiveness(model, IN_FLIGHT_REFINEMENT_GAIN)
-            {
+            if controller.refine_effectiveness(model, IN_FLIGHT_REFINEMENT_GAIN) {
                 self.status.refinements = self.status.refinements.wrapping_add(1);
             }
         }

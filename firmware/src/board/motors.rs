@@ -66,7 +66,7 @@ static mut CAPTURES: core::mem::MaybeUninit<[[u32; CAPTURE_EDGES]; MAX_MOTORS]> 
 
 /// Per timer: its channels capture an answer (set by the burst task when it switched them,
 /// cleared by the control task when it took the captures).
-pub static CAPTURING: [AtomicBool; MAX_TIMERS] = [const { AtomicBool::new(false) }; MAX_TIMERS];
+static CAPTURING: [AtomicBool; MAX_TIMERS] = [const { AtomicBool::new(false) }; MAX_TIMERS];
 
 /// Timer register offsets and bits (RM0433 §39.4, general-purpose timers TIM2–TIM5).
 mod tim {
