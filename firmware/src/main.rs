@@ -37,7 +37,32 @@ fn main() {
 }
 
 #[cfg(target_os = "none")]
-use {defmt_rtt as _, panic_probe as _};
+use defmt_rtt as _;
+
+/// On a panic: log where (file and line, over defmt), then stop the core with a permanent
+/// undefined instruction (HardFault, which loops). The DShot bursts are started by the control
+/// step only, so the ESCs stop receiving frames and stop the motors (their signal-loss timeout).
+///
+/// Our own handler rather than `panic-probe` with `print-defmt`: that one formats the panic
+/// message, which links `core::fmt`'s machinery into the flash; the file and line lead to the
+/// failed check in the source.
+#[cfg(target_os = "none")]
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    match info.location() {
+        Some(at) => defmt::error!("panic at {=str}:{=u32}", at.file(), at.line()),
+        None => defmt::error!("panic"),
+    }
+    cortex_m::asm::udf()
+}
+
+/// `defmt::panic!` (start-up failures: no USB clock, a switch channel out of range) logs its
+/// message itself; then the same stop as a panic.
+#[cfg(target_os = "none")]
+#[defmt::panic_handler]
+fn defmt_panic() -> ! {
+    cortex_m::asm::udf()
+}
 
 /// The background worker's storage (AXI SRAM, NOLOAD): `init` builds the worker in place
 /// (`Background::build_in`), so it is never a temporary on `init`'s stack.

@@ -98,6 +98,7 @@
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::learner::{MAX_MOTORS, MIN_MOTORS};
+use crate::math::clamp;
 
 /// Number of virtual controls: specific force x, y, z (m/s²), angular acceleration about x, y, z
 /// (rad/s²).
@@ -380,7 +381,7 @@ impl Allocator {
             x[j] = match working[j] {
                 Bound::Lower => du_min[j],
                 Bound::Upper => du_max[j],
-                Bound::Free => x[j].clamp(du_min[j], du_max[j]),
+                Bound::Free => clamp(x[j], du_min[j], du_max[j]),
             };
         }
 
@@ -416,7 +417,7 @@ impl Allocator {
             }
             for j in 0..m {
                 if working[j] == Bound::Free {
-                    x[j] = (x[j] + alpha * (optimum[j] - x[j])).clamp(du_min[j], du_max[j]);
+                    x[j] = clamp(x[j] + alpha * (optimum[j] - x[j]), du_min[j], du_max[j]);
                 }
             }
             if let Some((j, bound)) = blocking {
@@ -489,7 +490,7 @@ fn fallback(
     let mut du = [0.0f32; MAX_MOTORS];
     for j in 0..m {
         if du_min[j].is_finite() && du_max[j].is_finite() && du_min[j] <= du_max[j] {
-            du[j] = 0.0f32.clamp(du_min[j], du_max[j]);
+            du[j] = clamp(0.0, du_min[j], du_max[j]);
         }
     }
     AllocationResult {

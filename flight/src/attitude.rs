@@ -32,6 +32,7 @@
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
+use crate::math::clamp;
 use crate::navigation::STANDARD_GRAVITY_MPS2;
 
 /// ZYX Euler angles (`R_world_body = R_z(yaw) · R_y(pitch) · R_x(roll)`), the crate's one type.
@@ -282,7 +283,7 @@ impl AttitudeFilter {
         if yaw_error_rad.abs() < HEADING_BIAS_LEARNING_MAX_ERROR_RAD {
             bias -= heading_error * (c.k_i_heading * dt_s);
         }
-        self.bias_rad_s = bias.map(|b| b.clamp(-c.max_bias_rad_s, c.max_bias_rad_s));
+        self.bias_rad_s = bias.map(|b| clamp(b, -c.max_bias_rad_s, c.max_bias_rad_s));
 
         let omega = gyro_rad_s - self.bias_rad_s + tilt_error * c.k_p + heading_error * c.k_heading;
         let q = self.q_world_body.into_inner() * exp_half(&(omega * dt_s));

@@ -472,6 +472,7 @@ pub fn attitude_loop(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::clamp;
 
     /// One tilt axis: the error `e` closes at the rate `r`, the angular acceleration follows the
     /// rate loop's demand through the motors' lag τ and saturates at the authority. Returns the
@@ -485,7 +486,7 @@ mod tests {
         for step in 0..20_000 {
             let (rate_sp, ff) = tilt_rate_and_feed_forward(e.max(0.0), r, &gains, decel);
             let demand =
-                (gains.k_rate * (rate_sp - r) + ff).clamp(-authority_rad_s2, authority_rad_s2);
+                clamp(gains.k_rate * (rate_sp - r) + ff, -authority_rad_s2, authority_rad_s2);
             accel += (demand - accel) * (dt / tau_s);
             r += accel * dt;
             e -= r * dt;

@@ -45,6 +45,7 @@ use crate::allocation::{AllocationConfig, AllocationError, AllocationStatus, All
 use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3, FilterDesignError};
 use crate::learner::motor_model::MotorModel;
 use crate::learner::{LearnedModel, MAX_MOTORS, MIN_MOTORS};
+use crate::math::clamp;
 
 /// Cut-off of the synchronising low-pass on Ω, f and u₀, Hz (algorithms.md §6, published).
 pub const SYNC_CUTOFF_HZ: f32 = 15.0;
@@ -489,7 +490,7 @@ impl Indi {
         for j in 0..m {
             du_min[j] = (self.model.u_idle[j] - u0[j]).min(0.0);
             du_max[j] = (1.0 - u0[j]).max(0.0);
-            du_pref[j] = (self.model.u_hover[j] - u0[j]).clamp(du_min[j], du_max[j]);
+            du_pref[j] = clamp(self.model.u_hover[j] - u0[j], du_min[j], du_max[j]);
         }
         let solution = self.allocator.solve(&g, &dv, &du_min, &du_max, &du_pref);
 
@@ -500,7 +501,7 @@ impl Indi {
             out.saturated = 0;
             for j in 0..m {
                 let u = u0[j] + solution.du[j];
-                let u = if u.is_finite() { u.clamp(self.model.u_idle[j], 1.0) } else { out.u[j] };
+                let u = if u.is_finite() { clamp(u, self.model.u_idle[j], 1.0) } else { out.u[j] };
                 out.u[j] = u;
                 out.commands[j] = self.model.command_for_thrust(j, u);
                 if solution.du[j] <= du_min[j] + 1e-6 || solution.du[j] >= du_max[j] - 1e-6 {

@@ -1,4 +1,7 @@
-//! Square root from FPU multiplies: the same arithmetic on the host and on the Cortex-M7.
+//! Small numeric helpers with the same arithmetic on the host and on the Cortex-M7: a square
+//! root from FPU multiplies and a clamp without a panic path.
+//!
+//! ## Square root
 //!
 //! Why not `libm::sqrtf`: libm has no ARM fast path, so on `thumbv7em` it is an integer
 //! routine (53 instructions a call in `cargo xtask bench-m7`), and the thrust-axis solver takes
@@ -25,9 +28,39 @@ pub(crate) fn sqrt(x: f32) -> f32 {
     x * r
 }
 
+/// `x` limited to `lo..=hi`; NaN stays NaN (as `f32::clamp`).
+///
+/// Why not `f32::clamp`: it asserts `lo <= hi` with a message that formats both floats, so
+/// every call whose bounds are not constants links core's float formatting into the firmware
+/// (about 23 KB of flash at opt-level 3, `docs/benchmarks.md`, "Firmware size"). Here bounds in
+/// the wrong order give `lo` below `lo` and `hi` above `hi`, never a panic; callers pass ordered
+/// bounds.
+#[inline]
+pub fn clamp(x: f32, lo: f32, hi: f32) -> f32 {
+    if x < lo {
+        lo
+    } else if x > hi {
+        hi
+    } else {
+        x
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::sqrt;
+    use super::{clamp, sqrt};
+
+    #[test]
+    fn clamp_limits_to_the_bounds_keeps_nan_and_never_panics() {
+        assert_eq!(clamp(-2.0, -1.0, 1.0), -1.0);
+        assert_eq!(clamp(2.0, -1.0, 1.0), 1.0);
+        assert_eq!(clamp(0.25, -1.0, 1.0), 0.25);
+        assert!(clamp(f32::NAN, -1.0, 1.0).is_nan());
+        assert_eq!(clamp(f32::INFINITY, 0.0, 1.0), 1.0);
+        // Reversed bounds: no panic (f32::clamp would), the result is one of them.
+        assert_eq!(clamp(0.5, 1.0, 0.0), 1.0);
+        assert_eq!(clamp(-0.5, 1.0, 0.0), 1.0);
+    }
 
     #[test]
     fn matches_libm_to_a_few_ulps_over_the_normal_range() {

@@ -44,6 +44,7 @@
 
 use nalgebra::Vector3;
 
+use crate::math::clamp;
 use crate::navigation::STANDARD_GRAVITY_MPS2;
 
 /// Damping of the rate loop around the motors' lag τ (published, §7): `k_rate = 1/(4ζ²τ)`.
@@ -322,7 +323,7 @@ pub fn limit_split(v: &Vector3<f32>, limit: f32) -> Vector3<f32> {
 pub fn limit_horizontal_vertical(v: &Vector3<f32>, horizontal: f32, vertical: f32) -> Vector3<f32> {
     let norm = libm::hypotf(v.x, v.y);
     let scale = if norm > horizontal { horizontal / norm } else { 1.0 };
-    Vector3::new(v.x * scale, v.y * scale, v.z.clamp(-vertical, vertical))
+    Vector3::new(v.x * scale, v.y * scale, clamp(v.z, -vertical, vertical))
 }
 
 /// A wanted specific force with its horizontal part limited to [`MAX_TILT_RAD`] from vertical.

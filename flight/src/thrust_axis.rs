@@ -55,7 +55,7 @@ mod rotation;
 use rotation::shortest_arc_from_down_unit;
 pub use rotation::{euler_zyx, rotate, shortest_arc_from_down, EulerZyx, THRUST_DIR_THRUST_FRAME};
 
-use crate::math::sqrt;
+use crate::math::{clamp, sqrt};
 use householder::PivotedQr3;
 
 /// Fewest motors the solver accepts: with fewer than four, `G1τ u = 0` (three equations) leaves
@@ -652,9 +652,7 @@ fn finish<const M: usize>(
     let mut cost = 0.0;
     let mut d = [0.0f32; 3];
     for i in 0..M {
-        // `max`/`min`, not `f32::clamp`: clamp asserts min ≤ max with a formatted panic message,
-        // which links core's float formatting into the firmware unless nothing else does.
-        let ui = u[i].max(problem.u_min[i]).min(problem.u_max[i]);
+        let ui = clamp(u[i], problem.u_min[i], problem.u_max[i]);
         u_hover[i] = ui;
         cost += problem.weights[i] * ui * ui;
         for k in 0..3 {

@@ -1,9 +1,9 @@
 //! `cargo xtask build` and `cargo xtask flash`: the STM32H743 firmware.
 //!
 //! `build` installs what the cross build needs (the rustup target, flip-link), builds the
-//! firmware ELF (cargo profile `firmware`: release at `opt-level = "z"`) and prints its flash and
-//! RAM use, read from the ELF's section headers by a small reader below (no binutils needed);
-//! it warns when the image exceeds its 128 KiB flash budget. `flash` programs a board through a debug probe (probe-rs) or
+//! firmware ELF (cargo profile `firmware`: the release profile, its cold dependencies compiled
+//! for size) and prints its flash and RAM use, read from the ELF's section headers by a small
+//! reader below (no binutils needed); it warns when the image exceeds its 128 KiB flash budget. `flash` programs a board through a debug probe (probe-rs) or
 //! through the STM32's ROM DFU bootloader (dfu-util), and says what to install or connect when
 //! neither is possible.
 
@@ -43,8 +43,8 @@ const FLASH_SECTIONS: &[&str] = &[".vector_table", ".text", ".rodata", ".data", 
 /// Sections that occupy DTCM statically.
 const RAM_SECTIONS: &[&str] = &[".data", ".bss", ".uninit"];
 
-/// The cargo profile of the firmware (root `Cargo.toml`: the release profile at `opt-level =
-/// "z"`, so the image fits the 128 KiB flash budget; `bench-m7` mirrors it).
+/// The cargo profile of the firmware (root `Cargo.toml`: the release profile at opt-level 3, the
+/// crates the control step and the learner never run at "z"; `bench-m7` mirrors it for `flight`).
 pub const PROFILE: &str = "firmware";
 
 /// Flash budget of the firmware image, bytes (the board issue's target: 128 KiB).
@@ -275,7 +275,10 @@ fn stack_report(elf: &[u8], sections: &[Section]) -> Result<String> {
         let i = functions.partition_point(|f| f.start <= address);
         i.checked_sub(1)
     };
-    // Call edges as function indices (branches within a function are not edges).
+    // Call edges as function indices (branches within a function are not edges). A call or a
+    // tail call lands on a function's first instruction; a "branch" into the middle of another
+    // function is data decoded as code (the literal words after a `udf` that ends a panic
+    // handler decode as `bmi`), not an edge.
     let edges: Vec<Vec<usize>> = functions
         .iter()
         .enumerate()
@@ -283,7 +286,7 @@ fn stack_report(elf: &[u8], sections: &[Section]) -> Result<String> {
             let mut callees: Vec<usize> = f
                 .targets
                 .iter()
-                .filter_map(|&t| index_of(t))
+                .filter_map(|&t| index_of(t).filter(|&k| functions[k].start == t))
                 .filter(|&callee| callee != i)
                 .collect();
             callees.sort_unstable();

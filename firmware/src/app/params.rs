@@ -14,6 +14,7 @@ use flight::imu_offset;
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::ThrowConfig;
 use flight::learner::{LearnedModel, MAX_MOTORS};
+use flight::math::clamp;
 use protocol::{
     text, DeviceError, ParamInfo, ParamKind, ParamValues, PARAM_HELP_LEN, PARAM_MAX_LEN,
     PARAM_UNIT_LEN, UNIT_LEN,
@@ -249,8 +250,7 @@ impl Params {
         for (i, slot) in slots.iter_mut().enumerate() {
             let value = values.get(i).copied().unwrap_or(0.0);
             *slot = if value.is_finite() {
-                // Not `f32::clamp`: its min ≤ max assertion links float formatting (flash).
-                value.max(spec.min).min(spec.max)
+                clamp(value, spec.min, spec.max)
             } else {
                 spec.default_at(i)
             };

@@ -36,6 +36,8 @@
 //!
 //! Runs in the 2 kHz control step: constant time, no allocation.
 
+use crate::math::clamp;
+
 /// Most motors the schedule handles.
 pub const MAX_MOTORS: usize = 8;
 
@@ -161,7 +163,7 @@ impl Excitation {
         if !tau.is_finite() {
             return;
         }
-        let tau = tau.clamp(c.tau_range_s[0], c.tau_range_s[1]);
+        let tau = clamp(tau, c.tau_range_s[0], c.tau_range_s[1]);
         self.measured_tau_s = Some(tau);
         let scale = tau / c.reference_tau_s;
         self.config.step_s *= scale;

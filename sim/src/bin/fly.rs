@@ -118,13 +118,18 @@ fn main() -> ExitCode {
             for r in &results {
                 verdicts.entry(format!("{:?}", r.verdict)).or_default().push(r.seed);
             }
+            // Every seed of a failure class (each reproducible with `fly case --seed N`); five
+            // examples of a success class.
             for (verdict, seeds) in &verdicts {
-                let examples: Vec<String> = seeds.iter().take(5).map(u64::to_string).collect();
+                let success = verdict == "Held" || verdict == "HoveredLoose";
+                let shown = if success { 5 } else { seeds.len() };
+                let listed: Vec<String> = seeds.iter().take(shown).map(u64::to_string).collect();
                 println!(
-                    "  {verdict}: {} ({:.1} %), e.g. seeds {}",
+                    "  {verdict}: {} ({:.1} %), {} {}",
                     seeds.len(),
                     100.0 * seeds.len() as f64 / runs.max(1) as f64,
-                    examples.join(", ")
+                    if success { "e.g. seeds" } else { "seeds" },
+                    listed.join(", ")
                 );
             }
             let hover: Vec<f64> =
