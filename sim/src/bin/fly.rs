@@ -74,6 +74,19 @@ fn print_report(name: &str, report: &FlyReport) {
         report.hold_window_s,
         report.max_hold_error_m.unwrap_or(f64::NAN)
     );
+    let blocks = |b: Option<[f64; 2]>| match b {
+        Some([force, rotation]) => {
+            format!("force {:.2} %, rotation {:.2} %", 100.0 * force, 100.0 * rotation)
+        }
+        None => "none".to_owned(),
+    };
+    println!(
+        "  G1 relative RMS error per block: at engagement {}; learned at the end {}; flown at the end {} ({} refinements in flight)",
+        blocks(report.g1_block_rel_at_engage),
+        blocks(report.g1_block_rel_learned_at_end),
+        blocks(report.g1_block_rel_flown_at_end),
+        report.refinements
+    );
 }
 
 fn main() -> ExitCode {
