@@ -60,7 +60,7 @@ fn seed_paper_quad_is_identified_within_300_ms_of_the_excitation() {
 }
 
 /// Larger airframes with slower motors (τ = 50 ms): the pulses are scaled to τ, so the
-/// excitation takes 0.7–0.9 s; scored at its end. These do not reach the quad's 5 % per row
+/// excitation takes 0.7–0.8 s; scored at its end. These do not reach the quad's 5 % per row
 /// (hex-tilted's worst row is about 14 %, octo-flat's 9 %; see docs/benchmarks.md), but the
 /// thrust axis and the time constants do.
 #[test]
