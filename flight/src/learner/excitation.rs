@@ -181,8 +181,12 @@ impl Excitation {
         let tau = clamp(tau, c.tau_range_s[0], c.tau_range_s[1]);
         self.measured_tau_s = Some(tau);
         // Longer pulses for slower motors, but never past `max_s`: every motor keeps its whole
-        // pulse, and the craft is flown while it still has height to recover in.
+        // pulse, and the craft is flown while it still has height to recover in. (A `max_s`
+        // that leaves no room for pulses at all scales nothing; the timeout still ends it.)
         let fits = (c.max_s - c.delay_s - END_MARGIN_S) / self.pulses_s();
+        if fits.is_nan() || fits <= 0.0 {
+            return;
+        }
         let scale = (tau / c.reference_tau_s).min(fits);
         self.config.step_s *= scale;
         self.config.ramp_s *= scale;
@@ -391,5 +395,15 @@ mod tests {
             // Up to 6 motors fit at the full scale; 7 and 8 are shortened.
             assert_eq!(scale < wanted_scale - 1e-3, motors >= 7, "{motors} motors: scale {scale}");
         }
+        // A longest excitation shorter than the spin-up leaves no room: nothing is scaled.
+        let cramped = ExcitationConfig { max_s: 0.030, ..config };
+        let mut e = Excitation::new(cramped, 4);
+        let mut t = 0.0;
+        while t < cramped.delay_s + 0.002 {
+            t += DT;
+            e.update([0.0; 3], Some(400.0 * (1.0 - libm::expf(-t / tau))), DT);
+        }
+        assert!(((e.start_s(1) - e.start_s(0)) - 0.050).abs() < 1e-6);
+        assert!(e.duration_s() <= cramped.max_s);
     }
 }
