@@ -180,12 +180,18 @@ mod tests {
     /// the ESC receives and what the wire carries.
     #[test]
     fn numbers_names_and_round_trips() {
-        let pinned: [(DshotCommand, u16); 8] = [
+        let pinned: [(DshotCommand, u16); 14] = [
             (DshotCommand::Beep1, 1),
+            (DshotCommand::Beep5, 5),
             (DshotCommand::EscInfo, 6),
             (DshotCommand::SpinDirection1, 7),
+            (DshotCommand::SpinDirection2, 8),
+            (DshotCommand::ThreeDModeOff, 9),
+            (DshotCommand::ThreeDModeOn, 10),
             (DshotCommand::SaveSettings, 12),
+            (DshotCommand::ExtendedTelemetryEnable, 13),
             (DshotCommand::ExtendedTelemetryDisable, 14),
+            (DshotCommand::SpinDirectionNormal, 20),
             (DshotCommand::SpinDirectionReversed, 21),
             (DshotCommand::Led3Off, 29),
             (DshotCommand::SilentModeToggle, 31),

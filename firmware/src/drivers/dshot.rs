@@ -698,27 +698,6 @@ mod tests {
     }
 
     #[test]
-    fn command_numbers() {
-        let expected: [(DshotCommand, u16); 12] = [
-            (DshotCommand::Beep1, 1),
-            (DshotCommand::Beep5, 5),
-            (DshotCommand::EscInfo, 6),
-            (DshotCommand::SpinDirection1, 7),
-            (DshotCommand::SpinDirection2, 8),
-            (DshotCommand::ThreeDModeOff, 9),
-            (DshotCommand::ThreeDModeOn, 10),
-            (DshotCommand::SaveSettings, 12),
-            (DshotCommand::ExtendedTelemetryEnable, 13),
-            (DshotCommand::SpinDirectionNormal, 20),
-            (DshotCommand::SpinDirectionReversed, 21),
-            (DshotCommand::SilentModeToggle, 31),
-        ];
-        for (cmd, value) in expected {
-            assert_eq!(cmd.value(), value);
-        }
-    }
-
-    #[test]
     fn duty_values() {
         // 240 MHz timer: 400 ticks per DShot600 bit; 1 → 300 (75 %), 0 → 150 (37.5 %).
         assert_eq!(bit_period_ticks(240_000_000, DSHOT600_BIT_RATE_HZ), Ok(400));
