@@ -101,6 +101,20 @@ const STILL_RATE_RAD_S: f32 = 0.2;
 /// Deviation of |f| from g below which a disarmed craft counts as still, m/s².
 const STILL_ACCEL_MPS2: f32 = 0.5;
 
+/// The heading (rad, the filter's own convention: the yaw of the IMU's x axis) that steers the
+/// attitude filter `q_filter` (world ← IMU) so that the frame `q_imu_level` (IMU ← frame, the
+/// one the craft holds level) gets the yaw `wanted_level_yaw_rad`. The filter's heading
+/// correction turns about the vertical, which moves every yaw alike, so the IMU's heading is
+/// asked to move by the level frame's error.
+fn filter_heading(
+    q_filter: &UnitQuaternion<f32>,
+    q_imu_level: &UnitQuaternion<f32>,
+    wanted_level_yaw_rad: f32,
+) -> f32 {
+    let level_yaw = yaw_of(&(q_filter * q_imu_level));
+    yaw_of(q_filter) + flight::attitude::wrap_pi(wanted_level_yaw_rad - level_yaw)
+}
+
 /// Why flight stopped or changed mode.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Failsafe {
@@ -405,18 +419,26 @@ impl Pilot {
         });
         // The pose's heading is that of a frame whose yaw relative to the IMU is unknown, and
         // the two headings move together only under rotations about the vertical. So it steers
-        // the filter only through its changes within a steady stretch (slow, near 1 g: the
-        // attitude does not change between its start and now except in yaw); each stretch
-        // starts with the offset between the two as it is.
+        // the filter only through its changes within a steady stretch (slow, near 1 g), each
+        // stretch starting with the offset between the two as it is. The filter's side of that
+        // offset is the yaw of the frame the craft holds level: the thrust frame once flying
+        // (the IMU frame before). A tilt then changes the offset only to second order, where
+        // the yaw of an IMU mounted 70° off level moves with the tilt almost one for one (a
+        // craft coning 15° off level under a slowly wandering IMU yaw was pulled further off,
+        // never hovering: Monte Carlo cases 255 and 272 of `fly`).
         let steady = gyro.norm() < STEADY_RATE_RAD_S
             && (f.norm() - STANDARD_GRAVITY_MPS2).abs()
                 < flight::attitude::ACCEL_TRUST_BAND * STANDARD_GRAVITY_MPS2;
+        let q_filter = self.attitude.quaternion();
+        let q_imu_level = self
+            .controller
+            .as_ref()
+            .map_or_else(UnitQuaternion::identity, |c| c.indi().model().q_imu_thrust);
         let heading = match (pose_fresh && steady, self.heading_rad) {
             (true, Some(pose_heading)) => {
-                let offset = *self
-                    .heading_offset_rad
-                    .get_or_insert_with(|| yaw_of(&self.attitude.quaternion()) - pose_heading);
-                Some(pose_heading + offset)
+                let level_yaw = yaw_of(&(q_filter * q_imu_level));
+                let offset = *self.heading_offset_rad.get_or_insert(level_yaw - pose_heading);
+                Some(filter_heading(&q_filter, &q_imu_level, pose_heading + offset))
             }
             _ => {
                 self.heading_offset_rad = None;
@@ -528,6 +550,8 @@ impl Pilot {
         self.yaw_sp_filter_rad =
             yaw_of(&(self.attitude.quaternion() * controller.indi().model().q_imu_thrust));
         self.controller = Some(controller);
+        // The heading's reference frame changes to the thrust frame: a new steady stretch.
+        self.heading_offset_rad = None;
         self.tilted_s = 0.0;
         self.flying_with_fix = false;
         self.fixes_lost = false;
@@ -657,6 +681,7 @@ impl Pilot {
     /// Stop flying (a disarm request): no failsafe is recorded.
     pub fn disarm(&mut self) {
         self.controller = None;
+        self.heading_offset_rad = None;
         self.status.flying = false;
     }
 
@@ -670,4 +695,44 @@ impl Pilot {
 
 fn quaternion_array(q: &UnitQuaternion<f32>) -> [f32; 4] {
     [q.w, q.i, q.j, q.k]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The yaw of the IMU's x axis in the world, as the filter measures its heading.
+    fn imu_heading(q: &UnitQuaternion<f32>) -> f32 {
+        let x = q * Vector3::x();
+        libm::atan2f(x.y, x.x)
+    }
+
+    #[test]
+    fn the_heading_follows_the_level_frame_not_an_imu_mounted_70_degrees_off() {
+        // An IMU pitched 70° on its mount (its x 20° from the vertical) and yawed 30°: the
+        // thrust frame (level in hover) is the IMU turned back.
+        let q_imu_level = (UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5)
+            * UnitQuaternion::from_euler_angles(0.0, 1.22, 0.0))
+        .inverse();
+        let craft_at = |roll: f32, pitch: f32, yaw: f32| {
+            UnitQuaternion::from_euler_angles(roll, pitch, yaw) * q_imu_level.inverse()
+        };
+        // The offset is taken level; the craft then tilts 15° about a horizontal axis without
+        // turning: no heading correction is due.
+        let level = craft_at(0.0, 0.0, 0.4);
+        let level_yaw = yaw_of(&(level * q_imu_level));
+        assert!((level_yaw - 0.4).abs() < 1e-5, "{level_yaw}");
+        let tilted = craft_at(0.2, -0.17, 0.4);
+        let target = filter_heading(&tilted, &q_imu_level, level_yaw);
+        let correction = flight::attitude::wrap_pi(target - imu_heading(&tilted));
+        assert!(correction.abs() < 0.02, "{} °", correction.to_degrees());
+        // Steering by the IMU's own yaw instead would have corrected by degrees.
+        let by_imu = flight::attitude::wrap_pi(imu_heading(&tilted) - imu_heading(&level));
+        assert!(by_imu.abs() > 0.1, "{} °", by_imu.to_degrees());
+        // A craft that did turn 10° about the vertical is turned back by exactly 10°.
+        let turned = craft_at(0.0, 0.0, 0.4 + 0.1745);
+        let target = filter_heading(&turned, &q_imu_level, level_yaw);
+        let correction = flight::attitude::wrap_pi(target - imu_heading(&turned));
+        assert!((correction + 0.1745).abs() < 1e-4, "{} °", correction.to_degrees());
+    }
 }
