@@ -30,6 +30,13 @@ use flight::navigation::PositionEstimator;
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
 use nalgebra::{UnitQuaternion, Vector3};
 
+/// The firmware's DShot framing, compiled from its own source (`firmware/src/drivers/dshot.rs`
+/// is portable and depends only on `protocol`): the bidirectional answers' decoding is measured
+/// as the board runs it, without building the board crate for this harness.
+#[path = "../../firmware/src/drivers/dshot.rs"]
+#[allow(dead_code)]
+mod dshot;
+
 /// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
 #[inline(never)]
 #[no_mangle]
@@ -404,6 +411,78 @@ fn fail(message: &str) -> ! {
     }
 }
 
+/// Edge timestamps (timer ticks) of a bidirectional DShot answer carrying `value12`, as the
+/// board's input capture records them: the line idles high, the start bit falls at `t0`, and
+/// each GCR 1 is a level change at a bit boundary. The GCR table is the protocol's (the
+/// decoder's inverse); the bench checks that the firmware's decoder gives `value12` back.
+fn answer_edges(value12: u16, t0: u32, bit_ticks: u32) -> ([u32; 22], usize) {
+    const GCR_ENCODE: [u32; 16] = [
+        0x19, 0x1B, 0x12, 0x13, 0x1D, 0x15, 0x16, 0x17, 0x1A, 0x09, 0x0A, 0x0B, 0x1E, 0x0D, 0x0E,
+        0x0F,
+    ];
+    let v = value12 & 0xFFF;
+    let frame = (v << 4) | (!(v ^ (v >> 4) ^ (v >> 8)) & 0xF);
+    let gcr = (0..4)
+        .fold(0u32, |acc, q| (acc << 5) | GCR_ENCODE[usize::from((frame >> (12 - 4 * q)) & 0xF)]);
+    let (mut edges, mut n) = ([0u32; 22], 0);
+    edges[0] = t0;
+    n += 1;
+    let mut level = false; // the start bit
+    for bit in (0..20).rev() {
+        if (gcr >> bit) & 1 == 1 {
+            level = !level;
+            edges[n] = t0 + (20 - bit) * bit_ticks;
+            n += 1;
+        }
+    }
+    if !level {
+        // Back to idle high after the last bit.
+        edges[n] = t0 + 21 * bit_ticks;
+        n += 1;
+    }
+    (edges, n)
+}
+
+/// The DShot regions: what the motor task does per 2 kHz step for eight motors.
+fn dshot_regions() {
+    const MOTORS: usize = 8;
+    // The board's capture timer at 240 MHz: 320 ticks per 750 kbit/s telemetry bit.
+    const BIT_TICKS: u32 = 320;
+    const POLE_PAIRS: u8 = 7;
+    // Electrical periods 600–698 µs (mantissa 300–349, exponent 1): about 90,000 eRPM, a
+    // 5-inch motor at hover, 1,300–1,500 rad/s with 7 pole pairs.
+    let values: [u16; MOTORS] = core::array::from_fn(|i| (1 << 9) | (300 + 7 * i as u16));
+    let mut captures = [([0u32; 22], 0usize); MOTORS];
+    for (i, c) in captures.iter_mut().enumerate() {
+        *c = answer_edges(values[i], 1_000 * i as u32 + 0xFFFF_F000, BIT_TICKS);
+    }
+    let mut state = (captures, [dshot::MotorTelemetry::default(); MOTORS]);
+    let _ = region(&mut state, |(captures, telemetry)| {
+        for (capture, motor) in black_box(&*captures).iter().zip(telemetry.iter_mut()) {
+            let answer = dshot::telemetry_from_edges(&capture.0[..capture.1], BIT_TICKS);
+            motor.record(answer, POLE_PAIRS);
+        }
+    });
+    for (i, motor) in state.1.iter().enumerate() {
+        let expected = dshot::mechanical_rad_s(dshot::erpm_from_telemetry(values[i]), POLE_PAIRS);
+        if motor.speed_rad_s() != Some(expected) || motor.counters.frames_ok != 1 {
+            fail("dshot: an answer did not decode to its value");
+        }
+    }
+    hprintln!(
+        "bench-m7 check: dshot motor 0 at {} rad/s",
+        state.1[0].speed_rad_s().unwrap_or(f32::NAN)
+    );
+    let commands: [f32; MOTORS] = core::array::from_fn(|i| 0.3 + 0.05 * i as f32);
+    let mut state = (commands, [0u16; MOTORS]);
+    let _ = region(&mut state, |(commands, frames)| {
+        for (command, frame) in black_box(&*commands).iter().zip(frames.iter_mut()) {
+            *frame = dshot::output_frame(*command, true);
+        }
+    });
+    black_box(&state);
+}
+
 #[entry]
 fn main() -> ! {
     const MOTOR_COUNTS: [usize; 3] = [4, 6, 8];
@@ -452,6 +531,8 @@ fn main() -> ! {
     hprintln!(
         "bench-m7 region: libm part: one libm::hypotf call (Givens rotations of the allocation)"
     );
+    hprintln!("bench-m7 region: dshot: decode 8 bidirectional answers (edges → GCR → checksum → rad/s, counted)");
+    hprintln!("bench-m7 region: dshot: encode 8 bidirectional throttle frames");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
@@ -630,6 +711,7 @@ fn main() -> ! {
     let mut x = (2.0f32, 3.0f32);
     let _ = region(&mut x, |(a, _)| libm::sqrtf(black_box(*a)));
     let _ = region(&mut x, |(a, b)| libm::hypotf(black_box(*a), *b));
+    dshot_regions();
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
     loop {
