@@ -391,10 +391,11 @@ impl RunBuilder {
 
     /// Append `count` bits at `level`; extra bits past 21 are dropped.
     fn push_run(&mut self, level: bool, count: u32) {
+        // One shift for the whole run (n ≤ 21, so neither shift reaches 32): a bit at a time
+        // cost 90 more instructions per answer (`bench-m7`: 8 answers 4,775 → 4,052).
         let n = count.min(TELEMETRY_LINE_BITS - self.bits);
-        for _ in 0..n {
-            self.raw = (self.raw << 1) | u32::from(level);
-        }
+        let ones = if level { (1u32 << n) - 1 } else { 0 };
+        self.raw = (self.raw << n) | ones;
         self.bits += n;
     }
 
