@@ -411,38 +411,6 @@ fn fail(message: &str) -> ! {
     }
 }
 
-/// Edge timestamps (timer ticks) of a bidirectional DShot answer carrying `value12`, as the
-/// board's input capture records them: the line idles high, the start bit falls at `t0`, and
-/// each GCR 1 is a level change at a bit boundary. The GCR table is the protocol's (the
-/// decoder's inverse); the bench checks that the firmware's decoder gives `value12` back.
-fn answer_edges(value12: u16, t0: u32, bit_ticks: u32) -> ([u32; 22], usize) {
-    const GCR_ENCODE: [u32; 16] = [
-        0x19, 0x1B, 0x12, 0x13, 0x1D, 0x15, 0x16, 0x17, 0x1A, 0x09, 0x0A, 0x0B, 0x1E, 0x0D, 0x0E,
-        0x0F,
-    ];
-    let v = value12 & 0xFFF;
-    let frame = (v << 4) | (!(v ^ (v >> 4) ^ (v >> 8)) & 0xF);
-    let gcr = (0..4)
-        .fold(0u32, |acc, q| (acc << 5) | GCR_ENCODE[usize::from((frame >> (12 - 4 * q)) & 0xF)]);
-    let (mut edges, mut n) = ([0u32; 22], 0);
-    edges[0] = t0;
-    n += 1;
-    let mut level = false; // the start bit
-    for bit in (0..20).rev() {
-        if (gcr >> bit) & 1 == 1 {
-            level = !level;
-            edges[n] = t0 + (20 - bit) * bit_ticks;
-            n += 1;
-        }
-    }
-    if !level {
-        // Back to idle high after the last bit.
-        edges[n] = t0 + 21 * bit_ticks;
-        n += 1;
-    }
-    (edges, n)
-}
-
 /// The DShot regions: what the motor task does per 2 kHz step for eight motors.
 fn dshot_regions() {
     const MOTORS: usize = 8;
@@ -452,10 +420,11 @@ fn dshot_regions() {
     // Electrical periods 600–698 µs (mantissa 300–349, exponent 1): about 90,000 eRPM, a
     // 5-inch motor at hover, 1,300–1,500 rad/s with 7 pole pairs.
     let values: [u16; MOTORS] = core::array::from_fn(|i| (1 << 9) | (300 + 7 * i as u16));
-    let mut captures = [([0u32; 22], 0usize); MOTORS];
-    for (i, c) in captures.iter_mut().enumerate() {
-        *c = answer_edges(values[i], 1_000 * i as u32 + 0xFFFF_F000, BIT_TICKS);
-    }
+    // As the capture timer records them (wrapping within the answer); the ESC's side is the
+    // firmware file's own encoder.
+    let captures: [_; MOTORS] = core::array::from_fn(|i| {
+        dshot::answer_edges(values[i], 1_000 * i as u32 + 0xFFFF_F000, BIT_TICKS)
+    });
     let mut state = (captures, [dshot::MotorTelemetry::default(); MOTORS]);
     let _ = region(&mut state, |(captures, telemetry)| {
         for (capture, motor) in black_box(&*captures).iter().zip(telemetry.iter_mut()) {

@@ -429,13 +429,13 @@ impl Pilot {
         let steady = gyro.norm() < STEADY_RATE_RAD_S
             && (f.norm() - STANDARD_GRAVITY_MPS2).abs()
                 < flight::attitude::ACCEL_TRUST_BAND * STANDARD_GRAVITY_MPS2;
-        let q_filter = self.attitude.quaternion();
-        let q_imu_level = self
-            .controller
-            .as_ref()
-            .map_or_else(UnitQuaternion::identity, |c| c.indi().model().q_imu_thrust);
         let heading = match (pose_fresh && steady, self.heading_rad) {
             (true, Some(pose_heading)) => {
+                let q_filter = self.attitude.quaternion();
+                let q_imu_level = self
+                    .controller
+                    .as_ref()
+                    .map_or_else(UnitQuaternion::identity, |c| c.indi().model().q_imu_thrust);
                 let level_yaw = yaw_of(&(q_filter * q_imu_level));
                 let offset = *self.heading_offset_rad.get_or_insert(level_yaw - pose_heading);
                 Some(filter_heading(&q_filter, &q_imu_level, pose_heading + offset))

@@ -500,6 +500,59 @@ pub fn telemetry_from_edges(edges_ticks: &[u32], bit_ticks: u32) -> Result<u16, 
     gcr_decode(raw_from_edges(edges_ticks, bit_ticks)?)
 }
 
+/// Most edges an answer can have: the start bit's falling edge, one per GCR 1 (at most 20) and
+/// the return to idle high.
+pub const ANSWER_MAX_EDGES: usize = 22;
+
+/// The ESC's side: the 21 raw line bits of an answer carrying `value12` (checksum added, GCR
+/// encoded, each GCR 1 a level change, start bit low in bit 20), the inverse of [`gcr_decode`].
+/// For host tests, the Cortex-M7 bench and simulated ESCs; the firmware only decodes.
+pub fn answer_raw(value12: u16) -> u32 {
+    /// Nibble → GCR quintet (the protocol's table; [`gcr_decode`] holds its inverse).
+    const GCR_ENCODE: [u32; 16] = [
+        0x19, 0x1B, 0x12, 0x13, 0x1D, 0x15, 0x16, 0x17, 0x1A, 0x09, 0x0A, 0x0B, 0x1E, 0x0D, 0x0E,
+        0x0F,
+    ];
+    let v = value12 & 0xFFF;
+    let frame = (v << 4) | (!(v ^ (v >> 4) ^ (v >> 8)) & 0xF);
+    let gcr = (0..4)
+        .fold(0u32, |gcr, k| (gcr << 5) | GCR_ENCODE[usize::from((frame >> (12 - 4 * k)) & 0xF)]);
+    let mut level = 0u32; // the start bit
+    let mut raw = level;
+    for i in (0..20).rev() {
+        level ^= (gcr >> i) & 1;
+        raw = (raw << 1) | level;
+    }
+    raw
+}
+
+/// The edge timestamps an input capture records for the answer carrying `value12`
+/// ([`answer_raw`]): the start bit's falling edge at tick `t0`, one edge per level change at the
+/// bit boundaries (`bit_ticks` per bit, wrapping like a free-running timer), and the return to
+/// idle high after the last bit when the line was left low. Returns the buffer and how many
+/// edges it holds; [`raw_from_edges`] is its inverse.
+pub fn answer_edges(value12: u16, t0: u32, bit_ticks: u32) -> ([u32; ANSWER_MAX_EDGES], usize) {
+    let raw = answer_raw(value12);
+    let mut edges = [0u32; ANSWER_MAX_EDGES];
+    edges[0] = t0;
+    let mut n = 1;
+    let mut level = 0; // the start bit
+    for i in (0..20).rev() {
+        let bit = (raw >> i) & 1;
+        if bit != level {
+            edges[n] = t0.wrapping_add((20 - i) * bit_ticks);
+            n += 1;
+            level = bit;
+        }
+    }
+    if level == 0 {
+        // Back to idle high after the last bit.
+        edges[n] = t0.wrapping_add(21 * bit_ticks);
+        n += 1;
+    }
+    (edges, n)
+}
+
 /// One motor's speed from its bidirectional answers, with their counters.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct MotorTelemetry {
@@ -723,34 +776,10 @@ mod tests {
         assert_eq!(DSHOT600_BIT_PERIOD_NS, 1_667);
     }
 
-    /// Independent encoder: nibble → GCR quintet by table, then NRZI (a 1 toggles the line),
-    /// with a low start bit in bit 20.
-    fn reference_raw(value12: u16) -> u32 {
-        const ENCODE: [u32; 16] = [
-            0x19, 0x1B, 0x12, 0x13, 0x1D, 0x15, 0x16, 0x17, 0x1A, 0x09, 0x0A, 0x0B, 0x1E, 0x0D,
-            0x0E, 0x0F,
-        ];
-        let v = value12 & 0xFFF;
-        let crc = (!(v ^ (v >> 4) ^ (v >> 8))) & 0xF;
-        let frame = (v << 4) | crc;
-        let mut gcr: u32 = 0;
-        for k in 0..4 {
-            let nibble = (frame >> (12 - 4 * k)) & 0xF;
-            gcr = (gcr << 5) | ENCODE[usize::from(nibble)];
-        }
-        let mut level = 0u32; // start bit low
-        let mut raw = level;
-        for i in (0..20).rev() {
-            level ^= (gcr >> i) & 1;
-            raw = (raw << 1) | level;
-        }
-        raw
-    }
-
     #[test]
     fn gcr_round_trip_all_values() {
         for value in 0..=0xFFFu16 {
-            let raw = reference_raw(value);
+            let raw = answer_raw(value);
             assert_eq!(gcr_decode(raw), Ok(value), "value {value:#x}");
             // Inverted line polarity decodes the same.
             assert_eq!(gcr_decode(!raw & 0x1F_FFFF), Ok(value));
@@ -775,7 +804,7 @@ mod tests {
 
     /// Whether every single line-bit flip of `value`'s answer is rejected.
     fn all_flips_rejected(value: u16) -> bool {
-        let raw = reference_raw(value);
+        let raw = answer_raw(value);
         (0..21).all(|bit| gcr_decode(raw ^ (1 << bit)).is_err())
     }
 
@@ -784,7 +813,7 @@ mod tests {
         // Typical hover-to-full-speed periods and the stopped value.
         let values = [0xFFFu16, 0x000, 0x123, 0x2A5, 0x3FF, 0x5C3, 0x6E7, 0x7AB, 0x9D4, 0xB62];
         for value in values {
-            let raw = reference_raw(value);
+            let raw = answer_raw(value);
             for bit in 0..21 {
                 let result = gcr_decode(raw ^ (1 << bit));
                 assert!(
@@ -822,7 +851,7 @@ mod tests {
         assert!((w - 1_047.197_6).abs() < 1e-2, "{w}");
         assert_eq!(mechanical_rad_s(70_000, 0), 0.0);
         // Through the whole chain: 60 000 eRPM / 7 pairs.
-        let raw = reference_raw(value);
+        let raw = answer_raw(value);
         let erpm = gcr_decode(raw).map(erpm_from_telemetry);
         assert_eq!(erpm, Ok(60_000));
         let w = mechanical_rad_s(60_000, 7);
@@ -860,7 +889,7 @@ mod tests {
     #[test]
     fn samples_to_raw_round_trip() {
         for value in [0x000u16, 0x123, 0x2A5, 0x5C3, 0xFFF, 0x80A] {
-            let raw = reference_raw(value);
+            let raw = answer_raw(value);
             for per_bit in [3u32, 4, 5] {
                 let samples = to_samples(raw, per_bit, 7, 8);
                 let rebuilt = raw_from_samples(&samples, per_bit);
@@ -883,23 +912,12 @@ mod tests {
     fn edges_to_raw_round_trip() {
         let bit_ticks = 320u32; // 240 MHz / 750 kbit/s
         for value in [0x000u16, 0x123, 0x2A5, 0x5C3, 0xFFF] {
-            let raw = reference_raw(value);
+            let raw = answer_raw(value);
             // Edges at every level change, starting with the start bit's falling edge; a timer
-            // that wraps in the middle.
-            let mut edges = [0u32; 22];
-            let mut n = 0;
-            let t0 = u32::MAX - 3_000;
-            edges[n] = t0;
-            n += 1;
-            let mut prev = 0;
-            for i in (0..20).rev() {
-                let level = (raw >> i) & 1;
-                if level != prev {
-                    // Slight jitter: +7 ticks.
-                    edges[n] = t0.wrapping_add((20 - i) * bit_ticks + 7);
-                    n += 1;
-                    prev = level;
-                }
+            // that wraps in the middle; slight jitter: +7 ticks after the first.
+            let (mut edges, n) = answer_edges(value, u32::MAX - 3_000, bit_ticks);
+            for edge in &mut edges[1..n] {
+                *edge = edge.wrapping_add(7);
             }
             let rebuilt = raw_from_edges(&edges[..n], bit_ticks);
             assert_eq!(rebuilt, Ok(raw), "value {value:#x}");
@@ -914,22 +932,6 @@ mod tests {
         assert_eq!(raw_from_edges(&[0, 320, 640], 320), Err(DshotError::Truncated { bits: 2 }));
     }
 
-    /// Timestamps of an answer carrying `value12`, starting at tick `t0`, `bit_ticks` per bit.
-    fn answer_edges(value12: u16, t0: u32, bit_ticks: u32) -> heapless::Vec<u32, 22> {
-        let raw = reference_raw(value12);
-        let mut edges = heapless::Vec::new();
-        let _ = edges.push(t0);
-        let mut previous = 0;
-        for i in (0..20).rev() {
-            let level = (raw >> i) & 1;
-            if level != previous {
-                let _ = edges.push(t0 + (20 - i) * bit_ticks);
-                previous = level;
-            }
-        }
-        edges
-    }
-
     /// A motor at 21,000 eRPM on 7 pole pairs (3,000 RPM, 314 rad/s): the answer's period is
     /// 1e6/350 = 2,857 µs → mantissa 357, exponent 3 (2,856 µs); decoded through the edges to
     /// the speed; a corrupted answer is counted and keeps the last speed until
@@ -938,18 +940,18 @@ mod tests {
     fn a_captured_answer_becomes_the_motors_speed_and_failures_go_stale() {
         let bit_ticks = 320; // 240 MHz / 750 kbit/s
         let value = (3u16 << 9) | 357;
-        let edges = answer_edges(value, 1_000, bit_ticks);
-        assert_eq!(telemetry_from_edges(&edges, bit_ticks), Ok(value));
+        let (edges, n) = answer_edges(value, 1_000, bit_ticks);
+        assert_eq!(telemetry_from_edges(&edges[..n], bit_ticks), Ok(value));
         let mut motor = MotorTelemetry::default();
         assert_eq!(motor.speed_rad_s(), None, "nothing heard yet");
-        motor.record(telemetry_from_edges(&edges, bit_ticks), 7);
+        motor.record(telemetry_from_edges(&edges[..n], bit_ticks), 7);
         let expected = 60e6 / 2856.0 / 7.0 * core::f32::consts::TAU / 60.0;
         let speed = motor.speed_rad_s().unwrap();
         assert!((speed - expected).abs() < 0.05, "{speed} rad/s vs {expected}");
         // One edge missing: the answer's bits shift and the checksum or a quintet fails.
-        let mut broken = edges.clone();
-        broken.remove(5);
-        let failed = telemetry_from_edges(&broken, bit_ticks);
+        let mut broken = edges;
+        broken.copy_within(6..n, 5);
+        let failed = telemetry_from_edges(&broken[..n - 1], bit_ticks);
         assert!(failed.is_err(), "{failed:?}");
         for _ in 1..STALE_ANSWERS {
             motor.record(failed, 7);
@@ -961,8 +963,8 @@ mod tests {
         assert_eq!(c.frames_ok, 1);
         assert_eq!(c.crc_errors + c.gcr_symbol_errors + c.timeouts, u32::from(STALE_ANSWERS));
         // The stopped value reads 0 rad/s.
-        let stopped = answer_edges(TELEMETRY_STOPPED, 0, bit_ticks);
-        motor.record(telemetry_from_edges(&stopped, bit_ticks), 7);
+        let (stopped, n) = answer_edges(TELEMETRY_STOPPED, 0, bit_ticks);
+        motor.record(telemetry_from_edges(&stopped[..n], bit_ticks), 7);
         assert_eq!(motor.speed_rad_s(), Some(0.0));
     }
 
