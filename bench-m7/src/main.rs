@@ -25,6 +25,7 @@ use flight::attitude::{AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, Guidance};
 use flight::imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
 use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
+use flight::learner::inertia::TumbleInertia;
 use flight::learner::{AxisStatus, Learner, LearnerConfig, MAX_MOTORS};
 use flight::navigation::PositionEstimator;
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
@@ -494,6 +495,8 @@ fn main() -> ! {
     hprintln!(
         "bench-m7 region: learner part: RLS update, 15 regressors, 1 output (one quad force row)"
     );
+    hprintln!("bench-m7 region: learner part: tumble inertia, one free-fall sample");
+    hprintln!("bench-m7 region: learner part: tumble inertia prior (once, as the excitation starts)");
     hprintln!(
         "bench-m7 region: libm part: one libm::sqrtf call (the allocation makes 2-3 per motor)"
     );
@@ -675,6 +678,28 @@ fn main() -> ! {
         let mut st = (rls, x);
         let _ = region(&mut st, |(rls, x)| rls.update(black_box(&x[..]), &[1.0]));
         black_box(&st);
+    }
+    // The free tumble's inertia fit (`flight::learner::inertia`): its per-sample update during
+    // the release delay, and the prior it hands to the learner once, as the excitation starts
+    // (the background task's sample that also restarts the learner).
+    {
+        let mut tumble = TumbleInertia::new(2000.0);
+        let mut rate = Vector3::new(5.0f32, -3.0, 4.0);
+        for _ in 0..200 {
+            tumble.update(rate.into());
+            rate = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001) * rate;
+        }
+        let mut state = (tumble, <[f32; 3]>::from(rate));
+        region(&mut state, |(tumble, gyro)| tumble.update(black_box(*gyro)));
+        for _ in 0..99 {
+            rate = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001) * rate;
+            state.0.update(rate.into());
+        }
+        let prior = region(&mut state, |(tumble, _)| black_box(&*tumble).prior());
+        if prior.equations == 0 {
+            fail("the tumble gave no prior");
+        }
+        black_box(&prior);
     }
     // libm's square root is software on this target (no `vsqrt.f32` path): what one call costs.
     let mut x = (2.0f32, 3.0f32);

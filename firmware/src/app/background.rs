@@ -19,6 +19,7 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::imu_offset::{self, ImuOffsetEstimator, Verdict};
+use flight::learner::inertia::TumbleInertia;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetStatus, OffsetAdvice};
@@ -124,6 +125,8 @@ pub struct Background<'q> {
     configured_offset_m: Option<[f32; 3]>,
     rate_hz: f32,
     previous_phase: FlightPhase,
+    /// The body's inertia from its free tumble after the release: the learner's prior for it.
+    tumble: TumbleInertia,
     /// Samples learned from since the excitation ended.
     samples_since_excitation: u32,
     /// How many samples after the excitation the learner still takes ([`LEARN_AFTER_EXCITATION_S`]).
@@ -168,6 +171,7 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).configured_offset_m).write(None);
             addr_of_mut!((*worker).rate_hz).write(f32::from(rate_hz));
             addr_of_mut!((*worker).previous_phase).write(FlightPhase::Idle);
+            addr_of_mut!((*worker).tumble).write(TumbleInertia::new(f32::from(rate_hz)));
             addr_of_mut!((*worker).samples_since_excitation).write(0);
             let settle = (LEARN_AFTER_EXCITATION_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).settle_samples).write(settle);
@@ -278,6 +282,12 @@ impl<'q> Background<'q> {
         let starting =
             phase == FlightPhase::Exciting && self.previous_phase != FlightPhase::Exciting;
         self.previous_phase = phase;
+        match phase {
+            // The motors are off and the body turns freely: its inertia shows.
+            FlightPhase::Released => self.tumble.update(sample.imu.gyro_rad_s),
+            FlightPhase::Exciting => {}
+            _ => self.tumble.reset(),
+        }
         if starting {
             let (r_imu_m, source) = self.learner_offset();
             let motors = usize::from(sample.motor_count);
@@ -291,6 +301,7 @@ impl<'q> Background<'q> {
             if let Some(learner) = self.learner.get_mut() {
                 // Cannot fail: the offset was checked finite and the onboard one is bounded.
                 let _ = learner.restart(r_imu_m);
+                learner.set_inertia_prior(&self.tumble.prior());
             }
             self.results.learner_offset = source;
             self.results.learner_r_imu_m = r_imu_m;

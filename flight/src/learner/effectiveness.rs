@@ -59,6 +59,7 @@
 // regressors by index), as in `thrust_axis`.
 #![allow(clippy::needless_range_loop)]
 
+use super::inertia::InertiaPrior;
 use super::rls::{packed_len, Rls, RlsConfig, NOISE_WINDOW};
 use super::MAX_MOTORS;
 use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3};
@@ -115,13 +116,13 @@ pub const SPEED_DOT_SCALE: f32 = 1e5;
 /// The six distinct products `Ωₐ Ω_b` (a ≤ b), in this order.
 const RATE_PRODUCTS: usize = 6;
 /// Index of `Ωₐ Ω_b` in the rate products.
-const fn rate_product(a: usize, b: usize) -> usize {
+pub(super) const fn rate_product(a: usize, b: usize) -> usize {
     const INDEX: [[usize; 3]; 3] = [[0, 1, 2], [1, 3, 4], [2, 4, 5]];
     INDEX[a][b]
 }
 /// Parameters of the normalised inertia `J = I / tr I`: `J_xx, J_yy, J_xy, J_xz, J_yz`
 /// (`J_zz = 1 − J_xx − J_yy`).
-const INERTIA_PARAMETERS: usize = 5;
+pub const INERTIA_PARAMETERS: usize = 5;
 /// Prior variance `P₀` of the normalised inertia's five parameters, about a sphere's `J = I/3`
 /// (the other parameters start at `RlsConfig::p0`, uninformed). The data fix `J` only through
 /// the body's rotation (the Euler and rotor-momentum terms: `J Ω̇ = T ω²` alone holds for any
@@ -139,6 +140,38 @@ pub const ROT_PARAMETERS_MAX: usize = 6 * MAX_MOTORS + INERTIA_PARAMETERS;
 /// Capacity of the force regression: the `3·8` entries of G1f (index `3i + axis`) and the
 /// accelerometer bias (the last three).
 pub const FORCE_PARAMETERS_MAX: usize = 3 * MAX_MOTORS + 3;
+
+/// Row `k` of `J a + Ω × (J Ω)` as a linear function of the five free entries of `J`
+/// (`J_xx, J_yy, J_xy, J_xz, J_yz`, with `J_zz = 1 − J_xx − J_yy`), given `a` (the angular
+/// acceleration, or a change of rate) and `product(a, b)` for the matching `Ωₐ Ω_b` (or its
+/// integral): returns the regressors of the five and the output, so that
+/// `regressors · J = output + torque` for the row's torque terms moved to the left. Shared by the
+/// balance and the tumble ([`super::inertia`]).
+///
+/// Row k for `J = E_pq` (1 at (p, q)) is `L_pq = δ_kp a_q + δ_{k+2,p} (ΩΩᵀ)_{q,k+1}
+/// − δ_{k+1,p} (ΩΩᵀ)_{q,k+2}`: row k of L is `aᵀ`, row k+2 column k+1 of ΩΩᵀ, row k+1 minus
+/// column k+2; and `J = J_xx (E_xx − E_zz) + J_yy (E_yy − E_zz) + J_xy (E_xy + E_yx) + … + E_zz`,
+/// whose constant `E_zz` part is the output.
+pub(super) fn inertia_regressors(
+    k: usize,
+    a: [f32; 3],
+    product: impl Fn(usize, usize) -> f32,
+) -> ([f32; INERTIA_PARAMETERS], f32) {
+    let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+    let mut l = [[0.0f32; 3]; 3];
+    l[k] = a;
+    l[k2] = [product(0, k1), product(1, k1), product(2, k1)];
+    l[k1] = [-product(0, k2), -product(1, k2), -product(2, k2)];
+    let zz = l[2][2];
+    let regressors = [
+        zz - l[0][0],
+        zz - l[1][1],
+        -(l[0][1] + l[1][0]),
+        -(l[0][2] + l[2][0]),
+        -(l[1][2] + l[2][1]),
+    ];
+    (regressors, zz)
+}
 
 /// One sample of every filtered signal.
 #[derive(Clone, Copy, Debug, Default)]
@@ -508,27 +541,14 @@ impl EffectivenessEstimator {
             momentum[k2] = -d(k1);
             momentum[k1] = d(k2);
         }
-        // Row k of J Ω̇ + Ω × (J Ω) for J = E_pq (1 at (p, q)) is L_pq = δ_kp Ω̇_q
-        // + δ_{k+2,p} (ΩΩᵀ)_{q,k+1} − δ_{k+1,p} (ΩΩᵀ)_{q,k+2}: row k of L is Ω̇ᵀ, row k+2 column
-        // k+1 of ΩΩᵀ, row k+1 minus column k+2 (on increments of the filtered signals).
+        // On increments of the filtered signals.
         let rate_dot = now.rate_dot - last.rate_dot;
         let product = |a: usize, b: usize| {
             let j = rate_product(a, b);
             now.rate_products[j] - last.rate_products[j]
         };
-        let mut l = [[0.0f32; 3]; 3];
-        l[k] = [rate_dot.x, rate_dot.y, rate_dot.z];
-        l[k2] = [product(0, k1), product(1, k1), product(2, k1)];
-        l[k1] = [-product(0, k2), -product(1, k2), -product(2, k2)];
-        // J = J_xx (E_xx − E_zz) + J_yy (E_yy − E_zz) + J_xy (E_xy + E_yx) + … + E_zz: the
-        // constant E_zz part is the output.
-        let zz = l[2][2];
-        let inertia = &mut x[6 * m..6 * m + INERTIA_PARAMETERS];
-        inertia[0] = zz - l[0][0];
-        inertia[1] = zz - l[1][1];
-        inertia[2] = -(l[0][1] + l[1][0]);
-        inertia[3] = -(l[0][2] + l[2][0]);
-        inertia[4] = -(l[1][2] + l[2][1]);
+        let (inertia, zz) = inertia_regressors(k, [rate_dot.x, rate_dot.y, rate_dot.z], product);
+        x[6 * m..6 * m + INERTIA_PARAMETERS].copy_from_slice(&inertia);
         x[n] = zz;
         // The other axes' torque regressors stay zero: not filtered.
         let channels = [k * m..(k + 1) * m, 3 * m..n + 1];
@@ -536,14 +556,27 @@ impl EffectivenessEstimator {
         let _ = self.rotation.update(&x[..n], &[x[n]]);
     }
 
-    /// The prior of the normalised inertia: a sphere's, `J = I/3`, with variance
-    /// [`INERTIA_PRIOR_VARIANCE`].
+    /// The prior of the normalised inertia: a sphere's ([`InertiaPrior::sphere`]).
     fn reset_inertia(&mut self) {
+        self.set_inertia_prior(&InertiaPrior::sphere());
+    }
+
+    /// Replace the prior of the normalised inertia (mean and covariance), e.g. by the one the
+    /// free tumble after the release gave ([`super::inertia`]). Before the first update only: it
+    /// overwrites the estimate. A non-finite prior is refused and changes nothing.
+    #[inline(never)]
+    pub fn set_inertia_prior(&mut self, prior: &InertiaPrior) {
+        let finite =
+            prior.mean.iter().chain(prior.covariance.iter().flatten()).all(|v| v.is_finite());
+        if !finite {
+            return;
+        }
         let base = 6 * self.motors;
-        self.rotation.set_theta(base, 0, 1.0 / 3.0);
-        self.rotation.set_theta(base + 1, 0, 1.0 / 3.0);
-        for j in 0..INERTIA_PARAMETERS {
-            self.rotation.set_prior_variance(base + j, INERTIA_PRIOR_VARIANCE);
+        for i in 0..INERTIA_PARAMETERS {
+            self.rotation.set_theta(base + i, 0, prior.mean[i]);
+            for j in i..INERTIA_PARAMETERS {
+                self.rotation.set_prior_covariance(base + i, base + j, prior.covariance[i][j]);
+            }
         }
     }
 

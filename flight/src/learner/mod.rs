@@ -27,6 +27,7 @@
 
 pub mod effectiveness;
 pub mod excitation;
+pub mod inertia;
 pub mod motor_model;
 pub mod rls;
 pub mod throw_detector;
@@ -359,6 +360,12 @@ impl Learner {
         self.staging = self.model;
         self.staged = None;
         Ok(())
+    }
+
+    /// Replace the prior of the body's normalised inertia (right after [`Learner::restart`]),
+    /// e.g. by the free tumble's ([`inertia::TumbleInertia::prior`]).
+    pub fn set_inertia_prior(&mut self, prior: &inertia::InertiaPrior) {
+        self.effectiveness.set_inertia_prior(prior);
     }
 
     /// The configuration in use.

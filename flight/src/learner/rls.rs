@@ -150,6 +150,15 @@ impl<const N: usize, const M: usize, const L: usize> Rls<N, M, L> {
         }
     }
 
+    /// Sets the prior covariance `P[i][j]` (= `P[j][i]`) before any update: a prior.
+    pub fn set_prior_covariance(&mut self, i: usize, j: usize, value: f32) {
+        let (i, j) = (i.min(j), i.max(j));
+        if j < self.n {
+            let at = self.row_start(i) + j - i;
+            self.p[at] = f64::from(value);
+        }
+    }
+
     /// Index of `P[i][i]` in the packed storage: rows `0..i` hold `n, n − 1, …, n − i + 1`
     /// entries.
     #[inline]

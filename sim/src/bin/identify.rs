@@ -220,6 +220,17 @@ fn main() -> std::process::ExitCode {
                     );
                 }
             }
+            {
+                let mut w: Vec<_> = scored.iter().collect();
+                w.sort_by(|a, b| b.2.g1_block_rel[1].total_cmp(&a.2.g1_block_rel[1]));
+                for (seed, motors, s) in w.iter().take(25) {
+                    println!(
+                        "  ROT seed {seed} ({motors}): block {:.2} % rows {}",
+                        100.0 * s.g1_block_rel[1],
+                        percent(&s.g1_row_rel)
+                    );
+                }
+            }
             let mut worst: Vec<_> = scored.iter().collect();
             worst.sort_by(|a, b| {
                 b.2.g1_force_rel()

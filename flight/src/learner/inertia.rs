@@ -1,0 +1,420 @@
+//! The body's normalised inertia `J = I / tr I` from its free tumble between the release and the
+//! first motor pulse.
+//!
+//! **Why.** The angular-momentum balance of [`super::effectiveness`] learns `J` only through the
+//! body's rotation as it appears in the regressions' 20 Hz band, where the Euler term is a few per
+//! cent of the signal; and a wrong `J` scales and mixes the learned rotational rows
+//! (`G1τ = J⁻¹ T`). On the identification Monte Carlo (1,000 random airframes and throws), the
+//! rotational block's G1 error was 2.7 % median and 11.6 % at the 99th percentile with the
+//! sphere's `J` as the prior, and 1.2 % and 7.3 % with the simulator's exact `J`: the inertia, not
+//! the pulses, is what limits the tail.
+//!
+//! **How.** For the release delay (150 ms, [`super::throw_detector`]) the motors are off and the
+//! thrown body turns freely: `J Ω̇ + Ω × (J Ω) = 0`. Integrated from the first sample `t₀`,
+//! ```text
+//! J (Ω(t) − Ω(t₀)) + ∫ Ω × (J Ω) dt = 0
+//! ```
+//! is linear in the five free entries of `J` (`J_zz = 1 − J_xx − J_yy`) and needs no
+//! differentiated gyro: its noise enters through `Ω(t)` once, and the integrals (trapezoids of
+//! the raw rates and of their products) average it. Every sample adds its three equations to
+//! 5 × 5 normal equations (`f64`); [`TumbleInertia::prior`] solves them and combines the result
+//! with the sphere's prior in information form, so that a spin about a principal axis, which
+//! leaves part of `J` unobserved, keeps the sphere in exactly those directions. The result is
+//! the balance's prior for `J` ([`super::effectiveness::EffectivenessEstimator::set_inertia_prior`]);
+//! the balance goes on refining it.
+//!
+//! What the model leaves out, and why: a rotor momentum (the rotors are stopped; as a free
+//! constant it is nearly collinear with `J` when the rate changes little, and made the fit
+//! follow the gyro's noise: errors of 0.05 in `J` where they are 0.001 without it) and
+//! aerodynamic damping of the rotation (with the propellers stopped, a few thousandths of the
+//! Euler term of a 300–600 °/s throw; a free damping coefficient cost a factor of ten in
+//! accuracy on the test below).
+
+// Index loops are kept where they mirror the matrix notation (entries of J by index), as in
+// `effectiveness`.
+#![allow(clippy::needless_range_loop)]
+
+use super::effectiveness::{inertia_regressors, INERTIA_PARAMETERS, INERTIA_PRIOR_VARIANCE};
+
+/// Unknowns of the tumble: the five free entries of `J`.
+const UNKNOWNS: usize = INERTIA_PARAMETERS;
+
+/// Samples of the tumble before its equations are used: the integrals must have grown beyond a
+/// few samples' noise (5 ms at 2 kHz).
+const SETTLING_SAMPLES: u32 = 10;
+
+/// Fewest equations (three per sample) for a fit: 40 ms of tumble at 2 kHz.
+const MIN_EQUATIONS: u32 = 3 * 80;
+
+/// Smallest variance of a tumble-fitted `J` entry: the model's own error (unmodelled damping,
+/// gyro scale) bounds how far the fit can be trusted however clean the tumble. (Not sensitive:
+/// 1e-6 to 1e-4 gave the same Monte Carlo figures within 0.02 %.)
+const MIN_VARIANCE: f64 = 1e-5;
+
+/// A prior for the normalised inertia: mean and covariance of `J_xx, J_yy, J_xy, J_xz, J_yz`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InertiaPrior {
+    /// Mean of the five free entries (IMU axes).
+    pub mean: [f32; INERTIA_PARAMETERS],
+    /// Their covariance.
+    pub covariance: [[f32; INERTIA_PARAMETERS]; INERTIA_PARAMETERS],
+    /// Equations (three per sample) behind it; 0 for the sphere alone.
+    pub equations: u32,
+}
+
+impl InertiaPrior {
+    /// A sphere's `J = I/3` with variance [`INERTIA_PRIOR_VARIANCE`] per entry, uncorrelated: the
+    /// prior when nothing is known of the body.
+    pub fn sphere() -> Self {
+        let mut covariance = [[0.0; INERTIA_PARAMETERS]; INERTIA_PARAMETERS];
+        for (j, row) in covariance.iter_mut().enumerate() {
+            row[j] = INERTIA_PRIOR_VARIANCE;
+        }
+        Self { mean: [1.0 / 3.0, 1.0 / 3.0, 0.0, 0.0, 0.0], covariance, equations: 0 }
+    }
+}
+
+/// The tumble's normal equations.
+#[derive(Clone, Debug)]
+pub struct TumbleInertia {
+    dt_s: f64,
+    samples: u32,
+    equations: u32,
+    /// `Ω(t₀)` and the previous sample, rad/s.
+    first_rad_s: [f64; 3],
+    previous_rad_s: [f64; 3],
+    /// `∫ Ωₐ Ω_b dt` for the six pairs a ≤ b (the order of `effectiveness`), rad²/s.
+    integral_products: [f64; 6],
+    /// `AᵀA` and `Aᵀy` of the equations so far.
+    normal: Square,
+    rhs: [f64; UNKNOWNS],
+    /// Sum of the squared outputs (for the residual variance).
+    output_energy: f64,
+}
+
+impl TumbleInertia {
+    /// An empty fit for samples at `rate_hz`.
+    pub fn new(rate_hz: f32) -> Self {
+        Self {
+            dt_s: 1.0 / f64::from(rate_hz.max(1.0)),
+            samples: 0,
+            equations: 0,
+            first_rad_s: [0.0; 3],
+            previous_rad_s: [0.0; 3],
+            integral_products: [0.0; 6],
+            normal: [[0.0; UNKNOWNS]; UNKNOWNS],
+            rhs: [0.0; UNKNOWNS],
+            output_energy: 0.0,
+        }
+    }
+
+    /// Forget the tumble (a new throw). Cheap when there is nothing to forget.
+    pub fn reset(&mut self) {
+        if self.samples == 0 {
+            return;
+        }
+        let dt_s = self.dt_s;
+        *self = Self { dt_s, ..Self::new(1.0) };
+    }
+
+    /// Equations gathered so far (three per sample after the first few).
+    pub fn equations(&self) -> u32 {
+        self.equations
+    }
+
+    /// One gyro sample of the free tumble, rad/s in IMU axes. A non-finite sample is skipped.
+    // Not inlined (nor the prior): the background task's sample loop would carry an unrolled
+    // copy of each (6.7 KB of flash).
+    #[inline(never)]
+    pub fn update(&mut self, gyro_rad_s: [f32; 3]) {
+        if !gyro_rad_s.iter().all(|g| g.is_finite()) {
+            return;
+        }
+        let rate = gyro_rad_s.map(f64::from);
+        if self.samples == 0 {
+            self.first_rad_s = rate;
+        } else {
+            let half_dt = 0.5 * self.dt_s;
+            let before = self.previous_rad_s;
+            let mut j = 0;
+            for a in 0..3 {
+                for b in a..3 {
+                    self.integral_products[j] +=
+                        half_dt * (before[a] * before[b] + rate[a] * rate[b]);
+                    j += 1;
+                }
+            }
+        }
+        self.previous_rad_s = rate;
+        self.samples = self.samples.saturating_add(1);
+        if self.samples > SETTLING_SAMPLES {
+            self.add_equations(rate);
+        }
+    }
+
+    fn add_equations(&mut self, rate: [f64; 3]) {
+        let change: [f32; 3] = core::array::from_fn(|a| (rate[a] - self.first_rad_s[a]) as f32);
+        let products = self.integral_products.map(|p| p as f32);
+        let product = |a: usize, b: usize| products[super::effectiveness::rate_product(a, b)];
+        for k in 0..3 {
+            let (inertia, output) = inertia_regressors(k, change, product);
+            let x = inertia.map(f64::from);
+            let y = f64::from(output);
+            // The upper triangle; the lower is mirrored when solved.
+            for i in 0..UNKNOWNS {
+                for j in i..UNKNOWNS {
+                    self.normal[i][j] += x[i] * x[j];
+                }
+                self.rhs[i] += x[i] * y;
+            }
+            self.output_energy += y * y;
+            self.equations += 1;
+        }
+    }
+
+    /// The prior for the balance: the tumble's fit combined with the sphere's prior, or the
+    /// sphere alone when the tumble was too short or its equations are singular.
+    #[inline(never)]
+    pub fn prior(&self) -> InertiaPrior {
+        let sphere = InertiaPrior::sphere();
+        if self.equations < MIN_EQUATIONS {
+            return sphere;
+        }
+        let mut normal = self.normal;
+        for i in 0..UNKNOWNS {
+            for j in 0..i {
+                normal[i][j] = normal[j][i];
+            }
+        }
+        let Some(fit_inverse) = spd_inverse(&normal) else { return sphere };
+        let theta = multiply(&fit_inverse, &self.rhs);
+        let explained: f64 = theta.iter().zip(&self.rhs).map(|(t, r)| t * r).sum();
+        let residual = (self.output_energy - explained).max(0.0);
+        let dof = f64::from(self.equations) - UNKNOWNS as f64;
+        // The equations of successive samples share their integrals, `Ω(t₀)` and the gyro's bias,
+        // so their errors are far from independent: the fit is trusted as if all of them
+        // together were worth one, `σ² (AᵀA / N)⁻¹`, not `σ² (AᵀA)⁻¹`. (On the identification
+        // Monte Carlo, rotational block's 99th percentile: 9.3 % at a tenth of this trust's
+        // variance, 7.3 % at N ≈ 870, 8.5 % at a hundred times it.)
+        let noise_var = f64::from(self.equations) * residual / dof;
+        // The fit's covariance, floored.
+        let mut fit_cov = fit_inverse.map(|row| row.map(|v| noise_var * v));
+        for (j, row) in fit_cov.iter_mut().enumerate() {
+            row[j] += MIN_VARIANCE;
+        }
+        let Some(mut information) = spd_inverse(&fit_cov) else { return sphere };
+        let mut weighted = multiply(&information, &theta);
+        let sphere_information = 1.0 / f64::from(INERTIA_PRIOR_VARIANCE);
+        for j in 0..UNKNOWNS {
+            information[j][j] += sphere_information;
+            weighted[j] += sphere_information * f64::from(sphere.mean[j]);
+        }
+        let Some(covariance) = spd_inverse(&information) else { return sphere };
+        let mean = multiply(&covariance, &weighted);
+        InertiaPrior {
+            mean: mean.map(|v| v as f32),
+            covariance: covariance.map(|row| row.map(|v| v as f32)),
+            equations: self.equations,
+        }
+    }
+}
+
+/// A symmetric `UNKNOWNS × UNKNOWNS` matrix.
+type Square = [[f64; UNKNOWNS]; UNKNOWNS];
+
+/// `a v`.
+fn multiply(a: &Square, v: &[f64; UNKNOWNS]) -> [f64; UNKNOWNS] {
+    a.map(|row| row.iter().zip(v).map(|(x, y)| x * y).sum())
+}
+
+/// The inverse of a symmetric positive-definite matrix through its Cholesky factor `L Lᵀ`;
+/// `None` when a pivot is not positive and finite. Plain loops on one size: nalgebra's generic
+/// inverse, instantiated for this size only, cost the firmware 12 KB of flash.
+fn spd_inverse(a: &Square) -> Option<Square> {
+    const N: usize = UNKNOWNS;
+    let mut l = [[0.0; N]; N];
+    for j in 0..N {
+        let pivot = a[j][j] - (0..j).map(|k| l[j][k] * l[j][k]).sum::<f64>();
+        if !(pivot > 0.0 && pivot.is_finite()) {
+            return None;
+        }
+        l[j][j] = libm::sqrt(pivot);
+        for i in j + 1..N {
+            let dot: f64 = (0..j).map(|k| l[i][k] * l[j][k]).sum();
+            l[i][j] = (a[i][j] - dot) / l[j][j];
+        }
+    }
+    // Column by column: L y = e_c, then Lᵀ x = y.
+    let mut inverse = [[0.0; N]; N];
+    for c in 0..N {
+        let mut y = [0.0; N];
+        for i in 0..N {
+            let known: f64 = (0..i).map(|k| l[i][k] * y[k]).sum();
+            y[i] = (if i == c { 1.0 } else { 0.0 } - known) / l[i][i];
+        }
+        for i in (0..N).rev() {
+            let known: f64 = (i + 1..N).map(|k| l[k][i] * inverse[k][c]).sum();
+            inverse[i][c] = (y[i] - known) / l[i][i];
+        }
+    }
+    inverse.iter().flatten().all(|v| v.is_finite()).then_some(inverse)
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::rng::Rng;
+    use nalgebra::{Matrix3, Rotation3, Vector3};
+    use std::vec::Vec;
+
+    const RATE_HZ: f64 = 2000.0;
+    /// The release delay, s.
+    const TUMBLE_S: f64 = 0.150;
+
+    /// Gyro samples of a body of normalised inertia `j` turning freely from `rate` (RK4 at
+    /// 2 kHz), with a rotational damping `damping` (per unit `tr I`, 1/s, body axes), white
+    /// noise of `noise_rad_s` per sample and a constant bias.
+    fn tumble(
+        j: Matrix3<f64>,
+        damping: f64,
+        rate: Vector3<f64>,
+        noise_rad_s: f64,
+    ) -> Vec<[f32; 3]> {
+        let inverse = j.try_inverse().unwrap();
+        let f = |w: Vector3<f64>| -inverse * (w.cross(&(j * w)) + damping * w);
+        let dt = 1.0 / RATE_HZ;
+        let mut rng = Rng::new(3);
+        let bias = Vector3::new(0.01, -0.008, 0.005);
+        let mut w = rate;
+        let mut samples = Vec::new();
+        for _ in 0..=(TUMBLE_S * RATE_HZ) as usize {
+            let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * noise_rad_s;
+            let measured = w + bias + noise;
+            samples.push([measured.x as f32, measured.y as f32, measured.z as f32]);
+            let k1 = f(w);
+            let k2 = f(w + 0.5 * dt * k1);
+            let k3 = f(w + 0.5 * dt * k2);
+            let k4 = f(w + dt * k3);
+            w += dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+        }
+        samples
+    }
+
+    fn fit(samples: &[[f32; 3]]) -> InertiaPrior {
+        let mut fit = TumbleInertia::new(RATE_HZ as f32);
+        for sample in samples {
+            fit.update(*sample);
+        }
+        fit.prior()
+    }
+
+    fn free_entries(j: &Matrix3<f64>) -> [f64; INERTIA_PARAMETERS] {
+        [j[(0, 0)], j[(1, 1)], j[(0, 1)], j[(0, 2)], j[(1, 2)]]
+    }
+
+    /// A flat multirotor's normalised inertia (Izz ≈ Ixx + Iyy), its IMU turned arbitrarily.
+    fn multirotor() -> Matrix3<f64> {
+        let imu = Rotation3::from_euler_angles(0.4, -0.7, 1.1);
+        let body = Matrix3::new(0.26, 0.004, -0.002, 0.004, 0.24, 0.001, -0.002, 0.001, 0.5);
+        imu * body * imu.transpose()
+    }
+
+    #[test]
+    fn a_thrown_multirotor_shows_its_inertia_within_a_few_thousandths() {
+        // 400 °/s about a random axis, the ICM-42688-P's noise at 2 kHz (0.005 rad/s is 2.5
+        // times the data sheet's), a 0.01 rad/s bias and a damping of 0.004/s (an unpowered
+        // frame's drag at these rates).
+        let j = multirotor();
+        let rate = Vector3::new(5.0, -3.0, 4.0).normalize() * 7.0;
+        let prior = fit(&tumble(j, 0.004, rate, 0.005));
+        let truth = free_entries(&j);
+        let sphere = InertiaPrior::sphere();
+        for k in 0..INERTIA_PARAMETERS {
+            let error = (f64::from(prior.mean[k]) - truth[k]).abs();
+            assert!(error < 0.004, "J entry {k} off by {error:.4}");
+            // Trusted: at most a twentieth of the sphere's variance.
+            assert!(prior.covariance[k][k] < 0.05 * sphere.covariance[k][k], "entry {k}");
+        }
+        // The sphere alone is far off: the tumble carries the information.
+        assert!(
+            (0..INERTIA_PARAMETERS).any(|k| (f64::from(sphere.mean[k]) - truth[k]).abs() > 0.04),
+            "the sphere would have been right"
+        );
+        assert_eq!(prior.equations, 3 * (TUMBLE_S * RATE_HZ) as u32 - 3 * SETTLING_SAMPLES + 3);
+    }
+
+    #[test]
+    fn a_spin_about_a_principal_axis_keeps_the_sphere_where_it_sees_nothing() {
+        // About body z of an unrotated IMU: Ω × JΩ = Ω_z² (−J_yz, J_xz, 0) sees only the two
+        // products with z; J_xx, J_yy and J_xy stay the sphere's, with its uncertainty.
+        let body = Matrix3::new(0.26, 0.0, 0.0, 0.0, 0.24, 0.0, 0.0, 0.0, 0.5);
+        let prior = fit(&tumble(body, 0.0, Vector3::new(0.0, 0.0, 7.0), 0.005));
+        let sphere = InertiaPrior::sphere();
+        for k in [3, 4] {
+            assert!(prior.mean[k].abs() < 0.002, "J product {k}: {}", prior.mean[k]);
+            assert!(prior.covariance[k][k] < 0.01 * sphere.covariance[k][k]);
+        }
+        for k in 0..3 {
+            let moved = (prior.mean[k] - sphere.mean[k]).abs();
+            assert!(moved < 0.02, "unobserved entry {k} moved by {moved}");
+            assert!(prior.covariance[k][k] > 0.5 * sphere.covariance[k][k], "entry {k}");
+        }
+    }
+
+    #[test]
+    fn without_a_spin_or_a_long_enough_tumble_the_prior_is_the_sphere() {
+        let sphere = InertiaPrior::sphere();
+        // Thrown straight up without rotation: nothing turns, nothing is learned.
+        let still = fit(&tumble(multirotor(), 0.0, Vector3::zeros(), 0.005));
+        for k in 0..INERTIA_PARAMETERS {
+            assert!((still.mean[k] - sphere.mean[k]).abs() < 0.01, "entry {k}");
+            assert!(still.covariance[k][k] > 0.8 * sphere.covariance[k][k], "entry {k}");
+        }
+        // 30 ms of tumble: too few equations to be used at all.
+        let samples = tumble(multirotor(), 0.0, Vector3::new(5.0, -3.0, 4.0), 0.005);
+        assert_eq!(fit(&samples[..60]), sphere);
+    }
+
+    #[test]
+    fn a_non_finite_gyro_sample_is_skipped_and_a_reset_forgets_the_throw() {
+        let j = multirotor();
+        let mut samples = tumble(j, 0.0, Vector3::new(5.0, -3.0, 4.0), 0.005);
+        samples[100] = [f32::NAN, 0.0, f32::INFINITY];
+        let prior = fit(&samples);
+        let truth = free_entries(&j);
+        for k in 0..INERTIA_PARAMETERS {
+            assert!((f64::from(prior.mean[k]) - truth[k]).abs() < 0.004, "entry {k}");
+        }
+        let mut tumble_fit = TumbleInertia::new(RATE_HZ as f32);
+        for sample in &samples {
+            tumble_fit.update(*sample);
+        }
+        tumble_fit.reset();
+        assert_eq!(tumble_fit.equations(), 0);
+        assert_eq!(tumble_fit.prior(), InertiaPrior::sphere());
+    }
+
+    #[test]
+    fn the_cholesky_inverse_inverts_and_refuses_what_is_not_positive_definite() {
+        let mut a = [[0.0; UNKNOWNS]; UNKNOWNS];
+        for i in 0..UNKNOWNS {
+            for j in 0..UNKNOWNS {
+                a[i][j] = 1.0 / (1.0 + i as f64 + j as f64); // Hilbert-like, positive definite
+            }
+            a[i][i] += 0.1;
+        }
+        let inverse = spd_inverse(&a).expect("positive definite");
+        for i in 0..UNKNOWNS {
+            for j in 0..UNKNOWNS {
+                let product: f64 = (0..UNKNOWNS).map(|k| a[i][k] * inverse[k][j]).sum();
+                let identity = if i == j { 1.0 } else { 0.0 };
+                assert!((product - identity).abs() < 1e-12, "({i}, {j}): {product}");
+            }
+        }
+        a[2][2] = -1.0;
+        assert_eq!(spd_inverse(&a), None);
+        a[2][2] = f64::NAN;
+        assert_eq!(spd_inverse(&a), None);
+    }
+}
