@@ -220,16 +220,17 @@ fn main() -> std::process::ExitCode {
                     );
                 }
             }
-            {
-                let mut w: Vec<_> = scored.iter().collect();
-                w.sort_by(|a, b| b.2.g1_block_rel[1].total_cmp(&a.2.g1_block_rel[1]));
-                for (seed, motors, s) in w.iter().take(25) {
-                    println!(
-                        "  ROT seed {seed} ({motors}): block {:.2} % rows {}",
-                        100.0 * s.g1_block_rel[1],
-                        percent(&s.g1_row_rel)
-                    );
-                }
+            // The tail of the headline figure (the worse block), then of the worst row.
+            let worse_block = |s: &Scores| s.g1_block_rel[0].max(s.g1_block_rel[1]);
+            let mut by_block: Vec<_> = scored.iter().collect();
+            by_block.sort_by(|a, b| worse_block(&b.2).total_cmp(&worse_block(&a.2)));
+            for (seed, motors, s) in by_block.iter().take(5) {
+                println!(
+                    "  worst block: seed {seed} ({motors} motors): force {:.1} %, rotation {:.1} %; rows {}",
+                    100.0 * s.g1_block_rel[0],
+                    100.0 * s.g1_block_rel[1],
+                    percent(&s.g1_row_rel)
+                );
             }
             let mut worst: Vec<_> = scored.iter().collect();
             worst.sort_by(|a, b| {
