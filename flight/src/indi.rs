@@ -23,6 +23,13 @@
 //! - **The G2 term.** A motor's speed change accelerates the rotor and reacts on the frame: a
 //!   commanded increment Δu gives at once `Δω̇ = ω_full² Δu / (2 ω₀ τ)`, so the rotational rows
 //!   gain `G2 ω_full²/(2 τ ω₀)`. That is what makes yaw (mostly rotor reaction) controllable fast.
+//!   On the yaw row only (the thrust frame's z): a rotor tilted off the thrust axis also reacts
+//!   about the tilt axes, but only while its speed changes. Counted there, the allocation bought
+//!   tilt torque with motor accelerations it could not sustain — at idle, where `1/ω₀` is largest,
+//!   the reaction term of a 30°-tilted octorotor's motor was larger than its thrust's lever and of
+//!   the other sign, the motors flipped between full and idle every few steps, and the roll rate
+//!   ran away to the gyro's limit (Monte Carlo case 962 of `fly`). The tilt rows treat the
+//!   reaction as any other disturbance: INDI measures it in `Ω̇₀` and answers it next step.
 //! - **Frames.** The learner's G1 and G2 are in IMU axes; [`IndiModel::from_learned`] rotates their
 //!   rows into the thrust frame `T` (from `q_U^T`), whose −z is the hover thrust direction. The
 //!   allocation weights (1, 1, 50, 50, 50, 5) then mean: horizontal force barely, thrust and
@@ -456,32 +463,29 @@ impl Indi {
         };
 
         // The actuators' filtered state.
+        // The rotor reaction on the yaw row only (module doc, "The G2 term").
         let mut u0 = [0.0f32; MAX_MOTORS];
-        let mut omega_dot = [0.0f32; MAX_MOTORS];
+        let mut yaw_reaction_now = 0.0f32;
         let mut g = [[0.0f32; MAX_MOTORS]; 6];
         for j in 0..m {
             let motor = &self.model.motor[j];
             let full = motor.omega_full_rad_s();
             let omega = self.omega_filter[j].update(self.omega_model_rad_s[j]);
-            omega_dot[j] = (omega - self.previous_omega[j]) * self.rate_hz;
+            let omega_dot = (omega - self.previous_omega[j]) * self.rate_hz;
             self.previous_omega[j] = omega;
             u0[j] = (omega / full) * (omega / full);
             let omega_floor = omega.max(OMEGA_FLOOR_FRACTION * full);
             let reaction = full * full / (2.0 * motor.tau_s * omega_floor);
-            for k in 0..3 {
+            for k in 0..6 {
                 g[k][j] = self.model.g1[k][j];
-                g[3 + k][j] = self.model.g1[3 + k][j] + self.model.g2[k][j] * reaction;
             }
+            g[5][j] += self.model.g2[2][j] * reaction;
+            yaw_reaction_now += self.model.g2[2][j] * omega_dot;
         }
 
         // The increment wanted.
-        let mut g2_omega_dot = Vector3::zeros();
-        for j in 0..m {
-            for k in 0..3 {
-                g2_omega_dot[k] += self.model.g2[k][j] * omega_dot[j];
-            }
-        }
-        let rot = reference.angular_accel_rad_s2 - angular_accel + g2_omega_dot;
+        let mut rot = reference.angular_accel_rad_s2 - angular_accel;
+        rot.z += yaw_reaction_now;
         let dv = [0.0, 0.0, reference.specific_force_z_mps2 - force.z, rot.x, rot.y, rot.z];
 
         let mut du_min = [0.0f32; MAX_MOTORS];
@@ -603,5 +607,33 @@ mod tests {
         assert!(!model.refine_effectiveness(&newer, 1.5));
         assert!(!model.refine_effectiveness(&newer, f32::NAN));
         assert_eq!(model, refined, "refused refinements change nothing");
+    }
+
+    /// Rotors tilted so that each one's reaction about the roll axis, at idle, is twice its
+    /// thrust's roll lever and of the other sign (as in `fly` case 962): a roll demand is still
+    /// met by the motors whose *thrust* rolls the craft the right way, because a reaction lasts
+    /// only while a motor accelerates and cannot hold a tilt torque.
+    #[test]
+    fn a_tilt_demand_is_met_by_thrust_not_by_a_rotor_reaction_that_cannot_last() {
+        let mut learned = learned_quad();
+        for j in 0..4 {
+            let roll_sign = if j & 1 == 0 { 1.0 } else { -1.0 };
+            // Reaction at idle: ω_full²/(2 τ ω_floor) = 4e6/(2 · 0.03 · 600) ≈ 1.1e5 per unit
+            // thrust, × 4e-3 = 444 rad/s² against the thrust's 200.
+            learned.g2[0][j] = -4e-3 * roll_sign;
+        }
+        let model = IndiModel::from_learned(&learned).unwrap();
+        let mut indi = Indi::new(model, [0.0; 3], IndiConfig::default()).unwrap();
+        let idle = [200.0f32; MAX_MOTORS];
+        // Falling freely, motors at idle.
+        indi.start([0.0; 3], [0.0; 3], &[0.0; MAX_MOTORS], &idle);
+        let reference = IndiReference {
+            specific_force_z_mps2: -3.0,
+            angular_accel_rad_s2: Vector3::new(100.0, 0.0, 0.0),
+        };
+        let out = indi.update([0.0; 3], [0.0; 3], &reference).unwrap();
+        let roll_from_thrust: f32 = (0..4).map(|j| model.g1[3][j] * out.u[j]).sum();
+        assert!(roll_from_thrust > 20.0, "roll from thrust {roll_from_thrust} rad/s²: {out:?}");
+        assert!(out.u[0] > out.u[1] && out.u[2] > out.u[3], "the right-rolling motors: {out:?}");
     }
 }
