@@ -417,4 +417,29 @@ mod tests {
         a[2][2] = f64::NAN;
         assert_eq!(spd_inverse(&a), None);
     }
+
+    /// The learner takes the prior as its estimate of `J` until data move it, and refuses a
+    /// non-finite one without changing anything.
+    #[test]
+    fn the_balance_starts_from_the_prior_and_refuses_a_non_finite_one() {
+        use crate::filters::BiquadCoefficients;
+        use crate::learner::effectiveness::EffectivenessEstimator;
+        use crate::learner::rls::RlsConfig;
+        let filter = BiquadCoefficients::butterworth_lowpass(20.0, 2000.0).unwrap();
+        let config = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
+        let mut estimator = EffectivenessEstimator::new(4, 2000.0, filter, [0.0; 3], 0.0, config);
+        let j = multirotor();
+        let prior = fit(&tumble(j, 0.0, Vector3::new(5.0, -3.0, 4.0), 0.005));
+        estimator.set_inertia_prior(&prior);
+        let learned = estimator.normalised_inertia().cast::<f64>();
+        assert!((learned - j).abs().max() < 0.004, "J {learned} against {j}");
+        let mut broken = prior;
+        broken.covariance[1][3] = f32::NAN;
+        estimator.set_inertia_prior(&broken);
+        assert_eq!(estimator.normalised_inertia().cast::<f64>(), learned, "refused");
+        // A reset goes back to the sphere.
+        estimator.reset([0.0; 3]);
+        let sphere = Matrix3::from_diagonal_element(1.0 / 3.0);
+        assert!((estimator.normalised_inertia().cast::<f64>() - sphere).abs().max() < 1e-6);
+    }
 }
