@@ -34,10 +34,9 @@
 // `effectiveness`.
 #![allow(clippy::needless_range_loop)]
 
-use super::effectiveness::{inertia_regressors, INERTIA_PARAMETERS, INERTIA_PRIOR_VARIANCE};
-
-/// Unknowns of the tumble: the five free entries of `J`.
-const UNKNOWNS: usize = INERTIA_PARAMETERS;
+use super::effectiveness::{
+    inertia_regressors, rate_product, INERTIA_PARAMETERS, INERTIA_PRIOR_VARIANCE,
+};
 
 /// Samples of the tumble before its equations are used: the integrals must have grown beyond a
 /// few samples' noise (5 ms at 2 kHz).
@@ -78,8 +77,8 @@ impl InertiaPrior {
 #[derive(Clone, Debug)]
 pub struct TumbleInertia {
     dt_s: f64,
+    /// Finite samples taken.
     samples: u32,
-    equations: u32,
     /// `Ω(t₀)` and the previous sample, rad/s.
     first_rad_s: [f64; 3],
     previous_rad_s: [f64; 3],
@@ -87,7 +86,7 @@ pub struct TumbleInertia {
     integral_products: [f64; 6],
     /// `AᵀA` and `Aᵀy` of the equations so far.
     normal: Square,
-    rhs: [f64; UNKNOWNS],
+    rhs: [f64; INERTIA_PARAMETERS],
     /// Sum of the squared outputs (for the residual variance).
     output_energy: f64,
 }
@@ -98,12 +97,11 @@ impl TumbleInertia {
         Self {
             dt_s: 1.0 / f64::from(rate_hz.max(1.0)),
             samples: 0,
-            equations: 0,
             first_rad_s: [0.0; 3],
             previous_rad_s: [0.0; 3],
             integral_products: [0.0; 6],
-            normal: [[0.0; UNKNOWNS]; UNKNOWNS],
-            rhs: [0.0; UNKNOWNS],
+            normal: [[0.0; INERTIA_PARAMETERS]; INERTIA_PARAMETERS],
+            rhs: [0.0; INERTIA_PARAMETERS],
             output_energy: 0.0,
         }
     }
@@ -117,9 +115,9 @@ impl TumbleInertia {
         *self = Self { dt_s, ..Self::new(1.0) };
     }
 
-    /// Equations gathered so far (three per sample after the first few).
+    /// Equations gathered so far: three per sample after the first [`SETTLING_SAMPLES`].
     pub fn equations(&self) -> u32 {
-        self.equations
+        3 * self.samples.saturating_sub(SETTLING_SAMPLES)
     }
 
     /// One gyro sample of the free tumble, rad/s in IMU axes. A non-finite sample is skipped.
@@ -155,20 +153,19 @@ impl TumbleInertia {
     fn add_equations(&mut self, rate: [f64; 3]) {
         let change: [f32; 3] = core::array::from_fn(|a| (rate[a] - self.first_rad_s[a]) as f32);
         let products = self.integral_products.map(|p| p as f32);
-        let product = |a: usize, b: usize| products[super::effectiveness::rate_product(a, b)];
+        let product = |a: usize, b: usize| products[rate_product(a, b)];
         for k in 0..3 {
             let (inertia, output) = inertia_regressors(k, change, product);
             let x = inertia.map(f64::from);
             let y = f64::from(output);
             // The upper triangle; the lower is mirrored when solved.
-            for i in 0..UNKNOWNS {
-                for j in i..UNKNOWNS {
+            for i in 0..INERTIA_PARAMETERS {
+                for j in i..INERTIA_PARAMETERS {
                     self.normal[i][j] += x[i] * x[j];
                 }
                 self.rhs[i] += x[i] * y;
             }
             self.output_energy += y * y;
-            self.equations += 1;
         }
     }
 
@@ -177,11 +174,12 @@ impl TumbleInertia {
     #[inline(never)]
     pub fn prior(&self) -> InertiaPrior {
         let sphere = InertiaPrior::sphere();
-        if self.equations < MIN_EQUATIONS {
+        let equations = self.equations();
+        if equations < MIN_EQUATIONS {
             return sphere;
         }
         let mut normal = self.normal;
-        for i in 0..UNKNOWNS {
+        for i in 0..INERTIA_PARAMETERS {
             for j in 0..i {
                 normal[i][j] = normal[j][i];
             }
@@ -190,13 +188,13 @@ impl TumbleInertia {
         let theta = multiply(&fit_inverse, &self.rhs);
         let explained: f64 = theta.iter().zip(&self.rhs).map(|(t, r)| t * r).sum();
         let residual = (self.output_energy - explained).max(0.0);
-        let dof = f64::from(self.equations) - UNKNOWNS as f64;
+        let dof = f64::from(equations) - INERTIA_PARAMETERS as f64;
         // The equations of successive samples share their integrals, `Ω(t₀)` and the gyro's bias,
         // so their errors are far from independent: the fit is trusted as if all of them
         // together were worth one, `σ² (AᵀA / N)⁻¹`, not `σ² (AᵀA)⁻¹`. (On the identification
         // Monte Carlo, rotational block's 99th percentile: 9.3 % at a tenth of this trust's
         // variance, 7.3 % at N ≈ 870, 8.5 % at a hundred times it.)
-        let noise_var = f64::from(self.equations) * residual / dof;
+        let noise_var = f64::from(equations) * residual / dof;
         // The fit's covariance, floored.
         let mut fit_cov = fit_inverse.map(|row| row.map(|v| noise_var * v));
         for (j, row) in fit_cov.iter_mut().enumerate() {
@@ -205,7 +203,7 @@ impl TumbleInertia {
         let Some(mut information) = spd_inverse(&fit_cov) else { return sphere };
         let mut weighted = multiply(&information, &theta);
         let sphere_information = 1.0 / f64::from(INERTIA_PRIOR_VARIANCE);
-        for j in 0..UNKNOWNS {
+        for j in 0..INERTIA_PARAMETERS {
             information[j][j] += sphere_information;
             weighted[j] += sphere_information * f64::from(sphere.mean[j]);
         }
@@ -214,16 +212,16 @@ impl TumbleInertia {
         InertiaPrior {
             mean: mean.map(|v| v as f32),
             covariance: covariance.map(|row| row.map(|v| v as f32)),
-            equations: self.equations,
+            equations,
         }
     }
 }
 
-/// A symmetric `UNKNOWNS × UNKNOWNS` matrix.
-type Square = [[f64; UNKNOWNS]; UNKNOWNS];
+/// A symmetric `INERTIA_PARAMETERS × INERTIA_PARAMETERS` matrix.
+type Square = [[f64; INERTIA_PARAMETERS]; INERTIA_PARAMETERS];
 
 /// `a v`.
-fn multiply(a: &Square, v: &[f64; UNKNOWNS]) -> [f64; UNKNOWNS] {
+fn multiply(a: &Square, v: &[f64; INERTIA_PARAMETERS]) -> [f64; INERTIA_PARAMETERS] {
     a.map(|row| row.iter().zip(v).map(|(x, y)| x * y).sum())
 }
 
@@ -231,7 +229,7 @@ fn multiply(a: &Square, v: &[f64; UNKNOWNS]) -> [f64; UNKNOWNS] {
 /// `None` when a pivot is not positive and finite. Plain loops on one size: nalgebra's generic
 /// inverse, instantiated for this size only, cost the firmware 12 KB of flash.
 fn spd_inverse(a: &Square) -> Option<Square> {
-    const N: usize = UNKNOWNS;
+    const N: usize = INERTIA_PARAMETERS;
     let mut l = [[0.0; N]; N];
     for j in 0..N {
         let pivot = a[j][j] - (0..j).map(|k| l[j][k] * l[j][k]).sum::<f64>();
@@ -397,17 +395,17 @@ mod tests {
 
     #[test]
     fn the_cholesky_inverse_inverts_and_refuses_what_is_not_positive_definite() {
-        let mut a = [[0.0; UNKNOWNS]; UNKNOWNS];
-        for i in 0..UNKNOWNS {
-            for j in 0..UNKNOWNS {
+        let mut a = [[0.0; INERTIA_PARAMETERS]; INERTIA_PARAMETERS];
+        for i in 0..INERTIA_PARAMETERS {
+            for j in 0..INERTIA_PARAMETERS {
                 a[i][j] = 1.0 / (1.0 + i as f64 + j as f64); // Hilbert-like, positive definite
             }
             a[i][i] += 0.1;
         }
         let inverse = spd_inverse(&a).expect("positive definite");
-        for i in 0..UNKNOWNS {
-            for j in 0..UNKNOWNS {
-                let product: f64 = (0..UNKNOWNS).map(|k| a[i][k] * inverse[k][j]).sum();
+        for i in 0..INERTIA_PARAMETERS {
+            for j in 0..INERTIA_PARAMETERS {
+                let product: f64 = (0..INERTIA_PARAMETERS).map(|k| a[i][k] * inverse[k][j]).sum();
                 let identity = if i == j { 1.0 } else { 0.0 };
                 assert!((product - identity).abs() < 1e-12, "({i}, {j}): {product}");
             }
