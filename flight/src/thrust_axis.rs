@@ -38,10 +38,11 @@
 //!    `d/|d|` ([`rotation`]).
 //!
 //! Everything is `f32`, fixed-size (`[_; MOTORS_MAX]` plus a count) and allocation-free. The
-//! solve dispatches once on the motor count to a const-generic body, so every loop has a fixed
+//! solve dispatches once on the motor count to a const-generic body, compiled for the quad and
+//! for `MOTORS_MAX` (5 to 7 motors on zero-filled columns, exactly), so every loop has a fixed
 //! trip count; square roots use FPU multiplies only ([`sqrt`]). Cost on the Cortex-M7 (QEMU,
-//! `cargo xtask bench-m7`): about 900 instructions at m = 4 and 1,850–2,000 at m = 8 (heuristic
-//! path); see `docs/benchmarks.md`.
+//! `cargo xtask bench-m7`): about 900 instructions at m = 4 and 1,850–2,000 at 5 to 8 motors
+//! (heuristic path); see `docs/benchmarks.md`.
 
 // `!(x > limit)` is deliberate throughout: it is also true for NaN, which must take the safe
 // branch. Index loops are kept where they mirror the matrix notation of the derivation.
@@ -518,18 +519,20 @@ impl ThrustAxisSolver {
     /// `max_squarings` 3 × 3 squarings, and (only when the heuristic's `u*` leaves the bounds
     /// and `bounded_search` is on) the active-set search of [`bounded`].
     pub fn solve(&mut self, problem: &HoverProblem) -> Result<HoverSolution, ThrustAxisError> {
-        // One dispatch on the motor count; below it every loop has a fixed trip count.
+        // Two compiled sizes, so that every loop below has a fixed trip count: the quad (its
+        // one-dimensional null space has a closed form) and `MOTORS_MAX`, which also solves 5 to
+        // 7 motors on the problem's zero-filled columns. That is exact: a zero column of `G1τ`
+        // and `G1f` stays zero through every reflection (their vectors are zero there), so the
+        // padding adds exact zeros to every sum and gets a zero command. One copy instead of
+        // four saves about 15 KB of flash at opt-level 3 (docs/benchmarks.md, "Firmware size").
         match problem.motors {
             4 => self.solve_fixed::<4>(problem),
-            5 => self.solve_fixed::<5>(problem),
-            6 => self.solve_fixed::<6>(problem),
-            7 => self.solve_fixed::<7>(problem),
-            8 => self.solve_fixed::<8>(problem),
+            5..=MOTORS_MAX => self.solve_fixed::<MOTORS_MAX>(problem),
             motors => Err(ThrustAxisError::MotorCount { motors }),
         }
     }
 
-    /// [`Self::solve`] for `M == problem.motors` motors.
+    /// [`Self::solve`] with the first `M ≥ problem.motors` columns (zero beyond the motors).
     fn solve_fixed<const M: usize>(
         &mut self,
         problem: &HoverProblem,
@@ -666,7 +669,7 @@ fn finish<const M: usize>(
     let inv = 1.0 / d_norm;
     let thrust_dir_imu = [d[0] * inv, d[1] * inv, d[2] * inv];
     Ok(HoverSolution {
-        motors: M,
+        motors: problem.motors,
         u_hover,
         thrust_dir_imu,
         q_thrust_to_imu: shortest_arc_from_down_unit(thrust_dir_imu),
