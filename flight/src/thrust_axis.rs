@@ -815,6 +815,65 @@ mod tests {
         assert!(angle_rad(w, v[0]) < 1e-5, "{w:?}");
     }
 
+    /// A random airframe of `m` rotors: tilted thrust columns about −z, torques of both signs,
+    /// bounds `[lower, 1]` and weights 0.5–2 (so the weight scaling runs).
+    fn random_problem(rng: &mut crate::rng::Rng, m: usize) -> HoverProblem {
+        let mut f = [[0.0f32; MOTORS_MAX]; 3];
+        let mut tau = [[0.0f32; MOTORS_MAX]; 3];
+        for i in 0..m {
+            let strength = rng.range(8.0, 12.0) as f32;
+            f[0][i] = strength * rng.range(-0.3, 0.3) as f32;
+            f[1][i] = strength * rng.range(-0.3, 0.3) as f32;
+            f[2][i] = -strength;
+            for row in tau.iter_mut() {
+                row[i] = rng.range(-60.0, 60.0) as f32;
+            }
+        }
+        let mut lower = [0.0f32; MOTORS_MAX];
+        let mut weights = [0.0f32; MOTORS_MAX];
+        for i in 0..m {
+            lower[i] = rng.range(-0.2, 0.05) as f32;
+            weights[i] = rng.range(0.5, 2.0) as f32;
+        }
+        HoverProblem::new(
+            [&f[0][..m], &f[1][..m], &f[2][..m]],
+            [&tau[0][..m], &tau[1][..m], &tau[2][..m]],
+        )
+        .and_then(|p| p.with_bounds(&lower[..m], &[1.0; MOTORS_MAX][..m]))
+        .and_then(|p| p.with_weights(&weights[..m]))
+        .expect("a valid random problem")
+    }
+
+    #[test]
+    fn five_to_seven_motors_on_zero_columns_give_exactly_their_own_solution() {
+        // `solve` runs 5 to 7 motors through the eight-motor body; the body compiled for their
+        // own count must give the same bits (solution or error), warm direction included.
+        let mut rng = crate::rng::Rng::new(0x7e57_0a11);
+        let mut solved = 0;
+        for case in 0..300 {
+            let m = 5 + case % 3;
+            let problem = random_problem(&mut rng, m);
+            let config = SolverConfig { max_squarings: 6, bounded_search: false };
+            let (mut padded, mut own) =
+                (ThrustAxisSolver::new(config), ThrustAxisSolver::new(config));
+            let by_padding = padded.solve(&problem);
+            let by_own_count = match m {
+                5 => own.solve_fixed::<5>(&problem),
+                6 => own.solve_fixed::<6>(&problem),
+                _ => own.solve_fixed::<7>(&problem),
+            };
+            assert_eq!(by_padding, by_own_count, "case {case}, m = {m}");
+            assert_eq!(padded.warm_direction(), own.warm_direction(), "case {case}, m = {m}");
+            if let Ok(solution) = by_padding {
+                assert_eq!(solution.u_hover().len(), m);
+                solved += 1;
+            }
+        }
+        // Most random airframes hover within their bounds: the comparison covered solutions,
+        // not only refusals.
+        assert!(solved > 100, "only {solved} of 300 solved");
+    }
+
     #[test]
     fn zero_or_invalid_matrix_keeps_the_warm_vector() {
         let warm = [0.0, 0.6, -0.8];
