@@ -524,7 +524,7 @@ impl ThrustAxisSolver {
         // 7 motors on the problem's zero-filled columns. That is exact: a zero column of `G1τ`
         // and `G1f` stays zero through every reflection (their vectors are zero there), so the
         // padding adds exact zeros to every sum and gets a zero command. One copy instead of
-        // four saves about 15 KB of flash at opt-level 3 (docs/benchmarks.md, "Firmware size").
+        // four saves 16.7 KB of flash at opt-level 3 (docs/benchmarks.md, "Firmware size").
         match problem.motors {
             4 => self.solve_fixed::<4>(problem),
             5..=MOTORS_MAX => self.solve_fixed::<MOTORS_MAX>(problem),
