@@ -9,9 +9,14 @@
 //!
 //! Phases:
 //! - **Holding**: velocity and body rate are zero.
-//! - **Throwing**: constant acceleration from rest to the release velocity and a constant angular
-//!   acceleration to the release body rate over the throw duration (rounded to whole physics
-//!   steps so the release values are exact), then release.
+//! - **Throwing**: the hand pushes (its force per unit mass, which is the specific force at the
+//!   centre of gravity, constant) and spins the body up (constant angular acceleration), then
+//!   lets go over the push's last `taper_s`: push and spin-up fall to zero along a raised cosine,
+//!   so the specific force passes continuously from the push to free fall, as a real hand's
+//!   release does (0 to 50 ms; 0 is the published recipe's instant release). The push and the
+//!   spin-up are scaled so that the craft leaves the hand with the release velocity and body
+//!   rate. The duration is rounded to whole physics steps, not to control periods: a release can
+//!   fall anywhere between two of the board's 2 kHz samples, whose average then straddles it.
 //! - **Free**: the dynamics alone act.
 //! - **Catching**: once the falling vehicle comes back down through the catch height, velocity
 //!   and body rate decay exponentially with the catch time constant; after six time constants the
@@ -70,8 +75,30 @@ pub struct ThrowSpec {
     pub release_velocity_ned_mps: Vector3<f64>,
     /// Body rate at release, body axes, rad/s.
     pub release_rate_body_rad_s: Vector3<f64>,
-    /// How long the hand accelerates the vehicle, s (typically 0.1–0.2).
+    /// How long the hand accelerates the vehicle, s (typically 0.1–0.3), taper included.
     pub duration_s: f64,
+    /// How long the hand takes to let go at the end of the push, s (0–0.05): its push and spin-up
+    /// fall to zero along a raised cosine over this time.
+    pub taper_s: f64,
+}
+
+/// The push's strength at `t_s` into a throw of `duration_s` whose last `taper_s` taper off:
+/// 1, then a raised cosine to 0 at the end; 0 outside the throw.
+pub fn push_shape(t_s: f64, duration_s: f64, taper_s: f64) -> f64 {
+    let taper_s = taper_s.clamp(0.0, duration_s);
+    let into_taper_s = t_s - (duration_s - taper_s);
+    if !(0.0..duration_s).contains(&t_s) {
+        0.0
+    } else if into_taper_s <= 0.0 {
+        1.0
+    } else {
+        0.5 * (1.0 + (std::f64::consts::PI * into_taper_s / taper_s).cos())
+    }
+}
+
+/// `∫ push_shape dt` over a throw: the time the push would take at full strength, s.
+fn push_full_strength_s(duration_s: f64, taper_s: f64) -> f64 {
+    duration_s - 0.5 * taper_s.clamp(0.0, duration_s)
 }
 
 impl ThrowSpec {
@@ -86,6 +113,36 @@ impl ThrowSpec {
             release_velocity_ned_mps: Vector3::new(0.0, 0.0, -up_mps),
             release_rate_body_rad_s: rate_body_rad_s,
             duration_s,
+            taper_s: 0.0,
+        }
+    }
+
+    /// The same throw with the hand letting go over `taper_s`.
+    pub fn with_taper(self, taper_s: f64) -> Self {
+        Self { taper_s, ..self }
+    }
+}
+
+/// A push under way: the hand's full-strength push (its force per unit mass, world NED) and
+/// spin-up (body), scaled by [`push_shape`] over the throw.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Push {
+    start_s: f64,
+    duration_s: f64,
+    taper_s: f64,
+    push_ned_mps2: Vector3<f64>,
+    rate_dot_body_rad_s2: Vector3<f64>,
+}
+
+impl Push {
+    /// The constraint over the physics step `[now_s, now_s + step_s]`: the push at the step's
+    /// middle (RK4 holds a constraint for a whole step).
+    fn constraint(&self, now_s: f64, step_s: f64) -> Constraint {
+        let shape = push_shape(now_s + 0.5 * step_s - self.start_s, self.duration_s, self.taper_s);
+        let gravity = Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
+        Constraint::Prescribed {
+            accel_ned_mps2: self.push_ned_mps2 * shape + gravity,
+            rate_dot_body_rad_s2: self.rate_dot_body_rad_s2 * shape,
         }
     }
 }
@@ -125,6 +182,7 @@ pub struct Hand {
     catch_tau_s: f64,
     released_at_s: Option<f64>,
     caught_at_s: Option<f64>,
+    push: Option<Push>,
 }
 
 impl Hand {
@@ -138,6 +196,7 @@ impl Hand {
             catch_tau_s: 0.05,
             released_at_s: None,
             caught_at_s: None,
+            push: None,
         }
     }
 
@@ -173,6 +232,7 @@ impl Hand {
 
     /// Grips the vehicle where it is: velocity and body rate become zero.
     pub fn grip(&mut self, state: &mut State) {
+        self.push = None;
         state.velocity_ned_mps = Vector3::zeros();
         state.rate_body_rad_s = Vector3::zeros();
         self.phase = HandPhase::Holding;
@@ -181,29 +241,42 @@ impl Hand {
 
     /// Moves the vehicle while holding it (see `Physics::move_with_hand`).
     pub fn move_with(&mut self, accel_ned_mps2: Vector3<f64>, rate_dot_body_rad_s2: Vector3<f64>) {
+        self.push = None;
         self.phase = HandPhase::Holding;
         self.constraint = Constraint::Prescribed { accel_ned_mps2, rate_dot_body_rad_s2 };
     }
 
     /// Lets go immediately.
     pub fn release(&mut self, now_s: f64) {
+        self.push = None;
         self.phase = HandPhase::Free;
         self.constraint = Constraint::Free;
         self.released_at_s = Some(now_s);
     }
 
     /// Starts a throw at `now_s` from the current velocity and rate. The duration is rounded to
-    /// whole steps of `step_s` (at least one).
+    /// whole steps of `step_s` (at least one), the taper limited to it.
     pub fn throw(&mut self, spec: &ThrowSpec, state: &State, now_s: f64, step_s: f64) {
         let steps = (spec.duration_s / step_s).round().max(1.0);
         let duration_s = steps * step_s;
+        let taper_s = spec.taper_s.clamp(0.0, duration_s);
+        let full_s = push_full_strength_s(duration_s, taper_s);
+        let gravity = Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
+        // Δv = ∫ (push + g) dt = push · full_s + g · duration_s.
+        let push = Push {
+            start_s: now_s,
+            duration_s,
+            taper_s,
+            push_ned_mps2: (spec.release_velocity_ned_mps
+                - state.velocity_ned_mps
+                - gravity * duration_s)
+                / full_s,
+            rate_dot_body_rad_s2: (spec.release_rate_body_rad_s - state.rate_body_rad_s) / full_s,
+        };
         self.phase = HandPhase::Throwing;
         self.phase_time_s = now_s + duration_s;
-        self.constraint = Constraint::Prescribed {
-            accel_ned_mps2: (spec.release_velocity_ned_mps - state.velocity_ned_mps) / duration_s,
-            rate_dot_body_rad_s2: (spec.release_rate_body_rad_s - state.rate_body_rad_s)
-                / duration_s,
-        };
+        self.constraint = push.constraint(now_s, step_s);
+        self.push = Some(push);
     }
 
     /// Advances the phase after a physics step ending at `now_s`; may change `state` (a grip
@@ -215,6 +288,13 @@ impl Hand {
                 self.release(now_s);
                 true
             }
+            HandPhase::Throwing => match self.push {
+                Some(push) => {
+                    self.constraint = push.constraint(now_s, step_s);
+                    true
+                }
+                None => false,
+            },
             HandPhase::Free => match self.catch {
                 Some(c)
                     if self.released_at_s.is_some()

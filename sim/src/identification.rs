@@ -209,7 +209,14 @@ pub struct Throw {
     pub apex_m: f64,
     /// Horizontal release velocity (north, east), m/s.
     pub horizontal_mps: [f64; 2],
+    /// How long the hand pushes, s, taper included.
+    pub push_s: f64,
+    /// How long the hand takes to let go at the end of the push, s (see [`ThrowSpec::taper_s`]).
+    pub taper_s: f64,
 }
+
+/// The push of the nominal throws, s (the seed paper's hand).
+pub const NOMINAL_PUSH_S: f64 = 0.15;
 
 impl Throw {
     /// The seed paper's: a 3.5 m parabola released at (400, 400, 100) °/s.
@@ -218,6 +225,8 @@ impl Throw {
             rate_body_rad_s: Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
             apex_m: 3.5,
             horizontal_mps: [0.0, 0.0],
+            push_s: NOMINAL_PUSH_S,
+            taper_s: 0.0,
         }
     }
 
@@ -233,12 +242,15 @@ impl Throw {
             rate_body_rad_s,
             apex_m,
             horizontal_mps: [speed * heading.cos(), speed * heading.sin()],
+            push_s: NOMINAL_PUSH_S,
+            taper_s: 0.0,
         }
     }
 
-    /// What the hand does (a 0.15 s throw).
+    /// What the hand does.
     pub fn spec(&self) -> ThrowSpec {
-        let mut spec = ThrowSpec::vertical(self.apex_m, self.rate_body_rad_s, 0.15);
+        let mut spec = ThrowSpec::vertical(self.apex_m, self.rate_body_rad_s, self.push_s)
+            .with_taper(self.taper_s);
         spec.release_velocity_ned_mps.x = self.horizontal_mps[0];
         spec.release_velocity_ned_mps.y = self.horizontal_mps[1];
         spec

@@ -126,8 +126,9 @@ fn a_craft_shaken_in_the_hand_never_starts_the_motors() {
         let spin = Vector3::new(3.0 * w * (w * t).cos(), 0.0, 0.0);
         board.physics_mut().move_with_hand(accel, spin);
     });
+    // Each swing's deceleration reads free fall for a few milliseconds, too short for the
+    // release delay: the detector takes it for the end of a push that goes on.
     assert!(seen.throw_started, "the shake looked like the start of a throw");
-    assert!(seen.releases_refused > 0, "and some like a release, refused: not free fall");
     assert!(!seen.excited && seen.max_command == 0.0, "a shake spun the motors: {seen:?}");
 }
 
@@ -141,6 +142,7 @@ fn a_craft_put_down_hard_never_starts_the_motors() {
                 release_velocity_ned_mps: Vector3::new(0.0, 0.0, 2.0),
                 release_rate_body_rad_s: Vector3::zeros(),
                 duration_s: 0.05,
+                taper_s: 0.0,
             };
             board.physics_mut().throw(&spec);
         }

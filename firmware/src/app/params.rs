@@ -160,6 +160,12 @@ registry! {
         "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
 }
 
+/// How much further than a calibrated IMU offset the throw detector's free-fall check allows
+/// the IMU to be from the centre of gravity, m: the calibration's 95 % semi-axes are below
+/// 2 mm by default (`cal_max_semi_axis_mm`), and a battery moved between flights shifts the
+/// centre of gravity by a few millimetres.
+pub const THROW_OFFSET_MARGIN_M: f32 = 0.005;
+
 /// Number of parameters.
 pub const PARAM_COUNT: usize = SPECS.len();
 
@@ -294,12 +300,20 @@ impl Params {
         vec3(self.get(Param::AccBiasMps2))
     }
 
-    /// The throw detector's configuration.
+    /// The throw detector's configuration. With a calibrated IMU offset, the free-fall check
+    /// allows for the rotational terms of that offset (and [`THROW_OFFSET_MARGIN_M`] more)
+    /// instead of the default 30 mm: a tighter check where the offset is known to be small, and
+    /// a craft whose IMU sits further out is not refused for its spin.
     pub fn throw_config(&self) -> ThrowConfig {
+        let default = ThrowConfig::default();
+        let max_imu_offset_m = self.configured_offset_m().map_or(default.max_imu_offset_m, |r| {
+            libm::sqrtf(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) + THROW_OFFSET_MARGIN_M
+        });
         ThrowConfig {
-            momentum_mps: self.scalar(Param::ThrowMomentumMps),
+            release_speed_mps: self.scalar(Param::ThrowMomentumMps),
             release_delay_s: self.scalar(Param::ThrowReleaseDelayS),
-            ..ThrowConfig::default()
+            max_imu_offset_m,
+            ..default
         }
     }
 

@@ -3,8 +3,9 @@
 //!
 //! Phases (all in the IMU frame for body quantities, NED for world quantities):
 //! 1. *rest*: held still (`Ω = 0`, CG acceleration 0).
-//! 2. *wind-up*: the hand accelerates the CG along `throw_dir_world` with `peak·sin²(πs)` and spins
-//!    the body up smoothly (`Ω = Ω_release · smoothstep(s)`), `s ∈ [0, 1]`.
+//! 2. *wind-up*: the hand accelerates the CG along `throw_dir_world` with `peak·sin²(πs)` (or, with
+//!    [`WindupProfile::Taper`], at `peak` until a raised-cosine taper to zero over the push's last
+//!    `taper_s`) and spins the body up smoothly (`Ω = Ω_release · smoothstep(s)`), `s ∈ [0, 1]`.
 //! 3. *free fall*: gravity and quadratic drag `−k |v| v` only; torque-free Euler equations
 //!    `I Ω̇ = −Ω × (I Ω)` for the given (full, possibly non-diagonal) inertia tensor.
 //! 4. *catch*: the hand takes up the weight smoothly (`g (1 − smoothstep(s))` of fall left) and
@@ -29,6 +30,48 @@ pub const ACC_FULL_SCALE_MPS2: f64 = 16.0 * G_MPS2;
 /// Slowest integration rate (Hz): each sample is reached by RK4 sub-steps at least this fine.
 const MIN_INTEGRATION_RATE_HZ: f64 = 8000.0;
 
+/// How the hand's acceleration varies over the wind-up.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum WindupProfile {
+    /// `peak · sin²(π s)`: a push that builds up and fades out over the whole wind-up.
+    SinSquared,
+    /// The hand's push (its force per unit mass, the specific force the IMU reads apart from the
+    /// rotational terms) is `peak` along `throw_dir_world` until the last `taper_s` of the
+    /// wind-up, then tapers to zero with a raised cosine: a firm push whose hand lets go over
+    /// `taper_s` (0: at once), so the specific force falls continuously to free fall. The CG
+    /// accelerates by the push plus gravity.
+    Taper {
+        /// Duration of the taper, s.
+        taper_s: f64,
+    },
+}
+
+impl WindupProfile {
+    /// The fraction of the peak acceleration at wind-up position `s ∈ [0, 1]` of `windup_s`.
+    pub fn shape(&self, s: f64, windup_s: f64) -> f64 {
+        match *self {
+            WindupProfile::SinSquared => sin2(s),
+            WindupProfile::Taper { taper_s } => {
+                let k = (taper_s / windup_s).clamp(0.0, 1.0);
+                let into_taper = s - (1.0 - k);
+                if into_taper <= 0.0 {
+                    1.0
+                } else {
+                    0.5 * (1.0 + libm::cos(core::f64::consts::PI * (into_taper / k).min(1.0)))
+                }
+            }
+        }
+    }
+
+    /// `∫ shape ds` over the wind-up: the push's speed is `peak · windup_s` times this.
+    pub fn mean_shape(&self, windup_s: f64) -> f64 {
+        match *self {
+            WindupProfile::SinSquared => 0.5,
+            WindupProfile::Taper { taper_s } => 1.0 - 0.5 * (taper_s / windup_s).clamp(0.0, 1.0),
+        }
+    }
+}
+
 /// Everything that defines one synthetic throw.
 #[derive(Debug, Clone)]
 pub struct ThrowSpec {
@@ -50,6 +93,8 @@ pub struct ThrowSpec {
     pub windup_peak_mps2: f64,
     /// Direction of the wind-up acceleration (NED unit vector; upwards is −z).
     pub throw_dir_world: Vector3<f64>,
+    /// How the wind-up's acceleration varies.
+    pub windup_profile: WindupProfile,
     /// Free-fall duration (s).
     pub free_fall_s: f64,
     /// Catch duration (s).
@@ -105,6 +150,7 @@ impl ThrowSpec {
             windup_s: 0.3,
             windup_peak_mps2: 2.0 * G_MPS2,
             throw_dir_world: Vector3::new(0.3, 0.0, -1.0).normalize(),
+            windup_profile: WindupProfile::SinSquared,
             free_fall_s: 0.6,
             catch_s: 0.3,
             rest_after_s: 0.3,
@@ -237,7 +283,12 @@ impl ThrowSamples {
             Phase::Windup => {
                 let (_, ds) = smoothstep(s);
                 let rate_dot = spec.release_rate_radps * ds / spec.windup_s;
-                (rate_dot, spec.throw_dir_world * spec.windup_peak_mps2 * sin2(s))
+                let shape = spec.windup_profile.shape(s, spec.windup_s);
+                let push = spec.throw_dir_world * spec.windup_peak_mps2 * shape;
+                match spec.windup_profile {
+                    WindupProfile::SinSquared => (rate_dot, push),
+                    WindupProfile::Taper { .. } => (rate_dot, push + g),
+                }
             }
             Phase::FreeFall => {
                 let w = state.rate_radps;

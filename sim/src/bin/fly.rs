@@ -36,6 +36,15 @@ enum Command {
         /// Print the flight every 100 ms.
         #[arg(long)]
         trace: bool,
+        /// Body rate at release, °/s, body axes x,y,z (the paper's 400,400,100).
+        #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+        rate_dps: Option<Vec<f64>>,
+        /// How long the hand takes to let go at the end of its push, ms (0–50).
+        #[arg(long, default_value_t = 0.0)]
+        taper_ms: f64,
+        /// How long the hand pushes, ms, taper included (100–300).
+        #[arg(long, default_value_t = 150.0)]
+        push_ms: f64,
     },
     /// One Monte Carlo case, replayed alone.
     Case {
@@ -91,7 +100,7 @@ fn print_report(name: &str, report: &FlyReport) {
 
 fn main() -> ExitCode {
     match Args::parse().command {
-        Command::Paper { airframe, seed, trace } => {
+        Command::Paper { airframe, seed, trace, rate_dps, taper_ms, push_ms } => {
             let airframe = match Airframe::load(&airframe) {
                 Ok(a) => a,
                 Err(e) => {
@@ -100,6 +109,20 @@ fn main() -> ExitCode {
                 }
             };
             let mut config = FlyConfig::paper();
+            if !(0.0..=50.0).contains(&taper_ms) || !(100.0..=300.0).contains(&push_ms) {
+                eprintln!("fly: --taper-ms must be within 0–50 and --push-ms within 100–300");
+                return ExitCode::from(2);
+            }
+            if let Some(rate) = rate_dps {
+                if rate.len() != 3 || !rate.iter().all(|x| x.is_finite() && x.abs() <= 2000.0) {
+                    eprintln!("fly: --rate-dps takes three rates within ±2000 °/s");
+                    return ExitCode::from(2);
+                }
+                config.throw.rate_body_rad_s =
+                    nalgebra::Vector3::new(rate[0], rate[1], rate[2]).map(f64::to_radians);
+            }
+            config.throw.taper_s = taper_ms * 1e-3;
+            config.throw.push_s = push_ms * 1e-3;
             config.board.seed = seed;
             config.trace = trace;
             print_report(&airframe.name, &fly(&airframe, &config));
