@@ -126,7 +126,9 @@ def fly(airframe, hand_config, bridge_addr, flight_s=12.0, hold_window_s=5.0, st
         "release_to_hover_s": None,
         "hit_ground": False,
         "ground_at_s": None,
-        "min_height_m": start_height_m,
+        "release_height_m": None,
+        "min_height_m": None,
+        "altitude_loss_m": None,
         "hold_error_m": None,
         "hold_drift_m": None,
         "hold_max_tilt_deg": None,
@@ -182,11 +184,13 @@ def fly(airframe, hand_config, bridge_addr, flight_s=12.0, hold_window_s=5.0, st
                 if report["release_velocity_ned_mps"] is None:
                     report["release_velocity_ned_mps"] = [round(c, 4) for c in ned_from_enu(v_enu)]
                     report["release_rate_dps"] = round(math.degrees(np.linalg.norm(w_flu)), 2)
+                    report["release_height_m"] = round(float(x_enu[2]), 4)
+                    lowest_m = float(x_enu[2])
                 if not report["throw_accepted"] and any(d > 0.0 for d in deltas):
                     report["throw_accepted"] = True
                     report["release_to_excitation_s"] = round(since, 4)
                 height = float(x_enu[2])
-                report["min_height_m"] = min(report["min_height_m"], height)
+                lowest_m = min(lowest_m, height)
                 tilt = math.acos(max(-1.0, min(1.0, rot[2, 2])))
                 rate = float(np.linalg.norm(w_flu))
                 hovering = (report["throw_accepted"] and rate < HOVER_RATE_RAD_S
@@ -242,7 +246,9 @@ def fly(airframe, hand_config, bridge_addr, flight_s=12.0, hold_window_s=5.0, st
         report["hold_point_ned_m"] = [round(float(c), 4) for c in mean]
         report["hold_max_tilt_deg"] = round(math.degrees(hold_tilt_max), 3)
         report["hold_max_rate_dps"] = round(math.degrees(hold_rate_max), 3)
-    report["min_height_m"] = round(report["min_height_m"], 4)
+    if report["release_height_m"] is not None:
+        report["min_height_m"] = round(lowest_m, 4)
+        report["altitude_loss_m"] = round(report["release_height_m"] - lowest_m, 4)
     report["passed"], report["verdict"] = _verdict(report)
     return report
 
