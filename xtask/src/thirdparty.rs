@@ -141,8 +141,15 @@ pub fn thirdparty(args: &[String]) -> Result<()> {
     run(&Options::parse(args)?)
 }
 
-/// The check `cargo xtask test` runs: the first [`TEST_AIRFRAMES`] airframes, one-step release.
+/// The check `cargo xtask test` runs: the client's unit tests (packets byte for byte, frames,
+/// ESC curve, IMU readings, the hand's release), then the first [`TEST_AIRFRAMES`] airframes
+/// with a one-step release.
 pub fn test() -> Result<()> {
+    let python = ensure_venv()?;
+    util::run(
+        Command::new(&python).args(["-m", "unittest", "test_thirdparty"]).current_dir(client_dir()),
+    )
+    .context("the RotorPy client's unit tests failed")?;
     run(&Options::parse(&[])?)
 }
 
