@@ -108,7 +108,9 @@ class Hand:
         mean_shape_s = self.push_s - 0.5 * self.taper_s  # ∫ s(τ) dτ for both ramps
         speed_change_mps = config.release_up_mps + (config.windup_mps if self.windup_s > 0 else 0)
         #: The hand's specific force at full push, m/s² (world up).
-        self.push_specific_force_mps2 = (speed_change_mps + GRAVITY_MPS2 * self.push_s) / mean_shape_s
+        self.push_specific_force_mps2 = (
+            speed_change_mps + GRAVITY_MPS2 * self.push_s
+        ) / mean_shape_s
         axis = np.asarray(config.spin_axis_frd, dtype=float)
         axis_flu = flu_from_frd(axis / np.linalg.norm(axis))
         #: Angular acceleration at full push, rad/s², body FLU.

@@ -6,9 +6,9 @@ own point, in its own axes:
     f_imu = M [ Rᵀ (a_cog − g) + Ω̇ × r + Ω × (Ω × r) ]        gyro_imu = M Ω
 
 with ``R`` the attitude (body -> world), ``a_cog`` the CoG acceleration (world), ``g`` gravity
-(world), ``Ω``, ``Ω̇`` the body rate and angular acceleration (body axes) and ``M`` the rotation from
-body FRD axes to IMU axes. It is evaluated in RotorPy's FLU body axes (``r`` converted once) and
-turned into IMU axes through FRD.
+(world), ``Ω``, ``Ω̇`` the body rate and angular acceleration (body axes) and ``M`` the rotation
+from body FRD axes to IMU axes. It is evaluated in RotorPy's FLU body axes (``r`` converted
+once) and turned into IMU axes through FRD.
 
 Decimation: the board's driver averages the 8 kHz samples of each 0.5 ms control period. We take
 the exact average over the period instead of four point samples: the integrator's four RK4 stages

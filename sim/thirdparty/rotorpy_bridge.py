@@ -1,14 +1,15 @@
 #!/usr/bin/env python3
 """Fly our firmware in RotorPy: a bridge client for a multirotor simulator we did not write.
 
-RotorPy (``pip install rotorpy``, pinned in ``requirements.txt``) supplies the rigid body and the
-rotor model (thrust and yaw torque ∝ ω², rotor drag, induced inflow, translational lift, parasitic
-drag, first-order rotor lag) and its published airframe parameter sets. Around it this client
-supplies, in its own code: the hand that holds and throws (``hand.py``), the IMU mount
-(``imu_mount.py``), the ESCs (``esc.py``), motion capture and the frame conversions
-(``frames.py``, ``flight.py``), and the bridge's packets (``bridge_packets.py``). The firmware runs
-behind ``cargo run -p sim --release --bin scenario -- bridge --throw-to-fly`` (docs/sim-bridge.md);
-``cargo xtask thirdparty`` builds and starts it and runs this client per airframe.
+RotorPy (``pip install rotorpy``, pinned in ``requirements.txt``) supplies the rigid body and
+the rotor model (thrust and yaw torque ∝ ω², rotor drag, induced inflow, translational lift,
+parasitic drag, first-order rotor lag) and its published airframe parameter sets. Around it
+this client supplies, in its own code: the hand that holds and throws (``hand.py``), the IMU
+mount (``imu_mount.py``), the ESCs (``esc.py``), motion capture and the frame conversions
+(``frames.py``, ``flight.py``), and the bridge's packets (``bridge_packets.py``). The firmware
+runs behind ``cargo run -p sim --release --bin scenario -- bridge --throw-to-fly``
+(docs/sim-bridge.md); ``cargo xtask thirdparty`` builds and starts it and runs this client per
+airframe.
 
     rotorpy_bridge.py list                       # airframes (JSON): name, motors, IMU offset
     rotorpy_bridge.py fly --airframe hummingbird --bridge 127.0.0.1:9003 [--taper-ms 15] ...
@@ -92,7 +93,8 @@ def main(argv=None):
         airframe = by_name(args.airframe)
         if not (math.isfinite(args.flight_s) and 2.0 <= args.flight_s <= 120.0):
             raise ValueError("--flight-s must be 2 to 120 s")
-        if not (math.isfinite(args.hold_window_s) and 1.0 <= args.hold_window_s <= args.flight_s - 1.0):
+        window_s = args.hold_window_s
+        if not (math.isfinite(window_s) and 1.0 <= window_s <= args.flight_s - 1.0):
             raise ValueError("--hold-window-s must be at least 1 s and 1 s shorter than the flight")
         if not (math.isfinite(args.start_height_m) and 0.5 <= args.start_height_m <= 100.0):
             raise ValueError("--start-height-m must be 0.5 to 100 m")
