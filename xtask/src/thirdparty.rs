@@ -31,7 +31,7 @@ const BRIDGE_IDLE_TIMEOUT_S: &str = "30";
 
 const USAGE: &str = "\
 usage: cargo xtask thirdparty [--airframes N | --airframe NAME]... [--taper-ms MS]
-                              [--taper-shape cosine|linear] [--jobs J] [--list]
+                              [--taper-shape cosine|linear] [--jobs J] [--list] [--dev-bridge]
                               [-- CLIENT-ARGS...]
        cargo xtask thirdparty --test
 
@@ -44,6 +44,7 @@ and fails unless each recovers to a hover and holds within 0.3 m.
   --taper-shape S    cosine (default) or linear
   --jobs J           flights run at once, 1-8 (default 2)
   --list             list the airframes and stop
+  --dev-bridge       build and run `scenario` with the dev profile instead of --release
   -- ARGS            passed to `rotorpy_bridge.py fly` (e.g. -- --trace --spin-dps 450)
   --test             the check `cargo xtask test` runs: the first two airframes, one-step release
 ";
@@ -56,6 +57,8 @@ struct Options {
     taper_shape: String,
     jobs: usize,
     list: bool,
+    /// Build and run the bridge with cargo's release profile (else the dev profile).
+    release_bridge: bool,
     client_args: Vec<String>,
 }
 
@@ -73,6 +76,7 @@ impl Options {
             taper_shape: "cosine".into(),
             jobs: 2,
             list: false,
+            release_bridge: true,
             client_args: Vec::new(),
         };
         let mut named = Vec::new();
@@ -115,6 +119,7 @@ impl Options {
                         .with_context(|| format!("--jobs must be 1 to 8 (got `{text}`)"))?;
                 }
                 "--list" => options.list = true,
+                "--dev-bridge" => options.release_bridge = false,
                 "-h" | "--help" => {
                     print!("{USAGE}");
                     std::process::exit(0);
@@ -143,14 +148,17 @@ pub fn thirdparty(args: &[String]) -> Result<()> {
 
 /// The check `cargo xtask test` runs: the client's unit tests (packets byte for byte, frames,
 /// ESC curve, IMU readings, the hand's release), then the first [`TEST_AIRFRAMES`] airframes
-/// with a one-step release.
+/// with a one-step release, against the dev-profile bridge: `cargo test --workspace` has built
+/// it already, while a release build of `sim` (fat LTO) costs minutes on two cores, and the
+/// bridge's share of a flight is small either way (0.4 s of CPU for 15 s of flight, the same in
+/// both profiles, against about 20 s for the Python client; the flights are identical).
 pub fn test() -> Result<()> {
     let python = ensure_venv()?;
     util::run(
         Command::new(&python).args(["-m", "unittest", "test_thirdparty"]).current_dir(client_dir()),
     )
     .context("the RotorPy client's unit tests failed")?;
-    run(&Options::parse(&[])?)
+    run(&Options::parse(&["--dev-bridge".to_string()])?)
 }
 
 /// One airframe of the client's list.
@@ -194,8 +202,14 @@ fn run(options: &Options) -> Result<()> {
             })
             .collect::<Result<_>>()?,
     };
-    util::run(util::cargo().args(["build", "--release", "-p", "sim", "--bin", "scenario"]))?;
-    let scenario = util::root().join("target").join("release").join("scenario");
+    let mut build = util::cargo();
+    build.args(["build", "-p", "sim", "--bin", "scenario"]);
+    if options.release_bridge {
+        build.arg("--release");
+    }
+    util::run(&mut build)?;
+    let profile_dir = if options.release_bridge { "release" } else { "debug" };
+    let scenario = util::root().join("target").join(profile_dir).join("scenario");
 
     eprintln!(
         "\nflying {} airframe(s) in RotorPy, taper {} ms ({}), {} at a time…",
@@ -408,11 +422,13 @@ mod tests {
     }
 
     #[test]
-    fn defaults_are_the_test_mode() {
+    fn defaults_fly_the_test_airframes_with_a_one_step_release() {
         let options = Options::parse(&[]).unwrap();
         assert_eq!(options.airframes, Selection::First(TEST_AIRFRAMES));
         assert_eq!(options.taper_ms, 0.0);
         assert_eq!(options.taper_shape, "cosine");
+        assert!(options.release_bridge);
+        assert!(!Options::parse(&args("--dev-bridge")).unwrap().release_bridge);
     }
 
     #[test]
