@@ -6,6 +6,7 @@ mod bench;
 mod build;
 mod ci;
 mod telemetry;
+mod thirdparty;
 mod util;
 
 use std::process::ExitCode;
@@ -19,6 +20,7 @@ commands:
   flash       program a board through probe-rs, or through the ROM DFU bootloader (dfu-util)
   sitl        run the configurator against the built-in simulator (the README's main job)
   telemetry   stream the SITL's 2 kHz state topic for 60 s (or SECONDS) and count gaps
+  thirdparty  fly the firmware in RotorPy (a third-party simulator) through the bridge
   bench       host benchmarks (criterion)
   bench-m7    Cortex-M7 instruction counts under QEMU (mps2-an500)
 ";
@@ -36,6 +38,7 @@ fn main() -> ExitCode {
         "flash" => build::flash(rest),
         "sitl" => ci::sitl(rest),
         "telemetry" => telemetry::telemetry(rest),
+        "thirdparty" => thirdparty::thirdparty(rest),
         "bench" => bench::host(rest),
         "bench-m7" => bench::m7(rest),
         "-h" | "--help" | "help" => {

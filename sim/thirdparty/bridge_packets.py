@@ -1,0 +1,66 @@
+"""The lockstep bridge's two packets (docs/sim-bridge.md, "Byte layouts"), written from the spec.
+
+Little-endian, no padding. The sensor packet is version 2 throughout (the pose field is what our
+motion capture sends); without a pose its flags are 0 and it has no trailer.
+"""
+
+import math
+import struct
+
+SENSOR_MAGIC = b"FCSN"
+MOTOR_MAGIC = b"FCMO"
+#: Sensor-packet flag, version 2: a 16-byte external pose follows the motor speeds.
+FLAG_POSE = 0x0001
+#: Motor counts the bridge accepts.
+MIN_MOTORS, MAX_MOTORS = 1, 8
+
+_HEADER = struct.Struct("<4sBBHQ")  # magic, version, motor count, flags, sequence
+_SENSOR_BODY = struct.Struct("<d6f")  # time (s), gyro xyz (rad/s), specific force xyz (m/s^2)
+_POSE = struct.Struct("<4f")  # north, east, down (m), heading (rad)
+
+
+class PacketError(ValueError):
+    """A motor packet that is not the answer we wait for."""
+
+
+def encode_sensor(sequence, time_s, gyro_rad_s, accel_mps2, speeds_rad_s, pose=None, version=2):
+    """Sensor packet bytes: ``48 + 4 m``, ``+ 16`` with a pose ``(north, east, down, heading)``.
+
+    ``speeds_rad_s``: mechanical rotor speeds, rad/s, ``None`` or NaN for "not reported".
+    """
+    m = len(speeds_rad_s)
+    if not MIN_MOTORS <= m <= MAX_MOTORS:
+        raise ValueError(f"motor count {m} outside {MIN_MOTORS}..{MAX_MOTORS}")
+    if pose is not None and version < 2:
+        raise ValueError("a pose needs version 2")
+    flags = FLAG_POSE if pose is not None else 0
+    speeds = [math.nan if s is None else float(s) for s in speeds_rad_s]
+    out = _HEADER.pack(SENSOR_MAGIC, version, m, flags, sequence)
+    out += _SENSOR_BODY.pack(float(time_s), *map(float, gyro_rad_s), *map(float, accel_mps2))
+    out += struct.pack(f"<{m}f", *speeds)
+    if pose is not None:
+        out += _POSE.pack(*map(float, pose))
+    return out
+
+
+def decode_motor(data, sequence, motor_count):
+    """The commands ``δ`` (0..1, one per motor) of the motor packet answering ``sequence``.
+
+    Raises :class:`PacketError` for a packet with the wrong magic, version, motor count or
+    sequence, or too short for its motor count.
+    """
+    if len(data) < _HEADER.size:
+        raise PacketError(f"motor packet of {len(data)} bytes, shorter than its header")
+    magic, version, m, _flags, seq = _HEADER.unpack_from(data)
+    if magic != MOTOR_MAGIC:
+        raise PacketError(f"bad magic {magic!r}")
+    if version not in (1, 2):
+        raise PacketError(f"unknown version {version}")
+    if m != motor_count:
+        raise PacketError(f"{m} motors in the reply, {motor_count} sent")
+    if seq != sequence:
+        raise PacketError(f"reply to sequence {seq}, waiting for {sequence}")
+    need = _HEADER.size + 4 * m
+    if len(data) < need:
+        raise PacketError(f"motor packet of {len(data)} bytes, needs {need}")
+    return list(struct.unpack_from(f"<{m}f", data, _HEADER.size))
