@@ -1,7 +1,7 @@
 //! `cargo xtask test` (everything CI checks, installing what it needs first) and
 //! `cargo xtask sitl` (the README's main job: the configurator against the built-in simulator).
 
-use crate::{build, util};
+use crate::{build, thirdparty, util};
 use anyhow::{bail, Result};
 use std::process::Command;
 use std::time::Instant;
@@ -45,6 +45,10 @@ pub fn test(args: &[String]) -> Result<()> {
         ]))
     })?;
     step("test: all host tests", || util::run(util::cargo().args(["test", "--workspace"])))?;
+    step(
+        "test: the firmware flown in RotorPy, a simulator we did not write (2 airframes)",
+        thirdparty::test,
+    )?;
     step("build: no_std crates for thumbv7em-none-eabihf", || {
         let mut command = util::cargo();
         command.args(["build", "--target", build::TARGET]);
