@@ -182,6 +182,11 @@ pub struct GyroParams {
     /// ADC resolution, bits, in [8, 24], or 0 for no quantisation. Default 16.
     #[serde(default = "default_bits")]
     pub bits: u32,
+    /// Sensitivity matrix, rows per IMU axis: the reading is this times the truth (scale errors
+    /// on the diagonal, cross-axis sensitivity and misalignment off it; ICM-42688-P: ±0.5 %
+    /// scale, ±2 % cross-axis at most). Default the identity.
+    #[serde(default = "identity_3x3")]
+    pub sensitivity: [[f64; 3]; 3],
 }
 
 /// Accelerometer errors and limits, per axis, IMU axes.
@@ -198,6 +203,14 @@ pub struct AccelParams {
     /// ADC resolution, bits, in [8, 24], or 0 for no quantisation. Default 16.
     #[serde(default = "default_bits")]
     pub bits: u32,
+    /// Sensitivity matrix, as the gyroscope's (ICM-42688-P: ±0.5 % scale, ±2 % cross-axis).
+    #[serde(default = "identity_3x3")]
+    pub sensitivity: [[f64; 3]; 3],
+}
+
+/// The identity sensitivity: an error-free sensor's.
+pub fn identity_3x3() -> [[f64; 3]; 3] {
+    [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 }
 
 /// Vibration from rotor imbalance: each rotor adds a sinusoid at its own rotation frequency,
@@ -244,6 +257,44 @@ pub struct MotorParams {
     /// [0, 0.05]. Rounded to whole 2 kHz control periods. Default 0.0005.
     #[serde(default = "default_telemetry_delay_s")]
     pub telemetry_delay_s: f64,
+    /// The family of the command-to-speed curve (default the seed paper's, with `kappa`).
+    #[serde(default)]
+    pub curve: SpeedCurve,
+}
+
+/// How an ESC and its motor turn a command δ ∈ [0, 1] into a steady speed, as the fraction
+/// `x(δ)` of the way from idle to full speed. The learner assumes the seed paper's family; the
+/// others are what other ESC firmwares and motor/propeller pairs give (issue 28's randomised
+/// world), so that the learner is tried on curves it does not model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "family")]
+pub enum SpeedCurve {
+    /// `x = κδ + (1 − κ)√δ` (algorithms.md §4), κ = `kappa`.
+    #[default]
+    Paper,
+    /// Thrust (∝ x²) quadratic in δ: `x = √(kδ² + (1 − k)δ)`, k in [0, 1] (k = 1: speed linear
+    /// in δ; k = 0: thrust linear in δ, as a thrust-linearising ESC).
+    ThrustPolynomial {
+        /// Weight of the quadratic term, in [0, 1].
+        k: f64,
+    },
+    /// `x = δ^p`, p in [0.5, 1.5].
+    Power {
+        /// Exponent.
+        p: f64,
+    },
+}
+
+impl SpeedCurve {
+    /// The fraction of the way from idle to full speed at command `d` ∈ [0, 1], with the paper
+    /// family's `kappa`.
+    pub fn fraction(&self, d: f64, kappa: f64) -> f64 {
+        match *self {
+            SpeedCurve::Paper => kappa * d + (1.0 - kappa) * d.sqrt(),
+            SpeedCurve::ThrustPolynomial { k } => (k * d * d + (1.0 - k) * d).max(0.0).sqrt(),
+            SpeedCurve::Power { p } => d.powf(p),
+        }
+    }
 }
 
 /// Sense of rotation of a rotor, seen looking at the rotor from the side its thrust points to
@@ -407,8 +458,7 @@ impl MotorParams {
     pub fn steady_speed_rad_s(&self, command: f64) -> f64 {
         let d = command.clamp(0.0, 1.0);
         self.omega_idle_rad_s
-            + (self.omega_max_rad_s - self.omega_idle_rad_s)
-                * (self.kappa * d + (1.0 - self.kappa) * d.sqrt())
+            + (self.omega_max_rad_s - self.omega_idle_rad_s) * self.curve.fraction(d, self.kappa)
     }
 
     /// The command δ whose steady-state speed is `omega_rad_s` (clamped to the reachable range).
@@ -417,6 +467,19 @@ impl MotorParams {
         let x = ((omega_rad_s - self.omega_idle_rad_s)
             / (self.omega_max_rad_s - self.omega_idle_rad_s))
             .clamp(0.0, 1.0);
+        if self.curve != SpeedCurve::Paper {
+            // Every family is increasing in δ: bisect.
+            let (mut lo, mut hi) = (0.0, 1.0);
+            for _ in 0..60 {
+                let mid = 0.5 * (lo + hi);
+                if self.curve.fraction(mid, self.kappa) < x {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            return 0.5 * (lo + hi);
+        }
         let k = self.kappa;
         let s = if k < 1e-12 {
             x
@@ -745,6 +808,7 @@ fn random_candidate(rng: &mut Rng, seed: u64) -> Airframe {
         rotor_inertia_kg_m2: 2.5e-6 * s.powi(4),
         pole_pairs: 7,
         telemetry_delay_s: 0.0005,
+        curve: SpeedCurve::Paper,
     };
     let cog_offset = [rng.range(-0.1, 0.1) * arm_m, rng.range(-0.1, 0.1) * arm_m, 0.0];
     let tilt_rad = if m.is_multiple_of(2) && m >= 6 && rng.uniform() < 0.35 {
@@ -809,12 +873,14 @@ fn random_candidate(rng: &mut Rng, seed: u64) -> Airframe {
                 ],
                 range_rad_s: 34.9,
                 bits: 16,
+                sensitivity: identity_3x3(),
             },
             accel: AccelParams {
                 noise_density_mps2_per_sqrt_hz: 6.9e-4,
                 bias_mps2: [rng.range(-0.1, 0.1), rng.range(-0.1, 0.1), rng.range(-0.1, 0.1)],
                 range_mps2: 156.9,
                 bits: 16,
+                sensitivity: identity_3x3(),
             },
             vibration: VibrationParams::default(),
         },

@@ -31,6 +31,8 @@ pub struct RawSample {
 /// Errors and limits of one three-axis sensor.
 #[derive(Clone, Debug)]
 struct Channel {
+    /// Reading per unit of truth (scale, cross-axis, misalignment).
+    sensitivity: Matrix3<f64>,
     sigma_per_sample: f64,
     bias: Vector3<f64>,
     range: f64,
@@ -41,6 +43,7 @@ struct Channel {
 impl Channel {
     fn new(noise_density: f64, bias: [f64; 3], range: f64, bits: u32, rate_hz: f64) -> Self {
         Self {
+            sensitivity: Matrix3::identity(),
             sigma_per_sample: noise_density * rate_hz.sqrt(),
             bias: Vector3::from(bias),
             range,
@@ -48,8 +51,12 @@ impl Channel {
         }
     }
 
+    fn with_sensitivity(self, rows: &[[f64; 3]; 3]) -> Self {
+        Self { sensitivity: Matrix3::from_fn(|i, j| rows[i][j]), ..self }
+    }
+
     fn read(&self, truth: Vector3<f64>, rng: &mut Rng) -> Vector3<f64> {
-        let mut v = truth + self.bias;
+        let mut v = self.sensitivity * truth + self.bias;
         if self.sigma_per_sample > 0.0 {
             v += Vector3::new(rng.normal(), rng.normal(), rng.normal()) * self.sigma_per_sample;
         }
@@ -102,14 +109,16 @@ impl ImuModel {
                 p.gyro.range_rad_s,
                 p.gyro.bits,
                 rate,
-            ),
+            )
+            .with_sensitivity(&p.gyro.sensitivity),
             accel: Channel::new(
                 p.accel.noise_density_mps2_per_sqrt_hz,
                 p.accel.bias_mps2,
                 p.accel.range_mps2,
                 p.accel.bits,
                 rate,
-            ),
+            )
+            .with_sensitivity(&p.accel.sensitivity),
             vibration_accel_mps2: p.vibration.accel_mps2_at_max_speed,
             vibration_gyro_rad_s: p.vibration.gyro_rad_s_at_max_speed,
             rotor_plane,
