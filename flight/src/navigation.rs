@@ -765,7 +765,7 @@ mod tests {
             let (_, f) = swing(t);
             nav.predict(&level(), &f, DT).unwrap();
             // The fix arriving now was captured `late` steps ago.
-            if step >= late && (step - late) % every == 0 {
+            if step >= late && (step - late).is_multiple_of(every) {
                 let captured = (step + 1 - late) as f32 * DT;
                 let (p, _) = swing(captured);
                 nav.correct_late(&p, declared_age_s, every as f32 * DT).unwrap();
