@@ -158,6 +158,12 @@ registry! {
         "local gravity for the rest poses of the calibration";
     MotorBidirDshot = "motor_bidir_dshot", 1, Flag, "", 0.0, 1.0, [1.0], false,
         "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
+    // What the external poses (motion capture, a ground station) are: the pilot's `PoseConfig`.
+    PoseLatencyS = "pose_latency_s", 1, Real, "s", 0.0, super::pilot::MAX_POSE_LATENCY_S,
+        [super::pilot::DEFAULT_POSE_LATENCY_S], false,
+        "time from the moment an external pose describes to its arrival (capture + radio)";
+    PoseNoiseM = "pose_noise_m", 1, Real, "m", 0.0001, 2.0, [super::pilot::DEFAULT_POSE_NOISE_M],
+        false, "noise of an external pose, one standard deviation per axis (mocap 0.001, GNSS 0.5)";
 }
 
 /// Number of parameters.
@@ -300,6 +306,14 @@ impl Params {
             momentum_mps: self.scalar(Param::ThrowMomentumMps),
             release_delay_s: self.scalar(Param::ThrowReleaseDelayS),
             ..ThrowConfig::default()
+        }
+    }
+
+    /// What the external poses are assumed to be.
+    pub fn pose_config(&self) -> super::pilot::PoseConfig {
+        super::pilot::PoseConfig {
+            latency_s: self.scalar(Param::PoseLatencyS),
+            noise_m: self.scalar(Param::PoseNoiseM),
         }
     }
 
