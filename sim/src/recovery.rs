@@ -100,6 +100,56 @@ impl MotionCaptureConfig {
     }
 }
 
+/// The motion capture on a command line (`fly`, `sitl`): the same fields as
+/// [`MotionCaptureConfig`] in the units a user thinks in; the defaults are the nominal system.
+#[derive(clap::Args, Clone, Debug, PartialEq)]
+pub struct MotionCaptureArgs {
+    /// Motion capture: poses per second, Hz (1–2000).
+    #[arg(long, default_value_t = MOCAP_RATE_HZ)]
+    pub mocap_rate_hz: f64,
+    /// Motion capture: each interval between poses varies by up to ± this, ms (at most half
+    /// the interval).
+    #[arg(long, default_value_t = 0.0)]
+    pub mocap_jitter_ms: f64,
+    /// Motion capture: time from a capture to its arrival at the board, ms (0–100).
+    #[arg(long, default_value_t = 0.0)]
+    pub mocap_latency_ms: f64,
+    /// Motion capture: position noise, one standard deviation per axis, mm (0–10000).
+    #[arg(long, default_value_t = MOCAP_NOISE_M * 1e3)]
+    pub mocap_noise_mm: f64,
+    /// Motion capture: heading noise, one standard deviation, degrees.
+    #[arg(long, default_value_t = 0.1)]
+    pub mocap_heading_noise_deg: f64,
+    /// Motion capture: dropouts per second (Poisson; 0: never), each `--mocap-dropout-s` long.
+    #[arg(long, default_value_t = 0.0)]
+    pub mocap_dropouts_per_s: f64,
+    /// Motion capture: how long a dropout lasts, s.
+    #[arg(long, default_value_t = 0.5)]
+    pub mocap_dropout_s: f64,
+}
+
+impl MotionCaptureArgs {
+    /// The configuration, checked ([`MotionCaptureConfig::validate`]). The default heading noise
+    /// of 0.1° is exactly [`MOCAP_HEADING_NOISE_RAD`].
+    pub fn config(&self) -> Result<MotionCaptureConfig, String> {
+        let heading_noise_rad = if self.mocap_heading_noise_deg == 0.1 {
+            MOCAP_HEADING_NOISE_RAD
+        } else {
+            self.mocap_heading_noise_deg.to_radians()
+        };
+        let config = MotionCaptureConfig {
+            rate_hz: self.mocap_rate_hz,
+            jitter_s: self.mocap_jitter_ms * 1e-3,
+            latency_s: self.mocap_latency_ms * 1e-3,
+            noise_m: self.mocap_noise_mm * 1e-3,
+            heading_noise_rad,
+            dropouts_per_s: self.mocap_dropouts_per_s,
+            dropout_s: self.mocap_dropout_s,
+        };
+        config.validate().map(|()| config)
+    }
+}
+
 /// A motion-capture system: the true pose of the centre of gravity (world NED position, heading
 /// of the body frame) captured at [`MotionCaptureConfig::rate_hz`] (with jitter), with Gaussian
 /// noise, delivered [`MotionCaptureConfig::latency_s`] after its capture, and lost for a while
@@ -559,8 +609,20 @@ pub fn monte_carlo(
     threads: usize,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Vec<CaseResult> {
+    monte_carlo_with(runs, seed, threads, MotionCaptureConfig::default(), progress)
+}
+
+/// [`monte_carlo`] with the motion capture `motion_capture` in every run.
+pub fn monte_carlo_with(
+    runs: usize,
+    seed: u64,
+    threads: usize,
+    motion_capture: MotionCaptureConfig,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Vec<CaseResult> {
     crate::stats::run_seeds(runs, seed, threads, progress, |seed| {
-        let (airframe, config) = random_case(seed);
+        let (airframe, mut config) = random_case(seed);
+        config.motion_capture = motion_capture;
         let report = fly(&airframe, &config);
         let verdict = Verdict::of(&report);
         CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
