@@ -161,9 +161,9 @@ registry! {
     // What the external poses (motion capture, a ground station) are: the pilot's `PoseConfig`.
     PoseLatencyS = "pose_latency_s", 1, Real, "s", 0.0, super::pilot::MAX_POSE_LATENCY_S,
         [super::pilot::DEFAULT_POSE_LATENCY_S], false,
-        "time from the moment an external pose describes to its arrival (capture + radio)";
+        "age of an external pose when it arrives: capture, processing, radio";
     PoseNoiseM = "pose_noise_m", 1, Real, "m", 0.0001, 2.0, [super::pilot::DEFAULT_POSE_NOISE_M],
-        false, "noise of an external pose, one standard deviation per axis (mocap 0.001, GNSS 0.5)";
+        false, "external pose noise, 1 sigma per axis (motion capture 0.001, GNSS 0.5)";
 }
 
 /// Number of parameters.
