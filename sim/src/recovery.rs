@@ -105,26 +105,26 @@ impl MotionCaptureConfig {
 #[derive(clap::Args, Clone, Debug, PartialEq)]
 pub struct MotionCaptureArgs {
     /// Motion capture: poses per second, Hz (1–2000).
-    #[arg(long, default_value_t = MOCAP_RATE_HZ)]
+    #[arg(long, global = true, default_value_t = MOCAP_RATE_HZ)]
     pub mocap_rate_hz: f64,
     /// Motion capture: each interval between poses varies by up to ± this, ms (at most half
     /// the interval).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, global = true, default_value_t = 0.0)]
     pub mocap_jitter_ms: f64,
     /// Motion capture: time from a capture to its arrival at the board, ms (0–100).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, global = true, default_value_t = 0.0)]
     pub mocap_latency_ms: f64,
     /// Motion capture: position noise, one standard deviation per axis, mm (0–10000).
-    #[arg(long, default_value_t = MOCAP_NOISE_M * 1e3)]
+    #[arg(long, global = true, default_value_t = MOCAP_NOISE_M * 1e3)]
     pub mocap_noise_mm: f64,
     /// Motion capture: heading noise, one standard deviation, degrees.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, global = true, default_value_t = 0.1)]
     pub mocap_heading_noise_deg: f64,
     /// Motion capture: dropouts per second (Poisson; 0: never), each `--mocap-dropout-s` long.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, global = true, default_value_t = 0.0)]
     pub mocap_dropouts_per_s: f64,
     /// Motion capture: how long a dropout lasts, s.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, global = true, default_value_t = 0.5)]
     pub mocap_dropout_s: f64,
 }
 
