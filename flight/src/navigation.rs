@@ -9,30 +9,170 @@
 //! correct (each fix):    e = p_fix − p,  p ← p + k_p e,  v ← v + k_v e,  b ← b − k_b e
 //! ```
 //!
-//! The correction gains place a triple pole at the crossover `ω_c` (`k_p = 3ω_c·dt_fix`,
-//! `k_v = 3ω_c²·dt_fix`, `k_b = ω_c³·dt_fix`), so the estimate follows the accelerometer above
-//! `ω_c` and the fixes below it. With no fix the filter is dead reckoning:
-//! velocity from the accelerometer alone, which is what holds zero vertical speed when no pose
-//! is available (its drift is the accelerometer's bias times time, about 0.1 m/s per 10 s for a
-//! 0.01 m/s² bias). [`PositionEstimator::hold_still`] zeroes the velocity while the craft is
-//! known to be at rest (in the hand before a throw), so dead reckoning starts from a true zero.
+//! The correction gains place the error dynamics' three poles at `z = exp(−ω_c T)`, the
+//! discrete image of a triple pole at the crossover `ω_c`, for the time `T` since the previous
+//! fix (`m = 1 − exp(−ω_c T)`: `k_p = 1 − (1 − m)³`, `k_v = (3m² − 1.5m³)/T`, `k_b = m³/T²`; for
+//! `ω_c T ≪ 1` these are `3ω_c T`, `3ω_c² T`, `ω_c³ T`). So the estimate follows the
+//! accelerometer above `ω_c` and the fixes below it whatever the fix rate: 2 kHz, 100 Hz or
+//! 10 Hz (`ω_c T` = 0.4, where the continuous-time gains would place the poles elsewhere),
+//! evenly spaced or not. With no fix the filter is dead reckoning: velocity from the
+//! accelerometer alone, which is what holds zero vertical speed when no pose is available (its
+//! drift is the accelerometer's bias times time, about 0.1 m/s per 10 s for a 0.01 m/s² bias).
+//! [`PositionEstimator::hold_still`] zeroes the velocity while the craft is known to be at rest
+//! (in the hand before a throw), so dead reckoning starts from a true zero.
+//!
+//! **Late fixes.** A fix that crossed a radio describes the craft as it was some time ago (its
+//! age, [`MAX_FIX_AGE_S`] at most). The estimator keeps the positions it predicted over the last
+//! [`HISTORY_SPAN_S`] (one every [`HISTORY_SPACING_S`], linear in between; bounded memory), compares
+//! the fix with the prediction for the time the fix describes, and carries the correction
+//! forward to now through the model (`Δp + Δv·age − Δb·age²/2`, `Δv − Δb·age`), and to the
+//! history since then, so the next fix is compared with a history that knows this one. The
+//! error dynamics are then those of an estimator running `age` behind and predicting forward with
+//! the accelerometer: the delay costs no stability, only the accelerometer's error over `age`.
+//!
+//! **What it assumes.** The fixes are the position of the centre of gravity in a world whose
+//! vertical is the accelerometer's (the yaw between the two is [`HeadingAlignment`]'s job), with
+//! independent noise; the accelerometer's error is a slowly varying bias below
+//! [`MAX_BIAS_MPS2`]. The crossover [`DEFAULT_CROSSOVER_RAD_S`] suits motion capture (noise of
+//! millimetres); fixes with a noise of decimetres (GNSS) pass their noise on at that bandwidth
+//! (about `σ·√(ω_c T)` in position), see [`crossover_for_noise`].
 
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// Standard gravity, m/s² (ISO 80000-3).
 pub const STANDARD_GRAVITY_MPS2: f32 = 9.806_65;
 
-/// Default crossover of the fixes and the accelerometer, rad/s: motion capture at 100 Hz with
-/// millimetre noise is trusted down to about 0.3 s (a quarter of the position loop's bandwidth
-/// is slower still, so the estimate's lag does not cost phase margin).
+/// Default crossover of the fixes and the accelerometer, rad/s: motion capture with millimetre
+/// noise is trusted down to about 0.3 s (a quarter of the position loop's bandwidth is slower
+/// still, so the estimate's lag does not cost phase margin).
 pub const DEFAULT_CROSSOVER_RAD_S: f32 = 4.0;
+
+/// Slowest crossover [`crossover_for_noise`] gives, rad/s (ours): below it the accelerometer
+/// would be trusted for tens of seconds, and its bias and the attitude filter's tilt error
+/// (0.1–0.2 m/s²) would move the estimate by more than the fixes' noise.
+pub const MIN_CROSSOVER_RAD_S: f32 = 1.0;
+
+/// Fix noise up to which the default crossover is kept, m (one standard deviation per axis):
+/// motion capture (ours; 1 mm is the simulator's and a typical system's figure).
+pub const CROSSOVER_NOISE_REFERENCE_M: f32 = 0.01;
+
+/// The crossover for fixes with `noise_m` of noise (one standard deviation per axis, m):
+/// [`DEFAULT_CROSSOVER_RAD_S`] up to [`CROSSOVER_NOISE_REFERENCE_M`], then falling as the cube root
+/// of the noise (the position noise the filter passes grows as `σ·√ω_c`, the dead-reckoning error
+/// it lets through as `δa/ω_c²`; the cube root keeps their balance roughly where it was), down to
+/// [`MIN_CROSSOVER_RAD_S`]: 0.5 m of noise (GNSS) gives 1.1 rad/s. A non-finite or non-positive
+/// noise gives the default.
+pub fn crossover_for_noise(noise_m: f32) -> f32 {
+    if !(noise_m.is_finite() && noise_m > CROSSOVER_NOISE_REFERENCE_M) {
+        return DEFAULT_CROSSOVER_RAD_S;
+    }
+    let ratio = libm::cbrtf(CROSSOVER_NOISE_REFERENCE_M / noise_m);
+    (DEFAULT_CROSSOVER_RAD_S * ratio).max(MIN_CROSSOVER_RAD_S)
+}
 
 /// Largest accelerometer bias the estimator believes, m/s² (a consumer MEMS accelerometer's
 /// offset after calibration is well under this; more means the fixes disagree with the IMU).
 pub const MAX_BIAS_MPS2: f32 = 0.5;
 
-/// Oldest fix still trusted, s: after this the estimate is dead reckoning and says so.
-pub const FIX_TIMEOUT_S: f32 = 0.2;
+/// Time after the last fix's arrival at which the estimate counts as dead reckoning, s (ours):
+/// three fix periods at the slowest rate the firmware supports (10 Hz), so that one lost or late
+/// fix of a 10 Hz stream is bridged, while a stream that stopped is noticed within a third of a
+/// second (dead reckoning with 0.1 m/s² of acceleration error drifts 5 mm in that time).
+pub const FIX_TIMEOUT_S: f32 = 0.3;
+
+/// Spacing of the predicted positions kept for late fixes, s (ours: at 5 m/s and 10 m/s² the
+/// straight line between two of them is within 5 µm of the parabola).
+pub const HISTORY_SPACING_S: f32 = 0.002;
+
+/// Positions kept for late fixes (the ring's length).
+pub const HISTORY_LEN: usize = 64;
+
+/// Time covered by the history, s: [`HISTORY_LEN`] × [`HISTORY_SPACING_S`] = 0.128 s.
+pub const HISTORY_SPAN_S: f32 = HISTORY_LEN as f32 * HISTORY_SPACING_S;
+
+/// Oldest age a fix may have, s: the history's span less one control period at 1 kHz of margin
+/// (the application adds at most one step between a fix's arrival and its use). A pose
+/// latency of 0–50 ms is what motion capture over a radio link brings; 0.1 s is the
+/// registry's limit (`pose_latency_s`).
+pub const MAX_FIX_AGE_S: f32 = HISTORY_SPAN_S - 0.001;
+
+/// Values at past times, one every [`HISTORY_SPACING_S`], with their ages; no allocation.
+#[derive(Clone, Copy, Debug)]
+struct History {
+    values: [Vector3<f32>; HISTORY_LEN],
+    /// Age of each value at the last push, s.
+    ages_s: [f32; HISTORY_LEN],
+    /// Index of the newest value.
+    newest: usize,
+    len: usize,
+    /// Time since the last push, s.
+    since_push_s: f32,
+}
+
+impl Default for History {
+    fn default() -> Self {
+        Self {
+            values: [Vector3::zeros(); HISTORY_LEN],
+            ages_s: [0.0; HISTORY_LEN],
+            newest: 0,
+            len: 0,
+            since_push_s: 0.0,
+        }
+    }
+}
+
+impl History {
+    /// Time went on by `dt_s`; `current` is the value now.
+    fn advance(&mut self, dt_s: f32, current: &Vector3<f32>) {
+        self.since_push_s += dt_s;
+        if self.since_push_s < HISTORY_SPACING_S && self.len > 0 {
+            return;
+        }
+        for k in 0..self.len {
+            let i = self.index(k);
+            self.ages_s[i] += self.since_push_s;
+        }
+        self.newest = (self.newest + 1) % HISTORY_LEN;
+        self.values[self.newest] = *current;
+        self.ages_s[self.newest] = 0.0;
+        self.len = (self.len + 1).min(HISTORY_LEN);
+        self.since_push_s = 0.0;
+    }
+
+    /// Index of the `k`-th newest value.
+    fn index(&self, k: usize) -> usize {
+        (self.newest + HISTORY_LEN - k) % HISTORY_LEN
+    }
+
+    /// The value `age_s` ago (`current` now), linear between the kept ones; the oldest kept one
+    /// for older ages.
+    fn at(&self, age_s: f32, current: &Vector3<f32>) -> Vector3<f32> {
+        let (mut newer_age, mut newer) = (0.0, *current);
+        for k in 0..self.len {
+            let i = self.index(k);
+            let age = self.ages_s[i] + self.since_push_s;
+            if age >= age_s {
+                let span = age - newer_age;
+                let w = if span > 0.0 { (age_s - newer_age) / span } else { 0.0 };
+                return newer + (self.values[i] - newer) * w.clamp(0.0, 1.0);
+            }
+            (newer_age, newer) = (age, self.values[i]);
+        }
+        newer
+    }
+
+    /// Add `change(age_s − age)` to every value younger than `age_s`.
+    fn shift(&mut self, age_s: f32, change: impl Fn(f32) -> Vector3<f32>) {
+        for k in 0..self.len {
+            let i = self.index(k);
+            let age = self.ages_s[i] + self.since_push_s;
+            if age >= age_s {
+                break;
+            }
+            self.values[i] += change(age_s - age);
+        }
+    }
+}
 
 /// The estimator's output.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -50,7 +190,8 @@ pub struct NavigationState {
 /// Why an input was refused (nothing changed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NavigationError {
-    /// A non-finite value or a non-positive time step.
+    /// A non-finite value, a non-positive time step, or a fix age that is negative, not finite
+    /// or beyond [`MAX_FIX_AGE_S`].
     BadInput,
 }
 
@@ -63,6 +204,8 @@ pub struct PositionEstimator {
     since_fix_s: f32,
     /// Whether any fix has been taken since the last reset.
     fixed_once: bool,
+    /// The predicted positions of the last [`HISTORY_SPAN_S`].
+    history: History,
 }
 
 impl Default for PositionEstimator {
@@ -72,14 +215,26 @@ impl Default for PositionEstimator {
 }
 
 impl PositionEstimator {
-    /// An estimator at rest at the origin, with fixes weighed by `crossover_rad_s`.
+    /// An estimator at rest at the origin, with fixes weighed by `crossover_rad_s` (a
+    /// non-finite or non-positive value takes [`DEFAULT_CROSSOVER_RAD_S`]).
     pub fn new(crossover_rad_s: f32) -> Self {
+        let crossover_rad_s = if crossover_rad_s.is_finite() && crossover_rad_s > 0.0 {
+            crossover_rad_s
+        } else {
+            DEFAULT_CROSSOVER_RAD_S
+        };
         Self {
             crossover_rad_s,
             state: NavigationState::default(),
             since_fix_s: f32::INFINITY,
             fixed_once: false,
+            history: History::default(),
         }
+    }
+
+    /// The crossover in use, rad/s.
+    pub fn crossover_rad_s(&self) -> f32 {
+        self.crossover_rad_s
     }
 
     /// The estimate.
@@ -117,36 +272,57 @@ impl PositionEstimator {
             - s.accel_bias_ned_mps2;
         s.position_ned_m += s.velocity_ned_mps * dt_s + accel * (0.5 * dt_s * dt_s);
         s.velocity_ned_mps += accel * dt_s;
+        self.history.advance(dt_s, &s.position_ned_m);
         self.since_fix_s += dt_s;
         s.has_fix = self.since_fix_s <= FIX_TIMEOUT_S;
         Ok(())
     }
 
-    /// Correct with a position fix of the CoG `position_ned_m`, `dt_fix_s` after the previous
-    /// fix (the fix spacing; 0.01 s for 100 Hz motion capture). The first fix (or the first after
-    /// [`FIX_TIMEOUT_S`]) sets the position outright.
+    /// Correct with a position fix of the CoG `position_ned_m` that describes now, `dt_fix_s`
+    /// after the previous fix: [`Self::correct_late`] with age 0.
     pub fn correct(
         &mut self,
         position_ned_m: &Vector3<f32>,
         dt_fix_s: f32,
     ) -> Result<(), NavigationError> {
-        if !position_ned_m.iter().all(|x| x.is_finite()) || !is_step(dt_fix_s) {
+        self.correct_late(position_ned_m, 0.0, dt_fix_s)
+    }
+
+    /// Correct with a position fix of the CoG `position_ned_m` that describes the craft `age_s`
+    /// ago (its latency; at most [`MAX_FIX_AGE_S`]), taken `dt_fix_s` after the previous fix
+    /// (the fix spacing, s). The first fix (or the first after [`FIX_TIMEOUT_S`]) sets the
+    /// position outright.
+    pub fn correct_late(
+        &mut self,
+        position_ned_m: &Vector3<f32>,
+        age_s: f32,
+        dt_fix_s: f32,
+    ) -> Result<(), NavigationError> {
+        let age_ok = age_s.is_finite() && (0.0..=MAX_FIX_AGE_S).contains(&age_s);
+        if !position_ned_m.iter().all(|x| x.is_finite()) || !is_step(dt_fix_s) || !age_ok {
             return Err(NavigationError::BadInput);
         }
         let s = &mut self.state;
+        let predicted = self.history.at(age_s, &s.position_ned_m);
+        let error = position_ned_m - predicted;
         if !self.fixed_once || self.since_fix_s > FIX_TIMEOUT_S {
-            s.position_ned_m = *position_ned_m;
+            // The whole track moves onto the fix.
+            s.position_ned_m += error;
+            self.history.shift(age_s, |_| error);
         } else {
-            let w = self.crossover_rad_s;
-            // A triple pole at ω_c; at most the whole error per fix.
-            let k_p = (3.0 * w * dt_fix_s).min(1.0);
-            let k_v = 3.0 * w * w * dt_fix_s;
-            let k_b = w * w * w * dt_fix_s;
-            let error = position_ned_m - s.position_ned_m;
-            s.position_ned_m += error * k_p;
-            s.velocity_ned_mps += error * k_v;
-            let bias = s.accel_bias_ned_mps2 - error * k_b;
-            s.accel_bias_ned_mps2 = bias.map(|b| b.clamp(-MAX_BIAS_MPS2, MAX_BIAS_MPS2));
+            let (k_p, k_v, k_b) = gains(self.crossover_rad_s, dt_fix_s);
+            let dp = error * k_p;
+            let dv = error * k_v;
+            let bias = (s.accel_bias_ned_mps2 - error * k_b)
+                .map(|b| b.clamp(-MAX_BIAS_MPS2, MAX_BIAS_MPS2));
+            let db = bias - s.accel_bias_ned_mps2;
+            // The correction at the fix's time, carried forward through the model: a bias
+            // change changes the acceleration by −Δb from then on.
+            let carried = move |tau: f32| dp + dv * tau - db * (0.5 * tau * tau);
+            s.position_ned_m += carried(age_s);
+            s.velocity_ned_mps += dv - db * age_s;
+            s.accel_bias_ned_mps2 = bias;
+            self.history.shift(age_s, carried);
         }
         self.fixed_once = true;
         self.since_fix_s = 0.0;
@@ -155,97 +331,302 @@ impl PositionEstimator {
     }
 }
 
+/// The correction gains `(k_p, k_v, k_b)` (1, 1/s, 1/s²) that put the three poles of the error
+/// dynamics over one fix interval `dt_fix_s` at `exp(−ω_c dt_fix_s)` (see the module doc).
+fn gains(crossover_rad_s: f32, dt_fix_s: f32) -> (f32, f32, f32) {
+    let m = -libm::expm1f(-crossover_rad_s * dt_fix_s);
+    let (m2, m3) = (m * m, m * m * m);
+    let k_p = 3.0 * m - 3.0 * m2 + m3;
+    let k_v = (3.0 * m2 - 1.5 * m3) / dt_fix_s;
+    let k_b = m3 / (dt_fix_s * dt_fix_s);
+    (k_p, k_v, k_b)
+}
+
 /// Whether `dt_s` is a usable time step: finite and positive.
 fn is_step(dt_s: f32) -> bool {
     dt_s.is_finite() && dt_s > 0.0
 }
 
-/// Fix spacing of the window over which [`HeadingAlignment`] compares accelerations, fixes
-/// (10 at 100 Hz: 0.1 s, long enough for a 1 m/s² acceleration to move the craft 1 cm, ten
-/// times the motion-capture noise).
-pub const ALIGNMENT_WINDOW_FIXES: usize = 10;
+/// Shortest window over which [`HeadingAlignment`] compares accelerations, s (0.1 s: long enough
+/// for a 1 m/s² acceleration to move the craft 1 cm, ten times the motion-capture noise).
+pub const MIN_ALIGNMENT_WINDOW_S: f32 = 0.1;
 
-/// Evidence needed before the heading alignment is trusted, m²: `|Σ D'·D + i Σ D'×D|`, the
-/// coherent sum (noise and unrelated motion average out of it, unlike a sum of magnitudes):
-/// about twenty windows of 2 m/s² (2 cm of second difference each).
-pub const ALIGNMENT_EVIDENCE_M2: f32 = 20.0 * 0.02 * 0.02;
+/// Longest window, s (ours): the recovery after a throw accelerates the craft for about a second,
+/// and a window much longer than that only adds dead-reckoning error.
+pub const MAX_ALIGNMENT_WINDOW_S: f32 = 2.5;
+
+/// Acceleration a window should resolve, m/s², against the fixes' noise: the window is long
+/// enough for it to give a second difference of ten noise standard deviations (ours).
+pub const ALIGNMENT_REFERENCE_ACCEL_MPS2: f32 = 1.0;
+
+/// The window for fixes with `noise_m` of noise (one standard deviation per axis, m): the time
+/// `T` in which [`ALIGNMENT_REFERENCE_ACCEL_MPS2`] makes a second difference `a T²` of ten
+/// standard deviations, within [`MIN_ALIGNMENT_WINDOW_S`] and [`MAX_ALIGNMENT_WINDOW_S`]: 0.1 s up to
+/// 1 mm of noise (motion capture), 0.71 s for 5 cm, 2.2 s for 0.5 m (GNSS).
+pub fn alignment_window_s(noise_m: f32) -> f32 {
+    let noise = if noise_m.is_finite() && noise_m > 0.0 { noise_m } else { 0.0 };
+    libm::sqrtf(10.0 * noise / ALIGNMENT_REFERENCE_ACCEL_MPS2)
+        .clamp(MIN_ALIGNMENT_WINDOW_S, MAX_ALIGNMENT_WINDOW_S)
+}
+
+/// Slots (averaged fixes) per window: fixes are grouped by time into slots of a sixteenth of
+/// the window, so a 2 kHz stream and a 100 Hz one give the same windows, and the fixes within a
+/// slot average their noise down.
+pub const ALIGNMENT_SLOTS_PER_WINDOW: usize = 16;
+
+/// Slots kept: two windows and a margin (a slot spans at least a sixteenth of the window).
+const ALIGNMENT_SLOTS: usize = 2 * ALIGNMENT_SLOTS_PER_WINDOW + 4;
+
+/// Evidence needed before the heading alignment is trusted, in "seconds of windows that saw
+/// 2 m/s²" (0.2 s): the coherent sum `|Σ w (D'·D) + i Σ w (D'×D)|`, each window weighted by the
+/// time `w` it stands for, must reach `ALIGNMENT_EVIDENCE_S · (2 m/s² · T²)²` m²·s. Noise and
+/// unrelated motion average out of a coherent sum, unlike a sum of magnitudes. At `T` = 0.1 s
+/// and 100 Hz this is the twenty windows of 2 cm the alignment has always asked for.
+pub const ALIGNMENT_EVIDENCE_S: f32 = 0.2;
+
+/// How many times the evidence must exceed its own noise (one standard deviation, from the
+/// fixes' noise and the slots' averaging): 30 puts one standard deviation of the yaw below 2°.
+/// With motion capture this is met long before [`ALIGNMENT_EVIDENCE_S`]; with 0.5 m of noise it is
+/// what decides, and the alignment takes as long as the motion needs to rise above the noise.
+pub const ALIGNMENT_SIGNIFICANCE: f32 = 30.0;
+
+/// Fixes averaged over one slot of the window.
+#[derive(Clone, Copy, Debug, Default)]
+struct Slot {
+    /// Mean capture time on the alignment's clock, s.
+    t_s: f32,
+    /// Mean fix position, the poses' world, m.
+    fix: Vector3<f32>,
+    /// Mean dead-reckoned position at the same times, the filter's world, m.
+    dead: Vector3<f32>,
+    /// Fixes in the slot.
+    n: u32,
+}
+
+impl Slot {
+    fn add(&mut self, t_s: f32, fix: &Vector3<f32>, dead: &Vector3<f32>) {
+        self.n += 1;
+        let w = 1.0 / self.n as f32;
+        self.t_s += (t_s - self.t_s) * w;
+        self.fix += (fix - self.fix) * w;
+        self.dead += (dead - self.dead) * w;
+    }
+}
+
+/// A point of a window: the slots interpolated to a time.
+#[derive(Clone, Copy, Debug)]
+struct WindowPoint {
+    fix: Vector3<f32>,
+    dead: Vector3<f32>,
+    /// `Σ weight²/n` over the two slots: the point's noise variance per fix variance.
+    noise_factor: f32,
+}
+
+/// The alignment's clock is moved back by this much whenever it passes it, s, so that f32
+/// times keep a resolution of 0.1 ms or better.
+const CLOCK_REBASE_S: f32 = 1000.0;
 
 /// The yaw between the attitude filter's world and the world of the position fixes.
 ///
 /// Without a compass the attitude filter's heading is arbitrary, and an external heading is
 /// that of a frame (the motion-capture body) whose yaw relative to the IMU nobody told us. The
-/// position fixes fix it: the second difference of positions over a window,
+/// position fixes fix it: the second difference of positions over a window `T`,
 /// `D = p(t) − 2p(t−T) + p(t−2T)`, is the double integral of the acceleration and does not depend
 /// on the velocity; the same second difference of the filter's own dead reckoning `D'` is that
 /// integral seen in the filter's world. `D = R_z(ψ) D'`, so `ψ = atan2(Σ D'×D, Σ D'·D)` over the
 /// windows (horizontal components). Any horizontal acceleration informs it: the recovery
 /// after a throw, and the position loop's own corrections.
+///
+/// **In time, not in fixes.** The window is a time span ([`alignment_window_s`] of the fixes'
+/// noise); fixes are averaged into slots of `T/16` by their capture time, the points `T` and
+/// `2T` back are interpolated between slots, and each window counts for the time since the
+/// previous one. The dead-reckoned positions go through exactly the same averaging and
+/// interpolation at the same times, so `D = R_z(ψ) D'` holds whatever the fix rate (10 Hz to
+/// 2 kHz), spacing or dropouts; only how much evidence a second of motion gives depends on them.
+/// A late fix (age `L`) is paired with the dead reckoning `L` ago (a short history, as in
+/// [`PositionEstimator`]).
+///
+/// **What it assumes.** The two worlds differ by a yaw alone (both vertical axes are
+/// gravity's), the fixes' noise is independent with the standard deviation it was built for,
+/// and the dead reckoning is good over `2T` (its acceleration error times `T²` small against
+/// `D`). Trust needs [`ALIGNMENT_EVIDENCE_S`] of motion and [`ALIGNMENT_SIGNIFICANCE`] times the
+/// evidence's noise.
 #[derive(Clone, Copy, Debug)]
 pub struct HeadingAlignment {
+    window_s: f32,
+    noise_m: f32,
+    /// Clock of the dead reckoning, s (rebased, see [`CLOCK_REBASE_S`]).
+    clock_s: f32,
     /// Dead-reckoned position and velocity in the filter's world (no corrections).
     dead_position: Vector3<f32>,
     dead_velocity: Vector3<f32>,
-    /// The last `2N + 1` fixes: (fix position, dead-reckoned position), newest at `head`.
-    ring: [(Vector3<f32>, Vector3<f32>); 2 * ALIGNMENT_WINDOW_FIXES + 1],
+    /// The dead-reckoned positions of the last [`HISTORY_SPAN_S`].
+    history: History,
+    /// The slot being filled.
+    open: Slot,
+    /// Closed slots, newest at `head`.
+    slots: [Slot; ALIGNMENT_SLOTS],
     head: usize,
     filled: usize,
+    /// Capture time of the open slot's first fix, s.
+    open_first_t_s: f32,
+    /// Capture time of the latest fix taken, s.
+    last_fix_t_s: Option<f32>,
     cross: f32,
     dot: f32,
-    evidence_m2: f32,
+    /// Variance of the evidence from the fixes' noise, m⁴·s².
+    noise_var: f32,
+    evidence: f32,
     /// The yaw, once the evidence sufficed.
     trusted_yaw_rad: Option<f32>,
 }
 
 impl Default for HeadingAlignment {
+    /// For motion capture: 1 mm of noise, a 0.1 s window.
     fn default() -> Self {
-        Self {
-            dead_position: Vector3::zeros(),
-            dead_velocity: Vector3::zeros(),
-            ring: [(Vector3::zeros(), Vector3::zeros()); 2 * ALIGNMENT_WINDOW_FIXES + 1],
-            head: 0,
-            filled: 0,
-            cross: 0.0,
-            dot: 0.0,
-            evidence_m2: 0.0,
-            trusted_yaw_rad: None,
-        }
+        Self::new(0.001)
     }
 }
 
 impl HeadingAlignment {
-    /// Integrate the acceleration `accel_ned_mps2` (the filter's world, gravity removed).
-    pub fn predict(&mut self, accel_ned_mps2: &Vector3<f32>, dt_s: f32) {
-        if accel_ned_mps2.iter().all(|x| x.is_finite()) && dt_s.is_finite() {
-            self.dead_position += self.dead_velocity * dt_s + accel_ned_mps2 * (0.5 * dt_s * dt_s);
-            self.dead_velocity += accel_ned_mps2 * dt_s;
+    /// An alignment for fixes with `noise_m` of noise (one standard deviation per axis, m).
+    pub fn new(noise_m: f32) -> Self {
+        let noise_m = if noise_m.is_finite() && noise_m > 0.0 { noise_m } else { 0.001 };
+        Self {
+            window_s: alignment_window_s(noise_m),
+            noise_m,
+            clock_s: 0.0,
+            dead_position: Vector3::zeros(),
+            dead_velocity: Vector3::zeros(),
+            history: History::default(),
+            open: Slot::default(),
+            slots: [Slot::default(); ALIGNMENT_SLOTS],
+            head: 0,
+            filled: 0,
+            open_first_t_s: 0.0,
+            last_fix_t_s: None,
+            cross: 0.0,
+            dot: 0.0,
+            noise_var: 0.0,
+            evidence: 0.0,
+            trusted_yaw_rad: None,
         }
     }
 
-    /// A fix (position, world NED, m) at evenly spaced times.
-    pub fn fix(&mut self, position_ned_m: &Vector3<f32>) {
-        if !position_ned_m.iter().all(|x| x.is_finite()) {
+    /// The window, s.
+    pub fn window_s(&self) -> f32 {
+        self.window_s
+    }
+
+    /// The evidence needed, m²·s (see [`ALIGNMENT_EVIDENCE_S`]).
+    pub fn evidence_needed(&self) -> f32 {
+        let d = 2.0 * self.window_s * self.window_s;
+        ALIGNMENT_EVIDENCE_S * d * d
+    }
+
+    /// Integrate the acceleration `accel_ned_mps2` (the filter's world, gravity removed) over
+    /// `dt_s`.
+    pub fn predict(&mut self, accel_ned_mps2: &Vector3<f32>, dt_s: f32) {
+        if !(accel_ned_mps2.iter().all(|x| x.is_finite()) && is_step(dt_s)) {
             return;
         }
-        let len = self.ring.len();
-        self.head = (self.head + 1) % len;
-        self.ring[self.head] = (*position_ned_m, self.dead_position);
-        self.filled = (self.filled + 1).min(len);
-        if self.filled < len {
+        self.dead_position += self.dead_velocity * dt_s + accel_ned_mps2 * (0.5 * dt_s * dt_s);
+        self.dead_velocity += accel_ned_mps2 * dt_s;
+        self.history.advance(dt_s, &self.dead_position);
+        self.clock_s += dt_s;
+        if self.clock_s > 2.0 * CLOCK_REBASE_S {
+            self.clock_s -= CLOCK_REBASE_S;
+            self.open.t_s -= CLOCK_REBASE_S;
+            for slot in &mut self.slots {
+                slot.t_s -= CLOCK_REBASE_S;
+            }
+            self.open_first_t_s -= CLOCK_REBASE_S;
+            if let Some(t) = &mut self.last_fix_t_s {
+                *t -= CLOCK_REBASE_S;
+            }
+        }
+    }
+
+    /// A fix (position, world NED, m) that describes the craft `age_s` ago (0 to
+    /// [`MAX_FIX_AGE_S`]; others are ignored, as are non-finite positions and fixes older than
+    /// the previous one).
+    pub fn fix(&mut self, position_ned_m: &Vector3<f32>, age_s: f32) {
+        let age_ok = age_s.is_finite() && (0.0..=MAX_FIX_AGE_S).contains(&age_s);
+        if !position_ned_m.iter().all(|x| x.is_finite()) || !age_ok {
             return;
         }
-        let n = ALIGNMENT_WINDOW_FIXES;
-        let at = |back: usize| self.ring[(self.head + len - back) % len];
-        let (p0, q0) = at(0);
-        let (p1, q1) = at(n);
-        let (p2, q2) = at(2 * n);
-        let d = p0 - p1 * 2.0 + p2;
-        let d_filter = q0 - q1 * 2.0 + q2;
-        self.cross += d_filter.x * d.y - d_filter.y * d.x;
-        self.dot += d_filter.x * d.x + d_filter.y * d.y;
-        self.evidence_m2 = libm::sqrtf(self.cross * self.cross + self.dot * self.dot);
-        if self.evidence_m2 >= ALIGNMENT_EVIDENCE_M2 {
+        let t_s = self.clock_s - age_s;
+        if self.last_fix_t_s.is_some_and(|last| t_s < last) {
+            return;
+        }
+        self.last_fix_t_s = Some(t_s);
+        let dead = self.history.at(age_s, &self.dead_position);
+        let slot_s = self.window_s / ALIGNMENT_SLOTS_PER_WINDOW as f32;
+        if self.open.n > 0 && t_s - self.open_first_t_s >= slot_s {
+            let closed = self.open;
+            self.push(closed);
+            self.open = Slot::default();
+        }
+        if self.open.n == 0 {
+            self.open_first_t_s = t_s;
+        }
+        self.open.add(t_s, position_ned_m, &dead);
+    }
+
+    /// Keep a closed slot and take the window that ends at it.
+    fn push(&mut self, slot: Slot) {
+        let previous_t_s = (self.filled > 0).then(|| self.slots[self.head].t_s);
+        self.head = (self.head + 1) % ALIGNMENT_SLOTS;
+        self.slots[self.head] = slot;
+        self.filled = (self.filled + 1).min(ALIGNMENT_SLOTS);
+        let t = self.window_s;
+        let (Some(previous_t_s), Some(one), Some(two)) =
+            (previous_t_s, self.interpolate(slot.t_s - t), self.interpolate(slot.t_s - 2.0 * t))
+        else {
+            return;
+        };
+        let d = slot.fix - one.fix * 2.0 + two.fix;
+        let d_filter = slot.dead - one.dead * 2.0 + two.dead;
+        // The time this window stands for: since the previous slot, at most a window (windows
+        // a window apart no longer overlap).
+        let w = (slot.t_s - previous_t_s).clamp(0.0, t);
+        // Variance of each component of D from the fixes' noise (means of slots).
+        let sigma2 = self.noise_m * self.noise_m;
+        let var_d = sigma2 * (1.0 / slot.n as f32 + 4.0 * one.noise_factor + two.noise_factor);
+        let (dx, dy) = (d_filter.x, d_filter.y);
+        self.cross += w * (dx * d.y - dy * d.x);
+        self.dot += w * (dx * d.x + dy * d.y);
+        self.noise_var += w * w * (dx * dx + dy * dy) * var_d;
+        self.evidence = libm::sqrtf(self.cross * self.cross + self.dot * self.dot);
+        if self.evidence >= self.evidence_needed()
+            && self.evidence >= ALIGNMENT_SIGNIFICANCE * libm::sqrtf(self.noise_var)
+        {
             self.trusted_yaw_rad = Some(libm::atan2f(self.cross, self.dot));
         }
+    }
+
+    /// The slots' means at time `t_s`, linear between the two slots around it. `None` before
+    /// the oldest slot kept or after the newest.
+    fn interpolate(&self, t_s: f32) -> Option<WindowPoint> {
+        let mut newer: Option<&Slot> = None;
+        for k in 0..self.filled {
+            let slot = &self.slots[(self.head + ALIGNMENT_SLOTS - k) % ALIGNMENT_SLOTS];
+            if slot.t_s <= t_s {
+                let Some(newer) = newer else {
+                    // Later than the newest slot: not a point of a window.
+                    return None;
+                };
+                let span = newer.t_s - slot.t_s;
+                let a = if span > 0.0 { ((t_s - slot.t_s) / span).clamp(0.0, 1.0) } else { 0.0 };
+                return Some(WindowPoint {
+                    fix: slot.fix + (newer.fix - slot.fix) * a,
+                    dead: slot.dead + (newer.dead - slot.dead) * a,
+                    noise_factor: (1.0 - a) * (1.0 - a) / slot.n as f32 + a * a / newer.n as f32,
+                });
+            }
+            newer = Some(slot);
+        }
+        None
     }
 
     /// The craft is at rest: the dead-reckoned velocity is zero.
@@ -264,9 +645,14 @@ impl HeadingAlignment {
         self.trusted_yaw_rad
     }
 
-    /// Evidence gathered so far, m² (see [`ALIGNMENT_EVIDENCE_M2`]).
-    pub fn evidence_m2(&self) -> f32 {
-        self.evidence_m2
+    /// Evidence gathered so far, m²·s (see [`ALIGNMENT_EVIDENCE_S`]).
+    pub fn evidence(&self) -> f32 {
+        self.evidence
+    }
+
+    /// One standard deviation of the evidence from the fixes' noise, m²·s.
+    pub fn evidence_noise(&self) -> f32 {
+        libm::sqrtf(self.noise_var)
     }
 }
 
@@ -309,27 +695,138 @@ mod tests {
     }
 
     #[test]
-    fn fixes_pull_a_biased_velocity_back_to_the_truth() {
+    fn fixes_pull_a_biased_velocity_back_to_the_truth_at_10_hz_100_hz_and_2_khz() {
         // The craft hovers still at (1, 2, −3) m; the accelerometer has a 0.05 m/s² bias along x
-        // and the estimate starts 0.5 m/s wrong. Motion capture at 100 Hz.
+        // and the estimate starts 0.5 m/s wrong. Fixes every `every` steps.
+        for (rate_hz, every) in [(10.0, 200), (100.0, 20), (2000.0, 1)] {
+            let mut nav = PositionEstimator::default();
+            let truth = Vector3::new(1.0, 2.0, -3.0);
+            nav.correct(&truth, 0.01).unwrap();
+            nav.state.velocity_ned_mps = Vector3::new(0.5, 0.0, 0.0);
+            let f = Vector3::new(0.05, 0.0, -STANDARD_GRAVITY_MPS2);
+            let mut worst_after_3_s = 0.0f32;
+            for step in 0..(10 * 2000) {
+                nav.predict(&level(), &f, DT).unwrap();
+                if step % every == every - 1 {
+                    nav.correct(&truth, every as f32 * DT).unwrap();
+                }
+                if step >= 3 * 2000 {
+                    let e = (nav.state().position_ned_m - truth).norm();
+                    worst_after_3_s = worst_after_3_s.max(e);
+                }
+            }
+            let s = nav.state();
+            // The same triple pole at 4 rad/s whatever the rate: within 1 cm after 3 s (the
+            // initial 0.5 m/s error moves the estimate about 8 cm at first).
+            assert!(worst_after_3_s < 0.01, "{rate_hz} Hz: {worst_after_3_s} m");
+            // The bias is learned, so no steady velocity error remains (a second-order filter
+            // would keep 2b/ω_c = 2.5 cm/s).
+            assert!(s.velocity_ned_mps.norm() < 0.003, "{rate_hz} Hz: {:?}", s.velocity_ned_mps);
+            let bias = s.accel_bias_ned_mps2.x;
+            assert!((bias - 0.05).abs() < 0.005, "{rate_hz} Hz: {bias}");
+            assert!(s.has_fix);
+        }
+    }
+
+    #[test]
+    fn the_gains_place_a_triple_pole_at_the_crossover_for_any_fix_spacing() {
+        // The error dynamics over one fix interval (correct, then predict T): characteristic
+        // polynomial u³ + s u² + (T k_v + 1.5 T² k_b) u + T² k_b with u = z − 1 and
+        // s = k_p + T k_v + T² k_b / 2 must equal (u + m)³, m = 1 − exp(−ω_c T).
+        for t in [0.0005f32, 0.01, 0.1, 0.3] {
+            let (k_p, k_v, k_b) = gains(DEFAULT_CROSSOVER_RAD_S, t);
+            let m = 1.0 - (-DEFAULT_CROSSOVER_RAD_S * t).exp();
+            let s = k_p + t * k_v + t * t * k_b / 2.0;
+            assert!((s - 3.0 * m).abs() < 1e-5 * (1.0 + 3.0 * m), "{t}");
+            assert!((t * k_v + 1.5 * t * t * k_b - 3.0 * m * m).abs() < 1e-5, "{t}");
+            assert!((t * t * k_b - m * m * m).abs() < 1e-6, "{t}");
+        }
+    }
+
+    /// A craft swinging along x (2 m/s² at 1 Hz) with an accelerometer bias: the truth and
+    /// the specific force it would measure at `t`.
+    fn swing(t: f32) -> (Vector3<f32>, Vector3<f32>) {
+        let w = 2.0 * core::f32::consts::PI;
+        let amplitude = 2.0 / (w * w);
+        let p = Vector3::new(amplitude * libm::sinf(w * t), 0.0, -2.0);
+        let a = Vector3::new(-2.0 * libm::sinf(w * t), 0.0, 0.0);
+        (p, a - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2))
+    }
+
+    /// The worst position error over the last 5 of 10 s of swinging, with fixes at `rate_hz`
+    /// that arrive `latency_s` late and are declared `declared_age_s` old.
+    fn swing_error(rate_hz: f32, latency_s: f32, declared_age_s: f32) -> f32 {
         let mut nav = PositionEstimator::default();
-        let truth = Vector3::new(1.0, 2.0, -3.0);
-        nav.correct(&truth, 0.01).unwrap();
-        nav.state.velocity_ned_mps = Vector3::new(0.5, 0.0, 0.0);
-        let f = Vector3::new(0.05, 0.0, -STANDARD_GRAVITY_MPS2);
+        let every = (2000.0 / rate_hz) as usize;
+        let late = (latency_s / DT).round() as usize;
+        let mut worst = 0.0f32;
         for step in 0..(10 * 2000) {
+            let t = (step + 1) as f32 * DT;
+            let (_, f) = swing(t);
             nav.predict(&level(), &f, DT).unwrap();
-            if step % 20 == 19 {
-                nav.correct(&truth, 0.01).unwrap();
+            // The fix arriving now was captured `late` steps ago.
+            if step >= late && (step - late).is_multiple_of(every) {
+                let captured = (step + 1 - late) as f32 * DT;
+                let (p, _) = swing(captured);
+                nav.correct_late(&p, declared_age_s, every as f32 * DT).unwrap();
+            }
+            if step >= 5 * 2000 {
+                worst = worst.max((nav.state().position_ned_m - swing(t).0).norm());
             }
         }
-        let s = nav.state();
-        assert!((s.position_ned_m - truth).norm() < 0.01, "{:?}", s.position_ned_m);
-        // The bias is learned, so no steady velocity error remains (a second-order filter would
-        // keep 2b/ω_c = 2.5 cm/s).
-        assert!(s.velocity_ned_mps.norm() < 0.003, "{:?}", s.velocity_ned_mps);
-        assert!((s.accel_bias_ned_mps2.x - 0.05).abs() < 0.005, "{:?}", s.accel_bias_ned_mps2);
-        assert!(s.has_fix);
+        worst
+    }
+
+    #[test]
+    fn a_late_fix_is_compared_with_the_estimate_of_its_own_time() {
+        // 30 ms late: declared, the estimate stays within a millimetre of the truth (as with
+        // fixes on time); taken as new, it lags the swing by centimetres.
+        for rate_hz in [10.0, 100.0, 2000.0] {
+            let on_time = swing_error(rate_hz, 0.0, 0.0);
+            let compensated = swing_error(rate_hz, 0.03, 0.03);
+            let ignored = swing_error(rate_hz, 0.03, 0.0);
+            assert!(on_time < 0.001, "{rate_hz} Hz on time: {on_time} m");
+            assert!(compensated < 0.001, "{rate_hz} Hz, 30 ms declared: {compensated} m");
+            assert!(ignored > 0.005, "{rate_hz} Hz, 30 ms ignored: {ignored} m");
+        }
+        // The largest age the history holds.
+        let compensated = swing_error(100.0, 0.1, 0.1);
+        assert!(compensated < 0.002, "100 Hz, 100 ms: {compensated} m");
+    }
+
+    #[test]
+    fn a_late_fix_leaves_the_same_estimate_as_the_same_fix_on_time() {
+        // Two estimators see the same biased accelerometer and the same fixes (100 Hz, noisy);
+        // one gets each fix when it was taken, the other 40 ms later with its age. After the
+        // last fix has reached both, their estimates agree (the history is exact up to its
+        // linear interpolation).
+        let mut on_time = PositionEstimator::default();
+        let mut late = PositionEstimator::default();
+        let mut rng = crate::rng::Rng::new(3);
+        let lag = 80; // steps, 40 ms
+        let mut pending: [(usize, Vector3<f32>); 8] = [(usize::MAX, Vector3::zeros()); 8];
+        for step in 0..(4 * 2000 + lag) {
+            let t = step as f32 * DT;
+            let f = Vector3::new(0.1 + libm::sinf(3.0 * t), 0.5 * libm::cosf(t), -9.7);
+            on_time.predict(&level(), &f, DT).unwrap();
+            late.predict(&level(), &f, DT).unwrap();
+            if step % 20 == 0 && step < 4 * 2000 {
+                let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()).cast::<f32>();
+                let fix = Vector3::new(libm::sinf(t), 0.0, -1.0) + noise * 0.01;
+                on_time.correct(&fix, 0.01).unwrap();
+                pending[(step / 20) % 8] = (step + lag, fix);
+            }
+            for (due, fix) in &mut pending {
+                if *due == step {
+                    late.correct_late(fix, lag as f32 * DT, 0.01).unwrap();
+                    *due = usize::MAX;
+                }
+            }
+        }
+        let (a, b) = (on_time.state(), late.state());
+        assert!((a.position_ned_m - b.position_ned_m).norm() < 1e-4, "{a:?} vs {b:?}");
+        assert!((a.velocity_ned_mps - b.velocity_ned_mps).norm() < 1e-3, "{a:?} vs {b:?}");
+        assert!((a.accel_bias_ned_mps2 - b.accel_bias_ned_mps2).norm() < 1e-3);
     }
 
     #[test]
@@ -364,11 +861,152 @@ mod tests {
             align.predict(&a_filter, DT);
             if step % 20 == 0 {
                 let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()).cast::<f32>();
-                align.fix(&(truth_p + noise * 0.001));
+                align.fix(&(truth_p + noise * 0.001), 0.0);
             }
         }
         let found = align.yaw_rad().expect("enough evidence after 3 s of 1–3 m/s²");
         assert!((found - yaw).abs() < 1f32.to_radians(), "{}° for 70°", found.to_degrees());
+    }
+
+    /// Circles of 1–3 m/s² with an unknown initial velocity of 2 m/s, in the filter's world; the
+    /// fixes' world is turned by `yaw` about down. Fixes at `rate_hz` (spacing jittered by up
+    /// to `jitter` of a period), captured `latency_s` before they arrive and declared
+    /// `declared_age_s` old, with `noise_m` of noise. Returns the alignment after `seconds`.
+    #[allow(clippy::too_many_arguments)]
+    fn align_circles(
+        yaw: f32,
+        rate_hz: f32,
+        jitter: f32,
+        latency_s: f32,
+        declared_age_s: f32,
+        noise_m: f32,
+        seconds: f32,
+        accel: impl Fn(f32) -> Vector3<f32>,
+    ) -> HeadingAlignment {
+        let turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
+        let mut align = HeadingAlignment::new(noise_m);
+        let mut rng = crate::rng::Rng::new(5);
+        let mut truth_v = Vector3::new(2.0, -1.0, 0.0);
+        let mut truth_p = Vector3::zeros();
+        // Past true positions for the latency, one per step (at most 0.1 s).
+        let mut past = [Vector3::zeros(); 256];
+        let late = (latency_s / DT).round() as usize;
+        let mut next_fix_s = 0.0f32;
+        for step in 0..((seconds / DT) as usize) {
+            let t = step as f32 * DT;
+            let a_filter = accel(t);
+            let a_world = turn * a_filter;
+            truth_p += truth_v * DT + a_world * (0.5 * DT * DT);
+            truth_v += a_world * DT;
+            past[step % 256] = truth_p;
+            align.predict(&a_filter, DT);
+            if t >= next_fix_s && step >= late {
+                let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()).cast::<f32>();
+                align.fix(&(past[(step - late) % 256] + noise * noise_m), declared_age_s);
+                let spread = (rng.uniform() as f32 * 2.0 - 1.0) * jitter;
+                next_fix_s += (1.0 + spread) / rate_hz;
+            }
+        }
+        align
+    }
+
+    fn circles(t: f32) -> Vector3<f32> {
+        Vector3::new(2.0 * libm::sinf(3.0 * t), 1.0 + libm::cosf(2.0 * t), 0.0)
+    }
+
+    #[test]
+    fn the_alignment_gathers_the_same_evidence_per_second_at_10_hz_100_hz_and_2_khz() {
+        let yaw = 70f32.to_radians();
+        let at = |rate_hz: f32| align_circles(yaw, rate_hz, 0.0, 0.0, 0.0, 0.001, 1.5, circles);
+        let reference = at(100.0).evidence();
+        for rate_hz in [10.0, 2000.0] {
+            let align = at(rate_hz);
+            let ratio = align.evidence() / reference;
+            // The same motion gives the same evidence (windows weighted by the time they stand
+            // for): at 2 kHz the windows start every 6.25 ms instead of 10 ms, at 10 Hz the
+            // points are interpolated over 0.1 s; within 15 %.
+            assert!((ratio - 1.0).abs() < 0.15, "{rate_hz} Hz: {ratio} of the 100 Hz evidence");
+            // Fewer fixes average less noise out: at 10 Hz the evidence rises above its noise
+            // later (25 times its noise at 1.5 s).
+            let align = align_circles(yaw, rate_hz, 0.0, 0.0, 0.0, 0.001, 3.0, circles);
+            let found = align.yaw_rad().expect("aligned");
+            assert!(
+                (found - yaw).abs() < 1f32.to_radians(),
+                "{rate_hz} Hz: {}°",
+                found.to_degrees()
+            );
+        }
+    }
+
+    #[test]
+    fn irregular_fixes_align_as_well_as_even_ones() {
+        let yaw = -120f32.to_radians();
+        for rate_hz in [10.0, 30.0, 500.0] {
+            let align = align_circles(yaw, rate_hz, 0.5, 0.0, 0.0, 0.001, 3.0, circles);
+            let found = align.yaw_rad().expect("aligned");
+            let error = flight_wrap(found - yaw);
+            assert!(
+                error.abs() < 1f32.to_radians(),
+                "{rate_hz} Hz ± 50 %: {}°",
+                error.to_degrees()
+            );
+        }
+    }
+
+    fn flight_wrap(angle: f32) -> f32 {
+        crate::attitude::wrap_pi(angle)
+    }
+
+    #[test]
+    fn a_late_fix_is_aligned_with_the_dead_reckoning_of_its_own_time() {
+        // 50 ms late at 100 Hz: with its age the yaw is found within 1°; taken as new, the
+        // acceleration turning at 3 rad/s has turned by 3 rad/s × 50 ms = 8.6° meanwhile.
+        let yaw = 70f32.to_radians();
+        let circles =
+            |t: f32| Vector3::new(2.0 * libm::cosf(3.0 * t), 2.0 * libm::sinf(3.0 * t), 0.0);
+        let declared = align_circles(yaw, 100.0, 0.0, 0.05, 0.05, 0.001, 3.0, circles);
+        let error = flight_wrap(declared.yaw_rad().expect("aligned") - yaw);
+        assert!(error.abs() < 1f32.to_radians(), "declared: {}°", error.to_degrees());
+        let ignored = align_circles(yaw, 100.0, 0.0, 0.05, 0.0, 0.001, 3.0, circles);
+        let error = flight_wrap(ignored.yaw_rad().expect("aligned") - yaw);
+        assert!(error.abs() > 3f32.to_radians(), "ignored: {}°", error.to_degrees());
+    }
+
+    #[test]
+    fn gnss_like_noise_aligns_later_on_slow_manoeuvres_and_never_on_noise() {
+        // 0.5 m of noise at 10 Hz: a 2.2 s window. A slow manoeuvre (2 m/s² turning at
+        // 0.5 rad/s) aligns within 3°, after more than the motion-capture case needs.
+        let yaw = 40f32.to_radians();
+        let slow = |t: f32| Vector3::new(2.0 * libm::cosf(0.5 * t), 2.0 * libm::sinf(0.5 * t), 0.0);
+        let align = align_circles(yaw, 10.0, 0.2, 0.0, 0.0, 0.5, 30.0, slow);
+        assert!((align.window_s() - 2.236).abs() < 0.01, "{}", align.window_s());
+        let found = align.yaw_rad().expect("aligned after 30 s of 2 m/s²");
+        assert!(flight_wrap(found - yaw).abs() < 3f32.to_radians(), "{}°", found.to_degrees());
+        // Gentle motion (0.1 m/s²) for 10 s does not rise above 0.5 m of noise: no yaw trusted
+        // rather than a wrong one.
+        let gentle =
+            |t: f32| Vector3::new(0.1 * libm::cosf(0.5 * t), 0.1 * libm::sinf(0.5 * t), 0.0);
+        for yaw_deg in [0.0f32, 90.0, -150.0] {
+            let align = align_circles(yaw_deg.to_radians(), 10.0, 0.2, 0.0, 0.0, 0.5, 10.0, gentle);
+            if let Some(found) = align.yaw_rad() {
+                let error = flight_wrap(found - yaw_deg.to_radians());
+                assert!(
+                    error.abs() < 6f32.to_radians(),
+                    "{yaw_deg}°: trusted {}°",
+                    found.to_degrees()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_window_follows_the_noise() {
+        assert_eq!(alignment_window_s(0.001), MIN_ALIGNMENT_WINDOW_S);
+        assert!((alignment_window_s(0.05) - 0.707).abs() < 0.01);
+        assert_eq!(alignment_window_s(10.0), MAX_ALIGNMENT_WINDOW_S);
+        assert_eq!(alignment_window_s(f32::NAN), MIN_ALIGNMENT_WINDOW_S);
+        assert_eq!(crossover_for_noise(0.001), DEFAULT_CROSSOVER_RAD_S);
+        assert!((crossover_for_noise(0.5) - 1.086).abs() < 0.01, "{}", crossover_for_noise(0.5));
     }
 
     #[test]
@@ -377,7 +1015,7 @@ mod tests {
         for step in 0..(3 * 2000) {
             align.predict(&Vector3::zeros(), DT);
             if step % 20 == 0 {
-                align.fix(&Vector3::new(1.0, 2.0, -3.0));
+                align.fix(&Vector3::new(1.0, 2.0, -3.0), 0.0);
             }
         }
         assert_eq!(align.yaw_rad(), None);

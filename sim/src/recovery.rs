@@ -4,8 +4,10 @@
 //!
 //! - [`fly`]: one run. The hand throws the craft on a parabola; after the excitation the
 //!   firmware's controller takes over. With [`FlyConfig::mocap`] the simulator sends the true
-//!   pose of the centre of gravity (position, heading) at 100 Hz with millimetre noise, as a
-//!   motion-capture system would, through the same command the bridge and the protocol use.
+//!   pose of the centre of gravity (position, heading) as a motion-capture system would
+//!   ([`MotionCapture`]: by default 100 Hz with millimetre noise, on time; rate, jitter,
+//!   latency, noise and dropouts in [`MotionCaptureConfig`]), through the same command the
+//!   bridge and the protocol use.
 //! - [`FlyReport`]: whether and when it hovered, the worst altitude loss below the release point,
 //!   the position error over the hold, and how the run ended ([`Outcome`]).
 //!
@@ -21,7 +23,7 @@ use crate::dynamics::State;
 use crate::identification::{Scores, Throw, TrueModel};
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
-use firmware::app::{ControlCommand, Failsafe};
+use firmware::app::{ControlCommand, ControlSettings, Failsafe, Params, PoseConfig};
 use flight::learner::FlightPhase;
 use protocol::ExternalPose;
 
@@ -33,45 +35,210 @@ pub const HOVER_CLIMB_MPS: f64 = 0.3;
 pub const HOVER_TILT_RAD: f64 = 0.175;
 /// How long those must hold to call it a hover, s.
 pub const HOVER_HOLD_S: f64 = 0.5;
-/// Motion-capture rate, Hz.
+/// Motion-capture rate by default, Hz (a typical optical system's; real ones run 30–500 Hz).
 pub const MOCAP_RATE_HZ: f64 = 100.0;
-/// Motion-capture position noise, one standard deviation per axis, m.
+/// Motion-capture position noise by default, one standard deviation per axis, m (optical motion
+/// capture: about a millimetre; GNSS-like fixes: 0.5 m).
 pub const MOCAP_NOISE_M: f64 = 0.001;
-/// Motion-capture heading noise, one standard deviation, rad (0.1°).
+/// Motion-capture heading noise by default, one standard deviation, rad (0.1°).
 pub const MOCAP_HEADING_NOISE_RAD: f64 = 0.0017;
 
+/// What the simulated motion capture does; the default is the nominal system ([`MOCAP_RATE_HZ`],
+/// [`MOCAP_NOISE_M`], [`MOCAP_HEADING_NOISE_RAD`], on time, evenly spaced, never lost), on which
+/// every published figure was measured.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionCaptureConfig {
+    /// Captures per second, Hz (1 to 2,000; above the control rate, one pose per control step
+    /// at most arrives).
+    pub rate_hz: f64,
+    /// Each interval between captures is `1/rate_hz` plus a uniform draw in `±jitter_s`, s
+    /// (0 to half the interval).
+    pub jitter_s: f64,
+    /// Time from a capture to its arrival at the board, s (0 to 0.1: processing and radio).
+    pub latency_s: f64,
+    /// Position noise, one standard deviation per axis, m (0 to 10).
+    pub noise_m: f64,
+    /// Heading noise, one standard deviation, rad (0 to 1).
+    pub heading_noise_rad: f64,
+    /// Dropouts per second of flight (Poisson; 0: never): the system loses the craft.
+    pub dropouts_per_s: f64,
+    /// How long each dropout lasts, s (0 to 60).
+    pub dropout_s: f64,
+}
+
+impl Default for MotionCaptureConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: MOCAP_RATE_HZ,
+            jitter_s: 0.0,
+            latency_s: 0.0,
+            noise_m: MOCAP_NOISE_M,
+            heading_noise_rad: MOCAP_HEADING_NOISE_RAD,
+            dropouts_per_s: 0.0,
+            dropout_s: 0.5,
+        }
+    }
+}
+
+impl MotionCaptureConfig {
+    /// Check every field against its documented range; the error names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let check = |name: &str, value: f64, min: f64, max: f64| {
+            if value.is_finite() && value >= min && value <= max {
+                Ok(())
+            } else {
+                Err(format!("motion capture: {name} = {value} is outside {min}..={max}"))
+            }
+        };
+        check("rate_hz", self.rate_hz, 1.0, 2000.0)?;
+        check("jitter_s", self.jitter_s, 0.0, 0.5 / self.rate_hz)?;
+        check("latency_s", self.latency_s, 0.0, 0.1)?;
+        check("noise_m", self.noise_m, 0.0, 10.0)?;
+        check("heading_noise_rad", self.heading_noise_rad, 0.0, 1.0)?;
+        check("dropouts_per_s", self.dropouts_per_s, 0.0, 10.0)?;
+        check("dropout_s", self.dropout_s, 0.0, 60.0)
+    }
+}
+
+/// The motion capture on a command line (`fly`, `sitl`): the same fields as
+/// [`MotionCaptureConfig`] in the units a user thinks in; the defaults are the nominal system.
+#[derive(clap::Args, Clone, Debug, PartialEq)]
+pub struct MotionCaptureArgs {
+    /// Motion capture: poses per second, Hz (1–2000).
+    #[arg(long, global = true, default_value_t = MOCAP_RATE_HZ)]
+    pub mocap_rate_hz: f64,
+    /// Motion capture: each interval between poses varies by up to ± this, ms (at most half
+    /// the interval).
+    #[arg(long, global = true, default_value_t = 0.0)]
+    pub mocap_jitter_ms: f64,
+    /// Motion capture: time from a capture to its arrival at the board, ms (0–100).
+    #[arg(long, global = true, default_value_t = 0.0)]
+    pub mocap_latency_ms: f64,
+    /// Motion capture: position noise, one standard deviation per axis, mm (0–10000).
+    #[arg(long, global = true, default_value_t = MOCAP_NOISE_M * 1e3)]
+    pub mocap_noise_mm: f64,
+    /// Motion capture: heading noise, one standard deviation, degrees.
+    #[arg(long, global = true, default_value_t = 0.1)]
+    pub mocap_heading_noise_deg: f64,
+    /// Motion capture: dropouts per second (Poisson; 0: never), each `--mocap-dropout-s` long.
+    #[arg(long, global = true, default_value_t = 0.0)]
+    pub mocap_dropouts_per_s: f64,
+    /// Motion capture: how long a dropout lasts, s.
+    #[arg(long, global = true, default_value_t = 0.5)]
+    pub mocap_dropout_s: f64,
+}
+
+impl MotionCaptureArgs {
+    /// The configuration, checked ([`MotionCaptureConfig::validate`]). The default heading noise
+    /// of 0.1° is exactly [`MOCAP_HEADING_NOISE_RAD`].
+    pub fn config(&self) -> Result<MotionCaptureConfig, String> {
+        let heading_noise_rad = if self.mocap_heading_noise_deg == 0.1 {
+            MOCAP_HEADING_NOISE_RAD
+        } else {
+            self.mocap_heading_noise_deg.to_radians()
+        };
+        let config = MotionCaptureConfig {
+            rate_hz: self.mocap_rate_hz,
+            jitter_s: self.mocap_jitter_ms * 1e-3,
+            latency_s: self.mocap_latency_ms * 1e-3,
+            noise_m: self.mocap_noise_mm * 1e-3,
+            heading_noise_rad,
+            dropouts_per_s: self.mocap_dropouts_per_s,
+            dropout_s: self.mocap_dropout_s,
+        };
+        config.validate().map(|()| config)
+    }
+}
+
 /// A motion-capture system: the true pose of the centre of gravity (world NED position, heading
-/// of the body frame) at [`MOCAP_RATE_HZ`] with [`MOCAP_NOISE_M`] and [`MOCAP_HEADING_NOISE_RAD`]
-/// of Gaussian noise, as the throw-and-fly runs and the SITL's `--mocap` send it.
+/// of the body frame) captured at [`MotionCaptureConfig::rate_hz`] (with jitter), with Gaussian
+/// noise, delivered [`MotionCaptureConfig::latency_s`] after its capture, and lost for a while
+/// now and then, as the throw-and-fly runs, the SITL's `--mocap` and the bridge tests send it.
+/// Seeded: the same seed gives the same poses; the default configuration draws exactly the
+/// noise it always drew (timing and dropouts have their own generator).
 #[derive(Clone, Debug)]
 pub struct MotionCapture {
+    config: MotionCaptureConfig,
     rng: Rng,
-    next_us: u64,
+    timing_rng: Rng,
+    /// First capture, µs; the captures follow at `1/rate_hz` from it (plus jitter).
+    first_us: Option<u64>,
+    /// Time of the next capture, s after the first.
+    next_s: f64,
+    /// Captured poses on their way: (arrival time µs, pose).
+    in_flight: std::collections::VecDeque<(u64, ExternalPose)>,
+    /// The craft is lost until this time, µs.
+    lost_until_us: u64,
 }
 
 impl MotionCapture {
-    /// A system whose noise is drawn from `seed`.
+    /// The nominal system ([`MotionCaptureConfig::default`]) whose noise is drawn from `seed`.
     pub fn new(seed: u64) -> Self {
-        Self { rng: Rng::new(seed ^ 0x6d_6f63_6170), next_us: 0 }
+        Self::with_config(MotionCaptureConfig::default(), seed)
     }
 
-    /// The pose when one is due at `now_us`.
-    pub fn sample(&mut self, state: &State, now_us: u64) -> Option<ExternalPose> {
-        if now_us < self.next_us {
-            return None;
+    /// A system configured by `config` (assumed valid: [`MotionCaptureConfig::validate`]).
+    pub fn with_config(config: MotionCaptureConfig, seed: u64) -> Self {
+        Self {
+            config,
+            rng: Rng::new(seed ^ 0x6d_6f63_6170),
+            timing_rng: Rng::new(seed ^ 0x7469_6d69_6e67),
+            first_us: None,
+            next_s: 0.0,
+            in_flight: std::collections::VecDeque::new(),
+            lost_until_us: 0,
         }
-        self.next_us = now_us + (1e6 / MOCAP_RATE_HZ) as u64;
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MotionCaptureConfig {
+        &self.config
+    }
+
+    /// Call once per simulation tick with the true state at `now_us`: captures when one is due,
+    /// and returns the pose that arrives now (the oldest due, if several).
+    pub fn sample(&mut self, state: &State, now_us: u64) -> Option<ExternalPose> {
+        let first_us = *self.first_us.get_or_insert(now_us);
+        let since_first_s = now_us.saturating_sub(first_us) as f64 * 1e-6;
+        if since_first_s + 1e-9 >= self.next_s {
+            let c = self.config;
+            let interval_s = 1.0 / c.rate_hz;
+            let spread = if c.jitter_s > 0.0 {
+                (2.0 * self.timing_rng.uniform() - 1.0) * c.jitter_s
+            } else {
+                0.0
+            };
+            // Never two captures in one tick, and never falling behind the grid.
+            self.next_s = (self.next_s + interval_s + spread).max(since_first_s + 1e-6);
+            if c.dropouts_per_s > 0.0
+                && now_us >= self.lost_until_us
+                && self.timing_rng.uniform() < 1.0 - (-c.dropouts_per_s * interval_s).exp()
+            {
+                self.lost_until_us = now_us + (c.dropout_s * 1e6) as u64;
+            }
+            if now_us >= self.lost_until_us {
+                let pose = self.capture(state);
+                let arrival_us = now_us + (c.latency_s * 1e6).round() as u64;
+                self.in_flight.push_back((arrival_us, pose));
+            }
+        }
+        match self.in_flight.front() {
+            Some((arrival_us, _)) if *arrival_us <= now_us => {
+                self.in_flight.pop_front().map(|(_, pose)| pose)
+            }
+            _ => None,
+        }
+    }
+
+    fn capture(&mut self, state: &State) -> ExternalPose {
+        let (sigma, sigma_heading) = (self.config.noise_m, self.config.heading_noise_rad);
         let p = state.position_ned_m;
         let rng = &mut self.rng;
         let mut noisy = |value: f64, sigma: f64| (value + rng.normal() * sigma) as f32;
-        Some(ExternalPose {
-            position_ned_m: [
-                noisy(p.x, MOCAP_NOISE_M),
-                noisy(p.y, MOCAP_NOISE_M),
-                noisy(p.z, MOCAP_NOISE_M),
-            ],
-            heading_rad: noisy(heading(&state.attitude()), MOCAP_HEADING_NOISE_RAD),
-        })
+        ExternalPose {
+            position_ned_m: [noisy(p.x, sigma), noisy(p.y, sigma), noisy(p.z, sigma)],
+            heading_rad: noisy(heading(&state.attitude()), sigma_heading),
+        }
     }
 }
 
@@ -82,8 +249,13 @@ pub struct FlyConfig {
     pub throw: Throw,
     /// Give the firmware the true IMU offset (a calibrated board).
     pub known_imu_offset: bool,
-    /// Send the pose at [`MOCAP_RATE_HZ`].
+    /// Send the pose from motion capture ([`FlyConfig::motion_capture`]).
     pub mocap: bool,
+    /// The motion capture (rate, jitter, latency, noise, dropouts).
+    pub motion_capture: MotionCaptureConfig,
+    /// The hold error is measured over the last this many seconds of the flight, s (at most
+    /// 80 % of `flight_s`).
+    pub hold_window_s: f64,
     /// How long to fly after the release, s.
     pub flight_s: f64,
     /// Print the flight every 100 ms on stderr (time, position, setpoint, rates, mode).
@@ -100,6 +272,8 @@ impl FlyConfig {
             throw: Throw::paper(),
             known_imu_offset: true,
             mocap: true,
+            motion_capture: MotionCaptureConfig::default(),
+            hold_window_s: 10.0,
             flight_s: 13.0,
             trace: false,
             board: SimConfig {
@@ -141,6 +315,10 @@ pub struct FlyReport {
     pub max_hold_error_m: Option<f64>,
     /// The window over which `max_hold_error_m` was measured, s.
     pub hold_window_s: f64,
+    /// Fraction of that window's steps flown in position hold (1: held throughout).
+    pub hold_coverage: f64,
+    /// `PoseLost` failsafes counted over the run.
+    pub pose_lost: u16,
     /// Relative RMS error of the specific-force and angular-acceleration blocks of G1 against
     /// the truth ([`Scores::g1_block_rel`]): the learner's model when the controller engaged,
     /// the learner's model at the end (refined in flight) and the model flown at the end.
@@ -176,11 +354,21 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
     let thrust_dir_body =
         airframe.q_imu_body().inverse() * (truth.q_thrust_to_imu * Vector3::new(0.0, 0.0, -1.0));
     let mut board = SimBoard::new(airframe, &config.board);
-    let hold_window_s = 10.0f64.min(config.flight_s * 0.8);
+    let hold_window_s = config.hold_window_s.min(config.flight_s * 0.8);
     with_firmware_app(|app| {
         if config.known_imu_offset {
             let r = truth.r_imu_m;
             app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
+        }
+        // The firmware is told what the poses are, as a user sets `pose_latency_s` and
+        // `pose_noise_m` for their system (the nominal system is the parameters' default).
+        let pose = PoseConfig {
+            latency_s: config.motion_capture.latency_s as f32,
+            noise_m: (config.motion_capture.noise_m as f32).max(1e-4),
+        };
+        if config.mocap && pose != PoseConfig::default() {
+            let settings = ControlSettings { pose, ..ControlSettings::from(&Params::default()) };
+            app.control.command(ControlCommand::Configure(settings), 0);
         }
         app.control.command(ControlCommand::ArmThrowToFly, 0);
         let mut report = FlyReport {
@@ -192,6 +380,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             setpoint_ned_m: None,
             max_hold_error_m: None,
             hold_window_s,
+            hold_coverage: 0.0,
+            pose_lost: 0,
             g1_block_rel_at_engage: None,
             g1_block_rel_learned_at_end: None,
             g1_block_rel_flown_at_end: None,
@@ -199,7 +389,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
-        let mut mocap = config.mocap.then(|| MotionCapture::new(config.board.seed));
+        let mut mocap = config
+            .mocap
+            .then(|| MotionCapture::with_config(config.motion_capture, config.board.seed));
+        let (mut window_steps, mut window_hold_steps) = (0u64, 0u64);
         let mut hover_since: Option<f64> = None;
         let mut release_z: Option<f64> = None;
         let mut end_s = f64::INFINITY;
@@ -269,6 +462,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 }
                 report.release_to_engage_s.get_or_insert(since_release);
                 report.outcome = Outcome::Flying;
+                if t_s >= end_s - hold_window_s {
+                    window_steps += 1;
+                    window_hold_steps += u64::from(snapshot.pilot.position_hold);
+                }
                 if snapshot.pilot.position_hold {
                     let sp = Vector3::from(snapshot.pilot.position_sp_ned_m).cast::<f64>();
                     report.setpoint_ned_m = Some(sp);
@@ -322,7 +519,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             report.g1_block_rel_learned_at_end = Some(Scores::of(&learned, &truth).g1_block_rel);
             report.g1_block_rel_flown_at_end = flown_scores(app, &truth);
         }
-        report.refinements = app.control.snapshot().pilot.refinements;
+        let pilot = app.control.snapshot().pilot;
+        report.refinements = pilot.refinements;
+        report.pose_lost = pilot.failsafes.pose_lost;
+        report.hold_coverage =
+            if window_steps > 0 { window_hold_steps as f64 / window_steps as f64 } else { 0.0 };
         report
     })
 }
@@ -408,8 +609,20 @@ pub fn monte_carlo(
     threads: usize,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Vec<CaseResult> {
+    monte_carlo_with(runs, seed, threads, MotionCaptureConfig::default(), progress)
+}
+
+/// [`monte_carlo`] with the motion capture `motion_capture` in every run.
+pub fn monte_carlo_with(
+    runs: usize,
+    seed: u64,
+    threads: usize,
+    motion_capture: MotionCaptureConfig,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Vec<CaseResult> {
     crate::stats::run_seeds(runs, seed, threads, progress, |seed| {
-        let (airframe, config) = random_case(seed);
+        let (airframe, mut config) = random_case(seed);
+        config.motion_capture = motion_capture;
         let report = fly(&airframe, &config);
         let verdict = Verdict::of(&report);
         CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
@@ -448,5 +661,73 @@ mod tests {
             / n)
             .sqrt();
         assert!((heading_rms - MOCAP_HEADING_NOISE_RAD).abs() < 0.15 * MOCAP_HEADING_NOISE_RAD);
+    }
+
+    #[test]
+    fn motion_capture_keeps_its_rate_latency_and_dropouts() {
+        // A craft falling freely from rest: its position tells the capture time.
+        let airframe = Airframe::builtin("paper-quad").unwrap();
+        let board = SimBoard::new(&airframe, &SimConfig::default());
+        let start = *board.physics().state();
+        let at = |t_s: f64| {
+            let mut state = start;
+            state.position_ned_m = Vector3::new(t_s, 0.0, 0.0);
+            state
+        };
+        for (rate_hz, jitter_s, latency_s) in
+            [(2000.0, 0.0, 0.0), (10.0, 0.02, 0.03), (30.0, 0.005, 0.05)]
+        {
+            let config = MotionCaptureConfig {
+                rate_hz,
+                jitter_s,
+                latency_s,
+                noise_m: 0.0,
+                heading_noise_rad: 0.0,
+                ..MotionCaptureConfig::default()
+            };
+            config.validate().unwrap();
+            let mut mocap = MotionCapture::with_config(config, 3);
+            let mut arrivals = Vec::new();
+            for tick in 1..=20_000u64 {
+                let now_us = tick * 500;
+                let t_s = now_us as f64 * 1e-6;
+                if let Some(pose) = mocap.sample(&at(t_s), now_us) {
+                    arrivals.push((t_s, f64::from(pose.position_ned_m[0])));
+                }
+            }
+            // 10 s: the rate within one pose (jitter averages out).
+            let expected = 10.0 * rate_hz - latency_s * rate_hz;
+            let count = arrivals.len() as f64;
+            assert!(
+                (count - expected).abs() <= 1.0 + 0.01 * expected,
+                "{rate_hz} Hz: {count} poses"
+            );
+            // Each pose arrives its latency after the time it describes (to the 0.5 ms tick).
+            for (arrived_s, captured_s) in &arrivals {
+                assert!(
+                    (arrived_s - captured_s - latency_s).abs() < 1e-4,
+                    "{arrived_s} {captured_s}"
+                );
+            }
+            // With jitter, the spacing varies within ±jitter.
+            let gaps: Vec<f64> = arrivals.windows(2).map(|w| w[1].1 - w[0].1).collect();
+            let spread = gaps.iter().fold(0.0f64, |m, g| m.max((g - 1.0 / rate_hz).abs()));
+            assert!(spread <= 2.0 * jitter_s + 5e-4, "{rate_hz} Hz: spread {spread}");
+            if jitter_s > 0.0 {
+                assert!(spread > 0.5 * jitter_s, "{rate_hz} Hz: no jitter ({spread})");
+            }
+        }
+        // Dropouts: 0.2 a second lasting 0.5 s lose about 0.1/(1 + 0.1) of 100 s.
+        let config = MotionCaptureConfig {
+            dropouts_per_s: 0.2,
+            dropout_s: 0.5,
+            ..MotionCaptureConfig::default()
+        };
+        let mut mocap = MotionCapture::with_config(config, 11);
+        let received =
+            (1..=200_000u64).filter(|tick| mocap.sample(&at(0.0), tick * 500).is_some()).count();
+        let lost = 1.0 - received as f64 / 10_000.0;
+        assert!((0.04..0.16).contains(&lost), "lost {lost}");
+        assert!(MotionCaptureConfig { latency_s: 0.2, ..config }.validate().is_err());
     }
 }

@@ -64,9 +64,13 @@ pub struct SitlConfig {
     /// board's onboard estimate (or zero without one).
     pub imu_offset_m: Option<[f32; 3]>,
     /// Send the simulator's true pose to the firmware as a motion-capture system would
-    /// ([`crate::recovery::MotionCapture`]: 100 Hz, 1 mm and 0.1° noise), so a throw-to-fly
+    /// ([`crate::recovery::MotionCapture`], configured by `motion_capture`), so a throw-to-fly
     /// holds a position.
     pub mocap: bool,
+    /// The motion capture's rate, jitter, latency, noise and dropouts (default: 100 Hz, 1 mm
+    /// and 0.1° of noise, on time, never lost). The firmware is not told: set its
+    /// `pose_latency_s` and `pose_noise_m` parameters to match, as on a real system.
+    pub motion_capture: crate::recovery::MotionCaptureConfig,
     /// The flash file holding the saved configuration (created erased when missing); `None`:
     /// no configuration store (changes last until the SITL stops).
     pub flash_file: Option<PathBuf>,
@@ -111,6 +115,7 @@ impl Default for SitlConfig {
             auto_throw_count: None,
             throw_to_fly: false,
             mocap: false,
+            motion_capture: crate::recovery::MotionCaptureConfig::default(),
             imu_offset_m: None,
             flash_file: None,
             hand_throws_to_fly: false,
@@ -139,6 +144,9 @@ pub enum SitlError {
         "the IMU offset must be finite and within ±{MAX_IMU_OFFSET_M} m on each axis (got {0:?} m)"
     )]
     ImuOffset([f32; 3]),
+    /// A motion-capture setting is outside its range (the message names it).
+    #[error("{0}")]
+    MotionCapture(String),
     #[error(transparent)]
     Flash(#[from] FlashFileError),
 }
@@ -170,6 +178,7 @@ impl Sitl {
                 return Err(SitlError::ImuOffset(offset_m));
             }
         }
+        config.motion_capture.validate().map_err(SitlError::MotionCapture)?;
         let airframe = Airframe::load(&config.airframe)?;
         let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
         let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
@@ -203,6 +212,7 @@ impl Sitl {
             throw_to_fly: config.throw_to_fly,
             hand_throws_to_fly: config.hand_throws_to_fly,
             mocap: config.mocap,
+            motion_capture: config.motion_capture,
             imu_offset_m: config.imu_offset_m,
             info,
             pty,
@@ -251,6 +261,7 @@ struct Runner {
     hand_throws_to_fly: bool,
     imu_offset_m: Option<[f32; 3]>,
     mocap: bool,
+    motion_capture: crate::recovery::MotionCaptureConfig,
     info: BoardInfo,
     pty: Option<Pty>,
     tcp: Option<TcpLinks>,
@@ -273,7 +284,9 @@ impl Runner {
     fn run(mut self) {
         let config = SimConfig { seed: self.seed, ..SimConfig::default() };
         let mut board = SimBoard::new(&self.airframe, &config);
-        let mut mocap = self.mocap.then(|| crate::recovery::MotionCapture::new(self.seed));
+        let mut mocap = self
+            .mocap
+            .then(|| crate::recovery::MotionCapture::with_config(self.motion_capture, self.seed));
         let mut throws_done = 0usize;
         let mut flight_hand = FlightHand::default();
         let start = Instant::now();

@@ -72,6 +72,8 @@ pub struct ControlSettings {
     pub excitation: ExcitationConfig,
     /// Subtracted from every accelerometer sample, m/s², IMU axes.
     pub acc_bias_mps2: [f32; 3],
+    /// What the external poses are (latency, noise).
+    pub pose: super::pilot::PoseConfig,
 }
 
 impl From<&super::params::Params> for ControlSettings {
@@ -80,6 +82,7 @@ impl From<&super::params::Params> for ControlSettings {
             throw: params.throw_config(),
             excitation: params.excitation_config(),
             acc_bias_mps2: params.acc_bias_mps2(),
+            pose: params.pose_config(),
         }
     }
 }
@@ -360,6 +363,7 @@ impl<'q> ControlLoop<'q> {
         {
             self.throw_to_fly = ThrowToFly::new(settings.throw, settings.excitation, MAX_MOTORS);
         }
+        self.pilot.configure_pose(settings.pose);
         self.settings = settings;
     }
 

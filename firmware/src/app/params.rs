@@ -158,6 +158,12 @@ registry! {
         "local gravity for the rest poses of the calibration";
     MotorBidirDshot = "motor_bidir_dshot", 1, Flag, "", 0.0, 1.0, [1.0], false,
         "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
+    // What the external poses (motion capture, a ground station) are: the pilot's `PoseConfig`.
+    PoseLatencyS = "pose_latency_s", 1, Real, "s", 0.0, super::pilot::MAX_POSE_LATENCY_S,
+        [super::pilot::DEFAULT_POSE_LATENCY_S], false,
+        "age of an external pose when it arrives: capture, processing, radio";
+    PoseNoiseM = "pose_noise_m", 1, Real, "m", 0.0001, 2.0, [super::pilot::DEFAULT_POSE_NOISE_M],
+        false, "external pose noise, 1 sigma per axis (motion capture 0.001, GNSS 0.5)";
 }
 
 /// How much further than a calibrated IMU offset the throw detector's free-fall check allows
@@ -314,6 +320,14 @@ impl Params {
             release_delay_s: self.scalar(Param::ThrowReleaseDelayS),
             max_imu_offset_m,
             ..default
+        }
+    }
+
+    /// What the external poses are assumed to be.
+    pub fn pose_config(&self) -> super::pilot::PoseConfig {
+        super::pilot::PoseConfig {
+            latency_s: self.scalar(Param::PoseLatencyS),
+            noise_m: self.scalar(Param::PoseNoiseM),
         }
     }
 

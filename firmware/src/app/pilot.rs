@@ -18,7 +18,15 @@
 //!   the control step), an implausible IMU sample (non-finite, a stuck gyro axis, a lasting
 //!   accelerometer saturation: disarm, detected by the control step, see `super::control`), a
 //!   lost pose (fall back to level hold).
-//! - **A lost pose**: the fixes stop for more than `flight::navigation::FIX_TIMEOUT_S` (0.2 s)
+//! - **Poses in time**: a pose is taken in the step after it arrives, as the position of the
+//!   centre of gravity [`PoseConfig::latency_s`] before its arrival (the `pose_latency_s`
+//!   parameter), and compared with the estimates of that time (`flight::navigation`: the
+//!   position estimator and the heading alignment keep a short history). Nothing is counted in
+//!   poses: the estimator's gains follow the time between poses, the heading alignment's window
+//!   is a time span sized by the poses' noise ([`PoseConfig::noise_m`], `pose_noise_m`). What
+//!   the pose stream may be: 10 Hz to 2 kHz, evenly spaced or not, 0–0.1 s late, 1 mm to 0.5 m
+//!   of noise (docs/sim-bridge.md).
+//! - **A lost pose**: the fixes stop for more than `flight::navigation::FIX_TIMEOUT_S` (0.3 s)
 //!   while the flight used them (position hold, or the level hold of the recovery steered by the
 //!   fixes' velocity): [`Failsafe::PoseLost`] is counted in the step the estimator lets the fix
 //!   go, and the craft flies level hold with zero vertical speed from that step, on the position
@@ -34,7 +42,9 @@ use flight::attitude::{yaw_of, AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, ControllerOutput, Guidance};
 use flight::indi::{IndiConfig, IndiModel, ModelError};
 use flight::learner::{AxisStatus, LearnedModel};
-use flight::navigation::{HeadingAlignment, PositionEstimator, STANDARD_GRAVITY_MPS2};
+use flight::navigation::{
+    crossover_for_noise, HeadingAlignment, PositionEstimator, MAX_FIX_AGE_S, STANDARD_GRAVITY_MPS2,
+};
 use nalgebra::{UnitQuaternion, Vector3};
 use protocol::{
     ExternalPose, FailsafeAction, FailsafeCounters, FailsafeReason, LearnerFailure,
@@ -113,6 +123,35 @@ fn filter_heading(
 ) -> f32 {
     let level_yaw = yaw_of(&(q_filter * q_imu_level));
     yaw_of(q_filter) + flight::attitude::wrap_pi(wanted_level_yaw_rad - level_yaw)
+}
+
+/// Default pose latency, s: motion capture on a wire (the `pose_latency_s` parameter).
+pub const DEFAULT_POSE_LATENCY_S: f32 = 0.0;
+
+/// Largest pose latency the parameter accepts, s: the estimators' history holds
+/// `flight::navigation::MAX_FIX_AGE_S` (0.127 s), less one control step between arrival and use.
+pub const MAX_POSE_LATENCY_S: f32 = 0.1;
+
+/// Default pose noise, m, one standard deviation per axis: motion capture (the `pose_noise_m`
+/// parameter).
+pub const DEFAULT_POSE_NOISE_M: f32 = 0.001;
+
+/// What the pilot assumes of the external poses (from the parameters `pose_latency_s` and
+/// `pose_noise_m`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseConfig {
+    /// Time from the moment a pose describes to its arrival at the board, s (0 to
+    /// [`MAX_POSE_LATENCY_S`]): the capture, the processing and the radio.
+    pub latency_s: f32,
+    /// Position noise of a pose, one standard deviation per axis, m: sizes the heading
+    /// alignment's window and evidence, and the position estimator's crossover.
+    pub noise_m: f32,
+}
+
+impl Default for PoseConfig {
+    fn default() -> Self {
+        Self { latency_s: DEFAULT_POSE_LATENCY_S, noise_m: DEFAULT_POSE_NOISE_M }
+    }
 }
 
 /// Why flight stopped or changed mode.
@@ -301,8 +340,13 @@ pub struct Pilot {
     /// The setpoint a ground station asked for, poses' world; `None`: hold where the craft
     /// stopped.
     requested_sp: Option<PositionSetpoint>,
-    /// Time of the last pose, µs.
+    /// Time of the last pose's arrival, µs.
     last_pose_us: Option<u64>,
+    /// A pose that arrived and is taken after the next prediction: its position and arrival
+    /// time (µs), and the time since the previous pose, s.
+    pending_fix: Option<(Vector3<f32>, u64, f32)>,
+    /// What the poses are assumed to be.
+    pose_config: PoseConfig,
     heading_rad: Option<f32>,
     /// Time the tilt has been beyond the limit, s.
     tilted_s: f32,
@@ -332,11 +376,30 @@ impl Pilot {
             position_sp_ned_m: None,
             requested_sp: None,
             last_pose_us: None,
+            pending_fix: None,
+            pose_config: PoseConfig::default(),
             heading_rad: None,
             tilted_s: 0.0,
             flying_with_fix: false,
             fixes_lost: false,
             status: PilotStatus::default(),
+        }
+    }
+
+    /// Take what the poses are assumed to be (latency clamped to 0–[`MAX_POSE_LATENCY_S`],
+    /// non-finite or non-positive values keep the current ones). A changed noise restarts the
+    /// position estimator and the heading alignment (the parameters change only on the ground).
+    pub fn configure_pose(&mut self, config: PoseConfig) {
+        if config.latency_s.is_finite() {
+            self.pose_config.latency_s = config.latency_s.clamp(0.0, MAX_POSE_LATENCY_S);
+        }
+        if config.noise_m.is_finite()
+            && config.noise_m > 0.0
+            && config.noise_m != self.pose_config.noise_m
+        {
+            self.pose_config.noise_m = config.noise_m;
+            self.navigation = PositionEstimator::new(crossover_for_noise(config.noise_m));
+            self.alignment = HeadingAlignment::new(config.noise_m);
         }
     }
 
@@ -385,23 +448,36 @@ impl Pilot {
         self.yaw_sp_filter_rad = setpoint.heading_rad - self.alignment_yaw_rad();
     }
 
-    /// An external pose (position of the CoG, heading) at `now_us`.
+    /// An external pose (position of the CoG, heading) that arrived at `now_us`. Its position
+    /// is taken after the next sample's prediction, when the estimates have reached the arrival
+    /// time (a second pose before then replaces it). Non-finite poses are ignored.
     pub fn pose(&mut self, pose: &ExternalPose, now_us: u64) {
+        if !super::is_finite_pose(&pose.position_ned_m, pose.heading_rad) {
+            return;
+        }
         let dt_fix_s = self
             .last_pose_us
             .map(|t| now_us.saturating_sub(t) as f32 * 1e-6)
             .filter(|dt| *dt > 0.0)
             .unwrap_or(0.01);
-        let position = Vector3::from(pose.position_ned_m);
-        if self.navigation.correct(&position, dt_fix_s).is_ok() {
+        self.pending_fix = Some((Vector3::from(pose.position_ned_m), now_us, dt_fix_s));
+        self.last_pose_us = Some(now_us);
+        self.heading_rad = Some(pose.heading_rad);
+    }
+
+    /// Take the waiting pose's position, the estimates being at `now_us`: it describes the
+    /// craft the pose latency before its arrival.
+    fn take_fix(&mut self, now_us: u64) {
+        let Some((position, arrived_us, dt_fix_s)) = self.pending_fix.take() else { return };
+        let since_arrival_s = now_us.saturating_sub(arrived_us) as f32 * 1e-6;
+        let age_s = (self.pose_config.latency_s + since_arrival_s).min(MAX_FIX_AGE_S);
+        if self.navigation.correct_late(&position, age_s, dt_fix_s).is_ok() {
             let before = self.alignment.yaw_rad();
-            self.alignment.fix(&position);
+            self.alignment.fix(&position, age_s);
             if self.alignment.yaw_rad().is_some() && before.is_none() {
                 // The accelerometer's world turned: restart the velocity from dead reckoning.
                 self.navigation.set_velocity(&self.dead_reckoned_velocity());
             }
-            self.last_pose_us = Some(now_us);
-            self.heading_rad = Some(pose.heading_rad);
         }
     }
 
@@ -486,6 +562,7 @@ impl Pilot {
             self.navigation.hold_still();
             self.alignment.hold_still();
         }
+        self.take_fix(now_us);
         let nav = self.navigation.state();
         let status = &mut self.status;
         status.q_world_imu = quaternion_array(&q);

@@ -6,14 +6,24 @@
 //! cargo run -p sim --release --bin fly -- paper --airframe hex-tilted
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 1000 --threads 2
 //! cargo run -p sim --release --bin fly -- case --seed 21 --trace   # one Monte Carlo run again
+//! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --mocap-rate-hz 2000 --mocap-latency-ms 30
 //! ```
+//!
+//! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
+//! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
+//! `--mocap-dropouts-per-s` and `--mocap-dropout-s` (`sim::recovery::MotionCaptureArgs`; the
+//! defaults are the nominal 100 Hz, 1 mm, on time). The firmware is told the latency and the
+//! noise (its `pose_latency_s` and `pose_noise_m`), as a user would set them.
 
 use std::collections::BTreeMap;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
-use sim::recovery::{fly, monte_carlo, random_case, FlyConfig, FlyReport, Verdict};
+use sim::recovery::{
+    fly, monte_carlo_with, random_case, FlyConfig, FlyReport, MotionCaptureArgs,
+    MotionCaptureConfig, Verdict,
+};
 use sim::stats::quantile;
 
 #[derive(Parser, Debug)]
@@ -21,6 +31,8 @@ use sim::stats::quantile;
 struct Args {
     #[command(subcommand)]
     command: Command,
+    #[command(flatten)]
+    mocap: MotionCaptureArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -99,7 +111,18 @@ fn print_report(name: &str, report: &FlyReport) {
 }
 
 fn main() -> ExitCode {
-    match Args::parse().command {
+    let args = Args::parse();
+    let motion_capture = match args.mocap.config() {
+        Ok(config) => config,
+        Err(e) => {
+            eprintln!("fly: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if motion_capture != MotionCaptureConfig::default() {
+        println!("motion capture: {motion_capture:?}");
+    }
+    match args.command {
         Command::Paper { airframe, seed, trace, rate_dps, taper_ms, push_ms } => {
             let airframe = match Airframe::load(&airframe) {
                 Ok(a) => a,
@@ -108,7 +131,7 @@ fn main() -> ExitCode {
                     return ExitCode::from(2);
                 }
             };
-            let mut config = FlyConfig::paper();
+            let mut config = FlyConfig { motion_capture, ..FlyConfig::paper() };
             if !(0.0..=50.0).contains(&taper_ms) || !(100.0..=300.0).contains(&push_ms) {
                 eprintln!("fly: --taper-ms must be within 0–50 and --push-ms within 100–300");
                 return ExitCode::from(2);
@@ -130,6 +153,7 @@ fn main() -> ExitCode {
         Command::Case { seed, trace } => {
             let (airframe, mut config) = random_case(seed);
             config.trace = trace;
+            config.motion_capture = motion_capture;
             println!(
                 "case {seed}: {} motors, rate {:.0?} °/s, apex {:.2} m, sideways {:.2?} m/s",
                 airframe.rotor_count(),
@@ -141,7 +165,7 @@ fn main() -> ExitCode {
         }
         Command::MonteCarlo { runs, seed, threads } => {
             let started = std::time::Instant::now();
-            let results = monte_carlo(runs, seed, threads, &|done| {
+            let results = monte_carlo_with(runs, seed, threads, motion_capture, &|done| {
                 if done % 50 == 0 || done == runs {
                     eprintln!("fly: {done}/{runs} runs");
                 }

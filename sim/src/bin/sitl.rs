@@ -60,10 +60,14 @@ struct Args {
     /// gravity, IMU axes, mm, as `X,Y,Z` (each within ±1000). Default: the onboard estimate.
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_imu_offset_mm)]
     imu_offset_mm: Option<[f32; 3]>,
-    /// Send the simulator's true pose to the firmware as motion capture would (100 Hz, 1 mm and
-    /// 0.1° noise), so the craft holds a position after a throw-to-fly.
+    /// Send the simulator's true pose to the firmware as motion capture would (by default
+    /// 100 Hz, 1 mm and 0.1° noise, on time; see the --mocap-* options), so the craft holds a
+    /// position after a throw-to-fly. Tell the firmware the latency and noise with its
+    /// `pose_latency_s` and `pose_noise_m` parameters.
     #[arg(long)]
     mocap: bool,
+    #[command(flatten)]
+    motion_capture: sim::recovery::MotionCaptureArgs,
     /// The flash file holding the saved configuration (`save` writes it; created erased when
     /// missing). Default: sitl-flash.bin in the user's data directory.
     #[arg(long, value_name = "PATH")]
@@ -78,6 +82,13 @@ struct Args {
 
 fn main() -> std::process::ExitCode {
     let args = Args::parse();
+    let motion_capture = match args.motion_capture.config() {
+        Ok(config) => config,
+        Err(error) => {
+            eprintln!("sitl: {error}");
+            return std::process::ExitCode::from(2);
+        }
+    };
     let config = SitlConfig {
         airframe: args.airframe.clone(),
         pty: !args.no_pty,
@@ -91,6 +102,7 @@ fn main() -> std::process::ExitCode {
         hand_throws_to_fly: args.hand_throws_to_fly,
         imu_offset_m: args.imu_offset_mm,
         mocap: args.mocap,
+        motion_capture,
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
     };
@@ -125,7 +137,17 @@ fn main() -> std::process::ExitCode {
         println!("  the hand throws the craft for flight 1 s after the board is armed");
     }
     if args.mocap {
-        println!("  motion capture: the true pose at 100 Hz (1 mm, 0.1° noise)");
+        let m = motion_capture;
+        println!(
+            "  motion capture: the true pose at {} Hz (± {} ms), {} ms late, {} mm and {:.2}° of noise, {} dropouts/s of {} s",
+            m.rate_hz,
+            m.jitter_s * 1e3,
+            m.latency_s * 1e3,
+            m.noise_m * 1e3,
+            m.heading_noise_rad.to_degrees(),
+            m.dropouts_per_s,
+            m.dropout_s
+        );
     }
     if let Some([x, y, z]) = args.imu_offset_mm {
         println!(
