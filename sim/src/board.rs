@@ -81,6 +81,27 @@ pub struct SimConfig {
     pub start_attitude: UnitQuaternion<f64>,
     /// Faults to inject ([`crate::faults`]; empty: none).
     pub faults: FaultSchedule,
+    /// What the world does beyond the airframe ([`crate::world`]); default: nothing.
+    pub world: WorldEffects,
+}
+
+/// Time-varying effects of the world on a board: a sagging battery, ESC answers lost, a gust.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WorldEffects {
+    /// Fraction of every motor's thrust lost to battery sag by `battery_sag_over_s` after the
+    /// start (linearly; the speed for a command falls by `√(1 − sag)`), in [0, 0.5].
+    pub battery_sag: f64,
+    /// Time over which the sag builds up, s.
+    pub battery_sag_over_s: f64,
+    /// Probability that an ESC's speed answer is lost in a control period (the application
+    /// keeps the previous one), in [0, 1).
+    pub telemetry_loss_probability: f64,
+    /// A gust: the air moves at this velocity, world NED, m/s, ...
+    pub gust_ned_mps: [f64; 3],
+    /// ... from this time, s, ...
+    pub gust_start_s: f64,
+    /// ... for this long, s (0: no gust).
+    pub gust_s: f64,
 }
 
 impl Default for SimConfig {
@@ -93,6 +114,7 @@ impl Default for SimConfig {
             start_position_ned_m: Vector3::new(0.0, 0.0, -1.0),
             start_attitude: UnitQuaternion::identity(),
             faults: FaultSchedule::default(),
+            world: WorldEffects::default(),
         }
     }
 }
@@ -280,6 +302,11 @@ pub struct SimBoard {
     last_truth_sample: RawSample,
     /// Fault injection ([`crate::faults`]).
     faults: FaultInjector,
+    world: WorldEffects,
+    /// Draws of the world's random effects (lost ESC answers).
+    world_rng: crate::rng::Rng,
+    /// The speeds last reported per motor (kept when an answer is lost).
+    reported_rad_s: [Option<f32>; MAX_MOTORS],
 }
 
 impl SimBoard {
@@ -326,15 +353,33 @@ impl SimBoard {
             last_sample: ImuSample::default(),
             last_truth_sample: RawSample::default(),
             faults: FaultInjector::new(&config.faults),
+            world: config.world,
+            world_rng: crate::rng::Rng::new(config.seed ^ 0x57_4F52_4C44),
+            reported_rad_s: [None; MAX_MOTORS],
         }
     }
 
     /// Advances one control period (500 µs): physics, IMU, telemetry.
     pub fn tick(&mut self) {
         let mut targets = [0.0; MAX_ROTORS];
+        let now_s = (self.ticks * CONTROL_PERIOD_US) as f64 * 1e-6;
+        let w = self.world;
+        let sag = if w.battery_sag_over_s > 0.0 {
+            w.battery_sag * (now_s / w.battery_sag_over_s).min(1.0)
+        } else {
+            0.0
+        };
         if self.motors.armed {
             for (i, p) in self.motor_params.iter().enumerate() {
-                targets[i] = p.steady_speed_rad_s(f64::from(self.motors.commands[i]));
+                targets[i] = p.steady_speed_rad_s(f64::from(self.motors.commands[i]))
+                    * (1.0 - sag).max(0.0).sqrt();
+            }
+        }
+        if w.gust_s > 0.0 {
+            let gusting = (w.gust_start_s..w.gust_start_s + w.gust_s).contains(&now_s);
+            let wind = if gusting { Vector3::from(w.gust_ned_mps) } else { Vector3::zeros() };
+            if wind != self.physics.model().wind_ned_mps {
+                self.physics.set_wind(wind);
             }
         }
         self.physics.set_rotor_targets(&targets);
@@ -379,8 +424,14 @@ impl SimBoard {
             self.telemetry_ring[slot][i] = dshot::quantise_speed(speeds[i], p.pole_pairs) as f32;
         }
         for (i, delay) in self.telemetry_delay_ticks.iter().enumerate() {
-            self.motors.speeds_rad_s[i] = (self.ticks as usize > *delay)
+            let answer = (self.ticks as usize > *delay)
                 .then(|| self.telemetry_ring[(slot + ring_len - delay) % ring_len][i]);
+            let lost = w.telemetry_loss_probability > 0.0
+                && self.world_rng.uniform() < w.telemetry_loss_probability;
+            if !lost {
+                self.reported_rad_s[i] = answer;
+            }
+            self.motors.speeds_rad_s[i] = self.reported_rad_s[i];
         }
     }
 

@@ -68,6 +68,8 @@ pub struct VehicleModel {
     drag_linear: Vector3<f64>,
     drag_quadratic: Vector3<f64>,
     drag_angular: Vector3<f64>,
+    /// The air's velocity, world NED, m/s (a gust); drag acts on the airspeed.
+    pub wind_ned_mps: Vector3<f64>,
     /// Rotors in motor order.
     pub rotors: Vec<RotorModel>,
 }
@@ -101,6 +103,7 @@ impl VehicleModel {
             drag_linear: Vector3::from(airframe.drag.linear_n_per_mps),
             drag_quadratic: Vector3::from(airframe.drag.quadratic_n_per_mps2),
             drag_angular: Vector3::from(airframe.drag.angular_nm_per_rad_s),
+            wind_ned_mps: Vector3::zeros(),
             rotors,
         }
     }
@@ -218,7 +221,7 @@ impl VehicleModel {
             h_dot_body += r.axis * (r.signed_rotor_inertia * w_dot);
         }
 
-        let v_body = rot.transpose() * s.velocity_ned_mps;
+        let v_body = rot.transpose() * (s.velocity_ned_mps - self.wind_ned_mps);
         force_body -= self.drag_linear.component_mul(&v_body)
             + self.drag_quadratic.component_mul(&v_body.map(|v| v.abs() * v));
         torque_body -= self.drag_angular.component_mul(&omega);

@@ -21,3 +21,4 @@ pub mod scenario;
 pub mod serve;
 pub mod sitl;
 pub mod stats;
+pub mod world;

@@ -95,6 +95,15 @@ impl Physics {
         }
     }
 
+    /// Sets the air's velocity, world NED, m/s (zero: still air).
+    pub fn set_wind(&mut self, wind_ned_mps: Vector3<f64>) {
+        self.model.wind_ned_mps = wind_ned_mps;
+        if let Some(nominal) = self.nominal_model.as_mut() {
+            nominal.wind_ned_mps = wind_ned_mps;
+        }
+        self.refresh_derivative();
+    }
+
     /// Scales each rotor's thrust and drag-torque coefficients by `factors`, relative to the
     /// airframe's (fault injection, [`crate::faults`]); all ones restores them.
     pub fn set_rotor_thrust_factors(&mut self, factors: &[f64; MAX_ROTORS]) {

@@ -25,6 +25,7 @@ use sim::recovery::{
     MotionCaptureConfig, Verdict,
 };
 use sim::stats::quantile;
+use sim::world::{self, Aspect};
 
 #[derive(Parser, Debug)]
 #[command(version, about = "Throw-and-fly against the simulator's truth")]
@@ -66,6 +67,8 @@ enum Command {
         /// Print the flight every 100 ms.
         #[arg(long)]
         trace: bool,
+        #[command(flatten)]
+        world: WorldArgs,
     },
     /// Random airframes (4–8 motors, tilted rotors, any IMU pose) and random throws (300–600 °/s
     /// about a random axis, 2.5–4.5 m apex, up to 2 m/s sideways).
@@ -79,7 +82,34 @@ enum Command {
         /// Worker threads.
         #[arg(long, default_value_t = 2)]
         threads: usize,
+        #[command(flatten)]
+        world: WorldArgs,
     },
+}
+
+/// Which aspects of the world are randomised (`sim::world`).
+#[derive(clap::Args, Debug)]
+struct WorldArgs {
+    /// `nominal` (the airframe and the throw's spin and height vary, nothing else) or `random`
+    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air).
+    #[arg(long, default_value = "nominal", value_parser = ["nominal", "random"])]
+    world: String,
+    /// Randomise only this aspect (hand, pose, imu, actuators, air); repeatable.
+    #[arg(long)]
+    vary: Vec<String>,
+}
+
+impl WorldArgs {
+    /// The aspects to randomise, or an error naming the bad one.
+    fn aspects(&self) -> Result<Vec<Aspect>, String> {
+        if self.world == "random" {
+            if !self.vary.is_empty() {
+                return Err("--vary goes with --world nominal (random varies everything)".into());
+            }
+            return Ok(Aspect::ALL.to_vec());
+        }
+        self.vary.iter().map(|name| Aspect::parse(name)).collect()
+    }
 }
 
 fn print_report(name: &str, report: &FlyReport) {
@@ -108,6 +138,23 @@ fn print_report(name: &str, report: &FlyReport) {
         blocks(report.g1_block_rel_flown_at_end),
         report.refinements
     );
+}
+
+/// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
+/// flags beside a randomised world.
+fn checked_aspects(
+    args: &WorldArgs,
+    motion_capture: MotionCaptureConfig,
+) -> Result<Vec<Aspect>, ExitCode> {
+    let aspects = args.aspects().map_err(|e| {
+        eprintln!("fly: {e}");
+        ExitCode::from(2)
+    })?;
+    if !aspects.is_empty() && motion_capture != MotionCaptureConfig::default() {
+        eprintln!("fly: the --mocap-* flags do not combine with --world random or --vary");
+        return Err(ExitCode::from(2));
+    }
+    Ok(aspects)
 }
 
 fn main() -> ExitCode {
@@ -150,10 +197,22 @@ fn main() -> ExitCode {
             config.trace = trace;
             print_report(&airframe.name, &fly(&airframe, &config));
         }
-        Command::Case { seed, trace } => {
-            let (airframe, mut config) = random_case(seed);
+        Command::Case { seed, trace, world: world_args } => {
+            let aspects = match checked_aspects(&world_args, motion_capture) {
+                Ok(aspects) => aspects,
+                Err(code) => return code,
+            };
+            let (airframe, mut config) = if aspects.is_empty() {
+                let (airframe, mut config) = random_case(seed);
+                config.motion_capture = motion_capture;
+                (airframe, config)
+            } else {
+                world::random_world_case(seed, &aspects)
+            };
             config.trace = trace;
-            config.motion_capture = motion_capture;
+            if !aspects.is_empty() {
+                println!("world: {config:#?}");
+            }
             println!(
                 "case {seed}: {} motors, rate {:.0?} °/s, apex {:.2} m, sideways {:.2?} m/s",
                 airframe.rotor_count(),
@@ -163,13 +222,24 @@ fn main() -> ExitCode {
             );
             print_report(&format!("case {seed}"), &fly(&airframe, &config));
         }
-        Command::MonteCarlo { runs, seed, threads } => {
+        Command::MonteCarlo { runs, seed, threads, world: world_args } => {
+            let aspects = match checked_aspects(&world_args, motion_capture) {
+                Ok(aspects) => aspects,
+                Err(code) => return code,
+            };
             let started = std::time::Instant::now();
-            let results = monte_carlo_with(runs, seed, threads, motion_capture, &|done| {
+            let progress = |done: usize| {
                 if done % 50 == 0 || done == runs {
                     eprintln!("fly: {done}/{runs} runs");
                 }
-            });
+            };
+            let results = if aspects.is_empty() {
+                monte_carlo_with(runs, seed, threads, motion_capture, &progress)
+            } else {
+                let names: Vec<_> = aspects.iter().map(|a| a.name()).collect();
+                println!("randomised: {}", names.join(", "));
+                world::monte_carlo(runs, seed, threads, &aspects, &progress)
+            };
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
                 started.elapsed().as_secs_f64()
