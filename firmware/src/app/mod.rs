@@ -28,7 +28,8 @@ pub use background::{
 };
 pub use control::{
     ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot,
-    ACCEL_SATURATED_MPS2, ACCEL_SATURATED_STEPS, CONTROL_RATE_HZ, STUCK_GYRO_SAMPLES,
+    ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, IMU_FAULT_TIMEOUT_S, SPEED_REPORT_TIMEOUT_S,
+    STUCK_GYRO_SAMPLES,
 };
 pub use link::{LinkRequest, LinkServer, TX_CAPACITY};
 pub use params::{Param, Params};

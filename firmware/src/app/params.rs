@@ -158,6 +158,9 @@ registry! {
         "local gravity for the rest poses of the calibration";
     MotorBidirDshot = "motor_bidir_dshot", 1, Flag, "", 0.0, 1.0, [1.0], false,
         "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
+    ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
+        [super::control::IMU_FAULT_TIMEOUT_S], false,
+        "armed: bad IMU samples held (last good) this long, then failsafe";
 }
 
 /// Number of parameters.
@@ -287,6 +290,12 @@ impl Params {
     /// learner needs the speeds it reports).
     pub fn bidirectional_dshot(&self) -> bool {
         self.scalar(Param::MotorBidirDshot) == 1.0
+    }
+
+    /// How long the control step rides through bad or missing IMU samples while armed (the
+    /// last good sample held) before the IMU failsafe acts, s.
+    pub fn imu_fault_timeout_s(&self) -> f32 {
+        self.scalar(Param::ImuFaultTimeoutS)
     }
 
     /// The accelerometer bias to subtract from every sample, m/s², IMU axes.
