@@ -247,6 +247,9 @@ fn learner_phase_text(learner: &LearnerTelemetry) -> String {
         LearnerFailure::NoHover => "no hover within the motor limits along any thrust axis",
         LearnerFailure::Disarmed => "stopped by a disarm request",
         LearnerFailure::ImuLost => "stopped: the IMU stopped delivering samples",
+        LearnerFailure::NoSpeedTelemetry => {
+            "stopped: a motor reported no speed (bidirectional DShot); the learner needs them all"
+        }
     };
     let phase = match learner.phase {
         LearnerPhase::Idle => "idle (not armed: nothing spins)".to_string(),
@@ -380,6 +383,7 @@ fn learner_phase_short(learner: &LearnerTelemetry) -> String {
         LearnerFailure::NoHover => "no hover",
         LearnerFailure::Disarmed => "disarmed",
         LearnerFailure::ImuLost => "IMU lost",
+        LearnerFailure::NoSpeedTelemetry => "no speed telemetry",
     };
     let phase = match learner.phase {
         LearnerPhase::Idle => "idle",
