@@ -364,12 +364,12 @@ impl SimBoard {
             accel_mps2: to_f32(sum.accel_mps2 / n),
         };
         // Fault injection: the sample as a failing IMU delivers it (unchanged without faults).
-        self.faults.corrupt_imu(tick_end_s, &mut self.last_sample);
+        let delivered = self.faults.corrupt_imu(tick_end_s, &mut self.last_sample);
         self.last_truth_sample = RawSample {
             gyro_rad_s: sum_truth.gyro_rad_s / n,
             accel_mps2: sum_truth.accel_mps2 / n,
         };
-        self.imu.latest = Some(self.last_sample);
+        self.imu.latest = delivered.then_some(self.last_sample);
 
         self.ticks += 1;
         let ring_len = self.telemetry_ring.len();
@@ -379,8 +379,9 @@ impl SimBoard {
             self.telemetry_ring[slot][i] = dshot::quantise_speed(speeds[i], p.pole_pairs) as f32;
         }
         for (i, delay) in self.telemetry_delay_ticks.iter().enumerate() {
-            self.motors.speeds_rad_s[i] = (self.ticks as usize > *delay)
-                .then(|| self.telemetry_ring[(slot + ring_len - delay) % ring_len][i]);
+            self.motors.speeds_rad_s[i] = (self.ticks as usize > *delay
+                && !self.faults.speed_report_lost(tick_end_s, i))
+            .then(|| self.telemetry_ring[(slot + ring_len - delay) % ring_len][i]);
         }
     }
 

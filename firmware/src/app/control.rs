@@ -243,7 +243,14 @@ impl ImuGuard {
                 let [ax, ay, az] = sample.accel_mps2.map(f32::to_bits);
                 let bits = [gx, gy, gz, ax, ay, az];
                 let frozen = spinning && self.previous_bits == Some(bits);
-                stuck = self.track_gyro_axes(&bits);
+                // A frozen sample changes no axis, so it belongs to no run of one axis stuck while
+                // the others live: the runs start afresh (else a chance repeat of one axis next
+                // to a freeze would make the freeze a stuck axis).
+                if frozen {
+                    self.repeats = [0; 3];
+                } else {
+                    stuck = self.track_gyro_axes(&bits);
+                }
                 self.previous_bits = Some(bits);
                 let saturated = sample.accel_mps2.iter().any(|a| a.abs() >= ACCEL_SATURATED_MPS2);
                 if !saturated {

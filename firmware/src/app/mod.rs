@@ -33,7 +33,9 @@ pub use control::{
 };
 pub use link::{LinkRequest, LinkServer, TX_CAPACITY};
 pub use params::{Param, Params};
-pub use pilot::{count_failsafe, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus};
+pub use pilot::{
+    count_failsafe, failsafe_counter, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus,
+};
 pub use queue::{
     split_queue, LearnerSample, RingConsumer, RingProducer, SampleConsumer, SampleProducer,
     SampleQueue, SAMPLE_QUEUE_LEN,
