@@ -16,12 +16,13 @@
 
 use firmware::app::hal::{Motors, MAX_MOTORS};
 use firmware::app::{
-    ControlCommand, Failsafe, LinkServer, IMU_FAULT_TIMEOUT_S, STUCK_GYRO_SAMPLES,
+    ControlCommand, Failsafe, LinkServer, IMU_FAULT_TIMEOUT_S, SPEED_REPORT_TIMEOUT_S,
+    STUCK_GYRO_SAMPLES,
 };
 use nalgebra::Vector3;
 use protocol::{
     Decoder, DeviceMessage, Event, FailsafeAction, FailsafeCounters, FailsafeReason,
-    ImuHeldCounters,
+    ImuHeldCounters, LearnerFailure, LearnerPhase,
 };
 use sim::airframe::Airframe;
 use sim::board::{SimBoard, SimMotors};
@@ -38,6 +39,8 @@ enum When {
     Recovery,
     /// After 1 s of position hold.
     Hover,
+    /// 50 ms into the identification's excitation (the motors being pulsed).
+    Excitation,
 }
 
 /// The motors as the application sees them, checking every command it writes.
@@ -75,6 +78,7 @@ struct Step {
     failsafes: FailsafeCounters,
     last_failsafe: Option<Failsafe>,
     imu_held: ImuHeldCounters,
+    failure: LearnerFailure,
     speeds_reported: u8,
     speed_reports_lost: u16,
     /// Truth: position (m), body rate (rad/s), tilt of the true thrust axis (rad).
@@ -173,6 +177,7 @@ fn fly_for(kind: FaultKind, duration_s: f64, when: When, after_s: f64) -> Flight
                 failsafes: pilot.failsafes,
                 last_failsafe: pilot.last_failsafe,
                 imu_held: snapshot.imu_held,
+                failure: snapshot.failure,
                 speeds_reported: snapshot.speeds_reported,
                 speed_reports_lost: snapshot.speed_reports_lost,
                 position_ned_m: state.position_ned_m,
@@ -186,10 +191,11 @@ fn fly_for(kind: FaultKind, duration_s: f64, when: When, after_s: f64) -> Flight
             let trigger = match when {
                 When::Recovery => pilot.flying,
                 When::Hover => hold_steps >= 2000,
+                When::Excitation => snapshot.phase == flight::learner::FlightPhase::Exciting,
             };
             if fault_at_us.is_none() && trigger {
                 // 50 ms from now (recovery) or the next step (hover).
-                let delay_us = if when == When::Recovery { 50_000 } else { 500 };
+                let delay_us = if when == When::Hover { 500 } else { 50_000 };
                 let start_us = now_us + delay_us;
                 let start_s = start_us as f64 * 1e-6;
                 board.faults_mut().add(Fault { start_s, duration_s, kind });
@@ -397,6 +403,92 @@ fn a_motor_whose_speed_reports_stop_in_flight_flies_on() {
         if when == When::Hover {
             assert!(worst < 0.05, "{worst} m from the setpoint");
         }
+    }
+}
+
+/// A motor's speed reports stop during the excitation: the learner cannot identify it, so the
+/// attempt ends when the reports have been missing for `SPEED_REPORT_TIMEOUT_S`, and every motor
+/// is at zero from that step on.
+#[test]
+fn a_motor_whose_speed_reports_stop_during_the_excitation_ends_the_attempt() {
+    let flight = fly(FaultKind::SpeedReportLost { motor: 2 }, When::Excitation, 0.3);
+    assert_eq!(flight.bad_commands, 0);
+    let before = &flight.steps[flight.fault_step - 1];
+    assert!(before.commands.iter().any(|&c| c > 0.0), "the motors were being pulsed");
+    // The last report arrived in the step before the fault.
+    let detectable = (f64::from(SPEED_REPORT_TIMEOUT_S) * 2000.0).round() as usize;
+    let stopped = |s: &Step| s.failure == LearnerFailure::NoSpeedTelemetry && !s.flying;
+    let reaction = reaction_offset(&flight, stopped).expect("the attempt ended");
+    eprintln!("speed reports of motor 2 lost in the excitation: detectable at step {detectable}, attempt ended at step {reaction}");
+    assert!(
+        reaction + 2 >= detectable && reaction <= detectable + 2,
+        "ended at step {reaction}, timeout at {detectable}"
+    );
+    let after = &flight.steps[flight.fault_step + reaction..];
+    assert!(after.iter().all(|s| s.commands.iter().all(|&c| c == 0.0)), "motors at zero");
+    assert_eq!(after.last().unwrap().speed_reports_lost, 1);
+}
+
+/// Issue 28, item 3: ESCs that report no speed (no bidirectional DShot, or the bridge sends NaN)
+/// while `motor_bidir_dshot` says 1. Once the board has run, arming is refused (the link names
+/// the silent motors, the step keeps the reason); armed before the first step (as the SITL's and
+/// the bridge's `--throw-to-fly` do), the attempt ends before the throw. Thrown anyway, no motor
+/// is ever commanded, and the craft falls as thrown.
+#[test]
+fn without_speed_reports_nothing_arms_and_no_motor_is_ever_commanded() {
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config = FlyConfig::paper();
+    for arm_at_start in [true, false] {
+        let mut board = SimBoard::new(&airframe, &config.board);
+        board.motors_mut().set_bidirectional(false);
+        with_firmware_app(|app| {
+            if arm_at_start {
+                app.control.command(ControlCommand::ArmThrowToFly, 0);
+            }
+            let (mut bad, mut written) = (0u32, [0.0f32; MAX_MOTORS]);
+            let mut commanded = 0u32;
+            let mut ended_at_us = None;
+            for tick in 0..1000 + 8000u64 {
+                if tick == 400 && !arm_at_start {
+                    app.control.command(ControlCommand::ArmThrowToFly, board.now_us());
+                }
+                if tick == 1000 {
+                    board.physics_mut().throw(&config.throw.spec());
+                }
+                board.tick();
+                let now_us = board.now_us();
+                let (imu, motors) = board.ports();
+                let mut checked = Checked { motors, bad: &mut bad, written: &mut written };
+                app.step(now_us, imu, &mut checked);
+                commanded += written.iter().filter(|&&c| c != 0.0).count() as u32;
+                let snapshot = app.control.snapshot();
+                if snapshot.failure == LearnerFailure::NoSpeedTelemetry {
+                    ended_at_us.get_or_insert(now_us);
+                }
+            }
+            let snapshot = app.control.snapshot();
+            let name = if arm_at_start { "armed at start" } else { "arm refused" };
+            assert_eq!((bad, commanded), (0, 0), "{name}: every command written was 0");
+            assert_eq!(snapshot.failure, LearnerFailure::NoSpeedTelemetry, "{name}");
+            assert!(!snapshot.armed && !snapshot.pilot.flying, "{name}");
+            assert_eq!(snapshot.speeds_reported, 0, "{name}");
+            let ended_at_us = ended_at_us.expect("the attempt ended");
+            eprintln!("{name}: the attempt ended at {:.4} s", ended_at_us as f64 * 1e-6);
+            if arm_at_start {
+                let timeout_us = (f64::from(SPEED_REPORT_TIMEOUT_S) * 1e6) as u64;
+                assert!(ended_at_us <= timeout_us + 500, "{name}: at {ended_at_us} µs");
+            } else {
+                assert_eq!(ended_at_us, 401 * 500, "{name}: refused in the next step");
+            }
+            // What the status and the learner topic say.
+            let view = status_view(&app.control, &app.background);
+            let learner = firmware::app::learner_telemetry(&view, 0);
+            assert_eq!(
+                (learner.phase, learner.failure),
+                (LearnerPhase::Failed, LearnerFailure::NoSpeedTelemetry)
+            );
+            assert!(board.physics().state().position_ned_m.z > -0.5, "{name}: it fell as thrown");
+        });
     }
 }
 
