@@ -337,7 +337,7 @@ fn the_shell_reconnects_by_itself_after_a_reboot_and_finds_the_saved_value() {
     assert!(output.status.success(), "{stderr}");
     assert!(stderr.contains("reconnected to SITL"), "the shell says it reconnected: {stderr}");
     assert!(!stderr.contains("error"), "every command after the reboot worked: {stderr}");
-    assert!(stdout.contains("the board restarted; configuration: 24 parameters, loaded from flash"));
+    assert!(stdout.contains("the board restarted; configuration: 25 parameters, loaded from flash"));
     let after = stdout.split("the board restarted").nth(1).unwrap();
     assert!(after.contains("gravity_mps2 = 9.79\n"), "the saved value after the reboot: {after}");
 }
