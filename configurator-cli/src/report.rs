@@ -900,6 +900,47 @@ mod tests {
     }
 
     #[test]
+    fn with_a_stored_calibration_the_live_estimate_is_shown_apart_and_never_advises_a_throw() {
+        let live = protocol::ImuOffsetStatus {
+            throws: 3,
+            estimated: true,
+            r_imu_m: [0.010, -0.002, 0.004],
+            ci95_semi_axes_m: [0.006, 0.004, 0.001],
+            well_determined: false,
+            advice: OffsetAdvice::ThrowAgain { direction_imu: [1.0, 0.0, 0.0], spin_about_axis: 1 },
+            ..Default::default()
+        };
+        let alone = imu_offset_text(&live, None);
+        assert!(alone.contains("throw again"), "{alone}");
+        let text = imu_offset_text(&live, Some([0.012, -0.003, 0.005]));
+        assert!(text.contains("+12.00, -3.00, +5.00") || text.contains("12.00"), "{text}");
+        assert!(text.contains("stored calibration, in use"), "{text}");
+        assert!(
+            text.contains("live estimate") && text.contains("3 throws since start-up"),
+            "{text}"
+        );
+        assert!(!text.contains("throw again"), "no advice with a calibration stored: {text}");
+        let none = imu_offset_text(&protocol::ImuOffsetStatus::default(), Some([0.0; 3]));
+        assert!(none.contains("none needed"), "{none}");
+    }
+
+    #[test]
+    fn the_health_text_names_held_samples_and_the_motors_without_speed_reports() {
+        let mut health = protocol::SensorHealth {
+            motor_count: 4,
+            speeds_reported: 0b1011,
+            ..Default::default()
+        };
+        health.imu_held.non_finite = 1;
+        health.imu_longest_hold_us = 0;
+        let text = health_text(&health);
+        assert!(text.contains("1 samples held over") && text.contains("1 not finite"), "{text}");
+        assert!(text.contains("NOT reported by motor 3") && text.contains("refused"), "{text}");
+        health.speeds_reported = 0b1111;
+        assert!(health_text(&health).contains("reported by all 4 motors"));
+    }
+
+    #[test]
     fn status_learner_text_names_failures_and_the_thrust_axis_in_degrees() {
         let mut learner = exciting_quad(0);
         learner.phase = LearnerPhase::Failed;
