@@ -150,8 +150,8 @@ const IMU_ABSENT_AFTER_US: u64 = 10_000;
 /// from a throw, where INDI commands up to a few hundred rad/s², about 4 rad/s and 2°: what the
 /// rate loop corrects within its own time constant. At 50 ms the same recovery would fly
 /// 10 rad/s and 14° blind while the motors (τ 25–50 ms) ran their whole response to stale
-/// increments. Measured (`tests/tests/faults.rs`): 39 bad samples (19.5 ms) of every kind in the recovery and in
-/// hover are ridden through, the paper quad recovers and holds its position.
+/// increments. Measured (`tests/tests/faults.rs`): 39 bad samples (19.5 ms) of every kind, in
+/// the recovery and in hover, are ridden through; the paper quad recovers and holds its position.
 pub const IMU_FAULT_TIMEOUT_S: f32 = 0.02;
 
 /// A motor counts as reporting its speed while its latest finite report is at most this old, s
