@@ -71,6 +71,9 @@ pub fn failure_text(failure: LearnerFailure) -> &'static str {
         LearnerFailure::NoHover => "no motor combination can hover this craft along the found axis",
         LearnerFailure::Disarmed => "disarmed during the attempt",
         LearnerFailure::ImuLost => "the IMU stopped delivering samples",
+        LearnerFailure::NoSpeedTelemetry => {
+            "a motor stopped reporting its speed (bidirectional DShot): the learner needs every motor's speed; every motor stopped"
+        }
     }
 }
 

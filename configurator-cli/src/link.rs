@@ -99,8 +99,27 @@ impl std::fmt::Display for DeviceErrorText {
             }
             DeviceError::NotReady => write!(f, "not ready (see `status`)"),
             DeviceError::Unsupported => write!(f, "this device cannot do that"),
+            DeviceError::SpeedsNotReported { motors } => write!(
+                f,
+                "not armed: motor{} {} report{} no speed (no answer within {} ms); the learner \
+                 needs every motor's speed: ESCs with bidirectional DShot (BLHeli_32, Bluejay, \
+                 AM32) and `motor_bidir_dshot` = 1",
+                if motors.count_ones() == 1 { "" } else { "s" },
+                motor_list(*motors),
+                if motors.count_ones() == 1 { "s" } else { "" },
+                protocol::SPEED_REPORT_TIMEOUT_MS
+            ),
         }
     }
+}
+
+/// Motors named by a bit mask, numbered from 1 as on the craft: "1, 3".
+pub fn motor_list(motors: u8) -> String {
+    (0..8)
+        .filter(|i| motors & (1 << i) != 0)
+        .map(|i| (i + 1).to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The transport of a closed client.

@@ -554,7 +554,7 @@ fn run_on_board(
                     "{}{}{}",
                     report::info_text(&client.info, client.port()),
                     board.as_ref().map(report::board_text).unwrap_or_default(),
-                    report::status_text(&status)
+                    report::status_text(&status, fetch_stored_offset(client)?)
                 )
             })
         }
@@ -566,6 +566,12 @@ fn run_on_board(
                 Reply::Flight(flight) => Some(flight),
                 _ => None,
             });
+            let health = match fetch_optional(client, Request::GetHealth(()), "the health request")?
+            {
+                Some(Reply::Health(health)) => Some(health),
+                _ => None,
+            };
+            let stored = fetch_stored_offset(client)?;
             let config = match client.request(&Request::GetConfig(()), "the configuration request")
             {
                 Ok(Reply::Config(config)) => Some(config),
@@ -575,6 +581,10 @@ fn run_on_board(
             Ok(if cli.json {
                 let mut value = report::status_json(&status);
                 if let Some(map) = value.as_object_mut() {
+                    map.insert("imu_offset_stored_m".into(), json!(stored));
+                    if let Some(health) = &health {
+                        map.insert("health".into(), report::health_json(health));
+                    }
                     if let Some(learner) = &learner {
                         map.insert("learner".into(), report::learner_json(learner));
                     }
@@ -587,7 +597,10 @@ fn run_on_board(
                 }
                 format!("{value:#}\n")
             } else {
-                let mut text = report::status_text(&status);
+                let mut text = report::status_text(&status, stored);
+                if let Some(health) = &health {
+                    text.push_str(&report::health_text(health));
+                }
                 if let Some(learner) = &learner {
                     text.push_str(&report::learner_text(learner));
                 }
@@ -1230,6 +1243,23 @@ fn fetch_status(client: &mut Client) -> Result<protocol::Status, Failure> {
         Reply::Status(status) => Ok(status),
         other => Err(LinkError::Unexpected(format!("{other:?} to the status request")).into()),
     }
+}
+
+/// The IMU offset a calibration stored (`imu_offset_m` while `imu_offset_valid` is 1), or
+/// `None` (nothing stored, or a board without the parameters).
+fn fetch_stored_offset(client: &mut Client) -> Result<Option<[f32; 3]>, Failure> {
+    let mut param = |name: &str| -> Result<Option<Vec<f32>>, Failure> {
+        let request = Request::GetParam(protocol::ParamRef::Name(protocol::text(name)));
+        match client.request(&request, "the parameter request") {
+            Ok(Reply::Param(info)) => Ok(Some(info.value.to_vec())),
+            Ok(_) | Err(LinkError::Device(_)) => Ok(None),
+            Err(error) => Err(error.into()),
+        }
+    };
+    if param("imu_offset_valid")?.as_deref() != Some(&[1.0]) {
+        return Ok(None);
+    }
+    Ok(param("imu_offset_m")?.and_then(|v| <[f32; 3]>::try_from(v.as_slice()).ok()))
 }
 
 /// The learner's state, or `None` from a board that does not know the request (protocol 1.0).

@@ -143,8 +143,9 @@ pub fn advice_text(advice: &OffsetAdvice) -> String {
     }
 }
 
-/// Status as text.
-pub fn status_text(status: &Status) -> String {
+/// Status as text. `stored_offset_m`: the IMU offset stored by a calibration (the
+/// `imu_offset_m` parameter while `imu_offset_valid` is 1), if any.
+pub fn status_text(status: &Status, stored_offset_m: Option<[f32; 3]>) -> String {
     let c = &status.control;
     let imu = &status.imu;
     let l = &status.link;
@@ -198,32 +199,7 @@ pub fn status_text(status: &Status) -> String {
     } else {
         let _ = writeln!(out, "  imu             absent ({} steps without a sample)", imu.missing);
     }
-    let offset = &status.imu_offset;
-    let throws = match offset.throws {
-        1 => "1 throw".to_string(),
-        n => format!("{n} throws"),
-    };
-    if offset.estimated {
-        let verdict = if offset.well_determined {
-            "well determined".to_string()
-        } else {
-            format!("not yet well determined: {}", advice_text(&offset.advice))
-        };
-        let _ = writeln!(
-            out,
-            "  imu offset      {} mm from the CoG (IMU axes), 95 % semi-axes {} mm, {throws}, {verdict}",
-            vector(offset.r_imu_m, 1000.0, 2),
-            vector(offset.ci95_semi_axes_m, 1000.0, 2).replace('+', ""),
-        );
-    } else if offset.throws > 0 {
-        let _ = writeln!(
-            out,
-            "  imu offset      {throws}, too little free fall to estimate from yet: throw again, higher"
-        );
-    } else {
-        let _ =
-            writeln!(out, "  imu offset      no throw yet (throw the craft spinning and catch it)");
-    }
+    out.push_str(&imu_offset_text(&status.imu_offset, stored_offset_m));
     let _ = writeln!(
         out,
         "  link            {} frames in, {} out; errors: {} CRC, {} framing, {} oversize, {} unknown id, {} malformed; dropped: {} telemetry, {} responses",
@@ -231,6 +207,110 @@ pub fn status_text(status: &Status) -> String {
         l.telemetry_dropped, l.responses_dropped
     );
     out
+}
+
+/// The IMU offset: the stored calibration and the onboard estimator's live estimate, apart.
+/// With a calibration stored, the live estimate's advice is not given: the calibration is what
+/// the board uses, and the estimator (which sees throws and rests of an unpowered craft only)
+/// merely follows the throws since start-up.
+pub fn imu_offset_text(offset: &protocol::ImuOffsetStatus, stored: Option<[f32; 3]>) -> String {
+    let mut out = String::new();
+    if let Some(r) = stored {
+        let _ = writeln!(
+            out,
+            "  imu offset      {} mm from the CoG (IMU axes): stored calibration, in use",
+            vector(r, 1000.0, 2)
+        );
+    }
+    let label = if stored.is_some() { "  live estimate  " } else { "  imu offset     " };
+    let throws = match offset.throws {
+        1 => "1 throw".to_string(),
+        n => format!("{n} throws"),
+    };
+    if offset.estimated {
+        let verdict = match (offset.well_determined, stored.is_some()) {
+            (true, _) => "well determined".to_string(),
+            (false, true) => "not well determined (the stored calibration is used)".to_string(),
+            (false, false) => format!("not yet well determined: {}", advice_text(&offset.advice)),
+        };
+        let _ = writeln!(
+            out,
+            "{label} {} mm from the CoG (IMU axes), 95 % semi-axes {} mm, {throws} since start-up, {verdict}",
+            vector(offset.r_imu_m, 1000.0, 2),
+            vector(offset.ci95_semi_axes_m, 1000.0, 2).replace('+', ""),
+        );
+    } else if stored.is_some() {
+        let _ =
+            writeln!(out, "{label} {throws} since start-up (none needed: a calibration is stored)");
+    } else if offset.throws > 0 {
+        let _ = writeln!(
+            out,
+            "{label} {throws}, too little free fall to estimate from yet: throw again, higher"
+        );
+    } else {
+        let _ = writeln!(out, "{label} no throw yet (throw the craft spinning and catch it)");
+    }
+    out
+}
+
+/// The sensors' health (protocol 1.6): IMU samples held over, motors reporting their speed.
+pub fn health_text(health: &protocol::SensorHealth) -> String {
+    let mut out = String::new();
+    let held = &health.imu_held;
+    let _ = if held.total() == 0 {
+        writeln!(out, "  imu glitches    none held over while armed")
+    } else {
+        writeln!(
+            out,
+            "  imu glitches    {} samples held over while armed ({} missing, {} not finite, {} frozen, {} accelerometer saturated), longest run {:.1} ms",
+            held.total(),
+            held.missing,
+            held.non_finite,
+            held.frozen,
+            held.accel_saturated,
+            f64::from(health.imu_longest_hold_us) / 1000.0
+        )
+    };
+    let all = ((1u16 << health.motor_count.min(8)) - 1) as u8;
+    let silent = all & !health.speeds_reported;
+    let _ = if health.motor_count == 0 {
+        writeln!(out, "  motor speeds    no motors")
+    } else if silent == 0 {
+        writeln!(out, "  motor speeds    reported by all {} motors", health.motor_count)
+    } else {
+        writeln!(
+            out,
+            "  motor speeds    NOT reported by motor {} (none within {} ms): throw-to-fly is refused; the learner needs bidirectional DShot",
+            crate::link::motor_list(silent),
+            protocol::SPEED_REPORT_TIMEOUT_MS
+        )
+    };
+    if health.speed_reports_lost > 0 {
+        let _ = writeln!(
+            out,
+            "  speed reports   lost {} times while the motors spun",
+            health.speed_reports_lost
+        );
+    }
+    out
+}
+
+/// The sensors' health as JSON.
+pub fn health_json(health: &protocol::SensorHealth) -> Value {
+    let held = &health.imu_held;
+    json!({
+        "imu_held": {
+            "missing": held.missing,
+            "non_finite": held.non_finite,
+            "frozen": held.frozen,
+            "accel_saturated": held.accel_saturated,
+            "total": held.total(),
+        },
+        "imu_longest_hold_s": f64::from(health.imu_longest_hold_us) * 1e-6,
+        "motor_count": health.motor_count,
+        "speeds_reported": (0..health.motor_count).map(|i| health.speeds_reported & (1 << i) != 0).collect::<Vec<_>>(),
+        "speed_reports_lost": health.speed_reports_lost,
+    })
 }
 
 /// The in-flight learner's state in words.
@@ -247,6 +327,9 @@ fn learner_phase_text(learner: &LearnerTelemetry) -> String {
         LearnerFailure::NoHover => "no hover within the motor limits along any thrust axis",
         LearnerFailure::Disarmed => "stopped by a disarm request",
         LearnerFailure::ImuLost => "stopped: the IMU stopped delivering samples",
+        LearnerFailure::NoSpeedTelemetry => {
+            "stopped: a motor reported no speed (bidirectional DShot); the learner needs them all"
+        }
     };
     let phase = match learner.phase {
         LearnerPhase::Idle => "idle (not armed: nothing spins)".to_string(),
@@ -380,6 +463,7 @@ fn learner_phase_short(learner: &LearnerTelemetry) -> String {
         LearnerFailure::NoHover => "no hover",
         LearnerFailure::Disarmed => "disarmed",
         LearnerFailure::ImuLost => "IMU lost",
+        LearnerFailure::NoSpeedTelemetry => "no speed telemetry",
     };
     let phase = match learner.phase {
         LearnerPhase::Idle => "idle",
@@ -813,6 +897,47 @@ mod tests {
         assert!(value.get("g1_specific_force_mps2_per_unit_thrust").is_none());
         assert!(value.get("g1_rows").is_none());
         assert!(!value.to_string().contains('\n'), "one line per sample");
+    }
+
+    #[test]
+    fn with_a_stored_calibration_the_live_estimate_is_shown_apart_and_never_advises_a_throw() {
+        let live = protocol::ImuOffsetStatus {
+            throws: 3,
+            estimated: true,
+            r_imu_m: [0.010, -0.002, 0.004],
+            ci95_semi_axes_m: [0.006, 0.004, 0.001],
+            well_determined: false,
+            advice: OffsetAdvice::ThrowAgain { direction_imu: [1.0, 0.0, 0.0], spin_about_axis: 1 },
+            ..Default::default()
+        };
+        let alone = imu_offset_text(&live, None);
+        assert!(alone.contains("throw again"), "{alone}");
+        let text = imu_offset_text(&live, Some([0.012, -0.003, 0.005]));
+        assert!(text.contains("+12.00, -3.00, +5.00") || text.contains("12.00"), "{text}");
+        assert!(text.contains("stored calibration, in use"), "{text}");
+        assert!(
+            text.contains("live estimate") && text.contains("3 throws since start-up"),
+            "{text}"
+        );
+        assert!(!text.contains("throw again"), "no advice with a calibration stored: {text}");
+        let none = imu_offset_text(&protocol::ImuOffsetStatus::default(), Some([0.0; 3]));
+        assert!(none.contains("none needed"), "{none}");
+    }
+
+    #[test]
+    fn the_health_text_names_held_samples_and_the_motors_without_speed_reports() {
+        let mut health = protocol::SensorHealth {
+            motor_count: 4,
+            speeds_reported: 0b1011,
+            ..Default::default()
+        };
+        health.imu_held.non_finite = 1;
+        health.imu_longest_hold_us = 0;
+        let text = health_text(&health);
+        assert!(text.contains("1 samples held over") && text.contains("1 not finite"), "{text}");
+        assert!(text.contains("NOT reported by motor 3") && text.contains("refused"), "{text}");
+        health.speeds_reported = 0b1111;
+        assert!(health_text(&health).contains("reported by all 4 motors"));
     }
 
     #[test]

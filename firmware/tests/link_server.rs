@@ -420,6 +420,8 @@ const TAU_S: [f32; MAX_MOTORS] = [0.020, 0.025, 0.030, 0.035, 0.040, 0.045, 0.05
 fn learner_view(motors: u8) -> StatusView {
     let mut view = view_at(0);
     view.control.motor_count = motors;
+    // Every motor reports its speed.
+    view.control.speeds_reported = ((1u16 << motors) - 1) as u8;
     let learned: &mut LearnedModel = &mut view.background.learned;
     learned.motors = motors;
     for i in 0..usize::from(motors) {
@@ -453,6 +455,22 @@ fn arming_throw_to_fly_queues_the_command_with_four_motors_or_more() {
         host.handshake();
         assert_eq!(host.request(&Request::ArmThrowToFly(()), 2), Ok(Reply::Done), "{motors}");
         assert_eq!(host.commands(), vec![ControlCommand::ArmThrowToFly], "{motors} motors");
+    }
+}
+
+#[test]
+fn arming_while_a_motor_reports_no_speed_names_the_silent_motors_and_queues_nothing() {
+    for (motors, reported, silent) in [(4, 0b0000, 0b1111), (4, 0b1011, 0b0100), (8, 0x7F, 0x80)] {
+        let mut view = learner_view(motors);
+        view.control.speeds_reported = reported;
+        let mut host = Host::with_view(view);
+        host.handshake();
+        let response = host.request(&Request::ArmThrowToFly(()), 2);
+        assert_eq!(response, Err(DeviceError::SpeedsNotReported { motors: silent }));
+        assert_eq!(host.commands(), vec![], "nothing queued");
+        let status = host.request(&Request::GetHealth(()), 3);
+        let Ok(Reply::Health(health)) = status else { panic!("{status:?}") };
+        assert_eq!((health.motor_count, health.speeds_reported), (motors, reported));
     }
 }
 

@@ -254,6 +254,8 @@ pub enum Reply {
     Flight(FlightTelemetry),
     /// Answer to [`Request::GetBoard`]. Protocol 1.4.
     Board(BoardHealth),
+    /// Answer to [`Request::GetHealth`]. Protocol 1.6.
+    Health(SensorHealth),
 }
 
 /// Why a request was not carried out. Each variant's doc states what the host should do.
@@ -289,6 +291,11 @@ pub enum DeviceError {
     /// This device cannot do that (the simulator has no bootloader): nothing was changed.
     /// Protocol 1.4.
     Unsupported,
+    /// Refused to arm for throw-to-fly: bit i of `motors` set = motor i reported no speed
+    /// recently ([`SensorHealth::speeds_reported`]). The in-flight learner needs every motor's
+    /// speed (bidirectional DShot): check the ESCs' telemetry (ESC firmware, wiring, the
+    /// `motor_bidir_dshot` parameter). Nothing was armed. Protocol 1.6.
+    SpeedsNotReported { motors: u8 },
 }
 
 /// Where a configuration save or load failed.
@@ -721,6 +728,54 @@ pub struct ReceiverHealth {
     pub frame_errors: u32,
 }
 
+/// How the control step coped with its sensors (protocol 1.6, [`Request::GetHealth`]): IMU
+/// glitches ridden through, and which motors report their speed.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct SensorHealth {
+    /// IMU samples replaced by the last good one while armed, by cause: each was a glitch
+    /// shorter than the `imu_fault_timeout_s` parameter, and the flight went on.
+    pub imu_held: ImuHeldCounters,
+    /// Longest run of held IMU samples since start-up, µs (board time from the first held
+    /// sample of the run to its last).
+    pub imu_longest_hold_us: u32,
+    /// Motors connected.
+    pub motor_count: u8,
+    /// Bit i set: motor i reported its speed within the last [`SPEED_REPORT_TIMEOUT_MS`].
+    pub speeds_reported: u8,
+    /// Times a motor's speed reports stopped while the motors spun: during an identification
+    /// the attempt ended ([`LearnerFailure::NoSpeedTelemetry`]); flying on a learned model the
+    /// flight went on (the controller models the motor speeds from the commands).
+    pub speed_reports_lost: u16,
+}
+
+/// IMU samples held over, by cause (protocol 1.6).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct ImuHeldCounters {
+    /// No sample arrived for the control step.
+    pub missing: u32,
+    /// A value was NaN or infinite (a broken data path).
+    pub non_finite: u32,
+    /// Every gyro and accelerometer value repeated the previous sample bit for bit while the
+    /// motors spun (a frozen sensor or a stale read).
+    pub frozen: u32,
+    /// An accelerometer axis at the ±16 g rail: the last unsaturated accelerometer reading was
+    /// used, the gyro as read.
+    pub accel_saturated: u32,
+}
+
+impl ImuHeldCounters {
+    /// Every held sample, whatever the cause.
+    pub fn total(&self) -> u64 {
+        [self.missing, self.non_finite, self.frozen, self.accel_saturated]
+            .iter()
+            .map(|&n| u64::from(n))
+            .sum()
+    }
+}
+
+/// A motor whose speed report is older than this counts as not reporting, ms (protocol 1.6).
+pub const SPEED_REPORT_TIMEOUT_MS: u16 = 100;
+
 /// Where the throw-to-fly identification stands (algorithms.md §1–2).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum LearnerPhase {
@@ -760,6 +815,10 @@ pub enum LearnerFailure {
     Disarmed,
     /// The IMU stopped delivering samples during the attempt.
     ImuLost,
+    /// A motor's speed was not reported ([`SensorHealth::speeds_reported`]): the learner needs
+    /// every motor's speed. Before the excitation the motors never started; during it they
+    /// stopped. Protocol 1.6.
+    NoSpeedTelemetry,
 }
 
 /// The in-flight learner: phase, and the estimates so far. `g1_rows` carries three rows of the
@@ -886,7 +945,8 @@ crate::table::message_table! {
         0x04 => SetTelemetryRate(SetTelemetryRate),
         0x05 => Ping(Ping),
         /// Arm the throw detector: the next throw starts the motor excitation. Refused with
-        /// [`DeviceError::BadValue`] (`motor_count`) on a board with fewer than four motors, with
+        /// [`DeviceError::BadValue`] (`motor_count`) on a board with fewer than four motors,
+        /// with [`DeviceError::SpeedsNotReported`] while a motor reports no speed, with
         /// [`DeviceError::Busy`] while the control step has not yet taken earlier commands.
         0x06 => ArmThrowToFly(()),
         /// Stop every motor now and leave any armed state. Always accepted after the handshake;
@@ -936,6 +996,9 @@ crate::table::message_table! {
         /// outputs; refused while armed, [`DeviceError::Unsupported`] where the motor outputs
         /// cannot send them (the bridge). Protocol 1.5.
         0x17 => EscCommand(EscCommand),
+        /// The sensors' health ([`Reply::Health`]): IMU samples held over, motors reporting
+        /// their speed. Protocol 1.6.
+        0x18 => GetHealth(()),
     }
 }
 

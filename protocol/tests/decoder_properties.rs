@@ -82,6 +82,7 @@ fn any_request() -> impl Strategy<Value = Request> {
         (any::<u8>(), any::<u8>()).prop_map(|(motor, command)| Request::EscCommand(
             protocol::EscCommand { motor, command }
         )),
+        Just(Request::GetHealth(())),
     ]
 }
 

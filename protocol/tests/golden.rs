@@ -509,3 +509,27 @@ fn protocol_1_5_esc_command_is_pinned() {
     let reverse = EscCommand { motor: 2, command: 21 };
     assert_eq!(request(Request::EscCommand(reverse), 8), "09 17 08 02 15 68 9f b8 82 00");
 }
+
+#[test]
+fn protocol_1_6_health_and_speed_refusal_are_pinned() {
+    assert_eq!(request(Request::GetHealth(()), 9), "07 18 09 27 9e 02 2b 00");
+    let health = SensorHealth {
+        imu_held: ImuHeldCounters { missing: 2, non_finite: 1, frozen: 0, accel_saturated: 300 },
+        imu_longest_hold_us: 19_500,
+        motor_count: 4,
+        speeds_reported: 0b1011,
+        speed_reports_lost: 1,
+    };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::Health(health))), 10),
+        "03 81 0a 04 0a 02 01 0d ac 02 ac 98 01 04 0b 01 5c 08 7d ec 00"
+    );
+    let refusal = DeviceError::SpeedsNotReported { motors: 0b0100 };
+    assert_eq!(
+        device(DeviceMessage::Response(Err(refusal)), 11),
+        "0a 81 0b 01 0d 04 68 19 40 25 00"
+    );
+    // Appended: the earlier failures keep their indices (`learner_enums_keep_their_wire_indices`).
+    let mut buffer = [0u8; 4];
+    assert_eq!(postcard::to_slice(&LearnerFailure::NoSpeedTelemetry, &mut buffer).unwrap(), [7]);
+}

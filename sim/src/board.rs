@@ -409,12 +409,12 @@ impl SimBoard {
             accel_mps2: to_f32(sum.accel_mps2 / n),
         };
         // Fault injection: the sample as a failing IMU delivers it (unchanged without faults).
-        self.faults.corrupt_imu(tick_end_s, &mut self.last_sample);
+        let delivered = self.faults.corrupt_imu(tick_end_s, &mut self.last_sample);
         self.last_truth_sample = RawSample {
             gyro_rad_s: sum_truth.gyro_rad_s / n,
             accel_mps2: sum_truth.accel_mps2 / n,
         };
-        self.imu.latest = Some(self.last_sample);
+        self.imu.latest = delivered.then_some(self.last_sample);
 
         self.ticks += 1;
         let ring_len = self.telemetry_ring.len();
@@ -428,7 +428,11 @@ impl SimBoard {
                 .then(|| self.telemetry_ring[(slot + ring_len - delay) % ring_len][i]);
             let lost = w.telemetry_loss_probability > 0.0
                 && self.world_rng.uniform() < w.telemetry_loss_probability;
-            if !lost {
+            if self.faults.speed_report_lost(tick_end_s, i) {
+                // The ESC stopped answering (fault injection): no speed at all.
+                self.reported_rad_s[i] = None;
+            } else if !lost {
+                // A lost answer leaves the previous one in place, as the DShot driver does.
                 self.reported_rad_s[i] = answer;
             }
             self.motors.speeds_rad_s[i] = self.reported_rad_s[i];

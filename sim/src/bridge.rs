@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::app::{ControlCommand, NoFlash, Settings};
-use protocol::ExternalPose;
+use protocol::{ExternalPose, LearnerFailure};
 
 use crate::scenario::{FirmwareApp, FlightApp};
 use crate::serve::{status_view, TcpLinks};
@@ -429,14 +429,16 @@ pub struct BridgeSummary {
 /// (arm, disarm, external pose) go to the control loop. Connections accepted after the first
 /// packet report its motor count in their info (0 before).
 ///
-/// Malformed datagrams are handed to `on_malformed` and not answered; a socket error ends the
+/// Malformed datagrams are reported to `report` ([`BridgeNotice::Malformed`]) and not answered;
+/// a throw-to-fly attempt that ends without a result, or an arming the control step refuses,
+/// is reported with its reason ([`BridgeNotice::AttemptEnded`]). A socket error ends the
 /// run.
 pub fn serve_firmware(
     server: &mut BridgeServer,
     app: &mut FirmwareApp<'_>,
     mut links: Option<&mut TcpLinks>,
     idle_timeout: Duration,
-    on_malformed: &mut dyn FnMut(&BridgeError),
+    report: &mut dyn FnMut(BridgeNotice<'_>),
 ) -> Result<BridgeSummary, BridgeError> {
     let mut summary = BridgeSummary::default();
     // The parameters start from the application's state: an IMU offset given on the command
@@ -447,6 +449,7 @@ pub fn serve_firmware(
     }
     let mut last_datagram = Instant::now();
     let mut now_us = 0u64;
+    let mut last_failure = app.control.snapshot().failure;
     let mut step_records = Vec::with_capacity(firmware::app::STEP_RING_LEN);
     loop {
         let idle = last_datagram.elapsed();
@@ -459,6 +462,11 @@ pub fn serve_firmware(
             Ok((sensor, _)) => {
                 last_datagram = Instant::now();
                 summary.steps += 1;
+                let failure = app.control.snapshot().failure;
+                if failure != last_failure && failure != LearnerFailure::None {
+                    report(BridgeNotice::AttemptEnded(failure));
+                }
+                last_failure = failure;
                 now_us = packet_time_us(&sensor);
                 if let Some(links) = links.as_deref_mut() {
                     links.set_motor_count(sensor.motor_count);
@@ -470,7 +478,7 @@ pub fn serve_firmware(
             Err(error) => {
                 last_datagram = Instant::now();
                 summary.malformed += 1;
-                on_malformed(&error);
+                report(BridgeNotice::Malformed(&error));
                 false
             }
         };
@@ -486,6 +494,47 @@ pub fn serve_firmware(
                 app.configure(&params, now_us);
             }
         }
+    }
+}
+
+/// What [`serve_firmware`] reports as it serves (the `scenario bridge` command prints each on
+/// stderr).
+#[derive(Debug)]
+pub enum BridgeNotice<'e> {
+    /// A datagram was malformed; it was not answered.
+    Malformed(&'e BridgeError),
+    /// A throw-to-fly attempt ended without a result, or the control step refused to arm: why.
+    AttemptEnded(LearnerFailure),
+}
+
+impl std::fmt::Display for BridgeNotice<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Malformed(error) => write!(f, "ignored a malformed packet: {error}"),
+            Self::AttemptEnded(failure) => {
+                write!(f, "throw-to-fly not armed any more: {}", attempt_text(*failure))
+            }
+        }
+    }
+}
+
+/// Why a throw-to-fly attempt ended, for a person reading the bridge's stderr.
+pub fn attempt_text(failure: LearnerFailure) -> String {
+    match failure {
+        LearnerFailure::NoSpeedTelemetry => format!(
+            "motor speeds not reported (NaN in the sensor packets for {} ms): the in-flight \
+             learner needs every motor's speed, rad/s; send them. Every motor was stopped.",
+            protocol::SPEED_REPORT_TIMEOUT_MS
+        ),
+        LearnerFailure::NotFreeFall => {
+            "the release was refused: not falling freely (motors never started)".into()
+        }
+        LearnerFailure::ThrowTimedOut => "a throw began but no release followed".into(),
+        LearnerFailure::RankDeficient => "no torque about every axis: no hover axis".into(),
+        LearnerFailure::NoHover => "no hover within the motor limits".into(),
+        LearnerFailure::Disarmed => "disarmed by request".into(),
+        LearnerFailure::ImuLost => "the IMU samples stopped or went bad".into(),
+        LearnerFailure::None => "no reason".into(),
     }
 }
 

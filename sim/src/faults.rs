@@ -31,7 +31,13 @@
 //!   - [`FaultKind::MotorThrust`]: one rotor's thrust and drag-torque coefficients are scaled by
 //!     `factor` (a chipped or loose propeller: the motor still turns at the commanded speed and
 //!     reports it, but it pushes less);
-//!   - [`FaultKind::PoseLost`]: the external pose stops arriving (motion capture lost the craft).
+//!   - [`FaultKind::PoseLost`]: the external pose stops arriving (motion capture lost the craft);
+//!   - [`FaultKind::ImuMissing`]: the tick delivers no IMU sample (a late data-ready interrupt, a
+//!     failed SPI transfer the driver discarded);
+//!   - [`FaultKind::ImuFrozen`]: the sample repeats the previous one delivered, every value bit
+//!     for bit (a stale FIFO or register read);
+//!   - [`FaultKind::SpeedReportLost`]: one motor's speed report is missing (its ESC does not
+//!     answer, or answers garbage the driver rejects).
 //! - An empty schedule changes nothing: flights without faults are bit-identical to flights on a
 //!   board built without one.
 
@@ -74,6 +80,15 @@ pub enum FaultKind {
     },
     /// No external pose is sent.
     PoseLost,
+    /// No IMU sample is delivered.
+    ImuMissing,
+    /// The IMU sample repeats the previous one delivered, bit for bit.
+    ImuFrozen,
+    /// Motor `motor`'s speed is not reported.
+    SpeedReportLost {
+        /// The motor (motor order).
+        motor: usize,
+    },
 }
 
 /// One fault: what, from when, for how long.
@@ -124,6 +139,8 @@ pub struct FaultInjector {
     schedule: FaultSchedule,
     /// The gyro of the last sample delivered (for a stuck axis).
     last_gyro_rad_s: Option<[f32; 3]>,
+    /// The last sample delivered (for a frozen IMU).
+    last_sample: Option<ImuSample>,
     /// The thrust factor each rotor has now.
     factors: [f64; MAX_ROTORS],
 }
@@ -131,7 +148,12 @@ pub struct FaultInjector {
 impl FaultInjector {
     /// An injector for `schedule`.
     pub fn new(schedule: &FaultSchedule) -> Self {
-        Self { schedule: schedule.clone(), last_gyro_rad_s: None, factors: [1.0; MAX_ROTORS] }
+        Self {
+            schedule: schedule.clone(),
+            last_gyro_rad_s: None,
+            last_sample: None,
+            factors: [1.0; MAX_ROTORS],
+        }
     }
 
     /// Add `fault` to the schedule (e.g. when the flight reaches a state).
@@ -167,15 +189,18 @@ impl FaultInjector {
         changed.then_some(factors)
     }
 
-    /// Corrupt the sample of the tick ending at `t_s` as the active IMU faults say.
-    pub fn corrupt_imu(&mut self, t_s: f64, sample: &mut ImuSample) {
+    /// Corrupt the sample of the tick ending at `t_s` as the active IMU faults say. Returns
+    /// whether the sample is delivered at all ([`FaultKind::ImuMissing`]).
+    pub fn corrupt_imu(&mut self, t_s: f64, sample: &mut ImuSample) -> bool {
         if self.schedule.faults.is_empty() {
-            // Remembered for a stuck axis added later.
+            // Remembered for a stuck axis or a frozen IMU added later.
             self.last_gyro_rad_s = Some(sample.gyro_rad_s);
-            return;
+            self.last_sample = Some(*sample);
+            return true;
         }
         let last = self.last_gyro_rad_s;
         let kinds: Vec<FaultKind> = self.active(t_s).copied().collect();
+        let mut delivered = true;
         for kind in kinds {
             match kind {
                 FaultKind::ImuNan => {
@@ -195,10 +220,27 @@ impl FaultInjector {
                         (ACCEL_FULL_SCALE_MPS2 * 32767.0 / 32768.0) as f32
                     };
                 }
-                FaultKind::MotorThrust { .. } | FaultKind::PoseLost => {}
+                FaultKind::ImuMissing => delivered = false,
+                FaultKind::ImuFrozen => {
+                    if let Some(last) = self.last_sample {
+                        *sample = last;
+                    }
+                }
+                FaultKind::MotorThrust { .. }
+                | FaultKind::PoseLost
+                | FaultKind::SpeedReportLost { .. } => {}
             }
         }
-        self.last_gyro_rad_s = Some(sample.gyro_rad_s);
+        if delivered {
+            self.last_gyro_rad_s = Some(sample.gyro_rad_s);
+            self.last_sample = Some(*sample);
+        }
+        delivered
+    }
+
+    /// Whether motor `motor`'s speed report is lost on the tick ending at `t_s`.
+    pub fn speed_report_lost(&self, t_s: f64, motor: usize) -> bool {
+        self.active(t_s).any(|kind| *kind == FaultKind::SpeedReportLost { motor })
     }
 
     /// Whether the external pose is lost at board time `t_s`.
@@ -251,6 +293,27 @@ mod tests {
         let schedule = FaultSchedule::default().with(Fault::from(0.0, FaultKind::ImuNan));
         FaultInjector::new(&schedule).corrupt_imu(0.0, &mut s);
         assert!(s.gyro_rad_s.iter().chain(&s.accel_mps2).all(|x| x.is_nan()));
+    }
+
+    #[test]
+    fn a_missing_sample_is_not_delivered_and_a_frozen_one_repeats_the_last_delivered() {
+        let schedule = FaultSchedule::default()
+            .with(Fault { start_s: 1.0, duration_s: 0.001, kind: FaultKind::ImuMissing })
+            .with(Fault::from(2.0, FaultKind::ImuFrozen))
+            .with(Fault::from(3.0, FaultKind::SpeedReportLost { motor: 1 }));
+        let mut injector = FaultInjector::new(&schedule);
+        let mut s = sample(0.5);
+        assert!(injector.corrupt_imu(0.9995, &mut s));
+        assert!(!injector.corrupt_imu(1.0, &mut sample(1.0)));
+        assert!(!injector.corrupt_imu(1.0005, &mut sample(1.5)));
+        // Frozen at the last sample delivered (0.5), not at the missing ones.
+        for t in [2.0, 2.0005, 2.5] {
+            let mut s = sample(t as f32);
+            assert!(injector.corrupt_imu(t, &mut s));
+            assert_eq!(s, sample(0.5), "{t}");
+        }
+        assert!(!injector.speed_report_lost(2.9995, 1));
+        assert!(injector.speed_report_lost(3.0, 1) && !injector.speed_report_lost(3.0, 0));
     }
 
     #[test]

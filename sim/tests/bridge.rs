@@ -13,7 +13,8 @@ use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request, Resp
 use sim::airframe::Airframe;
 use sim::board::{SimBoard, SimConfig};
 use sim::bridge::{
-    serve_firmware, BridgeClient, BridgeError, BridgeServer, BridgeSummary, SensorPacket,
+    serve_firmware, BridgeClient, BridgeError, BridgeNotice, BridgeServer, BridgeSummary,
+    SensorPacket,
 };
 use sim::scenario::{with_firmware_app, FlightApp, ScenarioConfig, ScenarioKind};
 use sim::serve::{simulator_board_info, TcpLinks};
@@ -145,21 +146,28 @@ fn firmware_bridge(
     arm: bool,
     mut links: Option<TcpLinks>,
     idle: Duration,
-) -> (std::net::SocketAddr, std::thread::JoinHandle<(BridgeSummary, ControlSnapshot)>) {
+) -> (std::net::SocketAddr, std::thread::JoinHandle<(BridgeSummary, ControlSnapshot, Vec<String>)>)
+{
     let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
     let addr = server.local_addr().unwrap();
-    let handle = std::thread::spawn(move || {
-        with_firmware_app(|app| {
-            if arm {
-                app.control.command(ControlCommand::ArmThrowToFly, 0);
-            }
-            let summary = serve_firmware(&mut server, app, links.as_mut(), idle, &mut |e| {
-                panic!("malformed packet: {e}")
+    let handle =
+        std::thread::spawn(move || {
+            with_firmware_app(|app| {
+                if arm {
+                    app.control.command(ControlCommand::ArmThrowToFly, 0);
+                }
+                let mut notices = Vec::new();
+                let summary =
+                    serve_firmware(&mut server, app, links.as_mut(), idle, &mut |notice| {
+                        match notice {
+                            BridgeNotice::Malformed(e) => panic!("malformed packet: {e}"),
+                            notice => notices.push(notice.to_string()),
+                        }
+                    })
+                    .unwrap();
+                (summary, app.control.snapshot(), notices)
             })
-            .unwrap();
-            (summary, app.control.snapshot())
-        })
-    });
+        });
     (addr, handle)
 }
 
@@ -177,9 +185,40 @@ fn a_version_2_pose_reaches_the_application() {
     board.tick();
     let reply = client.exchange(&sensor_packet(&board, 8, None), TIMEOUT).unwrap();
     assert_eq!((reply.version, reply.sequence), (1, 8));
-    let (summary, snapshot) = handle.join().unwrap();
+    let (summary, snapshot, _) = handle.join().unwrap();
     assert_eq!(summary, BridgeSummary { steps: 2, malformed: 0 });
     assert_eq!(snapshot.external_pose, Some((POSE, 500)), "the pose at the packet's time");
+}
+
+/// Issue 28, item 3: a simulator that sends NaN motor speeds (its ESCs have no telemetry) to a
+/// bridge armed for throw-to-fly at start: the attempt ends 0.1 s into the packets with the
+/// reason on the bridge's report (stderr for `scenario bridge`), and through a whole throw every
+/// motor packet commands 0.
+#[test]
+fn nan_speeds_end_the_armed_attempt_with_the_reason_and_nothing_spins() {
+    let (addr, handle) = firmware_bridge(true, None, Duration::from_millis(200));
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let mut board = SimBoard::new(&airframe, &SimConfig::default());
+    let spec = ScenarioConfig::new(ScenarioKind::ThrowFly).throw_spec();
+    let mut largest = 0.0f32;
+    for sequence in 0..600 + 2400 {
+        if sequence == 600 {
+            board.physics_mut().throw(&spec);
+        }
+        board.tick();
+        let mut packet = sensor_packet(&board, sequence, None);
+        packet.speeds_rad_s = [None; firmware::app::hal::MAX_MOTORS];
+        let reply = client.exchange(&packet, TIMEOUT).unwrap();
+        let commands = &reply.commands[..reply.motor_count as usize];
+        largest = commands.iter().copied().fold(largest, f32::max);
+        board.motors_mut().set_commands(commands);
+    }
+    let (_, snapshot, notices) = handle.join().unwrap();
+    assert_eq!(largest, 0.0, "no motor was ever commanded");
+    assert_eq!(snapshot.failure, protocol::LearnerFailure::NoSpeedTelemetry);
+    assert_eq!(notices.len(), 1, "{notices:?}");
+    assert!(notices[0].contains("motor speeds not reported"), "{notices:?}");
 }
 
 /// Throws the paper quad (the throw-and-fly scenario's throw) in our own physics, exchanging
@@ -210,7 +249,8 @@ fn throw_through_the_bridge(arm: bool) -> (f32, f32, f32) {
         }
     }
     assert!(board.physics().hand().released_at_s().is_some(), "the hand let go");
-    let (summary, _) = handle.join().unwrap();
+    let (summary, _, notices) = handle.join().unwrap();
+    assert!(notices.is_empty(), "{notices:?}");
     assert_eq!(summary.steps, hold_ticks + 1200);
     (before, after, all)
 }
@@ -305,7 +345,7 @@ fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
         other => panic!("expected the hello reply, got {other:?}"),
     }
     drop((host, second));
-    let (summary, snapshot) = handle.join().unwrap();
+    let (summary, snapshot, _) = handle.join().unwrap();
     assert_eq!(summary.steps, 10);
     assert!(snapshot.armed);
     assert_eq!(snapshot.external_pose.map(|(pose, _)| pose), Some(POSE));

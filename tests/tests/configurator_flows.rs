@@ -337,7 +337,11 @@ fn the_shell_reconnects_by_itself_after_a_reboot_and_finds_the_saved_value() {
     assert!(output.status.success(), "{stderr}");
     assert!(stderr.contains("reconnected to SITL"), "the shell says it reconnected: {stderr}");
     assert!(!stderr.contains("error"), "every command after the reboot worked: {stderr}");
-    assert!(stdout.contains("the board restarted; configuration: 24 parameters, loaded from flash"));
+    let restarted = format!(
+        "the board restarted; configuration: {} parameters, loaded from flash",
+        firmware::app::params::PARAM_COUNT
+    );
+    assert!(stdout.contains(&restarted), "{stdout}");
     let after = stdout.split("the board restarted").nth(1).unwrap();
     assert!(after.contains("gravity_mps2 = 9.79\n"), "the saved value after the reboot: {after}");
 }

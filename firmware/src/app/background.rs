@@ -2,9 +2,15 @@
 //!
 //! - One-second statistics of the IMU stream (mean and standard deviation per axis: at rest these
 //!   are the gyro bias and the sensor noise, which the status reports and calibration flows use).
-//! - The onboard IMU-offset estimator (`flight::imu_offset`, seed paper §3.2): every sample goes
-//!   in, throws are detected as free fall, and after each accepted throw the offset, its 95 %
-//!   ellipsoid and the verdict are re-estimated (a few 3 × 3 solves, once per throw).
+//! - The onboard IMU-offset estimator (`flight::imu_offset`, seed paper §3.2): throws are
+//!   detected as free fall, and after each accepted throw the offset, its 95 % ellipsoid and the
+//!   verdict are re-estimated (a few 3 × 3 solves, once per throw). Only samples of an unpowered
+//!   craft go in: none while armed (a throw-to-fly attempt), flying or with any motor commanded,
+//!   nor for [`MOTORS_OFF_SETTLE_S`] after (a propeller spinning down still pushes). Its model is
+//!   free fall and rest; a powered flight fits neither, and fed to it (the paper quad's
+//!   throw-to-fly) it was counted as more throws and moved the estimate by 8–16 mm. The
+//!   estimator is told of each such stretch as of a gap in the stream (a free fall in progress
+//!   is abandoned, the rest pose in progress ends).
 //!
 //! - The in-flight learner (`flight::learner::Learner`): while the control step excites the
 //!   motors after a throw, every sample updates the motor models, G1/G2 and the thrust axis.
@@ -39,6 +45,13 @@ pub const LEARN_AFTER_EXCITATION_S: f32 = 0.1;
 /// airframes (`fly monte-carlo`) the worse G1 block goes from 3.39 % median, 13.4 % 99th
 /// percentile at engagement to 2.33 % and 9.05 % (docs/benchmarks.md).
 pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
+
+/// How long after the craft was last powered (armed for throw-to-fly, flying, or any motor
+/// commanded) samples stay away from the IMU-offset estimator, s. Origin: a motor told to stop
+/// keeps turning, and pushing, for a few time constants (25–50 ms for the simulator's airframes,
+/// up to about 0.1 s for large propellers); 0.5 s is five of the slowest, and a hand needs longer
+/// than that to take a disarmed craft and throw it again.
+pub const MOTORS_OFF_SETTLE_S: f32 = 0.5;
 
 /// Length of one statistics window, µs (one second).
 pub const STATS_WINDOW_US: u64 = 1_000_000;
@@ -117,8 +130,12 @@ pub struct Background<'q> {
     imu_offset_config: imu_offset::Config,
     /// One control period, µs: the spacing of consecutive samples when none is lost.
     period_us: u64,
-    /// Time of the previous sample, µs.
+    /// Time of the previous sample the IMU-offset estimator took, µs.
     previous_t_us: Option<u64>,
+    /// Time of the latest sample of a powered craft (see [`MOTORS_OFF_SETTLE_S`]), µs.
+    powered_at_us: Option<u64>,
+    /// Whether the previous sample was kept from the IMU-offset estimator.
+    offset_paused: bool,
     /// The in-flight learner, built at the first excitation (it needs the motor count).
     learner: LearnerSlot,
     /// The IMU offset to use, IMU axes, m, when configured.
@@ -167,6 +184,8 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).imu_offset_config).write(imu_offset_config());
             addr_of_mut!((*worker).period_us).write(1_000_000 / u64::from(rate_hz));
             addr_of_mut!((*worker).previous_t_us).write(None);
+            addr_of_mut!((*worker).powered_at_us).write(None);
+            addr_of_mut!((*worker).offset_paused).write(false);
             LearnerSlot::init_empty(addr_of_mut!((*worker).learner));
             addr_of_mut!((*worker).configured_offset_m).write(None);
             addr_of_mut!((*worker).rate_hz).write(f32::from(rate_hz));
@@ -273,8 +292,33 @@ impl<'q> Background<'q> {
             self.gyro[axis].add(sample.imu.gyro_rad_s[axis]);
             self.accel[axis].add(sample.imu.accel_mps2[axis]);
         }
-        self.update_imu_offset(sample);
+        if self.unpowered(sample) {
+            self.offset_paused = false;
+            self.update_imu_offset(sample);
+        } else if !self.offset_paused {
+            // A free fall or rest in progress ends here; the samples left out until the craft
+            // is unpowered again are told as a gap when it is (`update_imu_offset`).
+            self.offset_paused = true;
+            if let Some(estimator) = &mut self.imu_offset {
+                estimator.gap(0);
+            }
+            self.results.imu_offset.in_free_fall = false;
+        }
         self.update_learner(sample);
+    }
+
+    /// Whether the craft has been unpowered for [`MOTORS_OFF_SETTLE_S`] at `sample`: not armed
+    /// for throw-to-fly, not flying, every motor command zero.
+    fn unpowered(&mut self, sample: &LearnerSample) -> bool {
+        let motors = usize::from(sample.motor_count).min(sample.commands.len());
+        let powered = sample.flying
+            || !matches!(sample.phase, FlightPhase::Idle | FlightPhase::Done)
+            || sample.commands[..motors].iter().any(|&c| c != 0.0);
+        if powered {
+            self.powered_at_us = Some(sample.t_us);
+        }
+        let settle_us = (MOTORS_OFF_SETTLE_S * 1e6) as u64;
+        self.powered_at_us.is_none_or(|t| sample.t_us.saturating_sub(t) >= settle_us)
     }
 
     fn update_learner(&mut self, sample: &LearnerSample) {
@@ -518,6 +562,52 @@ mod tests {
             assert!((results.accel_std_mps2[axis] / accel_noise_mps2 - 1.0).abs() < 0.08);
         }
         assert!((results.accel_mean_mps2[2] + 9.81).abs() < 0.01);
+    }
+
+    /// Whether the IMU-offset estimator saw the craft in free fall during 0.3 s of a free fall
+    /// spinning at 5 rad/s after 0.6 s held still, with the phase, flying flag and commands
+    /// of `powered` during the fall (and `settle_s` of motors off before it).
+    fn free_fall_seen(powered: Option<(FlightPhase, bool, f32)>) -> bool {
+        let mut queue = SampleQueue::new();
+        let (mut producer, consumer) = split_queue(&mut queue);
+        let mut background = Background::new(consumer, 2000);
+        let mut rng = flight::rng::Rng::new(7);
+        let mut seen = false;
+        for step in 0..1800u64 {
+            let falling = step >= 1200;
+            let noise = |rng: &mut flight::rng::Rng| 0.02 * rng.normal() as f32;
+            let imu = ImuSample {
+                gyro_rad_s: if falling { [5.0, 1.0, -0.5] } else { [0.0; 3] }
+                    .map(|w| w + 0.001 * rng.normal() as f32),
+                accel_mps2: if falling { [0.0; 3] } else { [0.0, 0.0, -9.81] }
+                    .map(|a| a + noise(&mut rng)),
+            };
+            let mut sample =
+                LearnerSample { t_us: step * 500, imu, motor_count: 4, ..Default::default() };
+            if let (true, Some((phase, flying, command))) = (falling, powered) {
+                sample.phase = phase;
+                sample.flying = flying;
+                sample.commands[..4].fill(command);
+            }
+            producer.push(sample);
+            background.run_pending();
+            seen |= background.results().imu_offset.in_free_fall;
+        }
+        seen
+    }
+
+    #[test]
+    fn the_imu_offset_estimator_never_sees_a_powered_craft() {
+        assert!(free_fall_seen(None), "an unpowered free fall is seen");
+        for powered in [
+            (FlightPhase::WaitingForThrow, false, 0.0),
+            (FlightPhase::Released, false, 0.0),
+            (FlightPhase::Exciting, false, 0.5),
+            (FlightPhase::Done, true, 0.3),
+            (FlightPhase::Idle, false, 0.1),
+        ] {
+            assert!(!free_fall_seen(Some(powered)), "{powered:?}");
+        }
     }
 
     #[test]

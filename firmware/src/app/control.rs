@@ -15,19 +15,46 @@
 //! sample; when the excitation ends the step engages the controller on the model the background
 //! task published ([`ControlLoop::receive`]) and flies it until disarmed or a failsafe stops it.
 //!
-//! **IMU checks** (before anything uses the sample; `docs/failsafes.md` has the reasoning). The
-//! reaction is in force in the very step whose sample shows the fault: that step writes zero to
-//! every motor, and the failsafe is counted in the pilot's status ([`Failsafe::ImuFault`]).
-//! - A **non-finite** value (NaN, ±∞): the sample is never used (it counts as missing). During a
-//!   throw-to-fly attempt or a flight it disarms at once: the ICM-42688-P delivers 16-bit
-//!   integers, so a non-finite value means the data path itself is broken.
-//! - A **stuck gyro axis**: [`STUCK_GYRO_SAMPLES`] consecutive bit-identical readings of one axis
-//!   while another axis changed meanwhile, except at the sensor's rail ([`GYRO_RAIL_RAD_S`]: a
-//!   tumble faster than the gyro measures). Tracked always; while flying it disarms.
-//! - A **saturated accelerometer**: an axis at or beyond [`ACCEL_SATURATED_MPS2`]. While flying,
-//!   the step uses the last unsaturated accelerometer reading instead (attitude filter, position
-//!   estimator and INDI alike; the gyro is used as read), counted in
-//!   [`ControlSnapshot::accel_held`]; [`ACCEL_SATURATED_STEPS`] saturated samples in a row disarm.
+//! **IMU checks** (before anything uses the sample; `docs/failsafes.md` has the reasoning). While
+//! armed (a throw-to-fly attempt or a flight), a *bad* sample is held over: the step runs on the
+//! last good sample instead, counts it by cause ([`ControlSnapshot::imu_held`]) and goes on. The
+//! failsafe is for a fault that lasts: when the bad samples have gone on for
+//! `imu_fault_timeout_s` ([`ControlSettings::imu_fault_timeout_s`], default
+//! [`IMU_FAULT_TIMEOUT_S`]), that step ends the attempt or disarms the flight and writes zero
+//! (`ImuLost` for missing samples, [`Failsafe::ImuFault`] for the others). Bad is:
+//! - **missing**: no sample for the step;
+//! - **non-finite** (NaN, ±∞): the ICM-42688-P delivers 16-bit integers, so the transfer or its
+//!   buffer was corrupted; one corrupted SPI transfer says nothing about the next one;
+//! - **frozen**: every gyro and accelerometer value bit-identical to the previous sample's while
+//!   the motors spin (exciting or flying): their vibration makes that impossible for a live
+//!   sensor, so it is a stale read;
+//! - **accelerometer saturated**: an axis at or beyond [`ACCEL_SATURATED_MPS2`]; here only the
+//!   accelerometer is replaced (by the last unsaturated reading), the gyro is used as read.
+//!
+//! A **stuck gyro axis** ([`STUCK_GYRO_SAMPLES`] bit-identical readings of one axis while another
+//! changed, except at the rail [`GYRO_RAIL_RAD_S`]) is a lasting fault by its detection window:
+//! while flying it disarms at once. Held samples never reach the background task (the learner
+//! does not learn from them; the IMU-offset estimator sees a gap) and show in the per-step
+//! telemetry as steps without a fresh sample. The throw detector, the excitation schedule and the
+//! pilot run on the held sample, so their clocks keep running. Disarmed, a missing or non-finite
+//! sample is not used (counted in [`ControlSnapshot::imu_missing`]) and a saturated one is used
+//! as read (the IMU-offset estimator judges its samples itself).
+//!
+//! **Motor speed reports.** A motor counts as reporting while its latest finite speed report is
+//! at most [`SPEED_REPORT_TIMEOUT_S`] old ([`ControlSnapshot::speeds_reported`]). The in-flight
+//! learner needs every motor's speed, so:
+//! - arming for throw-to-fly is refused while a motor does not report (the link refuses the
+//!   request naming the motors; the step refuses the command once it has run);
+//! - armed but before the excitation (waiting, throwing, released: nothing spins), a motor
+//!   without a report for the timeout since the arming ends the attempt
+//!   ([`LearnerFailure::NoSpeedTelemetry`]): the motors never start;
+//! - during the excitation the same ends the attempt and stops every motor in that step: the
+//!   learner cannot identify a motor it does not hear, so no flyable model can come of the
+//!   attempt, and spinning on would only put propellers in the air near whoever catches it;
+//! - flying on the learned model, the flight goes on: INDI models each motor's speed from its
+//!   commands with the learned τ (`flight::indi`) and never reads the reports. The loss is
+//!   counted ([`ControlSnapshot::speed_reports_lost`]), and the in-flight refinement skips the
+//!   samples without every speed (the learner's own rule).
 
 use super::background::BackgroundResults;
 use super::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
@@ -38,8 +65,8 @@ use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
 use flight::learner::{FlightPhase, ThrowToFly};
 use protocol::{
-    DshotCommand, ExternalPose, LearnerFailure, PositionSetpoint, MOTOR_TEST_KEEPALIVE_MS,
-    MOTOR_TEST_MAX_COMMAND,
+    DshotCommand, ExternalPose, ImuHeldCounters, LearnerFailure, PositionSetpoint,
+    MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND, SPEED_REPORT_TIMEOUT_MS,
 };
 
 /// What the other tasks ask of the control step (from the link, the receiver, the simulator).
@@ -66,7 +93,7 @@ pub enum ControlCommand {
 }
 
 /// What the control step takes from the parameters (`super::params::Params`).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ControlSettings {
     pub throw: ThrowConfig,
     pub excitation: ExcitationConfig,
@@ -74,6 +101,21 @@ pub struct ControlSettings {
     pub acc_bias_mps2: [f32; 3],
     /// What the external poses are (latency, noise).
     pub pose: super::pilot::PoseConfig,
+    /// How long, armed, bad IMU samples are held over before the IMU failsafe acts, s
+    /// (`imu_fault_timeout_s`; 0: at the first bad sample).
+    pub imu_fault_timeout_s: f32,
+}
+
+impl Default for ControlSettings {
+    fn default() -> Self {
+        Self {
+            throw: ThrowConfig::default(),
+            excitation: ExcitationConfig::default(),
+            acc_bias_mps2: [0.0; 3],
+            pose: super::pilot::PoseConfig::default(),
+            imu_fault_timeout_s: IMU_FAULT_TIMEOUT_S,
+        }
+    }
 }
 
 impl From<&super::params::Params> for ControlSettings {
@@ -83,6 +125,7 @@ impl From<&super::params::Params> for ControlSettings {
             excitation: params.excitation_config(),
             acc_bias_mps2: params.acc_bias_mps2(),
             pose: params.pose_config(),
+            imu_fault_timeout_s: params.imu_fault_timeout_s(),
         }
     }
 }
@@ -99,8 +142,30 @@ struct MotorTestState {
 /// Control-step rate, Hz: the published system's INDI and learner rate (algorithms.md §8).
 pub const CONTROL_RATE_HZ: u16 = 2000;
 
-/// Consecutive steps without an IMU sample after which the IMU counts as absent (10 ms at 2 kHz).
-const IMU_ABSENT_AFTER_STEPS: u32 = 20;
+/// Time without a usable IMU sample after which the status calls the IMU absent, µs (10 ms).
+/// Status only: while armed, `imu_fault_timeout_s` decides when a missing IMU fails safe.
+const IMU_ABSENT_AFTER_US: u64 = 10_000;
+
+/// Default of the `imu_fault_timeout_s` parameter, s: how long, armed, the step flies on the
+/// last good IMU sample before bad or missing samples count as a failed IMU. Origin: a held
+/// sample freezes the measured rate and specific force, so under an angular acceleration α the
+/// controller does not see, the rate it believes drifts by α·T and the attitude by ½·α·T². In a
+/// hover (α of gusts and vibration, ≲ 20 rad/s²) 20 ms cost 0.4 rad/s and 0.2°; in the recovery
+/// from a throw, where INDI commands up to a few hundred rad/s², about 4 rad/s and 2°: what the
+/// rate loop corrects within its own time constant. At 50 ms the same recovery would fly
+/// 10 rad/s and 14° blind while the motors (τ 25–50 ms) ran their whole response to stale
+/// increments. Measured (`tests/tests/faults.rs`): 39 bad samples (19.5 ms) of every kind, in
+/// the recovery and in hover, are ridden through; the paper quad recovers and holds its position.
+pub const IMU_FAULT_TIMEOUT_S: f32 = 0.02;
+
+/// A motor counts as reporting its speed while its latest finite report is at most this old, s
+/// ([`SPEED_REPORT_TIMEOUT_MS`]). Origin: a bidirectional-DShot ESC answers every frame (2 kHz
+/// here), and the board's driver already calls a motor stale after 4 failed answers in a row
+/// (`drivers::dshot::STALE_ANSWERS`, 2 ms), so 0.1 s (200 frames) without a report is no run of
+/// bit errors but an ESC that does not answer. It is longer than the report latency of any ESC
+/// the simulator models (≤ 0.05 s; before its first report a motor reports nothing) and 2–4
+/// motor time constants, so a motor silent that long during the excitation has lost its pulse.
+pub const SPEED_REPORT_TIMEOUT_S: f32 = SPEED_REPORT_TIMEOUT_MS as f32 * 1e-3;
 
 /// Consecutive bit-identical readings of one gyro axis (while another axis changes) after which
 /// the axis counts as stuck (16 ms at 2 kHz). Origin: at rest on the bench, the ICM-42688-P's gyro
@@ -124,57 +189,170 @@ pub const GYRO_RAIL_RAD_S: f32 = 1990.0 * core::f32::consts::PI / 180.0;
 /// failed sensor, and the true value is unknown.
 pub const ACCEL_SATURATED_MPS2: f32 = 15.5 * 9.806_65;
 
-/// Consecutive saturated accelerometer samples after which the IMU counts as faulty (10 ms at
-/// 2 kHz, as [`IMU_ABSENT_AFTER_STEPS`]): a longer saturation is not a bump.
-pub const ACCEL_SATURATED_STEPS: u16 = 20;
+/// Why a sample was not used as read (see the module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum ImuGlitch {
+    Missing,
+    NonFinite,
+    Frozen,
+    AccelSaturated,
+}
+
+/// What the IMU checks made of one step's sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum ImuVerdict {
+    /// Used as read.
+    Good(ImuSample),
+    /// Bad, held over: the sample to use instead (raw, before the bias).
+    Held(ImuSample, ImuGlitch),
+    /// Bad for `imu_fault_timeout_s` (or nothing good to hold): the IMU has failed.
+    Failed(ImuGlitch),
+    /// Bad while disarmed: not used.
+    Unused,
+}
 
 /// The IMU checks' state (see the module doc).
 #[derive(Clone, Copy, Debug, Default)]
-struct ImuMonitor {
-    /// The previous finite sample's gyro, as bits.
-    previous_gyro_bits: Option<[u32; 3]>,
+struct ImuGuard {
+    /// The previous finite sample, as bits (gyro then accelerometer).
+    previous_bits: Option<[u32; 6]>,
     /// Readings of each gyro axis equal to the previous one, consecutive.
     repeats: [u16; 3],
+    /// The latest good sample (raw, before the bias).
+    last_good: Option<ImuSample>,
     /// The latest accelerometer reading with no axis saturated (raw, before the bias).
     last_unsaturated_accel: Option<[f32; 3]>,
-    /// Consecutive saturated samples.
-    saturated_steps: u16,
+    /// Time of the first bad sample of the run in progress while armed, µs.
+    bad_since_us: Option<u64>,
 }
 
-impl ImuMonitor {
-    /// Track a finite sample: returns whether a gyro axis is stuck, and whether the accelerometer
-    /// is saturated (then `sample`'s accelerometer is replaced by the last unsaturated reading
-    /// when `hold` and there is one).
-    fn check(&mut self, sample: &mut ImuSample, hold: bool) -> (bool, bool) {
-        let bits = sample.gyro_rad_s.map(f32::to_bits);
-        match self.previous_gyro_bits {
+impl ImuGuard {
+    /// Check one step's sample (`raw`, `None` if the IMU delivered none) at `now_us`: `armed`
+    /// (an attempt or a flight) holds bad samples for `timeout_us`, `spinning` (the motors run)
+    /// makes a frozen sample bad. Also returns whether a gyro axis is stuck.
+    fn check(
+        &mut self,
+        raw: Option<ImuSample>,
+        armed: bool,
+        spinning: bool,
+        now_us: u64,
+        timeout_us: u64,
+    ) -> (ImuVerdict, bool) {
+        let mut stuck = false;
+        let glitch = match raw {
+            None => Some(ImuGlitch::Missing),
+            Some(sample) if !is_finite_sample(&sample) => Some(ImuGlitch::NonFinite),
+            Some(sample) => {
+                let [gx, gy, gz] = sample.gyro_rad_s.map(f32::to_bits);
+                let [ax, ay, az] = sample.accel_mps2.map(f32::to_bits);
+                let bits = [gx, gy, gz, ax, ay, az];
+                let frozen = spinning && self.previous_bits == Some(bits);
+                // A frozen sample changes no axis, so it belongs to no run of one axis stuck while
+                // the others live: the runs start afresh (else a chance repeat of one axis next
+                // to a freeze would make the freeze a stuck axis).
+                if frozen {
+                    self.repeats = [0; 3];
+                } else {
+                    stuck = self.track_gyro_axes(&bits);
+                }
+                self.previous_bits = Some(bits);
+                let saturated = sample.accel_mps2.iter().any(|a| a.abs() >= ACCEL_SATURATED_MPS2);
+                if !saturated {
+                    self.last_unsaturated_accel = Some(sample.accel_mps2);
+                }
+                if frozen {
+                    Some(ImuGlitch::Frozen)
+                } else if saturated && armed {
+                    Some(ImuGlitch::AccelSaturated)
+                } else {
+                    None
+                }
+            }
+        };
+        let Some(glitch) = glitch else {
+            self.last_good = raw;
+            self.bad_since_us = None;
+            return (raw.map_or(ImuVerdict::Unused, ImuVerdict::Good), stuck);
+        };
+        if !armed {
+            self.bad_since_us = None;
+            return (ImuVerdict::Unused, stuck);
+        }
+        let since_us = *self.bad_since_us.get_or_insert(now_us);
+        let held = match (glitch, raw, self.last_unsaturated_accel) {
+            (ImuGlitch::AccelSaturated, Some(sample), Some(accel_mps2)) => {
+                Some(ImuSample { accel_mps2, ..sample })
+            }
+            (ImuGlitch::AccelSaturated, _, _) => None,
+            _ => self.last_good,
+        };
+        let verdict = match held {
+            Some(held) if now_us.saturating_sub(since_us) < timeout_us => {
+                ImuVerdict::Held(held, glitch)
+            }
+            _ => ImuVerdict::Failed(glitch),
+        };
+        (verdict, stuck)
+    }
+
+    /// Follow each gyro axis's run of bit-identical readings: whether one axis is stuck.
+    fn track_gyro_axes(&mut self, bits: &[u32; 6]) -> bool {
+        match self.previous_bits {
             Some(previous) => {
-                for ((repeats, now), before) in self.repeats.iter_mut().zip(bits).zip(previous) {
-                    let at_rail = f32::from_bits(now).abs() >= GYRO_RAIL_RAD_S;
-                    *repeats =
-                        if now == before && !at_rail { repeats.saturating_add(1) } else { 0 };
+                for axis in 0..3 {
+                    let at_rail = f32::from_bits(bits[axis]).abs() >= GYRO_RAIL_RAD_S;
+                    self.repeats[axis] = if bits[axis] == previous[axis] && !at_rail {
+                        self.repeats[axis].saturating_add(1)
+                    } else {
+                        0
+                    };
                 }
             }
             None => self.repeats = [0; 3],
         }
-        self.previous_gyro_bits = Some(bits);
         // N equal readings are N − 1 repeats; "another axis changed" = its run is shorter.
         let stuck_axis = |r: u16| r.saturating_add(1) >= STUCK_GYRO_SAMPLES;
-        let stuck = (0..3).any(|i| {
+        (0..3).any(|i| {
             stuck_axis(self.repeats[i]) && (0..3).any(|j| j != i && !stuck_axis(self.repeats[j]))
-        });
-        let saturated = sample.accel_mps2.iter().any(|a| a.abs() >= ACCEL_SATURATED_MPS2);
-        if saturated {
-            self.saturated_steps = self.saturated_steps.saturating_add(1);
-            if let (true, Some(good)) = (hold, self.last_unsaturated_accel) {
-                sample.accel_mps2 = good;
-            }
-        } else {
-            self.saturated_steps = 0;
-            self.last_unsaturated_accel = Some(sample.accel_mps2);
-        }
-        (stuck, saturated)
+        })
     }
+}
+
+/// When each motor last reported its speed (see the module doc).
+#[derive(Clone, Copy, Debug, Default)]
+struct SpeedMonitor {
+    /// Time of each motor's latest finite, non-negative speed report, µs.
+    last_report_us: [Option<u64>; MAX_MOTORS],
+}
+
+impl SpeedMonitor {
+    /// Take the reports read at `now_us`.
+    fn observe(&mut self, speeds_rad_s: &[Option<f32>; MAX_MOTORS], now_us: u64) {
+        for (last, speed) in self.last_report_us.iter_mut().zip(speeds_rad_s) {
+            if speed.is_some_and(|s| s.is_finite() && s >= 0.0) {
+                *last = Some(now_us);
+            }
+        }
+    }
+
+    /// Bit i set: motor i (of `count`) has reported no speed for [`SPEED_REPORT_TIMEOUT_S`] at
+    /// `now_us`, counting from `since_us` at the latest (a motor gets that long from then).
+    fn silent(&self, count: usize, now_us: u64, since_us: u64) -> u8 {
+        let timeout_us = u64::from(SPEED_REPORT_TIMEOUT_MS) * 1000;
+        let mut silent = 0u8;
+        for (i, last) in self.last_report_us.iter().enumerate().take(count.min(MAX_MOTORS)) {
+            let heard_us = last.map_or(since_us, |t| t.max(since_us));
+            if now_us.saturating_sub(heard_us) > timeout_us {
+                silent |= 1 << i;
+            }
+        }
+        silent
+    }
+}
+
+/// The bits of the first `count` motors.
+fn motor_mask(count: usize) -> u8 {
+    ((1u16 << count.min(MAX_MOTORS)) - 1) as u8
 }
 
 /// How the control loop is set up.
@@ -231,8 +409,14 @@ pub struct ControlSnapshot {
     pub motor_test: Option<u8>,
     /// Motor tests that stopped by themselves (no keep-alive in time).
     pub motor_test_timeouts: u16,
-    /// Samples whose accelerometer was saturated while flying and replaced by the last good one.
-    pub accel_held: u32,
+    /// IMU samples held over while armed (the last good one used instead), by cause.
+    pub imu_held: ImuHeldCounters,
+    /// Longest run of held IMU samples, µs (from the first held sample's step to the last's).
+    pub imu_longest_hold_us: u32,
+    /// Bit i set: motor i reported its speed within [`SPEED_REPORT_TIMEOUT_S`].
+    pub speeds_reported: u8,
+    /// Times a motor's speed reports stopped while the motors spun (exciting or flying).
+    pub speed_reports_lost: u16,
     /// ESC commands the motor outputs took, and those they or the step refused (armed, or
     /// outputs that send none).
     pub esc_commands_sent: u16,
@@ -257,8 +441,12 @@ pub struct ControlLoop<'q> {
     telemetry: Option<StepProducer<'q>>,
     snapshot: ControlSnapshot,
     previous_step_us: Option<u64>,
-    steps_without_imu: u32,
-    imu_monitor: ImuMonitor,
+    /// Time of the latest finite IMU sample, µs.
+    last_imu_us: Option<u64>,
+    imu_guard: ImuGuard,
+    speed_monitor: SpeedMonitor,
+    /// When the throw-to-fly attempt in progress was armed, µs.
+    armed_at_us: u64,
     rate_window_start_us: u64,
     rate_window_steps: u32,
 }
@@ -283,8 +471,10 @@ impl<'q> ControlLoop<'q> {
             telemetry: None,
             snapshot: ControlSnapshot::default(),
             previous_step_us: None,
-            steps_without_imu: 0,
-            imu_monitor: ImuMonitor::default(),
+            last_imu_us: None,
+            imu_guard: ImuGuard::default(),
+            speed_monitor: SpeedMonitor::default(),
+            armed_at_us: 0,
             rate_window_start_us: 0,
             rate_window_steps: 0,
         }
@@ -300,9 +490,17 @@ impl<'q> ControlLoop<'q> {
     pub fn command(&mut self, command: ControlCommand, now_us: u64) {
         match command {
             ControlCommand::ArmThrowToFly => {
-                self.motor_test = None;
-                self.throw_to_fly.arm();
-                self.snapshot.failure = LearnerFailure::None;
+                // Refused while a motor does not report its speed, once the step has run (before
+                // the first step nothing is known; the attempt then gets the report timeout).
+                let count = usize::from(self.snapshot.motor_count);
+                if self.snapshot.steps > 0 && self.speed_monitor.silent(count, now_us, 0) != 0 {
+                    self.snapshot.failure = LearnerFailure::NoSpeedTelemetry;
+                } else {
+                    self.motor_test = None;
+                    self.throw_to_fly.arm();
+                    self.armed_at_us = now_us;
+                    self.snapshot.failure = LearnerFailure::None;
+                }
             }
             ControlCommand::Disarm => {
                 self.motor_test = None;
@@ -384,59 +582,80 @@ impl<'q> ControlLoop<'q> {
         let bias = self.settings.acc_bias_mps2;
         let raw = imu.read();
         let flying = self.pilot.flying();
-        // The IMU checks (module doc): a non-finite sample is never used; a stuck gyro axis or a
-        // lasting saturation is a fault while flying; a saturated accelerometer is held.
-        let mut imu_fault = raw.is_some_and(|sample| !is_finite_sample(&sample));
-        let sample = raw.filter(is_finite_sample).map(|mut sample| {
-            let (stuck, saturated) = self.imu_monitor.check(&mut sample, flying);
-            if flying && saturated {
-                self.snapshot.accel_held = self.snapshot.accel_held.wrapping_add(1);
+        let armed = self.flight_armed();
+        let spinning = flying || self.throw_to_fly.phase() == FlightPhase::Exciting;
+        // The IMU checks (module doc): bad samples are held over while armed; a fault that
+        // lasts `imu_fault_timeout_s`, or a stuck gyro axis in flight, fails.
+        let timeout_us = (self.settings.imu_fault_timeout_s.max(0.0) * 1e6) as u64;
+        let (verdict, stuck) = self.imu_guard.check(raw, armed, spinning, now_us, timeout_us);
+        let mut imu_failed = match verdict {
+            ImuVerdict::Failed(glitch) => Some(glitch),
+            _ => None,
+        };
+        if stuck && flying {
+            imu_failed = imu_failed.or(Some(ImuGlitch::Frozen));
+        }
+        let (sample, fresh) = match verdict {
+            ImuVerdict::Good(sample) => (Some(sample), true),
+            ImuVerdict::Held(sample, glitch) => {
+                self.count_held(glitch, now_us);
+                (Some(sample), false)
             }
-            imu_fault |= flying
-                && (stuck
-                    || (saturated && self.imu_monitor.saturated_steps >= ACCEL_SATURATED_STEPS));
+            ImuVerdict::Failed(_) | ImuVerdict::Unused => (None, false),
+        };
+        let sample = sample.filter(|_| imu_failed.is_none()).map(|mut sample| {
             for (a, b) in sample.accel_mps2.iter_mut().zip(bias) {
                 *a -= b;
             }
             sample
         });
         let snapshot = &mut self.snapshot;
-        match sample {
-            Some(sample) => {
-                snapshot.imu = sample;
+        if raw.is_some_and(|sample| is_finite_sample(&sample)) {
+            snapshot.imu_samples = snapshot.imu_samples.wrapping_add(1);
+            self.last_imu_us = Some(now_us);
+        } else {
+            snapshot.imu_missing = snapshot.imu_missing.wrapping_add(1);
+        }
+        if let Some(sample) = sample {
+            snapshot.imu = sample;
+            if fresh {
                 snapshot.imu_t_us = now_us;
-                snapshot.imu_samples = snapshot.imu_samples.wrapping_add(1);
-                snapshot.imu_present = true;
-                self.steps_without_imu = 0;
-            }
-            None => {
-                snapshot.imu_missing = snapshot.imu_missing.wrapping_add(1);
-                self.steps_without_imu = self.steps_without_imu.saturating_add(1);
-                if self.steps_without_imu >= IMU_ABSENT_AFTER_STEPS {
-                    snapshot.imu_present = false;
-                }
             }
         }
+        snapshot.imu_present =
+            self.last_imu_us.is_some_and(|t| now_us.saturating_sub(t) < IMU_ABSENT_AFTER_US);
 
         let motor_count = usize::from(motors.count()).min(MAX_MOTORS);
         snapshot.motor_count = motor_count as u8;
         self.throw_to_fly.set_motors(motor_count);
-        // An attempt in progress ends when the IMU goes away: nothing may spin blind.
+        // A failed IMU during an attempt or a flight: everything stops in this step.
         let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
-        if attempt && !snapshot.imu_present {
-            self.throw_to_fly.disarm();
-            snapshot.failure = LearnerFailure::ImuLost;
-        }
-        if !snapshot.imu_present {
-            let _ = self.pilot.imu_lost();
-        }
-        // An IMU fault during an attempt or a flight: everything stops in this step.
-        let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
-        if imu_fault && (attempt || self.pilot.flying()) {
-            self.pilot.imu_fault();
+        if let Some(glitch) = imu_failed.filter(|_| attempt || self.pilot.flying()) {
+            if glitch == ImuGlitch::Missing {
+                let _ = self.pilot.imu_lost();
+            } else {
+                self.pilot.imu_fault();
+            }
             self.throw_to_fly.disarm();
             if attempt {
                 snapshot.failure = LearnerFailure::ImuLost;
+            }
+        }
+        // A motor that stopped reporting its speed ends an attempt before or during the
+        // excitation (module doc); its commands are zero from this step.
+        let phase = self.throw_to_fly.phase();
+        if matches!(
+            phase,
+            FlightPhase::WaitingForThrow
+                | FlightPhase::Throwing
+                | FlightPhase::Released
+                | FlightPhase::Exciting
+        ) && self.speed_monitor.silent(motor_count, now_us, self.armed_at_us) != 0
+        {
+            self.throw_to_fly.disarm();
+            snapshot.failure = LearnerFailure::NoSpeedTelemetry;
+            if phase == FlightPhase::Exciting {
+                snapshot.speed_reports_lost = snapshot.speed_reports_lost.wrapping_add(1);
             }
         }
         let dt_s = self.period_us as f32 * 1e-6;
@@ -500,10 +719,19 @@ impl<'q> ControlLoop<'q> {
         let snapshot = &mut self.snapshot;
         motors.set_commands(&snapshot.commands[..motor_count]);
         snapshot.speeds_rad_s = motors.speeds_rad_s();
+        self.speed_monitor.observe(&snapshot.speeds_rad_s, now_us);
+        let reported = motor_mask(motor_count) & !self.speed_monitor.silent(motor_count, now_us, 0);
+        if self.pilot.flying() {
+            // Flying on: counted once per motor that stops reporting.
+            let lost = (snapshot.speeds_reported & !reported).count_ones() as u16;
+            snapshot.speed_reports_lost = snapshot.speed_reports_lost.wrapping_add(lost);
+        }
+        snapshot.speeds_reported = reported;
         self.apply_pending_settings();
         self.publish_phase();
 
-        if let Some(imu) = sample {
+        // Only fresh samples go to the background task: it never learns from a held one.
+        if let Some(imu) = sample.filter(|_| fresh) {
             let snapshot = &self.snapshot;
             self.samples.push(LearnerSample {
                 t_us: now_us,
@@ -521,7 +749,7 @@ impl<'q> ControlLoop<'q> {
             ring.push(StepRecord {
                 step: snapshot.steps,
                 t_us: now_us,
-                imu: sample,
+                imu: sample.filter(|_| fresh),
                 q_world_imu: snapshot.pilot.q_world_imu,
                 phase: snapshot.phase,
                 failed: snapshot.failure != LearnerFailure::None,
@@ -532,6 +760,21 @@ impl<'q> ControlLoop<'q> {
             });
         }
         self.samples.has_waiting()
+    }
+
+    /// Count a held IMU sample of the bad run that began at `ImuGuard::bad_since_us`.
+    fn count_held(&mut self, glitch: ImuGlitch, now_us: u64) {
+        let held = &mut self.snapshot.imu_held;
+        let counter = match glitch {
+            ImuGlitch::Missing => &mut held.missing,
+            ImuGlitch::NonFinite => &mut held.non_finite,
+            ImuGlitch::Frozen => &mut held.frozen,
+            ImuGlitch::AccelSaturated => &mut held.accel_saturated,
+        };
+        *counter = counter.wrapping_add(1);
+        let run_us = now_us.saturating_sub(self.imu_guard.bad_since_us.unwrap_or(now_us));
+        let run_us = u32::try_from(run_us).unwrap_or(u32::MAX);
+        self.snapshot.imu_longest_hold_us = self.snapshot.imu_longest_hold_us.max(run_us);
     }
 
     /// A motor test's command, or its end: by itself after the keep-alive, or when a flight
@@ -701,54 +944,115 @@ mod tests {
         assert!(!waiting && consumer.pop().is_none(), "nothing is queued without samples");
     }
 
+    /// `ImuGuard::check` on a sample, disarmed and motors off: (verdict, stuck).
+    fn check_disarmed(guard: &mut ImuGuard, sample: ImuSample) -> (ImuVerdict, bool) {
+        guard.check(Some(sample), false, false, 0, 20_000)
+    }
+
     #[test]
     fn a_gyro_axis_repeating_while_another_changes_counts_as_stuck_after_the_window() {
-        let mut monitor = ImuMonitor::default();
+        let mut guard = ImuGuard::default();
         for i in 0..STUCK_GYRO_SAMPLES + 3 {
             let x = f32::from(i);
-            let mut sample = ImuSample { gyro_rad_s: [0.25, x, 0.5], accel_mps2: [0.0, 0.0, -9.8] };
-            let (stuck, saturated) = monitor.check(&mut sample, true);
+            let sample = ImuSample { gyro_rad_s: [0.25, x, 0.5], accel_mps2: [0.0, 0.0, -9.8] };
+            let (verdict, stuck) = check_disarmed(&mut guard, sample);
             assert_eq!(stuck, i + 1 >= STUCK_GYRO_SAMPLES, "sample {i}");
-            assert!(!saturated);
+            assert_eq!(verdict, ImuVerdict::Good(sample));
         }
         // Every axis constant (an ideal IMU at rest): no axis counts as stuck.
-        let mut monitor = ImuMonitor::default();
+        let mut guard = ImuGuard::default();
         for _ in 0..2 * STUCK_GYRO_SAMPLES {
-            let mut sample = ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, 0.0, -9.8] };
-            assert_eq!(monitor.check(&mut sample, true), (false, false));
+            let sample = ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, 0.0, -9.8] };
+            assert_eq!(check_disarmed(&mut guard, sample), (ImuVerdict::Good(sample), false));
         }
         // An axis pinned at the ±2,000 °/s rail (a tumble faster than the sensor measures) while
         // another changes: saturated, not stuck, however long it lasts.
-        let mut monitor = ImuMonitor::default();
+        let mut guard = ImuGuard::default();
         let rail_rad_s = 2000f32.to_radians();
         for i in 0..4 * STUCK_GYRO_SAMPLES {
             let x = f32::from(i) * 0.01;
-            let mut sample =
+            let sample =
                 ImuSample { gyro_rad_s: [-rail_rad_s, x, -x], accel_mps2: [0.0, 0.0, -9.8] };
-            assert_eq!(monitor.check(&mut sample, true), (false, false), "sample {i}");
+            assert_eq!(check_disarmed(&mut guard, sample), (ImuVerdict::Good(sample), false));
         }
     }
 
     #[test]
-    fn a_saturated_accelerometer_is_replaced_by_the_last_good_reading_only_when_held() {
-        let mut monitor = ImuMonitor::default();
+    fn armed_a_saturated_accelerometer_is_replaced_by_the_last_good_reading_until_the_timeout() {
+        let mut guard = ImuGuard::default();
         let good = ImuSample { gyro_rad_s: [0.1, 0.2, 0.3], accel_mps2: [1.0, 2.0, -9.8] };
-        let mut sample = good;
-        assert_eq!(monitor.check(&mut sample, true), (false, false));
-        let rail = ImuSample { accel_mps2: [1.0, -156.9, -9.8], ..good };
-        let mut sample = rail;
-        assert_eq!(monitor.check(&mut sample, false), (false, true));
-        assert_eq!(sample, rail, "not flying: left as read");
-        for steps in 2..=ACCEL_SATURATED_STEPS {
-            let mut sample = rail;
-            assert_eq!(monitor.check(&mut sample, true), (false, true));
-            assert_eq!(sample.accel_mps2, good.accel_mps2);
-            assert_eq!(sample.gyro_rad_s, good.gyro_rad_s);
-            assert_eq!(monitor.saturated_steps, steps);
+        assert_eq!(guard.check(Some(good), true, true, 0, 20_000).0, ImuVerdict::Good(good));
+        let rail = ImuSample { gyro_rad_s: [0.4, 0.5, 0.6], accel_mps2: [1.0, -156.9, -9.8] };
+        // Disarmed: left as read.
+        assert_eq!(check_disarmed(&mut guard.clone(), rail).0, ImuVerdict::Good(rail));
+        // Armed: the gyro as read, the accelerometer held, for 20 ms (the 40 steps at 0 to
+        // 19.5 ms); the step at 20 ms fails.
+        let held = ImuSample { accel_mps2: good.accel_mps2, ..rail };
+        for step in 0..40u64 {
+            let t_us = 500 + 500 * step;
+            let (verdict, _) = guard.check(Some(rail), true, false, t_us, 20_000);
+            assert_eq!(verdict, ImuVerdict::Held(held, ImuGlitch::AccelSaturated), "{t_us} µs");
         }
-        let mut sample = good;
-        let _ = monitor.check(&mut sample, true);
-        assert_eq!(monitor.saturated_steps, 0);
+        let (verdict, _) = guard.check(Some(rail), true, false, 20_500, 20_000);
+        assert_eq!(verdict, ImuVerdict::Failed(ImuGlitch::AccelSaturated));
+        // A good sample ends the run: the next glitch has the whole timeout again.
+        assert_eq!(guard.check(Some(good), true, false, 21_000, 20_000).0, ImuVerdict::Good(good));
+        assert!(matches!(
+            guard.check(Some(rail), true, false, 40_000, 20_000).0,
+            ImuVerdict::Held(..)
+        ));
+    }
+
+    #[test]
+    fn armed_missing_non_finite_and_frozen_samples_are_held_disarmed_they_are_not_used() {
+        let good = ImuSample { gyro_rad_s: [0.1, 0.2, 0.3], accel_mps2: [1.0, 2.0, -9.8] };
+        let nan = ImuSample { gyro_rad_s: [f32::NAN; 3], accel_mps2: [f32::NAN; 3] };
+        for (raw, glitch) in [(None, ImuGlitch::Missing), (Some(nan), ImuGlitch::NonFinite)] {
+            let mut guard = ImuGuard::default();
+            assert_eq!(guard.check(Some(good), true, false, 0, 20_000).0, ImuVerdict::Good(good));
+            assert_eq!(
+                guard.check(raw, true, false, 500, 20_000).0,
+                ImuVerdict::Held(good, glitch)
+            );
+            assert_eq!(
+                guard.check(raw, true, false, 20_000, 20_000).0,
+                ImuVerdict::Held(good, glitch)
+            );
+            assert_eq!(guard.check(raw, true, false, 20_500, 20_000).0, ImuVerdict::Failed(glitch));
+            assert_eq!(guard.check(raw, false, false, 21_000, 20_000).0, ImuVerdict::Unused);
+            // A timeout of 0: the first bad sample fails; nothing good to hold: fails too.
+            assert_eq!(guard.check(raw, true, false, 22_000, 0).0, ImuVerdict::Failed(glitch));
+            assert_eq!(
+                ImuGuard::default().check(raw, true, false, 0, 20_000).0,
+                ImuVerdict::Failed(glitch)
+            );
+        }
+        // Frozen: all six values repeated while the motors spin; the same repeat with the
+        // motors off (a still craft, an ideal sensor) is a good sample.
+        let mut guard = ImuGuard::default();
+        assert_eq!(guard.check(Some(good), true, true, 0, 20_000).0, ImuVerdict::Good(good));
+        assert_eq!(guard.check(Some(good), true, false, 500, 20_000).0, ImuVerdict::Good(good));
+        let (verdict, _) = guard.check(Some(good), true, true, 1000, 20_000);
+        assert_eq!(verdict, ImuVerdict::Held(good, ImuGlitch::Frozen));
+        let moved = ImuSample { gyro_rad_s: [0.1, 0.2, 0.30001], ..good };
+        assert_eq!(guard.check(Some(moved), true, true, 1500, 20_000).0, ImuVerdict::Good(moved));
+    }
+
+    #[test]
+    fn a_motor_counts_as_silent_after_the_report_timeout_from_its_last_report_or_the_arming() {
+        let mut monitor = SpeedMonitor::default();
+        let timeout_us = u64::from(SPEED_REPORT_TIMEOUT_MS) * 1000;
+        assert_eq!(monitor.silent(4, timeout_us, 0), 0, "a motor gets the timeout from 0");
+        assert_eq!(monitor.silent(4, timeout_us + 1, 0), 0b1111);
+        let mut speeds = [None; MAX_MOTORS];
+        speeds[..3].copy_from_slice(&[Some(0.0), Some(100.0), Some(f32::NAN)]);
+        monitor.observe(&speeds, 1_000_000);
+        let later = 1_000_000 + timeout_us;
+        assert_eq!(monitor.silent(4, later, 0), 0b1100, "NaN and None are no report");
+        assert_eq!(monitor.silent(4, later + 1, 0), 0b1111);
+        assert_eq!(monitor.silent(4, later + 1, later), 0, "armed at `later`: the timeout again");
+        assert_eq!(motor_mask(4), 0b1111);
+        assert_eq!(motor_mask(8), 0xFF);
     }
 
     #[test]

@@ -22,8 +22,9 @@ use protocol::{
     CalibrationThrow, Capabilities, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError,
     Decoder, DeviceError, DeviceMessage, DshotCommand, Event, FailsafeCounters, FlightMode,
     FlightTelemetry, FrameError, ImuStatus, LearnerFailure, LearnerPhase, LearnerTelemetry,
-    LinkCounters, ParamRef, Reply, Request, Response, SetTelemetryRate, Status, Telemetry, Topic,
-    Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
+    LinkCounters, ParamRef, Reply, Request, Response, SensorHealth, SetTelemetryRate, Status,
+    Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION,
+    TOPIC_COUNT,
 };
 
 /// Commands for the control step that may wait between two link passes.
@@ -360,6 +361,14 @@ impl LinkServer {
                         unit: short_text(""),
                     });
                 }
+                // Every motor must report its speed: the learner needs them, and an ESC that does
+                // not answer now will not answer in the air (`ControlLoop`'s module doc).
+                let all =
+                    ((1u16 << usize::from(view.control.motor_count).min(MAX_MOTORS)) - 1) as u8;
+                let silent = all & !view.control.speeds_reported;
+                if silent != 0 {
+                    return Err(DeviceError::SpeedsNotReported { motors: silent });
+                }
                 self.commands
                     .push_back(ControlCommand::ArmThrowToFly)
                     .map(|_| Reply::Done)
@@ -478,6 +487,7 @@ impl LinkServer {
             }
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
+            Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
             Request::RebootToBootloader(()) => {
                 if !self.info.capabilities.has(Capabilities::BOOTLOADER) {
                     return Err(DeviceError::Unsupported);
@@ -634,6 +644,18 @@ fn refuse_non_finite(
         max: f32::MAX,
         unit: short_text("m, rad"),
     })
+}
+
+/// How the control step coped with its sensors, for the wire.
+pub fn sensor_health(view: &StatusView) -> SensorHealth {
+    let control = &view.control;
+    SensorHealth {
+        imu_held: control.imu_held,
+        imu_longest_hold_us: control.imu_longest_hold_us,
+        motor_count: control.motor_count,
+        speeds_reported: control.speeds_reported,
+        speed_reports_lost: control.speed_reports_lost,
+    }
 }
 
 /// The closed loop's state for the wire.

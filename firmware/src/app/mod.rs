@@ -28,12 +28,14 @@ pub use background::{
 };
 pub use control::{
     ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot,
-    ACCEL_SATURATED_MPS2, ACCEL_SATURATED_STEPS, CONTROL_RATE_HZ, STUCK_GYRO_SAMPLES,
+    ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, IMU_FAULT_TIMEOUT_S, SPEED_REPORT_TIMEOUT_S,
+    STUCK_GYRO_SAMPLES,
 };
-pub use link::{LinkRequest, LinkServer, TX_CAPACITY};
+pub use link::{learner_telemetry, sensor_health, LinkRequest, LinkServer, TX_CAPACITY};
 pub use params::{Param, Params};
 pub use pilot::{
-    count_failsafe, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus, PoseConfig,
+    count_failsafe, failsafe_counter, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus,
+    PoseConfig,
 };
 pub use queue::{
     split_queue, LearnerSample, RingConsumer, RingProducer, SampleConsumer, SampleProducer,

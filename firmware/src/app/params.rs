@@ -164,6 +164,9 @@ registry! {
         "age of an external pose when it arrives: capture, processing, radio";
     PoseNoiseM = "pose_noise_m", 1, Real, "m", 0.0001, 2.0, [super::pilot::DEFAULT_POSE_NOISE_M],
         false, "external pose noise, 1 sigma per axis (motion capture 0.001, GNSS 0.5)";
+    ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
+        [super::control::IMU_FAULT_TIMEOUT_S], false,
+        "armed: bad IMU samples held (last good) this long, then failsafe";
 }
 
 /// How much further than a calibrated IMU offset the throw detector's free-fall check allows
@@ -299,6 +302,12 @@ impl Params {
     /// learner needs the speeds it reports).
     pub fn bidirectional_dshot(&self) -> bool {
         self.scalar(Param::MotorBidirDshot) == 1.0
+    }
+
+    /// How long the control step rides through bad or missing IMU samples while armed (the
+    /// last good sample held) before the IMU failsafe acts, s.
+    pub fn imu_fault_timeout_s(&self) -> f32 {
+        self.scalar(Param::ImuFaultTimeoutS)
     }
 
     /// The accelerometer bias to subtract from every sample, m/s², IMU axes.

@@ -315,8 +315,8 @@ fn run(cli: Cli) -> Result<()> {
                     app.control.command(ControlCommand::ArmThrowToFly, 0);
                 }
                 let summary =
-                    serve_firmware(&mut server, app, links.as_mut(), timeout, &mut |e| {
-                        eprintln!("ignored a malformed packet: {e}")
+                    serve_firmware(&mut server, app, links.as_mut(), timeout, &mut |notice| {
+                        eprintln!("{notice}")
                     })?;
                 eprintln!(
                     "no packet for {idle_timeout_s} s after {} steps ({} malformed packets); \
