@@ -23,7 +23,7 @@ use crate::dynamics::State;
 use crate::identification::{Scores, Throw, TrueModel};
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
-use firmware::app::{ControlCommand, ControlSettings, Failsafe, Params, PoseConfig};
+use firmware::app::{ControlCommand, ControlSettings, Failsafe, Param, Params, PoseConfig};
 use flight::learner::FlightPhase;
 use protocol::ExternalPose;
 
@@ -356,6 +356,15 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
     let mut board = SimBoard::new(airframe, &config.board);
     let hold_window_s = config.hold_window_s.min(config.flight_s * 0.8);
     with_firmware_app(|app| {
+        // The firmware is told how old its ESCs' speed reports are, as a user sets
+        // `motor_speed_age_s` for their ESCs (the nominal board's is the default).
+        let speed_age_s = airframe.rotor_motor(0).telemetry_delay_s as f32;
+        if speed_age_s != flight::learner::DEFAULT_SPEED_AGE_S {
+            let mut params = Params::default();
+            if params.set(Param::MotorSpeedAgeS as usize, &[speed_age_s]).is_ok() {
+                app.background.configure(&params);
+            }
+        }
         if config.known_imu_offset {
             let r = truth.r_imu_m;
             app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));

@@ -427,10 +427,10 @@ mod tests {
     }
 
     #[test]
-    fn defaults_fly_the_test_airframes_with_a_one_step_release() {
+    fn defaults_fly_the_test_airframes_with_a_real_hands_tapering_release() {
         let options = Options::parse(&[]).unwrap();
         assert_eq!(options.airframes, Selection::First(TEST_AIRFRAMES));
-        assert_eq!(options.taper_ms, 0.0);
+        assert_eq!(options.taper_ms, 15.0);
         assert_eq!(options.taper_shape, "cosine");
         assert!(options.release_bridge);
         assert!(!Options::parse(&args("--dev-bridge")).unwrap().release_bridge);

@@ -140,6 +140,10 @@ pub struct Background<'q> {
     learner: LearnerSlot,
     /// The IMU offset to use, IMU axes, m, when configured.
     configured_offset_m: Option<[f32; 3]>,
+    /// Age of the motor-speed reports (`motor_speed_age_s`), s: the learner's time alignment.
+    speed_age_s: f32,
+    /// The age the learner in the slot was built for, s.
+    learner_speed_age_s: f32,
     rate_hz: f32,
     previous_phase: FlightPhase,
     /// The body's inertia from its free tumble after the release: the learner's prior for it.
@@ -188,6 +192,8 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).offset_paused).write(false);
             LearnerSlot::init_empty(addr_of_mut!((*worker).learner));
             addr_of_mut!((*worker).configured_offset_m).write(None);
+            addr_of_mut!((*worker).speed_age_s).write(flight::learner::DEFAULT_SPEED_AGE_S);
+            addr_of_mut!((*worker).learner_speed_age_s).write(flight::learner::DEFAULT_SPEED_AGE_S);
             addr_of_mut!((*worker).rate_hz).write(f32::from(rate_hz));
             addr_of_mut!((*worker).previous_phase).write(FlightPhase::Idle);
             addr_of_mut!((*worker).tumble).write(TumbleInertia::new(f32::from(rate_hz)));
@@ -211,6 +217,7 @@ impl<'q> Background<'q> {
     /// from the next calibration (or now, while it has seen no throw).
     pub fn configure(&mut self, params: &super::params::Params) {
         self.set_imu_offset(params.configured_offset_m());
+        self.speed_age_s = params.motor_speed_age_s();
         let config = params.imu_offset_config();
         if config != self.imu_offset_config {
             self.imu_offset_config = config;
@@ -335,10 +342,13 @@ impl<'q> Background<'q> {
         if starting {
             let (r_imu_m, source) = self.learner_offset();
             let motors = usize::from(sample.motor_count);
-            let reuse = self.learner.get().is_some_and(|l| l.model().motors == sample.motor_count);
+            let reuse = self.learner.get().is_some_and(|l| l.model().motors == sample.motor_count)
+                && self.learner_speed_age_s == self.speed_age_s;
             if !reuse {
                 let config =
-                    LearnerConfig { rate_hz: self.rate_hz, r_imu_m, ..LearnerConfig::default() };
+                    LearnerConfig { rate_hz: self.rate_hz, r_imu_m, ..LearnerConfig::default() }
+                        .with_speed_age(self.speed_age_s);
+                self.learner_speed_age_s = self.speed_age_s;
                 // In place: the learner is 25 KB (docs/budget.md).
                 let _ = self.learner.build(motors, config);
             }

@@ -158,6 +158,9 @@ registry! {
         "local gravity for the rest poses of the calibration";
     MotorBidirDshot = "motor_bidir_dshot", 1, Flag, "", 0.0, 1.0, [1.0], false,
         "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
+    MotorSpeedAgeS = "motor_speed_age_s", 1, Real, "s", 0.0, flight::learner::MAX_SPEED_AGE_S,
+        [flight::learner::DEFAULT_SPEED_AGE_S], false,
+        "age of an ESC speed report when read: aligns the identification";
     // What the external poses (motion capture, a ground station) are: the pilot's `PoseConfig`.
     PoseLatencyS = "pose_latency_s", 1, Real, "s", 0.0, super::pilot::MAX_POSE_LATENCY_S,
         [super::pilot::DEFAULT_POSE_LATENCY_S], false,
@@ -338,6 +341,11 @@ impl Params {
             latency_s: self.scalar(Param::PoseLatencyS),
             noise_m: self.scalar(Param::PoseNoiseM),
         }
+    }
+
+    /// How old a motor-speed report is when the control step reads it, s.
+    pub fn motor_speed_age_s(&self) -> f32 {
+        self.scalar(Param::MotorSpeedAgeS)
     }
 
     /// The excitation schedule's configuration.

@@ -105,6 +105,36 @@ pub struct LearnerConfig {
     pub motor_rls: RlsConfig,
 }
 
+/// Age of a motor-speed report when the control step reads it, s, by default: one 2 kHz step
+/// (a bidirectional-DShot answer arrives within the period of the frame that asked for it,
+/// and the simulated board reports speeds one step old).
+pub const DEFAULT_SPEED_AGE_S: f32 = 0.0005;
+
+/// Largest speed-report age the learner can align, s: 6 control steps (the command history it
+/// keeps, 13 half steps).
+pub const MAX_SPEED_AGE_S: f32 = 0.003;
+
+/// Group delay of the IMU sample the control step reads, s: the mean of four 8 kHz samples,
+/// centred 187.5 µs before the step.
+pub const IMU_GROUP_DELAY_S: f32 = 187.5e-6;
+
+impl LearnerConfig {
+    /// The time alignment for speed reports `speed_age_s` old (clamped to
+    /// [0, `MAX_SPEED_AGE_S`]) at `rate_hz`: a command acts one step after it is computed and
+    /// is held for a step (its centre half a step later), so it explains the speed reported
+    /// `1 + 2 · age / step` half steps later; the report is `age − IMU_GROUP_DELAY_S` older
+    /// than the IMU sample of its step.
+    pub fn with_speed_age(self, speed_age_s: f32) -> Self {
+        let age = crate::math::clamp(speed_age_s, 0.0, MAX_SPEED_AGE_S);
+        let half_steps = libm::roundf(1.0 + 2.0 * age * self.rate_hz);
+        Self {
+            command_to_speed_delay_half_steps: crate::math::clamp(half_steps, 1.0, 13.0) as u8,
+            speed_report_lag_s: age - IMU_GROUP_DELAY_S,
+            ..self
+        }
+    }
+}
+
 impl Default for LearnerConfig {
     fn default() -> Self {
         Self {
