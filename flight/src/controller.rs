@@ -297,7 +297,12 @@ impl Controller {
                     .position
                     .update(&nav.position_ned_m, &nav.velocity_ned_mps, &setpoint, dt_s)
                     .unwrap_or(Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_MPS2));
-                (f, yaw_rad)
+                // INDI drives the *measured* specific force to its setpoint; the accelerometer
+                // reads the true one plus the bias the navigation learned from the fixes (its
+                // offset, and its scale and cross-axis errors at 1 g: 3 % of g is 0.3 m/s²).
+                // Asking for the bias on top makes the true force the one the position loop
+                // wants, instead of leaving the loop's slow integral to find it.
+                (f + nav.accel_bias_ned_mps2, yaw_rad)
             }
             Guidance::Level { yaw_rad, velocity_ned_mps } => {
                 // Zero velocity: the velocity loop's P alone (no integral on a drifting estimate).
