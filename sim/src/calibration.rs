@@ -162,10 +162,8 @@ impl Session {
     /// is the rest before the second throw), thrown, caught, held still for [`REST_S`]. Also the
     /// index of the first sample after the second catch's hand has come to hold the craft.
     pub fn stream(&self) -> (Vec<ImuSample>, usize) {
-        let config = SimConfig {
-            seed: self.seed.wrapping_mul(2).wrapping_add(7),
-            ..SimConfig::default()
-        };
+        let config =
+            SimConfig { seed: self.seed.wrapping_mul(2).wrapping_add(7), ..SimConfig::default() };
         let mut board = SimBoard::new(&self.airframe, &config);
         let mut samples = Vec::new();
         let rate = f64::from(RATE_HZ);
@@ -333,14 +331,14 @@ pub fn run_session(seed: u64, plan: &Plan<'_>) -> SessionResult {
     let logs = session.logs();
     let truth = session.truth_m();
     let bias = session.acc_bias_mps2;
-    let judge = |model| {
-        fit(&logs, model, plan.drag_model).ok().map(|e| Judged::new(&e, &truth, &bias))
-    };
+    let judge =
+        |model| fit(&logs, model, plan.drag_model).ok().map(|e| Judged::new(&e, &truth, &bias));
     let (stream, _) = session.stream();
     let (at_catch, after_rest) = onboard(&stream, plan.drag_model);
-    let offline_stream = fit(std::slice::from_ref(&stream), Model::OffsetAndAccBias, plan.drag_model)
-        .ok()
-        .map(|e| Judged::new(&e, &truth, &bias));
+    let offline_stream =
+        fit(std::slice::from_ref(&stream), Model::OffsetAndAccBias, plan.drag_model)
+            .ok()
+            .map(|e| Judged::new(&e, &truth, &bias));
     SessionResult {
         seed,
         offset_only: judge(Model::Offset),

@@ -650,7 +650,6 @@ proptest! {
     }
 }
 
-
 /// One calibration session as the board sees it (`crate::testing::throws::session`): held still
 /// 0.6 s, thrown spinning at `rate_radps` about `spins[0]`, caught, held still 1.2 s in the
 /// attitude the catch left, thrown at the same rate about `spins[1]`, caught, held still 0.6 s.
@@ -683,7 +682,8 @@ fn equal_rate_session(
             spec
         })
         .collect();
-    let after_second_catch = specs[0].len() + specs[1].catch_index()
+    let after_second_catch = specs[0].len()
+        + specs[1].catch_index()
         + libm::round(specs[1].catch_s * specs[1].rate_hz) as usize;
     (crate::testing::throws::session(&specs), after_second_catch)
 }
@@ -831,4 +831,3 @@ fn the_rest_after_the_catch_separates_what_two_equal_spins_and_one_attitude_cann
     // offsets and rates) with k = 0.01 /m the truth was inside in 70 %, missed by hundredths of
     // a millimetre (semi-axes of 0.03–0.2 mm); without drag in 98 % (issue 28 report).
 }
-

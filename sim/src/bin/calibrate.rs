@@ -117,10 +117,7 @@ fn main() -> ExitCode {
     let columns: [(&str, Vec<Option<Judged>>); 5] = [
         ("offset only (two logs)", results.iter().map(|r| r.offset_only).collect()),
         ("offset + bias, rest poses (two logs)", results.iter().map(|r| r.with_bias).collect()),
-        (
-            "one stream, fit imu-offset",
-            results.iter().map(|r| r.offline_stream).collect(),
-        ),
+        ("one stream, fit imu-offset", results.iter().map(|r| r.offline_stream).collect()),
         (
             "one stream, onboard at the second catch",
             results.iter().map(|r| r.onboard_at_catch).collect(),
