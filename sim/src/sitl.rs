@@ -526,6 +526,26 @@ mod tests {
     }
 
     #[test]
+    fn bad_throw_rates_or_bias_are_refused_at_start() {
+        let start = |config: SitlConfig| Sitl::start(&SitlConfig { pty: false, ..config });
+        let rates = |rates: Vec<[f64; 3]>| SitlConfig {
+            auto_throw_every_s: Some(3.0),
+            auto_throw_rates_dps: Some(rates),
+            ..SitlConfig::default()
+        };
+        for bad in [vec![], vec![[0.0; 3]], vec![[550.0, 0.0, 0.0], [0.0, f64::NAN, 0.0]]] {
+            assert!(matches!(start(rates(bad)), Err(SitlError::AutoThrowRates(_))));
+        }
+        assert!(matches!(
+            start(rates(vec![[2000.0, 0.0, 0.0]])),
+            Err(SitlError::AutoThrowRates(_))
+        ));
+        let bias = SitlConfig { acc_bias_mps2: Some([0.0, 1.5, 0.0]), ..SitlConfig::default() };
+        assert!(matches!(start(bias), Err(SitlError::AccBias(_))));
+        assert!(start(rates(vec![[0.0, 0.0, 550.0], [550.0, 0.0, 0.0]])).is_ok());
+    }
+
+    #[test]
     fn armed_at_start_and_disarmed_over_tcp() {
         let config = SitlConfig {
             pty: false,
