@@ -834,7 +834,26 @@ fn confirm(question: &str) -> bool {
     matches!(answer.trim(), "y" | "Y" | "yes" | "Yes")
 }
 
+/// How long `calibrate imu-offset` keeps watching the board's estimate after the last throw it
+/// allows, for the rest after the catch (wall-clock). The board counts a rest once the hand has
+/// settled (about 0.3 s after a catch) and five 50 ms blocks have been still (the first and the
+/// last are dropped: `flight::imu_offset::MIN_POSE_BLOCKS` + 2): about 0.6 s after the catch. A
+/// person told to hold the craft still for a second has done so well within 3 s.
+const REST_AFTER_LAST_CATCH: Duration = Duration::from_secs(3);
+
+/// How often the guided calibration asks for the board's status between throws: the estimate
+/// follows each 50 ms block of rest (`flight::imu_offset::REST_BLOCK_S`), so 10 Hz sees it change
+/// without loading the link.
+const CALIBRATION_POLL: Duration = Duration::from_millis(100);
+
 /// The guided IMU-offset calibration: start, report each throw, ask, store.
+///
+/// Each throw is reported as the board accepts it, at the catch. The rest that follows (the craft
+/// held still in a new attitude) tells an accelerometer bias from the offset, which two throws at
+/// the same spin rate alone cannot along the cross product of their axes; the board's estimate
+/// follows the rest, so between throws (and for [`REST_AFTER_LAST_CATCH`] after the last) the
+/// board's status is watched, and the calibration concludes as soon as the estimate is well
+/// determined.
 fn calibrate_imu_offset(
     client: &mut Client,
     yes: bool,
@@ -849,34 +868,51 @@ fn calibrate_imu_offset(
          second, a different axis each time), catch it, and hold it still for a second between \
          throws. Up to {max_throws} throws; Ctrl-C stops."
     );
-    let mut last: Option<protocol::CalibrationThrow> = None;
+    let mut last: Option<protocol::ImuOffsetStatus> = None;
     let mut throws = 0u8;
     let mut waited = std::time::Instant::now();
     let stop = |client: &mut Client, accept: bool| {
         let request = Request::StopCalibration(protocol::StopCalibration { accept });
         client.request(&request, "the request to end the calibration")
     };
-    while throws < max_throws {
-        if waited.elapsed().as_secs_f64() > timeout_s {
+    loop {
+        let resting_after_last = throws >= max_throws;
+        if resting_after_last && waited.elapsed() > REST_AFTER_LAST_CATCH {
+            break;
+        }
+        if !resting_after_last && waited.elapsed().as_secs_f64() > timeout_s {
             let _ = stop(client, false);
             return Err(LinkError::Unexpected(format!(
                 "no throw seen for {timeout_s} s; calibration stopped, nothing stored"
             ))
             .into());
         }
-        client.listen(Duration::from_millis(100))?;
+        client.listen(CALIBRATION_POLL)?;
         while let Some(event) = client.events.pop_front() {
             let protocol::Event::CalibrationThrow(throw) = event else { continue };
             throws = throw.estimate.throws;
             waited = std::time::Instant::now();
             eprintln!("{}", report::calibration_throw_text(&throw));
-            last = Some(throw);
+            last = Some(throw.estimate);
         }
-        if last.is_some_and(|t| t.estimate.well_determined) {
+        if last.is_some_and(|t| t.well_determined) {
             break;
         }
+        if throws > 0 {
+            // The rest after the catch: the board's estimate follows it.
+            let Reply::Status(status) = client.request(&Request::GetStatus(()), "the status")?
+            else {
+                continue;
+            };
+            let estimate = status.imu_offset;
+            if estimate.throws == throws && estimate.well_determined {
+                eprintln!("{}", report::calibration_rest_text(&estimate));
+                last = Some(estimate);
+                break;
+            }
+        }
     }
-    let Some(result) = last.filter(|t| t.estimate.well_determined) else {
+    let Some(result) = last.filter(|t| t.well_determined) else {
         let _ = stop(client, false);
         return Err(LinkError::Unexpected(format!(
             "the offset is not well determined after {throws} throws; nothing stored (run the \
@@ -888,18 +924,25 @@ fn calibrate_imu_offset(
         stop(client, false)?;
         return Ok("calibration ended; nothing stored\n".into());
     }
+    // The board stores its estimate with the accelerometer bias fitted with it, added to the
+    // bias parameter: the difference is the bias this calibration found.
+    let bias_ref = || protocol::ParamRef::Name(protocol::text("acc_bias_mps2"));
+    let bias_before = config::fetch(client, bias_ref())?.value;
     let status = config_reply(stop(client, true)?)?;
-    let r_mm = result.estimate.r_imu_m.map(|x| 1000.0 * x);
-    let axes_mm = result.estimate.ci95_semi_axes_m.map(|x| 1000.0 * x);
+    let bias_after = config::fetch(client, bias_ref())?.value;
+    let acc_bias_mps2: Vec<f32> =
+        bias_after.iter().zip(bias_before.iter()).map(|(a, b)| a - b).collect();
+    let r_mm = result.r_imu_m.map(|x| 1000.0 * x);
+    let axes_mm = result.ci95_semi_axes_m.map(|x| 1000.0 * x);
     Ok(if json_output {
         format!(
             "{:#}\n",
             json!({
                 "stored": true,
-                "throws": result.estimate.throws,
+                "throws": result.throws,
                 "r_imu_mm": r_mm,
                 "ci95_semi_axes_mm": axes_mm,
-                "acc_bias_mps2": result.acc_bias_mps2,
+                "acc_bias_mps2": acc_bias_mps2,
                 "unsaved_changes": status.unsaved_changes,
             })
         )

@@ -134,8 +134,9 @@ pub fn advice_text(advice: &OffsetAdvice) -> String {
             axis(*spin_about_axis)
         ),
         OffsetAdvice::BiasNotSeparable { direction_imu, spin_about_axis } => format!(
-            "along {} the offset cannot be told from an accelerometer bias: throw again at a \
-             different spin rate, about IMU {}",
+            "along {} the offset cannot be told from an accelerometer bias yet: hold the craft \
+             still after the catch (a rest in a new attitude measures the bias), or throw again \
+             at a different spin rate, about IMU {}",
             direction(direction_imu),
             axis(*spin_about_axis)
         ),
@@ -615,6 +616,18 @@ pub fn calibration_throw_text(throw: &protocol::CalibrationThrow) -> String {
         axes_mm[0],
         axes_mm[1],
         axes_mm[2]
+    )
+}
+
+/// The estimate once the craft has rested after the latest catch, when that rest made it well
+/// determined (the rest tells an accelerometer bias from the offset).
+pub fn calibration_rest_text(estimate: &protocol::ImuOffsetStatus) -> String {
+    let r_mm = estimate.r_imu_m.map(|x| x * 1000.0);
+    let axes_mm = estimate.ci95_semi_axes_m.map(|x| x * 1000.0);
+    format!(
+        "  held still after throw {}: IMU offset ({:+.2}, {:+.2}, {:+.2}) mm, 95 % semi-axes \
+         {:.2}, {:.2}, {:.2} mm: well determined",
+        estimate.throws, r_mm[0], r_mm[1], r_mm[2], axes_mm[0], axes_mm[1], axes_mm[2]
     )
 }
 

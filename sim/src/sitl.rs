@@ -56,6 +56,13 @@ pub struct SitlConfig {
     pub auto_throw_every_s: Option<f64>,
     /// Stop the automatic throws after this many (`None`: keep throwing).
     pub auto_throw_count: Option<usize>,
+    /// Body rates at release of the automatic throws, °/s, body axes, cycled through in order
+    /// (`None`: [`AUTO_THROW_RATES_DPS`]). Each within ±[`MAX_AUTO_THROW_RATE_DPS`] per axis and
+    /// not zero.
+    pub auto_throw_rates_dps: Option<Vec<[f64; 3]>>,
+    /// The accelerometer's constant bias, m/s², IMU axes, instead of the airframe file's
+    /// (`imu.accel.bias_mps2`); each component within ±[`MAX_ACC_BIAS_MPS2`].
+    pub acc_bias_mps2: Option<[f64; 3]>,
     /// Arm the control loop for throw-to-fly at start (as the protocol's `ArmThrowToFly`
     /// request would): the first throw the board sees starts the motor excitation.
     pub throw_to_fly: bool,
@@ -93,6 +100,12 @@ pub const MAX_IMU_OFFSET_M: f32 = 1.0;
 /// clearly different axes, as the seed paper asks of calibration throws (§3.2).
 pub const AUTO_THROW_RATES_DPS: [[f64; 3]; 3] =
     [[700.0, 350.0, 180.0], [-180.0, 230.0, 700.0], [300.0, -650.0, 250.0]];
+/// Largest body rate per axis of an automatic throw, °/s: the ICM-42688-P's full scale is
+/// 2000 °/s, and a hand does not spin a craft faster.
+pub const MAX_AUTO_THROW_RATE_DPS: f64 = 1500.0;
+/// Largest accelerometer bias per axis the SITL accepts, m/s²: five times a poorly mounted
+/// ICM-42688-P's zero-g offset (±20 mg).
+pub const MAX_ACC_BIAS_MPS2: f64 = 1.0;
 /// Apex of an automatic throw above the release point, m (the seed paper's 1 m throws).
 const AUTO_THROW_APEX_M: f64 = 1.0;
 /// How long the hand accelerates the craft, s.
@@ -113,6 +126,8 @@ impl Default for SitlConfig {
             seed: 1,
             auto_throw_every_s: None,
             auto_throw_count: None,
+            auto_throw_rates_dps: None,
+            acc_bias_mps2: None,
             throw_to_fly: false,
             mocap: false,
             motion_capture: crate::recovery::MotionCaptureConfig::default(),
@@ -147,6 +162,16 @@ pub enum SitlError {
     /// A motion-capture setting is outside its range (the message names it).
     #[error("{0}")]
     MotionCapture(String),
+    #[error(
+        "automatic throw rates must be non-zero and within ±{MAX_AUTO_THROW_RATE_DPS} °/s on \
+         each axis (got {0:?} °/s)"
+    )]
+    AutoThrowRates(Vec<[f64; 3]>),
+    #[error(
+        "the accelerometer bias must be finite and within ±{MAX_ACC_BIAS_MPS2} m/s² on each \
+         axis (got {0:?} m/s²)"
+    )]
+    AccBias([f64; 3]),
     #[error(transparent)]
     Flash(#[from] FlashFileError),
 }
@@ -179,7 +204,22 @@ impl Sitl {
             }
         }
         config.motion_capture.validate().map_err(SitlError::MotionCapture)?;
-        let airframe = Airframe::load(&config.airframe)?;
+        let auto_throw_rates_dps =
+            config.auto_throw_rates_dps.clone().unwrap_or_else(|| AUTO_THROW_RATES_DPS.to_vec());
+        let rate_ok = |r: &[f64; 3]| {
+            r.iter().all(|x| x.is_finite() && x.abs() <= MAX_AUTO_THROW_RATE_DPS)
+                && r.iter().any(|&x| x != 0.0)
+        };
+        if auto_throw_rates_dps.is_empty() || !auto_throw_rates_dps.iter().all(rate_ok) {
+            return Err(SitlError::AutoThrowRates(auto_throw_rates_dps));
+        }
+        let mut airframe = Airframe::load(&config.airframe)?;
+        if let Some(bias) = config.acc_bias_mps2 {
+            if !bias.iter().all(|x| x.is_finite() && x.abs() <= MAX_ACC_BIAS_MPS2) {
+                return Err(SitlError::AccBias(bias));
+            }
+            airframe.imu.accel.bias_mps2 = bias;
+        }
         let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
         let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
         // The simulated ESCs take DShot special commands (`SimMotors::escs`); the bridge's do not.
@@ -209,6 +249,7 @@ impl Sitl {
             speed: config.speed,
             auto_throw_every_s: config.auto_throw_every_s,
             auto_throw_count: config.auto_throw_count,
+            auto_throw_rates_dps,
             throw_to_fly: config.throw_to_fly,
             hand_throws_to_fly: config.hand_throws_to_fly,
             mocap: config.mocap,
@@ -257,6 +298,7 @@ struct Runner {
     speed: f64,
     auto_throw_every_s: Option<f64>,
     auto_throw_count: Option<usize>,
+    auto_throw_rates_dps: Vec<[f64; 3]>,
     throw_to_fly: bool,
     hand_throws_to_fly: bool,
     imu_offset_m: Option<[f32; 3]>,
@@ -355,7 +397,7 @@ impl Runner {
                 if let (Some(every_s), true, false) =
                     (self.auto_throw_every_s, more_throws, snapshot.armed)
                 {
-                    auto_throw(clock.board, every_s, throws_done);
+                    auto_throw(clock.board, every_s, &self.auto_throw_rates_dps, throws_done);
                 }
                 if self.hand_throws_to_fly {
                     flight_hand.act(clock.board, &snapshot);
@@ -464,13 +506,14 @@ impl FlightHand {
     }
 }
 
-/// Throw the craft when the next automatic throw is due and the hand holds it.
-fn auto_throw(board: &mut SimBoard, every_s: f64, throws_done: &mut usize) {
+/// Throw the craft when the next automatic throw is due and the hand holds it, at the next of
+/// `rates_dps` (body axes, °/s; never empty).
+fn auto_throw(board: &mut SimBoard, every_s: f64, rates_dps: &[[f64; 3]], throws_done: &mut usize) {
     let due_s = every_s * (*throws_done + 1) as f64;
     if board.time_s() < due_s || board.physics().hand().phase() != HandPhase::Holding {
         return;
     }
-    let rate_dps = AUTO_THROW_RATES_DPS[*throws_done % AUTO_THROW_RATES_DPS.len()];
+    let Some(&rate_dps) = rates_dps.get(*throws_done % rates_dps.len().max(1)) else { return };
     let rate_rad_s = nalgebra::Vector3::from(rate_dps).map(f64::to_radians);
     let spec = ThrowSpec::vertical(AUTO_THROW_APEX_M, rate_rad_s, AUTO_THROW_DURATION_S);
     board.physics_mut().throw_and_catch_at_release_height(&spec, AUTO_CATCH_TAU_S);
@@ -493,6 +536,26 @@ mod tests {
             Ok(Reply::Status(status)) => status.armed,
             other => panic!("expected the status, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn bad_throw_rates_or_bias_are_refused_at_start() {
+        let start = |config: SitlConfig| Sitl::start(&SitlConfig { pty: false, ..config });
+        let rates = |rates: Vec<[f64; 3]>| SitlConfig {
+            auto_throw_every_s: Some(3.0),
+            auto_throw_rates_dps: Some(rates),
+            ..SitlConfig::default()
+        };
+        for bad in [vec![], vec![[0.0; 3]], vec![[550.0, 0.0, 0.0], [0.0, f64::NAN, 0.0]]] {
+            assert!(matches!(start(rates(bad)), Err(SitlError::AutoThrowRates(_))));
+        }
+        assert!(matches!(
+            start(rates(vec![[2000.0, 0.0, 0.0]])),
+            Err(SitlError::AutoThrowRates(_))
+        ));
+        let bias = SitlConfig { acc_bias_mps2: Some([0.0, 1.5, 0.0]), ..SitlConfig::default() };
+        assert!(matches!(start(bias), Err(SitlError::AccBias(_))));
+        assert!(start(rates(vec![[0.0, 0.0, 550.0], [550.0, 0.0, 0.0]])).is_ok());
     }
 
     #[test]

@@ -7,11 +7,16 @@
 //! axis (1σ), the zero-g offset of an ICM-42688-P after mounting.
 
 use flight::imu_offset::DragModel;
-use sim::calibration::{monte_carlo, Plan, Summary};
+use sim::calibration::{monte_carlo, Plan, SpinDraw, Summary};
 
 #[test]
 fn a_real_sensor_bias_does_not_spoil_two_throws() {
-    let plan = Plan { bias_sigma_mps2: 0.2, airframe: None, drag_model: DragModel::Ignored };
+    let plan = Plan {
+        bias_sigma_mps2: 0.2,
+        airframe: None,
+        drag_model: DragModel::Ignored,
+        spins: SpinDraw::Random,
+    };
     let results = monte_carlo(24, 1, &plan, 2, &|_| {});
     let with_bias = Summary::of(&results.iter().map(|r| r.with_bias).collect::<Vec<_>>());
     let offset_only = Summary::of(&results.iter().map(|r| r.offset_only).collect::<Vec<_>>());

@@ -649,3 +649,185 @@ proptest! {
         }
     }
 }
+
+/// One calibration session as the board sees it (`crate::testing::throws::session`): held still
+/// 0.6 s, thrown spinning at `rate_radps` about `spins[0]`, caught, held still 1.2 s in the
+/// attitude the catch left, thrown at the same rate about `spins[1]`, caught, held still 0.6 s.
+/// Vertical throws to a 1 m apex (0.9 s of free fall), quadratic drag k = 0.01 /m, the craft's
+/// principal axes `axes`, IMU offset `r`, accelerometer bias `bias`; the session starts in
+/// `attitude`. Returns the stream and the index of the first sample after the second catch.
+fn equal_rate_session(
+    r: Vector3<f64>,
+    axes: UnitQuaternion<f64>,
+    spins: [Vector3<f64>; 2],
+    rate_radps: f64,
+    bias: Vector3<f64>,
+    attitude: UnitQuaternion<f64>,
+    seed: u64,
+) -> (Vec<ImuSample>, usize) {
+    let specs: Vec<ThrowSpec> = spins
+        .iter()
+        .enumerate()
+        .map(|(k, axis)| {
+            let mut spec =
+                ThrowSpec::typical(2000.0, r, axes, axis.normalize() * rate_radps, seed + k as u64);
+            let speed_mps = libm::sqrt(2.0 * crate::testing::throws::G_MPS2 * 1.0);
+            spec.free_fall_s = 2.0 * speed_mps / crate::testing::throws::G_MPS2;
+            spec.windup_peak_mps2 = 2.0 * speed_mps / spec.windup_s;
+            spec.throw_dir_world = -Vector3::z();
+            spec.acc_bias_mps2 = bias;
+            spec.initial_attitude = attitude;
+            spec.rest_before_s = 0.6;
+            spec.rest_after_s = 0.6;
+            spec
+        })
+        .collect();
+    let after_second_catch = specs[0].len()
+        + specs[1].catch_index()
+        + libm::round(specs[1].catch_s * specs[1].rate_hz) as usize;
+    (crate::testing::throws::session(&specs), after_second_catch)
+}
+
+/// The board's estimator over `data`: its estimate when the second throw is accepted (the catch,
+/// when the board reports the throw) and at the end (the rest after the catch in progress).
+fn onboard_at_catch_and_end(data: &[ImuSample]) -> (Estimate<f32>, Estimate<f32>) {
+    let mut est = ImuOffsetEstimator::new(2000.0, Config::default()).unwrap();
+    let mut at_catch = None;
+    for s in data {
+        if let Ok(Some(_)) = est.update(s) {
+            if est.segments().len() == 2 {
+                at_catch = est.estimate().ok();
+            }
+        }
+    }
+    assert_eq!(est.segments().len(), 2, "both throws detected");
+    (at_catch.expect("an estimate at the second catch"), est.estimate().unwrap())
+}
+
+fn normalised_mahalanobis(e: &Estimate<f64>, truth: &Vector3<f64>) -> f64 {
+    let error = e.r_imu_m - truth;
+    error.dot(&(e.covariance_m2.try_inverse().unwrap() * error)) / f64::from(CHI2_3DOF_95)
+}
+
+#[test]
+fn two_equal_rate_throws_with_a_bias_conclude_onboard_as_offline() {
+    // Issue 28: 40 sessions of two throws at one spin rate (300–600 °/s) about random axes at
+    // least 50° apart, a 0.1 m/s² accelerometer bias in a random direction, random offsets up to
+    // 2 cm and principal axes, the craft held still before, between and after. The board's f32
+    // estimator on the stream, once the craft rests after the second catch, gives what
+    // `fit imu-offset` (BatchFitter, f64) gives on a recording of the same stream: the same
+    // verdict, the same offset and ellipsoid; it concludes, within a millimetre of the truth,
+    // and the truth lies inside the 95 % ellipsoid about as often as it says.
+    let sessions = 40u32;
+    let mut rng = Rng::new(280);
+    let (mut inside, mut concluded) = (0u32, 0u32);
+    let mut normalised = Vec::new();
+    let mut errors_mm = Vec::new();
+    for session in 0..sessions {
+        let r = rng.unit_vector() * rng.range(0.0, 0.02);
+        let axes = UnitQuaternion::from_scaled_axis(
+            rng.unit_vector() * rng.range(0.0, core::f64::consts::PI),
+        );
+        let first = rng.unit_vector();
+        let second = loop {
+            let v = rng.unit_vector();
+            if angle_deg(&v, &first) > 50.0 {
+                break v;
+            }
+        };
+        let rate = rng.range(300.0, 600.0).to_radians();
+        let bias = rng.unit_vector() * 0.1;
+        let (data, _) = equal_rate_session(
+            r,
+            axes,
+            [first, second],
+            rate,
+            bias,
+            UnitQuaternion::identity(),
+            2800 + 2 * u64::from(session),
+        );
+        let (_, board) = onboard_at_catch_and_end(&data);
+        let host = batch_fit(&[&data], 2000.0, Config::default()).estimate().unwrap();
+        let apart_mm = mm((board.r_imu_m.cast::<f64>() - host.r_imu_m).norm());
+        let axes_ratio = (0..3)
+            .map(|i| f64::from(board.ellipsoid.semi_axes_m[i]) / host.ellipsoid.semi_axes_m[i])
+            .fold(0.0f64, |m, ratio| m.max((ratio - 1.0).abs()));
+        assert!(apart_mm < 0.01, "session {session}: board and host {apart_mm} mm apart");
+        assert!(axes_ratio < 0.01, "session {session}: semi-axes differ by {axes_ratio}");
+        assert_eq!(
+            board.verdict.is_well_determined(),
+            host.verdict.is_well_determined(),
+            "session {session}: board {} / host {}",
+            board.verdict,
+            host.verdict
+        );
+        assert_eq!(board.rest_poses, 3, "before, between and after the throws");
+        let error_mm = mm((host.r_imu_m - r).norm());
+        assert!(error_mm < 1.0, "session {session}: offset off by {error_mm:.3} mm");
+        errors_mm.push(error_mm);
+        concluded += u32::from(board.verdict.is_well_determined());
+        let m = normalised_mahalanobis(&host, &r);
+        inside += u32::from(m <= 1.0);
+        normalised.push(m);
+    }
+    normalised.sort_by(f64::total_cmp);
+    errors_mm.sort_by(f64::total_cmp);
+    let coverage = f64::from(inside) / f64::from(sessions);
+    let axes_factor = libm::sqrt(normalised[normalised.len() * 95 / 100]);
+    eprintln!(
+        "{sessions} equal-rate sessions, bias 0.1 m/s²: concluded {concluded}, error median \
+         {:.3} mm / worst {:.3} mm, truth inside the 95 % ellipsoid {:.1} % (axes × {axes_factor:.2} \
+         for exactly 95 %)",
+        errors_mm[errors_mm.len() / 2],
+        errors_mm[errors_mm.len() - 1],
+        100.0 * coverage
+    );
+    assert_eq!(concluded, sessions, "two throws and their rests are enough");
+    // Honest: 95 % − 2σ of the binomial spread over 40 sessions is 88 %; not merely safe either
+    // (an ellipsoid more than twice too wide would be inside in every session at axes × < 0.5).
+    assert!(coverage >= 0.875, "truth inside the ellipsoid in {:.1} %", 100.0 * coverage);
+    assert!(axes_factor > 0.5, "ellipsoid {:.1}× too wide", 1.0 / axes_factor);
+}
+
+#[test]
+fn the_rest_after_the_catch_separates_what_two_equal_spins_and_one_attitude_cannot() {
+    // The hard case of issue 28: the first throw spins about the principal axis that is vertical
+    // (a yaw spin: the catch leaves the craft level, so the rests before and after it are one
+    // attitude), the second about another principal axis at the same rate. Until the craft rests
+    // after the second catch, bias and offset are inseparable along the cross product of the
+    // spin axes: free fall sees `ω² r + b` there in both throws, and neither rest attitude looks
+    // along it. The rest after the catch (tilted by the second spin) measures the bias there.
+    let axes = principal_axes();
+    let level_yaw = UnitQuaternion::rotation_between(&principal_axis(2), &Vector3::z()).unwrap();
+    let rate = 11.0;
+    let spins = [principal_axis(2), principal_axis(0)];
+    let (data, after_catch) =
+        equal_rate_session(r_true(), axes, spins, rate, bias().normalize() * 0.1, level_yaw, 290);
+    let (at_catch, board) = onboard_at_catch_and_end(&data);
+    let Verdict::BiasNotSeparable { direction_imu, .. } = at_catch.verdict else {
+        panic!("expected bias and offset confused at the second catch: {}", at_catch.verdict);
+    };
+    let cross = principal_axis(2).cross(&principal_axis(0));
+    let angle = angle_deg(&direction_imu.cast(), &cross);
+    assert!(angle < 15.0, "confused direction {angle:.1}° from the spins' cross product");
+    assert_eq!(at_catch.rest_poses, 2, "before and after the yaw spin, both level");
+    // Offline, a recording cut at the catch says the same; with the rest after it, both conclude.
+    let cut = batch_fit(&[&data[..after_catch]], 2000.0, Config::default()).estimate().unwrap();
+    assert!(matches!(cut.verdict, Verdict::BiasNotSeparable { .. }), "{}", cut.verdict);
+    let host = batch_fit(&[&data], 2000.0, Config::default()).estimate().unwrap();
+    eprintln!(
+        "yaw spin then roll at {rate} rad/s: at the catch {} ({angle:.1}° from the cross \
+         product); after the rest {}",
+        at_catch.verdict, board.verdict
+    );
+    assert!(board.verdict.is_well_determined(), "{}", board.verdict);
+    assert!(host.verdict.is_well_determined(), "{}", host.verdict);
+    assert_eq!(board.rest_poses, 3);
+    let error_mm = mm((board.r_imu_m.cast::<f64>() - r_true()).norm());
+    assert!(error_mm < 1.0, "offset off by {error_mm:.3} mm");
+    // Not asserted here: whether the truth is inside this one ellipsoid. Spins about principal
+    // axes keep `X` constant within each throw, so any constant force the drag model leaves out
+    // reads as bias or offset and no batch mean sees it: on 60 such sessions (yaw first, random
+    // offsets and rates) with k = 0.01 /m the truth was inside in 70 %, missed by hundredths of
+    // a millimetre (semi-axes of 0.03–0.2 mm); without drag in 98 % (issue 28 report).
+}

@@ -16,6 +16,8 @@
 //! gives the exact specific force at `r`,
 //! `f = Rᵀ(a_cg − g) + Ω̇ × r + Ω × (Ω × r)`, plus bias, white noise and 16-bit quantisation.
 
+extern crate std;
+
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
 use crate::imu_offset::ImuSample;
@@ -349,6 +351,12 @@ impl ThrowSamples {
         self.state = next;
     }
 
+    /// The attitude the body has reached (rotates IMU coordinates into NED): after the last
+    /// sample, where the next throw of a session starts.
+    pub fn attitude(&self) -> UnitQuaternion<f64> {
+        UnitQuaternion::from_quaternion(self.state.attitude)
+    }
+
     fn quantise(value: f64, full_scale: f64) -> f64 {
         let lsb = full_scale / 32768.0;
         libm::round(value / lsb).clamp(-32768.0, 32767.0) * lsb
@@ -406,4 +414,23 @@ impl Iterator for ThrowSamples {
         self.index += 1;
         Some(ImuSample { gyro_radps: gyro.cast::<f32>(), acc_mps2: acc.cast::<f32>() })
     }
+}
+
+/// One calibration session as the board sees it: the throws of `specs` one after the other in a
+/// single stream, each starting in the attitude the previous catch left the craft in (the
+/// `initial_attitude` of every spec but the first is replaced), so a rest after a catch and the
+/// rest before the next throw are one pose held still.
+pub fn session(specs: &[ThrowSpec]) -> std::vec::Vec<ImuSample> {
+    let mut all = std::vec::Vec::new();
+    let mut attitude = None;
+    for spec in specs {
+        let mut spec = spec.clone();
+        if let Some(q) = attitude {
+            spec.initial_attitude = q;
+        }
+        let mut samples = spec.samples();
+        all.extend(samples.by_ref());
+        attitude = Some(samples.attitude());
+    }
+    all
 }

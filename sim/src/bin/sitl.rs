@@ -5,7 +5,9 @@
 //! configurator-cli --port /tmp/fc-sitl info
 //! ```
 //!
-//! `--throw-to-fly` arms the board for throw-to-fly at start; `--imu-offset-mm X,Y,Z` gives the
+//! `--throw-every-s 3 --throw-rate-dps 550,0,0 --throw-rate-dps 0,550,0 --acc-bias-mps2
+//! 0.06,-0.05,0.06` throws the craft at the given body rates, in turn, with that accelerometer
+//! bias (default: the airframe file's). `--throw-to-fly` arms the board for throw-to-fly at start; `--imu-offset-mm X,Y,Z` gives the
 //! learner the IMU offset instead of the onboard estimate. The saved configuration lives in
 //! `--flash-file PATH` (default: `sitl-flash.bin` in the user's data directory), so it survives
 //! a restart of the SITL as a board's survives a power cycle. Bad input exits with code 2.
@@ -47,6 +49,15 @@ struct Args {
     /// Stop throwing after this many throws (default: keep throwing).
     #[arg(long, requires = "throw_every_s")]
     throws: Option<usize>,
+    /// Body rate at release of the automatic throws, °/s, body axes, as `X,Y,Z`; repeat for the
+    /// next throws (they cycle). Default: (700, 350, 180), (−180, 230, 700), (300, −650, 250).
+    #[arg(long = "throw-rate-dps", value_name = "X,Y,Z", allow_hyphen_values = true,
+          value_parser = parse_triple, requires = "throw_every_s")]
+    throw_rates_dps: Vec<[f64; 3]>,
+    /// The accelerometer's constant bias, m/s², IMU axes, as `X,Y,Z` (each within ±1), instead
+    /// of the airframe file's.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_triple)]
+    acc_bias_mps2: Option<[f64; 3]>,
     /// Arm the board for throw-to-fly at start: the first throw starts the motor excitation
     /// (as `ArmThrowToFly` over the protocol would).
     #[arg(long)]
@@ -80,6 +91,16 @@ struct Args {
     duration_s: Option<f64>,
 }
 
+/// Three comma-separated numbers (`X,Y,Z`); ranges are checked when the SITL starts.
+fn parse_triple(text: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let [x, y, z] = parts.as_slice() else {
+        return Err(format!("expected three comma-separated numbers X,Y,Z, got `{text}`"));
+    };
+    let number = |part: &str| part.parse::<f64>().map_err(|_| format!("`{part}` is not a number"));
+    Ok([number(x)?, number(y)?, number(z)?])
+}
+
 fn main() -> std::process::ExitCode {
     let args = Args::parse();
     let motion_capture = match args.motion_capture.config() {
@@ -98,6 +119,9 @@ fn main() -> std::process::ExitCode {
         seed: args.seed,
         auto_throw_every_s: args.throw_every_s,
         auto_throw_count: args.throws,
+        auto_throw_rates_dps: (!args.throw_rates_dps.is_empty())
+            .then(|| args.throw_rates_dps.clone()),
+        acc_bias_mps2: args.acc_bias_mps2,
         throw_to_fly: args.throw_to_fly,
         hand_throws_to_fly: args.hand_throws_to_fly,
         imu_offset_m: args.imu_offset_mm,
@@ -129,12 +153,18 @@ fn main() -> std::process::ExitCode {
     }
     if let Some(every_s) = args.throw_every_s {
         println!("  throwing the craft every {every_s} s (spinning, 1 m up) and catching it");
+        for rate in &args.throw_rates_dps {
+            println!("    at ({:.0}, {:.0}, {:.0}) °/s, body axes", rate[0], rate[1], rate[2]);
+        }
     }
     if args.throw_to_fly {
         println!("  armed for throw-to-fly: the first throw starts the motor excitation");
     }
     if args.hand_throws_to_fly {
         println!("  the hand throws the craft for flight 1 s after the board is armed");
+    }
+    if let Some([x, y, z]) = args.acc_bias_mps2 {
+        println!("  accelerometer bias: ({x}, {y}, {z}) m/s², IMU axes");
     }
     if args.mocap {
         let m = motion_capture;
