@@ -66,7 +66,7 @@ impl Aspect {
 
     /// A seed for this aspect's draws, independent of the others'.
     fn rng(self, seed: u64) -> Rng {
-        Rng::new(seed ^ (0x5752_4C44_0000_0000 | (self as u64 + 1) * 0x9E37_79B9))
+        Rng::new(seed ^ (0x5752_4C44_0000_0000 | ((self as u64 + 1) * 0x9E37_79B9)))
     }
 }
 

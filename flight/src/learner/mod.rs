@@ -123,9 +123,10 @@ impl LearnerConfig {
     /// [0, `MAX_SPEED_AGE_S`]) at `rate_hz`: a command acts one step after it is computed and
     /// is held for a step (its centre half a step later), so it explains the speed reported
     /// `1 + 2 · age / step` half steps later; the report is `age − IMU_GROUP_DELAY_S` older
-    /// than the IMU sample of its step.
+    /// than the IMU sample of its step. A non-finite age is taken as the default.
     pub fn with_speed_age(self, speed_age_s: f32) -> Self {
-        let age = crate::math::clamp(speed_age_s, 0.0, MAX_SPEED_AGE_S);
+        let age = if speed_age_s.is_finite() { speed_age_s } else { DEFAULT_SPEED_AGE_S };
+        let age = crate::math::clamp(age, 0.0, MAX_SPEED_AGE_S);
         let half_steps = libm::roundf(1.0 + 2.0 * age * self.rate_hz);
         Self {
             command_to_speed_delay_half_steps: crate::math::clamp(half_steps, 1.0, 13.0) as u8,
@@ -141,7 +142,7 @@ impl Default for LearnerConfig {
             rate_hz: 2000.0,
             r_imu_m: [0.0; 3],
             command_to_speed_delay_half_steps: 3,
-            speed_report_lag_s: 312.5e-6,
+            speed_report_lag_s: DEFAULT_SPEED_AGE_S - IMU_GROUP_DELAY_S,
             effectiveness_rls: RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 },
             motor_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
         }
@@ -716,6 +717,20 @@ mod tests {
         let far = LearnerConfig { r_imu_m: [f32::NAN, 0.0, 0.0], ..config };
         assert!(slot.build(4, far).is_err());
         assert!(slot.get_mut().is_none());
+    }
+
+    #[test]
+    fn the_default_speed_age_gives_the_default_alignment_and_older_reports_shift_it() {
+        let config = LearnerConfig::default();
+        assert_eq!(config.with_speed_age(DEFAULT_SPEED_AGE_S), config);
+        // 2.5 ms at 2 kHz: the report explains the command 1 + 2 · 5 = 11 half steps earlier,
+        // and is 2.3125 ms older than the IMU sample.
+        let old = config.with_speed_age(0.0025);
+        assert_eq!(old.command_to_speed_delay_half_steps, 11);
+        assert!((old.speed_report_lag_s - 0.0023125).abs() < 1e-7);
+        // Beyond what the command history holds: clamped, never out of range.
+        assert_eq!(config.with_speed_age(1.0).command_to_speed_delay_half_steps, 13);
+        assert_eq!(config.with_speed_age(f32::NAN), config);
     }
 
     #[test]

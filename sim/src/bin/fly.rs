@@ -229,7 +229,7 @@ fn main() -> ExitCode {
             };
             let started = std::time::Instant::now();
             let progress = |done: usize| {
-                if done % 50 == 0 || done == runs {
+                if done.is_multiple_of(50) || done == runs {
                     eprintln!("fly: {done}/{runs} runs");
                 }
             };
