@@ -380,15 +380,31 @@ impl FlightApp for Recorded<'_, '_> {
 /// same times, so the two runs agree exactly; the tolerances say what "the same recovery" means).
 #[test]
 fn the_seed_paper_throw_flown_through_the_bridge_recovers_as_in_the_built_in_simulator() {
+    fly_the_seed_paper_through_the_bridge(0.0, 100.0);
+}
+
+/// The same with a real hand's release (the push tapers off over 15 ms) and a pose in every
+/// packet (2 kHz), as an external simulator may send them (issue 28).
+#[test]
+fn a_tapering_release_and_a_pose_in_every_packet_recover_and_hold_through_the_bridge() {
+    fly_the_seed_paper_through_the_bridge(0.015, 2000.0);
+}
+
+/// The seed paper's throw with the hand letting go over `taper_s`, motion capture at
+/// `mocap_rate_hz`, through the bridge and in the built-in simulator.
+fn fly_the_seed_paper_through_the_bridge(taper_s: f64, mocap_rate_hz: f64) {
     use sim::identification::TrueModel;
     use sim::recovery::{
-        fly, FlyConfig, MotionCapture, Outcome, HOVER_CLIMB_MPS, HOVER_HOLD_S, HOVER_RATE_RAD_S,
-        HOVER_TILT_RAD,
+        fly, FlyConfig, MotionCapture, MotionCaptureConfig, Outcome, HOVER_CLIMB_MPS, HOVER_HOLD_S,
+        HOVER_RATE_RAD_S, HOVER_TILT_RAD,
     };
 
     let airframe = Airframe::builtin("paper-quad").unwrap();
     let mut config = FlyConfig::paper();
     config.flight_s = 8.0;
+    config.throw.taper_s = taper_s;
+    config.motion_capture =
+        MotionCaptureConfig { rate_hz: mocap_rate_hz, ..MotionCaptureConfig::default() };
     let builtin = fly(&airframe, &config);
     assert_eq!(builtin.outcome, Outcome::Flying, "{builtin:?}");
 
@@ -412,9 +428,9 @@ fn the_seed_paper_throw_flown_through_the_bridge_recovers_as_in_the_built_in_sim
         })
     });
 
-    // The external simulator: physics, IMU, motion capture; version 2 with a pose every 10 ms.
+    // The external simulator: physics, IMU, motion capture; version 2 with the poses.
     let mut board = SimBoard::new(&airframe, &config.board);
-    let mut mocap = MotionCapture::new(config.board.seed);
+    let mut mocap = MotionCapture::with_config(config.motion_capture, config.board.seed);
     let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
     let spec = config.throw.spec();
     let mut states = Vec::new();
@@ -475,7 +491,7 @@ fn the_seed_paper_throw_flown_through_the_bridge_recovers_as_in_the_built_in_sim
     let builtin_hover_s = builtin.release_to_hover_s.expect("hovered in the built-in simulator");
     let builtin_error_m = builtin.max_hold_error_m.expect("held in the built-in simulator");
     eprintln!(
-        "paper quad, release → hover: bridge {bridge_hover_s:.4} s, built-in {builtin_hover_s:.4} \
+        "paper quad, taper {taper_s} s, poses at {mocap_rate_hz} Hz, release → hover: bridge {bridge_hover_s:.4} s, built-in {builtin_hover_s:.4} \
          s; worst distance from the setpoint over the last {hold_window_s:.1} s: bridge \
          {bridge_error_m:.4} m, built-in {builtin_error_m:.4} m"
     );
