@@ -62,6 +62,7 @@ pub fn m7(args: &[String]) -> Result<()> {
         }
     }
     ensure_qemu()?;
+    crate::build::ensure_target_installed()?;
     let crate_dir = root().join("bench-m7");
     // Its own target directory (a workspace of its own), under CARGO_TARGET_DIR when set.
     let target_dir = match std::env::var_os("CARGO_TARGET_DIR") {
