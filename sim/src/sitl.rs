@@ -110,6 +110,9 @@ pub const MAX_ACC_BIAS_MPS2: f64 = 1.0;
 const AUTO_THROW_APEX_M: f64 = 1.0;
 /// How long the hand accelerates the craft, s.
 const AUTO_THROW_DURATION_S: f64 = 0.15;
+/// How long the simulated hand takes to let go at the end of each push, s: a real hand's
+/// release (issue 28 measured about 15 ms in an independent simulator's hand).
+const HAND_TAPER_S: f64 = 0.015;
 /// Time constant of the catch, s.
 const AUTO_CATCH_TAU_S: f64 = 0.05;
 /// Shortest interval between automatic throws, s (a 1 m throw flies about 0.9 s).
@@ -499,7 +502,11 @@ impl FlightHand {
         if now_s - since_s >= ARMED_TO_THROW_S {
             let physics = board.physics_mut();
             physics.set_catch(None);
-            physics.throw(&crate::identification::Throw::paper().spec());
+            let throw = crate::identification::Throw {
+                taper_s: HAND_TAPER_S,
+                ..crate::identification::Throw::paper()
+            };
+            physics.throw(&throw.spec());
             self.in_flight = true;
             self.armed_since_s = None;
         }
@@ -515,7 +522,8 @@ fn auto_throw(board: &mut SimBoard, every_s: f64, rates_dps: &[[f64; 3]], throws
     }
     let Some(&rate_dps) = rates_dps.get(*throws_done % rates_dps.len().max(1)) else { return };
     let rate_rad_s = nalgebra::Vector3::from(rate_dps).map(f64::to_radians);
-    let spec = ThrowSpec::vertical(AUTO_THROW_APEX_M, rate_rad_s, AUTO_THROW_DURATION_S);
+    let spec = ThrowSpec::vertical(AUTO_THROW_APEX_M, rate_rad_s, AUTO_THROW_DURATION_S)
+        .with_taper(HAND_TAPER_S);
     board.physics_mut().throw_and_catch_at_release_height(&spec, AUTO_CATCH_TAU_S);
     *throws_done += 1;
 }
