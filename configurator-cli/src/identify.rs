@@ -9,8 +9,8 @@
 
 use crate::link::{Client, LinkError, TelemetrySample};
 use protocol::{
-    ConfigStatus, LearnerFailure, LearnerPhase, LearnerTelemetry, Reply, Request, SetTelemetryRate,
-    StateTelemetry, Telemetry, Topic,
+    ConfigStatus, FlightMode, FlightTelemetry, LearnerFailure, LearnerPhase, LearnerTelemetry,
+    Reply, Request, SetTelemetryRate, StateTelemetry, Telemetry, Topic,
 };
 use std::time::{Duration, Instant};
 
@@ -20,6 +20,14 @@ const WATCH_RATE_HZ: u16 = 50;
 const ENGAGE_WAIT_S: f64 = 1.0;
 /// One listening slice, ms.
 const LISTEN_SLICE: Duration = Duration::from_millis(20);
+/// How often the flow asks for the flight's state while the craft holds, wall-clock.
+const FLIGHT_POLL: Duration = Duration::from_millis(100);
+/// A hover, as the simulator's scores define it (`sim::recovery`): body rate below 20 °/s, the
+/// thrust axis within 10° of its setpoint and the vertical speed below 0.3 m/s, for 0.5 s.
+const HOVER_RATE_RAD_S: f32 = 0.35;
+const HOVER_TILT_RAD: f32 = 0.175;
+const HOVER_CLIMB_MPS: f32 = 0.3;
+const HOVER_HOLD_S: f64 = 0.5;
 
 /// How the flow runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -114,6 +122,7 @@ fn follow(
     let mut blocks: [Option<LearnerTelemetry>; 2] = [None, None];
     let mut state: Option<StateTelemetry> = None;
     let mut done_at: Option<Instant> = None;
+    let mut released_us: Option<u64> = None;
     loop {
         client.listen(LISTEN_SLICE)?;
         for event in client.events.drain(..) {
@@ -124,7 +133,12 @@ fn follow(
         for sample in client.telemetry.drain(..) {
             on_sample(&sample);
             match sample.data {
-                Telemetry::State(s) => state = Some(s),
+                Telemetry::State(s) => {
+                    if s.phase == LearnerPhase::Released && released_us.is_none() {
+                        released_us = Some(s.t_us);
+                    }
+                    state = Some(s);
+                }
                 Telemetry::Learner(learner) => {
                     if learner.phase != phase {
                         phase = learner.phase;
@@ -175,9 +189,22 @@ fn follow(
         let mut disarmed = false;
         if let (true, Some(hold_s)) = (flying, options.disarm_after_s) {
             say(format!("holding for {hold_s} s, then disarming"));
-            client.listen_with(Duration::from_secs_f64(hold_s), |sample| on_sample(&sample))?;
+            let mut watch = FlightWatch::new(released_us);
+            let until = Instant::now() + Duration::from_secs_f64(hold_s);
+            while Instant::now() < until {
+                let slice = FLIGHT_POLL.min(until.saturating_duration_since(Instant::now()));
+                client.listen_with(slice, |sample| on_sample(&sample))?;
+                if let Ok(Reply::Flight(flight)) =
+                    client.request(&Request::GetFlight(()), "the flight request")
+                {
+                    watch.add(&flight);
+                }
+            }
             client.request(&Request::Disarm(()), "the disarm request")?;
             say("disarmed: every motor stopped".into());
+            for line in watch.summary() {
+                say(line);
+            }
             disarmed = true;
         }
         let config = match client.request(&Request::GetConfig(()), "the configuration request")? {
@@ -186,6 +213,106 @@ fn follow(
         };
         return Ok(Identified { blocks: [block0, block1], flew: flying, disarmed, config });
     }
+}
+
+/// How the flight on the learned model went, from the board's flight state sampled while it
+/// holds: when it reached a hover (in the board's time since the release), and how well it held.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlightWatch {
+    released_us: Option<u64>,
+    /// Since when (board µs) every hover condition has held.
+    hovering_since_us: Option<u64>,
+    /// When the hover began, s after the release (or after the first sample without a release).
+    pub hover_after_s: Option<f64>,
+    first_us: Option<u64>,
+    /// While hovering: the largest thrust-axis error, rad, body rate, rad/s, and distance from
+    /// the position setpoint, m (with an external pose in position hold).
+    pub worst_tilt_rad: f32,
+    pub worst_rate_rad_s: f32,
+    pub worst_position_m: Option<f32>,
+    /// The last sample.
+    pub last: Option<FlightTelemetry>,
+}
+
+impl FlightWatch {
+    /// A watch of a flight released at board time `released_us`.
+    pub fn new(released_us: Option<u64>) -> Self {
+        Self {
+            released_us,
+            hovering_since_us: None,
+            hover_after_s: None,
+            first_us: None,
+            worst_tilt_rad: 0.0,
+            worst_rate_rad_s: 0.0,
+            worst_position_m: None,
+            last: None,
+        }
+    }
+
+    /// One sample of the flight's state.
+    pub fn add(&mut self, flight: &FlightTelemetry) {
+        let first_us = *self.first_us.get_or_insert(flight.t_us);
+        let rate = norm(flight.rate_rad_s);
+        let climb = flight.velocity_ned_mps.map_or(0.0, |v| v[2].abs());
+        let hovering = flight.mode != FlightMode::Off
+            && rate < HOVER_RATE_RAD_S
+            && flight.tilt_error_rad.abs() < HOVER_TILT_RAD
+            && climb < HOVER_CLIMB_MPS;
+        if !hovering {
+            self.hovering_since_us = None;
+        } else {
+            let since = *self.hovering_since_us.get_or_insert(flight.t_us);
+            let held_s = flight.t_us.saturating_sub(since) as f64 * 1e-6;
+            if self.hover_after_s.is_none() && held_s >= HOVER_HOLD_S {
+                let from = self.released_us.unwrap_or(first_us);
+                self.hover_after_s = Some(since.saturating_sub(from) as f64 * 1e-6);
+            }
+        }
+        if self.hover_after_s.is_some() {
+            self.worst_tilt_rad = self.worst_tilt_rad.max(flight.tilt_error_rad.abs());
+            self.worst_rate_rad_s = self.worst_rate_rad_s.max(rate);
+            if let (FlightMode::PositionHold, Some(p), Some(sp), true) =
+                (flight.mode, flight.position_ned_m, flight.position_sp_ned_m, flight.pose_fresh)
+            {
+                let d = norm([p[0] - sp[0], p[1] - sp[1], p[2] - sp[2]]);
+                self.worst_position_m = Some(self.worst_position_m.unwrap_or(0.0).max(d));
+            }
+        }
+        self.last = Some(*flight);
+    }
+
+    /// What the person reads: how the flight went, with units.
+    pub fn summary(&self) -> Vec<String> {
+        let deg = 180.0 / core::f32::consts::PI;
+        let Some(after_s) = self.hover_after_s else {
+            return vec![match &self.last {
+                Some(last) => format!(
+                    "flight: no steady hover during the hold (at the end: thrust axis {:.1}° from its setpoint, rates {:.0} °/s)",
+                    last.tilt_error_rad.abs() * deg,
+                    norm(last.rate_rad_s) * deg
+                ),
+                None => "flight: the board did not report its flight during the hold".into(),
+            }];
+        };
+        let from = if self.released_us.is_some() { "the release" } else { "the flight began" };
+        let mut lines = vec![
+            format!("flight: recovered to a hover {after_s:.2} s after {from}"),
+            format!(
+                "  while hovering: thrust axis within {:.1}° of its setpoint, rates below {:.0} °/s",
+                self.worst_tilt_rad * deg,
+                self.worst_rate_rad_s * deg
+            ),
+        ];
+        lines.push(match self.worst_position_m {
+            Some(d) => format!("  position held within {d:.3} m of the setpoint (external pose)"),
+            None => "  position not held: no external pose (level hold; the craft drifts)".into(),
+        });
+        lines
+    }
+}
+
+fn norm(v: [f32; 3]) -> f32 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
 
 /// What a new phase means for the person, if anything.
@@ -200,4 +327,67 @@ fn phase_news(learner: &LearnerTelemetry) -> Option<String> {
         LearnerPhase::Done => "excitation over; no hover thrust axis".into(),
         _ => return None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::FailsafeCounters;
+
+    /// The flight at board time `t_s`: body rate `rate_dps`, thrust-axis error `tilt_deg`,
+    /// position `x_m` north of a setpoint at the origin.
+    fn flight(t_s: f64, rate_dps: f32, tilt_deg: f32, x_m: f32) -> FlightTelemetry {
+        FlightTelemetry {
+            t_us: (t_s * 1e6) as u64,
+            mode: FlightMode::PositionHold,
+            q_world_thrust: [1.0, 0.0, 0.0, 0.0],
+            euler_zyx_rad: [0.0; 3],
+            rate_rad_s: [rate_dps.to_radians(), 0.0, 0.0],
+            rate_sp_rad_s: [0.0; 3],
+            specific_force_sp_ned_mps2: [0.0, 0.0, -9.81],
+            tilt_error_rad: tilt_deg.to_radians(),
+            position_sp_ned_m: Some([0.0; 3]),
+            position_ned_m: Some([x_m, 0.0, 0.0]),
+            velocity_ned_mps: Some([0.0; 3]),
+            pose_fresh: true,
+            allocation_failures: 0,
+            saturated: 0,
+            last_failsafe: None,
+            failsafes: FailsafeCounters::default(),
+        }
+    }
+
+    #[test]
+    fn the_hover_begins_when_every_condition_has_held_for_half_a_second() {
+        // Released at 10 s; tumbling until 11.2 s, a wobble at 11.5 s, steady from 11.6 s.
+        let mut watch = FlightWatch::new(Some(10_000_000));
+        for k in 0..40 {
+            let t = 10.5 + 0.1 * f64::from(k);
+            let (rate, tilt) = match t {
+                t if t < 11.2 => (300.0, 40.0),
+                t if (11.45..11.55).contains(&t) => (30.0, 5.0),
+                _ => (5.0, 2.0),
+            };
+            watch.add(&flight(t, rate, tilt, 0.05));
+        }
+        let after = watch.hover_after_s.unwrap();
+        assert!((after - 1.6).abs() < 1e-6, "hover from 11.6 s: {after}");
+        assert!((watch.worst_tilt_rad.to_degrees() - 2.0).abs() < 1e-4);
+        assert!((watch.worst_position_m.unwrap() - 0.05).abs() < 1e-6);
+        let text = watch.summary().join("\n");
+        assert!(text.contains("recovered to a hover 1.60 s after the release"), "{text}");
+        assert!(text.contains("within 0.050 m"), "{text}");
+    }
+
+    #[test]
+    fn a_flight_that_never_settles_says_so_with_its_last_errors() {
+        let mut watch = FlightWatch::new(Some(0));
+        for k in 0..30 {
+            watch.add(&flight(0.1 * f64::from(k), 90.0, 25.0, 1.0));
+        }
+        assert_eq!(watch.hover_after_s, None);
+        let text = watch.summary().join("\n");
+        assert!(text.contains("no steady hover"), "{text}");
+        assert!(text.contains("25.0°") && text.contains("90 °/s"), "{text}");
+    }
 }
