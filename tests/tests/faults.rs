@@ -114,6 +114,18 @@ fn samples_s(samples: usize) -> f64 {
     (samples as f64 - 0.5) / 2000.0
 }
 
+/// How far a fault moved the craft: the largest distance between its positions after the fault
+/// and those of the same flight without the fault (the runs are deterministic), m.
+fn moved_by_the_fault(flight: &Flight, kind: FaultKind, when: When, after_s: f64) -> f64 {
+    let unfaulted = fly_for(kind, 0.0, when, after_s);
+    assert_eq!(unfaulted.fault_step, flight.fault_step, "the same flight up to the fault");
+    flight.steps[flight.fault_step..]
+        .iter()
+        .zip(&unfaulted.steps[flight.fault_step..])
+        .map(|(a, b)| (a.position_ned_m - b.position_ned_m).norm())
+        .fold(0.0, f64::max)
+}
+
 /// Control steps in `imu_fault_timeout_s` (its default).
 fn timeout_steps() -> usize {
     (f64::from(IMU_FAULT_TIMEOUT_S) * 2000.0).round() as usize
@@ -300,8 +312,8 @@ fn held_faults() -> [(FaultKind, Failsafe); 5] {
 /// A glitch of `samples` bad samples, shorter than the timeout: the flight goes on with no
 /// failsafe, every bad sample counted as held, and the craft recovers (or stays) in a hover.
 /// Returns the worst distance from the setpoint after the fault (hover) or from the position
-/// at the fault (recovery), m.
-fn assert_ridden_through(kind: FaultKind, samples: usize, when: When) -> f64 {
+/// at the fault (recovery), m, and how far the glitch moved the craft ([`moved_by_the_fault`]).
+fn assert_ridden_through(kind: FaultKind, samples: usize, when: When) -> (f64, f64) {
     let name = format!("{samples} × {kind:?} during {when:?}");
     let flight = fly_for(kind, samples_s(samples), when, 3.0);
     assert_eq!(flight.bad_commands, 0, "{name}: bad commands written");
@@ -321,17 +333,21 @@ fn assert_ridden_through(kind: FaultKind, samples: usize, when: When) -> f64 {
     let reference = flight.setpoint_ned_m.unwrap_or(after[0].position_ned_m);
     let worst = after.iter().map(|s| (s.position_ned_m - reference).norm()).fold(0.0, f64::max);
     let tilt = after.iter().map(|s| s.tilt_rad).fold(0.0, f64::max).to_degrees();
-    eprintln!("{name}: ridden through; worst distance {worst:.3} m, largest tilt {tilt:.1}°");
-    worst
+    let moved = moved_by_the_fault(&flight, kind, when, 3.0);
+    eprintln!(
+        "{name}: ridden through; worst distance {worst:.3} m, moved {moved:.4} m by the glitch, \
+         largest tilt {tilt:.1}°"
+    );
+    (worst, moved)
 }
 
 /// Issue 28, item 7: one corrupted SPI transfer at 20 m must not drop the craft.
 #[test]
 fn a_nan_imu_sample_in_flight_is_ridden_through_and_counted() {
     for when in [When::Recovery, When::Hover] {
-        let worst = assert_ridden_through(FaultKind::ImuNan, 1, when);
+        let (_, moved) = assert_ridden_through(FaultKind::ImuNan, 1, when);
         if when == When::Hover {
-            assert!(worst < 0.05, "one held sample moved the hover {worst} m");
+            assert!(moved < 0.05, "one held sample moved the hover {moved} m");
         }
     }
 }
@@ -343,7 +359,7 @@ fn imu_glitches_shorter_than_the_timeout_are_ridden_through() {
     let samples = timeout_steps() - 1;
     for (kind, _) in held_faults() {
         for when in [When::Recovery, When::Hover] {
-            let worst = assert_ridden_through(kind, samples, when);
+            let (worst, _) = assert_ridden_through(kind, samples, when);
             if when == When::Hover {
                 assert!(worst < 0.3, "{kind:?}: {worst} m from the setpoint");
             }
@@ -399,9 +415,13 @@ fn a_motor_whose_speed_reports_stop_in_flight_flies_on() {
         assert!(end.iter().all(|s| s.rate_rad_s < HOVER_RATE_RAD_S && s.tilt_rad < HOVER_TILT_RAD));
         let reference = flight.setpoint_ned_m.unwrap_or(after[0].position_ned_m);
         let worst = after.iter().map(|s| (s.position_ned_m - reference).norm()).fold(0.0, f64::max);
-        eprintln!("speed reports of motor 1 lost during {when:?}: worst distance {worst:.3} m");
+        let moved = moved_by_the_fault(&flight, FaultKind::SpeedReportLost { motor: 1 }, when, 3.0);
+        eprintln!(
+            "speed reports of motor 1 lost during {when:?}: worst distance {worst:.3} m, moved \
+             {moved:.4} m by the loss"
+        );
         if when == When::Hover {
-            assert!(worst < 0.05, "{worst} m from the setpoint");
+            assert!(moved < 0.05, "the lost reports moved the hover {moved} m");
         }
     }
 }
