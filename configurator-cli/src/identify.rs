@@ -22,12 +22,9 @@ const ENGAGE_WAIT_S: f64 = 1.0;
 const LISTEN_SLICE: Duration = Duration::from_millis(20);
 /// How often the flow asks for the flight's state while the craft holds, wall-clock.
 const FLIGHT_POLL: Duration = Duration::from_millis(100);
-/// A hover, as the simulator's scores define it (`sim::recovery`): body rate below 20 °/s, the
-/// thrust axis within 10° of its setpoint and the vertical speed below 0.3 m/s, for 0.5 s.
-const HOVER_RATE_RAD_S: f32 = 0.35;
-const HOVER_TILT_RAD: f32 = 0.175;
-const HOVER_CLIMB_MPS: f32 = 0.3;
-const HOVER_HOLD_S: f64 = 0.5;
+// A hover, as the simulator's scores define it: body rate below 20 °/s, the thrust axis within
+// 10° of its setpoint and the vertical speed below 0.3 m/s, for 0.5 s (defined once, there).
+use sim::recovery::{HOVER_CLIMB_MPS, HOVER_HOLD_S, HOVER_RATE_RAD_S, HOVER_TILT_RAD};
 
 /// How the flow runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -255,9 +252,9 @@ impl FlightWatch {
         let rate = norm(flight.rate_rad_s);
         let climb = flight.velocity_ned_mps.map_or(0.0, |v| v[2].abs());
         let hovering = flight.mode != FlightMode::Off
-            && rate < HOVER_RATE_RAD_S
-            && flight.tilt_error_rad.abs() < HOVER_TILT_RAD
-            && climb < HOVER_CLIMB_MPS;
+            && f64::from(rate) < HOVER_RATE_RAD_S
+            && f64::from(flight.tilt_error_rad.abs()) < HOVER_TILT_RAD
+            && f64::from(climb) < HOVER_CLIMB_MPS;
         if !hovering {
             self.hovering_since_us = None;
         } else {

@@ -42,7 +42,7 @@
 //! speeds (under the 0.5 g mean limit); spins up to 1,000 °/s. Refused: shakes in the hand (their
 //! speed stays below 4 m/s or they never fall freely for 150 ms), drops onto a bench (no push
 //! above 20 m/s² precedes the fall), walking or running with the craft, catches within the
-//! delay. `flight/tests` and `tests/tests/throw_release.rs` try each of these.
+//! delay. This module's tests and `tests/tests/throw_release.rs` try each of these.
 //!
 //! The check uses the raw accelerometer and the gyro, so it needs no IMU offset. Runs in the
 //! 2 kHz control step: a few dozen multiplications per sample, no allocation.
@@ -145,6 +145,8 @@ struct Push {
     q_start_body: UnitQuaternion<f32>,
     /// Velocity gained, m/s, in the body axes at the start of the push.
     velocity_mps: Vector3<f32>,
+    /// Time since the push began, s (for the give-up time).
+    elapsed_s: f32,
 }
 
 /// The detector (one per armed attempt).
@@ -166,7 +168,11 @@ pub struct ThrowDetector {
 
 impl Push {
     fn start() -> Self {
-        Self { q_start_body: UnitQuaternion::identity(), velocity_mps: Vector3::zeros() }
+        Self {
+            q_start_body: UnitQuaternion::identity(),
+            velocity_mps: Vector3::zeros(),
+            elapsed_s: 0.0,
+        }
     }
 }
 
@@ -240,7 +246,7 @@ impl ThrowDetector {
                     self.integrate_push(f, w, dt_s);
                     self.state = ThrowState::Throwing {
                         speed_mps: norm(self.push.velocity_mps),
-                        elapsed_s: dt_s,
+                        elapsed_s: self.push.elapsed_s,
                         ending_s: None,
                     };
                     ThrowEvent::ThrowStarted
@@ -249,10 +255,10 @@ impl ThrowDetector {
                 }
             }
             ThrowState::Thrown => ThrowEvent::None,
-            ThrowState::Throwing { elapsed_s, ending_s, .. } => {
+            ThrowState::Throwing { ending_s, .. } => {
                 self.integrate_push(f, w, dt_s);
                 let speed_mps = norm(self.push.velocity_mps);
-                let elapsed_s = elapsed_s + dt_s;
+                let elapsed_s = self.push.elapsed_s;
                 let just_ended = !pushing && ending_s.is_none();
                 let ending_s = match (pushing, ending_s) {
                     (true, _) => None,
@@ -301,7 +307,7 @@ impl ThrowDetector {
                         // The hand's last touch: the release was not yet.
                         self.state = ThrowState::Throwing {
                             speed_mps: norm(self.push.velocity_mps),
-                            elapsed_s: 0.0,
+                            elapsed_s: self.push.elapsed_s,
                             ending_s: (!pushing).then_some(since_push_end_s),
                         };
                         ThrowEvent::None
@@ -363,6 +369,7 @@ impl ThrowDetector {
         let q_mid = self.push.q_start_body * half_turn;
         self.push.velocity_mps += (q_mid * f - f_rest) * dt_s;
         self.push.q_start_body = q_mid * half_turn;
+        self.push.elapsed_s += dt_s;
     }
 }
 
