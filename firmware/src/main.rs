@@ -6,18 +6,20 @@
 //!
 //! | task | bound to | priority | what |
 //! |---|---|---|---|
-//! | `control_tick` | TIM7 update, 2 kHz | 3 (highest) | receiver bytes → arm/disarm; one control step (IMU mean in, DShot frames out); pends `usb_service` at 1 kHz, spawns `background` when samples wait |
+//! | `control_tick` | TIM7 update, 2 kHz | 3 (highest) | [`ControlTask::tick`](firmware::app::system::ControlTask::tick): the link's commands, the receiver's bytes → arm/disarm, one control step (IMU mean in, DShot frames out); pends `usb_service` at 1 kHz, spawns `background` when samples wait |
 //! | `imu_data_ready` | EXTI2 (ICM-42688-P INT1), 8 kHz | 3 | starts the SPI DMA read of one sample (returns at once) |
 //! | `imu_transfer_done` | DMA1 stream 0 complete | 3 | ends the read, adds the sample to the 8 kHz → 2 kHz mean |
 //! | `motor_burst_0..2` | DMA1 streams 2–4 complete (the motor timers' DShot bursts) | 4 | switches the timer's outputs to capture the ESCs' bidirectional answers (a few dozen register writes, 28 µs after the step started the frame; the answer starts 30 µs after the frame, too soon to wait for the step to end) |
-//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | USB device, CDC bytes ↔ link server, telemetry, configuration saves (flash erase) |
-//! | `background` | software task (dispatcher `DCMI`) | 1 | drains the learner-sample queue, publishes results |
+//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port: requests routed, telemetry, configuration saves (flash erase); then a restart if one was asked for |
+//! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the link's work, the learner-sample queue drained, results published |
 //! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
-//! Shared resources are only handoffs: the control step's `Copy` status snapshot, the board's
-//! health and the background results, each written and read under a lock held for a copy; and
-//! the IMU, shared lock-free by the three priority-3 tasks (equal priorities never preempt each
-//! other). Everything else is a task's `#[local]` state; the motor-burst tasks and the control
+//! What each task does, and in which order, is the portable application graph's
+//! ([`firmware::app::system`], which the simulators run too); this file only binds its entry
+//! points to interrupts and its handoffs ([`firmware::app::system::Handoffs`]) to RTIC shared
+//! resources, each behind its own lock: the control step's snapshot, the background results,
+//! the board's health (locked for a copy) and the two command queues; and the IMU, shared
+//! lock-free by the three priority-3 tasks (equal priorities never preempt each other). Everything else is a task's `#[local]` state; the motor-burst tasks and the control
 //! step touch the same motor timers at different times by construction (`board::motors`). Task bodies live outside the `#[app]` module (RTIC v1 book), in
 //! [`tasks`].
 //!
@@ -80,10 +82,10 @@ mod app {
         motor_burst_2, usb_service,
     };
     use firmware::app::hal::Motors;
+    use firmware::app::system::{ControlQueue, ControlTask, Link, LinkTask, WorkQueue};
     use firmware::app::{
-        split_queue, Background, BackgroundCommand, BackgroundResults, BoardInfo, ControlCommand,
-        ControlConfig, ControlLoop, ControlSnapshot, LinkServer, SampleQueue, Settings,
-        StepConsumer, StepRing,
+        split_queue, Background, BackgroundResults, BoardInfo, ControlConfig, ControlLoop,
+        ControlSnapshot, LinkServer, SampleQueue, Settings, StepRing,
     };
     use firmware::board::config::{clock_plan, silicon_revision, TIME_BASE_HZ};
     use firmware::board::flash::ConfigSectors;
@@ -95,7 +97,8 @@ mod app {
     use firmware::board::timing::{step_stats, StepStats, StepTimer};
     use firmware::board::usb::{self, UsbSerial, UsbStorage, EP_MEMORY_WORDS};
     use firmware::board::{bootloader, BOARD};
-    use firmware::drivers::receiver::CraftState;
+    use firmware::drivers::crsf::RcLinkConfig;
+    use firmware::drivers::receiver::Receiver;
     use protocol::{BoardHealth, Capabilities, ImuDriverState};
     use stm32h7xx_hal::flash::FlashExt;
     use stm32h7xx_hal::pac;
@@ -114,35 +117,27 @@ mod app {
             && BOARD.imu.rx_dma.stream == 0
     );
 
-    /// Handoffs between tasks: small `Copy` values, locked only for the copy.
+    /// The application graph's handoffs ([`firmware::app::system::Handoffs`]), each behind its
+    /// own lock.
     #[shared]
     struct Shared {
         /// Written by `control_tick` every step, read by `usb_service`.
-        control: ControlSnapshot,
-        /// Written by `background` after each batch, read by `usb_service`.
-        background: BackgroundResults,
+        snapshot: ControlSnapshot,
+        /// Written by `background` after each run, read by `control_tick` and `usb_service`.
+        results: BackgroundResults,
         /// Clocks and drivers: written by `init` and (motors, receiver) by `control_tick` at
         /// 1 kHz, read by `usb_service` (`GetBoard`).
         board: BoardHealth,
-        /// Commands from the link for the control step (arm, disarm, pose, settings, motor
-        /// test): pushed by `usb_service`, taken by `control_tick` at the start of its next step.
-        commands: heapless::Deque<ControlCommand, 4>,
-        /// Commands from the link for the background task (calibration start and stop, new
-        /// parameters): pushed by `usb_service`, taken by `background` when it next runs.
-        background_commands: heapless::Deque<BackgroundWork, 4>,
+        /// Commands for the control step (arm, disarm, pose, settings, motor test): pushed by
+        /// `usb_service`, taken by `control_tick` at the start of its next step.
+        commands: ControlQueue,
+        /// Work for the background task (calibration start and stop, new parameters): pushed by
+        /// `usb_service`, taken by `background` when it next runs.
+        work: WorkQueue,
         /// The IMU: its data-ready and DMA tasks fill the 8 kHz mean, the control step takes it.
         /// All three run at priority 3, so no lock is needed.
         #[lock_free]
         imu: BoardImu,
-    }
-
-    /// What the link task hands the background task. The parameters travel whole (about
-    /// 0.5 KiB, copied once per change into a 4-entry static queue: no allocation, no boxing).
-    #[derive(Clone, Copy)]
-    #[allow(clippy::large_enum_variant)]
-    pub enum BackgroundWork {
-        Command(BackgroundCommand),
-        Configure(firmware::app::Params),
     }
 
     /// Each task's own state.
@@ -151,21 +146,22 @@ mod app {
         control_timer: Timer<pac::TIM7>,
         step_timer: StepTimer,
         control_clock: MicrosClock,
-        control: ControlLoop<'static>,
+        /// The control loop and the pilot's receiver policy.
+        control: ControlTask<'static>,
         motors: BoardMotors,
         /// Each motor timer's switch to capture, for its burst task (`None`: no such timer, or
         /// ESCs without bidirectional DShot).
         burst_0: Option<BurstCompletion>,
         burst_1: Option<BurstCompletion>,
         burst_2: Option<BurstCompletion>,
+        /// The receiver's UART ring, read by the control tick.
         receiver: BoardReceiver,
         usb_clock: MicrosClock,
-        usb: UsbSerial,
-        link: LinkServer,
-        /// The link task's end of the telemetry ring (one record per control step).
-        telemetry: StepConsumer<'static>,
-        /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads).
-        settings: Settings<ConfigSectors>,
+        /// The USB CDC port and its protocol endpoint.
+        usb: Link<UsbSerial>,
+        /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads), and
+        /// the link task's end of the telemetry ring (one record per control step).
+        link: LinkTask<'static, ConfigSectors>,
         /// The learner, the thrust-axis solver and the IMU-offset estimator (with the drag
         /// model's store of a throw's blocks): 55 KB that only the lowest-priority task touches,
         /// in AXI SRAM so that DTCM keeps room for the stack, built there in place by `init`
@@ -264,13 +260,18 @@ mod app {
         let bidirectional = BOARD.motor_bidirectional && settings.params().bidirectional_dshot();
         let motors = BoardMotors::new(BOARD, ccdr.clocks.timx_ker_ck().raw(), bidirectional);
         let receiver = BoardReceiver::new(BOARD.receiver, ccdr.clocks.pclk2().raw());
+        // The default switches (channels 5, 6, 7) are valid by construction.
+        let radio = match Receiver::new(RcLinkConfig::default()) {
+            Ok(radio) => radio,
+            Err(_) => defmt::panic!("RC switch channel out of range"),
+        };
         let imu_state = imu.state();
         let board = BoardHealth {
             core_clock_hz: Some(sys_ck_hz),
             silicon_revision: Some(revision),
             imu: imu_state,
-            motors: Some(motors.health()),
-            receiver: Some(receiver.health(0)),
+            motors: motors.health(),
+            receiver: Some(radio.health(0)),
         };
 
         // The portable application: control loop → sample queue → background worker.
@@ -307,11 +308,11 @@ mod app {
             motor_count: motors.count(),
         });
         let shared = Shared {
-            control: control.snapshot(),
-            background: background.results(),
+            snapshot: control.snapshot(),
+            results: background.results(),
             board,
-            commands: heapless::Deque::new(),
-            background_commands: heapless::Deque::new(),
+            commands: ControlQueue::new(),
+            work: WorkQueue::new(),
             imu,
         };
 
@@ -338,17 +339,15 @@ mod app {
             control_timer,
             step_timer,
             control_clock: clock,
-            control,
+            control: ControlTask::new(control, Some(radio)),
             burst_0: motors.completion(0),
             burst_1: motors.completion(1),
             burst_2: motors.completion(2),
             motors,
             receiver,
             usb_clock: clock,
-            usb,
-            link,
-            telemetry,
-            settings,
+            usb: Link::new(link, usb),
+            link: LinkTask::new(settings, telemetry),
             background,
         };
         (shared, local, init::Monotonics())
@@ -378,12 +377,8 @@ mod app {
         #[task(
             binds = TIM7,
             priority = 3,
-            local = [
-                control_timer, step_timer, control_clock, control, motors, receiver,
-                ticks: u32 = 0,
-                craft: CraftState = CraftState { armed: false, in_flight: false },
-            ],
-            shared = [control, background, commands, board, imu]
+            local = [control_timer, step_timer, control_clock, control, motors, receiver],
+            shared = [snapshot, results, commands, board, imu]
         )]
         fn control_tick(cx: control_tick::Context);
 
@@ -404,29 +399,27 @@ mod app {
         #[task(binds = DMA1_STR4, priority = 4, local = [burst_2])]
         fn motor_burst_2(cx: motor_burst_2::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link, telemetry, settings], shared = [control, background, board, commands, background_commands])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link], shared = [snapshot, results, board, commands, work])]
         fn usb_service(cx: usb_service::Context);
 
-        #[task(priority = 1, local = [background], shared = [background, background_commands])]
+        #[task(priority = 1, local = [background], shared = [results, work])]
         fn background(cx: background::Context);
     }
 }
 
-/// The task bodies (RTIC v1 "extern" tasks): what each task does, apart from the task table.
+/// The task bodies (RTIC v1 "extern" tasks): each binds its task's resources to an entry point of
+/// the application graph ([`firmware::app::system`]) and does what only the board can (clear
+/// the timer, measure the step, pend and spawn tasks, restart the chip).
 #[cfg(target_os = "none")]
 mod tasks {
     use crate::app::{
         background, control_tick, imu_data_ready, imu_transfer_done, motor_burst_0, motor_burst_1,
-        motor_burst_2, usb_service, BackgroundWork,
+        motor_burst_2, usb_service,
     };
-    use firmware::app::{ControlCommand, ControlSettings, LinkRequest, StatusView};
+    use firmware::app::system::{run_background, PassShared, Restart, TickShared};
     use firmware::board::bootloader;
-    use firmware::board::config::USB_SERVICE_DIVIDER;
     use firmware::board::timing::{cycles_per_us, step_stats};
-    use firmware::drivers::receiver::CraftState;
-    use flight::learner::FlightPhase;
     use protocol::StepTime;
-    use rtic::mutex_prelude::*;
     use stm32h7xx_hal::pac::Interrupt;
 
     /// One control step, on every TIM7 update at 2 kHz, at the highest priority.
@@ -435,50 +428,32 @@ mod tasks {
     /// never blocks and never allocates: the receiver drains at most one DMA ring of bytes, the
     /// IMU hands over a mean already summed, the motor outputs restart three DMA streams, the
     /// sample queue drops and counts when full, the locks are uncontended (no higher-priority
-    /// task exists) and held for a copy, and the only interrupts-off sections are a few
-    /// instructions long (the clock's 64-bit extension, RTIC's spawn queue). Its own duration is
-    /// measured against the deadline (`board::timing`) and reported from `idle`.
-    ///
-    /// Order: the link's commands, then the receiver's (so a kill switch's disarm is the last
-    /// word, applied in this very step), then the step itself.
-    pub fn control_tick(mut cx: control_tick::Context) {
+    /// task shares them) and held for a copy or a queue operation, and the only interrupts-off
+    /// sections are a few instructions long (the clock's 64-bit extension, RTIC's spawn queue).
+    /// Its own duration is measured against the deadline (`board::timing`) and reported from
+    /// `idle`. The order of its work is [`firmware::app::system::ControlTask::tick`]'s.
+    pub fn control_tick(cx: control_tick::Context) {
         let started = cx.local.step_timer.start();
         cx.local.control_timer.clear_irq();
         let now_us = cx.local.control_clock.now_us();
-        let control = &mut *cx.local.control;
-        cx.shared.commands.lock(|commands| {
-            while let Some(command) = commands.pop_front() {
-                control.command(command, now_us);
-            }
-        });
-        if let Some(command) = cx.local.receiver.poll(now_us, *cx.local.craft) {
-            control.command(command, now_us);
-        }
-        // What the background task learned (copied only when it changed).
-        cx.shared.background.lock(|results| control.receive(results));
-        let motors = &mut *cx.local.motors;
-        let samples_waiting = control.step(now_us, cx.shared.imu, motors);
-        let snapshot = control.snapshot();
-        motors.set_armed(snapshot.armed);
-        *cx.local.craft = CraftState {
-            armed: snapshot.armed,
-            in_flight: snapshot.pilot.flying
-                || matches!(snapshot.phase, FlightPhase::Released | FlightPhase::Exciting),
+        let mut shared = TickShared {
+            commands: cx.shared.commands,
+            results: cx.shared.results,
+            snapshot: cx.shared.snapshot,
+            board: cx.shared.board,
         };
-        cx.shared.control.lock(|control| *control = snapshot);
-
-        if samples_waiting {
+        let outcome = cx.local.control.tick(
+            now_us,
+            cx.shared.imu,
+            cx.local.motors,
+            cx.local.receiver,
+            &mut shared,
+        );
+        if outcome.background_due {
             // `Err` means a run is already queued; it drains everything, so nothing is lost.
             let _ = background::spawn();
         }
-        *cx.local.ticks = cx.local.ticks.wrapping_add(1);
-        if cx.local.ticks.is_multiple_of(USB_SERVICE_DIVIDER) {
-            let motors = cx.local.motors.health();
-            let receiver = cx.local.receiver.health(now_us);
-            cx.shared.board.lock(|board| {
-                board.motors = Some(motors);
-                board.receiver = Some(receiver);
-            });
+        if outcome.link_due {
             // Telemetry must flow even when the host sends nothing (no USB interrupt).
             rtic::pend(Interrupt::OTG_FS);
         }
@@ -516,92 +491,40 @@ mod tasks {
         }
     }
 
-    /// The USB link, on every OTG2 interrupt and at 1 kHz from the control step: services the
-    /// USB device, feeds received bytes to the link server, lets it queue due telemetry, and
-    /// offers what it queued to the CDC buffer until it has nothing more or the buffer is full (the
-    /// rest stays queued in the link server for the next service). Never blocks, except for a
+    /// The USB link, on every OTG2 interrupt and at 1 kHz from the control step: one link pass
+    /// ([`firmware::app::system::LinkTask::pass`]) on the CDC port. Never blocks, except for a
     /// configuration save, which erases a flash sector (up to seconds, at this priority: the
-    /// control step preempts it).
-    pub fn usb_service(mut cx: usb_service::Context) {
+    /// control step preempts it), and a restart's 50 ms wait.
+    pub fn usb_service(cx: usb_service::Context) {
         let now_us = cx.local.usb_clock.now_us();
         let step = step_stats();
-        let view = StatusView {
-            control: cx.shared.control.lock(|control| *control),
-            background: cx.shared.background.lock(|background| *background),
-            step_time: Some(StepTime { max_us: step.max_us, overruns: step.overruns }),
-            board: cx.shared.board.lock(|board| *board),
+        let mut shared = PassShared {
+            snapshot: cx.shared.snapshot,
+            results: cx.shared.results,
+            board: cx.shared.board,
+            commands: cx.shared.commands,
+            work: cx.shared.work,
         };
-        let link = cx.local.link;
-        let settings = cx.local.settings;
-        cx.local.usb.receive(|bytes| link.receive(bytes, now_us, &view, settings));
-        let mut reboot = None;
-        let mut work = heapless::Vec::<BackgroundWork, 4>::new();
-        cx.shared.commands.lock(|commands| {
-            while let Some(request) = link.take_request() {
-                match request {
-                    // A disarm always finds room: it replaces whatever still waits.
-                    LinkRequest::Control(command) => {
-                        if command == ControlCommand::Disarm {
-                            commands.clear();
-                        }
-                        let _ = commands.push_back(command);
-                    }
-                    LinkRequest::Background(command) => {
-                        let _ = work.push(BackgroundWork::Command(command));
-                    }
-                    // Both are refused by the link while anything is armed.
-                    LinkRequest::Reboot | LinkRequest::RebootToBootloader => {
-                        reboot = Some(request);
-                    }
-                }
-            }
-            if let Some(params) = settings.service(&view) {
-                let _ =
-                    commands.push_back(ControlCommand::Configure(ControlSettings::from(&params)));
-                let _ = work.push(BackgroundWork::Configure(params));
-            }
-        });
-        if !work.is_empty() {
-            cx.shared.background_commands.lock(|queue| {
-                for item in work {
-                    let _ = queue.push_back(item);
-                }
-            });
+        let step_time = Some(StepTime { max_us: step.max_us, overruns: step.overruns });
+        let outcome = cx.local.link.pass(now_us, cx.local.usb, step_time, &mut shared);
+        if outcome.background_due {
             let _ = background::spawn();
         }
-        // Every control step's record, each offered to USB at once so the transmit buffer never
-        // holds more than a few frames; what does not fit is dropped whole (a counted gap).
-        let usb = cx.local.usb;
-        while let Some(record) = cx.local.telemetry.pop() {
-            link.stream(&record);
-            while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}
-        }
-        link.poll(now_us, &view);
-        while link.transmit_to(|bytes| usb.write(bytes)) > 0 {}
-        usb.flush();
-        if let Some(request) = reboot {
+        if let Some(restart) = outcome.restart {
             // The reply is in the USB buffer; give the host 50 ms to take it. The motors are
-            // stopped (nothing is armed), so the control step may starve meanwhile.
+            // stopped (the links refuse a restart while anything is armed), so the control step
+            // may starve meanwhile.
             cortex_m::asm::delay(cycles_per_us().saturating_mul(50_000));
-            if request == LinkRequest::RebootToBootloader {
+            if restart == Restart::Bootloader {
                 bootloader::restart_into_bootloader();
             }
             cortex_m::peripheral::SCB::sys_reset();
         }
     }
 
-    /// Background work at the lowest priority: drain the learner-sample queue through the
-    /// portable worker and publish its results (a copy under a short lock).
-    pub fn background(mut cx: background::Context) {
-        let worker = &mut *cx.local.background;
-        while let Some(item) = cx.shared.background_commands.lock(|queue| queue.pop_front()) {
-            match item {
-                BackgroundWork::Command(command) => worker.command(command),
-                BackgroundWork::Configure(params) => worker.configure(&params),
-            }
-        }
-        cx.local.background.run_pending();
-        let results = cx.local.background.results();
-        cx.shared.background.lock(|shared| *shared = results);
+    /// Background work at the lowest priority ([`firmware::app::system::run_background`]).
+    pub fn background(cx: background::Context) {
+        let (mut work, mut results) = (cx.shared.work, cx.shared.results);
+        run_background(cx.local.background, &mut work, &mut results);
     }
 }

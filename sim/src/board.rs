@@ -45,6 +45,16 @@ use crate::faults::{FaultInjector, FaultSchedule};
 use crate::imu::{ImuModel, RawSample};
 use crate::physics::Physics;
 
+/// What a simulated board reports of its hardware: the simulator's IMU model; no clock tree, no
+/// DShot link (the motors are modelled behind the application's motor seam) and no receiver.
+pub const SIM_BOARD_HEALTH: protocol::BoardHealth = protocol::BoardHealth {
+    core_clock_hz: None,
+    silicon_revision: None,
+    imu: protocol::ImuDriverState::Simulated,
+    motors: None,
+    receiver: None,
+};
+
 /// The application's control rate, Hz (DESIGN.md: 2 kHz control step).
 pub const CONTROL_RATE_HZ: f64 = 2000.0;
 /// One control period, µs.

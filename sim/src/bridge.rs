@@ -19,11 +19,11 @@ use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
 use std::time::{Duration, Instant};
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
-use firmware::app::{ControlCommand, NoFlash, Settings};
+use firmware::app::ControlCommand;
 use protocol::{ExternalPose, LearnerFailure};
 
 use crate::scenario::{FirmwareApp, FlightApp};
-use crate::serve::{status_view, TcpLinks};
+use crate::serve::TcpLinks;
 
 /// Port the flight-application side listens on (Betaflight SITL's FDM input port).
 pub const DEFAULT_FC_PORT: u16 = 9003;
@@ -406,9 +406,9 @@ pub fn packet_time_us(packet: &SensorPacket) -> u64 {
 
 /// How long [`serve_firmware`] waits for a packet before it serves the TCP links again.
 pub const LINK_WAIT: Duration = Duration::from_millis(5);
-/// Sensor packets per link pass while packets flow: 2 = once per simulated millisecond at
-/// 2 kHz, as the board pends its USB task.
-pub const PACKETS_PER_LINK_PASS: u64 = 2;
+/// Sensor packets per link pass while packets flow: the board's control ticks per link pass
+/// (2: once per simulated millisecond at 2 kHz, as the board pends its USB task).
+pub const PACKETS_PER_LINK_PASS: u64 = firmware::app::system::LINK_PASS_TICKS as u64;
 
 /// What a [`serve_firmware`] run did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -425,8 +425,9 @@ pub struct BridgeSummary {
 /// With `links`, the configurator protocol is served meanwhile: a link pass after every
 /// [`PACKETS_PER_LINK_PASS`] sensor packets, and every [`LINK_WAIT`] while no packet arrives
 /// (simulated time then stands still at the last packet's), so a configurator can connect and
-/// ask while the external simulator pauses. After every pass the commands the links received
-/// (arm, disarm, external pose) go to the control loop. Connections accepted after the first
+/// ask while the external simulator pauses. The pass is the application's own: what the links
+/// asked (arm, disarm, external pose) waits in the control step's queue for the next packet's
+/// tick, as on the board. Connections accepted after the first
 /// packet report its motor count in their info (0 before).
 ///
 /// Malformed datagrams are reported to `report` ([`BridgeNotice::Malformed`]) and not answered;
@@ -441,16 +442,14 @@ pub fn serve_firmware(
     report: &mut dyn FnMut(BridgeNotice<'_>),
 ) -> Result<BridgeSummary, BridgeError> {
     let mut summary = BridgeSummary::default();
-    // The parameters start from the application's state: an IMU offset given on the command
-    // line is in force as if calibrated (not saved: the bridge has no flash).
-    let settings = &mut Settings::<NoFlash>::without_store();
+    // An IMU offset given on the command line is in force as if calibrated (not saved: the
+    // bridge has no flash; parameters last for the run).
     if let Some(r_imu_m) = app.background.configured_imu_offset() {
-        settings.update(|params| params.store_calibration(r_imu_m, None));
+        app.link.settings_mut().update(|params| params.store_calibration(r_imu_m, None));
     }
     let mut last_datagram = Instant::now();
     let mut now_us = 0u64;
-    let mut last_failure = app.control.snapshot().failure;
-    let mut step_records = Vec::with_capacity(firmware::app::STEP_RING_LEN);
+    let mut last_failure = app.snapshot().failure;
     loop {
         let idle = last_datagram.elapsed();
         if idle >= idle_timeout {
@@ -462,7 +461,7 @@ pub fn serve_firmware(
             Ok((sensor, _)) => {
                 last_datagram = Instant::now();
                 summary.steps += 1;
-                let failure = app.control.snapshot().failure;
+                let failure = app.snapshot().failure;
                 if failure != last_failure && failure != LearnerFailure::None {
                     report(BridgeNotice::AttemptEnded(failure));
                 }
@@ -482,16 +481,16 @@ pub fn serve_firmware(
                 false
             }
         };
-        if let (true, Some(links)) = (link_pass_due, links.as_deref_mut()) {
-            let view = status_view(&app.control, &app.background);
-            app.drain_telemetry(&mut step_records);
-            // The bridge has no flash: parameters last for the run. A restart request is
-            // answered but not carried out (the external simulator owns the time line).
-            links.pass(now_us, &view, &step_records, settings, &mut |request| {
-                app.dispatch(request, now_us);
-            });
-            if let Some(params) = settings.service(&view) {
-                app.configure(&params, now_us);
+        if link_pass_due {
+            // The application's own link pass (with no links: the parameters serviced and the
+            // telemetry ring drained, as on a board with no host). A restart request is
+            // answered but not carried out: the external simulator owns the time line.
+            if let Some(links) = links.as_deref_mut() {
+                links.accept();
+            }
+            app.pass(now_us, &mut links.as_deref_mut());
+            if let Some(links) = links.as_deref_mut() {
+                links.drop_closed();
             }
         }
     }

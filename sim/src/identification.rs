@@ -321,7 +321,7 @@ fn run(
         let r = truth.r_imu_m;
         app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
     }
-    app.control.command(ControlCommand::ArmThrowToFly, 0);
+    app.submit(ControlCommand::ArmThrowToFly);
     let mut report = IdentifyReport {
         truth,
         at_capture: None,
@@ -345,7 +345,7 @@ fn run(
             app.step(now_us, imu, motors);
         }
         let t_s = board.time_s();
-        let snapshot = app.control.snapshot();
+        let snapshot = app.snapshot();
         report.max_command = snapshot.commands.iter().copied().fold(report.max_command, f32::max);
         let learned = app.background.results().learned;
         match snapshot.phase {

@@ -332,7 +332,7 @@ pub struct FlyReport {
 /// G1 of the model `app` flies, back in the learner's terms (IMU axes, per squared speed),
 /// scored against `truth`.
 fn flown_scores(app: &FirmwareApp<'_>, truth: &TrueModel) -> Option<[f64; 2]> {
-    let flown = app.control.flown_model()?;
+    let flown = app.control.control().flown_model()?;
     let mut learned = app.background.results().learned;
     for j in 0..flown.motors {
         let full2 = flown.motor[j].omega_full_rad_s().powi(2);
@@ -377,9 +377,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         };
         if config.mocap && pose != PoseConfig::default() {
             let settings = ControlSettings { pose, ..ControlSettings::from(&Params::default()) };
-            app.control.command(ControlCommand::Configure(settings), 0);
+            app.submit(ControlCommand::Configure(settings));
         }
-        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        app.submit(ControlCommand::ArmThrowToFly);
         let mut report = FlyReport {
             outcome: Outcome::NoIdentification,
             release_to_engage_s: None,
@@ -425,7 +425,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 app.step(now_us, imu, motors);
             }
             let t_s = board.time_s();
-            let snapshot = app.control.snapshot();
+            let snapshot = app.snapshot();
             let state = *board.physics().state();
             let Some(released_s) = board.physics().hand().released_at_s() else { continue };
             let release_z_m = *release_z.get_or_insert(state.position_ned_m.z);
@@ -528,7 +528,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             report.g1_block_rel_learned_at_end = Some(Scores::of(&learned, &truth).g1_block_rel);
             report.g1_block_rel_flown_at_end = flown_scores(app, &truth);
         }
-        let pilot = app.control.snapshot().pilot;
+        let pilot = app.snapshot().pilot;
         report.refinements = pilot.refinements;
         report.pose_lost = pilot.failsafes.pose_lost;
         report.hold_coverage =

@@ -10,26 +10,21 @@
 //!   height, hold for `after_catch_s`. The free flight is the data the IMU-offset fit uses.
 //! - **throw-and-fly**: the same throw, higher (3.5 m apex) with the seed paper's body rate
 //!   (400, 400, 100) °/s, no catch: the application must recover, or the craft hits the ground.
-//!   It needs the firmware's controller (the armed path of `firmware::app::ControlLoop`, a later
-//!   issue); until then the craft falls.
 //!
 //! The application is anything implementing [`FlightApp`]: [`FirmwareApp`] (the firmware's
-//! `ControlLoop` and background task, exactly as the board and the SITL run them), [`NoApp`]
-//! (reads the IMU, commands nothing) or [`OpenLoop`] (a scenario-supplied command function of
-//! time). Today's `ControlLoop` keeps the motors at zero (its armed path arrives with the
-//! controller issue), so with [`FirmwareApp`] throw-and-fly still ends on the ground.
+//! application graph, exactly as the board and the SITL run it), [`NoApp`] (reads the IMU,
+//! commands nothing) or [`OpenLoop`] (a scenario-supplied command function of time).
 
 use std::io::Write;
 
-use firmware::app::hal::{Imu, Motors};
-use firmware::app::{
-    split_queue, Background, ControlCommand, ControlConfig, ControlLoop, ControlSettings,
-    LinkRequest, Params, SampleQueue, StepConsumer, StepRecord, StepRing,
-};
+use embedded_storage::nor_flash::NorFlash;
+use firmware::app::hal::{Imu, Motors, NoBytes};
+use firmware::app::system::{with_system, System};
+use firmware::app::{ControlCommand, NoFlash, Settings};
 use nalgebra::Vector3;
 
 use crate::airframe::{Airframe, AirframeError, STANDARD_GRAVITY_MPS2};
-use crate::board::{SimBoard, SimConfig};
+use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};
 use crate::hand::{HandPhase, ThrowSpec};
 use crate::log::CsvLog;
 
@@ -45,86 +40,29 @@ pub trait FlightApp {
     fn command(&mut self, _command: ControlCommand, _now_us: u64) {}
 }
 
-/// The firmware application as the board runs it: the 2 kHz [`ControlLoop`] and, whenever it
-/// has queued samples, the background task (run to completion between steps, as the board's
-/// low-priority task would be with time to spare). Build it with [`with_firmware_app`].
-pub struct FirmwareApp<'q> {
-    /// The control step.
-    pub control: ControlLoop<'q>,
-    /// The background task.
-    pub background: Background<'q>,
-    /// The link task's end of the telemetry ring (one record per control step).
-    pub telemetry: StepConsumer<'q>,
-}
+/// The firmware application as the board runs it: the application graph
+/// ([`firmware::app::system::System`]: control tick, link pass, background run, and their
+/// handoffs), here without a flash store. Build it with [`with_firmware_app`]; the SITL builds
+/// one over its flash file with [`firmware::app::system::with_system`].
+pub type FirmwareApp<'q> = System<'q, NoFlash>;
 
-impl FirmwareApp<'_> {
-    /// Hand what a link asked to the task it is for, as the board's link task does after a
-    /// pass. Returns whether it is a restart (the caller restarts the application).
-    pub fn dispatch(&mut self, request: LinkRequest, now_us: u64) -> bool {
-        match request {
-            LinkRequest::Control(command) => self.control.command(command, now_us),
-            LinkRequest::Background(command) => self.background.command(command),
-            LinkRequest::Reboot => return true,
-            // Never reaches a simulator: its link refuses it (no `Capabilities::BOOTLOADER`).
-            LinkRequest::RebootToBootloader => {}
-        }
-        false
-    }
-
-    /// Take every step record waiting in the telemetry ring into `records` (cleared first), as
-    /// the board's link task drains the ring before serving its host.
-    pub fn drain_telemetry(&mut self, records: &mut Vec<StepRecord>) {
-        records.clear();
-        records.extend(core::iter::from_fn(|| self.telemetry.pop()));
-    }
-
-    /// Hand changed parameters to the control step and the background task.
-    pub fn configure(&mut self, params: &Params, now_us: u64) {
-        self.control.command(ControlCommand::Configure(ControlSettings::from(params)), now_us);
-        self.background.configure(params);
-    }
-}
-
-impl FlightApp for FirmwareApp<'_> {
+impl<F: NorFlash> FlightApp for System<'_, F> {
+    /// One control tick with no pilot's radio; the background task runs to completion after
+    /// it when samples wait, as the board's lowest-priority task does with time to spare.
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
-        step_firmware(&mut self.control, &mut self.background, now_us, imu, motors);
+        self.tick(now_us, imu, motors, &mut NoBytes);
     }
 
-    fn command(&mut self, command: ControlCommand, now_us: u64) {
-        self.control.command(command, now_us);
-    }
-}
-
-/// One control step of the firmware, then the background task until it has caught up, then the
-/// handoff of its results to the control step (what the board's tasks do between two timer
-/// interrupts when the background task has time to spare).
-pub fn step_firmware<I: Imu, M: Motors>(
-    control: &mut ControlLoop<'_>,
-    background: &mut Background<'_>,
-    now_us: u64,
-    imu: &mut I,
-    motors: &mut M,
-) {
-    if control.step(now_us, imu, motors) {
-        background.run_pending();
-        control.receive(background.results_ref());
+    /// Queued for the next tick, as a link pass queues what a host asked.
+    fn command(&mut self, command: ControlCommand, _now_us: u64) {
+        self.submit(command);
     }
 }
 
-/// Runs `f` with a fresh [`FirmwareApp`] (default control configuration) whose sample queue
-/// lives for the call.
+/// Runs `f` with a fresh [`FirmwareApp`] (default control configuration and parameters, no
+/// flash, no radio) whose queues live for the call.
 pub fn with_firmware_app<R>(f: impl FnOnce(&mut FirmwareApp<'_>) -> R) -> R {
-    let mut queue = SampleQueue::new();
-    let (producer, consumer) = split_queue(&mut queue);
-    let mut ring = StepRing::new();
-    let (ring_producer, ring_consumer) = split_queue(&mut ring);
-    let config = ControlConfig::default();
-    let mut app = FirmwareApp {
-        control: ControlLoop::new(config, producer).with_telemetry(ring_producer),
-        background: Background::new(consumer, config.rate_hz),
-        telemetry: ring_consumer,
-    };
-    f(&mut app)
+    with_system(Settings::without_store(), SIM_BOARD_HEALTH, None, f).0
 }
 
 /// Reads the IMU and commands nothing (motors stay stopped).

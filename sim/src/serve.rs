@@ -1,24 +1,21 @@
-//! Serving the configurator protocol from the simulator: the byte transports (a pseudo-terminal,
-//! TCP at 127.0.0.1), one [`LinkServer`] per connection, and the hand-over of the commands the
-//! links receive (arm, disarm, external pose) to the control step.
+//! The simulator's host links: the byte ports the application's link pass serves (a
+//! pseudo-terminal as the board's USB, TCP clients at 127.0.0.1 as more hosts), the simulated
+//! board's identity, and the command-line parsing they share.
 //!
 //! Shared by the SITL ([`crate::sitl`]) and the lockstep bridge (`scenario bridge --tcp-port`).
-//! Everything here is non-blocking: a link pass reads what is available, answers, samples the
-//! telemetry that is due and writes what the transport takes now; the rest waits in the link's
-//! buffer for the next pass. The caller runs a pass once per simulated millisecond, as the
-//! board's timer pends its USB task, and passes each command to `ControlLoop::command` right
-//! after the pass (as the RTIC app does).
+//! The pass itself (bytes in, requests routed to the tasks' queues, telemetry, bytes out) is
+//! the firmware's own ([`firmware::app::system::LinkTask::pass`]); here are only the ports.
+//! Everything is non-blocking: what a port does not take now waits in the link's buffer for the
+//! next pass.
 
-use embedded_storage::nor_flash::NorFlash;
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 
-use firmware::app::{
-    Background, BoardInfo, ControlLoop, LinkRequest, LinkServer, Settings, StatusView, StepRecord,
-    CONTROL_RATE_HZ,
-};
-use protocol::{BoardHealth, Capabilities, ImuDriverState, BOARD_NAME_LEN};
+use firmware::app::hal::{Port, PortClosed};
+use firmware::app::system::{Link, LinkEnd, Links};
+use firmware::app::{BoardInfo, LinkServer, CONTROL_RATE_HZ};
+use protocol::{Capabilities, BOARD_NAME_LEN};
 
 /// Capabilities of every simulated board: IMU, motors with RPM telemetry, telemetry streaming,
 /// and the simulator flag.
@@ -42,138 +39,34 @@ pub fn simulator_board_info(board: &'static str, seed: u64, motor_count: u8) -> 
     }
 }
 
-/// What a simulated board reports of its hardware: the simulator's IMU model; no clock tree, no
-/// DShot link (the motors are modelled behind the application's motor seam) and no receiver.
-pub const SITL_BOARD_HEALTH: BoardHealth = BoardHealth {
-    core_clock_hz: None,
-    silicon_revision: None,
-    imu: ImuDriverState::Simulated,
-    motors: None,
-    receiver: None,
-};
+/// A TCP client's stream as a link port (non-blocking; closed when the client hangs up).
+pub struct TcpPort(TcpStream);
 
-/// What the links answer from: copies of the control and background snapshots (the simulator
-/// does not measure the step's execution time).
-pub fn status_view(control: &ControlLoop<'_>, background: &Background<'_>) -> StatusView {
-    StatusView {
-        control: control.snapshot(),
-        background: background.results(),
-        step_time: None,
-        board: SITL_BOARD_HEALTH,
+impl Port for TcpPort {
+    fn read(&mut self, buffer: &mut [u8]) -> Result<usize, PortClosed> {
+        match self.0.read(buffer) {
+            Ok(0) => Err(PortClosed),
+            Ok(n) => Ok(n),
+            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
+            Err(_) => Err(PortClosed),
+        }
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> Result<usize, PortClosed> {
+        match self.0.write(bytes) {
+            Ok(n) => Ok(n),
+            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
+            Err(_) => Err(PortClosed),
+        }
     }
 }
 
-/// A byte transport a link pass serves: the pseudo-terminal master or a TCP stream.
-pub trait Transport {
-    /// Read what is available without blocking; `Ok(0)` when nothing is, `Err` when closed.
-    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize>;
-    /// Write without blocking; returns how many bytes were taken.
-    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize>;
-}
-
-/// One served connection: its transport and its own protocol endpoint.
-pub struct Connection<T> {
-    transport: T,
-    link: LinkServer,
-}
-
-impl<T: Transport> Connection<T> {
-    /// A connection answering as `info`.
-    pub fn new(transport: T, info: BoardInfo) -> Self {
-        Self { transport, link: LinkServer::new(info) }
-    }
-
-    /// One link pass: receive (parameter requests read and change `settings`), poll telemetry,
-    /// transmit, then hand everything the host asked of the other tasks to `requests` (oldest
-    /// first). Returns false when the transport has closed (the requests received before are
-    /// still handed over, then what a closed link stops: its motor test).
-    pub fn pass<F: NorFlash>(
-        &mut self,
-        now_us: u64,
-        view: &StatusView,
-        records: &[StepRecord],
-        settings: &mut Settings<F>,
-        requests: &mut dyn FnMut(LinkRequest),
-    ) -> bool {
-        let open = self.service(now_us, view, records, settings);
-        if !open {
-            self.link.disconnected();
-        }
-        while let Some(request) = self.link.take_request() {
-            requests(request);
-        }
-        open
-    }
-
-    /// Give the transport back (the link session ends with it).
-    pub fn into_transport(self) -> T {
-        self.transport
-    }
-
-    /// Offer what waits in the transmit buffer to the transport once more (before a restart).
-    pub fn flush(&mut self) {
-        let transport = &mut self.transport;
-        self.link.transmit_to(|bytes| transport.write_some(bytes).unwrap_or(0));
-    }
-
-    /// The protocol endpoint (counters).
-    pub fn link(&self) -> &LinkServer {
-        &self.link
-    }
-
-    /// The transport.
-    pub fn transport(&self) -> &T {
-        &self.transport
-    }
-
-    fn service<F: NorFlash>(
-        &mut self,
-        now_us: u64,
-        view: &StatusView,
-        records: &[StepRecord],
-        settings: &mut Settings<F>,
-    ) -> bool {
-        let mut buffer = [0u8; 512];
-        // At most 4 KiB per pass (4 MB/s), so a client that never stops writing cannot stall
-        // the simulation.
-        for _ in 0..8 {
-            match self.transport.read_available(&mut buffer) {
-                Ok(0) => break,
-                Ok(n) => self.link.receive(&buffer[..n], now_us, view, settings),
-                Err(_) => return false,
-            }
-        }
-        // Each step's record is offered to the transport at once, as the board does, so the
-        // transmit buffer holds a few frames at most. What the transport does not take now
-        // waits in the link's buffer for the next pass.
-        let mut closed = false;
-        for record in records {
-            self.link.stream(record);
-            self.transmit(&mut closed);
-        }
-        self.link.poll(now_us, view);
-        self.transmit(&mut closed);
-        !closed
-    }
-
-    /// Offer the link's transmit buffer to the transport; `closed` is set when it has closed.
-    fn transmit(&mut self, closed: &mut bool) {
-        let transport = &mut self.transport;
-        self.link.transmit_to(|bytes| match transport.write_some(bytes) {
-            Ok(n) => n,
-            Err(_) => {
-                *closed = true;
-                0
-            }
-        });
-    }
-}
-
-/// The TCP side: a non-blocking listener on 127.0.0.1 and one [`Connection`] per accepted
-/// client, as a second USB host would be.
+/// The TCP side: a non-blocking listener on 127.0.0.1 and one [`Link`] per accepted client, as a
+/// second USB host would be. Served by the application's link pass ([`Links`]); call
+/// [`TcpLinks::accept`] before each pass and [`TcpLinks::drop_closed`] after it.
 pub struct TcpLinks {
     listener: TcpListener,
-    clients: Vec<Connection<TcpStream>>,
+    clients: Vec<Link<TcpPort>>,
     info: BoardInfo,
 }
 
@@ -196,6 +89,22 @@ impl TcpLinks {
         self.info.motor_count = motor_count;
     }
 
+    /// Accept the clients waiting to connect.
+    pub fn accept(&mut self) {
+        while let Ok((stream, _)) = self.listener.accept() {
+            if stream.set_nonblocking(true).is_ok() {
+                let _ = stream.set_nodelay(true);
+                let server = LinkServer::new(self.info.clone());
+                self.clients.push(Link::new(server, TcpPort(stream)));
+            }
+        }
+    }
+
+    /// Forget the clients that hung up (after the pass that handed over their last requests).
+    pub fn drop_closed(&mut self) {
+        self.clients.retain(Link::is_open);
+    }
+
     /// Send what waits for every client, then close every connection (a restart: USB
     /// re-enumerates).
     pub fn close_all(&mut self) {
@@ -206,7 +115,7 @@ impl TcpLinks {
     /// Offer what waits in every connection's transmit buffer once more.
     pub fn flush(&mut self) {
         for client in &mut self.clients {
-            client.flush();
+            client.transmit();
         }
     }
 
@@ -214,43 +123,11 @@ impl TcpLinks {
     pub fn connections(&self) -> usize {
         self.clients.len()
     }
-
-    /// Accept waiting clients, then run one link pass on every connection (see
-    /// [`Connection::pass`]); closed connections are dropped after their commands are handed
-    /// over.
-    pub fn pass<F: NorFlash>(
-        &mut self,
-        now_us: u64,
-        view: &StatusView,
-        records: &[StepRecord],
-        settings: &mut Settings<F>,
-        requests: &mut dyn FnMut(LinkRequest),
-    ) {
-        while let Ok((stream, _)) = self.listener.accept() {
-            if stream.set_nonblocking(true).is_ok() {
-                let _ = stream.set_nodelay(true);
-                self.clients.push(Connection::new(stream, self.info.clone()));
-            }
-        }
-        self.clients.retain_mut(|client| client.pass(now_us, view, records, settings, requests));
-    }
 }
 
-impl Transport for TcpStream {
-    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
-        match self.read(buffer) {
-            Ok(0) => Err(ErrorKind::UnexpectedEof.into()),
-            Ok(n) => Ok(n),
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            Err(e) => Err(e),
-        }
-    }
-
-    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-        match self.write(bytes) {
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            other => other,
-        }
+impl Links for TcpLinks {
+    fn each(&mut self, f: &mut dyn FnMut(&mut dyn LinkEnd)) {
+        self.clients.as_mut_slice().each(f);
     }
 }
 
@@ -334,40 +211,37 @@ fn set_raw(file: &std::fs::File) -> std::io::Result<()> {
     Ok(())
 }
 
-impl Transport for Pty {
-    fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
-        match self.master.read(buffer) {
-            Err(e) if e.kind() == ErrorKind::WouldBlock => Ok(0),
-            // EIO: no client has the slave open right now; not an error for the server.
-            Err(e) if e.raw_os_error() == Some(libc::EIO) => Ok(0),
-            other => other,
-        }
+/// The pseudo-terminal never closes for the server: a client closing the slave is like a USB
+/// host closing its port (the board does not see it), and an error reading or writing the
+/// master reads as "nothing now".
+impl Port for Pty {
+    fn read(&mut self, buffer: &mut [u8]) -> Result<usize, PortClosed> {
+        // EIO: no client has the slave open right now; WouldBlock: nothing waits.
+        Ok(self.master.read(buffer).unwrap_or(0))
     }
 
     /// Takes as much of `bytes` as the write-behind buffer has room for, and offers the buffer
     /// to the master before and after.
-    fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-        self.flush_host_buffer()?;
+    fn write(&mut self, bytes: &[u8]) -> Result<usize, PortClosed> {
+        self.flush_host_buffer();
         let taken = bytes.len().min(PTY_HOST_BUFFER_BYTES - self.host_buffer.len());
         self.host_buffer.extend(&bytes[..taken]);
-        self.flush_host_buffer()?;
+        self.flush_host_buffer();
         Ok(taken)
     }
 }
 
 impl Pty {
-    /// Writes what the master takes now from the write-behind buffer.
-    fn flush_host_buffer(&mut self) -> std::io::Result<()> {
+    /// Writes what the master takes now from the write-behind buffer (what it does not take,
+    /// or cannot take while no client has the slave open, waits).
+    fn flush_host_buffer(&mut self) {
         while !self.host_buffer.is_empty() {
             let (front, _) = self.host_buffer.as_slices();
             match self.master.write(front) {
-                Ok(0) => break,
-                Ok(n) => drop(self.host_buffer.drain(..n)),
-                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
-                Err(e) => return Err(e),
+                Ok(n @ 1..) => drop(self.host_buffer.drain(..n)),
+                _ => break,
             }
         }
-        Ok(())
     }
 }
 
@@ -454,33 +328,41 @@ impl TestHost {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scenario::with_firmware_app;
+    use firmware::app::system::ControlQueue;
     use firmware::app::ControlCommand;
     use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request};
+    use std::cell::RefCell;
     use std::collections::VecDeque;
+    use std::rc::Rc;
     use std::time::{Duration, Instant};
 
-    /// An in-memory transport: bytes the host wrote, bytes the device wrote, and whether the
-    /// host has hung up.
+    /// An in-memory port: bytes the host wrote, bytes the device wrote, and whether the host has
+    /// hung up (shared with the test, which plays the host).
+    #[derive(Clone, Default)]
+    struct Memory(Rc<RefCell<Wire>>);
+
     #[derive(Default)]
-    struct Memory {
+    struct Wire {
         to_device: VecDeque<u8>,
         to_host: Vec<u8>,
         closed: bool,
     }
 
-    impl Transport for Memory {
-        fn read_available(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
-            if self.to_device.is_empty() && self.closed {
-                return Err(ErrorKind::UnexpectedEof.into());
+    impl Port for Memory {
+        fn read(&mut self, buffer: &mut [u8]) -> Result<usize, PortClosed> {
+            let mut wire = self.0.borrow_mut();
+            if wire.to_device.is_empty() && wire.closed {
+                return Err(PortClosed);
             }
-            let n = buffer.len().min(self.to_device.len());
-            for (dst, src) in buffer.iter_mut().zip(self.to_device.drain(..n)) {
+            let n = buffer.len().min(wire.to_device.len());
+            for (dst, src) in buffer.iter_mut().zip(wire.to_device.drain(..n)) {
                 *dst = src;
             }
             Ok(n)
         }
-        fn write_some(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-            self.to_host.extend_from_slice(bytes);
+        fn write(&mut self, bytes: &[u8]) -> Result<usize, PortClosed> {
+            self.0.borrow_mut().to_host.extend_from_slice(bytes);
             Ok(bytes.len())
         }
     }
@@ -512,62 +394,63 @@ mod tests {
         out
     }
 
-    fn settings() -> Settings<firmware::app::NoFlash> {
-        Settings::without_store()
-    }
-
-    fn control(command: ControlCommand) -> LinkRequest {
-        LinkRequest::Control(command)
+    /// The commands waiting for the control step, oldest first, without the configuration the
+    /// first pass sends (the parameters at start-up).
+    fn queued(queue: &ControlQueue) -> Vec<ControlCommand> {
+        queue.iter().copied().filter(|c| !matches!(c, ControlCommand::Configure(_))).collect()
     }
 
     const POSE: ExternalPose =
         ExternalPose { position_ned_m: [1.0, -2.0, -3.5], heading_rad: 0.75 };
 
     #[test]
-    fn a_pass_answers_and_hands_over_the_commands_in_order() {
+    fn a_pass_answers_and_queues_the_commands_in_order() {
+        let wire = Memory::default();
         let info = simulator_board_info("BRIDGE", 7, 4);
-        let mut connection = Connection::new(Memory::default(), info);
+        let mut link = Link::new(LinkServer::new(info), wire.clone());
         let mut bytes = frame(&hello(), 1);
         // (A disarm drops the commands waiting before it, so it comes first here.)
         bytes.extend(frame(&Request::Disarm(()), 2));
         bytes.extend(frame(&Request::SetExternalPose(POSE), 3));
-        connection.transport.to_device.extend(bytes);
-        let mut commands = Vec::new();
-        let view = StatusView::default();
-        assert!(connection.pass(1000, &view, &[], &mut settings(), &mut |c| commands.push(c)));
-        assert_eq!(
-            commands,
-            vec![control(ControlCommand::Disarm), control(ControlCommand::ExternalPose(POSE))]
-        );
-        let answers = responses(&connection.transport().to_host);
-        assert_eq!(answers.len(), 3);
-        match &answers[0] {
-            (1, Ok(Reply::Hello(info))) => {
-                assert_eq!(info.board.as_str(), "BRIDGE");
-                assert_eq!(info.serial.as_str(), "BRIDGE-00000007");
-                assert_eq!(info.motor_count, 4);
-                assert_eq!(info.capabilities.0, SIMULATOR_CAPABILITIES);
+        wire.0.borrow_mut().to_device.extend(bytes);
+        with_firmware_app(|system| {
+            system.pass(1000, &mut link);
+            assert_eq!(
+                queued(&system.handoffs.commands),
+                vec![ControlCommand::Disarm, ControlCommand::ExternalPose(POSE)]
+            );
+            let answers = responses(&wire.0.borrow().to_host);
+            assert_eq!(answers.len(), 3);
+            match &answers[0] {
+                (1, Ok(Reply::Hello(info))) => {
+                    assert_eq!(info.board.as_str(), "BRIDGE");
+                    assert_eq!(info.serial.as_str(), "BRIDGE-00000007");
+                    assert_eq!(info.motor_count, 4);
+                    assert_eq!(info.capabilities.0, SIMULATOR_CAPABILITIES);
+                }
+                other => panic!("expected the hello reply, got {other:?}"),
             }
-            other => panic!("expected the hello reply, got {other:?}"),
-        }
-        assert_eq!(answers[1], (2, Ok(Reply::Done)));
-        assert_eq!(answers[2], (3, Ok(Reply::Done)));
-        // Nothing is handed over twice.
-        assert!(connection.pass(2000, &view, &[], &mut settings(), &mut |c| commands.push(c)));
-        assert_eq!(commands.len(), 2);
+            assert_eq!(answers[1], (2, Ok(Reply::Done)));
+            assert_eq!(answers[2], (3, Ok(Reply::Done)));
+            // Nothing is queued twice.
+            system.pass(2000, &mut link);
+            assert_eq!(queued(&system.handoffs.commands).len(), 2);
+        });
     }
 
     #[test]
     fn a_closed_connection_still_hands_over_what_it_received() {
-        let mut connection = Connection::new(Memory::default(), simulator_board_info("SITL", 1, 4));
+        let wire = Memory::default();
+        let mut link = Link::new(LinkServer::new(simulator_board_info("SITL", 1, 4)), wire.clone());
         let mut bytes = frame(&hello(), 1);
         bytes.extend(frame(&Request::Disarm(()), 2));
-        connection.transport.to_device.extend(bytes);
-        connection.transport.closed = true;
-        let mut commands = Vec::new();
-        assert!(!connection
-            .pass(0, &StatusView::default(), &[], &mut settings(), &mut |c| commands.push(c)));
-        assert_eq!(commands, vec![control(ControlCommand::Disarm)]);
+        wire.0.borrow_mut().to_device.extend(bytes);
+        wire.0.borrow_mut().closed = true;
+        with_firmware_app(|system| {
+            system.pass(0, &mut link);
+            assert!(!link.is_open());
+            assert_eq!(queued(&system.handoffs.commands), vec![ControlCommand::Disarm]);
+        });
     }
 
     #[test]
@@ -579,32 +462,38 @@ mod tests {
         client.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
         client.write_all(&frame(&hello(), 9)).unwrap();
         client.write_all(&frame(&Request::SetExternalPose(POSE), 10)).unwrap();
-        let view = StatusView::default();
-        let mut commands = Vec::new();
-        let mut received = Vec::new();
-        let deadline = Instant::now() + Duration::from_secs(2);
-        while responses(&received).len() < 2 && Instant::now() < deadline {
-            links.pass(0, &view, &[], &mut settings(), &mut |c| commands.push(c));
-            let mut buffer = [0u8; 1024];
-            if let Ok(n) = client.read(&mut buffer) {
-                received.extend_from_slice(&buffer[..n]);
+        with_firmware_app(|system| {
+            let mut received = Vec::new();
+            let mut commands = Vec::new();
+            let deadline = Instant::now() + Duration::from_secs(2);
+            while responses(&received).len() < 2 && Instant::now() < deadline {
+                links.accept();
+                system.pass(0, &mut links);
+                links.drop_closed();
+                commands.extend(queued(&system.handoffs.commands));
+                system.handoffs.commands.clear();
+                let mut buffer = [0u8; 1024];
+                if let Ok(n) = client.read(&mut buffer) {
+                    received.extend_from_slice(&buffer[..n]);
+                }
             }
-        }
-        assert_eq!(links.connections(), 1);
-        let answers = responses(&received);
-        assert!(
-            matches!(&answers[0], (9, Ok(Reply::Hello(info))) if info.motor_count == 6),
-            "{answers:?}"
-        );
-        assert_eq!(answers[1], (10, Ok(Reply::Done)));
-        assert_eq!(commands, vec![control(ControlCommand::ExternalPose(POSE))]);
-        drop(client);
-        let deadline = Instant::now() + Duration::from_secs(2);
-        while links.connections() > 0 && Instant::now() < deadline {
-            links.pass(0, &view, &[], &mut settings(), &mut |_| {});
-            std::thread::sleep(Duration::from_millis(1));
-        }
-        assert_eq!(links.connections(), 0, "the closed client is dropped");
+            assert_eq!(links.connections(), 1);
+            let answers = responses(&received);
+            assert!(
+                matches!(&answers[0], (9, Ok(Reply::Hello(info))) if info.motor_count == 6),
+                "{answers:?}"
+            );
+            assert_eq!(answers[1], (10, Ok(Reply::Done)));
+            assert_eq!(commands, vec![ControlCommand::ExternalPose(POSE)]);
+            drop(client);
+            let deadline = Instant::now() + Duration::from_secs(2);
+            while links.connections() > 0 && Instant::now() < deadline {
+                system.pass(0, &mut links);
+                links.drop_closed();
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            assert_eq!(links.connections(), 0, "the closed client is dropped");
+        });
     }
 
     #[test]

@@ -15,12 +15,13 @@
 //! steps (the status's uptime then trails the wall clock).
 
 use crate::airframe::{Airframe, AirframeError};
-use crate::board::{SimBoard, SimConfig};
+use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};
 use crate::flash::{FileFlash, FlashFileError};
 use crate::hand::{HandPhase, ThrowSpec};
-use crate::scenario::{with_firmware_app, FirmwareApp};
-use crate::serve::{simulator_board_info, status_view, Connection, Pty, TcpLinks};
-use firmware::app::{BoardInfo, ControlCommand, Settings, CONTROL_RATE_HZ};
+use crate::serve::{simulator_board_info, Pty, TcpLinks};
+use firmware::app::hal::NoBytes;
+use firmware::app::system::{with_system, Link, System};
+use firmware::app::{BoardInfo, ControlCommand, LinkServer, Settings};
 use protocol::Capabilities;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -29,9 +30,6 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-/// Simulated time between two passes of the link task, µs (the board pends its USB task at
-/// 1 kHz).
-const LINK_PERIOD_US: u64 = 1000;
 /// How long the loop sleeps when the simulation is ahead of the wall clock.
 const IDLE_SLEEP: Duration = Duration::from_micros(250);
 
@@ -347,14 +345,14 @@ impl Runner {
             }
             // Read at start-up, as the board's motor outputs do.
             board.ports().1.set_bidirectional(settings.params().bidirectional_dshot());
-            let ending = with_firmware_app(|app| {
+            let (ending, settings) = with_system(settings, SIM_BOARD_HEALTH, None, |system| {
                 if self.throw_to_fly && first_boot {
-                    app.control.command(ControlCommand::ArmThrowToFly, 0);
+                    system.submit(ControlCommand::ArmThrowToFly);
                 }
                 let boot_us = board.now_us();
                 let mut clock = Clock { board: &mut board, boot_us, start };
                 let hands = Hands { throws_done: &mut throws_done, flight: &mut flight_hand };
-                self.serve(app, &mut settings, &mut clock, &mut mocap, hands)
+                self.serve(system, &mut clock, &mut mocap, hands)
             });
             first_boot = false;
             self.flash = settings.into_flash();
@@ -369,20 +367,20 @@ impl Runner {
         }
     }
 
-    /// Run the application until the SITL stops or a link asks for a restart.
+    /// Run the application until the SITL stops or a link asks for a restart: the physics and
+    /// the hands around the application graph's control ticks, and its link pass whenever a
+    /// tick says one is due, exactly as the board's timer pends its USB task.
     fn serve(
         &mut self,
-        app: &mut FirmwareApp<'_>,
-        settings: &mut Settings<FileFlash>,
+        system: &mut System<'_, FileFlash>,
         clock: &mut Clock<'_>,
         mocap: &mut Option<crate::recovery::MotionCapture>,
         hands: Hands<'_>,
     ) -> Ending {
         let Hands { throws_done, flight: flight_hand } = hands;
+        // A fresh link session per boot, as USB re-enumerates.
         let mut pty =
-            self.pty.take().map(|transport| Connection::new(transport, self.info.clone()));
-        let ticks_per_link_pass = (LINK_PERIOD_US / firmware_period_us()).max(1);
-        let mut step_records = Vec::with_capacity(firmware::app::STEP_RING_LEN);
+            self.pty.take().map(|port| Link::new(LinkServer::new(self.info.clone()), port));
         let ending = loop {
             if self.stop.load(Ordering::Relaxed) {
                 break Ending::Stop;
@@ -392,54 +390,38 @@ impl Runner {
                 std::thread::sleep(IDLE_SLEEP);
                 continue;
             }
-            // One link period of simulated time: control ticks, then the link task, as the
-            // board's timer pends its USB task once per millisecond.
-            for _ in 0..ticks_per_link_pass {
-                let snapshot = app.control.snapshot();
-                let more_throws = self.auto_throw_count.is_none_or(|count| *throws_done < count);
-                if let (Some(every_s), true, false) =
-                    (self.auto_throw_every_s, more_throws, snapshot.armed)
-                {
-                    auto_throw(clock.board, every_s, &self.auto_throw_rates_dps, throws_done);
-                }
-                if self.hand_throws_to_fly {
-                    flight_hand.act(clock.board, &snapshot);
-                }
-                clock.board.tick();
-                let now_us = clock.firmware_us();
-                let state = clock.board.physics().state();
-                if let Some(pose) = mocap.as_mut().and_then(|m| m.sample(state, now_us)) {
-                    app.control.command(ControlCommand::ExternalPose(pose), now_us);
-                }
-                let (imu, motors) = clock.board.ports();
-                crate::scenario::step_firmware(
-                    &mut app.control,
-                    &mut app.background,
-                    now_us,
-                    imu,
-                    motors,
-                );
+            let snapshot = system.snapshot();
+            let more_throws = self.auto_throw_count.is_none_or(|count| *throws_done < count);
+            if let (Some(every_s), true, false) =
+                (self.auto_throw_every_s, more_throws, snapshot.armed)
+            {
+                auto_throw(clock.board, every_s, &self.auto_throw_rates_dps, throws_done);
             }
-            let view = status_view(&app.control, &app.background);
+            if self.hand_throws_to_fly {
+                flight_hand.act(clock.board, &snapshot);
+            }
+            clock.board.tick();
             let now_us = clock.firmware_us();
-            app.drain_telemetry(&mut step_records);
-            let records = step_records.as_slice();
-            // Everything a link asked of the other tasks goes to them after the pass, as the
-            // board's link task hands it over; a restart waits until the reply has gone out.
-            let mut reboot = false;
-            let mut dispatch = |request| reboot |= app.dispatch(request, now_us);
-            if let Some(connection) = &mut pty {
-                connection.pass(now_us, &view, records, settings, &mut dispatch);
+            let state = clock.board.physics().state();
+            if let Some(pose) = mocap.as_mut().and_then(|m| m.sample(state, now_us)) {
+                system.submit(ControlCommand::ExternalPose(pose));
+            }
+            let (imu, motors) = clock.board.ports();
+            if !system.tick(now_us, imu, motors, &mut NoBytes).link_due {
+                continue;
             }
             if let Some(tcp) = &mut self.tcp {
-                tcp.pass(now_us, &view, records, settings, &mut dispatch);
+                tcp.accept();
             }
-            if let Some(params) = settings.service(&view) {
-                app.configure(&params, now_us);
+            let outcome = system.pass(now_us, &mut (&mut pty, &mut self.tcp));
+            if let Some(tcp) = &mut self.tcp {
+                tcp.drop_closed();
             }
-            if reboot {
-                if let Some(connection) = &mut pty {
-                    connection.flush();
+            // A restart waits until the reply has gone out. (The simulator's links refuse the
+            // bootloader: no `Capabilities::BOOTLOADER`.)
+            if outcome.restart.is_some() {
+                if let Some(link) = &mut pty {
+                    link.transmit();
                 }
                 if let Some(tcp) = &mut self.tcp {
                     tcp.flush();
@@ -447,7 +429,7 @@ impl Runner {
                 break Ending::Reboot;
             }
         };
-        self.pty = pty.map(Connection::into_transport);
+        self.pty = pty.map(|link| link.port);
         ending
     }
 }
@@ -526,11 +508,6 @@ fn auto_throw(board: &mut SimBoard, every_s: f64, rates_dps: &[[f64; 3]], throws
         .with_taper(HAND_TAPER_S);
     board.physics_mut().throw_and_catch_at_release_height(&spec, AUTO_CATCH_TAU_S);
     *throws_done += 1;
-}
-
-/// The control period, µs.
-fn firmware_period_us() -> u64 {
-    1_000_000 / u64::from(CONTROL_RATE_HZ)
 }
 
 #[cfg(test)]

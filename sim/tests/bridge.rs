@@ -154,7 +154,7 @@ fn firmware_bridge(
         std::thread::spawn(move || {
             with_firmware_app(|app| {
                 if arm {
-                    app.control.command(ControlCommand::ArmThrowToFly, 0);
+                    app.submit(ControlCommand::ArmThrowToFly);
                 }
                 let mut notices = Vec::new();
                 let summary =
@@ -165,7 +165,7 @@ fn firmware_bridge(
                         }
                     })
                     .unwrap();
-                (summary, app.control.snapshot(), notices)
+                (summary, app.snapshot(), notices)
             })
         });
     (addr, handle)
@@ -331,10 +331,20 @@ fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
         client.exchange(&sensor_packet(&board, sequence, None), TIMEOUT).unwrap();
     }
     assert_eq!(host.request(Request::ArmThrowToFly(())), Ok(Reply::Done));
+    // The command waits in the control step's queue for the next tick, as on the board; here
+    // the next tick is the next packet's.
+    match host.request(Request::GetStatus(())) {
+        Ok(Reply::Status(status)) => assert!(!status.armed, "no tick since the request"),
+        other => panic!("expected the status, got {other:?}"),
+    }
+    for sequence in 10..12 {
+        board.tick();
+        client.exchange(&sensor_packet(&board, sequence, None), TIMEOUT).unwrap();
+    }
     match host.request(Request::GetStatus(())) {
         Ok(Reply::Status(status)) => {
             assert!(status.armed, "armed by the request");
-            assert_eq!(status.uptime_ms, 5, "simulated time stands at the last packet's");
+            assert_eq!(status.uptime_ms, 6, "simulated time stands at the last packet's");
         }
         other => panic!("expected the status, got {other:?}"),
     }
@@ -346,7 +356,7 @@ fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
     }
     drop((host, second));
     let (summary, snapshot, _) = handle.join().unwrap();
-    assert_eq!(summary.steps, 10);
+    assert_eq!(summary.steps, 12);
     assert!(snapshot.armed);
     assert_eq!(snapshot.external_pose.map(|(pose, _)| pose), Some(POSE));
 }
@@ -361,7 +371,7 @@ struct Recorded<'a, 'q> {
 impl FlightApp for Recorded<'_, '_> {
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
         self.app.step(now_us, imu, motors);
-        let pilot = self.app.control.snapshot().pilot;
+        let pilot = self.app.snapshot().pilot;
         self.log.push((pilot.flying, pilot.position_hold, pilot.position_sp_ned_m));
     }
     fn command(&mut self, command: ControlCommand, now_us: u64) {
@@ -416,7 +426,7 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, mocap_rate_hz: f64) {
     let handle = std::thread::spawn(move || {
         with_firmware_app(|app| {
             app.background.set_imu_offset(Some(r_imu_m));
-            app.control.command(ControlCommand::ArmThrowToFly, 0);
+            app.submit(ControlCommand::ArmThrowToFly);
             let mut recorded = Recorded { app, log: Vec::new() };
             loop {
                 match server.step(&mut recorded, Duration::from_millis(500)) {

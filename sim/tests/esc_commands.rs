@@ -40,7 +40,7 @@ fn a_beep_reaches_its_motor_a_save_reaches_all_and_nothing_passes_while_armed() 
             assert!(esc.reversed && esc.saves == 1, "motor {i}: {esc:?}");
             assert_eq!(esc.settings_incomplete, 0, "motor {i}: six frames each");
         }
-        assert_eq!(app.control.snapshot().esc_commands_sent, 3);
+        assert_eq!(app.snapshot().esc_commands_sent, 3);
 
         // Armed for a throw: the step refuses the command, no ESC hears it.
         app.command(ControlCommand::ArmThrowToFly, board.now_us());
@@ -50,6 +50,6 @@ fn a_beep_reaches_its_motor_a_save_reaches_all_and_nothing_passes_while_armed() 
         run(app, &mut board, 10);
         let beeps: Vec<u32> = board.motors().escs().iter().map(|e| e.beeps).collect();
         assert_eq!(beeps, vec![0, 1, 0, 0], "no beep while armed");
-        assert_eq!(app.control.snapshot().esc_commands_refused, 1);
+        assert_eq!(app.snapshot().esc_commands_refused, 1);
     });
 }

@@ -94,7 +94,7 @@ fn armed_through(hold_height_m: f64, ticks: u64, mut hand: impl FnMut(u64, &mut 
     };
     let mut board = SimBoard::new(&airframe, &config);
     with_firmware_app(|app| {
-        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        app.submit(ControlCommand::ArmThrowToFly);
         let mut seen = Seen::default();
         for tick in 0..ticks {
             hand(tick, &mut board);
@@ -102,7 +102,7 @@ fn armed_through(hold_height_m: f64, ticks: u64, mut hand: impl FnMut(u64, &mut 
             let now_us = board.now_us();
             let (imu, motors) = board.ports();
             app.step(now_us, imu, motors);
-            let snapshot = app.control.snapshot();
+            let snapshot = app.snapshot();
             seen.max_command = snapshot.commands.iter().copied().fold(seen.max_command, f32::max);
             seen.excited |= snapshot.phase == FlightPhase::Exciting;
             seen.throw_started |=
@@ -169,7 +169,7 @@ fn a_disarm_during_the_excitation_stops_every_motor_in_the_same_step() {
         SimConfig { start_position_ned_m: Vector3::new(0.0, 0.0, -1.5), ..SimConfig::default() };
     let mut board = SimBoard::new(&airframe, &config);
     with_firmware_app(|app| {
-        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        app.submit(ControlCommand::ArmThrowToFly);
         let spec = sim::hand::ThrowSpec::vertical(
             3.5,
             Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
@@ -182,15 +182,15 @@ fn a_disarm_during_the_excitation_stops_every_motor_in_the_same_step() {
             }
             board.tick();
             let now_us = board.now_us();
-            let snapshot = app.control.snapshot();
+            let snapshot = app.snapshot();
             if disarmed_at.is_none() && snapshot.commands.iter().any(|c| *c > 0.3) {
-                app.control.command(ControlCommand::Disarm, now_us);
+                app.submit(ControlCommand::Disarm);
                 disarmed_at = Some(tick);
             }
             let (imu, motors) = board.ports();
             app.step(now_us, imu, motors);
             if disarmed_at.is_some() {
-                let snapshot = app.control.snapshot();
+                let snapshot = app.snapshot();
                 assert!(snapshot.commands.iter().all(|c| *c == 0.0), "tick {tick}: {snapshot:?}");
                 assert_eq!(snapshot.failure, protocol::LearnerFailure::Disarmed);
                 assert!(!snapshot.armed);

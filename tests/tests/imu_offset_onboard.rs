@@ -189,7 +189,7 @@ fn throws_with_lost_samples_are_abandoned_rather_than_spliced() {
         config.throw_rate_body_rad_s = Vector3::new(700.0, 350.0, 180.0).map(f64::to_radians);
         let no_log: Option<&mut CsvLog<Vec<u8>>> = None;
         scenario::run(&airframe, &config, &mut lossy, no_log, &mut |_, _| {}).unwrap();
-        let snapshot = lossy.app.control.snapshot();
+        let snapshot = lossy.app.snapshot();
         assert!(snapshot.imu_missing >= 4, "samples were lost: {}", snapshot.imu_missing);
         // About 0.9 s of free fall with a gap every 0.2 s: the estimator restarts at each gap,
         // so at most a short stretch between two gaps is accepted, too short to estimate from;
@@ -234,7 +234,7 @@ fn a_throw_to_fly_leaves_the_onboard_imu_offset_estimate_as_the_throws_left_it()
         }
         let before = app.background.results().imu_offset;
         assert_eq!(before.throws, 2, "{before:?}");
-        app.control.command(ControlCommand::ArmThrowToFly, board.now_us());
+        app.submit(ControlCommand::ArmThrowToFly);
         run(&mut board, app, 0.5);
         board.physics_mut().set_catch(None);
         board.physics_mut().throw(&Throw::paper().spec());
@@ -243,7 +243,7 @@ fn a_throw_to_fly_leaves_the_onboard_imu_offset_estimate_as_the_throws_left_it()
             run(&mut board, app, 0.5);
             touched_ground |= board.physics().state().position_ned_m.z > 0.0;
         }
-        let snapshot = app.control.snapshot();
+        let snapshot = app.snapshot();
         assert!(
             snapshot.pilot.flying && !touched_ground,
             "flying on the learned model after 6 s: {:?} {:?}",
@@ -259,7 +259,7 @@ fn a_throw_to_fly_leaves_the_onboard_imu_offset_estimate_as_the_throws_left_it()
         );
         assert_eq!(after, before, "the flight changed the onboard estimate");
         // Disarmed, gripped and held still for 2 s.
-        app.control.command(ControlCommand::Disarm, board.now_us());
+        app.submit(ControlCommand::Disarm);
         board.physics_mut().grip();
         run(&mut board, app, 2.0);
         let held = app.background.results().imu_offset;

@@ -121,7 +121,7 @@ fn a_position_setpoint_from_the_ground_station_moves_the_hover() {
     with_firmware_app(|app| {
         let r = truth.r_imu_m;
         app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
-        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        app.submit(ControlCommand::ArmThrowToFly);
         let mut mocap = MotionCapture::new(config.board.seed);
         let mut target: Option<PositionSetpoint> = None;
         let mut errors = Vec::new();
@@ -136,7 +136,7 @@ fn a_position_setpoint_from_the_ground_station_moves_the_hover() {
             }
             let (imu, motors) = board.ports();
             app.step(now_us, imu, motors);
-            let pilot = app.control.snapshot().pilot;
+            let pilot = app.snapshot().pilot;
             let state = *board.physics().state();
             assert!(state.position_ned_m.z < 0.0, "hit the ground at {:.2} s", board.time_s());
             // Once holding where it stopped, the ground station asks for somewhere else.

@@ -40,6 +40,14 @@ pub trait Motors {
     ) -> Result<(), EscCommandError> {
         Err(EscCommandError::Unsupported)
     }
+    /// The control step's arming state after each tick (the board switches its outputs between
+    /// sending frames and capturing the ESCs' answers). Outputs without such a switch keep this
+    /// default.
+    fn set_armed(&mut self, _armed: bool) {}
+    /// The DShot link's health for the status (`None`: outputs that do not measure it).
+    fn health(&self) -> Option<protocol::MotorLinkHealth> {
+        None
+    }
 }
 
 /// Why the motor outputs did not take an ESC command.
@@ -65,3 +73,35 @@ impl Motors for NoMotors {
         [None; MAX_MOTORS]
     }
 }
+
+/// A receive-only byte stream the control step drains (the pilot's radio receiver on a UART).
+pub trait ByteSource {
+    /// Copy the bytes received since the last call into `buffer` (at most its length); returns
+    /// how many. Must not block.
+    fn read(&mut self, buffer: &mut [u8]) -> usize;
+}
+
+/// No receiver connected: never any bytes.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoBytes;
+
+impl ByteSource for NoBytes {
+    fn read(&mut self, _buffer: &mut [u8]) -> usize {
+        0
+    }
+}
+
+/// A host link's byte port: USB CDC on the board, a pseudo-terminal or a TCP stream in the
+/// simulator, later a radio's UART.
+pub trait Port {
+    /// Read what is available now into `buffer`: `Ok(0)` when nothing is. Must not block.
+    fn read(&mut self, buffer: &mut [u8]) -> Result<usize, PortClosed>;
+    /// Offer `bytes`; returns how many the port took (0 when full). Must not block.
+    fn write(&mut self, bytes: &[u8]) -> Result<usize, PortClosed>;
+    /// Push what the port buffered towards the host. Must not block.
+    fn flush(&mut self) {}
+}
+
+/// The host went away: the port was closed (a TCP client disconnected).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PortClosed;

@@ -20,6 +20,7 @@ pub mod params;
 mod pilot;
 mod queue;
 pub mod settings;
+pub mod system;
 mod telemetry;
 
 pub use background::{

@@ -20,11 +20,5 @@ pub fn clock_plan(revision: u16) -> ClockPlan {
     ClockPlan::for_revision(SiliconRevision::from_rev_id(revision))
 }
 
-/// The USB task is pended by the control step every this many control ticks, so the link is
-/// serviced at 2 kHz / 2 = 1 kHz (every 1 ms) even when the host sends nothing: the OTG interrupt
-/// only fires on bus events, and telemetry must flow without them. The control rate itself is
-/// the portable application's (`crate::app::ControlConfig::rate_hz`, 2 kHz).
-pub const USB_SERVICE_DIVIDER: u32 = 2;
-
 /// Frequency of the microsecond time base ([`crate::board::time`]), Hz: 1 tick = 1 µs.
 pub const TIME_BASE_HZ: u32 = 1_000_000;

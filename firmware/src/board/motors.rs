@@ -359,15 +359,9 @@ impl BoardMotors {
         }
     }
 
-    /// Tell the outputs whether anything is armed (special commands are refused while it is, and
-    /// a waiting one is dropped).
-    pub fn set_armed(&mut self, armed: bool) {
-        self.special.set_armed(armed);
-    }
-
     /// Counters for `BoardHealth.motors`: frames sent, and per motor the answers decoded and
     /// those lost (no answer, cut short, bad GCR or checksum).
-    pub fn health(&self) -> MotorLinkHealth {
+    pub fn link_health(&self) -> MotorLinkHealth {
         let counters = self.telemetry.map(|t| t.counters);
         MotorLinkHealth {
             motor_count: self.count,
@@ -386,6 +380,15 @@ impl BoardMotors {
 impl Motors for BoardMotors {
     fn count(&self) -> u8 {
         self.count
+    }
+
+    /// Special commands are refused while anything is armed, and a waiting one is dropped.
+    fn set_armed(&mut self, armed: bool) {
+        self.special.set_armed(armed);
+    }
+
+    fn health(&self) -> Option<MotorLinkHealth> {
+        Some(self.link_health())
     }
 
     /// Send one frame to every motor output. Never blocks: the previous frame ended 470 µs ago.

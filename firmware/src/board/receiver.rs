@@ -2,18 +2,16 @@
 //! by the control task at the start of every step.
 //!
 //! No interrupt per byte and no interrupt at all: the DMA writes the ring continuously (at most
-//! 42 bytes per millisecond, 21 per 500 µs step, the ring holds 256), and [`BoardReceiver::poll`]
-//! hands the bytes since the previous step to the portable [`Receiver`] (parser, switch mapping,
-//! failsafe policy), whose command the control task applies before the step runs. A kill switch
-//! therefore disarms within one control step of its frame's arrival.
+//! 42 bytes per millisecond, 21 per 500 µs step, the ring holds 256), and [`BoardReceiver`] is
+//! the [`ByteSource`] the application's control tick reads at its start: the bytes since the
+//! previous tick go to the portable receiver policy (parser, switch mapping, failsafe), whose
+//! command the tick applies before the step runs. A kill switch therefore disarms within one
+//! control step of its frame's arrival.
 
 use super::chip::{self, cr, Dma};
-use crate::app::ControlCommand;
+use crate::app::hal::ByteSource;
 use crate::boards::{h743, uart_brr, ReceiverWiring};
-use crate::drivers::crsf::RcLinkConfig;
-use crate::drivers::receiver::{CraftState, Receiver};
 use core::ptr::addr_of_mut;
-use protocol::ReceiverHealth;
 
 /// CRSF serial rate, baud.
 pub const CRSF_BAUD: u32 = 420_000;
@@ -38,11 +36,10 @@ mod usart {
     pub const CR3_OVRDIS: u32 = 1 << 12;
 }
 
-/// The board's receiver.
+/// The board's receiver UART: the ring the DMA writes and how far it has been read.
 pub struct BoardReceiver {
     dma: Dma,
     read_index: usize,
-    receiver: Receiver,
 }
 
 impl BoardReceiver {
@@ -57,7 +54,7 @@ impl BoardReceiver {
         dma.route(wiring.rx_dma, info.rx_request);
         let base = info.base;
         // SAFETY: the UART and its stream belong to the receiver. The ring is in AXI SRAM and
-        // only read by `poll` (volatile, behind the DMA's write position).
+        // only read by `read` (volatile, behind the DMA's write position).
         unsafe {
             chip::write(base + usart::CR1, 0);
             chip::write(base + usart::BRR, uart_brr(pclk_hz, CRSF_BAUD));
@@ -71,32 +68,23 @@ impl BoardReceiver {
             );
             chip::write(base + usart::CR1, usart::CR1_UE | usart::CR1_RE | usart::CR1_TE);
         }
-        // The default switches (channels 5, 6, 7) are valid by construction.
-        let receiver = match Receiver::new(RcLinkConfig::default()) {
-            Ok(receiver) => receiver,
-            Err(_) => defmt::panic!("RC switch channel out of range"),
-        };
-        Self { dma, read_index: 0, receiver }
+        Self { dma, read_index: 0 }
     }
+}
 
-    /// Parse what arrived since the previous call and decide (see
-    /// [`crate::drivers::receiver`]). Never blocks; at most one ring's worth of bytes.
-    pub fn poll(&mut self, now_us: u64, craft: CraftState) -> Option<ControlCommand> {
+impl ByteSource for BoardReceiver {
+    /// The bytes the DMA wrote since the previous call (at most `buffer.len()`; the rest next
+    /// time). Never blocks.
+    fn read(&mut self, buffer: &mut [u8]) -> usize {
         let write_index = RING_LEN - (self.dma.remaining() as usize).min(RING_LEN);
-        let mut chunk = [0u8; RING_LEN];
-        let mut len = 0;
         let ring = addr_of_mut!(RING) as *const u8;
-        while self.read_index != write_index {
+        let mut count = 0;
+        while self.read_index != write_index && count < buffer.len() {
             // SAFETY: index < RING_LEN; a volatile byte read of the DMA's ring.
-            chunk[len] = unsafe { core::ptr::read_volatile(ring.add(self.read_index)) };
-            len += 1;
+            buffer[count] = unsafe { core::ptr::read_volatile(ring.add(self.read_index)) };
+            count += 1;
             self.read_index = (self.read_index + 1) % RING_LEN;
         }
-        self.receiver.poll(&chunk[..len], now_us, craft)
-    }
-
-    /// What the status reports.
-    pub fn health(&self, now_us: u64) -> ReceiverHealth {
-        self.receiver.health(now_us)
+        count
     }
 }

@@ -11,6 +11,8 @@ use usb_device::device::{
 };
 use usbd_serial::SerialPort;
 
+use crate::app::hal::{Port, PortClosed};
+
 /// The USB bus of this board.
 pub type Bus = UsbBus<USB2>;
 
@@ -25,9 +27,6 @@ const RX_BUFFER_BYTES: usize = 256;
 
 /// CDC transmit buffer, bytes: room for several telemetry frames between two USB services.
 const TX_BUFFER_BYTES: usize = 1024;
-
-/// Bytes read from the CDC receive buffer per chunk: one full-speed bulk packet.
-pub const CHUNK_BYTES: usize = 64;
 
 /// Manufacturer string descriptor.
 pub const MANUFACTURER: &str = "airframe-learner";
@@ -67,39 +66,39 @@ impl UsbSerial {
         Self { device, serial }
     }
 
-    /// Service the USB device (enumeration, control requests, endpoint events), then hand every
-    /// received byte to `on_bytes` in chunks. Never blocks.
-    pub fn receive(&mut self, mut on_bytes: impl FnMut(&[u8])) {
-        if !self.device.poll(&mut [&mut self.serial]) {
-            return;
-        }
-        let mut chunk = [0u8; CHUNK_BYTES];
-        while let Ok(count @ 1..) = self.serial.read(&mut chunk) {
-            on_bytes(&chunk[..count]);
-        }
-    }
-
     /// Whether the host has configured the device (it is enumerated and can take data).
     pub fn is_configured(&self) -> bool {
         self.device.state() == UsbDeviceState::Configured
+    }
+}
+
+/// The application's link pass reads and writes the CDC port through this.
+impl Port for UsbSerial {
+    /// Service the USB device (enumeration, control requests, endpoint events), then read what
+    /// the host sent. Never blocks; the USB link never reports itself closed (a host that goes
+    /// away stops reading, and the transmit buffer fills).
+    fn read(&mut self, buffer: &mut [u8]) -> Result<usize, PortClosed> {
+        // `false`: no new event; bytes of an earlier one may still wait in the class's buffer.
+        let _ = self.device.poll(&mut [&mut self.serial]);
+        Ok(self.serial.read(buffer).unwrap_or(0))
     }
 
     /// Offer `bytes` to the host; returns how many the CDC buffer took (0 when it is full or the
     /// host has not configured the device yet). Bytes not taken stay with the caller (the link
     /// server keeps them queued), so nothing is lost or reordered. Never blocks.
-    pub fn write(&mut self, bytes: &[u8]) -> usize {
+    fn write(&mut self, bytes: &[u8]) -> Result<usize, PortClosed> {
         if bytes.is_empty() || !self.is_configured() {
-            return 0;
+            return Ok(0);
         }
         // `WouldBlock`: the buffer is full, nothing taken. Other errors (bus trouble, the host
         // went away mid-transfer) also count as nothing taken, although usbd-serial may already
         // have buffered some of the bytes: the host may then see a repeated chunk, which its
         // frame decoder rejects (CRC) and resynchronises after.
-        self.serial.write(bytes).unwrap_or(0)
+        Ok(self.serial.write(bytes).unwrap_or(0))
     }
 
     /// Push buffered bytes into the IN endpoint. Never blocks; what does not fit goes next time.
-    pub fn flush(&mut self) {
+    fn flush(&mut self) {
         let _ = self.serial.flush();
     }
 }

@@ -312,7 +312,7 @@ fn run(cli: Cli) -> Result<()> {
                     app.background.set_imu_offset(imu_offset_mm);
                 }
                 if throw_to_fly {
-                    app.control.command(ControlCommand::ArmThrowToFly, 0);
+                    app.submit(ControlCommand::ArmThrowToFly);
                 }
                 let summary =
                     serve_firmware(&mut server, app, links.as_mut(), timeout, &mut |notice| {

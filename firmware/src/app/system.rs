@@ -1,0 +1,652 @@
+//! The application graph: the three tasks of the flight controller, what each owns, what they
+//! hand each other, and the one place where the order of their work is written down.
+//!
+//! The board and every simulator run the same graph: the RTIC application (`firmware/src/main.rs`)
+//! binds each entry point to an interrupt and each [`Handoffs`] field to an RTIC shared resource
+//! behind its own lock; the SITL, the lockstep bridge, the TCP server and the scenarios drive a
+//! [`System`], which owns all three parts and locks nothing (one thread, [`Exclusive`] access).
+//!
+//! | entry point | board task, priority | what |
+//! |---|---|---|
+//! | [`ControlTask::tick`] | TIM7 at 2 kHz, 3 (highest) | the link's commands, then the pilot's radio (so a kill switch has the last word), the background's results, one control step, the snapshot published |
+//! | [`LinkTask::pass`] | USB interrupt, pended by the tick every [`LINK_PASS_PERIOD_US`], 2 | every link's bytes in, requests routed, parameters serviced, the step records streamed, telemetry sampled, bytes out |
+//! | [`run_background`] | software task, 1 (lowest) | work from the link (calibration, parameters), the learner-sample queue drained, results published |
+//!
+//! The tasks share nothing but [`Handoffs`]: small values copied under a short lock, and two
+//! bounded queues of explicit messages (a command for the control step, work for the background
+//! task). A parameter change is such a message, sent once to each task that takes parameters,
+//! rather than a generation the tasks poll. Nothing here blocks or allocates; a full queue drops
+//! the newest message and counts it, except a disarm, which always finds room.
+//!
+//! Constants derived from the control rate are defined here once ([`LINK_PASS_TICKS`]).
+
+use embedded_storage::nor_flash::NorFlash;
+pub use rtic_core::{Exclusive, Mutex};
+
+use super::hal::{ByteSource, Imu, Motors, Port, PortClosed};
+use super::{
+    Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
+    ControlSnapshot, LinkRequest, LinkServer, Params, Settings, StatusView, StepConsumer,
+    CONTROL_RATE_HZ,
+};
+use crate::drivers::receiver::{CraftState, Receiver};
+use flight::learner::FlightPhase;
+use protocol::{BoardHealth, StepTime};
+
+/// How often the link task runs, µs: 1 kHz, the USB full-speed frame rate (a host polls the
+/// CDC endpoint once per 1 ms frame, so serving it more often gains nothing).
+pub const LINK_PASS_PERIOD_US: u64 = 1_000;
+/// Control ticks per link pass (2 at 2 kHz), derived from [`LINK_PASS_PERIOD_US`] and the
+/// control rate.
+pub const LINK_PASS_TICKS: u32 = {
+    let ticks = LINK_PASS_PERIOD_US * CONTROL_RATE_HZ as u64 / 1_000_000;
+    if ticks == 0 {
+        1
+    } else {
+        ticks as u32
+    }
+};
+/// Commands for the control step that may wait between two ticks: what a link pass can route
+/// (a pose, a setpoint, a disarm, a parameter change) with room to spare.
+pub const CONTROL_QUEUE_LEN: usize = 8;
+/// Work for the background task that may wait until it next runs.
+pub const WORK_QUEUE_LEN: usize = 4;
+/// Bytes read from one link per read call, and reads per link per pass: at most 4 KiB per link
+/// per pass (4 MB/s at 1 kHz), so a host that never stops writing cannot stall the link task.
+const READ_CHUNK_BYTES: usize = 512;
+const READS_PER_PASS: usize = 8;
+/// Bytes read from the pilot's radio per tick, at most: a CRSF receiver at 420 kbaud delivers
+/// 21 bytes per 500 µs control period; this is what the board's DMA ring holds, so even after a
+/// stall of several periods one read empties it.
+pub const RADIO_CHUNK_BYTES: usize = 256;
+
+/// Commands waiting for the control step.
+pub type ControlQueue = heapless::Deque<ControlCommand, CONTROL_QUEUE_LEN>;
+/// Work waiting for the background task.
+pub type WorkQueue = heapless::Deque<BackgroundWork, WORK_QUEUE_LEN>;
+
+/// What the link task hands the background task. The parameters travel whole (about 0.5 KiB,
+/// copied once per change into a static queue: no allocation, no boxing).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(clippy::large_enum_variant)]
+pub enum BackgroundWork {
+    /// Start or stop a calibration.
+    Command(BackgroundCommand),
+    /// The parameters in force changed: take these.
+    Configure(Params),
+}
+
+/// Everything the tasks hand each other. On the board each field is an RTIC shared resource
+/// (locked for a copy or a queue operation); in a [`System`] a plain field.
+#[derive(Debug)]
+pub struct Handoffs {
+    /// The control step's snapshot: written by every tick, read by the link pass.
+    pub snapshot: ControlSnapshot,
+    /// The background task's results: written by every background run, read by the tick
+    /// (the learned model) and the link pass (status).
+    pub results: BackgroundResults,
+    /// The board's drivers and clocks: written at start-up and by the tick at the link rate
+    /// (motor link, receiver), read by the link pass.
+    pub board: BoardHealth,
+    /// Commands for the control step: pushed by the link pass, taken by the next tick.
+    pub commands: ControlQueue,
+    /// Work for the background task: pushed by the link pass, taken by its next run.
+    pub work: WorkQueue,
+}
+
+impl Handoffs {
+    /// The handoffs at start-up.
+    pub fn new(snapshot: ControlSnapshot, results: BackgroundResults, board: BoardHealth) -> Self {
+        Self { snapshot, results, board, commands: ControlQueue::new(), work: WorkQueue::new() }
+    }
+}
+
+/// Put `command` on the control step's queue. A disarm replaces whatever still waits, so it
+/// always finds room and nothing queued before it runs after it. Returns false when the queue
+/// was full and the command was dropped.
+pub fn queue_command(queue: &mut ControlQueue, command: ControlCommand) -> bool {
+    if command == ControlCommand::Disarm {
+        queue.clear();
+    }
+    queue.push_back(command).is_ok()
+}
+
+/// The control task's own state: the control loop, the pilot's radio (the receiver's policy)
+/// and what the tick remembers between steps.
+pub struct ControlTask<'q> {
+    control: ControlLoop<'q>,
+    radio: Option<Receiver>,
+    craft: CraftState,
+    ticks: u32,
+    dropped_commands: u32,
+}
+
+/// What a tick asks of the board afterwards.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TickOutcome {
+    /// Learner samples wait: run the background task (the board spawns it).
+    pub background_due: bool,
+    /// A link pass is due (every [`LINK_PASS_TICKS`] ticks; the board pends the USB task).
+    pub link_due: bool,
+}
+
+/// The locks a tick takes, each for a copy or a queue operation.
+pub struct TickShared<C, R, S, B> {
+    pub commands: C,
+    pub results: R,
+    pub snapshot: S,
+    pub board: B,
+}
+
+impl<'q> ControlTask<'q> {
+    /// The control task around `control`; `radio` is the pilot's receiver policy when the board
+    /// has a receiver port (`None`: no radio, the craft is commanded over the links only).
+    pub fn new(control: ControlLoop<'q>, radio: Option<Receiver>) -> Self {
+        Self {
+            control,
+            radio,
+            craft: CraftState { armed: false, in_flight: false },
+            ticks: 0,
+            dropped_commands: 0,
+        }
+    }
+
+    /// The control loop (for inspection; commands go through the queue).
+    pub fn control(&self) -> &ControlLoop<'q> {
+        &self.control
+    }
+
+    /// The control loop, mutably: for a scenario that sets the loop up before its first tick.
+    pub fn control_mut(&mut self) -> &mut ControlLoop<'q> {
+        &mut self.control
+    }
+
+    /// Commands dropped because the queue was full, since start-up.
+    pub fn dropped_commands(&self) -> u32 {
+        self.dropped_commands
+    }
+
+    /// One control tick at `now_us` (µs since start-up, monotonic). Never blocks, never
+    /// allocates; every lock is held for a copy or a queue operation.
+    ///
+    /// Order: the link's commands (oldest first), then the radio's (a kill switch's disarm is the
+    /// last word, applied in this very step), the background's results, the step, the snapshot.
+    pub fn tick<I, M, RS, C, R, S, B>(
+        &mut self,
+        now_us: u64,
+        imu: &mut I,
+        motors: &mut M,
+        radio_bytes: &mut RS,
+        shared: &mut TickShared<C, R, S, B>,
+    ) -> TickOutcome
+    where
+        I: Imu,
+        M: Motors,
+        RS: ByteSource,
+        C: Mutex<T = ControlQueue>,
+        R: Mutex<T = BackgroundResults>,
+        S: Mutex<T = ControlSnapshot>,
+        B: Mutex<T = BoardHealth>,
+    {
+        let control = &mut self.control;
+        shared.commands.lock(|queue| {
+            while let Some(command) = queue.pop_front() {
+                control.command(command, now_us);
+            }
+        });
+        if let Some(radio) = &mut self.radio {
+            let mut chunk = [0u8; RADIO_CHUNK_BYTES];
+            let count = radio_bytes.read(&mut chunk).min(RADIO_CHUNK_BYTES);
+            if let Some(command) = radio.poll(&chunk[..count], now_us, self.craft) {
+                control.command(command, now_us);
+            }
+        }
+        shared.results.lock(|results| control.receive(results));
+        let background_due = control.step(now_us, imu, motors);
+        let snapshot = control.snapshot();
+        motors.set_armed(snapshot.armed);
+        self.craft = CraftState {
+            armed: snapshot.armed,
+            in_flight: snapshot.pilot.flying
+                || matches!(snapshot.phase, FlightPhase::Released | FlightPhase::Exciting),
+        };
+        shared.snapshot.lock(|shared| *shared = snapshot);
+        self.ticks = self.ticks.wrapping_add(1);
+        let link_due = self.ticks.is_multiple_of(LINK_PASS_TICKS);
+        if link_due {
+            let motor_health = motors.health();
+            let radio_health = self.radio.as_ref().map(|radio| radio.health(now_us));
+            shared.board.lock(|board| {
+                if motor_health.is_some() {
+                    board.motors = motor_health;
+                }
+                if radio_health.is_some() {
+                    board.receiver = radio_health;
+                }
+            });
+        }
+        TickOutcome { background_due, link_due }
+    }
+}
+
+/// One host link: its protocol endpoint and its byte port.
+pub struct Link<P> {
+    pub server: LinkServer,
+    pub port: P,
+    open: bool,
+}
+
+impl<P: Port> Link<P> {
+    /// A link answering as `server` over `port`.
+    pub fn new(server: LinkServer, port: P) -> Self {
+        Self { server, port, open: true }
+    }
+
+    /// False once its port has closed (the host went away); the pass has then stopped what the
+    /// host started (a motor test).
+    pub fn is_open(&self) -> bool {
+        self.open
+    }
+
+    /// Offer the transmit buffer to the port until it takes no more; a closed port closes the
+    /// link.
+    pub fn transmit(&mut self) {
+        if !self.open {
+            return;
+        }
+        let port = &mut self.port;
+        let mut closed = false;
+        while self.server.transmit_to(|bytes| match port.write(bytes) {
+            Ok(taken) => taken,
+            Err(PortClosed) => {
+                closed = true;
+                0
+            }
+        }) > 0
+        {}
+        self.port.flush();
+        if closed {
+            self.close();
+        }
+    }
+
+    fn close(&mut self) {
+        if self.open {
+            self.open = false;
+            self.server.disconnected();
+        }
+    }
+}
+
+/// The set of links a pass serves: one USB port on the board; a pseudo-terminal and any number
+/// of TCP clients in the SITL.
+pub trait Links {
+    /// Call `f` with every link, open or closed (a closed one still hands over its last
+    /// requests).
+    fn each(&mut self, f: &mut dyn FnMut(&mut dyn LinkEnd));
+}
+
+/// One link as the pass sees it (object-safe, so links over different ports serve together).
+pub trait LinkEnd {
+    fn server(&mut self) -> &mut LinkServer;
+    fn receive_into(&mut self, now_us: u64, view: &StatusView, settings: &mut dyn SettingsEnd);
+    fn transmit(&mut self);
+}
+
+/// The settings as a link end reads and changes them (object-safe over the flash type).
+pub trait SettingsEnd {
+    fn receive(&mut self, server: &mut LinkServer, bytes: &[u8], now_us: u64, view: &StatusView);
+}
+
+impl<F: NorFlash> SettingsEnd for Settings<F> {
+    fn receive(&mut self, server: &mut LinkServer, bytes: &[u8], now_us: u64, view: &StatusView) {
+        server.receive(bytes, now_us, view, self);
+    }
+}
+
+impl<P: Port> LinkEnd for Link<P> {
+    fn server(&mut self) -> &mut LinkServer {
+        &mut self.server
+    }
+
+    fn receive_into(&mut self, now_us: u64, view: &StatusView, settings: &mut dyn SettingsEnd) {
+        let mut chunk = [0u8; READ_CHUNK_BYTES];
+        for _ in 0..READS_PER_PASS {
+            if !self.open {
+                return;
+            }
+            match self.port.read(&mut chunk) {
+                Ok(0) => return,
+                Ok(count) => {
+                    let count = count.min(READ_CHUNK_BYTES);
+                    settings.receive(&mut self.server, &chunk[..count], now_us, view);
+                }
+                Err(PortClosed) => self.close(),
+            }
+        }
+    }
+
+    fn transmit(&mut self) {
+        Link::transmit(self);
+    }
+}
+
+impl<P: Port> Links for Link<P> {
+    fn each(&mut self, f: &mut dyn FnMut(&mut dyn LinkEnd)) {
+        f(self);
+    }
+}
+
+impl<P: Port> Links for [Link<P>] {
+    fn each(&mut self, f: &mut dyn FnMut(&mut dyn LinkEnd)) {
+        for link in self {
+            f(link);
+        }
+    }
+}
+
+impl<L: Links + ?Sized> Links for &mut L {
+    fn each(&mut self, f: &mut dyn FnMut(&mut dyn LinkEnd)) {
+        (**self).each(f);
+    }
+}
+
+impl<L: Links> Links for Option<L> {
+    fn each(&mut self, f: &mut dyn FnMut(&mut dyn LinkEnd)) {
+        if let Some(links) = self {
+            links.each(f);
+        }
+    }
+}
+
+impl<A: Links, B: Links> Links for (A, B) {
+    fn each(&mut self, f: &mut dyn FnMut(&mut dyn LinkEnd)) {
+        self.0.each(f);
+        self.1.each(f);
+    }
+}
+
+/// No links at all (a scenario, or the bridge without a TCP port).
+pub struct NoLinks;
+
+impl Links for NoLinks {
+    fn each(&mut self, _f: &mut dyn FnMut(&mut dyn LinkEnd)) {}
+}
+
+/// A restart a host asked for; the board carries it out once the reply has gone out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Restart {
+    /// Start the firmware again.
+    Reboot,
+    /// Start the ROM bootloader (USB DFU).
+    Bootloader,
+}
+
+/// What a link pass asks of the board afterwards.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PassOutcome {
+    /// Work waits for the background task (the board spawns it).
+    pub background_due: bool,
+    /// A host asked for a restart (the links refuse it while anything is armed).
+    pub restart: Option<Restart>,
+}
+
+/// The locks a link pass takes.
+pub struct PassShared<S, R, B, C, W> {
+    pub snapshot: S,
+    pub results: R,
+    pub board: B,
+    pub commands: C,
+    pub work: W,
+}
+
+/// The link task's own state: the parameters and their store, and its end of the telemetry
+/// ring.
+pub struct LinkTask<'q, F: NorFlash> {
+    settings: Settings<F>,
+    telemetry: StepConsumer<'q>,
+    dropped_work: u32,
+}
+
+impl<'q, F: NorFlash> LinkTask<'q, F> {
+    pub fn new(settings: Settings<F>, telemetry: StepConsumer<'q>) -> Self {
+        Self { settings, telemetry, dropped_work: 0 }
+    }
+
+    /// The parameters in force and their store.
+    pub fn settings(&self) -> &Settings<F> {
+        &self.settings
+    }
+
+    /// The parameters, mutably: for a start-up that puts a command-line value in force.
+    pub fn settings_mut(&mut self) -> &mut Settings<F> {
+        &mut self.settings
+    }
+
+    /// Give the settings (and their flash) back.
+    pub fn into_settings(self) -> Settings<F> {
+        self.settings
+    }
+
+    /// Work for the background task dropped because its queue was full, since start-up.
+    pub fn dropped_work(&self) -> u32 {
+        self.dropped_work
+    }
+
+    /// One link pass at `now_us`: every link's received bytes answered (parameter requests read
+    /// and change the settings, a save writes its flash), what the hosts asked of the other
+    /// tasks routed to their queues, a changed configuration sent to both tasks, every step
+    /// record streamed to every link, the sampled topics and events polled, and everything
+    /// offered to the ports. Never blocks, except a configuration save (a flash erase).
+    pub fn pass<S, R, B, C, W>(
+        &mut self,
+        now_us: u64,
+        links: &mut dyn Links,
+        step_time: Option<StepTime>,
+        shared: &mut PassShared<S, R, B, C, W>,
+    ) -> PassOutcome
+    where
+        S: Mutex<T = ControlSnapshot>,
+        R: Mutex<T = BackgroundResults>,
+        B: Mutex<T = BoardHealth>,
+        C: Mutex<T = ControlQueue>,
+        W: Mutex<T = WorkQueue>,
+    {
+        let view = StatusView {
+            control: shared.snapshot.lock(|snapshot| *snapshot),
+            background: shared.results.lock(|results| *results),
+            step_time,
+            board: shared.board.lock(|board| *board),
+        };
+        let settings = &mut self.settings;
+        links.each(&mut |link| link.receive_into(now_us, &view, settings));
+
+        let mut outcome = PassOutcome::default();
+        let mut work = heapless::Vec::<BackgroundWork, WORK_QUEUE_LEN>::new();
+        let mut dropped_work = 0u32;
+        let mut push_work = |item: BackgroundWork, work: &mut heapless::Vec<_, WORK_QUEUE_LEN>| {
+            if work.push(item).is_err() {
+                dropped_work += 1;
+            }
+        };
+        shared.commands.lock(|commands| {
+            links.each(&mut |link| {
+                while let Some(request) = link.server().take_request() {
+                    match request {
+                        LinkRequest::Control(command) => {
+                            let _ = queue_command(commands, command);
+                        }
+                        LinkRequest::Background(command) => {
+                            push_work(BackgroundWork::Command(command), &mut work);
+                        }
+                        LinkRequest::Reboot => outcome.restart = Some(Restart::Reboot),
+                        LinkRequest::RebootToBootloader => {
+                            outcome.restart = Some(Restart::Bootloader);
+                        }
+                    }
+                }
+            });
+            if let Some(params) = settings.service(&view) {
+                let _ = queue_command(
+                    commands,
+                    ControlCommand::Configure(ControlSettings::from(&params)),
+                );
+                push_work(BackgroundWork::Configure(params), &mut work);
+            }
+        });
+        self.dropped_work = self.dropped_work.wrapping_add(dropped_work);
+        if !work.is_empty() {
+            shared.work.lock(|queue| {
+                for item in work {
+                    if queue.push_back(item).is_err() {
+                        self.dropped_work = self.dropped_work.wrapping_add(1);
+                    }
+                }
+            });
+            outcome.background_due = true;
+        }
+        // Every step's record, offered to every link at once so no transmit buffer holds more
+        // than a few frames; what a port does not take is dropped whole (a counted gap).
+        while let Some(record) = self.telemetry.pop() {
+            links.each(&mut |link| {
+                link.server().stream(&record);
+                link.transmit();
+            });
+        }
+        links.each(&mut |link| {
+            link.server().poll(now_us, &view);
+            link.transmit();
+        });
+        outcome
+    }
+}
+
+/// The background task's run: the work the links sent (oldest first), then every waiting
+/// learner sample, then the results published (a copy under a short lock).
+pub fn run_background<W, R>(worker: &mut Background<'_>, work: &mut W, results: &mut R)
+where
+    W: Mutex<T = WorkQueue>,
+    R: Mutex<T = BackgroundResults>,
+{
+    while let Some(item) = work.lock(|queue| queue.pop_front()) {
+        match item {
+            BackgroundWork::Command(command) => worker.command(command),
+            BackgroundWork::Configure(params) => worker.configure(&params),
+        }
+    }
+    worker.run_pending();
+    let published = worker.results_ref();
+    results.lock(|shared| *shared = *published);
+}
+
+/// The whole graph on one thread (the simulators, the scenarios, host tests): the three tasks
+/// and their handoffs, run in the board's order by whoever drives the time line.
+pub struct System<'q, F: NorFlash> {
+    pub control: ControlTask<'q>,
+    pub link: LinkTask<'q, F>,
+    pub background: Background<'q>,
+    pub handoffs: Handoffs,
+}
+
+impl<'q, F: NorFlash> System<'q, F> {
+    /// A control tick (see [`ControlTask::tick`]); when it queued learner samples, the background
+    /// task runs to completion right after, as the board's lowest-priority task does when it
+    /// has time to spare before the next tick.
+    pub fn tick<I: Imu, M: Motors, RS: ByteSource>(
+        &mut self,
+        now_us: u64,
+        imu: &mut I,
+        motors: &mut M,
+        radio_bytes: &mut RS,
+    ) -> TickOutcome {
+        let handoffs = &mut self.handoffs;
+        let mut shared = TickShared {
+            commands: Exclusive(&mut handoffs.commands),
+            results: Exclusive(&mut handoffs.results),
+            snapshot: Exclusive(&mut handoffs.snapshot),
+            board: Exclusive(&mut handoffs.board),
+        };
+        let outcome = self.control.tick(now_us, imu, motors, radio_bytes, &mut shared);
+        if outcome.background_due {
+            self.run_background();
+        }
+        outcome
+    }
+
+    /// A link pass (see [`LinkTask::pass`]); work it queued for the background task runs at
+    /// once.
+    pub fn pass(&mut self, now_us: u64, links: &mut dyn Links) -> PassOutcome {
+        let handoffs = &mut self.handoffs;
+        let mut shared = PassShared {
+            snapshot: Exclusive(&mut handoffs.snapshot),
+            results: Exclusive(&mut handoffs.results),
+            board: Exclusive(&mut handoffs.board),
+            commands: Exclusive(&mut handoffs.commands),
+            work: Exclusive(&mut handoffs.work),
+        };
+        let outcome = self.link.pass(now_us, links, None, &mut shared);
+        if outcome.background_due {
+            self.run_background();
+        }
+        outcome
+    }
+
+    /// The background task's run (see [`run_background`]).
+    pub fn run_background(&mut self) {
+        let handoffs = &mut self.handoffs;
+        run_background(
+            &mut self.background,
+            &mut Exclusive(&mut handoffs.work),
+            &mut Exclusive(&mut handoffs.results),
+        );
+    }
+
+    /// Queue a command for the next tick, as a link pass would (a scenario's arm, a simulated
+    /// motion-capture pose). Returns false when the queue was full and it was dropped.
+    pub fn submit(&mut self, command: ControlCommand) -> bool {
+        queue_command(&mut self.handoffs.commands, command)
+    }
+
+    /// The control step's latest snapshot.
+    pub fn snapshot(&self) -> ControlSnapshot {
+        self.control.control().snapshot()
+    }
+
+    /// What a link would answer from now (no step-time measurement on a host).
+    pub fn status_view(&self) -> StatusView {
+        StatusView {
+            control: self.handoffs.snapshot,
+            background: self.handoffs.results,
+            step_time: None,
+            board: self.handoffs.board,
+        }
+    }
+}
+
+/// Runs `f` with a fresh [`System`]: the default control configuration, `settings` (handed to
+/// the tasks at the first link pass, as at a board's start-up), `board` as the drivers' health,
+/// and `radio` as the pilot's receiver policy. The queues live for the call; the settings (and
+/// their flash) are given back with `f`'s result.
+pub fn with_system<F: NorFlash, R>(
+    settings: Settings<F>,
+    board: BoardHealth,
+    radio: Option<Receiver>,
+    f: impl FnOnce(&mut System<'_, F>) -> R,
+) -> (R, Settings<F>) {
+    let mut samples = super::SampleQueue::new();
+    let (producer, consumer) = super::split_queue(&mut samples);
+    let mut ring = super::StepRing::new();
+    let (ring_producer, ring_consumer) = super::split_queue(&mut ring);
+    let config = super::ControlConfig::default();
+    let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
+    let background = Background::new(consumer, config.rate_hz);
+    let handoffs = Handoffs::new(control.snapshot(), background.results(), board);
+    let mut system = System {
+        control: ControlTask::new(control, radio),
+        link: LinkTask::new(settings, ring_consumer),
+        background,
+        handoffs,
+    };
+    let result = f(&mut system);
+    (result, system.link.into_settings())
+}
