@@ -66,14 +66,14 @@ fn gpio_base(pin: Pin) -> u32 {
     h743::gpio_base(pin.port)
 }
 
-use gpio::{AFRL, BSRR, IDR, MODER, OSPEEDR, PUPDR};
+use gpio::{BSRR, IDR, MODER, OSPEEDR, PUPDR};
 
 /// The two bits of `pin` in a 2-bit-per-pin register, set to `value`.
 ///
 /// # Safety
 /// The pin's port clock is on and the pin belongs to the caller.
 unsafe fn set_field2(pin: Pin, offset: u32, value: u32) {
-    let shift = gpio::FIELD2_BITS * u32::from(pin.number);
+    let shift = gpio::field2_shift(u32::from(pin.number));
     let mask = (1 << gpio::FIELD2_BITS) - 1;
     modify(gpio_base(pin) + offset, mask << shift, (value & mask) << shift);
 }
@@ -83,9 +83,8 @@ unsafe fn set_field2(pin: Pin, offset: u32, value: u32) {
 pub fn alternate(alt: AltPin, pull_up: bool) {
     enable_clock(h743::gpio_enable(alt.pin.port));
     let pin = alt.pin;
-    let number = u32::from(pin.number);
-    let afr = gpio_base(pin) + AFRL + 4 * (number / gpio::AFR_PINS);
-    let shift = gpio::AFR_BITS * (number % gpio::AFR_PINS);
+    let (afr, shift) = gpio::afr_register_and_shift(u32::from(pin.number));
+    let afr = gpio_base(pin) + afr;
     // SAFETY: the board description gives each pin one role (checked by `check`), so nothing
     // else configures it; these are its own fields of its port's registers.
     unsafe {
@@ -121,29 +120,29 @@ pub fn input_pull_down(pin: Pin) {
 /// Drive an output pin. BSRR writes are atomic: safe from any task.
 #[inline(always)]
 pub fn set(pin: Pin, high: bool) {
-    let bit = u32::from(pin.number) + if high { 0 } else { gpio::BSRR_RESET_SHIFT };
+    let bit = gpio::bsrr_bit(u32::from(pin.number), high);
     // SAFETY: BSRR is write-only and atomic; only this pin's bit is written.
-    unsafe { write(gpio_base(pin) + BSRR, 1 << bit) }
+    unsafe { write(gpio_base(pin) + BSRR, bit) }
 }
 
 /// The input level of a pin.
 pub fn level(pin: Pin) -> bool {
     // SAFETY: IDR is read-only.
-    unsafe { read(gpio_base(pin) + IDR) & (1 << pin.number) != 0 }
+    unsafe { read(gpio_base(pin) + IDR) & gpio::idr_bit(u32::from(pin.number)) != 0 }
 }
 
 /// Route `pin`'s EXTI line to a rising-edge interrupt (SYSCFG_EXTICR, EXTI_RTSR1, EXTI_CPUIMR1).
 pub fn exti_rising(pin: Pin) {
     enable_syscfg();
     let line = u32::from(pin.number);
-    let exticr = h743::SYSCFG_BASE + syscfg::EXTICR1 + 4 * (line / syscfg::EXTICR_LINES);
-    let shift = syscfg::EXTICR_BITS * (line % syscfg::EXTICR_LINES);
+    let (exticr, shift) = syscfg::exticr_register_and_shift(line);
+    let exticr = h743::SYSCFG_BASE + exticr;
     // SAFETY: this line's fields only; set once in `init`.
     unsafe {
         let mask = (1 << syscfg::EXTICR_BITS) - 1;
         modify(exticr, mask << shift, u32::from(pin.port.index()) << shift);
-        modify(h743::EXTI_BASE + exti::RTSR1, 0, 1 << line);
-        modify(h743::EXTI_BASE + exti::CPUIMR1, 0, 1 << line);
+        modify(h743::EXTI_BASE + exti::RTSR1, 0, exti::line_bit(line));
+        modify(h743::EXTI_BASE + exti::CPUIMR1, 0, exti::line_bit(line));
     }
 }
 
@@ -151,7 +150,7 @@ pub fn exti_rising(pin: Pin) {
 #[inline(always)]
 pub fn exti_clear(line: u8) {
     // SAFETY: write-1-to-clear of one line's bit.
-    unsafe { write(h743::EXTI_BASE + exti::CPUPR1, 1 << line) }
+    unsafe { write(h743::EXTI_BASE + exti::CPUPR1, exti::line_bit(u32::from(line))) }
 }
 
 pub use dma::{cr, flag};
@@ -176,7 +175,7 @@ impl Dma {
     /// Connect DMAMUX1 request `request` to this stream (0 = none: memory to memory).
     pub fn route(&self, stream: DmaStream, request: u8) {
         let channel = u32::from(stream.dmamux_channel());
-        let ccr = h743::DMAMUX1_BASE + dmamux::C0CR + dmamux::CCR_STRIDE * channel;
+        let ccr = h743::DMAMUX1_BASE + dmamux::ccr(channel);
         // SAFETY: this stream's DMAMUX channel register, owned with the stream.
         unsafe { write(ccr, u32::from(request) & dmamux::CCR_DMAREQ_ID) }
     }

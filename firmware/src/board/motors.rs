@@ -94,7 +94,7 @@ unsafe fn configure_channels(base: u32, first: u8, count: u8, mode: ChannelMode)
     let mut ccmr = [0u32; 2];
     let mut ccer = 0u32;
     for channel in first..first + count {
-        let c = u32::from(channel - 1);
+        let channel = u32::from(channel);
         let (mode_bits, enable) = match mode {
             ChannelMode::Output { inverted } => {
                 (tim::CCMR_PWM1_PRELOAD, tim::CCER_E | if inverted { tim::CCER_P } else { 0 })
@@ -103,12 +103,13 @@ unsafe fn configure_channels(base: u32, first: u8, count: u8, mode: ChannelMode)
                 (tim::CCMR_INPUT_FILTERED, tim::CCER_E | tim::CCER_P | tim::CCER_NP)
             }
         };
-        ccmr[(c / 2) as usize] |= mode_bits << (tim::CCMR_CHANNEL_SHIFT * (c % 2));
-        ccer |= enable << (tim::CCER_CHANNEL_SHIFT * c);
+        let (register, shift) = tim::ccmr_register_and_shift(channel);
+        ccmr[usize::from(register == tim::CCMR2)] |= mode_bits << shift;
+        ccer |= enable << tim::ccer_shift(channel);
     }
     chip::write(base + tim::CCER, 0);
     chip::write(base + tim::CCMR1, ccmr[0]);
-    chip::write(base + tim::CCMR1 + 4, ccmr[1]);
+    chip::write(base + tim::CCMR2, ccmr[1]);
     chip::write(base + tim::CCER, ccer);
 }
 
@@ -147,7 +148,7 @@ impl BurstCompletion {
                 let channel = u32::from(self.first) + slot as u32;
                 let buffer = captures.add(usize::from(capture.motor));
                 capture.dma.start(
-                    base + tim::CCR1 + 4 * (channel - 1),
+                    base + tim::ccr(channel),
                     buffer as u32,
                     CAPTURE_EDGES as u16,
                     cr::PERIPHERAL_TO_MEMORY
@@ -156,7 +157,7 @@ impl BurstCompletion {
                         | cr::MSIZE_32
                         | cr::PRIORITY_HIGH,
                 );
-                requests |= tim::DIER_CC1DE << (channel - 1);
+                requests |= tim::dier_ccde(channel);
             }
             configure_channels(base, self.first, self.count, ChannelMode::Capture);
             chip::write(base + tim::SR, 0);
@@ -243,7 +244,7 @@ impl BoardMotors {
                 chip::write(base + tim::PSC, 0);
                 chip::write(base + tim::ARR, u32::from(period_ticks) - 1);
                 for channel in first..first + count {
-                    chip::write(base + tim::CCR1 + 4 * u32::from(channel - 1), 0);
+                    chip::write(base + tim::ccr(u32::from(channel)), 0);
                 }
                 let inverted = bidirectional;
                 configure_channels(base, first, count, ChannelMode::Output { inverted });

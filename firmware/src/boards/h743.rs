@@ -158,6 +158,30 @@ pub mod gpio {
     pub const PULL_NONE: u32 = 0b00;
     pub const PULL_UP: u32 = 0b01;
     pub const PULL_DOWN: u32 = 0b10;
+
+    /// Pin `number`'s field in MODER, OSPEEDR, PUPDR starts at this bit.
+    #[inline(always)]
+    pub const fn field2_shift(number: u32) -> u32 {
+        FIELD2_BITS * number
+    }
+
+    /// (AFRL or AFRH, the bit pin `number`'s 4-bit field starts at).
+    #[inline(always)]
+    pub const fn afr_register_and_shift(number: u32) -> (u32, u32) {
+        (AFRL + 4 * (number / AFR_PINS), AFR_BITS * (number % AFR_PINS))
+    }
+
+    /// The BSRR bit that drives pin `number` high (`high`) or low.
+    #[inline(always)]
+    pub const fn bsrr_bit(number: u32, high: bool) -> u32 {
+        1 << (number + if high { 0 } else { BSRR_RESET_SHIFT })
+    }
+
+    /// Pin `number`'s bit in IDR.
+    #[inline(always)]
+    pub const fn idr_bit(number: u32) -> u32 {
+        1 << number
+    }
 }
 
 /// EXTI registers (RM0433 §20.6), offsets from [`super::h743::EXTI_BASE`]. Line n (0..=15) is bit
@@ -169,6 +193,12 @@ pub mod exti {
     pub const CPUIMR1: u32 = 0x80;
     /// EXTI_CPUPR1, CPU pending flags of lines 0–31 (write 1 to clear).
     pub const CPUPR1: u32 = 0x88;
+
+    /// Line `line`'s bit in RTSR1, CPUIMR1 and CPUPR1.
+    #[inline(always)]
+    pub const fn line_bit(line: u32) -> u32 {
+        1 << line
+    }
 }
 
 /// SYSCFG registers (RM0433 §12.3), offsets from [`super::h743::SYSCFG_BASE`].
@@ -178,6 +208,12 @@ pub mod syscfg {
     pub const EXTICR1: u32 = 0x08;
     pub const EXTICR_BITS: u32 = 4;
     pub const EXTICR_LINES: u32 = 4;
+
+    /// (EXTICRn, the bit EXTI line `line`'s port field starts at).
+    #[inline(always)]
+    pub const fn exticr_register_and_shift(line: u32) -> (u32, u32) {
+        (EXTICR1 + 4 * (line / EXTICR_LINES), EXTICR_BITS * (line % EXTICR_LINES))
+    }
 }
 
 /// DMA1/DMA2 registers (RM0433 §15.5), offsets from [`DMA1_BASE`](super::h743::DMA1_BASE) or
@@ -248,6 +284,12 @@ pub mod dmamux {
     pub const CCR_STRIDE: u32 = 4;
     /// CxCR.DMAREQ_ID, the request routed to the channel (0: none).
     pub const CCR_DMAREQ_ID: u32 = 0xFF;
+
+    /// DMAMUX1 channel `channel`'s CxCR.
+    #[inline(always)]
+    pub const fn ccr(channel: u32) -> u32 {
+        C0CR + CCR_STRIDE * channel
+    }
 }
 
 /// Timer registers and bits (RM0433 §39.4, general-purpose TIM2–TIM5; the same offsets hold for
@@ -257,8 +299,9 @@ pub mod tim {
     pub const DIER: u32 = 0x0C;
     pub const SR: u32 = 0x10;
     pub const EGR: u32 = 0x14;
-    /// CCMR1 (channels 1, 2); CCMR2 (channels 3, 4) is the next word.
+    /// CCMR1 (channels 1, 2) and CCMR2 (channels 3, 4).
     pub const CCMR1: u32 = 0x18;
+    pub const CCMR2: u32 = 0x1C;
     pub const CCER: u32 = 0x20;
     pub const CNT: u32 = 0x24;
     pub const PSC: u32 = 0x28;
@@ -291,6 +334,33 @@ pub mod tim {
     /// DCR.DBL (burst length − 1) starts at this bit; DCR.DBA (the first register of the burst,
     /// in words from CR1) at bit 0.
     pub const DCR_DBL_SHIFT: u32 = 8;
+
+    /// Channel `channel`'s (1..=4) capture/compare register.
+    #[inline(always)]
+    pub const fn ccr(channel: u32) -> u32 {
+        CCR1 + 4 * (channel - 1)
+    }
+
+    /// (CCMR1 or CCMR2, the shift of channel `channel`'s (1..=4) field relative to the odd
+    /// channel's: [`CCMR_PWM1_PRELOAD`] and [`CCMR_INPUT_FILTERED`] are shifted by it).
+    #[inline(always)]
+    pub const fn ccmr_register_and_shift(channel: u32) -> (u32, u32) {
+        let c = channel - 1;
+        (if c < 2 { CCMR1 } else { CCMR2 }, CCMR_CHANNEL_SHIFT * (c % 2))
+    }
+
+    /// The shift of channel `channel`'s (1..=4) CCER bits relative to channel 1's
+    /// ([`CCER_E`], [`CCER_P`], [`CCER_NP`]).
+    #[inline(always)]
+    pub const fn ccer_shift(channel: u32) -> u32 {
+        CCER_CHANNEL_SHIFT * (channel - 1)
+    }
+
+    /// DIER.CCxDE of channel `channel` (1..=4): its capture/compare DMA request.
+    #[inline(always)]
+    pub const fn dier_ccde(channel: u32) -> u32 {
+        DIER_CC1DE << (channel - 1)
+    }
 }
 
 /// SPI registers and bits (RM0433 §50.11, the H7's SPI with FIFO).
