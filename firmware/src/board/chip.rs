@@ -1,5 +1,6 @@
 //! Register access driven by the board description: GPIO modes, clock enables, DMA streams and
-//! their DMAMUX routes, at the addresses of [`crate::boards::h743`].
+//! their DMAMUX routes, at the addresses, offsets and bits of [`crate::boards::h743`] (checked
+//! against the `stm32h7` PAC by `tests/registers_match_pac.rs`; no register number is typed here).
 //!
 //! Why raw registers rather than the HAL's typed pins and peripherals: the pins, timers and
 //! streams come from data ([`crate::boards::BoardDescription`]), so another board is a new data
@@ -8,7 +9,7 @@
 //! register; callers own the peripheral (each is set up once in `init` and then used by exactly
 //! one task).
 
-use crate::boards::h743::{self, RccEnable};
+use crate::boards::h743::{self, dma, dmamux, exti, gpio, rcc, syscfg, RccEnable};
 use crate::boards::{AltPin, DmaStream, Pin};
 use core::ptr::{read_volatile, write_volatile};
 
@@ -50,34 +51,31 @@ pub fn enable_clock(enable: RccEnable) {
     }
 }
 
-/// Enable the SYSCFG clock (RCC_APB4ENR bit 1), for the EXTI line selection.
+/// Enable the SYSCFG clock (RCC_APB4ENR.SYSCFGEN), for the EXTI line selection.
 pub fn enable_syscfg() {
-    // SAFETY: RCC_APB4ENR (offset 0xF4); setting SYSCFGEN only.
+    let address = h743::RCC_BASE + rcc::APB4ENR;
+    // SAFETY: RCC_APB4ENR; setting SYSCFGEN only.
     unsafe {
-        modify(h743::RCC_BASE + 0xF4, 0, 1 << 1);
-        let _ = read(h743::RCC_BASE + 0xF4);
+        modify(address, 0, rcc::APB4ENR_SYSCFGEN);
+        let _ = read(address);
     }
 }
 
+#[inline(always)]
 fn gpio_base(pin: Pin) -> u32 {
-    h743::GPIOA_BASE + 0x400 * u32::from(pin.port.index())
+    h743::gpio_base(pin.port)
 }
 
-/// GPIO register offsets (RM0433 §11.4).
-const MODER: u32 = 0x00;
-const OSPEEDR: u32 = 0x08;
-const PUPDR: u32 = 0x0C;
-const IDR: u32 = 0x10;
-const BSRR: u32 = 0x18;
-const AFRL: u32 = 0x20;
+use gpio::{BSRR, IDR, MODER, OSPEEDR, PUPDR};
 
 /// The two bits of `pin` in a 2-bit-per-pin register, set to `value`.
 ///
 /// # Safety
 /// The pin's port clock is on and the pin belongs to the caller.
 unsafe fn set_field2(pin: Pin, offset: u32, value: u32) {
-    let shift = 2 * u32::from(pin.number);
-    modify(gpio_base(pin) + offset, 0b11 << shift, (value & 0b11) << shift);
+    let shift = gpio::field2_shift(u32::from(pin.number));
+    let mask = (1 << gpio::FIELD2_BITS) - 1;
+    modify(gpio_base(pin) + offset, mask << shift, (value & mask) << shift);
 }
 
 /// Connect `alt` to its peripheral: alternate-function mode, the AF number, very high speed
@@ -85,15 +83,16 @@ unsafe fn set_field2(pin: Pin, offset: u32, value: u32) {
 pub fn alternate(alt: AltPin, pull_up: bool) {
     enable_clock(h743::gpio_enable(alt.pin.port));
     let pin = alt.pin;
-    let afr = gpio_base(pin) + AFRL + 4 * u32::from(pin.number / 8);
-    let shift = 4 * u32::from(pin.number % 8);
+    let (afr, shift) = gpio::afr_register_and_shift(u32::from(pin.number));
+    let afr = gpio_base(pin) + afr;
     // SAFETY: the board description gives each pin one role (checked by `check`), so nothing
     // else configures it; these are its own fields of its port's registers.
     unsafe {
-        modify(afr, 0xF << shift, u32::from(alt.af & 0xF) << shift);
-        set_field2(pin, OSPEEDR, 0b11);
-        set_field2(pin, PUPDR, if pull_up { 0b01 } else { 0b00 });
-        set_field2(pin, MODER, 0b10);
+        let mask = (1 << gpio::AFR_BITS) - 1;
+        modify(afr, mask << shift, (u32::from(alt.af) & mask) << shift);
+        set_field2(pin, OSPEEDR, gpio::SPEED_VERY_HIGH);
+        set_field2(pin, PUPDR, if pull_up { gpio::PULL_UP } else { gpio::PULL_NONE });
+        set_field2(pin, MODER, gpio::MODE_ALTERNATE);
     }
 }
 
@@ -103,8 +102,8 @@ pub fn output(pin: Pin, high: bool) {
     set(pin, high);
     // SAFETY: as in `alternate`.
     unsafe {
-        set_field2(pin, OSPEEDR, 0b10);
-        set_field2(pin, MODER, 0b01);
+        set_field2(pin, OSPEEDR, gpio::SPEED_HIGH);
+        set_field2(pin, MODER, gpio::MODE_OUTPUT);
     }
 }
 
@@ -113,39 +112,37 @@ pub fn input_pull_down(pin: Pin) {
     enable_clock(h743::gpio_enable(pin.port));
     // SAFETY: as in `alternate`.
     unsafe {
-        set_field2(pin, PUPDR, 0b10);
-        set_field2(pin, MODER, 0b00);
+        set_field2(pin, PUPDR, gpio::PULL_DOWN);
+        set_field2(pin, MODER, gpio::MODE_INPUT);
     }
 }
 
 /// Drive an output pin. BSRR writes are atomic: safe from any task.
 #[inline(always)]
 pub fn set(pin: Pin, high: bool) {
-    let bit = u32::from(pin.number) + if high { 0 } else { 16 };
+    let bit = gpio::bsrr_bit(u32::from(pin.number), high);
     // SAFETY: BSRR is write-only and atomic; only this pin's bit is written.
-    unsafe { write(gpio_base(pin) + BSRR, 1 << bit) }
+    unsafe { write(gpio_base(pin) + BSRR, bit) }
 }
 
 /// The input level of a pin.
 pub fn level(pin: Pin) -> bool {
     // SAFETY: IDR is read-only.
-    unsafe { read(gpio_base(pin) + IDR) & (1 << pin.number) != 0 }
+    unsafe { read(gpio_base(pin) + IDR) & gpio::idr_bit(u32::from(pin.number)) != 0 }
 }
 
 /// Route `pin`'s EXTI line to a rising-edge interrupt (SYSCFG_EXTICR, EXTI_RTSR1, EXTI_CPUIMR1).
 pub fn exti_rising(pin: Pin) {
     enable_syscfg();
     let line = u32::from(pin.number);
-    const SYSCFG_EXTICR1: u32 = 0x5800_0400 + 0x08;
-    const EXTI_RTSR1: u32 = 0x5800_0000;
-    const EXTI_CPUIMR1: u32 = 0x5800_0000 + 0x80;
-    let exticr = SYSCFG_EXTICR1 + 4 * (line / 4);
-    let shift = 4 * (line % 4);
+    let (exticr, shift) = syscfg::exticr_register_and_shift(line);
+    let exticr = h743::SYSCFG_BASE + exticr;
     // SAFETY: this line's fields only; set once in `init`.
     unsafe {
-        modify(exticr, 0xF << shift, u32::from(pin.port.index()) << shift);
-        modify(EXTI_RTSR1, 0, 1 << line);
-        modify(EXTI_CPUIMR1, 0, 1 << line);
+        let mask = (1 << syscfg::EXTICR_BITS) - 1;
+        modify(exticr, mask << shift, u32::from(pin.port.index()) << shift);
+        modify(h743::EXTI_BASE + exti::RTSR1, 0, exti::line_bit(line));
+        modify(h743::EXTI_BASE + exti::CPUIMR1, 0, exti::line_bit(line));
     }
 }
 
@@ -153,33 +150,10 @@ pub fn exti_rising(pin: Pin) {
 #[inline(always)]
 pub fn exti_clear(line: u8) {
     // SAFETY: write-1-to-clear of one line's bit.
-    unsafe { write(0x5800_0000 + 0x88, 1 << line) }
+    unsafe { write(h743::EXTI_BASE + exti::CPUPR1, exti::line_bit(u32::from(line))) }
 }
 
-/// DMA stream configuration bits (DMA_SxCR, RM0433 §15.5.5).
-pub mod cr {
-    pub const EN: u32 = 1 << 0;
-    pub const TEIE: u32 = 1 << 2;
-    pub const TCIE: u32 = 1 << 4;
-    pub const PERIPHERAL_TO_MEMORY: u32 = 0b00 << 6;
-    pub const MEMORY_TO_PERIPHERAL: u32 = 0b01 << 6;
-    pub const MEMORY_TO_MEMORY: u32 = 0b10 << 6;
-    pub const CIRC: u32 = 1 << 8;
-    pub const PINC: u32 = 1 << 9;
-    pub const MINC: u32 = 1 << 10;
-    pub const PSIZE_32: u32 = 0b10 << 11;
-    pub const MSIZE_32: u32 = 0b10 << 13;
-    pub const PRIORITY_HIGH: u32 = 0b10 << 16;
-    pub const PRIORITY_VERY_HIGH: u32 = 0b11 << 16;
-}
-
-/// DMA interrupt flags of one stream, after [`Dma::flags`] shifted them down (RM0433 §15.5.1).
-pub mod flag {
-    pub const TRANSFER_ERROR: u32 = 1 << 3;
-    pub const TRANSFER_COMPLETE: u32 = 1 << 5;
-    /// FIFO, direct-mode, transfer errors, half and full transfer.
-    pub const ALL: u32 = 0b11_1101;
-}
+pub use dma::{cr, flag};
 
 /// One DMA stream, by the description's [`DmaStream`].
 #[derive(Clone, Copy, Debug)]
@@ -200,40 +174,45 @@ impl Dma {
 
     /// Connect DMAMUX1 request `request` to this stream (0 = none: memory to memory).
     pub fn route(&self, stream: DmaStream, request: u8) {
-        let ccr = h743::DMAMUX1_BASE + 4 * u32::from(stream.dmamux_channel());
+        let channel = u32::from(stream.dmamux_channel());
+        let ccr = h743::DMAMUX1_BASE + dmamux::ccr(channel);
         // SAFETY: this stream's DMAMUX channel register, owned with the stream.
-        unsafe { write(ccr, u32::from(request & 0x7F)) }
+        unsafe { write(ccr, u32::from(request) & dmamux::CCR_DMAREQ_ID) }
     }
 
+    #[inline(always)]
     fn register(&self, offset: u32) -> u32 {
-        self.base + 0x10 + 0x18 * self.stream + offset
+        dma::stream_register(self.base, self.stream, offset)
     }
 
+    /// (LISR or HISR, the shift of this stream's flags); LIFCR/HIFCR are `LIFCR − LISR` above.
+    #[inline(always)]
     fn flag_register_and_shift(&self) -> (u32, u32) {
-        const SHIFTS: [u32; 4] = [0, 6, 16, 22];
-        (if self.stream >= 4 { 4 } else { 0 }, SHIFTS[(self.stream % 4) as usize])
+        let status = if self.stream >= 4 { dma::HISR } else { dma::LISR };
+        (status, dma::FLAG_SHIFTS[(self.stream % 4) as usize])
     }
 
     /// This stream's interrupt flags ([`flag`]).
     #[inline]
     pub fn flags(&self) -> u32 {
-        let (high, shift) = self.flag_register_and_shift();
+        let (status, shift) = self.flag_register_and_shift();
         // SAFETY: LISR/HISR are read-only.
-        unsafe { (read(self.base + high) >> shift) & flag::ALL }
+        unsafe { (read(self.base + status) >> shift) & flag::ALL }
     }
 
     /// Clear this stream's interrupt flags.
     #[inline]
     pub fn clear_flags(&self) {
-        let (high, shift) = self.flag_register_and_shift();
+        let (status, shift) = self.flag_register_and_shift();
+        let clear = status + (dma::LIFCR - dma::LISR);
         // SAFETY: LIFCR/HIFCR are write-1-to-clear; only this stream's bits are written.
-        unsafe { write(self.base + 0x08 + high, flag::ALL << shift) }
+        unsafe { write(self.base + clear, flag::ALL << shift) }
     }
 
     /// Stop the stream and wait (a few bus cycles, bounded) until it has.
     #[inline]
     pub fn disable(&self) {
-        let cr = self.register(0x00);
+        let cr = self.register(dma::SXCR);
         // SAFETY: this stream's configuration register.
         unsafe {
             modify(cr, cr::EN, 0);
@@ -248,7 +227,7 @@ impl Dma {
     #[inline]
     pub fn is_enabled(&self) -> bool {
         // SAFETY: read of this stream's configuration register.
-        unsafe { read(self.register(0x00)) & cr::EN != 0 }
+        unsafe { read(self.register(dma::SXCR)) & cr::EN != 0 }
     }
 
     /// Data items left to transfer (the write position of a circular receive buffer is
@@ -256,7 +235,7 @@ impl Dma {
     #[inline]
     pub fn remaining(&self) -> u32 {
         // SAFETY: read of this stream's NDTR.
-        unsafe { read(self.register(0x04)) & 0xFFFF }
+        unsafe { read(self.register(dma::SXNDTR)) & dma::SXNDTR_NDT }
     }
 
     /// Program and start a transfer: `peripheral` (the source in memory-to-memory mode),
@@ -270,12 +249,12 @@ impl Dma {
     pub unsafe fn start(&self, peripheral: u32, memory: u32, items: u16, config: u32) {
         self.disable();
         self.clear_flags();
-        write(self.register(0x08), peripheral);
-        write(self.register(0x0C), memory);
-        write(self.register(0x04), u32::from(items));
-        let fifo = if config & cr::MEMORY_TO_MEMORY != 0 { 0b111 } else { 0 };
-        write(self.register(0x14), fifo);
-        write(self.register(0x00), config);
-        write(self.register(0x00), config | cr::EN);
+        write(self.register(dma::SXPAR), peripheral);
+        write(self.register(dma::SXM0AR), memory);
+        write(self.register(dma::SXNDTR), u32::from(items));
+        let fifo = if config & cr::MEMORY_TO_MEMORY != 0 { dma::SXFCR_FIFO_FULL } else { 0 };
+        write(self.register(dma::SXFCR), fifo);
+        write(self.register(dma::SXCR), config);
+        write(self.register(dma::SXCR), config | cr::EN);
     }
 }

@@ -26,7 +26,8 @@
 
 use super::chip::{self, cr, flag, Dma};
 use crate::app::hal::{Imu, ImuSample};
-use crate::boards::{h743, spi_mbr, ImuWiring};
+use crate::boards::h743::{self, rcc, spi};
+use crate::boards::{spi_mbr, ImuWiring};
 use crate::drivers::icm42688::{
     driver_state, DelayUs, Icm42688, RawSample, RegisterBus, SampleAverager, SAMPLE_FIRST_REGISTER,
     SAMPLE_LEN, SPI_READ_FLAG,
@@ -50,33 +51,6 @@ struct Buffers {
 
 #[link_section = ".axisram.imu"]
 static mut BUFFERS: core::mem::MaybeUninit<Buffers> = core::mem::MaybeUninit::uninit();
-
-/// SPI register offsets and bits (RM0433 §50.11).
-mod spi {
-    pub const CR1: u32 = 0x00;
-    pub const CR2: u32 = 0x04;
-    pub const CFG1: u32 = 0x08;
-    pub const CFG2: u32 = 0x0C;
-    pub const SR: u32 = 0x14;
-    pub const IFCR: u32 = 0x18;
-    pub const TXDR: u32 = 0x20;
-    pub const RXDR: u32 = 0x30;
-    pub const CR1_SPE: u32 = 1 << 0;
-    pub const CR1_CSTART: u32 = 1 << 9;
-    pub const CR1_SSI: u32 = 1 << 12;
-    /// 8-bit frames, FIFO threshold one frame.
-    pub const CFG1_DSIZE_8: u32 = 7;
-    pub const CFG1_RXDMAEN: u32 = 1 << 14;
-    pub const CFG1_TXDMAEN: u32 = 1 << 15;
-    /// Master, software slave management, mode 3 (CPOL = CPHA = 1), pins kept driven while the
-    /// SPI is disabled (AFCNTR, so SCK idles high between transfers).
-    pub const CFG2_MASTER_MODE3: u32 = (1 << 22) | (1 << 24) | (1 << 25) | (1 << 26) | (1 << 31);
-    pub const SR_RXP: u32 = 1 << 0;
-    pub const SR_TXP: u32 = 1 << 1;
-    pub const SR_EOT: u32 = 1 << 3;
-    /// Every clearable flag.
-    pub const IFCR_ALL: u32 = 0xFF8;
-}
 
 /// The SPI bus error of the polled start-up transfers: a flag that never came.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -110,7 +84,7 @@ impl PolledSpi {
         // RXDR are accessed as bytes (8-bit frames: a 32-bit access would pack four frames).
         let result = unsafe {
             chip::write(base + spi::CR1, spi::CR1_SSI);
-            chip::write(base + spi::CFG1, (self.mbr << 28) | spi::CFG1_DSIZE_8);
+            chip::write(base + spi::CFG1, (self.mbr << spi::CFG1_MBR_SHIFT) | spi::CFG1_DSIZE_8);
             chip::write(base + spi::CR2, bytes.len() as u32);
             chip::write(base + spi::CR1, spi::CR1_SSI | spi::CR1_SPE);
             chip::write(base + spi::CR1, spi::CR1_SSI | spi::CR1_SPE | spi::CR1_CSTART);
@@ -189,9 +163,15 @@ impl BoardImu {
     /// the IMU then delivers no samples.
     pub fn new(wiring: ImuWiring, cycles_per_us: u32) -> Self {
         let info = h743::spi(wiring.spi);
-        // SPI1/2/3 kernel clock = per_ck (RCC_D2CCIP1R.SPI123SEL = 0b100, RM0433 §8.7.21).
+        // SPI1/2/3 kernel clock = per_ck (RCC_D2CCIP1R.SPI123SEL, RM0433 §8.7.21).
         // SAFETY: the SPI123SEL field only, before SPI1 is enabled.
-        unsafe { chip::modify(h743::RCC_BASE + 0x50, 0b111 << 12, 0b100 << 12) };
+        unsafe {
+            chip::modify(
+                h743::RCC_BASE + rcc::D2CCIP1R,
+                rcc::D2CCIP1R_SPI123SEL,
+                rcc::D2CCIP1R_SPI123SEL_PER_CK,
+            )
+        };
         chip::enable_clock(info.enable);
         chip::output(wiring.cs, true);
         chip::alternate(wiring.sck, false);
@@ -270,7 +250,7 @@ impl BoardImu {
         // SRAM and not touched by the CPU until the RX stream completes.
         unsafe {
             let buffers = addr_of_mut!(BUFFERS) as *mut Buffers;
-            let cfg1 = (self.read_mbr << 28) | spi::CFG1_DSIZE_8;
+            let cfg1 = (self.read_mbr << spi::CFG1_MBR_SHIFT) | spi::CFG1_DSIZE_8;
             chip::write(base + spi::CR1, spi::CR1_SSI);
             chip::write(base + spi::IFCR, spi::IFCR_ALL);
             chip::write(base + spi::CFG1, cfg1 | spi::CFG1_RXDMAEN);

@@ -38,7 +38,8 @@
 
 use super::chip::{self, cr, Dma};
 use crate::app::hal::{EscCommandError, Motors, MAX_MOTORS};
-use crate::boards::{h743, interleave_burst, BoardDescription};
+use crate::boards::h743::{self, tim};
+use crate::boards::{interleave_burst, BoardDescription};
 use crate::drivers::dshot::{
     bit_period_ticks, compare_values, telemetry_from_edges, CommandQueue, DshotCommand,
     MotorTelemetry, CAPTURE_EDGES, COMPARE_BUFFER_LEN, DSHOT600_BIT_RATE_HZ,
@@ -68,39 +69,6 @@ static mut CAPTURES: core::mem::MaybeUninit<[[u32; CAPTURE_EDGES]; MAX_MOTORS]> 
 /// cleared by the control task when it took the captures).
 static CAPTURING: [AtomicBool; MAX_TIMERS] = [const { AtomicBool::new(false) }; MAX_TIMERS];
 
-/// Timer register offsets and bits (RM0433 §39.4, general-purpose timers TIM2–TIM5).
-mod tim {
-    pub const CR1: u32 = 0x00;
-    pub const DIER: u32 = 0x0C;
-    pub const SR: u32 = 0x10;
-    pub const EGR: u32 = 0x14;
-    pub const CCMR1: u32 = 0x18;
-    pub const CCER: u32 = 0x20;
-    pub const CNT: u32 = 0x24;
-    pub const PSC: u32 = 0x28;
-    pub const ARR: u32 = 0x2C;
-    pub const CCR1: u32 = 0x34;
-    pub const DCR: u32 = 0x48;
-    pub const DMAR: u32 = 0x4C;
-    pub const CR1_CEN: u32 = 1 << 0;
-    pub const CR1_ARPE: u32 = 1 << 7;
-    pub const DIER_UDE: u32 = 1 << 8;
-    /// CC1DE; channel c (1..=4) is bit 8 + c.
-    pub const DIER_CC1DE: u32 = 1 << 9;
-    pub const EGR_UG: u32 = 1 << 0;
-    /// OCxM = PWM mode 1 (0b0110) with the compare preload (OCxPE), for an odd channel; an even
-    /// channel's field is 8 bits higher.
-    pub const CCMR_PWM1_PRELOAD: u32 = (0b110 << 4) | (1 << 3);
-    /// CCxS = 01 (input capture on TIx) with ICxF = 0011 (8 samples at the timer clock: 33 ns
-    /// at 240 MHz, well below the 1.33 µs answer bit), for an odd channel.
-    pub const CCMR_INPUT_FILTERED: u32 = 0b01 | (0b0011 << 4);
-    /// CCER bits of channel c (0-based) at 4c: enable, polarity (output: active low; input:
-    /// with CCxNP both edges), and CCxNP.
-    pub const CCER_E: u32 = 1 << 0;
-    pub const CCER_P: u32 = 1 << 1;
-    pub const CCER_NP: u32 = 1 << 3;
-}
-
 /// A channel's answer capture: its motor and DMA stream.
 #[derive(Clone, Copy)]
 struct Capture {
@@ -126,7 +94,7 @@ unsafe fn configure_channels(base: u32, first: u8, count: u8, mode: ChannelMode)
     let mut ccmr = [0u32; 2];
     let mut ccer = 0u32;
     for channel in first..first + count {
-        let c = u32::from(channel - 1);
+        let channel = u32::from(channel);
         let (mode_bits, enable) = match mode {
             ChannelMode::Output { inverted } => {
                 (tim::CCMR_PWM1_PRELOAD, tim::CCER_E | if inverted { tim::CCER_P } else { 0 })
@@ -135,12 +103,13 @@ unsafe fn configure_channels(base: u32, first: u8, count: u8, mode: ChannelMode)
                 (tim::CCMR_INPUT_FILTERED, tim::CCER_E | tim::CCER_P | tim::CCER_NP)
             }
         };
-        ccmr[(c / 2) as usize] |= mode_bits << (8 * (c % 2));
-        ccer |= enable << (4 * c);
+        let (register, shift) = tim::ccmr_register_and_shift(channel);
+        ccmr[usize::from(register == tim::CCMR2)] |= mode_bits << shift;
+        ccer |= enable << tim::ccer_shift(channel);
     }
     chip::write(base + tim::CCER, 0);
     chip::write(base + tim::CCMR1, ccmr[0]);
-    chip::write(base + tim::CCMR1 + 4, ccmr[1]);
+    chip::write(base + tim::CCMR2, ccmr[1]);
     chip::write(base + tim::CCER, ccer);
 }
 
@@ -179,7 +148,7 @@ impl BurstCompletion {
                 let channel = u32::from(self.first) + slot as u32;
                 let buffer = captures.add(usize::from(capture.motor));
                 capture.dma.start(
-                    base + tim::CCR1 + 4 * (channel - 1),
+                    base + tim::ccr(channel),
                     buffer as u32,
                     CAPTURE_EDGES as u16,
                     cr::PERIPHERAL_TO_MEMORY
@@ -188,7 +157,7 @@ impl BurstCompletion {
                         | cr::MSIZE_32
                         | cr::PRIORITY_HIGH,
                 );
-                requests |= tim::DIER_CC1DE << (channel - 1);
+                requests |= tim::dier_ccde(channel);
             }
             configure_channels(base, self.first, self.count, ChannelMode::Capture);
             chip::write(base + tim::SR, 0);
@@ -275,13 +244,13 @@ impl BoardMotors {
                 chip::write(base + tim::PSC, 0);
                 chip::write(base + tim::ARR, u32::from(period_ticks) - 1);
                 for channel in first..first + count {
-                    chip::write(base + tim::CCR1 + 4 * u32::from(channel - 1), 0);
+                    chip::write(base + tim::ccr(u32::from(channel)), 0);
                 }
                 let inverted = bidirectional;
                 configure_channels(base, first, count, ChannelMode::Output { inverted });
                 // Burst: DBA = CCR`first` (register index 13 + first − 1), DBL = count − 1.
                 let dba = (tim::CCR1 / 4) + u32::from(first - 1);
-                chip::write(base + tim::DCR, (u32::from(count - 1) << 8) | dba);
+                chip::write(base + tim::DCR, (u32::from(count - 1) << tim::DCR_DBL_SHIFT) | dba);
                 chip::write(base + tim::CNT, 0);
                 chip::write(base + tim::EGR, tim::EGR_UG);
                 chip::write(base + tim::CR1, tim::CR1_ARPE | tim::CR1_CEN);

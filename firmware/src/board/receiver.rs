@@ -10,7 +10,8 @@
 
 use super::chip::{self, cr, Dma};
 use crate::app::hal::ByteSource;
-use crate::boards::{h743, uart_brr, ReceiverWiring};
+use crate::boards::h743::{self, usart};
+use crate::boards::{uart_brr, ReceiverWiring};
 use core::ptr::addr_of_mut;
 
 /// CRSF serial rate, baud.
@@ -20,21 +21,6 @@ const RING_LEN: usize = 256;
 
 #[link_section = ".axisram.crsf"]
 static mut RING: core::mem::MaybeUninit<[u8; RING_LEN]> = core::mem::MaybeUninit::uninit();
-
-/// USART registers and bits (RM0433 §48.7).
-mod usart {
-    pub const CR1: u32 = 0x00;
-    pub const CR3: u32 = 0x08;
-    pub const BRR: u32 = 0x0C;
-    pub const ICR: u32 = 0x20;
-    pub const RDR: u32 = 0x24;
-    pub const CR1_UE: u32 = 1 << 0;
-    pub const CR1_RE: u32 = 1 << 2;
-    pub const CR1_TE: u32 = 1 << 3;
-    pub const CR3_DMAR: u32 = 1 << 6;
-    /// Overrun does not stop reception (a lost byte is a CRC error for the parser).
-    pub const CR3_OVRDIS: u32 = 1 << 12;
-}
 
 /// The board's receiver UART: the ring the DMA writes and how far it has been read.
 pub struct BoardReceiver {
@@ -59,7 +45,7 @@ impl BoardReceiver {
             chip::write(base + usart::CR1, 0);
             chip::write(base + usart::BRR, uart_brr(pclk_hz, CRSF_BAUD));
             chip::write(base + usart::CR3, usart::CR3_DMAR | usart::CR3_OVRDIS);
-            chip::write(base + usart::ICR, 0xFFFF_FFFF);
+            chip::write(base + usart::ICR, usart::ICR_ALL);
             dma.start(
                 base + usart::RDR,
                 addr_of_mut!(RING) as u32,

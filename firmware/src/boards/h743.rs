@@ -1,13 +1,21 @@
 //! Facts about the STM32H743 itself (not a board): the peripherals a flight-controller board
-//! wires, their register addresses, clock-enable bits and DMAMUX request numbers, and the
-//! alternate functions of the pins such boards use.
+//! wires, their register addresses, the register offsets and bit fields the board layer
+//! (`crate::board`) writes, clock-enable bits and DMAMUX request numbers, and the alternate
+//! functions of the pins such boards use.
 //!
-//! Sources: RM0433 rev 8 (§2.3 memory map, §8.7 RCC registers, Table 121 "DMAMUX1: assignment
-//! of multiplexer inputs to resources") and the datasheet DS12110 (Table 9 "Port A–E alternate
-//! functions"). Addresses and bit positions were checked against the `stm32h7` 0.15 PAC
-//! (`stm32h743v`). The board layer writes registers at these addresses; a wrong number here
-//! shows up in the host test of the board description only where the table is incomplete, so
-//! every entry carries its source.
+//! Why here and not beside the code that writes them: this module builds on the host, so every
+//! number in it is checked there against a definition we did not type. The host test
+//! `firmware/tests/registers_match_pac.rs` compares each base address, register offset, bit
+//! position, field value and DMAMUX request number below with the `stm32h7` PAC (0.15, feature
+//! `stm32h743v`, the PAC `stm32h7xx-hal` 0.16 re-exports), generated from ST's SVD: a wrong or
+//! mistyped number fails `cargo test` and names the constant. The board layer writes registers
+//! only through these constants (or the HAL/PAC); it types no address, offset or bit of its own.
+//!
+//! Sources: RM0433 rev 8 (§2.3 memory map, §8.7 RCC registers, §11.4 GPIO, §15.5 DMA, §17 DMAMUX,
+//! §20 EXTI, §12 SYSCFG, §39 timers, §48 USART, §50 SPI, Table 121 "DMAMUX1: assignment of
+//! multiplexer inputs to resources") and the datasheet DS12110 (Table 9 "Port A–E alternate
+//! functions"). The alternate-function table and the flash layout are not in the PAC; the
+//! former is checked for internal consistency by `tests/board_description.rs`.
 
 use super::{pin, Pin, Port};
 
@@ -86,14 +94,321 @@ pub struct RccEnable {
 
 /// The RCC register block.
 pub const RCC_BASE: u32 = 0x5802_4400;
-/// GPIOA; port n is at `GPIOA_BASE + 0x400 · n`.
+/// GPIOA; port n is at `GPIOA_BASE + GPIO_PORT_STRIDE · n` ([`gpio_base`]).
 pub const GPIOA_BASE: u32 = 0x5802_0000;
+/// Bytes between two GPIO ports' register blocks (GPIOB − GPIOA, …, GPIOE − GPIOD).
+pub const GPIO_PORT_STRIDE: u32 = 0x400;
 /// DMA1 (DMA2 is 0x400 above).
 pub const DMA1_BASE: u32 = 0x4002_0000;
 /// DMA2.
 pub const DMA2_BASE: u32 = 0x4002_0400;
 /// DMAMUX1.
 pub const DMAMUX1_BASE: u32 = 0x4002_0800;
+/// EXTI (the CPU1 interrupt mask and pending registers included).
+pub const EXTI_BASE: u32 = 0x5800_0000;
+/// SYSCFG (the EXTI line → port selection).
+pub const SYSCFG_BASE: u32 = 0x5800_0400;
+
+/// The register block of GPIO `port`.
+#[inline(always)]
+pub const fn gpio_base(port: Port) -> u32 {
+    GPIOA_BASE + GPIO_PORT_STRIDE * port.index() as u32
+}
+
+/// RCC registers besides the clock-enable registers of [`RccRegister`] (RM0433 §8.7).
+pub mod rcc {
+    /// RCC_D2CCIP1R, domain 2 kernel clock selection (SPI1/2/3 among others; §8.7.21).
+    pub const D2CCIP1R: u32 = 0x50;
+    /// D2CCIP1R.SPI123SEL, the SPI1/2/3 kernel clock selection (3 bits).
+    pub const D2CCIP1R_SPI123SEL: u32 = 0b111 << 12;
+    /// SPI123SEL = 0b100: per_ck.
+    pub const D2CCIP1R_SPI123SEL_PER_CK: u32 = 0b100 << 12;
+    /// RCC_APB4ENR, APB4 clock enables (§8.7.44).
+    pub const APB4ENR: u32 = 0xF4;
+    /// APB4ENR.SYSCFGEN.
+    pub const APB4ENR_SYSCFGEN: u32 = 1 << 1;
+}
+
+/// GPIO registers and field values (RM0433 §11.4). MODER, OSPEEDR and PUPDR hold a 2-bit field
+/// per pin at bit 2·n; AFRL/AFRH a 4-bit field per pin at bit 4·(n mod 8); BSRR sets pin n with
+/// bit n and resets it with bit n + 16.
+pub mod gpio {
+    pub const MODER: u32 = 0x00;
+    pub const OSPEEDR: u32 = 0x08;
+    pub const PUPDR: u32 = 0x0C;
+    pub const IDR: u32 = 0x10;
+    pub const BSRR: u32 = 0x18;
+    /// AFRL (pins 0–7); AFRH (pins 8–15) is the next word.
+    pub const AFRL: u32 = 0x20;
+    /// Bits per pin in MODER, OSPEEDR, PUPDR.
+    pub const FIELD2_BITS: u32 = 2;
+    /// Bits per pin in AFRL/AFRH, and pins per AFR register.
+    pub const AFR_BITS: u32 = 4;
+    pub const AFR_PINS: u32 = 8;
+    /// BSRR: the reset bit of pin n is bit n + `BSRR_RESET_SHIFT`.
+    pub const BSRR_RESET_SHIFT: u32 = 16;
+    /// MODER values.
+    pub const MODE_INPUT: u32 = 0b00;
+    pub const MODE_OUTPUT: u32 = 0b01;
+    pub const MODE_ALTERNATE: u32 = 0b10;
+    /// OSPEEDR values.
+    pub const SPEED_HIGH: u32 = 0b10;
+    pub const SPEED_VERY_HIGH: u32 = 0b11;
+    /// PUPDR values.
+    pub const PULL_NONE: u32 = 0b00;
+    pub const PULL_UP: u32 = 0b01;
+    pub const PULL_DOWN: u32 = 0b10;
+
+    /// Pin `number`'s field in MODER, OSPEEDR, PUPDR starts at this bit.
+    #[inline(always)]
+    pub const fn field2_shift(number: u32) -> u32 {
+        FIELD2_BITS * number
+    }
+
+    /// (AFRL or AFRH, the bit pin `number`'s 4-bit field starts at).
+    #[inline(always)]
+    pub const fn afr_register_and_shift(number: u32) -> (u32, u32) {
+        (AFRL + 4 * (number / AFR_PINS), AFR_BITS * (number % AFR_PINS))
+    }
+
+    /// The BSRR bit that drives pin `number` high (`high`) or low.
+    #[inline(always)]
+    pub const fn bsrr_bit(number: u32, high: bool) -> u32 {
+        1 << (number + if high { 0 } else { BSRR_RESET_SHIFT })
+    }
+
+    /// Pin `number`'s bit in IDR.
+    #[inline(always)]
+    pub const fn idr_bit(number: u32) -> u32 {
+        1 << number
+    }
+}
+
+/// EXTI registers (RM0433 §20.6), offsets from [`super::h743::EXTI_BASE`]. Line n (0..=15) is bit
+/// n of each.
+pub mod exti {
+    /// EXTI_RTSR1, rising-edge trigger of lines 0–31.
+    pub const RTSR1: u32 = 0x00;
+    /// EXTI_CPUIMR1, CPU interrupt mask (1 = unmasked) of lines 0–31.
+    pub const CPUIMR1: u32 = 0x80;
+    /// EXTI_CPUPR1, CPU pending flags of lines 0–31 (write 1 to clear).
+    pub const CPUPR1: u32 = 0x88;
+
+    /// Line `line`'s bit in RTSR1, CPUIMR1 and CPUPR1.
+    #[inline(always)]
+    pub const fn line_bit(line: u32) -> u32 {
+        1 << line
+    }
+}
+
+/// SYSCFG registers (RM0433 §12.3), offsets from [`super::h743::SYSCFG_BASE`].
+pub mod syscfg {
+    /// SYSCFG_EXTICR1 (lines 0–3); EXTICR2–4 follow word by word. Line n's 4-bit port field is
+    /// at bit 4·(n mod 4) of EXTICR(n / 4 + 1); the value is the port index (A = 0).
+    pub const EXTICR1: u32 = 0x08;
+    pub const EXTICR_BITS: u32 = 4;
+    pub const EXTICR_LINES: u32 = 4;
+
+    /// (EXTICRn, the bit EXTI line `line`'s port field starts at).
+    #[inline(always)]
+    pub const fn exticr_register_and_shift(line: u32) -> (u32, u32) {
+        (EXTICR1 + 4 * (line / EXTICR_LINES), EXTICR_BITS * (line % EXTICR_LINES))
+    }
+}
+
+/// DMA1/DMA2 registers (RM0433 §15.5), offsets from [`DMA1_BASE`](super::h743::DMA1_BASE) or
+/// [`DMA2_BASE`](super::h743::DMA2_BASE).
+pub mod dma {
+    /// Interrupt status of streams 0–3 and 4–7 (read-only).
+    pub const LISR: u32 = 0x00;
+    pub const HISR: u32 = 0x04;
+    /// Interrupt flag clear of streams 0–3 and 4–7 (write 1 to clear).
+    pub const LIFCR: u32 = 0x08;
+    pub const HIFCR: u32 = 0x0C;
+    /// Stream 0's registers; stream s's are `STREAM_STRIDE · s` above.
+    pub const STREAM0: u32 = 0x10;
+    pub const STREAM_STRIDE: u32 = 0x18;
+    /// A stream's registers, offsets from its first (`SxCR`).
+    pub const SXCR: u32 = 0x00;
+    pub const SXNDTR: u32 = 0x04;
+    pub const SXPAR: u32 = 0x08;
+    pub const SXM0AR: u32 = 0x0C;
+    pub const SXFCR: u32 = 0x14;
+    /// SxNDTR.NDT, the data items left (16 bits).
+    pub const SXNDTR_NDT: u32 = 0xFFFF;
+    /// SxFCR: FIFO on (direct mode disabled, DMDIS) with the threshold at a full FIFO
+    /// (FTH = 0b11).
+    pub const SXFCR_FIFO_FULL: u32 = (1 << 2) | 0b11;
+    /// Where stream s's five flags start in LISR/HISR and LIFCR/HIFCR: bit `FLAG_SHIFTS[s % 4]`
+    /// of the low (s < 4) or high register.
+    pub const FLAG_SHIFTS: [u32; 4] = [0, 6, 16, 22];
+
+    /// The stream's address of register `offset` (one of the `SX…` offsets).
+    #[inline(always)]
+    pub const fn stream_register(base: u32, stream: u32, offset: u32) -> u32 {
+        base + STREAM0 + STREAM_STRIDE * stream + offset
+    }
+
+    /// DMA stream configuration bits (DMA_SxCR, RM0433 §15.5.5).
+    pub mod cr {
+        pub const EN: u32 = 1 << 0;
+        pub const TEIE: u32 = 1 << 2;
+        pub const TCIE: u32 = 1 << 4;
+        pub const PERIPHERAL_TO_MEMORY: u32 = 0b00 << 6;
+        pub const MEMORY_TO_PERIPHERAL: u32 = 0b01 << 6;
+        pub const MEMORY_TO_MEMORY: u32 = 0b10 << 6;
+        pub const CIRC: u32 = 1 << 8;
+        pub const PINC: u32 = 1 << 9;
+        pub const MINC: u32 = 1 << 10;
+        pub const PSIZE_32: u32 = 0b10 << 11;
+        pub const MSIZE_32: u32 = 0b10 << 13;
+        pub const PRIORITY_HIGH: u32 = 0b10 << 16;
+        pub const PRIORITY_VERY_HIGH: u32 = 0b11 << 16;
+    }
+
+    /// One stream's interrupt flags, shifted down to bit 0 (RM0433 §15.5.1: FEIF, DMEIF, TEIF,
+    /// HTIF, TCIF; the same layout in LIFCR/HIFCR).
+    pub mod flag {
+        pub const TRANSFER_ERROR: u32 = 1 << 3;
+        pub const TRANSFER_COMPLETE: u32 = 1 << 5;
+        /// FIFO, direct-mode, transfer errors, half and full transfer.
+        pub const ALL: u32 = 0b11_1101;
+    }
+}
+
+/// DMAMUX1 registers (RM0433 §17.6), offsets from [`DMAMUX1_BASE`](super::h743::DMAMUX1_BASE).
+pub mod dmamux {
+    /// DMAMUX1_C0CR; channel c's is `CCR_STRIDE · c` above (channels 0–7 feed DMA1's streams,
+    /// 8–15 DMA2's).
+    pub const C0CR: u32 = 0x00;
+    pub const CCR_STRIDE: u32 = 4;
+    /// CxCR.DMAREQ_ID, the request routed to the channel (0: none).
+    pub const CCR_DMAREQ_ID: u32 = 0xFF;
+
+    /// DMAMUX1 channel `channel`'s CxCR.
+    #[inline(always)]
+    pub const fn ccr(channel: u32) -> u32 {
+        C0CR + CCR_STRIDE * channel
+    }
+}
+
+/// Timer registers and bits (RM0433 §39.4, general-purpose TIM2–TIM5; the same offsets hold for
+/// the advanced TIM1/TIM8 registers used here).
+pub mod tim {
+    pub const CR1: u32 = 0x00;
+    pub const DIER: u32 = 0x0C;
+    pub const SR: u32 = 0x10;
+    pub const EGR: u32 = 0x14;
+    /// CCMR1 (channels 1, 2) and CCMR2 (channels 3, 4).
+    pub const CCMR1: u32 = 0x18;
+    pub const CCMR2: u32 = 0x1C;
+    pub const CCER: u32 = 0x20;
+    pub const CNT: u32 = 0x24;
+    pub const PSC: u32 = 0x28;
+    pub const ARR: u32 = 0x2C;
+    /// CCR1; channel c's compare register is `CCR1 + 4 · (c − 1)`.
+    pub const CCR1: u32 = 0x34;
+    pub const DCR: u32 = 0x48;
+    pub const DMAR: u32 = 0x4C;
+    pub const CR1_CEN: u32 = 1 << 0;
+    pub const CR1_ARPE: u32 = 1 << 7;
+    pub const DIER_UDE: u32 = 1 << 8;
+    /// CC1DE; channel c (1..=4) is bit 8 + c.
+    pub const DIER_CC1DE: u32 = 1 << 9;
+    pub const EGR_UG: u32 = 1 << 0;
+    /// Bits between two channels' fields in the same CCMR register (an even channel's field is
+    /// this much higher than the odd channel's).
+    pub const CCMR_CHANNEL_SHIFT: u32 = 8;
+    /// OCxM = PWM mode 1 (0b0110) with the compare preload (OCxPE), for an odd channel.
+    pub const CCMR_PWM1_PRELOAD: u32 = (0b110 << 4) | (1 << 3);
+    /// CCxS = 01 (input capture on TIx) with ICxF = 0011 (8 samples at the timer clock: 33 ns
+    /// at 240 MHz, well below the 1.33 µs answer bit), for an odd channel.
+    pub const CCMR_INPUT_FILTERED: u32 = 0b01 | (0b0011 << 4);
+    /// Bits between two channels' fields in CCER (channel c, 0-based, at 4c).
+    pub const CCER_CHANNEL_SHIFT: u32 = 4;
+    /// CCER bits of channel 1: enable, polarity (output: active low; input: with CCxNP both
+    /// edges), and CCxNP.
+    pub const CCER_E: u32 = 1 << 0;
+    pub const CCER_P: u32 = 1 << 1;
+    pub const CCER_NP: u32 = 1 << 3;
+    /// DCR.DBL (burst length − 1) starts at this bit; DCR.DBA (the first register of the burst,
+    /// in words from CR1) at bit 0.
+    pub const DCR_DBL_SHIFT: u32 = 8;
+
+    /// Channel `channel`'s (1..=4) capture/compare register.
+    #[inline(always)]
+    pub const fn ccr(channel: u32) -> u32 {
+        CCR1 + 4 * (channel - 1)
+    }
+
+    /// (CCMR1 or CCMR2, the shift of channel `channel`'s (1..=4) field relative to the odd
+    /// channel's: [`CCMR_PWM1_PRELOAD`] and [`CCMR_INPUT_FILTERED`] are shifted by it).
+    #[inline(always)]
+    pub const fn ccmr_register_and_shift(channel: u32) -> (u32, u32) {
+        let c = channel - 1;
+        (if c < 2 { CCMR1 } else { CCMR2 }, CCMR_CHANNEL_SHIFT * (c % 2))
+    }
+
+    /// The shift of channel `channel`'s (1..=4) CCER bits relative to channel 1's
+    /// ([`CCER_E`], [`CCER_P`], [`CCER_NP`]).
+    #[inline(always)]
+    pub const fn ccer_shift(channel: u32) -> u32 {
+        CCER_CHANNEL_SHIFT * (channel - 1)
+    }
+
+    /// DIER.CCxDE of channel `channel` (1..=4): its capture/compare DMA request.
+    #[inline(always)]
+    pub const fn dier_ccde(channel: u32) -> u32 {
+        DIER_CC1DE << (channel - 1)
+    }
+}
+
+/// SPI registers and bits (RM0433 §50.11, the H7's SPI with FIFO).
+pub mod spi {
+    pub const CR1: u32 = 0x00;
+    pub const CR2: u32 = 0x04;
+    pub const CFG1: u32 = 0x08;
+    pub const CFG2: u32 = 0x0C;
+    pub const SR: u32 = 0x14;
+    pub const IFCR: u32 = 0x18;
+    pub const TXDR: u32 = 0x20;
+    pub const RXDR: u32 = 0x30;
+    pub const CR1_SPE: u32 = 1 << 0;
+    pub const CR1_CSTART: u32 = 1 << 9;
+    pub const CR1_SSI: u32 = 1 << 12;
+    /// 8-bit frames (DSIZE = bits − 1), FIFO threshold one frame (FTHLV = 0).
+    pub const CFG1_DSIZE_8: u32 = 7;
+    pub const CFG1_RXDMAEN: u32 = 1 << 14;
+    pub const CFG1_TXDMAEN: u32 = 1 << 15;
+    /// CFG1.MBR, the baud-rate divider 2^(MBR+1), starts at this bit.
+    pub const CFG1_MBR_SHIFT: u32 = 28;
+    /// Master, software slave management, mode 3 (CPOL = CPHA = 1), pins kept driven while the
+    /// SPI is disabled (AFCNTR, so SCK idles high between transfers).
+    pub const CFG2_MASTER_MODE3: u32 = (1 << 22) | (1 << 24) | (1 << 25) | (1 << 26) | (1 << 31);
+    pub const SR_RXP: u32 = 1 << 0;
+    pub const SR_TXP: u32 = 1 << 1;
+    pub const SR_EOT: u32 = 1 << 3;
+    /// Every clearable flag.
+    pub const IFCR_ALL: u32 = 0xFF8;
+}
+
+/// USART registers and bits (RM0433 §48.7).
+pub mod usart {
+    pub const CR1: u32 = 0x00;
+    pub const CR3: u32 = 0x08;
+    pub const BRR: u32 = 0x0C;
+    pub const ICR: u32 = 0x20;
+    pub const RDR: u32 = 0x24;
+    pub const CR1_UE: u32 = 1 << 0;
+    pub const CR1_RE: u32 = 1 << 2;
+    pub const CR1_TE: u32 = 1 << 3;
+    pub const CR3_DMAR: u32 = 1 << 6;
+    /// Overrun does not stop reception (a lost byte is a CRC error for the parser).
+    pub const CR3_OVRDIS: u32 = 1 << 12;
+    /// Every flag ICR clears (PE, FE, NE, ORE, IDLE, TXFE, TC, TCBGT, LBD, CTS, RTO, EOB, UDR,
+    /// CM, WUF); the reserved bits are written 0.
+    pub const ICR_ALL: u32 = 0x0012_3BFF;
+}
 
 /// A timer's facts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
