@@ -21,8 +21,9 @@ struct Cli {
     /// Serial port of the board (default: the one USB board with our VID/PID).
     #[arg(long, global = true, conflicts_with_all = ["tcp", "sitl"])]
     port: Option<String>,
-    /// Connect over TCP instead (e.g. a SITL's 127.0.0.1:5760).
-    #[arg(long, global = true, conflicts_with = "sitl")]
+    /// Connect over TCP instead: HOST:PORT (e.g. a SITL's 127.0.0.1:5760).
+    #[arg(long, global = true, conflicts_with = "sitl", value_name = "HOST:PORT",
+          value_parser = configurator_cli::connect::parse_tcp_address)]
     tcp: Option<String>,
     /// Start the built-in simulator (SITL) and connect to it through its pseudo-terminal.
     #[arg(long, global = true)]
