@@ -1228,7 +1228,18 @@ fn plot(
     Ok(if json_output {
         format!(
             "{:#}\n",
-            json!({"output": output.display().to_string(), "panels": summary.panels, "samples": summary.samples})
+            json!({
+                "output": output.display().to_string(),
+                "panels": summary.panels,
+                "samples": summary.samples,
+                "axes": summary.axes.iter().map(|a| json!({
+                    "panel": a.title,
+                    "y_min": a.y_range.start,
+                    "y_max": a.y_range.end,
+                    "clipped_samples": a.clipped_samples,
+                    "legend_entries": a.legend_entries,
+                })).collect::<Vec<_>>(),
+            })
         )
     } else {
         format!(
