@@ -1003,6 +1003,159 @@ mod tests {
         assert!(rec.columns.iter().all(|c| c.name != "note"), "unknown columns are dropped");
     }
 
+    /// An estimate that starts with transients of −200 and +2,500 and settles within ±50: the
+    /// axis is what it settled to (with its margin), the transients are counted and marked.
+    #[test]
+    fn a_convergence_axis_fits_what_converged_and_marks_the_transients() {
+        let n = 1000;
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.01).collect();
+        // Two estimates: a transient in the first 5 % of the samples, then steady values with a
+        // small wobble (±1) at −50 and +48.
+        let settle = |start: f64, end: f64| -> Vec<Option<f64>> {
+            (0..n)
+                .map(|i| {
+                    let wobble = (i as f64 * 0.7).sin();
+                    Some(match i {
+                        0..=19 => start,
+                        20..=49 => start * 0.2 + end * 0.8,
+                        _ => end + wobble,
+                    })
+                })
+                .collect()
+        };
+        let a = settle(-200.0, -50.0);
+        let b = settle(2500.0, 48.0);
+        let axis = converged_axis(&[&a, &b]);
+        let (lo, hi) = (axis.range.start, axis.range.end);
+        assert!(lo <= -51.0 && hi >= 49.0, "every converged value is on the axis: {lo}..{hi}");
+        assert!(lo > -80.0 && hi < 80.0, "the transients do not widen the axis: {lo}..{hi}");
+        let beyond =
+            [&a, &b].iter().flat_map(|c| c.iter().flatten()).filter(|&&v| v < lo || v > hi).count();
+        assert_eq!(axis.clipped_samples, beyond);
+        assert_eq!(axis.clipped_samples, 20 + 30 + 20 + 30, "the transients, none of the rest");
+        // Each excursion is marked once, on its own edge, where it starts.
+        assert_eq!(clipped_runs(&t, &a, &axis.range), [(0.0, Edge::Below)]);
+        assert_eq!(clipped_runs(&t, &b, &axis.range), [(0.0, Edge::Above)]);
+        // The whole range would have spent 98 % of the height on the transients.
+        let all = all_samples_axis(&[&a, &b]);
+        assert!((hi - lo) / (all.range.end - all.range.start) < 0.06);
+    }
+
+    #[test]
+    fn without_a_transient_a_convergence_axis_shows_every_sample() {
+        // A gentle settling (overshoot within twice the converged spread) is not worth clipping.
+        let a: Vec<Option<f64>> = (0..100).map(|i| Some(10.0 + 10.0 / (1.0 + i as f64))).collect();
+        let b: Vec<Option<f64>> = (0..100).map(|_| Some(-10.0)).collect();
+        let axis = converged_axis(&[&a, &b]);
+        assert_eq!(axis, all_samples_axis(&[&a, &b]));
+        assert_eq!(axis.clipped_samples, 0);
+        // Columns with no samples at all get the default axis, not a panic.
+        let empty: Vec<Option<f64>> = vec![None; 10];
+        assert_eq!(converged_axis(&[&empty]).range, -1.0..1.0);
+        // A missing sample ends a run of clipped samples: two runs, two markers.
+        let t = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
+        let v = [Some(9.0), None, Some(9.0), Some(0.0), Some(-9.0), Some(-9.0)];
+        assert_eq!(
+            clipped_runs(&t, &v, &(-1.0..1.0)),
+            [(0.0, Edge::Above), (2.0, Edge::Above), (4.0, Edge::Below)]
+        );
+    }
+
+    #[test]
+    fn angles_are_unwrapped_across_plus_minus_180_degrees() {
+        let deg = |v: &[f64]| v.iter().map(|&x| Some(x)).collect::<Vec<_>>();
+        // Through +180° and on, back through it, and through −180° the other way.
+        let up = unwrap_deg(&deg(&[170.0, 179.0, -179.0, -170.0, 179.5]));
+        assert_eq!(up, deg(&[170.0, 179.0, 181.0, 190.0, 179.5]));
+        let down = unwrap_deg(&deg(&[-175.0, 178.0, 100.0]));
+        assert_eq!(down, deg(&[-175.0, -182.0, -260.0]));
+        // A gap does not restart the unwrap; the first sample is kept as it is.
+        let gap = unwrap_deg(&[None, Some(-170.0), None, Some(175.0)]);
+        assert_eq!(gap, [None, Some(-170.0), None, Some(-185.0)]);
+        // Three turns of yaw at 10° per sample, wrapped into ±180°: a straight line to 1,080°.
+        let wrapped: Vec<Option<f64>> = (0..=108)
+            .map(|i| {
+                let a = (10.0 * i as f64 + 180.0).rem_euclid(360.0) - 180.0;
+                Some(a)
+            })
+            .collect();
+        let unwrapped = unwrap_deg(&wrapped);
+        for (i, v) in unwrapped.iter().enumerate() {
+            let v = v.unwrap();
+            assert!((v - 10.0 * i as f64).abs() < 1e-9, "sample {i}: {v}°");
+            // The same angle as the one recorded, a whole number of turns away.
+            let turns = (v - wrapped[i].unwrap()) / 360.0;
+            assert!((turns - turns.round()).abs() < 1e-12);
+        }
+    }
+
+    /// An octorotor's G1 columns (8 motors × 3 rows) colour by motor and dash by row, and the
+    /// legend has a row per motor and per G1 row, which fits beside the panel at the default size.
+    #[test]
+    fn an_octorotor_legend_is_grouped_by_motor_and_row_and_fits() {
+        let mut header = vec!["t".to_string()];
+        for row in ["fx", "fy", "fz", "p", "q", "r"] {
+            header.extend((0..8).map(|m| format!("g1_{row}_{m}")));
+        }
+        header.extend((0..8).map(|m| format!("cmd_{m}")));
+        header.extend(["gyro_x", "gyro_y", "gyro_z"].map(String::from));
+        let panels = choose_panels(&header);
+        let force = panels.iter().find(|p| p.title == "G1 convergence: specific force").unwrap();
+        assert_eq!(force.columns.len(), 24);
+        let styles = series_styles(force);
+        let of = |name: &str| styles[force.columns.iter().position(|c| c == name).unwrap()];
+        assert_eq!(of("g1_fx_3"), SeriesStyle { colour: 3, dash: Dash::Solid });
+        assert_eq!(of("g1_fy_3"), SeriesStyle { colour: 3, dash: Dash::Dashed });
+        assert_eq!(of("g1_fz_7"), SeriesStyle { colour: 7, dash: Dash::Dotted });
+        // A motor has the same colour in every panel.
+        let command = panels.iter().find(|p| p.title == "motor command").unwrap();
+        assert_eq!(series_styles(command)[3], SeriesStyle { colour: 3, dash: Dash::Solid });
+
+        let legend = legend_entries(force, true);
+        assert_eq!(legend.len(), 8 + 3 + 1, "{legend:?}");
+        assert_eq!(legend[0].label, "motor 1 (…_0)");
+        assert_eq!(legend[7].colour, Some(7));
+        assert_eq!((legend[9].label.as_str(), legend[9].dash), ("g1_fy_…", Dash::Dashed));
+        assert!(legend[11].marker);
+        assert_eq!(legend_entries(command, false).len(), 8, "no row entries with one row");
+        let gyro = panels.iter().find(|p| p.title == "angular rate").unwrap();
+        let labels: Vec<_> = legend_entries(gyro, false).into_iter().map(|e| e.label).collect();
+        assert_eq!(labels, ["gyro_x", "gyro_y", "gyro_z"]);
+
+        // The legend column of a default-size panel, laid out as drawn, holds all 12 rows.
+        let mut sink = String::new();
+        let area = SVGBackend::with_string(&mut sink, (RECORDING_WIDTH_PX, PANEL_HEIGHT_PX))
+            .into_drawing_area();
+        ensure_font().unwrap();
+        let caption =
+            "G1 convergence: specific force (y-axis: … 5600 earlier samples beyond it ▲▼)";
+        let (chart, legend_area) = panel_areas(&area, caption).unwrap();
+        assert_eq!(legend_area.dim_in_pixel().0, LEGEND_WIDTH_PX);
+        assert!(chart.dim_in_pixel().0 >= RECORDING_WIDTH_PX - LEGEND_WIDTH_PX);
+        let capacity = legend_capacity(legend_area.dim_in_pixel().1);
+        assert!(capacity >= legend.len(), "{capacity} rows fit, {} needed", legend.len());
+    }
+
+    #[test]
+    fn the_attitude_panel_unwraps_and_the_g1_panels_scale_to_convergence() {
+        let header: Vec<String> =
+            ["t", "roll_deg", "gyro_x", "g1_p_0"].iter().map(|s| s.to_string()).collect();
+        let panels = choose_panels(&header);
+        let scales: Vec<_> = panels.iter().map(|p| (p.title, p.y_scale, p.unwrap_deg)).collect();
+        assert_eq!(
+            scales,
+            [
+                ("angular rate", YScale::AllSamples, false),
+                ("attitude", YScale::AllSamples, true),
+                ("G1 convergence: angular acceleration", YScale::Converged, false),
+            ]
+        );
+        for panel in &panels {
+            let unit = panel.y_label.split_once('[').map(|(_, u)| u.trim_end_matches(']'));
+            assert!(unit.is_some_and(|u| !u.is_empty()), "no unit in `{}`", panel.y_label);
+        }
+    }
+
     #[test]
     fn a_gap_splits_the_line() {
         let t = [0.0, 1.0, 2.0, 3.0];
@@ -1051,6 +1204,7 @@ mod tests {
             "motor speed",
             "G1 convergence",
             "gyro_z",
+            "motor 1 (…_0)",
         ] {
             assert!(svg.contains(title), "missing {title}");
         }
