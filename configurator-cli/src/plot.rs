@@ -421,8 +421,8 @@ pub fn clipped_runs(
         let edge = v.and_then(|v| {
             (v < range.start).then_some(Edge::Below).or((v > range.end).then_some(Edge::Above))
         });
-        if edge.is_some() && edge != current {
-            runs.push((t, edge.expect("checked")));
+        if let Some(e) = edge.filter(|_| edge != current) {
+            runs.push((t, e));
         }
         current = edge;
     }
@@ -604,11 +604,14 @@ fn panel_values(rec: &Recording, panel: &Panel) -> Vec<Vec<Option<f64>>> {
         .collect()
 }
 
+/// A drawing area in pixels.
+type Area<DB> = DrawingArea<DB, Shift>;
+
 /// A panel's caption area split into the chart (left) and the legend column (right).
 fn panel_areas<DB: DrawingBackend>(
-    area: &DrawingArea<DB, Shift>,
+    area: &Area<DB>,
     caption: &str,
-) -> Result<(DrawingArea<DB, Shift>, DrawingArea<DB, Shift>), PlotError> {
+) -> Result<(Area<DB>, Area<DB>), PlotError> {
     let area = area.titled(caption, (FONT, CAPTION_FONT_PX)).map_err(draw_err)?;
     let width = area.dim_in_pixel().0;
     Ok(area.split_horizontally(width.saturating_sub(LEGEND_WIDTH_PX)))

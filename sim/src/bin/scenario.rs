@@ -291,8 +291,8 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bridge { listen, idle_timeout_s, throw_to_fly, imu_offset_mm, tcp_port } => {
-            let mut server = BridgeServer::bind(&listen)
-                .with_context(|| format!("cannot listen on {listen}"))?;
+            let mut server =
+                BridgeServer::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
             let udp = server.local_addr()?;
             eprintln!("bridge listening on {udp} (sensor packets in, motor packets back)");
             // The motor count comes with the packets: 0 in the info until the first one.
