@@ -4,7 +4,7 @@
 
 use crate::link::{Client, LinkError, Transport};
 use serialport::SerialPortType;
-use std::net::TcpStream;
+use std::net::{SocketAddr, TcpStream};
 use std::time::Duration;
 
 /// Read timeout of the transports: how long one read waits for bytes.
@@ -12,12 +12,54 @@ const READ_TIMEOUT: Duration = Duration::from_millis(20);
 /// Baud rate passed to the serial port; USB CDC ignores it, a UART bridge would not.
 const BAUD_RATE: u32 = 921_600;
 
+/// Longest host name DNS carries (RFC 1035 §2.3.4: 255 octets on the wire, 253 as text).
+const MAX_HOST_NAME_LEN: usize = 253;
+/// Longest label (dot-separated part) of a host name (RFC 1035 §2.3.4).
+const MAX_HOST_LABEL_LEN: usize = 63;
+
+/// Checks a `--tcp` address, for clap's `value_parser` (so a bad one is a usage error, exit 2,
+/// before anything is opened): `IP:PORT` (`127.0.0.1:5760`, `[::1]:5760`) or `NAME:PORT` with a
+/// host name of letters, digits, hyphens and dots (RFC 1123), and a port from 1 to 65535. Only
+/// the form is checked here; whether a name resolves is learnt when connecting (exit 1 if not,
+/// like any board that cannot be reached). Returns the address as given.
+pub fn parse_tcp_address(text: &str) -> Result<String, String> {
+    let example = "e.g. 127.0.0.1:5760, [::1]:5760 or localhost:5760";
+    if let Ok(address) = text.parse::<SocketAddr>() {
+        return if address.port() == 0 {
+            Err(format!("port 0 cannot be connected to; give the server's port ({example})"))
+        } else {
+            Ok(text.to_string())
+        };
+    }
+    let Some((host, port)) = text.rsplit_once(':') else {
+        return Err(format!("expected HOST:PORT ({example})"));
+    };
+    port.parse::<u16>()
+        .ok()
+        .filter(|&p| p > 0)
+        .ok_or_else(|| format!("the port `{port}` is not a number from 1 to 65535 ({example})"))?;
+    if host.contains(':') || host.starts_with('[') {
+        return Err(format!("`{host}` is not an IPv6 address in brackets ({example})"));
+    }
+    let label_ok = |label: &str| {
+        (1..=MAX_HOST_LABEL_LEN).contains(&label.len())
+            && label.chars().all(|c| c.is_ascii_alphanumeric() || c == '-')
+            && !label.starts_with('-')
+            && !label.ends_with('-')
+    };
+    let name = host.strip_suffix('.').unwrap_or(host);
+    if name.is_empty() || name.len() > MAX_HOST_NAME_LEN || !name.split('.').all(label_ok) {
+        return Err(format!("`{host}` is neither an IP address nor a host name ({example})"));
+    }
+    Ok(text.to_string())
+}
+
 /// Where to find the board.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Target {
     /// A serial device path (`/dev/ttyACM0`, a pseudo-terminal).
     Serial(String),
-    /// A TCP address (`127.0.0.1:5760`).
+    /// A TCP address (`127.0.0.1:5760`, `localhost:5760`), as [`parse_tcp_address`] accepts.
     Tcp(String),
     /// The first serial port with our USB VID/PID.
     Discover,
@@ -116,4 +158,41 @@ fn open_tcp(address: &str) -> Result<Box<dyn Transport>, ConnectError> {
     stream.set_read_timeout(Some(READ_TIMEOUT)).map_err(open_error)?;
     stream.set_nodelay(true).map_err(open_error)?;
     Ok(Box::new(stream))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tcp_addresses_of_every_form_are_accepted() {
+        for good in ["127.0.0.1:5760", "[::1]:5760", "localhost:5760", "sitl-1.lan.:1", "a:65535"] {
+            assert_eq!(parse_tcp_address(good).as_deref(), Ok(good));
+        }
+    }
+
+    #[test]
+    fn a_bad_tcp_address_says_what_is_wrong() {
+        let cases = [
+            ("notanaddress", "expected HOST:PORT"),
+            ("127.0.0.1", "expected HOST:PORT"),
+            ("127.0.0.1:", "the port `` is not a number"),
+            ("127.0.0.1:70000", "the port `70000` is not a number from 1 to 65535"),
+            ("127.0.0.1:0", "port 0 cannot be connected to"),
+            ("localhost:http", "the port `http` is not a number"),
+            ("::1:5760", "not an IPv6 address in brackets"),
+            ("[::1:5760", "not an IPv6 address in brackets"),
+            (":5760", "neither an IP address nor a host name"),
+            ("bad_name:5760", "neither an IP address nor a host name"),
+            ("-lead.example:5760", "neither an IP address nor a host name"),
+            ("a..b:5760", "neither an IP address nor a host name"),
+        ];
+        for (bad, message) in cases {
+            let error = parse_tcp_address(bad).expect_err(bad);
+            assert!(error.contains(message), "{bad}: {error}");
+            assert!(error.contains("e.g. 127.0.0.1:5760"), "{bad}: an example is given: {error}");
+        }
+        let long_label = format!("{}:5760", "a".repeat(MAX_HOST_LABEL_LEN + 1));
+        assert!(parse_tcp_address(&long_label).is_err());
+    }
 }

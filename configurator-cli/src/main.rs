@@ -21,8 +21,9 @@ struct Cli {
     /// Serial port of the board (default: the one USB board with our VID/PID).
     #[arg(long, global = true, conflicts_with_all = ["tcp", "sitl"])]
     port: Option<String>,
-    /// Connect over TCP instead (e.g. a SITL's 127.0.0.1:5760).
-    #[arg(long, global = true, conflicts_with = "sitl")]
+    /// Connect over TCP instead: HOST:PORT (e.g. a SITL's 127.0.0.1:5760).
+    #[arg(long, global = true, conflicts_with = "sitl", value_name = "HOST:PORT",
+          value_parser = configurator_cli::connect::parse_tcp_address)]
     tcp: Option<String>,
     /// Start the built-in simulator (SITL) and connect to it through its pseudo-terminal.
     #[arg(long, global = true)]
@@ -1227,7 +1228,18 @@ fn plot(
     Ok(if json_output {
         format!(
             "{:#}\n",
-            json!({"output": output.display().to_string(), "panels": summary.panels, "samples": summary.samples})
+            json!({
+                "output": output.display().to_string(),
+                "panels": summary.panels,
+                "samples": summary.samples,
+                "axes": summary.axes.iter().map(|a| json!({
+                    "panel": a.title,
+                    "y_min": a.y_range.start,
+                    "y_max": a.y_range.end,
+                    "clipped_samples": a.clipped_samples,
+                    "legend_entries": a.legend_entries,
+                })).collect::<Vec<_>>(),
+            })
         )
     } else {
         format!(

@@ -7,8 +7,10 @@
 //! (`assets/DejaVuSans.ttf`, licence beside it), so no fontconfig or FreeType is needed.
 
 use plotters::coord::Shift;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::register_font;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -115,12 +117,74 @@ fn ensure_font() -> Result<(), PlotError> {
     ok.then_some(()).ok_or(PlotError::Font)
 }
 
+/// Motors a recording can hold (the learner's limit); one colour each.
+const MOTOR_COUNT_MAX: usize = flight::learner::MAX_MOTORS;
+
+/// Line colours: motor i has colour i in every panel (command, speed, G1); other panels colour
+/// their columns in order. The Okabe–Ito palette (told apart with the common colour-vision
+/// deficiencies), its yellow darkened to olive to read on white, and a brown for an eighth;
+/// black is left for the legend's line-style and marker entries.
+const COLOURS: [RGBColor; MOTOR_COUNT_MAX] = [
+    RGBColor(0, 114, 178),   // blue
+    RGBColor(213, 94, 0),    // vermillion
+    RGBColor(0, 158, 115),   // bluish green
+    RGBColor(204, 121, 167), // reddish purple
+    RGBColor(86, 180, 233),  // sky blue
+    RGBColor(230, 159, 0),   // orange
+    RGBColor(150, 140, 0),   // olive
+    RGBColor(120, 70, 30),   // brown
+];
+/// Stroke width of a series, px: 1, since plotters' bitmap backend draws wider paths as polygons
+/// whose mitred joins spike far out where a signal reverses within a pixel (a motor command).
+const LINE_PX: u32 = 1;
+/// Stroke width of a legend's line sample, px (a straight line, no joins).
+const LEGEND_LINE_PX: u32 = 2;
+/// Dash and gap lengths of a dashed line, px.
+const DASH_PX: (u32, u32) = (9, 5);
+/// Dot and gap lengths of a dotted line, px.
+const DOT_PX: (u32, u32) = (2, 4);
+/// Width of the legend column right of each panel, px.
+pub const LEGEND_WIDTH_PX: u32 = 200;
+/// Height of one legend row, px.
+const LEGEND_ROW_PX: u32 = 19;
+/// Space above the first legend row, px.
+const LEGEND_PAD_PX: u32 = 6;
+/// Length of the line sample in front of a legend label, px.
+const LEGEND_SAMPLE_PX: i32 = 28;
+/// Half-width and height of the triangle marking where a line leaves the axis, px.
+const MARKER_PX: (i32, i32) = (5, 8);
+
+/// Fraction of each column's samples, the latest, whose values [`converged_axis`] fits: the
+/// learner's estimates settle within a fraction of a second of the excitation and the rest of a
+/// recording holds what they converged to.
+pub const CONVERGED_TAIL_FRACTION: f64 = 0.5;
+/// Room above and below the converged values, as a fraction of their spread (dimensionless).
+pub const CONVERGED_MARGIN: f64 = 0.25;
+/// All samples spanning no more than this many times the converged axis are all shown: the
+/// clipping would gain less than a factor 2 of resolution (dimensionless).
+pub const CLIP_ONLY_BEYOND: f64 = 2.0;
+/// Padding of an axis around every sample, as a fraction of their span (dimensionless).
+const ALL_SAMPLES_PAD: f64 = 0.05;
+
+/// How a panel's y-axis is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum YScale {
+    /// Every sample, padded: the signal itself is the subject (IMU, attitude, motors).
+    AllSamples,
+    /// What the estimates converged to ([`converged_axis`]): their first samples are transients
+    /// tens of times beyond the converged values, which would squash those into a line.
+    Converged,
+}
+
 /// One panel of a recording plot: a caption, a y-axis label with unit, the columns drawn.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Panel {
     pub title: &'static str,
     pub y_label: &'static str,
     pub columns: Vec<String>,
+    pub y_scale: YScale,
+    /// The columns are angles in degrees wrapped into ±180°, drawn unwrapped ([`unwrap_deg`]).
+    pub unwrap_deg: bool,
 }
 
 /// One parsed column: `None` where the field was empty (or not finite).
@@ -145,43 +209,82 @@ pub struct Recording {
 pub struct PlotSummary {
     /// Panel captions, top to bottom.
     pub panels: Vec<String>,
+    /// Each panel's y-axis and legend, top to bottom.
+    pub axes: Vec<PanelAxis>,
     /// Rows (samples) read.
     pub samples: usize,
     /// Image size (width, height), px.
     pub size_px: (u32, u32),
 }
 
+/// The y-axis and legend one panel got.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PanelAxis {
+    pub title: String,
+    /// The y-axis, in the panel's unit.
+    pub y_range: std::ops::Range<f64>,
+    /// Samples beyond the y-axis, drawn on its edge and marked.
+    pub clipped_samples: usize,
+    /// Rows of the legend.
+    pub legend_entries: usize,
+}
+
 /// The panels whose columns appear in `header`, in the fixed order, each with the present columns.
 pub fn choose_panels(header: &[String]) -> Vec<Panel> {
+    use YScale::{AllSamples, Converged};
     let has = |n: &str| header.iter().any(|h| h == n);
     let fixed = |names: &[&str]| names.iter().filter(|n| has(n)).map(|n| n.to_string()).collect();
-    let numbered =
-        |prefix: &str| (0..8).map(|i| format!("{prefix}{i}")).filter(|n| has(n)).collect();
+    let numbered = |prefix: &str| {
+        (0..MOTOR_COUNT_MAX).map(|i| format!("{prefix}{i}")).filter(|n| has(n)).collect()
+    };
     let starting = |prefixes: &[&str]| {
         header.iter().filter(|h| prefixes.iter().any(|p| h.starts_with(p))).cloned().collect()
     };
-    let groups: [(&'static str, &'static str, Vec<String>); 8] = [
-        ("angular rate", "angular rate [rad/s]", fixed(&["gyro_x", "gyro_y", "gyro_z"])),
-        ("specific force", "specific force [m/s²]", fixed(&["acc_x", "acc_y", "acc_z"])),
-        ("attitude", "attitude [°]", fixed(&["roll_deg", "pitch_deg", "yaw_deg"])),
-        ("body rates", "body rate [rad/s]", fixed(&["rate_p", "rate_q", "rate_r"])),
-        ("motor command", "command [0–1]", numbered("cmd_")),
-        ("motor speed", "motor speed [rad/s]", numbered("speed_")),
+    let groups: [(&'static str, &'static str, Vec<String>, YScale); 8] = [
+        (
+            "angular rate",
+            "angular rate [rad/s]",
+            fixed(&["gyro_x", "gyro_y", "gyro_z"]),
+            AllSamples,
+        ),
+        (
+            "specific force",
+            "specific force [m/s²]",
+            fixed(&["acc_x", "acc_y", "acc_z"]),
+            AllSamples,
+        ),
+        (
+            "attitude",
+            "attitude, unwrapped [°]",
+            fixed(&["roll_deg", "pitch_deg", "yaw_deg"]),
+            AllSamples,
+        ),
+        ("body rates", "body rate [rad/s]", fixed(&["rate_p", "rate_q", "rate_r"]), AllSamples),
+        ("motor command", "command [1 = full]", numbered("cmd_"), AllSamples),
+        ("motor speed", "motor speed [rad/s]", numbered("speed_"), AllSamples),
         (
             "G1 convergence: specific force",
-            "G1 [m/s² per unit thrust]",
+            "G1 [(m/s²) / unit thrust]",
             starting(&["g1_fx_", "g1_fy_", "g1_fz_"]),
+            Converged,
         ),
         (
             "G1 convergence: angular acceleration",
-            "G1 [rad/s² per unit thrust]",
+            "G1 [(rad/s²) / unit thrust]",
             starting(&["g1_p_", "g1_q_", "g1_r_"]),
+            Converged,
         ),
     ];
     groups
         .into_iter()
-        .filter(|(_, _, columns)| !columns.is_empty())
-        .map(|(title, y_label, columns)| Panel { title, y_label, columns })
+        .filter(|(_, _, columns, _)| !columns.is_empty())
+        .map(|(title, y_label, columns, y_scale)| Panel {
+            title,
+            y_label,
+            unwrap_deg: columns.iter().all(|c| c.ends_with("_deg")),
+            columns,
+            y_scale,
+        })
         .collect()
 }
 
@@ -244,8 +347,237 @@ fn padded_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     if lo > hi {
         return -1.0..1.0;
     }
-    let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5f64.max(0.05 * lo.abs()) };
+    let pad = if hi > lo { ALL_SAMPLES_PAD * (hi - lo) } else { 0.5f64.max(0.05 * lo.abs()) };
     lo - pad..hi + pad
+}
+
+/// A panel's y-axis: its range and how many present samples lie beyond it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct YAxis {
+    pub range: std::ops::Range<f64>,
+    /// Present samples beyond `range` (drawn on its edge and marked).
+    pub clipped_samples: usize,
+}
+
+/// The axis holding every present sample of `columns`, padded by 5 %.
+pub fn all_samples_axis(columns: &[&[Option<f64>]]) -> YAxis {
+    let range = padded_range(columns.iter().flat_map(|c| c.iter().flatten().copied()));
+    YAxis { range, clipped_samples: 0 }
+}
+
+/// The axis of what the columns converged to: the spread of the latest
+/// [`CONVERGED_TAIL_FRACTION`] of each column's present samples, widened by
+/// [`CONVERGED_MARGIN`] of it above and below. Samples beyond it (the first transients of an
+/// estimate) are counted in `clipped_samples`, to be drawn on the edge and marked, never dropped.
+/// Where every sample spans at most [`CLIP_ONLY_BEYOND`] times that axis, or the columns hold no
+/// sample, it is [`all_samples_axis`] (nothing clipped).
+///
+/// Assumes the estimates settle in the first half of their samples (a recording that starts
+/// before the learner runs and lasts a second beyond it); if they do not, the axis spans the
+/// wandering of the second half, which is then what there is to see.
+pub fn converged_axis(columns: &[&[Option<f64>]]) -> YAxis {
+    let all = all_samples_axis(columns);
+    let tail = columns.iter().flat_map(|column| {
+        let present: Vec<f64> = column.iter().flatten().copied().collect();
+        let keep = (CONVERGED_TAIL_FRACTION * present.len() as f64).ceil() as usize;
+        present.into_iter().rev().take(keep)
+    });
+    let (lo, hi) =
+        tail.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    if lo > hi {
+        return all;
+    }
+    let margin = if hi > lo { CONVERGED_MARGIN * (hi - lo) } else { 0.5f64.max(0.05 * lo.abs()) };
+    let range = lo - margin..hi + margin;
+    let span = |r: &std::ops::Range<f64>| r.end - r.start;
+    if span(&all.range) <= CLIP_ONLY_BEYOND * span(&range) {
+        return all;
+    }
+    let clipped_samples = columns
+        .iter()
+        .flat_map(|c| c.iter().flatten())
+        .filter(|&&v| v < range.start || v > range.end)
+        .count();
+    YAxis { range, clipped_samples }
+}
+
+/// The edge of the axis a clipped sample lies beyond.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Edge {
+    Below,
+    Above,
+}
+
+/// Where a line leaves the axis `range`: for each run of consecutive present samples beyond the
+/// same edge, the time of its first sample, s, and the edge. A missing sample ends a run.
+pub fn clipped_runs(
+    t: &[f64],
+    values: &[Option<f64>],
+    range: &std::ops::Range<f64>,
+) -> Vec<(f64, Edge)> {
+    let mut runs = Vec::new();
+    let mut current = None;
+    for (&t, v) in t.iter().zip(values) {
+        let edge = v.and_then(|v| {
+            (v < range.start).then_some(Edge::Below).or((v > range.end).then_some(Edge::Above))
+        });
+        if let Some(e) = edge.filter(|_| edge != current) {
+            runs.push((t, e));
+        }
+        current = edge;
+    }
+    runs
+}
+
+/// Continuous angles, degrees, from angles wrapped into ±180°: each step between consecutive
+/// present samples is taken the shorter way round, so the curve runs on past ±180° instead of
+/// jumping by 360°; a missing sample is skipped, not a restart. Assumes the angle turns by less
+/// than 180° between two samples (at a recording's 2 kHz, 360,000 °/s; the IMU's gyro saturates
+/// at 2,000 °/s). Euler angles also jump where the pitch passes ±90° (roll and yaw both by 180°):
+/// that is the representation's, and stays.
+pub fn unwrap_deg(values: &[Option<f64>]) -> Vec<Option<f64>> {
+    const TURN_DEG: f64 = 360.0;
+    let mut last: Option<(f64, f64)> = None; // (wrapped, unwrapped)
+    values
+        .iter()
+        .map(|v| {
+            let v = (*v)?;
+            let unwrapped = match last {
+                Some((wrapped, unwrapped)) => {
+                    let step = v - wrapped;
+                    unwrapped + step - TURN_DEG * (step / TURN_DEG).round()
+                }
+                None => v,
+            };
+            last = Some((v, unwrapped));
+            Some(unwrapped)
+        })
+        .collect()
+}
+
+/// The line style of a series.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dash {
+    Solid,
+    Dashed,
+    Dotted,
+}
+
+/// The dashes of a per-motor panel's rows, in the order the rows first appear.
+const ROW_DASHES: [Dash; 3] = [Dash::Solid, Dash::Dashed, Dash::Dotted];
+
+/// How one column is drawn: its colour (an index into the palette) and its line style.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SeriesStyle {
+    pub colour: usize,
+    pub dash: Dash,
+}
+
+/// The motor of a per-motor column, counted from 0 as the columns are (`cmd_2`, `speed_2`,
+/// `g1_fx_2` → 2).
+pub fn motor_of(column: &str) -> Option<usize> {
+    let per_motor = ["cmd_", "speed_", "g1_"].iter().any(|p| column.starts_with(p));
+    let (_, index) = column.rsplit_once('_')?;
+    per_motor.then(|| index.parse().ok()).flatten()
+}
+
+/// The row of a G1 column (`g1_fx_2` → `fx`).
+fn g1_row_of(column: &str) -> Option<&str> {
+    column.strip_prefix("g1_")?.rsplit_once('_').map(|(row, _)| row)
+}
+
+/// The G1 rows of a panel, in the order they first appear.
+fn rows_of(panel: &Panel) -> Vec<&str> {
+    let mut rows: Vec<&str> = Vec::new();
+    for row in panel.columns.iter().filter_map(|c| g1_row_of(c)) {
+        if !rows.contains(&row) {
+            rows.push(row);
+        }
+    }
+    rows
+}
+
+/// Each column's style: a per-motor column takes its motor's colour and its G1 row's dash
+/// (solid, dashed, dotted); any other its place in the panel's colour and a solid line.
+pub fn series_styles(panel: &Panel) -> Vec<SeriesStyle> {
+    let rows = rows_of(panel);
+    let dash_of = |column: &str| {
+        g1_row_of(column)
+            .and_then(|row| rows.iter().position(|r| *r == row))
+            .map_or(Dash::Solid, |k| ROW_DASHES[k % ROW_DASHES.len()])
+    };
+    panel
+        .columns
+        .iter()
+        .enumerate()
+        .map(|(i, column)| match motor_of(column) {
+            Some(motor) => SeriesStyle { colour: motor % COLOURS.len(), dash: dash_of(column) },
+            None => SeriesStyle { colour: i % COLOURS.len(), dash: Dash::Solid },
+        })
+        .collect()
+}
+
+/// One row of a legend.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LegendEntry {
+    pub label: String,
+    /// Index into the palette; `None`: black (a line style or a marker explained).
+    pub colour: Option<usize>,
+    pub dash: Dash,
+    /// The clipping marker rather than a line.
+    pub marker: bool,
+}
+
+/// The legend of a panel. A per-motor panel gets one entry per motor (its colour, numbered from
+/// 1 as the configurator's reports do, with the columns' 0-based suffix) and, where it has
+/// several G1 rows, one per row (its line style, in black): 8 motors × 3 rows are 11 entries, not
+/// 24. Any other panel gets one entry per column. `clipped` adds the marker's entry.
+pub fn legend_entries(panel: &Panel, clipped: bool) -> Vec<LegendEntry> {
+    let line = |label: String, colour: Option<usize>, dash: Dash| LegendEntry {
+        label,
+        colour,
+        dash,
+        marker: false,
+    };
+    let per_motor = panel.columns.iter().all(|c| motor_of(c).is_some());
+    let mut entries: Vec<LegendEntry> = if per_motor {
+        let mut motors: Vec<usize> = panel.columns.iter().filter_map(|c| motor_of(c)).collect();
+        motors.sort_unstable();
+        motors.dedup();
+        let mut entries: Vec<LegendEntry> = motors
+            .into_iter()
+            .map(|m| line(format!("motor {} (…_{m})", m + 1), Some(m % COLOURS.len()), Dash::Solid))
+            .collect();
+        let rows = rows_of(panel);
+        if rows.len() > 1 {
+            entries.extend(rows.iter().enumerate().map(|(k, row)| {
+                line(format!("g1_{row}_…"), None, ROW_DASHES[k % ROW_DASHES.len()])
+            }));
+        }
+        entries
+    } else {
+        let styles = series_styles(panel);
+        panel
+            .columns
+            .iter()
+            .zip(styles)
+            .map(|(c, s)| line(c.clone(), Some(s.colour), s.dash))
+            .collect()
+    };
+    if clipped {
+        entries.push(LegendEntry {
+            label: "beyond the axis".into(),
+            colour: None,
+            dash: Dash::Solid,
+            marker: true,
+        });
+    }
+    entries
+}
+
+/// Legend rows that fit in a legend column `height_px` high.
+pub fn legend_capacity(height_px: u32) -> usize {
+    (height_px.saturating_sub(LEGEND_PAD_PX) / LEGEND_ROW_PX) as usize
 }
 
 /// Runs of consecutive present points: a missing value breaks the line.
@@ -262,26 +594,126 @@ fn segments(t: &[f64], values: &[Option<f64>]) -> Vec<Vec<(f64, f64)>> {
     out
 }
 
+/// A panel's columns as drawn: unwrapped if the panel asks, in the panel's order.
+fn panel_values(rec: &Recording, panel: &Panel) -> Vec<Vec<Option<f64>>> {
+    panel
+        .columns
+        .iter()
+        .filter_map(|n| rec.columns.iter().find(|c| &c.name == n))
+        .map(|c| if panel.unwrap_deg { unwrap_deg(&c.values) } else { c.values.clone() })
+        .collect()
+}
+
+/// A drawing area in pixels.
+type Area<DB> = DrawingArea<DB, Shift>;
+
+/// A panel's caption area split into the chart (left) and the legend column (right).
+fn panel_areas<DB: DrawingBackend>(
+    area: &Area<DB>,
+    caption: &str,
+) -> Result<(Area<DB>, Area<DB>), PlotError> {
+    let area = area.titled(caption, (FONT, CAPTION_FONT_PX)).map_err(draw_err)?;
+    let width = area.dim_in_pixel().0;
+    Ok(area.split_horizontally(width.saturating_sub(LEGEND_WIDTH_PX)))
+}
+
+/// Draws `points` in `style` with the series' dash.
+fn draw_line<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    points: Vec<(i32, i32)>,
+    style: ShapeStyle,
+    dash: Dash,
+) -> Result<(), PlotError> {
+    match dash {
+        Dash::Solid => area.draw(&PathElement::new(points, style)),
+        Dash::Dashed => area.draw(&DashedPathElement::new(points, DASH_PX.0, DASH_PX.1, style)),
+        Dash::Dotted => area.draw(&DashedPathElement::new(points, DOT_PX.0, DOT_PX.1, style)),
+    }
+    .map_err(draw_err)
+}
+
+/// The triangle on the axis edge where a line leaves it (pointing out), relative to the point
+/// on the edge, px.
+fn marker_shape(edge: Edge) -> Vec<(i32, i32)> {
+    let (w, h) = MARKER_PX;
+    let inward = match edge {
+        Edge::Above => h,
+        Edge::Below => -h,
+    };
+    vec![(0, 0), (-w, inward), (w, inward)]
+}
+
+/// The legend rows in the legend column; rows beyond its height are counted on the last row.
+fn draw_legend_column<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    entries: &[LegendEntry],
+) -> Result<(), PlotError> {
+    let capacity = legend_capacity(area.dim_in_pixel().1);
+    let shown = if entries.len() > capacity { capacity.saturating_sub(1) } else { entries.len() };
+    let text =
+        TextStyle::from((FONT, LABEL_FONT_PX).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    let x0 = MARGIN_PX as i32;
+    let y_of = |k: usize| (LEGEND_PAD_PX + LEGEND_ROW_PX * k as u32 + LEGEND_ROW_PX / 2) as i32;
+    for (k, entry) in entries.iter().take(shown).enumerate() {
+        let y = y_of(k);
+        let colour = entry.colour.map_or(BLACK, |c| COLOURS[c]);
+        if entry.marker {
+            for (dx, edge) in [(8, Edge::Above), (20, Edge::Below)] {
+                let dy = match edge {
+                    Edge::Above => -MARKER_PX.1 / 2,
+                    Edge::Below => MARKER_PX.1 / 2,
+                };
+                let tip = (x0 + dx, y + dy);
+                let shape = marker_shape(edge).into_iter().map(|(x, y)| (tip.0 + x, tip.1 + y));
+                area.draw(&Polygon::new(shape.collect::<Vec<_>>(), colour.filled()))
+                    .map_err(draw_err)?;
+            }
+        } else {
+            let line = vec![(x0, y), (x0 + LEGEND_SAMPLE_PX, y)];
+            draw_line(area, line, colour.stroke_width(LEGEND_LINE_PX), entry.dash)?;
+        }
+        area.draw(&Text::new(entry.label.clone(), (x0 + LEGEND_SAMPLE_PX + 8, y), text.clone()))
+            .map_err(draw_err)?;
+    }
+    if shown < entries.len() {
+        let more = format!("… {} more", entries.len() - shown);
+        area.draw(&Text::new(more, (x0, y_of(shown)), text)).map_err(draw_err)?;
+    }
+    Ok(())
+}
+
 fn draw_recording<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     rec: &Recording,
-) -> Result<(), PlotError> {
+) -> Result<Vec<PanelAxis>, PlotError> {
     root.fill(&WHITE).map_err(draw_err)?;
     let body = root.titled(&rec.file_name, (FONT, TITLE_FONT_PX)).map_err(draw_err)?;
     let time = padded_range(rec.t.iter().copied());
+    let mut axes = Vec::new();
     for (panel, area) in rec.panels.iter().zip(body.split_evenly((rec.panels.len(), 1))) {
-        let cols: Vec<&Column> = panel
-            .columns
-            .iter()
-            .filter_map(|n| rec.columns.iter().find(|c| &c.name == n))
-            .collect();
-        let y = padded_range(cols.iter().flat_map(|c| c.values.iter().flatten().copied()));
-        let mut chart = ChartBuilder::on(&area)
-            .caption(panel.title, (FONT, CAPTION_FONT_PX))
+        let values = panel_values(rec, panel);
+        let columns: Vec<&[Option<f64>]> = values.iter().map(Vec::as_slice).collect();
+        let axis = match panel.y_scale {
+            YScale::AllSamples => all_samples_axis(&columns),
+            YScale::Converged => converged_axis(&columns),
+        };
+        let clipped = axis.clipped_samples > 0;
+        let legend = legend_entries(panel, clipped);
+        let caption = if clipped {
+            format!(
+                "{} (y-axis: what the estimates converged to; {} earlier samples beyond it ▲▼)",
+                panel.title, axis.clipped_samples
+            )
+        } else {
+            panel.title.to_string()
+        };
+        let (chart_area, legend_area) = panel_areas(&area, &caption)?;
+        let range = axis.range.clone();
+        let mut chart = ChartBuilder::on(&chart_area)
             .margin(MARGIN_PX)
             .x_label_area_size(X_LABEL_AREA_PX)
             .y_label_area_size(Y_LABEL_AREA_PX)
-            .build_cartesian_2d(time.clone(), y)
+            .build_cartesian_2d(time.clone(), range.clone())
             .map_err(draw_err)?;
         chart
             .configure_mesh()
@@ -290,22 +722,36 @@ fn draw_recording<DB: DrawingBackend>(
             .label_style((FONT, LABEL_FONT_PX))
             .draw()
             .map_err(draw_err)?;
-        for (i, col) in cols.iter().enumerate() {
-            let colour = Palette99::pick(i).to_rgba();
-            chart
-                .draw_series(LineSeries::new(std::iter::empty(), colour))
-                .map_err(draw_err)?
-                .label(col.name.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new([(x, y), (x + 18, y)], colour.stroke_width(2))
-                });
-            for segment in segments(&rec.t, &col.values) {
-                chart.draw_series(LineSeries::new(segment, colour)).map_err(draw_err)?;
+        let plotting = chart.plotting_area().strip_coord_spec();
+        let (x_px, y_px) = chart.plotting_area().get_pixel_range();
+        let to_px = |(t, v): (f64, f64)| {
+            let p = chart.backend_coord(&(t, v.clamp(range.start, range.end)));
+            (p.0 - x_px.start, p.1 - y_px.start)
+        };
+        for (column, style) in columns.iter().zip(series_styles(panel)) {
+            let colour = COLOURS[style.colour];
+            for segment in segments(&rec.t, column) {
+                let points = segment.into_iter().map(to_px).collect();
+                draw_line(&plotting, points, colour.stroke_width(LINE_PX), style.dash)?;
+            }
+            for (t, edge) in clipped_runs(&rec.t, column, &range) {
+                let tip = to_px((t, if edge == Edge::Above { range.end } else { range.start }));
+                let shape = marker_shape(edge).into_iter().map(|(x, y)| (tip.0 + x, tip.1 + y));
+                plotting
+                    .draw(&Polygon::new(shape.collect::<Vec<_>>(), colour.filled()))
+                    .map_err(draw_err)?;
             }
         }
-        draw_legend(&mut chart)?;
+        draw_legend_column(&legend_area, &legend)?;
+        axes.push(PanelAxis {
+            title: panel.title.to_string(),
+            y_range: axis.range,
+            clipped_samples: axis.clipped_samples,
+            legend_entries: legend.len(),
+        });
     }
-    root.present().map_err(draw_err)
+    root.present().map_err(draw_err)?;
+    Ok(axes)
 }
 
 /// Reads the recording at `csv_path` and draws its panels to `out` (`.png` or `.svg`).
@@ -325,12 +771,12 @@ pub fn plot_recording(csv_path: &Path, out: &Path) -> Result<PlotSummary, PlotEr
     }
     ensure_font()?;
     let size = (RECORDING_WIDTH_PX, TITLE_HEIGHT_PX + PANEL_HEIGHT_PX * rec.panels.len() as u32);
-    match format {
+    let axes = match format {
         Format::Png => draw_recording(&BitMapBackend::new(out, size).into_drawing_area(), &rec)?,
         Format::Svg => draw_recording(&SVGBackend::new(out, size).into_drawing_area(), &rec)?,
-    }
+    };
     let panels = rec.panels.iter().map(|p| p.title.to_string()).collect();
-    Ok(PlotSummary { panels, samples: rec.t.len(), size_px: size })
+    Ok(PlotSummary { panels, axes, samples: rec.t.len(), size_px: size })
 }
 
 /// The 95 % ellipsoid of an IMU-offset fit, from the JSON `fit imu-offset --json` prints
@@ -560,6 +1006,159 @@ mod tests {
         assert!(rec.columns.iter().all(|c| c.name != "note"), "unknown columns are dropped");
     }
 
+    /// An estimate that starts with transients of −200 and +2,500 and settles within ±50: the
+    /// axis is what it settled to (with its margin), the transients are counted and marked.
+    #[test]
+    fn a_convergence_axis_fits_what_converged_and_marks_the_transients() {
+        let n = 1000;
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.01).collect();
+        // Two estimates: a transient in the first 5 % of the samples, then steady values with a
+        // small wobble (±1) at −50 and +48.
+        let settle = |start: f64, end: f64| -> Vec<Option<f64>> {
+            (0..n)
+                .map(|i| {
+                    let wobble = (i as f64 * 0.7).sin();
+                    Some(match i {
+                        0..=19 => start,
+                        20..=49 => start * 0.2 + end * 0.8,
+                        _ => end + wobble,
+                    })
+                })
+                .collect()
+        };
+        let a = settle(-200.0, -50.0);
+        let b = settle(2500.0, 48.0);
+        let axis = converged_axis(&[&a, &b]);
+        let (lo, hi) = (axis.range.start, axis.range.end);
+        assert!(lo <= -51.0 && hi >= 49.0, "every converged value is on the axis: {lo}..{hi}");
+        assert!(lo > -80.0 && hi < 80.0, "the transients do not widen the axis: {lo}..{hi}");
+        let beyond =
+            [&a, &b].iter().flat_map(|c| c.iter().flatten()).filter(|&&v| v < lo || v > hi).count();
+        assert_eq!(axis.clipped_samples, beyond);
+        assert_eq!(axis.clipped_samples, 20 + 30 + 20 + 30, "the transients, none of the rest");
+        // Each excursion is marked once, on its own edge, where it starts.
+        assert_eq!(clipped_runs(&t, &a, &axis.range), [(0.0, Edge::Below)]);
+        assert_eq!(clipped_runs(&t, &b, &axis.range), [(0.0, Edge::Above)]);
+        // The whole range would have spent 98 % of the height on the transients.
+        let all = all_samples_axis(&[&a, &b]);
+        assert!((hi - lo) / (all.range.end - all.range.start) < 0.06);
+    }
+
+    #[test]
+    fn without_a_transient_a_convergence_axis_shows_every_sample() {
+        // A gentle settling (overshoot within twice the converged spread) is not worth clipping.
+        let a: Vec<Option<f64>> = (0..100).map(|i| Some(10.0 + 10.0 / (1.0 + i as f64))).collect();
+        let b: Vec<Option<f64>> = (0..100).map(|_| Some(-10.0)).collect();
+        let axis = converged_axis(&[&a, &b]);
+        assert_eq!(axis, all_samples_axis(&[&a, &b]));
+        assert_eq!(axis.clipped_samples, 0);
+        // Columns with no samples at all get the default axis, not a panic.
+        let empty: Vec<Option<f64>> = vec![None; 10];
+        assert_eq!(converged_axis(&[&empty]).range, -1.0..1.0);
+        // A missing sample ends a run of clipped samples: two runs, two markers.
+        let t = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
+        let v = [Some(9.0), None, Some(9.0), Some(0.0), Some(-9.0), Some(-9.0)];
+        assert_eq!(
+            clipped_runs(&t, &v, &(-1.0..1.0)),
+            [(0.0, Edge::Above), (2.0, Edge::Above), (4.0, Edge::Below)]
+        );
+    }
+
+    #[test]
+    fn angles_are_unwrapped_across_plus_minus_180_degrees() {
+        let deg = |v: &[f64]| v.iter().map(|&x| Some(x)).collect::<Vec<_>>();
+        // Through +180° and on, back through it, and through −180° the other way.
+        let up = unwrap_deg(&deg(&[170.0, 179.0, -179.0, -170.0, 179.5]));
+        assert_eq!(up, deg(&[170.0, 179.0, 181.0, 190.0, 179.5]));
+        let down = unwrap_deg(&deg(&[-175.0, 178.0, 100.0]));
+        assert_eq!(down, deg(&[-175.0, -182.0, -260.0]));
+        // A gap does not restart the unwrap; the first sample is kept as it is.
+        let gap = unwrap_deg(&[None, Some(-170.0), None, Some(175.0)]);
+        assert_eq!(gap, [None, Some(-170.0), None, Some(-185.0)]);
+        // Three turns of yaw at 10° per sample, wrapped into ±180°: a straight line to 1,080°.
+        let wrapped: Vec<Option<f64>> = (0..=108)
+            .map(|i| {
+                let a = (10.0 * i as f64 + 180.0).rem_euclid(360.0) - 180.0;
+                Some(a)
+            })
+            .collect();
+        let unwrapped = unwrap_deg(&wrapped);
+        for (i, v) in unwrapped.iter().enumerate() {
+            let v = v.unwrap();
+            assert!((v - 10.0 * i as f64).abs() < 1e-9, "sample {i}: {v}°");
+            // The same angle as the one recorded, a whole number of turns away.
+            let turns = (v - wrapped[i].unwrap()) / 360.0;
+            assert!((turns - turns.round()).abs() < 1e-12);
+        }
+    }
+
+    /// An octorotor's G1 columns (8 motors × 3 rows) colour by motor and dash by row, and the
+    /// legend has a row per motor and per G1 row, which fits beside the panel at the default size.
+    #[test]
+    fn an_octorotor_legend_is_grouped_by_motor_and_row_and_fits() {
+        let mut header = vec!["t".to_string()];
+        for row in ["fx", "fy", "fz", "p", "q", "r"] {
+            header.extend((0..8).map(|m| format!("g1_{row}_{m}")));
+        }
+        header.extend((0..8).map(|m| format!("cmd_{m}")));
+        header.extend(["gyro_x", "gyro_y", "gyro_z"].map(String::from));
+        let panels = choose_panels(&header);
+        let force = panels.iter().find(|p| p.title == "G1 convergence: specific force").unwrap();
+        assert_eq!(force.columns.len(), 24);
+        let styles = series_styles(force);
+        let of = |name: &str| styles[force.columns.iter().position(|c| c == name).unwrap()];
+        assert_eq!(of("g1_fx_3"), SeriesStyle { colour: 3, dash: Dash::Solid });
+        assert_eq!(of("g1_fy_3"), SeriesStyle { colour: 3, dash: Dash::Dashed });
+        assert_eq!(of("g1_fz_7"), SeriesStyle { colour: 7, dash: Dash::Dotted });
+        // A motor has the same colour in every panel.
+        let command = panels.iter().find(|p| p.title == "motor command").unwrap();
+        assert_eq!(series_styles(command)[3], SeriesStyle { colour: 3, dash: Dash::Solid });
+
+        let legend = legend_entries(force, true);
+        assert_eq!(legend.len(), 8 + 3 + 1, "{legend:?}");
+        assert_eq!(legend[0].label, "motor 1 (…_0)");
+        assert_eq!(legend[7].colour, Some(7));
+        assert_eq!((legend[9].label.as_str(), legend[9].dash), ("g1_fy_…", Dash::Dashed));
+        assert!(legend[11].marker);
+        assert_eq!(legend_entries(command, false).len(), 8, "no row entries with one row");
+        let gyro = panels.iter().find(|p| p.title == "angular rate").unwrap();
+        let labels: Vec<_> = legend_entries(gyro, false).into_iter().map(|e| e.label).collect();
+        assert_eq!(labels, ["gyro_x", "gyro_y", "gyro_z"]);
+
+        // The legend column of a default-size panel, laid out as drawn, holds all 12 rows.
+        let mut sink = String::new();
+        let area = SVGBackend::with_string(&mut sink, (RECORDING_WIDTH_PX, PANEL_HEIGHT_PX))
+            .into_drawing_area();
+        ensure_font().unwrap();
+        let caption =
+            "G1 convergence: specific force (y-axis: … 5600 earlier samples beyond it ▲▼)";
+        let (chart, legend_area) = panel_areas(&area, caption).unwrap();
+        assert_eq!(legend_area.dim_in_pixel().0, LEGEND_WIDTH_PX);
+        assert!(chart.dim_in_pixel().0 >= RECORDING_WIDTH_PX - LEGEND_WIDTH_PX);
+        let capacity = legend_capacity(legend_area.dim_in_pixel().1);
+        assert!(capacity >= legend.len(), "{capacity} rows fit, {} needed", legend.len());
+    }
+
+    #[test]
+    fn the_attitude_panel_unwraps_and_the_g1_panels_scale_to_convergence() {
+        let header: Vec<String> =
+            ["t", "roll_deg", "gyro_x", "g1_p_0"].iter().map(|s| s.to_string()).collect();
+        let panels = choose_panels(&header);
+        let scales: Vec<_> = panels.iter().map(|p| (p.title, p.y_scale, p.unwrap_deg)).collect();
+        assert_eq!(
+            scales,
+            [
+                ("angular rate", YScale::AllSamples, false),
+                ("attitude", YScale::AllSamples, true),
+                ("G1 convergence: angular acceleration", YScale::Converged, false),
+            ]
+        );
+        for panel in &panels {
+            let unit = panel.y_label.split_once('[').map(|(_, u)| u.trim_end_matches(']'));
+            assert!(unit.is_some_and(|u| !u.is_empty()), "no unit in `{}`", panel.y_label);
+        }
+    }
+
     #[test]
     fn a_gap_splits_the_line() {
         let t = [0.0, 1.0, 2.0, 3.0];
@@ -608,6 +1207,7 @@ mod tests {
             "motor speed",
             "G1 convergence",
             "gyro_z",
+            "motor 1 (…_0)",
         ] {
             assert!(svg.contains(title), "missing {title}");
         }

@@ -117,6 +117,31 @@ fn a_missing_port_is_a_clear_error_with_exit_code_1() {
     assert!(output.stdout.is_empty());
 }
 
+/// A malformed `--tcp` address is bad input like any other (exit 2, clap's message naming the
+/// flag, the value and the expected form), before anything is opened; a well-formed address
+/// where nothing listens is a board that cannot be reached (exit 1).
+#[test]
+fn a_bad_tcp_address_exits_2_naming_the_expected_form() {
+    for bad in ["notanaddress", "127.0.0.1", "127.0.0.1:99999", "::1:5760"] {
+        let output = run_cli(&["--tcp", bad, "status"]);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{bad}: {stderr}");
+        assert!(
+            stderr.contains(&format!("invalid value '{bad}' for '--tcp <HOST:PORT>'")),
+            "{stderr}"
+        );
+        assert!(stderr.contains("e.g. 127.0.0.1:5760"), "{stderr}");
+        assert!(output.stdout.is_empty());
+    }
+    // A loopback port just freed: well-formed, and nothing listens there.
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let closed = listener.local_addr().unwrap().to_string();
+    drop(listener);
+    let output = run_cli(&["--tcp", &closed, "status"]);
+    assert_eq!(output.status.code(), Some(1), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(String::from_utf8_lossy(&output.stderr).contains(&format!("cannot open {closed}")));
+}
+
 #[test]
 fn an_out_of_range_stream_rate_is_refused_before_connecting() {
     let output = run_cli(&["--port", "/dev/does-not-exist", "stream", "--rate-hz", "5000"]);

@@ -317,6 +317,78 @@ fn identify_learns_the_motors_and_the_thrust_axis_flies_and_stores_the_model() {
     assert!(diff.contains("set thrust_axis_q") && diff.contains("set g1_fz"), "{diff}");
 }
 
+/// `plot` of a real recording: an octorotor's throw-and-fly from the SITL (8 motors, so 24 G1
+/// columns a panel). The G1 panels' axes fit what the learner converged to, not its first
+/// transients; their legends are one row per motor and per G1 row; the attitude, which this
+/// airframe's upside-down IMU records wrapping at ±180°, is drawn continuous.
+#[test]
+fn plot_of_an_octorotor_throw_and_fly_is_readable() {
+    let flash = flash_file("plot");
+    let config = SitlConfig {
+        airframe: "octo-flat".into(),
+        hand_throws_to_fly: true,
+        ..SitlConfig::default()
+    };
+    let (_sitl, port) = start(&flash, config);
+    let csv = flash.with_extension("csv");
+    let csv_arg = csv.to_str().unwrap();
+    let args = ["identify", "--yes", "--timeout-s", "20", "--disarm-after-s", "2"];
+    ok(&port, &[&args[..], &["--record", csv_arg]].concat());
+    let png = flash.with_extension("png");
+    let report: Value =
+        serde_json::from_str(&ok(&port, &["--json", "plot", csv_arg, "-o", png.to_str().unwrap()]))
+            .unwrap();
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let rec = configurator_cli::plot::parse_recording(&text, "octo.csv").unwrap();
+    let column = |name: &str| &rec.columns.iter().find(|c| c.name == name).unwrap().values;
+    let axis = |panel: &str| {
+        let axes = report["axes"].as_array().unwrap();
+        let a = axes.iter().find(|a| a["panel"] == panel).unwrap_or_else(|| panic!("{report}"));
+        (a["y_min"].as_f64().unwrap(), a["y_max"].as_f64().unwrap(), a.clone())
+    };
+    for (panel, rows) in [
+        ("G1 convergence: specific force", ["fx", "fy", "fz"]),
+        ("G1 convergence: angular acceleration", ["p", "q", "r"]),
+    ] {
+        let (lo, hi, a) = axis(panel);
+        // What the learner ended with: every value on the axis, and spread over a good part of
+        // it (a transient-scaled axis squashes them into 4 to 12 % of the height here).
+        let last: Vec<f64> = rows
+            .iter()
+            .flat_map(|row| (0..8).map(move |m| format!("g1_{row}_{m}")))
+            .map(|name| column(&name).iter().rev().find_map(|v| *v).unwrap())
+            .collect();
+        let (min, max) = last.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        assert!(lo < min && max < hi, "{panel}: learned {min}..{max} beyond the axis {lo}..{hi}");
+        let share = (max - min) / (hi - lo);
+        assert!(share > 0.4, "{panel}: the learned values use {:.0} % of the axis", share * 100.0);
+        // 8 motors + 3 line styles (+ the marker of clipped samples), not 24 columns.
+        let clipped = a["clipped_samples"].as_u64().unwrap() > 0;
+        assert_eq!(a["legend_entries"], 8 + 3 + u64::from(clipped), "{a}");
+    }
+    // The recorded roll and yaw wrap at ±180° (jumps of nearly 360° between two rows); drawn
+    // unwrapped, no step between two rows exceeds 10°, and the axis runs past 180°.
+    let wrapped = |name: &str| {
+        let v: Vec<f64> = column(name).iter().flatten().copied().collect();
+        v.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max)
+    };
+    assert!(wrapped("roll_deg") > 300.0, "the flight wraps the roll: the premise of this check");
+    for name in ["roll_deg", "pitch_deg", "yaw_deg"] {
+        let drawn = configurator_cli::plot::unwrap_deg(column(name));
+        let steps = drawn.windows(2).filter_map(|w| Some((w[1]? - w[0]?).abs()));
+        let largest = steps.fold(0.0, f64::max);
+        assert!(largest < 10.0, "{name}: a step of {largest:.1}° between two rows");
+    }
+    let (lo, hi, _) = axis("attitude");
+    assert!(lo < -180.0 || hi > 180.0, "attitude axis {lo}..{hi}: not unwrapped");
+    for path in [csv, png] {
+        let _ = std::fs::remove_file(path);
+    }
+}
+
 #[test]
 fn the_shell_reconnects_by_itself_after_a_reboot_and_finds_the_saved_value() {
     use std::io::Write as _;

@@ -12,6 +12,7 @@
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -73,9 +74,10 @@ enum Command {
     },
     /// Serve the lockstep UDP bridge for an external simulator (see docs/sim-bridge.md).
     Bridge {
-        /// Address to listen on for sensor packets.
-        #[arg(long, default_value = "127.0.0.1:9003")]
-        listen: String,
+        /// Address to listen on for sensor packets: IP:PORT (a local interface's address).
+        #[arg(long, default_value = "127.0.0.1:9003", value_name = "IP:PORT",
+              value_parser = parse_listen_address)]
+        listen: SocketAddr,
         /// Stop after this many seconds without a packet (0.01 to 86400).
         #[arg(long, default_value_t = 10.0, value_parser = parse_idle_timeout_s)]
         idle_timeout_s: f64,
@@ -136,6 +138,15 @@ fn parse_idle_timeout_s(text: &str) -> Result<f64, String> {
         return Err(format!("{text} s is out of range: allowed [0.01, 86400] s"));
     }
     Ok(s)
+}
+
+/// The bridge's `--listen` address: an IP literal and a port (a name would need resolving to
+/// know which interface to bind; a bad one is a usage error, exit 2).
+fn parse_listen_address(text: &str) -> Result<SocketAddr, String> {
+    text.parse().map_err(|_| {
+        "expected IP:PORT, an address of this machine and a port (e.g. 127.0.0.1:9003, [::1]:9003)"
+            .to_string()
+    })
 }
 
 fn load_airframe(spec: &str) -> Result<Airframe> {
@@ -280,8 +291,8 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Bridge { listen, idle_timeout_s, throw_to_fly, imu_offset_mm, tcp_port } => {
-            let mut server = BridgeServer::bind(&listen)
-                .with_context(|| format!("cannot listen on {listen}"))?;
+            let mut server =
+                BridgeServer::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
             let udp = server.local_addr()?;
             eprintln!("bridge listening on {udp} (sensor packets in, motor packets back)");
             // The motor count comes with the packets: 0 in the info until the first one.
@@ -326,5 +337,29 @@ fn run(cli: Cli) -> Result<()> {
                 Ok(())
             })
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::error::ErrorKind;
+
+    /// A bad `--listen` address is clap's usage error (exit code 2, the value and the expected
+    /// form named), refused before any socket is opened; a good one is taken as given.
+    #[test]
+    fn a_bad_listen_address_is_a_usage_error_with_exit_code_2() {
+        for bad in ["notanaddress", "127.0.0.1", "localhost:9003", "127.0.0.1:99999"] {
+            let error = Cli::try_parse_from(["scenario", "bridge", "--listen", bad])
+                .err()
+                .unwrap_or_else(|| panic!("`{bad}` was accepted"));
+            assert_eq!(error.kind(), ErrorKind::ValueValidation, "{bad}");
+            assert_eq!(error.exit_code(), 2, "{bad}");
+            let message = error.to_string();
+            assert!(message.contains(bad) && message.contains("expected IP:PORT"), "{message}");
+        }
+        let cli = Cli::try_parse_from(["scenario", "bridge", "--listen", "[::1]:9004"]).unwrap();
+        let Command::Bridge { listen, .. } = cli.command else { panic!("not the bridge") };
+        assert_eq!(listen, "[::1]:9004".parse::<SocketAddr>().unwrap());
     }
 }
