@@ -4,8 +4,8 @@
 //! angular acceleration, whatever the motors and gravity do (it supplies the difference, as a
 //! firm hand would). Because the prescription enters the dynamics' derivative, RK4 integrates
 //! it like any other motion, and the accelerometer sees exactly the specific force of that
-//! motion — so the firmware's throw detector sees a real throw (algorithms.md §1: |a| > 20 m/s²
-//! with a momentum above 4 m/s).
+//! motion — so the firmware's throw detector sees a real throw (docs/algorithms/throw.md:
+//! |a| > 20 m/s² with a momentum above 4 m/s).
 //!
 //! Phases:
 //! - **Holding**: velocity and body rate are zero.
