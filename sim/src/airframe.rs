@@ -15,6 +15,7 @@
 //! with its rotated IMU, a 5-inch racing quad, a 3-inch quad, a flat hexarotor, a fully actuated
 //! hexarotor with ±30° tilted rotors and an octorotor.
 
+use firmware::app::CONTROL_RATE_HZ;
 use nalgebra::{DMatrix, DVector, Matrix3, Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -583,14 +584,13 @@ impl Airframe {
             });
         }
         c.range("imu.sample_rate_hz", imu.sample_rate_hz, 2000.0, 32_000.0, false, "Hz")?;
-        let ratio = imu.sample_rate_hz / crate::board::CONTROL_RATE_HZ;
+        let ratio = imu.sample_rate_hz / f64::from(CONTROL_RATE_HZ);
         if (ratio - ratio.round()).abs() > 1e-9 {
             return Err(AirframeError::Invalid {
                 field: "imu.sample_rate_hz".into(),
                 reason: format!(
                     "{} Hz is not a whole multiple of the {} Hz control rate",
-                    imu.sample_rate_hz,
-                    crate::board::CONTROL_RATE_HZ
+                    imu.sample_rate_hz, CONTROL_RATE_HZ
                 ),
             });
         }
