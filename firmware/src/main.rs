@@ -2,7 +2,8 @@
 //! [`firmware::app`] on the board.
 //!
 //! It is deliberately thin (in the manner of stabilizer's `dual-iir.rs`): it sets up clocks and
-//! peripherals through [`firmware::board`], then gives each part of DESIGN.md's data flow a task:
+//! peripherals through [`firmware::board`], then gives each part of the data flow a task
+//! (docs/architecture.md):
 //!
 //! | task | bound to | priority | what |
 //! |---|---|---|---|

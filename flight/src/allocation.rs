@@ -1,5 +1,5 @@
 //! Control allocation: weighted least squares with bounds, solved by a warm-started primal
-//! active-set method with a bounded number of iterations per call (algorithms.md §6).
+//! active-set method with a bounded number of iterations per call (docs/algorithms/indi.md).
 //!
 //! ```text
 //! minimise ‖W_v (G du − dv)‖² + γ² ‖W_u (du − du_pref)‖²   subject to  du_min ≤ du ≤ du_max
@@ -114,7 +114,8 @@ const SIGN_BIT: u32 = 1 << 31;
 /// `k..=k + 6` by then (`householder_qr`), whatever the motor count.
 const REFLECTION_ROWS: usize = VIRTUAL_CONTROLS + 1;
 
-/// Published weights of the virtual controls fx, fy, fz, roll, pitch, yaw (algorithms.md §6):
+/// Published weights of the virtual controls fx, fy, fz, roll, pitch, yaw
+/// (docs/algorithms/indi.md):
 /// thrust and tilt 50, yaw 5, horizontal force 1 (the caller zeroes its demand there anyway).
 pub const DEFAULT_WV: [f32; VIRTUAL_CONTROLS] = [1.0, 1.0, 50.0, 50.0, 50.0, 5.0];
 

@@ -1,5 +1,6 @@
 //! Attitude of the body in the world: a complementary (Mahony-type) filter on gyro and
-//! accelerometer, with an external heading when one is given (algorithms.md §9).
+//! accelerometer, with an external heading when one is given
+//! (docs/algorithms/indi.md).
 //!
 //! ```text
 //! ω̂   = gyro − b                                         (b: gyro-bias estimate, body axes)
@@ -25,7 +26,7 @@
 //! The filter estimates `q_world_body`: the attitude of whatever frame the gyro and accelerometer
 //! are expressed in (pass them in thrust-frame axes to estimate the thrust frame). The
 //! accelerometer passed in must already be moved to the centre of gravity where that matters
-//! (`f_cog = f_imu − Ω̇×r − Ω×(Ω×r)`, algorithms.md §9; the caller knows the offset).
+//! (`f_cog = f_imu − Ω̇×r − Ω×(Ω×r)`, docs/algorithms/imu-offset.md; the caller knows the offset).
 //!
 //! Bad input (a non-finite sample or heading, a non-positive time step) changes nothing and is
 //! reported as an [`AttitudeError`]; nothing here panics.
@@ -39,7 +40,7 @@ use crate::navigation::STANDARD_GRAVITY_MPS2;
 pub use crate::thrust_axis::EulerZyx;
 
 /// Band of |f| around g within which the accelerometer corrects the tilt, fraction of g
-/// (±20 %, algorithms.md §9, published).
+/// (±20 %, published; docs/algorithms/indi.md).
 pub const ACCEL_TRUST_BAND: f32 = 0.2;
 
 /// Largest tilt error (sine of the angle) the gyro-bias integral learns from: 10° (ours). Above

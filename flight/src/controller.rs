@@ -10,10 +10,10 @@
 //!
 //! Everything is expressed in the **thrust frame** T found by the thrust-axis solver: its −z is
 //! the direction in which the motors push most efficiently, so "level" means that axis up, and
-//! the IMU can sit in any orientation (algorithms.md §6–8, seed paper §3.4).
+//! the IMU can sit in any orientation (docs/algorithms/indi.md, seed paper §3.4).
 //!
-//! - **Attitude** (§7): the error between the thrust frame and its setpoint is split into tilt
-//!   (the shortest rotation of the current thrust axis onto the wanted one) and yaw about the
+//! - **Attitude** (published): the error between the thrust frame and its setpoint is split into
+//!   tilt (the shortest rotation of the current thrust axis onto the wanted one) and yaw about the
 //!   thrust axis; each becomes a rate setpoint through the attitude gain, tilt limited to
 //!   [`MAX_TILT_RATE_RAD_S`] and yaw to [`MAX_YAW_RATE_RAD_S`], so a craft tumbling after the
 //!   excitation first stops its rotation and then levels.
@@ -33,7 +33,7 @@
 //!   projected with a floor of 20 % of the magnitude, 21 hit the ground; floors of 50 % and
 //!   80 %, 16 and 12; the full magnitude, 4; the projection only beyond 30°, 10; more than the
 //!   magnitude (1/cos of the tilt up to 60°), 13.
-//! - **Gains** from the slowest motor's τ ([`crate::position::Gains`], §7).
+//! - **Gains** from the slowest motor's τ ([`crate::position::Gains`], published).
 //!
 //! A plain struct with [`Controller::update`]; the application decides when it runs and what
 //! happens when it reports trouble.
@@ -46,10 +46,12 @@ use crate::learner::LearnedModel;
 use crate::navigation::{NavigationState, STANDARD_GRAVITY_MPS2};
 use crate::position::{Gains, PositionController, PositionSetpoint};
 
-/// Largest tilt rate the attitude loop asks for, rad/s (800 °/s, algorithms.md §7).
+/// Largest tilt rate the attitude loop asks for, rad/s (800 °/s, published;
+/// docs/algorithms/indi.md).
 pub const MAX_TILT_RATE_RAD_S: f32 = 800.0 * core::f32::consts::PI / 180.0;
 
-/// Largest yaw rate the attitude loop asks for, rad/s (400 °/s, algorithms.md §7).
+/// Largest yaw rate the attitude loop asks for, rad/s (400 °/s, published;
+/// docs/algorithms/indi.md).
 pub const MAX_YAW_RATE_RAD_S: f32 = 400.0 * core::f32::consts::PI / 180.0;
 
 /// Tilt beyond which the yaw error is ignored, rad (90°): the heading of a craft on its side is

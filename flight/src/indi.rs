@@ -4,7 +4,7 @@
 //! angular acceleration and specific force it measures already contain every unmodelled moment
 //! and force, so it asks the motors only for the *increment* that turns the measured `ν₀` into
 //! the wanted `ν_ref`. What the learner identified is exactly what this needs
-//! (algorithms.md §6, seed paper §3.4):
+//! (docs/algorithms/indi.md, seed paper §3.4):
 //!
 //! ```text
 //! ν = [f; Ω̇]  (thrust frame)            specific force at the CoG, angular acceleration
@@ -54,7 +54,7 @@ use crate::learner::motor_model::MotorModel;
 use crate::learner::{LearnedModel, MAX_MOTORS, MIN_MOTORS};
 use crate::math::clamp;
 
-/// Cut-off of the synchronising low-pass on Ω, f and u₀, Hz (algorithms.md §6, published).
+/// Cut-off of the synchronising low-pass on Ω, f and u₀, Hz (published; docs/algorithms/indi.md).
 pub const SYNC_CUTOFF_HZ: f32 = 15.0;
 
 /// Floor of the motor speed in the G2 term, fraction of ω_full: `ω_full²/(2τω₀)` grows without
@@ -66,10 +66,10 @@ pub const SYNC_CUTOFF_HZ: f32 = 15.0;
 pub const OMEGA_FLOOR_FRACTION: f32 = 0.3;
 
 /// Largest usable motor time constant, s: a motor slower than this is not a propeller motor
-/// (the excitation clamps τ to 55 ms; 0.2 s is the gain schedule's clamp, algorithms.md §7).
+/// (the excitation clamps τ to 55 ms; 0.2 s is the gains' clamp, docs/algorithms/indi.md).
 pub const MAX_TAU_S: f32 = 0.2;
 
-/// Smallest usable motor time constant, s (the gain schedule's clamp, algorithms.md §7).
+/// Smallest usable motor time constant, s (the gain schedule's clamp, docs/algorithms/indi.md).
 pub const MIN_TAU_S: f32 = 0.01;
 
 /// The learned actuators as INDI uses them: thrust-frame effectiveness per unit thrust and the

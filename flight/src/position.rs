@@ -1,4 +1,4 @@
-//! Gains from the motors' time constant (algorithms.md §7) and NDI position control (§8): the
+//! Gains from the motors' time constant and NDI position control (docs/algorithms/indi.md): the
 //! specific force the attitude loop ([`crate::controller`]) is asked to produce.
 //!
 //! **Gains.** The slowest motor's time constant τ limits how fast anything can be controlled, so
@@ -14,7 +14,7 @@
 //! k_position = k_velocity / (4 ζ_position²)  position around velocity,        ζ_position = 0.9
 //! ```
 //!
-//! (τ clamped to 0.01–0.2 s; ζ, the clamp and the rate limits are published, §7.) Each ζ is the
+//! (τ clamped to 0.01–0.2 s; ζ, the clamp and the rate limits are published.) Each ζ is the
 //! damping of *that* loop closed around the one inside it: the velocity loop, for example, is a
 //! second-order system of damping 0.7 behind the attitude loop's lag, and its step response
 //! overshoots by `exp(−πζ/√(1−ζ²))` = 4.6 %.
@@ -47,26 +47,26 @@ use nalgebra::Vector3;
 use crate::math::clamp;
 use crate::navigation::STANDARD_GRAVITY_MPS2;
 
-/// Damping of the rate loop around the motors' lag τ (published, §7): `k_rate = 1/(4ζ²τ)`.
+/// Damping of the rate loop around the motors' lag τ (published): `k_rate = 1/(4ζ²τ)`.
 pub const ZETA_RATE: f32 = 0.9;
-/// Damping of the attitude loop around the rate loop (published, §7).
+/// Damping of the attitude loop around the rate loop (published).
 pub const ZETA_ATTITUDE: f32 = 0.8;
-/// Damping of the velocity loop around the attitude loop (published, §7).
+/// Damping of the velocity loop around the attitude loop (published).
 pub const ZETA_VELOCITY: f32 = 0.7;
-/// Damping of the position loop around the velocity loop (published, §7).
+/// Damping of the position loop around the velocity loop (published).
 pub const ZETA_POSITION: f32 = 0.9;
 /// Range τ is clamped to before the gains are made, s (published: 0.01–0.2 s).
 pub const TAU_RANGE_S: (f32, f32) = (0.01, 0.2);
 
-/// Largest horizontal velocity setpoint (norm of the north and east parts), m/s (published, §8).
+/// Largest horizontal velocity setpoint (norm of the north and east parts), m/s (published).
 pub const MAX_SPEED_MPS: f32 = 2.5;
 /// Largest vertical velocity setpoint (up or down), m/s. Ours: the published 2.5 m/s applied to
-/// the vertical too (the published limit is not split by direction in algorithms.md).
+/// the vertical too (the published limit is not split by direction).
 pub const MAX_VERTICAL_SPEED_MPS: f32 = 2.5;
 /// Largest acceleration setpoint, m/s², on the horizontal norm and on the vertical separately
-/// (published, §8).
+/// (published).
 pub const MAX_ACCEL_MPS2: f32 = 5.0;
-/// Largest tilt of the wanted specific force from vertical, rad (30°, published, §8).
+/// Largest tilt of the wanted specific force from vertical, rad (30°, published).
 pub const MAX_TILT_RAD: f32 = 30.0 * core::f32::consts::PI / 180.0;
 
 /// The velocity integral's zero as a fraction of the position loop's gain (ours):

@@ -15,7 +15,7 @@
 //!    with `G̃ = G W^{-1/2}` and bounds `W^{1/2} u_min ≤ ũ ≤ W^{1/2} u_max`. Everything below
 //!    works on the scaled problem.
 //! 2. **Null space of G1τ.** Column-pivoting Householder QR of `G̃1τᵀ` (`m × 3`) with the full
-//!    `Q` in product form ([`householder`]); the rank test on `R`'s diagonal rejects airframes
+//!    `Q` in product form (`householder`); the rank test on `R`'s diagonal rejects airframes
 //!    whose torque map is rank-deficient. `N = Q[:, 3..m]`.
 //! 3. **Dominant eigen-pair.** The paper iterates on `A = (G̃1f N)ᵀ(G̃1f N)` (`(m−3)²`). We use
 //!    `B = G̃1f N` (`3 × (m−3)`, read straight off `Qᵀ G̃1fᵀ`) and iterate on `C = B Bᵀ`, which is
@@ -32,15 +32,15 @@
 //!    `‖G1f u‖ = g` exact for any `w`), `ũ = ±Q [0; η]`, with the sign that keeps `u` within the
 //!    bounds (both fit: the one with positive command sum, as in the published code).
 //! 5. **Bounded optimum.** When neither sign fits, the heuristic's answer is not the solution of
-//!    problem (6); [`bounded`] then searches every active set of clamped motors for the true
+//!    problem (6); `bounded` then searches every active set of clamped motors for the true
 //!    bounded optimum, and the result is flagged `bounded = true`.
 //! 6. **Attitude.** `d = G1f u*`; `q_thrust_to_imu` is the shortest arc taking `(0, 0, −1)` to
-//!    `d/|d|` ([`rotation`]).
+//!    `d/|d|` (`rotation`).
 //!
 //! Everything is `f32`, fixed-size (`[_; MOTORS_MAX]` plus a count) and allocation-free. The
 //! solve dispatches once on the motor count to a const-generic body, compiled for the quad and
 //! for `MOTORS_MAX` (5 to 7 motors on zero-filled columns, exactly), so every loop has a fixed
-//! trip count; square roots use FPU multiplies only ([`sqrt`]). Cost on the Cortex-M7 (QEMU,
+//! trip count; square roots use FPU multiplies only (`math::sqrt`). Cost on the Cortex-M7 (QEMU,
 //! `cargo xtask bench-m7`): about 900 instructions at m = 4 and 1,850–2,000 at 5 to 8 motors
 //! (heuristic path); see `docs/benchmarks.md`.
 
@@ -380,7 +380,7 @@ impl HoverProblem {
     }
 }
 
-/// Whether the bounded search of [`bounded`] is compiled in (cargo feature `bounded-search`, on
+/// Whether the bounded search (`bounded`) is compiled in (cargo feature `bounded-search`, on
 /// by default). Without it [`SolverConfig::bounded_search`] has no effect: a heuristic `u*`
 /// outside the bounds gives [`ThrustAxisError::NoHoverWithinBounds`]. The firmware builds
 /// without it: its learner never runs the search (`bounded_search: false`, the 2 kHz deadline),
@@ -517,7 +517,7 @@ impl ThrustAxisSolver {
 
     /// Solve problem (6) for `problem`. Bounded time: one 3-column QR, at most
     /// `max_squarings` 3 × 3 squarings, and (only when the heuristic's `u*` leaves the bounds
-    /// and `bounded_search` is on) the active-set search of [`bounded`].
+    /// and `bounded_search` is on) the active-set search of the `bounded` module.
     pub fn solve(&mut self, problem: &HoverProblem) -> Result<HoverSolution, ThrustAxisError> {
         // Two compiled sizes, so that every loop below has a fixed trip count: the quad (its
         // one-dimensional null space has a closed form) and `MOTORS_MAX`, which also solves 5 to

@@ -776,7 +776,7 @@ impl ImuHeldCounters {
 /// A motor whose speed report is older than this counts as not reporting, ms (protocol 1.6).
 pub const SPEED_REPORT_TIMEOUT_MS: u16 = 100;
 
-/// Where the throw-to-fly identification stands (algorithms.md §1–2).
+/// Where the throw-to-fly identification stands (docs/algorithms/throw.md, learner.md).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum LearnerPhase {
     /// Not armed for a throw: nothing spins.

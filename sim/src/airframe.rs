@@ -8,13 +8,14 @@
 //! [`AirframeError`] that names the field (`rotor[2].position_m[0]`) and the range, so a typo in
 //! a user's file is a clear message, never a strange flight. Unknown keys are rejected too.
 //!
-//! Conventions (DESIGN.md): body axes FRD with the origin at the centre of gravity (CoG);
-//! quaternions Hamilton `[w, x, y, z]`; `q_a_b` rotates b-coordinates into a-coordinates.
+//! Conventions (docs/architecture.md): body axes FRD with the origin at the centre of gravity
+//! (CoG); quaternions Hamilton `[w, x, y, z]`; `q_a_b` rotates b-coordinates into a-coordinates.
 //!
 //! The library (`sim/airframes/*.toml`, compiled in; see [`LIBRARY`]) holds the seed paper's quad
 //! with its rotated IMU, a 5-inch racing quad, a 3-inch quad, a flat hexarotor, a fully actuated
 //! hexarotor with ±30° tilted rotors and an octorotor.
 
+use firmware::app::CONTROL_RATE_HZ;
 use nalgebra::{DMatrix, DVector, Matrix3, Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -228,10 +229,12 @@ pub struct VibrationParams {
 
 /// A motor with its propeller and ESC.
 ///
-/// Steady-state speed for a command δ ∈ (0, 1] while armed (algorithms.md §4):
+/// Steady-state speed for a command δ ∈ (0, 1] while armed (the seed paper's motor model,
+/// docs/algorithms/learner.md):
 /// `ω_s(δ) = ω_idle + (ω_max − ω_idle)·(κδ + (1 − κ)√δ)`, so δ = 1 gives `omega_max_rad_s`. In the
-/// notation of §4 (`ω = aδ + b√δ + ω_idle`): `a = κ(ω_max − ω_idle)`, `b = (1 − κ)(ω_max − ω_idle)`,
-/// and §4's "ω_max = a + b" is our `ω_max − ω_idle`. Thrust `k_f ω²`, drag torque `k_m ω²`.
+/// learner's notation (`ω = aδ + b√δ + ω_idle`): `a = κ(ω_max − ω_idle)`,
+/// `b = (1 − κ)(ω_max − ω_idle)`, and the papers' "ω_max = a + b" is our `ω_max − ω_idle`.
+/// Thrust `k_f ω²`, drag torque `k_m ω²`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MotorParams {
@@ -269,7 +272,7 @@ pub struct MotorParams {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", tag = "family")]
 pub enum SpeedCurve {
-    /// `x = κδ + (1 − κ)√δ` (algorithms.md §4), κ = `kappa`.
+    /// `x = κδ + (1 − κ)√δ` (docs/algorithms/learner.md, "The motor model"), κ = `kappa`.
     #[default]
     Paper,
     /// Thrust (∝ x²) quadratic in δ: `x = √(kδ² + (1 − k)δ)`, k in [0, 1] (k = 1: speed linear
@@ -581,14 +584,13 @@ impl Airframe {
             });
         }
         c.range("imu.sample_rate_hz", imu.sample_rate_hz, 2000.0, 32_000.0, false, "Hz")?;
-        let ratio = imu.sample_rate_hz / crate::board::CONTROL_RATE_HZ;
+        let ratio = imu.sample_rate_hz / f64::from(CONTROL_RATE_HZ);
         if (ratio - ratio.round()).abs() > 1e-9 {
             return Err(AirframeError::Invalid {
                 field: "imu.sample_rate_hz".into(),
                 reason: format!(
                     "{} Hz is not a whole multiple of the {} Hz control rate",
-                    imu.sample_rate_hz,
-                    crate::board::CONTROL_RATE_HZ
+                    imu.sample_rate_hz, CONTROL_RATE_HZ
                 ),
             });
         }
@@ -906,7 +908,8 @@ mod tests {
     #[test]
     fn paper_quad_has_the_seed_papers_imu_pose() {
         let a = Airframe::builtin("paper-quad").unwrap();
-        // algorithms.md §11: ZYX Euler roll −64°, pitch 24°, yaw −15°; §10: r ≈ (−10, −13, 8) mm.
+        // docs/algorithms/thrust-axis.md: ZYX Euler roll −64°, pitch 24°, yaw −15°;
+        // docs/algorithms/imu-offset.md: r ≈ (−10, −13, 8) mm.
         let (roll, pitch, yaw) = a.q_imu_body().euler_angles();
         for (got, want) in [(roll, -64.0), (pitch, 24.0), (yaw, -15.0)] {
             assert!((got.to_degrees() - want).abs() < 0.5, "{} vs {want}", got.to_degrees());

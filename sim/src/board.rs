@@ -55,10 +55,15 @@ pub const SIM_BOARD_HEALTH: protocol::BoardHealth = protocol::BoardHealth {
     receiver: None,
 };
 
-/// The application's control rate, Hz (DESIGN.md: 2 kHz control step).
-pub const CONTROL_RATE_HZ: f64 = 2000.0;
-/// One control period, µs.
-pub const CONTROL_PERIOD_US: u64 = 500;
+/// The application's control rate, Hz, as `f64` for the simulator's arithmetic: the firmware's
+/// own [`firmware::app::CONTROL_RATE_HZ`] (2 kHz), not a second definition.
+pub const CONTROL_RATE_HZ: f64 = firmware::app::CONTROL_RATE_HZ as f64;
+/// One control period, µs (500 µs at 2 kHz; the rate divides 1 s exactly).
+pub const CONTROL_PERIOD_US: u64 = 1_000_000 / firmware::app::CONTROL_RATE_HZ as u64;
+const _: () = assert!(
+    1_000_000 % firmware::app::CONTROL_RATE_HZ as u64 == 0,
+    "the control period must be a whole number of µs"
+);
 /// Longest telemetry delay the ring holds, control ticks (0.05 s, the validated maximum).
 const MAX_TELEMETRY_DELAY_TICKS: usize = 100;
 

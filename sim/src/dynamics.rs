@@ -11,8 +11,9 @@
 //! - gravity, linear and quadratic aerodynamic drag on the body-axis airspeed, rotational damping;
 //! - ground contact: a penalty spring-damper under the CoG (NED z = 0 is the ground) with viscous
 //!   friction — good enough to land and rest, not to study landings;
-//! - the [`Hand`](crate::hand::Hand), which overrides the accelerations while it holds, throws or
-//!   catches (see that module).
+//! - an external [`Constraint`], which overrides the accelerations while something holds, throws
+//!   or catches the vehicle (the simulated hand, `crate::hand`, chooses it; the dynamics do not
+//!   depend on the hand).
 //!
 //! Why RK4 at a fixed step: the rotor speeds have time constants of 20–50 ms and throws spin at
 //! up to ~35 rad/s, so at 8 kHz RK4's error per step is far below the sensors' quantisation, the
@@ -21,7 +22,6 @@
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
 use crate::airframe::{Airframe, MotorParams, MAX_ROTORS, STANDARD_GRAVITY_MPS2};
-use crate::hand::Constraint;
 
 /// Gravity in world NED, m/s².
 pub fn gravity_ned_mps2() -> Vector3<f64> {
@@ -124,6 +124,49 @@ impl VehicleModel {
             rotor.signed_torque_coefficient *= factor;
         }
         model
+    }
+}
+
+/// Accelerations imposed on the rigid body from outside its dynamics: what a kinematic agent (the
+/// simulated hand, `crate::hand`) prescribes while it holds, throws or catches the vehicle. The
+/// dynamics own this type because they are what obeys it; the hand only chooses one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Constraint {
+    /// No hand: the dynamics act alone.
+    Free,
+    /// Zero acceleration and angular acceleration (the state is at rest).
+    Hold,
+    /// Given CoG acceleration (world NED, m/s²) and angular acceleration (body, rad/s²).
+    Prescribed {
+        /// CoG acceleration, world NED, m/s².
+        accel_ned_mps2: Vector3<f64>,
+        /// Angular acceleration, body, rad/s².
+        rate_dot_body_rad_s2: Vector3<f64>,
+    },
+    /// Velocity and body rate decay with this time constant, s.
+    Damp {
+        /// Time constant, s.
+        tau_s: f64,
+    },
+}
+
+impl Constraint {
+    /// The accelerations `(CoG world NED, angular body)` given the free ones and the state.
+    pub fn apply(
+        &self,
+        free_accel_ned: Vector3<f64>,
+        free_rate_dot_body: Vector3<f64>,
+        velocity_ned: Vector3<f64>,
+        rate_body: Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
+        match *self {
+            Constraint::Free => (free_accel_ned, free_rate_dot_body),
+            Constraint::Hold => (Vector3::zeros(), Vector3::zeros()),
+            Constraint::Prescribed { accel_ned_mps2, rate_dot_body_rad_s2 } => {
+                (accel_ned_mps2, rate_dot_body_rad_s2)
+            }
+            Constraint::Damp { tau_s } => (-velocity_ned / tau_s, -rate_body / tau_s),
+        }
     }
 }
 

@@ -4,8 +4,8 @@
 //! angular acceleration, whatever the motors and gravity do (it supplies the difference, as a
 //! firm hand would). Because the prescription enters the dynamics' derivative, RK4 integrates
 //! it like any other motion, and the accelerometer sees exactly the specific force of that
-//! motion — so the firmware's throw detector sees a real throw (algorithms.md §1: |a| > 20 m/s²
-//! with a momentum above 4 m/s).
+//! motion — so the firmware's throw detector sees a real throw (docs/algorithms/throw.md:
+//! |a| > 20 m/s² with a momentum above 4 m/s).
 //!
 //! Phases:
 //! - **Holding**: velocity and body rate are zero.
@@ -25,48 +25,7 @@
 use nalgebra::Vector3;
 
 use crate::airframe::STANDARD_GRAVITY_MPS2;
-use crate::dynamics::State;
-
-/// Which accelerations the hand imposes on the dynamics.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Constraint {
-    /// No hand: the dynamics act alone.
-    Free,
-    /// Zero acceleration and angular acceleration (the state is at rest).
-    Hold,
-    /// Given CoG acceleration (world NED, m/s²) and angular acceleration (body, rad/s²).
-    Prescribed {
-        /// CoG acceleration, world NED, m/s².
-        accel_ned_mps2: Vector3<f64>,
-        /// Angular acceleration, body, rad/s².
-        rate_dot_body_rad_s2: Vector3<f64>,
-    },
-    /// Velocity and body rate decay with this time constant, s.
-    Damp {
-        /// Time constant, s.
-        tau_s: f64,
-    },
-}
-
-impl Constraint {
-    /// The accelerations `(CoG world NED, angular body)` given the free ones and the state.
-    pub fn apply(
-        &self,
-        free_accel_ned: Vector3<f64>,
-        free_rate_dot_body: Vector3<f64>,
-        velocity_ned: Vector3<f64>,
-        rate_body: Vector3<f64>,
-    ) -> (Vector3<f64>, Vector3<f64>) {
-        match *self {
-            Constraint::Free => (free_accel_ned, free_rate_dot_body),
-            Constraint::Hold => (Vector3::zeros(), Vector3::zeros()),
-            Constraint::Prescribed { accel_ned_mps2, rate_dot_body_rad_s2 } => {
-                (accel_ned_mps2, rate_dot_body_rad_s2)
-            }
-            Constraint::Damp { tau_s } => (-velocity_ned / tau_s, -rate_body / tau_s),
-        }
-    }
-}
+use crate::dynamics::{Constraint, State};
 
 /// A throw: the velocity and body rate the vehicle has when the hand lets go.
 #[derive(Clone, Copy, Debug, PartialEq)]

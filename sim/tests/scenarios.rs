@@ -73,8 +73,8 @@ fn throw_and_catch_follows_ballistics_and_looks_like_a_throw() {
     assert!((outcome.max_rate_rad_s - config.throw_rate_body_rad_s.norm()).abs() < 0.5);
     assert!(!outcome.touched_ground);
 
-    // What the throw detector of algorithms.md §1 needs: |a| > 20 m/s² during the throw, with a
-    // momentum Σ(clip(|a|, 0, 45) − g)·dt above 4 m/s.
+    // What the published throw detector needs (docs/algorithms/throw.md): |a| > 20 m/s² during the
+    // throw, with a momentum Σ(clip(|a|, 0, 45) − g)·dt above 4 m/s.
     let dt = 1.0 / 2000.0;
     let throw = |s: &&ImuSample| v(s.accel_mps2).norm() > 20.0;
     let momentum: f64 = samples

@@ -139,7 +139,7 @@ struct MotorTestState {
     until_us: u64,
 }
 
-/// Control-step rate, Hz: the published system's INDI and learner rate (algorithms.md §8).
+/// Control-step rate, Hz: the published system's INDI and learner rate (docs/algorithms/indi.md).
 pub const CONTROL_RATE_HZ: u16 = 2000;
 
 /// Time without a usable IMU sample after which the status calls the IMU absent, µs (10 ms).

@@ -137,7 +137,7 @@ impl LinkServer {
         self.reboot_requested.take()
     }
 
-    /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit`].
+    /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit_to`].
     /// Parameter requests read and change `settings` (a save writes its flash).
     pub fn receive<F: NorFlash>(
         &mut self,

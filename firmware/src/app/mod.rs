@@ -1,6 +1,6 @@
 //! The portable flight-controller application: the same code on the STM32H743 and in the SITL.
 //!
-//! Three parts, one per RTIC task priority (DESIGN.md, "Data flow at 2 kHz"):
+//! Three parts, one per RTIC task priority (docs/architecture.md, "One control period"):
 //! - [`ControlLoop`] (highest priority, 2 kHz timer): IMU in, motor commands out, one compact
 //!   [`LearnerSample`] per IMU sample into a lock-free queue, one [`StepRecord`] per step into
 //!   the telemetry ring;

@@ -141,7 +141,7 @@ pub const DEFAULT_POSE_NOISE_M: f32 = 0.001;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseConfig {
     /// Time from the moment a pose describes to its arrival at the board, s (0 to
-    /// [`MAX_POSE_LATENCY_S`]): the capture, the processing and the radio.
+    /// `MAX_POSE_LATENCY_S`, 0.1 s): the capture, the processing and the radio.
     pub latency_s: f32,
     /// Position noise of a pose, one standard deviation per axis, m: sizes the heading
     /// alignment's window and evidence, and the position estimator's crossover.
@@ -159,7 +159,7 @@ impl Default for PoseConfig {
 pub enum Failsafe {
     /// A command was not finite or outside [0, 1]: zero written, disarmed.
     BadCommand,
-    /// The allocation failed for [`ALLOCATION_FAILURE_STEPS`] steps: disarmed.
+    /// The allocation failed for `ALLOCATION_FAILURE_STEPS` steps (10 ms at 2 kHz): disarmed.
     AllocationFailed,
     /// The identification produced no flyable model: disarmed.
     Identification(IdentificationFailure),
@@ -309,7 +309,7 @@ pub struct PilotStatus {
     pub last_failsafe: Option<Failsafe>,
     pub failsafes: FailsafeCounts,
     /// Models from the learner the flying controller moved towards (the in-flight
-    /// refinement, [`IN_FLIGHT_REFINEMENT_GAIN`]), since start-up.
+    /// refinement, `IN_FLIGHT_REFINEMENT_GAIN`), since start-up.
     pub refinements: u32,
 }
 

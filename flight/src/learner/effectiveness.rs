@@ -1,5 +1,5 @@
 //! The effectiveness matrices G1 and G2 from the body's response to the motors
-//! (algorithms.md §5, with the two corrections of §12 that the published recipe lacked).
+//! (docs/algorithms/learner.md, with the two corrections the published recipe lacked).
 //!
 //! # Model (IMU axes, motor speeds ω in rad/s)
 //! ```text
@@ -18,7 +18,7 @@
 //! IMU offset `r`: `f_cog = f_imu − Ω̇×r − Ω×(Ω×r)`. The rest `f_rest` is mostly aerodynamic drag,
 //! which on a tumbling craft is fixed in the *world*, not the body: in body axes it turns at −Ω,
 //! so its increment is `−w × f_rest` (`w = Ω dt`), not zero (the main error of the published
-//! recipe, §12). Substituting `f_rest = f_cog − G1f ω²` gives an equation that is still linear
+//! recipe). Substituting `f_rest = f_cog − G1f ω²` gives an equation that is still linear
 //! in G1f, and exact:
 //! `Δf_cog + w × f_cog = G1f Δ(ω²) + w × (G1f ω²)`.
 //! Its three rows have different regressors (the cross product mixes them), so the force rows
@@ -30,7 +30,7 @@
 //! errors on the seed paper's quad.)
 //!
 //! **Angular-acceleration rows: the angular-momentum balance.** The Euler and rotor-gyroscopic
-//! terms are quadratic in the rates and spoil G1τ when ignored (§12). Multiplied by the inertia
+//! terms are quadratic in the rates and spoil G1τ when ignored. Multiplied by the inertia
 //! and divided by its trace, the rotational equation is *linear* in every unknown:
 //! ```text
 //! J Ω̇ + Ω × (J Ω) + Ω × (K ω) + K ω̇ = T ω²        J = I / tr I,  K = −J G2,  T = J G1τ

@@ -1,5 +1,5 @@
 //! The excitation schedule: after the throw, each motor in index order is pulsed while the
-//! estimators watch the response (algorithms.md §2).
+//! estimators watch the response (docs/algorithms/learner.md).
 //!
 //! Per motor: a step to [`ExcitationConfig::step_command`] for `step_s`, a jump to
 //! `jump_command`, then a linear ramp back to 0 over `ramp_s`. The published levels are 0.35 and
@@ -11,7 +11,7 @@
 //!
 //! Timing: the published schedule (50 ms step, 100 ms ramp, 50 ms overlap) starts a quad's fourth
 //! motor 300 ms into the excitation, so no thrust axis can exist before then, and a hexarotor or
-//! octorotor needs 500–700 ms (algorithms.md §12). Our default is half as long per motor: a 25 ms
+//! octorotor needs 500–700 ms. Our default is half as long per motor: a 25 ms
 //! step (one time constant of a 20–27 ms motor, so τ is seen), a 50 ms ramp and a 25 ms overlap,
 //! after a 40 ms spin-up of every motor at δ = 0.02 (the ESCs start the motors together before
 //! the first pulse, instead of during it). Motor `i` starts at `40 + 50·i` ms: a quad's last

@@ -1,6 +1,6 @@
 //! In-flight identification of an unknown multirotor: throw-to-arm, motor excitation, recursive
 //! least squares of the motor models and of the effectiveness, and the hover thrust axis from
-//! what was learned (seed paper §3.1, §3.3; algorithms.md §1–5, §11).
+//! what was learned (seed paper §3.1, §3.3; docs/algorithms/learner.md).
 //!
 //! Two halves, split the way the firmware's tasks are:
 //! - [`ThrowToFly`] runs in the 2 kHz control step: [`throw_detector`] decides that the craft has
@@ -20,7 +20,7 @@
 //! problem, `u ∈ [0, 1]`), G1 is scaled by each motor's `ω_full²` from its learned model:
 //! [`LearnedModel::g1_per_unit_thrust`].
 //!
-//! Time alignment (algorithms.md §12): a motor's reported speed is paired with the command that
+//! Time alignment: a motor's reported speed is paired with the command that
 //! was driving it when the speed was measured, [`LearnerConfig::command_to_speed_delay_half_steps`]
 //! half control steps earlier (one step of output latency, the telemetry's age, and the half
 //! step by which a held command lags its samples).
@@ -47,9 +47,9 @@ pub const MAX_MOTORS: usize = 8;
 /// Fewest motors the learner handles (three torque equations need at least four).
 pub const MIN_MOTORS: usize = 4;
 
-/// Low-pass cut-off of the effectiveness signals, Hz (algorithms.md §5: 20 Hz).
+/// Low-pass cut-off of the effectiveness signals, Hz (published, docs/algorithms/learner.md).
 pub const EFFECTIVENESS_CUTOFF_HZ: f32 = 20.0;
-/// Low-pass cut-off of the motor-model signals, Hz (algorithms.md §4: 40 Hz).
+/// Low-pass cut-off of the motor-model signals, Hz (published, docs/algorithms/learner.md).
 pub const MOTOR_MODEL_CUTOFF_HZ: f32 = 40.0;
 /// Information needed before a motor's G1 column is used in the thrust-axis problem: its
 /// covariance diagonal below this fraction of the prior (roughly: the pulse has begun and the

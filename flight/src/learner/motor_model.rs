@@ -1,4 +1,4 @@
-//! One motor's model from its command and its measured speed (algorithms.md §4):
+//! One motor's model from its command and its measured speed (docs/algorithms/learner.md):
 //!
 //! ```text
 //! ω = a·δ + b·√δ + ω_idle − τ·ω̇
@@ -18,8 +18,8 @@
 //! parameters are `a/1000`, `b/1000`, `ω_idle/1000` (krad/s) and `100·τ` (s/100).
 //!
 //! Time alignment is the caller's: pair each speed with the command that was driving the motor
-//! when the speed was measured (algorithms.md §12: pairing with the command of the same step
-//! biases τ by about +1 ms).
+//! when the speed was measured (pairing it with the command of the same step biases τ by
+//! about +1 ms: docs/algorithms/learner.md).
 
 use super::rls::{packed_len, Rls, RlsConfig};
 use crate::filters::{BiquadCoefficients, Butterworth2};

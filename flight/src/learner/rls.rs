@@ -1,4 +1,4 @@
-//! Recursive least squares with one covariance shared by several outputs (algorithms.md §3).
+//! Recursive least squares, one covariance shared by several outputs (docs/algorithms/learner.md).
 //!
 //! Model: `yₖ = xᵀ θₖ + e` for `M` outputs `k` that share the regressor vector `x` (length
 //! `n ≤ N`). Because the regressors are shared, so is the covariance `P` (`n × n`): one gain

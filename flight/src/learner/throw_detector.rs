@@ -1,6 +1,6 @@
 //! Throw-to-arm: is the craft being thrown, has it left the hand, and is it falling freely?
 //!
-//! The published detector (algorithms.md §1) starts a throw when the specific force `|f|` rises
+//! The published detector (docs/algorithms/throw.md) starts a throw when specific force `|f|` rises
 //! above 20 m/s² and declares the release as soon as it falls back below. A real hand does not let
 //! go in one sample: its push tapers off over 5–50 ms, and the IMU's filtering and averaging smear
 //! even an abrupt release over a sample or two, so `|f|` passes through every value between the
@@ -58,7 +58,7 @@ pub const REST_GRAVITY_TAU_S: f32 = 0.2;
 /// waiting (held or carried; not a free fall, not a push), dimensionless.
 const REST_BAND: f32 = 0.5;
 
-/// Tuning of the throw detector. Defaults are the published figures (algorithms.md §1) plus the
+/// Throw detector tuning. Defaults: the published figures (docs/algorithms/throw.md) plus the
 /// release found in free fall and the free-fall check.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ThrowConfig {

@@ -1,10 +1,10 @@
 //! Attitude helpers for the thrust axis: the shortest-arc quaternion from the thrust-frame "up"
 //! direction to a measured direction, and ZYX Euler angles for display.
 //!
-//! Conventions (DESIGN.md): Hamilton quaternions `[w, x, y, z]`; `q_a_b` rotates b-coordinates
-//! into a-coordinates. Body FRD, so the thrust (specific force in hover) points along `(0, 0, −1)`
-//! of the thrust frame, and `q_thrust_to_imu` maps thrust-frame coordinates into IMU coordinates
-//! (the seed paper's `q_U^T`).
+//! Conventions (docs/architecture.md): Hamilton quaternions `[w, x, y, z]`; `q_a_b` rotates
+//! b-coordinates into a-coordinates. Body FRD, so the thrust (specific force in hover) points
+//! along `(0, 0, −1)` of the thrust frame, and `q_thrust_to_imu` maps thrust-frame coordinates
+//! into IMU coordinates (the seed paper's `q_U^T`).
 
 use crate::math::sqrt;
 
