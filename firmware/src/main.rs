@@ -83,6 +83,7 @@ mod app {
         motor_burst_2, usb_service,
     };
     use firmware::app::hal::Motors;
+    use firmware::app::radio::Receiver;
     use firmware::app::system::{ControlQueue, ControlTask, Link, LinkTask, WorkQueue};
     use firmware::app::{
         split_queue, Background, BackgroundResults, BoardInfo, ControlConfig, ControlLoop,
@@ -99,7 +100,6 @@ mod app {
     use firmware::board::usb::{self, UsbSerial, UsbStorage, EP_MEMORY_WORDS};
     use firmware::board::{bootloader, BOARD};
     use firmware::drivers::crsf::RcLinkConfig;
-    use firmware::drivers::receiver::Receiver;
     use protocol::{BoardHealth, Capabilities, ImuDriverState};
     use stm32h7xx_hal::flash::FlashExt;
     use stm32h7xx_hal::pac;

@@ -14,6 +14,7 @@ pub mod imu;
 pub mod log;
 pub mod monte_carlo;
 pub mod physics;
+pub mod radio;
 pub mod recovery;
 /// The workspace's deterministic random-number generator (sensor noise, random airframes).
 pub use flight::rng;

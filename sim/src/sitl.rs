@@ -19,9 +19,10 @@ use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};
 use crate::flash::{FileFlash, FlashFileError};
 use crate::hand::{HandPhase, ThrowSpec};
 use crate::serve::{simulator_board_info, Pty, TcpLinks};
-use firmware::app::hal::NoBytes;
+use firmware::app::radio::Receiver;
 use firmware::app::system::{with_system, Link, System};
 use firmware::app::{BoardInfo, ControlCommand, LinkServer, Settings};
+use firmware::drivers::crsf::RcLinkConfig;
 use protocol::Capabilities;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -85,6 +86,11 @@ pub struct SitlConfig {
     /// craft again where it is as soon as the board disarms (or its attempt fails). The
     /// automatic calibration throws pause while the board is armed.
     pub hand_throws_to_fly: bool,
+    /// A simulated pilot's radio (CRSF receiver on the board's UART, [`crate::radio`]) playing
+    /// this script; `None`: no receiver (the craft is commanded over the links only).
+    pub rc_script: Option<crate::radio::RcScript>,
+    /// RC frames per second of the simulated radio, Hz (1–1,000).
+    pub rc_rate_hz: f64,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -135,6 +141,8 @@ impl Default for SitlConfig {
             imu_offset_m: None,
             flash_file: None,
             hand_throws_to_fly: false,
+            rc_script: None,
+            rc_rate_hz: crate::radio::DEFAULT_RC_RATE_HZ,
         }
     }
 }
@@ -255,6 +263,10 @@ impl Sitl {
             hand_throws_to_fly: config.hand_throws_to_fly,
             mocap: config.mocap,
             motion_capture: config.motion_capture,
+            radio: config
+                .rc_script
+                .as_ref()
+                .map(|script| crate::radio::RcTransmitter::new(config.rc_rate_hz, script)),
             imu_offset_m: config.imu_offset_m,
             info,
             pty,
@@ -305,6 +317,8 @@ struct Runner {
     imu_offset_m: Option<[f32; 3]>,
     mocap: bool,
     motion_capture: crate::recovery::MotionCaptureConfig,
+    /// The simulated pilot's radio, when there is one (it goes on across restarts).
+    radio: Option<crate::radio::RcTransmitter>,
     info: BoardInfo,
     pty: Option<Pty>,
     tcp: Option<TcpLinks>,
@@ -345,7 +359,10 @@ impl Runner {
             }
             // Read at start-up, as the board's motor outputs do.
             board.ports().1.set_bidirectional(settings.params().bidirectional_dshot());
-            let (ending, settings) = with_system(settings, SIM_BOARD_HEALTH, None, |system| {
+            // The receiver's policy starts afresh with the firmware, as on the board.
+            let receiver =
+                self.radio.as_ref().and_then(|_| Receiver::new(RcLinkConfig::default()).ok());
+            let (ending, settings) = with_system(settings, SIM_BOARD_HEALTH, receiver, |system| {
                 if self.throw_to_fly && first_boot {
                     system.submit(ControlCommand::ArmThrowToFly);
                 }
@@ -406,8 +423,11 @@ impl Runner {
             if let Some(pose) = mocap.as_mut().and_then(|m| m.sample(state, now_us)) {
                 system.submit(ControlCommand::ExternalPose(pose));
             }
+            if let Some(radio) = &mut self.radio {
+                radio.advance(clock.board.now_us());
+            }
             let (imu, motors) = clock.board.ports();
-            if !system.tick(now_us, imu, motors, &mut NoBytes).link_due {
+            if !system.tick(now_us, imu, motors, &mut self.radio).link_due {
                 continue;
             }
             if let Some(tcp) = &mut self.tcp {

@@ -76,6 +76,9 @@ pub enum ControlCommand {
     ArmThrowToFly,
     /// Stop every motor and leave any armed state, now.
     Disarm,
+    /// Stop every motor and leave any armed state, now, for this reason (the pilot's kill
+    /// switch, the radio link lost): counted and reported as a failsafe when anything was armed.
+    Failsafe(Failsafe),
     /// A pose from motion capture or a ground station.
     ExternalPose(ExternalPose),
     /// Where to hold while poses arrive (the link refuses non-finite values).
@@ -502,15 +505,12 @@ impl<'q> ControlLoop<'q> {
                     self.snapshot.failure = LearnerFailure::None;
                 }
             }
-            ControlCommand::Disarm => {
-                self.motor_test = None;
-                self.esc_command = None;
-                let attempt =
-                    !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
-                self.throw_to_fly.disarm();
-                self.pilot.disarm();
-                if attempt {
-                    self.snapshot.failure = LearnerFailure::Disarmed;
+            ControlCommand::Disarm => self.disarm(),
+            ControlCommand::Failsafe(failsafe) => {
+                let armed = self.flight_armed() || self.motor_test.is_some();
+                self.disarm();
+                if armed {
+                    self.pilot.raise(failsafe);
                 }
             }
             ControlCommand::ExternalPose(pose) => {
@@ -542,6 +542,18 @@ impl<'q> ControlLoop<'q> {
         }
         self.apply_pending_settings();
         self.publish_phase();
+    }
+
+    /// Stop every motor and leave any armed state; an attempt under way ends as `Disarmed`.
+    fn disarm(&mut self) {
+        self.motor_test = None;
+        self.esc_command = None;
+        let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
+        self.throw_to_fly.disarm();
+        self.pilot.disarm();
+        if attempt {
+            self.snapshot.failure = LearnerFailure::Disarmed;
+        }
     }
 
     /// Whether a throw-to-fly attempt or a flight is under way (a motor test aside).

@@ -91,6 +91,13 @@ impl ByteSource for NoBytes {
     }
 }
 
+/// A receiver that may not be there: no bytes when absent.
+impl<B: ByteSource> ByteSource for Option<B> {
+    fn read(&mut self, buffer: &mut [u8]) -> usize {
+        self.as_mut().map_or(0, |source| source.read(buffer))
+    }
+}
+
 /// A host link's byte port: USB CDC on the board, a pseudo-terminal or a TCP stream in the
 /// simulator, later a radio's UART.
 pub trait Port {

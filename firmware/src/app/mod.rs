@@ -19,6 +19,7 @@ mod link;
 pub mod params;
 mod pilot;
 mod queue;
+pub mod radio;
 pub mod settings;
 pub mod system;
 mod telemetry;

@@ -755,6 +755,12 @@ impl Pilot {
         self.fail(Failsafe::ImuFault)
     }
 
+    /// Stop flying for a failsafe raised outside the pilot (the pilot's kill switch, the radio
+    /// link lost): counted and recorded as the latest.
+    pub fn raise(&mut self, failsafe: Failsafe) -> Failsafe {
+        self.fail(failsafe)
+    }
+
     /// Stop flying (a disarm request): no failsafe is recorded.
     pub fn disarm(&mut self) {
         self.controller = None;

@@ -24,12 +24,12 @@ use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
 use super::hal::{ByteSource, Imu, Motors, Port, PortClosed};
+use super::radio::{CraftState, Receiver};
 use super::{
     Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
     ControlSnapshot, LinkRequest, LinkServer, Params, Settings, StatusView, StepConsumer,
     CONTROL_RATE_HZ,
 };
-use crate::drivers::receiver::{CraftState, Receiver};
 use flight::learner::FlightPhase;
 use protocol::{BoardHealth, StepTime};
 

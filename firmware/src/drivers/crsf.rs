@@ -120,6 +120,33 @@ impl RcChannels {
         Self { raw }
     }
 
+    /// Pack into the 22-byte payload (the inverse of [`RcChannels::unpack`]; values above 11
+    /// bits are cut to their low 11 bits). What a transmitter sends; the simulator's radio uses it.
+    pub fn pack(&self) -> [u8; RC_CHANNELS_PAYLOAD_LEN] {
+        let mut payload = [0u8; RC_CHANNELS_PAYLOAD_LEN];
+        let mut acc: u32 = 0;
+        let mut acc_bits = 0u32;
+        let mut out = 0usize;
+        for &value in &self.raw {
+            acc |= u32::from(value & 0x7FF) << acc_bits;
+            acc_bits += 11;
+            while acc_bits >= 8 {
+                payload[out] = acc as u8;
+                out += 1;
+                acc >>= 8;
+                acc_bits -= 8;
+            }
+        }
+        payload
+    }
+
+    /// The raw value for a pulse width in µs (the inverse of [`channel_raw_to_us`], rounded and
+    /// clamped to 11 bits).
+    pub fn raw_from_us(us: f32) -> u16 {
+        let raw = f32::from(CHANNEL_RAW_MID) + (us - 1500.0) * 1.6;
+        libm::roundf(raw).clamp(0.0, 2047.0) as u16
+    }
+
     /// Raw value of channel `index` (0-based), `None` past channel 15.
     pub fn raw(&self, index: usize) -> Option<u16> {
         self.raw.get(index).copied()
@@ -134,6 +161,22 @@ impl RcChannels {
     pub fn normalised(&self, index: usize) -> Option<f32> {
         self.raw(index).map(channel_raw_to_normalised)
     }
+}
+
+/// Encode one frame: `sync`, length (type + payload + CRC), `frame_type`, `payload`, CRC-8
+/// DVB-S2 over type and payload. Returns the bytes written into `out`, or `None` when the payload
+/// is longer than a frame allows or `out` is too small.
+pub fn encode_frame(sync: u8, frame_type: u8, payload: &[u8], out: &mut [u8]) -> Option<usize> {
+    let length = payload.len() + 2;
+    if length > usize::from(LENGTH_MAX) || out.len() < length + 2 {
+        return None;
+    }
+    out[0] = sync;
+    out[1] = length as u8;
+    out[2] = frame_type;
+    out[3..3 + payload.len()].copy_from_slice(payload);
+    out[3 + payload.len()] = crc8_dvb_s2(&out[2..3 + payload.len()]);
+    Some(length + 2)
 }
 
 /// Link statistics as sent by the receiver (frame type 0x14).
@@ -913,5 +956,42 @@ mod tests {
         let mut config = RcLinkConfig::default();
         config.arm.on_above_us = f32::NAN;
         assert_eq!(RcLink::new(config), Err(RcConfigError::ThresholdNotFinite));
+    }
+
+    #[test]
+    fn packed_channels_encode_to_a_frame_the_parser_reads_back() {
+        let mut raw = [0u16; CHANNEL_COUNT];
+        for (i, value) in raw.iter_mut().enumerate() {
+            *value = (172 + 109 * i as u16) & 0x7FF;
+        }
+        raw[4] = RcChannels::raw_from_us(2000.0);
+        let channels = RcChannels { raw };
+        let mut out = [0u8; FRAME_MAX];
+        let n = encode_frame(
+            SYNC_FLIGHT_CONTROLLER,
+            TYPE_RC_CHANNELS_PACKED,
+            &channels.pack(),
+            &mut out,
+        )
+        .unwrap();
+        assert_eq!(n, 26, "sync, length, type, 22 payload bytes, CRC");
+        assert_eq!(out[1], 24);
+        let mut parser = CrsfParser::new();
+        let mut decoded = None;
+        for &byte in &out[..n] {
+            if let Some(event) = parser.push(byte) {
+                decoded = Some(event);
+            }
+        }
+        match decoded {
+            Some(Ok(CrsfFrame::RcChannels(back))) => {
+                assert_eq!(back, channels);
+                assert!((back.us(4).unwrap() - 2000.0).abs() <= 0.625);
+            }
+            other => panic!("expected the channels back, got {other:?}"),
+        }
+        // A payload longer than a frame allows, or no room: refused.
+        assert_eq!(encode_frame(SYNC_FLIGHT_CONTROLLER, 0x21, &[0; 61], &mut [0u8; 128]), None);
+        assert_eq!(encode_frame(SYNC_FLIGHT_CONTROLLER, 0x21, &[0; 4], &mut [0u8; 7]), None);
     }
 }

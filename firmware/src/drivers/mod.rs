@@ -7,4 +7,3 @@
 pub mod crsf;
 pub mod dshot;
 pub mod icm42688;
-pub mod receiver;

@@ -86,9 +86,30 @@ struct Args {
     /// Run without a configuration store (nothing is saved).
     #[arg(long, conflicts_with = "flash_file")]
     no_flash: bool,
+    /// A simulated pilot's radio (a CRSF receiver on the board's UART) playing this script of
+    /// `TIME_S:EVENT` items, comma-separated, in simulated seconds since start; events: `arm`,
+    /// `disarm`, `throw`, `throw-off` (the throw-to-fly switch), `kill`, `kill-off`, `lose`,
+    /// `restore` (the link). Every switch starts off. E.g. `--rc 1:arm,1:throw,20:kill`.
+    /// Default: no receiver.
+    #[arg(long, value_name = "SCRIPT", value_parser = sim::radio::RcScript::parse)]
+    rc: Option<sim::radio::RcScript>,
+    /// RC frames per second of the simulated radio, Hz (1–1000).
+    #[arg(long, value_name = "HZ", default_value_t = sim::radio::DEFAULT_RC_RATE_HZ,
+          value_parser = parse_rc_rate_hz)]
+    rc_rate_hz: f64,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
+}
+
+/// An RC frame rate, Hz, within 1–1000.
+fn parse_rc_rate_hz(text: &str) -> Result<f64, String> {
+    let hz: f64 = text.parse().map_err(|_| format!("`{text}` is not a rate in Hz"))?;
+    if (1.0..=1000.0).contains(&hz) {
+        Ok(hz)
+    } else {
+        Err(format!("{text} Hz is out of range: allowed 1–1000 Hz"))
+    }
 }
 
 /// Three comma-separated numbers (`X,Y,Z`); ranges are checked when the SITL starts.
@@ -127,6 +148,8 @@ fn main() -> std::process::ExitCode {
         imu_offset_m: args.imu_offset_mm,
         mocap: args.mocap,
         motion_capture,
+        rc_script: args.rc.clone(),
+        rc_rate_hz: args.rc_rate_hz,
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
     };

@@ -6,29 +6,39 @@
 //! returns is applied before the step runs, so a kill switch disarms within one control step
 //! (500 µs at 2 kHz) of its frame's last byte arriving in the buffer.
 //!
+//! The policy is the application's (it decides what the craft does), the parsing and the switch
+//! mapping are the CRSF driver's ([`crate::drivers::crsf`]); the board only moves the bytes.
+//!
 //! # Switches (the mapping of [`RcLink`], channels 5/6/7 by default)
-//! - Kill on: [`ControlCommand::Disarm`] on every step while anything is armed, whatever the
-//!   other switches say.
+//! - Kill on: [`ControlCommand::Failsafe`]`(`[`Failsafe::Kill`]`)` on every step while anything is
+//!   armed, whatever the other switches say: the craft disarms and the failsafe is counted and
+//!   reported. Turning it off again arms nothing until the arm switch has been cycled.
 //! - Arm and throw-to-fly on: [`ControlCommand::ArmThrowToFly`], once, on the step the request
 //!   first appears, and only after the receiver has seen the arm switch off since start-up or
 //!   since its last failsafe (a craft never arms because it powered up with the switch on).
 //! - Arm switch turned off (after arm on): [`ControlCommand::Disarm`], once.
 //!
-//! # Failsafe (no valid RC frame for 250 ms, [`crate::drivers::crsf::DEFAULT_FAILSAFE_TIMEOUT_US`])
-//! - On the ground (nothing armed, or armed and waiting for or being thrown):
-//!   [`ControlCommand::Disarm`] at once.
+//! # Signal loss (no valid RC frame for 250 ms, [`crate::drivers::crsf::DEFAULT_FAILSAFE_TIMEOUT_US`])
+//! - On the ground (armed and waiting for or being thrown):
+//!   [`ControlCommand::Failsafe`]`(`[`Failsafe::RcLost`]`)` at once.
 //! - In flight (released, exciting the motors, or the controller flying): the craft keeps doing
 //!   what it does (the learner's schedule and then the hover controller need no stick input) for
-//!   [`FLIGHT_FAILSAFE_GRACE_US`]; if no valid frame returned by then, it disarms. A link that
-//!   comes back within the grace cancels the failsafe; re-arming needs the arm switch cycled.
+//!   [`FLIGHT_FAILSAFE_GRACE_US`]; if no valid frame returned by then,
+//!   [`ControlCommand::Failsafe`]`(`[`Failsafe::RcLost`]`)`. A link that comes back within the
+//!   grace cancels it; after a loss, re-arming needs the arm switch cycled.
+//!
+//! What this assumes of the radio: a receiver that stops sending RC frames when its link is lost
+//! (CRSF receivers do, or send frames with the failsafe positions a pilot set to "arm off"); a
+//! frame rate of at least 4 per 250 ms (ExpressLRS and Crossfire send 50–1000 Hz).
 //!
 //! A receiver that has never delivered a valid RC frame since start-up is treated as absent: it
 //! commands nothing, so the board can be armed over USB without a radio (bench, SITL-like use).
 
-use super::crsf::{
+use super::pilot::Failsafe;
+use super::ControlCommand;
+use crate::drivers::crsf::{
     CrsfFrame, CrsfParser, LinkStatistics, PilotRequest, RcConfigError, RcLink, RcLinkConfig,
 };
-use crate::app::ControlCommand;
 use protocol::ReceiverHealth;
 
 /// How long a craft in flight keeps flying after the radio link is lost, µs.
@@ -108,7 +118,12 @@ impl Receiver {
             self.failsafe_since_us = None;
         }
         match request {
-            PilotRequest::Kill => craft.armed.then_some(ControlCommand::Disarm),
+            PilotRequest::Kill => {
+                // Turning the kill switch off again must not re-arm a craft whose arm and
+                // throw-to-fly switches are still on: the arm switch has to be cycled.
+                self.interlock_clear = false;
+                craft.armed.then_some(ControlCommand::Failsafe(Failsafe::Kill))
+            }
             PilotRequest::Disarmed => {
                 self.interlock_clear = true;
                 (craft.armed && matches!(previous, PilotRequest::Armed | PilotRequest::ThrowToFly))
@@ -126,11 +141,11 @@ impl Receiver {
                     return None;
                 }
                 if !craft.in_flight {
-                    return Some(ControlCommand::Disarm);
+                    return Some(ControlCommand::Failsafe(Failsafe::RcLost));
                 }
                 let since = *self.failsafe_since_us.get_or_insert(now_us);
                 (now_us.saturating_sub(since) >= FLIGHT_FAILSAFE_GRACE_US)
-                    .then_some(ControlCommand::Disarm)
+                    .then_some(ControlCommand::Failsafe(Failsafe::RcLost))
             }
         }
     }
@@ -187,6 +202,8 @@ mod tests {
         out
     }
 
+    const KILL: ControlCommand = ControlCommand::Failsafe(Failsafe::Kill);
+    const RC_LOST: ControlCommand = ControlCommand::Failsafe(Failsafe::RcLost);
     const GROUND_ARMED: CraftState = CraftState { armed: true, in_flight: false };
     const FLYING: CraftState = CraftState { armed: true, in_flight: true };
     const IDLE: CraftState = CraftState { armed: false, in_flight: false };
@@ -233,10 +250,28 @@ mod tests {
         let mut rx = receiver();
         rx.poll(&frame(false, false, false), 0, IDLE);
         rx.poll(&frame(true, true, false), 500, IDLE);
-        assert_eq!(rx.poll(&frame(true, true, true), 1_000, FLYING), Some(ControlCommand::Disarm));
-        // No new frame, still armed (say the disarm was lost): disarm again.
-        assert_eq!(rx.poll(&[], 1_500, FLYING), Some(ControlCommand::Disarm));
+        assert_eq!(rx.poll(&frame(true, true, true), 1_000, FLYING), Some(KILL));
+        // No new frame, still armed (say the disarm was lost): kill again.
+        assert_eq!(rx.poll(&[], 1_500, FLYING), Some(KILL));
         assert_eq!(rx.poll(&[], 2_000, IDLE), None);
+    }
+
+    #[test]
+    fn kill_switch_off_again_does_not_re_arm_until_the_arm_switch_is_cycled() {
+        let mut rx = receiver();
+        rx.poll(&frame(false, false, false), 0, IDLE);
+        assert_eq!(
+            rx.poll(&frame(true, true, false), 500, IDLE),
+            Some(ControlCommand::ArmThrowToFly)
+        );
+        assert_eq!(rx.poll(&frame(true, true, true), 1_000, GROUND_ARMED), Some(KILL));
+        assert_eq!(rx.poll(&frame(true, true, false), 1_500, IDLE), None, "kill off: no re-arm");
+        assert_eq!(rx.poll(&frame(true, true, false), 2_000, IDLE), None);
+        assert_eq!(rx.poll(&frame(false, false, false), 2_500, IDLE), None);
+        assert_eq!(
+            rx.poll(&frame(true, true, false), 3_000, IDLE),
+            Some(ControlCommand::ArmThrowToFly)
+        );
     }
 
     #[test]
@@ -244,7 +279,7 @@ mod tests {
         let mut rx = receiver();
         rx.poll(&frame(false, false, false), 0, IDLE);
         assert_eq!(rx.poll(&[], 200_000, GROUND_ARMED), None);
-        assert_eq!(rx.poll(&[], 250_000, GROUND_ARMED), Some(ControlCommand::Disarm));
+        assert_eq!(rx.poll(&[], 250_000, GROUND_ARMED), Some(RC_LOST));
         assert_eq!(rx.poll(&[], 260_000, IDLE), None);
     }
 
@@ -256,7 +291,7 @@ mod tests {
         // Lost at 1 ms; failsafe from 251 ms; disarm 1 s later.
         assert_eq!(rx.poll(&[], 251_000, FLYING), None);
         assert_eq!(rx.poll(&[], 1_250_000, FLYING), None);
-        assert_eq!(rx.poll(&[], 1_251_000, FLYING), Some(ControlCommand::Disarm));
+        assert_eq!(rx.poll(&[], 1_251_000, FLYING), Some(RC_LOST));
     }
 
     #[test]

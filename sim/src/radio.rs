@@ -1,0 +1,276 @@
+//! The pilot's radio, simulated: a CRSF transmitter and receiver pair whose RC-channel frames
+//! reach the application's control tick through the same byte path as the board's UART
+//! ([`ByteSource`]), so the real parser, switch mapping and receiver policy
+//! ([`firmware::app::radio`]) decide what the craft does.
+//!
+//! The switches are the default mapping's ([`RcLinkConfig::default`]: arm on channel 5,
+//! throw-to-fly on 6, kill on 7, on at 2,000 µs and off at 1,000 µs; the sticks centred). A
+//! [`RcScript`] flips them, and takes the signal away and gives it back, at given simulated
+//! times: `sitl --rc "1:arm,1:throw,6:kill"`.
+//!
+//! What it models of a real link: frames at a fixed rate ([`DEFAULT_RC_RATE_HZ`], Crossfire's
+//! 150 Hz; ExpressLRS sends 50–1,000 Hz), each frame's bytes delivered at once at the first
+//! control tick at or after its time (the 26 bytes take 0.6 ms at 420 kbaud, about one tick),
+//! and a lost link as no frames at all (what a CRSF receiver does when its link drops and no
+//! failsafe positions are set).
+
+use std::collections::VecDeque;
+
+use firmware::app::hal::ByteSource;
+use firmware::drivers::crsf::{
+    encode_frame, RcChannels, RcLinkConfig, CHANNEL_COUNT, CHANNEL_RAW_MID, FRAME_MAX,
+    SYNC_FLIGHT_CONTROLLER, TYPE_RC_CHANNELS_PACKED,
+};
+
+/// RC frames per second by default, Hz (TBS Crossfire's rate).
+pub const DEFAULT_RC_RATE_HZ: f64 = 150.0;
+/// Pulse width of a switch that is on, µs.
+const SWITCH_ON_US: f32 = 2_000.0;
+/// Pulse width of a switch that is off, µs.
+const SWITCH_OFF_US: f32 = 1_000.0;
+
+/// What the pilot does to the radio.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RcEvent {
+    /// The arm switch on (`arm`) or off (`disarm`).
+    Arm(bool),
+    /// The throw-to-fly switch on (`throw`) or off (`throw-off`).
+    ThrowToFly(bool),
+    /// The kill switch on (`kill`) or off (`kill-off`).
+    Kill(bool),
+    /// The link comes back (`restore`) or is lost (`lose`).
+    Signal(bool),
+}
+
+impl RcEvent {
+    /// The event's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Arm(true) => "arm",
+            Self::Arm(false) => "disarm",
+            Self::ThrowToFly(true) => "throw",
+            Self::ThrowToFly(false) => "throw-off",
+            Self::Kill(true) => "kill",
+            Self::Kill(false) => "kill-off",
+            Self::Signal(true) => "restore",
+            Self::Signal(false) => "lose",
+        }
+    }
+
+    fn parse(text: &str) -> Option<Self> {
+        [
+            Self::Arm(true),
+            Self::Arm(false),
+            Self::ThrowToFly(true),
+            Self::ThrowToFly(false),
+            Self::Kill(true),
+            Self::Kill(false),
+            Self::Signal(true),
+            Self::Signal(false),
+        ]
+        .into_iter()
+        .find(|event| event.name() == text)
+    }
+}
+
+/// What the pilot does, when: events at simulated times, s, in time order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RcScript {
+    pub events: Vec<(f64, RcEvent)>,
+}
+
+impl RcScript {
+    /// Parses `T:EVENT,T:EVENT,...` (T in simulated seconds, finite and ≥ 0; EVENT one of `arm`,
+    /// `disarm`, `throw`, `throw-off`, `kill`, `kill-off`, `lose`, `restore`); the events are
+    /// sorted by time (equal times keep their order). An empty text is an empty script.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let mut events = Vec::new();
+        for item in text.split(',').map(str::trim).filter(|item| !item.is_empty()) {
+            let (time, name) = item
+                .split_once(':')
+                .ok_or_else(|| format!("`{item}`: expected TIME_S:EVENT, e.g. 1.5:arm"))?;
+            let time_s: f64 = time
+                .trim()
+                .parse()
+                .map_err(|_| format!("`{item}`: `{time}` is not a time in s"))?;
+            if !time_s.is_finite() || time_s < 0.0 {
+                return Err(format!("`{item}`: the time must be finite and at least 0 s"));
+            }
+            let event = RcEvent::parse(name.trim()).ok_or_else(|| {
+                format!(
+                    "`{item}`: unknown event `{name}` (arm, disarm, throw, throw-off, kill, \
+                     kill-off, lose, restore)"
+                )
+            })?;
+            events.push((time_s, event));
+        }
+        events.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Ok(Self { events })
+    }
+}
+
+/// The simulated transmitter and receiver: the switches, the link, the frames on their way.
+#[derive(Clone, Debug)]
+pub struct RcTransmitter {
+    config: RcLinkConfig,
+    arm: bool,
+    throw_to_fly: bool,
+    kill: bool,
+    signal: bool,
+    frame_period_us: u64,
+    next_frame_us: u64,
+    script: VecDeque<(u64, RcEvent)>,
+    pending: VecDeque<u8>,
+    frames_sent: u64,
+}
+
+impl RcTransmitter {
+    /// A transmitter with every switch off and the link up, sending `rate_hz` frames per second
+    /// (clamped to 1–1,000 Hz) from time 0, then playing `script`.
+    pub fn new(rate_hz: f64, script: &RcScript) -> Self {
+        let rate_hz = if rate_hz.is_finite() { rate_hz.clamp(1.0, 1_000.0) } else { 150.0 };
+        Self {
+            config: RcLinkConfig::default(),
+            arm: false,
+            throw_to_fly: false,
+            kill: false,
+            signal: true,
+            frame_period_us: (1e6 / rate_hz).round() as u64,
+            next_frame_us: 0,
+            script: script.events.iter().map(|&(t, e)| ((t * 1e6).round() as u64, e)).collect(),
+            pending: VecDeque::new(),
+            frames_sent: 0,
+        }
+    }
+
+    /// Apply `event` now.
+    pub fn apply(&mut self, event: RcEvent) {
+        match event {
+            RcEvent::Arm(on) => self.arm = on,
+            RcEvent::ThrowToFly(on) => self.throw_to_fly = on,
+            RcEvent::Kill(on) => self.kill = on,
+            RcEvent::Signal(on) => self.signal = on,
+        }
+    }
+
+    /// Advance to `now_us` (simulated time, µs): the script's events that are due, then the
+    /// frames due by now (none while the link is lost), queued for the next read.
+    pub fn advance(&mut self, now_us: u64) {
+        while self.next_frame_us <= now_us {
+            let frame_us = self.next_frame_us;
+            while let Some(&(at_us, event)) = self.script.front() {
+                if at_us > frame_us {
+                    break;
+                }
+                self.apply(event);
+                self.script.pop_front();
+            }
+            if self.signal {
+                self.queue_frame();
+            }
+            self.next_frame_us += self.frame_period_us;
+        }
+        while let Some(&(at_us, event)) = self.script.front() {
+            if at_us > now_us {
+                break;
+            }
+            self.apply(event);
+            self.script.pop_front();
+        }
+    }
+
+    /// RC frames sent so far.
+    pub fn frames_sent(&self) -> u64 {
+        self.frames_sent
+    }
+
+    fn queue_frame(&mut self) {
+        let mut raw = [CHANNEL_RAW_MID; CHANNEL_COUNT];
+        let us = |on: bool| RcChannels::raw_from_us(if on { SWITCH_ON_US } else { SWITCH_OFF_US });
+        raw[self.config.arm.channel] = us(self.arm);
+        raw[self.config.throw_to_fly.channel] = us(self.throw_to_fly);
+        raw[self.config.kill.channel] = us(self.kill);
+        let payload = RcChannels { raw }.pack();
+        let mut frame = [0u8; FRAME_MAX];
+        if let Some(n) =
+            encode_frame(SYNC_FLIGHT_CONTROLLER, TYPE_RC_CHANNELS_PACKED, &payload, &mut frame)
+        {
+            self.pending.extend(&frame[..n]);
+            self.frames_sent += 1;
+        }
+    }
+}
+
+impl ByteSource for RcTransmitter {
+    fn read(&mut self, buffer: &mut [u8]) -> usize {
+        let n = buffer.len().min(self.pending.len());
+        for (dst, src) in buffer.iter_mut().zip(self.pending.drain(..n)) {
+            *dst = src;
+        }
+        n
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use firmware::app::radio::{CraftState, Receiver};
+    use firmware::app::ControlCommand;
+
+    #[test]
+    fn scripts_parse_in_seconds_and_bad_ones_say_why() {
+        let script = RcScript::parse("6:kill, 1:arm,1:throw ,2.5:lose").unwrap();
+        assert_eq!(
+            script.events,
+            vec![
+                (1.0, RcEvent::Arm(true)),
+                (1.0, RcEvent::ThrowToFly(true)),
+                (2.5, RcEvent::Signal(false)),
+                (6.0, RcEvent::Kill(true)),
+            ]
+        );
+        assert_eq!(RcScript::parse("").unwrap().events, vec![]);
+        for (bad, says) in [
+            ("1arm", "TIME_S:EVENT"),
+            ("x:arm", "not a time"),
+            ("-1:arm", "at least 0"),
+            ("nan:arm", "finite"),
+            ("1:fly", "unknown event `fly`"),
+        ] {
+            let error = RcScript::parse(bad).unwrap_err();
+            assert!(error.contains(says), "`{bad}`: {error}");
+        }
+    }
+
+    #[test]
+    fn the_switches_reach_the_receiver_policy_at_the_frame_rate() {
+        let script = RcScript::parse("0.1:arm,0.1:throw,0.3:lose").unwrap();
+        let mut radio = RcTransmitter::new(150.0, &script);
+        let mut receiver = Receiver::new(RcLinkConfig::default()).unwrap();
+        let idle = CraftState { armed: false, in_flight: false };
+        let mut chunk = [0u8; 256];
+        let mut armed_at_us = None;
+        for tick in 0..1_000u64 {
+            let now_us = tick * 500;
+            radio.advance(now_us);
+            let n = radio.read(&mut chunk);
+            let command = receiver.poll(&chunk[..n], now_us, idle);
+            if command == Some(ControlCommand::ArmThrowToFly) && armed_at_us.is_none() {
+                armed_at_us = Some(now_us);
+            }
+        }
+        // Switches off at start-up (the interlock clears), on at 0.1 s: the arm arrives with the
+        // first frame after 0.1 s (150 Hz: within 6.7 ms).
+        let armed_at_us = armed_at_us.expect("armed by the switches");
+        assert!((100_000..=106_700).contains(&armed_at_us), "armed at {armed_at_us} µs");
+        // 0.3 s of frames at 150 Hz, then none: the link counts as down 250 ms after the last
+        // one (at 293 ms).
+        assert_eq!(radio.frames_sent(), 45);
+        assert!(receiver.health(540_000).link_up);
+        assert!(!receiver.health(546_000).link_up);
+        assert_eq!(
+            (receiver.health(546_000).frames, receiver.health(546_000).frame_errors),
+            (45, 0)
+        );
+    }
+}

@@ -1,0 +1,184 @@
+//! The pilot's radio end to end: a simulated CRSF transmitter's frames through the application
+//! graph's control tick (the real parser, switch mapping and receiver policy, as on the board),
+//! the seed paper's quad thrown and flying.
+//!
+//! - The kill switch disarms within one control step of its frame's arrival and reports
+//!   `Failsafe::Kill`.
+//! - Signal loss in flight: the craft flies on for the failsafe timeout (0.25 s) and the grace
+//!   (1 s), then disarms and reports `Failsafe::RcLost`; on the ground it disarms at once.
+//! - After either, re-arming needs the arm switch cycled.
+
+use firmware::app::radio::{Receiver, FLIGHT_FAILSAFE_GRACE_US};
+use firmware::app::system::with_system;
+use firmware::app::{ControlSnapshot, Failsafe, Settings};
+use firmware::drivers::crsf::{RcLinkConfig, DEFAULT_FAILSAFE_TIMEOUT_US};
+use flight::learner::FlightPhase;
+use sim::airframe::Airframe;
+use sim::board::{SimBoard, SIM_BOARD_HEALTH};
+use sim::radio::{RcScript, RcTransmitter, DEFAULT_RC_RATE_HZ};
+use sim::recovery::FlyConfig;
+
+/// One control tick's outcome as the test reads it.
+#[derive(Clone, Copy, Debug)]
+struct Tick {
+    time_s: f64,
+    snapshot: ControlSnapshot,
+    /// An RC frame reached the control tick in this step.
+    frame_arrived: bool,
+}
+
+/// Flies the seed paper's quad for `seconds` with the radio playing `script`, thrown at 0.5 s
+/// when `throw` (its IMU offset known, as after a calibration).
+fn fly(script: &str, throw: bool, seconds: f64) -> Vec<Tick> {
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config = FlyConfig::paper();
+    let truth = sim::identification::TrueModel::of(&airframe);
+    let mut board = SimBoard::new(&airframe, &config.board);
+    let mut radio = RcTransmitter::new(DEFAULT_RC_RATE_HZ, &RcScript::parse(script).unwrap());
+    let receiver = Receiver::new(RcLinkConfig::default()).unwrap();
+    let settings = Settings::<firmware::app::NoFlash>::without_store();
+    let (ticks, _) = with_system(settings, SIM_BOARD_HEALTH, Some(receiver), |system| {
+        let r = truth.r_imu_m;
+        system.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
+        let mut ticks = Vec::new();
+        for tick in 0..(seconds * 2000.0) as u64 {
+            if throw && tick == 1000 {
+                board.physics_mut().throw(&config.throw.spec());
+            }
+            board.tick();
+            let now_us = board.now_us();
+            let frames_before = radio.frames_sent();
+            radio.advance(now_us);
+            let (imu, motors) = board.ports();
+            system.tick(now_us, imu, motors, &mut radio);
+            ticks.push(Tick {
+                time_s: board.time_s(),
+                snapshot: system.snapshot(),
+                frame_arrived: radio.frames_sent() > frames_before,
+            });
+        }
+        ticks
+    });
+    ticks
+}
+
+/// The first tick at or after `time_s` where `condition` holds.
+fn first(ticks: &[Tick], time_s: f64, condition: impl Fn(&Tick) -> bool) -> Option<&Tick> {
+    ticks.iter().find(|t| t.time_s >= time_s && condition(t))
+}
+
+fn armed(tick: &Tick) -> bool {
+    tick.snapshot.armed
+}
+
+#[test]
+fn the_kill_switch_disarms_a_flying_craft_within_one_control_step_and_reports_kill() {
+    let ticks = fly("0.1:arm,0.1:throw,4:kill", true, 4.5);
+    let before = first(&ticks, 3.99, |_| true).unwrap();
+    assert!(before.snapshot.pilot.flying, "flying on the learned model before the kill");
+    // The first frame with the kill switch on arrives at the first frame time after 4 s.
+    let arrival = first(&ticks, 4.0, |t| t.frame_arrived).unwrap();
+    let disarmed = first(&ticks, 4.0, |t| !armed(t) && !t.snapshot.pilot.flying).unwrap();
+    let steps = ((disarmed.time_s - arrival.time_s) * 2000.0).round();
+    eprintln!(
+        "kill frame at {:.4} s, disarmed at {:.4} s ({steps} steps)",
+        arrival.time_s, disarmed.time_s
+    );
+    assert!(steps <= 1.0, "disarmed {steps} control steps after the kill frame arrived");
+    let pilot = ticks.last().unwrap().snapshot.pilot;
+    assert_eq!(pilot.last_failsafe, Some(Failsafe::Kill));
+    assert_eq!(pilot.failsafes.kill, 1, "counted once: {:?}", pilot.failsafes);
+    assert!(ticks.last().unwrap().snapshot.phase != FlightPhase::Exciting);
+}
+
+#[test]
+fn signal_lost_in_flight_flies_on_for_the_timeout_and_the_grace_then_reports_rc_lost() {
+    let lost_s = 4.0;
+    let ticks = fly(&format!("0.1:arm,0.1:throw,{lost_s}:lose"), true, 5.6);
+    assert!(first(&ticks, lost_s - 0.01, |_| true).unwrap().snapshot.pilot.flying);
+    // The last frame came at most one frame period before the loss.
+    let last_frame_s = ticks.iter().rev().find(|t| t.frame_arrived).map(|t| t.time_s).unwrap();
+    assert!(lost_s - last_frame_s <= 1.0 / DEFAULT_RC_RATE_HZ + 1e-3, "{last_frame_s}");
+    let reaction_s = (DEFAULT_FAILSAFE_TIMEOUT_US + FLIGHT_FAILSAFE_GRACE_US) as f64 * 1e-6;
+    // Still flying just before the documented reaction, disarmed at it.
+    let still = first(&ticks, last_frame_s + reaction_s - 0.005, |_| true).unwrap();
+    assert!(still.snapshot.pilot.flying && armed(still), "flying on at {:.3} s", still.time_s);
+    let disarmed = first(&ticks, lost_s, |t| !t.snapshot.pilot.flying).unwrap();
+    let after_s = disarmed.time_s - last_frame_s;
+    eprintln!("last frame {last_frame_s:.4} s, disarmed {after_s:.4} s later");
+    assert!((after_s - reaction_s).abs() <= 0.001, "disarmed {after_s:.4} s after the last frame");
+    let pilot = ticks.last().unwrap().snapshot.pilot;
+    assert_eq!(pilot.last_failsafe, Some(Failsafe::RcLost));
+    assert_eq!(pilot.failsafes.rc_lost, 1);
+}
+
+#[test]
+fn after_a_kill_or_a_lost_link_re_arming_needs_the_arm_switch_cycled() {
+    // On the ground: armed by the switches at 0.1 s; killed at 0.5 s; kill off at 0.8 s with arm
+    // and throw-to-fly still on; arm cycled at 1.0 / 1.2 s; link lost at 1.5 s and back at
+    // 2.0 s with the switches on; arm cycled at 2.3 / 2.5 s.
+    let script = "0.1:arm,0.1:throw,0.5:kill,0.8:kill-off,1.0:disarm,1.2:arm,1.5:lose,2.0:restore,\
+         2.3:disarm,2.5:arm";
+    let ticks = fly(script, false, 3.0);
+    let armed_between = |from_s: f64, to_s: f64| {
+        ticks.iter().filter(|t| t.time_s >= from_s && t.time_s < to_s).any(armed)
+    };
+    assert!(armed_between(0.1, 0.12), "armed by the switches");
+    assert!(!armed_between(0.51, 1.2), "not re-armed by the kill switch going off");
+    assert!(armed_between(1.2, 1.22), "re-armed after the arm switch was cycled");
+    let lost = first(&ticks, 1.5, |t| !armed(t)).unwrap();
+    let loss_after_s = lost.time_s - 1.5;
+    assert!(
+        loss_after_s <= DEFAULT_FAILSAFE_TIMEOUT_US as f64 * 1e-6 + 0.001,
+        "on the ground a lost link disarms at the failsafe timeout: {loss_after_s:.4} s"
+    );
+    assert!(!armed_between(lost.time_s, 2.5), "not re-armed by the link coming back");
+    assert!(armed_between(2.5, 2.52), "re-armed after the arm switch was cycled");
+    let pilot = ticks.last().unwrap().snapshot.pilot;
+    assert_eq!((pilot.failsafes.kill, pilot.failsafes.rc_lost), (1, 1));
+    assert_eq!(pilot.last_failsafe, Some(Failsafe::RcLost));
+}
+
+/// The same through the SITL and the configurator binary: the SITL's simulated radio arms the
+/// board with its switches, the simulated hand throws it, it flies, the kill switch disarms it,
+/// and `status --json` names the failsafe.
+#[test]
+fn in_the_sitl_the_kill_switch_is_reported_in_the_status() {
+    use sim::sitl::{Sitl, SitlConfig};
+    let config = SitlConfig {
+        // 2×: the flight (about 5.5 simulated s) lasts long enough in wall-clock time for the
+        // status polls below to see it, even on a loaded machine.
+        speed: 2.0,
+        hand_throws_to_fly: true,
+        imu_offset_m: Some({
+            let r = sim::identification::TrueModel::of(&Airframe::builtin("paper-quad").unwrap())
+                .r_imu_m;
+            [r.x as f32, r.y as f32, r.z as f32]
+        }),
+        rc_script: Some(RcScript::parse("0.5:arm,0.5:throw,9:kill").unwrap()),
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let port = sitl.pty_path.clone().unwrap();
+    let status = |port: &std::path::Path| {
+        let output = tests::run_cli(&["--port", port.to_str().unwrap(), "--json", "status"]);
+        assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+        serde_json::from_slice::<serde_json::Value>(&output.stdout).unwrap()
+    };
+    // 9 simulated seconds at 2× take 4.5 s; the flight is seen first, then the kill.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    let mut flew = false;
+    let report = loop {
+        let report = status(&port);
+        flew |= report["flight"]["mode"].as_str().is_some_and(|mode| mode != "Off");
+        if report["flight"]["last_failsafe"].is_string() {
+            break report;
+        }
+        assert!(std::time::Instant::now() < deadline, "no failsafe reported: {report:#}");
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    };
+    assert!(flew, "the craft flew before the kill");
+    assert_eq!(report["flight"]["last_failsafe"], "Kill", "{report:#}");
+    assert_eq!(report["flight"]["failsafes"]["kill"], 1);
+    assert_eq!(report["armed"], false);
+}
