@@ -74,6 +74,7 @@ pub fn build(args: &[String]) -> Result<PathBuf> {
     let mut cargo = util::cargo();
     cargo.args(["build", "--profile", PROFILE, "-p", "firmware", "--bin", "firmware"]);
     cargo.args(["--target", TARGET]);
+    cargo.args(registry_remaps());
     cargo.args(args.iter().filter(|arg| *arg != STACK_ARG));
     if std::env::var_os("DEFMT_LOG").is_none() {
         // defmt compiles out everything below `error` unless told otherwise.
@@ -126,6 +127,40 @@ fn float_formatting_symbols(elf: &[u8]) -> Result<Vec<String>> {
     found.dedup();
     Ok(found)
 }
+/// `--config` arguments that strip the cargo registry's source directories from the paths
+/// compiled into the firmware (`--remap-path-prefix`, appended to `.cargo/config.toml`'s
+/// rustflags for [`TARGET`]): every panic location carries its file's name in flash, and
+/// `~/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/nalgebra-0.35.0/src/base/blas.rs`
+/// becomes `nalgebra-0.35.0/src/base/blas.rs`: about 1.9 KB of flash for 32 files. The prefix
+/// depends on the machine, so it cannot be written in `.cargo/config.toml`. No effect on code.
+fn registry_remaps() -> Vec<String> {
+    let cargo_home = match std::env::var_os("CARGO_HOME") {
+        Some(dir) => PathBuf::from(dir),
+        None => match std::env::var_os("HOME").or_else(|| std::env::var_os("USERPROFILE")) {
+            Some(home) => PathBuf::from(home).join(".cargo"),
+            None => return Vec::new(),
+        },
+    };
+    let Ok(entries) = std::fs::read_dir(cargo_home.join("registry").join("src")) else {
+        return Vec::new();
+    };
+    let mut dirs: Vec<PathBuf> =
+        entries.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect();
+    dirs.sort();
+    dirs.iter()
+        .filter_map(|dir| dir.to_str())
+        // A TOML literal string cannot hold a single quote; such a directory keeps its paths.
+        .filter(|dir| !dir.contains('\''))
+        .flat_map(|dir| {
+            let separator = std::path::MAIN_SEPARATOR;
+            [
+                "--config".to_string(),
+                format!("target.{TARGET}.rustflags=['--remap-path-prefix={dir}{separator}=']"),
+            ]
+        })
+        .collect()
+}
+
 /// The `build` argument that adds the stack analysis.
 const STACK_ARG: &str = "--stack";
 
