@@ -588,8 +588,9 @@ impl HeadingAlignment {
         let d = slot.fix - one.fix * 2.0 + two.fix;
         let d_filter = slot.dead - one.dead * 2.0 + two.dead;
         // The time this window stands for: since the previous slot, at most a window (windows
-        // a window apart no longer overlap).
-        let w = (slot.t_s - previous_t_s).clamp(0.0, t);
+        // a window apart no longer overlap). `math::clamp`, not `f32::clamp`: the bound is not a
+        // constant, and `f32::clamp`'s assertion would link core's float formatting (15 KB).
+        let w = crate::math::clamp(slot.t_s - previous_t_s, 0.0, t);
         // Variance of each component of D from the fixes' noise (means of slots).
         let sigma2 = self.noise_m * self.noise_m;
         let var_d = sigma2 * (1.0 / slot.n as f32 + 4.0 * one.noise_factor + two.noise_factor);

@@ -29,9 +29,12 @@ const QEMU: &str = "qemu-system-arm";
 const QEMU_MACHINE: &str = "mps2-an500";
 const QEMU_CPU: &str = "cortex-m7";
 /// The bench binary's target and its rustflags (set through `RUSTFLAGS`, which replaces the
-/// workspace's firmware flags for this target: flip-link and defmt are not used here).
+/// workspace's firmware flags for this target: flip-link and defmt are not used here). The code
+/// generation flags are the firmware's (`.cargo/config.toml`, `[target.thumbv7em-none-eabihf]`):
+/// keep the two in step.
 const TARGET: &str = "thumbv7em-none-eabihf";
-const RUSTFLAGS: &str = "-C link-arg=-Tlink.x -C target-cpu=cortex-m7";
+const RUSTFLAGS: &str =
+    "-C link-arg=-Tlink.x -C target-cpu=cortex-m7 -C llvm-args=-inline-threshold=100";
 /// Semihosting line announcing a region, in run order.
 const REGION_PREFIX: &str = "bench-m7 region: ";
 /// Targets from issues 3, 7 and 8 (instructions), matched by region-name prefix.

@@ -3,7 +3,8 @@
 //! `build` installs what the cross build needs (the rustup target, flip-link), builds the
 //! firmware ELF (cargo profile `firmware`: the release profile, its cold dependencies compiled
 //! for size) and prints its flash and RAM use, read from the ELF's section headers by a small
-//! reader below (no binutils needed); it warns when the image exceeds its 128 KiB flash budget. `flash` programs a board through a debug probe (probe-rs) or
+//! reader below (no binutils needed); it fails when the image exceeds its 256 KiB flash budget
+//! or links core's float formatting. `flash` programs a board through a debug probe (probe-rs) or
 //! through the STM32's ROM DFU bootloader (dfu-util), and says what to install or connect when
 //! neither is possible.
 
@@ -47,11 +48,19 @@ const RAM_SECTIONS: &[&str] = &[".data", ".bss", ".uninit"];
 /// crates the control step and the learner never run at "z"; `bench-m7` mirrors it for `flight`).
 pub const PROFILE: &str = "firmware";
 
-/// Flash budget of the firmware image, bytes (the board issue's target: 128 KiB).
-const FLASH_BUDGET_BYTES: u64 = 128 * 1024;
+/// Flash budget of the firmware image, bytes: two 128 KiB sectors of the H743's flash (issue 31,
+/// which withdrew issue 10's 128 KiB; docs/benchmarks.md, "Firmware size").
+const FLASH_BUDGET_BYTES: u64 = 256 * 1024;
+
+/// Symbol-name fragments of core's float formatting (`core::num::flt2dec`, Grisu and Dragon4),
+/// about 15 KB of flash. The firmware never formats a float (defmt sends them raw); they are
+/// linked when a panic message formats one, e.g. `f32::clamp` with bounds that are not constants
+/// (its assertion prints both): use `flight::math::clamp` there.
+const FLOAT_FORMATTING_SYMBOLS: &[&str] = &["flt2dec"];
 
 /// Build the firmware ELF (profile [`PROFILE`]) and print its flash and RAM use; returns the
-/// ELF's path. Warns when the image exceeds [`FLASH_BUDGET_BYTES`].
+/// ELF's path. Fails when the image exceeds [`FLASH_BUDGET_BYTES`] or links float formatting
+/// ([`FLOAT_FORMATTING_SYMBOLS`]), so CI catches either.
 ///
 /// Extra `args` are passed to `cargo build` (e.g. `--features ...`).
 ///
@@ -65,6 +74,7 @@ pub fn build(args: &[String]) -> Result<PathBuf> {
     let mut cargo = util::cargo();
     cargo.args(["build", "--profile", PROFILE, "-p", "firmware", "--bin", "firmware"]);
     cargo.args(["--target", TARGET]);
+    cargo.args(registry_remaps());
     cargo.args(args.iter().filter(|arg| *arg != STACK_ARG));
     if std::env::var_os("DEFMT_LOG").is_none() {
         // defmt compiles out everything below `error` unless told otherwise.
@@ -78,18 +88,77 @@ pub fn build(args: &[String]) -> Result<PathBuf> {
     let sections = elf32_sections(&bytes).with_context(|| format!("parsing {}", elf.display()))?;
     let used = MemoryUse::of(&sections);
     print!("{}", used.report(&elf));
-    if used.flash_bytes > FLASH_BUDGET_BYTES {
-        // A warning, not an error, until the image is back within budget (docs/benchmarks.md).
-        eprintln!(
-            "warning: the firmware uses {} B of flash, over its budget of {FLASH_BUDGET_BYTES} B \
-             (128 KiB): see docs/benchmarks.md, \"Firmware size\", for what takes the space",
-            used.flash_bytes
-        );
-    }
     if stack {
         print!("{}", stack_report(&bytes, &sections)?);
     }
+    check_budget(used.flash_bytes)?;
+    let formatting = float_formatting_symbols(&bytes)?;
+    ensure!(
+        formatting.is_empty(),
+        "the firmware links core's float formatting (about 15 KB of flash), through {}: a panic \
+         message formats a float somewhere (e.g. `f32::clamp` with bounds that are not constants: \
+         use `flight::math::clamp`); `llvm-objdump -d` on {} shows the caller",
+        formatting.join(", "),
+        elf.display()
+    );
     Ok(elf)
+}
+
+/// Fails when the image does not fit [`FLASH_BUDGET_BYTES`].
+fn check_budget(flash_bytes: u64) -> Result<()> {
+    ensure!(
+        flash_bytes <= FLASH_BUDGET_BYTES,
+        "the firmware uses {flash_bytes} B of flash, over its budget of {FLASH_BUDGET_BYTES} B \
+         (256 KiB, two flash sectors) by {} B: see docs/benchmarks.md, \"Firmware size\", for \
+         what takes the space and what was done",
+        flash_bytes - FLASH_BUDGET_BYTES
+    );
+    Ok(())
+}
+
+/// The names of the ELF's symbols that belong to core's float formatting
+/// ([`FLOAT_FORMATTING_SYMBOLS`]), sorted.
+fn float_formatting_symbols(elf: &[u8]) -> Result<Vec<String>> {
+    let mut found: Vec<String> = elf32_symbol_names(elf)?
+        .into_iter()
+        .filter(|name| FLOAT_FORMATTING_SYMBOLS.iter().any(|part| name.contains(part)))
+        .collect();
+    found.sort();
+    found.dedup();
+    Ok(found)
+}
+/// `--config` arguments that strip the cargo registry's source directories from the paths
+/// compiled into the firmware (`--remap-path-prefix`, appended to `.cargo/config.toml`'s
+/// rustflags for [`TARGET`]): every panic location carries its file's name in flash, and
+/// `~/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/nalgebra-0.35.0/src/base/blas.rs`
+/// becomes `nalgebra-0.35.0/src/base/blas.rs`: about 1.9 KB of flash for 32 files. The prefix
+/// depends on the machine, so it cannot be written in `.cargo/config.toml`. No effect on code.
+fn registry_remaps() -> Vec<String> {
+    let cargo_home = match std::env::var_os("CARGO_HOME") {
+        Some(dir) => PathBuf::from(dir),
+        None => match std::env::var_os("HOME").or_else(|| std::env::var_os("USERPROFILE")) {
+            Some(home) => PathBuf::from(home).join(".cargo"),
+            None => return Vec::new(),
+        },
+    };
+    let Ok(entries) = std::fs::read_dir(cargo_home.join("registry").join("src")) else {
+        return Vec::new();
+    };
+    let mut dirs: Vec<PathBuf> =
+        entries.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect();
+    dirs.sort();
+    dirs.iter()
+        .filter_map(|dir| dir.to_str())
+        // A TOML literal string cannot hold a single quote; such a directory keeps its paths.
+        .filter(|dir| !dir.contains('\''))
+        .flat_map(|dir| {
+            let separator = std::path::MAIN_SEPARATOR;
+            [
+                "--config".to_string(),
+                format!("target.{TARGET}.rustflags=['--remap-path-prefix={dir}{separator}=']"),
+            ]
+        })
+        .collect()
 }
 
 /// The `build` argument that adds the stack analysis.
@@ -656,6 +725,44 @@ fn elf32_sections(elf: &[u8]) -> Result<Vec<Section>> {
     Ok(sections)
 }
 
+/// The names of the symbols in a little-endian ELF32 file's symbol table (`SHT_SYMTAB`, its
+/// names in the string table its `sh_link` names; System V ABI, "Symbol Table"), mangled.
+fn elf32_symbol_names(elf: &[u8]) -> Result<Vec<String>> {
+    check_elf32_le(elf)?;
+    let r = Reader(elf);
+    let table_offset = r.u32(0x20)? as usize; // e_shoff
+    let entry_bytes = usize::from(r.u16(0x2E)?); // e_shentsize
+    let count = usize::from(r.u16(0x30)?); // e_shnum
+    ensure!(entry_bytes >= 40, "section header entries of {entry_bytes} bytes");
+    let header = |index: usize| table_offset + index * entry_bytes;
+    const SHT_SYMTAB: u32 = 2;
+    const SYMBOL_BYTES: usize = 16; // Elf32_Sym
+    let mut names = Vec::new();
+    for index in 0..count {
+        if r.u32(header(index) + 4)? != SHT_SYMTAB {
+            continue;
+        }
+        let symbols_offset = r.u32(header(index) + 16)? as usize; // sh_offset
+        let symbols_size = r.u32(header(index) + 20)? as usize; // sh_size
+        let strings_index = r.u32(header(index) + 24)? as usize; // sh_link
+        ensure!(strings_index < count, "symbol-name table index {strings_index} out of {count}");
+        let strings_offset = r.u32(header(strings_index) + 16)? as usize;
+        let strings_size = r.u32(header(strings_index) + 20)? as usize;
+        let strings = elf
+            .get(strings_offset..strings_offset + strings_size)
+            .context("symbol names truncated")?;
+        for entry in (0..symbols_size / SYMBOL_BYTES).map(|i| symbols_offset + i * SYMBOL_BYTES) {
+            let name_offset = r.u32(entry)? as usize; // st_name
+            let bytes = strings.get(name_offset..).context("symbol name out of range")?;
+            let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+            if end > 0 {
+                names.push(String::from_utf8_lossy(&bytes[..end]).into_owned());
+            }
+        }
+    }
+    Ok(names)
+}
+
 /// Read the loadable segments of a little-endian ELF32 file (System V ABI, "Program Header").
 fn elf32_load_segments(elf: &[u8]) -> Result<Vec<Segment>> {
     check_elf32_le(elf)?;
@@ -833,6 +940,58 @@ mod tests {
             names.len() as u32,
         ));
         elf
+    }
+
+    /// A minimal ELF32 with a symbol table of the given names (all in section 0, value 0) and
+    /// its string table; no other sections.
+    fn elf_with_symbols(names: &[&str]) -> Vec<u8> {
+        let mut strings = vec![0u8];
+        let mut symbols = vec![0u8; 16]; // the null symbol
+        for name in names {
+            symbols.extend_from_slice(&(strings.len() as u32).to_le_bytes()); // st_name
+            symbols.extend_from_slice(&[0; 12]); // st_value, st_size, st_info..st_shndx
+            strings.extend_from_slice(name.as_bytes());
+            strings.push(0);
+        }
+        let symbols_offset = 52;
+        let strings_offset = symbols_offset + symbols.len();
+        let table_offset = strings_offset + strings.len();
+        let mut elf = vec![0u8; 52];
+        elf[..6].copy_from_slice(b"\x7fELF\x01\x01");
+        elf[0x20..0x24].copy_from_slice(&(table_offset as u32).to_le_bytes());
+        elf[0x2E..0x30].copy_from_slice(&40u16.to_le_bytes());
+        elf[0x30..0x32].copy_from_slice(&3u16.to_le_bytes());
+        elf.extend_from_slice(&symbols);
+        elf.extend_from_slice(&strings);
+        elf.extend_from_slice(&[0; 40]); // null section
+                                         // .symtab (SHT_SYMTAB = 2), sh_link = 2: the string table below.
+        for word in [0, 2, 0, 0, symbols_offset as u32, symbols.len() as u32, 2, 0, 4, 16] {
+            elf.extend_from_slice(&word.to_le_bytes());
+        }
+        // .strtab (SHT_STRTAB = 3).
+        for word in [0, 3, 0, 0, strings_offset as u32, strings.len() as u32, 0, 0, 1, 0] {
+            elf.extend_from_slice(&word.to_le_bytes());
+        }
+        elf
+    }
+
+    #[test]
+    fn finds_float_formatting_among_the_symbols() {
+        let clean = elf_with_symbols(&["main", "_ZN6flight4math5clamp17h0123456789abcdefE"]);
+        assert_eq!(elf32_symbol_names(&clean).unwrap().len(), 2);
+        assert!(float_formatting_symbols(&clean).unwrap().is_empty());
+        let grisu = "_ZN4core3num7flt2dec8strategy5grisu19format_shortest_opt17h0fE";
+        let dragon = "_ZN4core3num7flt2dec8strategy6dragon15format_shortest17h1fE";
+        let bloated = elf_with_symbols(&["main", dragon, grisu]);
+        assert_eq!(float_formatting_symbols(&bloated).unwrap(), [grisu, dragon]);
+        // sorted
+    }
+
+    #[test]
+    fn flash_budget_is_two_sectors() {
+        assert!(check_budget(262_144).is_ok());
+        let over = check_budget(262_145).unwrap_err().to_string();
+        assert!(over.contains("262145 B") && over.contains("by 1 B"), "{over}");
     }
 
     #[test]
