@@ -22,6 +22,7 @@ use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::app::ControlCommand;
 use protocol::{ExternalPose, LearnerFailure};
 
+use crate::radio::RcTransmitter;
 use crate::scenario::{FirmwareApp, FlightApp};
 use crate::serve::TcpLinks;
 
@@ -430,6 +431,10 @@ pub struct BridgeSummary {
 /// tick, as on the board. Connections accepted after the first
 /// packet report its motor count in their info (0 before).
 ///
+/// With `radio`, the pilot's simulated radio plays its script in the packets' time and its RC
+/// frames reach the control tick's receiver policy (build `app` with a receiver:
+/// [`crate::scenario::with_firmware_app_and_radio`]).
+///
 /// Malformed datagrams are reported to `report` ([`BridgeNotice::Malformed`]) and not answered;
 /// a throw-to-fly attempt that ends without a result, or an arming the control step refuses,
 /// is reported with its reason ([`BridgeNotice::AttemptEnded`]). A socket error ends the
@@ -438,6 +443,7 @@ pub fn serve_firmware(
     server: &mut BridgeServer,
     app: &mut FirmwareApp<'_>,
     mut links: Option<&mut TcpLinks>,
+    mut radio: Option<&mut RcTransmitter>,
     idle_timeout: Duration,
     report: &mut dyn FnMut(BridgeNotice<'_>),
 ) -> Result<BridgeSummary, BridgeError> {
@@ -457,7 +463,11 @@ pub fn serve_firmware(
         }
         let wait =
             (idle_timeout - idle).min(if links.is_some() { LINK_WAIT } else { idle_timeout });
-        let link_pass_due = match server.step(app, wait) {
+        let stepped = match radio.as_deref_mut() {
+            Some(radio) => server.step(&mut WithRadio { app, radio }, wait),
+            None => server.step(app, wait),
+        };
+        let link_pass_due = match stepped {
             Ok((sensor, _)) => {
                 last_datagram = Instant::now();
                 summary.steps += 1;
@@ -493,6 +503,24 @@ pub fn serve_firmware(
                 links.drop_closed();
             }
         }
+    }
+}
+
+/// The firmware with the pilot's simulated radio: each step first advances the radio to the
+/// packet's time, then the control tick reads its bytes (the board's receiver UART).
+struct WithRadio<'a, 'q> {
+    app: &'a mut FirmwareApp<'q>,
+    radio: &'a mut RcTransmitter,
+}
+
+impl FlightApp for WithRadio<'_, '_> {
+    fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
+        self.radio.advance(now_us);
+        self.app.tick(now_us, imu, motors, self.radio);
+    }
+
+    fn command(&mut self, command: ControlCommand, now_us: u64) {
+        self.app.command(command, now_us);
     }
 }
 

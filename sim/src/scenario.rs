@@ -19,6 +19,7 @@ use std::io::Write;
 
 use embedded_storage::nor_flash::NorFlash;
 use firmware::app::hal::{Imu, Motors, NoBytes};
+use firmware::app::radio::Receiver;
 use firmware::app::system::{with_system, System};
 use firmware::app::{ControlCommand, NoFlash, Settings};
 use nalgebra::Vector3;
@@ -62,7 +63,16 @@ impl<F: NorFlash> FlightApp for System<'_, F> {
 /// Runs `f` with a fresh [`FirmwareApp`] (default control configuration and parameters, no
 /// flash, no radio) whose queues live for the call.
 pub fn with_firmware_app<R>(f: impl FnOnce(&mut FirmwareApp<'_>) -> R) -> R {
-    with_system(Settings::without_store(), SIM_BOARD_HEALTH, None, f).0
+    with_firmware_app_and_radio(None, f)
+}
+
+/// [`with_firmware_app`] with the pilot's receiver policy `radio` in the control tick (feed it
+/// bytes with [`System::tick`], e.g. from a [`crate::radio::RcTransmitter`]).
+pub fn with_firmware_app_and_radio<R>(
+    radio: Option<Receiver>,
+    f: impl FnOnce(&mut FirmwareApp<'_>) -> R,
+) -> R {
+    with_system(Settings::without_store(), SIM_BOARD_HEALTH, radio, f).0
 }
 
 /// Reads the IMU and commands nothing (motors stay stopped).

@@ -150,24 +150,23 @@ fn firmware_bridge(
 {
     let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
     let addr = server.local_addr().unwrap();
-    let handle =
-        std::thread::spawn(move || {
-            with_firmware_app(|app| {
-                if arm {
-                    app.submit(ControlCommand::ArmThrowToFly);
-                }
-                let mut notices = Vec::new();
-                let summary =
-                    serve_firmware(&mut server, app, links.as_mut(), idle, &mut |notice| {
-                        match notice {
-                            BridgeNotice::Malformed(e) => panic!("malformed packet: {e}"),
-                            notice => notices.push(notice.to_string()),
-                        }
-                    })
-                    .unwrap();
-                (summary, app.snapshot(), notices)
-            })
-        });
+    let handle = std::thread::spawn(move || {
+        with_firmware_app(|app| {
+            if arm {
+                app.submit(ControlCommand::ArmThrowToFly);
+            }
+            let mut notices = Vec::new();
+            let summary =
+                serve_firmware(&mut server, app, links.as_mut(), None, idle, &mut |notice| {
+                    match notice {
+                        BridgeNotice::Malformed(e) => panic!("malformed packet: {e}"),
+                        notice => notices.push(notice.to_string()),
+                    }
+                })
+                .unwrap();
+            (summary, app.snapshot(), notices)
+        })
+    });
     (addr, handle)
 }
 
@@ -508,4 +507,41 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, mocap_rate_hz: f64) {
     assert!(bridge_error_m < 0.3, "held within {bridge_error_m} m");
     assert!((bridge_hover_s - builtin_hover_s).abs() <= 0.1, "release → hover differs");
     assert!((bridge_error_m - builtin_error_m).abs() <= 0.02, "hold error differs");
+}
+
+/// The bridge's simulated radio (`scenario bridge --rc`): its switches arm the application in
+/// the packets' time through the receiver policy, and its kill switch disarms with
+/// `Failsafe::Kill` in the step its frame arrives.
+#[test]
+fn the_bridges_radio_arms_and_its_kill_switch_disarms_in_packet_time() {
+    use firmware::app::radio::Receiver;
+    use firmware::app::Failsafe;
+    use firmware::drivers::crsf::RcLinkConfig;
+    use sim::radio::{RcScript, RcTransmitter};
+    let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
+    let addr = server.local_addr().unwrap();
+    let handle = std::thread::spawn(move || {
+        let script = RcScript::parse("0.05:arm,0.05:throw,0.3:kill").unwrap();
+        let mut radio = RcTransmitter::new(sim::radio::DEFAULT_RC_RATE_HZ, &script);
+        let receiver = Receiver::new(RcLinkConfig::default()).ok();
+        sim::scenario::with_firmware_app_and_radio(receiver, |app| {
+            let idle = Duration::from_millis(300);
+            let summary =
+                serve_firmware(&mut server, app, None, Some(&mut radio), idle, &mut |_| {})
+                    .unwrap();
+            (summary, app.snapshot())
+        })
+    });
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let mut board = SimBoard::new(&Airframe::builtin("paper-quad").unwrap(), &SimConfig::default());
+    for sequence in 0..1000u64 {
+        board.tick();
+        client.exchange(&sensor_packet(&board, sequence, None), TIMEOUT).unwrap();
+    }
+    let (summary, snapshot) = handle.join().unwrap();
+    assert_eq!(summary.steps, 1000);
+    assert!(!snapshot.armed, "disarmed by the kill switch");
+    assert_eq!(snapshot.pilot.last_failsafe, Some(Failsafe::Kill));
+    // A kill counts only when something was armed: the switches armed it first.
+    assert_eq!(snapshot.pilot.failsafes.kill, 1, "armed by the switches, then killed once");
 }

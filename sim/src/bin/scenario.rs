@@ -19,7 +19,9 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use firmware::app::radio::Receiver;
 use firmware::app::ControlCommand;
+use firmware::drivers::crsf::RcLinkConfig;
 use nalgebra::Vector3;
 use sim::airframe::{Airframe, LIBRARY};
 use sim::bridge::{serve_firmware, BridgeServer};
@@ -98,6 +100,11 @@ enum Command {
         /// as the SITL does: `configurator-cli --tcp 127.0.0.1:PORT status`.
         #[arg(long, value_name = "PORT")]
         tcp_port: Option<u16>,
+        /// A simulated pilot's radio (a CRSF receiver on the board's UART) playing this script
+        /// of `TIME_S:EVENT` items in the packets' time (events: arm, disarm, throw, throw-off,
+        /// kill, kill-off, lose, restore; every switch starts off), e.g. `1:arm,1:throw,20:kill`.
+        #[arg(long, value_name = "SCRIPT", value_parser = sim::radio::RcScript::parse)]
+        rc: Option<sim::radio::RcScript>,
     },
 }
 
@@ -290,7 +297,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Bridge { listen, idle_timeout_s, throw_to_fly, imu_offset_mm, tcp_port } => {
+        Command::Bridge { listen, idle_timeout_s, throw_to_fly, imu_offset_mm, tcp_port, rc } => {
             let mut server =
                 BridgeServer::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
             let udp = server.local_addr()?;
@@ -318,17 +325,26 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
             let timeout = Duration::from_secs_f64(idle_timeout_s);
-            with_firmware_app(|app| {
+            let mut radio = rc.as_ref().map(|script| {
+                eprintln!("pilot's radio: {} scripted events", script.events.len());
+                sim::radio::RcTransmitter::new(sim::radio::DEFAULT_RC_RATE_HZ, script)
+            });
+            let receiver = radio.as_ref().and_then(|_| Receiver::new(RcLinkConfig::default()).ok());
+            scenario::with_firmware_app_and_radio(receiver, |app| {
                 if imu_offset_mm.is_some() {
                     app.background.set_imu_offset(imu_offset_mm);
                 }
                 if throw_to_fly {
                     app.submit(ControlCommand::ArmThrowToFly);
                 }
-                let summary =
-                    serve_firmware(&mut server, app, links.as_mut(), timeout, &mut |notice| {
-                        eprintln!("{notice}")
-                    })?;
+                let summary = serve_firmware(
+                    &mut server,
+                    app,
+                    links.as_mut(),
+                    radio.as_mut(),
+                    timeout,
+                    &mut |notice| eprintln!("{notice}"),
+                )?;
                 eprintln!(
                     "no packet for {idle_timeout_s} s after {} steps ({} malformed packets); \
                      stopping",
