@@ -24,7 +24,7 @@
 //! step touch the same motor timers at different times by construction (`board::motors`). Task bodies live outside the `#[app]` module (RTIC v1 book), in
 //! [`tasks`].
 //!
-//! The board (pins, timers, DMA streams) is [`firmware::boards::SELECTED`], the Matek H743 V3.
+//! The board (pins, timers, DMA streams) is [`firmware::targets::SELECTED`], the Matek H743 V3.
 //! Clocks: the silicon revision is read first (DBGMCU_IDCODE); 8 MHz HSE → PLL1 → sys_ck
 //! 480 MHz at VOS0 on revision V, 400 MHz at VOS1 otherwise, hclk = sys_ck / 2; USB from HSI48
 //! (see [`firmware::board::config`]). Time: TIM2 as a 1 MHz counter extended to 64-bit
@@ -111,7 +111,7 @@ mod app {
     use usb_device::bus::UsbBusAllocator;
 
     // The interrupts bound below must be the board's: EXTI line of the IMU's data-ready pin and
-    // the IMU's RX DMA stream (`boards::FIRMWARE_IMU_*`, checked on the host too).
+    // the IMU's RX DMA stream (`targets::FIRMWARE_IMU_*`, checked on the host too).
     const _: () = assert!(
         BOARD.imu.data_ready.number == 2
             && BOARD.imu.rx_dma.controller == 1
@@ -389,7 +389,7 @@ mod app {
         #[task(binds = DMA1_STR0, priority = 3, shared = [imu])]
         fn imu_transfer_done(cx: imu_transfer_done::Context);
 
-        // The motor timers' burst streams (`boards::FIRMWARE_MOTOR_BURST_DMA`), above the
+        // The motor timers' burst streams (`targets::FIRMWARE_MOTOR_BURST_DMA`), above the
         // control step: see `board::motors`.
         #[task(binds = DMA1_STR2, priority = 4, local = [burst_0])]
         fn motor_burst_0(cx: motor_burst_0::Context);

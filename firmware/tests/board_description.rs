@@ -2,21 +2,21 @@
 //! sectors) is checked on the host, so a porting mistake fails `cargo test` instead of a
 //! flight.
 
-use firmware::boards::h743::{self, Function, Spi, Timer};
-use firmware::boards::{
+use firmware::targets::h743::{self, Function, Spi, Timer};
+use firmware::targets::{
     self, matek_h743::MATEK_H743_V3, pin, AltPin, BoardDescription, BoardError, DmaStream,
     MotorOutput, MotorTimer, Port,
 };
 
 #[test]
 fn the_selected_board_is_consistent() {
-    assert_eq!(boards::SELECTED.check(), Ok(()));
+    assert_eq!(targets::SELECTED.check(), Ok(()));
     assert_eq!(MATEK_H743_V3.check(), Ok(()));
 }
 
 #[test]
 fn every_motor_has_a_timer_channel_and_a_burst_stream() {
-    let board = boards::SELECTED;
+    let board = targets::SELECTED;
     assert!((4..=8).contains(&board.motor_count));
     for motor in board.driven_motors() {
         let timer = board.motor_timers.iter().find(|t| t.timer == motor.timer).unwrap();
@@ -41,11 +41,11 @@ fn the_firmware_region_of_memory_x_matches_the_flash_layout() {
         Some(m) => m.trim().parse::<u32>().unwrap() * 1024 * 1024,
         None => length.strip_suffix('K').unwrap().trim().parse::<u32>().unwrap() * 1024,
     };
-    let flash = boards::SELECTED.flash;
+    let flash = targets::SELECTED.flash;
     assert_eq!(bytes, flash.firmware_len);
     assert!(line.contains("0x08000000"));
     assert!(flash.firmware_start + flash.firmware_len <= flash.config_start);
-    assert_eq!(boards::SELECTED.config_bank_offsets(), 0xC_0000..0x10_0000);
+    assert_eq!(targets::SELECTED.config_bank_offsets(), 0xC_0000..0x10_0000);
 }
 
 #[test]
@@ -68,14 +68,14 @@ fn dmamux_request_numbers_match_rm0433() {
 
 /// A copy of the selected board with one change, for the negative cases.
 fn broken(change: impl FnOnce(&mut BoardDescription)) -> Result<(), BoardError> {
-    let mut board = *boards::SELECTED;
+    let mut board = *targets::SELECTED;
     change(&mut board);
     board.check()
 }
 
 #[test]
 fn a_dma_stream_used_twice_is_refused() {
-    let imu_rx = boards::SELECTED.imu.rx_dma;
+    let imu_rx = targets::SELECTED.imu.rx_dma;
     assert_eq!(broken(|b| b.receiver.rx_dma = imu_rx), Err(BoardError::DmaStreamUsedTwice(imu_rx)));
     let stream = DmaStream { controller: 3, stream: 0 };
     assert_eq!(broken(|b| b.flash_read_dma = stream), Err(BoardError::DmaStreamOutOfRange(stream)));
@@ -120,7 +120,7 @@ fn a_timer_channel_used_twice_or_a_wrong_function_is_refused() {
 
 #[test]
 fn pins_reserved_timers_and_missing_bursts_are_refused() {
-    let cs = boards::SELECTED.imu.cs;
+    let cs = targets::SELECTED.imu.cs;
     assert_eq!(broken(|b| b.imu.data_ready = cs), Err(BoardError::PinUsedTwice(cs)));
     assert_eq!(
         broken(|b| b.motor_timers = &TIM3_ONLY),
@@ -156,7 +156,7 @@ fn pins_reserved_timers_and_missing_bursts_are_refused() {
 
 #[test]
 fn alternate_functions_and_flash_layout_are_checked() {
-    let bad_af = AltPin { af: 6, ..boards::SELECTED.imu.sck };
+    let bad_af = AltPin { af: 6, ..targets::SELECTED.imu.sck };
     assert_eq!(broken(|b| b.imu.sck = bad_af), Err(BoardError::NoSuchAlternateFunction(bad_af)));
     assert_eq!(broken(|b| b.flash.config_len = 0x2_0000), Err(BoardError::FlashLayout));
     assert_eq!(broken(|b| b.flash.config_start = 0x080C_0000), Err(BoardError::FlashLayout));
@@ -168,7 +168,7 @@ fn alternate_functions_and_flash_layout_are_checked() {
 /// `src/main.rs` binds.
 #[test]
 fn every_motor_can_capture_its_escs_answer() {
-    let board = boards::SELECTED;
+    let board = targets::SELECTED;
     assert!(board.motor_bidirectional);
     for (motor, output) in board.motors.iter().enumerate() {
         let requests = h743::timer(output.timer).unwrap().channel_requests;

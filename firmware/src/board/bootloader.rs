@@ -1,18 +1,18 @@
 //! Restart into the STM32H743's ROM bootloader (USB DFU on PA11/PA12), on the host's request.
 //!
 //! The link task, once it has sent its reply, calls [`restart_into_bootloader`]: it leaves
-//! [`crate::boards::BOOTLOADER_MAGIC`] in a word of DTCM that the start-up code does not
+//! [`crate::targets::BOOTLOADER_MAGIC`] in a word of DTCM that the start-up code does not
 //! initialise (cortex-m-rt's `.uninit` section; SRAM keeps its contents across a system reset)
 //! and resets the chip. The very first thing `init` does, before the clocks are touched, is
 //! [`take_request`]: if the word holds the magic, it is cleared and [`jump_to_bootloader`] hands
 //! the chip, still in its reset state, to the ROM at
-//! [`crate::boards::h743::SYSTEM_BOOTLOADER_VECTORS`]. Any other value (a normal reset, RAM
+//! [`crate::targets::h743::SYSTEM_BOOTLOADER_VECTORS`]. Any other value (a normal reset, RAM
 //! noise after power-on) boots the firmware.
 //!
 //! Only reachable when disarmed: the link refuses `RebootToBootloader` while anything is armed
 //! (`DeviceError::RefusedWhileArmed`), and the board announces `Capabilities::BOOTLOADER`.
 
-use crate::boards::{boot_to_bootloader, h743, BOOTLOADER_MAGIC};
+use crate::targets::{boot_to_bootloader, h743, BOOTLOADER_MAGIC};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use cortex_m::peripheral::{NVIC, SCB};

@@ -1,16 +1,16 @@
 //! Register access driven by the board description: GPIO modes, clock enables, DMA streams and
-//! their DMAMUX routes, at the addresses, offsets and bits of [`crate::boards::h743`] (checked
+//! their DMAMUX routes, at the addresses, offsets and bits of [`crate::targets::h743`] (checked
 //! against the `stm32h7` PAC by `tests/registers_match_pac.rs`; no register number is typed here).
 //!
 //! Why raw registers rather than the HAL's typed pins and peripherals: the pins, timers and
-//! streams come from data ([`crate::boards::BoardDescription`]), so another board is a new data
+//! streams come from data ([`crate::targets::BoardDescription`]), so another board is a new data
 //! file and no new code; the HAL's types name each pin in the type, and it has no DMA burst to
 //! timer registers at all. Every access here is a volatile read or write of a documented
 //! register; callers own the peripheral (each is set up once in `init` and then used by exactly
 //! one task).
 
-use crate::boards::h743::{self, dma, dmamux, exti, gpio, rcc, syscfg, RccEnable};
-use crate::boards::{AltPin, DmaStream, Pin};
+use crate::targets::h743::{self, dma, dmamux, exti, gpio, rcc, syscfg, RccEnable};
+use crate::targets::{AltPin, DmaStream, Pin};
 use core::ptr::{read_volatile, write_volatile};
 
 /// Read a 32-bit register.

@@ -1,11 +1,11 @@
 //! Board constants and the clock choice: the assumptions this firmware makes about the clock
 //! tree, each with its unit and where it comes from (in the manner of stabilizer's
 //! `design_parameters.rs`). What differs between boards (pins, timers, DMA streams, crystal) is
-//! data in [`crate::boards`]; [`BOARD`] is the one this firmware is built for.
+//! data in [`crate::targets`]; [`BOARD`] is the one this firmware is built for.
 
-use crate::boards::{ClockPlan, SiliconRevision};
+use crate::targets::{ClockPlan, SiliconRevision};
 
-pub use crate::boards::SELECTED as BOARD;
+pub use crate::targets::SELECTED as BOARD;
 
 /// The silicon revision: DBGMCU_IDCODE.REV_ID (RM0433 rev 8 §61.5.8; 0x1003 = Y, 0x2003 = V).
 pub fn silicon_revision() -> u16 {

@@ -2,7 +2,7 @@
 //! reads that report a torn word instead of faulting.
 //!
 //! # Layout
-//! The store owns whole sectors of bank 2 ([`crate::boards::FlashLayout`]: 0x081C_0000, two
+//! The store owns whole sectors of bank 2 ([`crate::targets::FlashLayout`]: 0x081C_0000, two
 //! 128 KiB sectors); the firmware is linked into bank 1 only (`memory.x`), so the store can never
 //! erase code, and an erase of bank 2 never stalls instruction fetches from bank 1 (the banks
 //! read while the other one writes, RM0433 §4.3.10). Offsets of this driver count from the first
@@ -27,7 +27,7 @@
 //! does it when the host saves, the control task keeps preempting it.
 
 use super::chip::{cr, flag, Dma};
-use crate::boards::{h743, DmaStream};
+use crate::targets::{h743, DmaStream};
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };

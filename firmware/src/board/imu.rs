@@ -26,12 +26,12 @@
 
 use super::chip::{self, cr, flag, Dma};
 use crate::app::hal::{Imu, ImuSample};
-use crate::boards::h743::{self, rcc, spi};
-use crate::boards::{spi_mbr, ImuWiring};
 use crate::drivers::icm42688::{
     driver_state, DelayUs, Icm42688, RawSample, RegisterBus, SampleAverager, SAMPLE_FIRST_REGISTER,
     SAMPLE_LEN, SPI_READ_FLAG,
 };
+use crate::targets::h743::{self, rcc, spi};
+use crate::targets::{spi_mbr, ImuWiring};
 use core::ptr::addr_of_mut;
 use protocol::ImuDriverState;
 
@@ -59,7 +59,7 @@ pub struct SpiTimeout;
 /// SPI1 with a GPIO chip select, polled (start-up only).
 pub struct PolledSpi {
     base: u32,
-    cs: crate::boards::Pin,
+    cs: crate::targets::Pin,
     mbr: u32,
 }
 

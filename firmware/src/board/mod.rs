@@ -3,7 +3,7 @@
 //! portable [`crate::app`] runs against.
 //!
 //! Only compiled for the target (`target_os = "none"`). Everything here is hardware set-up and
-//! adapters, driven by the board description in [`crate::boards`] (pins, timers, DMA streams);
+//! adapters, driven by the board description in [`crate::targets`] (pins, timers, DMA streams);
 //! the behaviour (control step, link server, background work, CRSF and DShot framing, the IMU's
 //! register sequence) lives in portable code the simulator and the host tests run. The RTIC
 //! application that wires the two together is `src/main.rs`.

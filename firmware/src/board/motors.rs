@@ -38,13 +38,13 @@
 
 use super::chip::{self, cr, Dma};
 use crate::app::hal::{EscCommandError, Motors, MAX_MOTORS};
-use crate::boards::h743::{self, tim};
-use crate::boards::{interleave_burst, BoardDescription};
 use crate::drivers::dshot::{
     bit_period_ticks, compare_values, telemetry_from_edges, CommandQueue, DshotCommand,
     MotorTelemetry, CAPTURE_EDGES, COMPARE_BUFFER_LEN, DSHOT600_BIT_RATE_HZ,
     DSHOT600_TELEMETRY_BIT_RATE_HZ,
 };
+use crate::targets::h743::{self, tim};
+use crate::targets::{interleave_burst, BoardDescription};
 use core::ptr::{addr_of, addr_of_mut};
 use core::sync::atomic::{AtomicBool, Ordering};
 use protocol::MotorLinkHealth;

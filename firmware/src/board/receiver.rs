@@ -10,8 +10,8 @@
 
 use super::chip::{self, cr, Dma};
 use crate::app::hal::ByteSource;
-use crate::boards::h743::{self, usart};
-use crate::boards::{uart_brr, ReceiverWiring};
+use crate::targets::h743::{self, usart};
+use crate::targets::{uart_brr, ReceiverWiring};
 use core::ptr::addr_of_mut;
 
 /// CRSF serial rate, baud.

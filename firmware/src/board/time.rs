@@ -2,7 +2,7 @@
 //! 64 bits in software.
 //!
 //! Why TIM2: it is the other 32-bit timer besides TIM5, which drives motors on most H743 flight
-//! controllers (`crate::boards::FIRMWARE_TIME_BASE`; the board check refuses a board that
+//! controllers (`crate::targets::FIRMWARE_TIME_BASE`; the board check refuses a board that
 //! puts motors on it). Why not the DWT cycle counter: one tick is exactly one microsecond, so `now_us` is a
 //! register read and an add, with no 64-bit division by the core clock (a library call on the M7),
 //! and it keeps counting while a debugger halts the core's DWT. TIM2's kernel clock is

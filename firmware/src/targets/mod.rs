@@ -1,5 +1,7 @@
-//! Board descriptions: which pin, timer channel, DMA stream and UART each function of the
-//! flight controller uses, as plain data that builds and is tested on the host.
+//! Targets: the descriptions of the boards this firmware runs on (Betaflight's word for a board
+//! definition) — which pin, timer channel, DMA stream and UART each function of the flight
+//! controller uses, as plain data that builds and is tested on the host — and the chip's facts
+//! ([`h743`]). The code that drives them on the chip is [`crate::board`] (target only).
 //!
 //! The STM32H743 board layer (`crate::board`, target only) has no per-board code: it reads the
 //! [`BoardDescription`] selected by [`SELECTED`] and programs the GPIO, DMA, DMAMUX, timer, SPI and
@@ -463,7 +465,7 @@ impl ClockPlan {
     }
 }
 
-/// The value [`crate::boards`]' bootloader request leaves in RAM across a reset: "ROM DFU".
+/// The value [`crate::targets`]' bootloader request leaves in RAM across a reset: "ROM DFU".
 pub const BOOTLOADER_MAGIC: u32 = 0xB007_DF00;
 
 /// Whether a reset should go to the ROM bootloader, given the word found in the reset-surviving
