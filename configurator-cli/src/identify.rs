@@ -49,6 +49,8 @@ pub struct Identified {
     pub disarmed: bool,
     /// The configuration after the board stored the model (`unsaved_changes` set).
     pub config: Option<ConfigStatus>,
+    /// How the flight on the learned model went during `--disarm-after-s` (`None`: not held).
+    pub flight: Option<FlightWatch>,
 }
 
 /// Why the identification gave no model.
@@ -184,6 +186,7 @@ fn follow(
             }
         }
         let mut disarmed = false;
+        let mut watched = None;
         if let (true, Some(hold_s)) = (flying, options.disarm_after_s) {
             say(format!("holding for {hold_s} s, then disarming"));
             let mut watch = FlightWatch::new(released_us);
@@ -203,12 +206,19 @@ fn follow(
                 say(line);
             }
             disarmed = true;
+            watched = Some(watch);
         }
         let config = match client.request(&Request::GetConfig(()), "the configuration request")? {
             Reply::Config(config) => Some(config),
             _ => None,
         };
-        return Ok(Identified { blocks: [block0, block1], flew: flying, disarmed, config });
+        return Ok(Identified {
+            blocks: [block0, block1],
+            flew: flying,
+            disarmed,
+            config,
+            flight: watched,
+        });
     }
 }
 
@@ -276,6 +286,20 @@ impl FlightWatch {
             }
         }
         self.last = Some(*flight);
+    }
+
+    /// The same as JSON, units in the key names: `hover_after_s` (null: no steady hover),
+    /// `worst_tilt_deg`, `worst_rate_deg_s`, `worst_position_m` (null: no position hold),
+    /// `last_mode`.
+    pub fn json(&self) -> serde_json::Value {
+        let deg = 180.0 / core::f32::consts::PI;
+        serde_json::json!({
+            "hover_after_s": self.hover_after_s,
+            "worst_tilt_deg": self.hover_after_s.map(|_| self.worst_tilt_rad * deg),
+            "worst_rate_deg_s": self.hover_after_s.map(|_| self.worst_rate_rad_s * deg),
+            "worst_position_m": self.worst_position_m,
+            "last_mode": self.last.map(|last| format!("{:?}", last.mode)),
+        })
     }
 
     /// What the person reads: how the flight went, with units.

@@ -1023,6 +1023,7 @@ fn identify(
             map.insert("g1_per_unit_thrust".into(), report::g1_json(force, rotation));
             map.insert("flew".into(), json!(found.flew));
             map.insert("disarmed".into(), json!(found.disarmed));
+            map.insert("flight".into(), found.flight.as_ref().map_or(json!(null), |f| f.json()));
             map.insert("stored_in_parameters".into(), json!(stored));
         }
         return Ok(format!("{value:#}\n"));

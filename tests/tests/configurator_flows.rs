@@ -276,7 +276,7 @@ fn identify_learns_the_motors_and_the_thrust_axis_flies_and_stores_the_model() {
     let (_sitl, port) =
         start(&flash, SitlConfig { hand_throws_to_fly: true, ..SitlConfig::default() });
     let (code, stdout, stderr) =
-        cli(&port, &["--json", "identify", "--yes", "--timeout-s", "20", "--disarm-after-s", "1"]);
+        cli(&port, &["--json", "identify", "--yes", "--timeout-s", "20", "--disarm-after-s", "3"]);
     assert_eq!(code, 0, "identify failed: {stderr}");
     for step in ["armed", "throw detected", "pulsing motor 4", "identified", "flying", "disarmed"] {
         assert!(stderr.contains(step), "no `{step}` in the progress: {stderr}");
@@ -284,6 +284,13 @@ fn identify_learns_the_motors_and_the_thrust_axis_flies_and_stores_the_model() {
     let report: Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!((report["phase"].as_str(), report["flew"].as_bool()), (Some("Done"), Some(true)));
     assert_eq!(report["stored_in_parameters"], true, "{report}");
+    // The flight summary of `--disarm-after-s`, as the text prints it: a hover reached within
+    // a few seconds of the release, the thrust axis near its setpoint meanwhile.
+    let flight = &report["flight"];
+    let hover_after_s = flight["hover_after_s"].as_f64().unwrap_or(f64::NAN);
+    assert!((0.5..5.0).contains(&hover_after_s), "{flight}");
+    assert!(flight["worst_tilt_deg"].as_f64().is_some_and(|deg| deg < 30.0), "{flight}");
+    assert_eq!(flight["worst_position_m"], Value::Null, "no external pose: {flight}");
     let airframe = sim::airframe::Airframe::load("paper-quad").unwrap();
     let truth = sim::identification::TrueModel::of(&airframe);
     // The thrust axis: the learned −z of the thrust frame against the truth, in IMU axes.
