@@ -56,6 +56,22 @@ pub const FRAME_MAX: usize = LENGTH_MAX as usize + 2;
 pub const TYPE_RC_CHANNELS_PACKED: u8 = 0x16;
 /// Frame type of link statistics.
 pub const TYPE_LINK_STATISTICS: u8 = 0x14;
+/// Frame type of the battery sensor (flight controller → handset): voltage, current, used
+/// capacity, remaining charge.
+pub const TYPE_BATTERY_SENSOR: u8 = 0x08;
+/// Frame type of the attitude (flight controller → handset): pitch, roll, yaw.
+pub const TYPE_ATTITUDE: u8 = 0x1E;
+/// Frame type of the flight mode (flight controller → handset): a short text.
+pub const TYPE_FLIGHT_MODE: u8 = 0x21;
+/// Payload length of BATTERY_SENSOR, bytes.
+pub const BATTERY_PAYLOAD_LEN: usize = 8;
+/// Payload length of ATTITUDE, bytes.
+pub const ATTITUDE_PAYLOAD_LEN: usize = 6;
+/// Longest flight-mode text sent, bytes (a handset's telemetry screen shows about 16
+/// characters; the frame carries a terminating zero after it).
+pub const FLIGHT_MODE_MAX_LEN: usize = 15;
+/// The attitude frame's unit, rad per count (100 µrad).
+pub const ATTITUDE_RAD_PER_COUNT: f32 = 1e-4;
 /// Payload length of RC_CHANNELS_PACKED, bytes.
 pub const RC_CHANNELS_PAYLOAD_LEN: usize = 22;
 /// Payload length of LINK_STATISTICS, bytes.
@@ -177,6 +193,90 @@ pub fn encode_frame(sync: u8, frame_type: u8, payload: &[u8], out: &mut [u8]) ->
     out[3..3 + payload.len()].copy_from_slice(payload);
     out[3 + payload.len()] = crc8_dvb_s2(&out[2..3 + payload.len()]);
     Some(length + 2)
+}
+
+/// A telemetry frame the flight controller sends the pilot's handset, in SI units.
+#[derive(Debug, Clone, PartialEq)]
+pub enum HandsetTelemetry {
+    /// Euler angles (ZYX), rad: sent in 100 µrad counts, big-endian `i16` (±3.2767 rad).
+    Attitude { pitch_rad: f32, roll_rad: f32, yaw_rad: f32 },
+    /// What the craft is doing, in words (at most [`FLIGHT_MODE_MAX_LEN`] bytes).
+    FlightMode(heapless::String<FLIGHT_MODE_MAX_LEN>),
+    /// Battery: voltage, V (0.1 V), current, A (0.1 A), used capacity, mAh (24 bits),
+    /// remaining charge, % — big-endian.
+    Battery { voltage_v: f32, current_a: f32, used_mah: u32, remaining_pct: u8 },
+}
+
+impl HandsetTelemetry {
+    /// Encode as a frame from the flight controller (sync 0xC8) into `out`; returns its length,
+    /// or `None` when `out` is too small. Values beyond a field's range are clamped to it.
+    pub fn encode(&self, out: &mut [u8]) -> Option<usize> {
+        let counts = |rad: f32| {
+            let counts = libm::roundf(rad / ATTITUDE_RAD_PER_COUNT);
+            counts.clamp(f32::from(i16::MIN), f32::from(i16::MAX)) as i16
+        };
+        let tenths = |x: f32| libm::roundf(x * 10.0).clamp(0.0, f32::from(i16::MAX)) as u16;
+        let mut payload = [0u8; FLIGHT_MODE_MAX_LEN + 1];
+        let (frame_type, len) = match self {
+            Self::Attitude { pitch_rad, roll_rad, yaw_rad } => {
+                for (i, rad) in [pitch_rad, roll_rad, yaw_rad].into_iter().enumerate() {
+                    payload[2 * i..2 * i + 2].copy_from_slice(&counts(*rad).to_be_bytes());
+                }
+                (TYPE_ATTITUDE, ATTITUDE_PAYLOAD_LEN)
+            }
+            Self::FlightMode(text) => {
+                payload[..text.len()].copy_from_slice(text.as_bytes());
+                (TYPE_FLIGHT_MODE, text.len() + 1)
+            }
+            Self::Battery { voltage_v, current_a, used_mah, remaining_pct } => {
+                payload[0..2].copy_from_slice(&tenths(*voltage_v).to_be_bytes());
+                payload[2..4].copy_from_slice(&tenths(*current_a).to_be_bytes());
+                payload[4..7].copy_from_slice(&(*used_mah).min(0xFF_FFFF).to_be_bytes()[1..]);
+                payload[7] = (*remaining_pct).min(100);
+                (TYPE_BATTERY_SENSOR, BATTERY_PAYLOAD_LEN)
+            }
+        };
+        encode_frame(SYNC_FLIGHT_CONTROLLER, frame_type, &payload[..len], out)
+    }
+
+    /// Decode one whole frame (sync, length, type, payload, CRC): what a handset does with it.
+    /// Checks the length byte, the CRC and the payload length of each type.
+    pub fn decode(frame: &[u8]) -> Result<Self, CrsfError> {
+        let length = *frame.get(1).ok_or(CrsfError::Length { length: 0 })?;
+        if !(LENGTH_MIN..=LENGTH_MAX).contains(&length) || frame.len() != usize::from(length) + 2 {
+            return Err(CrsfError::Length { length });
+        }
+        let body = &frame[2..frame.len() - 1];
+        let received = frame[frame.len() - 1];
+        let computed = crc8_dvb_s2(body);
+        if computed != received {
+            return Err(CrsfError::Crc { computed, received });
+        }
+        let (frame_type, payload) = (body[0], &body[1..]);
+        let wrong = CrsfError::PayloadLength { frame_type, length: payload.len() as u8 };
+        let be16 = |i: usize| [payload[i], payload[i + 1]];
+        match frame_type {
+            TYPE_ATTITUDE if payload.len() == ATTITUDE_PAYLOAD_LEN => {
+                let rad =
+                    |i: usize| f32::from(i16::from_be_bytes(be16(i))) * ATTITUDE_RAD_PER_COUNT;
+                Ok(Self::Attitude { pitch_rad: rad(0), roll_rad: rad(2), yaw_rad: rad(4) })
+            }
+            TYPE_FLIGHT_MODE => {
+                let text = payload.split(|&b| b == 0).next().unwrap_or(&[]);
+                let text = core::str::from_utf8(text).map_err(|_| wrong)?;
+                let mut words = heapless::String::new();
+                words.push_str(text).map_err(|_| wrong)?;
+                Ok(Self::FlightMode(words))
+            }
+            TYPE_BATTERY_SENSOR if payload.len() == BATTERY_PAYLOAD_LEN => Ok(Self::Battery {
+                voltage_v: f32::from(u16::from_be_bytes(be16(0))) / 10.0,
+                current_a: f32::from(u16::from_be_bytes(be16(2))) / 10.0,
+                used_mah: u32::from_be_bytes([0, payload[4], payload[5], payload[6]]),
+                remaining_pct: payload[7],
+            }),
+            _ => Err(wrong),
+        }
+    }
 }
 
 /// Link statistics as sent by the receiver (frame type 0x14).
@@ -993,5 +1093,50 @@ mod tests {
         // A payload longer than a frame allows, or no room: refused.
         assert_eq!(encode_frame(SYNC_FLIGHT_CONTROLLER, 0x21, &[0; 61], &mut [0u8; 128]), None);
         assert_eq!(encode_frame(SYNC_FLIGHT_CONTROLLER, 0x21, &[0; 4], &mut [0u8; 7]), None);
+    }
+
+    #[test]
+    fn handset_telemetry_frames_have_the_specified_layout_and_decode_back() {
+        let mut out = [0u8; FRAME_MAX];
+        // Attitude: 0.5236 rad pitch = 5236 counts, −1 rad roll, 3 rad yaw; big-endian i16.
+        let attitude =
+            HandsetTelemetry::Attitude { pitch_rad: 0.5236, roll_rad: -1.0, yaw_rad: 3.0 };
+        let n = attitude.encode(&mut out).unwrap();
+        assert_eq!(&out[..3], &[SYNC_FLIGHT_CONTROLLER, 8, TYPE_ATTITUDE]);
+        assert_eq!(&out[3..9], &[0x14, 0x74, 0xD8, 0xF0, 0x75, 0x30]);
+        assert_eq!(out[9], crc8_dvb_s2(&out[2..9]));
+        assert_eq!(n, 10);
+        match HandsetTelemetry::decode(&out[..n]).unwrap() {
+            HandsetTelemetry::Attitude { pitch_rad, roll_rad, yaw_rad } => {
+                assert!((pitch_rad - 0.5236).abs() < 1e-4 && (roll_rad + 1.0).abs() < 1e-4);
+                assert!((yaw_rad - 3.0).abs() < 1e-4);
+            }
+            other => panic!("{other:?}"),
+        }
+        // Battery: 25.2 V = 0x00FC, 18.9 A = 0x00BD, 2199 mAh = 0x000897, 20 %.
+        let battery = HandsetTelemetry::Battery {
+            voltage_v: 25.2,
+            current_a: 18.9,
+            used_mah: 2199,
+            remaining_pct: 20,
+        };
+        let n = battery.encode(&mut out).unwrap();
+        assert_eq!(&out[..3], &[SYNC_FLIGHT_CONTROLLER, 10, TYPE_BATTERY_SENSOR]);
+        assert_eq!(&out[3..11], &[0x00, 0xFC, 0x00, 0xBD, 0x00, 0x08, 0x97, 20]);
+        assert_eq!(HandsetTelemetry::decode(&out[..n]).unwrap(), battery);
+        // Flight mode: the text and a terminating zero.
+        let mode = HandsetTelemetry::FlightMode(heapless::String::try_from("EXCITE 3/4").unwrap());
+        let n = mode.encode(&mut out).unwrap();
+        assert_eq!(&out[..3], &[SYNC_FLIGHT_CONTROLLER, 13, TYPE_FLIGHT_MODE]);
+        assert_eq!(&out[3..14], b"EXCITE 3/4\0");
+        assert_eq!(HandsetTelemetry::decode(&out[..n]).unwrap(), mode);
+        // A flipped bit is a CRC error; a short attitude payload a length error.
+        out[5] ^= 1;
+        assert!(matches!(HandsetTelemetry::decode(&out[..n]), Err(CrsfError::Crc { .. })));
+        let n = encode_frame(SYNC_FLIGHT_CONTROLLER, TYPE_ATTITUDE, &[0; 4], &mut out).unwrap();
+        assert!(matches!(
+            HandsetTelemetry::decode(&out[..n]),
+            Err(CrsfError::PayloadLength { frame_type: TYPE_ATTITUDE, length: 4 })
+        ));
     }
 }
