@@ -85,6 +85,10 @@ pub struct SitlConfig {
     /// craft again where it is as soon as the board disarms (or its attempt fails). The
     /// automatic calibration throws pause while the board is armed.
     pub hand_throws_to_fly: bool,
+    /// Faults the simulated board has from its start (an ESC that never answers, a silent or
+    /// noisy IMU, a bad flash, swapped motor outputs: [`crate::faults::SitlFaults`]); default
+    /// none.
+    pub faults: crate::faults::SitlFaults,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -135,6 +139,7 @@ impl Default for SitlConfig {
             imu_offset_m: None,
             flash_file: None,
             hand_throws_to_fly: false,
+            faults: crate::faults::SitlFaults::default(),
         }
     }
 }
@@ -175,6 +180,9 @@ pub enum SitlError {
     AccBias([f64; 3]),
     #[error(transparent)]
     Flash(#[from] FlashFileError),
+    /// A fault flag names something the airframe does not have (the message says which).
+    #[error("{0}")]
+    Fault(String),
 }
 
 /// A running SITL. Stops when dropped.
@@ -221,7 +229,10 @@ impl Sitl {
             }
             airframe.imu.accel.bias_mps2 = bias;
         }
+        config.faults.validate(airframe.rotor_count()).map_err(SitlError::Fault)?;
+        config.faults.apply_to_airframe(&mut airframe);
         let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
+        let flash = flash.map(|flash| flash.with_fault(config.faults.flash));
         let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
         // The simulated ESCs take DShot special commands (`SimMotors::escs`); the bridge's do not.
         info.capabilities |= Capabilities::ESC_COMMANDS;
@@ -260,6 +271,7 @@ impl Sitl {
             pty,
             tcp,
             flash,
+            fault_schedule: config.faults.schedule(),
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -309,6 +321,8 @@ struct Runner {
     pty: Option<Pty>,
     tcp: Option<TcpLinks>,
     flash: Option<FileFlash>,
+    /// The faults of the simulated board ([`crate::faults::SitlFaults::schedule`]).
+    fault_schedule: crate::faults::FaultSchedule,
     stop: Arc<AtomicBool>,
 }
 
@@ -325,7 +339,11 @@ impl Runner {
     /// request: the physics and the links' endpoints go on, the application and its link
     /// sessions start afresh, and the configuration is loaded from the flash file again.
     fn run(mut self) {
-        let config = SimConfig { seed: self.seed, ..SimConfig::default() };
+        let config = SimConfig {
+            seed: self.seed,
+            faults: self.fault_schedule.clone(),
+            ..SimConfig::default()
+        };
         let mut board = SimBoard::new(&self.airframe, &config);
         let mut mocap = self
             .mocap

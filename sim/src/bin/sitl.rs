@@ -10,7 +10,10 @@
 //! bias (default: the airframe file's). `--throw-to-fly` arms the board for throw-to-fly at start; `--imu-offset-mm X,Y,Z` gives the
 //! learner the IMU offset instead of the onboard estimate. The saved configuration lives in
 //! `--flash-file PATH` (default: `sitl-flash.bin` in the user's data directory), so it survives
-//! a restart of the SITL as a board's survives a power cycle. Bad input exits with code 2.
+//! a restart of the SITL as a board's survives a power cycle. `--fault-esc-silent N`,
+//! `--fault-imu silent|frozen|noisy`, `--fault-flash bad` and `--fault-motor-swap A,B` give the
+//! simulated board a fault from power-up (`sim::faults::SitlFaults`), for
+//! `configurator-cli doctor` to find. Bad input exits with code 2.
 
 use clap::Parser;
 use sim::serve::parse_imu_offset_mm;
@@ -86,6 +89,8 @@ struct Args {
     /// Run without a configuration store (nothing is saved).
     #[arg(long, conflicts_with = "flash_file")]
     no_flash: bool,
+    #[command(flatten)]
+    faults: sim::faults::SitlFaultArgs,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -129,6 +134,7 @@ fn main() -> std::process::ExitCode {
         motion_capture,
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
+        faults: args.faults.faults(),
     };
     let sitl = match Sitl::start(&config) {
         Ok(sitl) => sitl,
@@ -186,6 +192,10 @@ fn main() -> std::process::ExitCode {
             y * 1000.0,
             z * 1000.0
         );
+    }
+    let faults = &config.faults;
+    if faults != &sim::faults::SitlFaults::default() {
+        println!("  injected faults: {faults:?}");
     }
     println!("Stop with Ctrl-C.");
     let started = std::time::Instant::now();
