@@ -14,7 +14,8 @@
 //! 5. **esc**: every motor's ESC answering with its speed (bidirectional DShot);
 //! 6. **spin**: asked first (propellers off), each motor spun in turn at [`SPIN_COMMAND`] for
 //!    [`SPIN_S`]; its own speed report must rise and the others must not: a motor output whose
-//!    speed comes back on another output (a crossed motor map) or not at all is found here.
+//!    speed comes back on another output (commands and speed reports mapped differently) or
+//!    not at all is found here.
 //!
 //! What the checks assume of the world: the craft stands still on a bench (not in a hand: a
 //! hand's tremor is far above the IMU's noise), motors stopped and propellers off; the IMU is an
@@ -234,11 +235,11 @@ impl AxisStats {
     pub fn push(&mut self, x: [f32; 3]) {
         self.count += 1;
         let n = self.count as f64;
-        for i in 0..3 {
-            let value = f64::from(x[i]);
-            let delta = value - self.mean[i];
-            self.mean[i] += delta / n;
-            self.m2[i] += delta * (value - self.mean[i]);
+        for ((value, mean), m2) in x.iter().zip(&mut self.mean).zip(&mut self.m2) {
+            let value = f64::from(*value);
+            let delta = value - *mean;
+            *mean += delta / n;
+            *m2 += delta * (value - *mean);
         }
     }
 
@@ -695,8 +696,10 @@ pub fn spin_line(spins: &[Spin]) -> Line {
     }
     if !crossed.is_empty() {
         failures.push(format!(
-            "{}: the motor outputs and the speed reports are crossed; check the motor wiring \
-             against the board's motor order and the ESCs' channel mapping (a 4-in-1 ESC's remap)",
+            "{}: the motor outputs and their speed reports are crossed; check that each ESC's \
+             speed report comes back on its own output: the board definition's motor timer \
+             channels and capture DMA (firmware/src/boards/), or, with a separate ESC telemetry \
+             wire, which ESC it comes from",
             crossed.join(", ")
         ));
     }
