@@ -48,7 +48,7 @@
 //! [`SitlFaults`] (the `sitl` binary's and `configurator-cli --sitl`'s `--fault-*` flags,
 //! [`SitlFaultArgs`]) start a SITL with a board that is broken from power-up, as a bring-up check
 //! (`configurator-cli doctor`) must find it: an ESC that never answers, an IMU that is silent,
-//! frozen or [`NOISY_IMU_FACTOR`] times too noisy, a flash that reads garbage and refuses writes
+//! frozen or [`NOISY_IMU_FACTOR`] times too noisy, a flash whose reads and writes fail
 //! ([`crate::flash::FlashFault`]), two motor outputs driving each other's rotors.
 
 use firmware::app::hal::ImuSample;
@@ -379,8 +379,8 @@ pub struct SitlFaultArgs {
     /// or is 30× noisier than the airframe's (noisy).
     #[arg(long, global = true, value_enum, value_name = "HOW")]
     pub fault_imu: Option<ImuFault>,
-    /// Fault injection: the configuration flash reads garbage and refuses every write (bad);
-    /// the flash file is left untouched.
+    /// Fault injection: every read of the configuration flash reports an error and every write
+    /// fails (bad); the flash file is left untouched.
     #[arg(long, global = true, value_enum, value_name = "HOW")]
     pub fault_flash: Option<FlashFault>,
     /// Fault injection: outputs A and B (index from 0) drive each other's motors, while each
