@@ -3,6 +3,7 @@
 //! - [`link`]: the protocol client (handshake, requests, telemetry);
 //! - [`config`]: the board's parameters: get, set, dump, diff, apply;
 //! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
+//! - [`doctor`]: the bring-up check for a first power-up;
 //! - [`identify`]: the guided throw-and-fly identification;
 //! - [`report`]: what the board says, in words with units, or as JSON;
 //! - [`offline`]: the `flight` estimators applied to recorded logs and files;
@@ -12,6 +13,7 @@
 
 pub mod config;
 pub mod connect;
+pub mod doctor;
 pub mod identify;
 pub mod link;
 pub mod offline;

@@ -43,6 +43,9 @@ struct Cli {
     /// Print JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
+    /// With --sitl: faults the simulated board has from power-up (for `doctor` to find).
+    #[command(flatten)]
+    sitl_faults: sim::faults::SitlFaultArgs,
     #[command(subcommand)]
     command: Command,
 }
@@ -53,6 +56,15 @@ enum Command {
     Info,
     /// Print the board's status (with the in-flight identification's).
     Status,
+    /// The bring-up check for a first power-up: link and identity, the IMU at rest against its
+    /// datasheet, the flash store, the receiver, every ESC's speed reports, then (asked first:
+    /// PROPELLERS OFF) each motor spun in turn at 8 % for a second. Keep the craft still on a
+    /// bench. Exit code 1 when a check fails.
+    Doctor {
+        /// Confirm that the propellers are off without asking (spin every motor in turn).
+        #[arg(long)]
+        yes: bool,
+    },
     /// Arm throw-to-fly: the next throw starts the motor excitation. Motors WILL spin.
     ArmThrowToFly,
     /// Stop every motor now and leave any armed state.
@@ -238,6 +250,8 @@ enum SolveCommand {
 enum Failure {
     Input(InputError),
     Connect(ConnectError),
+    /// Checks ran and some failed (`doctor`): exit code 1, the message names them.
+    Checks(String),
 }
 
 impl From<ConnectError> for Failure {
@@ -262,6 +276,10 @@ fn main() -> ExitCode {
         Err(Failure::Input(error)) => {
             eprintln!("error: {error}");
             ExitCode::from(2)
+        }
+        Err(Failure::Checks(message)) => {
+            eprintln!("error: {message}");
+            ExitCode::from(1)
         }
         Err(Failure::Connect(error)) => {
             eprintln!("error: {error}");
@@ -303,6 +321,7 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
     Ok(match command {
         Command::Info => BoardCommand::Info,
         Command::Status => BoardCommand::Status,
+        Command::Doctor { yes } => BoardCommand::Doctor { yes: *yes },
         Command::ArmThrowToFly => BoardCommand::Arm,
         Command::Disarm => BoardCommand::Disarm,
         Command::Stream { topic, rate_hz, duration_s } => BoardCommand::Stream {
@@ -431,6 +450,9 @@ fn esc_command_names() -> String {
 enum BoardCommand {
     Info,
     Status,
+    Doctor {
+        yes: bool,
+    },
     Arm,
     Disarm,
     Stream {
@@ -486,6 +508,12 @@ enum BoardCommand {
 /// Connect (starting a SITL if asked), then run the board command.
 fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
     let _sitl; // keeps the simulator alive for the whole command
+    let faults = cli.sitl_faults.faults();
+    if !cli.sitl && faults != sim::faults::SitlFaults::default() {
+        return Err(Failure::Input(InputError(
+            "the --fault-* options inject faults into the built-in simulator: add --sitl".into(),
+        )));
+    }
     let target = if cli.sitl {
         let throwing = cli.sitl_throws > 0;
         let config = sim::sitl::SitlConfig {
@@ -498,9 +526,15 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
             speed: if throwing { SITL_THROW_SPEED } else { 1.0 },
             // The built-in simulator has a person to throw the craft for `identify`.
             hand_throws_to_fly: true,
+            faults,
             ..Default::default()
         };
-        let sitl = sim::sitl::Sitl::start(&config).map_err(ConnectError::from)?;
+        let sitl = match sim::sitl::Sitl::start(&config) {
+            Err(sim::sitl::SitlError::Fault(message)) => {
+                return Err(Failure::Input(InputError(message)))
+            }
+            started => started.map_err(ConnectError::from)?,
+        };
         let path = sitl.pty_path.clone().expect("the SITL serves a pseudo-terminal when asked");
         eprintln!("started the simulator (airframe `{}`) on {}", cli.airframe, path.display());
         _sitl = sitl;
@@ -518,7 +552,12 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
     }
     if cli.sitl_throws > 0 {
         watch_throws(&mut client, cli.sitl_throws)?;
-    } else if cli.sitl && matches!(command, BoardCommand::Info | BoardCommand::Status) {
+    } else if cli.sitl
+        && matches!(
+            command,
+            BoardCommand::Info | BoardCommand::Status | BoardCommand::Doctor { .. }
+        )
+    {
         // Let the simulated board run one full statistics window so the status has figures.
         eprintln!("letting the simulator run for 1.1 s…");
         client.listen(Duration::from_millis(1100))?;
@@ -614,6 +653,7 @@ fn run_on_board(
                 text
             })
         }
+        BoardCommand::Doctor { yes } => doctor(client, yes, cli.json),
         BoardCommand::Arm => {
             client.request(&Request::ArmThrowToFly(()), "the arm request")?;
             eprintln!(
@@ -824,15 +864,20 @@ fn param_json(info: &protocol::ParamInfo) -> serde_json::Value {
 
 /// Ask a yes/no question on the terminal; `false` without one (scripts use `--yes`).
 fn confirm(question: &str) -> bool {
+    ask(question).unwrap_or(false)
+}
+
+/// Ask a yes/no question on the terminal: the answer, or `None` without a terminal to ask.
+fn ask(question: &str) -> Option<bool> {
     use std::io::IsTerminal as _;
     if !std::io::stdin().is_terminal() {
         eprintln!("{question} [y/N] (no terminal to ask: use --yes)");
-        return false;
+        return None;
     }
     eprint!("{question} [y/N] ");
     let mut answer = String::new();
     let _ = std::io::stdin().read_line(&mut answer);
-    matches!(answer.trim(), "y" | "Y" | "yes" | "Yes")
+    Some(matches!(answer.trim(), "y" | "Y" | "yes" | "Yes"))
 }
 
 /// How long `calibrate imu-offset` keeps watching the board's estimate after the last throw it
@@ -1042,6 +1087,47 @@ fn identify(
     Ok(out)
 }
 
+/// The bring-up check: each line printed as it is done (text), or all of them as one JSON array;
+/// exit code 1 (through the error) when any line fails.
+fn doctor(client: &mut Client, yes: bool, json_output: bool) -> Result<String, Failure> {
+    use configurator_cli::doctor::{self, Consent};
+    eprintln!("checking the board: keep the craft still on a bench, motors stopped…");
+    let mut report = |line: &doctor::Line| {
+        if !json_output {
+            print!("{}", line.text());
+            let _ = std::io::stdout().flush();
+        }
+    };
+    let mut consent = || {
+        if yes {
+            return Consent::Yes;
+        }
+        match ask(
+            "SPIN TEST: each motor spins in turn at 8 % for a second. Are the propellers OFF?",
+        ) {
+            Some(true) => Consent::Yes,
+            Some(false) => Consent::No,
+            None => Consent::NoTerminal,
+        }
+    };
+    let lines = doctor::run(client, &mut report, &mut consent)?;
+    if json_output {
+        let list: Vec<_> = lines.iter().map(doctor::Line::json).collect();
+        println!("{:#}", json!(list));
+    }
+    let failed: Vec<&str> = lines.iter().filter(|l| !l.ok()).map(|l| l.name).collect();
+    if failed.is_empty() {
+        eprintln!("all checks passed");
+        return Ok(String::new());
+    }
+    Err(Failure::Checks(format!(
+        "{} of {} checks failed: {}",
+        failed.len(),
+        lines.len(),
+        failed.join(", ")
+    )))
+}
+
 /// Spin one motor for `duration_s`, keeping it alive every 0.5 s; the board stops it 3 s after
 /// the last keep-alive, so a configurator that dies cannot leave it spinning.
 fn motor_test(
@@ -1115,6 +1201,7 @@ fn failure_text(failure: &Failure) -> String {
     match failure {
         Failure::Input(error) => error.to_string(),
         Failure::Connect(error) => error.to_string(),
+        Failure::Checks(message) => message.clone(),
     }
 }
 
@@ -1158,6 +1245,7 @@ fn shell(cli: &Cli, client: &mut Client, target: &Target) -> Result<String, Fail
         match outcome {
             Ok(text) => print!("{text}"),
             Err(Failure::Input(error)) => eprintln!("error: {error}"),
+            Err(Failure::Checks(message)) => eprintln!("error: {message}"),
             Err(Failure::Connect(error)) => {
                 eprintln!("error: {error}");
                 // The board went away (unplugged, restarted by a button): find it again.
@@ -1190,6 +1278,7 @@ const SHELL_COMMANDS: &[(&str, &str, &str)] = &[
     ("apply", "apply FILE", "apply a dump or diff file as one batch"),
     ("status", "status", "the board's state, the IMU offset and the identification"),
     ("info", "info", "the board's identity and status"),
+    ("doctor", "doctor [--yes]", "bring-up check: IMU, flash, receiver, ESCs, each motor spun"),
     ("version", "version", "firmware and configurator versions"),
     ("calibrate", "calibrate imu-offset [--yes]", "guided IMU-offset calibration"),
     ("identify", "identify [--disarm-after-s 5]", "throw-and-fly: learn the motors and fly"),

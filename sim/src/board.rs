@@ -384,10 +384,13 @@ impl SimBoard {
         } else {
             0.0
         };
+        let tick_end_s = ((self.ticks + 1) * CONTROL_PERIOD_US) as f64 * 1e-6;
         if self.motors.armed {
             for (i, p) in self.motor_params.iter().enumerate() {
-                targets[i] = p.steady_speed_rad_s(f64::from(self.motors.commands[i]))
-                    * (1.0 - sag).max(0.0).sqrt();
+                // Fault injection: the output wired to this rotor (its own without faults).
+                let output = self.faults.output_of_rotor(tick_end_s, i);
+                let command = self.motors.commands.get(output).copied().unwrap_or(0.0);
+                targets[i] = p.steady_speed_rad_s(f64::from(command)) * (1.0 - sag).max(0.0).sqrt();
             }
         }
         if w.gust_s > 0.0 {
@@ -399,7 +402,6 @@ impl SimBoard {
         }
         self.physics.set_rotor_targets(&targets);
         // Fault injection: a rotor's thrust scaled from this tick on (nothing without faults).
-        let tick_end_s = ((self.ticks + 1) * CONTROL_PERIOD_US) as f64 * 1e-6;
         if let Some(factors) = self.faults.thrust_factors(tick_end_s) {
             self.physics.set_rotor_thrust_factors(&factors);
         }

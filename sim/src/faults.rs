@@ -37,13 +37,24 @@
 //!   - [`FaultKind::ImuFrozen`]: the sample repeats the previous one delivered, every value bit
 //!     for bit (a stale FIFO or register read);
 //!   - [`FaultKind::SpeedReportLost`]: one motor's speed report is missing (its ESC does not
-//!     answer, or answers garbage the driver rejects).
+//!     answer, or answers garbage the driver rejects);
+//!   - [`FaultKind::MotorOutputsSwapped`]: the commands of outputs `a` and `b` drive each other's
+//!     rotors while each rotor's speed is still reported under its own index (a motor map that
+//!     disagrees with the speed reports: what `configurator-cli doctor`'s spin test finds).
 //! - An empty schedule changes nothing: flights without faults are bit-identical to flights on a
 //!   board built without one.
+//!
+//! # The SITL's faults
+//! [`SitlFaults`] (the `sitl` binary's and `configurator-cli --sitl`'s `--fault-*` flags,
+//! [`SitlFaultArgs`]) start a SITL with a board that is broken from power-up, as a bring-up check
+//! (`configurator-cli doctor`) must find it: an ESC that never answers, an IMU that is silent,
+//! frozen or [`NOISY_IMU_FACTOR`] times too noisy, a flash whose reads and writes fail
+//! ([`crate::flash::FlashFault`]), two motor outputs driving each other's rotors.
 
 use firmware::app::hal::ImuSample;
 
-use crate::airframe::{MAX_ROTORS, STANDARD_GRAVITY_MPS2};
+use crate::airframe::{Airframe, MAX_ROTORS, STANDARD_GRAVITY_MPS2};
+use crate::flash::FlashFault;
 
 /// The accelerometer's full scale, m/s²: the ICM-42688-P at ±16 g (the library airframes'
 /// `range_mps2` = 156.9). A saturated axis reads +32767/32768 of it or −1 times it.
@@ -88,6 +99,14 @@ pub enum FaultKind {
     SpeedReportLost {
         /// The motor (motor order).
         motor: usize,
+    },
+    /// Output `a`'s command drives rotor `b` and output `b`'s drives rotor `a`; the speed
+    /// reports stay with the rotors (rotor `a`'s speed is reported as motor `a`).
+    MotorOutputsSwapped {
+        /// One output (motor order).
+        a: usize,
+        /// The other.
+        b: usize,
     },
 }
 
@@ -228,7 +247,8 @@ impl FaultInjector {
                 }
                 FaultKind::MotorThrust { .. }
                 | FaultKind::PoseLost
-                | FaultKind::SpeedReportLost { .. } => {}
+                | FaultKind::SpeedReportLost { .. }
+                | FaultKind::MotorOutputsSwapped { .. } => {}
             }
         }
         if delivered {
@@ -243,10 +263,153 @@ impl FaultInjector {
         self.active(t_s).any(|kind| *kind == FaultKind::SpeedReportLost { motor })
     }
 
+    /// The output whose command drives rotor `rotor` on the tick ending at `t_s` (the rotor's
+    /// own index unless a [`FaultKind::MotorOutputsSwapped`] names it).
+    pub fn output_of_rotor(&self, t_s: f64, rotor: usize) -> usize {
+        let mut output = rotor;
+        for kind in self.active(t_s) {
+            if let FaultKind::MotorOutputsSwapped { a, b } = *kind {
+                if output == a {
+                    output = b;
+                } else if output == b {
+                    output = a;
+                }
+            }
+        }
+        output
+    }
+
     /// Whether the external pose is lost at board time `t_s`.
     pub fn pose_lost(&self, t_s: f64) -> bool {
         self.active(t_s).any(|kind| *kind == FaultKind::PoseLost)
     }
+}
+
+/// How much noisier than its airframe's model a `--fault-imu noisy` IMU is (gyro and
+/// accelerometer white-noise densities): 30×, far beyond any margin a bring-up check allows for
+/// a bench's vibration (`configurator-cli doctor` fails above 5× the datasheet's noise).
+pub const NOISY_IMU_FACTOR: f64 = 30.0;
+
+/// How the SITL's IMU fails from power-up (`--fault-imu`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ImuFault {
+    /// No sample ever arrives ([`FaultKind::ImuMissing`]): a dead sensor or a broken bus.
+    Silent,
+    /// Every sample repeats the first one bit for bit ([`FaultKind::ImuFrozen`]).
+    Frozen,
+    /// Gyro and accelerometer white noise [`NOISY_IMU_FACTOR`] times the airframe's.
+    Noisy,
+}
+
+/// The faults a SITL runs with from its start (see the module doc). The default: none.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SitlFaults {
+    /// Motors (index from 0) whose ESC never reports a speed ([`FaultKind::SpeedReportLost`]).
+    pub esc_silent: Vec<u8>,
+    /// How the IMU fails, if it does.
+    pub imu: Option<ImuFault>,
+    /// How the configuration flash fails, if it does.
+    pub flash: Option<FlashFault>,
+    /// Two motor outputs (index from 0) whose commands drive each other's rotors
+    /// ([`FaultKind::MotorOutputsSwapped`]).
+    pub motor_swap: Option<[u8; 2]>,
+}
+
+impl SitlFaults {
+    /// Checked against an airframe of `motor_count` motors: the message names the bad value.
+    pub fn validate(&self, motor_count: usize) -> Result<(), String> {
+        let in_range = |m: u8| usize::from(m) < motor_count;
+        if let Some(&bad) = self.esc_silent.iter().find(|&&m| !in_range(m)) {
+            return Err(format!(
+                "--fault-esc-silent {bad}: the airframe has motors 0 to {}",
+                motor_count.saturating_sub(1)
+            ));
+        }
+        if let Some([a, b]) = self.motor_swap {
+            if a == b || !in_range(a) || !in_range(b) {
+                return Err(format!(
+                    "--fault-motor-swap {a},{b}: two different motors of 0 to {}",
+                    motor_count.saturating_sub(1)
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The schedule of these faults, each from board time 0 to the end.
+    pub fn schedule(&self) -> FaultSchedule {
+        let mut schedule = FaultSchedule::default();
+        for &motor in &self.esc_silent {
+            let kind = FaultKind::SpeedReportLost { motor: usize::from(motor) };
+            schedule = schedule.with(Fault::from(0.0, kind));
+        }
+        match self.imu {
+            Some(ImuFault::Silent) => {
+                schedule = schedule.with(Fault::from(0.0, FaultKind::ImuMissing))
+            }
+            Some(ImuFault::Frozen) => {
+                schedule = schedule.with(Fault::from(0.0, FaultKind::ImuFrozen))
+            }
+            Some(ImuFault::Noisy) | None => {}
+        }
+        if let Some([a, b]) = self.motor_swap {
+            let kind = FaultKind::MotorOutputsSwapped { a: usize::from(a), b: usize::from(b) };
+            schedule = schedule.with(Fault::from(0.0, kind));
+        }
+        schedule
+    }
+
+    /// `airframe` with the IMU these faults give it (a noisy IMU's noise densities scaled).
+    pub fn apply_to_airframe(&self, airframe: &mut Airframe) {
+        if self.imu == Some(ImuFault::Noisy) {
+            airframe.imu.gyro.noise_density_rad_s_per_sqrt_hz *= NOISY_IMU_FACTOR;
+            airframe.imu.accel.noise_density_mps2_per_sqrt_hz *= NOISY_IMU_FACTOR;
+        }
+    }
+}
+
+/// The `--fault-*` flags of a SITL (the `sitl` binary and `configurator-cli --sitl`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct SitlFaultArgs {
+    /// Fault injection: motor N's ESC (index from 0, as `motor-test --motor`) never reports its
+    /// speed. Repeat for more motors.
+    #[arg(long, global = true, value_name = "N")]
+    pub fault_esc_silent: Vec<u8>,
+    /// Fault injection: the IMU delivers no samples (silent), repeats its first sample (frozen),
+    /// or is 30× noisier than the airframe's (noisy).
+    #[arg(long, global = true, value_enum, value_name = "HOW")]
+    pub fault_imu: Option<ImuFault>,
+    /// Fault injection: every read of the configuration flash reports an error and every write
+    /// fails (bad); the flash file is left untouched.
+    #[arg(long, global = true, value_enum, value_name = "HOW")]
+    pub fault_flash: Option<FlashFault>,
+    /// Fault injection: outputs A and B (index from 0) drive each other's motors, while each
+    /// motor's speed is reported under its own number.
+    #[arg(long, global = true, value_name = "A,B", value_parser = parse_motor_pair)]
+    pub fault_motor_swap: Option<[u8; 2]>,
+}
+
+impl SitlFaultArgs {
+    /// The faults the flags ask for.
+    pub fn faults(&self) -> SitlFaults {
+        SitlFaults {
+            esc_silent: self.fault_esc_silent.clone(),
+            imu: self.fault_imu,
+            flash: self.fault_flash,
+            motor_swap: self.fault_motor_swap,
+        }
+    }
+}
+
+/// Two motor indices `A,B`.
+fn parse_motor_pair(text: &str) -> Result<[u8; 2], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let [a, b] = parts.as_slice() else {
+        return Err(format!("expected two comma-separated motor indices A,B, got `{text}`"));
+    };
+    let index =
+        |part: &str| part.parse::<u8>().map_err(|_| format!("`{part}` is not a motor index"));
+    Ok([index(a)?, index(b)?])
 }
 
 #[cfg(test)]
@@ -314,6 +477,44 @@ mod tests {
         }
         assert!(!injector.speed_report_lost(2.9995, 1));
         assert!(injector.speed_report_lost(3.0, 1) && !injector.speed_report_lost(3.0, 0));
+    }
+
+    #[test]
+    fn swapped_outputs_drive_each_others_rotors_and_leave_the_rest() {
+        let swap = FaultKind::MotorOutputsSwapped { a: 1, b: 3 };
+        let injector = FaultInjector::new(&FaultSchedule::default().with(Fault::from(0.5, swap)));
+        let outputs = |t: f64| (0..4).map(|r| injector.output_of_rotor(t, r)).collect::<Vec<_>>();
+        assert_eq!(outputs(0.0), [0, 1, 2, 3]);
+        assert_eq!(outputs(0.5), [0, 3, 2, 1]);
+    }
+
+    #[test]
+    fn sitl_faults_are_checked_against_the_airframe_and_scheduled_from_the_start() {
+        let faults = SitlFaults {
+            esc_silent: vec![2],
+            imu: Some(ImuFault::Silent),
+            flash: None,
+            motor_swap: Some([0, 3]),
+        };
+        assert_eq!(faults.validate(4), Ok(()));
+        assert!(faults.validate(3).unwrap_err().contains("--fault-motor-swap 0,3"));
+        let same = SitlFaults { motor_swap: Some([1, 1]), ..SitlFaults::default() };
+        assert!(same.validate(4).is_err());
+        let far = SitlFaults { esc_silent: vec![8], ..SitlFaults::default() };
+        assert!(far.validate(8).unwrap_err().contains("motors 0 to 7"));
+        let kinds: Vec<FaultKind> = faults.schedule().faults().iter().map(|f| f.kind).collect();
+        assert_eq!(
+            kinds,
+            [
+                FaultKind::SpeedReportLost { motor: 2 },
+                FaultKind::ImuMissing,
+                FaultKind::MotorOutputsSwapped { a: 0, b: 3 }
+            ]
+        );
+        assert!(faults.schedule().faults().iter().all(|f| f.active(0.0) && f.active(1e6)));
+        assert_eq!(SitlFaults::default().schedule(), FaultSchedule::default());
+        assert_eq!(parse_motor_pair("1, 2"), Ok([1, 2]));
+        assert!(parse_motor_pair("1").is_err() && parse_motor_pair("1,x").is_err());
     }
 
     #[test]

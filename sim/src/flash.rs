@@ -7,6 +7,12 @@
 //! it returns. A saved configuration therefore survives a restart of the SITL exactly as it
 //! survives a power cycle of a board. A file of the wrong size is refused rather than
 //! reformatted, so a user's configuration is never silently lost.
+//!
+//! [`FlashFault::Bad`] (the SITL's `--fault-flash bad`) makes the flash fail as a damaged part
+//! does: every read reports an error (the H743's ECC reports a damaged word rather than returning
+//! it) with garbage in the buffer, and every write or erase fails. The file itself is left
+//! untouched. (A flash that returned garbage *without* an error would look erased to
+//! sequential-storage: nothing stored, the defaults in force.)
 
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
@@ -54,10 +60,19 @@ impl NorFlashError for FlashError {
     }
 }
 
+/// How a [`FileFlash`] fails on purpose (fault injection).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FlashFault {
+    /// Reads fail, leaving garbage in the buffer (a fixed pseudo-random byte per address);
+    /// writes and erases fail; the file is never touched.
+    Bad,
+}
+
 /// The flash, mirrored in memory and written through to its file.
 pub struct FileFlash {
     file: File,
     bytes: Vec<u8>,
+    fault: Option<FlashFault>,
 }
 
 impl FileFlash {
@@ -84,7 +99,12 @@ impl FileFlash {
         } else {
             file.read_exact(&mut bytes).map_err(io)?;
         }
-        Ok(Self { file, bytes })
+        Ok(Self { file, bytes, fault: None })
+    }
+
+    /// This flash failing as `fault` says (fault injection).
+    pub fn with_fault(self, fault: Option<FlashFault>) -> Self {
+        Self { fault, ..self }
     }
 
     /// The flash range the configuration store uses: all of it.
@@ -121,6 +141,13 @@ pub fn default_flash_path() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("sitl-flash.bin"))
 }
 
+/// The byte a [`FlashFault::Bad`] flash reads at `address`: a hash of the address (the same
+/// garbage on every read).
+fn garbage(address: u32) -> u8 {
+    let x = address.wrapping_mul(0x9E37_79B9) ^ 0x5BD1_E995;
+    (x ^ (x >> 15)).wrapping_mul(0x2C1B_3C6D).to_le_bytes()[3]
+}
+
 impl ErrorType for FileFlash {
     type Error = FlashError;
 }
@@ -130,6 +157,12 @@ impl ReadNorFlash for FileFlash {
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
         let offset = self.check(offset, bytes.len(), 1)?;
+        if self.fault == Some(FlashFault::Bad) {
+            for (i, byte) in bytes.iter_mut().enumerate() {
+                *byte = garbage((offset + i) as u32);
+            }
+            return Err(FlashError::Io);
+        }
         bytes.copy_from_slice(&self.bytes[offset..offset + bytes.len()]);
         Ok(())
     }
@@ -146,12 +179,18 @@ impl NorFlash for FileFlash {
     fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
         let len = (to as usize).checked_sub(from as usize).ok_or(FlashError::OutOfBounds)?;
         let from = self.check(from, len, ERASE_SIZE)?;
+        if self.fault == Some(FlashFault::Bad) {
+            return Err(FlashError::Io);
+        }
         self.bytes[from..from + len].fill(0xFF);
         self.write_through(from, len)
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
         let offset = self.check(offset, bytes.len(), WRITE_SIZE)?;
+        if self.fault == Some(FlashFault::Bad) {
+            return Err(FlashError::Io);
+        }
         if self.bytes[offset..offset + bytes.len()].iter().any(|&b| b != 0xFF) {
             return Err(FlashError::NotErased);
         }
@@ -188,6 +227,33 @@ mod tests {
         assert!(read.iter().all(|&b| b == 0xFF));
         std::fs::write(&path, [0u8; 10]).unwrap();
         assert!(matches!(FileFlash::open(&path), Err(FlashFileError::Size { len: 10, .. })));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_bad_flash_fails_reads_and_writes_and_leaves_its_file_alone() {
+        let dir = std::env::temp_dir().join(format!("fileflash-bad-{}", std::process::id()));
+        let path = dir.join("flash.bin");
+        let _ = std::fs::remove_file(&path);
+        let mut bad = FileFlash::open(&path).unwrap().with_fault(Some(FlashFault::Bad));
+        let (mut first, mut second) = ([0u8; 256], [0u8; 256]);
+        assert_eq!(bad.read(0, &mut first), Err(FlashError::Io));
+        assert_eq!(bad.read(0, &mut second), Err(FlashError::Io));
+        assert_eq!(first, second, "the same garbage on every read");
+        let erased = first.iter().filter(|&&b| b == 0xFF).count();
+        assert!(erased < 16, "{erased} of 256 bytes read as erased");
+        assert_eq!(bad.write(0, &[0u8; WRITE_SIZE]), Err(FlashError::Io));
+        assert_eq!(bad.erase(0, ERASE_SIZE as u32), Err(FlashError::Io));
+        drop(bad);
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(bytes.iter().all(|&b| b == 0xFF), "the file is still erased");
+        // What the application makes of it: the stored configuration cannot be read (the
+        // defaults are in force), and a save fails without changing what is in force.
+        let bad = FileFlash::open(&path).unwrap().with_fault(Some(FlashFault::Bad));
+        let mut settings = firmware::app::Settings::load(bad, FileFlash::store_range());
+        assert_eq!(settings.status().origin, protocol::ConfigOrigin::Unreadable);
+        assert_eq!(settings.save(), Err(protocol::StorageStage::Write));
+        assert_eq!(settings.status().origin, protocol::ConfigOrigin::Unreadable);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -91,6 +91,10 @@ pub struct SitlConfig {
     pub rc_script: Option<crate::radio::RcScript>,
     /// RC frames per second of the simulated radio, Hz (1–1,000).
     pub rc_rate_hz: f64,
+    /// Faults the simulated board has from its start (an ESC that never answers, a silent or
+    /// noisy IMU, a bad flash, swapped motor outputs: [`crate::faults::SitlFaults`]); default
+    /// none.
+    pub faults: crate::faults::SitlFaults,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -143,6 +147,7 @@ impl Default for SitlConfig {
             hand_throws_to_fly: false,
             rc_script: None,
             rc_rate_hz: crate::radio::DEFAULT_RC_RATE_HZ,
+            faults: crate::faults::SitlFaults::default(),
         }
     }
 }
@@ -183,6 +188,9 @@ pub enum SitlError {
     AccBias([f64; 3]),
     #[error(transparent)]
     Flash(#[from] FlashFileError),
+    /// A fault flag names something the airframe does not have (the message says which).
+    #[error("{0}")]
+    Fault(String),
 }
 
 /// A running SITL. Stops when dropped.
@@ -229,7 +237,10 @@ impl Sitl {
             }
             airframe.imu.accel.bias_mps2 = bias;
         }
+        config.faults.validate(airframe.rotor_count()).map_err(SitlError::Fault)?;
+        config.faults.apply_to_airframe(&mut airframe);
         let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
+        let flash = flash.map(|flash| flash.with_fault(config.faults.flash));
         let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
         // The simulated ESCs take DShot special commands (`SimMotors::escs`); the bridge's do not.
         info.capabilities |= Capabilities::ESC_COMMANDS;
@@ -272,6 +283,7 @@ impl Sitl {
             pty,
             tcp,
             flash,
+            fault_schedule: config.faults.schedule(),
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -323,6 +335,8 @@ struct Runner {
     pty: Option<Pty>,
     tcp: Option<TcpLinks>,
     flash: Option<FileFlash>,
+    /// The faults of the simulated board ([`crate::faults::SitlFaults::schedule`]).
+    fault_schedule: crate::faults::FaultSchedule,
     stop: Arc<AtomicBool>,
 }
 
@@ -339,7 +353,11 @@ impl Runner {
     /// request: the physics and the links' endpoints go on, the application and its link
     /// sessions start afresh, and the configuration is loaded from the flash file again.
     fn run(mut self) {
-        let config = SimConfig { seed: self.seed, ..SimConfig::default() };
+        let config = SimConfig {
+            seed: self.seed,
+            faults: self.fault_schedule.clone(),
+            ..SimConfig::default()
+        };
         let mut board = SimBoard::new(&self.airframe, &config);
         let mut mocap = self
             .mocap

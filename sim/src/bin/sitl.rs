@@ -10,7 +10,10 @@
 //! bias (default: the airframe file's). `--throw-to-fly` arms the board for throw-to-fly at start; `--imu-offset-mm X,Y,Z` gives the
 //! learner the IMU offset instead of the onboard estimate. The saved configuration lives in
 //! `--flash-file PATH` (default: `sitl-flash.bin` in the user's data directory), so it survives
-//! a restart of the SITL as a board's survives a power cycle. Bad input exits with code 2.
+//! a restart of the SITL as a board's survives a power cycle. `--fault-esc-silent N`,
+//! `--fault-imu silent|frozen|noisy`, `--fault-flash bad` and `--fault-motor-swap A,B` give the
+//! simulated board a fault from power-up (`sim::faults::SitlFaults`), for
+//! `configurator-cli doctor` to find. Bad input exits with code 2.
 
 use clap::Parser;
 use sim::serve::parse_imu_offset_mm;
@@ -97,6 +100,8 @@ struct Args {
     #[arg(long, value_name = "HZ", default_value_t = sim::radio::DEFAULT_RC_RATE_HZ,
           value_parser = parse_rc_rate_hz)]
     rc_rate_hz: f64,
+    #[command(flatten)]
+    faults: sim::faults::SitlFaultArgs,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -152,6 +157,7 @@ fn main() -> std::process::ExitCode {
         rc_rate_hz: args.rc_rate_hz,
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
+        faults: args.faults.faults(),
     };
     let sitl = match Sitl::start(&config) {
         Ok(sitl) => sitl,
@@ -209,6 +215,10 @@ fn main() -> std::process::ExitCode {
             y * 1000.0,
             z * 1000.0
         );
+    }
+    let faults = &config.faults;
+    if faults != &sim::faults::SitlFaults::default() {
+        println!("  injected faults: {faults:?}");
     }
     println!("Stop with Ctrl-C.");
     let started = std::time::Instant::now();
