@@ -1,12 +1,16 @@
 //! The pilot's radio, simulated: a CRSF transmitter and receiver pair whose RC-channel frames
 //! reach the application's control tick through the same byte path as the board's UART
-//! ([`ByteSource`]), so the real parser, switch mapping and receiver policy
+//! ([`Uart`]), so the real parser, switch mapping and receiver policy
 //! ([`firmware::app::radio`]) decide what the craft does.
 //!
 //! The switches are the default mapping's ([`RcLinkConfig::default`]: arm on channel 5,
 //! throw-to-fly on 6, kill on 7, on at 2,000 µs and off at 1,000 µs; the sticks centred). A
 //! [`RcScript`] flips them, and takes the signal away and gives it back, at given simulated
 //! times: `sitl --rc "1:arm,1:throw,6:kill"`.
+//!
+//! The handset side decodes the telemetry the flight controller sends back (attitude, flight
+//! mode, battery: [`RcTransmitter::telemetry`], [`RcTransmitter::flight_modes`]), as a pilot's
+//! handset shows it.
 //!
 //! What it models of a real link: frames at a fixed rate ([`DEFAULT_RC_RATE_HZ`], Crossfire's
 //! 150 Hz; ExpressLRS sends 50–1,000 Hz), each frame's bytes delivered at once at the first
@@ -16,10 +20,10 @@
 
 use std::collections::VecDeque;
 
-use firmware::app::hal::ByteSource;
+use firmware::app::hal::Uart;
 use firmware::drivers::crsf::{
-    encode_frame, RcChannels, RcLinkConfig, CHANNEL_COUNT, CHANNEL_RAW_MID, FRAME_MAX,
-    SYNC_FLIGHT_CONTROLLER, TYPE_RC_CHANNELS_PACKED,
+    encode_frame, HandsetTelemetry, RcChannels, RcLinkConfig, CHANNEL_COUNT, CHANNEL_RAW_MID,
+    FRAME_MAX, SYNC_FLIGHT_CONTROLLER, TYPE_RC_CHANNELS_PACKED,
 };
 
 /// RC frames per second by default, Hz (TBS Crossfire's rate).
@@ -122,6 +126,12 @@ pub struct RcTransmitter {
     script: VecDeque<(u64, RcEvent)>,
     pending: VecDeque<u8>,
     frames_sent: u64,
+    /// Bytes the flight controller sent towards the handset, not yet a whole frame.
+    downlink: Vec<u8>,
+    /// The telemetry frames the handset received, decoded, in order.
+    telemetry: Vec<HandsetTelemetry>,
+    /// Telemetry frames that did not decode (length, CRC, layout).
+    telemetry_errors: u64,
 }
 
 impl RcTransmitter {
@@ -140,6 +150,9 @@ impl RcTransmitter {
             script: script.events.iter().map(|&(t, e)| ((t * 1e6).round() as u64, e)).collect(),
             pending: VecDeque::new(),
             frames_sent: 0,
+            downlink: Vec::new(),
+            telemetry: Vec::new(),
+            telemetry_errors: 0,
         }
     }
 
@@ -179,6 +192,29 @@ impl RcTransmitter {
         }
     }
 
+    /// The telemetry frames the handset received, decoded, in order.
+    pub fn telemetry(&self) -> &[HandsetTelemetry] {
+        &self.telemetry
+    }
+
+    /// Telemetry frames that did not decode.
+    pub fn telemetry_errors(&self) -> u64 {
+        self.telemetry_errors
+    }
+
+    /// The flight-mode words the handset showed, each change once, in order.
+    pub fn flight_modes(&self) -> Vec<String> {
+        let mut modes: Vec<String> = Vec::new();
+        for frame in &self.telemetry {
+            if let HandsetTelemetry::FlightMode(words) = frame {
+                if modes.last().map(String::as_str) != Some(words.as_str()) {
+                    modes.push(words.as_str().to_owned());
+                }
+            }
+        }
+        modes
+    }
+
     /// RC frames sent so far.
     pub fn frames_sent(&self) -> u64 {
         self.frames_sent
@@ -201,13 +237,36 @@ impl RcTransmitter {
     }
 }
 
-impl ByteSource for RcTransmitter {
+impl Uart for RcTransmitter {
     fn read(&mut self, buffer: &mut [u8]) -> usize {
         let n = buffer.len().min(self.pending.len());
         for (dst, src) in buffer.iter_mut().zip(self.pending.drain(..n)) {
             *dst = src;
         }
         n
+    }
+
+    /// The flight controller's telemetry on its way to the handset: split into frames at the
+    /// length byte and decoded as a handset would.
+    fn write(&mut self, bytes: &[u8]) -> usize {
+        self.downlink.extend_from_slice(bytes);
+        while self.downlink.len() >= 2 {
+            let total = usize::from(self.downlink[1]) + 2;
+            if self.downlink[0] != SYNC_FLIGHT_CONTROLLER || !(4..=FRAME_MAX).contains(&total) {
+                self.telemetry_errors += 1;
+                self.downlink.remove(0);
+                continue;
+            }
+            if self.downlink.len() < total {
+                break;
+            }
+            match HandsetTelemetry::decode(&self.downlink[..total]) {
+                Ok(frame) => self.telemetry.push(frame),
+                Err(_) => self.telemetry_errors += 1,
+            }
+            self.downlink.drain(..total);
+        }
+        bytes.len()
     }
 }
 

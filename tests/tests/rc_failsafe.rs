@@ -29,7 +29,7 @@ struct Tick {
 
 /// Flies the seed paper's quad for `seconds` with the radio playing `script`, thrown at 0.5 s
 /// when `throw` (its IMU offset known, as after a calibration).
-fn fly(script: &str, throw: bool, seconds: f64) -> Vec<Tick> {
+fn fly(script: &str, throw: bool, seconds: f64) -> (Vec<Tick>, RcTransmitter) {
     let airframe = Airframe::builtin("paper-quad").unwrap();
     let config = FlyConfig::paper();
     let truth = sim::identification::TrueModel::of(&airframe);
@@ -59,7 +59,7 @@ fn fly(script: &str, throw: bool, seconds: f64) -> Vec<Tick> {
         }
         ticks
     });
-    ticks
+    (ticks, radio)
 }
 
 /// The first tick at or after `time_s` where `condition` holds.
@@ -73,7 +73,7 @@ fn armed(tick: &Tick) -> bool {
 
 #[test]
 fn the_kill_switch_disarms_a_flying_craft_within_one_control_step_and_reports_kill() {
-    let ticks = fly("0.1:arm,0.1:throw,4:kill", true, 4.5);
+    let (ticks, _) = fly("0.1:arm,0.1:throw,4:kill", true, 4.5);
     let before = first(&ticks, 3.99, |_| true).unwrap();
     assert!(before.snapshot.pilot.flying, "flying on the learned model before the kill");
     // The first frame with the kill switch on arrives at the first frame time after 4 s.
@@ -91,10 +91,58 @@ fn the_kill_switch_disarms_a_flying_craft_within_one_control_step_and_reports_ki
     assert!(ticks.last().unwrap().snapshot.phase != FlightPhase::Exciting);
 }
 
+/// CRSF telemetry to the pilot's handset: one frame per RC frame, every frame decoded (sync,
+/// length, type, CRC, layout), the attitude level while hovering, and the flight-mode words of a
+/// throw-to-fly in order.
+#[test]
+fn the_handset_shows_the_throw_to_fly_in_words_in_order() {
+    use firmware::drivers::crsf::HandsetTelemetry;
+    let (ticks, radio) = fly("0.1:disarm,0.2:arm,0.2:throw,4:kill", true, 4.5);
+    assert_eq!(radio.telemetry_errors(), 0);
+    let frames = radio.telemetry().len() as u64;
+    // One telemetry frame per RC frame received (the first frame's slot may still be open).
+    assert!(radio.frames_sent() - frames <= 1, "{frames} of {}", radio.frames_sent());
+    let modes = radio.flight_modes();
+    eprintln!("flight modes: {modes:?}");
+    let expected = [
+        "DISARMED",
+        "WAIT THROW",
+        "THROWN",
+        "RELEASED",
+        "EXCITE 1/4",
+        "EXCITE 2/4",
+        "EXCITE 3/4",
+        "EXCITE 4/4",
+        "HOVER",
+        "FAILSAFE",
+    ];
+    let mut at = 0;
+    for mode in &modes {
+        if at < expected.len() && mode == expected[at] {
+            at += 1;
+        }
+    }
+    assert_eq!(at, expected.len(), "expected {expected:?} in order, the handset showed {modes:?}");
+    // While hovering (3.5–3.9 s, 60 attitude frames): the thrust frame within 15° of level.
+    let hover_frames = radio.telemetry().len() as f64 * 3.5 / 4.5;
+    let level = radio
+        .telemetry()
+        .iter()
+        .skip(hover_frames as usize)
+        .take(40)
+        .filter_map(|frame| match frame {
+            HandsetTelemetry::Attitude { pitch_rad, roll_rad, .. } => Some((*pitch_rad, *roll_rad)),
+            _ => None,
+        })
+        .all(|(pitch, roll)| pitch.abs() < 15f32.to_radians() && roll.abs() < 15f32.to_radians());
+    assert!(level, "hovering level on the handset");
+    assert!(ticks.iter().any(|t| t.snapshot.pilot.flying));
+}
+
 #[test]
 fn signal_lost_in_flight_flies_on_for_the_timeout_and_the_grace_then_reports_rc_lost() {
     let lost_s = 4.0;
-    let ticks = fly(&format!("0.1:arm,0.1:throw,{lost_s}:lose"), true, 5.6);
+    let (ticks, _) = fly(&format!("0.1:arm,0.1:throw,{lost_s}:lose"), true, 5.6);
     assert!(first(&ticks, lost_s - 0.01, |_| true).unwrap().snapshot.pilot.flying);
     // The last frame came at most one frame period before the loss.
     let last_frame_s = ticks.iter().rev().find(|t| t.frame_arrived).map(|t| t.time_s).unwrap();
@@ -119,7 +167,7 @@ fn after_a_kill_or_a_lost_link_re_arming_needs_the_arm_switch_cycled() {
     // 2.0 s with the switches on; arm cycled at 2.3 / 2.5 s.
     let script = "0.1:arm,0.1:throw,0.5:kill,0.8:kill-off,1.0:disarm,1.2:arm,1.5:lose,2.0:restore,\
          2.3:disarm,2.5:arm";
-    let ticks = fly(script, false, 3.0);
+    let (ticks, _) = fly(script, false, 3.0);
     let armed_between = |from_s: f64, to_s: f64| {
         ticks.iter().filter(|t| t.time_s >= from_s && t.time_s < to_s).any(armed)
     };

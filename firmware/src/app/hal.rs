@@ -74,27 +74,35 @@ impl Motors for NoMotors {
     }
 }
 
-/// A receive-only byte stream the control step drains (the pilot's radio receiver on a UART).
-pub trait ByteSource {
+/// The UART of the pilot's radio receiver, as the control step drives it.
+pub trait Uart {
     /// Copy the bytes received since the last call into `buffer` (at most its length); returns
     /// how many. Must not block.
     fn read(&mut self, buffer: &mut [u8]) -> usize;
+    /// Queue `bytes` for sending (telemetry to the pilot's handset); returns how many were taken
+    /// (a UART with no room, or no transmitter, takes fewer or none). Must not block.
+    fn write(&mut self, _bytes: &[u8]) -> usize {
+        0
+    }
 }
 
 /// No receiver connected: never any bytes.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoBytes;
 
-impl ByteSource for NoBytes {
+impl Uart for NoBytes {
     fn read(&mut self, _buffer: &mut [u8]) -> usize {
         0
     }
 }
 
 /// A receiver that may not be there: no bytes when absent.
-impl<B: ByteSource> ByteSource for Option<B> {
+impl<B: Uart> Uart for Option<B> {
     fn read(&mut self, buffer: &mut [u8]) -> usize {
         self.as_mut().map_or(0, |source| source.read(buffer))
+    }
+    fn write(&mut self, bytes: &[u8]) -> usize {
+        self.as_mut().map_or(0, |sink| sink.write(bytes))
     }
 }
 

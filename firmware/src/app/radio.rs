@@ -35,10 +35,12 @@
 //! commands nothing, so the board can be armed over USB without a radio (bench, SITL-like use).
 
 use super::pilot::Failsafe;
-use super::ControlCommand;
+use super::{ControlCommand, ControlSnapshot};
 use crate::drivers::crsf::{
     CrsfFrame, CrsfParser, LinkStatistics, PilotRequest, RcConfigError, RcLink, RcLinkConfig,
 };
+use crate::drivers::crsf::{HandsetTelemetry, FLIGHT_MODE_MAX_LEN};
+use flight::learner::FlightPhase;
 use protocol::ReceiverHealth;
 
 /// How long a craft in flight keeps flying after the radio link is lost, µs.
@@ -66,6 +68,10 @@ pub struct Receiver {
     previous: PilotRequest,
     /// When the failsafe began in flight, µs.
     failsafe_since_us: Option<u64>,
+    /// Telemetry slots granted (RC frames received) and not used yet.
+    telemetry_slots: u8,
+    /// The handset's telemetry cycle.
+    handset: HandsetCycle,
 }
 
 impl Receiver {
@@ -79,6 +85,8 @@ impl Receiver {
             interlock_clear: false,
             previous: PilotRequest::Failsafe,
             failsafe_since_us: None,
+            telemetry_slots: 0,
+            handset: HandsetCycle::default(),
         })
     }
 
@@ -99,6 +107,7 @@ impl Receiver {
                 Ok(CrsfFrame::RcChannels(channels)) => {
                     self.link.on_channels(&channels, now_us);
                     self.present = true;
+                    self.telemetry_slots = 1;
                 }
                 Ok(CrsfFrame::LinkStatistics(statistics)) => self.statistics = Some(statistics),
                 // Counted by the parser.
@@ -150,6 +159,25 @@ impl Receiver {
         }
     }
 
+    /// The telemetry frame for the pilot's handset, if the receiver granted a slot since the
+    /// last call (one frame per RC frame received, as a CRSF receiver forwards one telemetry
+    /// frame per uplink frame): written into `out`, its length returned. The frames cycle
+    /// attitude → flight mode (→ battery, when `battery` is measured), so at 150 RC frames per
+    /// second the handset sees each within 20 ms.
+    pub fn telemetry_frame(
+        &mut self,
+        snapshot: &ControlSnapshot,
+        battery: Option<Battery>,
+        out: &mut [u8],
+    ) -> Option<usize> {
+        self.handset.observe(snapshot);
+        if self.telemetry_slots == 0 {
+            return None;
+        }
+        self.telemetry_slots = 0;
+        self.handset.next(snapshot, battery).encode(out)
+    }
+
     /// What the status reports.
     pub fn health(&self, now_us: u64) -> ReceiverHealth {
         let stats = self.parser.stats();
@@ -169,6 +197,108 @@ impl Receiver {
                 .saturating_add(stats.truncated),
         }
     }
+}
+
+/// A battery measurement for the handset.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Battery {
+    pub voltage_v: f32,
+    pub current_a: f32,
+    pub used_mah: u32,
+    pub remaining_pct: u8,
+}
+
+/// The handset's telemetry cycle, and whether a failsafe is still to be shown.
+#[derive(Clone, Copy, Debug, Default)]
+struct HandsetCycle {
+    next: u8,
+    failsafes_seen: u32,
+    /// A failsafe stopped the craft and it has not been armed since.
+    failsafe_shown: bool,
+}
+
+impl HandsetCycle {
+    /// Follow the craft between frames: a new failsafe is shown until the craft is armed again.
+    fn observe(&mut self, snapshot: &ControlSnapshot) {
+        let total = snapshot.pilot.failsafes.total();
+        if total != self.failsafes_seen {
+            self.failsafes_seen = total;
+            self.failsafe_shown = true;
+        }
+        if snapshot.armed {
+            self.failsafe_shown = false;
+        }
+    }
+
+    fn next(&mut self, snapshot: &ControlSnapshot, battery: Option<Battery>) -> HandsetTelemetry {
+        let kinds = if battery.is_some() { 3 } else { 2 };
+        let kind = self.next % kinds;
+        self.next = (kind + 1) % kinds;
+        match (kind, battery) {
+            (0, _) => attitude(snapshot),
+            (2, Some(b)) => HandsetTelemetry::Battery {
+                voltage_v: b.voltage_v,
+                current_a: b.current_a,
+                used_mah: b.used_mah,
+                remaining_pct: b.remaining_pct,
+            },
+            _ => HandsetTelemetry::FlightMode(flight_mode_words(snapshot, self.failsafe_shown)),
+        }
+    }
+}
+
+/// The craft's attitude for the handset: the thrust frame's once the craft flies on its learned
+/// model (the frame it hovers in), the IMU's before; Euler angles ZYX.
+fn attitude(snapshot: &ControlSnapshot) -> HandsetTelemetry {
+    let pilot = &snapshot.pilot;
+    let [w, x, y, z] = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
+    let roll_rad = libm::atan2f(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y));
+    let pitch_rad = libm::asinf((2.0 * (w * y - z * x)).clamp(-1.0, 1.0));
+    let yaw_rad = libm::atan2f(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z));
+    HandsetTelemetry::Attitude { pitch_rad, roll_rad, yaw_rad }
+}
+
+/// What the craft is doing, in words a pilot reads on a handset: `DISARMED`, `WAIT THROW`,
+/// `THROWN`, `RELEASED`, `EXCITE k/m` (motor k of m pulsed), `HANDOVER`, `HOVER`, `POS HOLD`,
+/// `MOTOR TEST`, `FAILSAFE` (a failsafe stopped it and it has not been armed since).
+pub fn flight_mode_words(
+    snapshot: &ControlSnapshot,
+    failsafe_shown: bool,
+) -> heapless::String<FLIGHT_MODE_MAX_LEN> {
+    let mut words = heapless::String::new();
+    let text = if snapshot.pilot.flying {
+        if snapshot.pilot.position_hold {
+            "POS HOLD"
+        } else {
+            "HOVER"
+        }
+    } else if snapshot.armed {
+        match (snapshot.phase, snapshot.exciting_motor) {
+            (FlightPhase::WaitingForThrow, _) => "WAIT THROW",
+            (FlightPhase::Throwing, _) => "THROWN",
+            (FlightPhase::Released, _) => "RELEASED",
+            (FlightPhase::Exciting, Some(motor)) => {
+                // At most 8 motors: one digit each (no formatting machinery in the firmware).
+                let digit = |n: u8| char::from(b'0' + n.min(9));
+                for c in
+                    "EXCITE ".chars().chain([digit(motor + 1), '/', digit(snapshot.motor_count)])
+                {
+                    let _ = words.push(c);
+                }
+                return words;
+            }
+            (FlightPhase::Exciting, None) => "EXCITE",
+            (FlightPhase::Done, _) => "HANDOVER",
+            (FlightPhase::Idle, _) if snapshot.motor_test.is_some() => "MOTOR TEST",
+            (FlightPhase::Idle, _) => "ARMED",
+        }
+    } else if failsafe_shown {
+        "FAILSAFE"
+    } else {
+        "DISARMED"
+    };
+    let _ = words.push_str(text);
+    words
 }
 
 #[cfg(test)]

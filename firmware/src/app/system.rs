@@ -8,7 +8,7 @@
 //!
 //! | entry point | board task, priority | what |
 //! |---|---|---|
-//! | [`ControlTask::tick`] | TIM7 at 2 kHz, 3 (highest) | the link's commands, then the pilot's radio (so a kill switch has the last word), the background's results, one control step, the snapshot published |
+//! | [`ControlTask::tick`] | TIM7 at 2 kHz, 3 (highest) | the link's commands, then the pilot's radio (so a kill switch has the last word), the background's results, one control step, the snapshot published, a telemetry frame to the pilot's handset when the receiver granted a slot |
 //! | [`LinkTask::pass`] | USB interrupt, pended by the tick every [`LINK_PASS_PERIOD_US`], 2 | every link's bytes in, requests routed, parameters serviced, the step records streamed, telemetry sampled, bytes out |
 //! | [`run_background`] | software task, 1 (lowest) | work from the link (calibration, parameters), the learner-sample queue drained, results published |
 //!
@@ -23,7 +23,7 @@
 use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
-use super::hal::{ByteSource, Imu, Motors, Port, PortClosed};
+use super::hal::{Imu, Motors, Port, PortClosed, Uart};
 use super::radio::{CraftState, Receiver};
 use super::{
     Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
@@ -182,7 +182,7 @@ impl<'q> ControlTask<'q> {
     where
         I: Imu,
         M: Motors,
-        RS: ByteSource,
+        RS: Uart,
         C: Mutex<T = ControlQueue>,
         R: Mutex<T = BackgroundResults>,
         S: Mutex<T = ControlSnapshot>,
@@ -211,6 +211,13 @@ impl<'q> ControlTask<'q> {
                 || matches!(snapshot.phase, FlightPhase::Released | FlightPhase::Exciting),
         };
         shared.snapshot.lock(|shared| *shared = snapshot);
+        if let Some(radio) = &mut self.radio {
+            // One telemetry frame to the pilot's handset per RC frame received.
+            let mut frame = [0u8; crate::drivers::crsf::FRAME_MAX];
+            if let Some(n) = radio.telemetry_frame(&snapshot, None, &mut frame) {
+                let _ = radio_bytes.write(&frame[..n]);
+            }
+        }
         self.ticks = self.ticks.wrapping_add(1);
         let link_due = self.ticks.is_multiple_of(LINK_PASS_TICKS);
         if link_due {
@@ -552,7 +559,7 @@ impl<'q, F: NorFlash> System<'q, F> {
     /// A control tick (see [`ControlTask::tick`]); when it queued learner samples, the background
     /// task runs to completion right after, as the board's lowest-priority task does when it
     /// has time to spare before the next tick.
-    pub fn tick<I: Imu, M: Motors, RS: ByteSource>(
+    pub fn tick<I: Imu, M: Motors, RS: Uart>(
         &mut self,
         now_us: u64,
         imu: &mut I,

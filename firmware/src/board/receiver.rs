@@ -3,13 +3,13 @@
 //!
 //! No interrupt per byte and no interrupt at all: the DMA writes the ring continuously (at most
 //! 42 bytes per millisecond, 21 per 500 µs step, the ring holds 256), and [`BoardReceiver`] is
-//! the [`ByteSource`] the application's control tick reads at its start: the bytes since the
+//! the [`Uart`] the application's control tick reads at its start: the bytes since the
 //! previous tick go to the portable receiver policy (parser, switch mapping, failsafe), whose
 //! command the tick applies before the step runs. A kill switch therefore disarms within one
 //! control step of its frame's arrival.
 
 use super::chip::{self, cr, Dma};
-use crate::app::hal::ByteSource;
+use crate::app::hal::Uart;
 use crate::targets::h743::{self, usart};
 use crate::targets::{uart_brr, ReceiverWiring};
 use core::ptr::addr_of_mut;
@@ -58,7 +58,7 @@ impl BoardReceiver {
     }
 }
 
-impl ByteSource for BoardReceiver {
+impl Uart for BoardReceiver {
     /// The bytes the DMA wrote since the previous call (at most `buffer.len()`; the rest next
     /// time). Never blocks.
     fn read(&mut self, buffer: &mut [u8]) -> usize {
