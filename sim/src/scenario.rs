@@ -19,7 +19,8 @@ use std::io::Write;
 
 use embedded_storage::nor_flash::NorFlash;
 use firmware::app::hal::{Imu, Motors, NoBytes};
-use firmware::app::system::{with_system, System};
+use firmware::app::log::LogSink;
+use firmware::app::system::{with_logged_system, with_system, LogTarget, System};
 use firmware::app::{ControlCommand, NoFlash, Settings};
 use nalgebra::Vector3;
 
@@ -63,6 +64,17 @@ impl<F: NorFlash> FlightApp for System<'_, F> {
 /// flash, no radio) whose queues live for the call.
 pub fn with_firmware_app<R>(f: impl FnOnce(&mut FirmwareApp<'_>) -> R) -> R {
     with_system(Settings::without_store(), SIM_BOARD_HEALTH, None, f).0
+}
+
+/// [`with_firmware_app`] writing the flight log to `sink` (when given) as a board called
+/// `board` would; `f` ends the file with [`System::finish_log`].
+pub fn with_logged_firmware_app<R>(
+    sink: Option<&mut dyn LogSink>,
+    board: &'static str,
+    f: impl FnOnce(&mut FirmwareApp<'_>) -> R,
+) -> R {
+    let log = sink.map(|sink| LogTarget { sink, board });
+    with_logged_system(Settings::without_store(), SIM_BOARD_HEALTH, None, log, f).0
 }
 
 /// Reads the IMU and commands nothing (motors stay stopped).

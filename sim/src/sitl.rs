@@ -18,9 +18,10 @@ use crate::airframe::{Airframe, AirframeError};
 use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};
 use crate::flash::{FileFlash, FlashFileError};
 use crate::hand::{HandPhase, ThrowSpec};
+use crate::log_dir::LogDir;
 use crate::serve::{simulator_board_info, Pty, TcpLinks};
 use firmware::app::hal::NoBytes;
-use firmware::app::system::{with_system, Link, System};
+use firmware::app::system::{with_logged_system, Link, LogTarget, System};
 use firmware::app::{BoardInfo, ControlCommand, LinkServer, Settings};
 use protocol::Capabilities;
 use std::net::SocketAddr;
@@ -85,6 +86,10 @@ pub struct SitlConfig {
     /// craft again where it is as soon as the board disarms (or its attempt fails). The
     /// automatic calibration throws pause while the board is armed.
     pub hand_throws_to_fly: bool,
+    /// Write the flight log into this directory (`LOG00001.BIN`, …; created when missing): a
+    /// file per arming, or one from start-up with the `log_always` parameter, as the board's
+    /// SD card would get them. `None`: no log.
+    pub log_dir: Option<PathBuf>,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -135,6 +140,7 @@ impl Default for SitlConfig {
             imu_offset_m: None,
             flash_file: None,
             hand_throws_to_fly: false,
+            log_dir: None,
         }
     }
 }
@@ -175,6 +181,8 @@ pub enum SitlError {
     AccBias([f64; 3]),
     #[error(transparent)]
     Flash(#[from] FlashFileError),
+    #[error("could not create the log directory {path}: {source}")]
+    LogDir { path: PathBuf, source: std::io::Error },
 }
 
 /// A running SITL. Stops when dropped.
@@ -222,6 +230,13 @@ impl Sitl {
             airframe.imu.accel.bias_mps2 = bias;
         }
         let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
+        let log_dir = match &config.log_dir {
+            Some(path) => Some(
+                LogDir::create(path)
+                    .map_err(|source| SitlError::LogDir { path: path.clone(), source })?,
+            ),
+            None => None,
+        };
         let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
         // The simulated ESCs take DShot special commands (`SimMotors::escs`); the bridge's do not.
         info.capabilities |= Capabilities::ESC_COMMANDS;
@@ -260,6 +275,7 @@ impl Sitl {
             pty,
             tcp,
             flash,
+            log_dir,
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -309,6 +325,7 @@ struct Runner {
     pty: Option<Pty>,
     tcp: Option<TcpLinks>,
     flash: Option<FileFlash>,
+    log_dir: Option<LogDir>,
     stop: Arc<AtomicBool>,
 }
 
@@ -345,15 +362,22 @@ impl Runner {
             }
             // Read at start-up, as the board's motor outputs do.
             board.ports().1.set_bidirectional(settings.params().bidirectional_dshot());
-            let (ending, settings) = with_system(settings, SIM_BOARD_HEALTH, None, |system| {
-                if self.throw_to_fly && first_boot {
-                    system.submit(ControlCommand::ArmThrowToFly);
-                }
-                let boot_us = board.now_us();
-                let mut clock = Clock { board: &mut board, boot_us, start };
-                let hands = Hands { throws_done: &mut throws_done, flight: &mut flight_hand };
-                self.serve(system, &mut clock, &mut mocap, hands)
-            });
+            // The log directory is taken out for the run (the system borrows it) and put back.
+            let mut log_dir = self.log_dir.take();
+            let log = log_dir.as_mut().map(|sink| LogTarget { sink, board: self.info.board });
+            let (ending, settings) =
+                with_logged_system(settings, SIM_BOARD_HEALTH, None, log, |system| {
+                    if self.throw_to_fly && first_boot {
+                        system.submit(ControlCommand::ArmThrowToFly);
+                    }
+                    let boot_us = board.now_us();
+                    let mut clock = Clock { board: &mut board, boot_us, start };
+                    let hands = Hands { throws_done: &mut throws_done, flight: &mut flight_hand };
+                    let ending = self.serve(system, &mut clock, &mut mocap, hands);
+                    system.finish_log();
+                    ending
+                });
+            self.log_dir = log_dir;
             first_boot = false;
             self.flash = settings.into_flash();
             match ending {

@@ -24,8 +24,11 @@ use nalgebra::Vector3;
 use sim::airframe::{Airframe, LIBRARY};
 use sim::bridge::{serve_firmware, BridgeServer};
 use sim::log::CsvLog;
+use sim::log_dir::LogDir;
 use sim::monte_carlo;
-use sim::scenario::{self, with_firmware_app, ScenarioConfig, ScenarioKind};
+use sim::scenario::{
+    self, with_firmware_app, with_logged_firmware_app, ScenarioConfig, ScenarioKind,
+};
 use sim::serve::{parse_imu_offset_mm, simulator_board_info, TcpLinks};
 
 #[derive(Parser)]
@@ -98,6 +101,10 @@ enum Command {
         /// as the SITL does: `configurator-cli --tcp 127.0.0.1:PORT status`.
         #[arg(long, value_name = "PORT")]
         tcp_port: Option<u16>,
+        /// Write the flight log into this directory (LOG00001.BIN, …; created when missing): a
+        /// file per arming, as on the board's SD card (`configurator-cli replay` reads them).
+        #[arg(long, value_name = "DIR")]
+        log_dir: Option<std::path::PathBuf>,
     },
 }
 
@@ -290,7 +297,14 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Bridge { listen, idle_timeout_s, throw_to_fly, imu_offset_mm, tcp_port } => {
+        Command::Bridge {
+            listen,
+            idle_timeout_s,
+            throw_to_fly,
+            imu_offset_mm,
+            tcp_port,
+            log_dir,
+        } => {
             let mut server =
                 BridgeServer::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
             let udp = server.local_addr()?;
@@ -318,7 +332,14 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
             let timeout = Duration::from_secs_f64(idle_timeout_s);
-            with_firmware_app(|app| {
+            let mut logs = match &log_dir {
+                Some(dir) => Some(LogDir::create(dir).with_context(|| {
+                    format!("cannot create the log directory {}", dir.display())
+                })?),
+                None => None,
+            };
+            let sink = logs.as_mut().map(|logs| logs as &mut dyn firmware::app::log::LogSink);
+            let result = with_logged_firmware_app(sink, "BRIDGE", |app| {
                 if imu_offset_mm.is_some() {
                     app.background.set_imu_offset(imu_offset_mm);
                 }
@@ -328,14 +349,22 @@ fn run(cli: Cli) -> Result<()> {
                 let summary =
                     serve_firmware(&mut server, app, links.as_mut(), timeout, &mut |notice| {
                         eprintln!("{notice}")
-                    })?;
+                    });
+                app.finish_log();
+                let summary = summary?;
                 eprintln!(
                     "no packet for {idle_timeout_s} s after {} steps ({} malformed packets); \
                      stopping",
                     summary.steps, summary.malformed
                 );
                 Ok(())
-            })
+            });
+            if let Some(logs) = &logs {
+                for file in logs.files() {
+                    eprintln!("flight log written: {}", file.display());
+                }
+            }
+            result
         }
     }
 }

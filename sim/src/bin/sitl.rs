@@ -86,6 +86,11 @@ struct Args {
     /// Run without a configuration store (nothing is saved).
     #[arg(long, conflicts_with = "flash_file")]
     no_flash: bool,
+    /// Write the flight log into this directory (LOG00001.BIN, …; created when missing): a file
+    /// per arming, or one from start-up with the `log_always` parameter, as the board's SD card
+    /// gets them (`configurator-cli replay` reads them).
+    #[arg(long, value_name = "DIR")]
+    log_dir: Option<PathBuf>,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -127,6 +132,7 @@ fn main() -> std::process::ExitCode {
         imu_offset_m: args.imu_offset_mm,
         mocap: args.mocap,
         motion_capture,
+        log_dir: args.log_dir.clone(),
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
     };
@@ -159,6 +165,9 @@ fn main() -> std::process::ExitCode {
     }
     if args.throw_to_fly {
         println!("  armed for throw-to-fly: the first throw starts the motor excitation");
+    }
+    if let Some(dir) = &args.log_dir {
+        println!("  flight log:               {} (a file per arming)", dir.display());
     }
     if args.hand_throws_to_fly {
         println!("  the hand throws the craft for flight 1 s after the board is armed");
