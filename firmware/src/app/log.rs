@@ -785,15 +785,239 @@ impl ParamsAssembler {
 }
 
 #[cfg(test)]
-mod size_probe {
+mod tests {
+    use super::*;
+    use crate::app::split_queue;
+
+    /// Files kept in memory; refuses files while `no_card`.
+    #[derive(Default)]
+    struct Memory {
+        files: Vec<Vec<u8>>,
+        open: bool,
+        no_card: bool,
+        opens: u32,
+    }
+
+    impl LogSink for Memory {
+        fn open(&mut self) -> Result<u32, LogSinkError> {
+            self.opens += 1;
+            if self.no_card {
+                return Err(LogSinkError::NoCard);
+            }
+            self.files.push(Vec::new());
+            self.open = true;
+            Ok(self.files.len() as u32)
+        }
+        fn write_block(&mut self, block: &[u8; LOG_BLOCK_LEN]) -> Result<(), LogSinkError> {
+            assert!(self.open, "a block outside a file");
+            self.files.last_mut().unwrap().extend_from_slice(block);
+            Ok(())
+        }
+        fn close(&mut self) -> Result<(), LogSinkError> {
+            self.open = false;
+            Ok(())
+        }
+    }
+
+    /// A record's bytes (to compare records holding NaN bit for bit).
+    fn postcard_bytes<T: Serialize>(record: &T) -> Vec<u8> {
+        postcard::to_allocvec(record).unwrap()
+    }
+
+    fn step(step: u32, armed: bool) -> LogEntry {
+        LogEntry::Step(StepEntry {
+            step,
+            t_us: u64::from(step) * 500,
+            imu: Some(ImuSample {
+                gyro_rad_s: [f32::NAN, step as f32, -1.0],
+                accel_mps2: [0.0, 0.5, -9.81],
+            }),
+            motor_count: 4,
+            speeds_rad_s: [Some(100.0), None, Some(f32::NAN), Some(3.0), None, None, None, None],
+            commands: [0.25, 0.5, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+            phase: if armed { FlightPhase::WaitingForThrow } else { FlightPhase::Idle },
+            armed,
+            ..Default::default()
+        })
+    }
+
     #[test]
-    fn sizes() {
-        eprintln!(
-            "LogEntry {} StepEntry {} ControlCommand {} ControlSettings {}",
-            core::mem::size_of::<super::LogEntry>(),
-            core::mem::size_of::<super::StepEntry>(),
-            core::mem::size_of::<super::ControlCommand>(),
-            core::mem::size_of::<super::ControlSettings>()
+    fn an_entry_is_a_small_copy_and_a_step_record_under_100_bytes() {
+        // What the 2 kHz tick copies per step, and what a step costs in the file.
+        assert!(core::mem::size_of::<LogEntry>() <= 160, "{}", core::mem::size_of::<LogEntry>());
+        let LogEntry::Step(entry) = step(u32::MAX, true) else { unreachable!() };
+        let entry = StepEntry { t_us: 3_600_000_000, ..entry };
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let record = StepLogRecord::from_entry(&entry);
+        let len = protocol::frame::encode(id::STEP, u16::MAX, &record, &mut frame).unwrap();
+        assert!(len <= 100, "{len} bytes");
+    }
+
+    #[test]
+    fn a_file_per_arming_from_the_arming_to_the_linger_after_the_disarm_reads_back_exactly() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        let linger_steps = (LOG_LINGER_S * 2000.0) as u32;
+        let mut expected = Vec::new();
+        let mut t = 1;
+        // 10 steps disarmed (not logged), an arming, 50 armed steps, the disarm, the linger.
+        for _ in 0..10 {
+            producer.push(step(t, false));
+            t += 1;
+            logger.drain();
+        }
+        let arm = LogEntry::Command { step: t, command: ControlCommand::ArmThrowToFly };
+        producer.push(arm);
+        logger.drain();
+        expected.push(arm);
+        for i in 0..50 + 1 + linger_steps + 10 {
+            let entry = step(t, i < 50);
+            producer.push(entry);
+            logger.drain();
+            // Closed at the step 2 s after the last armed one (i = 49).
+            if i <= 49 + linger_steps {
+                expected.push(entry);
+            }
+            t += 1;
+        }
+        logger.work(&BackgroundWork::Command(BackgroundCommand::StartCalibration));
+        logger.finish();
+        assert_eq!(logger.status().files, 1);
+        drop(logger);
+        assert_eq!(sink.files.len(), 1, "one arming, one file");
+        let bytes = &sink.files[0];
+        assert_eq!(bytes.len() % LOG_BLOCK_LEN, 0);
+        let mut reader = LogReader::new(bytes);
+        let Some(LogRecord::Header(header)) = reader.next() else { panic!("no header") };
+        assert_eq!((header.first_step, header.always, header.board.as_str()), (11, false, "TEST"));
+        let mut params = ParamsAssembler::default();
+        let mut read = Vec::new();
+        let mut end = None;
+        for record in reader.by_ref() {
+            match record {
+                LogRecord::Params(part) => {
+                    if let Some(p) = params.push(&part) {
+                        assert_eq!(p, Params::default());
+                    }
+                }
+                LogRecord::Command(c) => read.push(LogEntry::Command {
+                    step: c.step,
+                    command: c.command.to_command(&Params::default()).unwrap(),
+                }),
+                LogRecord::Step(s) => {
+                    let LogEntry::Step(original) = expected[read.len()] else {
+                        panic!("a step where a command was logged")
+                    };
+                    assert_eq!(
+                        postcard_bytes(&StepLogRecord::from_entry(&original)),
+                        postcard_bytes(&s)
+                    );
+                    // NaN and None survive bit for bit.
+                    assert_eq!(s.imu.unwrap()[0].to_bits(), f32::NAN.to_bits());
+                    assert_eq!(s.speeds_rad_s[1], None);
+                    read.push(LogEntry::Step(original));
+                }
+                LogRecord::End(e) => end = Some(e),
+                other => panic!("unexpected {other:?}"),
+            }
+        }
+        // Every entry in order (steps compared bit for bit above; NaN != NaN for `==`).
+        assert_eq!(read.len(), expected.len());
+        assert_eq!(read[0], arm);
+        assert_eq!(
+            end.map(|e| e.last_step),
+            Some(11 + 49 + linger_steps),
+            "closed after the linger"
         );
+        assert_eq!(reader.stats(), ReadStats::default(), "nothing damaged, nothing torn");
+    }
+
+    #[test]
+    fn with_log_always_one_file_runs_from_the_first_step_and_work_is_logged_after_its_step() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        let mut always = Params::default();
+        always.set(super::super::params::find("log_always").unwrap(), &[1.0]).unwrap();
+        logger.work(&BackgroundWork::Configure(always));
+        for t in 1..=10_000 {
+            producer.push(step(t, false));
+            logger.drain();
+            if t == 5 {
+                logger.work(&BackgroundWork::Command(BackgroundCommand::StopCalibration));
+            }
+        }
+        logger.finish();
+        drop(logger);
+        assert_eq!(sink.files.len(), 1);
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        let LogRecord::Header(header) = &records[0] else { panic!() };
+        assert!(header.always && header.first_step == 1);
+        let steps = records.iter().filter(|r| matches!(r, LogRecord::Step(_))).count();
+        assert_eq!(steps, 10_000);
+        let work = records.iter().find_map(|r| match r {
+            LogRecord::Work(w) => Some(*w),
+            _ => None,
+        });
+        assert_eq!(work, Some(WorkRecord { after_step: 5, work: LoggedWork::StopCalibration }));
+    }
+
+    #[test]
+    fn without_a_card_an_arming_is_refused_once_and_counted_and_nothing_is_written() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory { no_card: true, ..Default::default() };
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        for t in 1..=2000 {
+            producer.push(step(t, (100..1000).contains(&t)));
+            logger.drain();
+        }
+        for t in 2001..=3000 {
+            producer.push(step(t, true));
+            logger.drain();
+        }
+        let status = logger.status();
+        assert_eq!(status.open_failures, 2, "one try per arming");
+        assert_eq!(status.last_error, Some(LogSinkError::NoCard));
+        assert_eq!((status.files, status.blocks), (0, 0));
+        drop(logger);
+        assert_eq!(sink.opens, 2);
+    }
+
+    #[test]
+    fn a_full_ring_drops_whole_entries_counted_and_the_file_says_so() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        producer.push(LogEntry::Command { step: 1, command: ControlCommand::ArmThrowToFly });
+        let mut t = 1;
+        // The logger stalls (an SD card busy) for 200 steps: the ring holds 127.
+        for _ in 0..200 {
+            let LogEntry::Step(entry) = step(t, true) else { unreachable!() };
+            producer.push(LogEntry::Step(StepEntry { ring_dropped: producer.dropped(), ..entry }));
+            t += 1;
+        }
+        assert_eq!(producer.dropped(), 200 + 1 - (LOG_RING_LEN as u32 - 1));
+        logger.drain();
+        let LogEntry::Step(entry) = step(t, true) else { unreachable!() };
+        producer.push(LogEntry::Step(StepEntry { ring_dropped: producer.dropped(), ..entry }));
+        logger.finish();
+        drop(logger);
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        let steps: Vec<u32> = records
+            .iter()
+            .filter_map(|r| match r {
+                LogRecord::Step(s) => Some(s.step),
+                _ => None,
+            })
+            .collect();
+        // The ring kept the arming and 126 steps (it holds 127 entries), then the next step.
+        assert_eq!(steps[..steps.len() - 1], (1..=126).collect::<Vec<_>>()[..]);
+        assert_eq!(*steps.last().unwrap(), 201, "the gap is visible in the step numbers");
+        assert!(records.contains(&LogRecord::Dropped(DroppedRecord { entries: 74 })));
     }
 }
