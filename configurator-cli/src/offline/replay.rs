@@ -201,6 +201,7 @@ pub fn replay(
         let mut assembler = ParamsAssembler::default();
         let mut params = Params::default();
         let mut started = false;
+        let mut injected = false;
         let mut expected_step = log.header.first_step;
         let mut last = (None, None);
         for record in &log.records {
@@ -209,7 +210,8 @@ pub fn replay(
                 LogRecord::Params(part) => {
                     if let Some(complete) = assembler.push(part) {
                         params = complete;
-                        if !from_start_up && !started {
+                        if !from_start_up && !started && !injected {
+                            injected = true;
                             // The parameters in force at the arming, as the board had them.
                             let current = changed(&params);
                             let command = LoggedCommand::Configure { from_params: true };

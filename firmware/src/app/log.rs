@@ -60,7 +60,9 @@ pub const LOG_RING_LEN: usize = 128;
 pub const LOG_LINGER_S: f32 = 2.0;
 
 /// Parameter slots per parameters record (a record must fit one protocol frame, 256 bytes).
-pub const PARAMS_CHUNK_SLOTS: usize = 40;
+/// A changed parameter set is logged as the parts that changed: an identification refining in
+/// flight stores its model at up to the link rate, and one G1 row (8 slots) moves at a time.
+pub const PARAMS_CHUNK_SLOTS: usize = 16;
 
 /// What one control step read and wrote, as the tick hands it to the logger.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -140,8 +142,9 @@ pub struct Header {
     pub always: bool,
 }
 
-/// A part of one parameter set: `values` are slots `offset..` of [`Params::slots`]. The parts
-/// of one set follow each other; a set is complete at its last slot.
+/// A part of the parameter set: `values` are slots `offset..` of [`Params::slots`]. At the start
+/// of a file every part is written; afterwards only the parts that changed, before the
+/// [`LoggedWork::Configure`] that puts the set in force.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 pub struct ParamsRecord {
     pub offset: u16,
@@ -423,6 +426,8 @@ pub struct Logger<'q> {
     control_rate_hz: u16,
     /// The parameters in force (the latest the background task took).
     params: Params,
+    /// The parameters as the file has them (what changed since is written with the next set).
+    logged_params: Params,
     file: Option<OpenFile>,
     /// A file was refused: no new try until the craft has been armed and disarmed again.
     refused: bool,
@@ -452,6 +457,7 @@ impl<'q> Logger<'q> {
             board,
             control_rate_hz,
             params: Params::default(),
+            logged_params: Params::default(),
             file: None,
             refused: false,
             armed: false,
@@ -489,7 +495,7 @@ impl<'q> Logger<'q> {
             BackgroundWork::Configure(params) => {
                 self.params = *params;
                 if self.file.is_some() {
-                    self.write_params();
+                    self.write_params(false);
                 }
                 LoggedWork::Configure
             }
@@ -573,7 +579,7 @@ impl<'q> Logger<'q> {
                     always,
                 };
                 self.write(id::HEADER, &header);
-                self.write_params();
+                self.write_params(true);
                 // The ring's losses so far are the file's starting point, not a loss in it.
                 self.logged_dropped = self.status.ring_dropped;
             }
@@ -603,9 +609,17 @@ impl<'q> Logger<'q> {
         self.status.file = None;
     }
 
-    fn write_params(&mut self) {
+    /// The parameter set's parts: all of them, or those that differ from the file's.
+    fn write_params(&mut self, all: bool) {
         let slots = *self.params.slots();
-        for (i, chunk) in slots.chunks(PARAMS_CHUNK_SLOTS).enumerate() {
+        let logged = *self.logged_params.slots();
+        self.logged_params = self.params;
+        let parts = slots.chunks(PARAMS_CHUNK_SLOTS).zip(logged.chunks(PARAMS_CHUNK_SLOTS));
+        for (i, (chunk, before)) in parts.enumerate() {
+            let same = chunk.iter().zip(before).all(|(a, b)| a.to_bits() == b.to_bits());
+            if same && !all {
+                continue;
+            }
             let record = ParamsRecord {
                 offset: (i * PARAMS_CHUNK_SLOTS) as u16,
                 values: chunk.iter().copied().collect(),
@@ -748,38 +762,34 @@ fn decode_record(id: u8, payload: &[u8]) -> Option<LogRecord> {
     })
 }
 
-/// Collects [`ParamsRecord`]s into whole parameter sets.
+/// Follows [`ParamsRecord`]s to the parameter set they describe.
 #[derive(Clone, Debug)]
 pub struct ParamsAssembler {
     slots: [f32; PARAM_SLOTS],
-    /// Slots filled of the set in progress.
-    filled: usize,
+    /// Slots written since the file began (all of them once the first set is complete).
+    seen: [bool; PARAM_SLOTS],
 }
 
 impl Default for ParamsAssembler {
     fn default() -> Self {
-        Self { slots: [0.0; PARAM_SLOTS], filled: 0 }
+        Self { slots: [0.0; PARAM_SLOTS], seen: [false; PARAM_SLOTS] }
     }
 }
 
 impl ParamsAssembler {
-    /// Take a part; returns the set when it completes it (`None` meanwhile, and for a set that
-    /// does not validate or whose parts are out of order).
+    /// Take a part; returns the set as it stands once every slot is known and the set
+    /// validates (`None` before, and for a part that does not fit the set).
     pub fn push(&mut self, record: &ParamsRecord) -> Option<Params> {
         let offset = usize::from(record.offset);
-        if offset == 0 {
-            self.filled = 0;
-        }
-        if offset != self.filled || offset + record.values.len() > PARAM_SLOTS {
-            self.filled = 0;
+        let end = offset + record.values.len();
+        if end > PARAM_SLOTS {
             return None;
         }
-        self.slots[offset..offset + record.values.len()].copy_from_slice(&record.values);
-        self.filled += record.values.len();
-        if self.filled < PARAM_SLOTS {
+        self.slots[offset..end].copy_from_slice(&record.values);
+        self.seen[offset..end].fill(true);
+        if !self.seen.iter().all(|&seen| seen) {
             return None;
         }
-        self.filled = 0;
         Params::from_slots(&self.slots)
     }
 }
@@ -950,6 +960,10 @@ mod tests {
                 logger.work(&BackgroundWork::Command(BackgroundCommand::StopCalibration));
             }
         }
+        // A changed set is written as the part that changed.
+        let mut changed = always;
+        changed.set(super::super::params::find("motor_tau_s").unwrap(), &[0.03; 8]).unwrap();
+        logger.work(&BackgroundWork::Configure(changed));
         logger.finish();
         drop(logger);
         assert_eq!(sink.files.len(), 1);
@@ -963,6 +977,18 @@ mod tests {
             _ => None,
         });
         assert_eq!(work, Some(WorkRecord { after_step: 5, work: LoggedWork::StopCalibration }));
+        let parts = records.iter().filter(|r| matches!(r, LogRecord::Params(_))).count();
+        let whole_set = PARAM_SLOTS.div_ceil(PARAMS_CHUNK_SLOTS);
+        assert!(
+            parts < whole_set + 3,
+            "{parts} parts: the whole set at the start, then the change"
+        );
+        let mut assembler = ParamsAssembler::default();
+        let last = records.iter().filter_map(|r| match r {
+            LogRecord::Params(part) => assembler.push(part),
+            _ => None,
+        });
+        assert_eq!(last.last(), Some(changed));
     }
 
     #[test]
