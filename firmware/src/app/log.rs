@@ -358,8 +358,9 @@ pub enum LogSinkError {
 }
 
 /// Where the blocks go: a file on the SD card on the board, a file in a directory on the host.
-/// Called only by the lowest-priority task; it may block that task (never the others).
-pub trait LogSink {
+/// Called only by the lowest-priority task; it may block that task (never the others). `Send`:
+/// the board hands it to that task.
+pub trait LogSink: Send {
     /// Begin a new file; returns its number (`LOG00001.BIN` is 1).
     fn open(&mut self) -> Result<u32, LogSinkError>;
     /// Append one block to the file begun last.
@@ -746,7 +747,7 @@ impl Iterator for LogReader<'_> {
 fn decode_record(id: u8, payload: &[u8]) -> Option<LogRecord> {
     fn parse<'de, T: Deserialize<'de>>(payload: &'de [u8]) -> Option<T> {
         match postcard::take_from_bytes::<T>(payload) {
-            Ok((value, rest)) if rest.is_empty() => Some(value),
+            Ok((value, [])) => Some(value),
             _ => None,
         }
     }
@@ -895,7 +896,6 @@ mod tests {
         logger.work(&BackgroundWork::Command(BackgroundCommand::StartCalibration));
         logger.finish();
         assert_eq!(logger.status().files, 1);
-        drop(logger);
         assert_eq!(sink.files.len(), 1, "one arming, one file");
         let bytes = &sink.files[0];
         assert_eq!(bytes.len() % LOG_BLOCK_LEN, 0);
@@ -965,7 +965,6 @@ mod tests {
         changed.set(super::super::params::find("motor_tau_s").unwrap(), &[0.03; 8]).unwrap();
         logger.work(&BackgroundWork::Configure(changed));
         logger.finish();
-        drop(logger);
         assert_eq!(sink.files.len(), 1);
         let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
         let LogRecord::Header(header) = &records[0] else { panic!() };
@@ -1009,7 +1008,6 @@ mod tests {
         assert_eq!(status.open_failures, 2, "one try per arming");
         assert_eq!(status.last_error, Some(LogSinkError::NoCard));
         assert_eq!((status.files, status.blocks), (0, 0));
-        drop(logger);
         assert_eq!(sink.opens, 2);
     }
 
@@ -1032,7 +1030,6 @@ mod tests {
         let LogEntry::Step(entry) = step(t, true) else { unreachable!() };
         producer.push(LogEntry::Step(StepEntry { ring_dropped: producer.dropped(), ..entry }));
         logger.finish();
-        drop(logger);
         let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
         let steps: Vec<u32> = records
             .iter()
