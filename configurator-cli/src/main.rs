@@ -209,6 +209,10 @@ enum Command {
         #[arg(short, long)]
         output: std::path::PathBuf,
     },
+    /// Replay a flight log (LOG00001.BIN) through a fresh copy of the firmware application and
+    /// compare every command it writes with the logged one; `--set` replays with a changed
+    /// parameter and reports where the outcome departs.
+    Replay(offline::replay::Args),
     /// Offline fits on recorded logs.
     #[command(subcommand)]
     Fit(FitCommand),
@@ -307,6 +311,7 @@ fn run(cli: &Cli) -> Result<String, Failure> {
             offline::thrust_axis::run(args).map_err(Failure::Input)
         }
         Command::Ports => ports(cli.json),
+        Command::Replay(args) => offline::replay::run(args, cli.json).map_err(Failure::Input),
         Command::Plot { input, output } => plot(input, output, cli.json),
         Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
         // Arguments are validated before any port is touched.
@@ -1230,9 +1235,11 @@ fn shell(cli: &Cli, client: &mut Client, target: &Target) -> Result<String, Fail
         };
         let outcome = match &parsed.command {
             Command::Shell => Err(Failure::Input(InputError("already in the shell".into()))),
-            Command::Fit(_) | Command::Solve(_) | Command::Plot { .. } | Command::Ports => {
-                run(&parsed)
-            }
+            Command::Fit(_)
+            | Command::Solve(_)
+            | Command::Plot { .. }
+            | Command::Ports
+            | Command::Replay(_) => run(&parsed),
             Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
             other => match board_command(other) {
                 Ok(command) => {

@@ -12,6 +12,7 @@ pub mod hand;
 pub mod identification;
 pub mod imu;
 pub mod log;
+pub mod log_dir;
 pub mod monte_carlo;
 pub mod physics;
 pub mod radio;

@@ -19,8 +19,9 @@ use std::io::Write;
 
 use embedded_storage::nor_flash::NorFlash;
 use firmware::app::hal::{Imu, Motors, NoBytes};
+use firmware::app::log::LogSink;
 use firmware::app::radio::Receiver;
-use firmware::app::system::{with_system, System};
+use firmware::app::system::{with_logged_system, with_system, LogTarget, System};
 use firmware::app::{ControlCommand, NoFlash, Settings};
 use nalgebra::Vector3;
 
@@ -73,6 +74,18 @@ pub fn with_firmware_app_and_radio<R>(
     f: impl FnOnce(&mut FirmwareApp<'_>) -> R,
 ) -> R {
     with_system(Settings::without_store(), SIM_BOARD_HEALTH, radio, f).0
+}
+
+/// [`with_firmware_app_and_radio`] writing the flight log to `sink` (when given) as a board
+/// called `board` would; `f` ends the file with [`System::finish_log`].
+pub fn with_logged_firmware_app<R>(
+    sink: Option<&mut dyn LogSink>,
+    board: &'static str,
+    radio: Option<Receiver>,
+    f: impl FnOnce(&mut FirmwareApp<'_>) -> R,
+) -> R {
+    let log = sink.map(|sink| LogTarget { sink, board });
+    with_logged_system(Settings::without_store(), SIM_BOARD_HEALTH, radio, log, f).0
 }
 
 /// Reads the IMU and commands nothing (motors stay stopped).

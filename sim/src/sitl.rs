@@ -18,9 +18,10 @@ use crate::airframe::{Airframe, AirframeError};
 use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};
 use crate::flash::{FileFlash, FlashFileError};
 use crate::hand::{HandPhase, ThrowSpec};
+use crate::log_dir::LogDir;
 use crate::serve::{simulator_board_info, Pty, TcpLinks};
 use firmware::app::radio::Receiver;
-use firmware::app::system::{with_system, Link, System};
+use firmware::app::system::{with_logged_system, Link, LogTarget, System};
 use firmware::app::{BoardInfo, ControlCommand, LinkServer, Settings};
 use firmware::drivers::crsf::RcLinkConfig;
 use protocol::Capabilities;
@@ -95,6 +96,10 @@ pub struct SitlConfig {
     /// noisy IMU, a bad flash, swapped motor outputs: [`crate::faults::SitlFaults`]); default
     /// none.
     pub faults: crate::faults::SitlFaults,
+    /// Write the flight log into this directory (`LOG00001.BIN`, …; created when missing): a
+    /// file per arming, or one from start-up with the `log_always` parameter, as the board's
+    /// SD card would get them. `None`: no log.
+    pub log_dir: Option<PathBuf>,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -148,6 +153,7 @@ impl Default for SitlConfig {
             rc_script: None,
             rc_rate_hz: crate::radio::DEFAULT_RC_RATE_HZ,
             faults: crate::faults::SitlFaults::default(),
+            log_dir: None,
         }
     }
 }
@@ -191,6 +197,8 @@ pub enum SitlError {
     /// A fault flag names something the airframe does not have (the message says which).
     #[error("{0}")]
     Fault(String),
+    #[error("could not create the log directory {path}: {source}")]
+    LogDir { path: PathBuf, source: std::io::Error },
 }
 
 /// A running SITL. Stops when dropped.
@@ -241,6 +249,13 @@ impl Sitl {
         config.faults.apply_to_airframe(&mut airframe);
         let flash = config.flash_file.as_deref().map(FileFlash::open).transpose()?;
         let flash = flash.map(|flash| flash.with_fault(config.faults.flash));
+        let log_dir = match &config.log_dir {
+            Some(path) => Some(
+                LogDir::create(path)
+                    .map_err(|source| SitlError::LogDir { path: path.clone(), source })?,
+            ),
+            None => None,
+        };
         let mut info = simulator_board_info("SITL", config.seed, airframe.rotor_count() as u8);
         // The simulated ESCs take DShot special commands (`SimMotors::escs`); the bridge's do not.
         info.capabilities |= Capabilities::ESC_COMMANDS;
@@ -284,6 +299,7 @@ impl Sitl {
             tcp,
             flash,
             fault_schedule: config.faults.schedule(),
+            log_dir,
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -337,6 +353,7 @@ struct Runner {
     flash: Option<FileFlash>,
     /// The faults of the simulated board ([`crate::faults::SitlFaults::schedule`]).
     fault_schedule: crate::faults::FaultSchedule,
+    log_dir: Option<LogDir>,
     stop: Arc<AtomicBool>,
 }
 
@@ -380,15 +397,22 @@ impl Runner {
             // The receiver's policy starts afresh with the firmware, as on the board.
             let receiver =
                 self.radio.as_ref().and_then(|_| Receiver::new(RcLinkConfig::default()).ok());
-            let (ending, settings) = with_system(settings, SIM_BOARD_HEALTH, receiver, |system| {
-                if self.throw_to_fly && first_boot {
-                    system.submit(ControlCommand::ArmThrowToFly);
-                }
-                let boot_us = board.now_us();
-                let mut clock = Clock { board: &mut board, boot_us, start };
-                let hands = Hands { throws_done: &mut throws_done, flight: &mut flight_hand };
-                self.serve(system, &mut clock, &mut mocap, hands)
-            });
+            // The log directory is taken out for the run (the system borrows it) and put back.
+            let mut log_dir = self.log_dir.take();
+            let log = log_dir.as_mut().map(|sink| LogTarget { sink, board: self.info.board });
+            let (ending, settings) =
+                with_logged_system(settings, SIM_BOARD_HEALTH, receiver, log, |system| {
+                    if self.throw_to_fly && first_boot {
+                        system.submit(ControlCommand::ArmThrowToFly);
+                    }
+                    let boot_us = board.now_us();
+                    let mut clock = Clock { board: &mut board, boot_us, start };
+                    let hands = Hands { throws_done: &mut throws_done, flight: &mut flight_hand };
+                    let ending = self.serve(system, &mut clock, &mut mocap, hands);
+                    system.finish_log();
+                    ending
+                });
+            self.log_dir = log_dir;
             first_boot = false;
             self.flash = settings.into_flash();
             match ending {

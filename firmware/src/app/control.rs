@@ -820,6 +820,11 @@ impl<'q> ControlLoop<'q> {
         self.pilot.flown_model()
     }
 
+    /// Steps run since start-up.
+    pub fn steps(&self) -> u32 {
+        self.snapshot.steps
+    }
+
     /// The latest state, for the link and the status.
     pub fn snapshot(&self) -> ControlSnapshot {
         self.snapshot

@@ -6,7 +6,8 @@
 //!   the telemetry ring;
 //! - [`LinkServer`] (middle priority, USB): the protocol, answering from a [`StatusView`] and
 //!   streaming the step records;
-//! - [`Background`] (lowest priority): drains the queue and runs what is too slow for the step.
+//! - [`Background`] (lowest priority): drains the queue and runs what is too slow for the step;
+//!   with it, the flight log's writer ([`log::Logger`]) drains the log ring to a [`log::LogSink`].
 //!
 //! The parts share nothing but small `Copy` snapshots ([`ControlSnapshot`],
 //! [`BackgroundResults`]), which the board copies under a short lock: no computation ever happens
@@ -16,6 +17,7 @@ mod background;
 mod control;
 pub mod hal;
 mod link;
+pub mod log;
 pub mod params;
 mod pilot;
 mod queue;

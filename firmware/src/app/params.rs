@@ -170,6 +170,9 @@ registry! {
     ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
         [super::control::IMU_FAULT_TIMEOUT_S], false,
         "armed: bad IMU samples held (last good) this long, then failsafe";
+    // The flight log (`super::log`).
+    LogAlways = "log_always", 1, Flag, "", 0.0, 1.0, [0.0], false,
+        "1: log from start-up on; 0: a new log file per arming (and 2 s after)";
 }
 
 /// How much further than a calibrated IMU offset the throw detector's free-fall check allows
@@ -209,6 +212,28 @@ impl Param {
     }
 }
 
+/// A fingerprint of the registry's layout (every name and length, in order; FNV-1a, 32 bits):
+/// what the flight log writes beside the raw slots, so a reader knows whether its own registry
+/// reads them.
+pub const LAYOUT_HASH: u32 = {
+    let mut hash: u32 = 0x811c_9dc5;
+    let mut i = 0;
+    while i < SPECS.len() {
+        let name = SPECS[i].name.as_bytes();
+        let mut j = 0;
+        while j < name.len() {
+            hash = (hash ^ name[j] as u32).wrapping_mul(0x0100_0193);
+            j += 1;
+        }
+        hash = (hash ^ SPECS[i].len as u32).wrapping_mul(0x0100_0193);
+        i += 1;
+    }
+    hash
+};
+
+/// Number of `f32` slots of all parameters laid end to end ([`Params::slots`]).
+pub const PARAM_SLOTS: usize = SLOTS;
+
 /// The index of the parameter called `name`.
 pub fn find(name: &str) -> Option<usize> {
     SPECS.iter().position(|spec| spec.name == name)
@@ -233,6 +258,28 @@ impl Default for Params {
 }
 
 impl Params {
+    /// Every parameter's elements laid end to end, in registry order (the flight log's copy;
+    /// [`LAYOUT_HASH`] says which registry they belong to).
+    pub fn slots(&self) -> &[f32; SLOTS] {
+        &self.slots
+    }
+
+    /// The values from `slots` as [`Params::slots`] gave them, each parameter validated; `None`
+    /// when any value is out of its range (nothing is taken then).
+    pub fn from_slots(slots: &[f32; SLOTS]) -> Option<Self> {
+        let params = Self { slots: *slots };
+        SPECS
+            .iter()
+            .enumerate()
+            .all(|(i, spec)| spec.validate(params.values(i)).is_ok())
+            .then_some(params)
+    }
+
+    /// Whether the flight log runs from start-up on rather than per arming.
+    pub fn log_always(&self) -> bool {
+        self.scalar(Param::LogAlways) == 1.0
+    }
+
     /// Parameter `index`'s value.
     pub fn values(&self, index: usize) -> &[f32] {
         &self.slots[OFFSETS[index]..OFFSETS[index] + SPECS[index].len]

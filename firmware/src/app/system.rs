@@ -10,7 +10,7 @@
 //! |---|---|---|
 //! | [`ControlTask::tick`] | TIM7 at 2 kHz, 3 (highest) | the link's commands, then the pilot's radio (so a kill switch has the last word), the background's results, one control step, the snapshot published, a telemetry frame to the pilot's handset when the receiver granted a slot |
 //! | [`LinkTask::pass`] | USB interrupt, pended by the tick every [`LINK_PASS_PERIOD_US`], 2 | every link's bytes in, requests routed, parameters serviced, the step records streamed, telemetry sampled, bytes out |
-//! | [`run_background`] | software task, 1 (lowest) | work from the link (calibration, parameters), the learner-sample queue drained, results published |
+//! | [`run_background`] | software task, 1 (lowest) | the flight log drained to its sink, work from the link (calibration, parameters), the learner-sample queue drained, results published |
 //!
 //! The tasks share nothing but [`Handoffs`]: small values copied under a short lock, and two
 //! bounded queues of explicit messages (a command for the control step, work for the background
@@ -23,7 +23,8 @@
 use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
-use super::hal::{Imu, Motors, Port, PortClosed, Uart};
+use super::hal::{Imu, ImuSample, Motors, Port, PortClosed, Uart};
+use super::log::{LogEntry, LogProducer, LogSink, Logger, StepEntry};
 use super::radio::{CraftState, Receiver};
 use super::{
     Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
@@ -119,12 +120,27 @@ pub struct ControlTask<'q> {
     craft: CraftState,
     ticks: u32,
     dropped_commands: u32,
+    /// The flight log's ring (`super::log`), when the board logs.
+    log: Option<LogProducer<'q>>,
+}
+
+/// The IMU as the tick hands it to the step, remembering what it delivered (for the log).
+struct TapImu<'a, I> {
+    imu: &'a mut I,
+    read: Option<ImuSample>,
+}
+
+impl<I: Imu> Imu for TapImu<'_, I> {
+    fn read(&mut self) -> Option<ImuSample> {
+        self.read = self.imu.read();
+        self.read
+    }
 }
 
 /// What a tick asks of the board afterwards.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TickOutcome {
-    /// Learner samples wait: run the background task (the board spawns it).
+    /// Learner samples or log entries wait: run the background task (the board spawns it).
     pub background_due: bool,
     /// A link pass is due (every [`LINK_PASS_TICKS`] ticks; the board pends the USB task).
     pub link_due: bool,
@@ -148,7 +164,15 @@ impl<'q> ControlTask<'q> {
             craft: CraftState { armed: false, in_flight: false },
             ticks: 0,
             dropped_commands: 0,
+            log: None,
         }
+    }
+
+    /// Hand every step's inputs and outputs, and every command applied, to the flight log
+    /// through `ring` (one fixed-layout copy per step; a full ring drops the entry, counted).
+    pub fn with_log(mut self, ring: LogProducer<'q>) -> Self {
+        self.log = Some(ring);
+        self
     }
 
     /// The control loop (for inspection; commands go through the queue).
@@ -189,8 +213,14 @@ impl<'q> ControlTask<'q> {
         B: Mutex<T = BoardHealth>,
     {
         let control = &mut self.control;
+        let log = &mut self.log;
+        // The step these commands are applied before.
+        let step = control.steps().wrapping_add(1);
         shared.commands.lock(|queue| {
             while let Some(command) = queue.pop_front() {
+                if let Some(log) = log.as_mut() {
+                    log.push(LogEntry::Command { step, command });
+                }
                 control.command(command, now_us);
             }
         });
@@ -198,12 +228,32 @@ impl<'q> ControlTask<'q> {
             let mut chunk = [0u8; RADIO_CHUNK_BYTES];
             let count = radio_bytes.read(&mut chunk).min(RADIO_CHUNK_BYTES);
             if let Some(command) = radio.poll(&chunk[..count], now_us, self.craft) {
+                if let Some(log) = log.as_mut() {
+                    log.push(LogEntry::Command { step, command });
+                }
                 control.command(command, now_us);
             }
         }
         shared.results.lock(|results| control.receive(results));
-        let background_due = control.step(now_us, imu, motors);
+        let mut imu = TapImu { imu, read: None };
+        let mut background_due = control.step(now_us, &mut imu, motors);
         let snapshot = control.snapshot();
+        if let Some(log) = log.as_mut() {
+            log.push(LogEntry::Step(StepEntry {
+                step: snapshot.steps,
+                t_us: now_us,
+                imu: imu.read,
+                motor_count: snapshot.motor_count,
+                speeds_rad_s: snapshot.speeds_rad_s,
+                commands: snapshot.commands,
+                phase: snapshot.phase,
+                failed: snapshot.failure != protocol::LearnerFailure::None,
+                flying: snapshot.pilot.flying,
+                armed: snapshot.armed,
+                ring_dropped: log.dropped(),
+            }));
+            background_due |= log.has_waiting();
+        }
         motors.set_armed(snapshot.armed);
         self.craft = CraftState {
             armed: snapshot.armed,
@@ -528,14 +578,26 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
     }
 }
 
-/// The background task's run: the work the links sent (oldest first), then every waiting
-/// learner sample, then the results published (a copy under a short lock).
-pub fn run_background<W, R>(worker: &mut Background<'_>, work: &mut W, results: &mut R)
-where
+/// The background task's run: the flight log's waiting entries to its sink (when the board
+/// logs), the work the links sent (oldest first, each logged after the steps drained before
+/// it), then every waiting learner sample, then the results published (a copy under a short
+/// lock).
+pub fn run_background<W, R>(
+    worker: &mut Background<'_>,
+    mut log: Option<&mut Logger<'_>>,
+    work: &mut W,
+    results: &mut R,
+) where
     W: Mutex<T = WorkQueue>,
     R: Mutex<T = BackgroundResults>,
 {
+    if let Some(log) = log.as_deref_mut() {
+        log.drain();
+    }
     while let Some(item) = work.lock(|queue| queue.pop_front()) {
+        if let Some(log) = log.as_deref_mut() {
+            log.work(&item);
+        }
         match item {
             BackgroundWork::Command(command) => worker.command(command),
             BackgroundWork::Configure(params) => worker.configure(&params),
@@ -553,6 +615,8 @@ pub struct System<'q, F: NorFlash> {
     pub link: LinkTask<'q, F>,
     pub background: Background<'q>,
     pub handoffs: Handoffs,
+    /// The flight log's writer, run with the background task (`None`: no log).
+    pub log: Option<Logger<'q>>,
 }
 
 impl<'q, F: NorFlash> System<'q, F> {
@@ -603,9 +667,18 @@ impl<'q, F: NorFlash> System<'q, F> {
         let handoffs = &mut self.handoffs;
         run_background(
             &mut self.background,
+            self.log.as_mut(),
             &mut Exclusive(&mut handoffs.work),
             &mut Exclusive(&mut handoffs.results),
         );
+    }
+
+    /// End the flight log's file in order (what waits is written first): the application
+    /// stops. Nothing happens without a log.
+    pub fn finish_log(&mut self) {
+        if let Some(log) = &mut self.log {
+            log.finish();
+        }
     }
 
     /// Queue a command for the next tick, as a link pass would (a scenario's arm, a simulated
@@ -640,6 +713,26 @@ pub fn with_system<F: NorFlash, R>(
     radio: Option<Receiver>,
     f: impl FnOnce(&mut System<'_, F>) -> R,
 ) -> (R, Settings<F>) {
+    with_logged_system(settings, board, radio, None, f)
+}
+
+/// Where a [`System`] logs: the sink, and the board's name for the files' header.
+pub struct LogTarget<'s> {
+    pub sink: &'s mut dyn LogSink,
+    pub board: &'static str,
+}
+
+/// [`with_system`] with a flight log written to `log` (`None`: no log). The caller ends the
+/// file with [`System::finish_log`] when the run ends in order.
+pub fn with_logged_system<F: NorFlash, R>(
+    settings: Settings<F>,
+    board: BoardHealth,
+    radio: Option<Receiver>,
+    log: Option<LogTarget<'_>>,
+    f: impl FnOnce(&mut System<'_, F>) -> R,
+) -> (R, Settings<F>) {
+    let mut log_ring = super::log::LogRing::new();
+    let (log_producer, log_consumer) = super::split_queue(&mut log_ring);
     let mut samples = super::SampleQueue::new();
     let (producer, consumer) = super::split_queue(&mut samples);
     let mut ring = super::StepRing::new();
@@ -648,12 +741,16 @@ pub fn with_system<F: NorFlash, R>(
     let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
     let background = Background::new(consumer, config.rate_hz);
     let handoffs = Handoffs::new(control.snapshot(), background.results(), board);
-    let mut system = System {
-        control: ControlTask::new(control, radio),
-        link: LinkTask::new(settings, ring_consumer),
-        background,
-        handoffs,
+    let control = ControlTask::new(control, radio);
+    let (control, log) = match log {
+        Some(target) => (
+            control.with_log(log_producer),
+            Some(Logger::new(log_consumer, target.sink, target.board, config.rate_hz)),
+        ),
+        None => (control, None),
     };
+    let mut system =
+        System { control, link: LinkTask::new(settings, ring_consumer), background, handoffs, log };
     let result = f(&mut system);
     (result, system.link.into_settings())
 }

@@ -1098,17 +1098,16 @@ mod tests {
     #[test]
     fn handset_telemetry_frames_have_the_specified_layout_and_decode_back() {
         let mut out = [0u8; FRAME_MAX];
-        // Attitude: 0.5236 rad pitch = 5236 counts, −1 rad roll, 3 rad yaw; big-endian i16.
-        let attitude =
-            HandsetTelemetry::Attitude { pitch_rad: 0.5236, roll_rad: -1.0, yaw_rad: 3.0 };
+        // Attitude: 0.5 rad pitch = 5000 counts, −1 rad roll, 3 rad yaw; big-endian i16.
+        let attitude = HandsetTelemetry::Attitude { pitch_rad: 0.5, roll_rad: -1.0, yaw_rad: 3.0 };
         let n = attitude.encode(&mut out).unwrap();
         assert_eq!(&out[..3], &[SYNC_FLIGHT_CONTROLLER, 8, TYPE_ATTITUDE]);
-        assert_eq!(&out[3..9], &[0x14, 0x74, 0xD8, 0xF0, 0x75, 0x30]);
+        assert_eq!(&out[3..9], &[0x13, 0x88, 0xD8, 0xF0, 0x75, 0x30]);
         assert_eq!(out[9], crc8_dvb_s2(&out[2..9]));
         assert_eq!(n, 10);
         match HandsetTelemetry::decode(&out[..n]).unwrap() {
             HandsetTelemetry::Attitude { pitch_rad, roll_rad, yaw_rad } => {
-                assert!((pitch_rad - 0.5236).abs() < 1e-4 && (roll_rad + 1.0).abs() < 1e-4);
+                assert!((pitch_rad - 0.5).abs() < 1e-4 && (roll_rad + 1.0).abs() < 1e-4);
                 assert!((yaw_rad - 3.0).abs() < 1e-4);
             }
             other => panic!("{other:?}"),

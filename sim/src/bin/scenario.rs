@@ -26,8 +26,11 @@ use nalgebra::Vector3;
 use sim::airframe::{Airframe, LIBRARY};
 use sim::bridge::{serve_firmware, BridgeServer};
 use sim::log::CsvLog;
+use sim::log_dir::LogDir;
 use sim::monte_carlo;
-use sim::scenario::{self, with_firmware_app, ScenarioConfig, ScenarioKind};
+use sim::scenario::{
+    self, with_firmware_app, with_logged_firmware_app, ScenarioConfig, ScenarioKind,
+};
 use sim::serve::{parse_imu_offset_mm, simulator_board_info, TcpLinks};
 
 #[derive(Parser)]
@@ -105,6 +108,10 @@ enum Command {
         /// kill, kill-off, lose, restore; every switch starts off), e.g. `1:arm,1:throw,20:kill`.
         #[arg(long, value_name = "SCRIPT", value_parser = sim::radio::RcScript::parse)]
         rc: Option<sim::radio::RcScript>,
+        /// Write the flight log into this directory (LOG00001.BIN, …; created when missing): a
+        /// file per arming, as on the board's SD card (`configurator-cli replay` reads them).
+        #[arg(long, value_name = "DIR")]
+        log_dir: Option<std::path::PathBuf>,
     },
 }
 
@@ -297,7 +304,15 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Bridge { listen, idle_timeout_s, throw_to_fly, imu_offset_mm, tcp_port, rc } => {
+        Command::Bridge {
+            listen,
+            idle_timeout_s,
+            throw_to_fly,
+            imu_offset_mm,
+            tcp_port,
+            rc,
+            log_dir,
+        } => {
             let mut server =
                 BridgeServer::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
             let udp = server.local_addr()?;
@@ -330,7 +345,14 @@ fn run(cli: Cli) -> Result<()> {
                 sim::radio::RcTransmitter::new(sim::radio::DEFAULT_RC_RATE_HZ, script)
             });
             let receiver = radio.as_ref().and_then(|_| Receiver::new(RcLinkConfig::default()).ok());
-            scenario::with_firmware_app_and_radio(receiver, |app| {
+            let mut logs = match &log_dir {
+                Some(dir) => Some(LogDir::create(dir).with_context(|| {
+                    format!("cannot create the log directory {}", dir.display())
+                })?),
+                None => None,
+            };
+            let sink = logs.as_mut().map(|logs| logs as &mut dyn firmware::app::log::LogSink);
+            let result = with_logged_firmware_app(sink, "BRIDGE", receiver, |app| {
                 if imu_offset_mm.is_some() {
                     app.background.set_imu_offset(imu_offset_mm);
                 }
@@ -344,14 +366,22 @@ fn run(cli: Cli) -> Result<()> {
                     radio.as_mut(),
                     timeout,
                     &mut |notice| eprintln!("{notice}"),
-                )?;
+                );
+                app.finish_log();
+                let summary = summary?;
                 eprintln!(
                     "no packet for {idle_timeout_s} s after {} steps ({} malformed packets); \
                      stopping",
                     summary.steps, summary.malformed
                 );
                 Ok(())
-            })
+            });
+            if let Some(logs) = &logs {
+                for file in logs.files() {
+                    eprintln!("flight log written: {}", file.display());
+                }
+            }
+            result
         }
     }
 }

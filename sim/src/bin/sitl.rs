@@ -102,6 +102,11 @@ struct Args {
     rc_rate_hz: f64,
     #[command(flatten)]
     faults: sim::faults::SitlFaultArgs,
+    /// Write the flight log into this directory (LOG00001.BIN, …; created when missing): a file
+    /// per arming, or one from start-up with the `log_always` parameter, as the board's SD card
+    /// gets them (`configurator-cli replay` reads them).
+    #[arg(long, value_name = "DIR")]
+    log_dir: Option<PathBuf>,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -155,6 +160,7 @@ fn main() -> std::process::ExitCode {
         motion_capture,
         rc_script: args.rc.clone(),
         rc_rate_hz: args.rc_rate_hz,
+        log_dir: args.log_dir.clone(),
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
         faults: args.faults.faults(),
@@ -188,6 +194,9 @@ fn main() -> std::process::ExitCode {
     }
     if args.throw_to_fly {
         println!("  armed for throw-to-fly: the first throw starts the motor excitation");
+    }
+    if let Some(dir) = &args.log_dir {
+        println!("  flight log:               {} (a file per arming)", dir.display());
     }
     if args.hand_throws_to_fly {
         println!("  the hand throws the craft for flight 1 s after the board is armed");

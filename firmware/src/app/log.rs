@@ -1,0 +1,1061 @@
+//! The flight log: every control step on record, so a flight can be replayed through this very
+//! application afterwards (`configurator-cli replay`) and read by the usual tools.
+//!
+//! **What is logged** (docs/flight-log.md has the byte layout):
+//! - every control step's inputs, enough to replay it: the IMU sample exactly as the driver
+//!   delivered it (or its absence; NaN bits kept), the motor speeds the step read, the motor
+//!   count and the time; and its outputs: the commands written and the phase;
+//! - every [`ControlCommand`] the tick applied (from the links' queue or the radio), with the
+//!   step it was applied before;
+//! - every piece of work the background task took (parameters, calibration start and stop),
+//!   with the step after which it took it;
+//! - the parameters in force when the file begins, and a header (format version, firmware
+//!   version, board, control rate, the registry's layout).
+//!
+//! **Why this split of work.** The 2 kHz step must stay cheap and never block: the tick copies a
+//! fixed-layout [`LogEntry`] (about 130 bytes) into a lock-free ring ([`LogRing`]) and does no
+//! formatting at all; a full ring drops the whole entry and counts it. The lowest-priority task
+//! ([`Logger::drain`], from `system::run_background`) serialises the entries (postcard), frames
+//! them with the link protocol's framing (COBS, CRC-32C, a 0x00 delimiter: `protocol::frame`)
+//! and packs the frames into fixed-size blocks ([`LOG_BLOCK_LEN`], one SD-card sector) for a
+//! [`LogSink`]. A reader resynchronises at every 0x00, so a torn tail (a power cut in the middle
+//! of a block) costs only the frames it cuts, and every complete block before it reads whole.
+//!
+//! **Files.** With the `log_always` parameter at 0 (the default), a file begins with the entry
+//! that arms the craft (a throw-to-fly arming, a motor test, or a step that finds it armed) and
+//! ends [`LOG_LINGER_S`] after the craft was last armed; with 1, one file runs from start-up on.
+//! A file that begins at the first step replays bit for bit; one that begins at an arming later
+//! on replays from a fresh application, whose filters have not seen what came before.
+//!
+//! Assumes: one producer (the control tick) and one consumer (the lowest-priority task); the
+//! sink may block its caller (an SD card's busy time), which is why only that task calls it.
+
+use serde::{Deserialize, Serialize};
+
+use super::hal::{ImuSample, MAX_MOTORS};
+use super::params::{Params, LAYOUT_HASH, PARAM_SLOTS};
+use super::pilot::FAILSAFE_KINDS;
+use super::queue::{RingConsumer, RingProducer};
+use super::system::BackgroundWork;
+use super::{BackgroundCommand, ControlCommand, ControlSettings};
+use flight::learner::FlightPhase;
+use heapless::spsc::Queue;
+use protocol::{Decoder, DshotCommand, ExternalPose, PositionSetpoint, MAX_FRAME_LEN};
+
+/// Version of the log's record layout; a reader refuses other versions.
+pub const LOG_FORMAT_VERSION: u16 = 1;
+
+/// Bytes per block handed to the sink: one SD-card sector (SDMMC writes whole 512-byte
+/// sectors), so a block is the unit a power cut tears.
+pub const LOG_BLOCK_LEN: usize = 512;
+
+/// Entries the ring between the tick and the logger holds (heapless keeps one slot free):
+/// 127 entries are at least 63 ms at 2 kHz (a step and at most a command or two per step), the
+/// time an SD card may stay busy on a write (SD Physical Layer spec: up to 250 ms for a write
+/// in the worst case; typical cards finish within a few ms, long stalls drop whole entries,
+/// counted). About 17 KB on the board (AXI SRAM).
+pub const LOG_RING_LEN: usize = 128;
+
+/// How long a per-arming file goes on after the craft was last armed, s: the fall or catch
+/// after a disarm, and the status a person checks, are part of the flight's story.
+pub const LOG_LINGER_S: f32 = 2.0;
+
+/// Parameter slots per parameters record (a record must fit one protocol frame, 256 bytes).
+/// A changed parameter set is logged as the parts that changed: an identification refining in
+/// flight stores its model at up to the link rate, and one G1 row (8 slots) moves at a time.
+pub const PARAMS_CHUNK_SLOTS: usize = 16;
+
+/// What one control step read and wrote, as the tick hands it to the logger.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepEntry {
+    /// The step's number since start-up (the first step is 1).
+    pub step: u32,
+    /// Time of the step, µs since start-up.
+    pub t_us: u64,
+    /// The IMU sample as the driver delivered it (before any check or bias), `None`: none.
+    pub imu: Option<ImuSample>,
+    /// Motors the outputs reported (at most [`MAX_MOTORS`]).
+    pub motor_count: u8,
+    /// The speeds the step read after writing its commands, rad/s (all [`MAX_MOTORS`]).
+    pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
+    /// The commands the step wrote (zero beyond `motor_count`).
+    pub commands: [f32; MAX_MOTORS],
+    pub phase: FlightPhase,
+    /// The attempt ended without a result.
+    pub failed: bool,
+    /// Flying on the learned model.
+    pub flying: bool,
+    /// Anything armed (an attempt, a flight, a motor test).
+    pub armed: bool,
+    /// Entries the ring had dropped before this one, since start-up.
+    pub ring_dropped: u32,
+}
+
+/// One entry of the ring from the tick to the logger.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(clippy::large_enum_variant)]
+pub enum LogEntry {
+    /// A command the tick applied before step `step`.
+    Command { step: u32, command: ControlCommand },
+    /// A step.
+    Step(StepEntry),
+}
+
+/// The ring's storage; split it once with [`super::split_queue`].
+pub type LogRing = Queue<LogEntry, LOG_RING_LEN>;
+/// The control tick's end of the ring.
+pub type LogProducer<'q> = RingProducer<'q, LogEntry>;
+/// The logger's end of the ring.
+pub type LogConsumer<'q> = RingConsumer<'q, LogEntry>;
+
+// ---- The records, as written --------------------------------------------------------------
+
+/// Record ids: the first byte of every frame (the protocol frame's `id`).
+pub mod id {
+    pub const HEADER: u8 = 0x01;
+    pub const PARAMS: u8 = 0x02;
+    pub const COMMAND: u8 = 0x03;
+    pub const STEP: u8 = 0x04;
+    pub const WORK: u8 = 0x05;
+    pub const DROPPED: u8 = 0x06;
+    pub const END: u8 = 0x07;
+}
+
+/// The first record of every file.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq, Eq)]
+pub struct Header {
+    /// [`LOG_FORMAT_VERSION`].
+    pub format: u16,
+    /// Firmware version, major, minor, patch.
+    pub firmware: [u8; 3],
+    /// The board's name ("STM32H743", "SITL").
+    pub board: heapless::String<32>,
+    /// Control steps per second.
+    pub control_rate_hz: u16,
+    /// [`LAYOUT_HASH`] of the parameter registry that wrote the parameters records.
+    pub params_layout: u32,
+    /// Slots of one parameter set ([`PARAM_SLOTS`]).
+    pub param_slots: u16,
+    /// The step the file begins with (1: start-up) and its time, µs.
+    pub first_step: u32,
+    pub first_t_us: u64,
+    /// Written because `log_always` was set (else: an arming).
+    pub always: bool,
+}
+
+/// A part of the parameter set: `values` are slots `offset..` of [`Params::slots`]. At the start
+/// of a file every part is written; afterwards only the parts that changed, before the
+/// [`LoggedWork::Configure`] that puts the set in force.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct ParamsRecord {
+    pub offset: u16,
+    pub values: heapless::Vec<f32, PARAMS_CHUNK_SLOTS>,
+}
+
+/// A control command as logged. `Configure` carries no settings: they are the ones derived from
+/// the latest parameter set ([`ControlSettings::from`]), which `from_params` confirms.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub enum LoggedCommand {
+    ArmThrowToFly,
+    Disarm,
+    ExternalPose(ExternalPose),
+    PositionSetpoint(PositionSetpoint),
+    Configure {
+        from_params: bool,
+    },
+    MotorTest {
+        motor: u8,
+        command: f32,
+    },
+    StopMotorTest,
+    /// The DShot special command by its value ([`DshotCommand::value`]).
+    EscCommand {
+        command: u8,
+        motor: Option<u8>,
+    },
+    /// A failsafe raised outside the control step (the pilot's kill switch, the radio lost), by
+    /// its index in [`FAILSAFE_KINDS`].
+    Failsafe {
+        kind: u8,
+    },
+}
+
+/// A command applied before step `step`.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct CommandRecord {
+    pub step: u32,
+    pub command: LoggedCommand,
+}
+
+/// Flag bits of [`StepLogRecord::flags`].
+pub mod flags {
+    pub const FAILED: u8 = 1;
+    pub const FLYING: u8 = 2;
+    pub const ARMED: u8 = 4;
+}
+
+/// One control step as logged (see [`StepEntry`]).
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct StepLogRecord {
+    pub step: u32,
+    pub t_us: u64,
+    /// Gyro (rad/s) then accelerometer (m/s²), IMU axes, as delivered.
+    pub imu: Option<[f32; 6]>,
+    /// Every speed slot the outputs returned, rad/s.
+    pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
+    /// The commands of the `motor_count` motors (its length is the motor count).
+    pub commands: heapless::Vec<f32, MAX_MOTORS>,
+    /// [`phase_code`].
+    pub phase: u8,
+    /// [`flags`].
+    pub flags: u8,
+}
+
+/// Background work as logged; `Configure` means the parameter set written just before.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoggedWork {
+    StartCalibration,
+    StopCalibration,
+    Configure,
+}
+
+/// Work the background task took after step `after_step` (0: before the first).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WorkRecord {
+    pub after_step: u32,
+    pub work: LoggedWork,
+}
+
+/// The ring has dropped `entries` entries since start-up (written when the count grows).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DroppedRecord {
+    pub entries: u32,
+}
+
+/// The file's last record, written when it is closed in order.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EndRecord {
+    /// The last step logged.
+    pub last_step: u32,
+    /// Entries the ring had dropped since start-up.
+    pub ring_dropped: u32,
+}
+
+/// A decoded record.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LogRecord {
+    Header(Header),
+    Params(ParamsRecord),
+    Command(CommandRecord),
+    Step(StepLogRecord),
+    Work(WorkRecord),
+    Dropped(DroppedRecord),
+    End(EndRecord),
+}
+
+/// The flight phase as a byte.
+pub fn phase_code(phase: FlightPhase) -> u8 {
+    match phase {
+        FlightPhase::Idle => 0,
+        FlightPhase::WaitingForThrow => 1,
+        FlightPhase::Throwing => 2,
+        FlightPhase::Released => 3,
+        FlightPhase::Exciting => 4,
+        FlightPhase::Done => 5,
+    }
+}
+
+/// The flight phase of a byte written by [`phase_code`].
+pub fn phase_from_code(code: u8) -> Option<FlightPhase> {
+    Some(match code {
+        0 => FlightPhase::Idle,
+        1 => FlightPhase::WaitingForThrow,
+        2 => FlightPhase::Throwing,
+        3 => FlightPhase::Released,
+        4 => FlightPhase::Exciting,
+        5 => FlightPhase::Done,
+        _ => return None,
+    })
+}
+
+impl LoggedCommand {
+    /// The command as logged; `Configure` is checked against `params` (the latest set).
+    pub fn from_command(command: &ControlCommand, params: &Params) -> Self {
+        match *command {
+            ControlCommand::ArmThrowToFly => Self::ArmThrowToFly,
+            ControlCommand::Disarm => Self::Disarm,
+            ControlCommand::ExternalPose(pose) => Self::ExternalPose(pose),
+            ControlCommand::PositionSetpoint(setpoint) => Self::PositionSetpoint(setpoint),
+            ControlCommand::Configure(settings) => {
+                Self::Configure { from_params: settings == ControlSettings::from(params) }
+            }
+            ControlCommand::MotorTest { motor, command } => Self::MotorTest { motor, command },
+            ControlCommand::StopMotorTest => Self::StopMotorTest,
+            ControlCommand::EscCommand { command, motor } => {
+                Self::EscCommand { command: command.value() as u8, motor }
+            }
+            ControlCommand::Failsafe(failsafe) => Self::Failsafe {
+                kind: FAILSAFE_KINDS
+                    .iter()
+                    .position(|k| core::mem::discriminant(k) == core::mem::discriminant(&failsafe))
+                    .unwrap_or(0) as u8,
+            },
+        }
+    }
+
+    /// The command to apply again; `Configure` takes the settings of `params`. `None`: an ESC
+    /// command this firmware does not know.
+    pub fn to_command(&self, params: &Params) -> Option<ControlCommand> {
+        Some(match *self {
+            Self::ArmThrowToFly => ControlCommand::ArmThrowToFly,
+            Self::Disarm => ControlCommand::Disarm,
+            Self::ExternalPose(pose) => ControlCommand::ExternalPose(pose),
+            Self::PositionSetpoint(setpoint) => ControlCommand::PositionSetpoint(setpoint),
+            Self::Configure { .. } => ControlCommand::Configure(ControlSettings::from(params)),
+            Self::MotorTest { motor, command } => ControlCommand::MotorTest { motor, command },
+            Self::StopMotorTest => ControlCommand::StopMotorTest,
+            Self::EscCommand { command, motor } => {
+                ControlCommand::EscCommand { command: DshotCommand::from_value(command)?, motor }
+            }
+            Self::Failsafe { kind } => {
+                ControlCommand::Failsafe(*FAILSAFE_KINDS.get(usize::from(kind))?)
+            }
+        })
+    }
+}
+
+impl StepLogRecord {
+    /// The record of `entry`.
+    pub fn from_entry(entry: &StepEntry) -> Self {
+        let count = usize::from(entry.motor_count).min(MAX_MOTORS);
+        Self {
+            step: entry.step,
+            t_us: entry.t_us,
+            imu: entry.imu.map(|s| {
+                let [gx, gy, gz] = s.gyro_rad_s;
+                let [ax, ay, az] = s.accel_mps2;
+                [gx, gy, gz, ax, ay, az]
+            }),
+            speeds_rad_s: entry.speeds_rad_s,
+            commands: entry.commands[..count].iter().copied().collect(),
+            phase: phase_code(entry.phase),
+            flags: u8::from(entry.failed) * flags::FAILED
+                + u8::from(entry.flying) * flags::FLYING
+                + u8::from(entry.armed) * flags::ARMED,
+        }
+    }
+
+    /// The IMU sample as the driver delivered it.
+    pub fn imu_sample(&self) -> Option<ImuSample> {
+        self.imu.map(|[gx, gy, gz, ax, ay, az]| ImuSample {
+            gyro_rad_s: [gx, gy, gz],
+            accel_mps2: [ax, ay, az],
+        })
+    }
+
+    /// Motors of the step.
+    pub fn motor_count(&self) -> u8 {
+        self.commands.len() as u8
+    }
+}
+
+// ---- The sink -----------------------------------------------------------------------------
+
+/// Why a sink did not take a file or a block.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LogSinkError {
+    /// No card (or no log storage on this board).
+    NoCard,
+    /// The storage is full.
+    Full,
+    /// The storage failed (a write or file-system error).
+    Io,
+}
+
+/// Where the blocks go: a file on the SD card on the board, a file in a directory on the host.
+/// Called only by the lowest-priority task; it may block that task (never the others). `Send`:
+/// the board hands it to that task.
+pub trait LogSink: Send {
+    /// Begin a new file; returns its number (`LOG00001.BIN` is 1).
+    fn open(&mut self) -> Result<u32, LogSinkError>;
+    /// Append one block to the file begun last.
+    fn write_block(&mut self, block: &[u8; LOG_BLOCK_LEN]) -> Result<(), LogSinkError>;
+    /// End the file (whatever the storage buffers goes out).
+    fn close(&mut self) -> Result<(), LogSinkError>;
+}
+
+/// A board without log storage (or without its driver yet): every file is refused as
+/// [`LogSinkError::NoCard`], so the logger drops what it drains and says so in its status.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoCard;
+
+impl LogSink for NoCard {
+    fn open(&mut self) -> Result<u32, LogSinkError> {
+        Err(LogSinkError::NoCard)
+    }
+    fn write_block(&mut self, _block: &[u8; LOG_BLOCK_LEN]) -> Result<(), LogSinkError> {
+        Err(LogSinkError::NoCard)
+    }
+    fn close(&mut self) -> Result<(), LogSinkError> {
+        Ok(())
+    }
+}
+
+// ---- The writer ---------------------------------------------------------------------------
+
+/// What the logger has done since start-up.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LogStatus {
+    /// A file is being written, and its number.
+    pub file: Option<u32>,
+    /// Files begun.
+    pub files: u32,
+    /// Records and blocks written, and their bytes.
+    pub records: u32,
+    pub blocks: u32,
+    /// Files the sink refused to begin, and the latest reason.
+    pub open_failures: u32,
+    pub last_error: Option<LogSinkError>,
+    /// Blocks the sink refused (the file is given up then).
+    pub write_failures: u32,
+    /// Entries the ring dropped (full), since start-up.
+    pub ring_dropped: u32,
+    /// Records that did not encode (none expected: every record fits a frame).
+    pub encode_failures: u32,
+}
+
+/// The file being written.
+#[derive(Clone, Copy, Debug)]
+struct OpenFile {
+    /// The time the craft was last seen armed (or the file began), µs.
+    last_armed_us: u64,
+    /// A block was refused: nothing more goes to this file.
+    broken: bool,
+}
+
+/// The lowest-priority end of the log: drains the ring, encodes the records, packs them in
+/// blocks and hands the blocks to the sink, beginning and ending files.
+pub struct Logger<'q> {
+    entries: LogConsumer<'q>,
+    sink: &'q mut dyn LogSink,
+    board: &'static str,
+    control_rate_hz: u16,
+    /// The parameters in force (the latest the background task took).
+    params: Params,
+    /// The parameters as the file has them (what changed since is written with the next set).
+    logged_params: Params,
+    file: Option<OpenFile>,
+    /// A file was refused: no new try until the craft has been armed and disarmed again.
+    refused: bool,
+    /// The latest step found the craft armed.
+    armed: bool,
+    block: [u8; LOG_BLOCK_LEN],
+    fill: usize,
+    seq: u16,
+    last_step: u32,
+    last_t_us: u64,
+    logged_dropped: u32,
+    status: LogStatus,
+}
+
+impl<'q> Logger<'q> {
+    /// A logger for the entries of `entries`, writing to `sink`, for a board called `board`
+    /// stepping at `control_rate_hz`. The parameters are the defaults until it is configured.
+    pub fn new(
+        entries: LogConsumer<'q>,
+        sink: &'q mut dyn LogSink,
+        board: &'static str,
+        control_rate_hz: u16,
+    ) -> Self {
+        Self {
+            entries,
+            sink,
+            board,
+            control_rate_hz,
+            params: Params::default(),
+            logged_params: Params::default(),
+            file: None,
+            refused: false,
+            armed: false,
+            block: [0; LOG_BLOCK_LEN],
+            fill: 0,
+            seq: 0,
+            last_step: 0,
+            last_t_us: 0,
+            logged_dropped: 0,
+            status: LogStatus::default(),
+        }
+    }
+
+    /// What the logger has done.
+    pub fn status(&self) -> LogStatus {
+        self.status
+    }
+
+    /// Encode every waiting entry (beginning and ending files as the entries arm and disarm).
+    pub fn drain(&mut self) {
+        while let Some(entry) = self.entries.pop() {
+            self.take(&entry);
+        }
+    }
+
+    /// The background task took `work` (after the entries drained so far).
+    pub fn work(&mut self, work: &BackgroundWork) {
+        let logged = match work {
+            BackgroundWork::Command(BackgroundCommand::StartCalibration) => {
+                LoggedWork::StartCalibration
+            }
+            BackgroundWork::Command(BackgroundCommand::StopCalibration) => {
+                LoggedWork::StopCalibration
+            }
+            BackgroundWork::Configure(params) => {
+                self.params = *params;
+                if self.file.is_some() {
+                    self.write_params(false);
+                }
+                LoggedWork::Configure
+            }
+        };
+        if self.file.is_some() {
+            let record = WorkRecord { after_step: self.last_step, work: logged };
+            self.write(id::WORK, &record);
+        }
+    }
+
+    /// End the file in order (the application stops: a restart, the simulator's end).
+    pub fn finish(&mut self) {
+        self.drain();
+        self.close_file();
+    }
+
+    fn take(&mut self, entry: &LogEntry) {
+        let (step, t_us, arming) = match entry {
+            LogEntry::Command { step, command } => (
+                *step,
+                self.last_t_us,
+                matches!(command, ControlCommand::ArmThrowToFly | ControlCommand::MotorTest { .. }),
+            ),
+            LogEntry::Step(s) => (s.step, s.t_us, s.armed),
+        };
+        let always = self.params.log_always();
+        if self.file.is_none() && !self.refused && (always || arming) {
+            self.open_file(step, t_us, always);
+        }
+        if let LogEntry::Step(s) = entry {
+            self.last_step = s.step;
+            self.last_t_us = s.t_us;
+            self.status.ring_dropped = s.ring_dropped;
+            if self.armed && !s.armed {
+                self.refused = false;
+            }
+            self.armed = s.armed;
+        }
+        let Some(file) = &mut self.file else { return };
+        if arming {
+            file.last_armed_us = t_us;
+        }
+        match entry {
+            LogEntry::Command { step, command } => {
+                let command = LoggedCommand::from_command(command, &self.params);
+                self.write(id::COMMAND, &CommandRecord { step: *step, command });
+            }
+            LogEntry::Step(s) => {
+                if s.ring_dropped != self.logged_dropped {
+                    self.logged_dropped = s.ring_dropped;
+                    self.write(id::DROPPED, &DroppedRecord { entries: s.ring_dropped });
+                }
+                self.write(id::STEP, &StepLogRecord::from_entry(s));
+                let linger_us = (LOG_LINGER_S * 1e6) as u64;
+                let last_armed_us = self.file.map_or(t_us, |f| f.last_armed_us);
+                if !always && !s.armed && t_us.saturating_sub(last_armed_us) >= linger_us {
+                    self.close_file();
+                }
+            }
+        }
+    }
+
+    fn open_file(&mut self, step: u32, t_us: u64, always: bool) {
+        match self.sink.open() {
+            Ok(number) => {
+                self.status.file = Some(number);
+                self.status.files = self.status.files.wrapping_add(1);
+                self.file = Some(OpenFile { last_armed_us: t_us, broken: false });
+                self.fill = 0;
+                self.seq = 0;
+                let firmware = super::FIRMWARE_VERSION;
+                let header = Header {
+                    format: LOG_FORMAT_VERSION,
+                    firmware: [firmware.major, firmware.minor, firmware.patch],
+                    board: protocol::text(self.board),
+                    control_rate_hz: self.control_rate_hz,
+                    params_layout: LAYOUT_HASH,
+                    param_slots: PARAM_SLOTS as u16,
+                    first_step: step,
+                    first_t_us: t_us,
+                    always,
+                };
+                self.write(id::HEADER, &header);
+                self.write_params(true);
+                // The ring's losses so far are the file's starting point, not a loss in it.
+                self.logged_dropped = self.status.ring_dropped;
+            }
+            Err(error) => {
+                self.refused = true;
+                self.status.open_failures = self.status.open_failures.wrapping_add(1);
+                self.status.last_error = Some(error);
+            }
+        }
+    }
+
+    fn close_file(&mut self) {
+        if self.file.is_none() {
+            return;
+        }
+        let end = EndRecord { last_step: self.last_step, ring_dropped: self.status.ring_dropped };
+        self.write(id::END, &end);
+        if self.fill > 0 {
+            // The rest of the block is zeros: empty frames to a reader.
+            self.block[self.fill..].fill(0);
+            self.emit_block();
+        }
+        if let Err(error) = self.sink.close() {
+            self.status.last_error = Some(error);
+        }
+        self.file = None;
+        self.status.file = None;
+    }
+
+    /// The parameter set's parts: all of them, or those that differ from the file's.
+    fn write_params(&mut self, all: bool) {
+        let slots = *self.params.slots();
+        let logged = *self.logged_params.slots();
+        self.logged_params = self.params;
+        let parts = slots.chunks(PARAMS_CHUNK_SLOTS).zip(logged.chunks(PARAMS_CHUNK_SLOTS));
+        for (i, (chunk, before)) in parts.enumerate() {
+            let same = chunk.iter().zip(before).all(|(a, b)| a.to_bits() == b.to_bits());
+            if same && !all {
+                continue;
+            }
+            let record = ParamsRecord {
+                offset: (i * PARAMS_CHUNK_SLOTS) as u16,
+                values: chunk.iter().copied().collect(),
+            };
+            self.write(id::PARAMS, &record);
+        }
+    }
+
+    fn write<T: Serialize>(&mut self, id: u8, record: &T) {
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        match protocol::frame::encode(id, self.seq, record, &mut frame) {
+            Ok(len) => {
+                self.seq = self.seq.wrapping_add(1);
+                self.status.records = self.status.records.wrapping_add(1);
+                self.put(&frame[..len]);
+            }
+            Err(_) => self.status.encode_failures = self.status.encode_failures.wrapping_add(1),
+        }
+    }
+
+    fn put(&mut self, mut bytes: &[u8]) {
+        while !bytes.is_empty() {
+            let take = bytes.len().min(LOG_BLOCK_LEN - self.fill);
+            self.block[self.fill..self.fill + take].copy_from_slice(&bytes[..take]);
+            self.fill += take;
+            bytes = &bytes[take..];
+            if self.fill == LOG_BLOCK_LEN {
+                self.emit_block();
+            }
+        }
+    }
+
+    fn emit_block(&mut self) {
+        self.fill = 0;
+        let Some(file) = &mut self.file else { return };
+        if file.broken {
+            return;
+        }
+        match self.sink.write_block(&self.block) {
+            Ok(()) => self.status.blocks = self.status.blocks.wrapping_add(1),
+            Err(error) => {
+                file.broken = true;
+                self.status.write_failures = self.status.write_failures.wrapping_add(1);
+                self.status.last_error = Some(error);
+            }
+        }
+    }
+}
+
+// ---- The reader ---------------------------------------------------------------------------
+
+/// What a reader made of a file's bytes besides the records.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReadStats {
+    /// Frames that failed their COBS or CRC check or did not decode (a torn block, garbage).
+    pub bad_frames: u32,
+    /// Records missing by their sequence numbers (between two good frames).
+    pub missing_records: u32,
+    /// Bytes after the last delimiter: a frame the file ends in the middle of (a torn tail).
+    pub torn_tail_bytes: u32,
+}
+
+/// Reads the records of a log file's bytes, in order, skipping what does not check out.
+/// Never panics and never allocates.
+pub struct LogReader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    decoder: Decoder,
+    pending: usize,
+    next_seq: Option<u16>,
+    stats: ReadStats,
+}
+
+impl<'a> LogReader<'a> {
+    pub fn new(bytes: &'a [u8]) -> Self {
+        Self {
+            bytes,
+            pos: 0,
+            decoder: Decoder::new(),
+            pending: 0,
+            next_seq: None,
+            stats: ReadStats::default(),
+        }
+    }
+
+    /// What was skipped so far (complete after the last record).
+    pub fn stats(&self) -> ReadStats {
+        self.stats
+    }
+}
+
+impl Iterator for LogReader<'_> {
+    type Item = LogRecord;
+
+    fn next(&mut self) -> Option<LogRecord> {
+        while self.pos < self.bytes.len() {
+            let byte = self.bytes[self.pos];
+            self.pos += 1;
+            self.pending = if byte == 0 { 0 } else { self.pending + 1 };
+            let Some(result) = self.decoder.push(byte) else { continue };
+            let Ok(frame) = result else {
+                self.stats.bad_frames += 1;
+                continue;
+            };
+            let record = decode_record(frame.id, frame.payload);
+            let Some(record) = record else {
+                self.stats.bad_frames += 1;
+                continue;
+            };
+            if let LogRecord::Header(_) = record {
+                self.next_seq = None;
+            }
+            if let Some(expected) = self.next_seq {
+                self.stats.missing_records += u32::from(frame.seq.wrapping_sub(expected));
+            }
+            self.next_seq = Some(frame.seq.wrapping_add(1));
+            return Some(record);
+        }
+        self.stats.torn_tail_bytes = self.pending as u32;
+        None
+    }
+}
+
+fn decode_record(id: u8, payload: &[u8]) -> Option<LogRecord> {
+    fn parse<'de, T: Deserialize<'de>>(payload: &'de [u8]) -> Option<T> {
+        match postcard::take_from_bytes::<T>(payload) {
+            Ok((value, [])) => Some(value),
+            _ => None,
+        }
+    }
+    Some(match id {
+        id::HEADER => LogRecord::Header(parse(payload)?),
+        id::PARAMS => LogRecord::Params(parse(payload)?),
+        id::COMMAND => LogRecord::Command(parse(payload)?),
+        id::STEP => LogRecord::Step(parse(payload)?),
+        id::WORK => LogRecord::Work(parse(payload)?),
+        id::DROPPED => LogRecord::Dropped(parse(payload)?),
+        id::END => LogRecord::End(parse(payload)?),
+        _ => return None,
+    })
+}
+
+/// Follows [`ParamsRecord`]s to the parameter set they describe.
+#[derive(Clone, Debug)]
+pub struct ParamsAssembler {
+    slots: [f32; PARAM_SLOTS],
+    /// Slots written since the file began (all of them once the first set is complete).
+    seen: [bool; PARAM_SLOTS],
+}
+
+impl Default for ParamsAssembler {
+    fn default() -> Self {
+        Self { slots: [0.0; PARAM_SLOTS], seen: [false; PARAM_SLOTS] }
+    }
+}
+
+impl ParamsAssembler {
+    /// Take a part; returns the set as it stands once every slot is known and the set
+    /// validates (`None` before, and for a part that does not fit the set).
+    pub fn push(&mut self, record: &ParamsRecord) -> Option<Params> {
+        let offset = usize::from(record.offset);
+        let end = offset + record.values.len();
+        if end > PARAM_SLOTS {
+            return None;
+        }
+        self.slots[offset..end].copy_from_slice(&record.values);
+        self.seen[offset..end].fill(true);
+        if !self.seen.iter().all(|&seen| seen) {
+            return None;
+        }
+        Params::from_slots(&self.slots)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::app::split_queue;
+
+    /// Files kept in memory; refuses files while `no_card`.
+    #[derive(Default)]
+    struct Memory {
+        files: Vec<Vec<u8>>,
+        open: bool,
+        no_card: bool,
+        opens: u32,
+    }
+
+    impl LogSink for Memory {
+        fn open(&mut self) -> Result<u32, LogSinkError> {
+            self.opens += 1;
+            if self.no_card {
+                return Err(LogSinkError::NoCard);
+            }
+            self.files.push(Vec::new());
+            self.open = true;
+            Ok(self.files.len() as u32)
+        }
+        fn write_block(&mut self, block: &[u8; LOG_BLOCK_LEN]) -> Result<(), LogSinkError> {
+            assert!(self.open, "a block outside a file");
+            self.files.last_mut().unwrap().extend_from_slice(block);
+            Ok(())
+        }
+        fn close(&mut self) -> Result<(), LogSinkError> {
+            self.open = false;
+            Ok(())
+        }
+    }
+
+    /// A record's bytes (to compare records holding NaN bit for bit).
+    fn postcard_bytes<T: Serialize>(record: &T) -> Vec<u8> {
+        postcard::to_allocvec(record).unwrap()
+    }
+
+    fn step(step: u32, armed: bool) -> LogEntry {
+        LogEntry::Step(StepEntry {
+            step,
+            t_us: u64::from(step) * 500,
+            imu: Some(ImuSample {
+                gyro_rad_s: [f32::NAN, step as f32, -1.0],
+                accel_mps2: [0.0, 0.5, -9.81],
+            }),
+            motor_count: 4,
+            speeds_rad_s: [Some(100.0), None, Some(f32::NAN), Some(3.0), None, None, None, None],
+            commands: [0.25, 0.5, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+            phase: if armed { FlightPhase::WaitingForThrow } else { FlightPhase::Idle },
+            armed,
+            ..Default::default()
+        })
+    }
+
+    #[test]
+    fn an_entry_is_a_small_copy_and_a_step_record_under_100_bytes() {
+        // What the 2 kHz tick copies per step, and what a step costs in the file.
+        assert!(core::mem::size_of::<LogEntry>() <= 160, "{}", core::mem::size_of::<LogEntry>());
+        let LogEntry::Step(entry) = step(u32::MAX, true) else { unreachable!() };
+        let entry = StepEntry { t_us: 3_600_000_000, ..entry };
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let record = StepLogRecord::from_entry(&entry);
+        let len = protocol::frame::encode(id::STEP, u16::MAX, &record, &mut frame).unwrap();
+        assert!(len <= 100, "{len} bytes");
+    }
+
+    #[test]
+    fn a_file_per_arming_from_the_arming_to_the_linger_after_the_disarm_reads_back_exactly() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        let linger_steps = (LOG_LINGER_S * 2000.0) as u32;
+        let mut expected = Vec::new();
+        let mut t = 1;
+        // 10 steps disarmed (not logged), an arming, 50 armed steps, the disarm, the linger.
+        for _ in 0..10 {
+            producer.push(step(t, false));
+            t += 1;
+            logger.drain();
+        }
+        let arm = LogEntry::Command { step: t, command: ControlCommand::ArmThrowToFly };
+        producer.push(arm);
+        logger.drain();
+        expected.push(arm);
+        for i in 0..50 + 1 + linger_steps + 10 {
+            let entry = step(t, i < 50);
+            producer.push(entry);
+            logger.drain();
+            // Closed at the step 2 s after the last armed one (i = 49).
+            if i <= 49 + linger_steps {
+                expected.push(entry);
+            }
+            t += 1;
+        }
+        logger.work(&BackgroundWork::Command(BackgroundCommand::StartCalibration));
+        logger.finish();
+        assert_eq!(logger.status().files, 1);
+        assert_eq!(sink.files.len(), 1, "one arming, one file");
+        let bytes = &sink.files[0];
+        assert_eq!(bytes.len() % LOG_BLOCK_LEN, 0);
+        let mut reader = LogReader::new(bytes);
+        let Some(LogRecord::Header(header)) = reader.next() else { panic!("no header") };
+        assert_eq!((header.first_step, header.always, header.board.as_str()), (11, false, "TEST"));
+        let mut params = ParamsAssembler::default();
+        let mut read = Vec::new();
+        let mut end = None;
+        for record in reader.by_ref() {
+            match record {
+                LogRecord::Params(part) => {
+                    if let Some(p) = params.push(&part) {
+                        assert_eq!(p, Params::default());
+                    }
+                }
+                LogRecord::Command(c) => read.push(LogEntry::Command {
+                    step: c.step,
+                    command: c.command.to_command(&Params::default()).unwrap(),
+                }),
+                LogRecord::Step(s) => {
+                    let LogEntry::Step(original) = expected[read.len()] else {
+                        panic!("a step where a command was logged")
+                    };
+                    assert_eq!(
+                        postcard_bytes(&StepLogRecord::from_entry(&original)),
+                        postcard_bytes(&s)
+                    );
+                    // NaN and None survive bit for bit.
+                    assert_eq!(s.imu.unwrap()[0].to_bits(), f32::NAN.to_bits());
+                    assert_eq!(s.speeds_rad_s[1], None);
+                    read.push(LogEntry::Step(original));
+                }
+                LogRecord::End(e) => end = Some(e),
+                other => panic!("unexpected {other:?}"),
+            }
+        }
+        // Every entry in order (steps compared bit for bit above; NaN != NaN for `==`).
+        assert_eq!(read.len(), expected.len());
+        assert_eq!(read[0], arm);
+        assert_eq!(
+            end.map(|e| e.last_step),
+            Some(11 + 49 + linger_steps),
+            "closed after the linger"
+        );
+        assert_eq!(reader.stats(), ReadStats::default(), "nothing damaged, nothing torn");
+    }
+
+    #[test]
+    fn with_log_always_one_file_runs_from_the_first_step_and_work_is_logged_after_its_step() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        let mut always = Params::default();
+        always.set(super::super::params::find("log_always").unwrap(), &[1.0]).unwrap();
+        logger.work(&BackgroundWork::Configure(always));
+        for t in 1..=10_000 {
+            producer.push(step(t, false));
+            logger.drain();
+            if t == 5 {
+                logger.work(&BackgroundWork::Command(BackgroundCommand::StopCalibration));
+            }
+        }
+        // A changed set is written as the part that changed.
+        let mut changed = always;
+        changed.set(super::super::params::find("motor_tau_s").unwrap(), &[0.03; 8]).unwrap();
+        logger.work(&BackgroundWork::Configure(changed));
+        logger.finish();
+        assert_eq!(sink.files.len(), 1);
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        let LogRecord::Header(header) = &records[0] else { panic!() };
+        assert!(header.always && header.first_step == 1);
+        let steps = records.iter().filter(|r| matches!(r, LogRecord::Step(_))).count();
+        assert_eq!(steps, 10_000);
+        let work = records.iter().find_map(|r| match r {
+            LogRecord::Work(w) => Some(*w),
+            _ => None,
+        });
+        assert_eq!(work, Some(WorkRecord { after_step: 5, work: LoggedWork::StopCalibration }));
+        let parts = records.iter().filter(|r| matches!(r, LogRecord::Params(_))).count();
+        let whole_set = PARAM_SLOTS.div_ceil(PARAMS_CHUNK_SLOTS);
+        assert!(
+            parts < whole_set + 3,
+            "{parts} parts: the whole set at the start, then the change"
+        );
+        let mut assembler = ParamsAssembler::default();
+        let last = records.iter().filter_map(|r| match r {
+            LogRecord::Params(part) => assembler.push(part),
+            _ => None,
+        });
+        assert_eq!(last.last(), Some(changed));
+    }
+
+    #[test]
+    fn without_a_card_an_arming_is_refused_once_and_counted_and_nothing_is_written() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory { no_card: true, ..Default::default() };
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        for t in 1..=2000 {
+            producer.push(step(t, (100..1000).contains(&t)));
+            logger.drain();
+        }
+        for t in 2001..=3000 {
+            producer.push(step(t, true));
+            logger.drain();
+        }
+        let status = logger.status();
+        assert_eq!(status.open_failures, 2, "one try per arming");
+        assert_eq!(status.last_error, Some(LogSinkError::NoCard));
+        assert_eq!((status.files, status.blocks), (0, 0));
+        assert_eq!(sink.opens, 2);
+    }
+
+    #[test]
+    fn a_full_ring_drops_whole_entries_counted_and_the_file_says_so() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        producer.push(LogEntry::Command { step: 1, command: ControlCommand::ArmThrowToFly });
+        let mut t = 1;
+        // The logger stalls (an SD card busy) for 200 steps: the ring holds 127.
+        for _ in 0..200 {
+            let LogEntry::Step(entry) = step(t, true) else { unreachable!() };
+            producer.push(LogEntry::Step(StepEntry { ring_dropped: producer.dropped(), ..entry }));
+            t += 1;
+        }
+        assert_eq!(producer.dropped(), 200 + 1 - (LOG_RING_LEN as u32 - 1));
+        logger.drain();
+        let LogEntry::Step(entry) = step(t, true) else { unreachable!() };
+        producer.push(LogEntry::Step(StepEntry { ring_dropped: producer.dropped(), ..entry }));
+        logger.finish();
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        let steps: Vec<u32> = records
+            .iter()
+            .filter_map(|r| match r {
+                LogRecord::Step(s) => Some(s.step),
+                _ => None,
+            })
+            .collect();
+        // The ring kept the arming and 126 steps (it holds 127 entries), then the next step.
+        assert_eq!(steps[..steps.len() - 1], (1..=126).collect::<Vec<_>>()[..]);
+        assert_eq!(*steps.last().unwrap(), 201, "the gap is visible in the step numbers");
+        assert!(records.contains(&LogRecord::Dropped(DroppedRecord { entries: 74 })));
+    }
+}
