@@ -765,10 +765,25 @@ fn config_status<F: NorFlash>(settings: &Settings<F>, view: &StatusView) -> Conf
     }
 }
 
-/// "#12" for a parameter index that does not exist.
+/// "#12" for a parameter index that does not exist. The digits are written by hand: this was
+/// the firmware's only use of `core::fmt::write` (about 0.5 KB of flash).
 fn index_text(index: u16) -> heapless::String<{ protocol::NAME_LEN }> {
+    let mut digits = [0u8; 5];
+    let mut n = index;
+    let mut len = 0;
+    loop {
+        digits[len] = b'0' + (n % 10) as u8;
+        len += 1;
+        n /= 10;
+        if n == 0 {
+            break;
+        }
+    }
     let mut out = heapless::String::new();
-    let _ = core::fmt::write(&mut out, format_args!("#{index}"));
+    let _ = out.push('#');
+    for &digit in digits[..len].iter().rev() {
+        let _ = out.push(char::from(digit));
+    }
     out
 }
 
@@ -817,6 +832,19 @@ impl TxBuffer {
         if self.start == self.end {
             self.start = 0;
             self.end = 0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::index_text;
+
+    #[test]
+    fn an_unknown_parameter_index_reads_as_hash_and_decimal_digits() {
+        for (index, text) in [(0, "#0"), (7, "#7"), (12, "#12"), (1000, "#1000"), (65535, "#65535")]
+        {
+            assert_eq!(index_text(index).as_str(), text);
         }
     }
 }
