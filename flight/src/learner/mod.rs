@@ -399,6 +399,13 @@ impl Learner {
         self.effectiveness.set_inertia_prior(prior);
     }
 
+    /// The body's normalised inertia `J = I / tr I` the angular-momentum balance holds now,
+    /// IMU axes (row-major).
+    pub fn normalised_inertia(&self) -> [[f32; 3]; 3] {
+        let j = self.effectiveness.normalised_inertia();
+        core::array::from_fn(|r| core::array::from_fn(|c| j[(r, c)]))
+    }
+
     /// The configuration in use.
     pub fn config(&self) -> &LearnerConfig {
         &self.config
