@@ -32,8 +32,57 @@ fn truth_j(airframe: &sim::airframe::Airframe) -> Matrix3<f64> {
     i / i.trace()
 }
 
+/// The heuristic's hover commands of `g1` (per unit thrust), bounds widened to ±10.
+fn heuristic_u(g1: &[[f64; MAX_MOTORS]; 6], m: usize) -> Option<Vec<f32>> {
+    use flight::thrust_axis::{HoverProblem, SolverConfig, ThrustAxisSolver};
+    let rows: Vec<Vec<f32>> = (0..6).map(|k| (0..m).map(|i| g1[k][i] as f32).collect()).collect();
+    let problem = HoverProblem::new([&rows[0], &rows[1], &rows[2]], [&rows[3], &rows[4], &rows[5]])
+        .ok()?
+        .with_bounds(&vec![-10.0; m], &vec![10.0; m])
+        .ok()?;
+    let mut solver =
+        ThrustAxisSolver::new(SolverConfig { max_squarings: 6, bounded_search: false });
+    let mut u = None;
+    for _ in 0..5 {
+        u = solver.solve(&problem).ok().map(|s| s.u_hover().to_vec());
+    }
+    u
+}
+
 fn record(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueModel, f32, f64) {
-    let (airframe, config) = random_world_case(seed, &[Aspect::Hand]);
+    let aspects: Vec<Aspect> = match std::env::var("ASPECTS") {
+        Ok(names) => {
+            names.split(',').filter(|n| !n.is_empty()).map(|n| Aspect::parse(n).unwrap()).collect()
+        }
+        Err(_) if std::env::var("RANDOM").is_ok() => Aspect::ALL.to_vec(),
+        Err(_) => vec![Aspect::Hand],
+    };
+    let (mut airframe, mut config) = random_world_case(seed, &aspects);
+    if let Ok(scale) = std::env::var("SPIN_SCALE") {
+        config.throw.rate_body_rad_s *= scale.parse::<f64>().unwrap();
+    }
+    if std::env::var("NO_ANG_DRAG").is_ok() {
+        airframe.drag.angular_nm_per_rad_s = [0.0; 3];
+    }
+    if std::env::var("NO_SENS").is_ok() {
+        airframe.imu.gyro.sensitivity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    }
+    if std::env::var("NO_GYRO_CROSS").is_ok() {
+        for i in 0..3 {
+            for j in 0..3 {
+                if i != j {
+                    airframe.imu.gyro.sensitivity[i][j] = 0.0;
+                }
+            }
+        }
+    }
+    if std::env::var("NO_VIB").is_ok() {
+        airframe.imu.vibration.gyro_rad_s_at_max_speed = 0.0;
+        airframe.imu.vibration.accel_mps2_at_max_speed = 0.0;
+    }
+    if std::env::var("NO_ASENS").is_ok() {
+        airframe.imu.accel.sensitivity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    }
     let truth = TrueModel::of(&airframe);
     let mut records = Vec::new();
     let mut hand_release_us = 0.0;
@@ -63,6 +112,26 @@ fn record(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueModel, f3
             app.drain_telemetry(&mut buf);
             records.extend(buf.iter().copied());
             if app.control.snapshot().phase == FlightPhase::Done {
+                if done_ticks == 0 {
+                    let learned = app.background.results().learned;
+                    let m = truth.motors;
+                    let per_thrust = learned.g1_per_unit_thrust().map(|r| r.map(f64::from));
+                    let mut true_thrust = truth.g1_per_speed2;
+                    for row in true_thrust.iter_mut() {
+                        for i in 0..m {
+                            row[i] *= truth.omega_full_rad_s[i].powi(2);
+                        }
+                    }
+                    let s = Scores::of(&learned, &truth);
+                    println!(
+                        "  at engage: {:?}, G1 force {:.1} % rot {:.1} %",
+                        learned.axis_status,
+                        100.0 * s.g1_block_rel[0],
+                        100.0 * s.g1_block_rel[1]
+                    );
+                    println!("  true u_hover (heuristic)    {:.3?}", heuristic_u(&true_thrust, m));
+                    println!("  learned u_hover (heuristic) {:.3?}", heuristic_u(&per_thrust, m));
+                }
                 done_ticks += 1;
                 if done_ticks > 160 {
                     break;
@@ -102,6 +171,7 @@ fn replay(
     truth: &TrueModel,
     age: f32,
     prior: Option<InertiaPrior>,
+    exact_k: Option<&Matrix3<f64>>,
 ) -> (Scores, Matrix3<f64>, InertiaPrior, flight::learner::LearnedModel) {
     let mut tumble = TumbleInertia::new(2000.0);
     let mut learner: Option<Learner> = None;
@@ -125,12 +195,14 @@ fn replay(
             let mut l = Learner::new(rec.motor_count as usize, config).unwrap();
             used = prior.unwrap_or_else(|| tumble.prior());
             l.set_inertia_prior(&used);
+            let _ = exact_k;
             learner = Some(l);
         }
         previous = rec.phase;
         if rec.phase == FlightPhase::Done {
             after += 1;
-            if after > 160 {
+            let limit = if std::env::var("AT_ENGAGE").is_ok() { 1 } else { 160 };
+            if after > limit {
                 break;
             }
         }
@@ -202,14 +274,13 @@ fn diagnose(seed: u64) {
         jt.diagonal().as_slice(),
         [jt[(0, 1)], jt[(0, 2)], jt[(1, 2)]]
     );
-    let cases: [(&str, Option<InertiaPrior>); 4] = [
-        ("tumble prior", None),
-        ("sphere prior", Some(InertiaPrior::sphere())),
-        ("exact J, var 0.02", Some(prior_of(&jt, 0.02))),
-        ("exact J, var 1e-8", Some(prior_of(&jt, 1e-8))),
+    let cases: [(&str, Option<InertiaPrior>, bool); 3] = [
+        ("tumble prior", None, false),
+        ("sphere prior", Some(InertiaPrior::sphere()), false),
+        ("exact J, var 1e-8", Some(prior_of(&jt, 1e-8)), false),
     ];
-    for (name, prior) in cases {
-        let (s, j, used, model) = replay(&records, &truth, age, prior);
+    for (name, prior, fix_k) in cases {
+        let (s, j, used, model) = replay(&records, &truth, age, prior, fix_k.then_some(&jt));
         println!(
             "  {name:18}: G1 force {:5.1} % rot {:6.1} % rows {:.0?} %  axis {:?} {:.1}°",
             100.0 * s.g1_block_rel[0],

@@ -456,6 +456,19 @@ impl Learner {
         }
     }
 
+    /// One sample of the free fall before the excitation (motors off): the effectiveness
+    /// filters run on the body's own motion, so that they have settled when the motors start
+    /// ([`effectiveness::EffectivenessEstimator::prime`]); nothing is learned. Call after
+    /// [`Learner::restart`], on every sample of the release delay.
+    pub fn prime(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        speeds: &[f32; MAX_MOTORS],
+    ) {
+        self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
+    }
+
     /// The model learned so far.
     pub fn model(&self) -> &LearnedModel {
         &self.model
