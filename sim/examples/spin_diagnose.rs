@@ -186,17 +186,28 @@ fn replay(
             FlightPhase::Exciting => {}
             _ => tumble.reset(),
         }
-        if rec.phase == FlightPhase::Exciting && previous != FlightPhase::Exciting {
+        let speeds: [f32; MAX_MOTORS] =
+            core::array::from_fn(|i| rec.speeds_rad_s[i].unwrap_or(f32::NAN));
+        // As the firmware's background task: restarted at the release, primed through it.
+        if rec.phase == FlightPhase::Released && previous != FlightPhase::Released {
             let config = LearnerConfig {
                 r_imu_m: [r.x as f32, r.y as f32, r.z as f32],
                 ..LearnerConfig::default()
             }
             .with_speed_age(age);
-            let mut l = Learner::new(rec.motor_count as usize, config).unwrap();
+            learner = Some(Learner::new(rec.motor_count as usize, config).unwrap());
+        }
+        if rec.phase == FlightPhase::Released {
+            if let Some(l) = &mut learner {
+                l.prime(imu.gyro_rad_s, imu.accel_mps2, &speeds);
+            }
+        }
+        if rec.phase == FlightPhase::Exciting && previous != FlightPhase::Exciting {
             used = prior.unwrap_or_else(|| tumble.prior());
-            l.set_inertia_prior(&used);
+            if let Some(l) = &mut learner {
+                l.set_inertia_prior(&used);
+            }
             let _ = exact_k;
-            learner = Some(l);
         }
         previous = rec.phase;
         if rec.phase == FlightPhase::Done {
@@ -208,8 +219,6 @@ fn replay(
         }
         if matches!(rec.phase, FlightPhase::Exciting | FlightPhase::Done) {
             if let Some(l) = &mut learner {
-                let speeds: [f32; MAX_MOTORS] =
-                    core::array::from_fn(|i| rec.speeds_rad_s[i].unwrap_or(f32::NAN));
                 l.update(imu.gyro_rad_s, imu.accel_mps2, &rec.commands, &speeds);
             }
         }
