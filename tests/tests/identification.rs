@@ -207,6 +207,9 @@ fn a_disarm_during_the_excitation_stops_every_motor_in_the_same_step() {
 /// precession is as large as the motors' torques, so the rotational rows stand or fall with
 /// the normalised inertia the free tumble shows and with filters that have settled on the
 /// tumble before the motors start. Scored at the end of the excitation against the truth.
+/// Measured: every axis found, rotational block 0.8 % median and 1.8 % worst (before the tumble
+/// left the hand's last touch out and the filters were primed: 10.1 % and 45.6 %, the thrust
+/// axis up to 9.4° off).
 #[test]
 fn random_airframes_thrown_at_900_to_1000_dps_by_a_tapering_hand_are_identified() {
     let mut rotation = Vec::new();
@@ -242,5 +245,5 @@ fn random_airframes_thrown_at_900_to_1000_dps_by_a_tapering_hand_are_identified(
     rotation.sort_by(f64::total_cmp);
     let (median, worst) = (rotation[rotation.len() / 2], rotation[rotation.len() - 1]);
     eprintln!("rotational block: median {:.1} %, worst {:.1} %", 100.0 * median, 100.0 * worst);
-    assert!(median < 0.10 && worst < 0.30, "median {median}, worst {worst}");
+    assert!(median < 0.03 && worst < 0.06, "median {median}, worst {worst}");
 }
