@@ -2,7 +2,14 @@
 //! throw-to-fly identification recorded step by step, then replayed into learners with
 //! different inertia priors, scored against the truth.
 //!
-//! `cargo run -p sim --release --example spin_diagnose -- SEED [SEED...]`
+//! ```text
+//! cargo run -p sim --release --example spin_diagnose -- SEED [SEED...]   # world hand cases
+//! cargo run -p sim --release --example spin_diagnose -- tumble RUNS      # the tumble's J errors
+//! ```
+//! Environment: `ASPECTS=hand,imu,…` (or `RANDOM=1`: every aspect) chooses the world;
+//! `NOMINAL=1` the nominal throws for `tumble`; `AT_ENGAGE=1` scores the replay at the end of the
+//! excitation instead of 80 ms later; `SPIN_SCALE=x` scales the throw's spin; `NO_SENS`,
+//! `NO_GYRO_CROSS`, `NO_ASENS`, `NO_VIB`, `NO_ANG_DRAG` remove one IMU or airframe error.
 
 use firmware::app::{ControlCommand, StepRecord};
 use flight::learner::inertia::{InertiaPrior, TumbleInertia};
@@ -118,8 +125,8 @@ fn record(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueModel, f3
                     let per_thrust = learned.g1_per_unit_thrust().map(|r| r.map(f64::from));
                     let mut true_thrust = truth.g1_per_speed2;
                     for row in true_thrust.iter_mut() {
-                        for i in 0..m {
-                            row[i] *= truth.omega_full_rad_s[i].powi(2);
+                        for (x, full) in row.iter_mut().zip(&truth.omega_full_rad_s).take(m) {
+                            *x *= full.powi(2);
                         }
                     }
                     let s = Scores::of(&learned, &truth);
