@@ -6,7 +6,8 @@
 //! - [`ThrowToFly`] runs in the 2 kHz control step: [`throw_detector`] decides that the craft has
 //!   been thrown and is falling freely, then [`excitation`] pulses each motor in turn. A few dozen
 //!   operations per step.
-//! - [`Learner`] runs in the background task on every sample of the excitation:
+//! - [`Learner`] runs in the background task on every sample of the excitation (its filters
+//!   primed on the free fall of the release delay before it, [`Learner::prime`]):
 //!   [`motor_model`] per motor, [`effectiveness`] (G1, G2) and, once every motor has been pulsed,
 //!   the [`crate::thrust_axis`] solver on the learned G1. It publishes a [`LearnedModel`]: the
 //!   interface the controller (INDI) builds on. Every sample runs the motor models and the
