@@ -201,3 +201,49 @@ fn a_disarm_during_the_excitation_stops_every_motor_in_the_same_step() {
         assert!(disarmed_at.is_some(), "the excitation started");
     });
 }
+
+/// Issue 28: random 4–8-rotor airframes (tilted rotors, any IMU pose) thrown at 900–1,000 °/s
+/// about a random axis by a hand that lets go over 15–45 ms. At these rates the body's own
+/// precession is as large as the motors' torques, so the rotational rows stand or fall with
+/// the normalised inertia the free tumble shows and with filters that have settled on the
+/// tumble before the motors start. Scored at the end of the excitation against the truth.
+/// Measured: every axis found, rotational block 0.8 % median and 1.8 % worst (before the tumble
+/// left the hand's last touch out and the filters were primed: 10.1 % and 45.6 %, the thrust
+/// axis up to 9.4° off).
+#[test]
+fn random_airframes_thrown_at_900_to_1000_dps_by_a_tapering_hand_are_identified() {
+    let mut rotation = Vec::new();
+    let mut lines = Vec::new();
+    for seed in 1..=16u64 {
+        let (airframe, mut config) = sim::identification::random_case(seed);
+        let mut rng = sim::rng::Rng::new(seed ^ 0x0005_7A1E_D0C5);
+        let axis = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+        let spin_dps = rng.range(900.0, 1000.0);
+        config.throw.rate_body_rad_s = axis * spin_dps.to_radians();
+        config.throw.taper_s = rng.range(0.015, 0.045);
+        config.throw.push_s = rng.range(0.15, 0.25);
+        let report = identify(&airframe, &config);
+        let learned = report.at_end.expect("the throw was accepted and the excitation ran");
+        let scores = Scores::of(&learned, &report.truth);
+        lines.push(format!(
+            "seed {seed}: {} motors, {spin_dps:.0} °/s, taper {:.0} ms: G1 force {:.1} %, \
+             rotation {:.1} %, axis {}",
+            airframe.rotor_count(),
+            config.throw.taper_s * 1e3,
+            100.0 * scores.g1_block_rel[0],
+            100.0 * scores.g1_block_rel[1],
+            if scores.axis_found {
+                format!("{:.1}° off", scores.axis_angle_rad.to_degrees())
+            } else {
+                "not found".into()
+            }
+        ));
+        assert!(scores.axis_found, "{}", lines.join("\n"));
+        rotation.push(scores.g1_block_rel[1]);
+    }
+    eprintln!("{}", lines.join("\n"));
+    rotation.sort_by(f64::total_cmp);
+    let (median, worst) = (rotation[rotation.len() / 2], rotation[rotation.len() - 1]);
+    eprintln!("rotational block: median {:.1} %, worst {:.1} %", 100.0 * median, 100.0 * worst);
+    assert!(median < 0.03 && worst < 0.06, "median {median}, worst {worst}");
+}

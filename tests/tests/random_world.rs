@@ -13,11 +13,13 @@ use sim::world::{self, Aspect};
 #[test]
 fn thirty_random_worlds_hover_or_refuse_to_fly_and_most_hold_within_0_3_m() {
     // Issue 28's target is 99 % hovered and 97 % held over 1,000 runs; it is not met yet
-    // (docs/benchmarks.md): random airframes thrown above about 800 °/s are sometimes refused
-    // by the identification (`NoHover`: the learned rotational block is off). This guards what
-    // holds today: every run either hovers or is refused by the identification before it flies
-    // a model (no crash into the ground, no other failsafe, no run that never settles), seeds
-    // 1-30 hover in 28 cases and hold within 0.3 m in 26.
+    // (docs/benchmarks.md: 98.5 % and 94.2 %): the gyro's scale and cross-axis errors at high
+    // spin still get some identifications refused (`NoHover`: the learned rotational block is
+    // off; seed 18 here). This guards what holds today: every run either hovers or is refused
+    // by the identification before it flies a model (no crash into the ground, no other
+    // failsafe, no run that never settles), seeds 1-30 hover in 29 cases and hold within 0.3 m
+    // in 28 (before the tumble left out the hand's last touch and the learner's filters were
+    // primed in the release delay: 28 and 26).
     let results = world::monte_carlo(30, 1, 2, &Aspect::ALL, &|_| {});
     let verdicts: Vec<_> = results.iter().map(|r| (r.seed, r.verdict)).collect();
     let hovered = results
@@ -33,8 +35,8 @@ fn thirty_random_worlds_hover_or_refuse_to_fly_and_most_hold_within_0_3_m() {
             "seed {seed}: {verdict:?}"
         );
     }
-    assert!(hovered >= 28, "{verdicts:?}");
-    assert!(held >= 26, "{verdicts:?}");
+    assert!(hovered >= 29, "{verdicts:?}");
+    assert!(held >= 28, "{verdicts:?}");
 }
 
 #[test]

@@ -330,8 +330,8 @@ impl<'q> Background<'q> {
 
     fn update_learner(&mut self, sample: &LearnerSample) {
         let phase = sample.phase;
-        let starting =
-            phase == FlightPhase::Exciting && self.previous_phase != FlightPhase::Exciting;
+        let previous_phase = self.previous_phase;
+        let starting = phase == FlightPhase::Exciting && previous_phase != FlightPhase::Exciting;
         self.previous_phase = phase;
         match phase {
             // The motors are off and the body turns freely: its inertia shows.
@@ -339,26 +339,23 @@ impl<'q> Background<'q> {
             FlightPhase::Exciting => {}
             _ => self.tumble.reset(),
         }
-        if starting {
-            let (r_imu_m, source) = self.learner_offset();
-            let motors = usize::from(sample.motor_count);
-            let reuse = self.learner.get().is_some_and(|l| l.model().motors == sample.motor_count)
-                && self.learner_speed_age_s == self.speed_age_s;
-            if !reuse {
-                let config =
-                    LearnerConfig { rate_hz: self.rate_hz, r_imu_m, ..LearnerConfig::default() }
-                        .with_speed_age(self.speed_age_s);
-                self.learner_speed_age_s = self.speed_age_s;
-                // In place: the learner is 25 KB (docs/budget.md).
-                let _ = self.learner.build(motors, config);
-            }
+        // A new identification starts at the release: the learner is restarted there and its
+        // filters run on the free fall (`Learner::prime`), so that they have settled on the
+        // body's own precession when the motors start. (When the release delay's samples did
+        // not reach this task, it starts cold with the excitation, as before.)
+        let releasing = phase == FlightPhase::Released && previous_phase != FlightPhase::Released;
+        if releasing || (starting && previous_phase != FlightPhase::Released) {
+            self.restart_learner(sample.motor_count);
+        }
+        if phase == FlightPhase::Released {
             if let Some(learner) = self.learner.get_mut() {
-                // Cannot fail: the offset was checked finite and the onboard one is bounded.
-                let _ = learner.restart(r_imu_m);
+                learner.prime(sample.imu.gyro_rad_s, sample.imu.accel_mps2, &sample.speeds_rad_s);
+            }
+        }
+        if starting {
+            if let Some(learner) = self.learner.get_mut() {
                 learner.set_inertia_prior(&self.tumble.prior());
             }
-            self.results.learner_offset = source;
-            self.results.learner_r_imu_m = r_imu_m;
         }
         // The learner runs from the start of the excitation until the motors have settled after
         // it (the last pulse's ramp still carries information), and on for the first
@@ -384,6 +381,28 @@ impl<'q> Background<'q> {
             );
             self.results.learned = *learner.model();
         }
+    }
+
+    /// A new identification for `motor_count` motors: the learner (re)built or restarted with
+    /// the IMU offset of now.
+    fn restart_learner(&mut self, motor_count: u8) {
+        let (r_imu_m, source) = self.learner_offset();
+        let reuse = self.learner.get().is_some_and(|l| l.model().motors == motor_count)
+            && self.learner_speed_age_s == self.speed_age_s;
+        if !reuse {
+            let config =
+                LearnerConfig { rate_hz: self.rate_hz, r_imu_m, ..LearnerConfig::default() }
+                    .with_speed_age(self.speed_age_s);
+            self.learner_speed_age_s = self.speed_age_s;
+            // In place: the learner is 25 KB (docs/budget.md).
+            let _ = self.learner.build(usize::from(motor_count), config);
+        }
+        if let Some(learner) = self.learner.get_mut() {
+            // Cannot fail: the offset was checked finite and the onboard one is bounded.
+            let _ = learner.restart(r_imu_m);
+        }
+        self.results.learner_offset = source;
+        self.results.learner_r_imu_m = r_imu_m;
     }
 
     /// The IMU offset for a new identification and where it came from.

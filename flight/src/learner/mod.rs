@@ -6,7 +6,8 @@
 //! - [`ThrowToFly`] runs in the 2 kHz control step: [`throw_detector`] decides that the craft has
 //!   been thrown and is falling freely, then [`excitation`] pulses each motor in turn. A few dozen
 //!   operations per step.
-//! - [`Learner`] runs in the background task on every sample of the excitation:
+//! - [`Learner`] runs in the background task on every sample of the excitation (its filters
+//!   primed on the free fall of the release delay before it, [`Learner::prime`]):
 //!   [`motor_model`] per motor, [`effectiveness`] (G1, G2) and, once every motor has been pulsed,
 //!   the [`crate::thrust_axis`] solver on the learned G1. It publishes a [`LearnedModel`]: the
 //!   interface the controller (INDI) builds on. Every sample runs the motor models and the
@@ -399,6 +400,13 @@ impl Learner {
         self.effectiveness.set_inertia_prior(prior);
     }
 
+    /// The body's normalised inertia `J = I / tr I` the angular-momentum balance holds now,
+    /// IMU axes (row-major).
+    pub fn normalised_inertia(&self) -> [[f32; 3]; 3] {
+        let j = self.effectiveness.normalised_inertia();
+        core::array::from_fn(|r| core::array::from_fn(|c| j[(r, c)]))
+    }
+
     /// The configuration in use.
     pub fn config(&self) -> &LearnerConfig {
         &self.config
@@ -447,6 +455,19 @@ impl Learner {
                 }
             }
         }
+    }
+
+    /// One sample of the free fall before the excitation (motors off): the effectiveness
+    /// filters run on the body's own motion, so that they have settled when the motors start
+    /// ([`effectiveness::EffectivenessEstimator::prime`]); nothing is learned. Call after
+    /// [`Learner::restart`], on every sample of the release delay.
+    pub fn prime(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        speeds: &[f32; MAX_MOTORS],
+    ) {
+        self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
     }
 
     /// The model learned so far.
