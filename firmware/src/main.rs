@@ -12,7 +12,7 @@
 //! | `imu_transfer_done` | DMA1 stream 0 complete | 3 | ends the read, adds the sample to the 8 kHz → 2 kHz mean |
 //! | `motor_burst_0..2` | DMA1 streams 2–4 complete (the motor timers' DShot bursts) | 4 | switches the timer's outputs to capture the ESCs' bidirectional answers (a few dozen register writes, 28 µs after the step started the frame; the answer starts 30 µs after the frame, too soon to wait for the step to end) |
 //! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port: requests routed, telemetry, configuration saves (flash erase); then a restart if one was asked for |
-//! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the flight log drained (to no card yet: [`NoCard`](firmware::app::log::NoCard)), the link's work, the learner-sample queue drained, results published |
+//! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the link's work, the learner-sample queue drained, results published |
 //! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
 //! What each task does, and in which order, is the portable application graph's
@@ -74,14 +74,6 @@ fn defmt_panic() -> ! {
 static mut BACKGROUND: core::mem::MaybeUninit<firmware::app::Background<'static>> =
     core::mem::MaybeUninit::uninit();
 
-/// The flight log's ring from the control tick to the background task (about 19 KB, AXI SRAM,
-/// NOLOAD): `init` zeroes it, which is the empty ring (`LogRing::new()` is two zero indices and
-/// uninitialised slots), so no 19 KB temporary ever sits on `init`'s stack.
-#[cfg(target_os = "none")]
-#[link_section = ".axisram.log_ring"]
-static mut LOG_RING: core::mem::MaybeUninit<firmware::app::log::LogRing> =
-    core::mem::MaybeUninit::uninit();
-
 // The RTIC application: resources, initialisation and the task table.
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
@@ -91,7 +83,6 @@ mod app {
         motor_burst_2, usb_service,
     };
     use firmware::app::hal::Motors;
-    use firmware::app::log::{LogRing, Logger, NoCard};
     use firmware::app::radio::Receiver;
     use firmware::app::system::{ControlQueue, ControlTask, Link, LinkTask, WorkQueue};
     use firmware::app::{
@@ -177,9 +168,6 @@ mod app {
         /// in AXI SRAM so that DTCM keeps room for the stack, built there in place by `init`
         /// ([`BACKGROUND`]; docs/budget.md).
         background: &'static mut Background<'static>,
-        /// The flight log's writer: drains the log ring to the sink. The board has no SD-card
-        /// driver yet, so the sink is [`NoCard`]: every file is refused and counted.
-        log: Logger<'static>,
     }
 
     #[init(local = [
@@ -188,7 +176,6 @@ mod app {
         ep_memory: [u32; EP_MEMORY_WORDS] = [0; EP_MEMORY_WORDS],
         usb_bus: Option<UsbBusAllocator<usb::Bus>> = None,
         uid_text: [u8; UID_HEX_CHARS] = [0; UID_HEX_CHARS],
-        no_card: NoCard = NoCard,
     ])]
     fn init(cx: init::Context) -> (Shared, Local, init::Monotonics) {
         // First of all, before any clock or peripheral is touched: did the previous run ask for
@@ -293,15 +280,6 @@ mod app {
         let (producer, consumer) = split_queue(cx.local.samples);
         let (ring_producer, telemetry) = split_queue(cx.local.step_ring);
         let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
-        // SAFETY: `init` runs once, before any task; all-zero bytes are the empty ring (see
-        // `LOG_RING`), and nothing else refers to the static.
-        let log_ring: &'static mut LogRing = unsafe {
-            let slot = &mut *core::ptr::addr_of_mut!(crate::LOG_RING);
-            core::ptr::write_bytes(slot.as_mut_ptr(), 0, 1);
-            slot.assume_init_mut()
-        };
-        let (log_producer, log_consumer) = split_queue(log_ring);
-        let log = Logger::new(log_consumer, cx.local.no_card, BOARD.name, config.rate_hz);
         // SAFETY: `init` runs once, before any task: this is the storage's only reference.
         let storage = unsafe { &mut *core::ptr::addr_of_mut!(crate::BACKGROUND) };
         let background = Background::build_in(storage, consumer, config.rate_hz);
@@ -362,7 +340,7 @@ mod app {
             control_timer,
             step_timer,
             control_clock: clock,
-            control: ControlTask::new(control, Some(radio)).with_log(log_producer),
+            control: ControlTask::new(control, Some(radio)),
             burst_0: motors.completion(0),
             burst_1: motors.completion(1),
             burst_2: motors.completion(2),
@@ -372,7 +350,6 @@ mod app {
             usb: Link::new(link, usb),
             link: LinkTask::new(settings, telemetry),
             background,
-            log,
         };
         (shared, local, init::Monotonics())
     }
@@ -426,7 +403,7 @@ mod app {
         #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link], shared = [snapshot, results, board, commands, work])]
         fn usb_service(cx: usb_service::Context);
 
-        #[task(priority = 1, local = [background, log], shared = [results, work])]
+        #[task(priority = 1, local = [background], shared = [results, work])]
         fn background(cx: background::Context);
     }
 }
@@ -549,6 +526,8 @@ mod tasks {
     /// Background work at the lowest priority ([`firmware::app::system::run_background`]).
     pub fn background(cx: background::Context) {
         let (mut work, mut results) = (cx.shared.work, cx.shared.results);
-        run_background(cx.local.background, Some(cx.local.log), &mut work, &mut results);
+        // No flight log on the board yet: it has no SD-card driver (issue 30), and a log written
+        // to no card would cost about 7 KB of flash for nothing (docs/flight-log.md).
+        run_background(cx.local.background, None, &mut work, &mut results);
     }
 }

@@ -97,9 +97,8 @@ fn record(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueModel, f3
         let mut board = SimBoard::new(&airframe, &config.board);
         let r = truth.r_imu_m;
         app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
-        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        app.submit(ControlCommand::ArmThrowToFly);
         let spec = config.throw.spec();
-        let mut buf = Vec::new();
         let mut done_ticks = 0;
         for tick in 0..10_000u64 {
             if tick == 1000 {
@@ -116,9 +115,8 @@ fn record(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueModel, f3
                     hand_release_us = r * 1e6;
                 }
             }
-            app.drain_telemetry(&mut buf);
-            records.extend(buf.iter().copied());
-            if app.control.snapshot().phase == FlightPhase::Done {
+            records.extend(std::iter::from_fn(|| app.link.take_record()));
+            if app.snapshot().phase == FlightPhase::Done {
                 if done_ticks == 0 {
                     let learned = app.background.results().learned;
                     let m = truth.motors;
@@ -377,9 +375,8 @@ fn record_quiet(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueMod
     let mut records = Vec::new();
     with_firmware_app(|app| {
         let mut board = SimBoard::new(&airframe, &config.board);
-        app.control.command(ControlCommand::ArmThrowToFly, 0);
+        app.submit(ControlCommand::ArmThrowToFly);
         let spec = config.throw.spec();
-        let mut buf = Vec::new();
         for tick in 0..4000u64 {
             if tick == 1000 {
                 board.physics_mut().throw(&spec);
@@ -390,9 +387,8 @@ fn record_quiet(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueMod
                 let (imu, motors) = board.ports();
                 app.step(now_us, imu, motors);
             }
-            app.drain_telemetry(&mut buf);
-            records.extend(buf.iter().copied());
-            if app.control.snapshot().phase == FlightPhase::Exciting {
+            records.extend(std::iter::from_fn(|| app.link.take_record()));
+            if app.snapshot().phase == FlightPhase::Exciting {
                 break;
             }
         }

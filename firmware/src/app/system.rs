@@ -485,6 +485,12 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         self.settings
     }
 
+    /// The oldest step record waiting in the telemetry ring (a host tool reading every step
+    /// instead of the link pass; what it takes is not streamed).
+    pub fn take_record(&mut self) -> Option<super::StepRecord> {
+        self.telemetry.pop()
+    }
+
     /// Work for the background task dropped because its queue was full, since start-up.
     pub fn dropped_work(&self) -> u32 {
         self.dropped_work
