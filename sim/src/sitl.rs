@@ -1,18 +1,18 @@
-//! The SITL: `firmware::app` on a [`SimBoard`], serving the protocol on a pseudo-terminal and on
-//! TCP at 127.0.0.1, paced to the wall clock.
+//! The SITL: the firmware's application graph ([`firmware::app::system`]) on a [`SimBoard`],
+//! serving the protocol on a pseudo-terminal and on TCP at 127.0.0.1, paced to the wall clock.
 //!
 //! The pseudo-terminal is the point: the configurator opens its slave side exactly as it opens a
 //! board's USB CDC port (`/dev/ttyACM0`), so the same code path is exercised end to end. The TCP
-//! port serves tools that prefer sockets; each connection gets its own
-//! [`LinkServer`](firmware::app::LinkServer), as a second USB host would (the transports are in
-//! [`crate::serve`]). After every link pass the commands the links received (arm, disarm,
-//! external pose) go to the control step, as on the board.
+//! port serves tools that prefer sockets; each connection gets its own `LinkServer`, as a second
+//! USB host would (the ports are in [`crate::serve`]). The link pass is the firmware's own: what
+//! the links ask waits in the control step's queue for the next tick, as on the board.
 //!
 //! One thread runs everything in the order the board's priorities impose: every 500 µs of
-//! simulated time a physics tick and a control step, then the background work, and once per
-//! millisecond of simulated time the links. Simulated time follows the wall clock × `speed`;
-//! when the host cannot keep up, the simulation runs slower than asked rather than skipping
-//! steps (the status's uptime then trails the wall clock).
+//! simulated time a physics tick and a control tick (then the background work, when samples
+//! wait), and a link pass whenever the tick says one is due (every millisecond). A simulated
+//! pilot's radio (`--rc`, [`crate::radio`]) feeds the tick's receiver policy. Simulated time
+//! follows the wall clock × `speed`; when the host cannot keep up, the simulation runs slower
+//! than asked rather than skipping steps (the status's uptime then trails the wall clock).
 
 use crate::airframe::{Airframe, AirframeError};
 use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};

@@ -174,7 +174,7 @@ pub enum LoggedCommand {
         motor: Option<u8>,
     },
     /// A failsafe raised outside the control step (the pilot's kill switch, the radio lost), by
-    /// its index in [`FAILSAFE_KINDS`].
+    /// its index in `pilot::FAILSAFE_KINDS`.
     Failsafe {
         kind: u8,
     },

@@ -216,8 +216,8 @@ pub mod syscfg {
     }
 }
 
-/// DMA1/DMA2 registers (RM0433 §15.5), offsets from [`DMA1_BASE`](super::h743::DMA1_BASE) or
-/// [`DMA2_BASE`](super::h743::DMA2_BASE).
+/// DMA1/DMA2 registers (RM0433 §15.5), offsets from [`DMA1_BASE`] or
+/// [`DMA2_BASE`].
 pub mod dma {
     /// Interrupt status of streams 0–3 and 4–7 (read-only).
     pub const LISR: u32 = 0x00;
@@ -276,7 +276,7 @@ pub mod dma {
     }
 }
 
-/// DMAMUX1 registers (RM0433 §17.6), offsets from [`DMAMUX1_BASE`](super::h743::DMAMUX1_BASE).
+/// DMAMUX1 registers (RM0433 §17.6), offsets from [`DMAMUX1_BASE`].
 pub mod dmamux {
     /// DMAMUX1_C0CR; channel c's is `CCR_STRIDE · c` above (channels 0–7 feed DMA1's streams,
     /// 8–15 DMA2's).

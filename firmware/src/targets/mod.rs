@@ -1,7 +1,7 @@
 //! Targets: the descriptions of the boards this firmware runs on (Betaflight's word for a board
 //! definition) — which pin, timer channel, DMA stream and UART each function of the flight
 //! controller uses, as plain data that builds and is tested on the host — and the chip's facts
-//! ([`h743`]). The code that drives them on the chip is [`crate::board`] (target only).
+//! ([`h743`]). The code that drives them on the chip is `crate::board` (target only).
 //!
 //! The STM32H743 board layer (`crate::board`, target only) has no per-board code: it reads the
 //! [`BoardDescription`] selected by [`SELECTED`] and programs the GPIO, DMA, DMAMUX, timer, SPI and

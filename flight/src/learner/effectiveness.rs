@@ -50,7 +50,7 @@
 //! (median, 300 random airframes): the free coefficients, not the data, were the limit. The
 //! balance estimates the five and reaches 2.7 % (docs/benchmarks.md). `J` is seen only through
 //! the body's rotation (`J Ω̇ = T ω²` alone holds for any `J`), so it carries a weak prior
-//! ([`INERTIA_PRIOR_VARIANCE`]).
+//! ([`INERTIA_PRIOR_VARIANCE`](super::inertia::INERTIA_PRIOR_VARIANCE)).
 //!
 //! Scaling: ω² in (krad/s)², ω̇ and `Ωₐ ωᵢ` in 100 krad/s² (they share `K`); RLS arithmetic is
 //! `f64`.
@@ -59,7 +59,9 @@
 // regressors by index), as in `thrust_axis`.
 #![allow(clippy::needless_range_loop)]
 
-use super::inertia::InertiaPrior;
+use super::inertia::{
+    inertia_regressors, rate_product, InertiaPrior, INERTIA_PARAMETERS, RATE_PRODUCTS,
+};
 use super::rls::{packed_len, Rls, RlsConfig, NOISE_WINDOW};
 use super::MAX_MOTORS;
 use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3};
@@ -113,65 +115,12 @@ pub const SPEED2_SCALE: f32 = 1e6;
 /// Motor-acceleration unit of the regression, rad/s²; also the unit of the products of a body
 /// rate and a motor speed, (rad/s)², which share the rotor-momentum parameters.
 pub const SPEED_DOT_SCALE: f32 = 1e5;
-/// The six distinct products `Ωₐ Ω_b` (a ≤ b), in this order.
-const RATE_PRODUCTS: usize = 6;
-/// Index of `Ωₐ Ω_b` in the rate products.
-pub(super) const fn rate_product(a: usize, b: usize) -> usize {
-    const INDEX: [[usize; 3]; 3] = [[0, 1, 2], [1, 3, 4], [2, 4, 5]];
-    INDEX[a][b]
-}
-/// Parameters of the normalised inertia `J = I / tr I`: `J_xx, J_yy, J_xy, J_xz, J_yz`
-/// (`J_zz = 1 − J_xx − J_yy`).
-pub const INERTIA_PARAMETERS: usize = 5;
-/// Prior variance `P₀` of the normalised inertia's five parameters, about a sphere's `J = I/3`
-/// (the other parameters start at `RlsConfig::p0`, uninformed). The data fix `J` only through
-/// the body's rotation (the Euler and rotor-momentum terms: `J Ω̇ = T ω²` alone holds for any
-/// `J` with `T` scaled to match), a few per cent of the signal in the regressions' band, and on
-/// some throws they leave a direction of `J` almost free: unregularised, the Monte Carlo's
-/// 99th-percentile G1τ error was 42 % (the learned `J` had principal moments above half the
-/// trace, which no rigid body has). This weak prior pulls only such directions towards the
-/// sphere. Chosen on the simulator's Monte Carlo (300 random airframes, block error median /
-/// 99th percentile): 1 → 3.4 / 36 %, 0.1 → 2.8 / 16 %, 0.02 → 2.7 / 11 %, 0.003 → 3.2 / 11 %
-/// (1,000 airframes at 0.02: docs/benchmarks.md).
-pub const INERTIA_PRIOR_VARIANCE: f32 = 2e-2;
 /// Capacity of the rotational regression: the torques `T` (`3·8`), the rotor momenta `K`
 /// (`3·8`) and the normalised inertia.
 pub const ROT_PARAMETERS_MAX: usize = 6 * MAX_MOTORS + INERTIA_PARAMETERS;
 /// Capacity of the force regression: the `3·8` entries of G1f (index `3i + axis`) and the
 /// accelerometer bias (the last three).
 pub const FORCE_PARAMETERS_MAX: usize = 3 * MAX_MOTORS + 3;
-
-/// Row `k` of `J a + Ω × (J Ω)` as a linear function of the five free entries of `J`
-/// (`J_xx, J_yy, J_xy, J_xz, J_yz`, with `J_zz = 1 − J_xx − J_yy`), given `a` (the angular
-/// acceleration, or a change of rate) and `product(a, b)` for the matching `Ωₐ Ω_b` (or its
-/// integral): returns the regressors of the five and the output, so that
-/// `regressors · J = output + torque` for the row's torque terms moved to the left. Shared by the
-/// balance and the tumble ([`super::inertia`]).
-///
-/// Row k for `J = E_pq` (1 at (p, q)) is `L_pq = δ_kp a_q + δ_{k+2,p} (ΩΩᵀ)_{q,k+1}
-/// − δ_{k+1,p} (ΩΩᵀ)_{q,k+2}`: row k of L is `aᵀ`, row k+2 column k+1 of ΩΩᵀ, row k+1 minus
-/// column k+2; and `J = J_xx (E_xx − E_zz) + J_yy (E_yy − E_zz) + J_xy (E_xy + E_yx) + … + E_zz`,
-/// whose constant `E_zz` part is the output.
-pub(super) fn inertia_regressors(
-    k: usize,
-    a: [f32; 3],
-    product: impl Fn(usize, usize) -> f32,
-) -> ([f32; INERTIA_PARAMETERS], f32) {
-    let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
-    let mut l = [[0.0f32; 3]; 3];
-    l[k] = a;
-    l[k2] = [product(0, k1), product(1, k1), product(2, k1)];
-    l[k1] = [-product(0, k2), -product(1, k2), -product(2, k2)];
-    let zz = l[2][2];
-    let regressors = [
-        zz - l[0][0],
-        zz - l[1][1],
-        -(l[0][1] + l[1][0]),
-        -(l[0][2] + l[2][0]),
-        -(l[1][2] + l[2][1]),
-    ];
-    (regressors, zz)
-}
 
 /// One sample of every filtered signal.
 #[derive(Clone, Copy, Debug, Default)]
