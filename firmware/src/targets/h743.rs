@@ -399,6 +399,12 @@ pub mod usart {
     pub const BRR: u32 = 0x0C;
     pub const ICR: u32 = 0x20;
     pub const RDR: u32 = 0x24;
+    pub const ISR: u32 = 0x1C;
+    pub const TDR: u32 = 0x28;
+    /// ISR's TXE, which reads "transmit FIFO not full" (TXFNF) with the FIFO enabled.
+    pub const ISR_TXFNF: u32 = 1 << 7;
+    /// The 16-byte transmit and receive FIFOs (RM0433 §48.5.4).
+    pub const CR1_FIFOEN: u32 = 1 << 29;
     pub const CR1_UE: u32 = 1 << 0;
     pub const CR1_RE: u32 = 1 << 2;
     pub const CR1_TE: u32 = 1 << 3;
