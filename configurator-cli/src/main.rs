@@ -213,12 +213,22 @@ enum Command {
     /// compare every command it writes with the logged one; `--set` replays with a changed
     /// parameter and reports where the outcome departs.
     Replay(offline::replay::Args),
+    /// Flight logs on this computer.
+    #[command(subcommand)]
+    Log(LogCommand),
     /// Offline fits on recorded logs.
     #[command(subcommand)]
     Fit(FitCommand),
     /// Offline solvers on files.
     #[command(subcommand)]
     Solve(SolveCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum LogCommand {
+    /// A flight log's control steps as the CSV `record --topics imu,motors` writes (for `plot`
+    /// and `fit imu-offset`).
+    ToCsv(offline::log_csv::Args),
 }
 
 #[derive(Subcommand, Debug)]
@@ -312,6 +322,9 @@ fn run(cli: &Cli) -> Result<String, Failure> {
         }
         Command::Ports => ports(cli.json),
         Command::Replay(args) => offline::replay::run(args, cli.json).map_err(Failure::Input),
+        Command::Log(LogCommand::ToCsv(args)) => {
+            offline::log_csv::run(args).map_err(Failure::Input)
+        }
         Command::Plot { input, output } => plot(input, output, cli.json),
         Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
         // Arguments are validated before any port is touched.
@@ -1239,7 +1252,8 @@ fn shell(cli: &Cli, client: &mut Client, target: &Target) -> Result<String, Fail
             | Command::Solve(_)
             | Command::Plot { .. }
             | Command::Ports
-            | Command::Replay(_) => run(&parsed),
+            | Command::Replay(_)
+            | Command::Log(_) => run(&parsed),
             Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
             other => match board_command(other) {
                 Ok(command) => {

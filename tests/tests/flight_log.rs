@@ -82,5 +82,42 @@ fn a_sitl_throw_and_fly_leaves_a_log_that_replays_bit_for_bit_and_a_changed_para
     );
     let learned = &changed["learned_difference"];
     assert!(learned["g1_relative_difference"].as_f64().unwrap() > 0.01, "{learned}");
+
+    // The same flight as the CSV `record` writes: one row per step with an IMU sample, the
+    // logged values in their columns, and `plot` reads it.
+    let csv = dir.join("flight.csv");
+    let output = run_cli(&["log", "to-csv", path, csv.to_str().unwrap()]);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let rows: Vec<Vec<f64>> =
+        lines.map(|l| l.split(',').map(|x| x.parse().unwrap_or(f64::NAN)).collect()).collect();
+    let bytes = std::fs::read(&file).unwrap();
+    let steps: Vec<_> = LogReader::new(&bytes)
+        .filter_map(|r| match r {
+            LogRecord::Step(step) if step.imu.is_some() => Some(step),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(rows.len(), steps.len(), "one row per step with an IMU sample");
+    let column = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("no column {name} in {header:?}"))
+    };
+    let (gx, az) = (column("gyro_x"), column("acc_z"));
+    for (row, step) in rows.iter().zip(&steps).step_by(997) {
+        let imu = step.imu.unwrap();
+        assert!((row[0] - step.t_us as f64 * 1e-6).abs() < 1e-6);
+        assert!(
+            (row[gx] - f64::from(imu[0])).abs() < 1e-4
+                && (row[az] - f64::from(imu[5])).abs() < 1e-4
+        );
+    }
+    let png = dir.join("flight.png");
+    let plotted = run_cli(&["plot", csv.to_str().unwrap(), "-o", png.to_str().unwrap()]);
+    assert!(plotted.status.success(), "{}", String::from_utf8_lossy(&plotted.stderr));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -4,6 +4,7 @@
 //! The whole output is built before anything is printed, so bad input never leaves partial output.
 
 pub mod imu_offset;
+pub mod log_csv;
 pub mod replay;
 pub mod thrust_axis;
 
