@@ -265,6 +265,14 @@ impl Motors for SimMotors {
         self.count
     }
 
+    /// As the board's outputs: disarmed, every motor stops (with the default arming, the next
+    /// command above zero spins them again).
+    fn set_armed(&mut self, armed: bool) {
+        if !armed && self.arming == Arming::OnFirstCommand {
+            self.armed = false;
+        }
+    }
+
     fn set_commands(&mut self, commands: &[f32]) {
         for (dst, src) in self.commands.iter_mut().zip(commands).take(self.count as usize) {
             // A NaN command is treated as 0, as a DShot driver clamps before encoding.

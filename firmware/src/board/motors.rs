@@ -2,7 +2,7 @@
 //! capture DMA per motor back.
 //!
 //! **Out.** Every control step [`BoardMotors::set_commands`] turns each motor's command into a
-//! 16-bit frame (`dshot::output_frame`: motor stop at δ ≤ 0, throttle 48..=2047 above; the
+//! 16-bit frame (`dshot::CommandQueue::frame`: motor stop at δ ≤ 0 until the first command above zero since arming, idle (48) for δ ≤ 0 after it until disarmed, throttle 48..=2047 above; the
 //! inverted checksum when the ESCs speak bidirectional DShot), the frames into compare values
 //! (`dshot::compare_values`: 75 % / 37.5 % of the 1.667 µs bit), and interleaves them per timer
 //! ([`interleave_burst`]) in an AXI SRAM buffer. The timer runs at the DShot600 bit period with
@@ -362,6 +362,7 @@ impl Motors for BoardMotors {
 
     /// Send one frame to every motor output. Never blocks: the previous frame ended 470 µs ago.
     fn set_commands(&mut self, commands: &[f32]) {
+        self.special.note_commands(commands);
         let period = self.period_ticks;
         let bidirectional = self.bidirectional;
         for index in 0..MAX_TIMERS {

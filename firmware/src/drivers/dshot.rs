@@ -208,6 +208,12 @@ struct PendingCommand {
 pub struct CommandQueue {
     pending: Option<PendingCommand>,
     armed: bool,
+    /// A motor was commanded above zero since the outputs were armed: from then on until they
+    /// disarm, δ ≤ 0 idles a motor at the minimum throttle (value 48) instead of stopping it. A
+    /// motor the allocation sets to zero in flight keeps turning: an ESC restarting a stopped
+    /// motor mid-air takes tens of milliseconds and can lose sync. Before the first command
+    /// (armed and waiting for the throw, in the hand) every motor stays stopped.
+    spinning: bool,
 }
 
 impl CommandQueue {
@@ -216,7 +222,23 @@ impl CommandQueue {
         self.armed = armed;
         if armed {
             self.pending = None;
+        } else {
+            self.spinning = false;
         }
+    }
+
+    /// The application's commands for this frame: the first one above zero while armed starts
+    /// the idle-instead-of-stop rule (see [`CommandQueue::frame`]).
+    pub fn note_commands(&mut self, commands: &[f32]) {
+        if self.armed && commands.iter().any(|&c| c > 0.0) {
+            self.spinning = true;
+        }
+    }
+
+    /// Whether δ ≤ 0 idles the motors rather than stopping them (armed, and commanded above zero
+    /// since).
+    pub fn spinning(&self) -> bool {
+        self.spinning
     }
 
     /// Queue `command` for `motor` (`None` = every motor), replacing any command still waiting.
@@ -233,12 +255,17 @@ impl CommandQueue {
     }
 
     /// The frame `motor` sends this step for the application's command δ: the waiting special
-    /// command while its motor stops (δ ≤ 0, nothing armed), otherwise [`output_frame`].
+    /// command while its motor stops (δ ≤ 0, nothing armed); the minimum throttle (idle) for
+    /// δ ≤ 0 or NaN once the motors spin (armed and commanded above zero since); otherwise
+    /// [`output_frame`].
     pub fn frame(&self, motor: u8, command: f32, bidirectional: bool) -> u16 {
         match self.pending {
             Some(p) if !self.armed && command <= 0.0 && p.motor.is_none_or(|m| m == motor) => {
                 command_frame(p.command, false, bidirectional)
                     .unwrap_or_else(|_| motor_stop_frame(bidirectional))
+            }
+            _ if self.spinning && (command <= 0.0 || command.is_nan()) => {
+                throttle_frame(0.0, false, bidirectional)
             }
             _ => output_frame(command, bidirectional),
         }
@@ -988,5 +1015,27 @@ mod tests {
                 other_errors: 1,
             }
         );
+    }
+
+    #[test]
+    fn armed_motors_stay_stopped_until_commanded_then_idle_at_zero_until_disarmed() {
+        let mut queue = CommandQueue::default();
+        let idle = throttle_frame(0.0, false, false);
+        assert_eq!(idle >> 5, THROTTLE_MIN, "idle is the minimum throttle, value 48");
+        // Armed and waiting for the throw: zero commands stop every motor.
+        queue.set_armed(true);
+        queue.note_commands(&[0.0; 4]);
+        assert_eq!(queue.frame(0, 0.0, false), motor_stop_frame(false));
+        // The first command above zero (the excitation): from now on zero idles, NaN too.
+        queue.note_commands(&[0.0, 0.3, 0.0, 0.0]);
+        assert_eq!(queue.frame(1, 0.3, false), throttle_frame(0.3, false, false));
+        assert_eq!(queue.frame(0, 0.0, false), idle);
+        assert_eq!(queue.frame(2, -0.1, false), idle);
+        assert_eq!(queue.frame(3, f32::NAN, false), idle);
+        // Disarmed: every motor stops, and arming again starts stopped.
+        queue.set_armed(false);
+        assert_eq!(queue.frame(0, 0.0, false), motor_stop_frame(false));
+        queue.set_armed(true);
+        assert_eq!(queue.frame(0, 0.0, false), motor_stop_frame(false));
     }
 }
