@@ -76,6 +76,13 @@ pub fn failure_text(failure: LearnerFailure) -> &'static str {
             "the motors do not give torque about every axis (a motor not spinning, or not connected?)"
         }
         LearnerFailure::NoHover => "no motor combination can hover this craft along the found axis",
+        LearnerFailure::NoThrustAxis => {
+            "the excitation ended without a hover thrust axis (throw higher, or check the motors)"
+        }
+        LearnerFailure::MotorUnusable { .. } => {
+            "a motor's model is unusable (its time constant or full speed out of range): check that motor and its ESC"
+        }
+        LearnerFailure::InvalidModel => "the learned model has non-finite entries",
         LearnerFailure::Disarmed => "disarmed during the attempt",
         LearnerFailure::ImuLost => "the IMU stopped delivering samples",
         LearnerFailure::NoSpeedTelemetry => {

@@ -326,6 +326,11 @@ fn learner_phase_text(learner: &LearnerTelemetry) -> String {
             "the motors cannot produce every torque (rank-deficient effectiveness): no hover axis"
         }
         LearnerFailure::NoHover => "no hover within the motor limits along any thrust axis",
+        LearnerFailure::NoThrustAxis => "the excitation ended without a hover thrust axis",
+        LearnerFailure::MotorUnusable { .. } => {
+            "a motor's model is unusable (its time constant or full speed out of range)"
+        }
+        LearnerFailure::InvalidModel => "the learned model has non-finite entries",
         LearnerFailure::Disarmed => "stopped by a disarm request",
         LearnerFailure::ImuLost => "stopped: the IMU stopped delivering samples",
         LearnerFailure::NoSpeedTelemetry => {
@@ -462,6 +467,9 @@ fn learner_phase_short(learner: &LearnerTelemetry) -> String {
         LearnerFailure::ThrowTimedOut => "throw timed out",
         LearnerFailure::RankDeficient => "rank deficient",
         LearnerFailure::NoHover => "no hover",
+        LearnerFailure::NoThrustAxis => "no thrust axis",
+        LearnerFailure::MotorUnusable { .. } => "motor model unusable",
+        LearnerFailure::InvalidModel => "invalid model",
         LearnerFailure::Disarmed => "disarmed",
         LearnerFailure::ImuLost => "IMU lost",
         LearnerFailure::NoSpeedTelemetry => "no speed telemetry",

@@ -819,6 +819,15 @@ pub enum LearnerFailure {
     /// every motor's speed. Before the excitation the motors never started; during it they
     /// stopped. Protocol 1.6.
     NoSpeedTelemetry,
+    /// The excitation ended without a hover thrust axis. Protocol 1.7 (reported as `NoHover`
+    /// before).
+    NoThrustAxis,
+    /// The model of this motor (index from 0) is unusable (its time constant or speed at full
+    /// command out of range). Protocol 1.7 (`NoHover` before).
+    MotorUnusable { motor: u8 },
+    /// The learned model has non-finite entries or the wrong motor count. Protocol 1.7
+    /// (`NoHover` before).
+    InvalidModel,
 }
 
 /// The in-flight learner: phase, and the estimates so far. `g1_rows` carries three rows of the

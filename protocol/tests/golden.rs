@@ -533,3 +533,13 @@ fn protocol_1_6_health_and_speed_refusal_are_pinned() {
     let mut buffer = [0u8; 4];
     assert_eq!(postcard::to_slice(&LearnerFailure::NoSpeedTelemetry, &mut buffer).unwrap(), [7]);
 }
+
+#[test]
+fn protocol_1_7_identification_failures_are_pinned() {
+    // Appended after `NoSpeedTelemetry` (7): the earlier failures keep their indices.
+    let mut buffer = [0u8; 4];
+    assert_eq!(postcard::to_slice(&LearnerFailure::NoThrustAxis, &mut buffer).unwrap(), [8]);
+    let motor = LearnerFailure::MotorUnusable { motor: 3 };
+    assert_eq!(postcard::to_slice(&motor, &mut buffer).unwrap(), [9, 3]);
+    assert_eq!(postcard::to_slice(&LearnerFailure::InvalidModel, &mut buffer).unwrap(), [10]);
+}

@@ -559,6 +559,11 @@ pub fn attempt_text(failure: LearnerFailure) -> String {
         LearnerFailure::ThrowTimedOut => "a throw began but no release followed".into(),
         LearnerFailure::RankDeficient => "no torque about every axis: no hover axis".into(),
         LearnerFailure::NoHover => "no hover within the motor limits".into(),
+        LearnerFailure::NoThrustAxis => "the excitation ended without a hover thrust axis".into(),
+        LearnerFailure::MotorUnusable { motor } => {
+            format!("motor {motor}'s model is unusable (time constant or full speed out of range)")
+        }
+        LearnerFailure::InvalidModel => "the learned model is not finite".into(),
         LearnerFailure::Disarmed => "disarmed by request".into(),
         LearnerFailure::ImuLost => "the IMU samples stopped or went bad".into(),
         LearnerFailure::None => "no reason".into(),

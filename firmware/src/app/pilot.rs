@@ -227,9 +227,9 @@ impl IdentificationFailure {
         match self {
             IdentificationFailure::RankDeficient => LearnerFailure::RankDeficient,
             IdentificationFailure::NoHover => LearnerFailure::NoHover,
-            IdentificationFailure::NoThrustAxis
-            | IdentificationFailure::Motor(_)
-            | IdentificationFailure::Invalid => LearnerFailure::NoHover,
+            IdentificationFailure::NoThrustAxis => LearnerFailure::NoThrustAxis,
+            IdentificationFailure::Motor(motor) => LearnerFailure::MotorUnusable { motor },
+            IdentificationFailure::Invalid => LearnerFailure::InvalidModel,
         }
     }
 }
