@@ -15,6 +15,28 @@ use std::time::{Duration, Instant};
 
 /// How long a request waits for its response by default.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(1500);
+/// How long a read-only request waits before it is asked again: a USB board answers within
+/// milliseconds, a 57,600-baud telemetry radio with 20 ms latency within about 0.1 s (a status
+/// frame of 200 bytes takes 35 ms on the air), so 0.4 s means the request or its answer was lost.
+pub const RETRY_AFTER: Duration = Duration::from_millis(400);
+/// Attempts of a read-only request (the last waits the whole timeout).
+const READ_ATTEMPTS: u32 = 3;
+
+/// Whether `request` reads and changes nothing on the board (asking it twice is harmless).
+fn is_read_only(request: &Request) -> bool {
+    matches!(
+        request,
+        Request::GetInfo(_)
+            | Request::GetStatus(_)
+            | Request::Ping(_)
+            | Request::GetLearner(_)
+            | Request::GetParam(_)
+            | Request::GetConfig(_)
+            | Request::GetFlight(_)
+            | Request::GetBoard(_)
+            | Request::GetHealth(_)
+    )
+}
 
 /// A byte transport: anything readable and writable whose reads time out (serial ports and
 /// sockets with a read timeout set).
@@ -164,6 +186,8 @@ pub struct Client {
     pub bad_frames: u32,
     /// Bytes received from the board since connecting.
     pub bytes_rx: u64,
+    /// Read-only requests asked again after a lost answer, since connecting.
+    retries: u32,
 }
 
 impl Client {
@@ -180,11 +204,13 @@ impl Client {
             events: VecDeque::new(),
             bad_frames: 0,
             bytes_rx: 0,
+            retries: 0,
         };
         client.discard_stale_input()?;
         let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
         let seq = client.send(&hello)?;
-        let info = match client.await_response(seq, "the handshake")? {
+        let timeout = client.timeout;
+        let info = match client.await_response(seq, "the handshake", timeout)? {
             Ok(Reply::Hello(info)) => info,
             Err(DeviceError::IncompatibleProtocol { device, host }) => {
                 return Err(incompatible(device, host));
@@ -223,8 +249,26 @@ impl Client {
 
     /// Send a request and wait for its response; a device error becomes [`LinkError::Device`].
     pub fn request(&mut self, request: &Request, what: &'static str) -> Result<Reply, LinkError> {
+        // A request that reads and changes nothing is asked again when its answer does not come
+        // within `RETRY_AFTER` (a frame lost on a radio link); one that changes something waits
+        // the whole timeout once, so it never acts twice.
+        if is_read_only(request) {
+            for _ in 1..READ_ATTEMPTS {
+                let seq = self.send(request)?;
+                match self.await_response(seq, what, RETRY_AFTER.min(self.timeout)) {
+                    Err(LinkError::Timeout { .. }) => self.retries += 1,
+                    other => return other?.map_err(|e| LinkError::Device(DeviceErrorText(e))),
+                }
+            }
+        }
         let seq = self.send(request)?;
-        self.await_response(seq, what)?.map_err(|e| LinkError::Device(DeviceErrorText(e)))
+        self.await_response(seq, what, self.timeout)?
+            .map_err(|e| LinkError::Device(DeviceErrorText(e)))
+    }
+
+    /// Read-only requests asked again after a lost answer, since the connection opened.
+    pub fn retries(&self) -> u32 {
+        self.retries
     }
 
     /// Read for `duration`, collecting telemetry and events.
@@ -286,8 +330,9 @@ impl Client {
         &mut self,
         seq: u16,
         what: &'static str,
+        timeout: Duration,
     ) -> Result<Result<Reply, DeviceError>, LinkError> {
-        let deadline = Instant::now() + self.timeout;
+        let deadline = Instant::now() + timeout;
         let mut answer = None;
         let mut undecodable: Option<Vec<u8>> = None;
         loop {

@@ -245,6 +245,147 @@ impl Pty {
     }
 }
 
+/// What a simulated telemetry radio does to the bytes between the configurator and the board
+/// (a SiK/RFD900-class modem on a UART): a byte rate, a latency and whole frames lost.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RadioConfig {
+    /// The serial rate, baud (8N1: ten bits a byte), in each direction.
+    pub baud: u32,
+    /// Time from a frame's last byte into the radio to its first byte out of the other, s.
+    pub latency_s: f64,
+    /// Probability that a frame (bytes up to a 0x00 delimiter) is lost, in [0, 1).
+    pub frame_loss: f64,
+}
+
+/// One direction of a simulated radio: the bytes the sender gave it, at most the byte rate's
+/// worth per second, cut into frames at the delimiter; each frame lost or delivered after the
+/// latency.
+#[derive(Debug, Default)]
+struct RadioDirection {
+    /// Bytes the serial line can still take now (the rate's credit, at most one second's).
+    credit: f64,
+    frame: Vec<u8>,
+    in_flight: std::collections::VecDeque<(u64, Vec<u8>)>,
+}
+
+impl RadioDirection {
+    fn advance(&mut self, elapsed_s: f64, config: &RadioConfig) {
+        let rate = f64::from(config.baud) / 10.0;
+        self.credit = (self.credit + elapsed_s * rate).min(rate);
+    }
+
+    /// Take as many of `bytes` as the line allows now; returns how many.
+    fn take(
+        &mut self,
+        bytes: &[u8],
+        now_us: u64,
+        config: &RadioConfig,
+        rng: &mut crate::rng::Rng,
+    ) -> usize {
+        let n = bytes.len().min(self.credit.max(0.0) as usize);
+        self.credit -= n as f64;
+        for &byte in &bytes[..n] {
+            self.frame.push(byte);
+            if byte == 0 {
+                let frame = std::mem::take(&mut self.frame);
+                if rng.uniform() >= config.frame_loss {
+                    let due_us = now_us + (config.latency_s * 1e6) as u64;
+                    self.in_flight.push_back((due_us, frame));
+                }
+            }
+        }
+        n
+    }
+
+    /// The frames due by `now_us`, in order.
+    fn due(&mut self, now_us: u64, out: &mut Vec<u8>) {
+        while self.in_flight.front().is_some_and(|(due, _)| *due <= now_us) {
+            if let Some((_, frame)) = self.in_flight.pop_front() {
+                out.extend_from_slice(&frame);
+            }
+        }
+    }
+}
+
+/// A pseudo-terminal behind a simulated telemetry radio ([`RadioConfig`]): the configurator opens
+/// the slave as it would the radio's USB serial port (`--port`), the board's link serves this
+/// port as it would a UART. Call [`RadioPort::set_time`] with the simulated time before each
+/// link pass.
+pub struct RadioPort {
+    pty: Pty,
+    config: RadioConfig,
+    rng: crate::rng::Rng,
+    now_us: u64,
+    up: RadioDirection,
+    down: RadioDirection,
+    /// Host bytes read from the pty and not yet taken by the line.
+    from_host: std::collections::VecDeque<u8>,
+    /// Bytes delivered to the board, not yet read.
+    to_board: std::collections::VecDeque<u8>,
+}
+
+impl RadioPort {
+    /// A radio over `pty`; the seed draws the lost frames.
+    pub fn new(pty: Pty, config: RadioConfig, seed: u64) -> Self {
+        Self {
+            pty,
+            config,
+            rng: crate::rng::Rng::new(seed),
+            now_us: 0,
+            up: RadioDirection::default(),
+            down: RadioDirection::default(),
+            from_host: std::collections::VecDeque::new(),
+            to_board: std::collections::VecDeque::new(),
+        }
+    }
+
+    /// The slave's path, to open like the radio's serial port.
+    pub fn slave_path(&self) -> &Path {
+        self.pty.slave_path()
+    }
+
+    /// Advance the radio to simulated time `now_us`: the lines' credit grows, frames whose
+    /// latency has passed come out at the other end.
+    pub fn set_time(&mut self, now_us: u64) {
+        let elapsed_s = now_us.saturating_sub(self.now_us) as f64 * 1e-6;
+        self.now_us = now_us;
+        self.up.advance(elapsed_s, &self.config);
+        self.down.advance(elapsed_s, &self.config);
+        // Host → board: what the host wrote, through the line.
+        let mut buffer = [0u8; 512];
+        while let Ok(n @ 1..) = Port::read(&mut self.pty, &mut buffer) {
+            self.from_host.extend(&buffer[..n]);
+        }
+        let pending: Vec<u8> = self.from_host.iter().copied().collect();
+        let taken = self.down.take(&pending, now_us, &self.config, &mut self.rng);
+        self.from_host.drain(..taken);
+        let mut delivered = Vec::new();
+        self.down.due(now_us, &mut delivered);
+        self.to_board.extend(delivered);
+        // Board → host: frames whose latency has passed.
+        let mut out = Vec::new();
+        self.up.due(now_us, &mut out);
+        if !out.is_empty() {
+            let _ = Port::write(&mut self.pty, &out);
+        }
+    }
+}
+
+impl Port for RadioPort {
+    fn read(&mut self, buffer: &mut [u8]) -> Result<usize, PortClosed> {
+        let n = buffer.len().min(self.to_board.len());
+        for (dst, src) in buffer.iter_mut().zip(self.to_board.drain(..n)) {
+            *dst = src;
+        }
+        Ok(n)
+    }
+
+    /// Takes what the line's rate allows now (the link server keeps the rest queued).
+    fn write(&mut self, bytes: &[u8]) -> Result<usize, PortClosed> {
+        Ok(self.up.take(bytes, self.now_us, &self.config, &mut self.rng))
+    }
+}
+
 /// Parses `X,Y,Z` in millimetres (three comma-separated finite numbers, each within
 /// ±[`MAX_IMU_OFFSET_MM`]) into metres: the `--imu-offset-mm` option of `sitl` and
 /// `scenario bridge`.

@@ -19,7 +19,7 @@ use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};
 use crate::flash::{FileFlash, FlashFileError};
 use crate::hand::{HandPhase, ThrowSpec};
 use crate::log_dir::LogDir;
-use crate::serve::{simulator_board_info, Pty, TcpLinks};
+use crate::serve::{simulator_board_info, Pty, RadioPort, TcpLinks};
 use firmware::app::radio::Receiver;
 use firmware::app::system::{with_logged_system, Link, LogTarget, System};
 use firmware::app::{BoardInfo, ControlCommand, LinkServer, Settings};
@@ -92,6 +92,9 @@ pub struct SitlConfig {
     pub rc_script: Option<crate::radio::RcScript>,
     /// RC frames per second of the simulated radio, Hz (1–1,000).
     pub rc_rate_hz: f64,
+    /// A second link, on a pseudo-terminal behind a simulated telemetry radio (a byte rate, a
+    /// latency, lost frames), as a board's UART with a SiK-class modem; `None`: none.
+    pub telemetry_radio: Option<crate::serve::RadioConfig>,
     /// Faults the simulated board has from its start (an ESC that never answers, a silent or
     /// noisy IMU, a bad flash, swapped motor outputs: [`crate::faults::SitlFaults`]); default
     /// none.
@@ -152,6 +155,7 @@ impl Default for SitlConfig {
             hand_throws_to_fly: false,
             rc_script: None,
             rc_rate_hz: crate::radio::DEFAULT_RC_RATE_HZ,
+            telemetry_radio: None,
             faults: crate::faults::SitlFaults::default(),
             log_dir: None,
         }
@@ -207,6 +211,8 @@ pub struct Sitl {
     pub pty_path: Option<PathBuf>,
     /// The TCP address served.
     pub tcp_addr: Option<SocketAddr>,
+    /// The simulated telemetry radio's pseudo-terminal, to open like the radio's serial port.
+    pub radio_path: Option<PathBuf>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
     pty_link: Option<PathBuf>,
@@ -269,6 +275,13 @@ impl Sitl {
             std::os::unix::fs::symlink(target, link)
                 .map_err(|source| SitlError::PtyLink { path: link.clone(), source })?;
         }
+        let telemetry_radio = match config.telemetry_radio {
+            Some(radio) => {
+                Some(RadioPort::new(Pty::open().map_err(SitlError::Pty)?, radio, config.seed))
+            }
+            None => None,
+        };
+        let radio_path = telemetry_radio.as_ref().map(|r| r.slave_path().to_path_buf());
         let tcp = match config.tcp_port {
             Some(port) => Some(
                 TcpLinks::bind(port, info.clone())
@@ -296,6 +309,7 @@ impl Sitl {
             imu_offset_m: config.imu_offset_m,
             info,
             pty,
+            telemetry_radio,
             tcp,
             flash,
             fault_schedule: config.faults.schedule(),
@@ -309,6 +323,7 @@ impl Sitl {
         Ok(Self {
             pty_path,
             tcp_addr,
+            radio_path,
             stop,
             thread: Some(thread),
             pty_link: config.pty_link.clone(),
@@ -349,6 +364,8 @@ struct Runner {
     radio: Option<crate::radio::RcTransmitter>,
     info: BoardInfo,
     pty: Option<Pty>,
+    /// The simulated telemetry radio's port (its link session starts afresh at each boot).
+    telemetry_radio: Option<RadioPort>,
     tcp: Option<TcpLinks>,
     flash: Option<FileFlash>,
     /// The faults of the simulated board ([`crate::faults::SitlFaults::schedule`]).
@@ -440,6 +457,10 @@ impl Runner {
         // A fresh link session per boot, as USB re-enumerates.
         let mut pty =
             self.pty.take().map(|port| Link::new(LinkServer::new(self.info.clone()), port));
+        let mut radio = self
+            .telemetry_radio
+            .take()
+            .map(|port| Link::new(LinkServer::new(self.info.clone()), port));
         let ending = loop {
             if self.stop.load(Ordering::Relaxed) {
                 break Ending::Stop;
@@ -475,7 +496,10 @@ impl Runner {
             if let Some(tcp) = &mut self.tcp {
                 tcp.accept();
             }
-            let outcome = system.pass(now_us, &mut (&mut pty, &mut self.tcp));
+            if let Some(radio) = &mut radio {
+                radio.port.set_time(clock.board.now_us());
+            }
+            let outcome = system.pass(now_us, &mut ((&mut pty, &mut radio), &mut self.tcp));
             if let Some(tcp) = &mut self.tcp {
                 tcp.drop_closed();
             }
@@ -492,6 +516,7 @@ impl Runner {
             }
         };
         self.pty = pty.map(|link| link.port);
+        self.telemetry_radio = radio.map(|link| link.port);
         ending
     }
 }

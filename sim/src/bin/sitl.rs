@@ -107,6 +107,17 @@ struct Args {
     /// gets them (`configurator-cli replay` reads them).
     #[arg(long, value_name = "DIR")]
     log_dir: Option<PathBuf>,
+    /// Serve the protocol also on a second pseudo-terminal behind a simulated telemetry radio at
+    /// this serial rate, baud (e.g. 57600; a SiK-class modem on a UART): open its path (printed
+    /// at start) with `configurator-cli --port`.
+    #[arg(long, value_name = "BAUD", value_parser = clap::value_parser!(u32).range(1200..=2_000_000))]
+    radio_baud: Option<u32>,
+    /// The simulated radio's latency, ms (0–1000).
+    #[arg(long, value_name = "MS", default_value_t = 20.0, requires = "radio_baud")]
+    radio_latency_ms: f64,
+    /// The simulated radio's frame loss, in [0, 0.5].
+    #[arg(long, value_name = "P", default_value_t = 0.0, requires = "radio_baud")]
+    radio_loss: f64,
     /// Stop after this many wall-clock seconds (default: run until interrupted).
     #[arg(long)]
     duration_s: Option<f64>,
@@ -141,6 +152,14 @@ fn main() -> std::process::ExitCode {
             return std::process::ExitCode::from(2);
         }
     };
+    if !(0.0..=1000.0).contains(&args.radio_latency_ms) || !(0.0..=0.5).contains(&args.radio_loss) {
+        eprintln!(
+            "sitl: --radio-latency-ms must be within 0–1000 ms and --radio-loss within 0–0.5 \
+             (got {} ms, {})",
+            args.radio_latency_ms, args.radio_loss
+        );
+        return std::process::ExitCode::from(2);
+    }
     let config = SitlConfig {
         airframe: args.airframe.clone(),
         pty: !args.no_pty,
@@ -160,6 +179,11 @@ fn main() -> std::process::ExitCode {
         motion_capture,
         rc_script: args.rc.clone(),
         rc_rate_hz: args.rc_rate_hz,
+        telemetry_radio: args.radio_baud.map(|baud| sim::serve::RadioConfig {
+            baud,
+            latency_s: args.radio_latency_ms * 1e-3,
+            frame_loss: args.radio_loss,
+        }),
         log_dir: args.log_dir.clone(),
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
@@ -173,6 +197,9 @@ fn main() -> std::process::ExitCode {
         }
     };
     println!("SITL running airframe `{}` at {}× real time", args.airframe, args.speed);
+    if let Some(path) = &sitl.radio_path {
+        println!("  telemetry radio (pty):    {}", path.display());
+    }
     if let Some(path) = &sitl.pty_path {
         println!("  serial (pseudo-terminal): {}", path.display());
     }
