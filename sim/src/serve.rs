@@ -356,8 +356,8 @@ impl RadioPort {
         while let Ok(n @ 1..) = Port::read(&mut self.pty, &mut buffer) {
             self.from_host.extend(&buffer[..n]);
         }
-        let pending: Vec<u8> = self.from_host.iter().copied().collect();
-        let taken = self.down.take(&pending, now_us, &self.config, &mut self.rng);
+        let pending = self.from_host.make_contiguous();
+        let taken = self.down.take(pending, now_us, &self.config, &mut self.rng);
         self.from_host.drain(..taken);
         let mut delivered = Vec::new();
         self.down.due(now_us, &mut delivered);

@@ -830,6 +830,12 @@ impl<'q> ControlLoop<'q> {
         self.snapshot
     }
 
+    /// Whether anything is armed now (a flight, an attempt, a motor test), commands taken so
+    /// far included: the snapshot's `armed` without copying the snapshot.
+    pub fn armed(&self) -> bool {
+        self.snapshot.armed
+    }
+
     fn account_timing(&mut self, now_us: u64) {
         let snapshot = &mut self.snapshot;
         snapshot.t_us = now_us;

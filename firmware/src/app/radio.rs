@@ -68,8 +68,8 @@ pub struct Receiver {
     previous: PilotRequest,
     /// When the failsafe began in flight, µs.
     failsafe_since_us: Option<u64>,
-    /// Telemetry slots granted (RC frames received) and not used yet.
-    telemetry_slots: u8,
+    /// An RC frame arrived since the last telemetry frame: the receiver granted a slot.
+    telemetry_slot: bool,
     /// The handset's telemetry cycle.
     handset: HandsetCycle,
 }
@@ -85,7 +85,7 @@ impl Receiver {
             interlock_clear: false,
             previous: PilotRequest::Failsafe,
             failsafe_since_us: None,
-            telemetry_slots: 0,
+            telemetry_slot: false,
             handset: HandsetCycle::default(),
         })
     }
@@ -107,7 +107,7 @@ impl Receiver {
                 Ok(CrsfFrame::RcChannels(channels)) => {
                     self.link.on_channels(&channels, now_us);
                     self.present = true;
-                    self.telemetry_slots = 1;
+                    self.telemetry_slot = true;
                 }
                 Ok(CrsfFrame::LinkStatistics(statistics)) => self.statistics = Some(statistics),
                 // Counted by the parser.
@@ -171,10 +171,9 @@ impl Receiver {
         out: &mut [u8],
     ) -> Option<usize> {
         self.handset.observe(snapshot);
-        if self.telemetry_slots == 0 {
+        if !core::mem::take(&mut self.telemetry_slot) {
             return None;
         }
-        self.telemetry_slots = 0;
         self.handset.next(snapshot, battery).encode(out)
     }
 

@@ -237,7 +237,7 @@ impl<'q> ControlTask<'q> {
         shared.results.lock(|results| control.receive(results));
         // The outputs learn a disarm before this step's frames (a kill switch stops the motors
         // in this very step), and an arming before its commands.
-        motors.set_armed(control.snapshot().armed);
+        motors.set_armed(control.armed());
         let mut imu = TapImu { imu, read: None };
         let mut background_due = control.step(now_us, &mut imu, motors);
         let snapshot = control.snapshot();
