@@ -15,9 +15,11 @@ use std::time::{Duration, Instant};
 
 /// How long a request waits for its response by default.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(1500);
-/// How long a read-only request waits before it is asked again: a USB board answers within
-/// milliseconds, a 57,600-baud telemetry radio with 20 ms latency within about 0.1 s (a status
-/// frame of 200 bytes takes 35 ms on the air), so 0.4 s means the request or its answer was lost.
+/// How long a read-only request waits at least before it is asked again: a USB board answers
+/// within milliseconds, a 57,600-baud telemetry radio with 20 ms latency within about 0.1 s (a
+/// status frame of 200 bytes takes 35 ms on the air), so 0.4 s means the request or its answer
+/// was lost. A slower link waits four of its handshake's round trips instead (9,600 baud with
+/// 100 ms latency: about 0.3 s each; 150 ms latency: about 0.35 s).
 pub const RETRY_AFTER: Duration = Duration::from_millis(400);
 /// Attempts of a read-only request (the last waits the whole timeout).
 const READ_ATTEMPTS: u32 = 3;
@@ -188,6 +190,9 @@ pub struct Client {
     pub bytes_rx: u64,
     /// Read-only requests asked again after a lost answer, since connecting.
     retries: u32,
+    /// How long a read-only request waits before it is asked again: [`RETRY_AFTER`], or four
+    /// handshake round trips on a slower link (a radio with a long latency).
+    retry_after: Duration,
 }
 
 impl Client {
@@ -205,12 +210,16 @@ impl Client {
             bad_frames: 0,
             bytes_rx: 0,
             retries: 0,
+            retry_after: RETRY_AFTER,
         };
         client.discard_stale_input()?;
         let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
+        let sent = Instant::now();
         let seq = client.send(&hello)?;
         let timeout = client.timeout;
-        let info = match client.await_response(seq, "the handshake", timeout)? {
+        let answer = client.await_response(seq, "the handshake", timeout)?;
+        client.retry_after = RETRY_AFTER.max(sent.elapsed() * 4).min(timeout);
+        let info = match answer {
             Ok(Reply::Hello(info)) => info,
             Err(DeviceError::IncompatibleProtocol { device, host }) => {
                 return Err(incompatible(device, host));
@@ -255,7 +264,7 @@ impl Client {
         if is_read_only(request) {
             for _ in 1..READ_ATTEMPTS {
                 let seq = self.send(request)?;
-                match self.await_response(seq, what, RETRY_AFTER.min(self.timeout)) {
+                match self.await_response(seq, what, self.retry_after) {
                     Err(LinkError::Timeout { .. }) => self.retries += 1,
                     other => return other?.map_err(|e| LinkError::Device(DeviceErrorText(e))),
                 }
