@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! raw   = id: u8 | seq: u16 (postcard varint) | payload (postcard) | crc: u32 LE
+//! raw   = id | 0x40 | seq | payload | timestamp | mac | crc      (a signed request: `signing`)
 //! frame = COBS(raw) | 0x00
 //! ```
 //! The CRC is CRC-32C (Castagnoli, [`crc::CRC_32_ISCSI`]) over `id | seq | payload`: it detects all
@@ -13,6 +14,7 @@
 //! CRC and COBS flavors: no intermediate copy. Decoding accumulates one frame, COBS-decodes it in
 //! place, checks the CRC and hands out the payload as a borrowed slice.
 
+use crate::signing::{self, Signature};
 use serde::Serialize;
 
 /// Largest encoded frame, bytes on the wire including the 0x00 delimiter. 256 keeps a frame in
@@ -39,6 +41,8 @@ pub struct Frame<'a> {
     pub seq: u16,
     /// The postcard-encoded message body.
     pub payload: &'a [u8],
+    /// The signature of a signed request ([`crate::signing`]); `None` for an unsigned frame.
+    pub signature: Option<Signature<'a>>,
 }
 
 /// Why bytes did not make a frame. The decoder has already dropped them and is looking for the
@@ -142,8 +146,10 @@ fn parse(encoded: &mut [u8]) -> Result<Frame<'_>, FrameError> {
     if expected != actual {
         return Err(FrameError::BadCrc { expected, actual });
     }
-    let (id, rest) = (body[0], &body[1..]);
+    let (body, signature) =
+        signing::split(body).ok_or(FrameError::TooShort { len: raw_len as u16 })?;
+    let (id, rest) = (body[0] & !signing::SIGNED_FLAG, &body[1..]);
     let (seq, payload) =
         postcard::take_from_bytes::<u16>(rest).map_err(|_| FrameError::BadHeader)?;
-    Ok(Frame { id, seq, payload })
+    Ok(Frame { id, seq, payload, signature })
 }

@@ -3,6 +3,7 @@
 //! - [`messages`]: the one table of message types and ids;
 //! - [`esc`]: the ESC commands (DShot special commands) a host may send;
 //! - [`frame`]: postcard in COBS frames with a CRC-32C, a streaming decoder that never panics;
+//! - [`signing`]: requests signed with HMAC-SHA256, for links anyone may hear (a radio);
 //! - [`PROTOCOL_VERSION`] and [`SCHEMA_HASH`]: what the handshake compares.
 //!
 //! `no_std` without allocation; the `std` feature adds `std::error::Error` impls for the host.
@@ -12,16 +13,18 @@
 pub mod esc;
 pub mod frame;
 pub mod messages;
+pub mod signing;
 mod table;
 
 pub use esc::DshotCommand;
 pub use frame::{Decoder, EncodeError, Frame, FrameError, MAX_FRAME_LEN};
 pub use messages::*;
+pub use signing::{LinkKey, Signer};
 pub use table::DecodeError;
 
 /// This protocol's version. Bump the minor for additions an older peer can ignore, the major
 /// for anything else (any change to the golden bytes of an existing message).
-pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 7 };
+pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 8 };
 
 /// Hash of the message table: FNV-1a (64 bit) of `messages.rs` with comments and white space
 /// removed. Equal hashes mean both sides were built from the same table.

@@ -256,6 +256,38 @@ pub enum Reply {
     Board(BoardHealth),
     /// Answer to [`Request::GetHealth`]. Protocol 1.6.
     Health(SensorHealth),
+    /// Answer to [`Request::GetLinkSecurity`]. Protocol 1.8.
+    LinkSecurity(LinkSecurity),
+}
+
+/// How the link that asked is guarded ([`crate::signing`]). Protocol 1.8.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct LinkSecurity {
+    /// This link is trusted (USB, the simulator's own link): unsigned requests are carried out.
+    /// On an untrusted one (a radio) requests that configure, arm, spin or steer must be signed.
+    pub trusted: bool,
+    /// A link key is set (the board has been paired).
+    pub paired: bool,
+    /// The board's session for this start-up: signatures cover it, so a frame signed before a
+    /// restart fails after it.
+    pub session: u64,
+    /// The greatest signed timestamp accepted since start-up (10 µs since 2015-01-01 UTC; 0
+    /// when none): a signed request must carry a greater one.
+    pub last_timestamp: u64,
+    /// Requests this link refused for want of a signature, since start-up.
+    pub unsigned_refused: u32,
+    /// Signed requests on this link whose signature did not verify, since start-up.
+    pub bad_signature: u32,
+    /// Signed requests on this link refused as replays, since start-up.
+    pub replayed: u32,
+}
+
+/// Set or clear the link key ([`crate::signing`]). Accepted only on a trusted link and while
+/// disarmed; stored in flash at once. Protocol 1.8.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SetLinkKey {
+    /// The new key, or `None` to unpair (every signed request fails until the next pairing).
+    pub key: Option<[u8; crate::signing::KEY_LEN]>,
 }
 
 /// Why a request was not carried out. Each variant's doc states what the host should do.
@@ -296,6 +328,19 @@ pub enum DeviceError {
     /// speed (bidirectional DShot): check the ESCs' telemetry (ESC firmware, wiring, the
     /// `motor_bidir_dshot` parameter). Nothing was armed. Protocol 1.6.
     SpeedsNotReported { motors: u8 },
+    /// This link is not trusted (a radio) and the request configures, arms, spins or steers
+    /// the craft: it must be signed with the key paired over USB (`configurator-cli pair`).
+    /// Nothing was changed. Protocol 1.8.
+    SignatureRequired,
+    /// The request's signature is not the paired key's (or no key is paired): nothing was
+    /// changed. Protocol 1.8.
+    BadSignature,
+    /// The signature's timestamp is not greater than `last_timestamp`, the greatest accepted
+    /// since start-up: a replayed frame, or a host clock behind (sign with a later timestamp).
+    /// Nothing was changed. Protocol 1.8.
+    Replayed { last_timestamp: u64 },
+    /// Only a trusted link (USB) may do that (set the link key). Protocol 1.8.
+    TrustedLinkOnly,
 }
 
 /// Where a configuration save or load failed.
@@ -1008,6 +1053,11 @@ crate::table::message_table! {
         /// The sensors' health ([`Reply::Health`]): IMU samples held over, motors reporting
         /// their speed. Protocol 1.6.
         0x18 => GetHealth(()),
+        /// How this link is guarded ([`Reply::LinkSecurity`]): the session a signer needs.
+        /// Protocol 1.8.
+        0x19 => GetLinkSecurity(()),
+        /// Set or clear the link key: trusted links only, refused while armed. Protocol 1.8.
+        0x1A => SetLinkKey(SetLinkKey),
     }
 }
 

@@ -71,6 +71,22 @@ macro_rules! message_table {
                 }
             }
 
+            /// Encode as one signed frame ([`crate::signing`]) into `out`; returns the bytes
+            /// written.
+            pub fn encode_signed(
+                &self,
+                seq: u16,
+                signer: &$crate::Signer,
+                timestamp: u64,
+                out: &mut [u8],
+            ) -> Result<usize, $crate::EncodeError> {
+                match self {
+                    $( Self::$variant(body) => {
+                        $crate::signing::encode_signed($id, seq, body, signer, timestamp, out)
+                    } )*
+                }
+            }
+
             /// Decode a checked frame.
             pub fn decode(frame: &$crate::Frame<'_>) -> Result<Self, $crate::DecodeError> {
                 let id = frame.id;

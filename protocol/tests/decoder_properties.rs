@@ -83,7 +83,44 @@ fn any_request() -> impl Strategy<Value = Request> {
             protocol::EscCommand { motor, command }
         )),
         Just(Request::GetHealth(())),
+        Just(Request::GetLinkSecurity(())),
+        proptest::option::of(any::<[u8; protocol::signing::KEY_LEN]>())
+            .prop_map(|key| Request::SetLinkKey(protocol::SetLinkKey { key })),
     ]
+}
+
+proptest! {
+    #[test]
+    fn every_signed_request_decodes_to_itself_and_verifies_only_in_its_session(
+        request in any_request(),
+        seq in any::<u16>(),
+        key in any::<[u8; protocol::signing::KEY_LEN]>(),
+        session in any::<u64>(),
+        timestamp in 0..=protocol::signing::MAX_TIMESTAMP,
+    ) {
+        let signer = protocol::Signer { key, session };
+        let mut buffer = [0u8; MAX_FRAME_LEN];
+        // The largest requests leave no room for a signature: a typed error, never a panic.
+        let Ok(len) = request.encode_signed(seq, &signer, timestamp, &mut buffer) else {
+            return Ok(());
+        };
+        let mut decoder = Decoder::new();
+        let mut decoded = None;
+        for &byte in &buffer[..len] {
+            if let Some(frame) = decoder.push(byte) {
+                let frame = frame.expect("a valid frame");
+                let signature = frame.signature.expect("signed");
+                decoded = Some((
+                    Request::decode(&frame),
+                    frame.seq,
+                    signature.timestamp,
+                    signature.verify(&key, session),
+                    signature.verify(&key, session.wrapping_add(1)),
+                ));
+            }
+        }
+        prop_assert_eq!(decoded, Some((Ok(request), seq, timestamp, true, false)));
+    }
 }
 
 #[test]
@@ -158,7 +195,7 @@ fn device_round_trip(message: &DeviceMessage, seq: u16) -> Result<DeviceMessage,
     if *got_seq != seq {
         return Err(format!("seq {got_seq} instead of {seq}"));
     }
-    let frame = protocol::Frame { id: *id, seq, payload };
+    let frame = protocol::Frame { id: *id, seq, payload, signature: None };
     DeviceMessage::decode(&frame).map_err(|e| format!("{e:?}"))
 }
 
@@ -183,7 +220,7 @@ proptest! {
         // A frame only comes out when its CRC matched; decoding it must give a typed answer
         // either way.
         for (id, seq, payload) in decode_stream(&bytes).into_iter().flatten() {
-            let frame = protocol::Frame { id, seq, payload: &payload };
+            let frame = protocol::Frame { id, seq, payload: &payload, signature: None };
             let _ = Request::decode(&frame);
             let _ = DeviceMessage::decode(&frame);
         }
@@ -198,7 +235,7 @@ proptest! {
         prop_assert_eq!(outcome.len(), 1);
         let (id, got_seq, payload) = outcome[0].clone().expect("a valid frame decodes");
         prop_assert_eq!(got_seq, seq);
-        let frame = protocol::Frame { id, seq, payload: &payload };
+        let frame = protocol::Frame { id, seq, payload: &payload, signature: None };
         prop_assert_eq!(Request::decode(&frame), Ok(request));
     }
 
@@ -260,12 +297,14 @@ proptest! {
 
     #[test]
     fn ids_outside_the_table_are_typed_errors(id in any::<u8>(), seq in any::<u16>()) {
+        // The flag bit marks a signed frame, whose last 14 bytes are its signature.
+        let id = id & !protocol::signing::SIGNED_FLAG;
         prop_assume!(!Request::IDS.contains(&id));
         let mut buffer = [0u8; MAX_FRAME_LEN];
         let len = encode(id, seq, &(), &mut buffer).unwrap();
         let outcome = decode_stream(&buffer[..len]);
         let (got_id, got_seq, payload) = outcome[0].clone().expect("the frame itself is valid");
-        let frame = protocol::Frame { id: got_id, seq: got_seq, payload: &payload };
+        let frame = protocol::Frame { id: got_id, seq: got_seq, payload: &payload, signature: None };
         prop_assert_eq!(Request::decode(&frame), Err(DecodeError::UnknownId { id }));
     }
 
@@ -276,7 +315,7 @@ proptest! {
         let len = encode(0x02, 1, &extra[..], &mut buffer).unwrap();
         let outcome = decode_stream(&buffer[..len]);
         let (id, seq, payload) = outcome[0].clone().unwrap();
-        let frame = protocol::Frame { id, seq, payload: &payload };
+        let frame = protocol::Frame { id, seq, payload: &payload, signature: None };
         prop_assert_eq!(Request::decode(&frame), Err(DecodeError::Malformed { id: 0x02 }));
     }
 }
@@ -297,14 +336,14 @@ fn a_truncated_frame_without_a_delimiter_swallows_only_the_frame_it_runs_into() 
 fn largest_message_fits_the_frame_limit_and_one_byte_more_does_not() {
     use protocol::frame::{CRC_LEN, MAX_RAW_LEN};
     let mut out = [0u8; 2 * MAX_FRAME_LEN];
-    let fits = |n: usize, out: &mut [u8]| encode(0x42, 0xFFFF, &vec![0xAAu8; n][..], out);
+    let fits = |n: usize, out: &mut [u8]| encode(0x22, 0xFFFF, &vec![0xAAu8; n][..], out);
     let largest = (0..MAX_FRAME_LEN).rev().find(|&n| fits(n, &mut out).is_ok()).unwrap();
     // id 1 + seq 3 (varint of 0xFFFF) + length 2 (varint of ≥ 128) + payload + CRC = raw limit.
     assert_eq!(1 + 3 + 2 + largest + CRC_LEN, MAX_RAW_LEN);
     let len = fits(largest, &mut out).unwrap();
     assert_eq!(len, MAX_FRAME_LEN - 1, "253 raw bytes without zeros: 254 COBS bytes + 0x00");
     let outcome = decode_stream(&out[..len]);
-    let Ok((0x42, 0xFFFF, payload)) = &outcome[0] else { panic!("{outcome:?}") };
+    let Ok((0x22, 0xFFFF, payload)) = &outcome[0] else { panic!("{outcome:?}") };
     assert_eq!(payload.len(), largest + 2);
     assert!(payload[2..].iter().all(|&b| b == 0xAA));
     assert!(fits(largest + 1, &mut out).is_err());

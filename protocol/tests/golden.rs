@@ -543,3 +543,45 @@ fn protocol_1_7_identification_failures_are_pinned() {
     assert_eq!(postcard::to_slice(&motor, &mut buffer).unwrap(), [9, 3]);
     assert_eq!(postcard::to_slice(&LearnerFailure::InvalidModel, &mut buffer).unwrap(), [10]);
 }
+
+#[test]
+fn protocol_1_8_link_security_and_signed_frames_are_pinned() {
+    assert_eq!(request(Request::GetLinkSecurity(()), 1), "07 19 01 9f 5e 79 b2 00");
+    let key = SetLinkKey { key: Some([0x11; protocol::signing::KEY_LEN]) };
+    assert_eq!(request(Request::SetLinkKey(key), 2), "28 1a 02 01 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 1e 44 45 22 00");
+    assert_eq!(
+        request(Request::SetLinkKey(SetLinkKey { key: None }), 3),
+        "03 1a 03 05 a1 1a 1f 53 00"
+    );
+    let security = LinkSecurity {
+        trusted: false,
+        paired: true,
+        session: 0x0102_0304,
+        last_timestamp: 1000,
+        unsigned_refused: 2,
+        bad_signature: 1,
+        replayed: 3,
+    };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::LinkSecurity(security))), 4),
+        "03 81 04 02 0b 0f 01 84 86 88 08 e8 07 02 01 03 88 32 f3 a8 00"
+    );
+    for (error, expected) in [
+        (DeviceError::SignatureRequired, "09 81 05 01 0e 74 39 c7 43 00"),
+        (DeviceError::BadSignature, "09 81 05 01 0f 77 ba ac b1 00"),
+        (DeviceError::Replayed { last_timestamp: 300 }, "0b 81 05 01 10 ac 02 03 6d 4c 67 00"),
+        (DeviceError::TrustedLinkOnly, "09 81 05 01 11 3f c2 8a 0d 00"),
+    ] {
+        assert_eq!(device(DeviceMessage::Response(Err(error)), 5), expected);
+    }
+    // A signed SetParam: id 0x0B | 0x40, seq 6, payload, timestamp 0x01_0203 (6 bytes LE),
+    // the first 8 bytes of HMAC-SHA256(key 0x22 × 32, session 7 LE | the bytes before), CRC.
+    let signer = Signer { key: [0x22; protocol::signing::KEY_LEN], session: 7 };
+    let set = Request::SetParam(SetParam {
+        name: text("rate_p"),
+        values: heapless::Vec::from_slice(&[0.5]).unwrap(),
+    });
+    let mut buffer = [0u8; MAX_FRAME_LEN];
+    let len = set.encode_signed(6, &signer, 0x01_0203, &mut buffer).unwrap();
+    assert_eq!(hex(&buffer[..len]), "0b 4b 06 06 72 61 74 65 5f 70 01 01 01 05 3f 03 02 01 01 01 0d ff db 39 32 ac a4 14 60 ab b7 f3 bd 00");
+}
