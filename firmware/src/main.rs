@@ -245,7 +245,7 @@ mod app {
 
         // The configuration store: bank 2's configuration sectors, read through DMA.
         let (_bank1, bank2) = dp.FLASH.split();
-        let settings = match bank2 {
+        let mut settings = match bank2 {
             Some(bank2) => {
                 let sectors =
                     ConfigSectors::new(bank2, BOARD.config_bank_offsets(), BOARD.flash_read_dma);
@@ -254,6 +254,20 @@ mod app {
             }
             None => Settings::without_store(),
         };
+
+        // The signing session of this start-up (`protocol::signing`): 64 bits from the RNG,
+        // clocked by HSI48 (on: USB runs from it). Should the RNG fail its self-test, the
+        // session is 0: frames signed before a restart would then pass after it (a weaker
+        // replay guard, said in the log), never a refused flight.
+        let session = {
+            use stm32h7xx_hal::rng::{RngCore, RngExt};
+            let mut rng = dp.RNG.constrain(ccdr.peripheral.RNG, &ccdr.clocks);
+            RngCore::<u64>::gen(&mut rng).unwrap_or_else(|_| {
+                defmt::warn!("the RNG failed: the signing session is 0");
+                0
+            })
+        };
+        settings.set_link_session(session);
 
         // The drivers.
         let imu = BoardImu::new(BOARD.imu, cycles_per_us);

@@ -314,3 +314,26 @@ fn a_save_refused_by_the_flash_changes_nothing_in_force() {
     assert_eq!(settings.params().scalar(Param::GravityMps2), 9.79);
     assert!(settings.status().unsaved_changes);
 }
+
+#[test]
+fn the_link_key_survives_a_restart_beside_the_parameters_and_neither_disturbs_the_other() {
+    let key = [0xA5; protocol::signing::KEY_LEN];
+    let mut settings = Settings::load(SimFlash::new(4), RANGE);
+    settings.set("throw_momentum_mps", &[6.0]).unwrap();
+    settings.save().unwrap();
+    settings.set_link_key(Some(key)).unwrap();
+    let mut settings = Settings::load(settings.into_flash().unwrap(), RANGE);
+    assert!(settings.link_guard().paired(), "paired after a restart");
+    assert_eq!(settings.params().scalar(Param::ThrowMomentumMps), 6.0, "parameters kept");
+    // A later save and a reset of the parameters leave the key; unpairing leaves the parameters.
+    settings.reset();
+    settings.save().unwrap();
+    let mut settings = Settings::load(settings.into_flash().unwrap(), RANGE);
+    assert!(settings.link_guard().paired());
+    settings.set("throw_momentum_mps", &[5.0]).unwrap();
+    settings.save().unwrap();
+    settings.set_link_key(None).unwrap();
+    let mut settings = Settings::load(settings.into_flash().unwrap(), RANGE);
+    assert!(!settings.link_guard().paired(), "unpaired after a restart");
+    assert_eq!(settings.params().scalar(Param::ThrowMomentumMps), 5.0);
+}

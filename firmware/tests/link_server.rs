@@ -213,7 +213,7 @@ fn unknown_and_malformed_requests_get_typed_errors_with_their_sequence_numbers()
     let mut host = Host::new();
     host.handshake();
     let mut frame = [0u8; MAX_FRAME_LEN];
-    let len = frame::encode(0x7e, 77, &(), &mut frame).unwrap();
+    let len = frame::encode(0x3e, 77, &(), &mut frame).unwrap();
     host.send_raw(&frame[..len]);
     let len = frame::encode(0x04, 78, &[9u8, 9, 9, 9, 9][..], &mut frame).unwrap();
     host.send_raw(&frame[..len]);
@@ -223,7 +223,7 @@ fn unknown_and_malformed_requests_get_typed_errors_with_their_sequence_numbers()
         vec![
             Received {
                 seq: 77,
-                message: DeviceMessage::Response(Err(DeviceError::UnknownRequest { id: 0x7e }))
+                message: DeviceMessage::Response(Err(DeviceError::UnknownRequest { id: 0x3e }))
             },
             Received {
                 seq: 78,

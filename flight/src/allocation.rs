@@ -461,22 +461,30 @@ fn refusal(
     du_max: &[f32; MAX_MOTORS],
     du_pref: &[f32; MAX_MOTORS],
 ) -> AllocationResult {
-    let inputs = || {
-        g.iter()
-            .flat_map(|row| &row[..m])
-            .chain(dv)
-            .chain(&du_min[..m])
-            .chain(&du_max[..m])
-            .chain(&du_pref[..m])
-    };
-    let failure = if !inputs().all(|x| x.is_finite()) {
+    let all = |test: fn(f32) -> bool| all_inputs(m, g, [dv, du_min, du_max, du_pref], test);
+    let failure = if !all(f32::is_finite) {
         AllocationFailure::NonFinite
-    } else if !inputs().all(|x| x.abs() <= MAX_INPUT_MAGNITUDE) {
+    } else if !all(|x| x.abs() <= MAX_INPUT_MAGNITUDE) {
         AllocationFailure::OutOfRange
     } else {
         AllocationFailure::Bounds
     };
     fallback(m, du_min, du_max, failure)
+}
+
+/// Whether `test` holds for every input of an m-motor call (`vectors`: dv, then the three
+/// per-motor bounds). One loop for both tests of [`refusal`]: cold code, small rather than fast.
+#[cold]
+#[inline(never)]
+fn all_inputs(
+    m: usize,
+    g: &[[f32; MAX_MOTORS]; VIRTUAL_CONTROLS],
+    [dv, du_min, du_max, du_pref]: [&[f32]; 4],
+    test: fn(f32) -> bool,
+) -> bool {
+    let rows = g.iter().map(|row| &row[..m]);
+    let mut every = rows.chain([dv, &du_min[..m], &du_max[..m], &du_pref[..m]]);
+    every.all(|values| values.iter().all(|&x| test(x)))
 }
 
 /// The refusal: zero increment moved into whichever bounds are finite and ordered.

@@ -336,8 +336,9 @@ fn exp_half(phi: &Vector3<f32>) -> Quaternion<f32> {
     let angle = phi.norm();
     let half = 0.5 * angle;
     // sin(½θ)/θ, by its series below 1e-4 rad where the quotient loses precision.
-    let k = if angle < 1e-4 { 0.5 - angle * angle / 48.0 } else { libm::sinf(half) / angle };
-    Quaternion::new(libm::cosf(half), k * phi.x, k * phi.y, k * phi.z)
+    let (sin, cos) = libm::sincosf(half);
+    let k = if angle < 1e-4 { 0.5 - angle * angle / 48.0 } else { sin / angle };
+    Quaternion::new(cos, k * phi.x, k * phi.y, k * phi.z)
 }
 
 /// Heading of a body: the yaw of its x axis projected on the horizontal plane, rad (the ZYX yaw).

@@ -152,8 +152,8 @@ impl ThrustDirection {
         let angle = libm::acosf(down.z.clamp(-1.0, 1.0));
         self.down = if angle > THRUST_DIRECTION_MAX_RAD {
             let side = Vector3::new(down.x, down.y, 0.0).normalize();
-            side * libm::sinf(THRUST_DIRECTION_MAX_RAD)
-                + Vector3::z() * libm::cosf(THRUST_DIRECTION_MAX_RAD)
+            let (sin, cos) = libm::sincosf(THRUST_DIRECTION_MAX_RAD);
+            side * sin + Vector3::z() * cos
         } else {
             down
         };
@@ -370,7 +370,7 @@ pub fn ahead_of_yaw(accel_rad_s2: &Vector3<f32>, yaw_rate_rad_s: f32, lag_s: f32
     if !angle.is_finite() {
         return *accel_rad_s2;
     }
-    let (sin, cos) = (libm::sinf(angle), libm::cosf(angle));
+    let (sin, cos) = libm::sincosf(angle);
     let a = accel_rad_s2;
     Vector3::new(cos * a.x - sin * a.y, sin * a.x + cos * a.y, a.z)
 }

@@ -31,6 +31,7 @@
 //! signature failure.
 
 use crate::frame::{EncodeError, CRC, CRC_LEN, MAX_FRAME_LEN, MAX_RAW_LEN};
+use crate::Request;
 use hmac::{KeyInit, Mac};
 use serde::Serialize;
 
@@ -85,6 +86,41 @@ impl core::fmt::Debug for Signer {
     /// Never prints the key.
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("Signer").field("session", &self.session).finish_non_exhaustive()
+    }
+}
+
+/// Whether `request` configures, arms, spins or steers the craft: such a request is carried out
+/// from an untrusted link (a radio) only when signed. Everything else (handshake, reads,
+/// telemetry rates and [`Request::Disarm`]: every way to stop must work) stays open. Exhaustive,
+/// so a new request is classified when it is added.
+pub fn commands_the_craft(request: &Request) -> bool {
+    match request {
+        Request::ArmThrowToFly(())
+        | Request::SetExternalPose(_)
+        | Request::SetParam(_)
+        | Request::SaveConfig(())
+        | Request::ResetConfig(())
+        | Request::StartCalibration(())
+        | Request::StopCalibration(_)
+        | Request::MotorTest(_)
+        | Request::Reboot(())
+        | Request::SetPositionSetpoint(_)
+        | Request::RebootToBootloader(())
+        | Request::EscCommand(_)
+        | Request::SetLinkKey(_) => true,
+        Request::Hello(_)
+        | Request::GetInfo(())
+        | Request::GetStatus(())
+        | Request::SetTelemetryRate(_)
+        | Request::Ping(_)
+        | Request::Disarm(())
+        | Request::GetLearner(())
+        | Request::GetParam(_)
+        | Request::GetConfig(())
+        | Request::GetFlight(())
+        | Request::GetBoard(())
+        | Request::GetHealth(())
+        | Request::GetLinkSecurity(()) => false,
     }
 }
 

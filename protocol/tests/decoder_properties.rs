@@ -84,8 +84,9 @@ fn any_request() -> impl Strategy<Value = Request> {
         )),
         Just(Request::GetHealth(())),
         Just(Request::GetLinkSecurity(())),
-        proptest::option::of(any::<[u8; protocol::signing::KEY_LEN]>())
-            .prop_map(|key| Request::SetLinkKey(protocol::SetLinkKey { key })),
+        proptest::option::of(any::<[u8; protocol::signing::KEY_LEN]>()).prop_map(|key| {
+            Request::SetLinkKey(protocol::SetLinkKey { key: key.map(heapless::Vec::from_array) })
+        }),
     ]
 }
 

@@ -547,8 +547,9 @@ fn protocol_1_7_identification_failures_are_pinned() {
 #[test]
 fn protocol_1_8_link_security_and_signed_frames_are_pinned() {
     assert_eq!(request(Request::GetLinkSecurity(()), 1), "07 19 01 9f 5e 79 b2 00");
-    let key = SetLinkKey { key: Some([0x11; protocol::signing::KEY_LEN]) };
-    assert_eq!(request(Request::SetLinkKey(key), 2), "28 1a 02 01 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 1e 44 45 22 00");
+    let key =
+        SetLinkKey { key: Some(heapless::Vec::from_array([0x11; protocol::signing::KEY_LEN])) };
+    assert_eq!(request(Request::SetLinkKey(key), 2), "29 1a 02 01 20 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 11 a0 57 c8 81 00");
     assert_eq!(
         request(Request::SetLinkKey(SetLinkKey { key: None }), 3),
         "03 1a 03 05 a1 1a 1f 53 00"

@@ -25,6 +25,18 @@ pub const SIMULATOR_CAPABILITIES: u32 = Capabilities::IMU
     | Capabilities::TELEMETRY
     | Capabilities::SIMULATOR;
 
+/// A signing session for a simulated start-up (`protocol::signing`): the operating system's
+/// random numbers, as the board takes its RNG's.
+pub fn random_session() -> u64 {
+    let mut bytes = [0u8; 8];
+    // Without the OS's generator (never seen on a host), the clock still differs per start-up.
+    if getrandom::fill(&mut bytes).is_err() {
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
+        bytes = now.map_or(0, |t| t.as_nanos() as u64).to_le_bytes();
+    }
+    u64::from_le_bytes(bytes)
+}
+
 /// A simulated board's identity: `board` (e.g. "SITL", "BRIDGE"), the serial
 /// `"{board}-{seed:08X}"`, [`SIMULATOR_CAPABILITIES`], the 2 kHz control rate and `motor_count`.
 pub fn simulator_board_info(board: &'static str, seed: u64, motor_count: u8) -> BoardInfo {

@@ -405,6 +405,8 @@ impl Runner {
                 Some(flash) => Settings::load(flash, FileFlash::store_range()),
                 None => Settings::without_store(),
             };
+            // A signing session per start-up, drawn as the board draws it (`protocol::signing`).
+            settings.set_link_session(crate::serve::random_session());
             if let Some(r_imu_m) = self.imu_offset_m {
                 // The command line's offset is in force as if calibrated (not saved).
                 settings.update(|params| params.store_calibration(r_imu_m, None));
@@ -460,7 +462,7 @@ impl Runner {
         let mut radio = self
             .telemetry_radio
             .take()
-            .map(|port| Link::new(LinkServer::new(self.info.clone()), port));
+            .map(|port| Link::new(LinkServer::new(self.info.clone()).untrusted(), port));
         let ending = loop {
             if self.stop.load(Ordering::Relaxed) {
                 break Ending::Stop;

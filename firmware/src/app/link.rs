@@ -11,21 +11,25 @@
 
 use super::params;
 use super::pilot::{failsafe_counter, Failsafe, FAILSAFE_KINDS};
-use super::settings::Settings;
+use super::settings::{Settings, SignatureCheck};
 use super::telemetry::{wire_phase, StepRecord};
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::{AxisStatus, FlightPhase};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use protocol::signing;
 use protocol::text as short_text;
 use protocol::{
     CalibrationThrow, Capabilities, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError,
     Decoder, DeviceError, DeviceMessage, DshotCommand, Event, FailsafeCounters, FlightMode,
     FlightTelemetry, FrameError, ImuStatus, LearnerFailure, LearnerPhase, LearnerTelemetry,
-    LinkCounters, ParamRef, Reply, Request, Response, SensorHealth, SetTelemetryRate, Status,
-    Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION,
-    TOPIC_COUNT,
+    LinkCounters, LinkSecurity, ParamRef, Reply, Request, Response, SensorHealth, SetLinkKey,
+    SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS,
+    MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
 };
+
+/// [`Request::SetLinkKey`]'s id, for its refusal of a key of another length.
+const SET_LINK_KEY_ID: u8 = 0x1A;
 
 /// Commands for the control step that may wait between two link passes.
 const COMMAND_QUEUE_LEN: usize = 4;
@@ -90,6 +94,19 @@ pub struct LinkServer {
     reboot_requested: Option<LinkRequest>,
     /// Failsafe counts already reported as events.
     failsafes_reported: FailsafeCounters,
+    /// Whoever holds this link holds the craft (USB, the simulator's own link): unsigned
+    /// requests are carried out. `false` for a radio: see [`LinkServer::untrusted`].
+    trusted: bool,
+    /// Requests this link refused for their signature, since start-up.
+    refusals: SignatureRefusals,
+}
+
+/// Requests a link refused for their signature (reported in [`Reply::LinkSecurity`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct SignatureRefusals {
+    unsigned: u32,
+    bad_signature: u32,
+    replayed: u32,
 }
 
 impl LinkServer {
@@ -111,7 +128,17 @@ impl LinkServer {
             motor_test_started: None,
             reboot_requested: None,
             failsafes_reported: FailsafeCounters::default(),
+            trusted: true,
+            refusals: SignatureRefusals::default(),
         }
+    }
+
+    /// This link is heard by others (a telemetry radio): requests that configure, arm, spin or
+    /// steer the craft ([`signing::commands_the_craft`]) are carried out only when signed with
+    /// the paired key, and the key itself cannot be set over it.
+    pub fn untrusted(mut self) -> Self {
+        self.trusted = false;
+        self
     }
 
     /// The host went away (USB unplugged or its port closed): a motor test it started stops
@@ -148,8 +175,11 @@ impl LinkServer {
     ) {
         for &byte in bytes {
             let Some(result) = self.decoder.push(byte) else { continue };
-            let (seq, decoded) = match result {
-                Ok(frame) => (frame.seq, Request::decode(&frame)),
+            let (seq, signature, decoded) = match result {
+                Ok(frame) => {
+                    let check = settings.link_guard().check(frame.signature.as_ref());
+                    (frame.seq, check, Request::decode(&frame))
+                }
                 Err(error) => {
                     self.count_frame_error(error);
                     continue;
@@ -157,7 +187,10 @@ impl LinkServer {
             };
             self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
             let response = match decoded {
-                Ok(request) => self.handle(request, now_us, view, settings),
+                Ok(request) => match self.authorise(&request, signature) {
+                    Ok(()) => self.handle(request, now_us, view, settings),
+                    Err(refusal) => Err(refusal),
+                },
                 Err(DecodeError::UnknownId { id }) => {
                     self.counters.unknown_id = self.counters.unknown_id.wrapping_add(1);
                     Err(DeviceError::UnknownRequest { id })
@@ -310,6 +343,36 @@ impl LinkServer {
         Ok(())
     }
 
+    /// Whether `request` may be carried out given its signature: signed ones only with a valid,
+    /// fresh signature; unsigned ones on a trusted link, or when they do not command the craft.
+    /// A disarm always passes: every way to stop must work.
+    fn authorise(
+        &mut self,
+        request: &Request,
+        signature: SignatureCheck,
+    ) -> Result<(), DeviceError> {
+        let refusals = &mut self.refusals;
+        match signature {
+            _ if matches!(request, Request::Disarm(())) => Ok(()),
+            SignatureCheck::Accepted => Ok(()),
+            SignatureCheck::Unsigned if self.trusted || !signing::commands_the_craft(request) => {
+                Ok(())
+            }
+            SignatureCheck::Unsigned => {
+                refusals.unsigned = refusals.unsigned.wrapping_add(1);
+                Err(DeviceError::SignatureRequired)
+            }
+            SignatureCheck::BadSignature => {
+                refusals.bad_signature = refusals.bad_signature.wrapping_add(1);
+                Err(DeviceError::BadSignature)
+            }
+            SignatureCheck::Replayed { last_timestamp } => {
+                refusals.replayed = refusals.replayed.wrapping_add(1);
+                Err(DeviceError::Replayed { last_timestamp })
+            }
+        }
+    }
+
     fn handle<F: NorFlash>(
         &mut self,
         request: Request,
@@ -329,6 +392,7 @@ impl LinkServer {
                 | Request::Reboot(())
                 | Request::RebootToBootloader(())
                 | Request::EscCommand(_)
+                | Request::SetLinkKey(_)
         );
         if refuse_if_armed && armed && self.host_version.is_some() {
             return Err(DeviceError::RefusedWhileArmed);
@@ -488,6 +552,31 @@ impl LinkServer {
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
             Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
+            Request::GetLinkSecurity(()) => {
+                let guard = settings.link_guard();
+                Ok(Reply::LinkSecurity(LinkSecurity {
+                    trusted: self.trusted,
+                    paired: guard.paired(),
+                    session: guard.session(),
+                    last_timestamp: guard.last_timestamp(),
+                    unsigned_refused: self.refusals.unsigned,
+                    bad_signature: self.refusals.bad_signature,
+                    replayed: self.refusals.replayed,
+                }))
+            }
+            Request::SetLinkKey(SetLinkKey { key }) => {
+                if !self.trusted {
+                    return Err(DeviceError::TrustedLinkOnly);
+                }
+                // Another length than a key's is a host bug, as a payload that does not decode.
+                let key = match key.map(heapless::Vec::into_array) {
+                    None => None,
+                    Some(Ok(key)) => Some(key),
+                    Some(Err(_)) => return Err(DeviceError::Malformed { id: SET_LINK_KEY_ID }),
+                };
+                settings.set_link_key(key).map_err(|stage| DeviceError::StorageFailed { stage })?;
+                Ok(Reply::Done)
+            }
             Request::RebootToBootloader(()) => {
                 if !self.info.capabilities.has(Capabilities::BOOTLOADER) {
                     return Err(DeviceError::Unsupported);

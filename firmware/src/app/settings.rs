@@ -24,6 +24,7 @@ use super::StatusView;
 use core::ops::Range;
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::FlightPhase;
+use protocol::signing::{LinkKey, Signature, KEY_LEN};
 use protocol::{ConfigOrigin, ConfigStatus, DeviceError, StorageStage};
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::map::{MapConfig, MapStorage};
@@ -32,6 +33,10 @@ use sequential_storage::map::{MapConfig, MapStorage};
 pub const LAYOUT_VERSION: u16 = 1;
 /// The map key of the configuration item.
 const CONFIG_KEY: u8 = 0;
+/// The map key of the link key item ([`protocol::signing`]): the key's 32 bytes, or none when
+/// unpaired. Kept apart from the parameters so that no dump, diff or reset ever shows or
+/// touches it.
+const LINK_KEY_KEY: u8 = 1;
 /// Largest encoded configuration, bytes (the registry today needs under 1 KiB; tested).
 pub const MAX_CONFIG_BYTES: usize = 1536;
 /// sequential-storage's work buffer: the item (key and value) rounded up to flash words (the
@@ -125,9 +130,14 @@ struct Store<F: NorFlash> {
 }
 
 impl<F: NorFlash> Store<F> {
-    /// The stored configuration's bytes copied into `out`, or `None` when nothing is stored.
-    fn load(&mut self, buffer: &mut [u8], out: &mut [u8]) -> Result<Option<usize>, StorageStage> {
-        let item = embassy_futures::block_on(self.map.fetch_item::<&[u8]>(buffer, &CONFIG_KEY))
+    /// Item `key`'s bytes copied into `out`, or `None` when nothing is stored under it.
+    fn load(
+        &mut self,
+        key: u8,
+        buffer: &mut [u8],
+        out: &mut [u8],
+    ) -> Result<Option<usize>, StorageStage> {
+        let item = embassy_futures::block_on(self.map.fetch_item::<&[u8]>(buffer, &key))
             .map_err(|_| StorageStage::Read)?;
         match item {
             None => Ok(None),
@@ -139,9 +149,73 @@ impl<F: NorFlash> Store<F> {
         }
     }
 
-    fn save(&mut self, buffer: &mut [u8], bytes: &[u8]) -> Result<(), StorageStage> {
-        embassy_futures::block_on(self.map.store_item(buffer, &CONFIG_KEY, &bytes))
+    fn save(&mut self, key: u8, buffer: &mut [u8], bytes: &[u8]) -> Result<(), StorageStage> {
+        embassy_futures::block_on(self.map.store_item(buffer, &key, &bytes))
             .map_err(|_| StorageStage::Write)
+    }
+}
+
+/// What guards the untrusted links ([`protocol::signing`]), shared by every link of the board:
+/// the paired key, this start-up's session, and the greatest signed timestamp accepted since.
+#[derive(Clone, Copy, Default)]
+pub struct LinkGuard {
+    key: Option<LinkKey>,
+    session: u64,
+    last_timestamp: u64,
+}
+
+/// How a signed request fared against the [`LinkGuard`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SignatureCheck {
+    /// The frame carried no signature.
+    Unsigned,
+    /// The paired key's MAC over this session, with a timestamp greater than any before.
+    Accepted,
+    /// No key is paired, or the MAC is another key's or another session's.
+    BadSignature,
+    /// A valid MAC whose timestamp is not greater than the last accepted one.
+    Replayed { last_timestamp: u64 },
+}
+
+impl LinkGuard {
+    /// Check `signature` and, when it is accepted, raise the last timestamp to its own.
+    pub fn check(&mut self, signature: Option<&Signature<'_>>) -> SignatureCheck {
+        let Some(signature) = signature else { return SignatureCheck::Unsigned };
+        let Some(key) = &self.key else { return SignatureCheck::BadSignature };
+        if !signature.verify(key, self.session) {
+            return SignatureCheck::BadSignature;
+        }
+        if signature.timestamp <= self.last_timestamp {
+            return SignatureCheck::Replayed { last_timestamp: self.last_timestamp };
+        }
+        self.last_timestamp = signature.timestamp;
+        SignatureCheck::Accepted
+    }
+
+    /// Whether a key is paired.
+    pub fn paired(&self) -> bool {
+        self.key.is_some()
+    }
+
+    /// This start-up's session.
+    pub fn session(&self) -> u64 {
+        self.session
+    }
+
+    /// The greatest signed timestamp accepted since start-up (0 when none).
+    pub fn last_timestamp(&self) -> u64 {
+        self.last_timestamp
+    }
+}
+
+impl core::fmt::Debug for LinkGuard {
+    /// Never prints the key.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("LinkGuard")
+            .field("paired", &self.paired())
+            .field("session", &self.session)
+            .field("last_timestamp", &self.last_timestamp)
+            .finish()
     }
 }
 
@@ -160,6 +234,8 @@ pub struct Settings<F: NorFlash> {
     applied_generation: Option<u32>,
     /// `LearnedModel::samples` of the identification last stored.
     absorbed_samples: Option<u32>,
+    /// The link key (loaded from its own item) and the signing state.
+    guard: LinkGuard,
     buffer: [u8; BUFFER_LEN],
 }
 
@@ -173,8 +249,12 @@ impl<F: NorFlash> Settings<F> {
         };
         let mut store =
             Store { map: MapStorage::new(ConfigFlash(flash), config, Cache::new_uncached()) };
+        let mut key = [0u8; KEY_LEN];
+        if let Ok(Some(KEY_LEN)) = store.load(LINK_KEY_KEY, &mut settings.buffer, &mut key) {
+            settings.guard.key = Some(key);
+        }
         let mut bytes = [0u8; MAX_CONFIG_BYTES];
-        settings.origin = match store.load(&mut settings.buffer, &mut bytes) {
+        settings.origin = match store.load(CONFIG_KEY, &mut settings.buffer, &mut bytes) {
             Ok(None) => ConfigOrigin::Defaults,
             Ok(Some(len)) => match decode(&bytes[..len]) {
                 Ok((params, rejected)) => {
@@ -204,6 +284,7 @@ impl<F: NorFlash> Settings<F> {
             generation: 0,
             applied_generation: None,
             absorbed_samples: None,
+            guard: LinkGuard::default(),
             buffer: [0; BUFFER_LEN],
         }
     }
@@ -265,12 +346,34 @@ impl<F: NorFlash> Settings<F> {
         };
         let mut bytes = [0u8; MAX_CONFIG_BYTES];
         let len = encode(&self.params, &mut bytes).ok_or(StorageStage::TooLarge)?;
-        store.save(&mut self.buffer, &bytes[..len])?;
+        store.save(CONFIG_KEY, &mut self.buffer, &bytes[..len])?;
         self.stored = self.params;
         self.saves = self.saves.wrapping_add(1);
         if matches!(self.origin, ConfigOrigin::UnknownLayout { .. } | ConfigOrigin::Unreadable) {
             self.origin = ConfigOrigin::Loaded;
         }
+        Ok(())
+    }
+
+    /// The signing state every link checks signed requests against.
+    pub fn link_guard(&mut self) -> &mut LinkGuard {
+        &mut self.guard
+    }
+
+    /// This start-up's signing session: a number the board draws at start-up (a hardware random
+    /// number), so that frames signed before a restart fail after it.
+    pub fn set_link_session(&mut self, session: u64) {
+        self.guard.session = session;
+    }
+
+    /// Pair (`Some`) or unpair (`None`): written to flash at once (an empty item unpairs), in
+    /// force only once written; without a store, in force until power-off.
+    pub fn set_link_key(&mut self, key: Option<LinkKey>) -> Result<(), StorageStage> {
+        if let Some(store) = self.store.as_mut() {
+            let bytes = key.as_ref().map_or(&[][..], |key| &key[..]);
+            store.save(LINK_KEY_KEY, &mut self.buffer, bytes)?;
+        }
+        self.guard.key = key;
         Ok(())
     }
 
