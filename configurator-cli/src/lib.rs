@@ -5,6 +5,7 @@
 //! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
 //! - [`doctor`]: the bring-up check for a first power-up;
 //! - [`identify`]: the guided throw-and-fly identification;
+//! - [`keys`]: the link keys shared with boards, for signed requests over a radio;
 //! - [`report`]: what the board says, in words with units, or as JSON;
 //! - [`offline`]: the `flight` estimators applied to recorded logs and files;
 //! - [`plot`]: recordings and calibration ellipsoids drawn to PNG or SVG;
@@ -15,6 +16,7 @@ pub mod config;
 pub mod connect;
 pub mod doctor;
 pub mod identify;
+pub mod keys;
 pub mod link;
 pub mod offline;
 pub mod plot;

@@ -5,9 +5,11 @@
 //! telemetry and events that arrive meanwhile are kept for the caller. Frames start with a 0x00
 //! so a board whose decoder holds garbage from an earlier session resynchronises at once.
 
+use protocol::signing::{self, LinkKey};
 use protocol::{
     peek_hello_version, Decoder, DeviceError, DeviceMessage, Event, Hello, Info, Reply, Request,
-    StorageStage, Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID, SCHEMA_HASH,
+    Signer, StorageStage, Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID,
+    SCHEMA_HASH,
 };
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Read, Write};
@@ -123,6 +125,25 @@ impl std::fmt::Display for DeviceErrorText {
             }
             DeviceError::NotReady => write!(f, "not ready (see `status`)"),
             DeviceError::Unsupported => write!(f, "this device cannot do that"),
+            DeviceError::SignatureRequired => write!(
+                f,
+                "refused: over this link (a radio) the board takes configuration, arming, motor \
+                 and steering requests only signed with the key paired over USB; connect once \
+                 over USB and run `configurator-cli pair`"
+            ),
+            DeviceError::BadSignature => write!(
+                f,
+                "refused: the request's signature is not the board's paired key (paired with \
+                 another computer, or unpaired?); pair again over USB"
+            ),
+            DeviceError::Replayed { last_timestamp } => write!(
+                f,
+                "refused as a replay: the board has accepted a signed request with a later \
+                 timestamp ({last_timestamp}; this computer's clock behind?)"
+            ),
+            DeviceError::TrustedLinkOnly => {
+                write!(f, "refused: only over USB (a trusted link) can the link key be set")
+            }
             DeviceError::SpeedsNotReported { motors } => write!(
                 f,
                 "not armed: motor{} {} report{} no speed (no answer within {} ms); the learner \
@@ -193,6 +214,11 @@ pub struct Client {
     /// How long a read-only request waits before it is asked again: [`RETRY_AFTER`], or four
     /// handshake round trips on a slower link (a radio with a long latency).
     retry_after: Duration,
+    /// The paired key and the board's session, when this computer keeps a key for the board
+    /// (`crate::keys`): requests that command the craft are then signed.
+    signer: Option<Signer>,
+    /// The last timestamp signed with (10 µs since 2015-01-01 UTC); the next is greater.
+    last_timestamp: u64,
 }
 
 impl Client {
@@ -211,6 +237,8 @@ impl Client {
             bytes_rx: 0,
             retries: 0,
             retry_after: RETRY_AFTER,
+            signer: None,
+            last_timestamp: 0,
         };
         client.discard_stale_input()?;
         let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
@@ -231,7 +259,41 @@ impl Client {
             return Err(incompatible(info.protocol, PROTOCOL_VERSION));
         }
         client.info = info;
+        if let Ok(Some(key)) = crate::keys::load(&client.info.serial) {
+            client.sign_with(key)?;
+        }
         Ok(client)
+    }
+
+    /// Sign what commands the craft with `key` from now on, in the board's current session (a
+    /// board older than protocol 1.8 signs nothing).
+    pub fn sign_with(&mut self, key: LinkKey) -> Result<(), LinkError> {
+        match self.request(&Request::GetLinkSecurity(()), "the link security") {
+            Ok(Reply::LinkSecurity(security)) => {
+                self.signer = Some(Signer { key, session: security.session });
+                self.last_timestamp = self.last_timestamp.max(security.last_timestamp);
+                Ok(())
+            }
+            Err(LinkError::Device(DeviceErrorText(DeviceError::UnknownRequest { .. }))) => Ok(()),
+            Err(error) => Err(error),
+            Ok(other) => Err(LinkError::Unexpected(format!("{other:?} to GetLinkSecurity"))),
+        }
+    }
+
+    /// Whether requests that command the craft are signed on this connection.
+    pub fn signs(&self) -> bool {
+        self.signer.is_some()
+    }
+
+    /// The next signing timestamp: the clock in 10 µs since 2015-01-01 UTC, or one more than
+    /// the last when the clock has not moved past it.
+    fn next_timestamp(&mut self) -> u64 {
+        let unix =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+        let since_epoch = unix.saturating_sub(Duration::from_secs(signing::TIMESTAMP_EPOCH_UNIX_S));
+        let now = (since_epoch.as_micros() / 10) as u64;
+        self.last_timestamp = now.max(self.last_timestamp + 1).min(signing::MAX_TIMESTAMP);
+        self.last_timestamp
     }
 
     /// Close the transport now (the board is restarting, or the port must be reopened); every
@@ -271,8 +333,17 @@ impl Client {
             }
         }
         let seq = self.send(request)?;
-        self.await_response(seq, what, self.timeout)?
-            .map_err(|e| LinkError::Device(DeviceErrorText(e)))
+        match self.await_response(seq, what, self.timeout)? {
+            // Refused as a replay (nothing was done): this computer's clock is behind what the
+            // board accepted last; sign once more past it.
+            Err(DeviceError::Replayed { last_timestamp }) if self.signer.is_some() => {
+                self.last_timestamp = self.last_timestamp.max(last_timestamp);
+                let seq = self.send(request)?;
+                self.await_response(seq, what, self.timeout)?
+            }
+            other => other,
+        }
+        .map_err(|e| LinkError::Device(DeviceErrorText(e)))
     }
 
     /// Read-only requests asked again after a lost answer, since the connection opened.
@@ -327,8 +398,14 @@ impl Client {
         let seq = self.next_seq;
         self.next_seq = self.next_seq.wrapping_add(1);
         let mut frame = [0u8; MAX_FRAME_LEN + 1];
-        let len = request
-            .encode(seq, &mut frame[1..])
+        let encoded = match self.signer {
+            Some(signer) if signing::commands_the_craft(request) => {
+                let timestamp = self.next_timestamp();
+                request.encode_signed(seq, &signer, timestamp, &mut frame[1..])
+            }
+            _ => request.encode(seq, &mut frame[1..]),
+        };
+        let len = encoded
             .map_err(|e| LinkError::Unexpected(format!("request does not fit a frame: {e:?}")))?;
         self.transport.write_all(&frame[..=len]).map_err(|source| self.io(source))?;
         self.transport.flush().map_err(|source| self.io(source))?;

@@ -127,6 +127,16 @@ enum Command {
         /// The file, or `-`.
         file: String,
     },
+    /// Share a new link key with the board, over USB (a trusted link), and keep it on this
+    /// computer: from then on this configurator signs what configures, arms, spins or steers
+    /// the craft, so those requests work over a telemetry radio, and nobody else's do.
+    /// `--forget` unpairs (the board and this computer forget the key).
+    Pair {
+        #[arg(long)]
+        forget: bool,
+    },
+    /// How this link is guarded: trusted or not, paired, signing, and the requests refused.
+    Security,
     /// Restart the board (the SITL restarts its application and reloads its flash).
     Reboot,
     /// Restart the board into its ROM bootloader (USB DFU) to update the firmware. Refused while
@@ -312,6 +322,67 @@ fn main() -> ExitCode {
     }
 }
 
+/// The link's guard as the board reports it.
+fn link_security(client: &mut Client) -> Result<protocol::LinkSecurity, Failure> {
+    match client.request(&Request::GetLinkSecurity(()), "the link security request")? {
+        Reply::LinkSecurity(security) => Ok(security),
+        other => Err(LinkError::Unexpected(format!("{other:?} to GetLinkSecurity")).into()),
+    }
+}
+
+/// `pair`: a new key to the board over a trusted link, then kept here; or both forget it.
+fn pair(client: &mut Client, forget: bool, json: bool) -> Result<String, Failure> {
+    use configurator_cli::keys;
+    if !link_security(client)?.trusted {
+        return Err(Failure::Input(InputError(
+            "pairing needs a trusted link: connect the board over USB (the key must not cross \
+             the radio)"
+                .into(),
+        )));
+    }
+    let serial = client.info.serial.to_string();
+    let key_error = |e: keys::KeyError| Failure::Input(InputError(e.to_string()));
+    let key = if forget { None } else { Some(keys::new_key().map_err(key_error)?) };
+    // Where the key will be kept must be known before the board takes it.
+    keys::key_dir().map_err(key_error)?;
+    let set = protocol::SetLinkKey { key: key.map(heapless::Vec::from_array) };
+    client.set_timeout(SAVE_TIMEOUT);
+    let reply = client.request(&Request::SetLinkKey(set), "the pairing request");
+    client.set_timeout(configurator_cli::link::DEFAULT_TIMEOUT);
+    match reply? {
+        Reply::Done => {}
+        other => {
+            return Err(LinkError::Unexpected(format!("{other:?} to the pairing request")).into())
+        }
+    }
+    let kept = match key {
+        Some(key) => {
+            let kept = keys::store(&serial, &key).map_err(key_error)?;
+            client.sign_with(key)?;
+            Some(kept)
+        }
+        None => {
+            keys::forget(&serial).map_err(key_error)?;
+            None
+        }
+    };
+    Ok(match (&kept, json) {
+        (_, true) => format!(
+            "{:#}\n",
+            json!({ "serial": serial, "paired": kept.is_some(), "key_file": kept })
+        ),
+        (Some(file), false) => format!(
+            "paired with board {serial}: the key is in its flash and in {}; requests that \
+             configure, arm, spin or steer are now signed over any link\n",
+            file.display()
+        ),
+        (None, false) => format!(
+            "unpaired: board {serial} and this computer forgot the key; over a radio the board \
+             now refuses every request that configures, arms, spins or steers\n"
+        ),
+    })
+}
+
 fn run(cli: &Cli) -> Result<String, Failure> {
     match &cli.command {
         Command::Fit(FitCommand::ImuOffset(args)) => {
@@ -364,6 +435,8 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
         Command::Defaults => BoardCommand::Defaults,
         Command::Version => BoardCommand::Version,
         Command::Reboot => BoardCommand::Reboot,
+        Command::Pair { forget } => BoardCommand::Pair { forget: *forget },
+        Command::Security => BoardCommand::Security,
         Command::Dfu => BoardCommand::Dfu,
         Command::Setpoint { north_m, east_m, down_m, heading_deg } => {
             let values = [*north_m, *east_m, *down_m, *heading_deg];
@@ -494,6 +567,10 @@ enum BoardCommand {
     Defaults,
     Version,
     Reboot,
+    Pair {
+        forget: bool,
+    },
+    Security,
     Dfu,
     Setpoint(protocol::PositionSetpoint),
     Shell,
@@ -786,6 +863,15 @@ fn run_on_board(
                     info.protocol.major,
                     info.protocol.minor
                 )
+            })
+        }
+        BoardCommand::Pair { forget } => pair(client, forget, cli.json),
+        BoardCommand::Security => {
+            let security = link_security(client)?;
+            Ok(if cli.json {
+                format!("{:#}\n", report::link_security_json(&security, client.signs()))
+            } else {
+                report::link_security_text(&security, client.signs())
             })
         }
         BoardCommand::Reboot => {

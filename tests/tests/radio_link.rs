@@ -57,3 +57,85 @@ fn status_over_a_slow_far_radio_answers_every_time() {
     }
     eprintln!("status over 9,600 baud and 100 ms: {times_s:.2?} s");
 }
+
+/// `configurator-cli` with its link keys in `keys` (not the user's).
+fn cli_with_keys(keys: &std::path::Path, args: &[&str]) -> std::process::Output {
+    std::process::Command::new(tests::cli_binary())
+        .env(configurator_cli::keys::KEY_DIR_ENV, keys)
+        .args(args)
+        .output()
+        .expect("start configurator-cli")
+}
+
+/// Nobody else's radio commands the craft: over the simulated radio an unpaired configurator's
+/// `set` and `arm-throw-to-fly` are refused (typed, counted, nothing changed); after `pair`
+/// over the SITL's own link (USB's stand-in), the same configurator's are carried out, signed.
+/// Forged and replayed frames are the board tests' (`firmware/tests/link_signing.rs`). No frame
+/// is lost here: a request that changes something is not asked again yet (its answer lost, it
+/// may have been carried out), so a lost `set` would fail this test for another reason.
+#[test]
+fn over_the_radio_only_the_paired_configurator_configures_the_craft() {
+    let config = SitlConfig {
+        pty: true,
+        seed: 7,
+        telemetry_radio: Some(RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.0 }),
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let usb = sitl.pty_path.clone().expect("the SITL's own link");
+    let radio = sitl.radio_path.clone().expect("the radio's pseudo-terminal");
+    let (usb, radio) = (usb.to_str().unwrap(), radio.to_str().unwrap());
+    let keys = std::env::temp_dir().join(format!("fc-keys-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&keys);
+    let stranger = keys.join("stranger");
+    let ours = keys.join("ours");
+    let text = |output: &std::process::Output| {
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        )
+    };
+
+    // Unpaired: refused over the radio, with what to do.
+    let set = cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.4"]);
+    assert!(!set.status.success());
+    assert!(text(&set).contains("configurator-cli pair"), "{}", text(&set));
+    let arm = cli_with_keys(&stranger, &["--port", radio, "arm-throw-to-fly"]);
+    assert!(!arm.status.success(), "{}", text(&arm));
+    // Pairing is refused over the radio.
+    let pair = cli_with_keys(&ours, &["--port", radio, "pair"]);
+    assert!(!pair.status.success());
+    assert!(text(&pair).contains("trusted link"), "{}", text(&pair));
+
+    // Paired over the SITL's own link: the key file is ours alone.
+    let pair = cli_with_keys(&ours, &["--port", usb, "pair"]);
+    assert!(pair.status.success(), "{}", text(&pair));
+    let key_files: Vec<_> = std::fs::read_dir(&ours).unwrap().collect();
+    assert_eq!(key_files.len(), 1);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = key_files[0].as_ref().unwrap().metadata().unwrap().permissions().mode();
+        assert_eq!(mode & 0o077, 0, "readable by the user only: {mode:o}");
+    }
+
+    // The paired configurator's `set` over the radio is carried out; the stranger's still not.
+    let set = cli_with_keys(&ours, &["--port", radio, "set", "excitation_step_cmd", "=", "0.4"]);
+    assert!(set.status.success(), "{}", text(&set));
+    let set = cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.7"]);
+    assert!(!set.status.success(), "{}", text(&set));
+    let get = cli_with_keys(&stranger, &["--port", radio, "--json", "get", "excitation_step_cmd"]);
+    assert!(get.status.success(), "reads stay open: {}", text(&get));
+    assert!(text(&get).contains("0.4"), "the paired value is in force: {}", text(&get));
+
+    // The refusals are counted on the radio's link and reported.
+    let security = cli_with_keys(&ours, &["--port", radio, "--json", "security"]);
+    assert!(security.status.success(), "{}", text(&security));
+    let security: serde_json::Value = serde_json::from_slice(&security.stdout).unwrap();
+    assert_eq!(security["trusted"], false);
+    assert_eq!(security["paired"], true);
+    assert_eq!(security["signing"], true);
+    assert!(security["refused"]["unsigned"].as_u64().unwrap() >= 3, "{security}");
+    let _ = std::fs::remove_dir_all(&keys);
+}
