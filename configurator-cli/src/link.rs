@@ -2,7 +2,9 @@
 //! pseudo-terminal, TCP).
 //!
 //! Every request carries a fresh sequence number and waits for the response with that number;
-//! telemetry and events that arrive meanwhile are kept for the caller. Frames start with a 0x00
+//! when none comes (a frame lost on a radio) the very same frame is sent again, which the board
+//! answers without acting twice. Telemetry and events that arrive meanwhile are kept for the
+//! caller. Frames start with a 0x00
 //! so a board whose decoder holds garbage from an earlier session resynchronises at once.
 
 use protocol::signing::{self, LinkKey};
@@ -17,30 +19,14 @@ use std::time::{Duration, Instant};
 
 /// How long a request waits for its response by default.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(1500);
-/// How long a read-only request waits at least before it is asked again: a USB board answers
+/// How long a request waits at least before it is asked again: a USB board answers
 /// within milliseconds, a 57,600-baud telemetry radio with 20 ms latency within about 0.1 s (a
 /// status frame of 200 bytes takes 35 ms on the air), so 0.4 s means the request or its answer
 /// was lost. A slower link waits four of its handshake's round trips instead (9,600 baud with
 /// 100 ms latency: about 0.3 s each; 150 ms latency: about 0.35 s).
 pub const RETRY_AFTER: Duration = Duration::from_millis(400);
-/// Attempts of a read-only request (the last waits the whole timeout).
-const READ_ATTEMPTS: u32 = 3;
-
-/// Whether `request` reads and changes nothing on the board (asking it twice is harmless).
-fn is_read_only(request: &Request) -> bool {
-    matches!(
-        request,
-        Request::GetInfo(_)
-            | Request::GetStatus(_)
-            | Request::Ping(_)
-            | Request::GetLearner(_)
-            | Request::GetParam(_)
-            | Request::GetConfig(_)
-            | Request::GetFlight(_)
-            | Request::GetBoard(_)
-            | Request::GetHealth(_)
-    )
-}
+/// Attempts of a request whose answer does not come (the last waits the whole timeout).
+const ATTEMPTS: u32 = 3;
 
 /// A byte transport: anything readable and writable whose reads time out (serial ports and
 /// sockets with a read timeout set).
@@ -209,9 +195,9 @@ pub struct Client {
     pub bad_frames: u32,
     /// Bytes received from the board since connecting.
     pub bytes_rx: u64,
-    /// Read-only requests asked again after a lost answer, since connecting.
+    /// Requests asked again after a lost frame or answer, since connecting.
     retries: u32,
-    /// How long a read-only request waits before it is asked again: [`RETRY_AFTER`], or four
+    /// How long a request waits before it is asked again: [`RETRY_AFTER`], or four
     /// handshake round trips on a slower link (a radio with a long latency).
     retry_after: Duration,
     /// The paired key and the board's session, when this computer keeps a key for the board
@@ -243,7 +229,8 @@ impl Client {
         client.discard_stale_input()?;
         let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
         let sent = Instant::now();
-        let seq = client.send(&hello)?;
+        let (seq, frame) = client.encode(&hello)?;
+        client.write_frame(&frame)?;
         let timeout = client.timeout;
         let answer = client.await_response(seq, "the handshake", timeout)?;
         client.retry_after = RETRY_AFTER.max(sent.elapsed() * 4).min(timeout);
@@ -320,33 +307,41 @@ impl Client {
 
     /// Send a request and wait for its response; a device error becomes [`LinkError::Device`].
     pub fn request(&mut self, request: &Request, what: &'static str) -> Result<Reply, LinkError> {
-        // A request that reads and changes nothing is asked again when its answer does not come
-        // within `RETRY_AFTER` (a frame lost on a radio link); one that changes something waits
-        // the whole timeout once, so it never acts twice.
-        if is_read_only(request) {
-            for _ in 1..READ_ATTEMPTS {
-                let seq = self.send(request)?;
-                match self.await_response(seq, what, self.retry_after) {
-                    Err(LinkError::Timeout { .. }) => self.retries += 1,
-                    other => return other?.map_err(|e| LinkError::Device(DeviceErrorText(e))),
-                }
-            }
-        }
-        let seq = self.send(request)?;
-        match self.await_response(seq, what, self.timeout)? {
+        let response = match self.ask(request, what)? {
             // Refused as a replay (nothing was done): this computer's clock is behind what the
             // board accepted last; sign once more past it.
             Err(DeviceError::Replayed { last_timestamp }) if self.signer.is_some() => {
                 self.last_timestamp = self.last_timestamp.max(last_timestamp);
-                let seq = self.send(request)?;
-                self.await_response(seq, what, self.timeout)?
+                self.ask(request, what)?
             }
             other => other,
-        }
-        .map_err(|e| LinkError::Device(DeviceErrorText(e)))
+        };
+        response.map_err(|e| LinkError::Device(DeviceErrorText(e)))
     }
 
-    /// Read-only requests asked again after a lost answer, since the connection opened.
+    /// Send `request` as one frame and wait for its answer. When none comes within the retry
+    /// interval (a frame lost on a radio), send the very same frame again ([`ATTEMPTS`] in all,
+    /// the last waiting the whole timeout). Nothing is carried out twice: a read changes
+    /// nothing, and the board keeps its answer to the last request that commands the craft and
+    /// gives it again for the same frame (`firmware::app::link`).
+    fn ask(
+        &mut self,
+        request: &Request,
+        what: &'static str,
+    ) -> Result<Result<Reply, DeviceError>, LinkError> {
+        let (seq, frame) = self.encode(request)?;
+        for _ in 1..ATTEMPTS {
+            self.write_frame(&frame)?;
+            match self.await_response(seq, what, self.retry_after) {
+                Err(LinkError::Timeout { .. }) => self.retries += 1,
+                other => return other,
+            }
+        }
+        self.write_frame(&frame)?;
+        self.await_response(seq, what, self.timeout)
+    }
+
+    /// Requests asked again after a lost frame or answer, since the connection opened.
     pub fn retries(&self) -> u32 {
         self.retries
     }
@@ -394,7 +389,9 @@ impl Client {
         Ok(())
     }
 
-    fn send(&mut self, request: &Request) -> Result<u16, LinkError> {
+    /// `request` as one frame (a leading 0x00 included) under a fresh sequence number; signed
+    /// when it commands the craft and this computer keeps the board's key.
+    fn encode(&mut self, request: &Request) -> Result<(u16, Vec<u8>), LinkError> {
         let seq = self.next_seq;
         self.next_seq = self.next_seq.wrapping_add(1);
         let mut frame = [0u8; MAX_FRAME_LEN + 1];
@@ -407,9 +404,12 @@ impl Client {
         };
         let len = encoded
             .map_err(|e| LinkError::Unexpected(format!("request does not fit a frame: {e:?}")))?;
-        self.transport.write_all(&frame[..=len]).map_err(|source| self.io(source))?;
-        self.transport.flush().map_err(|source| self.io(source))?;
-        Ok(seq)
+        Ok((seq, frame[..=len].to_vec()))
+    }
+
+    fn write_frame(&mut self, frame: &[u8]) -> Result<(), LinkError> {
+        self.transport.write_all(frame).map_err(|source| self.io(source))?;
+        self.transport.flush().map_err(|source| self.io(source))
     }
 
     fn await_response(

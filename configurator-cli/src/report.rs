@@ -865,6 +865,41 @@ pub fn board_json(board: &BoardHealth) -> Value {
     })
 }
 
+/// `security`: how the link is guarded, in words.
+pub fn link_security_text(security: &protocol::LinkSecurity, signing: bool) -> String {
+    let link = if security.trusted {
+        "trusted (USB or the simulator's own link): every request is carried out unsigned"
+    } else {
+        "untrusted (a radio): configuration, arming, motor and steering requests must be signed"
+    };
+    let paired = match (security.paired, signing) {
+        (true, true) => "paired; this computer keeps the key and signs",
+        (true, false) => "paired with another computer (no key for this board here)",
+        (false, _) => "not paired (`configurator-cli pair` over USB)",
+    };
+    format!(
+        "link: {link}\nkey: {paired}\nsession: {:016x}\nrefused here since start-up: {} unsigned, \
+         {} with a bad signature, {} replayed\n",
+        security.session, security.unsigned_refused, security.bad_signature, security.replayed
+    )
+}
+
+/// `security --json`.
+pub fn link_security_json(security: &protocol::LinkSecurity, signing: bool) -> serde_json::Value {
+    serde_json::json!({
+        "trusted": security.trusted,
+        "paired": security.paired,
+        "signing": signing,
+        "session": format!("{:016x}", security.session),
+        "last_timestamp": security.last_timestamp,
+        "refused": {
+            "unsigned": security.unsigned_refused,
+            "bad_signature": security.bad_signature,
+            "replayed": security.replayed,
+        },
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -983,39 +1018,4 @@ mod tests {
         assert!(learner_json(&learner)["thrust_axis"].is_null());
         assert!(text.contains("20.1, 25.0, 30.2, 35.0 ms"), "{text}");
     }
-}
-
-/// `security`: how the link is guarded, in words.
-pub fn link_security_text(security: &protocol::LinkSecurity, signing: bool) -> String {
-    let link = if security.trusted {
-        "trusted (USB or the simulator's own link): every request is carried out unsigned"
-    } else {
-        "untrusted (a radio): configuration, arming, motor and steering requests must be signed"
-    };
-    let paired = match (security.paired, signing) {
-        (true, true) => "paired; this computer keeps the key and signs",
-        (true, false) => "paired with another computer (no key for this board here)",
-        (false, _) => "not paired (`configurator-cli pair` over USB)",
-    };
-    format!(
-        "link: {link}\nkey: {paired}\nsession: {:016x}\nrefused here since start-up: {} unsigned, \
-         {} with a bad signature, {} replayed\n",
-        security.session, security.unsigned_refused, security.bad_signature, security.replayed
-    )
-}
-
-/// `security --json`.
-pub fn link_security_json(security: &protocol::LinkSecurity, signing: bool) -> serde_json::Value {
-    serde_json::json!({
-        "trusted": security.trusted,
-        "paired": security.paired,
-        "signing": signing,
-        "session": format!("{:016x}", security.session),
-        "last_timestamp": security.last_timestamp,
-        "refused": {
-            "unsigned": security.unsigned_refused,
-            "bad_signature": security.bad_signature,
-            "replayed": security.replayed,
-        },
-    })
 }

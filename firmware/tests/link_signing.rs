@@ -227,3 +227,48 @@ fn a_key_of_another_length_is_malformed_and_changes_nothing() {
 fn params_index(name: &str) -> usize {
     firmware::app::params::find(name).expect("a parameter")
 }
+
+/// A request whose answer was lost on the radio is asked again as the very same frame: the
+/// board answers it again and does not act twice (here a setpoint queued once; an arm or a save
+/// likewise), though a signed frame's timestamp is no longer fresh.
+#[test]
+fn the_same_frame_again_gets_the_same_answer_and_is_carried_out_once() {
+    let mut board = Board::new();
+    board.pair(KEY);
+    {
+        let setpoint = PositionSetpoint { position_ned_m: [1.0, 2.0, -3.0], heading_rad: 0.5 };
+        let request = Request::SetPositionSetpoint(setpoint);
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let len = request.encode_signed(900, &signer(), 77, &mut frame).unwrap();
+        let view = StatusView::default();
+        let mut responses = Vec::new();
+        for _ in 0..3 {
+            board.radio.receive(&frame[..len], 0, &view, &mut board.settings);
+            let mut decoder = Decoder::new();
+            board.radio.transmit_to(|bytes| {
+                for &byte in bytes {
+                    if let Some(Ok(frame)) = decoder.push(byte) {
+                        if let Ok(DeviceMessage::Response(response)) = DeviceMessage::decode(&frame)
+                        {
+                            responses.push((frame.seq, response));
+                        }
+                    }
+                }
+                bytes.len()
+            });
+        }
+        assert_eq!(responses.len(), 3, "every copy is answered");
+        assert!(responses.iter().all(|r| *r == responses[0]), "the same answer: {responses:?}");
+        assert_eq!(responses[0], (900, Ok(Reply::Done)));
+        assert_eq!(
+            board.commands(),
+            vec![ControlCommand::PositionSetpoint(setpoint)],
+            "carried out once"
+        );
+        assert_eq!(board.security(true).replayed, 0, "a repeat is not a replay");
+    }
+    // A new frame with the old timestamp is a replay.
+    let setpoint = PositionSetpoint { position_ned_m: [0.0; 3], heading_rad: 0.0 };
+    let again = board.ask(true, &Request::SetPositionSetpoint(setpoint), Some((signer(), 77)));
+    assert_eq!(again, Err(DeviceError::Replayed { last_timestamp: 77 }));
+}

@@ -43,6 +43,8 @@ pub struct Frame<'a> {
     pub payload: &'a [u8],
     /// The signature of a signed request ([`crate::signing`]); `None` for an unsigned frame.
     pub signature: Option<Signature<'a>>,
+    /// The frame's CRC-32C as received (and checked): a fingerprint of the whole frame.
+    pub crc: u32,
 }
 
 /// Why bytes did not make a frame. The decoder has already dropped them and is looking for the
@@ -151,5 +153,5 @@ fn parse(encoded: &mut [u8]) -> Result<Frame<'_>, FrameError> {
     let (id, rest) = (body[0] & !signing::SIGNED_FLAG, &body[1..]);
     let (seq, payload) =
         postcard::take_from_bytes::<u16>(rest).map_err(|_| FrameError::BadHeader)?;
-    Ok(Frame { id, seq, payload, signature })
+    Ok(Frame { id, seq, payload, signature, crc: expected })
 }

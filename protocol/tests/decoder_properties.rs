@@ -196,7 +196,7 @@ fn device_round_trip(message: &DeviceMessage, seq: u16) -> Result<DeviceMessage,
     if *got_seq != seq {
         return Err(format!("seq {got_seq} instead of {seq}"));
     }
-    let frame = protocol::Frame { id: *id, seq, payload, signature: None };
+    let frame = protocol::Frame { id: *id, seq, payload, signature: None, crc: 0 };
     DeviceMessage::decode(&frame).map_err(|e| format!("{e:?}"))
 }
 
@@ -221,7 +221,7 @@ proptest! {
         // A frame only comes out when its CRC matched; decoding it must give a typed answer
         // either way.
         for (id, seq, payload) in decode_stream(&bytes).into_iter().flatten() {
-            let frame = protocol::Frame { id, seq, payload: &payload, signature: None };
+            let frame = protocol::Frame { id, seq, payload: &payload, signature: None, crc: 0 };
             let _ = Request::decode(&frame);
             let _ = DeviceMessage::decode(&frame);
         }
@@ -236,7 +236,7 @@ proptest! {
         prop_assert_eq!(outcome.len(), 1);
         let (id, got_seq, payload) = outcome[0].clone().expect("a valid frame decodes");
         prop_assert_eq!(got_seq, seq);
-        let frame = protocol::Frame { id, seq, payload: &payload, signature: None };
+        let frame = protocol::Frame { id, seq, payload: &payload, signature: None, crc: 0 };
         prop_assert_eq!(Request::decode(&frame), Ok(request));
     }
 
@@ -305,7 +305,7 @@ proptest! {
         let len = encode(id, seq, &(), &mut buffer).unwrap();
         let outcome = decode_stream(&buffer[..len]);
         let (got_id, got_seq, payload) = outcome[0].clone().expect("the frame itself is valid");
-        let frame = protocol::Frame { id: got_id, seq: got_seq, payload: &payload, signature: None };
+        let frame = protocol::Frame { id: got_id, seq: got_seq, payload: &payload, signature: None, crc: 0 };
         prop_assert_eq!(Request::decode(&frame), Err(DecodeError::UnknownId { id }));
     }
 
@@ -316,7 +316,7 @@ proptest! {
         let len = encode(0x02, 1, &extra[..], &mut buffer).unwrap();
         let outcome = decode_stream(&buffer[..len]);
         let (id, seq, payload) = outcome[0].clone().unwrap();
-        let frame = protocol::Frame { id, seq, payload: &payload, signature: None };
+        let frame = protocol::Frame { id, seq, payload: &payload, signature: None, crc: 0 };
         prop_assert_eq!(Request::decode(&frame), Err(DecodeError::Malformed { id: 0x02 }));
     }
 }

@@ -1,8 +1,9 @@
 //! The configurator over a simulated telemetry radio (issue 29, first step): the SITL serves the
 //! protocol on a second pseudo-terminal behind a 57,600-baud radio with 20 ms of latency and 2 %
 //! of frames lost, and `configurator-cli --port` works through it as through USB. A read-only
-//! request whose frame (or answer) is lost is asked again after `RETRY_AFTER` (0.4 s); requests
-//! that change something are never repeated.
+//! request whose frame (or answer) is lost is asked again after `RETRY_AFTER` (0.4 s), as the
+//! very same frame: the board answers a repeat of a request that commands the craft with its
+//! earlier answer, without acting twice.
 
 use sim::serve::RadioConfig;
 use sim::sitl::{Sitl, SitlConfig};
@@ -70,15 +71,14 @@ fn cli_with_keys(keys: &std::path::Path, args: &[&str]) -> std::process::Output 
 /// Nobody else's radio commands the craft: over the simulated radio an unpaired configurator's
 /// `set` and `arm-throw-to-fly` are refused (typed, counted, nothing changed); after `pair`
 /// over the SITL's own link (USB's stand-in), the same configurator's are carried out, signed.
-/// Forged and replayed frames are the board tests' (`firmware/tests/link_signing.rs`). No frame
-/// is lost here: a request that changes something is not asked again yet (its answer lost, it
-/// may have been carried out), so a lost `set` would fail this test for another reason.
+/// Forged and replayed frames are the board tests' (`firmware/tests/link_signing.rs`). The radio
+/// loses 2 % of the frames: a lost `set` (or its answer) is asked again.
 #[test]
 fn over_the_radio_only_the_paired_configurator_configures_the_craft() {
     let config = SitlConfig {
         pty: true,
         seed: 7,
-        telemetry_radio: Some(RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.0 }),
+        telemetry_radio: Some(RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.02 }),
         ..SitlConfig::default()
     };
     let sitl = Sitl::start(&config).expect("the SITL starts");
@@ -98,7 +98,8 @@ fn over_the_radio_only_the_paired_configurator_configures_the_craft() {
     };
 
     // Unpaired: refused over the radio, with what to do.
-    let set = cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.4"]);
+    let set =
+        cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.4"]);
     assert!(!set.status.success());
     assert!(text(&set).contains("configurator-cli pair"), "{}", text(&set));
     let arm = cli_with_keys(&stranger, &["--port", radio, "arm-throw-to-fly"]);
@@ -123,7 +124,8 @@ fn over_the_radio_only_the_paired_configurator_configures_the_craft() {
     // The paired configurator's `set` over the radio is carried out; the stranger's still not.
     let set = cli_with_keys(&ours, &["--port", radio, "set", "excitation_step_cmd", "=", "0.4"]);
     assert!(set.status.success(), "{}", text(&set));
-    let set = cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.7"]);
+    let set =
+        cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.7"]);
     assert!(!set.status.success(), "{}", text(&set));
     let get = cli_with_keys(&stranger, &["--port", radio, "--json", "get", "excitation_step_cmd"]);
     assert!(get.status.success(), "reads stay open: {}", text(&get));

@@ -99,6 +99,26 @@ pub struct LinkServer {
     trusted: bool,
     /// Requests this link refused for their signature, since start-up.
     refusals: SignatureRefusals,
+    /// The last request that commands the craft, and its answer: the same frame again (the
+    /// host asking once more because the answer was lost on a radio) gets the same answer and
+    /// is not carried out twice.
+    /// The answer is kept as its frame (the request's sequence number in it).
+    last_command: Option<(RequestFingerprint, heapless::Vec<u8, MAX_FRAME_LEN>)>,
+}
+
+/// What tells a repeated request frame from a new one: its sequence number and its CRC-32C (over
+/// id, sequence number, payload and signature). A host asks again with the very same frame; a
+/// new request has a new sequence number (and a new timestamp when signed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct RequestFingerprint {
+    seq: u16,
+    crc: u32,
+}
+
+impl RequestFingerprint {
+    fn of(frame: &protocol::Frame<'_>) -> Self {
+        Self { seq: frame.seq, crc: frame.crc }
+    }
 }
 
 /// Requests a link refused for their signature (reported in [`Reply::LinkSecurity`]).
@@ -130,6 +150,7 @@ impl LinkServer {
             failsafes_reported: FailsafeCounters::default(),
             trusted: true,
             refusals: SignatureRefusals::default(),
+            last_command: None,
         }
     }
 
@@ -175,10 +196,23 @@ impl LinkServer {
     ) {
         for &byte in bytes {
             let Some(result) = self.decoder.push(byte) else { continue };
-            let (seq, signature, decoded) = match result {
+            let (seq, signature, decoded, fingerprint) = match result {
                 Ok(frame) => {
+                    let fingerprint = RequestFingerprint::of(&frame);
+                    if let Some((_, answer)) =
+                        self.last_command.as_ref().filter(|(last, _)| *last == fingerprint)
+                    {
+                        // The host asked again (our answer was lost on the way): the same
+                        // answer, nothing carried out twice.
+                        self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
+                        if self.tx.push_frame(answer, 0).is_err() {
+                            self.counters.responses_dropped =
+                                self.counters.responses_dropped.wrapping_add(1);
+                        }
+                        continue;
+                    }
                     let check = settings.link_guard().check(frame.signature.as_ref());
-                    (frame.seq, check, Request::decode(&frame))
+                    (frame.seq, check, Request::decode(&frame), fingerprint)
                 }
                 Err(error) => {
                     self.count_frame_error(error);
@@ -186,11 +220,15 @@ impl LinkServer {
                 }
             };
             self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
+            let mut commands = false;
             let response = match decoded {
-                Ok(request) => match self.authorise(&request, signature) {
-                    Ok(()) => self.handle(request, now_us, view, settings),
-                    Err(refusal) => Err(refusal),
-                },
+                Ok(request) => {
+                    commands = signing::commands_the_craft(&request);
+                    match self.authorise(&request, signature) {
+                        Ok(()) => self.handle(request, now_us, view, settings),
+                        Err(refusal) => Err(refusal),
+                    }
+                }
                 Err(DecodeError::UnknownId { id }) => {
                     self.counters.unknown_id = self.counters.unknown_id.wrapping_add(1);
                     Err(DeviceError::UnknownRequest { id })
@@ -200,8 +238,18 @@ impl LinkServer {
                     Err(DeviceError::Malformed { id })
                 }
             };
-            if self.send(&DeviceMessage::Response(response), seq, 0).is_err() {
-                self.counters.responses_dropped = self.counters.responses_dropped.wrapping_add(1);
+            match self.tx.push(&DeviceMessage::Response(response), seq, 0) {
+                Ok(written) => {
+                    self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
+                    if commands {
+                        let answer = heapless::Vec::from_slice(written).unwrap_or_default();
+                        self.last_command = Some((fingerprint, answer));
+                    }
+                }
+                Err(TxFull) => {
+                    self.counters.responses_dropped =
+                        self.counters.responses_dropped.wrapping_add(1);
+                }
             }
         }
     }
@@ -681,7 +729,7 @@ impl LinkServer {
 
     /// Encode a message into the transmit buffer, leaving `reserve` bytes free.
     fn send(&mut self, message: &DeviceMessage, seq: u16, reserve: usize) -> Result<(), TxFull> {
-        self.tx.push(message, seq, reserve)?;
+        let _ = self.tx.push(message, seq, reserve)?;
         self.counters.frames_tx = self.counters.frames_tx.wrapping_add(1);
         Ok(())
     }
@@ -897,7 +945,26 @@ impl TxBuffer {
         self.end - self.start
     }
 
-    fn push(&mut self, message: &DeviceMessage, seq: u16, reserve: usize) -> Result<(), TxFull> {
+    /// Encode `message` at the end, leaving `reserve` bytes free; returns the frame written.
+    fn push(&mut self, message: &DeviceMessage, seq: u16, reserve: usize) -> Result<&[u8], TxFull> {
+        self.make_room(reserve)?;
+        // Cannot fail: MAX_FRAME_LEN bytes are free and every message fits a frame (tested).
+        let written = message.encode(seq, &mut self.bytes[self.end..]).map_err(|_| TxFull)?;
+        self.end += written;
+        Ok(&self.bytes[self.end - written..self.end])
+    }
+
+    /// Queue an already encoded frame (at most [`MAX_FRAME_LEN`] bytes).
+    fn push_frame(&mut self, frame: &[u8], reserve: usize) -> Result<(), TxFull> {
+        self.make_room(reserve)?;
+        let end = self.end + frame.len().min(MAX_FRAME_LEN);
+        self.bytes[self.end..end].copy_from_slice(&frame[..end - self.end]);
+        self.end = end;
+        Ok(())
+    }
+
+    /// Make room for one frame at the end with `reserve` bytes left over.
+    fn make_room(&mut self, reserve: usize) -> Result<(), TxFull> {
         if TX_CAPACITY - self.len() < MAX_FRAME_LEN + reserve {
             return Err(TxFull);
         }
@@ -906,9 +973,6 @@ impl TxBuffer {
             self.end -= self.start;
             self.start = 0;
         }
-        // Cannot fail: MAX_FRAME_LEN bytes are free and every message fits a frame (tested).
-        let written = message.encode(seq, &mut self.bytes[self.end..]).map_err(|_| TxFull)?;
-        self.end += written;
         Ok(())
     }
 
