@@ -141,3 +141,94 @@ fn over_the_radio_only_the_paired_configurator_configures_the_craft() {
     assert!(security["refused"]["unsigned"].as_u64().unwrap() >= 3, "{security}");
     let _ = std::fs::remove_dir_all(&keys);
 }
+
+/// The field's operations over the radio, paired once over the SITL's own link (USB's
+/// stand-in): `calibrate imu-offset` from two throw-and-catches, `save`, then, on a second
+/// SITL, `identify` through a throw-and-fly; each over 57,600 baud, 20 ms and 2 % of frames
+/// lost, every request signed and every lost one asked again.
+#[test]
+fn calibrate_save_and_identify_complete_over_a_lossy_radio() {
+    let keys = std::env::temp_dir().join(format!("fc-keys-ops-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&keys);
+    let radio = RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.02 };
+    let text = |output: &std::process::Output| {
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        )
+    };
+    let flash = keys.join("flash.bin");
+    std::fs::create_dir_all(&keys).unwrap();
+
+    let throwing = SitlConfig {
+        seed: 11,
+        speed: 4.0,
+        // Throws go on while the configurator pairs and connects (a count would be spent
+        // before the calibration starts).
+        auto_throw_every_s: Some(2.0),
+        flash_file: Some(flash.clone()),
+        telemetry_radio: Some(radio),
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&throwing).expect("the SITL starts");
+    let usb = sitl.pty_path.clone().unwrap().display().to_string();
+    let port = sitl.radio_path.clone().unwrap().display().to_string();
+    let pair = cli_with_keys(&keys, &["--port", &usb, "pair"]);
+    assert!(pair.status.success(), "{}", text(&pair));
+    let calibrate = cli_with_keys(
+        &keys,
+        &[
+            "--port",
+            &port,
+            "--json",
+            "calibrate",
+            "imu-offset",
+            "--yes",
+            "--max-throws",
+            "2",
+            "--timeout-s",
+            "30",
+        ],
+    );
+    assert!(calibrate.status.success(), "{}", text(&calibrate));
+    let report: serde_json::Value = serde_json::from_slice(&calibrate.stdout).unwrap();
+    assert_eq!(report["stored"], true, "{report}");
+    let save = cli_with_keys(&keys, &["--port", &port, "save"]);
+    assert!(save.status.success(), "{}", text(&save));
+    let status = cli_with_keys(&keys, &["--port", &port, "--json", "status"]);
+    let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    assert_eq!(status["config"]["unsaved_changes"], false, "{status}");
+    drop(sitl);
+
+    let flying = SitlConfig {
+        seed: 12,
+        hand_throws_to_fly: true,
+        telemetry_radio: Some(radio),
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&flying).expect("the SITL starts");
+    let usb = sitl.pty_path.clone().unwrap().display().to_string();
+    let port = sitl.radio_path.clone().unwrap().display().to_string();
+    let pair = cli_with_keys(&keys, &["--port", &usb, "pair"]);
+    assert!(pair.status.success(), "{}", text(&pair));
+    let identify = cli_with_keys(
+        &keys,
+        &[
+            "--port",
+            &port,
+            "--json",
+            "identify",
+            "--yes",
+            "--timeout-s",
+            "30",
+            "--disarm-after-s",
+            "3",
+        ],
+    );
+    assert!(identify.status.success(), "{}", text(&identify));
+    let report: serde_json::Value = serde_json::from_slice(&identify.stdout).unwrap();
+    assert_eq!(report["phase"], "Done", "{report}");
+    assert_eq!(report["flew"], true, "{report}");
+    let _ = std::fs::remove_dir_all(&keys);
+}
