@@ -1642,7 +1642,24 @@ fn stream(
     json_output: bool,
 ) -> Result<String, Failure> {
     let set = |rate_hz| Request::SetTelemetryRate(SetTelemetryRate { topic, rate_hz });
-    client.request(&set(rate_hz), "the telemetry rate request")?;
+    // The board grants what its link carries (a radio's byte budget), or the nearest rate a
+    // per-step topic can send.
+    let granted_hz = match client.request(&set(rate_hz), "the telemetry rate request")? {
+        Reply::TelemetryRate(granted) => granted.rate_hz,
+        _ => rate_hz,
+    };
+    let name = format!("{topic:?}").to_lowercase();
+    if granted_hz == 0 {
+        return Err(Failure::Input(InputError(format!(
+            "the link has no room for the {name} topic (a slow radio already carrying other \
+             topics?); stop them or ask a lower rate"
+        ))));
+    }
+    if granted_hz < rate_hz {
+        eprintln!(
+            "streaming {name} at {granted_hz} Hz, the most this link carries (asked {rate_hz} Hz)"
+        );
+    }
     // Count as samples arrive (nothing is kept): only this topic, only from now on.
     client.telemetry.clear();
     let bytes_before = client.bytes_rx;
@@ -1687,6 +1704,7 @@ fn stream(
         let summary = json!({
             "topic": format!("{topic:?}").to_lowercase(),
             "requested_rate_hz": rate_hz,
+            "granted_rate_hz": granted_hz,
             "duration_s": duration_s,
             "received": received,
             "gaps": gaps,

@@ -256,7 +256,10 @@ fn telemetry_streams_at_the_chosen_rate_with_consecutive_sequence_numbers() {
     let mut host = Host::new();
     host.handshake();
     let setting = SetTelemetryRate { topic: Topic::Control, rate_hz: 250 };
-    assert_eq!(host.request(&Request::SetTelemetryRate(setting), 2), Ok(Reply::Done));
+    assert_eq!(
+        host.request(&Request::SetTelemetryRate(setting), 2),
+        Ok(Reply::TelemetryRate(setting))
+    );
     let mut received = Vec::new();
     for _ in 0..1000 {
         host.advance(1000); // the board polls every millisecond
@@ -275,9 +278,12 @@ fn every_control_step_streams_at_2khz_and_a_divided_rate_keeps_consecutive_numbe
     let mut host = Host::new();
     host.handshake();
     let state = SetTelemetryRate { topic: Topic::State, rate_hz: 2000 };
-    assert_eq!(host.request(&Request::SetTelemetryRate(state), 2), Ok(Reply::Done));
+    assert_eq!(host.request(&Request::SetTelemetryRate(state), 2), Ok(Reply::TelemetryRate(state)));
     let motors = SetTelemetryRate { topic: Topic::Motors, rate_hz: 500 };
-    assert_eq!(host.request(&Request::SetTelemetryRate(motors), 3), Ok(Reply::Done));
+    assert_eq!(
+        host.request(&Request::SetTelemetryRate(motors), 3),
+        Ok(Reply::TelemetryRate(motors))
+    );
     let first_step = (host.now_us / STEP_US) as u32 + 1;
     let mut received = Vec::new();
     for _ in 0..1000 {
@@ -314,7 +320,7 @@ fn imu_samples_a_step_did_not_have_are_gaps_in_the_imu_topic() {
     let mut host = Host::new();
     host.handshake();
     let imu = SetTelemetryRate { topic: Topic::Imu, rate_hz: 2000 };
-    assert_eq!(host.request(&Request::SetTelemetryRate(imu), 2), Ok(Reply::Done));
+    assert_eq!(host.request(&Request::SetTelemetryRate(imu), 2), Ok(Reply::TelemetryRate(imu)));
     let mut received = Vec::new();
     for _ in 0..30 {
         host.advance(1000);
@@ -337,7 +343,10 @@ fn a_host_that_stops_reading_sees_gaps_but_its_requests_are_still_answered() {
     let mut host = Host::new();
     host.handshake();
     let setting = SetTelemetryRate { topic: Topic::State, rate_hz: 2000 };
-    assert_eq!(host.request(&Request::SetTelemetryRate(setting), 2), Ok(Reply::Done));
+    assert_eq!(
+        host.request(&Request::SetTelemetryRate(setting), 2),
+        Ok(Reply::TelemetryRate(setting))
+    );
     let first_step = (host.now_us / STEP_US) as u16 + 1;
     for _ in 0..200 {
         host.advance(1000); // nobody reads for 200 ms: 400 steps
@@ -549,7 +558,10 @@ fn the_learner_topic_at_1000_hz_alternates_the_g1_blocks_with_consecutive_sequen
     let mut host = Host::with_view(view);
     host.handshake();
     let setting = SetTelemetryRate { topic: Topic::Learner, rate_hz: 1000 };
-    assert_eq!(host.request(&Request::SetTelemetryRate(setting), 2), Ok(Reply::Done));
+    assert_eq!(
+        host.request(&Request::SetTelemetryRate(setting), 2),
+        Ok(Reply::TelemetryRate(setting))
+    );
     let mut received = Vec::new();
     for _ in 0..100 {
         host.advance(1000);
@@ -711,7 +723,7 @@ fn the_flight_topic_reports_the_mode_setpoint_and_position() {
     let mut host = Host::with_view(view);
     host.handshake();
     let rate = SetTelemetryRate { topic: Topic::Flight, rate_hz: 100 };
-    assert_eq!(host.request(&Request::SetTelemetryRate(rate), 2), Ok(Reply::Done));
+    assert_eq!(host.request(&Request::SetTelemetryRate(rate), 2), Ok(Reply::TelemetryRate(rate)));
     host.advance(50_000);
     let flights: Vec<(u16, FlightTelemetry)> = host
         .read()
@@ -764,4 +776,57 @@ fn esc_commands_are_checked_and_queued_for_the_control_step() {
             ControlCommand::EscCommand { command: DshotCommand::SaveSettings, motor: None },
         ]
     );
+}
+
+/// A slow link (a 57,600-baud radio: 5,760 B/s) grants each topic what is left of its
+/// telemetry share, booking every sample at its topic's longest frame: the rate granted is
+/// answered, what streams then fits, and responses still find room.
+#[test]
+fn a_slow_link_grants_the_rates_its_byte_budget_carries_and_streams_within_them() {
+    const BYTES_PER_S: u32 = 5_760;
+    let mut host = Host::new();
+    host.server = LinkServer::new(board()).with_byte_rate(BYTES_PER_S);
+    host.handshake();
+    let budget = BYTES_PER_S * firmware::app::TELEMETRY_SHARE_PCT / 100;
+    let granted = |host: &mut Host, topic: Topic, rate_hz: u16, seq: u16| match host
+        .request(&Request::SetTelemetryRate(SetTelemetryRate { topic, rate_hz }), seq)
+    {
+        Ok(Reply::TelemetryRate(granted)) => {
+            assert_eq!(granted.topic, topic);
+            u32::from(granted.rate_hz)
+        }
+        other => panic!("{other:?}"),
+    };
+    let imu_hz = granted(&mut host, Topic::Imu, 2000, 2);
+    let imu_bytes = imu_hz * u32::from(Topic::Imu.max_frame_len());
+    assert!(imu_hz > 0 && imu_bytes <= budget, "{imu_hz} Hz of IMU: {imu_bytes} B/s");
+    // The highest that fits: one step fewer between samples would not.
+    let divider = 2000 / imu_hz;
+    let faster_hz = 2000.0 / f64::from(divider - 1);
+    assert!(faster_hz * 45.0 > f64::from(budget), "{imu_hz} Hz is the highest rate that fits");
+    // A second topic gets what is left, and the first is stopped for it to get more.
+    let left_hz = granted(&mut host, Topic::Control, 100, 3);
+    assert!(left_hz < 100 && left_hz * 36 <= budget - imu_bytes, "{left_hz} Hz left");
+    assert_eq!(granted(&mut host, Topic::Imu, 0, 4), 0);
+    let control_hz = granted(&mut host, Topic::Control, 100, 5);
+    assert_eq!(control_hz, 100, "36-byte samples at 100 Hz fit 5,760 B/s");
+    let imu_hz = granted(&mut host, Topic::Imu, 2000, 6);
+    let booked = control_hz * 36 + imu_hz * 45;
+    assert!(booked <= budget, "{booked} B/s booked of {budget}");
+
+    // Ten seconds of streaming: what was sent is within the grant, and a status still answers.
+    host.read();
+    let mut bytes = 0usize;
+    for _ in 0..10_000 {
+        host.advance(1_000);
+        let mut sent = 0;
+        host.server.transmit_to(|pending| {
+            sent = pending.len();
+            pending.len()
+        });
+        bytes += sent;
+    }
+    assert!(bytes as u32 <= 10 * budget, "{bytes} B in 10 s over a {budget} B/s share");
+    assert!(bytes as u32 >= 9 * booked / 2, "streamed {bytes} B, booked {booked} B/s");
+    assert!(matches!(host.request(&Request::GetStatus(()), 7), Ok(Reply::Status(_))));
 }

@@ -131,6 +131,20 @@ impl Topic {
     pub fn is_per_step(self) -> bool {
         matches!(self, Topic::Imu | Topic::Motors | Topic::State)
     }
+
+    /// The longest frame one sample of this topic takes on the wire, bytes (delimiter included,
+    /// every field at its longest): what a link's byte budget books per sample. Pinned by
+    /// `protocol/tests/golden.rs` (`every_topic_sample_fits_its_booked_frame_length`).
+    pub const fn max_frame_len(self) -> u16 {
+        match self {
+            Topic::Imu => 45,
+            Topic::Control => 36,
+            Topic::Motors => 93,
+            Topic::Learner => 221,
+            Topic::State => 137,
+            Topic::Flight => 164,
+        }
+    }
 }
 
 /// Set how often a topic is streamed.
@@ -258,6 +272,10 @@ pub enum Reply {
     Health(SensorHealth),
     /// Answer to [`Request::GetLinkSecurity`]. Protocol 1.8.
     LinkSecurity(LinkSecurity),
+    /// Answer to [`Request::SetTelemetryRate`]: the rate granted, which is the one asked, or
+    /// the highest the link's byte budget leaves for the topic (0: none), or the nearest a
+    /// per-step topic can send (the control rate over a whole number of steps). Protocol 1.10.
+    TelemetryRate(SetTelemetryRate),
 }
 
 /// How the link that asked is guarded ([`crate::signing`]). Protocol 1.8.

@@ -440,8 +440,8 @@ fn protocol_1_4_flight_board_and_setpoint_frames_are_pinned() {
     assert!(!Topic::Flight.is_per_step(), "the link samples the flight topic");
 }
 
-#[test]
-fn the_largest_flight_sample_and_board_health_fit_one_frame() {
+/// The largest flight sample: every varint at its longest, every `Option` `Some`.
+fn largest_flight() -> FlightTelemetry {
     let counts = FailsafeCounters {
         bad_command: u16::MAX,
         allocation_failed: u16::MAX,
@@ -453,7 +453,7 @@ fn the_largest_flight_sample_and_board_health_fit_one_frame() {
         rc_lost: u16::MAX,
         kill: u16::MAX,
     };
-    let flight = FlightTelemetry {
+    FlightTelemetry {
         t_us: u64::MAX,
         mode: FlightMode::PositionHold,
         q_world_thrust: [1.0; 4],
@@ -470,7 +470,12 @@ fn the_largest_flight_sample_and_board_health_fit_one_frame() {
         saturated: u8::MAX,
         last_failsafe: Some(FailsafeReason::Identification(LearnerFailure::NoHover)),
         failsafes: counts,
-    };
+    }
+}
+
+#[test]
+fn the_largest_flight_sample_and_board_health_fit_one_frame() {
+    let flight = largest_flight();
     let board = BoardHealth {
         core_clock_hz: Some(u32::MAX),
         silicon_revision: Some(u16::MAX),
@@ -585,4 +590,64 @@ fn protocol_1_8_link_security_and_signed_frames_are_pinned() {
     let mut buffer = [0u8; MAX_FRAME_LEN];
     let len = set.encode_signed(6, &signer, 0x01_0203, &mut buffer).unwrap();
     assert_eq!(hex(&buffer[..len]), "0b 4b 06 06 72 61 74 65 5f 70 01 01 01 05 3f 03 02 01 01 01 0d ff db 39 32 ac a4 14 60 ab b7 f3 bd 00");
+}
+
+#[test]
+fn every_topic_sample_fits_its_booked_frame_length() {
+    let largest_imu = ImuTelemetry { t_us: u64::MAX, gyro_rad_s: [1.0; 3], accel_mps2: [1.0; 3] };
+    let largest_control = ControlTelemetry {
+        t_us: u64::MAX,
+        steps: u32::MAX,
+        late_steps: u32::MAX,
+        samples_dropped: u32::MAX,
+    };
+    let largest_motors = MotorTelemetry {
+        t_us: u64::MAX,
+        commands: [1.0; MAX_MOTORS],
+        speeds_rad_s: [Some(1.0); MAX_MOTORS],
+    };
+    let largest_state = StateTelemetry {
+        t_us: u64::MAX,
+        phase: LearnerPhase::Failed,
+        flying: true,
+        imu_fresh: true,
+        gyro_rad_s: [1.0; 3],
+        accel_mps2: [1.0; 3],
+        q_world_imu: [1.0; 4],
+        motor_count: MAX_MOTORS as u8,
+        commands: [1.0; MAX_MOTORS],
+        speeds_rad_s: [Some(1.0); MAX_MOTORS],
+    };
+    let mut learner_blocks = [largest_learner(), largest_learner()];
+    learner_blocks[1].g1_block = 0;
+    let samples: Vec<(Topic, Telemetry)> = vec![
+        (Topic::Imu, Telemetry::Imu(largest_imu)),
+        (Topic::Control, Telemetry::Control(largest_control)),
+        (Topic::Motors, Telemetry::Motors(largest_motors)),
+        (Topic::Learner, Telemetry::Learner(learner_blocks[0])),
+        (Topic::Learner, Telemetry::Learner(learner_blocks[1])),
+        (Topic::State, Telemetry::State(largest_state)),
+        (Topic::Flight, Telemetry::Flight(largest_flight())),
+    ];
+    for topic in Topic::ALL {
+        let longest = samples
+            .iter()
+            .filter(|(t, _)| *t == topic)
+            .map(|(_, sample)| {
+                let mut buffer = [0u8; MAX_FRAME_LEN];
+                DeviceMessage::Telemetry(*sample).encode(u16::MAX, &mut buffer).unwrap()
+            })
+            .max()
+            .expect("a sample of every topic");
+        assert_eq!(usize::from(topic.max_frame_len()), longest, "{topic:?}");
+    }
+}
+
+#[test]
+fn protocol_1_10_granted_telemetry_rate_is_pinned() {
+    let granted = SetTelemetryRate { topic: Topic::Learner, rate_hz: 19 };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::TelemetryRate(granted))), 3),
+        "03 81 03 08 0c 03 13 6c 16 47 7d 00"
+    );
 }

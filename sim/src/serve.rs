@@ -269,6 +269,13 @@ pub struct RadioConfig {
     pub frame_loss: f64,
 }
 
+impl RadioConfig {
+    /// Bytes a second in each direction (8N1: ten bits a byte).
+    pub fn bytes_per_s(&self) -> u32 {
+        self.baud / 10
+    }
+}
+
 /// One direction of a simulated radio: the bytes the sender gave it, at most the byte rate's
 /// worth per second, cut into frames at the delimiter; each frame lost or delivered after the
 /// latency.
@@ -282,7 +289,7 @@ struct RadioDirection {
 
 impl RadioDirection {
     fn advance(&mut self, elapsed_s: f64, config: &RadioConfig) {
-        let rate = f64::from(config.baud) / 10.0;
+        let rate = f64::from(config.bytes_per_s());
         self.credit = (self.credit + elapsed_s * rate).min(rate);
     }
 
@@ -337,6 +344,11 @@ pub struct RadioPort {
 }
 
 impl RadioPort {
+    /// The radio's settings.
+    pub fn config(&self) -> RadioConfig {
+        self.config
+    }
+
     /// A radio over `pty`; the seed draws the lost frames.
     pub fn new(pty: Pty, config: RadioConfig, seed: u64) -> Self {
         Self {

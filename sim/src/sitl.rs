@@ -459,10 +459,11 @@ impl Runner {
         // A fresh link session per boot, as USB re-enumerates.
         let mut pty =
             self.pty.take().map(|port| Link::new(LinkServer::new(self.info.clone()), port));
-        let mut radio = self
-            .telemetry_radio
-            .take()
-            .map(|port| Link::new(LinkServer::new(self.info.clone()).untrusted(), port));
+        let mut radio = self.telemetry_radio.take().map(|port| {
+            let bytes_per_s = port.config().bytes_per_s();
+            let server = LinkServer::new(self.info.clone()).untrusted().with_byte_rate(bytes_per_s);
+            Link::new(server, port)
+        });
         let ending = loop {
             if self.stop.load(Ordering::Relaxed) {
                 break Ending::Stop;

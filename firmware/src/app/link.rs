@@ -39,6 +39,9 @@ pub const TX_CAPACITY: usize = 8 * MAX_FRAME_LEN;
 /// Transmit space telemetry and events must leave free, bytes: room for two maximum-size
 /// responses, so a request is answered even while telemetry saturates the link.
 const RESPONSE_RESERVE: usize = 2 * MAX_FRAME_LEN;
+/// The part of a slow link's byte rate that telemetry may book, %: the rest is for responses
+/// and events, which go first (a status answer is about 200 bytes, 35 ms at 57,600 baud).
+pub const TELEMETRY_SHARE_PCT: u32 = 75;
 /// Shortest interval between two link-error events, µs.
 const LINK_ERROR_EVENT_INTERVAL_US: u64 = 100_000;
 
@@ -102,6 +105,9 @@ pub struct LinkServer {
     /// The last request that commands the craft, and its answer: the same frame again (the
     /// host asking once more because the answer was lost on a radio) gets the same answer and
     /// is not carried out twice.
+    /// The link's byte rate, bytes/s, when it is slower than the topics could fill (a radio):
+    /// [`LinkServer::with_byte_rate`].
+    byte_rate: Option<u32>,
     /// The answer is kept as its frame (the request's sequence number in it).
     last_command: Option<(RequestFingerprint, heapless::Vec<u8, MAX_FRAME_LEN>)>,
 }
@@ -151,7 +157,17 @@ impl LinkServer {
             trusted: true,
             refusals: SignatureRefusals::default(),
             last_command: None,
+            byte_rate: None,
         }
+    }
+
+    /// This link carries `bytes_per_s` (a radio's air rate; a UART's baud over 10 for 8N1):
+    /// telemetry rates are granted within [`TELEMETRY_SHARE_PCT`] % of it, each sample booked
+    /// at its topic's longest frame ([`Topic::max_frame_len`]), so responses and events always
+    /// find room and what is streamed arrives evenly decimated rather than randomly dropped.
+    pub fn with_byte_rate(mut self, bytes_per_s: u32) -> Self {
+        self.byte_rate = Some(bytes_per_s);
+        self
     }
 
     /// This link is heard by others (a telemetry radio): requests that configure, arm, spin or
@@ -686,15 +702,42 @@ impl LinkServer {
                 unit: short_text("Hz"),
             });
         }
+        let mut rate_hz = u32::from(setting.rate_hz);
+        if let Some(bytes_per_s) = self.byte_rate {
+            // What the other topics already book, bytes/s.
+            let booked: u32 = Topic::ALL
+                .into_iter()
+                .filter(|&topic| topic != setting.topic)
+                .map(|topic| self.granted_hz(topic) * u32::from(topic.max_frame_len()))
+                .sum();
+            let budget = bytes_per_s.saturating_mul(TELEMETRY_SHARE_PCT) / 100;
+            let left = budget.saturating_sub(booked);
+            rate_hz = rate_hz.min(left / u32::from(setting.topic.max_frame_len()).max(1));
+        }
         let state = &mut self.topics[setting.topic.index()];
-        let rate_hz = u32::from(setting.rate_hz);
         state.period_us = 1_000_000u32.checked_div(rate_hz).unwrap_or(0);
         state.next_due_us = now_us;
         // The nearest whole number of control steps per sample.
         let control_hz = u32::from(self.info.control_rate_hz).max(1);
         state.step_divider =
             (control_hz + rate_hz / 2).checked_div(rate_hz).map_or(0, |divider| divider.max(1));
-        Ok(Reply::Done)
+        if setting.topic.is_per_step() && state.step_divider > 0 {
+            // Never more than granted: a whole number of steps at or above the granted period.
+            state.step_divider = state.step_divider.max(control_hz.div_ceil(rate_hz));
+        }
+        let granted_hz = self.granted_hz(setting.topic).min(u32::from(u16::MAX)) as u16;
+        Ok(Reply::TelemetryRate(SetTelemetryRate { topic: setting.topic, rate_hz: granted_hz }))
+    }
+
+    /// The rate `topic` streams at now, Hz (rounded down): the control rate over the step
+    /// divider for a per-step topic, one over the period for the others; 0 when off.
+    fn granted_hz(&self, topic: Topic) -> u32 {
+        let state = &self.topics[topic.index()];
+        if topic.is_per_step() {
+            u32::from(self.info.control_rate_hz).checked_div(state.step_divider).unwrap_or(0)
+        } else {
+            1_000_000u32.checked_div(state.period_us).unwrap_or(0)
+        }
     }
 
     fn status(&self, view: &StatusView) -> Status {

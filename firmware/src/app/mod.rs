@@ -35,7 +35,9 @@ pub use control::{
     ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, IMU_FAULT_TIMEOUT_S, SPEED_REPORT_TIMEOUT_S,
     STUCK_GYRO_SAMPLES,
 };
-pub use link::{learner_telemetry, sensor_health, LinkRequest, LinkServer, TX_CAPACITY};
+pub use link::{
+    learner_telemetry, sensor_health, LinkRequest, LinkServer, TELEMETRY_SHARE_PCT, TX_CAPACITY,
+};
 pub use params::{Param, Params};
 pub use pilot::{
     count_failsafe, failsafe_counter, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus,
