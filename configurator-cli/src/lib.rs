@@ -8,6 +8,7 @@
 //! - [`keys`]: the link keys shared with boards, for signed requests over a radio;
 //! - [`report`]: what the board says, in words with units, or as JSON;
 //! - [`offline`]: the `flight` estimators applied to recorded logs and files;
+//! - [`pose_relay`]: motion-capture poses forwarded to the board over its link;
 //! - [`plot`]: recordings and calibration ellipsoids drawn to PNG or SVG;
 //! - [`record`]: telemetry topics written to CSV;
 //! - [`shell`]: the interactive shell (line editing, completion, history).
@@ -20,6 +21,7 @@ pub mod keys;
 pub mod link;
 pub mod offline;
 pub mod plot;
+pub mod pose_relay;
 pub mod record;
 pub mod report;
 pub mod shell;

@@ -341,6 +341,27 @@ impl Client {
         self.await_response(seq, what, self.timeout)
     }
 
+    /// Send `request` without waiting for its answer (a stream of poses: each would otherwise
+    /// wait a round trip); [`Client::take_responses`] collects the answers. Returns its
+    /// sequence number.
+    pub fn post(&mut self, request: &Request) -> Result<u16, LinkError> {
+        let (seq, frame) = self.encode(request)?;
+        self.write_frame(&frame)?;
+        Ok(seq)
+    }
+
+    /// Read what has arrived (waiting at most the transport's read timeout): telemetry and
+    /// events are kept as always; the responses are returned, with their sequence numbers.
+    pub fn take_responses(&mut self) -> Result<Vec<(u16, protocol::Response)>, LinkError> {
+        let mut responses = Vec::new();
+        self.read_some(|seq, message| {
+            if let Ok(DeviceMessage::Response(response)) = message {
+                responses.push((seq, response));
+            }
+        })?;
+        Ok(responses)
+    }
+
     /// Requests asked again after a lost frame or answer, since the connection opened.
     pub fn retries(&self) -> u32 {
         self.retries

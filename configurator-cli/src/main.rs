@@ -137,6 +137,21 @@ enum Command {
     },
     /// How this link is guarded: trusted or not, paired, signing, and the requests refused.
     Security,
+    /// Forward motion-capture poses to the board over this link (a radio in the field): UDP
+    /// datagrams on --listen, one pose each as the line `t_s n_m e_m d_m qw qx qy qz` (metres,
+    /// world north-east-down; the body's attitude quaternion, of which the heading is sent):
+    /// docs/field.md. Only the newest pose is sent, at most --rate-hz a second.
+    PoseRelay {
+        /// Where the motion-capture poses arrive: HOST:PORT (e.g. 0.0.0.0:9870).
+        #[arg(long, value_name = "HOST:PORT")]
+        listen: std::net::SocketAddr,
+        /// The most poses a second to send, Hz (1–2000).
+        #[arg(long, default_value_t = configurator_cli::pose_relay::DEFAULT_RATE_HZ)]
+        rate_hz: f64,
+        /// Stop after this long, s (default: until interrupted).
+        #[arg(long)]
+        duration_s: Option<f64>,
+    },
     /// Restart the board (the SITL restarts its application and reloads its flash).
     Reboot,
     /// Restart the board into its ROM bootloader (USB DFU) to update the firmware. Refused while
@@ -437,6 +452,12 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
         Command::Reboot => BoardCommand::Reboot,
         Command::Pair { forget } => BoardCommand::Pair { forget: *forget },
         Command::Security => BoardCommand::Security,
+        Command::PoseRelay { listen, rate_hz, duration_s } => {
+            if duration_s.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
+                return Err(input("--duration-s must be a positive number of seconds".into()));
+            }
+            BoardCommand::PoseRelay { listen: *listen, rate_hz: *rate_hz, duration_s: *duration_s }
+        }
         Command::Dfu => BoardCommand::Dfu,
         Command::Setpoint { north_m, east_m, down_m, heading_deg } => {
             let values = [*north_m, *east_m, *down_m, *heading_deg];
@@ -571,6 +592,11 @@ enum BoardCommand {
         forget: bool,
     },
     Security,
+    PoseRelay {
+        listen: std::net::SocketAddr,
+        rate_hz: f64,
+        duration_s: Option<f64>,
+    },
     Dfu,
     Setpoint(protocol::PositionSetpoint),
     Shell,
@@ -866,6 +892,24 @@ fn run_on_board(
             })
         }
         BoardCommand::Pair { forget } => pair(client, forget, cli.json),
+        BoardCommand::PoseRelay { listen, rate_hz, duration_s } => {
+            use configurator_cli::pose_relay;
+            eprintln!("relaying poses from {listen} to the board, at most {rate_hz} Hz…");
+            let duration = duration_s.map(Duration::from_secs_f64);
+            let summary = pose_relay::run(client, listen, rate_hz, duration, |so_far| {
+                eprint!("\r{}", pose_relay::summary_text(so_far).trim_end());
+            })
+            .map_err(|e| match e {
+                pose_relay::RelayError::Link(link) => Failure::from(link),
+                other => Failure::Input(InputError(other.to_string())),
+            })?;
+            eprintln!();
+            Ok(if cli.json {
+                format!("{:#}\n", serde_json::to_value(&summary).unwrap_or_default())
+            } else {
+                pose_relay::summary_text(&summary)
+            })
+        }
         BoardCommand::Security => {
             let security = link_security(client)?;
             Ok(if cli.json {

@@ -333,7 +333,7 @@ fn the_link_key_survives_a_restart_beside_the_parameters_and_neither_disturbs_th
     settings.set("throw_momentum_mps", &[5.0]).unwrap();
     settings.save().unwrap();
     settings.set_link_key(None).unwrap();
-    let mut settings = Settings::load(settings.into_flash().unwrap(), RANGE);
+    let settings = Settings::load(settings.into_flash().unwrap(), RANGE);
     assert!(!settings.link_guard().paired(), "unpaired after a restart");
     assert_eq!(settings.params().scalar(Param::ThrowMomentumMps), 5.0);
 }

@@ -289,8 +289,8 @@ pub struct LinkSecurity {
     /// The board's session for this start-up: signatures cover it, so a frame signed before a
     /// restart fails after it.
     pub session: u64,
-    /// The greatest signed timestamp accepted since start-up (10 µs since 2015-01-01 UTC; 0
-    /// when none): a signed request must carry a greater one.
+    /// The greatest signed timestamp this link accepted since start-up (10 µs since 2015-01-01
+    /// UTC; 0 when none): a signed request on it must carry a greater one.
     pub last_timestamp: u64,
     /// Requests this link refused for want of a signature, since start-up.
     pub unsigned_refused: u32,
@@ -356,8 +356,8 @@ pub enum DeviceError {
     /// The request's signature is not the paired key's (or no key is paired): nothing was
     /// changed. Protocol 1.8.
     BadSignature,
-    /// The signature's timestamp is not greater than `last_timestamp`, the greatest accepted
-    /// since start-up: a replayed frame, or a host clock behind (sign with a later timestamp).
+    /// The signature's timestamp is not greater than `last_timestamp`, the greatest this link
+    /// accepted since start-up: a replayed frame, or a host clock behind (sign with a later timestamp).
     /// Nothing was changed. Protocol 1.8.
     Replayed { last_timestamp: u64 },
     /// Only a trusted link (USB) may do that (set the link key). Protocol 1.8.

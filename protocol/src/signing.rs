@@ -15,7 +15,9 @@
 //!   below 0x40 and device messages are 0x80–0xBF, so no id has the bit of its own.
 //! - **The timestamp** counts 10 µs since 2015-01-01 00:00 UTC (MAVLink's unit and epoch; 48 bits
 //!   last 89 years). The board accepts a signed request only when its timestamp is greater than
-//!   every one it accepted before since start-up.
+//!   every one it accepted on the same link since start-up (one sequence per link, as MAVLink
+//!   keeps one per stream: two signers on two links never refuse each other's frames in
+//!   flight).
 //! - **The session** is a number the board draws at start-up (a hardware random number on the
 //!   board) and tells any host that asks (`Request::GetLinkSecurity`). It is not sent in the
 //!   frame but enters the MAC, so a frame recorded before a restart, whose timestamp the

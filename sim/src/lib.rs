@@ -15,6 +15,7 @@ pub mod log;
 pub mod log_dir;
 pub mod monte_carlo;
 pub mod physics;
+pub mod pose_line;
 pub mod radio;
 pub mod recovery;
 /// The workspace's deterministic random-number generator (sensor noise, random airframes).

@@ -78,6 +78,10 @@ pub struct SitlConfig {
     /// and 0.1° of noise, on time, never lost). The firmware is not told: set its
     /// `pose_latency_s` and `pose_noise_m` parameters to match, as on a real system.
     pub motion_capture: crate::recovery::MotionCaptureConfig,
+    /// With `mocap`: send each pose as a UDP datagram in the motion-capture line format
+    /// ([`crate::pose_line`]) to this address, as a motion-capture system would, instead of
+    /// handing it to the firmware (`configurator-cli pose-relay` forwards them over a link).
+    pub mocap_udp: Option<std::net::SocketAddr>,
     /// The flash file holding the saved configuration (created erased when missing); `None`:
     /// no configuration store (changes last until the SITL stops).
     pub flash_file: Option<PathBuf>,
@@ -149,6 +153,7 @@ impl Default for SitlConfig {
             acc_bias_mps2: None,
             throw_to_fly: false,
             mocap: false,
+            mocap_udp: None,
             motion_capture: crate::recovery::MotionCaptureConfig::default(),
             imu_offset_m: None,
             flash_file: None,
@@ -203,6 +208,8 @@ pub enum SitlError {
     Fault(String),
     #[error("could not create the log directory {path}: {source}")]
     LogDir { path: PathBuf, source: std::io::Error },
+    #[error("cannot open a UDP socket for the motion-capture poses: {0}")]
+    MocapUdp(std::io::Error),
 }
 
 /// A running SITL. Stops when dropped.
@@ -302,6 +309,10 @@ impl Sitl {
             hand_throws_to_fly: config.hand_throws_to_fly,
             mocap: config.mocap,
             motion_capture: config.motion_capture,
+            mocap_udp: match config.mocap_udp {
+                Some(to) => Some(MocapSender::open(to).map_err(SitlError::MocapUdp)?),
+                None => None,
+            },
             radio: config
                 .rc_script
                 .as_ref()
@@ -360,6 +371,7 @@ struct Runner {
     imu_offset_m: Option<[f32; 3]>,
     mocap: bool,
     motion_capture: crate::recovery::MotionCaptureConfig,
+    mocap_udp: Option<MocapSender>,
     /// The simulated pilot's radio, when there is one (it goes on across restarts).
     radio: Option<crate::radio::RcTransmitter>,
     info: BoardInfo,
@@ -487,7 +499,12 @@ impl Runner {
             let now_us = clock.firmware_us();
             let state = clock.board.physics().state();
             if let Some(pose) = mocap.as_mut().and_then(|m| m.sample(state, now_us)) {
-                system.submit(ControlCommand::ExternalPose(pose));
+                match &self.mocap_udp {
+                    Some(sender) => sender.send(now_us, &pose),
+                    None => {
+                        system.submit(ControlCommand::ExternalPose(pose));
+                    }
+                }
             }
             if let Some(radio) = &mut self.radio {
                 radio.advance(clock.board.now_us());
@@ -662,5 +679,31 @@ mod tests {
         }
         assert!(!SitlConfig::default().throw_to_fly);
         assert_eq!(SitlConfig::default().imu_offset_m, None);
+    }
+}
+
+/// The SITL's motion-capture system on the network: each pose one datagram in the line format.
+struct MocapSender {
+    socket: std::net::UdpSocket,
+    to: std::net::SocketAddr,
+}
+
+impl MocapSender {
+    fn open(to: std::net::SocketAddr) -> std::io::Result<Self> {
+        let any: std::net::SocketAddr =
+            if to.is_ipv4() { ([0, 0, 0, 0], 0).into() } else { ([0u16; 8], 0).into() };
+        Ok(Self { socket: std::net::UdpSocket::bind(any)?, to })
+    }
+
+    /// Send `pose`, captured at `now_us` on the simulation's clock. A datagram the network
+    /// refuses (nobody listening yet) is lost, as a motion-capture stream's would be.
+    fn send(&self, now_us: u64, pose: &protocol::ExternalPose) {
+        let [n, e, d] = pose.position_ned_m.map(f64::from);
+        let line = crate::pose_line::PoseLine::with_heading(
+            now_us as f64 * 1e-6,
+            [n, e, d],
+            f64::from(pose.heading_rad),
+        );
+        let _ = self.socket.send_to(line.format().as_bytes(), self.to);
     }
 }

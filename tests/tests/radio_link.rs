@@ -279,3 +279,81 @@ fn streaming_over_the_radio_gets_the_rate_the_byte_budget_allows_with_gaps_count
     );
     assert!(gaps <= 0.1 * expected, "{gaps} gaps of {expected}");
 }
+
+/// Motion capture → `pose-relay` → the simulated radio → the board: the SITL's motion-capture
+/// system sends its poses as UDP lines (`--mocap-udp`), the relay forwards them over the
+/// 57,600-baud, 20 ms, 2 %-loss radio, signed, and the craft, thrown by the SITL's hand, recovers
+/// and holds its position within 0.3 m.
+#[test]
+fn poses_relayed_over_the_radio_hold_the_craft_after_a_throw_to_fly() {
+    let keys = std::env::temp_dir().join(format!("fc-keys-relay-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&keys);
+    let udp = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let listen = udp.local_addr().unwrap();
+    drop(udp);
+    let config = SitlConfig {
+        seed: 21,
+        hand_throws_to_fly: true,
+        mocap: true,
+        mocap_udp: Some(listen),
+        telemetry_radio: Some(RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.02 }),
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let usb = sitl.pty_path.clone().unwrap().display().to_string();
+    let radio = sitl.radio_path.clone().unwrap().display().to_string();
+    let text = |output: &std::process::Output| {
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        )
+    };
+    let pair = cli_with_keys(&keys, &["--port", &usb, "pair"]);
+    assert!(pair.status.success(), "{}", text(&pair));
+    // Poses the SITL sends a board position the configurator is told to hold; the pilot's
+    // setpoint stays where the craft recovers (the default).
+    let listen_text = listen.to_string();
+    let relay = std::process::Command::new(tests::cli_binary())
+        .env(configurator_cli::keys::KEY_DIR_ENV, &keys)
+        .args([
+            "--port",
+            &radio,
+            "--json",
+            "pose-relay",
+            "--listen",
+            &listen_text,
+            "--duration-s",
+            "18",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start the relay");
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let arm = cli_with_keys(&keys, &["--port", &usb, "arm-throw-to-fly"]);
+    assert!(arm.status.success(), "{}", text(&arm));
+    // Thrown, recovered and holding by now (12 s after the arming), on the relayed poses.
+    std::thread::sleep(std::time::Duration::from_secs(12));
+    let status = cli_with_keys(&keys, &["--port", &usb, "--json", "status"]);
+    let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    let flight = &status["flight"];
+    assert_eq!(flight["mode"], "PositionHold", "{flight}");
+    let position = flight["position_ned_m"].as_array().unwrap();
+    let setpoint = flight["position_sp_ned_m"].as_array().unwrap();
+    let error_m = position
+        .iter()
+        .zip(setpoint)
+        .map(|(p, s)| (p.as_f64().unwrap() - s.as_f64().unwrap()).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(error_m < 0.3, "{error_m:.3} m from the setpoint: {flight}");
+    let relay = relay.wait_with_output().unwrap();
+    assert!(relay.status.success(), "{}", text(&relay));
+    let summary: serde_json::Value = serde_json::from_slice(&relay.stdout).unwrap();
+    let relayed = summary["relayed"].as_u64().unwrap();
+    assert!(relayed > 18 * 45, "50 Hz for 18 s: {summary}");
+    assert_eq!(summary["refused"], 0, "{summary}");
+    assert!(summary["accepted"].as_u64().unwrap() >= relayed * 9 / 10, "{summary}");
+    let _ = std::fs::remove_dir_all(&keys);
+}

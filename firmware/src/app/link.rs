@@ -102,6 +102,8 @@ pub struct LinkServer {
     trusted: bool,
     /// Requests this link refused for their signature, since start-up.
     refusals: SignatureRefusals,
+    /// The greatest signed timestamp this link accepted since start-up.
+    last_timestamp: u64,
     /// The last request that commands the craft, and its answer: the same frame again (the
     /// host asking once more because the answer was lost on a radio) gets the same answer and
     /// is not carried out twice.
@@ -156,6 +158,7 @@ impl LinkServer {
             failsafes_reported: FailsafeCounters::default(),
             trusted: true,
             refusals: SignatureRefusals::default(),
+            last_timestamp: 0,
             last_command: None,
             byte_rate: None,
         }
@@ -227,7 +230,9 @@ impl LinkServer {
                         }
                         continue;
                     }
-                    let check = settings.link_guard().check(frame.signature.as_ref());
+                    let last_timestamp = &mut self.last_timestamp;
+                    let check =
+                        settings.link_guard().check(frame.signature.as_ref(), last_timestamp);
                     (frame.seq, check, Request::decode(&frame), fingerprint)
                 }
                 Err(error) => {
@@ -622,7 +627,7 @@ impl LinkServer {
                     trusted: self.trusted,
                     paired: guard.paired(),
                     session: guard.session(),
-                    last_timestamp: guard.last_timestamp(),
+                    last_timestamp: self.last_timestamp,
                     unsigned_refused: self.refusals.unsigned,
                     bad_signature: self.refusals.bad_signature,
                     replayed: self.refusals.replayed,

@@ -156,12 +156,13 @@ impl<F: NorFlash> Store<F> {
 }
 
 /// What guards the untrusted links ([`protocol::signing`]), shared by every link of the board:
-/// the paired key, this start-up's session, and the greatest signed timestamp accepted since.
+/// the paired key and this start-up's session. Each link keeps its own last timestamp (as
+/// MAVLink keeps one per stream), so two signers on two links never refuse each other's
+/// requests in flight.
 #[derive(Clone, Copy, Default)]
 pub struct LinkGuard {
     key: Option<LinkKey>,
     session: u64,
-    last_timestamp: u64,
 }
 
 /// How a signed request fared against the [`LinkGuard`].
@@ -178,17 +179,22 @@ pub enum SignatureCheck {
 }
 
 impl LinkGuard {
-    /// Check `signature` and, when it is accepted, raise the last timestamp to its own.
-    pub fn check(&mut self, signature: Option<&Signature<'_>>) -> SignatureCheck {
+    /// Check `signature` against the link's `last_timestamp` and, when it is accepted, raise
+    /// that to its own.
+    pub fn check(
+        &self,
+        signature: Option<&Signature<'_>>,
+        last_timestamp: &mut u64,
+    ) -> SignatureCheck {
         let Some(signature) = signature else { return SignatureCheck::Unsigned };
         let Some(key) = &self.key else { return SignatureCheck::BadSignature };
         if !signature.verify(key, self.session) {
             return SignatureCheck::BadSignature;
         }
-        if signature.timestamp <= self.last_timestamp {
-            return SignatureCheck::Replayed { last_timestamp: self.last_timestamp };
+        if signature.timestamp <= *last_timestamp {
+            return SignatureCheck::Replayed { last_timestamp: *last_timestamp };
         }
-        self.last_timestamp = signature.timestamp;
+        *last_timestamp = signature.timestamp;
         SignatureCheck::Accepted
     }
 
@@ -201,11 +207,6 @@ impl LinkGuard {
     pub fn session(&self) -> u64 {
         self.session
     }
-
-    /// The greatest signed timestamp accepted since start-up (0 when none).
-    pub fn last_timestamp(&self) -> u64 {
-        self.last_timestamp
-    }
 }
 
 impl core::fmt::Debug for LinkGuard {
@@ -214,7 +215,6 @@ impl core::fmt::Debug for LinkGuard {
         f.debug_struct("LinkGuard")
             .field("paired", &self.paired())
             .field("session", &self.session)
-            .field("last_timestamp", &self.last_timestamp)
             .finish()
     }
 }
@@ -356,8 +356,8 @@ impl<F: NorFlash> Settings<F> {
     }
 
     /// The signing state every link checks signed requests against.
-    pub fn link_guard(&mut self) -> &mut LinkGuard {
-        &mut self.guard
+    pub fn link_guard(&self) -> &LinkGuard {
+        &self.guard
     }
 
     /// This start-up's signing session: a number the board draws at start-up (a hardware random

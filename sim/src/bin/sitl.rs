@@ -80,6 +80,11 @@ struct Args {
     /// `pose_latency_s` and `pose_noise_m` parameters.
     #[arg(long)]
     mocap: bool,
+    /// With --mocap: send the poses as UDP datagrams in the motion-capture line format to
+    /// HOST:PORT instead (`configurator-cli pose-relay --listen HOST:PORT` forwards them to the
+    /// board over a link, e.g. the simulated radio): docs/field.md.
+    #[arg(long, value_name = "HOST:PORT", requires = "mocap")]
+    mocap_udp: Option<std::net::SocketAddr>,
     #[command(flatten)]
     motion_capture: sim::recovery::MotionCaptureArgs,
     /// The flash file holding the saved configuration (`save` writes it; created erased when
@@ -176,6 +181,7 @@ fn main() -> std::process::ExitCode {
         hand_throws_to_fly: args.hand_throws_to_fly,
         imu_offset_m: args.imu_offset_mm,
         mocap: args.mocap,
+        mocap_udp: args.mocap_udp,
         motion_capture,
         rc_script: args.rc.clone(),
         rc_rate_hz: args.rc_rate_hz,
