@@ -617,6 +617,32 @@ fn auto_throw(board: &mut SimBoard, every_s: f64, rates_dps: &[[f64; 3]], throws
     *throws_done += 1;
 }
 
+/// The SITL's motion-capture system on the network: each pose one datagram in the line format.
+struct MocapSender {
+    socket: std::net::UdpSocket,
+    to: std::net::SocketAddr,
+}
+
+impl MocapSender {
+    fn open(to: std::net::SocketAddr) -> std::io::Result<Self> {
+        let any: std::net::SocketAddr =
+            if to.is_ipv4() { ([0, 0, 0, 0], 0).into() } else { ([0u16; 8], 0).into() };
+        Ok(Self { socket: std::net::UdpSocket::bind(any)?, to })
+    }
+
+    /// Send `pose`, captured at `now_us` on the simulation's clock. A datagram the network
+    /// refuses (nobody listening yet) is lost, as a motion-capture stream's would be.
+    fn send(&self, now_us: u64, pose: &protocol::ExternalPose) {
+        let [n, e, d] = pose.position_ned_m.map(f64::from);
+        let line = crate::pose_line::PoseLine::with_heading(
+            now_us as f64 * 1e-6,
+            [n, e, d],
+            f64::from(pose.heading_rad),
+        );
+        let _ = self.socket.send_to(line.format().as_bytes(), self.to);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -679,31 +705,5 @@ mod tests {
         }
         assert!(!SitlConfig::default().throw_to_fly);
         assert_eq!(SitlConfig::default().imu_offset_m, None);
-    }
-}
-
-/// The SITL's motion-capture system on the network: each pose one datagram in the line format.
-struct MocapSender {
-    socket: std::net::UdpSocket,
-    to: std::net::SocketAddr,
-}
-
-impl MocapSender {
-    fn open(to: std::net::SocketAddr) -> std::io::Result<Self> {
-        let any: std::net::SocketAddr =
-            if to.is_ipv4() { ([0, 0, 0, 0], 0).into() } else { ([0u16; 8], 0).into() };
-        Ok(Self { socket: std::net::UdpSocket::bind(any)?, to })
-    }
-
-    /// Send `pose`, captured at `now_us` on the simulation's clock. A datagram the network
-    /// refuses (nobody listening yet) is lost, as a motion-capture stream's would be.
-    fn send(&self, now_us: u64, pose: &protocol::ExternalPose) {
-        let [n, e, d] = pose.position_ned_m.map(f64::from);
-        let line = crate::pose_line::PoseLine::with_heading(
-            now_us as f64 * 1e-6,
-            [n, e, d],
-            f64::from(pose.heading_rad),
-        );
-        let _ = self.socket.send_to(line.format().as_bytes(), self.to);
     }
 }
