@@ -1,7 +1,8 @@
 //! The firmware in a randomised world (`sim::world`): hands, motion capture, IMU errors, ESCs,
 //! motors, batteries and air drawn from their documented ranges. A small version of
 //! `fly monte-carlo --world random` (whose 1,000-run figures are in docs/benchmarks.md), and
-//! the finding it led to: ESC speed reports older than the nominal board's.
+//! the findings it led to: ESC speed reports older than the nominal board's, and a hover lost at
+//! the end of the excitation to the gyro's sensitivity errors (flown, not refused).
 //!
 //! `cargo test -p tests --release --test random_world -- --nocapture` prints the figures.
 
@@ -11,32 +12,63 @@ use sim::recovery::{fly, FlyConfig, Outcome, Verdict};
 use sim::world::{self, Aspect};
 
 #[test]
-fn thirty_random_worlds_hover_or_refuse_to_fly_and_most_hold_within_0_3_m() {
-    // Issue 28's target is 99 % hovered and 97 % held over 1,000 runs; it is not met yet
-    // (docs/benchmarks.md: 98.5 % and 94.2 %): the gyro's scale and cross-axis errors at high
-    // spin still get some identifications refused (`NoHover`: the learned rotational block is
-    // off; seed 18 here). This guards what holds today: every run either hovers or is refused
-    // by the identification before it flies a model (no crash into the ground, no other
-    // failsafe, no run that never settles), seeds 1-30 hover in 29 cases and hold within 0.3 m
-    // in 28 (before the tumble left out the hand's last touch and the learner's filters were
-    // primed in the release delay: 28 and 26).
+fn thirty_random_worlds_all_hover_and_most_hold_within_0_3_m() {
+    // Issue 28's target is 99 % hovered and 97 % held over 1,000 runs (docs/benchmarks.md: 99.4 %
+    // and 95.0 %, held not met yet). Seeds 1-30 all hover (no crash into the ground, no
+    // failsafe, no run that never settles, no refused identification) and hold within 0.3 m in
+    // 29 cases. Before the pilot flew the hover found during the excitation when the final
+    // model's hover left the motor bounds, seed 18 (490 °/s, the gyro's scale and cross-axis
+    // errors) was refused (`NoHover`): 29 hovered, 28 held.
     let results = world::monte_carlo(30, 1, 2, &Aspect::ALL, &|_| {});
     let verdicts: Vec<_> = results.iter().map(|r| (r.seed, r.verdict)).collect();
-    let hovered = results
-        .iter()
-        .filter(|r| matches!(r.verdict, Verdict::Held | Verdict::HoveredLoose))
-        .count();
     let held = results.iter().filter(|r| r.verdict == Verdict::Held).count();
-    eprintln!("hovered {hovered} of 30, held {held}: {verdicts:?}");
-    let refused = Verdict::Failsafe(Failsafe::Identification(IdentificationFailure::NoHover));
+    eprintln!("held {held} of 30: {verdicts:?}");
     for (seed, verdict) in &verdicts {
         assert!(
-            matches!(verdict, Verdict::Held | Verdict::HoveredLoose) || *verdict == refused,
+            matches!(verdict, Verdict::Held | Verdict::HoveredLoose),
             "seed {seed}: {verdict:?}"
         );
     }
-    assert!(hovered >= 29, "{verdicts:?}");
-    assert!(held >= 28, "{verdicts:?}");
+    assert!(held >= 29, "{verdicts:?}");
+}
+
+#[test]
+fn a_hover_lost_at_the_end_of_the_excitation_to_the_gyros_sensitivity_is_flown() {
+    // Random-world seeds 18 (490 °/s) and 187 (886 °/s): the gyro's scale and cross-axis errors
+    // (±3 %, ±2 %) leave the learned rotational block 13-17 % off at the end of the excitation,
+    // and the hover it implies needs a command outside [0, 1] (`AxisStatus::NoHover`), although
+    // a hover within the bounds was found earlier in the same excitation. INDI needs the thrust
+    // axis, not the exact hover commands, and a refusal drops the craft from its apex: the pilot
+    // flies the last hover found. Both were refused before; both hover now and hold.
+    for seed in [18, 187] {
+        let (airframe, config) = world::random_world_case(seed, &Aspect::ALL);
+        let report = fly(&airframe, &config);
+        let verdict = Verdict::of(&report);
+        eprintln!("seed {seed}: {verdict:?}, hold {:?} m", report.max_hold_error_m);
+        assert_eq!(report.outcome, Outcome::Flying, "seed {seed}");
+        assert!(report.release_to_hover_s.is_some(), "seed {seed}: never hovered");
+        assert_eq!(verdict, Verdict::Held, "seed {seed}");
+    }
+}
+
+#[test]
+fn a_craft_that_cannot_hover_is_still_refused_before_it_flies() {
+    // The seed paper's quad with a quarter of its thrust (thrust-to-weight 3.3 / 4 = 0.82): no hover
+    // within the motor bounds is ever found, so there is no thrust axis to fly and the
+    // identification is refused (`NoHover`) as before.
+    let mut airframe = Airframe::builtin("paper-quad").unwrap();
+    airframe.motor.thrust_coefficient_n_per_rad2_s2 /= 4.0;
+    for rotor in &mut airframe.rotors {
+        if let Some(motor) = rotor.motor.as_mut() {
+            motor.thrust_coefficient_n_per_rad2_s2 /= 4.0;
+        }
+    }
+    let report = fly(&airframe, &FlyConfig::paper());
+    eprintln!("a quarter of the thrust: {:?}", report.outcome);
+    assert_eq!(
+        report.outcome,
+        Outcome::Failsafe(Failsafe::Identification(IdentificationFailure::NoHover))
+    );
 }
 
 #[test]

@@ -204,7 +204,9 @@ pub struct LearnedModel {
     pub g1_converged: u8,
     /// Bit i: motor i's model has converged.
     pub motors_converged: u8,
-    /// The thrust axis, when found.
+    /// The thrust axis, when found: the latest solution within the motor bounds. It stays when
+    /// a later model's hover leaves the bounds (`axis_status` then `NoHover`), so the caller
+    /// can tell a hover lost at the end of an excitation from one never found (`None`).
     pub thrust_axis: Option<LearnedThrustAxis>,
     /// Where the thrust-axis solution stands.
     pub axis_status: AxisStatus,
