@@ -133,6 +133,11 @@ impl std::fmt::Display for DeviceErrorText {
                 if motors.count_ones() == 1 { "s" } else { "" },
                 protocol::SPEED_REPORT_TIMEOUT_MS
             ),
+            // Placeholder wording until the link layer uses them (issue 29, the lead's branch).
+            DeviceError::SignatureRequired => write!(f, "this link needs signed requests"),
+            DeviceError::BadSignature => write!(f, "the request's signature did not verify"),
+            DeviceError::Replayed { .. } => write!(f, "the signed request was a replay"),
+            DeviceError::TrustedLinkOnly => write!(f, "only a trusted link (USB) may do that"),
         }
     }
 }

@@ -488,6 +488,8 @@ impl LinkServer {
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
             Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
+            // Placeholder until the link layer answers them (issue 29, the lead's branch).
+            Request::GetLinkSecurity(()) | Request::SetLinkKey(_) => Err(DeviceError::Unsupported),
             Request::RebootToBootloader(()) => {
                 if !self.info.capabilities.has(Capabilities::BOOTLOADER) {
                     return Err(DeviceError::Unsupported);
