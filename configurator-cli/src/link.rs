@@ -7,7 +7,8 @@
 
 use protocol::{
     peek_hello_version, Decoder, DeviceError, DeviceMessage, Event, Hello, Info, Reply, Request,
-    StorageStage, Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID, SCHEMA_HASH,
+    Response, StorageStage, Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID,
+    SCHEMA_HASH,
 };
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Read, Write};
@@ -37,6 +38,8 @@ fn is_read_only(request: &Request) -> bool {
             | Request::GetFlight(_)
             | Request::GetBoard(_)
             | Request::GetHealth(_)
+            | Request::ListLogs(_)
+            | Request::ReadLog(_)
     )
 }
 
@@ -133,6 +136,18 @@ impl std::fmt::Display for DeviceErrorText {
                 if motors.count_ones() == 1 { "s" } else { "" },
                 protocol::SPEED_REPORT_TIMEOUT_MS
             ),
+            DeviceError::NoSuchLog { number } => {
+                write!(f, "the board has no log {number} (`log list` lists them)")
+            }
+            DeviceError::LogOffsetPastEnd { number, size_bytes } => write!(
+                f,
+                "log {number} holds only {size_bytes} bytes (a partial download longer than the                  log is not one of it)"
+            ),
+            DeviceError::LogBeingWritten { number } => write!(
+                f,
+                "log {number} is still being written (the craft is armed or just disarmed); try                  again once it has closed"
+            ),
+            DeviceError::LogStorageFailed => write!(f, "the board's log storage failed"),
             // Placeholder wording until the link layer uses them (issue 29, the lead's branch).
             DeviceError::SignatureRequired => write!(f, "this link needs signed requests"),
             DeviceError::BadSignature => write!(f, "the request's signature did not verify"),
@@ -283,6 +298,48 @@ impl Client {
     /// Read-only requests asked again after a lost answer, since the connection opened.
     pub fn retries(&self) -> u32 {
         self.retries
+    }
+
+    /// How long a read-only request waits before it is asked again on this link.
+    pub fn retry_after(&self) -> Duration {
+        self.retry_after
+    }
+
+    /// Send a request without waiting for its answer, for pipelining several read-only ones
+    /// ([`Client::answers`] collects the answers): its sequence number.
+    pub fn send_only(&mut self, request: &Request) -> Result<u16, LinkError> {
+        self.send(request)
+    }
+
+    /// Count a request asked again by a caller that pipelines ([`Client::retries`]).
+    pub fn count_retry(&mut self) {
+        self.retries += 1;
+    }
+
+    /// Wait up to `timeout` for answers to the requests numbered `pending`: every such answer
+    /// that arrived by the first read that brought one (empty after the timeout). Answers to
+    /// other numbers (a request asked twice) are dropped.
+    pub fn answers(
+        &mut self,
+        pending: &[u16],
+        timeout: Duration,
+    ) -> Result<Vec<(u16, Response)>, LinkError> {
+        let deadline = Instant::now() + timeout;
+        let mut answers = Vec::new();
+        let mut undecodable = false;
+        while answers.is_empty() && Instant::now() < deadline {
+            self.read_some(|seq, message| match message {
+                Ok(DeviceMessage::Response(response)) if pending.contains(&seq) => {
+                    answers.push((seq, response))
+                }
+                Err(_) if pending.contains(&seq) => undecodable = true,
+                _ => {}
+            })?;
+            if undecodable {
+                return Err(LinkError::Unexpected("undecodable response".into()));
+            }
+        }
+        Ok(answers)
     }
 
     /// Read for `duration`, collecting telemetry and events.

@@ -9,6 +9,7 @@
 //! count. Bad frames are counted and
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
+use super::log::{LogFileError, LogFiles};
 use super::params;
 use super::pilot::{failsafe_counter, Failsafe, FAILSAFE_KINDS};
 use super::settings::Settings;
@@ -138,13 +139,15 @@ impl LinkServer {
     }
 
     /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit_to`].
-    /// Parameter requests read and change `settings` (a save writes its flash).
+    /// Parameter requests read and change `settings` (a save writes its flash); flight-log
+    /// requests list, read (one chunk per request) and delete `logs`' files.
     pub fn receive<F: NorFlash>(
         &mut self,
         bytes: &[u8],
         now_us: u64,
         view: &StatusView,
         settings: &mut Settings<F>,
+        logs: &mut dyn LogFiles,
     ) {
         for &byte in bytes {
             let Some(result) = self.decoder.push(byte) else { continue };
@@ -157,7 +160,7 @@ impl LinkServer {
             };
             self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
             let response = match decoded {
-                Ok(request) => self.handle(request, now_us, view, settings),
+                Ok(request) => self.handle(request, now_us, view, settings, logs),
                 Err(DecodeError::UnknownId { id }) => {
                     self.counters.unknown_id = self.counters.unknown_id.wrapping_add(1);
                     Err(DeviceError::UnknownRequest { id })
@@ -316,6 +319,7 @@ impl LinkServer {
         now_us: u64,
         view: &StatusView,
         settings: &mut Settings<F>,
+        logs: &mut dyn LogFiles,
     ) -> Response {
         // Requests that change the configuration or start an operation wait for a disarm; a
         // running motor test counts as armed for them (disarm ends it).
@@ -329,6 +333,7 @@ impl LinkServer {
                 | Request::Reboot(())
                 | Request::RebootToBootloader(())
                 | Request::EscCommand(_)
+                | Request::DeleteLog(_)
         );
         if refuse_if_armed && armed && self.host_version.is_some() {
             return Err(DeviceError::RefusedWhileArmed);
@@ -488,6 +493,38 @@ impl LinkServer {
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
             Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
+            Request::ListLogs(list) => {
+                let mut files = heapless::Vec::new();
+                let more = logs.list(list.first, &mut files).map_err(|e| log_error(e, 0))?;
+                Ok(Reply::LogList(protocol::LogList { files, more }))
+            }
+            Request::ReadLog(read) => {
+                let len = usize::from(read.len);
+                if len > protocol::LOG_CHUNK_LEN {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("len"),
+                        value: f32::from(read.len),
+                        min: 0.0,
+                        max: protocol::LOG_CHUNK_LEN as f32,
+                        unit: short_text("B"),
+                    });
+                }
+                let mut buf = [0u8; protocol::LOG_CHUNK_LEN];
+                let (count, size_bytes) = logs
+                    .read(read.number, read.offset, &mut buf[..len])
+                    .map_err(|e| log_error(e, read.number))?;
+                Ok(Reply::LogChunk(protocol::LogChunk {
+                    number: read.number,
+                    offset: read.offset,
+                    size_bytes,
+                    // Cannot fail: `count` ≤ `len` ≤ the capacity.
+                    bytes: heapless::Vec::from_slice(&buf[..count.min(len)]).unwrap_or_default(),
+                }))
+            }
+            Request::DeleteLog(delete) => {
+                logs.delete(delete.number).map_err(|e| log_error(e, delete.number))?;
+                Ok(Reply::Done)
+            }
             // Placeholder until the link layer answers them (issue 29, the lead's branch).
             Request::GetLinkSecurity(()) | Request::SetLinkKey(_) => Err(DeviceError::Unsupported),
             Request::RebootToBootloader(()) => {
@@ -610,6 +647,19 @@ impl LinkServer {
         };
         *counter = counter.wrapping_add(1);
         self.errors_unreported = true;
+    }
+}
+
+/// The wire's refusal for a log-file error about file `number`.
+fn log_error(error: LogFileError, number: u32) -> DeviceError {
+    match error {
+        LogFileError::Unsupported => DeviceError::Unsupported,
+        LogFileError::NoSuchFile => DeviceError::NoSuchLog { number },
+        LogFileError::OffsetPastEnd { size_bytes } => {
+            DeviceError::LogOffsetPastEnd { number, size_bytes }
+        }
+        LogFileError::BeingWritten => DeviceError::LogBeingWritten { number },
+        LogFileError::Io => DeviceError::LogStorageFailed,
     }
 }
 
