@@ -248,6 +248,9 @@ enum LogCommand {
     /// A flight log's control steps as the CSV `record --topics imu,motors` writes (for `plot`
     /// and `fit imu-offset`).
     ToCsv(offline::log_csv::Args),
+    /// A flight log as MCAP for Foxglove or PlotJuggler (no plugin): a JSON channel per record
+    /// kind (/imu, /speeds, /commands, /phase, /command, /parameters) at the steps' times.
+    ToMcap(offline::log_mcap::Args),
 }
 
 #[derive(Subcommand, Debug)]
@@ -343,6 +346,9 @@ fn run(cli: &Cli) -> Result<String, Failure> {
         Command::Replay(args) => offline::replay::run(args, cli.json).map_err(Failure::Input),
         Command::Log(LogCommand::ToCsv(args)) => {
             offline::log_csv::run(args).map_err(Failure::Input)
+        }
+        Command::Log(LogCommand::ToMcap(args)) => {
+            offline::log_mcap::run(args).map_err(Failure::Input)
         }
         Command::Plot { input, output } => plot(input, output, cli.json),
         Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
@@ -1303,7 +1309,7 @@ fn shell(cli: &Cli, client: &mut Client, target: &Target) -> Result<String, Fail
             | Command::Plot { .. }
             | Command::Ports
             | Command::Replay(_)
-            | Command::Log(LogCommand::ToCsv(_)) => run(&parsed),
+            | Command::Log(LogCommand::ToCsv(_) | LogCommand::ToMcap(_)) => run(&parsed),
             Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
             other => match board_command(other) {
                 Ok(command) => {
