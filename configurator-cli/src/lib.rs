@@ -1,6 +1,7 @@
 //! The configurator library: the link to a board or the SITL, the commands, the offline tools.
 //!
 //! - [`link`]: the protocol client (handshake, requests, telemetry);
+//! - [`log_files`]: the board's flight logs over the link (list, download, delete);
 //! - [`config`]: the board's parameters: get, set, dump, diff, apply;
 //! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
 //! - [`doctor`]: the bring-up check for a first power-up;
@@ -19,6 +20,7 @@ pub mod doctor;
 pub mod identify;
 pub mod keys;
 pub mod link;
+pub mod log_files;
 pub mod offline;
 pub mod plot;
 pub mod pose_relay;

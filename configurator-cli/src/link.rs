@@ -10,8 +10,8 @@
 use protocol::signing::{self, LinkKey};
 use protocol::{
     peek_hello_version, Decoder, DeviceError, DeviceMessage, Event, Hello, Info, Reply, Request,
-    Signer, StorageStage, Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION, RESPONSE_ID,
-    SCHEMA_HASH,
+    Response, Signer, StorageStage, Telemetry, Version, MAX_FRAME_LEN, PROTOCOL_VERSION,
+    RESPONSE_ID, SCHEMA_HASH,
 };
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Read, Write};
@@ -140,6 +140,18 @@ impl std::fmt::Display for DeviceErrorText {
                 if motors.count_ones() == 1 { "s" } else { "" },
                 protocol::SPEED_REPORT_TIMEOUT_MS
             ),
+            DeviceError::NoSuchLog { number } => {
+                write!(f, "the board has no log {number} (`log list` lists them)")
+            }
+            DeviceError::LogOffsetPastEnd { number, size_bytes } => write!(
+                f,
+                "log {number} holds only {size_bytes} bytes (a partial download longer than the                  log is not one of it)"
+            ),
+            DeviceError::LogBeingWritten { number } => write!(
+                f,
+                "log {number} is still being written (the craft is armed or just disarmed); try                  again once it has closed"
+            ),
+            DeviceError::LogStorageFailed => write!(f, "the board's log storage failed"),
         }
     }
 }
@@ -341,9 +353,9 @@ impl Client {
         self.await_response(seq, what, self.timeout)
     }
 
-    /// Send `request` without waiting for its answer (a stream of poses: each would otherwise
-    /// wait a round trip); [`Client::take_responses`] collects the answers. Returns its
-    /// sequence number.
+    /// Send `request` without waiting for its answer (a stream of poses, pipelined log chunks:
+    /// each would otherwise wait a round trip); [`Client::take_responses`] or
+    /// [`Client::answers`] collects the answers. Returns its sequence number.
     pub fn post(&mut self, request: &Request) -> Result<u16, LinkError> {
         let (seq, frame) = self.encode(request)?;
         self.write_frame(&frame)?;
@@ -365,6 +377,42 @@ impl Client {
     /// Requests asked again after a lost frame or answer, since the connection opened.
     pub fn retries(&self) -> u32 {
         self.retries
+    }
+
+    /// How long a read-only request waits before it is asked again on this link.
+    pub fn retry_after(&self) -> Duration {
+        self.retry_after
+    }
+
+    /// Count a request asked again by a caller that pipelines ([`Client::retries`]).
+    pub fn count_retry(&mut self) {
+        self.retries += 1;
+    }
+
+    /// Wait up to `timeout` for answers to the requests numbered `pending`: every such answer
+    /// that arrived by the first read that brought one (empty after the timeout). Answers to
+    /// other numbers (a request asked twice) are dropped.
+    pub fn answers(
+        &mut self,
+        pending: &[u16],
+        timeout: Duration,
+    ) -> Result<Vec<(u16, Response)>, LinkError> {
+        let deadline = Instant::now() + timeout;
+        let mut answers = Vec::new();
+        let mut undecodable = false;
+        while answers.is_empty() && Instant::now() < deadline {
+            self.read_some(|seq, message| match message {
+                Ok(DeviceMessage::Response(response)) if pending.contains(&seq) => {
+                    answers.push((seq, response))
+                }
+                Err(_) if pending.contains(&seq) => undecodable = true,
+                _ => {}
+            })?;
+            if undecodable {
+                return Err(LinkError::Unexpected("undecodable response".into()));
+            }
+        }
+        Ok(answers)
     }
 
     /// Read for `duration`, collecting telemetry and events.

@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 use configurator_cli::config;
 use configurator_cli::connect::{connect, ConnectError, Target};
 use configurator_cli::link::{Client, DeviceErrorText, LinkError};
+use configurator_cli::log_files;
 use configurator_cli::offline::{self, InputError};
 use configurator_cli::report;
 use protocol::{Reply, Request, SetTelemetryRate, Telemetry, Topic};
@@ -238,7 +239,7 @@ enum Command {
     /// compare every command it writes with the logged one; `--set` replays with a changed
     /// parameter and reports where the outcome departs.
     Replay(offline::replay::Args),
-    /// Flight logs on this computer.
+    /// Flight logs: on the board (list, download, delete) and on this computer (to CSV, to MCAP).
     #[command(subcommand)]
     Log(LogCommand),
     /// Offline fits on recorded logs.
@@ -251,9 +252,30 @@ enum Command {
 
 #[derive(Subcommand, Debug)]
 enum LogCommand {
+    /// The board's flight logs: number, size, duration, and whether still being written.
+    List,
+    /// Download log N from the board into FILE (with progress); `--resume` continues a partial
+    /// FILE from its length.
+    Download {
+        /// The log's number (`log list`; LOG00001.BIN is 1).
+        number: u32,
+        /// The file to write.
+        file: std::path::PathBuf,
+        /// Continue an interrupted download: keep FILE's bytes and fetch the rest.
+        #[arg(long)]
+        resume: bool,
+    },
+    /// Delete log N on the board (refused while armed and for the log being written).
+    Delete {
+        /// The log's number.
+        number: u32,
+    },
     /// A flight log's control steps as the CSV `record --topics imu,motors` writes (for `plot`
     /// and `fit imu-offset`).
     ToCsv(offline::log_csv::Args),
+    /// A flight log as MCAP for Foxglove or PlotJuggler (no plugin): a JSON channel per record
+    /// kind (/imu, /speeds, /commands, /phase, /command, /parameters) at the steps' times.
+    ToMcap(offline::log_mcap::Args),
 }
 
 #[derive(Subcommand, Debug)]
@@ -411,6 +433,9 @@ fn run(cli: &Cli) -> Result<String, Failure> {
         Command::Log(LogCommand::ToCsv(args)) => {
             offline::log_csv::run(args).map_err(Failure::Input)
         }
+        Command::Log(LogCommand::ToMcap(args)) => {
+            offline::log_mcap::run(args).map_err(Failure::Input)
+        }
         Command::Plot { input, output } => plot(input, output, cli.json),
         Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
         // Arguments are validated before any port is touched.
@@ -424,6 +449,11 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
     let input = |message: String| Failure::Input(InputError(message));
     Ok(match command {
         Command::Info => BoardCommand::Info,
+        Command::Log(LogCommand::List) => BoardCommand::LogList,
+        Command::Log(LogCommand::Download { number, file, resume }) => {
+            BoardCommand::LogDownload { number: *number, file: file.clone(), resume: *resume }
+        }
+        Command::Log(LogCommand::Delete { number }) => BoardCommand::LogDelete(*number),
         Command::Status => BoardCommand::Status,
         Command::Doctor { yes } => BoardCommand::Doctor { yes: *yes },
         Command::ArmThrowToFly => BoardCommand::Arm,
@@ -624,6 +654,13 @@ enum BoardCommand {
         command: protocol::DshotCommand,
         motor: Option<u8>,
     },
+    LogList,
+    LogDownload {
+        number: u32,
+        file: std::path::PathBuf,
+        resume: bool,
+    },
+    LogDelete(u32),
 }
 
 /// Connect (starting a SITL if asked), then run the board command.
@@ -982,6 +1019,25 @@ fn run_on_board(
             motor_test(client, motor, command, duration_s, yes)
         }
         BoardCommand::Esc { command, motor } => esc_command(client, command, motor),
+        BoardCommand::LogList => {
+            let files = log_files::list_with_durations(client)?;
+            Ok(if cli.json {
+                format!("{:#}\n", log_files::list_json(&files))
+            } else {
+                log_files::list_text(&files)
+            })
+        }
+        BoardCommand::LogDownload { number, file, resume } => {
+            log_download(client, number, &file, resume, cli.json)
+        }
+        BoardCommand::LogDelete(number) => {
+            log_files::delete(client, number)?;
+            Ok(if cli.json {
+                format!("{:#}\n", json!({"deleted": number}))
+            } else {
+                format!("deleted log {number}\n")
+            })
+        }
         BoardCommand::Shell => shell(cli, client, target),
     }
 }
@@ -1383,7 +1439,7 @@ fn shell(cli: &Cli, client: &mut Client, target: &Target) -> Result<String, Fail
             | Command::Plot { .. }
             | Command::Ports
             | Command::Replay(_)
-            | Command::Log(_) => run(&parsed),
+            | Command::Log(LogCommand::ToCsv(_) | LogCommand::ToMcap(_)) => run(&parsed),
             Command::Esc { command, .. } if command == "list" => Ok(esc_command_list()),
             other => match board_command(other) {
                 Ok(command) => {
@@ -1443,7 +1499,79 @@ const SHELL_COMMANDS: &[(&str, &str, &str)] = &[
     ("dfu", "dfu", "restart into the USB DFU bootloader (firmware update)"),
     ("setpoint", "setpoint --north-m N --east-m E --down-m D", "where to hold with a pose"),
     ("plot", "plot FILE.csv -o OUT.png", "render a recording"),
+    ("log", "log list | log download N FILE [--resume] | log delete N", "the board's flight logs"),
 ];
+
+/// `log download`: the file with a progress bar (bytes, rate, time left) on stderr, then what
+/// was downloaded.
+fn log_download(
+    client: &mut Client,
+    number: u32,
+    file: &std::path::Path,
+    resume: bool,
+    json_output: bool,
+) -> Result<String, Failure> {
+    use log_files::{DownloadError, Progress};
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "log {msg} {bar:30} {bytes}/{total_bytes} {bytes_per_sec} {eta} left",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message(number.to_string());
+    let downloaded =
+        log_files::download(client, number, file, resume, &mut |progress| match progress {
+            Progress::Total { bytes, done } => {
+                bar.set_length(bytes);
+                bar.set_position(done);
+                bar.reset_eta();
+            }
+            Progress::Done { bytes } => bar.set_position(bytes),
+        });
+    bar.finish_and_clear();
+    let downloaded = downloaded.map_err(|error| match error {
+        DownloadError::Link(link) => Failure::from(link),
+        other => Failure::Input(InputError(other.to_string())),
+    })?;
+    let fetched = downloaded.size_bytes - downloaded.resumed_from;
+    let rate_kbps = fetched as f64 / 1000.0 / downloaded.seconds.max(1e-9);
+    if downloaded.still_writing {
+        eprintln!(
+            "warning: log {number} is still being written; {} holds its first {} bytes",
+            file.display(),
+            downloaded.size_bytes
+        );
+    }
+    Ok(if json_output {
+        format!(
+            "{:#}\n",
+            json!({
+                "number": number,
+                "file": file.display().to_string(),
+                "size_bytes": downloaded.size_bytes,
+                "resumed_from": downloaded.resumed_from,
+                "seconds": downloaded.seconds,
+                "kb_per_s": rate_kbps,
+                "retries": downloaded.retries,
+                "complete": !downloaded.still_writing,
+            })
+        )
+    } else {
+        let resumed = if downloaded.resumed_from > 0 {
+            format!(" (resumed at byte {})", downloaded.resumed_from)
+        } else {
+            String::new()
+        };
+        format!(
+            "log {number} → {}: {} bytes{resumed} in {:.2} s ({rate_kbps:.0} kB/s, {} chunks asked again)\n",
+            file.display(),
+            downloaded.size_bytes,
+            downloaded.seconds,
+            downloaded.retries
+        )
+    })
+}
 
 fn plot(
     input: &std::path::Path,

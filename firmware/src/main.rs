@@ -513,12 +513,15 @@ mod tasks {
     pub fn usb_service(cx: usb_service::Context) {
         let now_us = cx.local.usb_clock.now_us();
         let step = step_stats();
+        // No flight log on the board yet (no SD-card driver): log requests are unsupported.
+        let mut no_card = firmware::app::log::NoCard;
         let mut shared = PassShared {
             snapshot: cx.shared.snapshot,
             results: cx.shared.results,
             board: cx.shared.board,
             commands: cx.shared.commands,
             work: cx.shared.work,
+            logs: firmware::app::system::Exclusive(&mut no_card),
         };
         let step_time = Some(StepTime { max_us: step.max_us, overruns: step.overruns });
         let outcome = cx.local.link.pass(now_us, cx.local.usb, step_time, &mut shared);

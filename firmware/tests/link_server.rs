@@ -3,6 +3,7 @@
 //! and the learner topic.
 
 use firmware::app::hal::ImuSample;
+use firmware::app::log::{LogFileError, LogFiles};
 use firmware::app::{
     BoardInfo, ControlCommand, ControlSnapshot, LinkRequest, LinkServer, NoFlash, Settings,
     StatusView, StepRecord,
@@ -59,6 +60,57 @@ struct Host {
     now_us: u64,
     /// What the board's other tasks publish; the time and step count follow `now_us`.
     view: StatusView,
+    /// The flight log's files (`None`: a board without log storage).
+    logs: Option<MemoryLogs>,
+}
+
+/// Log files in memory: (number, bytes, being written).
+#[derive(Default)]
+struct MemoryLogs {
+    files: Vec<(u32, Vec<u8>, bool)>,
+}
+
+impl LogFiles for MemoryLogs {
+    fn list(
+        &mut self,
+        first: u32,
+        out: &mut heapless::Vec<LogFileInfo, LOG_LIST_LEN>,
+    ) -> Result<bool, LogFileError> {
+        out.clear();
+        let mut listed = self.files.iter().filter(|(number, ..)| *number >= first);
+        for (number, bytes, writing) in listed.by_ref().take(LOG_LIST_LEN) {
+            let info =
+                LogFileInfo { number: *number, size_bytes: bytes.len() as u32, writing: *writing };
+            out.push(info).unwrap();
+        }
+        Ok(listed.next().is_some())
+    }
+
+    fn read(
+        &mut self,
+        number: u32,
+        offset: u32,
+        buf: &mut [u8],
+    ) -> Result<(usize, u32), LogFileError> {
+        let (_, bytes, _) =
+            self.files.iter().find(|(n, ..)| *n == number).ok_or(LogFileError::NoSuchFile)?;
+        let size_bytes = bytes.len() as u32;
+        let rest =
+            bytes.get(offset as usize..).ok_or(LogFileError::OffsetPastEnd { size_bytes })?;
+        let count = rest.len().min(buf.len());
+        buf[..count].copy_from_slice(&rest[..count]);
+        Ok((count, size_bytes))
+    }
+
+    fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
+        let index =
+            self.files.iter().position(|(n, ..)| *n == number).ok_or(LogFileError::NoSuchFile)?;
+        if self.files[index].2 {
+            return Err(LogFileError::BeingWritten);
+        }
+        self.files.remove(index);
+        Ok(())
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -79,6 +131,7 @@ impl Host {
             decoder: Decoder::new(),
             now_us: 0,
             view,
+            logs: None,
         }
     }
 
@@ -94,12 +147,12 @@ impl Host {
         let mut frame = [0u8; MAX_FRAME_LEN];
         let len = request.encode(seq, &mut frame).unwrap();
         let view = self.view();
-        self.server.receive(&frame[..len], self.now_us, &view, &mut self.settings);
+        self.server.receive(&frame[..len], self.now_us, &view, &mut self.settings, &mut self.logs);
     }
 
     fn send_raw(&mut self, bytes: &[u8]) {
         let view = self.view();
-        self.server.receive(bytes, self.now_us, &view, &mut self.settings);
+        self.server.receive(bytes, self.now_us, &view, &mut self.settings, &mut self.logs);
     }
 
     /// Let `dt_us` pass: a control step every 500 µs, each streaming its record, then a poll
@@ -829,4 +882,84 @@ fn a_slow_link_grants_the_rates_its_byte_budget_carries_and_streams_within_them(
     assert!(bytes as u32 <= 10 * budget, "{bytes} B in 10 s over a {budget} B/s share");
     assert!(bytes as u32 >= 9 * booked / 2, "streamed {bytes} B, booked {booked} B/s");
     assert!(matches!(host.request(&Request::GetStatus(()), 7), Ok(Reply::Status(_))));
+}
+
+/// The answer to a log request, each under a fresh sequence number (the same frame again would
+/// be a repeat, answered from the board's last answer without acting).
+fn log_answer(host: &mut Host, request: Request) -> Response {
+    static SEQ: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(40);
+    host.request(&request, SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
+}
+
+#[test]
+fn log_files_are_listed_in_pages_read_in_chunks_and_deleted_with_typed_refusals() {
+    let mut host = Host::new();
+    host.handshake();
+    // Without log storage every log request is unsupported.
+    assert_eq!(
+        log_answer(&mut host, Request::ListLogs(ListLogs { first: 0 })),
+        Err(DeviceError::Unsupported)
+    );
+
+    let file: Vec<u8> = (0..1000u32).map(|i| (i * 7 % 251) as u8).collect();
+    let mut logs = MemoryLogs::default();
+    for number in 1..=20 {
+        logs.files.push((number, file.clone(), number == 20));
+    }
+    host.logs = Some(logs);
+
+    // Two pages: 16 files and `more`, then the last four.
+    let Ok(Reply::LogList(page)) = log_answer(&mut host, Request::ListLogs(ListLogs { first: 0 }))
+    else {
+        panic!("a list")
+    };
+    assert_eq!(page.files.len(), LOG_LIST_LEN);
+    assert!(page.more);
+    let next = page.files.last().unwrap().number + 1;
+    let Ok(Reply::LogList(page)) =
+        log_answer(&mut host, Request::ListLogs(ListLogs { first: next }))
+    else {
+        panic!("a list")
+    };
+    assert_eq!(page.files.iter().map(|f| f.number).collect::<Vec<_>>(), [17, 18, 19, 20]);
+    assert!(!page.more);
+    assert_eq!(page.files[3], LogFileInfo { number: 20, size_bytes: 1000, writing: true });
+
+    // A chunk carries its place; the last one is short; at the end it is empty; past it, refused.
+    let read = |offset, len| Request::ReadLog(ReadLog { number: 3, offset, len });
+    let Ok(Reply::LogChunk(chunk)) = log_answer(&mut host, read(100, LOG_CHUNK_LEN as u16)) else {
+        panic!("a chunk")
+    };
+    assert_eq!((chunk.number, chunk.offset, chunk.size_bytes), (3, 100, 1000));
+    assert_eq!(chunk.bytes.as_slice(), &file[100..100 + LOG_CHUNK_LEN]);
+    let Ok(Reply::LogChunk(chunk)) = log_answer(&mut host, read(990, 200)) else {
+        panic!("a chunk")
+    };
+    assert_eq!(chunk.bytes.as_slice(), &file[990..]);
+    let Ok(Reply::LogChunk(chunk)) = log_answer(&mut host, read(1000, 200)) else {
+        panic!("a chunk")
+    };
+    assert!(chunk.bytes.is_empty());
+    assert_eq!(
+        log_answer(&mut host, read(1001, 200)),
+        Err(DeviceError::LogOffsetPastEnd { number: 3, size_bytes: 1000 })
+    );
+    let too_long = log_answer(&mut host, read(0, LOG_CHUNK_LEN as u16 + 1));
+    assert_eq!(bad_value_name(&too_long), Some("len"));
+    let missing = Request::ReadLog(ReadLog { number: 99, offset: 0, len: 16 });
+    assert_eq!(log_answer(&mut host, missing), Err(DeviceError::NoSuchLog { number: 99 }));
+
+    // Delete: the file being written and a missing one are refused; an armed craft refuses all.
+    let delete = |number| Request::DeleteLog(DeleteLog { number });
+    assert_eq!(log_answer(&mut host, delete(20)), Err(DeviceError::LogBeingWritten { number: 20 }));
+    assert_eq!(log_answer(&mut host, delete(3)), Ok(Reply::Done));
+    assert_eq!(log_answer(&mut host, delete(3)), Err(DeviceError::NoSuchLog { number: 3 }));
+    host.view.control.armed = true;
+    assert_eq!(log_answer(&mut host, delete(4)), Err(DeviceError::RefusedWhileArmed));
+    assert_eq!(host.logs.as_ref().unwrap().files.len(), 19, "only file 3 was deleted");
+    // Reading goes on while armed (it changes nothing).
+    assert!(matches!(
+        log_answer(&mut host, read(0, 16)),
+        Err(DeviceError::NoSuchLog { number: 3 })
+    ));
 }

@@ -60,7 +60,13 @@ impl Board {
         };
         let view = StatusView::default();
         let server = if radio { &mut self.radio } else { &mut self.usb };
-        server.receive(&frame[..len], 0, &view, &mut self.settings);
+        server.receive(
+            &frame[..len],
+            0,
+            &view,
+            &mut self.settings,
+            &mut firmware::app::log::NoCard,
+        );
         let mut decoder = Decoder::new();
         let mut responses = Vec::new();
         server.transmit_to(|bytes| {
@@ -243,7 +249,13 @@ fn the_same_frame_again_gets_the_same_answer_and_is_carried_out_once() {
         let view = StatusView::default();
         let mut responses = Vec::new();
         for _ in 0..3 {
-            board.radio.receive(&frame[..len], 0, &view, &mut board.settings);
+            board.radio.receive(
+                &frame[..len],
+                0,
+                &view,
+                &mut board.settings,
+                &mut firmware::app::log::NoCard,
+            );
             let mut decoder = Decoder::new();
             board.radio.transmit_to(|bytes| {
                 for &byte in bytes {

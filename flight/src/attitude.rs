@@ -220,12 +220,12 @@ impl AttitudeFilter {
         // Rotates body coordinates of "down" onto world down: that is q_world_body up to yaw.
         let tilt = shortest_rotation(&down_body, &Vector3::z()).unwrap_or_else(|| {
             // Upside down: half a turn about body x also takes body up to world down.
-            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), core::f32::consts::PI)
+            crate::math::rotation_about(&Vector3::x_axis(), core::f32::consts::PI)
         });
         let yaw_now = yaw_of(&tilt);
         let yaw_wanted = heading_rad.unwrap_or(0.0);
         self.q_world_body =
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_wanted - yaw_now) * tilt;
+            crate::math::rotation_about(&Vector3::z_axis(), yaw_wanted - yaw_now) * tilt;
         self.initialised = true;
         Ok(())
     }
@@ -252,7 +252,7 @@ impl AttitudeFilter {
         }
         if !self.initialised && self.reset_from_accel(f_mps2, heading_rad).is_err() {
             self.q_world_body =
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading_rad.unwrap_or(0.0));
+                crate::math::rotation_about(&Vector3::z_axis(), heading_rad.unwrap_or(0.0));
             self.initialised = true;
         }
         let c = self.config;
@@ -336,7 +336,7 @@ fn exp_half(phi: &Vector3<f32>) -> Quaternion<f32> {
     let angle = phi.norm();
     let half = 0.5 * angle;
     // sin(½θ)/θ, by its series below 1e-4 rad where the quotient loses precision.
-    let (sin, cos) = libm::sincosf(half);
+    let (sin, cos) = crate::math::sin_cos(half);
     let k = if angle < 1e-4 { 0.5 - angle * angle / 48.0 } else { sin / angle };
     Quaternion::new(cos, k * phi.x, k * phi.y, k * phi.z)
 }
@@ -370,6 +370,17 @@ pub fn shortest_rotation(from: &Vector3<f32>, to: &Vector3<f32>) -> Option<UnitQ
     } else {
         None
     }
+}
+
+/// The ZYX Euler angles `[roll, pitch, yaw]`, rad, of the unit quaternion `[w, x, y, z]`
+/// (rotating body into world coordinates): what `UnitQuaternion::euler_angles` gives, from one
+/// arcsine and two arctangents (nalgebra's goes through a rotation matrix and links libm's
+/// cosine: 3.7 KB of flash on the board with its argument reduction).
+pub fn euler_zyx_rad([w, x, y, z]: [f32; 4]) -> [f32; 3] {
+    let roll = libm::atan2f(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y));
+    let pitch = libm::asinf(crate::math::clamp(2.0 * (w * y - z * x), -1.0, 1.0));
+    let yaw = libm::atan2f(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z));
+    [roll, pitch, yaw]
 }
 
 /// An angle wrapped into [−π, π) (0 for a non-finite angle).

@@ -152,7 +152,7 @@ impl ThrustDirection {
         let angle = libm::acosf(down.z.clamp(-1.0, 1.0));
         self.down = if angle > THRUST_DIRECTION_MAX_RAD {
             let side = Vector3::new(down.x, down.y, 0.0).normalize();
-            let (sin, cos) = libm::sincosf(THRUST_DIRECTION_MAX_RAD);
+            let (sin, cos) = crate::math::sin_cos(THRUST_DIRECTION_MAX_RAD);
             side * sin + Vector3::z() * cos
         } else {
             down
@@ -370,7 +370,7 @@ pub fn ahead_of_yaw(accel_rad_s2: &Vector3<f32>, yaw_rate_rad_s: f32, lag_s: f32
     if !angle.is_finite() {
         return *accel_rad_s2;
     }
-    let (sin, cos) = libm::sincosf(angle);
+    let (sin, cos) = crate::math::sin_cos(angle);
     let a = accel_rad_s2;
     Vector3::new(cos * a.x - sin * a.y, sin * a.x + cos * a.y, a.z)
 }
@@ -463,7 +463,7 @@ pub fn attitude_loop(
     // Yaw: the heading error once tilted onto the wanted axis.
     if tilt < YAW_CONTROL_MAX_TILT_RAD {
         let tilt_world =
-            UnitQuaternion::rotation_between(&(q_world_thrust * Vector3::z()), &z_wanted_world)
+            crate::attitude::shortest_rotation(&(q_world_thrust * Vector3::z()), &z_wanted_world)
                 .unwrap_or_else(UnitQuaternion::identity);
         let levelled = tilt_world * q_world_thrust;
         let x = levelled * Vector3::x();

@@ -55,7 +55,11 @@ impl BiquadCoefficients {
             return Err(FilterDesignError::CutoffOutOfRange);
         }
         // Computed in f64 (design time only) so the coefficients are correctly rounded to f32.
-        let k = libm::tan(core::f64::consts::PI * f64::from(cutoff_hz) / f64::from(rate_hz));
+        // tan as sin/cos (`crate::math`: libm's trigonometry costs the firmware 6.5 KB of flash).
+        let (sin, cos) = crate::math::sin_cos_f64(
+            core::f64::consts::PI * f64::from(cutoff_hz) / f64::from(rate_hz),
+        );
+        let k = sin / cos;
         let sqrt2 = core::f64::consts::SQRT_2;
         let norm = 1.0 / (1.0 + sqrt2 * k + k * k);
         let b0 = k * k * norm;

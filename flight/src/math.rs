@@ -1,5 +1,16 @@
 //! Small numeric helpers with the same arithmetic on the host and on the Cortex-M7: a square
-//! root from FPU multiplies and a clamp without a panic path.
+//! root from FPU multiplies, a clamp without a panic path, and sine and cosine for the angles a
+//! flight controller turns through.
+//!
+//! ## Sine and cosine
+//!
+//! Why not `libm::sincosf`: its argument reduction for huge angles (`rem_pio2_large`, Payne–
+//! Hanek over 1,200 bits of 2/π) and its three entry points cost the firmware 6.5 KB of flash for
+//! angles that are never beyond a few turns here (attitude steps, headings, tilt limits).
+//! [`sin_cos`] reduces by multiples of π/2 in f64 (the M7's double-precision FPU), which is
+//! exact to f32 round-off for |x| up to 10⁵ rad, and sums the Taylor series to degree 13/12 on
+//! [−π/4, π/4] (truncation below 10⁻¹¹). Larger angles lose accuracy gradually (no panic);
+//! NaN and infinities give NaN.
 //!
 //! ## Square root
 //!
@@ -11,6 +22,8 @@
 //! the double-precision `vfp2` feature (not in the baseline `thumbv7em-none-eabihf`), so instead:
 //! the classic bit-level estimate of `1/√x`, three Newton steps (relative error 2e-3 → 5e-6 →
 //! 4e-11, i.e. f32 round-off), then `√x = x · (1/√x)`. About 20 instructions, all FPU.
+
+use nalgebra::{Quaternion, Unit, UnitQuaternion, Vector3};
 
 /// `√x` to within a few f32 ulps; `0` for `x ≤ 0` and for NaN returns NaN. Inputs outside the
 /// normal range (subnormal, infinite) fall back to `libm::sqrtf`.
@@ -46,9 +59,110 @@ pub fn clamp(x: f32, lo: f32, hi: f32) -> f32 {
     }
 }
 
+/// `(sin x, cos x)` for `x` in rad (see the module documentation for the range).
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    let (sin, cos) = sin_cos_f64(f64::from(x));
+    (sin as f32, cos as f32)
+}
+
+/// `(sin x, cos x)` in f64: to about 10⁻¹¹ (the series' truncation) for |x| up to 10⁵ rad;
+/// NaN for NaN and infinities.
+pub fn sin_cos_f64(x: f64) -> (f64, f64) {
+    if !x.is_finite() {
+        return (f64::NAN, f64::NAN);
+    }
+    // The nearest whole number of quarter turns (`f64::round` is not in `core`).
+    let y = x * core::f64::consts::FRAC_2_PI;
+    let quarter_turns = if y >= 0.0 { (y + 0.5) as i64 } else { (y - 0.5) as i64 };
+    let r = x - quarter_turns as f64 * core::f64::consts::FRAC_PI_2;
+    let r2 = r * r;
+    // Horner forms of the Taylor series: sin to r¹³, cos to r¹².
+    let sin = r
+        * (1.0
+            + r2 * (-1.0 / 6.0
+                + r2 * (1.0 / 120.0
+                    + r2 * (-1.0 / 5040.0
+                        + r2 * (1.0 / 362_880.0
+                            + r2 * (-1.0 / 39_916_800.0 + r2 * (1.0 / 6_227_020_800.0)))))));
+    let cos = 1.0
+        + r2 * (-0.5
+            + r2 * (1.0 / 24.0
+                + r2 * (-1.0 / 720.0
+                    + r2 * (1.0 / 40_320.0
+                        + r2 * (-1.0 / 3_628_800.0 + r2 * (1.0 / 479_001_600.0))))));
+    match quarter_turns.rem_euclid(4) {
+        0 => (sin, cos),
+        1 => (cos, -sin),
+        2 => (-sin, -cos),
+        _ => (-cos, sin),
+    }
+}
+
+/// The rotation by `angle_rad` about `axis` (right-handed), as [`UnitQuaternion`]'s
+/// `from_axis_angle` but through [`sin_cos`].
+pub fn rotation_about(axis: &Unit<Vector3<f32>>, angle_rad: f32) -> UnitQuaternion<f32> {
+    let (sin, cos) = sin_cos(0.5 * angle_rad);
+    let v = axis.into_inner() * sin;
+    UnitQuaternion::new_unchecked(Quaternion::new(cos, v.x, v.y, v.z))
+}
+
+/// The rotation of rotation vector `phi` (axis times angle, rad), as [`UnitQuaternion`]'s
+/// `from_scaled_axis` but through [`sin_cos`]; the identity for a zero vector.
+pub fn rotation_from_scaled_axis(phi: &Vector3<f32>) -> UnitQuaternion<f32> {
+    let angle = phi.norm();
+    if angle == 0.0 || !angle.is_finite() {
+        return UnitQuaternion::identity();
+    }
+    rotation_about(&Unit::new_unchecked(phi / angle), angle)
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{clamp, sqrt};
+    use super::{clamp, rotation_about, rotation_from_scaled_axis, sin_cos, sqrt};
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    #[test]
+    fn sin_cos_matches_libm_to_f32_round_off_over_many_turns_and_gives_nan_for_non_finite() {
+        let mut worst = 0.0f64;
+        for i in -200_000..=200_000 {
+            let x = i as f32 * 1e-3 * core::f32::consts::PI; // ±628 rad
+            let (s, c) = sin_cos(x);
+            let (xs, xc) = (f64::from(x).sin(), f64::from(x).cos());
+            worst = worst.max((f64::from(s) - xs).abs()).max((f64::from(c) - xc).abs());
+        }
+        assert!(worst < 1.2e-7, "worst error {worst:e}");
+        for x in [1e4f32, -3.3e4, 99_999.0] {
+            let (s, c) = sin_cos(x);
+            assert!((f64::from(s) - f64::from(x).sin()).abs() < 2e-7, "{x}");
+            assert!((f64::from(c) - f64::from(x).cos()).abs() < 2e-7, "{x}");
+        }
+        for x in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let (s, c) = sin_cos(x);
+            assert!(s.is_nan() && c.is_nan(), "{x}");
+        }
+        assert_eq!(sin_cos(0.0), (0.0, 1.0));
+        // The f64 form, on a filter's prewarping angles (π f/fs below π/2).
+        for i in 1..1000 {
+            let x = i as f64 * 1.5e-3;
+            let (s, c) = super::sin_cos_f64(x);
+            assert!((s / c - x.tan()).abs() <= 1e-9 * x.tan().max(1.0), "{x}");
+        }
+    }
+
+    #[test]
+    fn rotations_agree_with_nalgebras() {
+        let axis = Vector3::new(0.3f32, -0.5, 0.8);
+        for angle in [-7.0f32, -1.0, 0.0, 0.5, 3.0, 12.0] {
+            let ours = rotation_about(&nalgebra::Unit::new_normalize(axis), angle);
+            let theirs =
+                UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle);
+            assert!(ours.angle_to(&theirs) < 1e-5, "{angle}");
+            let phi = axis.normalize() * angle;
+            let scaled = rotation_from_scaled_axis(&phi);
+            assert!(scaled.angle_to(&UnitQuaternion::from_scaled_axis(phi)) < 1e-5, "{angle}");
+        }
+        assert_eq!(rotation_from_scaled_axis(&Vector3::zeros()), UnitQuaternion::identity());
+    }
 
     #[test]
     fn clamp_limits_to_the_bounds_keeps_nan_and_never_panics() {

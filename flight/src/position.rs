@@ -336,8 +336,8 @@ pub fn limit_tilt(f_sp: &Vector3<f32>) -> Vector3<f32> {
 /// axis is defined), the horizontal part scaled down in its own direction.
 pub fn limit_tilt_to(f_sp: &Vector3<f32>, max_tilt_rad: f32) -> Vector3<f32> {
     let up = (-f_sp.z).max(MIN_UP_FRACTION * STANDARD_GRAVITY_MPS2);
-    // tan as sin/cos: the firmware links `sincosf` anyway, `tanf` would be 0.7 KB more flash.
-    let (sin, cos) = libm::sincosf(max_tilt_rad);
+    // tan as sin/cos (`crate::math`: libm's trigonometry costs the firmware 6.5 KB of flash).
+    let (sin, cos) = crate::math::sin_cos(max_tilt_rad);
     let horizontal_max = up * sin / cos;
     let horizontal = libm::hypotf(f_sp.x, f_sp.y);
     let scale = if horizontal > horizontal_max { horizontal_max / horizontal } else { 1.0 };

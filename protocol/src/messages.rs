@@ -272,6 +272,10 @@ pub enum Reply {
     Health(SensorHealth),
     /// Answer to [`Request::GetLinkSecurity`]. Protocol 1.8.
     LinkSecurity(LinkSecurity),
+    /// Answer to [`Request::ListLogs`]. Protocol 1.9.
+    LogList(LogList),
+    /// Answer to [`Request::ReadLog`]. Protocol 1.9.
+    LogChunk(LogChunk),
     /// Answer to [`Request::SetTelemetryRate`]: the rate granted, which is the one asked, or
     /// the highest the link's byte budget leaves for the topic (0: none), or the nearest a
     /// per-step topic can send (the control rate over a whole number of steps). Protocol 1.10.
@@ -309,6 +313,66 @@ pub struct SetLinkKey {
     /// until the next pairing). A sequence rather than an array: serde unrolls arrays, and this
     /// saves the board 0.6 KB of flash.
     pub key: Option<heapless::Vec<u8, { crate::signing::KEY_LEN }>>,
+}
+
+/// Files listed per [`Request::ListLogs`] answer (a host asks again from the next number when
+/// [`LogList::more`]). 16 entries of at most 11 bytes fit a frame with room to spare.
+pub const LOG_LIST_LEN: usize = 16;
+/// Most bytes one [`Request::ReadLog`] answer carries: the largest answer (every number at its
+/// widest varint, `seq` 65,535) is 251 raw bytes, within the 253 that always fit a frame
+/// (`protocol/tests/golden.rs`).
+pub const LOG_CHUNK_LEN: usize = 224;
+
+/// List the flight-log files numbered `first` or more. Protocol 1.9.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ListLogs {
+    pub first: u32,
+}
+
+/// One flight-log file (`LOG00001.BIN` is number 1). Protocol 1.9.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LogFileInfo {
+    pub number: u32,
+    /// Bytes in the file now (whole 512-byte blocks).
+    pub size_bytes: u32,
+    /// The file is still being written: it grows, and cannot be deleted yet.
+    pub writing: bool,
+}
+
+/// Up to [`LOG_LIST_LEN`] files in ascending number, from [`ListLogs::first`]. Protocol 1.9.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq, Eq)]
+pub struct LogList {
+    pub files: heapless::Vec<LogFileInfo, LOG_LIST_LEN>,
+    /// More files follow the last listed: ask again from its number + 1.
+    pub more: bool,
+}
+
+/// Read `len` bytes (at most [`LOG_CHUNK_LEN`]) of log file `number` from byte `offset`.
+/// Reading changes nothing, so a lost answer is simply asked for again. Protocol 1.9.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReadLog {
+    pub number: u32,
+    pub offset: u32,
+    pub len: u16,
+}
+
+/// Bytes of a log file, with where they came from so the reader can check and resume.
+/// Protocol 1.9.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq, Eq)]
+pub struct LogChunk {
+    pub number: u32,
+    /// Offset of `bytes[0]` in the file.
+    pub offset: u32,
+    /// The file's size now, bytes (grows while it is written).
+    pub size_bytes: u32,
+    /// Fewer than asked for only at the end of the file (none at the end).
+    pub bytes: heapless::Vec<u8, LOG_CHUNK_LEN>,
+}
+
+/// Delete log file `number`. Refused while armed and for the file being written. Protocol 1.9.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DeleteLog {
+    pub number: u32,
 }
 
 /// Why a request was not carried out. Each variant's doc states what the host should do.
@@ -362,6 +426,16 @@ pub enum DeviceError {
     Replayed { last_timestamp: u64 },
     /// Only a trusted link (USB) may do that (set the link key). Protocol 1.8.
     TrustedLinkOnly,
+    /// No flight-log file has this number ([`Request::ListLogs`] lists them). Protocol 1.9.
+    NoSuchLog { number: u32 },
+    /// The read begins past the end of the file, which holds `size_bytes` bytes now (a read at
+    /// exactly the end answers an empty chunk). Protocol 1.9.
+    LogOffsetPastEnd { number: u32, size_bytes: u32 },
+    /// The file is still being written (the craft flies, or lingers after a disarm): it cannot
+    /// be deleted yet. Nothing was changed. Protocol 1.9.
+    LogBeingWritten { number: u32 },
+    /// The log storage failed to read or delete (a card or file-system error). Protocol 1.9.
+    LogStorageFailed,
 }
 
 /// Where a configuration save or load failed.
@@ -1079,6 +1153,15 @@ crate::table::message_table! {
         0x19 => GetLinkSecurity(()),
         /// Set or clear the link key: trusted links only, refused while armed. Protocol 1.8.
         0x1A => SetLinkKey(SetLinkKey),
+        /// The flight-log files ([`Reply::LogList`]); `Unsupported` on a board without log
+        /// storage. Protocol 1.9.
+        0x1B => ListLogs(ListLogs),
+        /// A chunk of one log file ([`Reply::LogChunk`]); `NoSuchLog`, `LogOffsetPastEnd`,
+        /// `BadValue` (`len`) over [`LOG_CHUNK_LEN`]. Protocol 1.9.
+        0x1C => ReadLog(ReadLog),
+        /// Delete one log file → `Done`; `NoSuchLog`, `LogBeingWritten`, refused while armed.
+        /// Protocol 1.9.
+        0x1D => DeleteLog(DeleteLog),
     }
 }
 

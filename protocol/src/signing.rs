@@ -91,8 +91,8 @@ impl core::fmt::Debug for Signer {
     }
 }
 
-/// Whether `request` configures, arms, spins or steers the craft: such a request is carried out
-/// from an untrusted link (a radio) only when signed. Everything else (handshake, reads,
+/// Whether `request` configures, arms, spins or steers the craft, or deletes what it stored (a
+/// flight log): such a request is carried out from an untrusted link (a radio) only when signed. Everything else (handshake, reads,
 /// telemetry rates and [`Request::Disarm`]: every way to stop must work) stays open. Exhaustive,
 /// so a new request is classified when it is added.
 pub fn commands_the_craft(request: &Request) -> bool {
@@ -109,7 +109,8 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::SetPositionSetpoint(_)
         | Request::RebootToBootloader(())
         | Request::EscCommand(_)
-        | Request::SetLinkKey(_) => true,
+        | Request::SetLinkKey(_)
+        | Request::DeleteLog(_) => true,
         Request::Hello(_)
         | Request::GetInfo(())
         | Request::GetStatus(())
@@ -122,7 +123,9 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::GetFlight(())
         | Request::GetBoard(())
         | Request::GetHealth(())
-        | Request::GetLinkSecurity(()) => false,
+        | Request::GetLinkSecurity(())
+        | Request::ListLogs(_)
+        | Request::ReadLog(_) => false,
     }
 }
 

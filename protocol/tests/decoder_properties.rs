@@ -87,6 +87,13 @@ fn any_request() -> impl Strategy<Value = Request> {
         proptest::option::of(any::<[u8; protocol::signing::KEY_LEN]>()).prop_map(|key| {
             Request::SetLinkKey(protocol::SetLinkKey { key: key.map(heapless::Vec::from_array) })
         }),
+        prop_oneof![
+            any::<u32>().prop_map(|first| Request::ListLogs(protocol::ListLogs { first })),
+            (any::<u32>(), any::<u32>(), any::<u16>()).prop_map(|(number, offset, len)| {
+                Request::ReadLog(protocol::ReadLog { number, offset, len })
+            }),
+            any::<u32>().prop_map(|number| Request::DeleteLog(protocol::DeleteLog { number })),
+        ],
     ]
 }
 

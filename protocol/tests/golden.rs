@@ -644,10 +644,83 @@ fn every_topic_sample_fits_its_booked_frame_length() {
 }
 
 #[test]
+fn protocol_1_9_flight_log_files_are_pinned() {
+    assert_eq!(request(Request::ListLogs(ListLogs { first: 17 }), 1), "08 1b 01 11 5d fc 2e 33 00");
+    let read = ReadLog { number: 3, offset: 1000, len: 224 };
+    assert_eq!(request(Request::ReadLog(read), 2), "0c 1c 02 03 e8 07 e0 01 5e 61 b4 7a 00");
+    assert_eq!(
+        request(Request::DeleteLog(DeleteLog { number: 3 }), 3),
+        "08 1d 03 03 3c 8d bf 34 00"
+    );
+    let list = LogList {
+        files: heapless::Vec::from_slice(&[
+            LogFileInfo { number: 1, size_bytes: 512, writing: false },
+            LogFileInfo { number: 2, size_bytes: 70_000, writing: true },
+        ])
+        .unwrap(),
+        more: false,
+    };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::LogList(list))), 4),
+        "03 81 04 06 0c 02 01 80 04 06 02 f0 a2 04 01 05 57 4b 90 c6 00"
+    );
+    let chunk = LogChunk {
+        number: 3,
+        offset: 1000,
+        size_bytes: 1536,
+        bytes: heapless::Vec::from_slice(&[0x00, 0x01, 0xff]).unwrap(),
+    };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::LogChunk(chunk))), 5),
+        "03 81 05 08 0d 03 e8 07 80 0c 03 07 01 ff 18 d6 c1 4e 00"
+    );
+    for (error, expected) in [
+        (DeviceError::NoSuchLog { number: 9 }, "0a 81 06 01 12 09 6a 56 f7 12 00"),
+        (
+            DeviceError::LogOffsetPastEnd { number: 9, size_bytes: 512 },
+            "0c 81 06 01 13 09 80 04 10 49 34 5d 00",
+        ),
+        (DeviceError::LogBeingWritten { number: 9 }, "0a 81 06 01 14 09 58 07 38 7b 00"),
+        (DeviceError::LogStorageFailed, "09 81 06 01 15 53 95 3e 20 00"),
+    ] {
+        assert_eq!(device(DeviceMessage::Response(Err(error)), 6), expected);
+    }
+}
+
+#[test]
 fn protocol_1_10_granted_telemetry_rate_is_pinned() {
     let granted = SetTelemetryRate { topic: Topic::Learner, rate_hz: 19 };
     assert_eq!(
         device(DeviceMessage::Response(Ok(Reply::TelemetryRate(granted))), 3),
-        "03 81 03 08 0c 03 13 6c 16 47 7d 00"
+        "03 81 03 08 0e 03 13 61 44 28 32 00"
     );
+}
+
+#[test]
+fn the_largest_log_chunk_and_the_longest_log_list_fit_a_frame() {
+    let mut buffer = [0u8; MAX_FRAME_LEN];
+    let chunk = LogChunk {
+        number: u32::MAX,
+        offset: u32::MAX,
+        size_bytes: u32::MAX,
+        bytes: heapless::Vec::from_slice(&[0xAA; LOG_CHUNK_LEN]).unwrap(),
+    };
+    let message = DeviceMessage::Response(Ok(Reply::LogChunk(chunk)));
+    let len = message.encode(u16::MAX, &mut buffer).expect("the largest chunk fits a frame");
+    // Raw: id, seq (3), Ok, variant, three u32 varints (5 each), length (2), bytes, CRC (4).
+    assert_eq!(len, 1 + (1 + 3 + 1 + 1 + 15 + 2 + LOG_CHUNK_LEN + 4) + 1);
+    // Zeros in the bytes cost nothing more: COBS replaces each with its code byte.
+    let zeros = LogChunk {
+        number: u32::MAX,
+        offset: u32::MAX,
+        size_bytes: u32::MAX,
+        bytes: heapless::Vec::from_slice(&[0; LOG_CHUNK_LEN]).unwrap(),
+    };
+    let message = DeviceMessage::Response(Ok(Reply::LogChunk(zeros)));
+    assert!(message.encode(u16::MAX, &mut buffer).is_ok());
+    let widest = LogFileInfo { number: u32::MAX, size_bytes: u32::MAX, writing: true };
+    let list =
+        LogList { files: heapless::Vec::from_slice(&[widest; LOG_LIST_LEN]).unwrap(), more: true };
+    let message = DeviceMessage::Response(Ok(Reply::LogList(list)));
+    assert!(message.encode(u16::MAX, &mut buffer).is_ok(), "sixteen of the widest entries fit");
 }

@@ -5,6 +5,7 @@
 
 pub mod imu_offset;
 pub mod log_csv;
+pub mod log_mcap;
 pub mod replay;
 pub mod thrust_axis;
 

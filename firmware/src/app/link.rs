@@ -9,6 +9,7 @@
 //! count. Bad frames are counted and
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
+use super::log::{LogFileError, LogFiles};
 use super::params;
 use super::pilot::{failsafe_counter, Failsafe, FAILSAFE_KINDS};
 use super::settings::{Settings, SignatureCheck};
@@ -205,13 +206,15 @@ impl LinkServer {
     }
 
     /// Feed bytes received from the host; answers are queued for [`LinkServer::transmit_to`].
-    /// Parameter requests read and change `settings` (a save writes its flash).
+    /// Parameter requests read and change `settings` (a save writes its flash); flight-log
+    /// requests list, read (one chunk per request) and delete `logs`' files.
     pub fn receive<F: NorFlash>(
         &mut self,
         bytes: &[u8],
         now_us: u64,
         view: &StatusView,
         settings: &mut Settings<F>,
+        logs: &mut dyn LogFiles,
     ) {
         for &byte in bytes {
             let Some(result) = self.decoder.push(byte) else { continue };
@@ -246,7 +249,7 @@ impl LinkServer {
                 Ok(request) => {
                     commands = signing::commands_the_craft(&request);
                     match self.authorise(&request, signature) {
-                        Ok(()) => self.handle(request, now_us, view, settings),
+                        Ok(()) => self.handle(request, now_us, view, settings, logs),
                         Err(refusal) => Err(refusal),
                     }
                 }
@@ -448,6 +451,7 @@ impl LinkServer {
         now_us: u64,
         view: &StatusView,
         settings: &mut Settings<F>,
+        logs: &mut dyn LogFiles,
     ) -> Response {
         // Requests that change the configuration or start an operation wait for a disarm; a
         // running motor test counts as armed for them (disarm ends it).
@@ -462,6 +466,7 @@ impl LinkServer {
                 | Request::RebootToBootloader(())
                 | Request::EscCommand(_)
                 | Request::SetLinkKey(_)
+                | Request::DeleteLog(_)
         );
         if refuse_if_armed && armed && self.host_version.is_some() {
             return Err(DeviceError::RefusedWhileArmed);
@@ -646,6 +651,38 @@ impl LinkServer {
                 settings.set_link_key(key).map_err(|stage| DeviceError::StorageFailed { stage })?;
                 Ok(Reply::Done)
             }
+            Request::ListLogs(list) => {
+                let mut files = heapless::Vec::new();
+                let more = logs.list(list.first, &mut files).map_err(|e| log_error(e, 0))?;
+                Ok(Reply::LogList(protocol::LogList { files, more }))
+            }
+            Request::ReadLog(read) => {
+                let len = usize::from(read.len);
+                if len > protocol::LOG_CHUNK_LEN {
+                    return Err(DeviceError::BadValue {
+                        name: short_text("len"),
+                        value: f32::from(read.len),
+                        min: 0.0,
+                        max: protocol::LOG_CHUNK_LEN as f32,
+                        unit: short_text("B"),
+                    });
+                }
+                let mut buf = [0u8; protocol::LOG_CHUNK_LEN];
+                let (count, size_bytes) = logs
+                    .read(read.number, read.offset, &mut buf[..len])
+                    .map_err(|e| log_error(e, read.number))?;
+                Ok(Reply::LogChunk(protocol::LogChunk {
+                    number: read.number,
+                    offset: read.offset,
+                    size_bytes,
+                    // Cannot fail: `count` ≤ `len` ≤ the capacity.
+                    bytes: heapless::Vec::from_slice(&buf[..count.min(len)]).unwrap_or_default(),
+                }))
+            }
+            Request::DeleteLog(delete) => {
+                logs.delete(delete.number).map_err(|e| log_error(e, delete.number))?;
+                Ok(Reply::Done)
+            }
             Request::RebootToBootloader(()) => {
                 if !self.info.capabilities.has(Capabilities::BOOTLOADER) {
                     return Err(DeviceError::Unsupported);
@@ -796,6 +833,19 @@ impl LinkServer {
     }
 }
 
+/// The wire's refusal for a log-file error about file `number`.
+fn log_error(error: LogFileError, number: u32) -> DeviceError {
+    match error {
+        LogFileError::Unsupported => DeviceError::Unsupported,
+        LogFileError::NoSuchFile => DeviceError::NoSuchLog { number },
+        LogFileError::OffsetPastEnd { size_bytes } => {
+            DeviceError::LogOffsetPastEnd { number, size_bytes }
+        }
+        LogFileError::BeingWritten => DeviceError::LogBeingWritten { number },
+        LogFileError::Io => DeviceError::LogStorageFailed,
+    }
+}
+
 /// A sample of a topic the link samples itself, from the latest snapshot (`None` for the
 /// per-step topics, which [`LinkServer::stream`] sends).
 fn sample_topic(topic: Topic, view: &StatusView, seq: u16) -> Option<Telemetry> {
@@ -853,8 +903,7 @@ pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
         (true, true) => FlightMode::PositionHold,
     };
     let q = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
-    let attitude = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]));
-    let (roll, pitch, yaw) = attitude.euler_angles();
+    let [roll, pitch, yaw] = flight::attitude::euler_zyx_rad(q);
     // The rate in the thrust frame: the IMU's rate turned by the learned q_U^T while flying.
     let gyro = Vector3::from(control.imu.gyro_rad_s);
     let rate = match (&view.background.learned.thrust_axis, pilot.flying) {
@@ -868,7 +917,7 @@ pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
     FlightTelemetry {
         t_us: control.t_us,
         mode,
-        q_world_thrust: [attitude.w, attitude.i, attitude.j, attitude.k],
+        q_world_thrust: q,
         euler_zyx_rad: [roll, pitch, yaw],
         rate_rad_s: rate.into(),
         rate_sp_rad_s: pilot.rate_sp_rad_s,

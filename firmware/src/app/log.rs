@@ -372,10 +372,65 @@ pub enum LogSinkError {
     Io,
 }
 
+/// Why a log file could not be listed, read or deleted (the link answers each with its
+/// `DeviceError`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LogFileError {
+    /// This storage cannot list or read its files (a board without a card driver).
+    Unsupported,
+    /// No file has this number.
+    NoSuchFile,
+    /// The offset is past the file's end; it holds `size_bytes` now.
+    OffsetPastEnd { size_bytes: u32 },
+    /// The file is being written (it cannot be deleted yet).
+    BeingWritten,
+    /// The storage failed.
+    Io,
+}
+
+/// The files a [`LogSink`] has written, as the link task reaches them (`configurator-cli log
+/// list|download|delete`). Every call does a bounded piece of work: a listing of at most
+/// [`protocol::LOG_LIST_LEN`] files, a read of at most one chunk. The defaults answer
+/// [`LogFileError::Unsupported`] (a sink that keeps nothing readable, [`NoCard`]).
+///
+/// Locking: the link task and the background task (which writes through the same sink) reach
+/// the storage under one lock (`system::PassShared::logs`, taken per call), so a read sees only
+/// whole blocks and never a block half appended.
+pub trait LogFiles {
+    /// The files numbered `first` or more, ascending, as many as `out` holds (it is cleared
+    /// first); returns whether more follow.
+    fn list(
+        &mut self,
+        first: u32,
+        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
+    ) -> Result<bool, LogFileError> {
+        let _ = (first, out);
+        Err(LogFileError::Unsupported)
+    }
+
+    /// Read file `number` from byte `offset` into `buf` (as much as it holds and the file has);
+    /// returns the bytes read and the file's size now. An offset at the end reads nothing.
+    fn read(
+        &mut self,
+        number: u32,
+        offset: u32,
+        buf: &mut [u8],
+    ) -> Result<(usize, u32), LogFileError> {
+        let _ = (number, offset, buf);
+        Err(LogFileError::Unsupported)
+    }
+
+    /// Delete file `number`; refused for the file being written.
+    fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
+        let _ = number;
+        Err(LogFileError::Unsupported)
+    }
+}
+
 /// Where the blocks go: a file on the SD card on the board, a file in a directory on the host.
 /// Called only by the lowest-priority task; it may block that task (never the others). `Send`:
-/// the board hands it to that task.
-pub trait LogSink: Send {
+/// the board hands it to that task. Its files are read back through [`LogFiles`].
+pub trait LogSink: LogFiles + Send {
     /// Begin a new file; returns its number (`LOG00001.BIN` is 1).
     fn open(&mut self) -> Result<u32, LogSinkError>;
     /// Append one block to the file begun last.
@@ -389,6 +444,8 @@ pub trait LogSink: Send {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoCard;
 
+impl LogFiles for NoCard {}
+
 impl LogSink for NoCard {
     fn open(&mut self) -> Result<u32, LogSinkError> {
         Err(LogSinkError::NoCard)
@@ -398,6 +455,28 @@ impl LogSink for NoCard {
     }
     fn close(&mut self) -> Result<(), LogSinkError> {
         Ok(())
+    }
+}
+
+/// No storage: nothing to list (`None` in a graph without a log).
+impl<T: LogFiles> LogFiles for Option<T> {
+    fn list(
+        &mut self,
+        first: u32,
+        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
+    ) -> Result<bool, LogFileError> {
+        self.as_mut().ok_or(LogFileError::Unsupported)?.list(first, out)
+    }
+    fn read(
+        &mut self,
+        number: u32,
+        offset: u32,
+        buf: &mut [u8],
+    ) -> Result<(usize, u32), LogFileError> {
+        self.as_mut().ok_or(LogFileError::Unsupported)?.read(number, offset, buf)
+    }
+    fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
+        self.as_mut().ok_or(LogFileError::Unsupported)?.delete(number)
     }
 }
 
@@ -456,6 +535,29 @@ pub struct Logger<'q> {
     last_t_us: u64,
     logged_dropped: u32,
     status: LogStatus,
+}
+
+/// The files of the logger's sink (the link task reads them under the lock it shares with the
+/// background task, which writes through the same sink).
+impl LogFiles for Logger<'_> {
+    fn list(
+        &mut self,
+        first: u32,
+        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
+    ) -> Result<bool, LogFileError> {
+        self.sink.list(first, out)
+    }
+    fn read(
+        &mut self,
+        number: u32,
+        offset: u32,
+        buf: &mut [u8],
+    ) -> Result<(usize, u32), LogFileError> {
+        self.sink.read(number, offset, buf)
+    }
+    fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
+        self.sink.delete(number)
+    }
 }
 
 impl<'q> Logger<'q> {
@@ -823,6 +925,8 @@ mod tests {
         no_card: bool,
         opens: u32,
     }
+
+    impl LogFiles for Memory {}
 
     impl LogSink for Memory {
         fn open(&mut self) -> Result<u32, LogSinkError> {

@@ -547,7 +547,7 @@ impl Pilot {
             self.previous_velocity_mps = None;
         }
         let to_filter_world =
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -self.alignment_yaw_rad());
+            flight::math::rotation_about(&Vector3::z_axis(), -self.alignment_yaw_rad());
         let accel_imu =
             self.attitude.quaternion().inverse() * (to_filter_world * self.accel_world_mps2);
         let _ = self.attitude.update(&gyro, &(f - accel_imu), heading, dt_s);
@@ -582,13 +582,13 @@ impl Pilot {
 
     /// The attitude of the IMU in the poses' world (the filter's world until aligned).
     fn q_world_imu(&self) -> UnitQuaternion<f32> {
-        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), self.alignment_yaw_rad())
+        flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad())
             * self.attitude.quaternion()
     }
 
     /// The velocity by dead reckoning since the last rest, in the world the controller sees.
     fn dead_reckoned_velocity(&self) -> Vector3<f32> {
-        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), self.alignment_yaw_rad())
+        flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad())
             * self.alignment.dead_reckoned_velocity_mps()
     }
 

@@ -250,10 +250,8 @@ impl HandsetCycle {
 /// model (the frame it hovers in), the IMU's before; Euler angles ZYX.
 fn attitude(snapshot: &ControlSnapshot) -> HandsetTelemetry {
     let pilot = &snapshot.pilot;
-    let [w, x, y, z] = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
-    let roll_rad = libm::atan2f(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y));
-    let pitch_rad = libm::asinf((2.0 * (w * y - z * x)).clamp(-1.0, 1.0));
-    let yaw_rad = libm::atan2f(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z));
+    let q = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
+    let [roll_rad, pitch_rad, yaw_rad] = flight::attitude::euler_zyx_rad(q);
     HandsetTelemetry::Attitude { pitch_rad, roll_rad, yaw_rad }
 }
 

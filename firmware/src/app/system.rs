@@ -24,7 +24,7 @@ use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
 use super::hal::{Imu, ImuSample, Motors, Port, PortClosed, Uart};
-use super::log::{LogEntry, LogProducer, LogSink, Logger, StepEntry};
+use super::log::{LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry};
 use super::radio::{CraftState, Receiver};
 use super::{
     Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
@@ -349,18 +349,63 @@ pub trait Links {
 /// One link as the pass sees it (object-safe, so links over different ports serve together).
 pub trait LinkEnd {
     fn server(&mut self) -> &mut LinkServer;
-    fn receive_into(&mut self, now_us: u64, view: &StatusView, settings: &mut dyn SettingsEnd);
+    fn receive_into(
+        &mut self,
+        now_us: u64,
+        view: &StatusView,
+        settings: &mut dyn SettingsEnd,
+        logs: &mut dyn LogFiles,
+    );
     fn transmit(&mut self);
 }
 
 /// The settings as a link end reads and changes them (object-safe over the flash type).
 pub trait SettingsEnd {
-    fn receive(&mut self, server: &mut LinkServer, bytes: &[u8], now_us: u64, view: &StatusView);
+    fn receive(
+        &mut self,
+        server: &mut LinkServer,
+        bytes: &[u8],
+        now_us: u64,
+        view: &StatusView,
+        logs: &mut dyn LogFiles,
+    );
 }
 
 impl<F: NorFlash> SettingsEnd for Settings<F> {
-    fn receive(&mut self, server: &mut LinkServer, bytes: &[u8], now_us: u64, view: &StatusView) {
-        server.receive(bytes, now_us, view, self);
+    fn receive(
+        &mut self,
+        server: &mut LinkServer,
+        bytes: &[u8],
+        now_us: u64,
+        view: &StatusView,
+        logs: &mut dyn LogFiles,
+    ) {
+        server.receive(bytes, now_us, view, self, logs);
+    }
+}
+
+/// The flight log's files as the link pass reaches them: each call takes the lock the
+/// background task writes under (`PassShared::logs`) for that one bounded operation.
+struct LockedLogFiles<'a, L>(&'a mut L);
+
+impl<L: Mutex<T = T>, T: LogFiles> LogFiles for LockedLogFiles<'_, L> {
+    fn list(
+        &mut self,
+        first: u32,
+        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
+    ) -> Result<bool, LogFileError> {
+        self.0.lock(|files| files.list(first, out))
+    }
+    fn read(
+        &mut self,
+        number: u32,
+        offset: u32,
+        buf: &mut [u8],
+    ) -> Result<(usize, u32), LogFileError> {
+        self.0.lock(|files| files.read(number, offset, buf))
+    }
+    fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
+        self.0.lock(|files| files.delete(number))
     }
 }
 
@@ -369,7 +414,13 @@ impl<P: Port> LinkEnd for Link<P> {
         &mut self.server
     }
 
-    fn receive_into(&mut self, now_us: u64, view: &StatusView, settings: &mut dyn SettingsEnd) {
+    fn receive_into(
+        &mut self,
+        now_us: u64,
+        view: &StatusView,
+        settings: &mut dyn SettingsEnd,
+        logs: &mut dyn LogFiles,
+    ) {
         let mut chunk = [0u8; READ_CHUNK_BYTES];
         for _ in 0..READS_PER_PASS {
             if !self.open {
@@ -379,7 +430,7 @@ impl<P: Port> LinkEnd for Link<P> {
                 Ok(0) => return,
                 Ok(count) => {
                     let count = count.min(READ_CHUNK_BYTES);
-                    settings.receive(&mut self.server, &chunk[..count], now_us, view);
+                    settings.receive(&mut self.server, &chunk[..count], now_us, view, logs);
                 }
                 Err(PortClosed) => self.close(),
             }
@@ -452,12 +503,17 @@ pub struct PassOutcome {
 }
 
 /// The locks a link pass takes.
-pub struct PassShared<S, R, B, C, W> {
+pub struct PassShared<S, R, B, C, W, L> {
     pub snapshot: S,
     pub results: R,
     pub board: B,
     pub commands: C,
     pub work: W,
+    /// The flight log's storage ([`LogFiles`]), shared with the background task that writes
+    /// through it: locked per request (one listing, one chunk of at most
+    /// [`protocol::LOG_CHUNK_LEN`] bytes, one delete), never for a whole pass. A board without
+    /// log storage passes [`super::log::NoCard`].
+    pub logs: L,
 }
 
 /// The link task's own state: the parameters and their store, and its end of the telemetry
@@ -504,12 +560,12 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
     /// tasks routed to their queues, a changed configuration sent to both tasks, every step
     /// record streamed to every link, the sampled topics and events polled, and everything
     /// offered to the ports. Never blocks, except a configuration save (a flash erase).
-    pub fn pass<S, R, B, C, W>(
+    pub fn pass<S, R, B, C, W, L, LT>(
         &mut self,
         now_us: u64,
         links: &mut dyn Links,
         step_time: Option<StepTime>,
-        shared: &mut PassShared<S, R, B, C, W>,
+        shared: &mut PassShared<S, R, B, C, W, L>,
     ) -> PassOutcome
     where
         S: Mutex<T = ControlSnapshot>,
@@ -517,6 +573,8 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         B: Mutex<T = BoardHealth>,
         C: Mutex<T = ControlQueue>,
         W: Mutex<T = WorkQueue>,
+        L: Mutex<T = LT>,
+        LT: LogFiles,
     {
         let view = StatusView {
             control: shared.snapshot.lock(|snapshot| *snapshot),
@@ -525,7 +583,8 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
             board: shared.board.lock(|board| *board),
         };
         let settings = &mut self.settings;
-        links.each(&mut |link| link.receive_into(now_us, &view, settings));
+        let mut logs = LockedLogFiles(&mut shared.logs);
+        links.each(&mut |link| link.receive_into(now_us, &view, settings, &mut logs));
 
         let mut outcome = PassOutcome::default();
         let mut work = heapless::Vec::<BackgroundWork, WORK_QUEUE_LEN>::new();
@@ -663,6 +722,7 @@ impl<'q, F: NorFlash> System<'q, F> {
             board: Exclusive(&mut handoffs.board),
             commands: Exclusive(&mut handoffs.commands),
             work: Exclusive(&mut handoffs.work),
+            logs: Exclusive(&mut self.log),
         };
         let outcome = self.link.pass(now_us, links, None, &mut shared);
         if outcome.background_due {

@@ -365,7 +365,7 @@ impl ThrowDetector {
             Vector3::zeros()
         };
         // The sample's force in the start attitude, at the middle of the turn over `dt_s`.
-        let half_turn = UnitQuaternion::from_scaled_axis(w * (0.5 * dt_s));
+        let half_turn = crate::math::rotation_from_scaled_axis(&(w * (0.5 * dt_s)));
         let q_mid = self.push.q_start_body * half_turn;
         self.push.velocity_mps += (q_mid * f - f_rest) * dt_s;
         self.push.q_start_body = q_mid * half_turn;
