@@ -104,9 +104,14 @@ pub fn identify(
     say("armed: throw the craft now (up, about 3 m, spinning is fine); the motors start after the release. `configurator-cli disarm` or Ctrl-C stops everything.".into());
     let state_hz = if options.every_step { client.info.control_rate_hz } else { WATCH_RATE_HZ };
     client.request(&rate(Topic::Learner, WATCH_RATE_HZ), "the telemetry rate request")?;
-    client.request(&rate(Topic::State, state_hz), "the telemetry rate request")?;
+    // A slow link (a radio's byte budget) may have no room left for the state topic: then
+    // whether the craft flies is asked (`GetFlight`) instead of streamed.
+    let state_streamed = !matches!(
+        client.request(&rate(Topic::State, state_hz), "the telemetry rate request")?,
+        Reply::TelemetryRate(SetTelemetryRate { rate_hz: 0, .. })
+    );
     client.telemetry.clear();
-    let result = follow(client, options, say, on_sample);
+    let result = follow(client, options, state_streamed, say, on_sample);
     if matches!(result, Err(IdentifyError::NoThrow(_))) {
         client.request(&Request::Disarm(()), "the disarm request")?;
     }
@@ -119,6 +124,7 @@ pub fn identify(
 fn follow(
     client: &mut Client,
     options: IdentifyOptions,
+    state_streamed: bool,
     say: &mut dyn FnMut(String),
     on_sample: &mut dyn FnMut(&TelemetrySample),
 ) -> Result<Identified, IdentifyError> {
@@ -180,7 +186,14 @@ fn follow(
         }
         let [Some(block0), Some(block1)] = blocks else { continue };
         let done_at = *done_at.get_or_insert_with(Instant::now);
-        let flying = state.is_some_and(|s| s.flying);
+        let flying = if state_streamed {
+            state.is_some_and(|s| s.flying)
+        } else {
+            matches!(
+                client.request(&Request::GetFlight(()), "the flight request"),
+                Ok(Reply::Flight(flight)) if flight.mode != protocol::FlightMode::Off
+            )
+        };
         if !flying && done_at.elapsed().as_secs_f64() < ENGAGE_WAIT_S {
             continue;
         }

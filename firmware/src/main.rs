@@ -11,7 +11,7 @@
 //! | `imu_data_ready` | EXTI2 (ICM-42688-P INT1), 8 kHz | 3 | starts the SPI DMA read of one sample (returns at once) |
 //! | `imu_transfer_done` | DMA1 stream 0 complete | 3 | ends the read, adds the sample to the 8 kHz → 2 kHz mean |
 //! | `motor_burst_0..2` | DMA1 streams 2–4 complete (the motor timers' DShot bursts) | 4 | switches the timer's outputs to capture the ESCs' bidirectional answers (a few dozen register writes, 28 µs after the step started the frame; the answer starts 30 µs after the frame, too soon to wait for the step to end) |
-//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port: requests routed, telemetry, configuration saves (flash erase); then a restart if one was asked for |
+//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port and the telemetry radio's UART (`radio_baud`): requests routed, telemetry, configuration saves (flash erase); then a restart if one was asked for |
 //! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the link's work, the learner-sample queue drained, results published |
 //! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
@@ -94,6 +94,7 @@ mod app {
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
     use firmware::board::imu::BoardImu;
     use firmware::board::motors::{BoardMotors, BurstCompletion};
+    use firmware::board::radio::BoardRadio;
     use firmware::board::receiver::BoardReceiver;
     use firmware::board::time::MicrosClock;
     use firmware::board::timing::{step_stats, StepStats, StepTimer};
@@ -160,6 +161,8 @@ mod app {
         usb_clock: MicrosClock,
         /// The USB CDC port and its protocol endpoint.
         usb: Link<UsbSerial>,
+        /// The telemetry radio's UART and its (untrusted) protocol endpoint, when configured.
+        radio: Option<Link<BoardRadio>>,
         /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads), and
         /// the link task's end of the telemetry ring (one record per control step).
         link: LinkTask<'static, ConfigSectors>,
@@ -315,13 +318,23 @@ mod app {
         if settings.status().origin != protocol::ConfigOrigin::NoStore {
             capabilities |= Capabilities::PERSISTENT_STORE;
         }
-        let link = LinkServer::new(BoardInfo {
+        let board_info = BoardInfo {
             board: BOARD.name,
             serial,
             capabilities,
             control_rate_hz: config.rate_hz,
             motor_count: motors.count(),
+        };
+        // The telemetry radio (`radio_baud`, read at start-up as the ESCs' protocol is): the
+        // same protocol as USB on an untrusted link with the radio's byte budget.
+        let telemetry_radio = settings.params().radio_baud().map(|baud| {
+            let port = BoardRadio::new(BOARD.telemetry_radio, ccdr.clocks.pclk2().raw(), baud);
+            let server = LinkServer::new(board_info.clone())
+                .untrusted()
+                .with_byte_rate(firmware::board::radio::byte_rate(baud));
+            Link::new(server, port)
         });
+        let link = LinkServer::new(board_info);
         let shared = Shared {
             snapshot: control.snapshot(),
             results: background.results(),
@@ -362,6 +375,7 @@ mod app {
             receiver,
             usb_clock: clock,
             usb: Link::new(link, usb),
+            radio: telemetry_radio,
             link: LinkTask::new(settings, telemetry),
             background,
         };
@@ -414,7 +428,7 @@ mod app {
         #[task(binds = DMA1_STR4, priority = 4, local = [burst_2])]
         fn motor_burst_2(cx: motor_burst_2::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, link], shared = [snapshot, results, board, commands, work])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, radio, link], shared = [snapshot, results, board, commands, work])]
         fn usb_service(cx: usb_service::Context);
 
         #[task(priority = 1, local = [background], shared = [results, work])]
@@ -524,7 +538,8 @@ mod tasks {
             logs: firmware::app::system::Exclusive(&mut no_card),
         };
         let step_time = Some(StepTime { max_us: step.max_us, overruns: step.overruns });
-        let outcome = cx.local.link.pass(now_us, cx.local.usb, step_time, &mut shared);
+        let mut links = (&mut *cx.local.usb, &mut *cx.local.radio);
+        let outcome = cx.local.link.pass(now_us, &mut links, step_time, &mut shared);
         if outcome.background_due {
             let _ = background::spawn();
         }

@@ -20,6 +20,12 @@ use protocol::{
     PARAM_UNIT_LEN, UNIT_LEN,
 };
 
+/// Fastest telemetry-radio baud the parameter takes: the H743's UARTs run far faster, the radios
+/// (SiK 250,000, ESP32 bridges 921,600) do not.
+pub const MAX_RADIO_BAUD: f32 = 921_600.0;
+/// Slowest baud that counts as a radio; below it (0 included) the UART stays off.
+pub const MIN_RADIO_BAUD: f32 = 1_200.0;
+
 /// One parameter's description.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ParamSpec {
@@ -158,6 +164,8 @@ registry! {
         "local gravity for the rest poses of the calibration";
     MotorBidirDshot = "motor_bidir_dshot", 1, Flag, "", 0.0, 1.0, [1.0], false,
         "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
+    RadioBaud = "radio_baud", 1, Integer, "baud", 0.0, MAX_RADIO_BAUD, [0.0], false,
+        "telemetry radio on pads TX1/RX1 (57600 for SiK): 0 off. At restart";
     MotorSpeedAgeS = "motor_speed_age_s", 1, Real, "s", 0.0, flight::learner::MAX_SPEED_AGE_S,
         [flight::learner::DEFAULT_SPEED_AGE_S], false,
         "age of an ESC speed report when read: aligns the identification";
@@ -352,6 +360,12 @@ impl Params {
     /// learner needs the speeds it reports).
     pub fn bidirectional_dshot(&self) -> bool {
         self.scalar(Param::MotorBidirDshot) == 1.0
+    }
+
+    /// The telemetry radio's baud, when one is configured (the board reads it at start-up).
+    pub fn radio_baud(&self) -> Option<u32> {
+        let baud = self.scalar(Param::RadioBaud);
+        (baud >= MIN_RADIO_BAUD).then_some(baud as u32)
     }
 
     /// How long the control step rides through bad or missing IMU samples while armed (the

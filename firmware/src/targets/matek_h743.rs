@@ -20,7 +20,7 @@ use super::h743::{Function, Spi, Timer, Uart};
 use super::Port::{A, B, C, D};
 use super::{
     pin, AltPin, BoardDescription, DmaStream, FlashLayout, ImuWiring, MotorOutput, MotorTimer, Pin,
-    ReceiverWiring,
+    UartWiring,
 };
 
 const fn alt(pin: Pin, function: Function, af: u8) -> AltPin {
@@ -78,11 +78,18 @@ pub const MATEK_H743_V3: BoardDescription = BoardDescription {
     motor_timers: &MOTOR_TIMERS,
     motor_pole_pairs: 7,
     motor_bidirectional: true,
-    receiver: ReceiverWiring {
+    receiver: UartWiring {
         uart: Uart::Usart6,
         rx: alt(pin(C, 7), Function::UartRx(Uart::Usart6), 7),
         tx: alt(pin(C, 6), Function::UartTx(Uart::Usart6), 7),
         rx_dma: dma(1, 5),
+    },
+    // Pads TX1 and RX1; the last DMA stream free (DMA2 stream 6).
+    telemetry_radio: UartWiring {
+        uart: Uart::Usart1,
+        rx: alt(pin(A, 10), Function::UartRx(Uart::Usart1), 7),
+        tx: alt(pin(A, 9), Function::UartTx(Uart::Usart1), 7),
+        rx_dma: dma(2, 6),
     },
     usb_dm: alt(pin(A, 11), Function::UsbDm, 10),
     usb_dp: alt(pin(A, 12), Function::UsbDp, 10),

@@ -143,9 +143,9 @@ pub struct MotorTimer {
     pub dma: DmaStream,
 }
 
-/// The CRSF receiver's UART (RX by circular DMA; TX wired for telemetry, unused yet).
+/// A UART: RX by a circular DMA, TX through its FIFO (`board::serial`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ReceiverWiring {
+pub struct UartWiring {
     pub uart: h743::Uart,
     pub rx: AltPin,
     pub tx: AltPin,
@@ -189,7 +189,10 @@ pub struct BoardDescription {
     /// Whether the ESCs speak bidirectional DShot (BLHeli_32, Bluejay, AM32 do; BLHeli_S
     /// without Bluejay does not): inverted frames, each answered with the motor's eRPM.
     pub motor_bidirectional: bool,
-    pub receiver: ReceiverWiring,
+    /// The CRSF receiver (RC in, handset telemetry out).
+    pub receiver: UartWiring,
+    /// The telemetry radio: the link protocol, when the `radio_baud` parameter is not 0.
+    pub telemetry_radio: UartWiring,
     /// USB OTG2 full-speed pins (D−, D+).
     pub usb_dm: AltPin,
     pub usb_dp: AltPin,
@@ -263,6 +266,8 @@ impl BoardDescription {
             (imu.mosi, Function::SpiMosi(imu.spi)),
             (self.receiver.rx, Function::UartRx(self.receiver.uart)),
             (self.receiver.tx, Function::UartTx(self.receiver.uart)),
+            (self.telemetry_radio.rx, Function::UartRx(self.telemetry_radio.uart)),
+            (self.telemetry_radio.tx, Function::UartTx(self.telemetry_radio.uart)),
             (self.usb_dm, Function::UsbDm),
             (self.usb_dp, Function::UsbDp),
         ];
@@ -273,8 +278,10 @@ impl BoardDescription {
 
     /// Every DMA stream the board uses.
     fn dma_streams(&self) -> impl Iterator<Item = DmaStream> + '_ {
-        [self.imu.rx_dma, self.imu.tx_dma, self.receiver.rx_dma, self.flash_read_dma]
+        let uarts = [self.receiver.rx_dma, self.telemetry_radio.rx_dma];
+        [self.imu.rx_dma, self.imu.tx_dma, self.flash_read_dma]
             .into_iter()
+            .chain(uarts)
             .chain(self.motor_timers.iter().map(|t| t.dma))
             .chain(self.motors.iter().map(|m| m.capture_dma))
     }
