@@ -177,15 +177,28 @@ fn every_motor_can_capture_its_escs_answer() {
     // M1's capture stream taken by the receiver: refused as a stream used twice.
     let m1 = board.motors[0].capture_dma;
     assert_eq!(broken(|b| b.receiver.rx_dma = m1), Err(BoardError::DmaStreamUsedTwice(m1)));
+    // The telemetry radio on the receiver's stream, or on the receiver's pad: refused.
+    let crsf = board.receiver.rx_dma;
+    assert_eq!(
+        broken(|b| b.telemetry_radio.rx_dma = crsf),
+        Err(BoardError::DmaStreamUsedTwice(crsf))
+    );
+    let rx6 = board.receiver.rx.pin;
+    assert_eq!(broken(|b| b.telemetry_radio.rx.pin = rx6), Err(BoardError::PinUsedTwice(rx6)));
     // A burst stream whose completion `src/main.rs` does not bind.
     static UNBOUND: [MotorTimer; 3] = [
         MotorTimer { timer: Timer::Tim3, dma: DmaStream { controller: 2, stream: 6 } },
         MotorTimer { timer: Timer::Tim5, dma: DmaStream { controller: 1, stream: 3 } },
         MotorTimer { timer: Timer::Tim4, dma: DmaStream { controller: 1, stream: 4 } },
     ];
+    // (Every stream is taken: the radio gets the one the TIM3 burst gives up.)
     let stream = UNBOUND[0].dma;
+    let freed = board.motor_timers[0].dma;
     assert_eq!(
-        broken(|b| b.motor_timers = &UNBOUND),
+        broken(|b| {
+            b.motor_timers = &UNBOUND;
+            b.telemetry_radio.rx_dma = freed;
+        }),
         Err(BoardError::MotorBurstInterruptBinding(stream))
     );
     // TIM4 CH4 has no capture request: a motor there cannot answer.
