@@ -143,7 +143,9 @@ pub fn discover() -> Result<String, ConnectError> {
     }
 }
 
-fn open_serial(path: &str) -> Result<Box<dyn Transport>, ConnectError> {
+/// Open the serial device (or pseudo-terminal) at `path` as a transport with the link's read
+/// timeout, without a handshake (tests that speak raw frames use it).
+pub fn open_serial(path: &str) -> Result<Box<dyn Transport>, ConnectError> {
     let port = serialport::new(path, BAUD_RATE)
         .timeout(READ_TIMEOUT)
         .open()

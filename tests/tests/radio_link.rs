@@ -357,3 +357,113 @@ fn poses_relayed_over_the_radio_hold_the_craft_after_a_throw_to_fly() {
     assert!(summary["accepted"].as_u64().unwrap() >= relayed * 9 / 10, "{summary}");
     let _ = std::fs::remove_dir_all(&keys);
 }
+
+/// Send one request frame (already encoded) over `port` and wait for the response with its
+/// sequence number `seq`.
+fn raw_request(
+    port: &mut Box<dyn configurator_cli::link::Transport>,
+    frame: &[u8],
+    seq: u16,
+) -> protocol::Response {
+    use std::io::{Read, Write};
+    port.write_all(&[0]).unwrap();
+    port.write_all(frame).unwrap();
+    port.flush().unwrap();
+    let mut decoder = protocol::Decoder::new();
+    let deadline = Instant::now() + std::time::Duration::from_secs(3);
+    let mut buffer = [0u8; 256];
+    while Instant::now() < deadline {
+        let n = port.read(&mut buffer).unwrap_or(0);
+        for &byte in &buffer[..n] {
+            if let Some(Ok(frame)) = decoder.push(byte) {
+                if let (Ok(protocol::DeviceMessage::Response(response)), true) =
+                    (protocol::DeviceMessage::decode(&frame), frame.seq == seq)
+                {
+                    return response;
+                }
+            }
+        }
+    }
+    panic!("no answer to request {seq}");
+}
+
+/// The frame of `request` under `seq`, signed with `signer` at `timestamp` when given.
+fn frame_of(
+    request: &protocol::Request,
+    seq: u16,
+    signed: Option<(protocol::Signer, u64)>,
+) -> Vec<u8> {
+    let mut out = [0u8; protocol::MAX_FRAME_LEN];
+    let len = match signed {
+        Some((signer, timestamp)) => request.encode_signed(seq, &signer, timestamp, &mut out),
+        None => request.encode(seq, &mut out),
+    };
+    out[..len.unwrap()].to_vec()
+}
+
+/// Over the simulated radio, frame by frame as a stranger on the channel would send them: a
+/// `set` signed with another key, a recording of the paired configurator's earlier `set`
+/// replayed after a later one, and an unsigned `arm-throw-to-fly` are refused, change nothing
+/// and are counted; the paired key's own requests are carried out. (No frame lost here: the
+/// losses are the other tests'.)
+#[test]
+fn over_the_radio_forged_replayed_and_unsigned_requests_are_refused_and_counted() {
+    use protocol::{DeviceError, Hello, Reply, Request, SetParam, Signer};
+    let keys = std::env::temp_dir().join(format!("fc-keys-forged-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&keys);
+    let config = SitlConfig {
+        seed: 31,
+        telemetry_radio: Some(RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.0 }),
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let usb = sitl.pty_path.clone().unwrap().display().to_string();
+    let radio = sitl.radio_path.clone().unwrap().display().to_string();
+    let pair = cli_with_keys(&keys, &["--port", &usb, "pair"]);
+    assert!(pair.status.success());
+    let key_file = std::fs::read_dir(&keys).unwrap().next().unwrap().unwrap().path();
+    let hex = std::fs::read_to_string(key_file).unwrap();
+    let key: [u8; 32] =
+        std::array::from_fn(|i| u8::from_str_radix(&hex.trim()[2 * i..2 * i + 2], 16).unwrap());
+
+    let mut port = configurator_cli::connect::open_serial(&radio).unwrap();
+    let hello = Request::Hello(Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: 0 });
+    assert!(matches!(raw_request(&mut port, &frame_of(&hello, 1, None), 1), Ok(Reply::Hello(_))));
+    let security = |port: &mut _, seq| match raw_request(
+        port,
+        &frame_of(&Request::GetLinkSecurity(()), seq, None),
+        seq,
+    ) {
+        Ok(Reply::LinkSecurity(security)) => security,
+        other => panic!("{other:?}"),
+    };
+    let session = security(&mut port, 2).session;
+    let paired = Signer { key, session };
+    let set = |value: f32| {
+        Request::SetParam(SetParam {
+            name: heapless::String::try_from("excitation_step_cmd").unwrap(),
+            values: heapless::Vec::from_slice(&[value]).unwrap(),
+        })
+    };
+    let recorded = frame_of(&set(0.4), 3, Some((paired, 1_000)));
+    assert!(matches!(raw_request(&mut port, &recorded, 3), Ok(Reply::Param(_))));
+    let forger = Signer { key: [0x42; 32], session };
+    let forged = frame_of(&set(0.7), 4, Some((forger, 2_000)));
+    assert_eq!(raw_request(&mut port, &forged, 4), Err(DeviceError::BadSignature));
+    let later = frame_of(&set(0.45), 5, Some((paired, 3_000)));
+    assert!(matches!(raw_request(&mut port, &later, 5), Ok(Reply::Param(_))));
+    assert_eq!(
+        raw_request(&mut port, &recorded, 3),
+        Err(DeviceError::Replayed { last_timestamp: 3_000 })
+    );
+    let arm = frame_of(&Request::ArmThrowToFly(()), 6, None);
+    assert_eq!(raw_request(&mut port, &arm, 6), Err(DeviceError::SignatureRequired));
+    let counted = security(&mut port, 7);
+    assert_eq!((counted.unsigned_refused, counted.bad_signature, counted.replayed), (1, 1, 1));
+    drop(port);
+    // The value in force is the paired configurator's last, not the forger's or the replay's.
+    let get = cli_with_keys(&keys, &["--port", &usb, "--json", "get", "excitation_step_cmd"]);
+    let get: serde_json::Value = serde_json::from_slice(&get.stdout).unwrap();
+    assert_eq!(get["value"][0].as_f64().unwrap() as f32, 0.45, "{get}");
+    let _ = std::fs::remove_dir_all(&keys);
+}
