@@ -59,6 +59,15 @@ fn status_over_a_slow_far_radio_answers_every_time() {
     eprintln!("status over 9,600 baud and 100 ms: {times_s:.2?} s");
 }
 
+/// What a run of the configurator printed, stdout then stderr.
+fn output_text(output: &std::process::Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    )
+}
+
 /// `configurator-cli` with its link keys in `keys` (not the user's).
 fn cli_with_keys(keys: &std::path::Path, args: &[&str]) -> std::process::Output {
     std::process::Command::new(tests::cli_binary())
@@ -89,29 +98,22 @@ fn over_the_radio_only_the_paired_configurator_configures_the_craft() {
     let _ = std::fs::remove_dir_all(&keys);
     let stranger = keys.join("stranger");
     let ours = keys.join("ours");
-    let text = |output: &std::process::Output| {
-        format!(
-            "{}{}",
-            String::from_utf8_lossy(&output.stdout),
-            String::from_utf8_lossy(&output.stderr)
-        )
-    };
 
     // Unpaired: refused over the radio, with what to do.
     let set =
         cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.4"]);
     assert!(!set.status.success());
-    assert!(text(&set).contains("configurator-cli pair"), "{}", text(&set));
+    assert!(output_text(&set).contains("configurator-cli pair"), "{}", output_text(&set));
     let arm = cli_with_keys(&stranger, &["--port", radio, "arm-throw-to-fly"]);
-    assert!(!arm.status.success(), "{}", text(&arm));
+    assert!(!arm.status.success(), "{}", output_text(&arm));
     // Pairing is refused over the radio.
     let pair = cli_with_keys(&ours, &["--port", radio, "pair"]);
     assert!(!pair.status.success());
-    assert!(text(&pair).contains("trusted link"), "{}", text(&pair));
+    assert!(output_text(&pair).contains("trusted link"), "{}", output_text(&pair));
 
     // Paired over the SITL's own link: the key file is ours alone.
     let pair = cli_with_keys(&ours, &["--port", usb, "pair"]);
-    assert!(pair.status.success(), "{}", text(&pair));
+    assert!(pair.status.success(), "{}", output_text(&pair));
     let key_files: Vec<_> = std::fs::read_dir(&ours).unwrap().collect();
     assert_eq!(key_files.len(), 1);
     #[cfg(unix)]
@@ -123,17 +125,21 @@ fn over_the_radio_only_the_paired_configurator_configures_the_craft() {
 
     // The paired configurator's `set` over the radio is carried out; the stranger's still not.
     let set = cli_with_keys(&ours, &["--port", radio, "set", "excitation_step_cmd", "=", "0.4"]);
-    assert!(set.status.success(), "{}", text(&set));
+    assert!(set.status.success(), "{}", output_text(&set));
     let set =
         cli_with_keys(&stranger, &["--port", radio, "set", "excitation_step_cmd", "=", "0.7"]);
-    assert!(!set.status.success(), "{}", text(&set));
+    assert!(!set.status.success(), "{}", output_text(&set));
     let get = cli_with_keys(&stranger, &["--port", radio, "--json", "get", "excitation_step_cmd"]);
-    assert!(get.status.success(), "reads stay open: {}", text(&get));
-    assert!(text(&get).contains("0.4"), "the paired value is in force: {}", text(&get));
+    assert!(get.status.success(), "reads stay open: {}", output_text(&get));
+    assert!(
+        output_text(&get).contains("0.4"),
+        "the paired value is in force: {}",
+        output_text(&get)
+    );
 
     // The refusals are counted on the radio's link and reported.
     let security = cli_with_keys(&ours, &["--port", radio, "--json", "security"]);
-    assert!(security.status.success(), "{}", text(&security));
+    assert!(security.status.success(), "{}", output_text(&security));
     let security: serde_json::Value = serde_json::from_slice(&security.stdout).unwrap();
     assert_eq!(security["trusted"], false);
     assert_eq!(security["paired"], true);
@@ -151,13 +157,6 @@ fn calibrate_save_and_identify_complete_over_a_lossy_radio() {
     let keys = std::env::temp_dir().join(format!("fc-keys-ops-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&keys);
     let radio = RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.02 };
-    let text = |output: &std::process::Output| {
-        format!(
-            "{}{}",
-            String::from_utf8_lossy(&output.stdout),
-            String::from_utf8_lossy(&output.stderr)
-        )
-    };
     let flash = keys.join("flash.bin");
     std::fs::create_dir_all(&keys).unwrap();
 
@@ -175,7 +174,7 @@ fn calibrate_save_and_identify_complete_over_a_lossy_radio() {
     let usb = sitl.pty_path.clone().unwrap().display().to_string();
     let port = sitl.radio_path.clone().unwrap().display().to_string();
     let pair = cli_with_keys(&keys, &["--port", &usb, "pair"]);
-    assert!(pair.status.success(), "{}", text(&pair));
+    assert!(pair.status.success(), "{}", output_text(&pair));
     let calibrate = cli_with_keys(
         &keys,
         &[
@@ -191,11 +190,11 @@ fn calibrate_save_and_identify_complete_over_a_lossy_radio() {
             "30",
         ],
     );
-    assert!(calibrate.status.success(), "{}", text(&calibrate));
+    assert!(calibrate.status.success(), "{}", output_text(&calibrate));
     let report: serde_json::Value = serde_json::from_slice(&calibrate.stdout).unwrap();
     assert_eq!(report["stored"], true, "{report}");
     let save = cli_with_keys(&keys, &["--port", &port, "save"]);
-    assert!(save.status.success(), "{}", text(&save));
+    assert!(save.status.success(), "{}", output_text(&save));
     let status = cli_with_keys(&keys, &["--port", &port, "--json", "status"]);
     let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
     assert_eq!(status["config"]["unsaved_changes"], false, "{status}");
@@ -211,7 +210,7 @@ fn calibrate_save_and_identify_complete_over_a_lossy_radio() {
     let usb = sitl.pty_path.clone().unwrap().display().to_string();
     let port = sitl.radio_path.clone().unwrap().display().to_string();
     let pair = cli_with_keys(&keys, &["--port", &usb, "pair"]);
-    assert!(pair.status.success(), "{}", text(&pair));
+    assert!(pair.status.success(), "{}", output_text(&pair));
     let identify = cli_with_keys(
         &keys,
         &[
@@ -226,7 +225,7 @@ fn calibrate_save_and_identify_complete_over_a_lossy_radio() {
             "3",
         ],
     );
-    assert!(identify.status.success(), "{}", text(&identify));
+    assert!(identify.status.success(), "{}", output_text(&identify));
     let report: serde_json::Value = serde_json::from_slice(&identify.stdout).unwrap();
     assert_eq!(report["phase"], "Done", "{report}");
     assert_eq!(report["flew"], true, "{report}");
@@ -302,15 +301,8 @@ fn poses_relayed_over_the_radio_hold_the_craft_after_a_throw_to_fly() {
     let sitl = Sitl::start(&config).expect("the SITL starts");
     let usb = sitl.pty_path.clone().unwrap().display().to_string();
     let radio = sitl.radio_path.clone().unwrap().display().to_string();
-    let text = |output: &std::process::Output| {
-        format!(
-            "{}{}",
-            String::from_utf8_lossy(&output.stdout),
-            String::from_utf8_lossy(&output.stderr)
-        )
-    };
     let pair = cli_with_keys(&keys, &["--port", &usb, "pair"]);
-    assert!(pair.status.success(), "{}", text(&pair));
+    assert!(pair.status.success(), "{}", output_text(&pair));
     // Poses the SITL sends a board position the configurator is told to hold; the pilot's
     // setpoint stays where the craft recovers (the default).
     let listen_text = listen.to_string();
@@ -332,7 +324,7 @@ fn poses_relayed_over_the_radio_hold_the_craft_after_a_throw_to_fly() {
         .expect("start the relay");
     std::thread::sleep(std::time::Duration::from_secs(2));
     let arm = cli_with_keys(&keys, &["--port", &usb, "arm-throw-to-fly"]);
-    assert!(arm.status.success(), "{}", text(&arm));
+    assert!(arm.status.success(), "{}", output_text(&arm));
     // Thrown, recovered and holding by now (12 s after the arming), on the relayed poses.
     std::thread::sleep(std::time::Duration::from_secs(12));
     let status = cli_with_keys(&keys, &["--port", &usb, "--json", "status"]);
@@ -349,7 +341,7 @@ fn poses_relayed_over_the_radio_hold_the_craft_after_a_throw_to_fly() {
         .sqrt();
     assert!(error_m < 0.3, "{error_m:.3} m from the setpoint: {flight}");
     let relay = relay.wait_with_output().unwrap();
-    assert!(relay.status.success(), "{}", text(&relay));
+    assert!(relay.status.success(), "{}", output_text(&relay));
     let summary: serde_json::Value = serde_json::from_slice(&relay.stdout).unwrap();
     let relayed = summary["relayed"].as_u64().unwrap();
     assert!(relayed > 18 * 45, "50 Hz for 18 s: {summary}");
