@@ -453,6 +453,47 @@ fn dshot_regions() {
     black_box(&state);
 }
 
+/// The link's cost on the board: a request frame decoded byte by byte (COBS, CRC-32C, the
+/// signature split off, postcard), and a signed request's HMAC-SHA256 verified (SHA-256 as the
+/// firmware compiles it: `sha2_backend_soft = "compact"`).
+fn link_regions() {
+    use protocol::{Decoder, Request, SetParam, Signer, MAX_FRAME_LEN, PARAM_MAX_LEN};
+    const _: () = assert!(PARAM_MAX_LEN == 8, "the region's name says 8 values");
+    let values = [0.025f32; PARAM_MAX_LEN];
+    let request = Request::SetParam(SetParam {
+        name: protocol::text("motor_tau_s"),
+        values: protocol::ParamValues::from_slice(&values).unwrap_or_default(),
+    });
+    let signer = Signer { key: [0x5A; protocol::signing::KEY_LEN], session: 7 };
+    let mut frame = [0u8; MAX_FRAME_LEN];
+    let Ok(len) = request.encode_signed(1, &signer, 1_000, &mut frame) else {
+        fail("link: the signed request does not fit a frame");
+    };
+    hprintln!("bench-m7 check: link: a signed SetParam of {} values is {} bytes", PARAM_MAX_LEN, len);
+    let mut state = (Decoder::new(), frame, len, 0u32);
+    let _ = region(&mut state, |(decoder, frame, len, decoded)| {
+        for &byte in black_box(&frame[..*len]) {
+            if let Some(Ok(frame)) = decoder.push(byte) {
+                *decoded += u32::from(Request::decode(&frame).is_ok());
+            }
+        }
+    });
+    if state.3 != 1 {
+        fail("link: the frame did not decode");
+    }
+    let mut decoder = Decoder::new();
+    for &byte in &frame[..len - 1] {
+        let _ = decoder.push(byte);
+    }
+    let Some(Ok(decoded)) = decoder.push(0) else { fail("link: no frame") };
+    let Some(signature) = decoded.signature else { fail("link: no signature") };
+    let mut state = (signature, signer.key, false);
+    let _ = region(&mut state, |(signature, key, ok)| *ok = signature.verify(black_box(key), 7));
+    if !state.2 {
+        fail("link: the signature did not verify");
+    }
+}
+
 #[entry]
 fn main() -> ! {
     const MOTOR_COUNTS: [usize; 3] = [4, 6, 8];
@@ -505,6 +546,8 @@ fn main() -> ! {
     );
     hprintln!("bench-m7 region: dshot: decode 8 bidirectional answers (edges → GCR → checksum → rad/s, counted)");
     hprintln!("bench-m7 region: dshot: encode 8 bidirectional throttle frames");
+    hprintln!("bench-m7 region: link: decode a signed SetParam frame of 8 values, byte by byte (COBS, CRC-32C, postcard)");
+    hprintln!("bench-m7 region: link: verify a signed request's HMAC-SHA256");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
@@ -706,6 +749,7 @@ fn main() -> ! {
     let _ = region(&mut x, |(a, _)| libm::sqrtf(black_box(*a)));
     let _ = region(&mut x, |(a, b)| libm::hypotf(black_box(*a), *b));
     dshot_regions();
+    link_regions();
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
     loop {
