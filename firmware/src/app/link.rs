@@ -724,8 +724,10 @@ impl LinkServer {
     }
 
     fn handshake(&mut self, host: Version) -> Response {
-        // Either way a new session begins: nothing streams until the host asks for it.
+        // Either way a new session begins: nothing streams until the host asks for it, and no
+        // request of the old session is answered again.
         self.topics = [TopicState::default(); TOPIC_COUNT];
+        self.last_command = None;
         if host.major != PROTOCOL_VERSION.major {
             self.host_version = None;
             return Err(DeviceError::IncompatibleProtocol { device: PROTOCOL_VERSION, host });
