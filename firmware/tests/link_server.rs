@@ -2,25 +2,17 @@
 //! errors, telemetry rates and sequence numbers, bad-frame accounting, the throw-to-fly commands
 //! and the learner topic.
 
+mod common;
+use common::board;
 use firmware::app::hal::ImuSample;
 use firmware::app::log::{LogFileError, LogFiles};
 use firmware::app::{
-    BoardInfo, ControlCommand, ControlSnapshot, LinkRequest, LinkServer, NoFlash, Settings,
-    StatusView, StepRecord,
+    ControlCommand, ControlSnapshot, LinkRequest, LinkServer, NoFlash, Settings, StatusView,
+    StepRecord,
 };
 use flight::learner::motor_model::MotorModel;
 use flight::learner::LearnedModel;
 use protocol::*;
-
-fn board() -> BoardInfo {
-    BoardInfo {
-        board: "TEST",
-        serial: heapless::String::try_from("42").unwrap(),
-        capabilities: Capabilities::TELEMETRY,
-        control_rate_hz: 2000,
-        motor_count: 4,
-    }
-}
 
 /// The control period at 2 kHz, µs.
 const STEP_US: u64 = 500;

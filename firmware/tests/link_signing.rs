@@ -3,24 +3,14 @@
 //! out only when signed with it, fresh, in this start-up's session. Refusals are typed and
 //! counted, and change nothing.
 
-use firmware::app::{
-    BoardInfo, ControlCommand, LinkRequest, LinkServer, NoFlash, Settings, StatusView,
-};
+mod common;
+use common::board;
+use firmware::app::{ControlCommand, LinkRequest, LinkServer, NoFlash, Settings, StatusView};
 use protocol::signing::{LinkKey, KEY_LEN};
 use protocol::*;
 
 const KEY: LinkKey = [0x5A; KEY_LEN];
 const SESSION: u64 = 0x1234_5678_9ABC_DEF0;
-
-fn board() -> BoardInfo {
-    BoardInfo {
-        board: "TEST",
-        serial: heapless::String::try_from("42").unwrap(),
-        capabilities: Capabilities::TELEMETRY,
-        control_rate_hz: 2000,
-        motor_count: 4,
-    }
-}
 
 /// One board with two links sharing its settings: USB (trusted) and a radio (untrusted).
 struct Board {
