@@ -4,9 +4,9 @@
 //! block, the records read are exactly the flight's first records (nothing invented, nothing
 //! reordered), and the reader says the tail was torn or damaged.
 
-use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, NoBytes, MAX_MOTORS};
 use firmware::app::log::{LogReader, LogRecord, LogSink, LogSinkError, LOG_BLOCK_LEN};
-use firmware::app::system::{with_logged_system, LogTarget, NoLinks};
+use firmware::app::system::{with_logged_system, LogTarget, NoLinks, TickHardware};
 use firmware::app::{ControlCommand, NoFlash, Settings};
 use flight::rng::Rng;
 use protocol::{BoardHealth, Decoder};
@@ -71,7 +71,15 @@ fn flight_log() -> Vec<u8> {
         for step in 1..=4000u64 {
             let now_us = step * 500;
             if system
-                .tick(now_us, &mut imu, &mut FourMotors, &mut firmware::app::hal::NoBytes)
+                .tick(
+                    now_us,
+                    TickHardware {
+                        imu: &mut imu,
+                        motors: &mut FourMotors,
+                        radio_bytes: &mut NoBytes,
+                        battery: &mut NoBattery,
+                    },
+                )
                 .link_due
             {
                 system.pass(now_us, &mut NoLinks);

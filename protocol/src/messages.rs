@@ -280,6 +280,23 @@ pub enum Reply {
     /// the highest the link's byte budget leaves for the topic (0: none), or the nearest a
     /// per-step topic can send (the control rate over a whole number of steps). Protocol 1.10.
     TelemetryRate(SetTelemetryRate),
+    /// Answer to [`Request::GetBattery`]. Protocol 1.11.
+    Battery(BatteryStatus),
+}
+
+/// The flight battery as the board measures it (protocol 1.11, [`Request::GetBattery`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct BatteryStatus {
+    /// Pack voltage, V, low-pass filtered.
+    pub voltage_v: f32,
+    /// Current drawn, A, low-pass filtered.
+    pub current_a: f32,
+    /// Charge drawn since start-up, mAh.
+    pub used_mah: f32,
+    /// Cells in series, estimated from the first voltage measured (0: no pack connected).
+    pub cells: u8,
+    /// Charge left, %, estimated from the voltage per cell (reads low under load).
+    pub remaining_pct: u8,
 }
 
 /// How the link that asked is guarded ([`crate::signing`]). Protocol 1.8.
@@ -1162,6 +1179,9 @@ crate::table::message_table! {
         /// Delete one log file → `Done`; `NoSuchLog`, `LogBeingWritten`, refused while armed.
         /// Protocol 1.9.
         0x1D => DeleteLog(DeleteLog),
+        /// The flight battery ([`Reply::Battery`]); `Unsupported` on a device that measures
+        /// none. Protocol 1.11.
+        0x1E => GetBattery(()),
     }
 }
 

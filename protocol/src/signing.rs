@@ -125,7 +125,8 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::GetHealth(())
         | Request::GetLinkSecurity(())
         | Request::ListLogs(_)
-        | Request::ReadLog(_) => false,
+        | Request::ReadLog(_)
+        | Request::GetBattery(()) => false,
     }
 }
 

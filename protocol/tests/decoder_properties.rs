@@ -93,6 +93,7 @@ fn any_request() -> impl Strategy<Value = Request> {
                 Request::ReadLog(protocol::ReadLog { number, offset, len })
             }),
             any::<u32>().prop_map(|number| Request::DeleteLog(protocol::DeleteLog { number })),
+            Just(Request::GetBattery(())),
         ],
     ]
 }

@@ -724,3 +724,19 @@ fn the_largest_log_chunk_and_the_longest_log_list_fit_a_frame() {
     let message = DeviceMessage::Response(Ok(Reply::LogList(list)));
     assert!(message.encode(u16::MAX, &mut buffer).is_ok(), "sixteen of the widest entries fit");
 }
+
+#[test]
+fn protocol_1_11_battery_is_pinned() {
+    assert_eq!(request(Request::GetBattery(()), 1), "07 1e 01 da 97 14 c8 00");
+    let battery = BatteryStatus {
+        voltage_v: 16.5,
+        current_a: 12.25,
+        used_mah: 250.0,
+        cells: 4,
+        remaining_pct: 92,
+    };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::Battery(battery))), 2),
+        "03 81 02 02 0f 01 03 84 41 01 03 44 41 01 09 7a 43 04 5c 69 dc 1a b7 00"
+    );
+}

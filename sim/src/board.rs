@@ -35,11 +35,12 @@
 //!   `None` before the first report has arrived.
 //! - The hand and the truth are reached through [`SimBoard::physics`] / [`SimBoard::physics_mut`].
 
-use firmware::app::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::app::hal::{BatteryReading, EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::drivers::dshot::{CommandQueue, DshotCommand};
 use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::airframe::{Airframe, MotorParams, MAX_ROTORS};
+use crate::battery::{PackParams, SimBattery};
 use crate::dshot;
 use crate::faults::{FaultInjector, FaultSchedule};
 use crate::imu::{ImuModel, RawSample};
@@ -98,6 +99,8 @@ pub struct SimConfig {
     pub faults: FaultSchedule,
     /// What the world does beyond the airframe ([`crate::world`]); default: nothing.
     pub world: WorldEffects,
+    /// The flight battery the board measures ([`crate::battery`]); default: a charged 4S pack.
+    pub battery: PackParams,
 }
 
 /// Time-varying effects of the world on a board: a sagging battery, ESC answers lost, a gust.
@@ -130,6 +133,7 @@ impl Default for SimConfig {
             start_attitude: UnitQuaternion::identity(),
             faults: FaultSchedule::default(),
             world: WorldEffects::default(),
+            battery: PackParams::default(),
         }
     }
 }
@@ -328,6 +332,9 @@ pub struct SimBoard {
     world: WorldEffects,
     /// Draws of the world's random effects (lost ESC answers).
     world_rng: crate::rng::Rng,
+    battery: SimBattery,
+    /// What the board's battery sensors read in the latest tick.
+    battery_reading: BatteryReading,
     /// The speeds last reported per motor (kept when an answer is lost).
     reported_rad_s: [Option<f32>; MAX_MOTORS],
 }
@@ -378,6 +385,8 @@ impl SimBoard {
             faults: FaultInjector::new(&config.faults),
             world: config.world,
             world_rng: crate::rng::Rng::new(config.seed ^ 0x57_4F52_4C44),
+            battery: SimBattery::new(config.battery, config.seed),
+            battery_reading: BatteryReading::default(),
             reported_rad_s: [None; MAX_MOTORS],
         }
     }
@@ -441,6 +450,15 @@ impl SimBoard {
         };
         self.imu.latest = delivered.then_some(self.last_sample);
 
+        let rotor_speeds = self.physics.state().rotor_speed_rad_s;
+        let shaft_power_w: f64 = self
+            .motor_params
+            .iter()
+            .zip(rotor_speeds.iter())
+            .map(|(p, w)| p.torque_coefficient_nm_per_rad2_s2 * w * w * w.abs())
+            .sum();
+        self.battery_reading = self.battery.step(CONTROL_PERIOD_US as f64 * 1e-6, shaft_power_w);
+
         self.ticks += 1;
         let ring_len = self.telemetry_ring.len();
         let slot = (self.ticks as usize) % ring_len;
@@ -462,6 +480,17 @@ impl SimBoard {
             }
             self.motors.speeds_rad_s[i] = self.reported_rad_s[i];
         }
+    }
+
+    /// What the board's battery sensors read in the latest tick, handed to the control tick as
+    /// its [`BatterySensor`](firmware::app::hal::BatterySensor).
+    pub fn battery_reading(&self) -> Option<BatteryReading> {
+        Some(self.battery_reading)
+    }
+
+    /// The simulated pack (its truth).
+    pub fn battery(&self) -> &SimBattery {
+        &self.battery
     }
 
     /// The IMU and motor ports, borrowed together for one application step.

@@ -18,7 +18,8 @@
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
 use std::time::{Duration, Instant};
 
-use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, MAX_MOTORS};
+use firmware::app::system::TickHardware;
 use firmware::app::ControlCommand;
 use protocol::{ExternalPose, LearnerFailure};
 
@@ -516,7 +517,9 @@ struct WithRadio<'a, 'q> {
 impl FlightApp for WithRadio<'_, '_> {
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
         self.radio.advance(now_us);
-        self.app.tick(now_us, imu, motors, self.radio);
+        // The external simulator sends no battery (docs/sim-bridge.md).
+        let battery = &mut NoBattery;
+        self.app.tick(now_us, TickHardware { imu, motors, radio_bytes: self.radio, battery });
     }
 
     fn command(&mut self, command: ControlCommand, now_us: u64) {

@@ -1,6 +1,7 @@
 //! The simulator: physics, sensors, motors, airframes, and the SITL server.
 
 pub mod airframe;
+pub mod battery;
 pub mod board;
 pub mod bridge;
 pub mod calibration;

@@ -18,10 +18,10 @@
 use std::io::Write;
 
 use embedded_storage::nor_flash::NorFlash;
-use firmware::app::hal::{Imu, Motors, NoBytes};
+use firmware::app::hal::{Imu, Motors, NoBattery, NoBytes};
 use firmware::app::log::LogSink;
 use firmware::app::radio::Receiver;
-use firmware::app::system::{with_logged_system, with_system, LogTarget, System};
+use firmware::app::system::{with_logged_system, with_system, LogTarget, System, TickHardware};
 use firmware::app::{ControlCommand, NoFlash, Settings};
 use nalgebra::Vector3;
 
@@ -52,7 +52,9 @@ impl<F: NorFlash> FlightApp for System<'_, F> {
     /// One control tick with no pilot's radio; the background task runs to completion after
     /// it when samples wait, as the board's lowest-priority task does with time to spare.
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
-        self.tick(now_us, imu, motors, &mut NoBytes);
+        let hardware =
+            TickHardware { imu, motors, radio_bytes: &mut NoBytes, battery: &mut NoBattery };
+        self.tick(now_us, hardware);
     }
 
     /// Queued for the next tick, as a link pass queues what a host asked.

@@ -21,7 +21,7 @@ use crate::hand::{HandPhase, ThrowSpec};
 use crate::log_dir::LogDir;
 use crate::serve::{simulator_board_info, Pty, RadioPort, TcpLinks};
 use firmware::app::radio::Receiver;
-use firmware::app::system::{with_logged_system, Link, LogTarget, System};
+use firmware::app::system::{with_logged_system, Link, LogTarget, System, TickHardware};
 use firmware::app::{BoardInfo, ControlCommand, LinkServer, Settings};
 use firmware::drivers::crsf::RcLinkConfig;
 use protocol::Capabilities;
@@ -509,8 +509,10 @@ impl Runner {
             if let Some(radio) = &mut self.radio {
                 radio.advance(clock.board.now_us());
             }
+            let battery = &mut clock.board.battery_reading();
             let (imu, motors) = clock.board.ports();
-            if !system.tick(now_us, imu, motors, &mut self.radio).link_due {
+            let hardware = TickHardware { imu, motors, radio_bytes: &mut self.radio, battery };
+            if !system.tick(now_us, hardware).link_due {
                 continue;
             }
             if let Some(tcp) = &mut self.tcp {

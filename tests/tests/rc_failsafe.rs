@@ -9,7 +9,8 @@
 //! - After either, re-arming needs the arm switch cycled.
 
 use firmware::app::radio::{Receiver, FLIGHT_FAILSAFE_GRACE_US};
-use firmware::app::system::with_system;
+use firmware::app::hal::BatteryReading;
+use firmware::app::system::{with_system, TickHardware};
 use firmware::app::{ControlSnapshot, Failsafe, Settings};
 use firmware::drivers::crsf::{RcLinkConfig, DEFAULT_FAILSAFE_TIMEOUT_US};
 use flight::learner::FlightPhase;
@@ -25,6 +26,10 @@ struct Tick {
     snapshot: ControlSnapshot,
     /// An RC frame reached the control tick in this step.
     frame_arrived: bool,
+    /// The simulated pack's true voltage and current.
+    battery: BatteryReading,
+    /// The battery as a link's status would report it.
+    status_battery: Option<protocol::BatteryStatus>,
 }
 
 /// Flies the seed paper's quad for `seconds` with the radio playing `script`, thrown at 0.5 s
@@ -49,12 +54,15 @@ fn fly(script: &str, throw: bool, seconds: f64) -> (Vec<Tick>, RcTransmitter) {
             let now_us = board.now_us();
             let frames_before = radio.frames_sent();
             radio.advance(now_us);
+            let battery = &mut board.battery_reading();
             let (imu, motors) = board.ports();
-            system.tick(now_us, imu, motors, &mut radio);
+            system.tick(now_us, TickHardware { imu, motors, radio_bytes: &mut radio, battery });
             ticks.push(Tick {
                 time_s: board.time_s(),
                 snapshot: system.snapshot(),
                 frame_arrived: radio.frames_sent() > frames_before,
+                battery: board.battery().truth(),
+                status_battery: system.status_view().control.battery,
             });
         }
         ticks
@@ -137,6 +145,52 @@ fn the_handset_shows_the_throw_to_fly_in_words_in_order() {
         .all(|(pitch, roll)| pitch.abs() < 15f32.to_radians() && roll.abs() < 15f32.to_radians());
     assert!(level, "hovering level on the handset");
     assert!(ticks.iter().any(|t| t.snapshot.pilot.flying));
+}
+
+/// The handset shows the pack: its cells counted at rest, its voltage sagging and its current
+/// rising with the motors, the charge drawn growing, each as the simulated pack has it.
+#[test]
+fn the_handset_shows_the_battery_sag_under_the_motors() {
+    use firmware::drivers::crsf::HandsetTelemetry;
+    let (ticks, radio) = fly("0.1:disarm,0.2:arm,0.2:throw,4.4:kill", true, 4.5);
+    // (time of arrival, voltage, current, charge drawn, remaining) of every battery frame.
+    let period_s = 4.5 / radio.telemetry().len() as f64;
+    let frames: Vec<(f64, f32, f32, u32, u8)> = radio
+        .telemetry()
+        .iter()
+        .enumerate()
+        .filter_map(|(i, frame)| match frame {
+            HandsetTelemetry::Battery { voltage_v, current_a, used_mah, remaining_pct } => {
+                Some((i as f64 * period_s, *voltage_v, *current_a, *used_mah, *remaining_pct))
+            }
+            _ => None,
+        })
+        .collect();
+    assert!(frames.len() > radio.telemetry().len() / 4, "a third of the frames: {}", frames.len());
+    // CRSF carries 0.1 V and 0.1 A: the handset agrees with the pack within its resolution and
+    // the smoothing's lag.
+    let truth_at = |t: f64| ticks[((t * 2000.0) as usize).min(ticks.len() - 1)].battery;
+    // At rest: counted (0.5 s after start-up), the motors not yet started (about 0.85 s).
+    let (_, rest_v, rest_a, _, rest_pct) = *frames.iter().rfind(|f| f.0 < 0.75).unwrap();
+    assert!((rest_v - 16.8).abs() < 0.15, "a charged 4S pack at rest reads {rest_v} V");
+    assert!(rest_a < 1.0, "at rest {rest_a} A");
+    assert_eq!(rest_pct, 100);
+    let hovering = ticks.iter().find(|t| t.snapshot.pilot.flying).expect("flies").time_s + 0.5;
+    let (t, hover_v, hover_a, _, _) =
+        *frames.iter().find(|f| f.0 > hovering).expect("frames while hovering");
+    let truth = truth_at(t);
+    assert!(hover_a > rest_a + 2.0, "hovering draws {hover_a} A, at rest {rest_a} A");
+    assert!(hover_v < rest_v - 0.02, "the pack sags: {hover_v} V against {rest_v} V at rest");
+    assert!((hover_v - truth.voltage_v).abs() < 0.2, "{hover_v} V, the pack {truth:?}");
+    assert!(
+        (hover_a - truth.current_a).abs() < 0.15 * truth.current_a + 0.3,
+        "{hover_a} A, the pack {truth:?}"
+    );
+    let used: Vec<u32> = frames.iter().map(|f| f.3).collect();
+    assert!(used.windows(2).all(|w| w[1] >= w[0]), "the charge drawn never falls: {used:?}");
+    assert!(*used.last().unwrap() >= 1, "{used:?}");
+    let status = ticks.last().unwrap().status_battery.expect("the status has the battery");
+    assert_eq!(status.cells, 4);
 }
 
 #[test]

@@ -17,13 +17,13 @@
 //! (Parameters the identification stored during the flight are the original run's.)
 
 use super::InputError;
-use firmware::app::hal::{Imu, ImuSample, Motors, NoBytes, MAX_MOTORS};
+use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, NoBytes, MAX_MOTORS};
 use firmware::app::log::{
     phase_code, phase_from_code, Header, LogReader, LogRecord, LoggedCommand, LoggedWork,
     ParamsAssembler, ReadStats, StepLogRecord, LOG_FORMAT_VERSION,
 };
 use firmware::app::params::{find, Params, LAYOUT_HASH, SPECS};
-use firmware::app::system::{with_system, BackgroundWork};
+use firmware::app::system::{with_system, BackgroundWork, TickHardware};
 use firmware::app::{BackgroundCommand, ControlSnapshot, NoFlash, Settings};
 use flight::learner::{FlightPhase, LearnedModel};
 use serde_json::{json, Value};
@@ -262,7 +262,14 @@ pub fn replay(
                     let mut imu = ReplayImu(step.imu_sample());
                     let mut motors =
                         ReplayMotors { count: step.motor_count(), speeds_rad_s: step.speeds_rad_s };
-                    system.tick(step.t_us, &mut imu, &mut motors, &mut NoBytes);
+                    // The log keeps no battery readings: the control never uses them.
+                    let hardware = TickHardware {
+                        imu: &mut imu,
+                        motors: &mut motors,
+                        radio_bytes: &mut NoBytes,
+                        battery: &mut NoBattery,
+                    };
+                    system.tick(step.t_us, hardware);
                     let snapshot = system.snapshot();
                     run.steps += 1;
                     let count = step.commands.len();

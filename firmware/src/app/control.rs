@@ -424,6 +424,9 @@ pub struct ControlSnapshot {
     /// outputs that send none).
     pub esc_commands_sent: u16,
     pub esc_commands_refused: u16,
+    /// The flight battery, as the control task's [`BatteryMonitor`](super::battery::BatteryMonitor)
+    /// last saw it (`None`: the board measures none). Filled by the task, not the loop.
+    pub battery: Option<protocol::BatteryStatus>,
 }
 
 /// The control loop's state: the highest-priority task's local resource.

@@ -106,6 +106,41 @@ impl<B: Uart> Uart for Option<B> {
     }
 }
 
+/// One measurement of the flight battery, already scaled to SI units by the board (its divider
+/// and current-sensor scale are board data: `targets::BatterySensing` on the STM32H743).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BatteryReading {
+    /// Pack voltage, V.
+    pub voltage_v: f32,
+    /// Current drawn from the pack, A.
+    pub current_a: f32,
+}
+
+/// The flight battery's voltage and current, as the control tick polls it.
+pub trait BatterySensor {
+    /// The newest reading since the last call, if any. Must not block (a board starts the next
+    /// conversion and returns; the tick asks again next period).
+    fn read(&mut self) -> Option<BatteryReading>;
+}
+
+/// A board that measures no battery (the bridge's external simulator, a board without the
+/// divider).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoBattery;
+
+impl BatterySensor for NoBattery {
+    fn read(&mut self) -> Option<BatteryReading> {
+        None
+    }
+}
+
+/// One reading handed over once (the simulator's board measures its battery each tick).
+impl BatterySensor for Option<BatteryReading> {
+    fn read(&mut self) -> Option<BatteryReading> {
+        self.take()
+    }
+}
+
 /// A host link's byte port: USB CDC on the board, a pseudo-terminal or a TCP stream in the
 /// simulator, later a radio's UART.
 pub trait Port {

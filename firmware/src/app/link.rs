@@ -626,6 +626,9 @@ impl LinkServer {
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
             Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
+            Request::GetBattery(()) => {
+                view.control.battery.map(Reply::Battery).ok_or(DeviceError::Unsupported)
+            }
             Request::GetLinkSecurity(()) => {
                 let guard = settings.link_guard();
                 Ok(Reply::LinkSecurity(LinkSecurity {

@@ -14,6 +14,7 @@
 //! under a lock. The board supplies the hardware through the traits in [`hal`].
 
 mod background;
+pub mod battery;
 mod control;
 pub mod hal;
 mod link;

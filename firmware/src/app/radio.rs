@@ -41,7 +41,7 @@ use crate::drivers::crsf::{
 };
 use crate::drivers::crsf::{HandsetTelemetry, FLIGHT_MODE_MAX_LEN};
 use flight::learner::FlightPhase;
-use protocol::ReceiverHealth;
+use protocol::{BatteryStatus, ReceiverHealth};
 
 /// How long a craft in flight keeps flying after the radio link is lost, µs.
 pub const FLIGHT_FAILSAFE_GRACE_US: u64 = 1_000_000;
@@ -167,7 +167,7 @@ impl Receiver {
     pub fn telemetry_frame(
         &mut self,
         snapshot: &ControlSnapshot,
-        battery: Option<Battery>,
+        battery: Option<BatteryStatus>,
         out: &mut [u8],
     ) -> Option<usize> {
         self.handset.observe(snapshot);
@@ -229,7 +229,11 @@ impl HandsetCycle {
         }
     }
 
-    fn next(&mut self, snapshot: &ControlSnapshot, battery: Option<Battery>) -> HandsetTelemetry {
+    fn next(
+        &mut self,
+        snapshot: &ControlSnapshot,
+        battery: Option<BatteryStatus>,
+    ) -> HandsetTelemetry {
         let kinds = if battery.is_some() { 3 } else { 2 };
         let kind = self.next % kinds;
         self.next = (kind + 1) % kinds;
@@ -238,7 +242,8 @@ impl HandsetCycle {
             (2, Some(b)) => HandsetTelemetry::Battery {
                 voltage_v: b.voltage_v,
                 current_a: b.current_a,
-                used_mah: b.used_mah,
+                // CRSF carries whole mAh (24 bits); a negative drift of the sensor reads 0.
+                used_mah: b.used_mah as u32,
                 remaining_pct: b.remaining_pct,
             },
             _ => HandsetTelemetry::FlightMode(flight_mode_words(snapshot, self.failsafe_shown)),

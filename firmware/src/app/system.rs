@@ -23,7 +23,8 @@
 use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
-use super::hal::{Imu, ImuSample, Motors, Port, PortClosed, Uart};
+use super::battery::BatteryMonitor;
+use super::hal::{BatterySensor, Imu, ImuSample, Motors, Port, PortClosed, Uart};
 use super::log::{LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry};
 use super::radio::{CraftState, Receiver};
 use super::{
@@ -122,6 +123,8 @@ pub struct ControlTask<'q> {
     dropped_commands: u32,
     /// The flight log's ring (`super::log`), when the board logs.
     log: Option<LogProducer<'q>>,
+    /// The flight battery, from the board's readings.
+    battery: BatteryMonitor,
 }
 
 /// The IMU as the tick hands it to the step, remembering what it delivered (for the log).
@@ -146,6 +149,15 @@ pub struct TickOutcome {
     pub link_due: bool,
 }
 
+/// The board's parts a tick drives: the IMU, the motor outputs, the pilot's receiver UART and
+/// the battery's sensor.
+pub struct TickHardware<'a, I, M, RS, BS> {
+    pub imu: &'a mut I,
+    pub motors: &'a mut M,
+    pub radio_bytes: &'a mut RS,
+    pub battery: &'a mut BS,
+}
+
 /// The locks a tick takes, each for a copy or a queue operation.
 pub struct TickShared<C, R, S, B> {
     pub commands: C,
@@ -165,6 +177,7 @@ impl<'q> ControlTask<'q> {
             ticks: 0,
             dropped_commands: 0,
             log: None,
+            battery: BatteryMonitor::new(),
         }
     }
 
@@ -194,24 +207,25 @@ impl<'q> ControlTask<'q> {
     /// allocates; every lock is held for a copy or a queue operation.
     ///
     /// Order: the link's commands (oldest first), then the radio's (a kill switch's disarm is the
-    /// last word, applied in this very step), the background's results, the step, the snapshot.
-    pub fn tick<I, M, RS, C, R, S, B>(
+    /// last word, applied in this very step), the background's results, the step, the battery's
+    /// reading, the snapshot.
+    pub fn tick<I, M, RS, BS, C, R, S, B>(
         &mut self,
         now_us: u64,
-        imu: &mut I,
-        motors: &mut M,
-        radio_bytes: &mut RS,
+        hardware: TickHardware<'_, I, M, RS, BS>,
         shared: &mut TickShared<C, R, S, B>,
     ) -> TickOutcome
     where
         I: Imu,
         M: Motors,
         RS: Uart,
+        BS: BatterySensor,
         C: Mutex<T = ControlQueue>,
         R: Mutex<T = BackgroundResults>,
         S: Mutex<T = ControlSnapshot>,
         B: Mutex<T = BoardHealth>,
     {
+        let TickHardware { imu, motors, radio_bytes, battery } = hardware;
         let control = &mut self.control;
         let log = &mut self.log;
         // The step these commands are applied before.
@@ -240,7 +254,10 @@ impl<'q> ControlTask<'q> {
         motors.set_armed(control.armed());
         let mut imu = TapImu { imu, read: None };
         let mut background_due = control.step(now_us, &mut imu, motors);
-        let snapshot = control.snapshot();
+        if let Some(reading) = battery.read() {
+            self.battery.update(now_us, reading);
+        }
+        let snapshot = ControlSnapshot { battery: self.battery.status(), ..control.snapshot() };
         if let Some(log) = log.as_mut() {
             log.push(LogEntry::Step(StepEntry {
                 step: snapshot.steps,
@@ -267,7 +284,7 @@ impl<'q> ControlTask<'q> {
         if let Some(radio) = &mut self.radio {
             // One telemetry frame to the pilot's handset per RC frame received.
             let mut frame = [0u8; crate::drivers::crsf::FRAME_MAX];
-            if let Some(n) = radio.telemetry_frame(&snapshot, None, &mut frame) {
+            if let Some(n) = radio.telemetry_frame(&snapshot, snapshot.battery, &mut frame) {
                 let _ = radio_bytes.write(&frame[..n]);
             }
         }
@@ -691,12 +708,10 @@ impl<'q, F: NorFlash> System<'q, F> {
     /// A control tick (see [`ControlTask::tick`]); when it queued learner samples, the background
     /// task runs to completion right after, as the board's lowest-priority task does when it
     /// has time to spare before the next tick.
-    pub fn tick<I: Imu, M: Motors, RS: Uart>(
+    pub fn tick<I: Imu, M: Motors, RS: Uart, BS: BatterySensor>(
         &mut self,
         now_us: u64,
-        imu: &mut I,
-        motors: &mut M,
-        radio_bytes: &mut RS,
+        hardware: TickHardware<'_, I, M, RS, BS>,
     ) -> TickOutcome {
         let handoffs = &mut self.handoffs;
         let mut shared = TickShared {
@@ -705,7 +720,7 @@ impl<'q, F: NorFlash> System<'q, F> {
             snapshot: Exclusive(&mut handoffs.snapshot),
             board: Exclusive(&mut handoffs.board),
         };
-        let outcome = self.control.tick(now_us, imu, motors, radio_bytes, &mut shared);
+        let outcome = self.control.tick(now_us, hardware, &mut shared);
         if outcome.background_due {
             self.run_background();
         }
