@@ -769,6 +769,7 @@ fn run_on_board(
                 Some(Reply::Health(health)) => Some(health),
                 _ => None,
             };
+            let battery = fetch_battery(client)?;
             let stored = fetch_stored_offset(client)?;
             let config = match client.request(&Request::GetConfig(()), "the configuration request")
             {
@@ -783,6 +784,7 @@ fn run_on_board(
                     if let Some(health) = &health {
                         map.insert("health".into(), report::health_json(health));
                     }
+                    map.insert("battery".into(), json!(battery.as_ref().map(report::battery_json)));
                     if let Some(learner) = &learner {
                         map.insert("learner".into(), report::learner_json(learner));
                     }
@@ -798,6 +800,9 @@ fn run_on_board(
                 let mut text = report::status_text(&status, stored);
                 if let Some(health) = &health {
                     text.push_str(&report::health_text(health));
+                }
+                if let Some(battery) = &battery {
+                    text.push_str(&report::battery_text(battery));
                 }
                 if let Some(learner) = &learner {
                     text.push_str(&report::learner_text(learner));
@@ -1710,6 +1715,19 @@ fn fetch_optional(
         Err(LinkError::Device(DeviceErrorText(protocol::DeviceError::UnknownRequest {
             ..
         }))) => Ok(None),
+        Err(error) => Err(error.into()),
+    }
+}
+
+/// The flight battery, or `None` from a board that measures none (`Unsupported`) or predates
+/// protocol 1.11.
+fn fetch_battery(client: &mut Client) -> Result<Option<protocol::BatteryStatus>, Failure> {
+    match client.request(&Request::GetBattery(()), "the battery request") {
+        Ok(Reply::Battery(battery)) => Ok(Some(battery)),
+        Ok(_)
+        | Err(LinkError::Device(DeviceErrorText(
+            protocol::DeviceError::Unsupported | protocol::DeviceError::UnknownRequest { .. },
+        ))) => Ok(None),
         Err(error) => Err(error.into()),
     }
 }

@@ -89,6 +89,7 @@ mod app {
         split_queue, Background, BackgroundResults, BoardInfo, ControlConfig, ControlLoop,
         ControlSnapshot, LinkServer, SampleQueue, Settings, StepRing,
     };
+    use firmware::board::battery::BoardBattery;
     use firmware::board::config::{clock_plan, silicon_revision, TIME_BASE_HZ};
     use firmware::board::flash::ConfigSectors;
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
@@ -158,6 +159,8 @@ mod app {
         burst_2: Option<BurstCompletion>,
         /// The receiver's UART ring, read by the control tick.
         receiver: BoardReceiver,
+        /// The battery's ADC, read by the control tick.
+        battery: BoardBattery,
         usb_clock: MicrosClock,
         /// The USB CDC port and its protocol endpoint.
         usb: Link<UsbSerial>,
@@ -278,6 +281,10 @@ mod app {
         let bidirectional = BOARD.motor_bidirectional && settings.params().bidirectional_dshot();
         let motors = BoardMotors::new(BOARD, ccdr.clocks.timx_ker_ck().raw(), bidirectional);
         let receiver = BoardReceiver::new(BOARD.receiver, ccdr.clocks.pclk2().raw());
+        let battery = BoardBattery::new(BOARD.battery, cycles_per_us);
+        if !battery.is_running() {
+            defmt::warn!("the battery ADC did not start: no battery reported");
+        }
         // The default switches (channels 5, 6, 7) are valid by construction.
         let radio = match Receiver::new(RcLinkConfig::default()) {
             Ok(radio) => radio,
@@ -373,6 +380,7 @@ mod app {
             burst_2: motors.completion(2),
             motors,
             receiver,
+            battery,
             usb_clock: clock,
             usb: Link::new(link, usb),
             radio: telemetry_radio,
@@ -406,7 +414,7 @@ mod app {
         #[task(
             binds = TIM7,
             priority = 3,
-            local = [control_timer, step_timer, control_clock, control, motors, receiver],
+            local = [control_timer, step_timer, control_clock, control, motors, receiver, battery],
             shared = [snapshot, results, commands, board, imu]
         )]
         fn control_tick(cx: control_tick::Context);
@@ -445,7 +453,7 @@ mod tasks {
         background, control_tick, imu_data_ready, imu_transfer_done, motor_burst_0, motor_burst_1,
         motor_burst_2, usb_service,
     };
-    use firmware::app::system::{run_background, PassShared, Restart, TickShared};
+    use firmware::app::system::{run_background, PassShared, Restart, TickHardware, TickShared};
     use firmware::board::bootloader;
     use firmware::board::timing::{cycles_per_us, step_stats};
     use protocol::StepTime;
@@ -471,13 +479,13 @@ mod tasks {
             snapshot: cx.shared.snapshot,
             board: cx.shared.board,
         };
-        let outcome = cx.local.control.tick(
-            now_us,
-            cx.shared.imu,
-            cx.local.motors,
-            cx.local.receiver,
-            &mut shared,
-        );
+        let hardware = TickHardware {
+            imu: cx.shared.imu,
+            motors: cx.local.motors,
+            radio_bytes: cx.local.receiver,
+            battery: cx.local.battery,
+        };
+        let outcome = cx.local.control.tick(now_us, hardware, &mut shared);
         if outcome.background_due {
             // `Err` means a run is already queued; it drains everything, so nothing is lost.
             let _ = background::spawn();

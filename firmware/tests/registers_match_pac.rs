@@ -18,7 +18,7 @@
 //! does not check, so a new number cannot slip in unchecked.
 
 use firmware::targets::h743::{
-    self, dma, dmamux, exti, gpio, rcc, spi, syscfg, tim, usart, RccEnable, RccRegister, Spi,
+    self, adc, dma, dmamux, exti, gpio, rcc, spi, syscfg, tim, usart, RccEnable, RccRegister, Spi,
     Timer, Uart,
 };
 use firmware::targets::{DmaStream, Port};
@@ -157,6 +157,8 @@ fn check_bases(c: &mut Check) {
     c.same("DMAMUX1_BASE", h743::DMAMUX1_BASE, pac::DMAMUX1::PTR as u32);
     c.same("EXTI_BASE", h743::EXTI_BASE, pac::EXTI::PTR as u32);
     c.same("SYSCFG_BASE", h743::SYSCFG_BASE, pac::SYSCFG::PTR as u32);
+    c.same("ADC1_BASE", h743::ADC1_BASE, pac::ADC1::PTR as u32);
+    c.same("ADC12_COMMON_BASE", h743::ADC12_COMMON_BASE, pac::ADC12_COMMON::PTR as u32);
     // Every port the board description can name (`Port` is matched exhaustively: a new port
     // must be added here).
     for port in [Port::A, Port::B, Port::C, Port::D, Port::E] {
@@ -199,6 +201,17 @@ fn check_rcc(c: &mut Check) {
         rcc::D2CCIP1R_SPI123SEL_PER_CK,
         written(&rb.d2ccip1r, |w| w.spi123sel().per()),
     );
+    c.same("rcc::D3CCIPR", rcc::D3CCIPR, fake.offset(&rb.d3ccipr));
+    c.same(
+        "rcc::D3CCIPR_ADCSEL",
+        rcc::D3CCIPR_ADCSEL,
+        written(&rb.d3ccipr, |w| unsafe { w.adcsel().bits(0b11) }),
+    );
+    c.same(
+        "rcc::D3CCIPR_ADCSEL_PER_CK",
+        rcc::D3CCIPR_ADCSEL_PER_CK,
+        written(&rb.d3ccipr, |w| w.adcsel().per()),
+    );
     c.same("rcc::APB4ENR", rcc::APB4ENR, fake.offset(&rb.apb4enr));
     c.same(
         "rcc::APB4ENR_SYSCFGEN",
@@ -237,6 +250,12 @@ fn check_rcc(c: &mut Check) {
         };
         enable(&format!("uart({uart:?})"), h743::uart(uart).enable, RccRegister::Apb2, mask);
     }
+    enable(
+        "ADC12_ENABLE",
+        h743::ADC12_ENABLE,
+        RccRegister::Ahb1,
+        written(&rb.ahb1enr, |w| w.adc12en().set_bit()),
+    );
     for (controller, mask) in [
         (1, written(&rb.ahb1enr, |w| w.dma1en().set_bit())),
         (2, written(&rb.ahb1enr, |w| w.dma2en().set_bit())),
@@ -281,6 +300,7 @@ fn check_gpio(c: &mut Check) {
         ("gpio::MODE_INPUT", gpio::MODE_INPUT, each_of_16!(moder, moder, input())),
         ("gpio::MODE_OUTPUT", gpio::MODE_OUTPUT, each_of_16!(moder, moder, output())),
         ("gpio::MODE_ALTERNATE", gpio::MODE_ALTERNATE, each_of_16!(moder, moder, alternate())),
+        ("gpio::MODE_ANALOG", gpio::MODE_ANALOG, each_of_16!(moder, moder, analog())),
         ("gpio::FIELD2_BITS (MODER)", field2_mask, each_of_16!(moder, moder, bits(0b11))),
         ("gpio::SPEED_HIGH", gpio::SPEED_HIGH, each_of_16!(&rb.ospeedr, ospeedr, high_speed())),
         (
@@ -1011,6 +1031,66 @@ fn check_usart(c: &mut Check) {
     }
 }
 
+fn check_adc(c: &mut Check) {
+    let fake = Fake::<pac::adc3::RegisterBlock>::new();
+    let rb = fake.block();
+    let common = Fake::<pac::adc3_common::RegisterBlock>::new();
+    let crb = common.block();
+    let facts = [
+        ("adc::ISR", adc::ISR, fake.offset(&rb.isr)),
+        ("adc::CR", adc::CR, fake.offset(&rb.cr)),
+        ("adc::CFGR", adc::CFGR, fake.offset(&rb.cfgr)),
+        ("adc::SMPR1", adc::SMPR1, fake.offset(&rb.smpr1)),
+        ("adc::SMPR2", adc::SMPR2, fake.offset(&rb.smpr2)),
+        ("adc::PCSEL", adc::PCSEL, fake.offset(&rb.pcsel)),
+        ("adc::SQR1", adc::SQR1, fake.offset(&rb.sqr1)),
+        ("adc::DR", adc::DR, fake.offset(&rb.dr)),
+        ("adc::ISR_ADRDY", adc::ISR_ADRDY, read_mask(&rb.isr, |r| r.adrdy().bit_is_set())),
+        ("adc::ISR_EOC", adc::ISR_EOC, read_mask(&rb.isr, |r| r.eoc().bit_is_set())),
+        ("adc::CR_ADEN", adc::CR_ADEN, written(&rb.cr, |w| w.aden().set_bit())),
+        ("adc::CR_ADSTART", adc::CR_ADSTART, written(&rb.cr, |w| w.adstart().set_bit())),
+        ("adc::CR_ADCALLIN", adc::CR_ADCALLIN, written(&rb.cr, |w| w.adcallin().set_bit())),
+        ("adc::CR_ADVREGEN", adc::CR_ADVREGEN, written(&rb.cr, |w| w.advregen().set_bit())),
+        ("adc::CR_DEEPPWD", adc::CR_DEEPPWD, written(&rb.cr, |w| w.deeppwd().set_bit())),
+        ("adc::CR_ADCAL", adc::CR_ADCAL, written(&rb.cr, |w| w.adcal().set_bit())),
+        ("adc::CFGR_RES", adc::CFGR_RES, written(&rb.cfgr, |w| unsafe { w.res().bits(0b111) })),
+        (
+            "adc::SQR1_SQ1_SHIFT",
+            1 << adc::SQR1_SQ1_SHIFT,
+            written(&rb.sqr1, |w| unsafe { w.sq1().bits(1) }),
+        ),
+        ("adc::CCR", adc::CCR, common.offset(&crb.ccr)),
+        ("adc::CCR_CKMODE", adc::CCR_CKMODE, written(&crb.ccr, |w| w.ckmode().bits(0b11))),
+        (
+            "adc::CCR_PRESC",
+            adc::CCR_PRESC,
+            written(&crb.ccr, |w| unsafe { w.presc().bits(0b1111) }),
+        ),
+        ("adc::CCR_PRESC_DIV6", adc::CCR_PRESC_DIV6, written(&crb.ccr, |w| w.presc().div6())),
+    ];
+    for (name, ours, pac) in facts {
+        c.same(name, ours, pac);
+    }
+    // The sample-time fields of the channels a board can use, and the longest sample time
+    // (SMP_BITS and SMP_810_CYCLES through them).
+    let smp = [
+        (0, fake.offset(&rb.smpr1), written(&rb.smpr1, |w| w.smp0().cycles810_5())),
+        (9, fake.offset(&rb.smpr1), written(&rb.smpr1, |w| w.smp9().cycles810_5())),
+        (10, fake.offset(&rb.smpr2), written(&rb.smpr2, |w| w.smp10().cycles810_5())),
+        (11, fake.offset(&rb.smpr2), written(&rb.smpr2, |w| w.smp11().cycles810_5())),
+        (19, fake.offset(&rb.smpr2), written(&rb.smpr2, |w| w.smp19().cycles810_5())),
+    ];
+    for (channel, register, field) in smp {
+        let (ours_register, shift) = adc::sample_time_register_and_shift(channel);
+        let name =
+            format!("adc::sample_time_register_and_shift({channel}) (SMP_BITS, SMP_810_CYCLES)");
+        c.same(&format!("{name} register"), ours_register, register);
+        c.same(&format!("{name} field"), adc::SMP_810_CYCLES << shift, field);
+    }
+    c.names.insert("adc::SMP_BITS".into());
+    c.names.insert("adc::SMP_810_CYCLES".into());
+}
+
 /// Every comparison (`finish` reports the mismatches).
 fn check_all() -> Check {
     let mut c = Check::default();
@@ -1022,6 +1102,7 @@ fn check_all() -> Check {
     check_timers(&mut c);
     check_spi(&mut c);
     check_usart(&mut c);
+    check_adc(&mut c);
     c
 }
 

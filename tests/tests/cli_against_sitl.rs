@@ -89,9 +89,24 @@ fn status_text_has_units_and_tcp_reaches_the_same_board() {
     let output = run_cli(&["--tcp", &address, "status"]);
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     let text = String::from_utf8(output.stdout).unwrap();
-    for expected in ["Hz", "m/s²", "°/s", "µs", "uptime"] {
+    for expected in ["Hz", "m/s²", "°/s", "µs", "uptime", "battery"] {
         assert!(text.contains(expected), "`{expected}` missing from:\n{text}");
     }
+    // The simulated pack: a 4S charged at start-up (16.8 V open circuit), counted once it has
+    // settled; the SITL may have drawn a little from it already.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let battery = loop {
+        let status = json_of(&run_cli(&["--tcp", &address, "--json", "status"]));
+        let battery = status["battery"].clone();
+        if battery["cells"] == 4 || std::time::Instant::now() > deadline {
+            break battery;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert_eq!(battery["cells"], 4, "{battery}");
+    let voltage_v = battery["voltage_v"].as_f64().unwrap();
+    assert!((16.0..16.85).contains(&voltage_v), "{battery}");
+    assert!(battery["remaining_pct"].as_u64().unwrap() >= 90, "{battery}");
 }
 
 #[test]

@@ -180,3 +180,14 @@ fn nothing_cites_notes_that_live_outside_the_repository() {
     }
     assert!(citing.is_empty(), "citations of notes outside the repository:\n{}", citing.join("\n"));
 }
+
+/// docs/protocol.md's title names the version the firmware announces in its handshake: a
+/// protocol change that forgets `PROTOCOL_VERSION` (1.10 did) or the page fails here.
+#[test]
+fn the_protocol_page_and_the_code_name_the_same_version() {
+    let page = std::fs::read_to_string(root().join("docs/protocol.md")).unwrap();
+    let title = page.lines().next().unwrap_or_default();
+    let version = protocol::PROTOCOL_VERSION;
+    let expected = format!("# The wire protocol (version {}.{})", version.major, version.minor);
+    assert_eq!(title, expected);
+}

@@ -8,8 +8,8 @@
 //!   (1 s), then disarms and reports `Failsafe::RcLost`; on the ground it disarms at once.
 //! - After either, re-arming needs the arm switch cycled.
 
-use firmware::app::radio::{Receiver, FLIGHT_FAILSAFE_GRACE_US};
 use firmware::app::hal::BatteryReading;
+use firmware::app::radio::{Receiver, FLIGHT_FAILSAFE_GRACE_US};
 use firmware::app::system::{with_system, TickHardware};
 use firmware::app::{ControlSnapshot, Failsafe, Settings};
 use firmware::drivers::crsf::{RcLinkConfig, DEFAULT_FAILSAFE_TIMEOUT_US};

@@ -96,8 +96,10 @@ impl BatteryMonitor {
                 self.averaged = self.averaged.saturating_add(1);
                 let alpha = (dt_s / (FILTER_TIME_S + dt_s)).max(1.0 / self.averaged as f32);
                 BatteryReading {
-                    voltage_v: previous.voltage_v + alpha * (reading.voltage_v - previous.voltage_v),
-                    current_a: previous.current_a + alpha * (reading.current_a - previous.current_a),
+                    voltage_v: previous.voltage_v
+                        + alpha * (reading.voltage_v - previous.voltage_v),
+                    current_a: previous.current_a
+                        + alpha * (reading.current_a - previous.current_a),
                 }
             }
             _ => {
@@ -114,8 +116,14 @@ impl BatteryMonitor {
         let since_us = *self.pack_since_us.get_or_insert(now_us);
         let settled = now_us.saturating_sub(since_us) as f32 * 1e-6 >= SETTLE_S;
         if self.cells == 0 && settled {
-            let cells = libm::ceilf(smoothed.voltage_v / CELL_MAX_V - CELL_COUNT_TOLERANCE);
-            self.cells = flight::math::clamp(cells, 1.0, 255.0) as u8;
+            // Rounded up: the whole cells below, plus one for any part of a cell.
+            let cells = flight::math::clamp(
+                smoothed.voltage_v / CELL_MAX_V - CELL_COUNT_TOLERANCE,
+                0.0,
+                254.0,
+            );
+            let whole = cells as u8;
+            self.cells = (whole + u8::from(cells > f32::from(whole))).max(1);
         }
     }
 
@@ -147,7 +155,13 @@ mod tests {
     const TICK_US: u64 = 1_000;
 
     /// Feed `seconds` of a constant reading at 1 kHz from `start_us`; returns the end time.
-    fn feed(monitor: &mut BatteryMonitor, start_us: u64, seconds: f32, voltage_v: f32, current_a: f32) -> u64 {
+    fn feed(
+        monitor: &mut BatteryMonitor,
+        start_us: u64,
+        seconds: f32,
+        voltage_v: f32,
+        current_a: f32,
+    ) -> u64 {
         let ticks = (seconds * 1e6) as u64 / TICK_US;
         for i in 0..ticks {
             monitor.update(start_us + i * TICK_US, BatteryReading { voltage_v, current_a });

@@ -117,6 +117,16 @@ pub fn input_pull_down(pin: Pin) {
     }
 }
 
+/// Make `pin` an analog input (an ADC channel): no digital input buffer, no pull.
+pub fn analog(pin: Pin) {
+    enable_clock(h743::gpio_enable(pin.port));
+    // SAFETY: as in `alternate`.
+    unsafe {
+        set_field2(pin, PUPDR, gpio::PULL_NONE);
+        set_field2(pin, MODER, gpio::MODE_ANALOG);
+    }
+}
+
 /// Drive an output pin. BSRR writes are atomic: safe from any task.
 #[inline(always)]
 pub fn set(pin: Pin, high: bool) {

@@ -8,6 +8,7 @@
 //! register sequence) lives in portable code the simulator and the host tests run. The RTIC
 //! application that wires the two together is `src/main.rs`.
 
+pub mod battery;
 pub mod bootloader;
 pub mod chip;
 pub mod config;

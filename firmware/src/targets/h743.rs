@@ -108,6 +108,12 @@ pub const DMAMUX1_BASE: u32 = 0x4002_0800;
 pub const EXTI_BASE: u32 = 0x5800_0000;
 /// SYSCFG (the EXTI line → port selection).
 pub const SYSCFG_BASE: u32 = 0x5800_0400;
+/// ADC1 (the battery's voltage and current).
+pub const ADC1_BASE: u32 = 0x4002_2000;
+/// The registers ADC1 and ADC2 share (their clock).
+pub const ADC12_COMMON_BASE: u32 = 0x4002_2300;
+/// ADC1/ADC2's clock enable (RCC_AHB1ENR.ADC12EN).
+pub const ADC12_ENABLE: RccEnable = RccEnable { register: RccRegister::Ahb1, bit: 5 };
 
 /// The register block of GPIO `port`.
 #[inline(always)]
@@ -123,6 +129,12 @@ pub mod rcc {
     pub const D2CCIP1R_SPI123SEL: u32 = 0b111 << 12;
     /// SPI123SEL = 0b100: per_ck.
     pub const D2CCIP1R_SPI123SEL_PER_CK: u32 = 0b100 << 12;
+    /// RCC_D3CCIPR, domain 3 kernel clock selection (the ADCs among others; §8.7.22).
+    pub const D3CCIPR: u32 = 0x58;
+    /// D3CCIPR.ADCSEL, the ADCs' kernel clock selection (2 bits).
+    pub const D3CCIPR_ADCSEL: u32 = 0b11 << 16;
+    /// ADCSEL = 0b10: per_ck (the HAL leaves per_ck on HSI, 64 MHz).
+    pub const D3CCIPR_ADCSEL_PER_CK: u32 = 0b10 << 16;
     /// RCC_APB4ENR, APB4 clock enables (§8.7.44).
     pub const APB4ENR: u32 = 0xF4;
     /// APB4ENR.SYSCFGEN.
@@ -151,6 +163,8 @@ pub mod gpio {
     pub const MODE_INPUT: u32 = 0b00;
     pub const MODE_OUTPUT: u32 = 0b01;
     pub const MODE_ALTERNATE: u32 = 0b10;
+    /// Analog (an ADC input; the reset state of most pins).
+    pub const MODE_ANALOG: u32 = 0b11;
     /// OSPEEDR values.
     pub const SPEED_HIGH: u32 = 0b10;
     pub const SPEED_VERY_HIGH: u32 = 0b11;
@@ -414,6 +428,84 @@ pub mod usart {
     /// Every flag ICR clears (PE, FE, NE, ORE, IDLE, TXFE, TC, TCBGT, LBD, CTS, RTO, EOB, UDR,
     /// CM, WUF); the reserved bits are written 0.
     pub const ICR_ALL: u32 = 0x0012_3BFF;
+}
+
+/// ADC registers and bits (RM0433 §25.6), for single conversions of one channel at a time.
+pub mod adc {
+    pub const ISR: u32 = 0x00;
+    pub const CR: u32 = 0x08;
+    pub const CFGR: u32 = 0x0C;
+    pub const SMPR1: u32 = 0x14;
+    pub const SMPR2: u32 = 0x18;
+    pub const PCSEL: u32 = 0x1C;
+    pub const SQR1: u32 = 0x30;
+    pub const DR: u32 = 0x40;
+    /// The ADC is ready for conversions (written 1 to clear).
+    pub const ISR_ADRDY: u32 = 1 << 0;
+    /// A conversion ended (cleared by reading DR).
+    pub const ISR_EOC: u32 = 1 << 2;
+    pub const CR_ADEN: u32 = 1 << 0;
+    pub const CR_ADSTART: u32 = 1 << 2;
+    /// Calibrate the linearity too (with ADCAL).
+    pub const CR_ADCALLIN: u32 = 1 << 16;
+    /// The ADC's voltage regulator on (10 µs to start: TADCVREG_STUP, DS12110 Table 229).
+    pub const CR_ADVREGEN: u32 = 1 << 28;
+    /// Deep power-down (set at reset).
+    pub const CR_DEEPPWD: u32 = 1 << 29;
+    /// Start a calibration; reads 1 until it ends.
+    pub const CR_ADCAL: u32 = 1 << 31;
+    /// CFGR.RES, the resolution (3 bits; 0b000 = 16 bits on both silicon revisions).
+    pub const CFGR_RES: u32 = 0b111 << 2;
+    /// SMPRx hold a 3-bit sample time per channel: channel n in SMPR1 (n < 10) or SMPR2 at bit
+    /// 3·(n mod 10).
+    pub const SMP_BITS: u32 = 3;
+    /// Sample time 810.5 ADC clock cycles, the longest: a resistor divider's source impedance
+    /// (kΩ) charges the sampling capacitor fully.
+    pub const SMP_810_CYCLES: u32 = 0b111;
+    /// SQR1.SQ1, the first conversion's channel (5 bits); SQR1.L = 0: one conversion.
+    pub const SQR1_SQ1_SHIFT: u32 = 6;
+    /// ADCx_COMMON registers: CCR, the clock.
+    pub const CCR: u32 = 0x08;
+    /// CCR.CKMODE (2 bits; 0b00: the asynchronous kernel clock) and CCR.PRESC (4 bits).
+    pub const CCR_CKMODE: u32 = 0b11 << 16;
+    pub const CCR_PRESC: u32 = 0b1111 << 18;
+    /// PRESC = 0b0011: the kernel clock divided by 6.
+    pub const CCR_PRESC_DIV6: u32 = 0b0011 << 18;
+
+    /// The sample-time register of channel `channel` and the shift of its field.
+    pub const fn sample_time_register_and_shift(channel: u32) -> (u32, u32) {
+        let register = if channel < 10 { SMPR1 } else { SMPR2 };
+        (register, SMP_BITS * (channel % 10))
+    }
+}
+
+/// (pin, ADC1 input channel) from DS12110 Table 9 ("ADC1_INPn" in the additional functions),
+/// single-ended, for the pins of ports A–E that have one (INP0/1 are the PA0_C/PA1_C pads).
+const ADC1_INPUTS: &[(Pin, u8)] = {
+    use Port::*;
+    &[
+        (pin(A, 6), 3),
+        (pin(C, 4), 4),
+        (pin(B, 1), 5),
+        (pin(A, 7), 7),
+        (pin(C, 5), 8),
+        (pin(B, 0), 9),
+        (pin(C, 0), 10),
+        (pin(C, 1), 11),
+        (pin(C, 2), 12),
+        (pin(C, 3), 13),
+        (pin(A, 2), 14),
+        (pin(A, 3), 15),
+        (pin(A, 0), 16),
+        (pin(A, 1), 17),
+        (pin(A, 4), 18),
+        (pin(A, 5), 19),
+    ]
+};
+
+/// ADC1's input channel of `input`, if it has one.
+pub fn adc1_input(input: Pin) -> Option<u8> {
+    ADC1_INPUTS.iter().find(|(p, _)| *p == input).map(|(_, channel)| *channel)
 }
 
 /// A timer's facts.

@@ -19,8 +19,8 @@
 use super::h743::{Function, Spi, Timer, Uart};
 use super::Port::{A, B, C, D};
 use super::{
-    pin, AltPin, BoardDescription, DmaStream, FlashLayout, ImuWiring, MotorOutput, MotorTimer, Pin,
-    UartWiring,
+    pin, AltPin, BatterySensing, BoardDescription, DmaStream, FlashLayout, ImuWiring, MotorOutput,
+    MotorTimer, Pin, UartWiring,
 };
 
 const fn alt(pin: Pin, function: Function, af: u8) -> AltPin {
@@ -90,6 +90,19 @@ pub const MATEK_H743_V3: BoardDescription = BoardDescription {
         rx: alt(pin(A, 10), Function::UartRx(Uart::Usart1), 7),
         tx: alt(pin(A, 9), Function::UartTx(Uart::Usart1), 7),
         rx_dma: dma(2, 6),
+    },
+    // The VBAT and CURR pads on PC0 (ADC1_INP10) and PC1 (ADC1_INP11): the board's divider
+    // (11 V a volt) and 40 A a volt for the current sensor, as ArduPilot's MatekH743
+    // hwdef.dat sets them (HAL_BATT_VOLT_SCALE 11.0, HAL_BATT_CURR_SCALE 40.0; Betaflight's
+    // default current scale, 25 mV an ampere, is the same). A current sensor of another scale
+    // needs its own value here.
+    battery: BatterySensing {
+        voltage_pin: pin(C, 0),
+        current_pin: pin(C, 1),
+        volts_per_volt: 11.0,
+        amps_per_volt: 40.0,
+        current_offset_v: 0.0,
+        reference_v: 3.3,
     },
     usb_dm: alt(pin(A, 11), Function::UsbDm, 10),
     usb_dp: alt(pin(A, 12), Function::UsbDp, 10),

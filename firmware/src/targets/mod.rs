@@ -152,6 +152,42 @@ pub struct UartWiring {
     pub rx_dma: DmaStream,
 }
 
+/// The flight battery's sensing: the pack through a resistor divider and a current sensor's
+/// output, each on an ADC1 input (`board::battery`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BatterySensing {
+    /// The divider's output.
+    pub voltage_pin: Pin,
+    /// The current sensor's output.
+    pub current_pin: Pin,
+    /// Pack volts per volt at `voltage_pin` (the divider's ratio).
+    pub volts_per_volt: f32,
+    /// Amperes per volt at `current_pin` above `current_offset_v`.
+    pub amps_per_volt: f32,
+    /// Volts at `current_pin` with no current.
+    pub current_offset_v: f32,
+    /// The ADC's reference (VREF+), V.
+    pub reference_v: f32,
+}
+
+impl BatterySensing {
+    /// The pack's voltage and current from the two conversions (`voltage_raw`, `current_raw`)
+    /// of an ADC whose full scale is `full_scale` (65,535 at 16 bits).
+    pub fn reading(
+        &self,
+        voltage_raw: u32,
+        current_raw: u32,
+        full_scale: u32,
+    ) -> crate::app::hal::BatteryReading {
+        let volts_per_count = self.reference_v / full_scale as f32;
+        crate::app::hal::BatteryReading {
+            voltage_v: voltage_raw as f32 * volts_per_count * self.volts_per_volt,
+            current_a: (current_raw as f32 * volts_per_count - self.current_offset_v)
+                * self.amps_per_volt,
+        }
+    }
+}
+
 /// Where the firmware and the configuration store live in the internal flash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FlashLayout {
@@ -193,6 +229,8 @@ pub struct BoardDescription {
     pub receiver: UartWiring,
     /// The telemetry radio: the link protocol, when the `radio_baud` parameter is not 0.
     pub telemetry_radio: UartWiring,
+    /// The flight battery's voltage and current.
+    pub battery: BatterySensing,
     /// USB OTG2 full-speed pins (D−, D+).
     pub usb_dm: AltPin,
     pub usb_dp: AltPin,
@@ -233,6 +271,8 @@ pub enum BoardError {
     NoSuchAlternateFunction(AltPin),
     /// The function on a pin is not the one its role needs (e.g. a TIM4 pin for a TIM3 motor).
     WrongFunction(AltPin),
+    /// A battery pin is not an ADC1 input.
+    NotAnAdcInput(Pin),
     /// The IMU's data-ready line or RX DMA stream differs from the interrupts `src/main.rs`
     /// binds.
     ImuInterruptBinding,
@@ -290,7 +330,11 @@ impl BoardDescription {
     pub fn check(&self) -> Result<(), BoardError> {
         // Pins: alternate-function pins, chip select, data ready.
         let mut pins: heapless::Vec<Pin, 32> = heapless::Vec::new();
-        let plain = [self.imu.cs, self.imu.data_ready];
+        let battery = [self.battery.voltage_pin, self.battery.current_pin];
+        if let Some(&p) = battery.iter().find(|p| h743::adc1_input(**p).is_none()) {
+            return Err(BoardError::NotAnAdcInput(p));
+        }
+        let plain = [self.imu.cs, self.imu.data_ready, battery[0], battery[1]];
         for p in self.alt_pins().map(|(a, _)| a.pin).chain(plain) {
             if pins.contains(&p) {
                 return Err(BoardError::PinUsedTwice(p));
