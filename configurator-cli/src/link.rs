@@ -241,11 +241,13 @@ impl Client {
         client.discard_stale_input()?;
         let hello = Request::Hello(Hello { protocol: PROTOCOL_VERSION, schema_hash: SCHEMA_HASH });
         let sent = Instant::now();
-        let (seq, frame) = client.encode(&hello)?;
-        client.write_frame(&frame)?;
-        let timeout = client.timeout;
-        let answer = client.await_response(seq, "the handshake", timeout)?;
-        client.retry_after = RETRY_AFTER.max(sent.elapsed() * 4).min(timeout);
+        // Asked again like any request when its frame or answer is lost on a radio (a hello
+        // changes nothing). The round trip sets the retry interval only when the first frame
+        // was answered: after a loss, the time measured is the retry's, not the link's.
+        let answer = client.ask(&hello, "the handshake")?;
+        if client.retries == 0 {
+            client.retry_after = RETRY_AFTER.max(sent.elapsed() * 4).min(client.timeout);
+        }
         let info = match answer {
             Ok(Reply::Hello(info)) => info,
             Err(DeviceError::IncompatibleProtocol { device, host }) => {
@@ -626,6 +628,64 @@ mod tests {
             unit: unit.try_into().unwrap(),
         };
         DeviceErrorText(error).to_string()
+    }
+
+    /// A board behind a radio that loses the first `lost` frames it is sent, then answers each
+    /// hello.
+    struct LossyBoard {
+        lost: u32,
+        decoder: Decoder,
+        answers: Vec<u8>,
+    }
+
+    impl Read for LossyBoard {
+        fn read(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+            if self.answers.is_empty() {
+                std::thread::sleep(Duration::from_millis(1));
+                return Err(ErrorKind::TimedOut.into());
+            }
+            let n = buffer.len().min(self.answers.len());
+            buffer[..n].copy_from_slice(&self.answers[..n]);
+            self.answers.drain(..n);
+            Ok(n)
+        }
+    }
+
+    impl Write for LossyBoard {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            for &byte in bytes {
+                let Some(Ok(frame)) = self.decoder.push(byte) else { continue };
+                let seq = frame.seq;
+                if self.lost > 0 {
+                    self.lost -= 1;
+                    continue;
+                }
+                let mut info = placeholder_info();
+                info.serial = "LOSSY".try_into().unwrap();
+                let mut out = [0u8; MAX_FRAME_LEN];
+                let answer = DeviceMessage::Response(Ok(Reply::Hello(info)));
+                let n = answer.encode(seq, &mut out).unwrap();
+                self.answers.extend_from_slice(&out[..n]);
+            }
+            Ok(bytes.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_handshake_lost_on_the_radio_is_asked_again() {
+        for lost in [0, 1, 2] {
+            let board = LossyBoard { lost, decoder: Decoder::new(), answers: Vec::new() };
+            let client = Client::connect(Box::new(board), "radio").expect("connected");
+            assert_eq!(client.info.serial.as_str(), "LOSSY");
+            assert_eq!(client.retries(), lost, "{lost} hellos lost");
+        }
+        // Three lost: every attempt was, and the handshake fails as a timeout.
+        let board = LossyBoard { lost: 3, decoder: Decoder::new(), answers: Vec::new() };
+        let error = Client::connect(Box::new(board), "radio").err().expect("no answer");
+        assert!(matches!(error, LinkError::Timeout { .. }), "{error}");
     }
 
     #[test]
