@@ -65,6 +65,39 @@ fn a_sitl_throw_and_fly_leaves_a_log_that_replays_bit_for_bit_and_a_changed_para
         .collect();
     assert!(phases.ends_with(&["exciting", "done"]), "the throw was identified: {phases:?}");
 
+    // The learner's and the flight's snapshots, at 25 Hz each by their own time: the G1
+    // estimate converging, then the flight on it.
+    let bytes = std::fs::read(&file).unwrap();
+    let mut learner = Vec::new();
+    let mut flight = Vec::new();
+    for record in LogReader::new(&bytes) {
+        match record {
+            LogRecord::Learner(sample) if sample.g1_block == 0 => learner.push(sample),
+            LogRecord::Flight(sample) => flight.push(sample),
+            _ => {}
+        }
+    }
+    let median_period_ms = |times: Vec<u64>| {
+        let mut gaps: Vec<u64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+        gaps.sort_unstable();
+        gaps[gaps.len() / 2] as f64 / 1000.0
+    };
+    let learner_ms = median_period_ms(learner.iter().map(|l| l.t_us).collect());
+    let flight_ms = median_period_ms(flight.iter().map(|f| f.t_us).collect());
+    assert!((39.0..=42.0).contains(&learner_ms), "learner every {learner_ms} ms");
+    assert!((39.0..=42.0).contains(&flight_ms), "flight every {flight_ms} ms");
+    let last = learner.last().unwrap();
+    assert_eq!(last.phase, protocol::LearnerPhase::Done, "{last:?}");
+    // Every motor at full thrust (u = 1) accelerates the craft by several g (IMU axes).
+    let m = usize::from(last.motor_count);
+    let full_thrust_mps2 =
+        last.g1_rows.iter().map(|row| row[..m].iter().sum::<f32>().powi(2)).sum::<f32>().sqrt();
+    assert!(full_thrust_mps2 > 15.0, "the learned G1's force rows: {:?}", last.g1_rows);
+    assert!(
+        flight.iter().any(|f| f.mode != protocol::FlightMode::Off),
+        "the flight on the learned model is on record"
+    );
+
     // The age of a motor-speed report aligns the learner's motor models: at the other end of
     // its range the learned model, and with it the flight on it, must depart.
     let changed = replay(path, &["--set", "motor_speed_age_s=0.003"]);

@@ -16,8 +16,11 @@
 //! | `/phase` | step | `phase` (0 idle … 5 done), `name`, `failed`, `flying`, `armed` |
 //! | `/command` | command applied | `step`, `command` (the logged command, externally tagged) |
 //! | `/parameters` | parameter set completed or changed | by name (a number, or an array): every parameter first, then those that changed |
+//! | `/learner` | learner snapshot (25 Hz, each G1 block in turn) | the protocol's `LearnerTelemetry`, field by field |
+//! | `/flight` | flight snapshot (25 Hz) | the protocol's `FlightTelemetry`, field by field |
 //!
-//! Every step message carries `step`, the control step's number.
+//! Every step message carries `step`, the control step's number. A snapshot takes its own time
+//! (`t_us`), not the step's before it.
 
 use std::collections::BTreeMap;
 use std::io::{BufWriter, Seek, Write};
@@ -42,7 +45,8 @@ pub struct Args {
 }
 
 /// The channels' topics, in the order they are added.
-pub const TOPICS: [&str; 6] = ["/imu", "/speeds", "/commands", "/phase", "/command", "/parameters"];
+pub const TOPICS: [&str; 8] =
+    ["/imu", "/speeds", "/commands", "/phase", "/command", "/parameters", "/learner", "/flight"];
 
 /// Messages written per topic (in [`TOPICS`] order).
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
@@ -76,7 +80,15 @@ fn schemas() -> [Value; TOPICS.len()] {
         json!({"type": "object", "properties": {
             "step": {"type": "integer"}, "command": {"type": ["object", "string"]}}}),
         json!({"type": "object", "additionalProperties": {"type": ["number", "array"]}}),
+        snapshot("the learner's state: protocol LearnerTelemetry (docs/protocol.md)"),
+        snapshot("the closed loop's state: protocol FlightTelemetry (docs/protocol.md)"),
     ]
+}
+
+/// A snapshot's schema: an object whose fields are the protocol type's (serde's names).
+fn snapshot(description: &str) -> Value {
+    json!({"type": "object", "description": description,
+           "properties": {"t_us": {"type": "integer"}}})
 }
 
 fn xyz(v: &[f32]) -> Value {
@@ -188,6 +200,12 @@ pub fn export<W: Write + Seek>(bytes: &[u8], out: W) -> Result<Exported, InputEr
                     }
                 }
             }
+            LogRecord::Learner(learner) => {
+                write(6, learner.t_us, &serde_json::to_value(learner).unwrap_or_default())?;
+            }
+            LogRecord::Flight(flight) => {
+                write(7, flight.t_us, &serde_json::to_value(flight).unwrap_or_default())?;
+            }
             LogRecord::Work(_) | LogRecord::Dropped(_) | LogRecord::End(_) => {}
         }
     }
@@ -291,6 +309,12 @@ mod tests {
         for record in &records {
             put(&mut bytes, &mut seq, id::STEP, record);
         }
+        // Snapshots at their own time (the logger may write one before the steps it follows).
+        let learner = protocol::LearnerTelemetry { t_us: 7_250, g1_block: 1, ..Default::default() };
+        put(&mut bytes, &mut seq, id::LEARNER, &learner);
+        let flight =
+            protocol::FlightTelemetry { t_us: 7_000, tilt_error_rad: 0.25, ..Default::default() };
+        put(&mut bytes, &mut seq, id::FLIGHT, &flight);
         (bytes, records)
     }
 
@@ -299,7 +323,7 @@ mod tests {
         let (bytes, steps) = log(40);
         let mut out = std::io::Cursor::new(Vec::new());
         let exported = export(&bytes, &mut out).unwrap();
-        assert_eq!(exported.messages, [20, 40, 40, 40, 1, 1]);
+        assert_eq!(exported.messages, [20, 40, 40, 40, 1, 1, 1, 1]);
         let mcap = out.into_inner();
         let mut by_topic: BTreeMap<String, Vec<(u64, Value)>> = BTreeMap::new();
         for message in mcap::MessageStream::new(&mcap).unwrap() {
@@ -315,7 +339,12 @@ mod tests {
         }
         let counts: Vec<usize> =
             TOPICS.iter().map(|t| by_topic.get(*t).map_or(0, Vec::len)).collect();
-        assert_eq!(counts, [20, 40, 40, 40, 1, 1]);
+        assert_eq!(counts, [20, 40, 40, 40, 1, 1, 1, 1]);
+        // The snapshots at their own time, field by field.
+        let (t_ns, learner) = &by_topic["/learner"][0];
+        assert_eq!((*t_ns, learner["g1_block"].as_u64()), (7_250_000, Some(1)));
+        let (t_ns, flight) = &by_topic["/flight"][0];
+        assert_eq!((*t_ns, flight["tilt_error_rad"].as_f64()), (7_000_000, Some(0.25)));
 
         // IMU of step 10: the logged sample at the step's time.
         let (t_ns, imu) = &by_topic["/imu"][4];

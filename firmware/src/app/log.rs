@@ -10,7 +10,13 @@
 //! - every piece of work the background task took (parameters, calibration start and stop),
 //!   with the step after which it took it;
 //! - the parameters in force when the file begins, and a header (format version, firmware
-//!   version, board, control rate, the registry's layout).
+//!   version, board, control rate, the registry's layout);
+//! - the learner's state (both G1 blocks) and the closed loop's ([`protocol::LearnerTelemetry`],
+//!   [`protocol::FlightTelemetry`], exactly as the link streams them) at
+//!   [`LOG_SNAPSHOT_RATE_HZ`], taken by the link pass from the snapshots it answers from. They
+//!   carry their own time: the background task may not yet have written the steps before them,
+//!   so a reader places them by `t_us`, not by their place in the file. A replay does not need
+//!   them; a reader of the flight does (how G1 converged, the hover's errors, the failsafes).
 //!
 //! **Why this split of work.** The 2 kHz step must stay cheap and never block: the tick copies a
 //! fixed-layout [`LogEntry`] (about 130 bytes) into a lock-free ring ([`LogRing`]) and does no
@@ -42,8 +48,15 @@ use flight::learner::FlightPhase;
 use heapless::spsc::Queue;
 use protocol::{Decoder, DshotCommand, ExternalPose, PositionSetpoint, MAX_FRAME_LEN};
 
-/// Version of the log's record layout; a reader refuses other versions.
-pub const LOG_FORMAT_VERSION: u16 = 1;
+/// Version of the log's record layout. 2 added the learner's and the flight's snapshots
+/// ([`id::LEARNER`], [`id::FLIGHT`]) to version 1's records; a reader of 2 reads 1, and refuses
+/// later versions.
+pub const LOG_FORMAT_VERSION: u16 = 2;
+
+/// Rate of the learner's and the flight's snapshots in a log, Hz: a G1 estimate converges over
+/// tenths of a second and a hover's position error moves at a few hertz, so 25 Hz shows both;
+/// the two learner blocks and a flight sample cost about 15 kB/s, a fifteenth of the steps'.
+pub const LOG_SNAPSHOT_RATE_HZ: u32 = 25;
 
 /// Bytes per block handed to the sink: one SD-card sector (SDMMC writes whole 512-byte
 /// sectors), so a block is the unit a power cut tears.
@@ -119,6 +132,10 @@ pub mod id {
     pub const WORK: u8 = 0x05;
     pub const DROPPED: u8 = 0x06;
     pub const END: u8 = 0x07;
+    /// A [`protocol::LearnerTelemetry`] (format 2).
+    pub const LEARNER: u8 = 0x08;
+    /// A [`protocol::FlightTelemetry`] (format 2).
+    pub const FLIGHT: u8 = 0x09;
 }
 
 /// The first record of every file.
@@ -251,6 +268,8 @@ pub enum LogRecord {
     Work(WorkRecord),
     Dropped(DroppedRecord),
     End(EndRecord),
+    Learner(protocol::LearnerTelemetry),
+    Flight(protocol::FlightTelemetry),
 }
 
 /// The flight phase as a byte.
@@ -425,6 +444,13 @@ pub trait LogFiles {
         let _ = number;
         Err(LogFileError::Unsupported)
     }
+
+    /// The link pass's snapshots at `now_us`: a logger writing a file records the learner's
+    /// and the flight's state when [`LOG_SNAPSHOT_RATE_HZ`] says one is due. Storage that logs
+    /// nothing keeps this default.
+    fn snapshot(&mut self, now_us: u64, view: &super::StatusView) {
+        let _ = (now_us, view);
+    }
 }
 
 /// Where the blocks go: a file on the SD card on the board, a file in a directory on the host.
@@ -477,6 +503,11 @@ impl<T: LogFiles> LogFiles for Option<T> {
     }
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
         self.as_mut().ok_or(LogFileError::Unsupported)?.delete(number)
+    }
+    fn snapshot(&mut self, now_us: u64, view: &super::StatusView) {
+        if let Some(files) = self {
+            files.snapshot(now_us, view);
+        }
     }
 }
 
@@ -534,6 +565,8 @@ pub struct Logger<'q> {
     last_step: u32,
     last_t_us: u64,
     logged_dropped: u32,
+    /// When the last snapshots were written, µs.
+    last_snapshot_us: Option<u64>,
     status: LogStatus,
 }
 
@@ -557,6 +590,21 @@ impl LogFiles for Logger<'_> {
     }
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
         self.sink.delete(number)
+    }
+    fn snapshot(&mut self, now_us: u64, view: &super::StatusView) {
+        if self.file.is_none() {
+            self.last_snapshot_us = None;
+            return;
+        }
+        const PERIOD_US: u64 = 1_000_000 / LOG_SNAPSHOT_RATE_HZ as u64;
+        if self.last_snapshot_us.is_some_and(|t| now_us.saturating_sub(t) < PERIOD_US) {
+            return;
+        }
+        self.last_snapshot_us = Some(now_us);
+        for block in 0..2 {
+            self.write(id::LEARNER, &super::learner_telemetry(view, block));
+        }
+        self.write(id::FLIGHT, &super::flight_telemetry(view));
     }
 }
 
@@ -585,6 +633,7 @@ impl<'q> Logger<'q> {
             last_step: 0,
             last_t_us: 0,
             logged_dropped: 0,
+            last_snapshot_us: None,
             status: LogStatus::default(),
         }
     }
@@ -876,6 +925,8 @@ fn decode_record(id: u8, payload: &[u8]) -> Option<LogRecord> {
         id::WORK => LogRecord::Work(parse(payload)?),
         id::DROPPED => LogRecord::Dropped(parse(payload)?),
         id::END => LogRecord::End(parse(payload)?),
+        id::LEARNER => LogRecord::Learner(parse(payload)?),
+        id::FLIGHT => LogRecord::Flight(parse(payload)?),
         _ => return None,
     })
 }

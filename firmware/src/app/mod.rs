@@ -37,7 +37,8 @@ pub use control::{
     STUCK_GYRO_SAMPLES,
 };
 pub use link::{
-    learner_telemetry, sensor_health, LinkRequest, LinkServer, TELEMETRY_SHARE_PCT, TX_CAPACITY,
+    flight_telemetry, learner_telemetry, sensor_health, LinkRequest, LinkServer,
+    TELEMETRY_SHARE_PCT, TX_CAPACITY,
 };
 pub use params::{Param, Params};
 pub use pilot::{

@@ -424,6 +424,9 @@ impl<L: Mutex<T = T>, T: LogFiles> LogFiles for LockedLogFiles<'_, L> {
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
         self.0.lock(|files| files.delete(number))
     }
+    fn snapshot(&mut self, now_us: u64, view: &StatusView) {
+        self.0.lock(|files| files.snapshot(now_us, view));
+    }
 }
 
 impl<P: Port> LinkEnd for Link<P> {
@@ -602,6 +605,7 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         let settings = &mut self.settings;
         let mut logs = LockedLogFiles(&mut shared.logs);
         links.each(&mut |link| link.receive_into(now_us, &view, settings, &mut logs));
+        logs.snapshot(now_us, &view);
 
         let mut outcome = PassOutcome::default();
         let mut work = heapless::Vec::<BackgroundWork, WORK_QUEUE_LEN>::new();
