@@ -146,6 +146,11 @@ enum Command {
         /// Where the motion-capture poses arrive: HOST:PORT (e.g. 0.0.0.0:9870).
         #[arg(long, value_name = "HOST:PORT")]
         listen: std::net::SocketAddr,
+        /// The axes the poses are written in: `ned` (world north-east-down, body
+        /// front-right-down) or `enu` (world east-north-up, body front-left-up: ROS and most of
+        /// its motion-capture bridges), turned into NED before they are sent.
+        #[arg(long, value_enum, default_value_t = sim::pose_line::PoseFrame::Ned)]
+        frame: sim::pose_line::PoseFrame,
         /// The most poses a second to send, Hz (1–2000).
         #[arg(long, default_value_t = configurator_cli::pose_relay::DEFAULT_RATE_HZ)]
         rate_hz: f64,
@@ -482,11 +487,16 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
         Command::Reboot => BoardCommand::Reboot,
         Command::Pair { forget } => BoardCommand::Pair { forget: *forget },
         Command::Security => BoardCommand::Security,
-        Command::PoseRelay { listen, rate_hz, duration_s } => {
+        Command::PoseRelay { listen, frame, rate_hz, duration_s } => {
             if duration_s.is_some_and(|d| !(d.is_finite() && d > 0.0)) {
                 return Err(input("--duration-s must be a positive number of seconds".into()));
             }
-            BoardCommand::PoseRelay { listen: *listen, rate_hz: *rate_hz, duration_s: *duration_s }
+            BoardCommand::PoseRelay {
+                listen: *listen,
+                frame: *frame,
+                rate_hz: *rate_hz,
+                duration_s: *duration_s,
+            }
         }
         Command::Dfu => BoardCommand::Dfu,
         Command::Setpoint { north_m, east_m, down_m, heading_deg } => {
@@ -624,6 +634,7 @@ enum BoardCommand {
     Security,
     PoseRelay {
         listen: std::net::SocketAddr,
+        frame: sim::pose_line::PoseFrame,
         rate_hz: f64,
         duration_s: Option<f64>,
     },
@@ -934,11 +945,13 @@ fn run_on_board(
             })
         }
         BoardCommand::Pair { forget } => pair(client, forget, cli.json),
-        BoardCommand::PoseRelay { listen, rate_hz, duration_s } => {
+        BoardCommand::PoseRelay { listen, frame, rate_hz, duration_s } => {
             use configurator_cli::pose_relay;
-            eprintln!("relaying poses from {listen} to the board, at most {rate_hz} Hz…");
+            eprintln!(
+                "relaying poses ({frame:?} axes) from {listen} to the board, at most {rate_hz} Hz…"
+            );
             let duration = duration_s.map(Duration::from_secs_f64);
-            let summary = pose_relay::run(client, listen, rate_hz, duration, |so_far| {
+            let summary = pose_relay::run(client, listen, frame, rate_hz, duration, |so_far| {
                 eprint!("\r{}", pose_relay::summary_text(so_far).trim_end());
             })
             .map_err(|e| match e {

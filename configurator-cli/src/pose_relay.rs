@@ -16,7 +16,7 @@
 
 use crate::link::{Client, DeviceErrorText, LinkError};
 use protocol::Request;
-use sim::pose_line::PoseLine;
+use sim::pose_line::{PoseFrame, PoseLine};
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
@@ -57,11 +57,12 @@ pub struct RelaySummary {
     pub duration_s: f64,
 }
 
-/// Relay poses received on `listen` to `client` at most `rate_hz` a second, for `duration` (or
-/// until the link fails), calling `progress` about once a second.
+/// Relay poses received on `listen`, written in `frame`, to `client` at most `rate_hz` a
+/// second, for `duration` (or until the link fails), calling `progress` about once a second.
 pub fn run(
     client: &mut Client,
     listen: SocketAddr,
+    frame: PoseFrame,
     rate_hz: f64,
     duration: Option<Duration>,
     mut progress: impl FnMut(&RelaySummary),
@@ -85,7 +86,7 @@ pub fn run(
         while let Ok(n) = socket.recv(&mut datagram) {
             match std::str::from_utf8(&datagram[..n])
                 .map_err(|e| e.to_string())
-                .and_then(|text| PoseLine::parse(text).map_err(|e| e.to_string()))
+                .and_then(|text| PoseLine::parse_in(text, frame).map_err(|e| e.to_string()))
             {
                 Ok(pose) => {
                     summary.received += 1;

@@ -16,6 +16,13 @@
 //!
 //! A line that is not eight finite numbers, or whose quaternion is far from unit length, is
 //! refused with a [`PoseLineError`] saying why; nothing is forwarded for it.
+//!
+//! **ENU senders** ([`PoseFrame::Enu`]): ROS (REP 103) and most motion-capture bridges built on
+//! it give `x_m y_m z_m` in world east-north-up and the attitude of a front-left-up body
+//! rotating into it. [`PoseLine::parse_in`] takes such a line as the same eight numbers and
+//! turns it into NED and front-right-down: north = y, east = x, down = −z, and
+//! `q_ned_frd = q_ned_enu ⊗ q_enu_flu ⊗ q_flu_frd`. The first and the last factor are half
+//! turns: about the axis (x + y)/√2, and about x.
 
 use protocol::ExternalPose;
 
@@ -32,6 +39,16 @@ pub enum PoseLineError {
     NotANumber { index: usize, text: String },
     #[error("the quaternion's norm is {norm:.3}, not 1 (order qw qx qy qz?)")]
     NotUnit { norm: f64 },
+}
+
+/// The world and body axes a sender uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum PoseFrame {
+    /// World north-east-down, body front-right-down (this project's, PX4's, ArduPilot's).
+    #[default]
+    Ned,
+    /// World east-north-up, body front-left-up (ROS REP 103, most ROS motion-capture bridges).
+    Enu,
 }
 
 /// One pose as the line carries it.
@@ -85,6 +102,25 @@ impl PoseLine {
         })
     }
 
+    /// Parse one line written in `frame`, as a pose in NED and front-right-down.
+    pub fn parse_in(line: &str, frame: PoseFrame) -> Result<Self, PoseLineError> {
+        let pose = Self::parse(line)?;
+        Ok(match frame {
+            PoseFrame::Ned => pose,
+            PoseFrame::Enu => {
+                let [x, y, z] = pose.position_ned_m;
+                let h = core::f64::consts::FRAC_1_SQRT_2;
+                let ned_from_enu = [0.0, h, h, 0.0];
+                let flu_from_frd = [0.0, 1.0, 0.0, 0.0];
+                Self {
+                    t_s: pose.t_s,
+                    position_ned_m: [y, x, -z],
+                    q_world_body: hamilton(hamilton(ned_from_enu, pose.q_world_body), flu_from_frd),
+                }
+            }
+        })
+    }
+
     /// The heading: the yaw of the body's x axis about world down, rad, in (−π, π].
     pub fn heading_rad(&self) -> f64 {
         let [w, x, y, z] = self.q_world_body;
@@ -101,9 +137,55 @@ impl PoseLine {
     }
 }
 
+/// The Hamilton product `a ⊗ b` of quaternions `[w, x, y, z]`.
+fn hamilton(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    let [aw, ax, ay, az] = a;
+    let [bw, bx, by, bz] = b;
+    [
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An ENU line (ROS) at `x y z` whose front-left-up body is yawed by `yaw_enu_rad` about up
+    /// (0: facing east) and then pitched nose-up by `pitch_up_rad`.
+    fn enu_line(position: [f64; 3], yaw_enu_rad: f64, pitch_up_rad: f64) -> String {
+        let (y, p) = (0.5 * yaw_enu_rad, 0.5 * pitch_up_rad);
+        // Nose up in FLU is a negative rotation about the body's y (left) axis.
+        let q = hamilton([y.cos(), 0.0, 0.0, y.sin()], [p.cos(), 0.0, -p.sin(), 0.0]);
+        let [x, yy, z] = position;
+        format!("0.5 {x} {yy} {z} {} {} {} {}", q[0], q[1], q[2], q[3])
+    }
+
+    #[test]
+    fn an_enu_pose_becomes_the_same_place_and_heading_in_ned() {
+        // 1 m east, 2 m north, 3 m up, facing east: north 2, east 1, down −3, heading 90°.
+        let pose = PoseLine::parse_in(&enu_line([1.0, 2.0, 3.0], 0.0, 0.0), PoseFrame::Enu);
+        let pose = pose.unwrap();
+        assert_eq!(pose.position_ned_m, [2.0, 1.0, -3.0]);
+        assert!((pose.heading_rad() - 90f64.to_radians()).abs() < 1e-9, "{pose:?}");
+        // Facing north (ENU yaw 90°) is heading 0; facing west (180°) is heading −90°; and a
+        // nose-up pitch changes no heading.
+        for (yaw_deg, heading_deg) in [(90.0, 0.0), (180.0, -90.0), (-45.0, 135.0)] {
+            let line = enu_line([0.0; 3], f64::to_radians(yaw_deg), 20f64.to_radians());
+            let pose = PoseLine::parse_in(&line, PoseFrame::Enu).unwrap();
+            let heading = pose.heading_rad().to_degrees();
+            assert!((heading - heading_deg).abs() < 1e-6, "ENU yaw {yaw_deg}°: {heading}°");
+            // The nose-up pitch stays nose-up: the body's x axis points up, −down, in NED.
+            let [w, x, y, z] = pose.q_world_body;
+            let forward_down = 2.0 * (x * z - w * y);
+            assert!((forward_down + 20f64.to_radians().sin()).abs() < 1e-9, "{pose:?}");
+        }
+        // NED lines pass unchanged.
+        let ned = PoseLine::with_heading(1.0, [1.0, 2.0, 3.0], 0.3).format();
+        assert_eq!(PoseLine::parse_in(&ned, PoseFrame::Ned), PoseLine::parse(&ned));
+    }
 
     #[test]
     fn a_formatted_pose_parses_back_to_its_position_and_heading() {

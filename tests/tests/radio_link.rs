@@ -459,3 +459,50 @@ fn over_the_radio_forged_replayed_and_unsigned_requests_are_refused_and_counted(
     assert_eq!(get["value"][0].as_f64().unwrap() as f32, 0.45, "{get}");
     let _ = std::fs::remove_dir_all(&keys);
 }
+
+/// A ROS-style sender (world east-north-up, body front-left-up) through `pose-relay --frame enu`:
+/// the board receives the same place in north-east-down.
+#[test]
+fn poses_in_enu_axes_reach_the_board_in_ned() {
+    let udp = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let listen = udp.local_addr().unwrap();
+    drop(udp);
+    let sitl = Sitl::start(&SitlConfig { tcp_port: Some(0), ..SitlConfig::default() })
+        .expect("the SITL starts");
+    // The relay on the pseudo-terminal, the status over TCP (one host per port).
+    let usb = sitl.pty_path.clone().unwrap().display().to_string();
+    let tcp = sitl.tcp_addr.unwrap().to_string();
+    let listen_text = listen.to_string();
+    let relay = std::process::Command::new(tests::cli_binary())
+        .args(["--port", &usb, "--json", "pose-relay", "--frame", "enu"])
+        .args(["--listen", &listen_text, "--duration-s", "3"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start the relay");
+    // 1 m east, 2 m north, 0.5 m up, facing east (identity in ENU), at 50 Hz for 2.5 s.
+    let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    for i in 0..125 {
+        let line = format!("{:.3} 1.0 2.0 0.5 1 0 0 0\n", f64::from(i) * 0.02);
+        let _ = sender.send_to(line.as_bytes(), listen);
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let status = run_cli(&["--tcp", &tcp, "--json", "status"]);
+    assert!(status.status.success(), "{}", output_text(&status));
+    let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    let position: Vec<f64> = status["flight"]["position_ned_m"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no position: {}", status["flight"]))
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let expected = [2.0, 1.0, -0.5];
+    let error_m: f64 =
+        position.iter().zip(expected).map(|(p, e)| (p - e).powi(2)).sum::<f64>().sqrt();
+    assert!(error_m < 1e-3, "the board holds {position:?}, the sender meant {expected:?} NED");
+    let relay = relay.wait_with_output().unwrap();
+    assert!(relay.status.success(), "{}", output_text(&relay));
+    let summary: serde_json::Value = serde_json::from_slice(&relay.stdout).unwrap();
+    assert_eq!(summary["malformed"], 0, "{summary}");
+    assert_eq!(summary["refused"], 0, "{summary}");
+}

@@ -29,9 +29,6 @@ use protocol::{
     MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
 };
 
-/// [`Request::SetLinkKey`]'s id, for its refusal of a key of another length.
-const SET_LINK_KEY_ID: u8 = 0x1A;
-
 /// Commands for the control step that may wait between two link passes.
 const COMMAND_QUEUE_LEN: usize = 4;
 
@@ -471,6 +468,8 @@ impl LinkServer {
         if refuse_if_armed && armed && self.host_version.is_some() {
             return Err(DeviceError::RefusedWhileArmed);
         }
+        // For a refusal that names the request (the table's id, not a second copy of it).
+        let request_id = request.id();
         match request {
             Request::Hello(hello) => self.handshake(hello.protocol),
             _ if self.host_version.is_none() => Err(DeviceError::HandshakeRequired),
@@ -649,7 +648,7 @@ impl LinkServer {
                 let key = match key.map(heapless::Vec::into_array) {
                     None => None,
                     Some(Ok(key)) => Some(key),
-                    Some(Err(_)) => return Err(DeviceError::Malformed { id: SET_LINK_KEY_ID }),
+                    Some(Err(_)) => return Err(DeviceError::Malformed { id: request_id }),
                 };
                 settings.set_link_key(key).map_err(|stage| DeviceError::StorageFailed { stage })?;
                 Ok(Reply::Done)
