@@ -38,6 +38,53 @@ use nalgebra::{UnitQuaternion, Vector3};
 #[allow(dead_code)]
 mod dshot;
 
+/// The firmware's hardware boundary and battery monitor, compiled from their own sources (both
+/// portable: `protocol`, `flight` and `core` only), for the control tick's battery region.
+#[allow(dead_code)]
+#[path = "../../firmware/src/app"]
+mod app {
+    pub mod battery;
+    pub mod hal;
+}
+
+/// What the control tick adds to the step: the flight log's entry into its ring, and a battery
+/// reading into the monitor.
+fn tick_regions() {
+    use app::battery::BatteryMonitor;
+    use app::hal::BatteryReading;
+    use heapless::spsc::Queue;
+    // `firmware::app::log::LogEntry` is 152 bytes (`an_entry_is_a_small_copy…`); its ring holds
+    // 128 (`LOG_RING_LEN`). The entry's own type lives with the log's writer, which needs the
+    // whole application: an array of its size is copied instead, as `RingProducer::push` does.
+    static mut RING: Queue<[u32; 38], 128> = Queue::new();
+    // SAFETY: the only reference to the ring, in this single-threaded harness.
+    let (mut producer, mut consumer) = unsafe { (*core::ptr::addr_of_mut!(RING)).split() };
+    let mut state = ([7u32; 38], 0u32);
+    for _ in 0..2 {
+        let _ = region(&mut state, |(entry, dropped)| {
+            if producer.enqueue(black_box(*entry)).is_err() {
+                *dropped += 1;
+            }
+        });
+        let _ = consumer.dequeue();
+    }
+    if state.1 != 0 {
+        fail("tick: the ring was full");
+    }
+    let mut monitor = BatteryMonitor::new();
+    for i in 0..1000u64 {
+        monitor.update(i * 1_000, BatteryReading { voltage_v: 16.8, current_a: 0.5 });
+    }
+    let mut state = (monitor, 1_000_000u64);
+    let _ = region(&mut state, |(monitor, t_us)| {
+        monitor.update(*t_us, black_box(BatteryReading { voltage_v: 16.2, current_a: 12.0 }));
+    });
+    let status = region(&mut state, |(monitor, _)| black_box(&*monitor).status());
+    if status.map(|s| s.cells) != Some(4) {
+        fail("tick: the battery monitor did not count 4 cells");
+    }
+}
+
 /// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
 #[inline(never)]
 #[no_mangle]
@@ -469,7 +516,11 @@ fn link_regions() {
     let Ok(len) = request.encode_signed(1, &signer, 1_000, &mut frame) else {
         fail("link: the signed request does not fit a frame");
     };
-    hprintln!("bench-m7 check: link: a signed SetParam of {} values is {} bytes", PARAM_MAX_LEN, len);
+    hprintln!(
+        "bench-m7 check: link: a signed SetParam of {} values is {} bytes",
+        PARAM_MAX_LEN,
+        len
+    );
     let mut state = (Decoder::new(), frame, len, 0u32);
     let _ = region(&mut state, |(decoder, frame, len, decoded)| {
         for &byte in black_box(&frame[..*len]) {
@@ -537,7 +588,9 @@ fn main() -> ! {
         "bench-m7 region: learner part: RLS update, 15 regressors, 1 output (one quad force row)"
     );
     hprintln!("bench-m7 region: learner part: tumble inertia, one free-fall sample");
-    hprintln!("bench-m7 region: learner part: tumble inertia prior (once, as the excitation starts)");
+    hprintln!(
+        "bench-m7 region: learner part: tumble inertia prior (once, as the excitation starts)"
+    );
     hprintln!(
         "bench-m7 region: libm part: one libm::sqrtf call (the allocation makes 2-3 per motor)"
     );
@@ -548,6 +601,10 @@ fn main() -> ! {
     hprintln!("bench-m7 region: dshot: encode 8 bidirectional throttle frames");
     hprintln!("bench-m7 region: link: decode a signed SetParam frame of 8 values, byte by byte (COBS, CRC-32C, postcard)");
     hprintln!("bench-m7 region: link: verify a signed request's HMAC-SHA256");
+    hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 128 (first)");
+    hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 128 (second)");
+    hprintln!("bench-m7 region: tick part: one battery reading into the monitor");
+    hprintln!("bench-m7 region: tick part: the battery's status for the snapshot");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
@@ -750,6 +807,7 @@ fn main() -> ! {
     let _ = region(&mut x, |(a, b)| libm::hypotf(black_box(*a), *b));
     dshot_regions();
     link_regions();
+    tick_regions();
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
     loop {
