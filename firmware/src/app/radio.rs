@@ -41,7 +41,7 @@ use crate::drivers::crsf::{
 };
 use crate::drivers::crsf::{HandsetTelemetry, FLIGHT_MODE_MAX_LEN};
 use flight::learner::FlightPhase;
-use protocol::{BatteryStatus, ReceiverHealth};
+use protocol::ReceiverHealth;
 
 /// How long a craft in flight keeps flying after the radio link is lost, µs.
 pub const FLIGHT_FAILSAFE_GRACE_US: u64 = 1_000_000;
@@ -162,19 +162,14 @@ impl Receiver {
     /// The telemetry frame for the pilot's handset, if the receiver granted a slot since the
     /// last call (one frame per RC frame received, as a CRSF receiver forwards one telemetry
     /// frame per uplink frame): written into `out`, its length returned. The frames cycle
-    /// attitude → flight mode (→ battery, when `battery` is measured), so at 150 RC frames per
+    /// attitude → flight mode (→ battery, when the snapshot has one), so at 150 RC frames per
     /// second the handset sees each within 20 ms.
-    pub fn telemetry_frame(
-        &mut self,
-        snapshot: &ControlSnapshot,
-        battery: Option<BatteryStatus>,
-        out: &mut [u8],
-    ) -> Option<usize> {
+    pub fn telemetry_frame(&mut self, snapshot: &ControlSnapshot, out: &mut [u8]) -> Option<usize> {
         self.handset.observe(snapshot);
         if !core::mem::take(&mut self.telemetry_slot) {
             return None;
         }
-        self.handset.next(snapshot, battery).encode(out)
+        self.handset.next(snapshot).encode(out)
     }
 
     /// What the status reports.
@@ -229,11 +224,8 @@ impl HandsetCycle {
         }
     }
 
-    fn next(
-        &mut self,
-        snapshot: &ControlSnapshot,
-        battery: Option<BatteryStatus>,
-    ) -> HandsetTelemetry {
+    fn next(&mut self, snapshot: &ControlSnapshot) -> HandsetTelemetry {
+        let battery = snapshot.battery;
         let kinds = if battery.is_some() { 3 } else { 2 };
         let kind = self.next % kinds;
         self.next = (kind + 1) % kinds;

@@ -284,7 +284,7 @@ impl<'q> ControlTask<'q> {
         if let Some(radio) = &mut self.radio {
             // One telemetry frame to the pilot's handset per RC frame received.
             let mut frame = [0u8; crate::drivers::crsf::FRAME_MAX];
-            if let Some(n) = radio.telemetry_frame(&snapshot, snapshot.battery, &mut frame) {
+            if let Some(n) = radio.telemetry_frame(&snapshot, &mut frame) {
                 let _ = radio_bytes.write(&frame[..n]);
             }
         }
