@@ -1,6 +1,6 @@
 //! `configurator-cli doctor`: the bring-up check for a board's first power-up.
 //!
-//! Six lines, in order, each saying what it checked, what it found (with units) and, when it
+//! Seven lines, in order, each saying what it checked, what it found (with units) and, when it
 //! fails, what to do:
 //! 1. **link**: the handshake (firmware and protocol versions, board, serial, the same message
 //!    table as this configurator), and that the craft is disarmed;
@@ -11,8 +11,12 @@
 //! 3. **flash**: the configuration store's state at start-up (read only: nothing is written);
 //! 4. **receiver**: the radio receiver's frames, errors and link quality; a board without one is
 //!    information, not a failure (it may be flown over its USB or telemetry link);
-//! 5. **esc**: every motor's ESC answering with its speed (bidirectional DShot);
-//! 6. **spin**: asked first (propellers off), each motor spun in turn at [`SPIN_COMMAND`] for
+//! 5. **battery**: the pack's voltage per cell and the current with the motors stopped, against
+//!    what a lithium pack at rest and a board's own draw can be ([`battery_line`]): a divider
+//!    or current-sensor scale that does not match the board reads outside them; no pack (USB
+//!    power) or no battery sensing is information;
+//! 6. **esc**: every motor's ESC answering with its speed (bidirectional DShot);
+//! 7. **spin**: asked first (propellers off), each motor spun in turn at [`SPIN_COMMAND`] for
 //!    [`SPIN_S`]; its own speed report must rise and the others must not: a motor output whose
 //!    speed comes back on another output (commands and speed reports mapped differently) or
 //!    not at all is found here.
@@ -540,7 +544,77 @@ pub fn receiver_line(board: Option<&BoardHealth>) -> Line {
 }
 
 // ---------------------------------------------------------------------------------------------
-// 5. ESC speed reports
+// 5. Battery
+// ---------------------------------------------------------------------------------------------
+
+const BATTERY_CHECKED: &str = "battery (voltage per cell, current at rest)";
+
+/// Lowest voltage a lithium cell at rest reads while healthy, V: discharged to 3.0 V it is
+/// damaged (LiPo makers' absolute minimum); a reading lower per counted cell is a divider scale
+/// set too low.
+pub const MIN_REST_CELL_V: f32 = 3.0;
+/// Highest, V: a high-voltage LiPo's full charge, 4.35 V, plus 0.05 V for the divider's error; a
+/// reading higher is a divider scale set too high.
+pub const MAX_REST_CELL_V: f32 = 4.4;
+/// Most current the board may draw with the motors stopped, A: a flight controller, receiver,
+/// camera and video transmitter draw 0.3–1.5 A from a 4S pack; 3 A is a current sensor's scale
+/// or offset set wrong (or something shorted).
+pub const MAX_REST_CURRENT_A: f32 = 3.0;
+/// Most negative current a sensor at rest may read, A: a small offset; below it, the sensor's
+/// offset is set wrong.
+pub const MIN_REST_CURRENT_A: f32 = -0.5;
+
+/// Line 5 from the board's battery report (`None`: the board measures none, or predates
+/// protocol 1.11).
+pub fn battery_line(battery: Option<&protocol::BatteryStatus>) -> Line {
+    let info = |found: String| Line {
+        name: "battery",
+        checked: BATTERY_CHECKED,
+        verdict: Verdict::Info,
+        found,
+        advice: None,
+    };
+    let Some(battery) = battery else {
+        return info("the board measures no battery".into());
+    };
+    if battery.voltage_v < firmware::app::battery::NO_PACK_V {
+        return info(format!(
+            "no pack connected ({:.2} V at the divider: powered over USB); connect one to check              the voltage and current scales",
+            battery.voltage_v
+        ));
+    }
+    if battery.cells == 0 {
+        return info(format!(
+            "{:.2} V, cells not counted yet (the pack settles for {} s): run the check again",
+            battery.voltage_v,
+            firmware::app::battery::SETTLE_S
+        ));
+    }
+    let cell_v = battery.voltage_v / f32::from(battery.cells);
+    // A divider's scale that is wrong by a cell's worth or more shows as a wrong cell count,
+    // which only the builder knows: said in the line.
+    let found = format!(
+        "{}S {:.2} V ({:.2} V a cell), {:.2} A with the motors stopped (a pack of another cell \
+         count means the voltage divider is not the board file's)",
+        battery.cells, battery.voltage_v, cell_v, battery.current_a
+    );
+    let mut failures = Vec::new();
+    if !(MIN_REST_CELL_V..=MAX_REST_CELL_V).contains(&cell_v) {
+        failures.push(format!(
+            "{cell_v:.2} V a cell is outside what a lithium cell at rest reads ({MIN_REST_CELL_V}–             {MAX_REST_CELL_V} V): measure the pack with a multimeter; if it differs, the              board's voltage divider is not the one its board file assumes"
+        ));
+    }
+    if !(MIN_REST_CURRENT_A..=MAX_REST_CURRENT_A).contains(&battery.current_a) {
+        failures.push(format!(
+            "{:.2} A with the motors stopped (a board draws 0.3–1.5 A): the current sensor's              scale or offset is not the one the board file assumes, or something draws too much",
+            battery.current_a
+        ));
+    }
+    line("battery", BATTERY_CHECKED, failures, found)
+}
+
+// ---------------------------------------------------------------------------------------------
+// 6. ESC speed reports
 // ---------------------------------------------------------------------------------------------
 
 const ESC_CHECKED: &str = "ESC speed reports (bidirectional DShot)";
@@ -736,7 +810,7 @@ pub enum Consent {
     NoTerminal,
 }
 
-/// Run the six checks on a connected board, handing each line to `report` as it is done;
+/// Run the seven checks on a connected board, handing each line to `report` as it is done;
 /// `consent` is asked just before the motors would spin. Returns every line.
 pub fn run(
     client: &mut Client,
@@ -767,6 +841,11 @@ pub fn run(
     };
     emit(flash_line(config.as_ref()), &mut lines);
     emit(receiver_line(board.as_ref()), &mut lines);
+    let battery = match optional(client, Request::GetBattery(()), "the battery request")? {
+        Some(Reply::Battery(battery)) => Some(battery),
+        _ => None,
+    };
+    emit(battery_line(battery.as_ref()), &mut lines);
 
     let health = match optional(client, Request::GetHealth(()), "the health request")? {
         Some(Reply::Health(health)) => Some(health),
@@ -1104,6 +1183,37 @@ mod tests {
         assert!(silent.advice.unwrap().contains("no frame"));
         assert!(receiver_line(Some(&receiver(false, 800, 0))).advice.unwrap().contains("down"));
         assert!(receiver_line(Some(&receiver(true, 900, 100))).advice.unwrap().contains("baud"));
+    }
+
+    #[test]
+    fn a_pack_at_rest_passes_and_wrong_scales_fail_saying_which() {
+        let pack = |voltage_v: f32, current_a: f32, cells: u8| protocol::BatteryStatus {
+            voltage_v,
+            current_a,
+            used_mah: 1.0,
+            cells,
+            remaining_pct: 80,
+        };
+        let good = battery_line(Some(&pack(16.4, 0.6, 4)));
+        assert_eq!(good.verdict, Verdict::Pass, "{good:?}");
+        assert!(good.found.contains("4S 16.40 V (4.10 V a cell)"), "{}", good.found);
+        // A pack that has run down since its cells were counted, or a divider read with the
+        // wrong ratio (a 1S count: 2.2 V; a 4S count: 4.5 V a cell).
+        let low = battery_line(Some(&pack(2.2, 0.6, 1)));
+        assert_eq!(low.verdict, Verdict::Fail);
+        assert!(low.advice.as_ref().unwrap().contains("voltage divider"), "{low:?}");
+        let high = battery_line(Some(&pack(18.0, 0.6, 4)));
+        assert!(high.advice.as_ref().unwrap().contains("voltage divider"), "{high:?}");
+        assert_eq!(high.verdict, Verdict::Fail, "{high:?}");
+        for current_a in [4.0, -1.0] {
+            let line = battery_line(Some(&pack(16.4, current_a, 4)));
+            assert_eq!(line.verdict, Verdict::Fail);
+            assert!(line.advice.as_ref().unwrap().contains("current sensor"), "{line:?}");
+        }
+        // Nothing to judge: information, never a failure.
+        for info in [None, Some(pack(0.3, 0.0, 0)), Some(pack(16.4, 0.5, 0))] {
+            assert_eq!(battery_line(info.as_ref()).verdict, Verdict::Info, "{info:?}");
+        }
     }
 
     #[test]
