@@ -108,14 +108,14 @@ impl NorFlash for RamCard {
     }
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         let at = offset as usize;
-        assert!(at % BLOCK == 0 && bytes.len() == BLOCK, "whole blocks only");
+        assert!(at.is_multiple_of(BLOCK) && bytes.len() == BLOCK, "whole blocks only");
         if self.operation()? {
             self.bytes[at..at + BLOCK].copy_from_slice(bytes);
             return Ok(());
         }
         let kept = self.random(BLOCK + 1);
         self.bytes[at..at + kept].copy_from_slice(&bytes[..kept]);
-        if self.ops % 2 == 0 {
+        if self.ops.is_multiple_of(2) {
             for i in at + kept..at + BLOCK {
                 self.bytes[i] = self.random(256) as u8;
             }
