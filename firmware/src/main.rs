@@ -113,7 +113,7 @@ mod app {
     use firmware::board::motors::{BoardMotors, BurstCompletion};
     use firmware::board::radio::BoardRadio;
     use firmware::board::receiver::BoardReceiver;
-    use firmware::board::sdcard::BoardCard;
+    use firmware::board::sdcard::{card_stats, BoardCard, CardStats};
     use firmware::board::time::MicrosClock;
     use firmware::board::timing::{step_stats, StepStats, StepTimer};
     use firmware::board::usb::{self, UsbSerial, UsbStorage, EP_MEMORY_WORDS};
@@ -440,7 +440,13 @@ mod app {
     /// sleep until the next interrupt. defmt-rtt writes with interrupts masked for the few µs a
     /// message takes and, built with `disable-blocking-mode`, drops messages rather than wait
     /// for the probe, so logging here delays the control interrupt by microseconds at most.
-    #[idle(local = [reported: StepStats = StepStats { max_us: 0, overruns: 0 }])]
+    ///
+    /// Likewise the microSD card's write time (`board::sdcard::card_stats`): when its longest
+    /// block write grows, and every 4,096 blocks (about 12 s of log).
+    #[idle(local = [
+        reported: StepStats = StepStats { max_us: 0, overruns: 0 },
+        card_reported: CardStats = CardStats { write_max_us: 0, blocks: 0 },
+    ])]
     fn idle(cx: idle::Context) -> ! {
         loop {
             let stats = step_stats();
@@ -451,6 +457,12 @@ mod app {
                     stats.overruns
                 );
                 *cx.local.reported = stats;
+            }
+            let card = card_stats();
+            let reported = *cx.local.card_reported;
+            if card.write_max_us != reported.write_max_us || card.blocks / 4096 != reported.blocks / 4096 {
+                defmt::info!("card: longest block write {} us, {} blocks", card.write_max_us, card.blocks);
+                *cx.local.card_reported = card;
             }
             cortex_m::asm::wfi();
         }

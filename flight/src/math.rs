@@ -12,6 +12,14 @@
 //! [−π/4, π/4] (truncation below 10⁻¹¹). Larger angles lose accuracy gradually (no panic);
 //! NaN and infinities give NaN.
 //!
+//! ## Compact products
+//!
+//! [`mul_compact`]: a matrix product over runtime sizes in one shared, not unrolled body, for
+//! the once-per-throw solves (IMU offset, drag model). nalgebra's fixed-size products are fully
+//! unrolled at the firmware's opt-level (a 9 × 6 · 9 × 9 · 9 × 6 f64 product alone is kilobytes
+//! of flash); those paths have no speed target, the flash budget is tight. Same sums in the same
+//! order as nalgebra's product (`Σ_k a_ik b_kj`, k ascending), so the results are the same.
+//!
 //! ## Square root
 //!
 //! Why not `libm::sqrtf`: libm has no ARM fast path, so on `thumbv7em` it is an integer
@@ -23,7 +31,32 @@
 //! the classic bit-level estimate of `1/√x`, three Newton steps (relative error 2e-3 → 5e-6 →
 //! 4e-11, i.e. f32 round-off), then `√x = x · (1/√x)`. About 20 instructions, all FPU.
 
-use nalgebra::{Quaternion, Unit, UnitQuaternion, Vector3};
+use nalgebra::{Quaternion, SMatrix, Unit, UnitQuaternion, Vector3};
+
+/// `a · b` computed by [`mul_slices`] (see "Compact products" in the module docs).
+pub fn mul_compact<const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<f64, R, K>,
+    b: &SMatrix<f64, K, C>,
+) -> SMatrix<f64, R, C> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    mul_slices(a.as_slice(), b.as_slice(), out.as_mut_slice(), R, K);
+    out
+}
+
+/// `out = a · b`, column-major, `a` with `rows` rows and `inner` columns.
+#[inline(never)]
+fn mul_slices(a: &[f64], b: &[f64], out: &mut [f64], rows: usize, inner: usize) {
+    for (j, column) in out.chunks_exact_mut(rows).enumerate() {
+        let b_j = &b[j * inner..(j + 1) * inner];
+        for (i, value) in column.iter_mut().enumerate() {
+            let mut sum = a[i] * b_j[0];
+            for k in 1..inner {
+                sum += a[i + k * rows] * b_j[k];
+            }
+            *value = sum;
+        }
+    }
+}
 
 /// `√x` to within a few f32 ulps; `0` for `x ≤ 0` and for NaN returns NaN. Inputs outside the
 /// normal range (subnormal, infinite) fall back to `libm::sqrtf`.

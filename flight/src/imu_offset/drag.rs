@@ -37,6 +37,7 @@
 
 use nalgebra::{Matrix3, Matrix6, Quaternion, SMatrix, SVector, UnitQuaternion, Vector3, Vector6};
 
+use crate::math::mul_compact;
 use super::moments::Moments;
 use super::{Scalar, Segment};
 
@@ -135,9 +136,10 @@ impl Normal9 {
         t.fixed_view_mut::<3, 6>(6, 0).copy_from(&(-d));
         let mut e = Vector9::zeros();
         e.fixed_rows_mut::<3>(6).copy_from(c_w);
-        let ge = self.gtg * e;
-        out.q += t.transpose() * self.gtg * t;
-        out.g += t.transpose() * (self.gty - ge);
+        let ge = mul_compact(&self.gtg, &e);
+        let tt = t.transpose();
+        out.q += mul_compact(&mul_compact(&tt, &self.gtg), &t);
+        out.g += mul_compact(&tt, &(self.gty - ge));
         out.c += self.yty - 2.0 * self.gty.dot(&e) + e.dot(&ge);
         out.count = out.count.saturating_add(self.count);
     }
