@@ -39,19 +39,39 @@ pub fn mul_compact<const R: usize, const K: usize, const C: usize>(
     b: &SMatrix<f64, K, C>,
 ) -> SMatrix<f64, R, C> {
     let mut out = SMatrix::<f64, R, C>::zeros();
-    mul_slices(a.as_slice(), b.as_slice(), out.as_mut_slice(), R, K);
+    mul_slices(a.as_slice(), (1, R), b.as_slice(), out.as_mut_slice(), R, K);
     out
 }
 
-/// `out = a · b`, column-major, `a` with `rows` rows and `inner` columns.
+/// `aᵀ · b` computed by [`mul_slices`] without a transposed copy (as nalgebra's `tr_mul`).
+pub fn tr_mul_compact<const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<f64, K, R>,
+    b: &SMatrix<f64, K, C>,
+) -> SMatrix<f64, R, C> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    mul_slices(a.as_slice(), (K, 1), b.as_slice(), out.as_mut_slice(), R, K);
+    out
+}
+
+/// `out = a · b`, column-major `b` and `out`; `a`'s element `(i, k)` at
+/// `a[i · strides.0 + k · strides.1]` (`a` or a transposed view of it), `rows` × `inner`.
 #[inline(never)]
-fn mul_slices(a: &[f64], b: &[f64], out: &mut [f64], rows: usize, inner: usize) {
+fn mul_slices(
+    a: &[f64],
+    strides: (usize, usize),
+    b: &[f64],
+    out: &mut [f64],
+    rows: usize,
+    inner: usize,
+) {
+    let (row_stride, inner_stride) = strides;
     for (j, column) in out.chunks_exact_mut(rows).enumerate() {
         let b_j = &b[j * inner..(j + 1) * inner];
         for (i, value) in column.iter_mut().enumerate() {
-            let mut sum = a[i] * b_j[0];
-            for k in 1..inner {
-                sum += a[i + k * rows] * b_j[k];
+            let a_i = |k: usize| a[i * row_stride + k * inner_stride];
+            let mut sum = a_i(0) * b_j[0];
+            for (k, b_kj) in b_j.iter().enumerate().skip(1) {
+                sum += a_i(k) * b_kj;
             }
             *value = sum;
         }

@@ -37,7 +37,7 @@
 
 use nalgebra::{Matrix3, Matrix6, Quaternion, SMatrix, SVector, UnitQuaternion, Vector3, Vector6};
 
-use crate::math::mul_compact;
+use crate::math::{mul_compact, tr_mul_compact};
 use super::moments::Moments;
 use super::{Scalar, Segment};
 
@@ -112,8 +112,8 @@ impl Normal9 {
     }
 
     fn add(&mut self, g: &Matrix3x9, y: &Vector3<f64>) {
-        self.gtg += g.tr_mul(g);
-        self.gty += g.tr_mul(y);
+        self.gtg += tr_mul_compact(g, g);
+        self.gty += tr_mul_compact(g, y);
         self.yty += y.dot(y);
         self.count = self.count.saturating_add(1);
     }
@@ -137,9 +137,8 @@ impl Normal9 {
         let mut e = Vector9::zeros();
         e.fixed_rows_mut::<3>(6).copy_from(c_w);
         let ge = mul_compact(&self.gtg, &e);
-        let tt = t.transpose();
-        out.q += mul_compact(&mul_compact(&tt, &self.gtg), &t);
-        out.g += mul_compact(&tt, &(self.gty - ge));
+        out.q += mul_compact(&tr_mul_compact(&t, &self.gtg), &t);
+        out.g += tr_mul_compact(&t, &(self.gty - ge));
         out.c += self.yty - 2.0 * self.gty.dot(&e) + e.dot(&ge);
         out.count = out.count.saturating_add(self.count);
     }
