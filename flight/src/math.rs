@@ -18,7 +18,8 @@
 //! the once-per-throw solves (IMU offset, drag model). nalgebra's fixed-size products are fully
 //! unrolled at the firmware's opt-level (a 9 × 6 · 9 × 9 · 9 × 6 f64 product alone is kilobytes
 //! of flash); those paths have no speed target, the flash budget is tight. Same sums in the same
-//! order as nalgebra's product (`Σ_k a_ik b_kj`, k ascending), so the results are the same.
+//! order as nalgebra's product (`Σ_k a_ik b_kj`, k ascending), so the results are the same bit
+//! for bit (tested).
 //!
 //! ## Square root
 //!
@@ -43,7 +44,9 @@ pub fn mul_compact<const R: usize, const K: usize, const C: usize>(
     out
 }
 
-/// `aᵀ · b` computed by [`mul_slices`] without a transposed copy (as nalgebra's `tr_mul`).
+/// `aᵀ · b` computed by [`mul_slices`] without a transposed copy: the same as nalgebra's
+/// `a.transpose() * b`, and as its `tr_mul` when `a` has at most three rows (longer dot products
+/// it sums in another order).
 pub fn tr_mul_compact<const R: usize, const K: usize, const C: usize>(
     a: &SMatrix<f64, K, R>,
     b: &SMatrix<f64, K, C>,
@@ -171,8 +174,28 @@ pub fn rotation_from_scaled_axis(phi: &Vector3<f32>) -> UnitQuaternion<f32> {
 
 #[cfg(test)]
 mod tests {
-    use super::{clamp, rotation_about, rotation_from_scaled_axis, sin_cos, sqrt};
-    use nalgebra::{UnitQuaternion, Vector3};
+    use super::{
+        clamp, mul_compact, rotation_about, rotation_from_scaled_axis, sin_cos, sqrt,
+        tr_mul_compact,
+    };
+    use nalgebra::{SMatrix, UnitQuaternion, Vector3};
+
+    #[test]
+    fn compact_products_equal_nalgebras_bit_for_bit() {
+        let mut rng = crate::rng::Rng::new(11);
+        for _ in 0..200 {
+            let a = SMatrix::<f64, 9, 6>::from_fn(|_, _| rng.normal() * 1e3);
+            let b = SMatrix::<f64, 9, 9>::from_fn(|_, _| rng.normal());
+            let c = SMatrix::<f64, 6, 4>::from_fn(|_, _| rng.normal() * 1e-3);
+            let same = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
+            assert!(same(mul_compact(&b, &a).as_slice(), (b * a).as_slice()));
+            assert!(same(mul_compact(&a, &c).as_slice(), (a * c).as_slice()));
+            assert!(same(tr_mul_compact(&a, &b).as_slice(), (a.transpose() * b).as_slice()));
+            // nalgebra's `tr_mul` sums dot products of up to three terms in this order too.
+            let g = SMatrix::<f64, 3, 9>::from_fn(|_, _| rng.normal());
+            assert!(same(tr_mul_compact(&g, &g).as_slice(), g.tr_mul(&g).as_slice()));
+        }
+    }
 
     #[test]
     fn sin_cos_matches_libm_to_f32_round_off_over_many_turns_and_gives_nan_for_non_finite() {
