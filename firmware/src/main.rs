@@ -571,8 +571,9 @@ mod tasks {
         // (`board::sdcard`, `app::card`) but wired they take the image over its flash budget
         // (docs/flight-log.md, "On the board"). Reverting the commit that unwired them wires
         // them again.
-        let no_log: Option<&mut firmware::app::system::Exclusive<'_, firmware::app::log::Logger<'_>>> =
-            None;
+        let no_log: Option<
+            &mut firmware::app::system::Exclusive<'_, firmware::app::log::Logger<'_>>,
+        > = None;
         run_background(cx.local.background, no_log, &mut work, &mut results);
     }
 }

@@ -187,7 +187,8 @@ mod tests {
             let a = SMatrix::<f64, 9, 6>::from_fn(|_, _| rng.normal() * 1e3);
             let b = SMatrix::<f64, 9, 9>::from_fn(|_, _| rng.normal());
             let c = SMatrix::<f64, 6, 4>::from_fn(|_, _| rng.normal() * 1e-3);
-            let same = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
+            let same =
+                |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
             assert!(same(mul_compact(&b, &a).as_slice(), (b * a).as_slice()));
             assert!(same(mul_compact(&a, &c).as_slice(), (a * c).as_slice()));
             assert!(same(tr_mul_compact(&a, &b).as_slice(), (a.transpose() * b).as_slice()));

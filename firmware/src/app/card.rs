@@ -388,7 +388,7 @@ impl<D: NorFlash + Send> LogSink for CardLog<D> {
         let blocks = writing.blocks + 1;
         self.writing = Some(Writing { blocks, ..writing });
         self.append = at + 1;
-        if blocks % PROGRESS_EVERY_BLOCKS == 0 {
+        if blocks.is_multiple_of(PROGRESS_EVERY_BLOCKS) {
             self.progress_seq = self.progress_seq.wrapping_add(1);
             let number = self.entries[writing.slot].number;
             record([PROGRESS_MAGIC, number, self.progress_seq, blocks], &mut self.buf);

@@ -76,8 +76,7 @@ impl BoardCard {
         for (pin, _) in wiring.pins() {
             chip::alternate(pin, pin != wiring.clock);
         }
-        let mut sdmmc: Sdmmc<SDMMC1, SdCard> =
-            sdmmc1.sdmmc_unchecked(Buswidth::Four, prec, clocks);
+        let mut sdmmc: Sdmmc<SDMMC1, SdCard> = sdmmc1.sdmmc_unchecked(Buswidth::Four, prec, clocks);
         sdmmc.init(CARD_CLOCK_HZ.Hz()).ok()?;
         let card = sdmmc.card().ok()?;
         if !matches!(card.capacity, sdio_host::sd::CardCapacity::HighCapacity) {
@@ -93,7 +92,8 @@ impl BoardCard {
         regs.icr.write(|w| w.ccrcfailc().set_bit().ctimeoutc().set_bit().cmdrendc().set_bit());
         // SAFETY: any argument is valid; index is a 6-bit command number.
         regs.argr.write(|w| unsafe { w.cmdarg().bits(argument) });
-        regs.cmdr.write(|w| unsafe { w.waitresp().bits(1).cmdindex().bits(index).cpsmen().set_bit() });
+        regs.cmdr
+            .write(|w| unsafe { w.waitresp().bits(1).cmdindex().bits(index).cpsmen().set_bit() });
         // The peripheral ends every command: a response, a CRC failure or its 64-clock timeout.
         loop {
             let status = regs.star.read();
@@ -112,9 +112,12 @@ impl ErrorType for BoardCard {
 }
 
 /// Each 512-byte block of `bytes`, with its block number from byte `offset`.
-fn blocks(offset: u32, len: usize) -> Result<impl Iterator<Item = (u32, usize)>, NorFlashErrorKind> {
+fn blocks(
+    offset: u32,
+    len: usize,
+) -> Result<impl Iterator<Item = (u32, usize)>, NorFlashErrorKind> {
     let block = LOG_BLOCK_LEN as u32;
-    if offset % block != 0 || len % LOG_BLOCK_LEN != 0 {
+    if !offset.is_multiple_of(block) || !len.is_multiple_of(LOG_BLOCK_LEN) {
         return Err(NorFlashErrorKind::NotAligned);
     }
     Ok((0..len / LOG_BLOCK_LEN).map(move |i| (offset / block + i as u32, i * LOG_BLOCK_LEN)))
@@ -144,7 +147,7 @@ impl NorFlash for BoardCard {
     /// the transfer state. Erased blocks read all 0x00 or all 0xFF (the card's SCR says which).
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         let block = LOG_BLOCK_LEN as u32;
-        if from % block != 0 || to % block != 0 {
+        if !from.is_multiple_of(block) || !to.is_multiple_of(block) {
             return Err(NorFlashErrorKind::NotAligned);
         }
         if to <= from {
