@@ -535,7 +535,8 @@ mod tasks {
     pub fn usb_service(cx: usb_service::Context) {
         let now_us = cx.local.usb_clock.now_us();
         let step = step_stats();
-        // No flight log on the board yet (no SD-card driver): log requests are unsupported.
+        // No flight log on the board yet (the card is not wired: flash): log requests are
+        // unsupported.
         let mut no_card = firmware::app::log::NoCard;
         let mut shared = PassShared {
             snapshot: cx.shared.snapshot,
@@ -566,8 +567,13 @@ mod tasks {
     /// Background work at the lowest priority ([`firmware::app::system::run_background`]).
     pub fn background(cx: background::Context) {
         let (mut work, mut results) = (cx.shared.work, cx.shared.results);
-        // No flight log on the board yet: it has no SD-card driver (issue 30), and a log written
-        // to no card would cost about 7 KB of flash for nothing (docs/flight-log.md).
-        run_background(cx.local.background, None, &mut work, &mut results);
+        // No flight log on the board yet: the card's driver and layout are built
+        // (`board::sdcard`, `app::card`) but wired they take the image over its flash budget
+        // (docs/flight-log.md, "On the board"). Reverting the commit that unwired them wires
+        // them again.
+        let no_log: Option<
+            &mut firmware::app::system::Exclusive<'_, firmware::app::log::Logger<'_>>,
+        > = None;
+        run_background(cx.local.background, no_log, &mut work, &mut results);
     }
 }

@@ -4,12 +4,12 @@
 //! block, the records read are exactly the flight's first records (nothing invented, nothing
 //! reordered), and the reader says the tail was torn or damaged.
 
-use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, NoBytes, MAX_MOTORS};
+mod logging;
+
 use firmware::app::log::{LogReader, LogRecord, LogSink, LogSinkError, LOG_BLOCK_LEN};
-use firmware::app::system::{with_logged_system, LogTarget, NoLinks, TickHardware};
-use firmware::app::{ControlCommand, NoFlash, Settings};
+use firmware::app::ControlCommand;
 use flight::rng::Rng;
-use protocol::{BoardHealth, Decoder};
+use protocol::Decoder;
 
 /// The card: keeps every block of the one file.
 #[derive(Default)]
@@ -33,60 +33,10 @@ impl LogSink for Card {
     }
 }
 
-/// An IMU at rest with noise, a sample missing now and then.
-struct NoisyImu(Rng);
-
-impl Imu for NoisyImu {
-    fn read(&mut self) -> Option<ImuSample> {
-        let mut n = || self.0.normal() as f32;
-        let sample = ImuSample {
-            gyro_rad_s: [0.01 * n(), 0.01 * n(), 0.01 * n()],
-            accel_mps2: [0.05 * n(), 0.05 * n(), -9.81 + 0.05 * n()],
-        };
-        (self.0.uniform() > 0.001).then_some(sample)
-    }
-}
-
-/// Four motors reporting speeds.
-struct FourMotors;
-
-impl Motors for FourMotors {
-    fn count(&self) -> u8 {
-        4
-    }
-    fn set_commands(&mut self, _commands: &[f32]) {}
-    fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
-        [Some(0.0), Some(0.0), Some(0.0), Some(0.0), None, None, None, None]
-    }
-}
-
 /// The bytes of a 2 s logging flight (4,000 steps, armed at start, link passes at 1 kHz).
 fn flight_log() -> Vec<u8> {
     let mut card = Card::default();
-    let target = LogTarget { sink: &mut card, board: "TEST" };
-    let settings = Settings::<NoFlash>::without_store();
-    with_logged_system(settings, BoardHealth::default(), None, Some(target), |system| {
-        system.submit(ControlCommand::ArmThrowToFly);
-        let mut imu = NoisyImu(Rng::new(7));
-        for step in 1..=4000u64 {
-            let now_us = step * 500;
-            if system
-                .tick(
-                    now_us,
-                    TickHardware {
-                        imu: &mut imu,
-                        motors: &mut FourMotors,
-                        radio_bytes: &mut NoBytes,
-                        battery: &mut NoBattery,
-                    },
-                )
-                .link_due
-            {
-                system.pass(now_us, &mut NoLinks);
-            }
-        }
-        system.finish_log();
-    });
+    logging::fly(&mut card, 4000, &[(1, ControlCommand::ArmThrowToFly)]);
     card.bytes
 }
 

@@ -12,6 +12,15 @@
 //! [−π/4, π/4] (truncation below 10⁻¹¹). Larger angles lose accuracy gradually (no panic);
 //! NaN and infinities give NaN.
 //!
+//! ## Compact products
+//!
+//! [`mul_compact`]: a matrix product over runtime sizes in one shared, not unrolled body, for
+//! the once-per-throw solves (IMU offset, drag model). nalgebra's fixed-size products are fully
+//! unrolled at the firmware's opt-level (a 9 × 6 · 9 × 9 · 9 × 6 f64 product alone is kilobytes
+//! of flash); those paths have no speed target, the flash budget is tight. Same sums in the same
+//! order as nalgebra's product (`Σ_k a_ik b_kj`, k ascending), so the results are the same bit
+//! for bit (tested).
+//!
 //! ## Square root
 //!
 //! Why not `libm::sqrtf`: libm has no ARM fast path, so on `thumbv7em` it is an integer
@@ -23,7 +32,54 @@
 //! the classic bit-level estimate of `1/√x`, three Newton steps (relative error 2e-3 → 5e-6 →
 //! 4e-11, i.e. f32 round-off), then `√x = x · (1/√x)`. About 20 instructions, all FPU.
 
-use nalgebra::{Quaternion, Unit, UnitQuaternion, Vector3};
+use nalgebra::{Quaternion, SMatrix, Unit, UnitQuaternion, Vector3};
+
+/// `a · b` computed by [`mul_slices`] (see "Compact products" in the module docs).
+pub fn mul_compact<const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<f64, R, K>,
+    b: &SMatrix<f64, K, C>,
+) -> SMatrix<f64, R, C> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    mul_slices(a.as_slice(), (1, R), b.as_slice(), out.as_mut_slice(), R, K);
+    out
+}
+
+/// `aᵀ · b` computed by [`mul_slices`] without a transposed copy: the same as nalgebra's
+/// `a.transpose() * b`, and as its `tr_mul` when `a` has at most three rows (longer dot products
+/// it sums in another order).
+pub fn tr_mul_compact<const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<f64, K, R>,
+    b: &SMatrix<f64, K, C>,
+) -> SMatrix<f64, R, C> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    mul_slices(a.as_slice(), (K, 1), b.as_slice(), out.as_mut_slice(), R, K);
+    out
+}
+
+/// `out = a · b`, column-major `b` and `out`; `a`'s element `(i, k)` at
+/// `a[i · strides.0 + k · strides.1]` (`a` or a transposed view of it), `rows` × `inner`.
+#[inline(never)]
+fn mul_slices(
+    a: &[f64],
+    strides: (usize, usize),
+    b: &[f64],
+    out: &mut [f64],
+    rows: usize,
+    inner: usize,
+) {
+    let (row_stride, inner_stride) = strides;
+    for (j, column) in out.chunks_exact_mut(rows).enumerate() {
+        let b_j = &b[j * inner..(j + 1) * inner];
+        for (i, value) in column.iter_mut().enumerate() {
+            let a_i = |k: usize| a[i * row_stride + k * inner_stride];
+            let mut sum = a_i(0) * b_j[0];
+            for (k, b_kj) in b_j.iter().enumerate().skip(1) {
+                sum += a_i(k) * b_kj;
+            }
+            *value = sum;
+        }
+    }
+}
 
 /// `√x` to within a few f32 ulps; `0` for `x ≤ 0` and for NaN returns NaN. Inputs outside the
 /// normal range (subnormal, infinite) fall back to `libm::sqrtf`.
@@ -118,8 +174,29 @@ pub fn rotation_from_scaled_axis(phi: &Vector3<f32>) -> UnitQuaternion<f32> {
 
 #[cfg(test)]
 mod tests {
-    use super::{clamp, rotation_about, rotation_from_scaled_axis, sin_cos, sqrt};
-    use nalgebra::{UnitQuaternion, Vector3};
+    use super::{
+        clamp, mul_compact, rotation_about, rotation_from_scaled_axis, sin_cos, sqrt,
+        tr_mul_compact,
+    };
+    use nalgebra::{SMatrix, UnitQuaternion, Vector3};
+
+    #[test]
+    fn compact_products_equal_nalgebras_bit_for_bit() {
+        let mut rng = crate::rng::Rng::new(11);
+        for _ in 0..200 {
+            let a = SMatrix::<f64, 9, 6>::from_fn(|_, _| rng.normal() * 1e3);
+            let b = SMatrix::<f64, 9, 9>::from_fn(|_, _| rng.normal());
+            let c = SMatrix::<f64, 6, 4>::from_fn(|_, _| rng.normal() * 1e-3);
+            let same =
+                |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
+            assert!(same(mul_compact(&b, &a).as_slice(), (b * a).as_slice()));
+            assert!(same(mul_compact(&a, &c).as_slice(), (a * c).as_slice()));
+            assert!(same(tr_mul_compact(&a, &b).as_slice(), (a.transpose() * b).as_slice()));
+            // nalgebra's `tr_mul` sums dot products of up to three terms in this order too.
+            let g = SMatrix::<f64, 3, 9>::from_fn(|_, _| rng.normal());
+            assert!(same(tr_mul_compact(&g, &g).as_slice(), g.tr_mul(&g).as_slice()));
+        }
+    }
 
     #[test]
     fn sin_cos_matches_libm_to_f32_round_off_over_many_turns_and_gives_nan_for_non_finite() {

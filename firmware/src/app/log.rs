@@ -645,9 +645,14 @@ impl<'q> Logger<'q> {
 
     /// Encode every waiting entry (beginning and ending files as the entries arm and disarm).
     pub fn drain(&mut self) {
-        while let Some(entry) = self.entries.pop() {
-            self.take(&entry);
-        }
+        while self.drain_one() {}
+    }
+
+    /// Encode the oldest waiting entry; false: none waited.
+    pub fn drain_one(&mut self) -> bool {
+        let Some(entry) = self.entries.pop() else { return false };
+        self.take(&entry);
+        true
     }
 
     /// The background task took `work` (after the entries drained so far).

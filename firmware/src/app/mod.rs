@@ -15,6 +15,7 @@
 
 mod background;
 pub mod battery;
+pub mod card;
 mod control;
 pub mod hal;
 mod link;

@@ -671,21 +671,25 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
 /// logs), the work the links sent (oldest first, each logged after the steps drained before
 /// it), then every waiting learner sample, then the results published (a copy under a short
 /// lock).
-pub fn run_background<W, R>(
+///
+/// The log is locked per entry (and per piece of work): the link task, which reads the log's
+/// files under the same lock, waits at most for one entry's encoding and one block write.
+pub fn run_background<'l, W, R, L>(
     worker: &mut Background<'_>,
-    mut log: Option<&mut Logger<'_>>,
+    mut log: Option<&mut L>,
     work: &mut W,
     results: &mut R,
 ) where
     W: Mutex<T = WorkQueue>,
     R: Mutex<T = BackgroundResults>,
+    L: Mutex<T = Logger<'l>>,
 {
     if let Some(log) = log.as_deref_mut() {
-        log.drain();
+        while log.lock(|log| log.drain_one()) {}
     }
     while let Some(item) = work.lock(|queue| queue.pop_front()) {
         if let Some(log) = log.as_deref_mut() {
-            log.work(&item);
+            log.lock(|log| log.work(&item));
         }
         match item {
             BackgroundWork::Command(command) => worker.command(command),
@@ -755,7 +759,7 @@ impl<'q, F: NorFlash> System<'q, F> {
         let handoffs = &mut self.handoffs;
         run_background(
             &mut self.background,
-            self.log.as_mut(),
+            self.log.as_mut().map(Exclusive).as_mut(),
             &mut Exclusive(&mut handoffs.work),
             &mut Exclusive(&mut handoffs.results),
         );

@@ -18,6 +18,7 @@ pub mod imu;
 pub mod motors;
 pub mod radio;
 pub mod receiver;
+pub mod sdcard;
 pub mod serial;
 pub mod time;
 pub mod timing;

@@ -70,6 +70,10 @@ pub enum Function {
     TimerChannel(Timer, u8),
     UsbDm,
     UsbDp,
+    /// SDMMC1's clock, command line and data line 0..=3 (the microSD card).
+    SdmmcCk,
+    SdmmcCmd,
+    SdmmcData(u8),
 }
 
 /// An RCC clock-enable register (offsets in the RCC block, RM0433 §8.7).
@@ -681,6 +685,13 @@ const ALTERNATE_FUNCTIONS: &[(Pin, Function, u8)] = {
         // USB OTG2 full speed (the H743's "OTG_FS" pins, AF10): DM PA11, DP PA12.
         (pin(A, 11), UsbDm, 10),
         (pin(A, 12), UsbDp, 10),
+        // SDMMC1 (AF12): D0–D3 PC8–PC11, CK PC12, CMD PD2.
+        (pin(C, 8), SdmmcData(0), 12),
+        (pin(C, 9), SdmmcData(1), 12),
+        (pin(C, 10), SdmmcData(2), 12),
+        (pin(C, 11), SdmmcData(3), 12),
+        (pin(C, 12), SdmmcCk, 12),
+        (pin(D, 2), SdmmcCmd, 12),
     ]
 };
 

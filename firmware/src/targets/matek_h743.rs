@@ -8,6 +8,7 @@
 //!   S3–S6 = TIM5 CH1–CH4, S7/S8 = TIM4 CH1/CH2); gyro 1 on SPI1 with CS PC15, EXTI PB2.
 //! - ArduPilot `libraries/AP_HAL_ChibiOS/hwdef/MatekH743/hwdef.dat`: "H743-V3: ICM42688P
 //!   (SPI1, IMU1_CS PC15), ICM42605 (SPI4)", 8 MHz HSE, USART6 the RC input (RX6 = PC7).
+//!   microSD on SDMMC1: D0–D3 PC8–PC11, CK PC12, CMD PD2 (its "microSD support" lines).
 //!   (ArduPilot drives S1/S2 from TIM8 CH2N/CH3N; this firmware uses Betaflight's TIM3 CH3/CH4,
 //!   whose non-complementary channels can also capture the ESC's bidirectional answer.)
 //!
@@ -20,7 +21,7 @@ use super::h743::{Function, Spi, Timer, Uart};
 use super::Port::{A, B, C, D};
 use super::{
     pin, AltPin, BatterySensing, BoardDescription, DmaStream, FlashLayout, ImuWiring, MotorOutput,
-    MotorTimer, Pin, UartWiring,
+    MotorTimer, Pin, SdCardWiring, UartWiring,
 };
 
 const fn alt(pin: Pin, function: Function, af: u8) -> AltPin {
@@ -106,6 +107,18 @@ pub const MATEK_H743_V3: BoardDescription = BoardDescription {
     },
     usb_dm: alt(pin(A, 11), Function::UsbDm, 10),
     usb_dp: alt(pin(A, 12), Function::UsbDp, 10),
+    // ArduPilot hwdef.dat "microSD support": PC8–PC11 SDMMC1_D0–D3, PC12 SDMMC1_CK, PD2
+    // SDMMC1_CMD (AF12, DS12110 Table 9).
+    sdcard: Some(SdCardWiring {
+        clock: alt(pin(C, 12), Function::SdmmcCk, 12),
+        command: alt(pin(D, 2), Function::SdmmcCmd, 12),
+        data: [
+            alt(pin(C, 8), Function::SdmmcData(0), 12),
+            alt(pin(C, 9), Function::SdmmcData(1), 12),
+            alt(pin(C, 10), Function::SdmmcData(2), 12),
+            alt(pin(C, 11), Function::SdmmcData(3), 12),
+        ],
+    }),
     flash_read_dma: dma(2, 7),
     flash: FlashLayout {
         firmware_start: 0x0800_0000,

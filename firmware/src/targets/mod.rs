@@ -188,6 +188,31 @@ impl BatterySensing {
     }
 }
 
+/// The microSD card's slot on SDMMC1 (4-bit bus; the card's own pull-ups are not relied on).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SdCardWiring {
+    pub clock: AltPin,
+    pub command: AltPin,
+    /// D0..=D3.
+    pub data: [AltPin; 4],
+}
+
+impl SdCardWiring {
+    /// Every pin of the slot with the function its role needs.
+    pub fn pins(&self) -> [(AltPin, h743::Function); 6] {
+        use h743::Function::{SdmmcCk, SdmmcCmd, SdmmcData};
+        let [d0, d1, d2, d3] = self.data;
+        [
+            (self.clock, SdmmcCk),
+            (self.command, SdmmcCmd),
+            (d0, SdmmcData(0)),
+            (d1, SdmmcData(1)),
+            (d2, SdmmcData(2)),
+            (d3, SdmmcData(3)),
+        ]
+    }
+}
+
 /// Where the firmware and the configuration store live in the internal flash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FlashLayout {
@@ -234,6 +259,8 @@ pub struct BoardDescription {
     /// USB OTG2 full-speed pins (D−, D+).
     pub usb_dm: AltPin,
     pub usb_dp: AltPin,
+    /// The microSD card slot, for the flight log (`None`: no slot).
+    pub sdcard: Option<SdCardWiring>,
     /// The DMA stream the flash driver copies configuration words with (memory to memory, so a
     /// torn word's ECC error is a transfer error instead of a CPU bus fault).
     pub flash_read_dma: DmaStream,
@@ -313,7 +340,8 @@ impl BoardDescription {
         ];
         let motors =
             self.motors.iter().map(|m| (m.pin, Function::TimerChannel(m.timer, m.channel)));
-        fixed.into_iter().chain(motors)
+        let sdcard = self.sdcard.iter().flat_map(|card| card.pins());
+        fixed.into_iter().chain(motors).chain(sdcard)
     }
 
     /// Every DMA stream the board uses.

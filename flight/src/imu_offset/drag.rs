@@ -39,6 +39,7 @@ use nalgebra::{Matrix3, Matrix6, Quaternion, SMatrix, SVector, UnitQuaternion, V
 
 use super::moments::Moments;
 use super::{Scalar, Segment};
+use crate::math::{mul_compact, tr_mul_compact};
 
 /// Blocks of one throw kept for the drag model: 80 × 20 ms = 1.6 s of trimmed free fall, an apex
 /// of 3.1 m above a catch at release height (calibration throws climb 0.8–1.5 m, 0.8–1.1 s).
@@ -111,8 +112,8 @@ impl Normal9 {
     }
 
     fn add(&mut self, g: &Matrix3x9, y: &Vector3<f64>) {
-        self.gtg += g.tr_mul(g);
-        self.gty += g.tr_mul(y);
+        self.gtg += tr_mul_compact(g, g);
+        self.gty += tr_mul_compact(g, y);
         self.yty += y.dot(y);
         self.count = self.count.saturating_add(1);
     }
@@ -135,9 +136,9 @@ impl Normal9 {
         t.fixed_view_mut::<3, 6>(6, 0).copy_from(&(-d));
         let mut e = Vector9::zeros();
         e.fixed_rows_mut::<3>(6).copy_from(c_w);
-        let ge = self.gtg * e;
-        out.q += t.transpose() * self.gtg * t;
-        out.g += t.transpose() * (self.gty - ge);
+        let ge = mul_compact(&self.gtg, &e);
+        out.q += mul_compact(&tr_mul_compact(&t, &self.gtg), &t);
+        out.g += tr_mul_compact(&t, &(self.gty - ge));
         out.c += self.yty - 2.0 * self.gty.dot(&e) + e.dot(&ge);
         out.count = out.count.saturating_add(self.count);
     }
