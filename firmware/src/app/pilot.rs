@@ -107,6 +107,37 @@ const COMPENSATED_ATTITUDE: AttitudeConfig = AttitudeConfig {
     max_rate_for_accel_rad_s: 1.0,
 };
 
+/// The accelerometer's sensitivity error assumed for the compensated tilt, fraction of the
+/// acceleration removed: 5 %, the scale (±3 %) and cross-axis (±2 %, ICM-42688-P datasheet)
+/// errors added (the ranges `sim::world` draws; issue 28).
+const ACCEL_SENSITIVITY_ERROR: f32 = 0.05;
+
+/// Error of the compensated accelerometer in steady flight, m/s² (ours): the filter's tilt
+/// error measured in hover, 0.6° (see [`COMPENSATED_ATTITUDE`]), times g.
+const COMPENSATED_ACCEL_ERROR_MPS2: f32 = 0.1;
+
+/// Acceleration removed from the accelerometer at which the compensated tilt correction has
+/// half its gain, m/s²: where the sensitivity error on it equals the steady error (2 m/s²).
+const MANOEUVRE_ACCEL_REF_MPS2: f32 = COMPENSATED_ACCEL_ERROR_MPS2 / ACCEL_SENSITIVITY_ERROR;
+
+/// The compensated tuning while the acceleration `accel_removed_mps2` (m/s², from the fixes) is
+/// taken out of the accelerometer. Its error grows with that acceleration (the accelerometer's
+/// sensitivity error on it; the fixes' acceleration lags a changing one): as a measurement of
+/// gravity its variance is `e₀² + (ε a)²` (e₀ [`COMPENSATED_ACCEL_ERROR_MPS2`], ε
+/// [`ACCEL_SENSITIVITY_ERROR`]), and the correction is weighted by `e₀² / (e₀² + (ε a)²)` as a
+/// Kalman gain would be. Without it a recovery's braking at 3–6 m/s² pulled the tilt 2–4°
+/// off just before the hold began, and the hold then chased the tilt's return (issue 28: seeds
+/// 70 and 447 of `fly monte-carlo --world random`).
+fn compensated_attitude(accel_removed_mps2: f32) -> AttitudeConfig {
+    let ratio = accel_removed_mps2 / MANOEUVRE_ACCEL_REF_MPS2;
+    let weight = 1.0 / (1.0 + ratio * ratio);
+    AttitudeConfig {
+        k_p: COMPENSATED_ATTITUDE.k_p * weight,
+        k_i: COMPENSATED_ATTITUDE.k_i * weight,
+        ..COMPENSATED_ATTITUDE
+    }
+}
+
 /// Rate below which a disarmed craft counts as still, rad/s.
 const STILL_RATE_RAD_S: f32 = 0.2;
 
@@ -530,10 +561,9 @@ impl Pilot {
         let aligned = self.alignment.yaw_rad().is_some();
         let nav_before = self.navigation.state();
         let compensated = pose_fresh && aligned && nav_before.has_fix;
-        if compensated != self.previous_velocity_mps.is_some() {
-            // Compensation starts or stops: retune the filter (only then, not every step).
-            let tuning = if compensated { COMPENSATED_ATTITUDE } else { AttitudeConfig::default() };
-            let _ = self.attitude.set_config(tuning);
+        if !compensated && self.previous_velocity_mps.is_some() {
+            // Compensation stops: the default tuning (only then, not every step).
+            let _ = self.attitude.set_config(AttitudeConfig::default());
         }
         if compensated {
             let velocity = nav_before.velocity_ned_mps;
@@ -542,6 +572,7 @@ impl Pilot {
                 self.accel_world_mps2 += (raw - self.accel_world_mps2) * (dt_s / FIX_ACCEL_TIME_S);
             }
             self.previous_velocity_mps = Some(velocity);
+            let _ = self.attitude.set_config(compensated_attitude(self.accel_world_mps2.norm()));
         } else {
             self.accel_world_mps2 = Vector3::zeros();
             self.previous_velocity_mps = None;
