@@ -20,7 +20,9 @@ fn main() {
         }
     }
     let aspects: Vec<Aspect> = match std::env::var("ASPECTS") {
-        Ok(list) => list.split(',').filter(|s| !s.is_empty()).map(|s| Aspect::parse(s).unwrap()).collect(),
+        Ok(list) => {
+            list.split(',').filter(|s| !s.is_empty()).map(|s| Aspect::parse(s).unwrap()).collect()
+        }
         Err(_) => Aspect::ALL.to_vec(),
     };
     let threads = std::env::var("THREADS").ok().and_then(|t| t.parse().ok()).unwrap_or(2);
