@@ -327,6 +327,22 @@ pub struct FlyReport {
     pub g1_block_rel_flown_at_end: Option<[f64; 2]>,
     /// Models the flying controller moved towards (`PilotStatus::refinements`).
     pub refinements: u32,
+    /// The firmware's attitude (`PilotStatus::q_world_imu`) against the truth, degrees: the
+    /// angle between its down and the true down (tilt) and its yaw error about the vertical
+    /// (heading), when the controller engaged and when the hold window began.
+    pub attitude_error_at_engage_deg: Option<[f64; 2]>,
+    pub attitude_error_at_window_deg: Option<[f64; 2]>,
+}
+
+/// Tilt and heading error, degrees, of the firmware's `q_world_imu` (w, x, y, z) against the
+/// true world ← IMU attitude `q_true`.
+fn attitude_error_deg(q_world_imu: [f32; 4], q_true: &UnitQuaternion<f64>) -> [f64; 2] {
+    let [w, x, y, z] = q_world_imu.map(f64::from);
+    let q_filter = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+    let down_true = q_true.inverse() * Vector3::z();
+    let down_filter = q_filter.inverse() * Vector3::z();
+    let heading_error = heading(&(q_true * q_filter.inverse()));
+    [down_true.angle(&down_filter).to_degrees(), heading_error.to_degrees()]
 }
 
 /// G1 of the model `app` flies, back in the learner's terms (IMU axes, per squared speed),
@@ -395,6 +411,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             g1_block_rel_learned_at_end: None,
             g1_block_rel_flown_at_end: None,
             refinements: 0,
+            attitude_error_at_engage_deg: None,
+            attitude_error_at_window_deg: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -468,6 +486,15 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 if report.release_to_engage_s.is_none() {
                     let learned = app.background.results().learned;
                     report.g1_block_rel_at_engage = Some(Scores::of(&learned, &truth).g1_block_rel);
+                }
+                let q_true = state.attitude() * airframe.q_imu_body().inverse();
+                if report.attitude_error_at_engage_deg.is_none() {
+                    report.attitude_error_at_engage_deg =
+                        Some(attitude_error_deg(snapshot.pilot.q_world_imu, &q_true));
+                }
+                if t_s >= end_s - hold_window_s && report.attitude_error_at_window_deg.is_none() {
+                    report.attitude_error_at_window_deg =
+                        Some(attitude_error_deg(snapshot.pilot.q_world_imu, &q_true));
                 }
                 report.release_to_engage_s.get_or_insert(since_release);
                 report.outcome = Outcome::Flying;
