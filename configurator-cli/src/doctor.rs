@@ -577,26 +577,31 @@ pub fn battery_line(battery: Option<&protocol::BatteryStatus>) -> Line {
     let Some(battery) = battery else {
         return info("the board measures no battery".into());
     };
-    if battery.voltage_v < firmware::app::battery::NO_PACK_V {
-        return info(format!(
-            "no pack connected ({:.2} V at the divider: powered over USB); connect one to check              the voltage and current scales",
-            battery.voltage_v
-        ));
-    }
-    if battery.cells == 0 {
-        return info(format!(
-            "{:.2} V, cells not counted yet (the pack settles for {} s): run the check again",
-            battery.voltage_v,
-            firmware::app::battery::SETTLE_S
-        ));
-    }
-    let cell_v = battery.voltage_v / f32::from(battery.cells);
+    use firmware::app::battery::{Pack, SETTLE_S};
+    let cells = match Pack::of(battery) {
+        Pack::Absent => {
+            return info(format!(
+                "no pack connected ({:.2} V at the divider: powered over USB); connect one to \
+                 check the voltage and current scales",
+                battery.voltage_v
+            ))
+        }
+        Pack::Settling => {
+            return info(format!(
+                "{:.2} V, cells not counted yet (the pack settles for {SETTLE_S} s): run the \
+                 check again",
+                battery.voltage_v
+            ))
+        }
+        Pack::Cells(cells) => cells,
+    };
+    let cell_v = battery.voltage_v / f32::from(cells);
     // A divider's scale that is wrong by a cell's worth or more shows as a wrong cell count,
     // which only the builder knows: said in the line.
     let found = format!(
         "{}S {:.2} V ({:.2} V a cell), {:.2} A with the motors stopped (a pack of another cell \
          count means the voltage divider is not the board file's)",
-        battery.cells, battery.voltage_v, cell_v, battery.current_a
+        cells, battery.voltage_v, cell_v, battery.current_a
     );
     let mut failures = Vec::new();
     if !(MIN_REST_CELL_V..=MAX_REST_CELL_V).contains(&cell_v) {

@@ -316,29 +316,25 @@ pub fn health_json(health: &protocol::SensorHealth) -> Value {
 
 /// The flight battery in words: voltage (per cell), current, charge drawn, charge left.
 pub fn battery_text(battery: &protocol::BatteryStatus) -> String {
-    if battery.voltage_v < firmware::app::battery::NO_PACK_V {
-        return format!(
+    use firmware::app::battery::{Pack, SETTLE_S};
+    match Pack::of(battery) {
+        Pack::Absent => format!(
             "  battery         no pack connected ({:.2} V at the divider: powered over USB)\n",
             battery.voltage_v
-        );
-    }
-    if battery.cells == 0 {
-        return format!(
-            "  battery         {:.2} V, {:.1} A (cells not counted yet: the pack settles for {} s)\n",
+        ),
+        Pack::Settling => format!(
+            "  battery         {:.2} V, {:.1} A (cells not counted yet: the pack settles for {SETTLE_S} s)\n",
+            battery.voltage_v, battery.current_a,
+        ),
+        Pack::Cells(cells) => format!(
+            "  battery         {cells}S {:.2} V ({:.2} V a cell), {:.1} A, {:.0} mAh drawn, about {} % left (from the voltage: reads low under load)\n",
             battery.voltage_v,
+            battery.voltage_v / f32::from(cells),
             battery.current_a,
-            firmware::app::battery::SETTLE_S
-        );
+            battery.used_mah,
+            battery.remaining_pct
+        ),
     }
-    format!(
-        "  battery         {}S {:.2} V ({:.2} V a cell), {:.1} A, {:.0} mAh drawn, about {} % left (from the voltage: reads low under load)\n",
-        battery.cells,
-        battery.voltage_v,
-        battery.voltage_v / f32::from(battery.cells),
-        battery.current_a,
-        battery.used_mah,
-        battery.remaining_pct
-    )
 }
 
 /// The flight battery as JSON (units in the names).

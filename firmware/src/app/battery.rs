@@ -148,6 +148,28 @@ impl BatteryMonitor {
     }
 }
 
+/// What a [`BatteryStatus`] says of the pack, for whoever shows it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pack {
+    /// Under [`NO_PACK_V`]: the board runs on USB.
+    Absent,
+    /// Connected, its cells not counted yet ([`SETTLE_S`]).
+    Settling,
+    /// Connected, this many cells in series.
+    Cells(u8),
+}
+
+impl Pack {
+    /// The pack `status` describes.
+    pub fn of(status: &BatteryStatus) -> Self {
+        match status.cells {
+            _ if status.voltage_v < NO_PACK_V => Self::Absent,
+            0 => Self::Settling,
+            cells => Self::Cells(cells),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
