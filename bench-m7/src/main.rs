@@ -23,7 +23,7 @@ use cortex_m_semihosting::{debug, hprintln};
 use flight::allocation::{AllocationConfig, Allocator};
 use flight::attitude::{AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, Guidance};
-use flight::imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
+use imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
 use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
 use flight::learner::inertia::TumbleInertia;
 use flight::learner::{AxisStatus, Learner, LearnerConfig, MAX_MOTORS};

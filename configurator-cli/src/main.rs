@@ -1105,12 +1105,12 @@ fn ask(question: &str) -> Option<bool> {
 /// How long `calibrate imu-offset` keeps watching the board's estimate after the last throw it
 /// allows, for the rest after the catch (wall-clock). The board counts a rest once the hand has
 /// settled (about 0.3 s after a catch) and five 50 ms blocks have been still (the first and the
-/// last are dropped: `flight::imu_offset::MIN_POSE_BLOCKS` + 2): about 0.6 s after the catch. A
+/// last are dropped: `imu_offset::MIN_POSE_BLOCKS` + 2): about 0.6 s after the catch. A
 /// person told to hold the craft still for a second has done so well within 3 s.
 const REST_AFTER_LAST_CATCH: Duration = Duration::from_secs(3);
 
 /// How often the guided calibration asks for the board's status between throws: the estimate
-/// follows each 50 ms block of rest (`flight::imu_offset::REST_BLOCK_S`), so 10 Hz sees it change
+/// follows each 50 ms block of rest (`imu_offset::REST_BLOCK_S`), so 10 Hz sees it change
 /// without loading the link.
 const CALIBRATION_POLL: Duration = Duration::from_millis(100);
 

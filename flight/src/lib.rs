@@ -8,8 +8,9 @@
 pub mod allocation;
 pub mod attitude;
 pub mod controller;
+pub mod eigen3;
 pub mod filters;
-pub mod imu_offset;
+pub mod imu;
 pub mod indi;
 pub mod learner;
 pub mod math;

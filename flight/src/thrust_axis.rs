@@ -49,7 +49,6 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 mod bounded;
-mod eigen3;
 mod householder;
 mod rotation;
 

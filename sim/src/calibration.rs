@@ -19,7 +19,7 @@
 //! poses separate an accelerometer bias from the offset along the direction equal-rate spins
 //! leave open (the cross product of the two spin axes).
 
-use flight::imu_offset::{
+use imu_offset::{
     BatchFitter, Config, DragModel, Estimate, ImuOffsetEstimator, ImuSample, Model, Scalar,
     CHI2_3DOF_95,
 };

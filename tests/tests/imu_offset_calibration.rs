@@ -6,7 +6,7 @@
 //! figures in docs/benchmarks.md): 24 sessions on the built-in quads with a bias of 0.2 m/s² per
 //! axis (1σ), the zero-g offset of an ICM-42688-P after mounting.
 
-use flight::imu_offset::DragModel;
+use imu_offset::DragModel;
 use sim::calibration::{monte_carlo, Plan, SpinDraw, Summary};
 
 #[test]

@@ -5,7 +5,7 @@
 //! quadratic drag, the ICM-42688-P noise, bias and quantisation, 8 kHz averaged to 2 kHz): each fit
 //! throws one airframe twice, with random spin axes at least 60° apart, random rates of
 //! 400–800 °/s, random apex heights and noise seeds, and fits the offset with
-//! `flight::imu_offset::BatchFitter` (the configurator's fitter) four ways: offset only, jointly
+//! `imu_offset::BatchFitter` (the configurator's fitter) four ways: offset only, jointly
 //! with an accelerometer bias, and each of these with the per-throw drag model
 //! (`DragModel::VerticalQuadratic`, the default of `fit imu-offset` and the board). Recorded per model: the error distribution (median and 95th percentile,
 //! mm), the coverage of the reported 95 % ellipsoid, and the coverage of the seed paper's
@@ -21,9 +21,7 @@ use std::f64::consts::TAU;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use firmware::app::hal::{Imu, Motors};
-use flight::imu_offset::{
-    BatchFitter, Config, DragModel, Estimate, ImuSample, Model, CHI2_3DOF_95,
-};
+use imu_offset::{BatchFitter, Config, DragModel, Estimate, ImuSample, Model, CHI2_3DOF_95};
 use nalgebra::{Matrix3, Vector3};
 use sim::airframe::Airframe;
 use sim::rng::Rng;

@@ -86,7 +86,7 @@ fn one_throw_about_the_yaw_axis_is_flagged_as_not_determining_that_axis() {
         .map(|row| row.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect())
         .collect();
     let covariance = nalgebra::Matrix3::from_fn(|i, j| c[i][j]);
-    let extent_mm = (f64::from(flight::imu_offset::CHI2_3DOF_95)
+    let extent_mm = (f64::from(imu_offset::CHI2_3DOF_95)
         * spin_axis_imu.dot(&(covariance * spin_axis_imu)))
     .sqrt()
         * 1e3;

@@ -1,7 +1,7 @@
 //! `fit imu-offset [--offset-only] [--no-drag] [--json] LOG.csv...`: the IMU's offset from the centre of gravity,
 //! fitted offline from recorded calibration throws, with its 95 % confidence ellipsoid and advice.
 //!
-//! The fit is `flight::imu_offset::BatchFitter`, i.e. the board's own free-fall detection, edge
+//! The fit is `imu_offset::BatchFitter`, i.e. the board's own free-fall detection, edge
 //! trimming, filters and rows, accumulated in `f64` (the seed paper fitted the offset offline in
 //! the same way). This module only reads the logs strictly and formats the result.
 //!
@@ -12,7 +12,7 @@
 
 use std::path::{Path, PathBuf};
 
-use flight::imu_offset::{
+use imu_offset::{
     BatchFitter, Config, DragModel, Estimate, ImuOffsetError, ImuSample, Model, MAX_RATE_HZ,
     MIN_RATE_HZ,
 };
@@ -74,7 +74,7 @@ fn parse_gravity(text: &str) -> Result<f32, String> {
 fn semi_axes_95(covariance: &nalgebra::Matrix3<f64>) -> [f64; 3] {
     let mut eig: Vec<f64> = covariance.symmetric_eigenvalues().iter().copied().collect();
     eig.sort_by(|a, b| b.total_cmp(a));
-    let chi2 = f64::from(flight::imu_offset::CHI2_3DOF_95);
+    let chi2 = f64::from(imu_offset::CHI2_3DOF_95);
     [0, 1, 2].map(|i| (eig[i].max(0.0) * chi2).sqrt())
 }
 

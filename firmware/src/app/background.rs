@@ -2,7 +2,7 @@
 //!
 //! - One-second statistics of the IMU stream (mean and standard deviation per axis: at rest these
 //!   are the gyro bias and the sensor noise, which the status reports and calibration flows use).
-//! - The onboard IMU-offset estimator (`flight::imu_offset`, seed paper §3.2): throws are
+//! - The onboard IMU-offset estimator (`imu_offset`, seed paper §3.2): throws are
 //!   detected as free fall, and after each accepted throw the offset, its 95 % ellipsoid and the
 //!   verdict are re-estimated (a few 3 × 3 solves, once per throw). Only samples of an unpowered
 //!   craft go in: none while armed (a throw-to-fly attempt), flying or with any motor commanded,
@@ -24,9 +24,9 @@
 use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
-use flight::imu_offset::{self, ImuOffsetEstimator, Verdict};
 use flight::learner::inertia::TumbleInertia;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
+use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetStatus, OffsetAdvice};
 

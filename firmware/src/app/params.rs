@@ -10,7 +10,6 @@
 //! The values reach the application through typed views ([`Params::throw_config`],
 //! [`Params::configured_offset_m`], ...), so no code outside this file knows a parameter's slot.
 
-use flight::imu_offset;
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::ThrowConfig;
 use flight::learner::{LearnedModel, MAX_MOTORS};

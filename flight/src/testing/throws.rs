@@ -20,7 +20,7 @@ extern crate std;
 
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
-use crate::imu_offset::ImuSample;
+use crate::imu::ImuSample;
 use crate::rng::Rng;
 
 /// Standard gravity (m/s²), down in NED.

@@ -44,9 +44,9 @@
 //!   limits the loss of f32 accuracy near the poles; against an f64 sampling optimiser on 120
 //!   random bounded cases the worst relative cost excess was 8e-6 (`flight/tests/thrust_axis.rs`).
 
-use super::eigen3::symmetric_eigen3;
 use super::householder::PivotedQr3;
 use super::{ScaledProblem, BOUND_TOLERANCE, MOTORS_MAX};
+use crate::eigen3::symmetric_eigen3;
 use crate::math::sqrt;
 
 /// `|aᵢ| ≤ HARD_CASE_LOW · g` is treated as exactly zero in the secular equation (dimensionless;
@@ -251,7 +251,7 @@ impl Face<'_> {
         if !(base_cost + shortfall * shortfall / trace < best_cost) {
             return None;
         }
-        let (c, v) = symmetric_eigen3(c_matrix);
+        let (c, v) = symmetric_eigen3(c_matrix)?;
         let mut a = [0.0f32; 3];
         let mut zero = [false; 3];
         for i in 0..3 {

@@ -14,7 +14,7 @@
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use flight::imu_offset::DragModel;
+use imu_offset::DragModel;
 use sim::airframe::Airframe;
 use sim::calibration::{monte_carlo, Judged, Plan, SpinDraw, Summary, AIRFRAMES, REST_S};
 

@@ -8,7 +8,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::filters::{Butterworth2x3, CentralDifference3, FilterDesignError};
+use flight::filters::{Butterworth2x3, CentralDifference3, FilterDesignError};
 
 use super::ImuSample;
 

@@ -84,12 +84,14 @@
 //! Without the drag model the same sessions give a median error of 0.41 mm and a 99th percentile
 //! of 2.3 mm, and only about 60 % are well determined after two throws. *Synthetic sessions* of
 //! the same kind (`flight::testing`, quadratic drag, bias 0.02 m/s², 300 sessions;
-//! `cargo test -p flight --release ellipsoid_coverage -- --nocapture` with 300 trials): truth
+//! `cargo test -p imu-offset --release ellipsoid_coverage -- --nocapture` with 300 trials): truth
 //! inside the ellipsoid in 95.3 % (vertical, k = 0.01 /m), 92.3 % (vertical, k = 0.05 /m) and
 //! 95.7 % (17° from vertical, k = 0.03 /m) of sessions; the paper's formula 0–4 %.
 //!
 //! # Units and frames
 //! IMU frame throughout; rates in rad/s, specific force in m/s², offsets in m, times in s.
+
+#![no_std]
 
 mod batch;
 mod drag;
@@ -117,14 +119,9 @@ pub trait Scalar: RealField + Copy + From<f32> {}
 impl Scalar for f32 {}
 impl Scalar for f64 {}
 
-/// One raw IMU sample.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImuSample {
-    /// Body rate (rad/s, IMU frame).
-    pub gyro_radps: Vector3<f32>,
-    /// Specific force (m/s², IMU frame): what the accelerometer reads (−g·ẑ when level at rest).
-    pub acc_mps2: Vector3<f32>,
-}
+/// One raw IMU sample (`flight`'s type: its synthetic throws, `flight::testing::throws`, are
+/// made of them).
+pub use flight::imu::ImuSample;
 
 /// Lowest accepted IMU sample rate (Hz): the 50 Hz default low-pass needs at least 4× margin to
 /// Nyquist for its design figures to hold (`filters::MAX_CUTOFF_FRACTION`), and typical IMU

@@ -39,7 +39,7 @@ use nalgebra::{Matrix3, Matrix6, Quaternion, SMatrix, SVector, UnitQuaternion, V
 
 use super::moments::Moments;
 use super::{Scalar, Segment};
-use crate::math::{mul_compact, tr_mul_compact};
+use flight::math::{mul_compact, tr_mul_compact};
 
 /// Blocks of one throw kept for the drag model: 80 × 20 ms = 1.6 s of trimmed free fall, an apex
 /// of 3.1 m above a catch at release height (calibration throws climb 0.8–1.5 m, 0.8–1.1 s).

@@ -11,7 +11,8 @@
 //! the board too: they are built once per throw); the fit solves them directly, counting 3
 //! unknowns per throw in every degree-of-freedom figure.
 
-use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
+use flight::eigen3::symmetric_eigen3;
+use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 use super::drag::DragSums;
 use super::moments::{count_as, BatchMeans, Moments};
@@ -71,9 +72,6 @@ pub(crate) fn small_sample_factor(dof: f32) -> f32 {
     let t2 = 3.0 * dof / m.max(1.0) * f;
     (t2 / CHI2_3DOF_95).max(1.0)
 }
-
-/// Iteration cap for the 3 × 3 symmetric eigen-decomposition (it converges in < 10 sweeps).
-const EIGEN_MAX_ITERATIONS: usize = 100;
 
 /// The accumulated problem: sample rows and block sums, relative to `r_ref`.
 pub(crate) struct Problem<'a, T: Scalar> {
@@ -487,17 +485,17 @@ fn extent_95<T: Scalar>(covariance: &Matrix3<T>, direction: &Vector3<T>) -> T {
 /// Semi-axes and directions of the 95 % ellipsoid of a 3 × 3 covariance.
 pub(crate) fn ellipsoid<T: Scalar>(covariance: &Matrix3<T>) -> Option<Ellipsoid<T>> {
     let chi2: T = CHI2_3DOF_95.into();
-    let eig = SymmetricEigen::try_new(*covariance, T::default_epsilon(), EIGEN_MAX_ITERATIONS)?;
+    let (values, vectors) =
+        symmetric_eigen3(core::array::from_fn(|i| core::array::from_fn(|j| covariance[(i, j)])))?;
     let mut order = [0usize, 1, 2];
     order.sort_unstable_by(|&i, &j| {
-        eig.eigenvalues[j].partial_cmp(&eig.eigenvalues[i]).unwrap_or(core::cmp::Ordering::Equal)
+        values[j].partial_cmp(&values[i]).unwrap_or(core::cmp::Ordering::Equal)
     });
     let mut semi_axes_m = [T::zero(); 3];
     let mut axes = [Vector3::zeros(); 3];
     for ((semi, axis), &k) in semi_axes_m.iter_mut().zip(axes.iter_mut()).zip(order.iter()) {
-        *semi = (eig.eigenvalues[k].max(T::zero()) * chi2).sqrt();
-        let v: Vector3<T> = eig.eigenvectors.column(k).into_owned();
-        let v = v.normalize();
+        *semi = (values[k].max(T::zero()) * chi2).sqrt();
+        let v = Vector3::new(vectors[0][k], vectors[1][k], vectors[2][k]).normalize();
         let largest = v.iter().fold(T::zero(), |acc, c| if c.abs() > acc.abs() { *c } else { acc });
         *axis = if largest < T::zero() { -v } else { v };
     }

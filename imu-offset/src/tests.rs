@@ -1,7 +1,7 @@
-//! Tests of the IMU-offset estimator on synthetic throws (`crate::testing::throws`): physical
+//! Tests of the IMU-offset estimator on synthetic throws (`flight::testing::throws`): physical
 //! checks in millimetres and degrees against the simulated truth.
 //!
-//! Run with `cargo test -p flight imu_offset -- --nocapture` to see the measured figures.
+//! Run with `cargo test -p imu-offset -- --nocapture` to see the measured figures.
 
 extern crate std;
 
@@ -12,8 +12,8 @@ use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
 
 use super::*;
-use crate::rng::Rng;
-use crate::testing::throws::ThrowSpec;
+use flight::rng::Rng;
+use flight::testing::throws::ThrowSpec;
 
 /// Principal axes of the simulated craft, rotated away from the IMU axes (as when the flight
 /// controller is mounted at an angle), so that "the right axis" is not trivially an IMU axis.
@@ -410,8 +410,8 @@ fn coverage(trials: u32, rate_hz: f64, seed: u64, drag_per_m: f64, horizontal: f
                 let rate_radps = rng.range(300.0, 600.0).to_radians();
                 let mut spec = ThrowSpec::typical(rate_hz, r, axes, axis * rate_radps, noise_seed);
                 let apex_m = rng.range(0.8, 1.5);
-                let speed_mps = libm::sqrt(2.0 * crate::testing::throws::G_MPS2 * apex_m);
-                spec.free_fall_s = 2.0 * speed_mps / crate::testing::throws::G_MPS2;
+                let speed_mps = libm::sqrt(2.0 * flight::testing::throws::G_MPS2 * apex_m);
+                spec.free_fall_s = 2.0 * speed_mps / flight::testing::throws::G_MPS2;
                 spec.windup_peak_mps2 = 2.0 * speed_mps / spec.windup_s;
                 spec.throw_dir_world = Vector3::new(horizontal, 0.0, -1.0).normalize();
                 spec.drag_per_m = drag_per_m;
@@ -448,7 +448,7 @@ fn ellipsoid_coverage_is_about_95_percent() {
     // 100 % of an ellipsoid that is merely safe). The drag model takes out vertical quadratic
     // drag; a horizontal release speed (the third case: 0.3 of it, 17° from vertical) is not
     // modelled, and the long batches widen the ellipsoid for it. Release figures (200 sessions,
-    // `cargo test -p flight --release ellipsoid_coverage -- --nocapture` with `trials = 200`) are
+    // `cargo test -p imu-offset --release ellipsoid_coverage -- --nocapture` with `trials = 200`) are
     // in docs/benchmarks.md. The seed paper's white-noise ellipsoid is far below every case.
     let trials = 100;
     for (seed, drag_per_m, horizontal) in [(71, 0.01, 0.0), (72, 0.05, 0.0), (73, 0.03, 0.3)] {
@@ -487,7 +487,7 @@ fn a_free_fall_longer_than_the_drag_store_is_counted_not_used() {
     let rate_hz = 2000.0;
     let mut spec = throw(rate_hz, spin_about(2, 10.0, 0.3), 85);
     spec.free_fall_s = 1.9;
-    spec.windup_peak_mps2 = 2.0 * (crate::testing::throws::G_MPS2 * 0.95) / spec.windup_s;
+    spec.windup_peak_mps2 = 2.0 * (flight::testing::throws::G_MPS2 * 0.95) / spec.windup_s;
     let data = samples(&spec);
     let board = stream_fit(&data, rate_hz, Config::default());
     assert_eq!((board.segments().len(), board.throws_too_long()), (0, 1));
@@ -650,7 +650,7 @@ proptest! {
     }
 }
 
-/// One calibration session as the board sees it (`crate::testing::throws::session`): held still
+/// One calibration session as the board sees it (`flight::testing::throws::session`): held still
 /// 0.6 s, thrown spinning at `rate_radps` about `spins[0]`, caught, held still 1.2 s in the
 /// attitude the catch left, thrown at the same rate about `spins[1]`, caught, held still 0.6 s.
 /// Vertical throws to a 1 m apex (0.9 s of free fall), quadratic drag k = 0.01 /m, the craft's
@@ -671,8 +671,8 @@ fn equal_rate_session(
         .map(|(k, axis)| {
             let mut spec =
                 ThrowSpec::typical(2000.0, r, axes, axis.normalize() * rate_radps, seed + k as u64);
-            let speed_mps = libm::sqrt(2.0 * crate::testing::throws::G_MPS2 * 1.0);
-            spec.free_fall_s = 2.0 * speed_mps / crate::testing::throws::G_MPS2;
+            let speed_mps = libm::sqrt(2.0 * flight::testing::throws::G_MPS2 * 1.0);
+            spec.free_fall_s = 2.0 * speed_mps / flight::testing::throws::G_MPS2;
             spec.windup_peak_mps2 = 2.0 * speed_mps / spec.windup_s;
             spec.throw_dir_world = -Vector3::z();
             spec.acc_bias_mps2 = bias;
@@ -685,7 +685,7 @@ fn equal_rate_session(
     let after_second_catch = specs[0].len()
         + specs[1].catch_index()
         + libm::round(specs[1].catch_s * specs[1].rate_hz) as usize;
-    (crate::testing::throws::session(&specs), after_second_catch)
+    (flight::testing::throws::session(&specs), after_second_catch)
 }
 
 /// The board's estimator over `data`: its estimate when the second throw is accepted (the catch,
