@@ -74,6 +74,20 @@ fn defmt_panic() -> ! {
 static mut BACKGROUND: core::mem::MaybeUninit<firmware::app::Background<'static>> =
     core::mem::MaybeUninit::uninit();
 
+/// The flight log's storage (AXI SRAM, NOLOAD; `init` writes it): the ring from the control
+/// tick to the logger (19 KB), and the card's log when a card answered at start-up (else the
+/// logger's files are refused as `NoCard`).
+#[cfg(target_os = "none")]
+struct LogStorage {
+    ring: firmware::app::log::LogRing,
+    card: Option<firmware::app::card::CardLog<firmware::board::sdcard::BoardCard>>,
+    no_card: firmware::app::log::NoCard,
+}
+
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.log"]
+static mut LOG: core::mem::MaybeUninit<LogStorage> = core::mem::MaybeUninit::uninit();
+
 // The RTIC application: resources, initialisation and the task table.
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
@@ -82,7 +96,9 @@ mod app {
         background, control_tick, imu_data_ready, imu_transfer_done, motor_burst_0, motor_burst_1,
         motor_burst_2, usb_service,
     };
+    use firmware::app::card::CardLog;
     use firmware::app::hal::Motors;
+    use firmware::app::log::{LogRing, LogSink, Logger, NoCard};
     use firmware::app::radio::Receiver;
     use firmware::app::system::{ControlQueue, ControlTask, Link, LinkTask, WorkQueue};
     use firmware::app::{
@@ -97,6 +113,7 @@ mod app {
     use firmware::board::motors::{BoardMotors, BurstCompletion};
     use firmware::board::radio::BoardRadio;
     use firmware::board::receiver::BoardReceiver;
+    use firmware::board::sdcard::{card_stats, BoardCard, CardStats};
     use firmware::board::time::MicrosClock;
     use firmware::board::timing::{step_stats, StepStats, StepTimer};
     use firmware::board::usb::{self, UsbSerial, UsbStorage, EP_MEMORY_WORDS};
@@ -141,6 +158,10 @@ mod app {
         /// All three run at priority 3, so no lock is needed.
         #[lock_free]
         imu: BoardImu,
+        /// The flight log's writer and its card: `background` drains the control tick's entries
+        /// into it (locked per entry), `usb_service` reads and deletes its files (locked per
+        /// chunk).
+        log: Logger<'static>,
     }
 
     /// Each task's own state.
@@ -214,7 +235,9 @@ mod app {
             .use_hse(BOARD.hse_hz.Hz())
             .sys_ck(plan.sys_ck_hz.Hz())
             .hclk(plan.hclk_hz.Hz())
-            .pll1_strategy(PllConfigStrategy::Iterative);
+            .pll1_strategy(PllConfigStrategy::Iterative)
+            // SDMMC1's kernel clock (the microSD card; 96 or 100 MHz, divided down to 25 MHz).
+            .pll1_q_ck(100.MHz());
         if BOARD.hse_bypass {
             rcc = rcc.bypass_hse();
         }
@@ -260,6 +283,28 @@ mod app {
             }
             None => Settings::without_store(),
         };
+
+        // The microSD card (identified now, at 400 kHz then 25 MHz) and the log's storage.
+        let card = BOARD.sdcard.and_then(|wiring| {
+            BoardCard::start(wiring, dp.SDMMC1, ccdr.peripheral.SDMMC1, &ccdr.clocks)
+        });
+        let card = card.and_then(|card| CardLog::mount(card).ok());
+        if card.is_none() {
+            defmt::warn!("no microSD card: the flight log is not kept");
+        }
+        // SAFETY: `init` runs once, before any task: this is the storage's only reference.
+        let log_storage = unsafe {
+            (*core::ptr::addr_of_mut!(crate::LOG)).write(crate::LogStorage {
+                ring: LogRing::new(),
+                card,
+                no_card: NoCard,
+            })
+        };
+        let sink: &'static mut dyn LogSink = match &mut log_storage.card {
+            Some(card) => card,
+            None => &mut log_storage.no_card,
+        };
+        let (log_producer, log_consumer) = split_queue(&mut log_storage.ring);
 
         // The signing session of this start-up (`protocol::signing`): 64 bits from the RNG,
         // clocked by HSI48 (on: USB runs from it). Should the RNG fail its self-test, the
@@ -349,6 +394,7 @@ mod app {
             commands: ControlQueue::new(),
             work: WorkQueue::new(),
             imu,
+            log: Logger::new(log_consumer, sink, BOARD.name, config.rate_hz),
         };
 
         // The control tick at the application's rate (2 kHz), started last so the first step
@@ -374,7 +420,7 @@ mod app {
             control_timer,
             step_timer,
             control_clock: clock,
-            control: ControlTask::new(control, Some(radio)),
+            control: ControlTask::new(control, Some(radio)).with_log(log_producer),
             burst_0: motors.completion(0),
             burst_1: motors.completion(1),
             burst_2: motors.completion(2),
@@ -394,7 +440,13 @@ mod app {
     /// sleep until the next interrupt. defmt-rtt writes with interrupts masked for the few µs a
     /// message takes and, built with `disable-blocking-mode`, drops messages rather than wait
     /// for the probe, so logging here delays the control interrupt by microseconds at most.
-    #[idle(local = [reported: StepStats = StepStats { max_us: 0, overruns: 0 }])]
+    ///
+    /// Likewise the microSD card's write time (`board::sdcard::card_stats`): when its longest
+    /// block write grows, and every 4,096 blocks (about 12 s of log).
+    #[idle(local = [
+        reported: StepStats = StepStats { max_us: 0, overruns: 0 },
+        card_reported: CardStats = CardStats { write_max_us: 0, blocks: 0 },
+    ])]
     fn idle(cx: idle::Context) -> ! {
         loop {
             let stats = step_stats();
@@ -405,6 +457,18 @@ mod app {
                     stats.overruns
                 );
                 *cx.local.reported = stats;
+            }
+            let card = card_stats();
+            let reported = *cx.local.card_reported;
+            if card.write_max_us != reported.write_max_us
+                || card.blocks / 4096 != reported.blocks / 4096
+            {
+                defmt::info!(
+                    "card: longest block write {} us, {} blocks",
+                    card.write_max_us,
+                    card.blocks
+                );
+                *cx.local.card_reported = card;
             }
             cortex_m::asm::wfi();
         }
@@ -436,10 +500,10 @@ mod app {
         #[task(binds = DMA1_STR4, priority = 4, local = [burst_2])]
         fn motor_burst_2(cx: motor_burst_2::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, radio, link], shared = [snapshot, results, board, commands, work])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, radio, link], shared = [snapshot, results, board, commands, work, log])]
         fn usb_service(cx: usb_service::Context);
 
-        #[task(priority = 1, local = [background], shared = [results, work])]
+        #[task(priority = 1, local = [background], shared = [results, work, log])]
         fn background(cx: background::Context);
     }
 }
@@ -535,16 +599,13 @@ mod tasks {
     pub fn usb_service(cx: usb_service::Context) {
         let now_us = cx.local.usb_clock.now_us();
         let step = step_stats();
-        // No flight log on the board yet (the card is not wired: flash): log requests are
-        // unsupported.
-        let mut no_card = firmware::app::log::NoCard;
         let mut shared = PassShared {
             snapshot: cx.shared.snapshot,
             results: cx.shared.results,
             board: cx.shared.board,
             commands: cx.shared.commands,
             work: cx.shared.work,
-            logs: firmware::app::system::Exclusive(&mut no_card),
+            logs: cx.shared.log,
         };
         let step_time = Some(StepTime { max_us: step.max_us, overruns: step.overruns });
         let mut links = (&mut *cx.local.usb, &mut *cx.local.radio);
@@ -566,14 +627,7 @@ mod tasks {
 
     /// Background work at the lowest priority ([`firmware::app::system::run_background`]).
     pub fn background(cx: background::Context) {
-        let (mut work, mut results) = (cx.shared.work, cx.shared.results);
-        // No flight log on the board yet: the card's driver and layout are built
-        // (`board::sdcard`, `app::card`) but wired they take the image over its flash budget
-        // (docs/flight-log.md, "On the board"). Reverting the commit that unwired them wires
-        // them again.
-        let no_log: Option<
-            &mut firmware::app::system::Exclusive<'_, firmware::app::log::Logger<'_>>,
-        > = None;
-        run_background(cx.local.background, no_log, &mut work, &mut results);
+        let (mut work, mut results, mut log) = (cx.shared.work, cx.shared.results, cx.shared.log);
+        run_background(cx.local.background, Some(&mut log), &mut work, &mut results);
     }
 }
