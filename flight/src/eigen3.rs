@@ -73,18 +73,33 @@ pub fn symmetric_eigen3<T: RealField + Copy>(a: [[T; 3]; 3]) -> Option<([T; 3], 
 mod tests {
     use super::*;
 
-    #[test]
-    fn reconstructs_the_matrix() {
-        let a = [[4.0, 1.0, -2.0], [1.0, 3.0, 0.5], [-2.0, 0.5, 1.0]];
+    /// `V diag(values) Vᵀ` rebuilds `a` within `tolerance` (times its largest entry) and `V` is
+    /// orthonormal within `orthonormal`; returns the eigenvalues, largest first.
+    fn assert_decomposes<T: RealField + Copy + core::fmt::LowerExp>(
+        a: [[T; 3]; 3],
+        tolerance: T,
+        orthonormal: T,
+    ) -> [T; 3] {
         let (values, v) = symmetric_eigen3(a).unwrap();
+        let scale = a.iter().flatten().fold(T::zero(), |m, x| m.max(x.abs()));
         for i in 0..3 {
             for j in 0..3 {
-                let rebuilt: f32 = (0..3).map(|k| v[i][k] * values[k] * v[j][k]).sum();
-                assert!((rebuilt - a[i][j]).abs() < 1e-5, "{i}{j}: {rebuilt} vs {}", a[i][j]);
-                let gram: f32 = (0..3).map(|k| v[k][i] * v[k][j]).sum();
-                assert!((gram - if i == j { 1.0 } else { 0.0 }).abs() < 1e-5);
+                let rebuilt = (0..3).fold(T::zero(), |s, k| s + v[i][k] * values[k] * v[j][k]);
+                let error = (rebuilt - a[i][j]).abs();
+                assert!(error <= tolerance * scale, "{i}{j}: {rebuilt:e} vs {:e}", a[i][j]);
+                let gram = (0..3).fold(T::zero(), |s, k| s + v[k][i] * v[k][j]);
+                let identity = if i == j { T::one() } else { T::zero() };
+                assert!((gram - identity).abs() <= orthonormal, "VᵀV {i}{j}: {gram:e}");
             }
         }
+        let mut sorted = values;
+        sorted.sort_by(|x, y| y.partial_cmp(x).unwrap());
+        sorted
+    }
+
+    #[test]
+    fn reconstructs_the_matrix_in_f32() {
+        assert_decomposes([[4.0f32, 1.0, -2.0], [1.0, 3.0, 0.5], [-2.0, 0.5, 1.0]], 3e-6, 1e-5);
     }
 
     /// In `f64` to `f64` precision, on a covariance of the IMU-offset ellipsoid's kind
@@ -95,19 +110,9 @@ mod tests {
         let d = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(4e-6, 1e-6, 1e-6));
         let m = r.matrix() * d * r.matrix().transpose();
         let a: [[f64; 3]; 3] = core::array::from_fn(|i| core::array::from_fn(|j| m[(i, j)]));
-        let (values, v) = symmetric_eigen3(a).unwrap();
-        let mut sorted = values;
-        sorted.sort_by(|x, y| y.partial_cmp(x).unwrap());
-        for (got, want) in sorted.iter().zip([4e-6, 1e-6, 1e-6]) {
+        let values = assert_decomposes(a, 1e-12, 1e-14);
+        for (got, want) in values.iter().zip([4e-6, 1e-6, 1e-6]) {
             assert!((got - want).abs() < 1e-18, "eigenvalue {got:e}, want {want:e}");
-        }
-        for i in 0..3 {
-            for j in 0..3 {
-                let rebuilt: f64 = (0..3).map(|k| v[i][k] * values[k] * v[j][k]).sum();
-                assert!((rebuilt - a[i][j]).abs() < 1e-18, "{i}{j}: {rebuilt:e} vs {:e}", a[i][j]);
-                let gram: f64 = (0..3).map(|k| v[k][i] * v[k][j]).sum();
-                assert!((gram - if i == j { 1.0 } else { 0.0 }).abs() < 1e-14);
-            }
         }
     }
 
