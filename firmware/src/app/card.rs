@@ -7,8 +7,8 @@
 //! about 15 KB of flash where the whole log fits in 256 KiB only by a few KB (docs/benchmarks.md,
 //! "Firmware size": embedded-sdmmc's volume manager 12.4 KB and the `core::fmt` it links; this
 //! layout 1.8 KB), and FAT updates a file's size only when the file is closed: a power cut
-//! would lose everything since. Here the card is read over the link (`configurator-cli log download`), as the SITL's
-//! logs are; a PC sees an unformatted card.
+//! would lose everything since. Here the card is read over the link (`configurator-cli log
+//! download`), as the SITL's logs are; a PC sees an unformatted card.
 //!
 //! **Layout** (block numbers; a block is [`LOG_BLOCK_LEN`] bytes):
 //! - block 0: the mark ([`CARD_MAGIC`]). A card without it is formatted on first use: its
