@@ -332,6 +332,11 @@ pub struct FlyReport {
     /// (heading), when the controller engaged and when the hold window began.
     pub attitude_error_at_engage_deg: Option<[f64; 2]>,
     pub attitude_error_at_window_deg: Option<[f64; 2]>,
+    /// Angle between the learned and the true hover thrust direction, degrees
+    /// ([`Scores::axis_angle_rad`]): the learner's model when the controller engaged and at the
+    /// end of the flight (after its refinement in flight).
+    pub axis_error_at_engage_deg: Option<f64>,
+    pub axis_error_at_end_deg: Option<f64>,
 }
 
 /// Tilt and heading error, degrees, of the firmware's `q_world_imu` (w, x, y, z) against the
@@ -343,6 +348,11 @@ fn attitude_error_deg(q_world_imu: [f32; 4], q_true: &UnitQuaternion<f64>) -> [f
     let down_filter = q_filter.inverse() * Vector3::z();
     let heading_error = heading(&(q_true * q_filter.inverse()));
     [down_true.angle(&down_filter).to_degrees(), heading_error.to_degrees()]
+}
+
+/// The thrust-axis error of `scores`, degrees, when the learner found an axis.
+fn axis_error_deg(scores: &Scores) -> Option<f64> {
+    scores.axis_found.then(|| scores.axis_angle_rad.to_degrees())
 }
 
 /// G1 of the model `app` flies, back in the learner's terms (IMU axes, per squared speed),
@@ -413,6 +423,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             refinements: 0,
             attitude_error_at_engage_deg: None,
             attitude_error_at_window_deg: None,
+            axis_error_at_engage_deg: None,
+            axis_error_at_end_deg: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -485,7 +497,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             if snapshot.pilot.flying {
                 if report.release_to_engage_s.is_none() {
                     let learned = app.background.results().learned;
-                    report.g1_block_rel_at_engage = Some(Scores::of(&learned, &truth).g1_block_rel);
+                    let scores = Scores::of(&learned, &truth);
+                    report.g1_block_rel_at_engage = Some(scores.g1_block_rel);
+                    report.axis_error_at_engage_deg = axis_error_deg(&scores);
                 }
                 let q_true = state.attitude() * airframe.q_imu_body().inverse();
                 if report.attitude_error_at_engage_deg.is_none() {
@@ -552,7 +566,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         }
         if report.outcome == Outcome::Flying {
             let learned = app.background.results().learned;
-            report.g1_block_rel_learned_at_end = Some(Scores::of(&learned, &truth).g1_block_rel);
+            let scores = Scores::of(&learned, &truth);
+            report.g1_block_rel_learned_at_end = Some(scores.g1_block_rel);
+            report.axis_error_at_end_deg = axis_error_deg(&scores);
             report.g1_block_rel_flown_at_end = flown_scores(app, &truth);
         }
         let pilot = app.snapshot().pilot;

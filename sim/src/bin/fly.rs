@@ -7,7 +7,11 @@
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 1000 --threads 2
 //! cargo run -p sim --release --bin fly -- case --seed 21 --trace   # one Monte Carlo run again
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --mocap-rate-hz 2000 --mocap-latency-ms 30
+//! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --world random --unknown-imu-offset
 //! ```
+//!
+//! `--unknown-imu-offset` flies an uncalibrated board: the firmware is not given the airframe's
+//! IMU offset (without it every run is a calibrated board's).
 //!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
@@ -21,10 +25,10 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
 use sim::recovery::{
-    fly, monte_carlo_with, random_case, FlyConfig, FlyReport, MotionCaptureArgs,
-    MotionCaptureConfig, Verdict,
+    fly, random_case, CaseResult, FlyConfig, FlyReport, MotionCaptureArgs, MotionCaptureConfig,
+    Verdict,
 };
-use sim::stats::quantile;
+use sim::stats::{quantile, run_seeds};
 use sim::world::{self, Aspect};
 
 #[derive(Parser, Debug)]
@@ -97,6 +101,10 @@ struct WorldArgs {
     /// Randomise only this aspect (hand, pose, imu, actuators, air); repeatable.
     #[arg(long)]
     vary: Vec<String>,
+    /// Do not give the firmware the airframe's true IMU offset (a board never calibrated: it
+    /// flies with none, issue 32).
+    #[arg(long)]
+    unknown_imu_offset: bool,
 }
 
 impl WorldArgs {
@@ -110,6 +118,25 @@ impl WorldArgs {
         }
         self.vary.iter().map(|name| Aspect::parse(name)).collect()
     }
+}
+
+/// Monte Carlo case `seed`: the nominal case with `motion_capture`, or the world with `aspects`
+/// randomised; the IMU offset given to the firmware unless `args.unknown_imu_offset`.
+fn case(
+    seed: u64,
+    aspects: &[Aspect],
+    motion_capture: MotionCaptureConfig,
+    args: &WorldArgs,
+) -> (Airframe, FlyConfig) {
+    let (airframe, mut config) = if aspects.is_empty() {
+        let (airframe, mut config) = random_case(seed);
+        config.motion_capture = motion_capture;
+        (airframe, config)
+    } else {
+        world::random_world_case(seed, aspects)
+    };
+    config.known_imu_offset = !args.unknown_imu_offset;
+    (airframe, config)
 }
 
 fn print_report(name: &str, report: &FlyReport) {
@@ -202,13 +229,7 @@ fn main() -> ExitCode {
                 Ok(aspects) => aspects,
                 Err(code) => return code,
             };
-            let (airframe, mut config) = if aspects.is_empty() {
-                let (airframe, mut config) = random_case(seed);
-                config.motion_capture = motion_capture;
-                (airframe, config)
-            } else {
-                world::random_world_case(seed, &aspects)
-            };
+            let (airframe, mut config) = case(seed, &aspects, motion_capture, &world_args);
             config.trace = trace;
             if !aspects.is_empty() {
                 println!("world: {config:#?}");
@@ -233,13 +254,19 @@ fn main() -> ExitCode {
                     eprintln!("fly: {done}/{runs} runs");
                 }
             };
-            let results = if aspects.is_empty() {
-                monte_carlo_with(runs, seed, threads, motion_capture, &progress)
-            } else {
+            if !aspects.is_empty() {
                 let names: Vec<_> = aspects.iter().map(|a| a.name()).collect();
                 println!("randomised: {}", names.join(", "));
-                world::monte_carlo(runs, seed, threads, &aspects, &progress)
-            };
+            }
+            if world_args.unknown_imu_offset {
+                println!("IMU offset not given to the firmware");
+            }
+            let results = run_seeds(runs, seed, threads, &progress, |seed| {
+                let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
+                let report = fly(&airframe, &config);
+                let verdict = Verdict::of(&report);
+                CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
+            });
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
                 started.elapsed().as_secs_f64()
@@ -293,6 +320,25 @@ fn main() -> ExitCode {
             let g1 = |pick: fn(&sim::recovery::FlyReport) -> Option<[f64; 2]>| -> Vec<f64> {
                 results.iter().filter_map(|r| pick(&r.report)).map(|[f, t]| f.max(t)).collect()
             };
+            // The specific-force block alone: the rows an unknown IMU offset spoils.
+            let force = |pick: fn(&sim::recovery::FlyReport) -> Option<[f64; 2]>| -> Vec<f64> {
+                results.iter().filter_map(|r| pick(&r.report)).map(|[f, _]| f).collect()
+            };
+            for (name, values) in [
+                ("at engage", force(|r| r.g1_block_rel_at_engage)),
+                ("learned at the end", force(|r| r.g1_block_rel_learned_at_end)),
+            ] {
+                println!(
+                    "G1 force block error {name}: median {:.2} %, 90th {:.2} %, 99th {:.2} % ({} runs)",
+                    100.0 * quantile(&values, 0.5),
+                    100.0 * quantile(&values, 0.9),
+                    100.0 * quantile(&values, 0.99),
+                    values.len()
+                );
+            }
+            let axis = |pick: fn(&sim::recovery::FlyReport) -> Option<f64>| -> Vec<f64> {
+                results.iter().filter_map(|r| pick(&r.report)).collect()
+            };
             for (name, values) in [
                 ("at engage", g1(|r| r.g1_block_rel_at_engage)),
                 ("learned at the end", g1(|r| r.g1_block_rel_learned_at_end)),
@@ -303,6 +349,18 @@ fn main() -> ExitCode {
                     100.0 * quantile(&values, 0.5),
                     100.0 * quantile(&values, 0.9),
                     100.0 * quantile(&values, 0.99),
+                    values.len()
+                );
+            }
+            for (name, values) in [
+                ("at engage", axis(|r| r.axis_error_at_engage_deg)),
+                ("learned at the end", axis(|r| r.axis_error_at_end_deg)),
+            ] {
+                println!(
+                    "thrust-axis error {name}: median {:.2}°, 90th {:.2}°, 99th {:.2}° ({} runs)",
+                    quantile(&values, 0.5),
+                    quantile(&values, 0.9),
+                    quantile(&values, 0.99),
                     values.len()
                 );
             }
