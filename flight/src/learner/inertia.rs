@@ -339,10 +339,10 @@ fn multiply(a: &Square, v: &[f64; INERTIA_PARAMETERS]) -> [f64; INERTIA_PARAMETE
 }
 
 /// The inverse of a symmetric positive-definite matrix through its Cholesky factor `L Lᵀ`;
-/// `None` when a pivot is not positive and finite. Plain loops on one size: nalgebra's generic
-/// inverse, instantiated for this size only, cost the firmware 12 KB of flash.
-fn spd_inverse(a: &Square) -> Option<Square> {
-    const N: usize = INERTIA_PARAMETERS;
+/// `None` when a pivot is not positive and finite. Plain loops on small sizes: nalgebra's
+/// generic inverse, instantiated for one size only, cost the firmware 12 KB of flash. Also the
+/// in-flight IMU-offset fit's solver ([`super::offset`]).
+pub(crate) fn spd_inverse<const N: usize>(a: &[[f64; N]; N]) -> Option<[[f64; N]; N]> {
     let mut l = [[0.0; N]; N];
     for j in 0..N {
         let pivot = a[j][j] - (0..j).map(|k| l[j][k] * l[j][k]).sum::<f64>();
