@@ -337,6 +337,13 @@ pub struct FlyReport {
     /// end of the flight (after its refinement in flight).
     pub axis_error_at_engage_deg: Option<f64>,
     pub axis_error_at_end_deg: Option<f64>,
+    /// The true IMU offset, IMU axes, m.
+    pub r_imu_true_m: Vector3<f64>,
+    /// The IMU offset fitted in flight (`flight::learner::offset`, run when the offset is not
+    /// given: [`FlyConfig::known_imu_offset`] false) at the end of the run, with its 95 %
+    /// ellipsoid's largest semi-axis, m.
+    pub r_imu_fit_m: Option<Vector3<f64>>,
+    pub r_imu_fit_semi_axis_m: Option<f64>,
 }
 
 /// Tilt and heading error, degrees, of the firmware's `q_world_imu` (w, x, y, z) against the
@@ -394,6 +401,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         if config.known_imu_offset {
             let r = truth.r_imu_m;
             app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
+        } else {
+            app.background.set_offset_fit(true);
         }
         // The firmware is told what the poses are, as a user sets `pose_latency_s` and
         // `pose_noise_m` for their system (the nominal system is the parameters' default).
@@ -425,6 +434,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             attitude_error_at_window_deg: None,
             axis_error_at_engage_deg: None,
             axis_error_at_end_deg: None,
+            r_imu_true_m: truth.r_imu_m,
+            r_imu_fit_m: None,
+            r_imu_fit_semi_axis_m: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -570,6 +582,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             report.g1_block_rel_learned_at_end = Some(scores.g1_block_rel);
             report.axis_error_at_end_deg = axis_error_deg(&scores);
             report.g1_block_rel_flown_at_end = flown_scores(app, &truth);
+        }
+        if let Some(fit) = app.background.results().flight_offset {
+            report.r_imu_fit_m = Some(Vector3::from(fit.r_imu_m).cast::<f64>());
+            report.r_imu_fit_semi_axis_m = Some(f64::from(fit.ci95_semi_axes_m[2]));
         }
         let pilot = app.snapshot().pilot;
         report.refinements = pilot.refinements;

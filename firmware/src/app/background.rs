@@ -25,6 +25,7 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::inertia::TumbleInertia;
+use flight::learner::offset::{OffsetFit, OffsetFitEstimate};
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
 use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
@@ -45,6 +46,10 @@ pub const LEARN_AFTER_EXCITATION_S: f32 = 0.1;
 /// airframes (`fly monte-carlo`) the worse G1 block goes from 3.39 % median, 13.4 % 99th
 /// percentile at engagement to 2.33 % and 9.05 % (docs/benchmarks.md).
 pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
+
+/// How often the in-flight IMU-offset fit is solved while it takes samples, s (a few small
+/// Cholesky inverses each).
+pub const OFFSET_FIT_SOLVE_INTERVAL_S: f32 = 0.1;
 
 /// How long after the craft was last powered (armed for throw-to-fly, flying, or any motor
 /// commanded) samples stay away from the IMU-offset estimator, s. Origin: a motor told to stop
@@ -82,6 +87,9 @@ pub struct BackgroundResults {
     /// The IMU-offset calibration the host started ([`Background::start_calibration`]), if one
     /// is running.
     pub calibration: Option<CalibrationState>,
+    /// The IMU offset fitted in flight with G1f (`flight::learner::offset`), when enabled
+    /// ([`Background::set_offset_fit`]) and determined by the latest attempt's samples so far.
+    pub flight_offset: Option<OffsetFitEstimate>,
 }
 
 /// What the link asks of the background task.
@@ -154,6 +162,10 @@ pub struct Background<'q> {
     settle_samples: u32,
     /// How many more while the craft flies ([`REFINE_IN_FLIGHT_S`]).
     refine_samples: u32,
+    /// Whether each attempt fits the IMU offset in flight ([`Background::set_offset_fit`]).
+    offset_fit_enabled: bool,
+    /// The in-flight IMU-offset fit of the latest attempt, when enabled.
+    offset_fit: Option<OffsetFit>,
     results: BackgroundResults,
 }
 
@@ -202,6 +214,8 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).settle_samples).write(settle);
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);
+            addr_of_mut!((*worker).offset_fit_enabled).write(false);
+            addr_of_mut!((*worker).offset_fit).write(None);
             addr_of_mut!((*worker).results).write(BackgroundResults::default());
             slot.assume_init_mut()
         }
@@ -211,6 +225,16 @@ impl<'q> Background<'q> {
     /// identifications instead of the onboard estimate; `None` goes back to the onboard one.
     pub fn set_imu_offset(&mut self, r_imu_m: Option<[f32; 3]>) {
         self.configured_offset_m = r_imu_m.filter(|r| r.iter().all(|x| x.is_finite()));
+    }
+
+    /// Fit the IMU offset in flight on every attempt from the next one (`flight::learner::offset`;
+    /// a prototype for a board with no calibration, issue 32: off by default, the result only
+    /// reported in [`BackgroundResults::flight_offset`], not yet used by the learner).
+    pub fn set_offset_fit(&mut self, enabled: bool) {
+        self.offset_fit_enabled = enabled;
+        if !enabled {
+            self.offset_fit = None;
+        }
     }
 
     /// Take the parameters: the configured IMU offset at once, the estimator's configuration
@@ -351,6 +375,7 @@ impl<'q> Background<'q> {
             if let Some(learner) = self.learner.get_mut() {
                 learner.prime(sample.imu.gyro_rad_s, sample.imu.accel_mps2, &sample.speeds_rad_s);
             }
+            self.update_offset_fit(sample);
         }
         if starting {
             if let Some(learner) = self.learner.get_mut() {
@@ -381,6 +406,19 @@ impl<'q> Background<'q> {
             );
             self.results.learned = *learner.model();
         }
+        self.update_offset_fit(sample);
+    }
+
+    /// One sample into the in-flight IMU-offset fit, solved every
+    /// [`OFFSET_FIT_SOLVE_INTERVAL_S`].
+    fn update_offset_fit(&mut self, sample: &LearnerSample) {
+        let Some(fit) = &mut self.offset_fit else { return };
+        let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
+        fit.update(sample.imu.gyro_rad_s, sample.imu.accel_mps2, &sample.speeds_rad_s[..motors]);
+        let interval = (OFFSET_FIT_SOLVE_INTERVAL_S * self.rate_hz) as u32;
+        if fit.samples() % interval.max(1) == 0 {
+            self.results.flight_offset = fit.estimate().ok();
+        }
     }
 
     /// A new identification for `motor_count` motors: the learner (re)built or restarted with
@@ -403,6 +441,15 @@ impl<'q> Background<'q> {
         }
         self.results.learner_offset = source;
         self.results.learner_r_imu_m = r_imu_m;
+        self.results.flight_offset = None;
+        if self.offset_fit_enabled {
+            let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
+            let motors = usize::from(motor_count);
+            match &mut self.offset_fit {
+                Some(fit) => fit.restart(motors, lag_s),
+                None => self.offset_fit = OffsetFit::new(motors, self.rate_hz, lag_s),
+            }
+        }
     }
 
     /// The IMU offset for a new identification and where it came from.

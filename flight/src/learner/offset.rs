@@ -54,10 +54,10 @@
 //! only its mean is in `c`), and the accelerometer's scale and cross-axis errors.
 
 use super::effectiveness::SPEED2_SCALE;
-use super::inertia::spd_inverse;
+use super::inertia::{spd_inverse, HAND_CONTACT_S};
 use super::{EFFECTIVENESS_CUTOFF_HZ, MAX_MOTORS};
 use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3, CentralDifference3};
-use nalgebra::Vector3;
+use nalgebra::{UnitQuaternion, Vector3};
 
 /// `χ²₃(0.95)`: the 95 % ellipsoid of three unknowns (as the calibration's `CHI2_3DOF_95`).
 pub const CHI2_3DOF_95: f32 = 7.8147;
@@ -67,8 +67,17 @@ pub const CHI2_3DOF_95: f32 = 7.8147;
 /// rows).
 pub const WELL_DETERMINED_SEMI_AXIS_M: f32 = 0.002;
 
-/// The unknowns shared by the three rows: `r` (3) and the constant `c` (3).
-const SHARED: usize = 6;
+/// Terms of the polynomial in time of the drag force, world-fixed (see the module doc):
+/// constant, linear, quadratic.
+pub const DRAG_ORDER: usize = 3;
+
+/// The unknowns shared by the three rows: `r` (3), the constant `c` (3) and the drag's
+/// polynomial coefficients (3 per term, in the attitude of the first sample).
+const SHARED: usize = 6 + 3 * DRAG_ORDER + 1;
+
+/// Drag regressors: `R_rel[j][k] tᵖ` at `p·9 + 3j + k`, then the body components of the
+/// measured velocity change `R_relᵀ V` (3).
+const DRAG_CHANNELS: usize = 9 * DRAG_ORDER + 3;
 
 /// The fitted offset.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -100,6 +109,7 @@ struct Lagged {
     accel: Vector3<f32>,
     speed2: [f32; MAX_MOTORS],
     products: [f32; 6],
+    drag: [f32; DRAG_CHANNELS],
 }
 
 /// The joint fit of `r`, `c` and G1f (see the module doc).
@@ -114,6 +124,14 @@ pub struct OffsetFit {
     accel: Butterworth2x3,
     speed2: [Butterworth2; MAX_MOTORS],
     products: [Butterworth2; 6],
+    drag: [Butterworth2; DRAG_CHANNELS],
+    /// The body's attitude relative to the first sample's (body → first), from the gyro.
+    attitude: UnitQuaternion<f32>,
+    /// Time since the first sample, s.
+    time_s: f32,
+    /// The measured velocity change since the first sample, `∫ R_rel f_imu dt`, in the first
+    /// sample's axes, m/s.
+    velocity_change_mps: Vector3<f32>,
     difference: CentralDifference3,
     /// The last two samples' filtered signals (newest first).
     lagged: [Lagged; 2],
@@ -121,6 +139,8 @@ pub struct OffsetFit {
     seen: u8,
     /// Each motor's latest finite speed report, rad/s.
     held_speed: [f32; MAX_MOTORS],
+    /// Samples still to skip at the start ([`HAND_CONTACT_S`]: the hand may still touch).
+    skip: u32,
     /// `W = Σ s sᵀ`.
     w: [[f64; MAX_MOTORS]; MAX_MOTORS],
     /// `Pₖ = Σ s φₖᵀ`, per row k.
@@ -153,10 +173,15 @@ impl OffsetFit {
             accel: Butterworth2x3::from_coefficients(filter),
             speed2: [butterworth; MAX_MOTORS],
             products: [butterworth; 6],
+            drag: [butterworth; DRAG_CHANNELS],
+            attitude: UnitQuaternion::identity(),
+            time_s: 0.0,
+            velocity_change_mps: Vector3::zeros(),
             difference: CentralDifference3::new(rate_hz),
             lagged: [Lagged::default(); 2],
             seen: 0,
             held_speed: [0.0; MAX_MOTORS],
+            skip: (HAND_CONTACT_S * rate_hz) as u32,
             w: [[0.0; MAX_MOTORS]; MAX_MOTORS],
             p: [[[0.0; SHARED]; MAX_MOTORS]; 3],
             c: [[0.0; SHARED]; SHARED],
@@ -180,10 +205,15 @@ impl OffsetFit {
         self.samples
     }
 
-    /// One sample: gyro (rad/s) and accelerometer (m/s²) in IMU axes, the motors' reported
+    /// One sample, from the declared release on (the first [`HAND_CONTACT_S`] are skipped: the
+    /// hand may still push): gyro (rad/s) and accelerometer (m/s²) in IMU axes, the motors' reported
     /// speeds (rad/s; NaN where a report was lost: the last one is held). A non-finite IMU
     /// sample restarts the filters (a gap).
     pub fn update(&mut self, gyro_rad_s: [f32; 3], accel_mps2: [f32; 3], speeds_rad_s: &[f32]) {
+        if self.skip > 0 {
+            self.skip -= 1;
+            return;
+        }
         if !gyro_rad_s.iter().chain(&accel_mps2).all(|v| v.is_finite()) {
             self.seen = 0;
             self.difference.reset();
@@ -202,7 +232,11 @@ impl OffsetFit {
             speed2[i] = self.held_speed[i] * self.held_speed[i] / SPEED2_SCALE;
         }
         let products = rate_products(&gyro);
+        let drag = self.drag_regressors();
         if self.seen == 0 {
+            for (f, x) in self.drag.iter_mut().zip(drag) {
+                f.reset_to(x);
+            }
             self.gyro.reset_to(&gyro);
             self.accel.reset_to(&accel);
             for i in 0..m {
@@ -219,6 +253,15 @@ impl OffsetFit {
         for (j, x) in products.iter().enumerate() {
             now.products[j] = self.products[j].update(*x);
         }
+        for (j, x) in drag.iter().enumerate() {
+            now.drag[j] = self.drag[j].update(*x);
+        }
+        // The attitude and the time of the next sample.
+        let dt = 1.0 / self.rate_hz;
+        self.velocity_change_mps += self.attitude * accel * dt;
+        self.attitude *= crate::math::rotation_from_scaled_axis(&(gyro * dt));
+        self.attitude.renormalize_fast();
+        self.time_s += dt;
         let gyro_filtered = self.gyro.update(&gyro);
         let older = self.lagged[1];
         self.lagged = [now, self.lagged[0]];
@@ -236,10 +279,34 @@ impl OffsetFit {
             s[i] = f64::from(centre.speed2[i] + self.speed_lag_s * slope);
         }
         let x = regressor(&centre.products, &rate_dot);
-        self.accumulate(&s[..m], &x, &centre.accel);
+        self.accumulate(&s[..m], &x, &centre.drag, &centre.accel);
     }
 
-    fn accumulate(&mut self, s: &[f64], x: &[[f64; 3]; 3], f: &Vector3<f32>) {
+    /// `R_rel[j][k] tᵖ` of now (see [`DRAG_CHANNELS`]).
+    fn drag_regressors(&self) -> [f32; DRAG_CHANNELS] {
+        let rotation = self.attitude.to_rotation_matrix();
+        let mut out = [0.0; DRAG_CHANNELS];
+        let mut power = 1.0;
+        for p in 0..DRAG_ORDER {
+            for j in 0..3 {
+                for k in 0..3 {
+                    out[9 * p + 3 * j + k] = rotation[(j, k)] * power;
+                }
+            }
+            power *= self.time_s;
+        }
+        let body = self.attitude.inverse() * self.velocity_change_mps;
+        out[9 * DRAG_ORDER..].copy_from_slice(body.as_slice());
+        out
+    }
+
+    fn accumulate(
+        &mut self,
+        s: &[f64],
+        x: &[[f64; 3]; 3],
+        drag: &[f32; DRAG_CHANNELS],
+        f: &Vector3<f32>,
+    ) {
         let m = s.len();
         for i in 0..m {
             for j in 0..m {
@@ -252,6 +319,13 @@ impl OffsetFit {
             let mut phi = [0.0; SHARED];
             phi[..3].copy_from_slice(&x[k]);
             phi[3 + k] = 1.0;
+            // Body component k of the drag `R_relᵀ Σₚ aₚ tᵖ`: coefficient of `aₚ[j]`.
+            for p in 0..DRAG_ORDER {
+                for j in 0..3 {
+                    phi[6 + 3 * p + j] = f64::from(drag[9 * p + 3 * j + k]);
+                }
+            }
+            phi[SHARED - 1] = f64::from(drag[9 * DRAG_ORDER + k]);
             for i in 0..m {
                 for (p, v) in self.p[k][i].iter_mut().zip(&phi) {
                     *p += s[i] * v;

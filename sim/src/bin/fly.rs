@@ -165,6 +165,15 @@ fn print_report(name: &str, report: &FlyReport) {
         blocks(report.g1_block_rel_flown_at_end),
         report.refinements
     );
+    if let Some(fit) = report.r_imu_fit_m {
+        println!(
+            "  IMU offset fitted in flight {:.1?} mm (true {:.1?} mm): error {:.2} mm, largest 95 % semi-axis {:.2} mm",
+            (fit * 1e3).as_slice(),
+            (report.r_imu_true_m * 1e3).as_slice(),
+            (fit - report.r_imu_true_m).norm() * 1e3,
+            report.r_imu_fit_semi_axis_m.unwrap_or(f64::NAN) * 1e3
+        );
+    }
 }
 
 /// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
@@ -265,6 +274,18 @@ fn main() -> ExitCode {
                 let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
                 let report = fly(&airframe, &config);
                 let verdict = Verdict::of(&report);
+                if std::env::var_os("FLY_DIAG").is_some() {
+                    if let Some(fit) = report.r_imu_fit_m {
+                        eprintln!(
+                            "DIAG {seed} spin {:.0} motors {} err {:.2} axis {:.2} r {:.1}",
+                            config.throw.rate_body_rad_s.norm().to_degrees(),
+                            airframe.rotor_count(),
+                            (fit - report.r_imu_true_m).norm() * 1e3,
+                            report.r_imu_fit_semi_axis_m.unwrap_or(f64::NAN) * 1e3,
+                            report.r_imu_true_m.norm() * 1e3
+                        );
+                    }
+                }
                 CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
             });
             println!(
@@ -362,6 +383,28 @@ fn main() -> ExitCode {
                     quantile(&values, 0.9),
                     quantile(&values, 0.99),
                     values.len()
+                );
+            }
+            // The IMU offset fitted in flight (runs without the offset given).
+            let fits: Vec<(f64, f64)> = results
+                .iter()
+                .filter_map(|r| {
+                    let fit = r.report.r_imu_fit_m?;
+                    Some(((fit - r.report.r_imu_true_m).norm(), r.report.r_imu_fit_semi_axis_m?))
+                })
+                .collect();
+            if !fits.is_empty() {
+                let errors: Vec<f64> = fits.iter().map(|f| f.0 * 1e3).collect();
+                let axes: Vec<f64> = fits.iter().map(|f| f.1 * 1e3).collect();
+                let within = fits.iter().filter(|f| f.0 <= f.1).count();
+                println!(
+                    "IMU offset fitted in flight: error median {:.2} mm, 90th {:.2} mm, 99th {:.2} mm; \
+                     largest 95 % semi-axis median {:.2} mm; error within it in {within} of {} runs",
+                    quantile(&errors, 0.5),
+                    quantile(&errors, 0.9),
+                    quantile(&errors, 0.99),
+                    quantile(&axes, 0.5),
+                    fits.len()
                 );
             }
             for motors in 4..=8 {
