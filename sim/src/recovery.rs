@@ -344,6 +344,12 @@ pub struct FlyReport {
     /// ellipsoid's largest semi-axis, m.
     pub r_imu_fit_m: Option<Vector3<f64>>,
     pub r_imu_fit_semi_axis_m: Option<f64>,
+    /// The learner's G1 at the end ([`FlyReport::g1_block_rel_learned_at_end`]) with its force
+    /// rows corrected by the fitted offset: a learner given `r₀` learns `G1f − [r − r₀]× G1τ`
+    /// (`flight::learner::offset`), so `G1f ≈ G1f₀ + [r̂ − r₀]× G1τ`.
+    pub g1_block_rel_corrected_by_fit: Option<[f64; 2]>,
+    /// The same with the force rows the offset fit found jointly with the offset.
+    pub g1_block_rel_fitted_jointly: Option<[f64; 2]>,
 }
 
 /// Tilt and heading error, degrees, of the firmware's `q_world_imu` (w, x, y, z) against the
@@ -437,6 +443,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             r_imu_true_m: truth.r_imu_m,
             r_imu_fit_m: None,
             r_imu_fit_semi_axis_m: None,
+            g1_block_rel_corrected_by_fit: None,
+            g1_block_rel_fitted_jointly: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -583,9 +591,27 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             report.axis_error_at_end_deg = axis_error_deg(&scores);
             report.g1_block_rel_flown_at_end = flown_scores(app, &truth);
         }
-        if let Some(fit) = app.background.results().flight_offset {
+        let results = app.background.results();
+        if let Some(fit) = results.flight_offset {
             report.r_imu_fit_m = Some(Vector3::from(fit.r_imu_m).cast::<f64>());
             report.r_imu_fit_semi_axis_m = Some(f64::from(fit.ci95_semi_axes_m[2]));
+            if report.outcome == Outcome::Flying {
+                let delta = Vector3::from(fit.r_imu_m) - Vector3::from(results.learner_r_imu_m);
+                let mut corrected = results.learned;
+                let g1 = &mut corrected.g1_per_speed2;
+                for i in 0..usize::from(corrected.motors) {
+                    let torque = Vector3::new(g1[3][i], g1[4][i], g1[5][i]);
+                    let correction = delta.cross(&torque);
+                    for k in 0..3 {
+                        g1[k][i] += correction[k];
+                    }
+                }
+                report.g1_block_rel_corrected_by_fit =
+                    Some(Scores::of(&corrected, &truth).g1_block_rel);
+                let mut joint = results.learned;
+                joint.g1_per_speed2[..3].copy_from_slice(&fit.g1f_per_speed2);
+                report.g1_block_rel_fitted_jointly = Some(Scores::of(&joint, &truth).g1_block_rel);
+            }
         }
         let pilot = app.snapshot().pilot;
         report.refinements = pilot.refinements;

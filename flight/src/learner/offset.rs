@@ -90,6 +90,9 @@ pub struct OffsetFitEstimate {
     pub ci95_semi_axes_m: [f32; 3],
     /// The largest semi-axis is within [`WELL_DETERMINED_SEMI_AXIS_M`].
     pub well_determined: bool,
+    /// The specific-force rows of G1 fitted with it, per unit squared speed (m/s² per
+    /// (rad/s)²), IMU axes, columns are motors: free of the offset's rotational terms.
+    pub g1f_per_speed2: [[f32; MAX_MOTORS]; 3],
     /// Samples fitted.
     pub samples: u32,
 }
@@ -392,6 +395,18 @@ impl OffsetFit {
         let z: [f64; SHARED] =
             core::array::from_fn(|a| (0..SHARED).map(|b| schur_inv[a][b] * t[b]).sum());
         explained += (0..SHARED).map(|a| z[a] * t[a]).sum::<f64>();
+        // G1f by back substitution: gₖ = W⁻¹ (qₖ − Pₖ z).
+        let mut g1f_per_speed2 = [[0.0; MAX_MOTORS]; 3];
+        for (k, row) in g1f_per_speed2.iter_mut().enumerate() {
+            for i in 0..m {
+                let mut g = 0.0;
+                for j in 0..m {
+                    let pz: f64 = (0..SHARED).map(|a| self.p[k][j][a] * z[a]).sum();
+                    g += w_inv[i][j] * (self.q[k][j] - pz);
+                }
+                row[i] = (g / f64::from(SPEED2_SCALE)) as f32;
+            }
+        }
         let residual = (self.yy - explained).max(0.0);
         // Samples per independent one after the filter: rate / (2 × noise bandwidth).
         let correlated = f64::from(self.rate_hz) / (2.0 * 1.11 * f64::from(EFFECTIVENESS_CUTOFF_HZ));
@@ -412,6 +427,7 @@ impl OffsetFit {
             constant_mps2: [z[3] as f32, z[4] as f32, z[5] as f32],
             ci95_semi_axes_m: semi_axes,
             well_determined: semi_axes[2] <= WELL_DETERMINED_SEMI_AXIS_M,
+            g1f_per_speed2,
             samples: self.samples,
         })
     }

@@ -348,6 +348,8 @@ fn main() -> ExitCode {
             for (name, values) in [
                 ("at engage", force(|r| r.g1_block_rel_at_engage)),
                 ("learned at the end", force(|r| r.g1_block_rel_learned_at_end)),
+                ("at the end, corrected by the fitted offset", force(|r| r.g1_block_rel_corrected_by_fit)),
+                ("fitted with the offset", force(|r| r.g1_block_rel_fitted_jointly)),
             ] {
                 println!(
                     "G1 force block error {name}: median {:.2} %, 90th {:.2} %, 99th {:.2} % ({} runs)",
