@@ -124,6 +124,9 @@ pub enum OffsetSource {
     Onboard,
     /// None known: zero was used (the specific-force rows are then biased at high rates).
     Zero,
+    /// Fitted in this flight with the specific-force rows (`flight::learner::offset`, enabled
+    /// by [`Background::set_offset_fit`]): the published model carries the fit's force rows.
+    FittedInFlight,
 }
 
 /// The background worker.
@@ -407,6 +410,18 @@ impl<'q> Background<'q> {
             self.results.learned = *learner.model();
         }
         self.update_offset_fit(sample);
+        self.apply_offset_fit();
+    }
+
+    /// Once the in-flight fit has determined the offset, the published model carries it and the
+    /// force rows fitted with it (the learner's own, learned with the offset of the attempt's
+    /// start, are off by `[r − r₀]× G1τ` and more: `flight::learner::offset`), so that the
+    /// controller engages with both and compensates its accelerometer with the fitted offset.
+    fn apply_offset_fit(&mut self) {
+        let Some(fit) = self.results.flight_offset.filter(|f| f.well_determined) else { return };
+        self.results.learned.g1_per_speed2[..3].copy_from_slice(&fit.g1f_per_speed2);
+        self.results.learner_r_imu_m = fit.r_imu_m;
+        self.results.learner_offset = OffsetSource::FittedInFlight;
     }
 
     /// One sample into the in-flight IMU-offset fit, solved every

@@ -409,14 +409,14 @@ impl OffsetFit {
         }
         let residual = (self.yy - explained).max(0.0);
         // Samples per independent one after the filter: rate / (2 × noise bandwidth).
-        let correlated = f64::from(self.rate_hz) / (2.0 * 1.11 * f64::from(EFFECTIVENESS_CUTOFF_HZ));
+        let correlated =
+            f64::from(self.rate_hz) / (2.0 * 1.11 * f64::from(EFFECTIVENESS_CUTOFF_HZ));
         let sigma2 = residual / (rows - unknowns) as f64 * correlated.max(1.0);
         let covariance: [[f64; 3]; 3] =
             core::array::from_fn(|a| core::array::from_fn(|b| sigma2 * schur_inv[a][b]));
         let (values, _) =
             crate::eigen3::symmetric_eigen3(covariance).ok_or(OffsetFitError::NotDetermined)?;
-        let mut semi_axes =
-            values.map(|v| libm::sqrt(v.max(0.0) * f64::from(CHI2_3DOF_95)) as f32);
+        let mut semi_axes = values.map(|v| libm::sqrt(v.max(0.0) * f64::from(CHI2_3DOF_95)) as f32);
         semi_axes.sort_by(f32::total_cmp);
         let r_imu_m = [z[0] as f32, z[1] as f32, z[2] as f32];
         if !r_imu_m.iter().all(|v| v.is_finite()) {
@@ -526,7 +526,8 @@ mod tests {
         assert!(error < 0.5e-3, "{:?} error {error} m", estimate.r_imu_m);
         assert!(estimate.well_determined, "{estimate:?}");
         // The bias comes out beside it.
-        let bias_error = (Vector3::from(estimate.constant_mps2) - Vector3::new(0.1, -0.15, 0.2)).norm();
+        let bias_error =
+            (Vector3::from(estimate.constant_mps2) - Vector3::new(0.1, -0.15, 0.2)).norm();
         assert!(bias_error < 0.05, "{estimate:?}");
     }
 

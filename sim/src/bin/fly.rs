@@ -274,18 +274,6 @@ fn main() -> ExitCode {
                 let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
                 let report = fly(&airframe, &config);
                 let verdict = Verdict::of(&report);
-                if std::env::var_os("FLY_DIAG").is_some() {
-                    if let Some(fit) = report.r_imu_fit_m {
-                        eprintln!(
-                            "DIAG {seed} spin {:.0} motors {} err {:.2} axis {:.2} r {:.1}",
-                            config.throw.rate_body_rad_s.norm().to_degrees(),
-                            airframe.rotor_count(),
-                            (fit - report.r_imu_true_m).norm() * 1e3,
-                            report.r_imu_fit_semi_axis_m.unwrap_or(f64::NAN) * 1e3,
-                            report.r_imu_true_m.norm() * 1e3
-                        );
-                    }
-                }
                 CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
             });
             println!(
@@ -348,7 +336,10 @@ fn main() -> ExitCode {
             for (name, values) in [
                 ("at engage", force(|r| r.g1_block_rel_at_engage)),
                 ("learned at the end", force(|r| r.g1_block_rel_learned_at_end)),
-                ("at the end, corrected by the fitted offset", force(|r| r.g1_block_rel_corrected_by_fit)),
+                (
+                    "at the end, corrected by the fitted offset",
+                    force(|r| r.g1_block_rel_corrected_by_fit),
+                ),
                 ("fitted with the offset", force(|r| r.g1_block_rel_fitted_jointly)),
             ] {
                 println!(

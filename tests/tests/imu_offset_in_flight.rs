@@ -1,0 +1,60 @@
+//! The IMU offset fitted in flight with no calibration (issue 32, a first step;
+//! `flight::learner::offset`): the firmware application is thrown with no offset given, and the
+//! offset it fits on the release delay's tumble, the excitation and the first seconds of flight
+//! is compared with the simulator's truth, in millimetres.
+//!
+//! `cargo test -p tests --release --test imu_offset_in_flight -- --nocapture` prints the figures.
+
+use sim::airframe::Airframe;
+use sim::recovery::{fly, FlyConfig, FlyReport, Outcome};
+use sim::world::{random_world_case, Aspect};
+
+fn fitted_error_mm(label: &str, report: &FlyReport) -> f64 {
+    let fit = report.r_imu_fit_m.unwrap_or_else(|| panic!("{label}: no offset fitted"));
+    let error_mm = (fit - report.r_imu_true_m).norm() * 1e3;
+    eprintln!(
+        "{label}: fitted {:.1?} mm, true {:.1?} mm, error {error_mm:.2} mm; {:?}, hold error {:.3} m",
+        (fit * 1e3).as_slice(),
+        (report.r_imu_true_m * 1e3).as_slice(),
+        report.outcome,
+        report.max_hold_error_m.unwrap_or(f64::NAN)
+    );
+    error_mm
+}
+
+#[test]
+fn the_seed_papers_quad_finds_its_imu_offset_in_one_throw_to_fly() {
+    // The paper's quad, its IMU at about (−10, −13, 8) mm, thrown as the paper throws it.
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config = FlyConfig { known_imu_offset: false, ..FlyConfig::paper() };
+    let report = fly(&airframe, &config);
+    assert_eq!(report.outcome, Outcome::Flying);
+    // Within the calibration's "well determined" limit (2 mm: 10 % of G1's force rows); measured
+    // 1.3 mm, the issue's target is 1 mm.
+    let error_mm = fitted_error_mm("paper-quad", &report);
+    assert!(error_mm < 2.0, "{error_mm} mm");
+    // Its force rows, fitted with it, are within 10 % (flown with no offset, 50 % typically).
+    let [force, _] = report.g1_block_rel_fitted_jointly.unwrap();
+    assert!(force < 0.10, "force rows {:.1} %", force * 1e2);
+}
+
+#[test]
+fn random_worlds_find_the_imu_offset_within_millimetres() {
+    // Random airframes (IMU up to 30 mm out, any orientation) in the randomised world: hand,
+    // poses, IMU errors, actuators, drag and gusts all drawn.
+    let errors: Vec<f64> = (1..=8)
+        .map(|seed| {
+            let (airframe, mut config) = random_world_case(seed, &Aspect::ALL);
+            config.known_imu_offset = false;
+            fitted_error_mm(&format!("seed {seed}"), &fly(&airframe, &config))
+        })
+        .collect();
+    let mut sorted = errors.clone();
+    sorted.sort_by(f64::total_cmp);
+    // Measured: median 2.0 mm, worst 2.3 mm; the calibration's limit is 2 mm, the issue's target
+    // 1 mm median and 2 mm at the 90th percentile (not met yet: drag and the IMU's scale errors,
+    // docs/algorithms/imu-offset.md).
+    let median = 0.5 * (sorted[3] + sorted[4]);
+    assert!(median < 2.5, "median {median} mm: {errors:?}");
+    assert!(sorted[7] < 4.0, "worst {} mm: {errors:?}", sorted[7]);
+}
