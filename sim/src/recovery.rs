@@ -599,6 +599,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 let delta = Vector3::from(fit.r_imu_m) - Vector3::from(results.learner_r_imu_m);
                 let mut corrected = results.learned;
                 let g1 = &mut corrected.g1_per_speed2;
+                // Column i of the three force and the three torque rows.
+                #[allow(clippy::needless_range_loop)]
                 for i in 0..usize::from(corrected.motors) {
                     let torque = Vector3::new(g1[3][i], g1[4][i], g1[5][i]);
                     let correction = delta.cross(&torque);

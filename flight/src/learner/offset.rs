@@ -53,6 +53,10 @@
 //! drag that changes with the airspeed over the throw (the calibration fits it per throw; here
 //! only its mean is in `c`), and the accelerometer's scale and cross-axis errors.
 
+// Index loops are kept where they mirror the matrix notation of the derivation (as in
+// `effectiveness`).
+#![allow(clippy::needless_range_loop)]
+
 use super::effectiveness::SPEED2_SCALE;
 use super::inertia::{spd_inverse, HAND_CONTACT_S};
 use super::{EFFECTIVENESS_CUTOFF_HZ, MAX_MOTORS};
