@@ -17,6 +17,11 @@
 //!   Its accelerometer is moved to the centre of gravity with the IMU offset: the configured one
 //!   ([`Background::set_imu_offset`]), else the onboard estimate once it is well determined,
 //!   else none (and the status says which).
+//! - The IMU offset fitted in flight (`flight::learner::offset`, issue 32's first step), when
+//!   enabled ([`Background::set_offset_fit`]; off by default, a host-side prototype): on the
+//!   learner's samples from the release, jointly with the force rows of G1; once well
+//!   determined, the published model carries the fitted offset and rows
+//!   ([`OffsetSource::FittedInFlight`]). Measured in docs/algorithms/imu-offset.md.
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
 //! board, never computed under it.
