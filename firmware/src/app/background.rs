@@ -18,9 +18,10 @@
 //!   ([`Background::set_imu_offset`]), else the onboard estimate once it is well determined,
 //!   else none (and the status says which).
 //! - The IMU offset fitted in flight (`flight::learner::offset`, issue 32's first step), when
-//!   enabled ([`Background::set_offset_fit`]; off by default, a host-side prototype): on the
-//!   learner's samples from the release, jointly with the force rows of G1; once well
-//!   determined, the published model carries the fitted offset and rows
+//!   enabled (`Background::set_offset_fit`, host builds only: off by default, a prototype that
+//!   does not fit the board's flash yet, 30 KB): on the learner's samples from the release,
+//!   jointly with the force rows of G1; once well determined, the published model carries the
+//!   fitted offset and rows
 //!   ([`OffsetSource::FittedInFlight`]). Measured in docs/algorithms/imu-offset.md.
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
@@ -30,6 +31,8 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::inertia::TumbleInertia;
+// The in-flight offset fit is host-side for now (30 KB of flash the board does not have).
+#[cfg(not(target_os = "none"))]
 use flight::learner::offset::{OffsetFit, OffsetFitEstimate};
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
 use imu_offset::{ImuOffsetEstimator, Verdict};
@@ -54,6 +57,7 @@ pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
 
 /// How often the in-flight IMU-offset fit is solved while it takes samples, s (a few small
 /// Cholesky inverses each).
+#[cfg(not(target_os = "none"))]
 pub const OFFSET_FIT_SOLVE_INTERVAL_S: f32 = 0.1;
 
 /// How long after the craft was last powered (armed for throw-to-fly, flying, or any motor
@@ -94,6 +98,7 @@ pub struct BackgroundResults {
     pub calibration: Option<CalibrationState>,
     /// The IMU offset fitted in flight with G1f (`flight::learner::offset`), when enabled
     /// ([`Background::set_offset_fit`]) and determined by the latest attempt's samples so far.
+    #[cfg(not(target_os = "none"))]
     pub flight_offset: Option<OffsetFitEstimate>,
 }
 
@@ -171,8 +176,10 @@ pub struct Background<'q> {
     /// How many more while the craft flies ([`REFINE_IN_FLIGHT_S`]).
     refine_samples: u32,
     /// Whether each attempt fits the IMU offset in flight ([`Background::set_offset_fit`]).
+    #[cfg(not(target_os = "none"))]
     offset_fit_enabled: bool,
     /// The in-flight IMU-offset fit of the latest attempt, when enabled.
+    #[cfg(not(target_os = "none"))]
     offset_fit: Option<OffsetFit>,
     results: BackgroundResults,
 }
@@ -222,7 +229,9 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).settle_samples).write(settle);
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);
+            #[cfg(not(target_os = "none"))]
             addr_of_mut!((*worker).offset_fit_enabled).write(false);
+            #[cfg(not(target_os = "none"))]
             addr_of_mut!((*worker).offset_fit).write(None);
             addr_of_mut!((*worker).results).write(BackgroundResults::default());
             slot.assume_init_mut()
@@ -238,6 +247,7 @@ impl<'q> Background<'q> {
     /// Fit the IMU offset in flight on every attempt from the next one (`flight::learner::offset`;
     /// a prototype for a board with no calibration, issue 32: off by default, the result only
     /// reported in [`BackgroundResults::flight_offset`], not yet used by the learner).
+    #[cfg(not(target_os = "none"))]
     pub fn set_offset_fit(&mut self, enabled: bool) {
         self.offset_fit_enabled = enabled;
         if !enabled {
@@ -383,6 +393,7 @@ impl<'q> Background<'q> {
             if let Some(learner) = self.learner.get_mut() {
                 learner.prime(sample.imu.gyro_rad_s, sample.imu.accel_mps2, &sample.speeds_rad_s);
             }
+            #[cfg(not(target_os = "none"))]
             self.update_offset_fit(sample);
         }
         if starting {
@@ -414,14 +425,18 @@ impl<'q> Background<'q> {
             );
             self.results.learned = *learner.model();
         }
-        self.update_offset_fit(sample);
-        self.apply_offset_fit();
+        #[cfg(not(target_os = "none"))]
+        {
+            self.update_offset_fit(sample);
+            self.apply_offset_fit();
+        }
     }
 
     /// Once the in-flight fit has determined the offset, the published model carries it and the
     /// force rows fitted with it (the learner's own, learned with the offset of the attempt's
     /// start, are off by `[r − r₀]× G1τ` and more: `flight::learner::offset`), so that the
     /// controller engages with both and compensates its accelerometer with the fitted offset.
+    #[cfg(not(target_os = "none"))]
     fn apply_offset_fit(&mut self) {
         let Some(fit) = self.results.flight_offset.filter(|f| f.well_determined) else { return };
         self.results.learned.g1_per_speed2[..3].copy_from_slice(&fit.g1f_per_speed2);
@@ -431,6 +446,7 @@ impl<'q> Background<'q> {
 
     /// One sample into the in-flight IMU-offset fit, solved every
     /// [`OFFSET_FIT_SOLVE_INTERVAL_S`].
+    #[cfg(not(target_os = "none"))]
     fn update_offset_fit(&mut self, sample: &LearnerSample) {
         let Some(fit) = &mut self.offset_fit else { return };
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
@@ -461,13 +477,16 @@ impl<'q> Background<'q> {
         }
         self.results.learner_offset = source;
         self.results.learner_r_imu_m = r_imu_m;
-        self.results.flight_offset = None;
-        if self.offset_fit_enabled {
-            let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
-            let motors = usize::from(motor_count);
-            match &mut self.offset_fit {
-                Some(fit) => fit.restart(motors, lag_s),
-                None => self.offset_fit = OffsetFit::new(motors, self.rate_hz, lag_s),
+        #[cfg(not(target_os = "none"))]
+        {
+            self.results.flight_offset = None;
+            if self.offset_fit_enabled {
+                let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
+                let motors = usize::from(motor_count);
+                match &mut self.offset_fit {
+                    Some(fit) => fit.restart(motors, lag_s),
+                    None => self.offset_fit = OffsetFit::new(motors, self.rate_hz, lag_s),
+                }
             }
         }
     }

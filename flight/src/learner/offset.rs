@@ -435,7 +435,7 @@ impl OffsetFit {
         let (values, _) =
             crate::eigen3::symmetric_eigen3(covariance).ok_or(OffsetFitError::NotDetermined)?;
         let mut semi_axes = values.map(|v| libm::sqrt(v.max(0.0) * f64::from(CHI2_3DOF_95)) as f32);
-        semi_axes.sort_by(f32::total_cmp);
+        semi_axes.sort_unstable_by(f32::total_cmp);
         let r_imu_m = [z[0] as f32, z[1] as f32, z[2] as f32];
         if !r_imu_m.iter().all(|v| v.is_finite()) {
             return Err(OffsetFitError::NotDetermined);
