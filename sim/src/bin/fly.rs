@@ -139,6 +139,17 @@ fn case(
     (airframe, config)
 }
 
+/// `label: median …, 90th …, 99th … (n runs)` of `values` times `scale`, in `unit`.
+fn print_quantiles(label: &str, values: &[f64], scale: f64, unit: &str) {
+    println!(
+        "{label}: median {:.2}{unit}, 90th {:.2}{unit}, 99th {:.2}{unit} ({} runs)",
+        scale * quantile(values, 0.5),
+        scale * quantile(values, 0.9),
+        scale * quantile(values, 0.99),
+        values.len()
+    );
+}
+
 fn print_report(name: &str, report: &FlyReport) {
     println!("{name}: {:?} ({:?})", Verdict::of(report), report.outcome);
     println!(
@@ -342,13 +353,7 @@ fn main() -> ExitCode {
                 ),
                 ("fitted with the offset", force(|r| r.g1_block_rel_fitted_jointly)),
             ] {
-                println!(
-                    "G1 force block error {name}: median {:.2} %, 90th {:.2} %, 99th {:.2} % ({} runs)",
-                    100.0 * quantile(&values, 0.5),
-                    100.0 * quantile(&values, 0.9),
-                    100.0 * quantile(&values, 0.99),
-                    values.len()
-                );
+                print_quantiles(&format!("G1 force block error {name}"), &values, 100.0, " %");
             }
             let axis = |pick: fn(&sim::recovery::FlyReport) -> Option<f64>| -> Vec<f64> {
                 results.iter().filter_map(|r| pick(&r.report)).collect()
@@ -358,25 +363,18 @@ fn main() -> ExitCode {
                 ("learned at the end", g1(|r| r.g1_block_rel_learned_at_end)),
                 ("flown at the end", g1(|r| r.g1_block_rel_flown_at_end)),
             ] {
-                println!(
-                    "G1 error of the worse block {name}: median {:.2} %, 90th {:.2} %, 99th {:.2} % ({} runs)",
-                    100.0 * quantile(&values, 0.5),
-                    100.0 * quantile(&values, 0.9),
-                    100.0 * quantile(&values, 0.99),
-                    values.len()
+                print_quantiles(
+                    &format!("G1 error of the worse block {name}"),
+                    &values,
+                    100.0,
+                    " %",
                 );
             }
             for (name, values) in [
                 ("at engage", axis(|r| r.axis_error_at_engage_deg)),
                 ("learned at the end", axis(|r| r.axis_error_at_end_deg)),
             ] {
-                println!(
-                    "thrust-axis error {name}: median {:.2}°, 90th {:.2}°, 99th {:.2}° ({} runs)",
-                    quantile(&values, 0.5),
-                    quantile(&values, 0.9),
-                    quantile(&values, 0.99),
-                    values.len()
-                );
+                print_quantiles(&format!("thrust-axis error {name}"), &values, 1.0, "°");
             }
             // The IMU offset fitted in flight (runs without the offset given).
             let fits: Vec<(f64, f64)> = results
