@@ -9,7 +9,8 @@
 //!   have a thrust axis and usable motors; the controller is primed with the last excitation
 //!   commands, so the motors continue without a jump.
 //! - **Guidance**: with a recent external pose the craft holds the position setpoint (by default
-//!   the position at which it engaged, brought to rest there); without one it holds its thrust axis
+//!   the position at which it engaged, brought to rest there: the hold starts once the craft has
+//!   stopped turning, moving and braking); without one it holds its thrust axis
 //!   up and zero vertical speed, and says so.
 //! - **Failsafes**, each an [`Failsafe`] with its reason, counted: a non-finite or out-of-range
 //!   command (zero and disarm), the allocation failing for [`ALLOCATION_FAILURE_STEPS`] steps
