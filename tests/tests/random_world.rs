@@ -9,7 +9,7 @@
 
 use firmware::app::{Failsafe, IdentificationFailure};
 use sim::airframe::Airframe;
-use sim::recovery::{fly, FlyConfig, Outcome, Verdict};
+use sim::recovery::{fly, FlyConfig, FlyReport, Outcome, Verdict};
 use sim::world::{self, Aspect};
 
 #[test]
@@ -33,6 +33,19 @@ fn thirty_random_worlds_all_hover_and_most_hold_within_0_3_m() {
     assert!(held >= 29, "{verdicts:?}");
 }
 
+/// Random-world case `seed` flown once, its verdict printed.
+fn fly_random_world(seed: u64) -> (FlyReport, Verdict) {
+    let (airframe, config) = world::random_world_case(seed, &Aspect::ALL);
+    let report = fly(&airframe, &config);
+    let verdict = Verdict::of(&report);
+    eprintln!(
+        "seed {seed}: {verdict:?}, hold {:?} m over {:.0} % of the window",
+        report.max_hold_error_m,
+        100.0 * report.hold_coverage
+    );
+    (report, verdict)
+}
+
 #[test]
 fn a_hold_pinned_once_the_recovery_has_stopped_braking_is_not_overshot() {
     // Random-world seeds 70 (918 °/s) and 447 (20 °/s): the recovery carries the craft metres
@@ -42,14 +55,7 @@ fn a_hold_pinned_once_the_recovery_has_stopped_braking_is_not_overshot() {
     // back). The hold now also waits for the acceleration from the fixes to fall below 0.5 m/s²:
     // both hold within 0.3 m, in position hold for more than half of the window.
     for seed in [70, 447] {
-        let (airframe, config) = world::random_world_case(seed, &Aspect::ALL);
-        let report = fly(&airframe, &config);
-        let verdict = Verdict::of(&report);
-        eprintln!(
-            "seed {seed}: {verdict:?}, hold {:?} m over {:.0} % of the window",
-            report.max_hold_error_m,
-            100.0 * report.hold_coverage
-        );
+        let (report, verdict) = fly_random_world(seed);
         assert_eq!(verdict, Verdict::Held, "seed {seed}");
         assert!(report.hold_coverage > 0.5, "seed {seed}: {}", report.hold_coverage);
     }
@@ -64,10 +70,7 @@ fn a_hover_lost_at_the_end_of_the_excitation_to_the_gyros_sensitivity_is_flown()
     // axis, not the exact hover commands, and a refusal drops the craft from its apex: the pilot
     // flies the last hover found. Both were refused before; both hover now and hold.
     for seed in [18, 187] {
-        let (airframe, config) = world::random_world_case(seed, &Aspect::ALL);
-        let report = fly(&airframe, &config);
-        let verdict = Verdict::of(&report);
-        eprintln!("seed {seed}: {verdict:?}, hold {:?} m", report.max_hold_error_m);
+        let (report, verdict) = fly_random_world(seed);
         assert_eq!(report.outcome, Outcome::Flying, "seed {seed}");
         assert!(report.release_to_hover_s.is_some(), "seed {seed}: never hovered");
         assert_eq!(verdict, Verdict::Held, "seed {seed}");
