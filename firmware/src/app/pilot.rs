@@ -93,7 +93,7 @@ const HOLD_START_SPEED_MPS: f32 = 0.3;
 /// slowed below [`HOLD_START_SPEED_MPS`] but stopped braking, its thrust within 3° of the
 /// hover's (`g tan 3°`). A recovery brakes at 3-6 m/s², and a slow attitude loop is still
 /// turning the craft back to level when the speed falls below 0.3 m/s; a hold pinned then, the
-/// craft still decelerating at 1-1.5 m/s², was overshot by 0.2-0.6 m, which the position loop
+/// craft still decelerating at 1-1.5 m/s², was overshot by 0.2-0.8 m, which the position loop
 /// (slow on slow motors) took seconds to win back (issue 28: 33 of the 45 random-world seeds
 /// that did not hold, e.g. 70 and 447, and nominal seed 123; docs/benchmarks.md).
 const HOLD_START_ACCEL_MPS2: f32 = 0.5;
@@ -723,8 +723,8 @@ impl Pilot {
             && nav.velocity_ned_mps.norm() < HOLD_START_SPEED_MPS
             && self.accel_world_mps2.norm() < HOLD_START_ACCEL_MPS2
         {
-            // The hold starts once the craft has stopped turning and moving: at the requested
-            // setpoint if there is one, else where the craft is.
+            // The hold starts once the craft has stopped turning, moving and braking: at the
+            // requested setpoint if there is one, else where the craft is.
             match self.requested_sp {
                 Some(setpoint) => self.hold_requested(&setpoint),
                 None => self.position_sp_ned_m = Some(nav.position_ned_m),
