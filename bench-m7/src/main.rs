@@ -54,9 +54,9 @@ fn tick_regions() {
     use app::hal::BatteryReading;
     use heapless::spsc::Queue;
     // `firmware::app::log::LogEntry` is 152 bytes (`an_entry_is_a_small_copy…`); its ring holds
-    // 128 (`LOG_RING_LEN`). The entry's own type lives with the log's writer, which needs the
+    // 512 (`LOG_RING_LEN`). The entry's own type lives with the log's writer, which needs the
     // whole application: an array of its size is copied instead, as `RingProducer::push` does.
-    static mut RING: Queue<[u32; 38], 128> = Queue::new();
+    static mut RING: Queue<[u32; 38], 512> = Queue::new();
     // SAFETY: the only reference to the ring, in this single-threaded harness.
     let (mut producer, mut consumer) = unsafe { (*core::ptr::addr_of_mut!(RING)).split() };
     let mut state = ([7u32; 38], 0u32);
@@ -601,8 +601,8 @@ fn main() -> ! {
     hprintln!("bench-m7 region: dshot: encode 8 bidirectional throttle frames");
     hprintln!("bench-m7 region: link: decode a signed SetParam frame of 8 values, byte by byte (COBS, CRC-32C, postcard)");
     hprintln!("bench-m7 region: link: verify a signed request's HMAC-SHA256");
-    hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 128 (first)");
-    hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 128 (second)");
+    hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 512 (first)");
+    hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 512 (second)");
     hprintln!("bench-m7 region: tick part: one battery reading into the monitor");
     hprintln!("bench-m7 region: tick part: the battery's status for the snapshot");
 

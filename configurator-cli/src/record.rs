@@ -15,12 +15,13 @@
 //! - `cmd_i` (δ, 0–1), `speed_i` (rad/s, empty where not reported), one per motor;
 //! - `steps, late_steps, samples_dropped` (the control topic);
 //! - `learner_phase` (text), `exciting_motor`, `tau_s_i` (s), `omega_max_i` (rad/s),
-//!   `g1_fx_i … g1_r_i` (G1 per unit normalised thrust: m/s² or rad/s², IMU axes).
+//!   `g1_fx_i … g1_r_i` (G1 per unit normalised thrust: m/s² or rad/s², IMU axes); the
+//!   estimates are empty until the first motor pulse.
 
 use crate::link::TelemetrySample;
 use protocol::{
-    ControlTelemetry, FlightMode, FlightTelemetry, ImuTelemetry, LearnerTelemetry, MotorTelemetry,
-    StateTelemetry, Telemetry, Topic,
+    ControlTelemetry, FlightMode, FlightTelemetry, ImuTelemetry, LearnerPhase, LearnerTelemetry,
+    MotorTelemetry, StateTelemetry, Telemetry, Topic,
 };
 use std::fmt::Write as _;
 use std::io::Write;
@@ -241,6 +242,10 @@ impl Table {
             field(Name::Fixed("learner_phase"), phase.map_or(Value::Empty, Value::Text));
             let exciting = latest.and_then(|l| l.exciting_motor).map(u32::from);
             field(Name::Fixed("exciting_motor"), count(exciting));
+            // Before the motors are pulsed the learner's fields are its initial zeros, not
+            // estimates: left empty, so that a plot scaled to what the estimates converged to
+            // does not count the wait for the throw, however long, as part of it.
+            let latest = latest.filter(|l| has_estimates(l.phase));
             for i in 0..m {
                 field(Name::Motor("tau_s_", i), number(latest.map(|l| l.tau_s[i])));
             }
@@ -251,7 +256,8 @@ impl Table {
             for (row, prefix) in G1_ROWS.into_iter().enumerate() {
                 let block = &self.learner[row / 3];
                 for i in 0..m {
-                    let value = block.map(|l| l.g1_rows[row % 3][i]);
+                    let value =
+                        block.filter(|l| has_estimates(l.phase)).map(|l| l.g1_rows[row % 3][i]);
                     field(Name::Motor(prefix, i), number(value));
                 }
             }
@@ -269,6 +275,12 @@ impl Table {
             Telemetry::Flight(f) => self.flight = Some(f),
         }
     }
+}
+
+/// Whether the learner's G1, lag and top-speed fields are estimates in this phase: from the
+/// first motor pulse on (a failed identification keeps what it had learned).
+fn has_estimates(phase: LearnerPhase) -> bool {
+    matches!(phase, LearnerPhase::Exciting | LearnerPhase::Done | LearnerPhase::Failed)
 }
 
 /// The sample's device time, µs.
@@ -499,7 +511,7 @@ pub fn record<W: Write>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::{LearnerPhase, MAX_MOTORS};
+    use protocol::MAX_MOTORS;
 
     fn state(step: u32) -> TelemetrySample {
         // 30° of roll: q = (cos 15°, sin 15°, 0, 0).
@@ -572,6 +584,36 @@ mod tests {
         assert_eq!(summary.rows, 3);
         assert_eq!(summary.gaps(), 2, "{summary:?}");
         assert!((summary.span_s - 0.002).abs() < 1e-9);
+    }
+
+    /// Waiting for the throw, the learner reports its phase but no estimate: its zeros are not
+    /// written as G1 values (a plot would count them as what the learner converged to).
+    #[test]
+    fn the_learner_columns_are_empty_until_the_motors_are_pulsed() {
+        let topics = parse_topics("learner, state").unwrap();
+        let mut recorder = Recorder::new(Vec::new(), &topics, 4).unwrap();
+        let mut waiting = learner(0, 600);
+        if let Telemetry::Learner(l) = &mut waiting.data {
+            l.phase = LearnerPhase::WaitingForThrow;
+        }
+        recorder.push(&waiting).unwrap();
+        recorder.push(&state(2)).unwrap();
+        recorder.push(&learner(0, 1100)).unwrap();
+        recorder.push(&state(3)).unwrap();
+        let csv = String::from_utf8(recorder.finish().unwrap()).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        let header: Vec<&str> = lines[0].split(',').collect();
+        let column = |row: usize, name: &str| {
+            let index = header.iter().position(|h| *h == name).unwrap();
+            lines[row].split(',').nth(index).unwrap().to_string()
+        };
+        assert_eq!(column(1, "learner_phase"), "waiting-for-throw");
+        for name in ["g1_fz_1", "g1_fx_0", "tau_s_0", "omega_max_0"] {
+            assert_eq!(column(1, name), "", "{name} before the first pulse");
+        }
+        assert_eq!(column(2, "learner_phase"), "exciting");
+        assert_eq!(column(2, "g1_fz_1"), "-9.5");
+        assert_eq!(column(2, "tau_s_0"), "0");
     }
 
     #[test]

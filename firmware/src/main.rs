@@ -75,7 +75,7 @@ static mut BACKGROUND: core::mem::MaybeUninit<firmware::app::Background<'static>
     core::mem::MaybeUninit::uninit();
 
 /// The flight log's storage (AXI SRAM, NOLOAD; `init` writes it): the ring from the control
-/// tick to the logger (19 KB), and the card's log when a card answered at start-up (else the
+/// tick to the logger (78 KB), and the card's log when a card answered at start-up (else the
 /// logger's files are refused as `NoCard`).
 #[cfg(target_os = "none")]
 struct LogStorage {

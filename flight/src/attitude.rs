@@ -58,6 +58,30 @@ pub const HEADING_BIAS_LEARNING_MAX_ERROR_RAD: f32 = 0.1745;
 /// 6° of ±90° the yaw angle is meaningless).
 pub const HEADING_DEFINED_MIN_HORIZONTAL: f32 = 0.1;
 
+/// The accelerometer's sensitivity error assumed when the acceleration is taken out of it,
+/// fraction of that acceleration: 5 %, the scale (±3 %) and cross-axis (±2 %, ICM-42688-P
+/// datasheet) errors added (the ranges `sim::world` draws; issue 28).
+pub const ACCEL_SENSITIVITY_ERROR: f32 = 0.05;
+
+/// Error of a tilt measured from the specific force with the acceleration taken out, in steady
+/// flight, m/s² (ours): 0.6° of tilt (the firmware's compensated filter's error measured in
+/// hover, Monte Carlo case 2 of `fly`) times g.
+pub const STEADY_TILT_ACCEL_ERROR_MPS2: f32 = 0.1;
+
+/// How much a tilt measured while the acceleration `accel_mps2` (m/s², known from elsewhere,
+/// e.g. position fixes) is taken out of the accelerometer may teach the gyro bias, 0–1 (scale
+/// [`AttitudeConfig::k_i`] by it). What is left is gravity only up to the accelerometer's
+/// sensitivity error on that acceleration: as a measurement of the tilt its variance is
+/// `e₀² + (ε a)²` (e₀ [`STEADY_TILT_ACCEL_ERROR_MPS2`], ε [`ACCEL_SENSITIVITY_ERROR`]), so the
+/// weight is `e₀² / (e₀² + (ε a)²)`, a half at 2 m/s². The gyro-bias integral keeps what it
+/// learns for tens of seconds: a recovery's braking at 3–6 m/s² then leaves no fake bias that
+/// holds the tilt off into the hold (issue 28). The proportional gain is not weighted: see
+/// `firmware::app::pilot`.
+pub fn sensitivity_weight(accel_mps2: f32) -> f32 {
+    let ratio = accel_mps2 * ACCEL_SENSITIVITY_ERROR / STEADY_TILT_ACCEL_ERROR_MPS2;
+    1.0 / (1.0 + ratio * ratio)
+}
+
 /// How the filter is tuned. All gains are continuous-time (independent of the sample rate).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AttitudeConfig {
@@ -110,6 +134,13 @@ impl Default for AttitudeConfig {
 }
 
 impl AttitudeConfig {
+    /// This tuning while the acceleration `accel_mps2` (m/s²) is taken out of the
+    /// accelerometer: the gyro-bias integral `k_i` weighted by [`sensitivity_weight`], the rest
+    /// as it is.
+    pub fn with_acceleration_removed(self, accel_mps2: f32) -> Self {
+        Self { k_i: self.k_i * sensitivity_weight(accel_mps2), ..self }
+    }
+
     /// Check that every gain and limit is finite and not negative (the rate gate positive).
     pub fn validate(&self) -> Result<(), AttitudeError> {
         let non_negative =
@@ -406,6 +437,20 @@ mod tests {
 
     fn level_f() -> Vector3<f32> {
         Vector3::new(0.0, 0.0, -G)
+    }
+
+    #[test]
+    fn the_gyro_bias_learns_half_as_fast_at_2_m_per_s2_taken_out_and_the_tilt_gain_stays() {
+        // At 2 m/s² the sensitivity error on the acceleration taken out (5 %: 0.1 m/s²) equals
+        // the steady error of the tilt measured: the variance doubles, the weight halves.
+        assert!((sensitivity_weight(2.0) - 0.5).abs() < 1e-6);
+        assert_eq!(sensitivity_weight(0.0), 1.0);
+        // A recovery's hardest braking (6 m/s²): a tenth.
+        assert!((sensitivity_weight(6.0) - 0.1).abs() < 1e-6, "{}", sensitivity_weight(6.0));
+        let tuning = AttitudeConfig { k_p: 1.0, k_i: 0.25, ..AttitudeConfig::default() };
+        let braking = tuning.with_acceleration_removed(4.0);
+        assert!((braking.k_i - 0.05).abs() < 1e-6, "{}", braking.k_i);
+        assert_eq!(AttitudeConfig { k_i: tuning.k_i, ..braking }, tuning);
     }
 
     /// Angle between the body's down axis and world down, degrees (by atan2: an arccosine

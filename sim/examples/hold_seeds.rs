@@ -1,6 +1,7 @@
-//! The runs of chosen Monte Carlo seeds, one line each: verdict, worst hold error, and the
+//! The runs of chosen Monte Carlo seeds, one line each: verdict, worst hold error, the
 //! firmware's attitude error (tilt, heading) against the truth at engagement and when the hold
-//! window began (issue 28's loose holds).
+//! window began, and how much of the window was flown in position hold (issue 28's loose
+//! holds).
 //!
 //! ```text
 //! cargo run -p sim --release --example hold_seeds -- SEED [SEED...]   # or FIRST..END
@@ -45,7 +46,7 @@ fn main() {
         let e = r.attitude_error_at_engage_deg.unwrap_or([f64::NAN; 2]);
         let w = r.attitude_error_at_window_deg.unwrap_or([f64::NAN; 2]);
         println!(
-            "{seed:5} spin {spin:5.0} °/s  {:<14} hold {:6.3} m  engage tilt {:5.2}° yaw {:6.2}°  window tilt {:5.2}° yaw {:6.2}°  G1 engage {:5.1} {:5.1} % flown {:5.1} {:5.1} %",
+            "{seed:5} spin {spin:5.0} °/s  {:<14} hold {:6.3} m  engage tilt {:5.2}° yaw {:6.2}°  window tilt {:5.2}° yaw {:6.2}°  G1 engage {:5.1} {:5.1} % flown {:5.1} {:5.1} %  held for {:4.0} % of the window",
             format!("{verdict:?}"),
             r.max_hold_error_m.unwrap_or(f64::NAN),
             e[0], e[1], w[0], w[1],
@@ -53,6 +54,7 @@ fn main() {
             100.0 * r.g1_block_rel_at_engage.map_or(f64::NAN, |g| g[1]),
             100.0 * r.g1_block_rel_flown_at_end.map_or(f64::NAN, |g| g[0]),
             100.0 * r.g1_block_rel_flown_at_end.map_or(f64::NAN, |g| g[1]),
+            100.0 * r.hold_coverage,
         );
     }
     println!("held {held} of {}", results.len());

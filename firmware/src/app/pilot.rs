@@ -9,7 +9,8 @@
 //!   have a thrust axis and usable motors; the controller is primed with the last excitation
 //!   commands, so the motors continue without a jump.
 //! - **Guidance**: with a recent external pose the craft holds the position setpoint (by default
-//!   the position at which it engaged, brought to rest there); without one it holds its thrust axis
+//!   the position at which it engaged, brought to rest there: the hold starts once the craft has
+//!   stopped turning, moving and braking); without one it holds its thrust axis
 //!   up and zero vertical speed, and says so.
 //! - **Failsafes**, each an [`Failsafe`] with its reason, counted: a non-finite or out-of-range
 //!   command (zero and disarm), the allocation failing for [`ALLOCATION_FAILURE_STEPS`] steps
@@ -88,6 +89,15 @@ const STEADY_RATE_RAD_S: f32 = 0.5;
 /// still coasting (a hold started at 2 m/s overshoots its setpoint by a metre).
 const HOLD_START_SPEED_MPS: f32 = 0.3;
 
+/// Acceleration below which the position hold may start, m/s² (ours): the craft has not only
+/// slowed below [`HOLD_START_SPEED_MPS`] but stopped braking, its thrust within 3° of the
+/// hover's (`g tan 3°`). A recovery brakes at 3-6 m/s², and a slow attitude loop is still
+/// turning the craft back to level when the speed falls below 0.3 m/s; a hold pinned then, the
+/// craft still decelerating at 1-1.5 m/s², was overshot by 0.2-0.8 m, which the position loop
+/// (slow on slow motors) took seconds to win back (issue 28: 33 of the 45 random-world seeds
+/// that did not hold, e.g. 70 and 447, and nominal seed 123; docs/benchmarks.md).
+const HOLD_START_ACCEL_MPS2: f32 = 0.5;
+
 /// Time constant of the acceleration taken from the fixes, s (ours): smooths the derivative of
 /// the navigation velocity, short against the manoeuvres it compensates.
 const FIX_ACCEL_TIME_S: f32 = 0.05;
@@ -106,35 +116,6 @@ const COMPENSATED_ATTITUDE: AttitudeConfig = AttitudeConfig {
     max_bias_rad_s: 0.1,
     max_rate_for_accel_rad_s: 1.0,
 };
-
-/// The accelerometer's sensitivity error assumed for the compensated tilt, fraction of the
-/// acceleration removed: 5 %, the scale (±3 %) and cross-axis (±2 %, ICM-42688-P datasheet)
-/// errors added (the ranges `sim::world` draws; issue 28).
-const ACCEL_SENSITIVITY_ERROR: f32 = 0.05;
-
-/// Error of the compensated accelerometer in steady flight, m/s² (ours): the filter's tilt
-/// error measured in hover, 0.6° (see [`COMPENSATED_ATTITUDE`]), times g.
-const COMPENSATED_ACCEL_ERROR_MPS2: f32 = 0.1;
-
-/// Acceleration removed from the accelerometer at which the gyro-bias integral learns at half
-/// its rate, m/s²: where the sensitivity error on it equals the steady error (2 m/s²).
-const MANOEUVRE_ACCEL_REF_MPS2: f32 = COMPENSATED_ACCEL_ERROR_MPS2 / ACCEL_SENSITIVITY_ERROR;
-
-/// The compensated tuning while the acceleration `accel_removed_mps2` (m/s², from the fixes) is
-/// taken out of the accelerometer. What is left is gravity only up to the accelerometer's
-/// sensitivity error on that acceleration: as a measurement of the tilt its variance is
-/// `e₀² + (ε a)²` (e₀ [`COMPENSATED_ACCEL_ERROR_MPS2`], ε [`ACCEL_SENSITIVITY_ERROR`]), so
-/// the gyro-bias integral, which keeps what it learns for tens of seconds, learns from it with
-/// the weight `e₀² / (e₀² + (ε a)²)`: a recovery's braking at 3–6 m/s² no longer leaves a fake
-/// bias that holds the tilt off into the hold. The proportional gain is kept: weighting it too
-/// held the randomised world better (1,000 seeds: 95.0 → 96.8 % held) but the nominal world
-/// worse (99.0 → 97.9 %), whose tilt, pulled off by the recovery's braking without any
-/// sensitivity error, then returned more slowly, during the hold (docs/benchmarks.md, issue 28).
-fn compensated_attitude(accel_removed_mps2: f32) -> AttitudeConfig {
-    let ratio = accel_removed_mps2 / MANOEUVRE_ACCEL_REF_MPS2;
-    let weight = 1.0 / (1.0 + ratio * ratio);
-    AttitudeConfig { k_i: COMPENSATED_ATTITUDE.k_i * weight, ..COMPENSATED_ATTITUDE }
-}
 
 /// Rate below which a disarmed craft counts as still, rad/s.
 const STILL_RATE_RAD_S: f32 = 0.2;
@@ -570,7 +551,18 @@ impl Pilot {
                 self.accel_world_mps2 += (raw - self.accel_world_mps2) * (dt_s / FIX_ACCEL_TIME_S);
             }
             self.previous_velocity_mps = Some(velocity);
-            let _ = self.attitude.set_config(compensated_attitude(self.accel_world_mps2.norm()));
+            // What is left is gravity only up to the accelerometer's sensitivity error on the
+            // acceleration taken out: the gyro-bias integral, which keeps what it learns for
+            // tens of seconds, learns less from it (`flight::attitude::sensitivity_weight`),
+            // so a recovery's braking at 3-6 m/s² leaves no fake bias that holds the tilt off
+            // into the hold. The proportional gain is kept: weighting it too held the
+            // randomised world better (1,000 seeds: 95.0 → 96.8 % held) but the nominal world
+            // worse (99.0 → 97.9 %), whose tilt, pulled off by the recovery's braking without
+            // any sensitivity error, then returned more slowly, during the hold
+            // (docs/benchmarks.md, issue 28).
+            let config =
+                COMPENSATED_ATTITUDE.with_acceleration_removed(self.accel_world_mps2.norm());
+            let _ = self.attitude.set_config(config);
         } else {
             self.accel_world_mps2 = Vector3::zeros();
             self.previous_velocity_mps = None;
@@ -729,9 +721,10 @@ impl Pilot {
             && self.position_sp_ned_m.is_none()
             && Vector3::from(imu.gyro_rad_s).norm() < STEADY_RATE_RAD_S
             && nav.velocity_ned_mps.norm() < HOLD_START_SPEED_MPS
+            && self.accel_world_mps2.norm() < HOLD_START_ACCEL_MPS2
         {
-            // The hold starts once the craft has stopped turning and moving: at the requested
-            // setpoint if there is one, else where the craft is.
+            // The hold starts once the craft has stopped turning, moving and braking: at the
+            // requested setpoint if there is one, else where the craft is.
             match self.requested_sp {
                 Some(setpoint) => self.hold_requested(&setpoint),
                 None => self.position_sp_ned_m = Some(nav.position_ned_m),
@@ -840,8 +833,10 @@ mod tests {
         // 2 s of braking at 5 m/s² with the fixes' acceleration taken out, the accelerometer
         // 5 % off on it: what is left leans 0.25 m/s² (1.5°) sideways, which is no gyro bias.
         let braking_mps2 = 5.0;
-        let f = Vector3::new(ACCEL_SENSITIVITY_ERROR * braking_mps2, 0.0, -STANDARD_GRAVITY_MPS2);
-        let mut weighted = AttitudeFilter::new(compensated_attitude(braking_mps2));
+        let error = flight::attitude::ACCEL_SENSITIVITY_ERROR;
+        let f = Vector3::new(error * braking_mps2, 0.0, -STANDARD_GRAVITY_MPS2);
+        let tuning = COMPENSATED_ATTITUDE.with_acceleration_removed(braking_mps2);
+        let mut weighted = AttitudeFilter::new(tuning);
         let mut constant = AttitudeFilter::new(COMPENSATED_ATTITUDE);
         let dt_s = 1.0 / 2000.0;
         for filter in [&mut weighted, &mut constant] {
@@ -858,7 +853,7 @@ mod tests {
         assert!(learned < 0.2 * before, "{learned} rad/s against {before} rad/s");
         // The tilt is corrected as before, and steady flight keeps the tuning.
         assert_eq!(weighted.config().k_p, COMPENSATED_ATTITUDE.k_p);
-        assert_eq!(compensated_attitude(0.0), COMPENSATED_ATTITUDE);
+        assert_eq!(COMPENSATED_ATTITUDE.with_acceleration_removed(0.0), COMPENSATED_ATTITUDE);
     }
 
     #[test]

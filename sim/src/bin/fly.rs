@@ -329,6 +329,19 @@ fn main() -> ExitCode {
                 quantile(&hold, 0.9),
                 quantile(&hold, 0.99)
             );
+            // A hold starts once the craft has stopped (firmware::app::pilot): how much of the
+            // window it covered, over the runs that hovered.
+            let coverage: Vec<f64> = results
+                .iter()
+                .filter(|r| r.report.release_to_hover_s.is_some())
+                .map(|r| 100.0 * r.report.hold_coverage)
+                .collect();
+            println!(
+                "hold window flown in position hold: median {:.1} %, 10th {:.1} %, 1st {:.1} %",
+                quantile(&coverage, 0.5),
+                quantile(&coverage, 0.1),
+                quantile(&coverage, 0.01)
+            );
             println!(
                 "drop below the release point: median {:.2} m, 90th {:.2} m, 99th {:.2} m",
                 quantile(&drop, 0.5),
