@@ -152,6 +152,43 @@ impl Butterworth2x3 {
     }
 }
 
+/// `N` channels filtered by the same 2nd-order Butterworth design, stored as one coefficient set
+/// and `N` pairs of state registers: a bank of dozens of signals (the in-flight IMU-offset fit's
+/// fifty) in one loop, rather than `N` filters each carrying its own copy of the coefficients.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ButterworthBank<const N: usize> {
+    c: BiquadCoefficients,
+    /// The two state registers of each channel (transposed direct form II).
+    z: [[f32; 2]; N],
+}
+
+impl<const N: usize> ButterworthBank<N> {
+    /// `N` identical filters with the given (already designed) coefficients, state at zero.
+    pub fn from_coefficients(c: BiquadCoefficients) -> Self {
+        Self { c, z: [[0.0; 2]; N] }
+    }
+
+    /// Start every channel in steady state at its value in `x` (no start-up transient).
+    pub fn reset_to(&mut self, x: &[f32; N]) {
+        for (channel, &x) in self.z.iter_mut().zip(x) {
+            let mut one = Butterworth2 { c: self.c, z: [0.0; 2] };
+            one.reset_to(x);
+            *channel = one.z;
+        }
+    }
+
+    /// Filter one sample of every channel.
+    pub fn update(&mut self, x: &[f32; N]) -> [f32; N] {
+        let mut y = [0.0; N];
+        for ((channel, &x), y) in self.z.iter_mut().zip(x).zip(&mut y) {
+            let mut one = Butterworth2 { c: self.c, z: *channel };
+            *y = one.update(x);
+            *channel = one.z;
+        }
+        y
+    }
+}
+
 /// Central-difference differentiator of a three-axis signal sampled every `dt_s`:
 /// `ẋ[n−1] = (x[n] − x[n−2]) / (2 dt)`.
 ///
@@ -225,6 +262,26 @@ mod tests {
         f.reset_to(9.81);
         for _ in 0..10 {
             assert!((f.update(9.81) - 9.81).abs() < 1e-5);
+        }
+    }
+
+    /// Each channel of a bank is the single filter on its own input, from a reset and from zero.
+    #[test]
+    fn a_bank_filters_each_channel_as_one_filter_would() {
+        let c = BiquadCoefficients::butterworth_lowpass(20.0, 2000.0).unwrap();
+        let mut bank = ButterworthBank::<3>::from_coefficients(c);
+        let mut single = [Butterworth2::from_coefficients(c); 3];
+        let start = [1.0, -2.0, 9.81];
+        bank.reset_to(&start);
+        for (f, x) in single.iter_mut().zip(start) {
+            f.reset_to(x);
+        }
+        for n in 0..200 {
+            let x = [n as f32, libm::sinf(n as f32 * 0.1), if n < 50 { 0.0 } else { 3.0 }];
+            let y = bank.update(&x);
+            for k in 0..3 {
+                assert_eq!(y[k], single[k].update(x[k]), "channel {k}, sample {n}");
+            }
         }
     }
 

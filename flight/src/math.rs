@@ -172,6 +172,41 @@ pub fn rotation_from_scaled_axis(phi: &Vector3<f32>) -> UnitQuaternion<f32> {
     rotation_about(&Unit::new_unchecked(phi / angle), angle)
 }
 
+/// The inverse of a symmetric positive-definite matrix through its Cholesky factor `L Lᵀ`;
+/// `None` when a pivot is not positive and finite. Plain loops on small sizes: nalgebra's
+/// generic inverse, instantiated for one size only, cost the firmware 12 KB of flash. The
+/// learner's inertia fit and the in-flight IMU-offset fit (crate `imu-offset`) solve with it.
+// Index loops mirror the factorisation's notation (entries of L by index).
+#[allow(clippy::needless_range_loop)]
+pub fn spd_inverse<const N: usize>(a: &[[f64; N]; N]) -> Option<[[f64; N]; N]> {
+    let mut l = [[0.0; N]; N];
+    for j in 0..N {
+        let pivot = a[j][j] - (0..j).map(|k| l[j][k] * l[j][k]).sum::<f64>();
+        if !(pivot > 0.0 && pivot.is_finite()) {
+            return None;
+        }
+        l[j][j] = libm::sqrt(pivot);
+        for i in j + 1..N {
+            let dot: f64 = (0..j).map(|k| l[i][k] * l[j][k]).sum();
+            l[i][j] = (a[i][j] - dot) / l[j][j];
+        }
+    }
+    // Column by column: L y = e_c, then Lᵀ x = y.
+    let mut inverse = [[0.0; N]; N];
+    for c in 0..N {
+        let mut y = [0.0; N];
+        for i in 0..N {
+            let known: f64 = (0..i).map(|k| l[i][k] * y[k]).sum();
+            y[i] = (if i == c { 1.0 } else { 0.0 } - known) / l[i][i];
+        }
+        for i in (0..N).rev() {
+            let known: f64 = (i + 1..N).map(|k| l[k][i] * inverse[k][c]).sum();
+            inverse[i][c] = (y[i] - known) / l[i][i];
+        }
+    }
+    inverse.iter().flatten().all(|v| v.is_finite()).then_some(inverse)
+}
+
 #[cfg(test)]
 mod tests {
     use super::{

@@ -96,6 +96,7 @@
 mod batch;
 mod drag;
 pub mod front_end;
+pub mod in_flight;
 mod moments;
 mod rest;
 mod solve;

@@ -1,4 +1,4 @@
-//! The in-flight IMU-offset fit (`flight::learner::offset`) against the truth with one part of
+//! The in-flight IMU-offset fit (`imu_offset::in_flight`) against the truth with one part of
 //! the simulated world removed at a time, to find what limits it (issue 32):
 //! `cargo run -p sim --release --example offset_diag -- RUNS [random | ASPECT]`.
 

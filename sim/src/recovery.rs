@@ -339,14 +339,14 @@ pub struct FlyReport {
     pub axis_error_at_end_deg: Option<f64>,
     /// The true IMU offset, IMU axes, m.
     pub r_imu_true_m: Vector3<f64>,
-    /// The IMU offset fitted in flight (`flight::learner::offset`, run when the offset is not
+    /// The IMU offset fitted in flight (`imu_offset::in_flight`, run when the offset is not
     /// given: [`FlyConfig::known_imu_offset`] false) at the end of the run, with its 95 %
     /// ellipsoid's largest semi-axis, m.
     pub r_imu_fit_m: Option<Vector3<f64>>,
     pub r_imu_fit_semi_axis_m: Option<f64>,
     /// The learner's G1 at the end ([`FlyReport::g1_block_rel_learned_at_end`]) with its force
     /// rows corrected by the fitted offset: a learner given `r₀` learns `G1f − [r − r₀]× G1τ`
-    /// (`flight::learner::offset`), so `G1f ≈ G1f₀ + [r̂ − r₀]× G1τ`.
+    /// (`imu_offset::in_flight`), so `G1f ≈ G1f₀ + [r̂ − r₀]× G1τ`.
     pub g1_block_rel_corrected_by_fit: Option<[f64; 2]>,
     /// The same with the force rows the offset fit found jointly with the offset.
     pub g1_block_rel_fitted_jointly: Option<[f64; 2]>,

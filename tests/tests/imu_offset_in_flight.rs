@@ -1,5 +1,5 @@
 //! The IMU offset fitted in flight with no calibration (issue 32, a first step;
-//! `flight::learner::offset`): the firmware application is thrown with no offset given, and the
+//! `imu_offset::in_flight`): the firmware application is thrown with no offset given, and the
 //! offset it fits on the release delay's tumble, the excitation and the first seconds of flight
 //! is compared with the simulator's truth, in millimetres.
 //!

@@ -17,9 +17,9 @@
 //!   Its accelerometer is moved to the centre of gravity with the IMU offset: the configured one
 //!   ([`Background::set_imu_offset`]), else the onboard estimate once it is well determined,
 //!   else none (and the status says which).
-//! - The IMU offset fitted in flight (`flight::learner::offset`, issue 32's first step), when
+//! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32's first step), when
 //!   enabled (`Background::set_offset_fit`, host builds only: off by default, a prototype that
-//!   does not fit the board's flash yet, 30 KB): on the learner's samples from the release,
+//!   does not fit the board's flash yet, 7.6 KB): on the learner's samples from the release,
 //!   jointly with the force rows of G1; once well determined, the published model carries the
 //!   fitted offset and rows
 //!   ([`OffsetSource::FittedInFlight`]). Measured in docs/algorithms/imu-offset.md.
@@ -31,10 +31,11 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::inertia::TumbleInertia;
-// The in-flight offset fit is host-side for now (30 KB of flash the board does not have).
-#[cfg(not(target_os = "none"))]
-use flight::learner::offset::{OffsetFit, OffsetFitEstimate};
+// The in-flight offset fit is host-side for now: on the board it costs 7.6 KB of flash, and the
+// firmware is 3.2 KB under its budget (docs/algorithms/imu-offset.md).
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
+#[cfg(not(target_os = "none"))]
+use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate};
 use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetStatus, OffsetAdvice};
@@ -96,7 +97,7 @@ pub struct BackgroundResults {
     /// The IMU-offset calibration the host started ([`Background::start_calibration`]), if one
     /// is running.
     pub calibration: Option<CalibrationState>,
-    /// The IMU offset fitted in flight with G1f (`flight::learner::offset`), when enabled
+    /// The IMU offset fitted in flight with G1f (`imu_offset::in_flight`), when enabled
     /// ([`Background::set_offset_fit`]) and determined by the latest attempt's samples so far.
     #[cfg(not(target_os = "none"))]
     pub flight_offset: Option<OffsetFitEstimate>,
@@ -134,7 +135,7 @@ pub enum OffsetSource {
     Onboard,
     /// None known: zero was used (the specific-force rows are then biased at high rates).
     Zero,
-    /// Fitted in this flight with the specific-force rows (`flight::learner::offset`, enabled
+    /// Fitted in this flight with the specific-force rows (`imu_offset::in_flight`, enabled
     /// by [`Background::set_offset_fit`]): the published model carries the fit's force rows.
     FittedInFlight,
 }
@@ -244,7 +245,7 @@ impl<'q> Background<'q> {
         self.configured_offset_m = r_imu_m.filter(|r| r.iter().all(|x| x.is_finite()));
     }
 
-    /// Fit the IMU offset in flight on every attempt from the next one (`flight::learner::offset`;
+    /// Fit the IMU offset in flight on every attempt from the next one (`imu_offset::in_flight`;
     /// a prototype for a board with no calibration, issue 32: off by default, the result only
     /// reported in [`BackgroundResults::flight_offset`], not yet used by the learner).
     #[cfg(not(target_os = "none"))]
@@ -434,7 +435,7 @@ impl<'q> Background<'q> {
 
     /// Once the in-flight fit has determined the offset, the published model carries it and the
     /// force rows fitted with it (the learner's own, learned with the offset of the attempt's
-    /// start, are off by `[r − r₀]× G1τ` and more: `flight::learner::offset`), so that the
+    /// start, are off by `[r − r₀]× G1τ` and more: `imu_offset::in_flight`), so that the
     /// controller engages with both and compensates its accelerometer with the fitted offset.
     #[cfg(not(target_os = "none"))]
     fn apply_offset_fit(&mut self) {

@@ -49,6 +49,8 @@
 // `effectiveness`.
 #![allow(clippy::needless_range_loop)]
 
+use crate::math::spd_inverse;
+
 // The normalised inertia's model, shared with the balance rows of the effectiveness
 // regression (`super::effectiveness` uses it; this module uses nothing of that one).
 
@@ -336,39 +338,6 @@ type Square = [[f64; INERTIA_PARAMETERS]; INERTIA_PARAMETERS];
 /// `a v`.
 fn multiply(a: &Square, v: &[f64; INERTIA_PARAMETERS]) -> [f64; INERTIA_PARAMETERS] {
     a.map(|row| row.iter().zip(v).map(|(x, y)| x * y).sum())
-}
-
-/// The inverse of a symmetric positive-definite matrix through its Cholesky factor `L Lᵀ`;
-/// `None` when a pivot is not positive and finite. Plain loops on small sizes: nalgebra's
-/// generic inverse, instantiated for one size only, cost the firmware 12 KB of flash. Also the
-/// in-flight IMU-offset fit's solver ([`super::offset`]).
-pub(crate) fn spd_inverse<const N: usize>(a: &[[f64; N]; N]) -> Option<[[f64; N]; N]> {
-    let mut l = [[0.0; N]; N];
-    for j in 0..N {
-        let pivot = a[j][j] - (0..j).map(|k| l[j][k] * l[j][k]).sum::<f64>();
-        if !(pivot > 0.0 && pivot.is_finite()) {
-            return None;
-        }
-        l[j][j] = libm::sqrt(pivot);
-        for i in j + 1..N {
-            let dot: f64 = (0..j).map(|k| l[i][k] * l[j][k]).sum();
-            l[i][j] = (a[i][j] - dot) / l[j][j];
-        }
-    }
-    // Column by column: L y = e_c, then Lᵀ x = y.
-    let mut inverse = [[0.0; N]; N];
-    for c in 0..N {
-        let mut y = [0.0; N];
-        for i in 0..N {
-            let known: f64 = (0..i).map(|k| l[i][k] * y[k]).sum();
-            y[i] = (if i == c { 1.0 } else { 0.0 } - known) / l[i][i];
-        }
-        for i in (0..N).rev() {
-            let known: f64 = (i + 1..N).map(|k| l[k][i] * inverse[k][c]).sum();
-            inverse[i][c] = (y[i] - known) / l[i][i];
-        }
-    }
-    inverse.iter().flatten().all(|v| v.is_finite()).then_some(inverse)
 }
 
 #[cfg(test)]

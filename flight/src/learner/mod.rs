@@ -30,7 +30,6 @@ pub mod effectiveness;
 pub mod excitation;
 pub mod inertia;
 pub mod motor_model;
-pub mod offset;
 pub mod rls;
 pub mod throw_detector;
 

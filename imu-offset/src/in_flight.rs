@@ -71,14 +71,15 @@
 // `effectiveness`).
 #![allow(clippy::needless_range_loop)]
 
-use super::effectiveness::SPEED2_SCALE;
-use super::inertia::{spd_inverse, HAND_CONTACT_S};
-use super::{EFFECTIVENESS_CUTOFF_HZ, MAX_MOTORS};
-use crate::filters::{BiquadCoefficients, Butterworth2, Butterworth2x3, CentralDifference3};
+use crate::CHI2_3DOF_95;
+use core::ops::Range;
+use flight::eigen3::symmetric_eigen3;
+use flight::filters::{BiquadCoefficients, ButterworthBank, CentralDifference3};
+use flight::learner::effectiveness::SPEED2_SCALE;
+use flight::learner::inertia::HAND_CONTACT_S;
+use flight::learner::{EFFECTIVENESS_CUTOFF_HZ, MAX_MOTORS};
+use flight::math::{rotation_from_scaled_axis, spd_inverse};
 use nalgebra::{UnitQuaternion, Vector3};
-
-/// `χ²₃(0.95)`: the 95 % ellipsoid of three unknowns (as the calibration's `CHI2_3DOF_95`).
-pub const CHI2_3DOF_95: f32 = 7.8147;
 
 /// Largest 95 % semi-axis for "well determined", m: the calibration's default
 /// (`cal_max_semi_axis_mm`, docs/algorithms/imu-offset.md: 2 mm × 50 /m = 10 % of G1's force
@@ -124,14 +125,20 @@ pub enum OffsetFitError {
     NotDetermined,
 }
 
-/// The filtered signals of one sample, lined up with the derivative of the gyro.
-#[derive(Clone, Copy, Debug, Default)]
-struct Lagged {
-    accel: Vector3<f32>,
-    speed2: [f32; MAX_MOTORS],
-    products: [f32; 6],
-    drag: [f32; DRAG_CHANNELS],
-}
+/// The signals through the 20 Hz filter, one bank of channels: gyro (rad/s), accelerometer
+/// (m/s²), squared speeds (per [`SPEED2_SCALE`]), rate products (rad²/s²), drag regressors.
+const GYRO: Range<usize> = 0..3;
+const ACCEL: Range<usize> = 3..6;
+const SPEED2: Range<usize> = 6..6 + MAX_MOTORS;
+const PRODUCTS: Range<usize> = SPEED2.end..SPEED2.end + 6;
+const DRAG: Range<usize> = PRODUCTS.end..PRODUCTS.end + DRAG_CHANNELS;
+const CHANNELS: usize = DRAG.end;
+
+/// One sample of every channel.
+type Channels = [f32; CHANNELS];
+
+// The motors' block `W` is inverted padded to the shared block's size (one solver).
+const _: () = assert!(MAX_MOTORS <= SHARED);
 
 /// The joint fit of `r`, `c` and G1f (see the module doc).
 #[derive(Clone, Debug)]
@@ -141,11 +148,7 @@ pub struct OffsetFit {
     /// How much older the speed reports are than the IMU samples, s.
     speed_lag_s: f32,
     filter: BiquadCoefficients,
-    gyro: Butterworth2x3,
-    accel: Butterworth2x3,
-    speed2: [Butterworth2; MAX_MOTORS],
-    products: [Butterworth2; 6],
-    drag: [Butterworth2; DRAG_CHANNELS],
+    filters: ButterworthBank<CHANNELS>,
     /// The body's attitude relative to the first sample's (body → first), from the gyro.
     attitude: UnitQuaternion<f32>,
     /// Time since the first sample, s.
@@ -155,7 +158,7 @@ pub struct OffsetFit {
     velocity_change_mps: Vector3<f32>,
     difference: CentralDifference3,
     /// The last two samples' filtered signals (newest first).
-    lagged: [Lagged; 2],
+    lagged: [Channels; 2],
     /// Filtered samples since the start (saturating at 2).
     seen: u8,
     /// Each motor's latest finite speed report, rad/s.
@@ -184,22 +187,17 @@ impl OffsetFit {
     pub fn new(motors: usize, rate_hz: f32, speed_lag_s: f32) -> Option<Self> {
         let filter =
             BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, rate_hz).ok()?;
-        let butterworth = Butterworth2::from_coefficients(filter);
         Some(Self {
             motors: motors.clamp(1, MAX_MOTORS),
             rate_hz,
             speed_lag_s: if speed_lag_s.is_finite() { speed_lag_s } else { 0.0 },
             filter,
-            gyro: Butterworth2x3::from_coefficients(filter),
-            accel: Butterworth2x3::from_coefficients(filter),
-            speed2: [butterworth; MAX_MOTORS],
-            products: [butterworth; 6],
-            drag: [butterworth; DRAG_CHANNELS],
+            filters: ButterworthBank::from_coefficients(filter),
             attitude: UnitQuaternion::identity(),
             time_s: 0.0,
             velocity_change_mps: Vector3::zeros(),
             difference: CentralDifference3::new(rate_hz),
-            lagged: [Lagged::default(); 2],
+            lagged: [[0.0; CHANNELS]; 2],
             seen: 0,
             held_speed: [0.0; MAX_MOTORS],
             skip: (HAND_CONTACT_S * rate_hz) as u32,
@@ -248,45 +246,27 @@ impl OffsetFit {
         }
         let gyro = Vector3::from(gyro_rad_s);
         let accel = Vector3::from(accel_mps2);
-        let mut speed2 = [0.0; MAX_MOTORS];
-        for i in 0..m {
-            speed2[i] = self.held_speed[i] * self.held_speed[i] / SPEED2_SCALE;
+        let mut raw = [0.0; CHANNELS];
+        raw[GYRO].copy_from_slice(&gyro_rad_s);
+        raw[ACCEL].copy_from_slice(&accel_mps2);
+        for (out, held) in raw[SPEED2].iter_mut().zip(&self.held_speed[..m]) {
+            *out = held * held / SPEED2_SCALE;
         }
-        let products = rate_products(&gyro);
-        let drag = self.drag_regressors();
+        raw[PRODUCTS].copy_from_slice(&rate_products(&gyro));
+        raw[DRAG].copy_from_slice(&self.drag_regressors());
         if self.seen == 0 {
-            for (f, x) in self.drag.iter_mut().zip(drag) {
-                f.reset_to(x);
-            }
-            self.gyro.reset_to(&gyro);
-            self.accel.reset_to(&accel);
-            for i in 0..m {
-                self.speed2[i].reset_to(speed2[i]);
-            }
-            for (f, x) in self.products.iter_mut().zip(products) {
-                f.reset_to(x);
-            }
+            self.filters.reset_to(&raw);
         }
-        let mut now = Lagged { accel: self.accel.update(&accel), ..Lagged::default() };
-        for i in 0..m {
-            now.speed2[i] = self.speed2[i].update(speed2[i]);
-        }
-        for (j, x) in products.iter().enumerate() {
-            now.products[j] = self.products[j].update(*x);
-        }
-        for (j, x) in drag.iter().enumerate() {
-            now.drag[j] = self.drag[j].update(*x);
-        }
+        let now = self.filters.update(&raw);
         // The attitude and the time of the next sample.
         let dt = 1.0 / self.rate_hz;
         self.velocity_change_mps += self.attitude * accel * dt;
-        self.attitude *= crate::math::rotation_from_scaled_axis(&(gyro * dt));
+        self.attitude *= rotation_from_scaled_axis(&(gyro * dt));
         self.attitude.renormalize_fast();
         self.time_s += dt;
-        let gyro_filtered = self.gyro.update(&gyro);
         let older = self.lagged[1];
         self.lagged = [now, self.lagged[0]];
-        let derivative = self.difference.update(&gyro_filtered);
+        let derivative = self.difference.update(&Vector3::from_column_slice(&now[GYRO]));
         if self.seen < 2 {
             self.seen += 1;
             return;
@@ -296,11 +276,14 @@ impl OffsetFit {
         let centre = self.lagged[1];
         let mut s = [0.0f64; MAX_MOTORS];
         for i in 0..m {
-            let slope = (now.speed2[i] - older.speed2[i]) * 0.5 * self.rate_hz;
-            s[i] = f64::from(centre.speed2[i] + self.speed_lag_s * slope);
+            let k = SPEED2.start + i;
+            let slope = (now[k] - older[k]) * 0.5 * self.rate_hz;
+            s[i] = f64::from(centre[k] + self.speed_lag_s * slope);
         }
-        let x = regressor(&centre.products, &rate_dot);
-        self.accumulate(&s[..m], &x, &centre.drag, &centre.accel);
+        let x = regressor(&centre[PRODUCTS], &rate_dot);
+        let accel = Vector3::from_column_slice(&centre[ACCEL]);
+        let drag: [f32; DRAG_CHANNELS] = core::array::from_fn(|k| centre[DRAG.start + k]);
+        self.accumulate(&s[..m], &x, &drag, &accel);
     }
 
     /// `R_rel[j][k] tᵖ` of now (see [`DRAG_CHANNELS`]).
@@ -376,7 +359,7 @@ impl OffsetFit {
         // identity beyond m.
         let trace: f64 = (0..m).map(|i| self.w[i][i]).sum();
         let prior = 1e-9 * trace / m as f64 + 1e-12;
-        let mut w = [[0.0; MAX_MOTORS]; MAX_MOTORS];
+        let mut w = [[0.0; SHARED]; SHARED];
         for (i, row) in w.iter_mut().enumerate() {
             for (j, v) in row.iter_mut().enumerate() {
                 *v = if i < m && j < m { self.w[i][j] } else { 0.0 };
@@ -430,11 +413,11 @@ impl OffsetFit {
         let correlated =
             f64::from(self.rate_hz) / (2.0 * 1.11 * f64::from(EFFECTIVENESS_CUTOFF_HZ));
         let sigma2 = residual / (rows - unknowns) as f64 * correlated.max(1.0);
-        let covariance: [[f64; 3]; 3] =
-            core::array::from_fn(|a| core::array::from_fn(|b| sigma2 * schur_inv[a][b]));
-        let (values, _) =
-            crate::eigen3::symmetric_eigen3(covariance).ok_or(OffsetFitError::NotDetermined)?;
-        let mut semi_axes = values.map(|v| libm::sqrt(v.max(0.0) * f64::from(CHI2_3DOF_95)) as f32);
+        // In f32, as the calibration solves its ellipsoid (one instance of the solver).
+        let covariance: [[f32; 3]; 3] =
+            core::array::from_fn(|a| core::array::from_fn(|b| (sigma2 * schur_inv[a][b]) as f32));
+        let (values, _) = symmetric_eigen3(covariance).ok_or(OffsetFitError::NotDetermined)?;
+        let mut semi_axes = values.map(|v| libm::sqrtf(v.max(0.0) * CHI2_3DOF_95));
         semi_axes.sort_unstable_by(f32::total_cmp);
         let r_imu_m = [z[0] as f32, z[1] as f32, z[2] as f32];
         if !r_imu_m.iter().all(|v| v.is_finite()) {
@@ -470,8 +453,8 @@ fn rate_products(rate: &Vector3<f32>) -> [f32; 6] {
 
 /// The seed paper's `X(Ω, Ω̇)` (eq. 2–3: `Ω̇ × r + Ω × (Ω × r) = X r`) from the filtered rate
 /// products `ΩΩᵀ` (xx, xy, xz, yy, yz, zz) and `Ω̇`: `X = [Ω̇]× + ΩΩᵀ − |Ω|² I`.
-fn regressor(products: &[f32; 6], rate_dot: &Vector3<f32>) -> [[f64; 3]; 3] {
-    let [xx, xy, xz, yy, yz, zz] = products.map(f64::from);
+fn regressor(products: &[f32], rate_dot: &Vector3<f32>) -> [[f64; 3]; 3] {
+    let [xx, xy, xz, yy, yz, zz] = [0, 1, 2, 3, 4, 5].map(|k| f64::from(products[k]));
     let [dx, dy, dz] = [rate_dot.x, rate_dot.y, rate_dot.z].map(f64::from);
     [[-yy - zz, xy - dz, xz + dy], [xy + dz, -xx - zz, yz - dx], [xz - dy, yz + dx, -xx - yy]]
 }
@@ -479,7 +462,7 @@ fn regressor(products: &[f32; 6], rate_dot: &Vector3<f32>) -> [[f64; 3]; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rng::Rng;
+    use flight::rng::Rng;
 
     /// A tumbling body (torque-free precession of an asymmetric inertia, then motors pulsed in
     /// turn while it still tumbles), its accelerometer at `r`, integrated at 2 kHz: the fit
