@@ -23,6 +23,7 @@ use cortex_m_semihosting::{debug, hprintln};
 use flight::allocation::{AllocationConfig, Allocator};
 use flight::attitude::{AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, Guidance};
+use imu_offset::in_flight::OffsetFit;
 use imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
 use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
 use flight::learner::inertia::TumbleInertia;
@@ -155,6 +156,9 @@ fn airframe(motors: usize, tilt_rad: f32) -> HoverProblem {
         Err(_) => fail("airframe refused"),
     }
 }
+
+/// Motor counts of the in-flight IMU-offset fit's regions.
+const IN_FLIGHT_FIT_MOTOR_COUNTS: [usize; 2] = [4, 8];
 
 /// Motor counts of the learner regions.
 const LEARNER_MOTOR_COUNTS: [usize; 2] = [4, 8];
@@ -568,6 +572,10 @@ fn main() -> ! {
     hprintln!("bench-m7 region: imu-offset RLS update");
     hprintln!("bench-m7 region: imu-offset estimator per sample, held");
     hprintln!("bench-m7 region: imu-offset estimator per sample, free fall");
+    for m in IN_FLIGHT_FIT_MOTOR_COUNTS {
+        hprintln!("bench-m7 region: imu-offset in-flight fit per sample m={}", m);
+        hprintln!("bench-m7 region: imu-offset in-flight fit solve m={}", m);
+    }
     for m in LEARNER_MOTOR_COUNTS {
         for what in LEARNER_CYCLE {
             hprintln!("bench-m7 region: learner step m={}, {}", m, what);
@@ -686,6 +694,39 @@ fn main() -> ! {
     }
     let _ = region(&mut state, |(estimator, sample)| estimator.update(black_box(sample)));
     black_box(&state);
+
+    // The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32; host-only in the
+    // firmware for now): one sample of a tumble with the motors pulsed, 0.8 s in, and one solve
+    // (the cost only: the synthetic tumble is not physical enough for the fit to be right).
+    for m in IN_FLIGHT_FIT_MOTOR_COUNTS {
+        let Some(mut fit) = OffsetFit::new(m, 2000.0, 0.0) else { fail("in-flight fit") };
+        let tumble = |n: usize| {
+            let t = n as f32 / 2000.0;
+            // A precessing spin (about a fixed axis the fit cannot tell the accelerometer's
+            // constant from a world-fixed drag along that axis, and rightly says so).
+            let (sin, cos) = (libm::sinf(9.0 * t), libm::cosf(9.0 * t));
+            let omega = Vector3::new(6.0 * cos, 6.0 * sin, 1.5 + libm::sinf(7.0 * t));
+            let omega_dot = Vector3::new(-54.0 * sin, 54.0 * cos, 7.0 * libm::cosf(7.0 * t));
+            let accel = omega_dot.cross(&r_m) + omega.cross(&omega.cross(&r_m));
+            // Each motor pulsed in turn for 50 ms, as the excitation does.
+            let speeds: [f32; MOTORS_MAX] =
+                core::array::from_fn(|i| if (n / 100) % m == i { 1600.0 } else { 1000.0 });
+            ([omega.x, omega.y, omega.z], [accel.x, accel.y, accel.z], speeds)
+        };
+        for n in 0..1600 {
+            let (gyro, accel, speeds) = tumble(n);
+            fit.update(gyro, accel, &speeds[..m]);
+        }
+        let mut state = (fit, tumble(1600));
+        region(&mut state, |(fit, (gyro, accel, speeds))| {
+            fit.update(black_box(*gyro), *accel, &speeds[..m])
+        });
+        let estimate = region(&mut state, |(fit, _)| black_box(&*fit).estimate());
+        if estimate.is_err() {
+            fail("the in-flight fit was not determined");
+        }
+        black_box(&state);
+    }
 
     // Background learner steps in the middle of an identification, for a quad and an
     // octorotor: the motor models and the filters on every sample, and the effectiveness
