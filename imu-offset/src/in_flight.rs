@@ -165,11 +165,11 @@ pub struct OffsetFit {
     held_speed: [f32; MAX_MOTORS],
     /// Samples still to skip at the start ([`HAND_CONTACT_S`]: the hand may still touch).
     skip: u32,
-    /// `W = Σ s sᵀ`.
+    /// `W = Σ s sᵀ` (upper triangle).
     w: [[f64; MAX_MOTORS]; MAX_MOTORS],
     /// `Pₖ = Σ s φₖᵀ`, per row k.
     p: [[[f64; SHARED]; MAX_MOTORS]; 3],
-    /// `C = Σₖ Σ φₖ φₖᵀ`.
+    /// `C = Σₖ Σ φₖ φₖᵀ` (upper triangle).
     c: [[f64; SHARED]; SHARED],
     /// `qₖ = Σ s fₖ`.
     q: [[f64; MAX_MOTORS]; 3],
@@ -311,9 +311,10 @@ impl OffsetFit {
         drag: &[f32; DRAG_CHANNELS],
         f: &Vector3<f32>,
     ) {
+        // The symmetric blocks `W` and `C` are accumulated in their upper triangles only.
         let m = s.len();
         for i in 0..m {
-            for j in 0..m {
+            for j in i..m {
                 self.w[i][j] += s[i] * s[j];
             }
         }
@@ -337,7 +338,7 @@ impl OffsetFit {
                 self.q[k][i] += s[i] * y;
             }
             for a in 0..SHARED {
-                for b in 0..SHARED {
+                for b in a..SHARED {
                     self.c[a][b] += phi[a] * phi[b];
                 }
                 self.d[a] += phi[a] * y;
@@ -362,12 +363,13 @@ impl OffsetFit {
         let mut w = [[0.0; SHARED]; SHARED];
         for (i, row) in w.iter_mut().enumerate() {
             for (j, v) in row.iter_mut().enumerate() {
-                *v = if i < m && j < m { self.w[i][j] } else { 0.0 };
+                *v = if i < m && j < m { self.w[i.min(j)][i.max(j)] } else { 0.0 };
             }
             row[i] += if i < m { prior } else { 1.0 };
         }
         let w_inv = spd_inverse(&w).ok_or(OffsetFitError::NotDetermined)?;
-        let mut schur = self.c;
+        let mut schur: [[f64; SHARED]; SHARED] =
+            core::array::from_fn(|a| core::array::from_fn(|b| self.c[a.min(b)][a.max(b)]));
         let mut t = self.d;
         let mut explained = 0.0;
         for k in 0..3 {
