@@ -23,13 +23,13 @@ use cortex_m_semihosting::{debug, hprintln};
 use flight::allocation::{AllocationConfig, Allocator};
 use flight::attitude::{AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, Guidance};
-use imu_offset::in_flight::OffsetFit;
-use imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
 use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
 use flight::learner::inertia::TumbleInertia;
 use flight::learner::{AxisStatus, Learner, LearnerConfig, MAX_MOTORS};
 use flight::navigation::PositionEstimator;
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
+use imu_offset::in_flight::OffsetFit;
+use imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// The firmware's DShot framing, compiled from its own source (`firmware/src/drivers/dshot.rs`
