@@ -31,9 +31,9 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::inertia::TumbleInertia;
-// The in-flight offset fit is host-side for now: on the board it costs 7.6 KB of flash, and the
-// firmware is 3.2 KB under its budget (docs/algorithms/imu-offset.md).
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
+// The in-flight offset fit is host-side for now: on the board it costs 7.6 KB of flash, and the
+// firmware is 3.0 KB under its budget (docs/algorithms/imu-offset.md).
 #[cfg(not(target_os = "none"))]
 use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate};
 use imu_offset::{ImuOffsetEstimator, Verdict};
@@ -246,8 +246,9 @@ impl<'q> Background<'q> {
     }
 
     /// Fit the IMU offset in flight on every attempt from the next one (`imu_offset::in_flight`;
-    /// a prototype for a board with no calibration, issue 32: off by default, the result only
-    /// reported in [`BackgroundResults::flight_offset`], not yet used by the learner).
+    /// a prototype for a board with no calibration, issue 32: off by default). The estimate is
+    /// reported in [`BackgroundResults::flight_offset`]; once well determined, the published
+    /// model carries it and the force rows fitted with it ([`OffsetSource::FittedInFlight`]).
     #[cfg(not(target_os = "none"))]
     pub fn set_offset_fit(&mut self, enabled: bool) {
         self.offset_fit_enabled = enabled;
