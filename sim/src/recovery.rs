@@ -697,28 +697,17 @@ pub struct CaseResult {
     pub verdict: Verdict,
 }
 
-/// Runs `runs` random cases (seeds `seed..seed + runs`) on `threads` workers; `progress` is
-/// called with the number done after each.
+/// Flies the cases `case(seed)` for seeds `seed..seed + runs` on `threads` workers and
+/// classifies each; `progress` is called with the number done after each.
 pub fn monte_carlo(
     runs: usize,
     seed: u64,
     threads: usize,
     progress: &(dyn Fn(usize) + Sync),
-) -> Vec<CaseResult> {
-    monte_carlo_with(runs, seed, threads, MotionCaptureConfig::default(), progress)
-}
-
-/// [`monte_carlo`] with the motion capture `motion_capture` in every run.
-pub fn monte_carlo_with(
-    runs: usize,
-    seed: u64,
-    threads: usize,
-    motion_capture: MotionCaptureConfig,
-    progress: &(dyn Fn(usize) + Sync),
+    case: impl Fn(u64) -> (Airframe, FlyConfig) + Sync,
 ) -> Vec<CaseResult> {
     crate::stats::run_seeds(runs, seed, threads, progress, |seed| {
-        let (airframe, mut config) = random_case(seed);
-        config.motion_capture = motion_capture;
+        let (airframe, config) = case(seed);
         let report = fly(&airframe, &config);
         let verdict = Verdict::of(&report);
         CaseResult { seed, motors: airframe.rotor_count(), report, verdict }

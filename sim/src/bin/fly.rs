@@ -25,10 +25,10 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
 use sim::recovery::{
-    fly, random_case, CaseResult, FlyConfig, FlyReport, MotionCaptureArgs, MotionCaptureConfig,
+    fly, monte_carlo, random_case, FlyConfig, FlyReport, MotionCaptureArgs, MotionCaptureConfig,
     Verdict,
 };
-use sim::stats::{quantile, run_seeds};
+use sim::stats::quantile;
 use sim::world::{self, Aspect};
 
 #[derive(Parser, Debug)]
@@ -281,11 +281,8 @@ fn main() -> ExitCode {
             if world_args.unknown_imu_offset {
                 println!("IMU offset not given to the firmware");
             }
-            let results = run_seeds(runs, seed, threads, &progress, |seed| {
-                let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
-                let report = fly(&airframe, &config);
-                let verdict = Verdict::of(&report);
-                CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
+            let results = monte_carlo(runs, seed, threads, &progress, |seed| {
+                case(seed, &aspects, motion_capture, &world_args)
             });
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
