@@ -89,8 +89,22 @@ pub fn monte_carlo(
     aspects: &[Aspect],
     progress: &(dyn Fn(usize) + Sync),
 ) -> Vec<CaseResult> {
+    monte_carlo_configured(runs, seed, threads, aspects, &|_| {}, progress)
+}
+
+/// [`monte_carlo`] with `configure` applied to every case's configuration after the draws
+/// (e.g. [`FlyConfig::speed_telemetry`] off: the same airframes and worlds without speeds).
+pub fn monte_carlo_configured(
+    runs: usize,
+    seed: u64,
+    threads: usize,
+    aspects: &[Aspect],
+    configure: &(dyn Fn(&mut FlyConfig) + Sync),
+    progress: &(dyn Fn(usize) + Sync),
+) -> Vec<CaseResult> {
     crate::stats::run_seeds(runs, seed, threads, progress, |seed| {
-        let (airframe, config) = random_world_case(seed, aspects);
+        let (airframe, mut config) = random_world_case(seed, aspects);
+        configure(&mut config);
         let report = fly(&airframe, &config);
         let verdict = Verdict::of(&report);
         CaseResult { seed, motors: airframe.rotor_count(), report, verdict }

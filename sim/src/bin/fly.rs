@@ -97,6 +97,10 @@ struct WorldArgs {
     /// Randomise only this aspect (hand, pose, imu, actuators, air); repeatable.
     #[arg(long)]
     vary: Vec<String>,
+    /// ESCs without speed telemetry: the simulated ESCs report no speed and the application is
+    /// told so (`motor_bidir_dshot` = 0); the same airframes, throws and worlds otherwise.
+    #[arg(long)]
+    no_speed_telemetry: bool,
 }
 
 impl WorldArgs {
@@ -210,6 +214,7 @@ fn main() -> ExitCode {
                 world::random_world_case(seed, &aspects)
             };
             config.trace = trace;
+            config.speed_telemetry = !world_args.no_speed_telemetry;
             if !aspects.is_empty() {
                 println!("world: {config:#?}");
             }
@@ -233,12 +238,28 @@ fn main() -> ExitCode {
                     eprintln!("fly: {done}/{runs} runs");
                 }
             };
-            let results = if aspects.is_empty() {
+            let results = if aspects.is_empty() && !world_args.no_speed_telemetry {
                 monte_carlo_with(runs, seed, threads, motion_capture, &progress)
             } else {
                 let names: Vec<_> = aspects.iter().map(|a| a.name()).collect();
                 println!("randomised: {}", names.join(", "));
-                world::monte_carlo(runs, seed, threads, &aspects, &progress)
+                // Nothing randomised: the nominal cases, as `monte_carlo_with` flies them.
+                let telemetry = !world_args.no_speed_telemetry;
+                if !telemetry {
+                    println!("ESC speed telemetry: none (motor_bidir_dshot = 0)");
+                }
+                let configure = |config: &mut FlyConfig| {
+                    config.speed_telemetry = telemetry;
+                    config.motion_capture = motion_capture;
+                };
+                world::monte_carlo_configured(
+                    runs,
+                    seed,
+                    threads,
+                    &aspects,
+                    &configure,
+                    &progress,
+                )
             };
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
@@ -319,6 +340,27 @@ fn main() -> ExitCode {
                     values.len()
                 );
             }
+            // Per unit normalised thrust (`sim::recovery::thrust_scores`), when the controller
+            // engaged: comparable with and without speed telemetry.
+            let engaged: Vec<sim::identification::Scores> =
+                results.iter().filter_map(|r| r.report.thrust_scores_at_engage).collect();
+            let per_thrust = |pick: fn(&sim::identification::Scores) -> f64, scale: f64| {
+                let values: Vec<f64> = engaged.iter().map(|s| scale * pick(s)).collect();
+                format!(
+                    "median {:.2}, 90th {:.2}, 99th {:.2}",
+                    quantile(&values, 0.5),
+                    quantile(&values, 0.9),
+                    quantile(&values, 0.99)
+                )
+            };
+            println!(
+                "per unit thrust at engage ({} runs): G1 force block {} %; torque block {} %; thrust axis {} °; worst |τ error| {} ms",
+                engaged.len(),
+                per_thrust(|s| s.g1_block_rel[0], 100.0),
+                per_thrust(|s| s.g1_block_rel[1], 100.0),
+                per_thrust(|s| s.axis_angle_rad.to_degrees(), 1.0),
+                per_thrust(|s| s.tau_error_max_s, 1e3),
+            );
             for motors in 4..=8 {
                 let of: Vec<&_> = results.iter().filter(|r| r.motors == motors).collect();
                 if !of.is_empty() {
