@@ -30,6 +30,7 @@ pub mod effectiveness;
 pub mod excitation;
 pub mod inertia;
 pub mod motor_model;
+pub mod no_speed;
 pub mod rls;
 pub mod throw_detector;
 
@@ -40,6 +41,7 @@ use core::ptr::addr_of_mut;
 use effectiveness::{EffectivenessEstimator, Regression};
 use excitation::{Excitation, ExcitationConfig};
 use motor_model::{MotorModel, MotorModelEstimator};
+use no_speed::CommandSpeedModel;
 use rls::RlsConfig;
 use throw_detector::{ThrowConfig, ThrowDetector, ThrowEvent, ThrowState};
 
@@ -104,6 +106,10 @@ pub struct LearnerConfig {
     pub effectiveness_rls: RlsConfig,
     /// Motor-model RLS tuning.
     pub motor_rls: RlsConfig,
+    /// Whether the ESCs report their speeds (bidirectional DShot). Without, every motor's speed
+    /// is modelled from its commands and the lag identified from the body's angular response
+    /// ([`no_speed`]); the motor models are then the nominal curve with that lag.
+    pub speed_telemetry: bool,
 }
 
 /// Age of a motor-speed report when the control step reads it, s, by default: one 2 kHz step
@@ -146,6 +152,7 @@ impl Default for LearnerConfig {
             speed_report_lag_s: DEFAULT_SPEED_AGE_S - IMU_GROUP_DELAY_S,
             effectiveness_rls: RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 },
             motor_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
+            speed_telemetry: true,
         }
     }
 }
@@ -297,6 +304,8 @@ pub struct Learner {
     motors: usize,
     motor_models: [MotorModelEstimator; MAX_MOTORS],
     effectiveness: EffectivenessEstimator,
+    /// Without speed telemetry: the lag and the modelled speeds ([`no_speed`]).
+    command_speeds: CommandSpeedModel,
     solver: ThrustAxisSolver,
     /// The last commands, for the time alignment: a ring, the newest at `newest_command`.
     commands: [[f32; MAX_MOTORS]; 8],
@@ -363,6 +372,11 @@ impl Learner {
                 config.speed_report_lag_s,
                 config.effectiveness_rls,
             );
+            addr_of_mut!((*learner).command_speeds).write(CommandSpeedModel::new(
+                motors,
+                config.rate_hz,
+                slow,
+            ));
             addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
             addr_of_mut!((*learner).newest_command).write(0);
@@ -384,6 +398,7 @@ impl Learner {
             m.reset();
         }
         self.effectiveness.reset(r_imu_m);
+        self.command_speeds.reset();
         self.solver.reset();
         self.commands = [[0.0; MAX_MOTORS]; 8];
         self.newest_command = 0;
@@ -435,9 +450,16 @@ impl Learner {
         let m = self.motors;
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
             || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
-        for i in 0..m {
-            self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
-        }
+        let modelled;
+        let speeds_rad_s = if self.config.speed_telemetry {
+            for i in 0..m {
+                self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
+            }
+            speeds_rad_s
+        } else {
+            modelled = self.command_speeds.update(gyro_rad_s, &driving, self.armed, true);
+            &modelled
+        };
         let regression =
             self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
         self.samples = self.samples.saturating_add(1);
@@ -470,6 +492,10 @@ impl Learner {
         speeds: &[f32; MAX_MOTORS],
     ) {
         self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
+        if !self.config.speed_telemetry {
+            // Motors off: the lag regression's filters settle on the free tumble.
+            let _ = self.command_speeds.update(gyro_rad_s, &[0.0; MAX_MOTORS], false, false);
+        }
     }
 
     /// The model learned so far.
@@ -488,7 +514,11 @@ impl Learner {
         model.motors_converged = 0;
         let mut all_informed = true;
         for i in 0..m {
-            model.motor[i] = self.motor_models[i].model();
+            model.motor[i] = if self.config.speed_telemetry {
+                self.motor_models[i].model()
+            } else {
+                self.command_speeds.motor_model()
+            };
             if model.motor[i].converged {
                 model.motors_converged |= 1 << i;
             }

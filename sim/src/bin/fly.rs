@@ -142,6 +142,15 @@ fn print_report(name: &str, report: &FlyReport) {
         blocks(report.g1_block_rel_flown_at_end),
         report.refinements
     );
+    if let Some(s) = report.thrust_scores_at_engage {
+        println!(
+            "  per unit thrust at engagement: G1 force {:.2} %, rotation {:.2} %, thrust axis {:.2}°, worst |τ error| {:.2} ms",
+            100.0 * s.g1_block_rel[0],
+            100.0 * s.g1_block_rel[1],
+            s.axis_angle_rad.to_degrees(),
+            1e3 * s.tau_error_max_s
+        );
+    }
 }
 
 /// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
