@@ -337,10 +337,11 @@ pub struct FlyReport {
     /// (heading), when the controller engaged and when the hold window began.
     pub attitude_error_at_engage_deg: Option<[f64; 2]>,
     pub attitude_error_at_window_deg: Option<[f64; 2]>,
-    /// The learner's model when the controller engaged, per unit normalised thrust
-    /// ([`thrust_scores`]): comparable with and without speed telemetry, whose speeds have an
-    /// arbitrary scale.
-    pub thrust_scores_at_engage: Option<Scores>,
+    /// The learner's model at the end of the excitation (when the controller engages or the
+    /// identification fails), per unit normalised thrust ([`thrust_scores`]): comparable with
+    /// and without speed telemetry, whose speeds have an arbitrary scale, and over every run
+    /// that identified, hovered or not.
+    pub thrust_scores_at_excitation_end: Option<Scores>,
 }
 
 /// Scores of `learned` per unit normalised thrust `u = ω²/ω_full²` (the papers' convention and
@@ -457,7 +458,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             refinements: 0,
             attitude_error_at_engage_deg: None,
             attitude_error_at_window_deg: None,
-            thrust_scores_at_engage: None,
+            thrust_scores_at_excitation_end: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -490,6 +491,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             let t_s = board.time_s();
             let snapshot = app.snapshot();
             let state = *board.physics().state();
+            if snapshot.phase == FlightPhase::Done && report.thrust_scores_at_excitation_end.is_none()
+            {
+                let learned = app.background.results().learned;
+                report.thrust_scores_at_excitation_end = Some(thrust_scores(&learned, &truth));
+            }
             let Some(released_s) = board.physics().hand().released_at_s() else { continue };
             let release_z_m = *release_z.get_or_insert(state.position_ned_m.z);
             report.release_z_m = release_z_m;
@@ -531,7 +537,6 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 if report.release_to_engage_s.is_none() {
                     let learned = app.background.results().learned;
                     report.g1_block_rel_at_engage = Some(Scores::of(&learned, &truth).g1_block_rel);
-                    report.thrust_scores_at_engage = Some(thrust_scores(&learned, &truth));
                 }
                 let q_true = state.attitude() * airframe.q_imu_body().inverse();
                 if report.attitude_error_at_engage_deg.is_none() {

@@ -30,6 +30,7 @@ pub mod effectiveness;
 pub mod excitation;
 pub mod inertia;
 pub mod motor_model;
+#[cfg(feature = "no-speed")]
 pub mod no_speed;
 pub mod rls;
 pub mod throw_detector;
@@ -41,6 +42,7 @@ use core::ptr::addr_of_mut;
 use effectiveness::{EffectivenessEstimator, Regression};
 use excitation::{Excitation, ExcitationConfig};
 use motor_model::{MotorModel, MotorModelEstimator};
+#[cfg(feature = "no-speed")]
 use no_speed::CommandSpeedModel;
 use rls::RlsConfig;
 use throw_detector::{ThrowConfig, ThrowDetector, ThrowEvent, ThrowState};
@@ -108,7 +110,8 @@ pub struct LearnerConfig {
     pub motor_rls: RlsConfig,
     /// Whether the ESCs report their speeds (bidirectional DShot). Without, every motor's speed
     /// is modelled from its commands and the lag identified from the body's angular response
-    /// ([`no_speed`]); the motor models are then the nominal curve with that lag.
+    /// (`no_speed`, feature `no-speed`); the motor models are then the nominal curve with that
+    /// lag. Without the feature (the board's build) nothing is learned without speeds.
     pub speed_telemetry: bool,
 }
 
@@ -304,7 +307,8 @@ pub struct Learner {
     motors: usize,
     motor_models: [MotorModelEstimator; MAX_MOTORS],
     effectiveness: EffectivenessEstimator,
-    /// Without speed telemetry: the lag and the modelled speeds ([`no_speed`]).
+    /// Without speed telemetry: the lag and the modelled speeds (`no_speed`).
+    #[cfg(feature = "no-speed")]
     command_speeds: CommandSpeedModel,
     solver: ThrustAxisSolver,
     /// The last commands, for the time alignment: a ring, the newest at `newest_command`.
@@ -372,6 +376,7 @@ impl Learner {
                 config.speed_report_lag_s,
                 config.effectiveness_rls,
             );
+            #[cfg(feature = "no-speed")]
             addr_of_mut!((*learner).command_speeds).write(CommandSpeedModel::new(
                 motors,
                 config.rate_hz,
@@ -398,6 +403,7 @@ impl Learner {
             m.reset();
         }
         self.effectiveness.reset(r_imu_m);
+        #[cfg(feature = "no-speed")]
         self.command_speeds.reset();
         self.solver.reset();
         self.commands = [[0.0; MAX_MOTORS]; 8];
@@ -450,16 +456,20 @@ impl Learner {
         let m = self.motors;
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
             || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
+        #[cfg(feature = "no-speed")]
         let modelled;
+        #[cfg(feature = "no-speed")]
         let speeds_rad_s = if self.config.speed_telemetry {
-            for i in 0..m {
-                self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
-            }
             speeds_rad_s
         } else {
             modelled = self.command_speeds.update(gyro_rad_s, &driving, self.armed, true);
             &modelled
         };
+        if self.config.speed_telemetry {
+            for i in 0..m {
+                self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
+            }
+        }
         let regression =
             self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
         self.samples = self.samples.saturating_add(1);
@@ -492,6 +502,7 @@ impl Learner {
         speeds: &[f32; MAX_MOTORS],
     ) {
         self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
+        #[cfg(feature = "no-speed")]
         if !self.config.speed_telemetry {
             // Motors off: the lag regression's filters settle on the free tumble.
             let _ = self.command_speeds.update(gyro_rad_s, &[0.0; MAX_MOTORS], false, false);
@@ -501,6 +512,16 @@ impl Learner {
     /// The model learned so far.
     pub fn model(&self) -> &LearnedModel {
         &self.model
+    }
+
+    /// Motor `i`'s model: learned from its speeds, or without them the nominal curve with the
+    /// lag identified from the body's response ([`LearnerConfig::speed_telemetry`]).
+    fn motor_model(&self, i: usize) -> MotorModel {
+        #[cfg(feature = "no-speed")]
+        if !self.config.speed_telemetry {
+            return self.command_speeds.motor_model();
+        }
+        self.motor_models[i].model()
     }
 
     /// First half of a publication: the estimates and their convergence into `staging`.
@@ -514,11 +535,9 @@ impl Learner {
         model.motors_converged = 0;
         let mut all_informed = true;
         for i in 0..m {
-            model.motor[i] = if self.config.speed_telemetry {
-                self.motor_models[i].model()
-            } else {
-                self.command_speeds.motor_model()
-            };
+            let motor = self.motor_model(i);
+            let model = &mut self.staging;
+            model.motor[i] = motor;
             if model.motor[i].converged {
                 model.motors_converged |= 1 << i;
             }

@@ -7,7 +7,15 @@
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 1000 --threads 2
 //! cargo run -p sim --release --bin fly -- case --seed 21 --trace   # one Monte Carlo run again
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --mocap-rate-hz 2000 --mocap-latency-ms 30
+//! cargo run -p sim --release --bin fly -- monte-carlo --world random --runs 200 --no-speed-telemetry
 //! ```
+//!
+//! `--no-speed-telemetry` flies ESCs that report no speed (the application told so through
+//! `motor_bidir_dshot` = 0, and allowed to arm by its own configuration,
+//! `ControlSettings::arm_without_speeds`): the learner's commands-only path
+//! (`flight::learner::no_speed`, issue 32). Every summary reports G1 and the thrust axis per
+//! unit normalised thrust at the end of the excitation (`sim::recovery::thrust_scores`), the
+//! figures that compare with and without telemetry.
 //!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
@@ -58,6 +66,9 @@ enum Command {
         /// How long the hand pushes, ms, taper included (100–300).
         #[arg(long, default_value_t = 150.0)]
         push_ms: f64,
+        /// ESCs without speed telemetry (see `monte-carlo --no-speed-telemetry`).
+        #[arg(long)]
+        no_speed_telemetry: bool,
     },
     /// One Monte Carlo case, replayed alone.
     Case {
@@ -142,9 +153,9 @@ fn print_report(name: &str, report: &FlyReport) {
         blocks(report.g1_block_rel_flown_at_end),
         report.refinements
     );
-    if let Some(s) = report.thrust_scores_at_engage {
+    if let Some(s) = report.thrust_scores_at_excitation_end {
         println!(
-            "  per unit thrust at engagement: G1 force {:.2} %, rotation {:.2} %, thrust axis {:.2}°, worst |τ error| {:.2} ms",
+            "  per unit thrust at the end of the excitation: G1 force {:.2} %, rotation {:.2} %, thrust axis {:.2}°, worst |τ error| {:.2} ms",
             100.0 * s.g1_block_rel[0],
             100.0 * s.g1_block_rel[1],
             s.axis_angle_rad.to_degrees(),
@@ -183,7 +194,7 @@ fn main() -> ExitCode {
         println!("motion capture: {motion_capture:?}");
     }
     match args.command {
-        Command::Paper { airframe, seed, trace, rate_dps, taper_ms, push_ms } => {
+        Command::Paper { airframe, seed, trace, rate_dps, taper_ms, push_ms, no_speed_telemetry } => {
             let airframe = match Airframe::load(&airframe) {
                 Ok(a) => a,
                 Err(e) => {
@@ -208,6 +219,7 @@ fn main() -> ExitCode {
             config.throw.push_s = push_ms * 1e-3;
             config.board.seed = seed;
             config.trace = trace;
+            config.speed_telemetry = !no_speed_telemetry;
             print_report(&airframe.name, &fly(&airframe, &config));
         }
         Command::Case { seed, trace, world: world_args } => {
@@ -349,22 +361,27 @@ fn main() -> ExitCode {
                     values.len()
                 );
             }
-            // Per unit normalised thrust (`sim::recovery::thrust_scores`), when the controller
-            // engaged: comparable with and without speed telemetry.
+            // Per unit normalised thrust (`sim::recovery::thrust_scores`), at the end of the
+            // excitation of every run that got there: comparable with and without telemetry.
             let engaged: Vec<sim::identification::Scores> =
-                results.iter().filter_map(|r| r.report.thrust_scores_at_engage).collect();
+                results.iter().filter_map(|r| r.report.thrust_scores_at_excitation_end).collect();
+            // Over the runs where the figure exists (the thrust axis: where one was found).
             let per_thrust = |pick: fn(&sim::identification::Scores) -> f64, scale: f64| {
-                let values: Vec<f64> = engaged.iter().map(|s| scale * pick(s)).collect();
+                let values: Vec<f64> = engaged
+                    .iter()
+                    .map(|s| scale * pick(s))
+                    .filter(|v| v.is_finite())
+                    .collect();
                 format!(
-                    "median {:.2}, 90th {:.2}, 99th {:.2}",
+                    "median {:.2}, 90th {:.2}, 99th {:.2} ({} runs)",
                     quantile(&values, 0.5),
                     quantile(&values, 0.9),
-                    quantile(&values, 0.99)
+                    quantile(&values, 0.99),
+                    values.len()
                 )
             };
             println!(
-                "per unit thrust at engage ({} runs): G1 force block {} %; torque block {} %; thrust axis {} °; worst |τ error| {} ms",
-                engaged.len(),
+                "per unit thrust at the end of the excitation: G1 force block {} %; torque block {} %; thrust axis {} °; worst |τ error| {} ms",
                 per_thrust(|s| s.g1_block_rel[0], 100.0),
                 per_thrust(|s| s.g1_block_rel[1], 100.0),
                 per_thrust(|s| s.axis_angle_rad.to_degrees(), 1.0),
