@@ -491,7 +491,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             let t_s = board.time_s();
             let snapshot = app.snapshot();
             let state = *board.physics().state();
-            if snapshot.phase == FlightPhase::Done && report.thrust_scores_at_excitation_end.is_none()
+            if snapshot.phase == FlightPhase::Done
+                && report.thrust_scores_at_excitation_end.is_none()
             {
                 let learned = app.background.results().learned;
                 report.thrust_scores_at_excitation_end = Some(thrust_scores(&learned, &truth));

@@ -16,7 +16,9 @@
 //!   motors after a throw, every sample updates the motor models, G1/G2 and the thrust axis.
 //!   Its accelerometer is moved to the centre of gravity with the IMU offset: the configured one
 //!   ([`Background::set_imu_offset`]), else the onboard estimate once it is well determined,
-//!   else none (and the status says which).
+//!   else none (and the status says which). With `motor_bidir_dshot` = 0 it is built to model
+//!   the speeds from the commands (`LearnerConfig::speed_telemetry`, `flight::learner::no_speed`
+//!   where `flight` has the feature `no-speed`; the published model's `speeds_modelled` says so).
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
 //! board, never computed under it.

@@ -222,6 +222,9 @@ pub struct LearnedModel {
     pub axis_status: AxisStatus,
     /// Samples learned from.
     pub samples: u32,
+    /// Whether the motor speeds were modelled from the commands (no speed telemetry,
+    /// `no_speed`) rather than reported by the ESCs: which path identified this model.
+    pub speeds_modelled: bool,
 }
 
 impl LearnedModel {
@@ -356,7 +359,11 @@ impl Learner {
         let fast = BiquadCoefficients::butterworth_lowpass(MOTOR_MODEL_CUTOFF_HZ, config.rate_hz)
             .map_err(LearnerError::Filter)?;
         let motor = MotorModelEstimator::new(fast, config.rate_hz, config.motor_rls);
-        let empty = LearnedModel { motors: motors as u8, ..LearnedModel::default() };
+        let empty = LearnedModel {
+            motors: motors as u8,
+            speeds_modelled: !config.speed_telemetry,
+            ..LearnedModel::default()
+        };
         let learner = slot.as_mut_ptr();
         // SAFETY: each field of the slot is written exactly once, through raw field pointers
         // (no reference to the uninitialised whole), before the reference is formed.
@@ -410,7 +417,11 @@ impl Learner {
         self.newest_command = 0;
         self.armed = false;
         self.since_publish = 0;
-        self.model = LearnedModel { motors: self.motors as u8, ..LearnedModel::default() };
+        self.model = LearnedModel {
+            motors: self.motors as u8,
+            speeds_modelled: !self.config.speed_telemetry,
+            ..LearnedModel::default()
+        };
         self.samples = 0;
         self.staging = self.model;
         self.staged = None;

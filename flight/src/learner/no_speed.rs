@@ -354,9 +354,11 @@ mod tests {
         let dt = 1.0 / rate_hz;
         let lowpass = BiquadCoefficients::butterworth_lowpass(LAG_LOWPASS_HZ, rate_hz).unwrap();
         let mut model = CommandSpeedModel::new(4, rate_hz, lowpass);
-        let c = [[300.0, -300.0, 300.0, -300.0], [300.0, 300.0, -300.0, -300.0], [
-            40.0, -40.0, -40.0, 40.0,
-        ]];
+        let c = [
+            [300.0, -300.0, 300.0, -300.0],
+            [300.0, 300.0, -300.0, -300.0],
+            [40.0, -40.0, -40.0, 40.0],
+        ];
         let mut speed = [0.0f32; 4];
         let mut rate = [3.0f32, -2.0, 1.0];
         for n in 0..1000 {
@@ -387,7 +389,6 @@ mod tests {
         }
         model.tau_s()
     }
-
 
     #[test]
     fn the_lag_is_identified_from_the_angular_response_across_the_range() {

@@ -194,7 +194,15 @@ fn main() -> ExitCode {
         println!("motion capture: {motion_capture:?}");
     }
     match args.command {
-        Command::Paper { airframe, seed, trace, rate_dps, taper_ms, push_ms, no_speed_telemetry } => {
+        Command::Paper {
+            airframe,
+            seed,
+            trace,
+            rate_dps,
+            taper_ms,
+            push_ms,
+            no_speed_telemetry,
+        } => {
             let airframe = match Airframe::load(&airframe) {
                 Ok(a) => a,
                 Err(e) => {
@@ -273,14 +281,7 @@ fn main() -> ExitCode {
                     config.speed_telemetry = telemetry;
                     config.motion_capture = motion_capture;
                 };
-                world::monte_carlo_configured(
-                    runs,
-                    seed,
-                    threads,
-                    &aspects,
-                    &configure,
-                    &progress,
-                )
+                world::monte_carlo_configured(runs, seed, threads, &aspects, &configure, &progress)
             };
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
@@ -367,11 +368,8 @@ fn main() -> ExitCode {
                 results.iter().filter_map(|r| r.report.thrust_scores_at_excitation_end).collect();
             // Over the runs where the figure exists (the thrust axis: where one was found).
             let per_thrust = |pick: fn(&sim::identification::Scores) -> f64, scale: f64| {
-                let values: Vec<f64> = engaged
-                    .iter()
-                    .map(|s| scale * pick(s))
-                    .filter(|v| v.is_finite())
-                    .collect();
+                let values: Vec<f64> =
+                    engaged.iter().map(|s| scale * pick(s)).filter(|v| v.is_finite()).collect();
                 format!(
                     "median {:.2}, 90th {:.2}, 99th {:.2} ({} runs)",
                     quantile(&values, 0.5),
