@@ -55,6 +55,10 @@
 //! Cost: the filters on every sample and one of the three axes' regressions per sample in turn;
 //! the motor-model regressions, which need speeds, do not run (not measured on the M7 yet).
 
+// Index loops are kept where they run over axes and motors side by side (several arrays per
+// index), as in `effectiveness`.
+#![allow(clippy::needless_range_loop)]
+
 use super::motor_model::MotorModel;
 use super::rls::{packed_len, Rls, RlsConfig};
 use super::MAX_MOTORS;
@@ -83,6 +87,12 @@ pub const TAU_PRIOR_STD_S: f32 = 0.02;
 pub const TAU_MIN_S: f32 = 0.008;
 /// Largest time constant reported, s.
 pub const TAU_MAX_S: f32 = 0.1;
+/// Command above which a motor counts as pulsed: the lag regression learns from the first
+/// pulse on. The spin-up before the pulses (δ = 0.02, `ExcitationConfig::spin_up_command`) starts
+/// every motor from rest together: its angular response is the rotors' reaction and the ESCs'
+/// start, not the lag of a thrust change, and learning from it pinned τ to its lower bound for
+/// the first 80 ms of the excitation on the simulator's airframes.
+pub const PULSE_COMMAND: f32 = 0.1;
 /// One standard deviation of τ below which the lag counts as identified, s.
 pub const TAU_CONVERGED_STD_S: f32 = 0.002;
 /// The τ regressor's unit: α̇ in units of 100 rad/s², so τ is in units of 10 ms (order one).
@@ -150,6 +160,8 @@ pub struct CommandSpeedModel {
     reaction_lp: [Butterworth2; MAX_MOTORS],
     reaction_previous: [f32; MAX_MOTORS],
     seen: u8,
+    /// Whether a motor has been pulsed ([`PULSE_COMMAND`]) since the reset.
+    pulsed: bool,
     /// The axis whose regression runs next.
     next_axis: u8,
     /// Per body axis: `2 C_a` (index `i < m`) and τ (index `m`, in units of [`TAU_SCALE_S`]).
@@ -184,6 +196,7 @@ impl CommandSpeedModel {
             reaction_lp: [butterworth; MAX_MOTORS],
             reaction_previous: [0.0; MAX_MOTORS],
             seen: 0,
+            pulsed: false,
             next_axis: 0,
             axes: core::array::from_fn(|_| Rls::new(2 * motors + 1, config)),
             speed: [0.0; MAX_MOTORS],
@@ -202,6 +215,7 @@ impl CommandSpeedModel {
         self.tau_std_s = TAU_PRIOR_STD_S;
         self.next_axis = 0;
         self.seen = 0;
+        self.pulsed = false;
     }
 
     /// The nominal curve's steady speed for command δ, fraction of full speed (0 while the ESC
@@ -231,6 +245,7 @@ impl CommandSpeedModel {
         let mut targets = [0.0; MAX_MOTORS];
         for i in 0..m {
             let d = if driving[i].is_finite() { driving[i] } else { 0.0 };
+            self.pulsed |= d > PULSE_COMMAND;
             let target = Self::target_speed(d, running);
             drives[i] = 2.0 * self.speed[i] * target;
             targets[i] = target;
@@ -238,6 +253,7 @@ impl CommandSpeedModel {
             speeds[i] = NOMINAL_FULL_SPEED_RAD_S * self.speed[i];
         }
         if gyro_rad_s.iter().all(|w| w.is_finite()) {
+            let learn = learn && self.pulsed;
             self.identify(gyro_rad_s, &drives, &targets, learn);
         } else {
             self.seen = 0;
