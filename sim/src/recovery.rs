@@ -262,6 +262,10 @@ pub struct FlyConfig {
     pub trace: bool,
     /// Board (noise seed, start position).
     pub board: SimConfig,
+    /// Whether the ESCs report their speeds (bidirectional DShot). `false`: the simulated ESCs
+    /// answer nothing and the application is told so, as a user would set it, through
+    /// `motor_bidir_dshot` = 0 (issue 32: identification without speed telemetry).
+    pub speed_telemetry: bool,
 }
 
 impl FlyConfig {
@@ -280,6 +284,7 @@ impl FlyConfig {
                 start_position_ned_m: Vector3::new(0.0, 0.0, -1.5),
                 ..SimConfig::default()
             },
+            speed_telemetry: true,
         }
     }
 }
@@ -350,6 +355,29 @@ pub struct FlyReport {
     pub g1_block_rel_corrected_by_fit: Option<[f64; 2]>,
     /// The same with the force rows the offset fit found jointly with the offset.
     pub g1_block_rel_fitted_jointly: Option<[f64; 2]>,
+    /// The learner's model at the end of the excitation (when the controller engages or the
+    /// identification fails), per unit normalised thrust ([`thrust_scores`]): comparable with
+    /// and without speed telemetry, whose speeds have an arbitrary scale, and over every run
+    /// that identified, hovered or not.
+    pub thrust_scores_at_excitation_end: Option<Scores>,
+}
+
+/// Scores of `learned` per unit normalised thrust `u = ω²/ω_full²` (the papers' convention and
+/// the thrust-axis problem's): its G1 per unit thrust, moved into the truth's per-squared-speed
+/// units with the true full speeds, against the truth. Without speed telemetry the learner's
+/// speeds are modelled in units of its own (`flight::learner::no_speed`), so only this
+/// comparison means anything there; with telemetry it differs from [`Scores::of`] by the error
+/// of the learned `ω_full`.
+pub fn thrust_scores(learned: &flight::learner::LearnedModel, truth: &TrueModel) -> Scores {
+    let mut per_true_speed2 = *learned;
+    per_true_speed2.g1_per_speed2 = learned.g1_per_unit_thrust();
+    for i in 0..truth.motors {
+        let full2 = truth.omega_full_rad_s[i].powi(2);
+        for row in per_true_speed2.g1_per_speed2.iter_mut() {
+            row[i] = (f64::from(row[i]) / full2) as f32;
+        }
+    }
+    Scores::of(&per_true_speed2, truth)
 }
 
 /// Tilt and heading error, degrees, of the firmware's `q_world_imu` (w, x, y, z) against the
@@ -404,6 +432,23 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 app.background.configure(&params);
             }
         }
+        // ESCs without bidirectional DShot: no speed reaches the board, and its user says so
+        // (`motor_bidir_dshot` = 0), to the background task and the control step alike.
+        // The application's own configuration lets it arm without speeds then (the prototype
+        // of issue 32: `ControlSettings::arm_without_speeds`).
+        let mut user_params = Params::default();
+        let mut user_settings = ControlSettings::from(&user_params);
+        if !config.speed_telemetry {
+            board.motors_mut().set_bidirectional(false);
+            if user_params.set(Param::MotorBidirDshot as usize, &[0.0]).is_ok() {
+                app.background.configure(&user_params);
+                user_settings = ControlSettings {
+                    arm_without_speeds: true,
+                    ..ControlSettings::from(&user_params)
+                };
+                app.submit(ControlCommand::Configure(user_settings));
+            }
+        }
         if config.known_imu_offset {
             let r = truth.r_imu_m;
             app.background.set_imu_offset(Some([r.x as f32, r.y as f32, r.z as f32]));
@@ -417,7 +462,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             noise_m: (config.motion_capture.noise_m as f32).max(1e-4),
         };
         if config.mocap && pose != PoseConfig::default() {
-            let settings = ControlSettings { pose, ..ControlSettings::from(&Params::default()) };
+            let settings = ControlSettings { pose, ..user_settings };
             app.submit(ControlCommand::Configure(settings));
         }
         app.submit(ControlCommand::ArmThrowToFly);
@@ -445,6 +490,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             r_imu_fit_semi_axis_m: None,
             g1_block_rel_corrected_by_fit: None,
             g1_block_rel_fitted_jointly: None,
+            thrust_scores_at_excitation_end: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -477,6 +523,12 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             let t_s = board.time_s();
             let snapshot = app.snapshot();
             let state = *board.physics().state();
+            if snapshot.phase == FlightPhase::Done
+                && report.thrust_scores_at_excitation_end.is_none()
+            {
+                let learned = app.background.results().learned;
+                report.thrust_scores_at_excitation_end = Some(thrust_scores(&learned, &truth));
+            }
             let Some(released_s) = board.physics().hand().released_at_s() else { continue };
             let release_z_m = *release_z.get_or_insert(state.position_ned_m.z);
             report.release_z_m = release_z_m;

@@ -16,7 +16,9 @@
 //!   motors after a throw, every sample updates the motor models, G1/G2 and the thrust axis.
 //!   Its accelerometer is moved to the centre of gravity with the IMU offset: the configured one
 //!   ([`Background::set_imu_offset`]), else the onboard estimate once it is well determined,
-//!   else none (and the status says which).
+//!   else none (and the status says which). With `motor_bidir_dshot` = 0 it is built to model
+//!   the speeds from the commands (`LearnerConfig::speed_telemetry`, `flight::learner::no_speed`
+//!   where `flight` has the feature `no-speed`; the published model's `speeds_modelled` says so).
 //! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32's first step), when
 //!   enabled (`Background::set_offset_fit`, host builds only: off by default, a prototype that
 //!   does not fit the board's flash yet, 7.6 KB): on the learner's samples from the release,
@@ -166,6 +168,9 @@ pub struct Background<'q> {
     speed_age_s: f32,
     /// The age the learner in the slot was built for, s.
     learner_speed_age_s: f32,
+    /// Whether the ESCs report their speeds (`motor_bidir_dshot`): without, the learner models
+    /// them from the commands (`flight::learner::no_speed`).
+    speed_telemetry: bool,
     rate_hz: f32,
     previous_phase: FlightPhase,
     /// The body's inertia from its free tumble after the release: the learner's prior for it.
@@ -222,6 +227,7 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).configured_offset_m).write(None);
             addr_of_mut!((*worker).speed_age_s).write(flight::learner::DEFAULT_SPEED_AGE_S);
             addr_of_mut!((*worker).learner_speed_age_s).write(flight::learner::DEFAULT_SPEED_AGE_S);
+            addr_of_mut!((*worker).speed_telemetry).write(true);
             addr_of_mut!((*worker).rate_hz).write(f32::from(rate_hz));
             addr_of_mut!((*worker).previous_phase).write(FlightPhase::Idle);
             addr_of_mut!((*worker).tumble).write(TumbleInertia::new(f32::from(rate_hz)));
@@ -262,6 +268,7 @@ impl<'q> Background<'q> {
     pub fn configure(&mut self, params: &super::params::Params) {
         self.set_imu_offset(params.configured_offset_m());
         self.speed_age_s = params.motor_speed_age_s();
+        self.speed_telemetry = params.bidirectional_dshot();
         let config = params.imu_offset_config();
         if config != self.imu_offset_config {
             self.imu_offset_config = config;
@@ -463,12 +470,17 @@ impl<'q> Background<'q> {
     /// the IMU offset of now.
     fn restart_learner(&mut self, motor_count: u8) {
         let (r_imu_m, source) = self.learner_offset();
-        let reuse = self.learner.get().is_some_and(|l| l.model().motors == motor_count)
-            && self.learner_speed_age_s == self.speed_age_s;
+        let reuse = self.learner.get().is_some_and(|l| {
+            l.model().motors == motor_count && l.config().speed_telemetry == self.speed_telemetry
+        }) && self.learner_speed_age_s == self.speed_age_s;
         if !reuse {
-            let config =
-                LearnerConfig { rate_hz: self.rate_hz, r_imu_m, ..LearnerConfig::default() }
-                    .with_speed_age(self.speed_age_s);
+            let config = LearnerConfig {
+                rate_hz: self.rate_hz,
+                r_imu_m,
+                speed_telemetry: self.speed_telemetry,
+                ..LearnerConfig::default()
+            }
+            .with_speed_age(self.speed_age_s);
             self.learner_speed_age_s = self.speed_age_s;
             // In place: the learner is 25 KB (docs/budget.md).
             let _ = self.learner.build(usize::from(motor_count), config);

@@ -55,6 +55,11 @@
 //!   commands with the learned τ (`flight::indi`) and never reads the reports. The loss is
 //!   counted ([`ControlSnapshot::speed_reports_lost`]), and the in-flight refinement skips the
 //!   samples without every speed (the learner's own rule).
+//!
+//! The exception is the prototype of issue 32: with [`ControlSettings::arm_without_speeds`]
+//! (the application's own configuration, never a parameter; the simulator sets it for
+//! `fly --no-speed-telemetry`) none of the above applies, and the learner identifies from the
+//! commands and the body's response (`flight::learner::no_speed`).
 
 use super::background::BackgroundResults;
 use super::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
@@ -107,6 +112,12 @@ pub struct ControlSettings {
     /// How long, armed, bad IMU samples are held over before the IMU failsafe acts, s
     /// (`imu_fault_timeout_s`; 0: at the first bad sample).
     pub imu_fault_timeout_s: f32,
+    /// Arm for throw-to-fly although the ESCs report no speed (`motor_bidir_dshot` = 0), the
+    /// learner then identifying from the commands and the body's response
+    /// (`flight::learner::no_speed`, issue 32). The application's own configuration, not a
+    /// parameter: a prototype that the simulator enables (`fly --no-speed-telemetry`), off on
+    /// every board (it hovered 47 % of the randomised world's airframes: docs/benchmarks.md).
+    pub arm_without_speeds: bool,
 }
 
 impl Default for ControlSettings {
@@ -117,6 +128,7 @@ impl Default for ControlSettings {
             acc_bias_mps2: [0.0; 3],
             pose: super::pilot::PoseConfig::default(),
             imu_fault_timeout_s: IMU_FAULT_TIMEOUT_S,
+            arm_without_speeds: false,
         }
     }
 }
@@ -129,6 +141,7 @@ impl From<&super::params::Params> for ControlSettings {
             acc_bias_mps2: params.acc_bias_mps2(),
             pose: params.pose_config(),
             imu_fault_timeout_s: params.imu_fault_timeout_s(),
+            arm_without_speeds: false,
         }
     }
 }
@@ -499,7 +512,10 @@ impl<'q> ControlLoop<'q> {
                 // Refused while a motor does not report its speed, once the step has run (before
                 // the first step nothing is known; the attempt then gets the report timeout).
                 let count = usize::from(self.snapshot.motor_count);
-                if self.snapshot.steps > 0 && self.speed_monitor.silent(count, now_us, 0) != 0 {
+                if !self.settings.arm_without_speeds
+                    && self.snapshot.steps > 0
+                    && self.speed_monitor.silent(count, now_us, 0) != 0
+                {
                     self.snapshot.failure = LearnerFailure::NoSpeedTelemetry;
                 } else {
                     self.motor_test = None;
@@ -665,7 +681,8 @@ impl<'q> ControlLoop<'q> {
                 | FlightPhase::Throwing
                 | FlightPhase::Released
                 | FlightPhase::Exciting
-        ) && self.speed_monitor.silent(motor_count, now_us, self.armed_at_us) != 0
+        ) && !self.settings.arm_without_speeds
+            && self.speed_monitor.silent(motor_count, now_us, self.armed_at_us) != 0
         {
             self.throw_to_fly.disarm();
             snapshot.failure = LearnerFailure::NoSpeedTelemetry;
@@ -934,6 +951,57 @@ mod tests {
         assert_eq!(motors.commands, vec![0.0; 4], "disarmed: all four motors at zero");
         assert_eq!(snapshot.speeds_rad_s[3], Some(103.0));
         assert!(snapshot.imu_present);
+    }
+
+    /// Silent ESCs (no bidirectional DShot).
+    struct SilentMotors;
+
+    impl Motors for SilentMotors {
+        fn count(&self) -> u8 {
+            4
+        }
+        fn set_commands(&mut self, _commands: &[f32]) {}
+        fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
+            [None; MAX_MOTORS]
+        }
+    }
+
+    /// Without speed reports arming is refused, `motor_bidir_dshot` = 0 or not, unless the
+    /// application's own configuration allows the commands-only identification; then the
+    /// attempt stays armed past the report timeout.
+    #[test]
+    fn without_speed_reports_only_the_commands_only_configuration_arms() {
+        let mut params = super::super::params::Params::default();
+        params.set(super::super::params::Param::MotorBidirDshot as usize, &[0.0]).unwrap();
+        let told = ControlSettings::from(&params);
+        assert!(!told.arm_without_speeds, "a parameter alone never allows it");
+        for (settings, arms) in [
+            (ControlSettings::default(), false),
+            (told, false),
+            (ControlSettings { arm_without_speeds: true, ..told }, true),
+        ] {
+            let mut queue = SampleQueue::new();
+            let (producer, _consumer) = split_queue(&mut queue);
+            let mut control = ControlLoop::new(ControlConfig::default(), producer);
+            let mut imu = ScriptedImu { deliver: |_| true, calls: 0 };
+            control.command(ControlCommand::Configure(settings), 0);
+            let timeout_us = u64::from(SPEED_REPORT_TIMEOUT_MS) * 1000;
+            let mut t_us = 0;
+            for _ in 0..10 {
+                control.step(t_us, &mut imu, &mut SilentMotors);
+                t_us += 500;
+            }
+            control.command(ControlCommand::ArmThrowToFly, t_us);
+            while t_us < 3 * timeout_us {
+                control.step(t_us, &mut imu, &mut SilentMotors);
+                t_us += 500;
+            }
+            let snapshot = control.snapshot();
+            assert_eq!(snapshot.armed, arms, "{settings:?}");
+            let failure =
+                if arms { LearnerFailure::None } else { LearnerFailure::NoSpeedTelemetry };
+            assert_eq!(snapshot.failure, failure);
+        }
     }
 
     #[test]

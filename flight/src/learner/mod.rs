@@ -30,6 +30,8 @@ pub mod effectiveness;
 pub mod excitation;
 pub mod inertia;
 pub mod motor_model;
+#[cfg(feature = "no-speed")]
+pub mod no_speed;
 pub mod rls;
 pub mod throw_detector;
 
@@ -40,6 +42,8 @@ use core::ptr::addr_of_mut;
 use effectiveness::{EffectivenessEstimator, Regression};
 use excitation::{Excitation, ExcitationConfig};
 use motor_model::{MotorModel, MotorModelEstimator};
+#[cfg(feature = "no-speed")]
+use no_speed::CommandSpeedModel;
 use rls::RlsConfig;
 use throw_detector::{ThrowConfig, ThrowDetector, ThrowEvent, ThrowState};
 
@@ -104,6 +108,11 @@ pub struct LearnerConfig {
     pub effectiveness_rls: RlsConfig,
     /// Motor-model RLS tuning.
     pub motor_rls: RlsConfig,
+    /// Whether the ESCs report their speeds (bidirectional DShot). Without, every motor's speed
+    /// is modelled from its commands and the lag identified from the body's angular response
+    /// (`no_speed`, feature `no-speed`); the motor models are then the nominal curve with that
+    /// lag. Without the feature (the board's build) nothing is learned without speeds.
+    pub speed_telemetry: bool,
 }
 
 /// Age of a motor-speed report when the control step reads it, s, by default: one 2 kHz step
@@ -146,6 +155,7 @@ impl Default for LearnerConfig {
             speed_report_lag_s: DEFAULT_SPEED_AGE_S - IMU_GROUP_DELAY_S,
             effectiveness_rls: RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 },
             motor_rls: RlsConfig { lambda: 1.0, p0: 1e4, p_max: 1e8 },
+            speed_telemetry: true,
         }
     }
 }
@@ -212,6 +222,9 @@ pub struct LearnedModel {
     pub axis_status: AxisStatus,
     /// Samples learned from.
     pub samples: u32,
+    /// Whether the motor speeds were modelled from the commands (no speed telemetry,
+    /// `no_speed`) rather than reported by the ESCs: which path identified this model.
+    pub speeds_modelled: bool,
 }
 
 impl LearnedModel {
@@ -297,6 +310,9 @@ pub struct Learner {
     motors: usize,
     motor_models: [MotorModelEstimator; MAX_MOTORS],
     effectiveness: EffectivenessEstimator,
+    /// Without speed telemetry: the lag and the modelled speeds (`no_speed`).
+    #[cfg(feature = "no-speed")]
+    command_speeds: CommandSpeedModel,
     solver: ThrustAxisSolver,
     /// The last commands, for the time alignment: a ring, the newest at `newest_command`.
     commands: [[f32; MAX_MOTORS]; 8],
@@ -343,7 +359,11 @@ impl Learner {
         let fast = BiquadCoefficients::butterworth_lowpass(MOTOR_MODEL_CUTOFF_HZ, config.rate_hz)
             .map_err(LearnerError::Filter)?;
         let motor = MotorModelEstimator::new(fast, config.rate_hz, config.motor_rls);
-        let empty = LearnedModel { motors: motors as u8, ..LearnedModel::default() };
+        let empty = LearnedModel {
+            motors: motors as u8,
+            speeds_modelled: !config.speed_telemetry,
+            ..LearnedModel::default()
+        };
         let learner = slot.as_mut_ptr();
         // SAFETY: each field of the slot is written exactly once, through raw field pointers
         // (no reference to the uninitialised whole), before the reference is formed.
@@ -363,6 +383,12 @@ impl Learner {
                 config.speed_report_lag_s,
                 config.effectiveness_rls,
             );
+            #[cfg(feature = "no-speed")]
+            addr_of_mut!((*learner).command_speeds).write(CommandSpeedModel::new(
+                motors,
+                config.rate_hz,
+                slow,
+            ));
             addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
             addr_of_mut!((*learner).newest_command).write(0);
@@ -384,12 +410,18 @@ impl Learner {
             m.reset();
         }
         self.effectiveness.reset(r_imu_m);
+        #[cfg(feature = "no-speed")]
+        self.command_speeds.reset();
         self.solver.reset();
         self.commands = [[0.0; MAX_MOTORS]; 8];
         self.newest_command = 0;
         self.armed = false;
         self.since_publish = 0;
-        self.model = LearnedModel { motors: self.motors as u8, ..LearnedModel::default() };
+        self.model = LearnedModel {
+            motors: self.motors as u8,
+            speeds_modelled: !self.config.speed_telemetry,
+            ..LearnedModel::default()
+        };
         self.samples = 0;
         self.staging = self.model;
         self.staged = None;
@@ -435,8 +467,19 @@ impl Learner {
         let m = self.motors;
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
             || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
-        for i in 0..m {
-            self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
+        #[cfg(feature = "no-speed")]
+        let modelled;
+        #[cfg(feature = "no-speed")]
+        let speeds_rad_s = if self.config.speed_telemetry {
+            speeds_rad_s
+        } else {
+            modelled = self.command_speeds.update(gyro_rad_s, &driving, self.armed, true);
+            &modelled
+        };
+        if self.config.speed_telemetry {
+            for i in 0..m {
+                self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
+            }
         }
         let regression =
             self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
@@ -470,11 +513,26 @@ impl Learner {
         speeds: &[f32; MAX_MOTORS],
     ) {
         self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
+        #[cfg(feature = "no-speed")]
+        if !self.config.speed_telemetry {
+            // Motors off: the lag regression's filters settle on the free tumble.
+            let _ = self.command_speeds.update(gyro_rad_s, &[0.0; MAX_MOTORS], false, false);
+        }
     }
 
     /// The model learned so far.
     pub fn model(&self) -> &LearnedModel {
         &self.model
+    }
+
+    /// Motor `i`'s model: learned from its speeds, or without them the nominal curve with the
+    /// lag identified from the body's response ([`LearnerConfig::speed_telemetry`]).
+    fn motor_model(&self, i: usize) -> MotorModel {
+        #[cfg(feature = "no-speed")]
+        if !self.config.speed_telemetry {
+            return self.command_speeds.motor_model();
+        }
+        self.motor_models[i].model()
     }
 
     /// First half of a publication: the estimates and their convergence into `staging`.
@@ -488,7 +546,9 @@ impl Learner {
         model.motors_converged = 0;
         let mut all_informed = true;
         for i in 0..m {
-            model.motor[i] = self.motor_models[i].model();
+            let motor = self.motor_model(i);
+            let model = &mut self.staging;
+            model.motor[i] = motor;
             if model.motor[i].converged {
                 model.motors_converged |= 1 << i;
             }

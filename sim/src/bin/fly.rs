@@ -8,10 +8,18 @@
 //! cargo run -p sim --release --bin fly -- case --seed 21 --trace   # one Monte Carlo run again
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --mocap-rate-hz 2000 --mocap-latency-ms 30
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --world random --unknown-imu-offset
+//! cargo run -p sim --release --bin fly -- monte-carlo --world random --runs 200 --no-speed-telemetry
 //! ```
 //!
 //! `--unknown-imu-offset` flies an uncalibrated board: the firmware is not given the airframe's
 //! IMU offset (without it every run is a calibrated board's).
+//!
+//! `--no-speed-telemetry` flies ESCs that report no speed (the application told so through
+//! `motor_bidir_dshot` = 0, and allowed to arm by its own configuration,
+//! `ControlSettings::arm_without_speeds`): the learner's commands-only path
+//! (`flight::learner::no_speed`, issue 32). Every summary reports G1 and the thrust axis per
+//! unit normalised thrust at the end of the excitation (`sim::recovery::thrust_scores`), the
+//! figures that compare with and without telemetry.
 //!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
@@ -62,6 +70,9 @@ enum Command {
         /// How long the hand pushes, ms, taper included (100–300).
         #[arg(long, default_value_t = 150.0)]
         push_ms: f64,
+        /// ESCs without speed telemetry (see `monte-carlo --no-speed-telemetry`).
+        #[arg(long)]
+        no_speed_telemetry: bool,
     },
     /// One Monte Carlo case, replayed alone.
     Case {
@@ -105,6 +116,10 @@ struct WorldArgs {
     /// flies with none, issue 32).
     #[arg(long)]
     unknown_imu_offset: bool,
+    /// ESCs without speed telemetry: the simulated ESCs report no speed and the application is
+    /// told so (`motor_bidir_dshot` = 0); the same airframes, throws and worlds otherwise.
+    #[arg(long)]
+    no_speed_telemetry: bool,
 }
 
 impl WorldArgs {
@@ -136,6 +151,7 @@ fn case(
         world::random_world_case(seed, aspects)
     };
     config.known_imu_offset = !args.unknown_imu_offset;
+    config.speed_telemetry = !args.no_speed_telemetry;
     (airframe, config)
 }
 
@@ -185,6 +201,15 @@ fn print_report(name: &str, report: &FlyReport) {
             report.r_imu_fit_semi_axis_m.unwrap_or(f64::NAN) * 1e3
         );
     }
+    if let Some(s) = report.thrust_scores_at_excitation_end {
+        println!(
+            "  per unit thrust at the end of the excitation: G1 force {:.2} %, rotation {:.2} %, thrust axis {:.2}°, worst |τ error| {:.2} ms",
+            100.0 * s.g1_block_rel[0],
+            100.0 * s.g1_block_rel[1],
+            s.axis_angle_rad.to_degrees(),
+            1e3 * s.tau_error_max_s
+        );
+    }
 }
 
 /// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
@@ -217,7 +242,15 @@ fn main() -> ExitCode {
         println!("motion capture: {motion_capture:?}");
     }
     match args.command {
-        Command::Paper { airframe, seed, trace, rate_dps, taper_ms, push_ms } => {
+        Command::Paper {
+            airframe,
+            seed,
+            trace,
+            rate_dps,
+            taper_ms,
+            push_ms,
+            no_speed_telemetry,
+        } => {
             let airframe = match Airframe::load(&airframe) {
                 Ok(a) => a,
                 Err(e) => {
@@ -242,6 +275,7 @@ fn main() -> ExitCode {
             config.throw.push_s = push_ms * 1e-3;
             config.board.seed = seed;
             config.trace = trace;
+            config.speed_telemetry = !no_speed_telemetry;
             print_report(&airframe.name, &fly(&airframe, &config));
         }
         Command::Case { seed, trace, world: world_args } => {
@@ -280,6 +314,9 @@ fn main() -> ExitCode {
             }
             if world_args.unknown_imu_offset {
                 println!("IMU offset not given to the firmware");
+            }
+            if world_args.no_speed_telemetry {
+                println!("ESC speed telemetry: none (motor_bidir_dshot = 0)");
             }
             let results = monte_carlo(runs, seed, threads, &progress, |seed| {
                 case(seed, &aspects, motion_capture, &world_args)
@@ -408,6 +445,29 @@ fn main() -> ExitCode {
                     fits.len()
                 );
             }
+            // Per unit normalised thrust (`sim::recovery::thrust_scores`), at the end of the
+            // excitation of every run that got there: comparable with and without telemetry.
+            let engaged: Vec<sim::identification::Scores> =
+                results.iter().filter_map(|r| r.report.thrust_scores_at_excitation_end).collect();
+            // Over the runs where the figure exists (the thrust axis: where one was found).
+            let per_thrust = |pick: fn(&sim::identification::Scores) -> f64, scale: f64| {
+                let values: Vec<f64> =
+                    engaged.iter().map(|s| scale * pick(s)).filter(|v| v.is_finite()).collect();
+                format!(
+                    "median {:.2}, 90th {:.2}, 99th {:.2} ({} runs)",
+                    quantile(&values, 0.5),
+                    quantile(&values, 0.9),
+                    quantile(&values, 0.99),
+                    values.len()
+                )
+            };
+            println!(
+                "per unit thrust at the end of the excitation: G1 force block {} %; torque block {} %; thrust axis {} °; worst |τ error| {} ms",
+                per_thrust(|s| s.g1_block_rel[0], 100.0),
+                per_thrust(|s| s.g1_block_rel[1], 100.0),
+                per_thrust(|s| s.axis_angle_rad.to_degrees(), 1.0),
+                per_thrust(|s| s.tau_error_max_s, 1e3),
+            );
             for motors in 4..=8 {
                 let of: Vec<&_> = results.iter().filter(|r| r.motors == motors).collect();
                 if !of.is_empty() {

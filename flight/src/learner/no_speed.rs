@@ -1,0 +1,417 @@
+//! Identification without speed telemetry (issue 32): each motor's lag from the body's angular
+//! response, and a modelled speed from the commands in place of the measured one
+//! (docs/algorithms/learner.md, "Without speed telemetry"). A prototype: the simulator flies it
+//! (`fly monte-carlo --no-speed-telemetry`); no board arms without speeds yet
+//! (`firmware::app::ControlSettings::arm_without_speeds`).
+//!
+//! **The model.** ESCs without bidirectional DShot report no speed; the learner still knows
+//! what it commanded, and the body's rotation shows what the motors did with it. Every motor's
+//! speed, as a fraction `x` of full speed, is taken as a first-order lag towards a nominal curve
+//! of the command:
+//!
+//! ```text
+//! τ ẋ + x = x_s(δ),    x_s(δ) = (a δ + b √δ + ω_idle) / ω_full     (the nominal curve, below)
+//! ```
+//!
+//! and the modelled speed `ω = ω_full x` goes to the effectiveness regression exactly where a
+//! reported speed would, so G1 is learned per unit of the modelled `ω²`; per unit normalised
+//! thrust (`g1_per_unit_thrust`, what the thrust axis and INDI use) it is right wherever the true
+//! thrust is proportional to `x²` (a scale between them is absorbed by G1). The controller
+//! ([`crate::indi`]) already models each motor's speed from its commands with the learned curve
+//! and τ and never reads reports, so the nominal curve and the identified τ
+//! ([`CommandSpeedModel::motor_model`]) are what it flies on.
+//!
+//! **The lag from the angular response.** The angular acceleration is `α = Σ C_i x_i² + Σ k_i ẋ_i
+//! + d` (`C` = G1τ per unit thrust; `k` the rotors' reaction to their acceleration, mostly yaw;
+//! `d` the Euler, gyroscopic and drag terms, slow). With `τ ẋ = x_s − x`:
+//!
+//! ```text
+//! 2 α = Σ C_i (2 x_i x_s,i) + Σ 2k_i ẋ_s,i − τ α̇ + (2d + τ ḋ)
+//! ```
+//!
+//! linear in `(C, k, τ)` given α, α̇ and the modelled `x` (the motor model's trick
+//! `ω = ω_s − τ ω̇`, with the body as the sensor; `x` comes from the current τ, a fixed-point
+//! iteration that settles as τ does). Without the rotor-reaction regressors `ẋ_s` the yaw
+//! reaction at each command step, a lead, pulled τ to the lower bound on every simulated
+//! airframe. To differentiate the gyro once instead of twice, both sides pass through `F/s`
+//! with `F = LP · HP²` (a 2nd-order Butterworth low-pass at [`LAG_LOWPASS_HZ`] and two first-order
+//! high-passes at [`LAG_HIGH_PASS_HZ`]): `F/s = LP·HP·L` with `L` the first-order low-pass at
+//! the high-pass corner, and `(F/s)·ẋ_s = F·x_s`. Per body axis one recursive least squares of
+//! `2m + 1` parameters; the three axes' τ are combined by their variances with a weak prior
+//! ([`TAU_PRIOR_S`], [`TAU_PRIOR_STD_S`]). The high-passes remove what varies at 0.2–2 Hz
+//! (`d`); the pulses carry 5–40 Hz.
+//!
+//! **Assumptions, stated** (the simulator's randomised world, `sim::world`, draws across them):
+//! - one time constant for every motor (the world's motors differ by ±10 %), in
+//!   [`TAU_MIN_S`]–[`TAU_MAX_S`];
+//! - the ESC curve is unknown and not identified yet: the nominal curve ([`NOMINAL_KAPPA`],
+//!   [`NOMINAL_IDLE_FRACTION`]) sits in the middle of the families seen (the papers' κ 0–1;
+//!   thrust `kδ² + (1 − k)δ`; speed `δ^p`, p 0.6–1.4; idle 3–15 % of full speed). A curve unlike
+//!   it biases τ (speed `∝ δ^1.4`: τ 25–30 % low in the unit test's synthetic pulses) and, through
+//!   the modelled speeds, G1: the main error left (docs/benchmarks.md);
+//! - gyro noise up to 3× the ICM-42688-P's and rotor vibration: filtered by the same 20 Hz
+//!   low-pass as the effectiveness signals.
+//!
+//! Cost: the filters on every sample and one of the three axes' regressions per sample in turn;
+//! the motor-model regressions, which need speeds, do not run (not measured on the M7 yet).
+
+// Index loops are kept where they run over axes and motors side by side (several arrays per
+// index), as in `effectiveness`.
+#![allow(clippy::needless_range_loop)]
+
+use super::motor_model::MotorModel;
+use super::rls::{packed_len, Rls, RlsConfig};
+use super::MAX_MOTORS;
+use crate::filters::{BiquadCoefficients, Butterworth2};
+
+/// Full speed of the modelled motor, rad/s: a scale of our own choosing (the truth's is unknown
+/// without telemetry), of the order of real ones so that the effectiveness regression's scaling
+/// (`SPEED2_SCALE`) holds. G1 per unit thrust does not depend on it.
+pub const NOMINAL_FULL_SPEED_RAD_S: f32 = 1000.0;
+/// κ of the nominal curve `ω_s = a δ + b √δ + ω_idle`, `κ = a/(a + b)`: the middle of the
+/// papers' family, close to a speed `∝ δ^0.75` (the middle of the power laws seen, p 0.6–1.4
+/// giving thrust `∝ δ^1.2–2.8`) and to thrust `∝ 0.5 δ² + 0.5 δ`.
+pub const NOMINAL_KAPPA: f32 = 0.5;
+/// Idle speed of the nominal curve, fraction of full speed (ESCs idle at 3–15 %).
+pub const NOMINAL_IDLE_FRACTION: f32 = 0.08;
+/// Low-pass of the lag regression's signals, Hz: the effectiveness regression's (the pulses
+/// carry 5–40 Hz).
+pub const LAG_LOWPASS_HZ: f32 = super::EFFECTIVENESS_CUTOFF_HZ;
+/// Corner of the two high-passes of the lag regression, Hz (see the module doc).
+pub const LAG_HIGH_PASS_HZ: f32 = 5.0;
+/// Prior of the time constant, s: a 3–5-inch motor's (docs/algorithms/learner.md: 20–27 ms).
+pub const TAU_PRIOR_S: f32 = 0.025;
+/// One standard deviation of that prior, s: weak against a pulse's evidence.
+pub const TAU_PRIOR_STD_S: f32 = 0.02;
+/// Smallest time constant reported, s.
+pub const TAU_MIN_S: f32 = 0.008;
+/// Largest time constant reported, s.
+pub const TAU_MAX_S: f32 = 0.1;
+/// Command above which a motor counts as pulsed: the lag regression learns from the first
+/// pulse on. The spin-up before the pulses (δ = 0.02, `ExcitationConfig::spin_up_command`) starts
+/// every motor from rest together: its angular response is the rotors' reaction and the ESCs'
+/// start, not the lag of a thrust change, and learning from it pinned τ to its lower bound for
+/// the first 80 ms of the excitation on the simulator's airframes.
+pub const PULSE_COMMAND: f32 = 0.1;
+/// One standard deviation of τ below which the lag counts as identified, s.
+pub const TAU_CONVERGED_STD_S: f32 = 0.002;
+/// The τ regressor's unit: α̇ in units of 100 rad/s², so τ is in units of 10 ms (order one).
+const TAU_SCALE_S: f32 = 0.01;
+
+/// Regressors of one axis: two per motor (thrust, rotor reaction) and τ.
+const LAG_PARAMETERS_MAX: usize = 2 * MAX_MOTORS + 1;
+
+/// A first-order high-pass `y_k = p (y_{k−1} + x_k − x_{k−1})`.
+#[derive(Clone, Copy, Debug, Default)]
+struct HighPass {
+    input: f32,
+    output: f32,
+}
+
+impl HighPass {
+    fn reset_to(&mut self, x: f32) {
+        *self = Self { input: x, output: 0.0 };
+    }
+
+    fn update(&mut self, x: f32, pole: f32) -> f32 {
+        self.output = pole * (self.output + x - self.input);
+        self.input = x;
+        self.output
+    }
+}
+
+/// The nominal motor curve with the time constant `tau_s` (the model the controller flies).
+pub fn nominal_motor(tau_s: f32, tau_std_s: f32) -> MotorModel {
+    let idle = NOMINAL_IDLE_FRACTION * NOMINAL_FULL_SPEED_RAD_S;
+    let span = NOMINAL_FULL_SPEED_RAD_S - idle;
+    let mut model = MotorModel {
+        a_rad_s: NOMINAL_KAPPA * span,
+        b_rad_s: (1.0 - NOMINAL_KAPPA) * span,
+        omega_idle_rad_s: idle,
+        tau_s,
+        tau_std_s,
+        converged: false,
+    };
+    model.converged = model.is_usable() && tau_std_s < TAU_CONVERGED_STD_S;
+    model
+}
+
+/// The time constant from the angular response, and the modelled speeds (see the module doc).
+#[derive(Clone, Debug)]
+pub struct CommandSpeedModel {
+    motors: usize,
+    dt_s: f32,
+    /// Pole of the high-passes and of the low-pass `L`, `exp(−2π f_h dt)`.
+    pole: f32,
+    /// The two high-passes and the low-pass of the body rates (`F·Ω`).
+    rate_hp: [[HighPass; 2]; 3],
+    rate_lp: [Butterworth2; 3],
+    /// `L(2 x x_s)`, its high-pass and its low-pass, per motor.
+    drive_l: [f32; MAX_MOTORS],
+    drive_hp: [HighPass; MAX_MOTORS],
+    drive_lp: [Butterworth2; MAX_MOTORS],
+    /// Filtered rates of the two previous samples, newest first.
+    rate_history: [[f32; 3]; 2],
+    /// Filtered drives of the previous sample.
+    drive_previous: [f32; MAX_MOTORS],
+    /// `F x_s` per motor (the rotor reaction: `r + τ ṙ = k ẋ_s`), its filters and its
+    /// previous value.
+    reaction_hp: [[HighPass; 2]; MAX_MOTORS],
+    reaction_lp: [Butterworth2; MAX_MOTORS],
+    reaction_previous: [f32; MAX_MOTORS],
+    seen: u8,
+    /// Whether a motor has been pulsed ([`PULSE_COMMAND`]) since the reset.
+    pulsed: bool,
+    /// The axis whose regression runs next.
+    next_axis: u8,
+    /// Per body axis: `2 C_a` (index `i < m`) and τ (index `m`, in units of [`TAU_SCALE_S`]).
+    axes: [Rls<LAG_PARAMETERS_MAX, 1, { packed_len(LAG_PARAMETERS_MAX) }>; 3],
+    /// The modelled speed of each motor, fraction of full speed.
+    speed: [f32; MAX_MOTORS],
+    /// The time constant the modelled speeds use now, s, and its standard deviation.
+    tau_s: f32,
+    tau_std_s: f32,
+}
+
+impl CommandSpeedModel {
+    /// A model for `motors` motors (clamped to 1..=8) at `rate_hz`, its signals through the
+    /// low-pass `lowpass` (designed by the caller at [`LAG_LOWPASS_HZ`]).
+    pub fn new(motors: usize, rate_hz: f32, lowpass: BiquadCoefficients) -> Self {
+        let motors = motors.clamp(1, MAX_MOTORS);
+        let config = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
+        let dt_s = 1.0 / rate_hz;
+        let butterworth = Butterworth2::from_coefficients(lowpass);
+        Self {
+            motors,
+            dt_s,
+            pole: libm::expf(-core::f32::consts::TAU * LAG_HIGH_PASS_HZ * dt_s),
+            rate_hp: [[HighPass::default(); 2]; 3],
+            rate_lp: [butterworth; 3],
+            drive_l: [0.0; MAX_MOTORS],
+            drive_hp: [HighPass::default(); MAX_MOTORS],
+            drive_lp: [butterworth; MAX_MOTORS],
+            rate_history: [[0.0; 3]; 2],
+            drive_previous: [0.0; MAX_MOTORS],
+            reaction_hp: [[HighPass::default(); 2]; MAX_MOTORS],
+            reaction_lp: [butterworth; MAX_MOTORS],
+            reaction_previous: [0.0; MAX_MOTORS],
+            seen: 0,
+            pulsed: false,
+            next_axis: 0,
+            axes: core::array::from_fn(|_| Rls::new(2 * motors + 1, config)),
+            speed: [0.0; MAX_MOTORS],
+            tau_s: TAU_PRIOR_S,
+            tau_std_s: TAU_PRIOR_STD_S,
+        }
+    }
+
+    /// Forget everything (a new identification).
+    pub fn reset(&mut self) {
+        for rls in &mut self.axes {
+            rls.reset();
+        }
+        self.speed = [0.0; MAX_MOTORS];
+        self.tau_s = TAU_PRIOR_S;
+        self.tau_std_s = TAU_PRIOR_STD_S;
+        self.next_axis = 0;
+        self.seen = 0;
+        self.pulsed = false;
+    }
+
+    /// The nominal curve's steady speed for command δ, fraction of full speed (0 while the ESC
+    /// has not yet started the motor, `running` false).
+    pub fn target_speed(command: f32, running: bool) -> f32 {
+        if !running {
+            return 0.0;
+        }
+        nominal_motor(TAU_PRIOR_S, 0.0).steady_speed_rad_s(command) / NOMINAL_FULL_SPEED_RAD_S
+    }
+
+    /// One sample: the body rates (rad/s, IMU axes), the commands driving the motors, whether
+    /// the ESCs run them, and whether to learn from it (else only the filters run). Returns the
+    /// modelled speeds (rad/s, the nominal scale).
+    pub fn update(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        driving: &[f32; MAX_MOTORS],
+        running: bool,
+        learn: bool,
+    ) -> [f32; MAX_MOTORS] {
+        let m = self.motors;
+        // The exact first-order response to the held target over a step.
+        let lag = 1.0 - libm::expf(-self.dt_s / self.tau_s);
+        let mut speeds = [0.0; MAX_MOTORS];
+        let mut drives = [0.0; MAX_MOTORS];
+        let mut targets = [0.0; MAX_MOTORS];
+        for i in 0..m {
+            let d = if driving[i].is_finite() { driving[i] } else { 0.0 };
+            self.pulsed |= d > PULSE_COMMAND;
+            let target = Self::target_speed(d, running);
+            drives[i] = 2.0 * self.speed[i] * target;
+            targets[i] = target;
+            self.speed[i] += (target - self.speed[i]) * lag;
+            speeds[i] = NOMINAL_FULL_SPEED_RAD_S * self.speed[i];
+        }
+        if gyro_rad_s.iter().all(|w| w.is_finite()) {
+            let learn = learn && self.pulsed;
+            self.identify(gyro_rad_s, &drives, &targets, learn);
+        } else {
+            self.seen = 0;
+        }
+        speeds
+    }
+
+    fn identify(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        drives: &[f32; MAX_MOTORS],
+        targets: &[f32; MAX_MOTORS],
+        learn: bool,
+    ) {
+        let m = self.motors;
+        let pole = self.pole;
+        if self.seen == 0 {
+            for a in 0..3 {
+                self.rate_hp[a][0].reset_to(gyro_rad_s[a]);
+                self.rate_hp[a][1].reset_to(0.0);
+                self.rate_lp[a].reset_to(0.0);
+            }
+            for i in 0..m {
+                self.drive_l[i] = drives[i];
+                self.drive_hp[i].reset_to(drives[i]);
+                self.drive_lp[i].reset_to(0.0);
+                self.reaction_hp[i][0].reset_to(targets[i]);
+                self.reaction_hp[i][1].reset_to(0.0);
+                self.reaction_lp[i].reset_to(0.0);
+            }
+        }
+        let mut rate = [0.0; 3];
+        for a in 0..3 {
+            let once = self.rate_hp[a][0].update(gyro_rad_s[a], pole);
+            let twice = self.rate_hp[a][1].update(once, pole);
+            rate[a] = self.rate_lp[a].update(twice);
+        }
+        let mut filtered = [0.0; MAX_MOTORS];
+        for i in 0..m {
+            self.drive_l[i] = pole * self.drive_l[i] + (1.0 - pole) * drives[i];
+            let high = self.drive_hp[i].update(self.drive_l[i], pole);
+            filtered[i] = self.drive_lp[i].update(high);
+        }
+        let mut reaction = [0.0; MAX_MOTORS];
+        for i in 0..m {
+            let once = self.reaction_hp[i][0].update(targets[i], pole);
+            let twice = self.reaction_hp[i][1].update(once, pole);
+            reaction[i] = self.reaction_lp[i].update(twice);
+        }
+        let reaction_lined_up = core::mem::replace(&mut self.reaction_previous, reaction);
+        let [previous, before] = self.rate_history;
+        self.rate_history = [rate, previous];
+        let lined_up = core::mem::replace(&mut self.drive_previous, filtered);
+        if self.seen < 2 {
+            self.seen += 1;
+            return;
+        }
+        if !learn {
+            return;
+        }
+        // One axis per sample, centred on the previous sample: `2 F·Ω = C' z − τ (F·Ω)˙`.
+        let a = usize::from(self.next_axis);
+        self.next_axis = (self.next_axis + 1) % 3;
+        let rate_dot = (rate[a] - before[a]) / (2.0 * self.dt_s);
+        let mut x = [0.0; LAG_PARAMETERS_MAX];
+        x[..m].copy_from_slice(&lined_up[..m]);
+        x[m..2 * m].copy_from_slice(&reaction_lined_up[..m]);
+        x[2 * m] = -rate_dot * TAU_SCALE_S;
+        // Refused only for non-finite values, which were excluded above.
+        let _ = self.axes[a].update(&x[..2 * m + 1], &[2.0 * previous[a]]);
+        self.combine();
+    }
+
+    /// τ from the three axes and the prior, weighted by their variances.
+    fn combine(&mut self) {
+        let m = self.motors;
+        let mut information = 1.0 / (TAU_PRIOR_STD_S * TAU_PRIOR_STD_S);
+        let mut weighted = TAU_PRIOR_S * information;
+        for rls in &self.axes {
+            if rls.updates() < 2 {
+                continue;
+            }
+            let variance = rls.p_diag(2 * m) * rls.error_var(0) * TAU_SCALE_S * TAU_SCALE_S;
+            let tau = rls.theta(2 * m, 0) * TAU_SCALE_S;
+            if variance.is_finite() && variance > 0.0 && tau.is_finite() {
+                information += 1.0 / variance;
+                weighted += tau / variance;
+            }
+        }
+        self.tau_s = crate::math::clamp(weighted / information, TAU_MIN_S, TAU_MAX_S);
+        self.tau_std_s = libm::sqrtf(1.0 / information);
+    }
+
+    /// The time constant identified so far, s.
+    pub fn tau_s(&self) -> f32 {
+        self.tau_s
+    }
+
+    /// The motor model the controller flies: the nominal curve with the identified lag.
+    pub fn motor_model(&self) -> MotorModel {
+        nominal_motor(self.tau_s, self.tau_std_s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A body whose rates answer four motors through torques `C ω²`, each motor's speed a
+    /// first-order lag towards `curve(δ)` (fraction of full speed); pulses like the
+    /// excitation's, one motor after the other. Returns the identified τ.
+    fn identify(tau: f32, curve: impl Fn(f32) -> f32) -> f32 {
+        let rate_hz = 2000.0;
+        let dt = 1.0 / rate_hz;
+        let lowpass = BiquadCoefficients::butterworth_lowpass(LAG_LOWPASS_HZ, rate_hz).unwrap();
+        let mut model = CommandSpeedModel::new(4, rate_hz, lowpass);
+        let c = [
+            [300.0, -300.0, 300.0, -300.0],
+            [300.0, 300.0, -300.0, -300.0],
+            [40.0, -40.0, -40.0, 40.0],
+        ];
+        let mut speed = [0.0f32; 4];
+        let mut rate = [3.0f32, -2.0, 1.0];
+        for n in 0..1000 {
+            let t = n as f32 * dt;
+            let mut commands = [0.0; MAX_MOTORS];
+            for (i, command) in commands.iter_mut().enumerate().take(4) {
+                let start = 0.04 + 0.05 * i as f32;
+                let s = t - start;
+                *command = if s < 0.0 {
+                    0.0
+                } else if s < 0.025 {
+                    0.5
+                } else if s < 0.075 {
+                    1.0 - (s - 0.025) / 0.05
+                } else {
+                    0.0
+                };
+            }
+            for i in 0..4 {
+                let target = curve(commands[i]);
+                speed[i] += (target - speed[i]) * (1.0 - libm::expf(-dt / tau));
+            }
+            for a in 0..3 {
+                let alpha: f32 = (0..4).map(|i| c[a][i] * speed[i] * speed[i]).sum::<f32>();
+                rate[a] += alpha * dt;
+            }
+            model.update(rate, &commands, true, true);
+        }
+        model.tau_s()
+    }
+
+    #[test]
+    fn the_lag_is_identified_from_the_angular_response_across_the_range() {
+        for tau in [0.015, 0.025, 0.045] {
+            // The nominal curve itself.
+            let nominal = identify(tau, |d| CommandSpeedModel::target_speed(d, true));
+            assert!((nominal - tau).abs() < 1.5e-3, "τ {tau}: {nominal}");
+        }
+    }
+}
