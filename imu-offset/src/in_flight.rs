@@ -147,7 +147,6 @@ pub struct OffsetFit {
     rate_hz: f32,
     /// How much older the speed reports are than the IMU samples, s.
     speed_lag_s: f32,
-    filter: BiquadCoefficients,
     filters: ButterworthBank<CHANNELS>,
     /// The body's attitude relative to the first sample's (body → first), from the gyro.
     attitude: UnitQuaternion<f32>,
@@ -191,7 +190,6 @@ impl OffsetFit {
             motors: motors.clamp(1, MAX_MOTORS),
             rate_hz,
             speed_lag_s: if speed_lag_s.is_finite() { speed_lag_s } else { 0.0 },
-            filter,
             filters: ButterworthBank::from_coefficients(filter),
             attitude: UnitQuaternion::identity(),
             time_s: 0.0,
@@ -433,11 +431,6 @@ impl OffsetFit {
             g1f_per_speed2,
             samples: self.samples,
         })
-    }
-
-    /// The filter in use (the learner's 20 Hz Butterworth).
-    pub fn filter(&self) -> BiquadCoefficients {
-        self.filter
     }
 }
 
