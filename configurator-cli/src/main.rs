@@ -11,7 +11,7 @@ use configurator_cli::log_files;
 use configurator_cli::offline::{self, InputError};
 use configurator_cli::report;
 use protocol::{Reply, Request, SetTelemetryRate, Telemetry, Topic};
-use serde_json::json;
+use serde_json::{json, Value};
 use std::io::Write as _;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -781,6 +781,15 @@ fn run_on_board(
                 _ => None,
             };
             let battery = fetch_battery(client)?;
+            let identification = fetch_optional(
+                client,
+                Request::GetIdentification(()),
+                "the identification request",
+            )?
+            .and_then(|reply| match reply {
+                Reply::Identification(identification) => Some(identification),
+                _ => None,
+            });
             let stored = fetch_stored_offset(client)?;
             let config = match client.request(&Request::GetConfig(()), "the configuration request")
             {
@@ -798,6 +807,22 @@ fn run_on_board(
                     map.insert("battery".into(), json!(battery.as_ref().map(report::battery_json)));
                     if let Some(learner) = &learner {
                         map.insert("learner".into(), report::learner_json(learner));
+                    }
+                    if let Some(identification) = &identification {
+                        map.insert(
+                            "identification".into(),
+                            report::identification_json(identification),
+                        );
+                    }
+                    // What `imu_offset` shows: the throws' estimate, or the offset fitted in
+                    // the latest flight (protocol 1.12; a 1.11 board only has throws).
+                    let fitted =
+                        identification.is_some_and(|i| i.imu_offset_status_fitted_in_flight);
+                    if let Some(offset) = map.get_mut("imu_offset").and_then(Value::as_object_mut) {
+                        offset.insert(
+                            "source".into(),
+                            json!(if fitted { "fitted_in_flight" } else { "throws" }),
+                        );
                     }
                     if let Some(config) = &config {
                         map.insert("config".into(), report::config_json(config));
@@ -817,6 +842,9 @@ fn run_on_board(
                 }
                 if let Some(learner) = &learner {
                     text.push_str(&report::learner_text(learner));
+                }
+                if let Some(identification) = &identification {
+                    text.push_str(&report::identification_text(identification));
                 }
                 if let Some(flight) = &flight {
                     text.push_str(&report::flight_text(flight));

@@ -3,8 +3,8 @@
 
 use protocol::{
     BoardHealth, Capabilities, FailsafeAction, FailsafeReason, FlightMode, FlightTelemetry,
-    ImuDriverState, Info, LearnerFailure, LearnerPhase, LearnerTelemetry, OffsetAdvice, Status,
-    PROTOCOL_VERSION, SCHEMA_HASH,
+    IdentificationStatus, ImuDriverState, ImuOffsetSource, Info, LearnerFailure, LearnerPhase,
+    LearnerTelemetry, OffsetAdvice, Status, PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use serde_json::{json, Value};
 use std::fmt::Write as _;
@@ -312,6 +312,48 @@ pub fn health_json(health: &protocol::SensorHealth) -> Value {
         "speeds_reported": (0..health.motor_count).map(|i| health.speeds_reported & (1 << i) != 0).collect::<Vec<_>>(),
         "speed_reports_lost": health.speed_reports_lost,
     })
+}
+
+/// Where the latest identification's IMU offset came from, one word for JSON.
+fn offset_source_name(source: ImuOffsetSource) -> &'static str {
+    match source {
+        ImuOffsetSource::NotUsed => "none_yet",
+        ImuOffsetSource::Configured => "calibration",
+        ImuOffsetSource::Onboard => "throws",
+        ImuOffsetSource::Zero => "zero",
+        ImuOffsetSource::FittedInFlight => "fitted_in_flight",
+    }
+}
+
+/// How the latest identification was made (protocol 1.12), for programs.
+pub fn identification_json(identification: &IdentificationStatus) -> Value {
+    json!({
+        "speeds": if identification.speeds_modelled { "modelled" } else { "measured" },
+        "imu_offset_source": offset_source_name(identification.imu_offset_source),
+        "r_imu_m": identification.r_imu_m,
+    })
+}
+
+/// How the latest identification was made, in words: which path gave the motor speeds and
+/// where the IMU offset came from.
+pub fn identification_text(identification: &IdentificationStatus) -> String {
+    if identification.imu_offset_source == ImuOffsetSource::NotUsed {
+        return "  identification  none since start-up\n".into();
+    }
+    let speeds = if identification.speeds_modelled {
+        "modelled from the commands (the ESCs report no speed: the weaker path)"
+    } else {
+        "measured (bidirectional DShot)"
+    };
+    let r = vector(identification.r_imu_m, 1000.0, 2);
+    let offset = match identification.imu_offset_source {
+        ImuOffsetSource::NotUsed => unreachable!("returned above"),
+        ImuOffsetSource::Configured => format!("the stored calibration, {r} mm"),
+        ImuOffsetSource::Onboard => format!("the onboard estimate from throws, {r} mm"),
+        ImuOffsetSource::Zero => "none known: zero (no calibration, not fitted)".into(),
+        ImuOffsetSource::FittedInFlight => format!("fitted in this flight, {r} mm"),
+    };
+    format!("  identification  speeds {speeds}\n                  IMU offset {offset}\n")
 }
 
 /// The flight battery in words: voltage (per cell), current, charge drawn, charge left.

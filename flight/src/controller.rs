@@ -271,6 +271,11 @@ impl Controller {
         &self.gains
     }
 
+    /// The IMU's offset from the CoG from the next step on ([`Indi::set_imu_offset`]).
+    pub fn set_imu_offset(&mut self, r_imu_m: [f32; 3]) -> bool {
+        self.indi.set_imu_offset(r_imu_m)
+    }
+
     /// Move the flown G1 and G2 a fraction `gain` towards `learned` (the in-flight refinement,
     /// [`IndiModel::refine_effectiveness`]). Returns whether it did.
     pub fn refine_effectiveness(&mut self, learned: &LearnedModel, gain: f32) -> bool {

@@ -418,6 +418,18 @@ impl Indi {
         self.model.refine_effectiveness(learned, gain)
     }
 
+    /// Compensate the accelerometer with the IMU at `r_imu_m` from the CoG (IMU axes, m) from
+    /// the next step on: an offset determined in flight after the loop was formed. A
+    /// non-finite offset is refused (`false`) and changes nothing.
+    pub fn set_imu_offset(&mut self, r_imu_m: [f32; 3]) -> bool {
+        let r = Vector3::from(r_imu_m);
+        if !r.iter().all(|x| x.is_finite()) {
+            return false;
+        }
+        self.r_thrust_m = self.model.q_imu_thrust.inverse() * r;
+        true
+    }
+
     /// The model flown.
     pub fn model(&self) -> &IndiModel {
         &self.model

@@ -282,6 +282,43 @@ pub enum Reply {
     TelemetryRate(SetTelemetryRate),
     /// Answer to [`Request::GetBattery`]. Protocol 1.11.
     Battery(BatteryStatus),
+    /// Answer to [`Request::GetIdentification`]. Protocol 1.12.
+    Identification(IdentificationStatus),
+}
+
+/// How the latest throw-to-fly identification was made (protocol 1.12,
+/// [`Request::GetIdentification`]): which path gave the motor speeds, and where the IMU offset
+/// came from.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct IdentificationStatus {
+    /// The motor speeds were modelled from the commands (ESCs without bidirectional DShot;
+    /// docs/algorithms/learner.md, "Without speed telemetry"), not measured. Measured speeds
+    /// are the better path.
+    pub speeds_modelled: bool,
+    /// Where the IMU offset the identification used came from.
+    pub imu_offset_source: ImuOffsetSource,
+    /// That offset: IMU position relative to the centre of gravity, m, IMU axes.
+    pub r_imu_m: [f32; 3],
+    /// Whether [`Status::imu_offset`] shows the offset fitted in this flight (its 95 %
+    /// ellipsoid and verdict) rather than the onboard estimator's throws.
+    pub imu_offset_status_fitted_in_flight: bool,
+}
+
+/// Where the IMU offset of an identification came from (protocol 1.12).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ImuOffsetSource {
+    /// No identification since start-up.
+    #[default]
+    NotUsed,
+    /// The stored calibration (`imu_offset_m` with `imu_offset_valid` = 1).
+    Configured,
+    /// The onboard estimator's throws (well determined).
+    Onboard,
+    /// None known and none fitted: zero (the specific-force rows are then biased at high rates).
+    Zero,
+    /// Fitted in this flight, jointly with the specific-force rows of G1 (no calibration
+    /// throw; docs/algorithms/imu-offset.md, "In flight, with no calibration").
+    FittedInFlight,
 }
 
 /// The flight battery as the board measures it (protocol 1.11, [`Request::GetBattery`]).
@@ -1182,6 +1219,8 @@ crate::table::message_table! {
         /// The flight battery ([`Reply::Battery`]); `Unsupported` on a device that measures
         /// none. Protocol 1.11.
         0x1E => GetBattery(()),
+        /// How the latest identification was made ([`Reply::Identification`]). Protocol 1.12.
+        0x1F => GetIdentification(()),
     }
 }
 

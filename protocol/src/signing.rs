@@ -126,7 +126,8 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::GetLinkSecurity(())
         | Request::ListLogs(_)
         | Request::ReadLog(_)
-        | Request::GetBattery(()) => false,
+        | Request::GetBattery(())
+        | Request::GetIdentification(()) => false,
     }
 }
 

@@ -740,3 +740,18 @@ fn protocol_1_11_battery_is_pinned() {
         "03 81 02 02 0f 01 03 84 41 01 03 44 41 01 09 7a 43 04 5c 69 dc 1a b7 00"
     );
 }
+
+#[test]
+fn protocol_1_12_identification_is_pinned() {
+    assert_eq!(request(Request::GetIdentification(()), 1), "07 1f 01 ad 0f b6 db 00");
+    let identification = IdentificationStatus {
+        speeds_modelled: true,
+        imu_offset_source: ImuOffsetSource::FittedInFlight,
+        r_imu_m: [0.0125, -0.25, 0.5],
+        imu_offset_status_fitted_in_flight: true,
+    };
+    assert_eq!(
+        device(DeviceMessage::Response(Ok(Reply::Identification(identification))), 2),
+        "03 81 02 08 10 01 04 cd cc 4c 3c 01 03 80 be 01 01 07 3f 01 eb 72 99 be 00"
+    );
+}

@@ -452,7 +452,7 @@ pub fn serve_firmware(
     // An IMU offset given on the command line is in force as if calibrated (not saved: the
     // bridge has no flash; parameters last for the run).
     if let Some(r_imu_m) = app.background.configured_imu_offset() {
-        app.link.settings_mut().update(|params| params.store_calibration(r_imu_m, None));
+        app.link.settings_mut().update(|params| params.store_calibration(r_imu_m, [0.0; 3], None));
     }
     let mut last_datagram = Instant::now();
     let mut now_us = 0u64;

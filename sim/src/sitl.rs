@@ -421,7 +421,7 @@ impl Runner {
             settings.set_link_session(crate::serve::random_session());
             if let Some(r_imu_m) = self.imu_offset_m {
                 // The command line's offset is in force as if calibrated (not saved).
-                settings.update(|params| params.store_calibration(r_imu_m, None));
+                settings.update(|params| params.store_calibration(r_imu_m, [0.0; 3], None));
             }
             // Read at start-up, as the board's motor outputs do.
             board.ports().1.set_bidirectional(settings.params().bidirectional_dshot());

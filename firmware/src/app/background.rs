@@ -19,12 +19,13 @@
 //!   else none (and the status says which). With `motor_bidir_dshot` = 0 it is built to model
 //!   the speeds from the commands (`LearnerConfig::speed_telemetry`, `flight::learner::no_speed`
 //!   where `flight` has the feature `no-speed`; the published model's `speeds_modelled` says so).
-//! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32's first step), when
-//!   enabled (`Background::set_offset_fit`, host builds only: off by default, a prototype that
-//!   does not fit the board's flash yet, 7.6 KB): on the learner's samples from the release,
-//!   jointly with the force rows of G1; once well determined, the published model carries the
-//!   fitted offset and rows
-//!   ([`OffsetSource::FittedInFlight`]). Measured in docs/algorithms/imu-offset.md.
+//! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32) when none is known
+//!   (no calibration stored, the onboard estimate not well determined) and the ESCs report
+//!   their speeds: on the learner's samples from the release, jointly with the force rows of G1;
+//!   once well determined, the published model carries the fitted offset and rows
+//!   ([`ImuOffsetSource::FittedInFlight`]), the status shows it as the IMU offset, and the
+//!   finished identification stores it as the calibration. Host builds only for now: on the
+//!   board it does not fit the flash yet (7.6 KB). Measured in docs/algorithms/imu-offset.md.
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
 //! board, never computed under it.
@@ -40,7 +41,7 @@ use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
 use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate};
 use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
-use protocol::{ImuOffsetStatus, OffsetAdvice};
+use protocol::{ImuOffsetSource, ImuOffsetStatus, OffsetAdvice};
 
 /// How long the learner keeps learning after the excitation ends, s: the last motor's speed
 /// settles back to idle in about three time constants (75 ms for a 25 ms motor).
@@ -88,12 +89,16 @@ pub struct BackgroundResults {
     pub accel_mean_mps2: [f32; 3],
     /// Accelerometer standard deviation over that window, m/s².
     pub accel_std_mps2: [f32; 3],
-    /// The IMU-offset estimator's state and latest estimate.
+    /// The IMU-offset estimator's state and latest estimate, or the offset fitted in the
+    /// latest flight when [`Self::imu_offset_fitted_in_flight`].
     pub imu_offset: ImuOffsetStatus,
+    /// Whether [`Self::imu_offset`] shows the in-flight fit (until the estimator's next
+    /// estimate or restart).
+    pub imu_offset_fitted_in_flight: bool,
     /// What the in-flight learner has learned in the latest attempt.
     pub learned: LearnedModel,
     /// Where the IMU offset used by the latest attempt came from.
-    pub learner_offset: OffsetSource,
+    pub learner_offset: ImuOffsetSource,
     /// That offset, IMU axes, m (the controller compensates the accelerometer with it too).
     pub learner_r_imu_m: [f32; 3],
     /// The IMU-offset calibration the host started ([`Background::start_calibration`]), if one
@@ -123,23 +128,6 @@ pub struct CalibrationState {
     /// The accelerometer bias fitted with the offset, m/s², IMU axes (the residual after the
     /// configured bias was subtracted), when the model fits one.
     pub acc_bias_mps2: Option<[f32; 3]>,
-}
-
-/// Where the learner's IMU offset came from.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum OffsetSource {
-    /// No attempt yet.
-    #[default]
-    NotUsed,
-    /// Configured ([`Background::set_imu_offset`]).
-    Configured,
-    /// The onboard estimate (well determined).
-    Onboard,
-    /// None known: zero was used (the specific-force rows are then biased at high rates).
-    Zero,
-    /// Fitted in this flight with the specific-force rows (`imu_offset::in_flight`, enabled
-    /// by [`Background::set_offset_fit`]): the published model carries the fit's force rows.
-    FittedInFlight,
 }
 
 /// The background worker.
@@ -237,7 +225,7 @@ impl<'q> Background<'q> {
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);
             #[cfg(not(target_os = "none"))]
-            addr_of_mut!((*worker).offset_fit_enabled).write(false);
+            addr_of_mut!((*worker).offset_fit_enabled).write(true);
             #[cfg(not(target_os = "none"))]
             addr_of_mut!((*worker).offset_fit).write(None);
             addr_of_mut!((*worker).results).write(BackgroundResults::default());
@@ -251,10 +239,13 @@ impl<'q> Background<'q> {
         self.configured_offset_m = r_imu_m.filter(|r| r.iter().all(|x| x.is_finite()));
     }
 
-    /// Fit the IMU offset in flight on every attempt from the next one (`imu_offset::in_flight`;
-    /// a prototype for a board with no calibration, issue 32: off by default). The estimate is
-    /// reported in [`BackgroundResults::flight_offset`]; once well determined, the published
-    /// model carries it and the force rows fitted with it ([`OffsetSource::FittedInFlight`]).
+    /// Whether attempts with no IMU offset known (no calibration stored, the onboard estimate
+    /// not well determined) fit it in flight (`imu_offset::in_flight`, issue 32; on by default
+    /// where it is built). The estimate is reported in [`BackgroundResults::flight_offset`];
+    /// once well determined, the published model carries it and the force rows fitted with it
+    /// ([`ImuOffsetSource::FittedInFlight`]), the status shows it as the IMU offset, and the
+    /// finished identification stores it as the calibration (`settings::Settings::service`).
+    /// Off: such attempts fly with no offset, as before issue 32 (a baseline for the simulator).
     #[cfg(not(target_os = "none"))]
     pub fn set_offset_fit(&mut self, enabled: bool) {
         self.offset_fit_enabled = enabled;
@@ -311,6 +302,7 @@ impl<'q> Background<'q> {
             self.imu_offset = ImuOffsetEstimator::new(self.rate_hz, self.imu_offset_config).ok();
         }
         self.results.imu_offset = ImuOffsetStatus::default();
+        self.results.imu_offset_fitted_in_flight = false;
         self.previous_t_us = None;
     }
 
@@ -441,16 +433,33 @@ impl<'q> Background<'q> {
         }
     }
 
-    /// Once the in-flight fit has determined the offset, the published model carries it and the
-    /// force rows fitted with it (the learner's own, learned with the offset of the attempt's
-    /// start, are off by `[r − r₀]× G1τ` and more: `imu_offset::in_flight`), so that the
-    /// controller engages with both and compensates its accelerometer with the fitted offset.
+    /// Once the in-flight fit has determined the offset, the learner publishes the force rows
+    /// fitted with it and solves the thrust axis on them (its own, learned with the offset of
+    /// the attempt's start, are off by `[r − r₀]× G1τ` and more: `imu_offset::in_flight`), and
+    /// the controller compensates its accelerometer with the fitted offset, from engagement or,
+    /// when the fit is determined later, from then on (`pilot::Pilot::set_model`).
     #[cfg(not(target_os = "none"))]
     fn apply_offset_fit(&mut self) {
         let Some(fit) = self.results.flight_offset.filter(|f| f.well_determined) else { return };
+        if let Some(learner) = self.learner.get_mut() {
+            learner.set_force_rows(Some(fit.g1f_per_speed2));
+        }
+        // The model published before the learner's next publication carries them already.
         self.results.learned.g1_per_speed2[..3].copy_from_slice(&fit.g1f_per_speed2);
         self.results.learner_r_imu_m = fit.r_imu_m;
-        self.results.learner_offset = OffsetSource::FittedInFlight;
+        self.results.learner_offset = ImuOffsetSource::FittedInFlight;
+        // Shown as the IMU offset, as a calibration's would be (its throws stay counted).
+        let mut semi_axes_m = fit.ci95_semi_axes_m;
+        semi_axes_m.reverse();
+        self.results.imu_offset = ImuOffsetStatus {
+            estimated: true,
+            r_imu_m: fit.r_imu_m,
+            ci95_semi_axes_m: semi_axes_m,
+            well_determined: true,
+            advice: OffsetAdvice::None,
+            ..self.results.imu_offset
+        };
+        self.results.imu_offset_fitted_in_flight = true;
     }
 
     /// One sample into the in-flight IMU-offset fit, solved every
@@ -494,7 +503,13 @@ impl<'q> Background<'q> {
         #[cfg(not(target_os = "none"))]
         {
             self.results.flight_offset = None;
-            if self.offset_fit_enabled {
+            // Fitted only where nothing better is known, and only from measured speeds (the
+            // fit regresses the accelerometer on them).
+            let fitting =
+                self.offset_fit_enabled && source == ImuOffsetSource::Zero && self.speed_telemetry;
+            if !fitting {
+                self.offset_fit = None;
+            } else {
                 let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
                 let motors = usize::from(motor_count);
                 match &mut self.offset_fit {
@@ -506,15 +521,15 @@ impl<'q> Background<'q> {
     }
 
     /// The IMU offset for a new identification and where it came from.
-    fn learner_offset(&self) -> ([f32; 3], OffsetSource) {
+    fn learner_offset(&self) -> ([f32; 3], ImuOffsetSource) {
         if let Some(r) = self.configured_offset_m {
-            return (r, OffsetSource::Configured);
+            return (r, ImuOffsetSource::Configured);
         }
         let onboard = &self.results.imu_offset;
         if onboard.well_determined {
-            (onboard.r_imu_m, OffsetSource::Onboard)
+            (onboard.r_imu_m, ImuOffsetSource::Onboard)
         } else {
-            ([0.0; 3], OffsetSource::Zero)
+            ([0.0; 3], ImuOffsetSource::Zero)
         }
     }
 
@@ -555,6 +570,7 @@ impl<'q> Background<'q> {
                 (u64::from(segment.len()) * self.period_us / 1000).min(65_535) as u16;
         }
         status.throws = u8::try_from(estimator.segments().len()).unwrap_or(u8::MAX);
+        self.results.imu_offset_fitted_in_flight = false;
         match estimator.estimate() {
             Ok(estimate) => {
                 status.estimated = true;

@@ -23,9 +23,9 @@ use protocol::text as short_text;
 use protocol::{
     CalibrationThrow, Capabilities, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError,
     Decoder, DeviceError, DeviceMessage, DshotCommand, Event, FailsafeCounters, FlightMode,
-    FlightTelemetry, FrameError, ImuStatus, LearnerFailure, LearnerPhase, LearnerTelemetry,
-    LinkCounters, LinkSecurity, ParamRef, Reply, Request, Response, SensorHealth, SetLinkKey,
-    SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS,
+    FlightTelemetry, FrameError, IdentificationStatus, ImuStatus, LearnerFailure, LearnerPhase,
+    LearnerTelemetry, LinkCounters, LinkSecurity, ParamRef, Reply, Request, Response, SensorHealth,
+    SetLinkKey, SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS,
     MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
 };
 
@@ -571,8 +571,13 @@ impl LinkServer {
                             DeviceError::NotReady
                         });
                     }
-                    settings
-                        .update(|p| p.store_calibration(offset.r_imu_m, calibration.acc_bias_mps2));
+                    settings.update(|p| {
+                        p.store_calibration(
+                            offset.r_imu_m,
+                            offset.ci95_semi_axes_m,
+                            calibration.acc_bias_mps2,
+                        )
+                    });
                 }
                 self.background_commands
                     .push_back(BackgroundCommand::StopCalibration)
@@ -625,6 +630,12 @@ impl LinkServer {
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
             Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
+            Request::GetIdentification(()) => Ok(Reply::Identification(IdentificationStatus {
+                speeds_modelled: view.background.learned.speeds_modelled,
+                imu_offset_source: view.background.learner_offset,
+                r_imu_m: view.background.learner_r_imu_m,
+                imu_offset_status_fitted_in_flight: view.background.imu_offset_fitted_in_flight,
+            })),
             Request::GetBattery(()) => {
                 view.control.battery.map(Reply::Battery).ok_or(DeviceError::Unsupported)
             }

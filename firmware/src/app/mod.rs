@@ -29,8 +29,7 @@ pub mod system;
 mod telemetry;
 
 pub use background::{
-    Background, BackgroundCommand, BackgroundResults, CalibrationState, OffsetSource,
-    STATS_WINDOW_US,
+    Background, BackgroundCommand, BackgroundResults, CalibrationState, STATS_WINDOW_US,
 };
 pub use control::{
     ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot,

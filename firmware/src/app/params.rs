@@ -117,6 +117,8 @@ registry! {
         "1: the learner uses imu_offset_m; 0: the onboard estimate";
     ImuOffsetM = "imu_offset_m", 3, Real, "m", -MAX_OFFSET_M, MAX_OFFSET_M, [0.0], true,
         "IMU position relative to the centre of gravity, IMU axes";
+    ImuOffsetCi95M = "imu_offset_ci95_m", 3, Real, "m", 0.0, MAX_OFFSET_M, [0.0], true,
+        "semi-axes of imu_offset_m's 95 % ellipsoid, largest first (0: not known)";
     AccBiasMps2 = "acc_bias_mps2", 3, Real, "m/s²", -2.0, 2.0, [0.0], true,
         "accelerometer bias, subtracted from every sample, IMU axes";
     // Learned by the in-flight identification (throw-to-fly).
@@ -425,10 +427,17 @@ impl Params {
         }
     }
 
-    /// Store an accepted calibration: the offset, and the bias when it was fitted (`None`
+    /// Store an accepted calibration (the throws', or the fit of a flight with none): the
+    /// offset with the semi-axes of its 95 % ellipsoid, and the bias when it was fitted (`None`
     /// keeps the bias in force).
-    pub fn store_calibration(&mut self, r_imu_m: [f32; 3], acc_bias_mps2: Option<[f32; 3]>) {
+    pub fn store_calibration(
+        &mut self,
+        r_imu_m: [f32; 3],
+        ci95_semi_axes_m: [f32; 3],
+        acc_bias_mps2: Option<[f32; 3]>,
+    ) {
         self.set_learned(Param::ImuOffsetM, &r_imu_m);
+        self.set_learned(Param::ImuOffsetCi95M, &ci95_semi_axes_m);
         self.set_learned(Param::ImuOffsetValid, &[1.0]);
         if let Some(bias) = acc_bias_mps2 {
             // The fitted bias is what remains after the bias in force was subtracted.
@@ -553,8 +562,13 @@ mod tests {
     fn a_calibration_adds_its_residual_bias_to_the_bias_in_force() {
         let mut params = Params::default();
         params.set(Param::AccBiasMps2 as usize, &[0.1, 0.0, -0.2]).unwrap();
-        params.store_calibration([0.012, -0.004, 0.03], Some([0.05, 0.01, 0.0]));
+        params.store_calibration(
+            [0.012, -0.004, 0.03],
+            [0.002, 0.001, 0.0005],
+            Some([0.05, 0.01, 0.0]),
+        );
         assert_eq!(params.configured_offset_m(), Some([0.012, -0.004, 0.03]));
+        assert_eq!(params.get(Param::ImuOffsetCi95M), &[0.002, 0.001, 0.0005]);
         let bias = params.acc_bias_mps2();
         assert!((bias[0] - 0.15).abs() < 1e-6 && (bias[1] - 0.01).abs() < 1e-6, "{bias:?}");
         assert!((bias[2] + 0.2).abs() < 1e-6);

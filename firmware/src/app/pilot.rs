@@ -432,12 +432,19 @@ impl Pilot {
 
     /// The model the background task published, with the IMU offset it was learned with.
     pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3]) {
+        let offset_changed = self.model.is_some_and(|(_, before)| before != r_imu_m);
         self.model = Some((*model, r_imu_m));
         // In flight the learner keeps learning (the background task feeds it while the craft
-        // flies); the controller follows at a lower gain, in the frame it engaged with.
+        // flies); the controller follows at a lower gain, in the frame it engaged with. An IMU
+        // offset fitted in flight after the engagement is taken at once (from zero to a few
+        // centimetres: at hover's rates and angular accelerations the accelerometer's
+        // compensation moves by a fraction of a m/s²).
         if let Some(controller) = &mut self.controller {
             if controller.refine_effectiveness(model, IN_FLIGHT_REFINEMENT_GAIN) {
                 self.status.refinements = self.status.refinements.wrapping_add(1);
+            }
+            if offset_changed {
+                controller.set_imu_offset(r_imu_m);
             }
         }
     }

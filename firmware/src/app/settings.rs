@@ -25,7 +25,7 @@ use core::ops::Range;
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::FlightPhase;
 use protocol::signing::{LinkKey, Signature, KEY_LEN};
-use protocol::{ConfigOrigin, ConfigStatus, DeviceError, StorageStage};
+use protocol::{ConfigOrigin, ConfigStatus, DeviceError, ImuOffsetSource, StorageStage};
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::map::{MapConfig, MapStorage};
 
@@ -325,6 +325,15 @@ impl<F: NorFlash> Settings<F> {
         if finished {
             self.absorbed_samples = Some(learned.samples);
             self.update(|params| params.store_learned(learned));
+            // An IMU offset fitted in this flight is stored as a calibration would be: the
+            // next identifications use it, and `save` keeps it.
+            let background = &view.background;
+            if background.learner_offset == ImuOffsetSource::FittedInFlight
+                && background.imu_offset_fitted_in_flight
+            {
+                let offset = &background.imu_offset;
+                self.update(|p| p.store_calibration(offset.r_imu_m, offset.ci95_semi_axes_m, None));
+            }
         }
         if self.applied_generation == Some(self.generation) {
             return None;

@@ -329,6 +329,9 @@ pub struct Learner {
     /// `Some(every G1 column informed)` once the first half of a publication is done.
     staged: Option<bool>,
     model: LearnedModel,
+    /// The specific-force rows of G1 (per unit squared speed) fitted elsewhere, published and
+    /// solved for the thrust axis in place of the learner's own ([`Learner::set_force_rows`]).
+    force_rows: Option<[[f32; MAX_MOTORS]; 3]>,
 }
 
 impl Learner {
@@ -398,6 +401,7 @@ impl Learner {
             addr_of_mut!((*learner).staging).write(empty);
             addr_of_mut!((*learner).staged).write(None);
             addr_of_mut!((*learner).model).write(empty);
+            addr_of_mut!((*learner).force_rows).write(None);
             Ok(slot.assume_init_mut())
         }
     }
@@ -425,7 +429,22 @@ impl Learner {
         self.samples = 0;
         self.staging = self.model;
         self.staged = None;
+        self.force_rows = None;
         Ok(())
+    }
+
+    /// Publish `g1f_per_speed2` (the specific-force rows of G1, m/s² per (rad/s)², IMU axes,
+    /// columns are motors) instead of the learner's own from the next publication on, and solve
+    /// the thrust axis with them; `None` goes back to the learner's own. For rows fitted with
+    /// the IMU offset in flight (`imu_offset::in_flight`): the learner's, learned with the
+    /// offset of the attempt's start, are off by `[r − r₀]× G1τ`. Until the next
+    /// [`Learner::restart`]. Rows with a non-finite entry are refused (`false`).
+    pub fn set_force_rows(&mut self, g1f_per_speed2: Option<[[f32; MAX_MOTORS]; 3]>) -> bool {
+        if g1f_per_speed2.is_some_and(|rows| !rows.iter().flatten().all(|v| v.is_finite())) {
+            return false;
+        }
+        self.force_rows = g1f_per_speed2;
+        true
     }
 
     /// Replace the prior of the body's normalised inertia (right after [`Learner::restart`]),
@@ -541,6 +560,9 @@ impl Learner {
         let model = &mut self.staging;
         model.samples = self.samples;
         model.g1_per_speed2 = self.effectiveness.g1_per_speed2();
+        if let Some(rows) = &self.force_rows {
+            model.g1_per_speed2[..3].copy_from_slice(rows);
+        }
         model.g2 = self.effectiveness.g2();
         model.g1_converged = 0;
         model.motors_converged = 0;
@@ -843,5 +865,36 @@ mod tests {
             publications[expected.len()..].iter().map(|p| p.0).collect();
         assert_eq!(gap, [33, 39]);
         assert!(learner.model().motor[1].a_rad_s != 0.0, "the motor models learned");
+    }
+
+    /// Force rows fitted elsewhere (the in-flight IMU-offset fit) replace the learner's own in
+    /// every publication until the next restart; a non-finite set is refused and changes
+    /// nothing.
+    #[test]
+    fn force_rows_set_from_outside_are_published_until_the_restart() {
+        let mut learner = Learner::new(4, LearnerConfig::default()).unwrap();
+        let run = |learner: &mut Learner, from: usize| {
+            for n in from..from + 20 {
+                let (gyro, accel, commands, speeds) = sample(n);
+                learner.update(gyro, accel, &commands, &speeds);
+            }
+        };
+        run(&mut learner, 0);
+        let own = learner.model().g1_per_speed2;
+        let mut fitted = [[0.0; MAX_MOTORS]; 3];
+        fitted[2][..4].copy_from_slice(&[-1.1e-5, -0.9e-5, -1.0e-5, -1.2e-5]);
+        let mut bad = fitted;
+        bad[0][1] = f32::NAN;
+        assert!(!learner.set_force_rows(Some(bad)));
+        run(&mut learner, 20);
+        assert_ne!(learner.model().g1_per_speed2[..3], fitted, "refused: still its own");
+        assert!(learner.set_force_rows(Some(fitted)));
+        run(&mut learner, 40);
+        let published = learner.model().g1_per_speed2;
+        assert_eq!(published[..3], fitted);
+        assert_ne!(published[3..], own[3..], "the torque rows are still learned");
+        learner.restart([0.0; 3]).unwrap();
+        run(&mut learner, 0);
+        assert_ne!(learner.model().g1_per_speed2[..3], fitted, "a new attempt learns its own");
     }
 }
