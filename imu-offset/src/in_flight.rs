@@ -416,8 +416,8 @@ impl OffsetFit {
         // lost its precision (the motors' block all but singular while they are still off, in
         // the release delay): its ellipsoid would come out empty and call a meaningless offset
         // well determined (seen in the random world: zero semi-axes, 40 mm off).
-        let within_data = explained <= self.yy * (1.0 + RESIDUAL_PRECISION);
-        if !within_data || explained.is_nan() {
+        let within_data = explained <= self.yy * (1.0 + RESIDUAL_PRECISION); // false for NaN
+        if !within_data {
             return Err(OffsetFitError::NotDetermined);
         }
         let residual = (self.yy - explained).max(0.0);
