@@ -332,6 +332,8 @@ pub struct FlyReport {
     pub g1_block_rel_flown_at_end: Option<[f64; 2]>,
     /// Models the flying controller moved towards (`PilotStatus::refinements`).
     pub refinements: u32,
+    /// Controllers formed afresh in flight on a thrust axis that moved (`PilotStatus::reforms`).
+    pub reforms: u32,
     /// The firmware's attitude (`PilotStatus::q_world_imu`) against the truth, degrees: the
     /// angle between its down and the true down (tilt) and its yaw error about the vertical
     /// (heading), when the controller engaged and when the hold window began.
@@ -481,6 +483,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             g1_block_rel_learned_at_end: None,
             g1_block_rel_flown_at_end: None,
             refinements: 0,
+            reforms: 0,
             attitude_error_at_engage_deg: None,
             attitude_error_at_window_deg: None,
             axis_error_at_engage_deg: None,
@@ -669,6 +672,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         }
         let pilot = app.snapshot().pilot;
         report.refinements = pilot.refinements;
+        report.reforms = pilot.reforms;
         report.pose_lost = pilot.failsafes.pose_lost;
         report.hold_coverage =
             if window_steps > 0 { window_hold_steps as f64 / window_steps as f64 } else { 0.0 };

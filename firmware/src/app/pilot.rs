@@ -48,7 +48,7 @@ use flight::learner::{AxisStatus, LearnedModel};
 use flight::navigation::{
     crossover_for_noise, HeadingAlignment, PositionEstimator, MAX_FIX_AGE_S, STANDARD_GRAVITY_MPS2,
 };
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use protocol::{
     ExternalPose, FailsafeAction, FailsafeCounters, FailsafeReason, LearnerFailure,
     PositionSetpoint,
@@ -79,6 +79,16 @@ pub const LOST_ATTITUDE_S: f32 = 1.0;
 /// flight (λ = 0.9985 per regression, 2 s) only 861 held: hover excites the actuators too little
 /// for a forgetting estimator.
 pub const IN_FLIGHT_REFINEMENT_GAIN: f32 = 0.03;
+
+/// Change of the learned thrust axis, from the one the controller flies, beyond which the
+/// controller is formed afresh in flight on the latest model, rad (15°). Below it the flown
+/// frame stays (the refinement above adjusts G1 and G2 within it): re-framing steps the attitude
+/// reference by the change. Above it the engaged axis was wrong by more than the attitude loop
+/// absorbs: on 1,000 random worlds with the IMU offset not given, the axis at the engagement was
+/// off by 50–70° in the crafts that never hovered (rows learned with `r = 0` through a fast
+/// tumble), while the learner's axis after 0.5–2 s of flight was within a few degrees. Ours:
+/// 15° is five times the median error of a good engagement (docs/algorithms/imu-offset.md).
+pub const REFORM_AXIS_CHANGE_RAD: f32 = 15.0 * core::f32::consts::PI / 180.0;
 
 /// Rate below which the external heading steers the filter, rad/s (30 °/s: hover, not a
 /// manoeuvre or a tumble).
@@ -323,6 +333,9 @@ pub struct PilotStatus {
     /// Models from the learner the flying controller moved towards (the in-flight
     /// refinement, `IN_FLIGHT_REFINEMENT_GAIN`), since start-up.
     pub refinements: u32,
+    /// Controllers formed afresh in flight on a thrust axis that moved by more than
+    /// [`REFORM_AXIS_CHANGE_RAD`], since start-up.
+    pub reforms: u32,
 }
 
 /// The closed-loop pilot.
@@ -367,6 +380,9 @@ pub struct Pilot {
     /// The fixes stopped during this flight (and have not come back): level hold on the
     /// position estimator's velocity.
     fixes_lost: bool,
+    /// The latest model's thrust axis moved beyond [`REFORM_AXIS_CHANGE_RAD`] from the flown
+    /// one: the next step forms the controller afresh.
+    reform_pending: bool,
     status: PilotStatus,
 }
 
@@ -394,6 +410,7 @@ impl Pilot {
             tilted_s: 0.0,
             flying_with_fix: false,
             fixes_lost: false,
+            reform_pending: false,
             status: PilotStatus::default(),
         }
     }
@@ -445,6 +462,15 @@ impl Pilot {
             }
             if offset_changed {
                 controller.set_imu_offset(r_imu_m);
+            }
+            let flown = controller.indi().model().q_imu_thrust;
+            if let (AxisStatus::Found, Some(axis)) = (model.axis_status, &model.thrust_axis) {
+                let [w, x, y, z] = axis.q_thrust_to_imu;
+                let learned = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+                let down = Vector3::z();
+                if (flown * down).angle(&(learned * down)) > REFORM_AXIS_CHANGE_RAD {
+                    self.reform_pending = true;
+                }
             }
         }
     }
@@ -650,18 +676,11 @@ impl Pilot {
         speeds_rad_s: &[f32; MAX_MOTORS],
     ) -> Result<(), Failsafe> {
         let result = self.build_controller();
-        let mut controller = match result {
+        let controller = match result {
             Ok(controller) => controller,
             Err(failure) => return Err(self.fail(Failsafe::Identification(failure))),
         };
-        controller.start(imu.gyro_rad_s, imu.accel_mps2, commands, speeds_rad_s);
-        // Hold the heading the thrust frame has now (in the filter's world).
-        self.yaw_sp_filter_rad =
-            yaw_of(&(self.attitude.quaternion() * controller.indi().model().q_imu_thrust));
-        self.controller = Some(controller);
-        // The heading's reference frame changes to the thrust frame: a new steady stretch.
-        self.heading_offset_rad = None;
-        self.tilted_s = 0.0;
+        self.take_over(controller, imu, commands, speeds_rad_s);
         self.flying_with_fix = false;
         self.fixes_lost = false;
         self.status.allocation_failures = 0;
@@ -669,6 +688,38 @@ impl Pilot {
         self.position_sp_ned_m = None;
         self.guidance = self.guidance_now(None);
         Ok(())
+    }
+
+    /// `controller` flies from now on, its filters primed with this sample and the motors'
+    /// commands (δ) and speeds (rad/s, NaN where unknown), holding the heading its thrust frame
+    /// has now (in the filter's world).
+    fn take_over(
+        &mut self,
+        mut controller: Controller,
+        imu: &ImuSample,
+        commands: &[f32; MAX_MOTORS],
+        speeds_rad_s: &[f32; MAX_MOTORS],
+    ) {
+        controller.start(imu.gyro_rad_s, imu.accel_mps2, commands, speeds_rad_s);
+        self.yaw_sp_filter_rad =
+            yaw_of(&(self.attitude.quaternion() * controller.indi().model().q_imu_thrust));
+        self.controller = Some(controller);
+        // The heading's reference frame changes to the thrust frame: a new steady stretch.
+        self.heading_offset_rad = None;
+        self.tilted_s = 0.0;
+        self.reform_pending = false;
+    }
+
+    /// Form the controller afresh on the latest model (its thrust axis moved beyond
+    /// [`REFORM_AXIS_CHANGE_RAD`]), from the motors' last commands; the position setpoint
+    /// stays. A model that cannot be flown leaves the current controller flying.
+    fn reform(&mut self, imu: &ImuSample) {
+        self.reform_pending = false;
+        let Some(flying) = &self.controller else { return };
+        let commands = flying.indi().last_output().commands;
+        let Ok(controller) = self.build_controller() else { return };
+        self.take_over(controller, imu, &commands, &[f32::NAN; MAX_MOTORS]);
+        self.status.reforms = self.status.reforms.wrapping_add(1);
     }
 
     fn build_controller(&self) -> Result<Controller, IdentificationFailure> {
@@ -706,6 +757,9 @@ impl Pilot {
     pub fn step(&mut self, imu: &ImuSample, now_us: u64) -> Result<[f32; MAX_MOTORS], Failsafe> {
         if self.controller.is_none() {
             return Ok([0.0; MAX_MOTORS]);
+        }
+        if self.reform_pending {
+            self.reform(imu);
         }
         // Guidance: position hold from where the craft is once poses arrive and the world is
         // aligned; a lost pose falls back to level hold (and the next hold starts afresh).
@@ -809,6 +863,7 @@ impl Pilot {
     /// Stop flying (a disarm request): no failsafe is recorded.
     pub fn disarm(&mut self) {
         self.controller = None;
+        self.reform_pending = false;
         self.heading_offset_rad = None;
         self.status.flying = false;
     }

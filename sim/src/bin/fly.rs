@@ -186,11 +186,12 @@ fn print_report(name: &str, report: &FlyReport) {
         None => "none".to_owned(),
     };
     println!(
-        "  G1 relative RMS error per block: at engagement {}; learned at the end {}; flown at the end {} ({} refinements in flight)",
+        "  G1 relative RMS error per block: at engagement {}; learned at the end {}; flown at the end {} ({} refinements in flight, {} controllers re-formed)",
         blocks(report.g1_block_rel_at_engage),
         blocks(report.g1_block_rel_learned_at_end),
         blocks(report.g1_block_rel_flown_at_end),
-        report.refinements
+        report.refinements,
+        report.reforms
     );
     if let Some(fit) = report.r_imu_fit_m {
         println!(
@@ -343,6 +344,18 @@ fn main() -> ExitCode {
                     listed.join(", ")
                 );
             }
+            // Controllers formed afresh in flight on a thrust axis that moved beyond
+            // `pilot::REFORM_AXIS_CHANGE_RAD`, and how those runs ended.
+            let mut reformed: BTreeMap<String, usize> = BTreeMap::new();
+            for r in results.iter().filter(|r| r.report.reforms > 0) {
+                *reformed.entry(format!("{:?}", r.verdict)).or_default() += 1;
+            }
+            let endings: Vec<String> = reformed.iter().map(|(v, n)| format!("{v} {n}")).collect();
+            println!(
+                "controller re-formed in flight: {} runs ({})",
+                reformed.values().sum::<usize>(),
+                endings.join(", ")
+            );
             let hover: Vec<f64> =
                 results.iter().filter_map(|r| r.report.release_to_hover_s).collect();
             let hold: Vec<f64> = results.iter().filter_map(|r| r.report.max_hold_error_m).collect();
