@@ -918,6 +918,47 @@ mod tests {
         assert_eq!(COMPENSATED_ATTITUDE.with_acceleration_removed(0.0), COMPENSATED_ATTITUDE);
     }
 
+    /// A thrust axis that the learner moves in flight by more than [`REFORM_AXIS_CHANGE_RAD`]
+    /// forms the controller afresh on it at the next step; a smaller change keeps the frame
+    /// (the refinement works within it); a model that cannot be flown leaves the flying
+    /// controller flying.
+    #[test]
+    fn the_controller_is_formed_afresh_only_on_a_thrust_axis_that_moved_beyond_the_limit() {
+        let learned = flight::testing::models::learned_quad();
+        let mut pilot = Pilot::new(2000.0);
+        pilot.set_model(&learned, [0.0; 3]);
+        // Hovering: the thrust (IMU +y) up.
+        let imu =
+            ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, -STANDARD_GRAVITY_MPS2, 0.0] };
+        pilot.engage(&imu, &[0.3; MAX_MOTORS], &[f32::NAN; MAX_MOTORS]).unwrap();
+        let flown = |pilot: &Pilot| pilot.controller.as_ref().unwrap().indi().model().q_imu_thrust;
+        let engaged = flown(&pilot);
+        let turned = |degrees: f32| {
+            let mut newer = learned;
+            let axis = newer.thrust_axis.as_mut().unwrap();
+            let [w, x, y, z] = axis.q_thrust_to_imu;
+            let q = UnitQuaternion::from_euler_angles(degrees.to_radians(), 0.0, 0.0)
+                * UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+            axis.q_thrust_to_imu = quaternion_array(&q);
+            (newer, q)
+        };
+        let (small, _) = turned(10.0);
+        pilot.set_model(&small, [0.0; 3]);
+        pilot.step(&imu, 500).unwrap();
+        assert_eq!((pilot.status.reforms, flown(&pilot)), (0, engaged), "10°: the frame stays");
+        let (unflyable, _) = turned(20.0);
+        let unflyable = LearnedModel { motors: 9, ..unflyable };
+        pilot.set_model(&unflyable, [0.0; 3]);
+        pilot.step(&imu, 1000).unwrap();
+        assert_eq!((pilot.status.reforms, flown(&pilot)), (0, engaged), "not flyable: kept");
+        let (large, q) = turned(20.0);
+        pilot.set_model(&large, [0.0; 3]);
+        pilot.step(&imu, 1500).unwrap();
+        assert_eq!(pilot.status.reforms, 1);
+        assert!(flown(&pilot).angle_to(&q) < 1e-5, "20°: flying the new axis");
+        assert!(pilot.flying());
+    }
+
     #[test]
     fn the_heading_follows_the_level_frame_not_an_imu_mounted_70_degrees_off() {
         // An IMU pitched 70° on its mount (its x 20° from the vertical) and yawed 30°: the

@@ -4,4 +4,5 @@
 //! Nothing here uses the estimators under test: the physics is written independently (rigid
 //! body, Euler's equations, cross products), so agreement is evidence, not tautology.
 
+pub mod models;
 pub mod throws;
