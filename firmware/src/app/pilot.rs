@@ -71,8 +71,9 @@ pub const LOST_ATTITUDE_S: f32 = 1.0;
 /// publishes in flight (every sixth sample, 3 ms at 2 kHz, for the first
 /// `background::REFINE_IN_FLIGHT_S` of the flight): the "lower gain" of the in-flight
 /// refinement, a time constant of 0.1 s on the learner's own changes, which are slow (it keeps
-/// its covariance from the excitation, λ = 1). The thrust frame the controller engaged with stays:
-/// re-framing in flight would step the attitude reference. Ours, measured on the simulator's
+/// its covariance from the excitation, λ = 1). The thrust frame the controller engaged with stays
+/// (re-framing in flight would step the attitude reference), unless the learned axis moves
+/// beyond [`REFORM_AXIS_CHANGE_RAD`]. Ours, measured on the simulator's
 /// Monte Carlo (1,000 random airframes, `fly monte-carlo`): without the refinement 915 held
 /// within 0.3 m, 59 hovered looser, 99th percentile of the worst distance from the setpoint
 /// 1.54 m; at 0.003 per model 915 / 60 / 1.15 m; at 0.03 920 / 55 / 1.02 m. With forgetting in
