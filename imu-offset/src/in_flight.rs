@@ -86,6 +86,21 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// rows).
 pub const WELL_DETERMINED_SEMI_AXIS_M: f32 = 0.002;
 
+/// How long the fit's residuals stay correlated, s: what the model leaves out (drag's
+/// anisotropic and quadratic parts, the gyro-integrated attitude's drift) changes with the
+/// throw's speed and attitude over a fraction of a second, not over the 20 Hz filter's
+/// 23 ms. With it, and [`SENSITIVITY_ERROR_REL`], the truth lies inside the 95 % ellipsoid in
+/// about 95 % of random worlds (chosen on seeds 1–200 of `offset_diag`, checked on 1,000:
+/// docs/algorithms/imu-offset.md).
+pub const RESIDUAL_CORRELATION_S: f32 = 0.2;
+
+/// The IMU's sensitivity errors as a 1σ error of `r` per axis, relative to `|r̂|`: a gyro scale
+/// error ε scales the fitted `r` by `1/(1 + ε)` to `1/(1 + ε)²` (the Euler term is linear in the
+/// rates, the centripetal one quadratic), an accelerometer scale error by `1 + ε`; scale errors
+/// up to ±3 % (1σ 1.7 % if uniform) and cross-axis errors up to ±2 % give about 3 %. The fit
+/// cannot see them (docs/algorithms/imu-offset.md).
+pub const SENSITIVITY_ERROR_REL: f32 = 0.03;
+
 /// Terms of the polynomial in time of the drag force, world-fixed (see the module doc):
 /// constant, linear, quadratic.
 pub const DRAG_ORDER: usize = 3;
@@ -105,6 +120,8 @@ pub struct OffsetFitEstimate {
     pub r_imu_m: [f32; 3],
     /// The constant the fit found beside it (accelerometer bias and mean drag), m/s².
     pub constant_mps2: [f32; 3],
+    /// Covariance of `r_imu_m`, m² (its 95 % ellipsoid is `δrᵀ Σ⁻¹ δr ≤ χ²₃(0.95)`).
+    pub covariance_m2: [[f32; 3]; 3],
     /// Semi-axes of the 95 % ellipsoid, m (ascending).
     pub ci95_semi_axes_m: [f32; 3],
     /// The largest semi-axis is within [`WELL_DETERMINED_SEMI_AXIS_M`].
@@ -409,23 +426,33 @@ impl OffsetFit {
             }
         }
         let residual = (self.yy - explained).max(0.0);
-        // Samples per independent one after the filter: rate / (2 × noise bandwidth).
-        let correlated =
-            f64::from(self.rate_hz) / (2.0 * 1.11 * f64::from(EFFECTIVENESS_CUTOFF_HZ));
-        let sigma2 = residual / (rows - unknowns) as f64 * correlated.max(1.0);
+        // Samples per independent one: the model error's correlation time, or the filter's
+        // (rate / (2 × noise bandwidth)) if that is longer.
+        let rate = f64::from(self.rate_hz);
+        let filtered = rate / (2.0 * 1.11 * f64::from(EFFECTIVENESS_CUTOFF_HZ));
+        let correlated = filtered.max(rate * f64::from(RESIDUAL_CORRELATION_S)).max(1.0);
+        let sigma2 = residual / (rows - unknowns) as f64 * correlated;
+        let r = [z[0], z[1], z[2]];
+        // The IMU's sensitivity errors: a sphere of 1σ proportional to |r̂|.
+        let sensitivity = f64::from(SENSITIVITY_ERROR_REL).powi(2) * r.iter().map(|v| v * v).sum::<f64>();
         // In f32, as the calibration solves its ellipsoid (one instance of the solver).
-        let covariance: [[f32; 3]; 3] =
-            core::array::from_fn(|a| core::array::from_fn(|b| (sigma2 * schur_inv[a][b]) as f32));
+        let covariance: [[f32; 3]; 3] = core::array::from_fn(|a| {
+            core::array::from_fn(|b| {
+                let isotropic = if a == b { sensitivity } else { 0.0 };
+                (sigma2 * schur_inv[a][b] + isotropic) as f32
+            })
+        });
         let (values, _) = symmetric_eigen3(covariance).ok_or(OffsetFitError::NotDetermined)?;
         let mut semi_axes = values.map(|v| libm::sqrtf(v.max(0.0) * CHI2_3DOF_95));
         semi_axes.sort_unstable_by(f32::total_cmp);
-        let r_imu_m = [z[0] as f32, z[1] as f32, z[2] as f32];
+        let r_imu_m = r.map(|v| v as f32);
         if !r_imu_m.iter().all(|v| v.is_finite()) {
             return Err(OffsetFitError::NotDetermined);
         }
         Ok(OffsetFitEstimate {
             r_imu_m,
             constant_mps2: [z[3] as f32, z[4] as f32, z[5] as f32],
+            covariance_m2: covariance,
             ci95_semi_axes_m: semi_axes,
             well_determined: semi_axes[2] <= WELL_DETERMINED_SEMI_AXIS_M,
             g1f_per_speed2,
