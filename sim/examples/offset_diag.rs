@@ -12,7 +12,7 @@ use imu_offset::{DragModel, Model, CHI2_3DOF_95};
 use nalgebra::Matrix3;
 use sim::airframe::{identity_3x3, Airframe};
 use sim::calibration::{fit, Session, SpinDraw};
-use sim::recovery::{fly, random_case, FlyConfig, FlyReport};
+use sim::recovery::{fly, random_case, FlyConfig, FlyReport, Verdict};
 use sim::stats::{quantile, run_seeds};
 use sim::world::{random_world_case, Aspect};
 
@@ -68,22 +68,34 @@ fn normalised_mahalanobis(error: &nalgebra::Vector3<f64>, covariance: &Matrix3<f
     error.dot(&(inverse * error)) / f64::from(CHI2_3DOF_95)
 }
 
-fn summary(name: &str, results: &[(f64, f64)]) {
-    let ok: Vec<(f64, f64)> = results.iter().copied().filter(|(e, _)| e.is_finite()).collect();
+fn summary(name: &str, results: &[(f64, f64, Option<Verdict>)]) {
+    let hovered = results
+        .iter()
+        .filter(|(_, _, v)| matches!(v, Some(Verdict::Held | Verdict::HoveredLoose)))
+        .count();
+    let held = results.iter().filter(|(_, _, v)| *v == Some(Verdict::Held)).count();
+    let ok: Vec<(f64, f64)> =
+        results.iter().map(|(e, m, _)| (*e, *m)).filter(|(e, _)| e.is_finite()).collect();
     let errors: Vec<f64> = ok.iter().map(|(e, _)| *e).collect();
     let inside = ok.iter().filter(|(_, m)| *m <= 1.0).count();
     println!(
         "{name}: error median {:.2} mm, 90th {:.2} mm, 99th {:.2} mm, inside the 95 % ellipsoid \
-         {inside} of {} fitted",
+         {inside} of {} fitted{}",
         quantile(&errors, 0.5),
         quantile(&errors, 0.9),
         quantile(&errors, 0.99),
-        errors.len()
+        errors.len(),
+        if results.iter().any(|r| r.2.is_some()) {
+            format!("; hovered {hovered}, held {held} of {}", results.len())
+        } else {
+            String::new()
+        }
     );
 }
 
-fn flight_result(seed: u64, report: &FlyReport) -> (f64, f64) {
-    let Some(fit) = report.r_imu_fit_m else { return (f64::NAN, f64::NAN) };
+fn flight_result(seed: u64, report: &FlyReport) -> (f64, f64, Option<Verdict>) {
+    let verdict = Some(Verdict::of(report));
+    let Some(fit) = report.r_imu_fit_m else { return (f64::NAN, f64::NAN, verdict) };
     let error = fit - report.r_imu_true_m;
     if let (Ok(path), Some(c)) = (std::env::var("OFFSET_DIAG_CSV"), report.r_imu_fit_covariance_m2)
     {
@@ -94,20 +106,33 @@ fn flight_result(seed: u64, report: &FlyReport) -> (f64, f64) {
         writeln!(
             file,
             "{seed},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            f.x, f.y, f.z, t.x, t.y, t.z, c[(0, 0)], c[(0, 1)], c[(0, 2)], c[(1, 1)], c[(1, 2)],
-            c[(2, 2)], report.outcome == sim::recovery::Outcome::Flying, 0, 0
+            f.x,
+            f.y,
+            f.z,
+            t.x,
+            t.y,
+            t.z,
+            c[(0, 0)],
+            c[(0, 1)],
+            c[(0, 2)],
+            c[(1, 1)],
+            c[(1, 2)],
+            c[(2, 2)],
+            report.outcome == sim::recovery::Outcome::Flying,
+            0,
+            0
         )
         .unwrap();
     }
     let mahalanobis = report
         .r_imu_fit_covariance_m2
         .map_or(f64::INFINITY, |c| normalised_mahalanobis(&error, &c));
-    (error.norm() * 1e3, mahalanobis)
+    (error.norm() * 1e3, mahalanobis, verdict)
 }
 
 /// The two-throw calibration of `airframe` (its IMU errors and drag; its own accelerometer bias
 /// kept), fitted as `fit imu-offset` fits it.
-fn calibration_result(seed: u64, airframe: &Airframe) -> (f64, f64) {
+fn calibration_result(seed: u64, airframe: &Airframe) -> (f64, f64, Option<Verdict>) {
     let mut session = Session::drawn(seed, 0.0, Some(airframe), SpinDraw::Random);
     session.airframe.imu.accel.bias_mps2 = airframe.imu.accel.bias_mps2;
     session.acc_bias_mps2 = airframe.imu.accel.bias_mps2.into();
@@ -115,9 +140,10 @@ fn calibration_result(seed: u64, airframe: &Airframe) -> (f64, f64) {
     match fit(&session.logs(), Model::OffsetAndAccBias, DragModel::VerticalQuadratic) {
         Ok(estimate) => {
             let error = estimate.r_imu_m - truth;
-            (error.norm() * 1e3, normalised_mahalanobis(&error, &estimate.covariance_m2))
+            let mahalanobis = normalised_mahalanobis(&error, &estimate.covariance_m2);
+            (error.norm() * 1e3, mahalanobis, None)
         }
-        Err(_) => (f64::NAN, f64::NAN),
+        Err(_) => (f64::NAN, f64::NAN, None),
     }
 }
 

@@ -441,13 +441,15 @@ impl<'q> Background<'q> {
         }
     }
 
-    /// Once the in-flight fit has determined the offset, the published model carries it and the
-    /// force rows fitted with it (the learner's own, learned with the offset of the attempt's
-    /// start, are off by `[r − r₀]× G1τ` and more: `imu_offset::in_flight`), so that the
+    /// Once the in-flight fit is usable (`OffsetFitEstimate::usable`), the published model
+    /// carries it and the force rows fitted with it (the learner's own, learned with the offset
+    /// of the attempt's start, are off by `[r − r₀]× G1τ` and more: `imu_offset::in_flight`), so that the
     /// controller engages with both and compensates its accelerometer with the fitted offset.
     #[cfg(not(target_os = "none"))]
     fn apply_offset_fit(&mut self) {
-        let Some(fit) = self.results.flight_offset.filter(|f| f.well_determined) else { return };
+        let Some(fit) = self.results.flight_offset.filter(OffsetFitEstimate::usable) else {
+            return;
+        };
         self.results.learned.g1_per_speed2[..3].copy_from_slice(&fit.g1f_per_speed2);
         self.results.learner_r_imu_m = fit.r_imu_m;
         self.results.learner_offset = OffsetSource::FittedInFlight;
