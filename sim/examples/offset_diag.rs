@@ -181,7 +181,7 @@ fn main() {
         summary(&format!("in flight, {name}"), &results);
     }
     if calibration {
-        for (name, change) in [VARIANTS[0], VARIANTS[1], VARIANTS[5]] {
+        for (name, change) in [VARIANTS[0], VARIANTS[1], VARIANTS[2], VARIANTS[4], VARIANTS[5]] {
             let results = run_seeds(runs, 1, 2, &|_| {}, |seed| {
                 let (mut airframe, mut config) = case(seed);
                 change(&mut airframe, &mut config);
