@@ -22,9 +22,8 @@
 //! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32's first step), when
 //!   enabled (`Background::set_offset_fit`, host builds only: off by default, a prototype that
 //!   does not fit the board's flash yet, 7.6 KB): on the learner's samples from the release,
-//!   jointly with the force rows of G1; once well determined, the published model carries the
-//!   fitted offset and rows
-//!   ([`OffsetSource::FittedInFlight`]). Measured in docs/algorithms/imu-offset.md.
+//!   jointly with the force rows of G1; once usable (`OffsetFitEstimate::usable`: within 5 mm),
+//!   the published model carries the fitted offset and rows ([`OffsetSource::FittedInFlight`]). Measured in docs/algorithms/imu-offset.md.
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
 //! board, never computed under it.
@@ -253,8 +252,8 @@ impl<'q> Background<'q> {
 
     /// Fit the IMU offset in flight on every attempt from the next one (`imu_offset::in_flight`;
     /// a prototype for a board with no calibration, issue 32: off by default). The estimate is
-    /// reported in [`BackgroundResults::flight_offset`]; once well determined, the published
-    /// model carries it and the force rows fitted with it ([`OffsetSource::FittedInFlight`]).
+    /// reported in [`BackgroundResults::flight_offset`]; once usable (within 5 mm), the
+    /// published model carries it and the force rows fitted with it ([`OffsetSource::FittedInFlight`]).
     #[cfg(not(target_os = "none"))]
     pub fn set_offset_fit(&mut self, enabled: bool) {
         self.offset_fit_enabled = enabled;
