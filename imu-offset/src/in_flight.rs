@@ -457,8 +457,8 @@ impl OffsetFit {
         let sigma2 = residual / (rows - unknowns) as f64 * correlated;
         let r = [z[0], z[1], z[2]];
         // The IMU's sensitivity errors: a sphere of 1σ proportional to |r̂|.
-        let sensitivity =
-            f64::from(SENSITIVITY_ERROR_REL).powi(2) * r.iter().map(|v| v * v).sum::<f64>();
+        let relative = f64::from(SENSITIVITY_ERROR_REL);
+        let sensitivity = relative * relative * r.iter().map(|v| v * v).sum::<f64>();
         // In f32, as the calibration solves its ellipsoid (one instance of the solver).
         let covariance: [[f32; 3]; 3] = core::array::from_fn(|a| {
             core::array::from_fn(|b| {
