@@ -1,56 +1,193 @@
 //! The in-flight IMU-offset fit (`imu_offset::in_flight`) against the truth with one part of
 //! the simulated world removed at a time, to find what limits it (issue 32):
-//! `cargo run -p sim --release --example offset_diag -- RUNS [random | ASPECT]`.
+//! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]`.
+//!
+//! Each variant flies the same seeds (airframes, throws, worlds) with one error source switched
+//! off; `calibration` also fits the two-throw calibration (`sim::calibration`, as
+//! `fit imu-offset` fits it) on the same airframes, IMUs and drag, with and without the gyro's
+//! scale and cross-axis errors. Printed per variant: the error's median / 90th / 99th percentile
+//! and how often the truth lies inside the reported 95 % ellipsoid.
 
-use sim::recovery::{fly, random_case};
+use imu_offset::{DragModel, Model, CHI2_3DOF_95};
+use nalgebra::Matrix3;
+use sim::airframe::{identity_3x3, Airframe};
+use sim::calibration::{fit, Session, SpinDraw};
+use sim::recovery::{fly, random_case, FlyConfig, FlyReport, Verdict};
 use sim::stats::{quantile, run_seeds};
 use sim::world::{random_world_case, Aspect};
+
+type Change = fn(&mut Airframe, &mut FlyConfig);
+
+fn no_gyro_scale(a: &mut Airframe, _: &mut FlyConfig) {
+    a.imu.gyro.sensitivity = identity_3x3();
+}
+
+fn no_accel_scale(a: &mut Airframe, _: &mut FlyConfig) {
+    a.imu.accel.sensitivity = identity_3x3();
+}
+
+fn no_noise(a: &mut Airframe, _: &mut FlyConfig) {
+    a.imu.accel.noise_density_mps2_per_sqrt_hz = 0.0;
+    a.imu.gyro.noise_density_rad_s_per_sqrt_hz = 0.0;
+    a.imu.accel.bias_mps2 = [0.0; 3];
+    a.imu.gyro.bias_rad_s = [0.0; 3];
+    a.imu.vibration = Default::default();
+}
+
+fn no_drag(a: &mut Airframe, c: &mut FlyConfig) {
+    a.drag = Default::default();
+    c.board.world.gust_s = 0.0;
+}
+
+const VARIANTS: [(&str, Change); 8] = [
+    ("as drawn", |_, _| {}),
+    ("no gyro scale/cross-axis error", no_gyro_scale),
+    ("no accelerometer scale/cross-axis error", no_accel_scale),
+    ("no scale/cross-axis error", |a, c| {
+        no_gyro_scale(a, c);
+        no_accel_scale(a, c);
+    }),
+    ("no IMU noise, bias or vibration", no_noise),
+    ("no drag or gust", no_drag),
+    ("no drag, no scale error", |a, c| {
+        no_drag(a, c);
+        no_gyro_scale(a, c);
+        no_accel_scale(a, c);
+    }),
+    ("none of these", |a, c| {
+        no_drag(a, c);
+        no_gyro_scale(a, c);
+        no_accel_scale(a, c);
+        no_noise(a, c);
+    }),
+];
+
+/// `(r̂ − r)ᵀ Σ⁻¹ (r̂ − r) / χ²₃(0.95)`: at most 1 when the truth is inside the ellipsoid.
+fn normalised_mahalanobis(error: &nalgebra::Vector3<f64>, covariance: &Matrix3<f64>) -> f64 {
+    let inverse = covariance.try_inverse().unwrap_or_else(Matrix3::zeros);
+    error.dot(&(inverse * error)) / f64::from(CHI2_3DOF_95)
+}
+
+fn summary(name: &str, results: &[(f64, f64, Option<Verdict>)]) {
+    let hovered = results
+        .iter()
+        .filter(|(_, _, v)| matches!(v, Some(Verdict::Held | Verdict::HoveredLoose)))
+        .count();
+    let held = results.iter().filter(|(_, _, v)| *v == Some(Verdict::Held)).count();
+    let ok: Vec<(f64, f64)> =
+        results.iter().map(|(e, m, _)| (*e, *m)).filter(|(e, _)| e.is_finite()).collect();
+    let errors: Vec<f64> = ok.iter().map(|(e, _)| *e).collect();
+    let inside = ok.iter().filter(|(_, m)| *m <= 1.0).count();
+    println!(
+        "{name}: error median {:.2} mm, 90th {:.2} mm, 99th {:.2} mm, inside the 95 % ellipsoid \
+         {inside} of {} fitted{}",
+        quantile(&errors, 0.5),
+        quantile(&errors, 0.9),
+        quantile(&errors, 0.99),
+        errors.len(),
+        if results.iter().any(|r| r.2.is_some()) {
+            format!("; hovered {hovered}, held {held} of {}", results.len())
+        } else {
+            String::new()
+        }
+    );
+}
+
+fn flight_result(seed: u64, report: &FlyReport) -> (f64, f64, Option<Verdict>) {
+    let verdict = Some(Verdict::of(report));
+    let Some(fit) = report.r_imu_fit_m else { return (f64::NAN, f64::NAN, verdict) };
+    let error = fit - report.r_imu_true_m;
+    if let (Ok(path), Some(c)) = (std::env::var("OFFSET_DIAG_CSV"), report.r_imu_fit_covariance_m2)
+    {
+        use std::io::Write;
+        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(path).unwrap();
+        let (f, t) = (fit * 1e3, report.r_imu_true_m * 1e3);
+        let c = c * 1e6;
+        writeln!(
+            file,
+            "{seed},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            f.x,
+            f.y,
+            f.z,
+            t.x,
+            t.y,
+            t.z,
+            c[(0, 0)],
+            c[(0, 1)],
+            c[(0, 2)],
+            c[(1, 1)],
+            c[(1, 2)],
+            c[(2, 2)],
+            report.outcome == sim::recovery::Outcome::Flying,
+            0,
+            0
+        )
+        .unwrap();
+    }
+    let mahalanobis = report
+        .r_imu_fit_covariance_m2
+        .map_or(f64::INFINITY, |c| normalised_mahalanobis(&error, &c));
+    (error.norm() * 1e3, mahalanobis, verdict)
+}
+
+/// The two-throw calibration of `airframe` (its IMU errors and drag; its own accelerometer bias
+/// kept), fitted as `fit imu-offset` fits it.
+fn calibration_result(seed: u64, airframe: &Airframe) -> (f64, f64, Option<Verdict>) {
+    let mut session = Session::drawn(seed, 0.0, Some(airframe), SpinDraw::Random);
+    session.airframe.imu.accel.bias_mps2 = airframe.imu.accel.bias_mps2;
+    session.acc_bias_mps2 = airframe.imu.accel.bias_mps2.into();
+    let truth = session.truth_m();
+    match fit(&session.logs(), Model::OffsetAndAccBias, DragModel::VerticalQuadratic) {
+        Ok(estimate) => {
+            let error = estimate.r_imu_m - truth;
+            let mahalanobis = normalised_mahalanobis(&error, &estimate.covariance_m2);
+            (error.norm() * 1e3, mahalanobis, None)
+        }
+        Err(_) => (f64::NAN, f64::NAN, None),
+    }
+}
 
 fn main() {
     let mut args = std::env::args().skip(1);
     let runs: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(40);
-    // `random`: every aspect; an aspect's name: that one; nothing: the nominal world.
-    let aspects: Vec<Aspect> = match args.next().as_deref() {
-        Some("random") => Aspect::ALL.to_vec(),
-        Some(name) => vec![Aspect::parse(name).expect("an aspect")],
-        None => Vec::new(),
+    // `random`: every aspect; an aspect's name: that one; `nominal` or nothing: none.
+    let mut aspects: Vec<Aspect> = Vec::new();
+    let mut calibration = false;
+    let mut first_only = false;
+    for arg in args {
+        match arg.as_str() {
+            "random" => aspects = Aspect::ALL.to_vec(),
+            "nominal" => aspects.clear(),
+            "calibration" => calibration = true,
+            "first" => first_only = true,
+            name => aspects.push(Aspect::parse(name).expect("an aspect")),
+        }
+    }
+    let case = |seed: u64| {
+        if aspects.is_empty() {
+            random_case(seed)
+        } else {
+            random_world_case(seed, &aspects)
+        }
     };
-    type Change = fn(&mut sim::airframe::Airframe);
-    let variants: [(&str, Change); 4] = [
-        ("as drawn", |_| {}),
-        ("no drag", |a| a.drag = Default::default()),
-        ("no accelerometer noise or bias", |a| {
-            a.imu.accel.noise_density_mps2_per_sqrt_hz = 0.0;
-            a.imu.accel.bias_mps2 = [0.0; 3];
-            a.imu.vibration = Default::default();
-        }),
-        ("neither", |a| {
-            a.drag = Default::default();
-            a.imu.accel.noise_density_mps2_per_sqrt_hz = 0.0;
-            a.imu.accel.bias_mps2 = [0.0; 3];
-            a.imu.vibration = Default::default();
-        }),
-    ];
-    for (name, change) in variants {
-        let errors: Vec<f64> = run_seeds(runs, 1, 2, &|_| {}, |seed| {
-            let (mut airframe, mut config) = if aspects.is_empty() {
-                random_case(seed)
-            } else {
-                random_world_case(seed, &aspects)
-            };
-            change(&mut airframe);
+    let variants = if first_only { &VARIANTS[..1] } else { &VARIANTS[..] };
+    for &(name, change) in variants {
+        let results = run_seeds(runs, 1, 2, &|_| {}, |seed| {
+            let (mut airframe, mut config) = case(seed);
+            change(&mut airframe, &mut config);
             config.known_imu_offset = false;
-            let report = fly(&airframe, &config);
-            report.r_imu_fit_m.map_or(f64::NAN, |r| (r - report.r_imu_true_m).norm() * 1e3)
-        })
-        .into_iter()
-        .filter(|e| e.is_finite())
-        .collect();
-        println!(
-            "{name}: error median {:.2} mm, 90th {:.2} mm ({} runs)",
-            quantile(&errors, 0.5),
-            quantile(&errors, 0.9),
-            errors.len()
-        );
+            flight_result(seed, &fly(&airframe, &config))
+        });
+        summary(&format!("in flight, {name}"), &results);
+    }
+    if calibration {
+        for (name, change) in [VARIANTS[0], VARIANTS[1], VARIANTS[2], VARIANTS[4], VARIANTS[5]] {
+            let results = run_seeds(runs, 1, 2, &|_| {}, |seed| {
+                let (mut airframe, mut config) = case(seed);
+                change(&mut airframe, &mut config);
+                calibration_result(seed, &airframe)
+            });
+            summary(&format!("two-throw calibration, {name}"), &results);
+        }
     }
 }

@@ -15,7 +15,7 @@
 //! [`HOVER_CLIMB_MPS`] and the thrust axis within [`HOVER_TILT_RAD`] of up, held for
 //! [`HOVER_HOLD_S`].
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
@@ -351,6 +351,8 @@ pub struct FlyReport {
     /// ellipsoid's largest semi-axis, m.
     pub r_imu_fit_m: Option<Vector3<f64>>,
     pub r_imu_fit_semi_axis_m: Option<f64>,
+    /// The fitted offset's covariance, m² (IMU axes).
+    pub r_imu_fit_covariance_m2: Option<Matrix3<f64>>,
     /// The learner's G1 at the end ([`FlyReport::g1_block_rel_learned_at_end`]) with its force
     /// rows corrected by the fitted offset: a learner given `r₀` learns `G1f − [r − r₀]× G1τ`
     /// (`imu_offset::in_flight`), so `G1f ≈ G1f₀ + [r̂ − r₀]× G1τ`.
@@ -491,6 +493,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             r_imu_true_m: truth.r_imu_m,
             r_imu_fit_m: None,
             r_imu_fit_semi_axis_m: None,
+            r_imu_fit_covariance_m2: None,
             g1_block_rel_corrected_by_fit: None,
             g1_block_rel_fitted_jointly: None,
             thrust_scores_at_excitation_end: None,
@@ -650,6 +653,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         if let Some(fit) = results.flight_offset {
             report.r_imu_fit_m = Some(Vector3::from(fit.r_imu_m).cast::<f64>());
             report.r_imu_fit_semi_axis_m = Some(f64::from(fit.ci95_semi_axes_m[2]));
+            report.r_imu_fit_covariance_m2 =
+                Some(Matrix3::from_fn(|i, j| f64::from(fit.covariance_m2[i][j])));
             if report.outcome == Outcome::Flying {
                 let delta = Vector3::from(fit.r_imu_m) - Vector3::from(results.learner_r_imu_m);
                 let mut corrected = results.learned;

@@ -330,11 +330,7 @@ fn identify_learns_the_motors_and_the_thrust_axis_flies_and_stores_the_model() {
     assert_eq!(identification["speeds"], "measured", "{identification}");
     assert_eq!(identification["imu_offset_source"], "fitted_in_flight", "{identification}");
     let offset = &status["imu_offset"];
-    assert_eq!(
-        (offset["source"].as_str(), offset["well_determined"].as_bool()),
-        (Some("fitted_in_flight"), Some(true)),
-        "{offset}"
-    );
+    assert_eq!(offset["source"], "fitted_in_flight", "{offset}");
     let r: Vec<f64> =
         offset["r_imu_m"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     let r_error_m = (nalgebra::Vector3::from_column_slice(&r) - truth.r_imu_m).norm();
@@ -359,7 +355,8 @@ fn identify_learns_the_motors_and_the_thrust_axis_flies_and_stores_the_model() {
     );
     let ci95: Value =
         serde_json::from_str(&ok(&port, &["--json", "get", "imu_offset_ci95_m"])).unwrap();
-    assert!(values(&ci95).iter().all(|&axis_m| axis_m > 0.0 && axis_m <= 0.002), "{ci95}");
+    // Flown (and stored) once usable: its largest 95 % semi-axis within 5 mm.
+    assert!(values(&ci95).iter().all(|&axis_m| axis_m > 0.0 && axis_m <= 0.005), "{ci95}");
 }
 
 /// `plot` of a real recording: an octorotor's throw-and-fly from the SITL (8 motors, so 24 G1

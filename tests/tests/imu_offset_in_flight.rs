@@ -24,15 +24,26 @@ fn fitted_error_mm(label: &str, report: &FlyReport) -> f64 {
 
 #[test]
 fn the_seed_papers_quad_finds_its_imu_offset_in_one_throw_to_fly() {
-    // The paper's quad, its IMU at about (−10, −13, 8) mm, thrown as the paper throws it.
+    // The paper's quad, its IMU at about (−10, −13, 8) mm and rotated, thrown once as the paper
+    // throws it, no offset given, poses at 100 Hz.
     let airframe = Airframe::builtin("paper-quad").unwrap();
     let config = FlyConfig { known_imu_offset: false, ..FlyConfig::paper() };
+    assert_eq!(config.motion_capture.rate_hz, 100.0);
     let report = fly(&airframe, &config);
+    // Recovers and holds within the 0.3 m.
     assert_eq!(report.outcome, Outcome::Flying);
-    // Within the calibration's "well determined" limit (2 mm: 10 % of G1's force rows); measured
-    // 1.3 mm, the target is 1 mm.
+    let hold_m = report.max_hold_error_m.unwrap();
+    assert!(hold_m < 0.3, "hold error {hold_m} m");
+    // Within the calibration's "well determined" limit (2 mm: 10 % of G1's force rows); the
+    // issue's 1 mm is not met: measured 1.27 mm (1.2 mm of it along the IMU's z), all but
+    // 0.1 mm of it the drag model's (docs/algorithms/imu-offset.md).
     let error_mm = fitted_error_mm("paper-quad", &report);
     assert!(error_mm < 2.0, "{error_mm} mm");
+    // The truth lies inside the reported 95 % ellipsoid.
+    let error = report.r_imu_fit_m.unwrap() - report.r_imu_true_m;
+    let inverse = report.r_imu_fit_covariance_m2.unwrap().try_inverse().unwrap();
+    let mahalanobis = error.dot(&(inverse * error));
+    assert!(mahalanobis <= f64::from(imu_offset::CHI2_3DOF_95), "{mahalanobis}");
     // Its force rows, fitted with it, are within 10 % (flown with no offset, 50 % typically).
     let [force, _] = report.g1_block_rel_fitted_jointly.unwrap();
     assert!(force < 0.10, "force rows {:.1} %", force * 1e2);
@@ -51,10 +62,11 @@ fn random_worlds_find_the_imu_offset_within_millimetres() {
         .collect();
     let mut sorted = errors.clone();
     sorted.sort_by(f64::total_cmp);
-    // Measured: median 2.0 mm, worst 2.3 mm; the calibration's limit is 2 mm, the target
-    // 1 mm median and 2 mm at the 90th percentile (not met yet: drag and the IMU's scale errors,
+    // Measured: median 1.8 mm, worst 1.9 mm (with the drag polynomial of degree 2: 2.0 / 2.3 mm);
+    // the calibration's limit is 2 mm, the target 1 mm median and 2 mm at the 90th
+    // percentile (on 1,000 worlds: 1.12 / 2.33 mm; drag and the IMU's scale errors,
     // docs/algorithms/imu-offset.md).
     let median = 0.5 * (sorted[3] + sorted[4]);
-    assert!(median < 2.5, "median {median} mm: {errors:?}");
-    assert!(sorted[7] < 4.0, "worst {} mm: {errors:?}", sorted[7]);
+    assert!(median < 2.0, "median {median} mm: {errors:?}");
+    assert!(sorted[7] < 2.2, "worst {} mm: {errors:?}", sorted[7]);
 }

@@ -22,9 +22,10 @@
 //! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32) when none is known
 //!   (no calibration stored, the onboard estimate not well determined) and the ESCs report
 //!   their speeds: on the learner's samples from the release, jointly with the force rows of G1;
-//!   once well determined, the published model carries the fitted offset and rows
-//!   ([`ImuOffsetSource::FittedInFlight`]), the status shows it as the IMU offset, and the
-//!   finished identification stores it as the calibration. Host builds only for now: on the
+//!   once usable (`OffsetFitEstimate::usable`: within 5 mm), the published model carries the
+//!   fitted offset and rows ([`ImuOffsetSource::FittedInFlight`]) and the status shows it as the
+//!   IMU offset (well determined or not by the calibration's 2 mm), and the finished
+//!   identification stores it as the calibration, with its ellipsoid. Host builds only for now: on the
 //!   board it does not fit the flash yet (7.6 KB). Measured in docs/algorithms/imu-offset.md.
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
@@ -242,7 +243,7 @@ impl<'q> Background<'q> {
     /// Whether attempts with no IMU offset known (no calibration stored, the onboard estimate
     /// not well determined) fit it in flight (`imu_offset::in_flight`, issue 32; on by default
     /// where it is built). The estimate is reported in [`BackgroundResults::flight_offset`];
-    /// once well determined, the published model carries it and the force rows fitted with it
+    /// once usable, the published model carries it and the force rows fitted with it
     /// ([`ImuOffsetSource::FittedInFlight`]), the status shows it as the IMU offset, and the
     /// finished identification stores it as the calibration (`settings::Settings::service`).
     /// Off: such attempts fly with no offset, as before issue 32 (a baseline for the simulator).
@@ -433,7 +434,8 @@ impl<'q> Background<'q> {
         }
     }
 
-    /// Once the in-flight fit has determined the offset, the published model carries the force
+    /// Once the in-flight fit is usable (`OffsetFitEstimate::usable`: its largest 95 % semi-axis
+    /// within 5 mm), the published model carries the force
     /// rows fitted with it (the learner's own, learned with the offset of the attempt's start,
     /// are off by `[r − r₀]× G1τ` and more: `imu_offset::in_flight`), and the controller
     /// compensates its accelerometer with the fitted offset, from engagement or, when the fit is
@@ -445,7 +447,9 @@ impl<'q> Background<'q> {
     /// 1,000 worlds against 1 on the learner's own.
     #[cfg(not(target_os = "none"))]
     fn apply_offset_fit(&mut self, flying: bool) {
-        let Some(fit) = self.results.flight_offset.filter(|f| f.well_determined) else { return };
+        let Some(fit) = self.results.flight_offset.filter(OffsetFitEstimate::usable) else {
+            return;
+        };
         if flying {
             if let Some(learner) = self.learner.get_mut() {
                 learner.set_force_rows(Some(fit.g1f_per_speed2));
@@ -461,7 +465,7 @@ impl<'q> Background<'q> {
             estimated: true,
             r_imu_m: fit.r_imu_m,
             ci95_semi_axes_m: semi_axes_m,
-            well_determined: true,
+            well_determined: fit.well_determined,
             advice: OffsetAdvice::None,
             ..self.results.imu_offset
         };

@@ -325,8 +325,9 @@ impl<F: NorFlash> Settings<F> {
         if finished {
             self.absorbed_samples = Some(learned.samples);
             self.update(|params| params.store_learned(learned));
-            // An IMU offset fitted in this flight is stored as a calibration would be: the
-            // next identifications use it, and `save` keeps it.
+            // An IMU offset fitted in this flight (and flown: usable) is stored as a
+            // calibration would be, with its 95 % ellipsoid: the next identifications use it,
+            // and `save` keeps it.
             let background = &view.background;
             if background.learner_offset == ImuOffsetSource::FittedInFlight
                 && background.imu_offset_fitted_in_flight

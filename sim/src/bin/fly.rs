@@ -437,20 +437,29 @@ fn main() -> ExitCode {
                 print_quantiles(&format!("thrust-axis error {name}"), &values, 1.0, "°");
             }
             // The IMU offset fitted in flight (runs without the offset given).
-            let fits: Vec<(f64, f64)> = results
+            let fits: Vec<(f64, f64, bool)> = results
                 .iter()
                 .filter_map(|r| {
                     let fit = r.report.r_imu_fit_m?;
-                    Some(((fit - r.report.r_imu_true_m).norm(), r.report.r_imu_fit_semi_axis_m?))
+                    let error = fit - r.report.r_imu_true_m;
+                    // Inside the 95 % ellipsoid: δrᵀ Σ⁻¹ δr ≤ χ²₃(0.95).
+                    let inside = r.report.r_imu_fit_covariance_m2.is_some_and(|c| {
+                        c.try_inverse().is_some_and(|inverse| {
+                            error.dot(&(inverse * error)) <= f64::from(imu_offset::CHI2_3DOF_95)
+                        })
+                    });
+                    Some((error.norm(), r.report.r_imu_fit_semi_axis_m?, inside))
                 })
                 .collect();
             if !fits.is_empty() {
                 let errors: Vec<f64> = fits.iter().map(|f| f.0 * 1e3).collect();
                 let axes: Vec<f64> = fits.iter().map(|f| f.1 * 1e3).collect();
                 let within = fits.iter().filter(|f| f.0 <= f.1).count();
+                let inside = fits.iter().filter(|f| f.2).count();
                 println!(
                     "IMU offset fitted in flight: error median {:.2} mm, 90th {:.2} mm, 99th {:.2} mm; \
-                     largest 95 % semi-axis median {:.2} mm; error within it in {within} of {} runs",
+                     largest 95 % semi-axis median {:.2} mm; error within it in {within} of {} runs, \
+                     inside the 95 % ellipsoid in {inside}",
                     quantile(&errors, 0.5),
                     quantile(&errors, 0.9),
                     quantile(&errors, 0.99),
