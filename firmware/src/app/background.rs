@@ -24,8 +24,8 @@
 //!   their speeds: on the learner's samples from the release, jointly with the force rows of G1;
 //!   once well determined, the published model carries the fitted offset and rows
 //!   ([`ImuOffsetSource::FittedInFlight`]), the status shows it as the IMU offset, and the
-//!   finished identification stores it as the calibration. Host builds only for now: on the
-//!   board it does not fit the flash yet (7.6 KB). Measured in docs/algorithms/imu-offset.md.
+//!   finished identification stores it as the calibration. On the board too (8.4 KB of flash,
+//!   docs/benchmarks.md, "Firmware size"). Measured in docs/algorithms/imu-offset.md.
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
 //! board, never computed under it.
@@ -231,8 +231,8 @@ impl<'q> Background<'q> {
     }
 
     /// Whether attempts with no IMU offset known (no calibration stored, the onboard estimate
-    /// not well determined) fit it in flight (`imu_offset::in_flight`, issue 32; on by default
-    /// where it is built). The estimate is reported in [`BackgroundResults::flight_offset`];
+    /// not well determined) fit it in flight (`imu_offset::in_flight`, issue 32; on by default,
+    /// on the board too). The estimate is reported in [`BackgroundResults::flight_offset`];
     /// once well determined, the published model carries it and the force rows fitted with it
     /// ([`ImuOffsetSource::FittedInFlight`]), the status shows it as the IMU offset, and the
     /// finished identification stores it as the calibration (`settings::Settings::service`).
