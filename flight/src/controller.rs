@@ -274,6 +274,7 @@ impl Controller {
     }
 
     /// The IMU's offset from the CoG from the next step on ([`Indi::set_imu_offset`]).
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn set_imu_offset(&mut self, r_imu_m: [f32; 3]) -> bool {
         self.indi.set_imu_offset(r_imu_m)
     }

@@ -426,6 +426,7 @@ impl Indi {
     /// Compensate the accelerometer with the IMU at `r_imu_m` from the CoG (IMU axes, m) from
     /// the next step on: an offset determined in flight after the loop was formed. A
     /// non-finite offset is refused (`false`) and changes nothing.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn set_imu_offset(&mut self, r_imu_m: [f32; 3]) -> bool {
         let r = Vector3::from(r_imu_m);
         if !r.iter().all(|x| x.is_finite()) {
