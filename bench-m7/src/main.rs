@@ -24,13 +24,13 @@ use flight::allocation::{AllocationConfig, Allocator};
 use flight::attitude::{AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, Guidance};
 use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
-use flight::learner::inertia::TumbleInertia;
 use flight::learner::{AxisStatus, Learner, LearnerConfig, MAX_MOTORS};
 use flight::navigation::PositionEstimator;
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
 use imu_offset::in_flight::OffsetFit;
 use imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, OffsetRls};
 use nalgebra::{UnitQuaternion, Vector3};
+use tumble::TumbleInertia;
 
 /// The firmware's DShot framing, compiled from its own source (`firmware/src/drivers/dshot.rs`
 /// is portable and depends only on `protocol`): the bidirectional answers' decoding is measured
@@ -820,7 +820,7 @@ fn main() -> ! {
         let _ = region(&mut st, |(rls, x)| rls.update(black_box(&x[..]), &[1.0]));
         black_box(&st);
     }
-    // The free tumble's inertia fit (`flight::learner::inertia`): its per-sample update during
+    // The free tumble's inertia fit (the `tumble` crate): its per-sample update during
     // the release delay, and the prior it hands to the learner once, as the excitation starts
     // (the background task's sample that also restarts the learner).
     {

@@ -280,6 +280,7 @@ pub struct Allocator {
 impl Allocator {
     /// An allocator for `motors` motors (4..=8) with `config`, starting from `du = 0` with every
     /// variable free.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn new(motors: usize, config: AllocationConfig) -> Result<Self, AllocationError> {
         if !(MIN_MOTORS..=MAX_MOTORS).contains(&motors) {
             return Err(AllocationError::MotorCount { motors });

@@ -142,6 +142,7 @@ impl AttitudeConfig {
     }
 
     /// Check that every gain and limit is finite and not negative (the rate gate positive).
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn validate(&self) -> Result<(), AttitudeError> {
         let non_negative =
             [self.k_p, self.k_i, self.k_heading, self.k_i_heading, self.max_bias_rad_s]
@@ -183,11 +184,13 @@ impl AttitudeFilter {
     /// A filter that takes its tilt from the first sample (see [`AttitudeFilter::update`]). A
     /// `config` that fails [`AttitudeConfig::validate`] is replaced by the default; use
     /// [`AttitudeFilter::try_new`] to be told instead.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn new(config: AttitudeConfig) -> Self {
         Self::try_new(config).unwrap_or_else(|_| Self::uninitialised(AttitudeConfig::default()))
     }
 
     /// A filter that takes its tilt from the first sample, if `config` is valid.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn try_new(config: AttitudeConfig) -> Result<Self, AttitudeError> {
         config.validate()?;
         Ok(Self::uninitialised(config))
@@ -211,6 +214,7 @@ impl AttitudeFilter {
 
     /// Change the tuning, keeping the attitude and the bias learned; refused (nothing changed)
     /// when the tuning is invalid.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn set_config(&mut self, config: AttitudeConfig) -> Result<(), AttitudeError> {
         config.validate()?;
         self.config = config;

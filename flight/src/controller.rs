@@ -233,6 +233,7 @@ pub struct Controller {
 
 impl Controller {
     /// A controller flying `model` with the IMU `r_imu_m` from the CoG (IMU axes, m).
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn new(model: IndiModel, r_imu_m: [f32; 3], config: IndiConfig) -> Result<Self, IndiError> {
         let tau_max = model.motor[..model.motors].iter().map(|m| m.tau_s).fold(0.0, f32::max);
         let gains = Gains::from_tau(tau_max);
@@ -249,6 +250,7 @@ impl Controller {
 
     /// The handover from the excitation: prime the filters with the current sample and what the
     /// motors were last told (δ) and report (rad/s, NaN where unknown).
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn start(
         &mut self,
         gyro_rad_s: [f32; 3],
@@ -272,12 +274,14 @@ impl Controller {
     }
 
     /// The IMU's offset from the CoG from the next step on ([`Indi::set_imu_offset`]).
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn set_imu_offset(&mut self, r_imu_m: [f32; 3]) -> bool {
         self.indi.set_imu_offset(r_imu_m)
     }
 
     /// Move the flown G1 and G2 a fraction `gain` towards `learned` (the in-flight refinement,
     /// [`IndiModel::refine_effectiveness`]). Returns whether it did.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn refine_effectiveness(&mut self, learned: &LearnedModel, gain: f32) -> bool {
         self.indi.refine_effectiveness(learned, gain)
     }

@@ -110,6 +110,7 @@ pub enum ModelError {
 impl IndiModel {
     /// The flyable model from what the learner found. τ is clamped to
     /// [`MIN_TAU_S`]..=[`MAX_TAU_S`].
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn from_learned(learned: &LearnedModel) -> Result<Self, ModelError> {
         let motors = usize::from(learned.motors);
         if !(MIN_MOTORS..=MAX_MOTORS).contains(&motors) {
@@ -170,6 +171,7 @@ impl IndiModel {
     /// this model's thrust frame and per unit of this model's thrust (its motor models, thrust
     /// frame, idle and hover thrusts stay): the in-flight refinement. Returns `false` and
     /// changes nothing when `learned` is for another motor count or has a non-finite entry.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn refine_effectiveness(&mut self, learned: &LearnedModel, gain: f32) -> bool {
         let motors = self.motors;
         if usize::from(learned.motors) != motors || !(0.0..=1.0).contains(&gain) {
@@ -330,6 +332,7 @@ impl Indi {
     /// An INDI loop for `model`, with the IMU at `r_imu_m` from the CoG (IMU axes, m), starting
     /// from the motors at `commands` (δ) and the body at rest in the synchronising filters
     /// until [`Indi::start`] primes them.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn new(model: IndiModel, r_imu_m: [f32; 3], config: IndiConfig) -> Result<Self, IndiError> {
         let c = BiquadCoefficients::butterworth_lowpass(config.sync_cutoff_hz, config.rate_hz)
             .map_err(IndiError::Filter)?;
@@ -370,6 +373,7 @@ impl Indi {
     /// the motors running at the speeds their last commands `commands` (δ) settle to, or at
     /// `speeds_rad_s` where those are known (finite). The first step then increments from there
     /// without a start-up transient.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn start(
         &mut self,
         gyro_rad_s: [f32; 3],
@@ -414,6 +418,7 @@ impl Indi {
 
     /// Move the flown G1 and G2 a fraction `gain` towards `learned`
     /// ([`IndiModel::refine_effectiveness`]): the in-flight refinement. Returns whether it did.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn refine_effectiveness(&mut self, learned: &LearnedModel, gain: f32) -> bool {
         self.model.refine_effectiveness(learned, gain)
     }
@@ -421,6 +426,7 @@ impl Indi {
     /// Compensate the accelerometer with the IMU at `r_imu_m` from the CoG (IMU axes, m) from
     /// the next step on: an offset determined in flight after the loop was formed. A
     /// non-finite offset is refused (`false`) and changes nothing.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn set_imu_offset(&mut self, r_imu_m: [f32; 3]) -> bool {
         let r = Vector3::from(r_imu_m);
         if !r.iter().all(|x| x.is_finite()) {

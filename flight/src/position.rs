@@ -107,6 +107,7 @@ pub struct Gains {
 impl Gains {
     /// The gains for motors whose slowest time constant is `tau_s`, clamped to [`TAU_RANGE_S`];
     /// a τ that is not finite or not positive takes the slow (safe) end.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn from_tau(tau_s: f32) -> Self {
         let tau = if tau_s.is_finite() && tau_s > 0.0 {
             tau_s.clamp(TAU_RANGE_S.0, TAU_RANGE_S.1)

@@ -12,13 +12,14 @@
 //! `NO_GYRO_CROSS`, `NO_ASENS`, `NO_VIB`, `NO_ANG_DRAG` remove one IMU or airframe error.
 
 use firmware::app::{ControlCommand, StepRecord};
-use flight::learner::inertia::{InertiaPrior, TumbleInertia};
+use flight::learner::inertia::InertiaPrior;
 use flight::learner::{FlightPhase, Learner, LearnerConfig, MAX_MOTORS};
 use nalgebra::Matrix3;
 use sim::board::SimBoard;
 use sim::identification::{Scores, TrueModel};
 use sim::scenario::{with_firmware_app, FlightApp};
 use sim::world::{random_world_case, Aspect};
+use tumble::TumbleInertia;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -95,8 +95,17 @@ fn anchors(text: &str) -> Vec<String> {
 
 /// The workspace's crates (and `tests`), whose sources may name docs and must not cite notes
 /// outside the repository.
-const SOURCE_DIRS: [&str; 8] =
-    ["protocol", "flight", "imu-offset", "firmware", "sim", "configurator-cli", "xtask", "tests"];
+const SOURCE_DIRS: [&str; 9] = [
+    "protocol",
+    "flight",
+    "imu-offset",
+    "tumble",
+    "firmware",
+    "sim",
+    "configurator-cli",
+    "xtask",
+    "tests",
+];
 
 #[test]
 fn every_relative_link_of_the_docs_leads_to_an_existing_file_and_heading() {

@@ -34,7 +34,8 @@ const QEMU_CPU: &str = "cortex-m7";
 /// keep the two in step.
 const TARGET: &str = "thumbv7em-none-eabihf";
 const RUSTFLAGS: &str = "-C link-arg=-Tlink.x -C target-cpu=cortex-m7 \
-     -C llvm-args=-inline-threshold=50 --cfg sha2_backend_soft=\"compact\"";
+     -C llvm-args=-inline-threshold=50 -C llvm-args=-enable-machine-outliner=always \
+     --cfg sha2_backend_soft=\"compact\"";
 /// Semihosting line announcing a region, in run order.
 const REGION_PREFIX: &str = "bench-m7 region: ";
 /// Targets from issues 3, 7 and 8 (instructions), matched by region-name prefix.

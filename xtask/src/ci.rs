@@ -7,7 +7,7 @@ use std::process::Command;
 use std::time::Instant;
 
 /// The crates that must build without `std` for the board.
-const NO_STD_CRATES: [&str; 3] = ["protocol", "flight", "imu-offset"];
+const NO_STD_CRATES: [&str; 4] = ["protocol", "flight", "imu-offset", "tumble"];
 
 /// Install what the checks need, then run them in order, failing at the first that fails.
 pub fn test(args: &[String]) -> Result<()> {

@@ -34,7 +34,6 @@
 use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
-use flight::learner::inertia::TumbleInertia;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
 // The in-flight offset fit is host-side for now: on the board it costs 7.6 KB of flash, and the
 // firmware is 3.0 KB under its budget (docs/algorithms/imu-offset.md).
@@ -43,6 +42,7 @@ use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate};
 use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetSource, ImuOffsetStatus, OffsetAdvice};
+use tumble::TumbleInertia;
 
 /// How long the learner keeps learning after the excitation ends, s: the last motor's speed
 /// settles back to idle in about three time constants (75 ms for a 25 ms motor).
