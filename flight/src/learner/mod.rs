@@ -448,7 +448,7 @@ impl Learner {
     }
 
     /// Replace the prior of the body's normalised inertia (right after [`Learner::restart`]),
-    /// e.g. by the free tumble's ([`inertia::TumbleInertia::prior`]).
+    /// e.g. by the free tumble's (`tumble::TumbleInertia::prior`, in its own crate).
     pub fn set_inertia_prior(&mut self, prior: &inertia::InertiaPrior) {
         self.effectiveness.set_inertia_prior(prior);
     }
