@@ -95,11 +95,39 @@ pub const TAU_MAX_S: f32 = 0.1;
 pub const PULSE_COMMAND: f32 = 0.1;
 /// One standard deviation of τ below which the lag counts as identified, s.
 pub const TAU_CONVERGED_STD_S: f32 = 0.002;
+/// How long the effectiveness regression is held back behind the lag regression, s: the whole
+/// excitation (`ExcitationConfig::max_s`, 0.8 s) and its end margin, so that G1 is learned from
+/// speeds modelled with the lag identified over every pulse (see [`CommandSpeedModel::hold`]).
+pub const EFFECTIVENESS_HOLD_S: f32 = 0.85;
+/// Most samples held: [`EFFECTIVENESS_HOLD_S`] at 2 kHz, the control rate.
+pub const HELD_SAMPLES_MAX: usize = 1700;
+
 /// The τ regressor's unit: α̇ in units of 100 rad/s², so τ is in units of 10 ms (order one).
 const TAU_SCALE_S: f32 = 0.01;
 
 /// Regressors of one axis: two per motor (thrust, rotor reaction) and τ.
 const LAG_PARAMETERS_MAX: usize = 2 * MAX_MOTORS + 1;
+
+/// One sample held back for the effectiveness regression.
+#[derive(Clone, Copy, Debug, Default)]
+struct HeldSample {
+    gyro_rad_s: [f32; 3],
+    accel_mps2: [f32; 3],
+    driving: [f32; MAX_MOTORS],
+    running: bool,
+}
+
+/// A sample released to the effectiveness regression, with its speeds modelled (rad/s, the
+/// nominal scale) with the lag identified by the time of its release.
+#[derive(Clone, Copy, Debug)]
+pub struct ReleasedSample {
+    /// Body rates, rad/s, IMU axes.
+    pub gyro_rad_s: [f32; 3],
+    /// Specific force, m/s², IMU axes.
+    pub accel_mps2: [f32; 3],
+    /// Modelled speeds, rad/s.
+    pub speeds_rad_s: [f32; MAX_MOTORS],
+}
 
 /// A first-order high-pass `y_k = p (y_{k−1} + x_k − x_{k−1})`.
 #[derive(Clone, Copy, Debug, Default)]
@@ -162,6 +190,8 @@ pub struct CommandSpeedModel {
     seen: u8,
     /// Whether a motor has been pulsed ([`PULSE_COMMAND`]) since the reset.
     pulsed: bool,
+    /// Bit i: motor i has been pulsed since the reset.
+    pulsed_motors: u8,
     /// The axis whose regression runs next.
     next_axis: u8,
     /// Per body axis: `2 C_a` (index `i < m`) and τ (index `m`, in units of [`TAU_SCALE_S`]).
@@ -171,6 +201,14 @@ pub struct CommandSpeedModel {
     /// The time constant the modelled speeds use now, s, and its standard deviation.
     tau_s: f32,
     tau_std_s: f32,
+    /// Samples held back for the effectiveness regression: a ring, the oldest at `held_first`.
+    held: [HeldSample; HELD_SAMPLES_MAX],
+    held_first: usize,
+    held_len: usize,
+    /// Samples held before the oldest is released (0 once the excitation is over).
+    hold_samples: usize,
+    /// The modelled speed of each motor at the oldest held sample's time, fraction of full speed.
+    held_speed: [f32; MAX_MOTORS],
 }
 
 impl CommandSpeedModel {
@@ -197,12 +235,22 @@ impl CommandSpeedModel {
             reaction_previous: [0.0; MAX_MOTORS],
             seen: 0,
             pulsed: false,
+            pulsed_motors: 0,
             next_axis: 0,
             axes: core::array::from_fn(|_| Rls::new(2 * motors + 1, config)),
             speed: [0.0; MAX_MOTORS],
             tau_s: TAU_PRIOR_S,
             tau_std_s: TAU_PRIOR_STD_S,
+            held: [HeldSample::default(); HELD_SAMPLES_MAX],
+            held_first: 0,
+            held_len: 0,
+            hold_samples: Self::hold_samples(rate_hz),
+            held_speed: [0.0; MAX_MOTORS],
         }
+    }
+
+    fn hold_samples(rate_hz: f32) -> usize {
+        ((EFFECTIVENESS_HOLD_S * rate_hz) as usize).min(HELD_SAMPLES_MAX)
     }
 
     /// Forget everything (a new identification).
@@ -216,6 +264,58 @@ impl CommandSpeedModel {
         self.next_axis = 0;
         self.seen = 0;
         self.pulsed = false;
+        self.pulsed_motors = 0;
+        self.held_first = 0;
+        self.held_len = 0;
+        self.hold_samples = Self::hold_samples(1.0 / self.dt_s);
+        self.held_speed = [0.0; MAX_MOTORS];
+    }
+
+    /// Hold a sample back for the effectiveness regression (the commands driving the motors at
+    /// it and whether the ESCs run them). The effectiveness regression never forgets, so what
+    /// it learned from speeds modelled with the lag of the first pulses, still far off, would
+    /// stay: it learns instead from the end of the excitation (every motor pulsed and all back
+    /// below [`PULSE_COMMAND`], seen by [`CommandSpeedModel::update`]), or at most
+    /// [`EFFECTIVENESS_HOLD_S`] behind, from speeds modelled with the lag identified over every
+    /// pulse. A full ring releases its oldest sample first.
+    pub fn hold(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        driving: &[f32; MAX_MOTORS],
+        running: bool,
+    ) {
+        let index = (self.held_first + self.held_len) % HELD_SAMPLES_MAX;
+        self.held[index] = HeldSample { gyro_rad_s, accel_mps2, driving: *driving, running };
+        if self.held_len < HELD_SAMPLES_MAX {
+            self.held_len += 1;
+        } else {
+            self.held_first = (self.held_first + 1) % HELD_SAMPLES_MAX;
+        }
+    }
+
+    /// The oldest held sample when more than the hold are held, its speeds modelled with the
+    /// lag identified so far.
+    pub fn release(&mut self) -> Option<ReleasedSample> {
+        if self.held_len == 0 || self.held_len <= self.hold_samples {
+            return None;
+        }
+        let sample = self.held[self.held_first];
+        self.held_first = (self.held_first + 1) % HELD_SAMPLES_MAX;
+        self.held_len -= 1;
+        let lag = 1.0 - libm::expf(-self.dt_s / self.tau_s);
+        let mut speeds_rad_s = [0.0; MAX_MOTORS];
+        for i in 0..self.motors {
+            let d = if sample.driving[i].is_finite() { sample.driving[i] } else { 0.0 };
+            let target = Self::target_speed(d, sample.running);
+            self.held_speed[i] += (target - self.held_speed[i]) * lag;
+            speeds_rad_s[i] = NOMINAL_FULL_SPEED_RAD_S * self.held_speed[i];
+        }
+        Some(ReleasedSample {
+            gyro_rad_s: sample.gyro_rad_s,
+            accel_mps2: sample.accel_mps2,
+            speeds_rad_s,
+        })
     }
 
     /// The nominal curve's steady speed for command δ, fraction of full speed (0 while the ESC
@@ -245,12 +345,25 @@ impl CommandSpeedModel {
         let mut targets = [0.0; MAX_MOTORS];
         for i in 0..m {
             let d = if driving[i].is_finite() { driving[i] } else { 0.0 };
-            self.pulsed |= d > PULSE_COMMAND;
+            if d > PULSE_COMMAND {
+                self.pulsed = true;
+                self.pulsed_motors |= 1 << i;
+            }
             let target = Self::target_speed(d, running);
             drives[i] = 2.0 * self.speed[i] * target;
             targets[i] = target;
             self.speed[i] += (target - self.speed[i]) * lag;
             speeds[i] = NOMINAL_FULL_SPEED_RAD_S * self.speed[i];
+        }
+        // Every motor pulsed and all back below a pulse: the last pulse's ramp has ended, the
+        // excitation ends within its end margin (`excitation::END_MARGIN_S`), and the
+        // effectiveness regression catches up with the held samples before the controller
+        // engages on its model.
+        let all = (1u16 << m) - 1;
+        if u16::from(self.pulsed_motors) == all
+            && driving[..m].iter().all(|&d| !(d > PULSE_COMMAND))
+        {
+            self.hold_samples = 0;
         }
         if gyro_rad_s.iter().all(|w| w.is_finite()) {
             let learn = learn && self.pulsed;
