@@ -105,8 +105,35 @@ pub const HELD_SAMPLES_MAX: usize = 1700;
 /// The τ regressor's unit: α̇ in units of 100 rad/s², so τ is in units of 10 ms (order one).
 const TAU_SCALE_S: f32 = 0.01;
 
-/// Regressors of one axis: two per motor (thrust, rotor reaction) and τ.
-const LAG_PARAMETERS_MAX: usize = 2 * MAX_MOTORS + 1;
+/// Regressors of one axis: four per motor (thrust, rotor reaction, the gyroscopic torque with
+/// the other two axes' rates).
+const LAG_PARAMETERS_MAX: usize = 4 * MAX_MOTORS;
+
+/// A regressor through `F/s`: `L`, a high-pass and the low-pass.
+#[derive(Clone, Copy, Debug)]
+struct Integrated {
+    l: f32,
+    hp: HighPass,
+    lp: Butterworth2,
+}
+
+impl Integrated {
+    fn new(lp: Butterworth2) -> Self {
+        Self { l: 0.0, hp: HighPass::default(), lp }
+    }
+
+    fn reset_to(&mut self, x: f32) {
+        self.l = x;
+        self.hp.reset_to(x);
+        self.lp.reset_to(0.0);
+    }
+
+    fn update(&mut self, x: f32, pole: f32) -> f32 {
+        self.l = pole * self.l + (1.0 - pole) * x;
+        let high = self.hp.update(self.l, pole);
+        self.lp.update(high)
+    }
+}
 
 /// One sample held back for the effectiveness regression.
 #[derive(Clone, Copy, Debug, Default)]
@@ -148,20 +175,175 @@ impl HighPass {
     }
 }
 
-/// The nominal motor curve with the time constant `tau_s` (the model the controller flies).
+/// One candidate ESC curve: `x_s(δ) = idle + (1 − idle)(κ δ + (1 − κ) √δ)`, fraction of full
+/// speed (κ > 1 bends it towards a convex power law, speed `∝ δ^1.4`; just above δ = 0 it dips
+/// a few per cent below idle).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Curve {
+    /// Weight of the linear term.
+    pub kappa: f32,
+    /// Idle speed, fraction of full speed.
+    pub idle: f32,
+}
+
+impl Curve {
+    /// The nominal curve ([`NOMINAL_KAPPA`], [`NOMINAL_IDLE_FRACTION`]).
+    pub const NOMINAL: Curve = Curve { kappa: NOMINAL_KAPPA, idle: NOMINAL_IDLE_FRACTION };
+
+    /// The curve as a motor model with the time constant `tau_s` (full speed
+    /// [`NOMINAL_FULL_SPEED_RAD_S`]).
+    pub fn motor(&self, tau_s: f32, tau_std_s: f32) -> MotorModel {
+        let idle = self.idle * NOMINAL_FULL_SPEED_RAD_S;
+        let span = NOMINAL_FULL_SPEED_RAD_S - idle;
+        let mut model = MotorModel {
+            a_rad_s: self.kappa * span,
+            b_rad_s: (1.0 - self.kappa) * span,
+            omega_idle_rad_s: idle,
+            tau_s,
+            tau_std_s,
+            converged: false,
+        };
+        model.converged = model.is_usable() && tau_std_s < TAU_CONVERGED_STD_S;
+        model
+    }
+
+    /// The steady speed for command δ, fraction of full speed (0 while the ESC has not yet
+    /// started the motor, `running` false).
+    pub fn target(&self, command: f32, running: bool) -> f32 {
+        if !running {
+            return 0.0;
+        }
+        let d = if command.is_finite() { command.clamp(0.0, 1.0) } else { 0.0 };
+        let shape = self.kappa * d + (1.0 - self.kappa) * libm::sqrtf(d);
+        self.idle + (1.0 - self.idle) * shape
+    }
+}
+
+/// The candidate time constants, s: 8–100 ms in steps of 22 % (`TAU_MIN_S`–`TAU_MAX_S`); each
+/// has a regression of its own (see [`CommandSpeedModel`]).
+pub const TAU_GRID_S: [f32; 13] = [
+    0.008, 0.0098, 0.0119, 0.0145, 0.0177, 0.0216, 0.0264, 0.0322, 0.0393, 0.0479, 0.0585,
+    0.0714, 0.1,
+];
+
+/// The nominal motor curve with the time constant `tau_s`.
 pub fn nominal_motor(tau_s: f32, tau_std_s: f32) -> MotorModel {
-    let idle = NOMINAL_IDLE_FRACTION * NOMINAL_FULL_SPEED_RAD_S;
-    let span = NOMINAL_FULL_SPEED_RAD_S - idle;
-    let mut model = MotorModel {
-        a_rad_s: NOMINAL_KAPPA * span,
-        b_rad_s: (1.0 - NOMINAL_KAPPA) * span,
-        omega_idle_rad_s: idle,
-        tau_s,
-        tau_std_s,
-        converged: false,
-    };
-    model.converged = model.is_usable() && tau_std_s < TAU_CONVERGED_STD_S;
-    model
+    Curve::NOMINAL.motor(tau_s, tau_std_s)
+}
+
+/// The regression of one candidate time constant: the modelled speeds, their filtered squares
+/// and accelerations, and per body axis the torques that explain the rates best with them.
+#[derive(Clone, Debug)]
+struct LagHypothesis {
+    /// `1 − exp(−dt/τ)`: the exact first-order response to a held target over a step.
+    lag: f32,
+    /// `F/s · x²` per motor.
+    square: [Integrated; MAX_MOTORS],
+    /// `F/s · x Ω_b` per motor and body axis (the gyroscopic torque `Ω × H_rotor`).
+    gyroscopic: [[Integrated; 3]; MAX_MOTORS],
+    /// `F x` per motor (`F/s · ẋ`, the rotor reaction): two high-passes and the low-pass.
+    reaction_hp: [[HighPass; 2]; MAX_MOTORS],
+    reaction_lp: [Butterworth2; MAX_MOTORS],
+    /// The filtered squares (`0..m`), reactions (`m..2m`) and gyroscopic products (`2m + 3i
+    /// + b`) of this sample.
+    regressors: [f32; 5 * MAX_MOTORS],
+    /// Per body axis: `C_a` (index `i < m`), `k_a` (`m ≤ i < 2m`) and the gyroscopic
+    /// coefficients of the other two axes' rates (`2m..4m`).
+    axes: [Rls<LAG_PARAMETERS_MAX, 1, { packed_len(LAG_PARAMETERS_MAX) }>; 3],
+    /// The modelled speed of each motor, fraction of full speed.
+    speed: [f32; MAX_MOTORS],
+    /// Per body axis, `Σ x y` of the regressions (for their residuals).
+    xy: [[f64; LAG_PARAMETERS_MAX]; 3],
+}
+
+impl LagHypothesis {
+    fn new(tau_s: f32, dt_s: f32, motors: usize, butterworth: Butterworth2) -> Self {
+        let config = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
+        Self {
+            lag: 1.0 - libm::expf(-dt_s / tau_s),
+            square: [Integrated::new(butterworth); MAX_MOTORS],
+            gyroscopic: [[Integrated::new(butterworth); 3]; MAX_MOTORS],
+            reaction_hp: [[HighPass::default(); 2]; MAX_MOTORS],
+            reaction_lp: [butterworth; MAX_MOTORS],
+            regressors: [0.0; 5 * MAX_MOTORS],
+            axes: core::array::from_fn(|_| Rls::new(4 * motors, config)),
+            speed: [0.0; MAX_MOTORS],
+            xy: [[0.0; LAG_PARAMETERS_MAX]; 3],
+        }
+    }
+
+    fn reset(&mut self) {
+        for rls in &mut self.axes {
+            rls.reset();
+        }
+        self.speed = [0.0; MAX_MOTORS];
+        self.xy = [[0.0; LAG_PARAMETERS_MAX]; 3];
+    }
+
+    /// Advance the modelled speeds towards `targets` by one sample; with `gyro_rad_s`, the
+    /// regressors' filters too (`start`: restarted on this sample).
+    fn advance(
+        &mut self,
+        m: usize,
+        targets: &[f32; MAX_MOTORS],
+        pole: f32,
+        gyro_rad_s: Option<[f32; 3]>,
+        start: bool,
+    ) {
+        for i in 0..m {
+            self.speed[i] += (targets[i] - self.speed[i]) * self.lag;
+            let Some(gyro) = gyro_rad_s else { continue };
+            let x = self.speed[i];
+            let square = x * x;
+            if start {
+                self.square[i].reset_to(square);
+                self.reaction_hp[i][0].reset_to(x);
+                self.reaction_hp[i][1].reset_to(0.0);
+                self.reaction_lp[i].reset_to(0.0);
+                for b in 0..3 {
+                    self.gyroscopic[i][b].reset_to(x * gyro[b]);
+                }
+            }
+            self.regressors[i] = self.square[i].update(square, pole);
+            let once = self.reaction_hp[i][0].update(x, pole);
+            let twice = self.reaction_hp[i][1].update(once, pole);
+            self.regressors[m + i] = self.reaction_lp[i].update(twice);
+            for b in 0..3 {
+                self.regressors[2 * m + 3 * i + b] = self.gyroscopic[i][b].update(x * gyro[b], pole);
+            }
+        }
+    }
+
+    /// The regressors of axis `a`: squares, reactions, and the products with the other two
+    /// axes' rates.
+    fn regressors_of(&self, m: usize, a: usize) -> [f32; LAG_PARAMETERS_MAX] {
+        let mut x = [0.0; LAG_PARAMETERS_MAX];
+        x[..2 * m].copy_from_slice(&self.regressors[..2 * m]);
+        let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+        for i in 0..m {
+            x[2 * m + 2 * i] = self.regressors[2 * m + 3 * i + b];
+            x[2 * m + 2 * i + 1] = self.regressors[2 * m + 3 * i + c];
+        }
+        x
+    }
+
+    /// One regression of axis `a`: `F·Ω_a = Σ C_a,i (F/s)x_i² + Σ k_a,i F x_i + Σ g_a,i,b (F/s)
+    /// x_i Ω_b`.
+    fn learn(&mut self, m: usize, a: usize, rate: f32) {
+        let x = self.regressors_of(m, a);
+        // Refused only for non-finite values, which the caller excluded.
+        let _ = self.axes[a].update(&x[..4 * m], &[rate]);
+        for j in 0..4 * m {
+            self.xy[a][j] += f64::from(x[j]) * f64::from(rate);
+        }
+    }
+
+    /// The least-squares residual of axis `a` given `Σ y²` (`yy`): `Σ y² − θ·Σ x y`.
+    fn residual(&self, m: usize, a: usize, yy: f64) -> f32 {
+        let explained: f64 =
+            (0..4 * m).map(|j| f64::from(self.axes[a].theta(j, 0)) * self.xy[a][j]).sum();
+        (yy - explained).max(0.0) as f32
+    }
 }
 
 /// The time constant from the angular response, and the modelled speeds (see the module doc).
@@ -174,31 +356,19 @@ pub struct CommandSpeedModel {
     /// The two high-passes and the low-pass of the body rates (`F·Ω`).
     rate_hp: [[HighPass; 2]; 3],
     rate_lp: [Butterworth2; 3],
-    /// `L(2 x x_s)`, its high-pass and its low-pass, per motor.
-    drive_l: [f32; MAX_MOTORS],
-    drive_hp: [HighPass; MAX_MOTORS],
-    drive_lp: [Butterworth2; MAX_MOTORS],
-    /// Filtered rates of the two previous samples, newest first.
-    rate_history: [[f32; 3]; 2],
-    /// Filtered drives of the previous sample.
-    drive_previous: [f32; MAX_MOTORS],
-    /// `F x_s` per motor (the rotor reaction: `r + τ ṙ = k ẋ_s`), its filters and its
-    /// previous value.
-    reaction_hp: [[HighPass; 2]; MAX_MOTORS],
-    reaction_lp: [Butterworth2; MAX_MOTORS],
-    reaction_previous: [f32; MAX_MOTORS],
-    seen: u8,
+    seen: bool,
     /// Whether a motor has been pulsed ([`PULSE_COMMAND`]) since the reset.
     pulsed: bool,
     /// Bit i: motor i has been pulsed since the reset.
     pulsed_motors: u8,
     /// The axis whose regression runs next.
     next_axis: u8,
-    /// Per body axis: `2 C_a` (index `i < m`) and τ (index `m`, in units of [`TAU_SCALE_S`]).
-    axes: [Rls<LAG_PARAMETERS_MAX, 1, { packed_len(LAG_PARAMETERS_MAX) }>; 3],
-    /// The modelled speed of each motor, fraction of full speed.
-    speed: [f32; MAX_MOTORS],
-    /// The time constant the modelled speeds use now, s, and its standard deviation.
+    /// One regression per candidate time constant ([`TAU_GRID_S`]).
+    hypotheses: [LagHypothesis; TAU_GRID_S.len()],
+    /// Per body axis, `Σ y²` of the regressions, and their count.
+    yy: [f64; 3],
+    regressions: u32,
+    /// The time constant identified so far, s, and its standard deviation.
     tau_s: f32,
     tau_std_s: f32,
     /// Samples held back for the effectiveness regression: a ring, the oldest at `held_first`.
@@ -216,7 +386,6 @@ impl CommandSpeedModel {
     /// low-pass `lowpass` (designed by the caller at [`LAG_LOWPASS_HZ`]).
     pub fn new(motors: usize, rate_hz: f32, lowpass: BiquadCoefficients) -> Self {
         let motors = motors.clamp(1, MAX_MOTORS);
-        let config = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
         let dt_s = 1.0 / rate_hz;
         let butterworth = Butterworth2::from_coefficients(lowpass);
         Self {
@@ -225,20 +394,13 @@ impl CommandSpeedModel {
             pole: libm::expf(-core::f32::consts::TAU * LAG_HIGH_PASS_HZ * dt_s),
             rate_hp: [[HighPass::default(); 2]; 3],
             rate_lp: [butterworth; 3],
-            drive_l: [0.0; MAX_MOTORS],
-            drive_hp: [HighPass::default(); MAX_MOTORS],
-            drive_lp: [butterworth; MAX_MOTORS],
-            rate_history: [[0.0; 3]; 2],
-            drive_previous: [0.0; MAX_MOTORS],
-            reaction_hp: [[HighPass::default(); 2]; MAX_MOTORS],
-            reaction_lp: [butterworth; MAX_MOTORS],
-            reaction_previous: [0.0; MAX_MOTORS],
-            seen: 0,
+            seen: false,
             pulsed: false,
             pulsed_motors: 0,
             next_axis: 0,
-            axes: core::array::from_fn(|_| Rls::new(2 * motors + 1, config)),
-            speed: [0.0; MAX_MOTORS],
+            hypotheses: TAU_GRID_S.map(|tau| LagHypothesis::new(tau, dt_s, motors, butterworth)),
+            yy: [0.0; 3],
+            regressions: 0,
             tau_s: TAU_PRIOR_S,
             tau_std_s: TAU_PRIOR_STD_S,
             held: [HeldSample::default(); HELD_SAMPLES_MAX],
@@ -255,14 +417,15 @@ impl CommandSpeedModel {
 
     /// Forget everything (a new identification).
     pub fn reset(&mut self) {
-        for rls in &mut self.axes {
-            rls.reset();
+        for h in &mut self.hypotheses {
+            h.reset();
         }
-        self.speed = [0.0; MAX_MOTORS];
+        self.yy = [0.0; 3];
+        self.regressions = 0;
         self.tau_s = TAU_PRIOR_S;
         self.tau_std_s = TAU_PRIOR_STD_S;
         self.next_axis = 0;
-        self.seen = 0;
+        self.seen = false;
         self.pulsed = false;
         self.pulsed_motors = 0;
         self.held_first = 0;
@@ -276,8 +439,8 @@ impl CommandSpeedModel {
     /// it learned from speeds modelled with the lag of the first pulses, still far off, would
     /// stay: it learns instead from the end of the excitation (every motor pulsed and all back
     /// below [`PULSE_COMMAND`], seen by [`CommandSpeedModel::update`]), or at most
-    /// [`EFFECTIVENESS_HOLD_S`] behind, from speeds modelled with the lag identified over every
-    /// pulse. A full ring releases its oldest sample first.
+    /// [`EFFECTIVENESS_HOLD_S`] behind, from speeds modelled with the lag identified over
+    /// every pulse. A full ring releases its oldest sample first.
     pub fn hold(
         &mut self,
         gyro_rad_s: [f32; 3],
@@ -306,8 +469,7 @@ impl CommandSpeedModel {
         let lag = 1.0 - libm::expf(-self.dt_s / self.tau_s);
         let mut speeds_rad_s = [0.0; MAX_MOTORS];
         for i in 0..self.motors {
-            let d = if sample.driving[i].is_finite() { sample.driving[i] } else { 0.0 };
-            let target = Self::target_speed(d, sample.running);
+            let target = Self::target_speed(sample.driving[i], sample.running);
             self.held_speed[i] += (target - self.held_speed[i]) * lag;
             speeds_rad_s[i] = NOMINAL_FULL_SPEED_RAD_S * self.held_speed[i];
         }
@@ -321,81 +483,52 @@ impl CommandSpeedModel {
     /// The nominal curve's steady speed for command δ, fraction of full speed (0 while the ESC
     /// has not yet started the motor, `running` false).
     pub fn target_speed(command: f32, running: bool) -> f32 {
-        if !running {
-            return 0.0;
-        }
-        nominal_motor(TAU_PRIOR_S, 0.0).steady_speed_rad_s(command) / NOMINAL_FULL_SPEED_RAD_S
+        Curve::NOMINAL.target(command, running)
     }
 
     /// One sample: the body rates (rad/s, IMU axes), the commands driving the motors, whether
-    /// the ESCs run them, and whether to learn from it (else only the filters run). Returns the
-    /// modelled speeds (rad/s, the nominal scale).
+    /// the ESCs run them, and whether to learn from it (else only the filters run).
     pub fn update(
         &mut self,
         gyro_rad_s: [f32; 3],
         driving: &[f32; MAX_MOTORS],
         running: bool,
         learn: bool,
-    ) -> [f32; MAX_MOTORS] {
+    ) {
         let m = self.motors;
-        // The exact first-order response to the held target over a step.
-        let lag = 1.0 - libm::expf(-self.dt_s / self.tau_s);
-        let mut speeds = [0.0; MAX_MOTORS];
-        let mut drives = [0.0; MAX_MOTORS];
         let mut targets = [0.0; MAX_MOTORS];
+        let mut all_low = true;
         for i in 0..m {
             let d = if driving[i].is_finite() { driving[i] } else { 0.0 };
             if d > PULSE_COMMAND {
                 self.pulsed = true;
                 self.pulsed_motors |= 1 << i;
+                all_low = false;
             }
-            let target = Self::target_speed(d, running);
-            drives[i] = 2.0 * self.speed[i] * target;
-            targets[i] = target;
-            self.speed[i] += (target - self.speed[i]) * lag;
-            speeds[i] = NOMINAL_FULL_SPEED_RAD_S * self.speed[i];
+            targets[i] = Self::target_speed(d, running);
         }
         // Every motor pulsed and all back below a pulse: the last pulse's ramp has ended, the
         // excitation ends within its end margin (`excitation::END_MARGIN_S`), and the
         // effectiveness regression catches up with the held samples before the controller
         // engages on its model.
-        let all = (1u16 << m) - 1;
-        if u16::from(self.pulsed_motors) == all
-            && driving[..m].iter().all(|&d| !(d > PULSE_COMMAND))
-        {
+        if all_low && u16::from(self.pulsed_motors) == (1u16 << m) - 1 {
             self.hold_samples = 0;
         }
-        if gyro_rad_s.iter().all(|w| w.is_finite()) {
-            let learn = learn && self.pulsed;
-            self.identify(gyro_rad_s, &drives, &targets, learn);
-        } else {
-            self.seen = 0;
-        }
-        speeds
-    }
-
-    fn identify(
-        &mut self,
-        gyro_rad_s: [f32; 3],
-        drives: &[f32; MAX_MOTORS],
-        targets: &[f32; MAX_MOTORS],
-        learn: bool,
-    ) {
-        let m = self.motors;
         let pole = self.pole;
-        if self.seen == 0 {
+        if !gyro_rad_s.iter().all(|w| w.is_finite()) {
+            self.seen = false;
+            for h in &mut self.hypotheses {
+                h.advance(m, &targets, pole, None, false);
+            }
+            return;
+        }
+        let start = !self.seen;
+        self.seen = true;
+        if start {
             for a in 0..3 {
                 self.rate_hp[a][0].reset_to(gyro_rad_s[a]);
                 self.rate_hp[a][1].reset_to(0.0);
                 self.rate_lp[a].reset_to(0.0);
-            }
-            for i in 0..m {
-                self.drive_l[i] = drives[i];
-                self.drive_hp[i].reset_to(drives[i]);
-                self.drive_lp[i].reset_to(0.0);
-                self.reaction_hp[i][0].reset_to(targets[i]);
-                self.reaction_hp[i][1].reset_to(0.0);
-                self.reaction_lp[i].reset_to(0.0);
             }
         }
         let mut rate = [0.0; 3];
@@ -404,60 +537,73 @@ impl CommandSpeedModel {
             let twice = self.rate_hp[a][1].update(once, pole);
             rate[a] = self.rate_lp[a].update(twice);
         }
-        let mut filtered = [0.0; MAX_MOTORS];
-        for i in 0..m {
-            self.drive_l[i] = pole * self.drive_l[i] + (1.0 - pole) * drives[i];
-            let high = self.drive_hp[i].update(self.drive_l[i], pole);
-            filtered[i] = self.drive_lp[i].update(high);
+        for h in &mut self.hypotheses {
+            h.advance(m, &targets, pole, Some(gyro_rad_s), start);
         }
-        let mut reaction = [0.0; MAX_MOTORS];
-        for i in 0..m {
-            let once = self.reaction_hp[i][0].update(targets[i], pole);
-            let twice = self.reaction_hp[i][1].update(once, pole);
-            reaction[i] = self.reaction_lp[i].update(twice);
-        }
-        let reaction_lined_up = core::mem::replace(&mut self.reaction_previous, reaction);
-        let [previous, before] = self.rate_history;
-        self.rate_history = [rate, previous];
-        let lined_up = core::mem::replace(&mut self.drive_previous, filtered);
-        if self.seen < 2 {
-            self.seen += 1;
+        if !(learn && self.pulsed) || start {
             return;
         }
-        if !learn {
-            return;
-        }
-        // One axis per sample, centred on the previous sample: `2 F·Ω = C' z − τ (F·Ω)˙`.
+        // One axis per sample.
         let a = usize::from(self.next_axis);
         self.next_axis = (self.next_axis + 1) % 3;
-        let rate_dot = (rate[a] - before[a]) / (2.0 * self.dt_s);
-        let mut x = [0.0; LAG_PARAMETERS_MAX];
-        x[..m].copy_from_slice(&lined_up[..m]);
-        x[m..2 * m].copy_from_slice(&reaction_lined_up[..m]);
-        x[2 * m] = -rate_dot * TAU_SCALE_S;
-        // Refused only for non-finite values, which were excluded above.
-        let _ = self.axes[a].update(&x[..2 * m + 1], &[2.0 * previous[a]]);
-        self.combine();
+        for h in &mut self.hypotheses {
+            h.learn(m, a, rate[a]);
+        }
+        self.yy[a] += f64::from(rate[a]) * f64::from(rate[a]);
+        self.regressions += 1;
+        self.select();
     }
 
-    /// τ from the three axes and the prior, weighted by their variances.
-    fn combine(&mut self) {
+    /// The time constant whose regressions explain the response best (the least-squares
+    /// residual, per axis relative to the candidates' mean, as they all see the same rates,
+    /// summed over the axes), refined between the grid's points by a parabola through the best
+    /// and its neighbours in `ln τ`. Its standard deviation from the parabola's curvature: the
+    /// residual grows by one error variance one σ away.
+    fn select(&mut self) {
+        let n = TAU_GRID_S.len();
         let m = self.motors;
-        let mut information = 1.0 / (TAU_PRIOR_STD_S * TAU_PRIOR_STD_S);
-        let mut weighted = TAU_PRIOR_S * information;
-        for rls in &self.axes {
-            if rls.updates() < 2 {
-                continue;
-            }
-            let variance = rls.p_diag(2 * m) * rls.error_var(0) * TAU_SCALE_S * TAU_SCALE_S;
-            let tau = rls.theta(2 * m, 0) * TAU_SCALE_S;
-            if variance.is_finite() && variance > 0.0 && tau.is_finite() {
-                information += 1.0 / variance;
-                weighted += tau / variance;
+        let residuals: [[f32; 3]; TAU_GRID_S.len()] = core::array::from_fn(|j| {
+            core::array::from_fn(|a| self.hypotheses[j].residual(m, a, self.yy[a]))
+        });
+        let mut mean = [0.0f32; 3];
+        for r in &residuals {
+            for a in 0..3 {
+                mean[a] += r[a] / n as f32;
             }
         }
-        self.tau_s = crate::math::clamp(weighted / information, TAU_MIN_S, TAU_MAX_S);
-        self.tau_std_s = libm::sqrtf(1.0 / information);
+        let score = |r: &[f32; 3]| -> f32 {
+            (0..3).filter(|&a| mean[a] > 0.0).map(|a| r[a] / mean[a]).sum()
+        };
+        let scores: [f32; TAU_GRID_S.len()] = core::array::from_fn(|j| score(&residuals[j]));
+        let mut best = 0;
+        for j in 1..n {
+            if scores[j] < scores[best] {
+                best = j;
+            }
+        }
+        let ln = |j: usize| libm::logf(TAU_GRID_S[j]);
+        let (mut ln_tau, mut std_ln) = (ln(best), f32::INFINITY);
+        if best > 0 && best + 1 < n {
+            // Equal steps in ln τ but for the last: the parabola through three points.
+            let (u0, u1, u2) = (ln(best - 1), ln(best), ln(best + 1));
+            let (s0, s1, s2) = (scores[best - 1], scores[best], scores[best + 1]);
+            let d01 = (s1 - s0) / (u1 - u0);
+            let d12 = (s2 - s1) / (u2 - u1);
+            let curvature = (d12 - d01) / (u2 - u0);
+            if curvature > 0.0 {
+                let vertex = 0.5 * (u0 + u1) - d01 / (2.0 * curvature);
+                ln_tau = crate::math::clamp(vertex, u0, u2);
+                // One error variance of the relative scores: the best's score over the
+                // regressions.
+                if self.regressions > 0 {
+                    let variance = s1 / self.regressions as f32;
+                    std_ln = libm::sqrtf(variance / curvature);
+                }
+            }
+        }
+        let tau = libm::expf(ln_tau);
+        self.tau_s = crate::math::clamp(tau, TAU_MIN_S, TAU_MAX_S);
+        self.tau_std_s = (self.tau_s * std_ln).min(TAU_MAX_S);
     }
 
     /// The time constant identified so far, s.
@@ -478,7 +624,11 @@ mod tests {
     /// A body whose rates answer four motors through torques `C ω²`, each motor's speed a
     /// first-order lag towards `curve(δ)` (fraction of full speed); pulses like the
     /// excitation's, one motor after the other. Returns the identified τ.
-    fn identify(tau: f32, curve: impl Fn(f32) -> f32) -> f32 {
+    pub(super) fn identify_pub(tau: f32, curve: impl Fn(f32) -> f32) -> (f32, Curve) {
+        identify(tau, curve)
+    }
+
+    fn identify(tau: f32, curve: impl Fn(f32) -> f32) -> (f32, Curve) {
         let rate_hz = 2000.0;
         let dt = 1.0 / rate_hz;
         let lowpass = BiquadCoefficients::butterworth_lowpass(LAG_LOWPASS_HZ, rate_hz).unwrap();
@@ -516,15 +666,39 @@ mod tests {
             }
             model.update(rate, &commands, true, true);
         }
-        model.tau_s()
+        (model.tau_s(), Curve::NOMINAL)
     }
 
     #[test]
     fn the_lag_is_identified_from_the_angular_response_across_the_range() {
         for tau in [0.015, 0.025, 0.045] {
             // The nominal curve itself.
-            let nominal = identify(tau, |d| CommandSpeedModel::target_speed(d, true));
+            let (nominal, _) = identify(tau, |d| CommandSpeedModel::target_speed(d, true));
             assert!((nominal - tau).abs() < 1.5e-3, "τ {tau}: {nominal}");
+        }
+    }
+}
+#[cfg(test)]
+mod probe {
+    extern crate std;
+    use std::{format, println};
+    #[test]
+    fn probe_bias() {
+        for idle in [0.03f32, 0.08, 0.15] {
+            for (name, f) in [
+                ("sqrt", (|d: f32| d.sqrt()) as fn(f32) -> f32),
+                ("k0.5", |d: f32| 0.5 * d + 0.5 * d.sqrt()),
+                ("lin", |d: f32| d),
+                ("p1.4", |d: f32| d.powf(1.4)),
+                ("p0.6", |d: f32| d.powf(0.6)),
+            ] {
+                let mut line = format!("idle {idle} {name}:");
+                for tau in [0.015f32, 0.025, 0.045] {
+                    let (t, c) = super::tests::identify_pub(tau, |d| idle + (1.0 - idle) * f(d));
+                    line += &format!(" {:.1}/{:.1} ({}, {})", tau * 1e3, t * 1e3, c.kappa, c.idle);
+                }
+                println!("{line}");
+            }
         }
     }
 }
