@@ -471,7 +471,7 @@ impl Learner {
         if !self.config.speed_telemetry {
             // The lag regression now; the effectiveness regression on the held samples, with
             // speeds modelled with the lag identified since (`no_speed::CommandSpeedModel::hold`).
-            self.command_speeds.update(gyro_rad_s, &driving, self.armed, true);
+            self.command_speeds.update(gyro_rad_s, accel_mps2, &driving, self.armed, true);
             self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed);
             while let Some(held) = self.command_speeds.release() {
                 self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
@@ -529,7 +529,7 @@ impl Learner {
         #[cfg(feature = "no-speed")]
         if !self.config.speed_telemetry {
             // Motors off: the lag regression's filters settle on the free tumble.
-            self.command_speeds.update(gyro_rad_s, &[0.0; MAX_MOTORS], false, false);
+            self.command_speeds.update(gyro_rad_s, accel_mps2, &[0.0; MAX_MOTORS], false, false);
         }
     }
 

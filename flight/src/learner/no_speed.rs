@@ -135,6 +135,35 @@ impl Integrated {
     }
 }
 
+/// A signal through `F`: two high-passes and the low-pass.
+#[derive(Clone, Copy, Debug)]
+struct Banded {
+    hp: [HighPass; 2],
+    lp: Butterworth2,
+}
+
+impl Banded {
+    fn new(lp: Butterworth2) -> Self {
+        Self { hp: [HighPass::default(); 2], lp }
+    }
+
+    fn reset_to(&mut self, x: f32) {
+        self.hp[0].reset_to(x);
+        self.hp[1].reset_to(0.0);
+        self.lp.reset_to(0.0);
+    }
+
+    fn update(&mut self, x: f32, pole: f32) -> f32 {
+        let once = self.hp[0].update(x, pole);
+        let twice = self.hp[1].update(once, pole);
+        self.lp.update(twice)
+    }
+}
+
+/// Regressors of the specific-force regression: one per motor (`F x²`) and nine shared ones for
+/// the IMU's offset from the centre of gravity (`F Ω̇`, `F Ω_a Ω_b`).
+const FORCE_PARAMETERS_MAX: usize = MAX_MOTORS + 9;
+
 /// One sample held back for the effectiveness regression.
 #[derive(Clone, Copy, Debug, Default)]
 struct HeldSample {
@@ -244,6 +273,8 @@ struct LagHypothesis {
     /// `F x` per motor (`F/s · ẋ`, the rotor reaction): two high-passes and the low-pass.
     reaction_hp: [[HighPass; 2]; MAX_MOTORS],
     reaction_lp: [Butterworth2; MAX_MOTORS],
+    /// `F x²` per motor of this sample.
+    band: [f32; MAX_MOTORS],
     /// The filtered squares (`0..m`), reactions (`m..2m`) and gyroscopic products (`2m + 3i
     /// + b`) of this sample.
     regressors: [f32; 5 * MAX_MOTORS],
@@ -254,6 +285,10 @@ struct LagHypothesis {
     speed: [f32; MAX_MOTORS],
     /// Per body axis, `Σ x y` of the regressions (for their residuals).
     xy: [[f64; LAG_PARAMETERS_MAX]; 3],
+    /// `F x²` per motor, and the specific force's regression on them and the offset terms.
+    square_band: [Banded; MAX_MOTORS],
+    force: Rls<FORCE_PARAMETERS_MAX, 3, { packed_len(FORCE_PARAMETERS_MAX) }>,
+    force_xy: [[f64; FORCE_PARAMETERS_MAX]; 3],
 }
 
 impl LagHypothesis {
@@ -265,10 +300,14 @@ impl LagHypothesis {
             gyroscopic: [[Integrated::new(butterworth); 3]; MAX_MOTORS],
             reaction_hp: [[HighPass::default(); 2]; MAX_MOTORS],
             reaction_lp: [butterworth; MAX_MOTORS],
+            band: [0.0; MAX_MOTORS],
             regressors: [0.0; 5 * MAX_MOTORS],
             axes: core::array::from_fn(|_| Rls::new(4 * motors, config)),
             speed: [0.0; MAX_MOTORS],
             xy: [[0.0; LAG_PARAMETERS_MAX]; 3],
+            square_band: [Banded::new(butterworth); MAX_MOTORS],
+            force: Rls::new(motors + 9, config),
+            force_xy: [[0.0; FORCE_PARAMETERS_MAX]; 3],
         }
     }
 
@@ -278,6 +317,8 @@ impl LagHypothesis {
         }
         self.speed = [0.0; MAX_MOTORS];
         self.xy = [[0.0; LAG_PARAMETERS_MAX]; 3];
+        self.force.reset();
+        self.force_xy = [[0.0; FORCE_PARAMETERS_MAX]; 3];
     }
 
     /// Advance the modelled speeds towards `targets` by one sample; with `gyro_rad_s`, the
@@ -297,6 +338,7 @@ impl LagHypothesis {
             let square = x * x;
             if start {
                 self.square[i].reset_to(square);
+                self.square_band[i].reset_to(square);
                 self.reaction_hp[i][0].reset_to(x);
                 self.reaction_hp[i][1].reset_to(0.0);
                 self.reaction_lp[i].reset_to(0.0);
@@ -305,6 +347,7 @@ impl LagHypothesis {
                 }
             }
             self.regressors[i] = self.square[i].update(square, pole);
+            self.band[i] = self.square_band[i].update(square, pole);
             let once = self.reaction_hp[i][0].update(x, pole);
             let twice = self.reaction_hp[i][1].update(once, pole);
             self.regressors[m + i] = self.reaction_lp[i].update(twice);
@@ -338,6 +381,26 @@ impl LagHypothesis {
         }
     }
 
+    /// One regression of the specific force: `F f = Σ c_i F x_i² + (offset terms)`.
+    fn learn_force(&mut self, m: usize, offset_terms: &[f32; 9], force: &[f32; 3]) {
+        let mut x = [0.0; FORCE_PARAMETERS_MAX];
+        x[..m].copy_from_slice(&self.band[..m]);
+        x[m..m + 9].copy_from_slice(offset_terms);
+        let _ = self.force.update(&x[..m + 9], force);
+        for k in 0..3 {
+            for j in 0..m + 9 {
+                self.force_xy[k][j] += f64::from(x[j]) * f64::from(force[k]);
+            }
+        }
+    }
+
+    /// The least-squares residual of the specific force's axis `k` given `Σ y²` (`yy`).
+    fn force_residual(&self, m: usize, k: usize, yy: f64) -> f32 {
+        let explained: f64 =
+            (0..m + 9).map(|j| f64::from(self.force.theta(j, k)) * self.force_xy[k][j]).sum();
+        (yy - explained).max(0.0) as f32
+    }
+
     /// The least-squares residual of axis `a` given `Σ y²` (`yy`): `Σ y² − θ·Σ x y`.
     fn residual(&self, m: usize, a: usize, yy: f64) -> f32 {
         let explained: f64 =
@@ -367,6 +430,12 @@ pub struct CommandSpeedModel {
     hypotheses: [LagHypothesis; TAU_GRID_S.len()],
     /// Per body axis, `Σ y²` of the regressions, and their count.
     yy: [f64; 3],
+    /// The specific force through `F`, the offset terms' filters, the filtered rates of the
+    /// previous sample, and `Σ y²` of the specific-force regressions.
+    force_band: [Banded; 3],
+    products_band: [Banded; 6],
+    rate_previous: [f32; 3],
+    force_yy: [f64; 3],
     regressions: u32,
     /// The time constant identified so far, s, and its standard deviation.
     tau_s: f32,
@@ -400,6 +469,10 @@ impl CommandSpeedModel {
             next_axis: 0,
             hypotheses: TAU_GRID_S.map(|tau| LagHypothesis::new(tau, dt_s, motors, butterworth)),
             yy: [0.0; 3],
+            force_band: [Banded::new(butterworth); 3],
+            products_band: [Banded::new(butterworth); 6],
+            rate_previous: [0.0; 3],
+            force_yy: [0.0; 3],
             regressions: 0,
             tau_s: TAU_PRIOR_S,
             tau_std_s: TAU_PRIOR_STD_S,
@@ -421,6 +494,7 @@ impl CommandSpeedModel {
             h.reset();
         }
         self.yy = [0.0; 3];
+        self.force_yy = [0.0; 3];
         self.regressions = 0;
         self.tau_s = TAU_PRIOR_S;
         self.tau_std_s = TAU_PRIOR_STD_S;
@@ -491,6 +565,7 @@ impl CommandSpeedModel {
     pub fn update(
         &mut self,
         gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
         driving: &[f32; MAX_MOTORS],
         running: bool,
         learn: bool,
@@ -515,7 +590,7 @@ impl CommandSpeedModel {
             self.hold_samples = 0;
         }
         let pole = self.pole;
-        if !gyro_rad_s.iter().all(|w| w.is_finite()) {
+        if !gyro_rad_s.iter().chain(&accel_mps2).all(|w| w.is_finite()) {
             self.seen = false;
             for h in &mut self.hypotheses {
                 h.advance(m, &targets, pole, None, false);
@@ -524,7 +599,15 @@ impl CommandSpeedModel {
         }
         let start = !self.seen;
         self.seen = true;
+        let w = gyro_rad_s;
+        let products = [w[0] * w[0], w[1] * w[1], w[2] * w[2], w[0] * w[1], w[0] * w[2], w[1] * w[2]];
         if start {
+            for k in 0..3 {
+                self.force_band[k].reset_to(accel_mps2[k]);
+            }
+            for (band, p) in self.products_band.iter_mut().zip(products) {
+                band.reset_to(p);
+            }
             for a in 0..3 {
                 self.rate_hp[a][0].reset_to(gyro_rad_s[a]);
                 self.rate_hp[a][1].reset_to(0.0);
@@ -537,6 +620,15 @@ impl CommandSpeedModel {
             let twice = self.rate_hp[a][1].update(once, pole);
             rate[a] = self.rate_lp[a].update(twice);
         }
+        let force: [f32; 3] = core::array::from_fn(|k| self.force_band[k].update(accel_mps2[k], pole));
+        let mut offset_terms = [0.0; 9];
+        for a in 0..3 {
+            offset_terms[a] = (rate[a] - self.rate_previous[a]) / self.dt_s;
+        }
+        for (j, (band, p)) in self.products_band.iter_mut().zip(products).enumerate() {
+            offset_terms[3 + j] = band.update(p, pole);
+        }
+        self.rate_previous = rate;
         for h in &mut self.hypotheses {
             h.advance(m, &targets, pole, Some(gyro_rad_s), start);
         }
@@ -548,8 +640,12 @@ impl CommandSpeedModel {
         self.next_axis = (self.next_axis + 1) % 3;
         for h in &mut self.hypotheses {
             h.learn(m, a, rate[a]);
+            h.learn_force(m, &offset_terms, &force);
         }
         self.yy[a] += f64::from(rate[a]) * f64::from(rate[a]);
+        for k in 0..3 {
+            self.force_yy[k] += f64::from(force[k]) * f64::from(force[k]);
+        }
         self.regressions += 1;
         self.select();
     }
@@ -562,17 +658,24 @@ impl CommandSpeedModel {
     fn select(&mut self) {
         let n = TAU_GRID_S.len();
         let m = self.motors;
-        let residuals: [[f32; 3]; TAU_GRID_S.len()] = core::array::from_fn(|j| {
-            core::array::from_fn(|a| self.hypotheses[j].residual(m, a, self.yy[a]))
+        let residuals: [[f32; 6]; TAU_GRID_S.len()] = core::array::from_fn(|j| {
+            let h = &self.hypotheses[j];
+            core::array::from_fn(|a| {
+                if a < 3 {
+                    h.residual(m, a, self.yy[a])
+                } else {
+                    h.force_residual(m, a - 3, self.force_yy[a - 3])
+                }
+            })
         });
-        let mut mean = [0.0f32; 3];
+        let mut mean = [0.0f32; 6];
         for r in &residuals {
-            for a in 0..3 {
+            for a in 0..6 {
                 mean[a] += r[a] / n as f32;
             }
         }
-        let score = |r: &[f32; 3]| -> f32 {
-            (0..3).filter(|&a| mean[a] > 0.0).map(|a| r[a] / mean[a]).sum()
+        let score = |r: &[f32; 6]| -> f32 {
+            (0..6).filter(|&a| mean[a] > 0.0).map(|a| r[a] / mean[a]).sum()
         };
         let scores: [f32; TAU_GRID_S.len()] = core::array::from_fn(|j| score(&residuals[j]));
         let mut best = 0;
@@ -664,7 +767,8 @@ mod tests {
                 let alpha: f32 = (0..4).map(|i| c[a][i] * speed[i] * speed[i]).sum::<f32>();
                 rate[a] += alpha * dt;
             }
-            model.update(rate, &commands, true, true);
+            let thrust: f32 = (0..4).map(|i| 10.0 * speed[i] * speed[i]).sum();
+            model.update(rate, [0.0, 0.0, -thrust], &commands, true, true);
         }
         (model.tau_s(), Curve::NOMINAL)
     }
