@@ -442,15 +442,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             board.motors_mut().set_bidirectional(false);
             if user_params.set(Param::MotorBidirDshot as usize, &[0.0]).is_ok() {
                 app.background.configure(&user_params);
-                let base = ControlSettings::from(&user_params);
-                let k: f32 = std::env::var("NS2_SCALE").ok().and_then(|v| v.parse().ok()).unwrap_or(1.0);
-                let excitation = flight::learner::excitation::ExcitationConfig {
-                    step_s: base.excitation.step_s * k,
-                    ramp_s: base.excitation.ramp_s * k,
-                    overlap_s: base.excitation.overlap_s * k,
-                    ..base.excitation
+                user_settings = ControlSettings {
+                    arm_without_speeds: true,
+                    ..ControlSettings::from(&user_params)
                 };
-                user_settings = ControlSettings { arm_without_speeds: true, excitation, ..base };
                 app.submit(ControlCommand::Configure(user_settings));
             }
         }
