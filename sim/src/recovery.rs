@@ -528,18 +528,6 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             {
                 let learned = app.background.results().learned;
                 report.thrust_scores_at_excitation_end = Some(thrust_scores(&learned, &truth));
-                if std::env::var_os("NS2_DEBUG").is_some() {
-                    let m0 = airframe.rotor_motor(0);
-                    let lm = learned.motor[0];
-                    let full = lm.omega_full_rad_s();
-                    eprintln!(
-                        "NS2 tau true {:.1} ms learned {:.1} ms; curve true {:?} kappa {:.2} idle {:.3}; learned kappa {:.2} idle {:.3}; axis {:?}",
-                        truth.tau_s[0] * 1e3, lm.tau_s * 1e3, m0.curve, m0.kappa,
-                        m0.omega_idle_rad_s / m0.omega_max_rad_s,
-                        lm.a_rad_s / (lm.a_rad_s + lm.b_rad_s), lm.omega_idle_rad_s / full,
-                        learned.axis_status
-                    );
-                }
             }
             let Some(released_s) = board.physics().hand().released_at_s() else { continue };
             let release_z_m = *release_z.get_or_insert(state.position_ned_m.z);
