@@ -322,7 +322,8 @@ mod tests {
         assert!((e.duration_s() - 0.460).abs() < 1e-6, "450 ms + 10 ms margin");
         let mut trace = Vec::new();
         loop {
-            let out = e.update([0.0; 3], None, DT);
+            // Speed reports that do not scale the pulses (a constant speed).
+            let out = e.update([0.0; 3], Some(400.0), DT);
             if out.finished {
                 break;
             }
@@ -369,13 +370,23 @@ mod tests {
             assert!(((e.start_s(1) - e.start_s(0)) - expected_spacing).abs() < 1e-3);
             assert_eq!(out.commands[0], config.step_command, "motor 0's pulse has begun");
         }
-        // No speed reports: the configured times stay.
+        // Reports that are not a first-order response (a constant speed): the configured times
+        // stay.
+        let mut e = Excitation::new(ExcitationConfig::default(), 4);
+        for _ in 0..200 {
+            e.update([0.0; 3], Some(400.0), DT);
+        }
+        assert_eq!(e.measured_tau_s(), None);
+        assert!((e.start_s(1) - e.start_s(0) - 0.05).abs() < 1e-6);
+        // No speed reported at all (ESCs without telemetry): scaled to `UNREPORTED_TAU_S`,
+        // nothing measured.
         let mut e = Excitation::new(ExcitationConfig::default(), 4);
         for _ in 0..200 {
             e.update([0.0; 3], None, DT);
         }
         assert_eq!(e.measured_tau_s(), None);
-        assert!((e.start_s(1) - e.start_s(0) - 0.05).abs() < 1e-6);
+        let spacing = 0.05 * UNREPORTED_TAU_S / ExcitationConfig::default().reference_tau_s;
+        assert!((e.start_s(1) - e.start_s(0) - spacing).abs() < 1e-6);
     }
 
     #[test]

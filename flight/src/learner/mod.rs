@@ -384,11 +384,12 @@ impl Learner {
                 config.effectiveness_rls,
             );
             #[cfg(feature = "no-speed")]
-            addr_of_mut!((*learner).command_speeds).write(CommandSpeedModel::new(
+            CommandSpeedModel::build_at(
+                addr_of_mut!((*learner).command_speeds),
                 motors,
                 config.rate_hz,
                 slow,
-            ));
+            );
             addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
             addr_of_mut!((*learner).newest_command).write(0);

@@ -456,36 +456,53 @@ pub struct CommandSpeedModel {
 }
 
 impl CommandSpeedModel {
-    /// A model for `motors` motors (clamped to 1..=8) at `rate_hz`, its signals through the
-    /// low-pass `lowpass` (designed by the caller at [`LAG_LOWPASS_HZ`]).
-    pub fn new(motors: usize, rate_hz: f32, lowpass: BiquadCoefficients) -> Self {
+    /// Build a model for `motors` motors (clamped to 1..=8) at `rate_hz` in place at `this`,
+    /// its signals through the low-pass `lowpass` (designed by the caller at
+    /// [`LAG_LOWPASS_HZ`]): the model is about 300 KB (the candidates' covariances and the held
+    /// samples) and is never a temporary on the stack.
+    ///
+    /// # Safety
+    /// `this` must be valid for writes and aligned; every field is written.
+    pub unsafe fn build_at(
+        this: *mut Self,
+        motors: usize,
+        rate_hz: f32,
+        lowpass: BiquadCoefficients,
+    ) {
+        use core::ptr::addr_of_mut;
         let motors = motors.clamp(1, MAX_MOTORS);
         let dt_s = 1.0 / rate_hz;
         let butterworth = Butterworth2::from_coefficients(lowpass);
-        Self {
-            motors,
-            dt_s,
-            pole: libm::expf(-core::f32::consts::TAU * LAG_HIGH_PASS_HZ * dt_s),
-            rate_hp: [[HighPass::default(); 2]; 3],
-            rate_lp: [butterworth; 3],
-            seen: false,
-            pulsed: false,
-            pulsed_motors: 0,
-            next_axis: 0,
-            hypotheses: TAU_GRID_S.map(|tau| LagHypothesis::new(tau, dt_s, motors, butterworth)),
-            yy: [0.0; 3],
-            force_band: [Banded::new(butterworth); 3],
-            products_band: [Banded::new(butterworth); 6],
-            rate_previous: [0.0; 3],
-            force_yy: [0.0; 3],
-            regressions: 0,
-            tau_s: TAU_PRIOR_S,
-            tau_std_s: TAU_PRIOR_STD_S,
-            held: [HeldSample::default(); HELD_SAMPLES_MAX],
-            held_first: 0,
-            held_len: 0,
-            hold_samples: Self::hold_samples(rate_hz),
-            held_speed: [0.0; MAX_MOTORS],
+        // SAFETY: the caller's; each field is written once through a raw field pointer. The
+        // held samples are all zeros (0.0 and false), a valid value.
+        unsafe {
+            addr_of_mut!((*this).motors).write(motors);
+            addr_of_mut!((*this).dt_s).write(dt_s);
+            let pole = libm::expf(-core::f32::consts::TAU * LAG_HIGH_PASS_HZ * dt_s);
+            addr_of_mut!((*this).pole).write(pole);
+            addr_of_mut!((*this).rate_hp).write([[HighPass::default(); 2]; 3]);
+            addr_of_mut!((*this).rate_lp).write([butterworth; 3]);
+            addr_of_mut!((*this).seen).write(false);
+            addr_of_mut!((*this).pulsed).write(false);
+            addr_of_mut!((*this).pulsed_motors).write(0);
+            addr_of_mut!((*this).next_axis).write(0);
+            let hypotheses = addr_of_mut!((*this).hypotheses).cast::<LagHypothesis>();
+            for (j, &tau) in TAU_GRID_S.iter().enumerate() {
+                hypotheses.add(j).write(LagHypothesis::new(tau, dt_s, motors, butterworth));
+            }
+            addr_of_mut!((*this).yy).write([0.0; 3]);
+            addr_of_mut!((*this).force_band).write([Banded::new(butterworth); 3]);
+            addr_of_mut!((*this).products_band).write([Banded::new(butterworth); 6]);
+            addr_of_mut!((*this).rate_previous).write([0.0; 3]);
+            addr_of_mut!((*this).force_yy).write([0.0; 3]);
+            addr_of_mut!((*this).regressions).write(0);
+            addr_of_mut!((*this).tau_s).write(TAU_PRIOR_S);
+            addr_of_mut!((*this).tau_std_s).write(TAU_PRIOR_STD_S);
+            addr_of_mut!((*this).held).write_bytes(0, 1);
+            addr_of_mut!((*this).held_first).write(0);
+            addr_of_mut!((*this).held_len).write(0);
+            addr_of_mut!((*this).hold_samples).write(Self::hold_samples(rate_hz));
+            addr_of_mut!((*this).held_speed).write([0.0; MAX_MOTORS]);
         }
     }
 
@@ -729,6 +746,7 @@ impl CommandSpeedModel {
 
 #[cfg(test)]
 mod tests {
+    extern crate std;
     use super::*;
 
     /// A tumbling body whose rates answer four motors through torques `C x²`, and its specific
@@ -740,7 +758,12 @@ mod tests {
         let rate_hz = 2000.0;
         let dt = 1.0 / rate_hz;
         let lowpass = BiquadCoefficients::butterworth_lowpass(LAG_LOWPASS_HZ, rate_hz).unwrap();
-        let mut model = CommandSpeedModel::new(4, rate_hz, lowpass);
+        let mut slot = std::boxed::Box::<CommandSpeedModel>::new_uninit();
+        // SAFETY: a fresh, aligned allocation, every field written by `build_at`.
+        let mut model = unsafe {
+            CommandSpeedModel::build_at(slot.as_mut_ptr(), 4, rate_hz, lowpass);
+            slot.assume_init()
+        };
         let mut excitation = Excitation::new(ExcitationConfig::default(), 4);
         let c = [
             [300.0, -300.0, 300.0, -300.0],
