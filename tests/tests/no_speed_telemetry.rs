@@ -2,15 +2,17 @@
 //! firmware application flown on ESCs that report no speed, told so (`motor_bidir_dshot` = 0)
 //! and allowed by its own configuration to arm without them
 //! (`ControlSettings::arm_without_speeds`, what `fly --no-speed-telemetry` sets). The lag is
-//! identified from the body's angular response and every speed modelled from the commands.
+//! identified from the body's response (rates and specific force) and every speed modelled from
+//! the commands.
 //!
-//! A prototype: over 200 random worlds it hovers about half of the airframes
-//! (docs/benchmarks.md); these two built-in airframes are among those it flies.
+//! A prototype: over 1,000 random worlds it hovers 96.8 % of the airframes (docs/benchmarks.md,
+//! 100 % with telemetry); the built-in quads below and random worlds 1–9 are among those it flies.
 //!
 //! `cargo test -p tests --release --test no_speed_telemetry -- --nocapture` prints the figures.
 
 use sim::airframe::Airframe;
 use sim::recovery::{fly, FlyConfig, Verdict};
+use sim::world::{self, Aspect};
 
 /// The seed paper's experiment with and without speed telemetry on `name`: (verdict, worst
 /// per-motor |τ error| s, worse G1 block per unit thrust) of each, at the end of the excitation.
@@ -38,11 +40,36 @@ fn without_speed_telemetry_the_lag_is_found_from_the_rotation_and_the_craft_hold
         let [(with_verdict, with_tau, with_g1), (verdict, tau_error_s, g1)] =
             with_and_without(name);
         assert_eq!(with_verdict, Verdict::Held, "{name} with telemetry");
-        // The lag from the body's response alone, within 2 ms of the truth (0.6–1.0 ms today;
-        // the prior it starts from is 25 ms, the truth 20–25 ms).
-        assert!(tau_error_s < 2e-3, "{name}: τ {:.2} ms off", 1e3 * tau_error_s);
+        // The lag from the body's response alone, within 8 ms of the truth (paper-quad 5.6 ms,
+        // racer-5in 0.5 ms today; the angular-only regression this grid replaced had 0.6–1.0
+        // ms on these two, and a 7.4 ms median error over 200 random worlds against 5.8 now).
+        assert!(tau_error_s < 8e-3, "{name}: τ {:.2} ms off", 1e3 * tau_error_s);
         assert_eq!(verdict, Verdict::Held, "{name} without telemetry: held within 0.3 m");
-        // Bidirectional DShot stays the better path: its lag and G1 are closer to the truth.
-        assert!(with_tau < tau_error_s && with_g1 < g1, "{name}: {with_g1} against {g1}");
+        // Bidirectional DShot stays the better path: its G1 is closer to the truth (its lag is
+        // within 0.1 ms; without, the racer's came out as close: 0.04 ms).
+        assert!(with_tau < 1e-4, "{name}: τ {:.2} ms off with telemetry", 1e3 * with_tau);
+        assert!(with_g1 < g1, "{name}: G1 {with_g1} with telemetry against {g1}");
     }
+}
+
+#[test]
+fn without_speed_telemetry_random_airframes_hover() {
+    // Random worlds 1–9 (4–8 motors, every aspect randomised: throws, hands, poses, IMUs, ESC
+    // curves, lags, air) without telemetry: all hold within 0.3 m today, with worst-motor τ
+    // errors of 2–20 ms. One may hover loosely.
+    let mut held = 0;
+    for seed in 1..=9 {
+        let (airframe, mut config) = world::random_world_case(seed, &Aspect::ALL);
+        config.speed_telemetry = false;
+        let report = fly(&airframe, &config);
+        let verdict = Verdict::of(&report);
+        let tau_ms = report.thrust_scores_at_excitation_end.map(|s| 1e3 * s.tau_error_max_s);
+        eprintln!("seed {seed}: {verdict:?}, worst τ error {tau_ms:.1?} ms");
+        assert!(
+            matches!(verdict, Verdict::Held | Verdict::HoveredLoose),
+            "seed {seed}: {verdict:?}"
+        );
+        held += usize::from(verdict == Verdict::Held);
+    }
+    assert!(held >= 8, "held {held} of 9");
 }

@@ -28,8 +28,9 @@
 //! measurement: the mean reported speed of all motors, a first-order response from standstill,
 //! is read at half the spin-up and at its end; `ω(2T)/ω(T) = 1 + e^(−T/τ)` gives τ, and the
 //! step, ramp and overlap are scaled by `τ / reference_tau_s` (clamped to
-//! [`ExcitationConfig::tau_range_s`]). Without speed reports, or when the ratio is not that of
-//! a first-order response, the times stay as configured (for `reference_tau_s`).
+//! [`ExcitationConfig::tau_range_s`]). When the ratio is not that of a first-order response, the
+//! times stay as configured (for `reference_tau_s`); when no motor reported a speed at all (ESCs
+//! without telemetry, `no_speed`), they are scaled to [`UNREPORTED_TAU_S`].
 //!
 //! **Never longer than `max_s` (0.8 s).** The scale is capped so that the whole schedule still
 //! fits in [`ExcitationConfig::max_s`]: an octorotor with 50 ms motors gets pulses 1.76× the
@@ -50,6 +51,14 @@ use crate::math::clamp;
 
 /// Most motors the schedule handles.
 pub const MAX_MOTORS: usize = 8;
+
+/// The time constant the pulses are scaled to when no motor reported a speed during the
+/// spin-up (ESCs without telemetry, `no_speed`), s: the lag is then identified from the body's
+/// response to the pulses, and a pulse much shorter than a slow motor's lag shows it poorly.
+/// Measured on 200 random worlds without telemetry (`fly monte-carlo --world random
+/// --no-speed-telemetry`, docs/benchmarks.md): at the reference 25 ms, 190 hovered; at 32.5 ms
+/// (pulses 1.3 × as long), 192.
+pub const UNREPORTED_TAU_S: f32 = 0.0325;
 
 /// Time after the last pulse ends before the excitation does, s: the motor's speed settles
 /// towards idle while the estimators still watch.
@@ -132,6 +141,8 @@ pub struct Excitation {
     measured_tau_s: Option<f32>,
     /// Whether the pulse times have been scaled (at the end of the spin-up).
     scaled: bool,
+    /// Whether any speed was reported during the spin-up.
+    speeds_seen: bool,
 }
 
 impl Excitation {
@@ -147,6 +158,7 @@ impl Excitation {
             spin_up_half_speed: None,
             measured_tau_s: None,
             scaled: false,
+            speeds_seen: false,
         }
     }
 
@@ -159,6 +171,7 @@ impl Excitation {
     fn spin_up(&mut self, t: f32, dt_s: f32, mean_speed_rad_s: Option<f32>) {
         let c = self.config;
         let half = 0.5 * c.delay_s;
+        self.speeds_seen |= mean_speed_rad_s.is_some_and(f32::is_finite);
         if self.spin_up_half_speed.is_none() && t + 0.5 * dt_s >= half {
             self.spin_up_half_speed = mean_speed_rad_s.filter(|s| s.is_finite() && *s > 0.0);
         }
@@ -166,20 +179,25 @@ impl Excitation {
             return;
         }
         self.scaled = true;
-        let ratio = match (self.spin_up_half_speed, mean_speed_rad_s) {
-            (Some(first), Some(second)) if second.is_finite() => second / first,
-            _ => return,
+        let tau = if self.speeds_seen {
+            let ratio = match (self.spin_up_half_speed, mean_speed_rad_s) {
+                (Some(first), Some(second)) if second.is_finite() => second / first,
+                _ => return,
+            };
+            // ω(2T)/ω(T) = 1 + e^(−T/τ) lies in (1, 2) for a first-order response from rest.
+            if !(ratio > 1.0 && ratio < 2.0) {
+                return;
+            }
+            let tau = -half / libm::logf(ratio - 1.0);
+            if !tau.is_finite() {
+                return;
+            }
+            let tau = clamp(tau, c.tau_range_s[0], c.tau_range_s[1]);
+            self.measured_tau_s = Some(tau);
+            tau
+        } else {
+            UNREPORTED_TAU_S
         };
-        // ω(2T)/ω(T) = 1 + e^(−T/τ) lies in (1, 2) for a first-order response from rest.
-        if !(ratio > 1.0 && ratio < 2.0) {
-            return;
-        }
-        let tau = -half / libm::logf(ratio - 1.0);
-        if !tau.is_finite() {
-            return;
-        }
-        let tau = clamp(tau, c.tau_range_s[0], c.tau_range_s[1]);
-        self.measured_tau_s = Some(tau);
         // Longer pulses for slower motors, but never past `max_s`: every motor keeps its whole
         // pulse, and the craft is flown while it still has height to recover in. (A `max_s`
         // that leaves no room for pulses at all scales nothing; the timeout still ends it.)
@@ -304,7 +322,8 @@ mod tests {
         assert!((e.duration_s() - 0.460).abs() < 1e-6, "450 ms + 10 ms margin");
         let mut trace = Vec::new();
         loop {
-            let out = e.update([0.0; 3], None, DT);
+            // Speed reports that do not scale the pulses (a constant speed).
+            let out = e.update([0.0; 3], Some(400.0), DT);
             if out.finished {
                 break;
             }
@@ -351,13 +370,23 @@ mod tests {
             assert!(((e.start_s(1) - e.start_s(0)) - expected_spacing).abs() < 1e-3);
             assert_eq!(out.commands[0], config.step_command, "motor 0's pulse has begun");
         }
-        // No speed reports: the configured times stay.
+        // Reports that are not a first-order response (a constant speed): the configured times
+        // stay.
+        let mut e = Excitation::new(ExcitationConfig::default(), 4);
+        for _ in 0..200 {
+            e.update([0.0; 3], Some(400.0), DT);
+        }
+        assert_eq!(e.measured_tau_s(), None);
+        assert!((e.start_s(1) - e.start_s(0) - 0.05).abs() < 1e-6);
+        // No speed reported at all (ESCs without telemetry): scaled to `UNREPORTED_TAU_S`,
+        // nothing measured.
         let mut e = Excitation::new(ExcitationConfig::default(), 4);
         for _ in 0..200 {
             e.update([0.0; 3], None, DT);
         }
         assert_eq!(e.measured_tau_s(), None);
-        assert!((e.start_s(1) - e.start_s(0) - 0.05).abs() < 1e-6);
+        let spacing = 0.05 * UNREPORTED_TAU_S / ExcitationConfig::default().reference_tau_s;
+        assert!((e.start_s(1) - e.start_s(0) - spacing).abs() < 1e-6);
     }
 
     #[test]

@@ -387,11 +387,12 @@ impl Learner {
                 config.effectiveness_rls,
             );
             #[cfg(feature = "no-speed")]
-            addr_of_mut!((*learner).command_speeds).write(CommandSpeedModel::new(
+            CommandSpeedModel::build_at(
+                addr_of_mut!((*learner).command_speeds),
                 motors,
                 config.rate_hz,
                 slow,
-            ));
+            );
             addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
             addr_of_mut!((*learner).newest_command).write(0);
@@ -487,19 +488,32 @@ impl Learner {
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
             || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
         #[cfg(feature = "no-speed")]
-        let modelled;
-        #[cfg(feature = "no-speed")]
-        let speeds_rad_s = if self.config.speed_telemetry {
-            speeds_rad_s
-        } else {
-            modelled = self.command_speeds.update(gyro_rad_s, &driving, self.armed, true);
-            &modelled
-        };
+        if !self.config.speed_telemetry {
+            // The lag regression now; the effectiveness regression on the held samples, with
+            // speeds modelled with the lag identified since (`no_speed::CommandSpeedModel::hold`).
+            self.command_speeds.update(gyro_rad_s, accel_mps2, &driving, self.armed, true);
+            self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed);
+            while let Some(held) = self.command_speeds.release() {
+                self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
+            }
+            return;
+        }
         if self.config.speed_telemetry {
             for i in 0..m {
                 self.motor_models[i].update(driving[i], self.armed, speeds_rad_s[i]);
             }
         }
+        self.learn(gyro_rad_s, accel_mps2, speeds_rad_s);
+    }
+
+    /// The effectiveness regression on one sample, and the publication.
+    #[inline(always)]
+    fn learn(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        speeds_rad_s: &[f32; MAX_MOTORS],
+    ) {
         let regression =
             self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
         self.samples = self.samples.saturating_add(1);
@@ -535,7 +549,7 @@ impl Learner {
         #[cfg(feature = "no-speed")]
         if !self.config.speed_telemetry {
             // Motors off: the lag regression's filters settle on the free tumble.
-            let _ = self.command_speeds.update(gyro_rad_s, &[0.0; MAX_MOTORS], false, false);
+            self.command_speeds.update(gyro_rad_s, accel_mps2, &[0.0; MAX_MOTORS], false, false);
         }
     }
 
