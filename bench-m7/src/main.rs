@@ -24,7 +24,7 @@ use flight::allocation::{AllocationConfig, Allocator};
 use flight::attitude::{AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, Guidance};
 use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
-use flight::learner::{AxisStatus, Learner, LearnerConfig, MAX_MOTORS};
+use flight::learner::{AxisStatus, LearnedModel, Learner, LearnerConfig, MAX_MOTORS};
 use flight::navigation::PositionEstimator;
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
 use imu_offset::in_flight::OffsetFit;
@@ -187,7 +187,7 @@ const CLOSED_LOOP_REGIONS: [&str; 3] = [
 ];
 
 /// The parts of the hover step on their own.
-const CLOSED_LOOP_PARTS: [&str; 7] = [
+const CLOSED_LOOP_PARTS: [&str; 8] = [
     "attitude filter update",
     "position estimator predict",
     "controller update, hover (position, attitude, rate, INDI, allocation)",
@@ -195,6 +195,7 @@ const CLOSED_LOOP_PARTS: [&str; 7] = [
     "INDI update, hover (filters, increments, allocation, commands)",
     "allocation solve, hover increment (warm start)",
     "allocation solve, increment beyond the motors' range (warm start)",
+    "controller formed from the learned model and started (engagement, re-forming in flight)",
 ];
 
 /// One synthetic sample: gyro, accelerometer, commands, speeds.
@@ -312,30 +313,10 @@ fn hover_sample(model: &IndiModel, n: usize) -> ([f32; 3], [f32; 3]) {
 /// constants are not usable: every motor model is taken as the synthetic curve
 /// (`ω = 300 + 1080 δ + 1620 √δ` rad/s) with τ = 30 ms, a 5-inch motor's.
 fn hovering_closed_loop(learner: &Learner) -> (ClosedLoop, usize) {
-    let mut learned = *learner.model();
-    for motor in &mut learned.motor[..usize::from(learned.motors)] {
-        motor.a_rad_s = 1080.0;
-        motor.b_rad_s = 1620.0;
-        motor.omega_idle_rad_s = 300.0;
-        motor.tau_s = 0.03;
-        motor.converged = true;
-    }
-    let model = match IndiModel::from_learned(&learned) {
-        Ok(model) => model,
-        Err(error) => {
-            hprintln!("bench-m7 error: learned model refused: {:?}", error);
-            fail("learned model refused")
-        }
-    };
-    let r_imu_m = [0.01, -0.013, 0.008];
-    let config = IndiConfig { rate_hz: RATE_HZ, ..IndiConfig::default() };
-    let Ok(mut controller) = Controller::new(model, r_imu_m, config) else { fail("controller") };
-    let mut commands = [0.0f32; MAX_MOTORS];
-    let mut speeds = [0.0f32; MAX_MOTORS];
-    for j in 0..model.motors {
-        commands[j] = model.command_for_thrust(j, model.u_hover[j]);
-        speeds[j] = model.motor[j].omega_full_rad_s() * libm::sqrtf(model.u_hover[j]);
-    }
+    let learned = flyable_model(learner);
+    let Some(mut controller) = formed_controller(&learned) else { fail("controller") };
+    let model = *controller.indi().model();
+    let (commands, speeds) = hover_commands(&model);
     let (gyro, accel) = hover_sample(&model, 0);
     controller.start(gyro, accel, &commands, &speeds);
     let mut attitude = AttitudeFilter::new(AttitudeConfig::default());
@@ -348,7 +329,7 @@ fn hovering_closed_loop(learner: &Learner) -> (ClosedLoop, usize) {
         navigation: PositionEstimator::default(),
         controller,
         guidance: Guidance::Position { position_ned_m: Vector3::zeros(), yaw_rad: 0.0 },
-        r_imu_m: Vector3::from(r_imu_m),
+        r_imu_m: Vector3::from(BENCH_R_IMU_M),
     };
     let origin = Vector3::zeros();
     let steps = 400;
@@ -358,6 +339,49 @@ fn hovering_closed_loop(learner: &Learner) -> (ClosedLoop, usize) {
         closed.step(gyro, accel, fix);
     }
     (closed, steps + 1)
+}
+
+/// The IMU offset the closed-loop regions fly with, m.
+const BENCH_R_IMU_M: [f32; 3] = [0.01, -0.013, 0.008];
+
+/// The model `learner` learned, with every motor model taken as the synthetic curve
+/// (`ω = 300 + 1080 δ + 1620 √δ` rad/s) and τ = 30 ms (see [`hovering_closed_loop`]).
+fn flyable_model(learner: &Learner) -> LearnedModel {
+    let mut learned = *learner.model();
+    for motor in &mut learned.motor[..usize::from(learned.motors)] {
+        motor.a_rad_s = 1080.0;
+        motor.b_rad_s = 1620.0;
+        motor.omega_idle_rad_s = 300.0;
+        motor.tau_s = 0.03;
+        motor.converged = true;
+    }
+    learned
+}
+
+/// The controller the firmware forms from a learned model at engagement and when it re-forms in
+/// flight (`firmware::app::pilot`: `IndiModel::from_learned`, then `Controller::new`), with the
+/// IMU offset of the closed-loop regions; `None` when the model is refused.
+fn formed_controller(learned: &LearnedModel) -> Option<Controller> {
+    let model = match IndiModel::from_learned(learned) {
+        Ok(model) => model,
+        Err(error) => {
+            hprintln!("bench-m7 error: learned model refused: {:?}", error);
+            return None;
+        }
+    };
+    let config = IndiConfig { rate_hz: RATE_HZ, ..IndiConfig::default() };
+    Controller::new(model, BENCH_R_IMU_M, config).ok()
+}
+
+/// Each motor's hover command and speed on `model`.
+fn hover_commands(model: &IndiModel) -> ([f32; MAX_MOTORS], [f32; MAX_MOTORS]) {
+    let mut commands = [0.0f32; MAX_MOTORS];
+    let mut speeds = [0.0f32; MAX_MOTORS];
+    for j in 0..model.motors {
+        commands[j] = model.command_for_thrust(j, model.u_hover[j]);
+        speeds[j] = model.motor[j].omega_full_rad_s() * libm::sqrtf(model.u_hover[j]);
+    }
+    (commands, speeds)
 }
 
 /// The closed-loop 2 kHz control step of the craft `learner` identified (`m` motors), in the
@@ -451,6 +475,21 @@ fn closed_loop_regions(m: usize, learner: &Learner) {
             out.status,
             out.iterations
         );
+    }
+
+    // Engagement and the in-flight re-forming: the controller formed from the learned model
+    // and started on a sample, in the 2 kHz step that takes over.
+    let learned = flyable_model(learner);
+    let (commands, speeds) = hover_commands(&model);
+    let mut state = (learned, gyro, accel, commands, speeds);
+    let formed = region(&mut state, |(learned, gyro, accel, commands, speeds)| {
+        formed_controller(black_box(learned)).map(|mut controller| {
+            controller.start(*gyro, *accel, commands, speeds);
+            controller
+        })
+    });
+    if formed.is_none() {
+        fail("controller formed");
     }
 }
 

@@ -117,11 +117,7 @@ impl IndiModel {
             return Err(ModelError::MotorCount { motors });
         }
         let axis = learned.thrust_axis.ok_or(ModelError::NoThrustAxis)?;
-        let [w, x, y, z] = axis.q_thrust_to_imu;
-        if ![w, x, y, z].iter().all(|v| v.is_finite()) {
-            return Err(ModelError::NonFinite);
-        }
-        let q_imu_thrust = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+        let q_imu_thrust = axis.rotation_thrust_to_imu().ok_or(ModelError::NonFinite)?;
         let g1_imu = learned.g1_per_unit_thrust();
         let mut model = Self {
             motors,

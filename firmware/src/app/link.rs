@@ -17,7 +17,7 @@ use super::telemetry::{wire_phase, StepRecord};
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::{AxisStatus, FlightPhase};
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 use protocol::signing;
 use protocol::text as short_text;
 use protocol::{
@@ -921,11 +921,10 @@ pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
     let [roll, pitch, yaw] = flight::attitude::euler_zyx_rad(q);
     // The rate in the thrust frame: the IMU's rate turned by the learned q_U^T while flying.
     let gyro = Vector3::from(control.imu.gyro_rad_s);
-    let rate = match (&view.background.learned.thrust_axis, pilot.flying) {
-        (Some(axis), true) => {
-            let [w, x, y, z] = axis.q_thrust_to_imu;
-            UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)).inverse() * gyro
-        }
+    let thrust_to_imu =
+        view.background.learned.thrust_axis.and_then(|a| a.rotation_thrust_to_imu());
+    let rate = match (thrust_to_imu, pilot.flying) {
+        (Some(q), true) => q.inverse() * gyro,
         _ => gyro,
     };
     let known = control.external_pose.is_some();

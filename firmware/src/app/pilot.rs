@@ -48,7 +48,7 @@ use flight::learner::{AxisStatus, LearnedModel};
 use flight::navigation::{
     crossover_for_noise, HeadingAlignment, PositionEstimator, MAX_FIX_AGE_S, STANDARD_GRAVITY_MPS2,
 };
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use nalgebra::{UnitQuaternion, Vector3};
 use protocol::{
     ExternalPose, FailsafeAction, FailsafeCounters, FailsafeReason, LearnerFailure,
     PositionSetpoint,
@@ -465,9 +465,8 @@ impl Pilot {
                 controller.set_imu_offset(r_imu_m);
             }
             let flown = controller.indi().model().q_imu_thrust;
-            if let (AxisStatus::Found, Some(axis)) = (model.axis_status, &model.thrust_axis) {
-                let [w, x, y, z] = axis.q_thrust_to_imu;
-                let learned = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+            let learned = model.thrust_axis.as_ref().and_then(|a| a.rotation_thrust_to_imu());
+            if let (AxisStatus::Found, Some(learned)) = (model.axis_status, learned) {
                 let down = Vector3::z();
                 if (flown * down).angle(&(learned * down)) > REFORM_AXIS_CHANGE_RAD {
                     self.reform_pending = true;
@@ -937,9 +936,8 @@ mod tests {
         let turned = |degrees: f32| {
             let mut newer = learned;
             let axis = newer.thrust_axis.as_mut().unwrap();
-            let [w, x, y, z] = axis.q_thrust_to_imu;
             let q = UnitQuaternion::from_euler_angles(degrees.to_radians(), 0.0, 0.0)
-                * UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+                * axis.rotation_thrust_to_imu().unwrap();
             axis.q_thrust_to_imu = quaternion_array(&q);
             (newer, q)
         };

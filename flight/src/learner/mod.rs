@@ -184,6 +184,17 @@ pub struct LearnedThrustAxis {
     pub euler_zyx_rad: [f32; 3],
 }
 
+impl LearnedThrustAxis {
+    /// `q_U^T` as a rotation (thrust-frame coordinates into IMU coordinates), normalised; `None`
+    /// when a component is not finite.
+    pub fn rotation_thrust_to_imu(&self) -> Option<nalgebra::UnitQuaternion<f32>> {
+        let [w, x, y, z] = self.q_thrust_to_imu;
+        [w, x, y, z].iter().all(|v| v.is_finite()).then(|| {
+            nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
+        })
+    }
+}
+
 /// Why the thrust axis is not (yet) known.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum AxisStatus {
