@@ -119,17 +119,20 @@ pub const RESIDUAL_CORRELATION_S: f32 = 0.2;
 /// cannot see them (docs/algorithms/imu-offset.md).
 pub const SENSITIVITY_ERROR_REL: f32 = 0.03;
 
-/// Terms of the polynomial in time of the drag force, world-fixed (see the module doc):
-/// constant to quartic.
-pub const DRAG_ORDER: usize = 5;
+/// Terms of the polynomial in time of the drag force that the velocity does not explain,
+/// world-fixed (see the module doc).
+pub const DRAG_ORDER: usize = 0;
 
-/// The unknowns shared by the three rows: `r` (3), the constant `c` (3) and the drag's
-/// polynomial coefficients (3 per term, in the attitude of the first sample).
-const SHARED: usize = 6 + 3 * DRAG_ORDER + 1;
+/// Drag unknowns on the body-axis velocity: per axis linear and quadratic.
+const VELOCITY_TERMS: usize = 6;
 
-/// Drag regressors: `R_rel[j][k] tᵖ` at `p·9 + 3j + k`, then the body components of the
-/// measured velocity change `R_relᵀ V` (3).
-const DRAG_CHANNELS: usize = 9 * DRAG_ORDER + 3;
+/// The unknowns shared by the three rows: `r` (3), the constant `c` (3), the polynomial's
+/// coefficients (3 per term, in the attitude of the first sample) and the velocity drag's (6).
+const SHARED: usize = 6 + 3 * DRAG_ORDER + VELOCITY_TERMS;
+
+/// Drag regressors: `R_rel[j][k] tᵖ` at `p·9 + 3j + k`, then the body-axis velocity `v_b` (3)
+/// and `|v_b| v_b` (3).
+const DRAG_CHANNELS: usize = 9 * DRAG_ORDER + VELOCITY_TERMS;
 
 /// The fitted offset.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -196,9 +199,6 @@ pub struct OffsetFit {
     attitude: UnitQuaternion<f32>,
     /// Time since the first sample, s.
     time_s: f32,
-    /// The measured velocity change since the first sample, `∫ R_rel f_imu dt`, in the first
-    /// sample's axes, m/s.
-    velocity_change_mps: Vector3<f32>,
     difference: CentralDifference3,
     /// The last two samples' filtered signals (newest first).
     lagged: [Channels; 2],
@@ -237,7 +237,6 @@ impl OffsetFit {
             filters: ButterworthBank::from_coefficients(filter),
             attitude: UnitQuaternion::identity(),
             time_s: 0.0,
-            velocity_change_mps: Vector3::zeros(),
             difference: CentralDifference3::new(rate_hz),
             lagged: [[0.0; CHANNELS]; 2],
             seen: 0,
@@ -270,7 +269,13 @@ impl OffsetFit {
     /// hand may still push): gyro (rad/s) and accelerometer (m/s²) in IMU axes, the motors' reported
     /// speeds (rad/s; NaN where a report was lost: the last one is held). A non-finite IMU
     /// sample restarts the filters (a gap).
-    pub fn update(&mut self, gyro_rad_s: [f32; 3], accel_mps2: [f32; 3], speeds_rad_s: &[f32]) {
+    pub fn update(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        speeds_rad_s: &[f32],
+        velocity_body_mps: [f32; 3],
+    ) {
         if self.skip > 0 {
             self.skip -= 1;
             return;
@@ -287,7 +292,6 @@ impl OffsetFit {
             }
         }
         let gyro = Vector3::from(gyro_rad_s);
-        let accel = Vector3::from(accel_mps2);
         let mut raw = [0.0; CHANNELS];
         raw[GYRO].copy_from_slice(&gyro_rad_s);
         raw[ACCEL].copy_from_slice(&accel_mps2);
@@ -295,14 +299,13 @@ impl OffsetFit {
             *out = held * held / SPEED2_SCALE;
         }
         raw[PRODUCTS].copy_from_slice(&rate_products(&gyro));
-        raw[DRAG].copy_from_slice(&self.drag_regressors());
+        raw[DRAG].copy_from_slice(&self.drag_regressors(velocity_body_mps));
         if self.seen == 0 {
             self.filters.reset_to(&raw);
         }
         let now = self.filters.update(&raw);
         // The attitude and the time of the next sample.
         let dt = 1.0 / self.rate_hz;
-        self.velocity_change_mps += self.attitude * accel * dt;
         self.attitude *= rotation_from_scaled_axis(&(gyro * dt));
         self.attitude.renormalize_fast();
         self.time_s += dt;
@@ -328,8 +331,9 @@ impl OffsetFit {
         self.accumulate(&s[..m], &x, &drag, &accel);
     }
 
-    /// `R_rel[j][k] tᵖ` of now (see [`DRAG_CHANNELS`]).
-    fn drag_regressors(&self) -> [f32; DRAG_CHANNELS] {
+    /// `R_rel[j][k] tᵖ` of now, then `v_b` and `|v_b| v_b` (see [`DRAG_CHANNELS`]); zero
+    /// velocity terms when the velocity is unknown (not finite).
+    fn drag_regressors(&self, velocity_body_mps: [f32; 3]) -> [f32; DRAG_CHANNELS] {
         let rotation = self.attitude.to_rotation_matrix();
         let mut out = [0.0; DRAG_CHANNELS];
         let mut power = 1.0;
@@ -341,8 +345,13 @@ impl OffsetFit {
             }
             power *= self.time_s;
         }
-        let body = self.attitude.inverse() * self.velocity_change_mps;
-        out[9 * DRAG_ORDER..].copy_from_slice(body.as_slice());
+        if velocity_body_mps.iter().all(|v| v.is_finite()) {
+            let speed = Vector3::from(velocity_body_mps).norm();
+            for (k, v) in velocity_body_mps.into_iter().enumerate() {
+                out[9 * DRAG_ORDER + k] = v;
+                out[9 * DRAG_ORDER + 3 + k] = speed * v;
+            }
+        }
         out
     }
 
@@ -372,7 +381,10 @@ impl OffsetFit {
                     phi[6 + 3 * p + j] = f64::from(drag[9 * p + 3 * j + k]);
                 }
             }
-            phi[SHARED - 1] = f64::from(drag[9 * DRAG_ORDER + k]);
+            // Body axis k's own velocity drag: linear, then quadratic.
+            let velocity = 6 + 3 * DRAG_ORDER;
+            phi[velocity + k] = f64::from(drag[9 * DRAG_ORDER + k]);
+            phi[velocity + 3 + k] = f64::from(drag[9 * DRAG_ORDER + 3 + k]);
             for i in 0..m {
                 for (p, v) in self.p[k][i].iter_mut().zip(&phi) {
                     *p += s[i] * v;
@@ -412,6 +424,12 @@ impl OffsetFit {
         let w_inv = spd_inverse(&w).ok_or(OffsetFitError::NotDetermined)?;
         let mut schur: [[f64; SHARED]; SHARED] =
             core::array::from_fn(|a| core::array::from_fn(|b| self.c[a.min(b)][a.max(b)]));
+        // The velocity drag with a vanishing prior: its regressors are all zero when the
+        // velocity was never known, and then it must not make the solve singular.
+        let trace: f64 = (0..SHARED).map(|a| self.c[a][a]).sum();
+        for a in SHARED - VELOCITY_TERMS..SHARED {
+            schur[a][a] += 1e-9 * trace / SHARED as f64 + 1e-12;
+        }
         let mut t = self.d;
         let mut explained = 0.0;
         for k in 0..3 {
@@ -577,7 +595,7 @@ mod tests {
             let noisy = |v: Vector3<f32>, rng: &mut Rng| {
                 [0, 1, 2].map(|a| v[a] + noise_mps2 * rng.normal() as f32)
             };
-            fit.update((rate * gyro_scale).into(), noisy(f_imu, &mut rng), &speeds);
+            fit.update((rate * gyro_scale).into(), noisy(f_imu, &mut rng), &speeds, [0.0; 3]);
             rate += rate_dot * dt;
         }
         fit
@@ -637,7 +655,7 @@ mod tests {
         assert_eq!(fit.estimate(), Err(OffsetFitError::TooFewSamples));
         for n in 0..1000 {
             let s = 1000.0 + 300.0 * libm::sinf(n as f32 * 0.01);
-            fit.update([0.0; 3], [0.0, 0.0, -9.8 * s * s / 1e6], &[s, s, s, s]);
+            fit.update([0.0; 3], [0.0, 0.0, -9.8 * s * s / 1e6], &[s, s, s, s], [0.0; 3]);
         }
         assert_eq!(fit.estimate(), Err(OffsetFitError::NotDetermined));
     }

@@ -1,6 +1,8 @@
 //! The in-flight IMU-offset fit (`imu_offset::in_flight`) against the truth with one part of
 //! the simulated world removed at a time, to find what limits it (issue 32):
-//! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]`.
+//! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]
+//! [first] [no-poses]` (`first`: the world as drawn only; `no-poses`: no motion capture, the
+//! navigation's velocity is dead reckoning from the hand).
 //!
 //! Each variant flies the same seeds (airframes, throws, worlds) with one error source switched
 //! off; `calibration` also fits the two-throw calibration (`sim::calibration`, as
@@ -154,12 +156,14 @@ fn main() {
     let mut aspects: Vec<Aspect> = Vec::new();
     let mut calibration = false;
     let mut first_only = false;
+    let mut poses = true;
     for arg in args {
         match arg.as_str() {
             "random" => aspects = Aspect::ALL.to_vec(),
             "nominal" => aspects.clear(),
             "calibration" => calibration = true,
             "first" => first_only = true,
+            "no-poses" => poses = false,
             name => aspects.push(Aspect::parse(name).expect("an aspect")),
         }
     }
@@ -176,6 +180,7 @@ fn main() {
             let (mut airframe, mut config) = case(seed);
             change(&mut airframe, &mut config);
             config.known_imu_offset = false;
+            config.mocap &= poses;
             flight_result(seed, &fly(&airframe, &config))
         });
         summary(&format!("in flight, {name}"), &results);

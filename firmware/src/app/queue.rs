@@ -30,6 +30,10 @@ pub struct LearnerSample {
     pub flying: bool,
     /// Motors connected.
     pub motor_count: u8,
+    /// The navigation's velocity of the CoG in IMU axes, `R̂ᵀ v̂_ned` (m/s): from the pose fixes
+    /// when they come, else dead reckoning from the last rest; NaN when the navigation has
+    /// nothing meaningful (the in-flight IMU-offset fit's drag regressor).
+    pub velocity_imu_mps: [f32; 3],
 }
 
 /// The ring's storage; split it once with [`SampleQueue::split`].
