@@ -41,8 +41,9 @@ fn no_drag(a: &mut Airframe, c: &mut FlyConfig) {
     c.board.world.gust_s = 0.0;
 }
 
-const VARIANTS: [(&str, Change); 8] = [
+const VARIANTS: [(&str, Change); 9] = [
     ("as drawn", |_, _| {}),
+    ("no gust", |_, c| c.board.world.gust_s = 0.0),
     ("no gyro scale/cross-axis error", no_gyro_scale),
     ("no accelerometer scale/cross-axis error", no_accel_scale),
     ("no scale/cross-axis error", |a, c| {
@@ -175,6 +176,10 @@ fn main() {
         }
     };
     let variants = if first_only { &VARIANTS[..1] } else { &VARIANTS[..] };
+    let variants = match std::env::var("OFFSET_DIAG_VARIANT").ok().and_then(|v| v.parse().ok()) {
+        Some(i) => &VARIANTS[i..=i],
+        None => variants,
+    };
     for &(name, change) in variants {
         let results = run_seeds(runs, 1, 2, &|_| {}, |seed| {
             let (mut airframe, mut config) = case(seed);
@@ -186,7 +191,7 @@ fn main() {
         summary(&format!("in flight, {name}"), &results);
     }
     if calibration {
-        for (name, change) in [VARIANTS[0], VARIANTS[1], VARIANTS[2], VARIANTS[4], VARIANTS[5]] {
+        for (name, change) in [VARIANTS[0], VARIANTS[2], VARIANTS[3], VARIANTS[5], VARIANTS[6]] {
             let results = run_seeds(runs, 1, 2, &|_| {}, |seed| {
                 let (mut airframe, mut config) = case(seed);
                 change(&mut airframe, &mut config);
