@@ -660,8 +660,9 @@ mod tests {
             (Vector3::from(estimate.r_imu_m) - r).norm()
         };
         let (given, unknown) = (error(true), error(false));
-        assert!(given < 0.5e-3, "given: error {given} m");
-        assert!(unknown > 2.0 * given.max(0.25e-3), "unknown: error {unknown} m, given {given} m");
+        // Measured: 0.04 mm given, 11 mm unknown.
+        assert!(given < 0.2e-3, "given: error {given} m");
+        assert!(unknown > 2e-3, "unknown: error {unknown} m, given {given} m");
     }
 
     /// A solve that explains more than the data's energy has lost its precision (seen in the

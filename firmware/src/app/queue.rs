@@ -11,7 +11,8 @@ use flight::learner::FlightPhase;
 use heapless::spsc::{Consumer, Producer, Queue};
 
 /// Ring capacity, samples: 64 samples are 32 ms at 2 kHz, far longer than any background job
-/// may hold the CPU. (heapless' ring keeps one slot free, so 63 are usable.) About 6.7 KB.
+/// may hold the CPU. (heapless' ring keeps one slot free, so 63 are usable.) About 7.2 KB
+/// (112 B a sample).
 pub const SAMPLE_QUEUE_LEN: usize = 64;
 
 /// What the control step hands to the background estimators for each IMU sample.
