@@ -2,7 +2,8 @@
 //! the simulated world removed at a time, to find what limits it (issue 32):
 //! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]
 //! [first] [no-poses]` (`first`: the world as drawn only; `no-poses`: no motion capture, the
-//! navigation's velocity is dead reckoning from the hand).
+//! navigation's velocity is dead reckoning from the hand). `OFFSET_DIAG_VARIANT=N` runs variant N
+//! of `VARIANTS` alone (1: `no gust`).
 //!
 //! Each variant flies the same seeds (airframes, throws, worlds) with one error source switched
 //! off; `calibration` also fits the two-throw calibration (`sim::calibration`, as
