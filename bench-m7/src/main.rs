@@ -741,8 +741,7 @@ fn main() -> ! {
         let Some(mut fit) = OffsetFit::new(m, 2000.0, 0.0) else { fail("in-flight fit") };
         let tumble = |n: usize| {
             let t = n as f32 / 2000.0;
-            // A precessing spin (about a fixed axis the fit cannot tell the accelerometer's
-            // constant from a world-fixed drag along that axis, and rightly says so).
+            // A precessing spin.
             let (sin, cos) = (libm::sinf(9.0 * t), libm::cosf(9.0 * t));
             let omega = Vector3::new(6.0 * cos, 6.0 * sin, 1.5 + libm::sinf(7.0 * t));
             let omega_dot = Vector3::new(-54.0 * sin, 54.0 * cos, 7.0 * libm::cosf(7.0 * t));
@@ -750,15 +749,17 @@ fn main() -> ! {
             // Each motor pulsed in turn for 50 ms, as the excitation does.
             let speeds: [f32; MOTORS_MAX] =
                 core::array::from_fn(|i| if (n / 100) % m == i { 1600.0 } else { 1000.0 });
-            ([omega.x, omega.y, omega.z], [accel.x, accel.y, accel.z], speeds)
+            // The navigation's velocity in the body (the drag's regressor), m/s.
+            let velocity = [4.0 * cos, -4.0 * sin, 2.0 + libm::sinf(3.0 * t)];
+            ([omega.x, omega.y, omega.z], [accel.x, accel.y, accel.z], speeds, velocity)
         };
         for n in 0..1600 {
-            let (gyro, accel, speeds) = tumble(n);
-            fit.update(gyro, accel, &speeds[..m]);
+            let (gyro, accel, speeds, velocity) = tumble(n);
+            fit.update(gyro, accel, &speeds[..m], velocity);
         }
         let mut state = (fit, tumble(1600));
-        region(&mut state, |(fit, (gyro, accel, speeds))| {
-            fit.update(black_box(*gyro), *accel, &speeds[..m])
+        region(&mut state, |(fit, (gyro, accel, speeds, velocity))| {
+            fit.update(black_box(*gyro), *accel, &speeds[..m], *velocity)
         });
         let estimate = region(&mut state, |(fit, _)| black_box(&*fit).estimate());
         if estimate.is_err() {

@@ -1,6 +1,9 @@
 //! The in-flight IMU-offset fit (`imu_offset::in_flight`) against the truth with one part of
 //! the simulated world removed at a time, to find what limits it (issue 32):
-//! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]`.
+//! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]
+//! [first] [no-poses]` (`first`: the world as drawn only; `no-poses`: no motion capture, the
+//! navigation's velocity is dead reckoning from the hand). `OFFSET_DIAG_VARIANT=N` runs variant N
+//! of `VARIANTS` alone (1: `no gust`).
 //!
 //! Each variant flies the same seeds (airframes, throws, worlds) with one error source switched
 //! off; `calibration` also fits the two-throw calibration (`sim::calibration`, as
@@ -39,8 +42,9 @@ fn no_drag(a: &mut Airframe, c: &mut FlyConfig) {
     c.board.world.gust_s = 0.0;
 }
 
-const VARIANTS: [(&str, Change); 8] = [
+const VARIANTS: [(&str, Change); 9] = [
     ("as drawn", |_, _| {}),
+    ("no gust", |_, c| c.board.world.gust_s = 0.0),
     ("no gyro scale/cross-axis error", no_gyro_scale),
     ("no accelerometer scale/cross-axis error", no_accel_scale),
     ("no scale/cross-axis error", |a, c| {
@@ -154,12 +158,14 @@ fn main() {
     let mut aspects: Vec<Aspect> = Vec::new();
     let mut calibration = false;
     let mut first_only = false;
+    let mut poses = true;
     for arg in args {
         match arg.as_str() {
             "random" => aspects = Aspect::ALL.to_vec(),
             "nominal" => aspects.clear(),
             "calibration" => calibration = true,
             "first" => first_only = true,
+            "no-poses" => poses = false,
             name => aspects.push(Aspect::parse(name).expect("an aspect")),
         }
     }
@@ -171,17 +177,22 @@ fn main() {
         }
     };
     let variants = if first_only { &VARIANTS[..1] } else { &VARIANTS[..] };
+    let variants = match std::env::var("OFFSET_DIAG_VARIANT").ok().and_then(|v| v.parse().ok()) {
+        Some(i) => &VARIANTS[i..=i],
+        None => variants,
+    };
     for &(name, change) in variants {
         let results = run_seeds(runs, 1, 2, &|_| {}, |seed| {
             let (mut airframe, mut config) = case(seed);
             change(&mut airframe, &mut config);
             config.known_imu_offset = false;
+            config.mocap &= poses;
             flight_result(seed, &fly(&airframe, &config))
         });
         summary(&format!("in flight, {name}"), &results);
     }
     if calibration {
-        for (name, change) in [VARIANTS[0], VARIANTS[1], VARIANTS[2], VARIANTS[4], VARIANTS[5]] {
+        for (name, change) in [VARIANTS[0], VARIANTS[2], VARIANTS[3], VARIANTS[5], VARIANTS[6]] {
             let results = run_seeds(runs, 1, 2, &|_| {}, |seed| {
                 let (mut airframe, mut config) = case(seed);
                 change(&mut airframe, &mut config);

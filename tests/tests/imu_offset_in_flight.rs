@@ -34,11 +34,11 @@ fn the_seed_papers_quad_finds_its_imu_offset_in_one_throw_to_fly() {
     assert_eq!(report.outcome, Outcome::Flying);
     let hold_m = report.max_hold_error_m.unwrap();
     assert!(hold_m < 0.3, "hold error {hold_m} m");
-    // Within the calibration's "well determined" limit (2 mm: 10 % of G1's force rows); the
-    // issue's 1 mm is not met: measured 1.27 mm (1.2 mm of it along the IMU's z), all but
-    // 0.1 mm of it the drag model's (docs/algorithms/imu-offset.md).
+    // Within the 1 mm: measured 0.35 mm with the drag modelled on the navigation's
+    // velocity (1.27 mm with the drag a polynomial in time, 1.2 mm of it along the IMU's z:
+    // docs/algorithms/imu-offset.md).
     let error_mm = fitted_error_mm("paper-quad", &report);
-    assert!(error_mm < 2.0, "{error_mm} mm");
+    assert!(error_mm < 1.0, "{error_mm} mm");
     // The truth lies inside the reported 95 % ellipsoid.
     let error = report.r_imu_fit_m.unwrap() - report.r_imu_true_m;
     let inverse = report.r_imu_fit_covariance_m2.unwrap().try_inverse().unwrap();
@@ -62,11 +62,13 @@ fn random_worlds_find_the_imu_offset_within_millimetres() {
         .collect();
     let mut sorted = errors.clone();
     sorted.sort_by(f64::total_cmp);
-    // Measured: median 1.8 mm, worst 1.9 mm (with the drag polynomial of degree 2: 2.0 / 2.3 mm);
-    // the calibration's limit is 2 mm, the target 1 mm median and 2 mm at the 90th
-    // percentile (on 1,000 worlds: 1.12 / 2.33 mm; drag and the IMU's scale errors,
+    // Measured with the drag on the navigation's velocity: median 1.30 mm, second worst 1.87 mm,
+    // worst 3.52 mm (seed 7; with the drag a polynomial in time of degree 4: 1.8 / 1.9 mm). The
+    // issue's target is 1 mm median and 2 mm at the 90th percentile (on 1,000 worlds now 1.03 /
+    // 2.32 mm, 99th 4.47 mm; what is left: the velocity's error and the IMU's scale errors,
     // docs/algorithms/imu-offset.md).
     let median = 0.5 * (sorted[3] + sorted[4]);
-    assert!(median < 2.0, "median {median} mm: {errors:?}");
-    assert!(sorted[7] < 2.2, "worst {} mm: {errors:?}", sorted[7]);
+    assert!(median < 1.5, "median {median} mm: {errors:?}");
+    assert!(sorted[6] < 2.0, "second worst {} mm: {errors:?}", sorted[6]);
+    assert!(sorted[7] < 4.5, "worst {} mm: {errors:?}", sorted[7]);
 }

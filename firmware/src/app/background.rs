@@ -478,7 +478,12 @@ impl<'q> Background<'q> {
     fn update_offset_fit(&mut self, sample: &LearnerSample) {
         let Some(fit) = &mut self.offset_fit else { return };
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
-        fit.update(sample.imu.gyro_rad_s, sample.imu.accel_mps2, &sample.speeds_rad_s[..motors]);
+        fit.update(
+            sample.imu.gyro_rad_s,
+            sample.imu.accel_mps2,
+            &sample.speeds_rad_s[..motors],
+            sample.velocity_imu_mps,
+        );
         let interval = (OFFSET_FIT_SOLVE_INTERVAL_S * self.rate_hz) as u32;
         if fit.samples() % interval.max(1) == 0 {
             self.results.flight_offset = fit.estimate().ok();

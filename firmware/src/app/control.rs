@@ -773,6 +773,7 @@ impl<'q> ControlLoop<'q> {
                 phase: snapshot.phase,
                 flying: snapshot.pilot.flying,
                 motor_count: snapshot.motor_count,
+                velocity_imu_mps: self.pilot.velocity_imu_mps(),
             });
         }
         self.snapshot.samples_dropped = self.samples.dropped();

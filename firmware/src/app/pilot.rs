@@ -441,6 +441,17 @@ impl Pilot {
         &self.status
     }
 
+    /// The navigation's velocity of the CoG in IMU axes, `R̂ᵀ v̂_ned` (m/s), as of the latest
+    /// [`Pilot::observe`]: from the fixes when they come, else dead reckoning from the last rest
+    /// (the estimator starts at rest); NaN where not finite. The in-flight IMU-offset fit's
+    /// drag regressor (`imu_offset::in_flight`).
+    pub fn velocity_imu_mps(&self) -> [f32; 3] {
+        let [w, x, y, z] = self.status.q_world_imu;
+        let q = UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z));
+        let v = q.inverse_transform_vector(&Vector3::from(self.status.velocity_ned_mps));
+        v.into()
+    }
+
     /// The model the controller flies (its G1 and G2 refined in flight), while flying.
     pub fn flown_model(&self) -> Option<&IndiModel> {
         self.controller.as_ref().map(|c| c.indi().model())

@@ -11,7 +11,8 @@ use flight::learner::FlightPhase;
 use heapless::spsc::{Consumer, Producer, Queue};
 
 /// Ring capacity, samples: 64 samples are 32 ms at 2 kHz, far longer than any background job
-/// may hold the CPU. (heapless' ring keeps one slot free, so 63 are usable.) About 6.7 KB.
+/// may hold the CPU. (heapless' ring keeps one slot free, so 63 are usable.) About 7.2 KB
+/// (112 B a sample).
 pub const SAMPLE_QUEUE_LEN: usize = 64;
 
 /// What the control step hands to the background estimators for each IMU sample.
@@ -30,6 +31,10 @@ pub struct LearnerSample {
     pub flying: bool,
     /// Motors connected.
     pub motor_count: u8,
+    /// The navigation's velocity of the CoG in IMU axes, `R̂ᵀ v̂_ned` (m/s): from the pose fixes
+    /// when they come, else dead reckoning from the last rest; NaN when the navigation has
+    /// nothing meaningful (the in-flight IMU-offset fit's drag regressor).
+    pub velocity_imu_mps: [f32; 3],
 }
 
 /// The ring's storage; split it once with [`SampleQueue::split`].

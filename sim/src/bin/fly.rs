@@ -73,6 +73,10 @@ enum Command {
         /// ESCs without speed telemetry (see `monte-carlo --no-speed-telemetry`).
         #[arg(long)]
         no_speed_telemetry: bool,
+        /// Do not give the firmware the airframe's true IMU offset: it is fitted in flight
+        /// (issue 32; see `monte-carlo --unknown-imu-offset`).
+        #[arg(long)]
+        unknown_imu_offset: bool,
     },
     /// One Monte Carlo case, replayed alone.
     Case {
@@ -251,6 +255,7 @@ fn main() -> ExitCode {
             taper_ms,
             push_ms,
             no_speed_telemetry,
+            unknown_imu_offset,
         } => {
             let airframe = match Airframe::load(&airframe) {
                 Ok(a) => a,
@@ -277,6 +282,7 @@ fn main() -> ExitCode {
             config.board.seed = seed;
             config.trace = trace;
             config.speed_telemetry = !no_speed_telemetry;
+            config.known_imu_offset = !unknown_imu_offset;
             print_report(&airframe.name, &fly(&airframe, &config));
         }
         Command::Case { seed, trace, world: world_args } => {
