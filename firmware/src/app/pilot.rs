@@ -446,10 +446,8 @@ impl Pilot {
     /// (the estimator starts at rest); NaN where not finite. The in-flight IMU-offset fit's
     /// drag regressor (`imu_offset::in_flight`).
     pub fn velocity_imu_mps(&self) -> [f32; 3] {
-        let [w, x, y, z] = self.status.q_world_imu;
-        let q = UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z));
-        let v = q.inverse_transform_vector(&Vector3::from(self.status.velocity_ned_mps));
-        v.into()
+        let velocity_ned_mps = self.navigation.state().velocity_ned_mps;
+        self.q_world_imu().inverse_transform_vector(&velocity_ned_mps).into()
     }
 
     /// The model the controller flies (its G1 and G2 refined in flight), while flying.
