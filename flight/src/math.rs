@@ -213,6 +213,34 @@ mod tests {
         clamp, mul_compact, rotation_about, rotation_from_scaled_axis, sin_cos, sqrt,
         tr_mul_compact,
     };
+
+    #[test]
+    fn spd_inverse_times_the_matrix_is_the_identity_and_an_indefinite_one_is_refused() {
+        // A = B Bᵀ + I for a fixed B with entries of both signs: 7 × 7, well conditioned.
+        const N: usize = 7;
+        let b: [[f64; N]; N] = core::array::from_fn(|i| {
+            core::array::from_fn(|j| (((i * 7 + j * 3) % 11) as f64 - 5.0) / 3.0)
+        });
+        let a: [[f64; N]; N] = core::array::from_fn(|i| {
+            core::array::from_fn(|j| {
+                (0..N).map(|k| b[i][k] * b[j][k]).sum::<f64>() + if i == j { 1.0 } else { 0.0 }
+            })
+        });
+        let inverse = super::spd_inverse(&a).expect("positive definite");
+        for i in 0..N {
+            for j in 0..N {
+                let product: f64 = (0..N).map(|k| a[i][k] * inverse[k][j]).sum();
+                let identity = if i == j { 1.0 } else { 0.0 };
+                assert!((product - identity).abs() < 1e-9, "({i}, {j}): {product}");
+                assert_eq!(inverse[i][j], inverse[j][i], "symmetric");
+            }
+        }
+        let mut indefinite = a;
+        indefinite[3][3] = -1.0;
+        assert_eq!(super::spd_inverse(&indefinite), None);
+        assert_eq!(super::spd_inverse(&[[f64::NAN]]), None);
+        assert_eq!(super::spd_inverse(&[[4.0]]), Some([[0.25]]));
+    }
     use nalgebra::{SMatrix, UnitQuaternion, Vector3};
 
     #[test]
