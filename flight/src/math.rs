@@ -215,6 +215,7 @@ mod tests {
     };
 
     #[test]
+    #[allow(clippy::needless_range_loop)] // the product's indices, as in the notation
     fn spd_inverse_times_the_matrix_is_the_identity_and_an_indefinite_one_is_refused() {
         // A = B Bᵀ + I for a fixed B with entries of both signs: 7 × 7, well conditioned.
         const N: usize = 7;
