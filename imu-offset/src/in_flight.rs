@@ -268,14 +268,15 @@ impl OffsetFit {
 
     /// One sample, from the declared release on (the first [`HAND_CONTACT_S`] are skipped: the
     /// hand may still push): gyro (rad/s) and accelerometer (m/s²) in IMU axes, the motors' reported
-    /// speeds (rad/s; NaN where a report was lost: the last one is held). A non-finite IMU
-    /// sample restarts the filters (a gap).
+    /// speeds (rad/s; NaN where a report was lost: the last one is held), and the velocity in
+    /// IMU axes (m/s; the drag's regressor, non-finite when unknown: drag then goes unmodelled). A
+    /// non-finite IMU sample restarts the filters (a gap).
     pub fn update(
         &mut self,
         gyro_rad_s: [f32; 3],
         accel_mps2: [f32; 3],
         speeds_rad_s: &[f32],
-        velocity_body_mps: [f32; 3],
+        velocity_imu_mps: [f32; 3],
     ) {
         if self.skip > 0 {
             self.skip -= 1;
@@ -300,7 +301,7 @@ impl OffsetFit {
             *out = held * held / SPEED2_SCALE;
         }
         raw[PRODUCTS].copy_from_slice(&rate_products(&gyro));
-        raw[DRAG].copy_from_slice(&drag_regressors(velocity_body_mps));
+        raw[DRAG].copy_from_slice(&drag_regressors(velocity_imu_mps));
         if self.seen == 0 {
             self.filters.reset_to(&raw);
         }
@@ -482,11 +483,11 @@ impl OffsetFit {
 
 /// The drag's regressors `v_b` and `|v_b| v_b` (see [`DRAG_CHANNELS`]); zero when the velocity
 /// is unknown (not finite).
-fn drag_regressors(velocity_body_mps: [f32; 3]) -> [f32; DRAG_CHANNELS] {
+fn drag_regressors(velocity_imu_mps: [f32; 3]) -> [f32; DRAG_CHANNELS] {
     let mut out = [0.0; DRAG_CHANNELS];
-    if velocity_body_mps.iter().all(|v| v.is_finite()) {
-        let speed = Vector3::from(velocity_body_mps).norm();
-        for (k, v) in velocity_body_mps.into_iter().enumerate() {
+    if velocity_imu_mps.iter().all(|v| v.is_finite()) {
+        let speed = Vector3::from(velocity_imu_mps).norm();
+        for (k, v) in velocity_imu_mps.into_iter().enumerate() {
             out[k] = v;
             out[3 + k] = speed * v;
         }

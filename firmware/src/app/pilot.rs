@@ -387,6 +387,8 @@ pub struct Pilot {
     /// The latest model's thrust axis moved beyond [`REFORM_AXIS_CHANGE_RAD`] from the flown
     /// one: the next step forms the controller afresh.
     reform_pending: bool,
+    /// The navigation's velocity in IMU axes as of the latest [`Pilot::observe`], m/s.
+    velocity_imu_mps: [f32; 3],
     status: PilotStatus,
 }
 
@@ -415,6 +417,7 @@ impl Pilot {
             flying_with_fix: false,
             fixes_lost: false,
             reform_pending: false,
+            velocity_imu_mps: [0.0; 3],
             status: PilotStatus::default(),
         }
     }
@@ -441,13 +444,13 @@ impl Pilot {
         &self.status
     }
 
-    /// The navigation's velocity of the CoG in IMU axes, `R̂ᵀ v̂_ned` (m/s), as of the latest
-    /// [`Pilot::observe`]: from the fixes when they come, else dead reckoning from the last rest
-    /// (the estimator starts at rest); NaN where not finite. The in-flight IMU-offset fit's
-    /// drag regressor (`imu_offset::in_flight`).
+    /// The navigation's velocity in IMU axes, `R̂ᵀ v̂_ned` (m/s), as of the latest
+    /// [`Pilot::observe`] (turned there with the attitude it already formed): from the fixes when
+    /// they come, else dead reckoning from the last rest (the estimator starts at rest). The
+    /// CoG's as far as the IMU offset flown is known (the accelerometer is compensated with it),
+    /// else the IMU's. The in-flight IMU-offset fit's drag regressor (`imu_offset::in_flight`).
     pub fn velocity_imu_mps(&self) -> [f32; 3] {
-        let velocity_ned_mps = self.navigation.state().velocity_ned_mps;
-        self.q_world_imu().inverse_transform_vector(&velocity_ned_mps).into()
+        self.velocity_imu_mps
     }
 
     /// The model the controller flies (its G1 and G2 refined in flight), while flying.
@@ -639,6 +642,7 @@ impl Pilot {
         status.position_ned_m = nav.position_ned_m.into();
         status.velocity_ned_mps = nav.velocity_ned_mps.into();
         status.has_fix = nav.has_fix;
+        self.velocity_imu_mps = q.inverse_transform_vector(&nav.velocity_ned_mps).into();
     }
 
     /// The yaw from the filter's world to the poses' world, rad (0 until known).

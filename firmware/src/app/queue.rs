@@ -31,9 +31,9 @@ pub struct LearnerSample {
     pub flying: bool,
     /// Motors connected.
     pub motor_count: u8,
-    /// The navigation's velocity of the CoG in IMU axes, `R̂ᵀ v̂_ned` (m/s): from the pose fixes
-    /// when they come, else dead reckoning from the last rest; NaN when the navigation has
-    /// nothing meaningful (the in-flight IMU-offset fit's drag regressor).
+    /// The navigation's velocity in IMU axes, `R̂ᵀ v̂_ned` (m/s; `pilot::Pilot::velocity_imu_mps`):
+    /// from the pose fixes when they come, else dead reckoning from the last rest. The in-flight
+    /// IMU-offset fit's drag regressor, which takes a non-finite one as unknown.
     pub velocity_imu_mps: [f32; 3],
 }
 
