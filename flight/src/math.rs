@@ -172,39 +172,51 @@ pub fn rotation_from_scaled_axis(phi: &Vector3<f32>) -> UnitQuaternion<f32> {
     rotation_about(&Unit::new_unchecked(phi / angle), angle)
 }
 
-/// The inverse of a symmetric positive-definite matrix through its Cholesky factor `L Lᵀ`;
-/// `None` when a pivot is not positive and finite. Plain loops on small sizes: nalgebra's
-/// generic inverse, instantiated for one size only, cost the firmware 12 KB of flash. The
-/// learner's inertia fit and the in-flight IMU-offset fit (crate `imu-offset`) solve with it.
-// Index loops mirror the factorisation's notation (entries of L by index).
-#[allow(clippy::needless_range_loop)]
+/// The inverse of a symmetric positive-definite matrix through its Cholesky factor `L Lᵀ`
+/// (its lower triangle is read); `None` when a pivot is not positive and finite. Plain loops:
+/// nalgebra's generic inverse, instantiated for one size only, cost the firmware 12 KB of flash.
+/// The tumble's inertia fit, the IMU-offset calibration and the in-flight IMU-offset fit solve
+/// with it. Every size shares one body, [`spd_inverse_flat`].
 pub fn spd_inverse<const N: usize>(a: &[[f64; N]; N]) -> Option<[[f64; N]; N]> {
     let mut l = [[0.0; N]; N];
-    for j in 0..N {
-        let pivot = a[j][j] - (0..j).map(|k| l[j][k] * l[j][k]).sum::<f64>();
-        if !(pivot > 0.0 && pivot.is_finite()) {
-            return None;
-        }
-        l[j][j] = libm::sqrt(pivot);
-        for i in j + 1..N {
-            let dot: f64 = (0..j).map(|k| l[i][k] * l[j][k]).sum();
-            l[i][j] = (a[i][j] - dot) / l[j][j];
-        }
-    }
-    // Column by column: L y = e_c, then Lᵀ x = y.
     let mut inverse = [[0.0; N]; N];
-    for c in 0..N {
-        let mut y = [0.0; N];
-        for i in 0..N {
-            let known: f64 = (0..i).map(|k| l[i][k] * y[k]).sum();
-            y[i] = (if i == c { 1.0 } else { 0.0 } - known) / l[i][i];
+    spd_inverse_flat(a.as_flattened(), l.as_flattened_mut(), inverse.as_flattened_mut(), N)
+        .then_some(inverse)
+}
+
+/// [`spd_inverse`] of the `n × n` row-major `a` into `inverse`, with `l` (`n × n`) for the
+/// factor; `false` when a pivot is not positive and finite or the inverse is not finite.
+///
+/// Over a runtime size so that a crate holds one copy for every size it inverts (each
+/// instance of a generic body is about 640 B of flash at the background crates' opt-level
+/// "z"), and `#[inline]` so that the copy is compiled in the calling crate, at its opt-level
+/// (`flight` is at 2 on the board, where loops are unrolled). Same sums in the same order for
+/// every size.
+#[inline]
+fn spd_inverse_flat(a: &[f64], l: &mut [f64], inverse: &mut [f64], n: usize) -> bool {
+    for j in 0..n {
+        let pivot = a[j * n + j] - (0..j).map(|k| l[j * n + k] * l[j * n + k]).sum::<f64>();
+        if !(pivot > 0.0 && pivot.is_finite()) {
+            return false;
         }
-        for i in (0..N).rev() {
-            let known: f64 = (i + 1..N).map(|k| l[k][i] * inverse[k][c]).sum();
-            inverse[i][c] = (y[i] - known) / l[i][i];
+        l[j * n + j] = libm::sqrt(pivot);
+        for i in j + 1..n {
+            let dot: f64 = (0..j).map(|k| l[i * n + k] * l[j * n + k]).sum();
+            l[i * n + j] = (a[i * n + j] - dot) / l[j * n + j];
         }
     }
-    inverse.iter().flatten().all(|v| v.is_finite()).then_some(inverse)
+    // Column by column: L y = e_c, then Lᵀ x = y, both in the column of the inverse.
+    for c in 0..n {
+        for i in 0..n {
+            let known: f64 = (0..i).map(|k| l[i * n + k] * inverse[k * n + c]).sum();
+            inverse[i * n + c] = (if i == c { 1.0 } else { 0.0 } - known) / l[i * n + i];
+        }
+        for i in (0..n).rev() {
+            let known: f64 = (i + 1..n).map(|k| l[k * n + i] * inverse[k * n + c]).sum();
+            inverse[i * n + c] = (inverse[i * n + c] - known) / l[i * n + i];
+        }
+    }
+    inverse.iter().all(|v| v.is_finite())
 }
 
 #[cfg(test)]

@@ -37,7 +37,7 @@
 
 use nalgebra::{Matrix3, Matrix6, Quaternion, SMatrix, SVector, UnitQuaternion, Vector3, Vector6};
 
-use super::moments::Moments;
+use super::moments::{spd_inverse_of, Moments};
 use super::{Scalar, Segment};
 use flight::math::{mul_compact, tr_mul_compact};
 
@@ -124,8 +124,8 @@ impl Normal9 {
         let q_ww: Matrix3<f64> = self.gtg.fixed_view::<3, 3>(6, 6).into_owned();
         let q_wt: SMatrix<f64, 3, 6> = self.gtg.fixed_view::<3, 6>(6, 0).into_owned();
         let g_w: Vector3<f64> = self.gty.fixed_rows::<3>(6).into_owned();
-        let chol = q_ww.cholesky()?;
-        let (d, c_w) = (chol.solve(&q_wt), chol.solve(&g_w));
+        let q_ww_inv = spd_inverse_of(&q_ww)?;
+        let (d, c_w) = (q_ww_inv * q_wt, q_ww_inv * g_w);
         d.iter().chain(c_w.iter()).all(|v| v.is_finite()).then_some((d, c_w))
     }
 

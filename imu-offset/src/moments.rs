@@ -13,7 +13,7 @@
 //! `Σ y'ᵀy'` stays small and the residual sum of squares is not lost to cancellation in `f32`;
 //! [`Moments::recentre`] moves the reference exactly.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, SMatrix, Vector3};
 
 use super::Scalar;
 
@@ -182,6 +182,20 @@ impl<T: Scalar> BatchMeans<T> {
 pub(crate) fn count_as<T: Scalar>(n: u32) -> T {
     // u32 → f64 is exact; f64 → T rounds once.
     nalgebra::convert(f64::from(n))
+}
+
+/// The inverse of a symmetric positive-definite `q` (its lower triangle is read), by
+/// `flight::math::spd_inverse` in `f64`; `None` when it is not positive definite. Every size
+/// and scalar shares that one body: nalgebra's Cholesky cost the firmware a copy of its
+/// factorisation and solves per size and scalar (about 2.3 KB for three).
+pub(crate) fn spd_inverse_of<T: Scalar, const N: usize>(
+    q: &SMatrix<T, N, N>,
+) -> Option<SMatrix<T, N, N>> {
+    let a: [[f64; N]; N] = core::array::from_fn(|i| {
+        core::array::from_fn(|j| nalgebra::try_convert::<T, f64>(q[(i, j)]).unwrap_or(f64::NAN))
+    });
+    let inverse = flight::math::spd_inverse(&a)?;
+    Some(SMatrix::from_fn(|i, j| nalgebra::convert(inverse[i][j])))
 }
 
 #[cfg(test)]

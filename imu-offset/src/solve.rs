@@ -15,7 +15,7 @@ use flight::eigen3::symmetric_eigen3;
 use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 use super::drag::DragSums;
-use super::moments::{count_as, BatchMeans, Moments};
+use super::moments::{count_as, spd_inverse_of, BatchMeans, Moments};
 use super::rest::RestModel;
 #[cfg(doc)]
 use super::DragModel;
@@ -110,7 +110,7 @@ struct Fit<T: Scalar> {
 
 /// Just `r̂` of the offset-only model (used to move the reference between segments).
 pub(crate) fn offset_only<T: Scalar>(rows: &Moments<T>, r_ref: &Vector3<T>) -> Option<Vector3<T>> {
-    let d = rows.xtx().cholesky()?.solve(&rows.xty);
+    let d = spd_inverse_of(&rows.xtx())? * rows.xty;
     let r = r_ref + d;
     r.iter().all(|v| v.is_finite()).then_some(r)
 }
@@ -210,7 +210,7 @@ fn with_unmodelled_bias<T: Scalar>(
         return Ok(*offset);
     };
     let three: T = nalgebra::convert(3.0);
-    let significant = cov_b.cholesky().is_some_and(|c| b.dot(&c.solve(&b)) > three);
+    let significant = spd_inverse_of(&cov_b).is_some_and(|inverse| b.dot(&(inverse * b)) > three);
     if !significant {
         return Ok(*offset);
     }
@@ -352,10 +352,10 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
     let q_rr: Matrix3<T> = q.fixed_view::<3, 3>(0, 0).into_owned();
     // The offset-only solution `θ = [d; 0]` and the inverse of `Q_rr`.
     let offset_only = || {
-        let chol = q_rr.cholesky().ok_or(ImuOffsetError::Singular)?;
+        let q_rr_inv = spd_inverse_of(&q_rr).ok_or(ImuOffsetError::Singular)?;
         let mut theta = Vector6::zeros();
-        theta.fixed_rows_mut::<3>(0).copy_from(&chol.solve(&g.fixed_rows::<3>(0)));
-        Ok::<_, ImuOffsetError>((theta, chol.inverse()))
+        theta.fixed_rows_mut::<3>(0).copy_from(&(q_rr_inv * g.fixed_rows::<3>(0)));
+        Ok::<_, ImuOffsetError>((theta, q_rr_inv))
     };
     let bias_coupling: Matrix3<T> = q.fixed_view::<3, 3>(0, 3).into_owned();
     let (theta, residuals, covariance) = match model {
@@ -368,10 +368,10 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
         }
         Model::OffsetAndAccBias => match p.rest.filter(|r| !r.poses.is_empty()) {
             None => {
-                let chol = q.cholesky().ok_or(ImuOffsetError::Singular)?;
-                let theta = chol.solve(&g);
+                let q_inv = spd_inverse_of(&q).ok_or(ImuOffsetError::Singular)?;
+                let theta = q_inv * g;
                 let residuals = sums.residuals(&theta, 6)?;
-                let covariance = chol.inverse() * residuals.scale;
+                let covariance = q_inv * residuals.scale;
                 (theta, residuals, covariance)
             }
             Some(rest) => {
@@ -384,12 +384,12 @@ fn fit<T: Scalar>(p: &Problem<'_, T>, model: Model) -> Result<Fit<T>, ImuOffsetE
                     bb += info.information;
                     let mut hb = rhs.fixed_rows_mut::<3>(3);
                     hb += info.rhs;
-                    let chol = m.cholesky().ok_or(ImuOffsetError::Singular)?;
-                    Ok::<_, ImuOffsetError>((chol.solve(&rhs), chol.inverse()))
+                    let m_inv = spd_inverse_of(&m).ok_or(ImuOffsetError::Singular)?;
+                    Ok::<_, ImuOffsetError>((m_inv * rhs, m_inv))
                 };
                 // First scale: at the free-fall joint solution, or offset-only without bias.
-                let start = match q.cholesky() {
-                    Some(chol) => chol.solve(&g),
+                let start = match spd_inverse_of(&q) {
+                    Some(q_inv) => q_inv * g,
                     None => offset_only()?.0,
                 };
                 let mut residuals = sums.residuals(&start, 6)?;

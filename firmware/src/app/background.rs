@@ -35,9 +35,6 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
-// The in-flight offset fit is host-side for now: on the board it costs 7.6 KB of flash, and the
-// firmware is 3.0 KB under its budget (docs/algorithms/imu-offset.md).
-#[cfg(not(target_os = "none"))]
 use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate};
 use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
@@ -62,7 +59,6 @@ pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
 
 /// How often the in-flight IMU-offset fit is solved while it takes samples, s (a few small
 /// Cholesky inverses each).
-#[cfg(not(target_os = "none"))]
 pub const OFFSET_FIT_SOLVE_INTERVAL_S: f32 = 0.1;
 
 /// How long after the craft was last powered (armed for throw-to-fly, flying, or any motor
@@ -107,7 +103,6 @@ pub struct BackgroundResults {
     pub calibration: Option<CalibrationState>,
     /// The IMU offset fitted in flight with G1f (`imu_offset::in_flight`), when enabled
     /// ([`Background::set_offset_fit`]) and determined by the latest attempt's samples so far.
-    #[cfg(not(target_os = "none"))]
     pub flight_offset: Option<OffsetFitEstimate>,
 }
 
@@ -171,10 +166,8 @@ pub struct Background<'q> {
     /// How many more while the craft flies ([`REFINE_IN_FLIGHT_S`]).
     refine_samples: u32,
     /// Whether each attempt fits the IMU offset in flight ([`Background::set_offset_fit`]).
-    #[cfg(not(target_os = "none"))]
     offset_fit_enabled: bool,
     /// The in-flight IMU-offset fit of the latest attempt, when enabled.
-    #[cfg(not(target_os = "none"))]
     offset_fit: Option<OffsetFit>,
     results: BackgroundResults,
 }
@@ -225,9 +218,7 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).settle_samples).write(settle);
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);
-            #[cfg(not(target_os = "none"))]
             addr_of_mut!((*worker).offset_fit_enabled).write(true);
-            #[cfg(not(target_os = "none"))]
             addr_of_mut!((*worker).offset_fit).write(None);
             addr_of_mut!((*worker).results).write(BackgroundResults::default());
             slot.assume_init_mut()
@@ -247,7 +238,6 @@ impl<'q> Background<'q> {
     /// ([`ImuOffsetSource::FittedInFlight`]), the status shows it as the IMU offset, and the
     /// finished identification stores it as the calibration (`settings::Settings::service`).
     /// Off: such attempts fly with no offset, as before issue 32 (a baseline for the simulator).
-    #[cfg(not(target_os = "none"))]
     pub fn set_offset_fit(&mut self, enabled: bool) {
         self.offset_fit_enabled = enabled;
         if !enabled {
@@ -395,7 +385,6 @@ impl<'q> Background<'q> {
             if let Some(learner) = self.learner.get_mut() {
                 learner.prime(sample.imu.gyro_rad_s, sample.imu.accel_mps2, &sample.speeds_rad_s);
             }
-            #[cfg(not(target_os = "none"))]
             self.update_offset_fit(sample);
         }
         if starting {
@@ -427,11 +416,8 @@ impl<'q> Background<'q> {
             );
             self.results.learned = *learner.model();
         }
-        #[cfg(not(target_os = "none"))]
-        {
-            self.update_offset_fit(sample);
-            self.apply_offset_fit(sample.flying);
-        }
+        self.update_offset_fit(sample);
+        self.apply_offset_fit(sample.flying);
     }
 
     /// Once the in-flight fit is usable (`OffsetFitEstimate::usable`: its largest 95 % semi-axis
@@ -445,7 +431,6 @@ impl<'q> Background<'q> {
     /// axis's error went from 2.91° to 1.19° median (docs/algorithms/imu-offset.md). Not
     /// before: solved on the fitted rows from the excitation on, it found no hover in 23 of the
     /// 1,000 worlds against 1 on the learner's own.
-    #[cfg(not(target_os = "none"))]
     fn apply_offset_fit(&mut self, flying: bool) {
         let Some(fit) = self.results.flight_offset.filter(OffsetFitEstimate::usable) else {
             return;
@@ -474,7 +459,6 @@ impl<'q> Background<'q> {
 
     /// One sample into the in-flight IMU-offset fit, solved every
     /// [`OFFSET_FIT_SOLVE_INTERVAL_S`].
-    #[cfg(not(target_os = "none"))]
     fn update_offset_fit(&mut self, sample: &LearnerSample) {
         let Some(fit) = &mut self.offset_fit else { return };
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
@@ -515,22 +499,19 @@ impl<'q> Background<'q> {
         }
         self.results.learner_offset = source;
         self.results.learner_r_imu_m = r_imu_m;
-        #[cfg(not(target_os = "none"))]
-        {
-            self.results.flight_offset = None;
-            // Fitted only where nothing better is known, and only from measured speeds (the
-            // fit regresses the accelerometer on them).
-            let fitting =
-                self.offset_fit_enabled && source == ImuOffsetSource::Zero && self.speed_telemetry;
-            if !fitting {
-                self.offset_fit = None;
-            } else {
-                let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
-                let motors = usize::from(motor_count);
-                match &mut self.offset_fit {
-                    Some(fit) => fit.restart(motors, lag_s),
-                    None => self.offset_fit = OffsetFit::new(motors, self.rate_hz, lag_s),
-                }
+        self.results.flight_offset = None;
+        // Fitted only where nothing better is known, and only from measured speeds (the
+        // fit regresses the accelerometer on them).
+        let fitting =
+            self.offset_fit_enabled && source == ImuOffsetSource::Zero && self.speed_telemetry;
+        if !fitting {
+            self.offset_fit = None;
+        } else {
+            let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
+            let motors = usize::from(motor_count);
+            match &mut self.offset_fit {
+                Some(fit) => fit.restart(motors, lag_s),
+                None => self.offset_fit = OffsetFit::new(motors, self.rate_hz, lag_s),
             }
         }
     }
