@@ -734,8 +734,8 @@ fn main() -> ! {
     let _ = region(&mut state, |(estimator, sample)| estimator.update(black_box(sample)));
     black_box(&state);
 
-    // The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32; host-only in the
-    // firmware for now): one sample of a tumble with the motors pulsed, 0.8 s in, and one solve
+    // The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32; the background task
+    // runs it beside the learner on a throw-to-fly that knows no offset): one sample of a tumble with the motors pulsed, 0.8 s in, and one solve
     // (the cost only: the synthetic tumble is not physical enough for the fit to be right).
     for m in IN_FLIGHT_FIT_MOTOR_COUNTS {
         let Some(mut fit) = OffsetFit::new(m, 2000.0, 0.0) else { fail("in-flight fit") };
