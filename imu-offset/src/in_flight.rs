@@ -131,15 +131,49 @@ pub const RESIDUAL_CORRELATION_S: f32 = 0.2;
 /// cannot see them (docs/algorithms/imu-offset.md).
 pub const SENSITIVITY_ERROR_REL: f32 = 0.03;
 
-/// The unknowns shared by the three rows: `r` (3), the constant `c` (3) and the drag's (per
-/// body axis, linear and quadratic in the velocity: 6).
-const SHARED: usize = 12;
+/// The unknowns shared by the three rows: `r` (3), the constant `c` (3) and the drag's two
+/// symmetric matrices in IMU axes, linear `K` and quadratic `Q` (6 each, see [`sym`]).
+const SHARED: usize = 18;
 
-/// Index of the first drag unknown in the shared ones: `k` (3), then `q` (3).
+/// Index of the first drag unknown in the shared ones: `K` (6), then `Q` (6), each in the
+/// order xx, xy, xz, yy, yz, zz.
 const DRAG_UNKNOWNS: usize = 6;
 
-/// Drag regressors: the body-axis velocity `v_b` (3) and `|v_b| v_b` (3).
+/// Index of the first unknown of the quadratic drag matrix `Q`.
+const QUADRATIC_UNKNOWNS: usize = DRAG_UNKNOWNS + 6;
+
+/// Drag regressors: the velocity in IMU axes `v` (3) and `|v| v` (3).
 const DRAG_CHANNELS: usize = 6;
+
+/// The shared unknowns one row's regressor `φₖ` touches: `r` (3), its own constant, and the
+/// three entries of row k of `K` and of `Q`. The others are zero in it.
+const ROW_UNKNOWNS: usize = 10;
+
+/// Index of the symmetric 3 × 3 matrix's entry (i, j) = (j, i) in the order xx, xy, xz, yy, yz,
+/// zz.
+const fn sym(i: usize, j: usize) -> usize {
+    const INDEX: [[usize; 3]; 3] = [[0, 1, 2], [1, 3, 4], [2, 4, 5]];
+    INDEX[i][j]
+}
+
+/// Per row k, the shared unknowns its regressor touches, ascending (so that a pair (a, b),
+/// a ≤ b, of them is in the upper triangle of `C`).
+const ROW_INDEX: [[usize; ROW_UNKNOWNS]; 3] = {
+    let mut index = [[0; ROW_UNKNOWNS]; 3];
+    let mut k = 0;
+    while k < 3 {
+        let mut j = 0;
+        while j < 3 {
+            index[k][j] = j;
+            index[k][4 + j] = DRAG_UNKNOWNS + sym(k, j);
+            index[k][7 + j] = QUADRATIC_UNKNOWNS + sym(k, j);
+            j += 1;
+        }
+        index[k][3] = 3 + k;
+        k += 1;
+    }
+    index
+};
 
 /// The fitted offset.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -213,8 +247,8 @@ pub struct OffsetFit {
     skip: u32,
     /// `W = Σ s sᵀ` (upper triangle).
     w: [[f64; MAX_MOTORS]; MAX_MOTORS],
-    /// `Pₖ = Σ s φₖᵀ`, per row k.
-    p: [[[f64; SHARED]; MAX_MOTORS]; 3],
+    /// `Pₖ = Σ s φₖᵀ`, per row k, in the columns [`ROW_INDEX`]`[k]` (the others are zero).
+    p: [[[f64; ROW_UNKNOWNS]; MAX_MOTORS]; 3],
     /// `C = Σₖ Σ φₖ φₖᵀ` (upper triangle).
     c: [[f64; SHARED]; SHARED],
     /// `qₖ = Σ s fₖ`.
@@ -244,7 +278,7 @@ impl OffsetFit {
             held_speed: [0.0; MAX_MOTORS],
             skip: (HAND_CONTACT_S * rate_hz) as u32,
             w: [[0.0; MAX_MOTORS]; MAX_MOTORS],
-            p: [[[0.0; SHARED]; MAX_MOTORS]; 3],
+            p: [[[0.0; ROW_UNKNOWNS]; MAX_MOTORS]; 3],
             c: [[0.0; SHARED]; SHARED],
             q: [[0.0; MAX_MOTORS]; 3],
             d: [0.0; SHARED],
@@ -344,24 +378,24 @@ impl OffsetFit {
         }
         for k in 0..3 {
             let y = f64::from(f[k]);
-            // φₖ = (X_k, e_k).
-            let mut phi = [0.0; SHARED];
-            phi[..3].copy_from_slice(&x[k]);
-            phi[3 + k] = 1.0;
-            // Body axis k's own drag: linear, then quadratic.
-            phi[DRAG_UNKNOWNS + k] = f64::from(drag[k]);
-            phi[DRAG_UNKNOWNS + 3 + k] = f64::from(drag[3 + k]);
+            // φₖ in the columns it touches (ROW_INDEX[k]): X_k, e_k, then row k of `K` on `v`
+            // and of `Q` on `|v| v`.
+            let [x0, x1, x2] = x[k];
+            let [v0, v1, v2, w0, w1, w2] = drag.map(f64::from);
+            let phi = [x0, x1, x2, 1.0, v0, v1, v2, w0, w1, w2];
+            let index = &ROW_INDEX[k];
             for i in 0..m {
                 for (p, v) in self.p[k][i].iter_mut().zip(&phi) {
                     *p += s[i] * v;
                 }
                 self.q[k][i] += s[i] * y;
             }
-            for a in 0..SHARED {
-                for b in a..SHARED {
-                    self.c[a][b] += phi[a] * phi[b];
+            for a in 0..ROW_UNKNOWNS {
+                let row = &mut self.c[index[a]];
+                for b in a..ROW_UNKNOWNS {
+                    row[index[b]] += phi[a] * phi[b];
                 }
-                self.d[a] += phi[a] * y;
+                self.d[index[a]] += phi[a] * y;
             }
             self.yy += y * y;
         }
@@ -399,23 +433,24 @@ impl OffsetFit {
         let mut t = self.d;
         let mut explained = 0.0;
         for k in 0..3 {
-            // W⁻¹ Pₖ (m × 6) and W⁻¹ qₖ.
-            let mut wp = [[0.0; SHARED]; MAX_MOTORS];
+            // W⁻¹ Pₖ (m × ROW_UNKNOWNS, in Pₖ's columns) and W⁻¹ qₖ.
+            let index = &ROW_INDEX[k];
+            let mut wp = [[0.0; ROW_UNKNOWNS]; MAX_MOTORS];
             let mut wq = [0.0; MAX_MOTORS];
             for i in 0..m {
                 for j in 0..m {
-                    for a in 0..SHARED {
+                    for a in 0..ROW_UNKNOWNS {
                         wp[i][a] += w_inv[i][j] * self.p[k][j][a];
                     }
                     wq[i] += w_inv[i][j] * self.q[k][j];
                 }
             }
             for i in 0..m {
-                for a in 0..SHARED {
-                    for b in 0..SHARED {
-                        schur[a][b] -= self.p[k][i][a] * wp[i][b];
+                for a in 0..ROW_UNKNOWNS {
+                    for b in 0..ROW_UNKNOWNS {
+                        schur[index[a]][index[b]] -= self.p[k][i][a] * wp[i][b];
                     }
-                    t[a] -= self.p[k][i][a] * wq[i];
+                    t[index[a]] -= self.p[k][i][a] * wq[i];
                 }
                 explained += self.q[k][i] * wq[i];
             }
@@ -427,10 +462,11 @@ impl OffsetFit {
         // G1f by back substitution: gₖ = W⁻¹ (qₖ − Pₖ z).
         let mut g1f_per_speed2 = [[0.0; MAX_MOTORS]; 3];
         for (k, row) in g1f_per_speed2.iter_mut().enumerate() {
+            let index = &ROW_INDEX[k];
             for i in 0..m {
                 let mut g = 0.0;
                 for j in 0..m {
-                    let pz: f64 = (0..SHARED).map(|a| self.p[k][j][a] * z[a]).sum();
+                    let pz: f64 = (0..ROW_UNKNOWNS).map(|a| self.p[k][j][a] * z[index[a]]).sum();
                     g += w_inv[i][j] * (self.q[k][j] - pz);
                 }
                 row[i] = (g / f64::from(SPEED2_SCALE)) as f32;
