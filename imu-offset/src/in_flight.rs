@@ -191,6 +191,19 @@ const ROW_INDEX: [[usize; ROW_UNKNOWNS]; 3] = {
     index
 };
 
+// Each row's columns ascend, so that `C` is accumulated in its upper triangle only.
+const _: () = {
+    let mut k = 0;
+    while k < 3 {
+        let mut a = 1;
+        while a < ROW_UNKNOWNS {
+            assert!(ROW_INDEX[k][a - 1] < ROW_INDEX[k][a]);
+            a += 1;
+        }
+        k += 1;
+    }
+};
+
 /// The fitted offset.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct OffsetFitEstimate {
