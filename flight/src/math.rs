@@ -205,10 +205,14 @@ fn spd_inverse_flat(a: &[f64], l: &mut [f64], inverse: &mut [f64], n: usize) -> 
             l[i * n + j] = (a[i * n + j] - dot) / l[j * n + j];
         }
     }
-    // Column by column: L y = e_c, then Lᵀ x = y, both in the column of the inverse.
+    // Column by column: L y = e_c, then Lᵀ x = y, both in the column of the inverse. `y` is zero
+    // above row c (L is lower triangular), so the forward solve starts there.
     for c in 0..n {
-        for i in 0..n {
-            let known: f64 = (0..i).map(|k| l[i * n + k] * inverse[k * n + c]).sum();
+        for i in 0..c {
+            inverse[i * n + c] = 0.0;
+        }
+        for i in c..n {
+            let known: f64 = (c..i).map(|k| l[i * n + k] * inverse[k * n + c]).sum();
             inverse[i * n + c] = (if i == c { 1.0 } else { 0.0 } - known) / l[i * n + i];
         }
         for i in (0..n).rev() {

@@ -140,6 +140,13 @@ pub const USABLE_SEMI_AXIS_M: f32 = 0.005;
 /// docs/algorithms/imu-offset.md).
 pub const RESIDUAL_CORRELATION_S: f32 = 0.2;
 
+/// How often a filtered sample is added to the sums, s (500 Hz). The signals the fit sums have
+/// passed the learner's 20 Hz Butterworth (second order: −44 dB at 250 Hz), and its residuals are
+/// correlated over [`RESIDUAL_CORRELATION_S`], so summing every sample at 2 kHz or 8 kHz adds
+/// cost, not information; the filters still run on every sample. Chosen for the Cortex-M7: the
+/// sums are most of a sample's cost (docs/benchmarks.md).
+pub const SUM_INTERVAL_S: f32 = 0.002;
+
 /// The IMU's sensitivity errors as a 1σ error of `r` per axis, relative to `|r̂|`: a gyro scale
 /// error ε scales the fitted `r` by `1/(1 + ε)` to `1/(1 + ε)²` (the Euler term is linear in the
 /// rates, the centripetal one quadratic), an accelerometer scale error by `1 + ε`; scale errors
@@ -270,6 +277,10 @@ pub struct OffsetFit {
     lagged: [Channels; 2],
     /// Filtered samples since the start (saturating at 2).
     seen: u8,
+    /// Samples between two added to the sums ([`SUM_INTERVAL_S`] at the sample rate, at least 1).
+    sum_stride: u32,
+    /// Filtered samples until the next is added to the sums.
+    until_sum: u32,
     /// Each motor's latest finite speed report, rad/s.
     held_speed: [f32; MAX_MOTORS],
     /// Samples still to skip at the start ([`HAND_CONTACT_S`]: the hand may still touch).
@@ -306,6 +317,8 @@ impl OffsetFit {
             seen: 0,
             held_speed: [0.0; MAX_MOTORS],
             skip: (HAND_CONTACT_S * rate_hz) as u32,
+            sum_stride: libm::roundf(SUM_INTERVAL_S * rate_hz).max(1.0) as u32,
+            until_sum: 0,
             w: [[0.0; MAX_MOTORS]; MAX_MOTORS],
             p: [[[0.0; ROW_UNKNOWNS]; MAX_MOTORS]; 3],
             c: [[0.0; SHARED]; SHARED],
@@ -377,6 +390,11 @@ impl OffsetFit {
             return;
         }
         let Some((_, rate_dot)) = derivative else { return };
+        if self.until_sum > 0 {
+            self.until_sum -= 1;
+            return;
+        }
+        self.until_sum = self.sum_stride - 1;
         // Sample n−1, lined up with the central difference.
         let centre = self.lagged[1];
         let mut s = [0.0f64; MAX_MOTORS];
@@ -440,10 +458,10 @@ impl OffsetFit {
             return Err(OffsetFitError::TooFewSamples);
         }
         // W with a vanishing prior (the motors are off in the release delay), padded with the
-        // identity beyond m.
+        // identity beyond m (to the most motors).
         let trace: f64 = (0..m).map(|i| self.w[i][i]).sum();
         let prior = 1e-9 * trace / m as f64 + 1e-12;
-        let mut w = [[0.0; SHARED]; SHARED];
+        let mut w = [[0.0; MAX_MOTORS]; MAX_MOTORS];
         for (i, row) in w.iter_mut().enumerate() {
             for (j, v) in row.iter_mut().enumerate() {
                 *v = if i < m && j < m { self.w[i.min(j)][i.max(j)] } else { 0.0 };
@@ -511,8 +529,8 @@ impl OffsetFit {
         }
         let residual = (self.yy - explained).max(0.0);
         // Samples per independent one: the model error's correlation time, or the filter's
-        // (rate / (2 × noise bandwidth)) if that is longer.
-        let rate = f64::from(self.rate_hz);
+        // (rate / (2 × noise bandwidth)) if that is longer, at the rate of the sums.
+        let rate = f64::from(self.rate_hz) / f64::from(self.sum_stride);
         let filtered = rate / (2.0 * 1.11 * f64::from(EFFECTIVENESS_CUTOFF_HZ));
         let correlated = filtered.max(rate * f64::from(RESIDUAL_CORRELATION_S)).max(1.0);
         let sigma2 = residual / (rows - unknowns) as f64 * correlated;

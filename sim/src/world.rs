@@ -13,7 +13,7 @@
 //! | `pose` | 30–500 Hz (log-uniform), jitter up to 20 % of the interval, latency 0–30 ms (told to the board), noise 0.5–3 mm, dropouts 0–0.1 per s of 0.1–0.5 s | motion-capture systems, and their poses after a radio link |
 //! | `imu` | noise 1–3× the ICM-42688-P's density; gyro bias ±0.5 °/s, accelerometer bias ±0.2 m/s² per axis; scale ±3 % and cross-axis ±2 % per element; rotor vibration 0–5 m/s² and 0–0.1 rad/s at full speed | ICM-42688-P datasheet (offsets ±0.5 dps, ±20 mg; cross-axis ±2 %), and the 1–3 % of scale and cross-axis error; soft-mounted to hard-mounted boards |
 //! | `actuators` | the command-to-speed curve: the paper's (κ 0–1), thrust quadratic in δ (`kδ² + (1 − k)δ`, k 0–1) or a power law (δ^p, p 0.6–1.4); each motor ±5 % thrust; idle 3–15 % of full speed; battery sag 5–15 % of thrust over 15 s; ESC answers 0.5–3 ms late, 0–5 % of them lost | ESC firmwares (BLHeli_32, AM32, Bluejay: throttle curves and linearisation), worn propellers, a 4S pack under load |
-//! | `air` | drag 0.3–3× the airframe's; a gust of 0.5–2 m/s from a random horizontal direction for 0.3–1 s, 2–10 s after the start | frames with guards or without, a breeze indoors or out |
+//! | `air` | drag 0.3–3× the airframe's, and each body axis's linear and quadratic coefficients 0.5–2× (log-uniform) on their own; a gust of 0.5–2 m/s from a random horizontal direction for 0.3–1 s, 2–10 s after the start | frames with guards or without; drag differs along the body's axes (rotor drag in the rotor plane, the frame's area from above and from the side); a breeze indoors or out |
 //!
 //! `fly monte-carlo --world random` draws every aspect; `--vary NAME` one at a time, so each
 //! aspect's pass rate is known alone (docs/benchmarks.md). A draw depends only on the case's
@@ -205,7 +205,20 @@ fn air(rng: &mut Rng, airframe: &mut Airframe, config: &mut FlyConfig) {
     world.gust_ned_mps = [speed_mps * heading.cos(), speed_mps * heading.sin(), 0.0];
     world.gust_start_s = rng.range(2.0, 10.0);
     world.gust_s = rng.range(0.3, 1.0);
+    // Drawn after the gust, so that the gust of a seed is the one it was before (2026-11-27).
+    for c in
+        airframe.drag.linear_n_per_mps.iter_mut().chain(&mut airframe.drag.quadratic_n_per_mps2)
+    {
+        *c *= DRAG_AXIS_FACTOR.0 * (DRAG_AXIS_FACTOR.1 / DRAG_AXIS_FACTOR.0).powf(rng.uniform());
+    }
 }
+
+/// Each body axis's drag coefficients (linear and quadratic, independently) are scaled by a
+/// log-uniform factor in this range: a multirotor's drag is not the same along every axis (the
+/// rotors' drag acts in their plane, a frame shows another area from above than from the side;
+/// the built-in airframes have z twice x and y), so up to 4× between two axes. A model of drag
+/// that assumes it the same along every axis, or along the IMU's axes, fails here.
+const DRAG_AXIS_FACTOR: (f64, f64) = (0.5, 2.0);
 
 #[cfg(test)]
 mod tests {
