@@ -62,12 +62,12 @@ fn random_worlds_find_the_imu_offset_within_millimetres() {
         .collect();
     let mut sorted = errors.clone();
     sorted.sort_by(f64::total_cmp);
-    // Measured with the drag as full matrices on the navigation's velocity: median 1.07 mm,
-    // second worst 2.02 mm (seed 2), worst 3.43 mm (seed 7); per IMU axis 1.30 / 1.87 / 3.52 mm,
-    // with the drag a polynomial in time of degree 4 1.8 / 1.9 mm. The target is 1 mm
-    // median and 2 mm at the 90th percentile (on 1,000 worlds per IMU axis 1.03 / 2.32 mm, 99th
-    // 4.47 mm; what is left: the velocity's error and the IMU's scale errors,
-    // docs/algorithms/imu-offset.md).
+    // Measured with the drag as full matrices on the navigation's velocity, in worlds whose drag
+    // differs along the body's axes (since 2026-11-27): median 1.14 mm, second worst 2.06 mm
+    // (seed 2), worst 3.42 mm (seed 7). Before, with the drag the same along every axis: per IMU
+    // axis 1.30 / 1.87 / 3.52 mm, as matrices 1.07 / 2.02 / 3.43 mm. The target is 1 mm
+    // median and 2 mm at the 90th percentile, on 1,000 worlds (docs/benchmarks.md; what is left:
+    // the velocity's error and the IMU's scale errors, docs/algorithms/imu-offset.md).
     let median = 0.5 * (sorted[3] + sorted[4]);
     assert!(median < 1.5, "median {median} mm: {errors:?}");
     assert!(sorted[6] < 2.2, "second worst {} mm: {errors:?}", sorted[6]);
