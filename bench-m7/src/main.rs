@@ -612,7 +612,11 @@ fn main() -> ! {
     hprintln!("bench-m7 region: imu-offset estimator per sample, held");
     hprintln!("bench-m7 region: imu-offset estimator per sample, free fall");
     for m in IN_FLIGHT_FIT_MOTOR_COUNTS {
-        hprintln!("bench-m7 region: imu-offset in-flight fit per sample m={}", m);
+        hprintln!("bench-m7 region: imu-offset in-flight fit per sample m={}, summed", m);
+        hprintln!(
+            "bench-m7 region: imu-offset in-flight fit m={}, 4 samples: one 2 ms sum interval",
+            m
+        );
         hprintln!("bench-m7 region: imu-offset in-flight fit solve m={}", m);
     }
     for m in LEARNER_MOTOR_COUNTS {
@@ -753,14 +757,30 @@ fn main() -> ! {
             let velocity = [4.0 * cos, -4.0 * sin, 2.0 + libm::sinf(3.0 * t)];
             ([omega.x, omega.y, omega.z], [accel.x, accel.y, accel.z], speeds, velocity)
         };
-        for n in 0..1600 {
+        // Up to a sample that goes into the sums (one in every `SUM_INTERVAL_S`): the worst.
+        let mut n = 0;
+        loop {
             let (gyro, accel, speeds, velocity) = tumble(n);
-            fit.update(gyro, accel, &speeds[..m], velocity);
+            let mut next = fit.clone();
+            next.update(gyro, accel, &speeds[..m], velocity);
+            if n >= 1600 && next.samples() > fit.samples() {
+                break;
+            }
+            fit = next;
+            n += 1;
         }
-        let mut state = (fit, tumble(1600));
+        let mut state = (fit.clone(), tumble(n));
         region(&mut state, |(fit, (gyro, accel, speeds, velocity))| {
             fit.update(black_box(*gyro), *accel, &speeds[..m], *velocity)
         });
+        let samples: [_; 4] = core::array::from_fn(|k| tumble(n + k));
+        let mut four = (fit, samples);
+        region(&mut four, |(fit, samples)| {
+            for (gyro, accel, speeds, velocity) in samples.iter() {
+                fit.update(black_box(*gyro), *accel, &speeds[..m], *velocity);
+            }
+        });
+        let mut state = (four.0, tumble(n + 4));
         let estimate = region(&mut state, |(fit, _)| black_box(&*fit).estimate());
         if estimate.is_err() {
             fail("the in-flight fit was not determined");

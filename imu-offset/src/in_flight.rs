@@ -88,8 +88,9 @@
 //! `(K v)_k = Σ_j K_kj v_j`), so `Pₖ` is kept in those 10 columns and `C` accumulated in their
 //! 55 pairs. The drag's unknowns get a vanishing prior (`10⁻⁹` of the mean diagonal): their
 //! regressors are all zero when no velocity was ever known. About 670 `f64` numbers (5.4 KB);
-//! per sample 340 multiply-adds at `m = 4` (500 at `m = 8`; the per-axis drag's dense 12 were 440
-//! and 620) and 26 biquad channels; per solve two Cholesky inverses (18 × 18, `W` padded).
+//! 26 biquad channels on every sample, and every [`SUM_INTERVAL_S`] (500 Hz) one sample into the
+//! sums: 340 multiply-adds at `m = 4` (500 at `m = 8`; the per-axis drag's dense 12 were 440 and
+//! 620); per solve two Cholesky inverses (`W` padded to 8 × 8, `S` 18 × 18).
 //!
 //! Uncertainty: `σ²` from the residual sum of squares, widened by the samples per independent
 //! one, times the `r` block of `S⁻¹`, plus a sphere for the IMU's sensitivity errors; the 95 %

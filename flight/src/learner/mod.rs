@@ -451,6 +451,7 @@ impl Learner {
     /// the IMU offset in flight (`imu_offset::in_flight`): the learner's, learned with the
     /// offset of the attempt's start, are off by `[r − r₀]× G1τ`. Until the next
     /// [`Learner::restart`]. Rows with a non-finite entry are refused (`false`).
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn set_force_rows(&mut self, g1f_per_speed2: Option<[[f32; MAX_MOTORS]; 3]>) -> bool {
         if g1f_per_speed2.is_some_and(|rows| !rows.iter().flatten().all(|v| v.is_finite())) {
             return false;
