@@ -231,7 +231,7 @@ pub struct OffsetFitEstimate {
     /// The specific-force rows of G1 fitted with it, per unit squared speed (m/s² per
     /// (rad/s)²), IMU axes, columns are motors: free of the offset's rotational terms.
     pub g1f_per_speed2: [[f32; MAX_MOTORS]; 3],
-    /// Samples fitted.
+    /// Samples fitted (one every [`SUM_INTERVAL_S`]).
     pub samples: u32,
 }
 
@@ -341,9 +341,15 @@ impl OffsetFit {
         }
     }
 
-    /// Samples fitted so far.
+    /// Samples fitted so far (one every [`SUM_INTERVAL_S`]).
     pub fn samples(&self) -> u32 {
         self.samples
+    }
+
+    /// How many samples a second go into the sums, Hz (1 / [`SUM_INTERVAL_S`], or the sample
+    /// rate when that is lower).
+    pub fn sum_rate_hz(&self) -> f32 {
+        self.rate_hz / self.sum_stride as f32
     }
 
     /// One sample, from the declared release on (the first [`HAND_CONTACT_S`] are skipped: the
@@ -838,5 +844,24 @@ mod tests {
             fit.update([0.0; 3], [0.0, 0.0, -9.8 * s * s / 1e6], &[s, s, s, s], [0.0; 3]);
         }
         assert_eq!(fit.estimate(), Err(OffsetFitError::NotDetermined));
+    }
+
+    /// One sample in every 2 ms goes into the sums, whatever the sample rate (every sample
+    /// below 500 Hz); the filters see them all.
+    #[test]
+    fn the_sums_take_one_sample_every_two_milliseconds() {
+        for (rate_hz, sum_rate_hz) in [(2000.0, 500.0), (8000.0, 500.0), (1000.0, 500.0)] {
+            let mut fit = OffsetFit::new(4, rate_hz, 0.0).unwrap();
+            assert_eq!(fit.sum_rate_hz(), sum_rate_hz);
+            // One second after the hand's contact and the filters' start.
+            let start = (HAND_CONTACT_S * rate_hz) as u32 + 2;
+            let samples = start + rate_hz as u32;
+            for _ in 0..samples {
+                fit.update([1.0, 0.0, 0.0], [0.0, 0.0, -9.8], &[1000.0; 4], [0.0; 3]);
+            }
+            assert_eq!(fit.samples(), sum_rate_hz as u32, "at {rate_hz} Hz");
+        }
+        let fit = OffsetFit::new(4, 400.0, 0.0).unwrap();
+        assert_eq!(fit.sum_rate_hz(), 400.0);
     }
 }

@@ -462,14 +462,18 @@ impl<'q> Background<'q> {
     fn update_offset_fit(&mut self, sample: &LearnerSample) {
         let Some(fit) = &mut self.offset_fit else { return };
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
+        let summed_before = fit.samples();
         fit.update(
             sample.imu.gyro_rad_s,
             sample.imu.accel_mps2,
             &sample.speeds_rad_s[..motors],
             sample.velocity_imu_mps,
         );
-        let interval = (OFFSET_FIT_SOLVE_INTERVAL_S * self.rate_hz) as u32;
-        if fit.samples() % interval.max(1) == 0 {
+        // Solved when the sums have grown by an interval's worth (the fit sums one sample in
+        // every few: counting its own samples, not ours).
+        let per_solve = libm::roundf(OFFSET_FIT_SOLVE_INTERVAL_S * fit.sum_rate_hz()).max(1.0);
+        let summed = fit.samples();
+        if summed != summed_before && summed % per_solve as u32 == 0 {
             self.results.flight_offset = fit.estimate().ok();
         }
     }
