@@ -67,8 +67,8 @@
 //! 1.80 / 4.76 / 19.4 mm (182), the matrices **1.17 / 2.66 / 8.32 mm** (192), `K` full with `q_i`
 //! per axis 1.17 / 2.51 / 10.3 mm (188). The random world now draws each body axis's drag on its
 //! own (`sim::world`, `air`: 0.5–2×): there per IMU axis 1.33 / 3.06 / 8.05 mm (185), **the
-//! matrices 1.03 / 2.50 / 6.27 mm** (192; summed at every 2 kHz sample rather than every
-//! [`SUM_INTERVAL_S`], 1.07 / 2.43 / 6.09 mm (192): the same within noise). The seed paper's
+//! matrices 1.07 / 2.43 / 6.11 mm** (192; summed at every 2 kHz sample rather than every
+//! [`SUM_INTERVAL_S`], 1.07 / 2.43 / 6.09 mm (192)). The seed paper's
 //! quad (anisotropic, its IMU turned 60°): 0.35 → 0.28 mm. No poses (dead reckoning only: `offset_diag 200 random first no-poses`): 1.26
 //! / 3.53 / 7.56 → 1.21 / 3.25 / 6.77 mm. With the simulator's quadratic drag `|v| v` per axis
 //! instead of `|v_i| v_i`, per axis 0.95 / 2.10 / 4.66 mm, the matrices 0.94 / 1.96 / 4.64 mm:
