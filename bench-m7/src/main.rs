@@ -739,8 +739,10 @@ fn main() -> ! {
     black_box(&state);
 
     // The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32; the background task
-    // runs it beside the learner on a throw-to-fly that knows no offset): one sample of a tumble with the motors pulsed, 0.8 s in, and one solve
-    // (the cost only: the synthetic tumble is not physical enough for the fit to be right).
+    // runs it beside the learner on a throw-to-fly that knows no offset): a tumble with the
+    // motors pulsed, 0.8 s in, one sample that goes into the sums, the 2 ms interval it begins,
+    // and one solve (the cost only: the synthetic tumble is not physical enough for the fit to
+    // be right).
     for m in IN_FLIGHT_FIT_MOTOR_COUNTS {
         let Some(mut fit) = OffsetFit::new(m, 2000.0, 0.0) else { fail("in-flight fit") };
         let tumble = |n: usize| {
