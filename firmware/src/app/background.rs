@@ -57,8 +57,8 @@ pub const LEARN_AFTER_EXCITATION_S: f32 = 0.1;
 /// percentile at engagement to 2.33 % and 9.05 % (docs/benchmarks.md).
 pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
 
-/// How often the in-flight IMU-offset fit is solved while it takes samples, s (a few small
-/// Cholesky inverses each).
+/// How often the in-flight IMU-offset fit is solved while it takes samples, s (two Cholesky
+/// inverses each, 8 × 8 and 18 × 18: about 0.5 ms on the board, docs/benchmarks.md).
 pub const OFFSET_FIT_SOLVE_INTERVAL_S: f32 = 0.1;
 
 /// How long after the craft was last powered (armed for throw-to-fly, flying, or any motor
