@@ -61,7 +61,21 @@ fn a_sitl_flight_log_is_listed_downloaded_byte_for_byte_resumed_and_deleted_over
     }
 
     // Armed: the file is being written and cannot be deleted.
-    let listed = json_of(&cli(&["--json", "log", "list"]));
+    // The duration comes from the file's last 1 KiB as the board serves it while writing; on a
+    // loaded machine one listing has come back without it (CI, 2026-11-27), so a listing is
+    // asked again, for at most 10 s, before that counts as a failure.
+    let listing_started = Instant::now();
+    let listed = loop {
+        let listed = json_of(&cli(&["--json", "log", "list"]));
+        if listed[0]["duration_s"].is_f64() {
+            break listed;
+        }
+        assert!(
+            listing_started.elapsed() < Duration::from_secs(10),
+            "a log being written is listed with no duration for 10 s: {listed}"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
     assert_eq!(listed[0]["number"], 1, "{listed}");
     assert_eq!(listed[0]["writing"], true, "{listed}");
     assert!(listed[0]["duration_s"].as_f64().unwrap() >= 2.9, "{listed}");
