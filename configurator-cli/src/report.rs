@@ -134,9 +134,9 @@ pub fn advice_text(advice: &OffsetAdvice) -> String {
             axis(*spin_about_axis)
         ),
         OffsetAdvice::BiasNotSeparable { direction_imu, spin_about_axis } => format!(
-            "along {} the offset cannot be told from an accelerometer bias yet: hold the craft \
-             still after the catch (a rest in a new attitude measures the bias), or throw again \
-             at a different spin rate, about IMU {}",
+            "along {} the offset cannot be told from an accelerometer bias yet: throw again at \
+             a different spin rate, about IMU {} (a rest in a new attitude after the catch also \
+             helps, as far as the accelerometer's scale errors allow)",
             direction(direction_imu),
             axis(*spin_about_axis)
         ),

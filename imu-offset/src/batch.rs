@@ -194,6 +194,6 @@ impl BatchFitter {
             drag: self.drag.as_ref(),
             rest: Some(self.rest.model(&self.config)),
         };
-        solve::estimate(&problem, self.config.model, f64::from(self.config.max_semi_axis_m))
+        solve::estimate(&problem, &self.config)
     }
 }

@@ -100,7 +100,7 @@
 //! ellipsoid's semi-axes are `√(λᵢ χ²₃(0.95))` as for the calibration. The error is mostly the
 //! model's (drag, the IMU's scale errors), not white noise: the residuals are taken as correlated
 //! over [`RESIDUAL_CORRELATION_S`] (not the 20 Hz filter's 23 ms), and the sensitivity errors,
-//! which the fit cannot see, add a 1σ of [`SENSITIVITY_ERROR_REL`] `|r̂|` per axis. With both the
+//! which the fit cannot see, add a 1σ of [`Config::sensitivity_offset_sigma`] `|r̂|` per axis. With both the
 //! truth lies inside the ellipsoid in about 95 % of random worlds (was 3 % with the filter's
 //! correlation alone; docs/algorithms/imu-offset.md). The verdict uses the calibration's 2 mm
 //! limit, which an honest ellipsoid rarely meets in one throw (the sensitivity term alone is
@@ -110,7 +110,7 @@
 // `effectiveness`).
 #![allow(clippy::needless_range_loop)]
 
-use crate::CHI2_3DOF_95;
+use crate::{Config, CHI2_3DOF_95};
 use core::ops::Range;
 use flight::eigen3::symmetric_eigen3;
 use flight::filters::{BiquadCoefficients, ButterworthBank, CentralDifference3};
@@ -138,7 +138,7 @@ pub const USABLE_SEMI_AXIS_M: f32 = 0.005;
 /// How long the fit's residuals stay correlated, s: what the model leaves out (the error of the
 /// navigation's velocity and attitude that the drag is modelled on, gusts) changes with the
 /// throw's speed and attitude over a fraction of a second, not over the 20 Hz filter's
-/// 23 ms. With it, and [`SENSITIVITY_ERROR_REL`], the truth lies inside the 95 % ellipsoid in
+/// 23 ms. With it, and [`Config::sensitivity_offset_sigma`], the truth lies inside the 95 % ellipsoid in
 /// about 95 % of random worlds (chosen on seeds 1–200 of `offset_diag` for the drag polynomial
 /// in time, re-checked for the drag on the velocity: 188 of 200, and on 1,000:
 /// docs/algorithms/imu-offset.md).
@@ -150,13 +150,6 @@ pub const RESIDUAL_CORRELATION_S: f32 = 0.2;
 /// cost, not information; the filters still run on every sample. Chosen for the Cortex-M7: the
 /// sums are most of a sample's cost (docs/benchmarks.md).
 pub const SUM_INTERVAL_S: f32 = 0.002;
-
-/// The IMU's sensitivity errors as a 1σ error of `r` per axis, relative to `|r̂|`: a gyro scale
-/// error ε scales the fitted `r` by `1/(1 + ε)` to `1/(1 + ε)²` (the Euler term is linear in the
-/// rates, the centripetal one quadratic), an accelerometer scale error by `1 + ε`; scale errors
-/// up to ±3 % (1σ 1.7 % if uniform) and cross-axis errors up to ±2 % give about 3 %. The fit
-/// cannot see them (docs/algorithms/imu-offset.md).
-pub const SENSITIVITY_ERROR_REL: f32 = 0.03;
 
 /// The unknowns shared by the three rows: `r` (3), the constant `c` (3) and the drag's two
 /// symmetric matrices in IMU axes, linear `K` and quadratic `Q` (6 each, see [`sym`]).
@@ -546,7 +539,7 @@ impl OffsetFit {
         let sigma2 = residual / (rows - unknowns) as f64 * correlated;
         let r = [z[0], z[1], z[2]];
         // The IMU's sensitivity errors: a sphere of 1σ proportional to |r̂|.
-        let relative = f64::from(SENSITIVITY_ERROR_REL);
+        let relative = f64::from(Config::default().sensitivity_offset_sigma());
         let sensitivity = relative * relative * r.iter().map(|v| v * v).sum::<f64>();
         // In f32, as the calibration solves its ellipsoid (one instance of the solver).
         let covariance: [[f32; 3]; 3] = core::array::from_fn(|a| {

@@ -19,7 +19,9 @@ use super::moments::{count_as, spd_inverse_of, BatchMeans, Moments};
 use super::rest::RestModel;
 #[cfg(doc)]
 use super::DragModel;
-use super::{Ellipsoid, Estimate, ImuAxis, ImuOffsetError, Model, Scalar, Verdict, CHI2_3DOF_95};
+use super::{
+    Config, Ellipsoid, Estimate, ImuAxis, ImuOffsetError, Model, Scalar, Verdict, CHI2_3DOF_95,
+};
 
 /// Fewest blocks for a fit: the batch-means variance then has at least `3·6 − 6 = 12` degrees of
 /// freedom even with a bias (its relative standard error ≈ √(2/12) ≈ 40 %, the worst we accept).
@@ -120,11 +122,16 @@ pub(crate) fn offset_only<T: Scalar>(rows: &Moments<T>, r_ref: &Vector3<T>) -> O
 /// The figures the verdict states are always the reported ellipsoid's (its largest semi-axis,
 /// or its extent along the direction the throws did not excite); the analyses behind it (is the
 /// excitation lacking, or a bias?) choose which advice is given and about which direction.
+/// Whether the offset is well determined is judged before the IMU's sensitivity errors are
+/// added ([`with_sensitivity_error`]): more throws cannot reduce them, so a verdict asking for
+/// more would never be met. A calibration "well determined" may therefore report a largest
+/// semi-axis above [`Config::max_semi_axis_m`], which is then the sensor's, not the throws'.
 pub(crate) fn estimate<T: Scalar>(
     p: &Problem<'_, T>,
-    model: Model,
-    max_semi_axis_m: T,
+    config: &Config,
 ) -> Result<Estimate<T>, ImuOffsetError> {
+    let model = config.model;
+    let max_semi_axis_m: T = nalgebra::convert(f64::from(config.max_semi_axis_m));
     if p.batches.short.count < MIN_BLOCKS {
         return Err(ImuOffsetError::TooFewSamples {
             used: p.rows.count,
@@ -151,10 +158,14 @@ pub(crate) fn estimate<T: Scalar>(
         // the offset-only fit is reported, and the verdict says what is missing.
         Model::OffsetAndAccBias => joint.unwrap_or(offset),
     };
+    // What the throws leave uncertain decides whether they were enough; what the IMU's
+    // sensitivity adds, which no further throw reduces, is in the ellipsoid and its figures.
+    let throws_semi_axis_m = chosen.ellipsoid.semi_axes_m[0];
+    let chosen = with_sensitivity_error(&chosen, config)?;
     let semi_axis_m = chosen.ellipsoid.semi_axes_m[0];
     let direction_imu = chosen.ellipsoid.axes[0];
     let spin_next_about = ImuAxis::most_perpendicular_to(&direction_imu);
-    let verdict = if semi_axis_m <= max_semi_axis_m {
+    let verdict = if throws_semi_axis_m <= max_semi_axis_m {
         Verdict::WellDetermined { largest_semi_axis_m: semi_axis_m }
     } else if excitation_lacking {
         // The direction the throws did not excite (a single spin's axis), which another spin
@@ -218,6 +229,19 @@ fn with_unmodelled_bias<T: Scalar>(
     let a = offset.information_inv * offset.bias_coupling;
     let systematic = a * a.transpose() * (b.norm_squared() / three);
     rescaled(offset, statistical + systematic)
+}
+
+/// `fit` with the IMU's sensitivity errors added to its covariance: a sphere of 1σ
+/// [`Config::sensitivity_offset_sigma`] `|r̂|`. Measured on 200 random airframes' two-throw
+/// calibrations (`offset_diag 200 random calibration`): the truth inside the 95 % ellipsoid in
+/// 137 of 200 without this term (the rest poses already modelled), 190 with it.
+fn with_sensitivity_error<T: Scalar>(
+    fit: &Fit<T>,
+    config: &Config,
+) -> Result<Fit<T>, ImuOffsetError> {
+    let relative: T = nalgebra::convert(f64::from(config.sensitivity_offset_sigma()));
+    let per_r2 = relative * relative;
+    rescaled(fit, fit.covariance_m2 + Matrix3::identity() * (fit.r_imu_m.norm_squared() * per_r2))
 }
 
 /// `fit` with another covariance of `r` (and its ellipsoid).

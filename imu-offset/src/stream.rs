@@ -180,6 +180,10 @@ impl Settings {
         if !(positive(config.gravity_mps2) && positive(config.gravity_sigma_mps2)) {
             return Err(ImuOffsetError::InvalidConfig("gravity and its sigma must be positive"));
         }
+        let fraction = |v: f32| (0.0..=0.2).contains(&v);
+        if !(fraction(config.scale_error_sigma) && fraction(config.cross_axis_sigma)) {
+            return Err(ImuOffsetError::InvalidConfig("sensitivity errors outside 0–20 %"));
+        }
         if !positive(config.max_semi_axis_m) {
             return Err(ImuOffsetError::InvalidConfig("max_semi_axis_m must be positive"));
         }
@@ -346,7 +350,7 @@ impl ImuOffsetEstimator {
             drag: self.drag_modelled().then_some(&self.state.drag),
             rest: Some(rest_poses.model(&self.config)),
         };
-        solve::estimate(&problem, self.config.model, self.config.max_semi_axis_m)
+        solve::estimate(&problem, &self.config)
     }
 
     /// Rest poses found so far (each an attitude held still; see `rest`), not counting the one

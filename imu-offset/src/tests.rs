@@ -17,6 +17,14 @@ use flight::testing::throws::ThrowSpec;
 
 /// Principal axes of the simulated craft, rotated away from the IMU axes (as when the flight
 /// controller is mounted at an angle), so that "the right axis" is not trivially an IMU axis.
+/// The estimator configured for these tests' IMU, whose sensitivity is exact (`ThrowSpec` scales
+/// nothing): the figures asserted here are then the throws' geometry's, the noise's, the bias's
+/// and the drag's. The defaults' sensitivity priors are tested on the simulator's IMU, which has
+/// the errors (`tests/tests/imu_offset_calibration.rs`).
+fn synthetic_imu() -> Config {
+    Config { scale_error_sigma: 0.0, cross_axis_sigma: 0.0, ..Config::default() }
+}
+
 fn principal_axes() -> UnitQuaternion<f64> {
     UnitQuaternion::from_euler_angles(0.35, -0.25, 0.6)
 }
@@ -84,7 +92,7 @@ fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
 fn segments_cover_the_free_fall_and_exclude_the_hand() {
     for rate_hz in [500.0, 2000.0, 8000.0] {
         let spec = throw(rate_hz, spin_about(2, 12.0, 0.25), 7);
-        let est = stream_fit(&samples(&spec), rate_hz, Config::default());
+        let est = stream_fit(&samples(&spec), rate_hz, synthetic_imu());
         let segments = est.segments();
         assert_eq!(segments.len(), 1, "{rate_hz} Hz: one throw, one segment");
         let seg = segments[0];
@@ -111,10 +119,10 @@ fn segments_cover_the_free_fall_and_exclude_the_hand() {
 fn two_throws_about_different_axes_give_r_within_1mm() {
     for (rate_hz, seed) in [(500.0, 11), (1000.0, 12), (2000.0, 13), (8000.0, 14)] {
         let data = two_throws(rate_hz, seed);
-        let stream = stream_fit(&data, rate_hz, Config::default());
+        let stream = stream_fit(&data, rate_hz, synthetic_imu());
         assert_eq!(stream.segments().len(), 2);
         let board = stream.estimate().unwrap();
-        let host = batch_fit(&[&data], rate_hz, Config::default()).estimate().unwrap();
+        let host = batch_fit(&[&data], rate_hz, synthetic_imu()).estimate().unwrap();
         let err_board = mm((board.r_imu_m.cast::<f64>() - r_true()).norm());
         let err_host = mm((host.r_imu_m - r_true()).norm());
         eprintln!(
@@ -134,7 +142,7 @@ fn two_throws_about_different_axes_give_r_within_1mm() {
 fn one_throw_about_a_principal_axis_is_flagged_with_that_axis() {
     for (k, rate) in [(2usize, 12.0), (0, 9.0)] {
         let spec = throw(2000.0, spin_about(k, rate, 0.002), 21 + k as u64);
-        let est = batch_fit(&[&samples(&spec)], 2000.0, Config::default()).estimate().unwrap();
+        let est = batch_fit(&[&samples(&spec)], 2000.0, synthetic_imu()).estimate().unwrap();
         let Verdict::PoorlyDetermined { direction_imu, semi_axis_m, spin_next_about } = est.verdict
         else {
             panic!("spin about principal axis {k} not flagged: {}", est.verdict);
@@ -165,8 +173,8 @@ fn one_throw_about_a_principal_axis_is_flagged_with_that_axis() {
 fn recursive_equals_batch_within_0_1mm() {
     for (rate_hz, seed) in [(500.0, 31), (8000.0, 32)] {
         let data = two_throws(rate_hz, seed);
-        let stream = stream_fit(&data, rate_hz, Config::default());
-        let batch = batch_fit(&[&data], rate_hz, Config::default());
+        let stream = stream_fit(&data, rate_hz, synthetic_imu());
+        let batch = batch_fit(&[&data], rate_hz, synthetic_imu());
         let board = stream.estimate().unwrap();
         let host = batch.estimate().unwrap();
         assert_eq!(stream.samples_used(), batch.samples_used(), "same samples");
@@ -210,7 +218,7 @@ fn bias() -> Vector3<f64> {
 #[test]
 fn bias_is_estimated_jointly_with_the_offset() {
     let rate_hz = 2000.0;
-    let config = Config { model: Model::OffsetAndAccBias, ..Config::default() };
+    let config = Config { model: Model::OffsetAndAccBias, ..synthetic_imu() };
     // Tumbling throws (well off the principal axes) at different rates: the centripetal term
     // varies, so a constant bias is distinguishable from it.
     let mut a = throw(rate_hz, spin_about(2, 13.0, 0.6), 51);
@@ -219,7 +227,7 @@ fn bias_is_estimated_jointly_with_the_offset() {
     b.acc_bias_mps2 = bias();
     let (a, b) = (samples(&a), samples(&b));
     let joint = batch_fit(&[&a, &b], rate_hz, config).estimate().unwrap();
-    let offset_only = Config { model: Model::Offset, ..Config::default() };
+    let offset_only = Config { model: Model::Offset, ..synthetic_imu() };
     let plain = batch_fit(&[&a, &b], rate_hz, offset_only).estimate().unwrap();
     let err_joint = mm((joint.r_imu_m - r_true()).norm());
     let err_plain = mm((plain.r_imu_m - r_true()).norm());
@@ -247,7 +255,7 @@ fn offset_only_fit_with_a_large_bias_advises_fitting_it() {
     a.acc_bias_mps2 = bias().normalize() * 0.5;
     b.acc_bias_mps2 = bias().normalize() * 0.5;
     let (a, b) = (samples(&a), samples(&b));
-    let offset_only = Config { model: Model::Offset, ..Config::default() };
+    let offset_only = Config { model: Model::Offset, ..synthetic_imu() };
     let plain = batch_fit(&[&a, &b], rate_hz, offset_only).estimate().unwrap();
     let e = plain.r_imu_m - r_true();
     let m = e.dot(&(plain.covariance_m2.try_inverse().unwrap() * e)) / f64::from(CHI2_3DOF_95);
@@ -284,7 +292,7 @@ fn bias_and_offset_inseparable_at_one_constant_spin_rate_without_rest_poses() {
     // 0.15 s are too short for a pose (5 blocks of 50 ms are needed), so nothing else tells them
     // apart.
     let [a, b] = equal_rate_principal_spins(0.15);
-    let config = Config { model: Model::OffsetAndAccBias, ..Config::default() };
+    let config = Config { model: Model::OffsetAndAccBias, ..synthetic_imu() };
     let joint = batch_fit(&[&a, &b], 2000.0, config).estimate().unwrap();
     assert_eq!(joint.rest_poses, 0);
     let Verdict::BiasNotSeparable { direction_imu, semi_axis_m, .. } = joint.verdict else {
@@ -305,7 +313,7 @@ fn rest_poses_separate_bias_and_offset() {
     // The same throws held still for 0.5 s before and after: the rest poses (two attitudes per
     // throw) measure the bias, and the offset is well determined and accurate.
     let [a, b] = equal_rate_principal_spins(0.5);
-    let config = Config { model: Model::OffsetAndAccBias, ..Config::default() };
+    let config = Config { model: Model::OffsetAndAccBias, ..synthetic_imu() };
     let joint = batch_fit(&[&a, &b], 2000.0, config).estimate().unwrap();
     assert_eq!(joint.rest_poses, 4);
     let error = joint.r_imu_m - r_true();
@@ -352,7 +360,7 @@ fn vertical_drag_model_removes_most_of_the_drag_error() {
         for (drag_model, errors) in
             [(DragModel::Ignored, &mut ignored), (DragModel::VerticalQuadratic, &mut modelled)]
         {
-            let config = Config { model: Model::OffsetAndAccBias, drag_model, ..Config::default() };
+            let config = Config { model: Model::OffsetAndAccBias, drag_model, ..synthetic_imu() };
             let est = batch_fit(&logs, rate_hz, config).estimate().unwrap();
             errors.push(mm((est.r_imu_m - r_true()).norm()));
         }
@@ -421,7 +429,7 @@ fn coverage(trials: u32, rate_hz: f64, seed: u64, drag_per_m: f64, horizontal: f
                 samples(&spec)
             })
             .collect();
-        let est = batch_fit(&[&logs[0], &logs[1]], rate_hz, Config::default()).estimate().unwrap();
+        let est = batch_fit(&[&logs[0], &logs[1]], rate_hz, synthetic_imu()).estimate().unwrap();
         let e = est.r_imu_m - r;
         let (Some(inv), Some(inv_paper)) =
             (est.covariance_m2.try_inverse(), est.white_noise_covariance_m2.try_inverse())
@@ -489,11 +497,11 @@ fn a_free_fall_longer_than_the_drag_store_is_counted_not_used() {
     spec.free_fall_s = 1.9;
     spec.windup_peak_mps2 = 2.0 * (flight::testing::throws::G_MPS2 * 0.95) / spec.windup_s;
     let data = samples(&spec);
-    let board = stream_fit(&data, rate_hz, Config::default());
+    let board = stream_fit(&data, rate_hz, synthetic_imu());
     assert_eq!((board.segments().len(), board.throws_too_long()), (0, 1));
-    let host = batch_fit(&[&data], rate_hz, Config::default());
+    let host = batch_fit(&[&data], rate_hz, synthetic_imu());
     assert!(host.segments().is_empty());
-    let ignored = Config { drag_model: DragModel::Ignored, ..Config::default() };
+    let ignored = Config { drag_model: DragModel::Ignored, ..synthetic_imu() };
     let board = stream_fit(&data, rate_hz, ignored);
     assert_eq!((board.segments().len(), board.throws_too_long()), (1, 0));
     let used_s = board.segments()[0].len() as f64 / rate_hz;
@@ -504,16 +512,16 @@ fn a_free_fall_longer_than_the_drag_store_is_counted_not_used() {
 fn a_restart_in_place_forgets_the_throws_and_refuses_a_bad_configuration() {
     let rate_hz = 2000.0;
     let data = two_throws(rate_hz, 87);
-    let mut est = stream_fit(&data, rate_hz, Config::default());
+    let mut est = stream_fit(&data, rate_hz, synthetic_imu());
     assert_eq!(est.segments().len(), 2);
     let fitted = est.estimate().unwrap();
     // A bad configuration changes nothing.
-    let bad = Config { block_s: -1.0, ..Config::default() };
+    let bad = Config { block_s: -1.0, ..synthetic_imu() };
     assert!(matches!(est.restart(bad), Err(ImuOffsetError::InvalidConfig(_))));
     assert_eq!(est.segments().len(), 2);
     assert_eq!(est.estimate().unwrap().r_imu_m, fitted.r_imu_m);
     // A good one starts again: nothing learnt, and the same data give the same estimate.
-    est.restart(Config::default()).unwrap();
+    est.restart(synthetic_imu()).unwrap();
     assert!(est.segments().is_empty() && est.samples_used() == 0);
     assert_eq!(est.estimate().unwrap_err(), ImuOffsetError::NoFreeFall);
     for s in &data {
@@ -528,7 +536,7 @@ fn errors_are_typed() {
     let rate_hz = 2000.0;
     // Unsupported rate.
     assert!(matches!(
-        ImuOffsetEstimator::new(100.0, Config::default()),
+        ImuOffsetEstimator::new(100.0, synthetic_imu()),
         Err(ImuOffsetError::RateOutOfRange { .. })
     ));
     // Held still: no free fall.
@@ -536,7 +544,7 @@ fn errors_are_typed() {
     still.windup_peak_mps2 = 0.0;
     still.free_fall_s = 0.0;
     still.catch_s = 0.0;
-    let fitter = batch_fit(&[&samples(&still)], rate_hz, Config::default());
+    let fitter = batch_fit(&[&samples(&still)], rate_hz, synthetic_imu());
     assert_eq!(fitter.estimate().unwrap_err(), ImuOffsetError::NoFreeFall);
     // Free falls cut short by an abrupt catch (held still from then on): the shortest one the
     // detector accepts is too short for an honest variance (fewer than 6 blocks of 20 ms).
@@ -552,29 +560,29 @@ fn errors_are_typed() {
                     acc_mps2: Vector3::new(0.0, 0.0, -9.81),
                 };
             }
-            batch_fit(&[&data], rate_hz, Config::default())
+            batch_fit(&[&data], rate_hz, synthetic_imu())
         })
         .find(|fitter| !fitter.segments().is_empty())
         .unwrap();
     let result = shortest.estimate();
     assert!(matches!(result, Err(ImuOffsetError::TooFewSamples { .. })), "{result:?}");
     // A log shorter than any throw.
-    let mut fitter = BatchFitter::new(Config::default());
+    let mut fitter = BatchFitter::new(synthetic_imu());
     let tiny = &samples(&still)[..10];
     assert!(matches!(fitter.add_log(tiny, 2000.0), Err(ImuOffsetError::TooFewSamples { .. })));
     // NaN input: typed error with the sample index, from both estimators.
     let mut data = samples(&throw(rate_hz, spin_about(2, 12.0, 0.3), 83));
     data[1234].acc_mps2.y = f32::NAN;
-    let mut fitter = BatchFitter::new(Config::default());
+    let mut fitter = BatchFitter::new(synthetic_imu());
     assert_eq!(
         fitter.add_log(&data, 2000.0).unwrap_err(),
         ImuOffsetError::NonFiniteInput { index: 1234 }
     );
-    let mut est = ImuOffsetEstimator::new(2000.0, Config::default()).unwrap();
+    let mut est = ImuOffsetEstimator::new(2000.0, synthetic_imu()).unwrap();
     let errors: Vec<_> = data.iter().filter_map(|s| est.update(s).err()).collect();
     assert_eq!(errors, vec![ImuOffsetError::NonFiniteInput { index: 1234 }]);
     // Logs at different rates are not pooled.
-    let mut fitter = BatchFitter::new(Config::default());
+    let mut fitter = BatchFitter::new(synthetic_imu());
     fitter.add_log(&data[..2000], 2000.0).unwrap_err();
     let ok = samples(&throw(1000.0, spin_about(2, 12.0, 0.3), 84));
     fitter.add_log(&ok, 1000.0).unwrap();
@@ -605,7 +613,7 @@ proptest! {
     /// error, and any estimate produced is finite.
     #[test]
     fn never_panics(samples in prop::collection::vec(any_sample(), 0..3000), rate in 400.0f32..9000.0) {
-        if let Ok(mut est) = ImuOffsetEstimator::new(rate, Config::default()) {
+        if let Ok(mut est) = ImuOffsetEstimator::new(rate, synthetic_imu()) {
             for s in &samples {
                 let _ = est.update(s);
             }
@@ -615,7 +623,7 @@ proptest! {
             }
         }
         for drag_model in [DragModel::Ignored, DragModel::VerticalQuadratic] {
-            let config = Config { model: Model::OffsetAndAccBias, drag_model, ..Config::default() };
+            let config = Config { model: Model::OffsetAndAccBias, drag_model, ..synthetic_imu() };
             let mut fitter = BatchFitter::new(config);
             let _ = fitter.add_log(&samples, rate);
             if let Ok(e) = fitter.estimate() {
@@ -640,7 +648,7 @@ proptest! {
             (Model::Offset, DragModel::VerticalQuadratic),
             (Model::OffsetAndAccBias, DragModel::VerticalQuadratic),
         ] {
-            let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
+            let mut fitter = BatchFitter::new(Config { model, drag_model, ..synthetic_imu() });
             let _ = fitter.add_log(&samples, 1000.0);
             if let Ok(e) = fitter.estimate() {
                 prop_assert!(e.r_imu_m.iter().all(|v| v.is_finite()));
@@ -691,7 +699,7 @@ fn equal_rate_session(
 /// The board's estimator over `data`: its estimate when the second throw is accepted (the catch,
 /// when the board reports the throw) and at the end (the rest after the catch in progress).
 fn onboard_at_catch_and_end(data: &[ImuSample]) -> (Estimate<f32>, Estimate<f32>) {
-    let mut est = ImuOffsetEstimator::new(2000.0, Config::default()).unwrap();
+    let mut est = ImuOffsetEstimator::new(2000.0, synthetic_imu()).unwrap();
     let mut at_catch = None;
     for s in data {
         if let Ok(Some(_)) = est.update(s) {
@@ -747,7 +755,7 @@ fn two_equal_rate_throws_with_a_bias_conclude_onboard_as_offline() {
             2800 + 2 * u64::from(session),
         );
         let (_, board) = onboard_at_catch_and_end(&data);
-        let host = batch_fit(&[&data], 2000.0, Config::default()).estimate().unwrap();
+        let host = batch_fit(&[&data], 2000.0, synthetic_imu()).estimate().unwrap();
         let apart_mm = mm((board.r_imu_m.cast::<f64>() - host.r_imu_m).norm());
         let axes_ratio = (0..3)
             .map(|i| f64::from(board.ellipsoid.semi_axes_m[i]) / host.ellipsoid.semi_axes_m[i])
@@ -812,9 +820,9 @@ fn the_rest_after_the_catch_separates_what_two_equal_spins_and_one_attitude_cann
     assert!(angle < 15.0, "confused direction {angle:.1}° from the spins' cross product");
     assert_eq!(at_catch.rest_poses, 2, "before and after the yaw spin, both level");
     // Offline, a recording cut at the catch says the same; with the rest after it, both conclude.
-    let cut = batch_fit(&[&data[..after_catch]], 2000.0, Config::default()).estimate().unwrap();
+    let cut = batch_fit(&[&data[..after_catch]], 2000.0, synthetic_imu()).estimate().unwrap();
     assert!(matches!(cut.verdict, Verdict::BiasNotSeparable { .. }), "{}", cut.verdict);
-    let host = batch_fit(&[&data], 2000.0, Config::default()).estimate().unwrap();
+    let host = batch_fit(&[&data], 2000.0, synthetic_imu()).estimate().unwrap();
     eprintln!(
         "yaw spin then roll at {rate} rad/s: at the catch {} ({angle:.1}° from the cross \
          product); after the rest {}",

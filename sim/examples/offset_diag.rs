@@ -14,7 +14,7 @@
 use imu_offset::{DragModel, Model, CHI2_3DOF_95};
 use nalgebra::Matrix3;
 use sim::airframe::{identity_3x3, Airframe};
-use sim::calibration::{fit, Session, SpinDraw};
+use sim::calibration::{fit, Session};
 use sim::recovery::{fly, random_case, FlyConfig, FlyReport, Verdict};
 use sim::stats::{quantile, run_seeds};
 use sim::world::{random_world_case, Aspect};
@@ -137,9 +137,7 @@ fn flight_result(seed: u64, report: &FlyReport) -> (f64, f64, Option<Verdict>) {
 /// The two-throw calibration of `airframe` (its IMU errors and drag; its own accelerometer bias
 /// kept), fitted as `fit imu-offset` fits it.
 fn calibration_result(seed: u64, airframe: &Airframe) -> (f64, f64, Option<Verdict>) {
-    let mut session = Session::drawn(seed, 0.0, Some(airframe), SpinDraw::Random);
-    session.airframe.imu.accel.bias_mps2 = airframe.imu.accel.bias_mps2;
-    session.acc_bias_mps2 = airframe.imu.accel.bias_mps2.into();
+    let session = Session::on_airframe(seed, airframe);
     let truth = session.truth_m();
     match fit(&session.logs(), Model::OffsetAndAccBias, DragModel::VerticalQuadratic) {
         Ok(estimate) => {

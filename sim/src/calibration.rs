@@ -130,6 +130,16 @@ impl Session {
         Self { airframe, acc_bias_mps2, spins_rad_s, apexes_m, seed }
     }
 
+    /// Session `seed` on `airframe` exactly as it is: its IMU's errors (scale, cross-axis, its
+    /// own accelerometer bias), drag and inertia; spins [`SpinDraw::Random`]. For the
+    /// calibration on a random world's airframe (`sim::world`).
+    pub fn on_airframe(seed: u64, airframe: &Airframe) -> Self {
+        let mut session = Self::drawn(seed, 0.0, Some(airframe), SpinDraw::Random);
+        session.airframe.imu.accel.bias_mps2 = airframe.imu.accel.bias_mps2;
+        session.acc_bias_mps2 = airframe.imu.accel.bias_mps2.into();
+        session
+    }
+
     /// The true offset (m, IMU axes).
     pub fn truth_m(&self) -> Vector3<f64> {
         self.airframe.q_imu_body() * self.airframe.r_imu_m()
@@ -288,7 +298,12 @@ pub fn fit(
     model: Model,
     drag_model: DragModel,
 ) -> Result<Estimate<f64>, String> {
-    let mut fitter = BatchFitter::new(Config { model, drag_model, ..Config::default() });
+    fit_with(logs, Config { model, drag_model, ..Config::default() })
+}
+
+/// Fit a session's logs with `config`.
+pub fn fit_with(logs: &[Vec<ImuSample>], config: Config) -> Result<Estimate<f64>, String> {
+    let mut fitter = BatchFitter::new(config);
     for log in logs {
         fitter.add_log(log, RATE_HZ).map_err(|e| e.to_string())?;
     }

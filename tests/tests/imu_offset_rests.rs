@@ -1,14 +1,18 @@
-//! Issue 28: two throws are enough onboard. The configurator binary runs the guided
-//! calibration (`calibrate imu-offset`) against the SITL over its pseudo-terminal, as a user does
-//! with a board; the SITL's hand throws the craft twice at one spin rate (550 °/s, as the seed
-//! paper throws) about two different body axes, with an accelerometer bias of 0.1 m/s², and
-//! holds it still between and after the throws.
+//! Issues 28 and 32: what two equal-rate throws and their rests can and cannot settle onboard.
+//! The configurator binary runs the guided calibration (`calibrate imu-offset`) against the SITL
+//! over its pseudo-terminal, as a user does with a board; the SITL's hand throws the craft at one
+//! spin rate (550 °/s, as the seed paper throws) about two different body axes, with an
+//! accelerometer bias of 0.1 m/s², and holds it still between and after the throws.
 //!
 //! The first throw spins about the yaw axis, so the catch leaves the craft level and the rests
 //! before and after it are one attitude. At the second catch the board's estimate cannot tell a
 //! bias from the offset along the cross product of the two spin axes (equal rates give the same
-//! centripetal term in both throws); the rest after that catch, in a new attitude, measures the
-//! bias there, and the calibration must conclude on it instead of asking for a third throw.
+//! centripetal term in both throws). Issue 28 let the rest after that catch measure the bias
+//! there and conclude; but a rest pose reads the accelerometer's scale errors too (`g uᵀ S u`,
+//! up to 0.3 m/s² for the ±3 % the estimator assumes, `imu_offset::rest`), so three attitudes
+//! cannot pin a bias of 0.1 m/s², and concluding on them was overconfident on real IMUs (the
+//! truth inside the ellipsoid in 34 of 200 random airframes). Now the board asks for a throw at
+//! another spin rate, and the third throw, at 350 °/s about the pitch axis, concludes.
 
 use nalgebra::Vector3;
 use serde_json::Value;
@@ -21,7 +25,7 @@ use tests::run_cli;
 const ACC_BIAS_MPS2: [f64; 3] = [0.0577, -0.0577, 0.0577];
 
 #[test]
-fn two_equal_rate_throws_and_the_rests_conclude_the_calibration() {
+fn two_equal_rate_throws_ask_for_another_rate_and_a_third_throw_concludes() {
     // Built before the SITL starts throwing, so that the calibration sees every throw.
     tests::cli_binary();
     let flash = std::env::temp_dir().join(format!("fc-rests-{}.bin", std::process::id()));
@@ -29,8 +33,8 @@ fn two_equal_rate_throws_and_the_rests_conclude_the_calibration() {
     let config = SitlConfig {
         speed: 2.0,
         auto_throw_every_s: Some(3.0),
-        auto_throw_count: Some(2),
-        auto_throw_rates_dps: Some(vec![[0.0, 0.0, 550.0], [550.0, 0.0, 0.0]]),
+        auto_throw_count: Some(3),
+        auto_throw_rates_dps: Some(vec![[0.0, 0.0, 550.0], [550.0, 0.0, 0.0], [0.0, 350.0, 0.0]]),
         acc_bias_mps2: Some(ACC_BIAS_MPS2),
         flash_file: Some(flash.clone()),
         ..SitlConfig::default()
@@ -45,21 +49,22 @@ fn two_equal_rate_throws_and_the_rests_conclude_the_calibration() {
         "imu-offset",
         "--yes",
         "--max-throws",
-        "2",
+        "3",
         "--timeout-s",
         "20",
     ];
     let output = run_cli(&args);
     let stderr = String::from_utf8_lossy(&output.stderr);
     eprintln!("{stderr}");
-    assert!(output.status.success(), "calibrate did not conclude after two throws: {stderr}");
-    // Both throws were reported, and the second one's verdict at the catch was the confusion the
-    // rest resolves: the calibration concluded on the rest, not on a throw.
-    assert!(stderr.contains("throw 2:"), "{stderr}");
-    assert!(stderr.contains("held still after throw 2"), "{stderr}");
+    assert!(output.status.success(), "calibrate did not conclude after three throws: {stderr}");
+    // After the second throw and its rest the board asked for another spin rate; the third
+    // throw concluded.
+    let after_two = stderr.split("throw 3:").next().unwrap_or_default();
+    assert!(after_two.contains("different spin rate"), "{stderr}");
+    assert!(stderr.contains("throw 3:"), "{stderr}");
     let report: Value = serde_json::from_slice(&output.stdout).unwrap();
     assert_eq!(report["stored"], true);
-    assert_eq!(report["throws"].as_u64(), Some(2));
+    assert_eq!(report["throws"].as_u64(), Some(3));
     let vector = |v: &Value| {
         let v: Vec<f64> = v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
         Vector3::new(v[0], v[1], v[2])
