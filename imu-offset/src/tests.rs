@@ -518,6 +518,10 @@ fn a_restart_in_place_forgets_the_throws_and_refuses_a_bad_configuration() {
     // A bad configuration changes nothing.
     let bad = Config { block_s: -1.0, ..synthetic_imu() };
     assert!(matches!(est.restart(bad), Err(ImuOffsetError::InvalidConfig(_))));
+    for (scale, cross) in [(-0.01, 0.0), (0.0, 0.5), (f32::NAN, 0.0)] {
+        let bad = Config { scale_error_sigma: scale, cross_axis_sigma: cross, ..synthetic_imu() };
+        assert!(matches!(est.restart(bad), Err(ImuOffsetError::InvalidConfig(_))));
+    }
     assert_eq!(est.segments().len(), 2);
     assert_eq!(est.estimate().unwrap().r_imu_m, fitted.r_imu_m);
     // A good one starts again: nothing learnt, and the same data give the same estimate.
