@@ -218,6 +218,15 @@ impl Config {
         let (d, o) = (self.scale_error_sigma, self.cross_axis_sigma);
         libm::sqrtf(5.0 * (d * d + 2.0 * o * o) / 3.0)
     }
+
+    /// `self` with the sensitivity priors of an IMU whose scale errors are within
+    /// `±scale_tolerance` (a fraction), spread uniformly (σ = tolerance/√3), and whose cross-axis
+    /// sensitivities are within two thirds of that (the MPU-6000's ±2 % beside its ±3 %).
+    pub fn with_scale_tolerance(self, scale_tolerance: f32) -> Self {
+        const FRAC_1_SQRT_3: f32 = 0.577_350_26;
+        let scale_error_sigma = scale_tolerance * FRAC_1_SQRT_3;
+        Self { scale_error_sigma, cross_axis_sigma: scale_error_sigma * (2.0 / 3.0), ..self }
+    }
 }
 
 impl Default for Config {
@@ -284,14 +293,16 @@ impl Default for Config {
             // most users live; elsewhere set `gravity_mps2` to the local value (`--gravity`).
             // A wrong g reads as a bias along "up" of the rest poses.
             gravity_sigma_mps2: 0.01,
-            // Scale errors spread uniformly over ±3 % (1σ = 3 %/√3) and cross-axis sensitivities
-            // over ±2 %: the MPU-6000's initial tolerances, the widest of the flight
-            // controllers' IMUs, and the range `sim::world` draws (issue 12). Without them the
-            // two-throw calibration's ellipsoid held the truth in 34 of 200 random airframes
-            // (`offset_diag 200 random calibration`; docs/algorithms/imu-offset.md).
-            scale_error_sigma: 0.0173,
-            cross_axis_sigma: 0.0115,
+            // Set below (`with_scale_tolerance`).
+            scale_error_sigma: 0.0,
+            cross_axis_sigma: 0.0,
         }
+        // Scale errors spread uniformly over ±3 % (1σ = 3 %/√3 = 1.73 %) and cross-axis
+        // sensitivities over ±2 % (1.15 %): the MPU-6000's initial tolerances, the widest of the
+        // flight controllers' IMUs, and the range `sim::world` draws (issue 12). Without them
+        // the two-throw calibration's ellipsoid held the truth in 34 of 200 random airframes
+        // (`offset_diag 200 random calibration`; docs/algorithms/imu-offset.md).
+        .with_scale_tolerance(0.03)
     }
 }
 

@@ -163,6 +163,8 @@ registry! {
         "IMU-offset calibration done when every 95 % semi-axis is below this";
     GravityMps2 = "gravity_mps2", 1, Real, "m/s²", 9.7, 9.9, [9.80665], false,
         "local gravity for the rest poses of the calibration";
+    ImuScaleTolPct = "imu_scale_tol_pct", 1, Real, "%", 0.0, 10.0, [3.0], false,
+        "IMU scale tolerance (±); 0 for a calibrated IMU";
     MotorBidirDshot = "motor_bidir_dshot", 1, Flag, "", 0.0, 1.0, [1.0], false,
         "1: ESCs report speed (bidirectional DShot); 0: they cannot. At restart";
     RadioBaud = "radio_baud", 1, Integer, "baud", 0.0, MAX_RADIO_BAUD, [0.0], false,
@@ -425,6 +427,7 @@ impl Params {
             gravity_mps2: self.scalar(Param::GravityMps2),
             ..imu_offset::Config::default()
         }
+        .with_scale_tolerance(self.scalar(Param::ImuScaleTolPct) / 100.0)
     }
 
     /// Store an accepted calibration (the throws', or the fit of a flight with none): the
@@ -520,6 +523,23 @@ mod tests {
         }
         // Room for longer help texts and units than today's.
         assert!(largest + 24 <= protocol::MAX_FRAME_LEN, "largest reply {largest} bytes");
+    }
+
+    #[test]
+    fn the_imu_scale_tolerance_sets_the_calibrations_sensitivity_priors() {
+        let mut params = Params::default();
+        // ±3 % by default: 1σ of 1.73 % on the scale and 1.15 % across the axes.
+        let default = params.imu_offset_config();
+        assert!((default.scale_error_sigma - 0.0173).abs() < 1e-4);
+        assert!((default.cross_axis_sigma - 0.0115).abs() < 1e-4);
+        // A calibrated IMU: no sensitivity prior at all.
+        params.set(Param::ImuScaleTolPct as usize, &[0.0]).unwrap();
+        let calibrated = params.imu_offset_config();
+        assert_eq!((calibrated.scale_error_sigma, calibrated.cross_axis_sigma), (0.0, 0.0));
+        assert_eq!(calibrated.sensitivity_offset_sigma(), 0.0);
+        // Beyond 10 % is refused and changes nothing.
+        assert!(params.set(Param::ImuScaleTolPct as usize, &[12.0]).is_err());
+        assert_eq!(params.imu_offset_config(), calibrated);
     }
 
     #[test]
