@@ -100,8 +100,9 @@
 //! ellipsoid's semi-axes are `√(λᵢ χ²₃(0.95))` as for the calibration. The error is mostly the
 //! model's (drag, the IMU's scale errors), not white noise: the residuals are taken as correlated
 //! over [`RESIDUAL_CORRELATION_S`] (not the 20 Hz filter's 23 ms), and the sensitivity errors,
-//! which the fit cannot see, add a 1σ of [`Config::sensitivity_offset_sigma`] `|r̂|` per axis. With both the
-//! truth lies inside the ellipsoid in about 95 % of random worlds (was 3 % with the filter's
+//! which the fit cannot see, add a 1σ of [`Config::sensitivity_offset_sigma`] `|r̂|` per axis
+//! (at the defaults' ±3 %: the fit does not read the board's `imu_scale_tol_pct` yet). With both
+//! the truth lies inside the ellipsoid in about 95 % of random worlds (was 3 % with the filter's
 //! correlation alone; docs/algorithms/imu-offset.md). The verdict uses the calibration's 2 mm
 //! limit, which an honest ellipsoid rarely meets in one throw (the sensitivity term alone is
 //! 2.3 mm at `|r| = 28 mm`, the random airframes' median).
@@ -138,8 +139,8 @@ pub const USABLE_SEMI_AXIS_M: f32 = 0.005;
 /// How long the fit's residuals stay correlated, s: what the model leaves out (the error of the
 /// navigation's velocity and attitude that the drag is modelled on, gusts) changes with the
 /// throw's speed and attitude over a fraction of a second, not over the 20 Hz filter's
-/// 23 ms. With it, and [`Config::sensitivity_offset_sigma`], the truth lies inside the 95 % ellipsoid in
-/// about 95 % of random worlds (chosen on seeds 1–200 of `offset_diag` for the drag polynomial
+/// 23 ms. With it, and [`Config::sensitivity_offset_sigma`], the truth lies inside the 95 %
+/// ellipsoid in about 95 % of random worlds (chosen on seeds 1–200 of `offset_diag` for the drag polynomial
 /// in time, re-checked for the drag on the velocity: 188 of 200, and on 1,000:
 /// docs/algorithms/imu-offset.md).
 pub const RESIDUAL_CORRELATION_S: f32 = 0.2;
