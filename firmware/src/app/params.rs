@@ -160,7 +160,7 @@ registry! {
     ExcitationStepCmd = "excitation_step_cmd", 1, Real, "", 0.2, 0.8, [0.5], false,
         "identification: command of each motor's pulse (0 to 1)";
     CalMaxSemiAxisMm = "cal_max_semi_axis_mm", 1, Real, "mm", 0.5, 20.0, [2.0], false,
-        "IMU-offset calibration done when every 95 % semi-axis is below this";
+        "calibration done when the throws' 95 % semi-axes are all below this";
     GravityMps2 = "gravity_mps2", 1, Real, "m/s²", 9.7, 9.9, [9.80665], false,
         "local gravity for the rest poses of the calibration";
     ImuScaleTolPct = "imu_scale_tol_pct", 1, Real, "%", 0.0, 10.0, [3.0], false,
