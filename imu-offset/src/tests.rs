@@ -22,7 +22,7 @@ use flight::testing::throws::ThrowSpec;
 /// and the drag's. The defaults' sensitivity priors are tested on the simulator's IMU, which has
 /// the errors (`tests/tests/imu_offset_calibration.rs`).
 fn synthetic_imu() -> Config {
-    Config { scale_error_sigma: 0.0, cross_axis_sigma: 0.0, ..Config::default() }
+    Config::default().with_scale_tolerance(0.0)
 }
 
 fn principal_axes() -> UnitQuaternion<f64> {

@@ -62,8 +62,7 @@ fn the_ellipsoid_holds_the_truth_on_imus_with_scale_and_cross_axis_errors() {
     use imu_offset::Config;
     use sim::calibration::{fit_with, Session};
     use sim::world::{random_world_case, Aspect};
-    let calibrated_imu =
-        Config { scale_error_sigma: 0.0, cross_axis_sigma: 0.0, ..Config::default() };
+    let calibrated_imu = Config::default().with_scale_tolerance(0.0);
     let results = sim::stats::run_seeds(40, 1, 2, &|_| {}, |seed| {
         let (airframe, _) = random_world_case(seed, &Aspect::ALL);
         let session = Session::on_airframe(seed, &airframe);

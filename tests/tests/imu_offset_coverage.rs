@@ -157,8 +157,7 @@ fn fit_one(index: u64, airframes: &[Airframe]) -> Fit {
         // These airframes' IMUs scale exactly, and the fit is told so: the figures here are the
         // physics' (drag, noise, bias); the defaults' sensitivity priors are tested on IMUs that
         // have the errors (`imu_offset_calibration.rs`).
-        let exact_imu =
-            Config { scale_error_sigma: 0.0, cross_axis_sigma: 0.0, ..Config::default() };
+        let exact_imu = Config::default().with_scale_tolerance(0.0);
         let mut fitter = BatchFitter::new(Config { model, drag_model, ..exact_imu });
         for log in &logs {
             let found = fitter.add_log(log, RATE_HZ).expect("a valid log");
