@@ -202,7 +202,7 @@ mod app {
         step_ring: StepRing = StepRing::new(),
         ep_memory: [u32; EP_MEMORY_WORDS] = [0; EP_MEMORY_WORDS],
         usb_bus: Option<UsbBusAllocator<usb::Bus>> = None,
-        uid_text: [u8; UID_HEX_CHARS] = [0; UID_HEX_CHARS],
+        uid_text: heapless::String<UID_HEX_CHARS> = heapless::String::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local, init::Monotonics) {
         // First of all, before any clock or peripheral is touched: did the previous run ask for

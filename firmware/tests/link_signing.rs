@@ -221,7 +221,7 @@ fn a_key_of_another_length_is_malformed_and_changes_nothing() {
 }
 
 fn params_index(name: &str) -> usize {
-    firmware::app::params::find(name).expect("a parameter")
+    firmware::app::params::find(name.as_bytes()).expect("a parameter")
 }
 
 /// A request whose answer was lost on the radio is asked again as the very same frame: the

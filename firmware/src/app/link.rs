@@ -528,7 +528,7 @@ impl LinkServer {
             Request::GetParam(reference) => {
                 let index = match &reference {
                     ParamRef::Index(index) => Some(usize::from(*index)),
-                    ParamRef::Name(name) => params::find(name),
+                    ParamRef::Name(name) => params::find(name.as_bytes()),
                 };
                 let info = index.and_then(|i| settings.params().info(i));
                 info.map(Reply::Param).ok_or_else(|| DeviceError::UnknownParam {

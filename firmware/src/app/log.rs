@@ -1127,7 +1127,7 @@ mod tests {
         let mut sink = Memory::default();
         let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
         let mut always = Params::default();
-        always.set(super::super::params::find("log_always").unwrap(), &[1.0]).unwrap();
+        always.set(super::super::params::find(b"log_always").unwrap(), &[1.0]).unwrap();
         logger.work(&BackgroundWork::Configure(always));
         for t in 1..=10_000 {
             producer.push(step(t, false));
@@ -1138,7 +1138,7 @@ mod tests {
         }
         // A changed set is written as the part that changed.
         let mut changed = always;
-        changed.set(super::super::params::find("motor_tau_s").unwrap(), &[0.03; 8]).unwrap();
+        changed.set(super::super::params::find(b"motor_tau_s").unwrap(), &[0.03; 8]).unwrap();
         logger.work(&BackgroundWork::Configure(changed));
         logger.finish();
         assert_eq!(sink.files.len(), 1);

@@ -296,7 +296,7 @@ impl<F: NorFlash> Settings<F> {
 
     /// Set parameter `name` (validated as a whole; nothing changes on an error).
     pub fn set(&mut self, name: &str, values: &[f32]) -> Result<usize, DeviceError> {
-        let index = params::find(name)
+        let index = params::find(name.as_bytes())
             .ok_or_else(|| DeviceError::UnknownParam { name: protocol::text(name) })?;
         if self.params.set(index, values)? {
             self.generation = self.generation.wrapping_add(1);
@@ -464,7 +464,7 @@ fn decode(bytes: &[u8]) -> Result<(Params, u16), Undecodable> {
             *value = f32::from_le_bytes(reader.take_array().ok_or(Undecodable::Malformed)?);
         }
         // A parameter this firmware no longer has is ignored; one it refuses keeps its default.
-        let index = core::str::from_utf8(name).ok().and_then(params::find);
+        let index = params::find(name);
         if let Some(index) = index {
             if params.set(index, stored).is_err() {
                 rejected = rejected.saturating_add(1);

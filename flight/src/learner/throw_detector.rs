@@ -23,9 +23,15 @@
 //! 3. **Released**: the first sample in free fall. In flight, with the motors off, the
 //!    accelerometer reads only drag and the rotational terms `Ω̇×r + Ω×(Ω×r)` of its offset `r`
 //!    from the centre of gravity; a craft in the hand, caught or lying on the ground reads about
-//!    g. A sample is in free fall when its *margin* `|f| − (Ω² + |Ω̇|) r_max` is at most
+//!    g. A sample is in free fall when its *margin* `|f − f_drag| − (Ω² + |Ω̇|) r_max` is at most
 //!    [`ThrowConfig::free_fall_max_mps2`] (0.8 g), `r_max` being [`ThrowConfig::max_imu_offset_m`]
 //!    (the rotational terms' largest value for an IMU that far from the centre of gravity).
+//!    `f_drag` is the part of `f` that drag can explain: its component against the velocity
+//!    (integrated on from the push), up to the drag of the draggiest craft expected at that
+//!    speed, `g·max(s, s²)` with `s = |v| / v_t` and `v_t` its terminal speed
+//!    ([`MIN_TERMINAL_SPEED_MPS`], 7 m/s). A light frame with guards thrown at
+//!    9 m/s reads 0.9 g of drag, against the velocity, where a hand holding it reads 1 g up:
+//!    rising, the two point opposite ways, so the allowance never hides a hand.
 //!    For [`ThrowConfig::release_delay_s`] (150 ms) the motors stay off and every sample must be
 //!    in free fall, their mean margin at most [`ThrowConfig::free_fall_mean_mps2`] (0.5 g). A
 //!    sample out of free fall while the push may still be ending (within `push_end_wait_s` of
@@ -38,8 +44,8 @@
 //! What it assumes of the world, each a field of [`ThrowConfig`]: a push of 0.1–0.3 s giving at
 //! least 4 m/s, ending (taper included) within 100 ms of `|f|` falling below 20 m/s²; an IMU
 //! within 30 mm of the centre of gravity (or the stored offset, see `firmware::app::params`), so
-//! that at 1,000 °/s the rotational terms stay below 9.2 m/s²; drag below 2 m/s² at release
-//! speeds (under the 0.5 g mean limit); spins up to 1,000 °/s. Refused: shakes in the hand (their
+//! that at 1,000 °/s the rotational terms stay below 9.2 m/s²; a terminal speed of at least
+//! 7 m/s (drag along the velocity, wind slow beside the throw); spins up to 1,000 °/s. Refused: shakes in the hand (their
 //! speed stays below 4 m/s or they never fall freely for 150 ms), drops onto a bench (no push
 //! above 20 m/s² precedes the fall), walking or running with the craft, catches within the
 //! delay. This module's tests and `tests/tests/throw_release.rs` try each of these.
@@ -53,6 +59,12 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// hand's tremor and a walk's bobbing (1–2 Hz), short enough to follow the craft being turned
 /// over in the hand before a throw.
 pub const REST_GRAVITY_TAU_S: f32 = 0.2;
+
+/// Lowest terminal speed of a craft falling in any attitude, m/s: the free-fall check allows a
+/// specific force against the velocity up to `g·max(s, s²)`, `s = |v| / v_t` (drag linear or
+/// quadratic in speed). Racing frames fall at 20–30 m/s, light frames with ducts at 8–12 m/s;
+/// the randomised world's draggiest craft at 7.3 m/s (`sim::world`, aspect `air`).
+pub const MIN_TERMINAL_SPEED_MPS: f32 = 7.0;
 
 /// Samples whose `|f|` is within this fraction of g count for the gravity direction while
 /// waiting (held or carried; not a free fall, not a push), dimensionless.
@@ -201,15 +213,23 @@ impl ThrowDetector {
         self.calm_required = false;
     }
 
-    /// The free-fall margin of a sample: `|f|` less what the rotation can explain at the IMU,
-    /// m/s² (see the module doc).
-    pub fn free_fall_margin_mps2(
-        &self,
-        acc_mps2: f32,
-        rate_rad_s: f32,
-        rate_dot_rad_s2: f32,
-    ) -> f32 {
-        acc_mps2 - (rate_rad_s * rate_rad_s + rate_dot_rad_s2) * self.config.max_imu_offset_m
+    /// The free-fall margin of a sample: `|f|` less what drag and the rotation can explain at
+    /// the IMU, m/s² (see the module doc). `f_start` is the specific force in the body's axes at
+    /// the push's start, as the velocity is.
+    fn free_fall_margin_mps2(&self, f_start: Vector3<f32>, rate: f32, rate_dot: f32) -> f32 {
+        let c = &self.config;
+        // The drag the draggiest craft has at this speed, and the part of `f` it explains.
+        let v = self.push.velocity_mps;
+        let speed = norm(v);
+        let s = speed / MIN_TERMINAL_SPEED_MPS;
+        let drag_max = c.g_mps2 * s.max(s * s);
+        let mut unexplained = f_start;
+        if speed > 0.0 {
+            // `max`/`min`, not `clamp`: its panic message would link float formatting (15 KB).
+            let drag = (-f_start.dot(&v) / speed).max(0.0).min(drag_max);
+            unexplained += v * (drag / speed);
+        }
+        norm(unexplained) - (rate * rate + rate_dot) * c.max_imu_offset_m
     }
 
     /// One sample: specific force `acc_mps2` and body rate `gyro_rad_s` (IMU axes), `dt_s` since
@@ -218,8 +238,11 @@ impl ThrowDetector {
     pub fn update(&mut self, acc_mps2: [f32; 3], gyro_rad_s: [f32; 3], dt_s: f32) -> ThrowEvent {
         let f = Vector3::from(acc_mps2);
         let w = Vector3::from(gyro_rad_s);
-        let finite =
-            f.iter().chain(w.iter()).all(|x| x.is_finite()) && dt_s > 0.0 && dt_s.is_finite();
+        let acc = norm(f);
+        let rate = norm(w);
+        // A NaN or an infinity in any axis makes its norm non-finite (as would a finite value
+        // above 1e19, which no IMU reads).
+        let finite = acc.is_finite() && rate.is_finite() && dt_s > 0.0 && dt_s.is_finite();
         if !finite {
             self.last_gyro_rad_s = None;
             return match self.state {
@@ -228,15 +251,21 @@ impl ThrowDetector {
             };
         }
         let c = self.config;
-        let acc = norm(f);
-        let rate = norm(w);
         let rate_dot = self.last_gyro_rad_s.map_or(0.0, |last| norm(w - last) / dt_s);
         self.last_gyro_rad_s = Some(w);
         let pushing = acc >= c.acc_high_mps2;
         if !pushing {
             self.calm_required = false;
         }
-        let margin = self.free_fall_margin_mps2(acc, rate, rate_dot);
+        // Pushed or falling: the push's account goes on (velocity and attitude), and the sample
+        // is judged against it. (A release may still prove premature: the account is the push's.)
+        let margin = match self.state {
+            ThrowState::Throwing { .. } | ThrowState::Released { .. } => {
+                let f_start = self.integrate_push(f, w, dt_s);
+                self.free_fall_margin_mps2(f_start, rate, rate_dot)
+            }
+            ThrowState::Waiting | ThrowState::Thrown => f32::INFINITY,
+        };
         let free = !pushing && margin <= c.free_fall_max_mps2;
         match self.state {
             ThrowState::Waiting => {
@@ -256,7 +285,6 @@ impl ThrowDetector {
             }
             ThrowState::Thrown => ThrowEvent::None,
             ThrowState::Throwing { ending_s, .. } => {
-                self.integrate_push(f, w, dt_s);
                 let speed_mps = norm(self.push.velocity_mps);
                 let elapsed_s = self.push.elapsed_s;
                 let just_ended = !pushing && ending_s.is_none();
@@ -298,10 +326,6 @@ impl ThrowDetector {
             }
             ThrowState::Released { elapsed_s, sum_margin_mps2, samples, since_push_end_s } => {
                 let since_push_end_s = since_push_end_s + dt_s;
-                if since_push_end_s <= c.push_end_wait_s {
-                    // The release may still prove premature: keep the push's account.
-                    self.integrate_push(f, w, dt_s);
-                }
                 if !free {
                     return if since_push_end_s <= c.push_end_wait_s {
                         // The hand's last touch: the release was not yet.
@@ -356,8 +380,9 @@ impl ThrowDetector {
         }
     }
 
-    /// One sample of the push: the body's turn and the velocity gained, gravity removed.
-    fn integrate_push(&mut self, f: Vector3<f32>, w: Vector3<f32>, dt_s: f32) {
+    /// One sample of the push: the body's turn and the velocity gained, gravity removed. Returns
+    /// the specific force in the body's axes at the push's start.
+    fn integrate_push(&mut self, f: Vector3<f32>, w: Vector3<f32>, dt_s: f32) -> Vector3<f32> {
         let rest = norm(self.rest_mps2);
         let f_rest = if rest > 0.0 {
             self.rest_mps2 * (self.config.g_mps2 / rest)
@@ -367,9 +392,11 @@ impl ThrowDetector {
         // The sample's force in the start attitude, at the middle of the turn over `dt_s`.
         let half_turn = crate::math::rotation_from_scaled_axis(&(w * (0.5 * dt_s)));
         let q_mid = self.push.q_start_body * half_turn;
-        self.push.velocity_mps += (q_mid * f - f_rest) * dt_s;
+        let f_start = q_mid * f;
+        self.push.velocity_mps += (f_start - f_rest) * dt_s;
         self.push.q_start_body = q_mid * half_turn;
         self.push.elapsed_s += dt_s;
+        f_start
     }
 }
 
@@ -522,6 +549,57 @@ mod tests {
                 seen.iter().any(|(_, e)| *e == ThrowEvent::Thrown),
                 "push {push_s} s, {sideways_deg}° from vertical: {seen:?}"
             );
+        }
+    }
+
+    #[test]
+    fn draggy_crafts_thrown_hard_are_accepted() {
+        // Terminal speeds of 7.5–12 m/s (light frames with ducts: 0.7–1.4 g of drag at 9 m/s),
+        // thrown up or lobbed at 5–9.5 m/s. The drag is against the velocity; a hand holds the
+        // craft up.
+        let spin = V3::new(150.0, -80.0, 40.0).map(f64::to_radians);
+        for terminal_mps in [7.5, 9.0, 12.0] {
+            for (speed_mps, sideways_deg) in [(5.0, 0.0_f64), (7.0, 30.0), (9.5, 0.0), (9.0, 60.0)]
+            {
+                let mut spec = throw(0.15, 0.02, speed_mps, sideways_deg.to_radians(), spin, 0.0);
+                spec.drag_per_m = G_MPS2 / (terminal_mps * terminal_mps);
+                let case = std::format!(
+                    "terminal {terminal_mps} m/s, thrown at {speed_mps} m/s {sideways_deg}° off \
+                     vertical"
+                );
+                let mut d = ThrowDetector::new(ThrowConfig::default());
+                let seen = events(&mut d, &at_control_rate(&spec));
+                let thrown = seen.iter().find(|(_, e)| *e == ThrowEvent::Thrown);
+                let (t, _) = thrown.unwrap_or_else(|| panic!("not thrown: {case}: {seen:?}"));
+                // Promptly: the release delay after the push, not near the apex.
+                let after_s = t - push_end_s(&spec);
+                assert!(after_s <= 0.2, "{after_s} s after the push ended: {case}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_push_the_hand_stops_and_holds_is_never_a_throw() {
+        // Up at 4 g to 5–9 m/s, stopped by the hand over 50–200 ms, held: the stop reads against
+        // the velocity as drag would, but more than any craft's drag at that speed, and the hold
+        // reads 1 g up.
+        for speed_mps in [5.0, 7.0, 9.0] {
+            for stop_s in [0.05, 0.1, 0.2] {
+                let push_s = speed_mps / (4.0 * G_MPS2);
+                let samples = moved(2.0, |t| {
+                    let t = t - 0.5;
+                    if t < 0.0 {
+                        V3::zeros()
+                    } else if t < push_s {
+                        V3::new(0.0, 0.0, -4.0 * G_MPS2)
+                    } else if t < push_s + stop_s {
+                        V3::new(0.0, 0.0, speed_mps / stop_s)
+                    } else {
+                        V3::zeros()
+                    }
+                });
+                never_thrown(&samples, &std::format!("{speed_mps} m/s stopped in {stop_s} s"));
+            }
         }
     }
 
