@@ -677,7 +677,16 @@ impl Pilot {
             _ if self.fixes_lost && self.alignment.yaw_rad().is_some() => {
                 Guidance::Level { yaw_rad, velocity_ned_mps: nav.velocity_ned_mps }
             }
-            _ => Guidance::Level { yaw_rad, velocity_ned_mps: self.dead_reckoned_velocity() },
+            // Not aligned: the horizontal velocity by dead reckoning, the vertical one from the
+            // fixes when there are fixes (down is gravity's in both worlds, whatever their yaw),
+            // so a craft whose heading is not yet known holds its height instead of sinking.
+            _ => {
+                let mut velocity_ned_mps = self.dead_reckoned_velocity();
+                if nav.has_fix {
+                    velocity_ned_mps.z = nav.velocity_ned_mps.z;
+                }
+                Guidance::Level { yaw_rad, velocity_ned_mps }
+            }
         }
     }
 
