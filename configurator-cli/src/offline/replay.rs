@@ -53,7 +53,7 @@ pub fn parse_override(text: &str) -> Result<Override, InputError> {
         .ok_or_else(|| InputError(format!("--set `{text}`: expected NAME=VALUE")))?;
     let name = name.trim();
     let index =
-        find(name).ok_or_else(|| InputError(format!("--set: unknown parameter `{name}`")))?;
+        find(name.as_bytes()).ok_or_else(|| InputError(format!("--set: unknown parameter `{name}`")))?;
     let values = value
         .split(',')
         .map(|v| {
