@@ -52,8 +52,8 @@ pub fn parse_override(text: &str) -> Result<Override, InputError> {
         .split_once('=')
         .ok_or_else(|| InputError(format!("--set `{text}`: expected NAME=VALUE")))?;
     let name = name.trim();
-    let index =
-        find(name.as_bytes()).ok_or_else(|| InputError(format!("--set: unknown parameter `{name}`")))?;
+    let index = find(name.as_bytes())
+        .ok_or_else(|| InputError(format!("--set: unknown parameter `{name}`")))?;
     let values = value
         .split(',')
         .map(|v| {
