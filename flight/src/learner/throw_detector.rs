@@ -41,11 +41,12 @@
 //!    waiting, nothing spins.
 //! 4. **Thrown**: the release delay passed in free fall: the excitation may start.
 //!
-//! What it assumes of the world, each a field of [`ThrowConfig`]: a push of 0.1–0.3 s giving at
-//! least 4 m/s, ending (taper included) within 100 ms of `|f|` falling below 20 m/s²; an IMU
-//! within 30 mm of the centre of gravity (or the stored offset, see `firmware::app::params`), so
-//! that at 1,000 °/s the rotational terms stay below 9.2 m/s²; a terminal speed of at least
-//! 7 m/s (drag along the velocity, wind slow beside the throw); spins up to 1,000 °/s. Refused: shakes in the hand (their
+//! What it assumes of the world, each a field of [`ThrowConfig`] but the drag: a push of
+//! 0.1–0.3 s giving at least 4 m/s, ending (taper included) within 100 ms of `|f|` falling below
+//! 20 m/s²; an IMU within 30 mm of the centre of gravity (or the stored offset, see
+//! `firmware::app::params`), so that at 1,000 °/s the rotational terms stay below 9.2 m/s²; a
+//! terminal speed of at least 7 m/s ([`MIN_TERMINAL_SPEED_MPS`]; drag against the velocity, the
+//! wind slow beside the throw); spins up to 1,000 °/s. Refused: shakes in the hand (their
 //! speed stays below 4 m/s or they never fall freely for 150 ms), drops onto a bench (no push
 //! above 20 m/s² precedes the fall), walking or running with the craft, catches within the
 //! delay. This module's tests and `tests/tests/throw_release.rs` try each of these.
