@@ -19,6 +19,8 @@ use imu_offset::{
 use nalgebra::Vector3;
 use serde_json::json;
 
+use firmware::app::params::Param;
+
 use super::InputError;
 
 /// Arguments of `fit imu-offset`.
@@ -42,6 +44,12 @@ pub struct Args {
     /// halves the error: median 0.47 → 0.23 mm).
     #[arg(long)]
     pub no_drag: bool,
+    /// The IMU's scale tolerance, ± % (as the board's parameter `imu_scale_tol_pct`: 3 by
+    /// default, 0 for a calibrated IMU; cross-axis errors are taken as two thirds of it). Its
+    /// sensitivity errors are what no throw reveals: they widen the ellipsoid by about this
+    /// fraction of the offset and make the rest poses pin the bias less.
+    #[arg(long, value_name = "PCT", value_parser = parse_scale_tolerance)]
+    pub imu_scale_tol_pct: Option<f32>,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
@@ -67,6 +75,17 @@ fn parse_gravity(text: &str) -> Result<f32, String> {
             GRAVITY_RANGE_MPS2.start(),
             GRAVITY_RANGE_MPS2.end()
         ))
+    }
+}
+
+/// `--imu-scale-tol-pct`, within the board's range for `imu_scale_tol_pct`.
+fn parse_scale_tolerance(text: &str) -> Result<f32, String> {
+    let spec = Param::ImuScaleTolPct.spec();
+    let value: f32 = text.trim().parse().map_err(|_| format!("`{text}` is not a number (%)"))?;
+    if (spec.min..=spec.max).contains(&value) {
+        Ok(value)
+    } else {
+        Err(format!("{value} % is outside {}–{} %", spec.min, spec.max))
     }
 }
 
@@ -106,6 +125,10 @@ pub fn run(args: &Args) -> Result<String, InputError> {
     let drag_model = if args.no_drag { DragModel::Ignored } else { DragModel::VerticalQuadratic };
     let defaults = Config::default();
     let mut config = Config { model, drag_model, ..defaults };
+    if let Some(pct) = args.imu_scale_tol_pct {
+        // The board maps its parameter the same way (`Params::imu_offset_config`).
+        config = config.with_scale_tolerance(pct / 100.0);
+    }
     if let Some(gravity_mps2) = args.gravity {
         // The user knows their local gravity: it is then known to about 1 mm/s².
         config.gravity_mps2 = gravity_mps2;
@@ -359,7 +382,15 @@ mod tests {
 
     /// The default fit (offset, bias and drag) of `logs`, as text or JSON.
     fn fit_args(logs: Vec<std::path::PathBuf>, json: bool) -> Args {
-        Args { bias: false, offset_only: false, gravity: None, no_drag: false, json, logs }
+        Args {
+            bias: false,
+            offset_only: false,
+            gravity: None,
+            no_drag: false,
+            imu_scale_tol_pct: None,
+            json,
+            logs,
+        }
     }
 
     fn r_true() -> Vector3<f64> {
@@ -484,6 +515,7 @@ mod tests {
             offset_only: false,
             gravity: None,
             no_drag: false,
+            imu_scale_tol_pct: None,
             json: false,
             logs,
         })
@@ -491,6 +523,32 @@ mod tests {
         assert!(out.contains(" mm"), "{out}");
         assert!(out.contains("Advice: well determined"), "{out}");
         assert!(out.contains("throw_b.csv"), "{out}");
+    }
+
+    #[test]
+    fn a_calibrated_imu_narrows_the_ellipsoid_and_a_tolerance_out_of_range_is_refused() {
+        // The synthetic throws scale exactly. With the default ±3 % the ellipsoid carries the
+        // sensitivity errors no throw reveals (3.1 % of |r| = 18 mm, 1σ per axis); with 0 % it
+        // does not, and the estimate stays as accurate.
+        let logs = two_logs("scale", 2000.0);
+        let fit = |pct: Option<f32>| {
+            let out = run(&Args { imu_scale_tol_pct: pct, ..fit_args(logs.clone(), true) });
+            let v: serde_json::Value = serde_json::from_str(&out.unwrap()).unwrap();
+            let largest_m = v["ci95_semi_axes_m"][0].as_f64().unwrap();
+            ((parse_vec3(&v["r_imu_m"]) - r_true()).norm(), largest_m)
+        };
+        let (default_err_m, default_axis_m) = fit(None);
+        let (calibrated_err_m, calibrated_axis_m) = fit(Some(0.0));
+        assert!(
+            calibrated_axis_m < 0.8 * default_axis_m,
+            "largest semi-axis {calibrated_axis_m} m with 0 %, {default_axis_m} m with ±3 %"
+        );
+        assert!(calibrated_err_m < 0.001 && default_err_m < 0.001);
+        assert_eq!(fit(Some(3.0)), (default_err_m, default_axis_m), "3 % is the default");
+        for bad in ["12", "-1", "three"] {
+            assert!(parse_scale_tolerance(bad).is_err(), "`{bad}` accepted");
+        }
+        assert_eq!(parse_scale_tolerance(" 0.5 "), Ok(0.5));
     }
 
     #[test]
