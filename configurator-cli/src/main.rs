@@ -1692,7 +1692,7 @@ fn watch_throws(client: &mut Client, count: u8) -> Result<(), Failure> {
             let r_mm = offset.r_imu_m.map(|x| x * 1000.0);
             let largest_mm = offset.ci95_semi_axes_m[0] * 1000.0;
             let verdict = if offset.well_determined {
-                "well determined".to_string()
+                report::well_determined_text(offset.ci95_semi_axes_m[0])
             } else {
                 report::advice_text(&offset.advice)
             };

@@ -230,7 +230,7 @@ pub fn imu_offset_text(offset: &protocol::ImuOffsetStatus, stored: Option<[f32; 
     };
     if offset.estimated {
         let verdict = match (offset.well_determined, stored.is_some()) {
-            (true, _) => "well determined".to_string(),
+            (true, _) => well_determined_text(offset.ci95_semi_axes_m[0]),
             (false, true) => "not well determined (the stored calibration is used)".to_string(),
             (false, false) => format!("not yet well determined: {}", advice_text(&offset.advice)),
         };
@@ -677,13 +677,28 @@ fn origin_text(origin: protocol::ConfigOrigin) -> String {
     }
 }
 
+/// "well determined", with why a reported semi-axis may exceed the limit the verdict names
+/// (`cal_max_semi_axis_mm`, 2 mm by default): the limit judges what the throws leave uncertain,
+/// and the reported ellipsoid also holds the IMU's sensitivity errors (`imu_scale_tol_pct`),
+/// which no throw reduces.
+pub fn well_determined_text(largest_semi_axis_m: f32) -> String {
+    let default_limit_mm = firmware::app::params::Param::CalMaxSemiAxisMm.spec().default[0];
+    if largest_semi_axis_m * 1000.0 > default_limit_mm {
+        "well determined (by the throws; the semi-axes also hold the IMU's scale tolerance, \
+         imu_scale_tol_pct, which no throw reduces)"
+            .to_string()
+    } else {
+        "well determined".to_string()
+    }
+}
+
 /// One calibration throw in words: the free fall, the estimate, its ellipsoid and the advice.
 pub fn calibration_throw_text(throw: &protocol::CalibrationThrow) -> String {
     let estimate = &throw.estimate;
     let r_mm = estimate.r_imu_m.map(|x| x * 1000.0);
     let axes_mm = estimate.ci95_semi_axes_m.map(|x| x * 1000.0);
     let verdict = if estimate.well_determined {
-        "well determined".to_string()
+        well_determined_text(estimate.ci95_semi_axes_m[0])
     } else if !estimate.estimated {
         "no estimate yet: throw again, spinning".to_string()
     } else {
@@ -710,8 +725,15 @@ pub fn calibration_rest_text(estimate: &protocol::ImuOffsetStatus) -> String {
     let axes_mm = estimate.ci95_semi_axes_m.map(|x| x * 1000.0);
     format!(
         "  held still after throw {}: IMU offset ({:+.2}, {:+.2}, {:+.2}) mm, 95 % semi-axes \
-         {:.2}, {:.2}, {:.2} mm: well determined",
-        estimate.throws, r_mm[0], r_mm[1], r_mm[2], axes_mm[0], axes_mm[1], axes_mm[2]
+         {:.2}, {:.2}, {:.2} mm: {}",
+        estimate.throws,
+        r_mm[0],
+        r_mm[1],
+        r_mm[2],
+        axes_mm[0],
+        axes_mm[1],
+        axes_mm[2],
+        well_determined_text(estimate.ci95_semi_axes_m[0])
     )
 }
 
@@ -979,6 +1001,16 @@ pub fn link_security_json(security: &protocol::LinkSecurity, signing: bool) -> s
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_well_determined_offset_beyond_the_limit_says_why() {
+        // The walkthrough's first throw: 95 % semi-axes 2.19, 1.89, 1.81 mm, judged well
+        // determined on the throws' part (the rest is the ±3 % sensitivity sphere at 18 mm).
+        let beyond = well_determined_text(0.00219);
+        assert!(beyond.starts_with("well determined (by the throws"), "{beyond}");
+        assert!(beyond.contains("imu_scale_tol_pct"), "{beyond}");
+        assert_eq!(well_determined_text(0.0015), "well determined");
+    }
 
     fn exciting_quad(block: u8) -> LearnerTelemetry {
         let mut learner = LearnerTelemetry {
