@@ -216,12 +216,17 @@ impl ThrowDetector {
 
     /// The free-fall margin of a sample: `|f|` less what drag and the rotation can explain at
     /// the IMU, m/s² (see the module doc). `f_start` is the specific force in the body's axes at
-    /// the push's start, as the velocity is.
-    fn free_fall_margin_mps2(&self, f_start: Vector3<f32>, rate: f32, rate_dot: f32) -> f32 {
+    /// the push's start, as the velocity is; `speed` the velocity's norm, m/s.
+    fn free_fall_margin_mps2(
+        &self,
+        f_start: Vector3<f32>,
+        speed: f32,
+        rate: f32,
+        rate_dot: f32,
+    ) -> f32 {
         let c = &self.config;
         // The drag the draggiest craft has at this speed, and the part of `f` it explains.
         let v = self.push.velocity_mps;
-        let speed = norm(v);
         let s = speed / MIN_TERMINAL_SPEED_MPS;
         let drag_max = c.g_mps2 * s.max(s * s);
         let mut unexplained = f_start;
@@ -260,12 +265,13 @@ impl ThrowDetector {
         }
         // Pushed or falling: the push's account goes on (velocity and attitude), and the sample
         // is judged against it. (A release may still prove premature: the account is the push's.)
-        let margin = match self.state {
+        let (margin, speed_mps) = match self.state {
             ThrowState::Throwing { .. } | ThrowState::Released { .. } => {
                 let f_start = self.integrate_push(f, w, dt_s);
-                self.free_fall_margin_mps2(f_start, rate, rate_dot)
+                let speed_mps = norm(self.push.velocity_mps);
+                (self.free_fall_margin_mps2(f_start, speed_mps, rate, rate_dot), speed_mps)
             }
-            ThrowState::Waiting | ThrowState::Thrown => f32::INFINITY,
+            ThrowState::Waiting | ThrowState::Thrown => (f32::INFINITY, 0.0),
         };
         let free = !pushing && margin <= c.free_fall_max_mps2;
         match self.state {
@@ -286,7 +292,6 @@ impl ThrowDetector {
             }
             ThrowState::Thrown => ThrowEvent::None,
             ThrowState::Throwing { ending_s, .. } => {
-                let speed_mps = norm(self.push.velocity_mps);
                 let elapsed_s = self.push.elapsed_s;
                 let just_ended = !pushing && ending_s.is_none();
                 let ending_s = match (pushing, ending_s) {
@@ -331,7 +336,7 @@ impl ThrowDetector {
                     return if since_push_end_s <= c.push_end_wait_s {
                         // The hand's last touch: the release was not yet.
                         self.state = ThrowState::Throwing {
-                            speed_mps: norm(self.push.velocity_mps),
+                            speed_mps,
                             elapsed_s: self.push.elapsed_s,
                             ending_s: (!pushing).then_some(since_push_end_s),
                         };
