@@ -243,6 +243,73 @@ fn primed_learner(m: usize) -> Learner {
     learner
 }
 
+/// Samples measured one by one of the learner without speed telemetry: a whole cycle of its
+/// round-robin work.
+#[cfg(feature = "no-speed")]
+const NO_SPEED_MEASURED_SAMPLES: usize = 13;
+
+/// Samples around the one on which every motor has been pulsed and all are back below a pulse
+/// (motor 3's pulse ends 0.225 s in, `synthetic_sample`, seen a few samples later through the
+/// learner's command delay): the learner chooses τ and releases every held sample to the
+/// effectiveness regression. Measured as one region.
+#[cfg(feature = "no-speed")]
+const NO_SPEED_END_SAMPLES: core::ops::Range<usize> = 445..461;
+
+/// Samples of pulses the learner without speed telemetry is primed with (0.2 s: three motors
+/// pulsed, the lag regressions learning).
+#[cfg(feature = "no-speed")]
+const NO_SPEED_PRIMING_SAMPLES: usize = 400;
+
+/// The learner without speed telemetry (`flight::learner::no_speed`, issue 32) in the middle of
+/// its excitation: the lag regressions and the held samples, each sample measured on its own.
+#[cfg(feature = "no-speed")]
+fn no_speed_regions() {
+    use flight::learner::LearnerSlot;
+    static mut SLOT: LearnerSlot = LearnerSlot::empty();
+    // SAFETY: the only reference to the slot, in this single-threaded harness.
+    let slot = unsafe { &mut *core::ptr::addr_of_mut!(SLOT) };
+    let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
+    let Ok(learner) = slot.build(4, config) else { fail("learner without speeds") };
+    let mut rate = [7.0f32, 7.0, 1.7];
+    for n in 0..NO_SPEED_END_SAMPLES.start {
+        let ((gyro, accel, commands, speeds), angular) =
+            synthetic_sample(4, 0.7, n as f32 / 2000.0, rate);
+        let measured = (NO_SPEED_PRIMING_SAMPLES
+            ..NO_SPEED_PRIMING_SAMPLES + NO_SPEED_MEASURED_SAMPLES)
+            .contains(&n);
+        if !measured {
+            learner.update(gyro, accel, &commands, &speeds);
+        } else {
+            let mut state = (&mut *learner, gyro, accel, commands, speeds);
+            region(&mut state, |(learner, gyro, accel, commands, speeds)| {
+                learner.update(black_box(*gyro), *accel, commands, speeds)
+            });
+        }
+        for k in 0..3 {
+            rate[k] += angular[k] / 2000.0;
+        }
+    }
+    let end: [(Sample, [f32; 3]); NO_SPEED_END_SAMPLES.end - NO_SPEED_END_SAMPLES.start] =
+        core::array::from_fn(|k| {
+            let n = NO_SPEED_END_SAMPLES.start + k;
+            synthetic_sample(4, 0.7, n as f32 / 2000.0, rate)
+        });
+    let mut state = (&mut *learner, end);
+    region(&mut state, |(learner, end)| {
+        for ((gyro, accel, commands, speeds), _) in end.iter() {
+            learner.update(black_box(*gyro), *accel, commands, speeds);
+        }
+    });
+    if learner.model().samples == 0 {
+        fail("no held sample was released at the excitation's end");
+    }
+    hprintln!(
+        "bench-m7 check: lag without speeds {} ms, {} samples learned",
+        1000.0 * learner.model().tau_max_s(),
+        learner.model().samples
+    );
+}
+
 /// The control rate, Hz, and step, s.
 const RATE_HZ: f32 = 2000.0;
 const DT_S: f32 = 1.0 / RATE_HZ;
@@ -608,6 +675,16 @@ fn main() -> ! {
     for m in BOUNDED_MOTOR_COUNTS {
         hprintln!("bench-m7 region: thrust-axis bounded search m={} (one motor capped)", m);
     }
+    #[cfg(feature = "no-speed")]
+    for k in 1..=NO_SPEED_MEASURED_SAMPLES {
+        hprintln!("bench-m7 region: learner step m=4, no speed telemetry, sample {}", k);
+    }
+    #[cfg(feature = "no-speed")]
+    hprintln!(
+        "bench-m7 region: learner m=4, no speed telemetry: {} samples around the excitation's end \
+         (τ chosen, every held sample released to the effectiveness regression)",
+        NO_SPEED_END_SAMPLES.len()
+    );
     hprintln!("bench-m7 region: imu-offset RLS update");
     hprintln!("bench-m7 region: imu-offset estimator per sample, held");
     hprintln!("bench-m7 region: imu-offset estimator per sample, free fall");
@@ -702,6 +779,9 @@ fn main() -> ! {
             _ => fail("bounded search did not run or found nothing"),
         }
     }
+
+    #[cfg(feature = "no-speed")]
+    no_speed_regions();
 
     let sample = AlignedSample {
         index: 7,

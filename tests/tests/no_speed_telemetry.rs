@@ -54,22 +54,27 @@ fn without_speed_telemetry_the_lag_is_found_from_the_rotation_and_the_craft_hold
 
 #[test]
 fn without_speed_telemetry_random_airframes_hover() {
-    // Random worlds 1–9 (4–8 motors, every aspect randomised: throws, hands, poses, IMUs, ESC
-    // curves, lags, air) without telemetry: all hold within 0.3 m today, with worst-motor τ
-    // errors of 2–20 ms. One may hover loosely.
-    let mut held = 0;
-    for seed in 1..=9 {
+    // Random worlds 1–30 (4–8 motors, every aspect randomised: throws, hands, poses, IMUs, ESC
+    // curves, lags, air) without telemetry. Over 1,000 such worlds 96.4 % hover and 94.3 % hold
+    // within 0.3 m (`fly monte-carlo --world random --no-speed-telemetry`, docs/benchmarks.md);
+    // at those rates 30 worlds give 5 or more that never hover with probability 0.4 %, and 6 or
+    // more that do not hold with 0.6 %, while a rate of 80 % fails the first bound three times
+    // in four. A fixed handful of worlds, each of which must hover, tests the seeds' luck: the
+    // 250 Hz lag regression (2026-11-28) hovers as often as the 2 kHz one did over 1,000 worlds
+    // but lost seed 7 (τ 41 ms off; 22 ms before, G1 2.7 times off, hovering loosely) and
+    // seed 8. Today 27 of these 30 hover and hold; seeds 7, 8 and 14 do not.
+    const WORLDS: u64 = 30;
+    let (mut hovered, mut held) = (0, 0);
+    for seed in 1..=WORLDS {
         let (airframe, mut config) = world::random_world_case(seed, &Aspect::ALL);
         config.speed_telemetry = false;
         let report = fly(&airframe, &config);
         let verdict = Verdict::of(&report);
         let tau_ms = report.thrust_scores_at_excitation_end.map(|s| 1e3 * s.tau_error_max_s);
         eprintln!("seed {seed}: {verdict:?}, worst τ error {tau_ms:.1?} ms");
-        assert!(
-            matches!(verdict, Verdict::Held | Verdict::HoveredLoose),
-            "seed {seed}: {verdict:?}"
-        );
+        hovered += usize::from(matches!(verdict, Verdict::Held | Verdict::HoveredLoose));
         held += usize::from(verdict == Verdict::Held);
     }
-    assert!(held >= 8, "held {held} of 9");
+    assert!(hovered >= 26, "hovered {hovered} of {WORLDS}");
+    assert!(held >= 25, "held {held} of {WORLDS}");
 }

@@ -51,18 +51,25 @@ const TARGETS: [(&str, u64); 7] = [
 /// The argument that adds the thrust-axis bounded search (the bench crate's feature of the same
 /// name, which also compiles `flight` with it, unlike the firmware).
 const BOUNDED_SEARCH_ARG: &str = "--bounded-search";
+/// The argument that adds the learner without speed telemetry (the bench crate's feature
+/// `no-speed`, which compiles `flight` with it, unlike the firmware).
+const NO_SPEED_ARG: &str = "--no-speed";
 /// Debian package that provides `qemu-system-arm`.
 const QEMU_PACKAGE: &str = "qemu-system-arm";
 
 /// Instruction counts on QEMU's Cortex-M7; prints a table. `--bounded-search` adds the
-/// thrust-axis bounded-search regions (and compiles `flight` with that feature, as the firmware
-/// does not).
+/// thrust-axis bounded-search regions and `--no-speed` the learner without speed telemetry (each
+/// compiles `flight` with its feature, as the firmware does not).
 pub fn m7(args: &[String]) -> Result<()> {
-    let mut bounded_search = false;
+    let mut features = Vec::new();
     for arg in args {
         match arg.as_str() {
-            BOUNDED_SEARCH_ARG => bounded_search = true,
-            other => bail!("bench-m7: unknown argument `{other}` (usage: cargo xtask bench-m7 [{BOUNDED_SEARCH_ARG}])"),
+            BOUNDED_SEARCH_ARG => features.push("bounded-search"),
+            NO_SPEED_ARG => features.push("no-speed"),
+            other => bail!(
+                "bench-m7: unknown argument `{other}` (usage: cargo xtask bench-m7 \
+                 [{BOUNDED_SEARCH_ARG}] [{NO_SPEED_ARG}])"
+            ),
         }
     }
     ensure_qemu()?;
@@ -80,8 +87,8 @@ pub fn m7(args: &[String]) -> Result<()> {
         .arg(&target_dir)
         .env("RUSTFLAGS", RUSTFLAGS)
         .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld");
-    if bounded_search {
-        build.args(["--features", "bounded-search"]);
+    if !features.is_empty() {
+        build.args(["--features", &features.join(",")]);
     }
     run(&mut build)?;
     let elf = target_dir.join(TARGET).join("release/bench-m7");

@@ -373,6 +373,12 @@ impl Learner {
         let fast = BiquadCoefficients::butterworth_lowpass(MOTOR_MODEL_CUTOFF_HZ, config.rate_hz)
             .map_err(LearnerError::Filter)?;
         let motor = MotorModelEstimator::new(fast, config.rate_hz, config.motor_rls);
+        #[cfg(feature = "no-speed")]
+        let lag_lowpass = BiquadCoefficients::butterworth_lowpass(
+            no_speed::LAG_LOWPASS_HZ,
+            no_speed::regression_rate_hz(config.rate_hz),
+        )
+        .map_err(LearnerError::Filter)?;
         let empty = LearnedModel {
             motors: motors as u8,
             speeds_modelled: !config.speed_telemetry,
@@ -402,7 +408,7 @@ impl Learner {
                 addr_of_mut!((*learner).command_speeds),
                 motors,
                 config.rate_hz,
-                slow,
+                lag_lowpass,
             );
             addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
