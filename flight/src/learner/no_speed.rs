@@ -40,11 +40,12 @@
 //! by the coefficients); the specific force and its regressors through `F`. The high-passes
 //! remove what varies at 0.2–2 Hz (`d`, drag, biases); the pulses carry 5–40 Hz.
 //!
-//! **At 250 Hz, a share on every sample.** Only the speed models run at the control rate
+//! **At 125 Hz, a share on every sample.** Only the speed models run at the control rate
 //! (one multiply-add per motor and candidate) and add their squares and products with the
-//! rates to sums over a period of [`LAG_REGRESSION_PERIOD_S`] (4 ms). The filters and the sums
-//! of products run once a period on its means, each candidate in turn over the next period's
-//! samples, so that every sample does the same share. The rates' side sees the difference of
+//! rates to sums over a period of [`LAG_REGRESSION_PERIOD_S`] (8 ms). The period's last sample
+//! runs the shared filters; each candidate's filters and sums of products run on the period's
+//! means in turn over the next period's other samples, at most one candidate a sample, so that
+//! every sample does about the same share. The rates' side sees the difference of
 //! two periods' mean rates, which is the angular acceleration summed over a triangle of the two
 //! periods; the integrated regressors take the same triangle (weighted sums kept beside the
 //! plain ones), so both sides see one filter. The specific force is taken one period back, where
@@ -70,9 +71,10 @@
 //! - gyro noise up to 3× the ICM-42688-P's and rotor vibration: filtered by the same 20 Hz
 //!   low-pass as the effectiveness signals.
 //!
-//! Cost (`cargo xtask bench-m7 --no-speed`, docs/benchmarks.md): the per-sample share within the
-//! learner's budget; the choice of τ and the release of the held samples at the end of the
-//! excitation are a burst. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
+//! Cost (`cargo xtask bench-m7 --no-speed`, docs/benchmarks.md): at most 10,005 Cortex-M7
+//! instructions a sample on the quad, within the learner's 12,000; the choice of τ and the
+//! release of the held samples at the end of the excitation are one burst (about 10,900 a held
+//! sample, up to 40 ms at 480 MHz), which a board could not spend inside a control step. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
 //! ≈ 120 KB. Not on the board yet: `flight`'s feature `no-speed` is off in the firmware, whose
 //! flash has no room for it.
 
@@ -125,11 +127,13 @@ pub const EFFECTIVENESS_HOLD_S: f32 = 0.85;
 pub const HELD_SAMPLES_MAX: usize = 1700;
 
 /// Period over which the lag regressions' inputs are averaged, s: the regressions run once a
-/// period (250 Hz at 2 kHz), each candidate's filters and sums in turn over the next period's
-/// samples, so every sample does the same share of the work. Six times the pulses' highest
-/// frequency (40 Hz) and twelve times the 20 Hz low-pass: the period's mean attenuates 20 Hz by
-/// 1 % (`sinc(f T)`), the same on the rates and on the regressors.
-pub const LAG_REGRESSION_PERIOD_S: f32 = 0.004;
+/// period (125 Hz at 2 kHz), each candidate's filters and sums in turn over the next period's
+/// samples, at most one a sample, so that no sample exceeds the learner's per-sample budget
+/// (at 4 ms two candidates fell on some samples: 16,600 instructions against 12,000,
+/// docs/benchmarks.md). Three times the pulses' highest frequency (40 Hz) and six times the
+/// 20 Hz low-pass: the period's mean attenuates 20 Hz by 4 % (`sinc(f T)`), the same on the
+/// rates and on the regressors, so the lag it implies is common to both sides.
+pub const LAG_REGRESSION_PERIOD_S: f32 = 0.008;
 
 /// A regressor through `F/s`: `L`, a high-pass and the low-pass.
 #[derive(Clone, Copy, Debug)]
@@ -380,6 +384,8 @@ impl LagHypothesis {
     fn reset(&mut self) {
         self.speed = [0.0; MAX_MOTORS];
         self.sums = PeriodSums::default();
+        self.triangle_early_square = [0.0; MAX_MOTORS];
+        self.triangle_early_gyroscopic = [[0.0; 3]; MAX_MOTORS];
         self.gram = [0.0; packed_len(REGRESSORS_MAX)];
         self.rate_xy = [[0.0; REGRESSORS_MAX]; 3];
         self.band_gram = [0.0; packed_len(MAX_MOTORS)];
@@ -561,7 +567,8 @@ const AXIS_PARAMETERS_MAX: usize = 4 * MAX_MOTORS;
 /// 90th-percentile error grew from 16 to 20 ms and 96.4 % → 94.1 % of the crafts hovered: a
 /// coefficient with little information fits the noise, differently for each candidate. The
 /// absolute `10⁻⁶` of the recursive least squares, at 250 Hz 2.7 times its weight, moved τ
-/// 6 % low on noise-free responses (docs/benchmarks.md).
+/// 6 % low on noise-free responses (docs/benchmarks.md); per hertz the figures hold at any
+/// period.
 const RIDGE_PER_HZ: f64 = 1.5e-9;
 
 /// The regressors of axis `a` among the five per motor: squares, reactions, and the products
@@ -719,7 +726,7 @@ pub fn period_samples(rate_hz: f32) -> usize {
 }
 
 /// The rate the lag regressions run at, Hz: the rate of the samples over
-/// [`period_samples`] (250 Hz at 2 kHz). Their low-pass is designed for it.
+/// [`period_samples`] (125 Hz at 2 kHz). Their low-pass is designed for it.
 pub fn regression_rate_hz(rate_hz: f32) -> f32 {
     rate_hz / period_samples(rate_hz) as f32
 }
@@ -1021,10 +1028,11 @@ impl CommandSpeedModel {
     }
 
     /// This sample's share of the candidates through the pending period: all of them over the
-    /// period's samples.
+    /// period's samples but its last, which closes the period (the shared filters and sums).
     fn process_share(&mut self) {
         let n = TAU_GRID_S.len();
-        let through = (self.phase + 1) * n / self.period_samples;
+        let spread = self.period_samples.saturating_sub(1).max(1);
+        let through = (self.phase + 1) * n / spread;
         self.process_candidates(through.min(n));
     }
 
