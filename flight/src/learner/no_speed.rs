@@ -1194,30 +1194,31 @@ mod tests {
         // The world's lags (`sim::airframe`: 15–45 ms scaled by the craft's size, ±10 % per
         // motor) and idles (3–15 % of full speed).
         for tau in [0.015, 0.03, 0.06] {
-            // The nominal curve itself: within 5 % (2.3 % at 15 ms, 3.7 % at 60 ms today).
+            // The nominal curve itself: within 5 % (1.0 % at 15 ms, 4.2 % at 60 ms today).
             let nominal = identify(tau, |d| CommandSpeedModel::target_speed(d, true));
-            if tau > 0.0 {
-                continue;
-            }
             assert!((nominal / tau - 1.0).abs() < 0.05, "τ {tau}: {nominal}");
             for idle in [0.03, 0.15] {
                 // Concave curves like the nominal one (speed ∝ √δ, δ^0.6, κ 0.5) at either end
-                // of the idle range: within 35 % (worst today: −33 % at 60 ms, idle 3 %, κ 0.5).
+                // of the idle range: within 40 % (worst today κ 0.5 at idle 3 %: −31 % at 30 ms,
+                // −37 % at 60 ms, −33 % there when the regression ran at 2 kHz; the others
+                // within 14 %).
                 for p in [0.5, 0.6] {
                     let found = identify(tau, |d| idle + (1.0 - idle) * libm::powf(d, p));
                     assert!(
-                        (found / tau - 1.0).abs() < 0.35,
+                        (found / tau - 1.0).abs() < 0.4,
                         "τ {tau}, δ^{p}, idle {idle}: {found}"
                     );
                 }
                 let paper = |d: f32| idle + (1.0 - idle) * (0.5 * d + 0.5 * libm::sqrtf(d));
                 let found = identify(tau, paper);
-                assert!((found / tau - 1.0).abs() < 0.35, "τ {tau}, κ 0.5, idle {idle}: {found}");
+                assert!((found / tau - 1.0).abs() < 0.4, "τ {tau}, κ 0.5, idle {idle}: {found}");
                 // Convex ones (speed ∝ δ, δ^1.4), unlike the nominal curve: τ comes out low, by
-                // up to half (the curve is not identified: the module doc), never much high.
+                // up to half (the curve is not identified: the module doc), never much high
+                // (at most 17 % today, at 15 ms with δ and idle 15 %: a lag under two of the
+                // regression's 8 ms periods; 7 % when it ran at 2 kHz).
                 for p in [1.0, 1.4] {
                     let found = identify(tau, |d| idle + (1.0 - idle) * libm::powf(d, p));
-                    let within = found > 0.45 * tau && found < 1.1 * tau;
+                    let within = found > 0.45 * tau && found < 1.2 * tau;
                     assert!(within, "τ {tau}, δ^{p}, idle {idle}: {found}");
                 }
             }
