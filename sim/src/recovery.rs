@@ -308,6 +308,9 @@ pub struct FlyReport {
     pub outcome: Outcome,
     /// Release → the controller engaged, s.
     pub release_to_engage_s: Option<f64>,
+    /// The excitation's end → the controller engaged, s: 0 but for the wait for a model still
+    /// learning from the excitation (without speed telemetry: `ENGAGE_WAIT_MAX_S`).
+    pub excitation_end_to_engage_s: Option<f64>,
     /// Release → hovering (see the module docs), s.
     pub release_to_hover_s: Option<f64>,
     /// Height of the release point, NED z, m.
@@ -360,7 +363,8 @@ pub struct FlyReport {
     /// The same with the force rows the offset fit found jointly with the offset.
     pub g1_block_rel_fitted_jointly: Option<[f64; 2]>,
     /// The learner's model at the end of the excitation (when the controller engages or the
-    /// identification fails), per unit normalised thrust ([`thrust_scores`]): comparable with
+    /// identification fails; without speed telemetry, once it has learned from the whole
+    /// excitation), per unit normalised thrust ([`thrust_scores`]): comparable with
     /// and without speed telemetry, whose speeds have an arbitrary scale, and over every run
     /// that identified, hovered or not.
     pub thrust_scores_at_excitation_end: Option<Scores>,
@@ -473,6 +477,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         let mut report = FlyReport {
             outcome: Outcome::NoIdentification,
             release_to_engage_s: None,
+            excitation_end_to_engage_s: None,
             release_to_hover_s: None,
             release_z_m: 0.0,
             max_drop_below_release_m: 0.0,
@@ -506,6 +511,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         let (mut window_steps, mut window_hold_steps) = (0u64, 0u64);
         let mut hover_since: Option<f64> = None;
         let mut release_z: Option<f64> = None;
+        // When the excitation ended (the phase became `Done`), s.
+        let mut excitation_end_s: Option<f64> = None;
         let mut end_s = f64::INFINITY;
         let max_ticks = hold_ticks + ((1.0 + config.flight_s) * 2000.0) as u64;
         for tick in 0..max_ticks {
@@ -529,11 +536,17 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             let t_s = board.time_s();
             let snapshot = app.snapshot();
             let state = *board.physics().state();
+            if snapshot.phase == FlightPhase::Done {
+                excitation_end_s.get_or_insert(t_s);
+            }
+            let learned = &app.background.results().learned;
+            // Without speed telemetry the model is the one engaged on once it has learned from
+            // the whole excitation (`LearnedModel::pending`).
             if snapshot.phase == FlightPhase::Done
+                && (!learned.is_pending() || snapshot.pilot.flying)
                 && report.thrust_scores_at_excitation_end.is_none()
             {
-                let learned = app.background.results().learned;
-                report.thrust_scores_at_excitation_end = Some(thrust_scores(&learned, &truth));
+                report.thrust_scores_at_excitation_end = Some(thrust_scores(learned, &truth));
             }
             let Some(released_s) = board.physics().hand().released_at_s() else { continue };
             let release_z_m = *release_z.get_or_insert(state.position_ned_m.z);
@@ -574,6 +587,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             }
             if snapshot.pilot.flying {
                 if report.release_to_engage_s.is_none() {
+                    report.excitation_end_to_engage_s = excitation_end_s.map(|end| t_s - end);
                     let learned = app.background.results().learned;
                     let scores = Scores::of(&learned, &truth);
                     report.g1_block_rel_at_engage = Some(scores.g1_block_rel);

@@ -163,6 +163,8 @@ pub struct Background<'q> {
     samples_since_excitation: u32,
     /// How many samples after the excitation the learner still takes ([`LEARN_AFTER_EXCITATION_S`]).
     settle_samples: u32,
+    /// [`super::control::ENGAGE_WAIT_MAX_S`] in samples.
+    engage_wait_samples: u32,
     /// How many more while the craft flies ([`REFINE_IN_FLIGHT_S`]).
     refine_samples: u32,
     /// Whether each attempt fits the IMU offset in flight ([`Background::set_offset_fit`]).
@@ -216,6 +218,8 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).samples_since_excitation).write(0);
             let settle = (LEARN_AFTER_EXCITATION_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).settle_samples).write(settle);
+            let wait = (super::control::ENGAGE_WAIT_MAX_S * f32::from(rate_hz)) as u32;
+            addr_of_mut!((*worker).engage_wait_samples).write(wait);
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);
             addr_of_mut!((*worker).offset_fit_enabled).write(true);
@@ -397,11 +401,15 @@ impl<'q> Background<'q> {
         // [`REFINE_IN_FLIGHT_S`] of the flight on the learned model: the in-flight refinement.
         // Not when the craft neither flies nor settles: without the controller it falls or is
         // caught, and a catch is a force no motor made.
+        // While the model is still learning from the excitation (`LearnedModel::pending`), the
+        // control step waits for it, at most `ENGAGE_WAIT_MAX_S`, and so does this.
         let refining = if sample.flying { self.refine_samples } else { 0 };
+        let catching_up = self.results.learned.is_pending()
+            && self.samples_since_excitation < self.engage_wait_samples;
         if phase == FlightPhase::Exciting {
             self.samples_since_excitation = 0;
         } else if phase == FlightPhase::Done
-            && self.samples_since_excitation < self.settle_samples + refining
+            && (self.samples_since_excitation < self.settle_samples + refining || catching_up)
         {
             self.samples_since_excitation += 1;
         } else {

@@ -2,7 +2,8 @@
 //!
 //! Deadline: one control period (500 µs at 2 kHz). The step never blocks, never allocates and
 //! never panics: a missing IMU sample is counted, a full queue drops and counts, and motor outputs
-//! are always written (zero unless a throw-to-fly attempt is exciting the motors).
+//! are always written (zero unless a throw-to-fly attempt is exciting the motors or waiting for
+//! its model, or the craft flies).
 //!
 //! Throw-to-fly (`flight::learner::ThrowToFly`): armed by [`ControlCommand::ArmThrowToFly`], the
 //! step runs the throw detector on every sample and, once the craft is thrown and falling
@@ -14,6 +15,8 @@
 //! Flight (`super::pilot::Pilot`): the attitude filter and position estimator run on every
 //! sample; when the excitation ends the step engages the controller on the model the background
 //! task published ([`ControlLoop::receive`]) and flies it until disarmed or a failsafe stops it.
+//! A model still learning from the excitation (`LearnedModel::pending`, without speed
+//! telemetry) is waited for, the excitation's last commands held, at most [`ENGAGE_WAIT_MAX_S`].
 //!
 //! **IMU checks** (before anything uses the sample; `docs/failsafes.md` has the reasoning). While
 //! armed (a throw-to-fly attempt or a flight), a *bad* sample is held over: the step runs on the
@@ -68,7 +71,7 @@ use super::queue::{LearnerSample, SampleProducer};
 use super::telemetry::{StepProducer, StepRecord};
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
-use flight::learner::{FlightPhase, ThrowToFly};
+use flight::learner::{FlightPhase, ThrowToFly, MODELS_MAY_BE_PENDING};
 use protocol::{
     DshotCommand, ExternalPose, ImuHeldCounters, LearnerFailure, PositionSetpoint,
     MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND, SPEED_REPORT_TIMEOUT_MS,
@@ -157,6 +160,66 @@ struct MotorTestState {
 
 /// Control-step rate, Hz: the published system's INDI and learner rate (docs/algorithms/indi.md).
 pub const CONTROL_RATE_HZ: u16 = 2000;
+
+/// Whether a throw-to-fly attempt is under way in `phase`, or waits for its model.
+#[inline(always)]
+fn attempt_under_way(phase: FlightPhase, wait: EngageWait) -> bool {
+    !matches!(phase, FlightPhase::Idle | FlightPhase::Done) || wait.active()
+}
+
+/// The excitation's end waiting for a model still learning from it ([`ENGAGE_WAIT_MAX_S`]).
+/// Only a learner that models the speeds publishes such models
+/// (`flight::learner::MODELS_MAY_BE_PENDING`): without it nothing here is ever active, and the
+/// compiler leaves none of it in the step, whose flash has no byte to spare (docs/budget.md).
+#[derive(Clone, Copy, Debug, Default)]
+struct EngageWait {
+    /// Steps it may still wait (0: not waiting).
+    steps: u16,
+}
+
+impl EngageWait {
+    /// The excitation has just ended; steps of `period_us`.
+    fn start(&mut self, period_us: u32) {
+        if MODELS_MAY_BE_PENDING {
+            self.steps = (ENGAGE_WAIT_MAX_US / period_us.max(1)).max(1) as u16;
+        }
+    }
+
+    fn active(self) -> bool {
+        MODELS_MAY_BE_PENDING && self.steps > 0
+    }
+
+    /// One step of the wait: whether it goes on (the model still `pending` and time left);
+    /// once it does not, it is over and the controller engages.
+    fn goes_on(&mut self, pending: bool) -> bool {
+        if !MODELS_MAY_BE_PENDING {
+            return false;
+        }
+        self.steps = self.steps.saturating_sub(1);
+        if !pending {
+            self.steps = 0;
+        }
+        self.steps > 0
+    }
+
+    /// The attempt ended another way (disarm, failsafe, a new arming).
+    fn end(&mut self) {
+        if MODELS_MAY_BE_PENDING {
+            self.steps = 0;
+        }
+    }
+}
+
+/// Longest wait at the end of the excitation for a model still learning from samples already
+/// taken (`LearnedModel::pending`: without speed telemetry the effectiveness regression learns
+/// from the excitation once its lag is identified, `no_speed::RELEASE_PER_SAMPLE` samples per
+/// control sample), s: about twice its longest catch-up (the 1,700 samples of a 0.85 s
+/// excitation, seven net a sample: 0.12 s). The motors hold the excitation's last commands
+/// (it ends at zero, where the armed ESCs idle); after it the controller is formed on what there
+/// is, and refused as before when that cannot fly.
+pub const ENGAGE_WAIT_MAX_S: f32 = 0.25;
+/// [`ENGAGE_WAIT_MAX_S`] in µs.
+const ENGAGE_WAIT_MAX_US: u32 = (ENGAGE_WAIT_MAX_S * 1e6) as u32;
 
 /// Time without a usable IMU sample after which the status calls the IMU absent, µs (10 ms).
 /// Status only: while armed, `imu_fault_timeout_s` decides when a missing IMU fails safe.
@@ -453,8 +516,9 @@ pub struct ControlLoop<'q> {
     /// An ESC command for the motor outputs, handed over in the next step.
     esc_command: Option<(DshotCommand, Option<u8>)>,
     pilot: Pilot,
-    /// `LearnedModel::samples` of the model last received (to copy only what changed).
-    model_samples: Option<u32>,
+    /// `LearnedModel::samples` and `pending` of the model last received (to copy only what
+    /// changed).
+    model_version: Option<(u32, bool)>,
     samples: SampleProducer<'q>,
     /// The telemetry ring to the link task, when the board streams per-step topics.
     telemetry: Option<StepProducer<'q>>,
@@ -466,6 +530,9 @@ pub struct ControlLoop<'q> {
     speed_monitor: SpeedMonitor,
     /// When the throw-to-fly attempt in progress was armed, µs.
     armed_at_us: u64,
+    /// Steps the excitation's end may still wait for the model ([`ENGAGE_WAIT_MAX_S`]; 0: not
+    /// waiting).
+    engage_wait: EngageWait,
     rate_window_start_us: u64,
     rate_window_steps: u32,
 }
@@ -485,7 +552,7 @@ impl<'q> ControlLoop<'q> {
             motor_test: None,
             esc_command: None,
             pilot: Pilot::new(f32::from(rate_hz)),
-            model_samples: None,
+            model_version: None,
             samples,
             telemetry: None,
             snapshot: ControlSnapshot::default(),
@@ -494,6 +561,7 @@ impl<'q> ControlLoop<'q> {
             imu_guard: ImuGuard::default(),
             speed_monitor: SpeedMonitor::default(),
             armed_at_us: 0,
+            engage_wait: EngageWait::default(),
             rate_window_start_us: 0,
             rate_window_steps: 0,
         }
@@ -519,6 +587,7 @@ impl<'q> ControlLoop<'q> {
                     self.snapshot.failure = LearnerFailure::NoSpeedTelemetry;
                 } else {
                     self.motor_test = None;
+                    self.engage_wait.end();
                     self.throw_to_fly.arm();
                     self.armed_at_us = now_us;
                     self.snapshot.failure = LearnerFailure::None;
@@ -567,18 +636,24 @@ impl<'q> ControlLoop<'q> {
     fn disarm(&mut self) {
         self.motor_test = None;
         self.esc_command = None;
-        let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
+        let attempt = self.attempt();
         self.throw_to_fly.disarm();
+        self.engage_wait.end();
         self.pilot.disarm();
         if attempt {
             self.snapshot.failure = LearnerFailure::Disarmed;
         }
     }
 
+    /// Whether a throw-to-fly attempt is under way: from the arming to the engagement,
+    /// its wait for the model ([`ENGAGE_WAIT_MAX_S`]) included.
+    fn attempt(&self) -> bool {
+        attempt_under_way(self.throw_to_fly.phase(), self.engage_wait)
+    }
+
     /// Whether a throw-to-fly attempt or a flight is under way (a motor test aside).
     fn flight_armed(&self) -> bool {
-        !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done)
-            || self.pilot.flying()
+        self.attempt() || self.pilot.flying()
     }
 
     /// Take waiting settings once nothing is armed. The throw detector is rebuilt only when
@@ -599,9 +674,11 @@ impl<'q> ControlLoop<'q> {
     /// Take what the background task published: the learned model (copied only when it changed)
     /// and the IMU offset it was learned with. Call it with the latest results before a step.
     pub fn receive(&mut self, results: &BackgroundResults) {
-        let samples = results.learned.samples;
-        if self.model_samples != Some(samples) {
-            self.model_samples = Some(samples);
+        // The samples learned from, and whether it is pending: a restarted learner's first model
+        // has learned from none, as the one before the first attempt had.
+        let version = (results.learned.samples, results.learned.is_pending());
+        if self.model_version != Some(version) {
+            self.model_version = Some(version);
             self.pilot.set_model(&results.learned, results.learner_r_imu_m);
         }
     }
@@ -614,7 +691,9 @@ impl<'q> ControlLoop<'q> {
         let raw = imu.read();
         let flying = self.pilot.flying();
         let armed = self.flight_armed();
-        let spinning = flying || self.throw_to_fly.phase() == FlightPhase::Exciting;
+        let spinning = flying
+            || self.throw_to_fly.phase() == FlightPhase::Exciting
+            || self.engage_wait.active();
         // The IMU checks (module doc): bad samples are held over while armed; a fault that
         // lasts `imu_fault_timeout_s`, or a stuck gyro axis in flight, fails.
         let timeout_us = (self.settings.imu_fault_timeout_s.max(0.0) * 1e6) as u64;
@@ -659,8 +738,9 @@ impl<'q> ControlLoop<'q> {
         let motor_count = usize::from(motors.count()).min(MAX_MOTORS);
         snapshot.motor_count = motor_count as u8;
         self.throw_to_fly.set_motors(motor_count);
-        // A failed IMU during an attempt or a flight: everything stops in this step.
-        let attempt = !matches!(self.throw_to_fly.phase(), FlightPhase::Idle | FlightPhase::Done);
+        // A failed IMU during an attempt (its wait for the model included) or a flight:
+        // everything stops in this step.
+        let attempt = attempt_under_way(self.throw_to_fly.phase(), self.engage_wait);
         if let Some(glitch) = imu_failed.filter(|_| attempt || self.pilot.flying()) {
             if glitch == ImuGlitch::Missing {
                 let _ = self.pilot.imu_lost();
@@ -668,6 +748,7 @@ impl<'q> ControlLoop<'q> {
                 self.pilot.imu_fault();
             }
             self.throw_to_fly.disarm();
+            self.engage_wait.end();
             if attempt {
                 snapshot.failure = LearnerFailure::ImuLost;
             }
@@ -701,16 +782,24 @@ impl<'q> ControlLoop<'q> {
             self.pilot.observe(&imu, now_us, disarmed);
             // The speeds reported in the previous step (this step's come after the commands).
             let speeds = snapshot.speeds_rad_s.map(|s| s.unwrap_or(f32::NAN));
-            let out = self.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, &speeds, dt_s);
-            if phase_before == FlightPhase::Exciting
-                && self.throw_to_fly.phase() == FlightPhase::Done
-            {
-                // The excitation is over: fly what was learned, from the last commands.
-                if let Err(failsafe) = self.pilot.engage(&imu, &previous_commands, &speeds) {
+            let mut out = self.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, &speeds, dt_s);
+            let ended = phase_before == FlightPhase::Exciting
+                && self.throw_to_fly.phase() == FlightPhase::Done;
+            if ended {
+                self.engage_wait.start(self.period_us);
+            }
+            // The excitation is over: fly what was learned, from the last commands, once the
+            // model has learned from every sample of it (at most `ENGAGE_WAIT_MAX_S`). Every
+            // way out of the attempt (disarm, failsafe, a new arming) ends the wait.
+            if ended || self.engage_wait.active() {
+                if self.engage_wait.goes_on(self.pilot.model_pending()) {
+                    out.commands = previous_commands;
+                } else if let Err(failsafe) = self.pilot.engage(&imu, &previous_commands, &speeds) {
                     snapshot.failure = learner_failure(failsafe);
                 }
             }
-            // Never a non-finite or out-of-range command (the schedule's are in [0, 1] already).
+            // Never a non-finite or out-of-range command (the schedule's are in [0, 1] already,
+            // and so are the last step's, held while waiting for the model).
             for (dst, src) in snapshot.commands.iter_mut().zip(out.commands).take(motor_count) {
                 *dst = if src.is_finite() { src.clamp(0.0, 1.0) } else { 0.0 };
             }

@@ -33,8 +33,8 @@ pub use background::{
 };
 pub use control::{
     ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot,
-    ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, IMU_FAULT_TIMEOUT_S, SPEED_REPORT_TIMEOUT_S,
-    STUCK_GYRO_SAMPLES,
+    ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, ENGAGE_WAIT_MAX_S, IMU_FAULT_TIMEOUT_S,
+    SPEED_REPORT_TIMEOUT_S, STUCK_GYRO_SAMPLES,
 };
 pub use link::{
     flight_telemetry, learner_telemetry, sensor_health, LinkRequest, LinkServer,

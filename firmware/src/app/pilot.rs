@@ -463,6 +463,12 @@ impl Pilot {
         self.controller.is_some()
     }
 
+    /// Whether the model received is still to learn from samples already taken
+    /// (`LearnedModel::pending`): not yet the one to engage on.
+    pub fn model_pending(&self) -> bool {
+        self.model.as_ref().is_some_and(|(learned, _)| learned.is_pending())
+    }
+
     /// The model the background task published, with the IMU offset it was learned with.
     pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3]) {
         let offset_changed = self.model.is_some_and(|(_, before)| before != r_imu_m);

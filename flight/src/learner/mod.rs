@@ -209,6 +209,11 @@ pub enum AxisStatus {
     NoHover,
 }
 
+/// Whether a published model can be [`LearnedModel::pending`]: only the learner without speed
+/// telemetry (feature `no-speed`) publishes such models; a build without it can leave out all
+/// that waits for them.
+pub const MODELS_MAY_BE_PENDING: bool = cfg!(feature = "no-speed");
+
 /// Everything learned so far: the interface to the controller.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LearnedModel {
@@ -236,9 +241,22 @@ pub struct LearnedModel {
     /// Whether the motor speeds were modelled from the commands (no speed telemetry,
     /// `no_speed`) rather than reported by the ESCs: which path identified this model.
     pub speeds_modelled: bool,
+    /// Whether G1 has yet to learn from samples of the excitation already taken: without speed
+    /// telemetry the effectiveness regression learns from the excitation's samples once the
+    /// lag is identified at its end, a few per control sample
+    /// (`no_speed::RELEASE_PER_SAMPLE`), so for up to about a tenth of a second after it this
+    /// model is not the one to engage on. Always false with speed telemetry, and without the
+    /// feature `no-speed` ([`LearnedModel::is_pending`]).
+    pub pending: bool,
 }
 
 impl LearnedModel {
+    /// [`LearnedModel::pending`], known false where no model can be
+    /// ([`MODELS_MAY_BE_PENDING`]): what waits for it compiles away there.
+    pub fn is_pending(&self) -> bool {
+        MODELS_MAY_BE_PENDING && self.pending
+    }
+
     /// G1 per unit normalised thrust `u = ω²/ω_full²`: column i scaled by motor i's `ω_full²`.
     pub fn g1_per_unit_thrust(&self) -> [[f32; MAX_MOTORS]; 6] {
         let mut g1 = self.g1_per_speed2;
@@ -382,6 +400,7 @@ impl Learner {
         let empty = LearnedModel {
             motors: motors as u8,
             speeds_modelled: !config.speed_telemetry,
+            pending: MODELS_MAY_BE_PENDING && !config.speed_telemetry,
             ..LearnedModel::default()
         };
         let learner = slot.as_mut_ptr();
@@ -442,6 +461,7 @@ impl Learner {
         self.model = LearnedModel {
             motors: self.motors as u8,
             speeds_modelled: !self.config.speed_telemetry,
+            pending: MODELS_MAY_BE_PENDING && !self.config.speed_telemetry,
             ..LearnedModel::default()
         };
         self.samples = 0;
@@ -509,10 +529,19 @@ impl Learner {
         if !self.config.speed_telemetry {
             // The lag regression now; the effectiveness regression on the held samples, with
             // speeds modelled with the lag identified since (`no_speed::CommandSpeedModel::hold`).
+            // At most `RELEASE_PER_SAMPLE` a sample: the catch-up after the excitation is
+            // spread over the samples that follow it (the model says `pending` until done).
             self.command_speeds.update(gyro_rad_s, accel_mps2, &driving, self.armed, true);
             self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed);
-            while let Some(held) = self.command_speeds.release() {
+            let pending = self.model.pending;
+            for _ in 0..no_speed::RELEASE_PER_SAMPLE {
+                let Some(held) = self.command_speeds.release() else { break };
                 self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
+            }
+            if pending && !self.command_speeds.pending() {
+                // Caught up: the model to engage on, published now.
+                self.stage();
+                self.publish_staged();
             }
             return;
         }
@@ -598,6 +627,10 @@ impl Learner {
         model.g2 = self.effectiveness.g2();
         model.g1_converged = 0;
         model.motors_converged = 0;
+        #[cfg(feature = "no-speed")]
+        {
+            model.pending = !self.config.speed_telemetry && self.command_speeds.pending();
+        }
         let mut all_informed = true;
         for i in 0..m {
             let motor = self.motor_model(i);
@@ -826,6 +859,57 @@ mod tests {
         let commands = core::array::from_fn(|i| if i < 4 { 0.3 } else { 0.0 });
         let speeds = core::array::from_fn(|i| if i < 4 { speed(i) } else { f32::NAN });
         ([1.0, 2.0 * t, -0.5], [0.1, -0.2, -9.0 - t], commands, speeds)
+    }
+
+    /// Without speed telemetry the excitation's samples reach the effectiveness regression
+    /// once the lag is chosen after its end, at most `RELEASE_PER_SAMPLE` a sample: the
+    /// catch-up is spread over the samples after it, and the model says `pending` until the
+    /// last held sample is learned from, when it is published at once.
+    #[cfg(feature = "no-speed")]
+    #[test]
+    fn without_speed_telemetry_the_catch_up_is_spread_and_the_model_pending_until_done() {
+        let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
+        let mut slot = LearnerSlot::empty();
+        let learner = slot.build(4, config).unwrap();
+        learner.restart([0.0; 3]).unwrap();
+        assert!(learner.model().pending);
+        let no_speeds = [f32::NAN; MAX_MOTORS];
+        let body = |n: usize| {
+            let t = n as f32 / 2000.0;
+            ([3.0 + libm::sinf(30.0 * t), -2.0, 1.0], [0.2, -0.1, -9.0 - libm::cosf(30.0 * t)])
+        };
+        // Each motor pulsed in turn (0.4 for the last 50 samples of its 100), the others near
+        // idle: the last pulse ends with the loop.
+        let pulses = 4 * 100;
+        for n in 0..pulses {
+            let mut commands = [0.0; MAX_MOTORS];
+            for (i, c) in commands.iter_mut().enumerate().take(4) {
+                *c = if n / 100 == i && n % 100 >= 50 { 0.4 } else { 0.05 };
+            }
+            let (gyro, accel) = body(n);
+            learner.update(gyro, accel, &commands, &no_speeds);
+            assert!(learner.model().pending, "pending during the excitation (sample {n})");
+        }
+        let before = learner.model().samples;
+        let mut low = [0.0; MAX_MOTORS];
+        low[..4].fill(0.05);
+        let mut after = 0;
+        while learner.model().pending {
+            let (gyro, accel) = body(pulses + after);
+            learner.update(gyro, accel, &low, &no_speeds);
+            after += 1;
+            assert!(after < 2 * pulses, "still pending {after} samples after the excitation");
+        }
+        // Every sample of the attempt learned from, eight a sample and one added each.
+        let learned = (learner.model().samples - before) as usize;
+        assert!(learned >= pulses, "learned from {learned} of at least {pulses} samples");
+        // After the last pulse: one candidate scored a sample, then the catch-up (and the
+        // learner's command delay, a few samples).
+        let spread = pulses / no_speed::RELEASE_PER_SAMPLE;
+        let scoring = no_speed::TAU_GRID_S.len();
+        let most = scoring + learned.div_ceil(no_speed::RELEASE_PER_SAMPLE - 1) + 8;
+        assert!(after >= spread && after <= most, "caught up {after} samples after the pulses");
+        assert!(!learner.model().pending);
     }
 
     /// The model is published once per cycle of the six effectiveness regressions (staged in

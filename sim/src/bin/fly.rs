@@ -173,8 +173,9 @@ fn print_quantiles(label: &str, values: &[f64], scale: f64, unit: &str) {
 fn print_report(name: &str, report: &FlyReport) {
     println!("{name}: {:?} ({:?})", Verdict::of(report), report.outcome);
     println!(
-        "  release → engage {:.0} ms, → hover {:.2} s",
+        "  release → engage {:.0} ms (the excitation's end → engage {:.1} ms), → hover {:.2} s",
         report.release_to_engage_s.unwrap_or(f64::NAN) * 1e3,
+        report.excitation_end_to_engage_s.unwrap_or(f64::NAN) * 1e3,
         report.release_to_hover_s.unwrap_or(f64::NAN)
     );
     println!("  worst drop below the release point {:.2} m", report.max_drop_below_release_m);
@@ -370,6 +371,15 @@ fn main() -> ExitCode {
                 .filter(|r| r.report.release_to_engage_s.is_some())
                 .map(|r| r.report.max_drop_below_release_m)
                 .collect();
+            let wait: Vec<f64> =
+                results.iter().filter_map(|r| r.report.excitation_end_to_engage_s).collect();
+            println!(
+                "the excitation's end → engage: median {:.1} ms, 90th {:.1} ms, 99th {:.1} ms, most {:.1} ms",
+                1e3 * quantile(&wait, 0.5),
+                1e3 * quantile(&wait, 0.9),
+                1e3 * quantile(&wait, 0.99),
+                1e3 * wait.iter().copied().fold(f64::NAN, f64::max)
+            );
             println!(
                 "release → hover: median {:.2} s, 90th {:.2} s, 99th {:.2} s",
                 quantile(&hover, 0.5),
