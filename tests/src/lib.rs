@@ -32,3 +32,48 @@ pub fn cli_binary() -> PathBuf {
 pub fn run_cli(args: &[&str]) -> Output {
     Command::new(cli_binary()).args(args).output().expect("start configurator-cli")
 }
+
+/// The seed paper's quad, 1.5 m up, armed for throw-to-fly on `app` and thrown (3.5 m/s up,
+/// 400 / 400 / 100 °/s) 0.5 s in, then stepped for `ticks` steps of 2 kHz. In the first step
+/// whose snapshot before it `disarm_when` accepts, a disarm is submitted; from that step on
+/// every snapshot must show every command at zero, the attempt ended as `Disarmed`, nothing
+/// armed or flying, and the board's motors told zero. Returns whether it disarmed.
+pub fn disarm_during_throw_to_fly(
+    board: &mut sim::board::SimBoard,
+    app: &mut sim::scenario::FirmwareApp<'_>,
+    ticks: u64,
+    disarm_when: impl Fn(&firmware::app::ControlSnapshot) -> bool,
+) -> bool {
+    use firmware::app::hal::Imu;
+    use firmware::app::ControlCommand;
+    use sim::scenario::FlightApp;
+    app.submit(ControlCommand::ArmThrowToFly);
+    let spec = sim::hand::ThrowSpec::vertical(
+        3.5,
+        nalgebra::Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
+        0.15,
+    );
+    let mut disarmed_at = None;
+    for tick in 0..ticks {
+        if tick == 1000 {
+            board.physics_mut().throw(&spec);
+        }
+        board.tick();
+        let now_us = board.now_us();
+        if disarmed_at.is_none() && disarm_when(&app.snapshot()) {
+            app.submit(ControlCommand::Disarm);
+            disarmed_at = Some(tick);
+        }
+        let (imu, motors) = board.ports();
+        app.step(now_us, imu, motors);
+        if disarmed_at.is_some() {
+            let snapshot = app.snapshot();
+            assert!(snapshot.commands.iter().all(|c| *c == 0.0), "tick {tick}: {snapshot:?}");
+            assert_eq!(snapshot.failure, protocol::LearnerFailure::Disarmed);
+            assert!(!snapshot.armed && !snapshot.pilot.flying, "tick {tick}: {snapshot:?}");
+            let _ = imu.read();
+            assert!(motors.commands().iter().all(|c| *c == 0.0));
+        }
+    }
+    disarmed_at.is_some()
+}

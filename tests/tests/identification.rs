@@ -6,7 +6,6 @@
 //!
 //! `cargo test -p tests --test identification -- --nocapture` prints the measured figures.
 
-use firmware::app::hal::Imu;
 use firmware::app::ControlCommand;
 use flight::learner::FlightPhase;
 use nalgebra::Vector3;
@@ -169,36 +168,10 @@ fn a_disarm_during_the_excitation_stops_every_motor_in_the_same_step() {
         SimConfig { start_position_ned_m: Vector3::new(0.0, 0.0, -1.5), ..SimConfig::default() };
     let mut board = SimBoard::new(&airframe, &config);
     with_firmware_app(|app| {
-        app.submit(ControlCommand::ArmThrowToFly);
-        let spec = sim::hand::ThrowSpec::vertical(
-            3.5,
-            Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
-            0.15,
-        );
-        let mut disarmed_at = None;
-        for tick in 0..4000u64 {
-            if tick == 1000 {
-                board.physics_mut().throw(&spec);
-            }
-            board.tick();
-            let now_us = board.now_us();
-            let snapshot = app.snapshot();
-            if disarmed_at.is_none() && snapshot.commands.iter().any(|c| *c > 0.3) {
-                app.submit(ControlCommand::Disarm);
-                disarmed_at = Some(tick);
-            }
-            let (imu, motors) = board.ports();
-            app.step(now_us, imu, motors);
-            if disarmed_at.is_some() {
-                let snapshot = app.snapshot();
-                assert!(snapshot.commands.iter().all(|c| *c == 0.0), "tick {tick}: {snapshot:?}");
-                assert_eq!(snapshot.failure, protocol::LearnerFailure::Disarmed);
-                assert!(!snapshot.armed);
-                let _ = imu.read();
-                assert!(motors.commands().iter().all(|c| *c == 0.0));
-            }
-        }
-        assert!(disarmed_at.is_some(), "the excitation started");
+        let disarmed = tests::disarm_during_throw_to_fly(&mut board, app, 4000, |snapshot| {
+            snapshot.commands.iter().any(|c| *c > 0.3)
+        });
+        assert!(disarmed, "the excitation started");
     });
 }
 

@@ -98,12 +98,11 @@ fn without_speed_telemetry_random_airframes_hover() {
 /// afterwards.
 #[test]
 fn a_disarm_while_waiting_for_the_model_stops_every_motor_in_the_same_step() {
-    use firmware::app::hal::Imu;
     use firmware::app::{ControlCommand, ControlSettings, Param, Params};
     use flight::learner::FlightPhase;
     use nalgebra::Vector3;
     use sim::board::{SimBoard, SimConfig};
-    use sim::scenario::{with_firmware_app, FlightApp};
+    use sim::scenario::with_firmware_app;
 
     let airframe = Airframe::builtin("paper-quad").unwrap();
     let config =
@@ -117,37 +116,9 @@ fn a_disarm_while_waiting_for_the_model_stops_every_motor_in_the_same_step() {
         let settings =
             ControlSettings { arm_without_speeds: true, ..ControlSettings::from(&params) };
         app.submit(ControlCommand::Configure(settings));
-        app.submit(ControlCommand::ArmThrowToFly);
-        let spec = sim::hand::ThrowSpec::vertical(
-            3.5,
-            Vector3::new(400.0, 400.0, 100.0).map(f64::to_radians),
-            0.15,
-        );
-        let mut disarmed_at = None;
-        for tick in 0..6000u64 {
-            if tick == 1000 {
-                board.physics_mut().throw(&spec);
-            }
-            board.tick();
-            let now_us = board.now_us();
-            let snapshot = app.snapshot();
-            let waiting =
-                snapshot.phase == FlightPhase::Done && !snapshot.pilot.flying && snapshot.armed;
-            if disarmed_at.is_none() && waiting {
-                app.submit(ControlCommand::Disarm);
-                disarmed_at = Some(tick);
-            }
-            let (imu, motors) = board.ports();
-            app.step(now_us, imu, motors);
-            if disarmed_at.is_some() {
-                let snapshot = app.snapshot();
-                assert!(snapshot.commands.iter().all(|c| *c == 0.0), "tick {tick}: {snapshot:?}");
-                assert_eq!(snapshot.failure, protocol::LearnerFailure::Disarmed);
-                assert!(!snapshot.armed && !snapshot.pilot.flying);
-                let _ = imu.read();
-                assert!(motors.commands().iter().all(|c| *c == 0.0));
-            }
-        }
-        assert!(disarmed_at.is_some(), "the step waited for the model, armed");
+        let disarmed = tests::disarm_during_throw_to_fly(&mut board, app, 6000, |snapshot| {
+            snapshot.phase == FlightPhase::Done && !snapshot.pilot.flying && snapshot.armed
+        });
+        assert!(disarmed, "the step waited for the model, armed");
     });
 }
