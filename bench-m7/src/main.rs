@@ -248,21 +248,28 @@ fn primed_learner(m: usize) -> Learner {
 #[cfg(feature = "no-speed")]
 const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 
-/// Samples around the one on which every motor has been pulsed and all are back below a pulse
-/// (motor 3's pulse ends 0.225 s in, `synthetic_sample`, seen a few samples later through the
-/// learner's command delay, at 453): the learner scores one lag candidate a sample (thirteen),
-/// then learns from the held samples, at most `no_speed::RELEASE_PER_SAMPLE` a sample. Each
-/// measured on its own.
+/// The learners without speed telemetry measured at the excitation's end: motor count, the
+/// sample on which every motor has been pulsed and all are back below a pulse (the last motor's
+/// pulse ends `0.05 (m − 1) + 0.075` s in, `synthetic_sample`, seen three samples later through
+/// the learner's command delay), and the samples measured one by one from two before it: the
+/// learner solves one lag candidate's regression a sample (52), then learns from the held samples, at
+/// most `no_speed::RELEASE_PER_SAMPLE` a sample.
 #[cfg(feature = "no-speed")]
-const NO_SPEED_END_SAMPLES: core::ops::Range<usize> = 451..470;
+const NO_SPEED_ENDS: [(usize, usize); 2] = [(4, 453), (8, 853)];
+
+/// Samples measured at each excitation's end ([`NO_SPEED_ENDS`]): the 52 of the candidates'
+/// regressions and the first of the catch-up.
+#[cfg(feature = "no-speed")]
+const NO_SPEED_END_MEASURED: usize = 60;
 
 /// Samples of pulses the learner without speed telemetry is primed with (0.2 s: three motors
 /// pulsed, the lag regressions learning).
 #[cfg(feature = "no-speed")]
 const NO_SPEED_PRIMING_SAMPLES: usize = 400;
 
-/// The learner without speed telemetry (`flight::learner::no_speed`, issue 32) in the middle of
-/// its excitation: the lag regressions and the held samples, each sample measured on its own.
+/// The learner without speed telemetry (`flight::learner::no_speed`, issue 32): the quad's in
+/// the middle of its excitation (the lag regressions and the held samples), and the quad's and
+/// the octorotor's at the excitation's end, each sample measured on its own.
 #[cfg(feature = "no-speed")]
 fn no_speed_regions() {
     use flight::learner::LearnerSlot;
@@ -270,52 +277,48 @@ fn no_speed_regions() {
     // SAFETY: the only reference to the slot, in this single-threaded harness.
     let slot = unsafe { &mut *core::ptr::addr_of_mut!(SLOT) };
     let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
-    let Ok(learner) = slot.build(4, config) else { fail("learner without speeds") };
-    let mut rate = [7.0f32, 7.0, 1.7];
-    for n in 0..NO_SPEED_END_SAMPLES.start {
-        let ((gyro, accel, commands, speeds), angular) =
-            synthetic_sample(4, 0.7, n as f32 / 2000.0, rate);
-        let measured = (NO_SPEED_PRIMING_SAMPLES
-            ..NO_SPEED_PRIMING_SAMPLES + NO_SPEED_MEASURED_SAMPLES)
-            .contains(&n);
-        if !measured {
-            learner.update(gyro, accel, &commands, &speeds);
-        } else {
-            let mut state = (&mut *learner, gyro, accel, commands, speeds);
-            region(&mut state, |(learner, gyro, accel, commands, speeds)| {
-                learner.update(black_box(*gyro), *accel, commands, speeds)
-            });
+    for (m, seen) in NO_SPEED_ENDS {
+        let Ok(learner) = slot.build(m, config) else { fail("learner without speeds") };
+        let first = seen - 2;
+        let mut rate = [7.0f32, 7.0, 1.7];
+        let mut n = 0;
+        while learner.model().pending && n < 4 * seen {
+            let ((gyro, accel, commands, speeds), angular) =
+                synthetic_sample(m, 0.7, n as f32 / 2000.0, rate);
+            let measured = if m == 4 {
+                (NO_SPEED_PRIMING_SAMPLES..NO_SPEED_PRIMING_SAMPLES + NO_SPEED_MEASURED_SAMPLES)
+                    .contains(&n)
+            } else {
+                false
+            } || (first..first + NO_SPEED_END_MEASURED).contains(&n);
+            if measured {
+                let mut state = (&mut *learner, gyro, accel, commands, speeds);
+                region(&mut state, |(learner, gyro, accel, commands, speeds)| {
+                    learner.update(black_box(*gyro), *accel, commands, speeds)
+                });
+            } else {
+                learner.update(gyro, accel, &commands, &speeds);
+            }
+            for k in 0..3 {
+                rate[k] += angular[k] / 2000.0;
+            }
+            n += 1;
         }
-        for k in 0..3 {
-            rate[k] += angular[k] / 2000.0;
+        if learner.model().pending || learner.model().samples == 0 {
+            fail("the held samples were not learned from after the excitation's end");
         }
+        if n < first + NO_SPEED_END_MEASURED {
+            fail("the catch-up ended before the measured samples");
+        }
+        hprintln!(
+            "bench-m7 check: m={} lag without speeds {} ms, {} samples learned, caught up {} \
+             samples after the excitation's end",
+            m,
+            1000.0 * learner.model().tau_max_s(),
+            learner.model().samples,
+            n - seen
+        );
     }
-    for n in NO_SPEED_END_SAMPLES {
-        let ((gyro, accel, commands, speeds), _) =
-            synthetic_sample(4, 0.7, n as f32 / 2000.0, rate);
-        let mut state = (&mut *learner, gyro, accel, commands, speeds);
-        region(&mut state, |(learner, gyro, accel, commands, speeds)| {
-            learner.update(black_box(*gyro), *accel, commands, speeds)
-        });
-    }
-    // The rest of the catch-up, unmeasured.
-    let mut n = NO_SPEED_END_SAMPLES.end;
-    while learner.model().pending && n < 4 * NO_SPEED_END_SAMPLES.end {
-        let ((gyro, accel, commands, speeds), _) =
-            synthetic_sample(4, 0.7, n as f32 / 2000.0, rate);
-        learner.update(gyro, accel, &commands, &speeds);
-        n += 1;
-    }
-    if learner.model().pending || learner.model().samples == 0 {
-        fail("the held samples were not learned from after the excitation's end");
-    }
-    hprintln!(
-        "bench-m7 check: lag without speeds {} ms, {} samples learned, caught up {} samples after \
-         the excitation's end",
-        1000.0 * learner.model().tau_max_s(),
-        learner.model().samples,
-        n - NO_SPEED_END_SAMPLES.start
-    );
 }
 
 /// The control rate, Hz, and step, s.
@@ -684,18 +687,23 @@ fn main() -> ! {
         hprintln!("bench-m7 region: thrust-axis bounded search m={} (one motor capped)", m);
     }
     #[cfg(feature = "no-speed")]
-    for k in 1..=NO_SPEED_MEASURED_SAMPLES {
-        hprintln!("bench-m7 region: learner step m=4, no speed telemetry, sample {}", k);
-    }
-    #[cfg(feature = "no-speed")]
-    for n in NO_SPEED_END_SAMPLES {
-        hprintln!(
-            "bench-m7 region: learner m=4, no speed telemetry, sample {} at the excitation's end \
-             (from 453: one lag candidate scored a sample, then at most {} held samples learned \
-             from)",
-            n,
-            flight::learner::no_speed::RELEASE_PER_SAMPLE
-        );
+    for (m, seen) in NO_SPEED_ENDS {
+        if m == 4 {
+            for k in 1..=NO_SPEED_MEASURED_SAMPLES {
+                hprintln!("bench-m7 region: learner step m=4, no speed telemetry, sample {}", k);
+            }
+        }
+        for n in seen - 2..seen - 2 + NO_SPEED_END_MEASURED {
+            hprintln!(
+                "bench-m7 region: learner m={}, no speed telemetry, sample {} at the excitation's \
+                 end (from {}: one lag candidate's regression a sample, then at most {} held samples \
+                 learned from)",
+                m,
+                n,
+                seen,
+                flight::learner::no_speed::RELEASE_PER_SAMPLE
+            );
+        }
     }
     hprintln!("bench-m7 region: imu-offset RLS update");
     hprintln!("bench-m7 region: imu-offset estimator per sample, held");

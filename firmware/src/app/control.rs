@@ -213,8 +213,8 @@ impl EngageWait {
 /// Longest wait at the end of the excitation for a model still learning from samples already
 /// taken (`LearnedModel::pending`: without speed telemetry the effectiveness regression learns
 /// from the excitation once its lag is identified, `no_speed::RELEASE_PER_SAMPLE` samples per
-/// control sample), s: about twice its longest catch-up (the 1,700 samples of a 0.85 s
-/// excitation, seven net a sample: 0.12 s). The motors hold the excitation's last commands
+/// control sample), s: about 1.7 times its longest catch-up (the lag's choice over 52 samples,
+/// 26 ms, then the 1,700 samples of a 0.85 s excitation at seven net a sample, 0.12 s). The motors hold the excitation's last commands
 /// (it ends at zero, where the armed ESCs idle); after it the controller is formed on what there
 /// is, and refused as before when that cannot fly.
 pub const ENGAGE_WAIT_MAX_S: f32 = 0.25;

@@ -903,10 +903,11 @@ mod tests {
         // Every sample of the attempt learned from, eight a sample and one added each.
         let learned = (learner.model().samples - before) as usize;
         assert!(learned >= pulses, "learned from {learned} of at least {pulses} samples");
-        // After the last pulse: one candidate scored a sample, then the catch-up (and the
-        // learner's command delay, a few samples).
+        // After the last pulse: the last period's pending candidates and one candidate's
+        // regression a sample, then the catch-up (and the learner's command delay, a few
+        // samples).
         let spread = pulses / no_speed::RELEASE_PER_SAMPLE;
-        let scoring = no_speed::TAU_GRID_S.len();
+        let scoring = no_speed::TAU_GRID_S.len() + no_speed::SCORING_SAMPLES;
         let most = scoring + learned.div_ceil(no_speed::RELEASE_PER_SAMPLE - 1) + 8;
         assert!(after >= spread && after <= most, "caught up {after} samples after the pulses");
         assert!(!learner.model().pending);

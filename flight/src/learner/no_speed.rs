@@ -50,10 +50,10 @@
 //! periods; the integrated regressors take the same triangle (weighted sums kept beside the
 //! plain ones), so both sides see one filter. The specific force is taken one period back, where
 //! the central difference of the filtered rates gives its angular acceleration. The regressions
-//! stop at the last pulse's end; the candidates' residuals are then solved one candidate a
-//! sample (three Cholesky factors of `4m` and one of `m + 9` each: thirteen in one sample were
-//! 880,000 instructions on a quad), and the lag is chosen with the last. Until then the
-//! published τ is the prior.
+//! stop at the last pulse's end; the candidates' regressions are then solved for their
+//! residuals one a sample (three of `4m` unknowns and one of `m + 9` per candidate: all 52 in
+//! one sample were 880,000 instructions on a quad), and the lag is chosen with the last. Until
+//! then the published τ is the prior.
 //!
 //! **The effectiveness regression waits for the lag.** It never forgets, so what it learned
 //! from speeds modelled with the lag of the first pulses, still far off, would stay. The
@@ -61,7 +61,7 @@
 //! released to it from the end of the excitation (every motor pulsed and all back below
 //! [`PULSE_COMMAND`]), their speeds modelled with the lag identified over every pulse, at most
 //! [`RELEASE_PER_SAMPLE`] a sample: the catch-up is spread over the samples that follow (up to
-//! 76 ms on 1,000 random worlds), so that no control period carries it all (a quad's 450 held
+//! 104 ms on 1,000 random worlds, the lag's choice included), so that no control period carries it all (a quad's 450 held
 //! samples were 4.9 M instructions, 10 ms at 480 MHz in one sample, an octorotor's up to 40 ms:
 //! longer than the sample queue to the task that runs the learner). Until it is done the
 //! published model says `pending` and the control step waits for it before engaging
@@ -79,11 +79,11 @@
 //!   low-pass as the effectiveness signals.
 //!
 //! Cost (`cargo xtask bench-m7 --no-speed`, docs/benchmarks.md): during the excitation at most
-//! 10,005 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
-//! one candidate scored a sample for 13 samples, then the catch-up of [`RELEASE_PER_SAMPLE`]
-//! held samples a sample (each about what a learner sample with telemetry costs) for up to
-//! 76 ms: samples of up to about 90,000 instructions on a quad, which the learner's task
-//! keeps up with at 2 kHz. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
+//! 10,021 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
+//! the last period's candidates and one candidate's regression a sample ([`SCORING_SAMPLES`]),
+//! then the catch-up of [`RELEASE_PER_SAMPLE`] held samples a sample (each about what a learner
+//! sample with telemetry costs): 76,051 instructions a sample at most on a quad,
+//! 151,317 on an octorotor, which the learner's task keeps up with at 2 kHz. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
 //! ≈ 120 KB. Not on the board yet: `flight`'s feature `no-speed` is off in the firmware, whose
 //! flash has no room for it.
 
@@ -138,9 +138,9 @@ pub const HELD_SAMPLES_MAX: usize = 1700;
 /// Held samples released to the effectiveness regression per control sample at most: the
 /// catch-up after the excitation is spread over the samples that follow it, so that the task
 /// running the learner keeps up with the control rate. A released sample costs about what a
-/// learner sample with speed telemetry does (10,900 Cortex-M7 instructions on a quad,
-/// `cargo xtask bench-m7 --no-speed`; an octorotor's about twice that): eight are about
-/// 90,000–180,000 instructions, 0.2–0.4 ms of a 0.5 ms control period at 480 MHz. Each sample
+/// learner sample with speed telemetry does: eight are 67,000–76,000 Cortex-M7 instructions a
+/// sample on a quad, 125,000–151,000 on an octorotor (`cargo xtask bench-m7 --no-speed`),
+/// 0.14–0.32 ms of a 0.5 ms control period at 480 MHz. Each sample
 /// then adds one and releases eight, so the 1,700 samples of the longest excitation are learned
 /// from within 1,700 / 7 ≈ 243 samples (0.12 s), a quad's 450 within 32 ms.
 pub const RELEASE_PER_SAMPLE: usize = 8;
@@ -523,15 +523,17 @@ impl LagHypothesis {
         self.band_previous = band;
     }
 
-    /// The least-squares residuals of the three rate axes and the three specific-force axes,
-    /// given their `Σ y²` and the shared offset terms' sums.
-    fn residuals(&self, m: usize, shared: &SharedSums) -> [f32; 6] {
-        let mut out = [0.0f32; 6];
-        let n = 4 * m;
-        for a in 0..3 {
+    /// Part `part` of the least-squares residuals, given the outputs' `Σ y²` and the shared
+    /// offset terms' sums: rate axis `part` (0–2: one regression of `4m` unknowns) into
+    /// `out[part]`, or the three specific-force axes (3: one regression of `m + 9`, three
+    /// outputs) into `out[3..]`.
+    fn residuals_part(&self, m: usize, shared: &SharedSums, part: usize, out: &mut [f32; 6]) {
+        let mut gram = [[0.0f64; AXIS_PARAMETERS_MAX]; AXIS_PARAMETERS_MAX];
+        let mut xy = [[0.0f64; 3]; AXIS_PARAMETERS_MAX];
+        if part < 3 {
+            let a = part;
+            let n = 4 * m;
             let index = axis_regressors(m, a);
-            let mut gram = [[0.0f64; AXIS_PARAMETERS_MAX]; AXIS_PARAMETERS_MAX];
-            let mut xy = [[0.0f64; 3]; AXIS_PARAMETERS_MAX];
             for r in 0..n {
                 for c in 0..=r {
                     gram[r][c] = self.gram[packed_index(index[r], index[c])];
@@ -540,10 +542,9 @@ impl LagHypothesis {
             }
             let explained = explained_sums(&mut gram, &xy, n, 1, shared.ridge);
             out[a] = (shared.rate_yy[a] - explained[0]).max(0.0) as f32;
+            return;
         }
         let n = m + 9;
-        let mut gram = [[0.0f64; AXIS_PARAMETERS_MAX]; AXIS_PARAMETERS_MAX];
-        let mut xy = [[0.0f64; 3]; AXIS_PARAMETERS_MAX];
         let mut k = 0;
         for r in 0..m {
             for c in 0..=r {
@@ -567,9 +568,17 @@ impl LagHypothesis {
         for a in 0..3 {
             out[3 + a] = (shared.force_yy[a] - explained[a]).max(0.0) as f32;
         }
-        out
     }
 }
+
+/// The parts of one candidate's residuals ([`LagHypothesis::residuals_part`]): the three rate
+/// axes' regressions and the specific force's.
+const RESIDUAL_PARTS: usize = 4;
+
+/// Samples after the excitation's end over which the candidates are scored, one regression a
+/// sample ([`CommandSpeedModel::chosen`] after them, and after the last period's pending
+/// candidates, up to 13 more): 52, 26 ms at 2 kHz.
+pub const SCORING_SAMPLES: usize = RESIDUAL_PARTS * TAU_GRID_S.len();
 
 /// Regressors of all three axes' regressions: five per motor (see [`LagHypothesis::gram`]).
 const REGRESSORS_MAX: usize = 5 * MAX_MOTORS;
@@ -719,9 +728,10 @@ pub struct CommandSpeedModel {
     /// Periods learned from.
     regressions: u32,
     /// Whether the excitation is over: the regressions stop, and the candidates are scored,
-    /// one a sample ([`CommandSpeedModel::score_next`]).
+    /// one regression a sample ([`CommandSpeedModel::score_next`]).
     selected: bool,
-    /// Candidates scored so far, and their residuals: the lag is chosen once all are.
+    /// Regressions of the candidates solved so far ([`RESIDUAL_PARTS`] a candidate), and their
+    /// residuals: the lag is chosen once all are.
     scored: usize,
     residuals: [[f32; 6]; TAU_GRID_S.len()],
     /// The time constant identified, s, and its standard deviation (the prior until chosen).
@@ -916,6 +926,13 @@ impl CommandSpeedModel {
         running: bool,
         learn: bool,
     ) {
+        if self.selected {
+            // The regressions have stopped: the candidates are scored, a share a sample.
+            if !self.chosen() {
+                self.score_next();
+            }
+            return;
+        }
         self.process_share();
         let m = self.motors;
         let mut targets = [0.0; MAX_MOTORS];
@@ -933,15 +950,14 @@ impl CommandSpeedModel {
         // excitation ends within its end margin (`excitation::END_MARGIN_S`), and the
         // effectiveness regression catches up with the held samples before the controller
         // engages on its model.
-        if all_low && u16::from(self.pulsed_motors) == (1u16 << m) - 1 && !self.selected {
-            // The regressions stop; what the last period left pending is processed now. (Going
-            // on through the last pulse's tail, 20 ms, changed nothing over 1,000 random worlds
-            // but the wait: docs/benchmarks.md.)
+        if all_low && u16::from(self.pulsed_motors) == (1u16 << m) - 1 {
+            // The regressions stop here: the candidates finish the last period's pending
+            // processing and are scored in the samples that follow. (Going on through the last
+            // pulse's tail, 20 ms, changed nothing over 1,000 random worlds but the wait:
+            // docs/benchmarks.md.)
             self.hold_samples = 0;
             self.selected = true;
-            self.process_candidates(TAU_GRID_S.len());
-        } else if self.selected && !self.chosen() {
-            self.score_next();
+            return;
         }
         let finite = gyro_rad_s.iter().chain(&accel_mps2).all(|w| w.is_finite());
         let gyro = finite.then_some(gyro_rad_s);
@@ -966,7 +982,7 @@ impl CommandSpeedModel {
         self.phase += 1;
         if self.phase >= self.period_samples {
             self.phase = 0;
-            self.close_period(learn && self.pulsed && !self.selected);
+            self.close_period(learn && self.pulsed);
         }
     }
 
@@ -1082,17 +1098,25 @@ impl CommandSpeedModel {
 
     /// Whether the lag has been chosen: every candidate scored after the excitation's end.
     pub fn chosen(&self) -> bool {
-        self.scored == TAU_GRID_S.len()
+        self.scored == SCORING_SAMPLES
     }
 
-    /// One more candidate's residuals (its four regressions solved: three of `4m` unknowns and
-    /// one of `m + 9`), one a sample after the excitation's end, so that no sample carries all
-    /// thirteen (880,000 Cortex-M7 instructions on a quad, 1.8 ms at 480 MHz); with the last,
-    /// the lag is chosen ([`Self::choose`]).
+    /// One more of the candidates' regressions solved for its residuals (three of `4m` unknowns
+    /// and one of `m + 9` per candidate), one a sample after the excitation's end, so that no
+    /// sample carries all 52 (880,000 Cortex-M7 instructions on a quad, 1.8 ms at 480 MHz; a
+    /// whole candidate a sample was 207,000 on an octorotor, 0.43 ms of the 0.5 ms period);
+    /// with the last, the lag is chosen ([`Self::choose`]).
     fn score_next(&mut self) {
-        let j = self.scored;
+        let n = TAU_GRID_S.len();
+        if self.shared.processed < n {
+            // First the last period's candidates not yet through it, one a sample.
+            self.process_candidates(self.shared.processed + 1);
+            return;
+        }
+        let (j, part) = (self.scored / RESIDUAL_PARTS, self.scored % RESIDUAL_PARTS);
         if self.regressions > 0 {
-            self.residuals[j] = self.hypotheses[j].residuals(self.motors, &self.shared_sums);
+            let (m, shared) = (self.motors, &self.shared_sums);
+            self.hypotheses[j].residuals_part(m, shared, part, &mut self.residuals[j]);
         }
         self.scored += 1;
         if self.chosen() && self.regressions > 0 {
