@@ -129,8 +129,9 @@ pub const PULSE_COMMAND: f32 = 0.1;
 /// One standard deviation of τ below which the lag counts as identified, s.
 pub const TAU_CONVERGED_STD_S: f32 = 0.002;
 /// How long the effectiveness regression is held back behind the lag regression, s: the whole
-/// excitation (`ExcitationConfig::max_s`, 0.8 s) and its end margin, so that G1 is learned from
-/// speeds modelled with the lag identified over every pulse (see [`CommandSpeedModel::hold`]).
+/// excitation (`ExcitationConfig::max_s`, 0.8 s) and the lag's choice after it (at most 13 + 52
+/// samples, 32.5 ms), so that G1 is learned from speeds modelled with the lag identified over
+/// every pulse (see [`CommandSpeedModel::hold`]).
 pub const EFFECTIVENESS_HOLD_S: f32 = 0.85;
 /// Most samples held: [`EFFECTIVENESS_HOLD_S`] at 2 kHz, the control rate.
 pub const HELD_SAMPLES_MAX: usize = 1700;
