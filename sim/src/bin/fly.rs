@@ -373,13 +373,7 @@ fn main() -> ExitCode {
                 .collect();
             let wait: Vec<f64> =
                 results.iter().filter_map(|r| r.report.excitation_end_to_engage_s).collect();
-            println!(
-                "the excitation's end → engage: median {:.1} ms, 90th {:.1} ms, 99th {:.1} ms, most {:.1} ms",
-                1e3 * quantile(&wait, 0.5),
-                1e3 * quantile(&wait, 0.9),
-                1e3 * quantile(&wait, 0.99),
-                1e3 * wait.iter().copied().fold(f64::NAN, f64::max)
-            );
+            print_quantiles("the excitation's end → engage", &wait, 1e3, " ms");
             println!(
                 "release → hover: median {:.2} s, 90th {:.2} s, 99th {:.2} s",
                 quantile(&hover, 0.5),
