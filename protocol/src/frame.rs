@@ -80,13 +80,34 @@ pub fn encode<T: Serialize + ?Sized>(
     payload: &T,
     out: &mut [u8],
 ) -> Result<usize, EncodeError> {
+    let mut serializer = postcard::Serializer { output: frame_flavor(out)? };
+    (id, seq, payload).serialize(&mut serializer).map_err(|_| EncodeError::BufferFull)?;
+    finish_frame(serializer.output)
+}
+
+/// The flavor [`encode`] writes through: CRC over the bytes, then COBS into the slice.
+type FrameFlavor<'a> = postcard::ser_flavors::crc::CrcModifier<
+    'static,
+    postcard::ser_flavors::Cobs<postcard::ser_flavors::Slice<'a>>,
+    u32,
+>;
+
+/// [`encode`]'s start and end, the same for every message type: not generic, so that the
+/// firmware holds them once rather than once per message type.
+#[inline(never)]
+fn frame_flavor(out: &mut [u8]) -> Result<FrameFlavor<'_>, EncodeError> {
     let limit = out.len().min(MAX_FRAME_LEN);
     let flavor =
         postcard::ser_flavors::Cobs::try_new(postcard::ser_flavors::Slice::new(&mut out[..limit]))
             .map_err(|_| EncodeError::BufferFull)?;
-    let flavor = postcard::ser_flavors::crc::CrcModifier::new(flavor, CRC.digest());
-    let written = postcard::serialize_with_flavor(&(id, seq, payload), flavor)
-        .map_err(|_| EncodeError::BufferFull)?;
+    Ok(postcard::ser_flavors::crc::CrcModifier::new(flavor, CRC.digest()))
+}
+
+/// See [`frame_flavor`].
+#[inline(never)]
+fn finish_frame(flavor: FrameFlavor<'_>) -> Result<usize, EncodeError> {
+    use postcard::ser_flavors::Flavor;
+    let written = flavor.finalize().map_err(|_| EncodeError::BufferFull)?;
     Ok(written.len())
 }
 
