@@ -45,16 +45,39 @@
 //! the fit is within 0.1 mm on the simulator, with it 3 mm off when only a constant is fitted
 //! beside `r`. It is modelled as a multirotor's drag is, linear (the rotors' drag, about linear
 //! in the velocity) and quadratic (the frame's) in the velocity `v` in IMU axes, each a full
-//! symmetric matrix: `−(K v + Q |v| v)` (12 shared unknowns, 6 per matrix). A frame's drag is
-//! anisotropic in its own axes (a quad's along its thrust axis about twice its sideways one),
-//! and the IMU's axes are not the frame's (any rotation in the random world, a few degrees to a
-//! right angle on a real board), so in IMU axes the linear drag is `R diag(c) Rᵀ`: full,
-//! symmetric. `|v| v`, not `|v_i| v_i`: `|v|` is the same in every axes, so `Q |v| v` is the
+//! symmetric matrix: `−(K v + Q |v| v)` (6 unknowns per matrix; a tensor `T` joins them below).
+//! A frame's drag is anisotropic in its own axes (a quad's along its thrust axis about twice
+//! its sideways one), and the IMU's axes are not the frame's (any rotation in the random
+//! world, a few degrees to a right angle on a real board), so in IMU axes the linear drag is
+//! `R diag(c) Rᵀ`: full, symmetric. `|v| v`, not `|v_i| v_i`: `|v|` is the same in every axes, so `Q |v| v` is the
 //! frame's `|v| diag(c₂) v_frame` exactly in any axes (the simulator's `|v_f,i| v_f,i` per frame
 //! axis it approximates). `v` is the navigation's (`R̂ᵀ v̂_ned` turned into the IMU's axes,
 //! handed over by the control step with each sample): from the pose fixes when they come, else
 //! dead reckoning from the hand's rest; zero terms when it is unknown (NaN), and then drag goes
 //! unmodelled into `c` and the residuals.
+//!
+//! **The quadratic drag's two forms** (since 2026-11-28). A frame's quadratic drag is written
+//! two ways: `|v| diag(c₂) v` (the form above, `Q |v| v` in IMU axes) and per face, `c_i |v_i|
+//! v_i` along each frame axis (a box's faces: AirSim's model, and our simulator's). In IMU
+//! axes turned from the frame the second is not `Q |v| v`: fitted over evenly spread
+//! directions, 0.5–2× per axis, `Q |v| v` leaves 25 % of it (the least-squares residual), and
+//! where the throws are fast that costs the fit millimetres (seeds of the random world 4–6 mm
+//! off with it, 0.2–1 mm with drag linear only). Both forms are odd and of degree 2 in `v`, so
+//! the fit adds the next term of that family: the gradient of a quartic form over the speed,
+//! `(T ∇)(vvvv) / |v|`, with `T` a fully symmetric tensor (15 unknowns: the quartic
+//! monomials). Row k sees the ten monomials with a factor `v_k`, each as its exponent of `v_k`
+//! times the cubic that remains ([`CUBICS`]), so ten more filtered channels `v^c / |v|` serve
+//! all three rows. `T` alone represents per-face drag to 5.4 % and `|v| Q v` to 9 % (0.5–2×,
+//! any rotation; synthetic least squares); `Q` and `T` together, `|v| Q v` exactly and per-face
+//! drag to 4 % (a full cubic per row, 30 unknowns, does no better: 4 %). `Q`'s isotropic part
+//! is also `T`'s (`∇|v|⁴ = 4 |v|² v`), so `Q_zz` is left out of row z: otherwise the two would
+//! share a direction. On the unit tests' tumble (frame turned 50°, drag six times larger along
+//! its z): with `Q` alone 0.05 mm (`|v| Q v` drag) and 1.4 mm (per face); `T` alone 1.2 and
+//! 0.37 mm; both, **0.05 and 0.20 mm**. Random world, 200 airframes (`offset_diag 200 random`,
+//! median / 90th / 99th): `Q` alone 1.06 / 2.43 / 6.15 mm (192 inside the ellipsoid), `T` alone
+//! 1.02 / 2.12 / 4.22 mm (196), a full cubic per row 1.10 / 2.29 / 5.09 mm, **both 1.05 / 2.06 /
+//! 4.87 mm** (196); the airframes' drag quadratic only (linear zeroed): `Q` 0.97 / 2.15 / 6.11,
+//! both 0.94 / 1.78 / 2.69 mm. 1,000 worlds: docs/benchmarks.md.
 //!
 //! Random world, 200 airframes (`offset_diag 200 random first`), median / 90th / 99th (truth
 //! inside the 95 % ellipsoid): per IMU axis `k_i v_i + q_i |v| v_i` (before, 2026-11-27) 1.08 /
@@ -82,18 +105,19 @@
 //! / 1.54 / 2.32 mm.
 //!
 //! With `s = ω²/SPEED2_SCALE`, each sample gives three equations
-//! `f_k = g_kᵀ s + X_k r + c_k + d_kᵀ (K, Q)`; the normal equations are accumulated (no
+//! `f_k = g_kᵀ s + X_k r + c_k + d_kᵀ (K, Q, T)`; the normal equations are accumulated (no
 //! forgetting). Their structure keeps them small: the three rows share the regressor `s`, so the
-//! G1f block is three copies of `W = Σ s sᵀ` (`m × m`), and the 18 shared unknowns
-//! `z = (r, c, K, Q)` are solved from the Schur complement `S = C − Σₖ Pₖᵀ W⁻¹ Pₖ` (18 × 18),
-//! where `Pₖ = Σ s φₖᵀ` and `C = Σₖ Σ φₖ φₖᵀ`, `φₖ = (X_k, e_k, d_k)`; G1f follows by back
-//! substitution. Row k's `φₖ` touches 10 of the 18 (`r`, `c_k`, row k of `K` and of `Q`:
-//! `(K v)_k = Σ_j K_kj v_j`), so `Pₖ` is kept in those 10 columns and `C` accumulated in their
-//! 55 pairs. The drag's unknowns get a vanishing prior (`10⁻⁹` of the mean diagonal): their
-//! regressors are all zero when no velocity was ever known. About 670 `f64` numbers (5.4 KB);
-//! 26 biquad channels on every sample, and every [`SUM_INTERVAL_S`] (500 Hz) one sample into the
-//! sums: 340 multiply-adds at `m = 4` (500 at `m = 8`; the per-axis drag's dense 12 were 440 and
-//! 620); per solve two Cholesky inverses (`W` padded to 8 × 8, `S` 18 × 18).
+//! G1f block is three copies of `W = Σ s sᵀ` (`m × m`), and the 33 shared unknowns
+//! `z = (r, c, K, Q, T)` are solved from the Schur complement `S = C − Σₖ Pₖᵀ W⁻¹ Pₖ` (33 ×
+//! 33), where `Pₖ = Σ s φₖᵀ` and `C = Σₖ Σ φₖ φₖᵀ`, `φₖ = (X_k, e_k, d_k)`; G1f follows by back
+//! substitution. Row k's `φₖ` touches 20 of the 33 (`r`, `c_k`, row k of `K` and of `Q`:
+//! `(K v)_k = Σ_j K_kj v_j`, and ten entries of `T`), so `Pₖ` is kept in those 20 columns and
+//! `C` accumulated in their 210 pairs. The drag's unknowns get a vanishing prior (`10⁻⁹` of the
+//! mean diagonal): their regressors are all zero when no velocity was ever known. About 1,690
+//! `f64` numbers (13.5 KB, was 670 with `K` and `Q` alone); 36 biquad channels on every sample
+//! (was 26), and every [`SUM_INTERVAL_S`] (500 Hz) one sample into the sums: about 950
+//! multiply-adds at `m = 4` (1,230 at `m = 8`; with `K` and `Q` alone 340 and 500); per solve
+//! two Cholesky inverses (`W` padded to 8 × 8, `S` 33 × 33).
 //!
 //! Uncertainty: `σ²` from the residual sum of squares, widened by the samples per independent
 //! one, times the `r` block of `S⁻¹`, plus a sphere for the IMU's sensitivity errors; the 95 %
@@ -152,23 +176,44 @@ pub const RESIDUAL_CORRELATION_S: f32 = 0.2;
 /// sums are most of a sample's cost (docs/benchmarks.md).
 pub const SUM_INTERVAL_S: f32 = 0.002;
 
-/// The unknowns shared by the three rows: `r` (3), the constant `c` (3) and the drag's two
-/// symmetric matrices in IMU axes, linear `K` and quadratic `Q` (6 each, see [`sym`]).
-const SHARED: usize = 18;
+/// The unknowns shared by the three rows: `r` (3), the constant `c` (3), the drag's symmetric
+/// matrices in IMU axes, linear `K` and quadratic `Q` (6 each, see [`sym`]), and its fully
+/// symmetric tensor `T` (15, see [`quartic_index`]).
+const SHARED: usize = QUARTIC_UNKNOWNS + 15;
 
-/// Index of the first drag unknown in the shared ones: `K` (6), then `Q` (6), each in the
-/// order xx, xy, xz, yy, yz, zz.
+/// Index of the first drag unknown in the shared ones: `K`, then `Q`, each in the order xx, xy,
+/// xz, yy, yz, zz, then `T`.
 const DRAG_UNKNOWNS: usize = 6;
 
 /// Index of the first unknown of the quadratic drag matrix `Q`.
 const QUADRATIC_UNKNOWNS: usize = DRAG_UNKNOWNS + 6;
 
-/// Drag regressors: the velocity in IMU axes `v` (3) and `|v| v` (3).
-const DRAG_CHANNELS: usize = 6;
+/// Index of the first unknown of the drag tensor `T`.
+const QUARTIC_UNKNOWNS: usize = QUADRATIC_UNKNOWNS + 6;
 
-/// The shared unknowns one row's regressor `φₖ` touches: `r` (3), its own constant, and the
-/// three entries of row k of `K` and of `Q`. The others are zero in it.
-const ROW_UNKNOWNS: usize = 10;
+/// The drag tensor's regressors: the cubic monomials of `v` (over `|v|`), as exponents of
+/// (x, y, z), in the order xxx, xxy, xxz, xyy, xyz, xzz, yyy, yyz, yzz, zzz.
+const CUBICS: [[usize; 3]; 10] = [
+    [3, 0, 0],
+    [2, 1, 0],
+    [2, 0, 1],
+    [1, 2, 0],
+    [1, 1, 1],
+    [1, 0, 2],
+    [0, 3, 0],
+    [0, 2, 1],
+    [0, 1, 2],
+    [0, 0, 3],
+];
+
+/// Drag regressors: the velocity in IMU axes `v` (3), `|v| v` (3) and the [`CUBICS`] over `|v|`
+/// (10).
+const DRAG_CHANNELS: usize = 6 + CUBICS.len();
+
+/// The shared unknowns one row's regressor `φₖ` touches: `r` (3), its own constant, row k of
+/// `K` and of `Q` (3 each), and the ten entries of `T` whose monomial has a factor `v_k`. The
+/// others are zero in it.
+const ROW_UNKNOWNS: usize = 10 + CUBICS.len();
 
 /// Index of the symmetric 3 × 3 matrix's entry (i, j) = (j, i) in the order xx, xy, xz, yy, yz,
 /// zz.
@@ -177,23 +222,56 @@ const fn sym(i: usize, j: usize) -> usize {
     INDEX[i][j]
 }
 
-/// Per row k, the shared unknowns its regressor touches, ascending (so that a pair (a, b),
-/// a ≤ b, of them is in the upper triangle of `C`).
-const ROW_INDEX: [[usize; ROW_UNKNOWNS]; 3] = {
+/// Index of the quartic monomial with exponents `e` (summing to 4) among the 15, ordered by
+/// decreasing x exponent, then decreasing y exponent (xxxx, xxxy, xxxz, xxyy, …, zzzz): an
+/// entry of `T`.
+const fn quartic_index(e: [usize; 3]) -> usize {
+    let (after_x, after_y) = (4 - e[0], 4 - e[0] - e[1]);
+    after_x * (after_x + 1) / 2 + after_y
+}
+
+/// Per row k, the shared unknowns its regressor touches: `r`, `c_k`, row k of `K` and of `Q`,
+/// then for each of the [`CUBICS`] the entry of `T` whose monomial is that cubic times `v_k`.
+/// Ascending (multiplying by `v_k` keeps the monomials' order), so that a pair (a, b), a ≤ b,
+/// of them is in the upper triangle of `C`.
+const ROW_INDEX: [[u8; ROW_UNKNOWNS]; 3] = {
     let mut index = [[0; ROW_UNKNOWNS]; 3];
     let mut k = 0;
     while k < 3 {
         let mut j = 0;
         while j < 3 {
-            index[k][j] = j;
-            index[k][4 + j] = DRAG_UNKNOWNS + sym(k, j);
-            index[k][7 + j] = QUADRATIC_UNKNOWNS + sym(k, j);
+            index[k][j] = j as u8;
+            index[k][4 + j] = (DRAG_UNKNOWNS + sym(k, j)) as u8;
+            index[k][7 + j] = (QUADRATIC_UNKNOWNS + sym(k, j)) as u8;
             j += 1;
         }
-        index[k][3] = 3 + k;
+        index[k][3] = (3 + k) as u8;
+        let mut j = 0;
+        while j < CUBICS.len() {
+            let mut quartic = CUBICS[j];
+            quartic[k] += 1;
+            index[k][10 + j] = (QUARTIC_UNKNOWNS + quartic_index(quartic)) as u8;
+            j += 1;
+        }
         k += 1;
     }
     index
+};
+
+/// Per row k, the factor of each cubic regressor: `∂(v^e)/∂v_k = e_k v^(e − e_k)`, so the
+/// cubic's exponent of `v_k` plus one.
+const ROW_CUBIC_FACTOR: [[u8; CUBICS.len()]; 3] = {
+    let mut factor = [[0; CUBICS.len()]; 3];
+    let mut k = 0;
+    while k < 3 {
+        let mut j = 0;
+        while j < CUBICS.len() {
+            factor[k][j] = (CUBICS[j][k] + 1) as u8;
+            j += 1;
+        }
+        k += 1;
+    }
+    factor
 };
 
 // Each row's columns ascend, so that `C` is accumulated in its upper triangle only.
@@ -432,9 +510,23 @@ impl OffsetFit {
             // φₖ in the columns it touches (ROW_INDEX[k]): X_k, e_k, then row k of `K` on `v`
             // and of `Q` on `|v| v`.
             let [x0, x1, x2] = x[k];
-            let [v0, v1, v2, w0, w1, w2] = drag.map(f64::from);
-            let phi = [x0, x1, x2, 1.0, v0, v1, v2, w0, w1, w2];
-            let index = &ROW_INDEX[k];
+            let drag = drag.map(f64::from);
+            let mut phi = [0.0; ROW_UNKNOWNS];
+            phi[..10].copy_from_slice(&[
+                x0, x1, x2, 1.0, drag[0], drag[1], drag[2], drag[3], drag[4], drag[5],
+            ]);
+            for ((phi, factor), cubic) in
+                phi[10..].iter_mut().zip(ROW_CUBIC_FACTOR[k]).zip(&drag[6..])
+            {
+                *phi = f64::from(factor) * cubic;
+            }
+            if k == 2 {
+                // `Q_zz`: `Q`'s isotropic part, `|v| v`, is also `T`'s (the gradient of `|v|⁴`):
+                // without this regressor `Q_zz` is left to the prior (zero) and the two do not
+                // share a direction, which would leave the solve singular but for the prior.
+                phi[9] = 0.0;
+            }
+            let index = ROW_INDEX[k].map(usize::from);
             for i in 0..m {
                 for (p, v) in self.p[k][i].iter_mut().zip(&phi) {
                     *p += s[i] * v;
@@ -485,7 +577,7 @@ impl OffsetFit {
         let mut explained = 0.0;
         for k in 0..3 {
             // W⁻¹ Pₖ (m × ROW_UNKNOWNS, in Pₖ's columns) and W⁻¹ qₖ.
-            let index = &ROW_INDEX[k];
+            let index = ROW_INDEX[k].map(usize::from);
             let mut wp = [[0.0; ROW_UNKNOWNS]; MAX_MOTORS];
             let mut wq = [0.0; MAX_MOTORS];
             for i in 0..m {
@@ -513,7 +605,7 @@ impl OffsetFit {
         // G1f by back substitution: gₖ = W⁻¹ (qₖ − Pₖ z).
         let mut g1f_per_speed2 = [[0.0; MAX_MOTORS]; 3];
         for (k, row) in g1f_per_speed2.iter_mut().enumerate() {
-            let index = &ROW_INDEX[k];
+            let index = ROW_INDEX[k].map(usize::from);
             for i in 0..m {
                 let mut g = 0.0;
                 for j in 0..m {
@@ -568,18 +660,34 @@ impl OffsetFit {
     }
 }
 
-/// The drag's regressors `v` and `|v| v` (see [`DRAG_CHANNELS`]); zero when the velocity is
-/// unknown (not finite).
+/// The drag's regressors: `v` and the ten cubic monomials over `|v|` in [`CUBICS`]' order;
+/// zero when the velocity is unknown (not finite).
 fn drag_regressors(velocity_imu_mps: [f32; 3]) -> [f32; DRAG_CHANNELS] {
-    let mut out = [0.0; DRAG_CHANNELS];
-    if velocity_imu_mps.iter().all(|v| v.is_finite()) {
-        let speed = Vector3::from(velocity_imu_mps).norm();
-        for (k, v) in velocity_imu_mps.into_iter().enumerate() {
-            out[k] = v;
-            out[3 + k] = speed * v;
-        }
+    let [x, y, z] = velocity_imu_mps;
+    let speed = libm::sqrtf(x * x + y * y + z * z);
+    if !speed.is_finite() {
+        return [0.0; DRAG_CHANNELS];
     }
-    out
+    let per_speed = if speed > 0.0 { 1.0 / speed } else { 0.0 };
+    let (xs, ys, zs) = (x * per_speed, y * per_speed, z * per_speed);
+    [
+        x,
+        y,
+        z,
+        speed * x,
+        speed * y,
+        speed * z,
+        x * x * xs,
+        x * y * xs,
+        x * z * xs,
+        y * y * xs,
+        y * z * xs,
+        z * z * xs,
+        y * y * ys,
+        y * z * ys,
+        z * z * ys,
+        z * z * zs,
+    ]
 }
 
 /// `Ωₐ Ω_b` in the order xx, xy, xz, yy, yz, zz.
@@ -764,7 +872,7 @@ mod tests {
             (Vector3::from(estimate.r_imu_m) - r).norm()
         };
         let (given, unknown) = (error(true), error(false));
-        // Measured: 0.04 mm given, 11 mm unknown.
+        // Measured: 0.05 mm given, 11 mm unknown.
         assert!(given < 0.2e-3, "given: error {given} m");
         assert!(unknown > 2e-3, "unknown: error {unknown} m, given {given} m");
     }
@@ -773,7 +881,8 @@ mod tests {
     /// IMU by 50° about a skew axis (a real board's axes are not the frame's; the random world
     /// turns the IMU arbitrarily): in IMU axes the drag is `K v + Q |v| v` with full symmetric
     /// matrices, which per-axis coefficients cannot represent. The quadratic term the
-    /// simulator's way, `|v_i| v_i` per frame axis, `Q |v| v` only approximates.
+    /// simulator's way, `|v_i| v_i` per frame axis, `Q |v| v` approximates to 25 % and the
+    /// quartic tensor `T` to 4 % (module doc): the fit has both.
     #[test]
     fn anisotropic_drag_in_a_frame_turned_from_the_imu_is_fitted_beside_the_offset() {
         let r = Vector3::new(-0.010_f32, -0.013, 0.008);
@@ -791,11 +900,12 @@ mod tests {
             let estimate = fit.estimate().unwrap();
             (Vector3::from(estimate.r_imu_m) - r).norm()
         };
-        // Measured: 0.05 mm with `|v| v`, 1.4 mm with `|v_i| v_i` (per IMU axis, `k_i v_i +
-        // q_i |v| v_i`, as before 2026-11-27: 7.2 and 7.0 mm).
+        // Measured: 0.05 mm with `|v| v`, 0.20 mm with `|v_i| v_i` (with `Q` alone, to
+        // 2026-11-27: 0.05 and 1.4 mm; with `T` alone 1.2 and 0.37 mm; per IMU axis, `k_i v_i +
+        // q_i |v| v_i`, before: 7.2 and 7.0 mm).
         let (model, per_axis) = (error(false), error(true));
         assert!(model < 0.2e-3, "|v| v: error {model} m");
-        assert!(per_axis < 2.5e-3, "|v_i| v_i: error {per_axis} m");
+        assert!(per_axis < 0.5e-3, "|v_i| v_i: error {per_axis} m");
     }
 
     /// A solve that explains more than the data's energy has lost its precision (seen in the

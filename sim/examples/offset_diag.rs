@@ -3,7 +3,7 @@
 //! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]
 //! [first] [no-poses]` (`first`: the world as drawn only; `no-poses`: no motion capture, the
 //! navigation's velocity is dead reckoning from the hand). `OFFSET_DIAG_VARIANT=N` runs variant N
-//! of `VARIANTS` alone (1: `no gust`).
+//! of `VARIANTS` alone (1: `no gust`; 9 and 10: the drag linear only, quadratic only).
 //!
 //! Each variant flies the same seeds (airframes, throws, worlds) with one error source switched
 //! off; `calibration` also fits the two-throw calibration (`sim::calibration`, as
@@ -42,7 +42,7 @@ fn no_drag(a: &mut Airframe, c: &mut FlyConfig) {
     c.board.world.gust_s = 0.0;
 }
 
-const VARIANTS: [(&str, Change); 9] = [
+const VARIANTS: [(&str, Change); 11] = [
     ("as drawn", |_, _| {}),
     ("no gust", |_, c| c.board.world.gust_s = 0.0),
     ("no gyro scale/cross-axis error", no_gyro_scale),
@@ -64,6 +64,9 @@ const VARIANTS: [(&str, Change); 9] = [
         no_accel_scale(a, c);
         no_noise(a, c);
     }),
+    // The drag's two parts on their own (the fit's quadratic form, 2026-11-28).
+    ("linear drag only", |a, _| a.drag.quadratic_n_per_mps2 = [0.0; 3]),
+    ("quadratic drag only", |a, _| a.drag.linear_n_per_mps = [0.0; 3]),
 ];
 
 /// `(r̂ − r)ᵀ Σ⁻¹ (r̂ − r) / χ²₃(0.95)`: at most 1 when the truth is inside the ellipsoid.

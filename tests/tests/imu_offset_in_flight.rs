@@ -53,7 +53,7 @@ fn the_seed_papers_quad_finds_its_imu_offset_in_one_throw_to_fly() {
 fn random_worlds_find_the_imu_offset_within_millimetres() {
     // Random airframes (IMU up to 30 mm out, any orientation) in the randomised world: hand,
     // poses, IMU errors, actuators, drag and gusts all drawn.
-    let errors: Vec<f64> = (1..=8)
+    let errors: Vec<f64> = (1..=30)
         .map(|seed| {
             let (airframe, mut config) = random_world_case(seed, &Aspect::ALL);
             config.known_imu_offset = false;
@@ -62,14 +62,14 @@ fn random_worlds_find_the_imu_offset_within_millimetres() {
         .collect();
     let mut sorted = errors.clone();
     sorted.sort_by(f64::total_cmp);
-    // Measured with the drag as full matrices on the navigation's velocity, in worlds whose drag
-    // differs along the body's axes (since 2026-11-27): median 1.14 mm, second worst 2.06 mm
-    // (seed 2), worst 3.42 mm (seed 7). Before, with the drag the same along every axis: per IMU
-    // axis 1.30 / 1.87 / 3.52 mm, as matrices 1.07 / 2.02 / 3.43 mm. The target is 1 mm
-    // median and 2 mm at the 90th percentile, on 1,000 worlds (docs/benchmarks.md; what is left:
-    // the velocity's error and the IMU's scale errors, docs/algorithms/imu-offset.md).
-    let median = 0.5 * (sorted[3] + sorted[4]);
-    assert!(median < 1.5, "median {median} mm: {errors:?}");
-    assert!(sorted[6] < 2.2, "second worst {} mm: {errors:?}", sorted[6]);
-    assert!(sorted[7] < 4.5, "worst {} mm: {errors:?}", sorted[7]);
+    // The targets, 1 mm median and 2 mm at the 90th percentile, on these 30 worlds.
+    // Measured with the quadratic drag as `|v| Q v` and the fully symmetric quartic tensor
+    // (2026-11-28): median 0.92 mm, 90th (27th of 30) 1.78 mm, worst 4.87 mm (seed 7, whose
+    // error every part of the world feeds: docs/algorithms/imu-offset.md). On 1,000 worlds
+    // 0.98 / 2.09 / 4.87 mm (docs/benchmarks.md); with `|v| Q v` alone (to 2026-11-27) seeds 1–8
+    // gave median 1.14 mm and worst 3.42 mm, 1,000 worlds 1.02 / 2.30 / 5.59 mm.
+    let median = 0.5 * (sorted[14] + sorted[15]);
+    assert!(median < 1.0, "median {median} mm: {errors:?}");
+    assert!(sorted[26] < 2.0, "90th percentile {} mm: {errors:?}", sorted[26]);
+    assert!(sorted[29] < 6.0, "worst {} mm: {errors:?}", sorted[29]);
 }
