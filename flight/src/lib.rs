@@ -27,6 +27,7 @@ pub mod math;
 pub mod navigation;
 pub mod position;
 pub mod rng;
+pub mod slot;
 #[cfg(any(test, feature = "std"))]
 pub mod testing;
 pub mod thrust_axis;

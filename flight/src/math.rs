@@ -180,8 +180,19 @@ pub fn rotation_from_scaled_axis(phi: &Vector3<f32>) -> UnitQuaternion<f32> {
 pub fn spd_inverse<const N: usize>(a: &[[f64; N]; N]) -> Option<[[f64; N]; N]> {
     let mut l = [[0.0; N]; N];
     let mut inverse = [[0.0; N]; N];
-    spd_inverse_flat(a.as_flattened(), l.as_flattened_mut(), inverse.as_flattened_mut(), N)
-        .then_some(inverse)
+    spd_inverse_into(a, &mut l, &mut inverse).then_some(inverse)
+}
+
+/// [`spd_inverse`] into `inverse`, with `factor` for the Cholesky factor (neither needs to be
+/// cleared): for matrices too large for the stack, kept where their owner is (the in-flight
+/// IMU-offset fit's 33 × 33, three of which were 26 KB of the background task's stack).
+/// `false` when a pivot is not positive and finite or the inverse is not finite.
+pub fn spd_inverse_into<const N: usize>(
+    a: &[[f64; N]; N],
+    factor: &mut [[f64; N]; N],
+    inverse: &mut [[f64; N]; N],
+) -> bool {
+    spd_inverse_flat(a.as_flattened(), factor.as_flattened_mut(), inverse.as_flattened_mut(), N)
 }
 
 /// [`spd_inverse`] of the `n × n` row-major `a` into `inverse`, with `l` (`n × n`) for the

@@ -142,7 +142,7 @@ use flight::filters::{BiquadCoefficients, ButterworthBank, CentralDifference3};
 use flight::learner::effectiveness::SPEED2_SCALE;
 use flight::learner::inertia::HAND_CONTACT_S;
 use flight::learner::{EFFECTIVENESS_CUTOFF_HZ, MAX_MOTORS};
-use flight::math::spd_inverse;
+use flight::math::{spd_inverse, spd_inverse_into};
 use nalgebra::Vector3;
 
 /// Largest 95 % semi-axis for "well determined", m: the calibration's default
@@ -287,6 +287,31 @@ const _: () = {
     }
 };
 
+/// The solve's three `SHARED × SHARED` matrices (the Schur complement, its Cholesky factor,
+/// its inverse), 26 KB: [`OffsetFit::estimate_in`] works in them rather than on the stack. Any
+/// contents will do (each solve overwrites them), so all zero bytes, written in place, is a
+/// valid one.
+#[derive(Clone, Debug)]
+pub struct SolveScratch {
+    schur: [[f64; SHARED]; SHARED],
+    factor: [[f64; SHARED]; SHARED],
+    inverse: [[f64; SHARED]; SHARED],
+}
+
+impl SolveScratch {
+    /// All zero.
+    pub fn new() -> Self {
+        let zero = [[0.0; SHARED]; SHARED];
+        Self { schur: zero, factor: zero, inverse: zero }
+    }
+}
+
+impl Default for SolveScratch {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// The fitted offset.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct OffsetFitEstimate {
@@ -383,17 +408,17 @@ impl OffsetFit {
     pub fn new(motors: usize, rate_hz: f32, speed_lag_s: f32) -> Option<Self> {
         let filter =
             BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, rate_hz).ok()?;
-        Some(Self {
-            motors: motors.clamp(1, MAX_MOTORS),
+        let mut fit = Self {
+            motors: 1,
             rate_hz,
-            speed_lag_s: if speed_lag_s.is_finite() { speed_lag_s } else { 0.0 },
+            speed_lag_s: 0.0,
             filters: ButterworthBank::from_coefficients(filter),
             difference: CentralDifference3::new(rate_hz),
             lagged: [[0.0; CHANNELS]; 2],
             seen: 0,
             held_speed: [0.0; MAX_MOTORS],
-            skip: (HAND_CONTACT_S * rate_hz) as u32,
-            sum_stride: libm::roundf(SUM_INTERVAL_S * rate_hz).max(1.0) as u32,
+            skip: 0,
+            sum_stride: 1,
             until_sum: 0,
             w: [[0.0; MAX_MOTORS]; MAX_MOTORS],
             p: [[[0.0; ROW_UNKNOWNS]; MAX_MOTORS]; 3],
@@ -402,15 +427,45 @@ impl OffsetFit {
             d: [0.0; SHARED],
             yy: 0.0,
             samples: 0,
-        })
+        };
+        fit.reset(motors, rate_hz, speed_lag_s).then_some(fit)
+    }
+
+    /// [`Self::new`] in place: forget everything, a new attempt for `motors` motors sampled at
+    /// `rate_hz` with speed reports `speed_lag_s` old. In place because the fit is 14 KB: built
+    /// on the background task's stack and moved, it was that task's deepest frame but one.
+    /// `false`, and nothing changed, when the rate does not allow the learner's 20 Hz filter.
+    /// Any contents will do before (all zero bytes, written in place, is a valid fit).
+    pub fn reset(&mut self, motors: usize, rate_hz: f32, speed_lag_s: f32) -> bool {
+        let Ok(filter) = BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, rate_hz)
+        else {
+            return false;
+        };
+        self.motors = motors.clamp(1, MAX_MOTORS);
+        self.rate_hz = rate_hz;
+        self.speed_lag_s = if speed_lag_s.is_finite() { speed_lag_s } else { 0.0 };
+        self.filters = ButterworthBank::from_coefficients(filter);
+        self.difference = CentralDifference3::new(rate_hz);
+        self.seen = 0;
+        self.held_speed = [0.0; MAX_MOTORS];
+        self.skip = (HAND_CONTACT_S * rate_hz) as u32;
+        self.sum_stride = libm::roundf(SUM_INTERVAL_S * rate_hz).max(1.0) as u32;
+        self.until_sum = 0;
+        self.lagged.iter_mut().for_each(|row| row.fill(0.0));
+        self.w.iter_mut().for_each(|row| row.fill(0.0));
+        self.p.iter_mut().flatten().for_each(|row| row.fill(0.0));
+        self.c.iter_mut().for_each(|row| row.fill(0.0));
+        self.q.iter_mut().for_each(|row| row.fill(0.0));
+        self.d.fill(0.0);
+        self.yy = 0.0;
+        self.samples = 0;
+        true
     }
 
     /// Forget everything: a new attempt for `motors` motors with speed reports `speed_lag_s`
     /// old.
     pub fn restart(&mut self, motors: usize, speed_lag_s: f32) {
-        if let Some(fresh) = Self::new(motors, self.rate_hz, speed_lag_s) {
-            *self = fresh;
-        }
+        self.reset(motors, self.rate_hz, speed_lag_s);
     }
 
     /// Samples fitted so far (one every [`SUM_INTERVAL_S`]).
@@ -545,8 +600,18 @@ impl OffsetFit {
         self.samples = self.samples.saturating_add(1);
     }
 
-    /// The offset fitted so far, with its 95 % ellipsoid.
+    /// The offset fitted so far, with its 95 % ellipsoid ([`Self::estimate_in`] with a
+    /// workspace on the stack: 26 KB, for the host).
     pub fn estimate(&self) -> Result<OffsetFitEstimate, OffsetFitError> {
+        self.estimate_in(&mut SolveScratch::new())
+    }
+
+    /// [`Self::estimate`] with its 33 × 33 matrices in `scratch`, wherever its owner keeps it
+    /// (the board's background task: in its static state, not on its stack).
+    pub fn estimate_in(
+        &self,
+        scratch: &mut SolveScratch,
+    ) -> Result<OffsetFitEstimate, OffsetFitError> {
         let m = self.motors;
         let unknowns = 3 * m + SHARED;
         let rows = 3 * self.samples as usize;
@@ -565,8 +630,12 @@ impl OffsetFit {
             row[i] += if i < m { prior } else { 1.0 };
         }
         let w_inv = spd_inverse(&w).ok_or(OffsetFitError::NotDetermined)?;
-        let mut schur: [[f64; SHARED]; SHARED] =
-            core::array::from_fn(|a| core::array::from_fn(|b| self.c[a.min(b)][a.max(b)]));
+        let SolveScratch { schur, factor, inverse: schur_inv } = scratch;
+        for (a, row) in schur.iter_mut().enumerate() {
+            for (b, v) in row.iter_mut().enumerate() {
+                *v = self.c[a.min(b)][a.max(b)];
+            }
+        }
         // The velocity drag with a vanishing prior: its regressors are all zero when the
         // velocity was never known, and then it must not make the solve singular.
         let trace: f64 = (0..SHARED).map(|a| self.c[a][a]).sum();
@@ -598,7 +667,9 @@ impl OffsetFit {
                 explained += self.q[k][i] * wq[i];
             }
         }
-        let schur_inv = spd_inverse(&schur).ok_or(OffsetFitError::NotDetermined)?;
+        if !spd_inverse_into(schur, factor, schur_inv) {
+            return Err(OffsetFitError::NotDetermined);
+        }
         let z: [f64; SHARED] =
             core::array::from_fn(|a| (0..SHARED).map(|b| schur_inv[a][b] * t[b]).sum());
         explained += (0..SHARED).map(|a| z[a] * t[a]).sum::<f64>();

@@ -266,17 +266,38 @@ impl State {
 impl ImuOffsetEstimator {
     /// An estimator for a stream at `rate_hz` (500 Hz – 8 kHz).
     pub fn new(rate_hz: f32, config: Config) -> Result<Self, ImuOffsetError> {
+        let mut estimator = core::mem::MaybeUninit::uninit();
+        Self::build_in(&mut estimator, rate_hz, config)?;
+        // SAFETY: `build_in` returned `Ok`: every field is written.
+        Ok(unsafe { estimator.assume_init() })
+    }
+
+    /// [`Self::new`] written in place into `slot` (15 KB: the board builds it in its background
+    /// task's static state, `flight::slot::Slot`). On an error nothing is written.
+    pub fn build_in(
+        slot: &mut core::mem::MaybeUninit<Self>,
+        rate_hz: f32,
+        config: Config,
+    ) -> Result<&mut Self, ImuOffsetError> {
         if !(rate_hz.is_finite() && (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&rate_hz)) {
             return Err(ImuOffsetError::RateOutOfRange { rate_hz });
         }
         let settings = Settings::new(rate_hz, &config)?;
-        Ok(Self {
-            config,
-            rate_hz,
-            state: State::new(&settings, rate_hz, config.gravity_mps2),
-            settings,
-            drag_throw: DragThrow::new(rate_hz),
-        })
+        let this = slot.as_mut_ptr();
+        // SAFETY: `this` is the slot's, valid for writes and aligned; each field is written
+        // exactly once before the reference is formed.
+        unsafe {
+            core::ptr::addr_of_mut!((*this).config).write(config);
+            core::ptr::addr_of_mut!((*this).rate_hz).write(rate_hz);
+            core::ptr::addr_of_mut!((*this).state).write(State::new(
+                &settings,
+                rate_hz,
+                config.gravity_mps2,
+            ));
+            core::ptr::addr_of_mut!((*this).settings).write(settings);
+            DragThrow::init_in(core::ptr::addr_of_mut!((*this).drag_throw), rate_hz);
+            Ok(slot.assume_init_mut())
+        }
     }
 
     /// Forget everything and start again with `config`, in place (the board's background task

@@ -89,7 +89,7 @@ pub fn build(args: &[String]) -> Result<PathBuf> {
     let used = MemoryUse::of(&sections);
     print!("{}", used.report(&elf));
     if stack {
-        print!("{}", stack_report(&bytes, &sections)?);
+        print!("{}", stack_report(&bytes, &sections, used.stack_bytes)?);
     }
     check_budget(used.flash_bytes)?;
     let formatting = float_formatting_symbols(&bytes)?;
@@ -102,6 +102,24 @@ pub fn build(args: &[String]) -> Result<PathBuf> {
         elf.display()
     );
     Ok(elf)
+}
+
+/// Fails when `init` or the running tasks nested (see [`stack_report`]) need more stack than
+/// the `free_bytes` below the statics: flip-link would turn the overflow into a fault at boot
+/// or in flight.
+fn check_stack(init_bytes: u64, running_bytes: u64, free_bytes: u64) -> Result<()> {
+    ensure!(
+        init_bytes <= free_bytes,
+        "init needs {init_bytes} B of stack, {free_bytes} B are free: the board would fault \
+         before its first task (a large value built on the stack and moved? build it in place, \
+         flight::slot::Slot)"
+    );
+    ensure!(
+        running_bytes <= free_bytes,
+        "idle under every handler nested needs {running_bytes} B of stack, {free_bytes} B are \
+         free"
+    );
+    Ok(())
 }
 
 /// Fails when the image does not fit [`FLASH_BUDGET_BYTES`].
@@ -162,7 +180,7 @@ fn registry_remaps() -> Vec<String> {
 }
 
 /// The `build` argument that adds the stack analysis.
-const STACK_ARG: &str = "--stack";
+pub const STACK_ARG: &str = "--stack";
 
 /// Program a board: `cargo xtask flash` through a debug probe with probe-rs, or
 /// `cargo xtask flash --dfu` through the ROM DFU bootloader with dfu-util.
@@ -337,7 +355,7 @@ struct StackPath {
 /// and recursion cannot be followed: they are counted and reported, not bounded. A second
 /// column leaves out paths into the panic handler (a panic ends the flight; its stack is
 /// needed once, at the end).
-fn stack_report(elf: &[u8], sections: &[Section]) -> Result<String> {
+fn stack_report(elf: &[u8], sections: &[Section], free_bytes: u64) -> Result<String> {
     let functions = disassembled_functions(&llvm_objdump_disassembly(elf)?);
     ensure!(!functions.is_empty(), "llvm-objdump listed no functions");
     let index_of = |address: u64| -> Option<usize> {
@@ -409,6 +427,10 @@ fn stack_report(elf: &[u8], sections: &[Section]) -> Result<String> {
     );
     out.push_str("| root | stack, B | without the panic path, B | indirect calls reached | recursion | worst path |\n");
     out.push_str("|---|---:|---:|---:|---|---|\n");
+    // `main`'s worst is `init`'s, before any interrupt is enabled; afterwards idle runs under
+    // every interrupt, each level nested at most once (the worst every handler reaches, with its
+    // exception frame).
+    let (mut init_bytes, mut idle_bytes, mut handlers_bytes) = (0, 0, 0);
     for (label, root) in roots {
         let mut all = Search::new(&functions, &edges, |_| false);
         let worst = all.worst(root);
@@ -421,6 +443,13 @@ fn stack_report(elf: &[u8], sections: &[Section]) -> Result<String> {
             .iter()
             .map(|&i| format!("{} ({})", short_name(&functions[i].name), functions[i].frame_bytes))
             .collect();
+        if functions[root].name == "main" {
+            init_bytes = worst.bytes;
+        } else if label.ends_with("(from main)") {
+            idle_bytes = worst.bytes;
+        } else {
+            handlers_bytes += worst.bytes + EXCEPTION_FRAME_FPU_BYTES;
+        }
         out.push_str(&format!(
             "| {label} | {}{} | {} | {indirect} | {} | {} |\n",
             worst.bytes,
@@ -437,6 +466,12 @@ fn stack_report(elf: &[u8], sections: &[Section]) -> Result<String> {
             path.join(" → ")
         ));
     }
+    let running_bytes = idle_bytes + handlers_bytes;
+    out.push_str(&format!(
+        "\nstack: init {init_bytes} B; idle under every handler nested {running_bytes} B; \
+         {free_bytes} B free\n"
+    ));
+    check_stack(init_bytes, running_bytes, free_bytes)?;
     Ok(out)
 }
 
@@ -526,7 +561,10 @@ fn llvm_objdump_disassembly(elf: &[u8]) -> Result<String> {
     let file = std::env::temp_dir().join(format!("xtask-stack-{}.elf", std::process::id()));
     std::fs::write(&file, elf).with_context(|| format!("writing {}", file.display()))?;
     let output = Command::new(&objdump)
-        .args(["-d", "--no-show-raw-insn", "--demangle"])
+        // The core named: without it an llvm-objdump that does not read the ELF's build
+        // attributes (LLVM 14, a distribution's) decodes no floating-point instruction, loses
+        // the instruction stream after each and missed frames (the in-flight fit's 45 KB).
+        .args(["-d", "--no-show-raw-insn", "--demangle", "--mcpu=cortex-m7"])
         .arg(&file)
         .output()
         .with_context(|| format!("could not run {}", objdump.display()));
@@ -992,6 +1030,15 @@ mod tests {
         assert!(check_budget(262_144).is_ok());
         let over = check_budget(262_145).unwrap_err().to_string();
         assert!(over.contains("262145 B") && over.contains("by 1 B"), "{over}");
+    }
+
+    #[test]
+    fn a_stack_that_overflows_at_init_or_in_flight_is_refused() {
+        // 2026-11-28: init needed 124,236 B with 80,984 B free (the IMU-offset calibration built
+        // on the stack and moved); built in place, 78,180 B.
+        assert!(check_stack(78_180, 30_000, 80_984).is_ok());
+        assert!(check_stack(124_236, 30_000, 80_984).is_err());
+        assert!(check_stack(78_180, 80_985, 80_984).is_err());
     }
 
     #[test]

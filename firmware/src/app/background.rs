@@ -35,7 +35,8 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
-use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate};
+use flight::slot::Slot;
+use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate, SolveScratch};
 use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetSource, ImuOffsetStatus, OffsetAdvice};
@@ -132,8 +133,9 @@ pub struct Background<'q> {
     gyro: [RunningStats; 3],
     accel: [RunningStats; 3],
     window_start_us: Option<u64>,
-    /// `None` only if the estimator rejected its configuration (then the status shows no throws).
-    imu_offset: Option<ImuOffsetEstimator>,
+    /// Built in place (15 KB); empty only if the estimator rejected its configuration (then
+    /// the status shows no throws).
+    imu_offset: Slot<ImuOffsetEstimator>,
     /// The estimator's configuration (from the parameters), used from the next calibration.
     imu_offset_config: imu_offset::Config,
     /// One control period, µs: the spacing of consecutive samples when none is lost.
@@ -169,8 +171,13 @@ pub struct Background<'q> {
     refine_samples: u32,
     /// Whether each attempt fits the IMU offset in flight ([`Background::set_offset_fit`]).
     offset_fit_enabled: bool,
-    /// The in-flight IMU-offset fit of the latest attempt, when enabled.
-    offset_fit: Option<OffsetFit>,
+    /// The in-flight IMU-offset fit of the latest attempt, when [`Self::offset_fitting`]: reset
+    /// in place for each attempt (14 KB), never moved.
+    offset_fit: OffsetFit,
+    /// Whether this attempt fits the offset in flight ([`Self::offset_fit`]).
+    offset_fitting: bool,
+    /// Its solve's matrices (26 KB): here, in the task's static state, not on its stack.
+    offset_scratch: SolveScratch,
     results: BackgroundResults,
 }
 
@@ -200,8 +207,11 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).gyro).write(Default::default());
             addr_of_mut!((*worker).accel).write(Default::default());
             addr_of_mut!((*worker).window_start_us).write(None);
-            addr_of_mut!((*worker).imu_offset)
-                .write(ImuOffsetEstimator::new(f32::from(rate_hz), imu_offset_config()).ok());
+            let imu_offset = addr_of_mut!((*worker).imu_offset);
+            Slot::init_empty(imu_offset);
+            let _ = (*imu_offset).build_with(|slot| {
+                ImuOffsetEstimator::build_in(slot, f32::from(rate_hz), imu_offset_config())
+            });
             addr_of_mut!((*worker).imu_offset_config).write(imu_offset_config());
             addr_of_mut!((*worker).period_us).write(1_000_000 / u64::from(rate_hz));
             addr_of_mut!((*worker).previous_t_us).write(None);
@@ -223,7 +233,10 @@ impl<'q> Background<'q> {
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);
             addr_of_mut!((*worker).offset_fit_enabled).write(true);
-            addr_of_mut!((*worker).offset_fit).write(None);
+            // Zero bytes are a valid fit and scratch (plain numbers), written in place.
+            addr_of_mut!((*worker).offset_fit).write_bytes(0, 1);
+            addr_of_mut!((*worker).offset_fitting).write(false);
+            addr_of_mut!((*worker).offset_scratch).write_bytes(0, 1);
             addr_of_mut!((*worker).results).write(BackgroundResults::default());
             slot.assume_init_mut()
         }
@@ -245,7 +258,7 @@ impl<'q> Background<'q> {
     pub fn set_offset_fit(&mut self, enabled: bool) {
         self.offset_fit_enabled = enabled;
         if !enabled {
-            self.offset_fit = None;
+            self.offset_fitting = false;
         }
     }
 
@@ -258,7 +271,7 @@ impl<'q> Background<'q> {
         let config = params.imu_offset_config();
         if config != self.imu_offset_config {
             self.imu_offset_config = config;
-            if self.imu_offset.as_ref().is_none_or(|e| e.segments().is_empty()) {
+            if self.imu_offset.get().is_none_or(|e| e.segments().is_empty()) {
                 self.restart_imu_offset();
             }
         }
@@ -289,12 +302,15 @@ impl<'q> Background<'q> {
     #[inline(never)]
     fn restart_imu_offset(&mut self) {
         // In place: the estimator is 15 KB, too large for a temporary on this task's stack.
-        let restarted = match &mut self.imu_offset {
+        let restarted = match self.imu_offset.get_mut() {
             Some(estimator) => estimator.restart(self.imu_offset_config).is_ok(),
             None => false,
         };
         if !restarted {
-            self.imu_offset = ImuOffsetEstimator::new(self.rate_hz, self.imu_offset_config).ok();
+            let (rate_hz, config) = (self.rate_hz, self.imu_offset_config);
+            let _ = self
+                .imu_offset
+                .build_with(|slot| ImuOffsetEstimator::build_in(slot, rate_hz, config));
         }
         self.results.imu_offset = ImuOffsetStatus::default();
         self.results.imu_offset_fitted_in_flight = false;
@@ -344,7 +360,7 @@ impl<'q> Background<'q> {
             // A free fall or rest in progress ends here; the samples left out until the craft
             // is unpowered again are told as a gap when it is (`update_imu_offset`).
             self.offset_paused = true;
-            if let Some(estimator) = &mut self.imu_offset {
+            if let Some(estimator) = self.imu_offset.get_mut() {
                 estimator.gap(0);
             }
             self.results.imu_offset.in_free_fall = false;
@@ -468,7 +484,10 @@ impl<'q> Background<'q> {
     /// One sample into the in-flight IMU-offset fit, solved every
     /// [`OFFSET_FIT_SOLVE_INTERVAL_S`].
     fn update_offset_fit(&mut self, sample: &LearnerSample) {
-        let Some(fit) = &mut self.offset_fit else { return };
+        if !self.offset_fitting {
+            return;
+        }
+        let fit = &mut self.offset_fit;
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
         let summed_before = fit.samples();
         fit.update(
@@ -481,8 +500,8 @@ impl<'q> Background<'q> {
         // every few: counting its own samples, not ours).
         let per_solve = libm::roundf(OFFSET_FIT_SOLVE_INTERVAL_S * fit.sum_rate_hz()).max(1.0);
         let summed = fit.samples();
-        if summed != summed_before && summed % per_solve as u32 == 0 {
-            self.results.flight_offset = fit.estimate().ok();
+        if summed != summed_before && summed.is_multiple_of(per_solve as u32) {
+            self.results.flight_offset = fit.estimate_in(&mut self.offset_scratch).ok();
         }
     }
 
@@ -516,16 +535,9 @@ impl<'q> Background<'q> {
         // fit regresses the accelerometer on them).
         let fitting =
             self.offset_fit_enabled && source == ImuOffsetSource::Zero && self.speed_telemetry;
-        if !fitting {
-            self.offset_fit = None;
-        } else {
-            let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
-            let motors = usize::from(motor_count);
-            match &mut self.offset_fit {
-                Some(fit) => fit.restart(motors, lag_s),
-                None => self.offset_fit = OffsetFit::new(motors, self.rate_hz, lag_s),
-            }
-        }
+        let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
+        self.offset_fitting =
+            fitting && self.offset_fit.reset(usize::from(motor_count), self.rate_hz, lag_s);
     }
 
     /// The IMU offset for a new identification and where it came from.
@@ -542,7 +554,7 @@ impl<'q> Background<'q> {
     }
 
     fn update_imu_offset(&mut self, sample: &LearnerSample) {
-        let Some(estimator) = &mut self.imu_offset else { return };
+        let Some(estimator) = self.imu_offset.get_mut() else { return };
         // Samples missing from the stream (no IMU sample in a step, or dropped from a full
         // queue) would splice two stretches of data: tell the estimator about the gap.
         if let Some(previous) = self.previous_t_us.replace(sample.t_us) {

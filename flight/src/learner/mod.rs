@@ -280,55 +280,16 @@ impl LearnedModel {
 
 /// Storage for a [`Learner`] built in place ([`Learner::build_in`]): empty until the first
 /// build, rebuilt in place for another motor count.
-pub struct LearnerSlot {
-    slot: MaybeUninit<Learner>,
-    built: bool,
-}
+pub type LearnerSlot = crate::slot::Slot<Learner>;
 
 impl LearnerSlot {
-    /// No learner yet (nothing is constructed).
-    pub const fn empty() -> Self {
-        // A learner owns no resources: overwriting one in place leaks nothing.
-        const { assert!(!core::mem::needs_drop::<Learner>()) };
-        Self { slot: MaybeUninit::uninit(), built: false }
-    }
-
-    /// An empty slot written in place: only its flag (the storage needs no initialisation).
-    ///
-    /// # Safety
-    /// `this` must be valid for writes and aligned (a field of a value being built in place).
-    pub unsafe fn init_empty(this: *mut Self) {
-        addr_of_mut!((*this).built).write(false);
-    }
-
     /// Build a learner for `motors` motors in place, replacing any earlier one.
     pub fn build(
         &mut self,
         motors: usize,
         config: LearnerConfig,
     ) -> Result<&mut Learner, LearnerError> {
-        self.built = false;
-        let learner = Learner::build_in(&mut self.slot, motors, config)?;
-        self.built = true;
-        Ok(learner)
-    }
-
-    /// The learner, once built.
-    pub fn get(&self) -> Option<&Learner> {
-        // SAFETY: `built` is set only after `build_in` wrote every field.
-        self.built.then(|| unsafe { self.slot.assume_init_ref() })
-    }
-
-    /// The learner, once built.
-    pub fn get_mut(&mut self) -> Option<&mut Learner> {
-        // SAFETY: as in `get`.
-        self.built.then(|| unsafe { self.slot.assume_init_mut() })
-    }
-}
-
-impl core::fmt::Debug for LearnerSlot {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("LearnerSlot").field("learner", &self.get()).finish()
+        self.build_with(|slot| Learner::build_in(slot, motors, config))
     }
 }
 
