@@ -252,13 +252,14 @@ const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 /// sample on which every motor has been pulsed and all are back below a pulse (the last motor's
 /// pulse ends `0.05 (m − 1) + 0.075` s in, `synthetic_sample`, seen three samples later through
 /// the learner's command delay), and the samples measured one by one from two before it: the
-/// learner solves one lag candidate's regression a sample (52), then learns from the held samples, at
-/// most `no_speed::RELEASE_PER_SAMPLE` a sample.
+/// learner solves the lag candidates' regressions (52, as many a sample as
+/// `no_speed::SCORING_WORK_PER_MOTOR` allows), then learns from the held samples, at most
+/// `no_speed::RELEASE_PER_SAMPLE` a sample.
 #[cfg(feature = "no-speed")]
 const NO_SPEED_ENDS: [(usize, usize); 2] = [(4, 453), (8, 853)];
 
-/// Samples measured at each excitation's end ([`NO_SPEED_ENDS`]): the 52 of the candidates'
-/// regressions and the first of the catch-up.
+/// Samples measured at each excitation's end ([`NO_SPEED_ENDS`]): the candidates' regressions
+/// and the first of the catch-up.
 #[cfg(feature = "no-speed")]
 const NO_SPEED_END_MEASURED: usize = 60;
 

@@ -492,10 +492,18 @@ impl Learner {
             // speeds modelled with the lag identified since (`no_speed::CommandSpeedModel::hold`).
             // At most `RELEASE_PER_SAMPLE` a sample: the catch-up after the excitation is
             // spread over the samples that follow it (the model says `pending` until done).
+            let choosing = !self.command_speeds.chosen();
             self.command_speeds.update(gyro_rad_s, accel_mps2, &driving, self.armed, true);
             self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed);
             let pending = self.model.pending;
-            for _ in 0..no_speed::RELEASE_PER_SAMPLE {
+            // The sample that chose the lag spent its share on the regressions
+            // (`no_speed::SCORING_WORK_PER_MOTOR`): the catch-up starts with the next.
+            let release = if choosing && self.command_speeds.chosen() {
+                0
+            } else {
+                no_speed::RELEASE_PER_SAMPLE
+            };
+            for _ in 0..release {
                 let Some(held) = self.command_speeds.release() else { break };
                 self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
             }
@@ -864,11 +872,11 @@ mod tests {
         // Every sample of the attempt learned from, eight a sample and one added each.
         let learned = (learner.model().samples - before) as usize;
         assert!(learned >= pulses, "learned from {learned} of at least {pulses} samples");
-        // After the last pulse: the last period's pending candidates and one candidate's
-        // regression a sample, then the catch-up (and the learner's command delay, a few
-        // samples).
+        // After the last pulse: the last period's pending candidates, the candidates'
+        // regressions (at least one a sample), then the catch-up (and the learner's command
+        // delay, a few samples).
         let spread = pulses / no_speed::RELEASE_PER_SAMPLE;
-        let scoring = no_speed::TAU_GRID_S.len() + no_speed::SCORING_SAMPLES;
+        let scoring = no_speed::TAU_GRID_S.len() + no_speed::SCORING_PARTS;
         let most = scoring + learned.div_ceil(no_speed::RELEASE_PER_SAMPLE - 1) + 8;
         assert!(after >= spread && after <= most, "caught up {after} samples after the pulses");
         assert!(!learner.model().pending);

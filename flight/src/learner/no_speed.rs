@@ -51,9 +51,10 @@
 //! plain ones), so both sides see one filter. The specific force is taken one period back, where
 //! the central difference of the filtered rates gives its angular acceleration. The regressions
 //! stop at the last pulse's end; the candidates' regressions are then solved for their
-//! residuals one a sample (three of `4m` unknowns and one of `m + 9` per candidate: all 52 in
-//! one sample were 880,000 instructions on a quad), and the lag is chosen with the last. Until
-//! then the published τ is the prior.
+//! residuals, as many a sample as a budget of work allows ([`SCORING_WORK_PER_MOTOR`]: a
+//! quad's whole candidate, an octorotor's half; three of `4m` unknowns and one of `m + 9` per
+//! candidate: all 52 in one sample were 880,000 instructions on a quad), and the lag is chosen
+//! with the last. Until then the published τ is the prior.
 //!
 //! **The effectiveness regression waits for the lag.** It never forgets, so what it learned
 //! from speeds modelled with the lag of the first pulses, still far off, would stay. The
@@ -80,8 +81,8 @@
 //!
 //! Cost (`cargo xtask bench-m7 --no-speed`, docs/benchmarks.md): during the excitation at most
 //! 10,021 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
-//! the last period's candidates and one candidate's regression a sample ([`SCORING_SAMPLES`]),
-//! then the catch-up of [`RELEASE_PER_SAMPLE`] held samples a sample (each about what a learner
+//! the last period's candidates, then the candidates' regressions, as many a sample as
+//! [`SCORING_WORK_PER_MOTOR`] allows (a quad's four, one candidate, a sample), then the catch-up of [`RELEASE_PER_SAMPLE`] held samples a sample (each about what a learner
 //! sample with telemetry costs): 76,051 instructions a sample at most on a quad,
 //! 151,317 on an octorotor, which the learner's task keeps up with at 2 kHz. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
 //! ≈ 120 KB. Not on the board yet: `flight`'s feature `no-speed` is off in the firmware, whose
@@ -576,10 +577,27 @@ impl LagHypothesis {
 /// axes' regressions and the specific force's.
 const RESIDUAL_PARTS: usize = 4;
 
-/// Samples after the excitation's end over which the candidates are scored, one regression a
-/// sample ([`CommandSpeedModel::chosen`] after them, and after the last period's pending
-/// candidates, up to 13 more): 52, 26 ms at 2 kHz.
-pub const SCORING_SAMPLES: usize = RESIDUAL_PARTS * TAU_GRID_S.len();
+/// The candidates' regressions solved after the excitation's end ([`CommandSpeedModel::chosen`]
+/// after them): 52, as many a sample as [`SCORING_WORK_PER_MOTOR`] allows (at most 52 samples,
+/// 26 ms at 2 kHz, after the last period's pending candidates, up to 13 more).
+pub const SCORING_PARTS: usize = RESIDUAL_PARTS * TAU_GRID_S.len();
+
+/// Work of the candidates' regressions a sample may take after the excitation's end, per motor,
+/// in Cortex-M7 instructions: 16,000 a motor is a quad's 64,000 and an octorotor's 128,000, below
+/// what a sample of the catch-up that follows costs (67,000–76,000 and 125,000–151,000:
+/// [`RELEASE_PER_SAMPLE`]), so the choice takes no more of the task than the catch-up does.
+/// A compute budget per control period, not a window: the regressions are solved sooner the
+/// faster they are.
+pub const SCORING_WORK_PER_MOTOR: f32 = 16_000.0;
+
+/// A regression's cost for [`SCORING_WORK_PER_MOTOR`], Cortex-M7 instructions, for `n`
+/// unknowns: its fixed part and its elimination, `n³`-proportional (`cargo xtask bench-m7
+/// --no-speed`: a quad's rate regressions, 16 unknowns, 16,452 instructions at most, its force
+/// regression, 13, 12,918; an octorotor's, 32 and 17, 61,284 and 18,568).
+fn regression_work(n: usize) -> f32 {
+    let n = n as f32;
+    10_000.0 + 1.55 * n * n * n
+}
 
 /// Regressors of all three axes' regressions: five per motor (see [`LagHypothesis::gram`]).
 const REGRESSORS_MAX: usize = 5 * MAX_MOTORS;
@@ -729,7 +747,7 @@ pub struct CommandSpeedModel {
     /// Periods learned from.
     regressions: u32,
     /// Whether the excitation is over: the regressions stop, and the candidates are scored,
-    /// one regression a sample ([`CommandSpeedModel::score_next`]).
+    /// a budget of regressions a sample ([`CommandSpeedModel::score_next`]).
     selected: bool,
     /// Regressions of the candidates solved so far ([`RESIDUAL_PARTS`] a candidate), and their
     /// residuals: the lag is chosen once all are.
@@ -1099,14 +1117,14 @@ impl CommandSpeedModel {
 
     /// Whether the lag has been chosen: every candidate scored after the excitation's end.
     pub fn chosen(&self) -> bool {
-        self.scored == SCORING_SAMPLES
+        self.scored == SCORING_PARTS
     }
 
-    /// One more of the candidates' regressions solved for its residuals (three of `4m` unknowns
-    /// and one of `m + 9` per candidate), one a sample after the excitation's end, so that no
-    /// sample carries all 52 (880,000 Cortex-M7 instructions on a quad, 1.8 ms at 480 MHz; a
-    /// whole candidate a sample was 207,000 on an octorotor, 0.43 ms of the 0.5 ms period);
-    /// with the last, the lag is chosen ([`Self::choose`]).
+    /// The candidates' regressions solved for their residuals (three of `4m` unknowns and one
+    /// of `m + 9` per candidate) after the excitation's end, as many a sample as
+    /// [`SCORING_WORK_PER_MOTOR`] allows and at least one, so that no sample carries all 52
+    /// (880,000 Cortex-M7 instructions on a quad, 1.8 ms at 480 MHz); with the last, the lag is
+    /// chosen ([`Self::choose`]).
     fn score_next(&mut self) {
         let n = TAU_GRID_S.len();
         if self.shared.processed < n {
@@ -1114,12 +1132,23 @@ impl CommandSpeedModel {
             self.process_candidates(self.shared.processed + 1);
             return;
         }
-        let (j, part) = (self.scored / RESIDUAL_PARTS, self.scored % RESIDUAL_PARTS);
-        if self.regressions > 0 {
-            let (m, shared) = (self.motors, &self.shared_sums);
-            self.hypotheses[j].residuals_part(m, shared, part, &mut self.residuals[j]);
+        let m = self.motors;
+        let budget = SCORING_WORK_PER_MOTOR * m as f32;
+        let mut spent = 0.0;
+        while !self.chosen() {
+            let part = self.scored % RESIDUAL_PARTS;
+            let work = regression_work(if part < 3 { 4 * m } else { m + 9 });
+            if spent > 0.0 && spent + work > budget {
+                break;
+            }
+            spent += work;
+            if self.regressions > 0 {
+                let j = self.scored / RESIDUAL_PARTS;
+                let shared = &self.shared_sums;
+                self.hypotheses[j].residuals_part(m, shared, part, &mut self.residuals[j]);
+            }
+            self.scored += 1;
         }
-        self.scored += 1;
         if self.chosen() && self.regressions > 0 {
             self.choose();
         }
