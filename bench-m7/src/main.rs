@@ -697,8 +697,8 @@ fn main() -> ! {
         for n in seen - 2..seen - 2 + NO_SPEED_END_MEASURED {
             hprintln!(
                 "bench-m7 region: learner m={}, no speed telemetry, sample {} at the excitation's \
-                 end (from {}: one lag candidate's regression a sample, then at most {} held samples \
-                 learned from)",
+                 end (from {}: the lag candidates' regressions, a work budget a sample, then at \
+                 most {} held samples learned from)",
                 m,
                 n,
                 seen,
