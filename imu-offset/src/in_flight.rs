@@ -114,7 +114,8 @@
 //! `(K v)_k = Σ_j K_kj v_j`, and ten entries of `T`), so `Pₖ` is kept in those 20 columns and
 //! `C` accumulated in their 210 pairs. The drag's unknowns get a vanishing prior (`10⁻⁹` of the
 //! mean diagonal): their regressors are all zero when no velocity was ever known. About 1,690
-//! `f64` numbers (13.5 KB, was 670 with `K` and `Q` alone); 36 biquad channels on every sample
+//! `f64` numbers (13.5 KB, was 670 with `K` and `Q` alone), and the solve's three 33 × 33
+//! matrices (26 KB, [`SolveScratch`], kept by the caller: the board's in static memory); 36 biquad channels on every sample
 //! (was 26), and every [`SUM_INTERVAL_S`] (500 Hz) one sample into the sums: about 950
 //! multiply-adds at `m = 4` (1,230 at `m = 8`; with `K` and `Q` alone 340 and 500); per solve
 //! two Cholesky inverses (`W` padded to 8 × 8, `S` 33 × 33).
@@ -460,12 +461,6 @@ impl OffsetFit {
         self.yy = 0.0;
         self.samples = 0;
         true
-    }
-
-    /// Forget everything: a new attempt for `motors` motors with speed reports `speed_lag_s`
-    /// old.
-    pub fn restart(&mut self, motors: usize, speed_lag_s: f32) {
-        self.reset(motors, self.rate_hz, speed_lag_s);
     }
 
     /// Samples fitted so far (one every [`SUM_INTERVAL_S`]).
