@@ -228,13 +228,15 @@ fn synthetic_sample(m: usize, level: f32, t_s: f32, rate: [f32; 3]) -> (Sample, 
 }
 
 /// A learner fed 0.6 s of a synthetic excitation of `m` motors, so that every G1 column has
-/// information and the thrust axis exists.
-fn primed_learner(m: usize) -> Learner {
+/// information and the thrust axis exists; with `force_seen` false its accelerometer reads no
+/// motor's force, so that its own force rows find no hover.
+fn primed_learner(m: usize, force_seen: bool) -> Learner {
     let Ok(mut learner) = Learner::new(m, LearnerConfig::default()) else { fail("learner") };
     let mut rate = [7.0f32, 7.0, 1.7];
     for n in 0..LEARNER_PRIMING_SAMPLES {
         let ((gyro, accel, commands, speeds), angular) =
             synthetic_sample(m, 0.7, n as f32 / 2000.0, rate);
+        let accel = if force_seen { accel } else { [0.0; 3] };
         learner.update(gyro, accel, &commands, &speeds);
         for k in 0..3 {
             rate[k] += angular[k] / 2000.0;
@@ -722,6 +724,11 @@ fn main() -> ! {
             hprintln!("bench-m7 region: learner step m={}, {}", m, what);
         }
         hprintln!("bench-m7 region: learner cycle m={}: the same six samples in one region", m);
+        hprintln!(
+            "bench-m7 region: learner step m={}, sample 3 after its own rows found no hover: \
+             force row z, thrust-axis solve on the fallback rows, model published",
+            m
+        );
         for what in CLOSED_LOOP_REGIONS {
             hprintln!("bench-m7 region: closed-loop step m={}, {}", m, what);
         }
@@ -899,7 +906,7 @@ fn main() -> ! {
     // own (the worst is the figure the background task must meet on every sample), then the
     // six together from the same state.
     for m in LEARNER_MOTOR_COUNTS {
-        let primed = primed_learner(m);
+        let primed = primed_learner(m, true);
         let samples: [Sample; 6] = core::array::from_fn(|k| {
             synthetic_sample(m, 0.7, 0.601 + k as f32 / 2000.0, [7.0, 7.0, 1.7]).0
         });
@@ -920,6 +927,34 @@ fn main() -> ! {
         black_box(&state);
         if learner.model().axis_status != AxisStatus::Found {
             fail("the learner had no thrust axis after its excitation");
+        }
+        // The same cycle where the learner's own force rows find no hover and the fallback
+        // rows (the airframe's, per squared speed) are given
+        // (`Learner::set_fallback_force_rows`): the publication (sample 2) finds none, and the
+        // next sample solves on the fallback rows.
+        let mut blind = primed_learner(m, false);
+        if blind.model().thrust_axis.is_some() {
+            fail("the learner's own rows found a hover with no force seen");
+        }
+        let problem = airframe(m, 0.0);
+        let per_speed2 = 1.0 / (3000.0 * 3000.0);
+        let mut fallback = [[0.0f32; MAX_MOTORS]; 3];
+        for (k, row) in fallback.iter_mut().enumerate() {
+            for (to, from) in row.iter_mut().zip(problem.g1_f_row(k)) {
+                *to = from * per_speed2;
+            }
+        }
+        blind.set_fallback_force_rows(Some(fallback));
+        for (gyro, _, commands, speeds) in &samples[..2] {
+            blind.update(*gyro, [0.0; 3], commands, speeds);
+        }
+        let (gyro, _, commands, speeds) = samples[2];
+        let mut state = (blind, gyro, commands, speeds);
+        region(&mut state, |(learner, gyro, commands, speeds)| {
+            learner.update(*gyro, [0.0; 3], black_box(commands), black_box(speeds))
+        });
+        if state.0.model().thrust_axis.is_none() {
+            fail("the fallback rows gave no thrust axis");
         }
         let axis = learner.model().thrust_axis.map(|a| a.thrust_dir_imu).unwrap_or_default();
         hprintln!("bench-m7 check: learner m={} thrust direction {:?}", m, axis);

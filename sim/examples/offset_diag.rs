@@ -42,7 +42,24 @@ fn no_drag(a: &mut Airframe, c: &mut FlyConfig) {
     c.board.world.gust_s = 0.0;
 }
 
-const VARIANTS: [(&str, Change); 11] = [
+/// The gyro's sensitivity reduced to its common scale (the mean of its diagonal times the
+/// identity), or with that common scale taken out (the rest kept).
+fn gyro_common_scale(a: &mut Airframe, keep_common: bool) {
+    let s = &mut a.imu.gyro.sensitivity;
+    let common = (s[0][0] + s[1][1] + s[2][2]) / 3.0;
+    for (i, row) in s.iter_mut().enumerate() {
+        for (j, x) in row.iter_mut().enumerate() {
+            *x = match (keep_common, i == j) {
+                (true, true) => common,
+                (true, false) => 0.0,
+                (false, true) => *x - common + 1.0,
+                (false, false) => *x,
+            };
+        }
+    }
+}
+
+const VARIANTS: [(&str, Change); 13] = [
     ("as drawn", |_, _| {}),
     ("no gust", |_, c| c.board.world.gust_s = 0.0),
     ("no gyro scale/cross-axis error", no_gyro_scale),
@@ -67,6 +84,9 @@ const VARIANTS: [(&str, Change); 11] = [
     // The drag's two parts on their own (the fit's quadratic form, 2026-11-28).
     ("linear drag only", |a, _| a.drag.quadratic_n_per_mps2 = [0.0; 3]),
     ("quadratic drag only", |a, _| a.drag.linear_n_per_mps = [0.0; 3]),
+    // The gyro's sensitivity error split (2026-11-28): its common scale alone, all but it.
+    ("gyro's common scale error only", |a, _| gyro_common_scale(a, true)),
+    ("gyro's common scale error taken out", |a, _| gyro_common_scale(a, false)),
 ];
 
 /// `(r̂ − r)ᵀ Σ⁻¹ (r̂ − r) / χ²₃(0.95)`: at most 1 when the truth is inside the ellipsoid.

@@ -322,6 +322,16 @@ pub struct Learner {
     /// The specific-force rows of G1 (per unit squared speed) fitted elsewhere, published and
     /// solved for the thrust axis in place of the learner's own ([`Learner::set_force_rows`]).
     force_rows: Option<[[f32; MAX_MOTORS]; 3]>,
+    /// Force rows to try the thrust axis on while the learner's own have found no hover
+    /// ([`Learner::set_fallback_force_rows`]).
+    fallback_rows: Option<[[f32; MAX_MOTORS]; 3]>,
+    /// The last publication found no hover on the learner's own rows and none was found
+    /// before: the next sample solves on [`Self::fallback_rows`].
+    fallback_pending: bool,
+    /// The solver for [`Self::fallback_rows`]: its own warm start, so that rows estimated
+    /// another way (early, they may be far off) never steer the power iteration on the
+    /// learner's own.
+    fallback_solver: ThrustAxisSolver,
 }
 
 impl Learner {
@@ -400,6 +410,9 @@ impl Learner {
             addr_of_mut!((*learner).staged).write(None);
             addr_of_mut!((*learner).model).write(empty);
             addr_of_mut!((*learner).force_rows).write(None);
+            addr_of_mut!((*learner).fallback_rows).write(None);
+            addr_of_mut!((*learner).fallback_pending).write(false);
+            addr_of_mut!((*learner).fallback_solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             Ok(slot.assume_init_mut())
         }
     }
@@ -415,6 +428,7 @@ impl Learner {
         #[cfg(feature = "no-speed")]
         self.command_speeds.reset();
         self.solver.reset();
+        self.fallback_solver.reset();
         self.commands = [[0.0; MAX_MOTORS]; 8];
         self.newest_command = 0;
         self.armed = false;
@@ -429,6 +443,8 @@ impl Learner {
         self.staging = self.model;
         self.staged = None;
         self.force_rows = None;
+        self.fallback_rows = None;
+        self.fallback_pending = false;
         Ok(())
     }
 
@@ -444,6 +460,29 @@ impl Learner {
             return false;
         }
         self.force_rows = g1f_per_speed2;
+        true
+    }
+
+    /// Force rows (as [`Learner::set_force_rows`]'s) for the thrust axis while the learner's own
+    /// have found no hover within the motor bounds in this identification: each publication
+    /// whose own rows find none (and none was found before) is followed, a sample later, by a
+    /// solve on these with its torque rows, published with them when it finds a hover. From
+    /// then on the learner's own rows are solved again, and the axis is kept while they find
+    /// none (as any earlier axis is). A craft with no axis at the excitation's end is refused
+    /// and falls from its apex; rows estimated another way give it a second chance without
+    /// taking the learner's own a single one. For the rows fitted with the IMU offset in flight
+    /// (`imu_offset::in_flight`) when no offset is known: the learner's own then carry what
+    /// the tumble's rotation does at the IMU, which no motor explains. Until the next
+    /// [`Learner::restart`]. Rows with a non-finite entry are refused (`false`).
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
+    pub fn set_fallback_force_rows(
+        &mut self,
+        g1f_per_speed2: Option<[[f32; MAX_MOTORS]; 3]>,
+    ) -> bool {
+        if g1f_per_speed2.is_some_and(|rows| !rows.iter().flatten().all(|v| v.is_finite())) {
+            return false;
+        }
+        self.fallback_rows = g1f_per_speed2;
         true
     }
 
@@ -534,20 +573,32 @@ impl Learner {
             self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
         self.samples = self.samples.saturating_add(1);
         self.since_publish = self.since_publish.saturating_add(1);
-        match regression {
-            Regression::ForceRow(0) => self.stage(),
-            Regression::ForceRow(1) => self.publish_staged(),
-            Regression::ForceRow(_) | Regression::RotationRow(_) => {}
+        let published = match regression {
+            Regression::ForceRow(0) => {
+                self.stage();
+                false
+            }
+            Regression::ForceRow(1) => {
+                self.publish_staged();
+                true
+            }
+            Regression::ForceRow(_) | Regression::RotationRow(_) => false,
             Regression::All => {
                 self.stage();
                 self.publish_staged();
+                true
             }
             Regression::None => {
-                if self.since_publish >= PUBLISH_INTERVAL_SAMPLES {
+                let due = self.since_publish >= PUBLISH_INTERVAL_SAMPLES;
+                if due {
                     self.stage();
                     self.publish_staged();
                 }
+                due
             }
+        };
+        if self.fallback_pending && !published {
+            self.solve_fallback();
         }
     }
 
@@ -624,41 +675,64 @@ impl Learner {
     fn publish_staged(&mut self) {
         let Some(all_informed) = self.staged.take() else { return };
         self.since_publish = 0;
-        let m = self.motors;
         let model = &mut self.staging;
         if !all_informed {
             model.axis_status = AxisStatus::Waiting;
             self.model = *model;
             return;
         }
-        let g1 = model.g1_per_unit_thrust();
-        let rows = |k: usize| &g1[k][..m];
-        let problem = HoverProblem::new([rows(0), rows(1), rows(2)], [rows(3), rows(4), rows(5)]);
-        // Solved in place: `and_then` would move (copy) the problem.
-        let solution = match &problem {
-            Ok(problem) => self.solver.solve(problem),
-            Err(e) => Err(*e),
-        };
-        match solution {
-            Ok(solution) => {
-                let euler = solution.euler_zyx();
-                let mut u_hover = [0.0; MAX_MOTORS];
-                u_hover[..m].copy_from_slice(solution.u_hover());
-                model.thrust_axis = Some(LearnedThrustAxis {
-                    q_thrust_to_imu: solution.q_thrust_to_imu,
-                    thrust_dir_imu: solution.thrust_dir_imu,
-                    u_hover,
-                    euler_zyx_rad: [euler.roll_rad, euler.pitch_rad, euler.yaw_rad],
-                });
+        match hover_axis(&mut self.solver, model) {
+            Ok(axis) => {
+                model.thrust_axis = Some(axis);
                 model.axis_status = AxisStatus::Found;
             }
             Err(thrust_axis::ThrustAxisError::TorqueRankDeficient { .. }) => {
                 model.axis_status = AxisStatus::RankDeficient;
             }
-            Err(_) => model.axis_status = AxisStatus::NoHover,
+            Err(_) => {
+                model.axis_status = AxisStatus::NoHover;
+                self.fallback_pending = model.thrust_axis.is_none() && self.fallback_rows.is_some();
+            }
         }
         self.model = *model;
     }
+
+    /// The thrust axis solved on [`Self::fallback_rows`] with the last publication's torque
+    /// rows (a sample after it: one solve a sample at most), published with them when found.
+    fn solve_fallback(&mut self) {
+        self.fallback_pending = false;
+        let (Some(rows), None) = (self.fallback_rows, self.model.thrust_axis) else { return };
+        let mut model = self.model;
+        model.g1_per_speed2[..3].copy_from_slice(&rows);
+        if let Ok(axis) = hover_axis(&mut self.fallback_solver, &model) {
+            model.thrust_axis = Some(axis);
+            model.axis_status = AxisStatus::Found;
+            // The next publications keep it while the learner's own rows find no hover.
+            self.staging.thrust_axis = model.thrust_axis;
+            self.model = model;
+        }
+    }
+}
+
+/// The most efficient hover of `model`'s G1 (per unit thrust), solved by `solver`.
+fn hover_axis(
+    solver: &mut ThrustAxisSolver,
+    model: &LearnedModel,
+) -> Result<LearnedThrustAxis, thrust_axis::ThrustAxisError> {
+    let m = usize::from(model.motors);
+    let g1 = model.g1_per_unit_thrust();
+    let rows = |k: usize| &g1[k][..m];
+    let problem = HoverProblem::new([rows(0), rows(1), rows(2)], [rows(3), rows(4), rows(5)])?;
+    let solution = solver.solve(&problem)?;
+    let euler = solution.euler_zyx();
+    let mut u_hover = [0.0; MAX_MOTORS];
+    u_hover[..m].copy_from_slice(solution.u_hover());
+    Ok(LearnedThrustAxis {
+        q_thrust_to_imu: solution.q_thrust_to_imu,
+        thrust_dir_imu: solution.thrust_dir_imu,
+        u_hover,
+        euler_zyx_rad: [euler.roll_rad, euler.pitch_rad, euler.yaw_rad],
+    })
 }
 
 fn check_offset(r: [f32; 3]) -> Result<(), LearnerError> {
@@ -982,5 +1056,87 @@ mod tests {
         learner.restart([0.0; 3]).unwrap();
         run(&mut learner, 0);
         assert_ne!(learner.model().g1_per_speed2[..3], fitted, "a new attempt learns its own");
+    }
+
+    /// The thrust per unit mass of each motor of [`pulse_quad`]'s quad, m/s² per (rad/s)²
+    /// (6.1 m/s² at 3,000 rad/s).
+    const QUAD_THRUST_PER_SPEED2: f32 = 6.1 / (3000.0 * 3000.0);
+
+    /// [`pulse_quad`]'s force rows per squared speed: all along its −z.
+    fn quad_force_rows() -> [[f32; MAX_MOTORS]; 3] {
+        let mut rows = [[0.0; MAX_MOTORS]; 3];
+        rows[2][..4].fill(-QUAD_THRUST_PER_SPEED2);
+        rows
+    }
+
+    /// A flat X quad (arms 0.15 m, inertia 0.01 kg m², thrust [`QUAD_THRUST_PER_SPEED2`])
+    /// pulsing each motor in turn, 50 ms apart, for `samples` at 2 kHz, its body rate
+    /// integrated from the torques; its accelerometer reads the motors' force when
+    /// `force_seen`, nothing otherwise.
+    fn pulse_quad(learner: &mut Learner, force_seen: bool, samples: core::ops::Range<usize>) {
+        let thrust = QUAD_THRUST_PER_SPEED2;
+        let arms = [[0.106f32, 0.106], [-0.106, 0.106], [-0.106, -0.106], [0.106, -0.106]];
+        let mut rate = [5.0f32, -4.0, 1.5];
+        for n in samples {
+            let t_s = n as f32 / 2000.0;
+            let mut commands = [0.0f32; MAX_MOTORS];
+            let mut speeds = [0.0f32; MAX_MOTORS];
+            let mut angular = [0.0f32; 3];
+            for i in 0..4 {
+                let phase = (t_s - 0.05 * i as f32).rem_euclid(0.2);
+                commands[i] = if phase < 0.075 { 0.6 } else { 0.1 };
+                speeds[i] = 3000.0
+                    * libm::sqrtf(commands[i])
+                    * (1.0 + 0.02 * libm::sinf(37.0 * t_s + i as f32));
+                let force = thrust * speeds[i] * speeds[i];
+                let spin = if i % 2 == 0 { 0.015 } else { -0.015 };
+                angular[0] -= arms[i][1] * force / 0.01;
+                angular[1] += arms[i][0] * force / 0.01;
+                angular[2] += spin * force / 0.02;
+            }
+            let force_z = -thrust * speeds.iter().map(|w| w * w).sum::<f32>();
+            let accel = if force_seen { [0.0, 0.0, force_z] } else { [0.0; 3] };
+            learner.update(rate, accel, &commands, &speeds);
+            for k in 0..3 {
+                rate[k] += angular[k] / 2000.0;
+            }
+        }
+    }
+
+    /// Where the learner's own force rows find no hover (here its accelerometer saw no motor's
+    /// force), the fallback rows give it an axis a sample after a publication, and the
+    /// publications after it solve on the learner's own again, keeping that axis; without
+    /// fallback rows, and after a restart, there is none.
+    #[test]
+    fn fallback_force_rows_give_an_axis_where_the_own_rows_find_no_hover() {
+        // The quad is flyable: seeing its force, the learner finds its axis on its own rows.
+        let mut seeing = Learner::new(4, LearnerConfig::default()).unwrap();
+        pulse_quad(&mut seeing, true, 0..1600);
+        let own = seeing.model().thrust_axis.expect("an axis on its own rows");
+        assert!(own.thrust_dir_imu[2] < -0.99, "{:?}", own.thrust_dir_imu);
+
+        let mut blind = Learner::new(4, LearnerConfig::default()).unwrap();
+        pulse_quad(&mut blind, false, 0..1600);
+        assert_eq!(blind.model().axis_status, AxisStatus::NoHover);
+        assert!(blind.model().thrust_axis.is_none());
+
+        let mut learner = Learner::new(4, LearnerConfig::default()).unwrap();
+        let truth = quad_force_rows();
+        let mut bad = truth;
+        bad[1][2] = f32::INFINITY;
+        assert!(!learner.set_fallback_force_rows(Some(bad)));
+        assert!(learner.set_fallback_force_rows(Some(truth)));
+        pulse_quad(&mut learner, false, 0..1600);
+        let axis = learner.model().thrust_axis.expect("an axis on the fallback rows");
+        // The quad's thrust is along its −z, which the fallback rows say and its own do not.
+        assert!(axis.thrust_dir_imu[2] < -0.99, "{:?}", axis.thrust_dir_imu);
+        // Its own rows are published again (they still find no hover): the axis is kept.
+        assert_ne!(learner.model().g1_per_speed2[..3], truth[..]);
+        assert_eq!(learner.model().axis_status, AxisStatus::NoHover);
+        assert_eq!(learner.model().thrust_axis, Some(axis));
+
+        learner.restart([0.0; 3]).unwrap();
+        pulse_quad(&mut learner, false, 0..1600);
+        assert!(learner.model().thrust_axis.is_none(), "the restart dropped the fallback rows");
     }
 }
