@@ -326,7 +326,8 @@ pub struct Learner {
     /// ([`Learner::set_fallback_force_rows`]).
     fallback_rows: Option<[[f32; MAX_MOTORS]; 3]>,
     /// The last publication found no hover on the learner's own rows and none was found
-    /// before: the next sample solves on [`Self::fallback_rows`].
+    /// before: the next sample that neither publishes nor stages solves on
+    /// [`Self::fallback_rows`].
     fallback_pending: bool,
     /// The solver for [`Self::fallback_rows`]: its own warm start, so that rows estimated
     /// another way (early, they may be far off) never steer the power iteration on the
@@ -583,10 +584,12 @@ impl Learner {
                 true
             }
             Regression::ForceRow(_) | Regression::RotationRow(_) => false,
+            // Every sample publishes (no decimation: studies, not the firmware): the fallback
+            // follows in the same sample.
             Regression::All => {
                 self.stage();
                 self.publish_staged();
-                true
+                false
             }
             Regression::None => {
                 let due = self.since_publish >= PUBLISH_INTERVAL_SAMPLES;
@@ -597,7 +600,8 @@ impl Learner {
                 due
             }
         };
-        if self.fallback_pending && !published {
+        // Never beside a staged model: its rows would be replaced before its solve.
+        if self.fallback_pending && !published && self.staged.is_none() {
             self.solve_fallback();
         }
     }
@@ -701,15 +705,15 @@ impl Learner {
     /// rows (a sample after it: one solve a sample at most), published with them when found.
     fn solve_fallback(&mut self) {
         self.fallback_pending = false;
-        let (Some(rows), None) = (self.fallback_rows, self.model.thrust_axis) else { return };
-        let mut model = self.model;
-        model.g1_per_speed2[..3].copy_from_slice(&rows);
-        if let Ok(axis) = hover_axis(&mut self.fallback_solver, &model) {
+        // In the staged model, which is the last published until the next is staged (which
+        // overwrites its rows): no copy of the model unless an axis is found.
+        let model = &mut self.staging;
+        let (Some(rows), None) = (&self.fallback_rows, model.thrust_axis) else { return };
+        model.g1_per_speed2[..3].copy_from_slice(rows);
+        if let Ok(axis) = hover_axis(&mut self.fallback_solver, model) {
             model.thrust_axis = Some(axis);
             model.axis_status = AxisStatus::Found;
-            // The next publications keep it while the learner's own rows find no hover.
-            self.staging.thrust_axis = model.thrust_axis;
-            self.model = model;
+            self.model = *model;
         }
     }
 }
@@ -722,8 +726,12 @@ fn hover_axis(
     let m = usize::from(model.motors);
     let g1 = model.g1_per_unit_thrust();
     let rows = |k: usize| &g1[k][..m];
-    let problem = HoverProblem::new([rows(0), rows(1), rows(2)], [rows(3), rows(4), rows(5)])?;
-    let solution = solver.solve(&problem)?;
+    let problem = HoverProblem::new([rows(0), rows(1), rows(2)], [rows(3), rows(4), rows(5)]);
+    // Solved in place: `?` on the problem would move (copy) it.
+    let solution = match &problem {
+        Ok(problem) => solver.solve(problem)?,
+        Err(e) => return Err(*e),
+    };
     let euler = solution.euler_zyx();
     let mut u_hover = [0.0; MAX_MOTORS];
     u_hover[..m].copy_from_slice(solution.u_hover());
