@@ -3,7 +3,8 @@
 //! `cargo run -p sim --release --example offset_diag -- RUNS [random | nominal | ASPECT] [calibration]
 //! [first] [no-poses]` (`first`: the world as drawn only; `no-poses`: no motion capture, the
 //! navigation's velocity is dead reckoning from the hand). `OFFSET_DIAG_VARIANT=N` runs variant N
-//! of `VARIANTS` alone (1: `no gust`; 9 and 10: the drag linear only, quadratic only).
+//! of `VARIANTS` alone (1: `no gust`; 9 and 10: the drag linear only, quadratic only; 11 and 12:
+//! the gyro's common scale error only, the gyro's errors without it).
 //!
 //! Each variant flies the same seeds (airframes, throws, worlds) with one error source switched
 //! off; `calibration` also fits the two-throw calibration (`sim::calibration`, as

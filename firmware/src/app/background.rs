@@ -455,23 +455,10 @@ impl<'q> Background<'q> {
     /// axis's error went from 2.91° to 1.19° median (docs/algorithms/imu-offset.md). Not
     /// before: solved on the fitted rows from the excitation on, it found no hover in 23 of the
     /// 1,000 worlds against 1 on the learner's own.
-    ///
-    /// Before that, any estimate's rows are the learner's fallback
-    /// (`Learner::set_fallback_force_rows`): its own, learned with no offset, also carry the
-    /// tumble's rotation at the IMU (`Ω × (Ω × r)`, `Ω̇_free × r`), which no motor explains
-    /// and the fit models, and where they find no hover within the motor bounds the craft
-    /// would be refused and fall. Where `r` is still poorly determined the fit's rows are
-    /// uncertain only along `[δr]× G1τ`, directions a hover's torque balance does not use.
-    /// 1,000 random worlds (seeds 5001–6000): 3 refused for no hover, none with the fallback
-    /// (docs/benchmarks.md).
     fn apply_offset_fit(&mut self, flying: bool) {
-        let Some(fit) = self.results.flight_offset else { return };
-        if let Some(learner) = self.learner.get_mut() {
-            learner.set_fallback_force_rows(Some(fit.g1f_per_speed2));
-        }
-        if !fit.usable() {
+        let Some(fit) = self.results.flight_offset.filter(OffsetFitEstimate::usable) else {
             return;
-        }
+        };
         if flying {
             if let Some(learner) = self.learner.get_mut() {
                 learner.set_force_rows(Some(fit.g1f_per_speed2));
@@ -515,6 +502,19 @@ impl<'q> Background<'q> {
         let summed = fit.samples();
         if summed != summed_before && summed.is_multiple_of(per_solve as u32) {
             self.results.flight_offset = fit.estimate_in(&mut self.offset_scratch).ok();
+            // Every estimate's rows, usable or not, are the learner's fallback
+            // (`Learner::set_fallback_force_rows`): its own, learned with no offset, also carry
+            // the tumble's rotation at the IMU (`Ω × (Ω × r)`, `Ω̇_free × r`), which no motor
+            // explains and the fit models, and where they find no hover within the motor
+            // bounds the craft would be refused and fall. Where `r` is still poorly determined
+            // the fit's rows are uncertain only along `[δr]× G1τ`, directions a hover's torque
+            // balance does not use. 1,000 random worlds (seeds 5001–6000): 3 refused for no
+            // hover, none with the fallback (docs/benchmarks.md).
+            if let (Some(estimate), Some(learner)) =
+                (&self.results.flight_offset, self.learner.get_mut())
+            {
+                learner.set_fallback_force_rows(Some(estimate.g1f_per_speed2));
+            }
         }
     }
 

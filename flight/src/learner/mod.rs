@@ -457,11 +457,11 @@ impl Learner {
     /// [`Learner::restart`]. Rows with a non-finite entry are refused (`false`).
     #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn set_force_rows(&mut self, g1f_per_speed2: Option<[[f32; MAX_MOTORS]; 3]>) -> bool {
-        if g1f_per_speed2.is_some_and(|rows| !rows.iter().flatten().all(|v| v.is_finite())) {
-            return false;
+        let finite = all_finite(&g1f_per_speed2);
+        if finite {
+            self.force_rows = g1f_per_speed2;
         }
-        self.force_rows = g1f_per_speed2;
-        true
+        finite
     }
 
     /// Force rows (as [`Learner::set_force_rows`]'s) for the thrust axis while the learner's own
@@ -480,11 +480,11 @@ impl Learner {
         &mut self,
         g1f_per_speed2: Option<[[f32; MAX_MOTORS]; 3]>,
     ) -> bool {
-        if g1f_per_speed2.is_some_and(|rows| !rows.iter().flatten().all(|v| v.is_finite())) {
-            return false;
+        let finite = all_finite(&g1f_per_speed2);
+        if finite {
+            self.fallback_rows = g1f_per_speed2;
         }
-        self.fallback_rows = g1f_per_speed2;
-        true
+        finite
     }
 
     /// Replace the prior of the body's normalised inertia (right after [`Learner::restart`]),
@@ -574,7 +574,8 @@ impl Learner {
             self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
         self.samples = self.samples.saturating_add(1);
         self.since_publish = self.since_publish.saturating_add(1);
-        let published = match regression {
+        // Whether this sample already ran the thrust-axis solve its budget allows.
+        let solved = match regression {
             Regression::ForceRow(0) => {
                 self.stage();
                 false
@@ -584,8 +585,8 @@ impl Learner {
                 true
             }
             Regression::ForceRow(_) | Regression::RotationRow(_) => false,
-            // Every sample publishes (no decimation: studies, not the firmware): the fallback
-            // follows in the same sample.
+            // Every sample publishes (no decimation: studies, not the firmware, with no budget a
+            // sample): the fallback follows in the same sample.
             Regression::All => {
                 self.stage();
                 self.publish_staged();
@@ -601,7 +602,7 @@ impl Learner {
             }
         };
         // Never beside a staged model: its rows would be replaced before its solve.
-        if self.fallback_pending && !published && self.staged.is_none() {
+        if self.fallback_pending && !solved && self.staged.is_none() {
             self.solve_fallback();
         }
     }
@@ -741,6 +742,11 @@ fn hover_axis(
         u_hover,
         euler_zyx_rad: [euler.roll_rad, euler.pitch_rad, euler.yaw_rad],
     })
+}
+
+/// Whether force rows handed in from outside are all finite (`None`, the learner's own, is).
+fn all_finite(rows: &Option<[[f32; MAX_MOTORS]; 3]>) -> bool {
+    rows.is_none_or(|rows| rows.iter().flatten().all(|v| v.is_finite()))
 }
 
 fn check_offset(r: [f32; 3]) -> Result<(), LearnerError> {
