@@ -399,11 +399,18 @@ pub struct SolverConfig {
     /// at m = 8), so a caller with a hard deadline may turn it off and get
     /// [`ThrustAxisError::NoHoverWithinBounds`] instead.
     pub bounded_search: bool,
+    /// When the heuristic's `u*` leaves the bounds and no bounded search runs: return `u*`
+    /// clamped to the bounds ([`HoverSolution::clamped_by`], a hover whose torque is not zero)
+    /// instead of [`ThrustAxisError::NoHoverWithinBounds`] (default false), unless every motor
+    /// at its upper bound gives less than `g` along that axis (the model says the craft is too
+    /// weak to hover at all). For a caller that would rather fly an approximate axis than none,
+    /// as a last resort.
+    pub clamp_outside_bounds: bool,
 }
 
 impl Default for SolverConfig {
     fn default() -> Self {
-        SolverConfig { max_squarings: 6, bounded_search: true }
+        SolverConfig { max_squarings: 6, bounded_search: true, clamp_outside_bounds: false }
     }
 }
 
@@ -422,6 +429,12 @@ pub struct HoverSolution {
     pub eigenvalue: f32,
     /// `true` when the heuristic's `u*` left the bounds and this is the bounded optimum.
     pub bounded: bool,
+    /// 0 for a hover within the bounds. Otherwise the heuristic's `u*` left the bounds and this
+    /// is `u*` clamped to them ([`SolverConfig::clamp_outside_bounds`]): not a hover of the model
+    /// (its torque is not zero), only the nearest axis that a controller finding its own torque
+    /// balance can fly; the value is the largest distance, in normalised thrust, by which a motor
+    /// of `u*` was outside its bounds.
+    pub clamped_by: f32,
     /// The cost `u_hoverᵀ W u_hover` (command units squared).
     pub cost: f32,
 }
@@ -629,6 +642,9 @@ impl ThrustAxisSolver {
                 }
                 finish(problem, &u, eigenvalue, true)
             }
+            None if self.config.clamp_outside_bounds => {
+                clamp_to_bounds(problem, &mut u, eigenvalue)
+            }
             None => Err(ThrustAxisError::NoHoverWithinBounds),
         }
     }
@@ -643,17 +659,50 @@ fn no_thrust(eigenvalue: f32) -> ThrustAxisError {
     }
 }
 
-/// Step 6 and the final checks: clamp round-off onto the bounds, cost, `d = G1f u`, quaternion.
-fn finish<const M: usize>(
+/// The last resort of [`SolverConfig::clamp_outside_bounds`]: `u*` (either sign) clamped to the
+/// bounds, unless every motor at its upper bound gives less than `g` along the axis of the
+/// clamped commands (the model says the craft is too weak to hover at all, whatever the
+/// torque; a motor that pushes against the axis counts against it). Not generic over the motor count: it runs only when a hover leaves the bounds, so
+/// one copy serves every count.
+fn clamp_to_bounds(
     problem: &HoverProblem,
-    u: &[f32; M],
+    u: &mut [f32],
+    eigenvalue: f32,
+) -> Result<HoverSolution, ThrustAxisError> {
+    // The sign along which the motors push (the larger total command).
+    let sign = if u.iter().sum::<f32>() >= 0.0 { 1.0 } else { -1.0 };
+    u.iter_mut().for_each(|x| *x *= sign);
+    let solution = finish(problem, u, eigenvalue, false)?;
+    // How far u* was outside, and the force of every motor at its upper bound.
+    let mut clamped_by = 0.0f32;
+    let mut force_max = [0.0f32; 3];
+    for (i, (&x, &clamped)) in u.iter().zip(&solution.u_hover).enumerate() {
+        clamped_by = clamped_by.max(libm::fabsf(x - clamped));
+        for k in 0..3 {
+            force_max[k] += problem.g1_f[k][i] * problem.u_max[i];
+        }
+    }
+    let thrust_max = dot3(force_max, solution.thrust_dir_imu);
+    if !(thrust_max >= problem.g_mps2) {
+        return Err(ThrustAxisError::NoHoverWithinBounds);
+    }
+    Ok(HoverSolution { clamped_by, ..solution })
+}
+
+/// Step 6 and the final checks: clamp round-off onto the bounds, cost, `d = G1f u`, quaternion.
+/// `u` has one entry per motor. Not generic over the motor count, and never inlined: one copy
+/// for its three callers in each motor count's solve.
+#[inline(never)]
+fn finish(
+    problem: &HoverProblem,
+    u: &[f32],
     eigenvalue: f32,
     bounded: bool,
 ) -> Result<HoverSolution, ThrustAxisError> {
     let mut u_hover = [0.0f32; MOTORS_MAX];
     let mut cost = 0.0;
     let mut d = [0.0f32; 3];
-    for i in 0..M {
+    for i in 0..u.len() {
         let ui = clamp(u[i], problem.u_min[i], problem.u_max[i]);
         u_hover[i] = ui;
         cost += problem.weights[i] * ui * ui;
@@ -674,6 +723,7 @@ fn finish<const M: usize>(
         q_thrust_to_imu: shortest_arc_from_down_unit(thrust_dir_imu),
         eigenvalue,
         bounded,
+        clamped_by: 0.0,
         cost,
     })
 }
@@ -852,7 +902,8 @@ mod tests {
         for case in 0..300 {
             let m = 5 + case % 3;
             let problem = random_problem(&mut rng, m);
-            let config = SolverConfig { max_squarings: 6, bounded_search: false };
+            let config =
+                SolverConfig { max_squarings: 6, bounded_search: false, ..SolverConfig::default() };
             let (mut padded, mut own) =
                 (ThrustAxisSolver::new(config), ThrustAxisSolver::new(config));
             let by_padding = padded.solve(&problem);

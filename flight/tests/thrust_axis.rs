@@ -286,7 +286,8 @@ fn warm_start_keeps_improving_across_calls() {
     };
     let expected = thrust_dir(&frame, reference.u.as_ref().unwrap());
     let problem = frame.problem().unwrap();
-    let mut solver = ThrustAxisSolver::new(SolverConfig { max_squarings: 1, bounded_search: true });
+    let mut solver =
+        ThrustAxisSolver::new(SolverConfig { max_squarings: 1, ..SolverConfig::default() });
     // The first call starts from the default seed (−z of the IMU, a random direction here).
     let mut errors = Vec::new();
     for _ in 0..40 {
@@ -385,6 +386,77 @@ fn heuristic_only_configuration_refuses_instead_of_searching() {
         });
         assert_eq!(heuristic.solve(&problem), Err(ThrustAxisError::NoHoverWithinBounds));
         break;
+    }
+}
+
+/// With `clamp_outside_bounds`, a `u*` outside the bounds is clamped to them and returned,
+/// marked: its thrust direction is that of the clamped commands, and `clamped_by` is how far
+/// `u*` was outside.
+#[test]
+fn clamping_gives_the_axis_of_the_clamped_commands_and_says_by_how_much() {
+    let clamping = SolverConfig {
+        bounded_search: false,
+        clamp_outside_bounds: true,
+        ..SolverConfig::default()
+    };
+    // The paper's quad, whose hover needs 0.4 of full command, with one motor allowed 0.3:
+    // clamped, it is 0.1 short and the others carry on at u*.
+    let frame = paper_quad([1.0, 0.0, 0.0, 0.0]);
+    let free = ThrustAxisSolver::default().solve(&frame.problem().unwrap()).unwrap();
+    assert_eq!(free.clamped_by, 0.0);
+    let mut one_limited = frame.clone();
+    one_limited.u_max[0] = free.u_hover()[0] as f64 - 0.1;
+    let clamped = ThrustAxisSolver::new(clamping).solve(&one_limited.problem().unwrap()).unwrap();
+    assert!((clamped.clamped_by - 0.1).abs() < 1e-4, "{}", clamped.clamped_by);
+    assert!(!clamped.bounded);
+    for (i, (&u, &u_free)) in clamped.u_hover().iter().zip(free.u_hover()).enumerate() {
+        let expected = if i == 0 { u_free - 0.1 } else { u_free };
+        assert!((u - expected).abs() < 1e-4, "motor {i}: {u} vs {expected}");
+    }
+    assert_thrust_along_clamped_commands(&one_limited, &clamped);
+
+    // Every motor allowed 0.3: not even all four at their bound lift it. Refused.
+    let mut weak = frame.clone();
+    weak.u_max = vec![0.3; 4];
+    assert_eq!(
+        ThrustAxisSolver::new(clamping).solve(&weak.problem().unwrap()),
+        Err(ThrustAxisError::NoHoverWithinBounds)
+    );
+
+    // Random hexarotors whose hover leaves the bounds: the direction of G1f times the clamped
+    // commands, every command within the bounds.
+    let mut rng = Rng::new(0x5EED_0005);
+    let mut seen = 0;
+    while seen < 20 {
+        let mut frame = random_airframe(&mut rng, 6, Kind::Planar);
+        frame.u_max = (0..6).map(|_| rng.range(0.3, 1.0)).collect();
+        let Some(dense) = dense_unbounded(&frame) else { continue };
+        if dense.u.is_some() {
+            continue;
+        }
+        let problem = frame.problem().unwrap();
+        let Ok(solution) = ThrustAxisSolver::new(clamping).solve(&problem) else { continue };
+        seen += 1;
+        assert!(solution.clamped_by > 0.0);
+        assert_thrust_along_clamped_commands(&frame, &solution);
+    }
+}
+
+/// Every command of `solution` within `frame`'s bounds, and its thrust direction that of
+/// `G1f u`.
+fn assert_thrust_along_clamped_commands(frame: &Airframe, solution: &HoverSolution) {
+    let u = to_f64(solution.u_hover());
+    let mut force = [0.0f64; 3];
+    for (i, &ui) in u.iter().enumerate() {
+        assert!(ui >= frame.u_min[i] - 1e-6 && ui <= frame.u_max[i] + 1e-6, "{ui}");
+        for k in 0..3 {
+            force[k] += frame.g1_f[k][i] * ui;
+        }
+    }
+    let norm = force.iter().map(|f| f * f).sum::<f64>().sqrt();
+    let dir = dir_f64(solution);
+    for k in 0..3 {
+        assert!((force[k] / norm - dir[k]).abs() < 1e-4, "{force:?} vs {dir:?}");
     }
 }
 

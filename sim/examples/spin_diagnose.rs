@@ -48,8 +48,11 @@ fn heuristic_u(g1: &[[f64; MAX_MOTORS]; 6], m: usize) -> Option<Vec<f32>> {
         .ok()?
         .with_bounds(&vec![-10.0; m], &vec![10.0; m])
         .ok()?;
-    let mut solver =
-        ThrustAxisSolver::new(SolverConfig { max_squarings: 6, bounded_search: false });
+    let mut solver = ThrustAxisSolver::new(SolverConfig {
+        max_squarings: 6,
+        bounded_search: false,
+        ..SolverConfig::default()
+    });
     let mut u = None;
     for _ in 0..5 {
         u = solver.solve(&problem).ok().map(|s| s.u_hover().to_vec());

@@ -347,6 +347,9 @@ pub struct FlyReport {
     /// end of the flight (after its refinement in flight).
     pub axis_error_at_engage_deg: Option<f64>,
     pub axis_error_at_end_deg: Option<f64>,
+    /// When the controller engaged on the learner's last resort, a thrust axis whose hover
+    /// leaves the motor bounds (`LearnedThrustAxis::clamped_by`): by how much, normalised thrust.
+    pub engaged_clamped_by: Option<f64>,
     /// The true IMU offset, IMU axes, m.
     pub r_imu_true_m: Vector3<f64>,
     /// The IMU offset fitted in flight (`imu_offset::in_flight`, run when the offset is not
@@ -494,6 +497,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             attitude_error_at_engage_deg: None,
             attitude_error_at_window_deg: None,
             axis_error_at_engage_deg: None,
+            engaged_clamped_by: None,
             axis_error_at_end_deg: None,
             r_imu_true_m: truth.r_imu_m,
             r_imu_fit_m: None,
@@ -592,6 +596,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     let scores = Scores::of(&learned, &truth);
                     report.g1_block_rel_at_engage = Some(scores.g1_block_rel);
                     report.axis_error_at_engage_deg = axis_error_deg(&scores);
+                    report.engaged_clamped_by = learned
+                        .thrust_axis
+                        .filter(|axis| !axis.within_bounds())
+                        .map(|axis| f64::from(axis.clamped_by));
                 }
                 let q_true = state.attitude() * airframe.q_imu_body().inverse();
                 if report.attitude_error_at_engage_deg.is_none() {

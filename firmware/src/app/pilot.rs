@@ -766,8 +766,11 @@ impl Pilot {
             // drops the craft from its apex. The gyro's scale and cross-axis errors (±3 %, ±2 %)
             // at 500-1,000 °/s leave the rotational block 13-17 % off at the end of some
             // excitations; such hovers are lost there and not before (issue 28: 9 of 1,000
-            // random-world runs refused, all of them hover now). A craft that never had a hover
-            // within its bounds has no axis and is refused.
+            // random-world runs refused, all of them hover now). A model that never had a hover
+            // within its bounds carries the learner's last resort instead, the axis of its u*
+            // clamped to the bounds (`LearnedThrustAxis::clamped_by`; issue 32: 24 of 1,000
+            // random worlds without speed telemetry, all held): flown for the same reason. A
+            // model with no axis at all (its motors together cannot lift it) is refused.
             AxisStatus::NoHover if learned.thrust_axis.is_none() => {
                 return Err(IdentificationFailure::NoHover)
             }

@@ -82,9 +82,14 @@ pub const RUNNING_SPEED_RAD_S: f32 = 50.0;
 /// The thrust-axis solver as the learner calls it, once per sample: the heuristic only. The
 /// exhaustive bounded search costs up to about 1.1 million Cortex-M7 instructions at m = 8
 /// (docs/benchmarks.md), far beyond one 2 kHz period of the background task, and a craft whose
-/// most efficient hover needs a motor at a bound is reported as `NoHover` instead.
-pub const SOLVER_CONFIG: thrust_axis::SolverConfig =
-    thrust_axis::SolverConfig { max_squarings: 6, bounded_search: false };
+/// most efficient hover needs a motor at a bound is reported as `NoHover` instead, with the axis
+/// of its `u*` clamped to the bounds as the last resort (`clamp_outside_bounds`,
+/// [`LearnedThrustAxis::clamped_by`]).
+pub const SOLVER_CONFIG: thrust_axis::SolverConfig = thrust_axis::SolverConfig {
+    max_squarings: 6,
+    bounded_search: false,
+    clamp_outside_bounds: true,
+};
 
 /// How the learner is set up.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -182,9 +187,19 @@ pub struct LearnedThrustAxis {
     pub u_hover: [f32; MAX_MOTORS],
     /// ZYX Euler angles of `q_U^T`: roll, pitch, yaw, rad.
     pub euler_zyx_rad: [f32; 3],
+    /// 0 when `u_hover` is a hover of the model within the motor bounds. Otherwise the last
+    /// resort of a model whose hover leaves the bounds, its `u*` clamped to them, kept only while
+    /// no hover within them was found: how far `u*` was outside, normalised thrust
+    /// (`thrust_axis::HoverSolution::clamped_by`).
+    pub clamped_by: f32,
 }
 
 impl LearnedThrustAxis {
+    /// Whether `u_hover` is a hover of the model within the motor bounds.
+    pub fn within_bounds(&self) -> bool {
+        self.clamped_by == 0.0
+    }
+
     /// `q_U^T` as a rotation (thrust-frame coordinates into IMU coordinates), normalised; `None`
     /// when a component is not finite.
     pub fn rotation_thrust_to_imu(&self) -> Option<nalgebra::UnitQuaternion<f32>> {
@@ -205,7 +220,8 @@ pub enum AxisStatus {
     Found,
     /// G1τ is rank deficient: the motors cannot produce every torque.
     RankDeficient,
-    /// No hover within the motor bounds along any axis.
+    /// No hover within the motor bounds along any axis (the model's thrust axis, if any, is then
+    /// an earlier hover within them or the clamped last resort: [`LearnedThrustAxis::clamped_by`]).
     NoHover,
 }
 
@@ -687,16 +703,20 @@ impl Learner {
             return;
         }
         match hover_axis(&mut self.solver, model) {
-            Ok(axis) => {
+            Ok(axis) if axis.within_bounds() => {
                 model.thrust_axis = Some(axis);
                 model.axis_status = AxisStatus::Found;
             }
             Err(thrust_axis::ThrustAxisError::TorqueRankDeficient { .. }) => {
                 model.axis_status = AxisStatus::RankDeficient;
             }
-            Err(_) => {
+            clamped_or_none => {
                 model.axis_status = AxisStatus::NoHover;
-                self.fallback_pending = model.thrust_axis.is_none() && self.fallback_rows.is_some();
+                let none_within = !has_hover_within_bounds(model);
+                if let (Ok(axis), true) = (clamped_or_none, none_within) {
+                    model.thrust_axis = Some(axis);
+                }
+                self.fallback_pending = none_within && self.fallback_rows.is_some();
             }
         }
         self.model = *model;
@@ -709,11 +729,15 @@ impl Learner {
         // In the staged model, which is the last published until the next is staged (which
         // overwrites its rows): no copy of the model unless an axis is found.
         let model = &mut self.staging;
-        let (Some(rows), None) = (&self.fallback_rows, model.thrust_axis) else { return };
+        let (Some(rows), false) = (&self.fallback_rows, has_hover_within_bounds(model)) else {
+            return;
+        };
         model.g1_per_speed2[..3].copy_from_slice(rows);
         if let Ok(axis) = hover_axis(&mut self.fallback_solver, model) {
+            if axis.within_bounds() {
+                model.axis_status = AxisStatus::Found;
+            }
             model.thrust_axis = Some(axis);
-            model.axis_status = AxisStatus::Found;
             self.model = *model;
         }
     }
@@ -741,7 +765,13 @@ fn hover_axis(
         thrust_dir_imu: solution.thrust_dir_imu,
         u_hover,
         euler_zyx_rad: [euler.roll_rad, euler.pitch_rad, euler.yaw_rad],
+        clamped_by: solution.clamped_by,
     })
+}
+
+/// Whether `model` has a thrust axis whose hover is within the motor bounds.
+fn has_hover_within_bounds(model: &LearnedModel) -> bool {
+    model.thrust_axis.is_some_and(|axis| axis.within_bounds())
 }
 
 /// Whether force rows handed in from outside are all finite (`None`, the learner's own, is).
@@ -1085,9 +1115,9 @@ mod tests {
 
     /// A flat X quad (arms 0.15 m, inertia 0.01 kg m², thrust [`QUAD_THRUST_PER_SPEED2`])
     /// pulsing each motor in turn, 50 ms apart, for `samples` at 2 kHz, its body rate
-    /// integrated from the torques; its accelerometer reads the motors' force when
-    /// `force_seen`, nothing otherwise.
-    fn pulse_quad(learner: &mut Learner, force_seen: bool, samples: core::ops::Range<usize>) {
+    /// integrated from the torques; its accelerometer reads `force_seen` times the motors'
+    /// force (1: all of it; 0: nothing).
+    fn pulse_quad(learner: &mut Learner, force_seen: f32, samples: core::ops::Range<usize>) {
         let thrust = QUAD_THRUST_PER_SPEED2;
         let arms = [[0.106f32, 0.106], [-0.106, 0.106], [-0.106, -0.106], [0.106, -0.106]];
         let mut rate = [5.0f32, -4.0, 1.5];
@@ -1109,7 +1139,7 @@ mod tests {
                 angular[2] += spin * force / 0.02;
             }
             let force_z = -thrust * speeds.iter().map(|w| w * w).sum::<f32>();
-            let accel = if force_seen { [0.0, 0.0, force_z] } else { [0.0; 3] };
+            let accel = [0.0, 0.0, force_seen * force_z];
             learner.update(rate, accel, &commands, &speeds);
             for k in 0..3 {
                 rate[k] += angular[k] / 2000.0;
@@ -1125,12 +1155,12 @@ mod tests {
     fn fallback_force_rows_give_an_axis_where_the_own_rows_find_no_hover() {
         // The quad is flyable: seeing its force, the learner finds its axis on its own rows.
         let mut seeing = Learner::new(4, LearnerConfig::default()).unwrap();
-        pulse_quad(&mut seeing, true, 0..1600);
+        pulse_quad(&mut seeing, 1.0, 0..1600);
         let own = seeing.model().thrust_axis.expect("an axis on its own rows");
         assert!(own.thrust_dir_imu[2] < -0.99, "{:?}", own.thrust_dir_imu);
 
         let mut blind = Learner::new(4, LearnerConfig::default()).unwrap();
-        pulse_quad(&mut blind, false, 0..1600);
+        pulse_quad(&mut blind, 0.0, 0..1600);
         assert_eq!(blind.model().axis_status, AxisStatus::NoHover);
         assert!(blind.model().thrust_axis.is_none());
 
@@ -1140,7 +1170,7 @@ mod tests {
         bad[1][2] = f32::INFINITY;
         assert!(!learner.set_fallback_force_rows(Some(bad)));
         assert!(learner.set_fallback_force_rows(Some(truth)));
-        pulse_quad(&mut learner, false, 0..1600);
+        pulse_quad(&mut learner, 0.0, 0..1600);
         let axis = learner.model().thrust_axis.expect("an axis on the fallback rows");
         // The quad's thrust is along its −z, which the fallback rows say and its own do not.
         assert!(axis.thrust_dir_imu[2] < -0.99, "{:?}", axis.thrust_dir_imu);
@@ -1150,7 +1180,57 @@ mod tests {
         assert_eq!(learner.model().thrust_axis, Some(axis));
 
         learner.restart([0.0; 3]).unwrap();
-        pulse_quad(&mut learner, false, 0..1600);
+        pulse_quad(&mut learner, 0.0, 0..1600);
         assert!(learner.model().thrust_axis.is_none(), "the restart dropped the fallback rows");
+    }
+
+    /// Where the learned hover leaves the motor bounds, the learner publishes the axis of `u*`
+    /// clamped to them as a last resort (status `NoHover`), saying by how much, unless the
+    /// learned motors cannot lift the craft at all; a hover within the bounds found later (here
+    /// on the fallback rows) replaces it, and is never replaced by a clamped one.
+    #[test]
+    fn a_hover_outside_the_bounds_gives_a_clamped_axis_until_one_within_them() {
+        // Seeing all of its force, the quad hovers with its busiest motor at `hover` of full
+        // thrust, and every motor at full thrust gives `lift` times its weight.
+        let mut seeing = Learner::new(4, LearnerConfig::default()).unwrap();
+        pulse_quad(&mut seeing, 1.0, 0..1600);
+        let model = seeing.model();
+        let u_hover = model.thrust_axis.expect("an axis").u_hover;
+        let hover = u_hover.iter().fold(0.0f32, |a, &b| a.max(b));
+        let lift = -model.g1_per_unit_thrust()[2][..4].iter().sum::<f32>() / 9.80665;
+        // The accelerometer sees a quarter of the force: u* needs four times the command,
+        // beyond the upper bound (1), while all four motors still lift the learned craft.
+        let seen = 0.25;
+        assert!(hover / seen > 1.05 && lift * seen > 1.05, "{hover} {lift}");
+        let mut weak = Learner::new(4, LearnerConfig::default()).unwrap();
+        pulse_quad(&mut weak, seen, 0..1600);
+        let model = weak.model();
+        assert_eq!(model.axis_status, AxisStatus::NoHover);
+        let clamped = model.thrust_axis.expect("a clamped axis");
+        assert!(!clamped.within_bounds());
+        let beyond = hover / seen - 1.0;
+        assert!(
+            (clamped.clamped_by - beyond).abs() < 0.1 * beyond,
+            "{} vs {beyond}",
+            clamped.clamped_by
+        );
+        assert!(clamped.u_hover[..4].iter().all(|&u| (0.0..=1.0).contains(&u)));
+        assert!(clamped.thrust_dir_imu[2] < -0.99, "{:?}", clamped.thrust_dir_imu);
+
+        // Seeing a sixth, the four motors together cannot lift what the model says: refused.
+        assert!(lift / 6.0 < 0.95, "{lift}");
+        let mut too_weak = Learner::new(4, LearnerConfig::default()).unwrap();
+        pulse_quad(&mut too_weak, 1.0 / 6.0, 0..1600);
+        assert_eq!(too_weak.model().axis_status, AxisStatus::NoHover);
+        assert!(too_weak.model().thrust_axis.is_none());
+
+        let mut learner = Learner::new(4, LearnerConfig::default()).unwrap();
+        assert!(learner.set_fallback_force_rows(Some(quad_force_rows())));
+        pulse_quad(&mut learner, seen, 0..1600);
+        let axis = learner.model().thrust_axis.expect("an axis on the fallback rows");
+        assert!(axis.within_bounds(), "{}", axis.clamped_by);
+        // Its own rows are published again (clamped): the hover within the bounds is kept.
+        assert_eq!(learner.model().axis_status, AxisStatus::NoHover);
+        assert_eq!(learner.model().thrust_axis, Some(axis));
     }
 }

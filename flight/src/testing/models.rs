@@ -24,6 +24,7 @@ pub fn learned_quad() -> LearnedModel {
             thrust_dir_imu: [0.0, 1.0, 0.0],
             u_hover: [0.3, 0.3, 0.3, 0.3, 0.0, 0.0, 0.0, 0.0],
             euler_zyx_rad: [core::f32::consts::FRAC_PI_2, 0.0, 0.0],
+            clamped_by: 0.0,
         }),
         axis_status: AxisStatus::Found,
         ..LearnedModel::default()

@@ -363,6 +363,36 @@ fn main() -> ExitCode {
                 reformed.values().sum::<usize>(),
                 endings.join(", ")
             );
+            // Controllers engaged on the learner's last resort: a thrust axis whose hover leaves
+            // the motor bounds, clamped to them.
+            let mut clamped: BTreeMap<String, Vec<String>> = BTreeMap::new();
+            let mut clamped_by = Vec::new();
+            for r in results.iter() {
+                if let Some(by) = r.report.engaged_clamped_by {
+                    clamped
+                        .entry(format!("{:?}", r.verdict))
+                        .or_default()
+                        .push(format!("{} ({by:.2})", r.seed));
+                    clamped_by.push(by);
+                }
+            }
+            let endings: Vec<String> = clamped
+                .iter()
+                .map(|(v, seeds)| format!("{v}: seeds {}", seeds.join(", ")))
+                .collect();
+            println!(
+                "engaged on a thrust axis clamped to the motor bounds: {} runs ({})",
+                clamped_by.len(),
+                endings.join("; ")
+            );
+            if !clamped_by.is_empty() {
+                print_quantiles(
+                    "  u* outside the bounds by (normalised thrust)",
+                    &clamped_by,
+                    1.0,
+                    "",
+                );
+            }
             let hover: Vec<f64> =
                 results.iter().filter_map(|r| r.report.release_to_hover_s).collect();
             let hold: Vec<f64> = results.iter().filter_map(|r| r.report.max_hold_error_m).collect();
