@@ -371,21 +371,21 @@ fn no_hover_cases_are_reported_not_guessed() {
 
 #[test]
 fn heuristic_only_configuration_refuses_instead_of_searching() {
-    let mut rng = Rng::new(0x5EED_0004);
+    let frame = hexarotor_without_hover_within_bounds(&mut Rng::new(0x5EED_0004));
+    let problem = frame.problem().unwrap();
+    let mut heuristic =
+        ThrustAxisSolver::new(SolverConfig { bounded_search: false, ..SolverConfig::default() });
+    assert_eq!(heuristic.solve(&problem), Err(ThrustAxisError::NoHoverWithinBounds));
+}
+
+/// A random planar hexarotor, its upper bounds drawn in 0.3–1, whose unbounded hover leaves them.
+fn hexarotor_without_hover_within_bounds(rng: &mut Rng) -> Airframe {
     loop {
-        let mut frame = random_airframe(&mut rng, 6, Kind::Planar);
+        let mut frame = random_airframe(rng, 6, Kind::Planar);
         frame.u_max = (0..6).map(|_| rng.range(0.3, 1.0)).collect();
-        let Some(dense) = dense_unbounded(&frame) else { continue };
-        if dense.u.is_some() {
-            continue;
+        if dense_unbounded(&frame).is_some_and(|dense| dense.u.is_none()) {
+            return frame;
         }
-        let problem = frame.problem().unwrap();
-        let mut heuristic = ThrustAxisSolver::new(SolverConfig {
-            bounded_search: false,
-            ..SolverConfig::default()
-        });
-        assert_eq!(heuristic.solve(&problem), Err(ThrustAxisError::NoHoverWithinBounds));
-        break;
     }
 }
 
@@ -428,12 +428,7 @@ fn clamping_gives_the_axis_of_the_clamped_commands_and_says_by_how_much() {
     let mut rng = Rng::new(0x5EED_0005);
     let mut seen = 0;
     while seen < 20 {
-        let mut frame = random_airframe(&mut rng, 6, Kind::Planar);
-        frame.u_max = (0..6).map(|_| rng.range(0.3, 1.0)).collect();
-        let Some(dense) = dense_unbounded(&frame) else { continue };
-        if dense.u.is_some() {
-            continue;
-        }
+        let frame = hexarotor_without_hover_within_bounds(&mut rng);
         let problem = frame.problem().unwrap();
         let Ok(solution) = ThrustAxisSolver::new(clamping).solve(&problem) else { continue };
         seen += 1;
