@@ -548,12 +548,26 @@ impl std::fmt::Display for BridgeNotice<'_> {
     }
 }
 
+/// Tell the application behind the bridge that the simulator's ESCs report no speed (NaN in
+/// every sensor packet), as a user sets `motor_bidir_dshot` = 0 for ESCs without bidirectional
+/// DShot (`scenario bridge --no-speed-telemetry`; over TCP, `set motor_bidir_dshot = 0` does
+/// the same while disarmed). In force from the first packet (call it before an arm request),
+/// for the run only (the bridge has no flash). This build identifies from the commands
+/// (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`), so throw-to-fly then arms without speeds.
+pub fn set_no_speed_telemetry(app: &mut FirmwareApp<'_>) {
+    app.configure(|params| {
+        // A flag's 0 is always within its range.
+        let _ = params.set(firmware::app::Param::MotorBidirDshot as usize, &[0.0]);
+    });
+}
+
 /// Why a throw-to-fly attempt ended, for a person reading the bridge's stderr.
 pub fn attempt_text(failure: LearnerFailure) -> String {
     match failure {
         LearnerFailure::NoSpeedTelemetry => format!(
             "motor speeds not reported (NaN in the sensor packets for {} ms): the in-flight \
-             learner needs every motor's speed, rad/s; send them. Every motor was stopped.",
+             learner needs every motor's speed, rad/s; send them, or run the bridge with \
+             --no-speed-telemetry to identify from the commands. Every motor was stopped.",
             protocol::SPEED_REPORT_TIMEOUT_MS
         ),
         LearnerFailure::NotFreeFall => {

@@ -444,19 +444,16 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             }
         }
         // ESCs without bidirectional DShot: no speed reaches the board, and its user says so
-        // (`motor_bidir_dshot` = 0), to the background task and the control step alike.
-        // The application's own configuration lets it arm without speeds then (the prototype
-        // of issue 32: `ControlSettings::arm_without_speeds`).
+        // (`motor_bidir_dshot` = 0), to the background task and the control step alike, which
+        // then arms without speeds (`Params::arms_without_speeds`: this build identifies from
+        // the commands).
         let mut user_params = Params::default();
         let mut user_settings = ControlSettings::from(&user_params);
         if !config.speed_telemetry {
             board.motors_mut().set_bidirectional(false);
             if user_params.set(Param::MotorBidirDshot as usize, &[0.0]).is_ok() {
                 app.background.configure(&user_params);
-                user_settings = ControlSettings {
-                    arm_without_speeds: true,
-                    ..ControlSettings::from(&user_params)
-                };
+                user_settings = ControlSettings::from(&user_params);
                 app.submit(ControlCommand::Configure(user_settings));
             }
         }

@@ -545,3 +545,65 @@ fn the_bridges_radio_arms_and_its_kill_switch_disarms_in_packet_time() {
     // A kill counts only when something was armed: the switches armed it first.
     assert_eq!(snapshot.pilot.failsafes.kill, 1, "armed by the switches, then killed once");
 }
+
+/// Issue 32 through the bridge: a simulator whose ESCs report no speed (NaN in every packet)
+/// and a bridge told so (`scenario bridge --no-speed-telemetry`, [`set_no_speed_telemetry`]).
+/// The seed paper's throw with poses at 100 Hz: the application arms although no motor reports,
+/// identifies the motors from the commands and the body's response (the published model says
+/// its speeds were modelled), recovers and, 6 s after the release, is holding within 0.3 m of
+/// its setpoint with the body's rate below the hover's 0.5 rad/s.
+#[test]
+fn without_speed_telemetry_the_bridge_identifies_from_the_commands_and_holds() {
+    use sim::bridge::set_no_speed_telemetry;
+    use sim::recovery::{FlyConfig, MotionCapture, HOVER_RATE_RAD_S};
+
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let config = FlyConfig::paper();
+    let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
+    let addr = server.local_addr().unwrap();
+    let handle = std::thread::spawn(move || {
+        with_firmware_app(|app| {
+            set_no_speed_telemetry(app);
+            app.submit(ControlCommand::ArmThrowToFly);
+            let mut notices = Vec::new();
+            let idle = Duration::from_millis(300);
+            serve_firmware(&mut server, app, None, None, idle, &mut |notice| {
+                notices.push(notice.to_string())
+            })
+            .unwrap();
+            (app.snapshot(), app.background.results().learned.speeds_modelled, notices)
+        })
+    });
+
+    let mut board = SimBoard::new(&airframe, &config.board);
+    board.motors_mut().set_bidirectional(false);
+    let mut mocap = MotionCapture::with_config(config.motion_capture, config.board.seed);
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let spec = config.throw.spec();
+    let mut sequence = 0u64;
+    loop {
+        if sequence == 1000 {
+            board.physics_mut().throw(&spec);
+        }
+        board.tick();
+        let pose = mocap.sample(board.physics().state(), board.now_us());
+        let packet = SensorPacket { version: 2, ..sensor_packet(&board, sequence, pose) };
+        assert!(packet.speeds_rad_s.iter().all(Option::is_none), "no ESC reports");
+        let reply = client.exchange(&packet, TIMEOUT).unwrap();
+        board.motors_mut().set_commands(&reply.commands[..reply.motor_count as usize]);
+        sequence += 1;
+        if board.physics().hand().released_at_s().is_some_and(|t| board.time_s() >= t + 6.0) {
+            break;
+        }
+    }
+    let (snapshot, speeds_modelled, notices) = handle.join().unwrap();
+    assert!(notices.is_empty(), "the attempt went on: {notices:?}");
+    assert!(speeds_modelled, "the model says its speeds were modelled from the commands");
+    let pilot = snapshot.pilot;
+    assert!(pilot.flying && pilot.position_hold, "{pilot:?}");
+    let state = board.physics().state();
+    let setpoint = nalgebra::Vector3::from(pilot.position_sp_ned_m).cast::<f64>();
+    let distance_m = (state.position_ned_m - setpoint).norm();
+    assert!(distance_m < 0.3, "{distance_m} m from the setpoint");
+    assert!(state.rate_body_rad_s.norm() < HOVER_RATE_RAD_S, "{}", state.rate_body_rad_s.norm());
+}

@@ -461,8 +461,8 @@ fn the_shell_reconnects_by_itself_after_a_reboot_and_finds_the_saved_value() {
 }
 
 /// `motor_bidir_dshot = 0` (ESCs without bidirectional DShot) takes effect at the next start:
-/// the SITL's ESCs then report no speed, as BLHeli_S ESCs would; with the default (1) a stopped
-/// motor reads 0 rad/s.
+/// the SITL's ESCs then report no speed, as BLHeli_S ESCs would, and throw-to-fly arms to
+/// identify from the commands; with the default (1) a stopped motor reads 0 rad/s.
 #[test]
 fn the_bidirectional_dshot_parameter_decides_after_a_restart_whether_speeds_are_reported() {
     let flash = flash_file("bidir");
@@ -483,8 +483,15 @@ fn the_bidirectional_dshot_parameter_decides_after_a_restart_whether_speeds_are_
     ok(&port, &["reboot"]);
     let off = record("bidir-off.csv");
     assert!(off.iter().all(|speed| speed != "0"), "no speed reported: {off:?}");
-    // The learner needs the speeds: arming for a throw is refused, naming the parameter.
-    let (code, _, stderr) = cli(&port, &["arm-throw-to-fly"]);
-    assert_ne!(code, 0);
-    assert!(stderr.contains("motor_bidir_dshot"), "{stderr}");
+    // The SITL's build identifies from the commands (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`;
+    // the board's does not yet, and refuses naming the parameter: `firmware/tests/link_server.rs`):
+    // arming for a throw is accepted although no motor reports, and stays armed past the
+    // speed reports' timeout (0.1 s).
+    let (code, stdout, stderr) = cli(&port, &["arm-throw-to-fly"]);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let status: Value = serde_json::from_str(&ok(&port, &["--json", "status"])).unwrap();
+    assert_eq!(status["armed"], true, "{status}");
+    assert_eq!(status["learner"]["phase"], "WaitingForThrow", "{status}");
+    ok(&port, &["disarm"]);
 }

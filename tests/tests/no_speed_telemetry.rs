@@ -1,7 +1,7 @@
 //! Identification without ESC speed telemetry (issue 32, `flight::learner::no_speed`): the
-//! firmware application flown on ESCs that report no speed, told so (`motor_bidir_dshot` = 0)
-//! and allowed by its own configuration to arm without them
-//! (`ControlSettings::arm_without_speeds`, what `fly --no-speed-telemetry` sets). The lag is
+//! firmware application flown on ESCs that report no speed, told so (`motor_bidir_dshot` = 0),
+//! which in a build that identifies from the commands arms without them
+//! (`Params::arms_without_speeds`; what `fly --no-speed-telemetry` sets). The lag is
 //! identified from the body's response (rates and specific force) and every speed modelled from
 //! the commands.
 //!
@@ -133,9 +133,7 @@ fn a_disarm_while_waiting_for_the_model_stops_every_motor_in_the_same_step() {
         let mut params = Params::default();
         params.set(Param::MotorBidirDshot as usize, &[0.0]).unwrap();
         app.background.configure(&params);
-        let settings =
-            ControlSettings { arm_without_speeds: true, ..ControlSettings::from(&params) };
-        app.submit(ControlCommand::Configure(settings));
+        app.submit(ControlCommand::Configure(ControlSettings::from(&params)));
         let disarmed = tests::disarm_during_throw_to_fly(&mut board, app, 6000, |snapshot| {
             snapshot.phase == FlightPhase::Done && !snapshot.pilot.flying && snapshot.armed
         });

@@ -59,10 +59,12 @@
 //!   counted ([`ControlSnapshot::speed_reports_lost`]), and the in-flight refinement skips the
 //!   samples without every speed (the learner's own rule).
 //!
-//! The exception is the prototype of issue 32: with [`ControlSettings::arm_without_speeds`]
-//! (the application's own configuration, never a parameter; the simulator sets it for
-//! `fly --no-speed-telemetry`) none of the above applies, and the learner identifies from the
-//! commands and the body's response (`flight::learner::no_speed`).
+//! The exception is issue 32's identification without speed telemetry: where the user says the
+//! ESCs cannot report (`motor_bidir_dshot` = 0) and the build can identify without them
+//! (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators, the bridge; not yet the board,
+//! whose flash has no room for it), [`ControlSettings::arm_without_speeds`] is set, none of the
+//! above applies, and the learner identifies from the commands and the body's response
+//! (`flight::learner::no_speed`).
 
 use super::background::BackgroundResults;
 use super::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
@@ -115,12 +117,12 @@ pub struct ControlSettings {
     /// How long, armed, bad IMU samples are held over before the IMU failsafe acts, s
     /// (`imu_fault_timeout_s`; 0: at the first bad sample).
     pub imu_fault_timeout_s: f32,
-    /// Arm for throw-to-fly although the ESCs report no speed (`motor_bidir_dshot` = 0), the
-    /// learner then identifying from the commands and the body's response
-    /// (`flight::learner::no_speed`, issue 32). The application's own configuration, not a
-    /// parameter: a prototype that the simulator enables (`fly --no-speed-telemetry`, 98.7 % of
-    /// 1,000 random worlds hovered: docs/benchmarks.md), off on every board (its code does not
-    /// fit the board's flash budget yet: `flight`'s feature `no-speed`).
+    /// Arm for throw-to-fly although the ESCs report no speed, the learner then identifying
+    /// from the commands and the body's response (`flight::learner::no_speed`, issue 32): set
+    /// where the user says the ESCs cannot report (`motor_bidir_dshot` = 0) and the build can
+    /// identify without them (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators and
+    /// the bridge, 98.6 % of 1,000 random worlds hovered, docs/benchmarks.md; never on the
+    /// board yet, whose flash has no room for `flight`'s feature `no-speed`).
     pub arm_without_speeds: bool,
 }
 
@@ -145,7 +147,7 @@ impl From<&super::params::Params> for ControlSettings {
             acc_bias_mps2: params.acc_bias_mps2(),
             pose: params.pose_config(),
             imu_fault_timeout_s: params.imu_fault_timeout_s(),
-            arm_without_speeds: false,
+            arm_without_speeds: params.arms_without_speeds(),
         }
     }
 }
@@ -1057,18 +1059,23 @@ mod tests {
         }
     }
 
-    /// Without speed reports arming is refused, `motor_bidir_dshot` = 0 or not, unless the
-    /// application's own configuration allows the commands-only identification; then the
-    /// attempt stays armed past the report timeout.
+    /// Without speed reports arming is refused unless the user said the ESCs cannot report
+    /// (`motor_bidir_dshot` = 0) and the build identifies without them
+    /// (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`); then the attempt stays armed past the report timeout. With
+    /// the parameter at its default (1) silent ESCs are refused in every build.
     #[test]
-    fn without_speed_reports_only_the_commands_only_configuration_arms() {
+    fn without_speed_reports_only_the_commands_only_identification_arms() {
         let mut params = super::super::params::Params::default();
+        let reporting = ControlSettings::from(&params);
+        assert!(!reporting.arm_without_speeds);
         params.set(super::super::params::Param::MotorBidirDshot as usize, &[0.0]).unwrap();
         let told = ControlSettings::from(&params);
-        assert!(!told.arm_without_speeds, "a parameter alone never allows it");
+        let identifies = flight::learner::IDENTIFIES_WITHOUT_SPEEDS;
+        assert_eq!(told.arm_without_speeds, identifies);
         for (settings, arms) in [
             (ControlSettings::default(), false),
-            (told, false),
+            (reporting, false),
+            (told, identifies),
             (ControlSettings { arm_without_speeds: true, ..told }, true),
         ] {
             let mut queue = SampleQueue::new();

@@ -487,24 +487,28 @@ impl LinkServer {
                         unit: short_text(""),
                     });
                 }
-                if !settings.params().bidirectional_dshot() {
-                    // The learner needs every motor's speed: ESCs without bidirectional DShot
-                    // give none (`motor_bidir_dshot`).
-                    return Err(DeviceError::BadValue {
-                        name: short_text("motor_bidir_dshot"),
-                        value: 0.0,
-                        min: 1.0,
-                        max: 1.0,
-                        unit: short_text(""),
-                    });
-                }
-                // Every motor must report its speed: the learner needs them, and an ESC that does
-                // not answer now will not answer in the air (`ControlLoop`'s module doc).
-                let all =
-                    ((1u16 << usize::from(view.control.motor_count).min(MAX_MOTORS)) - 1) as u8;
-                let silent = all & !view.control.speeds_reported;
-                if silent != 0 {
-                    return Err(DeviceError::SpeedsNotReported { motors: silent });
+                // Unless this build identifies from the commands and the user says the ESCs
+                // cannot report (`Params::arms_without_speeds`), the learner needs every motor's
+                // speed.
+                if !settings.params().arms_without_speeds() {
+                    if !settings.params().bidirectional_dshot() {
+                        // ESCs without bidirectional DShot give none (`motor_bidir_dshot`).
+                        return Err(DeviceError::BadValue {
+                            name: short_text("motor_bidir_dshot"),
+                            value: 0.0,
+                            min: 1.0,
+                            max: 1.0,
+                            unit: short_text(""),
+                        });
+                    }
+                    // Every motor must report its speed: an ESC that does not answer now will
+                    // not answer in the air (`ControlLoop`'s module doc).
+                    let all =
+                        ((1u16 << usize::from(view.control.motor_count).min(MAX_MOTORS)) - 1) as u8;
+                    let silent = all & !view.control.speeds_reported;
+                    if silent != 0 {
+                        return Err(DeviceError::SpeedsNotReported { motors: silent });
+                    }
                 }
                 self.commands
                     .push_back(ControlCommand::ArmThrowToFly)

@@ -12,7 +12,7 @@
 
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::ThrowConfig;
-use flight::learner::{LearnedModel, MAX_MOTORS};
+use flight::learner::{LearnedModel, IDENTIFIES_WITHOUT_SPEEDS, MAX_MOTORS};
 use flight::math::clamp;
 use protocol::{
     text, DeviceError, ParamInfo, ParamKind, ParamValues, PARAM_HELP_LEN, PARAM_MAX_LEN,
@@ -364,6 +364,14 @@ impl Params {
     /// learner needs the speeds it reports).
     pub fn bidirectional_dshot(&self) -> bool {
         self.scalar(Param::MotorBidirDshot) == 1.0
+    }
+
+    /// Whether throw-to-fly arms although the ESCs report no speed: the user says they cannot
+    /// (`motor_bidir_dshot` = 0) and this build identifies without them
+    /// ([`IDENTIFIES_WITHOUT_SPEEDS`]: the simulators and the bridge, not yet the board). Else
+    /// the learner needs every motor's speed, and arming without them is refused.
+    pub fn arms_without_speeds(&self) -> bool {
+        IDENTIFIES_WITHOUT_SPEEDS && !self.bidirectional_dshot()
     }
 
     /// The telemetry radio's baud, when one is configured (the board reads it at start-up).

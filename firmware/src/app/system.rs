@@ -773,6 +773,22 @@ impl<'q, F: NorFlash> System<'q, F> {
         }
     }
 
+    /// Change the parameters before anything runs (a simulator's command-line option): in the
+    /// link's settings, so `status` and `get` show them, and handed to the control step and the
+    /// background task through their queues now rather than at the first link pass, so that
+    /// an arm request queued after this finds them in force (the control step takes new
+    /// settings only while disarmed).
+    pub fn configure(&mut self, change: impl FnOnce(&mut Params)) {
+        let settings = self.link.settings_mut();
+        settings.update(change);
+        let params = *settings.params();
+        self.submit(ControlCommand::Configure(ControlSettings::from(&params)));
+        if self.handoffs.work.push_back(BackgroundWork::Configure(params)).is_err() {
+            self.link.dropped_work = self.link.dropped_work.wrapping_add(1);
+        }
+        self.run_background();
+    }
+
     /// Queue a command for the next tick, as a link pass would (a scenario's arm, a simulated
     /// motion-capture pose). Returns false when the queue was full and it was dropped.
     pub fn submit(&mut self, command: ControlCommand) -> bool {

@@ -225,10 +225,14 @@ pub enum AxisStatus {
     NoHover,
 }
 
+/// Whether this build identifies a craft whose ESCs report no speed (feature `no-speed`:
+/// `no_speed`, the speeds modelled from the commands). Without it a learner told of no speeds
+/// learns nothing, so the application must not arm for throw-to-fly without them.
+pub const IDENTIFIES_WITHOUT_SPEEDS: bool = cfg!(feature = "no-speed");
+
 /// Whether a published model can be [`LearnedModel::pending`]: only the learner without speed
-/// telemetry (feature `no-speed`) publishes such models; a build without it can leave out all
-/// that waits for them.
-pub const MODELS_MAY_BE_PENDING: bool = cfg!(feature = "no-speed");
+/// telemetry publishes such models; a build without it can leave out all that waits for them.
+pub const MODELS_MAY_BE_PENDING: bool = IDENTIFIES_WITHOUT_SPEEDS;
 
 /// Everything learned so far: the interface to the controller.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -1,8 +1,9 @@
 //! Identification without speed telemetry (issue 32): the motors' lag from the body's response,
 //! and a modelled speed from the commands in place of the measured one
 //! (docs/algorithms/learner.md, "Without speed telemetry"). A prototype: the simulator flies it
-//! (`fly monte-carlo --no-speed-telemetry`); no board arms without speeds yet
-//! (`firmware::app::ControlSettings::arm_without_speeds`), and the board builds without it.
+//! (`fly monte-carlo --no-speed-telemetry`), and so does the bridge (`scenario bridge
+//! --no-speed-telemetry`: [`super::IDENTIFIES_WITHOUT_SPEEDS`] with `motor_bidir_dshot` = 0);
+//! the board builds without it (its flash has no room yet) and never arms without speeds.
 //!
 //! **The model.** ESCs without bidirectional DShot report no speed; the learner still knows
 //! what it commanded, and the body's motion shows what the motors did with it. Every motor's

@@ -15,8 +15,8 @@
 //! IMU offset (without it every run is a calibrated board's).
 //!
 //! `--no-speed-telemetry` flies ESCs that report no speed (the application told so through
-//! `motor_bidir_dshot` = 0, and allowed to arm by its own configuration,
-//! `ControlSettings::arm_without_speeds`): the learner's commands-only path
+//! `motor_bidir_dshot` = 0, which arms without them in a build that identifies from the
+//! commands, `Params::arms_without_speeds`): the learner's commands-only path
 //! (`flight::learner::no_speed`, issue 32). Every summary reports G1 and the thrust axis per
 //! unit normalised thrust at the end of the excitation (`sim::recovery::thrust_scores`), the
 //! figures that compare with and without telemetry.

@@ -99,6 +99,11 @@ enum Command {
             value_parser = parse_imu_offset_mm
         )]
         imu_offset_mm: Option<[f32; 3]>,
+        /// The simulator's ESCs report no speed (NaN in the sensor packets): the application is
+        /// told so (`motor_bidir_dshot` = 0) and identifies the motors from the commands and the
+        /// body's response instead of refusing to arm.
+        #[arg(long)]
+        no_speed_telemetry: bool,
         /// Also serve the configurator protocol on TCP at 127.0.0.1:PORT (0 picks a free one),
         /// as the SITL does: `configurator-cli --tcp 127.0.0.1:PORT status`.
         #[arg(long, value_name = "PORT")]
@@ -309,6 +314,7 @@ fn run(cli: Cli) -> Result<()> {
             idle_timeout_s,
             throw_to_fly,
             imu_offset_mm,
+            no_speed_telemetry,
             tcp_port,
             rc,
             log_dir,
@@ -330,6 +336,12 @@ fn run(cli: Cli) -> Result<()> {
             };
             if throw_to_fly {
                 eprintln!("armed for throw-to-fly: the first throw starts the motor excitation");
+            }
+            if no_speed_telemetry {
+                eprintln!(
+                    "ESCs without speed telemetry (motor_bidir_dshot = 0): the motors are \
+                     identified from the commands and the body's response"
+                );
             }
             if let Some([x, y, z]) = imu_offset_mm {
                 eprintln!(
@@ -355,6 +367,9 @@ fn run(cli: Cli) -> Result<()> {
             let result = with_logged_firmware_app(sink, "BRIDGE", receiver, |app| {
                 if imu_offset_mm.is_some() {
                     app.background.set_imu_offset(imu_offset_mm);
+                }
+                if no_speed_telemetry {
+                    sim::bridge::set_no_speed_telemetry(app);
                 }
                 if throw_to_fly {
                     app.submit(ControlCommand::ArmThrowToFly);
