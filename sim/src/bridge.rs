@@ -561,6 +561,56 @@ pub fn set_no_speed_telemetry(app: &mut FirmwareApp<'_>) {
     });
 }
 
+/// What the latest identification found, for a person reading the bridge's stderr when it
+/// stops (the same as `status` over `--tcp-port` shows): the thrust axis and the hover commands
+/// (said when they are the last resort, `u*` clamped to the motor bounds), whether the motor
+/// speeds were measured or modelled from the commands, and the IMU offset the model used with
+/// where it came from (fitted in flight: its 95 % semi-axes too). `None` before any model.
+pub fn identification_summary(results: &firmware::app::BackgroundResults) -> Option<String> {
+    use protocol::ImuOffsetSource;
+    let learned = &results.learned;
+    let axis = learned.thrust_axis?;
+    let m = usize::from(learned.motors).min(MAX_MOTORS);
+    let mm = |v: [f32; 3]| format!("({:.1}, {:.1}, {:.1}) mm", v[0] * 1e3, v[1] * 1e3, v[2] * 1e3);
+    let [roll, pitch, yaw] = axis.euler_zyx_rad.map(f32::to_degrees);
+    let hover: Vec<String> = axis.u_hover[..m].iter().map(|u| format!("{u:.3}")).collect();
+    let mut text = format!(
+        "identified {m} motors: thrust axis (roll, pitch, yaw of the thrust frame in IMU axes) \
+         ({roll:.1}, {pitch:.1}, {yaw:.1})°, hover commands [{}] (normalised thrust)",
+        hover.join(", ")
+    );
+    if !axis.within_bounds() {
+        text += &format!(
+            " clamped to the motor bounds: no hover within them was found, u* was {:.2} \
+             outside (the axis flown is the clamped commands')",
+            axis.clamped_by
+        );
+    }
+    text += if learned.speeds_modelled {
+        "; motor speeds modelled from the commands (no speed telemetry)"
+    } else {
+        "; motor speeds measured"
+    };
+    let offset = match results.learner_offset {
+        ImuOffsetSource::FittedInFlight => {
+            let fit = &results.imu_offset;
+            format!(
+                "fitted in flight {}, 95 % semi-axes {}",
+                mm(fit.r_imu_m),
+                mm(fit.ci95_semi_axes_m)
+            )
+        }
+        ImuOffsetSource::Configured => format!("given {}", mm(results.learner_r_imu_m)),
+        ImuOffsetSource::Onboard => {
+            format!("from the onboard estimate {}", mm(results.learner_r_imu_m))
+        }
+        ImuOffsetSource::Zero | ImuOffsetSource::NotUsed => {
+            "none known or fitted (taken as zero)".to_string()
+        }
+    };
+    Some(format!("{text}; IMU offset {offset}"))
+}
+
 /// Why a throw-to-fly attempt ended, for a person reading the bridge's stderr.
 pub fn attempt_text(failure: LearnerFailure) -> String {
     match failure {
@@ -638,6 +688,35 @@ impl BridgeClient {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The stop summary names the last resort and the offset fitted in flight with its
+    /// ellipsoid, in millimetres; before any model there is none.
+    #[test]
+    fn the_identification_summary_says_what_was_clamped_and_where_the_offset_came_from() {
+        use flight::learner::LearnedThrustAxis;
+        let mut results = firmware::app::BackgroundResults::default();
+        assert_eq!(identification_summary(&results), None);
+        results.learned.motors = 4;
+        let mut axis = LearnedThrustAxis { clamped_by: 0.25, ..LearnedThrustAxis::default() };
+        axis.u_hover[..4].copy_from_slice(&[1.0, 0.5, 0.5, 0.25]);
+        results.learned.thrust_axis = Some(axis);
+        results.learner_offset = protocol::ImuOffsetSource::FittedInFlight;
+        results.imu_offset.r_imu_m = [0.012, -0.0034, 0.02];
+        results.imu_offset.ci95_semi_axes_m = [0.003, 0.002, 0.001];
+        let text = identification_summary(&results).unwrap();
+        assert!(text.contains("[1.000, 0.500, 0.500, 0.250]"), "{text}");
+        assert!(text.contains("u* was 0.25 outside"), "{text}");
+        assert!(text.contains("motor speeds measured"), "{text}");
+        assert!(
+            text.contains(
+                "fitted in flight (12.0, -3.4, 20.0) mm, 95 % semi-axes (3.0, 2.0, 1.0) mm"
+            ),
+            "{text}"
+        );
+        results.learned.thrust_axis = Some(LearnedThrustAxis::default());
+        let text = identification_summary(&results).unwrap();
+        assert!(!text.contains("clamped"), "within the bounds: {text}");
+    }
 
     fn sensor() -> SensorPacket {
         let mut speeds_rad_s = [None; MAX_MOTORS];

@@ -549,8 +549,8 @@ fn the_bridges_radio_arms_and_its_kill_switch_disarms_in_packet_time() {
 /// Issue 32 through the bridge: a simulator whose ESCs report no speed (NaN in every packet)
 /// and a bridge told so (`scenario bridge --no-speed-telemetry`, [`set_no_speed_telemetry`]).
 /// The seed paper's throw with poses at 100 Hz: the application arms although no motor reports,
-/// identifies the motors from the commands and the body's response (the published model says
-/// its speeds were modelled), recovers and, 6 s after the release, is holding within 0.3 m of
+/// identifies the motors from the commands and the body's response (the published model, and
+/// the summary the bridge prints when it stops, say its speeds were modelled), recovers and, 6 s after the release, is holding within 0.3 m of
 /// its setpoint with the body's rate below the hover's 0.5 rad/s.
 #[test]
 fn without_speed_telemetry_the_bridge_identifies_from_the_commands_and_holds() {
@@ -571,7 +571,8 @@ fn without_speed_telemetry_the_bridge_identifies_from_the_commands_and_holds() {
                 notices.push(notice.to_string())
             })
             .unwrap();
-            (app.snapshot(), app.background.results().learned.speeds_modelled, notices)
+            let summary = sim::bridge::identification_summary(&app.background.results());
+            (app.snapshot(), app.background.results().learned.speeds_modelled, notices, summary)
         })
     });
 
@@ -596,9 +597,14 @@ fn without_speed_telemetry_the_bridge_identifies_from_the_commands_and_holds() {
             break;
         }
     }
-    let (snapshot, speeds_modelled, notices) = handle.join().unwrap();
+    let (snapshot, speeds_modelled, notices, summary) = handle.join().unwrap();
     assert!(notices.is_empty(), "the attempt went on: {notices:?}");
     assert!(speeds_modelled, "the model says its speeds were modelled from the commands");
+    // What `scenario bridge` prints when it stops.
+    let summary = summary.expect("a model");
+    assert!(summary.starts_with("identified 4 motors"), "{summary}");
+    assert!(summary.contains("modelled from the commands"), "{summary}");
+    assert!(summary.contains("IMU offset none known"), "no offset given, none fitted: {summary}");
     let pilot = snapshot.pilot;
     assert!(pilot.flying && pilot.position_hold, "{pilot:?}");
     let state = board.physics().state();

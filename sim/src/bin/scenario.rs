@@ -383,6 +383,9 @@ fn run(cli: Cli) -> Result<()> {
                     &mut |notice| eprintln!("{notice}"),
                 );
                 app.finish_log();
+                if let Some(text) = sim::bridge::identification_summary(&app.background.results()) {
+                    eprintln!("{text}");
+                }
                 let summary = summary?;
                 eprintln!(
                     "no packet for {idle_timeout_s} s after {} steps ({} malformed packets); \
@@ -420,7 +423,12 @@ mod tests {
             assert!(message.contains(bad) && message.contains("expected IP:PORT"), "{message}");
         }
         let cli = Cli::try_parse_from(["scenario", "bridge", "--listen", "[::1]:9004"]).unwrap();
-        let Command::Bridge { listen, .. } = cli.command else { panic!("not the bridge") };
+        let Command::Bridge { listen, no_speed_telemetry, .. } = cli.command else {
+            panic!("not the bridge")
+        };
         assert_eq!(listen, "[::1]:9004".parse::<SocketAddr>().unwrap());
+        assert!(!no_speed_telemetry, "speeds are reported unless told otherwise");
+        let cli = Cli::try_parse_from(["scenario", "bridge", "--no-speed-telemetry"]).unwrap();
+        assert!(matches!(cli.command, Command::Bridge { no_speed_telemetry: true, .. }));
     }
 }
