@@ -4,7 +4,8 @@
 //! firmware ELF (cargo profile `firmware`: the release profile, its cold dependencies compiled
 //! for size) and prints its flash and RAM use, read from the ELF's section headers by a small
 //! reader below (no binutils needed); it fails when the image exceeds its 256 KiB flash budget
-//! or links core's float formatting. `flash` programs a board through a debug probe (probe-rs) or
+//! (384 KiB for the image for ESCs without speed telemetry, `--no-speed`) or links core's float
+//! formatting. `flash` programs a board through a debug probe (probe-rs) or
 //! through the STM32's ROM DFU bootloader (dfu-util), and says what to install or connect when
 //! neither is possible.
 
@@ -52,6 +53,15 @@ pub const PROFILE: &str = "firmware";
 /// which withdrew issue 10's 128 KiB; docs/benchmarks.md, "Firmware size").
 const FLASH_BUDGET_BYTES: u64 = 256 * 1024;
 
+/// Flash budget of the image for ESCs without bidirectional DShot (`--no-speed`, the firmware's
+/// feature `no-speed`: the commands-only identification of issue 32, 16.6 KB more), bytes: three
+/// 128 KiB sectors. The H743's bank 1 (1 MiB) holds either; the default image keeps issue 31's
+/// two sectors.
+const NO_SPEED_FLASH_BUDGET_BYTES: u64 = 384 * 1024;
+
+/// The `build` and `flash` argument that selects the image for ESCs without speed telemetry.
+pub const NO_SPEED_ARG: &str = "--no-speed";
+
 /// Symbol-name fragments of core's float formatting (`core::num::flt2dec`, Grisu and Dragon4),
 /// about 15 KB of flash. The firmware never formats a float (defmt sends them raw); they are
 /// linked when a panic message formats one, e.g. `f32::clamp` with bounds that are not constants
@@ -65,17 +75,23 @@ const FLOAT_FORMATTING_SYMBOLS: &[&str] = &["flt2dec"];
 /// Extra `args` are passed to `cargo build` (e.g. `--features ...`).
 ///
 /// `--stack` (not passed to cargo) adds the worst-case stack of every interrupt handler and of
-/// `main` (init, idle), from the ELF's code: see [`stack_report`].
+/// `main` (init, idle), from the ELF's code: see [`stack_report`]. `--no-speed` (not passed to
+/// cargo either) builds the image for ESCs without bidirectional DShot (the firmware's feature
+/// `no-speed`), checked against [`NO_SPEED_FLASH_BUDGET_BYTES`].
 pub fn build(args: &[String]) -> Result<PathBuf> {
     ensure_target_installed()?;
     ensure_flip_link()?;
     let stack = args.iter().any(|arg| arg == STACK_ARG);
+    let no_speed = args.iter().any(|arg| arg == NO_SPEED_ARG);
 
     let mut cargo = util::cargo();
     cargo.args(["build", "--profile", PROFILE, "-p", "firmware", "--bin", "firmware"]);
     cargo.args(["--target", TARGET]);
     cargo.args(registry_remaps());
-    cargo.args(args.iter().filter(|arg| *arg != STACK_ARG));
+    if no_speed {
+        cargo.args(["--features", "no-speed"]);
+    }
+    cargo.args(args.iter().filter(|arg| *arg != STACK_ARG && *arg != NO_SPEED_ARG));
     if std::env::var_os("DEFMT_LOG").is_none() {
         // defmt compiles out everything below `error` unless told otherwise.
         cargo.env("DEFMT_LOG", "info");
@@ -91,7 +107,8 @@ pub fn build(args: &[String]) -> Result<PathBuf> {
     if stack {
         print!("{}", stack_report(&bytes, &sections, used.stack_bytes)?);
     }
-    check_budget(used.flash_bytes)?;
+    let budget = if no_speed { NO_SPEED_FLASH_BUDGET_BYTES } else { FLASH_BUDGET_BYTES };
+    check_budget(used.flash_bytes, budget)?;
     let formatting = float_formatting_symbols(&bytes)?;
     ensure!(
         formatting.is_empty(),
@@ -122,14 +139,17 @@ fn check_stack(init_bytes: u64, running_bytes: u64, free_bytes: u64) -> Result<(
     Ok(())
 }
 
-/// Fails when the image does not fit [`FLASH_BUDGET_BYTES`].
-fn check_budget(flash_bytes: u64) -> Result<()> {
+/// Fails when the image does not fit `budget_bytes` ([`FLASH_BUDGET_BYTES`], or
+/// [`NO_SPEED_FLASH_BUDGET_BYTES`] for that image).
+fn check_budget(flash_bytes: u64, budget_bytes: u64) -> Result<()> {
     ensure!(
-        flash_bytes <= FLASH_BUDGET_BYTES,
-        "the firmware uses {flash_bytes} B of flash, over its budget of {FLASH_BUDGET_BYTES} B \
-         (256 KiB, two flash sectors) by {} B: see docs/benchmarks.md, \"Firmware size\", for \
+        flash_bytes <= budget_bytes,
+        "the firmware uses {flash_bytes} B of flash, over its budget of {budget_bytes} B \
+         ({} KiB, {} flash sectors) by {} B: see docs/benchmarks.md, \"Firmware size\", for \
          what takes the space and what was done",
-        flash_bytes - FLASH_BUDGET_BYTES
+        budget_bytes / 1024,
+        budget_bytes / (128 * 1024),
+        flash_bytes - budget_bytes
     );
     Ok(())
 }
@@ -186,10 +206,14 @@ pub const STACK_ARG: &str = "--stack";
 /// `cargo xtask flash --dfu` through the ROM DFU bootloader with dfu-util.
 pub fn flash(args: &[String]) -> Result<()> {
     let mut dfu = false;
+    let mut build_args = Vec::new();
     for arg in args {
         match arg.as_str() {
             "--dfu" => dfu = true,
-            other => bail!("flash: unknown argument `{other}` (usage: cargo xtask flash [--dfu])"),
+            NO_SPEED_ARG => build_args.push(NO_SPEED_ARG.to_string()),
+            other => bail!(
+                "flash: unknown argument `{other}` (usage: cargo xtask flash [--dfu] [--no-speed])"
+            ),
         }
     }
     // Check the tool and the device before the (long) build, so a missing one fails fast.
@@ -212,7 +236,7 @@ pub fn flash(args: &[String]) -> Result<()> {
         require_probe()?;
     }
 
-    let elf = build(&[])?;
+    let elf = build(&build_args)?;
     if dfu {
         let bin = elf.with_extension("bin");
         let image = elf_to_flash_image(&std::fs::read(&elf)?)?;
@@ -1026,10 +1050,15 @@ mod tests {
     }
 
     #[test]
-    fn flash_budget_is_two_sectors() {
-        assert!(check_budget(262_144).is_ok());
-        let over = check_budget(262_145).unwrap_err().to_string();
+    fn flash_budget_is_two_sectors_or_three_without_speed_telemetry() {
+        assert!(check_budget(262_144, FLASH_BUDGET_BYTES).is_ok());
+        let over = check_budget(262_145, FLASH_BUDGET_BYTES).unwrap_err().to_string();
         assert!(over.contains("262145 B") && over.contains("by 1 B"), "{over}");
+        assert!(over.contains("256 KiB, 2 flash sectors"), "{over}");
+        // 2026-11-29: the image for ESCs without speed telemetry, 278,752 B.
+        assert!(check_budget(278_752, NO_SPEED_FLASH_BUDGET_BYTES).is_ok());
+        let over = check_budget(393_217, NO_SPEED_FLASH_BUDGET_BYTES).unwrap_err().to_string();
+        assert!(over.contains("384 KiB, 3 flash sectors") && over.contains("by 1 B"), "{over}");
     }
 
     #[test]

@@ -61,8 +61,8 @@
 //!
 //! The exception is issue 32's identification without speed telemetry: where the user says the
 //! ESCs cannot report (`motor_bidir_dshot` = 0) and the build can identify without them
-//! (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators, the bridge; not yet the board,
-//! whose flash has no room for it), [`ControlSettings::arm_without_speeds`] is set, none of the
+//! (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators, the bridge and the board's
+//! image built with the feature `no-speed`), [`ControlSettings::arm_without_speeds`] is set, none of the
 //! above applies, and the learner identifies from the commands and the body's response
 //! (`flight::learner::no_speed`).
 
@@ -120,9 +120,9 @@ pub struct ControlSettings {
     /// Arm for throw-to-fly although the ESCs report no speed, the learner then identifying
     /// from the commands and the body's response (`flight::learner::no_speed`, issue 32): set
     /// where the user says the ESCs cannot report (`motor_bidir_dshot` = 0) and the build can
-    /// identify without them (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators and
-    /// the bridge, 98.6 % of 1,000 random worlds hovered, docs/benchmarks.md; never on the
-    /// board yet, whose flash has no room for `flight`'s feature `no-speed`).
+    /// identify without them (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators, the
+    /// bridge and the board's image built with the feature `no-speed`; 98.6 % of 1,000 random
+    /// worlds hovered, docs/benchmarks.md; the default board image never arms without speeds).
     pub arm_without_speeds: bool,
 }
 

@@ -368,7 +368,8 @@ impl Params {
 
     /// Whether throw-to-fly arms although the ESCs report no speed: the user says they cannot
     /// (`motor_bidir_dshot` = 0) and this build identifies without them
-    /// ([`IDENTIFIES_WITHOUT_SPEEDS`]: the simulators and the bridge, not yet the board). Else
+    /// ([`IDENTIFIES_WITHOUT_SPEEDS`]: the simulators, the bridge and the board's image built
+    /// with the feature `no-speed`, not the default one). Else
     /// the learner needs every motor's speed, and arming without them is refused.
     pub fn arms_without_speeds(&self) -> bool {
         IDENTIFIES_WITHOUT_SPEEDS && !self.bidirectional_dshot()

@@ -2,8 +2,10 @@
 //! and a modelled speed from the commands in place of the measured one
 //! (docs/algorithms/learner.md, "Without speed telemetry"). A prototype: the simulator flies it
 //! (`fly monte-carlo --no-speed-telemetry`), and so does the bridge (`scenario bridge
-//! --no-speed-telemetry`: [`super::IDENTIFIES_WITHOUT_SPEEDS`] with `motor_bidir_dshot` = 0);
-//! the board builds without it (its flash has no room yet) and never arms without speeds.
+//! --no-speed-telemetry`: [`super::IDENTIFIES_WITHOUT_SPEEDS`] with `motor_bidir_dshot` = 0).
+//! The board has it in its image for ESCs without bidirectional DShot (`cargo xtask build
+//! --no-speed`, 278,752 B against the default image's 262,100 B); the default image builds
+//! without it and never arms without speeds.
 //!
 //! **The model.** ESCs without bidirectional DShot report no speed; the learner still knows
 //! what it commanded, and the body's motion shows what the motors did with it. Every motor's
@@ -86,8 +88,8 @@
 //! [`SCORING_WORK_PER_MOTOR`] allows (a quad's four, one candidate, a sample), then the catch-up of [`RELEASE_PER_SAMPLE`] held samples a sample (each about what a learner
 //! sample with telemetry costs): 76,051 instructions a sample at most on a quad,
 //! 151,317 on an octorotor, which the learner's task keeps up with at 2 kHz. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
-//! ≈ 120 KB. Not on the board yet: `flight`'s feature `no-speed` is off in the firmware, whose
-//! flash has no room for it.
+//! ≈ 120 KB (the board's no-speed image: AXI SRAM 417,088 B of 524,288). The default board
+//! image leaves the feature out: its two sectors have no room for it.
 
 // Index loops are kept where they run over axes and motors side by side (several arrays per
 // index), as in `effectiveness`.
