@@ -15,11 +15,14 @@
 //!    what a lithium pack at rest and a board's own draw can be ([`battery_line`]): a divider
 //!    or current-sensor scale that does not match the board reads outside them; no pack (USB
 //!    power) or no battery sensing is information;
-//! 6. **esc**: every motor's ESC answering with its speed (bidirectional DShot);
+//! 6. **esc**: every motor's ESC answering with its speed (bidirectional DShot); with
+//!    `motor_bidir_dshot` = 0 (ESCs that cannot report), whether this firmware identifies the
+//!    motors without speeds (`Capabilities::IDENTIFIES_WITHOUT_SPEEDS`) instead;
 //! 7. **spin**: asked first (propellers off), each motor spun in turn at [`SPIN_COMMAND`] for
 //!    [`SPIN_S`]; its own speed report must rise and the others must not: a motor output whose
 //!    speed comes back on another output (commands and speed reports mapped differently) or
-//!    not at all is found here.
+//!    not at all is found here. Without speed reports there is nothing to compare: skipped,
+//!    with `motor-test` as the way to watch each motor.
 //!
 //! What the checks assume of the world: the craft stands still on a bench (not in a hand: a
 //! hand's tremor is far above the IMU's noise), motors stopped and propellers off; the IMU is an
@@ -624,9 +627,62 @@ pub fn battery_line(battery: Option<&protocol::BatteryStatus>) -> Line {
 
 const ESC_CHECKED: &str = "ESC speed reports (bidirectional DShot)";
 
-/// Line 5 from the sensors' health (`None`: a board older than protocol 1.6) and, where the
-/// board has a DShot link, its per-motor report counters.
-pub fn esc_line(health: Option<&SensorHealth>, link: Option<&MotorLinkHealth>) -> Line {
+/// What the board was told of its ESCs' speed reports, and what its firmware does without them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SpeedReports {
+    /// `motor_bidir_dshot` = 0: the user says the ESCs cannot report their speed.
+    pub off: bool,
+    /// The firmware identifies the motors without speed reports
+    /// (`Capabilities::IDENTIFIES_WITHOUT_SPEEDS`, protocol 1.13: the image built for ESCs
+    /// without bidirectional DShot, and the simulators).
+    pub identifies_without: bool,
+}
+
+/// Where ESCs without bidirectional DShot are flown: this firmware, or the image for them.
+fn without_reports_advice(reports: SpeedReports) -> &'static str {
+    if reports.identifies_without {
+        "this firmware then identifies the motors from the commands"
+    } else {
+        "with the firmware image built for them (`cargo xtask flash --no-speed`), which \
+         identifies the motors from the commands"
+    }
+}
+
+/// Line 6 from the sensors' health (`None`: a board older than protocol 1.6), where the board
+/// has a DShot link its per-motor report counters, and what it was told of the reports.
+pub fn esc_line(
+    health: Option<&SensorHealth>,
+    link: Option<&MotorLinkHealth>,
+    reports: SpeedReports,
+) -> Line {
+    if reports.off {
+        let found = "speed reports off (`motor_bidir_dshot` = 0: ESCs without bidirectional \
+                     DShot)";
+        return if reports.identifies_without {
+            line(
+                "esc",
+                ESC_CHECKED,
+                Vec::new(),
+                format!(
+                    "{found}: throw-to-fly identifies the motors from the commands and the \
+                     body's response (measured speeds, with bidirectional DShot, are the better \
+                     path)"
+                ),
+            )
+        } else {
+            line(
+                "esc",
+                ESC_CHECKED,
+                vec![format!(
+                    "this firmware's throw-to-fly needs every motor's speed: ESCs with \
+                     bidirectional DShot (BLHeli_32, Bluejay, AM32) and `set motor_bidir_dshot \
+                     = 1`, `save`, `reboot`; or keep these ESCs {}",
+                    without_reports_advice(reports)
+                )],
+                found.into(),
+            )
+        };
+    }
     let Some(health) = health else {
         return line(
             "esc",
@@ -665,12 +721,12 @@ pub fn esc_line(health: Option<&SensorHealth>, link: Option<&MotorLinkHealth>) -
         )
     };
     if silent.len() == count {
-        failures.push(
+        failures.push(format!(
             "no ESC answers: ESCs with bidirectional DShot (BLHeli_32, Bluejay, AM32) and \
-             `set motor_bidir_dshot = 1`, `save`, `reboot`; the throw-to-fly identification \
-             needs every motor's speed"
-                .to_string(),
-        );
+             `set motor_bidir_dshot = 1`, `save`, `reboot`, since throw-to-fly needs every \
+             motor's speed; ESCs without it: `set motor_bidir_dshot = 0`, `save`, `reboot`, {}",
+            without_reports_advice(reports)
+        ));
     } else if !silent.is_empty() {
         failures.push(format!(
             "check motor {}'s ESC: its signal wire and ground, its firmware (bidirectional \
@@ -786,6 +842,24 @@ pub fn spin_line(spins: &[Spin]) -> Line {
 }
 
 /// Line 6 when the motors were not spun, saying why.
+/// Line 7 where the ESCs report no speed (`motor_bidir_dshot` = 0): nothing to check the
+/// outputs' order against, so the motors are not spun; a person watches them instead.
+pub fn spin_without_reports() -> Line {
+    Line {
+        name: "spin",
+        checked: SPIN_CHECKED,
+        verdict: Verdict::Skipped,
+        found: "not run: the ESCs report no speed (`motor_bidir_dshot` = 0), so no report can \
+                show which motor turned"
+            .into(),
+        advice: Some(
+            "with the propellers OFF, spin each motor in turn and watch which one turns and \
+             which way: `configurator-cli motor-test --motor N`"
+                .into(),
+        ),
+    }
+}
+
 pub fn spin_skipped(why: &str) -> Line {
     Line {
         name: "spin",
@@ -856,12 +930,22 @@ pub fn run(
         Some(Reply::Health(health)) => Some(health),
         _ => None,
     };
-    emit(esc_line(health.as_ref(), board.as_ref().and_then(|b| b.motors.as_ref())), &mut lines);
+    let reports = SpeedReports {
+        off: speed_reports_off(client)?,
+        identifies_without: client
+            .info
+            .capabilities
+            .has(protocol::Capabilities::IDENTIFIES_WITHOUT_SPEEDS),
+    };
+    let motors = board.as_ref().and_then(|b| b.motors.as_ref());
+    emit(esc_line(health.as_ref(), motors, reports), &mut lines);
 
     let spin = if armed {
         spin_skipped("the craft is armed")
     } else if client.info.motor_count == 0 {
         spin_skipped("no motors")
+    } else if reports.off {
+        spin_without_reports()
     } else {
         match consent() {
             Consent::Yes => spin_line(&spin_motors(client)?),
@@ -879,6 +963,16 @@ fn status(client: &mut Client) -> Result<protocol::Status, LinkError> {
     match client.request(&Request::GetStatus(()), "the status request")? {
         Reply::Status(status) => Ok(status),
         other => Err(LinkError::Unexpected(format!("{other:?} to the status request"))),
+    }
+}
+
+/// Whether the user told the board that its ESCs report no speed (`motor_bidir_dshot` = 0);
+/// false where the board has no such parameter.
+fn speed_reports_off(client: &mut Client) -> Result<bool, LinkError> {
+    let name = protocol::ParamRef::Name(protocol::text("motor_bidir_dshot"));
+    match optional(client, Request::GetParam(name), "the parameter request")? {
+        Some(Reply::Param(info)) => Ok(info.value.first() == Some(&0.0)),
+        _ => Ok(false),
     }
 }
 
@@ -1228,19 +1322,42 @@ mod tests {
             speeds_reported: reported,
             ..SensorHealth::default()
         };
-        assert_eq!(esc_line(Some(&health(0b1111)), None).verdict, Verdict::Pass);
-        let one = esc_line(Some(&health(0b1011)), None);
+        let on = SpeedReports::default();
+        assert_eq!(esc_line(Some(&health(0b1111)), None, on).verdict, Verdict::Pass);
+        let one = esc_line(Some(&health(0b1011)), None, on);
         assert_eq!(one.verdict, Verdict::Fail);
         assert!(one.found.contains("motor 2 of 0–3 reports NO speed"), "{}", one.found);
         assert!(one.advice.unwrap().contains("check motor 2's ESC"));
-        assert!(esc_line(Some(&health(0)), None).advice.unwrap().contains("motor_bidir_dshot"));
+        let none = esc_line(Some(&health(0)), None, on).advice.unwrap();
+        assert!(none.contains("motor_bidir_dshot = 1") && none.contains("--no-speed"), "{none}");
         let mut link = MotorLinkHealth { motor_count: 4, ..MotorLinkHealth::default() };
         link.reports = [1000, 1000, 900, 1000, 0, 0, 0, 0];
         link.report_errors = [0, 3, 100, 0, 0, 0, 0, 0];
-        let noisy = esc_line(Some(&health(0b1111)), Some(&link));
+        let noisy = esc_line(Some(&health(0b1111)), Some(&link), on);
         assert_eq!(noisy.verdict, Verdict::Fail);
         assert!(noisy.found.contains("motor 2: 10.0 %"), "{}", noisy.found);
-        assert!(!esc_line(None, None).ok());
+        assert!(!esc_line(None, None, on).ok());
+    }
+
+    /// With `motor_bidir_dshot` = 0 silent ESCs are what the user said: a firmware that
+    /// identifies without speeds passes, one that needs them fails pointing at both ways out;
+    /// and the spin is not run, there being no report to check it against.
+    #[test]
+    fn speed_reports_turned_off_pass_only_where_the_firmware_identifies_without_them() {
+        let silent = SensorHealth { motor_count: 4, speeds_reported: 0, ..SensorHealth::default() };
+        let able = SpeedReports { off: true, identifies_without: true };
+        let line = esc_line(Some(&silent), None, able);
+        assert_eq!(line.verdict, Verdict::Pass, "{line:?}");
+        assert!(line.found.contains("from the commands"), "{}", line.found);
+        let unable = SpeedReports { off: true, identifies_without: false };
+        let line = esc_line(Some(&silent), None, unable);
+        assert_eq!(line.verdict, Verdict::Fail);
+        let advice = line.advice.unwrap();
+        assert!(advice.contains("motor_bidir_dshot = 1"), "{advice}");
+        assert!(advice.contains("cargo xtask flash --no-speed"), "{advice}");
+        let spin = spin_without_reports();
+        assert_eq!(spin.verdict, Verdict::Skipped);
+        assert!(spin.advice.unwrap().contains("motor-test --motor N"));
     }
 
     fn spin(motor: u8, speeds: &[f64]) -> Spin {

@@ -134,7 +134,9 @@ impl std::fmt::Display for DeviceErrorText {
                 f,
                 "not armed: motor{} {} report{} no speed (no answer within {} ms); the learner \
                  needs every motor's speed: ESCs with bidirectional DShot (BLHeli_32, Bluejay, \
-                 AM32) and `motor_bidir_dshot` = 1",
+                 AM32) and `motor_bidir_dshot` = 1 (ESCs without it: `motor_bidir_dshot` = 0, \
+                 with a firmware that identifies from the commands, `cargo xtask flash \
+                 --no-speed`)",
                 if motors.count_ones() == 1 { "" } else { "s" },
                 motor_list(*motors),
                 if motors.count_ones() == 1 { "s" } else { "" },

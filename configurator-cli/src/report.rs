@@ -9,7 +9,7 @@ use protocol::{
 use serde_json::{json, Value};
 use std::fmt::Write as _;
 
-const CAPABILITY_NAMES: [(u32, &str); 9] = [
+const CAPABILITY_NAMES: [(u32, &str); 10] = [
     (Capabilities::IMU, "imu"),
     (Capabilities::MOTORS, "motors"),
     (Capabilities::MOTOR_RPM, "motor_rpm"),
@@ -19,6 +19,7 @@ const CAPABILITY_NAMES: [(u32, &str); 9] = [
     (Capabilities::BOOTLOADER, "bootloader"),
     (Capabilities::RECEIVER, "receiver"),
     (Capabilities::ESC_COMMANDS, "esc_commands"),
+    (Capabilities::IDENTIFIES_WITHOUT_SPEEDS, "identifies_without_speeds"),
 ];
 
 fn capability_list(capabilities: Capabilities) -> Vec<&'static str> {

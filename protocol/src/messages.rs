@@ -75,6 +75,11 @@ impl Capabilities {
     pub const RECEIVER: u32 = 1 << 7;
     /// The motor outputs can send ESC commands ([`Request::EscCommand`], protocol 1.5).
     pub const ESC_COMMANDS: u32 = 1 << 8;
+    /// The firmware identifies the motors without speed reports, from the commands and the
+    /// body's response, when the ESCs cannot report (`motor_bidir_dshot` = 0): the simulators,
+    /// and the board's image built for ESCs without bidirectional DShot. Without it, throw-to-fly
+    /// needs every motor's speed (protocol 1.13).
+    pub const IDENTIFIES_WITHOUT_SPEEDS: u32 = 1 << 9;
 
     /// Whether every flag in `flags` is set.
     pub fn has(self, flags: u32) -> bool {

@@ -18,12 +18,18 @@ use firmware::app::{BoardInfo, LinkServer, CONTROL_RATE_HZ};
 use protocol::{Capabilities, BOARD_NAME_LEN};
 
 /// Capabilities of every simulated board: IMU, motors with RPM telemetry, telemetry streaming,
-/// and the simulator flag.
+/// the simulator flag, and the identification without speed reports where this build has it
+/// (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`).
 pub const SIMULATOR_CAPABILITIES: u32 = Capabilities::IMU
     | Capabilities::MOTORS
     | Capabilities::MOTOR_RPM
     | Capabilities::TELEMETRY
-    | Capabilities::SIMULATOR;
+    | Capabilities::SIMULATOR
+    | if flight::learner::IDENTIFIES_WITHOUT_SPEEDS {
+        Capabilities::IDENTIFIES_WITHOUT_SPEEDS
+    } else {
+        0
+    };
 
 /// A signing session for a simulated start-up (`protocol::signing`): the operating system's
 /// random numbers, as the board takes its RNG's.

@@ -51,6 +51,9 @@ fn info_over_the_pseudo_terminal_reports_the_handshake_and_a_board_at_rest() {
     assert_eq!(info["control_rate_hz"], 2000);
     assert_eq!(info["motor_count"], 4, "the paper's quad");
     assert!(info["capabilities"].as_array().unwrap().contains(&Value::from("simulator")));
+    // The SITL identifies without speed reports where the user says there are none (1.13).
+    let identifies = Value::from("identifies_without_speeds");
+    assert!(info["capabilities"].as_array().unwrap().contains(&identifies));
 
     let status = &report["status"];
     assert_eq!(status["armed"], false);

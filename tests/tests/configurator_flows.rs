@@ -483,6 +483,17 @@ fn the_bidirectional_dshot_parameter_decides_after_a_restart_whether_speeds_are_
     ok(&port, &["reboot"]);
     let off = record("bidir-off.csv");
     assert!(off.iter().all(|speed| speed != "0"), "no speed reported: {off:?}");
+    // The bring-up check agrees (docs/bring-up.md): the `esc` line passes, the SITL identifying
+    // without speeds (protocol 1.13's capability), and the spin, with no report to check the
+    // outputs against, is skipped, pointing at `motor-test`.
+    let (code, doctor, stderr) = cli(&port, &["--json", "doctor", "--yes"]);
+    assert_eq!(code, 0, "{doctor}{stderr}");
+    let lines: Vec<Value> = serde_json::from_str(&doctor).unwrap();
+    let line = |name: &str| lines.iter().find(|l| l["name"] == name).unwrap().clone();
+    assert_eq!(line("esc")["verdict"], "pass", "{}", line("esc"));
+    assert!(line("esc")["found"].as_str().unwrap().contains("from the commands"));
+    assert_eq!(line("spin")["verdict"], "skipped", "{}", line("spin"));
+    assert!(line("spin")["advice"].as_str().unwrap().contains("motor-test"));
     // The SITL's build identifies from the commands (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`;
     // the board's does not yet, and refuses naming the parameter: `firmware/tests/link_server.rs`):
     // arming for a throw is accepted although no motor reports, and stays armed past the

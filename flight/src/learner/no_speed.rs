@@ -4,7 +4,7 @@
 //! (`fly monte-carlo --no-speed-telemetry`), and so does the bridge (`scenario bridge
 //! --no-speed-telemetry`: [`super::IDENTIFIES_WITHOUT_SPEEDS`] with `motor_bidir_dshot` = 0).
 //! The board has it in its image for ESCs without bidirectional DShot (`cargo xtask build
-//! --no-speed`, 278,752 B against the default image's 262,100 B); the default image builds
+//! --no-speed`, 278,760 B against the default image's 262,100 B); the default image builds
 //! without it and never arms without speeds.
 //!
 //! **The model.** ESCs without bidirectional DShot report no speed; the learner still knows
