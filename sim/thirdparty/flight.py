@@ -70,11 +70,13 @@ class BridgeTimeout(RuntimeError):
 
 
 def fly(airframe, hand_config, bridge_addr, flight_s=12.0, hold_window_s=5.0, start_height_m=1.5,
-        seed=1, trace=None):
+        seed=1, trace=None, speed_telemetry=True):
     """Runs one flight and returns its report (a dict, JSON-ready).
 
     ``bridge_addr``: ``(host, port)`` of ``scenario bridge``. ``flight_s``: time flown after the
     release, s. ``trace``: a callable taking a line of text every 0.1 s, or ``None``.
+    ``speed_telemetry``: False for ESCs without bidirectional DShot: every speed is sent as NaN
+    (run the bridge with ``--no-speed-telemetry``).
     """
     rng = np.random.default_rng(seed)
     params = airframe.params
@@ -113,6 +115,7 @@ def fly(airframe, hand_config, bridge_addr, flight_s=12.0, hold_window_s=5.0, st
         "airframe": airframe.name,
         "motors": n_motors,
         "taper_ms": round(hand_config.taper_s * 1000.0, 3),
+        "speed_telemetry": speed_telemetry,
         "taper_shape": hand_config.taper_shape,
         "push_s": round(hand.push_s, 6),
         "release_up_mps": hand_config.release_up_mps,
@@ -158,7 +161,8 @@ def fly(airframe, hand_config, bridge_addr, flight_s=12.0, hold_window_s=5.0, st
 
             # --- the sensor packet for time t ---------------------------------------------
             gyro, accel = imu.sample(mean_rate_flu, mean_force_flu)
-            speeds = [float(state[16 + order[i]]) for i in range(n_motors)]
+            speeds = [float(state[16 + order[i]]) if speed_telemetry else math.nan
+                      for i in range(n_motors)]
             pose = None
             if n % mocap_every == 0:
                 noisy = pos_ned + rng.normal(0.0, MOCAP_NOISE_M, 3)

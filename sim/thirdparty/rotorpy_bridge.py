@@ -69,6 +69,9 @@ def _parser():
     f.add_argument("--start-height-m", type=float, default=1.5, help="held this high, m")
     f.add_argument("--seed", type=int, default=1, help="noise seed")
     f.add_argument("--trace", action="store_true", help="the flight every 0.1 s on stderr")
+    f.add_argument("--no-speed-telemetry", action="store_true",
+                   help="ESCs without bidirectional DShot: send NaN for every rotor speed (run "
+                        "the bridge with --no-speed-telemetry)")
     return parser
 
 
@@ -121,7 +124,8 @@ def main(argv=None):
     try:
         report = fly(airframe, hand, args.bridge, flight_s=args.flight_s,
                      hold_window_s=args.hold_window_s, start_height_m=args.start_height_m,
-                     seed=args.seed, trace=trace)
+                     seed=args.seed, trace=trace,
+                     speed_telemetry=not args.no_speed_telemetry)
     except BridgeTimeout as error:
         print(f"rotorpy_bridge: {error}", file=sys.stderr)
         return 3

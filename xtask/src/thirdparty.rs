@@ -7,7 +7,8 @@
 //! Per airframe this command starts its own bridge on a free port (given the airframe's IMU
 //! offset, as a calibrated board knows it), runs one throw-and-fly, prints the client's JSON
 //! summary and a table, and fails unless every flight recovered to a hover and held within
-//! 0.3 m.
+//! 0.3 m. `--no-speed-telemetry` flies ESCs without bidirectional DShot: the client sends NaN
+//! for every rotor speed and the bridge identifies the motors from the commands (issue 32).
 //!
 //! The client runs in a virtualenv under `target/thirdparty-venv`, created on demand with the
 //! pinned requirements (reinstalled when `requirements.txt` changes), so the system Python is
@@ -25,6 +26,9 @@ use std::time::Instant;
 /// pose and motor order). Both have 5 ms motors; the slower airframes after them need more
 /// height than the default throw from 1.5 m gives (`--airframes 5 -- --start-height-m 20`).
 pub const TEST_AIRFRAMES: usize = 2;
+/// The airframe `cargo xtask test` also flies without speed telemetry (issue 32's commands-only
+/// identification in a simulator we did not write).
+pub const TEST_NO_SPEED_AIRFRAME: &str = "hummingbird";
 /// How long a bridge waits for a packet before it stops by itself, s: outlives a client that
 /// died without our noticing, far longer than any gap between a client's packets.
 const BRIDGE_IDLE_TIMEOUT_S: &str = "30";
@@ -32,7 +36,7 @@ const BRIDGE_IDLE_TIMEOUT_S: &str = "30";
 const USAGE: &str = "\
 usage: cargo xtask thirdparty [--airframes N | --airframe NAME]... [--taper-ms MS]
                               [--taper-shape cosine|linear] [--jobs J] [--list] [--dev-bridge]
-                              [-- CLIENT-ARGS...]
+                              [--no-speed-telemetry] [-- CLIENT-ARGS...]
        cargo xtask thirdparty --test
 
 Flies the firmware (scenario bridge --throw-to-fly) in RotorPy, one throw-and-fly per airframe,
@@ -46,8 +50,11 @@ and fails unless each recovers to a hover and holds within 0.3 m.
   --jobs J           flights run at once, 1-8 (default 2)
   --list             list the airframes and stop
   --dev-bridge       build and run `scenario` with the dev profile instead of --release
+  --no-speed-telemetry  ESCs without bidirectional DShot: the client sends NaN speeds and the
+                     bridge identifies the motors from the commands
   -- ARGS            passed to `rotorpy_bridge.py fly` (e.g. -- --trace --spin-dps 450)
-  --test             the check `cargo xtask test` runs: the first two airframes, one-step release
+  --test             the check `cargo xtask test` runs: the first two airframes with a real
+                     hand's release, then the first without speed telemetry
 ";
 
 /// What to fly.
@@ -60,6 +67,8 @@ struct Options {
     list: bool,
     /// Build and run the bridge with cargo's release profile (else the dev profile).
     release_bridge: bool,
+    /// The ESCs report no speed: NaN from the client, `--no-speed-telemetry` to the bridge.
+    no_speed_telemetry: bool,
     client_args: Vec<String>,
 }
 
@@ -78,6 +87,7 @@ impl Options {
             jobs: 2,
             list: false,
             release_bridge: true,
+            no_speed_telemetry: false,
             client_args: Vec::new(),
         };
         let mut named = Vec::new();
@@ -121,6 +131,7 @@ impl Options {
                 }
                 "--list" => options.list = true,
                 "--dev-bridge" => options.release_bridge = false,
+                "--no-speed-telemetry" => options.no_speed_telemetry = true,
                 "-h" | "--help" => {
                     print!("{USAGE}");
                     std::process::exit(0);
@@ -149,7 +160,8 @@ pub fn thirdparty(args: &[String]) -> Result<()> {
 
 /// The check `cargo xtask test` runs: the client's unit tests (packets byte for byte, frames,
 /// ESC curve, IMU readings, the hand's release), then the first [`TEST_AIRFRAMES`] airframes
-/// with a real hand's tapering release ([`DEFAULT_TAPER_MS`]), against the dev-profile bridge: `cargo test --workspace` has built
+/// with a real hand's tapering release ([`DEFAULT_TAPER_MS`]), then [`TEST_NO_SPEED_AIRFRAME`]
+/// without speed telemetry, against the dev-profile bridge: `cargo test --workspace` has built
 /// it already, while a release build of `sim` (fat LTO) costs minutes on two cores, and the
 /// bridge's share of a flight is small either way (0.4 s of CPU for 15 s of flight, the same in
 /// both profiles, against about 20 s for the Python client; the flights are identical).
@@ -159,7 +171,9 @@ pub fn test() -> Result<()> {
         Command::new(&python).args(["-m", "unittest", "test_thirdparty"]).current_dir(client_dir()),
     )
     .context("the RotorPy client's unit tests failed")?;
-    run(&Options::parse(&["--dev-bridge".to_string()])?)
+    run(&Options::parse(&["--dev-bridge".to_string()])?)?;
+    let no_speed = ["--dev-bridge", "--airframe", TEST_NO_SPEED_AIRFRAME, "--no-speed-telemetry"];
+    run(&Options::parse(&no_speed.map(String::from))?)
 }
 
 /// How long the simulated hand takes to let go, ms: a real hand's release (issue 28 measured
@@ -217,10 +231,11 @@ fn run(options: &Options) -> Result<()> {
     let scenario = util::root().join("target").join(profile_dir).join("scenario");
 
     eprintln!(
-        "\nflying {} airframe(s) in RotorPy, taper {} ms ({}), {} at a time…",
+        "\nflying {} airframe(s) in RotorPy, taper {} ms ({}), {}, {} at a time…",
         chosen.len(),
         options.taper_ms,
         options.taper_shape,
+        if options.no_speed_telemetry { "no speed telemetry" } else { "speeds reported" },
         options.jobs
     );
     let results: Vec<(String, Result<serde_json::Value>)> = std::thread::scope(|scope| {
@@ -301,6 +316,7 @@ fn fly(
         .args(["bridge", "--listen", "127.0.0.1:0", "--throw-to-fly"])
         .args(["--idle-timeout-s", BRIDGE_IDLE_TIMEOUT_S])
         .arg(format!("--imu-offset-mm={x},{y},{z}"))
+        .args(options.no_speed_telemetry.then_some("--no-speed-telemetry"))
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -344,6 +360,7 @@ fn fly_against(
         .args(["fly", "--airframe", &airframe.name, "--bridge", &address])
         .arg(format!("--taper-ms={}", options.taper_ms))
         .args(["--taper-shape", &options.taper_shape])
+        .args(options.no_speed_telemetry.then_some("--no-speed-telemetry"))
         .args(&options.client_args)
         .current_dir(client_dir())
         .stdin(Stdio::null())
@@ -433,7 +450,9 @@ mod tests {
         assert_eq!(options.taper_ms, 15.0);
         assert_eq!(options.taper_shape, "cosine");
         assert!(options.release_bridge);
+        assert!(!options.no_speed_telemetry, "speeds are reported unless told otherwise");
         assert!(!Options::parse(&args("--dev-bridge")).unwrap().release_bridge);
+        assert!(Options::parse(&args("--no-speed-telemetry")).unwrap().no_speed_telemetry);
     }
 
     #[test]
