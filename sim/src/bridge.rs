@@ -604,9 +604,17 @@ pub fn identification_summary(results: &firmware::app::BackgroundResults) -> Opt
         ImuOffsetSource::Onboard => {
             format!("from the onboard estimate {}", mm(results.learner_r_imu_m))
         }
-        ImuOffsetSource::Zero | ImuOffsetSource::NotUsed => {
-            "none known or fitted (taken as zero)".to_string()
-        }
+        ImuOffsetSource::Zero | ImuOffsetSource::NotUsed => match &results.flight_offset {
+            // Fitted, but never within `imu_offset::in_flight::USABLE_SEMI_AXIS_M`: not flown.
+            Some(fit) => format!(
+                "none known (taken as zero); fitted in flight {} but not used, its 95 % \
+                 semi-axes {} wider than {:.0} mm",
+                mm(fit.r_imu_m),
+                mm(fit.ci95_semi_axes_m),
+                imu_offset::in_flight::USABLE_SEMI_AXIS_M * 1e3
+            ),
+            None => "none known or fitted (taken as zero)".to_string(),
+        },
     };
     Some(format!("{text}; IMU offset {offset}"))
 }
@@ -716,6 +724,23 @@ mod tests {
         results.learned.thrust_axis = Some(LearnedThrustAxis::default());
         let text = identification_summary(&results).unwrap();
         assert!(!text.contains("clamped"), "within the bounds: {text}");
+        // A fit never determined well enough to fly is named as such, not as the offset used.
+        results.learner_offset = protocol::ImuOffsetSource::Zero;
+        let text = identification_summary(&results).unwrap();
+        assert!(text.contains("none known or fitted (taken as zero)"), "{text}");
+        results.flight_offset = Some(imu_offset::in_flight::OffsetFitEstimate {
+            r_imu_m: [0.0001, 0.0082, 0.0196],
+            ci95_semi_axes_m: [0.0026, 0.007, 0.0237],
+            ..Default::default()
+        });
+        let text = identification_summary(&results).unwrap();
+        assert!(
+            text.contains(
+                "none known (taken as zero); fitted in flight (0.1, 8.2, 19.6) mm but \
+                           not used, its 95 % semi-axes (2.6, 7.0, 23.7) mm wider than 5 mm"
+            ),
+            "{text}"
+        );
     }
 
     fn sensor() -> SensorPacket {
