@@ -9,6 +9,8 @@
 //! summary and a table, and fails unless every flight recovered to a hover and held within
 //! 0.3 m. `--no-speed-telemetry` flies ESCs without bidirectional DShot: the client sends NaN
 //! for every rotor speed and the bridge identifies the motors from the commands (issue 32).
+//! `--unknown-imu-offset` gives the bridge no offset: one throw with no calibration, the offset
+//! fitted in flight where the throw determines it (issue 32).
 //!
 //! The client runs in a virtualenv under `target/thirdparty-venv`, created on demand with the
 //! pinned requirements (reinstalled when `requirements.txt` changes), so the system Python is
@@ -29,6 +31,9 @@ pub const TEST_AIRFRAMES: usize = 2;
 /// The airframe `cargo xtask test` also flies without speed telemetry (issue 32's commands-only
 /// identification in a simulator we did not write).
 pub const TEST_NO_SPEED_AIRFRAME: &str = "hummingbird";
+/// The airframe `cargo xtask test` also flies with no IMU offset given (issue 32's one throw with
+/// no calibration).
+pub const TEST_UNKNOWN_OFFSET_AIRFRAME: &str = "hummingbird-asymmetric";
 /// How long a bridge waits for a packet before it stops by itself, s: outlives a client that
 /// died without our noticing, far longer than any gap between a client's packets.
 const BRIDGE_IDLE_TIMEOUT_S: &str = "30";
@@ -36,7 +41,7 @@ const BRIDGE_IDLE_TIMEOUT_S: &str = "30";
 const USAGE: &str = "\
 usage: cargo xtask thirdparty [--airframes N | --airframe NAME]... [--taper-ms MS]
                               [--taper-shape cosine|linear] [--jobs J] [--list] [--dev-bridge]
-                              [--no-speed-telemetry] [-- CLIENT-ARGS...]
+                              [--no-speed-telemetry] [--unknown-imu-offset] [-- CLIENT-ARGS...]
        cargo xtask thirdparty --test
 
 Flies the firmware (scenario bridge --throw-to-fly) in RotorPy, one throw-and-fly per airframe,
@@ -52,9 +57,12 @@ and fails unless each recovers to a hover and holds within 0.3 m.
   --dev-bridge       build and run `scenario` with the dev profile instead of --release
   --no-speed-telemetry  ESCs without bidirectional DShot: the client sends NaN speeds and the
                      bridge identifies the motors from the commands
+  --unknown-imu-offset  no IMU offset for the bridge (no calibration): fitted in flight where
+                     the throw determines it
   -- ARGS            passed to `rotorpy_bridge.py fly` (e.g. -- --trace --spin-dps 450)
   --test             the check `cargo xtask test` runs: the first two airframes with a real
-                     hand's release, then the first without speed telemetry
+                     hand's release, then hummingbird without speed telemetry and
+                     hummingbird-asymmetric with no IMU offset given
 ";
 
 /// What to fly.
@@ -69,6 +77,8 @@ struct Options {
     release_bridge: bool,
     /// The ESCs report no speed: NaN from the client, `--no-speed-telemetry` to the bridge.
     no_speed_telemetry: bool,
+    /// Give the bridge no IMU offset (no `--imu-offset-mm`).
+    unknown_imu_offset: bool,
     client_args: Vec<String>,
 }
 
@@ -88,6 +98,7 @@ impl Options {
             list: false,
             release_bridge: true,
             no_speed_telemetry: false,
+            unknown_imu_offset: false,
             client_args: Vec::new(),
         };
         let mut named = Vec::new();
@@ -132,6 +143,7 @@ impl Options {
                 "--list" => options.list = true,
                 "--dev-bridge" => options.release_bridge = false,
                 "--no-speed-telemetry" => options.no_speed_telemetry = true,
+                "--unknown-imu-offset" => options.unknown_imu_offset = true,
                 "-h" | "--help" => {
                     print!("{USAGE}");
                     std::process::exit(0);
@@ -161,7 +173,8 @@ pub fn thirdparty(args: &[String]) -> Result<()> {
 /// The check `cargo xtask test` runs: the client's unit tests (packets byte for byte, frames,
 /// ESC curve, IMU readings, the hand's release), then the first [`TEST_AIRFRAMES`] airframes
 /// with a real hand's tapering release ([`DEFAULT_TAPER_MS`]), then [`TEST_NO_SPEED_AIRFRAME`]
-/// without speed telemetry, against the dev-profile bridge: `cargo test --workspace` has built
+/// without speed telemetry and [`TEST_UNKNOWN_OFFSET_AIRFRAME`] with no IMU offset given (both
+/// at once), against the dev-profile bridge: `cargo test --workspace` has built
 /// it already, while a release build of `sim` (fat LTO) costs minutes on two cores, and the
 /// bridge's share of a flight is small either way (0.4 s of CPU for 15 s of flight, the same in
 /// both profiles, against about 20 s for the Python client; the flights are identical).
@@ -173,7 +186,16 @@ pub fn test() -> Result<()> {
     .context("the RotorPy client's unit tests failed")?;
     run(&Options::parse(&["--dev-bridge".to_string()])?)?;
     let no_speed = ["--dev-bridge", "--airframe", TEST_NO_SPEED_AIRFRAME, "--no-speed-telemetry"];
-    run(&Options::parse(&no_speed.map(String::from))?)
+    let unknown_offset =
+        ["--dev-bridge", "--airframe", TEST_UNKNOWN_OFFSET_AIRFRAME, "--unknown-imu-offset"];
+    let (no_speed, unknown_offset) = std::thread::scope(|scope| {
+        let no_speed = scope.spawn(|| run(&Options::parse(&no_speed.map(String::from))?));
+        let unknown_offset =
+            scope.spawn(|| run(&Options::parse(&unknown_offset.map(String::from))?));
+        (no_speed.join(), unknown_offset.join())
+    });
+    no_speed.expect("a flight thread panicked")?;
+    unknown_offset.expect("a flight thread panicked")
 }
 
 /// How long the simulated hand takes to let go, ms: a real hand's release (issue 28 measured
@@ -231,11 +253,12 @@ fn run(options: &Options) -> Result<()> {
     let scenario = util::root().join("target").join(profile_dir).join("scenario");
 
     eprintln!(
-        "\nflying {} airframe(s) in RotorPy, taper {} ms ({}), {}, {} at a time…",
+        "\nflying {} airframe(s) in RotorPy, taper {} ms ({}), {}, {}, {} at a time…",
         chosen.len(),
         options.taper_ms,
         options.taper_shape,
         if options.no_speed_telemetry { "no speed telemetry" } else { "speeds reported" },
+        if options.unknown_imu_offset { "no IMU offset given" } else { "IMU offset given" },
         options.jobs
     );
     let results: Vec<(String, Result<serde_json::Value>)> = std::thread::scope(|scope| {
@@ -312,10 +335,11 @@ fn fly(
     options: &Options,
 ) -> Result<serde_json::Value> {
     let [x, y, z] = airframe.imu_offset_mm;
+    let offset = format!("--imu-offset-mm={x},{y},{z}");
     let mut bridge = Command::new(scenario)
         .args(["bridge", "--listen", "127.0.0.1:0", "--throw-to-fly"])
         .args(["--idle-timeout-s", BRIDGE_IDLE_TIMEOUT_S])
-        .arg(format!("--imu-offset-mm={x},{y},{z}"))
+        .args((!options.unknown_imu_offset).then_some(offset))
         .args(options.no_speed_telemetry.then_some("--no-speed-telemetry"))
         .stdin(Stdio::null())
         .stdout(Stdio::null())
@@ -453,6 +477,8 @@ mod tests {
         assert!(!options.no_speed_telemetry, "speeds are reported unless told otherwise");
         assert!(!Options::parse(&args("--dev-bridge")).unwrap().release_bridge);
         assert!(Options::parse(&args("--no-speed-telemetry")).unwrap().no_speed_telemetry);
+        assert!(!options.unknown_imu_offset, "the airframe's offset is given unless told");
+        assert!(Options::parse(&args("--unknown-imu-offset")).unwrap().unknown_imu_offset);
     }
 
     #[test]
