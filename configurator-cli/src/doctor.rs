@@ -658,30 +658,22 @@ pub fn esc_line(
     if reports.off {
         let found = "speed reports off (`motor_bidir_dshot` = 0: ESCs without bidirectional \
                      DShot)";
-        return if reports.identifies_without {
-            line(
-                "esc",
-                ESC_CHECKED,
-                Vec::new(),
-                format!(
-                    "{found}: throw-to-fly identifies the motors from the commands and the \
-                     body's response (measured speeds, with bidirectional DShot, are the better \
-                     path)"
-                ),
-            )
+        let (failures, found) = if reports.identifies_without {
+            let found = format!(
+                "{found}: throw-to-fly identifies the motors from the commands and the body's \
+                 response (measured speeds, with bidirectional DShot, are the better path)"
+            );
+            (Vec::new(), found)
         } else {
-            line(
-                "esc",
-                ESC_CHECKED,
-                vec![format!(
-                    "this firmware's throw-to-fly needs every motor's speed: ESCs with \
-                     bidirectional DShot (BLHeli_32, Bluejay, AM32) and `set motor_bidir_dshot \
-                     = 1`, `save`, `reboot`; or keep these ESCs {}",
-                    without_reports_advice(reports)
-                )],
-                found.into(),
-            )
+            let failure = format!(
+                "this firmware's throw-to-fly needs every motor's speed: ESCs with bidirectional \
+                 DShot (BLHeli_32, Bluejay, AM32) and `set motor_bidir_dshot = 1`, `save`, \
+                 `reboot`; or keep these ESCs {}",
+                without_reports_advice(reports)
+            );
+            (vec![failure], found.to_string())
         };
+        return line("esc", ESC_CHECKED, failures, found);
     }
     let Some(health) = health else {
         return line(
