@@ -434,28 +434,23 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
     let mut board = SimBoard::new(airframe, &config.board);
     let hold_window_s = config.hold_window_s.min(config.flight_s * 0.8);
     with_firmware_app(|app| {
-        // The firmware is told how old its ESCs' speed reports are, as a user sets
-        // `motor_speed_age_s` for their ESCs (the nominal board's is the default).
-        let speed_age_s = airframe.rotor_motor(0).telemetry_delay_s as f32;
-        if speed_age_s != flight::learner::DEFAULT_SPEED_AGE_S {
-            let mut params = Params::default();
-            if params.set(Param::MotorSpeedAgeS as usize, &[speed_age_s]).is_ok() {
-                app.background.configure(&params);
-            }
-        }
-        // ESCs without bidirectional DShot: no speed reaches the board, and its user says so
-        // (`motor_bidir_dshot` = 0), to the background task and the control step alike, which
-        // then arms without speeds (`Params::arms_without_speeds`: this build identifies from
-        // the commands).
+        // The user's parameters, set once: how old their ESCs' speed reports are
+        // (`motor_speed_age_s`; the nominal board's is the default), and for ESCs without
+        // bidirectional DShot that no speed reaches the board (`motor_bidir_dshot` = 0: the
+        // control step then arms without speeds, `Params::arms_without_speeds`, and the learner
+        // models them from the commands, where no report's age means anything).
         let mut user_params = Params::default();
-        let mut user_settings = ControlSettings::from(&user_params);
+        let speed_age_s = airframe.rotor_motor(0).telemetry_delay_s as f32;
+        let mut changed = user_params.set(Param::MotorSpeedAgeS as usize, &[speed_age_s]).is_ok()
+            && speed_age_s != flight::learner::DEFAULT_SPEED_AGE_S;
         if !config.speed_telemetry {
             board.motors_mut().set_bidirectional(false);
-            if user_params.set(Param::MotorBidirDshot as usize, &[0.0]).is_ok() {
-                app.background.configure(&user_params);
-                user_settings = ControlSettings::from(&user_params);
-                app.submit(ControlCommand::Configure(user_settings));
-            }
+            changed |= user_params.set(Param::MotorBidirDshot as usize, &[0.0]).is_ok();
+        }
+        let user_settings = ControlSettings::from(&user_params);
+        if changed {
+            app.background.configure(&user_params);
+            app.submit(ControlCommand::Configure(user_settings));
         }
         if config.known_imu_offset {
             let r = truth.r_imu_m;

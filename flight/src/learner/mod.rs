@@ -125,6 +125,15 @@ pub struct LearnerConfig {
 /// and the simulated board reports speeds one step old).
 pub const DEFAULT_SPEED_AGE_S: f32 = 0.0005;
 
+/// The age the learner takes for speeds modelled from the commands (no speed telemetry,
+/// `no_speed`), s: no report has an age then, and `motor_speed_age_s` (set for ESCs that do
+/// report) must not move the alignment. The default's, with which every no-speed figure was
+/// measured; the alignment at the IMU sample's own time (`IMU_GROUP_DELAY_S`: two half steps,
+/// no report lag) flew the same 1,000 random worlds within one world of it (985 against 986
+/// hovered, `fly monte-carlo --no-speed-telemetry --unknown-imu-offset`, 2026-11-29). Taking
+/// the user's age instead (0.5–3 ms in the random world) had lost 7 (docs/benchmarks.md).
+pub const MODELLED_SPEED_AGE_S: f32 = DEFAULT_SPEED_AGE_S;
+
 /// Largest speed-report age the learner can align, s: 6 control steps (the command history it
 /// keeps, 13 half steps).
 pub const MAX_SPEED_AGE_S: f32 = 0.003;
@@ -138,9 +147,17 @@ impl LearnerConfig {
     /// [0, `MAX_SPEED_AGE_S`]) at `rate_hz`: a command acts one step after it is computed and
     /// is held for a step (its centre half a step later), so it explains the speed reported
     /// `1 + 2 · age / step` half steps later; the report is `age − IMU_GROUP_DELAY_S` older
-    /// than the IMU sample of its step. A non-finite age is taken as the default.
+    /// than the IMU sample of its step. A non-finite age is taken as the default. Without
+    /// speed telemetry no report has an age: the modelled speeds are aligned by
+    /// [`MODELLED_SPEED_AGE_S`] whatever `speed_age_s` says.
     pub fn with_speed_age(self, speed_age_s: f32) -> Self {
-        let age = if speed_age_s.is_finite() { speed_age_s } else { DEFAULT_SPEED_AGE_S };
+        let age = if !self.speed_telemetry {
+            MODELLED_SPEED_AGE_S
+        } else if speed_age_s.is_finite() {
+            speed_age_s
+        } else {
+            DEFAULT_SPEED_AGE_S
+        };
         let age = crate::math::clamp(age, 0.0, MAX_SPEED_AGE_S);
         let half_steps = libm::roundf(1.0 + 2.0 * age * self.rate_hz);
         Self {
@@ -1044,6 +1061,12 @@ mod tests {
         // Beyond what the command history holds: clamped, never out of range.
         assert_eq!(config.with_speed_age(1.0).command_to_speed_delay_half_steps, 13);
         assert_eq!(config.with_speed_age(f32::NAN), config);
+        // Without speed telemetry the speeds are modelled, not reported: no age moves them.
+        let modelled = LearnerConfig { speed_telemetry: false, ..config };
+        let aligned = modelled.with_speed_age(MODELLED_SPEED_AGE_S);
+        for age_s in [0.0, 0.0025, 1.0, f32::NAN] {
+            assert_eq!(modelled.with_speed_age(age_s), aligned, "{age_s} s");
+        }
     }
 
     #[test]
