@@ -394,17 +394,19 @@ impl Params {
 
     /// The throw detector's configuration. With a calibrated IMU offset, the free-fall check
     /// allows for the rotational terms of that offset (and [`THROW_OFFSET_MARGIN_M`] more)
-    /// instead of the default 30 mm: a tighter check where the offset is known to be small, and
-    /// a craft whose IMU sits further out is not refused for its spin.
+    /// instead of the default 30 mm (and `MAX_IMU_OFFSET_ANYWHERE_M` once the hand is gone): a
+    /// tighter check where the offset is known to be small, and a craft whose IMU sits further
+    /// out is not refused for its spin.
     pub fn throw_config(&self) -> ThrowConfig {
         let default = ThrowConfig::default();
-        let max_imu_offset_m = self.configured_offset_m().map_or(default.max_imu_offset_m, |r| {
-            libm::sqrtf(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) + THROW_OFFSET_MARGIN_M
-        });
+        let stored = self
+            .configured_offset_m()
+            .map(|r| libm::sqrtf(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) + THROW_OFFSET_MARGIN_M);
         ThrowConfig {
             release_speed_mps: self.scalar(Param::ThrowMomentumMps),
             release_delay_s: self.scalar(Param::ThrowReleaseDelayS),
-            max_imu_offset_m,
+            max_imu_offset_m: stored.unwrap_or(default.max_imu_offset_m),
+            max_imu_offset_after_hand_m: stored.unwrap_or(default.max_imu_offset_after_hand_m),
             ..default
         }
     }

@@ -67,6 +67,14 @@ pub const REST_GRAVITY_TAU_S: f32 = 0.2;
 /// the randomised world's draggiest craft at 7.3 m/s (`sim::world`, aspect `air`).
 pub const MIN_TERMINAL_SPEED_MPS: f32 = 7.0;
 
+/// Farthest an IMU is expected from the centre of gravity when no offset is stored, m: a
+/// flight controller mounted anywhere on a frame of up to 10 inches (arms of about 0.2 m; the
+/// randomised world's IMUs sit within 45 mm, the paper's at 18 mm).
+pub const MAX_IMU_OFFSET_ANYWHERE_M: f32 = 0.15;
+
+/// Gravity, m/s² (the thrust-axis solver's).
+const G_MPS2: f32 = crate::thrust_axis::STANDARD_GRAVITY_MPS2;
+
 /// Samples whose `|f|` is within this fraction of g count for the gravity direction while
 /// waiting (held or carried; not a free fall, not a push), dimensionless.
 const REST_BAND: f32 = 0.5;
@@ -92,11 +100,13 @@ pub struct ThrowConfig {
     /// rate Ω and angular acceleration Ω̇ the accelerometer of a freely falling craft reads up to
     /// `(Ω² + |Ω̇|) r`, so the margin subtracts that much.
     pub max_imu_offset_m: f32,
+    /// Largest IMU offset allowed for once the hand can no longer touch the craft (more than
+    /// `push_end_wait_s` after `|f|` fell below `acc_high_mps2`), m: an IMU mounted anywhere on
+    /// the frame when no offset is stored. With a stored offset it is `max_imu_offset_m`.
+    pub max_imu_offset_after_hand_m: f32,
     /// Longest time from `|f|` falling below `acc_high_mps2` to free fall, s: the hand's taper
     /// (0–50 ms), the IMU's filtering, twice over.
     pub push_end_wait_s: f32,
-    /// Gravity, m/s².
-    pub g_mps2: f32,
 }
 
 impl Default for ThrowConfig {
@@ -109,8 +119,8 @@ impl Default for ThrowConfig {
             free_fall_max_mps2: 0.8 * 9.81,
             free_fall_mean_mps2: 0.5 * 9.81,
             max_imu_offset_m: 0.03,
+            max_imu_offset_after_hand_m: MAX_IMU_OFFSET_ANYWHERE_M,
             push_end_wait_s: 0.1,
-            g_mps2: 9.81,
         }
     }
 }
@@ -223,19 +233,21 @@ impl ThrowDetector {
         speed: f32,
         rate: f32,
         rate_dot: f32,
+        hand_gone: bool,
     ) -> f32 {
         let c = &self.config;
         // The drag the draggiest craft has at this speed, and the part of `f` it explains.
         let v = self.push.velocity_mps;
         let s = speed / MIN_TERMINAL_SPEED_MPS;
-        let drag_max = c.g_mps2 * s.max(s * s);
+        let drag_max = G_MPS2 * s.max(s * s);
         let mut unexplained = f_start;
         if speed > 0.0 {
             // `max`/`min`, not `clamp`: its panic message would link float formatting (15 KB).
             let drag = (-f_start.dot(&v) / speed).max(0.0).min(drag_max);
             unexplained += v * (drag / speed);
         }
-        norm(unexplained) - (rate * rate + rate_dot) * c.max_imu_offset_m
+        let r_max = if hand_gone { c.max_imu_offset_after_hand_m } else { c.max_imu_offset_m };
+        norm(unexplained) - (rate * rate + rate_dot) * r_max
     }
 
     /// One sample: specific force `acc_mps2` and body rate `gyro_rad_s` (IMU axes), `dt_s` since
@@ -265,13 +277,22 @@ impl ThrowDetector {
         }
         // Pushed or falling: the push's account goes on (velocity and attitude), and the sample
         // is judged against it. (A release may still prove premature: the account is the push's.)
-        let (margin, speed_mps) = match self.state {
-            ThrowState::Throwing { .. } | ThrowState::Released { .. } => {
-                let f_start = self.integrate_push(f, w, dt_s);
-                let speed_mps = norm(self.push.velocity_mps);
-                (self.free_fall_margin_mps2(f_start, speed_mps, rate, rate_dot), speed_mps)
-            }
-            ThrowState::Waiting | ThrowState::Thrown => (f32::INFINITY, 0.0),
+        // Thrown or falling, and the time since `|f|` fell below the push threshold: more than
+        // `push_end_wait_s` and the hand's taper has surely ended (the far IMU's allowance,
+        // `max_imu_offset_after_hand_m`).
+        let (judged, since_push_end_s) = match self.state {
+            ThrowState::Throwing { ending_s, .. } => (true, ending_s.unwrap_or(-dt_s) + dt_s),
+            ThrowState::Released { since_push_end_s, .. } => (true, since_push_end_s + dt_s),
+            ThrowState::Waiting | ThrowState::Thrown => (false, 0.0),
+        };
+        let hand_gone = since_push_end_s > c.push_end_wait_s;
+        let (margin, speed_mps) = if judged {
+            let f_start = self.integrate_push(f, w, dt_s);
+            let speed_mps = norm(self.push.velocity_mps);
+            let margin = self.free_fall_margin_mps2(f_start, speed_mps, rate, rate_dot, hand_gone);
+            (margin, speed_mps)
+        } else {
+            (f32::INFINITY, 0.0)
         };
         let free = !pushing && margin <= c.free_fall_max_mps2;
         match self.state {
@@ -294,11 +315,7 @@ impl ThrowDetector {
             ThrowState::Throwing { ending_s, .. } => {
                 let elapsed_s = self.push.elapsed_s;
                 let just_ended = !pushing && ending_s.is_none();
-                let ending_s = match (pushing, ending_s) {
-                    (true, _) => None,
-                    (false, None) => Some(0.0),
-                    (false, Some(ending)) => Some(ending + dt_s),
-                };
+                let ending_s = (!pushing).then_some(since_push_end_s);
                 match ending_s {
                     None if elapsed_s > c.give_up_s => {
                         self.calm_required = true;
@@ -330,8 +347,7 @@ impl ThrowDetector {
                     }
                 }
             }
-            ThrowState::Released { elapsed_s, sum_margin_mps2, samples, since_push_end_s } => {
-                let since_push_end_s = since_push_end_s + dt_s;
+            ThrowState::Released { elapsed_s, sum_margin_mps2, samples, .. } => {
                 if !free {
                     return if since_push_end_s <= c.push_end_wait_s {
                         // The hand's last touch: the release was not yet.
@@ -374,7 +390,7 @@ impl ThrowDetector {
 
     /// Follow the direction of gravity while waiting, from the samples near 1 g.
     fn track_rest(&mut self, f: Vector3<f32>, acc: f32, dt_s: f32) {
-        if libm::fabsf(acc - self.config.g_mps2) > REST_BAND * self.config.g_mps2 {
+        if libm::fabsf(acc - G_MPS2) > REST_BAND * G_MPS2 {
             return;
         }
         if self.rest_known {
@@ -390,11 +406,7 @@ impl ThrowDetector {
     /// the specific force in the body's axes at the push's start.
     fn integrate_push(&mut self, f: Vector3<f32>, w: Vector3<f32>, dt_s: f32) -> Vector3<f32> {
         let rest = norm(self.rest_mps2);
-        let f_rest = if rest > 0.0 {
-            self.rest_mps2 * (self.config.g_mps2 / rest)
-        } else {
-            Vector3::zeros()
-        };
+        let f_rest = if rest > 0.0 { self.rest_mps2 * (G_MPS2 / rest) } else { Vector3::zeros() };
         // The sample's force in the start attitude, at the middle of the turn over `dt_s`.
         let half_turn = crate::math::rotation_from_scaled_axis(&(w * (0.5 * dt_s)));
         let q_mid = self.push.q_start_body * half_turn;
@@ -638,6 +650,55 @@ mod tests {
             let refused =
                 |e: &ThrowEvent| matches!(e, ThrowEvent::NotFreeFall | ThrowEvent::NotAThrow);
             assert!(seen.iter().any(|(_, e)| refused(e)), "{seen:?}");
+            assert_eq!(d.state(), ThrowState::Waiting);
+        }
+    }
+
+    #[test]
+    fn an_imu_far_from_the_centre_of_gravity_is_allowed_for_once_the_hand_is_gone() {
+        // 95 mm from the spin axis at 700 °/s: the free fall reads 14.1 m/s² of centripetal
+        // force, beyond the 30 mm allowance (4.5 m/s²) by 0.98 g. Within `push_end_wait_s` of
+        // the push's end the hand may still touch, so only 30 mm is allowed for; after it, an
+        // IMU anywhere on the frame (`MAX_IMU_OFFSET_ANYWHERE_M`).
+        let spin = V3::new(12.2, 0.0, 0.0);
+        for taper_s in [0.0, 0.03] {
+            let mut spec = throw(0.15, taper_s, 6.0, 0.0, spin, 0.0);
+            spec.r_imu_m = V3::new(0.01, 0.07, 0.064);
+            let samples = at_control_rate(&spec);
+            let mut d = ThrowDetector::new(ThrowConfig::default());
+            let seen = events(&mut d, &samples);
+            let released = seen.iter().find(|(_, e)| *e == ThrowEvent::Released);
+            let wait_s = f64::from(ThrowConfig::default().push_end_wait_s);
+            assert!(
+                released.is_some_and(|(t, _)| *t > push_end_s(&spec) + wait_s - 0.02),
+                "released once the hand is gone, taper {taper_s} s: {seen:?}"
+            );
+            assert!(seen.iter().any(|(_, e)| *e == ThrowEvent::Thrown), "{seen:?}");
+            // A stored offset near the centre of gravity leaves no second tier: refused.
+            let stored = ThrowConfig {
+                max_imu_offset_after_hand_m: ThrowConfig::default().max_imu_offset_m,
+                ..ThrowConfig::default()
+            };
+            let mut d = ThrowDetector::new(stored);
+            let seen = events(&mut d, &samples);
+            assert!(!seen.iter().any(|(_, e)| *e == ThrowEvent::Thrown), "{seen:?}");
+        }
+    }
+
+    #[test]
+    fn a_fast_spinning_throw_caught_once_the_hand_window_has_passed_is_refused() {
+        // 800 °/s, caught 100–110 ms after the release (the catch's first 40–50 ms within the
+        // release delay), when the far IMU's allowance applies: the hand's force still shows.
+        for free_fall_s in [0.1, 0.105, 0.11] {
+            let mut spec = throw(0.15, 0.015, 6.0, 0.0, V3::new(0.0, 14.0, 0.0), 0.0);
+            spec.free_fall_s = free_fall_s;
+            spec.catch_s = 0.05;
+            let mut d = ThrowDetector::new(ThrowConfig::default());
+            let seen = events(&mut d, &at_control_rate(&spec));
+            assert!(
+                !seen.iter().any(|(_, e)| *e == ThrowEvent::Thrown),
+                "caught after {free_fall_s} s: {seen:?}"
+            );
             assert_eq!(d.state(), ThrowState::Waiting);
         }
     }
