@@ -25,7 +25,11 @@
 //!    from the centre of gravity; a craft in the hand, caught or lying on the ground reads about
 //!    g. A sample is in free fall when its *margin* `|f − f_drag| − (Ω² + |Ω̇|) r_max` is at most
 //!    [`ThrowConfig::free_fall_max_mps2`] (0.8 g), `r_max` being [`ThrowConfig::max_imu_offset_m`]
-//!    (the rotational terms' largest value for an IMU that far from the centre of gravity).
+//!    (the rotational terms' largest value for an IMU that far from the centre of gravity) while
+//!    the hand may still touch the craft (within `push_end_wait_s` of `|f|` falling below
+//!    20 m/s²), and [`ThrowConfig::max_imu_offset_after_hand_m`] after ([`MAX_IMU_OFFSET_ANYWHERE_M`],
+//!    150 mm, when no offset is stored): a hand's taper is held to the tight allowance, and an
+//!    IMU far out on the frame is not refused for the centripetal force of its spin.
 //!    `f_drag` is the part of `f` that drag can explain: its component against the velocity
 //!    (integrated on from the push), up to the drag of the draggiest craft expected at that
 //!    speed, `g·max(s, s²)` with `s = |v| / v_t` and `v_t` its terminal speed
@@ -43,8 +47,11 @@
 //!
 //! What it assumes of the world, each a field of [`ThrowConfig`] but the drag: a push of
 //! 0.1–0.3 s giving at least 4 m/s, ending (taper included) within 100 ms of `|f|` falling below
-//! 20 m/s²; an IMU within 30 mm of the centre of gravity (or the stored offset, see
-//! `firmware::app::params`), so that at 1,000 °/s the rotational terms stay below 9.2 m/s²; a
+//! 20 m/s²; an IMU within 30 mm of the centre of gravity while the hand may touch (or the
+//! stored offset, see `firmware::app::params`), so that at 1,000 °/s the rotational terms stay
+//! below 9.2 m/s², and within 150 mm after; a centripetal force at the IMU below the push
+//! threshold (`Ω² r` < 20 m/s²: 113 mm at 800 °/s, 85 mm at 1,000 °/s, else the push never
+//! ends and the throw times out); a
 //! terminal speed of at least 7 m/s ([`MIN_TERMINAL_SPEED_MPS`]; drag against the velocity, the
 //! wind slow beside the throw); spins up to 1,000 °/s. Refused: shakes in the hand (their
 //! speed stays below 4 m/s or they never fall freely for 150 ms), drops onto a bench (no push
