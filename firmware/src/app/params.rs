@@ -494,6 +494,7 @@ fn vec3(values: &[f32]) -> [f32; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use flight::learner::throw_detector::MAX_IMU_OFFSET_ANYWHERE_M;
     use protocol::NAME_LEN;
 
     #[test]
@@ -562,6 +563,20 @@ mod tests {
         assert_eq!(params.imu_offset_config(), imu_offset::Config::default());
         assert_eq!(params.configured_offset_m(), None);
         assert_eq!(params.get(Param::ThrustAxisQ), &[1.0, 0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn a_stored_offset_sets_both_throw_allowances_and_none_leaves_the_far_one_for_after_the_hand() {
+        let mut params = Params::default();
+        let unknown = params.throw_config();
+        assert_eq!(unknown.max_imu_offset_after_hand_m, MAX_IMU_OFFSET_ANYWHERE_M);
+        assert!(unknown.max_imu_offset_m < unknown.max_imu_offset_after_hand_m);
+        params.set(Param::ImuOffsetM as usize, &[0.0, 0.03, 0.04]).unwrap();
+        params.set(Param::ImuOffsetValid as usize, &[1.0]).unwrap();
+        let stored = params.throw_config();
+        let expected = 0.05 + THROW_OFFSET_MARGIN_M;
+        assert!((stored.max_imu_offset_m - expected).abs() < 1e-6, "{stored:?}");
+        assert_eq!(stored.max_imu_offset_after_hand_m, stored.max_imu_offset_m);
     }
 
     #[test]
