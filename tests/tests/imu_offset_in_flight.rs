@@ -96,3 +96,27 @@ fn a_learner_that_finds_no_hover_on_its_own_rows_flies_on_the_fitted_ones() {
         fitted_error_mm(&format!("seed {seed}"), &report);
     }
 }
+
+#[test]
+fn without_speed_telemetry_the_offset_is_fitted_on_the_modelled_speeds() {
+    // ESCs that report no speed (issue 32): the learner models each motor's speed from its
+    // commands with the lag it identifies from the body's response, holding the excitation's
+    // samples until that lag is known; the fit takes the same samples, with those speeds and
+    // the velocity carried beside each, when the learner releases them. Before, it was not run
+    // without speeds, and the craft flew its own rows learned with no offset (about 50 % off).
+    // Over 1,000 random worlds: median 4.3 mm, 90th 14.4 mm (docs/algorithms/imu-offset.md);
+    // with the excitation's samples left out (the release delay and the flight only) 9.6 and
+    // 25.2 mm.
+    let errors: Vec<f64> = (1..=10)
+        .map(|seed| {
+            let (airframe, mut config) = random_world_case(seed, &Aspect::ALL);
+            config.known_imu_offset = false;
+            config.speed_telemetry = false;
+            fitted_error_mm(&format!("seed {seed}, no speed telemetry"), &fly(&airframe, &config))
+        })
+        .collect();
+    let mut sorted = errors.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = 0.5 * (sorted[4] + sorted[5]);
+    assert!(median < 8.0, "median {median} mm: {errors:?}");
+}

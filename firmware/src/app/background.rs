@@ -35,6 +35,7 @@ use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
+use flight::learner::{IDENTIFIES_WITHOUT_SPEEDS, MODELLED_SPEED_AGE_S};
 use flight::slot::Slot;
 use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate, SolveScratch};
 use imu_offset::{ImuOffsetEstimator, Verdict};
@@ -432,12 +433,21 @@ impl<'q> Background<'q> {
             return;
         }
         if let Some(learner) = self.learner.get_mut() {
-            learner.update(
-                sample.imu.gyro_rad_s,
-                sample.imu.accel_mps2,
-                &sample.commands,
-                &sample.speeds_rad_s,
-            );
+            let (gyro, accel) = (sample.imu.gyro_rad_s, sample.imu.accel_mps2);
+            if IDENTIFIES_WITHOUT_SPEEDS {
+                // The velocity rides with each sample the learner holds: the in-flight offset
+                // fit takes it back with the sample (`update_offset_fit`).
+                let velocity = sample.velocity_imu_mps;
+                learner.update_carrying(
+                    gyro,
+                    accel,
+                    &sample.commands,
+                    &sample.speeds_rad_s,
+                    velocity,
+                );
+            } else {
+                learner.update(gyro, accel, &sample.commands, &sample.speeds_rad_s);
+            }
             self.results.learned = *learner.model();
         }
         self.update_offset_fit(sample);
@@ -490,12 +500,29 @@ impl<'q> Background<'q> {
         let fit = &mut self.offset_fit;
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
         let summed_before = fit.samples();
-        fit.update(
-            sample.imu.gyro_rad_s,
-            sample.imu.accel_mps2,
-            &sample.speeds_rad_s[..motors],
-            sample.velocity_imu_mps,
-        );
+        if IDENTIFIES_WITHOUT_SPEEDS
+            && !self.speed_telemetry
+            && sample.phase != FlightPhase::Released
+        {
+            // No speed reported: the samples the learner learned from in this step, with the
+            // speeds it modelled for them from the commands with the lag it identified, and the
+            // velocity carried with each. It holds the excitation's samples until that lag is
+            // known, then releases them, so the fit sees the same samples in the same order, a
+            // little later. (Released, the motors are off: the fit holds its zero speeds
+            // through the reports' NaNs, below.)
+            if let Some(learner) = self.learner.get() {
+                learner.for_each_released(|gyro_rad_s, accel_mps2, speeds_rad_s, velocity| {
+                    fit.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..motors], velocity);
+                });
+            }
+        } else {
+            fit.update(
+                sample.imu.gyro_rad_s,
+                sample.imu.accel_mps2,
+                &sample.speeds_rad_s[..motors],
+                sample.velocity_imu_mps,
+            );
+        }
         // Solved when the sums have grown by an interval's worth (the fit sums one sample in
         // every few: counting its own samples, not ours).
         let per_solve = libm::roundf(OFFSET_FIT_SOLVE_INTERVAL_S * fit.sum_rate_hz()).max(1.0);
@@ -544,11 +571,13 @@ impl<'q> Background<'q> {
         self.results.learner_offset = source;
         self.results.learner_r_imu_m = r_imu_m;
         self.results.flight_offset = None;
-        // Fitted only where nothing better is known, and only from measured speeds (the
-        // fit regresses the accelerometer on them).
-        let fitting =
-            self.offset_fit_enabled && source == ImuOffsetSource::Zero && self.speed_telemetry;
-        let lag_s = self.speed_age_s - flight::learner::IMU_GROUP_DELAY_S;
+        // Fitted only where nothing better is known, from measured speeds or, without speed
+        // telemetry, from the learner's modelled ones (`update_offset_fit`).
+        let speeds = self.speed_telemetry || IDENTIFIES_WITHOUT_SPEEDS;
+        let fitting = self.offset_fit_enabled && source == ImuOffsetSource::Zero && speeds;
+        let modelled = IDENTIFIES_WITHOUT_SPEEDS && !self.speed_telemetry;
+        let age_s = if modelled { MODELLED_SPEED_AGE_S } else { self.speed_age_s };
+        let lag_s = age_s - flight::learner::IMU_GROUP_DELAY_S;
         self.offset_fitting =
             fitting && self.offset_fit.reset(usize::from(motor_count), self.rate_hz, lag_s);
     }

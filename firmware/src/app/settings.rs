@@ -23,7 +23,7 @@ use super::params::{self, Params, PARAM_COUNT, SPECS};
 use super::StatusView;
 use core::ops::Range;
 use embedded_storage::nor_flash::NorFlash;
-use flight::learner::FlightPhase;
+use flight::learner::{FlightPhase, IDENTIFIES_WITHOUT_SPEEDS};
 use protocol::signing::{LinkKey, Signature, KEY_LEN};
 use protocol::{ConfigOrigin, ConfigStatus, DeviceError, ImuOffsetSource, StorageStage};
 use sequential_storage::cache::{Cache, Uncached};
@@ -327,10 +327,15 @@ impl<F: NorFlash> Settings<F> {
             self.update(|params| params.store_learned(learned));
             // An IMU offset fitted in this flight (and flown: usable) is stored as a
             // calibration would be, with its 95 % ellipsoid: the next identifications use it,
-            // and `save` keeps it.
+            // and `save` keeps it. Not one fitted on speeds modelled from the commands (no
+            // speed telemetry): the modelled speeds' errors are not in its ellipsoid (the truth
+            // inside it in 71 % of 1,000 random worlds, docs/algorithms/imu-offset.md), so it
+            // is flown and shown, and the next flight fits its own.
             let background = &view.background;
+            let measured = !IDENTIFIES_WITHOUT_SPEEDS || !learned.speeds_modelled;
             if background.learner_offset == ImuOffsetSource::FittedInFlight
                 && background.imu_offset_fitted_in_flight
+                && measured
             {
                 let offset = &background.imu_offset;
                 self.update(|p| p.store_calibration(offset.r_imu_m, offset.ci95_semi_axes_m, None));
@@ -498,6 +503,42 @@ impl<'a> Reader<'a> {
 mod tests {
     use super::*;
     use crate::app::params::Param;
+
+    /// A finished identification whose IMU offset was fitted in flight (usable, flown), its
+    /// speeds measured or modelled from the commands.
+    fn finished_with_fitted_offset(speeds_modelled: bool) -> StatusView {
+        use crate::app::background::BackgroundResults;
+        use flight::learner::{LearnedModel, LearnedThrustAxis};
+        let mut background = BackgroundResults::default();
+        background.learned = LearnedModel {
+            thrust_axis: Some(LearnedThrustAxis::default()),
+            samples: 900,
+            speeds_modelled,
+            ..background.learned
+        };
+        background.learner_offset = ImuOffsetSource::FittedInFlight;
+        background.imu_offset_fitted_in_flight = true;
+        background.imu_offset.r_imu_m = [0.01, -0.02, 0.005];
+        background.imu_offset.ci95_semi_axes_m = [0.004, 0.002, 0.001];
+        let control = crate::app::control::ControlSnapshot {
+            phase: FlightPhase::Done,
+            ..Default::default()
+        };
+        StatusView { control, background, step_time: None, board: Default::default() }
+    }
+
+    #[test]
+    fn an_offset_fitted_on_measured_speeds_is_stored_and_one_on_modelled_speeds_is_not() {
+        let mut settings = Settings::<NoFlash>::without_store();
+        settings.service(&finished_with_fitted_offset(false));
+        assert_eq!(settings.params().configured_offset_m(), Some([0.01, -0.02, 0.005]));
+        // Without speed telemetry the fit's ellipsoid leaves out the modelled speeds' errors:
+        // flown in that flight, not stored for the next (which fits its own).
+        let mut settings = Settings::<NoFlash>::without_store();
+        settings.service(&finished_with_fitted_offset(true));
+        let stored = settings.params().configured_offset_m();
+        assert_eq!(stored.is_none(), IDENTIFIES_WITHOUT_SPEEDS, "{stored:?}");
+    }
 
     #[test]
     fn the_whole_registry_fits_the_store_with_room_to_grow() {

@@ -340,6 +340,12 @@ pub struct Learner {
     /// Without speed telemetry: the lag and the modelled speeds (`no_speed`).
     #[cfg(feature = "no-speed")]
     command_speeds: CommandSpeedModel,
+    /// The held samples learned from in the latest [`Learner::update_carrying`], oldest first,
+    /// with their modelled speeds ([`Learner::for_each_released`]).
+    #[cfg(feature = "no-speed")]
+    released: [no_speed::ReleasedSample; no_speed::RELEASE_PER_SAMPLE],
+    #[cfg(feature = "no-speed")]
+    released_len: usize,
     solver: ThrustAxisSolver,
     /// The last commands, for the time alignment: a ring, the newest at `newest_command`.
     commands: [[f32; MAX_MOTORS]; 8],
@@ -440,6 +446,12 @@ impl Learner {
             );
             addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
+            #[cfg(feature = "no-speed")]
+            {
+                // Zero bytes are valid released samples (plain numbers).
+                addr_of_mut!((*learner).released).write_bytes(0, 1);
+                addr_of_mut!((*learner).released_len).write(0);
+            }
             addr_of_mut!((*learner).newest_command).write(0);
             addr_of_mut!((*learner).armed).write(false);
             addr_of_mut!((*learner).since_publish).write(0);
@@ -464,7 +476,10 @@ impl Learner {
         }
         self.effectiveness.reset(r_imu_m);
         #[cfg(feature = "no-speed")]
-        self.command_speeds.reset();
+        {
+            self.command_speeds.reset();
+            self.released_len = 0;
+        }
         self.solver.reset();
         self.fallback_solver.reset();
         self.commands = [[0.0; MAX_MOTORS]; 8];
@@ -553,6 +568,23 @@ impl Learner {
         commands: &[f32; MAX_MOTORS],
         speeds_rad_s: &[f32; MAX_MOTORS],
     ) {
+        self.update_carrying(gyro_rad_s, accel_mps2, commands, speeds_rad_s, [0.0; 3]);
+    }
+
+    /// [`Learner::update`], with `carried` held beside the sample without speed telemetry and
+    /// handed back with it when it is learned from ([`Learner::for_each_released`]): the
+    /// caller's own data of that instant (the background task's velocity, for the in-flight
+    /// IMU-offset fit).
+    pub fn update_carrying(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        commands: &[f32; MAX_MOTORS],
+        speeds_rad_s: &[f32; MAX_MOTORS],
+        carried: [f32; 3],
+    ) {
+        #[cfg(not(feature = "no-speed"))]
+        let _ = carried;
         let ring = self.commands.len();
         self.newest_command = (self.newest_command + 1) % ring;
         self.commands[self.newest_command] = *commands;
@@ -571,7 +603,7 @@ impl Learner {
             // spread over the samples that follow it (the model says `pending` until done).
             let choosing = !self.command_speeds.chosen();
             self.command_speeds.update(gyro_rad_s, accel_mps2, &driving, self.armed, true);
-            self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed);
+            self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed, carried);
             let pending = self.model.pending;
             // The sample that chose the lag spent its share on the regressions
             // (`no_speed::SCORING_WORK_PER_MOTOR`): the catch-up starts with the next.
@@ -580,9 +612,12 @@ impl Learner {
             } else {
                 no_speed::RELEASE_PER_SAMPLE
             };
+            self.released_len = 0;
             for _ in 0..release {
                 let Some(held) = self.command_speeds.release() else { break };
                 self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
+                self.released[self.released_len] = held;
+                self.released_len += 1;
             }
             if pending && !self.command_speeds.pending() {
                 // Caught up: the model to engage on, published now.
@@ -660,6 +695,26 @@ impl Learner {
             // Motors off: the lag regression's filters settle on the free tumble.
             self.command_speeds.update(gyro_rad_s, accel_mps2, &[0.0; MAX_MOTORS], false, false);
         }
+    }
+
+    /// Without speed telemetry, each held sample the latest [`Learner::update_carrying`] learned
+    /// from, oldest first: its body rates (rad/s) and specific force (m/s², IMU axes), the speeds
+    /// modelled for it with the lag identified (rad/s, per [`no_speed::NOMINAL_FULL_SPEED_RAD_S`])
+    /// and what was carried with it. None during the excitation (the samples are held until
+    /// its lag is known), up to [`no_speed::RELEASE_PER_SAMPLE`] while catching up after it,
+    /// then each sample as it comes; none with speed telemetry or in a build without the feature
+    /// `no-speed`. What the in-flight IMU-offset fit regresses on where no speed is reported
+    /// (`firmware::app::background`).
+    pub fn for_each_released(
+        &self,
+        mut f: impl FnMut([f32; 3], [f32; 3], &[f32; MAX_MOTORS], [f32; 3]),
+    ) {
+        #[cfg(feature = "no-speed")]
+        for held in &self.released[..self.released_len] {
+            f(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s, held.carried);
+        }
+        #[cfg(not(feature = "no-speed"))]
+        let _ = &mut f;
     }
 
     /// The model learned so far.

@@ -217,6 +217,7 @@ struct HeldSample {
     accel_mps2: [f32; 3],
     driving: [f32; MAX_MOTORS],
     running: bool,
+    carried: [f32; 3],
 }
 
 /// A sample released to the effectiveness regression, with its speeds modelled (rad/s, the
@@ -229,6 +230,8 @@ pub struct ReleasedSample {
     pub accel_mps2: [f32; 3],
     /// Modelled speeds, rad/s.
     pub speeds_rad_s: [f32; MAX_MOTORS],
+    /// What the caller handed in with the sample ([`super::Learner::update_carrying`]).
+    pub carried: [f32; 3],
 }
 
 /// A first-order high-pass `y_k = p (y_{k−1} + x_k − x_{k−1})`.
@@ -891,9 +894,11 @@ impl CommandSpeedModel {
         accel_mps2: [f32; 3],
         driving: &[f32; MAX_MOTORS],
         running: bool,
+        carried: [f32; 3],
     ) {
         let index = (self.held_first + self.held_len) % HELD_SAMPLES_MAX;
-        self.held[index] = HeldSample { gyro_rad_s, accel_mps2, driving: *driving, running };
+        self.held[index] =
+            HeldSample { gyro_rad_s, accel_mps2, driving: *driving, running, carried };
         if self.held_len < HELD_SAMPLES_MAX {
             self.held_len += 1;
         } else {
@@ -921,6 +926,7 @@ impl CommandSpeedModel {
             gyro_rad_s: sample.gyro_rad_s,
             accel_mps2: sample.accel_mps2,
             speeds_rad_s,
+            carried: sample.carried,
         })
     }
 
@@ -1275,7 +1281,7 @@ mod tests {
             let gyro = if nan_at == Some(n) { [f32::NAN; 3] } else { rate };
             n += 1;
             model.update(gyro, [0.0, 0.0, -thrust], &commands, true, true);
-            model.hold(gyro, [0.0, 0.0, -thrust], &commands, true);
+            model.hold(gyro, [0.0, 0.0, -thrust], &commands, true, [0.0; 3]);
         }
         // The lag is chosen: the held samples go.
         assert!(model.release().is_some());
