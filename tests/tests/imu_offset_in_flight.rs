@@ -22,6 +22,23 @@ fn fitted_error_mm(label: &str, report: &FlyReport) -> f64 {
     error_mm
 }
 
+/// Random worlds 1..=`worlds` (every aspect drawn) flown with no offset given, with or without
+/// speed telemetry: the fitted offsets' errors, mm, by seed and sorted.
+fn random_world_fit_errors_mm(worlds: u64, speed_telemetry: bool) -> (Vec<f64>, Vec<f64>) {
+    let errors: Vec<f64> = (1..=worlds)
+        .map(|seed| {
+            let (airframe, mut config) = random_world_case(seed, &Aspect::ALL);
+            config.known_imu_offset = false;
+            config.speed_telemetry = speed_telemetry;
+            let label = format!("seed {seed}, speed telemetry {speed_telemetry}");
+            fitted_error_mm(&label, &fly(&airframe, &config))
+        })
+        .collect();
+    let mut sorted = errors.clone();
+    sorted.sort_by(f64::total_cmp);
+    (errors, sorted)
+}
+
 #[test]
 fn the_seed_papers_quad_finds_its_imu_offset_in_one_throw_to_fly() {
     // The paper's quad, its IMU at about (−10, −13, 8) mm and rotated, thrown once as the paper
@@ -53,15 +70,7 @@ fn the_seed_papers_quad_finds_its_imu_offset_in_one_throw_to_fly() {
 fn random_worlds_find_the_imu_offset_within_millimetres() {
     // Random airframes (IMU up to 30 mm out, any orientation) in the randomised world: hand,
     // poses, IMU errors, actuators, drag and gusts all drawn.
-    let errors: Vec<f64> = (1..=30)
-        .map(|seed| {
-            let (airframe, mut config) = random_world_case(seed, &Aspect::ALL);
-            config.known_imu_offset = false;
-            fitted_error_mm(&format!("seed {seed}"), &fly(&airframe, &config))
-        })
-        .collect();
-    let mut sorted = errors.clone();
-    sorted.sort_by(f64::total_cmp);
+    let (errors, sorted) = random_world_fit_errors_mm(30, true);
     // The targets, 1 mm median and 2 mm at the 90th percentile, on these 30 worlds.
     // Measured with the quadratic drag as `|v| Q v` and the fully symmetric quartic tensor
     // (2026-11-28): median 0.92 mm, 90th (27th of 30) 1.78 mm, worst 4.87 mm (seed 7, whose
@@ -107,16 +116,7 @@ fn without_speed_telemetry_the_offset_is_fitted_on_the_modelled_speeds() {
     // Over 1,000 random worlds: median 4.3 mm, 90th 14.4 mm (docs/algorithms/imu-offset.md);
     // with the excitation's samples left out (the release delay and the flight only) 9.6 and
     // 25.2 mm.
-    let errors: Vec<f64> = (1..=10)
-        .map(|seed| {
-            let (airframe, mut config) = random_world_case(seed, &Aspect::ALL);
-            config.known_imu_offset = false;
-            config.speed_telemetry = false;
-            fitted_error_mm(&format!("seed {seed}, no speed telemetry"), &fly(&airframe, &config))
-        })
-        .collect();
-    let mut sorted = errors.clone();
-    sorted.sort_by(f64::total_cmp);
+    let (errors, sorted) = random_world_fit_errors_mm(10, false);
     let median = 0.5 * (sorted[4] + sorted[5]);
     assert!(median < 8.0, "median {median} mm: {errors:?}");
 }

@@ -520,10 +520,8 @@ mod tests {
         background.imu_offset_fitted_in_flight = true;
         background.imu_offset.r_imu_m = [0.01, -0.02, 0.005];
         background.imu_offset.ci95_semi_axes_m = [0.004, 0.002, 0.001];
-        let control = crate::app::control::ControlSnapshot {
-            phase: FlightPhase::Done,
-            ..Default::default()
-        };
+        let control =
+            crate::app::control::ControlSnapshot { phase: FlightPhase::Done, ..Default::default() };
         StatusView { control, background, step_time: None, board: Default::default() }
     }
 
