@@ -20,13 +20,16 @@
 //!   the speeds from the commands (`LearnerConfig::speed_telemetry`, `flight::learner::no_speed`
 //!   where `flight` has the feature `no-speed`; the published model's `speeds_modelled` says so).
 //! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32) when none is known
-//!   (no calibration stored, the onboard estimate not well determined) and the ESCs report
-//!   their speeds: on the learner's samples from the release, jointly with the force rows of G1;
-//!   once usable (`OffsetFitEstimate::usable`: within 5 mm), the published model carries the
-//!   fitted offset and rows ([`ImuOffsetSource::FittedInFlight`]) and the status shows it as the
-//!   IMU offset (well determined or not by the calibration's 2 mm), and the finished
-//!   identification stores it as the calibration, with its ellipsoid. Host builds only for now: on the
-//!   board it does not fit the flash yet (7.6 KB). Measured in docs/algorithms/imu-offset.md.
+//!   (no calibration stored, the onboard estimate not well determined): on the learner's samples
+//!   from the release, jointly with the force rows of G1, with the reported speeds or, without
+//!   speed telemetry, the speeds the learner modelled for the samples it learns from (it holds
+//!   the excitation's until their lag is known: `Learner::for_each_released`, the velocity
+//!   carried beside each); once usable (`OffsetFitEstimate::usable`: within 5 mm), the
+//!   published model carries the fitted offset and rows ([`ImuOffsetSource::FittedInFlight`])
+//!   and the status shows it as the IMU offset (well determined or not by the calibration's
+//!   2 mm), and the finished identification stores it as the calibration, with its ellipsoid
+//!   (not one fitted on modelled speeds: `settings::Settings::service`). Measured in
+//!   docs/algorithms/imu-offset.md.
 //!
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
 //! board, never computed under it.
