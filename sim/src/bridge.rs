@@ -594,8 +594,12 @@ pub fn identification_summary(results: &firmware::app::BackgroundResults) -> Opt
     let offset = match results.learner_offset {
         ImuOffsetSource::FittedInFlight => {
             let fit = &results.imu_offset;
+            // On modelled speeds its ellipsoid leaves out their errors: flown, never stored
+            // (`firmware::app::settings::Settings::service`).
+            let kept =
+                if learned.speeds_modelled { " (on modelled speeds: not stored)" } else { "" };
             format!(
-                "fitted in flight {}, 95 % semi-axes {}",
+                "fitted in flight {}, 95 % semi-axes {}{kept}",
                 mm(fit.r_imu_m),
                 mm(fit.ci95_semi_axes_m)
             )
@@ -721,6 +725,10 @@ mod tests {
             ),
             "{text}"
         );
+        assert!(!text.contains("not stored"), "{text}");
+        results.learned.speeds_modelled = true;
+        let text = identification_summary(&results).unwrap();
+        assert!(text.contains("(3.0, 2.0, 1.0) mm (on modelled speeds: not stored)"), "{text}");
         results.learned.thrust_axis = Some(LearnedThrustAxis::default());
         let text = identification_summary(&results).unwrap();
         assert!(!text.contains("clamped"), "within the bounds: {text}");
