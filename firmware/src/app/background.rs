@@ -500,13 +500,11 @@ impl<'q> Background<'q> {
         if !self.offset_fitting {
             return;
         }
+        let from_learner = self.speeds_modelled() && sample.phase != FlightPhase::Released;
         let fit = &mut self.offset_fit;
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
         let summed_before = fit.samples();
-        if IDENTIFIES_WITHOUT_SPEEDS
-            && !self.speed_telemetry
-            && sample.phase != FlightPhase::Released
-        {
+        if from_learner {
             // No speed reported: the samples the learner learned from in this step, with the
             // speeds it modelled for them from the commands with the lag it identified, and the
             // velocity carried with each. It holds the excitation's samples until that lag is
@@ -576,13 +574,19 @@ impl<'q> Background<'q> {
         self.results.flight_offset = None;
         // Fitted only where nothing better is known, from measured speeds or, without speed
         // telemetry, from the learner's modelled ones (`update_offset_fit`).
-        let speeds = self.speed_telemetry || IDENTIFIES_WITHOUT_SPEEDS;
+        let speeds = self.speed_telemetry || self.speeds_modelled();
         let fitting = self.offset_fit_enabled && source == ImuOffsetSource::Zero && speeds;
-        let modelled = IDENTIFIES_WITHOUT_SPEEDS && !self.speed_telemetry;
-        let age_s = if modelled { MODELLED_SPEED_AGE_S } else { self.speed_age_s };
+        let age_s = if self.speeds_modelled() { MODELLED_SPEED_AGE_S } else { self.speed_age_s };
         let lag_s = age_s - flight::learner::IMU_GROUP_DELAY_S;
         self.offset_fitting =
             fitting && self.offset_fit.reset(usize::from(motor_count), self.rate_hz, lag_s);
+    }
+
+    /// Whether the learner models the motor speeds from the commands: the ESCs report none
+    /// (`motor_bidir_dshot` = 0) and this build identifies without them (a constant: false in
+    /// the default board image, where the paths that test it are compiled out).
+    fn speeds_modelled(&self) -> bool {
+        IDENTIFIES_WITHOUT_SPEEDS && !self.speed_telemetry
     }
 
     /// The IMU offset for a new identification and where it came from.
