@@ -39,7 +39,8 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 
-/// Standard gravity, m/s² (ISO 80000-3).
+/// Standard gravity, m/s² (ISO 80000-3; CGPM 1901): the one value of `g` in the crate (the
+/// thrust-axis solver's default and the throw detector's are this one).
 pub const STANDARD_GRAVITY_MPS2: f32 = 9.806_65;
 
 /// Default crossover of the fixes and the accelerometer, rad/s: motion capture with millimetre

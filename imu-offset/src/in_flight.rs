@@ -21,7 +21,11 @@
 //!   centripetal term `Ω × (Ω × r)` (quadratic in the rates, at twice the excitation's
 //!   frequency and a constant the accelerometer bias hides): an attitude oscillation of ±20° at
 //!   2 Hz (peak rate 4.4 rad/s, about 2 cm of position excursion) gives up to 0.4 m/s² for 20 mm
-//!   against 1–5 m/s² of rotor vibration. A possible refinement in hover, not built here.
+//!   against 1–5 m/s² of rotor vibration. A yaw swing in hover was tried (2026-11-29) and not
+//!   kept: it made `r` usable where RotorPy's single-axis throws had left it undetermined, but in
+//!   the random world a gust during the swing moved the fit more than the swing showed `r`, and
+//!   the gyro's cross-axis errors at 200 °/s loosened the hold (docs/algorithms/imu-offset.md,
+//!   "A yaw swing in hover").
 //!
 //! `r` is seen where `Ω̇_free` and `Ω` are large: the thrown body's tumble (300–1,000 °/s:
 //! `|Ω|² |r|` is 0.5–6 m/s² for 20 mm, and its precession is 50–100 rad/s² at 800 °/s), motors

@@ -286,7 +286,7 @@ impl Default for Config {
             // 7 % on a 5-inch quad.
             max_semi_axis_m: 0.002,
             // Standard gravity (CGPM 1901).
-            gravity_mps2: 9.80665,
+            gravity_mps2: flight::navigation::STANDARD_GRAVITY_MPS2,
             // Local gravity is 9.780 m/s² at the equator and 9.832 at the poles (International
             // Gravity Formula), 9.797–9.815 between latitudes 35° and 55° at sea level, and drops
             // 3 mm/s² per km of altitude: 1σ = 0.01 m/s² about standard gravity covers where

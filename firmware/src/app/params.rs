@@ -14,6 +14,7 @@ use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::ThrowConfig;
 use flight::learner::{LearnedModel, IDENTIFIES_WITHOUT_SPEEDS, MAX_MOTORS};
 use flight::math::clamp;
+use flight::navigation::STANDARD_GRAVITY_MPS2;
 use protocol::{
     text, DeviceError, ParamInfo, ParamKind, ParamValues, PARAM_HELP_LEN, PARAM_MAX_LEN,
     PARAM_UNIT_LEN, UNIT_LEN,
@@ -161,7 +162,7 @@ registry! {
         "identification: command of each motor's pulse (0 to 1)";
     CalMaxSemiAxisMm = "cal_max_semi_axis_mm", 1, Real, "mm", 0.5, 20.0, [2.0], false,
         "calibration done when the throws' 95 % semi-axes are all below this";
-    GravityMps2 = "gravity_mps2", 1, Real, "m/s²", 9.7, 9.9, [9.80665], false,
+    GravityMps2 = "gravity_mps2", 1, Real, "m/s²", 9.7, 9.9, [STANDARD_GRAVITY_MPS2], false,
         "local gravity for the rest poses of the calibration";
     ImuScaleTolPct = "imu_scale_tol_pct", 1, Real, "%", 0.0, 10.0, [3.0], false,
         "IMU scale tolerance (±); 0 for a calibrated IMU";

@@ -79,8 +79,8 @@ pub const MIN_TERMINAL_SPEED_MPS: f32 = 7.0;
 /// randomised world's IMUs sit within 45 mm, the paper's at 18 mm).
 pub const MAX_IMU_OFFSET_ANYWHERE_M: f32 = 0.15;
 
-/// Gravity, m/s² (the thrust-axis solver's).
-const G_MPS2: f32 = crate::thrust_axis::STANDARD_GRAVITY_MPS2;
+/// Gravity, m/s² (standard gravity; 9.81 before 2026-11-29).
+const G_MPS2: f32 = crate::navigation::STANDARD_GRAVITY_MPS2;
 
 /// Samples whose `|f|` is within this fraction of g count for the gravity direction while
 /// waiting (held or carried; not a free fall, not a push), dimensionless.
@@ -123,8 +123,8 @@ impl Default for ThrowConfig {
             release_speed_mps: 4.0,
             release_delay_s: 0.150,
             give_up_s: 3.0,
-            free_fall_max_mps2: 0.8 * 9.81,
-            free_fall_mean_mps2: 0.5 * 9.81,
+            free_fall_max_mps2: 0.8 * G_MPS2,
+            free_fall_mean_mps2: 0.5 * G_MPS2,
             max_imu_offset_m: 0.03,
             max_imu_offset_after_hand_m: MAX_IMU_OFFSET_ANYWHERE_M,
             push_end_wait_s: 0.1,
