@@ -1279,7 +1279,8 @@ mod tests {
         let model = seeing.model();
         let u_hover = model.thrust_axis.expect("an axis").u_hover;
         let hover = u_hover.iter().fold(0.0f32, |a, &b| a.max(b));
-        let lift = -model.g1_per_unit_thrust()[2][..4].iter().sum::<f32>() / crate::navigation::STANDARD_GRAVITY_MPS2;
+        let lift = -model.g1_per_unit_thrust()[2][..4].iter().sum::<f32>()
+            / crate::navigation::STANDARD_GRAVITY_MPS2;
         // The accelerometer sees a quarter of the force: u* needs four times the command,
         // beyond the upper bound (1), while all four motors still lift the learned craft.
         let seen = 0.25;
