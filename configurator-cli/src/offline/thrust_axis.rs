@@ -4,9 +4,9 @@
 //!
 //! Input (a contract, see issue 3): one JSON object
 //! `{"g1_f": 3 rows of m numbers, "g1_tau": 3 rows of m numbers, "u_min": [m] (default 0),
-//! "u_max": [m] (default 1), "weights": [m] (default 1), "g": number (default 9.81)}` in IMU
+//! "u_max": [m] (default 1), "weights": [m] (default 1), "g": number (default 9.80665)}` in IMU
 //! coordinates: specific force (m/s²) and angular acceleration (rad/s²) per unit command,
-//! 4 ≤ m ≤ 8. Unknown fields, wrong shapes, NaN or out-of-range numbers are input errors.
+//! 4 ≤ m ≤ 8. The default `g` is standard gravity (9.81 before 2026-11-29). Unknown fields, wrong shapes, NaN or out-of-range numbers are input errors.
 //!
 //! Output: `feasible`, `reason` (when not), `bounded`, `u_hover`, `thrust_dir_imu`,
 //! `q_thrust_to_imu` `[w, x, y, z]`, `euler_zyx_deg` `{roll, pitch, yaw}`, `eigenvalue`; or the
@@ -204,6 +204,9 @@ mod tests {
         run(&Args { json, input: temp_file(text) })
     }
 
+    /// The solver's default `g`, m/s².
+    const G_MPS2: f64 = flight::navigation::STANDARD_GRAVITY_MPS2 as f64;
+
     /// An X quad (arm 0.1 m, inertia 0.01 kg m², hover at 40 %) seen by an IMU rotated by `q`.
     fn quad_json(q: [f64; 4], extra: &str) -> String {
         let [w, x, y, z] = q;
@@ -212,7 +215,7 @@ mod tests {
             [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
             [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
         ];
-        let k = 9.81 / 1.6;
+        let k = G_MPS2 / 1.6;
         let arm = 0.1 / 2f64.sqrt();
         let motors = [(arm, arm, 1.0), (-arm, -arm, 1.0), (arm, -arm, -1.0), (-arm, arm, -1.0)];
         let mut f = vec![vec![0.0; 4]; 3];
@@ -230,7 +233,7 @@ mod tests {
 
     /// A flat hexarotor (radius 0.15 m, alternating spin, hover at 40 %), IMU aligned with FRD.
     fn hexa_json(extra: &str) -> String {
-        let k = 9.81 / 2.4;
+        let k = G_MPS2 / 2.4;
         let mut f = vec![vec![0.0; 6]; 3];
         let mut t = vec![vec![0.0; 6]; 3];
         for i in 0..6 {
