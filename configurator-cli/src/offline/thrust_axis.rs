@@ -6,7 +6,8 @@
 //! `{"g1_f": 3 rows of m numbers, "g1_tau": 3 rows of m numbers, "u_min": [m] (default 0),
 //! "u_max": [m] (default 1), "weights": [m] (default 1), "g": number (default 9.80665)}` in IMU
 //! coordinates: specific force (m/s²) and angular acceleration (rad/s²) per unit command,
-//! 4 ≤ m ≤ 8. The default `g` is standard gravity (9.81 before 2026-11-29). Unknown fields, wrong shapes, NaN or out-of-range numbers are input errors.
+//! 4 ≤ m ≤ 8. The default `g` is standard gravity (9.81 before 2026-11-29). Unknown fields,
+//! wrong shapes, NaN or out-of-range numbers are input errors.
 //!
 //! Output: `feasible`, `reason` (when not), `bounded`, `u_hover`, `thrust_dir_imu`,
 //! `q_thrust_to_imu` `[w, x, y, z]`, `euler_zyx_deg` `{roll, pitch, yaw}`, `eigenvalue`; or the
