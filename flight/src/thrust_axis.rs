@@ -64,9 +64,8 @@ pub const MOTORS_MIN: usize = 4;
 /// Most motors the solver accepts (fixed-capacity storage).
 pub const MOTORS_MAX: usize = 8;
 
-/// Standard gravity, m/s²: the default `g` of the offline contract
-/// ([`crate::navigation::STANDARD_GRAVITY_MPS2`]; 9.81 before 2026-11-29).
-pub use crate::navigation::STANDARD_GRAVITY_MPS2;
+// Standard gravity is the default `g` of the offline contract (9.81 before 2026-11-29).
+use crate::navigation::STANDARD_GRAVITY_MPS2;
 
 /// Largest magnitude accepted for any input number (effectiveness entries, bounds, weights, g).
 ///

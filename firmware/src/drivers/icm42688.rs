@@ -133,8 +133,8 @@ pub const AAF_BANDWIDTH_HZ: u32 = 997;
 pub const GYRO_LSB_PER_DPS: f32 = 16.4;
 /// Accel sensitivity at ±16 g, LSB per g (datasheet table 2).
 pub const ACCEL_LSB_PER_G: f32 = 2048.0;
-/// Standard gravity, m/s² (CGPM 1901), for g → m/s².
-pub use flight::navigation::STANDARD_GRAVITY_MPS2;
+// Standard gravity (CGPM 1901), for g → m/s².
+use flight::navigation::STANDARD_GRAVITY_MPS2;
 /// Temperature sensitivity, LSB per °C (datasheet section 14.1, TEMP_DATA: °C = raw/132.48 + 25).
 pub const TEMP_LSB_PER_C: f32 = 132.48;
 /// Temperature at raw 0, °C.
