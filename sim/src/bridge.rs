@@ -23,6 +23,7 @@ use firmware::app::system::TickHardware;
 use firmware::app::ControlCommand;
 use protocol::{ExternalPose, LearnerFailure};
 
+use crate::board::{CONTROL_PERIOD_US, CONTROL_RATE_HZ};
 use crate::radio::RcTransmitter;
 use crate::scenario::{FirmwareApp, FlightApp};
 use crate::serve::TcpLinks;
@@ -412,6 +413,13 @@ pub const LINK_WAIT: Duration = Duration::from_millis(5);
 /// (2: once per simulated millisecond at 2 kHz, as the board pends its USB task).
 pub const PACKETS_PER_LINK_PASS: u64 = firmware::app::system::LINK_PASS_TICKS as u64;
 
+/// How far a sensor packet's time may be from one control period after the previous packet's
+/// before [`serve_firmware`] reports it, µs: 1 % of the 500 µs period. The application takes
+/// every step as one period (its filters, integrators and timers), so a simulator that sends
+/// packets at another rate runs the firmware's clock at the wrong speed; a simulator that adds
+/// 0.0005 s each time stays within a microsecond after days (f64).
+pub const PACKET_PERIOD_TOLERANCE_US: i64 = (CONTROL_PERIOD_US / 100) as i64;
+
 /// What a [`serve_firmware`] run did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BridgeSummary {
@@ -419,6 +427,9 @@ pub struct BridgeSummary {
     pub steps: u64,
     /// Datagrams rejected as malformed (not answered).
     pub malformed: u64,
+    /// Answered packets whose time was not one control period (500 µs, within
+    /// [`PACKET_PERIOD_TOLERANCE_US`]) after the previous packet's.
+    pub off_period: u64,
 }
 
 /// Serves the firmware application `app` on `server` until no datagram arrived for
@@ -438,8 +449,10 @@ pub struct BridgeSummary {
 ///
 /// Malformed datagrams are reported to `report` ([`BridgeNotice::Malformed`]) and not answered;
 /// a throw-to-fly attempt that ends without a result, or an arming the control step refuses,
-/// is reported with its reason ([`BridgeNotice::AttemptEnded`]). A socket error ends the
-/// run.
+/// is reported with its reason ([`BridgeNotice::AttemptEnded`]). The first packet whose time
+/// is not one control period after the previous one's is reported
+/// ([`BridgeNotice::OffPeriod`]; the summary counts them all): it is still answered, the step
+/// taken as one period. A socket error ends the run.
 pub fn serve_firmware(
     server: &mut BridgeServer,
     app: &mut FirmwareApp<'_>,
@@ -456,6 +469,7 @@ pub fn serve_firmware(
     }
     let mut last_datagram = Instant::now();
     let mut now_us = 0u64;
+    let mut previous_time_s: Option<f64> = None;
     let mut last_failure = app.snapshot().failure;
     loop {
         let idle = last_datagram.elapsed();
@@ -478,6 +492,21 @@ pub fn serve_firmware(
                 }
                 last_failure = failure;
                 now_us = packet_time_us(&sensor);
+                if let Some(previous_s) = previous_time_s {
+                    let interval_us = ((sensor.time_s - previous_s) * 1e6).round() as i64;
+                    if (interval_us - CONTROL_PERIOD_US as i64).abs() > PACKET_PERIOD_TOLERANCE_US
+                    {
+                        summary.off_period += 1;
+                        if summary.off_period == 1 {
+                            report(BridgeNotice::OffPeriod {
+                                sequence: sensor.sequence,
+                                time_s: sensor.time_s,
+                                interval_us,
+                            });
+                        }
+                    }
+                }
+                previous_time_s = Some(sensor.time_s);
                 if let Some(links) = links.as_deref_mut() {
                     links.set_motor_count(sensor.motor_count);
                 }
@@ -535,6 +564,16 @@ pub enum BridgeNotice<'e> {
     Malformed(&'e BridgeError),
     /// A throw-to-fly attempt ended without a result, or the control step refused to arm: why.
     AttemptEnded(LearnerFailure),
+    /// The first packet whose time was not one control period after the previous packet's
+    /// (reported once a run; [`BridgeSummary::off_period`] counts them all).
+    OffPeriod {
+        /// Its sequence number.
+        sequence: u64,
+        /// Its time, s.
+        time_s: f64,
+        /// Its time minus the previous packet's, µs (negative: the simulator's time went back).
+        interval_us: i64,
+    },
 }
 
 impl std::fmt::Display for BridgeNotice<'_> {
@@ -544,6 +583,15 @@ impl std::fmt::Display for BridgeNotice<'_> {
             Self::AttemptEnded(failure) => {
                 write!(f, "throw-to-fly not armed any more: {}", attempt_text(*failure))
             }
+            Self::OffPeriod { sequence, time_s, interval_us } => write!(
+                f,
+                "packet {sequence} at t = {time_s:.6} s came {interval_us} µs after the one \
+                 before: the application takes each packet as one {CONTROL_PERIOD_US} µs step \
+                 ({CONTROL_RATE_HZ:.0} Hz), so at another rate its attitude, velocities and \
+                 timers run at the wrong speed; send one sensor packet per {CONTROL_PERIOD_US} µs \
+                 of simulated time (docs/sim-bridge.md, \"Lockstep\"). Reported once; the stop \
+                 line counts them"
+            ),
         }
     }
 }

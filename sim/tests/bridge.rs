@@ -185,8 +185,34 @@ fn a_version_2_pose_reaches_the_application() {
     let reply = client.exchange(&sensor_packet(&board, 8, None), TIMEOUT).unwrap();
     assert_eq!((reply.version, reply.sequence), (1, 8));
     let (summary, snapshot, _) = handle.join().unwrap();
-    assert_eq!(summary, BridgeSummary { steps: 2, malformed: 0 });
+    assert_eq!(summary, BridgeSummary { steps: 2, malformed: 0, off_period: 0 });
     assert_eq!(snapshot.external_pose, Some((POSE, 500)), "the pose at the packet's time");
+}
+
+/// A simulator that sends its packets 1 ms apart (a 1 kHz physics loop) is answered, but told
+/// once, with the packet and the interval, that the application takes each packet as 500 µs;
+/// the summary counts every such packet. At 500 µs (the same rest samples) nothing is said.
+#[test]
+fn packets_at_another_rate_are_reported_once_and_counted() {
+    let board = SimBoard::new(&Airframe::builtin("paper-quad").unwrap(), &SimConfig::default());
+    for (period_s, off) in [(0.0005, 0), (0.001, 9)] {
+        let (addr, handle) = firmware_bridge(false, None, Duration::from_millis(200));
+        let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+        for sequence in 0..10u64 {
+            let mut packet = sensor_packet(&board, sequence, None);
+            packet.time_s = 2.0 + sequence as f64 * period_s;
+            client.exchange(&packet, TIMEOUT).unwrap();
+        }
+        let (summary, _, notices) = handle.join().unwrap();
+        assert_eq!(summary, BridgeSummary { steps: 10, malformed: 0, off_period: off });
+        if off == 0 {
+            assert!(notices.is_empty(), "{notices:?}");
+        } else {
+            assert_eq!(notices.len(), 1, "{notices:?}");
+            assert!(notices[0].starts_with("packet 1 at t = 2.001000 s came 1000 µs"), "{notices:?}");
+            assert!(notices[0].contains("one sensor packet per 500 µs"), "{notices:?}");
+        }
+    }
 }
 
 /// Issue 28, item 3: a simulator that sends NaN motor speeds (its ESCs have no telemetry) to a

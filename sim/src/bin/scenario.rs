@@ -388,9 +388,12 @@ fn run(cli: Cli) -> Result<()> {
                 }
                 let summary = summary?;
                 eprintln!(
-                    "no packet for {idle_timeout_s} s after {} steps ({} malformed packets); \
-                     stopping",
-                    summary.steps, summary.malformed
+                    "no packet for {idle_timeout_s} s after {} steps ({} malformed packets, {} \
+                     not {} µs after the one before); stopping",
+                    summary.steps,
+                    summary.malformed,
+                    summary.off_period,
+                    sim::board::CONTROL_PERIOD_US
                 );
                 Ok(())
             });
