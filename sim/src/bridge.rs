@@ -494,8 +494,7 @@ pub fn serve_firmware(
                 now_us = packet_time_us(&sensor);
                 if let Some(previous_s) = previous_time_s {
                     let interval_us = ((sensor.time_s - previous_s) * 1e6).round() as i64;
-                    if (interval_us - CONTROL_PERIOD_US as i64).abs() > PACKET_PERIOD_TOLERANCE_US
-                    {
+                    if (interval_us - CONTROL_PERIOD_US as i64).abs() > PACKET_PERIOD_TOLERANCE_US {
                         summary.off_period += 1;
                         if summary.off_period == 1 {
                             report(BridgeNotice::OffPeriod {

@@ -209,7 +209,10 @@ fn packets_at_another_rate_are_reported_once_and_counted() {
             assert!(notices.is_empty(), "{notices:?}");
         } else {
             assert_eq!(notices.len(), 1, "{notices:?}");
-            assert!(notices[0].starts_with("packet 1 at t = 2.001000 s came 1000 µs"), "{notices:?}");
+            assert!(
+                notices[0].starts_with("packet 1 at t = 2.001000 s came 1000 µs"),
+                "{notices:?}"
+            );
             assert!(notices[0].contains("one sensor packet per 500 µs"), "{notices:?}");
         }
     }
