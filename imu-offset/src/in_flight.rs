@@ -1,4 +1,4 @@
-//! The IMU offset learned in flight, with no calibration throw (issue 32, a first step): the
+//! The IMU offset learned in flight, with no calibration throw (issue 32): the
 //! accelerometer's position `r` relative to the centre of gravity fitted jointly with the
 //! specific-force rows of G1 on the samples the learner sees (the release delay's free tumble,
 //! the motor excitation, the first seconds of flight).

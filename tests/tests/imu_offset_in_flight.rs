@@ -1,4 +1,4 @@
-//! The IMU offset fitted in flight with no calibration (issue 32, a first step;
+//! The IMU offset fitted in flight with no calibration (issue 32;
 //! `imu_offset::in_flight`): the firmware application is thrown with no offset given, and the
 //! offset it fits on the release delay's tumble, the excitation and the first seconds of flight
 //! is compared with the simulator's truth, in millimetres.
