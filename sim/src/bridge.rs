@@ -682,7 +682,10 @@ pub fn attempt_text(failure: LearnerFailure) -> String {
         LearnerFailure::NotFreeFall => {
             "the release was refused: not falling freely (motors never started)".into()
         }
-        LearnerFailure::ThrowTimedOut => "a throw began but no release followed".into(),
+        LearnerFailure::ThrowTimedOut => "a throw began but no release followed within 3 s (an \
+                                          IMU far from the centre of gravity reads a fast spin as \
+                                          a push that never ends: Ω²·r above 20 m/s²)"
+            .into(),
         LearnerFailure::RankDeficient => "no torque about every axis: no hover axis".into(),
         LearnerFailure::NoHover => "no hover within the motor limits".into(),
         LearnerFailure::NoThrustAxis => "the excitation ended without a hover thrust axis".into(),
