@@ -72,7 +72,7 @@ pub fn failure_text(failure: LearnerFailure) -> &'static str {
             "the craft was not falling freely after the release (still held, or it hit something); the motors never started"
         }
         LearnerFailure::ThrowTimedOut => {
-            "a throw began but no release followed within 3 s (still held? An IMU far from the centre of gravity reads a fast spin as a push that never ends: Ω²·r above 20 m/s², 85 mm out at 1,000 °/s; throw with less spin); the motors never started"
+            "a throw began but no release followed within 3 s (still held? An IMU far from the centre of gravity reads a fast spin as a push that never ends: Ω²·r above 20 m/s², 66 mm out at 1,000 °/s; throw with less spin); the motors never started"
         }
         LearnerFailure::RankDeficient => {
             "the motors do not give torque about every axis (a motor not spinning, or not connected?)"

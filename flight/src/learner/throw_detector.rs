@@ -50,7 +50,7 @@
 //! 20 m/s²; an IMU within 30 mm of the centre of gravity while the hand may touch (or the
 //! stored offset, see `firmware::app::params`), so that at 1,000 °/s the rotational terms stay
 //! below 9.2 m/s², and within 150 mm after; a centripetal force at the IMU below the push
-//! threshold (`Ω² r` < 20 m/s²: 113 mm at 800 °/s, 85 mm at 1,000 °/s, else the push never
+//! threshold (`Ω² r` < 20 m/s²: 103 mm at 800 °/s, 66 mm at 1,000 °/s, else the push never
 //! ends and the throw times out); a
 //! terminal speed of at least 7 m/s ([`MIN_TERMINAL_SPEED_MPS`]; drag against the velocity, the
 //! wind slow beside the throw); spins up to 1,000 °/s. Refused: shakes in the hand (their
