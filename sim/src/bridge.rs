@@ -682,10 +682,15 @@ pub fn attempt_text(failure: LearnerFailure) -> String {
         LearnerFailure::NotFreeFall => {
             "the release was refused: not falling freely (motors never started)".into()
         }
-        LearnerFailure::ThrowTimedOut => "a throw began but no release followed within 3 s (an \
-                                          IMU far from the centre of gravity reads a fast spin as \
-                                          a push that never ends: Ω²·r above 20 m/s²)"
-            .into(),
+        LearnerFailure::ThrowTimedOut => {
+            // The detector's own limits (not parameters: `ThrowConfig`'s defaults).
+            let throw = flight::learner::throw_detector::ThrowConfig::default();
+            format!(
+                "a throw began but no release followed within {} s (an IMU far from the centre of \
+                 gravity reads a fast spin as a push that never ends: Ω²·r above {} m/s²)",
+                throw.give_up_s, throw.acc_high_mps2
+            )
+        }
         LearnerFailure::RankDeficient => "no torque about every axis: no hover axis".into(),
         LearnerFailure::NoHover => "no hover within the motor limits".into(),
         LearnerFailure::NoThrustAxis => "the excitation ended without a hover thrust axis".into(),
@@ -753,6 +758,15 @@ mod tests {
 
     /// The stop summary names the last resort and the offset fitted in flight with its
     /// ellipsoid, in millimetres; before any model there is none.
+    /// A throw that never releases is told with the detector's own limits (its give-up time
+    /// and push threshold, in s and m/s²), as the configurator says them.
+    #[test]
+    fn a_throw_that_never_releases_names_the_detectors_limits() {
+        let text = attempt_text(LearnerFailure::ThrowTimedOut);
+        assert!(text.contains("within 3 s"), "{text}");
+        assert!(text.contains("above 20 m/s²"), "{text}");
+    }
+
     #[test]
     fn the_identification_summary_says_what_was_clamped_and_where_the_offset_came_from() {
         use flight::learner::LearnedThrustAxis;
