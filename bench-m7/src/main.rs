@@ -409,7 +409,11 @@ fn hovering_closed_loop(learner: &Learner) -> (ClosedLoop, usize) {
         attitude,
         navigation: PositionEstimator::default(),
         controller,
-        guidance: Guidance::Position { position_ned_m: Vector3::zeros(), yaw_rad: 0.0 },
+        guidance: Guidance::Position {
+            position_ned_m: Vector3::zeros(),
+            yaw_rad: 0.0,
+            vertical_speed_mps: None,
+        },
         r_imu_m: Vector3::from(BENCH_R_IMU_M),
     };
     let origin = Vector3::zeros();

@@ -301,6 +301,7 @@ pub fn mode_name(mode: FlightMode) -> &'static str {
         FlightMode::Off => "off",
         FlightMode::LevelHold => "level-hold",
         FlightMode::PositionHold => "position-hold",
+        FlightMode::Landing(_) => "landing",
     }
 }
 

@@ -3,8 +3,8 @@
 
 use protocol::{
     BoardHealth, Capabilities, FailsafeAction, FailsafeReason, FlightMode, FlightTelemetry,
-    IdentificationStatus, ImuDriverState, ImuOffsetSource, Info, LearnerFailure, LearnerPhase,
-    LearnerTelemetry, OffsetAdvice, Status, PROTOCOL_VERSION, SCHEMA_HASH,
+    IdentificationStatus, ImuDriverState, ImuOffsetSource, Info, LandReason, LearnerFailure,
+    LearnerPhase, LearnerTelemetry, OffsetAdvice, Status, PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use serde_json::{json, Value};
 use std::fmt::Write as _;
@@ -761,15 +761,49 @@ pub fn failsafe_event_text(reason: FailsafeReason, action: FailsafeAction, count
         FailsafeAction::Disarmed => "every motor stopped, disarmed",
         FailsafeAction::LevelHold => "flying on in level hold (no position)",
         FailsafeAction::HeldLastSample => "flying on with the last good IMU sample",
+        FailsafeAction::Land => "landing (descends, stops the motors at the touchdown)",
     };
     format!("FAILSAFE: {}: {action} ({count}× since start-up)", failsafe_reason_text(reason))
 }
 
-fn mode_text(mode: FlightMode) -> &'static str {
+fn mode_text(mode: FlightMode) -> String {
     match mode {
-        FlightMode::Off => "not flying",
-        FlightMode::LevelHold => "level hold (no external pose: the position drifts)",
-        FlightMode::PositionHold => "position hold (external pose)",
+        FlightMode::Off => "not flying".into(),
+        FlightMode::LevelHold => "level hold (no external pose: the position drifts)".into(),
+        FlightMode::PositionHold => "position hold (external pose)".into(),
+        FlightMode::Landing(reason) => format!("landing: {}", land_reason_text(reason)),
+    }
+}
+
+/// Why a craft lands, in words.
+pub fn land_reason_text(reason: LandReason) -> &'static str {
+    match reason {
+        LandReason::Commanded => "asked by `land`",
+        LandReason::Switch => "the pilot's land switch",
+        LandReason::RcLost => "the radio link was lost in flight",
+        LandReason::BatteryLow => "the battery is below land_cell_v",
+        LandReason::PoseLost => "the external pose stayed lost longer than land_pose_lost_s",
+        LandReason::UnsignedDisarm => {
+            "an unsigned disarm over an untrusted link (a stranger on the radio's channel?)"
+        }
+        LandReason::FlyAway => {
+            "a fly-away: moving away faster than flyaway_speed_mps for flyaway_time_s"
+        }
+    }
+}
+
+/// A landing event in words.
+pub fn landing_event_text(event: &protocol::Event) -> Option<String> {
+    match *event {
+        protocol::Event::Landing { reason, count } => {
+            Some(format!("LANDING: {} ({count}× since start-up)", land_reason_text(reason)))
+        }
+        protocol::Event::Landed { reason, touchdown_speed_mps, count } => Some(format!(
+            "LANDED: touched down at {touchdown_speed_mps:.2} m/s, motors stopped ({}; \
+             {count}× since start-up)",
+            land_reason_text(reason)
+        )),
+        _ => None,
     }
 }
 

@@ -119,7 +119,9 @@ fn an_unpaired_radio_reads_and_disarms_but_cannot_configure_arm_or_steer() {
     assert_eq!(security.session, SESSION);
     assert!(matches!(board.ask(true, &Request::GetStatus(()), None), Ok(Reply::Status(_))));
     assert_eq!(board.ask(true, &Request::Disarm(()), None), Ok(Reply::Done));
-    assert_eq!(board.commands(), vec![ControlCommand::Disarm], "every way to stop works");
+    // Every way to stop works: a stranger's disarm stops a craft on the ground and lands one in
+    // the air (the control step tells which, `ControlCommand::Land`).
+    assert_eq!(board.commands(), vec![ControlCommand::Land(LandReason::UnsignedDisarm)]);
     let before = *board.settings.params();
     for request in [
         set_rate_p(0.3),
@@ -131,6 +133,7 @@ fn an_unpaired_radio_reads_and_disarms_but_cannot_configure_arm_or_steer() {
             heading_rad: 0.0,
         }),
         Request::SetLinkKey(SetLinkKey { key: Some(heapless::Vec::from_array(KEY)) }),
+        Request::Land(()),
     ] {
         assert_eq!(board.ask(true, &request, None), Err(DeviceError::SignatureRequired));
     }
@@ -142,7 +145,7 @@ fn an_unpaired_radio_reads_and_disarms_but_cannot_configure_arm_or_steer() {
     assert_eq!(board.commands(), vec![], "nothing reached the control step");
     assert!(*board.settings.params() == before, "no parameter changed");
     let security = board.security(true);
-    assert_eq!((security.unsigned_refused, security.bad_signature), (6, 1));
+    assert_eq!((security.unsigned_refused, security.bad_signature), (7, 1));
     // The same requests over USB are carried out unsigned.
     assert!(matches!(board.ask(false, &set_rate_p(0.3), None), Ok(Reply::Param(_))));
 }
@@ -192,15 +195,24 @@ fn a_paired_signer_commands_over_the_radio_and_forgeries_and_replays_are_refused
     // itself is refused for the motor count, after the signature was accepted).
     let arm = board.ask(true, &Request::ArmThrowToFly(()), Some((signer(), 3_000)));
     assert!(matches!(arm, Err(DeviceError::BadValue { .. })), "past the signature: {arm:?}");
+    // The paired configurator's disarm stops the motors at once (it is no stranger's), and its
+    // landing is carried out.
+    board.commands();
+    assert_eq!(board.ask(true, &Request::Disarm(()), Some((signer(), 4_000))), Ok(Reply::Done));
+    assert_eq!(board.ask(true, &Request::Land(()), Some((signer(), 5_000))), Ok(Reply::Done));
+    assert_eq!(
+        board.commands(),
+        vec![ControlCommand::Disarm, ControlCommand::Land(LandReason::Commanded)]
+    );
 
     let security = board.security(true);
     assert_eq!((security.unsigned_refused, security.bad_signature, security.replayed), (1, 2, 2));
-    assert_eq!(security.last_timestamp, 3_000);
+    assert_eq!(security.last_timestamp, 5_000);
     // Only the radio counts its refusals; the key never travels back.
     assert_eq!(board.security(false).bad_signature, 0);
     // The key cannot be changed over the radio, even signed.
     let rekey = Request::SetLinkKey(SetLinkKey { key: None });
-    assert_eq!(board.ask(true, &rekey, Some((signer(), 4_000))), Err(DeviceError::TrustedLinkOnly));
+    assert_eq!(board.ask(true, &rekey, Some((signer(), 6_000))), Err(DeviceError::TrustedLinkOnly));
     // Unpairing over USB: the old signer is refused from then on.
     assert_eq!(board.ask(false, &rekey, None), Ok(Reply::Done));
     assert_eq!(

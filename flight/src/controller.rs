@@ -182,11 +182,24 @@ pub struct AttitudeCommand {
 /// What the craft is asked to do.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Guidance {
-    /// Hold a position (world NED, m) and heading (rad) from external position fixes.
-    Position { position_ned_m: Vector3<f32>, yaw_rad: f32 },
-    /// No position: thrust axis up, the velocity `velocity_ned_mps` (an estimate by dead
-    /// reckoning, world NED, m/s) brought to zero, heading `yaw_rad`.
-    Level { yaw_rad: f32, velocity_ned_mps: Vector3<f32> },
+    /// Hold a position (world NED, m) and heading (rad) from external position fixes. With
+    /// `vertical_speed_mps` the height is not held: the craft moves vertically at that speed
+    /// (world NED, m/s, positive down: a landing's descent) while it holds the horizontal
+    /// position.
+    Position { position_ned_m: Vector3<f32>, yaw_rad: f32, vertical_speed_mps: Option<f32> },
+    /// No position: thrust axis up, the velocity `velocity_ned_mps` (world NED, m/s) brought to
+    /// zero horizontally and to `vertical_speed_mps` (positive down; 0 holds the height),
+    /// heading `yaw_rad`. `from_fixes`: the velocity comes from external fixes (not dead
+    /// reckoning), so the horizontal loop may integrate its error: a craft whose thrust axis was
+    /// learned a few degrees off is pushed sideways by `g sin(error)` for as long as it waits
+    /// for its position hold, and the proportional loop alone would leave it drifting at
+    /// `g sin(error) / k_velocity` (0.85 m/s for 10°) instead of stopping.
+    Level {
+        yaw_rad: f32,
+        velocity_ned_mps: Vector3<f32>,
+        vertical_speed_mps: f32,
+        from_fixes: bool,
+    },
 }
 
 /// One step's measurements.
@@ -291,6 +304,19 @@ impl Controller {
         &self.indi
     }
 
+    /// The position controller's specific force for `setpoint` (hover's when it refuses the
+    /// input: a non-finite estimate).
+    fn position_force(
+        &mut self,
+        nav: &NavigationState,
+        setpoint: &PositionSetpoint,
+        dt_s: f32,
+    ) -> Vector3<f32> {
+        self.position
+            .update(&nav.position_ned_m, &nav.velocity_ned_mps, setpoint, dt_s)
+            .unwrap_or(Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_MPS2))
+    }
+
     /// One control step.
     pub fn update(
         &mut self,
@@ -301,13 +327,21 @@ impl Controller {
         let q_world_thrust = input.q_world_imu * self.indi.model().q_imu_thrust;
         let nav = &input.navigation;
         let (f_sp, yaw_sp) = match *guidance {
-            Guidance::Position { position_ned_m, yaw_rad } => {
-                let setpoint =
-                    PositionSetpoint { position_ned_m, velocity_ned_mps: Vector3::zeros() };
-                let f = self
-                    .position
-                    .update(&nav.position_ned_m, &nav.velocity_ned_mps, &setpoint, dt_s)
-                    .unwrap_or(Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_MPS2));
+            Guidance::Position { position_ned_m, yaw_rad, vertical_speed_mps } => {
+                // A vertical speed replaces the height: the setpoint sits at the craft's own
+                // height, so only the feed-forward speed acts vertically.
+                let setpoint = match vertical_speed_mps {
+                    Some(speed) => PositionSetpoint {
+                        position_ned_m: Vector3::new(
+                            position_ned_m.x,
+                            position_ned_m.y,
+                            nav.position_ned_m.z,
+                        ),
+                        velocity_ned_mps: Vector3::new(0.0, 0.0, speed),
+                    },
+                    None => PositionSetpoint { position_ned_m, velocity_ned_mps: Vector3::zeros() },
+                };
+                let f = self.position_force(nav, &setpoint, dt_s);
                 // INDI drives the *measured* specific force to its setpoint; the accelerometer
                 // reads the true one plus the bias the navigation learned from the fixes (its
                 // offset, its scale and cross-axis errors at 1 g: 3 % of g is 0.3 m/s², and the
@@ -319,14 +353,23 @@ impl Controller {
                 // 1,000 random airframes the hold is better with it (held 96.5 % → 98.9 %).
                 (f + nav.accel_bias_ned_mps2, yaw_rad)
             }
-            Guidance::Level { yaw_rad, velocity_ned_mps } => {
-                // Zero velocity: the velocity loop's P alone (no integral on a drifting estimate).
+            Guidance::Level { yaw_rad, velocity_ned_mps, vertical_speed_mps, from_fixes } => {
+                // Zero velocity: the velocity loop's P (no integral on a drifting estimate).
                 // Vertically the thrust acts through the motors alone, not behind the attitude
                 // loop: the rate loop's gain (designed around the motor lag) applies there.
+                // With the fixes' velocity the horizontal error is integrated too (see
+                // `Guidance::Level`), into the position loop's integral.
+                let velocity_error = velocity_ned_mps - Vector3::new(0.0, 0.0, vertical_speed_mps);
                 let gain =
                     Vector3::new(self.gains.k_velocity, self.gains.k_velocity, self.gains.k_rate);
+                let mut wanted = -velocity_error.component_mul(&gain);
+                if from_fixes {
+                    self.position.integrate_horizontal(&(-velocity_error), dt_s);
+                    let integral = self.position.integral_mps2();
+                    wanted += Vector3::new(integral.x, integral.y, 0.0);
+                }
                 let accel = crate::position::limit_horizontal_vertical(
-                    &(-velocity_ned_mps.component_mul(&gain)),
+                    &wanted,
                     crate::position::MAX_ACCEL_MPS2,
                     LEVEL_MAX_VERTICAL_ACCEL_MPS2,
                 );

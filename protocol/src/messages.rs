@@ -759,6 +759,30 @@ pub enum FlightMode {
     LevelHold,
     /// Flying with external poses: holding [`FlightTelemetry::position_sp_ned_m`].
     PositionHold,
+    /// Descending to land, for this reason: straight down at the held position with a pose,
+    /// level on the learned hover axis without; disarms at the touchdown (protocol 1.14).
+    Landing(LandReason),
+}
+
+/// Why a flying craft lands (protocol 1.14).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LandReason {
+    /// [`Request::Land`] from a host.
+    Commanded,
+    /// The pilot's land switch.
+    Switch,
+    /// The pilot's radio link was lost in flight (after its grace).
+    RcLost,
+    /// The flight battery fell below its per-cell threshold.
+    BatteryLow,
+    /// The external pose stayed lost for longer than `land_pose_lost_s`.
+    PoseLost,
+    /// An unsigned disarm arrived over an untrusted link while flying: landed instead of
+    /// dropped (counted in the link's unsigned refusals).
+    UnsignedDisarm,
+    /// The craft moved away from its setpoint faster than `flyaway_speed_mps` for longer than
+    /// `flyaway_time_s`.
+    FlyAway,
 }
 
 /// Why a failsafe acted (protocol 1.4).
@@ -793,6 +817,8 @@ pub enum FailsafeAction {
     LevelHold,
     /// Flight goes on with the IMU sample replaced by the previous good one (a short glitch).
     HeldLastSample,
+    /// The craft lands: descends, detects the touchdown, disarms (protocol 1.14).
+    Land,
 }
 
 /// How often each failsafe acted since start-up (protocol 1.4).
@@ -1132,6 +1158,12 @@ pub enum Event {
     /// A failsafe acted (protocol 1.4); `count` is how often this reason has acted since
     /// start-up.
     Failsafe { reason: FailsafeReason, action: FailsafeAction, count: u16 },
+    /// A landing began (protocol 1.14); `count`: landings begun since start-up.
+    Landing { reason: LandReason, count: u16 },
+    /// A landing touched down and the motors stopped (protocol 1.14): why it landed, the
+    /// vertical speed at the touchdown, m/s (positive down, from the navigation estimate), and
+    /// how many touchdowns since start-up.
+    Landed { reason: LandReason, touchdown_speed_mps: f32, count: u16 },
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1226,6 +1258,12 @@ crate::table::message_table! {
         0x1E => GetBattery(()),
         /// How the latest identification was made ([`Reply::Identification`]). Protocol 1.12.
         0x1F => GetIdentification(()),
+        /// Land: a flying craft descends at `land_descent_mps` and disarms at the touchdown
+        /// (its position held with a pose, level without); a craft still waiting for a throw
+        /// or on the ground stops its motors as [`Request::Disarm`] would; one in the air in
+        /// its identification lands as soon as it flies. Signed over an untrusted link, like
+        /// every request that steers. → `Done`. Protocol 1.14.
+        0x20 => Land(()),
     }
 }
 

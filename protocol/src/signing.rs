@@ -110,7 +110,8 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::RebootToBootloader(())
         | Request::EscCommand(_)
         | Request::SetLinkKey(_)
-        | Request::DeleteLog(_) => true,
+        | Request::DeleteLog(_)
+        | Request::Land(()) => true,
         Request::Hello(_)
         | Request::GetInfo(())
         | Request::GetStatus(())

@@ -54,6 +54,16 @@ pub const SETTLE_S: f32 = 2.0 * FILTER_TIME_S;
 /// 2 % high (0.35 V on a charged 4S pack, 0.08 of a cell).
 pub const CELL_COUNT_TOLERANCE: f32 = 0.1;
 
+/// Default of the `land_cell_v` parameter, V per cell: [`CELL_EMPTY_V`], where the remaining
+/// charge reads 0 % (ArduPilot's and Betaflight's low-voltage warnings sit at 3.3–3.5 V).
+pub const DEFAULT_LAND_CELL_V: f32 = CELL_EMPTY_V;
+
+/// How long the smoothed voltage must stay below the landing threshold before a flight lands,
+/// s: a punch-out sags a pack by 0.1–0.5 V a cell for as long as it lasts (a second or two),
+/// and the pack recovers when the load eases; a pack that stays low for 2 s under a hover's load
+/// is empty.
+pub const LOW_BATTERY_S: f32 = 2.0;
+
 /// Milliamp-hours in one ampere-second.
 const MAH_PER_AS: f64 = 1_000.0 / 3_600.0;
 
@@ -145,6 +155,39 @@ impl BatteryMonitor {
             cells: self.cells,
             remaining_pct,
         })
+    }
+}
+
+/// Whether the pack has stayed below a voltage per cell for [`LOW_BATTERY_S`]: the failsafe
+/// that lands a flight on an empty battery (`land_cell_v`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LowBattery {
+    /// Since when the voltage is below the threshold, µs.
+    below_since_us: Option<u64>,
+}
+
+impl LowBattery {
+    /// Follow `status` at `now_us` against `cell_v` per cell (`None`: never low): whether the
+    /// pack has been below it for [`LOW_BATTERY_S`]. A pack whose cells are not counted yet
+    /// (or no pack) is never low.
+    pub fn update(
+        &mut self,
+        status: Option<&BatteryStatus>,
+        cell_v: Option<f32>,
+        now_us: u64,
+    ) -> bool {
+        let below = match (status, cell_v) {
+            (Some(status), Some(cell_v)) if status.cells > 0 => {
+                status.voltage_v < cell_v * f32::from(status.cells)
+            }
+            _ => false,
+        };
+        if !below {
+            self.below_since_us = None;
+            return false;
+        }
+        let since_us = *self.below_since_us.get_or_insert(now_us);
+        now_us.saturating_sub(since_us) as f32 * 1e-6 >= LOW_BATTERY_S
     }
 }
 
@@ -265,6 +308,36 @@ mod tests {
             let status = monitor.status().unwrap();
             assert_eq!(status.cells, 1, "{cell_v} V a cell");
             assert_eq!(status.remaining_pct, expected, "{cell_v} V a cell");
+        }
+    }
+
+    #[test]
+    fn a_pack_lands_the_craft_only_after_staying_below_its_threshold() {
+        let status = |voltage_v: f32, cells: u8| BatteryStatus {
+            voltage_v,
+            current_a: 20.0,
+            used_mah: 0.0,
+            cells,
+            remaining_pct: 0,
+        };
+        let mut low = LowBattery::default();
+        let threshold = Some(3.3);
+        // A 4S pack sagging to 3.2 V a cell in a punch-out for 1.5 s: not low.
+        for ms in 0..1500u64 {
+            assert!(!low.update(Some(&status(12.8, 4)), threshold, ms * 1000));
+        }
+        assert!(!low.update(Some(&status(14.8, 4)), threshold, 1_500_000));
+        // Below for LOW_BATTERY_S: low, not a moment before.
+        let start = 2_000_000;
+        assert!(!low.update(Some(&status(13.1, 4)), threshold, start));
+        assert!(!low.update(Some(&status(13.1, 4)), threshold, start + 1_999_000));
+        assert!(low.update(Some(&status(13.1, 4)), threshold, start + 2_000_000));
+        // No threshold, no count of cells yet, or no battery at all: never low.
+        let mut never = LowBattery::default();
+        for t in [0, 5_000_000] {
+            assert!(!never.update(Some(&status(13.1, 4)), None, t));
+            assert!(!never.update(Some(&status(1.0, 0)), threshold, t));
+            assert!(!never.update(None, threshold, t));
         }
     }
 

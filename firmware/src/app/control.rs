@@ -75,7 +75,7 @@ use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
 use flight::learner::{FlightPhase, ThrowToFly, MODELS_MAY_BE_PENDING};
 use protocol::{
-    DshotCommand, ExternalPose, ImuHeldCounters, LearnerFailure, PositionSetpoint,
+    DshotCommand, ExternalPose, ImuHeldCounters, LandReason, LearnerFailure, PositionSetpoint,
     MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND, SPEED_REPORT_TIMEOUT_MS,
 };
 
@@ -89,6 +89,12 @@ pub enum ControlCommand {
     /// Stop every motor and leave any armed state, now, for this reason (the pilot's kill
     /// switch, the radio link lost): counted and reported as a failsafe when anything was armed.
     Failsafe(Failsafe),
+    /// End the flight gently, for this reason: a flying craft lands (descends, disarms at the
+    /// touchdown: `super::pilot::Pilot::land`); one in the air in its identification (released
+    /// or exciting) lands as soon as it flies; anything else armed (waiting for a throw, a motor
+    /// test) stops at once, as [`ControlCommand::Disarm`]. [`LandReason::RcLost`] also counts
+    /// the radio failsafe when anything was armed.
+    Land(LandReason),
     /// A pose from motion capture or a ground station.
     ExternalPose(ExternalPose),
     /// Where to hold while poses arrive (the link refuses non-finite values).
@@ -114,6 +120,11 @@ pub struct ControlSettings {
     pub acc_bias_mps2: [f32; 3],
     /// What the external poses are (latency, noise).
     pub pose: super::pilot::PoseConfig,
+    /// What landings and fly-aways are.
+    pub land: super::pilot::LandConfig,
+    /// Battery voltage per cell below which a flight lands, V (`None`: never; read by the
+    /// control task, which measures the battery).
+    pub land_cell_v: Option<f32>,
     /// How long, armed, bad IMU samples are held over before the IMU failsafe acts, s
     /// (`imu_fault_timeout_s`; 0: at the first bad sample).
     pub imu_fault_timeout_s: f32,
@@ -133,6 +144,8 @@ impl Default for ControlSettings {
             excitation: ExcitationConfig::default(),
             acc_bias_mps2: [0.0; 3],
             pose: super::pilot::PoseConfig::default(),
+            land: super::pilot::LandConfig::default(),
+            land_cell_v: Some(super::battery::DEFAULT_LAND_CELL_V),
             imu_fault_timeout_s: IMU_FAULT_TIMEOUT_S,
             arm_without_speeds: false,
         }
@@ -146,6 +159,8 @@ impl From<&super::params::Params> for ControlSettings {
             excitation: params.excitation_config(),
             acc_bias_mps2: params.acc_bias_mps2(),
             pose: params.pose_config(),
+            land: params.land_config(),
+            land_cell_v: params.land_cell_v(),
             imu_fault_timeout_s: params.imu_fault_timeout_s(),
             arm_without_speeds: params.arms_without_speeds(),
         }
@@ -536,6 +551,9 @@ pub struct ControlLoop<'q> {
     /// Steps the excitation's end may still wait for the model ([`ENGAGE_WAIT_MAX_S`]; 0: not
     /// waiting).
     engage_wait: EngageWait,
+    /// A landing asked for while the craft was in the air in its identification: it lands as
+    /// soon as it flies.
+    land_when_flying: Option<LandReason>,
     rate_window_start_us: u64,
     rate_window_steps: u32,
 }
@@ -565,6 +583,7 @@ impl<'q> ControlLoop<'q> {
             speed_monitor: SpeedMonitor::default(),
             armed_at_us: 0,
             engage_wait: EngageWait::default(),
+            land_when_flying: None,
             rate_window_start_us: 0,
             rate_window_steps: 0,
         }
@@ -591,6 +610,7 @@ impl<'q> ControlLoop<'q> {
                 } else {
                     self.motor_test = None;
                     self.engage_wait.end();
+                    self.land_when_flying = None;
                     self.throw_to_fly.arm();
                     self.armed_at_us = now_us;
                     self.snapshot.failure = LearnerFailure::None;
@@ -604,6 +624,7 @@ impl<'q> ControlLoop<'q> {
                     self.pilot.raise(failsafe);
                 }
             }
+            ControlCommand::Land(reason) => self.land(reason),
             ControlCommand::ExternalPose(pose) => {
                 if super::is_finite_pose(&pose.position_ned_m, pose.heading_rad) {
                     self.snapshot.external_pose = Some((pose, now_us));
@@ -635,8 +656,27 @@ impl<'q> ControlLoop<'q> {
         self.publish_phase();
     }
 
+    /// End the flight gently ([`ControlCommand::Land`]).
+    fn land(&mut self, reason: LandReason) {
+        if reason == LandReason::RcLost && (self.flight_armed() || self.motor_test.is_some()) {
+            self.pilot.note_failsafe(Failsafe::RcLost);
+        }
+        if self.pilot.land(reason) {
+            return;
+        }
+        let in_the_air =
+            matches!(self.throw_to_fly.phase(), FlightPhase::Released | FlightPhase::Exciting)
+                || self.engage_wait.active();
+        if in_the_air {
+            self.land_when_flying = Some(reason);
+        } else {
+            self.disarm();
+        }
+    }
+
     /// Stop every motor and leave any armed state; an attempt under way ends as `Disarmed`.
     fn disarm(&mut self) {
+        self.land_when_flying = None;
         self.motor_test = None;
         self.esc_command = None;
         let attempt = self.attempt();
@@ -671,6 +711,7 @@ impl<'q> ControlLoop<'q> {
             self.throw_to_fly = ThrowToFly::new(settings.throw, settings.excitation, MAX_MOTORS);
         }
         self.pilot.configure_pose(settings.pose);
+        self.pilot.configure_landing(settings.land);
         self.settings = settings;
     }
 
@@ -797,8 +838,16 @@ impl<'q> ControlLoop<'q> {
             if ended || self.engage_wait.active() {
                 if self.engage_wait.goes_on(self.pilot.model_pending()) {
                     out.commands = previous_commands;
-                } else if let Err(failsafe) = self.pilot.engage(&imu, &previous_commands, &speeds) {
-                    snapshot.failure = learner_failure(failsafe);
+                } else {
+                    let land = self.land_when_flying.take();
+                    match self.pilot.engage(&imu, &previous_commands, &speeds) {
+                        Err(failsafe) => snapshot.failure = learner_failure(failsafe),
+                        Ok(()) => {
+                            if let Some(reason) = land {
+                                self.pilot.land(reason);
+                            }
+                        }
+                    }
                 }
             }
             // Never a non-finite or out-of-range command (the schedule's are in [0, 1] already,
@@ -814,6 +863,10 @@ impl<'q> ControlLoop<'q> {
                     }
                     // The pilot has stopped: motors at zero from this step.
                     Err(_) => self.throw_to_fly.disarm(),
+                }
+                // Landed (the pilot stopped without a failsafe): nothing stays armed.
+                if !self.pilot.flying() {
+                    self.throw_to_fly.disarm();
                 }
             }
             match out.event {
@@ -926,6 +979,11 @@ impl<'q> ControlLoop<'q> {
         snapshot.armed = flight_armed || snapshot.motor_test.is_some();
         snapshot.excitation_ms =
             (self.throw_to_fly.excitation_elapsed_s() * 1000.0).clamp(0.0, 65_535.0) as u16;
+    }
+
+    /// The settings in force.
+    pub fn settings(&self) -> &ControlSettings {
+        &self.settings
     }
 
     /// The model the pilot flies (G1 and G2 refined in flight), while it flies.

@@ -23,10 +23,10 @@ use protocol::text as short_text;
 use protocol::{
     CalibrationThrow, Capabilities, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError,
     Decoder, DeviceError, DeviceMessage, DshotCommand, Event, FailsafeCounters, FlightMode,
-    FlightTelemetry, FrameError, IdentificationStatus, ImuStatus, LearnerFailure, LearnerPhase,
-    LearnerTelemetry, LinkCounters, LinkSecurity, ParamRef, Reply, Request, Response, SensorHealth,
-    SetLinkKey, SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN, MAX_MOTORS,
-    MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
+    FlightTelemetry, FrameError, IdentificationStatus, ImuStatus, LandReason, LearnerFailure,
+    LearnerPhase, LearnerTelemetry, LinkCounters, LinkSecurity, ParamRef, Reply, Request, Response,
+    SensorHealth, SetLinkKey, SetTelemetryRate, Status, Telemetry, Topic, Version, MAX_FRAME_LEN,
+    MAX_MOTORS, MAX_TELEMETRY_RATE_HZ, PROTOCOL_VERSION, TOPIC_COUNT,
 };
 
 /// Commands for the control step that may wait between two link passes.
@@ -95,6 +95,8 @@ pub struct LinkServer {
     reboot_requested: Option<LinkRequest>,
     /// Failsafe counts already reported as events.
     failsafes_reported: FailsafeCounters,
+    /// Landings begun and touchdowns already reported as events.
+    landings_reported: (u16, u16),
     /// Whoever holds this link holds the craft (USB, the simulator's own link): unsigned
     /// requests are carried out. `false` for a radio: see [`LinkServer::untrusted`].
     trusted: bool,
@@ -154,6 +156,7 @@ impl LinkServer {
             motor_test_started: None,
             reboot_requested: None,
             failsafes_reported: FailsafeCounters::default(),
+            landings_reported: (0, 0),
             trusted: true,
             refusals: SignatureRefusals::default(),
             last_timestamp: 0,
@@ -243,6 +246,11 @@ impl LinkServer {
             self.counters.frames_rx = self.counters.frames_rx.wrapping_add(1);
             let mut commands = false;
             let response = match decoded {
+                Ok(Request::Disarm(()))
+                    if !self.trusted && signature != SignatureCheck::Accepted =>
+                {
+                    Ok(self.stranger_disarm(view))
+                }
                 Ok(request) => {
                     commands = signing::commands_the_craft(&request);
                     match self.authorise(&request, signature) {
@@ -364,6 +372,7 @@ impl LinkServer {
             None => self.calibration_throws_reported = 0,
         }
         self.report_failsafes(view);
+        self.report_landings(view);
         let timeouts = view.control.motor_test_timeouts;
         if timeouts != self.motor_test_timeouts_reported {
             if let Some(motor) = self.motor_test_started {
@@ -373,6 +382,36 @@ impl LinkServer {
                 self.motor_test_started = None;
             }
             self.motor_test_timeouts_reported = timeouts;
+        }
+    }
+
+    /// An event when a landing begins ([`Event::Landing`]) and when it touches down
+    /// ([`Event::Landed`]); a count is marked reported only once its event is in the transmit
+    /// buffer.
+    fn report_landings(&mut self, view: &StatusView) {
+        let pilot = &view.control.pilot;
+        let (begun, landed) = self.landings_reported;
+        if pilot.landings != begun {
+            if let Some(reason) = pilot.landing.or(pilot.last_landing) {
+                let event = Event::Landing { reason, count: pilot.landings };
+                if self.send_event(event).is_err() {
+                    return;
+                }
+            }
+            self.landings_reported.0 = pilot.landings;
+        }
+        if pilot.touchdowns != landed {
+            if let Some(reason) = pilot.last_landing {
+                let event = Event::Landed {
+                    reason,
+                    touchdown_speed_mps: pilot.touchdown_speed_mps,
+                    count: pilot.touchdowns,
+                };
+                if self.send_event(event).is_err() {
+                    return;
+                }
+            }
+            self.landings_reported.1 = pilot.touchdowns;
         }
     }
 
@@ -410,6 +449,38 @@ impl LinkServer {
         self.send(&DeviceMessage::Event(event), self.event_seq, RESPONSE_RESERVE)?;
         self.event_seq = self.event_seq.wrapping_add(1);
         Ok(())
+    }
+
+    /// A disarm over an untrusted link without a valid signature (anyone on the radio's channel
+    /// may have sent it): a craft in the air lands instead of falling
+    /// ([`ControlCommand::Land`] with [`LandReason::UnsignedDisarm`], counted with the unsigned
+    /// refusals); on the ground, waiting for a throw or in a motor test it stops at once, as
+    /// every way to stop must work. The control step decides which from its own state, so a
+    /// throw in the link's blind moment still lands rather than falls.
+    fn stranger_disarm(&mut self, view: &StatusView) -> Reply {
+        let control = &view.control;
+        let in_the_air = control.pilot.flying
+            || matches!(control.phase, FlightPhase::Released | FlightPhase::Exciting);
+        if in_the_air {
+            self.refusals.unsigned = self.refusals.unsigned.wrapping_add(1);
+        }
+        self.push_landing(LandReason::UnsignedDisarm);
+        Reply::Done
+    }
+
+    /// Queue a landing for the control step: it always fits (commands still waiting to arm or
+    /// steer make room; a disarm waiting among them stays, ahead of it).
+    fn push_landing(&mut self, reason: LandReason) {
+        let land = ControlCommand::Land(reason);
+        if self.commands.push_back(land).is_ok() {
+            return;
+        }
+        let disarm_waiting = self.commands.iter().any(|c| *c == ControlCommand::Disarm);
+        self.commands.clear();
+        if disarm_waiting {
+            let _ = self.commands.push_back(ControlCommand::Disarm);
+        }
+        let _ = self.commands.push_back(land);
     }
 
     /// Whether `request` may be carried out given its signature: signed ones only with a valid,
@@ -519,6 +590,11 @@ impl LinkServer {
                 // Always accepted: whatever waits is dropped, the disarm goes through.
                 self.commands.clear();
                 let _ = self.commands.push_back(ControlCommand::Disarm);
+                Ok(Reply::Done)
+            }
+            Request::Land(()) => {
+                // Like a disarm, it always goes through (a craft on the ground stops).
+                self.push_landing(LandReason::Commanded);
                 Ok(Reply::Done)
             }
             Request::SetExternalPose(pose) => {
@@ -916,10 +992,11 @@ pub fn sensor_health(view: &StatusView) -> SensorHealth {
 pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
     let control = &view.control;
     let pilot = &control.pilot;
-    let mode = match (pilot.flying, pilot.position_hold) {
-        (false, _) => FlightMode::Off,
-        (true, false) => FlightMode::LevelHold,
-        (true, true) => FlightMode::PositionHold,
+    let mode = match (pilot.flying, pilot.landing, pilot.position_hold) {
+        (false, _, _) => FlightMode::Off,
+        (true, Some(reason), _) => FlightMode::Landing(reason),
+        (true, None, false) => FlightMode::LevelHold,
+        (true, None, true) => FlightMode::PositionHold,
     };
     let q = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
     let [roll, pitch, yaw] = flight::attitude::euler_zyx_rad(q);

@@ -46,12 +46,13 @@ use super::system::BackgroundWork;
 use super::{BackgroundCommand, ControlCommand, ControlSettings};
 use flight::learner::FlightPhase;
 use heapless::spsc::Queue;
-use protocol::{Decoder, DshotCommand, ExternalPose, PositionSetpoint, MAX_FRAME_LEN};
+use protocol::{Decoder, DshotCommand, ExternalPose, LandReason, PositionSetpoint, MAX_FRAME_LEN};
 
 /// Version of the log's record layout. 2 added the learner's and the flight's snapshots
-/// ([`id::LEARNER`], [`id::FLIGHT`]) to version 1's records; a reader of 2 reads 1, and refuses
-/// later versions.
-pub const LOG_FORMAT_VERSION: u16 = 2;
+/// ([`id::LEARNER`], [`id::FLIGHT`]) to version 1's records; 3 the landing (the command
+/// [`LoggedCommand::Land`], the flight mode `Landing`). A reader reads every earlier version,
+/// and refuses later ones.
+pub const LOG_FORMAT_VERSION: u16 = 3;
 
 /// Rate of the learner's and the flight's snapshots in a log, Hz: a G1 estimate converges over
 /// tenths of a second and a hover's position error moves at a few hertz, so 25 Hz shows both;
@@ -196,6 +197,9 @@ pub enum LoggedCommand {
     Failsafe {
         kind: u8,
     },
+    /// End the flight gently ([`ControlCommand::Land`]), for this reason (format 2 readers see
+    /// an unknown command: appended, nothing before it moved).
+    Land(LandReason),
 }
 
 /// A command applied before step `step`.
@@ -320,6 +324,7 @@ impl LoggedCommand {
                     .position(|k| core::mem::discriminant(k) == core::mem::discriminant(&failsafe))
                     .unwrap_or(0) as u8,
             },
+            ControlCommand::Land(reason) => Self::Land(reason),
         }
     }
 
@@ -340,6 +345,7 @@ impl LoggedCommand {
             Self::Failsafe { kind } => {
                 ControlCommand::Failsafe(*FAILSAFE_KINDS.get(usize::from(kind))?)
             }
+            Self::Land(reason) => ControlCommand::Land(reason),
         })
     }
 }

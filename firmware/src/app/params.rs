@@ -182,6 +182,21 @@ registry! {
     ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
         [super::control::IMU_FAULT_TIMEOUT_S], false,
         "armed: bad IMU samples held (last good) this long, then failsafe";
+    // Landing and the failsafes that land (`super::pilot::LandConfig`).
+    LandDescentMps = "land_descent_mps", 1, Real, "m/s", 0.2, 2.0,
+        [super::pilot::DEFAULT_LAND_DESCENT_MPS], false,
+        "landing: descent speed (straight down with a pose, level without)";
+    LandPoseLostS = "land_pose_lost_s", 1, Real, "s", 0.5, 600.0,
+        [super::pilot::DEFAULT_LAND_POSE_LOST_S], false,
+        "in flight: land when the external pose stays lost this long";
+    FlyawaySpeedMps = "flyaway_speed_mps", 1, Real, "m/s", 1.0, 20.0,
+        [super::pilot::DEFAULT_FLYAWAY_SPEED_MPS], false,
+        "with a pose: moving away from the setpoint faster counts as a fly-away";
+    FlyawayTimeS = "flyaway_time_s", 1, Real, "s", 0.2, 10.0,
+        [super::pilot::DEFAULT_FLYAWAY_TIME_S], false,
+        "a fly-away this long lands the craft";
+    LandCellV = "land_cell_v", 1, Real, "V", 0.0, 4.0, [super::battery::DEFAULT_LAND_CELL_V],
+        false, "in flight: land when the battery stays below this per cell (0: never)";
     // The flight log (`super::log`).
     LogAlways = "log_always", 1, Flag, "", 0.0, 1.0, [0.0], false,
         "1: log from start-up on; 0: a new log file per arming (and 2 s after)";
@@ -418,6 +433,22 @@ impl Params {
             latency_s: self.scalar(Param::PoseLatencyS),
             noise_m: self.scalar(Param::PoseNoiseM),
         }
+    }
+
+    /// What landings and fly-aways are.
+    pub fn land_config(&self) -> super::pilot::LandConfig {
+        super::pilot::LandConfig {
+            descent_mps: self.scalar(Param::LandDescentMps),
+            pose_lost_s: self.scalar(Param::LandPoseLostS),
+            flyaway_speed_mps: self.scalar(Param::FlyawaySpeedMps),
+            flyaway_time_s: self.scalar(Param::FlyawayTimeS),
+        }
+    }
+
+    /// The battery voltage per cell below which a flight lands, V (`None`: never).
+    pub fn land_cell_v(&self) -> Option<f32> {
+        let volts = self.scalar(Param::LandCellV);
+        (volts > 0.0).then_some(volts)
     }
 
     /// How old a motor-speed report is when the control step reads it, s.

@@ -36,6 +36,19 @@
 //!   estimator's velocity (the accelerometer integrated from the last fixed velocity, with the
 //!   bias the fixes taught it), not on the raw dead reckoning since the last rest. When fixes
 //!   come back, the position hold starts afresh where the craft stops.
+//! - **Landing** ([`Pilot::land`], for a [`LandReason`]): with a position, straight down at
+//!   the held horizontal position; without, level on the learned hover axis; at
+//!   [`LandConfig::descent_mps`] (the `land_descent_mps` parameter) either way, until the
+//!   touchdown ([`Touchdown`]) disarms. Started by a host's `land`, the pilot's land switch, the
+//!   radio lost in flight, a low battery, an unsigned disarm over an untrusted link (all by the
+//!   control step's [`super::control::ControlCommand::Land`]), and here: the pose lost for
+//!   longer than [`LandConfig::pose_lost_s`], and a fly-away.
+//! - **No fly-away**: with fixes, the level hold that waits for the position hold integrates
+//!   its horizontal velocity error (`flight::controller::Guidance::Level`), so a thrust axis
+//!   learned a few degrees off cannot carry the craft away while it waits; a craft that still
+//!   moves away from its setpoint (or, before one, anywhere) faster than
+//!   [`LandConfig::flyaway_speed_mps`] for [`LandConfig::flyaway_time_s`] lands, level, without
+//!   steering by the horizontal velocity it no longer trusts.
 //! - **A motor that loses thrust** (a damaged propeller): no failsafe. INDI is incremental: it
 //!   measures the angular acceleration and specific force the commands produced and adds what
 //!   is missing, so the other motors and the weak one's higher command take over within the rate
@@ -50,7 +63,7 @@ use flight::navigation::{
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use protocol::{
-    ExternalPose, FailsafeAction, FailsafeCounters, FailsafeReason, LearnerFailure,
+    ExternalPose, FailsafeAction, FailsafeCounters, FailsafeReason, LandReason, LearnerFailure,
     PositionSetpoint,
 };
 
@@ -151,6 +164,109 @@ fn filter_heading(
     yaw_of(q_filter) + flight::attitude::wrap_pi(wanted_level_yaw_rad - level_yaw)
 }
 
+/// Default descent speed of a landing, m/s (the `land_descent_mps` parameter): ArduPilot's
+/// `LAND_SPEED` below its `LAND_ALT_LOW` (0.5 m/s); PX4's `MPC_LAND_SPEED` is 0.7 m/s. A
+/// landing gear's travel and a frame's arms take that without a bounce (0.5 m/s is a drop from
+/// 13 mm).
+pub const DEFAULT_LAND_DESCENT_MPS: f32 = 0.5;
+
+/// Default time the pose may stay lost in a flight before the craft lands, s
+/// (`land_pose_lost_s`): a motion-capture occlusion or a radio hiccup lasts a fraction of a
+/// second; the level hold that replaces the position drifts a metre or more within five.
+pub const DEFAULT_LAND_POSE_LOST_S: f32 = 5.0;
+
+/// Default speed away from the setpoint that counts towards a fly-away, m/s
+/// (`flyaway_speed_mps`): above the position loop's 2.5 m/s speed limit flown with its 4.6 %
+/// overshoot (`flight::position::MAX_SPEED_MPS`), so no manoeuvre of our own controller reaches
+/// it.
+pub const DEFAULT_FLYAWAY_SPEED_MPS: f32 = 3.0;
+
+/// Default time above [`DEFAULT_FLYAWAY_SPEED_MPS`] after which a craft lands, s
+/// (`flyaway_time_s`): a gust of 5 m/s pushes a hovering craft past 3 m/s for a few tenths of a
+/// second at most before the velocity loop (a time constant of 0.2–0.5 s) takes it back; 1 s
+/// more at 3 m/s is 3 m.
+pub const DEFAULT_FLYAWAY_TIME_S: f32 = 1.0;
+
+/// Thrust below which a landing craft may be on the ground, as the fraction of the way from
+/// idle to hover (ours; PX4's land detector asks for its throttle near the minimum the same
+/// way, `LNDMC_LOW_T_THR`): INDI lowers the thrust for as long as the measured specific force
+/// stays above the descent's, and on the ground it stays at 1 g whatever the motors do.
+pub const TOUCHDOWN_THRUST_FRACTION: f32 = 0.5;
+
+/// Smallest measured specific force along the thrust axis, as a fraction of g, at which a
+/// craft whose thrust is below [`TOUCHDOWN_THRUST_FRACTION`] counts as carried by the ground
+/// (ours): in the air that thrust gives at most about 0.6 g even with a model whose thrust is
+/// 20 % low, so 0.8 g is the ground carrying the rest.
+pub const TOUCHDOWN_MIN_FORCE_G: f32 = 0.8;
+
+/// Largest rate at which a landing craft counts as resting, rad/s (30 °/s): not tipping over.
+pub const TOUCHDOWN_MAX_RATE_RAD_S: f32 = 0.5;
+
+/// Largest vertical speed from the fixes at which a landing craft counts as resting, m/s.
+pub const TOUCHDOWN_MAX_SPEED_MPS: f32 = 0.3;
+
+/// How long the touchdown's signs must hold before the motors stop, s (ours): INDI brings the
+/// thrust from hover to below the threshold within a few motor time constants of the contact
+/// (0.1–0.2 s), so the motors stop about 0.4 s after it, well within the second the issue
+/// allows; a bounce breaks the run and it starts again.
+pub const TOUCHDOWN_CONFIRM_S: f32 = 0.2;
+
+/// Rate at which the touchdown speed's peak decays, m/s per s: keeps the descent speed of the
+/// moment before the contact through the confirmation.
+const TOUCHDOWN_PEAK_DECAY_MPS2: f32 = 1.0;
+
+/// What the pilot assumes of landings and fly-aways (the parameters `land_descent_mps`,
+/// `land_pose_lost_s`, `flyaway_speed_mps`, `flyaway_time_s`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LandConfig {
+    /// Descent speed of a landing, m/s.
+    pub descent_mps: f32,
+    /// Time the fixes may stay lost in a flight before it lands, s.
+    pub pose_lost_s: f32,
+    /// Speed away from the setpoint that counts towards a fly-away, m/s.
+    pub flyaway_speed_mps: f32,
+    /// Time above that speed after which the craft lands, s.
+    pub flyaway_time_s: f32,
+}
+
+impl Default for LandConfig {
+    fn default() -> Self {
+        Self {
+            descent_mps: DEFAULT_LAND_DESCENT_MPS,
+            pose_lost_s: DEFAULT_LAND_POSE_LOST_S,
+            flyaway_speed_mps: DEFAULT_FLYAWAY_SPEED_MPS,
+            flyaway_time_s: DEFAULT_FLYAWAY_TIME_S,
+        }
+    }
+}
+
+/// The touchdown detector of a landing (see the constants above): thrust well below hover while
+/// the measured specific force stays near 1 g (the ground carries the craft), the craft not
+/// turning and, with fixes, not moving vertically, for [`TOUCHDOWN_CONFIRM_S`]. It assumes
+/// nothing of the height: no range finder, and a pose's zero need not be the ground.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Touchdown {
+    reason: LandReason,
+    /// How long the signs have held, s.
+    resting_s: f32,
+    /// The descent speed's decaying peak, m/s (positive down).
+    peak_descent_mps: f32,
+}
+
+impl Touchdown {
+    fn new(reason: LandReason) -> Self {
+        Self { reason, resting_s: 0.0, peak_descent_mps: 0.0 }
+    }
+
+    /// One step: whether the craft has been resting long enough.
+    fn update(&mut self, resting: bool, descent_mps: f32, dt_s: f32) -> bool {
+        self.peak_descent_mps =
+            descent_mps.max(self.peak_descent_mps - TOUCHDOWN_PEAK_DECAY_MPS2 * dt_s);
+        self.resting_s = if resting { self.resting_s + dt_s } else { 0.0 };
+        self.resting_s >= TOUCHDOWN_CONFIRM_S
+    }
+}
+
 /// Default pose latency, s: motion capture on a wire (the `pose_latency_s` parameter).
 pub const DEFAULT_POSE_LATENCY_S: f32 = 0.0;
 
@@ -227,6 +343,8 @@ impl Failsafe {
     pub fn action(self) -> FailsafeAction {
         match self {
             Failsafe::PoseLost => FailsafeAction::LevelHold,
+            // In flight (its only counted case) the craft lands: `super::radio`.
+            Failsafe::RcLost => FailsafeAction::Land,
             _ => FailsafeAction::Disarmed,
         }
     }
@@ -340,6 +458,15 @@ pub struct PilotStatus {
     /// Controllers formed afresh in flight on a thrust axis that moved by more than
     /// [`REFORM_AXIS_CHANGE_RAD`], since start-up.
     pub reforms: u32,
+    /// The landing in progress, and why.
+    pub landing: Option<LandReason>,
+    /// Landings begun and touchdowns (each stopped the motors) since start-up.
+    pub landings: u16,
+    pub touchdowns: u16,
+    /// Why the latest touchdown's landing began, and the descent speed just before it, m/s
+    /// (the navigation's estimate, positive down).
+    pub last_landing: Option<LandReason>,
+    pub touchdown_speed_mps: f32,
 }
 
 /// The closed-loop pilot.
@@ -389,6 +516,13 @@ pub struct Pilot {
     reform_pending: bool,
     /// The navigation's velocity in IMU axes as of the latest [`Pilot::observe`], m/s.
     velocity_imu_mps: [f32; 3],
+    land_config: LandConfig,
+    /// The landing in progress.
+    touchdown: Option<Touchdown>,
+    /// How long the fixes have been lost in this flight, s.
+    pose_lost_s: f32,
+    /// How long the craft has moved away faster than the fly-away speed, s.
+    flyaway_s: f32,
     status: PilotStatus,
 }
 
@@ -406,7 +540,12 @@ impl Pilot {
             yaw_sp_filter_rad: 0.0,
             model: None,
             controller: None,
-            guidance: Guidance::Level { yaw_rad: 0.0, velocity_ned_mps: Vector3::zeros() },
+            guidance: Guidance::Level {
+                yaw_rad: 0.0,
+                velocity_ned_mps: Vector3::zeros(),
+                vertical_speed_mps: 0.0,
+                from_fixes: false,
+            },
             position_sp_ned_m: None,
             requested_sp: None,
             last_pose_us: None,
@@ -418,8 +557,47 @@ impl Pilot {
             fixes_lost: false,
             reform_pending: false,
             velocity_imu_mps: [0.0; 3],
+            land_config: LandConfig::default(),
+            touchdown: None,
+            pose_lost_s: 0.0,
+            flyaway_s: 0.0,
             status: PilotStatus::default(),
         }
+    }
+
+    /// Take what landings and fly-aways are (non-finite or non-positive values keep the
+    /// current ones).
+    pub fn configure_landing(&mut self, config: LandConfig) {
+        let keep = |new: f32, old: f32| if new.is_finite() && new > 0.0 { new } else { old };
+        let old = self.land_config;
+        self.land_config = LandConfig {
+            descent_mps: keep(config.descent_mps, old.descent_mps),
+            pose_lost_s: keep(config.pose_lost_s, old.pose_lost_s),
+            flyaway_speed_mps: keep(config.flyaway_speed_mps, old.flyaway_speed_mps),
+            flyaway_time_s: keep(config.flyaway_time_s, old.flyaway_time_s),
+        };
+    }
+
+    /// Land for `reason`: from the next step the craft descends and disarms at the touchdown.
+    /// A landing under way goes on for its first reason. Returns whether the craft is flying
+    /// (not flying, there is nothing to land: the caller stops what else is armed).
+    pub fn land(&mut self, reason: LandReason) -> bool {
+        if !self.flying() {
+            return false;
+        }
+        if self.touchdown.is_none() {
+            self.touchdown = Some(Touchdown::new(reason));
+            self.status.landing = Some(reason);
+            self.status.landings = self.status.landings.saturating_add(1);
+        }
+        true
+    }
+
+    /// Count `failsafe` as acted (the latest), without stopping: the radio lost in flight,
+    /// which lands.
+    pub fn note_failsafe(&mut self, failsafe: Failsafe) {
+        count_failsafe(&mut self.status.failsafes, failsafe);
+        self.status.last_failsafe = Some(failsafe);
     }
 
     /// Take what the poses are assumed to be (latency clamped to 0–[`MAX_POSE_LATENCY_S`],
@@ -674,14 +852,34 @@ impl Pilot {
         let yaw_rad = self.yaw_sp_filter_rad + self.alignment_yaw_rad();
         let nav = self.navigation.state();
         let positioned = nav.has_fix && self.alignment.yaw_rad().is_some();
+        // A landing descends instead of holding the height.
+        let descent_mps = self.touchdown.map(|_| self.land_config.descent_mps);
+        let vertical_speed_mps = descent_mps.unwrap_or(0.0);
+        let level = |velocity_ned_mps: Vector3<f32>, from_fixes: bool| Guidance::Level {
+            yaw_rad,
+            velocity_ned_mps,
+            vertical_speed_mps,
+            from_fixes,
+        };
+        // A fly-away's landing no longer steers by the horizontal velocity it could not hold
+        // (an alignment turned the wrong way makes that loop push the craft on): level, with
+        // the vertical speed from the fixes (down is gravity's in every world) or dead
+        // reckoning.
+        if self.touchdown.is_some_and(|t| t.reason == LandReason::FlyAway) {
+            let vertical =
+                if nav.has_fix { nav.velocity_ned_mps.z } else { self.dead_reckoned_velocity().z };
+            return level(Vector3::new(0.0, 0.0, vertical), false);
+        }
         match position_sp_ned_m {
-            Some(position_ned_m) if positioned => Guidance::Position { position_ned_m, yaw_rad },
+            Some(position_ned_m) if positioned => {
+                Guidance::Position { position_ned_m, yaw_rad, vertical_speed_mps: descent_mps }
+            }
             // Before the hold starts, the velocity from the fixes when there are fixes.
-            _ if positioned => Guidance::Level { yaw_rad, velocity_ned_mps: nav.velocity_ned_mps },
+            _ if positioned => level(nav.velocity_ned_mps, true),
             // The fixes stopped after the worlds were aligned: the estimator's velocity goes on
             // from the last fixed one (before, its world is the filter's: dead reckoning).
             _ if self.fixes_lost && self.alignment.yaw_rad().is_some() => {
-                Guidance::Level { yaw_rad, velocity_ned_mps: nav.velocity_ned_mps }
+                level(nav.velocity_ned_mps, false)
             }
             // Not aligned: the horizontal velocity by dead reckoning, the vertical one from the
             // fixes when there are fixes (down is gravity's in both worlds, whatever their yaw),
@@ -691,9 +889,59 @@ impl Pilot {
                 if nav.has_fix {
                     velocity_ned_mps.z = nav.velocity_ned_mps.z;
                 }
-                Guidance::Level { yaw_rad, velocity_ned_mps }
+                level(velocity_ned_mps, false)
             }
         }
+    }
+
+    /// The landings this step starts by itself: the fixes lost for longer than
+    /// [`LandConfig::pose_lost_s`], or a fly-away (module doc).
+    fn land_by_itself(&mut self, nav: &flight::navigation::NavigationState, positioned: bool) {
+        let dt_s = 1.0 / self.rate_hz;
+        let config = self.land_config;
+        self.pose_lost_s = if self.fixes_lost { self.pose_lost_s + dt_s } else { 0.0 };
+        if self.pose_lost_s > config.pose_lost_s {
+            self.land(LandReason::PoseLost);
+        }
+        let v = nav.velocity_ned_mps;
+        let away = self.position_sp_ned_m.map_or(true, |sp| {
+            let offset = nav.position_ned_m - sp;
+            offset.x * v.x + offset.y * v.y > 0.0
+        });
+        let fast = libm::hypotf(v.x, v.y) > config.flyaway_speed_mps;
+        self.flyaway_s = if positioned && away && fast && self.touchdown.is_none() {
+            self.flyaway_s + dt_s
+        } else {
+            0.0
+        };
+        if self.flyaway_s > config.flyaway_time_s {
+            self.land(LandReason::FlyAway);
+        }
+    }
+
+    /// Whether a landing craft rests on the ground in this step (see [`Touchdown`]), and so
+    /// the landing is over.
+    fn touched_down(&mut self, output: &ControllerOutput, gyro_rad_s: &[f32; 3]) -> bool {
+        let (Some(touchdown), Some(controller)) = (&mut self.touchdown, &self.controller) else {
+            return false;
+        };
+        let model = controller.indi().model();
+        let motors = model.motors.min(MAX_MOTORS);
+        let thrust: f32 = output.indi.u[..motors].iter().sum();
+        let low: f32 = (0..motors)
+            .map(|i| {
+                model.u_idle[i] + TOUCHDOWN_THRUST_FRACTION * (model.u_hover[i] - model.u_idle[i])
+            })
+            .sum();
+        let force_up_mps2 = -controller.indi().state().specific_force_mps2.z;
+        let nav = self.navigation.state();
+        let still_vertically =
+            !nav.has_fix || nav.velocity_ned_mps.z.abs() < TOUCHDOWN_MAX_SPEED_MPS;
+        let resting = thrust < low
+            && force_up_mps2 > TOUCHDOWN_MIN_FORCE_G * STANDARD_GRAVITY_MPS2
+            && Vector3::from(*gyro_rad_s).norm() < TOUCHDOWN_MAX_RATE_RAD_S
+            && still_vertically;
+        touchdown.update(resting, nav.velocity_ned_mps.z, 1.0 / self.rate_hz)
     }
 
     /// Take over at the end of an identification, from the commands (δ) and speeds (rad/s, NaN
@@ -808,6 +1056,7 @@ impl Pilot {
         } else if fixes_stopped {
             self.fixes_lost = true;
         }
+        self.land_by_itself(&nav, can_hold);
         if (was_holding && !can_hold) || fixes_stopped {
             count_failsafe(&mut self.status.failsafes, Failsafe::PoseLost);
             self.status.last_failsafe = Some(Failsafe::PoseLost);
@@ -861,6 +1110,16 @@ impl Pilot {
         } else {
             self.tilted_s = 0.0;
         }
+        if self.touched_down(&output, &imu.gyro_rad_s) {
+            // Landed: the motors stop from this step, no failsafe.
+            let touchdown = self.touchdown.take();
+            self.disarm();
+            let status = &mut self.status;
+            status.touchdowns = status.touchdowns.saturating_add(1);
+            status.last_landing = touchdown.map(|t| t.reason);
+            status.touchdown_speed_mps = touchdown.map_or(0.0, |t| t.peak_descent_mps);
+            return Ok([0.0; MAX_MOTORS]);
+        }
         Ok(commands)
     }
 
@@ -899,7 +1158,11 @@ impl Pilot {
         self.controller = None;
         self.reform_pending = false;
         self.heading_offset_rad = None;
+        self.touchdown = None;
+        self.pose_lost_s = 0.0;
+        self.flyaway_s = 0.0;
         self.status.flying = false;
+        self.status.landing = None;
     }
 
     fn fail(&mut self, failsafe: Failsafe) -> Failsafe {

@@ -17,6 +17,10 @@
 //!   first appears, and only after the receiver has seen the arm switch off since start-up or
 //!   since its last failsafe (a craft never arms because it powered up with the switch on).
 //! - Arm switch turned off (after arm on): [`ControlCommand::Disarm`], once.
+//! - Land switch on (channel 8 by default, with the arm switch on):
+//!   [`ControlCommand::Land`]`(`[`LandReason::Switch`]`)`, once, on the step it first appears:
+//!   a flying craft lands, one waiting for a throw disarms. Turning it off does not stop the
+//!   landing (the touchdown or the kill switch does); cycling it again asks again.
 //!
 //! # Signal loss (no valid RC frame for 250 ms, [`crate::drivers::crsf::DEFAULT_FAILSAFE_TIMEOUT_US`])
 //! - On the ground (armed and waiting for or being thrown):
@@ -24,8 +28,11 @@
 //! - In flight (released, exciting the motors, or the controller flying): the craft keeps doing
 //!   what it does (the learner's schedule and then the hover controller need no stick input) for
 //!   [`FLIGHT_FAILSAFE_GRACE_US`]; if no valid frame returned by then,
-//!   [`ControlCommand::Failsafe`]`(`[`Failsafe::RcLost`]`)`. A link that comes back within the
-//!   grace cancels it; after a loss, re-arming needs the arm switch cycled.
+//!   [`ControlCommand::Land`]`(`[`LandReason::RcLost`]`)`, once: the craft lands (Betaflight's
+//!   stage-2 failsafe, PX4's and ArduPilot's radio failsafes descend or land too), counted as
+//!   the [`Failsafe::RcLost`] failsafe. A link that comes back within the grace cancels it; one
+//!   that comes back later does not stop the landing; after a loss, re-arming needs the arm
+//!   switch cycled.
 //!
 //! What this assumes of the radio: a receiver that stops sending RC frames when its link is lost
 //! (CRSF receivers do, or send frames with the failsafe positions a pilot set to "arm off"); a
@@ -41,7 +48,7 @@ use crate::drivers::crsf::{
 };
 use crate::drivers::crsf::{HandsetTelemetry, FLIGHT_MODE_MAX_LEN};
 use flight::learner::FlightPhase;
-use protocol::ReceiverHealth;
+use protocol::{LandReason, ReceiverHealth};
 
 /// How long a craft in flight keeps flying after the radio link is lost, µs.
 pub const FLIGHT_FAILSAFE_GRACE_US: u64 = 1_000_000;
@@ -68,6 +75,8 @@ pub struct Receiver {
     previous: PilotRequest,
     /// When the failsafe began in flight, µs.
     failsafe_since_us: Option<u64>,
+    /// The landing for this loss of the link was asked for.
+    rc_lost_landing: bool,
     /// An RC frame arrived since the last telemetry frame: the receiver granted a slot.
     telemetry_slot: bool,
     /// The handset's telemetry cycle.
@@ -85,6 +94,7 @@ impl Receiver {
             interlock_clear: false,
             previous: PilotRequest::Failsafe,
             failsafe_since_us: None,
+            rc_lost_landing: false,
             telemetry_slot: false,
             handset: HandsetCycle::default(),
         })
@@ -125,6 +135,7 @@ impl Receiver {
         let previous = core::mem::replace(&mut self.previous, request);
         if request != PilotRequest::Failsafe {
             self.failsafe_since_us = None;
+            self.rc_lost_landing = false;
         }
         match request {
             PilotRequest::Kill => {
@@ -135,10 +146,15 @@ impl Receiver {
             }
             PilotRequest::Disarmed => {
                 self.interlock_clear = true;
-                (craft.armed && matches!(previous, PilotRequest::Armed | PilotRequest::ThrowToFly))
-                    .then_some(ControlCommand::Disarm)
+                let was_armed = matches!(
+                    previous,
+                    PilotRequest::Armed | PilotRequest::ThrowToFly | PilotRequest::Land
+                );
+                (craft.armed && was_armed).then_some(ControlCommand::Disarm)
             }
             PilotRequest::Armed => None,
+            PilotRequest::Land => (craft.armed && previous != PilotRequest::Land)
+                .then_some(ControlCommand::Land(LandReason::Switch)),
             PilotRequest::ThrowToFly => {
                 (self.interlock_clear && previous != PilotRequest::ThrowToFly && !craft.armed)
                     .then_some(ControlCommand::ArmThrowToFly)
@@ -153,8 +169,9 @@ impl Receiver {
                     return Some(ControlCommand::Failsafe(Failsafe::RcLost));
                 }
                 let since = *self.failsafe_since_us.get_or_insert(now_us);
-                (now_us.saturating_sub(since) >= FLIGHT_FAILSAFE_GRACE_US)
-                    .then_some(ControlCommand::Failsafe(Failsafe::RcLost))
+                let land = now_us.saturating_sub(since) >= FLIGHT_FAILSAFE_GRACE_US
+                    && !core::mem::replace(&mut self.rc_lost_landing, true);
+                land.then_some(ControlCommand::Land(LandReason::RcLost))
             }
         }
     }
@@ -300,8 +317,13 @@ mod tests {
     use super::*;
     use crate::drivers::crsf::{crc8_dvb_s2, TYPE_RC_CHANNELS_PACKED};
 
-    /// A CRSF RC-channels frame with every channel at `default_us` except the ones given.
+    /// A CRSF RC-channels frame with the switches given, the land switch off.
     fn frame(arm: bool, throw: bool, kill: bool) -> heapless::Vec<u8, 26> {
+        frame_with(arm, throw, kill, false)
+    }
+
+    /// A CRSF RC-channels frame with every channel centred except the switches given.
+    fn frame_with(arm: bool, throw: bool, kill: bool, land: bool) -> heapless::Vec<u8, 26> {
         let us = |on: bool| if on { 2000.0f32 } else { 1000.0 };
         let mut values = [992u16; 16];
         // µs → raw: raw = 992 + (us − 1500) · 8/5.
@@ -309,6 +331,7 @@ mod tests {
         values[4] = raw(us(arm));
         values[5] = raw(us(throw));
         values[6] = raw(us(kill));
+        values[7] = raw(us(land));
         let mut payload = [0u8; 22];
         let mut bit = 0usize;
         for v in values {
@@ -328,6 +351,8 @@ mod tests {
 
     const KILL: ControlCommand = ControlCommand::Failsafe(Failsafe::Kill);
     const RC_LOST: ControlCommand = ControlCommand::Failsafe(Failsafe::RcLost);
+    const RC_LOST_LAND: ControlCommand = ControlCommand::Land(LandReason::RcLost);
+    const SWITCH_LAND: ControlCommand = ControlCommand::Land(LandReason::Switch);
     const GROUND_ARMED: CraftState = CraftState { armed: true, in_flight: false };
     const FLYING: CraftState = CraftState { armed: true, in_flight: true };
     const IDLE: CraftState = CraftState { armed: false, in_flight: false };
@@ -408,14 +433,42 @@ mod tests {
     }
 
     #[test]
-    fn failsafe_in_flight_keeps_flying_then_disarms() {
+    fn failsafe_in_flight_keeps_flying_then_lands_once() {
         let mut rx = receiver();
         rx.poll(&frame(false, false, false), 0, IDLE);
         rx.poll(&frame(true, true, false), 1_000, IDLE);
-        // Lost at 1 ms; failsafe from 251 ms; disarm 1 s later.
+        // Lost at 1 ms; failsafe from 251 ms; the landing 1 s later, asked for once.
         assert_eq!(rx.poll(&[], 251_000, FLYING), None);
         assert_eq!(rx.poll(&[], 1_250_000, FLYING), None);
-        assert_eq!(rx.poll(&[], 1_251_000, FLYING), Some(RC_LOST));
+        assert_eq!(rx.poll(&[], 1_251_000, FLYING), Some(RC_LOST_LAND));
+        assert_eq!(rx.poll(&[], 1_251_500, FLYING), None);
+        assert_eq!(rx.poll(&[], 5_000_000, FLYING), None);
+        // Touched down (disarmed): nothing more.
+        assert_eq!(rx.poll(&[], 9_000_000, IDLE), None);
+    }
+
+    #[test]
+    fn the_land_switch_lands_once_per_flip_with_the_arm_switch_on() {
+        let mut rx = receiver();
+        let land = |on: bool| frame_with(true, true, false, on);
+        rx.poll(&frame(false, false, false), 0, IDLE);
+        assert_eq!(
+            rx.poll(&frame(true, true, false), 500, IDLE),
+            Some(ControlCommand::ArmThrowToFly)
+        );
+        assert_eq!(rx.poll(&land(true), 1_000, FLYING), Some(SWITCH_LAND));
+        assert_eq!(rx.poll(&land(true), 1_500, FLYING), None, "asked once");
+        assert_eq!(rx.poll(&land(false), 2_000, FLYING), None, "off: the landing goes on");
+        assert_eq!(rx.poll(&land(true), 2_500, FLYING), Some(SWITCH_LAND), "flipped again");
+        // The arm switch off still disarms at once, landing or not.
+        assert_eq!(
+            rx.poll(&frame_with(false, false, false, true), 3_000, FLYING),
+            Some(ControlCommand::Disarm)
+        );
+        // Disarmed, the land switch asks nothing.
+        let mut idle = receiver();
+        idle.poll(&frame(false, false, false), 0, IDLE);
+        assert_eq!(idle.poll(&frame_with(true, false, false, true), 500, IDLE), None);
     }
 
     #[test]

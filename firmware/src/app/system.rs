@@ -23,7 +23,7 @@
 use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
-use super::battery::BatteryMonitor;
+use super::battery::{BatteryMonitor, LowBattery};
 use super::hal::{BatterySensor, Imu, ImuSample, Motors, Port, PortClosed, Uart};
 use super::log::{LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry};
 use super::radio::{CraftState, Receiver};
@@ -125,6 +125,10 @@ pub struct ControlTask<'q> {
     log: Option<LogProducer<'q>>,
     /// The flight battery, from the board's readings.
     battery: BatteryMonitor,
+    /// Whether it has stayed below `land_cell_v`, and whether this flight was told to land
+    /// for it.
+    low_battery: LowBattery,
+    landing_for_battery: bool,
 }
 
 /// The IMU as the tick hands it to the step, remembering what it delivered (for the log).
@@ -178,6 +182,8 @@ impl<'q> ControlTask<'q> {
             dropped_commands: 0,
             log: None,
             battery: BatteryMonitor::new(),
+            low_battery: LowBattery::default(),
+            landing_for_battery: false,
         }
     }
 
@@ -257,7 +263,21 @@ impl<'q> ControlTask<'q> {
         if let Some(reading) = battery.read() {
             self.battery.update(now_us, reading);
         }
-        let snapshot = ControlSnapshot { battery: self.battery.status(), ..control.snapshot() };
+        let battery_status = self.battery.status();
+        // An empty pack lands a flight (once per flight; logged, so a replay lands too).
+        let land_cell_v = control.settings().land_cell_v;
+        let low = self.low_battery.update(battery_status.as_ref(), land_cell_v, now_us);
+        if !self.craft.in_flight {
+            self.landing_for_battery = false;
+        } else if low && !self.landing_for_battery {
+            self.landing_for_battery = true;
+            let command = ControlCommand::Land(protocol::LandReason::BatteryLow);
+            if let Some(log) = log.as_mut() {
+                log.push(LogEntry::Command { step: step.wrapping_add(1), command });
+            }
+            control.command(command, now_us);
+        }
+        let snapshot = ControlSnapshot { battery: battery_status, ..control.snapshot() };
         if let Some(log) = log.as_mut() {
             log.push(LogEntry::Step(StepEntry {
                 step: snapshot.steps,

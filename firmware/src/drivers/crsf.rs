@@ -620,6 +620,8 @@ pub struct RcLinkConfig {
     pub throw_to_fly: SwitchConfig,
     /// Kill switch (wins over everything but the failsafe).
     pub kill: SwitchConfig,
+    /// Land switch (with the arm switch on: a flying craft lands).
+    pub land: SwitchConfig,
     /// Failsafe after this long without a good RC channels frame, µs.
     pub failsafe_timeout_us: u64,
 }
@@ -632,12 +634,13 @@ pub const DEFAULT_SWITCH_ON_ABOVE_US: f32 = 1_700.0;
 
 impl Default for RcLinkConfig {
     /// Arm on channel 5 (index 4), throw-to-fly on channel 6 (index 5), kill on channel 7
-    /// (index 6), all on above 1700 µs; failsafe after 250 ms.
+    /// (index 6), land on channel 8 (index 7), all on above 1700 µs; failsafe after 250 ms.
     fn default() -> Self {
         Self {
             arm: SwitchConfig { channel: 4, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
             throw_to_fly: SwitchConfig { channel: 5, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
             kill: SwitchConfig { channel: 6, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
+            land: SwitchConfig { channel: 7, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
             failsafe_timeout_us: DEFAULT_FAILSAFE_TIMEOUT_US,
         }
     }
@@ -666,6 +669,9 @@ pub enum PilotRequest {
     ThrowToFly,
     /// Kill switch on: stop the motors now, whatever the other switches say.
     Kill,
+    /// Arm switch and land switch on: land (a flying craft descends and disarms at the
+    /// touchdown).
+    Land,
     /// No good RC frame for the failsafe timeout (or never): the switches are unknown.
     Failsafe,
 }
@@ -684,7 +690,7 @@ pub struct RcLink {
 impl RcLink {
     /// A link with no frame yet (in failsafe until the first RC frame).
     pub fn new(config: RcLinkConfig) -> Result<Self, RcConfigError> {
-        for switch in [config.arm, config.throw_to_fly, config.kill] {
+        for switch in [config.arm, config.throw_to_fly, config.kill, config.land] {
             if switch.channel >= CHANNEL_COUNT {
                 return Err(RcConfigError::ChannelOutOfRange { channel: switch.channel });
             }
@@ -722,7 +728,8 @@ impl RcLink {
             && now_us.saturating_sub(self.last_frame_us) < self.config.failsafe_timeout_us
     }
 
-    /// What the pilot asks for at `now_us`. Priority: failsafe, kill, arm (with throw-to-fly).
+    /// What the pilot asks for at `now_us`. Priority: failsafe, kill, arm off, land,
+    /// throw-to-fly.
     pub fn request(&self, now_us: u64) -> PilotRequest {
         let Some(channels) = self.channels(now_us) else {
             return PilotRequest::Failsafe;
@@ -734,6 +741,8 @@ impl RcLink {
             PilotRequest::Kill
         } else if !on(self.config.arm) {
             PilotRequest::Disarmed
+        } else if on(self.config.land) {
+            PilotRequest::Land
         } else if on(self.config.throw_to_fly) {
             PilotRequest::ThrowToFly
         } else {
