@@ -95,6 +95,7 @@ fn any_request() -> impl Strategy<Value = Request> {
             any::<u32>().prop_map(|number| Request::DeleteLog(protocol::DeleteLog { number })),
             Just(Request::GetBattery(())),
             Just(Request::GetIdentification(())),
+            Just(Request::Land(())),
         ],
     ]
 }
