@@ -418,7 +418,8 @@ fn over_the_radio_forged_replayed_and_unsigned_requests_are_refused_and_counted(
     let key: [u8; 32] =
         std::array::from_fn(|i| u8::from_str_radix(&hex.trim()[2 * i..2 * i + 2], 16).unwrap());
 
-    let mut port = configurator_cli::connect::open_serial(&radio).unwrap();
+    let baud = configurator_cli::connect::Baud::new(57_600).unwrap();
+    let mut port = configurator_cli::connect::open_serial(&radio, baud).unwrap();
     let hello = Request::Hello(Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: 0 });
     assert!(matches!(raw_request(&mut port, &frame_of(&hello, 1, None), 1), Ok(Reply::Hello(_))));
     let security = |port: &mut _, seq| match raw_request(
