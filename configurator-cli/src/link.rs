@@ -258,7 +258,10 @@ impl Client {
             // rate garbles every byte both ways; the board counts our garbled hellos as link
             // errors and reports them, garbled in turn).
             Err(LinkError::Timeout { .. }) if client.bytes_rx > 0 && client.frames_rx == 0 => {
-                return Err(LinkError::NoFrame { port: client.port.clone(), bytes: client.bytes_rx });
+                return Err(LinkError::NoFrame {
+                    port: client.port.clone(),
+                    bytes: client.bytes_rx,
+                });
             }
             answer => answer?,
         };
