@@ -70,11 +70,8 @@ impl BaudRelay {
                 }
                 moved += n;
                 // Far end → configurator.
-                let n = match far.read(&mut buffer) {
-                    Ok(n) => n,
-                    Err(e) if e.kind() == ErrorKind::WouldBlock => 0,
-                    Err(_) => 0,
-                };
+                // WouldBlock: nothing waits; another error (the far end gone): nothing comes.
+                let n = far.read(&mut buffer).unwrap_or(0);
                 if n > 0 {
                     let bytes = pass(&buffer[..n], at_rate, &mut down);
                     let _ = Port::write(&mut pty, &bytes);
@@ -162,7 +159,7 @@ impl Garbler {
             let hash = splitmix64(position ^ (u64::from(byte) << 40));
             if position % BREAK_EVERY == BREAK_EVERY - 1 {
                 out.push(0);
-            } else if hash % 4 != 0 {
+            } else if !hash.is_multiple_of(4) {
                 out.push(byte.rotate_left(3) ^ (hash >> 32) as u8);
             }
         }
