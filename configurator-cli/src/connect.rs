@@ -1,6 +1,12 @@
 //! Finding and opening the board: a serial port chosen by the user or found by USB VID/PID, a
 //! TCP address, or a SITL started in-process and opened through its pseudo-terminal exactly as a
 //! USB port would be.
+//!
+//! A serial port is opened at a rate ([`Baud`]): USB CDC (the board itself) and pseudo-terminals
+//! ignore it, but a telemetry radio's USB-UART adapter does not (a SiK/RFD900 modem runs at
+//! 57,600 baud): at the wrong rate every byte arrives garbled, so a handshake that hears bytes
+//! but no frame names the rate as the likely cause ([`ConnectError::WrongBaud`]). [`port_kind`]
+//! tells such adapters from the board by their USB vendor ID for `ports`.
 
 use crate::link::{Client, LinkError, Transport};
 use serialport::SerialPortType;
@@ -9,8 +15,66 @@ use std::time::Duration;
 
 /// Read timeout of the transports: how long one read waits for bytes.
 const READ_TIMEOUT: Duration = Duration::from_millis(20);
-/// Baud rate passed to the serial port; USB CDC ignores it, a UART bridge would not.
-const BAUD_RATE: u32 = 921_600;
+/// The environment variable read for the serial rate when `--baud` is not given.
+pub const BAUD_ENV: &str = "FC_BAUD";
+
+/// A serial port's rate, baud (bits a second on the wire; 8N1: ten bits a byte).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Baud(u32);
+
+/// Why a baud rate was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BaudError {
+    #[error(
+        "`{0}` is not a baud rate: give a whole number of bits a second, e.g. 57600 (SiK/RFD900 \
+         radios) or 115200"
+    )]
+    NotANumber(String),
+    #[error(
+        "{0} baud is outside {min}–{max} baud (SiK/RFD900 radios run at 57600 baud, ESP32 \
+         bridges at 115200 or 460800 baud)",
+        min = Baud::MIN.0,
+        max = Baud::MAX.0
+    )]
+    OutOfRange(u64),
+}
+
+impl Baud {
+    /// The rate without `--baud`: what USB CDC (the board, the SITL's pseudo-terminals) is
+    /// opened at; it ignores the rate, a USB-UART adapter would not.
+    pub const DEFAULT: Baud = Baud(921_600);
+    /// The slowest rate accepted, baud (the oldest modems').
+    pub const MIN: Baud = Baud(300);
+    /// The fastest rate accepted, baud (an FTDI FT232H's 12 Mbaud, the fastest common USB-UART).
+    pub const MAX: Baud = Baud(12_000_000);
+
+    /// A rate within [`Baud::MIN`]–[`Baud::MAX`], or why not.
+    pub fn new(baud: u64) -> Result<Self, BaudError> {
+        match u32::try_from(baud) {
+            Ok(baud) if (Self::MIN.0..=Self::MAX.0).contains(&baud) => Ok(Self(baud)),
+            _ => Err(BaudError::OutOfRange(baud)),
+        }
+    }
+
+    /// Parses `--baud` (a whole number, e.g. `57600`), for clap's `value_parser`, so a bad rate
+    /// is a usage error (exit 2) before any port is touched.
+    pub fn parse(text: &str) -> Result<Self, BaudError> {
+        let text = text.trim();
+        let baud = text.parse::<u64>().map_err(|_| BaudError::NotANumber(text.to_string()))?;
+        Self::new(baud)
+    }
+
+    /// The rate in baud.
+    pub fn get(self) -> u32 {
+        self.0
+    }
+}
+
+impl std::fmt::Display for Baud {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} baud", self.0)
+    }
+}
 
 /// Longest host name DNS carries (RFC 1035 §2.3.4: 255 octets on the wire, 253 as text).
 const MAX_HOST_NAME_LEN: usize = 253;
@@ -57,12 +121,13 @@ pub fn parse_tcp_address(text: &str) -> Result<String, String> {
 /// Where to find the board.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Target {
-    /// A serial device path (`/dev/ttyACM0`, a pseudo-terminal).
-    Serial(String),
+    /// A serial device path (`/dev/ttyACM0`, a radio's `/dev/ttyUSB0`, a pseudo-terminal),
+    /// opened at `baud`.
+    Serial { path: String, baud: Baud },
     /// A TCP address (`127.0.0.1:5760`, `localhost:5760`), as [`parse_tcp_address`] accepts.
     Tcp(String),
-    /// The first serial port with our USB VID/PID.
-    Discover,
+    /// The first serial port with our USB VID/PID, opened at `baud`.
+    Discover { baud: Baud },
 }
 
 /// Why no connection was made.
@@ -79,6 +144,11 @@ connect the board, choose a port with --port PATH, or try the simulator with --s
     Enumerate(serialport::Error),
     #[error("cannot open {port}: {reason}")]
     Open { port: String, reason: String },
+    #[error(
+        "received {bytes} bytes from {port} but no valid frame: the baud rate is probably wrong \
+         (opened at {baud}; SiK/RFD900 radios default to 57600 baud: try --baud 57600)"
+    )]
+    WrongBaud { port: String, bytes: u64, baud: Baud },
     #[error("cannot start the simulator: {0}")]
     Sitl(#[from] sim::sitl::SitlError),
     #[error(transparent)]
@@ -86,16 +156,22 @@ connect the board, choose a port with --port PATH, or try the simulator with --s
 }
 
 /// Open the target's transport and handshake.
+/// Bytes that arrive but never make a frame say which rate the serial port was opened at.
 pub fn connect(target: &Target) -> Result<Client, ConnectError> {
-    let (transport, name): (Box<dyn Transport>, String) = match target {
-        Target::Serial(path) => (open_serial(path)?, path.clone()),
-        Target::Tcp(address) => (open_tcp(address)?, address.clone()),
-        Target::Discover => {
+    let (transport, name, baud): (Box<dyn Transport>, String, Option<Baud>) = match target {
+        Target::Serial { path, baud } => (open_serial(path, *baud)?, path.clone(), Some(*baud)),
+        Target::Tcp(address) => (open_tcp(address)?, address.clone(), None),
+        Target::Discover { baud } => {
             let path = discover()?;
-            (open_serial(&path)?, path)
+            (open_serial(&path, *baud)?, path, Some(*baud))
         }
     };
-    Ok(Client::connect(transport, &name)?)
+    match (Client::connect(transport, &name), baud) {
+        (Err(LinkError::NoFrame { port, bytes }), Some(baud)) => {
+            Err(ConnectError::WrongBaud { port, bytes, baud })
+        }
+        (result, _) => Ok(result?),
+    }
 }
 
 /// How long [`reconnect`] waits for a restarting board to come back.
@@ -143,14 +219,76 @@ pub fn discover() -> Result<String, ConnectError> {
     }
 }
 
-/// Open the serial device (or pseudo-terminal) at `path` as a transport with the link's read
-/// timeout, without a handshake (tests that speak raw frames use it).
-pub fn open_serial(path: &str) -> Result<Box<dyn Transport>, ConnectError> {
-    let port = serialport::new(path, BAUD_RATE)
+/// Open the serial device (or pseudo-terminal) at `path` at `baud` as a transport with the
+/// link's read timeout, without a handshake (tests that speak raw frames use it).
+pub fn open_serial(path: &str, baud: Baud) -> Result<Box<dyn Transport>, ConnectError> {
+    let port = serialport::new(path, baud.get())
         .timeout(READ_TIMEOUT)
         .open()
         .map_err(|e| ConnectError::Open { port: path.to_string(), reason: e.to_string() })?;
     Ok(Box::new(port))
+}
+
+/// USB vendor IDs of the USB-UART bridge chips that telemetry radios (SiK, RFD900, ESP32
+/// bridges) and USB-serial adapters carry, with the chip's name.
+pub const USB_UART_VENDORS: [(u16, &str); 3] =
+    [(0x0403, "FTDI"), (0x10c4, "Silicon Labs CP210x"), (0x1a86, "WCH CH340")];
+
+/// What a serial port looks like, by its USB vendor and product IDs. (`serialport` reads them
+/// from sysfs, `/sys/class/tty/<name>/device/../idVendor`, without libudev.)
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PortKind {
+    /// Our board over USB ([`protocol::USB_VID`]:[`protocol::USB_PID`]): USB CDC, any rate.
+    Board,
+    /// A USB-UART bridge ([`USB_UART_VENDORS`]): a telemetry radio or a USB-serial adapter,
+    /// which must be opened at its UART's rate.
+    UsbUart { chip: &'static str, vid: u16, pid: u16 },
+    /// Another USB device.
+    OtherUsb { vid: u16, pid: u16 },
+    /// Not on USB (a built-in UART, PCI, Bluetooth, or unknown).
+    NotUsb,
+}
+
+impl PortKind {
+    /// A short name for JSON: `board`, `usb-uart`, `usb` or `other`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Board => "board",
+            Self::UsbUart { .. } => "usb-uart",
+            Self::OtherUsb { .. } => "usb",
+            Self::NotUsb => "other",
+        }
+    }
+
+    /// What the port is and how to open it, in words.
+    pub fn description(&self) -> String {
+        match self {
+            Self::Board => format!(
+                "flight controller over USB ({:04x}:{:04x}; no --baud needed)",
+                protocol::USB_VID,
+                protocol::USB_PID
+            ),
+            Self::UsbUart { chip, vid, pid } => format!(
+                "{chip} USB-UART ({vid:04x}:{pid:04x}): a radio or USB-serial adapter: give \
+                 --baud, 57600 for SiK/RFD900"
+            ),
+            Self::OtherUsb { vid, pid } => format!("USB {vid:04x}:{pid:04x}"),
+            Self::NotUsb => "not USB (a built-in UART, PCI or Bluetooth)".into(),
+        }
+    }
+}
+
+/// What the port of `port_type` looks like ([`PortKind`]).
+pub fn port_kind(port_type: &SerialPortType) -> PortKind {
+    let SerialPortType::UsbPort(usb) = port_type else { return PortKind::NotUsb };
+    let (vid, pid) = (usb.vid, usb.pid);
+    if (vid, pid) == (protocol::USB_VID, protocol::USB_PID) {
+        return PortKind::Board;
+    }
+    match USB_UART_VENDORS.iter().find(|(vendor, _)| *vendor == vid) {
+        Some(&(_, chip)) => PortKind::UsbUart { chip, vid, pid },
+        None => PortKind::OtherUsb { vid, pid },
+    }
 }
 
 fn open_tcp(address: &str) -> Result<Box<dyn Transport>, ConnectError> {
@@ -196,5 +334,55 @@ mod tests {
         }
         let long_label = format!("{}:5760", "a".repeat(MAX_HOST_LABEL_LEN + 1));
         assert!(parse_tcp_address(&long_label).is_err());
+    }
+
+    #[test]
+    fn baud_rates_in_range_are_taken_and_others_say_why() {
+        for (text, baud) in [("57600", 57_600), (" 115200 ", 115_200), ("300", 300)] {
+            assert_eq!(Baud::parse(text).map(Baud::get), Ok(baud), "{text}");
+        }
+        assert_eq!(Baud::parse("12000000"), Ok(Baud::MAX));
+        for (bad, says) in [
+            ("0", "0 baud is outside 300–12000000 baud"),
+            ("299", "299 baud is outside"),
+            ("12000001", "12000001 baud is outside"),
+            ("99999999999999999999", "is not a baud rate"),
+            ("57,600", "`57,600` is not a baud rate"),
+            ("-9600", "`-9600` is not a baud rate"),
+            ("", "`` is not a baud rate"),
+        ] {
+            let error = Baud::parse(bad).expect_err(bad).to_string();
+            assert!(error.contains(says), "{bad}: {error}");
+            assert!(error.contains("57600"), "{bad}: the SiK rate is named: {error}");
+        }
+    }
+
+    fn usb(vid: u16, pid: u16) -> SerialPortType {
+        SerialPortType::UsbPort(serialport::UsbPortInfo {
+            vid,
+            pid,
+            serial_number: None,
+            manufacturer: None,
+            product: None,
+        })
+    }
+
+    #[test]
+    fn usb_uart_bridges_are_told_from_the_board_by_their_ids() {
+        assert_eq!(port_kind(&usb(0x1209, 0x0001)), PortKind::Board);
+        assert_eq!(
+            port_kind(&usb(0x0403, 0x6015)),
+            PortKind::UsbUart { chip: "FTDI", vid: 0x0403, pid: 0x6015 }
+        );
+        assert!(matches!(port_kind(&usb(0x10c4, 0xea60)), PortKind::UsbUart { .. }));
+        assert!(matches!(port_kind(&usb(0x1a86, 0x7523)), PortKind::UsbUart { .. }));
+        // Another pid.codes product is not our board.
+        assert_eq!(
+            port_kind(&usb(0x1209, 0x0002)),
+            PortKind::OtherUsb { vid: 0x1209, pid: 0x0002 }
+        );
+        assert_eq!(port_kind(&SerialPortType::PciPort), PortKind::NotUsb);
+        let radio = port_kind(&usb(0x0403, 0x6001)).description();
+        assert!(radio.contains("give --baud, 57600 for SiK/RFD900"), "{radio}");
     }
 }

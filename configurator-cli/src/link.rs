@@ -42,6 +42,10 @@ pub enum LinkError {
     Closed { port: String },
     #[error("no answer from {port} within {timeout_ms} ms to {what} (is it a flight controller running our firmware?)")]
     Timeout { port: String, timeout_ms: u128, what: &'static str },
+    /// The handshake heard bytes but not one frame: garbage, as a serial line at the wrong rate
+    /// gives (`crate::connect` names the rate for serial ports).
+    #[error("received {bytes} bytes from {port} but no valid frame to the handshake (is it a flight controller running our firmware?)")]
+    NoFrame { port: String, bytes: u64 },
     #[error("incompatible protocol: the board speaks {device}, this configurator speaks {host}; update the {older}")]
     Incompatible { device: VersionText, host: VersionText, older: &'static str },
     #[error("the board refused the request: {0}")]
@@ -209,6 +213,8 @@ pub struct Client {
     pub bad_frames: u32,
     /// Bytes received from the board since connecting.
     pub bytes_rx: u64,
+    /// Frames from the board that decoded (framing and CRC good) since connecting.
+    pub frames_rx: u64,
     /// Requests asked again after a lost frame or answer, since connecting.
     retries: u32,
     /// How long a request waits before it is asked again: [`RETRY_AFTER`], or four
@@ -235,6 +241,7 @@ impl Client {
             events: VecDeque::new(),
             bad_frames: 0,
             bytes_rx: 0,
+            frames_rx: 0,
             retries: 0,
             retry_after: RETRY_AFTER,
             signer: None,
@@ -246,7 +253,18 @@ impl Client {
         // Asked again like any request when its frame or answer is lost on a radio (a hello
         // changes nothing). The round trip sets the retry interval only when the first frame
         // was answered: after a loss, the time measured is the retry's, not the link's.
-        let answer = client.ask(&hello, "the handshake")?;
+        let answer = match client.ask(&hello, "the handshake") {
+            // Bytes came, yet not one frame: garbage, not silence (a serial line at the wrong
+            // rate garbles every byte both ways; the board counts our garbled hellos as link
+            // errors and reports them, garbled in turn).
+            Err(LinkError::Timeout { .. }) if client.bytes_rx > 0 && client.frames_rx == 0 => {
+                return Err(LinkError::NoFrame {
+                    port: client.port.clone(),
+                    bytes: client.bytes_rx,
+                });
+            }
+            answer => answer?,
+        };
         if client.retries == 0 {
             client.retry_after = RETRY_AFTER.max(sent.elapsed() * 4).min(client.timeout);
         }
@@ -551,6 +569,7 @@ impl Client {
                 self.bad_frames += 1;
                 continue;
             };
+            self.frames_rx += 1;
             match DeviceMessage::decode(&frame) {
                 Ok(DeviceMessage::Telemetry(data)) => {
                     self.telemetry.push_back(TelemetrySample { seq: frame.seq, data })
@@ -688,6 +707,50 @@ mod tests {
         let board = LossyBoard { lost: 3, decoder: Decoder::new(), answers: Vec::new() };
         let error = Client::connect(Box::new(board), "radio").err().expect("no answer");
         assert!(matches!(error, LinkError::Timeout { .. }), "{error}");
+    }
+
+    /// A board behind a serial line at the wrong rate: each byte written reaches it garbled, so
+    /// it never answers, and it sends garbage back (here the bytes written, scrambled). (Silence
+    /// stays a timeout: `a_handshake_lost_on_the_radio_is_asked_again`.)
+    struct GarbledLine {
+        garbage: Vec<u8>,
+        written: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    }
+
+    impl Read for GarbledLine {
+        fn read(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+            if self.garbage.is_empty() {
+                std::thread::sleep(Duration::from_millis(1));
+                return Err(ErrorKind::TimedOut.into());
+            }
+            let n = buffer.len().min(self.garbage.len());
+            buffer[..n].copy_from_slice(&self.garbage[..n]);
+            self.garbage.drain(..n);
+            Ok(n)
+        }
+    }
+
+    impl Write for GarbledLine {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.garbage.extend(bytes.iter().map(|b| b.rotate_left(3) ^ 0x5a));
+            self.written.fetch_add(bytes.len() as u64, std::sync::atomic::Ordering::Relaxed);
+            Ok(bytes.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_handshake_hearing_only_garbage_says_so() {
+        let written = std::sync::Arc::default();
+        let line = GarbledLine { garbage: Vec::new(), written: std::sync::Arc::clone(&written) };
+        let error = Client::connect(Box::new(line), "radio").err().expect("no frame");
+        let LinkError::NoFrame { bytes, .. } = &error else { panic!("{error}") };
+        // The three hellos came back garbled: every byte counted, none a frame.
+        assert_eq!(*bytes, written.load(std::sync::atomic::Ordering::Relaxed), "{error}");
+        assert!(*bytes > 3 * 10, "{error}");
+        assert!(error.to_string().contains("but no valid frame"), "{error}");
     }
 
     #[test]

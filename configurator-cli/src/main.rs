@@ -5,7 +5,7 @@
 
 use clap::{Parser, Subcommand};
 use configurator_cli::config;
-use configurator_cli::connect::{connect, ConnectError, Target};
+use configurator_cli::connect::{connect, Baud, ConnectError, Target};
 use configurator_cli::link::{Client, DeviceErrorText, LinkError};
 use configurator_cli::log_files;
 use configurator_cli::offline::{self, InputError};
@@ -22,6 +22,12 @@ struct Cli {
     /// Serial port of the board (default: the one USB board with our VID/PID).
     #[arg(long, global = true, conflicts_with_all = ["tcp", "sitl"])]
     port: Option<String>,
+    /// The serial port's rate, baud: a telemetry radio's USB-UART adapter needs its UART's
+    /// (57600 for SiK/RFD900, 115200 or 460800 for ESP32 bridges); the board's own USB port
+    /// ignores it. Without --baud: the environment variable FC_BAUD, else 921600.
+    #[arg(long, global = true, conflicts_with_all = ["tcp", "sitl"], value_name = "BAUD",
+          value_parser = Baud::parse)]
+    baud: Option<Baud>,
     /// Connect over TCP instead: HOST:PORT (e.g. a SITL's 127.0.0.1:5760).
     #[arg(long, global = true, conflicts_with = "sitl", value_name = "HOST:PORT",
           value_parser = configurator_cli::connect::parse_tcp_address)]
@@ -98,7 +104,9 @@ enum Command {
         /// The CSV file to write (replaced if it exists).
         output: std::path::PathBuf,
     },
-    /// List serial ports and mark flight controllers.
+    /// List the serial ports and what each looks like by its USB IDs: our board, a USB-UART
+    /// bridge (FTDI, CP210x, CH340: a telemetry radio or a USB-serial adapter, which needs
+    /// --baud), another USB device.
     Ports,
     /// Print one parameter: value, unit, range, default and meaning.
     Get {
@@ -707,13 +715,15 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
         let path = sitl.pty_path.clone().expect("the SITL serves a pseudo-terminal when asked");
         eprintln!("started the simulator (airframe `{}`) on {}", cli.airframe, path.display());
         _sitl = sitl;
-        Target::Serial(path.display().to_string())
+        Target::Serial { path: path.display().to_string(), baud: Baud::DEFAULT }
     } else if let Some(address) = &cli.tcp {
         Target::Tcp(address.clone())
-    } else if let Some(port) = &cli.port {
-        Target::Serial(port.clone())
     } else {
-        Target::Discover
+        let baud = serial_baud(cli)?;
+        match &cli.port {
+            Some(port) => Target::Serial { path: port.clone(), baud },
+            None => Target::Discover { baud },
+        }
     };
     let mut client = connect(&target)?;
     if !client.schema_matches() {
@@ -732,6 +742,25 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
         client.listen(Duration::from_millis(1100))?;
     }
     run_on_board(cli, &mut client, &target, command)
+}
+
+/// The rate to open a serial port at: `--baud`, else the environment's `FC_BAUD` (checked like
+/// `--baud`: a bad one is bad input, before any port is touched), else [`Baud::DEFAULT`]. Read
+/// only for serial ports, so an `FC_BAUD` set in the shell does not trouble `--tcp` or `--sitl`.
+fn serial_baud(cli: &Cli) -> Result<Baud, Failure> {
+    use configurator_cli::connect::BAUD_ENV;
+    if let Some(baud) = cli.baud {
+        return Ok(baud);
+    }
+    match std::env::var(BAUD_ENV) {
+        Ok(text) => Baud::parse(&text)
+            .map_err(|error| Failure::Input(InputError(format!("{BAUD_ENV}={text}: {error}")))),
+        Err(std::env::VarError::NotPresent) => Ok(Baud::DEFAULT),
+        Err(std::env::VarError::NotUnicode(text)) => Err(Failure::Input(InputError(format!(
+            "{BAUD_ENV}={}: not a baud rate",
+            text.to_string_lossy()
+        )))),
+    }
 }
 
 /// Run one board command on a connected client (the one-shot commands and the shell).
@@ -1972,32 +2001,37 @@ fn stream(
     Ok(out)
 }
 
+/// `ports`: every serial port, and what it looks like by its USB IDs: our board, a USB-UART
+/// bridge (a telemetry radio or adapter: give `--baud`), another USB device, or not USB.
 fn ports(json_output: bool) -> Result<String, Failure> {
+    use configurator_cli::connect::{port_kind, PortKind};
     let ports = serialport::available_ports().map_err(ConnectError::Enumerate)?;
-    let rows: Vec<(String, String)> = ports
-        .iter()
-        .map(|port| {
-            let kind = match &port.port_type {
-                serialport::SerialPortType::UsbPort(usb)
-                    if usb.vid == protocol::USB_VID && usb.pid == protocol::USB_PID =>
-                {
-                    "flight controller".to_string()
-                }
-                serialport::SerialPortType::UsbPort(usb) => {
-                    format!("USB {:04x}:{:04x}", usb.vid, usb.pid)
-                }
-                other => format!("{other:?}"),
-            };
-            (port.port_name.clone(), kind)
-        })
-        .collect();
+    let rows: Vec<(String, PortKind)> =
+        ports.iter().map(|port| (port.port_name.clone(), port_kind(&port.port_type))).collect();
     if json_output {
-        let list: Vec<_> =
-            rows.iter().map(|(name, kind)| json!({"port": name, "kind": kind})).collect();
+        let list: Vec<_> = rows
+            .iter()
+            .map(|(name, kind)| {
+                let (vid, pid, chip) = match kind {
+                    PortKind::Board => (Some(protocol::USB_VID), Some(protocol::USB_PID), None),
+                    PortKind::UsbUart { chip, vid, pid } => (Some(*vid), Some(*pid), Some(*chip)),
+                    PortKind::OtherUsb { vid, pid } => (Some(*vid), Some(*pid), None),
+                    PortKind::NotUsb => (None, None, None),
+                };
+                json!({
+                    "port": name,
+                    "kind": kind.name(),
+                    "vid": vid.map(|v| format!("{v:04x}")),
+                    "pid": pid.map(|p| format!("{p:04x}")),
+                    "chip": chip,
+                    "description": kind.description(),
+                })
+            })
+            .collect();
         return Ok(format!("{:#}\n", json!(list)));
     }
     if rows.is_empty() {
         return Ok("no serial ports found\n".into());
     }
-    Ok(rows.iter().map(|(name, kind)| format!("{name}  {kind}\n")).collect())
+    Ok(rows.iter().map(|(name, kind)| format!("{name}  {}\n", kind.description())).collect())
 }

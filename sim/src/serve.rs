@@ -211,6 +211,24 @@ impl Pty {
     pub fn slave_path(&self) -> &Path {
         &self.slave_path
     }
+
+    /// The output rate the client last set on the slave, baud: the rate a USB-UART adapter
+    /// would run its UART at (a pseudo-terminal itself ignores it). On Linux a master's mode
+    /// requests read its slave's termios (the kernel's `tty_mode_ioctl`); `TCGETS2` gives the
+    /// rate in baud whether it was set as a `Bnnn` constant or, as the `serialport` crate does,
+    /// as `BOTHER` with the number.
+    #[cfg(target_os = "linux")]
+    pub fn output_baud(&self) -> std::io::Result<u32> {
+        use std::os::fd::AsRawFd;
+        // SAFETY: termios2 is plain data, filled by the ioctl before use; the descriptor is ours.
+        unsafe {
+            let mut termios: libc::termios2 = std::mem::zeroed();
+            if libc::ioctl(self.master.as_raw_fd(), libc::TCGETS2, &mut termios) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(termios.c_ospeed)
+        }
+    }
 }
 
 fn set_raw(file: &std::fs::File) -> std::io::Result<()> {
@@ -500,6 +518,46 @@ impl TestHost {
 mod tests {
     use super::*;
     use crate::scenario::with_firmware_app;
+
+    /// Set the output and input rate of the terminal `file` to `baud` as the `serialport` crate
+    /// does on Linux (`TCSETS2` with `BOTHER`).
+    #[cfg(target_os = "linux")]
+    fn set_baud_bother(file: &std::fs::File, baud: u32) {
+        use std::os::fd::AsRawFd;
+        // SAFETY: termios2 is plain data, read by the first ioctl before it is changed.
+        unsafe {
+            let mut termios: libc::termios2 = std::mem::zeroed();
+            assert_eq!(libc::ioctl(file.as_raw_fd(), libc::TCGETS2, &mut termios), 0);
+            termios.c_cflag &= !(libc::CBAUD | libc::CIBAUD);
+            termios.c_cflag |= libc::BOTHER;
+            termios.c_ispeed = baud;
+            termios.c_ospeed = baud;
+            assert_eq!(libc::ioctl(file.as_raw_fd(), libc::TCSETS2, &termios), 0);
+        }
+    }
+
+    /// The rate a client sets on the slave is read on the master, whichever way it was set.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn the_master_reads_the_rate_the_client_set_on_the_slave() {
+        use std::os::fd::AsRawFd;
+        let pty = Pty::open().unwrap();
+        let client =
+            std::fs::OpenOptions::new().read(true).write(true).open(pty.slave_path()).unwrap();
+        for baud in [57_600, 921_600, 250_000] {
+            set_baud_bother(&client, baud);
+            assert_eq!(pty.output_baud().unwrap(), baud);
+        }
+        // As a C program would: tcsetattr with a B-constant.
+        // SAFETY: termios is plain data, filled by tcgetattr before it is changed.
+        unsafe {
+            let mut termios: libc::termios = std::mem::zeroed();
+            assert_eq!(libc::tcgetattr(client.as_raw_fd(), &mut termios), 0);
+            assert_eq!(libc::cfsetspeed(&mut termios, libc::B115200), 0);
+            assert_eq!(libc::tcsetattr(client.as_raw_fd(), libc::TCSANOW, &termios), 0);
+        }
+        assert_eq!(pty.output_baud().unwrap(), 115_200);
+    }
     use firmware::app::system::ControlQueue;
     use firmware::app::ControlCommand;
     use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request};

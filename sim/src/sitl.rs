@@ -99,6 +99,9 @@ pub struct SitlConfig {
     /// A second link, on a pseudo-terminal behind a simulated telemetry radio (a byte rate, a
     /// latency, lost frames), as a board's UART with a SiK-class modem; `None`: none.
     pub telemetry_radio: Option<crate::serve::RadioConfig>,
+    /// Also make this symlink point at the telemetry radio's pseudo-terminal (e.g.
+    /// `/tmp/fc-radio`), so a script knows where to connect; needs `telemetry_radio`.
+    pub radio_link: Option<PathBuf>,
     /// Faults the simulated board has from its start (an ESC that never answers, a silent or
     /// noisy IMU, a bad flash, swapped motor outputs: [`crate::faults::SitlFaults`]); default
     /// none.
@@ -161,6 +164,7 @@ impl Default for SitlConfig {
             rc_script: None,
             rc_rate_hz: crate::radio::DEFAULT_RC_RATE_HZ,
             telemetry_radio: None,
+            radio_link: None,
             faults: crate::faults::SitlFaults::default(),
             log_dir: None,
         }
@@ -176,6 +180,8 @@ pub enum SitlError {
     Pty(std::io::Error),
     #[error("could not link {path} to the pseudo-terminal: {source}")]
     PtyLink { path: PathBuf, source: std::io::Error },
+    #[error("a link to the telemetry radio's pseudo-terminal ({0}) needs a telemetry radio (--radio-baud)")]
+    RadioLinkWithoutRadio(PathBuf),
     #[error("could not listen on 127.0.0.1:{port}: {source}")]
     Tcp { port: u16, source: std::io::Error },
     #[error("speed must be between 0.01 and 1000 (got {0})")]
@@ -222,7 +228,23 @@ pub struct Sitl {
     pub radio_path: Option<PathBuf>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
-    pty_link: Option<PathBuf>,
+    /// The symlinks made to the pseudo-terminals (`pty_link`, `radio_link`), removed on drop.
+    links: Vec<PathBuf>,
+}
+
+/// Make each `(link, target)` a symlink to its pseudo-terminal, replacing what was at `link`;
+/// when one fails, those already made are removed again.
+fn make_links(links: &[(PathBuf, PathBuf)]) -> Result<(), SitlError> {
+    for (made, (link, target)) in links.iter().enumerate() {
+        let _ = std::fs::remove_file(link);
+        if let Err(source) = std::os::unix::fs::symlink(target, link) {
+            for (earlier, _) in &links[..made] {
+                let _ = std::fs::remove_file(earlier);
+            }
+            return Err(SitlError::PtyLink { path: link.clone(), source });
+        }
+    }
+    Ok(())
 }
 
 impl Sitl {
@@ -277,10 +299,8 @@ impl Sitl {
         }
         let pty = if config.pty { Some(Pty::open().map_err(SitlError::Pty)?) } else { None };
         let pty_path = pty.as_ref().map(|p| p.slave_path().to_path_buf());
-        if let (Some(link), Some(target)) = (&config.pty_link, &pty_path) {
-            let _ = std::fs::remove_file(link);
-            std::os::unix::fs::symlink(target, link)
-                .map_err(|source| SitlError::PtyLink { path: link.clone(), source })?;
+        if let (Some(link), None) = (&config.radio_link, &config.telemetry_radio) {
+            return Err(SitlError::RadioLinkWithoutRadio(link.clone()));
         }
         let telemetry_radio = match config.telemetry_radio {
             Some(radio) => {
@@ -297,6 +317,13 @@ impl Sitl {
             None => None,
         };
         let tcp_addr = tcp.as_ref().and_then(|t| t.local_addr().ok());
+        let links: Vec<(PathBuf, PathBuf)> =
+            [(&config.pty_link, &pty_path), (&config.radio_link, &radio_path)]
+                .into_iter()
+                .filter_map(|(link, target)| Some((link.clone()?, target.clone()?)))
+                .collect();
+        make_links(&links)?;
+        let links: Vec<PathBuf> = links.into_iter().map(|(link, _)| link).collect();
         let stop = Arc::new(AtomicBool::new(false));
         let runner = Runner {
             airframe,
@@ -331,14 +358,7 @@ impl Sitl {
             .name("sitl".into())
             .spawn(move || runner.run())
             .map_err(SitlError::Pty)?;
-        Ok(Self {
-            pty_path,
-            tcp_addr,
-            radio_path,
-            stop,
-            thread: Some(thread),
-            pty_link: config.pty_link.clone(),
-        })
+        Ok(Self { pty_path, tcp_addr, radio_path, stop, thread: Some(thread), links })
     }
 
     /// Whether the simulation thread is still running.
@@ -353,7 +373,7 @@ impl Drop for Sitl {
         if let Some(thread) = self.thread.take() {
             let _ = thread.join();
         }
-        if let Some(link) = &self.pty_link {
+        for link in &self.links {
             let _ = std::fs::remove_file(link);
         }
     }
@@ -707,5 +727,34 @@ mod tests {
         }
         assert!(!SitlConfig::default().throw_to_fly);
         assert_eq!(SitlConfig::default().imu_offset_m, None);
+    }
+
+    #[test]
+    fn both_pseudo_terminals_are_linked_where_asked_until_the_sitl_stops() {
+        let dir = std::env::temp_dir().join(format!("sitl-links-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (usb, radio) = (dir.join("fc"), dir.join("fc-radio"));
+        // Without a radio there is nothing to link: refused, nothing made.
+        let no_radio = SitlConfig { radio_link: Some(radio.clone()), ..SitlConfig::default() };
+        assert!(matches!(Sitl::start(&no_radio), Err(SitlError::RadioLinkWithoutRadio(_))));
+        assert!(!radio.exists());
+        let config = SitlConfig {
+            pty_link: Some(usb.clone()),
+            radio_link: Some(radio.clone()),
+            telemetry_radio: Some(crate::serve::RadioConfig {
+                baud: 57_600,
+                latency_s: 0.02,
+                frame_loss: 0.0,
+            }),
+            ..SitlConfig::default()
+        };
+        let sitl = Sitl::start(&config).unwrap();
+        assert_eq!(std::fs::read_link(&usb).unwrap(), sitl.pty_path.clone().unwrap());
+        assert_eq!(std::fs::read_link(&radio).unwrap(), sitl.radio_path.clone().unwrap());
+        drop(sitl);
+        assert!(
+            std::fs::symlink_metadata(&usb).is_err() && std::fs::symlink_metadata(&radio).is_err()
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

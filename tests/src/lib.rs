@@ -1,31 +1,43 @@
-//! Shared helpers for the end-to-end tests: the configurator binary, built on demand.
+//! Shared helpers for the end-to-end tests: the configurator and SITL binaries, built on
+//! demand, and [`baud_relay`], a radio adapter that enforces its serial rate.
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
+#[cfg(target_os = "linux")]
+pub mod baud_relay;
+
 /// The `configurator-cli` executable of this workspace and profile, built once per test run.
 pub fn cli_binary() -> PathBuf {
     static BINARY: OnceLock<PathBuf> = OnceLock::new();
-    BINARY
-        .get_or_init(|| {
-            // target/<profile>/deps/<test> → target/<profile>
-            let exe = std::env::current_exe().expect("test executable path");
-            let profile_dir = exe.parent().and_then(|deps| deps.parent()).expect("target dir");
-            let release = profile_dir.file_name().is_some_and(|name| name == "release");
-            let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-            let mut build = Command::new(cargo);
-            build.args(["build", "--quiet", "-p", "configurator-cli", "--bin", "configurator-cli"]);
-            if release {
-                build.arg("--release");
-            }
-            let status = build.status().expect("run cargo build for the configurator");
-            assert!(status.success(), "building configurator-cli failed");
-            let binary = profile_dir.join("configurator-cli");
-            assert!(binary.is_file(), "no configurator-cli at {}", binary.display());
-            binary
-        })
-        .clone()
+    BINARY.get_or_init(|| build_binary("configurator-cli", "configurator-cli")).clone()
+}
+
+/// The `sitl` executable (the standalone simulator) of this workspace and profile, built once
+/// per test run.
+pub fn sitl_binary() -> PathBuf {
+    static BINARY: OnceLock<PathBuf> = OnceLock::new();
+    BINARY.get_or_init(|| build_binary("sim", "sitl")).clone()
+}
+
+/// Build the binary `bin` of `package` in this test's profile; returns its path.
+fn build_binary(package: &str, bin: &str) -> PathBuf {
+    // target/<profile>/deps/<test> → target/<profile>
+    let exe = std::env::current_exe().expect("test executable path");
+    let profile_dir = exe.parent().and_then(|deps| deps.parent()).expect("target dir");
+    let release = profile_dir.file_name().is_some_and(|name| name == "release");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut build = Command::new(cargo);
+    build.args(["build", "--quiet", "-p", package, "--bin", bin]);
+    if release {
+        build.arg("--release");
+    }
+    let status = build.status().unwrap_or_else(|e| panic!("run cargo build for {bin}: {e}"));
+    assert!(status.success(), "building {bin} failed");
+    let binary = profile_dir.join(bin);
+    assert!(binary.is_file(), "no {bin} at {}", binary.display());
+    binary
 }
 
 /// Run the configurator with `args`; returns its output (never panics on a failing command).

@@ -4,6 +4,10 @@
 //! request whose frame (or answer) is lost is asked again after `RETRY_AFTER` (0.4 s), as the
 //! very same frame: the board answers a repeat of a request that commands the craft with its
 //! earlier answer, without acting twice.
+//!
+//! Issue 54: the rate. A radio's USB-UART adapter garbles every byte unless opened at its rate
+//! (`--baud`), which `tests::baud_relay` enforces where the SITL's pseudo-terminal would not; and
+//! `sitl --radio-port PATH` links the radio where a script can find it.
 
 use sim::serve::RadioConfig;
 use sim::sitl::{Sitl, SitlConfig};
@@ -418,7 +422,8 @@ fn over_the_radio_forged_replayed_and_unsigned_requests_are_refused_and_counted(
     let key: [u8; 32] =
         std::array::from_fn(|i| u8::from_str_radix(&hex.trim()[2 * i..2 * i + 2], 16).unwrap());
 
-    let mut port = configurator_cli::connect::open_serial(&radio).unwrap();
+    let baud = configurator_cli::connect::Baud::new(57_600).unwrap();
+    let mut port = configurator_cli::connect::open_serial(&radio, baud).unwrap();
     let hello = Request::Hello(Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: 0 });
     assert!(matches!(raw_request(&mut port, &frame_of(&hello, 1, None), 1), Ok(Reply::Hello(_))));
     let security = |port: &mut _, seq| match raw_request(
@@ -505,4 +510,121 @@ fn poses_in_enu_axes_reach_the_board_in_ned() {
     let summary: serde_json::Value = serde_json::from_slice(&relay.stdout).unwrap();
     assert_eq!(summary["malformed"], 0, "{summary}");
     assert_eq!(summary["refused"], 0, "{summary}");
+}
+
+/// Issue 54: a radio's USB-UART adapter runs its UART at one rate (a SiK radio's at 57,600
+/// baud), and a configurator that opens it at another hears only garbage. Through
+/// `tests::baud_relay` (a pseudo-terminal that forwards to the SITL's 57,600-baud radio and
+/// garbles every byte both ways unless the configurator set 57,600 baud on it): `--baud 57600`,
+/// or `FC_BAUD=57600`, reaches the board; without either (921,600 baud, right for USB CDC) the
+/// handshake fails with exit code 1 and says the rate is probably wrong.
+#[cfg(target_os = "linux")]
+#[test]
+fn through_a_57600_baud_adapter_only_the_right_rate_reaches_the_board() {
+    use tests::baud_relay::BaudRelay;
+    let config = SitlConfig {
+        pty: false,
+        seed: 41,
+        telemetry_radio: Some(RadioConfig { baud: 57_600, latency_s: 0.020, frame_loss: 0.0 }),
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let relay = BaudRelay::start(&sitl.radio_path.clone().unwrap(), 57_600).expect("the relay");
+    let port = relay.path().to_str().unwrap();
+    let cli = || {
+        let mut command = std::process::Command::new(tests::cli_binary());
+        command.env_remove(configurator_cli::connect::BAUD_ENV);
+        command
+    };
+
+    let status = cli().args(["--port", port, "--baud", "57600", "--json", "status"]).output();
+    let status = status.expect("start configurator-cli");
+    assert!(status.status.success(), "{}", output_text(&status));
+    let json: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    assert_eq!(json["armed"], false, "{json}");
+    let stats = relay.stats();
+    assert_eq!((stats.last_baud, stats.bytes_garbled), (Some(57_600), 0), "{stats:?}");
+    assert!(stats.bytes_passed > 100, "{stats:?}");
+
+    let from_env = cli().env("FC_BAUD", "57600").args(["--port", port, "status"]).output();
+    let from_env = from_env.expect("start configurator-cli");
+    assert!(from_env.status.success(), "{}", output_text(&from_env));
+
+    let started = Instant::now();
+    let wrong = cli().args(["--port", port, "status"]).output().expect("start configurator-cli");
+    let text = output_text(&wrong);
+    assert_eq!(wrong.status.code(), Some(1), "{text}");
+    for says in [
+        "but no valid frame",
+        "the baud rate is probably wrong",
+        "opened at 921600 baud",
+        "try --baud 57600",
+    ] {
+        assert!(text.contains(says), "`{says}` in: {text}");
+    }
+    assert!(wrong.stdout.is_empty(), "{text}");
+    eprintln!("the wrong rate found out in {:.1} s", started.elapsed().as_secs_f64());
+    let stats = relay.stats();
+    assert_eq!(stats.last_baud, Some(921_600), "{stats:?}");
+    assert!(stats.bytes_garbled > 0, "{stats:?}");
+}
+
+/// Kills the child process it holds when dropped (a test that fails leaves no SITL running).
+struct KillOnDrop(std::process::Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `sitl --radio-baud 57600 --radio-port PATH` links its simulated radio's pseudo-terminal at
+/// PATH, so a script knows where to connect: paired once over the SITL's own link (`--pty-link`),
+/// the configurator runs `status`, `identify` (the simulated hand throws the craft for flight)
+/// and `stream` at `--port PATH --baud 57600`.
+#[test]
+fn the_sitl_serves_its_radio_at_the_radio_port_path() {
+    let dir = std::env::temp_dir().join(format!("fc-radio-port-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let (usb, radio, keys) = (dir.join("usb"), dir.join("radio"), dir.join("keys"));
+    let (usb, radio) = (usb.to_str().unwrap(), radio.to_str().unwrap());
+    let sitl = std::process::Command::new(tests::sitl_binary())
+        .args(["--no-flash", "--hand-throws-to-fly", "--pty-link", usb])
+        .args(["--radio-baud", "57600", "--radio-port", radio, "--duration-s", "120"])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("start sitl");
+    let _sitl = KillOnDrop(sitl);
+    let started = Instant::now();
+    while std::fs::metadata(radio).is_err() {
+        assert!(started.elapsed().as_secs() < 10, "no {radio} after 10 s");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+
+    let pair = cli_with_keys(&keys, &["--port", usb, "pair"]);
+    assert!(pair.status.success(), "{}", output_text(&pair));
+    let over_radio = |args: &[&str]| {
+        let all: Vec<&str> =
+            ["--port", radio, "--baud", "57600", "--json"].iter().chain(args).copied().collect();
+        let output = cli_with_keys(&keys, &all);
+        assert!(output.status.success(), "{args:?}: {}", output_text(&output));
+        output
+    };
+    let status = over_radio(&["status"]);
+    let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    assert_eq!(status["armed"], false, "{status}");
+
+    let identify = over_radio(&["identify", "--yes", "--timeout-s", "30", "--disarm-after-s", "1"]);
+    let report: serde_json::Value = serde_json::from_slice(&identify.stdout).unwrap();
+    assert_eq!(report["phase"], "Done", "{report}");
+    assert_eq!(report["flew"], true, "{report}");
+
+    let stream = over_radio(&["stream", "--topic", "imu", "--rate-hz", "50", "--duration-s", "1"]);
+    let summary: serde_json::Value = serde_json::from_slice(&stream.stdout).unwrap();
+    let received = summary["received"].as_u64().unwrap();
+    assert!(received >= 40, "50 Hz for 1 s: {summary}");
+    drop(_sitl);
+    let _ = std::fs::remove_dir_all(&dir);
 }

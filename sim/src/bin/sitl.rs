@@ -13,7 +13,9 @@
 //! a restart of the SITL as a board's survives a power cycle. `--fault-esc-silent N`,
 //! `--fault-imu silent|frozen|noisy`, `--fault-flash bad` and `--fault-motor-swap A,B` give the
 //! simulated board a fault from power-up (`sim::faults::SitlFaults`), for
-//! `configurator-cli doctor` to find. Bad input exits with code 2.
+//! `configurator-cli doctor` to find. `--radio-baud 57600 [--radio-port PATH]` serves the
+//! protocol also behind a simulated telemetry radio, on a second pseudo-terminal (linked at
+//! PATH). Bad input exits with code 2.
 
 use clap::Parser;
 use sim::serve::parse_imu_offset_mm;
@@ -117,6 +119,11 @@ struct Args {
     /// at start) with `configurator-cli --port`.
     #[arg(long, value_name = "BAUD", value_parser = clap::value_parser!(u32).range(1200..=2_000_000))]
     radio_baud: Option<u32>,
+    /// Make this path a symlink to the simulated telemetry radio's pseudo-terminal (as
+    /// --pty-link does for the USB link), so a script knows where to connect:
+    /// `configurator-cli --port PATH --baud 57600 status`.
+    #[arg(long, value_name = "PATH", requires = "radio_baud")]
+    radio_port: Option<PathBuf>,
     /// The simulated radio's latency, ms (0–1000).
     #[arg(long, value_name = "MS", default_value_t = 20.0, requires = "radio_baud")]
     radio_latency_ms: f64,
@@ -190,6 +197,7 @@ fn main() -> std::process::ExitCode {
             latency_s: args.radio_latency_ms * 1e-3,
             frame_loss: args.radio_loss,
         }),
+        radio_link: args.radio_port.clone(),
         log_dir: args.log_dir.clone(),
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
@@ -203,8 +211,11 @@ fn main() -> std::process::ExitCode {
         }
     };
     println!("SITL running airframe `{}` at {}× real time", args.airframe, args.speed);
-    if let Some(path) = &sitl.radio_path {
-        println!("  telemetry radio (pty):    {}", path.display());
+    if let (Some(path), Some(radio)) = (&sitl.radio_path, &config.telemetry_radio) {
+        println!("  telemetry radio (pty):    {} ({} baud)", path.display(), radio.baud);
+    }
+    if let Some(link) = &config.radio_link {
+        println!("  telemetry radio link:     {}", link.display());
     }
     if let Some(path) = &sitl.pty_path {
         println!("  serial (pseudo-terminal): {}", path.display());
