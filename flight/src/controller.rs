@@ -187,19 +187,10 @@ pub enum Guidance {
     /// (world NED, m/s, positive down: a landing's descent) while it holds the horizontal
     /// position.
     Position { position_ned_m: Vector3<f32>, yaw_rad: f32, vertical_speed_mps: Option<f32> },
-    /// No position: thrust axis up, the velocity `velocity_ned_mps` (world NED, m/s) brought to
-    /// zero horizontally and to `vertical_speed_mps` (positive down; 0 holds the height),
-    /// heading `yaw_rad`. `from_fixes`: the velocity comes from external fixes (not dead
-    /// reckoning), so the horizontal loop may integrate its error: a craft whose thrust axis was
-    /// learned a few degrees off is pushed sideways by `g sin(error)` for as long as it waits
-    /// for its position hold, and the proportional loop alone would leave it drifting at
-    /// `g sin(error) / k_velocity` (0.85 m/s for 10°) instead of stopping.
-    Level {
-        yaw_rad: f32,
-        velocity_ned_mps: Vector3<f32>,
-        vertical_speed_mps: f32,
-        from_fixes: bool,
-    },
+    /// No position: thrust axis up, the velocity `velocity_ned_mps` (an estimate, from the fixes
+    /// or by dead reckoning, world NED, m/s) brought to zero horizontally and to
+    /// `vertical_speed_mps` vertically (positive down; 0 holds the height), heading `yaw_rad`.
+    Level { yaw_rad: f32, velocity_ned_mps: Vector3<f32>, vertical_speed_mps: f32 },
 }
 
 /// One step's measurements.
@@ -353,23 +344,15 @@ impl Controller {
                 // 1,000 random airframes the hold is better with it (held 96.5 % → 98.9 %).
                 (f + nav.accel_bias_ned_mps2, yaw_rad)
             }
-            Guidance::Level { yaw_rad, velocity_ned_mps, vertical_speed_mps, from_fixes } => {
-                // Zero velocity: the velocity loop's P (no integral on a drifting estimate).
+            Guidance::Level { yaw_rad, velocity_ned_mps, vertical_speed_mps } => {
+                // Zero velocity: the velocity loop's P alone (no integral on a drifting estimate).
                 // Vertically the thrust acts through the motors alone, not behind the attitude
                 // loop: the rate loop's gain (designed around the motor lag) applies there.
-                // With the fixes' velocity the horizontal error is integrated too (see
-                // `Guidance::Level`), into the position loop's integral.
                 let velocity_error = velocity_ned_mps - Vector3::new(0.0, 0.0, vertical_speed_mps);
                 let gain =
                     Vector3::new(self.gains.k_velocity, self.gains.k_velocity, self.gains.k_rate);
-                let mut wanted = -velocity_error.component_mul(&gain);
-                if from_fixes {
-                    self.position.integrate_horizontal(&(-velocity_error), dt_s);
-                    let integral = self.position.integral_mps2();
-                    wanted += Vector3::new(integral.x, integral.y, 0.0);
-                }
                 let accel = crate::position::limit_horizontal_vertical(
-                    &wanted,
+                    &(-velocity_error.component_mul(&gain)),
                     crate::position::MAX_ACCEL_MPS2,
                     LEVEL_MAX_VERTICAL_ACCEL_MPS2,
                 );

@@ -248,25 +248,6 @@ impl PositionController {
         self.integral_mps2
     }
 
-    /// Integrate a horizontal velocity error (setpoint minus estimate, world NED, m/s; its
-    /// vertical part is ignored) over `dt_s` into the velocity loop's integral, for a caller
-    /// that flies the velocity loop's proportional part itself (the level hold on the fixes'
-    /// velocity, `crate::controller::Guidance::Level`): the position hold that follows starts
-    /// from the same integral, with no step in the force. Limited like the loop's own, and
-    /// refused (nothing changes) for non-finite input.
-    pub fn integrate_horizontal(&mut self, velocity_error_mps: &Vector3<f32>, dt_s: f32) {
-        let step = velocity_error_mps * (self.gains.k_velocity_integral * dt_s);
-        if !(all_finite(&step) && dt_s > 0.0) {
-            return;
-        }
-        let integral = self.integral_mps2 + Vector3::new(step.x, step.y, 0.0);
-        self.integral_mps2 = limit_horizontal_vertical(
-            &integral,
-            self.limits.max_accel_mps2,
-            self.limits.max_accel_mps2,
-        );
-    }
-
     /// The velocity setpoint of the last step (after its limits), world NED, m/s.
     pub fn velocity_sp_mps(&self) -> Vector3<f32> {
         self.velocity_sp_mps

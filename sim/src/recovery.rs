@@ -25,7 +25,7 @@ use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
 use firmware::app::{ControlCommand, ControlSettings, Failsafe, Param, Params, PoseConfig};
 use flight::learner::FlightPhase;
-use protocol::ExternalPose;
+use protocol::{ExternalPose, LandReason};
 
 /// Body rate below which the craft may count as hovering, rad/s (20 °/s).
 pub const HOVER_RATE_RAD_S: f64 = 0.35;
@@ -266,6 +266,70 @@ pub struct FlyConfig {
     /// answer nothing and the application is told so, as a user would set it, through
     /// `motor_bidir_dshot` = 0 (issue 32: identification without speed telemetry).
     pub speed_telemetry: bool,
+    /// How the flight ends after `flight_s`: it goes on hovering (the run stops there), or it
+    /// lands ([`FlightEnd`]).
+    pub end: FlightEnd,
+}
+
+/// How a run's flight ends once its `flight_s` are flown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum FlightEnd {
+    /// Nothing: the run stops, the craft still hovering.
+    #[default]
+    Hover,
+    /// A landing for this reason, as the control step receives it
+    /// ([`ControlCommand::Land`]): `Commanded` is a host's `land`, `RcLost` what the pilot's
+    /// receiver asks for once the radio has been lost for its grace in flight
+    /// (`firmware::app::radio`).
+    Land(LandReason),
+}
+
+impl FlightEnd {
+    /// `hover`, `land` or `rc-lost`.
+    pub fn parse(name: &str) -> Result<Self, String> {
+        match name {
+            "hover" => Ok(Self::Hover),
+            "land" => Ok(Self::Land(LandReason::Commanded)),
+            "rc-lost" => Ok(Self::Land(LandReason::RcLost)),
+            other => Err(format!("unknown flight end `{other}` (hover, land, rc-lost)")),
+        }
+    }
+}
+
+/// Longest a landing may take from its request to the motors stopping, s: the Monte Carlo's
+/// highest hovers (about 8 m above the ground) take 16 s at the default 0.5 m/s; four times
+/// that leaves room for a slow start and the touchdown's confirmation.
+pub const LANDING_TIMEOUT_S: f64 = 60.0;
+
+/// Largest vertical speed of a gentle touchdown, m/s (the issue's 0.7 m/s).
+pub const GENTLE_TOUCHDOWN_MPS: f64 = 0.7;
+
+/// Longest time from the touchdown to the motors stopped for a gentle landing, s (the issue's
+/// second).
+pub const STOP_AFTER_TOUCHDOWN_S: f64 = 1.0;
+
+/// How a landing went, against the simulator's truth.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LandingReport {
+    /// Height of the CoG above the ground when the landing was asked for, m.
+    pub requested_height_m: f64,
+    /// Vertical speed at the first ground contact (NED z reaching 0), m/s, positive down.
+    pub touchdown_speed_mps: Option<f64>,
+    /// Time from the first ground contact to the motors stopped (the firmware disarmed), s.
+    pub stop_delay_s: Option<f64>,
+    /// Height at which the motors stopped before any ground contact, m (a touchdown detected in
+    /// the air: the craft then falls).
+    pub stopped_in_air_m: Option<f64>,
+    /// Horizontal distance from where the landing was asked for to the touchdown, m.
+    pub horizontal_drift_m: Option<f64>,
+}
+
+impl LandingReport {
+    /// Down within [`GENTLE_TOUCHDOWN_MPS`], motors stopped within [`STOP_AFTER_TOUCHDOWN_S`].
+    pub fn gentle(&self) -> bool {
+        self.touchdown_speed_mps.is_some_and(|v| v < GENTLE_TOUCHDOWN_MPS)
+            && self.stop_delay_s.is_some_and(|t| t <= STOP_AFTER_TOUCHDOWN_S)
+    }
 }
 
 impl FlyConfig {
@@ -285,6 +349,7 @@ impl FlyConfig {
                 ..SimConfig::default()
             },
             speed_telemetry: true,
+            end: FlightEnd::Hover,
         }
     }
 }
@@ -300,6 +365,9 @@ pub enum Outcome {
     Failsafe(Failsafe),
     /// The throw was never detected or the excitation never ended.
     NoIdentification,
+    /// Landed as asked ([`FlyConfig::end`]): the motors stopped on the ground
+    /// ([`FlyReport::landing`] says how gently).
+    Landed,
 }
 
 /// What a run measured.
@@ -371,6 +439,8 @@ pub struct FlyReport {
     /// and without speed telemetry, whose speeds have an arbitrary scale, and over every run
     /// that identified, hovered or not.
     pub thrust_scores_at_excitation_end: Option<Scores>,
+    /// The landing, when the run asked for one and the craft was flying then.
+    pub landing: Option<LandingReport>,
 }
 
 /// Scores of `learned` per unit normalised thrust `u = ω²/ω_full²` (the papers' convention and
@@ -498,6 +568,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             g1_block_rel_corrected_by_fit: None,
             g1_block_rel_fitted_jointly: None,
             thrust_scores_at_excitation_end: None,
+            landing: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -510,7 +581,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         // When the excitation ended (the phase became `Done`), s.
         let mut excitation_end_s: Option<f64> = None;
         let mut end_s = f64::INFINITY;
-        let max_ticks = hold_ticks + ((1.0 + config.flight_s) * 2000.0) as u64;
+        // A landing: where it was asked for, and the time of the first ground contact, s.
+        let mut land_from_ned_m = Vector3::zeros();
+        let mut touchdown_s: Option<f64> = None;
+        let landing_s = if config.end == FlightEnd::Hover { 0.0 } else { LANDING_TIMEOUT_S };
+        let max_ticks = hold_ticks + ((1.0 + config.flight_s + landing_s) * 2000.0) as u64;
         for tick in 0..max_ticks {
             if tick == hold_ticks {
                 board.physics_mut().throw(&spec);
@@ -604,14 +679,15 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 }
                 report.release_to_engage_s.get_or_insert(since_release);
                 report.outcome = Outcome::Flying;
-                if t_s >= end_s - hold_window_s {
+                let in_window = t_s >= end_s - hold_window_s && t_s < end_s;
+                if in_window {
                     window_steps += 1;
                     window_hold_steps += u64::from(snapshot.pilot.position_hold);
                 }
-                if snapshot.pilot.position_hold {
+                if snapshot.pilot.position_hold && report.landing.is_none() {
                     let sp = Vector3::from(snapshot.pilot.position_sp_ned_m).cast::<f64>();
                     report.setpoint_ned_m = Some(sp);
-                    if t_s >= end_s - hold_window_s {
+                    if in_window {
                         let error = (state.position_ned_m - sp).norm();
                         let worst = report.max_hold_error_m.get_or_insert(0.0);
                         *worst = worst.max(error);
@@ -629,6 +705,22 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 } else {
                     hover_since = None;
                 }
+            } else if let Some(landing) = &mut report.landing {
+                // The landing's end: the motors stopped, on the ground or not.
+                match touchdown_s {
+                    Some(at_s) => {
+                        landing.stop_delay_s = Some(t_s - at_s);
+                        report.outcome = Outcome::Landed;
+                    }
+                    None => {
+                        landing.stopped_in_air_m = Some(-state.position_ned_m.z);
+                        report.outcome = match snapshot.pilot.last_failsafe {
+                            Some(failsafe) => Outcome::Failsafe(failsafe),
+                            None => Outcome::Ground,
+                        };
+                    }
+                }
+                break;
             } else if report.release_to_engage_s.is_some() {
                 report.outcome = match snapshot.pilot.last_failsafe {
                     Some(failsafe) => Outcome::Failsafe(failsafe),
@@ -644,7 +736,15 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             if end_s.is_infinite() {
                 end_s = released_s + config.flight_s;
             }
-            if state.position_ned_m.z >= 0.0 {
+            if let (Some(landing), None) = (&mut report.landing, touchdown_s) {
+                if state.position_ned_m.z >= 0.0 {
+                    // The first contact of a landing: how fast, and how far from where it began.
+                    touchdown_s = Some(t_s);
+                    landing.touchdown_speed_mps = Some(state.velocity_ned_mps.z);
+                    let drift = state.position_ned_m - land_from_ned_m;
+                    landing.horizontal_drift_m = Some(drift.xy().norm());
+                }
+            } else if state.position_ned_m.z >= 0.0 && report.landing.is_none() {
                 report.outcome = if report.release_to_engage_s.is_some() {
                     Outcome::Ground
                 } else {
@@ -653,7 +753,21 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 break;
             }
             if t_s >= end_s {
-                break;
+                let FlightEnd::Land(reason) = config.end else { break };
+                if !snapshot.pilot.flying || t_s >= end_s + LANDING_TIMEOUT_S {
+                    break;
+                }
+                if report.landing.is_none() {
+                    report.landing = Some(LandingReport {
+                        requested_height_m: -state.position_ned_m.z,
+                        touchdown_speed_mps: None,
+                        stop_delay_s: None,
+                        stopped_in_air_m: None,
+                        horizontal_drift_m: None,
+                    });
+                    land_from_ned_m = state.position_ned_m;
+                    app.command(ControlCommand::Land(reason), now_us);
+                }
             }
         }
         if report.outcome == Outcome::Flying {
@@ -747,11 +861,16 @@ impl Verdict {
     /// The verdict of a report.
     pub fn of(report: &FlyReport) -> Self {
         match report.outcome {
-            Outcome::Flying if report.release_to_hover_s.is_none() => Verdict::NeverHovered,
-            Outcome::Flying if report.max_hold_error_m.is_some_and(|e| e < HOLD_BOUND_M) => {
+            // A landing comes after the hold window: the hold is judged as a flight's.
+            Outcome::Flying | Outcome::Landed if report.release_to_hover_s.is_none() => {
+                Verdict::NeverHovered
+            }
+            Outcome::Flying | Outcome::Landed
+                if report.max_hold_error_m.is_some_and(|e| e < HOLD_BOUND_M) =>
+            {
                 Verdict::Held
             }
-            Outcome::Flying => Verdict::HoveredLoose,
+            Outcome::Flying | Outcome::Landed => Verdict::HoveredLoose,
             Outcome::Ground => Verdict::Ground,
             Outcome::Failsafe(f) => Verdict::Failsafe(f),
             Outcome::NoIdentification => Verdict::NoIdentification,

@@ -43,12 +43,11 @@
 //!   radio lost in flight, a low battery, an unsigned disarm over an untrusted link (all by the
 //!   control step's [`super::control::ControlCommand::Land`]), and here: the pose lost for
 //!   longer than [`LandConfig::pose_lost_s`], and a fly-away.
-//! - **No fly-away**: with fixes, the level hold that waits for the position hold integrates
-//!   its horizontal velocity error (`flight::controller::Guidance::Level`), so a thrust axis
-//!   learned a few degrees off cannot carry the craft away while it waits; a craft that still
-//!   moves away from its setpoint (or, before one, anywhere) faster than
-//!   [`LandConfig::flyaway_speed_mps`] for [`LandConfig::flyaway_time_s`] lands, level, without
-//!   steering by the horizontal velocity it no longer trusts.
+//! - **No fly-away**: with fixes, the level hold that waits for the position hold flies on the
+//!   fixes' velocity from the engagement on; a craft that still moves away from its setpoint (or, before one, anywhere) faster than
+//!   [`LandConfig::flyaway_speed_mps`] for [`LandConfig::flyaway_time_s`] without braking
+//!   ([`FLYAWAY_BRAKING_MPS`]) lands (its horizontal loops go on: whatever holds it back still
+//!   does, and the descent brings it down either way).
 //! - **A motor that loses thrust** (a damaged propeller): no failsafe. INDI is incremental: it
 //!   measures the angular acceleration and specific force the commands produced and adds what
 //!   is missing, so the other motors and the weak one's higher command take over within the rate
@@ -181,11 +180,18 @@ pub const DEFAULT_LAND_POSE_LOST_S: f32 = 5.0;
 /// it.
 pub const DEFAULT_FLYAWAY_SPEED_MPS: f32 = 3.0;
 
-/// Default time above [`DEFAULT_FLYAWAY_SPEED_MPS`] after which a craft lands, s
-/// (`flyaway_time_s`): a gust of 5 m/s pushes a hovering craft past 3 m/s for a few tenths of a
-/// second at most before the velocity loop (a time constant of 0.2–0.5 s) takes it back; 1 s
-/// more at 3 m/s is 3 m.
-pub const DEFAULT_FLYAWAY_TIME_S: f32 = 1.0;
+/// Default time above [`DEFAULT_FLYAWAY_SPEED_MPS`] without braking after which a craft lands,
+/// s (`flyaway_time_s`): a gust of 5 m/s pushes a hovering craft past 3 m/s for a few tenths of
+/// a second at most before the velocity loop (a time constant of 0.2–0.5 s) takes it back, and
+/// a craft thrown sideways tumbles for up to a second before it brakes (Monte Carlo seed 3 of
+/// the random world: 5.7 m/s for 0.9 s); 2 s more at 3 m/s is 6 m.
+pub const DEFAULT_FLYAWAY_TIME_S: f32 = 2.0;
+
+/// Fall of the horizontal speed that counts as braking, m/s: a fly-away's count starts afresh
+/// whenever the speed has fallen this much below its peak since the count began (a recovery
+/// from a sideways throw brakes at 2–6 m/s² once its tumble is over, so by far more than this
+/// within [`DEFAULT_FLYAWAY_TIME_S`]).
+pub const FLYAWAY_BRAKING_MPS: f32 = 0.5;
 
 /// Thrust below which a landing craft may be on the ground, as the fraction of the way from
 /// idle to hover (ours; PX4's land detector asks for its throttle near the minimum the same
@@ -521,8 +527,9 @@ pub struct Pilot {
     touchdown: Option<Touchdown>,
     /// How long the fixes have been lost in this flight, s.
     pose_lost_s: f32,
-    /// How long the craft has moved away faster than the fly-away speed, s.
-    flyaway_s: f32,
+    /// How long the craft has moved away faster than the fly-away speed without braking, s,
+    /// and its fastest speed since then, m/s.
+    flyaway: Option<(f32, f32)>,
     status: PilotStatus,
 }
 
@@ -544,7 +551,6 @@ impl Pilot {
                 yaw_rad: 0.0,
                 velocity_ned_mps: Vector3::zeros(),
                 vertical_speed_mps: 0.0,
-                from_fixes: false,
             },
             position_sp_ned_m: None,
             requested_sp: None,
@@ -560,7 +566,7 @@ impl Pilot {
             land_config: LandConfig::default(),
             touchdown: None,
             pose_lost_s: 0.0,
-            flyaway_s: 0.0,
+            flyaway: None,
             status: PilotStatus::default(),
         }
     }
@@ -855,31 +861,21 @@ impl Pilot {
         // A landing descends instead of holding the height.
         let descent_mps = self.touchdown.map(|_| self.land_config.descent_mps);
         let vertical_speed_mps = descent_mps.unwrap_or(0.0);
-        let level = |velocity_ned_mps: Vector3<f32>, from_fixes: bool| Guidance::Level {
+        let level = |velocity_ned_mps: Vector3<f32>| Guidance::Level {
             yaw_rad,
             velocity_ned_mps,
             vertical_speed_mps,
-            from_fixes,
         };
-        // A fly-away's landing no longer steers by the horizontal velocity it could not hold
-        // (an alignment turned the wrong way makes that loop push the craft on): level, with
-        // the vertical speed from the fixes (down is gravity's in every world) or dead
-        // reckoning.
-        if self.touchdown.is_some_and(|t| t.reason == LandReason::FlyAway) {
-            let vertical =
-                if nav.has_fix { nav.velocity_ned_mps.z } else { self.dead_reckoned_velocity().z };
-            return level(Vector3::new(0.0, 0.0, vertical), false);
-        }
         match position_sp_ned_m {
             Some(position_ned_m) if positioned => {
                 Guidance::Position { position_ned_m, yaw_rad, vertical_speed_mps: descent_mps }
             }
             // Before the hold starts, the velocity from the fixes when there are fixes.
-            _ if positioned => level(nav.velocity_ned_mps, true),
+            _ if positioned => level(nav.velocity_ned_mps),
             // The fixes stopped after the worlds were aligned: the estimator's velocity goes on
             // from the last fixed one (before, its world is the filter's: dead reckoning).
             _ if self.fixes_lost && self.alignment.yaw_rad().is_some() => {
-                level(nav.velocity_ned_mps, false)
+                level(nav.velocity_ned_mps)
             }
             // Not aligned: the horizontal velocity by dead reckoning, the vertical one from the
             // fixes when there are fixes (down is gravity's in both worlds, whatever their yaw),
@@ -889,7 +885,7 @@ impl Pilot {
                 if nav.has_fix {
                     velocity_ned_mps.z = nav.velocity_ned_mps.z;
                 }
-                level(velocity_ned_mps, false)
+                level(velocity_ned_mps)
             }
         }
     }
@@ -908,13 +904,19 @@ impl Pilot {
             let offset = nav.position_ned_m - sp;
             offset.x * v.x + offset.y * v.y > 0.0
         });
-        let fast = libm::hypotf(v.x, v.y) > config.flyaway_speed_mps;
-        self.flyaway_s = if positioned && away && fast && self.touchdown.is_none() {
-            self.flyaway_s + dt_s
-        } else {
-            0.0
+        // Braking (the speed fell by FLYAWAY_BRAKING_MPS below its peak since the count began)
+        // is no fly-away: a craft thrown sideways at 3-6 m/s recovers that way, once its
+        // tumble is over.
+        let speed = libm::hypotf(v.x, v.y);
+        let counting =
+            positioned && away && speed > config.flyaway_speed_mps && self.touchdown.is_none();
+        self.flyaway = match self.flyaway {
+            Some((_, peak)) if counting && speed < peak - FLYAWAY_BRAKING_MPS => Some((0.0, speed)),
+            Some((since_s, peak)) if counting => Some((since_s + dt_s, peak.max(speed))),
+            _ if counting => Some((0.0, speed)),
+            _ => None,
         };
-        if self.flyaway_s > config.flyaway_time_s {
+        if self.flyaway.is_some_and(|(since_s, _)| since_s > config.flyaway_time_s) {
             self.land(LandReason::FlyAway);
         }
     }
@@ -1160,7 +1162,7 @@ impl Pilot {
         self.heading_offset_rad = None;
         self.touchdown = None;
         self.pose_lost_s = 0.0;
-        self.flyaway_s = 0.0;
+        self.flyaway = None;
         self.status.flying = false;
         self.status.landing = None;
     }

@@ -21,6 +21,12 @@
 //! unit normalised thrust at the end of the excitation (`sim::recovery::thrust_scores`), the
 //! figures that compare with and without telemetry.
 //!
+//! `--end land` (or `rc-lost`) ends every flight after its hover with a landing, as a host's
+//! `land` (or the pilot's receiver once the radio has been lost for its grace) asks the control
+//! step: each run then reports the touchdown's vertical speed against the truth and the time
+//! from the first ground contact to the motors stopped, and the Monte Carlo how many landed
+//! gently (below 0.7 m/s, stopped within 1 s).
+//!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
 //! `--mocap-dropouts-per-s` and `--mocap-dropout-s` (`sim::recovery::MotionCaptureArgs`; the
@@ -33,8 +39,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
 use sim::recovery::{
-    fly, monte_carlo, random_case, FlyConfig, FlyReport, MotionCaptureArgs, MotionCaptureConfig,
-    Verdict,
+    fly, monte_carlo, random_case, FlightEnd, FlyConfig, FlyReport, MotionCaptureArgs,
+    MotionCaptureConfig, Verdict,
 };
 use sim::stats::quantile;
 use sim::world::{self, Aspect};
@@ -46,6 +52,10 @@ struct Args {
     command: Command,
     #[command(flatten)]
     mocap: MotionCaptureArgs,
+    /// How each flight ends after its hover: `hover` (the run stops), `land` (a host's
+    /// `land`), `rc-lost` (the radio lost in flight: the receiver's landing).
+    #[arg(long, global = true, default_value = "hover", value_parser = FlightEnd::parse)]
+    end: FlightEnd,
 }
 
 #[derive(Subcommand, Debug)]
@@ -207,6 +217,19 @@ fn print_report(name: &str, report: &FlyReport) {
             report.r_imu_fit_semi_axis_m.unwrap_or(f64::NAN) * 1e3
         );
     }
+    if let Some(landing) = report.landing {
+        let or_nan = |v: Option<f64>| v.unwrap_or(f64::NAN);
+        println!(
+            "  landing from {:.2} m: touchdown at {:.2} m/s, {:.2} m from where it began, motors stopped {:.2} s after it{}",
+            landing.requested_height_m,
+            or_nan(landing.touchdown_speed_mps),
+            or_nan(landing.horizontal_drift_m),
+            or_nan(landing.stop_delay_s),
+            landing
+                .stopped_in_air_m
+                .map_or(String::new(), |h| format!("; STOPPED IN THE AIR at {h:.2} m")),
+        );
+    }
     if let Some(s) = report.thrust_scores_at_excitation_end {
         println!(
             "  per unit thrust at the end of the excitation: G1 force {:.2} %, rotation {:.2} %, thrust axis {:.2}°, worst |τ error| {:.2} ms",
@@ -215,6 +238,47 @@ fn print_report(name: &str, report: &FlyReport) {
             s.axis_angle_rad.to_degrees(),
             1e3 * s.tau_error_max_s
         );
+    }
+}
+
+/// The landings of a Monte Carlo (`--end land` or `rc-lost`): how many of the runs still
+/// flying when it was asked for landed gently, the touchdown speeds and stop delays, and every
+/// seed that did not.
+fn print_landings(results: &[sim::recovery::CaseResult]) {
+    let landings: Vec<(u64, sim::recovery::LandingReport)> =
+        results.iter().filter_map(|r| Some((r.seed, r.report.landing?))).collect();
+    if landings.is_empty() {
+        return;
+    }
+    let gentle = landings.iter().filter(|(_, l)| l.gentle()).count();
+    println!(
+        "landings: {gentle} of {} gentle ({:.1} %: below {} m/s, motors stopped within {} s)",
+        landings.len(),
+        100.0 * gentle as f64 / landings.len() as f64,
+        sim::recovery::GENTLE_TOUCHDOWN_MPS,
+        sim::recovery::STOP_AFTER_TOUCHDOWN_S
+    );
+    let speeds: Vec<f64> = landings.iter().filter_map(|(_, l)| l.touchdown_speed_mps).collect();
+    let delays: Vec<f64> = landings.iter().filter_map(|(_, l)| l.stop_delay_s).collect();
+    let drifts: Vec<f64> = landings.iter().filter_map(|(_, l)| l.horizontal_drift_m).collect();
+    print_quantiles("  touchdown vertical speed", &speeds, 1.0, " m/s");
+    print_quantiles("  touchdown → motors stopped", &delays, 1.0, " s");
+    print_quantiles("  touchdown's distance from where the landing began", &drifts, 1.0, " m");
+    let worst_speed = speeds.iter().copied().fold(0.0, f64::max);
+    let worst_delay = delays.iter().copied().fold(0.0, f64::max);
+    println!("  worst: touchdown {worst_speed:.2} m/s, stopped {worst_delay:.2} s after it");
+    let not_gentle: Vec<String> = landings
+        .iter()
+        .filter(|(_, l)| !l.gentle())
+        .map(|(seed, l)| match (l.stopped_in_air_m, l.touchdown_speed_mps, l.stop_delay_s) {
+            (Some(h), _, _) => format!("{seed} (stopped in the air at {h:.2} m)"),
+            (_, Some(v), Some(t)) => format!("{seed} ({v:.2} m/s, stopped after {t:.2} s)"),
+            (_, Some(v), None) => format!("{seed} ({v:.2} m/s, motors never stopped)"),
+            _ => format!("{seed} (never touched down)"),
+        })
+        .collect();
+    if !not_gentle.is_empty() {
+        println!("  not gentle: {}", not_gentle.join(", "));
     }
 }
 
@@ -265,7 +329,7 @@ fn main() -> ExitCode {
                     return ExitCode::from(2);
                 }
             };
-            let mut config = FlyConfig { motion_capture, ..FlyConfig::paper() };
+            let mut config = FlyConfig { motion_capture, end: args.end, ..FlyConfig::paper() };
             if !(0.0..=50.0).contains(&taper_ms) || !(100.0..=300.0).contains(&push_ms) {
                 eprintln!("fly: --taper-ms must be within 0–50 and --push-ms within 100–300");
                 return ExitCode::from(2);
@@ -293,6 +357,7 @@ fn main() -> ExitCode {
             };
             let (airframe, mut config) = case(seed, &aspects, motion_capture, &world_args);
             config.trace = trace;
+            config.end = args.end;
             if !aspects.is_empty() {
                 println!("world: {config:#?}");
             }
@@ -326,8 +391,10 @@ fn main() -> ExitCode {
             if world_args.no_speed_telemetry {
                 println!("ESC speed telemetry: none (motor_bidir_dshot = 0)");
             }
+            let end = args.end;
             let results = monte_carlo(runs, seed, threads, &progress, |seed| {
-                case(seed, &aspects, motion_capture, &world_args)
+                let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
+                (airframe, FlyConfig { end, ..config })
             });
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
@@ -530,6 +597,7 @@ fn main() -> ExitCode {
                 per_thrust(|s| s.axis_angle_rad.to_degrees(), 1.0),
                 per_thrust(|s| s.tau_error_max_s, 1e3),
             );
+            print_landings(&results);
             for motors in 4..=8 {
                 let of: Vec<&_> = results.iter().filter(|r| r.motors == motors).collect();
                 if !of.is_empty() {
