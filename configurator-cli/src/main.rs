@@ -1369,6 +1369,7 @@ fn identify(
         Err(IdentifyError::Landing(configurator_cli::land::LandError::Link(error))) => {
             return Err(error.into())
         }
+        Err(IdentifyError::Landing(error)) => return Err(Failure::Checks(error.to_string())),
         Err(error) => return Err(LinkError::Unexpected(error.to_string()).into()),
     };
     let [force, rotation] = &found.blocks;
@@ -1426,7 +1427,8 @@ fn land(
         Ok(landing) if json_output => Ok(format!("{:#}\n", landing.json())),
         Ok(landing) => Ok(landing.text()),
         Err(land::LandError::Link(error)) => Err(error.into()),
-        Err(error) => Err(LinkError::Unexpected(error.to_string()).into()),
+        // Not a link failure: the board answers, the craft is still armed (exit code 1).
+        Err(error) => Err(Failure::Checks(error.to_string())),
     }
 }
 
