@@ -33,6 +33,11 @@ pub struct IdentifyOptions {
     pub throw_timeout_s: f64,
     /// Disarm this long after the craft flies on the learned model (`None`: leave it flying).
     pub disarm_after_s: Option<f64>,
+    /// Land this long after the craft flies on the learned model and follow it down to the
+    /// touchdown (`crate::land`); before `disarm_after_s` when both are given.
+    pub land_after_s: Option<f64>,
+    /// How long the landing may take before the flow gives up following it, s.
+    pub land_timeout_s: f64,
     /// Stream the state topic at every control step (for a recording) instead of 50 Hz.
     pub every_step: bool,
 }
@@ -45,8 +50,10 @@ pub struct Identified {
     pub blocks: [LearnerTelemetry; 2],
     /// Whether the board flew on the learned model.
     pub flew: bool,
-    /// Whether the flow disarmed the board at the end.
+    /// Whether the flow disarmed the board at the end (by a disarm, or by a landing).
     pub disarmed: bool,
+    /// How the landing went with `land_after_s` (`None`: no landing).
+    pub landing: Option<crate::land::Landing>,
     /// The configuration after the board stored the model (`unsaved_changes` set).
     pub config: Option<ConfigStatus>,
     /// How the flight on the learned model went during `--disarm-after-s` (`None`: not held).
@@ -62,6 +69,8 @@ pub enum IdentifyError {
     Failed(&'static str),
     #[error("no throw within {0} s; disarmed, nothing spun")]
     NoThrow(f64),
+    #[error(transparent)]
+    Landing(#[from] crate::land::LandError),
 }
 
 /// The learner failure in words.
@@ -140,8 +149,8 @@ fn follow(
     loop {
         client.listen(LISTEN_SLICE)?;
         for event in client.events.drain(..) {
-            if let protocol::Event::Failsafe { reason, action, count } = event {
-                say(crate::report::failsafe_event_text(reason, action, count));
+            if let Some(text) = crate::report::flight_event_text(&event) {
+                say(text);
             }
         }
         for sample in client.telemetry.drain(..) {
@@ -209,8 +218,14 @@ fn follow(
         }
         let mut disarmed = false;
         let mut watched = None;
-        if let (true, Some(hold_s)) = (flying, options.disarm_after_s) {
-            say(format!("holding for {hold_s} s, then disarming"));
+        let mut landing = None;
+        let end = match (options.land_after_s, options.disarm_after_s) {
+            (Some(hold_s), _) => Some((hold_s, "landing")),
+            (None, Some(hold_s)) => Some((hold_s, "disarming")),
+            (None, None) => None,
+        };
+        if let (true, Some((hold_s, then))) = (flying, end) {
+            say(format!("holding for {hold_s} s, then {then}"));
             let mut watch = FlightWatch::new(released_us);
             let until = Instant::now() + Duration::from_secs_f64(hold_s);
             while Instant::now() < until {
@@ -222,10 +237,20 @@ fn follow(
                     watch.add(&flight);
                 }
             }
-            client.request(&Request::Disarm(()), "the disarm request")?;
-            say("disarmed: every motor stopped".into());
             for line in watch.summary() {
                 say(line);
+            }
+            if options.land_after_s.is_some() {
+                let before = crate::land::request_landing(client)?;
+                say("landing: descending to the ground".into());
+                let timeout_s = options.land_timeout_s;
+                let landed =
+                    crate::land::follow_landing(client, before, timeout_s, say, on_sample)?;
+                say(landed.text().trim_end().to_string());
+                landing = Some(landed);
+            } else {
+                client.request(&Request::Disarm(()), "the disarm request")?;
+                say("disarmed: every motor stopped".into());
             }
             disarmed = true;
             watched = Some(watch);
@@ -238,6 +263,7 @@ fn follow(
             blocks: [block0, block1],
             flew: flying,
             disarmed,
+            landing,
             config,
             flight: watched,
         });

@@ -6,6 +6,7 @@
 //! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
 //! - [`doctor`]: the bring-up check for a first power-up;
 //! - [`identify`]: the guided throw-and-fly identification;
+//! - [`land`]: the guided landing (the request, then the craft followed to its touchdown);
 //! - [`keys`]: the link keys shared with boards, for signed requests over a radio;
 //! - [`report`]: what the board says, in words with units, or as JSON;
 //! - [`offline`]: the `flight` estimators applied to recorded logs and files;
@@ -19,6 +20,7 @@ pub mod connect;
 pub mod doctor;
 pub mod identify;
 pub mod keys;
+pub mod land;
 pub mod link;
 pub mod log_files;
 pub mod offline;

@@ -162,6 +162,15 @@ impl std::fmt::Display for DeviceErrorText {
     }
 }
 
+/// Whether a paired configurator signs `request`: what commands the craft
+/// ([`signing::commands_the_craft`]), and a disarm. A disarm needs no signature to be obeyed,
+/// but since protocol 1.14 an unsigned one over an untrusted link (a radio) lands a flying craft
+/// instead of stopping it, as anyone on the channel may have sent it; the paired configurator's
+/// signed disarm stops the motors at once.
+pub fn signed_when_paired(request: &Request) -> bool {
+    signing::commands_the_craft(request) || matches!(request, Request::Disarm(()))
+}
+
 /// Motors named by a bit mask, numbered from 1 as on the craft: "1, 3".
 pub fn motor_list(motors: u8) -> String {
     (0..8)
@@ -481,13 +490,13 @@ impl Client {
     }
 
     /// `request` as one frame (a leading 0x00 included) under a fresh sequence number; signed
-    /// when it commands the craft and this computer keeps the board's key.
+    /// when [`signed_when_paired`] and this computer keeps the board's key.
     fn encode(&mut self, request: &Request) -> Result<(u16, Vec<u8>), LinkError> {
         let seq = self.next_seq;
         self.next_seq = self.next_seq.wrapping_add(1);
         let mut frame = [0u8; MAX_FRAME_LEN + 1];
         let encoded = match self.signer {
-            Some(signer) if signing::commands_the_craft(request) => {
+            Some(signer) if signed_when_paired(request) => {
                 let timestamp = self.next_timestamp();
                 request.encode_signed(seq, &signer, timestamp, &mut frame[1..])
             }

@@ -76,6 +76,18 @@ enum Command {
     ArmThrowToFly,
     /// Stop every motor now and leave any armed state.
     Disarm,
+    /// Land: a flying craft descends at `land_descent_mps`, detects its touchdown and disarms
+    /// (one on the ground or waiting for a throw stops at once). Follows the landing and prints
+    /// its progress until the board is disarmed, then the touchdown speed.
+    Land {
+        /// Send the request and return at once, without following the landing.
+        #[arg(long)]
+        no_wait: bool,
+        /// Give up following when the board is still armed this long after the request, s
+        /// (the landing goes on).
+        #[arg(long, default_value_t = configurator_cli::land::DEFAULT_TIMEOUT_S)]
+        timeout_s: f64,
+    },
     /// Stream a telemetry topic and count what arrives and what is missing. The learner topic
     /// prints every sample on its own line (with --json, one JSON object per line, then the
     /// summary on the last line).
@@ -202,8 +214,12 @@ enum Command {
         timeout_s: f64,
         /// Disarm this long after the craft flies on the learned model, s (default: leave it
         /// flying; `disarm` stops it).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "land_after_s")]
         disarm_after_s: Option<f64>,
+        /// Land this long after the craft flies on the learned model, s, and wait for the
+        /// touchdown (as `land` does).
+        #[arg(long)]
+        land_after_s: Option<f64>,
         /// Record the attempt (every control step's state, the learner at 100 Hz) to this CSV
         /// (`plot` draws it: attitude, motors, G1 convergence).
         #[arg(long, value_name = "FILE.csv")]
@@ -471,6 +487,10 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
         Command::Doctor { yes } => BoardCommand::Doctor { yes: *yes },
         Command::ArmThrowToFly => BoardCommand::Arm,
         Command::Disarm => BoardCommand::Disarm,
+        Command::Land { no_wait, timeout_s } => {
+            check_timeout_s(*timeout_s)?;
+            BoardCommand::Land { follow_timeout_s: (!no_wait).then_some(*timeout_s) }
+        }
         Command::Stream { topic, rate_hz, duration_s } => BoardCommand::Stream {
             topic: stream_arguments(topic, *rate_hz, *duration_s).map_err(Failure::Input)?,
             rate_hz: *rate_hz,
@@ -536,13 +556,15 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
             }
             BoardCommand::Calibrate { yes: *yes, max_throws: *max_throws, timeout_s: *timeout_s }
         }
-        Command::Identify { yes, timeout_s, disarm_after_s, record } => {
-            if !(timeout_s.is_finite() && (1.0..=3600.0).contains(timeout_s)) {
-                return Err(input(format!("--timeout-s {timeout_s} is outside 1 to 3600 s")));
-            }
-            if let Some(hold_s) = disarm_after_s {
-                if !(hold_s.is_finite() && (0.0..=600.0).contains(hold_s)) {
-                    return Err(input(format!("--disarm-after-s {hold_s} is outside 0 to 600 s")));
+        Command::Identify { yes, timeout_s, disarm_after_s, land_after_s, record } => {
+            check_timeout_s(*timeout_s)?;
+            for (option, hold_s) in
+                [("--disarm-after-s", disarm_after_s), ("--land-after-s", land_after_s)]
+            {
+                if let Some(hold_s) = hold_s {
+                    if !(hold_s.is_finite() && (0.0..=600.0).contains(hold_s)) {
+                        return Err(input(format!("{option} {hold_s} is outside 0 to 600 s")));
+                    }
                 }
             }
             BoardCommand::Identify {
@@ -550,6 +572,8 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
                 options: configurator_cli::identify::IdentifyOptions {
                     throw_timeout_s: *timeout_s,
                     disarm_after_s: *disarm_after_s,
+                    land_after_s: *land_after_s,
+                    land_timeout_s: configurator_cli::land::DEFAULT_TIMEOUT_S,
                     every_step: record.is_some(),
                 },
                 record: record.clone(),
@@ -615,6 +639,10 @@ enum BoardCommand {
     },
     Arm,
     Disarm,
+    /// Land; follow the landing for at most this long, s (`None`: do not follow).
+    Land {
+        follow_timeout_s: Option<f64>,
+    },
     Stream {
         topic: Topic,
         rate_hz: u16,
@@ -905,6 +933,7 @@ fn run_on_board(
                 "disarmed: every motor stopped\n".into()
             })
         }
+        BoardCommand::Land { follow_timeout_s } => land(client, follow_timeout_s, cli.json),
         BoardCommand::Stream { topic, rate_hz, duration_s } => {
             stream(client, topic, rate_hz, duration_s, cli.json)
         }
@@ -1337,6 +1366,10 @@ fn identify(
     let found = match found {
         Ok(found) => found,
         Err(IdentifyError::Link(error)) => return Err(error.into()),
+        Err(IdentifyError::Landing(configurator_cli::land::LandError::Link(error))) => {
+            return Err(error.into())
+        }
+        Err(IdentifyError::Landing(error)) => return Err(Failure::Checks(error.to_string())),
         Err(error) => return Err(LinkError::Unexpected(error.to_string()).into()),
     };
     let [force, rotation] = &found.blocks;
@@ -1347,6 +1380,10 @@ fn identify(
             map.insert("g1_per_unit_thrust".into(), report::g1_json(force, rotation));
             map.insert("flew".into(), json!(found.flew));
             map.insert("disarmed".into(), json!(found.disarmed));
+            map.insert(
+                "landing".into(),
+                found.landing.as_ref().map_or(json!(null), configurator_cli::land::Landing::json),
+            );
             map.insert("flight".into(), found.flight.as_ref().map_or(json!(null), |f| f.json()));
             map.insert("stored_in_parameters".into(), json!(stored));
         }
@@ -1364,6 +1401,43 @@ fn identify(
         out.push_str("the craft is flying on the learned model: `configurator-cli disarm` stops the motors\n");
     }
     Ok(out)
+}
+
+/// `land`: the request, then (unless `follow_timeout_s` is `None`) the landing followed to the
+/// disarm, its progress on stderr.
+fn land(
+    client: &mut Client,
+    follow_timeout_s: Option<f64>,
+    json_output: bool,
+) -> Result<String, Failure> {
+    use configurator_cli::land;
+    let before = land::request_landing(client)?;
+    let Some(timeout_s) = follow_timeout_s else {
+        let flying = before.mode != protocol::FlightMode::Off;
+        return Ok(if json_output {
+            format!("{:#}\n", json!({"land_requested": true, "was_flying": flying}))
+        } else if flying {
+            "landing requested: the craft descends and disarms at the touchdown\n".into()
+        } else {
+            "land requested: nothing was flying, so the motors stop at once\n".into()
+        });
+    };
+    let say = &mut |line| eprintln!("{line}");
+    match land::follow_landing(client, before, timeout_s, say, &mut |_| {}) {
+        Ok(landing) if json_output => Ok(format!("{:#}\n", landing.json())),
+        Ok(landing) => Ok(landing.text()),
+        Err(land::LandError::Link(error)) => Err(error.into()),
+        // Not a link failure: the board answers, the craft is still armed (exit code 1).
+        Err(error) => Err(Failure::Checks(error.to_string())),
+    }
+}
+
+/// `--timeout-s` of `land` and `identify`: a finite time from 1 s to an hour.
+fn check_timeout_s(timeout_s: f64) -> Result<(), Failure> {
+    if timeout_s.is_finite() && (1.0..=3600.0).contains(&timeout_s) {
+        return Ok(());
+    }
+    Err(Failure::Input(InputError(format!("--timeout-s {timeout_s} is outside 1 to 3600 s"))))
 }
 
 /// The bring-up check: each line printed as it is done (text), or all of them as one JSON array;
@@ -1563,13 +1637,18 @@ const SHELL_COMMANDS: &[(&str, &str, &str)] = &[
     ("doctor", "doctor [--yes]", "bring-up check: IMU, flash, receiver, ESCs, each motor spun"),
     ("version", "version", "firmware and configurator versions"),
     ("calibrate", "calibrate imu-offset [--yes]", "guided IMU-offset calibration"),
-    ("identify", "identify [--disarm-after-s 5]", "throw-and-fly: learn the motors and fly"),
+    (
+        "identify",
+        "identify [--disarm-after-s 5 | --land-after-s 5]",
+        "throw-and-fly: learn the motors and fly",
+    ),
     ("record", "record --topic state --duration-s 10 FILE.csv", "record telemetry to CSV"),
     ("motor-test", "motor-test --motor N [--command 0.1]", "spin one motor (propellers off!)"),
     ("esc", "esc beep1 [--motor N] | esc list", "send an ESC command (beep, direction, save)"),
     ("stream", "stream --topic imu [--rate-hz 500]", "stream a telemetry topic, count gaps"),
     ("arm-throw-to-fly", "arm-throw-to-fly", "the motors spin after the next throw"),
     ("disarm", "disarm", "stop every motor now"),
+    ("land", "land [--no-wait] [--timeout-s 120]", "descend, touch down, disarm; follow it down"),
     ("reboot", "reboot", "restart the board"),
     ("dfu", "dfu", "restart into the USB DFU bootloader (firmware update)"),
     ("setpoint", "setpoint --north-m N --east-m E --down-m D", "where to hold with a pose"),

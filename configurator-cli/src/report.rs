@@ -807,6 +807,17 @@ pub fn landing_event_text(event: &protocol::Event) -> Option<String> {
     }
 }
 
+/// What happened to the flight, in words: a failsafe or a landing event (`None` for the
+/// other events, which belong to their own commands).
+pub fn flight_event_text(event: &protocol::Event) -> Option<String> {
+    match *event {
+        protocol::Event::Failsafe { reason, action, count } => {
+            Some(failsafe_event_text(reason, action, count))
+        }
+        _ => landing_event_text(event),
+    }
+}
+
 /// The closed loop's state as text.
 pub fn flight_text(flight: &FlightTelemetry) -> String {
     let mut out = String::new();
