@@ -189,8 +189,15 @@ pub enum Guidance {
     Position { position_ned_m: Vector3<f32>, yaw_rad: f32, vertical_speed_mps: Option<f32> },
     /// No position: thrust axis up, the velocity `velocity_ned_mps` (an estimate, from the fixes
     /// or by dead reckoning, world NED, m/s) brought to zero horizontally and to
-    /// `vertical_speed_mps` vertically (positive down; 0 holds the height), heading `yaw_rad`.
-    Level { yaw_rad: f32, velocity_ned_mps: Vector3<f32>, vertical_speed_mps: f32 },
+    /// `vertical_speed_mps` vertically (positive down; 0 holds the height), heading `yaw_rad`;
+    /// the upward specific force at most `max_up_mps2` (`f32::INFINITY`: no cap; a landing's
+    /// spool-down on the ground lowers it, whatever a drifting estimate asks).
+    Level {
+        yaw_rad: f32,
+        velocity_ned_mps: Vector3<f32>,
+        vertical_speed_mps: f32,
+        max_up_mps2: f32,
+    },
 }
 
 /// One step's measurements.
@@ -344,7 +351,7 @@ impl Controller {
                 // 1,000 random airframes the hold is better with it (held 96.5 % → 98.9 %).
                 (f + nav.accel_bias_ned_mps2, yaw_rad)
             }
-            Guidance::Level { yaw_rad, velocity_ned_mps, vertical_speed_mps } => {
+            Guidance::Level { yaw_rad, velocity_ned_mps, vertical_speed_mps, max_up_mps2 } => {
                 // Zero velocity: the velocity loop's P alone (no integral on a drifting estimate).
                 // Vertically the thrust acts through the motors alone, not behind the attitude
                 // loop: the rate loop's gain (designed around the motor lag) applies there.
@@ -356,7 +363,8 @@ impl Controller {
                     crate::position::MAX_ACCEL_MPS2,
                     LEVEL_MAX_VERTICAL_ACCEL_MPS2,
                 );
-                let f = accel - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
+                let mut f = accel - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
+                f.z = f.z.max(-max_up_mps2);
                 (crate::position::limit_tilt(&f), yaw_rad)
             }
         };

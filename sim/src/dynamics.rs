@@ -9,8 +9,13 @@
 //!   acceleration `−Σ J_r s_i ω̇_i n_i` (the G2 effect);
 //! - Euler's equation with the full inertia tensor: `I Ω̇ = τ − Ω × (I Ω + h) − ḣ`;
 //! - gravity, linear and quadratic aerodynamic drag on the body-axis airspeed, rotational damping;
-//! - ground contact: a penalty spring-damper under the CoG (NED z = 0 is the ground) with viscous
-//!   friction — good enough to land and rest, not to study landings;
+//! - ground contact through a landing gear: one foot under each arm ([`VehicleModel::gear_feet_m`],
+//!   [`GEAR_LEG_M`] below the lowest rotor along the rotors' mean thrust axis), each a penalty
+//!   spring-damper on the ground (NED z = 0) with viscous friction on its sliding. The feet give
+//!   the righting torques a real gear gives (a craft resting on a point under its centre of
+//!   gravity turned freely under its controller's torques and never came to rest) and the
+//!   friction that holds a craft's yaw on the ground — good enough to land, rest and tip, not to
+//!   study a gear's dynamics;
 //! - an external [`Constraint`], which overrides the accelerations while something holds, throws
 //!   or catches the vehicle (the simulated hand, `crate::hand`, chooses it; the dynamics do not
 //!   depend on the hand).
@@ -35,6 +40,14 @@ pub const GROUND_NATURAL_FREQUENCY_HZ: f64 = 30.0;
 pub const GROUND_DAMPING_RATIO: f64 = 0.9;
 /// Time constant of the viscous friction that stops sliding and spinning on the ground, s.
 pub const GROUND_FRICTION_TIME_CONSTANT_S: f64 = 0.05;
+
+/// Length of the landing gear's legs below the lowest rotor, m: the skids or legs of a 5-inch
+/// to 10-inch multirotor (3–10 cm), which keep the propellers off the ground.
+pub const GEAR_LEG_M: f64 = 0.06;
+
+/// How far out along each arm its foot stands, as a fraction of the rotor's distance from the
+/// thrust axis: legs under the arms, inside the propellers.
+pub const GEAR_SPAN_FRACTION: f64 = 0.7;
 
 /// One rotor, precomputed for the inner loop.
 #[derive(Clone, Debug)]
@@ -72,6 +85,8 @@ pub struct VehicleModel {
     pub wind_ned_mps: Vector3<f64>,
     /// Rotors in motor order.
     pub rotors: Vec<RotorModel>,
+    /// The landing gear's feet, body, m from the CoG (one under each arm).
+    pub gear_feet_m: Vec<Vector3<f64>>,
 }
 
 impl VehicleModel {
@@ -95,8 +110,10 @@ impl VehicleModel {
                     motor,
                 }
             })
-            .collect();
+            .collect::<Vec<RotorModel>>();
+        let gear_feet_m = gear_feet(&rotors);
         Self {
+            gear_feet_m,
             mass_kg: airframe.mass_kg,
             inertia_kg_m2: inertia,
             inertia_inv: inertia.try_inverse().expect("validated inertia is positive definite"),
@@ -106,6 +123,16 @@ impl VehicleModel {
             wind_ned_mps: Vector3::zeros(),
             rotors,
         }
+    }
+
+    /// Height of the lowest landing-gear foot above the ground for the vehicle in `state`, m
+    /// (0 or less: on the ground).
+    pub fn gear_height_m(&self, state: &State) -> f64 {
+        let rot = state.attitude().to_rotation_matrix();
+        self.gear_feet_m
+            .iter()
+            .map(|foot| -(state.position_ned_m + rot * foot).z)
+            .fold(f64::INFINITY, f64::min)
     }
 
     /// Number of rotors.
@@ -125,6 +152,22 @@ impl VehicleModel {
         }
         model
     }
+}
+
+/// The landing gear of `rotors`: "down" is against the rotors' mean thrust axis; one foot under
+/// each rotor, [`GEAR_SPAN_FRACTION`] of its distance out from that axis, [`GEAR_LEG_M`] below
+/// the lowest rotor.
+fn gear_feet(rotors: &[RotorModel]) -> Vec<Vector3<f64>> {
+    let sum: Vector3<f64> = rotors.iter().map(|r| r.axis).sum();
+    let down = -sum.try_normalize(1e-9).unwrap_or_else(|| -Vector3::z());
+    let depth = rotors.iter().map(|r| r.position_m.dot(&down)).fold(0.0, f64::max) + GEAR_LEG_M;
+    rotors
+        .iter()
+        .map(|r| {
+            let across = r.position_m - down * r.position_m.dot(&down);
+            across * GEAR_SPAN_FRACTION + down * depth
+        })
+        .collect()
 }
 
 /// Accelerations imposed on the rigid body from outside its dynamics: what a kinematic agent (the
@@ -269,18 +312,25 @@ impl VehicleModel {
             + self.drag_quadratic.component_mul(&v_body.map(|v| v.abs() * v));
         torque_body -= self.drag_angular.component_mul(&omega);
 
+        // The landing gear: each foot a spring-damper on the ground carrying its share of the
+        // mass, with viscous friction on its sliding.
         let mut external_ned = Vector3::zeros();
-        let depth_m = s.position_ned_m.z;
-        if depth_m > 0.0 {
-            let wn = std::f64::consts::TAU * GROUND_NATURAL_FREQUENCY_HZ;
-            let normal = self.mass_kg
-                * (wn * wn * depth_m + 2.0 * GROUND_DAMPING_RATIO * wn * s.velocity_ned_mps.z);
+        let share_kg = self.mass_kg / self.gear_feet_m.len().max(1) as f64;
+        let wn = std::f64::consts::TAU * GROUND_NATURAL_FREQUENCY_HZ;
+        for foot in &self.gear_feet_m {
+            let position = s.position_ned_m + rot * foot;
+            if position.z <= 0.0 {
+                continue;
+            }
+            let velocity = s.velocity_ned_mps + rot * omega.cross(foot);
             // The ground pushes, never pulls.
-            external_ned.z -= normal.max(0.0);
-            let friction = self.mass_kg / GROUND_FRICTION_TIME_CONSTANT_S;
-            external_ned.x -= friction * s.velocity_ned_mps.x;
-            external_ned.y -= friction * s.velocity_ned_mps.y;
-            torque_body -= self.inertia_kg_m2 * omega / GROUND_FRICTION_TIME_CONSTANT_S;
+            let normal = (share_kg
+                * (wn * wn * position.z + 2.0 * GROUND_DAMPING_RATIO * wn * velocity.z))
+                .max(0.0);
+            let friction = share_kg / GROUND_FRICTION_TIME_CONSTANT_S;
+            let force = Vector3::new(-friction * velocity.x, -friction * velocity.y, -normal);
+            external_ned += force;
+            torque_body += foot.cross(&(rot.transpose() * force));
         }
 
         let free_accel_ned = gravity_ned_mps2() + (rot * force_body + external_ned) / self.mass_kg;

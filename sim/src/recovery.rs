@@ -313,7 +313,8 @@ pub const STOP_AFTER_TOUCHDOWN_S: f64 = 1.0;
 pub struct LandingReport {
     /// Height of the CoG above the ground when the landing was asked for, m.
     pub requested_height_m: f64,
-    /// Vertical speed at the first ground contact (NED z reaching 0), m/s, positive down.
+    /// Vertical speed at the first ground contact (a landing-gear foot reaching NED z = 0),
+    /// m/s, positive down.
     pub touchdown_speed_mps: Option<f64>,
     /// Time from the first ground contact to the motors stopped (the firmware disarmed), s.
     pub stop_delay_s: Option<f64>,
@@ -737,7 +738,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 end_s = released_s + config.flight_s;
             }
             if let (Some(landing), None) = (&mut report.landing, touchdown_s) {
-                if state.position_ned_m.z >= 0.0 {
+                if board.physics().model().gear_height_m(&state) <= 0.0 {
                     // The first contact of a landing: how fast, and how far from where it began.
                     touchdown_s = Some(t_s);
                     landing.touchdown_speed_mps = Some(state.velocity_ned_mps.z);
