@@ -302,6 +302,7 @@ pub fn mode_name(mode: FlightMode) -> &'static str {
         FlightMode::LevelHold => "level-hold",
         FlightMode::PositionHold => "position-hold",
         FlightMode::Landing(_) => "landing",
+        FlightMode::Angle => "angle",
     }
 }
 

@@ -772,6 +772,7 @@ fn mode_text(mode: FlightMode) -> String {
         FlightMode::LevelHold => "level hold (no external pose: the position drifts)".into(),
         FlightMode::PositionHold => "position hold (external pose)".into(),
         FlightMode::Landing(reason) => format!("landing: {}", land_reason_text(reason)),
+        FlightMode::Angle => "angle mode (the pilot's sticks: tilt, climb rate, yaw rate)".into(),
     }
 }
 

@@ -198,6 +198,18 @@ pub enum Guidance {
         vertical_speed_mps: f32,
         max_up_mps2: f32,
     },
+    /// The pilot's angle mode: the thrust axis tilted `forward_rad` and `right_rad` from up in
+    /// the frame of the heading `yaw_rad` (forward: nose down, the craft accelerates forward),
+    /// the vertical speed brought to `vertical_speed_mps` (positive down) on the estimate
+    /// `velocity_ned_mps`'s z, as the level hold does. Nothing holds the horizontal speed: the
+    /// pilot does.
+    Tilt {
+        forward_rad: f32,
+        right_rad: f32,
+        yaw_rad: f32,
+        velocity_ned_mps: Vector3<f32>,
+        vertical_speed_mps: f32,
+    },
 }
 
 /// One step's measurements.
@@ -366,6 +378,32 @@ impl Controller {
                 let mut f = accel - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
                 f.z = f.z.max(-max_up_mps2);
                 (crate::position::limit_tilt(&f), yaw_rad)
+            }
+            Guidance::Tilt {
+                forward_rad,
+                right_rad,
+                yaw_rad,
+                velocity_ned_mps,
+                vertical_speed_mps,
+            } => {
+                // The vertical as the level hold flies it; the horizontal part of the specific
+                // force is the tilt's, at that vertical force.
+                let error = velocity_ned_mps.z - vertical_speed_mps;
+                let accel_z = crate::math::clamp(
+                    -error * self.gains.k_rate,
+                    -LEVEL_MAX_VERTICAL_ACCEL_MPS2,
+                    LEVEL_MAX_VERTICAL_ACCEL_MPS2,
+                );
+                let up = (STANDARD_GRAVITY_MPS2 - accel_z)
+                    .max(crate::position::MIN_UP_FRACTION * STANDARD_GRAVITY_MPS2);
+                let tan = |angle: f32| {
+                    let (sin, cos) = crate::math::sin_cos(angle);
+                    sin / cos
+                };
+                let (forward, right) = (tan(forward_rad) * up, tan(right_rad) * up);
+                let (sin, cos) = crate::math::sin_cos(yaw_rad);
+                let f = Vector3::new(cos * forward - sin * right, sin * forward + cos * right, -up);
+                (f, yaw_rad)
             }
         };
         let to_thrust = self.indi.model().q_imu_thrust.inverse();

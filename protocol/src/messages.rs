@@ -762,6 +762,10 @@ pub enum FlightMode {
     /// Descending to land, for this reason: straight down at the held position with a pose,
     /// level on the learned hover axis without; disarms at the touchdown (protocol 1.14).
     Landing(LandReason),
+    /// The pilot flies it in angle mode: the sticks tilt the thrust axis, turn the heading and
+    /// ask for a climb rate (protocol 1.14). In position mode the sticks move the setpoint of
+    /// [`FlightMode::PositionHold`].
+    Angle,
 }
 
 /// Why a flying craft lands (protocol 1.14).

@@ -4,9 +4,10 @@
 //! ([`firmware::app::radio`]) decide what the craft does.
 //!
 //! The switches are the default mapping's ([`RcLinkConfig::default`]: arm on channel 5,
-//! throw-to-fly on 6, kill on 7, on at 2,000 µs and off at 1,000 µs; the sticks centred). A
-//! [`RcScript`] flips them, and takes the signal away and gives it back, at given simulated
-//! times: `sitl --rc "1:arm,1:throw,6:kill"`.
+//! throw-to-fly on 6, kill on 7, land on 8, the mode switch on 9 (low: angle mode), on at
+//! 2,000 µs and off at 1,000 µs; the sticks AETR on 1–4, centred). A [`RcScript`] flips them,
+//! moves the sticks, and takes the signal away and gives it back, at given simulated times:
+//! `sitl --rc "1:arm,1:throw,6:pitch=0.3,7:pitch=0,9:position,20:land"`.
 //!
 //! The handset side decodes the telemetry the flight controller sends back (attitude, flight
 //! mode, battery: [`RcTransmitter::telemetry`], [`RcTransmitter::flight_modes`]), as a pilot's
@@ -33,9 +34,38 @@ const SWITCH_ON_US: f32 = 2_000.0;
 /// Pulse width of a switch that is off, µs.
 const SWITCH_OFF_US: f32 = 1_000.0;
 
-/// What the pilot does to the radio.
+/// A stick of the pilot's radio.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stick {
+    Roll,
+    Pitch,
+    Throttle,
+    Yaw,
+}
+
+impl Stick {
+    const ALL: [Stick; 4] = [Stick::Roll, Stick::Pitch, Stick::Throttle, Stick::Yaw];
+
+    /// The stick's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stick::Roll => "roll",
+            Stick::Pitch => "pitch",
+            Stick::Throttle => "throttle",
+            Stick::Yaw => "yaw",
+        }
+    }
+}
+
+/// What the pilot does to the radio.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum RcEvent {
+    /// The land switch on (`land`) or off (`land-off`).
+    Land(bool),
+    /// The mode switch to position mode (`position`) or angle mode (`angle`).
+    PositionMode(bool),
+    /// A stick to a position, −1..1 (`pitch=0.3`: forward 30 % of its travel).
+    Stick(Stick, f32),
     /// The arm switch on (`arm`) or off (`disarm`).
     Arm(bool),
     /// The throw-to-fly switch on (`throw`) or off (`throw-off`).
@@ -58,11 +88,26 @@ impl RcEvent {
             Self::Kill(false) => "kill-off",
             Self::Signal(true) => "restore",
             Self::Signal(false) => "lose",
+            Self::Land(true) => "land",
+            Self::Land(false) => "land-off",
+            Self::PositionMode(true) => "position",
+            Self::PositionMode(false) => "angle",
+            Self::Stick(stick, _) => stick.name(),
         }
     }
 
     fn parse(text: &str) -> Option<Self> {
+        if let Some((name, value)) = text.split_once('=') {
+            let stick = Stick::ALL.into_iter().find(|s| s.name() == name.trim())?;
+            let value: f32 = value.trim().parse().ok()?;
+            return (value.is_finite() && (-1.0..=1.0).contains(&value))
+                .then_some(Self::Stick(stick, value));
+        }
         [
+            Self::Land(true),
+            Self::Land(false),
+            Self::PositionMode(true),
+            Self::PositionMode(false),
             Self::Arm(true),
             Self::Arm(false),
             Self::ThrowToFly(true),
@@ -85,8 +130,10 @@ pub struct RcScript {
 
 impl RcScript {
     /// Parses `T:EVENT,T:EVENT,...` (T in simulated seconds, finite and ≥ 0; EVENT one of `arm`,
-    /// `disarm`, `throw`, `throw-off`, `kill`, `kill-off`, `lose`, `restore`); the events are
-    /// sorted by time (equal times keep their order). An empty text is an empty script.
+    /// `disarm`, `throw`, `throw-off`, `kill`, `kill-off`, `land`, `land-off`, `position`,
+    /// `angle`, `lose`, `restore`, or a stick's position `roll=X`, `pitch=X`, `throttle=X`,
+    /// `yaw=X` with X in −1..1); the events are sorted by time (equal times keep their order).
+    /// An empty text is an empty script.
     pub fn parse(text: &str) -> Result<Self, String> {
         let mut events = Vec::new();
         for item in text.split(',').map(str::trim).filter(|item| !item.is_empty()) {
@@ -103,7 +150,8 @@ impl RcScript {
             let event = RcEvent::parse(name.trim()).ok_or_else(|| {
                 format!(
                     "`{item}`: unknown event `{name}` (arm, disarm, throw, throw-off, kill, \
-                     kill-off, lose, restore)"
+                     kill-off, land, land-off, position, angle, lose, restore, or roll=X, \
+                     pitch=X, throttle=X, yaw=X with X in -1..1)"
                 )
             })?;
             events.push((time_s, event));
@@ -120,6 +168,10 @@ pub struct RcTransmitter {
     arm: bool,
     throw_to_fly: bool,
     kill: bool,
+    land: bool,
+    position_mode: bool,
+    /// Roll, pitch, throttle, yaw, −1..1.
+    sticks: [f32; 4],
     signal: bool,
     frame_period_us: u64,
     next_frame_us: u64,
@@ -144,6 +196,9 @@ impl RcTransmitter {
             arm: false,
             throw_to_fly: false,
             kill: false,
+            land: false,
+            position_mode: false,
+            sticks: [0.0; 4],
             signal: true,
             frame_period_us: (1e6 / rate_hz).round() as u64,
             next_frame_us: 0,
@@ -163,6 +218,9 @@ impl RcTransmitter {
             RcEvent::ThrowToFly(on) => self.throw_to_fly = on,
             RcEvent::Kill(on) => self.kill = on,
             RcEvent::Signal(on) => self.signal = on,
+            RcEvent::Land(on) => self.land = on,
+            RcEvent::PositionMode(on) => self.position_mode = on,
+            RcEvent::Stick(stick, value) => self.sticks[stick as usize] = value,
         }
     }
 
@@ -226,6 +284,15 @@ impl RcTransmitter {
         raw[self.config.arm.channel] = us(self.arm);
         raw[self.config.throw_to_fly.channel] = us(self.throw_to_fly);
         raw[self.config.kill.channel] = us(self.kill);
+        raw[self.config.land.channel] = us(self.land);
+        raw[self.config.mode.channel] = us(self.position_mode);
+        let map = self.config.sticks;
+        for (channel, value) in
+            [map.roll, map.pitch, map.throttle, map.yaw].into_iter().zip(self.sticks)
+        {
+            // 1500 µs centred, ±512 µs of travel (988–2012 µs, a CRSF handset's full range).
+            raw[channel] = RcChannels::raw_from_us(1_500.0 + 512.0 * value);
+        }
         let payload = RcChannels { raw }.pack();
         let mut frame = [0u8; FRAME_MAX];
         if let Some(n) =

@@ -442,6 +442,9 @@ pub struct FlyReport {
     pub thrust_scores_at_excitation_end: Option<Scores>,
     /// The landing, when the run asked for one and the craft was flying then.
     pub landing: Option<LandingReport>,
+    /// A landing the firmware began by itself before the run asked for one (a fly-away, the
+    /// pose lost too long), and when, s after the release.
+    pub landed_by_itself: Option<(LandReason, f64)>,
 }
 
 /// Scores of `learned` per unit normalised thrust `u = ω²/ω_full²` (the papers' convention and
@@ -570,6 +573,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             g1_block_rel_fitted_jointly: None,
             thrust_scores_at_excitation_end: None,
             landing: None,
+            landed_by_itself: None,
         };
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
@@ -656,6 +660,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     p.velocity_ned_mps[0], p.velocity_ned_mps[1], p.velocity_ned_mps[2],
                     p.tilt_error_rad.to_degrees(), p.saturated,
                 );
+            }
+            if let (Some(reason), None, None) =
+                (snapshot.pilot.landing, report.landing, report.landed_by_itself)
+            {
+                report.landed_by_itself = Some((reason, since_release));
             }
             if snapshot.pilot.flying {
                 if report.release_to_engage_s.is_none() {

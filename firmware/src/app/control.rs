@@ -95,6 +95,9 @@ pub enum ControlCommand {
     /// test) stops at once, as [`ControlCommand::Disarm`]. [`LandReason::RcLost`] also counts
     /// the radio failsafe when anything was armed.
     Land(LandReason),
+    /// The pilot's sticks and mode switch from the radio, each time they change (`None`: the
+    /// radio's link is lost: nothing from the pilot).
+    Sticks(Option<crate::drivers::crsf::StickInput>),
     /// A pose from motion capture or a ground station.
     ExternalPose(ExternalPose),
     /// Where to hold while poses arrive (the link refuses non-finite values).
@@ -125,6 +128,11 @@ pub struct ControlSettings {
     /// Battery voltage per cell below which a flight lands, V (`None`: never; read by the
     /// control task, which measures the battery).
     pub land_cell_v: Option<f32>,
+    /// How the pilot's sticks are flown.
+    pub sticks: super::sticks::StickConfig,
+    /// The radio's stick channels and mode switch (read by the control task's receiver).
+    pub stick_map: crate::drivers::crsf::StickMap,
+    pub mode_channel: usize,
     /// How long, armed, bad IMU samples are held over before the IMU failsafe acts, s
     /// (`imu_fault_timeout_s`; 0: at the first bad sample).
     pub imu_fault_timeout_s: f32,
@@ -146,6 +154,9 @@ impl Default for ControlSettings {
             pose: super::pilot::PoseConfig::default(),
             land: super::pilot::LandConfig::default(),
             land_cell_v: Some(super::battery::DEFAULT_LAND_CELL_V),
+            sticks: super::sticks::StickConfig::default(),
+            stick_map: crate::drivers::crsf::StickMap::AETR,
+            mode_channel: crate::drivers::crsf::RcLinkConfig::default().mode.channel,
             imu_fault_timeout_s: IMU_FAULT_TIMEOUT_S,
             arm_without_speeds: false,
         }
@@ -161,6 +172,9 @@ impl From<&super::params::Params> for ControlSettings {
             pose: params.pose_config(),
             land: params.land_config(),
             land_cell_v: params.land_cell_v(),
+            sticks: params.stick_config(),
+            stick_map: params.stick_map(),
+            mode_channel: params.mode_channel(),
             imu_fault_timeout_s: params.imu_fault_timeout_s(),
             arm_without_speeds: params.arms_without_speeds(),
         }
@@ -625,6 +639,7 @@ impl<'q> ControlLoop<'q> {
                 }
             }
             ControlCommand::Land(reason) => self.land(reason),
+            ControlCommand::Sticks(sticks) => self.pilot.set_sticks(sticks),
             ControlCommand::ExternalPose(pose) => {
                 if super::is_finite_pose(&pose.position_ned_m, pose.heading_rad) {
                     self.snapshot.external_pose = Some((pose, now_us));
@@ -712,6 +727,7 @@ impl<'q> ControlLoop<'q> {
         }
         self.pilot.configure_pose(settings.pose);
         self.pilot.configure_landing(settings.land);
+        self.pilot.configure_sticks(settings.sticks);
         self.settings = settings;
     }
 

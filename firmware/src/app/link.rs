@@ -992,11 +992,12 @@ pub fn sensor_health(view: &StatusView) -> SensorHealth {
 pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
     let control = &view.control;
     let pilot = &control.pilot;
-    let mode = match (pilot.flying, pilot.landing, pilot.position_hold) {
-        (false, _, _) => FlightMode::Off,
-        (true, Some(reason), _) => FlightMode::Landing(reason),
-        (true, None, false) => FlightMode::LevelHold,
-        (true, None, true) => FlightMode::PositionHold,
+    let mode = match (pilot.flying, pilot.landing, pilot.piloted, pilot.position_hold) {
+        (false, ..) => FlightMode::Off,
+        (true, Some(reason), ..) => FlightMode::Landing(reason),
+        (true, None, Some(false), _) => FlightMode::Angle,
+        (true, None, _, false) => FlightMode::LevelHold,
+        (true, None, _, true) => FlightMode::PositionHold,
     };
     let q = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
     let [roll, pitch, yaw] = flight::attitude::euler_zyx_rad(q);

@@ -49,8 +49,9 @@ use heapless::spsc::Queue;
 use protocol::{Decoder, DshotCommand, ExternalPose, LandReason, PositionSetpoint, MAX_FRAME_LEN};
 
 /// Version of the log's record layout. 2 added the learner's and the flight's snapshots
-/// ([`id::LEARNER`], [`id::FLIGHT`]) to version 1's records; 3 the landing (the command
-/// [`LoggedCommand::Land`], the flight mode `Landing`). A reader reads every earlier version,
+/// ([`id::LEARNER`], [`id::FLIGHT`]) to version 1's records; 3 the landing and the pilot's
+/// sticks (the commands [`LoggedCommand::Land`] and [`LoggedCommand::Sticks`], the flight modes
+/// `Landing` and `Angle`). A reader reads every earlier version,
 /// and refuses later ones.
 pub const LOG_FORMAT_VERSION: u16 = 3;
 
@@ -200,6 +201,8 @@ pub enum LoggedCommand {
     /// End the flight gently ([`ControlCommand::Land`]), for this reason (format 2 readers see
     /// an unknown command: appended, nothing before it moved).
     Land(LandReason),
+    /// The pilot's sticks ([`ControlCommand::Sticks`]).
+    Sticks(Option<crate::drivers::crsf::StickInput>),
 }
 
 /// A command applied before step `step`.
@@ -325,6 +328,7 @@ impl LoggedCommand {
                     .unwrap_or(0) as u8,
             },
             ControlCommand::Land(reason) => Self::Land(reason),
+            ControlCommand::Sticks(sticks) => Self::Sticks(sticks),
         }
     }
 
@@ -346,6 +350,7 @@ impl LoggedCommand {
                 ControlCommand::Failsafe(*FAILSAFE_KINDS.get(usize::from(kind))?)
             }
             Self::Land(reason) => ControlCommand::Land(reason),
+            Self::Sticks(sticks) => ControlCommand::Sticks(sticks),
         })
     }
 }

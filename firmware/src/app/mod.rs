@@ -25,6 +25,7 @@ mod pilot;
 mod queue;
 pub mod radio;
 pub mod settings;
+pub mod sticks;
 pub mod system;
 mod telemetry;
 

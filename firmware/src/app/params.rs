@@ -197,6 +197,25 @@ registry! {
         "a fly-away this long lands the craft";
     LandCellV = "land_cell_v", 1, Real, "V", 0.0, 4.0, [super::battery::DEFAULT_LAND_CELL_V],
         false, "in flight: land when the battery stays below this per cell (0: never)";
+    // The pilot's radio and sticks (`super::sticks`).
+    RcMap = "rc_map", 4, Integer, "", 1.0, 16.0, [1.0, 2.0, 3.0, 4.0], false,
+        "channels of roll, pitch, throttle, yaw (AETR: 1,2,3,4)";
+    RcModeChannel = "rc_mode_channel", 1, Integer, "", 1.0, 16.0, [9.0], false,
+        "flight-mode switch channel: high position mode, low angle mode";
+    StickDeadband = "stick_deadband", 1, Real, "", 0.0, 0.2, [super::sticks::DEFAULT_DEADBAND],
+        false, "sticks: deadband around centre, fraction of half travel";
+    StickExpo = "stick_expo", 1, Real, "", 0.0, 1.0, [super::sticks::DEFAULT_EXPO], false,
+        "sticks: expo, 0 linear to 1 cubic";
+    StickMaxTiltDeg = "stick_max_tilt_deg", 1, Real, "°", 5.0, 60.0, [30.0], false,
+        "angle mode: tilt of the thrust axis at full roll or pitch stick";
+    StickYawRateDps = "stick_yaw_rate_dps", 1, Real, "°/s", 10.0, 360.0, [120.0], false,
+        "yaw rate at full yaw stick";
+    StickClimbMps = "stick_climb_mps", 1, Real, "m/s", 0.2, 5.0,
+        [super::sticks::DEFAULT_MAX_CLIMB_MPS], false,
+        "climb rate at full throttle (centre: hold height)";
+    StickSpeedMps = "stick_speed_mps", 1, Real, "m/s", 0.2, 10.0,
+        [super::sticks::DEFAULT_MAX_SPEED_MPS], false,
+        "position mode: setpoint speed at full stick";
     // The flight log (`super::log`).
     LogAlways = "log_always", 1, Flag, "", 0.0, 1.0, [0.0], false,
         "1: log from start-up on; 0: a new log file per arming (and 2 s after)";
@@ -443,6 +462,32 @@ impl Params {
             flyaway_speed_mps: self.scalar(Param::FlyawaySpeedMps),
             flyaway_time_s: self.scalar(Param::FlyawayTimeS),
         }
+    }
+
+    /// How the pilot's sticks are flown.
+    pub fn stick_config(&self) -> super::sticks::StickConfig {
+        let radians = core::f32::consts::PI / 180.0;
+        super::sticks::StickConfig {
+            deadband: self.scalar(Param::StickDeadband),
+            expo: self.scalar(Param::StickExpo),
+            max_tilt_rad: self.scalar(Param::StickMaxTiltDeg) * radians,
+            max_yaw_rate_rad_s: self.scalar(Param::StickYawRateDps) * radians,
+            max_climb_mps: self.scalar(Param::StickClimbMps),
+            max_speed_mps: self.scalar(Param::StickSpeedMps),
+        }
+    }
+
+    /// The sticks' channels (`rc_map`); AETR when two are the same.
+    pub fn stick_map(&self) -> crate::drivers::crsf::StickMap {
+        let map = self.get(Param::RcMap);
+        let channels = [map[0], map[1], map[2], map[3]].map(|c| c as u8);
+        crate::drivers::crsf::StickMap::from_channels(channels)
+            .unwrap_or(crate::drivers::crsf::StickMap::AETR)
+    }
+
+    /// The mode switch's channel, 0-based.
+    pub fn mode_channel(&self) -> usize {
+        (self.scalar(Param::RcModeChannel) as usize).saturating_sub(1)
     }
 
     /// The battery voltage per cell below which a flight lands, V (`None`: never).

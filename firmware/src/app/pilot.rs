@@ -36,6 +36,10 @@
 //!   estimator's velocity (the accelerometer integrated from the last fixed velocity, with the
 //!   bias the fixes taught it), not on the raw dead reckoning since the last rest. When fixes
 //!   come back, the position hold starts afresh where the craft stops.
+//! - **The pilot's sticks** ([`Pilot::set_sticks`], `super::sticks`): once the flight has been
+//!   steady for [`STICKS_TAKE_OVER_S`], fresh sticks fly it, in angle mode, or in position mode
+//!   when the mode switch asks and a pose is fresh (centred sticks hold). A landing takes over
+//!   from them; without sticks the craft holds as above.
 //! - **Landing** ([`Pilot::land`], for a [`LandReason`]): with a position, straight down at
 //!   the held horizontal position; without, level on the learned hover axis; at
 //!   [`LandConfig::descent_mps`] (the `land_descent_mps` parameter) either way, until the
@@ -44,7 +48,8 @@
 //!   control step's [`super::control::ControlCommand::Land`]), and here: the pose lost for
 //!   longer than [`LandConfig::pose_lost_s`], and a fly-away.
 //! - **No fly-away**: with fixes, the level hold that waits for the position hold flies on the
-//!   fixes' velocity from the engagement on; a craft that still moves away from its setpoint (or, before one, anywhere) faster than
+//!   fixes' velocity from the engagement on; a craft that still moves away from its setpoint
+//!   (before one, from where the flight first had a usable pose) faster than
 //!   [`LandConfig::flyaway_speed_mps`] for [`LandConfig::flyaway_time_s`] without braking
 //!   ([`FLYAWAY_BRAKING_MPS`]) lands (its horizontal loops go on: whatever holds it back still
 //!   does, and the descent brings it down either way).
@@ -67,6 +72,8 @@ use protocol::{
 };
 
 use super::hal::{ImuSample, MAX_MOTORS};
+use super::sticks::{move_setpoint, StickConfig};
+use crate::drivers::crsf::StickInput;
 
 /// Consecutive failed allocations after which the craft disarms (10 ms at 2 kHz; the published
 /// system disarmed after "many consecutive" NaN results).
@@ -321,6 +328,15 @@ impl Touchdown {
     }
 }
 
+/// How long a flight must have been steady (thrust axis within
+/// [`STICKS_TAKE_OVER_TILT_RAD`] of its setpoint, turning slower than 30 °/s) before the pilot's
+/// sticks fly it, s (ours): the recovery from a throw is the firmware's, and sticks left
+/// anywhere during the throw must not steer a tumbling craft.
+pub const STICKS_TAKE_OVER_S: f32 = 0.3;
+
+/// Tilt error below which a flight counts as steady for [`STICKS_TAKE_OVER_S`], rad (10°).
+pub const STICKS_TAKE_OVER_TILT_RAD: f32 = 10.0 * core::f32::consts::PI / 180.0;
+
 /// Default pose latency, s: motion capture on a wire (the `pose_latency_s` parameter).
 pub const DEFAULT_POSE_LATENCY_S: f32 = 0.0;
 
@@ -512,6 +528,9 @@ pub struct PilotStatus {
     /// Controllers formed afresh in flight on a thrust axis that moved by more than
     /// [`REFORM_AXIS_CHANGE_RAD`], since start-up.
     pub reforms: u32,
+    /// The pilot's sticks fly the craft (from the recovered hover on, with the radio fresh):
+    /// `Some(true)` in position mode, `Some(false)` in angle mode.
+    pub piloted: Option<bool>,
     /// The landing in progress, and why.
     pub landing: Option<LandReason>,
     /// Landings begun and touchdowns (each stopped the motors) since start-up.
@@ -571,6 +590,12 @@ pub struct Pilot {
     /// The navigation's velocity in IMU axes as of the latest [`Pilot::observe`], m/s.
     velocity_imu_mps: [f32; 3],
     land_config: LandConfig,
+    stick_config: StickConfig,
+    /// The pilot's sticks, while the radio is fresh.
+    sticks: Option<StickInput>,
+    /// How long the craft has flown steadily since it engaged, s (the sticks take over after
+    /// [`STICKS_TAKE_OVER_S`]).
+    steady_s: f32,
     /// The landing in progress.
     touchdown: Option<Touchdown>,
     /// How long the fixes have been lost in this flight, s.
@@ -578,6 +603,9 @@ pub struct Pilot {
     /// How long the craft has moved away faster than the fly-away speed without braking, s,
     /// and its fastest speed since then, m/s.
     flyaway: Option<(f32, f32)>,
+    /// Where this flight first had a usable pose, world NED, m: what a fly-away moves away from
+    /// before a hold has a setpoint.
+    flyaway_origin_ned_m: Option<Vector3<f32>>,
     status: PilotStatus,
 }
 
@@ -613,9 +641,13 @@ impl Pilot {
             reform_pending: false,
             velocity_imu_mps: [0.0; 3],
             land_config: LandConfig::default(),
+            stick_config: StickConfig::default(),
+            sticks: None,
+            steady_s: 0.0,
             touchdown: None,
             pose_lost_s: 0.0,
             flyaway: None,
+            flyaway_origin_ned_m: None,
             status: PilotStatus::default(),
         }
     }
@@ -631,6 +663,16 @@ impl Pilot {
             flyaway_speed_mps: keep(config.flyaway_speed_mps, old.flyaway_speed_mps),
             flyaway_time_s: keep(config.flyaway_time_s, old.flyaway_time_s),
         };
+    }
+
+    /// Take how the sticks are flown.
+    pub fn configure_sticks(&mut self, config: StickConfig) {
+        self.stick_config = config;
+    }
+
+    /// The pilot's sticks (`None`: no radio, or its link lost: nothing from the pilot).
+    pub fn set_sticks(&mut self, sticks: Option<StickInput>) {
+        self.sticks = sticks;
     }
 
     /// Land for `reason`: from the next step the craft descends and disarms at the touchdown.
@@ -941,6 +983,41 @@ impl Pilot {
         }
     }
 
+    /// What the pilot's sticks ask for (`super::sticks`): position mode when asked and the
+    /// fixes allow a hold (`can_hold`), else angle mode. The heading setpoint turns with the yaw
+    /// stick in both.
+    fn stick_guidance(
+        &mut self,
+        sticks: &StickInput,
+        nav: &flight::navigation::NavigationState,
+        can_hold: bool,
+    ) -> Guidance {
+        let dt_s = 1.0 / self.rate_hz;
+        let config = self.stick_config;
+        let shaped = config.shaped(sticks);
+        self.yaw_sp_filter_rad = flight::attitude::wrap_pi(
+            self.yaw_sp_filter_rad + shaped.yaw * config.max_yaw_rate_rad_s * dt_s,
+        );
+        let yaw_rad = self.yaw_sp_filter_rad + self.alignment_yaw_rad();
+        if sticks.position_mode && can_hold {
+            self.status.piloted = Some(true);
+            let setpoint = self.position_sp_ned_m.unwrap_or(nav.position_ned_m);
+            let velocity = config.setpoint_velocity(&shaped, yaw_rad);
+            let moved = move_setpoint(&setpoint, &velocity, &nav.position_ned_m, dt_s);
+            self.position_sp_ned_m = Some(moved);
+            return Guidance::Position { position_ned_m: moved, yaw_rad, vertical_speed_mps: None };
+        }
+        // Angle mode: a later position mode holds from where the craft is then.
+        self.status.piloted = Some(false);
+        self.position_sp_ned_m = None;
+        let (forward_rad, right_rad, vertical_speed_mps) = config.angle_mode(&shaped);
+        let velocity_ned_mps = match self.guidance_now(None) {
+            Guidance::Level { velocity_ned_mps, .. } => velocity_ned_mps,
+            _ => nav.velocity_ned_mps,
+        };
+        Guidance::Tilt { forward_rad, right_rad, yaw_rad, velocity_ned_mps, vertical_speed_mps }
+    }
+
     /// The landings this step starts by itself: the fixes lost for longer than
     /// [`LandConfig::pose_lost_s`], or a fly-away (module doc).
     fn land_by_itself(&mut self, nav: &flight::navigation::NavigationState, positioned: bool) {
@@ -950,17 +1027,23 @@ impl Pilot {
         if self.pose_lost_s > config.pose_lost_s {
             self.land(LandReason::PoseLost);
         }
+        // Away from the hold's setpoint, or before one from where the flight first had a usable
+        // pose: the radial speed, so a craft circling while its heading settles (Monte Carlo
+        // seed 355 of the random world: 6 m/s for 2 s, then held within 0.16 m) is no fly-away.
+        if !positioned {
+            self.flyaway = None;
+            return;
+        }
+        let origin = *self.flyaway_origin_ned_m.get_or_insert(nav.position_ned_m);
+        let offset = nav.position_ned_m - self.position_sp_ned_m.unwrap_or(origin);
+        let distance = libm::hypotf(offset.x, offset.y);
         let v = nav.velocity_ned_mps;
-        let away = self.position_sp_ned_m.is_none_or(|sp| {
-            let offset = nav.position_ned_m - sp;
-            offset.x * v.x + offset.y * v.y > 0.0
-        });
+        let speed =
+            if distance > 1e-3 { (offset.x * v.x + offset.y * v.y) / distance } else { 0.0 };
         // Braking (the speed fell by FLYAWAY_BRAKING_MPS below its peak since the count began)
-        // is no fly-away: a craft thrown sideways at 3-6 m/s recovers that way, once its
+        // is no fly-away either: a craft thrown sideways at 3-6 m/s recovers that way, once its
         // tumble is over.
-        let speed = libm::hypotf(v.x, v.y);
-        let counting =
-            positioned && away && speed > config.flyaway_speed_mps && self.touchdown.is_none();
+        let counting = speed > config.flyaway_speed_mps && self.touchdown.is_none();
         self.flyaway = match self.flyaway {
             Some((_, peak)) if counting && speed < peak - FLYAWAY_BRAKING_MPS => Some((0.0, speed)),
             Some((since_s, peak)) if counting => Some((since_s + dt_s, peak.max(speed))),
@@ -1148,7 +1231,16 @@ impl Pilot {
                 None => self.position_sp_ned_m = Some(nav.position_ned_m),
             }
         }
-        self.guidance = self.guidance_now(self.position_sp_ned_m);
+        self.guidance = match self
+            .sticks
+            .filter(|_| self.steady_s >= STICKS_TAKE_OVER_S && self.touchdown.is_none())
+        {
+            Some(sticks) => self.stick_guidance(&sticks, &nav, can_hold),
+            None => {
+                self.status.piloted = None;
+                self.guidance_now(self.position_sp_ned_m)
+            }
+        };
         let input = ControllerInput {
             gyro_rad_s: imu.gyro_rad_s,
             accel_mps2: imu.accel_mps2,
@@ -1164,6 +1256,13 @@ impl Pilot {
             Err(_) => return Err(self.fail(Failsafe::BadCommand)),
         };
         self.report(&output);
+        let steady = output.tilt_error_rad < STICKS_TAKE_OVER_TILT_RAD
+            && Vector3::from(imu.gyro_rad_s).norm() < STEADY_RATE_RAD_S;
+        if steady || self.steady_s >= STICKS_TAKE_OVER_S {
+            self.steady_s += 1.0 / self.rate_hz;
+        } else {
+            self.steady_s = 0.0;
+        }
         let commands = output.indi.commands;
         if !commands.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c)) {
             return Err(self.fail(Failsafe::BadCommand));
@@ -1235,7 +1334,10 @@ impl Pilot {
         self.touchdown = None;
         self.pose_lost_s = 0.0;
         self.flyaway = None;
+        self.flyaway_origin_ned_m = None;
+        self.steady_s = 0.0;
         self.status.flying = false;
+        self.status.piloted = None;
         self.status.landing = None;
     }
 

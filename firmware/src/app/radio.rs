@@ -45,6 +45,7 @@ use super::pilot::Failsafe;
 use super::{ControlCommand, ControlSnapshot};
 use crate::drivers::crsf::{
     CrsfFrame, CrsfParser, LinkStatistics, PilotRequest, RcConfigError, RcLink, RcLinkConfig,
+    StickInput, StickMap,
 };
 use crate::drivers::crsf::{HandsetTelemetry, FLIGHT_MODE_MAX_LEN};
 use flight::learner::FlightPhase;
@@ -81,6 +82,8 @@ pub struct Receiver {
     telemetry_slot: bool,
     /// The handset's telemetry cycle.
     handset: HandsetCycle,
+    /// The sticks last handed to the control step.
+    sticks_sent: Option<StickInput>,
 }
 
 impl Receiver {
@@ -97,6 +100,23 @@ impl Receiver {
             rc_lost_landing: false,
             telemetry_slot: false,
             handset: HandsetCycle::default(),
+            sticks_sent: None,
+        })
+    }
+
+    /// Take the stick and mode-switch channels in force (`rc_map`, `rc_mode_channel`).
+    pub fn set_stick_channels(&mut self, sticks: StickMap, mode_channel: usize) {
+        self.link.set_stick_channels(sticks, mode_channel);
+    }
+
+    /// The pilot's sticks for the control step, when they changed since the last call
+    /// ([`ControlCommand::Sticks`]; `None` inside once the link is lost). Called after
+    /// [`Receiver::poll`] in the same tick.
+    pub fn take_sticks(&mut self, now_us: u64) -> Option<ControlCommand> {
+        let sticks = if self.present { self.link.sticks(now_us) } else { None };
+        (sticks != self.sticks_sent).then(|| {
+            self.sticks_sent = sticks;
+            ControlCommand::Sticks(sticks)
         })
     }
 
@@ -271,17 +291,20 @@ fn attitude(snapshot: &ControlSnapshot) -> HandsetTelemetry {
 
 /// What the craft is doing, in words a pilot reads on a handset: `DISARMED`, `WAIT THROW`,
 /// `THROWN`, `RELEASED`, `EXCITE k/m` (motor k of m pulsed), `HANDOVER`, `HOVER`, `POS HOLD`,
-/// `MOTOR TEST`, `FAILSAFE` (a failsafe stopped it and it has not been armed since).
+/// `ANGLE` (the sticks fly it in angle mode), `LANDING`, `MOTOR TEST`, `FAILSAFE` (a failsafe
+/// stopped it and it has not been armed since).
 pub fn flight_mode_words(
     snapshot: &ControlSnapshot,
     failsafe_shown: bool,
 ) -> heapless::String<FLIGHT_MODE_MAX_LEN> {
     let mut words = heapless::String::new();
-    let text = if snapshot.pilot.flying {
-        if snapshot.pilot.position_hold {
-            "POS HOLD"
-        } else {
-            "HOVER"
+    let pilot = &snapshot.pilot;
+    let text = if pilot.flying {
+        match (pilot.landing, pilot.piloted, pilot.position_hold) {
+            (Some(_), _, _) => "LANDING",
+            (None, Some(false), _) => "ANGLE",
+            (None, _, true) => "POS HOLD",
+            (None, _, false) => "HOVER",
         }
     } else if snapshot.armed {
         match (snapshot.phase, snapshot.exciting_motor) {

@@ -247,7 +247,10 @@ impl<'q> ControlTask<'q> {
         if let Some(radio) = &mut self.radio {
             let mut chunk = [0u8; RADIO_CHUNK_BYTES];
             let count = radio_bytes.read(&mut chunk).min(RADIO_CHUNK_BYTES);
-            if let Some(command) = radio.poll(&chunk[..count], now_us, self.craft) {
+            let settings = control.settings();
+            radio.set_stick_channels(settings.stick_map, settings.mode_channel);
+            let switches = radio.poll(&chunk[..count], now_us, self.craft);
+            for command in [switches, radio.take_sticks(now_us)].into_iter().flatten() {
                 if let Some(log) = log.as_mut() {
                     log.push(LogEntry::Command { step, command });
                 }

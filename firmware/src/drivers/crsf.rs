@@ -622,6 +622,10 @@ pub struct RcLinkConfig {
     pub kill: SwitchConfig,
     /// Land switch (with the arm switch on: a flying craft lands).
     pub land: SwitchConfig,
+    /// Flight-mode switch: on, position mode (when a pose is fresh); off, angle mode.
+    pub mode: SwitchConfig,
+    /// The sticks' channels.
+    pub sticks: StickMap,
     /// Failsafe after this long without a good RC channels frame, µs.
     pub failsafe_timeout_us: u64,
 }
@@ -634,16 +638,63 @@ pub const DEFAULT_SWITCH_ON_ABOVE_US: f32 = 1_700.0;
 
 impl Default for RcLinkConfig {
     /// Arm on channel 5 (index 4), throw-to-fly on channel 6 (index 5), kill on channel 7
-    /// (index 6), land on channel 8 (index 7), all on above 1700 µs; failsafe after 250 ms.
+    /// (index 6), land on channel 8 (index 7), all on above 1700 µs; the mode switch on channel
+    /// 9 (index 8), position mode above 1500 µs; sticks AETR on channels 1–4; failsafe after
+    /// 250 ms.
     fn default() -> Self {
         Self {
             arm: SwitchConfig { channel: 4, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
             throw_to_fly: SwitchConfig { channel: 5, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
             kill: SwitchConfig { channel: 6, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
             land: SwitchConfig { channel: 7, on_above_us: DEFAULT_SWITCH_ON_ABOVE_US },
+            mode: SwitchConfig { channel: 8, on_above_us: DEFAULT_MODE_ON_ABOVE_US },
+            sticks: StickMap::AETR,
             failsafe_timeout_us: DEFAULT_FAILSAFE_TIMEOUT_US,
         }
     }
+}
+
+/// Pulse width above which the mode switch asks for position mode, µs: below a three-position
+/// switch's middle (1500 µs), so its upper two positions and a two-position switch's upper one
+/// select position mode, its lowest angle mode.
+pub const DEFAULT_MODE_ON_ABOVE_US: f32 = 1_400.0;
+
+/// Which channel (0-based) carries each stick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StickMap {
+    pub roll: usize,
+    pub pitch: usize,
+    pub throttle: usize,
+    pub yaw: usize,
+}
+
+impl StickMap {
+    /// Aileron, elevator, throttle, rudder on channels 1–4 (ExpressLRS's and Betaflight's
+    /// default).
+    pub const AETR: Self = Self { roll: 0, pitch: 1, throttle: 2, yaw: 3 };
+
+    /// The map from 1-based channel numbers in the order roll, pitch, throttle, yaw (the
+    /// `rc_map` parameter); `None` when one is outside 1–16 or two are the same.
+    pub fn from_channels(channels: [u8; 4]) -> Option<Self> {
+        let distinct = (0..4).all(|i| (i + 1..4).all(|j| channels[i] != channels[j]));
+        let valid = channels.iter().all(|&c| (1..=CHANNEL_COUNT as u8).contains(&c));
+        (distinct && valid).then(|| {
+            let [roll, pitch, throttle, yaw] = channels.map(|c| usize::from(c) - 1);
+            Self { roll, pitch, throttle, yaw }
+        })
+    }
+}
+
+/// The pilot's sticks and mode switch, each stick normalised to −1..1 (1000–2000 µs, 1500 µs
+/// centred): roll right, pitch forward (nose down), throttle up and yaw right are positive.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StickInput {
+    pub roll: f32,
+    pub pitch: f32,
+    pub throttle: f32,
+    pub yaw: f32,
+    /// The mode switch asks for position mode.
+    pub position_mode: bool,
 }
 
 /// An invalid [`RcLinkConfig`].
@@ -690,7 +741,7 @@ pub struct RcLink {
 impl RcLink {
     /// A link with no frame yet (in failsafe until the first RC frame).
     pub fn new(config: RcLinkConfig) -> Result<Self, RcConfigError> {
-        for switch in [config.arm, config.throw_to_fly, config.kill, config.land] {
+        for switch in [config.arm, config.throw_to_fly, config.kill, config.land, config.mode] {
             if switch.channel >= CHANNEL_COUNT {
                 return Err(RcConfigError::ChannelOutOfRange { channel: switch.channel });
             }
@@ -698,7 +749,39 @@ impl RcLink {
                 return Err(RcConfigError::ThresholdNotFinite);
             }
         }
+        let sticks = config.sticks;
+        if let Some(&channel) = [sticks.roll, sticks.pitch, sticks.throttle, sticks.yaw]
+            .iter()
+            .find(|&&c| c >= CHANNEL_COUNT)
+        {
+            return Err(RcConfigError::ChannelOutOfRange { channel });
+        }
         Ok(Self { config, channels: None, last_frame_us: 0 })
+    }
+
+    /// Take other stick and mode-switch channels (the `rc_map` and `rc_mode_channel`
+    /// parameters); channels beyond the 16 of a frame are ignored.
+    pub fn set_stick_channels(&mut self, sticks: StickMap, mode_channel: usize) {
+        let all = [sticks.roll, sticks.pitch, sticks.throttle, sticks.yaw, mode_channel];
+        if all.iter().all(|&c| c < CHANNEL_COUNT) {
+            self.config.sticks = sticks;
+            self.config.mode.channel = mode_channel;
+        }
+    }
+
+    /// The sticks and the mode switch at `now_us`, while the link is fresh.
+    pub fn sticks(&self, now_us: u64) -> Option<StickInput> {
+        let channels = self.channels(now_us)?;
+        let map = self.config.sticks;
+        let stick = |channel: usize| channels.normalised(channel).unwrap_or(0.0);
+        let mode = self.config.mode;
+        Some(StickInput {
+            roll: stick(map.roll),
+            pitch: stick(map.pitch),
+            throttle: stick(map.throttle),
+            yaw: stick(map.yaw),
+            position_mode: channels.us(mode.channel).is_some_and(|us| us > mode.on_above_us),
+        })
     }
 
     /// The configuration.

@@ -217,6 +217,11 @@ fn print_report(name: &str, report: &FlyReport) {
             report.r_imu_fit_semi_axis_m.unwrap_or(f64::NAN) * 1e3
         );
     }
+    if let Some((reason, at_s)) = report.landed_by_itself {
+        println!(
+            "  the firmware began a landing by itself {at_s:.2} s after the release: {reason:?}"
+        );
+    }
     if let Some(landing) = report.landing {
         let or_nan = |v: Option<f64>| v.unwrap_or(f64::NAN);
         println!(
@@ -598,6 +603,22 @@ fn main() -> ExitCode {
                 per_thrust(|s| s.tau_error_max_s, 1e3),
             );
             print_landings(&results);
+            let mut by_itself: BTreeMap<String, Vec<String>> = BTreeMap::new();
+            for r in &results {
+                if let Some((reason, at_s)) = r.report.landed_by_itself {
+                    by_itself
+                        .entry(format!("{reason:?}"))
+                        .or_default()
+                        .push(format!("{} ({at_s:.1} s)", r.seed));
+                }
+            }
+            for (reason, seeds) in &by_itself {
+                println!(
+                    "landed by itself ({reason}): {} runs, seeds {}",
+                    seeds.len(),
+                    seeds.join(", ")
+                );
+            }
             for motors in 4..=8 {
                 let of: Vec<&_> = results.iter().filter(|r| r.motors == motors).collect();
                 if !of.is_empty() {
