@@ -74,6 +74,15 @@ pub const LINEAR_TILT_RAD: f32 = 30.0 * core::f32::consts::PI / 180.0;
 /// and the allocation keeps the attitude first.
 pub const LEVEL_MAX_VERTICAL_ACCEL_MPS2: f32 = STANDARD_GRAVITY_MPS2;
 
+/// Natural frequency of angle mode's tilt reference, rad/s (ours): a stick step is followed by
+/// a critically damped second-order reference, its rate and acceleration fed forward; at
+/// 15 rad/s it is within 10 % of the step after 0.26 s (3.9/ω) and within 1 % after 0.44 s.
+pub const STICK_TILT_RAD_S: f32 = 15.0;
+
+/// The lag the attitude loop is told to expect of a stick's tilt, in motor time constants
+/// (ours): the motors' own, and as much again for the rate loop and the filters.
+pub const STICK_TILT_LAG_TAUS: f32 = 1.0;
+
 /// The lead of the square-root tilt law, in motor time constants (ours, from the test
 /// `a_slow_craft_rights_itself_much_faster_overshooting_less_than_8_degrees`).
 pub const TILT_LAG_TAUS: f32 = 2.0;
@@ -252,6 +261,9 @@ pub struct Controller {
     /// Deceleration the square-root tilt law plans with, rad/s².
     tilt_decel_rad_s2: f32,
     thrust_direction: ThrustDirection,
+    /// Angle mode's tilt reference, forward and right: angles (rad) and rates (rad/s); `None`
+    /// outside angle mode.
+    stick_tilt: Option<[(f32, f32); 2]>,
 }
 
 impl Controller {
@@ -264,6 +276,7 @@ impl Controller {
         Ok(Self {
             tilt_decel_rad_s2,
             thrust_direction: ThrustDirection::default(),
+            stick_tilt: None,
             indi: Indi::new(model, r_imu_m, config)?,
             position: PositionController::new(gains),
             gains,
@@ -284,6 +297,7 @@ impl Controller {
         self.indi.start(gyro_rad_s, accel_mps2, commands, speeds_rad_s);
         self.position.reset();
         self.thrust_direction = ThrustDirection::default();
+        self.stick_tilt = None;
     }
 
     /// The direction the motors are measured to push along, thrust frame (unit).
@@ -336,6 +350,11 @@ impl Controller {
         let dt_s = 1.0 / self.rate_hz;
         let q_world_thrust = input.q_world_imu * self.indi.model().q_imu_thrust;
         let nav = &input.navigation;
+        // Angle mode's tilt rate and acceleration, fed forward (heading frame: forward, right).
+        let mut tilt_ff = [(0.0, 0.0); 2];
+        if !matches!(guidance, Guidance::Tilt { .. }) {
+            self.stick_tilt = None;
+        }
         let (f_sp, yaw_sp) = match *guidance {
             Guidance::Position { position_ned_m, yaw_rad, vertical_speed_mps } => {
                 // A vertical speed replaces the height: the setpoint sits at the craft's own
@@ -400,6 +419,26 @@ impl Controller {
                     let (sin, cos) = crate::math::sin_cos(angle);
                     sin / cos
                 };
+                // The stick followed by a critically damped reference of natural frequency
+                // STICK_TILT_RAD_S, whose rate and acceleration are fed forward: the tilt follows
+                // the stick within the motors' lag rather than the attitude loop's (a quarter
+                // second for a 30 ms motor), without overshoot.
+                let [(angle_f, angle_r), (rate_f, rate_r)] =
+                    self.stick_tilt.unwrap_or([(0.0, 0.0); 2]);
+                let w = STICK_TILT_RAD_S;
+                let accel =
+                    |target: f32, angle: f32, rate: f32| w * w * (target - angle) - 2.0 * w * rate;
+                let (accel_f, accel_r) =
+                    (accel(forward_rad, angle_f, rate_f), accel(right_rad, angle_r, rate_r));
+                let (rate_f, rate_r) = (rate_f + accel_f * dt_s, rate_r + accel_r * dt_s);
+                let (forward_rad, right_rad) = (angle_f + rate_f * dt_s, angle_r + rate_r * dt_s);
+                self.stick_tilt = Some([(forward_rad, right_rad), (rate_f, rate_r)]);
+                tilt_ff = [(rate_f, rate_r), (accel_f, accel_r)];
+                // The attitude loop is held to where the craft can be: the reference as it was
+                // the motors' and loops' lag ago, so it does not push on top of the feed-forward.
+                let lag_s = STICK_TILT_LAG_TAUS * self.gains.tau_s;
+                let (forward_rad, right_rad) =
+                    (forward_rad - rate_f * lag_s, right_rad - rate_r * lag_s);
                 let (forward, right) = (tan(forward_rad) * up, tan(right_rad) * up);
                 let (sin, cos) = crate::math::sin_cos(yaw_rad);
                 let f = Vector3::new(cos * forward - sin * right, sin * forward + cos * right, -up);
@@ -418,8 +457,13 @@ impl Controller {
             &self.gains,
             self.tilt_decel_rad_s2,
         );
-        let (rate_sp, tilt_error_rad) = (command.rate_sp_rad_s, command.tilt_error_rad);
-        let accel_sp = (rate_sp - rate) * self.gains.k_rate + command.accel_ff_rad_s2;
+        // Leaning forward is a negative rotation about the thrust frame's y (its nose goes
+        // down), leaning right a positive one about x.
+        let [(rate_f, rate_r), (accel_f, accel_r)] = tilt_ff;
+        let rate_ff = Vector3::new(rate_r, -rate_f, 0.0);
+        let accel_ff = Vector3::new(accel_r, -accel_f, 0.0);
+        let (rate_sp, tilt_error_rad) = (command.rate_sp_rad_s + rate_ff, command.tilt_error_rad);
+        let accel_sp = (rate_sp - rate) * self.gains.k_rate + command.accel_ff_rad_s2 + accel_ff;
         let accel_sp = ahead_of_yaw(&accel_sp, rate.z, TILT_LAG_TAUS * self.gains.tau_s);
         let reference = IndiReference {
             specific_force_z_mps2: -command.thrust_mps2,

@@ -24,6 +24,7 @@ use crate::identification::{Scores, Throw, TrueModel};
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
 use firmware::app::{ControlCommand, ControlSettings, Failsafe, Param, Params, PoseConfig};
+use firmware::drivers::crsf::StickInput;
 use flight::learner::FlightPhase;
 use protocol::{ExternalPose, LandReason};
 
@@ -269,6 +270,25 @@ pub struct FlyConfig {
     /// How the flight ends after `flight_s`: it goes on hovering (the run stops there), or it
     /// lands ([`FlightEnd`]).
     pub end: FlightEnd,
+    /// The pilot's sticks, each set at a time after the release, s, as the receiver hands them
+    /// to the control step ([`ControlCommand::Sticks`]); the run then records
+    /// [`FlyReport::stick_trace`].
+    pub sticks: Vec<(f64, StickInput)>,
+}
+
+/// One sample of a flight flown from the sticks ([`FlyConfig::sticks`]), against the truth.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StickSample {
+    /// Time since the first stick command, s.
+    pub t_s: f64,
+    /// The true hover thrust axis's tilt from up, degrees, and its direction's bearing, degrees
+    /// (the way the thrust leans, clockwise from north).
+    pub tilt_deg: f64,
+    pub lean_bearing_deg: f64,
+    /// Horizontal distance from where the craft was at the first stick command, m.
+    pub distance_m: f64,
+    /// Height above that point, m.
+    pub climb_m: f64,
 }
 
 /// How a run's flight ends once its `flight_s` are flown.
@@ -351,6 +371,7 @@ impl FlyConfig {
             },
             speed_telemetry: true,
             end: FlightEnd::Hover,
+            sticks: Vec::new(),
         }
     }
 }
@@ -445,6 +466,8 @@ pub struct FlyReport {
     /// A landing the firmware began by itself before the run asked for one (a fly-away, the
     /// pose lost too long), and when, s after the release.
     pub landed_by_itself: Option<(LandReason, f64)>,
+    /// With [`FlyConfig::sticks`]: the flight every 10 ms from the first stick command on.
+    pub stick_trace: Vec<StickSample>,
 }
 
 /// Scores of `learned` per unit normalised thrust `u = ω²/ω_full²` (the papers' convention and
@@ -574,7 +597,10 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             thrust_scores_at_excitation_end: None,
             landing: None,
             landed_by_itself: None,
+            stick_trace: Vec::new(),
         };
+        let mut sticks = config.sticks.iter().peekable();
+        let mut sticks_from: Option<(f64, Vector3<f64>)> = None;
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
         let mut mocap = config
@@ -660,6 +686,27 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     p.velocity_ned_mps[0], p.velocity_ned_mps[1], p.velocity_ned_mps[2],
                     p.tilt_error_rad.to_degrees(), p.saturated,
                 );
+            }
+            while let Some(&&(at_s, input)) = sticks.peek() {
+                if since_release < at_s {
+                    break;
+                }
+                sticks.next();
+                app.command(ControlCommand::Sticks(Some(input)), now_us);
+                sticks_from.get_or_insert((t_s, state.position_ned_m));
+            }
+            if let Some((from_s, from_ned_m)) = sticks_from {
+                if tick % 20 == 0 {
+                    let up = state.attitude() * thrust_dir_body;
+                    let offset = state.position_ned_m - from_ned_m;
+                    report.stick_trace.push(StickSample {
+                        t_s: t_s - from_s,
+                        tilt_deg: (-up.z).clamp(-1.0, 1.0).acos().to_degrees(),
+                        lean_bearing_deg: up.y.atan2(up.x).to_degrees(),
+                        distance_m: offset.xy().norm(),
+                        climb_m: -offset.z,
+                    });
+                }
             }
             if let (Some(reason), None, None) =
                 (snapshot.pilot.landing, report.landing, report.landed_by_itself)

@@ -255,6 +255,11 @@ pub const TOUCHDOWN_SPOOL_DOWN_S: f32 = 0.5;
 /// The spool-down is called off and the descent goes on.
 pub const TOUCHDOWN_AIRBORNE_G: f32 = 0.6;
 
+/// How long the measured force must stay below [`TOUCHDOWN_AIRBORNE_G`] to call a spool-down
+/// off, s (ours): a gear's bounce unloads it for a few hundredths of a second; a craft in the
+/// air with its thrust falling stays unloaded.
+pub const TOUCHDOWN_AIRBORNE_S: f32 = 0.1;
+
 /// What the pilot assumes of landings and fly-aways (the parameters `land_descent_mps`,
 /// `land_pose_lost_s`, `flyaway_speed_mps`, `flyaway_time_s`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -293,11 +298,13 @@ struct Touchdown {
     peak_descent_mps: f32,
     /// Time since an impact began the spool-down of a landing without fixes, s.
     spooling_s: Option<f32>,
+    /// How long the measured force has been below [`TOUCHDOWN_AIRBORNE_G`] while spooling, s.
+    airborne_s: f32,
 }
 
 impl Touchdown {
     fn new(reason: LandReason) -> Self {
-        Self { reason, resting_s: 0.0, peak_descent_mps: 0.0, spooling_s: None }
+        Self { reason, resting_s: 0.0, peak_descent_mps: 0.0, spooling_s: None, airborne_s: 0.0 }
     }
 
     /// The cap on the upward specific force: none, or the spool-down's, falling from 1 g to
@@ -308,15 +315,20 @@ impl Touchdown {
         })
     }
 
-    /// Follow the spool-down of a landing without fixes: it begins at an `impact`, and ends
-    /// when the measured upward force `force_up_g` (in g) shows the craft in the air.
-    fn spool(&mut self, impact: bool, force_up_g: f32, dt_s: f32) {
-        self.spooling_s = match self.spooling_s {
-            Some(_) if force_up_g < TOUCHDOWN_AIRBORNE_G => None,
-            Some(t) => Some(t + dt_s),
-            None if impact => Some(0.0),
-            None => None,
+    /// Follow the spool-down of a landing without fixes: it begins at an `impact` (returns
+    /// true then), and ends when the measured upward force `force_up_g` (in g) shows the craft
+    /// in the air for [`TOUCHDOWN_AIRBORNE_S`] (a bounce's dips are shorter).
+    fn spool(&mut self, impact: bool, force_up_g: f32, dt_s: f32) -> bool {
+        self.airborne_s =
+            if force_up_g < TOUCHDOWN_AIRBORNE_G { self.airborne_s + dt_s } else { 0.0 };
+        let (spooling, began) = match self.spooling_s {
+            Some(_) if self.airborne_s >= TOUCHDOWN_AIRBORNE_S => (None, false),
+            Some(t) => (Some(t + dt_s), false),
+            None if impact => (Some(0.0), true),
+            None => (None, false),
         };
+        self.spooling_s = spooling;
+        began
     }
 
     /// One step: whether the craft has been resting long enough.
@@ -1030,7 +1042,8 @@ impl Pilot {
         // Away from the hold's setpoint, or before one from where the flight first had a usable
         // pose: the radial speed, so a craft circling while its heading settles (Monte Carlo
         // seed 355 of the random world: 6 m/s for 2 s, then held within 0.16 m) is no fly-away.
-        if !positioned {
+        // In angle mode the pilot steers where it goes.
+        if !positioned || self.status.piloted == Some(false) {
             self.flyaway = None;
             return;
         }
@@ -1082,13 +1095,18 @@ impl Pilot {
         let thrust_up_g = -(0..motors).map(|i| model.g1[2][i] * output.indi.u[i]).sum::<f32>()
             / STANDARD_GRAVITY_MPS2;
         let carried = force_up_g - thrust_up_g > TOUCHDOWN_CARRIED_G;
-        let nav = self.navigation.state();
+        let nav = *self.navigation.state();
         let dt_s = 1.0 / self.rate_hz;
         // Without fixes, an impact spools the motors down (see TOUCHDOWN_SPOOL_DOWN_S).
         if !nav.has_fix {
             let impact = accel_mps2.iter().map(|a| a * a).sum::<f32>()
                 > (TOUCHDOWN_IMPACT_G * STANDARD_GRAVITY_MPS2).powi(2);
-            touchdown.spool(impact, force_up_g, dt_s);
+            if touchdown.spool(impact, force_up_g, dt_s) {
+                // The dead reckoning through an impact is lost (the bounces' spikes integrate
+                // to metres per second); on the ground the craft is still.
+                self.alignment.hold_still();
+                self.navigation.hold_still();
+            }
         }
         let still_vertically =
             !nav.has_fix || nav.velocity_ned_mps.z.abs() < TOUCHDOWN_MAX_SPEED_MPS;

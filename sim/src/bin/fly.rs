@@ -87,6 +87,9 @@ enum Command {
         /// (issue 32; see `monte-carlo --unknown-imu-offset`).
         #[arg(long)]
         unknown_imu_offset: bool,
+        /// No motion capture: the craft flies level hold on its own estimates.
+        #[arg(long)]
+        no_mocap: bool,
     },
     /// One Monte Carlo case, replayed alone.
     Case {
@@ -326,6 +329,7 @@ fn main() -> ExitCode {
             push_ms,
             no_speed_telemetry,
             unknown_imu_offset,
+            no_mocap,
         } => {
             let airframe = match Airframe::load(&airframe) {
                 Ok(a) => a,
@@ -351,6 +355,7 @@ fn main() -> ExitCode {
             config.throw.push_s = push_ms * 1e-3;
             config.board.seed = seed;
             config.trace = trace;
+            config.mocap = !no_mocap;
             config.speed_telemetry = !no_speed_telemetry;
             config.known_imu_offset = !unknown_imu_offset;
             print_report(&airframe.name, &fly(&airframe, &config));

@@ -1,0 +1,104 @@
+//! The pilot flies the craft from the sticks, and every flight ends on the ground, against the
+//! simulator's truth: the firmware application thrown, recovered to a hover, then flown from
+//! the radio's sticks ([`ControlCommand::Sticks`] as the receiver hands them over) and landed.
+//! Physical checks: degrees of the true hover thrust axis, metres from where the sticks took
+//! over, the touchdown's vertical speed and the time to the motors stopped.
+//!
+//! `cargo test -p tests --release --test sticks_and_landing -- --nocapture` prints the figures;
+//! the 1,000-world versions: `cargo run -p sim --release --bin fly -- --end land monte-carlo
+//! --world random` (docs/benchmarks.md).
+//!
+//! [`ControlCommand::Sticks`]: firmware::app::ControlCommand::Sticks
+
+use firmware::app::sticks::{StickConfig, DEFAULT_MAX_TILT_RAD};
+use firmware::drivers::crsf::StickInput;
+use protocol::LandReason;
+use sim::airframe::Airframe;
+use sim::recovery::{
+    fly, FlightEnd, FlyConfig, Outcome, GENTLE_TOUCHDOWN_MPS, STOP_AFTER_TOUCHDOWN_S,
+};
+
+const CENTRED: StickInput =
+    StickInput { roll: 0.0, pitch: 0.0, throttle: 0.0, yaw: 0.0, position_mode: true };
+
+/// A pitch step in angle mode tilts the true hover thrust axis to the commanded angle within
+/// 10 % in 0.3 s; before it, centred sticks in position mode hold within 0.3 m.
+#[test]
+fn a_pitch_step_in_angle_mode_tilts_the_thrust_axis_and_centred_sticks_hold_in_position_mode() {
+    let pitch = 0.6;
+    let commanded_deg =
+        f64::from(StickConfig::default().shape(pitch) * DEFAULT_MAX_TILT_RAD).to_degrees();
+    for name in ["paper-quad", "hex-tilted", "octo-flat"] {
+        let airframe = Airframe::builtin(name).unwrap();
+        let config = FlyConfig {
+            flight_s: 11.0,
+            sticks: vec![
+                (6.0, CENTRED),
+                (9.0, StickInput { pitch, position_mode: false, ..CENTRED }),
+            ],
+            ..FlyConfig::paper()
+        };
+        let report = fly(&airframe, &config);
+        assert_eq!(report.outcome, Outcome::Flying, "{name}");
+        let trace = &report.stick_trace;
+        let held = trace.iter().filter(|s| s.t_s < 3.0).map(|s| s.distance_m).fold(0.0, f64::max);
+        let at = |t_s: f64| trace.iter().find(|s| s.t_s >= t_s).unwrap();
+        let (start, step) = (at(3.0), at(3.3));
+        eprintln!(
+            "{name}: held within {held:.3} m for 3 s; tilt {:.1}° at the step, {:.1}° 0.3 s later \
+             (commanded {commanded_deg:.1}°)",
+            start.tilt_deg, step.tilt_deg
+        );
+        let tilts: Vec<String> = trace
+            .iter()
+            .filter(|s| (3.0..3.8).contains(&s.t_s))
+            .step_by(5)
+            .map(|s| format!("{:.1}", s.tilt_deg))
+            .collect();
+        eprintln!("{name}: tilt every 50 ms from the step: {}", tilts.join(" "));
+        assert!(held < 0.3, "{name}: centred sticks in position mode strayed {held:.3} m");
+        assert!(start.tilt_deg < 3.0, "{name}: tilted {:.1}° before the step", start.tilt_deg);
+        for later in trace.iter().filter(|s| (3.3..3.8).contains(&s.t_s)) {
+            let error = (later.tilt_deg - commanded_deg).abs();
+            assert!(
+                error <= 0.1 * commanded_deg,
+                "{name}: {:.1}° at {:.2} s after the step, commanded {commanded_deg:.1}°",
+                later.tilt_deg,
+                later.t_s - 3.0
+            );
+        }
+        // Angle mode holds the height: the throttle is centred.
+        let climb = at(4.9).climb_m - start.climb_m;
+        assert!(climb.abs() < 0.3, "{name}: the height moved {climb:.2} m in angle mode");
+    }
+}
+
+/// After the hover, a host's `land` and the radio lost in flight bring the craft down gently;
+/// the motors stop within a second of the touchdown. (Without motion capture the level hold's
+/// dead reckoning drifts, the descent with it: docs/failsafes.md.)
+#[test]
+fn land_and_a_radio_lost_in_flight_touch_down_gently_and_stop_the_motors() {
+    for (name, reason, mocap) in [
+        ("paper-quad", LandReason::Commanded, true),
+        ("hex-tilted", LandReason::RcLost, true),
+        ("octo-flat", LandReason::Commanded, true),
+    ] {
+        let airframe = Airframe::builtin(name).unwrap();
+        let config =
+            FlyConfig { flight_s: 6.0, end: FlightEnd::Land(reason), mocap, ..FlyConfig::paper() };
+        let report = fly(&airframe, &config);
+        let landing = report.landing.unwrap_or_else(|| panic!("{name}: no landing"));
+        eprintln!("{name} ({reason:?}, motion capture {mocap}): {landing:?}");
+        assert_eq!(report.outcome, Outcome::Landed, "{name}: {landing:?}");
+        assert!(landing.requested_height_m > 1.0, "{name}: {landing:?}");
+        assert!(landing.stopped_in_air_m.is_none(), "{name}: {landing:?}");
+        let speed = landing.touchdown_speed_mps.unwrap();
+        assert!(speed < GENTLE_TOUCHDOWN_MPS, "{name}: touchdown at {speed:.2} m/s");
+        let stop = landing.stop_delay_s.unwrap();
+        assert!(stop <= STOP_AFTER_TOUCHDOWN_S, "{name}: motors stopped {stop:.2} s after");
+        if mocap {
+            let drift = landing.horizontal_drift_m.unwrap();
+            assert!(drift < 0.3, "{name}: came down {drift:.2} m from where it began");
+        }
+    }
+}
