@@ -362,10 +362,38 @@ mod tests {
             ("-1:arm", "at least 0"),
             ("nan:arm", "finite"),
             ("1:fly", "unknown event `fly`"),
+            ("1:pitch=1.5", "unknown event `pitch=1.5`"),
+            ("1:wobble=0.2", "unknown event"),
         ] {
             let error = RcScript::parse(bad).unwrap_err();
             assert!(error.contains(says), "`{bad}`: {error}");
         }
+    }
+
+    #[test]
+    fn the_sticks_and_the_land_and_mode_switches_reach_the_receiver() {
+        let script = RcScript::parse("0:pitch=0.5,0:roll=-1,0:position,0.1:arm,0.2:land").unwrap();
+        assert_eq!(script.events[0], (0.0, RcEvent::Stick(Stick::Pitch, 0.5)));
+        let mut radio = RcTransmitter::new(150.0, &script);
+        let mut receiver = Receiver::new(RcLinkConfig::default()).unwrap();
+        let flying = CraftState { armed: true, in_flight: true };
+        let mut chunk = [0u8; 256];
+        let (mut sticks, mut landed) = (None, false);
+        for tick in 0..600u64 {
+            let now_us = tick * 500;
+            radio.advance(now_us);
+            let n = radio.read(&mut chunk);
+            let command = receiver.poll(&chunk[..n], now_us, flying);
+            landed |= command == Some(ControlCommand::Land(protocol::LandReason::Switch));
+            if let Some(ControlCommand::Sticks(Some(input))) = receiver.take_sticks(now_us) {
+                sticks = Some(input);
+            }
+        }
+        let sticks = sticks.expect("sticks");
+        assert!((sticks.pitch - 0.5).abs() < 0.01, "{sticks:?}");
+        assert!((sticks.roll + 1.0).abs() < 0.01, "{sticks:?}");
+        assert!(sticks.throttle.abs() < 0.01 && sticks.position_mode, "{sticks:?}");
+        assert!(landed, "the land switch with the arm switch on lands");
     }
 
     #[test]

@@ -1099,6 +1099,34 @@ mod tests {
         }
     }
 
+    /// `Land` on the ground stops what is armed at once (a craft waiting for a throw, a motor
+    /// test): there is nothing in the air to bring down.
+    #[test]
+    fn a_landing_asked_for_on_the_ground_stops_what_is_armed() {
+        let mut queue = SampleQueue::new();
+        let (producer, mut consumer) = split_queue(&mut queue);
+        let mut control = ControlLoop::new(ControlConfig::default(), producer);
+        let mut imu = ScriptedImu { deliver: |_| true, calls: 0 };
+        let mut motors = RecordingMotors { commands: vec![] };
+        control.step(0, &mut imu, &mut motors);
+        control.command(ControlCommand::ArmThrowToFly, 500);
+        control.step(500, &mut imu, &mut motors);
+        assert!(control.armed(), "waiting for a throw");
+        control.command(ControlCommand::Land(LandReason::Commanded), 1_000);
+        assert!(!control.armed(), "stopped at once");
+        assert_eq!(control.snapshot().failure, LearnerFailure::Disarmed);
+        control.command(ControlCommand::MotorTest { motor: 1, command: 0.05 }, 1_500);
+        control.step(1_500, &mut imu, &mut motors);
+        assert_eq!(motors.commands[1], 0.05);
+        // The radio lost on the ground counts its failsafe too, and stops the test.
+        control.command(ControlCommand::Land(LandReason::RcLost), 2_000);
+        control.step(2_000, &mut imu, &mut motors);
+        assert!(!control.armed());
+        assert_eq!(motors.commands, vec![0.0; 4]);
+        assert_eq!(control.snapshot().pilot.failsafes.rc_lost, 1);
+        while consumer.pop().is_some() {}
+    }
+
     #[test]
     fn two_seconds_at_2khz_measure_2khz_with_no_late_steps() {
         let mut queue = SampleQueue::new();

@@ -1449,6 +1449,67 @@ mod tests {
         assert!(pilot.flying());
     }
 
+    /// A pilot flying the learned quad, hovering (its thrust, IMU +y, up), and asked to land.
+    fn landing_quad() -> (Pilot, ImuSample) {
+        let learned = flight::testing::models::learned_quad();
+        let mut pilot = Pilot::new(2000.0);
+        pilot.set_model(&learned, [0.0; 3]);
+        let hover =
+            ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, -STANDARD_GRAVITY_MPS2, 0.0] };
+        pilot.engage(&hover, &[0.3; MAX_MOTORS], &[f32::NAN; MAX_MOTORS]).unwrap();
+        for step in 0..200u64 {
+            pilot.observe(&hover, step * 500, false);
+            pilot.step(&hover, step * 500).unwrap();
+        }
+        assert!(pilot.land(LandReason::Commanded));
+        assert_eq!(pilot.status().landing, Some(LandReason::Commanded));
+        (pilot, hover)
+    }
+
+    /// On the ground the specific force stays at 1 g whatever the motors do: the landing's
+    /// thrust falls, the ground carries the craft, and the motors stop within a second.
+    #[test]
+    fn a_landing_craft_carried_by_the_ground_touches_down_and_stops() {
+        let (mut pilot, on_the_ground) = landing_quad();
+        let mut stopped_at = None;
+        for step in 200..2200u64 {
+            pilot.observe(&on_the_ground, step * 500, false);
+            let commands = pilot.step(&on_the_ground, step * 500).unwrap();
+            if !pilot.flying() {
+                assert_eq!(commands, [0.0; MAX_MOTORS]);
+                stopped_at = Some(step);
+                break;
+            }
+        }
+        let steps = stopped_at.expect("the touchdown was never detected") - 200;
+        assert!(steps < 2000, "stopped after {} s", steps as f32 / 2000.0);
+        let status = pilot.status();
+        assert_eq!((status.touchdowns, status.last_landing), (1, Some(LandReason::Commanded)));
+        assert_eq!(status.landing, None);
+        assert_eq!(status.last_failsafe, None, "a touchdown is no failsafe");
+    }
+
+    /// In the air the measured specific force follows the thrust: a craft whose thrust is low
+    /// and which reads half a g is falling, never resting, and flies on however long it lasts.
+    #[test]
+    fn a_landing_craft_that_reads_less_than_the_ground_would_give_never_stops_in_the_air() {
+        let (mut pilot, _) = landing_quad();
+        let falling = ImuSample {
+            gyro_rad_s: [0.0; 3],
+            accel_mps2: [0.0, -0.5 * STANDARD_GRAVITY_MPS2, 0.0],
+        };
+        for step in 200..6200u64 {
+            pilot.observe(&falling, step * 500, false);
+            assert!(pilot.step(&falling, step * 500).is_ok());
+            assert!(pilot.flying(), "stopped in the air after {} steps", step - 200);
+        }
+        assert_eq!(pilot.status().touchdowns, 0);
+        // Not flying: nothing to land.
+        pilot.disarm();
+        assert!(!pilot.land(LandReason::Commanded));
+        assert_eq!(pilot.status().landing, None);
+    }
+
     #[test]
     fn the_heading_follows_the_level_frame_not_an_imu_mounted_70_degrees_off() {
         // An IMU pitched 70° on its mount (its x 20° from the vertical) and yawed 30°: the

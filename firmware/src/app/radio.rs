@@ -507,6 +507,24 @@ mod tests {
     }
 
     #[test]
+    fn the_sticks_reach_the_control_step_when_they_change_and_go_when_the_link_does() {
+        let mut rx = receiver();
+        assert_eq!(rx.take_sticks(0), None, "no receiver: nothing");
+        rx.poll(&frame(false, false, false), 0, IDLE);
+        let Some(ControlCommand::Sticks(Some(centred))) = rx.take_sticks(0) else {
+            panic!("the first frame's sticks")
+        };
+        assert!(centred.roll.abs() < 0.01 && centred.throttle.abs() < 0.01, "{centred:?}");
+        assert!(!centred.position_mode, "mode switch low: angle mode");
+        rx.poll(&frame(false, false, false), 7_000, IDLE);
+        assert_eq!(rx.take_sticks(7_000), None, "unchanged: nothing");
+        // Lost: the sticks go, once.
+        rx.poll(&[], 300_000, FLYING);
+        assert_eq!(rx.take_sticks(300_000), Some(ControlCommand::Sticks(None)));
+        assert_eq!(rx.take_sticks(300_500), None);
+    }
+
+    #[test]
     fn corrupted_frames_are_counted_and_ignored() {
         let mut rx = receiver();
         let mut bad = frame(false, false, true);
