@@ -1100,7 +1100,10 @@ impl Pilot {
         // Without fixes, an impact spools the motors down (see TOUCHDOWN_SPOOL_DOWN_S).
         if !nav.has_fix {
             let impact = accel_mps2.iter().map(|a| a * a).sum::<f32>()
-                > (TOUCHDOWN_IMPACT_G * STANDARD_GRAVITY_MPS2).powi(2);
+                > TOUCHDOWN_IMPACT_G
+                    * TOUCHDOWN_IMPACT_G
+                    * STANDARD_GRAVITY_MPS2
+                    * STANDARD_GRAVITY_MPS2;
             if touchdown.spool(impact, force_up_g, dt_s) {
                 // The dead reckoning through an impact is lost (the bounces' spikes integrate
                 // to metres per second); on the ground the craft is still.
