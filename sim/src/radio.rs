@@ -291,7 +291,7 @@ impl RcTransmitter {
             [map.roll, map.pitch, map.throttle, map.yaw].into_iter().zip(self.sticks)
         {
             // 1500 µs centred, ±512 µs of travel (988–2012 µs, a CRSF handset's full range).
-            raw[channel] = RcChannels::raw_from_us(1_500.0 + 512.0 * value);
+            raw[usize::from(channel)] = RcChannels::raw_from_us(1_500.0 + 512.0 * value);
         }
         let payload = RcChannels { raw }.pack();
         let mut frame = [0u8; FRAME_MAX];

@@ -132,7 +132,8 @@ pub struct ControlSettings {
     pub sticks: super::sticks::StickConfig,
     /// The radio's stick channels and mode switch (read by the control task's receiver).
     pub stick_map: crate::drivers::crsf::StickMap,
-    pub mode_channel: usize,
+    /// The mode switch's channel, 0-based.
+    pub mode_channel: u8,
     /// How long, armed, bad IMU samples are held over before the IMU failsafe acts, s
     /// (`imu_fault_timeout_s`; 0: at the first bad sample).
     pub imu_fault_timeout_s: f32,
@@ -156,7 +157,7 @@ impl Default for ControlSettings {
             land_cell_v: Some(super::battery::DEFAULT_LAND_CELL_V),
             sticks: super::sticks::StickConfig::default(),
             stick_map: crate::drivers::crsf::StickMap::AETR,
-            mode_channel: crate::drivers::crsf::RcLinkConfig::default().mode.channel,
+            mode_channel: crate::drivers::crsf::RcLinkConfig::default().mode.channel as u8,
             imu_fault_timeout_s: IMU_FAULT_TIMEOUT_S,
             arm_without_speeds: false,
         }

@@ -1042,7 +1042,8 @@ mod tests {
     #[test]
     fn an_entry_is_a_small_copy_and_a_step_record_under_100_bytes() {
         // What the 2 kHz tick copies per step, and what a step costs in the file.
-        assert!(core::mem::size_of::<LogEntry>() <= 160, "{}", core::mem::size_of::<LogEntry>());
+        // 176: the landing's and the sticks' settings (issue 53) ride in `ControlSettings`.
+        assert!(core::mem::size_of::<LogEntry>() <= 176, "{}", core::mem::size_of::<LogEntry>());
         let LogEntry::Step(entry) = step(u32::MAX, true) else { unreachable!() };
         let entry = StepEntry { t_us: 3_600_000_000, ..entry };
         let mut frame = [0u8; MAX_FRAME_LEN];

@@ -486,8 +486,8 @@ impl Params {
     }
 
     /// The mode switch's channel, 0-based.
-    pub fn mode_channel(&self) -> usize {
-        (self.scalar(Param::RcModeChannel) as usize).saturating_sub(1)
+    pub fn mode_channel(&self) -> u8 {
+        (self.scalar(Param::RcModeChannel) as u8).saturating_sub(1)
     }
 
     /// The battery voltage per cell below which a flight lands, V (`None`: never).

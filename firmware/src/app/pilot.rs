@@ -1454,11 +1454,20 @@ mod tests {
 
     /// A pilot flying the learned quad, hovering (its thrust, IMU +y, up), and asked to land.
     fn landing_quad() -> (Pilot, ImuSample) {
-        let learned = flight::testing::models::learned_quad();
+        let mut learned = flight::testing::models::learned_quad();
+        // Its thrust along the axis it hovers on (IMU +y, `thrust_dir_imu`), so that INDI lowers
+        // the commands to lower the force.
+        for j in 0..4 {
+            learned.g1_per_speed2[1][j] = learned.g1_per_speed2[1][j].abs();
+        }
         let mut pilot = Pilot::new(2000.0);
         pilot.set_model(&learned, [0.0; 3]);
-        let hover =
-            ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, -STANDARD_GRAVITY_MPS2, 0.0] };
+        // Level: the thrust frame is the world's, so the IMU sits at q_U^T's inverse and reads
+        // 1 g up along the thrust axis.
+        let q_imu_thrust = learned.thrust_axis.unwrap().rotation_thrust_to_imu().unwrap();
+        pilot.attitude.reset_to(q_imu_thrust.inverse()).unwrap();
+        let up = q_imu_thrust * Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_MPS2);
+        let hover = ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: up.into() };
         pilot.engage(&hover, &[0.3; MAX_MOTORS], &[f32::NAN; MAX_MOTORS]).unwrap();
         for step in 0..200u64 {
             pilot.observe(&hover, step * 500, false);
@@ -1496,11 +1505,9 @@ mod tests {
     /// and which reads half a g is falling, never resting, and flies on however long it lasts.
     #[test]
     fn a_landing_craft_that_reads_less_than_the_ground_would_give_never_stops_in_the_air() {
-        let (mut pilot, _) = landing_quad();
-        let falling = ImuSample {
-            gyro_rad_s: [0.0; 3],
-            accel_mps2: [0.0, -0.5 * STANDARD_GRAVITY_MPS2, 0.0],
-        };
+        let (mut pilot, hover) = landing_quad();
+        let falling =
+            ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: hover.accel_mps2.map(|a| 0.5 * a) };
         for step in 200..6200u64 {
             pilot.observe(&falling, step * 500, false);
             assert!(pilot.step(&falling, step * 500).is_ok());

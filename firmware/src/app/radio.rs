@@ -105,7 +105,7 @@ impl Receiver {
     }
 
     /// Take the stick and mode-switch channels in force (`rc_map`, `rc_mode_channel`).
-    pub fn set_stick_channels(&mut self, sticks: StickMap, mode_channel: usize) {
+    pub fn set_stick_channels(&mut self, sticks: StickMap, mode_channel: u8) {
         self.link.set_stick_channels(sticks, mode_channel);
     }
 
@@ -515,7 +515,7 @@ mod tests {
             panic!("the first frame's sticks")
         };
         assert!(centred.roll.abs() < 0.01 && centred.throttle.abs() < 0.01, "{centred:?}");
-        assert!(!centred.position_mode, "mode switch low: angle mode");
+        assert!(centred.position_mode, "the mode switch centred (1500 µs): position mode");
         rx.poll(&frame(false, false, false), 7_000, IDLE);
         assert_eq!(rx.take_sticks(7_000), None, "unchanged: nothing");
         // Lost: the sticks go, once.

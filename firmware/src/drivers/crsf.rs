@@ -662,10 +662,10 @@ pub const DEFAULT_MODE_ON_ABOVE_US: f32 = 1_400.0;
 /// Which channel (0-based) carries each stick.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StickMap {
-    pub roll: usize,
-    pub pitch: usize,
-    pub throttle: usize,
-    pub yaw: usize,
+    pub roll: u8,
+    pub pitch: u8,
+    pub throttle: u8,
+    pub yaw: u8,
 }
 
 impl StickMap {
@@ -679,7 +679,7 @@ impl StickMap {
         let distinct = (0..4).all(|i| (i + 1..4).all(|j| channels[i] != channels[j]));
         let valid = channels.iter().all(|&c| (1..=CHANNEL_COUNT as u8).contains(&c));
         (distinct && valid).then(|| {
-            let [roll, pitch, throttle, yaw] = channels.map(|c| usize::from(c) - 1);
+            let [roll, pitch, throttle, yaw] = channels.map(|c| c - 1);
             Self { roll, pitch, throttle, yaw }
         })
     }
@@ -752,20 +752,20 @@ impl RcLink {
         let sticks = config.sticks;
         if let Some(&channel) = [sticks.roll, sticks.pitch, sticks.throttle, sticks.yaw]
             .iter()
-            .find(|&&c| c >= CHANNEL_COUNT)
+            .find(|&&c| usize::from(c) >= CHANNEL_COUNT)
         {
-            return Err(RcConfigError::ChannelOutOfRange { channel });
+            return Err(RcConfigError::ChannelOutOfRange { channel: usize::from(channel) });
         }
         Ok(Self { config, channels: None, last_frame_us: 0 })
     }
 
     /// Take other stick and mode-switch channels (the `rc_map` and `rc_mode_channel`
     /// parameters); channels beyond the 16 of a frame are ignored.
-    pub fn set_stick_channels(&mut self, sticks: StickMap, mode_channel: usize) {
+    pub fn set_stick_channels(&mut self, sticks: StickMap, mode_channel: u8) {
         let all = [sticks.roll, sticks.pitch, sticks.throttle, sticks.yaw, mode_channel];
-        if all.iter().all(|&c| c < CHANNEL_COUNT) {
+        if all.iter().all(|&c| usize::from(c) < CHANNEL_COUNT) {
             self.config.sticks = sticks;
-            self.config.mode.channel = mode_channel;
+            self.config.mode.channel = usize::from(mode_channel);
         }
     }
 
@@ -773,7 +773,7 @@ impl RcLink {
     pub fn sticks(&self, now_us: u64) -> Option<StickInput> {
         let channels = self.channels(now_us)?;
         let map = self.config.sticks;
-        let stick = |channel: usize| channels.normalised(channel).unwrap_or(0.0);
+        let stick = |channel: u8| channels.normalised(usize::from(channel)).unwrap_or(0.0);
         let mode = self.config.mode;
         Some(StickInput {
             roll: stick(map.roll),
