@@ -167,9 +167,13 @@ fn a_dropped_craft_comes_to_rest_on_the_ground() {
         p.step();
     }
     let s = p.state();
-    // Static sink m g / (m ω_n²) = g / (2π·30 Hz)² = 0.28 mm.
-    assert!(s.position_ned_m.z > 0.0 && s.position_ned_m.z < 1e-3, "z {}", s.position_ned_m.z);
+    // On its landing gear: each foot carries its share, sinking m g / (m ω_n²) = g / (2π·30 Hz)²
+    // = 0.28 mm; the centre of gravity rests the gear's height above the ground.
+    let gear_m = p.model().gear_height_m(s);
+    assert!(gear_m < 0.0 && gear_m > -1e-3, "the gear sinks {gear_m} m");
+    assert!(s.position_ned_m.z < -0.03, "the CoG rests at {} m, on its legs", s.position_ned_m.z);
     assert!(s.velocity_ned_mps.norm() < 1e-3, "still moving {}", s.velocity_ned_mps);
+    assert!(s.rate_body_rad_s.norm() < 1e-3, "still turning {}", s.rate_body_rad_s);
 }
 
 #[test]

@@ -194,7 +194,7 @@ fn the_handset_shows_the_battery_sag_under_the_motors() {
 }
 
 #[test]
-fn signal_lost_in_flight_flies_on_for_the_timeout_and_the_grace_then_reports_rc_lost() {
+fn signal_lost_in_flight_flies_on_for_the_timeout_and_the_grace_then_lands() {
     let lost_s = 4.0;
     let (ticks, _) = fly(&format!("0.1:arm,0.1:throw,{lost_s}:lose"), true, 5.6);
     assert!(first(&ticks, lost_s - 0.01, |_| true).unwrap().snapshot.pilot.flying);
@@ -202,16 +202,19 @@ fn signal_lost_in_flight_flies_on_for_the_timeout_and_the_grace_then_reports_rc_
     let last_frame_s = ticks.iter().rev().find(|t| t.frame_arrived).map(|t| t.time_s).unwrap();
     assert!(lost_s - last_frame_s <= 1.0 / DEFAULT_RC_RATE_HZ + 1e-3, "{last_frame_s}");
     let reaction_s = (DEFAULT_FAILSAFE_TIMEOUT_US + FLIGHT_FAILSAFE_GRACE_US) as f64 * 1e-6;
-    // Still flying just before the documented reaction, disarmed at it.
+    // Still holding just before the documented reaction, landing from it (not dropped).
     let still = first(&ticks, last_frame_s + reaction_s - 0.005, |_| true).unwrap();
     assert!(still.snapshot.pilot.flying && armed(still), "flying on at {:.3} s", still.time_s);
-    let disarmed = first(&ticks, lost_s, |t| !t.snapshot.pilot.flying).unwrap();
-    let after_s = disarmed.time_s - last_frame_s;
-    eprintln!("last frame {last_frame_s:.4} s, disarmed {after_s:.4} s later");
-    assert!((after_s - reaction_s).abs() <= 0.001, "disarmed {after_s:.4} s after the last frame");
-    let pilot = ticks.last().unwrap().snapshot.pilot;
-    assert_eq!(pilot.last_failsafe, Some(Failsafe::RcLost));
-    assert_eq!(pilot.failsafes.rc_lost, 1);
+    assert_eq!(still.snapshot.pilot.landing, None);
+    let landing = first(&ticks, lost_s, |t| t.snapshot.pilot.landing.is_some()).unwrap();
+    let after_s = landing.time_s - last_frame_s;
+    eprintln!("last frame {last_frame_s:.4} s, landing {after_s:.4} s later");
+    assert!((after_s - reaction_s).abs() <= 0.001, "landing {after_s:.4} s after the last frame");
+    assert_eq!(landing.snapshot.pilot.landing, Some(protocol::LandReason::RcLost));
+    let last = ticks.last().unwrap();
+    assert!(last.snapshot.pilot.flying, "still descending at {:.2} s, not dropped", last.time_s);
+    assert_eq!(last.snapshot.pilot.last_failsafe, Some(Failsafe::RcLost));
+    assert_eq!(last.snapshot.pilot.failsafes.rc_lost, 1);
 }
 
 #[test]
