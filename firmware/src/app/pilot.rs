@@ -702,8 +702,8 @@ impl Pilot {
         true
     }
 
-    /// Count `failsafe` as acted (the latest), without stopping: the radio lost in flight,
-    /// which lands.
+    /// Count `failsafe` as acted (the latest), without stopping (the radio lost in flight, which
+    /// lands; the pose lost, which holds level); [`Pilot::fail`] stops as well.
     pub fn note_failsafe(&mut self, failsafe: Failsafe) {
         count_failsafe(&mut self.status.failsafes, failsafe);
         self.status.last_failsafe = Some(failsafe);
@@ -963,36 +963,37 @@ impl Pilot {
         let positioned = nav.has_fix && self.alignment.yaw_rad().is_some();
         // A landing descends instead of holding the height.
         let descent_mps = self.touchdown.map(|_| self.land_config.descent_mps);
-        let vertical_speed_mps = descent_mps.unwrap_or(0.0);
-        let max_up_mps2 = self.touchdown.map_or(f32::INFINITY, |t| t.max_up_mps2());
-        let level = |velocity_ned_mps: Vector3<f32>| Guidance::Level {
-            yaw_rad,
-            velocity_ned_mps,
-            vertical_speed_mps,
-            max_up_mps2,
-        };
         match position_sp_ned_m {
             Some(position_ned_m) if positioned => {
                 Guidance::Position { position_ned_m, yaw_rad, vertical_speed_mps: descent_mps }
             }
-            // Before the hold starts, the velocity from the fixes when there are fixes.
-            _ if positioned => level(nav.velocity_ned_mps),
-            // The fixes stopped after the worlds were aligned: the estimator's velocity goes on
-            // from the last fixed one (before, its world is the filter's: dead reckoning).
-            _ if self.fixes_lost && self.alignment.yaw_rad().is_some() => {
-                level(nav.velocity_ned_mps)
-            }
-            // Not aligned: the horizontal velocity by dead reckoning, the vertical one from the
-            // fixes when there are fixes (down is gravity's in both worlds, whatever their yaw),
-            // so a craft whose heading is not yet known holds its height instead of sinking.
-            _ => {
-                let mut velocity_ned_mps = self.dead_reckoned_velocity();
-                if nav.has_fix {
-                    velocity_ned_mps.z = nav.velocity_ned_mps.z;
-                }
-                level(velocity_ned_mps)
-            }
+            _ => Guidance::Level {
+                yaw_rad,
+                velocity_ned_mps: self.level_velocity(),
+                vertical_speed_mps: descent_mps.unwrap_or(0.0),
+                max_up_mps2: self.touchdown.map_or(f32::INFINITY, |t| t.max_up_mps2()),
+            },
         }
+    }
+
+    /// The velocity the level hold flies on, in the world the controller sees (world NED, m/s).
+    fn level_velocity(&self) -> Vector3<f32> {
+        let nav = self.navigation.state();
+        let aligned = self.alignment.yaw_rad().is_some();
+        if aligned && (nav.has_fix || self.fixes_lost) {
+            // Before the hold starts, the velocity from the fixes; after they stopped (the
+            // worlds aligned), the estimator's, on from the last fixed one (before the
+            // alignment its world is the filter's: dead reckoning).
+            return nav.velocity_ned_mps;
+        }
+        // Not aligned: the horizontal velocity by dead reckoning, the vertical one from the
+        // fixes when there are fixes (down is gravity's in both worlds, whatever their yaw), so
+        // a craft whose heading is not yet known holds its height instead of sinking.
+        let mut velocity_ned_mps = self.dead_reckoned_velocity();
+        if nav.has_fix {
+            velocity_ned_mps.z = nav.velocity_ned_mps.z;
+        }
+        velocity_ned_mps
     }
 
     /// What the pilot's sticks ask for (`super::sticks`): position mode when asked and the
@@ -1023,10 +1024,7 @@ impl Pilot {
         self.status.piloted = Some(false);
         self.position_sp_ned_m = None;
         let (forward_rad, right_rad, vertical_speed_mps) = config.angle_mode(&shaped);
-        let velocity_ned_mps = match self.guidance_now(None) {
-            Guidance::Level { velocity_ned_mps, .. } => velocity_ned_mps,
-            _ => nav.velocity_ned_mps,
-        };
+        let velocity_ned_mps = self.level_velocity();
         Guidance::Tilt { forward_rad, right_rad, yaw_rad, velocity_ned_mps, vertical_speed_mps }
     }
 
@@ -1236,8 +1234,7 @@ impl Pilot {
         }
         self.land_by_itself(&nav, can_hold);
         if (was_holding && !can_hold) || fixes_stopped {
-            count_failsafe(&mut self.status.failsafes, Failsafe::PoseLost);
-            self.status.last_failsafe = Some(Failsafe::PoseLost);
+            self.note_failsafe(Failsafe::PoseLost);
             self.position_sp_ned_m = None;
         } else if can_hold
             && self.position_sp_ned_m.is_none()
@@ -1364,8 +1361,7 @@ impl Pilot {
 
     fn fail(&mut self, failsafe: Failsafe) -> Failsafe {
         self.disarm();
-        count_failsafe(&mut self.status.failsafes, failsafe);
-        self.status.last_failsafe = Some(failsafe);
+        self.note_failsafe(failsafe);
         failsafe
     }
 }
