@@ -425,14 +425,17 @@ impl Runner {
             ..SimConfig::default()
         };
         let mut board = SimBoard::new(&self.airframe, &config);
-        let mut mocap = self
-            .mocap
-            .then(|| crate::recovery::MotionCapture::with_config(self.motion_capture, self.seed));
         let mut throws_done = 0usize;
         let mut flight_hand = FlightHand::default();
         let start = Instant::now();
         let mut first_boot = true;
         loop {
+            // The motion capture times its poses by the firmware's clock, which starts again at
+            // every start-up: a capture kept across a restart would wait for the clock to reach
+            // its last pose's time before sending the next.
+            let mut mocap = self.mocap.then(|| {
+                crate::recovery::MotionCapture::with_config(self.motion_capture, self.seed)
+            });
             let mut settings = match self.flash.take() {
                 Some(flash) => Settings::load(flash, FileFlash::store_range()),
                 None => Settings::without_store(),

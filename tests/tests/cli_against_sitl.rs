@@ -379,3 +379,27 @@ fn sitl_learner_stream_in_json_is_one_object_per_sample_then_the_summary() {
     }
     assert!(samples.iter().all(|s| s["phase"] == "Idle"));
 }
+
+/// The simulated motion capture goes on after a restart of the board: its poses are timed by
+/// the firmware's clock, which starts again at zero (a capture kept across the restart sent
+/// nothing until the new clock passed the old one: the walkthrough's flight after `reboot` had
+/// no position and drifted).
+#[test]
+fn the_sitls_motion_capture_reaches_the_board_again_right_after_a_restart() {
+    let config = SitlConfig { mocap: true, speed: 4.0, ..SitlConfig::default() };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let port = sitl.pty_path.clone().unwrap();
+    let port = port.to_str().unwrap();
+    let pose_fresh = |port: &str| {
+        let status = json_of(&run_cli(&["--port", port, "--json", "status"]));
+        status["flight"]["pose_fresh"].as_bool().expect("pose_fresh is a boolean")
+    };
+    // 2 s of wall time at 4× real time: the firmware's clock is at about 8 s.
+    std::thread::sleep(Duration::from_millis(2000));
+    assert!(pose_fresh(port), "poses arrive before the restart");
+    let output = run_cli(&["--port", port, "reboot"]);
+    assert!(output.status.success(), "reboot: {}", String::from_utf8_lossy(&output.stderr));
+    // Well under the firmware's 8 s before the restart, at 4× real time.
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(pose_fresh(port), "poses arrive within a second of the restart");
+}

@@ -96,18 +96,19 @@ const WALKTHROUGH: [(&str, &[&str]); 9] = [
     ("restart the board: it loads the saved configuration", &["reboot"]),
     (
         "throw-and-fly: the hand throws the craft, the board pulses each motor, learns its \
-         actuators and the hover thrust axis, and flies on them (disarmed after 3 s)",
-        &["identify", "--yes", "--disarm-after-s", "3"],
+         actuators and the hover thrust axis, flies on them, holds its position (the simulated \
+         motion capture's poses) for 2 s, then lands and stops its motors",
+        &["identify", "--yes", "--land-after-s", "2"],
     ),
     ("save the learned model", &["save"]),
     ("what differs from the defaults (paste it into `apply` to restore it)", &["diff"]),
     ("the status, with the configuration's origin", &["status"]),
 ];
 
-/// The README's main job: a SITL with a flash file and a hand that throws the craft three times,
-/// every 2.5 simulated seconds (4× real time), then throws it to fly once it is armed, and the
-/// configurator walking through an ESC beep → calibrate → save → restart → identify → save → diff
-/// against it.
+/// The README's main job: a SITL with a flash file, motion capture and a hand that throws the
+/// craft three times, every 2.5 simulated seconds (4× real time), then throws it to fly once it
+/// is armed, and the configurator walking through an ESC beep → calibrate → save → restart →
+/// identify (fly, hold, land) → save → diff against it.
 fn walkthrough() -> Result<()> {
     util::run(util::cargo().args([
         "build",
@@ -133,6 +134,9 @@ fn walkthrough() -> Result<()> {
         .args(["--flash-file", &flash.display().to_string()])
         .args(["--speed", "4", "--throw-every-s", "2.5", "--throws", "3"])
         .arg("--hand-throws-to-fly")
+        // Poses from the simulated motion capture: without a position the craft drifts (its
+        // tilt cannot be told from its acceleration), and a landing that drifts can tip over.
+        .arg("--mocap")
         .stdout(std::process::Stdio::null())
         .spawn()?;
     let started = Instant::now();
