@@ -46,6 +46,15 @@ mod dshot;
 mod app {
     pub mod battery;
     pub mod hal;
+    pub mod landing;
+    pub mod sticks;
+}
+
+/// The receiver's stick input, for `app::sticks` (compiled from its own source: portable).
+#[allow(dead_code)]
+#[path = "../../firmware/src/drivers"]
+mod drivers {
+    pub mod crsf;
 }
 
 /// What the control tick adds to the step: the flight log's entry into its ring, and a battery
@@ -84,6 +93,57 @@ fn tick_regions() {
     if status.map(|s| s.cells) != Some(4) {
         fail("tick: the battery monitor did not count 4 cells");
     }
+}
+
+/// What the pilot's sticks and the landing add to a flying control step (`firmware::app::sticks`,
+/// `firmware::app::landing`): the sticks shaped and turned into an angle-mode tilt or a
+/// position-mode setpoint velocity, the touchdown detector's step and the fly-away detector's,
+/// on a quadrotor's learned model.
+fn pilot_regions() {
+    use app::landing::{FlyAway, LandConfig, Touchdown, TouchdownSigns};
+    use app::sticks::{move_setpoint, StickConfig};
+    use drivers::crsf::StickInput;
+    use protocol::LandReason;
+    let sticks =
+        StickInput { roll: 0.31, pitch: -0.52, throttle: 0.12, yaw: 0.05, position_mode: false };
+    let mut state = (StickConfig::default(), sticks);
+    let angle = region(&mut state, |(config, sticks)| {
+        let shaped = config.shaped(black_box(sticks));
+        config.angle_mode(&shaped)
+    });
+    black_box(angle);
+    let mut state = (StickConfig::default(), sticks, Vector3::new(1.0f32, 2.0, -3.0));
+    let moved = region(&mut state, |(config, sticks, setpoint)| {
+        let shaped = config.shaped(black_box(sticks));
+        let velocity = config.setpoint_velocity(&shaped, 0.7);
+        move_setpoint(setpoint, &velocity, &Vector3::new(1.1, 2.1, -3.0), 0.0005)
+    });
+    black_box(moved);
+    let (u, idle, hover, g1) = ([0.35f32; 4], [0.05f32; 4], [0.4f32; 4], [-6.1f32; 4]);
+    let mut state = (Touchdown::new(LandReason::Commanded), 0u32);
+    let step = region(&mut state, |(touchdown, _)| {
+        let signs = TouchdownSigns {
+            u: black_box(&u),
+            u_idle: &idle,
+            u_hover: &hover,
+            g1_up_mps2: &g1,
+            specific_force_thrust_mps2: [0.1, -0.2, -9.6],
+            tilt_rate_rad_s: 0.02,
+            accel_mps2: [0.3, 9.1, -3.2],
+            fix_vertical_speed_mps: None,
+            vertical_speed_mps: 0.5,
+        };
+        touchdown.step(&signs, 0.0005)
+    });
+    if step.touched {
+        fail("pilot: a descending craft touched down");
+    }
+    let mut state = (FlyAway::default(), LandConfig::default());
+    let away = region(&mut state, |(detector, config)| {
+        let offset = Vector3::new(2.0f32, 1.0, 0.0);
+        detector.update(black_box(&offset), &Vector3::new(3.5, 1.0, 0.0), config, 0.0005)
+    });
+    black_box(away);
 }
 
 /// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
@@ -765,6 +825,10 @@ fn main() -> ! {
     hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 512 (second)");
     hprintln!("bench-m7 region: tick part: one battery reading into the monitor");
     hprintln!("bench-m7 region: tick part: the battery's status for the snapshot");
+    hprintln!("bench-m7 region: pilot part: sticks shaped into an angle-mode tilt and climb rate");
+    hprintln!("bench-m7 region: pilot part: sticks shaped into a position-mode setpoint, moved");
+    hprintln!("bench-m7 region: pilot part: the touchdown detector's step (a landing without fixes)");
+    hprintln!("bench-m7 region: pilot part: the fly-away detector's step");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
@@ -1051,6 +1115,7 @@ fn main() -> ! {
     dshot_regions();
     link_regions();
     tick_regions();
+    pilot_regions();
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
     loop {

@@ -468,6 +468,12 @@ pub struct FlyReport {
     pub landed_by_itself: Option<(LandReason, f64)>,
     /// With [`FlyConfig::sticks`]: the flight every 10 ms from the first stick command on.
     pub stick_trace: Vec<StickSample>,
+    /// After the craft recovered ([`FlyReport::release_to_hover_s`]) and until a landing began
+    /// or the flight ended: its fastest horizontal speed, m/s, and its horizontal distance from
+    /// where it recovered at the end, m (the issue's "no craft with a fresh pose ends more than
+    /// 2 m from where it recovered").
+    pub max_speed_after_recovery_mps: Option<f64>,
+    pub end_from_recovery_m: Option<f64>,
 }
 
 /// Scores of `learned` per unit normalised thrust `u = ω²/ω_full²` (the papers' convention and
@@ -598,7 +604,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             landing: None,
             landed_by_itself: None,
             stick_trace: Vec::new(),
+            max_speed_after_recovery_mps: None,
+            end_from_recovery_m: None,
         };
+        // Where the craft recovered, NED, m.
+        let mut recovered_ned_m: Option<Vector3<f64>> = None;
         let mut sticks = config.sticks.iter().peekable();
         let mut sticks_from: Option<(f64, Vector3<f64>)> = None;
         let hold_ticks = 1000u64; // 0.5 s in the hand
@@ -758,9 +768,17 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     if since_release - since >= HOVER_HOLD_S && report.release_to_hover_s.is_none()
                     {
                         report.release_to_hover_s = Some(since);
+                        recovered_ned_m = Some(state.position_ned_m);
                     }
                 } else {
                     hover_since = None;
+                }
+                if let (Some(recovered), None) = (recovered_ned_m, &report.landing) {
+                    let speed = state.velocity_ned_mps.xy().norm();
+                    let fastest = report.max_speed_after_recovery_mps.get_or_insert(0.0);
+                    *fastest = fastest.max(speed);
+                    report.end_from_recovery_m =
+                        Some((state.position_ned_m - recovered).xy().norm());
                 }
             } else if let Some(landing) = &mut report.landing {
                 // The landing's end: the motors stopped, on the ground or not.

@@ -124,7 +124,7 @@ pub struct ControlSettings {
     /// What the external poses are (latency, noise).
     pub pose: super::pilot::PoseConfig,
     /// What landings and fly-aways are.
-    pub land: super::pilot::LandConfig,
+    pub land: super::landing::LandConfig,
     /// Battery voltage per cell below which a flight lands, V (`None`: never; read by the
     /// control task, which measures the battery).
     pub land_cell_v: Option<f32>,
@@ -153,7 +153,7 @@ impl Default for ControlSettings {
             excitation: ExcitationConfig::default(),
             acc_bias_mps2: [0.0; 3],
             pose: super::pilot::PoseConfig::default(),
-            land: super::pilot::LandConfig::default(),
+            land: super::landing::LandConfig::default(),
             land_cell_v: Some(super::battery::DEFAULT_LAND_CELL_V),
             sticks: super::sticks::StickConfig::default(),
             stick_map: crate::drivers::crsf::StickMap::AETR,

@@ -18,6 +18,7 @@ pub mod battery;
 pub mod card;
 mod control;
 pub mod hal;
+pub mod landing;
 mod link;
 pub mod log;
 pub mod params;

@@ -182,18 +182,18 @@ registry! {
     ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
         [super::control::IMU_FAULT_TIMEOUT_S], false,
         "armed: bad IMU samples held (last good) this long, then failsafe";
-    // Landing and the failsafes that land (`super::pilot::LandConfig`).
+    // Landing and the failsafes that land (`super::landing::LandConfig`).
     LandDescentMps = "land_descent_mps", 1, Real, "m/s", 0.2, 2.0,
-        [super::pilot::DEFAULT_LAND_DESCENT_MPS], false,
+        [super::landing::DEFAULT_LAND_DESCENT_MPS], false,
         "landing: descent speed (straight down with a pose, level without)";
     LandPoseLostS = "land_pose_lost_s", 1, Real, "s", 0.5, 600.0,
-        [super::pilot::DEFAULT_LAND_POSE_LOST_S], false,
+        [super::landing::DEFAULT_LAND_POSE_LOST_S], false,
         "in flight: land when the external pose stays lost this long";
     FlyawaySpeedMps = "flyaway_speed_mps", 1, Real, "m/s", 1.0, 20.0,
-        [super::pilot::DEFAULT_FLYAWAY_SPEED_MPS], false,
+        [super::landing::DEFAULT_FLYAWAY_SPEED_MPS], false,
         "with a pose: moving away from the setpoint faster counts as a fly-away";
     FlyawayTimeS = "flyaway_time_s", 1, Real, "s", 0.2, 10.0,
-        [super::pilot::DEFAULT_FLYAWAY_TIME_S], false,
+        [super::landing::DEFAULT_FLYAWAY_TIME_S], false,
         "a fly-away this long lands the craft";
     LandCellV = "land_cell_v", 1, Real, "V", 0.0, 4.0, [super::battery::DEFAULT_LAND_CELL_V],
         false, "in flight: land when the battery stays below this per cell (0: never)";
@@ -455,8 +455,8 @@ impl Params {
     }
 
     /// What landings and fly-aways are.
-    pub fn land_config(&self) -> super::pilot::LandConfig {
-        super::pilot::LandConfig {
+    pub fn land_config(&self) -> super::landing::LandConfig {
+        super::landing::LandConfig {
             descent_mps: self.scalar(Param::LandDescentMps),
             pose_lost_s: self.scalar(Param::LandPoseLostS),
             flyaway_speed_mps: self.scalar(Param::FlyawaySpeedMps),

@@ -48,10 +48,13 @@
 //!   control step's [`super::control::ControlCommand::Land`]), and here: the pose lost for
 //!   longer than [`LandConfig::pose_lost_s`], and a fly-away.
 //! - **No fly-away**: with fixes, the level hold that waits for the position hold flies on the
-//!   fixes' velocity from the engagement on; a craft that still moves away from its setpoint
+//!   fixes' velocity from the engagement on, once the heading alignment has found the yaw
+//!   between the fixes' world and the filter's; a steady craft that has not found it within
+//!   [`NUDGE_AFTER_S`] (thrown straight up, nothing moved it) is nudged back and forth by a few
+//!   tenths of a metre until it has ([`nudge_velocity`]); a craft that still moves away from its setpoint
 //!   (before one, from where the flight first had a usable pose) faster than
 //!   [`LandConfig::flyaway_speed_mps`] for [`LandConfig::flyaway_time_s`] without braking
-//!   ([`FLYAWAY_BRAKING_MPS`]) lands (its horizontal loops go on: whatever holds it back still
+//!   ([`super::landing::FLYAWAY_BRAKING_MPS`]) lands (its horizontal loops go on: whatever holds it back still
 //!   does, and the descent brings it down either way).
 //! - **A motor that loses thrust** (a damaged propeller): no failsafe. INDI is incremental: it
 //!   measures the angular acceleration and specific force the commands produced and adds what
@@ -72,6 +75,8 @@ use protocol::{
 };
 
 use super::hal::{ImuSample, MAX_MOTORS};
+pub use super::landing::LandConfig;
+use super::landing::{FlyAway, Touchdown, TouchdownSigns};
 use super::sticks::{move_setpoint, StickConfig};
 use crate::drivers::crsf::StickInput;
 
@@ -131,6 +136,47 @@ const HOLD_START_SPEED_MPS: f32 = 0.3;
 /// that did not hold, e.g. 70 and 447, and nominal seed 123; docs/benchmarks.md).
 const HOLD_START_ACCEL_MPS2: f32 = 0.5;
 
+/// How long a steady flight with fresh fixes waits for its heading alignment before it moves
+/// to make one, s (ours): the recovery from a throw usually moves the craft enough to align
+/// within a second or two; one thrown straight up may not move at all, and then nothing does:
+/// the level hold flies on the dead reckoning in the filter's world, where the filter's tilt
+/// error (a constant acceleration it cannot see) pushes the craft away while the fixes, whose
+/// yaw is unknown, cannot say which way to brake (Monte Carlo seed 421 of the random world:
+/// 14 m/s and 186 m away after 25 s, never aligned). The alignment needs accelerations the dead
+/// reckoning sees: the nudge makes them.
+const NUDGE_AFTER_S: f32 = 1.0;
+
+/// The nudge's velocity ramp, m/s², and the length of its quarter cycle, s (ours): the level
+/// hold follows a triangle of velocity, `+a` for a quarter, `−a` for a half, `+a` for a quarter,
+/// back at rest where it began (0.16 m away at most), along the filter's x, then its y, and so
+/// on until the alignment is trusted. At 1 m/s² (the alignment's reference acceleration,
+/// `flight::navigation::ALIGNMENT_REFERENCE_ACCEL_MPS2`) one cycle of 1.6 s gives the evidence
+/// it asks for (`ALIGNMENT_EVIDENCE_S`, 0.2 s at 2 m/s²) with motion capture; a constant
+/// acceleration the dead reckoning misses cancels over a cycle.
+const NUDGE_ACCEL_MPS2: f32 = 1.0;
+const NUDGE_QUARTER_S: f32 = 0.4;
+
+/// The velocity the nudge asks for `t_s` into it, filter's world, m/s (see [`NUDGE_ACCEL_MPS2`]).
+fn nudge_velocity(t_s: f32) -> Vector3<f32> {
+    let cycle_s = 4.0 * NUDGE_QUARTER_S;
+    let cycles = libm::floorf(t_s / cycle_s);
+    let tau = t_s - cycles * cycle_s;
+    let speed = NUDGE_ACCEL_MPS2
+        * if tau < NUDGE_QUARTER_S {
+            tau
+        } else if tau < 3.0 * NUDGE_QUARTER_S {
+            2.0 * NUDGE_QUARTER_S - tau
+        } else {
+            tau - cycle_s
+        };
+    // Odd cycles along y.
+    if (cycles as u32).is_multiple_of(2) {
+        Vector3::new(speed, 0.0, 0.0)
+    } else {
+        Vector3::new(0.0, speed, 0.0)
+    }
+}
+
 /// Time constant of the acceleration taken from the fixes, s (ours): smooths the derivative of
 /// the navigation velocity, short against the manoeuvres it compensates.
 const FIX_ACCEL_TIME_S: f32 = 0.05;
@@ -168,176 +214,6 @@ fn filter_heading(
 ) -> f32 {
     let level_yaw = yaw_of(&(q_filter * q_imu_level));
     yaw_of(q_filter) + flight::attitude::wrap_pi(wanted_level_yaw_rad - level_yaw)
-}
-
-/// Default descent speed of a landing, m/s (the `land_descent_mps` parameter): ArduPilot's
-/// `LAND_SPEED` below its `LAND_ALT_LOW` (0.5 m/s); PX4's `MPC_LAND_SPEED` is 0.7 m/s. A
-/// landing gear's travel and a frame's arms take that without a bounce (0.5 m/s is a drop from
-/// 13 mm).
-pub const DEFAULT_LAND_DESCENT_MPS: f32 = 0.5;
-
-/// Default time the pose may stay lost in a flight before the craft lands, s
-/// (`land_pose_lost_s`): a motion-capture occlusion or a radio hiccup lasts a fraction of a
-/// second; the level hold that replaces the position drifts a metre or more within five.
-pub const DEFAULT_LAND_POSE_LOST_S: f32 = 5.0;
-
-/// Default speed away from the setpoint that counts towards a fly-away, m/s
-/// (`flyaway_speed_mps`): above the position loop's 2.5 m/s speed limit flown with its 4.6 %
-/// overshoot (`flight::position::MAX_SPEED_MPS`), so no manoeuvre of our own controller reaches
-/// it.
-pub const DEFAULT_FLYAWAY_SPEED_MPS: f32 = 3.0;
-
-/// Default time above [`DEFAULT_FLYAWAY_SPEED_MPS`] without braking after which a craft lands,
-/// s (`flyaway_time_s`): a gust of 5 m/s pushes a hovering craft past 3 m/s for a few tenths of
-/// a second at most before the velocity loop (a time constant of 0.2–0.5 s) takes it back, and
-/// a craft thrown sideways tumbles for up to a second before it brakes (Monte Carlo seed 3 of
-/// the random world: 5.7 m/s for 0.9 s); 2 s more at 3 m/s is 6 m.
-pub const DEFAULT_FLYAWAY_TIME_S: f32 = 2.0;
-
-/// Fall of the horizontal speed that counts as braking, m/s: a fly-away's count starts afresh
-/// whenever the speed has fallen this much below its peak since the count began (a recovery
-/// from a sideways throw brakes at 2–6 m/s² once its tumble is over, so by far more than this
-/// within [`DEFAULT_FLYAWAY_TIME_S`]).
-pub const FLYAWAY_BRAKING_MPS: f32 = 0.5;
-
-/// Thrust below which a landing craft may be on the ground, as the fraction of the way from
-/// idle to hover (ours; PX4's land detector asks for its throttle near the minimum the same
-/// way, `LNDMC_LOW_T_THR`): INDI lowers the thrust for as long as the measured specific force
-/// stays above the descent's, and on the ground it stays at 1 g whatever the motors do.
-pub const TOUCHDOWN_THRUST_FRACTION: f32 = 0.5;
-
-/// Smallest measured specific force along the thrust axis, as a fraction of g, at which a
-/// craft whose thrust is below [`TOUCHDOWN_THRUST_FRACTION`] counts as carried by the ground
-/// (ours): in the air that thrust gives at most about 0.6 g even with a model whose thrust is
-/// 20 % low, so 0.8 g is the ground carrying the rest.
-pub const TOUCHDOWN_MIN_FORCE_G: f32 = 0.8;
-
-/// Share of the weight, as a fraction of g, that the ground must carry (the measured upward
-/// specific force above what the commands push with by the learned model) for a landing craft
-/// to count as resting even though its commands' sum is not low (ours): the model's thrust is
-/// within 5–10 % after the in-flight refinement (docs/benchmarks.md), so 0.35 g is no model
-/// error.
-pub const TOUCHDOWN_CARRIED_G: f32 = 0.35;
-
-/// Largest tilt rate (about the thrust frame's x and y) at which a landing craft counts as
-/// resting, rad/s (30 °/s): not tipping over. A craft on its gear may yaw (its idle torques
-/// against the gear's friction: 150 °/s in Monte Carlo seed 454), which says nothing.
-pub const TOUCHDOWN_MAX_RATE_RAD_S: f32 = 0.5;
-
-/// Largest vertical speed from the fixes at which a landing craft counts as resting, m/s.
-pub const TOUCHDOWN_MAX_SPEED_MPS: f32 = 0.3;
-
-/// How long the touchdown's signs must hold before the motors stop, s (ours): INDI brings the
-/// thrust from hover to below the threshold within a few motor time constants of the contact
-/// (0.1–0.2 s), so the motors stop about 0.4 s after it, well within the second the issue
-/// allows; a bounce breaks the run and it starts again.
-pub const TOUCHDOWN_CONFIRM_S: f32 = 0.2;
-
-/// Rate at which the touchdown speed's peak decays, m/s per s: keeps the descent speed of the
-/// moment before the contact through the confirmation.
-const TOUCHDOWN_PEAK_DECAY_MPS2: f32 = 1.0;
-
-/// Specific force at the centre of gravity, as a multiple of g, that counts as the ground's
-/// impact in a landing without fixes (ours): a steady descent reads 1 g give or take a gust's
-/// few tenths, a landing gear stopping 0.5 m/s within a few centimetres reads several g.
-pub const TOUCHDOWN_IMPACT_G: f32 = 2.0;
-
-/// Time over which a landing without fixes lowers its thrust to nothing after an impact, s
-/// (ours). Without fixes the vertical speed is the accelerometer's integral, which the bounces
-/// of a contact spoil (in the SITL it ran to 10 m/s and beyond, and the descent's loop then
-/// climbed to catch it, hopping: the touchdown never came); the spool-down caps the upward
-/// force from the hover's to none over this time, whatever the loop asks, so the craft settles
-/// and the touchdown's signs follow within a few tenths.
-pub const TOUCHDOWN_SPOOL_DOWN_S: f32 = 0.5;
-
-/// Measured upward specific force below which a spooling craft is in the air after all, as a
-/// fraction of g (ours): it falls as its thrust does, where the ground would hold it at 1 g.
-/// The spool-down is called off and the descent goes on.
-pub const TOUCHDOWN_AIRBORNE_G: f32 = 0.6;
-
-/// How long the measured force must stay below [`TOUCHDOWN_AIRBORNE_G`] to call a spool-down
-/// off, s (ours): a gear's bounce unloads it for a few hundredths of a second; a craft in the
-/// air with its thrust falling stays unloaded.
-pub const TOUCHDOWN_AIRBORNE_S: f32 = 0.1;
-
-/// What the pilot assumes of landings and fly-aways (the parameters `land_descent_mps`,
-/// `land_pose_lost_s`, `flyaway_speed_mps`, `flyaway_time_s`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LandConfig {
-    /// Descent speed of a landing, m/s.
-    pub descent_mps: f32,
-    /// Time the fixes may stay lost in a flight before it lands, s.
-    pub pose_lost_s: f32,
-    /// Speed away from the setpoint that counts towards a fly-away, m/s.
-    pub flyaway_speed_mps: f32,
-    /// Time above that speed after which the craft lands, s.
-    pub flyaway_time_s: f32,
-}
-
-impl Default for LandConfig {
-    fn default() -> Self {
-        Self {
-            descent_mps: DEFAULT_LAND_DESCENT_MPS,
-            pose_lost_s: DEFAULT_LAND_POSE_LOST_S,
-            flyaway_speed_mps: DEFAULT_FLYAWAY_SPEED_MPS,
-            flyaway_time_s: DEFAULT_FLYAWAY_TIME_S,
-        }
-    }
-}
-
-/// The touchdown detector of a landing (see the constants above): thrust well below hover while
-/// the measured specific force stays near 1 g (the ground carries the craft), the craft not
-/// turning and, with fixes, not moving vertically, for [`TOUCHDOWN_CONFIRM_S`]. It assumes
-/// nothing of the height: no range finder, and a pose's zero need not be the ground.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Touchdown {
-    reason: LandReason,
-    /// How long the signs have held, s.
-    resting_s: f32,
-    /// The descent speed's decaying peak, m/s (positive down).
-    peak_descent_mps: f32,
-    /// Time since an impact began the spool-down of a landing without fixes, s.
-    spooling_s: Option<f32>,
-    /// How long the measured force has been below [`TOUCHDOWN_AIRBORNE_G`] while spooling, s.
-    airborne_s: f32,
-}
-
-impl Touchdown {
-    fn new(reason: LandReason) -> Self {
-        Self { reason, resting_s: 0.0, peak_descent_mps: 0.0, spooling_s: None, airborne_s: 0.0 }
-    }
-
-    /// The cap on the upward specific force: none, or the spool-down's, falling from 1 g to
-    /// nothing over [`TOUCHDOWN_SPOOL_DOWN_S`], m/s².
-    fn max_up_mps2(&self) -> f32 {
-        self.spooling_s.map_or(f32::INFINITY, |t| {
-            STANDARD_GRAVITY_MPS2 * (1.0 - t / TOUCHDOWN_SPOOL_DOWN_S).max(0.0)
-        })
-    }
-
-    /// Follow the spool-down of a landing without fixes: it begins at an `impact` (returns
-    /// true then), and ends when the measured upward force `force_up_g` (in g) shows the craft
-    /// in the air for [`TOUCHDOWN_AIRBORNE_S`] (a bounce's dips are shorter).
-    fn spool(&mut self, impact: bool, force_up_g: f32, dt_s: f32) -> bool {
-        self.airborne_s =
-            if force_up_g < TOUCHDOWN_AIRBORNE_G { self.airborne_s + dt_s } else { 0.0 };
-        let (spooling, began) = match self.spooling_s {
-            Some(_) if self.airborne_s >= TOUCHDOWN_AIRBORNE_S => (None, false),
-            Some(t) => (Some(t + dt_s), false),
-            None if impact => (Some(0.0), true),
-            None => (None, false),
-        };
-        self.spooling_s = spooling;
-        began
-    }
-
-    /// One step: whether the craft has been resting long enough.
-    fn update(&mut self, resting: bool, descent_mps: f32, dt_s: f32) -> bool {
-        self.peak_descent_mps =
-            descent_mps.max(self.peak_descent_mps - TOUCHDOWN_PEAK_DECAY_MPS2 * dt_s);
-        self.resting_s = if resting { self.resting_s + dt_s } else { 0.0 };
-        self.resting_s >= TOUCHDOWN_CONFIRM_S
-    }
 }
 
 /// How long a flight must have been steady (thrust axis within
@@ -612,9 +488,11 @@ pub struct Pilot {
     touchdown: Option<Touchdown>,
     /// How long the fixes have been lost in this flight, s.
     pose_lost_s: f32,
-    /// How long the craft has moved away faster than the fly-away speed without braking, s,
-    /// and its fastest speed since then, m/s.
-    flyaway: Option<(f32, f32)>,
+    /// The fly-away detector.
+    flyaway: FlyAway,
+    /// How long the flight has been steady with fresh fixes but no heading alignment, s: past
+    /// [`NUDGE_AFTER_S`] the level hold nudges the craft ([`nudge_velocity`]).
+    unaligned_s: f32,
     /// Where this flight first had a usable pose, world NED, m: what a fly-away moves away from
     /// before a hold has a setpoint.
     flyaway_origin_ned_m: Option<Vector3<f32>>,
@@ -658,7 +536,8 @@ impl Pilot {
             steady_s: 0.0,
             touchdown: None,
             pose_lost_s: 0.0,
-            flyaway: None,
+            flyaway: FlyAway::default(),
+            unaligned_s: 0.0,
             flyaway_origin_ned_m: None,
             status: PilotStatus::default(),
         }
@@ -969,10 +848,21 @@ impl Pilot {
             }
             _ => Guidance::Level {
                 yaw_rad,
-                velocity_ned_mps: self.level_velocity(),
+                velocity_ned_mps: self.level_velocity() - self.nudge(),
                 vertical_speed_mps: descent_mps.unwrap_or(0.0),
                 max_up_mps2: self.touchdown.map_or(f32::INFINITY, |t| t.max_up_mps2()),
             },
+        }
+    }
+
+    /// The velocity the nudge asks of the level hold now (zero unless it nudges), m/s.
+    fn nudge(&self) -> Vector3<f32> {
+        let into_s = self.unaligned_s - NUDGE_AFTER_S;
+        if into_s > 0.0 && self.touchdown.is_none() {
+            flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad())
+                * nudge_velocity(into_s)
+        } else {
+            Vector3::zeros()
         }
     }
 
@@ -1038,30 +928,14 @@ impl Pilot {
             self.land(LandReason::PoseLost);
         }
         // Away from the hold's setpoint, or before one from where the flight first had a usable
-        // pose: the radial speed, so a craft circling while its heading settles (Monte Carlo
-        // seed 355 of the random world: 6 m/s for 2 s, then held within 0.16 m) is no fly-away.
-        // In angle mode the pilot steers where it goes.
-        if !positioned || self.status.piloted == Some(false) {
-            self.flyaway = None;
+        // pose (`super::landing::FlyAway`). In angle mode the pilot steers where it goes.
+        if !positioned || self.status.piloted == Some(false) || self.touchdown.is_some() {
+            self.flyaway.reset();
             return;
         }
         let origin = *self.flyaway_origin_ned_m.get_or_insert(nav.position_ned_m);
         let offset = nav.position_ned_m - self.position_sp_ned_m.unwrap_or(origin);
-        let distance = libm::hypotf(offset.x, offset.y);
-        let v = nav.velocity_ned_mps;
-        let speed =
-            if distance > 1e-3 { (offset.x * v.x + offset.y * v.y) / distance } else { 0.0 };
-        // Braking (the speed fell by FLYAWAY_BRAKING_MPS below its peak since the count began)
-        // is no fly-away either: a craft thrown sideways at 3-6 m/s recovers that way, once its
-        // tumble is over.
-        let counting = speed > config.flyaway_speed_mps && self.touchdown.is_none();
-        self.flyaway = match self.flyaway {
-            Some((_, peak)) if counting && speed < peak - FLYAWAY_BRAKING_MPS => Some((0.0, speed)),
-            Some((since_s, peak)) if counting => Some((since_s + dt_s, peak.max(speed))),
-            _ if counting => Some((0.0, speed)),
-            _ => None,
-        };
-        if self.flyaway.is_some_and(|(since_s, _)| since_s > config.flyaway_time_s) {
+        if self.flyaway.update(&offset, &nav.velocity_ned_mps, &config, dt_s) {
             self.land(LandReason::FlyAway);
         }
     }
@@ -1079,45 +953,28 @@ impl Pilot {
         };
         let model = controller.indi().model();
         let motors = model.motors.min(MAX_MOTORS);
-        let thrust: f32 = output.indi.u[..motors].iter().sum();
-        let low: f32 = (0..motors)
-            .map(|i| {
-                model.u_idle[i] + TOUCHDOWN_THRUST_FRACTION * (model.u_hover[i] - model.u_idle[i])
-            })
-            .sum();
-        let state = controller.indi().state();
-        let force_up_g = -state.specific_force_mps2.z / STANDARD_GRAVITY_MPS2;
-        // What the motors' commands push with, by the learned model: the ground carries the
-        // difference. On the ground INDI's torque demands (against the gear's friction) can hold
-        // a motor or two high while the rest idle, so the commands' sum alone may never fall.
-        let thrust_up_g = -(0..motors).map(|i| model.g1[2][i] * output.indi.u[i]).sum::<f32>()
-            / STANDARD_GRAVITY_MPS2;
-        let carried = force_up_g - thrust_up_g > TOUCHDOWN_CARRIED_G;
         let nav = *self.navigation.state();
-        let dt_s = 1.0 / self.rate_hz;
-        // Without fixes, an impact spools the motors down (see TOUCHDOWN_SPOOL_DOWN_S).
-        if !nav.has_fix {
-            let impact = accel_mps2.iter().map(|a| a * a).sum::<f32>()
-                > TOUCHDOWN_IMPACT_G
-                    * TOUCHDOWN_IMPACT_G
-                    * STANDARD_GRAVITY_MPS2
-                    * STANDARD_GRAVITY_MPS2;
-            if touchdown.spool(impact, force_up_g, dt_s) {
-                // The dead reckoning through an impact is lost (the bounces' spikes integrate
-                // to metres per second); on the ground the craft is still.
-                self.alignment.hold_still();
-                self.navigation.hold_still();
-            }
-        }
-        let still_vertically =
-            !nav.has_fix || nav.velocity_ned_mps.z.abs() < TOUCHDOWN_MAX_SPEED_MPS;
         // Tipping, not turning about the thrust axis: a craft on its gear may still yaw.
         let rate = model.q_imu_thrust.inverse() * Vector3::from(*gyro_rad_s);
-        let resting = (thrust < low || carried)
-            && force_up_g > TOUCHDOWN_MIN_FORCE_G
-            && libm::hypotf(rate.x, rate.y) < TOUCHDOWN_MAX_RATE_RAD_S
-            && still_vertically;
-        touchdown.update(resting, nav.velocity_ned_mps.z, dt_s)
+        let signs = TouchdownSigns {
+            u: &output.indi.u[..motors],
+            u_idle: &model.u_idle[..motors],
+            u_hover: &model.u_hover[..motors],
+            g1_up_mps2: &model.g1[2][..motors],
+            specific_force_thrust_mps2: controller.indi().state().specific_force_mps2.into(),
+            tilt_rate_rad_s: libm::hypotf(rate.x, rate.y),
+            accel_mps2: *accel_mps2,
+            fix_vertical_speed_mps: nav.has_fix.then_some(nav.velocity_ned_mps.z),
+            vertical_speed_mps: nav.velocity_ned_mps.z,
+        };
+        let step = touchdown.step(&signs, 1.0 / self.rate_hz);
+        if step.impact {
+            // The dead reckoning through an impact is lost (the bounces' spikes integrate to
+            // metres per second); on the ground the craft is still.
+            self.alignment.hold_still();
+            self.navigation.hold_still();
+        }
+        step.touched
     }
 
     /// Take over at the end of an identification, from the commands (δ) and speeds (rad/s, NaN
@@ -1233,6 +1090,11 @@ impl Pilot {
             self.fixes_lost = true;
         }
         self.land_by_itself(&nav, can_hold);
+        let steadily_unaligned = nav.has_fix
+            && self.alignment.yaw_rad().is_none()
+            && (self.steady_s > 0.0 || self.unaligned_s > NUDGE_AFTER_S);
+        self.unaligned_s =
+            if steadily_unaligned { self.unaligned_s + 1.0 / self.rate_hz } else { 0.0 };
         if (was_holding && !can_hold) || fixes_stopped {
             self.note_failsafe(Failsafe::PoseLost);
             self.position_sp_ned_m = None;
@@ -1351,7 +1213,8 @@ impl Pilot {
         self.heading_offset_rad = None;
         self.touchdown = None;
         self.pose_lost_s = 0.0;
-        self.flyaway = None;
+        self.flyaway.reset();
+        self.unaligned_s = 0.0;
         self.flyaway_origin_ned_m = None;
         self.steady_s = 0.0;
         self.status.flying = false;
@@ -1373,6 +1236,33 @@ fn quaternion_array(q: &UnitQuaternion<f32>) -> [f32; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The nudge's velocity triangle, integrated: each cycle ends at rest where it began, never
+    /// more than 0.2 m away, its acceleration within its ramp, along x then y.
+    #[test]
+    fn the_nudge_returns_to_rest_where_it_began_after_each_cycle() {
+        let dt_s = 0.0005;
+        let cycle_s = 4.0 * NUDGE_QUARTER_S;
+        let mut position = Vector3::<f32>::zeros();
+        let mut previous = nudge_velocity(0.0);
+        let mut farthest = 0.0f32;
+        for n in 1..=(2.0 * cycle_s / dt_s) as u32 {
+            let velocity = nudge_velocity(n as f32 * dt_s);
+            position += (velocity + previous) * (0.5 * dt_s);
+            let accel = (velocity - previous).norm() / dt_s;
+            assert!(accel <= NUDGE_ACCEL_MPS2 * 1.01, "{accel} m/s² at step {n}");
+            previous = velocity;
+            farthest = farthest.max(position.norm());
+            if n == (cycle_s / dt_s) as u32 {
+                assert!(position.norm() < 1e-3, "after the first cycle: {position:?} m");
+                assert!(velocity.norm() < 1e-3, "at rest: {velocity:?} m/s");
+            }
+        }
+        assert!(position.norm() < 1e-3, "after two cycles: {position:?} m");
+        assert!(farthest > 0.1 && farthest < 0.2, "the nudge moves {farthest} m at most");
+        assert!(nudge_velocity(0.5 * NUDGE_QUARTER_S).x > 0.0, "the first cycle along x");
+        assert!(nudge_velocity(cycle_s + 0.5 * NUDGE_QUARTER_S).y > 0.0, "the second along y");
+    }
 
     /// The yaw of the IMU's x axis in the world, as the filter measures its heading.
     fn imu_heading(q: &UnitQuaternion<f32>) -> f32 {

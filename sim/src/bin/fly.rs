@@ -290,6 +290,36 @@ fn print_landings(results: &[sim::recovery::CaseResult]) {
     }
 }
 
+/// After the recovery, until a landing began or the flight ended: the fastest horizontal speed
+/// and the distance from where each craft recovered at the end, and every seed that ended more
+/// than [`END_FROM_RECOVERY_LIMIT_M`] away.
+fn print_after_recovery(results: &[sim::recovery::CaseResult]) {
+    let speeds: Vec<f64> =
+        results.iter().filter_map(|r| r.report.max_speed_after_recovery_mps).collect();
+    let ends: Vec<(u64, f64)> =
+        results.iter().filter_map(|r| Some((r.seed, r.report.end_from_recovery_m?))).collect();
+    if ends.is_empty() {
+        return;
+    }
+    println!("after the recovery ({} runs that recovered):", ends.len());
+    print_quantiles("  fastest horizontal speed", &speeds, 1.0, " m/s");
+    let distances: Vec<f64> = ends.iter().map(|(_, d)| *d).collect();
+    print_quantiles("  distance at the end from where it recovered", &distances, 1.0, " m");
+    let far: Vec<String> = ends
+        .iter()
+        .filter(|(_, d)| *d > END_FROM_RECOVERY_LIMIT_M)
+        .map(|(seed, d)| format!("{seed} ({d:.2} m)"))
+        .collect();
+    println!(
+        "  ended more than {END_FROM_RECOVERY_LIMIT_M} m from where it recovered: {}{}",
+        far.len(),
+        if far.is_empty() { String::new() } else { format!(": {}", far.join(", ")) }
+    );
+}
+
+/// How far from where it recovered a craft with a fresh pose may end its flight, m (issue 53).
+const END_FROM_RECOVERY_LIMIT_M: f64 = 2.0;
+
 /// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
 /// flags beside a randomised world.
 fn checked_aspects(
@@ -608,6 +638,7 @@ fn main() -> ExitCode {
                 per_thrust(|s| s.tau_error_max_s, 1e3),
             );
             print_landings(&results);
+            print_after_recovery(&results);
             let mut by_itself: BTreeMap<String, Vec<String>> = BTreeMap::new();
             for r in &results {
                 if let Some((reason, at_s)) = r.report.landed_by_itself {

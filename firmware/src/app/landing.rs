@@ -1,0 +1,429 @@
+//! Landings and fly-aways: the touchdown detector that ends a landing, the fly-away detector
+//! that starts one, and what both assume ([`LandConfig`], the parameters `land_descent_mps`,
+//! `land_pose_lost_s`, `flyaway_speed_mps`, `flyaway_time_s`).
+//!
+//! Both are small state machines on what one control step measures, apart from the pilot
+//! (`super::pilot`, which flies the descent and asks them), so that their cost is measured on
+//! the Cortex-M7 on its own (`cargo xtask bench-m7`, which compiles this file) and their
+//! behaviour tested without a flight.
+//!
+//! - **The touchdown** ([`Touchdown`]): no range finder, and nothing assumed of the ground's
+//!   height (a pose's zero need not be the ground). The signs that must hold together for
+//!   [`TOUCHDOWN_CONFIRM_S`]: the thrust well below hover ([`TOUCHDOWN_THRUST_FRACTION`]) or
+//!   the ground carrying a share of the weight ([`TOUCHDOWN_CARRIED_G`]); the measured specific
+//!   force near 1 g ([`TOUCHDOWN_MIN_FORCE_G`]); no tipping ([`TOUCHDOWN_MAX_RATE_RAD_S`]); with
+//!   fixes, no vertical motion ([`TOUCHDOWN_MAX_SPEED_MPS`]). Without fixes an impact
+//!   ([`TOUCHDOWN_IMPACT_G`]) spools the motors down ([`TOUCHDOWN_SPOOL_DOWN_S`]), called off
+//!   when the craft turns out to be in the air ([`TOUCHDOWN_AIRBORNE_G`]).
+//! - **The fly-away** ([`FlyAway`]): moving away from the setpoint faster than
+//!   [`LandConfig::flyaway_speed_mps`] for longer than [`LandConfig::flyaway_time_s`] without
+//!   braking.
+
+use flight::navigation::STANDARD_GRAVITY_MPS2;
+use nalgebra::Vector3;
+use protocol::LandReason;
+
+/// Default descent speed of a landing, m/s (the `land_descent_mps` parameter): ArduPilot's
+/// `LAND_SPEED` below its `LAND_ALT_LOW` (0.5 m/s); PX4's `MPC_LAND_SPEED` is 0.7 m/s. A
+/// landing gear's travel and a frame's arms take that without a bounce (0.5 m/s is a drop from
+/// 13 mm).
+pub const DEFAULT_LAND_DESCENT_MPS: f32 = 0.5;
+
+/// Default time the pose may stay lost in a flight before the craft lands, s
+/// (`land_pose_lost_s`): a motion-capture occlusion or a radio hiccup lasts a fraction of a
+/// second; the level hold that replaces the position drifts a metre or more within five.
+pub const DEFAULT_LAND_POSE_LOST_S: f32 = 5.0;
+
+/// Default speed away from the setpoint that counts towards a fly-away, m/s
+/// (`flyaway_speed_mps`): above the position loop's 2.5 m/s speed limit flown with its 4.6 %
+/// overshoot (`flight::position::MAX_SPEED_MPS`), so no manoeuvre of our own controller reaches
+/// it.
+pub const DEFAULT_FLYAWAY_SPEED_MPS: f32 = 3.0;
+
+/// Default time above [`DEFAULT_FLYAWAY_SPEED_MPS`] without braking after which a craft lands,
+/// s (`flyaway_time_s`): a gust of 5 m/s pushes a hovering craft past 3 m/s for a few tenths of
+/// a second at most before the velocity loop (a time constant of 0.2–0.5 s) takes it back, and
+/// a craft thrown sideways tumbles for up to a second before it brakes (Monte Carlo seed 3 of
+/// the random world: 5.7 m/s for 0.9 s); 2 s more at 3 m/s is 6 m.
+pub const DEFAULT_FLYAWAY_TIME_S: f32 = 2.0;
+
+/// Fall of the horizontal speed that counts as braking, m/s: a fly-away's count starts afresh
+/// whenever the speed has fallen this much below its peak since the count began (a recovery
+/// from a sideways throw brakes at 2–6 m/s² once its tumble is over, so by far more than this
+/// within [`DEFAULT_FLYAWAY_TIME_S`]).
+pub const FLYAWAY_BRAKING_MPS: f32 = 0.5;
+
+/// Thrust below which a landing craft may be on the ground, as the fraction of the way from
+/// idle to hover (ours; PX4's land detector asks for its throttle near the minimum the same
+/// way, `LNDMC_LOW_T_THR`): INDI lowers the thrust for as long as the measured specific force
+/// stays above the descent's, and on the ground it stays at 1 g whatever the motors do.
+pub const TOUCHDOWN_THRUST_FRACTION: f32 = 0.5;
+
+/// Smallest measured specific force along the thrust axis, as a fraction of g, at which a
+/// craft whose thrust is below [`TOUCHDOWN_THRUST_FRACTION`] counts as carried by the ground
+/// (ours): in the air that thrust gives at most about 0.6 g even with a model whose thrust is
+/// 20 % low, so 0.8 g is the ground carrying the rest.
+pub const TOUCHDOWN_MIN_FORCE_G: f32 = 0.8;
+
+/// Share of the weight, as a fraction of g, that the ground must carry (the measured upward
+/// specific force above what the commands push with by the learned model) for a landing craft
+/// to count as resting even though its commands' sum is not low (ours): the model's thrust is
+/// within 5–10 % after the in-flight refinement (docs/benchmarks.md), so 0.35 g is no model
+/// error.
+pub const TOUCHDOWN_CARRIED_G: f32 = 0.35;
+
+/// Largest tilt rate (about the thrust frame's x and y) at which a landing craft counts as
+/// resting, rad/s (30 °/s): not tipping over. A craft on its gear may yaw (its idle torques
+/// against the gear's friction: 150 °/s in Monte Carlo seed 454), which says nothing.
+pub const TOUCHDOWN_MAX_RATE_RAD_S: f32 = 0.5;
+
+/// Largest vertical speed from the fixes at which a landing craft counts as resting, m/s.
+pub const TOUCHDOWN_MAX_SPEED_MPS: f32 = 0.3;
+
+/// How long the touchdown's signs must hold before the motors stop, s (ours): INDI brings the
+/// thrust from hover to below the threshold within a few motor time constants of the contact
+/// (0.1–0.2 s), so the motors stop about 0.4 s after it, well within the second the issue
+/// allows; a bounce breaks the run and it starts again.
+pub const TOUCHDOWN_CONFIRM_S: f32 = 0.2;
+
+/// Rate at which the touchdown speed's peak decays, m/s per s: keeps the descent speed of the
+/// moment before the contact through the confirmation.
+const TOUCHDOWN_PEAK_DECAY_MPS2: f32 = 1.0;
+
+/// Specific force at the centre of gravity, as a multiple of g, that counts as the ground's
+/// impact in a landing without fixes (ours): a steady descent reads 1 g give or take a gust's
+/// few tenths, a landing gear stopping 0.5 m/s within a few centimetres reads several g.
+pub const TOUCHDOWN_IMPACT_G: f32 = 2.0;
+
+/// Time over which a landing without fixes lowers its thrust to nothing after an impact, s
+/// (ours). Without fixes the vertical speed is the accelerometer's integral, which the bounces
+/// of a contact spoil (in the SITL it ran to 10 m/s and beyond, and the descent's loop then
+/// climbed to catch it, hopping: the touchdown never came); the spool-down caps the upward
+/// force from the hover's to none over this time, whatever the loop asks, so the craft settles
+/// and the touchdown's signs follow within a few tenths.
+pub const TOUCHDOWN_SPOOL_DOWN_S: f32 = 0.5;
+
+/// Measured upward specific force below which a spooling craft is in the air after all, as a
+/// fraction of g (ours): it falls as its thrust does, where the ground would hold it at 1 g.
+/// The spool-down is called off and the descent goes on.
+pub const TOUCHDOWN_AIRBORNE_G: f32 = 0.6;
+
+/// How long the measured force must stay below [`TOUCHDOWN_AIRBORNE_G`] to call a spool-down
+/// off, s (ours): a gear's bounce unloads it for a few hundredths of a second; a craft in the
+/// air with its thrust falling stays unloaded.
+pub const TOUCHDOWN_AIRBORNE_S: f32 = 0.1;
+
+/// What the pilot assumes of landings and fly-aways (the parameters `land_descent_mps`,
+/// `land_pose_lost_s`, `flyaway_speed_mps`, `flyaway_time_s`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LandConfig {
+    /// Descent speed of a landing, m/s.
+    pub descent_mps: f32,
+    /// Time the fixes may stay lost in a flight before it lands, s.
+    pub pose_lost_s: f32,
+    /// Speed away from the setpoint that counts towards a fly-away, m/s.
+    pub flyaway_speed_mps: f32,
+    /// Time above that speed after which the craft lands, s.
+    pub flyaway_time_s: f32,
+}
+
+impl Default for LandConfig {
+    fn default() -> Self {
+        Self {
+            descent_mps: DEFAULT_LAND_DESCENT_MPS,
+            pose_lost_s: DEFAULT_LAND_POSE_LOST_S,
+            flyaway_speed_mps: DEFAULT_FLYAWAY_SPEED_MPS,
+            flyaway_time_s: DEFAULT_FLYAWAY_TIME_S,
+        }
+    }
+}
+
+/// The touchdown detector of a landing (see the constants above): thrust well below hover while
+/// the measured specific force stays near 1 g (the ground carries the craft), the craft not
+/// turning and, with fixes, not moving vertically, for [`TOUCHDOWN_CONFIRM_S`]. It assumes
+/// nothing of the height: no range finder, and a pose's zero need not be the ground.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Touchdown {
+    /// Why the craft lands.
+    pub reason: LandReason,
+    /// How long the signs have held, s.
+    resting_s: f32,
+    /// The descent speed's decaying peak, m/s (positive down).
+    pub peak_descent_mps: f32,
+    /// Time since an impact began the spool-down of a landing without fixes, s.
+    spooling_s: Option<f32>,
+    /// How long the measured force has been below [`TOUCHDOWN_AIRBORNE_G`] while spooling, s.
+    airborne_s: f32,
+}
+
+impl Touchdown {
+    /// A landing for `reason`, just begun.
+    pub fn new(reason: LandReason) -> Self {
+        Self { reason, resting_s: 0.0, peak_descent_mps: 0.0, spooling_s: None, airborne_s: 0.0 }
+    }
+
+    /// The cap on the upward specific force: none, or the spool-down's, falling from 1 g to
+    /// nothing over [`TOUCHDOWN_SPOOL_DOWN_S`], m/s².
+    pub fn max_up_mps2(&self) -> f32 {
+        self.spooling_s.map_or(f32::INFINITY, |t| {
+            STANDARD_GRAVITY_MPS2 * (1.0 - t / TOUCHDOWN_SPOOL_DOWN_S).max(0.0)
+        })
+    }
+
+    /// Follow the spool-down of a landing without fixes: it begins at an `impact` (returns
+    /// true then), and ends when the measured upward force `force_up_g` (in g) shows the craft
+    /// in the air for [`TOUCHDOWN_AIRBORNE_S`] (a bounce's dips are shorter).
+    fn spool(&mut self, impact: bool, force_up_g: f32, dt_s: f32) -> bool {
+        self.airborne_s =
+            if force_up_g < TOUCHDOWN_AIRBORNE_G { self.airborne_s + dt_s } else { 0.0 };
+        let (spooling, began) = match self.spooling_s {
+            Some(_) if self.airborne_s >= TOUCHDOWN_AIRBORNE_S => (None, false),
+            Some(t) => (Some(t + dt_s), false),
+            None if impact => (Some(0.0), true),
+            None => (None, false),
+        };
+        self.spooling_s = spooling;
+        began
+    }
+
+    /// One step: whether the craft has been resting long enough.
+    fn update(&mut self, resting: bool, descent_mps: f32, dt_s: f32) -> bool {
+        self.peak_descent_mps =
+            descent_mps.max(self.peak_descent_mps - TOUCHDOWN_PEAK_DECAY_MPS2 * dt_s);
+        self.resting_s = if resting { self.resting_s + dt_s } else { 0.0 };
+        self.resting_s >= TOUCHDOWN_CONFIRM_S
+    }
+
+    /// One control step of a landing on what it measured (`signs`), `dt_s` after the last:
+    /// whether the touchdown is confirmed (the motors stop), and whether an impact began a
+    /// spool-down in this step (the dead reckoning is then lost: the caller holds it still).
+    pub fn step(&mut self, signs: &TouchdownSigns<'_>, dt_s: f32) -> TouchdownStep {
+        let motors = signs.u.len().min(signs.u_idle.len()).min(signs.u_hover.len());
+        let motors = motors.min(signs.g1_up_mps2.len());
+        let mut thrust = 0.0;
+        let mut low = 0.0;
+        let mut pushed_up_mps2 = 0.0;
+        for i in 0..motors {
+            thrust += signs.u[i];
+            low +=
+                signs.u_idle[i] + TOUCHDOWN_THRUST_FRACTION * (signs.u_hover[i] - signs.u_idle[i]);
+            pushed_up_mps2 -= signs.g1_up_mps2[i] * signs.u[i];
+        }
+        let force_up_g = -signs.specific_force_thrust_mps2[2] / STANDARD_GRAVITY_MPS2;
+        // What the motors' commands push with, by the learned model: the ground carries the
+        // difference. On the ground INDI's torque demands (against the gear's friction) can
+        // hold a motor or two high while the rest idle, so the commands' sum alone may never
+        // fall.
+        let carried = force_up_g - pushed_up_mps2 / STANDARD_GRAVITY_MPS2 > TOUCHDOWN_CARRIED_G;
+        // Without fixes, an impact spools the motors down (see TOUCHDOWN_SPOOL_DOWN_S).
+        let mut impact = false;
+        if signs.fix_vertical_speed_mps.is_none() {
+            let [x, y, z] = signs.accel_mps2;
+            let limit = TOUCHDOWN_IMPACT_G * STANDARD_GRAVITY_MPS2;
+            impact = self.spool(x * x + y * y + z * z > limit * limit, force_up_g, dt_s);
+        }
+        let still_vertically =
+            signs.fix_vertical_speed_mps.is_none_or(|v| v.abs() < TOUCHDOWN_MAX_SPEED_MPS);
+        let resting = (thrust < low || carried)
+            && force_up_g > TOUCHDOWN_MIN_FORCE_G
+            && signs.tilt_rate_rad_s < TOUCHDOWN_MAX_RATE_RAD_S
+            && still_vertically;
+        let descent_mps = signs.vertical_speed_mps;
+        TouchdownStep { touched: self.update(resting, descent_mps, dt_s), impact }
+    }
+}
+
+/// What the touchdown detector reads in one control step: the commands and the learned
+/// model's view of them, and what the IMU and the estimator measured.
+#[derive(Clone, Copy, Debug)]
+pub struct TouchdownSigns<'a> {
+    /// The motors' commands, normalised thrust (INDI's `u`).
+    pub u: &'a [f32],
+    /// Each motor's idle and hover thrust in the learned model, normalised thrust.
+    pub u_idle: &'a [f32],
+    pub u_hover: &'a [f32],
+    /// The learned G1's specific force along the thrust frame's z (down) per unit thrust of
+    /// each motor, m/s².
+    pub g1_up_mps2: &'a [f32],
+    /// The measured specific force at the centre of gravity, thrust frame, m/s².
+    pub specific_force_thrust_mps2: [f32; 3],
+    /// The tilt rate (about the thrust frame's x and y), rad/s: a craft on its gear may yaw.
+    pub tilt_rate_rad_s: f32,
+    /// The accelerometer's reading, m/s² (any axes: its magnitude tells an impact).
+    pub accel_mps2: [f32; 3],
+    /// The vertical speed from the fixes, m/s (positive down), or `None` without fixes.
+    pub fix_vertical_speed_mps: Option<f32>,
+    /// The estimator's vertical speed, m/s (positive down): the touchdown speed reported.
+    pub vertical_speed_mps: f32,
+}
+
+/// What [`Touchdown::step`] found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TouchdownStep {
+    /// The touchdown is confirmed: stop the motors.
+    pub touched: bool,
+    /// An impact began a spool-down in this step (a landing without fixes).
+    pub impact: bool,
+}
+
+/// The fly-away detector: how long the craft has moved away from its setpoint (or, before one,
+/// from where the flight first had a usable pose) faster than [`LandConfig::flyaway_speed_mps`]
+/// without braking by [`FLYAWAY_BRAKING_MPS`], and its fastest speed since. The radial speed
+/// counts, so a craft circling while its heading settles (Monte Carlo seed 355 of the random
+/// world: 6 m/s for 2 s, then held within 0.16 m) is no fly-away; braking is none either: a
+/// craft thrown sideways at 3–6 m/s recovers that way, once its tumble is over.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FlyAway {
+    /// Time counted and the peak radial speed since, s and m/s; `None`: not counting.
+    counting: Option<(f32, f32)>,
+}
+
+impl FlyAway {
+    /// Stop counting (the pilot steers, no pose, or a landing).
+    pub fn reset(&mut self) {
+        self.counting = None;
+    }
+
+    /// One step `dt_s` long, the craft `offset_ned_m` from where it should be and moving at
+    /// `velocity_ned_mps`: whether it has flown away (for longer than the configured time).
+    pub fn update(
+        &mut self,
+        offset_ned_m: &Vector3<f32>,
+        velocity_ned_mps: &Vector3<f32>,
+        config: &LandConfig,
+        dt_s: f32,
+    ) -> bool {
+        let distance = libm::hypotf(offset_ned_m.x, offset_ned_m.y);
+        let v = velocity_ned_mps;
+        let speed = if distance > 1e-3 {
+            (offset_ned_m.x * v.x + offset_ned_m.y * v.y) / distance
+        } else {
+            0.0
+        };
+        let counting = speed > config.flyaway_speed_mps;
+        self.counting = match self.counting {
+            Some((_, peak)) if counting && speed < peak - FLYAWAY_BRAKING_MPS => Some((0.0, speed)),
+            Some((since_s, peak)) if counting => Some((since_s + dt_s, peak.max(speed))),
+            _ if counting => Some((0.0, speed)),
+            _ => None,
+        };
+        self.counting.is_some_and(|(since_s, _)| since_s > config.flyaway_time_s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DT_S: f32 = 0.0005;
+    /// A quadrotor's learned model: idle 0.05, hover 0.4, G1 down so that the hover makes 1 g.
+    const U_IDLE: [f32; 4] = [0.05; 4];
+    const U_HOVER: [f32; 4] = [0.4; 4];
+    const G1_UP: [f32; 4] = [-STANDARD_GRAVITY_MPS2 / 1.6; 4];
+
+    fn signs(u: f32, force_up_g: f32, fix_vz: Option<f32>) -> TouchdownSigns<'static> {
+        // Leaked once per call in a test: the signs borrow their commands.
+        let u: &'static [f32; 4] = Box::leak(Box::new([u; 4]));
+        TouchdownSigns {
+            u,
+            u_idle: &U_IDLE,
+            u_hover: &U_HOVER,
+            g1_up_mps2: &G1_UP,
+            specific_force_thrust_mps2: [0.0, 0.0, -force_up_g * STANDARD_GRAVITY_MPS2],
+            tilt_rate_rad_s: 0.05,
+            accel_mps2: [0.0, 0.0, -force_up_g * STANDARD_GRAVITY_MPS2],
+            fix_vertical_speed_mps: fix_vz,
+            vertical_speed_mps: fix_vz.unwrap_or(0.5),
+        }
+    }
+
+    /// Steps until the touchdown is confirmed, within `max_s`.
+    fn seconds_to_touchdown(touchdown: &mut Touchdown, signs: &TouchdownSigns, max_s: f32) -> f32 {
+        let steps = (max_s / DT_S) as u32;
+        (1..=steps)
+            .find(|_| touchdown.step(signs, DT_S).touched)
+            .map_or(f32::INFINITY, |n| n as f32 * DT_S)
+    }
+
+    #[test]
+    fn a_craft_hovering_or_descending_in_the_air_never_touches_down() {
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        // The hover's thrust makes 1 g, and the descent's a little less; with and without fixes.
+        for (u, g, vz) in [(0.4, 1.0, Some(0.5)), (0.38, 0.95, Some(0.5)), (0.38, 0.95, None)] {
+            let t = seconds_to_touchdown(&mut touchdown, &signs(u, g, vz), 5.0);
+            assert!(t.is_infinite(), "u {u}, {g} g, fixes {vz:?}: touched down after {t} s");
+        }
+    }
+
+    #[test]
+    fn a_craft_the_ground_carries_touches_down_after_the_confirmation_time() {
+        // Thrust at idle, 1 g measured, still: the ground carries it.
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        let t = seconds_to_touchdown(&mut touchdown, &signs(0.06, 1.0, Some(0.0)), 1.0);
+        assert!((t - TOUCHDOWN_CONFIRM_S).abs() < 2.0 * DT_S, "confirmed after {t} s");
+        // Thrust above the low mark (INDI's torque demands against the gear), the commands
+        // pushing with 0.62 g by the model: the ground carries 0.38 g.
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        let t = seconds_to_touchdown(&mut touchdown, &signs(0.25, 1.0, None), 1.0);
+        assert!(t < TOUCHDOWN_CONFIRM_S + 0.01, "carried: confirmed after {t} s");
+    }
+
+    #[test]
+    fn still_moving_vertically_or_tipping_over_is_no_touchdown() {
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        let sinking = signs(0.06, 1.0, Some(0.5));
+        assert!(seconds_to_touchdown(&mut touchdown, &sinking, 1.0).is_infinite());
+        let mut tipping = signs(0.06, 1.0, Some(0.0));
+        tipping.tilt_rate_rad_s = 1.0;
+        assert!(seconds_to_touchdown(&mut touchdown, &tipping, 1.0).is_infinite());
+    }
+
+    #[test]
+    fn an_impact_without_fixes_spools_down_and_a_fall_calls_it_off() {
+        let mut touchdown = Touchdown::new(LandReason::RcLost);
+        assert_eq!(touchdown.max_up_mps2(), f32::INFINITY);
+        let mut impact = signs(0.4, 3.0, None);
+        impact.accel_mps2 = [0.0, 0.0, -3.0 * STANDARD_GRAVITY_MPS2];
+        assert!(touchdown.step(&impact, DT_S).impact, "a 3 g impact begins the spool-down");
+        assert!(!touchdown.step(&impact, DT_S).impact, "once");
+        for _ in 0..(0.25 / DT_S) as u32 {
+            let _ = touchdown.step(&signs(0.3, 1.0, None), DT_S);
+        }
+        let cap = touchdown.max_up_mps2();
+        assert!((cap - 0.5 * STANDARD_GRAVITY_MPS2).abs() < 0.1, "half-way down: {cap} m/s²");
+        // In the air after all: the force falls with the thrust for longer than a bounce.
+        for _ in 0..(1.5 * TOUCHDOWN_AIRBORNE_S / DT_S) as u32 {
+            let _ = touchdown.step(&signs(0.2, 0.4, None), DT_S);
+        }
+        assert_eq!(touchdown.max_up_mps2(), f32::INFINITY, "the spool-down is called off");
+    }
+
+    /// `seconds` of flight `offset` from the setpoint at `velocity`; whether it flew away.
+    fn flies_away(offset: [f32; 3], velocity: impl Fn(f32) -> [f32; 3], seconds: f32) -> bool {
+        let mut detector = FlyAway::default();
+        let config = LandConfig::default();
+        let dt_s = 0.0005;
+        (0..(seconds / dt_s) as u32).any(|n| {
+            let v = Vector3::from(velocity(n as f32 * dt_s));
+            detector.update(&Vector3::from(offset), &v, &config, dt_s)
+        })
+    }
+
+    #[test]
+    fn moving_away_fast_without_braking_is_a_fly_away_after_the_configured_time() {
+        let config = LandConfig::default();
+        let away = |_| [config.flyaway_speed_mps + 0.5, 0.0, 0.0];
+        assert!(!flies_away([2.0, 0.0, 0.0], away, 0.95 * config.flyaway_time_s));
+        assert!(flies_away([2.0, 0.0, 0.0], away, 1.05 * config.flyaway_time_s));
+        // Towards the setpoint, or around it, at the same speed: none.
+        assert!(!flies_away([-2.0, 0.0, 0.0], away, 5.0));
+        assert!(!flies_away([0.0, 2.0, 0.0], away, 5.0));
+    }
+
+    #[test]
+    fn a_craft_that_brakes_is_no_fly_away() {
+        // Thrown sideways at 6 m/s, braking at 1 m/s² once its tumble is over.
+        let braking = |t: f32| [(6.0 - t).max(0.0), 0.0, 0.0];
+        assert!(!flies_away([1.0, 0.0, 0.0], braking, 6.0));
+    }
+}
