@@ -176,3 +176,40 @@ fn parse(encoded: &mut [u8]) -> Result<Frame<'_>, FrameError> {
         postcard::take_from_bytes::<u16>(rest).map_err(|_| FrameError::BadHeader)?;
     Ok(Frame { id, seq, payload, signature, crc: expected })
 }
+
+/// Encode one message as a signed request into `out` (`crate::signing`'s layout), returning
+/// the bytes written, delimiter included. `timestamp` above [`signing::MAX_TIMESTAMP`] is cut to 48 bits.
+pub fn encode_signed<T: Serialize + ?Sized>(
+    id: u8,
+    seq: u16,
+    payload: &T,
+    signer: &signing::Signer,
+    timestamp: u64,
+    out: &mut [u8],
+) -> Result<usize, EncodeError> {
+    let mut raw = [0u8; MAX_RAW_LEN];
+    let header_and_payload =
+        postcard::to_slice(&(id | signing::SIGNED_FLAG, seq, payload), &mut raw)
+            .map_err(|_| EncodeError::BufferFull)?
+            .len();
+    let signed_len = header_and_payload + signing::TIMESTAMP_LEN;
+    let raw_len = signed_len + signing::MAC_LEN + CRC_LEN;
+    if raw_len > raw.len() {
+        return Err(EncodeError::BufferFull);
+    }
+    raw[header_and_payload..signed_len].copy_from_slice(
+        &(timestamp & signing::MAX_TIMESTAMP).to_le_bytes()[..signing::TIMESTAMP_LEN],
+    );
+    let mac = signing::mac(&signer.key, signer.session, &raw[..signed_len]);
+    let mac_end = signed_len + signing::MAC_LEN;
+    raw[signed_len..mac_end].copy_from_slice(&mac);
+    let crc = CRC.checksum(&raw[..mac_end]);
+    raw[mac_end..raw_len].copy_from_slice(&crc.to_le_bytes());
+    let limit = out.len().min(MAX_FRAME_LEN);
+    if cobs::max_encoding_length(raw_len) + 1 > limit {
+        return Err(EncodeError::BufferFull);
+    }
+    let encoded = cobs::encode(&raw[..raw_len], &mut out[..limit]);
+    out[encoded] = 0;
+    Ok(encoded + 1)
+}

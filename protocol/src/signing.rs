@@ -32,10 +32,8 @@
 //! The CRC still covers the whole raw frame, so a frame damaged on the air is a CRC error, not a
 //! signature failure.
 
-use crate::frame::{EncodeError, CRC, CRC_LEN, MAX_FRAME_LEN, MAX_RAW_LEN};
 use crate::Request;
 use hmac::{KeyInit, Mac};
-use serde::Serialize;
 
 /// Bit of the id byte that marks a signed frame.
 pub const SIGNED_FLAG: u8 = 0x40;
@@ -166,44 +164,12 @@ pub(crate) fn split(body: &[u8]) -> Option<(&[u8], Option<Signature<'_>>)> {
     Some((&body[..unsigned_len], Some(signature)))
 }
 
-/// Encode one message as a signed frame into `out` (see the module documentation), returning
-/// the bytes written, delimiter included. `timestamp` above [`MAX_TIMESTAMP`] is cut to 48 bits.
-pub fn encode_signed<T: Serialize + ?Sized>(
-    id: u8,
-    seq: u16,
-    payload: &T,
-    signer: &Signer,
-    timestamp: u64,
-    out: &mut [u8],
-) -> Result<usize, EncodeError> {
-    let mut raw = [0u8; MAX_RAW_LEN];
-    let header_and_payload = postcard::to_slice(&(id | SIGNED_FLAG, seq, payload), &mut raw)
-        .map_err(|_| EncodeError::BufferFull)?
-        .len();
-    let signed_len = header_and_payload + TIMESTAMP_LEN;
-    let raw_len = signed_len + MAC_LEN + CRC_LEN;
-    if raw_len > raw.len() {
-        return Err(EncodeError::BufferFull);
-    }
-    raw[header_and_payload..signed_len]
-        .copy_from_slice(&(timestamp & MAX_TIMESTAMP).to_le_bytes()[..TIMESTAMP_LEN]);
-    let mac = mac(&signer.key, signer.session, &raw[..signed_len]);
-    raw[signed_len..signed_len + MAC_LEN].copy_from_slice(&mac);
-    let crc = CRC.checksum(&raw[..signed_len + MAC_LEN]);
-    raw[signed_len + MAC_LEN..raw_len].copy_from_slice(&crc.to_le_bytes());
-    let limit = out.len().min(MAX_FRAME_LEN);
-    if cobs::max_encoding_length(raw_len) + 1 > limit {
-        return Err(EncodeError::BufferFull);
-    }
-    let encoded = cobs::encode(&raw[..raw_len], &mut out[..limit]);
-    out[encoded] = 0;
-    Ok(encoded + 1)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::Decoder;
+    use crate::frame::{
+        encode_signed, Decoder, EncodeError, CRC, CRC_LEN, MAX_FRAME_LEN, MAX_RAW_LEN,
+    };
 
     const KEY: LinkKey = [7; KEY_LEN];
     const SIGNER: Signer = Signer { key: KEY, session: 0x0123_4567_89AB_CDEF };

@@ -82,7 +82,7 @@ macro_rules! message_table {
             ) -> Result<usize, $crate::EncodeError> {
                 match self {
                     $( Self::$variant(body) => {
-                        $crate::signing::encode_signed($id, seq, body, signer, timestamp, out)
+                        $crate::frame::encode_signed($id, seq, body, signer, timestamp, out)
                     } )*
                 }
             }
