@@ -110,6 +110,9 @@ pub struct SitlConfig {
     /// file per arming, or one from start-up with the `log_always` parameter, as the board's
     /// SD card would get them. `None`: no log.
     pub log_dir: Option<PathBuf>,
+    /// The `log_always` parameter in force from start-up (as if saved): one log file from the
+    /// first step on, which replays exactly whatever arms the craft (docs/flight-log.md).
+    pub log_always: bool,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -167,6 +170,7 @@ impl Default for SitlConfig {
             radio_link: None,
             faults: crate::faults::SitlFaults::default(),
             log_dir: None,
+            log_always: false,
         }
     }
 }
@@ -352,6 +356,7 @@ impl Sitl {
             flash,
             fault_schedule: config.faults.schedule(),
             log_dir,
+            log_always: config.log_always,
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -403,6 +408,7 @@ struct Runner {
     /// The faults of the simulated board ([`crate::faults::SitlFaults::schedule`]).
     fault_schedule: crate::faults::FaultSchedule,
     log_dir: Option<LogDir>,
+    log_always: bool,
     stop: Arc<AtomicBool>,
 }
 
@@ -442,6 +448,14 @@ impl Runner {
             if let Some(r_imu_m) = self.imu_offset_m {
                 // The command line's offset is in force as if calibrated (not saved).
                 settings.update(|params| params.store_calibration(r_imu_m, [0.0; 3], None));
+            }
+            if self.log_always {
+                // In force before the first step, as a saved value is at a board's start-up.
+                settings.update(|params| {
+                    if let Some(index) = firmware::app::params::find(b"log_always") {
+                        let _ = params.set(index, &[1.0]);
+                    }
+                });
             }
             // Read at start-up, as the board's motor outputs do.
             board.ports().1.set_bidirectional(settings.params().bidirectional_dshot());

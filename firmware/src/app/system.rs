@@ -25,7 +25,9 @@ pub use rtic_core::{Exclusive, Mutex};
 
 use super::battery::{BatteryMonitor, LowBattery};
 use super::hal::{BatterySensor, Imu, ImuSample, Motors, Port, PortClosed, Uart};
-use super::log::{LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry};
+use super::log::{
+    Adoption, LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry,
+};
 use super::radio::{CraftState, Receiver};
 use super::{
     Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
@@ -257,7 +259,11 @@ impl<'q> ControlTask<'q> {
                 control.command(command, now_us);
             }
         }
-        shared.results.lock(|results| control.receive(results));
+        // The one handoff from the background task: logged with the step (the samples its
+        // results were computed from), so a replay adopts the same results at the same step.
+        let adopted = shared
+            .results
+            .lock(|results| control.receive(results).then_some(results.samples_processed));
         // The outputs learn a disarm before this step's frames (a kill switch stops the motors
         // in this very step), and an arming before its commands.
         motors.set_armed(control.armed());
@@ -294,6 +300,10 @@ impl<'q> ControlTask<'q> {
                 flying: snapshot.pilot.flying,
                 armed: snapshot.armed,
                 ring_dropped: log.dropped(),
+                adopted: adopted.map(|samples_processed| Adoption {
+                    samples_processed,
+                    samples_dropped: snapshot.samples_dropped,
+                }),
             }));
             background_due |= log.has_waiting();
         }
@@ -712,7 +722,8 @@ pub fn run_background<'l, W, R, L>(
     }
     while let Some(item) = work.lock(|queue| queue.pop_front()) {
         if let Some(log) = log.as_deref_mut() {
-            log.lock(|log| log.work(&item));
+            let samples_processed = worker.results_ref().samples_processed;
+            log.lock(|log| log.work(&item, samples_processed));
         }
         match item {
             BackgroundWork::Command(command) => worker.command(command),
@@ -876,7 +887,10 @@ pub fn with_logged_system<F: NorFlash, R>(
     let (control, log) = match log {
         Some(target) => (
             control.with_log(log_producer),
-            Some(Logger::new(log_consumer, target.sink, target.board, config.rate_hz)),
+            Some(
+                Logger::new(log_consumer, target.sink, target.board, config.rate_hz)
+                    .with_params(settings.params()),
+            ),
         ),
         None => (control, None),
     };
