@@ -271,9 +271,10 @@ pub enum LoggedWork {
     Configure,
 }
 
-/// Work the background task took after step `after_step` (0: before the first), when it had
-/// processed `samples_processed` learner samples since start-up (`None`: a format 1–3 log,
-/// whose [`id::WORK`] record did not say).
+/// Work the background task took after step `after_step` (0: before the first; the last step
+/// the logger had written then, so on the board the work may have come a few steps later),
+/// when it had processed `samples_processed` learner samples since start-up: that count places
+/// it exactly (`None`: a format 1–3 log, whose [`id::WORK`] record did not say).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WorkRecord {
     pub after_step: u32,

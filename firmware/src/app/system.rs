@@ -700,10 +700,10 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
     }
 }
 
-/// The background task's run: the flight log's waiting entries to its sink (when the board
-/// logs), the work the links sent (oldest first, each logged after the steps drained before
-/// it), then every waiting learner sample, then the results published (a copy under a short
-/// lock).
+/// The background task's run: the work the links sent (oldest first, each logged with the
+/// learner samples processed before it), the flight log's waiting entries to its sink (when the
+/// board logs), then every waiting learner sample, then the results published (a copy under a
+/// short lock).
 ///
 /// The log is locked per entry (and per piece of work): the link task, which reads the log's
 /// files under the same lock, waits at most for one entry's encoding and one block write.
@@ -717,9 +717,9 @@ pub fn run_background<'l, W, R, L>(
     R: Mutex<T = BackgroundResults>,
     L: Mutex<T = Logger<'l>>,
 {
-    if let Some(log) = log.as_deref_mut() {
-        while log.lock(|log| log.drain_one()) {}
-    }
+    // The work first: a parameter change reaches the control step as a command in the same
+    // link pass, and the tick may have applied (and logged) it already; taken first, the new
+    // parameters are in the file before that command, which names them.
     while let Some(item) = work.lock(|queue| queue.pop_front()) {
         if let Some(log) = log.as_deref_mut() {
             let samples_processed = worker.results_ref().samples_processed;
@@ -729,6 +729,9 @@ pub fn run_background<'l, W, R, L>(
             BackgroundWork::Command(command) => worker.command(command),
             BackgroundWork::Configure(params) => worker.configure(&params),
         }
+    }
+    if let Some(log) = log.as_deref_mut() {
+        while log.lock(|log| log.drain_one()) {}
     }
     worker.run_pending();
     let published = worker.results_ref();
