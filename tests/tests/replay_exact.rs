@@ -31,6 +31,13 @@ const MIN_STEPS: usize = 10_000;
 /// issue's bound).
 const MAX_LOG_LAG_AT_CUT_S: f64 = 1.0;
 
+/// The tests here run one at a time: one of them keeps both cores busy on purpose, and the
+/// others' SITLs should not share the machine with it (nor their time with each other).
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 fn scratch_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("replay-exact-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -86,6 +93,7 @@ fn assert_exact_flight(file: &Path) {
 
 #[test]
 fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly() {
+    let _alone = one_at_a_time();
     let dir = scratch_dir("identify");
     let config = SitlConfig {
         airframe: "hex-tilted".into(),
@@ -113,6 +121,7 @@ fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly() {
 #[test]
 fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_machine_replays_exactly(
 ) {
+    let _alone = one_at_a_time();
     let dir = scratch_dir("switches");
     // Another process's worth of work on both cores for the whole flight.
     let busy = Arc::new(AtomicBool::new(true));
@@ -173,6 +182,7 @@ fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_mac
 /// background run after every step, as before the adoptions were logged) departs.
 #[test]
 fn a_background_task_lagging_the_control_step_at_random_replays_exactly() {
+    let _alone = one_at_a_time();
     let dir = scratch_dir("lagging");
     let airframe = sim::airframe::Airframe::load("hex-tilted").unwrap();
     let mut board = sim::board::SimBoard::new(&airframe, &sim::board::SimConfig::default());
@@ -293,6 +303,7 @@ fn last_step(records: &[LogRecord]) -> Option<(u32, u64)> {
 /// its uptime in a status asked just before the kill, plus the wall time since × the speed.
 #[test]
 fn ten_sitls_killed_in_flight_leave_logs_that_list_convert_and_replay_exactly() {
+    let _alone = one_at_a_time();
     use configurator_cli::connect::{connect, Target};
     use protocol::{Reply, Request};
     use std::io::BufRead;
