@@ -730,7 +730,7 @@ pub fn run_background<'l, W, R, L>(
             BackgroundWork::Configure(params) => worker.configure(&params),
         }
     }
-    if let Some(log) = log.as_deref_mut() {
+    if let Some(log) = log {
         while log.lock(|log| log.drain_one()) {}
     }
     worker.run_pending();
