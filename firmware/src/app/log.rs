@@ -1213,6 +1213,52 @@ mod tests {
         assert_eq!(reader.stats(), ReadStats::default(), "nothing damaged, nothing torn");
     }
 
+    /// An adoption rides in its step's entry and is written just before that step's record; a
+    /// format 1–3 work record (no sample count) still reads, as work with none.
+    #[test]
+    fn an_adoption_is_written_before_its_step_and_old_work_records_still_read() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut always = Params::default();
+        always.set(super::super::params::find(b"log_always").unwrap(), &[1.0]).unwrap();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000).with_params(&always);
+        let adoption = Adoption { samples_processed: 41, samples_dropped: 2 };
+        for t in 1..=3 {
+            let LogEntry::Step(entry) = step(t, false) else { unreachable!() };
+            let adopted = (t == 2).then_some(adoption);
+            producer.push(LogEntry::Step(StepEntry { adopted, ..entry }));
+        }
+        logger.finish();
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        let LogRecord::Header(header) = &records[0] else { panic!() };
+        assert_eq!(header.first_step, 1, "log_always from the start-up parameters: step 1");
+        let order: Vec<String> = records
+            .iter()
+            .filter_map(|r| match r {
+                LogRecord::Step(s) => Some(format!("step {}", s.step)),
+                LogRecord::Adopted(a) => {
+                    Some(format!("adopted {} {}", a.step, a.samples_processed))
+                }
+                _ => None,
+            })
+            .collect();
+        assert_eq!(order, ["step 1", "adopted 2 41", "step 2", "step 3"]);
+        assert!(records.contains(&LogRecord::Adopted(AdoptedRecord {
+            step: 2,
+            samples_processed: 41,
+            samples_dropped: 2
+        })));
+
+        let old = WorkRecordV1 { after_step: 7, work: LoggedWork::Configure };
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let len = protocol::frame::encode(id::WORK, 0, &old, &mut frame).unwrap();
+        let read: Vec<_> = LogReader::new(&frame[..len]).collect();
+        let expected =
+            WorkRecord { after_step: 7, work: LoggedWork::Configure, samples_processed: None };
+        assert_eq!(read, [LogRecord::Work(expected)]);
+    }
+
     #[test]
     fn with_log_always_one_file_runs_from_the_first_step_and_work_is_logged_after_its_step() {
         let mut ring = LogRing::new();

@@ -10,13 +10,17 @@
 //! |---|---|---|
 //! | [`ControlTask::tick`] | TIM7 at 2 kHz, 3 (highest) | the link's commands, then the pilot's radio (so a kill switch has the last word), the background's results, one control step, the snapshot published, a telemetry frame to the pilot's handset when the receiver granted a slot |
 //! | [`LinkTask::pass`] | USB interrupt, pended by the tick every [`LINK_PASS_PERIOD_US`], 2 | every link's bytes in, requests routed, parameters serviced, the step records streamed, telemetry sampled, bytes out |
-//! | [`run_background`] | software task, 1 (lowest) | the flight log drained to its sink, work from the link (calibration, parameters), the learner-sample queue drained, results published |
+//! | [`run_background`] | software task, 1 (lowest) | work from the link (calibration, parameters), the flight log drained to its sink, the learner-sample queue drained, results published |
 //!
 //! The tasks share nothing but [`Handoffs`]: small values copied under a short lock, and two
 //! bounded queues of explicit messages (a command for the control step, work for the background
 //! task). A parameter change is such a message, sent once to each task that takes parameters,
 //! rather than a generation the tasks poll. Nothing here blocks or allocates; a full queue drops
 //! the newest message and counts it, except a disarm, which always finds room.
+//!
+//! The results reach the control step whenever the background task has run, which on the board
+//! depends on the load; the tick logs each adoption with its step (`super::log`), so a replay
+//! does not depend on that timing.
 //!
 //! Constants derived from the control rate are defined here once ([`LINK_PASS_TICKS`]).
 
