@@ -113,6 +113,11 @@ pub struct SitlConfig {
     /// The `log_always` parameter in force from start-up (as if saved): one log file from the
     /// first step on, which replays exactly whatever arms the craft (docs/flight-log.md).
     pub log_always: bool,
+    /// Cut the power at this simulated time, s: the SITL sends itself SIGKILL before the first
+    /// step at or after it (nothing flushed, no file closed), as a battery unplugged in flight
+    /// would stop the board. **It kills the whole process**: for the `sitl` binary only, never
+    /// for a SITL inside another program. `None`: never.
+    pub power_cut_at_s: Option<f64>,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -171,6 +176,7 @@ impl Default for SitlConfig {
             faults: crate::faults::SitlFaults::default(),
             log_dir: None,
             log_always: false,
+            power_cut_at_s: None,
         }
     }
 }
@@ -357,6 +363,7 @@ impl Sitl {
             fault_schedule: config.faults.schedule(),
             log_dir,
             log_always: config.log_always,
+            power_cut_at_us: config.power_cut_at_s.map(|s| (s.max(0.0) * 1e6) as u64),
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -409,6 +416,8 @@ struct Runner {
     fault_schedule: crate::faults::FaultSchedule,
     log_dir: Option<LogDir>,
     log_always: bool,
+    /// [`SitlConfig::power_cut_at_s`], µs of simulated time.
+    power_cut_at_us: Option<u64>,
     stop: Arc<AtomicBool>,
 }
 
@@ -530,6 +539,9 @@ impl Runner {
                 flight_hand.act(clock.board, &snapshot);
             }
             clock.board.tick();
+            if self.power_cut_at_us.is_some_and(|cut_us| clock.board.now_us() >= cut_us) {
+                power_cut();
+            }
             let now_us = clock.firmware_us();
             let state = clock.board.physics().state();
             if let Some(pose) = mocap.as_mut().and_then(|m| m.sample(state, now_us)) {
@@ -575,6 +587,17 @@ impl Runner {
         self.telemetry_radio = radio.map(|link| link.port);
         ending
     }
+}
+
+/// The power goes: this process ends at once by SIGKILL, as a board stops when its battery is
+/// unplugged (no destructor runs, no buffer is flushed, no file is closed).
+fn power_cut() -> ! {
+    // SAFETY: `getpid` and `kill` take and return plain integers; nothing is shared.
+    unsafe {
+        libc::kill(libc::getpid(), libc::SIGKILL);
+    }
+    // SIGKILL cannot be caught; should it not have been delivered yet, end without unwinding.
+    std::process::abort()
 }
 
 /// Simulated time, and the firmware's time since its latest boot.

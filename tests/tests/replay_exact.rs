@@ -296,20 +296,17 @@ fn last_step(records: &[LogRecord]) -> Option<(u32, u64)> {
     })
 }
 
-/// Ten SITLs (the binary, as a board would run) killed with SIGKILL at random moments of their
-/// flight: no end record, a block cut where the kill fell; every log lists on a SITL serving the
-/// directory again, converts to CSV, replays with no difference over what it holds, and holds
-/// the flight to within [`MAX_LOG_LAG_AT_CUT_S`] of the cut. The cut's time is the SITL's own:
-/// its uptime in a status asked just before the kill, plus the wall time since × the speed.
+/// Ten SITLs (the binary, as a board would run) lose their power at random moments of their
+/// flight (`--power-cut-at-s`: the process sends itself SIGKILL, so the cut's simulated time is
+/// known exactly, however loaded the machine): no end record, a block cut where the kill fell;
+/// every log lists on a SITL serving the directory again, converts to CSV, replays with no
+/// difference over what it holds, and holds the flight to within [`MAX_LOG_LAG_AT_CUT_S`] of
+/// the cut.
 #[test]
 fn ten_sitls_killed_in_flight_leave_logs_that_list_convert_and_replay_exactly() {
     let _alone = one_at_a_time();
-    use configurator_cli::connect::{connect, Target};
-    use protocol::{Reply, Request};
-    use std::io::BufRead;
+    use std::os::unix::process::ExitStatusExt;
     const KILLS: usize = 10;
-    // Simulated seconds per wall-clock second.
-    const SPEED: f64 = 2.0;
     let root = scratch_dir("killed");
     let mut rng = flight::rng::Rng::new(0x54);
     let mut flights = Vec::new();
@@ -321,44 +318,27 @@ fn ten_sitls_killed_in_flight_leave_logs_that_list_convert_and_replay_exactly() 
         let airframe = ["paper-quad", "hex-tilted", "octo-flat"][k % 3];
         let mut command = std::process::Command::new(sitl_binary());
         command.args(["--airframe", airframe, "--no-pty", "--no-flash", "--throw-to-fly"]);
-        command.args(["--hand-throws-to-fly", "--log-always", "--speed", &SPEED.to_string()]);
-        // Stops by itself should this test fail before it is killed.
-        command.args(["--tcp-port", "0", "--duration-s", "30"]).arg("--log-dir").arg(&dir);
+        command.args(["--hand-throws-to-fly", "--log-always", "--speed", "4"]);
+        command.args(["--power-cut-at-s", &cut_s.to_string()]);
+        // Stops by itself should the cut never come.
+        command.args(["--duration-s", "60"]).arg("--log-dir").arg(&dir);
         if k % 2 == 1 {
             command.arg("--mocap");
         }
-        command.stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::null());
-        let mut child = command.spawn().expect("start the sitl binary");
-        let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
-        let address = lines
-            .find_map(|line| Some(line.ok()?.split_once("TCP:")?.1.trim().to_string()))
-            .expect("the SITL prints its TCP address");
-        let client = connect(&Target::Tcp(address)).expect("connect to the SITL");
-        flights.push((dir, cut_s, child, client, 0.0));
+        command.stdout(std::process::Stdio::null()).stderr(std::process::Stdio::null());
+        let child = command.spawn().expect("start the sitl binary");
+        flights.push((dir, cut_s, child));
     }
-    // Kill each at its moment (SIGKILL: `Child::kill`), the earliest first.
-    let mut order: Vec<usize> = (0..KILLS).collect();
-    order.sort_by(|&a, &b| flights[a].1.total_cmp(&flights[b].1));
-    for &k in &order {
-        let (_, cut_s, child, client, latest_cut_s) = &mut flights[k];
-        loop {
-            let asked = Instant::now();
-            let Ok(Reply::Status(status)) = client.request(&Request::GetStatus(()), "status")
-            else {
-                panic!("run {k}: no status")
-            };
-            let uptime_s = f64::from(status.uptime_ms) * 1e-3;
-            if uptime_s >= *cut_s {
-                child.kill().unwrap();
-                // The status was taken at most a link pass (1 ms) before it was answered.
-                *latest_cut_s = uptime_s + 1e-3 + asked.elapsed().as_secs_f64() * SPEED;
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        child.wait().unwrap();
-    }
-    for (k, (dir, cut_s, _, _, latest_cut_s)) in flights.iter().enumerate() {
+    let flights: Vec<_> = flights
+        .into_iter()
+        .enumerate()
+        .map(|(k, (dir, cut_s, mut child))| {
+            let status = child.wait().unwrap();
+            assert_eq!(status.signal(), Some(libc::SIGKILL), "run {k}: {status:?}");
+            (dir, cut_s)
+        })
+        .collect();
+    for (k, (dir, cut_s)) in flights.iter().enumerate() {
         let file = dir.join("LOG00001.BIN");
         let held = records(&file);
         assert!(
@@ -368,13 +348,15 @@ fn ten_sitls_killed_in_flight_leave_logs_that_list_convert_and_replay_exactly() 
         let (step, t_us) = last_step(&held).expect("steps logged");
         let last_s = t_us as f64 * 1e-6;
         eprintln!(
-            "run {k}: cut at {cut_s:.3}..{latest_cut_s:.3} s, last step {step} at {last_s:.3} s, \
+            "run {k}: cut at {cut_s:.4} s, last step {step} at {last_s:.4} s ({:.1} ms before), \
              {} bytes",
+            (*cut_s - last_s) * 1e3,
             std::fs::metadata(&file).unwrap().len()
         );
+        assert!(last_s < *cut_s, "run {k}: a step after the cut");
         assert!(
-            latest_cut_s - last_s <= MAX_LOG_LAG_AT_CUT_S,
-            "run {k}: the log ends at {last_s} s, the cut was as late as {latest_cut_s} s"
+            *cut_s - last_s <= MAX_LOG_LAG_AT_CUT_S,
+            "run {k}: the log ends at {last_s} s, the cut was at {cut_s} s"
         );
         let report = replay_cli(&file);
         assert_eq!(report["differences"], 0, "run {k}: {report}");
