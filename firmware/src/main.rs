@@ -398,7 +398,8 @@ mod app {
             commands: ControlQueue::new(),
             work: WorkQueue::new(),
             imu,
-            log: Logger::new(log_consumer, sink, BOARD.name, config.rate_hz),
+            log: Logger::new(log_consumer, sink, BOARD.name, config.rate_hz)
+                .with_params(settings.params()),
         };
 
         // The control tick at the application's rate (2 kHz), started last so the first step

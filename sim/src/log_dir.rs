@@ -160,6 +160,8 @@ impl LogSink for LogDir {
         Ok(number)
     }
 
+    /// The block goes to the file at once, whole, in one `write_all` on an unbuffered `File`:
+    /// a SITL killed without warning (a power cut) leaves every complete block in the file.
     fn write_block(&mut self, block: &[u8; LOG_BLOCK_LEN]) -> Result<(), LogSinkError> {
         let file = self.file.as_mut().ok_or(LogSinkError::Io)?;
         file.write_all(block).map_err(|_| LogSinkError::Io)

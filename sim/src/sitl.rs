@@ -110,6 +110,14 @@ pub struct SitlConfig {
     /// file per arming, or one from start-up with the `log_always` parameter, as the board's
     /// SD card would get them. `None`: no log.
     pub log_dir: Option<PathBuf>,
+    /// The `log_always` parameter in force from start-up (as if saved): one log file from the
+    /// first step on, which replays exactly whatever arms the craft (docs/flight-log.md).
+    pub log_always: bool,
+    /// Cut the power at this simulated time, s: the SITL sends itself SIGKILL before the first
+    /// step at or after it (nothing flushed, no file closed), as a battery unplugged in flight
+    /// would stop the board. **It kills the whole process**: for the `sitl` binary only, never
+    /// for a SITL inside another program. `None`: never.
+    pub power_cut_at_s: Option<f64>,
 }
 
 /// How long the simulated hand waits after the board is armed before a throw-to-fly throw,
@@ -167,6 +175,8 @@ impl Default for SitlConfig {
             radio_link: None,
             faults: crate::faults::SitlFaults::default(),
             log_dir: None,
+            log_always: false,
+            power_cut_at_s: None,
         }
     }
 }
@@ -352,6 +362,8 @@ impl Sitl {
             flash,
             fault_schedule: config.faults.schedule(),
             log_dir,
+            log_always: config.log_always,
+            power_cut_at_us: config.power_cut_at_s.map(|s| (s.max(0.0) * 1e6) as u64),
             stop: stop.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -403,6 +415,9 @@ struct Runner {
     /// The faults of the simulated board ([`crate::faults::SitlFaults::schedule`]).
     fault_schedule: crate::faults::FaultSchedule,
     log_dir: Option<LogDir>,
+    log_always: bool,
+    /// [`SitlConfig::power_cut_at_s`], µs of simulated time.
+    power_cut_at_us: Option<u64>,
     stop: Arc<AtomicBool>,
 }
 
@@ -445,6 +460,14 @@ impl Runner {
             if let Some(r_imu_m) = self.imu_offset_m {
                 // The command line's offset is in force as if calibrated (not saved).
                 settings.update(|params| params.store_calibration(r_imu_m, [0.0; 3], None));
+            }
+            if self.log_always {
+                // In force before the first step, as a saved value is at a board's start-up.
+                settings.update(|params| {
+                    if let Some(index) = firmware::app::params::find(b"log_always") {
+                        let _ = params.set(index, &[1.0]);
+                    }
+                });
             }
             // Read at start-up, as the board's motor outputs do.
             board.ports().1.set_bidirectional(settings.params().bidirectional_dshot());
@@ -519,6 +542,9 @@ impl Runner {
                 flight_hand.act(clock.board, &snapshot);
             }
             clock.board.tick();
+            if self.power_cut_at_us.is_some_and(|cut_us| clock.board.now_us() >= cut_us) {
+                power_cut();
+            }
             let now_us = clock.firmware_us();
             let state = clock.board.physics().state();
             if let Some(pose) = mocap.as_mut().and_then(|m| m.sample(state, now_us)) {
@@ -564,6 +590,17 @@ impl Runner {
         self.telemetry_radio = radio.map(|link| link.port);
         ending
     }
+}
+
+/// The power goes: this process ends at once by SIGKILL, as a board stops when its battery is
+/// unplugged (no destructor runs, no buffer is flushed, no file is closed).
+fn power_cut() -> ! {
+    // SAFETY: `getpid` and `kill` take and return plain integers; nothing is shared.
+    unsafe {
+        libc::kill(libc::getpid(), libc::SIGKILL);
+    }
+    // SIGKILL cannot be caught; should it not have been delivered yet, end without unwinding.
+    std::process::abort()
 }
 
 /// Simulated time, and the firmware's time since its latest boot.

@@ -206,7 +206,10 @@ pub fn export<W: Write + Seek>(bytes: &[u8], out: W) -> Result<Exported, InputEr
             LogRecord::Flight(flight) => {
                 write(7, flight.t_us, &serde_json::to_value(flight).unwrap_or_default())?;
             }
-            LogRecord::Work(_) | LogRecord::Dropped(_) | LogRecord::End(_) => {}
+            LogRecord::Work(_)
+            | LogRecord::Dropped(_)
+            | LogRecord::End(_)
+            | LogRecord::Adopted(_) => {}
         }
     }
     if steps == 0 {

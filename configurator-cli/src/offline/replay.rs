@@ -4,12 +4,25 @@
 //!
 //! The replay is the board's own code in lockstep with the log: each logged step's IMU sample
 //! (as the driver delivered it, NaN bits and all) and motor speeds are what a replay IMU and
-//! replay motor outputs return to [`System::tick`]; each logged command goes into the control
-//! queue before the step it was applied at; each piece of background work (parameters,
-//! calibration) goes to the background task after the step it was taken after, which then runs
-//! to completion, exactly as the SITL runs it. So a log the SITL wrote from start-up replays bit
-//! for bit (0 differences); a board's log may differ where its background task ran later than
-//! the SITL's would have, and a log that begins at an arming starts from a fresh state.
+//! replay motor outputs return to the control tick; each logged command goes into the control
+//! queue before the step it was applied at.
+//!
+//! The background task's side (format 4, a log from start-up): the replay reads the whole log
+//! first, so it knows every handoff the board made. Its background task takes the learner
+//! samples its control step produces one at a time; each piece of work (parameters, calibration)
+//! goes to it between the same two samples as on the board (the samples processed are logged
+//! with the work), and the results it had after each sample count the board's control step
+//! adopted are kept. Before each step the control step is handed the results the board's
+//! adopted at that step (logged with the step), and otherwise keeps what it has. So the replay
+//! does not depend on when the board's (or the SITL's) background task ran: a log from
+//! start-up replays bit for bit whatever the airframe, the arming and the tasks' timing, unless
+//! the board's control step dropped learner samples (a full queue; noted).
+//!
+//! A format 1–3 log (no adoptions recorded), and a log that begins at an arming (the board's
+//! sample count there is not known), are replayed as the SITL runs the application: the
+//! background task runs to completion after every step, and work goes to it after the step it
+//! was taken after. Such a replay is exact only where the board's background task kept up as
+//! the SITL's does; a log that begins at an arming also starts from a fresh state.
 //!
 //! With `--set NAME=VALUE` the parameter sets in the log are changed before they are applied,
 //! and the replay reports where the outcome departs from the log: the first step whose
@@ -23,10 +36,13 @@ use firmware::app::log::{
     ParamsAssembler, ReadStats, StepLogRecord, LOG_FORMAT_VERSION,
 };
 use firmware::app::params::{find, Params, LAYOUT_HASH, SPECS};
-use firmware::app::system::{with_system, BackgroundWork, TickHardware};
-use firmware::app::{BackgroundCommand, ControlSnapshot, NoFlash, Settings};
+use firmware::app::system::{with_system, BackgroundWork, Exclusive, TickHardware, TickShared};
+use firmware::app::{
+    Background, BackgroundCommand, BackgroundResults, ControlSnapshot, NoFlash, Settings,
+};
 use flight::learner::{FlightPhase, LearnedModel};
 use serde_json::{json, Value};
+use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 
 /// `replay` arguments.
@@ -165,6 +181,88 @@ pub struct ReplayRun {
     pub notes: Vec<String>,
 }
 
+/// The background task's side of an exact replay (module doc): the work in the order the board
+/// took it, each with the samples processed then; the sample counts whose results the board's
+/// control step adopted, and those results once reached.
+struct BackgroundScript {
+    works: VecDeque<(u32, BackgroundWork)>,
+    wanted: BTreeSet<u32>,
+    results_at: HashMap<u32, BackgroundResults>,
+}
+
+impl BackgroundScript {
+    /// Read from the whole log (`changed` applies the replay's parameter overrides).
+    fn read(log: &LogFile, changed: &dyn Fn(&Params) -> Params) -> Self {
+        let mut assembler = ParamsAssembler::default();
+        let mut params = Params::default();
+        let mut works = VecDeque::new();
+        let mut wanted = BTreeSet::new();
+        for record in &log.records {
+            match record {
+                LogRecord::Params(part) => {
+                    if let Some(complete) = assembler.push(part) {
+                        params = complete;
+                    }
+                }
+                LogRecord::Work(work) => {
+                    if let Some(samples) = work.samples_processed {
+                        works.push_back((samples, background_work(work.work, &changed(&params))));
+                    }
+                }
+                LogRecord::Adopted(adopted) => {
+                    wanted.insert(adopted.samples_processed);
+                }
+                LogRecord::End(_) => break,
+                _ => {}
+            }
+        }
+        Self { works, wanted, results_at: HashMap::new() }
+    }
+
+    /// Keep the results at the current sample count when a step adopted them.
+    fn keep(&mut self, worker: &Background<'_>) {
+        let results = worker.results_ref();
+        if self.wanted.contains(&results.samples_processed) {
+            self.results_at.insert(results.samples_processed, *results);
+        }
+    }
+
+    /// The work taken at the current sample count.
+    fn take_due_work(&mut self, worker: &mut Background<'_>) {
+        let count = worker.results_ref().samples_processed;
+        while self.works.front().is_some_and(|(at, _)| *at <= count) {
+            if let Some((_, work)) = self.works.pop_front() {
+                match work {
+                    BackgroundWork::Command(command) => worker.command(command),
+                    BackgroundWork::Configure(params) => worker.configure(&params),
+                }
+            }
+        }
+    }
+
+    /// Every waiting sample, one at a time, with the work due between them.
+    fn advance(&mut self, worker: &mut Background<'_>) {
+        loop {
+            self.take_due_work(worker);
+            if !worker.run_one() {
+                break;
+            }
+            self.keep(worker);
+        }
+    }
+}
+
+/// Background work as the log names it, with `params` for a parameter change.
+fn background_work(work: LoggedWork, params: &Params) -> BackgroundWork {
+    match work {
+        LoggedWork::Configure => BackgroundWork::Configure(*params),
+        LoggedWork::StartCalibration => {
+            BackgroundWork::Command(BackgroundCommand::StartCalibration)
+        }
+        LoggedWork::StopCalibration => BackgroundWork::Command(BackgroundCommand::StopCalibration),
+    }
+}
+
 /// Replay `log` with `overrides` applied to every parameter set; `each_step` sees every logged
 /// step with the replayed snapshot after it.
 pub fn replay(
@@ -181,6 +279,8 @@ pub fn replay(
         params
     };
     let from_start_up = log.header.first_step <= 1;
+    // The handoffs as the board made them (module doc).
+    let exact = from_start_up && log.header.format >= 4;
     let mut run = ReplayRun {
         steps: 0,
         differences: 0,
@@ -193,10 +293,19 @@ pub fn replay(
     if !from_start_up {
         run.notes.push(format!(
             "the log begins at step {} (an arming), not at start-up: replayed from a fresh \
-             application, whose filters had not seen the steps before",
+             application, whose filters had not seen the steps before, with the background \
+             task run after every step as the SITL runs it (set `log_always` = 1 and save it \
+             for a log from start-up, which replays exactly)",
             log.header.first_step
         ));
+    } else if !exact {
+        run.notes.push(format!(
+            "a format {} log records no handoff from the background task: replayed with the \
+             background task run after every step, as the SITL runs it",
+            log.header.format
+        ));
     }
+    let mut script = BackgroundScript::read(log, &changed);
     with_system(Settings::<NoFlash>::without_store(), Default::default(), None, |system| {
         let mut assembler = ParamsAssembler::default();
         let mut params = Params::default();
@@ -204,6 +313,11 @@ pub fn replay(
         let mut injected = false;
         let mut expected_step = log.header.first_step;
         let mut last = (None, None);
+        // What the control step reads from the background task (exact replay).
+        let mut handed = system.background.results();
+        script.keep(&system.background);
+        let mut adoption = None;
+        let mut samples_dropped = 0;
         for record in &log.records {
             match record {
                 LogRecord::Header(_) => {}
@@ -249,6 +363,7 @@ pub fn replay(
                         )),
                     }
                 }
+                LogRecord::Adopted(adopted) => adoption = Some(*adopted),
                 LogRecord::Step(step) => {
                     started = true;
                     if step.step != expected_step {
@@ -262,14 +377,46 @@ pub fn replay(
                     let mut imu = ReplayImu(step.imu_sample());
                     let mut motors =
                         ReplayMotors { count: step.motor_count(), speeds_rad_s: step.speeds_rad_s };
-                    // The log keeps no battery readings: the control never uses them.
+                    // The log keeps no battery readings: the control never uses them (an empty
+                    // pack's landing is a logged command).
                     let hardware = TickHardware {
                         imu: &mut imu,
                         motors: &mut motors,
                         radio_bytes: &mut NoBytes,
                         battery: &mut NoBattery,
                     };
-                    system.tick(step.t_us, hardware);
+                    if exact {
+                        if let Some(adopted) = adoption.take().filter(|a| a.step == step.step) {
+                            match script.results_at.get(&adopted.samples_processed) {
+                                Some(results) => handed = *results,
+                                None => run.notes.push(format!(
+                                    "step {}: the board adopted the results of {} learner \
+                                     samples, which the replay's background task did not reach",
+                                    step.step, adopted.samples_processed
+                                )),
+                            }
+                            if adopted.samples_dropped > samples_dropped {
+                                samples_dropped = adopted.samples_dropped;
+                                run.notes.push(format!(
+                                    "by step {}: the board's control step had dropped {} learner \
+                                     samples (its queue full), which the replay's background \
+                                     task did learn from: not exact from there on",
+                                    step.step, samples_dropped
+                                ));
+                            }
+                        }
+                        let handoffs = &mut system.handoffs;
+                        let mut shared = TickShared {
+                            commands: Exclusive(&mut handoffs.commands),
+                            results: Exclusive(&mut handed),
+                            snapshot: Exclusive(&mut handoffs.snapshot),
+                            board: Exclusive(&mut handoffs.board),
+                        };
+                        system.control.tick(step.t_us, hardware, &mut shared);
+                        script.advance(&mut system.background);
+                    } else {
+                        system.tick(step.t_us, hardware);
+                    }
                     let snapshot = system.snapshot();
                     run.steps += 1;
                     let count = step.commands.len();
@@ -303,17 +450,12 @@ pub fn replay(
                     each_step(step, &snapshot);
                 }
                 LogRecord::Work(work) => {
-                    let item = match work.work {
-                        LoggedWork::Configure => BackgroundWork::Configure(changed(&params)),
-                        LoggedWork::StartCalibration => {
-                            BackgroundWork::Command(BackgroundCommand::StartCalibration)
-                        }
-                        LoggedWork::StopCalibration => {
-                            BackgroundWork::Command(BackgroundCommand::StopCalibration)
-                        }
-                    };
-                    let _ = system.handoffs.work.push_back(item);
-                    system.run_background();
+                    // An exact replay took it from the script, between its samples.
+                    if !(exact && work.samples_processed.is_some()) {
+                        let item = background_work(work.work, &changed(&params));
+                        let _ = system.handoffs.work.push_back(item);
+                        system.run_background();
+                    }
                 }
                 LogRecord::Dropped(dropped) => run.notes.push(format!(
                     "the board's log ring was full: {} entries dropped since start-up",
@@ -324,7 +466,12 @@ pub fn replay(
                 LogRecord::Learner(_) | LogRecord::Flight(_) => {}
             }
         }
-        run.learned = system.handoffs.results.learned;
+        run.learned = if exact {
+            script.advance(&mut system.background);
+            system.background.results_ref().learned
+        } else {
+            system.handoffs.results.learned
+        };
     });
     if log.stats.bad_frames > 0 || log.stats.missing_records > 0 {
         run.notes.push(format!(

@@ -340,6 +340,14 @@ impl<'q> Background<'q> {
         processed
     }
 
+    /// Process the oldest waiting sample; false: none waited. (A replay steps the worker one
+    /// sample at a time to reach the results the board's control step adopted.)
+    pub fn run_one(&mut self) -> bool {
+        let Some(sample) = self.samples.pop() else { return false };
+        self.process(&sample);
+        true
+    }
+
     /// The latest results.
     pub fn results(&self) -> BackgroundResults {
         self.results

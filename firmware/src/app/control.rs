@@ -734,14 +734,19 @@ impl<'q> ControlLoop<'q> {
 
     /// Take what the background task published: the learned model (copied only when it changed)
     /// and the IMU offset it was learned with. Call it with the latest results before a step.
-    pub fn receive(&mut self, results: &BackgroundResults) {
+    ///
+    /// Returns whether it adopted them (a new model version reached the pilot): the tick logs
+    /// that step, so a replay hands the control step the same results at the same step.
+    pub fn receive(&mut self, results: &BackgroundResults) -> bool {
         // The samples learned from, and whether it is pending: a restarted learner's first model
         // has learned from none, as the one before the first attempt had.
         let version = (results.learned.samples, results.learned.is_pending());
-        if self.model_version != Some(version) {
-            self.model_version = Some(version);
-            self.pilot.set_model(&results.learned, results.learner_r_imu_m);
+        if self.model_version == Some(version) {
+            return false;
         }
+        self.model_version = Some(version);
+        self.pilot.set_model(&results.learned, results.learner_r_imu_m);
+        true
     }
 
     /// One control step at time `now_us` (µs since start-up, monotonic). Returns whether samples

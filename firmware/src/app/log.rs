@@ -8,7 +8,13 @@
 //! - every [`ControlCommand`] the tick applied (from the links' queue or the radio), with the
 //!   step it was applied before;
 //! - every piece of work the background task took (parameters, calibration start and stop),
-//!   with the step after which it took it;
+//!   with the step after which it took it and the learner samples it had processed then
+//!   (format 4), so a replay hands it to its background task between the same two samples;
+//! - every step at which the control step adopted the background task's results (a new
+//!   version of the learned model, its refinements, the in-flight offset fit), with the
+//!   samples those results had been computed from (format 4): the one handoff from the
+//!   background task to the control step, which the board's timing decides and nothing else
+//!   records, so a replay hands the control step the same results at the same step;
 //! - the parameters in force when the file begins, and a header (format version, firmware
 //!   version, board, control rate, the registry's layout);
 //! - the learner's state (both G1 blocks) and the closed loop's ([`protocol::LearnerTelemetry`],
@@ -30,8 +36,10 @@
 //! **Files.** With the `log_always` parameter at 0 (the default), a file begins with the entry
 //! that arms the craft (a throw-to-fly arming, a motor test, or a step that finds it armed) and
 //! ends [`LOG_LINGER_S`] after the craft was last armed; with 1, one file runs from start-up on.
-//! A file that begins at the first step replays bit for bit; one that begins at an arming later
-//! on replays from a fresh application, whose filters have not seen what came before.
+//! The parameters in force at start-up (the flash's) are the logger's from the first step, so
+//! with `log_always` saved the file begins at step 1. A file that begins at the first step
+//! replays bit for bit whatever the tasks' timing; one that begins at an arming later on
+//! replays from a fresh application, whose filters have not seen what came before.
 //!
 //! Assumes: one producer (the control tick) and one consumer (the lowest-priority task); the
 //! sink may block its caller (an SD card's busy time), which is why only that task calls it.
@@ -51,9 +59,10 @@ use protocol::{Decoder, DshotCommand, ExternalPose, LandReason, PositionSetpoint
 /// Version of the log's record layout. 2 added the learner's and the flight's snapshots
 /// ([`id::LEARNER`], [`id::FLIGHT`]) to version 1's records; 3 the landing and the pilot's
 /// sticks (the commands [`LoggedCommand::Land`] and [`LoggedCommand::Sticks`], the flight modes
-/// `Landing` and `Angle`). A reader reads every earlier version,
-/// and refuses later ones.
-pub const LOG_FORMAT_VERSION: u16 = 3;
+/// `Landing` and `Angle`); 4 the adoptions of the background's results ([`id::ADOPTED`]) and
+/// the learner samples each piece of work was taken at ([`id::WORK_AT`], instead of
+/// [`id::WORK`]). A reader reads every earlier version, and refuses later ones.
+pub const LOG_FORMAT_VERSION: u16 = 4;
 
 /// Rate of the learner's and the flight's snapshots in a log, Hz: a G1 estimate converges over
 /// tenths of a second and a hover's position error moves at a few hertz, so 25 Hz shows both;
@@ -105,6 +114,8 @@ pub struct StepEntry {
     pub armed: bool,
     /// Entries the ring had dropped before this one, since start-up.
     pub ring_dropped: u32,
+    /// The background's results the step adopted before it ran, if it adopted any.
+    pub adopted: Option<Adoption>,
 }
 
 /// One entry of the ring from the tick to the logger.
@@ -115,6 +126,18 @@ pub enum LogEntry {
     Command { step: u32, command: ControlCommand },
     /// A step.
     Step(StepEntry),
+}
+
+/// The background task's results the control step adopted before a step (a new version of the
+/// learned model): computed from the first `samples_processed` learner samples since start-up,
+/// when the control step had dropped `samples_dropped` samples (its queue full). Carried in
+/// the step's own entry rather than one of its own: while the learner learns, a new version
+/// comes every step, and a second entry per step would halve the time the ring rides out an
+/// SD card's stall.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Adoption {
+    pub samples_processed: u32,
+    pub samples_dropped: u32,
 }
 
 /// The ring's storage; split it once with [`super::split_queue`].
@@ -139,6 +162,10 @@ pub mod id {
     pub const LEARNER: u8 = 0x08;
     /// A [`protocol::FlightTelemetry`] (format 2).
     pub const FLIGHT: u8 = 0x09;
+    /// An [`AdoptedRecord`] (format 4).
+    pub const ADOPTED: u8 = 0x0A;
+    /// A [`WorkRecord`] with the samples processed (format 4; formats 1–3 wrote [`WORK`]).
+    pub const WORK_AT: u8 = 0x0B;
 }
 
 /// The first record of every file.
@@ -244,11 +271,35 @@ pub enum LoggedWork {
     Configure,
 }
 
-/// Work the background task took after step `after_step` (0: before the first).
+/// Work the background task took after step `after_step` (0: before the first; the last step
+/// the logger had written then, so on the board the work may have come a few steps later),
+/// when it had processed `samples_processed` learner samples since start-up: that count places
+/// it exactly (`None`: a format 1–3 log, whose [`id::WORK`] record did not say).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WorkRecord {
     pub after_step: u32,
     pub work: LoggedWork,
+    pub samples_processed: Option<u32>,
+}
+
+/// [`WorkRecord`] as formats 1–3 wrote it ([`id::WORK`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+struct WorkRecordV1 {
+    after_step: u32,
+    work: LoggedWork,
+}
+
+/// The control step adopted, before step `step`, the background task's results computed from
+/// its first `samples_processed` learner samples ([`Adoption`]); written just before that
+/// step's record. Every adoption is written, the first (the results at start-up, adopted by
+/// the first step) included.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AdoptedRecord {
+    pub step: u32,
+    pub samples_processed: u32,
+    /// Learner samples the control step had dropped since start-up (its queue full): when
+    /// this grows, the board's background task saw fewer samples than a replay's will.
+    pub samples_dropped: u32,
 }
 
 /// The ring has dropped `entries` entries since start-up (written when the count grows).
@@ -278,6 +329,7 @@ pub enum LogRecord {
     End(EndRecord),
     Learner(protocol::LearnerTelemetry),
     Flight(protocol::FlightTelemetry),
+    Adopted(AdoptedRecord),
 }
 
 /// The flight phase as a byte.
@@ -650,6 +702,13 @@ impl<'q> Logger<'q> {
         }
     }
 
+    /// Begin with `params` in force (those loaded at start-up, before the first step), so a
+    /// saved `log_always` opens the file at the first step, not at the first link pass.
+    pub fn with_params(mut self, params: &Params) -> Self {
+        self.params = *params;
+        self
+    }
+
     /// What the logger has done.
     pub fn status(&self) -> LogStatus {
         self.status
@@ -667,8 +726,9 @@ impl<'q> Logger<'q> {
         true
     }
 
-    /// The background task took `work` (after the entries drained so far).
-    pub fn work(&mut self, work: &BackgroundWork) {
+    /// The background task took `work` (after the entries drained so far), having processed
+    /// `samples_processed` learner samples since start-up.
+    pub fn work(&mut self, work: &BackgroundWork, samples_processed: u32) {
         let logged = match work {
             BackgroundWork::Command(BackgroundCommand::StartCalibration) => {
                 LoggedWork::StartCalibration
@@ -685,8 +745,12 @@ impl<'q> Logger<'q> {
             }
         };
         if self.file.is_some() {
-            let record = WorkRecord { after_step: self.last_step, work: logged };
-            self.write(id::WORK, &record);
+            let record = WorkRecord {
+                after_step: self.last_step,
+                work: logged,
+                samples_processed: Some(samples_processed),
+            };
+            self.write(id::WORK_AT, &record);
         }
     }
 
@@ -731,6 +795,14 @@ impl<'q> Logger<'q> {
                 if s.ring_dropped != self.logged_dropped {
                     self.logged_dropped = s.ring_dropped;
                     self.write(id::DROPPED, &DroppedRecord { entries: s.ring_dropped });
+                }
+                if let Some(adoption) = s.adopted {
+                    let record = AdoptedRecord {
+                        step: s.step,
+                        samples_processed: adoption.samples_processed,
+                        samples_dropped: adoption.samples_dropped,
+                    };
+                    self.write(id::ADOPTED, &record);
                 }
                 self.write(id::STEP, &StepLogRecord::from_entry(s));
                 let linger_us = (LOG_LINGER_S * 1e6) as u64;
@@ -939,7 +1011,16 @@ fn decode_record(id: u8, payload: &[u8]) -> Option<LogRecord> {
         id::PARAMS => LogRecord::Params(parse(payload)?),
         id::COMMAND => LogRecord::Command(parse(payload)?),
         id::STEP => LogRecord::Step(parse(payload)?),
-        id::WORK => LogRecord::Work(parse(payload)?),
+        id::WORK => {
+            let v1: WorkRecordV1 = parse(payload)?;
+            LogRecord::Work(WorkRecord {
+                after_step: v1.after_step,
+                work: v1.work,
+                samples_processed: None,
+            })
+        }
+        id::WORK_AT => LogRecord::Work(parse(payload)?),
+        id::ADOPTED => LogRecord::Adopted(parse(payload)?),
         id::DROPPED => LogRecord::Dropped(parse(payload)?),
         id::END => LogRecord::End(parse(payload)?),
         id::LEARNER => LogRecord::Learner(parse(payload)?),
@@ -1081,7 +1162,7 @@ mod tests {
             }
             t += 1;
         }
-        logger.work(&BackgroundWork::Command(BackgroundCommand::StartCalibration));
+        logger.work(&BackgroundWork::Command(BackgroundCommand::StartCalibration), 0);
         logger.finish();
         assert_eq!(logger.status().files, 1);
         assert_eq!(sink.files.len(), 1, "one arming, one file");
@@ -1132,6 +1213,52 @@ mod tests {
         assert_eq!(reader.stats(), ReadStats::default(), "nothing damaged, nothing torn");
     }
 
+    /// An adoption rides in its step's entry and is written just before that step's record; a
+    /// format 1–3 work record (no sample count) still reads, as work with none.
+    #[test]
+    fn an_adoption_is_written_before_its_step_and_old_work_records_still_read() {
+        let mut ring = LogRing::new();
+        let (mut producer, consumer) = split_queue(&mut ring);
+        let mut sink = Memory::default();
+        let mut always = Params::default();
+        always.set(super::super::params::find(b"log_always").unwrap(), &[1.0]).unwrap();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000).with_params(&always);
+        let adoption = Adoption { samples_processed: 41, samples_dropped: 2 };
+        for t in 1..=3 {
+            let LogEntry::Step(entry) = step(t, false) else { unreachable!() };
+            let adopted = (t == 2).then_some(adoption);
+            producer.push(LogEntry::Step(StepEntry { adopted, ..entry }));
+        }
+        logger.finish();
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        let LogRecord::Header(header) = &records[0] else { panic!() };
+        assert_eq!(header.first_step, 1, "log_always from the start-up parameters: step 1");
+        let order: Vec<String> = records
+            .iter()
+            .filter_map(|r| match r {
+                LogRecord::Step(s) => Some(format!("step {}", s.step)),
+                LogRecord::Adopted(a) => {
+                    Some(format!("adopted {} {}", a.step, a.samples_processed))
+                }
+                _ => None,
+            })
+            .collect();
+        assert_eq!(order, ["step 1", "adopted 2 41", "step 2", "step 3"]);
+        assert!(records.contains(&LogRecord::Adopted(AdoptedRecord {
+            step: 2,
+            samples_processed: 41,
+            samples_dropped: 2
+        })));
+
+        let old = WorkRecordV1 { after_step: 7, work: LoggedWork::Configure };
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let len = protocol::frame::encode(id::WORK, 0, &old, &mut frame).unwrap();
+        let read: Vec<_> = LogReader::new(&frame[..len]).collect();
+        let expected =
+            WorkRecord { after_step: 7, work: LoggedWork::Configure, samples_processed: None };
+        assert_eq!(read, [LogRecord::Work(expected)]);
+    }
+
     #[test]
     fn with_log_always_one_file_runs_from_the_first_step_and_work_is_logged_after_its_step() {
         let mut ring = LogRing::new();
@@ -1140,18 +1267,18 @@ mod tests {
         let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
         let mut always = Params::default();
         always.set(super::super::params::find(b"log_always").unwrap(), &[1.0]).unwrap();
-        logger.work(&BackgroundWork::Configure(always));
+        logger.work(&BackgroundWork::Configure(always), 0);
         for t in 1..=10_000 {
             producer.push(step(t, false));
             logger.drain();
             if t == 5 {
-                logger.work(&BackgroundWork::Command(BackgroundCommand::StopCalibration));
+                logger.work(&BackgroundWork::Command(BackgroundCommand::StopCalibration), 4);
             }
         }
         // A changed set is written as the part that changed.
         let mut changed = always;
         changed.set(super::super::params::find(b"motor_tau_s").unwrap(), &[0.03; 8]).unwrap();
-        logger.work(&BackgroundWork::Configure(changed));
+        logger.work(&BackgroundWork::Configure(changed), 9_000);
         logger.finish();
         assert_eq!(sink.files.len(), 1);
         let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
@@ -1163,7 +1290,12 @@ mod tests {
             LogRecord::Work(w) => Some(*w),
             _ => None,
         });
-        assert_eq!(work, Some(WorkRecord { after_step: 5, work: LoggedWork::StopCalibration }));
+        let expected = WorkRecord {
+            after_step: 5,
+            work: LoggedWork::StopCalibration,
+            samples_processed: Some(4),
+        };
+        assert_eq!(work, Some(expected));
         let parts = records.iter().filter(|r| matches!(r, LogRecord::Params(_))).count();
         let whole_set = PARAM_SLOTS.div_ceil(PARAMS_CHUNK_SLOTS);
         assert!(

@@ -10,13 +10,17 @@
 //! |---|---|---|
 //! | [`ControlTask::tick`] | TIM7 at 2 kHz, 3 (highest) | the link's commands, then the pilot's radio (so a kill switch has the last word), the background's results, one control step, the snapshot published, a telemetry frame to the pilot's handset when the receiver granted a slot |
 //! | [`LinkTask::pass`] | USB interrupt, pended by the tick every [`LINK_PASS_PERIOD_US`], 2 | every link's bytes in, requests routed, parameters serviced, the step records streamed, telemetry sampled, bytes out |
-//! | [`run_background`] | software task, 1 (lowest) | the flight log drained to its sink, work from the link (calibration, parameters), the learner-sample queue drained, results published |
+//! | [`run_background`] | software task, 1 (lowest) | work from the link (calibration, parameters), the flight log drained to its sink, the learner-sample queue drained, results published |
 //!
 //! The tasks share nothing but [`Handoffs`]: small values copied under a short lock, and two
 //! bounded queues of explicit messages (a command for the control step, work for the background
 //! task). A parameter change is such a message, sent once to each task that takes parameters,
 //! rather than a generation the tasks poll. Nothing here blocks or allocates; a full queue drops
 //! the newest message and counts it, except a disarm, which always finds room.
+//!
+//! The results reach the control step whenever the background task has run, which on the board
+//! depends on the load; the tick logs each adoption with its step (`super::log`), so a replay
+//! does not depend on that timing.
 //!
 //! Constants derived from the control rate are defined here once ([`LINK_PASS_TICKS`]).
 
@@ -25,7 +29,9 @@ pub use rtic_core::{Exclusive, Mutex};
 
 use super::battery::{BatteryMonitor, LowBattery};
 use super::hal::{BatterySensor, Imu, ImuSample, Motors, Port, PortClosed, Uart};
-use super::log::{LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry};
+use super::log::{
+    Adoption, LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry,
+};
 use super::radio::{CraftState, Receiver};
 use super::{
     Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
@@ -257,7 +263,11 @@ impl<'q> ControlTask<'q> {
                 control.command(command, now_us);
             }
         }
-        shared.results.lock(|results| control.receive(results));
+        // The one handoff from the background task: logged with the step (the samples its
+        // results were computed from), so a replay adopts the same results at the same step.
+        let adopted = shared
+            .results
+            .lock(|results| control.receive(results).then_some(results.samples_processed));
         // The outputs learn a disarm before this step's frames (a kill switch stops the motors
         // in this very step), and an arming before its commands.
         motors.set_armed(control.armed());
@@ -294,6 +304,10 @@ impl<'q> ControlTask<'q> {
                 flying: snapshot.pilot.flying,
                 armed: snapshot.armed,
                 ring_dropped: log.dropped(),
+                adopted: adopted.map(|samples_processed| Adoption {
+                    samples_processed,
+                    samples_dropped: snapshot.samples_dropped,
+                }),
             }));
             background_due |= log.has_waiting();
         }
@@ -690,10 +704,10 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
     }
 }
 
-/// The background task's run: the flight log's waiting entries to its sink (when the board
-/// logs), the work the links sent (oldest first, each logged after the steps drained before
-/// it), then every waiting learner sample, then the results published (a copy under a short
-/// lock).
+/// The background task's run: the work the links sent (oldest first, each logged with the
+/// learner samples processed before it), the flight log's waiting entries to its sink (when the
+/// board logs), then every waiting learner sample, then the results published (a copy under a
+/// short lock).
 ///
 /// The log is locked per entry (and per piece of work): the link task, which reads the log's
 /// files under the same lock, waits at most for one entry's encoding and one block write.
@@ -707,17 +721,21 @@ pub fn run_background<'l, W, R, L>(
     R: Mutex<T = BackgroundResults>,
     L: Mutex<T = Logger<'l>>,
 {
-    if let Some(log) = log.as_deref_mut() {
-        while log.lock(|log| log.drain_one()) {}
-    }
+    // The work first: a parameter change reaches the control step as a command in the same
+    // link pass, and the tick may have applied (and logged) it already; taken first, the new
+    // parameters are in the file before that command, which names them.
     while let Some(item) = work.lock(|queue| queue.pop_front()) {
         if let Some(log) = log.as_deref_mut() {
-            log.lock(|log| log.work(&item));
+            let samples_processed = worker.results_ref().samples_processed;
+            log.lock(|log| log.work(&item, samples_processed));
         }
         match item {
             BackgroundWork::Command(command) => worker.command(command),
             BackgroundWork::Configure(params) => worker.configure(&params),
         }
+    }
+    if let Some(log) = log {
+        while log.lock(|log| log.drain_one()) {}
     }
     worker.run_pending();
     let published = worker.results_ref();
@@ -876,7 +894,10 @@ pub fn with_logged_system<F: NorFlash, R>(
     let (control, log) = match log {
         Some(target) => (
             control.with_log(log_producer),
-            Some(Logger::new(log_consumer, target.sink, target.board, config.rate_hz)),
+            Some(
+                Logger::new(log_consumer, target.sink, target.board, config.rate_hz)
+                    .with_params(settings.params()),
+            ),
         ),
         None => (control, None),
     };

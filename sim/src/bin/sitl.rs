@@ -114,6 +114,15 @@ struct Args {
     /// gets them (`configurator-cli replay` reads them).
     #[arg(long, value_name = "DIR")]
     log_dir: Option<PathBuf>,
+    /// With --log-dir: the `log_always` parameter in force from start-up (as if saved), so one
+    /// file runs from the first step and replays exactly whatever arms the craft.
+    #[arg(long, requires = "log_dir")]
+    log_always: bool,
+    /// Cut the power at this simulated time, s: the SITL kills itself (SIGKILL) before the first
+    /// step at or after it, nothing flushed or closed, as a battery unplugged in flight would
+    /// stop the board (what a flight log keeps then: docs/flight-log.md).
+    #[arg(long, value_name = "S")]
+    power_cut_at_s: Option<f64>,
     /// Serve the protocol also on a second pseudo-terminal behind a simulated telemetry radio at
     /// this serial rate, baud (e.g. 57600; a SiK-class modem on a UART): open its path (printed
     /// at start) with `configurator-cli --port`.
@@ -199,6 +208,8 @@ fn main() -> std::process::ExitCode {
         }),
         radio_link: args.radio_port.clone(),
         log_dir: args.log_dir.clone(),
+        log_always: args.log_always,
+        power_cut_at_s: args.power_cut_at_s,
         flash_file: (!args.no_flash)
             .then(|| args.flash_file.clone().unwrap_or_else(sim::flash::default_flash_path)),
         faults: args.faults.faults(),
