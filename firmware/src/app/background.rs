@@ -70,6 +70,17 @@ pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
 /// inverses each, 8 × 8 and 18 × 18: about 0.5 ms on the board, docs/benchmarks.md).
 pub const OFFSET_FIT_SOLVE_INTERVAL_S: f32 = 0.1;
 
+/// Longest wait of the control step at the end of the excitation for a model this task is still
+/// learning from samples already
+/// taken (`LearnedModel::pending`: without speed telemetry the effectiveness regression learns
+/// from the excitation once its lag is identified, `no_speed::RELEASE_PER_SAMPLE` samples per
+/// control sample), s: about 1.7 times its longest catch-up (the lag's choice over 52 samples,
+/// 26 ms, then the 1,700 samples of a 0.85 s excitation at seven net a sample, 0.12 s). The motors hold the excitation's last commands
+/// (it ends at zero, where the armed ESCs idle); after it the controller is formed on what there
+/// is, and refused as before when that cannot fly. Defined here, where the catch-up is, and read
+/// by the control step (`super::control`).
+pub const ENGAGE_WAIT_MAX_S: f32 = 0.25;
+
 /// How long after the craft was last powered (armed for throw-to-fly, flying, or any motor
 /// commanded) samples stay away from the IMU-offset estimator, s. Origin: a motor told to stop
 /// keeps turning, and pushing, for a few time constants (25–50 ms for the simulator's airframes,
@@ -173,7 +184,7 @@ pub struct Background<'q> {
     samples_since_excitation: u32,
     /// How many samples after the excitation the learner still takes ([`LEARN_AFTER_EXCITATION_S`]).
     settle_samples: u32,
-    /// [`super::control::ENGAGE_WAIT_MAX_S`] in samples.
+    /// [`ENGAGE_WAIT_MAX_S`] in samples.
     engage_wait_samples: u32,
     /// How many more while the craft flies ([`REFINE_IN_FLIGHT_S`]).
     refine_samples: u32,
@@ -236,7 +247,7 @@ impl<'q> Background<'q> {
             addr_of_mut!((*worker).samples_since_excitation).write(0);
             let settle = (LEARN_AFTER_EXCITATION_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).settle_samples).write(settle);
-            let wait = (super::control::ENGAGE_WAIT_MAX_S * f32::from(rate_hz)) as u32;
+            let wait = (ENGAGE_WAIT_MAX_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).engage_wait_samples).write(wait);
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);

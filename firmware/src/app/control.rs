@@ -23,7 +23,7 @@
 //! last good sample instead, counts it by cause ([`ControlSnapshot::imu_held`]) and goes on. The
 //! failsafe is for a fault that lasts: when the bad samples have gone on for
 //! `imu_fault_timeout_s` ([`ControlSettings::imu_fault_timeout_s`], default
-//! [`IMU_FAULT_TIMEOUT_S`]), that step ends the attempt or disarms the flight and writes zero
+//! [`super::hal::IMU_FAULT_TIMEOUT_S`]), that step ends the attempt or disarms the flight and writes zero
 //! (`ImuLost` for missing samples, [`Failsafe::ImuFault`] for the others). Bad is:
 //! - **missing**: no sample for the step;
 //! - **non-finite** (NaN, ±∞): the ICM-42688-P delivers 16-bit integers, so the transfer or its
@@ -66,7 +66,7 @@
 //! above applies, and the learner identifies from the commands and the body's response
 //! (`flight::learner::no_speed`).
 
-use super::background::BackgroundResults;
+use super::background::{BackgroundResults, ENGAGE_WAIT_MAX_S};
 use super::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
 use super::pilot::{Failsafe, Pilot, PilotStatus};
 use super::queue::{LearnerSample, SampleProducer};
@@ -158,7 +158,7 @@ impl Default for ControlSettings {
             sticks: super::sticks::StickConfig::default(),
             stick_map: crate::drivers::crsf::StickMap::AETR,
             mode_channel: crate::drivers::crsf::RcLinkConfig::default().mode.channel as u8,
-            imu_fault_timeout_s: IMU_FAULT_TIMEOUT_S,
+            imu_fault_timeout_s: super::hal::IMU_FAULT_TIMEOUT_S,
             arm_without_speeds: false,
         }
     }
@@ -243,32 +243,12 @@ impl EngageWait {
     }
 }
 
-/// Longest wait at the end of the excitation for a model still learning from samples already
-/// taken (`LearnedModel::pending`: without speed telemetry the effectiveness regression learns
-/// from the excitation once its lag is identified, `no_speed::RELEASE_PER_SAMPLE` samples per
-/// control sample), s: about 1.7 times its longest catch-up (the lag's choice over 52 samples,
-/// 26 ms, then the 1,700 samples of a 0.85 s excitation at seven net a sample, 0.12 s). The motors hold the excitation's last commands
-/// (it ends at zero, where the armed ESCs idle); after it the controller is formed on what there
-/// is, and refused as before when that cannot fly.
-pub const ENGAGE_WAIT_MAX_S: f32 = 0.25;
 /// [`ENGAGE_WAIT_MAX_S`] in µs.
 const ENGAGE_WAIT_MAX_US: u32 = (ENGAGE_WAIT_MAX_S * 1e6) as u32;
 
 /// Time without a usable IMU sample after which the status calls the IMU absent, µs (10 ms).
 /// Status only: while armed, `imu_fault_timeout_s` decides when a missing IMU fails safe.
 const IMU_ABSENT_AFTER_US: u64 = 10_000;
-
-/// Default of the `imu_fault_timeout_s` parameter, s: how long, armed, the step flies on the
-/// last good IMU sample before bad or missing samples count as a failed IMU. Origin: a held
-/// sample freezes the measured rate and specific force, so under an angular acceleration α the
-/// controller does not see, the rate it believes drifts by α·T and the attitude by ½·α·T². In a
-/// hover (α of gusts and vibration, ≲ 20 rad/s²) 20 ms cost 0.4 rad/s and 0.2°; in the recovery
-/// from a throw, where INDI commands up to a few hundred rad/s², about 4 rad/s and 2°: what the
-/// rate loop corrects within its own time constant. At 50 ms the same recovery would fly
-/// 10 rad/s and 14° blind while the motors (τ 25–50 ms) ran their whole response to stale
-/// increments. Measured (`tests/tests/faults.rs`): 39 bad samples (19.5 ms) of every kind, in
-/// the recovery and in hover, are ridden through; the paper quad recovers and holds its position.
-pub const IMU_FAULT_TIMEOUT_S: f32 = 0.02;
 
 /// A motor counts as reporting its speed while its latest finite report is at most this old, s
 /// ([`SPEED_REPORT_TIMEOUT_MS`]). Origin: a bidirectional-DShot ESC answers every frame (2 kHz

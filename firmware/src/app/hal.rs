@@ -155,3 +155,15 @@ pub trait Port {
 /// The host went away: the port was closed (a TCP client disconnected).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PortClosed;
+
+/// Default of the `imu_fault_timeout_s` parameter, s: how long, armed, the step flies on the
+/// last good IMU sample before bad or missing samples count as a failed IMU. Origin: a held
+/// sample freezes the measured rate and specific force, so under an angular acceleration α the
+/// controller does not see, the rate it believes drifts by α·T and the attitude by ½·α·T². In a
+/// hover (α of gusts and vibration, ≲ 20 rad/s²) 20 ms cost 0.4 rad/s and 0.2°; in the recovery
+/// from a throw, where INDI commands up to a few hundred rad/s², about 4 rad/s and 2°: what the
+/// rate loop corrects within its own time constant. At 50 ms the same recovery would fly
+/// 10 rad/s and 14° blind while the motors (τ 25–50 ms) ran their whole response to stale
+/// increments. Measured (`tests/tests/faults.rs`): 39 bad samples (19.5 ms) of every kind, in
+/// the recovery and in hover, are ridden through; the paper quad recovers and holds its position.
+pub const IMU_FAULT_TIMEOUT_S: f32 = 0.02;

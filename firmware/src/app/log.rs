@@ -50,11 +50,23 @@ use super::hal::{ImuSample, MAX_MOTORS};
 use super::params::{Params, LAYOUT_HASH, PARAM_SLOTS};
 use super::pilot::FAILSAFE_KINDS;
 use super::queue::{RingConsumer, RingProducer};
-use super::system::BackgroundWork;
 use super::{BackgroundCommand, ControlCommand, ControlSettings};
 use flight::learner::FlightPhase;
 use heapless::spsc::Queue;
 use protocol::{Decoder, DshotCommand, ExternalPose, LandReason, PositionSetpoint, MAX_FRAME_LEN};
+
+/// What the link task hands the background task, and what the log records of it (defined with
+/// the log, which writes every piece down, rather than with the system that routes it). The
+/// parameters travel whole (about 0.5 KiB,
+/// copied once per change into a static queue: no allocation, no boxing).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(clippy::large_enum_variant)]
+pub enum BackgroundWork {
+    /// Start or stop a calibration.
+    Command(BackgroundCommand),
+    /// The parameters in force changed: take these.
+    Configure(Params),
+}
 
 /// Version of the log's record layout. 2 added the learner's and the flight's snapshots
 /// ([`id::LEARNER`], [`id::FLIGHT`]) to version 1's records; 3 the landing and the pilot's

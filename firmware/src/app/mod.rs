@@ -31,13 +31,14 @@ pub mod system;
 mod telemetry;
 
 pub use background::{
-    Background, BackgroundCommand, BackgroundResults, CalibrationState, STATS_WINDOW_US,
+    Background, BackgroundCommand, BackgroundResults, CalibrationState, ENGAGE_WAIT_MAX_S,
+    STATS_WINDOW_US,
 };
 pub use control::{
     ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot,
-    ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, ENGAGE_WAIT_MAX_S, IMU_FAULT_TIMEOUT_S,
-    SPEED_REPORT_TIMEOUT_S, STUCK_GYRO_SAMPLES,
+    ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, SPEED_REPORT_TIMEOUT_S, STUCK_GYRO_SAMPLES,
 };
+pub use hal::IMU_FAULT_TIMEOUT_S;
 pub use link::{
     flight_telemetry, learner_telemetry, sensor_health, LinkRequest, LinkServer,
     TELEMETRY_SHARE_PCT, TX_CAPACITY,

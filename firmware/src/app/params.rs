@@ -180,7 +180,7 @@ registry! {
     PoseNoiseM = "pose_noise_m", 1, Real, "m", 0.0001, 2.0, [super::pilot::DEFAULT_POSE_NOISE_M],
         false, "external pose noise, 1 sigma per axis (motion capture 0.001, GNSS 0.5)";
     ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
-        [super::control::IMU_FAULT_TIMEOUT_S], false,
+        [super::hal::IMU_FAULT_TIMEOUT_S], false,
         "armed: bad IMU samples held (last good) this long, then failsafe";
     // Landing and the failsafes that land (`super::landing::LandConfig`).
     LandDescentMps = "land_descent_mps", 1, Real, "m/s", 0.2, 2.0,

@@ -34,9 +34,8 @@ use super::log::{
 };
 use super::radio::{CraftState, Receiver};
 use super::{
-    Background, BackgroundCommand, BackgroundResults, ControlCommand, ControlLoop, ControlSettings,
-    ControlSnapshot, LinkRequest, LinkServer, Params, Settings, StatusView, StepConsumer,
-    CONTROL_RATE_HZ,
+    Background, BackgroundResults, ControlCommand, ControlLoop, ControlSettings, ControlSnapshot,
+    LinkRequest, LinkServer, Params, Settings, StatusView, StepConsumer, CONTROL_RATE_HZ,
 };
 use flight::learner::FlightPhase;
 use protocol::{BoardHealth, StepTime};
@@ -73,16 +72,7 @@ pub type ControlQueue = heapless::Deque<ControlCommand, CONTROL_QUEUE_LEN>;
 /// Work waiting for the background task.
 pub type WorkQueue = heapless::Deque<BackgroundWork, WORK_QUEUE_LEN>;
 
-/// What the link task hands the background task. The parameters travel whole (about 0.5 KiB,
-/// copied once per change into a static queue: no allocation, no boxing).
-#[derive(Clone, Copy, Debug, PartialEq)]
-#[allow(clippy::large_enum_variant)]
-pub enum BackgroundWork {
-    /// Start or stop a calibration.
-    Command(BackgroundCommand),
-    /// The parameters in force changed: take these.
-    Configure(Params),
-}
+pub use super::log::BackgroundWork;
 
 /// Everything the tasks hand each other. On the board each field is an RTIC shared resource
 /// (locked for a copy or a queue operation); in a [`System`] a plain field.
