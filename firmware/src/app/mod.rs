@@ -39,10 +39,7 @@ pub use control::{
     ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, SPEED_REPORT_TIMEOUT_S, STUCK_GYRO_SAMPLES,
 };
 pub use hal::IMU_FAULT_TIMEOUT_S;
-pub use link::{
-    flight_telemetry, learner_telemetry, sensor_health, LinkRequest, LinkServer,
-    TELEMETRY_SHARE_PCT, TX_CAPACITY,
-};
+pub use link::{LinkRequest, LinkServer, TELEMETRY_SHARE_PCT, TX_CAPACITY};
 pub use params::{Param, Params};
 pub use pilot::{
     count_failsafe, failsafe_counter, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus,
@@ -53,7 +50,10 @@ pub use queue::{
     SampleQueue, SAMPLE_QUEUE_LEN,
 };
 pub use settings::{NoFlash, Settings};
-pub use telemetry::{StepConsumer, StepProducer, StepRecord, StepRing, STEP_RING_LEN};
+pub use telemetry::{
+    flight_telemetry, learner_telemetry, sensor_health, StepConsumer, StepProducer, StepRecord,
+    StepRing, STEP_RING_LEN,
+};
 
 use protocol::{
     Capabilities, FirmwareVersion, Info, BOARD_NAME_LEN, PROTOCOL_VERSION, SCHEMA_HASH,

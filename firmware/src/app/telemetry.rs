@@ -8,12 +8,23 @@
 //! link; when the link falls behind (the host reads slowly, the transmit buffer is full), records
 //! or frames are dropped whole and the topic's sequence number, derived from the step count,
 //! shows each one as a gap. The step's cost is one copy of about 110 bytes.
+//!
+//! The sampled topics are built here too, from the tasks' snapshots ([`flight_telemetry`],
+//! [`learner_telemetry`], [`sensor_health`]): the link streams them, and the flight log records
+//! them exactly as streamed (`super::log`), so both read them from here.
 
 use super::hal::{ImuSample, MAX_MOTORS};
+use super::pilot::Failsafe;
 use super::queue::{RingConsumer, RingProducer};
+use super::StatusView;
+use flight::learner::AxisStatus;
 use flight::learner::FlightPhase;
 use heapless::spsc::Queue;
-use protocol::{ImuTelemetry, LearnerPhase, MotorTelemetry, StateTelemetry, Telemetry, Topic};
+use nalgebra::Vector3;
+use protocol::{
+    FlightMode, FlightTelemetry, ImuTelemetry, LearnerFailure, LearnerPhase, LearnerTelemetry,
+    MotorTelemetry, SensorHealth, StateTelemetry, Telemetry, Topic,
+};
 
 /// Ring capacity, records: 64 records are 32 ms at 2 kHz, 32 link passes at 1 kHz (heapless'
 /// ring keeps one slot free, so 63 are usable). About 7.7 KB.
@@ -97,6 +108,116 @@ impl StepRecord {
             Topic::Control | Topic::Learner | Topic::Flight => None,
         }
     }
+}
+
+/// How the control step coped with its sensors, for the wire.
+pub fn sensor_health(view: &StatusView) -> SensorHealth {
+    let control = &view.control;
+    SensorHealth {
+        imu_held: control.imu_held,
+        imu_longest_hold_us: control.imu_longest_hold_us,
+        motor_count: control.motor_count,
+        speeds_reported: control.speeds_reported,
+        speed_reports_lost: control.speed_reports_lost,
+    }
+}
+
+/// The closed loop's state for the wire.
+pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
+    let control = &view.control;
+    let pilot = &control.pilot;
+    let mode = match (pilot.flying, pilot.landing, pilot.piloted, pilot.position_hold) {
+        (false, ..) => FlightMode::Off,
+        (true, Some(reason), ..) => FlightMode::Landing(reason),
+        (true, None, Some(false), _) => FlightMode::Angle,
+        (true, None, _, false) => FlightMode::LevelHold,
+        (true, None, _, true) => FlightMode::PositionHold,
+    };
+    let q = if pilot.flying { pilot.q_world_thrust } else { pilot.q_world_imu };
+    let [roll, pitch, yaw] = flight::attitude::euler_zyx_rad(q);
+    // The rate in the thrust frame: the IMU's rate turned by the learned q_U^T while flying.
+    let gyro = Vector3::from(control.imu.gyro_rad_s);
+    let thrust_to_imu =
+        view.background.learned.thrust_axis.and_then(|a| a.rotation_thrust_to_imu());
+    let rate = match (thrust_to_imu, pilot.flying) {
+        (Some(q), true) => q.inverse() * gyro,
+        _ => gyro,
+    };
+    let known = control.external_pose.is_some();
+    FlightTelemetry {
+        t_us: control.t_us,
+        mode,
+        q_world_thrust: q,
+        euler_zyx_rad: [roll, pitch, yaw],
+        rate_rad_s: rate.into(),
+        rate_sp_rad_s: pilot.rate_sp_rad_s,
+        specific_force_sp_ned_mps2: pilot.specific_force_sp_ned_mps2,
+        tilt_error_rad: pilot.tilt_error_rad,
+        position_sp_ned_m: pilot.position_hold.then_some(pilot.position_sp_ned_m),
+        position_ned_m: known.then_some(pilot.position_ned_m),
+        velocity_ned_mps: (known || pilot.flying).then_some(pilot.velocity_ned_mps),
+        pose_fresh: pilot.has_fix,
+        allocation_failures: pilot.allocation_failures,
+        saturated: pilot.saturated,
+        last_failsafe: pilot.last_failsafe.map(Failsafe::reason),
+        failsafes: pilot.failsafes,
+    }
+}
+
+/// The learner's state for the wire, with rows `3·block .. 3·block + 3` of G1 (per unit
+/// normalised thrust).
+pub fn learner_telemetry(view: &StatusView, block: u8) -> LearnerTelemetry {
+    let control = &view.control;
+    let learned = &view.background.learned;
+    let m = usize::from(learned.motors).min(MAX_MOTORS);
+    let attempt_over = control.phase == FlightPhase::Done;
+    let axis_failure = match learned.axis_status {
+        AxisStatus::RankDeficient => LearnerFailure::RankDeficient,
+        AxisStatus::NoHover => LearnerFailure::NoHover,
+        AxisStatus::Waiting | AxisStatus::Found => LearnerFailure::None,
+    };
+    let failure = if control.failure != LearnerFailure::None {
+        control.failure
+    } else if attempt_over && learned.thrust_axis.is_none() {
+        if axis_failure == LearnerFailure::None {
+            LearnerFailure::RankDeficient
+        } else {
+            axis_failure
+        }
+    } else {
+        LearnerFailure::None
+    };
+    let phase = match control.phase {
+        _ if attempt_over && failure != LearnerFailure::None => LearnerPhase::Failed,
+        phase => wire_phase(phase, failure != LearnerFailure::None),
+    };
+    let mut out = LearnerTelemetry {
+        t_us: control.t_us,
+        phase,
+        failure,
+        motor_count: learned.motors,
+        exciting_motor: control.exciting_motor,
+        excitation_ms: control.excitation_ms,
+        motors_converged: learned.motors_converged,
+        g1_converged: learned.g1_converged,
+        g1_block: block.min(1),
+        ..LearnerTelemetry::default()
+    };
+    for i in 0..m {
+        out.tau_s[i] = learned.motor[i].tau_s;
+        out.omega_max_rad_s[i] = learned.motor[i].omega_full_rad_s();
+    }
+    if let Some(axis) = &learned.thrust_axis {
+        out.thrust_axis_valid = true;
+        out.q_thrust_to_imu = axis.q_thrust_to_imu;
+        out.euler_zyx_rad = axis.euler_zyx_rad;
+    }
+    let g1 = learned.g1_per_unit_thrust();
+    let first = 3 * usize::from(out.g1_block);
+    for (row, source) in out.g1_rows.iter_mut().zip(&g1[first..first + 3]) {
+        row[..m].copy_from_slice(&source[..m]);
+    }
+    out
 }
 
 #[cfg(test)]
