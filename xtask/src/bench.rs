@@ -6,7 +6,9 @@
 //! functions `bench_region_start` / `bench_region_end` (addresses from the ELF symbol table).
 //! The binary prints its region names over semihosting in the order it runs them; the first
 //! region is empty and measures the marker overhead, which is subtracted from the others.
-//! Counts are instructions, not cycles, and repeat exactly from run to run.
+//! Counts are instructions, not cycles, and repeat exactly from run to run. Each region with a
+//! target of issue 56 (`TARGETS`) is checked against it, and the command fails when one is
+//! missed.
 
 use crate::util::{cargo, on_path, root, run};
 use anyhow::{bail, Context, Result};
@@ -38,16 +40,190 @@ const RUSTFLAGS: &str = "-C link-arg=-Tlink.x -C target-cpu=cortex-m7 \
      --cfg sha2_backend_soft=\"compact\"";
 /// Semihosting line announcing a region, in run order.
 const REGION_PREFIX: &str = "bench-m7 region: ";
-/// Targets from issues 3, 7 and 8 (instructions), matched by region-name prefix.
-const TARGETS: [(&str, u64); 7] = [
-    ("thrust-axis solve m=4", 1_000),
-    ("thrust-axis solve m=8", 4_000),
-    ("imu-offset RLS update", 300),
-    ("learner step m=4", 12_000),
-    ("learner step m=8", 40_000),
-    ("closed-loop step m=4", 12_000),
-    ("closed-loop step m=8", 20_000),
+/// Issue 56 ("the speed back"): the thrust-axis solve at m = 4, every case (cold, warm),
+/// instructions.
+const SOLVE_M4_TARGET: u64 = 875;
+/// Issue 56: the thrust-axis solve at m = 6, every case (planar and tilted 20°, cold and warm),
+/// instructions.
+const SOLVE_M6_TARGET: u64 = 1_500;
+/// Issue 56: the thrust-axis solve at m = 8, every case (planar and tilted 20°, cold and warm),
+/// instructions.
+const SOLVE_M8_TARGET: u64 = 1_500;
+/// Issue 56: one closed-loop control step of the quad, every `bench-m7` case (hover, pose fix,
+/// recovery), instructions.
+const STEP_QUAD_TARGET: u64 = 8_000;
+/// Issue 56: one closed-loop control step of the octorotor, every `bench-m7` case, instructions.
+const STEP_OCTO_TARGET: u64 = 12_000;
+/// Issue 56: the quad's learner per sample, the worst sample of its cycle, instructions. The
+/// learner without speed telemetry (its excitation and its catch-up after it) has the same budget.
+const LEARNER_QUAD_TARGET: u64 = 12_000;
+/// Issue 56: the octorotor's learner per sample, the worst sample, instructions; also the budget
+/// of its catch-up without speed telemetry.
+const LEARNER_OCTO_TARGET: u64 = 24_000;
+
+/// A target: every region whose name (as `bench-m7/src/main.rs` announces it) starts with
+/// `prefix` takes at most `limit` instructions.
+#[derive(Debug)]
+struct Target {
+    /// What the target bounds, as the table prints it.
+    what: &'static str,
+    /// Region-name prefix; a region takes the first target whose prefix it starts with.
+    prefix: &'static str,
+    /// Instructions, at most.
+    limit: u64,
+    /// The `bench-m7` argument without which no region of the target runs (`None`: always run).
+    needs: Option<&'static str>,
+}
+
+/// The issue 56 targets, matched by region-name prefix in this order.
+static TARGETS: [Target; 10] = [
+    Target {
+        what: "thrust-axis solve, m = 4",
+        prefix: "thrust-axis solve m=4 ",
+        limit: SOLVE_M4_TARGET,
+        needs: None,
+    },
+    Target {
+        what: "thrust-axis solve, m = 6",
+        prefix: "thrust-axis solve m=6 ",
+        limit: SOLVE_M6_TARGET,
+        needs: None,
+    },
+    Target {
+        what: "thrust-axis solve, m = 8",
+        prefix: "thrust-axis solve m=8 ",
+        limit: SOLVE_M8_TARGET,
+        needs: None,
+    },
+    Target {
+        what: "control step, quad",
+        prefix: "closed-loop step m=4, ",
+        limit: STEP_QUAD_TARGET,
+        needs: None,
+    },
+    Target {
+        what: "control step, octorotor",
+        prefix: "closed-loop step m=8, ",
+        limit: STEP_OCTO_TARGET,
+        needs: None,
+    },
+    Target {
+        what: "learner without speed telemetry, quad, per sample of the excitation",
+        prefix: "learner step m=4, no speed telemetry, ",
+        limit: LEARNER_QUAD_TARGET,
+        needs: Some(NO_SPEED_ARG),
+    },
+    Target {
+        what: "learner, quad, per sample",
+        prefix: "learner step m=4, ",
+        limit: LEARNER_QUAD_TARGET,
+        needs: None,
+    },
+    Target {
+        what: "learner, octorotor, per sample",
+        prefix: "learner step m=8, ",
+        limit: LEARNER_OCTO_TARGET,
+        needs: None,
+    },
+    Target {
+        what: "catch-up without speed telemetry, quad, per sample",
+        prefix: "learner m=4, no speed telemetry, ",
+        limit: LEARNER_QUAD_TARGET,
+        needs: Some(NO_SPEED_ARG),
+    },
+    Target {
+        what: "catch-up without speed telemetry, octorotor, per sample",
+        prefix: "learner m=8, no speed telemetry, ",
+        limit: LEARNER_OCTO_TARGET,
+        needs: Some(NO_SPEED_ARG),
+    },
 ];
+
+/// One measured region: its name, its instructions (marker overhead subtracted) and its target.
+#[derive(Debug)]
+struct Row {
+    name: String,
+    instructions: u64,
+    target: Option<&'static Target>,
+}
+
+impl Row {
+    /// Over its target.
+    fn over(&self) -> bool {
+        self.target.is_some_and(|target| self.instructions > target.limit)
+    }
+}
+
+/// The regions (names and raw counts, in run order, the marker overhead's own region left out)
+/// with the overhead subtracted and each one's target.
+fn verdicts(names: &[&str], counts: &[u64], overhead: u64) -> Vec<Row> {
+    names
+        .iter()
+        .zip(counts)
+        .map(|(name, count)| Row {
+            name: name.to_string(),
+            instructions: count.saturating_sub(overhead),
+            target: TARGETS.iter().find(|target| name.starts_with(target.prefix)),
+        })
+        .collect()
+}
+
+/// Every target missed, one line each: a region over its limit, or a target no region measured
+/// although the arguments `given` run its regions (a renamed region must not pass unseen).
+fn missed(rows: &[Row], given: &[&str]) -> Vec<String> {
+    let mut out: Vec<String> = rows
+        .iter()
+        .filter(|row| row.over())
+        .filter_map(|row| {
+            let target = row.target?;
+            Some(format!(
+                "{}: {} instructions > {} ({}, issue 56)",
+                row.name, row.instructions, target.limit, target.what
+            ))
+        })
+        .collect();
+    for target in &TARGETS {
+        let runs = target.needs.is_none_or(|arg| given.contains(&arg));
+        let measured = rows.iter().any(|row| row.target.is_some_and(|t| std::ptr::eq(t, target)));
+        if runs && !measured {
+            out.push(format!(
+                "{} (≤ {}, issue 56): no region named `{}…` was measured",
+                target.what, target.limit, target.prefix
+            ));
+        }
+    }
+    out
+}
+
+/// The table of the targets: each one's worst region and its verdict.
+fn print_targets(rows: &[Row]) {
+    println!("\nIssue 56 targets (instructions, every region of the target at most its limit):\n");
+    println!("| target | worst region | instructions | target | verdict |");
+    println!("|---|---|---:|---:|---|");
+    for target in &TARGETS {
+        let worst = rows
+            .iter()
+            .filter(|row| row.target.is_some_and(|t| std::ptr::eq(t, target)))
+            .max_by_key(|row| row.instructions);
+        match worst {
+            Some(row) => println!(
+                "| {} | {} | {} | ≤ {} | {} |",
+                target.what,
+                row.name,
+                row.instructions,
+                target.limit,
+                if row.instructions > target.limit { "MISSED" } else { "met" }
+            ),
+            None => println!(
+                "| {} | — | — | ≤ {} | not measured{} |",
+                target.what,
+                target.limit,
+                target.needs.map(|arg| format!(" (run with `{arg}`)")).unwrap_or_default()
+            ),
+        }
+    }
+}
+
 /// The argument that adds the thrust-axis bounded search (the bench crate's feature of the same
 /// name, which also compiles `flight` with it, unlike the firmware).
 const BOUNDED_SEARCH_ARG: &str = "--bounded-search";
@@ -57,9 +233,11 @@ const NO_SPEED_ARG: &str = "--no-speed";
 /// Debian package that provides `qemu-system-arm`.
 const QEMU_PACKAGE: &str = "qemu-system-arm";
 
-/// Instruction counts on QEMU's Cortex-M7; prints a table. `--bounded-search` adds the
-/// thrust-axis bounded-search regions and `--no-speed` the learner without speed telemetry (each
-/// compiles `flight` with its feature, as the firmware does not).
+/// Instruction counts on QEMU's Cortex-M7; prints a table of every region with its target and
+/// one of the issue 56 targets, and fails listing every target missed (`missed`).
+/// `--bounded-search` adds the thrust-axis bounded-search regions and `--no-speed` the learner
+/// without speed telemetry (each compiles `flight` with its feature, as the firmware does not);
+/// without `--no-speed` its targets are printed as not measured.
 pub fn m7(args: &[String]) -> Result<()> {
     let mut features = Vec::new();
     for arg in args {
@@ -135,20 +313,25 @@ pub fn m7(args: &[String]) -> Result<()> {
         "Cortex-M7 instruction counts (QEMU {QEMU_MACHINE}, -icount shift=0, one instruction per \
          trace line; marker overhead of {overhead} subtracted)\n"
     );
+    let rows = verdicts(&names[1..], &counts[1..], overhead);
     println!("| region | instructions | target |");
     println!("|---|---:|---:|");
-    for (name, count) in names.iter().zip(&counts).skip(1) {
-        let net = count.saturating_sub(overhead);
-        let target = TARGETS.iter().find(|(prefix, _)| name.starts_with(prefix));
-        let verdict = match target {
-            Some((_, limit)) if net <= *limit => format!("≤ {limit} ok"),
-            Some((_, limit)) => format!("≤ {limit} OVER"),
+    for row in &rows {
+        let verdict = match row.target {
+            Some(target) if row.over() => format!("≤ {} MISSED", target.limit),
+            Some(target) => format!("≤ {} met", target.limit),
             None => "—".to_string(),
         };
-        println!("| {name} | {net} | {verdict} |");
+        println!("| {} | {} | {verdict} |", row.name, row.instructions);
     }
     for line in stdout.lines().filter(|l| l.starts_with("bench-m7 check:")) {
         println!("{line}");
+    }
+    print_targets(&rows);
+    let given: Vec<&str> = args.iter().map(String::as_str).collect();
+    let missed = missed(&rows, &given);
+    if !missed.is_empty() {
+        bail!("bench-m7: {} target(s) missed:\n  {}", missed.len(), missed.join("\n  "));
     }
     Ok(())
 }
@@ -263,4 +446,139 @@ fn ensure_qemu() -> Result<()> {
         bail!("installed `{QEMU_PACKAGE}` but `{QEMU}` is still not on PATH");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The marker overhead of the tests' runs (the real one is measured, 8 in the last runs).
+    const OVERHEAD: u64 = 8;
+
+    /// The rows of regions named `names` that took `instructions` each, net of the overhead.
+    fn rows(names: &[&str], instructions: &[u64]) -> Vec<Row> {
+        let counts: Vec<u64> = instructions.iter().map(|n| n + OVERHEAD).collect();
+        verdicts(names, &counts, OVERHEAD)
+    }
+
+    /// One region of each target that runs without arguments, as `bench-m7/src/main.rs` names
+    /// them.
+    const DEFAULT_REGIONS: [&str; 7] = [
+        "thrust-axis solve m=4 warm",
+        "thrust-axis solve m=6 tilted 20°, cold",
+        "thrust-axis solve m=8 cold",
+        "closed-loop step m=4, hover, position hold",
+        "closed-loop step m=8, recovery 10 ms after a 60° tilt, position hold (allocation saturated)",
+        "learner step m=4, sample 2: force row y, thrust-axis solve, model published",
+        "learner step m=8, sample 4: rotational row x",
+    ];
+
+    #[test]
+    fn each_region_takes_its_target() {
+        let limits: Vec<u64> = DEFAULT_REGIONS
+            .iter()
+            .map(|name| rows(&[name], &[0])[0].target.map(|t| t.limit).unwrap_or(0))
+            .collect();
+        assert_eq!(
+            limits,
+            [
+                SOLVE_M4_TARGET,
+                SOLVE_M6_TARGET,
+                SOLVE_M8_TARGET,
+                STEP_QUAD_TARGET,
+                STEP_OCTO_TARGET,
+                LEARNER_QUAD_TARGET,
+                LEARNER_OCTO_TARGET
+            ]
+        );
+        let no_speed = rows(
+            &[
+                "learner step m=4, no speed telemetry, sample 3",
+                "learner m=8, no speed telemetry, sample 851 at the excitation's end",
+            ],
+            &[0, 0],
+        );
+        assert_eq!(no_speed[0].target.map(|t| t.what), Some(TARGETS[5].what));
+        assert_eq!(no_speed[1].target.map(|t| t.limit), Some(LEARNER_OCTO_TARGET));
+        // Regions without a target of their own.
+        for name in [
+            "learner cycle m=4: the same six samples in one region",
+            "closed-loop part m=8: allocation solve, hover increment (warm start)",
+            "thrust-axis bounded search m=8 (one motor capped)",
+            "imu-offset RLS update",
+        ] {
+            let row = &rows(&[name], &[u64::MAX - OVERHEAD])[0];
+            assert!(row.target.is_none() && !row.over(), "{name} has a target");
+        }
+    }
+
+    #[test]
+    fn a_figure_over_its_target_is_a_miss() {
+        let limits = [
+            SOLVE_M4_TARGET,
+            SOLVE_M6_TARGET,
+            SOLVE_M8_TARGET,
+            STEP_QUAD_TARGET,
+            STEP_OCTO_TARGET,
+            LEARNER_QUAD_TARGET,
+            LEARNER_OCTO_TARGET,
+        ];
+        // At the limit: no miss.
+        let at = rows(&DEFAULT_REGIONS, &limits);
+        assert_eq!(missed(&at, &[]), Vec::<String>::new());
+        // One instruction over, one region at a time: that region alone is missed.
+        for (k, name) in DEFAULT_REGIONS.iter().enumerate() {
+            let mut figures = limits;
+            figures[k] += 1;
+            let missed = missed(&rows(&DEFAULT_REGIONS, &figures), &[]);
+            assert_eq!(missed.len(), 1, "{missed:?}");
+            assert!(missed[0].starts_with(name), "{missed:?}");
+            assert!(
+                missed[0].contains(&format!("{} instructions > {}", figures[k], limits[k])),
+                "{missed:?}"
+            );
+        }
+        // The last run's quad hover step, 9,638 instructions (docs/benchmarks.md).
+        let missed = missed(
+            &rows(&DEFAULT_REGIONS, &[875, 1_500, 1_500, 9_638, 12_000, 12_000, 24_000]),
+            &[],
+        );
+        assert_eq!(missed.len(), 1);
+        assert!(missed[0].contains("9638 instructions > 8000"), "{missed:?}");
+    }
+
+    #[test]
+    fn the_catch_up_over_the_learner_budget_is_a_miss() {
+        let names = [
+            "learner step m=4, no speed telemetry, sample 1",
+            "learner m=4, no speed telemetry, sample 451 at the excitation's end",
+            "learner m=8, no speed telemetry, sample 851 at the excitation's end",
+        ];
+        let mut all: Vec<&str> = DEFAULT_REGIONS.to_vec();
+        all.extend(names);
+        let mut figures = vec![0; DEFAULT_REGIONS.len()];
+        figures.extend([LEARNER_QUAD_TARGET, LEARNER_QUAD_TARGET, LEARNER_OCTO_TARGET]);
+        assert!(missed(&rows(&all, &figures), &[NO_SPEED_ARG]).is_empty());
+        let last = figures.len() - 1;
+        figures[last] = LEARNER_OCTO_TARGET + 1;
+        let missed = missed(&rows(&all, &figures), &[NO_SPEED_ARG]);
+        assert_eq!(missed.len(), 1, "{missed:?}");
+        assert!(missed[0].starts_with(names[2]), "{missed:?}");
+    }
+
+    #[test]
+    fn a_target_no_region_measured_is_a_miss_when_its_regions_run() {
+        // Without `--no-speed` its three targets are not run, so not missed.
+        let zeros = [0; DEFAULT_REGIONS.len()];
+        assert!(missed(&rows(&DEFAULT_REGIONS, &zeros), &[]).is_empty());
+        // With it, they are expected: none measured, three missed.
+        assert_eq!(missed(&rows(&DEFAULT_REGIONS, &zeros), &[NO_SPEED_ARG]).len(), 3);
+        // A control-step region renamed away: its target is missed.
+        let renamed = ["closed loop m=4 hover"];
+        let mut names: Vec<&str> = DEFAULT_REGIONS.to_vec();
+        names[3] = renamed[0];
+        let missed = missed(&rows(&names, &zeros), &[]);
+        assert_eq!(missed.len(), 1, "{missed:?}");
+        assert!(missed[0].starts_with(TARGETS[3].what), "{missed:?}");
+    }
 }
