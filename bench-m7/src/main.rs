@@ -96,27 +96,37 @@ fn tick_regions() {
 }
 
 /// What the pilot's sticks and the landing add to a flying control step (`firmware::app::sticks`,
-/// `firmware::app::landing`): the sticks shaped and turned into an angle-mode tilt or a
-/// position-mode setpoint velocity, the touchdown detector's step and the fly-away detector's,
-/// on a quadrotor's learned model.
+/// `firmware::app::landing`), on a quadrotor's learned model: per step, position mode's setpoint
+/// moved, the touchdown detector's step, the fly-away detector's step (hovering, and moving away
+/// fast); and what runs less often: a stick frame shaped into its demand (when a stick moves,
+/// at the radio's rate) and position mode's velocity turned into the world (when the heading
+/// has turned 2°).
 fn pilot_regions() {
     use app::landing::{FlyAway, LandConfig, Touchdown, TouchdownSigns};
     use app::sticks::{move_setpoint, StickConfig};
     use drivers::crsf::StickInput;
     use protocol::LandReason;
     let sticks =
-        StickInput { roll: 0.31, pitch: -0.52, throttle: 0.12, yaw: 0.05, position_mode: false };
-    let mut state = (StickConfig::default(), sticks);
-    let angle = region(&mut state, |(config, sticks)| {
-        let shaped = config.shaped(black_box(sticks));
-        config.angle_mode(&shaped)
+        StickInput { roll: 0.31, pitch: -0.52, throttle: 0.12, yaw: 0.05, position_mode: true };
+    // Position mode's step: the setpoint moved, and the fly-away detector counting (the worst
+    // step of the sticks and the landing: in angle mode and in a landing neither counts).
+    let mut state = (
+        Vector3::new(1.0f32, 2.0, -3.0),
+        Vector3::new(0.4f32, -0.9, 0.1),
+        FlyAway::default(),
+        LandConfig::default(),
+    );
+    let moved = region(&mut state, |(setpoint, velocity, detector, config)| {
+        let position = Vector3::new(-0.5f32, 1.5, -3.0);
+        let moved = move_setpoint(black_box(setpoint), velocity, &position, 0.0005);
+        let offset = position - Vector3::new(-2.5f32, 0.5, -3.0);
+        let away = detector.update(&offset, &Vector3::new(3.5, 1.0, 0.0), config, 0.0005);
+        (moved, away)
     });
-    black_box(angle);
-    let mut state = (StickConfig::default(), sticks, Vector3::new(1.0f32, 2.0, -3.0));
-    let moved = region(&mut state, |(config, sticks, setpoint)| {
-        let shaped = config.shaped(black_box(sticks));
-        let velocity = config.setpoint_velocity(&shaped, 0.7);
-        move_setpoint(setpoint, &velocity, &Vector3::new(1.1, 2.1, -3.0), 0.0005)
+    black_box(moved);
+    let mut state = (Vector3::new(1.0f32, 2.0, -3.0), Vector3::new(0.4f32, -0.9, 0.1));
+    let moved = region(&mut state, |(setpoint, velocity)| {
+        move_setpoint(black_box(setpoint), velocity, &Vector3::new(1.1, 2.1, -3.0), 0.0005)
     });
     black_box(moved);
     let (u, idle, hover, g1) = ([0.35f32; 4], [0.05f32; 4], [0.4f32; 4], [-6.1f32; 4]);
@@ -138,12 +148,19 @@ fn pilot_regions() {
     if step.touched {
         fail("pilot: a descending craft touched down");
     }
-    let mut state = (FlyAway::default(), LandConfig::default());
-    let away = region(&mut state, |(detector, config)| {
-        let offset = Vector3::new(2.0f32, 1.0, 0.0);
-        detector.update(black_box(&offset), &Vector3::new(3.5, 1.0, 0.0), config, 0.0005)
-    });
-    black_box(away);
+    for velocity in [Vector3::new(0.2f32, -0.1, 0.0), Vector3::new(3.5f32, 1.0, 0.0)] {
+        let mut state = (FlyAway::default(), LandConfig::default(), velocity);
+        let away = region(&mut state, |(detector, config, velocity)| {
+            let offset = Vector3::new(2.0f32, 1.0, 0.0);
+            detector.update(black_box(&offset), velocity, config, 0.0005)
+        });
+        black_box(away);
+    }
+    let mut state = (StickConfig::default(), sticks);
+    let demand = region(&mut state, |(config, sticks)| config.demand(black_box(sticks)));
+    let mut state = (demand, 0.7f32);
+    let velocity = region(&mut state, |(demand, yaw)| demand.setpoint_velocity(black_box(*yaw)));
+    black_box(velocity);
 }
 
 /// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
@@ -825,10 +842,13 @@ fn main() -> ! {
     hprintln!("bench-m7 region: tick part: a 152-byte log entry into its ring of 512 (second)");
     hprintln!("bench-m7 region: tick part: one battery reading into the monitor");
     hprintln!("bench-m7 region: tick part: the battery's status for the snapshot");
-    hprintln!("bench-m7 region: pilot part: sticks shaped into an angle-mode tilt and climb rate");
-    hprintln!("bench-m7 region: pilot part: sticks shaped into a position-mode setpoint, moved");
-    hprintln!("bench-m7 region: pilot part: the touchdown detector's step (a landing without fixes)");
-    hprintln!("bench-m7 region: pilot part: the fly-away detector's step");
+    hprintln!("bench-m7 region: pilot step: position mode, the setpoint moved and the fly-away detector counting");
+    hprintln!("bench-m7 region: pilot part: position mode's setpoint moved");
+    hprintln!("bench-m7 region: pilot step: a landing, the touchdown detector (no fixes)");
+    hprintln!("bench-m7 region: pilot part: the fly-away detector, hovering");
+    hprintln!("bench-m7 region: pilot part: the fly-away detector, moving away fast");
+    hprintln!("bench-m7 region: pilot part: a stick frame shaped (when a stick moves)");
+    hprintln!("bench-m7 region: pilot part: position mode's velocity turned (every 2° of heading)");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));

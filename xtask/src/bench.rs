@@ -61,6 +61,11 @@ const LEARNER_QUAD_TARGET: u64 = 12_000;
 /// of its catch-up without speed telemetry.
 const LEARNER_OCTO_TARGET: u64 = 24_000;
 
+/// Issue 53: what the pilot's sticks and the landing add to one control step, instructions
+/// (the worst step: position mode's setpoint moved with the fly-away detector counting; a
+/// landing's touchdown detector).
+const PILOT_STEP_TARGET: u64 = 300;
+
 /// A target: every region whose name (as `bench-m7/src/main.rs` announces it) starts with
 /// `prefix` takes at most `limit` instructions.
 #[derive(Debug)]
@@ -73,69 +78,92 @@ struct Target {
     limit: u64,
     /// The `bench-m7` argument without which no region of the target runs (`None`: always run).
     needs: Option<&'static str>,
+    /// Where the target comes from.
+    origin: &'static str,
 }
 
-/// The issue 56 targets, matched by region-name prefix in this order.
-static TARGETS: [Target; 10] = [
+/// Where most targets come from.
+const ORIGIN: &str = "issue 56";
+
+/// The targets (issue 56's, and issue 53's for the pilot), matched by region-name prefix in
+/// this order.
+static TARGETS: [Target; 11] = [
     Target {
         what: "thrust-axis solve, m = 4",
         prefix: "thrust-axis solve m=4 ",
         limit: SOLVE_M4_TARGET,
         needs: None,
+        origin: ORIGIN,
     },
     Target {
         what: "thrust-axis solve, m = 6",
         prefix: "thrust-axis solve m=6 ",
         limit: SOLVE_M6_TARGET,
         needs: None,
+        origin: ORIGIN,
     },
     Target {
         what: "thrust-axis solve, m = 8",
         prefix: "thrust-axis solve m=8 ",
         limit: SOLVE_M8_TARGET,
         needs: None,
+        origin: ORIGIN,
     },
     Target {
         what: "control step, quad",
         prefix: "closed-loop step m=4, ",
         limit: STEP_QUAD_TARGET,
         needs: None,
+        origin: ORIGIN,
     },
     Target {
         what: "control step, octorotor",
         prefix: "closed-loop step m=8, ",
         limit: STEP_OCTO_TARGET,
         needs: None,
+        origin: ORIGIN,
     },
     Target {
         what: "learner without speed telemetry, quad, per sample of the excitation",
         prefix: "learner step m=4, no speed telemetry, ",
         limit: LEARNER_QUAD_TARGET,
         needs: Some(NO_SPEED_ARG),
+        origin: ORIGIN,
     },
     Target {
         what: "learner, quad, per sample",
         prefix: "learner step m=4, ",
         limit: LEARNER_QUAD_TARGET,
         needs: None,
+        origin: ORIGIN,
     },
     Target {
         what: "learner, octorotor, per sample",
         prefix: "learner step m=8, ",
         limit: LEARNER_OCTO_TARGET,
         needs: None,
+        origin: ORIGIN,
     },
     Target {
         what: "catch-up without speed telemetry, quad, per sample",
         prefix: "learner m=4, no speed telemetry, ",
         limit: LEARNER_QUAD_TARGET,
         needs: Some(NO_SPEED_ARG),
+        origin: ORIGIN,
     },
     Target {
         what: "catch-up without speed telemetry, octorotor, per sample",
         prefix: "learner m=8, no speed telemetry, ",
         limit: LEARNER_OCTO_TARGET,
         needs: Some(NO_SPEED_ARG),
+        origin: ORIGIN,
+    },
+    Target {
+        what: "the sticks and the landing in a control step",
+        prefix: "pilot step: ",
+        limit: PILOT_STEP_TARGET,
+        needs: None,
+        origin: "issue 53",
     },
 ];
 
@@ -177,8 +205,8 @@ fn missed(rows: &[Row], given: &[&str]) -> Vec<String> {
         .filter_map(|row| {
             let target = row.target?;
             Some(format!(
-                "{}: {} instructions > {} ({}, issue 56)",
-                row.name, row.instructions, target.limit, target.what
+                "{}: {} instructions > {} ({}, {})",
+                row.name, row.instructions, target.limit, target.what, target.origin
             ))
         })
         .collect();
@@ -187,8 +215,8 @@ fn missed(rows: &[Row], given: &[&str]) -> Vec<String> {
         let measured = rows.iter().any(|row| row.target.is_some_and(|t| std::ptr::eq(t, target)));
         if runs && !measured {
             out.push(format!(
-                "{} (≤ {}, issue 56): no region named `{}…` was measured",
-                target.what, target.limit, target.prefix
+                "{} (≤ {}, {}): no region named `{}…` was measured",
+                target.what, target.limit, target.origin, target.prefix
             ));
         }
     }
@@ -463,7 +491,7 @@ mod tests {
 
     /// One region of each target that runs without arguments, as `bench-m7/src/main.rs` names
     /// them.
-    const DEFAULT_REGIONS: [&str; 7] = [
+    const DEFAULT_REGIONS: [&str; 8] = [
         "thrust-axis solve m=4 warm",
         "thrust-axis solve m=6 tilted 20°, cold",
         "thrust-axis solve m=8 cold",
@@ -471,6 +499,7 @@ mod tests {
         "closed-loop step m=8, recovery 10 ms after a 60° tilt, position hold (allocation saturated)",
         "learner step m=4, sample 2: force row y, thrust-axis solve, model published",
         "learner step m=8, sample 4: rotational row x",
+        "pilot step: a landing, the touchdown detector (no fixes)",
     ];
 
     #[test]
@@ -488,7 +517,8 @@ mod tests {
                 STEP_QUAD_TARGET,
                 STEP_OCTO_TARGET,
                 LEARNER_QUAD_TARGET,
-                LEARNER_OCTO_TARGET
+                LEARNER_OCTO_TARGET,
+                PILOT_STEP_TARGET
             ]
         );
         let no_speed = rows(
@@ -522,6 +552,7 @@ mod tests {
             STEP_OCTO_TARGET,
             LEARNER_QUAD_TARGET,
             LEARNER_OCTO_TARGET,
+            PILOT_STEP_TARGET,
         ];
         // At the limit: no miss.
         let at = rows(&DEFAULT_REGIONS, &limits);
@@ -540,7 +571,7 @@ mod tests {
         }
         // The last run's quad hover step, 9,638 instructions (docs/benchmarks.md).
         let missed = missed(
-            &rows(&DEFAULT_REGIONS, &[875, 1_500, 1_500, 9_638, 12_000, 12_000, 24_000]),
+            &rows(&DEFAULT_REGIONS, &[875, 1_500, 1_500, 9_638, 12_000, 12_000, 24_000, 300]),
             &[],
         );
         assert_eq!(missed.len(), 1);

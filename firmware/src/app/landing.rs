@@ -293,14 +293,18 @@ impl FlyAway {
         config: &LandConfig,
         dt_s: f32,
     ) -> bool {
-        let distance = libm::hypotf(offset_ned_m.x, offset_ned_m.y);
+        // The radial speed is `along / distance`; whether it exceeds the limit needs no root,
+        // so the common step (not moving away fast) takes none.
         let v = velocity_ned_mps;
-        let speed = if distance > 1e-3 {
-            (offset_ned_m.x * v.x + offset_ned_m.y * v.y) / distance
-        } else {
-            0.0
-        };
-        let counting = speed > config.flyaway_speed_mps;
+        let along = offset_ned_m.x * v.x + offset_ned_m.y * v.y;
+        let distance2 = offset_ned_m.x * offset_ned_m.x + offset_ned_m.y * offset_ned_m.y;
+        let limit = config.flyaway_speed_mps;
+        let counting = distance2 > 1e-6 && along > 0.0 && along * along > limit * limit * distance2;
+        if !counting {
+            self.counting = None;
+            return false;
+        }
+        let speed = along / libm::sqrtf(distance2);
         self.counting = match self.counting {
             Some((_, peak)) if counting && speed < peak - FLYAWAY_BRAKING_MPS => Some((0.0, speed)),
             Some((since_s, peak)) if counting => Some((since_s + dt_s, peak.max(speed))),

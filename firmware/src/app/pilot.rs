@@ -77,7 +77,7 @@ use protocol::{
 use super::hal::{ImuSample, MAX_MOTORS};
 pub use super::landing::LandConfig;
 use super::landing::{FlyAway, Touchdown, TouchdownSigns};
-use super::sticks::{move_setpoint, StickConfig};
+use super::sticks::{move_setpoint, StickConfig, StickDemand};
 use crate::drivers::crsf::StickInput;
 
 /// Consecutive failed allocations after which the craft disarms (10 ms at 2 kHz; the published
@@ -215,6 +215,12 @@ fn filter_heading(
     let level_yaw = yaw_of(&(q_filter * q_imu_level));
     yaw_of(q_filter) + flight::attitude::wrap_pi(wanted_level_yaw_rad - level_yaw)
 }
+
+/// How far the heading may turn before position mode's setpoint velocity is turned into the
+/// world again, rad (2°, ours): the sticks' direction is then at most 2° off, a few centimetres
+/// a second at the setpoint's 2 m/s, and a full yaw stick (120 °/s) turns it every 17 ms instead
+/// of at every step.
+const STICK_HEADING_REFRESH_RAD: f32 = 2.0 * core::f32::consts::PI / 180.0;
 
 /// How long a flight must have been steady (thrust axis within
 /// [`STICKS_TAKE_OVER_TILT_RAD`] of its setpoint, turning slower than 30 °/s) before the pilot's
@@ -479,8 +485,12 @@ pub struct Pilot {
     velocity_imu_mps: [f32; 3],
     land_config: LandConfig,
     stick_config: StickConfig,
-    /// The pilot's sticks, while the radio is fresh.
-    sticks: Option<StickInput>,
+    /// What the pilot's sticks ask for, while the radio is fresh (shaped once per frame).
+    sticks: Option<StickDemand>,
+    /// Position mode's setpoint velocity for the current stick frame and the heading it was
+    /// turned into the world for (world NED, m/s; rad): turned again when the heading has moved
+    /// by [`STICK_HEADING_REFRESH_RAD`].
+    stick_velocity: Option<(Vector3<f32>, f32)>,
     /// How long the craft has flown steadily since it engaged, s (the sticks take over after
     /// [`STICKS_TAKE_OVER_S`]).
     steady_s: f32,
@@ -533,6 +543,7 @@ impl Pilot {
             land_config: LandConfig::default(),
             stick_config: StickConfig::default(),
             sticks: None,
+            stick_velocity: None,
             steady_s: 0.0,
             touchdown: None,
             pose_lost_s: 0.0,
@@ -563,7 +574,8 @@ impl Pilot {
 
     /// The pilot's sticks (`None`: no radio, or its link lost: nothing from the pilot).
     pub fn set_sticks(&mut self, sticks: Option<StickInput>) {
-        self.sticks = sticks;
+        self.sticks = sticks.map(|sticks| self.stick_config.demand(&sticks));
+        self.stick_velocity = None;
     }
 
     /// Land for `reason`: from the next step the craft descends and disarms at the touchdown.
@@ -891,21 +903,32 @@ impl Pilot {
     /// stick in both.
     fn stick_guidance(
         &mut self,
-        sticks: &StickInput,
+        sticks: &StickDemand,
         nav: &flight::navigation::NavigationState,
         can_hold: bool,
     ) -> Guidance {
         let dt_s = 1.0 / self.rate_hz;
-        let config = self.stick_config;
-        let shaped = config.shaped(sticks);
-        self.yaw_sp_filter_rad = flight::attitude::wrap_pi(
-            self.yaw_sp_filter_rad + shaped.yaw * config.max_yaw_rate_rad_s * dt_s,
-        );
+        if sticks.yaw_rate_rad_s != 0.0 {
+            self.yaw_sp_filter_rad =
+                flight::attitude::wrap_pi(self.yaw_sp_filter_rad + sticks.yaw_rate_rad_s * dt_s);
+        }
         let yaw_rad = self.yaw_sp_filter_rad + self.alignment_yaw_rad();
         if sticks.position_mode && can_hold {
             self.status.piloted = Some(true);
             let setpoint = self.position_sp_ned_m.unwrap_or(nav.position_ned_m);
-            let velocity = config.setpoint_velocity(&shaped, yaw_rad);
+            let velocity = match self.stick_velocity {
+                Some((velocity, at_rad))
+                    if flight::attitude::wrap_pi(yaw_rad - at_rad).abs()
+                        < STICK_HEADING_REFRESH_RAD =>
+                {
+                    velocity
+                }
+                _ => {
+                    let velocity = sticks.setpoint_velocity(yaw_rad);
+                    self.stick_velocity = Some((velocity, yaw_rad));
+                    velocity
+                }
+            };
             let moved = move_setpoint(&setpoint, &velocity, &nav.position_ned_m, dt_s);
             self.position_sp_ned_m = Some(moved);
             return Guidance::Position { position_ned_m: moved, yaw_rad, vertical_speed_mps: None };
@@ -913,9 +936,13 @@ impl Pilot {
         // Angle mode: a later position mode holds from where the craft is then.
         self.status.piloted = Some(false);
         self.position_sp_ned_m = None;
-        let (forward_rad, right_rad, vertical_speed_mps) = config.angle_mode(&shaped);
-        let velocity_ned_mps = self.level_velocity();
-        Guidance::Tilt { forward_rad, right_rad, yaw_rad, velocity_ned_mps, vertical_speed_mps }
+        Guidance::Tilt {
+            forward_rad: sticks.forward_rad,
+            right_rad: sticks.right_rad,
+            yaw_rad,
+            velocity_ned_mps: self.level_velocity(),
+            vertical_speed_mps: sticks.vertical_speed_mps,
+        }
     }
 
     /// The landings this step starts by itself: the fixes lost for longer than

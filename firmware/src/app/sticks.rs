@@ -73,15 +73,6 @@ impl Default for StickConfig {
     }
 }
 
-/// The sticks shaped: each −1..1 after the deadband and the expo.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Shaped {
-    pub roll: f32,
-    pub pitch: f32,
-    pub throttle: f32,
-    pub yaw: f32,
-}
-
 impl StickConfig {
     /// One stick's reading shaped: zero within the deadband, the rest stretched back to ±1 and
     /// given the expo; non-finite readings are zero.
@@ -100,36 +91,50 @@ impl StickConfig {
         curved.copysign(x)
     }
 
-    /// Every stick shaped.
-    pub fn shaped(&self, sticks: &StickInput) -> Shaped {
-        Shaped {
-            roll: self.shape(sticks.roll),
-            pitch: self.shape(sticks.pitch),
-            throttle: self.shape(sticks.throttle),
-            yaw: self.shape(sticks.yaw),
+    /// What the stick frame `sticks` asks for, shaped.
+    pub fn demand(&self, sticks: &StickInput) -> StickDemand {
+        let (roll, pitch) = (self.shape(sticks.roll), self.shape(sticks.pitch));
+        let throttle = self.shape(sticks.throttle);
+        StickDemand {
+            forward_rad: pitch * self.max_tilt_rad,
+            right_rad: roll * self.max_tilt_rad,
+            vertical_speed_mps: -throttle * self.max_climb_mps,
+            yaw_rate_rad_s: self.shape(sticks.yaw) * self.max_yaw_rate_rad_s,
+            forward_mps: pitch * self.max_speed_mps,
+            right_mps: roll * self.max_speed_mps,
+            position_mode: sticks.position_mode,
         }
     }
+}
 
-    /// Angle mode's tilt forward and right, rad, and its vertical speed, m/s (NED, positive
-    /// down).
-    pub fn angle_mode(&self, shaped: &Shaped) -> (f32, f32, f32) {
-        (
-            shaped.pitch * self.max_tilt_rad,
-            shaped.roll * self.max_tilt_rad,
-            -shaped.throttle * self.max_climb_mps,
-        )
-    }
+/// What one stick frame asks for, worked out once when the frame arrives (the radio's 50–1,000
+/// frames a second, and only when a stick moved) rather than at each of the control step's
+/// 2,000: the step reads it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StickDemand {
+    /// Angle mode: the thrust axis's tilt forward (nose down) and right, rad.
+    pub forward_rad: f32,
+    pub right_rad: f32,
+    /// The vertical speed, NED, m/s (negative: climb); both modes.
+    pub vertical_speed_mps: f32,
+    /// The heading's rate, rad/s (positive: to the right); both modes.
+    pub yaw_rate_rad_s: f32,
+    /// Position mode: the setpoint's speed forward and right in the heading's frame, m/s.
+    pub forward_mps: f32,
+    pub right_mps: f32,
+    /// The mode switch asks for position mode.
+    pub position_mode: bool,
+}
 
+impl StickDemand {
     /// Position mode's setpoint velocity, world NED, m/s, for a heading `yaw_rad`: the sticks'
     /// forward and right turned into the world, the throttle's climb.
-    pub fn setpoint_velocity(&self, shaped: &Shaped, yaw_rad: f32) -> Vector3<f32> {
+    pub fn setpoint_velocity(&self, yaw_rad: f32) -> Vector3<f32> {
         let (sin, cos) = flight::math::sin_cos(yaw_rad);
-        let forward = shaped.pitch * self.max_speed_mps;
-        let right = shaped.roll * self.max_speed_mps;
         Vector3::new(
-            cos * forward - sin * right,
-            sin * forward + cos * right,
-            -shaped.throttle * self.max_climb_mps,
+            cos * self.forward_mps - sin * self.right_mps,
+            sin * self.forward_mps + cos * self.right_mps,
+            self.vertical_speed_mps,
         )
     }
 }
@@ -144,11 +149,12 @@ pub fn move_setpoint(
 ) -> Vector3<f32> {
     let moved = setpoint_ned_m + velocity_ned_mps * dt_s;
     let ahead = moved - position_ned_m;
-    let ahead_h = libm::hypotf(ahead.x, ahead.y);
-    if ahead_h <= SETPOINT_LEASH_M {
+    // Within the leash (every step but those a held-back craft spends at its end): no root.
+    let ahead2 = ahead.x * ahead.x + ahead.y * ahead.y;
+    if ahead2 <= SETPOINT_LEASH_M * SETPOINT_LEASH_M {
         return moved;
     }
-    let scale = SETPOINT_LEASH_M / ahead_h;
+    let scale = SETPOINT_LEASH_M / libm::sqrtf(ahead2);
     Vector3::new(position_ned_m.x + ahead.x * scale, position_ned_m.y + ahead.y * scale, moved.z)
 }
 
@@ -185,25 +191,32 @@ mod tests {
     #[test]
     fn angle_mode_tilts_forward_for_pitch_and_climbs_for_throttle() {
         let config = StickConfig { deadband: 0.0, expo: 0.0, ..StickConfig::default() };
-        let shaped = config.shaped(&StickInput {
+        let demand = config.demand(&StickInput {
             roll: -0.5,
             pitch: 1.0,
             throttle: 0.5,
-            yaw: 0.0,
+            yaw: 0.25,
             position_mode: false,
         });
-        let (forward, right, vertical) = config.angle_mode(&shaped);
-        assert!((forward - DEFAULT_MAX_TILT_RAD).abs() < 1e-6);
-        assert!((right + 0.5 * DEFAULT_MAX_TILT_RAD).abs() < 1e-6);
+        assert!((demand.forward_rad - DEFAULT_MAX_TILT_RAD).abs() < 1e-6);
+        assert!((demand.right_rad + 0.5 * DEFAULT_MAX_TILT_RAD).abs() < 1e-6);
+        let vertical = demand.vertical_speed_mps;
         assert!((vertical + 0.5 * DEFAULT_MAX_CLIMB_MPS).abs() < 1e-6, "up is negative in NED");
+        assert!((demand.yaw_rate_rad_s - 0.25 * DEFAULT_MAX_YAW_RATE_RAD_S).abs() < 1e-6);
     }
 
     #[test]
     fn position_mode_moves_the_setpoint_in_the_headings_frame_on_a_leash() {
         let config = StickConfig { deadband: 0.0, expo: 0.0, ..StickConfig::default() };
-        let forward = Shaped { roll: 0.0, pitch: 1.0, throttle: 0.0, yaw: 0.0 };
+        let forward = config.demand(&StickInput {
+            roll: 0.0,
+            pitch: 1.0,
+            throttle: 0.0,
+            yaw: 0.0,
+            position_mode: true,
+        });
         // Heading east: forward is +y.
-        let v = config.setpoint_velocity(&forward, core::f32::consts::FRAC_PI_2);
+        let v = forward.setpoint_velocity(core::f32::consts::FRAC_PI_2);
         assert!((v - Vector3::new(0.0, DEFAULT_MAX_SPEED_MPS, 0.0)).norm() < 1e-5, "{v:?}");
         // A craft that stays put: the setpoint runs ahead only up to the leash.
         let here = Vector3::new(1.0, 2.0, -3.0);
