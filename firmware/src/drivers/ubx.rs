@@ -557,9 +557,9 @@ impl GnssFix {
         let mm = |m: f32| to_count(f64::from(m), M_PER_MM).to_le_bytes();
         let umm = |m: f32| to_unsigned_count(f64::from(m), M_PER_MM).to_le_bytes();
         put(0, &self.time_of_week_ms.to_le_bytes());
-        let valid = u8::from(self.date_valid) * VALID_DATE
-            | u8::from(self.time_valid) * VALID_TIME
-            | u8::from(self.time_fully_resolved) * VALID_FULLY_RESOLVED;
+        let valid = (u8::from(self.date_valid) * VALID_DATE)
+            | (u8::from(self.time_valid) * VALID_TIME)
+            | (u8::from(self.time_fully_resolved) * VALID_FULLY_RESOLVED);
         put(11, &[valid]);
         put(
             20,
@@ -887,14 +887,11 @@ impl GnssReceiver {
             any_frame = true;
             match Message::parse(&frame) {
                 Message::NavPvt(fix) => newest = Some(fix),
-                Message::Ack { class: CLASS_CFG, id } if id == ID_CFG_VALSET => {
-                    acknowledged.valset = true
-                }
-                Message::Ack { class: CLASS_CFG, id }
-                    if matches!(id, ID_CFG_RATE | ID_CFG_NAV5 | ID_CFG_MSG | ID_CFG_PRT) =>
-                {
-                    acknowledged.legacy = true
-                }
+                Message::Ack { class: CLASS_CFG, id: ID_CFG_VALSET } => acknowledged.valset = true,
+                Message::Ack {
+                    class: CLASS_CFG,
+                    id: ID_CFG_RATE | ID_CFG_NAV5 | ID_CFG_MSG | ID_CFG_PRT,
+                } => acknowledged.legacy = true,
                 Message::Nak { class: CLASS_CFG, .. } => {
                     acknowledged.naks = acknowledged.naks.saturating_add(1)
                 }
@@ -1417,7 +1414,7 @@ mod tests {
             out
         }
 
-        fn from_host(&mut self, bytes: &[u8], host_baud: u32, now_s: f64) {
+        fn receive(&mut self, bytes: &[u8], host_baud: u32, now_s: f64) {
             if host_baud != self.baud || self.silent {
                 return;
             }
@@ -1510,7 +1507,7 @@ mod tests {
         }
 
         /// What reached the host by `now_s`, read at `host_baud`.
-        fn to_host(&mut self, now_s: f64, host_baud: u32) -> Vec<u8> {
+        fn transmit(&mut self, now_s: f64, host_baud: u32) -> Vec<u8> {
             if !self.silent {
                 if self.nav_pvt_on && self.ubx_out && now_s >= self.next_pvt_s {
                     let itow = (now_s * 1000.0).round() as u32;
@@ -1563,12 +1560,12 @@ mod tests {
         }
 
         fn step(&mut self) {
-            let incoming = self.fake.to_host(self.now_s, self.host_baud);
+            let incoming = self.fake.transmit(self.now_s, self.host_baud);
             let out = self.receiver.poll(&incoming, (self.now_s * 1e6).round() as u64);
             self.host_baud = out.baud;
             let written = out.write.to_vec();
             self.receiver.sent(written.len());
-            self.fake.from_host(&written, self.host_baud, self.now_s);
+            self.fake.receive(&written, self.host_baud, self.now_s);
             let status = self.receiver.status();
             let changed = match (self.history.last(), status) {
                 (Some((_, GnssStatus::Receiving { .. })), GnssStatus::Receiving { .. }) => false,
