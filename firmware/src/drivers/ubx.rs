@@ -24,7 +24,8 @@
 //!   layout would be written twice;
 //! - it brings `chrono`, `bitflags`, `num-traits` and a procedural-macro crate to the firmware.
 //!
-//! We need one message in and five out; the layouts below are u-blox's, the code ours.
+//! We need two messages in (NAV-PVT, ACK) and six out (the MON-VER poll, CFG-VALSET and the four
+//! legacy CFG messages); the layouts below are u-blox's, the code ours.
 //!
 //! # What it assumes of the world
 //!
@@ -49,14 +50,17 @@
 //!
 //! The receiver starts at a baud rate we do not know (factory defaults: 9,600 on the M8, 38,400
 //! on the M10; whatever a previous boot set while the receiver kept power). At each rate of
-//! [`DETECT_BAUDS`] the state machine polls UBX-MON-VER (every u-blox receiver answers a poll
-//! with UBX input enabled, which is the factory default) and waits [`SEARCH_WINDOW_S`]; any
-//! frame with a good checksum means the rate is right. It then sends both generations'
-//! configuration at that rate (an M8 ignores CFG-VALSET; an M10 has no CFG-PRT, CFG-RATE,
-//! CFG-NAV5 or CFG-MSG; an M9 takes either, and the first one to switch its baud makes the rest
-//! arrive as garbage, which it ignores), waits for the bytes to leave the UART, and moves to the
-//! target rate. NAV-PVT at the target rate means configured; none within
-//! [`CONFIGURE_TIMEOUT_S`] starts the search again.
+//! [`DETECT_BAUDS`], the target rate first, the state machine polls UBX-MON-VER (a u-blox
+//! receiver answers a poll on a port with UBX input, the factory default) and listens for
+//! [`SEARCH_WINDOW_S`]; any frame with a good checksum means the rate is right. It then sends
+//! both generations' configuration at that rate: first one CFG-VALSET (M9/M10; an M8 does not
+//! know it), then CFG-RATE, CFG-NAV5, CFG-MSG and CFG-PRT (M8 and M9; an M10 has none of them),
+//! the baud change last in each, so that what follows a receiver's switch reaches it as
+//! garbage, which it ignores. It waits for the bytes to leave the UART at that rate (plus
+//! [`DRAIN_MARGIN_S`]), moves to the target rate, and takes the first NAV-PVT there as the
+//! receiver configured; none within [`CONFIGURE_TIMEOUT_S`] starts the search again. The
+//! receiver's generation is not asked (MON-VER's `PROTVER`): which interface acknowledged is
+//! recorded ([`Acknowledged`]) for the report.
 //!
 //! Nothing here blocks, allocates or panics: a silent or garbled receiver is a status
 //! ([`GnssStatus::Lost`], [`GnssStatus::Searching`]) and counters, never a fault of the caller.
@@ -859,7 +863,7 @@ impl GnssReceiver {
 
     /// The UART took `count` of the bytes [`GnssReceiver::poll`] offered.
     pub fn sent(&mut self, count: usize) {
-        self.tx_start = (self.tx_start + count).min(self.tx_end);
+        self.tx_start = self.tx_start.saturating_add(count).min(self.tx_end);
     }
 
     fn queue(&mut self, build: impl FnOnce(&mut [u8]) -> Option<usize>) {
