@@ -1099,7 +1099,8 @@ mod tests {
 
     #[test]
     fn checksum_matches_frames_published_with_the_protocol() {
-        // The MON-VER poll and CFG-RATE 200 ms / 100 ms (GPS time) as u-center sends them.
+        // The MON-VER poll and CFG-RATE 200 ms / 100 ms (GPS time), byte strings widely quoted
+        // for u-blox receivers; both implementations here must agree with their checksums.
         let published: [&[u8]; 3] = [
             &[0xB5, 0x62, 0x0A, 0x04, 0x00, 0x00, 0x0E, 0x34],
             &[0xB5, 0x62, 0x06, 0x08, 0x06, 0x00, 0xC8, 0x00, 0x01, 0x00, 0x01, 0x00, 0xDE, 0x6A],
