@@ -9,6 +9,7 @@ pub mod dshot;
 pub mod dynamics;
 pub mod faults;
 pub mod flash;
+pub mod gnss;
 pub mod hand;
 pub mod identification;
 pub mod imu;

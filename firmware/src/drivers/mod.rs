@@ -7,3 +7,4 @@
 pub mod crsf;
 pub mod dshot;
 pub mod icm42688;
+pub mod ubx;
