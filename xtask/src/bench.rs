@@ -225,7 +225,7 @@ fn missed(rows: &[Row], given: &[&str]) -> Vec<String> {
 
 /// The table of the targets: each one's worst region and its verdict.
 fn print_targets(rows: &[Row]) {
-    println!("\nIssue 56 targets (instructions, every region of the target at most its limit):\n");
+    println!("\nTargets of issues 56 and 53 (instructions, every region of the target at most its limit):\n");
     println!("| target | worst region | instructions | target | verdict |");
     println!("|---|---|---:|---:|---|");
     for target in &TARGETS {
