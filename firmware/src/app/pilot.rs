@@ -71,6 +71,7 @@ use protocol::{
     PositionSetpoint,
 };
 
+use super::catch::{CatchDetector, CatchSignals};
 use super::hal::{ImuSample, MAX_MOTORS};
 use super::sticks::{move_setpoint, StickConfig};
 use crate::drivers::crsf::StickInput;
@@ -272,6 +273,8 @@ pub struct LandConfig {
     pub flyaway_speed_mps: f32,
     /// Time above that speed after which the craft lands, s.
     pub flyaway_time_s: f32,
+    /// Stop the motors when a hand grabs the flying craft (`catch_detect`, `super::catch`).
+    pub catch_detect: bool,
 }
 
 impl Default for LandConfig {
@@ -281,6 +284,7 @@ impl Default for LandConfig {
             pose_lost_s: DEFAULT_LAND_POSE_LOST_S,
             flyaway_speed_mps: DEFAULT_FLYAWAY_SPEED_MPS,
             flyaway_time_s: DEFAULT_FLYAWAY_TIME_S,
+            catch_detect: true,
         }
     }
 }
@@ -618,6 +622,8 @@ pub struct Pilot {
     /// Where this flight first had a usable pose, world NED, m: what a fly-away moves away from
     /// before a hold has a setpoint.
     flyaway_origin_ned_m: Option<Vector3<f32>>,
+    /// The hand-catch detector (`super::catch`).
+    catch: CatchDetector,
     status: PilotStatus,
 }
 
@@ -660,6 +666,7 @@ impl Pilot {
             pose_lost_s: 0.0,
             flyaway: None,
             flyaway_origin_ned_m: None,
+            catch: CatchDetector::new(rate_hz),
             status: PilotStatus::default(),
         }
     }
@@ -674,6 +681,7 @@ impl Pilot {
             pose_lost_s: keep(config.pose_lost_s, old.pose_lost_s),
             flyaway_speed_mps: keep(config.flyaway_speed_mps, old.flyaway_speed_mps),
             flyaway_time_s: keep(config.flyaway_time_s, old.flyaway_time_s),
+            catch_detect: config.catch_detect,
         };
     }
 
@@ -1120,6 +1128,27 @@ impl Pilot {
         touchdown.update(resting, nav.velocity_ned_mps.z, dt_s)
     }
 
+    /// Whether a hand holds the craft in this step (`super::catch`): watched once the flight
+    /// has been steady for [`STICKS_TAKE_OVER_S`], never while landing, unless `catch_detect` is
+    /// off.
+    fn caught(&mut self, output: &ControllerOutput) -> bool {
+        let free = self.land_config.catch_detect
+            && self.touchdown.is_none()
+            && self.steady_s >= STICKS_TAKE_OVER_S;
+        match &self.controller {
+            Some(controller) if free => self.catch.update(&CatchSignals {
+                model: controller.indi().model(),
+                u: &output.indi.u,
+                asked_rad_s2: output.angular_accel_sp_rad_s2,
+                measured_rad_s2: controller.indi().state().angular_accel_rad_s2,
+            }),
+            _ => {
+                self.catch.stop();
+                false
+            }
+        }
+    }
+
     /// Take over at the end of an identification, from the commands (δ) and speeds (rad/s, NaN
     /// where unknown) of the last excitation step. A model without a hover within the motor
     /// bounds is flown on the hover found earlier in the excitation, if any (see
@@ -1163,6 +1192,7 @@ impl Pilot {
         self.heading_offset_rad = None;
         self.tilted_s = 0.0;
         self.reform_pending = false;
+        self.catch.stop();
     }
 
     /// Form the controller afresh on the latest model (its thrust axis moved beyond
@@ -1311,6 +1341,15 @@ impl Pilot {
             status.touchdown_speed_mps = touchdown.map_or(0.0, |t| t.peak_descent_mps);
             return Ok([0.0; MAX_MOTORS]);
         }
+        if self.caught(&output) {
+            // Held by a hand: the motors stop from this step, no failsafe.
+            self.disarm();
+            let status = &mut self.status;
+            status.touchdowns = status.touchdowns.saturating_add(1);
+            status.last_landing = Some(LandReason::Caught);
+            status.touchdown_speed_mps = nav.velocity_ned_mps.z;
+            return Ok([0.0; MAX_MOTORS]);
+        }
         Ok(commands)
     }
 
@@ -1353,6 +1392,7 @@ impl Pilot {
         self.pose_lost_s = 0.0;
         self.flyaway = None;
         self.flyaway_origin_ned_m = None;
+        self.catch.stop();
         self.steady_s = 0.0;
         self.status.flying = false;
         self.status.piloted = None;
