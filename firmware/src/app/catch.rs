@@ -365,9 +365,9 @@ mod tests {
                 (0..model.motors).map(|j| model.g1[2][j] * u_true[j] * effectiveness[j]).sum();
             let force = q_imu_thrust * Vector3::new(0.0, 0.0, thrust - thrust_trim);
             let out = indi.update(gyro.into(), force.into(), &reference).unwrap();
-            for j in 0..model.motors {
+            for (j, u) in u_true.iter_mut().enumerate().take(model.motors) {
                 let gain = DT_S / (model.motor[j].tau_s + DT_S);
-                u_true[j] += (out.u[j] - u_true[j]) * gain;
+                *u += (out.u[j] - *u) * gain;
             }
             let caught = detector.update(&CatchSignals {
                 model,
