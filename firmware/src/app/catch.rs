@@ -64,10 +64,9 @@ use super::hal::MAX_MOTORS;
 /// Share of the motors' tilt acceleration scale (`Σ |G1_tilt,j| u_hover,j`, the hover thrusts at
 /// their levers) beyond which the unexplained angular acceleration's departure from its average
 /// counts as a hand's (ours; module doc): a force of 1 % of the weight at the rotors' distance,
-/// or of a tenth of it a tenth of the way out. Measured (`fly monte-carlo --world random
-/// --gusts`, docs/benchmarks.md): with the bound halved no gust of 1,000 random worlds stopped a
-/// craft, with it at a fifth 9 of 300 did; a hand (`fly --end catch`) winds INDI up past the
-/// bound within 0.1–0.2 s.
+/// or of a tenth of it a tenth of the way out. Measured on 1,000 random worlds with strong
+/// gusts (`fly monte-carlo --world random --gusts`, docs/benchmarks.md); at half this bound,
+/// before [`CATCH_MODEL_ERROR`] was added, 9 of 1,000 free flights were stopped.
 pub const CATCH_TORQUE_FRACTION: f32 = 0.01;
 
 /// The tracking error's bound as a share of the unexplained angular acceleration's (ours): the
