@@ -790,6 +790,7 @@ pub fn land_reason_text(reason: LandReason) -> &'static str {
         LandReason::FlyAway => {
             "a fly-away: moving away faster than flyaway_speed_mps for flyaway_time_s"
         }
+        LandReason::Caught => "a hand caught it in flight (catch_detect)",
     }
 }
 
@@ -799,6 +800,9 @@ pub fn landing_event_text(event: &protocol::Event) -> Option<String> {
         protocol::Event::Landing { reason, count } => {
             Some(format!("LANDING: {} ({count}× since start-up)", land_reason_text(reason)))
         }
+        protocol::Event::Landed { reason: LandReason::Caught, count, .. } => Some(format!(
+            "CAUGHT: a hand holds the craft, motors stopped ({count}× landed since start-up)"
+        )),
         protocol::Event::Landed { reason, touchdown_speed_mps, count } => Some(format!(
             "LANDED: touched down at {touchdown_speed_mps:.2} m/s, motors stopped ({}; \
              {count}× since start-up)",

@@ -787,6 +787,10 @@ pub enum LandReason {
     /// The craft moved away from its setpoint faster than `flyaway_speed_mps` for longer than
     /// `flyaway_time_s`.
     FlyAway,
+    /// A hand grabbed the hovering craft: its commanded tilt no longer turned it
+    /// (`catch_detect`; protocol 1.15). Reported by [`Event::Landed`] alone: the motors stop in
+    /// the step it is detected, no descent comes before.
+    Caught,
 }
 
 /// Why a failsafe acted (protocol 1.4).

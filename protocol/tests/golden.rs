@@ -432,6 +432,12 @@ fn protocol_1_4_flight_board_and_setpoint_frames_are_pinned() {
         count: 2,
     };
     assert_eq!(device(DeviceMessage::Event(event), 1), "05 83 01 03 08 06 02 21 a8 c7 fc 00");
+    // Protocol 1.15: a hand's catch, the last `LandReason`.
+    let caught = Event::Landed { reason: LandReason::Caught, touchdown_speed_mps: 0.0, count: 1 };
+    assert_eq!(
+        device(DeviceMessage::Event(caught), 2),
+        "05 83 02 05 07 01 01 01 06 01 98 0d 9b 2f 00"
+    );
     assert_eq!(
         device(DeviceMessage::Response(Err(DeviceError::Unsupported)), 6),
         "09 81 06 01 0c f0 89 d2 48 00"

@@ -120,6 +120,45 @@ pub struct WorldEffects {
     pub gust_start_s: f64,
     /// ... for this long, s (0: no gust).
     pub gust_s: f64,
+    /// More gusts, on top of that one ([`crate::world`]'s `gusts`).
+    pub gusts: [Option<Gust>; 2],
+}
+
+/// The shape of a [`Gust`] in time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GustShape {
+    /// The whole speed at once, for the gust's duration.
+    Step,
+    /// The "1 − cos" gust of the airworthiness codes (CS-25.341, MIL-F-8785C): the speed rises
+    /// and falls as `(1 − cos 2πt/T)/2` over the duration `T`.
+    OneMinusCosine,
+}
+
+/// A gust: the air moves at up to `peak_ned_mps` from `start_s` for `duration_s`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gust {
+    pub shape: GustShape,
+    /// The air's velocity at the gust's peak, world NED, m/s.
+    pub peak_ned_mps: [f64; 3],
+    pub start_s: f64,
+    pub duration_s: f64,
+}
+
+impl Gust {
+    /// The air's velocity at `now_s`, world NED, m/s.
+    pub fn wind_ned_mps(&self, now_s: f64) -> Vector3<f64> {
+        let t = now_s - self.start_s;
+        if !(0.0..self.duration_s).contains(&t) {
+            return Vector3::zeros();
+        }
+        let share = match self.shape {
+            GustShape::Step => 1.0,
+            GustShape::OneMinusCosine => {
+                0.5 * (1.0 - (std::f64::consts::TAU * t / self.duration_s).cos())
+            }
+        };
+        Vector3::from(self.peak_ned_mps) * share
+    }
 }
 
 impl Default for SimConfig {
@@ -410,9 +449,12 @@ impl SimBoard {
                 targets[i] = p.steady_speed_rad_s(f64::from(command)) * (1.0 - sag).max(0.0).sqrt();
             }
         }
-        if w.gust_s > 0.0 {
+        if w.gust_s > 0.0 || w.gusts.iter().any(Option::is_some) {
             let gusting = (w.gust_start_s..w.gust_start_s + w.gust_s).contains(&now_s);
-            let wind = if gusting { Vector3::from(w.gust_ned_mps) } else { Vector3::zeros() };
+            let mut wind = if gusting { Vector3::from(w.gust_ned_mps) } else { Vector3::zeros() };
+            for gust in w.gusts.iter().flatten() {
+                wind += gust.wind_ned_mps(now_s);
+            }
             if wind != self.physics.model().wind_ned_mps {
                 self.physics.set_wind(wind);
             }

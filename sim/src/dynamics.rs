@@ -191,6 +191,17 @@ pub enum Constraint {
         /// Time constant, s.
         tau_s: f64,
     },
+    /// A hand closing on the vehicle and holding it where it wants it: the CoG goes to
+    /// `position_ned_m` and the body to `q_world_body` as a critically damped motion of time
+    /// constant `tau_s` (its velocity and rate decay within a few `tau_s`), then stays.
+    Track {
+        /// Time constant, s.
+        tau_s: f64,
+        /// Where the hand brings the CoG, world NED, m.
+        position_ned_m: Vector3<f64>,
+        /// The attitude it brings the body to.
+        q_world_body: UnitQuaternion<f64>,
+    },
 }
 
 impl Constraint {
@@ -199,9 +210,9 @@ impl Constraint {
         &self,
         free_accel_ned: Vector3<f64>,
         free_rate_dot_body: Vector3<f64>,
-        velocity_ned: Vector3<f64>,
-        rate_body: Vector3<f64>,
+        s: &State,
     ) -> (Vector3<f64>, Vector3<f64>) {
+        let (velocity_ned, rate_body) = (s.velocity_ned_mps, s.rate_body_rad_s);
         match *self {
             Constraint::Free => (free_accel_ned, free_rate_dot_body),
             Constraint::Hold => (Vector3::zeros(), Vector3::zeros()),
@@ -209,6 +220,14 @@ impl Constraint {
                 (accel_ned_mps2, rate_dot_body_rad_s2)
             }
             Constraint::Damp { tau_s } => (-velocity_ned / tau_s, -rate_body / tau_s),
+            Constraint::Track { tau_s, position_ned_m, q_world_body } => {
+                let w = 1.0 / tau_s;
+                let accel =
+                    (position_ned_m - s.position_ned_m) * (w * w) - velocity_ned * (2.0 * w);
+                let q = UnitQuaternion::new_normalize(s.q_world_body);
+                let error_body = (q.inverse() * q_world_body).scaled_axis();
+                (accel, error_body * (w * w) - rate_body * (2.0 * w))
+            }
         }
     }
 }
@@ -336,8 +355,7 @@ impl VehicleModel {
         let free_accel_ned = gravity_ned_mps2() + (rot * force_body + external_ned) / self.mass_kg;
         let free_rate_dot = self.inertia_inv
             * (torque_body - omega.cross(&(self.inertia_kg_m2 * omega + h_body)) - h_dot_body);
-        let (accel_ned, rate_dot) =
-            constraint.apply(free_accel_ned, free_rate_dot, s.velocity_ned_mps, omega);
+        let (accel_ned, rate_dot) = constraint.apply(free_accel_ned, free_rate_dot, s);
         let specific_force_body = rot.transpose() * (accel_ned - gravity_ned_mps2());
         Derivative {
             velocity_ned_mps: s.velocity_ned_mps,

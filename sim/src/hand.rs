@@ -116,6 +116,30 @@ pub struct CatchSpec {
     pub tau_s: f64,
 }
 
+/// How a hand grabs a hovering vehicle (`Hand::grab`): it closes with a time constant, and
+/// moves the vehicle a little as it does, as people do: pulls it (down, towards themselves) and
+/// tilts it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GrabSpec {
+    /// Time constant of the hand's closing, s (a real hand: 0.05–0.3).
+    pub tau_s: f64,
+    /// How far the hand moves the CoG, world NED, m.
+    pub pull_ned_m: Vector3<f64>,
+    /// The tilt it gives the body: a rotation vector in the world (horizontal), rad.
+    pub tilt_world_rad: Vector3<f64>,
+}
+
+impl Default for GrabSpec {
+    /// A hand closing in 0.1 s, pulling the craft 5 cm down and tilting it 5° about north.
+    fn default() -> Self {
+        Self {
+            tau_s: 0.1,
+            pull_ned_m: Vector3::new(0.0, 0.0, 0.05),
+            tilt_world_rad: Vector3::new(5f64.to_radians(), 0.0, 0.0),
+        }
+    }
+}
+
 /// What the hand is doing, for logs (`hand` column: the discriminant).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u8)]
@@ -203,6 +227,19 @@ impl Hand {
         self.push = None;
         self.phase = HandPhase::Holding;
         self.constraint = Constraint::Prescribed { accel_ned_mps2, rate_dot_body_rad_s2 };
+    }
+
+    /// Grabs the (flying) vehicle at `now_s` as `spec` says and holds it there from then on.
+    pub fn grab(&mut self, spec: &GrabSpec, state: &State, now_s: f64) {
+        self.push = None;
+        self.phase = HandPhase::Holding;
+        let q = nalgebra::UnitQuaternion::new_normalize(state.q_world_body);
+        self.constraint = Constraint::Track {
+            tau_s: spec.tau_s.max(1e-3),
+            position_ned_m: state.position_ned_m + spec.pull_ned_m,
+            q_world_body: nalgebra::UnitQuaternion::from_scaled_axis(spec.tilt_world_rad) * q,
+        };
+        self.caught_at_s = Some(now_s);
     }
 
     /// Lets go immediately.

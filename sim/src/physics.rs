@@ -153,6 +153,13 @@ impl Physics {
         self.refresh_derivative();
     }
 
+    /// A hand grabs the flying vehicle now ([`crate::hand::GrabSpec`]) and holds it.
+    pub fn grab(&mut self, spec: &crate::hand::GrabSpec) {
+        let now = self.time_s();
+        self.hand.grab(spec, &self.state, now);
+        self.refresh_derivative();
+    }
+
     /// Grips the vehicle where it is.
     pub fn grip(&mut self) {
         self.hand.grip(&mut self.state);

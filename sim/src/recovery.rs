@@ -20,6 +20,7 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
 use crate::dynamics::State;
+use crate::hand::GrabSpec;
 use crate::identification::{Scores, Throw, TrueModel};
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
@@ -274,6 +275,8 @@ pub struct FlyConfig {
     /// to the control step ([`ControlCommand::Sticks`]); the run then records
     /// [`FlyReport::stick_trace`].
     pub sticks: Vec<(f64, StickInput)>,
+    /// How the hand grabs the craft when the flight ends with [`FlightEnd::Catch`].
+    pub grab: GrabSpec,
 }
 
 /// One sample of a flight flown from the sticks ([`FlyConfig::sticks`]), against the truth.
@@ -302,18 +305,39 @@ pub enum FlightEnd {
     /// receiver asks for once the radio has been lost for its grace in flight
     /// (`firmware::app::radio`).
     Land(LandReason),
+    /// A hand grabs the hovering craft ([`FlyConfig::grab`]) and holds it: the firmware's
+    /// hand-catch detector should stop the motors (`firmware::app::catch`).
+    Catch,
 }
 
 impl FlightEnd {
-    /// `hover`, `land` or `rc-lost`.
+    /// `hover`, `land`, `rc-lost` or `catch`.
     pub fn parse(name: &str) -> Result<Self, String> {
         match name {
             "hover" => Ok(Self::Hover),
             "land" => Ok(Self::Land(LandReason::Commanded)),
             "rc-lost" => Ok(Self::Land(LandReason::RcLost)),
-            other => Err(format!("unknown flight end `{other}` (hover, land, rc-lost)")),
+            "catch" => Ok(Self::Catch),
+            other => Err(format!("unknown flight end `{other}` (hover, land, rc-lost, catch)")),
         }
     }
+}
+
+/// How long a run goes on after the hand grabbed the craft, s: ten times the detector's
+/// 0.3 s, so a late detection is measured rather than cut off.
+pub const CATCH_TIMEOUT_S: f64 = 3.0;
+
+/// Longest time from the grab to the motors stopped the issue allows, s.
+pub const CATCH_DETECT_MAX_S: f64 = 0.3;
+
+/// How a hand's grab went ([`FlightEnd::Catch`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CatchReport {
+    /// The grab ([`FlyConfig::grab`]).
+    pub grab: GrabSpec,
+    /// Time from the grab to the motors stopped by the hand-catch detector, s (`None`: not
+    /// within [`CATCH_TIMEOUT_S`]).
+    pub stopped_after_s: Option<f64>,
 }
 
 /// Longest a landing may take from its request to the motors stopping, s: the Monte Carlo's
@@ -372,6 +396,7 @@ impl FlyConfig {
             speed_telemetry: true,
             end: FlightEnd::Hover,
             sticks: Vec::new(),
+            grab: GrabSpec::default(),
         }
     }
 }
@@ -390,6 +415,9 @@ pub enum Outcome {
     /// Landed as asked ([`FlyConfig::end`]): the motors stopped on the ground
     /// ([`FlyReport::landing`] says how gently).
     Landed,
+    /// The firmware's hand-catch detector stopped the motors (`LandReason::Caught`): after the
+    /// hand's grab ([`FlyReport::catch`]) as it should, or in free flight (a false catch).
+    Caught,
 }
 
 /// What a run measured.
@@ -474,6 +502,10 @@ pub struct FlyReport {
     /// 2 m from where it recovered").
     pub max_speed_after_recovery_mps: Option<f64>,
     pub end_from_recovery_m: Option<f64>,
+    /// The hand's grab, when the run ended with one ([`FlightEnd::Catch`]).
+    pub catch: Option<CatchReport>,
+    /// The hand-catch detector stopped the motors without a hand, s after the release.
+    pub false_catch_s: Option<f64>,
 }
 
 /// Scores of `learned` per unit normalised thrust `u = ω²/ω_full²` (the papers' convention and
@@ -606,6 +638,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             stick_trace: Vec::new(),
             max_speed_after_recovery_mps: None,
             end_from_recovery_m: None,
+            catch: None,
+            false_catch_s: None,
         };
         // Where the craft recovered, NED, m.
         let mut recovered_ned_m: Option<Vector3<f64>> = None;
@@ -625,7 +659,12 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         // A landing: where it was asked for, and the time of the first ground contact, s.
         let mut land_from_ned_m = Vector3::zeros();
         let mut touchdown_s: Option<f64> = None;
-        let landing_s = if config.end == FlightEnd::Hover { 0.0 } else { LANDING_TIMEOUT_S };
+        let landing_s = match config.end {
+            FlightEnd::Hover => 0.0,
+            FlightEnd::Land(_) => LANDING_TIMEOUT_S,
+            FlightEnd::Catch => CATCH_TIMEOUT_S,
+        };
+        let mut grab_s: Option<f64> = None;
         let max_ticks = hold_ticks + ((1.0 + config.flight_s + landing_s) * 2000.0) as u64;
         for tick in 0..max_ticks {
             if tick == hold_ticks {
@@ -780,6 +819,16 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     report.end_from_recovery_m =
                         Some((state.position_ned_m - recovered).xy().norm());
                 }
+            } else if snapshot.pilot.last_landing == Some(LandReason::Caught)
+                && report.release_to_engage_s.is_some()
+            {
+                // The hand-catch detector stopped the motors: after the grab, or without one.
+                report.outcome = Outcome::Caught;
+                match (grab_s, &mut report.catch) {
+                    (Some(at_s), Some(catch)) => catch.stopped_after_s = Some(t_s - at_s),
+                    _ => report.false_catch_s = Some(since_release),
+                }
+                break;
             } else if let Some(landing) = &mut report.landing {
                 // The landing's end: the motors stopped, on the ground or not.
                 match touchdown_s {
@@ -826,6 +875,17 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     Outcome::NoIdentification
                 };
                 break;
+            }
+            if t_s >= end_s && config.end == FlightEnd::Catch {
+                if !snapshot.pilot.flying || t_s >= end_s + CATCH_TIMEOUT_S {
+                    break;
+                }
+                if grab_s.is_none() {
+                    grab_s = Some(t_s);
+                    report.catch = Some(CatchReport { grab: config.grab, stopped_after_s: None });
+                    board.physics_mut().grab(&config.grab);
+                }
+                continue;
             }
             if t_s >= end_s {
                 let FlightEnd::Land(reason) = config.end else { break };
@@ -927,6 +987,8 @@ pub enum Verdict {
     Failsafe(Failsafe),
     /// No throw detected or no excitation end.
     NoIdentification,
+    /// The hand-catch detector stopped the motors in free flight, without a hand.
+    FalseCatch,
 }
 
 /// Largest distance from the setpoint for [`Verdict::Held`], m (the issue's 0.3 m).
@@ -937,15 +999,18 @@ impl Verdict {
     pub fn of(report: &FlyReport) -> Self {
         match report.outcome {
             // A landing comes after the hold window: the hold is judged as a flight's.
-            Outcome::Flying | Outcome::Landed if report.release_to_hover_s.is_none() => {
+            Outcome::Caught if report.false_catch_s.is_some() => Verdict::FalseCatch,
+            Outcome::Flying | Outcome::Landed | Outcome::Caught
+                if report.release_to_hover_s.is_none() =>
+            {
                 Verdict::NeverHovered
             }
-            Outcome::Flying | Outcome::Landed
+            Outcome::Flying | Outcome::Landed | Outcome::Caught
                 if report.max_hold_error_m.is_some_and(|e| e < HOLD_BOUND_M) =>
             {
                 Verdict::Held
             }
-            Outcome::Flying | Outcome::Landed => Verdict::HoveredLoose,
+            Outcome::Flying | Outcome::Landed | Outcome::Caught => Verdict::HoveredLoose,
             Outcome::Ground => Verdict::Ground,
             Outcome::Failsafe(f) => Verdict::Failsafe(f),
             Outcome::NoIdentification => Verdict::NoIdentification,

@@ -13,9 +13,13 @@
 //! | `pose` | 30–500 Hz (log-uniform), jitter up to 20 % of the interval, latency 0–30 ms (told to the board), noise 0.5–3 mm, dropouts 0–0.1 per s of 0.1–0.5 s | motion-capture systems, and their poses after a radio link |
 //! | `imu` | noise 1–3× the ICM-42688-P's density; gyro bias ±0.5 °/s, accelerometer bias ±0.2 m/s² per axis; scale ±3 % and cross-axis ±2 % per element; rotor vibration 0–5 m/s² and 0–0.1 rad/s at full speed | ICM-42688-P datasheet (offsets ±0.5 dps, ±20 mg; cross-axis ±2 %), and the 1–3 % of scale and cross-axis error; soft-mounted to hard-mounted boards |
 //! | `actuators` | the command-to-speed curve: the paper's (κ 0–1), thrust quadratic in δ (`kδ² + (1 − k)δ`, k 0–1) or a power law (δ^p, p 0.6–1.4); each motor ±5 % thrust; idle 3–15 % of full speed; battery sag 5–15 % of thrust over 15 s; ESC answers 0.5–3 ms late, 0–5 % of them lost | ESC firmwares (BLHeli_32, AM32, Bluejay: throttle curves and linearisation), worn propellers, a 4S pack under load |
+//! | `hand` (its grab, [`crate::recovery::FlightEnd::Catch`]) | closes with a time constant of 0.05–0.3 s; pulls the craft 0–10 cm down and 0–10 cm sideways; tilts it 3–15° about a random horizontal axis | a hand grabbing a hovering craft: fast or hesitant, pulling it towards the person and tipping it as it closes |
 //! | `air` | drag 0.3–3× the airframe's, and each body axis's linear and quadratic coefficients 0.5–2× (log-uniform) on their own; a gust of 0.5–2 m/s from a random horizontal direction for 0.3–1 s, 2–10 s after the start | frames with guards or without; drag differs along the body's axes (rotor drag in the rotor plane, the frame's area from above and from the side); a breeze indoors or out |
 //!
-//! `fly monte-carlo --world random` draws every aspect; `--vary NAME` one at a time, so each
+//! | `gust` (not in `--world random` unless `--gusts`) | a "1 − cos" gust of 2–8 m/s peak over 0.5–3 s starting 4–8 s after the start, and a step gust of 1–4 m/s for 0.3–1 s starting 4–10 s after it; each from a random bearing, up to 20° from the horizontal | gusts of a breezy day outdoors, the discrete gust of the airworthiness codes (CS-25.341) and a sharp-edged one, while the craft hovers |
+//!
+//! `fly monte-carlo --world random` draws every aspect but `gust` (added by `--gusts`, so the
+//! hover figures of earlier worlds stay comparable); `--vary NAME` one at a time, so each
 //! aspect's pass rate is known alone (docs/benchmarks.md). A draw depends only on the case's
 //! seed and the aspect, so the same seed gives the same airframe, throw and world.
 
@@ -38,6 +42,8 @@ pub enum Aspect {
     Actuators,
     /// Drag and a gust.
     Air,
+    /// Strong gusts while the craft hovers (not in [`Aspect::ALL`]).
+    Gust,
 }
 
 impl Aspect {
@@ -53,13 +59,14 @@ impl Aspect {
             Aspect::Imu => "imu",
             Aspect::Actuators => "actuators",
             Aspect::Air => "air",
+            Aspect::Gust => "gust",
         }
     }
 
     /// The aspect called `name`.
     pub fn parse(name: &str) -> Result<Self, String> {
-        Self::ALL.into_iter().find(|a| a.name() == name).ok_or_else(|| {
-            let names: Vec<_> = Self::ALL.iter().map(|a| a.name()).collect();
+        Self::ALL.into_iter().chain([Aspect::Gust]).find(|a| a.name() == name).ok_or_else(|| {
+            let names: Vec<_> = Self::ALL.iter().chain(&[Aspect::Gust]).map(|a| a.name()).collect();
             format!("unknown aspect `{name}` (one of {})", names.join(", "))
         })
     }
@@ -103,6 +110,7 @@ pub fn apply(aspect: Aspect, seed: u64, airframe: &mut Airframe, config: &mut Fl
         Aspect::Imu => imu(&mut rng, airframe),
         Aspect::Actuators => actuators(&mut rng, airframe, config),
         Aspect::Air => air(&mut rng, airframe, config),
+        Aspect::Gust => gusts(&mut rng, config),
     }
 }
 
@@ -124,6 +132,48 @@ fn hand(rng: &mut Rng, config: &mut FlyConfig) {
     let heading = rng.range(0.0, std::f64::consts::TAU);
     let sideways_mps = rng.range(0.0, 3.0);
     throw.horizontal_mps = [sideways_mps * heading.cos(), sideways_mps * heading.sin()];
+    // The grab, drawn after the throw so that a seed's throw is the one it was before.
+    let grab = &mut config.grab;
+    grab.tau_s = rng.range(0.05, 0.3);
+    let bearing = rng.range(0.0, std::f64::consts::TAU);
+    let sideways_m = rng.range(0.0, 0.1);
+    grab.pull_ned_m =
+        Vector3::new(sideways_m * bearing.cos(), sideways_m * bearing.sin(), rng.range(0.0, 0.1));
+    let axis = rng.range(0.0, std::f64::consts::TAU);
+    grab.tilt_world_rad =
+        Vector3::new(axis.cos(), axis.sin(), 0.0) * rng.range(3.0, 15.0).to_radians();
+}
+
+/// A direction from a uniformly random bearing, up to `max_elevation_rad` above or below the
+/// horizontal, times `speed_mps`.
+fn gust_velocity(rng: &mut Rng, speed_mps: f64, max_elevation_rad: f64) -> [f64; 3] {
+    let bearing = rng.range(0.0, std::f64::consts::TAU);
+    let elevation = rng.range(-max_elevation_rad, max_elevation_rad);
+    let horizontal = speed_mps * elevation.cos();
+    [horizontal * bearing.cos(), horizontal * bearing.sin(), -speed_mps * elevation.sin()]
+}
+
+/// Largest angle of a gust from the horizontal, rad (20°): near the ground the air moves mostly
+/// along it.
+const GUST_MAX_ELEVATION_RAD: f64 = 20.0 * std::f64::consts::PI / 180.0;
+
+fn gusts(rng: &mut Rng, config: &mut FlyConfig) {
+    use crate::board::{Gust, GustShape};
+    let peak = rng.range(2.0, 8.0);
+    let cosine = Gust {
+        shape: GustShape::OneMinusCosine,
+        peak_ned_mps: gust_velocity(rng, peak, GUST_MAX_ELEVATION_RAD),
+        start_s: rng.range(4.0, 8.0),
+        duration_s: rng.range(0.5, 3.0),
+    };
+    let speed = rng.range(1.0, 4.0);
+    let step = Gust {
+        shape: GustShape::Step,
+        peak_ned_mps: gust_velocity(rng, speed, GUST_MAX_ELEVATION_RAD),
+        start_s: rng.range(4.0, 10.0),
+        duration_s: rng.range(0.3, 1.0),
+    };
+    config.board.world.gusts = [Some(cosine), Some(step)];
 }
 
 fn pose(rng: &mut Rng) -> MotionCaptureConfig {

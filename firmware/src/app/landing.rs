@@ -125,6 +125,8 @@ pub struct LandConfig {
     pub flyaway_speed_mps: f32,
     /// Time above that speed after which the craft lands, s.
     pub flyaway_time_s: f32,
+    /// Stop the motors when a hand grabs the flying craft (`catch_detect`, `super::catch`).
+    pub catch_detect: bool,
 }
 
 impl Default for LandConfig {
@@ -134,6 +136,7 @@ impl Default for LandConfig {
             pose_lost_s: DEFAULT_LAND_POSE_LOST_S,
             flyaway_speed_mps: DEFAULT_FLYAWAY_SPEED_MPS,
             flyaway_time_s: DEFAULT_FLYAWAY_TIME_S,
+            catch_detect: true,
         }
     }
 }

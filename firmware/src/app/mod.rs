@@ -16,6 +16,7 @@
 mod background;
 pub mod battery;
 pub mod card;
+pub mod catch;
 mod control;
 pub mod hal;
 pub mod landing;

@@ -219,6 +219,9 @@ registry! {
     // The flight log (`super::log`).
     LogAlways = "log_always", 1, Flag, "", 0.0, 1.0, [0.0], false,
         "1: log from start-up on; 0: a new log file per arming (and 2 s after)";
+    // The hand-catch detector (`super::catch`).
+    CatchDetect = "catch_detect", 1, Flag, "", 0.0, 1.0, [1.0], false,
+        "in flight: stop the motors when a hand grabs the craft (0: never)";
 }
 
 /// How much further than a calibrated IMU offset the throw detector's free-fall check allows
@@ -461,6 +464,7 @@ impl Params {
             pose_lost_s: self.scalar(Param::LandPoseLostS),
             flyaway_speed_mps: self.scalar(Param::FlyawaySpeedMps),
             flyaway_time_s: self.scalar(Param::FlyawayTimeS),
+            catch_detect: self.scalar(Param::CatchDetect) != 0.0,
         }
     }
 
@@ -696,5 +700,15 @@ mod tests {
         let bias = params.acc_bias_mps2();
         assert!((bias[0] - 0.15).abs() < 1e-6 && (bias[1] - 0.01).abs() < 1e-6, "{bias:?}");
         assert!((bias[2] + 0.2).abs() < 1e-6);
+    }
+
+    #[test]
+    fn catch_detect_turns_the_hand_catch_detector_on_and_off() {
+        let mut params = Params::default();
+        assert!(params.land_config().catch_detect, "on by default");
+        params.set(Param::CatchDetect as usize, &[0.0]).unwrap();
+        assert!(!params.land_config().catch_detect);
+        assert!(params.set(Param::CatchDetect as usize, &[2.0]).is_err());
+        assert!(!params.land_config().catch_detect, "a refused value changes nothing");
     }
 }

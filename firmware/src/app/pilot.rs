@@ -74,6 +74,7 @@ use protocol::{
     PositionSetpoint,
 };
 
+use super::catch::{CatchDetector, CatchSignals};
 use super::hal::{ImuSample, MAX_MOTORS};
 pub use super::landing::LandConfig;
 use super::landing::{FlyAway, Touchdown, TouchdownSigns};
@@ -506,6 +507,8 @@ pub struct Pilot {
     /// Where this flight first had a usable pose, world NED, m: what a fly-away moves away from
     /// before a hold has a setpoint.
     flyaway_origin_ned_m: Option<Vector3<f32>>,
+    /// The hand-catch detector (`super::catch`).
+    catch: CatchDetector,
     status: PilotStatus,
 }
 
@@ -550,6 +553,7 @@ impl Pilot {
             flyaway: FlyAway::default(),
             unaligned_s: 0.0,
             flyaway_origin_ned_m: None,
+            catch: CatchDetector::new(rate_hz),
             status: PilotStatus::default(),
         }
     }
@@ -564,6 +568,7 @@ impl Pilot {
             pose_lost_s: keep(config.pose_lost_s, old.pose_lost_s),
             flyaway_speed_mps: keep(config.flyaway_speed_mps, old.flyaway_speed_mps),
             flyaway_time_s: keep(config.flyaway_time_s, old.flyaway_time_s),
+            catch_detect: config.catch_detect,
         };
     }
 
@@ -1004,6 +1009,27 @@ impl Pilot {
         step.touched
     }
 
+    /// Whether a hand holds the craft in this step (`super::catch`): watched once the flight
+    /// has been steady for [`STICKS_TAKE_OVER_S`], never while landing, unless `catch_detect` is
+    /// off.
+    fn caught(&mut self, output: &ControllerOutput) -> bool {
+        let free = self.land_config.catch_detect
+            && self.touchdown.is_none()
+            && self.steady_s >= STICKS_TAKE_OVER_S;
+        match &self.controller {
+            Some(controller) if free => self.catch.update(&CatchSignals {
+                model: controller.indi().model(),
+                u: &output.indi.u,
+                asked_rad_s2: output.angular_accel_sp_rad_s2,
+                measured_rad_s2: controller.indi().state().angular_accel_rad_s2,
+            }),
+            _ => {
+                self.catch.stop();
+                false
+            }
+        }
+    }
+
     /// Take over at the end of an identification, from the commands (δ) and speeds (rad/s, NaN
     /// where unknown) of the last excitation step. A model without a hover within the motor
     /// bounds is flown on the hover found earlier in the excitation, if any (see
@@ -1047,6 +1073,7 @@ impl Pilot {
         self.heading_offset_rad = None;
         self.tilted_s = 0.0;
         self.reform_pending = false;
+        self.catch.stop();
     }
 
     /// Form the controller afresh on the latest model (its thrust axis moved beyond
@@ -1200,6 +1227,15 @@ impl Pilot {
             status.touchdown_speed_mps = touchdown.map_or(0.0, |t| t.peak_descent_mps);
             return Ok([0.0; MAX_MOTORS]);
         }
+        if self.caught(&output) {
+            // Held by a hand: the motors stop from this step, no failsafe.
+            self.disarm();
+            let status = &mut self.status;
+            status.touchdowns = status.touchdowns.saturating_add(1);
+            status.last_landing = Some(LandReason::Caught);
+            status.touchdown_speed_mps = nav.velocity_ned_mps.z;
+            return Ok([0.0; MAX_MOTORS]);
+        }
         Ok(commands)
     }
 
@@ -1243,6 +1279,7 @@ impl Pilot {
         self.flyaway.reset();
         self.unaligned_s = 0.0;
         self.flyaway_origin_ned_m = None;
+        self.catch.stop();
         self.steady_s = 0.0;
         self.status.flying = false;
         self.status.piloted = None;

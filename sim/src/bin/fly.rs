@@ -27,6 +27,12 @@
 //! from the first ground contact to the motors stopped, and the Monte Carlo how many landed
 //! gently (below 0.7 m/s, stopped within 1 s).
 //!
+//! `--end catch` ends every flight after its hover with a hand grabbing the craft
+//! (`sim::hand::GrabSpec`, drawn per seed in the random world): each run reports the time from
+//! the grab to the motors stopped by the firmware's hand-catch detector, and every Monte Carlo
+//! how often that detector stopped a craft in free flight, without a hand. `--gusts` adds the
+//! random world's strong gusts during the hover (`sim::world`, aspect `gust`).
+//!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
 //! `--mocap-dropouts-per-s` and `--mocap-dropout-s` (`sim::recovery::MotionCaptureArgs`; the
@@ -126,9 +132,13 @@ struct WorldArgs {
     /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air).
     #[arg(long, default_value = "nominal", value_parser = ["nominal", "random"])]
     world: String,
-    /// Randomise only this aspect (hand, pose, imu, actuators, air); repeatable.
+    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust); repeatable.
     #[arg(long)]
     vary: Vec<String>,
+    /// Add strong gusts to the random world while the craft hovers (the `gust` aspect:
+    /// a 1 − cos gust of 2–8 m/s and a step gust of 1–4 m/s).
+    #[arg(long)]
+    gusts: bool,
     /// Do not give the firmware the airframe's true IMU offset (a board never calibrated: it
     /// flies with none, issue 32).
     #[arg(long)]
@@ -146,9 +156,18 @@ impl WorldArgs {
             if !self.vary.is_empty() {
                 return Err("--vary goes with --world nominal (random varies everything)".into());
             }
-            return Ok(Aspect::ALL.to_vec());
+            let mut aspects = Aspect::ALL.to_vec();
+            if self.gusts {
+                aspects.push(Aspect::Gust);
+            }
+            return Ok(aspects);
         }
-        self.vary.iter().map(|name| Aspect::parse(name)).collect()
+        let mut aspects: Vec<Aspect> =
+            self.vary.iter().map(|name| Aspect::parse(name)).collect::<Result<_, _>>()?;
+        if self.gusts && !aspects.contains(&Aspect::Gust) {
+            aspects.push(Aspect::Gust);
+        }
+        Ok(aspects)
     }
 }
 
@@ -219,6 +238,18 @@ fn print_report(name: &str, report: &FlyReport) {
             (fit - report.r_imu_true_m).norm() * 1e3,
             report.r_imu_fit_semi_axis_m.unwrap_or(f64::NAN) * 1e3
         );
+    }
+    if let Some(catch) = report.catch {
+        println!(
+            "  grabbed by a hand (τ {:.2} s, tilt {:.1}°, pull {:.2} m): motors stopped {}",
+            catch.grab.tau_s,
+            catch.grab.tilt_world_rad.norm().to_degrees(),
+            catch.grab.pull_ned_m.norm(),
+            catch.stopped_after_s.map_or("never".into(), |t| format!("{t:.3} s after the grab"))
+        );
+    }
+    if let Some(at_s) = report.false_catch_s {
+        println!("  the hand-catch detector stopped the motors in free flight {at_s:.2} s after the release");
     }
     if let Some((reason, at_s)) = report.landed_by_itself {
         println!(
@@ -319,6 +350,63 @@ fn print_after_recovery(results: &[sim::recovery::CaseResult]) {
 
 /// How far from where it recovered a craft with a fresh pose may end its flight, m (issue 53).
 const END_FROM_RECOVERY_LIMIT_M: f64 = 2.0;
+
+/// The hand's grabs of a Monte Carlo (`--end catch`), and the hand-catch detector's stops
+/// without a hand (every `--end`).
+fn print_catches(results: &[sim::recovery::CaseResult]) {
+    let false_catches: Vec<String> = results
+        .iter()
+        .filter(|r| r.report.false_catch_s.is_some())
+        .map(|r| r.seed.to_string())
+        .collect();
+    println!(
+        "hand-catch detector in free flight (no hand): {} of {} runs stopped{}",
+        false_catches.len(),
+        results.len(),
+        if false_catches.is_empty() {
+            String::new()
+        } else {
+            format!(" (seeds {})", false_catches.join(", "))
+        }
+    );
+    let grabs: Vec<(u64, sim::recovery::CatchReport)> =
+        results.iter().filter_map(|r| Some((r.seed, r.report.catch?))).collect();
+    if grabs.is_empty() {
+        return;
+    }
+    let latencies: Vec<f64> = grabs.iter().filter_map(|(_, c)| c.stopped_after_s).collect();
+    let in_time = latencies.iter().filter(|&&t| t <= sim::recovery::CATCH_DETECT_MAX_S).count();
+    println!(
+        "grabs: {} of {} hovering craft stopped, {in_time} within {} s",
+        latencies.len(),
+        grabs.len(),
+        sim::recovery::CATCH_DETECT_MAX_S
+    );
+    if !latencies.is_empty() {
+        println!(
+            "  grab → motors stopped: median {:.3} s, 99th {:.3} s, worst {:.3} s",
+            quantile(&latencies, 0.5),
+            quantile(&latencies, 0.99),
+            latencies.iter().cloned().fold(0.0, f64::max)
+        );
+    }
+    let late: Vec<String> = grabs
+        .iter()
+        .filter(|(_, c)| c.stopped_after_s.is_none_or(|t| t > sim::recovery::CATCH_DETECT_MAX_S))
+        .map(|(seed, c)| {
+            format!(
+                "{seed} ({}; τ {:.2} s, tilt {:.1}°, pull {:.2} m)",
+                c.stopped_after_s.map_or("never".into(), |t| format!("{t:.3} s")),
+                c.grab.tau_s,
+                c.grab.tilt_world_rad.norm().to_degrees(),
+                c.grab.pull_ned_m.norm()
+            )
+        })
+        .collect();
+    if !late.is_empty() {
+        println!("  late or never: {}", late.join(", "));
+    }
+}
 
 /// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
 /// flags beside a randomised world.
@@ -639,6 +727,7 @@ fn main() -> ExitCode {
             );
             print_landings(&results);
             print_after_recovery(&results);
+            print_catches(&results);
             let mut by_itself: BTreeMap<String, Vec<String>> = BTreeMap::new();
             for r in &results {
                 if let Some((reason, at_s)) = r.report.landed_by_itself {
