@@ -45,6 +45,7 @@ mod dshot;
 #[path = "../../firmware/src/app"]
 mod app {
     pub mod battery;
+    pub mod catch;
     pub mod hal;
     pub mod landing;
     pub mod sticks;
@@ -264,7 +265,7 @@ const CLOSED_LOOP_REGIONS: [&str; 3] = [
 ];
 
 /// The parts of the hover step on their own.
-const CLOSED_LOOP_PARTS: [&str; 8] = [
+const CLOSED_LOOP_PARTS: [&str; 9] = [
     "attitude filter update",
     "position estimator predict",
     "controller update, hover (position, attitude, rate, INDI, allocation)",
@@ -273,6 +274,7 @@ const CLOSED_LOOP_PARTS: [&str; 8] = [
     "allocation solve, hover increment (warm start)",
     "allocation solve, increment beyond the motors' range (warm start)",
     "controller formed from the learned model and started (engagement, re-forming in flight)",
+    "hand-catch detector, a watched hover step (`firmware::app::catch`)",
 ];
 
 /// One synthetic sample: gyro, accelerometer, commands, speeds.
@@ -652,6 +654,23 @@ fn closed_loop_regions(m: usize, learner: &Learner) {
     });
     if formed.is_none() {
         fail("controller formed");
+    }
+
+    // The hand-catch detector on a watched hover step (its first step starts the watch).
+    let mut u = [0.0f32; MAX_MOTORS];
+    u[..m].copy_from_slice(&model.u_hover[..m]);
+    let mut detector = app::catch::CatchDetector::new(1.0 / DT_S);
+    let signals = app::catch::CatchSignals {
+        model: &model,
+        u: &u,
+        asked_rad_s2: Vector3::new(0.2, -0.1, 0.0),
+        measured_rad_s2: Vector3::new(0.15, -0.12, 0.01),
+    };
+    let _ = detector.update(&signals);
+    let mut state = (detector, signals);
+    let caught = region(&mut state, |(detector, signals)| detector.update(black_box(signals)));
+    if caught {
+        fail("a hover taken for a hand");
     }
 }
 

@@ -13,9 +13,7 @@
 use configurator_cli::offline::replay::{parse_log, replay};
 use firmware::app::hal::{NoBattery, NoBytes};
 use firmware::app::log::{LogReader, LogRecord};
-use firmware::app::system::{
-    with_logged_system, Exclusive, LogTarget, NoLinks, PassShared, TickHardware, TickShared,
-};
+use firmware::app::system::{with_logged_system, LogTarget, NoLinks, TickHardware};
 use firmware::app::{ControlCommand, NoFlash, Settings};
 use sim::sitl::{Sitl, SitlConfig};
 use std::path::{Path, PathBuf};
@@ -212,26 +210,10 @@ fn a_background_task_lagging_the_control_step_at_random_replays_exactly() {
             let (imu, motors) = board.ports();
             let hardware =
                 TickHardware { imu, motors, radio_bytes: &mut NoBytes, battery: &mut NoBattery };
-            let handoffs = &mut system.handoffs;
-            let mut shared = TickShared {
-                commands: Exclusive(&mut handoffs.commands),
-                results: Exclusive(&mut handoffs.results),
-                snapshot: Exclusive(&mut handoffs.snapshot),
-                board: Exclusive(&mut handoffs.board),
-            };
-            let outcome = system.control.tick(now_us, hardware, &mut shared);
+            let outcome = system.tick_alone(now_us, hardware);
             if outcome.link_due {
                 // The link pass: its work waits in the queue for the background task.
-                let handoffs = &mut system.handoffs;
-                let mut shared = PassShared {
-                    snapshot: Exclusive(&mut handoffs.snapshot),
-                    results: Exclusive(&mut handoffs.results),
-                    board: Exclusive(&mut handoffs.board),
-                    commands: Exclusive(&mut handoffs.commands),
-                    work: Exclusive(&mut handoffs.work),
-                    logs: Exclusive(&mut system.log),
-                };
-                system.link.pass(now_us, &mut NoLinks, None, &mut shared);
+                system.pass_alone(now_us, &mut NoLinks);
             }
             if wait == 0 {
                 system.run_background();

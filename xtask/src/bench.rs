@@ -502,25 +502,25 @@ mod tests {
         "pilot step: a landing, the touchdown detector (no fixes)",
     ];
 
+    /// The limit of each of [`DEFAULT_REGIONS`], in order.
+    const DEFAULT_LIMITS: [u64; 8] = [
+        SOLVE_M4_TARGET,
+        SOLVE_M6_TARGET,
+        SOLVE_M8_TARGET,
+        STEP_QUAD_TARGET,
+        STEP_OCTO_TARGET,
+        LEARNER_QUAD_TARGET,
+        LEARNER_OCTO_TARGET,
+        PILOT_STEP_TARGET,
+    ];
+
     #[test]
     fn each_region_takes_its_target() {
         let limits: Vec<u64> = DEFAULT_REGIONS
             .iter()
             .map(|name| rows(&[name], &[0])[0].target.map(|t| t.limit).unwrap_or(0))
             .collect();
-        assert_eq!(
-            limits,
-            [
-                SOLVE_M4_TARGET,
-                SOLVE_M6_TARGET,
-                SOLVE_M8_TARGET,
-                STEP_QUAD_TARGET,
-                STEP_OCTO_TARGET,
-                LEARNER_QUAD_TARGET,
-                LEARNER_OCTO_TARGET,
-                PILOT_STEP_TARGET
-            ]
-        );
+        assert_eq!(limits, DEFAULT_LIMITS);
         let no_speed = rows(
             &[
                 "learner step m=4, no speed telemetry, sample 3",
@@ -544,16 +544,7 @@ mod tests {
 
     #[test]
     fn a_figure_over_its_target_is_a_miss() {
-        let limits = [
-            SOLVE_M4_TARGET,
-            SOLVE_M6_TARGET,
-            SOLVE_M8_TARGET,
-            STEP_QUAD_TARGET,
-            STEP_OCTO_TARGET,
-            LEARNER_QUAD_TARGET,
-            LEARNER_OCTO_TARGET,
-            PILOT_STEP_TARGET,
-        ];
+        let limits = DEFAULT_LIMITS;
         // At the limit: no miss.
         let at = rows(&DEFAULT_REGIONS, &limits);
         assert_eq!(missed(&at, &[]), Vec::<String>::new());

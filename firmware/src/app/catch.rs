@@ -150,6 +150,11 @@ struct Watch {
 #[derive(Clone, Copy, Debug)]
 pub struct CatchDetector {
     dt_s: f32,
+    /// The per-step gains of the baseline's and the tracking error's averages, and the tracking
+    /// peak's decay factor (constant for the step rate: computed once).
+    baseline_gain: f32,
+    tracking_gain: f32,
+    peak_decay: f32,
     sync: Option<BiquadCoefficients>,
     watch: Option<Watch>,
 }
@@ -171,7 +176,15 @@ impl CatchDetector {
     /// A detector for steps at `rate_hz`, not watching.
     pub fn new(rate_hz: f32) -> Self {
         let sync = BiquadCoefficients::butterworth_lowpass(SYNC_CUTOFF_HZ, rate_hz).ok();
-        Self { dt_s: 1.0 / rate_hz, sync, watch: None }
+        let dt_s = 1.0 / rate_hz;
+        Self {
+            dt_s,
+            baseline_gain: dt_s / (CATCH_BASELINE_S + dt_s),
+            tracking_gain: dt_s / (CATCH_TRACKING_S + dt_s),
+            peak_decay: 1.0 - dt_s / (CATCH_PERSIST_S + dt_s),
+            sync,
+            watch: None,
+        }
     }
 
     /// Whether it is watching (the flight steady, not landing, the parameter on).
@@ -231,15 +244,13 @@ impl CatchDetector {
         let modelled = watch.modelled.update(&modelled_accel(model, &watch.u));
         let unexplained = (s.measured_rad_s2 - modelled).xy();
         let deviation = unexplained - watch.baseline_rad_s2;
-        watch.baseline_rad_s2 += deviation * (dt_s / (CATCH_BASELINE_S + dt_s));
+        watch.baseline_rad_s2 += deviation * self.baseline_gain;
         let commanded = modelled.xy() - watch.modelled_baseline_rad_s2;
-        watch.modelled_baseline_rad_s2 += commanded * (dt_s / (CATCH_BASELINE_S + dt_s));
+        watch.modelled_baseline_rad_s2 += commanded * self.baseline_gain;
         let tracking = (s.asked_rad_s2 - s.measured_rad_s2).xy();
-        watch.tracking_rad_s2 +=
-            (tracking - watch.tracking_rad_s2) * (dt_s / (CATCH_TRACKING_S + dt_s));
+        watch.tracking_rad_s2 += (tracking - watch.tracking_rad_s2) * self.tracking_gain;
         let tracking_now = watch.tracking_rad_s2.norm();
-        watch.tracking_peak_rad_s2 =
-            tracking_now.max(watch.tracking_peak_rad_s2 * (1.0 - dt_s / (CATCH_PERSIST_S + dt_s)));
+        watch.tracking_peak_rad_s2 = tracking_now.max(watch.tracking_peak_rad_s2 * self.peak_decay);
         let bound = watch.bound_rad_s2;
         watch.watched_s += dt_s;
         let unexplained_bound = bound + CATCH_MODEL_ERROR * commanded.norm();

@@ -752,6 +752,20 @@ impl<'q, F: NorFlash> System<'q, F> {
         now_us: u64,
         hardware: TickHardware<'_, I, M, RS, BS>,
     ) -> TickOutcome {
+        let outcome = self.tick_alone(now_us, hardware);
+        if outcome.background_due {
+            self.run_background();
+        }
+        outcome
+    }
+
+    /// The control tick alone: the background task does not run after it (a test that makes it
+    /// lag, as the board's may).
+    pub fn tick_alone<I: Imu, M: Motors, RS: Uart, BS: BatterySensor>(
+        &mut self,
+        now_us: u64,
+        hardware: TickHardware<'_, I, M, RS, BS>,
+    ) -> TickOutcome {
         let handoffs = &mut self.handoffs;
         let mut shared = TickShared {
             commands: Exclusive(&mut handoffs.commands),
@@ -759,16 +773,21 @@ impl<'q, F: NorFlash> System<'q, F> {
             snapshot: Exclusive(&mut handoffs.snapshot),
             board: Exclusive(&mut handoffs.board),
         };
-        let outcome = self.control.tick(now_us, hardware, &mut shared);
+        self.control.tick(now_us, hardware, &mut shared)
+    }
+
+    /// A link pass (see [`LinkTask::pass`]); work it queued for the background task runs at
+    /// once.
+    pub fn pass(&mut self, now_us: u64, links: &mut dyn Links) -> PassOutcome {
+        let outcome = self.pass_alone(now_us, links);
         if outcome.background_due {
             self.run_background();
         }
         outcome
     }
 
-    /// A link pass (see [`LinkTask::pass`]); work it queued for the background task runs at
-    /// once.
-    pub fn pass(&mut self, now_us: u64, links: &mut dyn Links) -> PassOutcome {
+    /// The link pass alone: the work it queues waits for the background task.
+    pub fn pass_alone(&mut self, now_us: u64, links: &mut dyn Links) -> PassOutcome {
         let handoffs = &mut self.handoffs;
         let mut shared = PassShared {
             snapshot: Exclusive(&mut handoffs.snapshot),
@@ -778,11 +797,7 @@ impl<'q, F: NorFlash> System<'q, F> {
             work: Exclusive(&mut handoffs.work),
             logs: Exclusive(&mut self.log),
         };
-        let outcome = self.link.pass(now_us, links, None, &mut shared);
-        if outcome.background_due {
-            self.run_background();
-        }
-        outcome
+        self.link.pass(now_us, links, None, &mut shared)
     }
 
     /// The background task's run (see [`run_background`]).
