@@ -76,10 +76,10 @@ pub fn crossover_for_noise(noise_m: f32) -> f32 {
 pub const MAX_BIAS_MPS2: f32 = 0.5;
 
 /// Time after the last fix's arrival at which the estimate counts as dead reckoning, s (ours):
-/// three fix periods at the slowest rate the firmware supports (10 Hz), so that one lost or late
-/// fix of a 10 Hz stream is bridged, while a stream that stopped is noticed within a third of a
-/// second (dead reckoning with 0.1 m/s² of acceleration error drifts 5 mm in that time).
-pub const FIX_TIMEOUT_S: f32 = 0.3;
+/// three fix periods at the slowest rate the firmware supports (a GNSS receiver's 5 Hz), so that
+/// one lost or late fix of a 5 Hz stream is bridged, while a stream that stopped is noticed
+/// within 0.6 s (dead reckoning with 0.1 m/s² of acceleration error drifts 2 cm in that time).
+pub const FIX_TIMEOUT_S: f32 = 0.6;
 
 /// Spacing of the predicted positions kept for late fixes, s (ours: at 10 m/s² the straight
 /// line between two of them is within 20 µm of the parabola, `a·Δt²/8`).
@@ -116,6 +116,9 @@ pub const OUTLIER_DRIFT_ACCEL_MPS2: f32 = 0.5;
 /// The same while velocity fixes are taken, m/s (ours: a Doppler velocity's error integrates
 /// to centimetres per second): the gate then widens by this times `t`.
 pub const OUTLIER_DRIFT_AIDED_MPS: f32 = 0.05;
+
+/// √3: a 3D velocity's RMS error per axis standard deviation.
+const SQRT_3: f32 = 1.732_050_8;
 
 /// Smallest velocity innovation a velocity is ever refused for, m/s (ours).
 pub const MIN_VELOCITY_GATE_MPS: f32 = 1.0;
@@ -468,7 +471,7 @@ impl PositionEstimator {
         let restart = !self.fixed_once || self.since_fix_s > FIX_TIMEOUT_S;
         // A horizontal accuracy is the RMS of the 2D error: √2 σ; a 3D velocity's √3 σ.
         let velocity_error = velocity_error.filter(|(ev, noise)| {
-            ev.norm() <= (OUTLIER_SIGMAS * 3f32.sqrt() * noise).max(MIN_VELOCITY_GATE_MPS)
+            ev.norm() <= (OUTLIER_SIGMAS * SQRT_3 * noise).max(MIN_VELOCITY_GATE_MPS)
         });
         let t = self.since_taken_s;
         let drift_m = if velocity_error.is_some() {
@@ -718,6 +721,11 @@ impl HeadingAlignment {
             evidence: 0.0,
             trusted_yaw_rad: None,
         }
+    }
+
+    /// The fixes' noise it was built for, m.
+    pub fn noise_m(&self) -> f32 {
+        self.noise_m
     }
 
     /// The window, s.

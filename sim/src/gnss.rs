@@ -254,6 +254,52 @@ impl GnssModelConfig {
     }
 }
 
+/// The GNSS receiver on a command line (`fly`, later `sitl`): `--gnss` flies on it instead of
+/// motion capture; the rest shape it in the units a user thinks in (the other fields are
+/// [`GnssModelConfig::default`]'s: correlated over 20 s, 5 cm white, 5 cm/s velocity noise).
+#[derive(clap::Args, Clone, Debug, PartialEq)]
+pub struct GnssArgs {
+    /// Fly on a simulated u-blox GNSS receiver (its NAV-PVT bytes through the firmware's
+    /// driver) instead of motion capture: position and velocity, no heading.
+    #[arg(long, global = true)]
+    pub gnss: bool,
+    /// GNSS: correlated position error per horizontal axis, one standard deviation, m (the
+    /// vertical 1.5 times it).
+    #[arg(long, global = true, default_value_t = 0.3)]
+    pub gnss_noise_m: f64,
+    /// GNSS: solutions per second, Hz (5–10 for u-blox receivers with several constellations).
+    #[arg(long, global = true, default_value_t = 10.0)]
+    pub gnss_rate_hz: f64,
+    /// GNSS: time from a solution's epoch to its arrival at the board, ms (told to the firmware).
+    #[arg(long, global = true, default_value_t = 100.0)]
+    pub gnss_latency_ms: f64,
+    /// GNSS: multipath jumps (1–5 m for `--gnss-multipath-s`) per minute.
+    #[arg(long, global = true, default_value_t = 0.0)]
+    pub gnss_multipath_per_min: f64,
+    /// GNSS: how long a multipath jump lasts, s.
+    #[arg(long, global = true, default_value_t = 5.0)]
+    pub gnss_multipath_s: f64,
+}
+
+impl GnssArgs {
+    /// The receiver, checked ([`GnssModelConfig::validate`]); `None` without `--gnss`.
+    pub fn config(&self) -> Result<Option<GnssModelConfig>, String> {
+        if !self.gnss {
+            return Ok(None);
+        }
+        let config = GnssModelConfig {
+            rate_hz: self.gnss_rate_hz,
+            latency_s: self.gnss_latency_ms * 1e-3,
+            horizontal_sigma_m: self.gnss_noise_m,
+            vertical_sigma_m: 1.5 * self.gnss_noise_m,
+            multipath_per_s: self.gnss_multipath_per_min / 60.0,
+            multipath_s: self.gnss_multipath_s,
+            ..GnssModelConfig::default()
+        };
+        config.validate().map(|()| Some(config))
+    }
+}
+
 /// The truth the receiver measures at an update.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GnssTruth {

@@ -20,10 +20,12 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
 use crate::dynamics::State;
+use crate::gnss::{GnssModelConfig, GnssTruth, SimGnss};
 use crate::hand::GrabSpec;
 use crate::identification::{Scores, Throw, TrueModel};
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
+use firmware::app::gnss::GnssInput;
 use firmware::app::{ControlCommand, ControlSettings, Failsafe, Param, Params, PoseConfig};
 use firmware::drivers::crsf::StickInput;
 use flight::learner::FlightPhase;
@@ -277,6 +279,11 @@ pub struct FlyConfig {
     pub sticks: Vec<(f64, StickInput)>,
     /// How the hand grabs the craft when the flight ends with [`FlightEnd::Catch`].
     pub grab: GrabSpec,
+    /// A GNSS receiver instead of motion capture (`mocap` is then ignored): its NAV-PVT bytes
+    /// go through the firmware's own receiver code (`firmware::app::gnss::GnssInput`), which
+    /// is told the receiver's latency as a user would set it, and each solution reaches the
+    /// control step as a position fix without heading.
+    pub gnss: Option<GnssModelConfig>,
 }
 
 /// One sample of a flight flown from the sticks ([`FlyConfig::sticks`]), against the truth.
@@ -397,6 +404,7 @@ impl FlyConfig {
             end: FlightEnd::Hover,
             sticks: Vec::new(),
             grab: GrabSpec::default(),
+            gnss: None,
         }
     }
 }
@@ -647,9 +655,20 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         let mut sticks_from: Option<(f64, Vector3<f64>)> = None;
         let hold_ticks = 1000u64; // 0.5 s in the hand
         let spec = config.throw.spec();
-        let mut mocap = config
-            .mocap
+        let mut mocap = (config.mocap && config.gnss.is_none())
             .then(|| MotionCapture::with_config(config.motion_capture, config.board.seed));
+        let mut gnss = config.gnss.as_ref().map(|model| {
+            let receiver = firmware::drivers::ubx::GnssConfig {
+                target_baud: 115_200,
+                measurement_period_s: (1.0 / model.rate_hz) as f32,
+            };
+            let home = model.home;
+            let input = GnssInput::new(receiver, model.latency_s as f32);
+            (SimGnss::new(model.clone(), config.board.seed), input, home)
+        });
+        // Where the fixes' world has its origin in the simulator's, NED, m: the first GNSS fix's
+        // measured position (its error included); zero for motion capture, whose world is ours.
+        let mut fix_origin_ned_m: Option<Vector3<f64>> = None;
         let (mut window_steps, mut window_hold_steps) = (0u64, 0u64);
         let mut hover_since: Option<f64> = None;
         let mut release_z: Option<f64> = None;
@@ -679,6 +698,31 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 .filter(|_| !board.pose_lost())
             {
                 app.command(ControlCommand::ExternalPose(pose), now_us);
+            }
+            if let Some((receiver, input, home)) = &mut gnss {
+                let state = board.physics().state();
+                let truth = GnssTruth {
+                    position_ned_m: state.position_ned_m,
+                    velocity_ned_mps: state.velocity_ned_mps,
+                };
+                let delivered = receiver.update(board.time_s(), &truth);
+                let mut bytes = Vec::new();
+                for solution in &delivered {
+                    bytes.extend_from_slice(&solution.fix.to_frame());
+                }
+                // The simulated receiver streams whatever it is sent; the firmware's
+                // configuration is taken as written.
+                let unsent = input.output().write.len();
+                input.sent(unsent);
+                if let Some(fix) = input.poll(&bytes, now_us) {
+                    if fix_origin_ned_m.is_none() {
+                        let first = delivered.iter().rev().find(|d| d.fix.has_3d_fix());
+                        fix_origin_ned_m = first.map(|d| {
+                            home.fix_to_ned(&d.fix) - Vector3::from(fix.position_ned_m).cast()
+                        });
+                    }
+                    app.command(ControlCommand::PositionFix(fix), now_us);
+                }
             }
             {
                 let (imu, motors) = board.ports();
@@ -791,7 +835,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     window_hold_steps += u64::from(snapshot.pilot.position_hold);
                 }
                 if snapshot.pilot.position_hold && report.landing.is_none() {
-                    let sp = Vector3::from(snapshot.pilot.position_sp_ned_m).cast::<f64>();
+                    let sp = Vector3::from(snapshot.pilot.position_sp_ned_m).cast::<f64>()
+                        + fix_origin_ned_m.unwrap_or_else(Vector3::zeros);
                     report.setpoint_ned_m = Some(sp);
                     if in_window {
                         let error = (state.position_ned_m - sp).norm();

@@ -100,6 +100,9 @@ pub enum ControlCommand {
     Sticks(Option<crate::drivers::crsf::StickInput>),
     /// A pose from motion capture or a ground station.
     ExternalPose(ExternalPose),
+    /// A position fix with its own accuracy and no heading: a GNSS receiver's solution
+    /// (`super::gnss`).
+    PositionFix(super::pilot::PositionFix),
     /// Where to hold while poses arrive (the link refuses non-finite values).
     PositionSetpoint(PositionSetpoint),
     /// The parameters changed: take these (applied when nothing is armed; kept until then).
@@ -627,6 +630,7 @@ impl<'q> ControlLoop<'q> {
                     self.pilot.pose(&pose, now_us);
                 }
             }
+            ControlCommand::PositionFix(fix) => self.pilot.fix(&fix, now_us),
             ControlCommand::PositionSetpoint(setpoint) => {
                 self.pilot.set_position_setpoint(&setpoint);
             }

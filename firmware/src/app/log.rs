@@ -73,8 +73,9 @@ pub enum BackgroundWork {
 /// sticks (the commands [`LoggedCommand::Land`] and [`LoggedCommand::Sticks`], the flight modes
 /// `Landing` and `Angle`); 4 the adoptions of the background's results ([`id::ADOPTED`]) and
 /// the learner samples each piece of work was taken at ([`id::WORK_AT`], instead of
-/// [`id::WORK`]). A reader reads every earlier version, and refuses later ones.
-pub const LOG_FORMAT_VERSION: u16 = 4;
+/// [`id::WORK`]); 5 the position fixes with their own accuracy ([`LoggedCommand::PositionFix`]:
+/// a GNSS receiver's). A reader reads every earlier version, and refuses later ones.
+pub const LOG_FORMAT_VERSION: u16 = 5;
 
 /// Rate of the learner's and the flight's snapshots in a log, Hz: a G1 estimate converges over
 /// tenths of a second and a hover's position error moves at a few hertz, so 25 Hz shows both;
@@ -242,6 +243,8 @@ pub enum LoggedCommand {
     Land(LandReason),
     /// The pilot's sticks ([`ControlCommand::Sticks`]).
     Sticks(Option<crate::drivers::crsf::StickInput>),
+    /// A position fix with its own accuracy ([`ControlCommand::PositionFix`], format 5).
+    PositionFix(super::pilot::PositionFix),
 }
 
 /// A command applied before step `step`.
@@ -393,6 +396,7 @@ impl LoggedCommand {
             },
             ControlCommand::Land(reason) => Self::Land(reason),
             ControlCommand::Sticks(sticks) => Self::Sticks(sticks),
+            ControlCommand::PositionFix(fix) => Self::PositionFix(fix),
         }
     }
 
@@ -415,6 +419,7 @@ impl LoggedCommand {
             }
             Self::Land(reason) => ControlCommand::Land(reason),
             Self::Sticks(sticks) => ControlCommand::Sticks(sticks),
+            Self::PositionFix(fix) => ControlCommand::PositionFix(fix),
         })
     }
 }

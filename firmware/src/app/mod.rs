@@ -18,6 +18,7 @@ pub mod battery;
 pub mod card;
 pub mod catch;
 mod control;
+pub mod gnss;
 pub mod hal;
 pub mod landing;
 mod link;
@@ -44,7 +45,7 @@ pub use link::{LinkRequest, LinkServer, TELEMETRY_SHARE_PCT, TX_CAPACITY};
 pub use params::{Param, Params};
 pub use pilot::{
     count_failsafe, failsafe_counter, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus,
-    PoseConfig,
+    PoseConfig, PositionFix, MAX_POSE_LATENCY_S,
 };
 pub use queue::{
     split_queue, LearnerSample, RingConsumer, RingProducer, SampleConsumer, SampleProducer,

@@ -27,9 +27,9 @@
 //!   position estimator and the heading alignment keep a short history). Nothing is counted in
 //!   poses: the estimator's gains follow the time between poses, the heading alignment's window
 //!   is a time span sized by the poses' noise ([`PoseConfig::noise_m`], `pose_noise_m`). What
-//!   the pose stream may be: 10 Hz to 2 kHz, evenly spaced or not, 0–0.1 s late, 1 mm to 0.5 m
+//!   the pose stream may be: 5 Hz to 2 kHz, evenly spaced or not, 0–0.2 s late, 1 mm to 0.5 m
 //!   of noise (docs/sim-bridge.md).
-//! - **A lost pose**: the fixes stop for more than `flight::navigation::FIX_TIMEOUT_S` (0.3 s)
+//! - **A lost pose**: the fixes stop for more than `flight::navigation::FIX_TIMEOUT_S` (0.6 s)
 //!   while the flight used them (position hold, or the level hold of the recovery steered by the
 //!   fixes' velocity): [`Failsafe::PoseLost`] is counted in the step the estimator lets the fix
 //!   go, and the craft flies level hold with zero vertical speed from that step, on the position
@@ -66,7 +66,8 @@ use flight::controller::{Controller, ControllerInput, ControllerOutput, Guidance
 use flight::indi::{IndiConfig, IndiModel, ModelError};
 use flight::learner::{AxisStatus, LearnedModel};
 use flight::navigation::{
-    crossover_for_noise, HeadingAlignment, PositionEstimator, MAX_FIX_AGE_S, STANDARD_GRAVITY_MPS2,
+    crossover_for_noise, Fix, FixOutcome, HeadingAlignment, PositionEstimator, MAX_FIX_AGE_S,
+    STANDARD_GRAVITY_MPS2,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use protocol::{
@@ -236,8 +237,50 @@ pub const STICKS_TAKE_OVER_TILT_RAD: f32 = 10.0 * core::f32::consts::PI / 180.0;
 pub const DEFAULT_POSE_LATENCY_S: f32 = 0.0;
 
 /// Largest pose latency the parameter accepts, s: the estimators' history holds
-/// `flight::navigation::MAX_FIX_AGE_S` (0.127 s), less one control step between arrival and use.
-pub const MAX_POSE_LATENCY_S: f32 = 0.1;
+/// `flight::navigation::MAX_FIX_AGE_S` (0.255 s), less one control step between arrival and
+/// use; a GNSS receiver's solution arrives 50–150 ms after its epoch.
+pub const MAX_POSE_LATENCY_S: f32 = 0.2;
+
+/// A position fix that states its own accuracy (a GNSS receiver's solution,
+/// `super::gnss`), as the control step takes it: unlike an [`ExternalPose`] it has no heading,
+/// and each fix is weighted by its own accuracy (`flight::navigation::PositionEstimator::correct_fix`).
+#[derive(serde::Serialize, serde::Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct PositionFix {
+    /// Position of the centre of gravity, world NED, m (the fixes' own world: a GNSS
+    /// receiver's north and east about the first fix).
+    pub position_ned_m: [f32; 3],
+    /// Position noise, one standard deviation per axis: horizontal (north and east each),
+    /// vertical, m.
+    pub sigma_m: [f32; 2],
+    /// Velocity, world NED, m/s, when the source measures one (GNSS Doppler).
+    pub velocity_ned_mps: Option<[f32; 3]>,
+    /// The velocity's noise, one standard deviation per axis, m/s.
+    pub velocity_sigma_mps: f32,
+    /// Time from the moment the fix describes to its arrival at the board, s (0 to
+    /// [`MAX_POSE_LATENCY_S`]).
+    pub latency_s: f32,
+}
+
+impl PositionFix {
+    /// Every value finite, the noises positive, the latency within 0–[`MAX_POSE_LATENCY_S`].
+    pub fn is_valid(&self) -> bool {
+        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+        finite(&self.position_ned_m)
+            && self.sigma_m.iter().all(|x| x.is_finite() && *x > 0.0)
+            && self.velocity_ned_mps.is_none_or(|v| finite(&v))
+            && (self.velocity_ned_mps.is_none()
+                || (self.velocity_sigma_mps.is_finite() && self.velocity_sigma_mps > 0.0))
+            && (0.0..=MAX_POSE_LATENCY_S).contains(&self.latency_s)
+    }
+}
+
+/// A fix that arrived and waits for the next prediction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PendingFix {
+    /// The fix; its `age_s` is the latency alone until it is taken.
+    fix: Fix,
+    arrived_us: u64,
+}
 
 /// Default pose noise, m, one standard deviation per axis: motion capture (the `pose_noise_m`
 /// parameter).
@@ -398,6 +441,8 @@ pub struct PilotStatus {
     pub velocity_ned_mps: [f32; 3],
     /// Whether a position fix is recent.
     pub has_fix: bool,
+    /// Fixes refused as outliers since start-up (`flight::navigation::OUTLIER_SIGMAS`).
+    pub fixes_rejected: u32,
     /// Whether the yaw between the attitude filter and the poses' world is known.
     pub heading_aligned: bool,
     /// That yaw, rad (0 until known).
@@ -466,9 +511,8 @@ pub struct Pilot {
     requested_sp: Option<PositionSetpoint>,
     /// Time of the last pose's arrival, µs.
     last_pose_us: Option<u64>,
-    /// A pose that arrived and is taken after the next prediction: its position and arrival
-    /// time (µs), and the time since the previous pose, s.
-    pending_fix: Option<(Vector3<f32>, u64, f32)>,
+    /// A pose or fix that arrived and is taken after the next prediction.
+    pending_fix: Option<PendingFix>,
     /// What the poses are assumed to be.
     pose_config: PoseConfig,
     heading_rad: Option<f32>,
@@ -704,23 +748,66 @@ impl Pilot {
         if !super::is_finite_pose(&pose.position_ned_m, pose.heading_rad) {
             return;
         }
-        let dt_fix_s = self
-            .last_pose_us
-            .map(|t| now_us.saturating_sub(t) as f32 * 1e-6)
-            .filter(|dt| *dt > 0.0)
-            .unwrap_or(0.01);
-        self.pending_fix = Some((Vector3::from(pose.position_ned_m), now_us, dt_fix_s));
+        let noise = self.pose_config.noise_m;
+        let fix = Fix {
+            position_ned_m: Vector3::from(pose.position_ned_m),
+            sigma_m: [noise, noise],
+            velocity: None,
+            age_s: self.pose_config.latency_s,
+            dt_fix_s: self.since_last_fix_s(now_us),
+        };
+        self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
         self.last_pose_us = Some(now_us);
         self.heading_rad = Some(pose.heading_rad);
     }
 
-    /// Take the waiting pose's position, the estimates being at `now_us`: it describes the
-    /// craft the pose latency before its arrival.
+    /// A position fix with its own accuracy and no heading (a GNSS solution) that arrived at
+    /// `now_us`: taken as a pose is ([`Pilot::pose`]), weighted by its accuracy. Until the
+    /// heading alignment has found the yaw, a fix whose horizontal noise differs from what the
+    /// alignment was built for by more than twice rebuilds it for the fixes' noise (its window
+    /// and evidence follow the noise). Invalid fixes ([`PositionFix::is_valid`]) are ignored.
+    pub fn fix(&mut self, fix: &PositionFix, now_us: u64) {
+        if !fix.is_valid() {
+            return;
+        }
+        let [horizontal_m, _] = fix.sigma_m;
+        let ratio = horizontal_m / self.alignment.noise_m();
+        if self.alignment.yaw_rad().is_none() && !(0.5..=2.0).contains(&ratio) {
+            self.alignment = HeadingAlignment::new(horizontal_m);
+        }
+        let velocity = fix.velocity_ned_mps.map(|v| (Vector3::from(v), fix.velocity_sigma_mps));
+        let fix = Fix {
+            position_ned_m: Vector3::from(fix.position_ned_m),
+            sigma_m: fix.sigma_m,
+            velocity,
+            age_s: fix.latency_s,
+            dt_fix_s: self.since_last_fix_s(now_us),
+        };
+        self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
+        self.last_pose_us = Some(now_us);
+        self.heading_rad = None;
+    }
+
+    /// Time since the previous pose or fix arrived, s (0.01 s for the first).
+    fn since_last_fix_s(&self, now_us: u64) -> f32 {
+        self.last_pose_us
+            .map(|t| now_us.saturating_sub(t) as f32 * 1e-6)
+            .filter(|dt| *dt > 0.0)
+            .unwrap_or(0.01)
+    }
+
+    /// Take the waiting fix, the estimates being at `now_us`: it describes the craft its
+    /// latency before its arrival.
     fn take_fix(&mut self, now_us: u64) {
-        let Some((position, arrived_us, dt_fix_s)) = self.pending_fix.take() else { return };
+        let Some(PendingFix { mut fix, arrived_us }) = self.pending_fix.take() else { return };
         let since_arrival_s = now_us.saturating_sub(arrived_us) as f32 * 1e-6;
-        let age_s = (self.pose_config.latency_s + since_arrival_s).min(MAX_FIX_AGE_S);
-        if self.navigation.correct_late(&position, age_s, dt_fix_s).is_ok() {
+        fix.age_s = (fix.age_s + since_arrival_s).min(MAX_FIX_AGE_S);
+        let outcome = self.navigation.correct_fix(&fix);
+        if outcome == Ok(FixOutcome::Rejected) {
+            self.status.fixes_rejected = self.status.fixes_rejected.wrapping_add(1);
+        }
+        if matches!(outcome, Ok(FixOutcome::Taken | FixOutcome::Reset)) {
+            let (position, age_s) = (fix.position_ned_m, fix.age_s);
             let before = self.alignment.yaw_rad();
             self.alignment.fix(&position, age_s);
             if self.alignment.yaw_rad().is_some() && before.is_none() {

@@ -907,6 +907,12 @@ impl GnssReceiver {
             self.fix = Some(fix);
         }
         self.step(any_frame, newest.is_some(), now_us);
+        self.output()
+    }
+
+    /// What [`GnssReceiver::poll`] last asked for and is still unsent: the rate the UART should
+    /// run at and the bytes to queue.
+    pub fn output(&self) -> GnssOutput<'_> {
         GnssOutput { write: &self.tx[self.tx_start..self.tx_end], baud: self.baud() }
     }
 

@@ -44,6 +44,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
+use sim::gnss::GnssArgs;
 use sim::recovery::{
     fly, monte_carlo, random_case, FlightEnd, FlyConfig, FlyReport, MotionCaptureArgs,
     MotionCaptureConfig, Verdict,
@@ -58,6 +59,8 @@ struct Args {
     command: Command,
     #[command(flatten)]
     mocap: MotionCaptureArgs,
+    #[command(flatten)]
+    gnss: GnssArgs,
     /// How each flight ends after its hover: `hover` (the run stops), `land` (a host's
     /// `land`), `rc-lost` (the radio lost in flight: the receiver's landing).
     #[arg(long, global = true, default_value = "hover", value_parser = FlightEnd::parse)]
@@ -434,6 +437,16 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    let gnss = match args.gnss.config() {
+        Ok(config) => config,
+        Err(e) => {
+            eprintln!("fly: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if let Some(gnss) = &gnss {
+        println!("GNSS instead of motion capture: {gnss:?}");
+    }
     if motion_capture != MotionCaptureConfig::default() {
         println!("motion capture: {motion_capture:?}");
     }
@@ -476,6 +489,7 @@ fn main() -> ExitCode {
             config.mocap = !no_mocap;
             config.speed_telemetry = !no_speed_telemetry;
             config.known_imu_offset = !unknown_imu_offset;
+            config.gnss = gnss;
             print_report(&airframe.name, &fly(&airframe, &config));
         }
         Command::Case { seed, trace, world: world_args } => {
@@ -486,6 +500,7 @@ fn main() -> ExitCode {
             let (airframe, mut config) = case(seed, &aspects, motion_capture, &world_args);
             config.trace = trace;
             config.end = args.end;
+            config.gnss = gnss;
             if !aspects.is_empty() {
                 println!("world: {config:#?}");
             }
@@ -522,7 +537,7 @@ fn main() -> ExitCode {
             let end = args.end;
             let results = monte_carlo(runs, seed, threads, &progress, |seed| {
                 let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
-                (airframe, FlyConfig { end, ..config })
+                (airframe, FlyConfig { end, gnss: gnss.clone(), ..config })
             });
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
