@@ -810,6 +810,9 @@ impl Pilot {
             let (position, age_s) = (fix.position_ned_m, fix.age_s);
             let before = self.alignment.yaw_rad();
             self.alignment.fix(&position, age_s);
+            if let Some((velocity, noise)) = fix.velocity {
+                self.alignment.fix_velocity(&velocity, noise, age_s);
+            }
             if self.alignment.yaw_rad().is_some() && before.is_none() {
                 // The accelerometer's world turned: restart the velocity from dead reckoning.
                 self.navigation.set_velocity(&self.dead_reckoned_velocity());
