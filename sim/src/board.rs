@@ -103,7 +103,8 @@ pub struct SimConfig {
     pub battery: PackParams,
 }
 
-/// Time-varying effects of the world on a board: a sagging battery, ESC answers lost, a gust.
+/// Time-varying effects of the world on a board: a sagging battery, ESC answers lost, gusts, a
+/// steady wind and turbulence.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct WorldEffects {
     /// Fraction of every motor's thrust lost to battery sag by `battery_sag_over_s` after the
@@ -122,6 +123,66 @@ pub struct WorldEffects {
     pub gust_s: f64,
     /// More gusts, on top of that one ([`crate::world`]'s `gusts`).
     pub gusts: [Option<Gust>; 2],
+    /// A steady wind, world NED, m/s, from the start of the run (the throw included), on top of
+    /// the gusts ([`crate::world`]'s `wind`; zero: none).
+    pub steady_wind_ned_mps: [f64; 3],
+    /// Turbulence on top of the steady wind and the gusts (`None`: none).
+    pub turbulence: Option<Turbulence>,
+}
+
+/// Turbulence: each world axis's air velocity a first-order Gauss–Markov process (an
+/// Ornstein–Uhlenbeck process sampled at the control rate) of zero mean.
+///
+/// A simplified stand-in for the Dryden model of MIL-F-8785C / MIL-HDBK-1797, whose longitudinal
+/// spectrum is this first-order one with a correlation time of its length scale over the mean
+/// wind; its lateral and vertical spectra are second-order and their length scales differ, which
+/// this one correlation time for every axis leaves out ([`crate::world`] says which ranges are
+/// drawn and why).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Turbulence {
+    /// Standard deviation of each world axis's velocity (north, east, down), m/s.
+    pub sigma_ned_mps: [f64; 3],
+    /// Correlation time of every axis, s: the autocorrelation falls as `exp(−lag / τ)`.
+    pub correlation_s: f64,
+    /// Seed of the process's draws.
+    pub seed: u64,
+}
+
+/// The turbulence's state, advanced one step at a time ([`Turbulence`]).
+///
+/// The exact discretisation of the continuous process: over a step `dt`,
+/// `x ← a·x + σ·√(1 − a²)·n` with `a = exp(−dt/τ)` and `n` standard normal, so the variance
+/// stays σ² whatever the step. The state starts drawn from that stationary distribution: the
+/// air is as turbulent at the start of a run as later.
+#[derive(Clone, Debug)]
+pub struct TurbulenceProcess {
+    config: Turbulence,
+    rng: crate::rng::Rng,
+    velocity_ned_mps: Vector3<f64>,
+}
+
+impl TurbulenceProcess {
+    /// The process of `config`, its state drawn from the stationary distribution.
+    pub fn new(config: Turbulence) -> Self {
+        let mut rng = crate::rng::Rng::new(config.seed);
+        let velocity_ned_mps = Vector3::from(config.sigma_ned_mps.map(|s| s * rng.normal()));
+        Self { config, rng, velocity_ned_mps }
+    }
+
+    /// The turbulence's velocity now, world NED, m/s.
+    pub fn velocity_ned_mps(&self) -> Vector3<f64> {
+        self.velocity_ned_mps
+    }
+
+    /// Advances the process by `dt_s` and returns its new velocity, world NED, m/s.
+    pub fn step(&mut self, dt_s: f64) -> Vector3<f64> {
+        let a = (-dt_s / self.config.correlation_s.max(f64::MIN_POSITIVE)).exp();
+        let share = (1.0 - a * a).max(0.0).sqrt();
+        for (x, sigma) in self.velocity_ned_mps.iter_mut().zip(self.config.sigma_ned_mps) {
+            *x = a * *x + sigma * share * self.rng.normal();
+        }
+        self.velocity_ned_mps
+    }
 }
 
 /// The shape of a [`Gust`] in time.
@@ -371,6 +432,8 @@ pub struct SimBoard {
     world: WorldEffects,
     /// Draws of the world's random effects (lost ESC answers).
     world_rng: crate::rng::Rng,
+    /// The turbulence's state (`None` without turbulence).
+    turbulence: Option<TurbulenceProcess>,
     battery: SimBattery,
     /// What the board's battery sensors read in the latest tick.
     battery_reading: BatteryReading,
@@ -424,6 +487,7 @@ impl SimBoard {
             faults: FaultInjector::new(&config.faults),
             world: config.world,
             world_rng: crate::rng::Rng::new(config.seed ^ 0x57_4F52_4C44),
+            turbulence: config.world.turbulence.map(TurbulenceProcess::new),
             battery: SimBattery::new(config.battery, config.seed),
             battery_reading: BatteryReading::default(),
             reported_rad_s: [None; MAX_MOTORS],
@@ -449,11 +513,25 @@ impl SimBoard {
                 targets[i] = p.steady_speed_rad_s(f64::from(command)) * (1.0 - sag).max(0.0).sqrt();
             }
         }
-        if w.gust_s > 0.0 || w.gusts.iter().any(Option::is_some) {
+        let steady = w.steady_wind_ned_mps != [0.0; 3];
+        if w.gust_s > 0.0 || w.gusts.iter().any(Option::is_some) || steady || w.turbulence.is_some()
+        {
             let gusting = (w.gust_start_s..w.gust_start_s + w.gust_s).contains(&now_s);
             let mut wind = if gusting { Vector3::from(w.gust_ned_mps) } else { Vector3::zeros() };
             for gust in w.gusts.iter().flatten() {
                 wind += gust.wind_ned_mps(now_s);
+            }
+            // Added only when present, so that a world without them flies bit for bit as before.
+            if steady {
+                wind += Vector3::from(w.steady_wind_ned_mps);
+            }
+            if let Some(turbulence) = self.turbulence.as_mut() {
+                // The state at the start of the first tick is the stationary draw; then one step
+                // of a control period per tick.
+                if self.ticks > 0 {
+                    turbulence.step(CONTROL_PERIOD_US as f64 * 1e-6);
+                }
+                wind += turbulence.velocity_ned_mps();
             }
             if wind != self.physics.model().wind_ned_mps {
                 self.physics.set_wind(wind);
@@ -594,5 +672,144 @@ impl SimBoard {
     /// The IMU model (its pose on the body).
     pub fn imu_model(&self) -> &ImuModel {
         &self.imu_model
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The air velocity the physics sees in each of `ticks` ticks of a board in `world`.
+    fn air_velocities(world: WorldEffects, ticks: usize) -> Vec<Vector3<f64>> {
+        let airframe = Airframe::builtin("paper-quad").unwrap();
+        let config = SimConfig { world, arming: Arming::Disarmed, ..SimConfig::default() };
+        let mut board = SimBoard::new(&airframe, &config);
+        (0..ticks)
+            .map(|_| {
+                board.tick();
+                board.physics().model().wind_ned_mps
+            })
+            .collect()
+    }
+
+    fn turbulence() -> Turbulence {
+        Turbulence { sigma_ned_mps: [0.6, 0.6, 0.3], correlation_s: 1.0, seed: 5 }
+    }
+
+    #[test]
+    fn without_wind_the_air_is_the_gusts_alone() {
+        let world = WorldEffects::default();
+        assert_eq!(world.steady_wind_ned_mps, [0.0; 3]);
+        assert_eq!(world.turbulence, None);
+        let gust = Gust {
+            shape: GustShape::OneMinusCosine,
+            peak_ned_mps: [2.0, -1.0, 0.5],
+            start_s: 0.1,
+            duration_s: 0.2,
+        };
+        let gusty = WorldEffects {
+            gust_ned_mps: [0.5, 0.25, 0.0],
+            gust_start_s: 0.05,
+            gust_s: 0.1,
+            gusts: [Some(gust), None],
+            ..world
+        };
+        for (tick, air) in air_velocities(gusty, 800).into_iter().enumerate() {
+            let now_s = (tick as u64 * CONTROL_PERIOD_US) as f64 * 1e-6;
+            let first = if (0.05..0.05 + 0.1).contains(&now_s) {
+                Vector3::new(0.5, 0.25, 0.0)
+            } else {
+                Vector3::zeros()
+            };
+            // Exactly the sum of the gusts, with nothing added.
+            assert_eq!(air, first + gust.wind_ned_mps(now_s), "tick {tick}");
+        }
+        assert!(air_velocities(world, 100).iter().all(|air| *air == Vector3::zeros()));
+    }
+
+    #[test]
+    fn the_steady_wind_and_the_turbulence_add_to_the_gusts() {
+        let steady = [3.0, -4.0, 0.0];
+        let gust = Gust {
+            shape: GustShape::Step,
+            peak_ned_mps: [1.0, 1.0, 0.0],
+            start_s: 0.1,
+            duration_s: 0.1,
+        };
+        let world = WorldEffects {
+            steady_wind_ned_mps: steady,
+            turbulence: Some(turbulence()),
+            gusts: [None, Some(gust)],
+            ..WorldEffects::default()
+        };
+        let mut process = TurbulenceProcess::new(turbulence());
+        for (tick, air) in air_velocities(world, 600).into_iter().enumerate() {
+            let now_s = (tick as u64 * CONTROL_PERIOD_US) as f64 * 1e-6;
+            if tick > 0 {
+                process.step(CONTROL_PERIOD_US as f64 * 1e-6);
+            }
+            let expected =
+                gust.wind_ned_mps(now_s) + Vector3::from(steady) + process.velocity_ned_mps();
+            assert!((air - expected).norm() < 1e-12, "tick {tick}: {air} against {expected}");
+        }
+    }
+
+    #[test]
+    fn the_mean_air_velocity_is_the_steady_wind() {
+        let steady = Vector3::new(3.0, -4.0, 0.0);
+        let world = WorldEffects {
+            steady_wind_ned_mps: steady.into(),
+            turbulence: Some(turbulence()),
+            ..WorldEffects::default()
+        };
+        // 60 s: the mean of a process of correlation time τ over T scatters by σ·√(2τ/T)
+        // (0.11 m/s horizontally here); the tolerance is three times that.
+        let air = air_velocities(world, 120_000);
+        let mean = air.iter().sum::<Vector3<f64>>() / air.len() as f64;
+        let tolerance = 3.0 * 0.6 * (2.0 * 1.0 / 60.0f64).sqrt();
+        assert!((mean - steady).abs().max() < tolerance, "mean {mean}");
+        // And the turbulence is there: the air is not the steady wind alone.
+        let spread = air.iter().map(|a| (a - steady).x.powi(2)).sum::<f64>() / air.len() as f64;
+        assert!(spread.sqrt() > 0.3, "{}", spread.sqrt());
+    }
+
+    #[test]
+    fn the_turbulence_has_its_configured_deviation_and_correlation_time() {
+        let dt_s = CONTROL_PERIOD_US as f64 * 1e-6;
+        for (sigma_ned_mps, correlation_s, seed) in
+            [([1.0, 1.0, 0.5], 1.0, 1), ([0.3, 0.3, 0.15], 3.0, 2)]
+        {
+            let mut process =
+                TurbulenceProcess::new(Turbulence { sigma_ned_mps, correlation_s, seed });
+            // 1,500 correlation times, kept every 10 ms.
+            let every = 20;
+            let series: Vec<Vector3<f64>> = (0..(1500.0 * correlation_s / dt_s) as usize)
+                .map(|_| process.step(dt_s))
+                .step_by(every)
+                .collect();
+            let lag = (correlation_s / (dt_s * every as f64)).round() as usize;
+            for axis in 0..3 {
+                let x: Vec<f64> = series.iter().map(|v| v[axis]).collect();
+                let n = x.len() as f64;
+                let mean = x.iter().sum::<f64>() / n;
+                let variance = x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+                let sigma = variance.sqrt();
+                let configured = sigma_ned_mps[axis];
+                assert!(
+                    (sigma - configured).abs() < 0.2 * configured,
+                    "axis {axis}: σ {sigma} against {configured}"
+                );
+                // The autocorrelation at a lag of τ is e⁻¹ for the configured τ.
+                let covariance =
+                    x.windows(lag + 1).map(|w| (w[0] - mean) * (w[lag] - mean)).sum::<f64>()
+                        / (n - lag as f64);
+                let rho = covariance / variance;
+                let tau = -correlation_s / rho.ln();
+                assert!(
+                    (tau - correlation_s).abs() < 0.2 * correlation_s,
+                    "axis {axis}: τ {tau} s against {correlation_s} s (ρ {rho})"
+                );
+            }
+        }
     }
 }

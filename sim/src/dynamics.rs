@@ -81,7 +81,8 @@ pub struct VehicleModel {
     drag_linear: Vector3<f64>,
     drag_quadratic: Vector3<f64>,
     drag_angular: Vector3<f64>,
-    /// The air's velocity, world NED, m/s (a gust); drag acts on the airspeed.
+    /// The air's velocity, world NED, m/s (gusts, a steady wind, turbulence); drag acts on the
+    /// airspeed.
     pub wind_ned_mps: Vector3<f64>,
     /// Rotors in motor order.
     pub rotors: Vec<RotorModel>,

@@ -17,11 +17,15 @@
 //! | `air` | drag 0.3–3× the airframe's, and each body axis's linear and quadratic coefficients 0.5–2× (log-uniform) on their own; a gust of 0.5–2 m/s from a random horizontal direction for 0.3–1 s, 2–10 s after the start | frames with guards or without; drag differs along the body's axes (rotor drag in the rotor plane, the frame's area from above and from the side); a breeze indoors or out |
 //!
 //! | `gust` (not in `--world random` unless `--gusts`) | a "1 − cos" gust of 2–8 m/s peak over 0.5–3 s starting 4–8 s after the start, and a step gust of 1–4 m/s for 0.3–1 s starting 4–10 s after it; each from a random bearing, up to 20° from the horizontal | gusts of a breezy day outdoors, the discrete gust of the airworthiness codes (CS-25.341) and a sharp-edged one, while the craft hovers |
+//! | `wind` (not in `--world random` unless `--wind`) | a steady horizontal wind of 0–8 m/s (uniform) from a uniform bearing, from the start of the run (the throw included); on it turbulence, each world axis a first-order Gauss–Markov process of σ = 10–20 % of the wind's speed + 0.1 m/s horizontally and half that vertically, correlation time 1–3 s | flying outdoors in up to a moderate breeze (Beaufort 4 ends at 7.9 m/s). The turbulence is a simplified stand-in for the low-altitude Dryden model (MIL-F-8785C, MIL-HDBK-1797): there σ is 0.1 of the wind at 20 ft vertically and about twice that horizontally near the ground, and the length scales of tens of metres pass a hovering craft in seconds at these speeds; one first-order process per axis with one correlation time keeps Dryden's longitudinal spectrum only |
 //!
-//! `fly monte-carlo --world random` draws every aspect but `gust` (added by `--gusts`, so the
-//! hover figures of earlier worlds stay comparable); `--vary NAME` one at a time, so each
-//! aspect's pass rate is known alone (docs/benchmarks.md). A draw depends only on the case's
-//! seed and the aspect, so the same seed gives the same airframe, throw and world.
+//! `fly monte-carlo --world random` draws every aspect but `gust` and `wind` (added by `--gusts`
+//! and `--wind`, so the hover figures of earlier worlds stay comparable); `--vary NAME` one at a
+//! time, so each aspect's pass rate is known alone (docs/benchmarks.md); `--wind-mps X` draws the
+//! wind with its steady speed forced to X (bearing and turbulence as the seed draws them), for a
+//! sweep over the speed. A draw depends only on the case's seed and the aspect, so the same seed
+//! gives the same airframe, throw and world, and a world without `wind` flies as it did before
+//! the aspect existed.
 
 use nalgebra::Vector3;
 
@@ -44,6 +48,8 @@ pub enum Aspect {
     Air,
     /// Strong gusts while the craft hovers (not in [`Aspect::ALL`]).
     Gust,
+    /// A steady wind and turbulence for the whole run (not in [`Aspect::ALL`]).
+    Wind,
 }
 
 impl Aspect {
@@ -60,13 +66,18 @@ impl Aspect {
             Aspect::Actuators => "actuators",
             Aspect::Air => "air",
             Aspect::Gust => "gust",
+            Aspect::Wind => "wind",
         }
     }
 
+    /// The aspects drawn only when asked for, not by `--world random` ([`Aspect::ALL`]).
+    pub const ON_REQUEST: [Aspect; 2] = [Aspect::Gust, Aspect::Wind];
+
     /// The aspect called `name`.
     pub fn parse(name: &str) -> Result<Self, String> {
-        Self::ALL.into_iter().chain([Aspect::Gust]).find(|a| a.name() == name).ok_or_else(|| {
-            let names: Vec<_> = Self::ALL.iter().chain(&[Aspect::Gust]).map(|a| a.name()).collect();
+        let every = || Self::ALL.into_iter().chain(Self::ON_REQUEST);
+        every().find(|a| a.name() == name).ok_or_else(|| {
+            let names: Vec<_> = every().map(|a| a.name()).collect();
             format!("unknown aspect `{name}` (one of {})", names.join(", "))
         })
     }
@@ -111,7 +122,15 @@ pub fn apply(aspect: Aspect, seed: u64, airframe: &mut Airframe, config: &mut Fl
         Aspect::Actuators => actuators(&mut rng, airframe, config),
         Aspect::Air => air(&mut rng, airframe, config),
         Aspect::Gust => gusts(&mut rng, config),
+        Aspect::Wind => wind(&mut rng, None, config),
     }
+}
+
+/// Draws the `wind` aspect of case `seed` with its steady speed forced to `speed_mps` (`fly
+/// --wind-mps`, for a sweep): the bearing and the turbulence's share of the speed, its
+/// correlation time and its draws are those [`apply`] gives the seed.
+pub fn apply_wind_at(seed: u64, speed_mps: f64, config: &mut FlyConfig) {
+    wind(&mut Aspect::Wind.rng(seed), Some(speed_mps), config);
 }
 
 fn random_unit(rng: &mut Rng) -> Vector3<f64> {
@@ -174,6 +193,50 @@ fn gusts(rng: &mut Rng, config: &mut FlyConfig) {
         duration_s: rng.range(0.3, 1.0),
     };
     config.board.world.gusts = [Some(cosine), Some(step)];
+}
+
+/// Largest steady wind the `wind` aspect draws, m/s (uniform from calm): the top of a moderate
+/// breeze (Beaufort 4, 5.5–7.9 m/s), the windiest day a small craft is commonly flown on.
+pub const WIND_MAX_MPS: f64 = 8.0;
+
+/// The horizontal turbulence's standard deviation as a share of the steady wind's speed, drawn
+/// uniformly in this range. The low-altitude Dryden model (MIL-F-8785C, MIL-HDBK-1797) gives the
+/// vertical σ as 0.1 of the wind at 20 ft and, at 10 ft (its lowest height, about where the
+/// craft hovers), the horizontal σ about twice that: 10–20 % runs from calmer air up to it.
+pub const TURBULENCE_SHARE_OF_WIND: (f64, f64) = (0.1, 0.2);
+
+/// Horizontal turbulence present even in calm air, m/s (its standard deviation, added to the
+/// share of the wind): air is never perfectly still outdoors.
+pub const TURBULENCE_FLOOR_MPS: f64 = 0.1;
+
+/// The vertical turbulence's standard deviation over the horizontal one: the Dryden model's
+/// ratio at 10 ft (`σ_w / σ_u = (0.177 + 0.000823 h)^0.4` with `h` in ft, ≈ 0.5), the ground
+/// damping the air's motion across it.
+pub const TURBULENCE_VERTICAL_SHARE: f64 = 0.5;
+
+/// The turbulence's correlation time, s, drawn uniformly in this range. Dryden's horizontal length
+/// scale near the ground is tens of metres (`L_u = h / (0.177 + 0.000823 h)^1.2`: about 23 m at
+/// 10 ft), carried past a hovering craft by the wind: seconds at these speeds (2.9 s at 8 m/s,
+/// longer in lighter air); 1–3 s is at or below that, so the air changes within a hold.
+pub const TURBULENCE_CORRELATION_S: (f64, f64) = (1.0, 3.0);
+
+/// The `wind` aspect: a steady horizontal wind of 0–[`WIND_MAX_MPS`] from a uniform bearing (its
+/// speed `speed_mps` when forced) and turbulence on every world axis.
+fn wind(rng: &mut Rng, speed_mps: Option<f64>, config: &mut FlyConfig) {
+    use crate::board::Turbulence;
+    let drawn_mps = rng.range(0.0, WIND_MAX_MPS);
+    let speed_mps = speed_mps.unwrap_or(drawn_mps);
+    let bearing = rng.range(0.0, std::f64::consts::TAU);
+    let share = rng.range(TURBULENCE_SHARE_OF_WIND.0, TURBULENCE_SHARE_OF_WIND.1);
+    let horizontal_mps = share * speed_mps + TURBULENCE_FLOOR_MPS;
+    let turbulence = Turbulence {
+        sigma_ned_mps: [horizontal_mps, horizontal_mps, TURBULENCE_VERTICAL_SHARE * horizontal_mps],
+        correlation_s: rng.range(TURBULENCE_CORRELATION_S.0, TURBULENCE_CORRELATION_S.1),
+        seed: rng.next_u64(),
+    };
+    let world = &mut config.board.world;
+    world.steady_wind_ned_mps = [speed_mps * bearing.cos(), speed_mps * bearing.sin(), 0.0];
+    world.turbulence = Some(turbulence);
 }
 
 fn pose(rng: &mut Rng) -> MotionCaptureConfig {
@@ -312,6 +375,62 @@ mod tests {
         let (_, both) = random_world_case(7, &[Aspect::Air, Aspect::Hand]);
         assert_eq!(both.throw, config.throw);
         assert_eq!(Aspect::parse("imu"), Ok(Aspect::Imu));
-        assert!(Aspect::parse("wind").is_err());
+        assert_eq!(Aspect::parse("wind"), Ok(Aspect::Wind));
+        assert!(Aspect::parse("rain").is_err());
+    }
+
+    #[test]
+    fn the_wind_draws_within_its_documented_ranges() {
+        let (mut slowest, mut fastest) = (f64::INFINITY, 0.0f64);
+        for seed in 0..200 {
+            let (airframe, config) = random_world_case(seed, &[Aspect::Wind]);
+            let (nominal_airframe, nominal) = random_case(seed);
+            assert_eq!(airframe, nominal_airframe);
+            assert_eq!(config.throw, nominal.throw);
+            let w = &config.board.world;
+            let steady = Vector3::from(w.steady_wind_ned_mps);
+            let speed = steady.norm();
+            assert!((0.0..=WIND_MAX_MPS).contains(&speed), "seed {seed}: {speed} m/s");
+            assert_eq!(steady.z, 0.0, "seed {seed}: the steady wind is horizontal");
+            (slowest, fastest) = (slowest.min(speed), fastest.max(speed));
+            let t = w.turbulence.unwrap_or_else(|| panic!("seed {seed}: no turbulence"));
+            let [north, east, down] = t.sigma_ned_mps;
+            let share = (north - TURBULENCE_FLOOR_MPS) / speed.max(1e-9);
+            assert!(
+                speed < 1e-3
+                    || (TURBULENCE_SHARE_OF_WIND.0 - 1e-9..=TURBULENCE_SHARE_OF_WIND.1 + 1e-9)
+                        .contains(&share),
+                "seed {seed}: σ {north} m/s at {speed} m/s"
+            );
+            assert!(north >= TURBULENCE_FLOOR_MPS && east == north);
+            assert!((down - TURBULENCE_VERTICAL_SHARE * north).abs() < 1e-12);
+            let range = TURBULENCE_CORRELATION_S.0..=TURBULENCE_CORRELATION_S.1;
+            assert!(range.contains(&t.correlation_s), "seed {seed}: τ {}", t.correlation_s);
+            // The rest of the world is left as it was: the wind comes on its own aspect's draws.
+            let mut without = config.board.world;
+            without.steady_wind_ned_mps = [0.0; 3];
+            without.turbulence = None;
+            assert_eq!(without, nominal.board.world);
+        }
+        // The range is covered, not only respected.
+        assert!(slowest < 0.5 && fastest > WIND_MAX_MPS - 0.5, "{slowest}–{fastest} m/s");
+    }
+
+    #[test]
+    fn a_forced_wind_speed_keeps_the_seeds_bearing_and_turbulence_draws() {
+        let (_, drawn) = random_world_case(11, &[Aspect::Wind]);
+        let (_, mut forced) = random_case(11);
+        apply_wind_at(11, 5.0, &mut forced);
+        let (d, f) = (&drawn.board.world, &forced.board.world);
+        let (d_steady, f_steady) =
+            (Vector3::from(d.steady_wind_ned_mps), Vector3::from(f.steady_wind_ned_mps));
+        assert!((f_steady.norm() - 5.0).abs() < 1e-12);
+        assert!((d_steady.normalize() - f_steady.normalize()).norm() < 1e-12, "the same bearing");
+        let (dt, ft) = (d.turbulence.unwrap(), f.turbulence.unwrap());
+        assert_eq!((dt.correlation_s, dt.seed), (ft.correlation_s, ft.seed));
+        let share = |t: crate::board::Turbulence, speed: f64| {
+            (t.sigma_ned_mps[0] - TURBULENCE_FLOOR_MPS) / speed
+        };
+        assert!((share(dt, d_steady.norm()) - share(ft, 5.0)).abs() < 1e-9);
     }
 }

@@ -33,6 +33,12 @@
 //! how often that detector stopped a craft in free flight, without a hand. `--gusts` adds the
 //! random world's strong gusts during the hover (`sim::world`, aspect `gust`).
 //!
+//! `--wind` adds a steady wind of 0–8 m/s with turbulence for the whole run, the throw included
+//! (`sim::world`, aspect `wind`; issue 55); `--wind-mps X` adds it with its steady speed forced to
+//! X (bearing and turbulence as the seed draws them), so a sweep over the speed flies the same
+//! cases. A Monte Carlo with the wind reports the speeds drawn and how many runs held in each
+//! 2 m/s band of them; `fly case --seed N` with the same flags flies one of its runs again.
+//!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
 //! `--mocap-dropouts-per-s` and `--mocap-dropout-s` (`sim::recovery::MotionCaptureArgs`; the
@@ -44,6 +50,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
+use sim::board::WorldEffects;
 use sim::gnss::GnssArgs;
 use sim::recovery::{
     fly, monte_carlo, random_case, FlightEnd, FlyConfig, FlyReport, MotionCaptureArgs,
@@ -132,16 +139,25 @@ enum Command {
 #[derive(clap::Args, Debug)]
 struct WorldArgs {
     /// `nominal` (the airframe and the throw's spin and height vary, nothing else) or `random`
-    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air).
+    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air; gust and wind only
+    /// with `--gusts` and `--wind`).
     #[arg(long, default_value = "nominal", value_parser = ["nominal", "random"])]
     world: String,
-    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust); repeatable.
+    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust, wind); repeatable.
     #[arg(long)]
     vary: Vec<String>,
     /// Add strong gusts to the random world while the craft hovers (the `gust` aspect:
     /// a 1 − cos gust of 2–8 m/s and a step gust of 1–4 m/s).
     #[arg(long)]
     gusts: bool,
+    /// Add a steady wind with turbulence for the whole run (the `wind` aspect: 0–8 m/s from a
+    /// random bearing, turbulence of 10–20 % of it + 0.1 m/s, correlated over 1–3 s).
+    #[arg(long)]
+    wind: bool,
+    /// Add the wind (as `--wind`) with its steady speed forced to this, m/s (0–20): the bearing
+    /// and the turbulence as the seed draws them, for a sweep over the speed.
+    #[arg(long)]
+    wind_mps: Option<f64>,
     /// Do not give the firmware the airframe's true IMU offset (a board never calibrated: it
     /// flies with none, issue 32).
     #[arg(long)]
@@ -163,6 +179,9 @@ impl WorldArgs {
             if self.gusts {
                 aspects.push(Aspect::Gust);
             }
+            if self.windy() {
+                aspects.push(Aspect::Wind);
+            }
             return Ok(aspects);
         }
         let mut aspects: Vec<Aspect> =
@@ -170,9 +189,24 @@ impl WorldArgs {
         if self.gusts && !aspects.contains(&Aspect::Gust) {
             aspects.push(Aspect::Gust);
         }
+        if self.windy() && !aspects.contains(&Aspect::Wind) {
+            aspects.push(Aspect::Wind);
+        }
         Ok(aspects)
     }
+
+    /// Whether the wind was asked for (`--wind` or `--wind-mps`).
+    fn windy(&self) -> bool {
+        self.wind || self.wind_mps.is_some()
+    }
 }
+
+/// Largest steady wind `--wind-mps` takes, m/s: beyond the aspect's 8 m/s, for a sweep past it,
+/// and below what a small craft can lean into.
+const WIND_MPS_LIMIT: f64 = 20.0;
+
+/// Width of the wind-speed bands the Monte Carlo reports its holds in, m/s.
+const WIND_BAND_MPS: f64 = 2.0;
 
 /// Monte Carlo case `seed`: the nominal case with `motion_capture`, or the world with `aspects`
 /// randomised; the IMU offset given to the firmware unless `args.unknown_imu_offset`.
@@ -189,6 +223,9 @@ fn case(
     } else {
         world::random_world_case(seed, aspects)
     };
+    if let Some(speed_mps) = args.wind_mps {
+        world::apply_wind_at(seed, speed_mps, &mut config);
+    }
     config.known_imu_offset = !args.unknown_imu_offset;
     config.speed_telemetry = !args.no_speed_telemetry;
     (airframe, config)
@@ -354,6 +391,57 @@ fn print_after_recovery(results: &[sim::recovery::CaseResult]) {
 /// How far from where it recovered a craft with a fresh pose may end its flight, m (issue 53).
 const END_FROM_RECOVERY_LIMIT_M: f64 = 2.0;
 
+/// The wind of a Monte Carlo that drew it (`worlds[i]` is `results[i]`'s): the steady speeds
+/// and the turbulence drawn, and per [`WIND_BAND_MPS`] band of the speed how many runs held, how
+/// the others ended and, with a landing, how many landed gently.
+fn print_winds(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects]) {
+    let speeds: Vec<f64> =
+        worlds.iter().map(|w| nalgebra::Vector3::from(w.steady_wind_ned_mps).norm()).collect();
+    let turbulence: Vec<_> = worlds.iter().filter_map(|w| w.turbulence).collect();
+    let sigmas: Vec<f64> = turbulence.iter().map(|t| t.sigma_ned_mps[0]).collect();
+    let times: Vec<f64> = turbulence.iter().map(|t| t.correlation_s).collect();
+    println!(
+        "steady wind: min {:.2} m/s, median {:.2} m/s, 90th {:.2} m/s, max {:.2} m/s ({} runs)",
+        speeds.iter().copied().fold(f64::INFINITY, f64::min),
+        quantile(&speeds, 0.5),
+        quantile(&speeds, 0.9),
+        speeds.iter().copied().fold(0.0, f64::max),
+        speeds.len()
+    );
+    print_quantiles("  turbulence's horizontal σ", &sigmas, 1.0, " m/s");
+    print_quantiles("  turbulence's correlation time", &times, 1.0, " s");
+    let mut bands: BTreeMap<u32, Vec<&sim::recovery::CaseResult>> = BTreeMap::new();
+    for (r, speed) in results.iter().zip(&speeds) {
+        // The speed from its components may fall a rounding short of a forced band edge.
+        let band = (speed / WIND_BAND_MPS + 1e-9).floor() as u32;
+        bands.entry(band).or_default().push(r);
+    }
+    for (band, runs) in &bands {
+        let held = runs.iter().filter(|r| r.verdict == Verdict::Held).count();
+        let mut others: BTreeMap<String, usize> = BTreeMap::new();
+        for r in runs.iter().filter(|r| r.verdict != Verdict::Held) {
+            *others.entry(format!("{:?}", r.verdict)).or_default() += 1;
+        }
+        let others: Vec<String> = others.iter().map(|(v, n)| format!("{v} {n}")).collect();
+        let landings: Vec<_> = runs.iter().filter_map(|r| r.report.landing).collect();
+        let gentle = landings.iter().filter(|l| l.gentle()).count();
+        println!(
+            "  wind {:.0}–{:.0} m/s: {} runs, held {held} ({:.1} %), not held {}{}{}",
+            f64::from(*band) * WIND_BAND_MPS,
+            f64::from(band + 1) * WIND_BAND_MPS,
+            runs.len(),
+            100.0 * held as f64 / runs.len() as f64,
+            runs.len() - held,
+            if others.is_empty() { String::new() } else { format!(" ({})", others.join(", ")) },
+            if landings.is_empty() {
+                String::new()
+            } else {
+                format!("; landed gently {gentle} of {}", landings.len())
+            }
+        );
+    }
+}
+
 /// The hand's grabs of a Monte Carlo (`--end catch`), and the hand-catch detector's stops
 /// without a hand (every `--end`).
 fn print_catches(results: &[sim::recovery::CaseResult]) {
@@ -421,6 +509,12 @@ fn checked_aspects(
         eprintln!("fly: {e}");
         ExitCode::from(2)
     })?;
+    if let Some(speed_mps) = args.wind_mps {
+        if !(0.0..=WIND_MPS_LIMIT).contains(&speed_mps) {
+            eprintln!("fly: --wind-mps must be within 0–{WIND_MPS_LIMIT} m/s");
+            return Err(ExitCode::from(2));
+        }
+    }
     if !aspects.is_empty() && motion_capture != MotionCaptureConfig::default() {
         eprintln!("fly: the --mocap-* flags do not combine with --world random or --vary");
         return Err(ExitCode::from(2));
@@ -527,6 +621,9 @@ fn main() -> ExitCode {
             if !aspects.is_empty() {
                 let names: Vec<_> = aspects.iter().map(|a| a.name()).collect();
                 println!("randomised: {}", names.join(", "));
+            }
+            if let Some(speed_mps) = world_args.wind_mps {
+                println!("steady wind forced to {speed_mps} m/s (bearing and turbulence drawn)");
             }
             if world_args.unknown_imu_offset {
                 println!("IMU offset not given to the firmware");
@@ -740,6 +837,13 @@ fn main() -> ExitCode {
                 per_thrust(|s| s.axis_angle_rad.to_degrees(), 1.0),
                 per_thrust(|s| s.tau_error_max_s, 1e3),
             );
+            if aspects.contains(&Aspect::Wind) {
+                let worlds: Vec<WorldEffects> = results
+                    .iter()
+                    .map(|r| case(r.seed, &aspects, motion_capture, &world_args).1.board.world)
+                    .collect();
+                print_winds(&results, &worlds);
+            }
             print_landings(&results);
             print_after_recovery(&results);
             print_catches(&results);
