@@ -284,6 +284,32 @@ impl Controller {
         })
     }
 
+    /// Lower the position loop's gain to at most `k_position_max` (1/s: m/s per m), the
+    /// velocity-loop integral with it (its zero stays at the same fraction of the position
+    /// loop's bandwidth): with noisy fixes (GNSS) a position loop faster than the estimator's
+    /// trust in them (`crate::navigation::position_crossover`) only turns their noise into tilt.
+    /// A bound that is not finite and positive, or above the gain, changes nothing.
+    #[inline] // configuration, not the step: compiled by its caller (crate doc)
+    pub fn cap_position_gain(&mut self, k_position_max: f32) {
+        let gains = self.gains;
+        if !(k_position_max.is_finite()
+            && k_position_max > 0.0
+            && k_position_max < gains.k_position)
+        {
+            return;
+        }
+        let scale = k_position_max / gains.k_position;
+        let capped = Gains {
+            k_position: k_position_max,
+            k_velocity_integral: gains.k_velocity_integral * scale,
+            ..gains
+        };
+        if let Ok(position) = PositionController::with_limits(capped, *self.position.limits()) {
+            self.position = position;
+            self.gains = capped;
+        }
+    }
+
     /// The handover from the excitation: prime the filters with the current sample and what the
     /// motors were last told (δ) and report (rad/s, NaN where unknown).
     #[inline] // configuration, not the step: compiled by its caller (crate doc)

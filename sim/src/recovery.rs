@@ -447,12 +447,16 @@ pub struct FlyReport {
     pub setpoint_ned_m: Option<Vector3<f64>>,
     /// Largest distance from the setpoint over the last `hold_window_s`, m.
     pub max_hold_error_m: Option<f64>,
+    /// The same, horizontally (a GNSS fix's vertical error is 1.5–2.5 times its horizontal), m.
+    pub max_hold_error_horizontal_m: Option<f64>,
     /// The window over which `max_hold_error_m` was measured, s.
     pub hold_window_s: f64,
     /// Fraction of that window's steps flown in position hold (1: held throughout).
     pub hold_coverage: f64,
     /// `PoseLost` failsafes counted over the run.
     pub pose_lost: u16,
+    /// Position fixes the firmware refused as outliers (`flight::navigation::OUTLIER_SIGMAS`).
+    pub fixes_rejected: u32,
     /// Relative RMS error of the specific-force and angular-acceleration blocks of G1 against
     /// the truth ([`Scores::g1_block_rel`]): the learner's model when the controller engaged,
     /// the learner's model at the end (refined in flight) and the model flown at the end.
@@ -621,9 +625,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             max_drop_below_release_m: 0.0,
             setpoint_ned_m: None,
             max_hold_error_m: None,
+            max_hold_error_horizontal_m: None,
             hold_window_s,
             hold_coverage: 0.0,
             pose_lost: 0,
+            fixes_rejected: 0,
             g1_block_rel_at_engage: None,
             g1_block_rel_learned_at_end: None,
             g1_block_rel_flown_at_end: None,
@@ -842,6 +848,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                         let error = (state.position_ned_m - sp).norm();
                         let worst = report.max_hold_error_m.get_or_insert(0.0);
                         *worst = worst.max(error);
+                        let horizontal = (state.position_ned_m - sp).xy().norm();
+                        let worst = report.max_hold_error_horizontal_m.get_or_insert(0.0);
+                        *worst = worst.max(horizontal);
                     }
                 }
                 let hovering = state.rate_body_rad_s.norm() < HOVER_RATE_RAD_S
@@ -987,6 +996,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         report.refinements = pilot.refinements;
         report.reforms = pilot.reforms;
         report.pose_lost = pilot.failsafes.pose_lost;
+        report.fixes_rejected = pilot.fixes_rejected;
         report.hold_coverage =
             if window_steps > 0 { window_hold_steps as f64 / window_steps as f64 } else { 0.0 };
         report

@@ -72,7 +72,7 @@ impl Origin {
         }
     }
 
-    fn to_ned_m(&self, fix: &GnssFix) -> [f32; 3] {
+    fn ned_m_of(&self, fix: &GnssFix) -> [f32; 3] {
         let mut east_deg = fix.longitude_deg - self.longitude_deg;
         // Across the antimeridian the difference is the short way round.
         if east_deg > 180.0 {
@@ -141,7 +141,7 @@ impl GnssInput {
         }
         let origin = *self.origin.get_or_insert_with(|| Origin::at(&fix));
         let position_fix = PositionFix {
-            position_ned_m: origin.to_ned_m(&fix),
+            position_ned_m: origin.ned_m_of(&fix),
             sigma_m: [
                 (fix.horizontal_accuracy_m / SQRT_2).max(MIN_SIGMA),
                 fix.vertical_accuracy_m.max(MIN_SIGMA),

@@ -513,6 +513,8 @@ pub struct Pilot {
     last_pose_us: Option<u64>,
     /// A pose or fix that arrived and is taken after the next prediction.
     pending_fix: Option<PendingFix>,
+    /// The latest fix brought a velocity (a GNSS receiver's).
+    last_fix_had_velocity: bool,
     /// What the poses are assumed to be.
     pose_config: PoseConfig,
     heading_rad: Option<f32>,
@@ -580,6 +582,7 @@ impl Pilot {
             requested_sp: None,
             last_pose_us: None,
             pending_fix: None,
+            last_fix_had_velocity: false,
             pose_config: PoseConfig::default(),
             heading_rad: None,
             tilted_s: 0.0,
@@ -759,6 +762,7 @@ impl Pilot {
         self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
         self.last_pose_us = Some(now_us);
         self.heading_rad = Some(pose.heading_rad);
+        self.last_fix_had_velocity = false;
     }
 
     /// A position fix with its own accuracy and no heading (a GNSS solution) that arrived at
@@ -786,6 +790,7 @@ impl Pilot {
         self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
         self.last_pose_us = Some(now_us);
         self.heading_rad = None;
+        self.last_fix_had_velocity = velocity.is_some();
     }
 
     /// Time since the previous pose or fix arrived, s (0.01 s for the first).
@@ -1208,7 +1213,16 @@ impl Pilot {
             ModelError::MotorCount { .. } | ModelError::NonFinite => IdentificationFailure::Invalid,
         })?;
         let config = IndiConfig { rate_hz: self.rate_hz, ..IndiConfig::default() };
-        Controller::new(model, *r_imu_m, config).map_err(|_| IdentificationFailure::Invalid)
+        let mut controller =
+            Controller::new(model, *r_imu_m, config).map_err(|_| IdentificationFailure::Invalid)?;
+        // No faster than the estimator trusts the fixes' positions (their noise: the one the
+        // heading alignment follows, `Pilot::fix`): motion capture's millimetre leaves the
+        // gain as the motors allow, a receiver's decimetres lower it.
+        let with_velocity = self.last_fix_had_velocity;
+        let crossover =
+            flight::navigation::position_crossover(self.alignment.noise_m(), with_velocity);
+        controller.cap_position_gain(crossover);
+        Ok(controller)
     }
 
     /// One closed-loop step: the motor commands δ, or the failsafe that stopped the flight

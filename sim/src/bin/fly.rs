@@ -723,6 +723,14 @@ fn main() -> ExitCode {
                 quantile(&hold, 0.9),
                 quantile(&hold, 0.99)
             );
+            let horizontal: Vec<f64> =
+                results.iter().filter_map(|r| r.report.max_hold_error_horizontal_m).collect();
+            print_quantiles("  of it horizontally", &horizontal, 1.0, " m");
+            let within_1_m = horizontal.iter().filter(|e| **e <= 1.0).count();
+            println!(
+                "  held within 1 m horizontally: {within_1_m} of {runs} runs ({:.1} %)",
+                100.0 * within_1_m as f64 / runs.max(1) as f64
+            );
             // A hold starts once the craft has stopped (firmware::app::pilot): how much of the
             // window it covered, over the runs that hovered.
             let coverage: Vec<f64> = results
