@@ -862,7 +862,8 @@ pub fn flight_text(flight: &FlightTelemetry) -> String {
             );
         }
         None => {
-            let _ = writeln!(out, "  position        unknown (no external pose received)");
+            let _ =
+                writeln!(out, "  position        unknown (no external pose or GNSS fix received)");
         }
     }
     if let Some(v) = flight.velocity_ned_mps {

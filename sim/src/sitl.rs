@@ -82,6 +82,14 @@ pub struct SitlConfig {
     /// ([`crate::pose_line`]) to this address, as a motion-capture system would, instead of
     /// handing it to the firmware (`configurator-cli pose-relay` forwards them over a link).
     pub mocap_udp: Option<std::net::SocketAddr>,
+    /// A GNSS receiver on the craft ([`crate::gnss::SimGnss`]): its NAV-PVT bytes go through
+    /// the firmware's receiver code (`firmware::app::gnss::GnssInput`, told the receiver's
+    /// latency), each solution with a 3D fix reaching the control step as a position fix
+    /// without heading, as the board's GNSS UART hands them over.
+    pub gnss: Option<crate::gnss::GnssModelConfig>,
+    /// A steady wind for the whole run: the air's velocity, world NED, m/s (drag acts on the
+    /// airspeed; [`crate::board::WorldEffects::steady_wind_ned_mps`]).
+    pub wind_ned_mps: [f64; 3],
     /// The flash file holding the saved configuration (created erased when missing); `None`:
     /// no configuration store (changes last until the SITL stops).
     pub flash_file: Option<PathBuf>,
@@ -165,6 +173,8 @@ impl Default for SitlConfig {
             throw_to_fly: false,
             mocap: false,
             mocap_udp: None,
+            gnss: None,
+            wind_ned_mps: [0.0; 3],
             motion_capture: crate::recovery::MotionCaptureConfig::default(),
             imu_offset_m: None,
             flash_file: None,
@@ -345,6 +355,8 @@ impl Sitl {
             throw_to_fly: config.throw_to_fly,
             hand_throws_to_fly: config.hand_throws_to_fly,
             mocap: config.mocap,
+            gnss: config.gnss.clone(),
+            wind_ned_mps: config.wind_ned_mps,
             motion_capture: config.motion_capture,
             mocap_udp: match config.mocap_udp {
                 Some(to) => Some(MocapSender::open(to).map_err(SitlError::MocapUdp)?),
@@ -404,6 +416,8 @@ struct Runner {
     mocap: bool,
     motion_capture: crate::recovery::MotionCaptureConfig,
     mocap_udp: Option<MocapSender>,
+    gnss: Option<crate::gnss::GnssModelConfig>,
+    wind_ned_mps: [f64; 3],
     /// The simulated pilot's radio, when there is one (it goes on across restarts).
     radio: Option<crate::radio::RcTransmitter>,
     info: BoardInfo,
@@ -434,11 +448,12 @@ impl Runner {
     /// request: the physics and the links' endpoints go on, the application and its link
     /// sessions start afresh, and the configuration is loaded from the flash file again.
     fn run(mut self) {
-        let config = SimConfig {
+        let mut config = SimConfig {
             seed: self.seed,
             faults: self.fault_schedule.clone(),
             ..SimConfig::default()
         };
+        config.world.steady_wind_ned_mps = self.wind_ned_mps;
         let mut board = SimBoard::new(&self.airframe, &config);
         let mut throws_done = 0usize;
         let mut flight_hand = FlightHand::default();
@@ -451,6 +466,17 @@ impl Runner {
             let mut mocap = self.mocap.then(|| {
                 crate::recovery::MotionCapture::with_config(self.motion_capture, self.seed)
             });
+            // The receiver keeps its own time (the simulator's); the firmware's side of it
+            // starts again with the firmware.
+            let receiver = self.gnss.as_ref().map(|model| {
+                let config = firmware::drivers::ubx::GnssConfig {
+                    target_baud: 115_200,
+                    measurement_period_s: (1.0 / model.rate_hz) as f32,
+                };
+                let input = firmware::app::gnss::GnssInput::new(config, model.latency_s as f32);
+                (crate::gnss::SimGnss::new(model.clone(), self.seed), input)
+            });
+            let mut gnss = receiver;
             let mut settings = match self.flash.take() {
                 Some(flash) => Settings::load(flash, FileFlash::store_range()),
                 None => Settings::without_store(),
@@ -485,7 +511,8 @@ impl Runner {
                     let boot_us = board.now_us();
                     let mut clock = Clock { board: &mut board, boot_us, start };
                     let hands = Hands { throws_done: &mut throws_done, flight: &mut flight_hand };
-                    let ending = self.serve(system, &mut clock, &mut mocap, hands);
+                    let sources = Sources { mocap: &mut mocap, gnss: &mut gnss };
+                    let ending = self.serve(system, &mut clock, sources, hands);
                     system.finish_log();
                     ending
                 });
@@ -510,10 +537,11 @@ impl Runner {
         &mut self,
         system: &mut System<'_, FileFlash>,
         clock: &mut Clock<'_>,
-        mocap: &mut Option<crate::recovery::MotionCapture>,
+        sources: Sources<'_>,
         hands: Hands<'_>,
     ) -> Ending {
         let Hands { throws_done, flight: flight_hand } = hands;
+        let Sources { mocap, gnss } = sources;
         // A fresh link session per boot, as USB re-enumerates.
         let mut pty =
             self.pty.take().map(|port| Link::new(LinkServer::new(self.info.clone()), port));
@@ -553,6 +581,19 @@ impl Runner {
                     None => {
                         system.submit(ControlCommand::ExternalPose(pose));
                     }
+                }
+            }
+            if let Some((receiver, input)) = gnss.as_mut() {
+                let truth = crate::gnss::GnssTruth {
+                    position_ned_m: state.position_ned_m,
+                    velocity_ned_mps: state.velocity_ned_mps,
+                };
+                let bytes = receiver.update_bytes(clock.board.time_s(), &truth);
+                // The simulated receiver streams whatever it is sent.
+                let unsent = input.output().write.len();
+                input.sent(unsent);
+                if let Some(fix) = input.poll(&bytes, now_us) {
+                    system.submit(ControlCommand::PositionFix(fix));
                 }
             }
             if let Some(radio) = &mut self.radio {
@@ -616,6 +657,13 @@ impl Clock<'_> {
     fn firmware_us(&self) -> u64 {
         self.board.now_us() - self.boot_us
     }
+}
+
+/// What tells the firmware where the craft is, for one boot: the motion capture and the GNSS
+/// receiver (the simulator's receiver and the firmware's side of it).
+struct Sources<'s> {
+    mocap: &'s mut Option<crate::recovery::MotionCapture>,
+    gnss: &'s mut Option<(crate::gnss::SimGnss, firmware::app::gnss::GnssInput)>,
 }
 
 /// The simulated hand's state across restarts: calibration throws done, the flight throw.

@@ -85,3 +85,45 @@ fn multipath_jumps_of_metres_are_refused_and_the_craft_holds_through_them() {
     // Without the gate the hold would follow each jump by metres.
     assert!(error < 1.5, "{error:.3} m from the setpoint horizontally");
 }
+
+/// The SITL on a GNSS receiver and no motion capture, in a steady 4 m/s wind: `identify` over
+/// TCP arms it, the simulated hand throws it, and it recovers and holds a position from the
+/// receiver's fixes. Measured on the board's own estimate (the SITL's truth stays inside it;
+/// the truth's figures are the Monte Carlo's: docs/benchmarks.md, "GNSS"): in position hold,
+/// within 1 m of its setpoint at every look over 4 s.
+#[test]
+fn the_sitl_on_gnss_in_a_4_mps_wind_recovers_from_identify_and_holds_within_1_m() {
+    use sim::sitl::{Sitl, SitlConfig};
+    let config = SitlConfig {
+        pty: false,
+        tcp_port: Some(0),
+        speed: 4.0,
+        hand_throws_to_fly: true,
+        gnss: Some(receiver(10.0, 0.1)),
+        wind_ned_mps: [0.0, 4.0, 0.0],
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let tcp = sitl.tcp_addr.unwrap().to_string();
+    let identified = tests::run_cli(&["identify", "--tcp", &tcp, "--yes", "--json"]);
+    assert!(identified.status.success(), "{}", String::from_utf8_lossy(&identified.stderr));
+    // 6 s of flight for the recovery, the heading's alignment and the hold to start.
+    std::thread::sleep(std::time::Duration::from_secs_f64(6.0 / config.speed));
+    for _ in 0..4 {
+        let status = tests::run_cli(&["--tcp", &tcp, "--json", "status"]);
+        assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+        let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+        let flight = &status["flight"];
+        assert_eq!(flight["mode"], "PositionHold", "{flight}");
+        let position = flight["position_ned_m"].as_array().expect("a position from the fixes");
+        let setpoint = flight["position_sp_ned_m"].as_array().unwrap();
+        let error_m = position
+            .iter()
+            .zip(setpoint)
+            .map(|(p, s)| (p.as_f64().unwrap() - s.as_f64().unwrap()).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(error_m < HOLD_BOUND_M, "{error_m:.3} m from the setpoint: {flight}");
+        std::thread::sleep(std::time::Duration::from_secs_f64(1.0 / config.speed));
+    }
+}

@@ -498,6 +498,8 @@ pub struct ControlSnapshot {
     pub releases_refused: u16,
     /// The latest external pose and its arrival time, µs.
     pub external_pose: Option<(ExternalPose, u64)>,
+    /// The latest position fix with its own accuracy (a GNSS solution) and its arrival, µs.
+    pub position_fix: Option<(super::pilot::PositionFix, u64)>,
     /// Flight on the learned model: attitude, position, setpoints, failsafes.
     pub pilot: PilotStatus,
     /// The motor a motor test spins now.
@@ -630,7 +632,12 @@ impl<'q> ControlLoop<'q> {
                     self.pilot.pose(&pose, now_us);
                 }
             }
-            ControlCommand::PositionFix(fix) => self.pilot.fix(&fix, now_us),
+            ControlCommand::PositionFix(fix) => {
+                if fix.is_valid() {
+                    self.snapshot.position_fix = Some((fix, now_us));
+                    self.pilot.fix(&fix, now_us);
+                }
+            }
             ControlCommand::PositionSetpoint(setpoint) => {
                 self.pilot.set_position_setpoint(&setpoint);
             }

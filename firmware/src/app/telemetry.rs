@@ -143,7 +143,7 @@ pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
         (Some(q), true) => q.inverse() * gyro,
         _ => gyro,
     };
-    let known = control.external_pose.is_some();
+    let known = control.external_pose.is_some() || control.position_fix.is_some();
     FlightTelemetry {
         t_us: control.t_us,
         mode,

@@ -89,6 +89,18 @@ struct Args {
     mocap_udp: Option<std::net::SocketAddr>,
     #[command(flatten)]
     motion_capture: sim::recovery::MotionCaptureArgs,
+    #[command(flatten)]
+    gnss: sim::gnss::GnssArgs,
+    /// A steady wind for the whole run: the air's velocity north, east, down, m/s (e.g.
+    /// `0,4,0`: 4 m/s blowing towards the east), each within ±20.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 3,
+        allow_hyphen_values = true,
+        value_name = "N,E,D"
+    )]
+    wind_ned_mps: Option<Vec<f64>>,
     /// The flash file holding the saved configuration (`save` writes it; created erased when
     /// missing). Default: sitl-flash.bin in the user's data directory.
     #[arg(long, value_name = "PATH")]
@@ -166,6 +178,21 @@ fn parse_triple(text: &str) -> Result<[f64; 3], String> {
 
 fn main() -> std::process::ExitCode {
     let args = Args::parse();
+    let wind_ned_mps = match args.wind_ned_mps.as_deref() {
+        None => [0.0; 3],
+        Some(&[n, e, d]) if [n, e, d].iter().all(|x| x.is_finite() && x.abs() <= 20.0) => [n, e, d],
+        Some(_) => {
+            eprintln!("sitl: --wind-ned-mps takes three finite speeds within ±20 m/s");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    let gnss = match args.gnss.config() {
+        Ok(gnss) => gnss,
+        Err(e) => {
+            eprintln!("sitl: {e}");
+            return std::process::ExitCode::from(2);
+        }
+    };
     let motion_capture = match args.motion_capture.config() {
         Ok(config) => config,
         Err(error) => {
@@ -198,6 +225,8 @@ fn main() -> std::process::ExitCode {
         imu_offset_m: args.imu_offset_mm,
         mocap: args.mocap,
         mocap_udp: args.mocap_udp,
+        gnss: gnss.clone(),
+        wind_ned_mps,
         motion_capture,
         rc_script: args.rc.clone(),
         rc_rate_hz: args.rc_rate_hz,
@@ -258,6 +287,16 @@ fn main() -> std::process::ExitCode {
     }
     if let Some([x, y, z]) = args.acc_bias_mps2 {
         println!("  accelerometer bias: ({x}, {y}, {z}) m/s², IMU axes");
+    }
+    if let Some(g) = &gnss {
+        println!(
+            "  GNSS: a u-blox receiver at {} Hz, {} ms late, {} m per horizontal axis (correlated over {} s), {} m vertically, no heading",
+            g.rate_hz,
+            g.latency_s * 1e3,
+            g.horizontal_sigma_m,
+            g.correlation_time_s,
+            g.vertical_sigma_m
+        );
     }
     if args.mocap {
         let m = motion_capture;
