@@ -164,6 +164,65 @@ fn pilot_regions() {
     black_box(velocity);
 }
 
+/// The position estimator with a GNSS receiver's fixes (`flight::navigation`, issue 55): the
+/// predict every control step runs, a fix with a velocity taken 100 ms late (the history
+/// carried forward), a multipath fix refused, and the heading alignment's velocity fix (5–10
+/// of each a second).
+fn navigation_regions() {
+    use flight::navigation::{Fix, FixOutcome, HeadingAlignment};
+    let level = UnitQuaternion::identity();
+    let hover = Vector3::new(0.02f32, -0.01, -9.8);
+    let mut navigation = PositionEstimator::default();
+    let mut alignment = HeadingAlignment::new(0.3);
+    for k in 0..400 {
+        let _ = navigation.predict(&level, &hover, 0.0005);
+        alignment.predict(&Vector3::new(0.3, 0.1, 0.0), 0.0005);
+        if k % 200 == 0 {
+            let fix = Fix {
+                position_ned_m: Vector3::new(0.01, 0.02, -3.0),
+                sigma_m: [0.3, 0.45],
+                velocity: Some((Vector3::new(0.01, 0.0, 0.0), 0.05)),
+                age_s: 0.1,
+                dt_fix_s: 0.1,
+            };
+            let _ = navigation.correct_fix(&fix);
+            alignment.fix_velocity(&Vector3::new(0.01 * k as f32, 0.0, 0.0), 0.05, 0.1);
+        }
+    }
+    let mut state = (navigation, hover);
+    let predicted = region(&mut state, |(navigation, f)| {
+        navigation.predict(&UnitQuaternion::identity(), black_box(f), 0.0005)
+    });
+    if predicted.is_err() {
+        fail("navigation: a finite step was refused");
+    }
+    let (navigation, _) = state;
+    let taken = Fix {
+        position_ned_m: Vector3::new(0.05, -0.03, -3.02),
+        sigma_m: [0.3, 0.45],
+        velocity: Some((Vector3::new(0.02, 0.01, 0.0), 0.05)),
+        age_s: 0.1,
+        dt_fix_s: 0.1,
+    };
+    let mut state = (navigation, taken);
+    let outcome = region(&mut state, |(navigation, fix)| navigation.correct_fix(black_box(fix)));
+    if outcome != Ok(FixOutcome::Taken) {
+        fail("navigation: a fix 6 cm off was not taken");
+    }
+    let (navigation, _) = state;
+    let refused = Fix { position_ned_m: Vector3::new(4.0, 3.0, -3.0), ..taken };
+    let mut state = (navigation, refused);
+    let outcome = region(&mut state, |(navigation, fix)| navigation.correct_fix(black_box(fix)));
+    if outcome != Ok(FixOutcome::Rejected) {
+        fail("navigation: a 5 m multipath jump was taken");
+    }
+    let mut state = (alignment, Vector3::new(4.1f32, 0.2, 0.0));
+    region(&mut state, |(alignment, velocity)| {
+        alignment.fix_velocity(black_box(velocity), 0.05, 0.1)
+    });
+    black_box(state.0.yaw_rad());
+}
+
 /// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
 #[inline(never)]
 #[no_mangle]
@@ -868,6 +927,10 @@ fn main() -> ! {
     hprintln!("bench-m7 region: pilot part: the fly-away detector, moving away fast");
     hprintln!("bench-m7 region: pilot part: a stick frame shaped (when a stick moves)");
     hprintln!("bench-m7 region: pilot part: position mode's velocity turned (every 2° of heading)");
+    hprintln!("bench-m7 region: navigation part: predict (every step, the history advanced)");
+    hprintln!("bench-m7 region: navigation part: a GNSS fix taken, position and velocity, 100 ms late");
+    hprintln!("bench-m7 region: navigation part: a GNSS fix refused (multipath)");
+    hprintln!("bench-m7 region: navigation part: the heading alignment's velocity fix");
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
@@ -1155,6 +1218,7 @@ fn main() -> ! {
     link_regions();
     tick_regions();
     pilot_regions();
+    navigation_regions();
     hprintln!("bench-m7 done");
     debug::exit(debug::EXIT_SUCCESS);
     loop {

@@ -457,6 +457,11 @@ pub struct FlyReport {
     pub pose_lost: u16,
     /// Position fixes the firmware refused as outliers (`flight::navigation::OUTLIER_SIGMAS`).
     pub fixes_rejected: u32,
+    /// When the firmware first trusted a heading alignment, s after the release.
+    pub heading_aligned_s: Option<f64>,
+    /// The error of the firmware's heading (the yaw of its world against the true one) at the
+    /// last step it flew aligned before any landing, degrees, signed.
+    pub heading_error_deg: Option<f64>,
     /// Relative RMS error of the specific-force and angular-acceleration blocks of G1 against
     /// the truth ([`Scores::g1_block_rel`]): the learner's model when the controller engaged,
     /// the learner's model at the end (refined in flight) and the model flown at the end.
@@ -630,6 +635,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             hold_coverage: 0.0,
             pose_lost: 0,
             fixes_rejected: 0,
+            heading_aligned_s: None,
+            heading_error_deg: None,
             g1_block_rel_at_engage: None,
             g1_block_rel_learned_at_end: None,
             g1_block_rel_flown_at_end: None,
@@ -755,6 +762,15 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             let since_release = t_s - released_s;
             report.max_drop_below_release_m =
                 report.max_drop_below_release_m.max(state.position_ned_m.z - report.release_z_m);
+            if snapshot.pilot.heading_aligned && report.landing.is_none() {
+                report.heading_aligned_s.get_or_insert(since_release);
+                let q_true = state.attitude() * airframe.q_imu_body().inverse();
+                let [w, x, y, z] = snapshot.pilot.q_world_imu.map(f64::from);
+                let q_pilot =
+                    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+                report.heading_error_deg =
+                    Some(heading(&(q_true * q_pilot.inverse())).to_degrees());
+            }
             if config.trace && tick % 200 == 0 {
                 let p = snapshot.pilot;
                 // The true yaw between the filter's world and the world.

@@ -726,6 +726,14 @@ fn main() -> ExitCode {
             let horizontal: Vec<f64> =
                 results.iter().filter_map(|r| r.report.max_hold_error_horizontal_m).collect();
             print_quantiles("  of it horizontally", &horizontal, 1.0, " m");
+            let aligned: Vec<f64> =
+                results.iter().filter_map(|r| r.report.heading_error_deg.map(f64::abs)).collect();
+            let within_10_deg = aligned.iter().filter(|e| **e <= 10.0).count();
+            print_quantiles("heading's error at the end (runs aligned)", &aligned, 1.0, "°");
+            println!(
+                "  heading within 10° at the end: {within_10_deg} of {runs} runs ({:.1} %)",
+                100.0 * within_10_deg as f64 / runs.max(1) as f64
+            );
             let within_1_m = horizontal.iter().filter(|e| **e <= 1.0).count();
             println!(
                 "  held within 1 m horizontally: {within_1_m} of {runs} runs ({:.1} %)",
