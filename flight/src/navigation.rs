@@ -266,6 +266,16 @@ impl History {
         newer
     }
 
+    /// The rate of change `age_s` ago (per second; `current` now): the central difference over
+    /// one spacing either side, exact for a value that changes as a parabola (a position under a
+    /// constant acceleration), so the velocity of a fix's time needs no history of its own.
+    fn slope_at(&self, age_s: f32, current: &Vector3<f32>) -> Vector3<f32> {
+        let h = HISTORY_SPACING_S;
+        let newer_age = (age_s - h).max(0.0);
+        let older_age = age_s + h;
+        (self.at(newer_age, current) - self.at(older_age, current)) / (older_age - newer_age)
+    }
+
     /// Add `change(age_s − age)` to every value younger than `age_s`.
     fn shift(&mut self, age_s: f32, change: impl Fn(f32) -> Vector3<f32>) {
         for k in 0..self.len {
@@ -311,8 +321,6 @@ pub struct PositionEstimator {
     fixed_once: bool,
     /// The predicted positions of the last [`HISTORY_SPAN_S`].
     history: History,
-    /// The predicted velocities of the same times (for velocity fixes).
-    velocity_history: History,
     /// Time since the last fix taken (not refused), s.
     since_taken_s: f32,
     /// Fixes refused as outliers since start-up.
@@ -340,7 +348,6 @@ impl PositionEstimator {
             since_fix_s: f32::INFINITY,
             fixed_once: false,
             history: History::default(),
-            velocity_history: History::default(),
             since_taken_s: f32::INFINITY,
             rejected: 0,
         }
@@ -392,7 +399,6 @@ impl PositionEstimator {
         s.position_ned_m += s.velocity_ned_mps * dt_s + accel * (0.5 * dt_s * dt_s);
         s.velocity_ned_mps += accel * dt_s;
         self.history.advance(dt_s, &s.position_ned_m);
-        self.velocity_history.advance(dt_s, &s.velocity_ned_mps);
         self.since_fix_s += dt_s;
         self.since_taken_s += dt_s;
         s.has_fix = self.since_fix_s <= FIX_TIMEOUT_S;
@@ -444,7 +450,6 @@ impl PositionEstimator {
             s.velocity_ned_mps += dv - db * age_s;
             s.accel_bias_ned_mps2 = bias;
             self.history.shift(age_s, carried);
-            self.velocity_history.shift(age_s, move |tau| dv - db * tau);
         }
         self.fixed_once = true;
         self.since_fix_s = 0.0;
@@ -482,8 +487,8 @@ impl PositionEstimator {
         let s = &mut self.state;
         let predicted = self.history.at(age_s, &s.position_ned_m);
         let error = position_ned_m - predicted;
-        let velocity_error = velocity
-            .map(|(v, noise)| (v - self.velocity_history.at(age_s, &s.velocity_ned_mps), noise));
+        let velocity_error =
+            velocity.map(|(v, noise)| (v - self.history.slope_at(age_s, &s.position_ned_m), noise));
         let restart = !self.fixed_once || self.since_fix_s > FIX_TIMEOUT_S;
         // A horizontal accuracy is the RMS of the 2D error: √2 σ; a 3D velocity's √3 σ.
         let velocity_error = velocity_error.filter(|(ev, noise)| {
@@ -497,12 +502,12 @@ impl PositionEstimator {
             && (libm::hypotf(error.x, error.y) > gate(core::f32::consts::SQRT_2 * sigma_m[0])
                 || error.z.abs() > gate(sigma_m[1]));
         let outcome = if restart || (outlier && t >= MAX_REJECT_S) {
-            s.position_ned_m += error;
-            self.history.shift(age_s, |_| error);
-            if let Some((dv, _)) = velocity_error {
-                s.velocity_ned_mps += dv;
-                self.velocity_history.shift(age_s, |_| dv);
-            }
+            // The whole track moves onto the fix, and turns to its velocity.
+            let dv = velocity_error.map_or_else(Vector3::zeros, |(dv, _)| dv);
+            let carried = move |tau: f32| error + dv * tau;
+            s.position_ned_m += carried(age_s);
+            s.velocity_ned_mps += dv;
+            self.history.shift(age_s, carried);
             FixOutcome::Reset
         } else {
             let axis_sigma = |i: usize| if i < 2 { sigma_m[0] } else { sigma_m[1] };
@@ -537,7 +542,6 @@ impl PositionEstimator {
             s.velocity_ned_mps += dv - db * age_s;
             s.accel_bias_ned_mps2 += db;
             self.history.shift(age_s, carried);
-            self.velocity_history.shift(age_s, move |tau| dv - db * tau);
             if outlier {
                 self.rejected = self.rejected.wrapping_add(1);
                 self.fixed_once = true;
@@ -620,8 +624,8 @@ pub const ALIGNMENT_SIGNIFICANCE: f32 = 30.0;
 pub const VELOCITY_ALIGNMENT_REFERENCE_ACCEL_MPS2: f32 = 1.0;
 
 /// Bounds of the velocity window, s (ours): at least two fixes of a 10 Hz stream apart, at most
-/// [`MAX_ALIGNMENT_WINDOW_S`].
-pub const VELOCITY_ALIGNMENT_WINDOW_S: (f32, f32) = (0.2, MAX_ALIGNMENT_WINDOW_S);
+/// 2 s (a velocity noise of 0.2 m/s, the worst the randomised world draws).
+pub const VELOCITY_ALIGNMENT_WINDOW_S: (f32, f32) = (0.2, 2.0);
 
 /// How many times the velocity evidence must exceed its own noise (ours): 10, one standard
 /// deviation of the yaw about 6°, where the positions ask for 30 (2°). A craft without the yaw
@@ -630,8 +634,9 @@ pub const VELOCITY_ALIGNMENT_WINDOW_S: (f32, f32) = (0.2, MAX_ALIGNMENT_WINDOW_S
 /// still brakes with 99.5 % of its gain; the yaw goes on refining as the sums grow.
 pub const VELOCITY_ALIGNMENT_SIGNIFICANCE: f32 = 10.0;
 
-/// Velocity fixes kept for the velocity differences: 2.5 s of a 10 Hz stream and a margin.
-const VELOCITY_POINTS: usize = 32;
+/// Velocity fixes kept for the velocity differences: the longest window of a 10 Hz stream and
+/// a margin.
+const VELOCITY_POINTS: usize = 24;
 
 /// The window of velocity fixes with `noise_mps` of noise per axis, s: `10 σ_v / a` with `a`
 /// [`VELOCITY_ALIGNMENT_REFERENCE_ACCEL_MPS2`], within [`VELOCITY_ALIGNMENT_WINDOW_S`]: 0.5 s
@@ -827,8 +832,6 @@ pub struct HeadingAlignment {
     evidence: f32,
     /// The yaw, once the evidence sufficed.
     trusted_yaw_rad: Option<f32>,
-    /// The dead-reckoned velocities of the last [`HISTORY_SPAN_S`] (for velocity fixes).
-    velocity_history: History,
     /// The velocity fixes' alignment, from the first velocity fix on.
     velocity: Option<VelocityAlignment>,
     /// Capture time of the latest velocity fix taken, s.
@@ -866,7 +869,6 @@ impl HeadingAlignment {
             noise_var: 0.0,
             evidence: 0.0,
             trusted_yaw_rad: None,
-            velocity_history: History::default(),
             velocity: None,
             last_velocity_t_s: None,
             yaw_from_velocity: false,
@@ -898,7 +900,6 @@ impl HeadingAlignment {
         self.dead_position += self.dead_velocity * dt_s + accel_ned_mps2 * (0.5 * dt_s * dt_s);
         self.dead_velocity += accel_ned_mps2 * dt_s;
         self.history.advance(dt_s, &self.dead_position);
-        self.velocity_history.advance(dt_s, &self.dead_velocity);
         self.clock_s += dt_s;
         if self.clock_s > 2.0 * CLOCK_REBASE_S {
             self.clock_s -= CLOCK_REBASE_S;
@@ -961,7 +962,7 @@ impl HeadingAlignment {
             return;
         }
         self.last_velocity_t_s = Some(t_s);
-        let dead = self.velocity_history.at(age_s, &self.dead_velocity);
+        let dead = self.history.slope_at(age_s, &self.dead_position);
         let alignment = self.velocity.get_or_insert_with(|| VelocityAlignment::new(noise_mps));
         if let Some(yaw) = alignment.add(VelocityPoint { t_s, fix: *velocity_ned_mps, dead }) {
             self.trusted_yaw_rad = Some(yaw);
