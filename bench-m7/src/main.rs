@@ -141,8 +141,10 @@ fn pilot_regions() {
             specific_force_thrust_mps2: [0.1, -0.2, -9.6],
             tilt_rate_rad_s: 0.02,
             accel_mps2: [0.3, 9.1, -3.2],
-            fix_vertical_speed_mps: None,
+            // With fixes: the ground contact's stage is followed too.
+            fix_vertical_speed_mps: Some(0.5),
             vertical_speed_mps: 0.5,
+            descent_sp_mps: 0.5,
         };
         touchdown.step(&signs, 0.0005)
     });

@@ -38,6 +38,19 @@
 //! in the direction in which the acceleration setpoint is being clipped (by the 5 m/s² limit or
 //! by the tilt limit). It is itself limited to 5 m/s².
 //!
+//! **Wind** (what holding in one assumes). A steady wind's drag is a constant push `d` that the
+//! velocity integral takes up: the lean is `atan(|d|/g)`, and the integral's zero at
+//! [`VELOCITY_INTEGRAL_ZERO_FRACTION`] of `k_position` gives it a time constant of
+//! `4/k_position` (5.3 s for a 25 ms motor, 42 s for the slowest, 0.2 s). The simulator's
+//! draggiest airframe per kilogram is pushed at 2.9 m/s² by an 8 m/s wind (16°), within the
+//! integral's 5 m/s² limit and the 30° tilt limit, so both bound the integral without stopping
+//! the hold. A gust's extra drag `Δa` is rejected by the proportional loops alone until the
+//! integral catches up: a static error of `Δa / (k_velocity k_position)` (0.5 m for turbulence
+//! of σ = 1.5 m/s in an 8 m/s wind on that airframe). On the craft the measured thrust direction
+//! (`crate::controller`, 0.5 s) feeds part of it back first. Tested on a point mass with that
+//! drag: zero steady error, the integral equal to the drag, a 4 m/s gust's excursion within the
+//! static error, and back.
+//!
 //! Rates: designed for the published 500 Hz, but the gains are continuous-time and the time step
 //! is passed with every call. Non-finite input is refused with a [`PositionError`] and changes
 //! nothing; nothing here panics.
@@ -532,6 +545,71 @@ mod tests {
         let flight = fly(lowered, start, Vector3::zeros(), 70.0, 0.05);
         assert!(flight.worst_speed <= MAX_SPEED_MPS, "{flight:?}");
         assert!(flight.overshoot < 0.05, "{flight:?}");
+    }
+
+    #[test]
+    fn a_point_mass_holds_against_a_steady_8_mps_wind_and_its_gusts() {
+        // The draggiest airframe per kilogram of the simulator's random world (`sim::airframe`:
+        // size 0.6, four rotors, 0.130 kg; drag 0.05 s² N/(m/s) and 0.01 s² N/(m/s)², s the
+        // size): 0.139 /s and 0.0278 /m per unit mass, so an 8 m/s wind pushes it at 2.9 m/s²
+        // (a 16° lean). The point mass follows the wanted specific force through the attitude
+        // loop's lag and is pushed by the drag on its airspeed (velocity less the wind's). A
+        // 1 − cos gust of 4 m/s more over 3 s comes at 60 s.
+        const LINEAR_PER_S: f32 = 0.139;
+        const QUADRATIC_PER_M: f32 = 0.0278;
+        const WIND_MPS: f32 = 8.0;
+        let drag = |airspeed: Vector3<f32>| {
+            -(airspeed * LINEAR_PER_S + airspeed * (airspeed.norm() * QUADRATIC_PER_M))
+        };
+        let steady_push = drag(Vector3::new(-WIND_MPS, 0.0, 0.0));
+        let mut controller = controller();
+        let setpoint = PositionSetpoint {
+            position_ned_m: Vector3::zeros(),
+            velocity_ned_mps: Vector3::zeros(),
+        };
+        let gravity = Vector3::new(0.0, 0.0, G);
+        let lag = DT * controller.gains().k_attitude;
+        let (mut p, mut v, mut accel) = (Vector3::zeros(), Vector3::zeros(), Vector3::zeros());
+        let (mut worst_before_gust, mut worst_in_gust, mut worst_tilt) = (0.0f32, 0.0f32, 0.0f32);
+        let mut worst_integral = 0.0f32;
+        for n in 0..((90.0 / DT) as usize) {
+            let t = n as f32 * DT;
+            let gust = if (60.0..63.0).contains(&t) {
+                4.0 * 0.5 * (1.0 - libm::cosf(core::f32::consts::TAU * (t - 60.0) / 3.0))
+            } else {
+                0.0
+            };
+            let wind = Vector3::new(WIND_MPS + gust, 0.0, 0.0);
+            let f = controller.update(&p, &v, &setpoint, DT).unwrap();
+            worst_tilt = worst_tilt.max(libm::atan2f(libm::hypotf(f.x, f.y), -f.z));
+            worst_integral = worst_integral.max(controller.integral_mps2().norm());
+            accel += (f + gravity - accel) * lag;
+            v += (accel + drag(v - wind)) * DT;
+            p += v * DT;
+            if (50.0..60.0).contains(&t) {
+                worst_before_gust = worst_before_gust.max(p.norm());
+            }
+            if t >= 60.0 {
+                worst_in_gust = worst_in_gust.max(p.norm());
+            }
+        }
+        // Zero steady error: the integral has taken the drag up (measured: 0.1 mm).
+        assert!(worst_before_gust < 1e-3, "off by {worst_before_gust} m before the gust");
+        assert!(p.norm() < 1e-3, "off by {} m at the end", p.norm());
+        let integral = controller.integral_mps2();
+        assert!((integral + steady_push).norm() < 0.01, "{integral:?} against {steady_push:?}");
+        // Bounded: the integral within its limit, the lean within the tilt limit, and the
+        // gust's excursion within the proportional loops' static error for the gust's extra
+        // drag, `Δa / (k_velocity k_position)` (2.8 m/s², 1.5 m; measured: 1.0 m), and back
+        // (the end above, 27 s after it): no fly-away. The excursion is what the position loop
+        // alone can do: on the craft the measured thrust direction (`crate::controller`'s
+        // `ThrustDirection`, 0.5 s) takes up part of a gust's drag before the loop sees it.
+        assert!(worst_integral <= MAX_ACCEL_MPS2 + 1e-4, "integral {worst_integral} m/s²");
+        assert!(worst_tilt <= MAX_TILT_RAD + 1e-5, "tilt {worst_tilt} rad");
+        let gains = controller.gains();
+        let extra_push = (drag(Vector3::new(-WIND_MPS - 4.0, 0.0, 0.0)) - steady_push).norm();
+        let bound = extra_push / (gains.k_velocity * gains.k_position);
+        assert!(worst_in_gust < bound, "the gust took it {worst_in_gust} m away (bound {bound})");
     }
 
     #[test]

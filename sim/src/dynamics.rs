@@ -136,6 +136,30 @@ impl VehicleModel {
             .fold(f64::INFINITY, f64::min)
     }
 
+    /// The aerodynamic drag on the body in `state`, body axes, N: linear and quadratic in the
+    /// body-axis airspeed (the craft's velocity less the air's, [`Self::wind_ned_mps`]); the
+    /// force is its negative.
+    fn drag_body_n(&self, rot: &nalgebra::Rotation3<f64>, state: &State) -> Vector3<f64> {
+        let v_body = rot.transpose() * (state.velocity_ned_mps - self.wind_ned_mps);
+        self.drag_linear.component_mul(&v_body)
+            + self.drag_quadratic.component_mul(&v_body.map(|v| v.abs() * v))
+    }
+
+    /// The aerodynamic drag force on the vehicle in `state`, world NED, N (what
+    /// [`Self::derivative`] applies: the airspeed is the velocity less the current wind).
+    pub fn drag_force_ned_n(&self, state: &State) -> Vector3<f64> {
+        let rot = state.attitude().to_rotation_matrix();
+        -(rot * self.drag_body_n(&rot, state))
+    }
+
+    /// The direction the thrust must point in for the vehicle in `state` not to accelerate,
+    /// world NED, unit: against gravity and the drag at its current airspeed (straight up, −z,
+    /// in still air at rest; leaning into the wind when it holds in one).
+    pub fn equilibrium_thrust_dir_ned(&self, state: &State) -> Vector3<f64> {
+        let needed = -(gravity_ned_mps2() * self.mass_kg + self.drag_force_ned_n(state));
+        needed.try_normalize(1e-12).unwrap_or_else(|| -Vector3::z())
+    }
+
     /// Number of rotors.
     pub fn rotor_count(&self) -> usize {
         self.rotors.len()
@@ -327,9 +351,7 @@ impl VehicleModel {
             h_dot_body += r.axis * (r.signed_rotor_inertia * w_dot);
         }
 
-        let v_body = rot.transpose() * (s.velocity_ned_mps - self.wind_ned_mps);
-        force_body -= self.drag_linear.component_mul(&v_body)
-            + self.drag_quadratic.component_mul(&v_body.map(|v| v.abs() * v));
+        force_body -= self.drag_body_n(&rot, s);
         torque_body -= self.drag_angular.component_mul(&omega);
 
         // The landing gear: each foot a spring-damper on the ground carrying its share of the

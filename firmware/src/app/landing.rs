@@ -15,6 +15,21 @@
 //!   fixes, no vertical motion ([`TOUCHDOWN_MAX_SPEED_MPS`]). Without fixes an impact
 //!   ([`TOUCHDOWN_IMPACT_G`]) spools the motors down ([`TOUCHDOWN_SPOOL_DOWN_S`]), called off
 //!   when the craft turns out to be in the air ([`TOUCHDOWN_AIRBORNE_G`]).
+//!
+//!   With fixes there is a stage before it, the **ground contact** (the idea of PX4's land
+//!   detector, "ground contact → maybe landed → landed"; ours): a craft that has been descending
+//!   stops doing so while its loop still asks for the descent ([`TOUCHDOWN_CONTACT_SPEED_FRACTION`]
+//!   of it, for [`TOUCHDOWN_CONTACT_S`]) and the measured specific force stays near 1 g. The
+//!   pilot then stops holding the horizontal position (no lean, no integral: the level hold with
+//!   zero horizontal velocity and the descent kept), so a craft that landed leaning against a
+//!   wind sits down on all its feet instead of rocking on its upwind ones under the position
+//!   loop's lean (Monte Carlo seed 32 of the random world in a 7.3 m/s wind: motors stopped
+//!   7.8 s after the touchdown), and it probes: the cap on its upward force falls to
+//!   [`TOUCHDOWN_CONTACT_MIN_UP_G`] over [`TOUCHDOWN_CONTACT_SPOOL_S`]. In the air the contact
+//!   cannot last: the craft sinks, and a vertical speed above [`TOUCHDOWN_MAX_SPEED_MPS`] ends
+//!   it (a wrong contact in a gust costs the craft a few centimetres of height and of drift
+//!   downwind); on the ground it lands the craft after [`TOUCHDOWN_CONTACT_LANDED_S`] whatever
+//!   its rocking.
 //! - **The fly-away** ([`FlyAway`]): moving away from the setpoint faster than
 //!   [`LandConfig::flyaway_speed_mps`] for longer than [`LandConfig::flyaway_time_s`] without
 //!   braking.
@@ -74,7 +89,9 @@ pub const TOUCHDOWN_CARRIED_G: f32 = 0.35;
 
 /// Largest tilt rate (about the thrust frame's x and y) at which a landing craft counts as
 /// resting, rad/s (30 °/s): not tipping over. A craft on its gear may yaw (its idle torques
-/// against the gear's friction: 150 °/s in Monte Carlo seed 454), which says nothing.
+/// against the gear's friction: 150 °/s in Monte Carlo seed 454), which says nothing. A ground
+/// contact that has lasted [`TOUCHDOWN_CONTACT_LANDED_S`] lands the craft whatever its tilt
+/// rate: rocking or tipping on the ground, its motors cannot help it.
 pub const TOUCHDOWN_MAX_RATE_RAD_S: f32 = 0.5;
 
 /// Largest vertical speed from the fixes at which a landing craft counts as resting, m/s.
@@ -85,6 +102,44 @@ pub const TOUCHDOWN_MAX_SPEED_MPS: f32 = 0.3;
 /// (0.1–0.2 s), so the motors stop about 0.4 s after it, well within the second the issue
 /// allows; a bounce breaks the run and it starts again.
 pub const TOUCHDOWN_CONFIRM_S: f32 = 0.2;
+
+/// Share of the commanded descent speed below which a landing craft that has been descending
+/// counts as stopped by something (ours): the descent's loop follows its setpoint within a
+/// few hundredths of a m/s in the air (the vertical drag of the strongest updraft of the wind
+/// aspect, about 1 m/s, is a tenth of a m/s² on the random airframes, against the loop's
+/// `k_velocity` of 2–3 m/s² per m/s), so a descent stalled below half its speed is the ground.
+pub const TOUCHDOWN_CONTACT_SPEED_FRACTION: f32 = 0.5;
+
+/// How long the descent must stay stalled for a ground contact, s (ours): longer than the
+/// loop's own transients at the landing's start (the descent is first required to have
+/// reached the same share of its speed), short against the touchdown's confirmation.
+pub const TOUCHDOWN_CONTACT_S: f32 = 0.05;
+
+/// How long a ground contact must last for the craft to count as landed whatever its thrust
+/// and its rocking, s (ours; PX4's "maybe landed" held for its trigger time is the same idea):
+/// in the air the contact's probe ([`TOUCHDOWN_CONTACT_SPOOL_S`]) drops the craft at up to
+/// 0.7 g, so it passes [`TOUCHDOWN_MAX_SPEED_MPS`] within the probe's 0.2 s and the slowest
+/// motors' lag (0.2 s), ending the contact; on the ground a craft rocking on
+/// its feet in wind moves its centre of gravity vertically by a tenth of a m/s at most (Monte
+/// Carlo seed 7 of the random world in a 5 m/s wind: 0.14 m/s, rocking at 1–3 rad/s with a
+/// motor at full, where the resting signs never held for [`TOUCHDOWN_CONFIRM_S`]). With the
+/// contact found within [`TOUCHDOWN_CONTACT_S`] of the stall, the motors stop about 0.5 s after
+/// the touchdown.
+pub const TOUCHDOWN_CONTACT_LANDED_S: f32 = 0.4;
+
+/// Time over which a ground contact lowers the cap on the upward specific force from 1 g to
+/// [`TOUCHDOWN_CONTACT_MIN_UP_G`], s (ours): the contact's probe. On the ground the measured
+/// force stays at 1 g whatever the motors do and the rocking dies with the thrust; in the air
+/// the craft sinks at once, faster than [`TOUCHDOWN_MAX_SPEED_MPS`] within a few tenths of a
+/// second whatever its loops' gains (a slow craft's level hold alone took its descent from
+/// 0.2 to 0.3 m/s in more than 0.4 s: Monte Carlo seed 204 of the random world in wind, which
+/// stopped its motors 6.4 m up without the probe), and the contact ends.
+pub const TOUCHDOWN_CONTACT_SPOOL_S: f32 = 0.2;
+
+/// The upward specific force a ground contact's probe lowers its cap to, as a fraction of g
+/// (ours): low enough that a craft in the air falls at 0.7 g, high enough that the thrust
+/// axis stays defined.
+pub const TOUCHDOWN_CONTACT_MIN_UP_G: f32 = 0.3;
 
 /// Rate at which the touchdown speed's peak decays, m/s per s: keeps the descent speed of the
 /// moment before the contact through the confirmation.
@@ -157,17 +212,80 @@ pub struct Touchdown {
     spooling_s: Option<f32>,
     /// How long the measured force has been below [`TOUCHDOWN_AIRBORNE_G`] while spooling, s.
     airborne_s: f32,
+    /// The craft has descended at [`TOUCHDOWN_CONTACT_SPEED_FRACTION`] of the commanded speed
+    /// since the landing began or the last contact ended.
+    descending: bool,
+    /// How long the descent has been stalled, s (towards [`TOUCHDOWN_CONTACT_S`]).
+    stalled_s: f32,
+    /// In ground contact (module doc): the pilot stops holding the horizontal position.
+    contact: bool,
+    /// How long the ground contact has lasted, s (towards [`TOUCHDOWN_CONTACT_LANDED_S`]).
+    contact_s: f32,
 }
 
 impl Touchdown {
     /// A landing for `reason`, just begun.
     pub fn new(reason: LandReason) -> Self {
-        Self { reason, resting_s: 0.0, peak_descent_mps: 0.0, spooling_s: None, airborne_s: 0.0 }
+        Self {
+            reason,
+            resting_s: 0.0,
+            peak_descent_mps: 0.0,
+            spooling_s: None,
+            airborne_s: 0.0,
+            descending: false,
+            stalled_s: 0.0,
+            contact: false,
+            contact_s: 0.0,
+        }
     }
 
-    /// The cap on the upward specific force: none, or the spool-down's, falling from 1 g to
-    /// nothing over [`TOUCHDOWN_SPOOL_DOWN_S`], m/s².
+    /// Whether the craft is in ground contact (module doc): the pilot then flies level with
+    /// zero horizontal velocity, keeping the descent, instead of holding the position.
+    pub fn ground_contact(&self) -> bool {
+        self.contact
+    }
+
+    /// Follow the ground contact of a landing with fixes: the descent (vertical speed from the
+    /// fixes `fix_vz_mps`, positive down) stalled below its share of `descent_sp_mps` for
+    /// [`TOUCHDOWN_CONTACT_S`] after the craft had descended, with the ground carrying it
+    /// (`force_up_g`, in g, above [`TOUCHDOWN_MIN_FORCE_G`]); ended by a vertical speed above
+    /// [`TOUCHDOWN_MAX_SPEED_MPS`] (or the stall's own threshold, if higher) either way.
+    fn follow_contact(&mut self, fix_vz_mps: f32, descent_sp_mps: f32, force_up_g: f32, dt_s: f32) {
+        let stall_below = TOUCHDOWN_CONTACT_SPEED_FRACTION * descent_sp_mps;
+        if self.contact {
+            if fix_vz_mps.abs() > TOUCHDOWN_MAX_SPEED_MPS.max(stall_below) {
+                self.contact = false;
+                self.contact_s = 0.0;
+                self.descending = fix_vz_mps > 0.0;
+                self.stalled_s = 0.0;
+            } else {
+                self.contact_s += dt_s;
+            }
+            return;
+        }
+        if fix_vz_mps >= stall_below {
+            self.descending = true;
+        }
+        let stalled = self.descending
+            && descent_sp_mps > 0.0
+            && fix_vz_mps.abs() < stall_below
+            && force_up_g > TOUCHDOWN_MIN_FORCE_G;
+        self.stalled_s = if stalled { self.stalled_s + dt_s } else { 0.0 };
+        if self.stalled_s >= TOUCHDOWN_CONTACT_S {
+            self.contact = true;
+            self.descending = false;
+        }
+    }
+
+    /// The cap on the upward specific force, m/s²: none; the spool-down's of a landing without
+    /// fixes, falling from 1 g to nothing over [`TOUCHDOWN_SPOOL_DOWN_S`]; or a ground
+    /// contact's probe, falling from 1 g to [`TOUCHDOWN_CONTACT_MIN_UP_G`] over
+    /// [`TOUCHDOWN_CONTACT_SPOOL_S`].
     pub fn max_up_mps2(&self) -> f32 {
+        if self.contact {
+            let share = (self.contact_s / TOUCHDOWN_CONTACT_SPOOL_S).min(1.0);
+            return STANDARD_GRAVITY_MPS2 * (1.0 - (1.0 - TOUCHDOWN_CONTACT_MIN_UP_G) * share);
+        }
         self.spooling_s.map_or(f32::INFINITY, |t| {
             STANDARD_GRAVITY_MPS2 * (1.0 - t / TOUCHDOWN_SPOOL_DOWN_S).max(0.0)
         })
@@ -225,6 +343,11 @@ impl Touchdown {
             let limit = TOUCHDOWN_IMPACT_G * STANDARD_GRAVITY_MPS2;
             impact = self.spool(x * x + y * y + z * z > limit * limit, force_up_g, dt_s);
         }
+        if let Some(vz) = signs.fix_vertical_speed_mps {
+            self.follow_contact(vz, signs.descent_sp_mps, force_up_g, dt_s);
+        } else {
+            (self.contact, self.contact_s) = (false, 0.0);
+        }
         let still_vertically =
             signs.fix_vertical_speed_mps.is_none_or(|v| v.abs() < TOUCHDOWN_MAX_SPEED_MPS);
         let resting = (thrust < low || carried)
@@ -232,7 +355,8 @@ impl Touchdown {
             && signs.tilt_rate_rad_s < TOUCHDOWN_MAX_RATE_RAD_S
             && still_vertically;
         let descent_mps = signs.vertical_speed_mps;
-        TouchdownStep { touched: self.update(resting, descent_mps, dt_s), impact }
+        let rested = self.update(resting, descent_mps, dt_s);
+        TouchdownStep { touched: rested || self.contact_s >= TOUCHDOWN_CONTACT_LANDED_S, impact }
     }
 }
 
@@ -258,6 +382,8 @@ pub struct TouchdownSigns<'a> {
     pub fix_vertical_speed_mps: Option<f32>,
     /// The estimator's vertical speed, m/s (positive down): the touchdown speed reported.
     pub vertical_speed_mps: f32,
+    /// The descent speed the landing flies, m/s (positive down).
+    pub descent_sp_mps: f32,
 }
 
 /// What [`Touchdown::step`] found.
@@ -341,6 +467,7 @@ mod tests {
             accel_mps2: [0.0, 0.0, -force_up_g * STANDARD_GRAVITY_MPS2],
             fix_vertical_speed_mps: fix_vz,
             vertical_speed_mps: fix_vz.unwrap_or(0.5),
+            descent_sp_mps: DEFAULT_LAND_DESCENT_MPS,
         }
     }
 
@@ -402,9 +529,21 @@ mod tests {
         let mut touchdown = Touchdown::new(LandReason::Commanded);
         let sinking = signs(0.06, 1.0, Some(0.5));
         assert!(seconds_to_touchdown(&mut touchdown, &sinking, 1.0).is_infinite());
+        // Tipping without a ground contact first (the descent never stalled: this landing
+        // never descended) is none either.
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
         let mut tipping = signs(0.06, 1.0, Some(0.0));
         tipping.tilt_rate_rad_s = 1.0;
         assert!(seconds_to_touchdown(&mut touchdown, &tipping, 1.0).is_infinite());
+        // After a descent stalled on the ground, the contact lands the craft whatever its
+        // rocking or tipping, once it has lasted (on the ground the motors cannot help it).
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        assert!(
+            seconds_to_touchdown(&mut touchdown, &signs(0.4, 1.0, Some(0.5)), 1.0).is_infinite()
+        );
+        let t = seconds_to_touchdown(&mut touchdown, &tipping, 1.0);
+        let expected = TOUCHDOWN_CONTACT_S + TOUCHDOWN_CONTACT_LANDED_S;
+        assert!((t - expected).abs() < 3.0 * DT_S, "landed after {t} s, not {expected} s");
     }
 
     #[test]
@@ -425,6 +564,89 @@ mod tests {
             let _ = touchdown.step(&signs(0.2, 0.4, None), DT_S);
         }
         assert_eq!(touchdown.max_up_mps2(), f32::INFINITY, "the spool-down is called off");
+    }
+
+    /// Steps `seconds` of a landing whose signs at time `t` (s from the start) are
+    /// `signs_at(t)`; the time the motors stop, and whether a ground contact was ever found.
+    fn landing(
+        touchdown: &mut Touchdown,
+        seconds: f32,
+        signs_at: impl Fn(f32) -> TouchdownSigns<'static>,
+    ) -> (Option<f32>, bool) {
+        let mut contact = false;
+        for n in 0..(seconds / DT_S) as u32 {
+            let t = n as f32 * DT_S;
+            let touched = touchdown.step(&signs_at(t), DT_S).touched;
+            contact |= touchdown.ground_contact();
+            if touched {
+                return (Some(t), contact);
+            }
+        }
+        (None, contact)
+    }
+
+    #[test]
+    fn a_craft_rocking_on_its_feet_in_wind_lands_within_a_second_of_the_touchdown() {
+        // Descending at 0.5 m/s in the air for 2 s, then on its feet from 2 s: rocking at
+        // 1.5 Hz with tilt rates up to 3 rad/s, one motor at full against the ground while the
+        // rest idle (more thrust than the hover's: neither low nor carried), the measured force
+        // 0.9-1.4 g, the centre of gravity moving up and down at 0.14 m/s: Monte Carlo seed 7 of
+        // the random world in a 5 m/s wind, where the resting signs never held long enough.
+        const TOUCHDOWN_S: f32 = 2.0;
+        let rocking = |t: f32| {
+            if t < TOUCHDOWN_S {
+                return signs(0.4, 1.0, Some(DEFAULT_LAND_DESCENT_MPS));
+            }
+            let phase = core::f32::consts::TAU * 1.5 * (t - TOUCHDOWN_S);
+            let mut on_feet = signs(0.05, 1.15 + 0.25 * libm::sinf(phase), Some(0.0));
+            on_feet.u = &[1.0, 0.05, 0.05, 0.05];
+            on_feet.tilt_rate_rad_s = 3.0 * libm::cosf(phase).abs();
+            on_feet.fix_vertical_speed_mps = Some(0.14 * libm::cosf(phase));
+            on_feet
+        };
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        let (stopped_s, contact) = landing(&mut touchdown, 10.0, rocking);
+        let stopped_s = stopped_s.expect("the motors never stopped");
+        assert!(contact, "no ground contact");
+        assert!(
+            (TOUCHDOWN_S..TOUCHDOWN_S + 1.0).contains(&stopped_s),
+            "stopped {:.3} s after the touchdown",
+            stopped_s - TOUCHDOWN_S
+        );
+    }
+
+    #[test]
+    fn a_gust_that_stalls_the_descent_in_the_air_never_stops_the_motors() {
+        // Descending in the air when a gust stalls the descent for 0.3 s (the measured force
+        // near 1 g, the thrust at hover): a ground contact for all the detector can tell. In
+        // contact the pilot flies the level hold's descent, which takes the craft back to
+        // 0.5 m/s with the vertical loop's lag (0.1 s); then more stalls, one every second.
+        // Harsher than the air: against the level hold's vertical gain (`k_rate`, about 12 /s)
+        // a stall of 0.3 s at 0.05 m/s needs a vertical push of 5 m/s² for all that time.
+        let gusty = |t: f32| {
+            let since_stall = t % 1.0;
+            let vz = if since_stall < 0.3 {
+                0.05
+            } else {
+                DEFAULT_LAND_DESCENT_MPS * (1.0 - libm::expf(-(since_stall - 0.3) / 0.1))
+            };
+            signs(0.4, 1.0, Some(vz))
+        };
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        // Descending first, so that a stall counts.
+        let (stopped_s, _) = landing(&mut touchdown, 1.0, |_| signs(0.4, 1.0, Some(0.5)));
+        assert_eq!(stopped_s, None);
+        let (stopped_s, contact) = landing(&mut touchdown, 20.0, gusty);
+        assert!(contact, "the stalls look like contacts: the test tests nothing");
+        assert_eq!(stopped_s, None, "stopped in the air");
+    }
+
+    #[test]
+    fn a_landing_begun_in_a_hover_is_no_ground_contact_before_it_descends() {
+        // The landing's first tenths: still at the hover's height, the descent not yet flown.
+        let mut touchdown = Touchdown::new(LandReason::Commanded);
+        let (stopped_s, contact) = landing(&mut touchdown, 2.0, |_| signs(0.4, 1.0, Some(0.0)));
+        assert_eq!((stopped_s, contact), (None, false));
     }
 
     /// `seconds` of flight `offset` from the setpoint at `velocity`; whether it flew away.

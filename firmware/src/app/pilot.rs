@@ -954,8 +954,24 @@ impl Pilot {
         let positioned = nav.has_fix && self.alignment.yaw_rad().is_some();
         // A landing descends instead of holding the height.
         let descent_mps = self.touchdown.map(|_| self.land_config.descent_mps);
-        match position_sp_ned_m {
-            Some(position_ned_m) if positioned => {
+        // In ground contact a landing stops holding the position (`super::landing`): level,
+        // no horizontal velocity, the descent kept under the contact's falling cap on the
+        // upward force, and the heading the craft has (the gear holds it: a heading error would
+        // wind INDI's yaw increments up against the ground).
+        let contact = self.touchdown.is_some_and(|t| t.ground_contact());
+        match (position_sp_ned_m, &self.controller) {
+            (Some(_), Some(controller)) if positioned && contact => Guidance::Level {
+                yaw_rad: {
+                    let q_world_thrust =
+                        self.q_world_imu() * controller.indi().model().q_imu_thrust;
+                    let x = q_world_thrust * Vector3::x();
+                    libm::atan2f(x.y, x.x)
+                },
+                velocity_ned_mps: Vector3::new(0.0, 0.0, nav.velocity_ned_mps.z),
+                vertical_speed_mps: self.land_config.descent_mps,
+                max_up_mps2: self.touchdown.map_or(f32::INFINITY, |t| t.max_up_mps2()),
+            },
+            (Some(position_ned_m), _) if positioned => {
                 Guidance::Position { position_ned_m, yaw_rad, vertical_speed_mps: descent_mps }
             }
             _ => Guidance::Level {
@@ -1093,6 +1109,7 @@ impl Pilot {
             accel_mps2: *accel_mps2,
             fix_vertical_speed_mps: nav.has_fix.then_some(nav.velocity_ned_mps.z),
             vertical_speed_mps: nav.velocity_ned_mps.z,
+            descent_sp_mps: self.land_config.descent_mps,
         };
         let step = touchdown.step(&signs, 1.0 / self.rate_hz);
         if step.impact {
