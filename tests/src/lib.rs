@@ -89,3 +89,19 @@ pub fn disarm_during_throw_to_fly(
     }
     disarmed_at.is_some()
 }
+
+/// The distance of the board's position estimate from its position setpoint, m, from the
+/// `flight` object of `configurator-cli --json status` (both NED, m). Panics with the object
+/// when either is missing: the craft was not holding a position.
+pub fn estimate_from_setpoint_m(flight: &serde_json::Value) -> f64 {
+    let vector = |name: &str| -> Vec<f64> {
+        flight[name]
+            .as_array()
+            .unwrap_or_else(|| panic!("no {name} in {flight}"))
+            .iter()
+            .map(|x| x.as_f64().unwrap_or(f64::NAN))
+            .collect()
+    };
+    let (position, setpoint) = (vector("position_ned_m"), vector("position_sp_ned_m"));
+    position.iter().zip(&setpoint).map(|(p, s)| (p - s).powi(2)).sum::<f64>().sqrt()
+}

@@ -115,14 +115,7 @@ fn the_sitl_on_gnss_in_a_4_mps_wind_recovers_from_identify_and_holds_within_1_m(
         let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
         let flight = &status["flight"];
         assert_eq!(flight["mode"], "PositionHold", "{flight}");
-        let position = flight["position_ned_m"].as_array().expect("a position from the fixes");
-        let setpoint = flight["position_sp_ned_m"].as_array().unwrap();
-        let error_m = position
-            .iter()
-            .zip(setpoint)
-            .map(|(p, s)| (p.as_f64().unwrap() - s.as_f64().unwrap()).powi(2))
-            .sum::<f64>()
-            .sqrt();
+        let error_m = tests::estimate_from_setpoint_m(flight);
         assert!(error_m < HOLD_BOUND_M, "{error_m:.3} m from the setpoint: {flight}");
         std::thread::sleep(std::time::Duration::from_secs_f64(1.0 / config.speed));
     }

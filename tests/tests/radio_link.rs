@@ -335,14 +335,7 @@ fn poses_relayed_over_the_radio_hold_the_craft_after_a_throw_to_fly() {
     let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
     let flight = &status["flight"];
     assert_eq!(flight["mode"], "PositionHold", "{flight}");
-    let position = flight["position_ned_m"].as_array().unwrap();
-    let setpoint = flight["position_sp_ned_m"].as_array().unwrap();
-    let error_m = position
-        .iter()
-        .zip(setpoint)
-        .map(|(p, s)| (p.as_f64().unwrap() - s.as_f64().unwrap()).powi(2))
-        .sum::<f64>()
-        .sqrt();
+    let error_m = tests::estimate_from_setpoint_m(flight);
     assert!(error_m < 0.3, "{error_m:.3} m from the setpoint: {flight}");
     let relay = relay.wait_with_output().unwrap();
     assert!(relay.status.success(), "{}", output_text(&relay));
