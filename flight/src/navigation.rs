@@ -510,29 +510,36 @@ impl PositionEstimator {
             self.history.shift(age_s, carried);
             FixOutcome::Reset
         } else {
-            let axis_sigma = |i: usize| if i < 2 { sigma_m[0] } else { sigma_m[1] };
+            // The gains once per fix: horizontal and vertical (once when their noise is the
+            // same, as motion capture's), and the velocity's.
+            let position_gains = |sigma: f32| match velocity_error {
+                None => gains(crossover_for_noise(sigma), dt_fix_s),
+                Some(_) => (-libm::expm1f(-position_crossover(sigma, true) * dt_fix_s), 0.0, 0.0),
+            };
+            let horizontal = position_gains(sigma_m[0]);
+            let vertical =
+                if sigma_m[1] == sigma_m[0] { horizontal } else { position_gains(sigma_m[1]) };
+            // A double pole of the velocity and bias error at exp(−ω T).
+            let velocity_gains = velocity_error.map(|(ev, noise)| {
+                let m = -libm::expm1f(-velocity_crossover(noise, dt_fix_s) * dt_fix_s);
+                (ev, 2.0 * m - m * m, m * m / dt_fix_s)
+            });
             let (mut dp, mut dv, mut db) = (Vector3::zeros(), Vector3::zeros(), Vector3::zeros());
             for i in 0..3 {
-                let crossover = crossover_for_noise(axis_sigma(i));
+                let (k_p, k_v, k_b) = if i < 2 { horizontal } else { vertical };
                 let b = s.accel_bias_ned_mps2[i];
                 // An outlier's position teaches nothing; its velocity (a Doppler measurement
                 // multipath hardly moves) still does.
                 let e = if outlier { 0.0 } else { error[i] };
-                let new_b = match velocity_error {
+                dp[i] = e * k_p;
+                let new_b = match velocity_gains {
                     None => {
-                        let (k_p, k_v, k_b) = gains(crossover, dt_fix_s);
-                        dp[i] = e * k_p;
                         dv[i] = e * k_v;
                         b - e * k_b
                     }
-                    Some((ev, noise)) => {
-                        let m_p =
-                            -libm::expm1f(-position_crossover(axis_sigma(i), true) * dt_fix_s);
-                        dp[i] = e * m_p;
-                        let m = -libm::expm1f(-velocity_crossover(noise, dt_fix_s) * dt_fix_s);
-                        // A double pole of the velocity and bias error at exp(−ω T).
-                        dv[i] = ev[i] * (2.0 * m - m * m);
-                        b - ev[i] * (m * m / dt_fix_s)
+                    Some((ev, k_vv, k_bv)) => {
+                        dv[i] = ev[i] * k_vv;
+                        b - ev[i] * k_bv
                     }
                 };
                 db[i] = new_b.clamp(-MAX_BIAS_MPS2, MAX_BIAS_MPS2) - b;
