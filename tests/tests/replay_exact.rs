@@ -116,6 +116,41 @@ fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A flight on a GNSS receiver instead of motion capture (log format 5): its fixes are logged as
+/// commands with their accuracies, so the replay needs no receiver and is exact.
+#[test]
+fn a_flight_on_gnss_fixes_replays_exactly_without_a_receiver() {
+    let _alone = one_at_a_time();
+    let dir = scratch_dir("gnss");
+    let config = SitlConfig {
+        pty: false,
+        speed: 5.0,
+        throw_to_fly: true,
+        hand_throws_to_fly: true,
+        gnss: Some(sim::gnss::GnssModelConfig { rate_hz: 10.0, ..Default::default() }),
+        log_dir: Some(dir.clone()),
+        log_always: true,
+        ..SitlConfig::default()
+    };
+    let sitl = Sitl::start(&config).expect("the SITL starts");
+    let file = dir.join("LOG00001.BIN");
+    wait_for_steps(&sitl, &file, MIN_STEPS + 2_000);
+    drop(sitl);
+    let fixes = records(&file)
+        .iter()
+        .filter(|r| match r {
+            LogRecord::Command(c) => {
+                matches!(c.command, firmware::app::log::LoggedCommand::PositionFix(_))
+            }
+            _ => false,
+        })
+        .count();
+    // 10 Hz over at least 6 s of the run.
+    assert!(fixes >= 50, "{fixes} GNSS fixes logged");
+    assert_exact_flight(&file);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_machine_replays_exactly(
 ) {
