@@ -429,33 +429,40 @@ impl PositionEstimator {
         if !position_ned_m.iter().all(|x| x.is_finite()) || !is_step(dt_fix_s) || !age_ok {
             return Err(NavigationError::BadInput);
         }
-        let s = &mut self.state;
-        let predicted = self.history.at(age_s, &s.position_ned_m);
-        let error = position_ned_m - predicted;
+        let s = &self.state;
+        let error = position_ned_m - self.history.at(age_s, &s.position_ned_m);
         if !self.fixed_once || self.since_fix_s > FIX_TIMEOUT_S {
             // The whole track moves onto the fix.
-            s.position_ned_m += error;
-            self.history.shift(age_s, |_| error);
+            self.carry_forward(age_s, error, Vector3::zeros(), Vector3::zeros());
         } else {
             let (k_p, k_v, k_b) = gains(self.crossover_rad_s, dt_fix_s);
-            let dp = error * k_p;
-            let dv = error * k_v;
             let bias = (s.accel_bias_ned_mps2 - error * k_b)
                 .map(|b| b.clamp(-MAX_BIAS_MPS2, MAX_BIAS_MPS2));
             let db = bias - s.accel_bias_ned_mps2;
-            // The correction at the fix's time, carried forward through the model: a bias
-            // change changes the acceleration by −Δb from then on.
-            let carried = move |tau: f32| dp + dv * tau - db * (0.5 * tau * tau);
-            s.position_ned_m += carried(age_s);
-            s.velocity_ned_mps += dv - db * age_s;
-            s.accel_bias_ned_mps2 = bias;
-            self.history.shift(age_s, carried);
+            self.carry_forward(age_s, error * k_p, error * k_v, db);
         }
+        self.fix_taken();
+        Ok(())
+    }
+
+    /// Apply a correction made at the fix's time (`age_s` ago): `dp`, `dv` and the bias change
+    /// `db`, carried forward through the model to now and to the history since then (a bias
+    /// change changes the acceleration by −Δb from then on).
+    fn carry_forward(&mut self, age_s: f32, dp: Vector3<f32>, dv: Vector3<f32>, db: Vector3<f32>) {
+        let carried = move |tau: f32| dp + dv * tau - db * (0.5 * tau * tau);
+        let s = &mut self.state;
+        s.position_ned_m += carried(age_s);
+        s.velocity_ned_mps += dv - db * age_s;
+        s.accel_bias_ned_mps2 += db;
+        self.history.shift(age_s, carried);
+    }
+
+    /// A fix arrived and was taken: the estimate has a fix again.
+    fn fix_taken(&mut self) {
         self.fixed_once = true;
         self.since_fix_s = 0.0;
         self.since_taken_s = 0.0;
-        s.has_fix = true;
-        Ok(())
+        self.state.has_fix = true;
     }
 
     /// Correct with `fix`, weighted by its stated accuracy: the position with the crossover
@@ -484,7 +491,7 @@ impl PositionEstimator {
         {
             return Err(NavigationError::BadInput);
         }
-        let s = &mut self.state;
+        let s = self.state;
         let predicted = self.history.at(age_s, &s.position_ned_m);
         let error = position_ned_m - predicted;
         let velocity_error =
@@ -504,10 +511,7 @@ impl PositionEstimator {
         let outcome = if restart || (outlier && t >= MAX_REJECT_S) {
             // The whole track moves onto the fix, and turns to its velocity.
             let dv = velocity_error.map_or_else(Vector3::zeros, |(dv, _)| dv);
-            let carried = move |tau: f32| error + dv * tau;
-            s.position_ned_m += carried(age_s);
-            s.velocity_ned_mps += dv;
-            self.history.shift(age_s, carried);
+            self.carry_forward(age_s, error, dv, Vector3::zeros());
             FixOutcome::Reset
         } else {
             // The gains once per fix: horizontal and vertical (once when their noise is the
@@ -544,24 +548,18 @@ impl PositionEstimator {
                 };
                 db[i] = new_b.clamp(-MAX_BIAS_MPS2, MAX_BIAS_MPS2) - b;
             }
-            let carried = move |tau: f32| dp + dv * tau - db * (0.5 * tau * tau);
-            s.position_ned_m += carried(age_s);
-            s.velocity_ned_mps += dv - db * age_s;
-            s.accel_bias_ned_mps2 += db;
-            self.history.shift(age_s, carried);
+            self.carry_forward(age_s, dp, dv, db);
             if outlier {
+                // The source is alive, its position not believed: the gate keeps widening.
                 self.rejected = self.rejected.wrapping_add(1);
-                self.fixed_once = true;
-                self.since_fix_s = 0.0;
-                s.has_fix = true;
+                let since_taken_s = self.since_taken_s;
+                self.fix_taken();
+                self.since_taken_s = since_taken_s;
                 return Ok(FixOutcome::Rejected);
             }
             FixOutcome::Taken
         };
-        self.fixed_once = true;
-        self.since_fix_s = 0.0;
-        self.since_taken_s = 0.0;
-        s.has_fix = true;
+        self.fix_taken();
         Ok(outcome)
     }
 }

@@ -254,6 +254,63 @@ impl GnssModelConfig {
     }
 }
 
+/// The simulated receiver wired to the firmware's side of it (`firmware::app::gnss::GnssInput`,
+/// told the receiver's latency and rate as a user would set them), as the board's GNSS UART
+/// would connect them: the one feed of `fly --gnss` and `sitl --gnss`.
+#[derive(Clone, Debug)]
+pub struct GnssFeed {
+    receiver: SimGnss,
+    input: firmware::app::gnss::GnssInput,
+    /// Where the fixes' world has its origin in the simulator's, NED, m: the first fix's
+    /// measured position, its error included.
+    origin_ned_m: Option<Vector3<f64>>,
+}
+
+impl GnssFeed {
+    /// The receiver `model`, its noise drawn from `seed`.
+    pub fn new(model: &GnssModelConfig, seed: u64) -> Self {
+        let config = firmware::drivers::ubx::GnssConfig {
+            target_baud: 115_200,
+            measurement_period_s: (1.0 / model.rate_hz) as f32,
+        };
+        let input = firmware::app::gnss::GnssInput::new(config, model.latency_s as f32);
+        Self { receiver: SimGnss::new(model.clone(), seed), input, origin_ned_m: None }
+    }
+
+    /// Simulated time `now_s` with the craft at `truth`, the firmware's clock at `now_us`: the
+    /// bytes that reached the board go through the firmware's receiver code; a new fix comes
+    /// back for the control step.
+    pub fn step(
+        &mut self,
+        now_s: f64,
+        truth: &GnssTruth,
+        now_us: u64,
+    ) -> Option<firmware::app::PositionFix> {
+        let delivered = self.receiver.update(now_s, truth);
+        let mut bytes = Vec::new();
+        for solution in &delivered {
+            bytes.extend_from_slice(&solution.fix.to_frame());
+        }
+        // The simulated receiver streams whatever it is sent: the firmware's configuration is
+        // taken as written.
+        let unsent = self.input.output().write.len();
+        self.input.sent(unsent);
+        let fix = self.input.poll(&bytes, now_us)?;
+        if self.origin_ned_m.is_none() {
+            let home = self.receiver.config().home;
+            let first = delivered.iter().rev().find(|d| d.fix.has_3d_fix());
+            self.origin_ned_m =
+                first.map(|d| home.fix_to_ned(&d.fix) - Vector3::from(fix.position_ned_m).cast());
+        }
+        Some(fix)
+    }
+
+    /// Where the fixes' world has its origin in the simulator's, NED, m, once a fix came.
+    pub fn origin_ned_m(&self) -> Option<Vector3<f64>> {
+        self.origin_ned_m
+    }
+}
+
 /// The GNSS receiver on a command line (`fly`, later `sitl`): `--gnss` flies on it instead of
 /// motion capture; the rest shape it in the units a user thinks in (the other fields are
 /// [`GnssModelConfig::default`]'s: correlated over 20 s, 5 cm white, 5 cm/s velocity noise).

@@ -26,12 +26,11 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
 use crate::dynamics::State;
-use crate::gnss::{GnssModelConfig, GnssTruth, SimGnss};
+use crate::gnss::{GnssFeed, GnssModelConfig, GnssTruth};
 use crate::hand::GrabSpec;
 use crate::identification::{Scores, Throw, TrueModel};
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
-use firmware::app::gnss::GnssInput;
 use firmware::app::{ControlCommand, ControlSettings, Failsafe, Param, Params, PoseConfig};
 use firmware::drivers::crsf::StickInput;
 use flight::learner::FlightPhase;
@@ -677,18 +676,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         let spec = config.throw.spec();
         let mut mocap = (config.mocap && config.gnss.is_none())
             .then(|| MotionCapture::with_config(config.motion_capture, config.board.seed));
-        let mut gnss = config.gnss.as_ref().map(|model| {
-            let receiver = firmware::drivers::ubx::GnssConfig {
-                target_baud: 115_200,
-                measurement_period_s: (1.0 / model.rate_hz) as f32,
-            };
-            let home = model.home;
-            let input = GnssInput::new(receiver, model.latency_s as f32);
-            (SimGnss::new(model.clone(), config.board.seed), input, home)
-        });
-        // Where the fixes' world has its origin in the simulator's, NED, m: the first GNSS fix's
-        // measured position (its error included); zero for motion capture, whose world is ours.
-        let mut fix_origin_ned_m: Option<Vector3<f64>> = None;
+        let mut gnss = config.gnss.as_ref().map(|model| GnssFeed::new(model, config.board.seed));
         let (mut window_steps, mut window_hold_steps) = (0u64, 0u64);
         let mut hover_since: Option<f64> = None;
         let mut release_z: Option<f64> = None;
@@ -719,28 +707,13 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             {
                 app.command(ControlCommand::ExternalPose(pose), now_us);
             }
-            if let Some((receiver, input, home)) = &mut gnss {
+            if let Some(feed) = &mut gnss {
                 let state = board.physics().state();
                 let truth = GnssTruth {
                     position_ned_m: state.position_ned_m,
                     velocity_ned_mps: state.velocity_ned_mps,
                 };
-                let delivered = receiver.update(board.time_s(), &truth);
-                let mut bytes = Vec::new();
-                for solution in &delivered {
-                    bytes.extend_from_slice(&solution.fix.to_frame());
-                }
-                // The simulated receiver streams whatever it is sent; the firmware's
-                // configuration is taken as written.
-                let unsent = input.output().write.len();
-                input.sent(unsent);
-                if let Some(fix) = input.poll(&bytes, now_us) {
-                    if fix_origin_ned_m.is_none() {
-                        let first = delivered.iter().rev().find(|d| d.fix.has_3d_fix());
-                        fix_origin_ned_m = first.map(|d| {
-                            home.fix_to_ned(&d.fix) - Vector3::from(fix.position_ned_m).cast()
-                        });
-                    }
+                if let Some(fix) = feed.step(board.time_s(), &truth, now_us) {
                     app.command(ControlCommand::PositionFix(fix), now_us);
                 }
             }
@@ -865,7 +838,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 }
                 if snapshot.pilot.position_hold && report.landing.is_none() {
                     let sp = Vector3::from(snapshot.pilot.position_sp_ned_m).cast::<f64>()
-                        + fix_origin_ned_m.unwrap_or_else(Vector3::zeros);
+                        // The fixes' world: a GNSS fix's origin; motion capture's is ours.
+                        + gnss.as_ref().and_then(GnssFeed::origin_ned_m).unwrap_or_else(Vector3::zeros);
                     report.setpoint_ned_m = Some(sp);
                     if in_window {
                         let error = (state.position_ned_m - sp).norm();

@@ -468,15 +468,8 @@ impl Runner {
             });
             // The receiver keeps its own time (the simulator's); the firmware's side of it
             // starts again with the firmware.
-            let receiver = self.gnss.as_ref().map(|model| {
-                let config = firmware::drivers::ubx::GnssConfig {
-                    target_baud: 115_200,
-                    measurement_period_s: (1.0 / model.rate_hz) as f32,
-                };
-                let input = firmware::app::gnss::GnssInput::new(config, model.latency_s as f32);
-                (crate::gnss::SimGnss::new(model.clone(), self.seed), input)
-            });
-            let mut gnss = receiver;
+            let mut gnss =
+                self.gnss.as_ref().map(|model| crate::gnss::GnssFeed::new(model, self.seed));
             let mut settings = match self.flash.take() {
                 Some(flash) => Settings::load(flash, FileFlash::store_range()),
                 None => Settings::without_store(),
@@ -583,16 +576,12 @@ impl Runner {
                     }
                 }
             }
-            if let Some((receiver, input)) = gnss.as_mut() {
+            if let Some(feed) = gnss.as_mut() {
                 let truth = crate::gnss::GnssTruth {
                     position_ned_m: state.position_ned_m,
                     velocity_ned_mps: state.velocity_ned_mps,
                 };
-                let bytes = receiver.update_bytes(clock.board.time_s(), &truth);
-                // The simulated receiver streams whatever it is sent.
-                let unsent = input.output().write.len();
-                input.sent(unsent);
-                if let Some(fix) = input.poll(&bytes, now_us) {
+                if let Some(fix) = feed.step(clock.board.time_s(), &truth, now_us) {
                     system.submit(ControlCommand::PositionFix(fix));
                 }
             }
@@ -663,7 +652,7 @@ impl Clock<'_> {
 /// receiver (the simulator's receiver and the firmware's side of it).
 struct Sources<'s> {
     mocap: &'s mut Option<crate::recovery::MotionCapture>,
-    gnss: &'s mut Option<(crate::gnss::SimGnss, firmware::app::gnss::GnssInput)>,
+    gnss: &'s mut Option<crate::gnss::GnssFeed>,
 }
 
 /// The simulated hand's state across restarts: calibration throws done, the flight throw.

@@ -62,6 +62,17 @@ fn wait_for_steps(sitl: &Sitl, file: &Path, steps: usize) {
     }
 }
 
+/// Run a SITL with `config` (logging into its `log_dir`) until its first log holds
+/// [`MIN_STEPS`] and a margin, then stop it; the log's path.
+fn fly_logged(config: &SitlConfig) -> PathBuf {
+    let dir = config.log_dir.clone().expect("a log directory");
+    let sitl = Sitl::start(config).expect("the SITL starts");
+    let file = dir.join("LOG00001.BIN");
+    wait_for_steps(&sitl, &file, MIN_STEPS + 2_000);
+    drop(sitl);
+    file
+}
+
 /// `configurator-cli replay FILE --json`.
 fn replay_cli(file: &Path) -> serde_json::Value {
     let output = run_cli(&["replay", file.to_str().unwrap(), "--json"]);
@@ -132,10 +143,7 @@ fn a_flight_on_gnss_fixes_replays_exactly_without_a_receiver() {
         log_always: true,
         ..SitlConfig::default()
     };
-    let sitl = Sitl::start(&config).expect("the SITL starts");
-    let file = dir.join("LOG00001.BIN");
-    wait_for_steps(&sitl, &file, MIN_STEPS + 2_000);
-    drop(sitl);
+    let file = fly_logged(&config);
     let fixes = records(&file)
         .iter()
         .filter(|r| match r {
@@ -180,10 +188,7 @@ fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_mac
         log_always: true,
         ..SitlConfig::default()
     };
-    let sitl = Sitl::start(&config).expect("the SITL starts");
-    let file = dir.join("LOG00001.BIN");
-    wait_for_steps(&sitl, &file, MIN_STEPS + 2_000);
-    drop(sitl);
+    let file = fly_logged(&config);
     busy.store(false, Ordering::Relaxed);
     for burner in burners {
         burner.join().unwrap();
