@@ -88,6 +88,13 @@ struct LogStorage {
 #[link_section = ".axisram.log"]
 static mut LOG: core::mem::MaybeUninit<LogStorage> = core::mem::MaybeUninit::uninit();
 
+/// The box beside the log's ring for the control loop's state at an arming (9 KB; AXI SRAM,
+/// NOLOAD: `init` writes its state byte only, `Mailbox::init_in`).
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.log"]
+static mut ARMING: core::mem::MaybeUninit<firmware::app::log::ArmingBox> =
+    core::mem::MaybeUninit::uninit();
+
 // The RTIC application: resources, initialisation and the task table.
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
@@ -304,7 +311,14 @@ mod app {
             Some(card) => card,
             None => &mut log_storage.no_card,
         };
-        let (log_producer, log_consumer) = split_queue(&mut log_storage.ring);
+        // SAFETY: as above, the box's only reference; `init_in` makes it a valid empty box.
+        let arming = unsafe {
+            let arming = (*core::ptr::addr_of_mut!(crate::ARMING)).as_mut_ptr();
+            firmware::app::log::ArmingBox::init_in(arming);
+            &mut *arming
+        };
+        let (log_producer, log_consumer) =
+            firmware::app::log::split_log(&mut log_storage.ring, arming);
 
         // The signing session of this start-up (`protocol::signing`): 64 bits from the RNG,
         // clocked by HSI48 (on: USB runs from it). Should the RNG fail its self-test, the

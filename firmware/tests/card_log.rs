@@ -215,7 +215,10 @@ fn a_file_per_arming_is_listed_read_back_whole_deleted_and_found_again_after_a_r
     assert_eq!(expected.len(), 3, "three armings, three files");
     assert!(expected[1].len() / BLOCK > PROGRESS_EVERY_BLOCKS as usize, "progress recorded");
 
-    let card = RamCard::new(DATA_START + 2 * ERASE_CHUNK_BLOCKS + 1000, 0);
+    // Room for the first file and two as large as the second (the end of the test), and a few
+    // blocks to spare: the three files of the session fit too.
+    let blocks = |file: &Vec<u8>| (file.len() / BLOCK) as u32;
+    let card = RamCard::new(DATA_START + blocks(&expected[0]) + 2 * blocks(&expected[1]) + 64, 0);
     let mut log = mount(card);
     logging::fly(&mut log, STEPS, &commands());
     let on_card = files(&mut log);

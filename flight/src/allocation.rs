@@ -176,7 +176,7 @@ const TRACE_FLOOR: f32 = 1e-6;
 pub const MULTIPLIER_TOLERANCE_ULPS: f32 = 16.0;
 
 /// How the allocation is weighted and bounded in time.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AllocationConfig {
     /// Weights `W_v` of the six virtual controls (fx, fy, fz, roll, pitch, yaw), each in
     /// `0..=`[`MAX_WV`], at least one positive.
@@ -216,7 +216,7 @@ pub enum AllocationError {
 }
 
 /// Why a call was refused.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum AllocationFailure {
     /// G, dv, the bounds or the preference held a NaN or an infinity.
     NonFinite,
@@ -230,7 +230,7 @@ pub enum AllocationFailure {
 }
 
 /// How a call ended.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum AllocationStatus {
     /// The optimum (multipliers checked within rounding).
     Optimal,
@@ -257,7 +257,7 @@ pub struct AllocationResult {
 }
 
 /// Where a variable stands in the working set.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 enum Bound {
     Free,
     Lower,
@@ -269,7 +269,7 @@ enum Bound {
 type Columns = [[f32; STACKED_ROWS]; MAX_MOTORS];
 
 /// The allocator for one airframe, with its warm start (last solution and working set).
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Allocator {
     motors: usize,
     config: AllocationConfig,
@@ -1049,7 +1049,7 @@ mod tests {
             let p = random_problem(m, seed, overdrive);
             let mut a = Allocator::new(m, AllocationConfig::default()).unwrap();
             p.solve(&mut a);
-            let mut untouched = a.clone();
+            let mut untouched = a;
 
             let mut q = p.clone();
             match bad {

@@ -83,7 +83,7 @@ pub fn sensitivity_weight(accel_mps2: f32) -> f32 {
 }
 
 /// How the filter is tuned. All gains are continuous-time (independent of the sample rate).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AttitudeConfig {
     /// Proportional gain of the tilt correction, rad/s per unit of cross-product error (per
     /// radian for small errors): the tilt converges with a time constant of about `1/k_p`.
@@ -170,7 +170,7 @@ pub enum AttitudeError {
 }
 
 /// The attitude filter.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AttitudeFilter {
     config: AttitudeConfig,
     q_world_body: UnitQuaternion<f32>,

@@ -125,7 +125,7 @@ const THRUST_DIRECTION_MAX_RATE_RAD_S: f32 = 1.0;
 /// specific force removes that error at its source. Low-passed over
 /// [`THRUST_DIRECTION_TIME_S`], only from thrusting, slowly turning samples, within
 /// [`THRUST_DIRECTION_MAX_RAD`] of the model's axis.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ThrustDirection {
     /// The craft's "down" as the motors push it: −(specific force direction), thrust frame.
     down: Vector3<f32>,
@@ -189,7 +189,7 @@ pub struct AttitudeCommand {
 }
 
 /// What the craft is asked to do.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Guidance {
     /// Hold a position (world NED, m) and heading (rad) from external position fixes. With
     /// `vertical_speed_mps` the height is not held: the craft moves vertically at that speed
@@ -252,7 +252,7 @@ pub struct ControllerOutput {
 }
 
 /// The cascade.
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Controller {
     indi: Indi,
     gains: Gains,

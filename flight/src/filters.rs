@@ -22,7 +22,7 @@
 use nalgebra::Vector3;
 
 /// Coefficients of a normalised biquad `H(z) = (b0 + b1 z⁻¹ + b2 z⁻²) / (1 + a1 z⁻¹ + a2 z⁻²)`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BiquadCoefficients {
     /// Feed-forward coefficients `b0, b1, b2`.
     pub b: [f32; 3],
@@ -71,7 +71,7 @@ impl BiquadCoefficients {
 }
 
 /// One channel of a 2nd-order Butterworth low-pass (transposed direct form II).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Butterworth2 {
     c: BiquadCoefficients,
     /// The two state registers of the transposed direct form II.
@@ -120,7 +120,7 @@ impl Butterworth2 {
 }
 
 /// Three channels (x, y, z) filtered by the same 2nd-order Butterworth design.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Butterworth2x3 {
     channels: [Butterworth2; 3],
 }

@@ -5,7 +5,7 @@
 use nalgebra::Vector3;
 
 /// One raw IMU sample.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ImuSample {
     /// Body rate (rad/s, IMU frame).
     pub gyro_radps: Vector3<f32>,

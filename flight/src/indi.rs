@@ -74,7 +74,7 @@ pub const MIN_TAU_S: f32 = 0.01;
 
 /// The learned actuators as INDI uses them: thrust-frame effectiveness per unit thrust and the
 /// motor models.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct IndiModel {
     /// Motors.
     pub motors: usize,
@@ -268,7 +268,7 @@ pub enum IndiError {
 }
 
 /// What one INDI step asks of the motors.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct IndiOutput {
     /// Motor commands δ ∈ [0, 1].
     pub commands: [f32; MAX_MOTORS],
@@ -291,7 +291,7 @@ pub struct IndiReference {
 }
 
 /// The filtered state INDI increments from (thrust frame), for telemetry and the outer loops.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct IndiState {
     /// Filtered body rate, rad/s.
     pub rate_rad_s: Vector3<f32>,
@@ -302,7 +302,7 @@ pub struct IndiState {
 }
 
 /// The INDI inner loop.
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Indi {
     model: IndiModel,
     rate_hz: f32,

@@ -27,6 +27,7 @@ pub mod math;
 pub mod navigation;
 pub mod position;
 pub mod rng;
+pub mod serde_array;
 pub mod slot;
 #[cfg(any(test, feature = "std"))]
 pub mod testing;

@@ -173,7 +173,7 @@ pub fn position_crossover(noise_m: f32, with_velocity: bool) -> f32 {
 
 /// One position fix with what its source says of its accuracy: motion capture's is the
 /// configured noise; a GNSS receiver states one with every solution, with a velocity.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Fix {
     /// Position of the CoG, world NED, m.
     pub position_ned_m: Vector3<f32>,
@@ -202,10 +202,12 @@ pub enum FixOutcome {
 }
 
 /// Values at past times, one every [`HISTORY_SPACING_S`], with their ages; no allocation.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct History {
+    #[serde(with = "crate::serde_array")]
     values: [Vector3<f32>; HISTORY_LEN],
     /// Age of each value at the last push, s.
+    #[serde(with = "crate::serde_array")]
     ages_s: [f32; HISTORY_LEN],
     /// Index of the newest value.
     newest: usize,
@@ -290,7 +292,7 @@ impl History {
 }
 
 /// The estimator's output.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct NavigationState {
     /// Position of the CoG, world NED, m (meaningful only once a fix has been taken).
     pub position_ned_m: Vector3<f32>,
@@ -311,7 +313,7 @@ pub enum NavigationError {
 }
 
 /// The position and velocity estimator.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PositionEstimator {
     crossover_rad_s: f32,
     state: NavigationState,
@@ -653,7 +655,7 @@ pub fn velocity_alignment_window_s(noise_mps: f32) -> f32 {
 }
 
 /// A velocity fix and the dead-reckoned velocity of its time.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct VelocityPoint {
     t_s: f32,
     fix: Vector3<f32>,
@@ -665,10 +667,11 @@ struct VelocityPoint {
 /// instead of second differences of position. Both are integrals of the acceleration, but a
 /// velocity difference carries far less noise: 5 cm/s of velocity noise against 0.3 m of
 /// position noise resolves 1 m/s² in 0.5 s instead of 1.7 s, with twenty times the margin.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct VelocityAlignment {
     noise_mps: f32,
     window_s: f32,
+    #[serde(with = "crate::serde_array")]
     points: [VelocityPoint; VELOCITY_POINTS],
     head: usize,
     filled: usize,
@@ -749,7 +752,7 @@ impl VelocityAlignment {
 }
 
 /// Fixes averaged over one slot of the window.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct Slot {
     /// Mean capture time on the alignment's clock, s.
     t_s: f32,
@@ -809,7 +812,7 @@ const CLOCK_REBASE_S: f32 = 1000.0;
 /// and the dead reckoning is good over `2T` (its acceleration error times `T²` small against
 /// `D`). Trust needs [`ALIGNMENT_EVIDENCE_S`] of motion and [`ALIGNMENT_SIGNIFICANCE`] times the
 /// evidence's noise.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct HeadingAlignment {
     window_s: f32,
     noise_m: f32,
@@ -823,6 +826,7 @@ pub struct HeadingAlignment {
     /// The slot being filled.
     open: Slot,
     /// Closed slots, newest at `head`.
+    #[serde(with = "crate::serde_array")]
     slots: [Slot; ALIGNMENT_SLOTS],
     head: usize,
     filled: usize,

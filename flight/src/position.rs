@@ -100,7 +100,7 @@ const SATURATION_TOLERANCE_MPS2: f32 = 1e-5;
 /// The cascade's gains (all 1/s: rate rad/s² per rad/s, attitude rad/s per rad, velocity m/s² per
 /// m/s, position m/s per m) and the velocity integral (1/s²: m/s² per m of integrated velocity
 /// error).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Gains {
     /// The τ the gains were made for (after the clamp), s.
     pub tau_s: f32,
@@ -151,7 +151,7 @@ impl Gains {
 }
 
 /// The limits of the position controller; the default is the published set.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PositionLimits {
     /// Largest horizontal velocity setpoint (norm), m/s. Default [`MAX_SPEED_MPS`].
     pub max_horizontal_speed_mps: f32,
@@ -210,7 +210,7 @@ pub enum PositionError {
 }
 
 /// The NDI position controller.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PositionController {
     gains: Gains,
     limits: PositionLimits,

@@ -7,7 +7,7 @@
 /// The DShot special commands (values 1..=47), with their standard numbers (Betaflight
 /// `dshotCommands_e`, BLHeli_32 and KISS documentation). Value 0 (motor stop) is not a command:
 /// motor stop is what a motor output sends when it has no command.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[repr(u8)]
 pub enum DshotCommand {
     /// Beep (beacon) tone 1.

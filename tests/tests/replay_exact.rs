@@ -80,13 +80,19 @@ fn replay_cli(file: &Path) -> serde_json::Value {
     serde_json::from_slice(&output.stdout).expect("replay --json prints JSON")
 }
 
-/// The log replays from start-up over at least [`MIN_STEPS`] steps with no difference, the
-/// craft flew on its learned model, and the control step adopted the background's results
-/// many times (the handoff this is about was exercised).
-fn assert_exact_flight(file: &Path) {
+/// The log replays over at least [`MIN_STEPS`] steps with no difference, the craft flew on its
+/// learned model, and the control step adopted the background's results many times (the
+/// handoff this is about was exercised). `from_start_up`: the file runs from start-up
+/// (`log_always`), else it begins at the arming and carries the control loop's state there.
+fn assert_exact_flight(file: &Path, from_start_up: bool) {
     let report = replay_cli(file);
     eprintln!("{}: {report}", file.display());
-    assert_eq!(report["from_start_up"], true, "{report}");
+    assert_eq!(report["from_start_up"], from_start_up, "{report}");
+    if !from_start_up {
+        let records = records(file);
+        let state = records.iter().filter(|r| matches!(r, LogRecord::State(_))).count();
+        assert!(state > 10, "the file begins with the control loop's state ({state} chunks)");
+    }
     assert!(report["steps"].as_u64().unwrap() >= MIN_STEPS as u64, "{report}");
     assert_eq!(report["differences"], 0, "{report}");
     assert_eq!(report["notes"], serde_json::json!([]), "{report}");
@@ -100,10 +106,10 @@ fn assert_exact_flight(file: &Path) {
     assert!(flew, "the craft flew on its learned model");
 }
 
-#[test]
-fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly() {
+/// A tilted hexarotor armed by `identify` over TCP, logged from start-up or from the arming.
+fn armed_by_identify_over_tcp(log_always: bool) {
     let _alone = one_at_a_time();
-    let dir = scratch_dir("identify");
+    let dir = scratch_dir(if log_always { "identify-always" } else { "identify-arming" });
     let config = SitlConfig {
         airframe: "hex-tilted".into(),
         pty: false,
@@ -111,11 +117,15 @@ fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly() {
         speed: 5.0,
         hand_throws_to_fly: true,
         log_dir: Some(dir.clone()),
-        log_always: true,
+        log_always,
         ..SitlConfig::default()
     };
     let sitl = Sitl::start(&config).expect("the SITL starts");
     let tcp = sitl.tcp_addr.unwrap().to_string();
+    // The board sits on the bench first, so its filters have a past when the arming comes.
+    let status = run_cli(&["status", "--tcp", &tcp]);
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    std::thread::sleep(Duration::from_millis(500));
     // Returns once the craft flies on the learned model (the model stored in the parameters:
     // a parameter change handed to both tasks in flight).
     let identified = run_cli(&["identify", "--tcp", &tcp, "--yes", "--json"]);
@@ -123,8 +133,20 @@ fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly() {
     let file = dir.join("LOG00001.BIN");
     wait_for_steps(&sitl, &file, MIN_STEPS + 2_000);
     drop(sitl);
-    assert_exact_flight(&file);
+    assert_exact_flight(&file, log_always);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly_from_start_up() {
+    armed_by_identify_over_tcp(true);
+}
+
+/// The default file (`log_always` = 0) begins at the arming: it carries the control loop's
+/// state there, and replays as exactly as a file from start-up.
+#[test]
+fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly_from_its_arming() {
+    armed_by_identify_over_tcp(false);
 }
 
 /// A flight on a GNSS receiver instead of motion capture (log format 5): its fixes are logged as
@@ -155,12 +177,12 @@ fn a_flight_on_gnss_fixes_replays_exactly_without_a_receiver() {
         .count();
     // 10 Hz over at least 6 s of the run.
     assert!(fixes >= 50, "{fixes} GNSS fixes logged");
-    assert_exact_flight(&file);
+    assert_exact_flight(&file, config.log_always);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
-fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_machine_replays_exactly(
+fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_machine_replays_exactly_from_its_arming(
 ) {
     let _alone = one_at_a_time();
     let dir = scratch_dir("switches");
@@ -185,7 +207,7 @@ fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_mac
         mocap: true,
         rc_script: Some(sim::radio::RcScript::parse("0.5:arm,0.5:throw").unwrap()),
         log_dir: Some(dir.clone()),
-        log_always: true,
+        log_always: false,
         ..SitlConfig::default()
     };
     let file = fly_logged(&config);
@@ -208,42 +230,60 @@ fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_mac
         commands.iter().any(|c| matches!(c, firmware::app::log::LoggedCommand::ExternalPose(_))),
         "motion capture fed the flight"
     );
-    assert_exact_flight(&file);
+    assert_exact_flight(&file, config.log_always);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The board's background task runs when the higher-priority tasks leave it time: its results
-/// reach the control step some steps after the samples they were computed from, a different
-/// number each time, and a parameter change reaches it between other samples than the SITL's
-/// would. Here it lags 0 to 25 steps at random (its queue holds 63 samples), the link pass's
-/// work waits for it, and the log replays exactly; the same log read as a format 3 replay (the
-/// background run after every step, as before the adoptions were logged) departs.
-#[test]
-fn a_background_task_lagging_the_control_step_at_random_replays_exactly() {
-    let _alone = one_at_a_time();
-    let dir = scratch_dir("lagging");
+/// What the simulated bench does at a moment of [`fly_with_a_lagging_background`]'s run.
+#[derive(Clone, Copy, Debug)]
+enum Bench {
+    /// `arm-throw-to-fly` from a link.
+    Arm,
+    /// The hand throws the craft (the paper's throw), not catching it.
+    Throw,
+    /// A hand grips the flying craft where it is, and the link disarms it.
+    GripAndDisarm,
+}
+
+/// A tilted hexarotor's application in process, the bench acting at the given times (s), its
+/// background task lagging the control step 0 to 25 steps at random (as on the board, where it
+/// runs when the higher-priority tasks leave it time; its queue holds 63 samples) and the link
+/// pass's work waiting for it. Logs into `dir`; returns the background's lags, in steps.
+fn fly_with_a_lagging_background(
+    dir: &Path,
+    log_always: bool,
+    bench: &[(f64, Bench)],
+    ticks: u32,
+) -> Vec<u32> {
     let airframe = sim::airframe::Airframe::load("hex-tilted").unwrap();
     let mut board = sim::board::SimBoard::new(&airframe, &sim::board::SimConfig::default());
-    let mut sink = sim::log_dir::LogDir::create(&dir).unwrap();
+    let mut sink = sim::log_dir::LogDir::create(dir).unwrap();
     let mut settings = Settings::<NoFlash>::without_store();
     settings.update(|params| {
         let index = firmware::app::params::find(b"log_always").unwrap();
-        params.set(index, &[1.0]).unwrap();
+        params.set(index, &[f32::from(u8::from(log_always))]).unwrap();
     });
     let mut rng = flight::rng::Rng::new(54);
     let mut lags = Vec::new();
+    let mut due = bench.iter().peekable();
     let log = Some(LogTarget { sink: &mut sink, board: "SITL" });
     let health = sim::board::SIM_BOARD_HEALTH;
     with_logged_system(settings, health, None, log, |system| {
-        system.submit(ControlCommand::ArmThrowToFly);
         let mut wait = 0u32;
-        let mut thrown = false;
-        for tick in 1..=(MIN_STEPS as u32 + 1_000) {
-            if !thrown && board.time_s() >= 1.0 {
-                thrown = true;
+        for tick in 1..=ticks {
+            while let Some((_, action)) = due.next_if(|(at_s, _)| board.time_s() >= *at_s) {
                 let physics = board.physics_mut();
-                physics.set_catch(None);
-                physics.throw(&sim::identification::Throw::paper().spec());
+                match action {
+                    Bench::Arm => assert!(system.submit(ControlCommand::ArmThrowToFly)),
+                    Bench::Throw => {
+                        physics.set_catch(None);
+                        physics.throw(&sim::identification::Throw::paper().spec());
+                    }
+                    Bench::GripAndDisarm => {
+                        physics.grip();
+                        assert!(system.submit(ControlCommand::Disarm));
+                    }
+                }
             }
             board.tick();
             let now_us = board.now_us();
@@ -267,6 +307,21 @@ fn a_background_task_lagging_the_control_step_at_random_replays_exactly() {
         system.run_background();
         system.finish_log();
     });
+    lags
+}
+
+/// The board's background task runs when the higher-priority tasks leave it time: its results
+/// reach the control step some steps after the samples they were computed from, a different
+/// number each time, and a parameter change reaches it between other samples than the SITL's
+/// would. Here it lags 0 to 25 steps at random, and the log replays exactly; the same log read
+/// as a format 3 replay (the background run after every step, as before the adoptions were
+/// logged) departs.
+#[test]
+fn a_background_task_lagging_the_control_step_at_random_replays_exactly() {
+    let _alone = one_at_a_time();
+    let dir = scratch_dir("lagging");
+    let bench = [(0.0, Bench::Arm), (1.0, Bench::Throw)];
+    let lags = fly_with_a_lagging_background(&dir, true, &bench, MIN_STEPS as u32 + 1_000);
     let mean_lag = lags.iter().sum::<u32>() as f64 / lags.len() as f64;
     assert!((10.0..15.0).contains(&mean_lag), "the background ran every {mean_lag} steps");
     let bytes = std::fs::read(dir.join("LOG00001.BIN")).unwrap();
@@ -307,6 +362,54 @@ fn a_background_task_lagging_the_control_step_at_random_replays_exactly() {
     let before = replay(&as_format_3, &[], |_, _| {});
     eprintln!("the same log replayed as format 3: {} differences", before.differences);
     assert!(before.differences > 100, "the handoffs' steps mattered: {}", before.differences);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The default files (`log_always` = 0), one per arming: the second flight of a power cycle
+/// begins its file with the control loop's state at its arming (the attitude filter, the
+/// navigation, the first flight's model) and the learner sample count there, and replays
+/// exactly, its background task lagging at random as above. Without that state (the records
+/// dropped, as a firmware before format 6 wrote it) the same file departs.
+#[test]
+fn a_second_flight_logged_from_its_arming_replays_exactly() {
+    let _alone = one_at_a_time();
+    let dir = scratch_dir("second-flight");
+    let bench = [
+        (0.5, Bench::Arm),
+        (1.5, Bench::Throw),
+        (8.0, Bench::GripAndDisarm),
+        (12.0, Bench::Arm),
+        (13.0, Bench::Throw),
+    ];
+    fly_with_a_lagging_background(&dir, false, &bench, 2 * 12_000 + MIN_STEPS as u32);
+    let first = parse_log(&std::fs::read(dir.join("LOG00001.BIN")).unwrap()).unwrap();
+    let bytes =
+        std::fs::read(dir.join("LOG00002.BIN")).expect("a second file for the second arming");
+    let second = parse_log(&bytes).unwrap();
+    assert!(
+        second.header.first_step > 20_000,
+        "it begins at the second arming: {:?}",
+        second.header
+    );
+    for log in [&first, &second] {
+        let exact = replay(log, &[], |_, _| {});
+        eprintln!(
+            "file from step {}: {} steps, {} differences, notes {:?}",
+            log.header.first_step, exact.steps, exact.differences, exact.notes
+        );
+        assert!(exact.steps >= MIN_STEPS as u64);
+        assert_eq!((exact.differences, exact.notes.len()), (0, 0), "{:?}", exact.first_difference);
+        assert!(exact
+            .replayed_phases
+            .iter()
+            .any(|(p, _)| *p == flight::learner::FlightPhase::Done));
+    }
+    let mut stateless = second.clone();
+    stateless.records.retain(|r| !matches!(r, LogRecord::Arming(_) | LogRecord::State(_)));
+    let fresh = replay(&stateless, &[], |_, _| {});
+    eprintln!("the second file without the state: {} differences", fresh.differences);
+    assert!(fresh.differences > 100, "the state mattered: {}", fresh.differences);
+    assert!(!fresh.notes.is_empty(), "and the replay says it starts from a fresh application");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

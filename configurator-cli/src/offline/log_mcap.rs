@@ -209,7 +209,9 @@ pub fn export<W: Write + Seek>(bytes: &[u8], out: W) -> Result<Exported, InputEr
             LogRecord::Work(_)
             | LogRecord::Dropped(_)
             | LogRecord::End(_)
-            | LogRecord::Adopted(_) => {}
+            | LogRecord::Adopted(_)
+            | LogRecord::Arming(_)
+            | LogRecord::State(_) => {}
         }
     }
     if steps == 0 {

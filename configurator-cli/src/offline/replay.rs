@@ -32,13 +32,14 @@
 use super::InputError;
 use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, NoBytes, MAX_MOTORS};
 use firmware::app::log::{
-    phase_code, phase_from_code, Header, LogReader, LogRecord, LoggedCommand, LoggedWork,
-    ParamsAssembler, ReadStats, StepLogRecord, LOG_FORMAT_VERSION,
+    phase_code, phase_from_code, ArmingRecord, ArmingTag, Header, LogReader, LogRecord,
+    LoggedCommand, LoggedWork, ParamsAssembler, ReadStats, StepLogRecord, LOG_FORMAT_VERSION,
 };
 use firmware::app::params::{find, Params, LAYOUT_HASH, SPECS};
 use firmware::app::system::{with_system, BackgroundWork, Exclusive, TickHardware, TickShared};
 use firmware::app::{
-    Background, BackgroundCommand, BackgroundResults, ControlSnapshot, NoFlash, Settings,
+    Background, BackgroundCommand, BackgroundResults, ControlSnapshot, ControlState, NoFlash,
+    Settings,
 };
 use flight::learner::{FlightPhase, LearnedModel};
 use serde_json::{json, Value};
@@ -191,8 +192,10 @@ struct BackgroundScript {
 }
 
 impl BackgroundScript {
-    /// Read from the whole log (`changed` applies the replay's parameter overrides).
-    fn read(log: &LogFile, changed: &dyn Fn(&Params) -> Params) -> Self {
+    /// Read from the whole log (`changed` applies the replay's parameter overrides). The board's
+    /// sample counts are taken as counts of the replay's background task, less `samples_before`
+    /// (the samples the board's took before the file's first step: 0 from start-up).
+    fn read(log: &LogFile, changed: &dyn Fn(&Params) -> Params, samples_before: u32) -> Self {
         let mut assembler = ParamsAssembler::default();
         let mut params = Params::default();
         let mut works = VecDeque::new();
@@ -206,11 +209,12 @@ impl BackgroundScript {
                 }
                 LogRecord::Work(work) => {
                     if let Some(samples) = work.samples_processed {
-                        works.push_back((samples, background_work(work.work, &changed(&params))));
+                        let at = samples.saturating_sub(samples_before);
+                        works.push_back((at, background_work(work.work, &changed(&params))));
                     }
                 }
                 LogRecord::Adopted(adopted) => {
-                    wanted.insert(adopted.samples_processed);
+                    wanted.insert(adopted.samples_processed.saturating_sub(samples_before));
                 }
                 LogRecord::End(_) => break,
                 _ => {}
@@ -279,8 +283,16 @@ pub fn replay(
         params
     };
     let from_start_up = log.header.first_step <= 1;
+    // A file begun at an arming: the control loop's state there, when the file has it whole.
+    let arming = if from_start_up { None } else { arming_state(log) };
+    let (arming, arming_problem) = match arming {
+        Some(Ok(arming)) => (Some(arming), None),
+        Some(Err(problem)) => (None, Some(problem)),
+        None => (None, None),
+    };
     // The handoffs as the board made them (module doc).
-    let exact = from_start_up && log.header.format >= 4;
+    let exact = (from_start_up || arming.is_some()) && log.header.format >= 4;
+    let samples_before = arming.as_ref().map_or(0, |(tag, _)| tag.samples_before);
     let mut run = ReplayRun {
         steps: 0,
         differences: 0,
@@ -290,12 +302,20 @@ pub fn replay(
         learned: LearnedModel::default(),
         notes: Vec::new(),
     };
-    if !from_start_up {
+    if let Some(problem) = arming_problem {
         run.notes.push(format!(
-            "the log begins at step {} (an arming), not at start-up: replayed from a fresh \
-             application, whose filters had not seen the steps before, with the background \
-             task run after every step as the SITL runs it (set `log_always` = 1 and save it \
-             for a log from start-up, which replays exactly)",
+            "the log begins at step {} (an arming) but its record of the control loop's state \
+             there is unusable ({problem}): replayed from a fresh application",
+            log.header.first_step
+        ));
+    }
+    if !from_start_up && arming.is_none() {
+        run.notes.push(format!(
+            "the log begins at step {} (an arming), not at start-up, and holds no state of the \
+             control loop there (written by a firmware before log format 6, or the board's logger \
+             was still busy with an earlier arming): replayed from a fresh application, whose \
+             filters had not seen the steps before, with the background task run after every \
+             step as the SITL runs it",
             log.header.first_step
         ));
     } else if !exact {
@@ -305,7 +325,7 @@ pub fn replay(
             log.header.format
         ));
     }
-    let mut script = BackgroundScript::read(log, &changed);
+    let mut script = BackgroundScript::read(log, &changed, samples_before);
     with_system(Settings::<NoFlash>::without_store(), Default::default(), None, |system| {
         let mut assembler = ParamsAssembler::default();
         let mut params = Params::default();
@@ -317,7 +337,29 @@ pub fn replay(
         let mut handed = system.background.results();
         script.keep(&system.background);
         let mut adoption = None;
-        let mut samples_dropped = 0;
+        // Samples the board's control step had dropped before the file (its background task's
+        // past, not this replay's).
+        let mut samples_dropped = match &arming {
+            Some(_) => log
+                .records
+                .iter()
+                .find_map(|r| match r {
+                    LogRecord::Adopted(adopted) => Some(adopted.samples_dropped),
+                    _ => None,
+                })
+                .unwrap_or(0),
+            None => 0,
+        };
+        if let Some((_, state)) = &arming {
+            // The board's control loop as it stood before the arming command; the results it
+            // had adopted then are the ones it keeps until the log shows another adoption (only
+            // their version is compared: `ControlLoop::receive`).
+            system.control.control_mut().restore(*state);
+            if let Some((samples, pending)) = system.control.control().model_version() {
+                handed.learned.samples = samples;
+                handed.learned.pending = pending;
+            }
+        }
         for record in &log.records {
             match record {
                 LogRecord::Header(_) => {}
@@ -326,11 +368,14 @@ pub fn replay(
                         params = complete;
                         if !from_start_up && !started && !injected {
                             injected = true;
-                            // The parameters in force at the arming, as the board had them.
+                            // The parameters in force at the arming, as the board had them (the
+                            // control loop's are in its state, when the log has it).
                             let current = changed(&params);
                             let command = LoggedCommand::Configure { from_params: true };
                             if let Some(command) = command.to_command(&current) {
-                                system.submit(command);
+                                if arming.is_none() {
+                                    system.submit(command);
+                                }
                             }
                             let _ =
                                 system.handoffs.work.push_back(BackgroundWork::Configure(current));
@@ -387,7 +432,8 @@ pub fn replay(
                     };
                     if exact {
                         if let Some(adopted) = adoption.take().filter(|a| a.step == step.step) {
-                            match script.results_at.get(&adopted.samples_processed) {
+                            let at = adopted.samples_processed.saturating_sub(samples_before);
+                            match script.results_at.get(&at) {
                                 Some(results) => handed = *results,
                                 None => run.notes.push(format!(
                                     "step {}: the board adopted the results of {} learner \
@@ -464,6 +510,8 @@ pub fn replay(
                 LogRecord::End(_) => break,
                 // The board's own outputs, not inputs: the replay computes them afresh.
                 LogRecord::Learner(_) | LogRecord::Flight(_) => {}
+                // Read before the replay began (`arming_state`).
+                LogRecord::Arming(_) | LogRecord::State(_) => {}
             }
         }
         run.learned = if exact {
@@ -480,6 +528,48 @@ pub fn replay(
         ));
     }
     run
+}
+
+/// The control loop's state a file begun at an arming records (its [`ArmingRecord`] and the
+/// [`StateChunk`]s after it), with the step and sample count it was taken at: `None` when the file
+/// has no such record, an error naming what is wrong when it is incomplete or does not decode
+/// (written by another firmware, or torn by a power cut).
+fn arming_state(log: &LogFile) -> Option<Result<(ArmingTag, ControlState), String>> {
+    let mut announced: Option<ArmingRecord> = None;
+    let mut bytes = Vec::new();
+    for record in &log.records {
+        match record {
+            LogRecord::Arming(record) => {
+                announced = Some(*record);
+                bytes.clear();
+            }
+            LogRecord::State(chunk) if announced.is_some() => {
+                if chunk.offset as usize != bytes.len() {
+                    return Some(Err(format!(
+                        "a chunk at byte {} where byte {} was due",
+                        chunk.offset,
+                        bytes.len()
+                    )));
+                }
+                bytes.extend_from_slice(&chunk.bytes);
+            }
+            LogRecord::Step(_) => break,
+            _ => {}
+        }
+    }
+    let record = announced?;
+    Some(if bytes.len() != record.len as usize {
+        Err(format!("{} of its {} bytes", bytes.len(), record.len))
+    } else if record.tag.step != log.header.first_step {
+        Err(format!(
+            "taken at step {}, the file begins at {}",
+            record.tag.step, log.header.first_step
+        ))
+    } else {
+        postcard::from_bytes::<ControlState>(&bytes)
+            .map(|state| (record.tag, state))
+            .map_err(|e| format!("it does not decode: {e}"))
+    })
 }
 
 /// The phase's name as the status shows it.

@@ -121,7 +121,7 @@ pub const CATCH_HOVER_S: f32 = 3.0;
 pub const CATCH_CONFIRM_S: f32 = 0.12;
 
 /// What the detector follows while it watches.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct Watch {
     /// Each motor's normalised thrust, the learned first-order lag of its commands.
     u: [f32; MAX_MOTORS],
@@ -147,7 +147,7 @@ struct Watch {
 
 /// The hand-catch detector (module doc): fed every flying step, it says when a hand holds the
 /// craft.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct CatchDetector {
     dt_s: f32,
     /// The per-step gains of the baseline's and the tracking error's averages, and the tracking

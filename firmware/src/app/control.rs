@@ -78,6 +78,7 @@ use protocol::{
     DshotCommand, ExternalPose, ImuHeldCounters, LandReason, LearnerFailure, PositionSetpoint,
     MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND, SPEED_REPORT_TIMEOUT_MS,
 };
+use serde::{Deserialize, Serialize};
 
 /// What the other tasks ask of the control step (from the link, the receiver, the simulator).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,7 +119,7 @@ pub enum ControlCommand {
 }
 
 /// What the control step takes from the parameters (`super::params::Params`).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ControlSettings {
     pub throw: ThrowConfig,
     pub excitation: ExcitationConfig,
@@ -186,7 +187,7 @@ impl From<&super::params::Params> for ControlSettings {
 }
 
 /// A running motor test.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 struct MotorTestState {
     motor: u8,
     command: f32,
@@ -207,7 +208,7 @@ fn attempt_under_way(phase: FlightPhase, wait: EngageWait) -> bool {
 /// Only a learner that models the speeds publishes such models
 /// (`flight::learner::MODELS_MAY_BE_PENDING`): without it nothing here is ever active, and the
 /// compiler leaves none of it in the step, whose flash has no byte to spare (docs/budget.md).
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct EngageWait {
     /// Steps it may still wait (0: not waiting).
     steps: u16,
@@ -307,7 +308,7 @@ enum ImuVerdict {
 }
 
 /// The IMU checks' state (see the module doc).
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct ImuGuard {
     /// The previous finite sample, as bits (gyro then accelerometer).
     previous_bits: Option<[u32; 6]>,
@@ -414,7 +415,7 @@ impl ImuGuard {
 }
 
 /// When each motor last reported its speed (see the module doc).
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct SpeedMonitor {
     /// Time of each motor's latest finite, non-negative speed report, µs.
     last_report_us: [Option<u64>; MAX_MOTORS],
@@ -464,7 +465,7 @@ impl Default for ControlConfig {
 }
 
 /// What the control step publishes for the link and status (a small `Copy` value).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ControlSnapshot {
     /// Time of the latest step, µs since start-up.
     pub t_us: u64,
@@ -523,8 +524,21 @@ pub struct ControlSnapshot {
     pub battery: Option<protocol::BatteryStatus>,
 }
 
-/// The control loop's state: the highest-priority task's local resource.
+/// The control loop: the highest-priority task's local resource. Its state is one value
+/// ([`ControlState`]) apart from the rings out of the step, so a flight log can record the state
+/// at an arming and a replay can start from it.
 pub struct ControlLoop<'q> {
+    state: ControlState,
+    samples: SampleProducer<'q>,
+    /// The telemetry ring to the link task, when the board streams per-step topics.
+    telemetry: Option<StepProducer<'q>>,
+}
+
+/// Everything the control loop remembers from one step to the next (the rings out of it
+/// aside): what a flight log that begins at an arming records (`super::log`, the arming
+/// state), so its replay runs the steps after it from the state the board ran them from.
+#[derive(Clone, Copy, Serialize, Deserialize)]
+pub struct ControlState {
     period_us: u32,
     throw_to_fly: ThrowToFly,
     /// The settings in force, and newer ones waiting for the craft to be disarmed.
@@ -537,9 +551,6 @@ pub struct ControlLoop<'q> {
     /// `LearnedModel::samples` and `pending` of the model last received (to copy only what
     /// changed).
     model_version: Option<(u32, bool)>,
-    samples: SampleProducer<'q>,
-    /// The telemetry ring to the link task, when the board streams per-step topics.
-    telemetry: Option<StepProducer<'q>>,
     snapshot: ControlSnapshot,
     previous_step_us: Option<u64>,
     /// Time of the latest finite IMU sample, µs.
@@ -561,7 +572,7 @@ pub struct ControlLoop<'q> {
 impl<'q> ControlLoop<'q> {
     pub fn new(config: ControlConfig, samples: SampleProducer<'q>) -> Self {
         let rate_hz = config.rate_hz.max(1);
-        Self {
+        let state = ControlState {
             period_us: 1_000_000 / u32::from(rate_hz),
             throw_to_fly: ThrowToFly::new(
                 ThrowConfig::default(),
@@ -574,8 +585,6 @@ impl<'q> ControlLoop<'q> {
             esc_command: None,
             pilot: Pilot::new(f32::from(rate_hz)),
             model_version: None,
-            samples,
-            telemetry: None,
             snapshot: ControlSnapshot::default(),
             previous_step_us: None,
             last_imu_us: None,
@@ -586,7 +595,28 @@ impl<'q> ControlLoop<'q> {
             land_when_flying: None,
             rate_window_start_us: 0,
             rate_window_steps: 0,
-        }
+        };
+        Self { state, samples, telemetry: None }
+    }
+
+    /// The loop's state now (a copy: what a flight log records at an arming).
+    pub fn state(&self) -> &ControlState {
+        &self.state
+    }
+
+    /// The version (samples learned from, pending) of the background's results adopted last.
+    pub fn model_version(&self) -> Option<(u32, bool)> {
+        self.state.model_version
+    }
+
+    /// Learner samples handed to the background task so far (those its ring took).
+    pub fn samples_handed(&self) -> u32 {
+        self.samples.accepted()
+    }
+
+    /// Continue from `state` (a replay starting where a logged arming left the board).
+    pub fn restore(&mut self, state: ControlState) {
+        self.state = state;
     }
 
     /// Write one [`StepRecord`] per step into `ring` for the link's per-step telemetry.
@@ -601,62 +631,62 @@ impl<'q> ControlLoop<'q> {
             ControlCommand::ArmThrowToFly => {
                 // Refused while a motor does not report its speed, once the step has run (before
                 // the first step nothing is known; the attempt then gets the report timeout).
-                let count = usize::from(self.snapshot.motor_count);
-                if !self.settings.arm_without_speeds
-                    && self.snapshot.steps > 0
-                    && self.speed_monitor.silent(count, now_us, 0) != 0
+                let count = usize::from(self.state.snapshot.motor_count);
+                if !self.state.settings.arm_without_speeds
+                    && self.state.snapshot.steps > 0
+                    && self.state.speed_monitor.silent(count, now_us, 0) != 0
                 {
-                    self.snapshot.failure = LearnerFailure::NoSpeedTelemetry;
+                    self.state.snapshot.failure = LearnerFailure::NoSpeedTelemetry;
                 } else {
-                    self.motor_test = None;
-                    self.engage_wait.end();
-                    self.land_when_flying = None;
-                    self.throw_to_fly.arm();
-                    self.armed_at_us = now_us;
-                    self.snapshot.failure = LearnerFailure::None;
+                    self.state.motor_test = None;
+                    self.state.engage_wait.end();
+                    self.state.land_when_flying = None;
+                    self.state.throw_to_fly.arm();
+                    self.state.armed_at_us = now_us;
+                    self.state.snapshot.failure = LearnerFailure::None;
                 }
             }
             ControlCommand::Disarm => self.disarm(),
             ControlCommand::Failsafe(failsafe) => {
-                let armed = self.flight_armed() || self.motor_test.is_some();
+                let armed = self.flight_armed() || self.state.motor_test.is_some();
                 self.disarm();
                 if armed {
-                    self.pilot.raise(failsafe);
+                    self.state.pilot.raise(failsafe);
                 }
             }
             ControlCommand::Land(reason) => self.land(reason),
-            ControlCommand::Sticks(sticks) => self.pilot.set_sticks(sticks),
+            ControlCommand::Sticks(sticks) => self.state.pilot.set_sticks(sticks),
             ControlCommand::ExternalPose(pose) => {
                 if super::is_finite_pose(&pose.position_ned_m, pose.heading_rad) {
-                    self.snapshot.external_pose = Some((pose, now_us));
-                    self.pilot.pose(&pose, now_us);
+                    self.state.snapshot.external_pose = Some((pose, now_us));
+                    self.state.pilot.pose(&pose, now_us);
                 }
             }
             ControlCommand::PositionFix(fix) => {
                 if fix.is_valid() {
-                    self.snapshot.position_fix = Some((fix, now_us));
-                    self.pilot.fix(&fix, now_us);
+                    self.state.snapshot.position_fix = Some((fix, now_us));
+                    self.state.pilot.fix(&fix, now_us);
                 }
             }
             ControlCommand::PositionSetpoint(setpoint) => {
-                self.pilot.set_position_setpoint(&setpoint);
+                self.state.pilot.set_position_setpoint(&setpoint);
             }
-            ControlCommand::Configure(settings) => self.pending_settings = Some(settings),
+            ControlCommand::Configure(settings) => self.state.pending_settings = Some(settings),
             ControlCommand::MotorTest { motor, command } => {
                 let flight_armed = self.flight_armed();
-                let valid = usize::from(motor) < usize::from(self.snapshot.motor_count)
+                let valid = usize::from(motor) < usize::from(self.state.snapshot.motor_count)
                     && command.is_finite();
                 if valid && !flight_armed {
-                    self.motor_test = Some(MotorTestState {
+                    self.state.motor_test = Some(MotorTestState {
                         motor,
                         command: command.clamp(0.0, MOTOR_TEST_MAX_COMMAND),
                         until_us: now_us + u64::from(MOTOR_TEST_KEEPALIVE_MS) * 1000,
                     });
                 }
             }
-            ControlCommand::StopMotorTest => self.motor_test = None,
+            ControlCommand::StopMotorTest => self.state.motor_test = None,
             ControlCommand::EscCommand { command, motor } => {
-                self.esc_command = Some((command, motor));
+                self.state.esc_command = Some((command, motor));
             }
         }
         self.apply_pending_settings();
@@ -665,17 +695,19 @@ impl<'q> ControlLoop<'q> {
 
     /// End the flight gently ([`ControlCommand::Land`]).
     fn land(&mut self, reason: LandReason) {
-        if reason == LandReason::RcLost && (self.flight_armed() || self.motor_test.is_some()) {
-            self.pilot.note_failsafe(Failsafe::RcLost);
+        if reason == LandReason::RcLost && (self.flight_armed() || self.state.motor_test.is_some())
+        {
+            self.state.pilot.note_failsafe(Failsafe::RcLost);
         }
-        if self.pilot.land(reason) {
+        if self.state.pilot.land(reason) {
             return;
         }
-        let in_the_air =
-            matches!(self.throw_to_fly.phase(), FlightPhase::Released | FlightPhase::Exciting)
-                || self.engage_wait.active();
+        let in_the_air = matches!(
+            self.state.throw_to_fly.phase(),
+            FlightPhase::Released | FlightPhase::Exciting
+        ) || self.state.engage_wait.active();
         if in_the_air {
-            self.land_when_flying = Some(reason);
+            self.state.land_when_flying = Some(reason);
         } else {
             self.disarm();
         }
@@ -683,44 +715,49 @@ impl<'q> ControlLoop<'q> {
 
     /// Stop every motor and leave any armed state; an attempt under way ends as `Disarmed`.
     fn disarm(&mut self) {
-        self.land_when_flying = None;
-        self.motor_test = None;
-        self.esc_command = None;
+        self.state.land_when_flying = None;
+        self.state.motor_test = None;
+        self.state.esc_command = None;
         let attempt = self.attempt();
-        self.throw_to_fly.disarm();
-        self.engage_wait.end();
-        self.pilot.disarm();
+        self.state.throw_to_fly.disarm();
+        self.state.engage_wait.end();
+        self.state.pilot.disarm();
         if attempt {
-            self.snapshot.failure = LearnerFailure::Disarmed;
+            self.state.snapshot.failure = LearnerFailure::Disarmed;
         }
     }
 
     /// Whether a throw-to-fly attempt is under way: from the arming to the engagement,
     /// its wait for the model ([`ENGAGE_WAIT_MAX_S`]) included.
     fn attempt(&self) -> bool {
-        attempt_under_way(self.throw_to_fly.phase(), self.engage_wait)
+        attempt_under_way(self.state.throw_to_fly.phase(), self.state.engage_wait)
     }
 
     /// Whether a throw-to-fly attempt or a flight is under way (a motor test aside).
     fn flight_armed(&self) -> bool {
-        self.attempt() || self.pilot.flying()
+        self.attempt() || self.state.pilot.flying()
     }
 
     /// Take waiting settings once nothing is armed. The throw detector is rebuilt only when
     /// its configuration changed (it would otherwise forget the last attempt's outcome).
     fn apply_pending_settings(&mut self) {
-        if self.pending_settings.is_none() || self.flight_armed() || self.motor_test.is_some() {
+        if self.state.pending_settings.is_none()
+            || self.flight_armed()
+            || self.state.motor_test.is_some()
+        {
             return;
         }
-        let Some(settings) = self.pending_settings.take() else { return };
-        if settings.throw != self.settings.throw || settings.excitation != self.settings.excitation
+        let Some(settings) = self.state.pending_settings.take() else { return };
+        if settings.throw != self.state.settings.throw
+            || settings.excitation != self.state.settings.excitation
         {
-            self.throw_to_fly = ThrowToFly::new(settings.throw, settings.excitation, MAX_MOTORS);
+            self.state.throw_to_fly =
+                ThrowToFly::new(settings.throw, settings.excitation, MAX_MOTORS);
         }
-        self.pilot.configure_pose(settings.pose);
-        self.pilot.configure_landing(settings.land);
-        self.pilot.configure_sticks(settings.sticks);
-        self.settings = settings;
+        self.state.pilot.configure_pose(settings.pose);
+        self.state.pilot.configure_landing(settings.land);
+        self.state.pilot.configure_sticks(settings.sticks);
+        self.state.settings = settings;
     }
 
     /// Take what the background task published: the learned model (copied only when it changed)
@@ -732,11 +769,11 @@ impl<'q> ControlLoop<'q> {
         // The samples learned from, and whether it is pending: a restarted learner's first model
         // has learned from none, as the one before the first attempt had.
         let version = (results.learned.samples, results.learned.is_pending());
-        if self.model_version == Some(version) {
+        if self.state.model_version == Some(version) {
             return false;
         }
-        self.model_version = Some(version);
-        self.pilot.set_model(&results.learned, results.learner_r_imu_m);
+        self.state.model_version = Some(version);
+        self.state.pilot.set_model(&results.learned, results.learner_r_imu_m);
         true
     }
 
@@ -744,17 +781,17 @@ impl<'q> ControlLoop<'q> {
     /// are waiting for the background task (the board then schedules it).
     pub fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) -> bool {
         self.account_timing(now_us);
-        let bias = self.settings.acc_bias_mps2;
+        let bias = self.state.settings.acc_bias_mps2;
         let raw = imu.read();
-        let flying = self.pilot.flying();
+        let flying = self.state.pilot.flying();
         let armed = self.flight_armed();
         let spinning = flying
-            || self.throw_to_fly.phase() == FlightPhase::Exciting
-            || self.engage_wait.active();
+            || self.state.throw_to_fly.phase() == FlightPhase::Exciting
+            || self.state.engage_wait.active();
         // The IMU checks (module doc): bad samples are held over while armed; a fault that
         // lasts `imu_fault_timeout_s`, or a stuck gyro axis in flight, fails.
-        let timeout_us = (self.settings.imu_fault_timeout_s.max(0.0) * 1e6) as u64;
-        let (verdict, stuck) = self.imu_guard.check(raw, armed, spinning, now_us, timeout_us);
+        let timeout_us = (self.state.settings.imu_fault_timeout_s.max(0.0) * 1e6) as u64;
+        let (verdict, stuck) = self.state.imu_guard.check(raw, armed, spinning, now_us, timeout_us);
         let mut imu_failed = match verdict {
             ImuVerdict::Failed(glitch) => Some(glitch),
             _ => None,
@@ -776,10 +813,10 @@ impl<'q> ControlLoop<'q> {
             }
             sample
         });
-        let snapshot = &mut self.snapshot;
+        let snapshot = &mut self.state.snapshot;
         if raw.is_some_and(|sample| is_finite_sample(&sample)) {
             snapshot.imu_samples = snapshot.imu_samples.wrapping_add(1);
-            self.last_imu_us = Some(now_us);
+            self.state.last_imu_us = Some(now_us);
         } else {
             snapshot.imu_missing = snapshot.imu_missing.wrapping_add(1);
         }
@@ -790,74 +827,75 @@ impl<'q> ControlLoop<'q> {
             }
         }
         snapshot.imu_present =
-            self.last_imu_us.is_some_and(|t| now_us.saturating_sub(t) < IMU_ABSENT_AFTER_US);
+            self.state.last_imu_us.is_some_and(|t| now_us.saturating_sub(t) < IMU_ABSENT_AFTER_US);
 
         let motor_count = usize::from(motors.count()).min(MAX_MOTORS);
         snapshot.motor_count = motor_count as u8;
-        self.throw_to_fly.set_motors(motor_count);
+        self.state.throw_to_fly.set_motors(motor_count);
         // A failed IMU during an attempt (its wait for the model included) or a flight:
         // everything stops in this step.
-        let attempt = attempt_under_way(self.throw_to_fly.phase(), self.engage_wait);
-        if let Some(glitch) = imu_failed.filter(|_| attempt || self.pilot.flying()) {
+        let attempt = attempt_under_way(self.state.throw_to_fly.phase(), self.state.engage_wait);
+        if let Some(glitch) = imu_failed.filter(|_| attempt || self.state.pilot.flying()) {
             if glitch == ImuGlitch::Missing {
-                let _ = self.pilot.imu_lost();
+                let _ = self.state.pilot.imu_lost();
             } else {
-                self.pilot.imu_fault();
+                self.state.pilot.imu_fault();
             }
-            self.throw_to_fly.disarm();
-            self.engage_wait.end();
+            self.state.throw_to_fly.disarm();
+            self.state.engage_wait.end();
             if attempt {
                 snapshot.failure = LearnerFailure::ImuLost;
             }
         }
         // A motor that stopped reporting its speed ends an attempt before or during the
         // excitation (module doc); its commands are zero from this step.
-        let phase = self.throw_to_fly.phase();
+        let phase = self.state.throw_to_fly.phase();
         if matches!(
             phase,
             FlightPhase::WaitingForThrow
                 | FlightPhase::Throwing
                 | FlightPhase::Released
                 | FlightPhase::Exciting
-        ) && !self.settings.arm_without_speeds
-            && self.speed_monitor.silent(motor_count, now_us, self.armed_at_us) != 0
+        ) && !self.state.settings.arm_without_speeds
+            && self.state.speed_monitor.silent(motor_count, now_us, self.state.armed_at_us) != 0
         {
-            self.throw_to_fly.disarm();
+            self.state.throw_to_fly.disarm();
             snapshot.failure = LearnerFailure::NoSpeedTelemetry;
             if phase == FlightPhase::Exciting {
                 snapshot.speed_reports_lost = snapshot.speed_reports_lost.wrapping_add(1);
             }
         }
-        let dt_s = self.period_us as f32 * 1e-6;
+        let dt_s = self.state.period_us as f32 * 1e-6;
         let previous_commands = snapshot.commands;
         snapshot.commands = [0.0; MAX_MOTORS];
         snapshot.exciting_motor = None;
         if let Some(imu) = sample {
-            let phase_before = self.throw_to_fly.phase();
+            let phase_before = self.state.throw_to_fly.phase();
             let disarmed = matches!(phase_before, FlightPhase::Idle | FlightPhase::WaitingForThrow)
-                && !self.pilot.flying();
-            self.pilot.observe(&imu, now_us, disarmed);
+                && !self.state.pilot.flying();
+            self.state.pilot.observe(&imu, now_us, disarmed);
             // The speeds reported in the previous step (this step's come after the commands).
             let speeds = snapshot.speeds_rad_s.map(|s| s.unwrap_or(f32::NAN));
-            let mut out = self.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, &speeds, dt_s);
+            let mut out =
+                self.state.throw_to_fly.update(imu.gyro_rad_s, imu.accel_mps2, &speeds, dt_s);
             let ended = phase_before == FlightPhase::Exciting
-                && self.throw_to_fly.phase() == FlightPhase::Done;
+                && self.state.throw_to_fly.phase() == FlightPhase::Done;
             if ended {
-                self.engage_wait.start(self.period_us);
+                self.state.engage_wait.start(self.state.period_us);
             }
             // The excitation is over: fly what was learned, from the last commands, once the
             // model has learned from every sample of it (at most `ENGAGE_WAIT_MAX_S`). Every
             // way out of the attempt (disarm, failsafe, a new arming) ends the wait.
-            if ended || self.engage_wait.active() {
-                if self.engage_wait.goes_on(self.pilot.model_pending()) {
+            if ended || self.state.engage_wait.active() {
+                if self.state.engage_wait.goes_on(self.state.pilot.model_pending()) {
                     out.commands = previous_commands;
                 } else {
-                    let land = self.land_when_flying.take();
-                    match self.pilot.engage(&imu, &previous_commands, &speeds) {
+                    let land = self.state.land_when_flying.take();
+                    match self.state.pilot.engage(&imu, &previous_commands, &speeds) {
                         Err(failsafe) => snapshot.failure = learner_failure(failsafe),
                         Ok(()) => {
                             if let Some(reason) = land {
-                                self.pilot.land(reason);
+                                self.state.pilot.land(reason);
                             }
                         }
                     }
@@ -869,17 +907,17 @@ impl<'q> ControlLoop<'q> {
                 *dst = if src.is_finite() { src.clamp(0.0, 1.0) } else { 0.0 };
             }
             snapshot.exciting_motor = out.active_motor;
-            if self.pilot.flying() {
-                match self.pilot.step(&imu, now_us) {
+            if self.state.pilot.flying() {
+                match self.state.pilot.step(&imu, now_us) {
                     Ok(commands) => {
                         snapshot.commands[..motor_count].copy_from_slice(&commands[..motor_count])
                     }
                     // The pilot has stopped: motors at zero from this step.
-                    Err(_) => self.throw_to_fly.disarm(),
+                    Err(_) => self.state.throw_to_fly.disarm(),
                 }
                 // Landed (the pilot stopped without a failsafe): nothing stays armed.
-                if !self.pilot.flying() {
-                    self.throw_to_fly.disarm();
+                if !self.state.pilot.flying() {
+                    self.state.throw_to_fly.disarm();
                 }
             }
             match out.event {
@@ -893,25 +931,26 @@ impl<'q> ControlLoop<'q> {
             }
         }
         self.run_motor_test(now_us, motor_count);
-        if let Some((command, motor)) = self.esc_command.take() {
+        if let Some((command, motor)) = self.state.esc_command.take() {
             // The link refused it while armed; an arming since then has the last word.
-            let taken = if self.flight_armed() || self.motor_test.is_some() {
+            let taken = if self.flight_armed() || self.state.motor_test.is_some() {
                 Err(EscCommandError::Armed)
             } else {
                 motors.send_command(command, motor)
             };
             let counter = match taken {
-                Ok(()) => &mut self.snapshot.esc_commands_sent,
-                Err(_) => &mut self.snapshot.esc_commands_refused,
+                Ok(()) => &mut self.state.snapshot.esc_commands_sent,
+                Err(_) => &mut self.state.snapshot.esc_commands_refused,
             };
             *counter = counter.wrapping_add(1);
         }
-        let snapshot = &mut self.snapshot;
+        let snapshot = &mut self.state.snapshot;
         motors.set_commands(&snapshot.commands[..motor_count]);
         snapshot.speeds_rad_s = motors.speeds_rad_s();
-        self.speed_monitor.observe(&snapshot.speeds_rad_s, now_us);
-        let reported = motor_mask(motor_count) & !self.speed_monitor.silent(motor_count, now_us, 0);
-        if self.pilot.flying() {
+        self.state.speed_monitor.observe(&snapshot.speeds_rad_s, now_us);
+        let reported =
+            motor_mask(motor_count) & !self.state.speed_monitor.silent(motor_count, now_us, 0);
+        if self.state.pilot.flying() {
             // Flying on: counted once per motor that stops reporting.
             let lost = (snapshot.speeds_reported & !reported).count_ones() as u16;
             snapshot.speed_reports_lost = snapshot.speed_reports_lost.wrapping_add(lost);
@@ -922,7 +961,7 @@ impl<'q> ControlLoop<'q> {
 
         // Only fresh samples go to the background task: it never learns from a held one.
         if let Some(imu) = sample.filter(|_| fresh) {
-            let snapshot = &self.snapshot;
+            let snapshot = &self.state.snapshot;
             self.samples.push(LearnerSample {
                 t_us: now_us,
                 imu,
@@ -931,12 +970,12 @@ impl<'q> ControlLoop<'q> {
                 phase: snapshot.phase,
                 flying: snapshot.pilot.flying,
                 motor_count: snapshot.motor_count,
-                velocity_imu_mps: self.pilot.velocity_imu_mps(),
+                velocity_imu_mps: self.state.pilot.velocity_imu_mps(),
             });
         }
-        self.snapshot.samples_dropped = self.samples.dropped();
+        self.state.snapshot.samples_dropped = self.samples.dropped();
         if let Some(ring) = &mut self.telemetry {
-            let snapshot = &self.snapshot;
+            let snapshot = &self.state.snapshot;
             ring.push(StepRecord {
                 step: snapshot.steps,
                 t_us: now_us,
@@ -955,7 +994,7 @@ impl<'q> ControlLoop<'q> {
 
     /// Count a held IMU sample of the bad run that began at `ImuGuard::bad_since_us`.
     fn count_held(&mut self, glitch: ImuGlitch, now_us: u64) {
-        let held = &mut self.snapshot.imu_held;
+        let held = &mut self.state.snapshot.imu_held;
         let counter = match glitch {
             ImuGlitch::Missing => &mut held.missing,
             ImuGlitch::NonFinite => &mut held.non_finite,
@@ -963,85 +1002,87 @@ impl<'q> ControlLoop<'q> {
             ImuGlitch::AccelSaturated => &mut held.accel_saturated,
         };
         *counter = counter.wrapping_add(1);
-        let run_us = now_us.saturating_sub(self.imu_guard.bad_since_us.unwrap_or(now_us));
+        let run_us = now_us.saturating_sub(self.state.imu_guard.bad_since_us.unwrap_or(now_us));
         let run_us = u32::try_from(run_us).unwrap_or(u32::MAX);
-        self.snapshot.imu_longest_hold_us = self.snapshot.imu_longest_hold_us.max(run_us);
+        self.state.snapshot.imu_longest_hold_us =
+            self.state.snapshot.imu_longest_hold_us.max(run_us);
     }
 
     /// A motor test's command, or its end: by itself after the keep-alive, or when a flight
     /// begins (nothing else may drive the motors then).
     fn run_motor_test(&mut self, now_us: u64, motor_count: usize) {
-        let Some(test) = self.motor_test else { return };
+        let Some(test) = self.state.motor_test else { return };
         if now_us >= test.until_us {
-            self.motor_test = None;
-            self.snapshot.motor_test_timeouts = self.snapshot.motor_test_timeouts.wrapping_add(1);
+            self.state.motor_test = None;
+            self.state.snapshot.motor_test_timeouts =
+                self.state.snapshot.motor_test_timeouts.wrapping_add(1);
         } else if self.flight_armed() || usize::from(test.motor) >= motor_count {
-            self.motor_test = None;
+            self.state.motor_test = None;
         } else {
-            self.snapshot.commands[usize::from(test.motor)] = test.command;
+            self.state.snapshot.commands[usize::from(test.motor)] = test.command;
         }
     }
 
     fn publish_phase(&mut self) {
-        let phase = self.throw_to_fly.phase();
+        let phase = self.state.throw_to_fly.phase();
         let flight_armed = self.flight_armed();
-        let snapshot = &mut self.snapshot;
+        let snapshot = &mut self.state.snapshot;
         snapshot.phase = phase;
-        snapshot.pilot = *self.pilot.status();
-        snapshot.motor_test = self.motor_test.map(|test| test.motor);
+        snapshot.pilot = *self.state.pilot.status();
+        snapshot.motor_test = self.state.motor_test.map(|test| test.motor);
         snapshot.armed = flight_armed || snapshot.motor_test.is_some();
         snapshot.excitation_ms =
-            (self.throw_to_fly.excitation_elapsed_s() * 1000.0).clamp(0.0, 65_535.0) as u16;
+            (self.state.throw_to_fly.excitation_elapsed_s() * 1000.0).clamp(0.0, 65_535.0) as u16;
     }
 
     /// The settings in force.
     pub fn settings(&self) -> &ControlSettings {
-        &self.settings
+        &self.state.settings
     }
 
     /// The model the pilot flies (G1 and G2 refined in flight), while it flies.
     pub fn flown_model(&self) -> Option<&flight::indi::IndiModel> {
-        self.pilot.flown_model()
+        self.state.pilot.flown_model()
     }
 
     /// Steps run since start-up.
     pub fn steps(&self) -> u32 {
-        self.snapshot.steps
+        self.state.snapshot.steps
     }
 
     /// The latest state, for the link and the status.
     pub fn snapshot(&self) -> ControlSnapshot {
-        self.snapshot
+        self.state.snapshot
     }
 
     /// Whether anything is armed now (a flight, an attempt, a motor test), commands taken so
     /// far included: the snapshot's `armed` without copying the snapshot.
     pub fn armed(&self) -> bool {
-        self.snapshot.armed
+        self.state.snapshot.armed
     }
 
     fn account_timing(&mut self, now_us: u64) {
-        let snapshot = &mut self.snapshot;
+        let snapshot = &mut self.state.snapshot;
         snapshot.t_us = now_us;
         snapshot.steps = snapshot.steps.wrapping_add(1);
-        if let Some(previous) = self.previous_step_us {
+        if let Some(previous) = self.state.previous_step_us {
             let interval_us = now_us.saturating_sub(previous).min(u64::from(u32::MAX)) as u32;
             snapshot.max_interval_us = snapshot.max_interval_us.max(interval_us);
-            if interval_us > self.period_us + self.period_us / 2 {
+            if interval_us > self.state.period_us + self.state.period_us / 2 {
                 snapshot.late_steps = snapshot.late_steps.wrapping_add(1);
             }
         } else {
-            self.rate_window_start_us = now_us;
+            self.state.rate_window_start_us = now_us;
         }
-        self.previous_step_us = Some(now_us);
-        self.rate_window_steps = self.rate_window_steps.wrapping_add(1);
-        let window_us = now_us.saturating_sub(self.rate_window_start_us);
+        self.state.previous_step_us = Some(now_us);
+        self.state.rate_window_steps = self.state.rate_window_steps.wrapping_add(1);
+        let window_us = now_us.saturating_sub(self.state.rate_window_start_us);
         if window_us >= 1_000_000 {
             // Steps completed in the window divided by its length.
             snapshot.rate_hz =
-                self.rate_window_steps.saturating_sub(1) as f32 * 1e6 / window_us as f32;
-            self.rate_window_start_us = now_us;
-            self.rate_window_steps = 1;
+                self.state.rate_window_steps.saturating_sub(1) as f32 * 1e6 / window_us as f32;
+            self.state.rate_window_start_us = now_us;
+            self.state.rate_window_steps = 1;
         }
     }
 }

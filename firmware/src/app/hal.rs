@@ -7,7 +7,7 @@
 pub const MAX_MOTORS: usize = 8;
 
 /// One inertial sample in the IMU's own frame, already scaled to SI units.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ImuSample {
     /// Angular rate, rad/s, IMU axes.
     pub gyro_rad_s: [f32; 3],

@@ -170,7 +170,7 @@ pub const TOUCHDOWN_AIRBORNE_S: f32 = 0.1;
 
 /// What the pilot assumes of landings and fly-aways (the parameters `land_descent_mps`,
 /// `land_pose_lost_s`, `flyaway_speed_mps`, `flyaway_time_s`).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LandConfig {
     /// Descent speed of a landing, m/s.
     pub descent_mps: f32,
@@ -200,7 +200,7 @@ impl Default for LandConfig {
 /// the measured specific force stays near 1 g (the ground carries the craft), the craft not
 /// turning and, with fixes, not moving vertically, for [`TOUCHDOWN_CONFIRM_S`]. It assumes
 /// nothing of the height: no range finder, and a pose's zero need not be the ground.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Touchdown {
     /// Why the craft lands.
     pub reason: LandReason,
@@ -401,7 +401,7 @@ pub struct TouchdownStep {
 /// counts, so a craft circling while its heading settles (Monte Carlo seed 355 of the random
 /// world: 6 m/s for 2 s, then held within 0.16 m) is no fly-away; braking is none either: a
 /// craft thrown sideways at 3–6 m/s recovers that way, once its tumble is over.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FlyAway {
     /// Time counted and the peak radial speed since, s and m/s; `None`: not counting.
     counting: Option<(f32, f32)>,

@@ -17,6 +17,12 @@
 //!   records, so a replay hands the control step the same results at the same step;
 //! - the parameters in force when the file begins, and a header (format version, firmware
 //!   version, board, control rate, the registry's layout);
+//! - in a file that begins at an arming (format 6), the control loop's whole state as it stood
+//!   before the arming command ([`ArmingRecord`], [`StateChunk`]: the attitude filter, the
+//!   navigation, the model in force, every detector's memory; about 9 KB, postcard) and the
+//!   learner samples handed to the background task before it. The tick copies the state once,
+//!   in place, into a box beside the ring ([`LogRing`]); the logger serialises it from there.
+//!   So the replay runs the file's steps from the state the board ran them from;
 //! - the learner's state (both G1 blocks) and the closed loop's ([`protocol::LearnerTelemetry`],
 //!   [`protocol::FlightTelemetry`], exactly as the link streams them) at
 //!   [`LOG_SNAPSHOT_RATE_HZ`], taken by the link pass from the snapshots it answers from. They
@@ -37,19 +43,23 @@
 //! that arms the craft (a throw-to-fly arming, a motor test, or a step that finds it armed) and
 //! ends [`LOG_LINGER_S`] after the craft was last armed; with 1, one file runs from start-up on.
 //! The parameters in force at start-up (the flash's) are the logger's from the first step, so
-//! with `log_always` saved the file begins at step 1. A file that begins at the first step
-//! replays bit for bit whatever the tasks' timing; one that begins at an arming later on
-//! replays from a fresh application, whose filters have not seen what came before.
+//! with `log_always` saved the file begins at step 1. Either file replays bit for bit whatever
+//! the tasks' timing: from start-up, or from the control loop's state at the arming. (The
+//! background task's state is not recorded: at an arming its learner starts afresh, and what it
+//! carries over, the parameters, is in the file.)
 //!
 //! Assumes: one producer (the control tick) and one consumer (the lowest-priority task); the
 //! sink may block its caller (an SD card's busy time), which is why only that task calls it.
 
 use serde::{Deserialize, Serialize};
 
+use super::control::ControlState;
 use super::hal::{ImuSample, MAX_MOTORS};
 use super::params::{Params, LAYOUT_HASH, PARAM_SLOTS};
 use super::pilot::FAILSAFE_KINDS;
-use super::queue::{RingConsumer, RingProducer};
+use super::queue::{
+    split_queue, Mailbox, MailboxConsumer, MailboxProducer, RingConsumer, RingProducer,
+};
 use super::{BackgroundCommand, ControlCommand, ControlSettings};
 use flight::learner::FlightPhase;
 use heapless::spsc::Queue;
@@ -74,8 +84,10 @@ pub enum BackgroundWork {
 /// `Landing` and `Angle`); 4 the adoptions of the background's results ([`id::ADOPTED`]) and
 /// the learner samples each piece of work was taken at ([`id::WORK_AT`], instead of
 /// [`id::WORK`]); 5 the position fixes with their own accuracy ([`LoggedCommand::PositionFix`]:
-/// a GNSS receiver's). A reader reads every earlier version, and refuses later ones.
-pub const LOG_FORMAT_VERSION: u16 = 5;
+/// a GNSS receiver's); 6 the control loop's state at the head of a file that begins at an
+/// arming ([`id::ARMING`], [`id::STATE`]). A reader reads every earlier version, and refuses
+/// later ones.
+pub const LOG_FORMAT_VERSION: u16 = 6;
 
 /// Rate of the learner's and the flight's snapshots in a log, Hz: a G1 estimate converges over
 /// tenths of a second and a hover's position error moves at a few hertz, so 25 Hz shows both;
@@ -153,12 +165,68 @@ pub struct Adoption {
     pub samples_dropped: u32,
 }
 
-/// The ring's storage; split it once with [`super::split_queue`].
+/// What goes with the control loop's state at an arming ([`LogProducer::offer_arming`]): the
+/// step the arming command is applied before, and the learner samples the control step had
+/// handed the background task before that step (so a replay knows which of the board's sample
+/// counts its own background task's first sample is).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ArmingTag {
+    pub step: u32,
+    pub samples_before: u32,
+}
+
+/// The ring's storage; split it once, with the [`ArmingBox`], by [`split_log`].
 pub type LogRing = Queue<LogEntry, LOG_RING_LEN>;
+
+/// The box beside the ring for the control loop's state at an arming (9 KB, too large for a
+/// ring's slot).
+pub type ArmingBox = Mailbox<ArmingTag, ControlState>;
+
+/// The tick's end and the logger's end of the ring and the box (once, at start-up).
+pub fn split_log<'q>(
+    ring: &'q mut LogRing,
+    arming: &'q mut ArmingBox,
+) -> (LogProducer<'q>, LogConsumer<'q>) {
+    let (entries, entries_out) = split_queue(ring);
+    let (arming, arming_out) = arming.split();
+    (LogProducer { entries, arming }, LogConsumer { entries: entries_out, arming: arming_out })
+}
+
 /// The control tick's end of the ring.
-pub type LogProducer<'q> = RingProducer<'q, LogEntry>;
+pub struct LogProducer<'q> {
+    entries: RingProducer<'q, LogEntry>,
+    arming: MailboxProducer<'q, ArmingTag, ControlState>,
+}
+
 /// The logger's end of the ring.
-pub type LogConsumer<'q> = RingConsumer<'q, LogEntry>;
+pub struct LogConsumer<'q> {
+    entries: RingConsumer<'q, LogEntry>,
+    arming: MailboxConsumer<'q, ArmingTag, ControlState>,
+}
+
+impl LogProducer<'_> {
+    /// Push an entry; a full ring drops it whole, counted. Never blocks.
+    pub fn push(&mut self, entry: LogEntry) {
+        self.entries.push(entry);
+    }
+
+    /// Entries dropped so far because the ring was full.
+    pub fn dropped(&self) -> u32 {
+        self.entries.dropped()
+    }
+
+    /// Whether entries wait for the logger.
+    pub fn has_waiting(&self) -> bool {
+        self.entries.has_waiting()
+    }
+
+    /// Offer the control loop's `state` as it stands before an arming command (before its
+    /// entry is pushed): the logger writes it at the head of a file that begins with that
+    /// command. One copy in place; refused (false) while the logger still holds an earlier one.
+    pub fn offer_arming(&mut self, tag: ArmingTag, state: &ControlState) -> bool {
+        self.arming.put(tag, state)
+    }
+}
 
 // ---- The records, as written --------------------------------------------------------------
 
@@ -179,6 +247,10 @@ pub mod id {
     pub const ADOPTED: u8 = 0x0A;
     /// A [`WorkRecord`] with the samples processed (format 4; formats 1–3 wrote [`WORK`]).
     pub const WORK_AT: u8 = 0x0B;
+    /// An [`ArmingRecord`]: the control loop's state follows in [`STATE`] records (format 6).
+    pub const ARMING: u8 = 0x0C;
+    /// A [`StateChunk`] of the state an [`ARMING`] record announced (format 6).
+    pub const STATE: u8 = 0x0D;
 }
 
 /// The first record of every file.
@@ -317,6 +389,26 @@ pub struct AdoptedRecord {
     pub samples_dropped: u32,
 }
 
+/// Bytes of the control loop's serialised state per [`StateChunk`]: a record must fit one
+/// protocol frame (256 bytes with its framing).
+pub const STATE_CHUNK_BYTES: usize = 192;
+
+/// A file that begins at an arming: the control loop's state before the arming command (the
+/// first command record), `len` bytes of postcard in [`StateChunk`] records right after this
+/// one. With it a replay runs the file's steps from the state the board ran them from.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ArmingRecord {
+    pub tag: ArmingTag,
+    pub len: u32,
+}
+
+/// Bytes `offset..` of the state an [`ArmingRecord`] announced.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq, Eq)]
+pub struct StateChunk {
+    pub offset: u32,
+    pub bytes: heapless::Vec<u8, STATE_CHUNK_BYTES>,
+}
+
 /// The ring has dropped `entries` entries since start-up (written when the count grows).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DroppedRecord {
@@ -345,6 +437,8 @@ pub enum LogRecord {
     Learner(protocol::LearnerTelemetry),
     Flight(protocol::FlightTelemetry),
     Adopted(AdoptedRecord),
+    Arming(ArmingRecord),
+    State(StateChunk),
 }
 
 /// The flight phase as a byte.
@@ -613,6 +707,47 @@ pub struct LogStatus {
     pub ring_dropped: u32,
     /// Records that did not encode (none expected: every record fits a frame).
     pub encode_failures: u32,
+    /// Files begun at an arming without the control loop's state (the tick found the box still
+    /// full, or the ring dropped the arming's entry): their replay starts from a fresh state.
+    pub arming_states_missing: u32,
+}
+
+/// Whether `command` arms the craft (a file begins with it).
+pub fn is_arming(command: &ControlCommand) -> bool {
+    matches!(command, ControlCommand::ArmThrowToFly | ControlCommand::MotorTest { .. })
+}
+
+/// A postcard output that writes the serialised bytes as [`StateChunk`] records as they come,
+/// so the state is never held whole in the logger's memory.
+struct StateChunks<'l, 'q> {
+    logger: &'l mut Logger<'q>,
+    chunk: StateChunk,
+}
+
+impl StateChunks<'_, '_> {
+    fn flush(&mut self) {
+        if !self.chunk.bytes.is_empty() {
+            self.logger.write(id::STATE, &self.chunk);
+            self.chunk.offset += self.chunk.bytes.len() as u32;
+            self.chunk.bytes.clear();
+        }
+    }
+}
+
+impl postcard::ser_flavors::Flavor for StateChunks<'_, '_> {
+    type Output = ();
+
+    fn try_push(&mut self, byte: u8) -> postcard::Result<()> {
+        if self.chunk.bytes.is_full() {
+            self.flush();
+        }
+        self.chunk.bytes.push(byte).map_err(|_| postcard::Error::SerializeBufferFull)
+    }
+
+    fn finalize(mut self) -> postcard::Result<()> {
+        self.flush();
+        Ok(())
+    }
 }
 
 /// The file being written.
@@ -627,7 +762,9 @@ struct OpenFile {
 /// The lowest-priority end of the log: drains the ring, encodes the records, packs them in
 /// blocks and hands the blocks to the sink, beginning and ending files.
 pub struct Logger<'q> {
-    entries: LogConsumer<'q>,
+    entries: RingConsumer<'q, LogEntry>,
+    /// The control loop's state at the latest arming (`None` only while it is being written).
+    arming: Option<MailboxConsumer<'q, ArmingTag, ControlState>>,
     sink: &'q mut dyn LogSink,
     board: &'static str,
     control_rate_hz: u16,
@@ -698,8 +835,10 @@ impl<'q> Logger<'q> {
         board: &'static str,
         control_rate_hz: u16,
     ) -> Self {
+        let LogConsumer { entries, arming } = entries;
         Self {
             entries,
+            arming: Some(arming),
             sink,
             board,
             control_rate_hz,
@@ -779,16 +918,18 @@ impl<'q> Logger<'q> {
 
     fn take(&mut self, entry: &LogEntry) {
         let (step, t_us, arming) = match entry {
-            LogEntry::Command { step, command } => (
-                *step,
-                self.last_t_us,
-                matches!(command, ControlCommand::ArmThrowToFly | ControlCommand::MotorTest { .. }),
-            ),
+            LogEntry::Command { step, command } => (*step, self.last_t_us, is_arming(command)),
             LogEntry::Step(s) => (s.step, s.t_us, s.armed),
         };
         let always = self.params.log_always();
-        if self.file.is_none() && !self.refused && (always || arming) {
+        let opening = self.file.is_none() && !self.refused && (always || arming);
+        if opening {
             self.open_file(step, t_us, always);
+        }
+        if let LogEntry::Command { command, .. } = entry {
+            if is_arming(command) {
+                self.arming_state(step, opening && self.file.is_some());
+            }
         }
         if let LogEntry::Step(s) = entry {
             self.last_step = s.step;
@@ -828,6 +969,45 @@ impl<'q> Logger<'q> {
                     self.close_file();
                 }
             }
+        }
+    }
+
+    /// The control loop's state offered at the arming applied before `step`: written when
+    /// `write` (this arming begins the file), else let go; a state of an earlier arming that
+    /// found no file to begin is let go too.
+    fn arming_state(&mut self, step: u32, write: bool) {
+        let Some(mut arming) = self.arming.take() else { return };
+        let written = match arming.waiting() {
+            Some(tag) if tag.step == step && write => {
+                arming.take(|tag, state| self.write_state(tag, state)).is_some()
+            }
+            Some(tag) if tag.step <= step => {
+                arming.take(|_, _| ());
+                false
+            }
+            _ => false,
+        };
+        if write && !written {
+            self.status.arming_states_missing = self.status.arming_states_missing.wrapping_add(1);
+        }
+        self.arming = Some(arming);
+    }
+
+    /// Write `state` as an [`ArmingRecord`] and its [`StateChunk`]s (postcard, streamed).
+    fn write_state(&mut self, tag: ArmingTag, state: &ControlState) {
+        let Ok(len) =
+            postcard::serialize_with_flavor(state, postcard::ser_flavors::Size::default())
+        else {
+            self.status.encode_failures = self.status.encode_failures.wrapping_add(1);
+            return;
+        };
+        self.write(id::ARMING, &ArmingRecord { tag, len: len as u32 });
+        let chunks = StateChunks {
+            logger: self,
+            chunk: StateChunk { offset: 0, bytes: heapless::Vec::new() },
+        };
+        if postcard::serialize_with_flavor(state, chunks).is_err() {
+            self.status.encode_failures = self.status.encode_failures.wrapping_add(1);
         }
     }
 
@@ -1038,6 +1218,8 @@ fn decode_record(id: u8, payload: &[u8]) -> Option<LogRecord> {
         }
         id::WORK_AT => LogRecord::Work(parse(payload)?),
         id::ADOPTED => LogRecord::Adopted(parse(payload)?),
+        id::ARMING => LogRecord::Arming(parse(payload)?),
+        id::STATE => LogRecord::State(parse(payload)?),
         id::DROPPED => LogRecord::Dropped(parse(payload)?),
         id::END => LogRecord::End(parse(payload)?),
         id::LEARNER => LogRecord::Learner(parse(payload)?),
@@ -1081,7 +1263,6 @@ impl ParamsAssembler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::app::split_queue;
 
     /// Files kept in memory; refuses files while `no_card`.
     #[derive(Default)]
@@ -1137,6 +1318,80 @@ mod tests {
         })
     }
 
+    /// The control loop's state at an arming goes to the head of the file that arming begins,
+    /// whole and decodable; a second arming in the same file frees the box without writing;
+    /// an offer while the box still holds an unwritten state is refused, and a file begun
+    /// without its state is counted.
+    #[test]
+    fn a_file_begun_at_an_arming_carries_the_control_loops_state_there() {
+        use crate::app::{ControlConfig, ControlLoop, SampleQueue};
+        let mut samples = SampleQueue::new();
+        let (sample_producer, _samples_out) = crate::app::split_queue(&mut samples);
+        let control = ControlLoop::new(ControlConfig::default(), sample_producer);
+        let state = *control.state();
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        let arm = |step| LogEntry::Command { step, command: ControlCommand::ArmThrowToFly };
+        for t in 1..=10 {
+            producer.push(step(t, false));
+        }
+        let tag = ArmingTag { step: 11, samples_before: 9 };
+        assert!(producer.offer_arming(tag, &state));
+        assert!(!producer.offer_arming(ArmingTag { step: 12, ..tag }, &state), "the box is full");
+        producer.push(arm(11));
+        logger.drain();
+        for t in 11..=20 {
+            producer.push(step(t, true));
+        }
+        // A second arming while the file is open: no new file, the box is let go.
+        assert!(producer.offer_arming(ArmingTag { step: 21, samples_before: 19 }, &state));
+        producer.push(arm(21));
+        producer.push(step(21, true));
+        logger.drain();
+        assert!(producer.offer_arming(ArmingTag { step: 22, samples_before: 20 }, &state));
+        logger.finish();
+        assert_eq!((logger.status().files, logger.status().arming_states_missing), (1, 0));
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        let announced: Vec<_> = records
+            .iter()
+            .filter_map(|r| match r {
+                LogRecord::Arming(a) => Some(*a),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(announced.len(), 1, "one state, at the head of the file");
+        assert_eq!(announced[0].tag, tag);
+        let mut bytes = Vec::new();
+        for record in &records {
+            if let LogRecord::State(chunk) = record {
+                assert_eq!(chunk.offset as usize, bytes.len(), "chunks in order");
+                bytes.extend_from_slice(&chunk.bytes);
+            }
+        }
+        assert_eq!(bytes.len(), announced[0].len as usize);
+        let decoded: ControlState = postcard::from_bytes(&bytes).unwrap();
+        assert_eq!(postcard::to_allocvec(&decoded).unwrap(), bytes, "decodes to the same state");
+        let first_step = records.iter().position(|r| matches!(r, LogRecord::Step(_)));
+        let last_chunk = records.iter().rposition(|r| matches!(r, LogRecord::State(_)));
+        assert!(last_chunk < first_step, "the state comes before the first step");
+    }
+
+    #[test]
+    fn a_file_begun_without_the_state_of_its_arming_is_counted() {
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
+        let mut sink = Memory::default();
+        let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
+        producer.push(LogEntry::Command { step: 1, command: ControlCommand::ArmThrowToFly });
+        producer.push(step(1, true));
+        logger.finish();
+        assert_eq!((logger.status().files, logger.status().arming_states_missing), (1, 1));
+        let records: Vec<_> = LogReader::new(&sink.files[0]).collect();
+        assert!(!records.iter().any(|r| matches!(r, LogRecord::Arming(_) | LogRecord::State(_))));
+    }
+
     #[test]
     fn an_entry_is_a_small_copy_and_a_step_record_under_100_bytes() {
         // What the 2 kHz tick copies per step, and what a step costs in the file.
@@ -1152,8 +1407,8 @@ mod tests {
 
     #[test]
     fn a_file_per_arming_from_the_arming_to_the_linger_after_the_disarm_reads_back_exactly() {
-        let mut ring = LogRing::new();
-        let (mut producer, consumer) = split_queue(&mut ring);
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
         let mut sink = Memory::default();
         let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
         let linger_steps = (LOG_LINGER_S * 2000.0) as u32;
@@ -1234,8 +1489,8 @@ mod tests {
     /// format 1–3 work record (no sample count) still reads, as work with none.
     #[test]
     fn an_adoption_is_written_before_its_step_and_old_work_records_still_read() {
-        let mut ring = LogRing::new();
-        let (mut producer, consumer) = split_queue(&mut ring);
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
         let mut sink = Memory::default();
         let mut always = Params::default();
         always.set(super::super::params::find(b"log_always").unwrap(), &[1.0]).unwrap();
@@ -1278,8 +1533,8 @@ mod tests {
 
     #[test]
     fn with_log_always_one_file_runs_from_the_first_step_and_work_is_logged_after_its_step() {
-        let mut ring = LogRing::new();
-        let (mut producer, consumer) = split_queue(&mut ring);
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
         let mut sink = Memory::default();
         let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
         let mut always = Params::default();
@@ -1329,8 +1584,8 @@ mod tests {
 
     #[test]
     fn without_a_card_an_arming_is_refused_once_and_counted_and_nothing_is_written() {
-        let mut ring = LogRing::new();
-        let (mut producer, consumer) = split_queue(&mut ring);
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
         let mut sink = Memory { no_card: true, ..Default::default() };
         let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
         for t in 1..=2000 {
@@ -1350,8 +1605,8 @@ mod tests {
 
     #[test]
     fn a_full_ring_drops_whole_entries_counted_and_the_file_says_so() {
-        let mut ring = LogRing::new();
-        let (mut producer, consumer) = split_queue(&mut ring);
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
         let mut sink = Memory::default();
         let mut logger = Logger::new(consumer, &mut sink, "TEST", 2000);
         producer.push(LogEntry::Command { step: 1, command: ControlCommand::ArmThrowToFly });
@@ -1410,8 +1665,8 @@ mod tests {
     /// board's writes are polled: the lowest-priority task waits, nothing else does).
     fn log_through_a_timed_card(timing: CardTiming, seconds: f64) -> TimedRun {
         let step_us = 500u64;
-        let mut ring = LogRing::new();
-        let (mut producer, consumer) = split_queue(&mut ring);
+        let (mut ring, mut arming) = (LogRing::new(), ArmingBox::new());
+        let (mut producer, consumer) = split_log(&mut ring, &mut arming);
         let mut sink = Memory::default();
         let mut rng = flight::rng::Rng::new(11);
         let mut busy_total_us = 0.0;

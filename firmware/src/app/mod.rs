@@ -37,7 +37,7 @@ pub use background::{
     STATS_WINDOW_US,
 };
 pub use control::{
-    ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot,
+    ControlCommand, ControlConfig, ControlLoop, ControlSettings, ControlSnapshot, ControlState,
     ACCEL_SATURATED_MPS2, CONTROL_RATE_HZ, SPEED_REPORT_TIMEOUT_S, STUCK_GYRO_SAMPLES,
 };
 pub use hal::IMU_FAULT_TIMEOUT_S;

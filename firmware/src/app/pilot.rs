@@ -275,7 +275,7 @@ impl PositionFix {
 }
 
 /// A fix that arrived and waits for the next prediction.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 struct PendingFix {
     /// The fix; its `age_s` is the latency alone until it is taken.
     fix: Fix,
@@ -288,7 +288,7 @@ pub const DEFAULT_POSE_NOISE_M: f32 = 0.001;
 
 /// What the pilot assumes of the external poses (from the parameters `pose_latency_s` and
 /// `pose_noise_m`).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PoseConfig {
     /// Time from the moment a pose describes to its arrival at the board, s (0 to
     /// `MAX_POSE_LATENCY_S`, 0.1 s): the capture, the processing and the radio.
@@ -305,7 +305,7 @@ impl Default for PoseConfig {
 }
 
 /// Why flight stopped or changed mode.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Failsafe {
     /// A command was not finite or outside [0, 1]: zero written, disarmed.
     BadCommand,
@@ -359,7 +359,7 @@ impl Failsafe {
 }
 
 /// Why a learned model cannot be flown.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum IdentificationFailure {
     /// G1τ rank deficient: the motors cannot make every torque.
     RankDeficient,
@@ -426,7 +426,7 @@ pub fn count_failsafe(counts: &mut FailsafeCounts, failsafe: Failsafe) -> u16 {
 }
 
 /// What the pilot reports (part of the control snapshot).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PilotStatus {
     /// Flying on the learned model.
     pub flying: bool,
@@ -483,6 +483,7 @@ pub struct PilotStatus {
 }
 
 /// The closed-loop pilot.
+#[derive(Clone, Copy, serde::Serialize, serde::Deserialize)]
 pub struct Pilot {
     rate_hz: f32,
     attitude: AttitudeFilter,

@@ -44,7 +44,7 @@ pub const DEFAULT_MAX_SPEED_MPS: f32 = 2.0;
 pub const SETPOINT_LEASH_M: f32 = 1.0;
 
 /// How the sticks are flown (the `stick_*` parameters).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StickConfig {
     /// Deadband around the centre, fraction of half travel (0–0.2).
     pub deadband: f32,
@@ -110,7 +110,7 @@ impl StickConfig {
 /// What one stick frame asks for, worked out once when the frame arrives (the radio's 50–1,000
 /// frames a second, and only when a stick moved) rather than at each of the control step's
 /// 2,000: the step reads it.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StickDemand {
     /// Angle mode: the thrust axis's tilt forward (nose down) and right, rad.
     pub forward_rad: f32,

@@ -30,7 +30,7 @@ pub use rtic_core::{Exclusive, Mutex};
 use super::battery::{BatteryMonitor, LowBattery};
 use super::hal::{BatterySensor, Imu, ImuSample, Motors, Port, PortClosed, Uart};
 use super::log::{
-    Adoption, LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry,
+    Adoption, ArmingTag, LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry,
 };
 use super::radio::{CraftState, Receiver};
 use super::{
@@ -234,10 +234,7 @@ impl<'q> ControlTask<'q> {
         let step = control.steps().wrapping_add(1);
         shared.commands.lock(|queue| {
             while let Some(command) = queue.pop_front() {
-                if let Some(log) = log.as_mut() {
-                    log.push(LogEntry::Command { step, command });
-                }
-                control.command(command, now_us);
+                apply_logged(control, log, step, command, now_us);
             }
         });
         if let Some(radio) = &mut self.radio {
@@ -247,10 +244,7 @@ impl<'q> ControlTask<'q> {
             radio.set_stick_channels(settings.stick_map, settings.mode_channel);
             let switches = radio.poll(&chunk[..count], now_us, self.craft);
             for command in [switches, radio.take_sticks(now_us)].into_iter().flatten() {
-                if let Some(log) = log.as_mut() {
-                    log.push(LogEntry::Command { step, command });
-                }
-                control.command(command, now_us);
+                apply_logged(control, log, step, command, now_us);
             }
         }
         // The one handoff from the background task: logged with the step (the samples its
@@ -331,6 +325,26 @@ impl<'q> ControlTask<'q> {
         }
         TickOutcome { background_due, link_due }
     }
+}
+
+/// Apply `command` before `step`, logged first. Before an arming of a disarmed craft the log is
+/// offered the loop's state as it stands (a file that begins with this command records it, so
+/// its replay starts from the board's state, not a fresh one).
+fn apply_logged(
+    control: &mut ControlLoop<'_>,
+    log: &mut Option<LogProducer<'_>>,
+    step: u32,
+    command: ControlCommand,
+    now_us: u64,
+) {
+    if let Some(log) = log.as_mut() {
+        if super::log::is_arming(&command) && !control.armed() {
+            let tag = ArmingTag { step, samples_before: control.samples_handed() };
+            log.offer_arming(tag, control.state());
+        }
+        log.push(LogEntry::Command { step, command });
+    }
+    control.command(command, now_us);
 }
 
 /// One host link: its protocol endpoint and its byte port.
@@ -886,7 +900,8 @@ pub fn with_logged_system<F: NorFlash, R>(
     f: impl FnOnce(&mut System<'_, F>) -> R,
 ) -> (R, Settings<F>) {
     let mut log_ring = super::log::LogRing::new();
-    let (log_producer, log_consumer) = super::split_queue(&mut log_ring);
+    let mut arming = super::log::ArmingBox::new();
+    let (log_producer, log_consumer) = super::log::split_log(&mut log_ring, &mut arming);
     let mut samples = super::SampleQueue::new();
     let (producer, consumer) = super::split_queue(&mut samples);
     let mut ring = super::StepRing::new();

@@ -660,7 +660,7 @@ impl Default for RcLinkConfig {
 pub const DEFAULT_MODE_ON_ABOVE_US: f32 = 1_400.0;
 
 /// Which channel (0-based) carries each stick.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct StickMap {
     pub roll: u8,
     pub pitch: u8,

@@ -65,7 +65,7 @@ pub const UNREPORTED_TAU_S: f32 = 0.0325;
 pub const END_MARGIN_S: f32 = 0.010;
 
 /// The schedule's shape.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ExcitationConfig {
     /// Time after the throw is confirmed before the first pulse, s, with every motor at
     /// `spin_up_command`.
@@ -125,7 +125,7 @@ pub struct ExcitationOutput {
 }
 
 /// The running schedule of one excitation.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Excitation {
     config: ExcitationConfig,
     motors: usize,

@@ -194,7 +194,7 @@ pub enum LearnerError {
 }
 
 /// The hover thrust axis found from the learned G1.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LearnedThrustAxis {
     /// `q_U^T`: thrust-frame coordinates into IMU coordinates, `[w, x, y, z]`.
     pub q_thrust_to_imu: [f32; 4],
@@ -228,7 +228,7 @@ impl LearnedThrustAxis {
 }
 
 /// Why the thrust axis is not (yet) known.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum AxisStatus {
     /// Not every motor has been excited enough yet.
     #[default]
@@ -252,7 +252,7 @@ pub const IDENTIFIES_WITHOUT_SPEEDS: bool = cfg!(feature = "no-speed");
 pub const MODELS_MAY_BE_PENDING: bool = IDENTIFIES_WITHOUT_SPEEDS;
 
 /// Everything learned so far: the interface to the controller.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LearnedModel {
     /// Motors identified.
     pub motors: u8,
@@ -864,7 +864,7 @@ fn check_offset(r: [f32; 3]) -> Result<(), LearnerError> {
 }
 
 /// Where a throw-to-fly attempt stands (the control step's half).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum FlightPhase {
     /// Not armed: nothing spins.
     #[default]
@@ -893,7 +893,7 @@ pub struct ThrowToFlyOutput {
 }
 
 /// The control step's half of the identification: throw detection, then the excitation.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ThrowToFly {
     throw_config: ThrowConfig,
     excitation_config: ExcitationConfig,

@@ -32,7 +32,7 @@ const ACCEL_SCALE_RAD_S2: f32 = 100_000.0;
 const TAU_SCALE_S: f32 = SPEED_SCALE_RAD_S / ACCEL_SCALE_RAD_S2;
 
 /// A learned motor model.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MotorModel {
     /// Linear coefficient `a`, rad/s per unit command.
     pub a_rad_s: f32,

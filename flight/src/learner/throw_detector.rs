@@ -88,7 +88,7 @@ const REST_BAND: f32 = 0.5;
 
 /// Throw detector tuning. Defaults: the published figures (docs/algorithms/throw.md) plus the
 /// release found in free fall and the free-fall check.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ThrowConfig {
     /// Specific force that starts a push (and, falling below it, begins its end), m/s².
     pub acc_high_mps2: f32,
@@ -133,7 +133,7 @@ impl Default for ThrowConfig {
 }
 
 /// Where the detector stands.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum ThrowState {
     /// Armed, waiting for the hand to accelerate the craft.
     Waiting,
@@ -169,7 +169,7 @@ pub enum ThrowEvent {
 }
 
 /// The velocity a push gives the craft, integrated in the body's attitude at the push's start.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 struct Push {
     /// Rotation from the body now to the body at the start of the push.
     q_start_body: UnitQuaternion<f32>,
@@ -180,7 +180,7 @@ struct Push {
 }
 
 /// The detector (one per armed attempt).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ThrowDetector {
     config: ThrowConfig,
     state: ThrowState,
