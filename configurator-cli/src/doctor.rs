@@ -1,6 +1,6 @@
 //! `configurator-cli doctor`: the bring-up check for a board's first power-up.
 //!
-//! Seven lines, in order, each saying what it checked, what it found (with units) and, when it
+//! Eight lines, in order, each saying what it checked, what it found (with units) and, when it
 //! fails, what to do:
 //! 1. **link**: the handshake (firmware and protocol versions, board, serial, the same message
 //!    table as this configurator), and that the craft is disarmed;
@@ -11,6 +11,9 @@
 //! 3. **flash**: the configuration store's state at start-up (read only: nothing is written);
 //! 4. **receiver**: the radio receiver's frames, errors and link quality; a board without one is
 //!    information, not a failure (it may be flown over its USB or telemetry link);
+//! 4. **gnss**: the GNSS receiver's state (found at which baud, which configuration it took),
+//!    its fix, satellites and stated accuracies; a board without a GNSS port, no receiver
+//!    found, or no fix yet (indoors) is information; a receiver that stopped sending fails;
 //! 5. **battery**: the pack's voltage per cell and the current with the motors stopped, against
 //!    what a lithium pack at rest and a board's own draw can be ([`battery_line`]): a divider
 //!    or current-sensor scale that does not match the board reads outside them; no pack (USB
@@ -34,8 +37,9 @@
 
 use crate::link::{Client, LinkError};
 use protocol::{
-    BoardHealth, ConfigOrigin, ConfigStatus, ImuDriverState, Info, MotorLinkHealth, Reply, Request,
-    SensorHealth, SetTelemetryRate, Telemetry, Topic, MAX_MOTORS, PROTOCOL_VERSION,
+    BoardHealth, ConfigOrigin, ConfigStatus, GnssHealth, GnssInterface, GnssState, ImuDriverState,
+    Info, MotorLinkHealth, Reply, Request, SensorHealth, SetTelemetryRate, Telemetry, Topic,
+    MAX_MOTORS, PROTOCOL_VERSION,
 };
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
@@ -547,6 +551,82 @@ pub fn receiver_line(board: Option<&BoardHealth>) -> Line {
 }
 
 // ---------------------------------------------------------------------------------------------
+// 4. GNSS
+// ---------------------------------------------------------------------------------------------
+
+const GNSS_CHECKED: &str = "GNSS receiver (found, configured, fix and accuracy)";
+
+/// The fix type of a 3D fix in NAV-PVT (u-blox: 3 = 3D, 4 = GNSS and dead reckoning).
+const FIX_3D: u8 = 3;
+/// The same with dead reckoning.
+const FIX_GNSS_DEAD_RECKONING: u8 = 4;
+
+/// The GNSS line from the board's report (`None`: the board has no GNSS port, or its firmware
+/// predates the report). Indoors a receiver finds no fix: that is information, not a failure.
+pub fn gnss_line(gnss: Option<&GnssHealth>) -> Line {
+    let info = |found: String| Line {
+        name: "gnss",
+        checked: GNSS_CHECKED,
+        verdict: Verdict::Info,
+        found,
+        advice: None,
+    };
+    let Some(gnss) = gnss else {
+        return info(
+            "no GNSS port: positions come from motion capture or a ground station only".into(),
+        );
+    };
+    let interface = match gnss.interface {
+        GnssInterface::ConfigurationKeys => "u-blox M9/M10 (configuration keys)",
+        GnssInterface::LegacyMessages => "u-blox M8 (CFG messages)",
+        GnssInterface::Unknown => "u-blox (configuration not acknowledged)",
+    };
+    match gnss.state {
+        GnssState::Searching => info(format!(
+            "no receiver answering (trying {} baud; every rate from 9,600 to 921,600 is \
+             tried): for flying outdoors connect a u-blox M8/M9/M10 to the GNSS pads, its TX to \
+             the board's RX",
+            gnss.baud
+        )),
+        GnssState::Configuring => {
+            info(format!("receiver found, configuring it to {} baud", gnss.baud))
+        }
+        GnssState::Lost => line(
+            "gnss",
+            GNSS_CHECKED,
+            vec!["the receiver stopped sending solutions for more than a second: check its \
+             supply and its TX wire to the board's RX; the firmware searches for it again"
+                .into()],
+            format!("{interface}, lost; {} fixes taken before", gnss.fixes),
+        ),
+        GnssState::Receiving => {
+            let found = format!(
+                "{interface} at {} baud; fix type {}, {} satellites; accuracy {:.2} m \
+                 horizontal, {:.2} m vertical, {:.2} m/s; {} fixes taken, {} without a fix, {} \
+                 frames with a bad checksum",
+                gnss.baud,
+                gnss.fix_type,
+                gnss.satellites,
+                gnss.horizontal_accuracy_m,
+                gnss.vertical_accuracy_m,
+                gnss.speed_accuracy_mps,
+                gnss.fixes,
+                gnss.without_fix,
+                gnss.checksum_errors
+            );
+            if matches!(gnss.fix_type, FIX_3D | FIX_GNSS_DEAD_RECKONING) {
+                line("gnss", GNSS_CHECKED, Vec::new(), found)
+            } else {
+                info(format!(
+                    "{found}: no 3D fix yet (normal indoors; outdoors give it a view of the sky \
+                     and a minute)"
+                ))
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
 // 5. Battery
 // ---------------------------------------------------------------------------------------------
 
@@ -881,7 +961,7 @@ pub enum Consent {
     NoTerminal,
 }
 
-/// Run the seven checks on a connected board, handing each line to `report` as it is done;
+/// Run the eight checks on a connected board, handing each line to `report` as it is done;
 /// `consent` is asked just before the motors would spin. Returns every line.
 pub fn run(
     client: &mut Client,
@@ -912,6 +992,11 @@ pub fn run(
     };
     emit(flash_line(config.as_ref()), &mut lines);
     emit(receiver_line(board.as_ref()), &mut lines);
+    let gnss = match optional(client, Request::GetGnss(()), "the GNSS request")? {
+        Some(Reply::Gnss(gnss)) => Some(gnss),
+        _ => None,
+    };
+    emit(gnss_line(gnss.as_ref()), &mut lines);
     let battery = match optional(client, Request::GetBattery(()), "the battery request")? {
         Some(Reply::Battery(battery)) => Some(battery),
         _ => None,
@@ -1126,6 +1211,42 @@ fn spin_one(client: &mut Client, motor: u8, count: usize) -> Result<Spin, LinkEr
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A receiver with a 3D fix passes and says its accuracy; none, searching or no fix yet
+    /// (indoors) are information; one that stopped sending fails and says what to check.
+    #[test]
+    fn the_gnss_line_passes_a_fix_informs_without_one_and_fails_a_lost_receiver() {
+        assert_eq!(gnss_line(None).verdict, Verdict::Info);
+        let receiving = GnssHealth {
+            state: GnssState::Receiving,
+            baud: 115_200,
+            interface: GnssInterface::ConfigurationKeys,
+            fix_type: 3,
+            satellites: 14,
+            horizontal_accuracy_m: 0.85,
+            vertical_accuracy_m: 1.3,
+            speed_accuracy_mps: 0.2,
+            fixes: 50,
+            without_fix: 2,
+            checksum_errors: 0,
+        };
+        let fix = gnss_line(Some(&receiving));
+        assert_eq!(fix.verdict, Verdict::Pass, "{}", fix.found);
+        assert!(
+            fix.found.contains("0.85 m horizontal") && fix.found.contains("14 satellites"),
+            "{}",
+            fix.found
+        );
+        let indoors = GnssHealth { fix_type: 0, satellites: 2, ..receiving };
+        let no_fix = gnss_line(Some(&indoors));
+        assert_eq!(no_fix.verdict, Verdict::Info);
+        assert!(no_fix.found.contains("no 3D fix yet"), "{}", no_fix.found);
+        let searching = GnssHealth { state: GnssState::Searching, baud: 9_600, ..receiving };
+        assert_eq!(gnss_line(Some(&searching)).verdict, Verdict::Info);
+        let lost = gnss_line(Some(&GnssHealth { state: GnssState::Lost, ..receiving }));
+        assert_eq!(lost.verdict, Verdict::Fail);
+        assert!(lost.advice.unwrap().contains("TX wire"));
+    }
 
     /// An IMU window of `n` samples at 2 kHz: white noise of `gyro_sigma` rad/s and
     /// `accel_sigma` m/s² per axis about the means (a fixed pseudo-random sequence).

@@ -289,6 +289,8 @@ pub enum Reply {
     Battery(BatteryStatus),
     /// Answer to [`Request::GetIdentification`]. Protocol 1.12.
     Identification(IdentificationStatus),
+    /// Answer to [`Request::GetGnss`]. Protocol 1.16.
+    Gnss(GnssHealth),
 }
 
 /// How the latest throw-to-fly identification was made (protocol 1.12,
@@ -915,6 +917,57 @@ pub struct BoardHealth {
     pub receiver: Option<ReceiverHealth>,
 }
 
+/// A u-blox GNSS receiver as its driver sees it (protocol 1.16, [`Request::GetGnss`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct GnssHealth {
+    pub state: GnssState,
+    /// The UART's rate now, baud (the one being tried while searching).
+    pub baud: u32,
+    /// Which configuration the receiver acknowledged.
+    pub interface: GnssInterface,
+    /// The newest solution's fix type (0 none, 2 2D, 3 3D, 4 GNSS + dead reckoning, 5 time
+    /// only) and satellites used; 0 before any solution.
+    pub fix_type: u8,
+    pub satellites: u8,
+    /// Its accuracies as the receiver states them: horizontal and vertical position, m, and
+    /// speed, m/s (NaN before any solution).
+    pub horizontal_accuracy_m: f32,
+    pub vertical_accuracy_m: f32,
+    pub speed_accuracy_mps: f32,
+    /// Solutions with a 3D fix handed to the control step as position fixes, and those
+    /// without a usable fix, since start-up.
+    pub fixes: u32,
+    pub without_fix: u32,
+    /// UBX frames whose checksum failed (line noise, a wrong baud rate).
+    pub checksum_errors: u32,
+}
+
+/// Where the GNSS driver stands (protocol 1.16).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum GnssState {
+    /// Polling for a receiver at one baud rate after another.
+    #[default]
+    Searching,
+    /// Found: its configuration sent, waiting for solutions at the configured rate.
+    Configuring,
+    /// Solutions arriving.
+    Receiving,
+    /// Solutions stopped (no NAV-PVT for a second): searching again soon.
+    Lost,
+}
+
+/// The configuration a GNSS receiver acknowledged (protocol 1.16).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum GnssInterface {
+    /// None yet (or the receiver acknowledges nothing, as some clones do).
+    #[default]
+    Unknown,
+    /// UBX-CFG-VALSET: a u-blox M9 or M10.
+    ConfigurationKeys,
+    /// The legacy UBX-CFG messages: a u-blox M8 or older.
+    LegacyMessages,
+}
+
 /// The IMU driver's state after its start-up checks (protocol 1.4).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum ImuDriverState {
@@ -1272,6 +1325,9 @@ crate::table::message_table! {
         /// its identification lands as soon as it flies. Signed over an untrusted link, like
         /// every request that steers. → `Done`. Protocol 1.14.
         0x20 => Land(()),
+        /// The GNSS receiver ([`Reply::Gnss`]); `Unsupported` on a device without a GNSS port.
+        /// Protocol 1.16.
+        0x21 => GetGnss(()),
     }
 }
 

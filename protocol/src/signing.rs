@@ -126,7 +126,8 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::ListLogs(_)
         | Request::ReadLog(_)
         | Request::GetBattery(())
-        | Request::GetIdentification(()) => false,
+        | Request::GetIdentification(())
+        | Request::GetGnss(()) => false,
     }
 }
 

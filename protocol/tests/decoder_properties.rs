@@ -96,6 +96,7 @@ fn any_request() -> impl Strategy<Value = Request> {
             Just(Request::GetBattery(())),
             Just(Request::GetIdentification(())),
             Just(Request::Land(())),
+            Just(Request::GetGnss(())),
         ],
     ]
 }

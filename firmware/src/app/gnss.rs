@@ -21,8 +21,14 @@
 //! constant over a flight and would only move the origin.
 
 use crate::drivers::ubx::{GnssConfig, GnssFix, GnssOutput, GnssReceiver, GnssStatus};
+use protocol::{GnssHealth, GnssInterface, GnssState};
 
+use super::hal::GnssPort;
 use super::pilot::{PositionFix, MAX_POSE_LATENCY_S};
+
+/// Bytes read from the GNSS UART per service, at most: a NAV-PVT is 100 bytes, and the board's
+/// receive ring holds more than a service interval's worth at any rate the driver configures.
+pub const GNSS_CHUNK_BYTES: usize = 256;
 
 /// WGS-84 semi-major axis, m (NIMA TR8350.2, table 3.1).
 const WGS84_A_M: f64 = 6_378_137.0;
@@ -32,6 +38,10 @@ const WGS84_E2: f64 = 6.694_379_990_14e-3;
 /// Default latency of a solution, s (ours): the middle of the 50–150 ms an M8–M10 receiver
 /// takes from its measurement epoch to the end of a NAV-PVT on the UART.
 pub const DEFAULT_GNSS_LATENCY_S: f32 = 0.1;
+
+/// Default rate of solutions asked of the receiver, Hz: 5, which every M8–M10 reaches with all
+/// its constellations (`GnssConfig::default`'s period).
+pub const DEFAULT_GNSS_RATE_HZ: f32 = 5.0;
 
 /// √2, √3: a horizontal RMS error and a 3D one per axis standard deviation.
 const SQRT_2: f32 = core::f32::consts::SQRT_2;
@@ -126,6 +136,20 @@ impl GnssInput {
         }
     }
 
+    /// The receiver as the parameters configure it (`gnss_baud`, `gnss_rate_hz`,
+    /// `gnss_latency_s`).
+    pub fn from_params(params: &super::Params) -> Self {
+        Self::new(params.gnss_config(), params.gnss_latency_s())
+    }
+
+    /// The solutions' latency from now on, s (the `gnss_latency_s` parameter changed; clamped
+    /// as in [`Self::new`]).
+    pub fn set_latency_s(&mut self, latency_s: f32) {
+        if latency_s.is_finite() {
+            self.latency_s = latency_s.clamp(0.0, MAX_POSE_LATENCY_S);
+        }
+    }
+
     /// Take the bytes received since the last call and the time (µs, monotonic); a new
     /// solution with a 3D fix comes back as a position fix. Then send [`Self::output`].
     pub fn poll(&mut self, bytes_in: &[u8], now_us: u64) -> Option<PositionFix> {
@@ -177,6 +201,53 @@ impl GnssInput {
     /// The counters.
     pub fn counts(&self) -> GnssCounts {
         self.counts
+    }
+
+    /// One service of the receiver through its UART at `now_us`: the bytes received since the
+    /// last service in, the baud rate and the bytes the driver wants out; a new position fix
+    /// comes back for the control step. Never blocks: what the UART does not take now goes
+    /// next time. The same code on the board (its GNSS UART) and in the simulators.
+    pub fn service<P: GnssPort>(&mut self, port: &mut P, now_us: u64) -> Option<PositionFix> {
+        let mut bytes = [0u8; GNSS_CHUNK_BYTES];
+        let count = port.read(&mut bytes).min(GNSS_CHUNK_BYTES);
+        let fix = self.poll(&bytes[..count], now_us);
+        let output = self.receiver.output();
+        port.set_baud(output.baud);
+        let taken = port.write(output.write);
+        self.receiver.sent(taken);
+        fix
+    }
+
+    /// The report for `status` and `doctor` (protocol `BoardHealth::gnss`).
+    pub fn health(&self) -> GnssHealth {
+        let output = self.receiver.output();
+        let (state, newest) = match self.receiver.status() {
+            GnssStatus::Searching { .. } => (GnssState::Searching, None),
+            GnssStatus::Configuring { .. } => (GnssState::Configuring, None),
+            GnssStatus::Receiving { fix } => (GnssState::Receiving, Some(fix)),
+            GnssStatus::Lost => (GnssState::Lost, None),
+        };
+        let acknowledged = self.receiver.acknowledged();
+        let interface = if acknowledged.valset {
+            GnssInterface::ConfigurationKeys
+        } else if acknowledged.legacy {
+            GnssInterface::LegacyMessages
+        } else {
+            GnssInterface::Unknown
+        };
+        GnssHealth {
+            state,
+            baud: output.baud,
+            interface,
+            fix_type: newest.map_or(0, |fix| fix.fix_type.raw()),
+            satellites: newest.map_or(0, |fix| fix.satellites),
+            horizontal_accuracy_m: newest.map_or(f32::NAN, |fix| fix.horizontal_accuracy_m),
+            vertical_accuracy_m: newest.map_or(f32::NAN, |fix| fix.vertical_accuracy_m),
+            speed_accuracy_mps: newest.map_or(f32::NAN, |fix| fix.speed_accuracy_mps),
+            fixes: self.counts.fixes,
+            without_fix: self.counts.without_fix,
+            checksum_errors: self.receiver.decoder_stats().checksum_errors,
+        }
     }
 }
 
@@ -283,5 +354,83 @@ mod tests {
         assert!((fix.position_ned_m[1] - 22.26).abs() < 0.05, "{:?}", fix.position_ned_m);
         assert_eq!(fix.latency_s, DEFAULT_GNSS_LATENCY_S);
         assert_eq!(GnssInput::new(GnssConfig::default(), 5.0).latency_s, MAX_POSE_LATENCY_S);
+    }
+
+    /// The board's GNSS UART as a test double that enforces its rate: the u-blox receiver of
+    /// the driver's tests (it answers and switches rate as the documents say; bytes at another
+    /// rate reach either side as garbage), read and written at the rate the driver set.
+    struct RatedPort {
+        receiver: crate::drivers::ubx::tests::FakeReceiver,
+        baud: u32,
+        now_s: f64,
+        bauds_set: Vec<u32>,
+    }
+
+    impl crate::app::hal::Uart for RatedPort {
+        fn read(&mut self, buffer: &mut [u8]) -> usize {
+            let bytes = self.receiver.transmit(self.now_s, self.baud);
+            let count = bytes.len().min(buffer.len());
+            buffer[..count].copy_from_slice(&bytes[..count]);
+            count
+        }
+        fn write(&mut self, bytes: &[u8]) -> usize {
+            self.receiver.receive(bytes, self.baud, self.now_s);
+            bytes.len()
+        }
+    }
+
+    impl GnssPort for RatedPort {
+        fn set_baud(&mut self, baud: u32) {
+            if self.bauds_set.last() != Some(&baud) {
+                self.bauds_set.push(baud);
+            }
+            self.baud = baud;
+        }
+    }
+
+    /// Serviced every 5 ms through a UART that enforces its rate, an M8 at its factory 9,600
+    /// baud and an M10 at its 38,400 are found, configured to the parameters' rate and deliver
+    /// position fixes; the report says where the receiver stands at each stage.
+    #[test]
+    fn a_receiver_at_its_factory_rate_is_found_configured_and_delivers_fixes_through_the_uart() {
+        use crate::drivers::ubx::tests::{FakeReceiver, Generation};
+        for (generation, factory_baud, interface) in [
+            (Generation::M8, 9_600, GnssInterface::LegacyMessages),
+            (Generation::M10, 38_400, GnssInterface::ConfigurationKeys),
+        ] {
+            let params = super::super::Params::default();
+            let mut input = GnssInput::from_params(&params);
+            assert_eq!(input.health().state, GnssState::Searching);
+            let mut port = RatedPort {
+                receiver: FakeReceiver::new(generation, factory_baud),
+                baud: 0,
+                now_s: 0.0,
+                bauds_set: Vec::new(),
+            };
+            let mut fixes = 0;
+            let mut first_fix_s = None;
+            for step in 0..2_000 {
+                port.now_s = f64::from(step) * 0.005;
+                let now_us = (port.now_s * 1e6) as u64;
+                if input.service(&mut port, now_us).is_some() {
+                    fixes += 1;
+                    first_fix_s.get_or_insert(port.now_s);
+                }
+            }
+            let health = input.health();
+            assert_eq!(health.state, GnssState::Receiving, "{health:?}");
+            assert_eq!(health.baud, params.gnss_config().target_baud);
+            assert_eq!(port.baud, params.gnss_config().target_baud, "the UART moved with it");
+            assert!(port.bauds_set.contains(&factory_baud), "searched {:?}", port.bauds_set);
+            assert_eq!(health.interface, interface);
+            assert_eq!((health.fix_type, health.satellites), (3, 17));
+            assert!((health.horizontal_accuracy_m - 0.85).abs() < 1e-3, "{health:?}");
+            // 5 Hz from the first fix to the end of the 10 s.
+            let first_fix_s = first_fix_s.expect("a fix came");
+            assert!(first_fix_s < 6.0, "found and configured within {first_fix_s} s");
+            let expected = (10.0 - first_fix_s) * f64::from(super::DEFAULT_GNSS_RATE_HZ);
+            assert!((fixes as f64 - expected).abs() <= 2.0, "{fixes} fixes, {expected} expected");
+            assert_eq!(health.fixes, fixes);
+        }
     }
 }

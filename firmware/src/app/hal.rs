@@ -86,6 +86,13 @@ pub trait Uart {
     }
 }
 
+/// The GNSS receiver's UART: bytes both ways and a baud rate the driver chooses (it searches
+/// for the receiver's rate, then moves both to the configured one: `super::gnss`).
+pub trait GnssPort: Uart {
+    /// Run the UART at `baud` from now on (bytes in flight may be lost: the driver expects it).
+    fn set_baud(&mut self, baud: u32);
+}
+
 /// No receiver connected: never any bytes.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoBytes;

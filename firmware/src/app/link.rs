@@ -707,6 +707,7 @@ impl LinkServer {
             }
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
+            Request::GetGnss(()) => view.gnss.map(Reply::Gnss).ok_or(DeviceError::Unsupported),
             Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
             Request::GetIdentification(()) => Ok(Reply::Identification(IdentificationStatus {
                 speeds_modelled: view.background.learned.speeds_modelled,

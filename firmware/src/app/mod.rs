@@ -107,6 +107,9 @@ pub struct StatusView {
     pub step_time: Option<protocol::StepTime>,
     /// The board's drivers and clocks (what [`protocol::Request::GetBoard`] answers).
     pub board: protocol::BoardHealth,
+    /// The GNSS receiver, on a board with a GNSS port (what [`protocol::Request::GetGnss`]
+    /// answers).
+    pub gnss: Option<protocol::GnssHealth>,
 }
 
 /// Whether a pose or setpoint (position, m; heading, rad) is finite: what the link, the control

@@ -179,6 +179,16 @@ registry! {
         "age of an external pose when it arrives: capture, processing, radio";
     PoseNoiseM = "pose_noise_m", 1, Real, "m", 0.0001, 2.0, [super::pilot::DEFAULT_POSE_NOISE_M],
         false, "external pose noise, 1 sigma per axis (motion capture 0.001, GNSS 0.5)";
+    // The GNSS receiver on a board with a GNSS port (`super::gnss`).
+    GnssBaud = "gnss_baud", 1, Integer, "baud", 9_600.0, 921_600.0,
+        [crate::drivers::ubx::DEFAULT_TARGET_BAUD as f32], false,
+        "GNSS UART rate after configuring (found at any rate). At restart";
+    GnssRateHz = "gnss_rate_hz", 1, Real, "Hz", 1.0, 10.0,
+        [super::gnss::DEFAULT_GNSS_RATE_HZ], false,
+        "GNSS solutions a second (M8-M10: 5-10). At restart";
+    GnssLatencyS = "gnss_latency_s", 1, Real, "s", 0.0, super::pilot::MAX_POSE_LATENCY_S,
+        [super::gnss::DEFAULT_GNSS_LATENCY_S], false,
+        "age of a GNSS solution when it arrives (M8-M10: 0.05-0.15)";
     ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
         [super::hal::IMU_FAULT_TIMEOUT_S], false,
         "armed: bad IMU samples held (last good) this long, then failsafe";
@@ -326,6 +336,19 @@ impl Params {
     }
 
     /// Whether the flight log runs from start-up on rather than per arming.
+    /// The GNSS receiver's configuration from `gnss_baud` and `gnss_rate_hz`.
+    pub fn gnss_config(&self) -> crate::drivers::ubx::GnssConfig {
+        crate::drivers::ubx::GnssConfig {
+            target_baud: self.scalar(Param::GnssBaud) as u32,
+            measurement_period_s: 1.0 / self.scalar(Param::GnssRateHz),
+        }
+    }
+
+    /// `gnss_latency_s`.
+    pub fn gnss_latency_s(&self) -> f32 {
+        self.scalar(Param::GnssLatencyS)
+    }
+
     pub fn log_always(&self) -> bool {
         self.scalar(Param::LogAlways) == 1.0
     }

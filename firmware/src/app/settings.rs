@@ -37,8 +37,9 @@ const CONFIG_KEY: u8 = 0;
 /// unpaired. Kept apart from the parameters so that no dump, diff or reset ever shows or
 /// touches it.
 const LINK_KEY_KEY: u8 = 1;
-/// Largest encoded configuration, bytes (the registry today needs under 1 KiB; tested).
-pub const MAX_CONFIG_BYTES: usize = 1536;
+/// Largest encoded configuration, bytes (the registry today needs 1.3 KiB, with 256 bytes to
+/// spare: tested).
+pub const MAX_CONFIG_BYTES: usize = 2048;
 /// sequential-storage's work buffer: the item (key and value) rounded up to flash words (the
 /// H743 writes 32-byte words).
 const BUFFER_LEN: usize = MAX_CONFIG_BYTES + 64;
@@ -522,7 +523,7 @@ mod tests {
         background.imu_offset.ci95_semi_axes_m = [0.004, 0.002, 0.001];
         let control =
             crate::app::control::ControlSnapshot { phase: FlightPhase::Done, ..Default::default() };
-        StatusView { control, background, step_time: None, board: Default::default() }
+        StatusView { control, background, step_time: None, board: Default::default(), gnss: None }
     }
 
     #[test]

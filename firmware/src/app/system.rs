@@ -28,7 +28,8 @@ use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
 use super::battery::{BatteryMonitor, LowBattery};
-use super::hal::{BatterySensor, Imu, ImuSample, Motors, Port, PortClosed, Uart};
+use super::gnss::GnssInput;
+use super::hal::{BatterySensor, GnssPort, Imu, ImuSample, Motors, Port, PortClosed, Uart};
 use super::log::{
     Adoption, ArmingTag, LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry,
 };
@@ -577,17 +578,57 @@ pub struct PassShared<S, R, B, C, W, L> {
     pub logs: L,
 }
 
-/// The link task's own state: the parameters and their store, and its end of the telemetry
-/// ring.
+/// The link task's own state: the parameters and their store, its end of the telemetry ring,
+/// and the GNSS receiver's driver on a board with a GNSS port (serviced with the links: its
+/// solutions come at 5–10 Hz, a link pass runs at 1 kHz).
 pub struct LinkTask<'q, F: NorFlash> {
     settings: Settings<F>,
     telemetry: StepConsumer<'q>,
     dropped_work: u32,
+    gnss: Option<GnssInput>,
+    /// Position fixes dropped because the control queue was full, since start-up.
+    dropped_fixes: u32,
 }
 
 impl<'q, F: NorFlash> LinkTask<'q, F> {
     pub fn new(settings: Settings<F>, telemetry: StepConsumer<'q>) -> Self {
-        Self { settings, telemetry, dropped_work: 0 }
+        Self { settings, telemetry, dropped_work: 0, gnss: None, dropped_fixes: 0 }
+    }
+
+    /// Drive a GNSS receiver ([`Self::service_gnss`]), configured from the parameters in force
+    /// (`gnss_rate_hz`, `gnss_latency_s`, `gnss_baud`).
+    pub fn with_gnss(mut self) -> Self {
+        self.gnss = Some(GnssInput::from_params(self.settings.params()));
+        self
+    }
+
+    /// The GNSS receiver's driver, when there is one.
+    pub fn gnss(&self) -> Option<&GnssInput> {
+        self.gnss.as_ref()
+    }
+
+    /// Position fixes dropped because the control queue was full, since start-up.
+    pub fn dropped_fixes(&self) -> u32 {
+        self.dropped_fixes
+    }
+
+    /// Service the GNSS receiver through `port` at `now_us` (`GnssInput::service`): a new
+    /// position fix goes to the control step's queue, like a pose from a link. Call it at
+    /// least as often as the port's receive buffer fills (the board: every link pass).
+    pub fn service_gnss<P: GnssPort, C: Mutex<T = ControlQueue>>(
+        &mut self,
+        now_us: u64,
+        port: &mut P,
+        commands: &mut C,
+    ) {
+        let Some(gnss) = self.gnss.as_mut() else { return };
+        gnss.set_latency_s(self.settings.params().gnss_latency_s());
+        if let Some(fix) = gnss.service(port, now_us) {
+            let command = ControlCommand::PositionFix(fix);
+            if !commands.lock(|queue| queue_command(queue, command)) {
+                self.dropped_fixes = self.dropped_fixes.wrapping_add(1);
+            }
+        }
     }
 
     /// The parameters in force and their store.
@@ -642,6 +683,7 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
             background: shared.results.lock(|results| *results),
             step_time,
             board: shared.board.lock(|board| *board),
+            gnss: self.gnss.as_ref().map(GnssInput::health),
         };
         let settings = &mut self.settings;
         let mut logs = LockedLogFiles(&mut shared.logs);
@@ -867,6 +909,7 @@ impl<'q, F: NorFlash> System<'q, F> {
             background: self.handoffs.results,
             step_time: None,
             board: self.handoffs.board,
+            gnss: self.link.gnss().map(GnssInput::health),
         }
     }
 }

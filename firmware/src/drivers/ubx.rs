@@ -610,10 +610,14 @@ pub struct GnssConfig {
     pub measurement_period_s: f32,
 }
 
+/// The UART's rate once configured by default, baud: NAV-PVT at 10 Hz needs 10,000, and 115,200
+/// is a rate every u-blox receiver and flight-controller UART runs reliably.
+pub const DEFAULT_TARGET_BAUD: u32 = 115_200;
+
 impl Default for GnssConfig {
     /// 115,200 baud, 5 Hz (every M8/M9/M10 reaches 5 Hz with all its constellations).
     fn default() -> Self {
-        Self { target_baud: 115_200, measurement_period_s: 0.2 }
+        Self { target_baud: DEFAULT_TARGET_BAUD, measurement_period_s: 0.2 }
     }
 }
 
@@ -978,7 +982,7 @@ impl GnssReceiver {
     }
 }
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     // ----- Frames built by hand from the documents (independent of the code under test) -----
@@ -1341,7 +1345,7 @@ mod tests {
     // ----- The state machine against a test double receiver -----
 
     #[derive(Clone, Copy, PartialEq, Eq, Debug)]
-    enum Generation {
+    pub(crate) enum Generation {
         M8,
         M10,
     }
@@ -1352,7 +1356,7 @@ mod tests {
     /// NMEA once a second while NMEA output is on. Bytes at a baud other than its own reach either
     /// side as garbage: a receiver ignores them, and the host gets random bytes, about as many as
     /// the ratio of the rates makes of them.
-    struct FakeReceiver {
+    pub(crate) struct FakeReceiver {
         generation: Generation,
         baud: u32,
         period_s: f64,
@@ -1373,7 +1377,7 @@ mod tests {
     const FAKE_LATENCY_S: f64 = 0.02;
 
     impl FakeReceiver {
-        fn new(generation: Generation, baud: u32) -> Self {
+        pub(crate) fn new(generation: Generation, baud: u32) -> Self {
             Self {
                 generation,
                 baud,
@@ -1425,7 +1429,7 @@ mod tests {
             out
         }
 
-        fn receive(&mut self, bytes: &[u8], host_baud: u32, now_s: f64) {
+        pub(crate) fn receive(&mut self, bytes: &[u8], host_baud: u32, now_s: f64) {
             if host_baud != self.baud || self.silent {
                 return;
             }
@@ -1518,7 +1522,7 @@ mod tests {
         }
 
         /// What reached the host by `now_s`, read at `host_baud`.
-        fn transmit(&mut self, now_s: f64, host_baud: u32) -> Vec<u8> {
+        pub(crate) fn transmit(&mut self, now_s: f64, host_baud: u32) -> Vec<u8> {
             if !self.silent {
                 if self.nav_pvt_on && self.ubx_out && now_s >= self.next_pvt_s {
                     let itow = (now_s * 1000.0).round() as u32;
