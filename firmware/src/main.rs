@@ -11,7 +11,8 @@
 //! | `imu_data_ready` | EXTI2 (ICM-42688-P INT1), 8 kHz | 3 | starts the SPI DMA read of one sample (returns at once) |
 //! | `imu_transfer_done` | DMA1 stream 0 complete | 3 | ends the read, adds the sample to the 8 kHz → 2 kHz mean |
 //! | `motor_burst_0..2` | DMA1 streams 2–4 complete (the motor timers' DShot bursts) | 4 | switches the timer's outputs to capture the ESCs' bidirectional answers (a few dozen register writes, 28 µs after the step started the frame; the answer starts 30 µs after the frame, too soon to wait for the step to end) |
-//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port and the telemetry radio's UART (`radio_baud`): requests routed, telemetry, configuration saves (flash erase); then a restart if one was asked for |
+//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port and the telemetry radio's UART (`radio_baud`): requests routed, telemetry, configuration saves (flash erase); the GNSS receiver serviced ([`LinkTask::service_gnss`](firmware::app::system::LinkTask::service_gnss): its fixes to the control queue); then a restart if one was asked for |
+//! | `gnss_received` | USART2 (the GNSS UART's receive FIFO) | 3 | moves the received bytes into the queue the link pass reads (`board::gnss`: no DMA stream is left for it) |
 //! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the link's work, the learner-sample queue drained, results published |
 //! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
@@ -88,6 +89,17 @@ struct LogStorage {
 #[link_section = ".axisram.log"]
 static mut LOG: core::mem::MaybeUninit<LogStorage> = core::mem::MaybeUninit::uninit();
 
+/// The GNSS UART's receive queue and the receiver's driver (AXI SRAM, NOLOAD; `init` writes
+/// them when the board has a GNSS port).
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.gnss"]
+static mut GNSS_QUEUE: core::mem::MaybeUninit<firmware::board::gnss::GnssQueue> =
+    core::mem::MaybeUninit::uninit();
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.gnss"]
+static mut GNSS_INPUT: core::mem::MaybeUninit<firmware::app::gnss::GnssInput> =
+    core::mem::MaybeUninit::uninit();
+
 /// The box beside the log's ring for the control loop's state at an arming (9 KB; AXI SRAM,
 /// NOLOAD: `init` writes its state byte only, `Mailbox::init_in`).
 #[cfg(target_os = "none")]
@@ -100,10 +112,11 @@ static mut ARMING: core::mem::MaybeUninit<firmware::app::log::ArmingBox> =
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
 mod app {
     use crate::tasks::{
-        background, control_tick, imu_data_ready, imu_transfer_done, motor_burst_0, motor_burst_1,
-        motor_burst_2, usb_service,
+        background, control_tick, gnss_received, imu_data_ready, imu_transfer_done, motor_burst_0,
+        motor_burst_1, motor_burst_2, usb_service,
     };
     use firmware::app::card::CardLog;
+    use firmware::app::gnss::GnssInput;
     use firmware::app::hal::Motors;
     use firmware::app::log::{LogRing, LogSink, Logger, NoCard};
     use firmware::app::radio::Receiver;
@@ -115,6 +128,7 @@ mod app {
     use firmware::board::battery::BoardBattery;
     use firmware::board::config::{clock_plan, silicon_revision, TIME_BASE_HZ};
     use firmware::board::flash::ConfigSectors;
+    use firmware::board::gnss::{self, BoardGnss, GnssQueue, GnssRx};
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
     use firmware::board::imu::BoardImu;
     use firmware::board::motors::{BoardMotors, BurstCompletion};
@@ -194,6 +208,10 @@ mod app {
         usb: Link<UsbSerial>,
         /// The telemetry radio's UART and its (untrusted) protocol endpoint, when configured.
         radio: Option<Link<BoardRadio>>,
+        /// The GNSS receiver's UART, serviced by the link pass (`None`: no GNSS port).
+        gnss: Option<BoardGnss>,
+        /// Its receive interrupt's end.
+        gnss_rx: Option<GnssRx>,
         /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads), and
         /// the link task's end of the telemetry ring (one record per control step).
         link: LinkTask<'static, ConfigSectors>,
@@ -404,6 +422,25 @@ mod app {
                 .with_byte_rate(firmware::board::radio::byte_rate(baud));
             Link::new(server, port)
         });
+        // The GNSS receiver's port (pads TX2/RX2), searched for from start-up at every rate.
+        let (gnss_rx, gnss, gnss_input) = match BOARD.gnss {
+            Some(wiring) => {
+                // SAFETY: `init` runs once, before any task: these are the statics' only
+                // references from now on.
+                let (queue, input) = unsafe {
+                    let queue =
+                        (*core::ptr::addr_of_mut!(crate::GNSS_QUEUE)).write(GnssQueue::new());
+                    let input = (*core::ptr::addr_of_mut!(crate::GNSS_INPUT))
+                        .write(GnssInput::from_params(settings.params()));
+                    (queue, input)
+                };
+                let target_baud = settings.params().gnss_config().target_baud;
+                let pclk1_hz = ccdr.clocks.pclk1().raw();
+                let (rx, port) = gnss::start(wiring, pclk1_hz, target_baud, queue);
+                (Some(rx), Some(port), Some(input))
+            }
+            None => (None, None, None),
+        };
         let link = LinkServer::new(board_info);
         let shared = Shared {
             snapshot: control.snapshot(),
@@ -449,7 +486,12 @@ mod app {
             usb_clock: clock,
             usb: Link::new(link, usb),
             radio: telemetry_radio,
-            link: LinkTask::new(settings, telemetry),
+            link: match gnss_input {
+                Some(input) => LinkTask::new(settings, telemetry).with_gnss(input),
+                None => LinkTask::new(settings, telemetry),
+            },
+            gnss,
+            gnss_rx,
             background,
         };
         (shared, local, init::Monotonics())
@@ -519,8 +561,11 @@ mod app {
         #[task(binds = DMA1_STR4, priority = 4, local = [burst_2])]
         fn motor_burst_2(cx: motor_burst_2::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, radio, link], shared = [snapshot, results, board, commands, work, log])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, radio, gnss, link], shared = [snapshot, results, board, commands, work, log])]
         fn usb_service(cx: usb_service::Context);
+
+        #[task(binds = USART2, priority = 3, local = [gnss_rx])]
+        fn gnss_received(cx: gnss_received::Context);
 
         #[task(priority = 1, local = [background], shared = [results, work, log])]
         fn background(cx: background::Context);
@@ -533,8 +578,8 @@ mod app {
 #[cfg(target_os = "none")]
 mod tasks {
     use crate::app::{
-        background, control_tick, imu_data_ready, imu_transfer_done, motor_burst_0, motor_burst_1,
-        motor_burst_2, usb_service,
+        background, control_tick, gnss_received, imu_data_ready, imu_transfer_done, motor_burst_0,
+        motor_burst_1, motor_burst_2, usb_service,
     };
     use firmware::app::system::{run_background, PassShared, Restart, TickHardware, TickShared};
     use firmware::board::bootloader;
@@ -629,6 +674,9 @@ mod tasks {
         let step_time = Some(StepTime { max_us: step.max_us, overruns: step.overruns });
         let mut links = (&mut *cx.local.usb, &mut *cx.local.radio);
         let outcome = cx.local.link.pass(now_us, &mut links, step_time, &mut shared);
+        if let Some(gnss) = cx.local.gnss.as_mut() {
+            cx.local.link.service_gnss(now_us, gnss, &mut shared.commands);
+        }
         if outcome.background_due {
             let _ = background::spawn();
         }
@@ -641,6 +689,13 @@ mod tasks {
                 bootloader::restart_into_bootloader();
             }
             cortex_m::peripheral::SCB::sys_reset();
+        }
+    }
+
+    /// The GNSS UART's receive interrupt: its FIFO into the queue the link pass reads.
+    pub fn gnss_received(cx: gnss_received::Context) {
+        if let Some(rx) = cx.local.gnss_rx.as_mut() {
+            rx.on_interrupt();
         }
     }
 

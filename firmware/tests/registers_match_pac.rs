@@ -243,12 +243,13 @@ fn check_rcc(c: &mut Check) {
         };
         enable(&format!("spi({spi:?})"), h743::spi(spi).enable, RccRegister::Apb2, mask);
     }
-    for uart in [Uart::Usart1, Uart::Usart6] {
-        let mask = match uart {
-            Uart::Usart1 => written(&rb.apb2enr, |w| w.usart1en().set_bit()),
-            Uart::Usart6 => written(&rb.apb2enr, |w| w.usart6en().set_bit()),
+    for uart in [Uart::Usart1, Uart::Usart2, Uart::Usart6] {
+        let (register, mask) = match uart {
+            Uart::Usart1 => (RccRegister::Apb2, written(&rb.apb2enr, |w| w.usart1en().set_bit())),
+            Uart::Usart2 => (RccRegister::Apb1L, written(&rb.apb1lenr, |w| w.usart2en().set_bit())),
+            Uart::Usart6 => (RccRegister::Apb2, written(&rb.apb2enr, |w| w.usart6en().set_bit())),
         };
-        enable(&format!("uart({uart:?})"), h743::uart(uart).enable, RccRegister::Apb2, mask);
+        enable(&format!("uart({uart:?})"), h743::uart(uart).enable, register, mask);
     }
     enable(
         "ADC12_ENABLE",
@@ -989,10 +990,11 @@ fn check_spi(c: &mut Check) {
 
 fn check_usart(c: &mut Check) {
     use pac::dmamux1::ccr::DMAREQ_ID_A as R;
-    for uart in [Uart::Usart1, Uart::Usart6] {
+    for uart in [Uart::Usart1, Uart::Usart2, Uart::Usart6] {
         let info = h743::uart(uart);
         let (base, rx) = match uart {
             Uart::Usart1 => (pac::USART1::PTR as u32, R::Usart1RxDma),
+            Uart::Usart2 => (pac::USART2::PTR as u32, R::Usart2RxDma),
             Uart::Usart6 => (pac::USART6::PTR as u32, R::Usart6RxDma),
         };
         c.same(&format!("uart({uart:?}).base"), info.base, base);
@@ -1009,6 +1011,8 @@ fn check_usart(c: &mut Check) {
         ("usart::ISR", usart::ISR, fake.offset(&rb.isr)),
         ("usart::TDR", usart::TDR, fake.offset(&rb.tdr)),
         ("usart::ISR_TXFNF", usart::ISR_TXFNF, read_mask(&rb.isr, |r| r.txe().bit_is_set())),
+        ("usart::ISR_RXFNE", usart::ISR_RXFNE, read_mask(&rb.isr, |r| r.rxne().bit_is_set())),
+        ("usart::CR1_RXFNEIE", usart::CR1_RXFNEIE, written(&rb.cr1, |w| w.rxneie().set_bit())),
         ("usart::CR1_FIFOEN", usart::CR1_FIFOEN, written(&rb.cr1, |w| w.fifoen().set_bit())),
         ("usart::CR1_UE", usart::CR1_UE, written(&rb.cr1, |w| w.ue().set_bit())),
         ("usart::CR1_RE", usart::CR1_RE, written(&rb.cr1, |w| w.re().set_bit())),

@@ -585,7 +585,9 @@ pub struct LinkTask<'q, F: NorFlash> {
     settings: Settings<F>,
     telemetry: StepConsumer<'q>,
     dropped_work: u32,
-    gnss: Option<GnssInput>,
+    /// The GNSS receiver's driver (about 1 KB: on the board a static of its own, so `init`
+    /// never copies it; in a [`System`] a local of [`with_system`]).
+    gnss: Option<&'q mut GnssInput>,
     /// Position fixes dropped because the control queue was full, since start-up.
     dropped_fixes: u32,
 }
@@ -595,16 +597,16 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         Self { settings, telemetry, dropped_work: 0, gnss: None, dropped_fixes: 0 }
     }
 
-    /// Drive a GNSS receiver ([`Self::service_gnss`]), configured from the parameters in force
-    /// (`gnss_rate_hz`, `gnss_latency_s`, `gnss_baud`).
-    pub fn with_gnss(mut self) -> Self {
-        self.gnss = Some(GnssInput::from_params(self.settings.params()));
+    /// Drive a GNSS receiver ([`Self::service_gnss`]) with `gnss` (made by
+    /// `GnssInput::from_params` from the parameters at start-up: `gnss_baud`, `gnss_rate_hz`).
+    pub fn with_gnss(mut self, gnss: &'q mut GnssInput) -> Self {
+        self.gnss = Some(gnss);
         self
     }
 
     /// The GNSS receiver's driver, when there is one.
     pub fn gnss(&self) -> Option<&GnssInput> {
-        self.gnss.as_ref()
+        self.gnss.as_deref()
     }
 
     /// Position fixes dropped because the control queue was full, since start-up.
@@ -683,7 +685,7 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
             background: shared.results.lock(|results| *results),
             step_time,
             board: shared.board.lock(|board| *board),
-            gnss: self.gnss.as_ref().map(GnssInput::health),
+            gnss: self.gnss.as_deref().map(GnssInput::health),
         };
         let settings = &mut self.settings;
         let mut logs = LockedLogFiles(&mut shared.logs);

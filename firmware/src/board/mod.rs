@@ -13,6 +13,7 @@ pub mod bootloader;
 pub mod chip;
 pub mod config;
 pub mod flash;
+pub mod gnss;
 pub mod identity;
 pub mod imu;
 pub mod motors;

@@ -44,6 +44,7 @@ pub enum Spi {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Uart {
     Usart1,
+    Usart2,
     Usart6,
 }
 
@@ -426,6 +427,10 @@ pub mod usart {
     pub const CR1_UE: u32 = 1 << 0;
     pub const CR1_RE: u32 = 1 << 2;
     pub const CR1_TE: u32 = 1 << 3;
+    /// RXFNEIE: an interrupt while the receive FIFO holds a byte (RXNEIE without the FIFO).
+    pub const CR1_RXFNEIE: u32 = 1 << 5;
+    /// ISR's RXNE, which reads "receive FIFO not empty" (RXFNE) with the FIFO enabled.
+    pub const ISR_RXFNE: u32 = 1 << 5;
     pub const CR3_DMAR: u32 = 1 << 6;
     /// Overrun does not stop reception (a lost byte is a CRC error for the parser).
     pub const CR3_OVRDIS: u32 = 1 << 12;
@@ -621,6 +626,11 @@ pub const fn uart(uart: Uart) -> UartInfo {
     }
     match uart {
         Uart::Usart1 => UartInfo { base: 0x4001_1000, enable: apb2(4), rx_request: 41 },
+        Uart::Usart2 => UartInfo {
+            base: 0x4000_4400,
+            enable: RccEnable { register: RccRegister::Apb1L, bit: 17 },
+            rx_request: 43,
+        },
         Uart::Usart6 => UartInfo { base: 0x4001_1400, enable: apb2(5), rx_request: 71 },
     }
 }
@@ -682,6 +692,8 @@ const ALTERNATE_FUNCTIONS: &[(Pin, Function, u8)] = {
         (pin(C, 7), UartRx(Uart::Usart6), 7),
         (pin(A, 9), UartTx(Uart::Usart1), 7),
         (pin(A, 10), UartRx(Uart::Usart1), 7),
+        (pin(D, 5), UartTx(Uart::Usart2), 7),
+        (pin(D, 6), UartRx(Uart::Usart2), 7),
         // USB OTG2 full speed (the H743's "OTG_FS" pins, AF10): DM PA11, DP PA12.
         (pin(A, 11), UsbDm, 10),
         (pin(A, 12), UsbDp, 10),

@@ -20,8 +20,8 @@
 use super::h743::{Function, Spi, Timer, Uart};
 use super::Port::{A, B, C, D};
 use super::{
-    pin, AltPin, BatterySensing, BoardDescription, DmaStream, FlashLayout, ImuWiring, MotorOutput,
-    MotorTimer, Pin, SdCardWiring, UartWiring,
+    pin, AltPin, BatterySensing, BoardDescription, DmaStream, FlashLayout, GnssWiring, ImuWiring,
+    MotorOutput, MotorTimer, Pin, SdCardWiring, UartWiring,
 };
 
 const fn alt(pin: Pin, function: Function, af: u8) -> AltPin {
@@ -92,6 +92,13 @@ pub const MATEK_H743_V3: BoardDescription = BoardDescription {
         tx: alt(pin(A, 9), Function::UartTx(Uart::Usart1), 7),
         rx_dma: dma(2, 6),
     },
+    // Pads TX2 and RX2 (PD5/PD6, USART2 AF7): the GPS port of ArduPilot's MatekH743 hwdef.dat
+    // (SERIAL2 = USART2, "GPS1"). Received by interrupt: no DMA stream is left.
+    gnss: Some(GnssWiring {
+        uart: Uart::Usart2,
+        rx: alt(pin(D, 6), Function::UartRx(Uart::Usart2), 7),
+        tx: alt(pin(D, 5), Function::UartTx(Uart::Usart2), 7),
+    }),
     // The VBAT and CURR pads on PC0 (ADC1_INP10) and PC1 (ADC1_INP11): the board's divider
     // (11 V a volt) and 40 A a volt for the current sensor, as ArduPilot's MatekH743
     // hwdef.dat sets them (HAL_BATT_VOLT_SCALE 11.0, HAL_BATT_CURR_SCALE 40.0; Betaflight's

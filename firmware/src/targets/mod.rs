@@ -152,6 +152,15 @@ pub struct UartWiring {
     pub rx_dma: DmaStream,
 }
 
+/// The GNSS receiver's UART: received by interrupt (every DMA stream of the H743 has a job
+/// already: `board::gnss`), sent through its FIFO, 8N1 at whatever rate the driver sets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GnssWiring {
+    pub uart: h743::Uart,
+    pub rx: AltPin,
+    pub tx: AltPin,
+}
+
 /// The flight battery's sensing: the pack through a resistor divider and a current sensor's
 /// output, each on an ADC1 input (`board::battery`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -254,6 +263,8 @@ pub struct BoardDescription {
     pub receiver: UartWiring,
     /// The telemetry radio: the link protocol, when the `radio_baud` parameter is not 0.
     pub telemetry_radio: UartWiring,
+    /// The GNSS receiver's port (`None`: the board has none).
+    pub gnss: Option<GnssWiring>,
     /// The flight battery's voltage and current.
     pub battery: BatterySensing,
     /// USB OTG2 full-speed pins (D−, D+).
@@ -341,7 +352,10 @@ impl BoardDescription {
         let motors =
             self.motors.iter().map(|m| (m.pin, Function::TimerChannel(m.timer, m.channel)));
         let sdcard = self.sdcard.iter().flat_map(|card| card.pins());
-        fixed.into_iter().chain(motors).chain(sdcard)
+        let gnss = self.gnss.iter().flat_map(|gnss| {
+            [(gnss.rx, Function::UartRx(gnss.uart)), (gnss.tx, Function::UartTx(gnss.uart))]
+        });
+        fixed.into_iter().chain(motors).chain(sdcard).chain(gnss)
     }
 
     /// Every DMA stream the board uses.
