@@ -51,7 +51,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
 use sim::board::WorldEffects;
-use sim::gnss::GnssArgs;
+use sim::gnss::{GnssArgs, GnssModelConfig};
 use sim::recovery::{
     fly, monte_carlo, random_case, FlightEnd, FlyConfig, FlyReport, MotionCaptureArgs,
     MotionCaptureConfig, Verdict,
@@ -139,11 +139,12 @@ enum Command {
 #[derive(clap::Args, Debug)]
 struct WorldArgs {
     /// `nominal` (the airframe and the throw's spin and height vary, nothing else) or `random`
-    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air; gust and wind only
-    /// with `--gusts` and `--wind`).
+    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air; gust, wind and gnss
+    /// only with `--gusts`, `--wind` and `--gnss-random`).
     #[arg(long, default_value = "nominal", value_parser = ["nominal", "random"])]
     world: String,
-    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust, wind); repeatable.
+    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust, wind, gnss);
+    /// repeatable.
     #[arg(long)]
     vary: Vec<String>,
     /// Add strong gusts to the random world while the craft hovers (the `gust` aspect:
@@ -158,6 +159,11 @@ struct WorldArgs {
     /// and the turbulence as the seed draws them, for a sweep over the speed.
     #[arg(long)]
     wind_mps: Option<f64>,
+    /// Fly every run on a GNSS receiver drawn for it (the `gnss` aspect: noise 0.02–2 m
+    /// correlated over 2–60 s, 5–10 Hz, 50–150 ms late, multipath jumps, dropouts; the firmware
+    /// told its latency) instead of motion capture; the report gives the holds per noise band.
+    #[arg(long)]
+    gnss_random: bool,
     /// Do not give the firmware the airframe's true IMU offset (a board never calibrated: it
     /// flies with none, issue 32).
     #[arg(long)]
@@ -182,6 +188,9 @@ impl WorldArgs {
             if self.windy() {
                 aspects.push(Aspect::Wind);
             }
+            if self.gnss_random {
+                aspects.push(Aspect::Gnss);
+            }
             return Ok(aspects);
         }
         let mut aspects: Vec<Aspect> =
@@ -191,6 +200,9 @@ impl WorldArgs {
         }
         if self.windy() && !aspects.contains(&Aspect::Wind) {
             aspects.push(Aspect::Wind);
+        }
+        if self.gnss_random && !aspects.contains(&Aspect::Gnss) {
+            aspects.push(Aspect::Gnss);
         }
         Ok(aspects)
     }
@@ -209,11 +221,13 @@ const WIND_MPS_LIMIT: f64 = 20.0;
 const WIND_BAND_MPS: f64 = 2.0;
 
 /// Monte Carlo case `seed`: the nominal case with `motion_capture`, or the world with `aspects`
-/// randomised; the IMU offset given to the firmware unless `args.unknown_imu_offset`.
+/// randomised; the IMU offset given to the firmware unless `args.unknown_imu_offset`; on the
+/// receiver the `gnss` aspect drew, else on `gnss` (`--gnss`), else on motion capture.
 fn case(
     seed: u64,
     aspects: &[Aspect],
     motion_capture: MotionCaptureConfig,
+    gnss: &Option<GnssModelConfig>,
     args: &WorldArgs,
 ) -> (Airframe, FlyConfig) {
     let (airframe, mut config) = if aspects.is_empty() {
@@ -228,6 +242,9 @@ fn case(
     }
     config.known_imu_offset = !args.unknown_imu_offset;
     config.speed_telemetry = !args.no_speed_telemetry;
+    if config.gnss.is_none() {
+        config.gnss.clone_from(gnss);
+    }
     (airframe, config)
 }
 
@@ -442,6 +459,128 @@ fn print_winds(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects]) {
     }
 }
 
+/// Upper edges of the receiver-noise bands a Monte Carlo with the `gnss` aspect reports its
+/// holds in, m (the correlated horizontal error per axis; the last band runs to the top of
+/// [`sim::gnss::RANDOM_NOISE_M`]): RTK-like and dual-frequency receivers below 0.1 m, a good
+/// single-frequency one in the open up to 0.3 m (`fly --gnss`'s), a partial sky up to 1 m, and
+/// worse.
+const GNSS_NOISE_BAND_EDGES_M: [f64; 3] = [0.1, 0.3, 1.0];
+
+/// Seeds listed per band of a report, at most (the rest are counted).
+const SEEDS_LISTED: usize = 20;
+
+/// The receivers of a Monte Carlo that drew them (`receivers[i]` is `results[i]`'s), per
+/// [`GNSS_NOISE_BAND_EDGES_M`] band of their noise: how many runs hovered and held, the worst
+/// horizontal distance from the setpoint over the hold window, the heading, the fixes refused,
+/// and the landings.
+///
+/// "Held", in every band, scales with the run's own receiver: the run hovered and its worst
+/// horizontal distance from the setpoint over the hold window is within
+/// [`GnssModelConfig::hold_bound_m`], 0.3 m for the control plus twice the receiver's hAcc (its
+/// 2DRMS: 98 % of its fixes are nearer the truth). In the 0.02–0.1 m band that is about
+/// 0.36–0.6 m, in 0.1–0.3 m 0.6–1.2 m, in 0.3–1 m 1.2–3.2 m, in 1–2 m 3.1–6.2 m (the white
+/// noise, drawn per run, makes the ranges overlap a little; each band prints its own).
+/// Vertically a receiver is 1.5–2.5 times worse, and no bound is drawn there.
+fn print_gnss_bands(results: &[sim::recovery::CaseResult], receivers: &[GnssModelConfig]) {
+    let sigmas: Vec<f64> = receivers.iter().map(|g| g.horizontal_sigma_m).collect();
+    print_quantiles(
+        "GNSS receivers drawn: correlated error per horizontal axis",
+        &sigmas,
+        1.0,
+        " m",
+    );
+    let rates: Vec<f64> = receivers.iter().map(|g| g.rate_hz).collect();
+    let latencies: Vec<f64> = receivers.iter().map(|g| g.latency_s).collect();
+    print_quantiles("  solutions per second", &rates, 1.0, " Hz");
+    print_quantiles("  latency (the firmware told it)", &latencies, 1e3, " ms");
+    println!(
+        "  held: hovered, and the worst horizontal distance from the setpoint over the hold \
+         window within {} m + {} hAcc of the run's receiver",
+        sim::gnss::HOLD_CONTROL_ALLOWANCE_M,
+        sim::gnss::HOLD_FIX_RMS_MULTIPLE
+    );
+    let band_of =
+        |sigma: f64| GNSS_NOISE_BAND_EDGES_M.iter().filter(|&&edge| sigma >= edge).count();
+    let mut bands: BTreeMap<usize, Vec<(&sim::recovery::CaseResult, &GnssModelConfig)>> =
+        BTreeMap::new();
+    for (r, g) in results.iter().zip(receivers) {
+        bands.entry(band_of(g.horizontal_sigma_m)).or_default().push((r, g));
+    }
+    let hovered =
+        |r: &sim::recovery::CaseResult| matches!(r.verdict, Verdict::Held | Verdict::HoveredLoose);
+    let held = |r: &sim::recovery::CaseResult, g: &GnssModelConfig| {
+        hovered(r) && r.report.max_hold_error_horizontal_m.is_some_and(|e| e <= g.hold_bound_m())
+    };
+    let mut held_total = 0;
+    for (band, runs) in &bands {
+        let low = if *band == 0 {
+            sim::gnss::RANDOM_NOISE_M.0
+        } else {
+            GNSS_NOISE_BAND_EDGES_M[band - 1]
+        };
+        let high =
+            GNSS_NOISE_BAND_EDGES_M.get(*band).copied().unwrap_or(sim::gnss::RANDOM_NOISE_M.1);
+        let hovered_runs = runs.iter().filter(|(r, _)| hovered(r)).count();
+        let held_runs = runs.iter().filter(|(r, g)| held(r, g)).count();
+        held_total += held_runs;
+        let bounds: Vec<f64> = runs.iter().map(|(_, g)| g.hold_bound_m()).collect();
+        let errors: Vec<f64> =
+            runs.iter().filter_map(|(r, _)| r.report.max_hold_error_horizontal_m).collect();
+        let aligned = runs.iter().filter(|(r, _)| r.report.heading_aligned_s.is_some()).count();
+        let within_10_deg = runs
+            .iter()
+            .filter(|(r, _)| r.report.heading_error_deg.is_some_and(|e| e.abs() <= 10.0))
+            .count();
+        let refused: Vec<f64> =
+            runs.iter().map(|(r, _)| f64::from(r.report.fixes_rejected)).collect();
+        let landings: Vec<_> = runs.iter().filter_map(|(r, _)| r.report.landing).collect();
+        let gentle = landings.iter().filter(|l| l.gentle()).count();
+        println!(
+            "  noise {low:.2}–{high:.2} m: {} runs, hovered {}, held {} ({:.1} %; bounds \
+             {:.2}–{:.2} m); horizontal hold error median {:.2} m, 90th {:.2} m; heading \
+             aligned {aligned}, within 10° at the end {within_10_deg}; fixes refused median {:.0}\
+             {}",
+            runs.len(),
+            hovered_runs,
+            held_runs,
+            100.0 * held_runs as f64 / runs.len() as f64,
+            bounds.iter().copied().fold(f64::INFINITY, f64::min),
+            bounds.iter().copied().fold(0.0, f64::max),
+            quantile(&errors, 0.5),
+            quantile(&errors, 0.9),
+            quantile(&refused, 0.5),
+            if landings.is_empty() {
+                String::new()
+            } else {
+                format!("; landed gently {gentle} of {}", landings.len())
+            }
+        );
+        let not_held: Vec<String> = runs
+            .iter()
+            .filter(|(r, g)| !held(r, g))
+            .map(|(r, g)| match r.report.max_hold_error_horizontal_m {
+                Some(e) if hovered(r) => {
+                    format!("{} ({e:.2} m, bound {:.2} m)", r.seed, g.hold_bound_m())
+                }
+                _ => format!("{} ({:?})", r.seed, r.verdict),
+            })
+            .collect();
+        if !not_held.is_empty() {
+            let more = not_held.len().saturating_sub(SEEDS_LISTED);
+            println!(
+                "    not held: {}{}",
+                not_held[..not_held.len().min(SEEDS_LISTED)].join(", "),
+                if more > 0 { format!(" and {more} more") } else { String::new() }
+            );
+        }
+    }
+    println!(
+        "  held within their receivers' bounds: {held_total} of {} runs ({:.1} %)",
+        results.len(),
+        100.0 * held_total as f64 / results.len().max(1) as f64
+    );
+}
+
 /// The hand's grabs of a Monte Carlo (`--end catch`), and the hand-catch detector's stops
 /// without a hand (every `--end`).
 fn print_catches(results: &[sim::recovery::CaseResult]) {
@@ -499,11 +638,12 @@ fn print_catches(results: &[sim::recovery::CaseResult]) {
     }
 }
 
-/// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
-/// flags beside a randomised world.
+/// The aspects to randomise; a usage error (exit code 2) for a bad name, for motion-capture
+/// flags beside a randomised world, or for receiver flags beside a drawn receiver.
 fn checked_aspects(
     args: &WorldArgs,
     motion_capture: MotionCaptureConfig,
+    gnss: &GnssArgs,
 ) -> Result<Vec<Aspect>, ExitCode> {
     let aspects = args.aspects().map_err(|e| {
         eprintln!("fly: {e}");
@@ -517,6 +657,13 @@ fn checked_aspects(
     }
     if !aspects.is_empty() && motion_capture != MotionCaptureConfig::default() {
         eprintln!("fly: the --mocap-* flags do not combine with --world random or --vary");
+        return Err(ExitCode::from(2));
+    }
+    if aspects.contains(&Aspect::Gnss) && gnss.shapes_receiver() {
+        eprintln!(
+            "fly: the --gnss-* flags do not combine with the gnss aspect (--gnss-random, --vary \
+             gnss), which draws each run's receiver"
+        );
         return Err(ExitCode::from(2));
     }
     Ok(aspects)
@@ -587,14 +734,13 @@ fn main() -> ExitCode {
             print_report(&airframe.name, &fly(&airframe, &config));
         }
         Command::Case { seed, trace, world: world_args } => {
-            let aspects = match checked_aspects(&world_args, motion_capture) {
+            let aspects = match checked_aspects(&world_args, motion_capture, &args.gnss) {
                 Ok(aspects) => aspects,
                 Err(code) => return code,
             };
-            let (airframe, mut config) = case(seed, &aspects, motion_capture, &world_args);
+            let (airframe, mut config) = case(seed, &aspects, motion_capture, &gnss, &world_args);
             config.trace = trace;
             config.end = args.end;
-            config.gnss = gnss;
             if !aspects.is_empty() {
                 println!("world: {config:#?}");
             }
@@ -608,7 +754,7 @@ fn main() -> ExitCode {
             print_report(&format!("case {seed}"), &fly(&airframe, &config));
         }
         Command::MonteCarlo { runs, seed, threads, world: world_args } => {
-            let aspects = match checked_aspects(&world_args, motion_capture) {
+            let aspects = match checked_aspects(&world_args, motion_capture, &args.gnss) {
                 Ok(aspects) => aspects,
                 Err(code) => return code,
             };
@@ -633,8 +779,8 @@ fn main() -> ExitCode {
             }
             let end = args.end;
             let results = monte_carlo(runs, seed, threads, &progress, |seed| {
-                let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
-                (airframe, FlyConfig { end, gnss: gnss.clone(), ..config })
+                let (airframe, config) = case(seed, &aspects, motion_capture, &gnss, &world_args);
+                (airframe, FlyConfig { end, ..config })
             });
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
@@ -856,9 +1002,20 @@ fn main() -> ExitCode {
             if aspects.contains(&Aspect::Wind) {
                 let worlds: Vec<WorldEffects> = results
                     .iter()
-                    .map(|r| case(r.seed, &aspects, motion_capture, &world_args).1.board.world)
+                    .map(|r| {
+                        case(r.seed, &aspects, motion_capture, &gnss, &world_args).1.board.world
+                    })
                     .collect();
                 print_winds(&results, &worlds);
+            }
+            if aspects.contains(&Aspect::Gnss) {
+                let receivers: Vec<GnssModelConfig> = results
+                    .iter()
+                    .filter_map(|r| {
+                        case(r.seed, &aspects, motion_capture, &gnss, &world_args).1.gnss
+                    })
+                    .collect();
+                print_gnss_bands(&results, &receivers);
             }
             print_landings(&results);
             print_after_recovery(&results);
