@@ -45,6 +45,7 @@
 use firmware::drivers::ubx::{FixType, GnssFix};
 use nalgebra::Vector3;
 
+use crate::recovery::{FlyReport, Verdict};
 use crate::rng::Rng;
 
 /// WGS-84 semi-major axis, m (NIMA TR8350.2, table 3.1).
@@ -150,6 +151,11 @@ pub const HOLD_FIX_RMS_MULTIPLE: f64 = 2.0;
 /// under a partial sky.
 pub const RANDOM_NOISE_M: (f64, f64) = (0.02, 2.0);
 
+/// The range of the velocity noise per axis that [`GnssModelConfig::random`] draws from
+/// (uniform), m/s: sAcc of 0.035–0.35 m/s, what u-blox M8–M10 receivers report moving in the
+/// open and under a partial sky.
+pub const RANDOM_VELOCITY_NOISE_MPS: (f64, f64) = (0.02, 0.2);
+
 /// The simulated receiver's behaviour. Ranges are checked by [`GnssModelConfig::validate`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct GnssModelConfig {
@@ -235,7 +241,8 @@ impl GnssModelConfig {
     }
 
     /// A receiver drawn from the randomised world: noise 0.02–2 m (log-uniform)
-    /// correlated over 2–60 s, vertical 1.5–2.5× horizontal, 5–10 Hz, 50–150 ms late, multipath
+    /// correlated over 2–60 s, vertical 1.5–2.5× horizontal, velocity noise 0.02–0.2 m/s per
+    /// axis, 5–10 Hz, 50–150 ms late, multipath
     /// jumps of 1–5 m for 1–10 s at up to one a minute, and in half the draws dropouts of 0.5–5 s
     /// at up to one every 100 s.
     pub fn random(rng: &mut Rng) -> Self {
@@ -249,7 +256,7 @@ impl GnssModelConfig {
             vertical_sigma_m: sigma * rng.range(1.5, 2.5),
             correlation_time_s: rng.range(2.0, 60.0),
             white_noise_m: sigma * rng.range(0.05, 0.3),
-            velocity_noise_mps: rng.range(0.02, 0.2),
+            velocity_noise_mps: rng.range(RANDOM_VELOCITY_NOISE_MPS.0, RANDOM_VELOCITY_NOISE_MPS.1),
             multipath_per_s: rng.range(0.0, 1.0 / 60.0),
             multipath_jump_m: rng.range(1.0, 5.0),
             multipath_s: rng.range(1.0, 10.0),
@@ -282,6 +289,18 @@ impl GnssModelConfig {
     /// for a 2 cm (RTK-like) one, about 6 m for a 2 m one.
     pub fn hold_bound_m(&self) -> f64 {
         HOLD_CONTROL_ALLOWANCE_M + HOLD_FIX_RMS_MULTIPLE * self.reported_accuracies().0
+    }
+
+    /// Whether a flight on this receiver held its position: it hovered
+    /// ([`Verdict::Held`] or [`Verdict::HoveredLoose`]), and its worst horizontal distance from
+    /// the setpoint over the hold window (the part of it flown in position hold, as for
+    /// [`Verdict::Held`]: a hold begins once the recovery has stopped and the heading is learned)
+    /// is within [`GnssModelConfig::hold_bound_m`]. Vertically a receiver is 1.5–2.5 times
+    /// worse, and no bound is drawn there. Multipath is in no receiver's hAcc: a jump the craft
+    /// follows (the estimator takes it after refusing it for 5 s) fails the bound.
+    pub fn held(&self, report: &FlyReport) -> bool {
+        matches!(Verdict::of(report), Verdict::Held | Verdict::HoveredLoose)
+            && report.max_hold_error_horizontal_m.is_some_and(|e| e <= self.hold_bound_m())
     }
 
     /// The ratio of the vertical error to the horizontal (1 when both are 0).

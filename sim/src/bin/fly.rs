@@ -460,27 +460,30 @@ fn print_winds(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects]) {
 }
 
 /// Upper edges of the receiver-noise bands a Monte Carlo with the `gnss` aspect reports its
-/// holds in, m (the correlated horizontal error per axis; the last band runs to the top of
+/// holds in, m (the correlated horizontal error per axis; the bands run over
 /// [`sim::gnss::RANDOM_NOISE_M`]): RTK-like and dual-frequency receivers below 0.1 m, a good
 /// single-frequency one in the open up to 0.3 m (`fly --gnss`'s), a partial sky up to 1 m, and
 /// worse.
 const GNSS_NOISE_BAND_EDGES_M: [f64; 3] = [0.1, 0.3, 1.0];
 
+/// Upper edges of the velocity-noise bands the same report gives, m/s per axis (over
+/// [`sim::gnss::RANDOM_VELOCITY_NOISE_MPS`]): the heading is learned from the receiver's
+/// velocity changes, so its noise decides how soon the craft can hold a position.
+const GNSS_VELOCITY_BAND_EDGES_MPS: [f64; 3] = [0.05, 0.1, 0.15];
+
 /// Seeds listed per band of a report, at most (the rest are counted).
 const SEEDS_LISTED: usize = 20;
 
-/// The receivers of a Monte Carlo that drew them (`receivers[i]` is `results[i]`'s), per
-/// [`GNSS_NOISE_BAND_EDGES_M`] band of their noise: how many runs hovered and held, the worst
-/// horizontal distance from the setpoint over the hold window, the heading, the fixes refused,
-/// and the landings.
+/// The receivers of a Monte Carlo that drew them (`receivers[i]` is `results[i]`'s): what was
+/// drawn, and per [`GNSS_NOISE_BAND_EDGES_M`] band of the noise and per
+/// [`GNSS_VELOCITY_BAND_EDGES_MPS`] band of the velocity noise how many runs hovered and held,
+/// the worst horizontal distance from the setpoint over the hold window, the heading, the fixes
+/// refused and the landings, with the seeds that did not hold.
 ///
-/// "Held", in every band, scales with the run's own receiver: the run hovered and its worst
-/// horizontal distance from the setpoint over the hold window is within
-/// [`GnssModelConfig::hold_bound_m`], 0.3 m for the control plus twice the receiver's hAcc (its
-/// 2DRMS: 98 % of its fixes are nearer the truth). In the 0.02–0.1 m band that is about
-/// 0.36–0.6 m, in 0.1–0.3 m 0.6–1.2 m, in 0.3–1 m 1.2–3.2 m, in 1–2 m 3.1–6.2 m (the white
+/// "Held" scales with each run's receiver ([`GnssModelConfig::held`]): within 0.3 m + 2 hAcc of
+/// the setpoint horizontally. Per band of the receiver's noise that is about 0.36–0.6 m in
+/// 0.02–0.1 m, 0.6–1.2 m in 0.1–0.3 m, 1.2–3.2 m in 0.3–1 m and 3.1–6.2 m in 1–2 m (the white
 /// noise, drawn per run, makes the ranges overlap a little; each band prints its own).
-/// Vertically a receiver is 1.5–2.5 times worse, and no bound is drawn there.
 fn print_gnss_bands(results: &[sim::recovery::CaseResult], receivers: &[GnssModelConfig]) {
     let sigmas: Vec<f64> = receivers.iter().map(|g| g.horizontal_sigma_m).collect();
     print_quantiles(
@@ -499,30 +502,56 @@ fn print_gnss_bands(results: &[sim::recovery::CaseResult], receivers: &[GnssMode
         sim::gnss::HOLD_CONTROL_ALLOWANCE_M,
         sim::gnss::HOLD_FIX_RMS_MULTIPLE
     );
-    let band_of =
-        |sigma: f64| GNSS_NOISE_BAND_EDGES_M.iter().filter(|&&edge| sigma >= edge).count();
+    let runs: Vec<_> = results.iter().zip(receivers).collect();
+    print_gnss_band_lines(
+        &runs,
+        "noise",
+        " m",
+        &GNSS_NOISE_BAND_EDGES_M,
+        sim::gnss::RANDOM_NOISE_M,
+        |g| g.horizontal_sigma_m,
+    );
+    print_gnss_band_lines(
+        &runs,
+        "velocity noise",
+        " m/s",
+        &GNSS_VELOCITY_BAND_EDGES_MPS,
+        sim::gnss::RANDOM_VELOCITY_NOISE_MPS,
+        |g| g.velocity_noise_mps,
+    );
+    let held = runs.iter().filter(|(r, g)| g.held(&r.report)).count();
+    println!(
+        "  held within their receivers' bounds: {held} of {} runs ({:.1} %)",
+        results.len(),
+        100.0 * held as f64 / results.len().max(1) as f64
+    );
+}
+
+/// One line per band of `value` (edges `edges`, the whole over `range`) of the runs on their
+/// receivers: see [`print_gnss_bands`].
+fn print_gnss_band_lines(
+    runs: &[(&sim::recovery::CaseResult, &GnssModelConfig)],
+    name: &str,
+    unit: &str,
+    edges: &[f64],
+    range: (f64, f64),
+    value: fn(&GnssModelConfig) -> f64,
+) {
     let mut bands: BTreeMap<usize, Vec<(&sim::recovery::CaseResult, &GnssModelConfig)>> =
         BTreeMap::new();
-    for (r, g) in results.iter().zip(receivers) {
-        bands.entry(band_of(g.horizontal_sigma_m)).or_default().push((r, g));
+    for &(r, g) in runs {
+        bands
+            .entry(edges.iter().filter(|&&edge| value(g) >= edge).count())
+            .or_default()
+            .push((r, g));
     }
     let hovered =
         |r: &sim::recovery::CaseResult| matches!(r.verdict, Verdict::Held | Verdict::HoveredLoose);
-    let held = |r: &sim::recovery::CaseResult, g: &GnssModelConfig| {
-        hovered(r) && r.report.max_hold_error_horizontal_m.is_some_and(|e| e <= g.hold_bound_m())
-    };
-    let mut held_total = 0;
     for (band, runs) in &bands {
-        let low = if *band == 0 {
-            sim::gnss::RANDOM_NOISE_M.0
-        } else {
-            GNSS_NOISE_BAND_EDGES_M[band - 1]
-        };
-        let high =
-            GNSS_NOISE_BAND_EDGES_M.get(*band).copied().unwrap_or(sim::gnss::RANDOM_NOISE_M.1);
+        let low = if *band == 0 { range.0 } else { edges[band - 1] };
+        let high = edges.get(*band).copied().unwrap_or(range.1);
         let hovered_runs = runs.iter().filter(|(r, _)| hovered(r)).count();
-        let held_runs = runs.iter().filter(|(r, g)| held(r, g)).count();
-        held_total += held_runs;
+        let held_runs = runs.iter().filter(|(r, g)| g.held(&r.report)).count();
         let bounds: Vec<f64> = runs.iter().map(|(_, g)| g.hold_bound_m()).collect();
         let errors: Vec<f64> =
             runs.iter().filter_map(|(r, _)| r.report.max_hold_error_horizontal_m).collect();
@@ -531,24 +560,20 @@ fn print_gnss_bands(results: &[sim::recovery::CaseResult], receivers: &[GnssMode
             .iter()
             .filter(|(r, _)| r.report.heading_error_deg.is_some_and(|e| e.abs() <= 10.0))
             .count();
-        let refused: Vec<f64> =
-            runs.iter().map(|(r, _)| f64::from(r.report.fixes_rejected)).collect();
+        let refused = runs.iter().filter(|(r, _)| r.report.fixes_rejected > 0).count();
         let landings: Vec<_> = runs.iter().filter_map(|(r, _)| r.report.landing).collect();
         let gentle = landings.iter().filter(|l| l.gentle()).count();
         println!(
-            "  noise {low:.2}–{high:.2} m: {} runs, hovered {}, held {} ({:.1} %; bounds \
-             {:.2}–{:.2} m); horizontal hold error median {:.2} m, 90th {:.2} m; heading \
-             aligned {aligned}, within 10° at the end {within_10_deg}; fixes refused median {:.0}\
-             {}",
+            "  {name} {low:.2}–{high:.2}{unit}: {} runs, hovered {hovered_runs}, held {held_runs} \
+             ({:.1} %; bounds {:.2}–{:.2} m); horizontal hold error median {:.2} m, 90th {:.2} \
+             m; heading learned {aligned}, within 10° at the end {within_10_deg}; fixes refused \
+             in {refused}{}",
             runs.len(),
-            hovered_runs,
-            held_runs,
             100.0 * held_runs as f64 / runs.len() as f64,
             bounds.iter().copied().fold(f64::INFINITY, f64::min),
             bounds.iter().copied().fold(0.0, f64::max),
             quantile(&errors, 0.5),
             quantile(&errors, 0.9),
-            quantile(&refused, 0.5),
             if landings.is_empty() {
                 String::new()
             } else {
@@ -557,11 +582,18 @@ fn print_gnss_bands(results: &[sim::recovery::CaseResult], receivers: &[GnssMode
         );
         let not_held: Vec<String> = runs
             .iter()
-            .filter(|(r, g)| !held(r, g))
+            .filter(|(r, g)| !g.held(&r.report))
             .map(|(r, g)| match r.report.max_hold_error_horizontal_m {
-                Some(e) if hovered(r) => {
-                    format!("{} ({e:.2} m, bound {:.2} m)", r.seed, g.hold_bound_m())
+                Some(e) if hovered(r) => format!(
+                    "{} ({e:.2} m, bound {:.2} m, in hold {:.0} % of the window)",
+                    r.seed,
+                    g.hold_bound_m(),
+                    100.0 * r.report.hold_coverage
+                ),
+                None if hovered(r) && r.report.heading_aligned_s.is_none() => {
+                    format!("{} (heading never learned)", r.seed)
                 }
+                None if hovered(r) => format!("{} (no position hold)", r.seed),
                 _ => format!("{} ({:?})", r.seed, r.verdict),
             })
             .collect();
@@ -574,11 +606,6 @@ fn print_gnss_bands(results: &[sim::recovery::CaseResult], receivers: &[GnssMode
             );
         }
     }
-    println!(
-        "  held within their receivers' bounds: {held_total} of {} runs ({:.1} %)",
-        results.len(),
-        100.0 * held_total as f64 / results.len().max(1) as f64
-    );
 }
 
 /// The hand's grabs of a Monte Carlo (`--end catch`), and the hand-catch detector's stops
