@@ -9,6 +9,7 @@
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --mocap-rate-hz 2000 --mocap-latency-ms 30
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --world random --unknown-imu-offset
 //! cargo run -p sim --release --bin fly -- monte-carlo --world random --runs 200 --no-speed-telemetry
+//! cargo run -p sim --release --bin fly -- --end land monte-carlo --world random --gnss-random --runs 300
 //! ```
 //!
 //! `--unknown-imu-offset` flies an uncalibrated board: the firmware is not given the airframe's
@@ -38,6 +39,15 @@
 //! X (bearing and turbulence as the seed draws them), so a sweep over the speed flies the same
 //! cases. A Monte Carlo with the wind reports the speeds drawn and how many runs held in each
 //! 2 m/s band of them; `fly case --seed N` with the same flags flies one of its runs again.
+//!
+//! `--gnss` flies on a simulated u-blox receiver instead of motion capture (`sim::gnss`, shaped by
+//! `--gnss-noise-m`, `--gnss-rate-hz`, `--gnss-latency-ms`, `--gnss-multipath-per-min`,
+//! `--gnss-multipath-s`); `--gnss-random` (or `--vary gnss`) on a receiver drawn per run
+//! (`sim::world`, aspect `gnss`: 0.02–2 m, 5–10 Hz, 50–150 ms late, multipath, dropouts; the
+//! firmware told its latency), and the Monte Carlo then reports, per band of the receivers'
+//! noise and of their velocity noise, how many runs hovered and held within their own
+//! receiver's bound (0.3 m + 2 hAcc horizontally, `sim::gnss::GnssModelConfig::held`), their
+//! hold errors and how many learned their heading, with the seeds that did not hold.
 //!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
