@@ -10,7 +10,10 @@
 //!
 //! The byte layouts (little-endian, fixed-size, versioned) are in `docs/sim-bridge.md` and in
 //! [`SensorPacket`] and [`MotorPacket`]. Version 2 lets the sensor packet carry an external pose
-//! (what motion capture would give the board); version 1 packets stay valid.
+//! (what motion capture would give the board) and a GNSS receiver's solution ([`GnssSolution`]:
+//! what a u-blox receiver would send it, which the bridge encodes as the receiver's NAV-PVT
+//! bytes and hands to the firmware's own driver, as the board's GNSS UART would); version 1
+//! packets stay valid.
 //!
 //! [`serve_firmware`] is the loop behind `scenario bridge`: the firmware application behind the
 //! bridge, optionally serving the configurator protocol on TCP meanwhile.
@@ -21,9 +24,11 @@ use std::time::{Duration, Instant};
 use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, MAX_MOTORS};
 use firmware::app::system::TickHardware;
 use firmware::app::ControlCommand;
+use firmware::drivers::ubx::{FixType, GnssConfig, GnssFix};
 use protocol::{ExternalPose, LearnerFailure};
 
 use crate::board::{CONTROL_PERIOD_US, CONTROL_RATE_HZ};
+use crate::gnss::BoardGnss;
 use crate::radio::RcTransmitter;
 use crate::scenario::{FirmwareApp, FlightApp};
 use crate::serve::TcpLinks;
@@ -42,6 +47,11 @@ pub const FLAG_POSE: u16 = 1 << 0;
 /// Length of the external pose in a sensor packet, bytes: position NED (3 × f32, m) and
 /// heading (f32, rad).
 pub const POSE_LEN: usize = 16;
+/// Sensor-packet flag (version 2 and later): a GNSS solution ([`GnssSolution`]) follows the
+/// motor speeds, after the pose when both are present.
+pub const FLAG_GNSS: u16 = 1 << 1;
+/// Length of the GNSS solution in a sensor packet, bytes ([`GnssSolution`]).
+pub const GNSS_LEN: usize = 52;
 /// Magic of the sensor packet, bytes 0–3 (ASCII).
 pub const SENSOR_MAGIC: [u8; 4] = *b"FCSN";
 /// Magic of the motor packet, bytes 0–3 (ASCII).
@@ -50,8 +60,8 @@ pub const MOTOR_MAGIC: [u8; 4] = *b"FCMO";
 pub const SENSOR_HEADER_LEN: usize = 48;
 /// Motor packet header length before the commands, bytes.
 pub const MOTOR_HEADER_LEN: usize = 16;
-/// Longest packet, bytes (version-2 sensor packet with 8 motors and a pose).
-pub const MAX_PACKET_LEN: usize = SENSOR_HEADER_LEN + 4 * MAX_MOTORS + POSE_LEN;
+/// Longest packet, bytes (version-2 sensor packet with 8 motors, a pose and a GNSS solution).
+pub const MAX_PACKET_LEN: usize = SENSOR_HEADER_LEN + 4 * MAX_MOTORS + POSE_LEN + GNSS_LEN;
 
 /// Why a packet or an exchange failed.
 #[derive(Debug, thiserror::Error)]
@@ -62,7 +72,8 @@ pub enum BridgeError {
     /// Nothing arrived in time.
     #[error("no packet within {0:?}")]
     Timeout(Duration),
-    /// The packet is shorter than its header, its motor count or its pose needs.
+    /// The packet is shorter than its header, its motor count, its pose or its GNSS solution
+    /// needs.
     #[error("packet of {len} bytes is too short: {need} bytes needed")]
     TooShort {
         /// Received length.
@@ -90,14 +101,14 @@ impl From<std::io::Error> for BridgeError {
     }
 }
 
-/// Simulator → application, `48 + 4m` bytes, `+ 16` with a pose.
+/// Simulator → application, `48 + 4m` bytes, `+ 16` with a pose, `+ 52` with a GNSS solution.
 ///
 /// | offset | type | field |
 /// |---|---|---|
 /// | 0 | `[u8; 4]` | magic `"FCSN"` |
 /// | 4 | `u8` | version (1 or 2) |
 /// | 5 | `u8` | motor count m (1–8) |
-/// | 6 | `u16` | flags: bit 0 ([`FLAG_POSE`]) = a pose follows (version 2; ignored in version 1) |
+/// | 6 | `u16` | flags: bit 0 ([`FLAG_POSE`]) = a pose follows, bit 1 ([`FLAG_GNSS`]) = a GNSS solution follows (version 2; ignored in version 1) |
 /// | 8 | `u64` | sequence number, echoed in the reply |
 /// | 16 | `f64` | simulation time, s |
 /// | 24 | `f32 × 3` | gyro, rad/s, IMU axes |
@@ -105,10 +116,11 @@ impl From<std::io::Error> for BridgeError {
 /// | 48 | `f32 × m` | motor speeds, rad/s; NaN = not reported |
 /// | 48 + 4m | `f32 × 3` | with [`FLAG_POSE`]: position of the centre of gravity, world NED, m |
 /// | 60 + 4m | `f32` | with [`FLAG_POSE`]: heading (yaw of the body frame about world z), rad |
+/// | 48 + 4m (+ 16 after a pose) | 52 bytes | with [`FLAG_GNSS`]: the GNSS solution ([`GnssSolution`]) |
 ///
-/// [`SensorPacket::encode`] writes version 2 when [`SensorPacket::pose`] is set or
-/// [`SensorPacket::version`] is 2 or more, version 1 otherwise; [`SensorPacket::decode`] fills
-/// `version` from the packet.
+/// [`SensorPacket::encode`] writes version 2 when [`SensorPacket::pose`] or
+/// [`SensorPacket::gnss`] is set or [`SensorPacket::version`] is 2 or more, version 1 otherwise;
+/// [`SensorPacket::decode`] fills `version` from the packet.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorPacket {
     /// Version to write (1 or 2; a pose always makes it 2); as received when decoded.
@@ -124,8 +136,147 @@ pub struct SensorPacket {
     /// Motor speeds, rad/s (`None` = not reported).
     pub speeds_rad_s: [Option<f32>; MAX_MOTORS],
     /// The external pose (version 2 with [`FLAG_POSE`]): motion capture's centre-of-gravity
-    /// position and heading. The only truth that crosses the bridge, and only when sent.
+    /// position and heading.
     pub pose: Option<ExternalPose>,
+    /// A GNSS receiver's solution (version 2 with [`FLAG_GNSS`]). With the pose, the only
+    /// measurements of the world that cross the bridge besides the IMU's and the motors', and
+    /// only when sent.
+    pub gnss: Option<GnssSolution>,
+}
+
+/// A GNSS receiver's navigation solution as the sensor packet carries it ([`FLAG_GNSS`]): the
+/// fields of a u-blox UBX-NAV-PVT message the firmware uses, in SI units, 52 bytes. The bridge
+/// writes it as the NAV-PVT frame a receiver would send ([`GnssSolution::to_nav_pvt`]) and feeds
+/// the bytes to the firmware's own driver (`firmware::drivers::ubx`,
+/// `firmware::app::gnss::GnssInput`), as the board's GNSS UART does.
+///
+/// | offset | type | field |
+/// |---|---|---|
+/// | 0 | `u32` | time of week of the solution's epoch, ms (NAV-PVT `iTOW`): a solution is taken once, whatever packets repeat it |
+/// | 4 | `u8` | fix type (NAV-PVT `fixType`: 0 none, 2 2D, 3 3D, 4 GNSS + dead reckoning) |
+/// | 5 | `u8` | flags: bit 0 = `gnssFixOK` (a fix within the receiver's limits); other bits reserved |
+/// | 6 | `u8` | satellites used (`numSV`) |
+/// | 7 | `u8` | reserved (0) |
+/// | 8 | `f64` | latitude, degrees (WGS-84) |
+/// | 16 | `f64` | longitude, degrees (WGS-84) |
+/// | 24 | `f32` | height above the WGS-84 ellipsoid, m |
+/// | 28 | `f32 × 3` | velocity north, east, down, m/s |
+/// | 40 | `f32` | horizontal accuracy `hAcc`, m (the horizontal error's RMS) |
+/// | 44 | `f32` | vertical accuracy `vAcc`, m (one standard deviation) |
+/// | 48 | `f32` | speed accuracy `sAcc`, m/s (the 3D velocity error's RMS) |
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GnssSolution {
+    /// Time of week of the solution's epoch, ms.
+    pub time_of_week_ms: u32,
+    /// NAV-PVT `fixType`.
+    pub fix_type: FixType,
+    /// NAV-PVT `gnssFixOK`.
+    pub fix_ok: bool,
+    /// Satellites used.
+    pub satellites: u8,
+    /// Latitude, degrees.
+    pub latitude_deg: f64,
+    /// Longitude, degrees.
+    pub longitude_deg: f64,
+    /// Height above the WGS-84 ellipsoid, m.
+    pub height_ellipsoid_m: f32,
+    /// Velocity north, east, down, m/s.
+    pub velocity_ned_mps: [f32; 3],
+    /// `hAcc`, m.
+    pub horizontal_accuracy_m: f32,
+    /// `vAcc`, m.
+    pub vertical_accuracy_m: f32,
+    /// `sAcc`, m/s.
+    pub speed_accuracy_mps: f32,
+}
+
+/// [`GnssSolution`]'s flags, bit 0: `gnssFixOK`.
+const GNSS_FLAG_FIX_OK: u8 = 1 << 0;
+
+impl GnssSolution {
+    /// The solution in a receiver's NAV-PVT: date and time valid and resolved, the position
+    /// valid, `hMSL` the ellipsoidal height (the geoid's undulation unknown) and `pDOP` 0 (not
+    /// given); the firmware uses neither. The frame then rounds as a receiver's does: 1e-7° of
+    /// latitude and longitude, 1 mm and 1 mm/s.
+    pub fn to_nav_pvt(&self) -> GnssFix {
+        GnssFix {
+            time_of_week_ms: self.time_of_week_ms,
+            date_valid: true,
+            time_valid: true,
+            time_fully_resolved: true,
+            fix_type: self.fix_type,
+            gnss_fix_ok: self.fix_ok,
+            position_invalid: false,
+            satellites: self.satellites,
+            latitude_deg: self.latitude_deg,
+            longitude_deg: self.longitude_deg,
+            height_ellipsoid_m: self.height_ellipsoid_m,
+            height_msl_m: self.height_ellipsoid_m,
+            horizontal_accuracy_m: self.horizontal_accuracy_m,
+            vertical_accuracy_m: self.vertical_accuracy_m,
+            velocity_ned_mps: self.velocity_ned_mps,
+            speed_accuracy_mps: self.speed_accuracy_mps,
+            position_dop: 0.0,
+        }
+    }
+
+    /// The fields of a receiver's NAV-PVT that the block carries.
+    pub fn from_nav_pvt(fix: &GnssFix) -> Self {
+        Self {
+            time_of_week_ms: fix.time_of_week_ms,
+            fix_type: fix.fix_type,
+            fix_ok: fix.gnss_fix_ok,
+            satellites: fix.satellites,
+            latitude_deg: fix.latitude_deg,
+            longitude_deg: fix.longitude_deg,
+            height_ellipsoid_m: fix.height_ellipsoid_m,
+            velocity_ned_mps: fix.velocity_ned_mps,
+            horizontal_accuracy_m: fix.horizontal_accuracy_m,
+            vertical_accuracy_m: fix.vertical_accuracy_m,
+            speed_accuracy_mps: fix.speed_accuracy_mps,
+        }
+    }
+
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.time_of_week_ms.to_le_bytes());
+        out.extend_from_slice(&[
+            self.fix_type.raw(),
+            u8::from(self.fix_ok) * GNSS_FLAG_FIX_OK,
+            self.satellites,
+            0,
+        ]);
+        out.extend_from_slice(&self.latitude_deg.to_le_bytes());
+        out.extend_from_slice(&self.longitude_deg.to_le_bytes());
+        let floats = [self.height_ellipsoid_m].into_iter().chain(self.velocity_ned_mps).chain([
+            self.horizontal_accuracy_m,
+            self.vertical_accuracy_m,
+            self.speed_accuracy_mps,
+        ]);
+        for v in floats {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+
+    /// Reads the block at `at` (the caller checked the length).
+    fn decode(bytes: &[u8], at: usize) -> Self {
+        let f64_at = |offset: usize| {
+            f64::from_le_bytes(bytes[at + offset..at + offset + 8].try_into().expect("8 bytes"))
+        };
+        let f32_at = |offset: usize| f32_at(bytes, at + offset);
+        Self {
+            time_of_week_ms: u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")),
+            fix_type: FixType::from_raw(bytes[at + 4]),
+            fix_ok: bytes[at + 5] & GNSS_FLAG_FIX_OK != 0,
+            satellites: bytes[at + 6],
+            latitude_deg: f64_at(8),
+            longitude_deg: f64_at(16),
+            height_ellipsoid_m: f32_at(24),
+            velocity_ned_mps: [f32_at(28), f32_at(32), f32_at(36)],
+            horizontal_accuracy_m: f32_at(40),
+            vertical_accuracy_m: f32_at(44),
+            speed_accuracy_mps: f32_at(48),
+        }
+    }
 }
 
 /// Application → simulator, `16 + 4m` bytes, the same layout in both versions.
@@ -203,20 +354,22 @@ fn write_header(
 }
 
 impl SensorPacket {
-    /// The version [`SensorPacket::encode`] writes: 2 with a pose or when `version` ≥ 2, else 1.
+    /// The version [`SensorPacket::encode`] writes: 2 with a pose, a GNSS solution or when
+    /// `version` ≥ 2, else 1.
     pub fn wire_version(&self) -> u8 {
-        if self.pose.is_some() {
+        if self.pose.is_some() || self.gnss.is_some() {
             2
         } else {
             wire_version(self.version)
         }
     }
 
-    /// The packet's bytes: `48 + 4m`, `+ 16` with a pose.
+    /// The packet's bytes: `48 + 4m`, `+ 16` with a pose, `+ 52` with a GNSS solution.
     pub fn encode(&self) -> Vec<u8> {
         let m = self.motor_count as usize;
-        let flags = if self.pose.is_some() { FLAG_POSE } else { 0 };
-        let mut out = Vec::with_capacity(SENSOR_HEADER_LEN + 4 * m + POSE_LEN);
+        let flags = if self.pose.is_some() { FLAG_POSE } else { 0 }
+            | if self.gnss.is_some() { FLAG_GNSS } else { 0 };
+        let mut out = Vec::with_capacity(SENSOR_HEADER_LEN + 4 * m + POSE_LEN + GNSS_LEN);
         let version = self.wire_version();
         write_header(&mut out, SENSOR_MAGIC, version, self.motor_count, flags, self.sequence);
         out.extend_from_slice(&self.time_s.to_le_bytes());
@@ -231,11 +384,15 @@ impl SensorPacket {
                 out.extend_from_slice(&v.to_le_bytes());
             }
         }
+        if let Some(gnss) = &self.gnss {
+            gnss.encode(&mut out);
+        }
         out
     }
 
     /// Parses a packet. Version 1 ignores the flags; version 2 reads the pose when bit 0 of the
-    /// flags is set (other bits are ignored). Bytes after the packet are ignored.
+    /// flags is set and then the GNSS solution when bit 1 is (other bits are ignored). Bytes
+    /// after the packet are ignored.
     pub fn decode(bytes: &[u8]) -> Result<Self, BridgeError> {
         let (version, m) = check_header(bytes, SENSOR_MAGIC, SENSOR_HEADER_LEN)?;
         let mut speeds_rad_s = [None; MAX_MOTORS];
@@ -243,20 +400,25 @@ impl SensorPacket {
             let v = f32_at(bytes, SENSOR_HEADER_LEN + 4 * i);
             *s = (!v.is_nan()).then_some(v);
         }
-        let flags = u16::from_le_bytes([bytes[6], bytes[7]]);
-        let pose = if version >= 2 && flags & FLAG_POSE != 0 {
-            let at = SENSOR_HEADER_LEN + 4 * m;
-            let need = at + POSE_LEN;
+        let flags = if version >= 2 { u16::from_le_bytes([bytes[6], bytes[7]]) } else { 0 };
+        // Each optional block in turn, where the one before ended.
+        let mut at = SENSOR_HEADER_LEN + 4 * m;
+        let mut block = |flag: u16, len: usize| {
+            if flags & flag == 0 {
+                return Ok(None);
+            }
+            let (start, need) = (at, at + len);
             if bytes.len() < need {
                 return Err(BridgeError::TooShort { len: bytes.len(), need });
             }
-            Some(ExternalPose {
-                position_ned_m: [f32_at(bytes, at), f32_at(bytes, at + 4), f32_at(bytes, at + 8)],
-                heading_rad: f32_at(bytes, at + 12),
-            })
-        } else {
-            None
+            at = need;
+            Ok(Some(start))
         };
+        let pose = block(FLAG_POSE, POSE_LEN)?.map(|at| ExternalPose {
+            position_ned_m: [f32_at(bytes, at), f32_at(bytes, at + 4), f32_at(bytes, at + 8)],
+            heading_rad: f32_at(bytes, at + 12),
+        });
+        let gnss = block(FLAG_GNSS, GNSS_LEN)?.map(|at| GnssSolution::decode(bytes, at));
         Ok(Self {
             version,
             sequence: u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")),
@@ -268,6 +430,7 @@ impl SensorPacket {
             motor_count: m as u8,
             speeds_rad_s,
             pose,
+            gnss,
         })
     }
 }
@@ -339,8 +502,19 @@ impl Motors for BridgeMotors {
 pub struct BridgeServer {
     socket: UdpSocket,
     motors: BridgeMotors,
+    /// The board's GNSS UART and the firmware's receiver code behind it, fed the packets' GNSS
+    /// solutions as NAV-PVT bytes.
+    gnss: BoardGnss,
     buf: [u8; 1500],
 }
+
+/// Why a GNSS latency was refused ([`BridgeServer::set_gnss_latency_s`]).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error(
+    "GNSS latency {0} s is outside 0..={max} s",
+    max = firmware::app::MAX_POSE_LATENCY_S
+)]
+pub struct GnssLatencyError(pub f64);
 
 impl BridgeServer {
     /// Binds the listening socket (e.g. `127.0.0.1:9003`, or port 0 for any free port).
@@ -352,8 +526,23 @@ impl BridgeServer {
                 commands: [0.0; MAX_MOTORS],
                 speeds_rad_s: [None; MAX_MOTORS],
             },
+            gnss: board_gnss(f64::from(firmware::app::gnss::DEFAULT_GNSS_LATENCY_S)),
             buf: [0; 1500],
         })
+    }
+
+    /// The latency the firmware gives the packets' GNSS solutions, s (`scenario bridge
+    /// --gnss-latency-ms`; without it the firmware's default, 0.1 s): each describes the craft
+    /// this long before the packet that carries it, as a user tells a board its receiver's.
+    /// Outside 0–`MAX_POSE_LATENCY_S` (0.2 s) it is refused and nothing changes. Set it before
+    /// the first packet: the receiver code starts afresh.
+    pub fn set_gnss_latency_s(&mut self, latency_s: f64) -> Result<(), GnssLatencyError> {
+        let max_s = f64::from(firmware::app::MAX_POSE_LATENCY_S);
+        if !(latency_s.is_finite() && (0.0..=max_s).contains(&latency_s)) {
+            return Err(GnssLatencyError(latency_s));
+        }
+        self.gnss = board_gnss(latency_s);
+        Ok(())
     }
 
     /// The bound address.
@@ -364,7 +553,11 @@ impl BridgeServer {
     /// Waits up to `timeout` (at least 1 µs) for one sensor packet, runs one application step on
     /// it and sends the motor packet (with the sensor packet's version and sequence number) back
     /// to the sender. A pose in the packet goes to the application first, as
-    /// [`ControlCommand::ExternalPose`] at the packet's time. Returns the packet answered.
+    /// [`ControlCommand::ExternalPose`] at the packet's time; then the GNSS solution, as the
+    /// receiver's NAV-PVT bytes through the firmware's driver, which hands a new 3D fix to the
+    /// application as [`ControlCommand::PositionFix`] (the driver runs every packet, so its
+    /// search, configuration and loss of the receiver keep the packets' time). Returns the
+    /// packet answered.
     /// Malformed packets are answered with nothing and reported as errors (the caller decides
     /// whether to go on).
     pub fn step<A: FlightApp>(
@@ -390,6 +583,10 @@ impl BridgeServer {
         if let Some(pose) = sensor.pose {
             app.command(ControlCommand::ExternalPose(pose), now_us);
         }
+        let nav_pvt = sensor.gnss.map(|solution| solution.to_nav_pvt().to_frame());
+        if let Some(fix) = self.gnss.receive(nav_pvt.as_ref().map_or(&[], |f| &f[..]), now_us) {
+            app.command(ControlCommand::PositionFix(fix), now_us);
+        }
         app.step(now_us, &mut imu, &mut self.motors);
         let reply = MotorPacket {
             version: sensor.version,
@@ -400,6 +597,13 @@ impl BridgeServer {
         self.socket.send_to(&reply.encode(), from)?;
         Ok((sensor, reply))
     }
+}
+
+/// The firmware's receiver code behind the bridge, its solutions taken `latency_s` late; it
+/// configures the receiver as the board does by default (the outside simulator streams its
+/// solutions whatever it is sent).
+fn board_gnss(latency_s: f64) -> BoardGnss {
+    BoardGnss::new(GnssConfig::default(), latency_s)
 }
 
 /// The application time of a sensor packet, µs: `round(t · 10⁶)` (negative times count as 0).
@@ -833,6 +1037,7 @@ mod tests {
             motor_count: 6,
             speeds_rad_s,
             pose: None,
+            gnss: None,
         }
     }
 
@@ -851,6 +1056,7 @@ mod tests {
             motor_count: 2,
             speeds_rad_s,
             pose,
+            gnss: None,
         }
     }
 
@@ -899,6 +1105,100 @@ mod tests {
         assert_eq!(decoded.pose, Some(POSE));
     }
 
+    /// A 3D fix at 47.5° N, 8.5° E, 456 m, moving (0.5, −0.25, 0.125) m/s, hAcc 0.5 m, vAcc 1 m,
+    /// sAcc 0.25 m/s, 16 satellites, at Wednesday noon's time of week: exactly representable,
+    /// for byte-exact checks.
+    const GNSS: GnssSolution = GnssSolution {
+        time_of_week_ms: 302_400_000,
+        fix_type: FixType::Fix3d,
+        fix_ok: true,
+        satellites: 16,
+        latitude_deg: 47.5,
+        longitude_deg: 8.5,
+        height_ellipsoid_m: 456.0,
+        velocity_ned_mps: [0.5, -0.25, 0.125],
+        horizontal_accuracy_m: 0.5,
+        vertical_accuracy_m: 1.0,
+        speed_accuracy_mps: 0.25,
+    };
+
+    /// [`GNSS`]'s 52 bytes, as docs/sim-bridge.md shows them.
+    const GNSS_BYTES: [u8; GNSS_LEN] = [
+        0x00, 0x42, 0x06, 0x12, // time of week 302,400,000 ms
+        0x03, 0x01, 0x10, 0x00, // fix type 3 (3D), flags: gnssFixOK, 16 satellites, reserved
+        0x00, 0x00, 0x00, 0x00, 0x00, 0xC0, 0x47, 0x40, // latitude 47.5° (f64)
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x21, 0x40, // longitude 8.5° (f64)
+        0x00, 0x00, 0xE4, 0x43, // height above the ellipsoid 456 m
+        0x00, 0x00, 0x00, 0x3F, // velocity north 0.5 m/s
+        0x00, 0x00, 0x80, 0xBE, // velocity east -0.25 m/s
+        0x00, 0x00, 0x00, 0x3E, // velocity down 0.125 m/s
+        0x00, 0x00, 0x00, 0x3F, // hAcc 0.5 m
+        0x00, 0x00, 0x80, 0x3F, // vAcc 1.0 m
+        0x00, 0x00, 0x80, 0x3E, // sAcc 0.25 m/s
+    ];
+
+    #[test]
+    fn version_2_golden_bytes_with_a_gnss_solution_and_no_pose() {
+        let packet = SensorPacket { gnss: Some(GNSS), ..small(None) };
+        let bytes = packet.encode();
+        let mut expected = small_head(2, 0x02);
+        expected.extend_from_slice(&GNSS_BYTES);
+        assert_eq!(bytes.len(), 48 + 4 * 2 + 52);
+        assert_eq!(bytes, expected);
+        let decoded = SensorPacket::decode(&bytes).unwrap();
+        assert_eq!(decoded, SensorPacket { version: 2, ..packet });
+        assert_eq!(decoded.gnss, Some(GNSS));
+    }
+
+    #[test]
+    fn version_2_golden_bytes_with_a_pose_then_a_gnss_solution() {
+        let packet = SensorPacket { version: 2, gnss: Some(GNSS), ..small(Some(POSE)) };
+        let bytes = packet.encode();
+        // The pose's packet, flags bit 1 set, and the solution after the pose.
+        let mut expected = small(Some(POSE)).encode();
+        expected[6] = 0x03;
+        expected.extend_from_slice(&GNSS_BYTES);
+        assert_eq!(bytes.len(), 48 + 4 * 2 + 16 + 52);
+        assert_eq!(bytes, expected);
+        assert_eq!(SensorPacket::decode(&bytes).unwrap(), packet);
+    }
+
+    /// The solution becomes the NAV-PVT a receiver sends: the firmware's own parser reads back
+    /// every field the block carries (at the frame's resolution), a valid date, time and
+    /// position, and a 3D fix.
+    #[test]
+    fn a_gnss_solution_is_a_nav_pvt_frame_the_firmwares_parser_reads_back() {
+        use firmware::drivers::ubx::{Decoder, Message};
+        let solution = GnssSolution {
+            latitude_deg: 47.376_912_34,
+            longitude_deg: -122.123_456_78,
+            velocity_ned_mps: [1.234, -5.678, 0.9],
+            ..GNSS
+        };
+        let mut parsed = Vec::new();
+        Decoder::new().feed(&solution.to_nav_pvt().to_frame(), |frame| {
+            if let Message::NavPvt(fix) = Message::parse(&frame) {
+                parsed.push(fix);
+            }
+        });
+        let [fix] = parsed[..] else { panic!("{} NAV-PVT frames", parsed.len()) };
+        assert!(fix.has_3d_fix() && fix.date_valid && fix.time_valid && !fix.position_invalid);
+        let back = GnssSolution::from_nav_pvt(&fix);
+        assert_eq!(back.time_of_week_ms, solution.time_of_week_ms);
+        assert_eq!((back.fix_type, back.fix_ok, back.satellites), (FixType::Fix3d, true, 16));
+        // 1e-7° (1.1 cm) for latitude and longitude, 1 mm and 1 mm/s for the rest.
+        assert!((back.latitude_deg - solution.latitude_deg).abs() <= 0.5e-7 + 1e-12);
+        assert!((back.longitude_deg - solution.longitude_deg).abs() <= 0.5e-7 + 1e-12);
+        for (b, s) in back.velocity_ned_mps.iter().zip(solution.velocity_ned_mps) {
+            assert!((b - s).abs() <= 0.5e-3 + 1e-6, "{b} vs {s}");
+        }
+        assert_eq!(back.height_ellipsoid_m, 456.0);
+        assert_eq!(back.horizontal_accuracy_m, 0.5);
+        // Without a fix the receiver says so and the firmware's test of a fix agrees.
+        let none = GnssSolution { fix_type: FixType::NoFix, fix_ok: false, ..solution };
+        assert!(!none.to_nav_pvt().has_3d_fix());
+    }
+
     #[test]
     fn version_2_without_a_pose_has_no_trailer() {
         let packet = SensorPacket { version: 2, ..small(None) };
@@ -909,18 +1209,19 @@ mod tests {
 
     #[test]
     fn version_1_ignores_the_flags_and_version_2_ignores_unknown_bits() {
-        // Version 1 with bit 0 set and trailing bytes: no pose.
-        let mut v1 = small_head(1, 0x01);
-        v1.extend_from_slice(&[0xAA; 16]);
+        // Version 1 with bits 0 and 1 set and trailing bytes: no pose, no GNSS solution.
+        let mut v1 = small_head(1, 0x03);
+        v1.extend_from_slice(&[0xAA; 16 + 52]);
         v1[7] = 0x80;
         assert_eq!(SensorPacket::decode(&v1).unwrap(), small(None));
-        // Version 2 with unknown bits only: no pose, no trailer needed.
-        let mut v2 = small_head(2, 0xFE);
+        // Version 2 with unknown bits only: no pose, no solution, no trailer needed.
+        let mut v2 = small_head(2, 0xFC);
         v2[7] = 0xFF;
-        assert_eq!(SensorPacket::decode(&v2).unwrap().pose, None);
-        // Version 2 with bit 0 and unknown bits: the pose.
+        let decoded = SensorPacket::decode(&v2).unwrap();
+        assert_eq!((decoded.pose, decoded.gnss), (None, None));
+        // Version 2 with bit 0 and unknown bits (2 and 3, 14): the pose.
         let mut v2 = small(Some(POSE)).encode();
-        v2[6] |= 0x06;
+        v2[6] |= 0x0C;
         v2[7] = 0x40;
         assert_eq!(SensorPacket::decode(&v2).unwrap().pose, Some(POSE));
     }
@@ -1003,5 +1304,21 @@ mod tests {
             SensorPacket::decode(&v2[..87]),
             Err(BridgeError::TooShort { len: 87, need: 88 })
         ));
+        // Announcing a GNSS solution, after a pose or alone, it does not carry in full.
+        let both = SensorPacket { pose: Some(POSE), gnss: Some(GNSS), ..sensor() }.encode();
+        assert_eq!(both.len(), 140);
+        for len in [88, 139] {
+            assert!(matches!(
+                SensorPacket::decode(&both[..len]),
+                Err(BridgeError::TooShort { len: l, need: 140 }) if l == len
+            ));
+        }
+        let alone = SensorPacket { gnss: Some(GNSS), ..sensor() }.encode();
+        assert_eq!(alone.len(), 124);
+        assert!(matches!(
+            SensorPacket::decode(&alone[..123]),
+            Err(BridgeError::TooShort { len: 123, need: 124 })
+        ));
+        assert_eq!(MAX_PACKET_LEN, 48 + 4 * 8 + 16 + 52);
     }
 }

@@ -45,6 +45,7 @@
 use firmware::drivers::ubx::{FixType, GnssFix};
 use nalgebra::Vector3;
 
+use crate::recovery::{FlyReport, Verdict};
 use crate::rng::Rng;
 
 /// WGS-84 semi-major axis, m (NIMA TR8350.2, table 3.1).
@@ -135,6 +136,26 @@ impl Home {
     }
 }
 
+/// The control's own share of [`GnssModelConfig::hold_bound_m`], m: the hold bound with motion
+/// capture (`crate::recovery::HOLD_BOUND_M`, the 0.3 m), where the poses' millimetres
+/// leave only the control's error.
+pub const HOLD_CONTROL_ALLOWANCE_M: f64 = crate::recovery::HOLD_BOUND_M;
+
+/// The fixes' share of [`GnssModelConfig::hold_bound_m`], in multiples of hAcc: 2 hAcc is the
+/// "2DRMS" of GNSS accuracy statements; a 2D Gaussian error is within twice its RMS
+/// `1 − e⁻⁴` = 98 % of the time (the radius of a circular Gaussian is Rayleigh-distributed).
+pub const HOLD_FIX_RMS_MULTIPLE: f64 = 2.0;
+
+/// The range of the correlated horizontal error per axis that [`GnssModelConfig::random`] draws
+/// from (log-uniform), m: the 0.02–2 m, an RTK-like receiver to a single-frequency one
+/// under a partial sky.
+pub const RANDOM_NOISE_M: (f64, f64) = (0.02, 2.0);
+
+/// The range of the velocity noise per axis that [`GnssModelConfig::random`] draws from
+/// (uniform), m/s: sAcc of 0.035–0.35 m/s, what u-blox M8–M10 receivers report moving in the
+/// open and under a partial sky.
+pub const RANDOM_VELOCITY_NOISE_MPS: (f64, f64) = (0.02, 0.2);
+
 /// The simulated receiver's behaviour. Ranges are checked by [`GnssModelConfig::validate`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct GnssModelConfig {
@@ -220,11 +241,13 @@ impl GnssModelConfig {
     }
 
     /// A receiver drawn from the randomised world: noise 0.02–2 m (log-uniform)
-    /// correlated over 2–60 s, vertical 1.5–2.5× horizontal, 5–10 Hz, 50–150 ms late, multipath
+    /// correlated over 2–60 s, vertical 1.5–2.5× horizontal, velocity noise 0.02–0.2 m/s per
+    /// axis, 5–10 Hz, 50–150 ms late, multipath
     /// jumps of 1–5 m for 1–10 s at up to one a minute, and in half the draws dropouts of 0.5–5 s
     /// at up to one every 100 s.
     pub fn random(rng: &mut Rng) -> Self {
-        let sigma = rng.range(0.02f64.ln(), 2f64.ln()).exp();
+        let (quietest, noisiest) = RANDOM_NOISE_M;
+        let sigma = rng.range(quietest.ln(), noisiest.ln()).exp();
         let dropping = rng.uniform() < 0.5;
         Self {
             rate_hz: rng.range(5.0, 10.0),
@@ -233,7 +256,7 @@ impl GnssModelConfig {
             vertical_sigma_m: sigma * rng.range(1.5, 2.5),
             correlation_time_s: rng.range(2.0, 60.0),
             white_noise_m: sigma * rng.range(0.05, 0.3),
-            velocity_noise_mps: rng.range(0.02, 0.2),
+            velocity_noise_mps: rng.range(RANDOM_VELOCITY_NOISE_MPS.0, RANDOM_VELOCITY_NOISE_MPS.1),
             multipath_per_s: rng.range(0.0, 1.0 / 60.0),
             multipath_jump_m: rng.range(1.0, 5.0),
             multipath_s: rng.range(1.0, 10.0),
@@ -242,6 +265,42 @@ impl GnssModelConfig {
             satellites: rng.range(8.0, 25.0) as u8,
             home: Home::default(),
         }
+    }
+
+    /// The accuracies this receiver reports with a fix (the module doc's "Error model"): hAcc,
+    /// the horizontal error's RMS, m; vAcc, the vertical standard deviation, m; sAcc, the 3D
+    /// velocity error's RMS, m/s. Multipath is in none of them.
+    pub fn reported_accuracies(&self) -> (f64, f64, f64) {
+        let v = self.vertical_scale();
+        let per_axis = (self.horizontal_sigma_m.powi(2) + self.white_noise_m.powi(2)).sqrt();
+        (
+            per_axis * 2f64.sqrt(),
+            (self.vertical_sigma_m.powi(2) + (self.white_noise_m * v).powi(2)).sqrt(),
+            self.velocity_noise_mps * 3f64.sqrt(),
+        )
+    }
+
+    /// How far from its position setpoint a craft holding on this receiver may be horizontally
+    /// and still count as holding, m: [`HOLD_CONTROL_ALLOWANCE_M`] for the control's own error
+    /// plus [`HOLD_FIX_RMS_MULTIPLE`] times hAcc for the fixes'. A craft that holds on fixes
+    /// holds the fixes' error: its true distance from the setpoint is, but for the control's
+    /// error, the current fix's error (multipath aside), whose horizontal RMS is hAcc. 0.3 m +
+    /// 2 hAcc: 1.16 m for the 0.3 m receiver of `fly --gnss` (the "within 1 m"), 0.36 m
+    /// for a 2 cm (RTK-like) one, about 6 m for a 2 m one.
+    pub fn hold_bound_m(&self) -> f64 {
+        HOLD_CONTROL_ALLOWANCE_M + HOLD_FIX_RMS_MULTIPLE * self.reported_accuracies().0
+    }
+
+    /// Whether a flight on this receiver held its position: it hovered
+    /// ([`Verdict::Held`] or [`Verdict::HoveredLoose`]), and its worst horizontal distance from
+    /// the setpoint over the hold window (the part of it flown in position hold, as for
+    /// [`Verdict::Held`]: a hold begins once the recovery has stopped and the heading is learned)
+    /// is within [`GnssModelConfig::hold_bound_m`]. Vertically a receiver is 1.5–2.5 times
+    /// worse, and no bound is drawn there. Multipath is in no receiver's hAcc: a jump the craft
+    /// follows (the estimator takes it after refusing it for 5 s) fails the bound.
+    pub fn held(&self, report: &FlyReport) -> bool {
+        matches!(Verdict::of(report), Verdict::Held | Verdict::HoveredLoose)
+            && report.max_hold_error_horizontal_m.is_some_and(|e| e <= self.hold_bound_m())
     }
 
     /// The ratio of the vertical error to the horizontal (1 when both are 0).
@@ -254,13 +313,47 @@ impl GnssModelConfig {
     }
 }
 
-/// The simulated receiver wired to the firmware's side of it (`firmware::app::gnss::GnssInput`,
-/// told the receiver's latency and rate as a user would set them), as the board's GNSS UART
-/// would connect them: the one feed of `fly --gnss` and `sitl --gnss`.
+/// The board's side of a GNSS receiver: the firmware's own receiver code
+/// (`firmware::app::gnss::GnssInput`, told the receiver's latency and rate as a user would set
+/// them) behind the board's GNSS UART, fed the bytes a receiver sent. The simulated receivers
+/// stream whatever they are sent, so the firmware's configuration is taken as written. Shared by
+/// [`GnssFeed`] (`fly --gnss`, `sitl --gnss`) and the bridge's GNSS block
+/// (`crate::bridge::GnssSolution`), so both go through the same parser and the same
+/// solution-to-fix code as a board.
+#[derive(Clone, Debug)]
+pub struct BoardGnss {
+    input: firmware::app::gnss::GnssInput,
+}
+
+impl BoardGnss {
+    /// The firmware's receiver code, configuring the receiver with `config`, taking each
+    /// solution to describe the craft `latency_s` before it arrives.
+    pub fn new(config: firmware::drivers::ubx::GnssConfig, latency_s: f64) -> Self {
+        Self { input: firmware::app::gnss::GnssInput::new(config, latency_s as f32) }
+    }
+
+    /// The `bytes` that reached the board's UART by `now_us` (the firmware's clock, µs): a new
+    /// solution with a 3D fix comes back as the position fix the control step takes. Call it
+    /// every control step, with no bytes when none came: the driver's search, configuration
+    /// and loss of the receiver run on its clock.
+    pub fn receive(&mut self, bytes: &[u8], now_us: u64) -> Option<firmware::app::PositionFix> {
+        let unsent = self.input.output().write.len();
+        self.input.sent(unsent);
+        self.input.poll(bytes, now_us)
+    }
+
+    /// The firmware's receiver code (its state machine and counters).
+    pub fn input(&self) -> &firmware::app::gnss::GnssInput {
+        &self.input
+    }
+}
+
+/// The simulated receiver wired to the firmware's side of it ([`BoardGnss`]), as the board's
+/// GNSS UART would connect them: the one feed of `fly --gnss` and `sitl --gnss`.
 #[derive(Clone, Debug)]
 pub struct GnssFeed {
     receiver: SimGnss,
-    input: firmware::app::gnss::GnssInput,
+    board: BoardGnss,
     /// Where the fixes' world has its origin in the simulator's, NED, m: the first fix's
     /// measured position, its error included.
     origin_ned_m: Option<Vector3<f64>>,
@@ -269,12 +362,17 @@ pub struct GnssFeed {
 impl GnssFeed {
     /// The receiver `model`, its noise drawn from `seed`.
     pub fn new(model: &GnssModelConfig, seed: u64) -> Self {
-        let config = firmware::drivers::ubx::GnssConfig {
-            target_baud: 115_200,
-            measurement_period_s: (1.0 / model.rate_hz) as f32,
-        };
-        let input = firmware::app::gnss::GnssInput::new(config, model.latency_s as f32);
-        Self { receiver: SimGnss::new(model.clone(), seed), input, origin_ned_m: None }
+        Self {
+            receiver: SimGnss::new(model.clone(), seed),
+            board: BoardGnss::new(
+                firmware::drivers::ubx::GnssConfig {
+                    measurement_period_s: (1.0 / model.rate_hz) as f32,
+                    ..firmware::drivers::ubx::GnssConfig::default()
+                },
+                model.latency_s,
+            ),
+            origin_ned_m: None,
+        }
     }
 
     /// Simulated time `now_s` with the craft at `truth`, the firmware's clock at `now_us`: the
@@ -291,11 +389,7 @@ impl GnssFeed {
         for solution in &delivered {
             bytes.extend_from_slice(&solution.fix.to_frame());
         }
-        // The simulated receiver streams whatever it is sent: the firmware's configuration is
-        // taken as written.
-        let unsent = self.input.output().write.len();
-        self.input.sent(unsent);
-        let fix = self.input.poll(&bytes, now_us)?;
+        let fix = self.board.receive(&bytes, now_us)?;
         if self.origin_ned_m.is_none() {
             let home = self.receiver.config().home;
             let first = delivered.iter().rev().find(|d| d.fix.has_3d_fix());
@@ -322,23 +416,49 @@ pub struct GnssArgs {
     pub gnss: bool,
     /// GNSS: correlated position error per horizontal axis, one standard deviation, m (the
     /// vertical 1.5 times it).
-    #[arg(long, global = true, default_value_t = 0.3)]
+    #[arg(long, global = true, default_value_t = GnssArgs::NOISE_M)]
     pub gnss_noise_m: f64,
     /// GNSS: solutions per second, Hz (5–10 for u-blox receivers with several constellations).
-    #[arg(long, global = true, default_value_t = 10.0)]
+    #[arg(long, global = true, default_value_t = GnssArgs::RATE_HZ)]
     pub gnss_rate_hz: f64,
     /// GNSS: time from a solution's epoch to its arrival at the board, ms (told to the firmware).
-    #[arg(long, global = true, default_value_t = 100.0)]
+    #[arg(long, global = true, default_value_t = GnssArgs::LATENCY_MS)]
     pub gnss_latency_ms: f64,
     /// GNSS: multipath jumps (1–5 m for `--gnss-multipath-s`) per minute.
-    #[arg(long, global = true, default_value_t = 0.0)]
+    #[arg(long, global = true, default_value_t = GnssArgs::MULTIPATH_PER_MIN)]
     pub gnss_multipath_per_min: f64,
     /// GNSS: how long a multipath jump lasts, s.
-    #[arg(long, global = true, default_value_t = 5.0)]
+    #[arg(long, global = true, default_value_t = GnssArgs::MULTIPATH_S)]
     pub gnss_multipath_s: f64,
 }
 
 impl GnssArgs {
+    /// `--gnss-noise-m`'s default, m.
+    pub const NOISE_M: f64 = 0.3;
+    /// `--gnss-rate-hz`'s default, Hz.
+    pub const RATE_HZ: f64 = 10.0;
+    /// `--gnss-latency-ms`'s default, ms (the firmware's own default,
+    /// `firmware::app::gnss::DEFAULT_GNSS_LATENCY_S`).
+    pub const LATENCY_MS: f64 = 100.0;
+    /// `--gnss-multipath-per-min`'s default (none).
+    pub const MULTIPATH_PER_MIN: f64 = 0.0;
+    /// `--gnss-multipath-s`'s default, s.
+    pub const MULTIPATH_S: f64 = 5.0;
+
+    /// Whether any flag shaping the receiver differs from its default: a world that draws its
+    /// receiver (the `gnss` aspect, `crate::world`) has no use for them.
+    pub fn shapes_receiver(&self) -> bool {
+        [
+            (self.gnss_noise_m, Self::NOISE_M),
+            (self.gnss_rate_hz, Self::RATE_HZ),
+            (self.gnss_latency_ms, Self::LATENCY_MS),
+            (self.gnss_multipath_per_min, Self::MULTIPATH_PER_MIN),
+            (self.gnss_multipath_s, Self::MULTIPATH_S),
+        ]
+        .iter()
+        .any(|(value, default)| value != default)
+    }
+
     /// The receiver, checked ([`GnssModelConfig::validate`]); `None` without `--gnss`.
     pub fn config(&self) -> Result<Option<GnssModelConfig>, String> {
         if !self.gnss {
@@ -427,16 +547,10 @@ impl SimGnss {
         &self.config
     }
 
-    /// The accuracies the receiver reports: hAcc, vAcc (m) and sAcc (m/s).
+    /// The accuracies the receiver reports: hAcc, vAcc (m) and sAcc (m/s)
+    /// ([`GnssModelConfig::reported_accuracies`]).
     pub fn reported_accuracies(&self) -> (f64, f64, f64) {
-        let c = &self.config;
-        let v = c.vertical_scale();
-        let per_axis = (c.horizontal_sigma_m.powi(2) + c.white_noise_m.powi(2)).sqrt();
-        (
-            per_axis * 2f64.sqrt(),
-            (c.vertical_sigma_m.powi(2) + (c.white_noise_m * v).powi(2)).sqrt(),
-            c.velocity_noise_mps * 3f64.sqrt(),
-        )
+        self.config.reported_accuracies()
     }
 
     /// Measure at every epoch up to `now_s` (with `truth`, the state now), and return the

@@ -18,18 +18,22 @@
 //!
 //! | `gust` (not in `--world random` unless `--gusts`) | a "1 − cos" gust of 2–8 m/s peak over 0.5–3 s starting 4–8 s after the start, and a step gust of 1–4 m/s for 0.3–1 s starting 4–10 s after it; each from a random bearing, up to 20° from the horizontal | gusts of a breezy day outdoors, the discrete gust of the airworthiness codes (CS-25.341) and a sharp-edged one, while the craft hovers |
 //! | `wind` (not in `--world random` unless `--wind`) | a steady horizontal wind of 0–8 m/s (uniform) from a uniform bearing, from the start of the run (the throw included); on it turbulence, each world axis a first-order Gauss–Markov process of σ = 10–20 % of the wind's speed + 0.1 m/s horizontally and half that vertically, correlation time 1–3 s | flying outdoors in up to a moderate breeze (Beaufort 4 ends at 7.9 m/s). The turbulence is a simplified stand-in for the low-altitude Dryden model (MIL-F-8785C, MIL-HDBK-1797): there σ is 0.1 of the wind at 20 ft vertically and about twice that horizontally near the ground, and the length scales of tens of metres pass a hovering craft in seconds at these speeds; one first-order process per axis with one correlation time keeps Dryden's longitudinal spectrum only |
+//! | `gnss` (not in `--world random` unless `--gnss-random`) | the craft flies on a simulated u-blox receiver instead of motion capture, drawn by [`GnssModelConfig::random`]: noise 0.02–2 m per horizontal axis (log-uniform) correlated over 2–60 s, vertically 1.5–2.5× that, white 5–30 % of it; 5–10 Hz; 50–150 ms late (the firmware told the drawn latency, as a user sets it); multipath jumps of 1–5 m for 1–10 s at up to one a minute; in half the draws dropouts of 0.5–5 s at up to one every 100 s | the randomised receiver: RTK-like to a single-frequency receiver under trees, the rates and latencies of M8–M10 receivers with several constellations |
 //!
-//! `fly monte-carlo --world random` draws every aspect but `gust` and `wind` (added by `--gusts`
-//! and `--wind`, so the hover figures of earlier worlds stay comparable); `--vary NAME` one at a
-//! time, so each aspect's pass rate is known alone (docs/benchmarks.md); `--wind-mps X` draws the
+//! `fly monte-carlo --world random` draws every aspect but `gust`, `wind` and `gnss` (added by
+//! `--gusts`, `--wind` and `--gnss-random`, so the hover figures of earlier worlds stay
+//! comparable); `--vary NAME` one at a time, so each aspect's pass rate is known alone
+//! (docs/benchmarks.md; `--vary gnss` sweeps the receiver alone over the nominal world, its noise
+//! over 0.02–2 m); `--wind-mps X` draws the
 //! wind with its steady speed forced to X (bearing and turbulence as the seed draws them), for a
 //! sweep over the speed. A draw depends only on the case's seed and the aspect, so the same seed
-//! gives the same airframe, throw and world, and a world without `wind` flies as it did before
-//! the aspect existed.
+//! gives the same airframe, throw and world, and a world without `wind` or `gnss` flies as it did
+//! before the aspect existed.
 
 use nalgebra::Vector3;
 
 use crate::airframe::{Airframe, SpeedCurve};
+use crate::gnss::GnssModelConfig;
 use crate::recovery::{random_case, CaseResult, FlyConfig, MotionCaptureConfig};
 use crate::rng::Rng;
 
@@ -50,6 +54,9 @@ pub enum Aspect {
     Gust,
     /// A steady wind and turbulence for the whole run (not in [`Aspect::ALL`]).
     Wind,
+    /// A GNSS receiver instead of motion capture, its noise, timing, multipath and dropouts
+    /// drawn (not in [`Aspect::ALL`]). Last, so that every other aspect's seed stays the same.
+    Gnss,
 }
 
 impl Aspect {
@@ -67,11 +74,12 @@ impl Aspect {
             Aspect::Air => "air",
             Aspect::Gust => "gust",
             Aspect::Wind => "wind",
+            Aspect::Gnss => "gnss",
         }
     }
 
     /// The aspects drawn only when asked for, not by `--world random` ([`Aspect::ALL`]).
-    pub const ON_REQUEST: [Aspect; 2] = [Aspect::Gust, Aspect::Wind];
+    pub const ON_REQUEST: [Aspect; 3] = [Aspect::Gust, Aspect::Wind, Aspect::Gnss];
 
     /// The aspect called `name`.
     pub fn parse(name: &str) -> Result<Self, String> {
@@ -123,6 +131,9 @@ pub fn apply(aspect: Aspect, seed: u64, airframe: &mut Airframe, config: &mut Fl
         Aspect::Air => air(&mut rng, airframe, config),
         Aspect::Gust => gusts(&mut rng, config),
         Aspect::Wind => wind(&mut rng, None, config),
+        // The receiver's noise itself is drawn from the board's seed (`GnssFeed`), as motion
+        // capture's is.
+        Aspect::Gnss => config.gnss = Some(GnssModelConfig::random(&mut rng)),
     }
 }
 
@@ -414,6 +425,36 @@ mod tests {
         }
         // The range is covered, not only respected.
         assert!(slowest < 0.5 && fastest > WIND_MAX_MPS - 0.5, "{slowest}–{fastest} m/s");
+    }
+
+    #[test]
+    fn the_gnss_aspect_draws_a_receiver_and_leaves_the_rest_of_the_world_as_it_was() {
+        let (mut quietest, mut noisiest) = (f64::INFINITY, 0.0f64);
+        for seed in 0..200 {
+            let (airframe, config) = random_world_case(seed, &[Aspect::Gnss]);
+            let (nominal_airframe, nominal) = random_case(seed);
+            assert_eq!(airframe, nominal_airframe);
+            let receiver = config.gnss.clone().unwrap_or_else(|| panic!("seed {seed}: none"));
+            receiver.validate().unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+            let sigma = receiver.horizontal_sigma_m;
+            assert!((0.02..=2.0).contains(&sigma), "seed {seed}: {sigma} m");
+            assert!((0.05..=0.15).contains(&receiver.latency_s), "seed {seed}");
+            assert!((5.0..=10.0).contains(&receiver.rate_hz), "seed {seed}");
+            (quietest, noisiest) = (quietest.min(sigma), noisiest.max(sigma));
+            // Everything else is the nominal case's: the receiver comes on its own draws.
+            assert_eq!(crate::recovery::FlyConfig { gnss: None, ..config }, nominal);
+            // The rest of the random world is the same with the receiver and without it.
+            let (with_airframe, with) =
+                random_world_case(seed, &[Aspect::ALL.as_slice(), &[Aspect::Gnss]].concat());
+            let (without_airframe, without) = random_world_case(seed, &Aspect::ALL);
+            assert_eq!(with_airframe, without_airframe);
+            assert_eq!(without.gnss, None, "no receiver unless asked for");
+            assert_eq!(with.gnss, Some(receiver), "the same receiver in any world");
+            assert_eq!(crate::recovery::FlyConfig { gnss: None, ..with }, without);
+        }
+        // Log-uniform over 0.02–2 m: the range is covered, not only respected.
+        assert!(quietest < 0.03 && noisiest > 1.5, "{quietest}–{noisiest} m");
+        assert_eq!(Aspect::parse("gnss"), Ok(Aspect::Gnss));
     }
 
     #[test]

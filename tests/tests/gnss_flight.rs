@@ -8,11 +8,15 @@
 //! receiver's own error wanders over that time (0.3 m per axis correlated over 20 s moves by
 //! about 0.2 m in 5 s): the craft follows it, as it must, and nothing more.
 //!
+//! The random world's receivers (`sim::world`, aspect `gnss`): each craft held within its own
+//! receiver's bound, 0.3 m + 2 hAcc (`sim::gnss::GnssModelConfig::held`).
+//!
 //! `cargo test -p tests --release --test gnss_flight -- --nocapture` prints the figures.
 
 use sim::airframe::Airframe;
 use sim::gnss::GnssModelConfig;
-use sim::recovery::{fly, FlyConfig, FlyReport, Outcome};
+use sim::recovery::{fly, FlyConfig, FlyReport, Outcome, Verdict};
+use sim::world::{self, Aspect};
 
 /// The horizontal hold bound, m (the issue's, for a 0.3 m receiver).
 const HOLD_BOUND_M: f64 = 1.0;
@@ -84,6 +88,49 @@ fn multipath_jumps_of_metres_are_refused_and_the_craft_holds_through_them() {
     let error = report.max_hold_error_horizontal_m.expect("held a position");
     // Without the gate the hold would follow each jump by metres.
     assert!(error < 1.5, "{error:.3} m from the setpoint horizontally");
+}
+
+/// A small version of `fly --end land monte-carlo --world random --gnss-random` (the `gnss`
+/// aspect of `sim::world`): the random world's seeds 1–20, each flown on a receiver drawn for
+/// it (noise 0.02–2 m correlated over 2–60 s, velocity noise 0.02–0.2 m/s, 5–10 Hz, 50–150 ms
+/// late and the firmware told so, multipath jumps, dropouts). Every craft hovers and learns its
+/// heading from the receiver's velocities, and at least 17 of 20 hold within their own
+/// receivers' bounds (0.3 m + 2 hAcc horizontally, `GnssModelConfig::held`). Measured: 18 (seed
+/// 6 is 8.3 m off, following its receiver's multipath jumps, 3.4 m per axis for 6 s, once the
+/// estimator has refused them for 5 s: 86 fixes refused; seed 14 learns its heading only 4 s
+/// after the release, from a receiver whose velocity noise is 0.19 m/s per axis, and is 2.1 m
+/// off, still coming back, when the window starts). The 300-run figures per noise band:
+/// docs/field.md, "Outdoors: a GNSS receiver".
+#[test]
+fn twenty_drawn_receivers_in_the_random_world_all_hover_and_most_hold_within_their_bounds() {
+    let aspects = [Aspect::ALL.as_slice(), &[Aspect::Gnss]].concat();
+    let results = world::monte_carlo(20, 1, 2, &aspects, &|_| {});
+    let mut held = 0;
+    for r in &results {
+        let receiver = world::random_world_case(r.seed, &aspects).1.gnss.expect("a receiver");
+        let holds = receiver.held(&r.report);
+        held += usize::from(holds);
+        eprintln!(
+            "seed {}: {:?}, receiver {:.2} m, {:.2} m/s; hold {:.2} m horizontally (bound {:.2} \
+             m): {}; heading learned {:.2} s after the release",
+            r.seed,
+            r.verdict,
+            receiver.horizontal_sigma_m,
+            receiver.velocity_noise_mps,
+            r.report.max_hold_error_horizontal_m.unwrap_or(f64::NAN),
+            receiver.hold_bound_m(),
+            if holds { "held" } else { "not held" },
+            r.report.heading_aligned_s.unwrap_or(f64::NAN),
+        );
+        assert!(
+            matches!(r.verdict, Verdict::Held | Verdict::HoveredLoose),
+            "seed {}: {:?}",
+            r.seed,
+            r.verdict
+        );
+        assert!(r.report.heading_aligned_s.is_some(), "seed {}: heading never learned", r.seed);
+    }
+    assert!(held >= 17, "{held} of 20 held");
 }
 
 /// The SITL on a GNSS receiver and no motion capture, in a steady 4 m/s wind: `identify` over

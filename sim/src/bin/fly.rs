@@ -9,6 +9,7 @@
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --mocap-rate-hz 2000 --mocap-latency-ms 30
 //! cargo run -p sim --release --bin fly -- monte-carlo --runs 200 --world random --unknown-imu-offset
 //! cargo run -p sim --release --bin fly -- monte-carlo --world random --runs 200 --no-speed-telemetry
+//! cargo run -p sim --release --bin fly -- --end land monte-carlo --world random --gnss-random --runs 300
 //! ```
 //!
 //! `--unknown-imu-offset` flies an uncalibrated board: the firmware is not given the airframe's
@@ -39,6 +40,15 @@
 //! cases. A Monte Carlo with the wind reports the speeds drawn and how many runs held in each
 //! 2 m/s band of them; `fly case --seed N` with the same flags flies one of its runs again.
 //!
+//! `--gnss` flies on a simulated u-blox receiver instead of motion capture (`sim::gnss`, shaped by
+//! `--gnss-noise-m`, `--gnss-rate-hz`, `--gnss-latency-ms`, `--gnss-multipath-per-min`,
+//! `--gnss-multipath-s`); `--gnss-random` (or `--vary gnss`) on a receiver drawn per run
+//! (`sim::world`, aspect `gnss`: 0.02–2 m, 5–10 Hz, 50–150 ms late, multipath, dropouts; the
+//! firmware told its latency), and the Monte Carlo then reports, per band of the receivers'
+//! noise and of their velocity noise, how many runs hovered and held within their own
+//! receiver's bound (0.3 m + 2 hAcc horizontally, `sim::gnss::GnssModelConfig::held`), their
+//! hold errors and how many learned their heading, with the seeds that did not hold.
+//!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
 //! `--mocap-dropouts-per-s` and `--mocap-dropout-s` (`sim::recovery::MotionCaptureArgs`; the
@@ -51,7 +61,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
 use sim::board::WorldEffects;
-use sim::gnss::GnssArgs;
+use sim::gnss::{GnssArgs, GnssModelConfig};
 use sim::recovery::{
     fly, monte_carlo, random_case, FlightEnd, FlyConfig, FlyReport, MotionCaptureArgs,
     MotionCaptureConfig, Verdict,
@@ -139,11 +149,12 @@ enum Command {
 #[derive(clap::Args, Debug)]
 struct WorldArgs {
     /// `nominal` (the airframe and the throw's spin and height vary, nothing else) or `random`
-    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air; gust and wind only
-    /// with `--gusts` and `--wind`).
+    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air; gust, wind and gnss
+    /// only with `--gusts`, `--wind` and `--gnss-random`).
     #[arg(long, default_value = "nominal", value_parser = ["nominal", "random"])]
     world: String,
-    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust, wind); repeatable.
+    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust, wind, gnss);
+    /// repeatable.
     #[arg(long)]
     vary: Vec<String>,
     /// Add strong gusts to the random world while the craft hovers (the `gust` aspect:
@@ -158,6 +169,11 @@ struct WorldArgs {
     /// and the turbulence as the seed draws them, for a sweep over the speed.
     #[arg(long)]
     wind_mps: Option<f64>,
+    /// Fly every run on a GNSS receiver drawn for it (the `gnss` aspect: noise 0.02–2 m
+    /// correlated over 2–60 s, 5–10 Hz, 50–150 ms late, multipath jumps, dropouts; the firmware
+    /// told its latency) instead of motion capture; the report gives the holds per noise band.
+    #[arg(long)]
+    gnss_random: bool,
     /// Do not give the firmware the airframe's true IMU offset (a board never calibrated: it
     /// flies with none, issue 32).
     #[arg(long)]
@@ -182,6 +198,9 @@ impl WorldArgs {
             if self.windy() {
                 aspects.push(Aspect::Wind);
             }
+            if self.gnss_random {
+                aspects.push(Aspect::Gnss);
+            }
             return Ok(aspects);
         }
         let mut aspects: Vec<Aspect> =
@@ -191,6 +210,9 @@ impl WorldArgs {
         }
         if self.windy() && !aspects.contains(&Aspect::Wind) {
             aspects.push(Aspect::Wind);
+        }
+        if self.gnss_random && !aspects.contains(&Aspect::Gnss) {
+            aspects.push(Aspect::Gnss);
         }
         Ok(aspects)
     }
@@ -209,11 +231,13 @@ const WIND_MPS_LIMIT: f64 = 20.0;
 const WIND_BAND_MPS: f64 = 2.0;
 
 /// Monte Carlo case `seed`: the nominal case with `motion_capture`, or the world with `aspects`
-/// randomised; the IMU offset given to the firmware unless `args.unknown_imu_offset`.
+/// randomised; the IMU offset given to the firmware unless `args.unknown_imu_offset`; on the
+/// receiver the `gnss` aspect drew, else on `gnss` (`--gnss`), else on motion capture.
 fn case(
     seed: u64,
     aspects: &[Aspect],
     motion_capture: MotionCaptureConfig,
+    gnss: &Option<GnssModelConfig>,
     args: &WorldArgs,
 ) -> (Airframe, FlyConfig) {
     let (airframe, mut config) = if aspects.is_empty() {
@@ -228,6 +252,9 @@ fn case(
     }
     config.known_imu_offset = !args.unknown_imu_offset;
     config.speed_telemetry = !args.no_speed_telemetry;
+    if config.gnss.is_none() {
+        config.gnss.clone_from(gnss);
+    }
     (airframe, config)
 }
 
@@ -442,6 +469,155 @@ fn print_winds(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects]) {
     }
 }
 
+/// Upper edges of the receiver-noise bands a Monte Carlo with the `gnss` aspect reports its
+/// holds in, m (the correlated horizontal error per axis; the bands run over
+/// [`sim::gnss::RANDOM_NOISE_M`]): RTK-like and dual-frequency receivers below 0.1 m, a good
+/// single-frequency one in the open up to 0.3 m (`fly --gnss`'s), a partial sky up to 1 m, and
+/// worse.
+const GNSS_NOISE_BAND_EDGES_M: [f64; 3] = [0.1, 0.3, 1.0];
+
+/// Upper edges of the velocity-noise bands the same report gives, m/s per axis (over
+/// [`sim::gnss::RANDOM_VELOCITY_NOISE_MPS`]): the heading is learned from the receiver's
+/// velocity changes, so its noise decides how soon the craft can hold a position.
+const GNSS_VELOCITY_BAND_EDGES_MPS: [f64; 3] = [0.05, 0.1, 0.15];
+
+/// Seeds listed per band of a report, at most (the rest are counted).
+const SEEDS_LISTED: usize = 20;
+
+/// The receivers of a Monte Carlo that drew them (`receivers[i]` is `results[i]`'s): what was
+/// drawn, and per [`GNSS_NOISE_BAND_EDGES_M`] band of the noise and per
+/// [`GNSS_VELOCITY_BAND_EDGES_MPS`] band of the velocity noise how many runs hovered and held,
+/// the worst horizontal distance from the setpoint over the hold window, the heading, the fixes
+/// refused and the landings, with the seeds that did not hold.
+///
+/// "Held" scales with each run's receiver ([`GnssModelConfig::held`]): within 0.3 m + 2 hAcc of
+/// the setpoint horizontally. Per band of the receiver's noise that is about 0.36–0.6 m in
+/// 0.02–0.1 m, 0.6–1.2 m in 0.1–0.3 m, 1.2–3.2 m in 0.3–1 m and 3.1–6.2 m in 1–2 m (the white
+/// noise, drawn per run, makes the ranges overlap a little; each band prints its own).
+fn print_gnss_bands(results: &[sim::recovery::CaseResult], receivers: &[GnssModelConfig]) {
+    let sigmas: Vec<f64> = receivers.iter().map(|g| g.horizontal_sigma_m).collect();
+    print_quantiles(
+        "GNSS receivers drawn: correlated error per horizontal axis",
+        &sigmas,
+        1.0,
+        " m",
+    );
+    let rates: Vec<f64> = receivers.iter().map(|g| g.rate_hz).collect();
+    let latencies: Vec<f64> = receivers.iter().map(|g| g.latency_s).collect();
+    print_quantiles("  solutions per second", &rates, 1.0, " Hz");
+    print_quantiles("  latency (the firmware told it)", &latencies, 1e3, " ms");
+    println!(
+        "  held: hovered, and the worst horizontal distance from the setpoint over the hold \
+         window within {} m + {} hAcc of the run's receiver",
+        sim::gnss::HOLD_CONTROL_ALLOWANCE_M,
+        sim::gnss::HOLD_FIX_RMS_MULTIPLE
+    );
+    let runs: Vec<_> = results.iter().zip(receivers).collect();
+    print_gnss_band_lines(
+        &runs,
+        "noise",
+        " m",
+        &GNSS_NOISE_BAND_EDGES_M,
+        sim::gnss::RANDOM_NOISE_M,
+        |g| g.horizontal_sigma_m,
+    );
+    print_gnss_band_lines(
+        &runs,
+        "velocity noise",
+        " m/s",
+        &GNSS_VELOCITY_BAND_EDGES_MPS,
+        sim::gnss::RANDOM_VELOCITY_NOISE_MPS,
+        |g| g.velocity_noise_mps,
+    );
+    let held = runs.iter().filter(|(r, g)| g.held(&r.report)).count();
+    println!(
+        "  held within their receivers' bounds: {held} of {} runs ({:.1} %)",
+        results.len(),
+        100.0 * held as f64 / results.len().max(1) as f64
+    );
+}
+
+/// One line per band of `value` (edges `edges`, the whole over `range`) of the runs on their
+/// receivers: see [`print_gnss_bands`].
+fn print_gnss_band_lines(
+    runs: &[(&sim::recovery::CaseResult, &GnssModelConfig)],
+    name: &str,
+    unit: &str,
+    edges: &[f64],
+    range: (f64, f64),
+    value: fn(&GnssModelConfig) -> f64,
+) {
+    let mut bands: BTreeMap<usize, Vec<(&sim::recovery::CaseResult, &GnssModelConfig)>> =
+        BTreeMap::new();
+    for &(r, g) in runs {
+        bands
+            .entry(edges.iter().filter(|&&edge| value(g) >= edge).count())
+            .or_default()
+            .push((r, g));
+    }
+    let hovered =
+        |r: &sim::recovery::CaseResult| matches!(r.verdict, Verdict::Held | Verdict::HoveredLoose);
+    for (band, runs) in &bands {
+        let low = if *band == 0 { range.0 } else { edges[band - 1] };
+        let high = edges.get(*band).copied().unwrap_or(range.1);
+        let hovered_runs = runs.iter().filter(|(r, _)| hovered(r)).count();
+        let held_runs = runs.iter().filter(|(r, g)| g.held(&r.report)).count();
+        let bounds: Vec<f64> = runs.iter().map(|(_, g)| g.hold_bound_m()).collect();
+        let errors: Vec<f64> =
+            runs.iter().filter_map(|(r, _)| r.report.max_hold_error_horizontal_m).collect();
+        let aligned = runs.iter().filter(|(r, _)| r.report.heading_aligned_s.is_some()).count();
+        let within_10_deg = runs
+            .iter()
+            .filter(|(r, _)| r.report.heading_error_deg.is_some_and(|e| e.abs() <= 10.0))
+            .count();
+        let refused = runs.iter().filter(|(r, _)| r.report.fixes_rejected > 0).count();
+        let landings: Vec<_> = runs.iter().filter_map(|(r, _)| r.report.landing).collect();
+        let gentle = landings.iter().filter(|l| l.gentle()).count();
+        println!(
+            "  {name} {low:.2}–{high:.2}{unit}: {} runs, hovered {hovered_runs}, held {held_runs} \
+             ({:.1} %; bounds {:.2}–{:.2} m); horizontal hold error median {:.2} m, 90th {:.2} \
+             m; heading learned {aligned}, within 10° at the end {within_10_deg}; fixes refused \
+             in {refused}{}",
+            runs.len(),
+            100.0 * held_runs as f64 / runs.len() as f64,
+            bounds.iter().copied().fold(f64::INFINITY, f64::min),
+            bounds.iter().copied().fold(0.0, f64::max),
+            quantile(&errors, 0.5),
+            quantile(&errors, 0.9),
+            if landings.is_empty() {
+                String::new()
+            } else {
+                format!("; landed gently {gentle} of {}", landings.len())
+            }
+        );
+        let not_held: Vec<String> = runs
+            .iter()
+            .filter(|(r, g)| !g.held(&r.report))
+            .map(|(r, g)| match r.report.max_hold_error_horizontal_m {
+                Some(e) if hovered(r) => format!(
+                    "{} ({e:.2} m, bound {:.2} m, in hold {:.0} % of the window)",
+                    r.seed,
+                    g.hold_bound_m(),
+                    100.0 * r.report.hold_coverage
+                ),
+                None if hovered(r) && r.report.heading_aligned_s.is_none() => {
+                    format!("{} (heading never learned)", r.seed)
+                }
+                None if hovered(r) => format!("{} (no position hold)", r.seed),
+                _ => format!("{} ({:?})", r.seed, r.verdict),
+            })
+            .collect();
+        if !not_held.is_empty() {
+            let more = not_held.len().saturating_sub(SEEDS_LISTED);
+            println!(
+                "    not held: {}{}",
+                not_held[..not_held.len().min(SEEDS_LISTED)].join(", "),
+                if more > 0 { format!(" and {more} more") } else { String::new() }
+            );
+        }
+    }
+}
+
 /// The hand's grabs of a Monte Carlo (`--end catch`), and the hand-catch detector's stops
 /// without a hand (every `--end`).
 fn print_catches(results: &[sim::recovery::CaseResult]) {
@@ -499,11 +675,12 @@ fn print_catches(results: &[sim::recovery::CaseResult]) {
     }
 }
 
-/// The aspects to randomise; a usage error (exit code 2) for a bad name or for motion-capture
-/// flags beside a randomised world.
+/// The aspects to randomise; a usage error (exit code 2) for a bad name, for motion-capture
+/// flags beside a randomised world, or for receiver flags beside a drawn receiver.
 fn checked_aspects(
     args: &WorldArgs,
     motion_capture: MotionCaptureConfig,
+    gnss: &GnssArgs,
 ) -> Result<Vec<Aspect>, ExitCode> {
     let aspects = args.aspects().map_err(|e| {
         eprintln!("fly: {e}");
@@ -517,6 +694,13 @@ fn checked_aspects(
     }
     if !aspects.is_empty() && motion_capture != MotionCaptureConfig::default() {
         eprintln!("fly: the --mocap-* flags do not combine with --world random or --vary");
+        return Err(ExitCode::from(2));
+    }
+    if aspects.contains(&Aspect::Gnss) && gnss.shapes_receiver() {
+        eprintln!(
+            "fly: the --gnss-* flags do not combine with the gnss aspect (--gnss-random, --vary \
+             gnss), which draws each run's receiver"
+        );
         return Err(ExitCode::from(2));
     }
     Ok(aspects)
@@ -587,14 +771,13 @@ fn main() -> ExitCode {
             print_report(&airframe.name, &fly(&airframe, &config));
         }
         Command::Case { seed, trace, world: world_args } => {
-            let aspects = match checked_aspects(&world_args, motion_capture) {
+            let aspects = match checked_aspects(&world_args, motion_capture, &args.gnss) {
                 Ok(aspects) => aspects,
                 Err(code) => return code,
             };
-            let (airframe, mut config) = case(seed, &aspects, motion_capture, &world_args);
+            let (airframe, mut config) = case(seed, &aspects, motion_capture, &gnss, &world_args);
             config.trace = trace;
             config.end = args.end;
-            config.gnss = gnss;
             if !aspects.is_empty() {
                 println!("world: {config:#?}");
             }
@@ -608,7 +791,7 @@ fn main() -> ExitCode {
             print_report(&format!("case {seed}"), &fly(&airframe, &config));
         }
         Command::MonteCarlo { runs, seed, threads, world: world_args } => {
-            let aspects = match checked_aspects(&world_args, motion_capture) {
+            let aspects = match checked_aspects(&world_args, motion_capture, &args.gnss) {
                 Ok(aspects) => aspects,
                 Err(code) => return code,
             };
@@ -633,8 +816,8 @@ fn main() -> ExitCode {
             }
             let end = args.end;
             let results = monte_carlo(runs, seed, threads, &progress, |seed| {
-                let (airframe, config) = case(seed, &aspects, motion_capture, &world_args);
-                (airframe, FlyConfig { end, gnss: gnss.clone(), ..config })
+                let (airframe, config) = case(seed, &aspects, motion_capture, &gnss, &world_args);
+                (airframe, FlyConfig { end, ..config })
             });
             println!(
                 "{runs} runs in {:.0} s on {threads} threads",
@@ -856,9 +1039,20 @@ fn main() -> ExitCode {
             if aspects.contains(&Aspect::Wind) {
                 let worlds: Vec<WorldEffects> = results
                     .iter()
-                    .map(|r| case(r.seed, &aspects, motion_capture, &world_args).1.board.world)
+                    .map(|r| {
+                        case(r.seed, &aspects, motion_capture, &gnss, &world_args).1.board.world
+                    })
                     .collect();
                 print_winds(&results, &worlds);
+            }
+            if aspects.contains(&Aspect::Gnss) {
+                let receivers: Vec<GnssModelConfig> = results
+                    .iter()
+                    .filter_map(|r| {
+                        case(r.seed, &aspects, motion_capture, &gnss, &world_args).1.gnss
+                    })
+                    .collect();
+                print_gnss_bands(&results, &receivers);
             }
             print_landings(&results);
             print_after_recovery(&results);

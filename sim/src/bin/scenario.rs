@@ -104,6 +104,12 @@ enum Command {
         /// body's response instead of refusing to arm.
         #[arg(long)]
         no_speed_telemetry: bool,
+        /// How late the GNSS solutions in the sensor packets are, ms (0 to 200): each describes
+        /// the craft this long before the packet that carries it, as a user tells a board its
+        /// receiver's latency (the firmware's default: 100).
+        #[arg(long, value_name = "MS", default_value_t = sim::gnss::GnssArgs::LATENCY_MS,
+              value_parser = parse_gnss_latency_ms)]
+        gnss_latency_ms: f64,
         /// Also serve the configurator protocol on TCP at 127.0.0.1:PORT (0 picks a free one),
         /// as the SITL does: `configurator-cli --tcp 127.0.0.1:PORT status`.
         #[arg(long, value_name = "PORT")]
@@ -149,6 +155,17 @@ struct RunArgs {
     /// Physics (RK4) steps per raw IMU sample: 1 runs the physics at the IMU rate (8 kHz).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
     physics_steps_per_imu_sample: u32,
+}
+
+/// The bridge's `--gnss-latency-ms`: 0 to the firmware's largest latency of a position fix
+/// (`firmware::app::MAX_POSE_LATENCY_S`, 200 ms).
+fn parse_gnss_latency_ms(text: &str) -> Result<f64, String> {
+    let ms: f64 = text.parse().map_err(|_| format!("`{text}` is not a number of milliseconds"))?;
+    let max_ms = f64::from(firmware::app::MAX_POSE_LATENCY_S) * 1e3;
+    if !(0.0..=max_ms).contains(&ms) {
+        return Err(format!("{text} ms is out of range: allowed [0, {max_ms:.0}] ms"));
+    }
+    Ok(ms)
 }
 
 fn parse_idle_timeout_s(text: &str) -> Result<f64, String> {
@@ -315,12 +332,14 @@ fn run(cli: Cli) -> Result<()> {
             throw_to_fly,
             imu_offset_mm,
             no_speed_telemetry,
+            gnss_latency_ms,
             tcp_port,
             rc,
             log_dir,
         } => {
             let mut server =
                 BridgeServer::bind(listen).with_context(|| format!("cannot listen on {listen}"))?;
+            server.set_gnss_latency_s(gnss_latency_ms * 1e-3)?;
             let udp = server.local_addr()?;
             eprintln!("bridge listening on {udp} (sensor packets in, motor packets back)");
             // The motor count comes with the packets: 0 in the info until the first one.
@@ -433,5 +452,27 @@ mod tests {
         assert!(!no_speed_telemetry, "speeds are reported unless told otherwise");
         let cli = Cli::try_parse_from(["scenario", "bridge", "--no-speed-telemetry"]).unwrap();
         assert!(matches!(cli.command, Command::Bridge { no_speed_telemetry: true, .. }));
+    }
+
+    /// `--gnss-latency-ms` takes 0–200 ms (the firmware's largest fix latency), defaults to the
+    /// firmware's 100 ms, and anything else is a usage error naming the value and the range.
+    #[test]
+    fn the_bridges_gnss_latency_is_checked_and_defaults_to_the_firmwares() {
+        let latency = |args: &[&str]| {
+            let cli = Cli::try_parse_from([&["scenario", "bridge"], args].concat());
+            cli.map(|cli| match cli.command {
+                Command::Bridge { gnss_latency_ms, .. } => gnss_latency_ms,
+                _ => panic!("not the bridge"),
+            })
+        };
+        let default_ms = f64::from(firmware::app::gnss::DEFAULT_GNSS_LATENCY_S) * 1e3;
+        assert!((latency(&[]).unwrap() - default_ms).abs() < 1e-3);
+        assert_eq!(latency(&["--gnss-latency-ms", "150"]).unwrap(), 150.0);
+        assert_eq!(latency(&["--gnss-latency-ms", "0"]).unwrap(), 0.0);
+        for bad in ["201", "-1", "NaN", "soon"] {
+            let error = latency(&[&format!("--gnss-latency-ms={bad}")]).expect_err(bad);
+            assert_eq!(error.kind(), ErrorKind::ValueValidation, "{bad}");
+            assert!(error.to_string().contains(bad), "{error}");
+        }
     }
 }
