@@ -806,20 +806,28 @@ fn run_on_board(
                 Reply::Board(board) => Some(board),
                 _ => None,
             });
+            let gnss = fetch_optional(client, Request::GetGnss(()), "the GNSS request")?.and_then(
+                |reply| match reply {
+                    Reply::Gnss(gnss) => Some(gnss),
+                    _ => None,
+                },
+            );
             Ok(if cli.json {
                 format!(
                     "{:#}\n",
                     json!({
                         "info": report::info_json(&client.info, client.port()),
                         "board": board.as_ref().map(report::board_json),
+                        "gnss": gnss.as_ref().map(report::gnss_json),
                         "status": report::status_json(&status),
                     })
                 )
             } else {
                 format!(
-                    "{}{}{}",
+                    "{}{}{}{}",
                     report::info_text(&client.info, client.port()),
                     board.as_ref().map(report::board_text).unwrap_or_default(),
+                    report::gnss_text(gnss.as_ref()),
                     report::status_text(&status, fetch_stored_offset(client)?)
                 )
             })

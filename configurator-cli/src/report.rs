@@ -993,6 +993,49 @@ pub fn board_text(board: &BoardHealth) -> String {
     out
 }
 
+/// The GNSS receiver's line of `info` (protocol 1.16's `GetGnss`; `None`: no GNSS port).
+pub fn gnss_text(gnss: Option<&protocol::GnssHealth>) -> String {
+    match gnss {
+        Some(g) => format!(
+            "  gnss            {:?} at {} baud ({:?}); fix type {}, {} satellites, accuracy \
+             {:.2} m horizontal, {:.2} m vertical, {:.2} m/s; {} fixes, {} without a fix\n",
+            g.state,
+            g.baud,
+            g.interface,
+            g.fix_type,
+            g.satellites,
+            g.horizontal_accuracy_m,
+            g.vertical_accuracy_m,
+            g.speed_accuracy_mps,
+            g.fixes,
+            g.without_fix
+        ),
+        None => "  gnss            no GNSS port\n".to_string(),
+    }
+}
+
+/// The GNSS receiver as JSON (units in the names).
+pub fn gnss_json(gnss: &protocol::GnssHealth) -> Value {
+    json!({
+        "state": format!("{:?}", gnss.state),
+        "baud": gnss.baud,
+        "interface": format!("{:?}", gnss.interface),
+        "fix_type": gnss.fix_type,
+        "satellites": gnss.satellites,
+        "horizontal_accuracy_m": finite(gnss.horizontal_accuracy_m),
+        "vertical_accuracy_m": finite(gnss.vertical_accuracy_m),
+        "speed_accuracy_mps": finite(gnss.speed_accuracy_mps),
+        "fixes": gnss.fixes,
+        "without_fix": gnss.without_fix,
+        "checksum_errors": gnss.checksum_errors,
+    })
+}
+
+/// `value`, or JSON null when it is not finite (JSON has no NaN).
+fn finite(value: f32) -> Option<f32> {
+    value.is_finite().then_some(value)
+}
+
 /// The board's hardware as JSON.
 pub fn board_json(board: &BoardHealth) -> Value {
     json!({

@@ -405,6 +405,47 @@ impl GnssFeed {
     }
 }
 
+/// The simulated receiver on the board's GNSS UART, as the SITL's board has it: its bytes wait
+/// for the firmware's link task to read them (`firmware::app::system::System::service_gnss`,
+/// the board's `LinkTask::service_gnss`), which also sends it the configuration and sets the
+/// rate. The simulated receiver takes the configuration as written and streams at any rate
+/// (the rate-enforcing receiver is the driver's test double, `firmware::drivers::ubx`).
+#[derive(Clone, Debug)]
+pub struct SimGnssPort {
+    receiver: SimGnss,
+    waiting: std::collections::VecDeque<u8>,
+}
+
+impl SimGnssPort {
+    /// The receiver `model`, its noise drawn from `seed`.
+    pub fn new(model: &GnssModelConfig, seed: u64) -> Self {
+        Self { receiver: SimGnss::new(model.clone(), seed), waiting: Default::default() }
+    }
+
+    /// Simulated time `now_s` with the craft at `truth`: the solutions due reach the UART.
+    pub fn advance(&mut self, now_s: f64, truth: &GnssTruth) {
+        self.waiting.extend(self.receiver.update_bytes(now_s, truth));
+    }
+}
+
+impl firmware::app::hal::Uart for SimGnssPort {
+    fn read(&mut self, buffer: &mut [u8]) -> usize {
+        let count = buffer.len().min(self.waiting.len());
+        for (slot, byte) in buffer.iter_mut().zip(self.waiting.drain(..count)) {
+            *slot = byte;
+        }
+        count
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> usize {
+        bytes.len()
+    }
+}
+
+impl firmware::app::hal::GnssPort for SimGnssPort {
+    fn set_baud(&mut self, _baud: u32) {}
+}
+
 /// The GNSS receiver on a command line (`fly`, later `sitl`): `--gnss` flies on it instead of
 /// motion capture; the rest shape it in the units a user thinks in (the other fields are
 /// [`GnssModelConfig::default`]'s: correlated over 20 s, 5 cm white, 5 cm/s velocity noise).

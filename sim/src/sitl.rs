@@ -469,7 +469,7 @@ impl Runner {
             // The receiver keeps its own time (the simulator's); the firmware's side of it
             // starts again with the firmware.
             let mut gnss =
-                self.gnss.as_ref().map(|model| crate::gnss::GnssFeed::new(model, self.seed));
+                self.gnss.as_ref().map(|model| crate::gnss::SimGnssPort::new(model, self.seed));
             let mut settings = match self.flash.take() {
                 Some(flash) => Settings::load(flash, FileFlash::store_range()),
                 None => Settings::without_store(),
@@ -479,6 +479,20 @@ impl Runner {
             if let Some(r_imu_m) = self.imu_offset_m {
                 // The command line's offset is in force as if calibrated (not saved).
                 settings.update(|params| params.store_calibration(r_imu_m, [0.0; 3], None));
+            }
+            if let Some(model) = &self.gnss {
+                // The receiver's rate and latency in force from start-up, as a user would set
+                // them for theirs (`gnss_rate_hz`, `gnss_latency_s`; not saved).
+                settings.update(|params| {
+                    for (name, value) in [
+                        (&b"gnss_rate_hz"[..], model.rate_hz),
+                        (b"gnss_latency_s", model.latency_s),
+                    ] {
+                        if let Some(index) = firmware::app::params::find(name) {
+                            let _ = params.set(index, &[value as f32]);
+                        }
+                    }
+                });
             }
             if self.log_always {
                 // In force before the first step, as a saved value is at a board's start-up.
@@ -576,14 +590,12 @@ impl Runner {
                     }
                 }
             }
-            if let Some(feed) = gnss.as_mut() {
+            if let Some(port) = gnss.as_mut() {
                 let truth = crate::gnss::GnssTruth {
                     position_ned_m: state.position_ned_m,
                     velocity_ned_mps: state.velocity_ned_mps,
                 };
-                if let Some(fix) = feed.step(clock.board.time_s(), &truth, now_us) {
-                    system.submit(ControlCommand::PositionFix(fix));
-                }
+                port.advance(clock.board.time_s(), &truth);
             }
             if let Some(radio) = &mut self.radio {
                 radio.advance(clock.board.now_us());
@@ -601,6 +613,10 @@ impl Runner {
                 radio.port.set_time(clock.board.now_us());
             }
             let outcome = system.pass(now_us, &mut ((&mut pty, &mut radio), &mut self.tcp));
+            if let Some(port) = gnss.as_mut() {
+                // The board's link task services the receiver after each pass.
+                system.service_gnss(now_us, port);
+            }
             if let Some(tcp) = &mut self.tcp {
                 tcp.drop_closed();
             }
@@ -652,7 +668,7 @@ impl Clock<'_> {
 /// receiver (the simulator's receiver and the firmware's side of it).
 struct Sources<'s> {
     mocap: &'s mut Option<crate::recovery::MotionCapture>,
-    gnss: &'s mut Option<crate::gnss::GnssFeed>,
+    gnss: &'s mut Option<crate::gnss::SimGnssPort>,
 }
 
 /// The simulated hand's state across restarts: calibration throws done, the flight throw.

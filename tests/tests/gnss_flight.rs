@@ -166,4 +166,12 @@ fn the_sitl_on_gnss_in_a_4_mps_wind_recovers_from_identify_and_holds_within_1_m(
         assert!(error_m < HOLD_BOUND_M, "{error_m:.3} m from the setpoint: {flight}");
         std::thread::sleep(std::time::Duration::from_secs_f64(1.0 / config.speed));
     }
+    // The receiver as the board's link task sees it (protocol 1.16's `GetGnss`): configured,
+    // a 3D fix, 10 a second taken.
+    let info = tests::run_cli(&["--tcp", &tcp, "--json", "info"]);
+    assert!(info.status.success(), "{}", String::from_utf8_lossy(&info.stderr));
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let gnss = &info["gnss"];
+    assert_eq!((gnss["state"].as_str(), gnss["fix_type"].as_u64()), (Some("Receiving"), Some(3)));
+    assert!(gnss["fixes"].as_u64().unwrap() > 50, "{gnss}");
 }

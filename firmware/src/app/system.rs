@@ -899,6 +899,13 @@ impl<'q, F: NorFlash> System<'q, F> {
         queue_command(&mut self.handoffs.commands, command)
     }
 
+    /// Service the GNSS receiver on `port` at `now_us`, as the board's link task does after
+    /// each pass ([`LinkTask::service_gnss`]): its new fix waits in the control queue.
+    pub fn service_gnss<P: GnssPort>(&mut self, now_us: u64, port: &mut P) {
+        let mut commands = Exclusive(&mut self.handoffs.commands);
+        self.link.service_gnss(now_us, port, &mut commands);
+    }
+
     /// The control step's latest snapshot.
     pub fn snapshot(&self) -> ControlSnapshot {
         self.control.control().snapshot()
@@ -944,6 +951,9 @@ pub fn with_logged_system<F: NorFlash, R>(
     log: Option<LogTarget<'_>>,
     f: impl FnOnce(&mut System<'_, F>) -> R,
 ) -> (R, Settings<F>) {
+    // The simulated board has a GNSS port, as the board does: its driver from the parameters
+    // at start-up, serviced by [`System::service_gnss`] when a receiver is simulated.
+    let mut gnss = GnssInput::from_params(settings.params());
     let mut log_ring = super::log::LogRing::new();
     let mut arming = super::log::ArmingBox::new();
     let (log_producer, log_consumer) = super::log::split_log(&mut log_ring, &mut arming);
@@ -966,8 +976,8 @@ pub fn with_logged_system<F: NorFlash, R>(
         ),
         None => (control, None),
     };
-    let mut system =
-        System { control, link: LinkTask::new(settings, ring_consumer), background, handoffs, log };
+    let link = LinkTask::new(settings, ring_consumer).with_gnss(&mut gnss);
+    let mut system = System { control, link, background, handoffs, log };
     let result = f(&mut system);
     (result, system.link.into_settings())
 }
