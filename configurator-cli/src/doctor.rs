@@ -961,7 +961,7 @@ fn status(client: &mut Client) -> Result<protocol::Status, LinkError> {
 
 /// Whether the user told the board that its ESCs report no speed (`motor_bidir_dshot` = 0);
 /// false where the board has no such parameter.
-fn speed_reports_off(client: &mut Client) -> Result<bool, LinkError> {
+pub fn speed_reports_off(client: &mut Client) -> Result<bool, LinkError> {
     let name = protocol::ParamRef::Name(protocol::text("motor_bidir_dshot"));
     match optional(client, Request::GetParam(name), "the parameter request")? {
         Some(Reply::Param(info)) => Ok(info.value.first() == Some(&0.0)),

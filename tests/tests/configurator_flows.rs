@@ -499,6 +499,7 @@ fn the_bidirectional_dshot_parameter_decides_after_a_restart_whether_speeds_are_
     // speed reports' timeout (0.1 s).
     let (code, stdout, stderr) = cli(&port, &["arm-throw-to-fly"]);
     assert_eq!(code, 0, "{stdout}{stderr}");
+    assert!(stdout.contains("from the commands"), "the arming says which: {stdout}");
     std::thread::sleep(std::time::Duration::from_millis(300));
     let status: Value = serde_json::from_str(&ok(&port, &["--json", "status"])).unwrap();
     assert_eq!(status["armed"], true, "{status}");
