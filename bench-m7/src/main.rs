@@ -387,7 +387,6 @@ fn primed_learner(m: usize, force_seen: bool) -> Learner {
 
 /// Samples measured one by one of the learner without speed telemetry: a whole cycle of its
 /// round-robin work.
-#[cfg(feature = "no-speed")]
 const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 
 /// The learners without speed telemetry measured at the excitation's end: motor count, the
@@ -397,23 +396,19 @@ const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 /// learner solves the lag candidates' regressions (52, as many a sample as
 /// `no_speed::SCORING_WORK_PER_MOTOR` allows), then learns from the held samples, at most
 /// `no_speed::RELEASE_PER_SAMPLE` a sample.
-#[cfg(feature = "no-speed")]
 const NO_SPEED_ENDS: [(usize, usize); 2] = [(4, 453), (8, 853)];
 
 /// Samples measured at each excitation's end ([`NO_SPEED_ENDS`]): the candidates' regressions
 /// and the first of the catch-up.
-#[cfg(feature = "no-speed")]
 const NO_SPEED_END_MEASURED: usize = 60;
 
 /// Samples of pulses the learner without speed telemetry is primed with (0.2 s: three motors
 /// pulsed, the lag regressions learning).
-#[cfg(feature = "no-speed")]
 const NO_SPEED_PRIMING_SAMPLES: usize = 400;
 
 /// The learner without speed telemetry (`flight::learner::no_speed`, issue 32): the quad's in
 /// the middle of its excitation (the lag regressions and the held samples), and the quad's and
 /// the octorotor's at the excitation's end, each sample measured on its own.
-#[cfg(feature = "no-speed")]
 fn no_speed_regions() {
     use flight::learner::LearnerSlot;
     static mut SLOT: LearnerSlot = LearnerSlot::empty();
@@ -850,7 +845,6 @@ fn main() -> ! {
     for m in BOUNDED_MOTOR_COUNTS {
         hprintln!("bench-m7 region: thrust-axis bounded search m={} (one motor capped)", m);
     }
-    #[cfg(feature = "no-speed")]
     for (m, seen) in NO_SPEED_ENDS {
         if m == 4 {
             for k in 1..=NO_SPEED_MEASURED_SAMPLES {
@@ -980,7 +974,6 @@ fn main() -> ! {
         }
     }
 
-    #[cfg(feature = "no-speed")]
     no_speed_regions();
 
     let sample = AlignedSample {

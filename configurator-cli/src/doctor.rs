@@ -713,18 +713,19 @@ pub struct SpeedReports {
     /// `motor_bidir_dshot` = 0: the user says the ESCs cannot report their speed.
     pub off: bool,
     /// The firmware identifies the motors without speed reports
-    /// (`Capabilities::IDENTIFIES_WITHOUT_SPEEDS`, protocol 1.13: the image built for ESCs
-    /// without bidirectional DShot, and the simulators).
+    /// (`Capabilities::IDENTIFIES_WITHOUT_SPEEDS`, protocol 1.13: every image built since
+    /// issue 56, and the simulators; older board images had it only in a separate build).
     pub identifies_without: bool,
 }
 
-/// Where ESCs without bidirectional DShot are flown: this firmware, or the image for them.
+/// Where ESCs without bidirectional DShot are flown: this firmware, or, on an older one, the
+/// current image (every image identifies without speeds since issue 56).
 fn without_reports_advice(reports: SpeedReports) -> &'static str {
     if reports.identifies_without {
         "this firmware then identifies the motors from the commands"
     } else {
-        "with the firmware image built for them (`cargo xtask flash --no-speed`), which \
-         identifies the motors from the commands"
+        "after updating the firmware (`cargo xtask flash`: every current image identifies the \
+         motors from the commands)"
     }
 }
 
@@ -1045,7 +1046,7 @@ fn status(client: &mut Client) -> Result<protocol::Status, LinkError> {
 
 /// Whether the user told the board that its ESCs report no speed (`motor_bidir_dshot` = 0);
 /// false where the board has no such parameter.
-fn speed_reports_off(client: &mut Client) -> Result<bool, LinkError> {
+pub fn speed_reports_off(client: &mut Client) -> Result<bool, LinkError> {
     let name = protocol::ParamRef::Name(protocol::text("motor_bidir_dshot"));
     match optional(client, Request::GetParam(name), "the parameter request")? {
         Some(Reply::Param(info)) => Ok(info.value.first() == Some(&0.0)),
@@ -1442,7 +1443,7 @@ mod tests {
         assert!(one.found.contains("motor 2 of 0–3 reports NO speed"), "{}", one.found);
         assert!(one.advice.unwrap().contains("check motor 2's ESC"));
         let none = esc_line(Some(&health(0)), None, on).advice.unwrap();
-        assert!(none.contains("motor_bidir_dshot = 1") && none.contains("--no-speed"), "{none}");
+        assert!(none.contains("motor_bidir_dshot = 1") && none.contains("updating"), "{none}");
         let mut link = MotorLinkHealth { motor_count: 4, ..MotorLinkHealth::default() };
         link.reports = [1000, 1000, 900, 1000, 0, 0, 0, 0];
         link.report_errors = [0, 3, 100, 0, 0, 0, 0, 0];
@@ -1467,7 +1468,7 @@ mod tests {
         assert_eq!(line.verdict, Verdict::Fail);
         let advice = line.advice.unwrap();
         assert!(advice.contains("motor_bidir_dshot = 1"), "{advice}");
-        assert!(advice.contains("cargo xtask flash --no-speed"), "{advice}");
+        assert!(advice.contains("cargo xtask flash`"), "{advice}");
         let spin = spin_without_reports();
         assert_eq!(spin.verdict, Verdict::Skipped);
         assert!(spin.advice.unwrap().contains("motor-test --motor N"));

@@ -139,8 +139,7 @@ impl std::fmt::Display for DeviceErrorText {
                 "not armed: motor{} {} report{} no speed (no answer within {} ms); the learner \
                  needs every motor's speed: ESCs with bidirectional DShot (BLHeli_32, Bluejay, \
                  AM32) and `motor_bidir_dshot` = 1 (ESCs without it: `motor_bidir_dshot` = 0, \
-                 with a firmware that identifies from the commands, `cargo xtask flash \
-                 --no-speed`)",
+                 `save`, `reboot`: the firmware then identifies from the commands)",
                 if motors.count_ones() == 1 { "" } else { "s" },
                 motor_list(*motors),
                 if motors.count_ones() == 1 { "s" } else { "" },

@@ -927,10 +927,22 @@ fn run_on_board(
                 "WARNING: armed for throw-to-fly: the motors WILL SPIN after the next throw. \
                  Keep clear of the propellers; stop them at any time with `configurator-cli disarm`."
             );
-            Ok(if cli.json {
-                format!("{:#}\n", json!({"armed": true}))
+            // Which identification the board runs: one image has both (issue 56), the
+            // parameter `motor_bidir_dshot` chooses.
+            let from_commands = configurator_cli::doctor::speed_reports_off(client)?;
+            let (identification, how) = if from_commands {
+                (
+                    "commands",
+                    "the motors identified from the commands and the body's response \
+                     (motor_bidir_dshot = 0: ESCs without speed telemetry)",
+                )
             } else {
-                "armed for throw-to-fly\n".into()
+                ("speeds", "the motors identified from their speed reports (motor_bidir_dshot = 1)")
+            };
+            Ok(if cli.json {
+                format!("{:#}\n", json!({"armed": true, "identification": identification}))
+            } else {
+                format!("armed for throw-to-fly: {how}\n")
             })
         }
         BoardCommand::Disarm => {

@@ -399,10 +399,8 @@ mod app {
             // The ESCs answer every frame with their eRPM (`board::motors`).
             capabilities |= Capabilities::MOTOR_RPM;
         }
-        if flight::learner::IDENTIFIES_WITHOUT_SPEEDS {
-            // The image for ESCs without bidirectional DShot (feature `no-speed`).
-            capabilities |= Capabilities::IDENTIFIES_WITHOUT_SPEEDS;
-        }
+        // Every image identifies without speeds when told so (`motor_bidir_dshot` = 0, issue 56).
+        capabilities |= Capabilities::IDENTIFIES_WITHOUT_SPEEDS;
         if settings.status().origin != protocol::ConfigOrigin::NoStore {
             capabilities |= Capabilities::PERSISTENT_STORE;
         }

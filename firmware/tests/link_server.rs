@@ -513,26 +513,28 @@ fn arming_throw_to_fly_queues_the_command_with_four_motors_or_more() {
 }
 
 /// With `motor_bidir_dshot` = 0 (ESCs without bidirectional DShot) and no motor reporting, arming
-/// is queued only where the build identifies from the commands
-/// (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators and the bridge); elsewhere (the
-/// board's build, `cargo test -p firmware`) it is refused naming the parameter, and nothing is
+/// is queued: the learner identifies from the commands (`flight::learner::no_speed`, in every
+/// build). With the parameter at 1 the same silent motors are refused, named, and nothing is
 /// queued.
 #[test]
 fn with_esc_speed_reports_off_arming_depends_on_the_commands_only_identification() {
-    let mut view = learner_view(4);
-    view.control.speeds_reported = 0;
-    let mut host = Host::with_view(view);
-    host.settings.update(|params| {
-        params.set(firmware::app::params::Param::MotorBidirDshot as usize, &[0.0]).unwrap();
-    });
-    host.handshake();
-    let response = host.request(&Request::ArmThrowToFly(()), 2);
-    if flight::learner::IDENTIFIES_WITHOUT_SPEEDS {
-        assert_eq!(response, Ok(Reply::Done));
-        assert_eq!(host.commands(), vec![ControlCommand::ArmThrowToFly]);
-    } else {
-        assert_eq!(bad_value_name(&response), Some("motor_bidir_dshot"), "{response:?}");
-        assert_eq!(host.commands(), vec![], "nothing queued");
+    for bidirectional in [0.0, 1.0] {
+        let mut view = learner_view(4);
+        view.control.speeds_reported = 0;
+        let mut host = Host::with_view(view);
+        host.settings.update(|params| {
+            let param = firmware::app::params::Param::MotorBidirDshot as usize;
+            params.set(param, &[bidirectional]).unwrap();
+        });
+        host.handshake();
+        let response = host.request(&Request::ArmThrowToFly(()), 2);
+        if bidirectional == 0.0 {
+            assert_eq!(response, Ok(Reply::Done));
+            assert_eq!(host.commands(), vec![ControlCommand::ArmThrowToFly]);
+        } else {
+            assert_eq!(response, Err(DeviceError::SpeedsNotReported { motors: 0b1111 }));
+            assert_eq!(host.commands(), vec![], "nothing queued");
+        }
     }
 }
 

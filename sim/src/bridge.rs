@@ -803,8 +803,8 @@ impl std::fmt::Display for BridgeNotice<'_> {
 /// every sensor packet), as a user sets `motor_bidir_dshot` = 0 for ESCs without bidirectional
 /// DShot (`scenario bridge --no-speed-telemetry`; over TCP, `set motor_bidir_dshot = 0` does
 /// the same while disarmed). In force from the first packet (call it before an arm request),
-/// for the run only (the bridge has no flash). This build identifies from the commands
-/// (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`), so throw-to-fly then arms without speeds.
+/// for the run only (the bridge has no flash). Every build identifies from the commands then
+/// (`flight::learner::no_speed`), so throw-to-fly arms without speeds.
 pub fn set_no_speed_telemetry(app: &mut FirmwareApp<'_>) {
     app.configure(|params| {
         // A flag's 0 is always within its range.

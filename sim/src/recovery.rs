@@ -731,7 +731,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             // Without speed telemetry the model is the one engaged on once it has learned from
             // the whole excitation (`LearnedModel::pending`).
             if snapshot.phase == FlightPhase::Done
-                && (!learned.is_pending() || snapshot.pilot.flying)
+                && (!learned.pending || snapshot.pilot.flying)
                 && report.thrust_scores_at_excitation_end.is_none()
             {
                 report.thrust_scores_at_excitation_end = Some(thrust_scores(learned, &truth));

@@ -18,18 +18,14 @@ use firmware::app::{BoardInfo, LinkServer, CONTROL_RATE_HZ};
 use protocol::{Capabilities, BOARD_NAME_LEN};
 
 /// Capabilities of every simulated board: IMU, motors with RPM telemetry, telemetry streaming,
-/// the simulator flag, and the identification without speed reports where this build has it
-/// (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`).
+/// the simulator flag, and the identification without speed reports (every build, as the
+/// board's: issue 56).
 pub const SIMULATOR_CAPABILITIES: u32 = Capabilities::IMU
     | Capabilities::MOTORS
     | Capabilities::MOTOR_RPM
     | Capabilities::TELEMETRY
     | Capabilities::SIMULATOR
-    | if flight::learner::IDENTIFIES_WITHOUT_SPEEDS {
-        Capabilities::IDENTIFIES_WITHOUT_SPEEDS
-    } else {
-        0
-    };
+    | Capabilities::IDENTIFIES_WITHOUT_SPEEDS;
 
 /// A signing session for a simulated start-up (`protocol::signing`): the operating system's
 /// random numbers, as the board takes its RNG's.

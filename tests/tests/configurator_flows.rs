@@ -494,12 +494,12 @@ fn the_bidirectional_dshot_parameter_decides_after_a_restart_whether_speeds_are_
     assert!(line("esc")["found"].as_str().unwrap().contains("from the commands"));
     assert_eq!(line("spin")["verdict"], "skipped", "{}", line("spin"));
     assert!(line("spin")["advice"].as_str().unwrap().contains("motor-test"));
-    // The SITL's build identifies from the commands (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`;
-    // the board's does not yet, and refuses naming the parameter: `firmware/tests/link_server.rs`):
+    // Every build identifies from the commands (`flight::learner::no_speed`, issue 56):
     // arming for a throw is accepted although no motor reports, and stays armed past the
     // speed reports' timeout (0.1 s).
     let (code, stdout, stderr) = cli(&port, &["arm-throw-to-fly"]);
     assert_eq!(code, 0, "{stdout}{stderr}");
+    assert!(stdout.contains("from the commands"), "the arming says which: {stdout}");
     std::thread::sleep(std::time::Duration::from_millis(300));
     let status: Value = serde_json::from_str(&ok(&port, &["--json", "status"])).unwrap();
     assert_eq!(status["armed"], true, "{status}");

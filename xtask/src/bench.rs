@@ -76,8 +76,6 @@ struct Target {
     prefix: &'static str,
     /// Instructions, at most.
     limit: u64,
-    /// The `bench-m7` argument without which no region of the target runs (`None`: always run).
-    needs: Option<&'static str>,
     /// Where the target comes from.
     origin: &'static str,
 }
@@ -92,77 +90,66 @@ static TARGETS: [Target; 11] = [
         what: "thrust-axis solve, m = 4",
         prefix: "thrust-axis solve m=4 ",
         limit: SOLVE_M4_TARGET,
-        needs: None,
         origin: ORIGIN,
     },
     Target {
         what: "thrust-axis solve, m = 6",
         prefix: "thrust-axis solve m=6 ",
         limit: SOLVE_M6_TARGET,
-        needs: None,
         origin: ORIGIN,
     },
     Target {
         what: "thrust-axis solve, m = 8",
         prefix: "thrust-axis solve m=8 ",
         limit: SOLVE_M8_TARGET,
-        needs: None,
         origin: ORIGIN,
     },
     Target {
         what: "control step, quad",
         prefix: "closed-loop step m=4, ",
         limit: STEP_QUAD_TARGET,
-        needs: None,
         origin: ORIGIN,
     },
     Target {
         what: "control step, octorotor",
         prefix: "closed-loop step m=8, ",
         limit: STEP_OCTO_TARGET,
-        needs: None,
         origin: ORIGIN,
     },
     Target {
         what: "learner without speed telemetry, quad, per sample of the excitation",
         prefix: "learner step m=4, no speed telemetry, ",
         limit: LEARNER_QUAD_TARGET,
-        needs: Some(NO_SPEED_ARG),
         origin: ORIGIN,
     },
     Target {
         what: "learner, quad, per sample",
         prefix: "learner step m=4, ",
         limit: LEARNER_QUAD_TARGET,
-        needs: None,
         origin: ORIGIN,
     },
     Target {
         what: "learner, octorotor, per sample",
         prefix: "learner step m=8, ",
         limit: LEARNER_OCTO_TARGET,
-        needs: None,
         origin: ORIGIN,
     },
     Target {
         what: "catch-up without speed telemetry, quad, per sample",
         prefix: "learner m=4, no speed telemetry, ",
         limit: LEARNER_QUAD_TARGET,
-        needs: Some(NO_SPEED_ARG),
         origin: ORIGIN,
     },
     Target {
         what: "catch-up without speed telemetry, octorotor, per sample",
         prefix: "learner m=8, no speed telemetry, ",
         limit: LEARNER_OCTO_TARGET,
-        needs: Some(NO_SPEED_ARG),
         origin: ORIGIN,
     },
     Target {
         what: "the sticks and the landing in a control step",
         prefix: "pilot step: ",
         limit: PILOT_STEP_TARGET,
-        needs: None,
         origin: "issue 53",
     },
 ];
@@ -197,8 +184,8 @@ fn verdicts(names: &[&str], counts: &[u64], overhead: u64) -> Vec<Row> {
 }
 
 /// Every target missed, one line each: a region over its limit, or a target no region measured
-/// although the arguments `given` run its regions (a renamed region must not pass unseen).
-fn missed(rows: &[Row], given: &[&str]) -> Vec<String> {
+/// (every target's regions run: a renamed region must not pass unseen).
+fn missed(rows: &[Row]) -> Vec<String> {
     let mut out: Vec<String> = rows
         .iter()
         .filter(|row| row.over())
@@ -211,9 +198,8 @@ fn missed(rows: &[Row], given: &[&str]) -> Vec<String> {
         })
         .collect();
     for target in &TARGETS {
-        let runs = target.needs.is_none_or(|arg| given.contains(&arg));
         let measured = rows.iter().any(|row| row.target.is_some_and(|t| std::ptr::eq(t, target)));
-        if runs && !measured {
+        if !measured {
             out.push(format!(
                 "{} (≤ {}, {}): no region named `{}…` was measured",
                 target.what, target.limit, target.origin, target.prefix
@@ -242,12 +228,7 @@ fn print_targets(rows: &[Row]) {
                 target.limit,
                 if row.instructions > target.limit { "MISSED" } else { "met" }
             ),
-            None => println!(
-                "| {} | — | — | ≤ {} | not measured{} |",
-                target.what,
-                target.limit,
-                target.needs.map(|arg| format!(" (run with `{arg}`)")).unwrap_or_default()
-            ),
+            None => println!("| {} | — | — | ≤ {} | not measured |", target.what, target.limit),
         }
     }
 }
@@ -255,26 +236,22 @@ fn print_targets(rows: &[Row]) {
 /// The argument that adds the thrust-axis bounded search (the bench crate's feature of the same
 /// name, which also compiles `flight` with it, unlike the firmware).
 const BOUNDED_SEARCH_ARG: &str = "--bounded-search";
-/// The argument that adds the learner without speed telemetry (the bench crate's feature
-/// `no-speed`, which compiles `flight` with it, unlike the firmware).
-const NO_SPEED_ARG: &str = "--no-speed";
 /// Debian package that provides `qemu-system-arm`.
 const QEMU_PACKAGE: &str = "qemu-system-arm";
 
 /// Instruction counts on QEMU's Cortex-M7; prints a table of every region with its target and
 /// one of the issue 56 targets, and fails listing every target missed (`missed`).
-/// `--bounded-search` adds the thrust-axis bounded-search regions and `--no-speed` the learner
-/// without speed telemetry (each compiles `flight` with its feature, as the firmware does not);
-/// without `--no-speed` its targets are printed as not measured.
+/// `--bounded-search` adds the thrust-axis bounded-search regions (it compiles `flight` with its
+/// feature, as the firmware does not). The learner without speed telemetry is in every run, as
+/// in the firmware's one image (issue 56).
 pub fn m7(args: &[String]) -> Result<()> {
     let mut features = Vec::new();
     for arg in args {
         match arg.as_str() {
             BOUNDED_SEARCH_ARG => features.push("bounded-search"),
-            NO_SPEED_ARG => features.push("no-speed"),
             other => bail!(
                 "bench-m7: unknown argument `{other}` (usage: cargo xtask bench-m7 \
-                 [{BOUNDED_SEARCH_ARG}] [{NO_SPEED_ARG}])"
+                 [{BOUNDED_SEARCH_ARG}])"
             ),
         }
     }
@@ -356,8 +333,7 @@ pub fn m7(args: &[String]) -> Result<()> {
         println!("{line}");
     }
     print_targets(&rows);
-    let given: Vec<&str> = args.iter().map(String::as_str).collect();
-    let missed = missed(&rows, &given);
+    let missed = missed(&rows);
     if !missed.is_empty() {
         bail!("bench-m7: {} target(s) missed:\n  {}", missed.len(), missed.join("\n  "));
     }
@@ -489,26 +465,32 @@ mod tests {
         verdicts(names, &counts, OVERHEAD)
     }
 
-    /// One region of each target that runs without arguments, as `bench-m7/src/main.rs` names
-    /// them.
-    const DEFAULT_REGIONS: [&str; 8] = [
+    /// One region of each target (every one runs without arguments), as `bench-m7/src/main.rs`
+    /// names them, in the order of [`TARGETS`].
+    const DEFAULT_REGIONS: [&str; 11] = [
         "thrust-axis solve m=4 warm",
         "thrust-axis solve m=6 tilted 20°, cold",
         "thrust-axis solve m=8 cold",
         "closed-loop step m=4, hover, position hold",
         "closed-loop step m=8, recovery 10 ms after a 60° tilt, position hold (allocation saturated)",
+        "learner step m=4, no speed telemetry, sample 3",
         "learner step m=4, sample 2: force row y, thrust-axis solve, model published",
         "learner step m=8, sample 4: rotational row x",
+        "learner m=4, no speed telemetry, sample 451 at the excitation's end",
+        "learner m=8, no speed telemetry, sample 851 at the excitation's end",
         "pilot step: a landing, the touchdown detector (no fixes)",
     ];
 
     /// The limit of each of [`DEFAULT_REGIONS`], in order.
-    const DEFAULT_LIMITS: [u64; 8] = [
+    const DEFAULT_LIMITS: [u64; 11] = [
         SOLVE_M4_TARGET,
         SOLVE_M6_TARGET,
         SOLVE_M8_TARGET,
         STEP_QUAD_TARGET,
         STEP_OCTO_TARGET,
+        LEARNER_QUAD_TARGET,
+        LEARNER_QUAD_TARGET,
+        LEARNER_OCTO_TARGET,
         LEARNER_QUAD_TARGET,
         LEARNER_OCTO_TARGET,
         PILOT_STEP_TARGET,
@@ -521,15 +503,11 @@ mod tests {
             .map(|name| rows(&[name], &[0])[0].target.map(|t| t.limit).unwrap_or(0))
             .collect();
         assert_eq!(limits, DEFAULT_LIMITS);
-        let no_speed = rows(
-            &[
-                "learner step m=4, no speed telemetry, sample 3",
-                "learner m=8, no speed telemetry, sample 851 at the excitation's end",
-            ],
-            &[0, 0],
-        );
-        assert_eq!(no_speed[0].target.map(|t| t.what), Some(TARGETS[5].what));
-        assert_eq!(no_speed[1].target.map(|t| t.limit), Some(LEARNER_OCTO_TARGET));
+        // Each region takes its own target, the one of the same place in the table.
+        for (name, target) in DEFAULT_REGIONS.iter().zip(&TARGETS) {
+            let row = &rows(&[name], &[0])[0];
+            assert_eq!(row.target.map(|t| t.what), Some(target.what), "{name}");
+        }
         // Regions without a target of their own.
         for name in [
             "learner cycle m=4: the same six samples in one region",
@@ -547,12 +525,12 @@ mod tests {
         let limits = DEFAULT_LIMITS;
         // At the limit: no miss.
         let at = rows(&DEFAULT_REGIONS, &limits);
-        assert_eq!(missed(&at, &[]), Vec::<String>::new());
+        assert_eq!(missed(&at), Vec::<String>::new());
         // One instruction over, one region at a time: that region alone is missed.
         for (k, name) in DEFAULT_REGIONS.iter().enumerate() {
             let mut figures = limits;
             figures[k] += 1;
-            let missed = missed(&rows(&DEFAULT_REGIONS, &figures), &[]);
+            let missed = missed(&rows(&DEFAULT_REGIONS, &figures));
             assert_eq!(missed.len(), 1, "{missed:?}");
             assert!(missed[0].starts_with(name), "{missed:?}");
             assert!(
@@ -561,45 +539,42 @@ mod tests {
             );
         }
         // The last run's quad hover step, 9,638 instructions (docs/benchmarks.md).
-        let missed = missed(
-            &rows(&DEFAULT_REGIONS, &[875, 1_500, 1_500, 9_638, 12_000, 12_000, 24_000, 300]),
-            &[],
-        );
+        let mut figures = limits;
+        figures[3] = 9_638;
+        let missed = missed(&rows(&DEFAULT_REGIONS, &figures));
         assert_eq!(missed.len(), 1);
         assert!(missed[0].contains("9638 instructions > 8000"), "{missed:?}");
     }
 
     #[test]
     fn the_catch_up_over_the_learner_budget_is_a_miss() {
-        let names = [
-            "learner step m=4, no speed telemetry, sample 1",
-            "learner m=4, no speed telemetry, sample 451 at the excitation's end",
-            "learner m=8, no speed telemetry, sample 851 at the excitation's end",
-        ];
+        // A second catch-up sample of the octorotor, one instruction over its budget.
+        let over = "learner m=8, no speed telemetry, sample 852 after the excitation's end";
         let mut all: Vec<&str> = DEFAULT_REGIONS.to_vec();
-        all.extend(names);
-        let mut figures = vec![0; DEFAULT_REGIONS.len()];
-        figures.extend([LEARNER_QUAD_TARGET, LEARNER_QUAD_TARGET, LEARNER_OCTO_TARGET]);
-        assert!(missed(&rows(&all, &figures), &[NO_SPEED_ARG]).is_empty());
+        all.push(over);
+        let mut figures = DEFAULT_LIMITS.to_vec();
+        figures.push(LEARNER_OCTO_TARGET);
+        assert!(missed(&rows(&all, &figures)).is_empty());
         let last = figures.len() - 1;
         figures[last] = LEARNER_OCTO_TARGET + 1;
-        let missed = missed(&rows(&all, &figures), &[NO_SPEED_ARG]);
+        let missed = missed(&rows(&all, &figures));
         assert_eq!(missed.len(), 1, "{missed:?}");
-        assert!(missed[0].starts_with(names[2]), "{missed:?}");
+        assert!(missed[0].starts_with(over), "{missed:?}");
     }
 
     #[test]
-    fn a_target_no_region_measured_is_a_miss_when_its_regions_run() {
-        // Without `--no-speed` its three targets are not run, so not missed.
+    fn a_target_no_region_measured_is_a_miss() {
         let zeros = [0; DEFAULT_REGIONS.len()];
-        assert!(missed(&rows(&DEFAULT_REGIONS, &zeros), &[]).is_empty());
-        // With it, they are expected: none measured, three missed.
-        assert_eq!(missed(&rows(&DEFAULT_REGIONS, &zeros), &[NO_SPEED_ARG]).len(), 3);
+        assert!(missed(&rows(&DEFAULT_REGIONS, &zeros)).is_empty());
+        // The catch-up's regions left out (as `--no-speed` once did): their two targets missed.
+        let without: Vec<&str> =
+            DEFAULT_REGIONS.into_iter().filter(|name| !name.starts_with("learner m=")).collect();
+        assert_eq!(missed(&rows(&without, &zeros[..without.len()])).len(), 2);
         // A control-step region renamed away: its target is missed.
         let renamed = ["closed loop m=4 hover"];
         let mut names: Vec<&str> = DEFAULT_REGIONS.to_vec();
         names[3] = renamed[0];
-        let missed = missed(&rows(&names, &zeros), &[]);
+        let missed = missed(&rows(&names, &zeros));
         assert_eq!(missed.len(), 1, "{missed:?}");
         assert!(missed[0].starts_with(TARGETS[3].what), "{missed:?}");
     }

@@ -3,9 +3,9 @@
 //! `build` installs what the cross build needs (the rustup target, flip-link), builds the
 //! firmware ELF (cargo profile `firmware`: the release profile, its cold dependencies compiled
 //! for size) and prints its flash and RAM use, read from the ELF's section headers by a small
-//! reader below (no binutils needed); it fails when the image exceeds its 256 KiB flash budget
-//! (384 KiB for the image for ESCs without speed telemetry, `--no-speed`) or links core's float
-//! formatting. `flash` programs a board through a debug probe (probe-rs) or
+//! reader below (no binutils needed); it fails when the image exceeds its 384 KiB flash budget
+//! or links core's float formatting. One image for every craft (issue 56): with or without ESC
+//! speed telemetry, chosen at run time by the parameter `motor_bidir_dshot`. `flash` programs a board through a debug probe (probe-rs) or
 //! through the STM32's ROM DFU bootloader (dfu-util), and says what to install or connect when
 //! neither is possible.
 
@@ -49,19 +49,12 @@ const RAM_SECTIONS: &[&str] = &[".data", ".bss", ".uninit"];
 /// crates the control step and the learner never run at "z"; `bench-m7` mirrors it for `flight`).
 pub const PROFILE: &str = "firmware";
 
-/// Flash budget of every firmware image, bytes: three 128 KiB sectors of the H743's flash
+/// Flash budget of the firmware image, bytes: three 128 KiB sectors of the H743's flash
 /// (issue 56, which set it for one image with everything: the pilot's sticks, the landing, a
-/// GNSS receiver; issue 31's two sectors were full at 262,124 B before the landing, 265,580 B
-/// with it). The H743's bank 1 (1 MiB) holds it; docs/benchmarks.md, "Firmware size".
+/// GNSS receiver, the identification with and without ESC speed telemetry; issue 31's two
+/// sectors were full at 262,124 B before the landing, 265,580 B with it). The H743's bank 1
+/// (1 MiB) holds it; docs/benchmarks.md, "Firmware size".
 const FLASH_BUDGET_BYTES: u64 = 384 * 1024;
-
-/// Flash budget of the image for ESCs without bidirectional DShot (`--no-speed`, the firmware's
-/// feature `no-speed`: the commands-only identification of issue 32, 16.6 KB more), bytes: the
-/// same three sectors, until issue 56 makes the two images one.
-const NO_SPEED_FLASH_BUDGET_BYTES: u64 = FLASH_BUDGET_BYTES;
-
-/// The `build` and `flash` argument that selects the image for ESCs without speed telemetry.
-pub const NO_SPEED_ARG: &str = "--no-speed";
 
 /// Symbol-name fragments of core's float formatting (`core::num::flt2dec`, Grisu and Dragon4),
 /// about 15 KB of flash. The firmware never formats a float (defmt sends them raw); they are
@@ -76,23 +69,17 @@ const FLOAT_FORMATTING_SYMBOLS: &[&str] = &["flt2dec"];
 /// Extra `args` are passed to `cargo build` (e.g. `--features ...`).
 ///
 /// `--stack` (not passed to cargo) adds the worst-case stack of every interrupt handler and of
-/// `main` (init, idle), from the ELF's code: see [`stack_report`]. `--no-speed` (not passed to
-/// cargo either) builds the image for ESCs without bidirectional DShot (the firmware's feature
-/// `no-speed`), checked against [`NO_SPEED_FLASH_BUDGET_BYTES`].
+/// `main` (init, idle), from the ELF's code: see [`stack_report`].
 pub fn build(args: &[String]) -> Result<PathBuf> {
     ensure_target_installed()?;
     ensure_flip_link()?;
     let stack = args.iter().any(|arg| arg == STACK_ARG);
-    let no_speed = args.iter().any(|arg| arg == NO_SPEED_ARG);
 
     let mut cargo = util::cargo();
     cargo.args(["build", "--profile", PROFILE, "-p", "firmware", "--bin", "firmware"]);
     cargo.args(["--target", TARGET]);
     cargo.args(registry_remaps());
-    if no_speed {
-        cargo.args(["--features", "no-speed"]);
-    }
-    cargo.args(args.iter().filter(|arg| *arg != STACK_ARG && *arg != NO_SPEED_ARG));
+    cargo.args(args.iter().filter(|arg| *arg != STACK_ARG));
     if std::env::var_os("DEFMT_LOG").is_none() {
         // defmt compiles out everything below `error` unless told otherwise.
         cargo.env("DEFMT_LOG", "info");
@@ -108,8 +95,7 @@ pub fn build(args: &[String]) -> Result<PathBuf> {
     if stack {
         print!("{}", stack_report(&bytes, &sections, used.stack_bytes)?);
     }
-    let budget = if no_speed { NO_SPEED_FLASH_BUDGET_BYTES } else { FLASH_BUDGET_BYTES };
-    check_budget(used.flash_bytes, budget)?;
+    check_budget(used.flash_bytes, FLASH_BUDGET_BYTES)?;
     let formatting = float_formatting_symbols(&bytes)?;
     ensure!(
         formatting.is_empty(),
@@ -140,8 +126,7 @@ fn check_stack(init_bytes: u64, running_bytes: u64, free_bytes: u64) -> Result<(
     Ok(())
 }
 
-/// Fails when the image does not fit `budget_bytes` ([`FLASH_BUDGET_BYTES`], or
-/// [`NO_SPEED_FLASH_BUDGET_BYTES`] for that image).
+/// Fails when the image does not fit `budget_bytes` ([`FLASH_BUDGET_BYTES`]).
 fn check_budget(flash_bytes: u64, budget_bytes: u64) -> Result<()> {
     ensure!(
         flash_bytes <= budget_bytes,
@@ -207,14 +192,10 @@ pub const STACK_ARG: &str = "--stack";
 /// `cargo xtask flash --dfu` through the ROM DFU bootloader with dfu-util.
 pub fn flash(args: &[String]) -> Result<()> {
     let mut dfu = false;
-    let mut build_args = Vec::new();
     for arg in args {
         match arg.as_str() {
             "--dfu" => dfu = true,
-            NO_SPEED_ARG => build_args.push(NO_SPEED_ARG.to_string()),
-            other => bail!(
-                "flash: unknown argument `{other}` (usage: cargo xtask flash [--dfu] [--no-speed])"
-            ),
+            other => bail!("flash: unknown argument `{other}` (usage: cargo xtask flash [--dfu])"),
         }
     }
     // Check the tool and the device before the (long) build, so a missing one fails fast.
@@ -237,7 +218,7 @@ pub fn flash(args: &[String]) -> Result<()> {
         require_probe()?;
     }
 
-    let elf = build(&build_args)?;
+    let elf = build(&[])?;
     if dfu {
         let bin = elf.with_extension("bin");
         let image = elf_to_flash_image(&std::fs::read(&elf)?)?;
@@ -1051,16 +1032,14 @@ mod tests {
     }
 
     #[test]
-    fn flash_budget_is_three_sectors_for_either_image() {
-        // 2026-12-02: the default image with the landing, 265,580 B.
-        assert!(check_budget(265_580, FLASH_BUDGET_BYTES).is_ok());
+    fn flash_budget_is_three_sectors() {
+        // 2026-12-02: the image for ESCs without speed telemetry before issue 56 made the two
+        // images one, 290,896 B.
+        assert!(check_budget(290_896, FLASH_BUDGET_BYTES).is_ok());
         assert!(check_budget(393_216, FLASH_BUDGET_BYTES).is_ok());
         let over = check_budget(393_217, FLASH_BUDGET_BYTES).unwrap_err().to_string();
         assert!(over.contains("393217 B") && over.contains("by 1 B"), "{over}");
-        // 2026-11-29: the image for ESCs without speed telemetry, 278,760 B.
-        assert!(check_budget(278_760, NO_SPEED_FLASH_BUDGET_BYTES).is_ok());
-        let over = check_budget(393_217, NO_SPEED_FLASH_BUDGET_BYTES).unwrap_err().to_string();
-        assert!(over.contains("384 KiB, 3 flash sectors") && over.contains("by 1 B"), "{over}");
+        assert!(over.contains("384 KiB, 3 flash sectors"), "{over}");
     }
 
     #[test]

@@ -61,9 +61,6 @@ pub fn test(args: &[String]) -> Result<()> {
     step("build: release firmware ELF and its worst-case stack", || {
         build::build(&[build::STACK_ARG.into()]).map(|_| ())
     })?;
-    step("build: the image for ESCs without speed telemetry (--no-speed) and its stack", || {
-        build::build(&[build::STACK_ARG.into(), build::NO_SPEED_ARG.into()]).map(|_| ())
-    })?;
     eprintln!("\nxtask test: all checks passed in {:.0} s", started.elapsed().as_secs_f64());
     Ok(())
 }

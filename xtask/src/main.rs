@@ -17,10 +17,10 @@ usage: cargo xtask <command> [args]
 commands:
   test        install what the checks need, then fmt, clippy, host tests, no_std builds, firmware
   build       build the release firmware ELF for the STM32H743 and print flash and RAM use
-              (--stack: worst-case stack per task; --no-speed: the image for ESCs without
-              bidirectional DShot, which identifies the motors from the commands)
+              (--stack: worst-case stack per task); one image for every craft, with or
+              without ESC speed telemetry (the parameter motor_bidir_dshot)
   flash       program a board through probe-rs, or through the ROM DFU bootloader (dfu-util)
-              ([--dfu] [--no-speed])
+              ([--dfu])
   sitl        run the configurator against the built-in simulator (the README's main job)
   telemetry   stream the SITL's 2 kHz state topic for 60 s (or SECONDS) and count gaps
   thirdparty  fly the firmware in RotorPy (a third-party simulator) through the bridge

@@ -17,8 +17,8 @@
 //!   Its accelerometer is moved to the centre of gravity with the IMU offset: the configured one
 //!   ([`Background::set_imu_offset`]), else the onboard estimate once it is well determined,
 //!   else none (and the status says which). With `motor_bidir_dshot` = 0 it is built to model
-//!   the speeds from the commands (`LearnerConfig::speed_telemetry`, `flight::learner::no_speed`
-//!   where `flight` has the feature `no-speed`; the published model's `speeds_modelled` says so).
+//!   the speeds from the commands (`LearnerConfig::speed_telemetry`, `flight::learner::no_speed`;
+//!   the published model's `speeds_modelled` says so).
 //! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32) when none is known
 //!   (no calibration stored, the onboard estimate not well determined): on the learner's samples
 //!   from the release, jointly with the force rows of G1, with the reported speeds or, without
@@ -37,8 +37,8 @@
 use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
+use flight::learner::MODELLED_SPEED_AGE_S;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
-use flight::learner::{IDENTIFIES_WITHOUT_SPEEDS, MODELLED_SPEED_AGE_S};
 use flight::slot::Slot;
 use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate, SolveScratch};
 use imu_offset::{ImuOffsetEstimator, Verdict};
@@ -447,7 +447,7 @@ impl<'q> Background<'q> {
         // While the model is still learning from the excitation (`LearnedModel::pending`), the
         // control step waits for it, at most `ENGAGE_WAIT_MAX_S`, and so does this.
         let refining = if sample.flying { self.refine_samples } else { 0 };
-        let catching_up = self.results.learned.is_pending()
+        let catching_up = self.results.learned.pending
             && self.samples_since_excitation < self.engage_wait_samples;
         if phase == FlightPhase::Exciting {
             self.samples_since_excitation = 0;
@@ -460,20 +460,10 @@ impl<'q> Background<'q> {
         }
         if let Some(learner) = self.learner.get_mut() {
             let (gyro, accel) = (sample.imu.gyro_rad_s, sample.imu.accel_mps2);
-            if IDENTIFIES_WITHOUT_SPEEDS {
-                // The velocity rides with each sample the learner holds: the in-flight offset
-                // fit takes it back with the sample (`update_offset_fit`).
-                let velocity = sample.velocity_imu_mps;
-                learner.update_carrying(
-                    gyro,
-                    accel,
-                    &sample.commands,
-                    &sample.speeds_rad_s,
-                    velocity,
-                );
-            } else {
-                learner.update(gyro, accel, &sample.commands, &sample.speeds_rad_s);
-            }
+            // The velocity rides with each sample the learner holds without speed telemetry:
+            // the in-flight offset fit takes it back with the sample (`update_offset_fit`).
+            let velocity = sample.velocity_imu_mps;
+            learner.update_carrying(gyro, accel, &sample.commands, &sample.speeds_rad_s, velocity);
             self.results.learned = *learner.model();
         }
         self.update_offset_fit(sample);
@@ -597,8 +587,7 @@ impl<'q> Background<'q> {
         self.results.flight_offset = None;
         // Fitted only where nothing better is known, from measured speeds or, without speed
         // telemetry, from the learner's modelled ones (`update_offset_fit`).
-        let speeds = self.speed_telemetry || self.speeds_modelled();
-        let fitting = self.offset_fit_enabled && source == ImuOffsetSource::Zero && speeds;
+        let fitting = self.offset_fit_enabled && source == ImuOffsetSource::Zero;
         let age_s = if self.speeds_modelled() { MODELLED_SPEED_AGE_S } else { self.speed_age_s };
         let lag_s = age_s - flight::learner::IMU_GROUP_DELAY_S;
         self.offset_fitting =
@@ -606,10 +595,9 @@ impl<'q> Background<'q> {
     }
 
     /// Whether the learner models the motor speeds from the commands: the ESCs report none
-    /// (`motor_bidir_dshot` = 0) and this build identifies without them (a constant: false in
-    /// the default board image, where the paths that test it are compiled out).
+    /// (`motor_bidir_dshot` = 0).
     fn speeds_modelled(&self) -> bool {
-        IDENTIFIES_WITHOUT_SPEEDS && !self.speed_telemetry
+        !self.speed_telemetry
     }
 
     /// The IMU offset for a new identification and where it came from.

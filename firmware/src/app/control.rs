@@ -60,11 +60,9 @@
 //!   samples without every speed (the learner's own rule).
 //!
 //! The exception is issue 32's identification without speed telemetry: where the user says the
-//! ESCs cannot report (`motor_bidir_dshot` = 0) and the build can identify without them
-//! (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators, the bridge and the board's
-//! image built with the feature `no-speed`), [`ControlSettings::arm_without_speeds`] is set, none of the
-//! above applies, and the learner identifies from the commands and the body's response
-//! (`flight::learner::no_speed`).
+//! ESCs cannot report (`motor_bidir_dshot` = 0), [`ControlSettings::arm_without_speeds`] is set,
+//! none of the above applies, and the learner identifies from the commands and the body's
+//! response (`flight::learner::no_speed`; every build has it, issue 56).
 
 use super::background::{BackgroundResults, ENGAGE_WAIT_MAX_S};
 use super::hal::{EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
@@ -73,7 +71,7 @@ use super::queue::{LearnerSample, SampleProducer};
 use super::telemetry::{StepProducer, StepRecord};
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::{ThrowConfig, ThrowEvent};
-use flight::learner::{FlightPhase, ThrowToFly, MODELS_MAY_BE_PENDING};
+use flight::learner::{FlightPhase, ThrowToFly};
 use protocol::{
     DshotCommand, ExternalPose, ImuHeldCounters, LandReason, LearnerFailure, PositionSetpoint,
     MOTOR_TEST_KEEPALIVE_MS, MOTOR_TEST_MAX_COMMAND, SPEED_REPORT_TIMEOUT_MS,
@@ -143,10 +141,8 @@ pub struct ControlSettings {
     pub imu_fault_timeout_s: f32,
     /// Arm for throw-to-fly although the ESCs report no speed, the learner then identifying
     /// from the commands and the body's response (`flight::learner::no_speed`, issue 32): set
-    /// where the user says the ESCs cannot report (`motor_bidir_dshot` = 0) and the build can
-    /// identify without them (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`: the simulators, the
-    /// bridge and the board's image built with the feature `no-speed`; 98.6 % of 1,000 random
-    /// worlds hovered, docs/benchmarks.md; the default board image never arms without speeds).
+    /// where the user says the ESCs cannot report (`motor_bidir_dshot` = 0; 98.6 % of 1,000
+    /// random worlds hovered, docs/benchmarks.md).
     pub arm_without_speeds: bool,
 }
 
@@ -205,9 +201,7 @@ fn attempt_under_way(phase: FlightPhase, wait: EngageWait) -> bool {
 }
 
 /// The excitation's end waiting for a model still learning from it ([`ENGAGE_WAIT_MAX_S`]).
-/// Only a learner that models the speeds publishes such models
-/// (`flight::learner::MODELS_MAY_BE_PENDING`): without it nothing here is ever active, and the
-/// compiler leaves none of it in the step, whose flash has no byte to spare (docs/budget.md).
+/// Only a learner that models the speeds publishes such models (`LearnedModel::pending`).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct EngageWait {
     /// Steps it may still wait (0: not waiting).
@@ -217,21 +211,16 @@ struct EngageWait {
 impl EngageWait {
     /// The excitation has just ended; steps of `period_us`.
     fn start(&mut self, period_us: u32) {
-        if MODELS_MAY_BE_PENDING {
-            self.steps = (ENGAGE_WAIT_MAX_US / period_us.max(1)).max(1) as u16;
-        }
+        self.steps = (ENGAGE_WAIT_MAX_US / period_us.max(1)).max(1) as u16;
     }
 
     fn active(self) -> bool {
-        MODELS_MAY_BE_PENDING && self.steps > 0
+        self.steps > 0
     }
 
     /// One step of the wait: whether it goes on (the model still `pending` and time left);
     /// once it does not, it is over and the controller engages.
     fn goes_on(&mut self, pending: bool) -> bool {
-        if !MODELS_MAY_BE_PENDING {
-            return false;
-        }
         self.steps = self.steps.saturating_sub(1);
         if !pending {
             self.steps = 0;
@@ -241,9 +230,7 @@ impl EngageWait {
 
     /// The attempt ended another way (disarm, failsafe, a new arming).
     fn end(&mut self) {
-        if MODELS_MAY_BE_PENDING {
-            self.steps = 0;
-        }
+        self.steps = 0;
     }
 }
 
@@ -768,7 +755,7 @@ impl<'q> ControlLoop<'q> {
     pub fn receive(&mut self, results: &BackgroundResults) -> bool {
         // The samples learned from, and whether it is pending: a restarted learner's first model
         // has learned from none, as the one before the first attempt had.
-        let version = (results.learned.samples, results.learned.is_pending());
+        let version = (results.learned.samples, results.learned.pending);
         if self.state.model_version == Some(version) {
             return false;
         }
@@ -1200,9 +1187,8 @@ mod tests {
     }
 
     /// Without speed reports arming is refused unless the user said the ESCs cannot report
-    /// (`motor_bidir_dshot` = 0) and the build identifies without them
-    /// (`flight::learner::IDENTIFIES_WITHOUT_SPEEDS`); then the attempt stays armed past the report timeout. With
-    /// the parameter at its default (1) silent ESCs are refused in every build.
+    /// (`motor_bidir_dshot` = 0); then the attempt stays armed past the report timeout. With
+    /// the parameter at its default (1) silent ESCs are refused.
     #[test]
     fn without_speed_reports_only_the_commands_only_identification_arms() {
         let mut params = super::super::params::Params::default();
@@ -1210,12 +1196,11 @@ mod tests {
         assert!(!reporting.arm_without_speeds);
         params.set(super::super::params::Param::MotorBidirDshot as usize, &[0.0]).unwrap();
         let told = ControlSettings::from(&params);
-        let identifies = flight::learner::IDENTIFIES_WITHOUT_SPEEDS;
-        assert_eq!(told.arm_without_speeds, identifies);
+        assert!(told.arm_without_speeds);
         for (settings, arms) in [
             (ControlSettings::default(), false),
             (reporting, false),
-            (told, identifies),
+            (told, true),
             (ControlSettings { arm_without_speeds: true, ..told }, true),
         ] {
             let mut queue = SampleQueue::new();

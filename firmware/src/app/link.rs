@@ -556,20 +556,10 @@ impl LinkServer {
                         unit: short_text(""),
                     });
                 }
-                // Unless this build identifies from the commands and the user says the ESCs
-                // cannot report (`Params::arms_without_speeds`), the learner needs every motor's
-                // speed.
+                // Unless the user says the ESCs cannot report (`Params::arms_without_speeds`:
+                // the learner then identifies from the commands), the learner needs every
+                // motor's speed.
                 if !settings.params().arms_without_speeds() {
-                    if !settings.params().bidirectional_dshot() {
-                        // ESCs without bidirectional DShot give none (`motor_bidir_dshot`).
-                        return Err(DeviceError::BadValue {
-                            name: short_text("motor_bidir_dshot"),
-                            value: 0.0,
-                            min: 1.0,
-                            max: 1.0,
-                            unit: short_text(""),
-                        });
-                    }
                     // Every motor must report its speed: an ESC that does not answer now will
                     // not answer in the air (`ControlLoop`'s module doc).
                     let all =

@@ -12,7 +12,7 @@
 
 use flight::learner::excitation::ExcitationConfig;
 use flight::learner::throw_detector::ThrowConfig;
-use flight::learner::{LearnedModel, IDENTIFIES_WITHOUT_SPEEDS, MAX_MOTORS};
+use flight::learner::{LearnedModel, MAX_MOTORS};
 use flight::math::clamp;
 use flight::navigation::STANDARD_GRAVITY_MPS2;
 use protocol::{
@@ -428,12 +428,11 @@ impl Params {
     }
 
     /// Whether throw-to-fly arms although the ESCs report no speed: the user says they cannot
-    /// (`motor_bidir_dshot` = 0) and this build identifies without them
-    /// ([`IDENTIFIES_WITHOUT_SPEEDS`]: the simulators, the bridge and the board's image built
-    /// with the feature `no-speed`, not the default one). Else
-    /// the learner needs every motor's speed, and arming without them is refused.
+    /// (`motor_bidir_dshot` = 0), and the learner identifies the motors from the commands and
+    /// the body's response (`flight::learner::no_speed`). Else the learner needs every motor's
+    /// speed, and arming without them is refused.
     pub fn arms_without_speeds(&self) -> bool {
-        IDENTIFIES_WITHOUT_SPEEDS && !self.bidirectional_dshot()
+        !self.bidirectional_dshot()
     }
 
     /// The telemetry radio's baud, when one is configured (the board reads it at start-up).

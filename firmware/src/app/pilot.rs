@@ -697,7 +697,7 @@ impl Pilot {
     /// Whether the model received is still to learn from samples already taken
     /// (`LearnedModel::pending`): not yet the one to engage on.
     pub fn model_pending(&self) -> bool {
-        self.model.as_ref().is_some_and(|(learned, _)| learned.is_pending())
+        self.model.as_ref().is_some_and(|(learned, _)| learned.pending)
     }
 
     /// The model the background task published, with the IMU offset it was learned with.

@@ -23,7 +23,7 @@ use super::params::{self, Params, PARAM_COUNT, SPECS};
 use super::StatusView;
 use core::ops::Range;
 use embedded_storage::nor_flash::NorFlash;
-use flight::learner::{FlightPhase, IDENTIFIES_WITHOUT_SPEEDS};
+use flight::learner::FlightPhase;
 use protocol::signing::{LinkKey, Signature, KEY_LEN};
 use protocol::{ConfigOrigin, ConfigStatus, DeviceError, ImuOffsetSource, StorageStage};
 use sequential_storage::cache::{Cache, Uncached};
@@ -333,10 +333,9 @@ impl<F: NorFlash> Settings<F> {
             // inside it in 71 % of 1,000 random worlds, docs/algorithms/imu-offset.md), so it
             // is flown and shown, and the next flight fits its own.
             let background = &view.background;
-            let measured = !IDENTIFIES_WITHOUT_SPEEDS || !learned.speeds_modelled;
             if background.learner_offset == ImuOffsetSource::FittedInFlight
                 && background.imu_offset_fitted_in_flight
-                && measured
+                && !learned.speeds_modelled
             {
                 let offset = &background.imu_offset;
                 self.update(|p| p.store_calibration(offset.r_imu_m, offset.ci95_semi_axes_m, None));
@@ -536,7 +535,7 @@ mod tests {
         let mut settings = Settings::<NoFlash>::without_store();
         settings.service(&finished_with_fitted_offset(true));
         let stored = settings.params().configured_offset_m();
-        assert_eq!(stored.is_none(), IDENTIFIES_WITHOUT_SPEEDS, "{stored:?}");
+        assert!(stored.is_none(), "{stored:?}");
     }
 
     #[test]

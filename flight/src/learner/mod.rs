@@ -30,7 +30,6 @@ pub mod effectiveness;
 pub mod excitation;
 pub mod inertia;
 pub mod motor_model;
-#[cfg(feature = "no-speed")]
 pub mod no_speed;
 pub mod rls;
 pub mod throw_detector;
@@ -42,7 +41,6 @@ use core::ptr::addr_of_mut;
 use effectiveness::{EffectivenessEstimator, Regression};
 use excitation::{Excitation, ExcitationConfig};
 use motor_model::{MotorModel, MotorModelEstimator};
-#[cfg(feature = "no-speed")]
 use no_speed::CommandSpeedModel;
 use rls::RlsConfig;
 use throw_detector::{ThrowConfig, ThrowDetector, ThrowEvent, ThrowState};
@@ -115,8 +113,7 @@ pub struct LearnerConfig {
     pub motor_rls: RlsConfig,
     /// Whether the ESCs report their speeds (bidirectional DShot). Without, every motor's speed
     /// is modelled from its commands and the lag identified from the body's angular response
-    /// (`no_speed`, feature `no-speed`); the motor models are then the nominal curve with that
-    /// lag. Without the feature (the board's build) nothing is learned without speeds.
+    /// (`no_speed`); the motor models are then the nominal curve with that lag.
     pub speed_telemetry: bool,
 }
 
@@ -242,15 +239,6 @@ pub enum AxisStatus {
     NoHover,
 }
 
-/// Whether this build identifies a craft whose ESCs report no speed (feature `no-speed`:
-/// `no_speed`, the speeds modelled from the commands). Without it a learner told of no speeds
-/// learns nothing, so the application must not arm for throw-to-fly without them.
-pub const IDENTIFIES_WITHOUT_SPEEDS: bool = cfg!(feature = "no-speed");
-
-/// Whether a published model can be [`LearnedModel::pending`]: only the learner without speed
-/// telemetry publishes such models; a build without it can leave out all that waits for them.
-pub const MODELS_MAY_BE_PENDING: bool = IDENTIFIES_WITHOUT_SPEEDS;
-
 /// Everything learned so far: the interface to the controller.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LearnedModel {
@@ -282,18 +270,11 @@ pub struct LearnedModel {
     /// telemetry the effectiveness regression learns from the excitation's samples once the
     /// lag is identified at its end, a few per control sample
     /// (`no_speed::RELEASE_PER_SAMPLE`), so for up to about a tenth of a second after it this
-    /// model is not the one to engage on. Always false with speed telemetry, and without the
-    /// feature `no-speed` ([`LearnedModel::is_pending`]).
+    /// model is not the one to engage on. Always false with speed telemetry.
     pub pending: bool,
 }
 
 impl LearnedModel {
-    /// [`LearnedModel::pending`], known false where no model can be
-    /// ([`MODELS_MAY_BE_PENDING`]): what waits for it compiles away there.
-    pub fn is_pending(&self) -> bool {
-        MODELS_MAY_BE_PENDING && self.pending
-    }
-
     /// G1 per unit normalised thrust `u = ω²/ω_full²`: column i scaled by motor i's `ω_full²`.
     pub fn g1_per_unit_thrust(&self) -> [[f32; MAX_MOTORS]; 6] {
         let mut g1 = self.g1_per_speed2;
@@ -338,13 +319,10 @@ pub struct Learner {
     motor_models: [MotorModelEstimator; MAX_MOTORS],
     effectiveness: EffectivenessEstimator,
     /// Without speed telemetry: the lag and the modelled speeds (`no_speed`).
-    #[cfg(feature = "no-speed")]
     command_speeds: CommandSpeedModel,
     /// The held samples learned from in the latest [`Learner::update_carrying`], oldest first,
     /// with their modelled speeds ([`Learner::for_each_released`]).
-    #[cfg(feature = "no-speed")]
     released: [no_speed::ReleasedSample; no_speed::RELEASE_PER_SAMPLE],
-    #[cfg(feature = "no-speed")]
     released_len: usize,
     solver: ThrustAxisSolver,
     /// The last commands, for the time alignment: a ring, the newest at `newest_command`.
@@ -406,7 +384,6 @@ impl Learner {
         let fast = BiquadCoefficients::butterworth_lowpass(MOTOR_MODEL_CUTOFF_HZ, config.rate_hz)
             .map_err(LearnerError::Filter)?;
         let motor = MotorModelEstimator::new(fast, config.rate_hz, config.motor_rls);
-        #[cfg(feature = "no-speed")]
         let lag_lowpass = BiquadCoefficients::butterworth_lowpass(
             no_speed::LAG_LOWPASS_HZ,
             no_speed::regression_rate_hz(config.rate_hz),
@@ -415,7 +392,7 @@ impl Learner {
         let empty = LearnedModel {
             motors: motors as u8,
             speeds_modelled: !config.speed_telemetry,
-            pending: MODELS_MAY_BE_PENDING && !config.speed_telemetry,
+            pending: !config.speed_telemetry,
             ..LearnedModel::default()
         };
         let learner = slot.as_mut_ptr();
@@ -437,7 +414,6 @@ impl Learner {
                 config.speed_report_lag_s,
                 config.effectiveness_rls,
             );
-            #[cfg(feature = "no-speed")]
             CommandSpeedModel::build_at(
                 addr_of_mut!((*learner).command_speeds),
                 motors,
@@ -446,12 +422,9 @@ impl Learner {
             );
             addr_of_mut!((*learner).solver).write(ThrustAxisSolver::new(SOLVER_CONFIG));
             addr_of_mut!((*learner).commands).write([[0.0; MAX_MOTORS]; 8]);
-            #[cfg(feature = "no-speed")]
-            {
-                // Zero bytes are valid released samples (plain numbers).
-                addr_of_mut!((*learner).released).write_bytes(0, 1);
-                addr_of_mut!((*learner).released_len).write(0);
-            }
+            // Zero bytes are valid released samples (plain numbers).
+            addr_of_mut!((*learner).released).write_bytes(0, 1);
+            addr_of_mut!((*learner).released_len).write(0);
             addr_of_mut!((*learner).newest_command).write(0);
             addr_of_mut!((*learner).armed).write(false);
             addr_of_mut!((*learner).since_publish).write(0);
@@ -475,11 +448,8 @@ impl Learner {
             m.reset();
         }
         self.effectiveness.reset(r_imu_m);
-        #[cfg(feature = "no-speed")]
-        {
-            self.command_speeds.reset();
-            self.released_len = 0;
-        }
+        self.command_speeds.reset();
+        self.released_len = 0;
         self.solver.reset();
         self.fallback_solver.reset();
         self.commands = [[0.0; MAX_MOTORS]; 8];
@@ -489,7 +459,7 @@ impl Learner {
         self.model = LearnedModel {
             motors: self.motors as u8,
             speeds_modelled: !self.config.speed_telemetry,
-            pending: MODELS_MAY_BE_PENDING && !self.config.speed_telemetry,
+            pending: !self.config.speed_telemetry,
             ..LearnedModel::default()
         };
         self.samples = 0;
@@ -583,8 +553,6 @@ impl Learner {
         speeds_rad_s: &[f32; MAX_MOTORS],
         carried: [f32; 3],
     ) {
-        #[cfg(not(feature = "no-speed"))]
-        let _ = carried;
         let ring = self.commands.len();
         self.newest_command = (self.newest_command + 1) % ring;
         self.commands[self.newest_command] = *commands;
@@ -595,7 +563,6 @@ impl Learner {
         let m = self.motors;
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
             || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
-        #[cfg(feature = "no-speed")]
         if !self.config.speed_telemetry {
             // The lag regression now; the effectiveness regression on the held samples, with
             // speeds modelled with the lag identified since (`no_speed::CommandSpeedModel::hold`).
@@ -606,7 +573,7 @@ impl Learner {
             self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed, carried);
             let pending = self.model.pending;
             // The sample that chose the lag spent its share on the regressions
-            // (`no_speed::SCORING_WORK_PER_MOTOR`): the catch-up starts with the next.
+            // (`no_speed::SAMPLE_WORK_PER_MOTOR`): the catch-up starts with the next.
             let release = if choosing && self.command_speeds.chosen() {
                 0
             } else {
@@ -690,7 +657,6 @@ impl Learner {
         speeds: &[f32; MAX_MOTORS],
     ) {
         self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
-        #[cfg(feature = "no-speed")]
         if !self.config.speed_telemetry {
             // Motors off: the lag regression's filters settle on the free tumble.
             self.command_speeds.update(gyro_rad_s, accel_mps2, &[0.0; MAX_MOTORS], false, false);
@@ -702,19 +668,15 @@ impl Learner {
     /// modelled for it with the lag identified (rad/s, per [`no_speed::NOMINAL_FULL_SPEED_RAD_S`])
     /// and what was carried with it. None during the excitation (the samples are held until
     /// its lag is known), up to [`no_speed::RELEASE_PER_SAMPLE`] while catching up after it,
-    /// then each sample as it comes; none with speed telemetry or in a build without the feature
-    /// `no-speed`. What the in-flight IMU-offset fit regresses on where no speed is reported
+    /// then each sample as it comes; none with speed telemetry. What the in-flight IMU-offset fit regresses on where no speed is reported
     /// (`firmware::app::background`).
     pub fn for_each_released(
         &self,
         mut f: impl FnMut([f32; 3], [f32; 3], &[f32; MAX_MOTORS], [f32; 3]),
     ) {
-        #[cfg(feature = "no-speed")]
         for held in &self.released[..self.released_len] {
             f(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s, held.carried);
         }
-        #[cfg(not(feature = "no-speed"))]
-        let _ = &mut f;
     }
 
     /// The model learned so far.
@@ -725,7 +687,6 @@ impl Learner {
     /// Motor `i`'s model: learned from its speeds, or without them the nominal curve with the
     /// lag identified from the body's response ([`LearnerConfig::speed_telemetry`]).
     fn motor_model(&self, i: usize) -> MotorModel {
-        #[cfg(feature = "no-speed")]
         if !self.config.speed_telemetry {
             return self.command_speeds.motor_model();
         }
@@ -744,10 +705,7 @@ impl Learner {
         model.g2 = self.effectiveness.g2();
         model.g1_converged = 0;
         model.motors_converged = 0;
-        #[cfg(feature = "no-speed")]
-        {
-            model.pending = !self.config.speed_telemetry && self.command_speeds.pending();
-        }
+        model.pending = !self.config.speed_telemetry && self.command_speeds.pending();
         let mut all_informed = true;
         for i in 0..m {
             let motor = self.motor_model(i);
@@ -1028,7 +986,6 @@ mod tests {
     /// once the lag is chosen after its end, at most `RELEASE_PER_SAMPLE` a sample: the
     /// catch-up is spread over the samples after it, and the model says `pending` until the
     /// last held sample is learned from, when it is published at once.
-    #[cfg(feature = "no-speed")]
     #[test]
     fn without_speed_telemetry_the_catch_up_is_spread_and_the_model_pending_until_done() {
         let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };

@@ -1,11 +1,10 @@
 //! Identification without speed telemetry (issue 32): the motors' lag from the body's response,
 //! and a modelled speed from the commands in place of the measured one
-//! (docs/algorithms/learner.md, "Without speed telemetry"). A prototype: the simulator flies it
-//! (`fly monte-carlo --no-speed-telemetry`), and so does the bridge (`scenario bridge
-//! --no-speed-telemetry`: [`super::IDENTIFIES_WITHOUT_SPEEDS`] with `motor_bidir_dshot` = 0).
-//! The board has it in its image for ESCs without bidirectional DShot (`cargo xtask build
-//! --no-speed`, 278,760 B against the default image's 262,100 B); the default image builds
-//! without it and never arms without speeds.
+//! (docs/algorithms/learner.md, "Without speed telemetry"). Every build has it (issue 56: one
+//! firmware image for every craft): a learner built with [`super::LearnerConfig::speed_telemetry`]
+//! false, what the application builds when the user sets `motor_bidir_dshot` = 0, runs it. The
+//! simulator flies it (`fly monte-carlo --no-speed-telemetry`), and so does the bridge
+//! (`scenario bridge --no-speed-telemetry`).
 //!
 //! **The model.** ESCs without bidirectional DShot report no speed; the learner still knows
 //! what it commanded, and the body's motion shows what the motors did with it. Every motor's
@@ -82,14 +81,13 @@
 //! - gyro noise up to 3× the ICM-42688-P's and rotor vibration: filtered by the same 20 Hz
 //!   low-pass as the effectiveness signals.
 //!
-//! Cost (`cargo xtask bench-m7 --no-speed`, docs/benchmarks.md): during the excitation at most
+//! Cost (`cargo xtask bench-m7`, docs/benchmarks.md): during the excitation at most
 //! 10,021 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
 //! the last period's candidates, then the candidates' regressions, as many a sample as
 //! [`SCORING_WORK_PER_MOTOR`] allows (a quad's four, one candidate, a sample), then the catch-up of [`RELEASE_PER_SAMPLE`] held samples a sample (each about what a learner
 //! sample with telemetry costs): 76,051 instructions a sample at most on a quad,
 //! 151,317 on an octorotor, which the learner's task keeps up with at 2 kHz. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
-//! ≈ 120 KB (the board's no-speed image: AXI SRAM 417,088 B of 524,288). The default board
-//! image leaves the feature out: its two sectors have no room for it.
+//! ≈ 120 KB (the board's image: AXI SRAM 450,304 B of 524,288).
 
 // Index loops are kept where they run over axes and motors side by side (several arrays per
 // index), as in `effectiveness`.
@@ -144,7 +142,7 @@ pub const HELD_SAMPLES_MAX: usize = 1700;
 /// catch-up after the excitation is spread over the samples that follow it, so that the task
 /// running the learner keeps up with the control rate. A released sample costs about what a
 /// learner sample with speed telemetry does: eight are 67,000–76,000 Cortex-M7 instructions a
-/// sample on a quad, 125,000–151,000 on an octorotor (`cargo xtask bench-m7 --no-speed`),
+/// sample on a quad, 125,000–151,000 on an octorotor (`cargo xtask bench-m7`),
 /// 0.14–0.32 ms of a 0.5 ms control period at 480 MHz. Each sample
 /// then adds one and releases eight, so the 1,700 samples of the longest excitation are learned
 /// from within 1,700 / 7 ≈ 243 samples (0.12 s), a quad's 450 within 32 ms.
@@ -597,8 +595,8 @@ pub const SCORING_PARTS: usize = RESIDUAL_PARTS * TAU_GRID_S.len();
 pub const SCORING_WORK_PER_MOTOR: f32 = 16_000.0;
 
 /// A regression's cost for [`SCORING_WORK_PER_MOTOR`], Cortex-M7 instructions, for `n`
-/// unknowns: its fixed part and its elimination, `n³`-proportional (`cargo xtask bench-m7
-/// --no-speed`: a quad's rate regressions, 16 unknowns, 16,452 instructions at most, its force
+/// unknowns: its fixed part and its elimination, `n³`-proportional (`cargo xtask bench-m7`: a
+/// quad's rate regressions, 16 unknowns, 16,452 instructions at most, its force
 /// regression, 13, 12,918; an octorotor's, 32 and 17, 61,284 and 18,568).
 fn regression_work(n: usize) -> f32 {
     let n = n as f32;
