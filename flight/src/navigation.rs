@@ -654,6 +654,12 @@ pub fn velocity_alignment_window_s(noise_mps: f32) -> f32 {
     (10.0 * noise / VELOCITY_ALIGNMENT_REFERENCE_ACCEL_MPS2).clamp(low, high)
 }
 
+/// The variance of one component of a velocity difference of fixes with `noise_mps` of noise:
+/// each component has the noise of two fixes (interpolation only lowers it).
+fn var_d_of(noise_mps: f32) -> f32 {
+    2.0 * noise_mps * noise_mps
+}
+
 /// A velocity fix and the dead-reckoned velocity of its time.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct VelocityPoint {
@@ -667,6 +673,15 @@ struct VelocityPoint {
 /// instead of second differences of position. Both are integrals of the acceleration, but a
 /// velocity difference carries far less noise: 5 cm/s of velocity noise against 0.3 m of
 /// position noise resolves 1 m/s² in 0.5 s instead of 1.7 s, with twenty times the margin.
+///
+/// **A tilted attitude.** The filter's attitude may be a few degrees off after a tumble, and in
+/// flight nothing but the fixes shows it: the craft then accelerates at `g · sin(tilt error)` in
+/// the fixes' world while the dead reckoning sees nothing (the random world's seed 212: 5.5°,
+/// 1 m/s² for 20 s, 95 m). Every velocity difference then carries the same extra `b T`, which
+/// turns the coherent sum towards the wrong yaw. So the sums are kept centred too (each
+/// window's differences less their weighted means, which removes any constant `b`): the plain
+/// sum's yaw is taken only when the constant it leaves unexplained is below
+/// [`MAX_ALIGNMENT_BIAS_MPS2`]; beyond, the centred sum's, once it is significant itself.
 #[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct VelocityAlignment {
     noise_mps: f32,
@@ -679,7 +694,20 @@ struct VelocityAlignment {
     dot: f32,
     noise_var: f32,
     evidence: f32,
+    /// Σ w, Σ w², and the weighted sums of the differences (horizontal), for the centred sums.
+    weight: f32,
+    weight2: f32,
+    sum_dead: [f32; 2],
+    sum_fix: [f32; 2],
+    /// Σ w² Δd, for the centred sum's noise.
+    sum_dead_w2: [f32; 2],
 }
+
+/// Largest constant acceleration, fixes' world, the plain velocity alignment may leave
+/// unexplained, m/s² (ours): `g · sin 2°`, the filter's tilt error beyond which the yaw of the
+/// plain sum is more than a few degrees off (a constant of 0.34 m/s² against the nudge's
+/// 1 m/s²). Beyond it the centred sum decides ([`VelocityAlignment`]).
+pub const MAX_ALIGNMENT_BIAS_MPS2: f32 = 0.34;
 
 impl VelocityAlignment {
     fn new(noise_mps: f32) -> Self {
@@ -693,6 +721,11 @@ impl VelocityAlignment {
             dot: 0.0,
             noise_var: 0.0,
             evidence: 0.0,
+            weight: 0.0,
+            weight2: 0.0,
+            sum_dead: [0.0; 2],
+            sum_fix: [0.0; 2],
+            sum_dead_w2: [0.0; 2],
         }
     }
 
@@ -726,13 +759,17 @@ impl VelocityAlignment {
             let d = point.fix - fix_then;
             let d_filter = point.dead - dead_then;
             let w = crate::math::clamp(point.t_s - previous_t_s, 0.0, t);
-            // Each component of Δv has the noise of two fixes (interpolation only lowers it).
-            let var_d = 2.0 * self.noise_mps * self.noise_mps;
+            let var_d = var_d_of(self.noise_mps);
             let (dx, dy) = (d_filter.x, d_filter.y);
             self.cross += w * (dx * d.y - dy * d.x);
             self.dot += w * (dx * d.x + dy * d.y);
             self.noise_var += w * w * (dx * dx + dy * dy) * var_d;
             self.evidence = libm::sqrtf(self.cross * self.cross + self.dot * self.dot);
+            self.weight += w;
+            self.weight2 += w * w;
+            self.sum_dead = [self.sum_dead[0] + w * dx, self.sum_dead[1] + w * dy];
+            self.sum_fix = [self.sum_fix[0] + w * d.x, self.sum_fix[1] + w * d.y];
+            self.sum_dead_w2 = [self.sum_dead_w2[0] + w * w * dx, self.sum_dead_w2[1] + w * w * dy];
         }
         self.head = (self.head + 1) % VELOCITY_POINTS;
         self.points[self.head] = point;
@@ -740,7 +777,42 @@ impl VelocityAlignment {
         let needed = ALIGNMENT_EVIDENCE_S * (2.0 * t) * (2.0 * t);
         let significant =
             self.evidence >= VELOCITY_ALIGNMENT_SIGNIFICANCE * libm::sqrtf(self.noise_var);
-        (self.evidence >= needed && significant).then(|| libm::atan2f(self.cross, self.dot))
+        if !(self.evidence >= needed && significant) || self.weight <= 0.0 {
+            return None;
+        }
+        let yaw = libm::atan2f(self.cross, self.dot);
+        // What the plain yaw leaves unexplained per window, as an acceleration: the weighted
+        // mean of `Δf − R(yaw) Δd`, over the window's length.
+        let (sin, cos) = (libm::sinf(yaw), libm::cosf(yaw));
+        let [sdx, sdy] = self.sum_dead;
+        let [sfx, sfy] = self.sum_fix;
+        let bias_x = (sfx - (cos * sdx - sin * sdy)) / self.weight;
+        let bias_y = (sfy - (sin * sdx + cos * sdy)) / self.weight;
+        let bias_mps2 = libm::sqrtf(bias_x * bias_x + bias_y * bias_y) / t;
+        if bias_mps2 <= MAX_ALIGNMENT_BIAS_MPS2 {
+            return Some(yaw);
+        }
+        self.centred_yaw(needed, var_d_of(self.noise_mps))
+    }
+
+    /// The yaw of the centred sums (module doc of [`VelocityAlignment`]), once they hold the
+    /// evidence `needed` with the significance the plain sums need; each difference's variance
+    /// per component is `var_d`.
+    fn centred_yaw(&self, needed: f32, var_d: f32) -> Option<f32> {
+        let w = self.weight;
+        let [sdx, sdy] = self.sum_dead;
+        let [sfx, sfy] = self.sum_fix;
+        let cross = self.cross - (sdx * sfy - sdy * sfx) / w;
+        let dot = self.dot - (sdx * sfx + sdy * sfy) / w;
+        let evidence = libm::sqrtf(cross * cross + dot * dot);
+        // Σ w² |Δd − μ|² = Σ w²|Δd|² − 2 μ·Σ w² Δd + |μ|² Σ w², with μ = Σ w Δd / Σ w.
+        let (mx, my) = (sdx / w, sdy / w);
+        let [px, py] = self.sum_dead_w2;
+        let spread = self.noise_var / var_d.max(f32::MIN_POSITIVE) - 2.0 * (mx * px + my * py)
+            + (mx * mx + my * my) * self.weight2;
+        let noise_var = spread.max(0.0) * var_d;
+        let significant = evidence >= VELOCITY_ALIGNMENT_SIGNIFICANCE * libm::sqrtf(noise_var);
+        (evidence >= needed && significant).then(|| libm::atan2f(cross, dot))
     }
 
     /// Move every kept time back by `by_s` (the alignment's clock rebased).
@@ -892,6 +964,13 @@ impl HeadingAlignment {
     /// The window, s.
     pub fn window_s(&self) -> f32 {
         self.window_s
+    }
+
+    /// The velocity alignment's window, s, once velocity fixes came (`fix_velocity`): a motion
+    /// meant to show the yaw should change the velocity over this span (a velocity that swings
+    /// back within it shows nothing).
+    pub fn velocity_window_s(&self) -> Option<f32> {
+        self.velocity.as_ref().map(|velocity| velocity.window_s)
     }
 
     /// The evidence needed, m²·s (see [`ALIGNMENT_EVIDENCE_S`]).

@@ -157,26 +157,34 @@ const NUDGE_AFTER_S: f32 = 1.0;
 /// before then holds the craft where it is.
 pub const UNALIGNED_WANDER_M: f32 = 10.0;
 
-/// The nudge's velocity ramp, m/s², and the length of its quarter cycle, s (ours): the level
-/// hold follows a triangle of velocity, `+a` for a quarter, `−a` for a half, `+a` for a quarter,
-/// back at rest where it began (0.16 m away at most), along the filter's x, then its y, and so
-/// on until the alignment is trusted. At 1 m/s² (the alignment's reference acceleration,
-/// `flight::navigation::ALIGNMENT_REFERENCE_ACCEL_MPS2`) one cycle of 1.6 s gives the evidence
-/// it asks for (`ALIGNMENT_EVIDENCE_S`, 0.2 s at 2 m/s²) with motion capture; a constant
-/// acceleration the dead reckoning misses cancels over a cycle.
+/// The nudge's velocity ramp, m/s², and the shortest length of its quarter cycle, s (ours):
+/// the level hold follows a triangle of velocity, `+a` for a quarter, `−a` for a half, `+a` for
+/// a quarter, back at rest where it began (`a Q²` away at most: 0.16 m for 0.4 s), along the
+/// filter's x, then its y, and so on until the alignment is trusted. At 1 m/s² (the alignment's
+/// reference acceleration, `flight::navigation::ALIGNMENT_REFERENCE_ACCEL_MPS2`) one cycle of
+/// 1.6 s gives the evidence it asks for (`ALIGNMENT_EVIDENCE_S`, 0.2 s at 2 m/s²) with motion
+/// capture; a constant acceleration the dead reckoning misses cancels over a cycle.
+///
+/// With a GNSS receiver's velocity the quarter is half the velocity alignment's window
+/// (`HeadingAlignment::velocity_window_s`, up to 2 s for 0.2 m/s of velocity noise), so the
+/// velocity swings from its peak to the opposite one across a window: a cycle shorter than the
+/// window shows nothing (a velocity back where it was), which kept every receiver with more
+/// than about 0.15 m/s of velocity noise from ever learning its heading (the random world's
+/// seeds 73, 131, 160, 212: 60–160 m of drift). The excursion then reaches `a Q²` = 1 m.
 const NUDGE_ACCEL_MPS2: f32 = 1.0;
 const NUDGE_QUARTER_S: f32 = 0.4;
 
-/// The velocity the nudge asks for `t_s` into it, filter's world, m/s (see [`NUDGE_ACCEL_MPS2`]).
-fn nudge_velocity(t_s: f32) -> Vector3<f32> {
-    let cycle_s = 4.0 * NUDGE_QUARTER_S;
+/// The velocity the nudge asks for `t_s` into it with quarter cycles of `quarter_s`, filter's
+/// world, m/s (see [`NUDGE_ACCEL_MPS2`]).
+fn nudge_velocity(t_s: f32, quarter_s: f32) -> Vector3<f32> {
+    let cycle_s = 4.0 * quarter_s;
     let cycles = libm::floorf(t_s / cycle_s);
     let tau = t_s - cycles * cycle_s;
     let speed = NUDGE_ACCEL_MPS2
-        * if tau < NUDGE_QUARTER_S {
+        * if tau < quarter_s {
             tau
-        } else if tau < 3.0 * NUDGE_QUARTER_S {
-            2.0 * NUDGE_QUARTER_S - tau
+        } else if tau < 3.0 * quarter_s {
+            2.0 * quarter_s - tau
         } else {
             tau - cycle_s
         };
@@ -997,8 +1005,12 @@ impl Pilot {
     fn nudge(&self) -> Vector3<f32> {
         let into_s = self.unaligned_s - NUDGE_AFTER_S;
         if into_s > 0.0 && self.touchdown.is_none() {
+            let quarter_s = self
+                .alignment
+                .velocity_window_s()
+                .map_or(NUDGE_QUARTER_S, |window_s| (0.5 * window_s).max(NUDGE_QUARTER_S));
             flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad())
-                * nudge_velocity(into_s)
+                * nudge_velocity(into_s, quarter_s)
         } else {
             Vector3::zeros()
         }
@@ -1445,31 +1457,44 @@ fn quaternion_array(q: &UnitQuaternion<f32>) -> [f32; 4] {
 mod tests {
     use super::*;
 
-    /// The nudge's velocity triangle, integrated: each cycle ends at rest where it began, never
-    /// more than 0.2 m away, its acceleration within its ramp, along x then y.
+    /// The nudge's velocity triangle, integrated, at the motion-capture quarter (0.4 s) and at a
+    /// GNSS receiver's (1 s, half a 2 s velocity window): each cycle ends at rest where it
+    /// began, never more than `a Q²` away, its acceleration within its ramp, along x then y;
+    /// and across a velocity window of two quarters the velocity changes by `2 a Q` (what the
+    /// alignment compares), not by nothing.
     #[test]
-    fn the_nudge_returns_to_rest_where_it_began_after_each_cycle() {
+    fn the_nudge_returns_to_rest_where_it_began_and_swings_across_the_alignment_window() {
         let dt_s = 0.0005;
-        let cycle_s = 4.0 * NUDGE_QUARTER_S;
-        let mut position = Vector3::<f32>::zeros();
-        let mut previous = nudge_velocity(0.0);
-        let mut farthest = 0.0f32;
-        for n in 1..=(2.0 * cycle_s / dt_s) as u32 {
-            let velocity = nudge_velocity(n as f32 * dt_s);
-            position += (velocity + previous) * (0.5 * dt_s);
-            let accel = (velocity - previous).norm() / dt_s;
-            assert!(accel <= NUDGE_ACCEL_MPS2 * 1.01, "{accel} m/s² at step {n}");
-            previous = velocity;
-            farthest = farthest.max(position.norm());
-            if n == (cycle_s / dt_s) as u32 {
-                assert!(position.norm() < 1e-3, "after the first cycle: {position:?} m");
-                assert!(velocity.norm() < 1e-3, "at rest: {velocity:?} m/s");
+        for quarter_s in [NUDGE_QUARTER_S, 1.0] {
+            let cycle_s = 4.0 * quarter_s;
+            let mut position = Vector3::<f32>::zeros();
+            let mut previous = nudge_velocity(0.0, quarter_s);
+            let mut farthest = 0.0f32;
+            for n in 1..=(2.0 * cycle_s / dt_s) as u32 {
+                let velocity = nudge_velocity(n as f32 * dt_s, quarter_s);
+                position += (velocity + previous) * (0.5 * dt_s);
+                let accel = (velocity - previous).norm() / dt_s;
+                assert!(accel <= NUDGE_ACCEL_MPS2 * 1.01, "{accel} m/s² at step {n}");
+                previous = velocity;
+                farthest = farthest.max(position.norm());
+                if n == (cycle_s / dt_s) as u32 {
+                    assert!(position.norm() < 1e-3, "after the first cycle: {position:?} m");
+                    assert!(velocity.norm() < 1e-3, "at rest: {velocity:?} m/s");
+                }
             }
+            assert!(position.norm() < 2e-3, "after two cycles: {position:?} m");
+            let excursion_m = NUDGE_ACCEL_MPS2 * quarter_s * quarter_s;
+            assert!(
+                farthest > 0.9 * excursion_m && farthest < 1.01 * excursion_m,
+                "the nudge moves {farthest} m at most, a Q² = {excursion_m} m"
+            );
+            let swing =
+                nudge_velocity(quarter_s, quarter_s) - nudge_velocity(3.0 * quarter_s, quarter_s);
+            assert!((swing.x - 2.0 * NUDGE_ACCEL_MPS2 * quarter_s).abs() < 1e-3, "{swing:?}");
+            assert!(nudge_velocity(0.5 * quarter_s, quarter_s).x > 0.0, "the first cycle along x");
+            let second = nudge_velocity(cycle_s + 0.5 * quarter_s, quarter_s);
+            assert!(second.y > 0.0, "the second along y");
         }
-        assert!(position.norm() < 1e-3, "after two cycles: {position:?} m");
-        assert!(farthest > 0.1 && farthest < 0.2, "the nudge moves {farthest} m at most");
-        assert!(nudge_velocity(0.5 * NUDGE_QUARTER_S).x > 0.0, "the first cycle along x");
-        assert!(nudge_velocity(cycle_s + 0.5 * NUDGE_QUARTER_S).y > 0.0, "the second along y");
     }
 
     /// The yaw of the IMU's x axis in the world, as the filter measures its heading.
