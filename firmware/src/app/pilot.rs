@@ -55,9 +55,7 @@
 //!   (before one, from where the flight first had a usable pose) faster than
 //!   [`LandConfig::flyaway_speed_mps`] for [`LandConfig::flyaway_time_s`] without braking
 //!   ([`super::landing::FLYAWAY_BRAKING_MPS`]) lands (its horizontal loops go on: whatever holds it back still
-//!   does, and the descent brings it down either way); so does a craft with fresh fixes that
-//!   never found its heading and drifts further than [`UNALIGNED_WANDER_M`] from where its fixes
-//!   began (its level hold cannot steer back).
+//!   does, and the descent brings it down either way).
 //! - **A motor that loses thrust** (a damaged propeller): no failsafe. INDI is incremental: it
 //!   measures the angular acceleration and specific force the commands produced and adds what
 //!   is missing, so the other motors and the weak one's higher command take over within the rate
@@ -150,13 +148,6 @@ const HOLD_START_ACCEL_MPS2: f32 = 0.5;
 /// reckoning sees: the nudge makes them.
 const NUDGE_AFTER_S: f32 = 1.0;
 
-/// How far a craft with fresh fixes but no heading yet may drift from where its fixes began
-/// before it lands, m (ours): five times the horizontal noise of the noisiest receiver the
-/// estimator is tested with (2 m per axis, `sim::gnss::GnssModelConfig::random`), so the
-/// fixes' own wander never reaches it, and far beyond the nudge's 0.16 m. A heading found
-/// before then holds the craft where it is.
-pub const UNALIGNED_WANDER_M: f32 = 10.0;
-
 /// The nudge's velocity ramp, m/s², and the shortest length of its quarter cycle, s (ours):
 /// the level hold follows a triangle of velocity, `+a` for a quarter, `−a` for a half, `+a` for
 /// a quarter, back at rest where it began (`a Q²` away at most: 0.16 m for 0.4 s), along the
@@ -168,9 +159,10 @@ pub const UNALIGNED_WANDER_M: f32 = 10.0;
 /// With a GNSS receiver's velocity the quarter is half the velocity alignment's window
 /// (`HeadingAlignment::velocity_window_s`, up to 2 s for 0.2 m/s of velocity noise), so the
 /// velocity swings from its peak to the opposite one across a window: a cycle shorter than the
-/// window shows nothing (a velocity back where it was), which kept every receiver with more
-/// than about 0.15 m/s of velocity noise from ever learning its heading (the random world's
-/// seeds 73, 131, 160, 212: 60–160 m of drift). The excursion then reaches `a Q²` = 1 m.
+/// window shows nothing (a velocity back where it was), which kept receivers with more than
+/// about 0.15 m/s of velocity noise from learning their heading (the random world's seed 73
+/// drifted 18 m; with the longer quarter it holds within 0.34 m). The excursion then reaches
+/// `a Q²` = 1 m.
 const NUDGE_ACCEL_MPS2: f32 = 1.0;
 const NUDGE_QUARTER_S: f32 = 0.4;
 
@@ -1094,24 +1086,11 @@ impl Pilot {
         }
         // Away from the hold's setpoint, or before one from where the flight first had a usable
         // pose (`super::landing::FlyAway`). In angle mode the pilot steers where it goes.
-        if self.status.piloted == Some(false) || self.touchdown.is_some() || !nav.has_fix {
+        if !positioned || self.status.piloted == Some(false) || self.touchdown.is_some() {
             self.flyaway.reset();
             return;
         }
         let origin = *self.flyaway_origin_ned_m.get_or_insert(nav.position_ned_m);
-        if !positioned {
-            // No heading yet: the level hold cannot steer back towards anything, however fresh
-            // the fixes. A craft that drifts further than UNALIGNED_WANDER_M from where its
-            // fixes began lands rather than wander on (a 0.2 m/s GNSS velocity noise can keep
-            // the heading unknown for a whole flight: 95 m in the random world's seed 131).
-            self.flyaway.reset();
-            let drift = nav.position_ned_m - origin;
-            let drift2_m2 = drift.x * drift.x + drift.y * drift.y;
-            if drift2_m2 > UNALIGNED_WANDER_M * UNALIGNED_WANDER_M {
-                self.land(LandReason::FlyAway);
-            }
-            return;
-        }
         let offset = nav.position_ned_m - self.position_sp_ned_m.unwrap_or(origin);
         if self.flyaway.update(&offset, &nav.velocity_ned_mps, &config, dt_s) {
             self.land(LandReason::FlyAway);
