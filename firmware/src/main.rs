@@ -428,8 +428,11 @@ mod app {
                 let (queue, input) = unsafe {
                     let queue =
                         (*core::ptr::addr_of_mut!(crate::GNSS_QUEUE)).write(GnssQueue::new());
-                    let input = (*core::ptr::addr_of_mut!(crate::GNSS_INPUT))
-                        .write(GnssInput::from_params(settings.params()));
+                    let input =
+                        (*core::ptr::addr_of_mut!(crate::GNSS_INPUT)).write(GnssInput::new(
+                            settings.params().gnss_config(),
+                            settings.params().gnss_latency_s(),
+                        ));
                     (queue, input)
                 };
                 let target_baud = settings.params().gnss_config().target_baud;

@@ -136,12 +136,6 @@ impl GnssInput {
         }
     }
 
-    /// The receiver as the parameters configure it (`gnss_baud`, `gnss_rate_hz`,
-    /// `gnss_latency_s`).
-    pub fn from_params(params: &super::Params) -> Self {
-        Self::new(params.gnss_config(), params.gnss_latency_s())
-    }
-
     /// The solutions' latency from now on, s (the `gnss_latency_s` parameter changed; clamped
     /// as in [`Self::new`]).
     pub fn set_latency_s(&mut self, latency_s: f32) {
@@ -399,7 +393,7 @@ mod tests {
             (Generation::M10, 38_400, GnssInterface::ConfigurationKeys),
         ] {
             let params = super::super::Params::default();
-            let mut input = GnssInput::from_params(&params);
+            let mut input = GnssInput::new(params.gnss_config(), params.gnss_latency_s());
             assert_eq!(input.health().state, GnssState::Searching);
             let mut port = RatedPort {
                 receiver: FakeReceiver::new(generation, factory_baud),

@@ -597,8 +597,8 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         Self { settings, telemetry, dropped_work: 0, gnss: None, dropped_fixes: 0 }
     }
 
-    /// Drive a GNSS receiver ([`Self::service_gnss`]) with `gnss` (made by
-    /// `GnssInput::from_params` from the parameters at start-up: `gnss_baud`, `gnss_rate_hz`).
+    /// Drive a GNSS receiver ([`Self::service_gnss`]) with `gnss` (made from the parameters at
+    /// start-up: `Params::gnss_config`, `gnss_baud` and `gnss_rate_hz`).
     pub fn with_gnss(mut self, gnss: &'q mut GnssInput) -> Self {
         self.gnss = Some(gnss);
         self
@@ -953,7 +953,8 @@ pub fn with_logged_system<F: NorFlash, R>(
 ) -> (R, Settings<F>) {
     // The simulated board has a GNSS port, as the board does: its driver from the parameters
     // at start-up, serviced by [`System::service_gnss`] when a receiver is simulated.
-    let mut gnss = GnssInput::from_params(settings.params());
+    let mut gnss =
+        GnssInput::new(settings.params().gnss_config(), settings.params().gnss_latency_s());
     let mut log_ring = super::log::LogRing::new();
     let mut arming = super::log::ArmingBox::new();
     let (log_producer, log_consumer) = super::log::split_log(&mut log_ring, &mut arming);
