@@ -121,16 +121,8 @@ impl Uart for BoardGnss {
 
     /// What the transmit FIFO takes now (at most 16 bytes); the driver offers the rest again.
     fn write(&mut self, bytes: &[u8]) -> usize {
-        let mut count = 0;
-        // SAFETY: this UART's status and transmit registers; TDR takes one byte per write.
-        unsafe {
-            while count < bytes.len() && chip::read(self.base + usart::ISR) & usart::ISR_TXFNF != 0
-            {
-                chip::write(self.base + usart::TDR, u32::from(bytes[count]));
-                count += 1;
-            }
-        }
-        count
+        // SAFETY: this driver's UART, started with its FIFOs by `start`.
+        unsafe { super::serial::fill_tx_fifo(self.base, bytes) }
     }
 }
 

@@ -95,15 +95,22 @@ impl SerialRing {
     /// Put as many of `bytes` into the transmit FIFO as it has room for; returns how many.
     /// Never blocks.
     pub fn write_fifo(&mut self, bytes: &[u8]) -> usize {
-        let mut count = 0;
-        // SAFETY: the owner's UART; ISR is read-only, TDR takes one byte per write.
-        unsafe {
-            while count < bytes.len() && chip::read(self.base + usart::ISR) & usart::ISR_TXFNF != 0
-            {
-                chip::write(self.base + usart::TDR, u32::from(bytes[count]));
-                count += 1;
-            }
-        }
-        count
+        // SAFETY: the owner's UART, started with its FIFOs.
+        unsafe { fill_tx_fifo(self.base, bytes) }
     }
+}
+
+/// Put as many of `bytes` into the transmit FIFO of the UART at `base` as it has room for;
+/// returns how many. Never blocks.
+///
+/// # Safety
+/// `base` is a started UART with its FIFOs enabled, whose transmitter belongs to the caller.
+pub unsafe fn fill_tx_fifo(base: u32, bytes: &[u8]) -> usize {
+    let mut count = 0;
+    // ISR is read-only; TDR takes one byte per write.
+    while count < bytes.len() && chip::read(base + usart::ISR) & usart::ISR_TXFNF != 0 {
+        chip::write(base + usart::TDR, u32::from(bytes[count]));
+        count += 1;
+    }
+    count
 }
