@@ -128,3 +128,35 @@ fn landing_in_an_8_mps_wind_stops_the_motors_within_a_second_of_the_touchdown() 
         assert!(stop <= STOP_AFTER_TOUCHDOWN_S, "seed {seed}: motors stopped {stop:.2} s after");
     }
 }
+
+/// A craft that a steady wind keeps drifting in the level hold (its velocity loop proportional
+/// only: a push `d` leaves it at `d / k_velocity`, above the hold's 0.3 m/s starting speed for
+/// good) starts its position hold anyway once it has stopped slowing down, and the hold's
+/// integral takes the wind up. The random world's seed 681 in a 7 m/s wind with turbulence
+/// drifted 9.5 m downwind without ever holding; seed 70 in calm air is a recovery that swings
+/// back past rest, whose hold must still wait for it to stop (it overshot by 0.87 m when a hold
+/// started at 0.74 m/s).
+#[test]
+fn a_craft_drifting_in_a_steady_wind_starts_its_hold_and_one_still_braking_waits() {
+    use sim::world::{self, Aspect};
+    let mut windy = Aspect::ALL.to_vec();
+    windy.push(Aspect::Wind);
+    for (seed, aspects, max_end_m, max_hold_m) in
+        [(681, &windy[..], 2.5, 2.0), (70, &Aspect::ALL[..], 2.0, 0.3)]
+    {
+        let (airframe, mut config) = world::random_world_case(seed, aspects);
+        config.end = FlightEnd::Land(LandReason::Commanded);
+        let report = fly(&airframe, &config);
+        let end_m = report.end_from_recovery_m.unwrap_or(f64::INFINITY);
+        let hold_m = report.max_hold_error_horizontal_m.unwrap_or(f64::INFINITY);
+        eprintln!(
+            "seed {seed}: ended {end_m:.2} m from where it recovered, held within {hold_m:.2} m \
+             ({:.0} % of the window in position hold)",
+            100.0 * report.hold_coverage
+        );
+        assert_eq!(report.outcome, Outcome::Landed, "seed {seed}");
+        assert!(report.hold_coverage > 0.5, "seed {seed}: in hold {:.2}", report.hold_coverage);
+        assert!(end_m < max_end_m, "seed {seed}: ended {end_m:.2} m from where it recovered");
+        assert!(hold_m < max_hold_m, "seed {seed}: {hold_m:.2} m off its setpoint");
+    }
+}

@@ -10,7 +10,8 @@
 //!   commands, so the motors continue without a jump.
 //! - **Guidance**: with a recent external pose the craft holds the position setpoint (by default
 //!   the position at which it engaged, brought to rest there: the hold starts once the craft has
-//!   stopped turning, moving and braking); without one it holds its thrust axis
+//!   stopped turning, moving and braking, or, pushed by a wind the level hold cannot stop, once
+//!   it has stopped slowing down, [`HOLD_START_LATEST_S`]); without one it holds its thrust axis
 //!   up and zero vertical speed, and says so.
 //! - **Failsafes**, each an [`Failsafe`] with its reason, counted: a non-finite or out-of-range
 //!   command (zero and disarm), the allocation failing for [`ALLOCATION_FAILURE_STEPS`] steps
@@ -137,6 +138,26 @@ const HOLD_START_SPEED_MPS: f32 = 0.3;
 /// (slow on slow motors) took seconds to win back (issue 28: 33 of the 45 random-world seeds
 /// that did not hold, e.g. 70 and 447, and nominal seed 123; docs/benchmarks.md).
 const HOLD_START_ACCEL_MPS2: f32 = 0.5;
+
+/// Longest the level hold flies on the fixes' velocity before the position hold starts anyway,
+/// wherever the craft is and however fast it goes, s (ours). The level hold's velocity loop is
+/// proportional only (its velocity may be a drifting estimate), so a steady push (a wind's
+/// drag `d`) leaves it drifting at `d / k_velocity` for good: 0.5-1 m/s for a 25 ms motor in
+/// 6-8 m/s of wind, several m/s for slow motors, and [`HOLD_START_SPEED_MPS`] is never reached
+/// (the random world with wind, seed 681: 9.5 m downwind at the end, never holding). The
+/// position loop's velocity integral takes the push up. Counted while the flight is steady
+/// ([`STICKS_TAKE_OVER_S`] after the recovery levels it), and the hold starts at its end only if
+/// the craft has not slowed to [`HOLD_START_SLOWING`] of the speed it had when the wait began;
+/// otherwise it is still braking (or swinging back past rest) and the wait begins again. A hold
+/// started while braking overshoots: the random world's seed 70 started one at 0.74 m/s and was
+/// 0.87 m off its setpoint.
+const HOLD_START_LATEST_S: f32 = 2.0;
+
+/// The fraction of its speed a craft keeps over [`HOLD_START_LATEST_S`] when it is pushed rather
+/// than braking (ours): the level hold's velocity loop brakes with a time constant of
+/// `1/k_velocity`, under 1 s for motors faster than 100 ms, so a braking craft keeps less than
+/// e⁻² of its speed in 2 s; one held off by a steady push keeps all of it, up to turbulence.
+const HOLD_START_SLOWING: f32 = 0.5;
 
 /// How long a steady flight with fresh fixes waits for its heading alignment before it moves
 /// to make one, s (ours): the recovery from a throw usually moves the craft enough to align
@@ -560,6 +581,11 @@ pub struct Pilot {
     /// How long the flight has been steady with fresh fixes but no heading alignment, s: past
     /// [`NUDGE_AFTER_S`] the level hold nudges the craft ([`nudge_velocity`]).
     unaligned_s: f32,
+    /// How long the position hold could have started, in a steady flight, but has waited for
+    /// the craft to stop, s (it starts anyway at [`HOLD_START_LATEST_S`]).
+    hold_wait_s: f32,
+    /// The horizontal speed when that wait began, m/s.
+    hold_wait_from_mps: f32,
     /// Where this flight first had a usable pose, world NED, m: what a fly-away moves away from
     /// before a hold has a setpoint.
     flyaway_origin_ned_m: Option<Vector3<f32>>,
@@ -609,6 +635,8 @@ impl Pilot {
             pose_lost_s: 0.0,
             flyaway: FlyAway::default(),
             unaligned_s: 0.0,
+            hold_wait_s: 0.0,
+            hold_wait_from_mps: 0.0,
             flyaway_origin_ned_m: None,
             catch: CatchDetector::new(rate_hz),
             status: PilotStatus::default(),
@@ -1287,14 +1315,35 @@ impl Pilot {
         if (was_holding && !can_hold) || fixes_stopped {
             self.note_failsafe(Failsafe::PoseLost);
             self.position_sp_ned_m = None;
-        } else if can_hold
+        }
+        // Waiting counts while the flight is steady; at its end the hold starts if the craft has
+        // not slowed to half the speed it had when the wait began (it is pushed, not braking),
+        // else the wait begins again from the speed it has now.
+        let steady = self.steady_s >= STICKS_TAKE_OVER_S;
+        let speed_mps = libm::hypotf(nav.velocity_ned_mps.x, nav.velocity_ned_mps.y);
+        let mut pushed = false;
+        if can_hold && steady && self.position_sp_ned_m.is_none() {
+            if self.hold_wait_s == 0.0 {
+                self.hold_wait_from_mps = speed_mps;
+            }
+            self.hold_wait_s += 1.0 / self.rate_hz;
+            if self.hold_wait_s >= HOLD_START_LATEST_S {
+                pushed = speed_mps >= HOLD_START_SLOWING * self.hold_wait_from_mps;
+                self.hold_wait_s = 0.0;
+            }
+        } else {
+            self.hold_wait_s = 0.0;
+        }
+        if can_hold
             && self.position_sp_ned_m.is_none()
             && Vector3::from(imu.gyro_rad_s).norm() < STEADY_RATE_RAD_S
-            && nav.velocity_ned_mps.norm() < HOLD_START_SPEED_MPS
-            && self.accel_world_mps2.norm() < HOLD_START_ACCEL_MPS2
+            && ((nav.velocity_ned_mps.norm() < HOLD_START_SPEED_MPS
+                && self.accel_world_mps2.norm() < HOLD_START_ACCEL_MPS2)
+                || pushed)
         {
-            // The hold starts once the craft has stopped turning, moving and braking: at the
-            // requested setpoint if there is one, else where the craft is.
+            // The hold starts once the craft has stopped turning, moving and braking, or has
+            // waited for it long enough: at the requested setpoint if there is one, else where
+            // the craft is.
             match self.requested_sp {
                 Some(setpoint) => self.hold_requested(&setpoint),
                 None => self.position_sp_ned_m = Some(nav.position_ned_m),
@@ -1413,6 +1462,7 @@ impl Pilot {
         self.pose_lost_s = 0.0;
         self.flyaway.reset();
         self.unaligned_s = 0.0;
+        self.hold_wait_s = 0.0;
         self.flyaway_origin_ned_m = None;
         self.catch.stop();
         self.steady_s = 0.0;
