@@ -139,8 +139,9 @@ const HOLD_START_SPEED_MPS: f32 = 0.3;
 /// that did not hold, e.g. 70 and 447, and nominal seed 123; docs/benchmarks.md).
 const HOLD_START_ACCEL_MPS2: f32 = 0.5;
 
-/// Longest the level hold flies on the fixes' velocity before the position hold starts anyway,
-/// wherever the craft is and however fast it goes, s (ours). The level hold's velocity loop is
+/// Shortest wait of the level hold on the fixes' velocity before the position hold starts anyway,
+/// wherever the craft is and however fast it goes, s (ours; longer for slow motors,
+/// [`HOLD_START_TIME_CONSTANTS`]). The level hold's velocity loop is
 /// proportional only (its velocity may be a drifting estimate), so a steady push (a wind's
 /// drag `d`) leaves it drifting at `d / k_velocity` for good: 0.5-1 m/s for a 25 ms motor in
 /// 6-8 m/s of wind, several m/s for slow motors, and [`HOLD_START_SPEED_MPS`] is never reached
@@ -153,10 +154,17 @@ const HOLD_START_ACCEL_MPS2: f32 = 0.5;
 /// 0.87 m off its setpoint.
 const HOLD_START_LATEST_S: f32 = 2.0;
 
-/// The fraction of its speed a craft keeps over [`HOLD_START_LATEST_S`] when it is pushed rather
-/// than braking (ours): the level hold's velocity loop brakes with a time constant of
-/// `1/k_velocity`, under 1 s for motors faster than 100 ms, so a braking craft keeps less than
-/// e⁻² of its speed in 2 s; one held off by a steady push keeps all of it, up to turbulence.
+/// The same wait in time constants of the level hold's velocity loop (`1/k_velocity`), when that
+/// is longer (ours): the wait must let a braking craft lose most of its speed, `e⁻⁴` of it, so
+/// that one that keeps half is pushed, not braking. 2 s is four time constants for motors of
+/// 25 ms (`k_velocity` 2.45/s); for slow motors (0.2 s, 0.31/s) it is 13 s, and 2 s would start
+/// the hold of a craft still braking at 1.5 m/s² (the random world's seed 508 with GNSS started
+/// one at 2 m/s).
+const HOLD_START_TIME_CONSTANTS: f32 = 4.0;
+
+/// The fraction of its speed a craft keeps over the wait when it is pushed rather than braking
+/// (ours): a braking craft keeps `e⁻⁴` of it (2 %, [`HOLD_START_TIME_CONSTANTS`]); one held off
+/// by a steady push keeps all of it, up to turbulence.
 const HOLD_START_SLOWING: f32 = 0.5;
 
 /// How long a steady flight with fresh fixes waits for its heading alignment before it moves
@@ -582,7 +590,8 @@ pub struct Pilot {
     /// [`NUDGE_AFTER_S`] the level hold nudges the craft ([`nudge_velocity`]).
     unaligned_s: f32,
     /// How long the position hold could have started, in a steady flight, but has waited for
-    /// the craft to stop, s (it starts anyway at [`HOLD_START_LATEST_S`]).
+    /// the craft to stop, s (it starts anyway after [`HOLD_START_LATEST_S`] or
+    /// [`HOLD_START_TIME_CONSTANTS`], if the craft is not braking).
     hold_wait_s: f32,
     /// The horizontal speed when that wait began, m/s.
     hold_wait_from_mps: f32,
@@ -1327,7 +1336,13 @@ impl Pilot {
                 self.hold_wait_from_mps = speed_mps;
             }
             self.hold_wait_s += 1.0 / self.rate_hz;
-            if self.hold_wait_s >= HOLD_START_LATEST_S {
+            let k_velocity = self.controller.as_ref().map_or(0.0, |c| c.gains().k_velocity);
+            let wait_s = if k_velocity > 0.0 {
+                (HOLD_START_TIME_CONSTANTS / k_velocity).max(HOLD_START_LATEST_S)
+            } else {
+                HOLD_START_LATEST_S
+            };
+            if self.hold_wait_s >= wait_s {
                 pushed = speed_mps >= HOLD_START_SLOWING * self.hold_wait_from_mps;
                 self.hold_wait_s = 0.0;
             }
