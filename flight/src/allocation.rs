@@ -364,7 +364,8 @@ impl Allocator {
             }
             b[k] = w * dv[k];
         }
-        let gamma = libm::sqrtf(self.config.gamma2_relative * (trace / m as f32).max(TRACE_FLOOR));
+        let gamma =
+            crate::math::sqrt(self.config.gamma2_relative * (trace / m as f32).max(TRACE_FLOOR));
         for j in 0..m {
             let gamma_j = gamma * self.config.wu[j];
             a[j][VIRTUAL_CONTROLS + j] = gamma_j;
@@ -522,7 +523,7 @@ struct Factor {
 impl Factor {
     /// `‖R e_j‖`, the length of column j.
     fn column_norm(&self, j: usize) -> f32 {
-        libm::sqrtf(self.r[j][..=j].iter().map(|v| v * v).sum::<f32>())
+        crate::math::sqrt(self.r[j][..=j].iter().map(|v| v * v).sum::<f32>())
     }
 }
 
@@ -544,7 +545,7 @@ fn householder_qr(
     for k in 0..m {
         let (head, tail) = a.split_at_mut(k + 1);
         let v = &mut head[k];
-        let norm = libm::sqrtf((k..k + REFLECTION_ROWS).map(|i| v[i] * v[i]).sum::<f32>());
+        let norm = crate::math::sqrt((k..k + REFLECTION_ROWS).map(|i| v[i] * v[i]).sum::<f32>());
         if !(norm > 0.0) || !norm.is_finite() {
             return false;
         }
@@ -657,7 +658,7 @@ fn solve_free(
                 if q == 0.0 {
                     continue;
                 }
-                let h = libm::hypotf(p, q);
+                let h = crate::math::hypot(p, q);
                 let (cos, sin) = (p / h, q / h);
                 for column in &mut rotated[i..m] {
                     let (u, v) = (column[row - 1], column[row]);
@@ -705,11 +706,11 @@ fn solve_free(
         }
         let (size_norm, residual_norm) = *norms.get_or_insert_with(|| {
             (
-                libm::sqrtf(size.iter().map(|v| v * v).sum::<f32>()),
-                libm::sqrtf(d[n..m].iter().map(|v| v * v).sum::<f32>()),
+                crate::math::sqrt(size.iter().map(|v| v * v).sum::<f32>()),
+                crate::math::sqrt(d[n..m].iter().map(|v| v * v).sum::<f32>()),
             )
         });
-        let unexplained = libm::sqrtf((n..m).map(|k| s[col][k] * s[col][k]).sum::<f32>());
+        let unexplained = crate::math::sqrt((n..m).map(|k| s[col][k] * s[col][k]).sum::<f32>());
         let tolerance = MULTIPLIER_TOLERANCE_ULPS
             * f32::EPSILON
             * (unexplained * size_norm + factor.column_norm(j) * residual_norm);
