@@ -82,9 +82,11 @@
 //! model takes 4,030 instructions on a quad (hover increment, one iteration) and 7,999 on an
 //! octorotor (one motor bounded: 7 Givens rotations); 3,564 and 10,567 (two iterations) for an
 //! increment beyond the motors' range. With the dense QR and the input checked in two passes it
-//! was 6,466 / 15,340 and 6,337 / 20,080. Measured and not adopted: the solver compiled once per
-//! motor count (a const-generic body behind one dispatch on m, so that every loop over the
-//! motors has a fixed trip count) takes another 630 instructions off the quad's control step
+//! was 6,466 / 15,340 and 6,337 / 20,080. With the FPU's square root (`math::sqrt`) and the
+//! reflections on fixed 7-row windows (2026-12-02): 3,681 / 7,333 and 3,269 / 9,089. Measured
+//! and not adopted: the solver compiled once per motor count (a const-generic body behind one
+//! dispatch on m, so that every loop over the motors has a fixed trip count) takes another
+//! 630 instructions off the quad's control step
 //! and 500–700 off the octorotor's, for 34 KB more flash (50.1 KB for this module against
 //! 16.2 KB), with the firmware already over its flash budget (docs/benchmarks.md, "Firmware
 //! size").
