@@ -225,6 +225,35 @@ fn navigation_regions() {
     black_box(state.0.yaw_rad());
 }
 
+/// Fails the bench unless `flight::math::sqrt` (`vsqrt.f32` here) and `flight::math::hypot`
+/// give `libm::sqrtf`'s and `libm::hypotf`'s values on the Cortex-M7: the host tests compare
+/// libm with itself, this compares the instruction the firmware runs.
+fn sqrt_matches_libm() {
+    let same = |a: f32, b: f32| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+    let check = |x: f32| {
+        let x = black_box(x);
+        if !same(flight::math::sqrt(x), libm::sqrtf(x))
+            || !same(flight::math::hypot(x, 0.75 * x), libm::hypotf(x, 0.75 * x))
+        {
+            hprintln!("bench-m7 error: the square root or hypot of {:e} differs from libm's", x);
+            fail("flight::math::sqrt is not libm::sqrtf on the Cortex-M7");
+        }
+    };
+    let special = [0.0f32, -0.0, 1e-45, 1.1754942e-38, 1e-30, 1.0, 2.0, 1e30, f32::MAX];
+    let special = special.into_iter().chain([f32::INFINITY, -1.0, -1e-30, -1e-45]);
+    let mut checked = 0u32;
+    for x in special.chain([f32::NEG_INFINITY, f32::NAN]) {
+        check(x);
+        checked += 1;
+    }
+    for bits in (0..0x7f80_0000u32).step_by(99_991) {
+        check(f32::from_bits(bits));
+        check(-f32::from_bits(bits));
+        checked += 2;
+    }
+    hprintln!("bench-m7 check: flight::math::sqrt and hypot equal libm's on {} values", checked);
+}
+
 /// Start of a measured region. `inputs` is consumed so that no load is hoisted above the call.
 #[inline(never)]
 #[no_mangle]
@@ -908,6 +937,10 @@ fn main() -> ! {
     hprintln!(
         "bench-m7 region: libm part: one libm::hypotf call (Givens rotations of the allocation)"
     );
+    hprintln!("bench-m7 region: flight part: one flight::math::sqrt call (vsqrt.f32)");
+    hprintln!(
+        "bench-m7 region: flight part: one flight::math::hypot call (libm's hypotf on vsqrt.f32)"
+    );
     hprintln!("bench-m7 region: dshot: decode 8 bidirectional answers (edges → GCR → checksum → rad/s, counted)");
     hprintln!("bench-m7 region: dshot: encode 8 bidirectional throttle frames");
     hprintln!("bench-m7 region: link: decode a signed SetParam frame of 8 values, byte by byte (COBS, CRC-32C, postcard)");
@@ -924,7 +957,9 @@ fn main() -> ! {
     hprintln!("bench-m7 region: pilot part: a stick frame shaped (when a stick moves)");
     hprintln!("bench-m7 region: pilot part: position mode's velocity turned (every 2° of heading)");
     hprintln!("bench-m7 region: navigation part: predict (every step, the history advanced)");
-    hprintln!("bench-m7 region: navigation part: a GNSS fix taken, position and velocity, 100 ms late");
+    hprintln!(
+        "bench-m7 region: navigation part: a GNSS fix taken, position and velocity, 100 ms late"
+    );
     hprintln!("bench-m7 region: navigation part: a GNSS fix refused (multipath)");
     hprintln!("bench-m7 region: navigation part: the heading alignment's velocity fix");
 
@@ -1209,6 +1244,12 @@ fn main() -> ! {
     let mut x = (2.0f32, 3.0f32);
     let _ = region(&mut x, |(a, _)| libm::sqrtf(black_box(*a)));
     let _ = region(&mut x, |(a, b)| libm::hypotf(black_box(*a), *b));
+    // What `flight` calls instead (`flight::math`, "Square root"), and a check that the
+    // instruction gives libm's value on this target: every 9,973rd positive bit pattern
+    // (subnormals, normals, infinity), their negatives and the edge cases.
+    let _ = region(&mut x, |(a, _)| flight::math::sqrt(black_box(*a)));
+    let _ = region(&mut x, |(a, b)| flight::math::hypot(black_box(*a), *b));
+    sqrt_matches_libm();
     dshot_regions();
     link_regions();
     tick_regions();

@@ -82,9 +82,11 @@
 //! model takes 4,030 instructions on a quad (hover increment, one iteration) and 7,999 on an
 //! octorotor (one motor bounded: 7 Givens rotations); 3,564 and 10,567 (two iterations) for an
 //! increment beyond the motors' range. With the dense QR and the input checked in two passes it
-//! was 6,466 / 15,340 and 6,337 / 20,080. Measured and not adopted: the solver compiled once per
-//! motor count (a const-generic body behind one dispatch on m, so that every loop over the
-//! motors has a fixed trip count) takes another 630 instructions off the quad's control step
+//! was 6,466 / 15,340 and 6,337 / 20,080. With the FPU's square root (`math::sqrt`) and the
+//! reflections on fixed 7-row windows (2026-12-02): 3,681 / 7,333 and 3,269 / 9,089. Measured
+//! and not adopted: the solver compiled once per motor count (a const-generic body behind one
+//! dispatch on m, so that every loop over the motors has a fixed trip count) takes another
+//! 630 instructions off the quad's control step
 //! and 500–700 off the octorotor's, for 34 KB more flash (50.1 KB for this module against
 //! 16.2 KB), with the firmware already over its flash budget (docs/benchmarks.md, "Firmware
 //! size").
@@ -364,7 +366,8 @@ impl Allocator {
             }
             b[k] = w * dv[k];
         }
-        let gamma = libm::sqrtf(self.config.gamma2_relative * (trace / m as f32).max(TRACE_FLOOR));
+        let gamma =
+            crate::math::sqrt(self.config.gamma2_relative * (trace / m as f32).max(TRACE_FLOOR));
         for j in 0..m {
             let gamma_j = gamma * self.config.wu[j];
             a[j][VIRTUAL_CONTROLS + j] = gamma_j;
@@ -522,7 +525,7 @@ struct Factor {
 impl Factor {
     /// `‖R e_j‖`, the length of column j.
     fn column_norm(&self, j: usize) -> f32 {
-        libm::sqrtf(self.r[j][..=j].iter().map(|v| v * v).sum::<f32>())
+        crate::math::sqrt(self.r[j][..=j].iter().map(|v| v * v).sum::<f32>())
     }
 }
 
@@ -541,22 +544,32 @@ fn householder_qr(
     m: usize,
 ) -> bool {
     let r = &mut factor.r;
+    let m = m.min(MAX_MOTORS);
     for k in 0..m {
         let (head, tail) = a.split_at_mut(k + 1);
-        let v = &mut head[k];
-        let norm = libm::sqrtf((k..k + REFLECTION_ROWS).map(|i| v[i] * v[i]).sum::<f32>());
+        // The rows k..k + REFLECTION_ROWS as fixed-size windows (k < m ≤ MAX_MOTORS, so they
+        // always exist): the loops over them are unrolled without bounds checks, about 45
+        // instructions a reflected column of the octorotor instead of 64 indexed by k + i.
+        // Measured with the slice loops of `solve_free` (bench-m7's regions alone): the
+        // octorotor's recovery step 12,210 -> 11,781 instructions, its allocation beyond the
+        // motors' range 10,010 -> 9,098; the quad's hover step 7,408 -> 7,471.
+        let Some(v) = head[k][k..].first_chunk_mut::<REFLECTION_ROWS>() else { return false };
+        let norm = crate::math::sqrt(v.iter().map(|x| x * x).sum::<f32>());
         if !(norm > 0.0) || !norm.is_finite() {
             return false;
         }
         // Reflect onto −sign(a_kk)·‖a‖ e_k (no cancellation in v_k = a_kk + sign·‖a‖).
-        let alpha = if v[k] >= 0.0 { -norm } else { norm };
-        v[k] -= alpha;
+        let alpha = if v[0] >= 0.0 { -norm } else { norm };
+        v[0] -= alpha;
         // vᵀv = 2‖a‖(‖a‖ + |a_kk|).
-        let v_norm2 = 2.0 * norm * (norm + (v[k] + alpha).abs());
+        let v_norm2 = 2.0 * norm * (norm + (v[0] + alpha).abs());
+        let v = &*v;
         for column in &mut tail[..m - k - 1] {
-            reflect(v, column, k, v_norm2);
+            let Some(x) = column[k..].first_chunk_mut() else { return false };
+            reflect(v, x, v_norm2);
         }
-        reflect(v, b, k, v_norm2);
+        let Some(x) = b[k..].first_chunk_mut() else { return false };
+        reflect(v, x, v_norm2);
         r[k][k] = alpha;
         for j in k + 1..m {
             r[j][k] = a[j][k];
@@ -566,14 +579,13 @@ fn householder_qr(
     factor.c.iter().all(|v| v.is_finite())
 }
 
-/// Apply the Householder reflection `I − 2vvᵀ/vᵀv` of step k (`v` nonzero in rows
-/// `k..k + REFLECTION_ROWS`, `v_norm2 = vᵀv`) to `x`.
+/// Apply the Householder reflection `I − 2vvᵀ/vᵀv` of one step (`v` its nonzero rows,
+/// `v_norm2 = vᵀv`) to the same rows `x` of a column.
 #[inline(always)]
-fn reflect(v: &[f32; STACKED_ROWS], x: &mut [f32; STACKED_ROWS], k: usize, v_norm2: f32) {
-    let rows = k..k + REFLECTION_ROWS;
-    let t = 2.0 * rows.clone().map(|i| v[i] * x[i]).sum::<f32>() / v_norm2;
-    for i in rows {
-        x[i] -= t * v[i];
+fn reflect(v: &[f32; REFLECTION_ROWS], x: &mut [f32; REFLECTION_ROWS], v_norm2: f32) {
+    let t = 2.0 * v.iter().zip(x.iter()).map(|(v, x)| v * x).sum::<f32>() / v_norm2;
+    for (x, v) in x.iter_mut().zip(v) {
+        *x -= t * v;
     }
 }
 
@@ -612,6 +624,8 @@ fn solve_free(
     m: usize,
 ) -> Option<FreeSolution> {
     let (r, c) = (&factor.r, &factor.c);
+    // At most MAX_MOTORS: said so that the loops below need no bounds checks.
+    let m = m.min(MAX_MOTORS);
     // Column order: free variables first.
     let mut order = [0usize; MAX_MOTORS];
     let mut n = 0;
@@ -632,10 +646,11 @@ fn solve_free(
     let mut d = *c;
     let mut size = c.map(f32::abs);
     for &j in &order[n..m] {
-        for i in 0..=j {
-            let t = r[j][i] * x[j];
-            d[i] -= t;
-            size[i] += t.abs();
+        let (Some(column), Some(&x_j)) = (r.get(j), x.get(j)) else { return None };
+        for ((r_ij, d_i), size_i) in column.iter().zip(&mut d).zip(&mut size).take(j + 1) {
+            let t = r_ij * x_j;
+            *d_i -= t;
+            *size_i += t.abs();
         }
     }
     // s: R's columns in that order, re-triangularised. With every variable free that is R
@@ -657,7 +672,7 @@ fn solve_free(
                 if q == 0.0 {
                     continue;
                 }
-                let h = libm::hypotf(p, q);
+                let h = crate::math::hypot(p, q);
                 let (cos, sin) = (p / h, q / h);
                 for column in &mut rotated[i..m] {
                     let (u, v) = (column[row - 1], column[row]);
@@ -699,17 +714,17 @@ fn solve_free(
             Bound::Upper => -1.0,
             Bound::Free => continue,
         };
-        let multiplier = -sign * (n..m).map(|k| s[col][k] * d[k]).sum::<f32>();
+        let multiplier = -sign * s[col][n..m].iter().zip(&d[n..m]).map(|(s, d)| s * d).sum::<f32>();
         if !(multiplier < 0.0) {
             continue;
         }
         let (size_norm, residual_norm) = *norms.get_or_insert_with(|| {
             (
-                libm::sqrtf(size.iter().map(|v| v * v).sum::<f32>()),
-                libm::sqrtf(d[n..m].iter().map(|v| v * v).sum::<f32>()),
+                crate::math::sqrt(size.iter().map(|v| v * v).sum::<f32>()),
+                crate::math::sqrt(d[n..m].iter().map(|v| v * v).sum::<f32>()),
             )
         });
-        let unexplained = libm::sqrtf((n..m).map(|k| s[col][k] * s[col][k]).sum::<f32>());
+        let unexplained = crate::math::sqrt(s[col][n..m].iter().map(|v| v * v).sum::<f32>());
         let tolerance = MULTIPLIER_TOLERANCE_ULPS
             * f32::EPSILON
             * (unexplained * size_norm + factor.column_norm(j) * residual_norm);

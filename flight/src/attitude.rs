@@ -225,10 +225,10 @@ impl AttitudeFilter {
     /// kept: it belongs to the sensor, not to the attitude.
     pub fn reset_to(&mut self, q_world_body: UnitQuaternion<f32>) -> Result<(), AttitudeError> {
         let q = q_world_body.into_inner();
-        if !q.coords.iter().all(|x| x.is_finite()) || q.norm() < 0.5 {
+        if !q.coords.iter().all(|x| x.is_finite()) || crate::math::sqrt(q.norm_squared()) < 0.5 {
             return Err(AttitudeError::BadInput);
         }
-        self.q_world_body = UnitQuaternion::new_normalize(q);
+        self.q_world_body = crate::math::normalized_quaternion(q);
         self.initialised = true;
         Ok(())
     }
@@ -247,7 +247,7 @@ impl AttitudeFilter {
         if !finite {
             return Err(AttitudeError::BadInput);
         }
-        let norm = f_mps2.norm();
+        let norm = crate::math::norm(f_mps2);
         if !in_gravity_band(norm) {
             return Err(AttitudeError::NotGravity);
         }
@@ -294,15 +294,16 @@ impl AttitudeFilter {
         let rate_rad_s = gyro_rad_s - self.bias_rad_s;
         let down_est = self.q_world_body.inverse() * Vector3::z();
 
-        let f_norm = f_mps2.norm();
+        let f_norm = crate::math::norm(f_mps2);
         self.accel_used =
-            in_gravity_band(f_norm) && rate_rad_s.norm() <= c.max_rate_for_accel_rad_s;
+            in_gravity_band(f_norm) && crate::math::norm(&rate_rad_s) <= c.max_rate_for_accel_rad_s;
         let tilt_error =
             if self.accel_used { (-f_mps2 / f_norm).cross(&down_est) } else { Vector3::zeros() };
 
         self.heading_external = heading_rad.is_some();
         let x_world = self.q_world_body * Vector3::x();
-        let heading_defined = libm::hypotf(x_world.x, x_world.y) >= HEADING_DEFINED_MIN_HORIZONTAL;
+        let heading_defined =
+            crate::math::hypot(x_world.x, x_world.y) >= HEADING_DEFINED_MIN_HORIZONTAL;
         let yaw_error_rad = match heading_rad {
             Some(heading) if heading_defined => {
                 wrap_pi(heading - libm::atan2f(x_world.y, x_world.x))
@@ -313,7 +314,7 @@ impl AttitudeFilter {
         let heading_error = down_est * yaw_error_rad;
 
         let mut bias = self.bias_rad_s;
-        if self.accel_used && tilt_error.norm() < BIAS_LEARNING_MAX_ERROR {
+        if self.accel_used && crate::math::norm(&tilt_error) < BIAS_LEARNING_MAX_ERROR {
             bias -= tilt_error * (c.k_i * dt_s);
         }
         if yaw_error_rad.abs() < HEADING_BIAS_LEARNING_MAX_ERROR_RAD {
@@ -323,7 +324,7 @@ impl AttitudeFilter {
 
         let omega = gyro_rad_s - self.bias_rad_s + tilt_error * c.k_p + heading_error * c.k_heading;
         let q = self.q_world_body.into_inner() * exp_half(&(omega * dt_s));
-        self.q_world_body = UnitQuaternion::new_normalize(q);
+        self.q_world_body = crate::math::normalized_quaternion(q);
         Ok(())
     }
 
@@ -368,7 +369,7 @@ fn in_gravity_band(f_norm_mps2: f32) -> bool {
 
 /// The unit quaternion of the rotation vector `phi` (rad): `exp(½ φ)`, exact for any angle.
 fn exp_half(phi: &Vector3<f32>) -> Quaternion<f32> {
-    let angle = phi.norm();
+    let angle = crate::math::norm(phi);
     let half = 0.5 * angle;
     // sin(½θ)/θ, by its series below 1e-4 rad where the quotient loses precision.
     let (sin, cos) = crate::math::sin_cos(half);
@@ -394,14 +395,14 @@ pub fn euler_zyx(q_world_body: &UnitQuaternion<f32>) -> EulerZyx {
 /// half-way construction `(1 + a·b, a × b)` normalised, with `a`, `b` the unit directions. Unlike
 /// an arccosine of `a·b`, it keeps its precision for small angles.
 pub fn shortest_rotation(from: &Vector3<f32>, to: &Vector3<f32>) -> Option<UnitQuaternion<f32>> {
-    let a = from.try_normalize(0.0)?;
-    let b = to.try_normalize(0.0)?;
+    let a = crate::math::try_normalize(from, 0.0)?;
+    let b = crate::math::try_normalize(to, 0.0)?;
     let axis = a.cross(&b);
     let q = Quaternion::new(1.0 + a.dot(&b), axis.x, axis.y, axis.z);
     // |q|² = 2 (1 + a·b): below 1e-10 the vectors are within about 1e-5 rad of opposite and the
     // axis is noise.
     if q.norm_squared() > 1e-10 && q.coords.iter().all(|x| x.is_finite()) {
-        Some(UnitQuaternion::new_normalize(q))
+        Some(crate::math::normalized_quaternion(q))
     } else {
         None
     }

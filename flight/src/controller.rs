@@ -145,9 +145,9 @@ impl ThrustDirection {
         rate_rad_s: &Vector3<f32>,
         dt_s: f32,
     ) {
-        let force = specific_force_mps2.norm();
+        let force = crate::math::norm(specific_force_mps2);
         let usable = force > THRUST_DIRECTION_MIN_FORCE_MPS2
-            && rate_rad_s.norm() < THRUST_DIRECTION_MAX_RATE_RAD_S
+            && crate::math::norm(rate_rad_s) < THRUST_DIRECTION_MAX_RATE_RAD_S
             && force.is_finite()
             && dt_s > 0.0;
         if !usable {
@@ -156,11 +156,11 @@ impl ThrustDirection {
         let measured = -specific_force_mps2 / force;
         let blended =
             self.down + (measured - self.down) * (dt_s / THRUST_DIRECTION_TIME_S).min(1.0);
-        let Some(down) = blended.try_normalize(1e-6) else { return };
+        let Some(down) = crate::math::try_normalize(&blended, 1e-6) else { return };
         // Within the cone about the model's axis.
         let angle = libm::acosf(down.z.clamp(-1.0, 1.0));
         self.down = if angle > THRUST_DIRECTION_MAX_RAD {
-            let side = Vector3::new(down.x, down.y, 0.0).normalize();
+            let side = crate::math::normalize(&Vector3::new(down.x, down.y, 0.0));
             let (sin, cos) = crate::math::sin_cos(THRUST_DIRECTION_MAX_RAD);
             side * sin + Vector3::z() * cos
         } else {
@@ -550,7 +550,7 @@ pub fn tilt_rate_rad_s(
     let linear = k_attitude * error_rad;
     let beyond = error_rad - closing_rad_s.max(0.0) * lag_s - LINEAR_TILT_RAD;
     let rate = if decel_rad_s2 > 0.0 && decel_rad_s2.is_finite() && beyond > 0.0 {
-        linear + libm::sqrtf(2.0 * decel_rad_s2 * beyond)
+        linear + crate::math::sqrt(2.0 * decel_rad_s2 * beyond)
     } else {
         linear
     };
@@ -598,13 +598,13 @@ pub fn attitude_loop(
     gains: &Gains,
     tilt_decel_rad_s2: f32,
 ) -> AttitudeCommand {
-    let f_norm = f_sp.norm();
+    let f_norm = crate::math::norm(f_sp);
     // The wanted thrust-frame z ("down" of the craft) in the world: opposite the specific force.
     let z_wanted_world = if f_norm > 1e-3 { -f_sp / f_norm } else { Vector3::new(0.0, 0.0, 1.0) };
     let z_wanted = q_world_thrust.inverse() * z_wanted_world;
     // Tilt: rotate the axis the motors really push along onto the wanted one.
     let axis = thrust_down_t.cross(&z_wanted);
-    let sin_tilt = axis.norm();
+    let sin_tilt = crate::math::norm(&axis);
     let tilt = libm::atan2f(sin_tilt, thrust_down_t.dot(&z_wanted));
     let tilt_axis = if sin_tilt > 1e-6 { axis / sin_tilt } else { Vector3::new(1.0, 0.0, 0.0) };
     let closing = rate_rad_s.dot(&tilt_axis).max(0.0);

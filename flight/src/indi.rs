@@ -203,7 +203,7 @@ impl IndiModel {
     /// of the steady thrust curve `ω = a δ + b √δ + ω_idle` at `ω = ω_full √u`.
     pub fn command_for_thrust(&self, j: usize, u: f32) -> f32 {
         let m = &self.motor[j];
-        let omega = m.omega_full_rad_s() * libm::sqrtf(u.clamp(0.0, 1.0));
+        let omega = m.omega_full_rad_s() * crate::math::sqrt(u.clamp(0.0, 1.0));
         command_for_speed(m, omega)
     }
 }
@@ -226,7 +226,7 @@ pub fn command_for_speed(m: &MotorModel, omega_rad_s: f32) -> f32 {
             return 1.0;
         }
         // The numerically stable form of (−b + √disc)/(2a).
-        2.0 * excess / (b + libm::sqrtf(discriminant))
+        2.0 * excess / (b + crate::math::sqrt(discriminant))
     };
     let delta = s * s;
     if delta.is_finite() {

@@ -23,14 +23,25 @@
 //!
 //! ## Square root
 //!
-//! Why not `libm::sqrtf`: libm has no ARM fast path, so on `thumbv7em` it is an integer
-//! routine (53 instructions a call in `cargo xtask bench-m7`), and the thrust-axis solver takes
-//! about eight roots per call (measured: it was most of the m = 4 instruction count, see
-//! `docs/benchmarks.md`); the learner's motor models take one per motor and sample. The
-//! `vsqrt.f32` instruction is reachable from stable Rust only through inline assembly that needs
-//! the double-precision `vfp2` feature (not in the baseline `thumbv7em-none-eabihf`), so instead:
-//! the classic bit-level estimate of `1/√x`, three Newton steps (relative error 2e-3 → 5e-6 →
-//! 4e-11, i.e. f32 round-off), then `√x = x · (1/√x)`. About 20 instructions, all FPU.
+//! Why not `libm::sqrtf` (nor nalgebra's `norm()`, `normalize()` and
+//! `UnitQuaternion::new_normalize`, which call it through simba): libm 0.2.16 has no ARM fast
+//! path, so on `thumbv7em` every call is an integer routine of about 50 instructions (51 in
+//! `cargo xtask bench-m7`), and the control step made 36 of them on a quad and 52 on an
+//! octorotor (1,836 and 2,652 instructions). The Cortex-M7's FPU has `vsqrt.f32`, correctly
+//! rounded as IEEE 754 requires, and so is `libm::sqrtf`: [`sqrt`] is the one instruction on
+//! an ARM hard-float target and `libm::sqrtf` elsewhere, the same value bit for bit on both
+//! (tested on the host against libm, and on the Cortex-M7 by `cargo xtask bench-m7`, which
+//! fails when the instruction's result differs from libm's on its sweep). [`hypot`], [`norm`],
+//! [`normalize`], [`try_normalize`] and [`normalized_quaternion`] are libm's `hypotf` and
+//! nalgebra's methods with the same arithmetic around it, so their results are the same too.
+//!
+//! The register class `sreg` of Rust's inline assembly needs the target feature `vfp2`
+//! (double-precision VFP), which the Cortex-M7 has (`-C target-cpu=cortex-m7`, as the firmware
+//! and bench-m7 build) and the bare `thumbv7em-none-eabihf` baseline (single precision) has not:
+//! there the assembly does not compile rather than silently taking the slow path. ARM's target
+//! features are not visible to `cfg` on stable Rust (`rustc --print cfg --target
+//! thumbv7em-none-eabihf -C target-cpu=cortex-m7` lists none), so the path is chosen by
+//! `target_arch = "arm"` and `target_abi = "eabihf"` (every hard-float ARM core has `vsqrt`).
 
 use nalgebra::{Quaternion, SMatrix, Unit, UnitQuaternion, Vector3};
 
@@ -81,20 +92,91 @@ fn mul_slices(
     }
 }
 
-/// `√x` to within a few f32 ulps; `0` for `x ≤ 0` and for NaN returns NaN. Inputs outside the
-/// normal range (subnormal, infinite) fall back to `libm::sqrtf`.
+/// `√x`, correctly rounded: the value of `libm::sqrtf` for every input (NaN for a negative or
+/// NaN input, `−0` for `−0`, `+∞` for `+∞`). One `vsqrt.f32` on an ARM hard-float target,
+/// `libm::sqrtf` elsewhere (see "Square root" in the module docs).
+#[inline(always)]
+pub fn sqrt(x: f32) -> f32 {
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        let root: f32;
+        // SAFETY: one FPU instruction on registers: no memory, no stack, no flags (`vsqrt`
+        // sets only the FPSCR's cumulative exception bits, which nothing here reads).
+        unsafe {
+            core::arch::asm!(
+                "vsqrt.f32 {root}, {x}",
+                root = lateout(sreg) root,
+                x = in(sreg) x,
+                options(pure, nomem, nostack, preserves_flags)
+            );
+        }
+        root
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::sqrtf(x)
+    }
+}
+
+/// `√(x² + y²)` without undue overflow or underflow: `libm::hypotf` (0.2.16) with [`sqrt`] for
+/// its square root, so the same value for every input.
 #[inline]
-pub(crate) fn sqrt(x: f32) -> f32 {
-    if !(f32::MIN_POSITIVE..=f32::MAX).contains(&x) {
-        return if x > 0.0 || x.is_nan() { libm::sqrtf(x) } else { 0.0 };
+pub fn hypot(x: f32, y: f32) -> f32 {
+    // 2⁹⁰ and 2⁻⁹⁰: the rescaling of arguments whose squares would leave the f32 range.
+    const TWO_POW_90: f32 = f32::from_bits(0x6c80_0000);
+    const TWO_POW_MINUS_90: f32 = f32::from_bits(0x1280_0000);
+    let (mut big, mut small) = (x.to_bits() & !(1 << 31), y.to_bits() & !(1 << 31));
+    if big < small {
+        core::mem::swap(&mut big, &mut small);
     }
-    // Initial estimate of 1/√x from the exponent bits (relative error below 3.5 %).
-    let mut r = f32::from_bits(0x5f37_59df - (x.to_bits() >> 1));
-    let half_x = 0.5 * x;
-    for _ in 0..3 {
-        r *= 1.5 - half_x * r * r;
+    let (mut x, mut y) = (f32::from_bits(big), f32::from_bits(small));
+    if small == 0xff << 23 {
+        return y;
     }
-    x * r
+    if big >= 0xff << 23 || small == 0 || big - small >= 25 << 23 {
+        return x + y;
+    }
+    let mut z = 1.0;
+    if big >= (0x7f + 60) << 23 {
+        z = TWO_POW_90;
+        x *= TWO_POW_MINUS_90;
+        y *= TWO_POW_MINUS_90;
+    } else if small < (0x7f - 60) << 23 {
+        z = TWO_POW_MINUS_90;
+        x *= TWO_POW_90;
+        y *= TWO_POW_90;
+    }
+    z * sqrt((f64::from(x) * f64::from(x) + f64::from(y) * f64::from(y)) as f32)
+}
+
+/// `‖v‖`: nalgebra's `norm()` with [`sqrt`] (the same value).
+#[inline]
+pub fn norm(v: &Vector3<f32>) -> f32 {
+    sqrt(v.norm_squared())
+}
+
+/// `v / ‖v‖`: nalgebra's `normalize()` with [`sqrt`] (the same value; NaN for a zero vector).
+#[inline]
+pub fn normalize(v: &Vector3<f32>) -> Vector3<f32> {
+    v.unscale(norm(v))
+}
+
+/// `v / ‖v‖` unless `‖v‖ ≤ min_norm`: nalgebra's `try_normalize` with [`sqrt`].
+#[inline]
+pub fn try_normalize(v: &Vector3<f32>, min_norm: f32) -> Option<Vector3<f32>> {
+    let n = norm(v);
+    if n <= min_norm {
+        None
+    } else {
+        Some(v.unscale(n))
+    }
+}
+
+/// `q / ‖q‖` as a rotation: `UnitQuaternion::new_normalize` with [`sqrt`] (the same value).
+#[inline]
+pub fn normalized_quaternion(q: Quaternion<f32>) -> UnitQuaternion<f32> {
+    let n = sqrt(q.coords.norm_squared());
+    UnitQuaternion::new_unchecked(Quaternion::from(q.coords.unscale(n)))
 }
 
 /// `x` limited to `lo..=hi`; NaN stays NaN (as `f32::clamp`).
@@ -129,8 +211,17 @@ pub fn sin_cos_f64(x: f64) -> (f64, f64) {
     }
     // The nearest whole number of quarter turns (`f64::round` is not in `core`).
     let y = x * core::f64::consts::FRAC_2_PI;
-    let quarter_turns = if y >= 0.0 { (y + 0.5) as i64 } else { (y - 0.5) as i64 };
-    let r = x - quarter_turns as f64 * core::f64::consts::FRAC_PI_2;
+    // In i32 whenever it fits: the FPU converts those itself, an i64 takes two library calls
+    // (`__aeabi_d2lz`, `__aeabi_l2d`: about 55 instructions a call on the Cortex-M7, three
+    // calls in a control step). The same whole number either way.
+    let (turns, quadrant) = if y.abs() < 1e9 {
+        let q = if y >= 0.0 { (y + 0.5) as i32 } else { (y - 0.5) as i32 };
+        (f64::from(q), q & 3)
+    } else {
+        let q = if y >= 0.0 { (y + 0.5) as i64 } else { (y - 0.5) as i64 };
+        (q as f64, q.rem_euclid(4) as i32)
+    };
+    let r = x - turns * core::f64::consts::FRAC_PI_2;
     let r2 = r * r;
     // Horner forms of the Taylor series: sin to r¹³, cos to r¹².
     let sin = r
@@ -146,7 +237,7 @@ pub fn sin_cos_f64(x: f64) -> (f64, f64) {
                 + r2 * (-1.0 / 720.0
                     + r2 * (1.0 / 40_320.0
                         + r2 * (-1.0 / 3_628_800.0 + r2 * (1.0 / 479_001_600.0))))));
-    match quarter_turns.rem_euclid(4) {
+    match quadrant {
         0 => (sin, cos),
         1 => (cos, -sin),
         2 => (-sin, -cos),
@@ -165,7 +256,7 @@ pub fn rotation_about(axis: &Unit<Vector3<f32>>, angle_rad: f32) -> UnitQuaterni
 /// The rotation of rotation vector `phi` (axis times angle, rad), as [`UnitQuaternion`]'s
 /// `from_scaled_axis` but through [`sin_cos`]; the identity for a zero vector.
 pub fn rotation_from_scaled_axis(phi: &Vector3<f32>) -> UnitQuaternion<f32> {
-    let angle = phi.norm();
+    let angle = norm(phi);
     if angle == 0.0 || !angle.is_finite() {
         return UnitQuaternion::identity();
     }
@@ -237,9 +328,10 @@ fn spd_inverse_flat(a: &[f64], l: &mut [f64], inverse: &mut [f64], n: usize) -> 
 #[cfg(test)]
 mod tests {
     use super::{
-        clamp, mul_compact, rotation_about, rotation_from_scaled_axis, sin_cos, sqrt,
-        tr_mul_compact,
+        clamp, hypot, mul_compact, norm, normalize, normalized_quaternion, rotation_about,
+        rotation_from_scaled_axis, sin_cos, sqrt, tr_mul_compact, try_normalize,
     };
+    use nalgebra::Quaternion;
 
     #[test]
     #[allow(clippy::needless_range_loop)] // the product's indices, as in the notation
@@ -317,6 +409,33 @@ mod tests {
         }
     }
 
+    /// The quarter turns counted in i32 where they fit give the i64 count's results bit for
+    /// bit, on both sides of the switch (|x| ≈ 1.57·10⁹ rad) and far beyond it.
+    #[test]
+    fn sin_cos_counts_quarter_turns_in_i32_with_the_i64_results() {
+        let reference = |x: f64| {
+            let y = x * core::f64::consts::FRAC_2_PI;
+            let q = if y >= 0.0 { (y + 0.5) as i64 } else { (y - 0.5) as i64 };
+            let r = x - q as f64 * core::f64::consts::FRAC_PI_2;
+            let (s, c) = super::sin_cos_f64(r);
+            match q.rem_euclid(4) {
+                0 => (s, c),
+                1 => (c, -s),
+                2 => (-s, -c),
+                _ => (-c, s),
+            }
+        };
+        let mut x = 1e-3f64;
+        while x < 1e13 {
+            for value in [x, -x, x * 1.37, -x * 2.9, 1.5707963e9 + x.min(1e3), -1.5707964e9] {
+                let (s, c) = super::sin_cos_f64(value);
+                let (rs, rc) = reference(value);
+                assert_eq!((s.to_bits(), c.to_bits()), (rs.to_bits(), rc.to_bits()), "{value}");
+            }
+            x *= 1.9;
+        }
+    }
+
     #[test]
     fn rotations_agree_with_nalgebras() {
         let axis = Vector3::new(0.3f32, -0.5, 0.8);
@@ -345,21 +464,83 @@ mod tests {
     }
 
     #[test]
-    fn matches_libm_to_a_few_ulps_over_the_normal_range() {
-        let mut x = f32::MIN_POSITIVE;
-        while x < 1e38 {
-            for scale in [1.0f32, 1.37, 2.0, 3.99] {
-                let value = x * scale;
-                let exact = libm::sqrtf(value);
-                let error = (sqrt(value) - exact).abs() / exact;
-                assert!(error < 4.0 * f32::EPSILON, "√{value}: {} vs {exact}", sqrt(value));
-            }
-            x *= 7.3;
+    fn sqrt_is_libm_bit_for_bit_with_its_nan_for_negative_and_nan() {
+        let same = |x: f32| {
+            let (ours, libm) = (sqrt(x), libm::sqrtf(x));
+            assert!(
+                ours.to_bits() == libm.to_bits() || (ours.is_nan() && libm.is_nan()),
+                "√{x:e} ({:#010x}): {ours:e} vs libm {libm:e}",
+                x.to_bits()
+            );
+        };
+        // Zeros, the smallest and largest subnormals, and the ends of the normal range.
+        for x in [0.0, -0.0, f32::from_bits(1), f32::from_bits(0x007f_ffff), f32::MIN_POSITIVE] {
+            same(x);
         }
-        assert_eq!(sqrt(0.0), 0.0);
-        assert_eq!(sqrt(-1.0), 0.0);
-        assert!(sqrt(f32::NAN).is_nan());
-        assert_eq!(sqrt(f32::INFINITY), f32::INFINITY);
-        assert!((sqrt(1e-40) - libm::sqrtf(1e-40)).abs() < 1e-25);
+        for x in [1e-30, 1e-20, 1.0, 2.0, 1e30, f32::MAX, f32::INFINITY] {
+            same(x);
+        }
+        // Every 997th bit pattern of the positive floats (subnormals, normals, infinity) and
+        // the same magnitudes negative: about 2.1 million values each way.
+        for bits in (0..=0x7f80_0000u32).step_by(997) {
+            same(f32::from_bits(bits));
+            same(-f32::from_bits(bits));
+        }
+        // Negative inputs and NaN give NaN, as libm's.
+        for x in [-1.0, -1e-30, -f32::from_bits(1), f32::NEG_INFINITY, f32::NAN, -f32::NAN] {
+            assert!(sqrt(x).is_nan(), "√{x}");
+        }
+        assert_eq!(sqrt(-0.0).to_bits(), (-0.0f32).to_bits());
+    }
+
+    #[test]
+    fn hypot_norm_and_normalize_are_libm_and_nalgebra_bit_for_bit() {
+        let values = [
+            0.0,
+            -0.0,
+            1e-45,
+            1e-40,
+            1e-30,
+            3.7e-19,
+            0.3,
+            1.0,
+            -2.5,
+            7.0,
+            1e19,
+            3e30,
+            1e38,
+            f32::MAX,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ];
+        let same = |a: f32, b: f32| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+        for &x in &values {
+            for &y in &values {
+                assert!(same(hypot(x, y), libm::hypotf(x, y)), "hypot({x}, {y})");
+                for &z in &values[..12] {
+                    let v = Vector3::new(x, y, z);
+                    assert!(same(norm(&v), v.norm()), "{v:?}");
+                    let (ours, theirs) = (normalize(&v), v.normalize());
+                    assert!(ours.iter().zip(&theirs).all(|(a, b)| same(*a, *b)), "{v:?}");
+                    for min in [0.0, 1e-6] {
+                        let (ours, theirs) = (try_normalize(&v, min), v.try_normalize(min));
+                        let agree = match (ours, theirs) {
+                            (Some(a), Some(b)) => a.iter().zip(&b).all(|(a, b)| same(*a, *b)),
+                            (None, None) => true,
+                            _ => false,
+                        };
+                        assert!(agree, "{v:?} {min}");
+                    }
+                    let q = Quaternion::new(0.5, x, y, z);
+                    let (ours, theirs) =
+                        (normalized_quaternion(q), UnitQuaternion::new_normalize(q));
+                    assert!(
+                        ours.coords.iter().zip(&theirs.coords).all(|(a, b)| same(*a, *b)),
+                        "{q:?}"
+                    );
+                }
+            }
+        }
     }
 }

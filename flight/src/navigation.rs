@@ -501,14 +501,15 @@ impl PositionEstimator {
         let restart = !self.fixed_once || self.since_fix_s > FIX_TIMEOUT_S;
         // A horizontal accuracy is the RMS of the 2D error: √2 σ; a 3D velocity's √3 σ.
         let velocity_error = velocity_error.filter(|(ev, noise)| {
-            ev.norm() <= (OUTLIER_SIGMAS * SQRT_3 * noise).max(MIN_VELOCITY_GATE_MPS)
+            crate::math::norm(ev) <= (OUTLIER_SIGMAS * SQRT_3 * noise).max(MIN_VELOCITY_GATE_MPS)
         });
         let t = self.since_taken_s;
         let gate = |rms_m: f32| {
             (OUTLIER_SIGMAS * rms_m).max(MIN_OUTLIER_GATE_M) + OUTLIER_DRIFT_AIDED_MPS * t
         };
         let outlier = velocity_error.is_some()
-            && (libm::hypotf(error.x, error.y) > gate(core::f32::consts::SQRT_2 * sigma_m[0])
+            && (crate::math::hypot(error.x, error.y)
+                > gate(core::f32::consts::SQRT_2 * sigma_m[0])
                 || error.z.abs() > gate(sigma_m[1]));
         let outcome = if restart || (outlier && t >= MAX_REJECT_S) {
             // The whole track moves onto the fix, and turns to its velocity.
@@ -600,7 +601,7 @@ pub const ALIGNMENT_REFERENCE_ACCEL_MPS2: f32 = 1.0;
 /// 1 mm of noise (motion capture), 0.71 s for 5 cm, 2.2 s for 0.5 m (GNSS).
 pub fn alignment_window_s(noise_m: f32) -> f32 {
     let noise = if noise_m.is_finite() && noise_m > 0.0 { noise_m } else { 0.0 };
-    libm::sqrtf(10.0 * noise / ALIGNMENT_REFERENCE_ACCEL_MPS2)
+    crate::math::sqrt(10.0 * noise / ALIGNMENT_REFERENCE_ACCEL_MPS2)
         .clamp(MIN_ALIGNMENT_WINDOW_S, MAX_ALIGNMENT_WINDOW_S)
 }
 
@@ -764,7 +765,7 @@ impl VelocityAlignment {
             self.cross += w * (dx * d.y - dy * d.x);
             self.dot += w * (dx * d.x + dy * d.y);
             self.noise_var += w * w * (dx * dx + dy * dy) * var_d;
-            self.evidence = libm::sqrtf(self.cross * self.cross + self.dot * self.dot);
+            self.evidence = crate::math::sqrt(self.cross * self.cross + self.dot * self.dot);
             self.weight += w;
             self.weight2 += w * w;
             self.sum_dead = [self.sum_dead[0] + w * dx, self.sum_dead[1] + w * dy];
@@ -776,7 +777,7 @@ impl VelocityAlignment {
         self.filled = (self.filled + 1).min(VELOCITY_POINTS);
         let needed = ALIGNMENT_EVIDENCE_S * (2.0 * t) * (2.0 * t);
         let significant =
-            self.evidence >= VELOCITY_ALIGNMENT_SIGNIFICANCE * libm::sqrtf(self.noise_var);
+            self.evidence >= VELOCITY_ALIGNMENT_SIGNIFICANCE * crate::math::sqrt(self.noise_var);
         if !(self.evidence >= needed && significant) || self.weight <= 0.0 {
             return None;
         }
@@ -788,7 +789,7 @@ impl VelocityAlignment {
         let [sfx, sfy] = self.sum_fix;
         let bias_x = (sfx - (cos * sdx - sin * sdy)) / self.weight;
         let bias_y = (sfy - (sin * sdx + cos * sdy)) / self.weight;
-        let bias_mps2 = libm::sqrtf(bias_x * bias_x + bias_y * bias_y) / t;
+        let bias_mps2 = crate::math::sqrt(bias_x * bias_x + bias_y * bias_y) / t;
         if bias_mps2 <= MAX_ALIGNMENT_BIAS_MPS2 {
             return Some(yaw);
         }
@@ -804,14 +805,15 @@ impl VelocityAlignment {
         let [sfx, sfy] = self.sum_fix;
         let cross = self.cross - (sdx * sfy - sdy * sfx) / w;
         let dot = self.dot - (sdx * sfx + sdy * sfy) / w;
-        let evidence = libm::sqrtf(cross * cross + dot * dot);
+        let evidence = crate::math::sqrt(cross * cross + dot * dot);
         // Σ w² |Δd − μ|² = Σ w²|Δd|² − 2 μ·Σ w² Δd + |μ|² Σ w², with μ = Σ w Δd / Σ w.
         let (mx, my) = (sdx / w, sdy / w);
         let [px, py] = self.sum_dead_w2;
         let spread = self.noise_var / var_d.max(f32::MIN_POSITIVE) - 2.0 * (mx * px + my * py)
             + (mx * mx + my * my) * self.weight2;
         let noise_var = spread.max(0.0) * var_d;
-        let significant = evidence >= VELOCITY_ALIGNMENT_SIGNIFICANCE * libm::sqrtf(noise_var);
+        let significant =
+            evidence >= VELOCITY_ALIGNMENT_SIGNIFICANCE * crate::math::sqrt(noise_var);
         (evidence >= needed && significant).then(|| libm::atan2f(cross, dot))
     }
 
@@ -1083,10 +1085,10 @@ impl HeadingAlignment {
         self.cross += w * (dx * d.y - dy * d.x);
         self.dot += w * (dx * d.x + dy * d.y);
         self.noise_var += w * w * (dx * dx + dy * dy) * var_d;
-        self.evidence = libm::sqrtf(self.cross * self.cross + self.dot * self.dot);
+        self.evidence = crate::math::sqrt(self.cross * self.cross + self.dot * self.dot);
         if !self.yaw_from_velocity
             && self.evidence >= self.evidence_needed()
-            && self.evidence >= ALIGNMENT_SIGNIFICANCE * libm::sqrtf(self.noise_var)
+            && self.evidence >= ALIGNMENT_SIGNIFICANCE * crate::math::sqrt(self.noise_var)
         {
             self.trusted_yaw_rad = Some(libm::atan2f(self.cross, self.dot));
         }
@@ -1139,7 +1141,7 @@ impl HeadingAlignment {
 
     /// One standard deviation of the evidence from the fixes' noise, m²·s.
     pub fn evidence_noise(&self) -> f32 {
-        libm::sqrtf(self.noise_var)
+        crate::math::sqrt(self.noise_var)
     }
 }
 

@@ -298,7 +298,7 @@ impl PositionController {
             l.max_vertical_speed_mps,
         );
         let horizontal_speed_held =
-            libm::hypotf(velocity_wanted.x, velocity_wanted.y) > l.max_horizontal_speed_mps;
+            crate::math::hypot(velocity_wanted.x, velocity_wanted.y) > l.max_horizontal_speed_mps;
         let vertical_speed_held = velocity_wanted.z.abs() > l.max_vertical_speed_mps;
         let speed_held = [horizontal_speed_held, horizontal_speed_held, vertical_speed_held];
 
@@ -335,7 +335,7 @@ pub fn limit_split(v: &Vector3<f32>, limit: f32) -> Vector3<f32> {
 /// `v` with its horizontal part (x, y) limited to a norm of `horizontal` (direction kept) and
 /// its vertical part (z) to ±`vertical`.
 pub fn limit_horizontal_vertical(v: &Vector3<f32>, horizontal: f32, vertical: f32) -> Vector3<f32> {
-    let norm = libm::hypotf(v.x, v.y);
+    let norm = crate::math::hypot(v.x, v.y);
     let scale = if norm > horizontal { horizontal / norm } else { 1.0 };
     Vector3::new(v.x * scale, v.y * scale, clamp(v.z, -vertical, vertical))
 }
@@ -353,7 +353,7 @@ pub fn limit_tilt_to(f_sp: &Vector3<f32>, max_tilt_rad: f32) -> Vector3<f32> {
     // tan as sin/cos (`crate::math`: libm's trigonometry costs the firmware 6.5 KB of flash).
     let (sin, cos) = crate::math::sin_cos(max_tilt_rad);
     let horizontal_max = up * sin / cos;
-    let horizontal = libm::hypotf(f_sp.x, f_sp.y);
+    let horizontal = crate::math::hypot(f_sp.x, f_sp.y);
     let scale = if horizontal > horizontal_max { horizontal_max / horizontal } else { 1.0 };
     Vector3::new(f_sp.x * scale, f_sp.y * scale, -up)
 }

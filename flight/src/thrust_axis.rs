@@ -40,7 +40,7 @@
 //! Everything is `f32`, fixed-size (`[_; MOTORS_MAX]` plus a count) and allocation-free. The
 //! solve dispatches once on the motor count to a const-generic body, compiled for the quad and
 //! for `MOTORS_MAX` (5 to 7 motors on zero-filled columns, exactly), so every loop has a fixed
-//! trip count; square roots use FPU multiplies only (`math::sqrt`). Cost on the Cortex-M7 (QEMU,
+//! trip count; square roots are the FPU's `vsqrt.f32` (`math::sqrt`). Cost on the Cortex-M7 (QEMU,
 //! `cargo xtask bench-m7`): about 900 instructions at m = 4 and 1,850–2,000 at 5 to 8 motors
 //! (heuristic path); see `docs/benchmarks.md`.
 

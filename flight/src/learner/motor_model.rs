@@ -67,7 +67,7 @@ impl MotorModel {
     /// Steady-state speed for command δ (clamped to [0, 1]), rad/s.
     pub fn steady_speed_rad_s(&self, command: f32) -> f32 {
         let d = if command.is_finite() { command.clamp(0.0, 1.0) } else { 0.0 };
-        self.a_rad_s * d + self.b_rad_s * libm::sqrtf(d) + self.omega_idle_rad_s
+        self.a_rad_s * d + self.b_rad_s * crate::math::sqrt(d) + self.omega_idle_rad_s
     }
 
     /// Whether the parameters describe a motor that speeds up with its command and lags with a
@@ -151,7 +151,7 @@ impl MotorModelEstimator {
     pub fn model(&self) -> MotorModel {
         let theta = |j| self.rls.theta(j, 0);
         let noise = self.rls.error_var(0);
-        let tau_std_s = libm::sqrtf((self.rls.p_diag(3) * noise).max(0.0)) * TAU_SCALE_S;
+        let tau_std_s = crate::math::sqrt((self.rls.p_diag(3) * noise).max(0.0)) * TAU_SCALE_S;
         let mut model = MotorModel {
             a_rad_s: theta(0) * SPEED_SCALE_RAD_S,
             b_rad_s: theta(1) * SPEED_SCALE_RAD_S,
