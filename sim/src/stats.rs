@@ -1,5 +1,22 @@
 //! Small statistics for the Monte Carlo reports, and the parallel runner they share.
 
+/// A Monte Carlo batch as a command line asks for it (`fly`, `identify`, `scenario`
+/// `monte-carlo`): `--runs` runs from `--seed` on `--threads` workers, as [`run_seeds`] and
+/// [`crate::monte_carlo::throw_catch_batch`] take them. One definition, so every batch is asked
+/// for in the same words, with the same defaults.
+#[derive(clap::Args, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BatchArgs {
+    /// Number of runs.
+    #[arg(long, default_value_t = 1000)]
+    pub runs: usize,
+    /// First seed (run i uses seed + i, so any run can be replayed alone).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Worker threads.
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+}
+
 /// Runs `run(seed + i)` for `i` in `0..runs` on `threads` workers (rayon) and returns the
 /// results in seed order; `progress` is called with the number done after each run.
 pub fn run_seeds<T: Send>(

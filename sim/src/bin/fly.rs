@@ -66,7 +66,7 @@ use sim::recovery::{
     fly, monte_carlo, random_case, FlightEnd, FlyConfig, FlyReport, MotionCaptureArgs,
     MotionCaptureConfig, Verdict,
 };
-use sim::stats::quantile;
+use sim::stats::{quantile, BatchArgs};
 use sim::world::{self, Aspect};
 
 #[derive(Parser, Debug)]
@@ -131,15 +131,8 @@ enum Command {
     /// Random airframes (4–8 motors, tilted rotors, any IMU pose) and random throws (300–600 °/s
     /// about a random axis, 2.5–4.5 m apex, up to 2 m/s sideways).
     MonteCarlo {
-        /// Number of runs.
-        #[arg(long, default_value_t = 1000)]
-        runs: usize,
-        /// First seed (run i uses seed + i).
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Worker threads.
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
+        #[command(flatten)]
+        batch: BatchArgs,
         #[command(flatten)]
         world: WorldArgs,
     },
@@ -790,7 +783,7 @@ fn main() -> ExitCode {
             );
             print_report(&format!("case {seed}"), &fly(&airframe, &config));
         }
-        Command::MonteCarlo { runs, seed, threads, world: world_args } => {
+        Command::MonteCarlo { batch: BatchArgs { runs, seed, threads }, world: world_args } => {
             let aspects = match checked_aspects(&world_args, motion_capture, &args.gnss) {
                 Ok(aspects) => aspects,
                 Err(code) => return code,

@@ -10,7 +10,7 @@
 use clap::{Parser, Subcommand};
 use sim::airframe::Airframe;
 use sim::identification::{identify, monte_carlo, IdentifyConfig, Scores};
-use sim::stats::quantile;
+use sim::stats::{quantile, BatchArgs};
 
 #[derive(Parser, Debug)]
 #[command(version, about = "In-flight identification against the simulator's truth")]
@@ -45,15 +45,8 @@ enum Command {
     /// Random airframes (4–8 motors, tilted rotors, IMU offset ≤ 30 mm, any IMU rotation) and
     /// random throws (300–600 °/s about a random axis, 2.5–4.5 m apex).
     MonteCarlo {
-        /// Number of runs.
-        #[arg(long, default_value_t = 1000)]
-        runs: usize,
-        /// First seed (run i uses seed + i, so any run can be replayed alone).
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Worker threads.
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
+        #[command(flatten)]
+        batch: BatchArgs,
     },
 }
 
@@ -136,7 +129,7 @@ fn main() -> std::process::ExitCode {
             );
             std::process::ExitCode::SUCCESS
         }
-        Command::MonteCarlo { runs, seed, threads } => {
+        Command::MonteCarlo { batch: BatchArgs { runs, seed, threads } } => {
             let started = std::time::Instant::now();
             let results = monte_carlo(runs, seed, threads, &|done| {
                 if done % 50 == 0 || done == runs {

@@ -32,6 +32,7 @@ use sim::scenario::{
     self, with_firmware_app, with_logged_firmware_app, ScenarioConfig, ScenarioKind,
 };
 use sim::serve::{parse_imu_offset_mm, simulator_board_info, TcpLinks};
+use sim::stats::BatchArgs;
 
 #[derive(Parser)]
 #[command(about = "Multirotor simulator scenarios, airframes, benchmarks and the lockstep bridge")]
@@ -67,15 +68,8 @@ enum Command {
     },
     /// Run a Monte Carlo batch of throw-and-catch runs on random airframes.
     MonteCarlo {
-        /// Number of runs.
-        #[arg(long, default_value_t = 1000)]
-        runs: usize,
-        /// Worker threads.
-        #[arg(long, default_value_t = 2)]
-        threads: usize,
-        /// Seed of the first run.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[command(flatten)]
+        batch: BatchArgs,
     },
     /// Serve the lockstep UDP bridge for an external simulator (see docs/sim-bridge.md).
     Bridge {
@@ -308,7 +302,7 @@ fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
-        Command::MonteCarlo { runs, threads, seed } => {
+        Command::MonteCarlo { batch: BatchArgs { runs, seed, threads } } => {
             eprintln!("{runs} throw-and-catch runs on random airframes, {threads} threads ...");
             let s = monte_carlo::throw_catch_batch(runs, seed, threads)?;
             println!(
