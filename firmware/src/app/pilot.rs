@@ -141,18 +141,17 @@ const HOLD_START_ACCEL_MPS2: f32 = 0.5;
 
 /// Shortest wait of the level hold on the fixes' velocity before the position hold starts anyway,
 /// wherever the craft is and however fast it goes, s (ours; longer for slow motors,
-/// [`HOLD_START_TIME_CONSTANTS`]). The level hold's velocity loop is
-/// proportional only (its velocity may be a drifting estimate), so a steady push (a wind's
-/// drag `d`) leaves it drifting at `d / k_velocity` for good: 0.5-1 m/s for a 25 ms motor in
+/// [`HOLD_START_TIME_CONSTANTS`]). The level hold's velocity loop is proportional only (its
+/// velocity may be a drifting estimate), so a steady push (a wind's drag `d`) leaves it
+/// drifting at `d / k_velocity` for good: 0.5-1 m/s for a 25 ms motor in
 /// 6-8 m/s of wind, several m/s for slow motors, and [`HOLD_START_SPEED_MPS`] is never reached
 /// (the random world with wind, seed 681: 9.5 m downwind at the end, never holding). The
 /// position loop's velocity integral takes the push up. Counted while the flight is steady
 /// ([`STICKS_TAKE_OVER_S`] after the recovery levels it), and the hold starts at its end only if
 /// the craft's speed has changed by less than [`HOLD_START_SPEED_CHANGE`] of the speed it had
 /// when the wait began; otherwise it is still braking (or swinging back past rest, or speeding
-/// up) and the wait begins again. A hold
-/// started while braking overshoots: the random world's seed 70 started one at 0.74 m/s and was
-/// 0.87 m off its setpoint.
+/// up) and the wait begins again. A hold started while braking overshoots: the random world's
+/// seed 70 started one at 0.74 m/s and was 0.87 m off its setpoint.
 const HOLD_START_LATEST_S: f32 = 2.0;
 
 /// The same wait in time constants of the level hold's velocity loop (`1/k_velocity`), when that
@@ -167,10 +166,11 @@ const HOLD_START_TIME_CONSTANTS: f32 = 4.0;
 /// wait's start, of a craft that drifts at a steady speed (ours; plus [`HOLD_START_SPEED_MPS`]
 /// for turbulence and the fixes' noise, which move a slow drift by tenths of a m/s: seed 681
 /// with wind restarted its wait for seconds without it): a braking craft loses `1 − e⁻⁴` of its
-/// speed (98 %, [`HOLD_START_TIME_CONSTANTS`]); one held off by a steady push keeps it. A speed that grew by more than half is not steady either: at a heading
-/// alignment the velocity restarts from the dead reckoning (0.9 m/s for a craft flying at 8 m/s,
-/// GNSS seed 315 of the random receiver world) and then climbs back to the truth, and a hold
-/// started on that climb began at 3 m/s and strayed 3.2 m.
+/// speed (98 %, [`HOLD_START_TIME_CONSTANTS`]); one held off by a steady push keeps it. A speed
+/// that grew by more than half is not steady either: at a heading alignment the velocity
+/// restarts from the dead reckoning (0.9 m/s for a craft flying at 8 m/s, GNSS seed 315 of the
+/// random receiver world) and then climbs back to the truth, and a hold started on that climb
+/// began at 3 m/s and strayed 3.2 m.
 const HOLD_START_SPEED_CHANGE: f32 = 0.5;
 
 /// How long a steady flight with fresh fixes waits for its heading alignment before it moves
@@ -1335,20 +1335,16 @@ impl Pilot {
         // speed has changed by less than half the one it had when the wait began (it is pushed
         // at a steady speed, not braking), else the wait begins again from the speed it has now.
         let steady = self.steady_s >= STICKS_TAKE_OVER_S;
-        let speed_mps = libm::hypotf(nav.velocity_ned_mps.x, nav.velocity_ned_mps.y);
+        let speed_mps = flight::math::hypot(nav.velocity_ned_mps.x, nav.velocity_ned_mps.y);
         let mut pushed = false;
         if can_hold && steady && self.position_sp_ned_m.is_none() {
             if self.hold_wait_s == 0.0 {
                 self.hold_wait_from_mps = speed_mps;
             }
             self.hold_wait_s += 1.0 / self.rate_hz;
-            let k_velocity = self.controller.as_ref().map_or(0.0, |c| c.gains().k_velocity);
-            let wait_s = if k_velocity > 0.0 {
-                (HOLD_START_TIME_CONSTANTS / k_velocity).max(HOLD_START_LATEST_S)
-            } else {
-                HOLD_START_LATEST_S
-            };
-            if self.hold_wait_s >= wait_s {
+            // The wait's length is looked up only once its shortest length has passed.
+            if self.hold_wait_s >= HOLD_START_LATEST_S && self.hold_wait_s >= self.hold_wait_len_s()
+            {
                 let change_mps = (speed_mps - self.hold_wait_from_mps).abs();
                 pushed = change_mps
                     <= HOLD_START_SPEED_CHANGE * self.hold_wait_from_mps + HOLD_START_SPEED_MPS;
@@ -1492,6 +1488,18 @@ impl Pilot {
         self.status.flying = false;
         self.status.piloted = None;
         self.status.landing = None;
+    }
+
+    /// How long the position hold waits for a craft that does not stop before it starts anyway,
+    /// s: [`HOLD_START_LATEST_S`], or [`HOLD_START_TIME_CONSTANTS`] of the level hold's velocity
+    /// loop when that is longer.
+    fn hold_wait_len_s(&self) -> f32 {
+        match self.controller.as_ref().map(|c| c.gains().k_velocity) {
+            Some(k_velocity) if k_velocity > 0.0 => {
+                (HOLD_START_TIME_CONSTANTS / k_velocity).max(HOLD_START_LATEST_S)
+            }
+            _ => HOLD_START_LATEST_S,
+        }
     }
 
     fn fail(&mut self, failsafe: Failsafe) -> Failsafe {
