@@ -31,7 +31,8 @@ use super::battery::{BatteryMonitor, LowBattery};
 use super::gnss::GnssInput;
 use super::hal::{BatterySensor, GnssPort, Imu, ImuSample, Motors, Port, PortClosed, Uart};
 use super::log::{
-    Adoption, ArmingTag, LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry,
+    Adoption, ArmingTag, FileRead, LogEntry, LogFileError, LogFileList, LogFiles, LogProducer,
+    LogSink, Logger, StepEntry,
 };
 use super::radio::{CraftState, Receiver};
 use super::{
@@ -448,19 +449,10 @@ impl<F: NorFlash> SettingsEnd for Settings<F> {
 struct LockedLogFiles<'a, L>(&'a mut L);
 
 impl<L: Mutex<T = T>, T: LogFiles> LogFiles for LockedLogFiles<'_, L> {
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         self.0.lock(|files| files.list(first, out))
     }
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         self.0.lock(|files| files.read(number, offset, buf))
     }
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
