@@ -35,7 +35,7 @@
 //!   `None` before the first report has arrived.
 //! - The hand and the truth are reached through [`SimBoard::physics`] / [`SimBoard::physics_mut`].
 
-use firmware::app::hal::{BatteryReading, EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::app::hal::{BatteryReading, Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::drivers::dshot::{CommandQueue, DshotCommand};
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -394,12 +394,8 @@ impl Motors for SimMotors {
         self.special.frame_sent();
     }
 
-    fn send_command(
-        &mut self,
-        command: DshotCommand,
-        motor: Option<u8>,
-    ) -> Result<(), EscCommandError> {
-        self.special.queue(command, motor).map_err(|_| EscCommandError::Armed)
+    fn esc_command_queue(&mut self) -> Option<&mut CommandQueue> {
+        Some(&mut self.special)
     }
 
     fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
