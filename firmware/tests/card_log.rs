@@ -9,7 +9,7 @@ mod logging;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, NorFlashErrorKind, ReadNorFlash};
 use firmware::app::card::{CardLog, DATA_START, ERASE_CHUNK_BLOCKS, PROGRESS_EVERY_BLOCKS};
 use firmware::app::log::{
-    LogFileError, LogFiles, LogReader, LogRecord, LogSink, LogSinkError, LOG_BLOCK_LEN,
+    FileRead, LogFileError, LogFiles, LogReader, LogRecord, LogSink, LogSinkError, LOG_BLOCK_LEN,
 };
 use firmware::app::ControlCommand;
 use flight::rng::Rng;
@@ -196,10 +196,11 @@ fn files(log: &mut dyn LogFiles) -> Vec<(u32, Vec<u8>, bool)> {
             let mut bytes = Vec::new();
             let mut chunk = [0u8; 224];
             loop {
-                let (read, size) = log.read(info.number, bytes.len() as u32, &mut chunk).unwrap();
-                assert_eq!(size, info.size_bytes);
-                bytes.extend_from_slice(&chunk[..read]);
-                if read < chunk.len() {
+                let FileRead { bytes_read, size_bytes } =
+                    log.read(info.number, bytes.len() as u32, &mut chunk).unwrap();
+                assert_eq!(size_bytes, info.size_bytes);
+                bytes.extend_from_slice(&chunk[..bytes_read]);
+                if bytes_read < chunk.len() {
                     break;
                 }
             }
@@ -239,7 +240,7 @@ fn a_file_per_arming_is_listed_read_back_whole_deleted_and_found_again_after_a_r
     // Errors change nothing.
     let mut chunk = [0u8; 64];
     let size_bytes = expected[0].len() as u32;
-    assert_eq!(log.read(1, size_bytes, &mut chunk), Ok((0, size_bytes)));
+    assert_eq!(log.read(1, size_bytes, &mut chunk), Ok(FileRead { bytes_read: 0, size_bytes }));
     assert_eq!(
         log.read(1, size_bytes + 1, &mut chunk),
         Err(LogFileError::OffsetPastEnd { size_bytes })

@@ -5,7 +5,7 @@
 mod common;
 use common::board;
 use firmware::app::hal::ImuSample;
-use firmware::app::log::{LogFileError, LogFiles};
+use firmware::app::log::{FileRead, LogFileError, LogFileList, LogFiles};
 use firmware::app::{
     ControlCommand, ControlSnapshot, LinkRequest, LinkServer, NoFlash, Settings, StatusView,
     StepRecord,
@@ -63,11 +63,7 @@ struct MemoryLogs {
 }
 
 impl LogFiles for MemoryLogs {
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<LogFileInfo, LOG_LIST_LEN>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         out.clear();
         let mut listed = self.files.iter().filter(|(number, ..)| *number >= first);
         for (number, bytes, writing) in listed.by_ref().take(LOG_LIST_LEN) {
@@ -78,12 +74,7 @@ impl LogFiles for MemoryLogs {
         Ok(listed.next().is_some())
     }
 
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         let (_, bytes, _) =
             self.files.iter().find(|(n, ..)| *n == number).ok_or(LogFileError::NoSuchFile)?;
         let size_bytes = bytes.len() as u32;
@@ -91,7 +82,7 @@ impl LogFiles for MemoryLogs {
             bytes.get(offset as usize..).ok_or(LogFileError::OffsetPastEnd { size_bytes })?;
         let count = rest.len().min(buf.len());
         buf[..count].copy_from_slice(&rest[..count]);
-        Ok((count, size_bytes))
+        Ok(FileRead { bytes_read: count, size_bytes })
     }
 
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {

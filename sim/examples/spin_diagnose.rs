@@ -17,7 +17,7 @@ use flight::learner::{FlightPhase, Learner, LearnerConfig, MAX_MOTORS};
 use nalgebra::Matrix3;
 use sim::board::SimBoard;
 use sim::identification::{Scores, TrueModel};
-use sim::scenario::{with_firmware_app, FlightApp};
+use sim::scenario::with_firmware_app;
 use sim::world::{random_world_case, Aspect};
 use tumble::TumbleInertia;
 
@@ -108,12 +108,7 @@ fn record(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueModel, f3
             if tick == 1000 {
                 board.physics_mut().throw(&spec);
             }
-            board.tick();
-            let now_us = board.now_us();
-            {
-                let (imu, motors) = board.ports();
-                app.step(now_us, imu, motors);
-            }
+            board.tick_and_step(app);
             if let Some(r) = board.physics().hand().released_at_s() {
                 if hand_release_us == 0.0 {
                     hand_release_us = r * 1e6;
@@ -385,12 +380,7 @@ fn record_quiet(seed: u64) -> (sim::airframe::Airframe, Vec<StepRecord>, TrueMod
             if tick == 1000 {
                 board.physics_mut().throw(&spec);
             }
-            board.tick();
-            let now_us = board.now_us();
-            {
-                let (imu, motors) = board.ports();
-                app.step(now_us, imu, motors);
-            }
+            board.tick_and_step(app);
             records.extend(std::iter::from_fn(|| app.link.take_record()));
             if app.snapshot().phase == FlightPhase::Exciting {
                 break;

@@ -35,7 +35,7 @@
 //!   `None` before the first report has arrived.
 //! - The hand and the truth are reached through [`SimBoard::physics`] / [`SimBoard::physics_mut`].
 
-use firmware::app::hal::{BatteryReading, EscCommandError, Imu, ImuSample, Motors, MAX_MOTORS};
+use firmware::app::hal::{BatteryReading, Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::drivers::dshot::{CommandQueue, DshotCommand};
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -45,6 +45,7 @@ use crate::dshot;
 use crate::faults::{FaultInjector, FaultSchedule};
 use crate::imu::{ImuModel, RawSample};
 use crate::physics::Physics;
+use crate::scenario::FlightApp;
 
 /// What a simulated board reports of its hardware: the simulator's IMU model; no clock tree, no
 /// DShot link (the motors are modelled behind the application's motor seam) and no receiver.
@@ -394,12 +395,8 @@ impl Motors for SimMotors {
         self.special.frame_sent();
     }
 
-    fn send_command(
-        &mut self,
-        command: DshotCommand,
-        motor: Option<u8>,
-    ) -> Result<(), EscCommandError> {
-        self.special.queue(command, motor).map_err(|_| EscCommandError::Armed)
+    fn esc_command_queue(&mut self) -> Option<&mut CommandQueue> {
+        Some(&mut self.special)
     }
 
     fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS] {
@@ -611,6 +608,15 @@ impl SimBoard {
     /// The simulated pack (its truth).
     pub fn battery(&self) -> &SimBattery {
         &self.battery
+    }
+
+    /// One control period of a flight application on this board: [`SimBoard::tick`], then one
+    /// step of `app` on the ports at the tick's end.
+    pub fn tick_and_step<A: FlightApp>(&mut self, app: &mut A) {
+        self.tick();
+        let now_us = self.now_us();
+        let (imu, motors) = self.ports();
+        app.step(now_us, imu, motors);
     }
 
     /// The IMU and motor ports, borrowed together for one application step.

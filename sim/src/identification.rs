@@ -20,7 +20,7 @@ use crate::airframe::{Airframe, STANDARD_GRAVITY_MPS2};
 use crate::board::{SimBoard, SimConfig};
 use crate::hand::ThrowSpec;
 use crate::rng::Rng;
-use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
+use crate::scenario::{with_firmware_app, FirmwareApp};
 use firmware::app::ControlCommand;
 use flight::learner::{FlightPhase, LearnedModel, MAX_MOTORS};
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver};
@@ -338,12 +338,7 @@ fn run(
         if tick == hold_ticks {
             board.physics_mut().throw(&spec);
         }
-        board.tick();
-        let now_us = board.now_us();
-        {
-            let (imu, motors) = board.ports();
-            app.step(now_us, imu, motors);
-        }
+        board.tick_and_step(app);
         let t_s = board.time_s();
         let snapshot = app.snapshot();
         report.max_command = snapshot.commands.iter().copied().fold(report.max_command, f32::max);

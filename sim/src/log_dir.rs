@@ -11,8 +11,10 @@
 //! deleted. The graph reaches it under the lock the logger writes under, so a read sees whole
 //! blocks only.
 
-use firmware::app::log::{LogFileError, LogFiles, LogSink, LogSinkError, LOG_BLOCK_LEN};
-use protocol::{LogFileInfo, LOG_LIST_LEN};
+use firmware::app::log::{
+    FileRead, LogFileError, LogFileList, LogFiles, LogSink, LogSinkError, LOG_BLOCK_LEN,
+};
+use protocol::LogFileInfo;
 use std::fs::File;
 use std::io::{ErrorKind, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -90,11 +92,7 @@ fn file_error(error: std::io::Error) -> LogFileError {
 }
 
 impl LogFiles for LogDir {
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<LogFileInfo, LOG_LIST_LEN>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         out.clear();
         let numbers = self.numbers().map_err(|_| LogFileError::Io)?;
         let mut listed = numbers.into_iter().filter(|&number| number >= first);
@@ -114,12 +112,7 @@ impl LogFiles for LogDir {
         Ok(listed.next().is_some())
     }
 
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         let mut file = File::open(self.path(number)?).map_err(file_error)?;
         let size = file.metadata().map_err(file_error)?.len();
         let size_bytes = u32::try_from(size).unwrap_or(u32::MAX);
@@ -129,7 +122,7 @@ impl LogFiles for LogDir {
         file.seek(SeekFrom::Start(u64::from(offset))).map_err(file_error)?;
         let wanted = buf.len().min((size - u64::from(offset)) as usize);
         file.read_exact(&mut buf[..wanted]).map_err(file_error)?;
-        Ok((wanted, size_bytes))
+        Ok(FileRead { bytes_read: wanted, size_bytes })
     }
 
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
@@ -218,9 +211,9 @@ mod tests {
         assert_eq!(out.len(), 2);
 
         let mut buf = [0u8; 224];
-        assert_eq!(logs.read(5, 600, &mut buf), Ok((100, 700)));
+        assert_eq!(logs.read(5, 600, &mut buf), Ok(FileRead { bytes_read: 100, size_bytes: 700 }));
         assert!(buf[..100].iter().all(|&b| b == 5));
-        assert_eq!(logs.read(5, 700, &mut buf), Ok((0, 700)));
+        assert_eq!(logs.read(5, 700, &mut buf), Ok(FileRead { bytes_read: 0, size_bytes: 700 }));
         assert_eq!(
             logs.read(5, 701, &mut buf),
             Err(LogFileError::OffsetPastEnd { size_bytes: 700 })

@@ -305,12 +305,7 @@ pub fn run<A: FlightApp, W: Write>(
                 board.physics_mut().throw(&spec);
             }
         }
-        board.tick();
-        let now_us = board.now_us();
-        {
-            let (imu, motors) = board.ports();
-            app.step(now_us, imu, motors);
-        }
+        board.tick_and_step(app);
         if let Some(log) = log.as_deref_mut() {
             log.record(&board)?;
         }

@@ -45,7 +45,9 @@
 
 use embedded_storage::nor_flash::NorFlash;
 
-use super::log::{LogFileError, LogFiles, LogSink, LogSinkError, LOG_BLOCK_LEN};
+use super::log::{
+    FileRead, LogFileError, LogFileList, LogFiles, LogSink, LogSinkError, LOG_BLOCK_LEN,
+};
 
 /// The mark of a card formatted for the log (block 0's first bytes), with the layout's version.
 pub const CARD_MAGIC: [u8; 8] = *b"FCLOG001";
@@ -285,11 +287,7 @@ impl<D: NorFlash> CardLog<D> {
 }
 
 impl<D: NorFlash> LogFiles for CardLog<D> {
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         out.clear();
         let mut from = first;
         loop {
@@ -310,12 +308,7 @@ impl<D: NorFlash> LogFiles for CardLog<D> {
         }
     }
 
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         let slot = self.find(number)?;
         let size_bytes = self.blocks(slot) * BLOCK;
         if offset > size_bytes {
@@ -332,7 +325,7 @@ impl<D: NorFlash> LogFiles for CardLog<D> {
             buf[done..done + take].copy_from_slice(&self.buf[within..within + take]);
             done += take;
         }
-        Ok((wanted, size_bytes))
+        Ok(FileRead { bytes_read: wanted, size_bytes })
     }
 
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {

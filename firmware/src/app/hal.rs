@@ -3,6 +3,8 @@
 //! The STM32H743 implements them with stm32h7xx-hal (SPI IMU, DShot timers, USB, flash); the
 //! simulator implements them in memory. Nothing above this line knows which one it runs on.
 
+use crate::drivers::dshot::CommandQueue;
+
 /// Maximum number of motors any airframe may have (the learner supports 4 to 8).
 pub const MAX_MOTORS: usize = 8;
 
@@ -32,13 +34,20 @@ pub trait Motors {
     /// motor has not reported.
     fn speeds_rad_s(&self) -> [Option<f32>; MAX_MOTORS];
     /// Queue an ESC command (a DShot special command) for `motor` (`None` = every motor), sent
-    /// with the next stop frames. Outputs that cannot send one keep this default.
+    /// instead of the stop frames on the following steps as often as the specification asks:
+    /// into [`Motors::esc_command_queue`], refused while armed.
     fn send_command(
         &mut self,
-        _command: protocol::DshotCommand,
-        _motor: Option<u8>,
+        command: protocol::DshotCommand,
+        motor: Option<u8>,
     ) -> Result<(), EscCommandError> {
-        Err(EscCommandError::Unsupported)
+        let queue = self.esc_command_queue().ok_or(EscCommandError::Unsupported)?;
+        queue.queue(command, motor).map_err(|_| EscCommandError::Armed)
+    }
+    /// The queue of the ESC commands these outputs send instead of their stop frames. Outputs
+    /// that cannot send one keep this default (`None`: [`EscCommandError::Unsupported`]).
+    fn esc_command_queue(&mut self) -> Option<&mut CommandQueue> {
+        None
     }
     /// The control step's arming state after each tick (the board switches its outputs between
     /// sending frames and capturing the ESCs' answers). Outputs without such a switch keep this

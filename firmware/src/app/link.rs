@@ -9,7 +9,7 @@
 //! count. Bad frames are counted and
 //! reported as an event at most every 100 ms. Nothing here blocks or allocates.
 
-use super::log::{LogFileError, LogFiles};
+use super::log::{FileRead, LogFileError, LogFiles};
 use super::params;
 use super::pilot::{failsafe_counter, Failsafe, FAILSAFE_KINDS};
 use super::settings::{Settings, SignatureCheck};
@@ -750,15 +750,16 @@ impl LinkServer {
                     });
                 }
                 let mut buf = [0u8; protocol::LOG_CHUNK_LEN];
-                let (count, size_bytes) = logs
+                let FileRead { bytes_read, size_bytes } = logs
                     .read(read.number, read.offset, &mut buf[..len])
                     .map_err(|e| log_error(e, read.number))?;
                 Ok(Reply::LogChunk(protocol::LogChunk {
                     number: read.number,
                     offset: read.offset,
                     size_bytes,
-                    // Cannot fail: `count` ≤ `len` ≤ the capacity.
-                    bytes: heapless::Vec::from_slice(&buf[..count.min(len)]).unwrap_or_default(),
+                    // Cannot fail: `bytes_read` ≤ `len` ≤ the capacity.
+                    bytes: heapless::Vec::from_slice(&buf[..bytes_read.min(len)])
+                        .unwrap_or_default(),
                 }))
             }
             Request::DeleteLog(delete) => {

@@ -582,6 +582,18 @@ pub enum LogFileError {
     Io,
 }
 
+/// The files one [`LogFiles::list`] answers: a page of [`protocol::LogList`].
+pub type LogFileList = heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>;
+
+/// What one [`LogFiles::read`] read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FileRead {
+    /// Bytes read into the buffer.
+    pub bytes_read: usize,
+    /// The file's size now, bytes.
+    pub size_bytes: u32,
+}
+
 /// The files a [`LogSink`] has written, as the link task reaches them (`configurator-cli log
 /// list|download|delete`). Every call does a bounded piece of work: a listing of at most
 /// [`protocol::LOG_LIST_LEN`] files, a read of at most one chunk. The defaults answer
@@ -593,23 +605,14 @@ pub enum LogFileError {
 pub trait LogFiles {
     /// The files numbered `first` or more, ascending, as many as `out` holds (it is cleared
     /// first); returns whether more follow.
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         let _ = (first, out);
         Err(LogFileError::Unsupported)
     }
 
     /// Read file `number` from byte `offset` into `buf` (as much as it holds and the file has);
     /// returns the bytes read and the file's size now. An offset at the end reads nothing.
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         let _ = (number, offset, buf);
         Err(LogFileError::Unsupported)
     }
@@ -661,19 +664,10 @@ impl LogSink for NoCard {
 
 /// No storage: nothing to list (`None` in a graph without a log).
 impl<T: LogFiles> LogFiles for Option<T> {
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         self.as_mut().ok_or(LogFileError::Unsupported)?.list(first, out)
     }
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         self.as_mut().ok_or(LogFileError::Unsupported)?.read(number, offset, buf)
     }
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
@@ -791,19 +785,10 @@ pub struct Logger<'q> {
 /// The files of the logger's sink (the link task reads them under the lock it shares with the
 /// background task, which writes through the same sink).
 impl LogFiles for Logger<'_> {
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         self.sink.list(first, out)
     }
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         self.sink.read(number, offset, buf)
     }
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {

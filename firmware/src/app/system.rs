@@ -31,7 +31,8 @@ use super::battery::{BatteryMonitor, LowBattery};
 use super::gnss::GnssInput;
 use super::hal::{BatterySensor, GnssPort, Imu, ImuSample, Motors, Port, PortClosed, Uart};
 use super::log::{
-    Adoption, ArmingTag, LogEntry, LogFileError, LogFiles, LogProducer, LogSink, Logger, StepEntry,
+    Adoption, ArmingTag, FileRead, LogEntry, LogFileError, LogFileList, LogFiles, LogProducer,
+    LogSink, Logger, StepEntry,
 };
 use super::radio::{CraftState, Receiver};
 use super::{
@@ -408,39 +409,10 @@ pub trait Links {
 /// One link as the pass sees it (object-safe, so links over different ports serve together).
 pub trait LinkEnd {
     fn server(&mut self) -> &mut LinkServer;
-    fn receive_into(
-        &mut self,
-        now_us: u64,
-        view: &StatusView,
-        settings: &mut dyn SettingsEnd,
-        logs: &mut dyn LogFiles,
-    );
+    /// Read what the host sent into `chunk`: the bytes read, 0 when none wait or the link is
+    /// closed (a port found closed closes the link).
+    fn read_into(&mut self, chunk: &mut [u8]) -> usize;
     fn transmit(&mut self);
-}
-
-/// The settings as a link end reads and changes them (object-safe over the flash type).
-pub trait SettingsEnd {
-    fn receive(
-        &mut self,
-        server: &mut LinkServer,
-        bytes: &[u8],
-        now_us: u64,
-        view: &StatusView,
-        logs: &mut dyn LogFiles,
-    );
-}
-
-impl<F: NorFlash> SettingsEnd for Settings<F> {
-    fn receive(
-        &mut self,
-        server: &mut LinkServer,
-        bytes: &[u8],
-        now_us: u64,
-        view: &StatusView,
-        logs: &mut dyn LogFiles,
-    ) {
-        server.receive(bytes, now_us, view, self, logs);
-    }
 }
 
 /// The flight log's files as the link pass reaches them: each call takes the lock the
@@ -448,19 +420,10 @@ impl<F: NorFlash> SettingsEnd for Settings<F> {
 struct LockedLogFiles<'a, L>(&'a mut L);
 
 impl<L: Mutex<T = T>, T: LogFiles> LogFiles for LockedLogFiles<'_, L> {
-    fn list(
-        &mut self,
-        first: u32,
-        out: &mut heapless::Vec<protocol::LogFileInfo, { protocol::LOG_LIST_LEN }>,
-    ) -> Result<bool, LogFileError> {
+    fn list(&mut self, first: u32, out: &mut LogFileList) -> Result<bool, LogFileError> {
         self.0.lock(|files| files.list(first, out))
     }
-    fn read(
-        &mut self,
-        number: u32,
-        offset: u32,
-        buf: &mut [u8],
-    ) -> Result<(usize, u32), LogFileError> {
+    fn read(&mut self, number: u32, offset: u32, buf: &mut [u8]) -> Result<FileRead, LogFileError> {
         self.0.lock(|files| files.read(number, offset, buf))
     }
     fn delete(&mut self, number: u32) -> Result<(), LogFileError> {
@@ -476,25 +439,15 @@ impl<P: Port> LinkEnd for Link<P> {
         &mut self.server
     }
 
-    fn receive_into(
-        &mut self,
-        now_us: u64,
-        view: &StatusView,
-        settings: &mut dyn SettingsEnd,
-        logs: &mut dyn LogFiles,
-    ) {
-        let mut chunk = [0u8; READ_CHUNK_BYTES];
-        for _ in 0..READS_PER_PASS {
-            if !self.open {
-                return;
-            }
-            match self.port.read(&mut chunk) {
-                Ok(0) => return,
-                Ok(count) => {
-                    let count = count.min(READ_CHUNK_BYTES);
-                    settings.receive(&mut self.server, &chunk[..count], now_us, view, logs);
-                }
-                Err(PortClosed) => self.close(),
+    fn read_into(&mut self, chunk: &mut [u8]) -> usize {
+        if !self.open {
+            return 0;
+        }
+        match self.port.read(chunk) {
+            Ok(count) => count.min(chunk.len()),
+            Err(PortClosed) => {
+                self.close();
+                0
             }
         }
     }
@@ -688,8 +641,19 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
             gnss: self.gnss.as_deref().map(GnssInput::health),
         };
         let settings = &mut self.settings;
-        let mut logs = LockedLogFiles(&mut shared.logs);
-        links.each(&mut |link| link.receive_into(now_us, &view, settings, &mut logs));
+        // Erased here: the server's request handling, inlined into this pass, would otherwise be
+        // compiled with the lock's calls inlined into it too (about 550 B more flash).
+        let logs: &mut dyn LogFiles = &mut LockedLogFiles(&mut shared.logs);
+        links.each(&mut |link| {
+            let mut chunk = [0u8; READ_CHUNK_BYTES];
+            for _ in 0..READS_PER_PASS {
+                let count = link.read_into(&mut chunk);
+                if count == 0 {
+                    break;
+                }
+                link.server().receive(&chunk[..count], now_us, &view, settings, logs);
+            }
+        });
         logs.snapshot(now_us, &view);
 
         let mut outcome = PassOutcome::default();

@@ -37,11 +37,10 @@
 //! (`dshot::CommandQueue`, shared with the simulator's ESCs).
 
 use super::chip::{self, cr, Dma};
-use crate::app::hal::{EscCommandError, Motors, MAX_MOTORS};
+use crate::app::hal::{Motors, MAX_MOTORS};
 use crate::drivers::dshot::{
-    bit_period_ticks, compare_values, telemetry_from_edges, CommandQueue, DshotCommand,
-    MotorTelemetry, CAPTURE_EDGES, COMPARE_BUFFER_LEN, DSHOT600_BIT_RATE_HZ,
-    DSHOT600_TELEMETRY_BIT_RATE_HZ,
+    bit_period_ticks, compare_values, telemetry_from_edges, CommandQueue, MotorTelemetry,
+    CAPTURE_EDGES, COMPARE_BUFFER_LEN, DSHOT600_BIT_RATE_HZ, DSHOT600_TELEMETRY_BIT_RATE_HZ,
 };
 use crate::targets::h743::{self, tim};
 use crate::targets::{interleave_burst, BoardDescription};
@@ -407,14 +406,8 @@ impl Motors for BoardMotors {
         self.special.frame_sent();
     }
 
-    /// Queue a special command for `motor` (`None` = every motor), sent instead of the stop
-    /// frame on the following steps as often as the specification asks. Refused while armed.
-    fn send_command(
-        &mut self,
-        command: DshotCommand,
-        motor: Option<u8>,
-    ) -> Result<(), EscCommandError> {
-        self.special.queue(command, motor).map_err(|_| EscCommandError::Armed)
+    fn esc_command_queue(&mut self) -> Option<&mut CommandQueue> {
+        Some(&mut self.special)
     }
 
     /// Each motor's speed from its last answers (bidirectional DShot; `None` without, or when
