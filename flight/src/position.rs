@@ -47,7 +47,7 @@
 //! the hold. A gust's extra drag `Δa` is rejected by the proportional loops alone until the
 //! integral catches up: a static error of `Δa / (k_velocity k_position)` (0.5 m for turbulence
 //! of σ = 1.5 m/s in an 8 m/s wind on that airframe). On the craft the measured thrust direction
-//! (`crate::controller`, 0.5 s) feeds part of it back first. Tested on a point mass with that
+//! (`crate::controller`, 0.1 s in a hold) feeds part of it back first. Tested on a point mass with that
 //! drag: zero steady error, the integral equal to the drag, a 4 m/s gust's excursion within the
 //! static error, and back.
 //!
@@ -603,7 +603,7 @@ mod tests {
         // drag, `Δa / (k_velocity k_position)` (2.8 m/s², 1.5 m; measured: 1.0 m), and back
         // (the end above, 27 s after it): no fly-away. The excursion is what the position loop
         // alone can do: on the craft the measured thrust direction (`crate::controller`'s
-        // `ThrustDirection`, 0.5 s) takes up part of a gust's drag before the loop sees it.
+        // `ThrustDirection`, 0.1 s in a hold) takes up part of a gust's drag before the loop sees it.
         assert!(worst_integral <= MAX_ACCEL_MPS2 + 1e-4, "integral {worst_integral} m/s²");
         assert!(worst_tilt <= MAX_TILT_RAD + 1e-5, "tilt {worst_tilt} rad");
         let gains = controller.gains();
