@@ -48,8 +48,8 @@
 //! Everything is `f32` but the Gram blocks (f64, see `Gram`), fixed-size (`[_; MOTORS_MAX]`
 //! plus a count) and allocation-free. The solve dispatches once on the motor count: the quad,
 //! and a const-generic body compiled for `MOTORS_MAX` (5 to 7 motors on zero-filled columns,
-//! exactly), so every loop has a fixed trip count; square roots are the FPU's `vsqrt`
-//! (`math::sqrt`, `sqrt_f64`). Cost on the Cortex-M7 (QEMU, `cargo xtask bench-m7`, heuristic
+//! exactly), so every loop has a fixed trip count; square roots are the FPU's `vsqrt.f32`
+//! (`math::sqrt`). Cost on the Cortex-M7 (QEMU, `cargo xtask bench-m7`, heuristic
 //! path): about 700 instructions at m = 4 and 1,200–1,450 at 5 to 8 motors; see
 //! `docs/benchmarks.md`.
 
@@ -761,35 +761,38 @@ impl Gram {
     }
 
     /// For a torque map of full rank: `C = S − K T⁻¹ Kᵀ = B Bᵀ` (the force of the zero-torque
-    /// commands, step 3, in f32) and what step 4 needs of `T⁻¹ Kᵀ`, by the Cholesky factor
-    /// `T = L Lᵀ`: `V = L⁻¹ Kᵀ`, `C = S − Vᵀ V`. After the rank test `T`'s condition is at most
-    /// 1e8, so its pivots are positive in f64. Always inlined: as a call it returns its 156
-    /// bytes through a `memcpy` (about 120 instructions on the Cortex-M7, measured).
+    /// commands, step 3, in f32) and what step 4 needs of `T⁻¹ Kᵀ`, by the factorisation
+    /// `T = L D Lᵀ` (`L` unit lower triangular; no square root): `V = L⁻¹ Kᵀ`,
+    /// `C = S − Vᵀ D⁻¹ V`. After the rank test `T`'s condition is at most 1e8, so its pivots
+    /// are positive in f64. Always inlined: as a call it returns its 156 bytes through a
+    /// `memcpy` (about 120 instructions on the Cortex-M7, measured).
     #[inline(always)]
     fn null_space_blocks(&self) -> ([[f32; 3]; 3], TorquePart) {
         let t = &self.t;
-        let l00 = sqrt_f64(t[0]);
-        let i0 = 1.0 / l00;
-        let l10 = t[1] * i0;
-        let l20 = t[2] * i0;
-        let l11 = sqrt_f64(t[3] - l10 * l10);
-        let i1 = 1.0 / l11;
-        let l21 = (t[4] - l20 * l10) * i1;
-        let i2 = 1.0 / sqrt_f64(t[5] - l20 * l20 - l21 * l21);
-        // Column j of V solves L v = (row j of K).
+        let l10 = t[1] / t[0];
+        let l20 = t[2] / t[0];
+        let d1 = t[3] - l10 * t[1];
+        let l21 = (t[4] - l20 * t[1]) / d1;
+        let d2 = t[5] - l20 * t[2] - l21 * l21 * d1;
+        let inv_d = [1.0 / t[0], 1.0 / d1, 1.0 / d2];
+        // Column j of V solves L v = (row j of K); W = D⁻¹ V.
         let mut v = [[0.0f64; 3]; 3];
+        let mut w = [[0.0f64; 3]; 3];
         for j in 0..3 {
             let kj = self.k[j];
-            let v0 = kj[0] * i0;
-            let v1 = (kj[1] - l10 * v0) * i1;
-            let v2 = (kj[2] - l20 * v0 - l21 * v1) * i2;
+            let v0 = kj[0];
+            let v1 = kj[1] - l10 * v0;
+            let v2 = kj[2] - l20 * v0 - l21 * v1;
             v[0][j] = v0;
             v[1][j] = v1;
             v[2][j] = v2;
+            w[0][j] = v0 * inv_d[0];
+            w[1][j] = v1 * inv_d[1];
+            w[2][j] = v2 * inv_d[2];
         }
         // Entry n of the upper triangle, (i, j).
         let c_entry = |n: usize, i: usize, j: usize| {
-            (self.s[n] - (v[0][i] * v[0][j] + v[1][i] * v[1][j] + v[2][i] * v[2][j])) as f32
+            (self.s[n] - (v[0][i] * w[0][j] + v[1][i] * w[1][j] + v[2][i] * w[2][j])) as f32
         };
         let (c01, c02, c12) = (c_entry(1, 0, 1), c_entry(2, 0, 2), c_entry(4, 1, 2));
         let c = [
@@ -797,17 +800,16 @@ impl Gram {
             [c01, c_entry(3, 1, 1), c12],
             [c02, c12, c_entry(5, 2, 2)],
         ];
-        (c, TorquePart { v, l: [l10, l20, l21], inv_diag: [i0, i1, i2] })
+        (c, TorquePart { w, l: [l10, l20, l21] })
     }
 }
 
-/// `V = L⁻¹ Kᵀ` and `L` (below its diagonal, and the reciprocals of its diagonal) of
-/// [`Gram::null_space_blocks`]: `T⁻¹ Kᵀ x = L⁻ᵀ (V x)`.
+/// `W = D⁻¹ L⁻¹ Kᵀ` and `L` (below its diagonal) of [`Gram::null_space_blocks`]:
+/// `T⁻¹ Kᵀ x = L⁻ᵀ (W x)`.
 struct TorquePart {
-    v: [[f64; 3]; 3],
+    w: [[f64; 3]; 3],
     /// `[L₁₀, L₂₀, L₂₁]`.
     l: [f64; 3],
-    inv_diag: [f64; 3],
 }
 
 impl TorquePart {
@@ -815,35 +817,12 @@ impl TorquePart {
     /// brings with it (what step 4 removes).
     fn solve(&self, x: [f32; 3]) -> [f32; 3] {
         let x = x.map(|value| value as f64);
-        let vx = self.v.map(|row| row[0] * x[0] + row[1] * x[1] + row[2] * x[2]);
+        let wx = self.w.map(|row| row[0] * x[0] + row[1] * x[1] + row[2] * x[2]);
         let [l10, l20, l21] = self.l;
-        let y2 = vx[2] * self.inv_diag[2];
-        let y1 = (vx[1] - l21 * y2) * self.inv_diag[1];
-        let y0 = (vx[0] - l10 * y1 - l20 * y2) * self.inv_diag[0];
+        let y2 = wx[2];
+        let y1 = wx[1] - l21 * y2;
+        let y0 = wx[0] - l10 * y1 - l20 * y2;
         [y0 as f32, y1 as f32, y2 as f32]
-    }
-}
-
-/// `√x` in f64: one `vsqrt.f64` on the Cortex-M7 (`libm::sqrt` elsewhere).
-#[inline(always)]
-fn sqrt_f64(x: f64) -> f64 {
-    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
-    {
-        let root: f64;
-        // SAFETY: one FPU instruction on registers: no memory, no stack, no flags.
-        unsafe {
-            core::arch::asm!(
-                "vsqrt.f64 {root}, {x}",
-                root = lateout(dreg_low16) root,
-                x = in(dreg_low16) x,
-                options(pure, nomem, nostack, preserves_flags)
-            );
-        }
-        root
-    }
-    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
-    {
-        libm::sqrt(x)
     }
 }
 
