@@ -14,35 +14,44 @@
 //! 1. **Weights by scaling.** `u = W^{-1/2} ũ` turns the cost into `ũᵀũ` (the paper's `H = I`)
 //!    with `G̃ = G W^{-1/2}` and bounds `W^{1/2} u_min ≤ ũ ≤ W^{1/2} u_max`. Everything below
 //!    works on the scaled problem.
-//! 2. **Null space of G1τ.** Column-pivoting Householder QR of `G̃1τᵀ` (`m × 3`) with the full
-//!    `Q` in product form (`householder`); the rank test on `R`'s diagonal rejects airframes
-//!    whose torque map is rank-deficient. `N = Q[:, 3..m]`.
-//! 3. **Dominant eigen-pair.** The paper iterates on `A = (G̃1f N)ᵀ(G̃1f N)` (`(m−3)²`). We use
-//!    `B = G̃1f N` (`3 × (m−3)`, read straight off `Qᵀ G̃1fᵀ`) and iterate on `C = B Bᵀ`, which is
-//!    always 3 × 3 and has the same non-zero eigenvalues: if `C w = λ w` then `v = Bᵀw/‖Bᵀw‖` is
-//!    the paper's eigenvector of `A`. Two reasons: the cost does not grow with `m`, and the
-//!    iterate `w` is the thrust direction itself in IMU coordinates, so the warm start kept in
-//!    [`ThrustAxisSolver`] between calls is independent of the null-space basis (which can flip or
-//!    rotate from one call to the next when the pivot order changes). The power iteration is
-//!    accelerated by repeated squaring (`C ← C²/tr`, so `k` squarings are `2ᵏ` power steps),
-//!    stopped when `C` is numerically rank one and capped at [`SolverConfig::max_squarings`];
-//!    the warm-start vector is re-seeded from the dominant column when `‖C w‖` collapses. For
-//!    m = 4 the null space is a line, `A = ‖b‖²` is 1 × 1 and `w = b/‖b‖` in closed form.
+//! 2. **Null space of G1τ.** For 5 to 8 motors, the Gram blocks of the weighted rows in f64
+//!    (`T = G̃1τ G̃1τᵀ`, `K = G̃1f G̃1τᵀ`, `S = G̃1f G̃1fᵀ`, each 3 × 3 whatever `m`): the pivots of
+//!    `T` (Cholesky with diagonal pivoting) are the squares of `R`'s diagonal in a
+//!    column-pivoting QR of `G̃1τᵀ`, and give the same rank test, which rejects airframes whose
+//!    torque map is rank-deficient; the projector onto the null space is
+//!    `P = I − G̃1τᵀ T⁻¹ G̃1τ`. Two passes of multiply-accumulates over the motors, instead of a
+//!    QR whose reflectors are applied to three force rows and back to the command (about a
+//!    third fewer instructions at 6 to 8 motors). For the quad, whose null space is a line, a
+//!    column-pivoting Householder QR of `G̃1τᵀ` (`householder`) is cheaper.
+//! 3. **Dominant eigen-pair.** The paper iterates on `A = (G̃1f N)ᵀ(G̃1f N)` (`(m−3)²`, `N` an
+//!    orthonormal basis of the null space). We use `B = G̃1f N` (`3 × (m−3)`) and iterate on
+//!    `C = B Bᵀ = G̃1f P G̃1fᵀ = S − K T⁻¹ Kᵀ`, which is always 3 × 3 and has the same non-zero
+//!    eigenvalues: if `C w = λ w` then `v = Bᵀw/‖Bᵀw‖` is the paper's eigenvector of `A`. Two
+//!    reasons: the cost does not grow with `m`, and the iterate `w` is the thrust direction
+//!    itself in IMU coordinates, so the warm start kept in [`ThrustAxisSolver`] between calls
+//!    is independent of any null-space basis. The power iteration returns the warm vector when
+//!    a residual bound proves it converged, else is accelerated by repeated squaring
+//!    (`C ← C²/tr`, so `k` squarings are `2ᵏ` power steps), stopped when `C` is numerically
+//!    rank one and capped at [`SolverConfig::max_squarings`]; the warm-start vector is
+//!    re-seeded from the dominant column when `‖C w‖` collapses. For m = 4, `A = ‖b‖²` is
+//!    1 × 1 and `w = b/‖b‖` in closed form.
 //! 4. **Scaling and sign.** `η = Bᵀw · g/‖C w‖` (the paper's `η = v g/√(vᵀAv)`, which makes
-//!    `‖G1f u‖ = g` exact for any `w`), `ũ = ±Q [0; η]`, with the sign that keeps `u` within the
-//!    bounds (both fit: the one with positive command sum, as in the published code).
+//!    `‖G1f u‖ = g` exact for any `w`), `ũ = ±N η = ±P G̃1fᵀ w · g/‖C w‖`, with the sign that
+//!    keeps `u` within the bounds (both fit: the one with positive command sum, as in the
+//!    published code).
 //! 5. **Bounded optimum.** When neither sign fits, the heuristic's answer is not the solution of
 //!    problem (6); `bounded` then searches every active set of clamped motors for the true
 //!    bounded optimum, and the result is flagged `bounded = true`.
 //! 6. **Attitude.** `d = G1f u*`; `q_thrust_to_imu` is the shortest arc taking `(0, 0, −1)` to
 //!    `d/|d|` (`rotation`).
 //!
-//! Everything is `f32`, fixed-size (`[_; MOTORS_MAX]` plus a count) and allocation-free. The
-//! solve dispatches once on the motor count to a const-generic body, compiled for the quad and
-//! for `MOTORS_MAX` (5 to 7 motors on zero-filled columns, exactly), so every loop has a fixed
-//! trip count; square roots are the FPU's `vsqrt.f32` (`math::sqrt`). Cost on the Cortex-M7 (QEMU,
-//! `cargo xtask bench-m7`): about 900 instructions at m = 4 and 1,850–2,000 at 5 to 8 motors
-//! (heuristic path); see `docs/benchmarks.md`.
+//! Everything is `f32` but the Gram blocks (f64, see `Gram`), fixed-size (`[_; MOTORS_MAX]`
+//! plus a count) and allocation-free. The solve dispatches once on the motor count: the quad,
+//! and a const-generic body compiled for `MOTORS_MAX` (5 to 7 motors on zero-filled columns,
+//! exactly), so every loop has a fixed trip count; square roots are the FPU's `vsqrt.f32`
+//! (`math::sqrt`). Cost on the Cortex-M7 (QEMU, `cargo xtask bench-m7`, heuristic
+//! path): about 700 instructions at m = 4 and 1,200–1,450 at 5 to 8 motors; see
+//! `docs/benchmarks.md`.
 
 // `!(x > limit)` is deliberate throughout: it is also true for NaN, which must take the safe
 // branch. Index loops are kept where they mirror the matrix notation of the derivation.
@@ -56,7 +65,7 @@ use rotation::shortest_arc_from_down_unit;
 pub use rotation::{euler_zyx, rotate, shortest_arc_from_down, EulerZyx, THRUST_DIR_THRUST_FRAME};
 
 use crate::math::{clamp, sqrt};
-use householder::PivotedQr3;
+use householder::{PivotedQr3, RANK_TOLERANCE};
 
 /// Fewest motors the solver accepts: with fewer than four, `G1τ u = 0` (three equations) leaves
 /// no thrust direction to choose.
@@ -90,6 +99,11 @@ const ZERO_EIGEN: f32 = 1e-6;
 /// about `λ₂/λ₁`, so the iterate is then within about 1e-6 rad of the dominant eigenvector.
 /// f32 round-off in the minors is about 2e-7, so this is reachable.
 const POWER_CONVERGED: f32 = 1e-6;
+
+/// The power iteration returns the warm-start vector unchanged when it is provably within this
+/// angle of the dominant eigenvector (rad), the accuracy the squarings stop at
+/// ([`POWER_CONVERGED`]).
+const WARM_CONVERGED_RAD: f32 = 1e-6;
 
 /// Re-seed when `‖C w‖ < POWER_RESEED · max_j C_jj` (trace-normalised `C`): the warm-start vector
 /// is then within about 6° of orthogonal to the dominant eigenvector and would converge slowly.
@@ -538,7 +552,7 @@ impl ThrustAxisSolver {
         // padding adds exact zeros to every sum and gets a zero command. One copy instead of
         // four saves 16.7 KB of flash at opt-level 3 (docs/benchmarks.md, "Firmware size").
         match problem.motors {
-            4 => self.solve_fixed::<4>(problem),
+            4 => self.solve_quad(problem),
             5..=MOTORS_MAX => self.solve_fixed::<MOTORS_MAX>(problem),
             motors => Err(ThrustAxisError::MotorCount { motors }),
         }
@@ -549,6 +563,60 @@ impl ThrustAxisSolver {
         &mut self,
         problem: &HoverProblem,
     ) -> Result<HoverSolution, ThrustAxisError> {
+        // Steps 1 and 2: the weighted Gram blocks, the torque map's rank, and the projection
+        // onto its null space.
+        let gram = if problem.unit_weights {
+            Gram::of::<M, false>(problem)
+        } else {
+            Gram::of::<M, true>(problem)
+        };
+        let rank = torque_rank(&gram.t);
+        if rank < 3 {
+            return Err(ThrustAxisError::TorqueRankDeficient { rank: rank as u8 });
+        }
+        let (c, torque_part) = gram.null_space_blocks();
+        let force_scale2 = (gram.s[0] + gram.s[3] + gram.s[5]) as f32;
+
+        // Step 3: the dominant eigenvector of C by warm-started power iteration.
+        let w = dominant_direction(&c, self.warm_dir, self.config.max_squarings);
+        let cw = mat3_vec(&c, w);
+        let eigenvalue = dot3(w, cw);
+        if !(eigenvalue > ZERO_EIGEN * force_scale2) {
+            return Err(no_thrust(eigenvalue));
+        }
+        self.warm_dir = w;
+
+        // Step 4: ũ = P G̃1fᵀ w g/‖C w‖ with the projector P = I − G̃1τᵀ T⁻¹ G̃1τ, so
+        // uᵢ = (g/‖C w‖) (f_i·w − τ_i·y)/wᵢ with y = T⁻¹ Kᵀ w (f_i, τ_i: motor i's columns of
+        // G1f and G1τ, unweighted; wᵢ its weight).
+        let scale = problem.g_mps2 / norm3(cw);
+        let w_scaled = [w[0] * scale, w[1] * scale, w[2] * scale];
+        let y = torque_part.solve(w_scaled);
+        let mut u = [0.0f32; M];
+        for i in 0..M {
+            u[i] = problem.g1_f[0][i] * w_scaled[0]
+                + problem.g1_f[1][i] * w_scaled[1]
+                + problem.g1_f[2][i] * w_scaled[2]
+                - problem.g1_tau[0][i] * y[0]
+                - problem.g1_tau[1][i] * y[1]
+                - problem.g1_tau[2][i] * y[2];
+        }
+        if !problem.unit_weights {
+            for i in 0..M {
+                u[i] *= problem.inv_sqrt_weight[i] * problem.inv_sqrt_weight[i];
+            }
+        }
+
+        self.within_bounds(problem, u, eigenvalue, force_scale2)
+    }
+
+    /// The quad: its torque null space is a line, which one Householder QR of `G̃1τᵀ` (4 × 3)
+    /// gives in closed form: `A = ‖b‖²` is 1 × 1 with `b = G̃1f n`, `w = b/‖b‖` and `η = g/‖b‖`
+    /// (the power iteration would converge in one step to the same). At four motors the QR is
+    /// cheaper than the Gram blocks of [`Self::solve_fixed`] (about 700 against 1,050
+    /// instructions on the Cortex-M7, measured).
+    fn solve_quad(&mut self, problem: &HoverProblem) -> Result<HoverSolution, ThrustAxisError> {
+        const M: usize = 4;
         // Step 1: weights by scaling (G̃ = G W^{-1/2}); a plain copy for identical motors.
         let mut tau = [[0.0f32; M]; 3];
         let mut b = [[0.0f32; M]; 3];
@@ -564,14 +632,13 @@ impl ThrustAxisSolver {
                 }
             }
         }
-
         // Step 2: null space of G̃1τ by pivoted QR of G̃1τᵀ (columns = rows of G̃1τ).
         let qr = PivotedQr3::<M>::factor(tau);
         if qr.rank < 3 {
             return Err(ThrustAxisError::TorqueRankDeficient { rank: qr.rank as u8 });
         }
-        // Rows of Qᵀ G̃1fᵀ; entries 3..M of row k are row k of B = G̃1f N. Qᵀ is orthogonal,
-        // so the sum of all squares is ‖G̃1f‖²_F.
+        // Rows of Qᵀ G̃1fᵀ; entry 3 of row k is entry k of b = G̃1f n. Qᵀ is orthogonal, so
+        // the sum of all squares is ‖G̃1f‖²_F.
         let mut force_scale2 = 0.0;
         for row in b.iter_mut() {
             qr.apply_qt(row);
@@ -579,60 +646,36 @@ impl ThrustAxisSolver {
                 force_scale2 += x * x;
             }
         }
-
-        // Step 3: C = B Bᵀ and its dominant eigenvector by warm-started power iteration.
-        // Step 4: η = Bᵀw g/‖Cw‖, ũ = Q [0; η] (η in entries 3..M).
-        let mut u = [0.0f32; M];
-        let eigenvalue;
-        if M == 4 {
-            // One-dimensional null space: A = ‖b‖² is 1 × 1, C = b bᵀ, w = b/‖b‖ exactly and
-            // η = g/‖b‖ (the power iteration would converge in one step to the same).
-            let column = [b[0][3], b[1][3], b[2][3]];
-            eigenvalue = dot3(column, column);
-            if !(eigenvalue > ZERO_EIGEN * force_scale2) {
-                return Err(no_thrust(eigenvalue));
-            }
-            let norm = sqrt(eigenvalue);
-            let inv = 1.0 / norm;
-            self.warm_dir = [column[0] * inv, column[1] * inv, column[2] * inv];
-            u[3] = problem.g_mps2 * inv;
-        } else {
-            let mut c = [[0.0f32; 3]; 3];
-            for i in 0..3 {
-                for j in i..3 {
-                    let mut dot = 0.0;
-                    for l in 3..M {
-                        dot += b[i][l] * b[j][l];
-                    }
-                    c[i][j] = dot;
-                    c[j][i] = dot;
-                }
-            }
-            let w = dominant_direction(&c, self.warm_dir, self.config.max_squarings);
-            let cw = mat3_vec(&c, w);
-            eigenvalue = dot3(w, cw);
-            if !(eigenvalue > ZERO_EIGEN * force_scale2) {
-                return Err(no_thrust(eigenvalue));
-            }
-            self.warm_dir = w;
-            let scale = problem.g_mps2 / norm3(cw);
-            for l in 3..M {
-                u[l] = (b[0][l] * w[0] + b[1][l] * w[1] + b[2][l] * w[2]) * scale;
-            }
+        // Steps 3 and 4 in closed form.
+        let column = [b[0][3], b[1][3], b[2][3]];
+        let eigenvalue = dot3(column, column);
+        if !(eigenvalue > ZERO_EIGEN * force_scale2) {
+            return Err(no_thrust(eigenvalue));
         }
+        let inv = 1.0 / sqrt(eigenvalue);
+        self.warm_dir = [column[0] * inv, column[1] * inv, column[2] * inv];
+        let mut u = [0.0f32; M];
+        u[3] = problem.g_mps2 * inv;
         qr.apply_q(&mut u);
         if !problem.unit_weights {
             for i in 0..M {
                 u[i] *= problem.inv_sqrt_weight[i];
             }
         }
+        self.within_bounds(problem, u, eigenvalue, force_scale2)
+    }
 
-        // The sign that fits the bounds, else the bounded optimum (step 5).
+    /// Step 5: the sign of `u` (one entry per motor, either sign of the hover) that fits the
+    /// bounds, else the bounded optimum, else the configured fallback.
+    fn within_bounds<const M: usize>(
+        &self,
+        problem: &HoverProblem,
+        mut u: [f32; M],
+        eigenvalue: f32,
+        force_scale2: f32,
+    ) -> Result<HoverSolution, ThrustAxisError> {
         match sign_within_bounds(problem, &u) {
-            Some(sign) => {
-                u.iter_mut().for_each(|x| *x *= sign);
-                finish(problem, &u, eigenvalue, false)
-            }
+            Some(sign) => finish(problem, &u, sign, eigenvalue, false),
             None if BOUNDED_SEARCH_COMPILED && self.config.bounded_search => {
                 let scaled = ScaledProblem::new(problem);
                 let u_scaled = bounded::optimum(&scaled, force_scale2)
@@ -640,13 +683,189 @@ impl ThrustAxisSolver {
                 for i in 0..M {
                     u[i] = u_scaled[i] * scaled.inv_sqrt_weight[i];
                 }
-                finish(problem, &u, eigenvalue, true)
+                finish(problem, &u, 1.0, eigenvalue, true)
             }
             None if self.config.clamp_outside_bounds => {
                 clamp_to_bounds(problem, &mut u, eigenvalue)
             }
             None => Err(ThrustAxisError::NoHoverWithinBounds),
         }
+    }
+}
+
+/// The Gram blocks of the weighted rows (`G̃ = G W^{-1/2}`), in f64: `T = G̃1τ G̃1τᵀ`,
+/// `K = G̃1f G̃1τᵀ` and `S = G̃1f G̃1fᵀ`, each 3 × 3 whatever the motor count; `T` and `S` as
+/// their upper triangles `[00, 01, 02, 11, 12, 22]`.
+///
+/// Why f64: the rank test compares the pivots of `T` (the squares of `R`'s diagonal in a QR of
+/// `G̃1τᵀ`) at [`RANK_TOLERANCE`]² = 1e-8, below f32's resolution, and `C = S − K T⁻¹ Kᵀ`
+/// subtracts the part of the force rows that produces torque, which can be most of them. The
+/// products of two f32 are exact in f64 and the sums of eight keep 1e-16 of their size, so both
+/// are resolved with many digits to spare. The Cortex-M7's FPU is double precision: one
+/// instruction per multiply-accumulate, as in f32.
+struct Gram {
+    t: [f64; 6],
+    k: [[f64; 3]; 3],
+    s: [f64; 6],
+}
+
+impl Gram {
+    /// The blocks for the first `M` motors of `problem` (zero columns beyond its motors add
+    /// exact zeros), with the weights when `WEIGHTED` (`false` only for unit weights, whose
+    /// scaling is the identity). Two passes over the motors, so that each keeps its sums in the
+    /// FPU's 16 double registers: `T` and `S` (12 sums), then `K` (9).
+    #[inline(always)]
+    fn of<const M: usize, const WEIGHTED: bool>(problem: &HoverProblem) -> Gram {
+        let column = |rows: &[[f32; MOTORS_MAX]; 3], i: usize| {
+            [rows[0][i] as f64, rows[1][i] as f64, rows[2][i] as f64]
+        };
+        // Motor i's torque column times 1/wᵢ, the weight of its outer products.
+        let weighted = |a: [f64; 3], i: usize| {
+            if WEIGHTED {
+                let x = problem.inv_sqrt_weight[i] as f64;
+                let r = x * x;
+                [a[0] * r, a[1] * r, a[2] * r]
+            } else {
+                a
+            }
+        };
+        let (mut t, mut s) = ([0.0f64; 6], [0.0f64; 6]);
+        for i in 0..M {
+            let a = column(&problem.g1_tau, i);
+            let f = column(&problem.g1_f, i);
+            let (ar, fr) = (weighted(a, i), weighted(f, i));
+            t[0] += ar[0] * a[0];
+            t[1] += ar[0] * a[1];
+            t[2] += ar[0] * a[2];
+            t[3] += ar[1] * a[1];
+            t[4] += ar[1] * a[2];
+            t[5] += ar[2] * a[2];
+            s[0] += fr[0] * f[0];
+            s[1] += fr[0] * f[1];
+            s[2] += fr[0] * f[2];
+            s[3] += fr[1] * f[1];
+            s[4] += fr[1] * f[2];
+            s[5] += fr[2] * f[2];
+        }
+        let mut k = [[0.0f64; 3]; 3];
+        for i in 0..M {
+            let ar = weighted(column(&problem.g1_tau, i), i);
+            let f = column(&problem.g1_f, i);
+            for row in 0..3 {
+                for col in 0..3 {
+                    k[row][col] += f[row] * ar[col];
+                }
+            }
+        }
+        Gram { t, k, s }
+    }
+
+    /// For a torque map of full rank: `C = S − K T⁻¹ Kᵀ = B Bᵀ` (the force of the zero-torque
+    /// commands, step 3, in f32) and what step 4 needs of `T⁻¹ Kᵀ`, by the factorisation
+    /// `T = L D Lᵀ` (`L` unit lower triangular; no square root): `V = L⁻¹ Kᵀ`,
+    /// `C = S − Vᵀ D⁻¹ V`. After the rank test `T`'s condition is at most 1e8, so its pivots
+    /// are positive in f64. Always inlined: as a call it returns its 156 bytes through a
+    /// `memcpy` (about 120 instructions on the Cortex-M7, measured).
+    #[inline(always)]
+    fn null_space_blocks(&self) -> ([[f32; 3]; 3], TorquePart) {
+        let t = &self.t;
+        let l10 = t[1] / t[0];
+        let l20 = t[2] / t[0];
+        let d1 = t[3] - l10 * t[1];
+        let l21 = (t[4] - l20 * t[1]) / d1;
+        let d2 = t[5] - l20 * t[2] - l21 * l21 * d1;
+        let inv_d = [1.0 / t[0], 1.0 / d1, 1.0 / d2];
+        // Column j of V solves L v = (row j of K); W = D⁻¹ V.
+        let mut v = [[0.0f64; 3]; 3];
+        let mut w = [[0.0f64; 3]; 3];
+        for j in 0..3 {
+            let kj = self.k[j];
+            let v0 = kj[0];
+            let v1 = kj[1] - l10 * v0;
+            let v2 = kj[2] - l20 * v0 - l21 * v1;
+            v[0][j] = v0;
+            v[1][j] = v1;
+            v[2][j] = v2;
+            w[0][j] = v0 * inv_d[0];
+            w[1][j] = v1 * inv_d[1];
+            w[2][j] = v2 * inv_d[2];
+        }
+        // Entry n of the upper triangle, (i, j).
+        let c_entry = |n: usize, i: usize, j: usize| {
+            (self.s[n] - (v[0][i] * w[0][j] + v[1][i] * w[1][j] + v[2][i] * w[2][j])) as f32
+        };
+        let (c01, c02, c12) = (c_entry(1, 0, 1), c_entry(2, 0, 2), c_entry(4, 1, 2));
+        let c = [
+            [c_entry(0, 0, 0), c01, c02],
+            [c01, c_entry(3, 1, 1), c12],
+            [c02, c12, c_entry(5, 2, 2)],
+        ];
+        (c, TorquePart { w, l: [l10, l20, l21] })
+    }
+}
+
+/// `W = D⁻¹ L⁻¹ Kᵀ` and `L` (below its diagonal) of [`Gram::null_space_blocks`]:
+/// `T⁻¹ Kᵀ x = L⁻ᵀ (W x)`.
+struct TorquePart {
+    w: [[f64; 3]; 3],
+    /// `[L₁₀, L₂₀, L₂₁]`.
+    l: [f64; 3],
+}
+
+impl TorquePart {
+    /// `y = T⁻¹ Kᵀ x`: the torque-map coordinates of the torque that the force direction `x`
+    /// brings with it (what step 4 removes).
+    fn solve(&self, x: [f32; 3]) -> [f32; 3] {
+        let x = x.map(|value| value as f64);
+        let wx = self.w.map(|row| row[0] * x[0] + row[1] * x[1] + row[2] * x[2]);
+        let [l10, l20, l21] = self.l;
+        let y2 = wx[2];
+        let y1 = wx[1] - l21 * y2;
+        let y0 = wx[0] - l10 * y1 - l20 * y2;
+        [y0 as f32, y1 as f32, y2 as f32]
+    }
+}
+
+/// Numerical rank (0 to 3) of the weighted torque map, from the pivots of `T = G̃1τ G̃1τᵀ` in a
+/// Cholesky factorisation with diagonal pivoting: those are the squares of `R`'s diagonal in the
+/// column-pivoting QR of `G̃1τᵀ`, so the test is the QR's, `|R_kk| > RANK_TOLERANCE · |R_00|`.
+fn torque_rank(packed: &[f64; 6]) -> usize {
+    let t = [
+        [packed[0], packed[1], packed[2]],
+        [packed[1], packed[3], packed[4]],
+        [packed[2], packed[4], packed[5]],
+    ];
+    // First pivot: the largest diagonal entry; `q` and `r` are the other two rows.
+    let (p, q, r) = if t[1][1] > t[0][0] {
+        if t[2][2] > t[1][1] {
+            (2, 0, 1)
+        } else {
+            (1, 0, 2)
+        }
+    } else if t[2][2] > t[0][0] {
+        (2, 0, 1)
+    } else {
+        (0, 1, 2)
+    };
+    let d0 = t[p][p];
+    if !(d0 > 0.0) {
+        return 0;
+    }
+    // The Schur complement of the first pivot, then the larger of its diagonal as the second
+    // pivot and what remains as the third.
+    let (tq, tr) = (t[q][p] / d0, t[r][p] / d0);
+    let sqq = t[q][q] - tq * t[q][p];
+    let srr = t[r][r] - tr * t[r][p];
+    let sqr = t[q][r] - tq * t[r][p];
+    let (d1, d2) =
+        if srr > sqq { (srr, sqq - sqr * sqr / srr) } else { (sqq, srr - sqr * sqr / sqq) };
+    let tolerance = (RANK_TOLERANCE as f64) * (RANK_TOLERANCE as f64) * d0;
+    if !(d1 > tolerance) {
+        1
+    } else if !(d2 > tolerance) {
+        2
+    } else {
+        3
     }
 }
 
@@ -672,7 +891,7 @@ fn clamp_to_bounds(
     // The sign along which the motors push (the larger total command).
     let sign = if u.iter().sum::<f32>() >= 0.0 { 1.0 } else { -1.0 };
     u.iter_mut().for_each(|x| *x *= sign);
-    let solution = finish(problem, u, eigenvalue, false)?;
+    let solution = finish(problem, u, 1.0, eigenvalue, false)?;
     // How far u* was outside, and the force of every motor at its upper bound.
     let mut clamped_by = 0.0f32;
     let mut force_max = [0.0f32; 3];
@@ -696,6 +915,7 @@ fn clamp_to_bounds(
 fn finish(
     problem: &HoverProblem,
     u: &[f32],
+    sign: f32,
     eigenvalue: f32,
     bounded: bool,
 ) -> Result<HoverSolution, ThrustAxisError> {
@@ -703,7 +923,7 @@ fn finish(
     let mut cost = 0.0;
     let mut d = [0.0f32; 3];
     for i in 0..u.len() {
-        let ui = clamp(u[i], problem.u_min[i], problem.u_max[i]);
+        let ui = clamp(sign * u[i], problem.u_min[i], problem.u_max[i]);
         u_hover[i] = ui;
         cost += problem.weights[i] * ui * ui;
         for k in 0..3 {
@@ -711,7 +931,7 @@ fn finish(
         }
     }
     let d_norm = norm3(d);
-    if !(d_norm > 0.0 && d_norm.is_finite() && cost.is_finite()) {
+    if !(positive_finite(d_norm) && cost <= f32::MAX) {
         return Err(ThrustAxisError::NumericalFailure);
     }
     let inv = 1.0 / d_norm;
@@ -731,52 +951,75 @@ fn finish(
 /// Power iteration on the symmetric positive semi-definite 3 × 3 `c` from `warm` (unit), by
 /// repeated squaring; returns a unit vector (the warm vector itself if `c` is zero or invalid).
 fn dominant_direction(c: &[[f32; 3]; 3], warm: [f32; 3], max_squarings: u8) -> [f32; 3] {
-    let mut p = *c;
-    let trace = p[0][0] + p[1][1] + p[2][2];
-    if !(trace > 0.0 && trace.is_finite()) {
+    // The upper triangle, [00, 01, 02, 11, 12, 22]: the matrix and its squares are symmetric.
+    let trace = c[0][0] + c[1][1] + c[2][2];
+    if !(positive_finite(trace)) {
         return warm;
     }
-    scale3(&mut p, 1.0 / trace);
+    // The warm vector already converged (the usual case from one call to the next): with
+    // ρ = wᵀ C w ≤ λ₁ and so λ₂ ≤ tr − ρ, its angle to the dominant eigenvector is at most
+    // ‖C w − ρ w‖ / (2ρ − tr) (the residual bound of Davis and Kahan).
+    let cw = mat3_vec(c, warm);
+    let rho = dot3(warm, cw);
+    let residual = [cw[0] - rho * warm[0], cw[1] - rho * warm[1], cw[2] - rho * warm[2]];
+    let gap = (2.0 * rho - trace) * WARM_CONVERGED_RAD;
+    if gap > 0.0 && dot3(residual, residual) <= gap * gap {
+        return warm;
+    }
+    let inv = 1.0 / trace;
+    let mut p = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]].map(|x| x * inv);
     for _ in 0..max_squarings {
         // e₂ = Σ principal 2 × 2 minors; tr(p) = 1 here.
-        let e2 = p[0][0] * p[1][1] - p[0][1] * p[0][1] + p[0][0] * p[2][2] - p[0][2] * p[0][2]
-            + p[1][1] * p[2][2]
-            - p[1][2] * p[1][2];
+        let e2 = p[0] * p[3] - p[1] * p[1] + p[0] * p[5] - p[2] * p[2] + p[3] * p[5] - p[4] * p[4];
         if e2 <= POWER_CONVERGED {
             break;
         }
-        let mut sq = [[0.0f32; 3]; 3];
-        for i in 0..3 {
-            for j in i..3 {
-                let v = p[i][0] * p[0][j] + p[i][1] * p[1][j] + p[i][2] * p[2][j];
-                sq[i][j] = v;
-                sq[j][i] = v;
-            }
-        }
-        let t = sq[0][0] + sq[1][1] + sq[2][2];
+        let sq = [
+            p[0] * p[0] + p[1] * p[1] + p[2] * p[2],
+            p[0] * p[1] + p[1] * p[3] + p[2] * p[4],
+            p[0] * p[2] + p[1] * p[4] + p[2] * p[5],
+            p[1] * p[1] + p[3] * p[3] + p[4] * p[4],
+            p[1] * p[2] + p[3] * p[4] + p[4] * p[5],
+            p[2] * p[2] + p[4] * p[4] + p[5] * p[5],
+        ];
+        let t = sq[0] + sq[3] + sq[5];
         if !(t > 0.0) {
             break;
         }
-        scale3(&mut sq, 1.0 / t);
-        p = sq;
+        let inv = 1.0 / t;
+        p = sq.map(|x| x * inv);
     }
-    let mut x = mat3_vec(&p, warm);
-    let mut dominant = 0;
-    for j in 1..3 {
-        if p[j][j] > p[dominant][dominant] {
-            dominant = j;
+    let rows = [[p[0], p[1], p[2]], [p[1], p[3], p[4]], [p[2], p[4], p[5]]];
+    let mut x = mat3_vec(&rows, warm);
+    let dominant = if p[3] > p[0] {
+        if p[5] > p[3] {
+            2
+        } else {
+            1
         }
-    }
-    let threshold = POWER_RESEED * p[dominant][dominant];
+    } else if p[5] > p[0] {
+        2
+    } else {
+        0
+    };
+    let threshold = POWER_RESEED * rows[dominant][dominant];
     if !(dot3(x, x) >= threshold * threshold) {
-        x = [p[0][dominant], p[1][dominant], p[2][dominant]];
+        x = rows[dominant];
     }
     let n = norm3(x);
-    if !(n > 0.0 && n.is_finite()) {
+    if !(positive_finite(n)) {
         return warm;
     }
     let inv = 1.0 / n;
     [x[0] * inv, x[1] * inv, x[2] * inv]
+}
+
+/// `x > 0` and finite (false for NaN), as two comparisons: written as `x > 0 && x.is_finite()`
+/// the compiler merges the two into a class test of the bits, about 30 integer instructions on
+/// the Cortex-M7 instead of two `vcmp`.
+#[inline(always)]
+fn positive_finite(x: f32) -> bool {
+    x > 0.0 && x <= f32::MAX
 }
 
 /// The sign (`+1` or `−1`) with which `u` fits the bounds, as the paper prescribes; if both
@@ -819,10 +1062,6 @@ fn dot3(a: [f32; 3], b: [f32; 3]) -> f32 {
 
 fn norm3(a: [f32; 3]) -> f32 {
     sqrt(dot3(a, a))
-}
-
-fn scale3(a: &mut [[f32; 3]; 3], factor: f32) {
-    a.iter_mut().flatten().for_each(|x| *x *= factor);
 }
 
 #[cfg(test)]

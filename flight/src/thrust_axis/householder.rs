@@ -1,8 +1,10 @@
 //! Column-pivoting Householder QR of a tall `p × 3` matrix, `p ≤ 8`, with the full `Q` kept in
 //! product form (three reflectors), as LAPACK's `xGEQP3` stores it.
 //!
-//! Why hand-written: the thrust-axis solver needs the *full* `Q` (its last `p − rank` columns are
-//! the null space of the torque map), and nalgebra's `ColPivQR::q()` returns only the thin
+//! Used by the quad's solve and by the bounded search (5 to 8 motors use the Gram blocks of the
+//! parent module, cheaper there). Why hand-written: they need the *full* `Q` (its last
+//! `p − rank` columns are the null space of the torque map), and nalgebra's `ColPivQR::q()`
+//! returns only the thin
 //! `p × 3` factor. Three reflectors applied to fixed-size arrays are also much cheaper on the
 //! Cortex-M7 than nalgebra's generic paths (see `docs/benchmarks.md`).
 //!
