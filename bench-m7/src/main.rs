@@ -32,13 +32,6 @@ use imu_offset::{AlignedSample, Config, ImuOffsetEstimator, ImuSample, Model, Of
 use nalgebra::{UnitQuaternion, Vector3};
 use tumble::TumbleInertia;
 
-/// The firmware's DShot framing, compiled from its own source (`firmware/src/drivers/dshot.rs`
-/// is portable and depends only on `protocol`): the bidirectional answers' decoding is measured
-/// as the board runs it, without building the board crate for this harness.
-#[path = "../../firmware/src/drivers/dshot.rs"]
-#[allow(dead_code)]
-mod dshot;
-
 /// The firmware's hardware boundary and battery monitor, compiled from their own sources (both
 /// portable: `protocol`, `flight` and `core` only), for the control tick's battery region.
 #[allow(dead_code)]
@@ -51,12 +44,18 @@ mod app {
     pub mod sticks;
 }
 
-/// The receiver's stick input, for `app::sticks` (compiled from its own source: portable).
+/// The firmware's portable drivers, compiled from their own sources: the receiver's stick input
+/// (for `app::sticks`) and the DShot framing (`dshot.rs` depends only on `protocol`: the
+/// bidirectional answers' decoding is measured as the board runs it, and `app::hal`'s motors
+/// queue its commands), without building the board crate for this harness.
 #[allow(dead_code)]
 #[path = "../../firmware/src/drivers"]
 mod drivers {
     pub mod crsf;
+    pub mod dshot;
 }
+
+use drivers::dshot;
 
 /// What the control tick adds to the step: the flight log's entry into its ring, and a battery
 /// reading into the monitor.
