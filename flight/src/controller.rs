@@ -100,7 +100,8 @@ pub const THRUST_DIRECTION_TIME_S: f32 = 0.5;
 /// turbulence (`fly --end land monte-carlo --world random --wind`): held within 0.3 m 858 at
 /// 0.5 s, 881 at 0.25 s, 894 at 0.1 s; at 0.1 s everywhere, a few recoveries that circle on a
 /// poor model did not settle (seed 846 of the calm random world hit the ground), hence only in
-/// the hold, where the craft is steady.
+/// the hold, where the craft is steady: 897 at 0.1 s, 899 at 0.05 s (no gain worth the
+/// accelerometer's vibration passed on faster).
 pub const THRUST_DIRECTION_HOLD_TIME_S: f32 = 0.1;
 
 /// Largest angle the measured thrust direction may take from the model's axis, rad (15°, ours):
