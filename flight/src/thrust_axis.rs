@@ -709,6 +709,18 @@ struct Gram {
     s: [f64; 6],
 }
 
+/// `sum += w vᵀ` on the upper triangle of a symmetric 3×3 (`w` a weighted `v`), packed by
+/// rows: (0,0) (0,1) (0,2) (1,1) (1,2) (2,2).
+#[inline(always)]
+fn add_outer_upper(sum: &mut [f64; 6], w: [f64; 3], v: [f64; 3]) {
+    sum[0] += w[0] * v[0];
+    sum[1] += w[0] * v[1];
+    sum[2] += w[0] * v[2];
+    sum[3] += w[1] * v[1];
+    sum[4] += w[1] * v[2];
+    sum[5] += w[2] * v[2];
+}
+
 impl Gram {
     /// The blocks for the first `M` motors of `problem` (zero columns beyond its motors add
     /// exact zeros), with the weights when `WEIGHTED` (`false` only for unit weights, whose
@@ -733,19 +745,8 @@ impl Gram {
         for i in 0..M {
             let a = column(&problem.g1_tau, i);
             let f = column(&problem.g1_f, i);
-            let (ar, fr) = (weighted(a, i), weighted(f, i));
-            t[0] += ar[0] * a[0];
-            t[1] += ar[0] * a[1];
-            t[2] += ar[0] * a[2];
-            t[3] += ar[1] * a[1];
-            t[4] += ar[1] * a[2];
-            t[5] += ar[2] * a[2];
-            s[0] += fr[0] * f[0];
-            s[1] += fr[0] * f[1];
-            s[2] += fr[0] * f[2];
-            s[3] += fr[1] * f[1];
-            s[4] += fr[1] * f[2];
-            s[5] += fr[2] * f[2];
+            add_outer_upper(&mut t, weighted(a, i), a);
+            add_outer_upper(&mut s, weighted(f, i), f);
         }
         let mut k = [[0.0f64; 3]; 3];
         for i in 0..M {
