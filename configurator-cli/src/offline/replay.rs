@@ -355,9 +355,10 @@ pub fn replay(
             // had adopted then are the ones it keeps until the log shows another adoption (only
             // their version is compared: `ControlLoop::receive`).
             system.control.control_mut().restore(*state);
-            if let Some((samples, pending)) = system.control.control().model_version() {
-                handed.learned.samples = samples;
-                handed.learned.pending = pending;
+            if let Some(version) = system.control.control().model_version() {
+                handed.learned.samples = version.samples;
+                handed.learned.pending = version.pending;
+                handed.learning_ended = version.learning_ended;
             }
         }
         for record in &log.records {

@@ -114,6 +114,10 @@ pub struct BackgroundResults {
     pub imu_offset_fitted_in_flight: bool,
     /// What the in-flight learner has learned in the latest attempt.
     pub learned: LearnedModel,
+    /// Whether the latest attempt's learning is over (the excitation, the settling after it and
+    /// the in-flight refinement, [`REFINE_IN_FLIGHT_S`]): [`Self::learned`] is final until the
+    /// next attempt, and the controller takes it whole (`pilot::Pilot::set_model`).
+    pub learning_ended: bool,
     /// Where the IMU offset used by the latest attempt came from.
     pub learner_offset: ImuOffsetSource,
     /// That offset, IMU axes, m (the controller compensates the accelerometer with it too).
@@ -456,6 +460,7 @@ impl<'q> Background<'q> {
         {
             self.samples_since_excitation += 1;
         } else {
+            self.results.learning_ended |= phase == FlightPhase::Done;
             return;
         }
         if let Some(learner) = self.learner.get_mut() {
@@ -584,6 +589,7 @@ impl<'q> Background<'q> {
         }
         self.results.learner_offset = source;
         self.results.learner_r_imu_m = r_imu_m;
+        self.results.learning_ended = false;
         self.results.flight_offset = None;
         // Fitted only where nothing better is known, from measured speeds or, without speed
         // telemetry, from the learner's modelled ones (`update_offset_fit`).

@@ -521,6 +521,19 @@ pub struct ControlLoop<'q> {
     telemetry: Option<StepProducer<'q>>,
 }
 
+/// Which of the background task's results the control loop adopted last: the model's
+/// `LearnedModel::samples` and `pending`, and `BackgroundResults::learning_ended`. A new version
+/// reaches the pilot; the same one again is not copied.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ModelVersion {
+    /// Samples the model learned from.
+    pub samples: u32,
+    /// Whether it was still to learn from samples already taken.
+    pub pending: bool,
+    /// Whether the attempt's learning had ended (the model final).
+    pub learning_ended: bool,
+}
+
 /// Everything the control loop remembers from one step to the next (the rings out of it
 /// aside): what a flight log that begins at an arming records (`super::log`, the arming
 /// state), so its replay runs the steps after it from the state the board ran them from.
@@ -535,9 +548,9 @@ pub struct ControlState {
     /// An ESC command for the motor outputs, handed over in the next step.
     esc_command: Option<(DshotCommand, Option<u8>)>,
     pilot: Pilot,
-    /// `LearnedModel::samples` and `pending` of the model last received (to copy only what
-    /// changed).
-    model_version: Option<(u32, bool)>,
+    /// `LearnedModel::samples` and `pending` of the model last received, and whether its
+    /// learning had ended (to copy only what changed).
+    model_version: Option<ModelVersion>,
     snapshot: ControlSnapshot,
     previous_step_us: Option<u64>,
     /// Time of the latest finite IMU sample, µs.
@@ -591,8 +604,8 @@ impl<'q> ControlLoop<'q> {
         &self.state
     }
 
-    /// The version (samples learned from, pending) of the background's results adopted last.
-    pub fn model_version(&self) -> Option<(u32, bool)> {
+    /// The version of the background's results adopted last.
+    pub fn model_version(&self) -> Option<ModelVersion> {
         self.state.model_version
     }
 
@@ -755,12 +768,17 @@ impl<'q> ControlLoop<'q> {
     pub fn receive(&mut self, results: &BackgroundResults) -> bool {
         // The samples learned from, and whether it is pending: a restarted learner's first model
         // has learned from none, as the one before the first attempt had.
-        let version = (results.learned.samples, results.learned.pending);
+        let version = ModelVersion {
+            samples: results.learned.samples,
+            pending: results.learned.pending,
+            learning_ended: results.learning_ended,
+        };
         if self.state.model_version == Some(version) {
             return false;
         }
         self.state.model_version = Some(version);
-        self.state.pilot.set_model(&results.learned, results.learner_r_imu_m);
+        let model = &results.learned;
+        self.state.pilot.set_model(model, results.learner_r_imu_m, results.learning_ended);
         true
     }
 

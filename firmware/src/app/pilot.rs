@@ -763,17 +763,21 @@ impl Pilot {
         self.model.as_ref().is_some_and(|(learned, _)| learned.pending)
     }
 
-    /// The model the background task published, with the IMU offset it was learned with.
-    pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3]) {
+    /// The model the background task published, with the IMU offset it was learned with, and
+    /// whether the attempt's learning has ended (the model is final).
+    pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3], learning_ended: bool) {
         let offset_changed = self.model.is_some_and(|(_, before)| before != r_imu_m);
         self.model = Some((*model, r_imu_m));
         // In flight the learner keeps learning (the background task feeds it while the craft
-        // flies); the controller follows at a lower gain, in the frame it engaged with. An IMU
-        // offset fitted in flight after the engagement is taken at once (from zero to a few
-        // centimetres: at hover's rates and angular accelerations the accelerometer's
-        // compensation moves by a fraction of a m/s²).
+        // flies); the controller follows at a lower gain, in the frame it engaged with, and
+        // takes the final model whole, so that it flies the model stored for the next flights
+        // (the lag it closes is the learner's last 0.1 s: racer-5in's rotation block moved by
+        // 0.16 percentage points in it). An IMU offset fitted in flight after the engagement is
+        // taken at once (from zero to a few centimetres: at hover's rates and angular
+        // accelerations the accelerometer's compensation moves by a fraction of a m/s²).
         if let Some(controller) = &mut self.controller {
-            if controller.refine_effectiveness(model, IN_FLIGHT_REFINEMENT_GAIN) {
+            let gain = if learning_ended { 1.0 } else { IN_FLIGHT_REFINEMENT_GAIN };
+            if controller.refine_effectiveness(model, gain) {
                 self.status.refinements = self.status.refinements.wrapping_add(1);
             }
             if offset_changed {
@@ -1642,7 +1646,7 @@ mod tests {
     fn the_controller_is_formed_afresh_only_on_a_thrust_axis_that_moved_beyond_the_limit() {
         let learned = flight::testing::models::learned_quad();
         let mut pilot = Pilot::new(2000.0);
-        pilot.set_model(&learned, [0.0; 3]);
+        pilot.set_model(&learned, [0.0; 3], false);
         // Hovering: the thrust (IMU +y) up.
         let imu =
             ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, -STANDARD_GRAVITY_MPS2, 0.0] };
@@ -1658,16 +1662,16 @@ mod tests {
             (newer, q)
         };
         let (small, _) = turned(10.0);
-        pilot.set_model(&small, [0.0; 3]);
+        pilot.set_model(&small, [0.0; 3], false);
         pilot.step(&imu, 500).unwrap();
         assert_eq!((pilot.status.reforms, flown(&pilot)), (0, engaged), "10°: the frame stays");
         let (unflyable, _) = turned(20.0);
         let unflyable = LearnedModel { motors: 9, ..unflyable };
-        pilot.set_model(&unflyable, [0.0; 3]);
+        pilot.set_model(&unflyable, [0.0; 3], false);
         pilot.step(&imu, 1000).unwrap();
         assert_eq!((pilot.status.reforms, flown(&pilot)), (0, engaged), "not flyable: kept");
         let (large, q) = turned(20.0);
-        pilot.set_model(&large, [0.0; 3]);
+        pilot.set_model(&large, [0.0; 3], false);
         pilot.step(&imu, 1500).unwrap();
         assert_eq!(pilot.status.reforms, 1);
         assert!(flown(&pilot).angle_to(&q) < 1e-5, "20°: flying the new axis");
@@ -1683,7 +1687,7 @@ mod tests {
             learned.g1_per_speed2[1][j] = learned.g1_per_speed2[1][j].abs();
         }
         let mut pilot = Pilot::new(2000.0);
-        pilot.set_model(&learned, [0.0; 3]);
+        pilot.set_model(&learned, [0.0; 3], false);
         // Level: the thrust frame is the world's, so the IMU sits at q_U^T's inverse and reads
         // 1 g up along the thrust axis.
         let q_imu_thrust = learned.thrust_axis.unwrap().rotation_thrust_to_imu().unwrap();
