@@ -148,8 +148,8 @@ const HOLD_START_ACCEL_MPS2: f32 = 0.5;
 /// (the random world with wind, seed 681: 9.5 m downwind at the end, never holding). The
 /// position loop's velocity integral takes the push up. Counted while the flight is steady
 /// ([`STICKS_TAKE_OVER_S`] after the recovery levels it), and the hold starts at its end only if
-/// the craft's speed has changed by less than [`HOLD_START_SPEED_CHANGE`] of the speed it had
-/// when the wait began; otherwise it is still braking (or swinging back past rest, or speeding
+/// the craft's speed has lost less than [`HOLD_START_SPEED_CHANGE`] and gained less than
+/// [`HOLD_START_SPEED_GROWTH`] of the speed it had when the wait began; otherwise it is still braking (or swinging back past rest, or speeding
 /// up) and the wait begins again. A hold started while braking overshoots: the random world's
 /// seed 70 started one at 0.74 m/s and was 0.87 m off its setpoint.
 const HOLD_START_LATEST_S: f32 = 2.0;
@@ -162,16 +162,25 @@ const HOLD_START_LATEST_S: f32 = 2.0;
 /// one at 2 m/s).
 const HOLD_START_TIME_CONSTANTS: f32 = 4.0;
 
-/// The largest change of its horizontal speed over the wait, as a fraction of the speed at the
+/// The largest loss of its horizontal speed over the wait, as a fraction of the speed at the
 /// wait's start, of a craft that drifts at a steady speed (ours; plus [`HOLD_START_SPEED_MPS`]
-/// for turbulence and the fixes' noise, which move a slow drift by tenths of a m/s: seed 681
-/// with wind restarted its wait for seconds without it): a braking craft loses `1 − e⁻⁴` of its
-/// speed (98 %, [`HOLD_START_TIME_CONSTANTS`]); one held off by a steady push keeps it. A speed
-/// that grew by more than half is not steady either: at a heading alignment the velocity
-/// restarts from the dead reckoning (0.9 m/s for a craft flying at 8 m/s, GNSS seed 315 of the
-/// random receiver world) and then climbs back to the truth, and a hold started on that climb
-/// began at 3 m/s and strayed 3.2 m.
+/// for turbulence and the fixes' noise, which move a slow drift by tenths of a m/s): a braking
+/// craft loses `1 − e⁻⁴` of its speed (98 %, [`HOLD_START_TIME_CONSTANTS`]); one held off by a
+/// steady push keeps it.
 const HOLD_START_SPEED_CHANGE: f32 = 0.5;
+
+/// The largest gain of its horizontal speed over the wait, as a fraction of the speed at the
+/// wait's start, of a craft that drifts at a steady speed (ours; plus [`HOLD_START_SPEED_MPS`]).
+/// The drift is the level hold's `d / k_velocity`, and the drag `d` grows with the square of the
+/// airspeed: turbulence of 20 % of the wind (the random world's strongest, correlated over 1–3 s,
+/// as long as the wait) moves it by 40 % at 1σ, so a drifting craft's speed may double within
+/// a wait at 2.5σ (seed 681 of the random world in a 7 m/s wind went from 0.52 to 1.14 m/s, its
+/// wait began again, and it drifted 5.2 m before its hold started, against 2.4 m). A speed that
+/// grew by more is not a drift: at a heading alignment the velocity restarts from the dead
+/// reckoning (0.9 m/s for a craft flying at 8 m/s, GNSS seed 315 of the random receiver world)
+/// and then climbs back to the truth, and a hold started on that climb began at 3 m/s and strayed
+/// 3.2 m.
+const HOLD_START_SPEED_GROWTH: f32 = 1.0;
 
 /// How long a steady flight with fresh fixes waits for its heading alignment before it moves
 /// to make one, s (ours): the recovery from a throw usually moves the craft enough to align
@@ -1347,8 +1356,9 @@ impl Pilot {
             self.position_sp_ned_m = None;
         }
         // Waiting counts while the flight is steady; at its end the hold starts if the craft's
-        // speed has changed by less than half the one it had when the wait began (it is pushed
-        // at a steady speed, not braking), else the wait begins again from the speed it has now.
+        // speed has lost less than half the one it had when the wait began and at most doubled
+        // (it is pushed at a steady speed, not braking, nor is its estimate still climbing),
+        // else the wait begins again from the speed it has now.
         let steady = self.steady_s >= STICKS_TAKE_OVER_S;
         let speed_mps = flight::math::hypot(nav.velocity_ned_mps.x, nav.velocity_ned_mps.y);
         let mut pushed = false;
@@ -1360,9 +1370,14 @@ impl Pilot {
             // The wait's length is looked up only once its shortest length has passed.
             if self.hold_wait_s >= HOLD_START_LATEST_S && self.hold_wait_s >= self.hold_wait_len_s()
             {
-                let change_mps = (speed_mps - self.hold_wait_from_mps).abs();
-                pushed = change_mps
-                    <= HOLD_START_SPEED_CHANGE * self.hold_wait_from_mps + HOLD_START_SPEED_MPS;
+                let change_mps = speed_mps - self.hold_wait_from_mps;
+                let fraction = if change_mps < 0.0 {
+                    HOLD_START_SPEED_CHANGE
+                } else {
+                    HOLD_START_SPEED_GROWTH
+                };
+                pushed =
+                    change_mps.abs() <= fraction * self.hold_wait_from_mps + HOLD_START_SPEED_MPS;
                 self.hold_wait_s = 0.0;
             }
         } else {
