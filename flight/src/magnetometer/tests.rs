@@ -282,8 +282,8 @@ fn calibration_refusals_are_errors() {
     assert!(!noisy.add_sample(&Vector3::new(f32::NAN, 0.0, 0.0)));
 }
 
-/// A hemisphere (the craft never upside down) still calibrates, and says its coverage is a
-/// quarter of the whole sphere's.
+/// A hemisphere (the craft never upside down) still calibrates, to 2° of heading, and says its
+/// coverage is a quarter of the whole sphere's.
 #[test]
 fn a_hemisphere_calibrates_with_a_quarter_coverage() {
     let mut rng = Rng::new(12);
@@ -302,10 +302,10 @@ fn a_hemisphere_calibrates_with_a_quarter_coverage() {
     // 0.25 for the directions alone; the noise (up to 8 % of the field) spreads them further.
     assert!((calibration.coverage - 0.25).abs() < 0.06, "coverage {}", calibration.coverage);
     // One side of the ellipsoid pins its centre along the hemisphere's axis less well: the
-    // algebraic fit's noise bias shows (6.6° here with 1.5 µT of noise).
+    // plain algebraic fit's noise bias gave 6.6° here, the adjusted fit 1°.
     let error = worst_heading_error(&sensor, &calibration, &identity_alignment());
     std::println!("hemisphere: noise {:.2} µT, heading {:.2} deg", sensor.noise_ut, error / DEG);
-    assert!(error < 8.0 * DEG, "{} deg", error / DEG);
+    assert!(error < 2.0 * DEG, "{} deg", error / DEG);
 }
 
 fn alignment_data(
@@ -345,7 +345,7 @@ fn alignment_recovers_any_mounting_within_2_degrees() {
         // second half: any soft iron, where only the heading can be checked.
         let symmetric = case < 8;
         let sensor = Sensor::random(&mut rng, symmetric, mount);
-        let calibration = calibrate(&mut rng, &sensor, 5_000);
+        let calibration = calibrate(&mut rng, &sensor, 3_000);
         // Two minutes of hand turning at 10 Hz, attitude good to 0.5°.
         let attitudes: std::vec::Vec<_> = (0..1_200).map(|_| uniform_rotation(&mut rng)).collect();
         let estimator = alignment_data(
