@@ -33,8 +33,8 @@
 //! moment is replaced by its Hermite polynomial in the noise variance, which is unbiased for the
 //! noise-free moment, and the variance is the one that makes the adjusted matrix singular
 //! (bisection). The plain fit's bias grows with the noise squared and pulled the centre of a
-//! hemisphere's fit by enough for 6.6° of heading with 1 µT of noise; the adjusted fit is
-//! consistent. Shifting to the first sample makes the constant `d` about 0 (the origin lies on
+//! hemisphere's fit by enough for 6.6° of heading with 0.9 µT of noise (1° adjusted); the
+//! adjusted fit is consistent. Shifting to the first sample makes the constant `d` about 0 (the origin lies on
 //! the surface), which the unit-length constraint handles where the popular `d = −1`
 //! normalisation fails (an offset equal to the field's strength puts the sensor's origin on the
 //! ellipsoid). The noise is assumed white, isotropic and Gaussian.
@@ -89,6 +89,25 @@
 //! `H`, and a tilt error's leak of the vertical field into the horizontal (`V/H` times it). Near
 //! the magnetic poles `H` is small (below 5 µT where the dip exceeds about 84° in a 50 µT field):
 //! a heading from less than [`MIN_HORIZONTAL_FIELD_UT`] is refused.
+//!
+//! # Numbers
+//!
+//! `f32` in and out, as everywhere on the board; `f64` inside the fits (moments of fourth
+//! powers, 27 × 27 covariances), which run at the sensor's rate or once per calibration, in the
+//! background task, on the Cortex-M7's double-precision FPU (as the learner's RLS does). Nothing
+//! allocates; the largest state is the interference estimator's covariance.
+//!
+//! # Measured (the tests beside this file, synthetic sensors over the ranges)
+//!
+//! - Calibration from 3,000 samples at random orientations, hard iron ±300 µT, soft iron 20 %,
+//!   noise 0.3–2 µT, 25–65 µT at −70…+70°: worst heading error 0.93° over 24 sensors and a grid
+//!   of 840 attitudes (pitch ±60°, roll all round); hard iron within 0.14 µT. A hemisphere: 0.98°.
+//! - Mounting (any rotation, 180° about each axis included) from 1,200 pairs with 0.5° of
+//!   attitude error: within 0.2°; with soft iron that is not symmetric, the heading within 1.2°.
+//! - Interference of 50 % of the Earth's field at full thrust (4, 6, 8 motors), learned over a
+//!   spool-up and a minute of turning flight: the heading within 1.4° at every thrust (180° off
+//!   without); the monitor flags 176 of the 186 random disturbances of 25 % of the field that
+//!   turn the heading by more than 2°, and never noise alone.
 
 // Index loops read as the formulas; `!(x >= bound)` refuses NaN too.
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
@@ -973,10 +992,11 @@ pub struct MonitorConfig {
 }
 
 impl Default for MonitorConfig {
-    /// 0.5 s (a hundred samples at 100 Hz: 2 µT of noise averages to 0.2 µT, 0.5° of
-    /// inclination in a 25 µT field); 8 % of the strength (2 µT of a 25 µT field) and 3°: a
-    /// disturbance beyond either turns a horizontal field of half the strength by more than 2°
-    /// when it points across it.
+    /// 0.5 s (a hundred samples at 100 Hz: 2 µT of noise averages to about 0.2 µT, 0.5° of
+    /// inclination in a 25 µT field); 8 % of the strength and 3° of inclination, several times
+    /// that averaged noise, so noise alone never trips them (tested over a minute), while a
+    /// disturbance of a quarter of the field trips one of them in nine cases out of ten where it
+    /// turns the heading by more than 2° (tested).
     fn default() -> Self {
         Self {
             time_constant_s: 0.5,
