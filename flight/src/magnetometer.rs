@@ -34,8 +34,8 @@
 //! noise-free moment, and the variance is the one that makes the adjusted matrix singular
 //! (bisection). The plain fit's bias grows with the noise squared and pulled the centre of a
 //! hemisphere's fit by enough for 6.6° of heading with 0.9 µT of noise (1° adjusted); the
-//! adjusted fit is consistent. Shifting to the first sample makes the constant `d` about 0 (the origin lies on
-//! the surface), which the unit-length constraint handles where the popular `d = −1`
+//! adjusted fit is consistent. Shifting to the first sample makes the constant `d` about 0 (the
+//! origin lies on the surface), which the unit-length constraint handles where the popular `d = −1`
 //! normalisation fails (an offset equal to the field's strength puts the sensor's origin on the
 //! ellipsoid). The noise is assumed white, isotropic and Gaussian.
 //!

@@ -1,11 +1,11 @@
 //! iSentek IST8310 3-axis magnetometer on I²C: identity check, configuration, single
 //! measurements, decoding to microtesla, and the compass's health.
 //!
-//! Why: the IST8310 is the compass of many GNSS masts (Holybro, CUAV, DJI's RoboMaster boards);
-//! the heading outdoors comes from it where it is fitted (`flight::magnetometer`). The board
-//! adapts its I²C peripheral to [`I2cRegisterBus`], calls [`Ist8310::init`] once, then
-//! [`Ist8310::read`] at [`MEASUREMENT_RATE_HZ`] or slower: each read collects the measurement the
-//! previous one started and starts the next.
+//! Why: the IST8310 is the compass of many GNSS masts (and of DJI's RoboMaster development
+//! board); the heading outdoors comes from it where it is fitted (`flight::magnetometer`). The
+//! board adapts its I²C peripheral to [`I2cRegisterBus`], calls [`Ist8310::init`] once, then
+//! [`Ist8310::read`] at [`MEASUREMENT_RATE_HZ`] or slower: each read collects the measurement
+//! the previous one started and starts the next.
 //!
 //! Register map and values (iSentek IST8310 datasheet, section "register map"; the same values
 //! as PX4's `iSentek/ist8310` driver and ArduPilot's `AP_Compass_IST8310`):
@@ -59,7 +59,8 @@ pub const CNTL2_SOFT_RESET: u8 = 0x01;
 pub const AVGCNTL_16_TIMES: u8 = 0x24;
 /// PDCNTL: normal pulse duration (bits 7:6 = 11).
 pub const PDCNTL_NORMAL: u8 = 0xC0;
-/// Wait after the soft reset, µs: PX4 and ArduPilot wait tens of milliseconds; 50 ms.
+/// Wait after the soft reset before the identity is read, µs: 50 ms, a generous margin (we
+/// found no reset time in the datasheet to cite).
 pub const SOFT_RESET_WAIT_US: u32 = 50_000;
 /// Sensitivity, µT per LSB (datasheet).
 pub const UT_PER_LSB: f32 = 0.3;
@@ -72,7 +73,7 @@ pub const MAX_COUNT_XY: i16 = 5_334;
 /// The largest valid count on Z (2500 µT / 0.3 µT, rounded up).
 pub const MAX_COUNT_Z: i16 = 8_334;
 /// The rate a single measurement is read and restarted at, Hz: with 16 times averaging a
-/// measurement takes several milliseconds; PX4 and ArduPilot poll at 100 Hz.
+/// measurement takes several milliseconds; ArduPilot's driver polls every 10 ms.
 pub const MEASUREMENT_RATE_HZ: u32 = 100;
 /// Bytes of one read: STAT1 then the six data registers.
 pub const READ_LEN: usize = 7;

@@ -61,7 +61,8 @@ pub const SET_RESET_PERIOD_VALUE: u8 = 0x01;
 pub const CONTROL1_VALUE: u8 = (0b00 << 6) | (0b01 << 4) | (0b10 << 2) | 0b01;
 /// Output data rate of [`CONTROL1_VALUE`], Hz.
 pub const OUTPUT_RATE_HZ: u32 = 100;
-/// Wait after the soft reset, µs: the datasheet's power-on time is a few ms; 10 ms.
+/// Wait after the soft reset before the identity is read, µs: 10 ms, a margin (we found no
+/// reset time in the datasheet to cite).
 pub const SOFT_RESET_WAIT_US: u32 = 10_000;
 /// Sensitivity at ±8 G, LSB per gauss (datasheet table 2).
 pub const LSB_PER_GAUSS: f32 = 3_000.0;
