@@ -74,8 +74,11 @@
 //! The currents in the motors' wires and windings add a field `C u` in the sensor's axes. The
 //! estimator learns `C` (3 × motors) and the world field `h` (3) together by recursive least
 //! squares: `Q_k Rᵀ m_k = h + Q_k Rᵀ C u_k` is linear in both, so the craft may turn while it
-//! learns; it needs the thrust to change (a spool-up after a throw, climbs and descents) to tell
-//! `C u` from `h`. The monitor detects what is not compensated: the calibrated field's norm and
+//! learns. It tells `C u` from `h` when the thrust changes (a spool-up after a throw, climbs and
+//! descents) or the craft turns (the motors' field turns with it, the Earth's does not); hovering
+//! at one thrust on one heading it cannot, and its standard deviation of `C u`
+//! ([`InterferenceEstimator::interference_ut`]) says so. Telling each motor's share apart needs
+//! the motors' thrusts to differ (attitude control does that). The monitor detects what is not compensated: the calibrated field's norm and
 //! inclination (the angle below the horizontal, from the attitude's roll and pitch) low-passed
 //! and compared with their values with the motors off. A disturbance that turns the field about
 //! the vertical without changing its strength changes neither and is not detected: the

@@ -320,6 +320,23 @@ fn calibration_refusals_are_errors() {
     assert!(!noisy.add_sample(&Vector3::new(f32::NAN, 0.0, 0.0)));
 }
 
+/// A frozen sensor (every sample the same) is refused, not fitted.
+#[test]
+fn a_frozen_sensor_does_not_calibrate() {
+    let mut calibrator = EllipsoidCalibrator::new();
+    for _ in 0..500 {
+        calibrator.add_sample(&Vector3::new(120.0, -40.0, 35.0));
+    }
+    let result = calibrator.solve();
+    assert!(
+        matches!(
+            result,
+            Err(CalibrationError::NotAnEllipsoid | CalibrationError::InsufficientCoverage { .. })
+        ),
+        "{result:?}"
+    );
+}
+
 /// A hemisphere (the craft never upside down) still calibrates, to 2° of heading, and says its
 /// coverage is a quarter of the whole sphere's.
 #[test]
@@ -587,6 +604,42 @@ fn interference_compensated_within_2_degrees() {
     std::println!(
         "worst heading error compensated {worst_compensated_deg:.2} deg, raw {worst_raw_deg:.1} deg"
     );
+}
+
+/// Hovering at one thrust on one heading cannot tell the motors' field from the Earth's: the
+/// estimator says so with a large standard deviation of the interference. Turning at that
+/// thrust tells them apart (the motors' field turns with the craft, the Earth's does not), and
+/// so does a spool-up without turning.
+#[test]
+fn interference_uncertainty_says_what_was_learned() {
+    let mut rng = Rng::new(31);
+    let world = field(45.0, 1.0, 0.0);
+    let c = Vector3::new(8.0, -5.0, 3.0); // each of 4 motors at full thrust, µT
+    let learn = |rng: &mut Rng, spool_up: bool, turning: bool| {
+        let mut estimator = InterferenceEstimator::new(4, InterferenceConfig::default());
+        for k in 0..2_000 {
+            let t = f64::from(k) / 50.0;
+            let u = if spool_up && t < 2.0 { 0.0 } else { 0.5 };
+            let q = if turning {
+                UnitQuaternion::from_euler_angles(0.2 * t.sin(), 0.2 * t.cos(), 0.3 * t)
+            } else {
+                UnitQuaternion::from_euler_angles(0.05, -0.03, 1.0)
+            };
+            let m = q.inverse_transform_vector(&world)
+                + c * (4.0 * u)
+                + Vector3::from_fn(|_, _| rng.normal());
+            estimator.update(&m.cast(), &q.cast(), &UnitQuaternion::identity(), &[u as f32; 4]);
+        }
+        estimator.interference_ut(&[1.0; 4])
+    };
+    let (_, still_std) = learn(&mut rng, false, false);
+    assert!(still_std > 20.0, "hovering still: {still_std} µT");
+    for (spool_up, turning) in [(false, true), (true, false)] {
+        let (field_ut, std) = learn(&mut rng, spool_up, turning);
+        assert!(std < 1.0, "spool-up {spool_up}, turning {turning}: {std} µT");
+        let error = (field_ut.cast::<f64>() - c * 4.0).norm();
+        assert!(error < 3.0 * f64::from(std) + 0.1, "off by {error} µT, std {std} µT");
+    }
 }
 
 /// The monitor: no alarm from noise alone over a minute; an alarm within a second when motors
