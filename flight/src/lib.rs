@@ -23,6 +23,7 @@ pub mod filters;
 pub mod imu;
 pub mod indi;
 pub mod learner;
+pub mod magnetometer;
 pub mod math;
 pub mod navigation;
 pub mod position;

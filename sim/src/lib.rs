@@ -15,6 +15,7 @@ pub mod identification;
 pub mod imu;
 pub mod log;
 pub mod log_dir;
+pub mod magnetometer;
 pub mod monte_carlo;
 pub mod physics;
 pub mod pose_line;
