@@ -920,7 +920,13 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     let drift = state.position_ned_m - land_from_ned_m;
                     landing.horizontal_drift_m = Some(drift.xy().norm());
                 }
-            } else if state.position_ned_m.z >= 0.0 && report.landing.is_none() {
+            } else if board.physics().model().gear_height_m(&state) <= 0.0
+                && report.landing.is_none()
+            {
+                // On the ground before any landing: its gear holds the centre of gravity a few
+                // centimetres up, so the gear's contact is the test, not the centre's height (a
+                // recovery that slid along the ground and then "hovered" on its gear until the
+                // hand-catch detector stopped it, GNSS and wind seed 220, was not counted as one).
                 report.outcome = if report.release_to_engage_s.is_some() {
                     Outcome::Ground
                 } else {
