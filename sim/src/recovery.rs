@@ -1089,6 +1089,9 @@ pub struct CaseResult {
     pub seed: u64,
     /// Motors.
     pub motors: usize,
+    /// The slowest motor's time constant, s: every loop's gain follows from it
+    /// (`flight::position::Gains::from_tau`), so what a disturbance leaves grows with it.
+    pub slowest_motor_tau_s: f64,
     /// What was measured.
     pub report: FlyReport,
     /// Its classification.
@@ -1108,7 +1111,9 @@ pub fn monte_carlo(
         let (airframe, config) = case(seed);
         let report = fly(&airframe, &config);
         let verdict = Verdict::of(&report);
-        CaseResult { seed, motors: airframe.rotor_count(), report, verdict }
+        let slowest_motor_tau_s =
+            (0..airframe.rotor_count()).map(|i| airframe.rotor_motor(i).tau_s).fold(0.0, f64::max);
+        CaseResult { seed, motors: airframe.rotor_count(), slowest_motor_tau_s, report, verdict }
     })
 }
 

@@ -408,6 +408,35 @@ fn print_after_recovery(results: &[sim::recovery::CaseResult]) {
     );
 }
 
+/// Upper edges of the bands of the slowest motor's time constant a Monte Carlo reports its holds
+/// in, s: the loops' gains scale as 1/τ, so a push the position loop must take up leaves a
+/// static error growing as τ² (`flight::position`), and a figure over all airframes hides where
+/// it fails.
+const MOTOR_TAU_BAND_EDGES_S: [f64; 3] = [0.03, 0.045, 0.06];
+
+/// Holds per band of [`MOTOR_TAU_BAND_EDGES_S`].
+fn print_by_motor_tau(results: &[sim::recovery::CaseResult]) {
+    let band_of = |tau: f64| MOTOR_TAU_BAND_EDGES_S.iter().take_while(|&&edge| tau >= edge).count();
+    for band in 0..=MOTOR_TAU_BAND_EDGES_S.len() {
+        let of: Vec<_> =
+            results.iter().filter(|r| band_of(r.slowest_motor_tau_s) == band).collect();
+        if of.is_empty() {
+            continue;
+        }
+        let held = of.iter().filter(|r| r.verdict == Verdict::Held).count();
+        let from_ms = if band == 0 { 0.0 } else { MOTOR_TAU_BAND_EDGES_S[band - 1] * 1e3 };
+        let range = match MOTOR_TAU_BAND_EDGES_S.get(band) {
+            Some(edge) => format!("{from_ms:.0}–{:.0} ms", edge * 1e3),
+            None => format!("≥ {from_ms:.0} ms"),
+        };
+        println!(
+            "  slowest motor τ {range}: {} runs, held {held} ({:.1} %)",
+            of.len(),
+            100.0 * held as f64 / of.len() as f64
+        );
+    }
+}
+
 /// How far from where it recovered a craft with a fresh pose may end its flight, m (issue 53).
 const END_FROM_RECOVERY_LIMIT_M: f64 = 2.0;
 
@@ -1073,6 +1102,7 @@ fn main() -> ExitCode {
                     println!("  {motors} motors: {} runs, held {held}", of.len());
                 }
             }
+            print_by_motor_tau(&results);
         }
     }
     ExitCode::SUCCESS
