@@ -27,6 +27,23 @@ pub trait I2cRegisterBus {
         first_reg: u8,
         buf: &mut [u8],
     ) -> Result<(), Self::Error>;
+
+    /// [`Self::write_register`], a bus failure as [`CompassError::Bus`].
+    fn write_one(
+        &mut self,
+        address: u8,
+        reg: u8,
+        value: u8,
+    ) -> Result<(), CompassError<Self::Error>> {
+        self.write_register(address, reg, value).map_err(CompassError::Bus)
+    }
+
+    /// One register of the device at `address`, a bus failure as [`CompassError::Bus`].
+    fn read_one(&mut self, address: u8, reg: u8) -> Result<u8, CompassError<Self::Error>> {
+        let mut buf = [0u8; 1];
+        self.read_registers(address, reg, &mut buf).map_err(CompassError::Bus)?;
+        Ok(buf[0])
+    }
 }
 
 pub use super::icm42688::DelayUs;
@@ -202,8 +219,17 @@ pub(crate) fn le_i16(low: u8, high: u8) -> i16 {
 pub(crate) mod mock {
     //! A mock I²C bus for the compass drivers' tests: one device's 256 registers at one address,
     //! every access recorded.
-    use super::I2cRegisterBus;
+    use super::{DelayUs, I2cRegisterBus};
     use std::vec::Vec;
+
+    /// A delay that only counts the microseconds asked of it.
+    pub struct NoDelay(pub u32);
+
+    impl DelayUs for NoDelay {
+        fn delay_us(&mut self, us: u32) {
+            self.0 += us;
+        }
+    }
 
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]
     pub enum Op {

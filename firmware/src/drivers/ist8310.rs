@@ -119,22 +119,22 @@ impl<B: I2cRegisterBus> Ist8310<B> {
     /// Soft reset, wait, check WAI, set the averaging and pulse duration, read them back, and
     /// start the first measurement. Nothing more is written after a WAI mismatch.
     pub fn init<D: DelayUs>(&mut self, delay: &mut D) -> Result<(), CompassError<B::Error>> {
-        self.write(reg::CNTL2, CNTL2_SOFT_RESET)?;
+        self.bus.write_one(self.address, reg::CNTL2, CNTL2_SOFT_RESET)?;
         delay.delay_us(SOFT_RESET_WAIT_US);
-        let wai = self.read_one(reg::WAI)?;
+        let wai = self.bus.read_one(self.address, reg::WAI)?;
         if wai != WAI_VALUE {
             return Err(CompassError::WrongDevice { expected: WAI_VALUE, read: wai });
         }
         for (register, value) in [(reg::AVGCNTL, AVGCNTL_16_TIMES), (reg::PDCNTL, PDCNTL_NORMAL)] {
-            self.write(register, value)?;
+            self.bus.write_one(self.address, register, value)?;
         }
         for (register, value) in [(reg::AVGCNTL, AVGCNTL_16_TIMES), (reg::PDCNTL, PDCNTL_NORMAL)] {
-            let read = self.read_one(register)?;
+            let read = self.bus.read_one(self.address, register)?;
             if read != value {
                 return Err(CompassError::ConfigMismatch { register, written: value, read });
             }
         }
-        self.write(reg::CNTL1, CNTL1_SINGLE_MEASUREMENT)
+        self.bus.write_one(self.address, reg::CNTL1, CNTL1_SINGLE_MEASUREMENT)
     }
 
     /// Collect the measurement started before and start the next one; the health report
@@ -150,7 +150,7 @@ impl<B: I2cRegisterBus> Ist8310<B> {
         let result = if matches!(result, Err(CompassError::NotReady)) {
             result
         } else {
-            match self.write(reg::CNTL1, CNTL1_SINGLE_MEASUREMENT) {
+            match self.bus.write_one(self.address, reg::CNTL1, CNTL1_SINGLE_MEASUREMENT) {
                 Err(e) if result.is_ok() => Err(e),
                 _ => result,
             }
@@ -158,31 +158,14 @@ impl<B: I2cRegisterBus> Ist8310<B> {
         self.monitor.record(&result);
         result
     }
-
-    fn write(&mut self, register: u8, value: u8) -> Result<(), CompassError<B::Error>> {
-        self.bus.write_register(self.address, register, value).map_err(CompassError::Bus)
-    }
-
-    fn read_one(&mut self, register: u8) -> Result<u8, CompassError<B::Error>> {
-        let mut buf = [0u8; 1];
-        self.bus.read_registers(self.address, register, &mut buf).map_err(CompassError::Bus)?;
-        Ok(buf[0])
-    }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::super::compass::mock::{MockBus, Nack, Op};
+    use super::super::compass::mock::{MockBus, Nack, NoDelay, Op};
     use super::super::compass::CompassState;
     use super::*;
     use std::vec::Vec;
-
-    struct NoDelay(u32);
-    impl DelayUs for NoDelay {
-        fn delay_us(&mut self, us: u32) {
-            self.0 += us;
-        }
-    }
 
     fn device() -> MockBus {
         let mut bus = MockBus::new(DEFAULT_ADDRESS);

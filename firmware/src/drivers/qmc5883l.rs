@@ -112,19 +112,19 @@ impl<B: I2cRegisterBus> Qmc5883l<B> {
     /// starts continuous measurement), and read both back. Nothing more is written after a chip
     /// ID mismatch.
     pub fn init<D: DelayUs>(&mut self, delay: &mut D) -> Result<(), CompassError<B::Error>> {
-        self.write(reg::CONTROL2, CONTROL2_SOFT_RESET)?;
+        self.bus.write_one(self.address, reg::CONTROL2, CONTROL2_SOFT_RESET)?;
         delay.delay_us(SOFT_RESET_WAIT_US);
-        let id = self.read_one(reg::CHIP_ID)?;
+        let id = self.bus.read_one(self.address, reg::CHIP_ID)?;
         if id != CHIP_ID_VALUE {
             return Err(CompassError::WrongDevice { expected: CHIP_ID_VALUE, read: id });
         }
         let config =
             [(reg::SET_RESET_PERIOD, SET_RESET_PERIOD_VALUE), (reg::CONTROL1, CONTROL1_VALUE)];
         for (register, value) in config {
-            self.write(register, value)?;
+            self.bus.write_one(self.address, register, value)?;
         }
         for (register, value) in config {
-            let read = self.read_one(register)?;
+            let read = self.bus.read_one(self.address, register)?;
             if read != value {
                 return Err(CompassError::ConfigMismatch { register, written: value, read });
             }
@@ -140,7 +140,7 @@ impl<B: I2cRegisterBus> Qmc5883l<B> {
     }
 
     fn read_inner(&mut self) -> Result<CompassReading, CompassError<B::Error>> {
-        let status = self.read_one(reg::STATUS)?;
+        let status = self.bus.read_one(self.address, reg::STATUS)?;
         if status & STATUS_DRDY == 0 {
             return Err(CompassError::NotReady);
         }
@@ -150,31 +150,14 @@ impl<B: I2cRegisterBus> Qmc5883l<B> {
             .map_err(CompassError::Bus)?;
         decode(status, &data)
     }
-
-    fn write(&mut self, register: u8, value: u8) -> Result<(), CompassError<B::Error>> {
-        self.bus.write_register(self.address, register, value).map_err(CompassError::Bus)
-    }
-
-    fn read_one(&mut self, register: u8) -> Result<u8, CompassError<B::Error>> {
-        let mut buf = [0u8; 1];
-        self.bus.read_registers(self.address, register, &mut buf).map_err(CompassError::Bus)?;
-        Ok(buf[0])
-    }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::super::compass::mock::{MockBus, Nack, Op};
+    use super::super::compass::mock::{MockBus, Nack, NoDelay, Op};
     use super::super::compass::CompassState;
     use super::*;
     use std::vec::Vec;
-
-    struct NoDelay(u32);
-    impl DelayUs for NoDelay {
-        fn delay_us(&mut self, us: u32) {
-            self.0 += us;
-        }
-    }
 
     fn device() -> MockBus {
         let mut bus = MockBus::new(DEFAULT_ADDRESS);
