@@ -510,6 +510,7 @@ impl Controller {
             yaw_sp,
             &self.gains,
             self.tilt_decel_rad_s2,
+            holding,
         );
         // Leaning forward is a negative rotation about the thrust frame's y (its nose goes
         // down), leaning right a positive one about x.
@@ -519,17 +520,10 @@ impl Controller {
         let (rate_sp, tilt_error_rad) = (command.rate_sp_rad_s + rate_ff, command.tilt_error_rad);
         let accel_sp = (rate_sp - rate) * self.gains.k_rate + command.accel_ff_rad_s2 + accel_ff;
         let accel_sp = ahead_of_yaw(&accel_sp, rate.z, TILT_LAG_TAUS * self.gains.tau_s);
-        // The thrust along the measured direction (`attitude_loop`) in a hold, where the vertical
-        // is the slow position loop's and a force 1/cos θ − 1 too large (10 % at the cone) would
-        // hold the craft off its setpoint by a static error (the random world in wind climbed
-        // 0.26 m, seed 7); elsewhere the vertical is a climb-rate loop at `k_rate`, stiff enough
-        // to take that up, and a recovery on a poor model is no time to take thrust away. 1,000
-        // random worlds in a 0–8 m/s wind (`fly --end land monte-carlo --world random --wind`):
-        // held within 0.3 m 911 → 942 (939 with it in every phase, where a calm recovery, seed
-        // 70, swung back 0.24 m further).
-        let thrust_mps2 = if holding { command.thrust_mps2 } else { crate::math::norm(&f_sp) };
-        let reference =
-            IndiReference { specific_force_z_mps2: -thrust_mps2, angular_accel_rad_s2: accel_sp };
+        let reference = IndiReference {
+            specific_force_z_mps2: -command.thrust_mps2,
+            angular_accel_rad_s2: accel_sp,
+        };
         let indi = self.indi.update(input.gyro_rad_s, input.accel_mps2, &reference)?;
         Ok(ControllerOutput {
             indi,
@@ -623,7 +617,17 @@ pub fn tilt_rate_and_feed_forward(
 /// `yaw_sp_rad`, with the thrust frame at `q_world_thrust` turning at `rate_rad_s` (thrust frame),
 /// the motors pushing the craft towards `−thrust_down_t` (unit, thrust frame; (0, 0, 1) for the
 /// model's axis, see [`ThrustDirection`]), planning to decelerate large tilts at
-/// `tilt_decel_rad_s2` ([`tilt_rate_rad_s`]).
+/// `tilt_decel_rad_s2` ([`tilt_rate_rad_s`]). With `thrust_along_measured` (a position hold)
+/// the thrust asked gives `|f_sp|` along the measured direction, else along the thrust axis.
+///
+/// Why only in a hold: there the vertical is the slow position loop's, and a force 1/cos θ − 1
+/// too large (10 % at the cone) holds the craft off its setpoint by a static error (the random
+/// world in wind climbed 0.26 m, seed 7); elsewhere the vertical is a climb-rate loop at
+/// `k_rate`, stiff enough to take that up, and a recovery on a poor model is no time to take
+/// thrust away. 1,000 random worlds in a 0–8 m/s wind (`fly --end land monte-carlo --world
+/// random --wind`): held within 0.3 m 911 → 942 (939 with it in every phase, where a calm
+/// recovery, seed 70, swung back 0.24 m further).
+#[allow(clippy::too_many_arguments)]
 pub fn attitude_loop(
     q_world_thrust: &UnitQuaternion<f32>,
     thrust_down_t: &Vector3<f32>,
@@ -632,6 +636,7 @@ pub fn attitude_loop(
     yaw_sp_rad: f32,
     gains: &Gains,
     tilt_decel_rad_s2: f32,
+    thrust_along_measured: bool,
 ) -> AttitudeCommand {
     let f_norm = crate::math::norm(f_sp);
     // The wanted thrust-frame z ("down" of the craft) in the world: opposite the specific force.
@@ -659,9 +664,8 @@ pub fn attitude_loop(
     }
     // INDI holds the thrust-frame z of the measured specific force at `−thrust`; with the motors
     // pushing along `thrust_down_t`, θ off that z, the force along it is `thrust / cos θ`, so
-    // ask `|f_sp| cos θ` of z for `|f_sp|` along the wanted direction (at the 25° cone, 10 % of
-    // the thrust otherwise too much).
-    let thrust_mps2 = f_norm * thrust_down_t.z;
+    // ask `|f_sp| cos θ` of z for `|f_sp|` along the wanted direction.
+    let thrust_mps2 = if thrust_along_measured { f_norm * thrust_down_t.z } else { f_norm };
     AttitudeCommand {
         rate_sp_rad_s: rate_sp,
         accel_ff_rad_s2: accel_ff,
@@ -828,6 +832,7 @@ mod tests {
                 0.0,
                 &gains,
                 0.0,
+                true,
             );
             // INDI holds the measured force's thrust-frame z at the thrust: along `down`, that
             // force is `thrust / down.z`.

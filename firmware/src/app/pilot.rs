@@ -149,8 +149,8 @@ const HOLD_START_ACCEL_MPS2: f32 = 0.5;
 /// position loop's velocity integral takes the push up. Counted while the flight is steady
 /// ([`STICKS_TAKE_OVER_S`] after the recovery levels it), and the hold starts at its end only if
 /// the craft's speed has lost less than [`HOLD_START_SPEED_CHANGE`] and gained less than
-/// [`HOLD_START_SPEED_GROWTH`] of the speed it had when the wait began; otherwise it is still braking (or swinging back past rest, or speeding
-/// up) and the wait begins again. A hold started while braking overshoots: the random world's
+/// [`HOLD_START_SPEED_GROWTH`] of the speed it had when the wait began; otherwise it is still
+/// braking (or swinging back past rest, or speeding up) and the wait begins again. A hold started while braking overshoots: the random world's
 /// seed 70 started one at 0.74 m/s and was 0.87 m off its setpoint.
 const HOLD_START_LATEST_S: f32 = 2.0;
 
