@@ -194,11 +194,15 @@ const NUDGE_AFTER_S: f32 = 1.0;
 
 /// The nudge's velocity ramp, m/s², and the shortest length of its quarter cycle, s (ours):
 /// the level hold follows a triangle of velocity, `+a` for a quarter, `−a` for a half, `+a` for
-/// a quarter, back at rest where it began (`a Q²` away at most: 0.16 m for 0.4 s), along the
-/// filter's x, then its y, and so on until the alignment is trusted. At 1 m/s² (the alignment's
-/// reference acceleration, `flight::navigation::ALIGNMENT_REFERENCE_ACCEL_MPS2`) one cycle of
-/// 1.6 s gives the evidence it asks for (`ALIGNMENT_EVIDENCE_S`, 0.2 s at 2 m/s²) with motion
-/// capture; a constant acceleration the dead reckoning misses cancels over a cycle.
+/// a quarter, back at rest where it began (`a Q²` away at most: 0.32 m for 0.4 s), along the
+/// filter's x, then its y, and so on until the alignment is trusted. A constant acceleration
+/// the dead reckoning misses cancels over a cycle. 2 m/s², twice the alignment's reference
+/// acceleration (`flight::navigation::ALIGNMENT_REFERENCE_ACCEL_MPS2`): the evidence grows as
+/// the square of the acceleration, and what the nudge must outweigh is the drift of a filter a
+/// tumble left tilted, `g · sin e`, 1.4 m/s² at 8° (the random receiver world's seeds 110 and
+/// 160, which drifted 46 and 49 m before their alignment at 1 m/s²). Measured on 1,000 runs of
+/// that world: ending more than 2 m from the recovery 141 → 130 at 2 m/s²; the default receiver
+/// and motion capture unchanged.
 ///
 /// With a GNSS receiver's velocity the quarter is half the velocity alignment's window
 /// (`HeadingAlignment::velocity_window_s`, up to 2 s for 0.2 m/s of velocity noise), so the
@@ -206,8 +210,8 @@ const NUDGE_AFTER_S: f32 = 1.0;
 /// window shows nothing (a velocity back where it was), which kept receivers with more than
 /// about 0.15 m/s of velocity noise from learning their heading (the random world's seed 73
 /// drifted 18 m; with the longer quarter it holds within 0.34 m). The excursion then reaches
-/// `a Q²` = 1 m.
-const NUDGE_ACCEL_MPS2: f32 = 1.0;
+/// `a Q²` = 2 m.
+const NUDGE_ACCEL_MPS2: f32 = 2.0;
 const NUDGE_QUARTER_S: f32 = 0.4;
 
 /// The velocity the nudge asks for `t_s` into it with quarter cycles of `quarter_s`, filter's
@@ -888,16 +892,38 @@ impl Pilot {
         if outcome == Ok(FixOutcome::Rejected) {
             self.status.fixes_rejected = self.status.fixes_rejected.wrapping_add(1);
         }
-        if matches!(outcome, Ok(FixOutcome::Taken | FixOutcome::Reset)) {
+        if let Ok(outcome) = outcome {
             let (position, age_s) = (fix.position_ned_m, fix.age_s);
             let before = self.alignment.yaw_rad();
-            self.alignment.fix(&position, age_s);
+            // The estimator refuses a position that strays from its prediction, but before the
+            // alignment that prediction is flown in the wrong world: a craft whose filter is
+            // tilted accelerates where its dead reckoning sees nothing, and every fix would be
+            // refused while it drifts (the random receiver world's seed 131: 9 s without a
+            // velocity for the alignment, 25 m/s). The velocity alignment compares differences
+            // over its window and needs no prediction; a Doppler velocity hardly moves with
+            // multipath. Refused positions stay out of the position alignment.
+            if outcome != FixOutcome::Rejected {
+                self.alignment.fix(&position, age_s);
+            }
             if let Some((velocity, noise)) = fix.velocity {
                 self.alignment.fix_velocity(&velocity, noise, age_s);
             }
             if self.alignment.yaw_rad().is_some() && before.is_none() {
-                // The accelerometer's world turned: restart the velocity from dead reckoning.
-                self.navigation.set_velocity(&self.dead_reckoned_velocity());
+                // The accelerometer's world turned: restart the velocity from the velocity fix
+                // carried forward by the dead reckoning since its time, or without one from
+                // the dead reckoning alone. Before the alignment nothing corrected the filter's
+                // tilt, and the dead reckoning missed what a tilted filter makes the craft do
+                // (the random receiver world's seed 315: 12° after an 845 °/s tumble, the dead
+                // reckoning at 2.2 m/s where the fixes said 7.8 m/s, and a hold that braked on
+                // the former went on for 3 s).
+                let restart = match fix.velocity {
+                    Some((velocity, _)) => {
+                        let since = self.alignment.dead_reckoned_change_since_mps(age_s);
+                        velocity + self.aligned_world(&since)
+                    }
+                    None => self.dead_reckoned_velocity(),
+                };
+                self.navigation.set_velocity(&restart);
             }
         }
     }
@@ -1019,8 +1045,12 @@ impl Pilot {
 
     /// The velocity by dead reckoning since the last rest, in the world the controller sees.
     fn dead_reckoned_velocity(&self) -> Vector3<f32> {
-        flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad())
-            * self.alignment.dead_reckoned_velocity_mps()
+        self.aligned_world(&self.alignment.dead_reckoned_velocity_mps())
+    }
+
+    /// A vector of the filter's world turned into the world the controller sees.
+    fn aligned_world(&self, filter_world: &Vector3<f32>) -> Vector3<f32> {
+        flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad()) * filter_world
     }
 
     /// What to fly now: the position setpoint when poses arrive and the world is aligned, else
@@ -1068,8 +1098,7 @@ impl Pilot {
                 .alignment
                 .velocity_window_s()
                 .map_or(NUDGE_QUARTER_S, |window_s| (0.5 * window_s).max(NUDGE_QUARTER_S));
-            flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad())
-                * nudge_velocity(into_s, quarter_s)
+            self.aligned_world(&nudge_velocity(into_s, quarter_s))
         } else {
             Vector3::zeros()
         }
