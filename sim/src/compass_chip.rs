@@ -107,6 +107,50 @@ impl ChipKind {
     }
 }
 
+/// Where a chip keeps what the simulation touches (the datasheets' register maps, as the
+/// firmware's drivers name them).
+struct RegisterMap {
+    identity: u8,
+    status: u8,
+    /// The first of the six data registers (X, Y, Z, low byte first).
+    first_data: u8,
+    /// Status bits: data ready, data skipped.
+    drdy: u8,
+    dor: u8,
+    /// The soft reset's register and bit.
+    reset: u8,
+    reset_bit: u8,
+    /// The register whose write starts conversions.
+    mode: u8,
+}
+
+impl ChipKind {
+    fn registers(self) -> RegisterMap {
+        match self {
+            ChipKind::Ist8310 => RegisterMap {
+                identity: ist8310::reg::WAI,
+                status: ist8310::reg::STAT1,
+                first_data: ist8310::reg::DATAXL,
+                drdy: ist8310::STAT1_DRDY,
+                dor: IST8310_STAT1_DOR,
+                reset: ist8310::reg::CNTL2,
+                reset_bit: ist8310::CNTL2_SOFT_RESET,
+                mode: ist8310::reg::CNTL1,
+            },
+            ChipKind::Qmc5883l => RegisterMap {
+                identity: qmc5883l::reg::CHIP_ID,
+                status: qmc5883l::reg::STATUS,
+                first_data: qmc5883l::reg::DATA_X_LSB,
+                drdy: qmc5883l::STATUS_DRDY,
+                dor: QMC5883L_STATUS_DOR,
+                reset: qmc5883l::reg::CONTROL2,
+                reset_bit: qmc5883l::CONTROL2_SOFT_RESET,
+                mode: qmc5883l::reg::CONTROL1,
+            },
+        }
+    }
+}
+
 /// A magnet brought next to the sensor.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Magnet {
@@ -204,14 +248,10 @@ impl SimCompassChip {
 
     fn power_on_registers(&mut self) {
         self.registers = [0; 256];
-        match self.kind {
-            ChipKind::Ist8310 => {
-                self.registers[usize::from(ist8310::reg::WAI)] = ist8310::WAI_VALUE
-            }
-            ChipKind::Qmc5883l => {
-                self.registers[usize::from(qmc5883l::reg::CHIP_ID)] = qmc5883l::CHIP_ID_VALUE;
-            }
-        }
+        *self.reg_mut(self.kind.registers().identity) = match self.kind {
+            ChipKind::Ist8310 => ist8310::WAI_VALUE,
+            ChipKind::Qmc5883l => qmc5883l::CHIP_ID_VALUE,
+        };
         self.conversion_due_s = None;
     }
 
@@ -272,96 +312,73 @@ impl SimCompassChip {
     /// flags set.
     fn convert(&mut self, q_world_imu: &UnitQuaternion<f64>, thrust: &[f64]) {
         self.conversions += 1;
-        let (status_reg, drdy, dor) = match self.kind {
-            ChipKind::Ist8310 => (ist8310::reg::STAT1, ist8310::STAT1_DRDY, IST8310_STAT1_DOR),
-            ChipKind::Qmc5883l => {
-                (qmc5883l::reg::STATUS, qmc5883l::STATUS_DRDY, QMC5883L_STATUS_DOR)
-            }
-        };
-        let mut status = self.reg(status_reg);
-        if status & drdy != 0 {
-            status |= dor;
+        let map = self.kind.registers();
+        let mut status = self.reg(map.status);
+        if status & map.drdy != 0 {
+            status |= map.dor;
         }
-        status |= drdy;
+        status |= map.drdy;
         if !self.frozen() {
             let mut field = self.sensor.sample(q_world_imu, thrust);
             if let Some(magnet) = self.faults.magnet.filter(|m| self.now_s >= m.from_s) {
                 field += Vector3::from(magnet.field_ut);
             }
             self.latest_field_ut = Some(field);
-            let (first_data, lsb_ut) = match self.kind {
-                ChipKind::Ist8310 => (ist8310::reg::DATAXL, self.kind.lsb_ut()),
+            let lsb_ut = match self.kind {
+                ChipKind::Ist8310 => self.kind.lsb_ut(),
                 ChipKind::Qmc5883l => {
                     let (_, range_ut, lsb_ut) = self.qmc_config();
                     let overflow = field.iter().any(|b| b.abs() > range_ut);
                     status = (status & !qmc5883l::STATUS_OVL)
                         | if overflow { qmc5883l::STATUS_OVL } else { 0 };
-                    (qmc5883l::reg::DATA_X_LSB, lsb_ut)
+                    lsb_ut
                 }
             };
             for (axis, b) in field.iter().enumerate() {
                 let count = (b / lsb_ut).round().clamp(f64::from(i16::MIN), f64::from(i16::MAX));
                 let bytes = (count as i16).to_le_bytes();
-                let at = usize::from(first_data) + 2 * axis;
+                let at = usize::from(map.first_data) + 2 * axis;
                 self.registers[at..at + 2].copy_from_slice(&bytes);
             }
         }
-        *self.reg_mut(status_reg) = status;
+        *self.reg_mut(map.status) = status;
     }
 
     /// A register write's effect.
     fn write(&mut self, reg: u8, value: u8) {
-        match self.kind {
-            ChipKind::Ist8310 => match reg {
-                ist8310::reg::WAI | ist8310::reg::STAT1 => {}
-                r if (ist8310::reg::DATAXL..ist8310::reg::DATAXL + 6).contains(&r) => {}
-                ist8310::reg::CNTL2 if value & ist8310::CNTL2_SOFT_RESET != 0 => {
-                    self.power_on_registers();
-                }
-                ist8310::reg::CNTL1 => {
-                    *self.reg_mut(reg) = value;
-                    self.conversion_due_s = (value & 0x0F == ist8310::CNTL1_SINGLE_MEASUREMENT)
-                        .then_some(self.now_s + IST8310_CONVERSION_S);
-                }
-                _ => *self.reg_mut(reg) = value,
-            },
-            ChipKind::Qmc5883l => match reg {
-                qmc5883l::reg::CHIP_ID | qmc5883l::reg::STATUS => {}
-                r if (qmc5883l::reg::DATA_X_LSB..qmc5883l::reg::DATA_X_LSB + 6).contains(&r) => {}
-                qmc5883l::reg::CONTROL2 if value & qmc5883l::CONTROL2_SOFT_RESET != 0 => {
-                    self.power_on_registers();
-                }
-                qmc5883l::reg::CONTROL1 => {
-                    *self.reg_mut(reg) = value;
-                    let (period_s, _, _) = self.qmc_config();
-                    self.conversion_due_s =
-                        (value & 0b11 == QMC5883L_MODE_CONTINUOUS).then_some(self.now_s + period_s);
-                }
-                _ => *self.reg_mut(reg) = value,
-            },
+        let map = self.kind.registers();
+        let read_only = reg == map.identity
+            || reg == map.status
+            || (map.first_data..map.first_data + 6).contains(&reg);
+        if read_only {
+            return;
+        }
+        if reg == map.reset && value & map.reset_bit != 0 {
+            self.power_on_registers();
+            return;
+        }
+        *self.reg_mut(reg) = value;
+        if reg == map.mode {
+            self.conversion_due_s = match self.kind {
+                ChipKind::Ist8310 => (value & 0x0F == ist8310::CNTL1_SINGLE_MEASUREMENT)
+                    .then_some(self.now_s + IST8310_CONVERSION_S),
+                ChipKind::Qmc5883l => (value & 0b11 == QMC5883L_MODE_CONTINUOUS)
+                    .then_some(self.now_s + self.qmc_config().0),
+            };
         }
     }
 
     /// A burst read's bytes, then its effect (reading data clears DRDY and DOR).
     fn read(&mut self, first_reg: u8, buf: &mut [u8]) {
+        let map = self.kind.registers();
         let mut read_data = false;
-        let (data, status_reg, clear) = match self.kind {
-            ChipKind::Ist8310 => {
-                (ist8310::reg::DATAXL, ist8310::reg::STAT1, ist8310::STAT1_DRDY | IST8310_STAT1_DOR)
-            }
-            ChipKind::Qmc5883l => (
-                qmc5883l::reg::DATA_X_LSB,
-                qmc5883l::reg::STATUS,
-                qmc5883l::STATUS_DRDY | QMC5883L_STATUS_DOR,
-            ),
-        };
         for (i, b) in buf.iter_mut().enumerate() {
             let r = first_reg.wrapping_add(i as u8);
             *b = self.reg(r);
-            read_data |= (data..data + 6).contains(&r);
+            read_data |= (map.first_data..map.first_data + 6).contains(&r);
         }
         if read_data {
-            *self.reg_mut(status_reg) &= !clear;
+            *self.reg_mut(map.status) &= !(map.drdy | map.dor);
         }
     }
 }
