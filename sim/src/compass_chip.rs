@@ -611,6 +611,45 @@ mod tests {
         }
     }
 
+    /// A soft reset puts back the power-on registers (the identity stays, the configuration
+    /// goes, nothing converts); a reader slower than the QMC5883L's conversions finds DOR with
+    /// DRDY, and reading the data clears both.
+    #[test]
+    fn a_soft_reset_and_a_skipped_sample_behave_as_the_datasheets_say() {
+        let q = UnitQuaternion::identity();
+        let mut ist = SimCompassChip::new(ChipKind::Ist8310, spec(7), 7);
+        let a = ist.address();
+        ist.write_register(a, ist8310::reg::AVGCNTL, ist8310::AVGCNTL_16_TIMES).unwrap();
+        ist.write_register(a, ist8310::reg::CNTL1, ist8310::CNTL1_SINGLE_MEASUREMENT).unwrap();
+        ist.write_register(a, ist8310::reg::CNTL2, ist8310::CNTL2_SOFT_RESET).unwrap();
+        ist.update(0.1, &q, &[]);
+        let mut bytes = [0u8; 3];
+        ist.read_registers(a, ist8310::reg::WAI, &mut bytes).unwrap();
+        assert_eq!(bytes, [ist8310::WAI_VALUE, 0, 0], "identity kept, no DRDY");
+        assert_eq!(ist.reg(ist8310::reg::AVGCNTL), 0);
+        assert_eq!(ist.conversions(), 0, "the reset stopped the measurement");
+        // The identity register ignores writes.
+        ist.write_register(a, ist8310::reg::WAI, 0x55).unwrap();
+        assert_eq!(ist.reg(ist8310::reg::WAI), ist8310::WAI_VALUE);
+
+        let mut qmc = SimCompassChip::new(ChipKind::Qmc5883l, spec(8), 8);
+        let a = qmc.address();
+        qmc.write_register(a, qmc5883l::reg::CONTROL1, qmc5883l::CONTROL1_VALUE).unwrap();
+        // Two conversions (at 10 and 20 ms of the 100 Hz series), neither read.
+        qmc.update(0.011, &q, &[]);
+        qmc.update(0.021, &q, &[]);
+        assert_eq!(qmc.conversions(), 2);
+        let status = qmc.reg(qmc5883l::reg::STATUS);
+        assert_eq!(status, qmc5883l::STATUS_DRDY | QMC5883L_STATUS_DOR);
+        let mut data = [0u8; 6];
+        qmc.read_registers(a, qmc5883l::reg::DATA_X_LSB, &mut data).unwrap();
+        assert_eq!(qmc.reg(qmc5883l::reg::STATUS), 0);
+        qmc.write_register(a, qmc5883l::reg::CONTROL2, qmc5883l::CONTROL2_SOFT_RESET).unwrap();
+        qmc.update(0.1, &q, &[]);
+        assert_eq!(qmc.conversions(), 2, "standby after the reset");
+        assert_eq!(qmc.reg(qmc5883l::reg::CHIP_ID), qmc5883l::CHIP_ID_VALUE);
+    }
+
     /// Faults through the firmware's drivers: a chip lost at 1 s is reported lost ten polls
     /// later, a frozen one stuck after 25 identical readings, a magnet beyond the range
     /// saturated after ten overflows; each chip healthy from its first readings to its fault.
