@@ -250,13 +250,19 @@ fn case(
     gnss: &Option<GnssModelConfig>,
     args: &WorldArgs,
 ) -> (Airframe, FlyConfig) {
-    let (airframe, mut config) = if aspects.is_empty() {
+    // The compass changes nothing the flight sees (yet): the nominal world stays nominal, its
+    // motion capture the command line's, with a compass drawn beside it.
+    let world_aspects = randomising(aspects);
+    let (mut airframe, mut config) = if world_aspects.is_empty() {
         let (airframe, mut config) = random_case(seed);
         config.motion_capture = motion_capture;
         (airframe, config)
     } else {
-        world::random_world_case(seed, aspects)
+        world::random_world_case(seed, &world_aspects)
     };
+    if aspects.contains(&Aspect::Compass) {
+        world::apply(Aspect::Compass, seed, &mut airframe, &mut config);
+    }
     if let Some(speed_mps) = args.wind_mps {
         world::apply_wind_at(seed, speed_mps, &mut config);
     }
@@ -266,6 +272,12 @@ fn case(
         config.gnss.clone_from(gnss);
     }
     (airframe, config)
+}
+
+/// The aspects that change the flown world: all but the compass, which is only stored with the
+/// case (`FlyConfig::compass`).
+fn randomising(aspects: &[Aspect]) -> Vec<Aspect> {
+    aspects.iter().copied().filter(|a| *a != Aspect::Compass).collect()
 }
 
 /// `label: median …, 90th …, 99th … (n runs)` of `values` times `scale`, in `unit`.
@@ -731,7 +743,7 @@ fn checked_aspects(
             return Err(ExitCode::from(2));
         }
     }
-    if !aspects.is_empty() && motion_capture != MotionCaptureConfig::default() {
+    if !randomising(&aspects).is_empty() && motion_capture != MotionCaptureConfig::default() {
         eprintln!("fly: the --mocap-* flags do not combine with --world random or --vary");
         return Err(ExitCode::from(2));
     }
@@ -840,8 +852,9 @@ fn main() -> ExitCode {
                     eprintln!("fly: {done}/{runs} runs");
                 }
             };
-            if !aspects.is_empty() {
-                let names: Vec<_> = aspects.iter().map(|a| a.name()).collect();
+            let randomised = randomising(&aspects);
+            if !randomised.is_empty() {
+                let names: Vec<_> = randomised.iter().map(|a| a.name()).collect();
                 println!("randomised: {}", names.join(", "));
             }
             if let Some(speed_mps) = world_args.wind_mps {
