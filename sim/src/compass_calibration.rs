@@ -66,6 +66,7 @@ use flight::magnetometer::{
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
+use crate::airframe::{MAX_ROTORS, STANDARD_GRAVITY_MPS2};
 use crate::compass_chip::{ChipKind, CountingDelay, Nack, SharedCompassChip, SimCompassChip};
 use crate::dynamics::{Derivative, State};
 use crate::imu::ImuModel;
@@ -104,8 +105,6 @@ const STEP_S: f64 = 0.0005;
 pub const ALIGNMENT_WINDOW_RAD: f64 = 2.0 * std::f64::consts::PI;
 /// The last part of the rest over which the gyro's offset is averaged, s.
 const GYRO_REST_AVERAGE_S: f64 = 2.0;
-/// Standard gravity, m/s² (NED: down).
-const GRAVITY_MPS2: f64 = 9.806_65;
 
 /// Why a dance gave no calibration.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -345,11 +344,11 @@ pub fn calibration_dance(
             accel_ned_mps2: accel_world,
             q_dot: nalgebra::Quaternion::identity(),
             rate_dot_body_rad_s2: rate_dot_body,
-            rotor_accel_rad_s2: [0.0; crate::airframe::MAX_ROTORS],
+            rotor_accel_rad_s2: [0.0; MAX_ROTORS],
             specific_force_body_mps2: q_world_body
-                .inverse_transform_vector(&(accel_world - Vector3::z() * GRAVITY_MPS2)),
+                .inverse_transform_vector(&(accel_world - Vector3::z() * STANDARD_GRAVITY_MPS2)),
         };
-        let (sample, _) = imu.sample(&state, &derivative, &[0.0; crate::airframe::MAX_ROTORS]);
+        let (sample, _) = imu.sample(&state, &derivative, &[0.0; MAX_ROTORS]);
         if dancing {
             turned_rad += sample.gyro_rad_s.norm() * STEP_S;
         }

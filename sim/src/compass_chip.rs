@@ -78,7 +78,7 @@ const QMC5883L_RANGES_GAUSS: [(f64, f64); 2] = [(2.0, 12_000.0), (8.0, 3_000.0)]
 /// QMC5883L output data rates by ODR (bits 3:2 of control 1), Hz (datasheet section 9).
 const QMC5883L_ODR_HZ: [f64; 4] = [10.0, 50.0, 100.0, 200.0];
 /// Microtesla per gauss.
-const UT_PER_GAUSS: f64 = 100.0;
+const UT_PER_GAUSS: f64 = qmc5883l::UT_PER_GAUSS as f64;
 
 /// Which chip.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
