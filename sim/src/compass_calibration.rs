@@ -19,7 +19,7 @@
 //! | what | how, range | why |
 //! |---|---|---|
 //! | rest | 3 s on the bench, level, a random heading (uniform), before the hand picks it up | a board is powered before it is calibrated; its attitude filter levels from the accelerometer |
-//! | path | each of the six faces of the craft turned down in turn (random order), 0–15° off (uniform), at a random heading, then a turn about the vertical of 90–450° (each: uniform; the turns share what the length leaves after the faces), each way at random; the dance stops at its length wherever it is | the procedure of QGroundControl's and Mission Planner's compass calibrations: every side down, turned about the vertical |
+//! | path | each of the six faces of the craft turned down in turn (random order), 0–15° off (uniform), at a random heading, then a turn about the vertical, each way at random: what the rate and length leave per face after a quarter turn to reach it, kept within 90–450°, times 0.8–1.2 (uniform); the dance stops at its length wherever it is | the procedure of QGroundControl's and Mission Planner's compass calibrations: every side down, turned about the vertical |
 //! | rate | 20–90 °/s (uniform), each leg ±30 % of it (uniform); the hand's angular speed follows a lag of 0.15 s | the brief's hand; a hand does not change its speed instantly |
 //! | wobble | per world axis three sinusoids of 0.5–2° at 0.5–3 Hz (uniform) in angle, and the hand's position 0.5–2 cm at 0.3–2 Hz per axis | a hand's tremor and sway; they make the accelerometer read more than gravity |
 //! | IMU | `crate::world`'s `imu` aspect for the seed (noise 1–3× the ICM-42688-P's, gyro bias ±0.5 °/s, accelerometer bias ±0.2 m/s², scale ±3 %, cross-axis ±2 %) on the random airframe of the seed (any IMU mounting), read at 2 kHz | the random world's IMU: the attitude drifts as the board's would |
@@ -35,8 +35,8 @@
 //!   out of the gyro from then on (the user is asked to hold the craft still before turning it,
 //!   as compass calibrations do; without it the 95th percentile below is 3.2°, not 2.7°);
 //! - the driver's reading (µT, sensor axes) goes into the calibrator as it comes, paired with the
-//!   filter's quaternion at the read (the reading is 0–16 ms old then: the conversion and the
-//!   poll);
+//!   filter's quaternion at the read (the reading is up to 14 ms old then: the IST8310's
+//!   measurement ends 6 ms after the read before, the QMC5883L converts every 10 ms);
 //! - the calibration is solved at the end of the dance; then the pairs (kept here; a board with
 //!   no room for them would turn the craft again) are calibrated and aligned **in windows** of
 //!   [`ALIGNMENT_WINDOW_RAD`] of rotation (the gyro's integral of |ω|), whose mountings are
