@@ -5,6 +5,8 @@ pub mod battery;
 pub mod board;
 pub mod bridge;
 pub mod calibration;
+pub mod compass_calibration;
+pub mod compass_chip;
 pub mod dshot;
 pub mod dynamics;
 pub mod faults;

@@ -31,7 +31,9 @@
 //!
 //! A draw depends only on the generator it is given, and the noise only on the seed of
 //! [`SimMagnetometer::new`], as the GNSS receiver's (`crate::gnss`). The flight simulation
-//! (`fly`) does not fly with it yet: the lead wires the heading.
+//! (`fly`) does not fly with it yet: the lead wires the heading. The random world draws one on
+//! request (`crate::world`, aspect `compass`), and `crate::compass_chip` puts it behind an
+//! IST8310's or a QMC5883L's registers for the firmware's drivers.
 
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 

@@ -29,6 +29,7 @@ use crate::dynamics::State;
 use crate::gnss::{GnssFeed, GnssModelConfig, GnssTruth};
 use crate::hand::GrabSpec;
 use crate::identification::{Scores, Throw, TrueModel};
+use crate::magnetometer::MagnetometerSpec;
 use crate::rng::Rng;
 use crate::scenario::{with_firmware_app, FirmwareApp, FlightApp};
 use firmware::app::{ControlCommand, ControlSettings, Failsafe, Param, Params, PoseConfig};
@@ -290,6 +291,11 @@ pub struct FlyConfig {
     /// is told the receiver's latency as a user would set it, and each solution reaches the
     /// control step as a position fix without heading.
     pub gnss: Option<GnssModelConfig>,
+    /// A compass on the craft, its field, iron, mounting, noise and motor interference
+    /// (`crate::magnetometer`; the random world's `compass` aspect draws it). Stored with the
+    /// case only: the flight does not use it yet (issue 55: the firmware's heading is wired
+    /// separately).
+    pub compass: Option<MagnetometerSpec>,
 }
 
 /// One sample of a flight flown from the sticks ([`FlyConfig::sticks`]), against the truth.
@@ -411,6 +417,7 @@ impl FlyConfig {
             sticks: Vec::new(),
             grab: GrabSpec::default(),
             gnss: None,
+            compass: None,
         }
     }
 }

@@ -19,21 +19,24 @@
 //! | `gust` (not in `--world random` unless `--gusts`) | a "1 − cos" gust of 2–8 m/s peak over 0.5–3 s starting 4–8 s after the start, and a step gust of 1–4 m/s for 0.3–1 s starting 4–10 s after it; each from a random bearing, up to 20° from the horizontal | gusts of a breezy day outdoors, the discrete gust of the airworthiness codes (CS-25.341) and a sharp-edged one, while the craft hovers |
 //! | `wind` (not in `--world random` unless `--wind`) | a steady horizontal wind of 0–8 m/s (uniform) from a uniform bearing, from the start of the run (the throw included); on it turbulence, each world axis a first-order Gauss–Markov process of σ = 10–20 % of the wind's speed + 0.1 m/s horizontally and half that vertically, correlation time 1–3 s | flying outdoors in up to a moderate breeze (Beaufort 4 ends at 7.9 m/s). The turbulence is a simplified stand-in for the low-altitude Dryden model (MIL-F-8785C, MIL-HDBK-1797): there σ is 0.1 of the wind at 20 ft vertically and about twice that horizontally near the ground, and the length scales of tens of metres pass a hovering craft in seconds at these speeds; one first-order process per axis with one correlation time keeps Dryden's longitudinal spectrum only |
 //! | `gnss` (not in `--world random` unless `--gnss-random`) | the craft flies on a simulated u-blox receiver instead of motion capture, drawn by [`GnssModelConfig::random`]: noise 0.02–2 m per horizontal axis (log-uniform) correlated over 2–60 s, vertically 1.5–2.5× that, white 5–30 % of it; 5–10 Hz; 50–150 ms late (the firmware told the drawn latency, as a user sets it); multipath jumps of 1–5 m for 1–10 s at up to one a minute; in half the draws dropouts of 0.5–5 s at up to one every 100 s | the issue's randomised receiver: RTK-like to a single-frequency receiver under trees, the rates and latencies of M8–M10 receivers with several constellations |
+//! | `compass` (not in `--world random` unless `--compass`) | a magnetometer on the craft, drawn by [`MagnetometerSpec::random`] (`crate::magnetometer`): the Earth's field 25–65 µT, inclination −70…+70°, declination −30…+30°; hard iron ±300 µT per axis; soft iron 0.8–1.2 per axis and ±0.2 cross-axis per element; mounted at any rotation (uniform on SO(3)); noise 0.3–2 µT per axis; read at 50–100 Hz; each motor's field a random direction, their sum at full thrust 0–50 % of the Earth's field (all uniform) | the field wherever people fly (IGRF-13: 22–67 µT at the surface; beyond ±70° of dip the horizontal field is too weak for a heading); a magnetised screw, strap or buzzer near the sensor; steel nearby and the sensor's own scale and cross-axis errors; a GNSS mast's sensor in any orientation; the IST8310 and QMC5883L with their averaging; the power wires 10–20 cm below a mast (issue 55). Stored with the case (`FlyConfig::compass`); the flight does not use it yet |
 //!
-//! `fly monte-carlo --world random` draws every aspect but `gust`, `wind` and `gnss` (added by
-//! `--gusts`, `--wind` and `--gnss-random`, so the hover figures of earlier worlds stay
-//! comparable); `--vary NAME` one at a time, so each aspect's pass rate is known alone
+//! `fly monte-carlo --world random` draws every aspect but `gust`, `wind`, `gnss` and `compass`
+//! (added by `--gusts`, `--wind`, `--gnss-random` and `--compass`, so the hover figures of earlier
+//! worlds stay comparable); `--vary NAME` one at a time, so each aspect's pass rate is known alone
 //! (docs/benchmarks.md; `--vary gnss` sweeps the receiver alone over the nominal world, its noise
 //! over 0.02–2 m); `--wind-mps X` draws the
 //! wind with its steady speed forced to X (bearing and turbulence as the seed draws them), for a
 //! sweep over the speed. A draw depends only on the case's seed and the aspect, so the same seed
-//! gives the same airframe, throw and world, and a world without `wind` or `gnss` flies as it did
-//! before the aspect existed.
+//! gives the same airframe, throw and world, and a world without `wind`, `gnss` or `compass` flies
+//! as it did before the aspect existed (each aspect draws from its own generator, so adding one
+//! changes no other draw).
 
 use nalgebra::Vector3;
 
 use crate::airframe::{Airframe, SpeedCurve};
 use crate::gnss::GnssModelConfig;
+use crate::magnetometer::MagnetometerSpec;
 use crate::recovery::{random_case, CaseResult, FlyConfig, MotionCaptureConfig};
 use crate::rng::Rng;
 
@@ -55,8 +58,12 @@ pub enum Aspect {
     /// A steady wind and turbulence for the whole run (not in [`Aspect::ALL`]).
     Wind,
     /// A GNSS receiver instead of motion capture, its noise, timing, multipath and dropouts
-    /// drawn (not in [`Aspect::ALL`]). Last, so that every other aspect's seed stays the same.
+    /// drawn (not in [`Aspect::ALL`]). After the others, so that every other aspect's seed
+    /// stays the same.
     Gnss,
+    /// A compass on the craft ([`MagnetometerSpec::random`]; not in [`Aspect::ALL`]). Last, so
+    /// that every other aspect's seed stays the same.
+    Compass,
 }
 
 impl Aspect {
@@ -75,11 +82,12 @@ impl Aspect {
             Aspect::Gust => "gust",
             Aspect::Wind => "wind",
             Aspect::Gnss => "gnss",
+            Aspect::Compass => "compass",
         }
     }
 
     /// The aspects drawn only when asked for, not by `--world random` ([`Aspect::ALL`]).
-    pub const ON_REQUEST: [Aspect; 3] = [Aspect::Gust, Aspect::Wind, Aspect::Gnss];
+    pub const ON_REQUEST: [Aspect; 4] = [Aspect::Gust, Aspect::Wind, Aspect::Gnss, Aspect::Compass];
 
     /// The aspect called `name`.
     pub fn parse(name: &str) -> Result<Self, String> {
@@ -134,6 +142,11 @@ pub fn apply(aspect: Aspect, seed: u64, airframe: &mut Airframe, config: &mut Fl
         // The receiver's noise itself is drawn from the board's seed (`GnssFeed`), as motion
         // capture's is.
         Aspect::Gnss => config.gnss = Some(GnssModelConfig::random(&mut rng)),
+        // Its noise is drawn from the sensor's own seed (`SimMagnetometer::new`), as the
+        // receiver's is.
+        Aspect::Compass => {
+            config.compass = Some(MagnetometerSpec::random(&mut rng, airframe.rotor_count()));
+        }
     }
 }
 
@@ -455,6 +468,39 @@ mod tests {
         // Log-uniform over 0.02–2 m: the range is covered, not only respected.
         assert!(quietest < 0.03 && noisiest > 1.5, "{quietest}–{noisiest} m");
         assert_eq!(Aspect::parse("gnss"), Ok(Aspect::Gnss));
+    }
+
+    #[test]
+    fn the_compass_aspect_draws_a_sensor_and_leaves_the_rest_of_the_world_as_it_was() {
+        let (mut weakest, mut strongest) = (f64::INFINITY, 0.0f64);
+        for seed in 0..200 {
+            let every = [Aspect::ALL.as_slice(), &[Aspect::Gnss, Aspect::Compass]].concat();
+            let (airframe, config) = random_world_case(seed, &every);
+            let spec = config.compass.clone().unwrap_or_else(|| panic!("seed {seed}: none"));
+            spec.validate().unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+            assert_eq!(spec.motor_field_ut.len(), airframe.rotor_count(), "seed {seed}");
+            assert!((25.0..=65.0).contains(&spec.strength_ut), "seed {seed}");
+            assert!(spec.inclination_rad.abs() <= 70f64.to_radians(), "seed {seed}");
+            assert!(spec.declination_rad.abs() <= 30f64.to_radians(), "seed {seed}");
+            assert!(spec.hard_iron_ut.iter().all(|b| b.abs() <= 300.0), "seed {seed}");
+            assert!((0.3..=2.0).contains(&spec.noise_ut) && (50.0..=100.0).contains(&spec.rate_hz));
+            let share =
+                spec.interference_ut(&vec![1.0; airframe.rotor_count()]).norm() / spec.strength_ut;
+            assert!(share <= 0.5 + 1e-12, "seed {seed}: interference {share}");
+            (weakest, strongest) = (weakest.min(spec.strength_ut), strongest.max(spec.strength_ut));
+            // Every other draw is the one the seed gave without the compass.
+            let (without_airframe, without) =
+                random_world_case(seed, &[Aspect::ALL.as_slice(), &[Aspect::Gnss]].concat());
+            assert_eq!(airframe, without_airframe);
+            assert_eq!(without.compass, None, "no compass unless asked for");
+            assert_eq!(FlyConfig { compass: None, ..config }, without);
+            // The same sensor whatever else is drawn.
+            let (_, alone) = random_world_case(seed, &[Aspect::Compass]);
+            assert_eq!(alone.compass, Some(spec), "seed {seed}");
+        }
+        // The range is covered, not only respected.
+        assert!(weakest < 27.0 && strongest > 63.0, "{weakest}–{strongest} µT");
+        assert_eq!(Aspect::parse("compass"), Ok(Aspect::Compass));
     }
 
     #[test]

@@ -49,6 +49,11 @@
 //! receiver's bound (0.3 m + 2 hAcc horizontally, `sim::gnss::GnssModelConfig::held`), their
 //! hold errors and how many learned their heading, with the seeds that did not hold.
 //!
+//! `--compass` (or `--vary compass`) draws a compass for every run (`sim::world`, aspect
+//! `compass`: `sim::magnetometer`'s ranges) and stores it with the case (`FlyConfig::compass`,
+//! shown by `fly case --seed N --compass`); the flight does not use it yet (issue 55: the
+//! firmware's heading is wired separately), so every figure is the one without it.
+//!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
 //! `--mocap-dropouts-per-s` and `--mocap-dropout-s` (`sim::recovery::MotionCaptureArgs`; the
@@ -142,11 +147,11 @@ enum Command {
 #[derive(clap::Args, Debug)]
 struct WorldArgs {
     /// `nominal` (the airframe and the throw's spin and height vary, nothing else) or `random`
-    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air; gust, wind and gnss
-    /// only with `--gusts`, `--wind` and `--gnss-random`).
+    /// (every aspect of `sim::world` drawn: hand, pose, imu, actuators, air; gust, wind, gnss and
+    /// compass only with `--gusts`, `--wind`, `--gnss-random` and `--compass`).
     #[arg(long, default_value = "nominal", value_parser = ["nominal", "random"])]
     world: String,
-    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust, wind, gnss);
+    /// Randomise only this aspect (hand, pose, imu, actuators, air, gust, wind, gnss, compass);
     /// repeatable.
     #[arg(long)]
     vary: Vec<String>,
@@ -167,6 +172,12 @@ struct WorldArgs {
     /// told its latency) instead of motion capture; the report gives the holds per noise band.
     #[arg(long)]
     gnss_random: bool,
+    /// Draw a compass for every run (the `compass` aspect: field 25–65 µT, dip ±70°,
+    /// declination ±30°, hard iron ±300 µT, soft iron 20 %, any mounting, 0.3–2 µT of noise,
+    /// 50–100 Hz, motor interference up to 50 %), stored with the case; the flight does not use
+    /// it yet.
+    #[arg(long)]
+    compass: bool,
     /// Do not give the firmware the airframe's true IMU offset (a board never calibrated: it
     /// flies with none, issue 32).
     #[arg(long)]
@@ -194,6 +205,9 @@ impl WorldArgs {
             if self.gnss_random {
                 aspects.push(Aspect::Gnss);
             }
+            if self.compass {
+                aspects.push(Aspect::Compass);
+            }
             return Ok(aspects);
         }
         let mut aspects: Vec<Aspect> =
@@ -206,6 +220,9 @@ impl WorldArgs {
         }
         if self.gnss_random && !aspects.contains(&Aspect::Gnss) {
             aspects.push(Aspect::Gnss);
+        }
+        if self.compass && !aspects.contains(&Aspect::Compass) {
+            aspects.push(Aspect::Compass);
         }
         Ok(aspects)
     }
@@ -233,13 +250,19 @@ fn case(
     gnss: &Option<GnssModelConfig>,
     args: &WorldArgs,
 ) -> (Airframe, FlyConfig) {
-    let (airframe, mut config) = if aspects.is_empty() {
+    // The compass changes nothing the flight sees (yet): the nominal world stays nominal, its
+    // motion capture the command line's, with a compass drawn beside it.
+    let world_aspects = randomising(aspects);
+    let (mut airframe, mut config) = if world_aspects.is_empty() {
         let (airframe, mut config) = random_case(seed);
         config.motion_capture = motion_capture;
         (airframe, config)
     } else {
-        world::random_world_case(seed, aspects)
+        world::random_world_case(seed, &world_aspects)
     };
+    if aspects.contains(&Aspect::Compass) {
+        world::apply(Aspect::Compass, seed, &mut airframe, &mut config);
+    }
     if let Some(speed_mps) = args.wind_mps {
         world::apply_wind_at(seed, speed_mps, &mut config);
     }
@@ -249,6 +272,12 @@ fn case(
         config.gnss.clone_from(gnss);
     }
     (airframe, config)
+}
+
+/// The aspects that change the flown world: all but the compass, which is only stored with the
+/// case (`FlyConfig::compass`).
+fn randomising(aspects: &[Aspect]) -> Vec<Aspect> {
+    aspects.iter().copied().filter(|a| *a != Aspect::Compass).collect()
 }
 
 /// `label: median …, 90th …, 99th … (n runs)` of `values` times `scale`, in `unit`.
@@ -714,7 +743,7 @@ fn checked_aspects(
             return Err(ExitCode::from(2));
         }
     }
-    if !aspects.is_empty() && motion_capture != MotionCaptureConfig::default() {
+    if !randomising(&aspects).is_empty() && motion_capture != MotionCaptureConfig::default() {
         eprintln!("fly: the --mocap-* flags do not combine with --world random or --vary");
         return Err(ExitCode::from(2));
     }
@@ -823,8 +852,9 @@ fn main() -> ExitCode {
                     eprintln!("fly: {done}/{runs} runs");
                 }
             };
-            if !aspects.is_empty() {
-                let names: Vec<_> = aspects.iter().map(|a| a.name()).collect();
+            let randomised = randomising(&aspects);
+            if !randomised.is_empty() {
+                let names: Vec<_> = randomised.iter().map(|a| a.name()).collect();
                 println!("randomised: {}", names.join(", "));
             }
             if let Some(speed_mps) = world_args.wind_mps {
@@ -835,6 +865,9 @@ fn main() -> ExitCode {
             }
             if world_args.no_speed_telemetry {
                 println!("ESC speed telemetry: none (motor_bidir_dshot = 0)");
+            }
+            if aspects.contains(&Aspect::Compass) {
+                println!("compass: drawn per run and stored with the case (not flown yet)");
             }
             let end = args.end;
             let results = monte_carlo(runs, seed, threads, &progress, |seed| {
