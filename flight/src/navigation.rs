@@ -932,6 +932,8 @@ pub struct HeadingAlignment {
     last_velocity_t_s: Option<f32>,
     /// The trusted yaw came from the velocity fixes.
     yaw_from_velocity: bool,
+    /// The trusted yaw was assumed ([`Self::assume_yaw`]), not yet shown by the fixes.
+    yaw_assumed: bool,
 }
 
 impl Default for HeadingAlignment {
@@ -966,6 +968,7 @@ impl HeadingAlignment {
             velocity: None,
             last_velocity_t_s: None,
             yaw_from_velocity: false,
+            yaw_assumed: false,
         }
     }
 
@@ -1068,6 +1071,7 @@ impl HeadingAlignment {
         if let Some(yaw) = alignment.add(VelocityPoint { t_s, fix: *velocity_ned_mps, dead }) {
             self.trusted_yaw_rad = Some(yaw);
             self.yaw_from_velocity = true;
+            self.yaw_assumed = false;
         }
     }
 
@@ -1102,6 +1106,7 @@ impl HeadingAlignment {
             && self.evidence >= ALIGNMENT_SIGNIFICANCE * crate::math::sqrt(self.noise_var)
         {
             self.trusted_yaw_rad = Some(libm::atan2f(self.cross, self.dot));
+            self.yaw_assumed = false;
         }
     }
 
@@ -1154,6 +1159,23 @@ impl HeadingAlignment {
     /// The yaw from the filter's world to the fixes' world, rad, once the evidence suffices.
     pub fn yaw_rad(&self) -> Option<f32> {
         self.trusted_yaw_rad
+    }
+
+    /// Take `yaw_rad` as the yaw until the fixes' own evidence gives one: a compass that has
+    /// already turned the filter's world to the fixes' north assumes 0. The evidence keeps
+    /// gathering, and once it suffices its yaw replaces the assumed one (a compass's error then
+    /// shows as a yaw of its own). Ignored when the fixes have already given a yaw, or not finite.
+    pub fn assume_yaw(&mut self, yaw_rad: f32) {
+        if yaw_rad.is_finite() && (self.trusted_yaw_rad.is_none() || self.yaw_assumed) {
+            self.trusted_yaw_rad = Some(crate::attitude::wrap_pi(yaw_rad));
+            self.yaw_assumed = true;
+        }
+    }
+
+    /// Whether the yaw is an assumed one ([`Self::assume_yaw`]) that the fixes have not yet
+    /// shown.
+    pub fn yaw_is_assumed(&self) -> bool {
+        self.yaw_assumed
     }
 
     /// Evidence gathered so far, m²·s (see [`ALIGNMENT_EVIDENCE_S`]).
@@ -1217,6 +1239,41 @@ mod tests {
                 plain.to_degrees()
             );
         }
+    }
+
+    /// An assumed yaw (a compass's) is the yaw at once; the fixes' evidence replaces it when it
+    /// suffices, and a later assumption no longer overrides what the fixes showed.
+    #[test]
+    fn an_assumed_yaw_holds_until_the_fixes_show_their_own() {
+        let yaw = 0.4f32;
+        let mut align = HeadingAlignment::default();
+        assert_eq!(align.yaw_rad(), None);
+        align.assume_yaw(f32::NAN);
+        assert_eq!(align.yaw_rad(), None);
+        align.assume_yaw(0.0);
+        assert_eq!(align.yaw_rad(), Some(0.0));
+        assert!(align.yaw_is_assumed());
+        // Motion the fixes see turned by `yaw`: a swinging acceleration along the filter's x
+        // and y, at 100 Hz motion capture.
+        let dt = 0.0005f32;
+        let (sin, cos) = (libm::sinf(yaw), libm::cosf(yaw));
+        let (mut p, mut v) = (Vector3::<f32>::zeros(), Vector3::<f32>::zeros());
+        for k in 0..8000 {
+            let t = k as f32 * dt;
+            let a = Vector3::new(2.0 * libm::sinf(3.0 * t), 2.0 * libm::cosf(2.0 * t), 0.0);
+            align.predict(&a, dt);
+            p += v * dt + a * (0.5 * dt * dt);
+            v += a * dt;
+            if k % 20 == 0 {
+                let fix = Vector3::new(cos * p.x - sin * p.y, sin * p.x + cos * p.y, p.z);
+                align.fix(&fix, 0.0);
+            }
+        }
+        let found = align.yaw_rad().expect("a yaw");
+        assert!(!align.yaw_is_assumed());
+        assert!((found - yaw).abs() < 0.5f32.to_radians(), "{:.2}°", found.to_degrees());
+        align.assume_yaw(0.0);
+        assert_eq!(align.yaw_rad(), Some(found));
     }
 
     const DT: f32 = 1.0 / 2000.0;
