@@ -177,6 +177,12 @@ impl Line {
     }
 }
 
+/// A line that informs and neither passes nor fails (something optional not there, or not set up
+/// yet).
+fn info_line(name: &'static str, checked: &'static str, found: String) -> Line {
+    Line { name, checked, verdict: Verdict::Info, found, advice: None }
+}
+
 fn line(name: &'static str, checked: &'static str, failures: Vec<String>, found: String) -> Line {
     let verdict = if failures.is_empty() { Verdict::Pass } else { Verdict::Fail };
     let advice = (!failures.is_empty()).then(|| failures.join("; "));
@@ -564,13 +570,7 @@ const FIX_GNSS_DEAD_RECKONING: u8 = 4;
 /// The GNSS line from the board's report (`None`: the board has no GNSS port, or its firmware
 /// predates the report). Indoors a receiver finds no fix: that is information, not a failure.
 pub fn gnss_line(gnss: Option<&GnssHealth>) -> Line {
-    let info = |found: String| Line {
-        name: "gnss",
-        checked: GNSS_CHECKED,
-        verdict: Verdict::Info,
-        found,
-        advice: None,
-    };
+    let info = |found: String| info_line("gnss", GNSS_CHECKED, found);
     let Some(gnss) = gnss else {
         return info(
             "no GNSS port: positions come from motion capture or a ground station only".into(),
@@ -632,13 +632,7 @@ const COMPASS_CHECKED: &str = "compass (I²C magnetometer: found, rate, field, c
 /// protocol 1.17). No compass, or one not calibrated yet, is information: the compass is for
 /// the heading outdoors. A sensor lost, stuck or saturated fails.
 pub fn compass_line(compass: Option<&CompassHealth>) -> Line {
-    let info = |found: String| Line {
-        name: "compass",
-        checked: COMPASS_CHECKED,
-        verdict: Verdict::Info,
-        found,
-        advice: None,
-    };
+    let info = |found: String| info_line("compass", COMPASS_CHECKED, found);
     let Some(compass) = compass else {
         return info(
             "no compass bus: the heading comes from motion capture or the GNSS track".into(),

@@ -64,7 +64,7 @@ use protocol::{
 };
 use serde::{Deserialize, Serialize};
 
-use super::system::Mutex;
+use rtic_core::Mutex;
 
 /// Time between two reads of the sensor, µs: 100 Hz, the rate both drivers configure (the
 /// QMC5883L's output data rate, the IST8310's single measurements at ArduPilot's 10 ms).

@@ -587,6 +587,12 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         self.compass.as_deref()
     }
 
+    /// The compass service, mutably: for a simulator or a test that drives the calibration
+    /// without a link (a link's request goes through [`Self::pass`]).
+    pub fn compass_mut(&mut self) -> Option<&mut CompassInput> {
+        self.compass.as_deref_mut()
+    }
+
     /// Magnetic samples dropped because the control queue was full, since start-up.
     pub fn dropped_magnetic(&self) -> u32 {
         self.dropped_magnetic
@@ -629,6 +635,9 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         let due = compass.exchange(now_us, solve);
         if let Some(solved) = compass.take_solved() {
             self.settings.update(|params| params.store_compass_calibration(&solved.calibration));
+            // In force at once, as stored (clamped into the parameters' ranges).
+            let params = self.settings.params();
+            compass.configure(params.compass_calibration(), params.compass_enabled());
         }
         due
     }

@@ -302,24 +302,27 @@ fn calibrate(
     (input.health().calibration, coverage)
 }
 
-/// The whole procedure on a sensor with hard iron, soft iron, a mounting and noise, turned as
-/// a hand would for a minute: the stored calibration gives headings within 2° over a grid of
-/// attitudes (pitch ±45°, roll ±45°, every yaw).
+/// The whole procedure on a sensor with hard iron (±200 µT), soft iron (±10 %), any mounting
+/// and noise (0.3–1 µT), in a field of 40–60 µT at 30–65° of dip either way, turned as a hand
+/// would for a minute, 12 draws: the stored calibration gives headings within 2° over a grid
+/// of attitudes (pitch ±45°, roll ±45°, every yaw).
 #[test]
 fn the_procedure_stores_a_calibration_that_gives_headings_within_two_degrees() {
     let mut rng = Rng::new(55);
-    for draw in 0..4 {
+    for draw in 0..12 {
         let mut sim = SimSensor::new(CompassSensor::Ist8310, 0x0E);
         sim.hard_ut = Vector3::from_fn(|_, _| rng.range(-200.0, 200.0) as f32);
         let e = Matrix3::from_fn(|_, _| rng.range(-0.1, 0.1) as f32);
         sim.soft = Matrix3::identity() + (e + e.transpose()) * 0.5;
         sim.q_mag_imu = quaternion(rng.unit_quaternion());
-        sim.noise_ut = 0.8;
-        // 50 µT at 60° of dip, 10° east of north.
-        let decl = 10f32.to_radians();
-        let dip = 60f32.to_radians();
+        sim.noise_ut = rng.range(0.3, 1.0) as f32;
+        // 40–60 µT, dip 30–65° either way, declination ±20°.
+        let strength_ut = rng.range(40.0, 60.0) as f32;
+        let decl = (rng.range(-20.0, 20.0) as f32).to_radians();
+        let dip_deg = rng.range(30.0, 65.0) as f32 * if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
+        let dip = dip_deg.to_radians();
         sim.world_field_ut =
-            Vector3::new(decl.cos() * dip.cos(), decl.sin() * dip.cos(), dip.sin()) * 50.0;
+            Vector3::new(decl.cos() * dip.cos(), decl.sin() * dip.cos(), dip.sin()) * strength_ut;
         let mut input = CompassInput::new();
         let (status, coverage) = calibrate(&mut input, &mut sim, 60.0, turning);
         let CompassCalibrationStatus::Stored { residual_ut, field_ut, coverage_pct, .. } = status
@@ -328,9 +331,9 @@ fn the_procedure_stores_a_calibration_that_gives_headings_within_two_degrees() {
         };
         // The fit's field strength is the ellipsoid's geometric mean: 50 µT scaled by the soft
         // iron's determinant's cube root.
-        let scaled_ut = 50.0 * libm::cbrtf(sim.soft.determinant());
+        let scaled_ut = strength_ut * libm::cbrtf(sim.soft.determinant());
         assert!((field_ut - scaled_ut).abs() < 0.5, "{status:?} against {scaled_ut} µT");
-        assert!(residual_ut < 1.5, "{status:?}");
+        assert!(residual_ut < 1.5 * sim.noise_ut + 0.2, "{status:?}");
         assert!(coverage_pct >= 50, "{status:?}");
         // The progress grew as the craft turned.
         assert!(coverage.last() > coverage.first(), "{coverage:?}");
@@ -362,6 +365,7 @@ fn the_procedure_stores_a_calibration_that_gives_headings_within_two_degrees() {
                 }
             }
         }
+        eprintln!("draw {draw}: {status:?}, worst heading error {worst_deg:.2}°");
         assert!(worst_deg < 2.0, "draw {draw}: worst heading error {worst_deg}°");
     }
 }
@@ -439,4 +443,76 @@ fn a_calibration_with_a_non_finite_value_or_a_degenerate_mounting_is_none() {
     let c = CompassCalibration::new([0.0; 3], identity, [2.0, 0.0, 0.0, 0.0], 1.0).unwrap();
     assert_eq!(c.q_mag_imu, [1.0, 0.0, 0.0, 0.0]);
     assert!(c.sample(&[f32::INFINITY, 0.0, 0.0]).is_none());
+}
+
+/// The whole graph as the board runs it (`System::service_compass`, the link task's service):
+/// the calibration gathered with the attitude from the control step's snapshot, solved by the
+/// background task, stored in the parameters by the link task; from then on calibrated samples
+/// wait in the control queue.
+#[test]
+fn through_the_system_a_calibration_is_stored_in_the_parameters_and_samples_reach_the_queue() {
+    use crate::app::system::with_system;
+    use crate::app::{ControlCommand, Settings};
+    let mut sim = SimSensor::new(CompassSensor::Ist8310, 0x0E);
+    sim.hard_ut = Vector3::new(80.0, -150.0, 60.0);
+    sim.q_mag_imu = UnitQuaternion::from_euler_angles(0.0, 0.0, 1.2);
+    sim.noise_ut = 0.5;
+    let settings: Settings<crate::app::NoFlash> = Settings::without_store();
+    let (stored, _) = with_system(settings, Default::default(), None, |system| {
+        let mut delay = CountDelay(0);
+        let mut service =
+            |system: &mut crate::app::system::System<'_, _>, sim: &mut SimSensor, t_us: u64| {
+                let q = turning(t_us as f64 * 1e-6);
+                sim.q_world_imu = q;
+                system.handoffs.snapshot.pilot.q_world_imu = q_array(&q);
+                system.service_compass(t_us, sim, &mut delay);
+                system.handoffs.commands.clear();
+            };
+        // Found, then a minute of turning.
+        for ms in 0..1_000 {
+            service(system, &mut sim, ms * 1_000);
+        }
+        assert!(system.link.compass_mut().is_some());
+        system.link.compass_mut().unwrap().command(CompassCalibrationCommand::Start, 1_000_000);
+        for ms in 1_000..61_000 {
+            service(system, &mut sim, ms * 1_000);
+        }
+        system.link.compass_mut().unwrap().command(CompassCalibrationCommand::Finish, 61_000_000);
+        service(system, &mut sim, 61_000_000);
+        service(system, &mut sim, 61_001_000);
+        let health = system.status_view().compass.expect("a compass");
+        assert!(
+            matches!(health.calibration, CompassCalibrationStatus::Stored { .. }),
+            "{health:?}"
+        );
+        assert!(health.calibrated, "in force at once");
+        // Calibrated samples now reach the control queue.
+        let q = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7);
+        sim.q_world_imu = q;
+        // (The first read collects the conversion started at the attitude before.)
+        system.service_compass(61_020_000, &mut sim, &mut delay);
+        system.handoffs.commands.clear();
+        system.service_compass(61_030_000, &mut sim, &mut delay);
+        system.service_compass(61_040_000, &mut sim, &mut delay);
+        let truth = q.inverse_transform_vector(&sim.world_field_ut);
+        let samples: Vec<MagneticSample> = system
+            .handoffs
+            .commands
+            .iter()
+            .filter_map(|c| match c {
+                ControlCommand::MagneticField(s) => Some(*s),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(samples.len(), 2);
+        for s in &samples {
+            // The fit's field strength is the raw one's (no soft iron here): within 2 µT.
+            assert!((Vector3::from(s.field_imu_ut) - truth).norm() < 2.0, "{s:?} {truth:?}");
+        }
+        system.link.settings().params().compass_calibration()
+    });
+    let stored = stored.expect("stored");
+    for (fitted, truth) in stored.offset_ut.iter().zip(sim.hard_ut.iter()) {
+        assert!((fitted - truth).abs() < 1.0, "{:?} against {:?}", stored.offset_ut, sim.hard_ut);
+    }
 }
