@@ -64,6 +64,9 @@ pub fn refusal_text(refusal: &CompassCalibrationRefusal) -> String {
              needed): roll or pitch it as well as turning it round"
         ),
         CompassCalibrationRefusal::Numerical => "the fit failed numerically: run it again".into(),
+        CompassCalibrationRefusal::Armed => {
+            "the craft was armed while gathering: calibrate disarmed, motors off".into()
+        }
         CompassCalibrationRefusal::SensorLost => {
             "the compass was lost while gathering: check its I²C wires (SCL, SDA) and supply".into()
         }

@@ -1062,6 +1062,8 @@ pub enum CompassCalibrationRefusal {
     Numerical,
     /// The sensor was lost while gathering.
     SensorLost,
+    /// The craft was armed while gathering (the motors' currents would be fitted as iron).
+    Armed,
 }
 
 /// Where the GNSS driver stands (protocol 1.16).

@@ -218,6 +218,16 @@ impl CalibrationData {
         }
     }
 
+    /// Copy `other` in place (`clone_from`'s default would build the 7 KB copy on the stack
+    /// first).
+    fn copy_from(&mut self, other: &Self) {
+        self.ellipsoid.clone_from(&other.ellipsoid);
+        self.pairs.copy_from_slice(&other.pairs);
+        self.count = other.count;
+        self.stride = other.stride;
+        self.since_kept = other.since_kept;
+    }
+
     /// Forget everything (in place).
     fn clear(&mut self) {
         self.ellipsoid = EllipsoidCalibrator::new();
@@ -358,6 +368,16 @@ pub enum SolveOutcome {
     Final(Result<SolvedCalibration, CompassCalibrationRefusal>),
 }
 
+impl SolveOutcome {
+    /// The kind of solve it answers.
+    pub fn kind(&self) -> SolveKind {
+        match self {
+            Self::Trial { .. } => SolveKind::Trial,
+            Self::Final(_) => SolveKind::Final,
+        }
+    }
+}
+
 /// The handoff between the link task (which gathers) and the background task (which solves):
 /// what was gathered, copied in with a request; the outcome, copied back. Locked for a copy
 /// only. On the board an RTIC shared resource of its own (15 KB, a static); in a
@@ -399,7 +419,7 @@ pub fn run_compass_solve<S: Mutex<T = CompassSolveSlot>>(solver: &mut CompassSol
     let data = &mut solver.data;
     let Some(kind) = slot.lock(|slot| {
         let kind = slot.request.take()?;
-        data.clone_from(&slot.data);
+        data.copy_from(&slot.data);
         Some(kind)
     }) else {
         return;
@@ -440,7 +460,10 @@ pub struct CompassInput {
     health: CompassHealth,
     /// Counters of the sensors lost before (the monitor starts afresh with each sensor found).
     past: (u32, u32, u32),
-    gathering: Option<CalibrationData>,
+    /// What the calibration gathers (kept in place: 7 KB never moved or copied whole on a
+    /// stack), and whether it is gathering now.
+    data: CalibrationData,
+    gathering: bool,
     /// When the next trial fit is due while gathering, µs.
     next_trial_us: u64,
     /// A solve asked of the background task and not yet answered.
@@ -488,7 +511,8 @@ impl CompassInput {
                 calibration: CompassCalibrationStatus::Idle,
             },
             past: (0, 0, 0),
-            gathering: None,
+            data: CalibrationData::new(),
+            gathering: false,
             next_trial_us: 0,
             solving: None,
             calibration_status: CompassCalibrationStatus::Idle,
@@ -506,6 +530,16 @@ impl CompassInput {
     /// The attitude filter's latest `q_world_imu` (w x y z), for the calibration's pairs.
     pub fn set_attitude(&mut self, q_world_imu: Option<[f32; 4]>) {
         self.attitude = q_world_imu;
+    }
+
+    /// The craft is armed (the control step's snapshot): a calibration gathering ends, refused
+    /// (spinning motors' currents would be fitted as iron).
+    pub fn set_armed(&mut self, armed: bool) {
+        if armed && core::mem::take(&mut self.gathering) {
+            self.solving = None;
+            self.calibration_status =
+                CompassCalibrationStatus::Refused(CompassCalibrationRefusal::Armed);
+        }
     }
 
     /// One service at `now_us` (µs, monotonic): probe when no sensor is found and a probe is
@@ -607,7 +641,7 @@ impl CompassInput {
                     self.past.2.saturating_add(h.overflows),
                 );
             }
-            if self.gathering.take().is_some() || self.solving == Some(SolveKind::Trial) {
+            if core::mem::take(&mut self.gathering) || self.solving == Some(SolveKind::Trial) {
                 self.solving = None;
                 self.calibration_status =
                     CompassCalibrationStatus::Refused(CompassCalibrationRefusal::SensorLost);
@@ -619,8 +653,8 @@ impl CompassInput {
             return None;
         }
         self.window_readings = self.window_readings.saturating_add(1);
-        if let Some(gathering) = &mut self.gathering {
-            gathering.add(&reading.field_ut, self.attitude);
+        if self.gathering {
+            self.data.add(&reading.field_ut, self.attitude);
         }
         let calibrated = self.calibration.and_then(|c| c.apply(&reading.field_ut));
         let field = calibrated.unwrap_or(reading.field_ut);
@@ -637,10 +671,8 @@ impl CompassInput {
     pub fn command(&mut self, command: CompassCalibrationCommand, now_us: u64) {
         match command {
             CompassCalibrationCommand::Start => {
-                match &mut self.gathering {
-                    Some(data) => data.clear(),
-                    None => self.gathering = Some(CalibrationData::new()),
-                }
+                self.data.clear();
+                self.gathering = true;
                 self.solving = None;
                 self.solved = None;
                 self.next_trial_us = now_us + TRIAL_FIT_PERIOD_US;
@@ -648,14 +680,13 @@ impl CompassInput {
                     CompassCalibrationStatus::Gathering { samples: 0, coverage_pct: 0 };
             }
             CompassCalibrationCommand::Finish => {
-                if self.gathering.is_some() {
-                    self.calibration_status = CompassCalibrationStatus::Solving {
-                        samples: self.gathering.as_ref().map_or(0, CalibrationData::samples),
-                    };
+                if self.gathering {
+                    self.calibration_status =
+                        CompassCalibrationStatus::Solving { samples: self.data.samples() };
                 }
             }
             CompassCalibrationCommand::Cancel => {
-                self.gathering = None;
+                self.gathering = false;
                 self.solving = None;
                 self.calibration_status = CompassCalibrationStatus::Idle;
             }
@@ -689,7 +720,16 @@ impl CompassInput {
     /// a solve asked for when one is due. Returns whether a solve now waits (the board runs
     /// the background task).
     pub fn exchange<S: Mutex<T = CompassSolveSlot>>(&mut self, now_us: u64, slot: &mut S) -> bool {
-        let outcome = if self.solving.is_some() { slot.lock(|s| s.outcome.take()) } else { None };
+        // Only the outcome of the solve asked for last: a trial the background task finished
+        // after the final one was asked for (the final request replaced it in the slot, its
+        // outcome came after) is dropped.
+        let outcome = match self.solving {
+            Some(kind) => slot.lock(|s| match s.outcome.take() {
+                Some(outcome) if outcome.kind() == kind => Some(outcome),
+                _ => None,
+            }),
+            None => None,
+        };
         match outcome {
             Some(SolveOutcome::Trial { coverage }) => {
                 self.solving = None;
@@ -717,7 +757,7 @@ impl CompassInput {
             None => {}
         }
         if let CompassCalibrationStatus::Gathering { samples, .. } = &mut self.calibration_status {
-            *samples = self.gathering.as_ref().map_or(0, CalibrationData::samples);
+            *samples = self.data.samples();
         }
         let kind = match self.calibration_status {
             CompassCalibrationStatus::Solving { .. } if self.solving != Some(SolveKind::Final) => {
@@ -731,14 +771,17 @@ impl CompassInput {
             }
             _ => return false,
         };
-        let Some(data) = &self.gathering else { return false };
+        if !self.gathering {
+            return false;
+        }
+        let data = &self.data;
         slot.lock(|s| {
-            s.data.clone_from(data);
+            s.data.copy_from(data);
             s.request = Some(kind);
             s.outcome = None;
         });
         if kind == SolveKind::Final {
-            self.gathering = None;
+            self.gathering = false;
         }
         self.solving = Some(kind);
         true

@@ -625,7 +625,10 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         let Some(compass) = self.compass.as_mut() else { return false };
         let params = self.settings.params();
         compass.configure(params.compass_calibration(), params.compass_enabled());
-        compass.set_attitude(Some(snapshot.lock(|snapshot| snapshot.pilot.q_world_imu)));
+        let (q_world_imu, armed) =
+            snapshot.lock(|snapshot| (snapshot.pilot.q_world_imu, snapshot.armed));
+        compass.set_attitude(Some(q_world_imu));
+        compass.set_armed(armed);
         if let Some(sample) = compass.service(now_us, bus, delay) {
             let command = ControlCommand::MagneticField(sample);
             if !commands.lock(|queue| queue_command(queue, command)) {

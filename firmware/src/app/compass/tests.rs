@@ -516,3 +516,38 @@ fn through_the_system_a_calibration_is_stored_in_the_parameters_and_samples_reac
         assert!((fitted - truth).abs() < 1.0, "{:?} against {:?}", stored.offset_ut, sim.hard_ut);
     }
 }
+
+/// A trial fit the background task finishes after the final solve was asked for is dropped:
+/// the final outcome is the one taken. Arming while gathering refuses the calibration.
+#[test]
+fn a_late_trial_outcome_is_dropped_and_arming_refuses_a_gathering() {
+    let mut sim = SimSensor::new(CompassSensor::Ist8310, 0x0E);
+    sim.hard_ut = Vector3::new(30.0, -40.0, 10.0);
+    sim.noise_ut = 0.5;
+    let mut input = CompassInput::new();
+    let mut slot = CompassSolveSlot::new();
+    let mut solver = CompassSolver::new();
+    input.command(CompassCalibrationCommand::Start, 0);
+    let (_, t) = run(&mut input, &mut sim, 0, 40.0, turning);
+    assert!(input.exchange(t, &mut Exclusive(&mut slot)), "a trial asked for");
+    input.command(CompassCalibrationCommand::Finish, t);
+    assert!(input.exchange(t, &mut Exclusive(&mut slot)), "the final replaces it");
+    // The trial's outcome written late, after the final request.
+    slot.outcome = Some(SolveOutcome::Trial { coverage: 0.3 });
+    assert!(!input.exchange(t, &mut Exclusive(&mut slot)));
+    assert!(matches!(input.health().calibration, CompassCalibrationStatus::Solving { .. }));
+    run_compass_solve(&mut solver, &mut Exclusive(&mut slot));
+    input.exchange(t, &mut Exclusive(&mut slot));
+    assert!(
+        matches!(input.health().calibration, CompassCalibrationStatus::Stored { .. }),
+        "{:?}",
+        input.health().calibration
+    );
+    input.command(CompassCalibrationCommand::Start, t);
+    input.set_armed(true);
+    assert_eq!(
+        input.health().calibration,
+        CompassCalibrationStatus::Refused(CompassCalibrationRefusal::Armed)
+    );
+    assert!(!input.exchange(t + 3_000_000, &mut Exclusive(&mut slot)), "nothing more solved");
+}
