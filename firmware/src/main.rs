@@ -470,11 +470,12 @@ mod app {
         };
         // The compass's bus (the GNSS mast's SCL/SDA), probed for a sensor from the first pass.
         // SAFETY: `init` runs once, before any task: these are the statics' only references.
+        // Built in place: 7 KB each, never on this stack.
         let (compass_input, compass_solve, compass_solver) = unsafe {
             (
-                (*core::ptr::addr_of_mut!(crate::COMPASS_INPUT)).write(CompassInput::new()),
-                (*core::ptr::addr_of_mut!(crate::COMPASS_SOLVE)).write(CompassSolveSlot::new()),
-                (*core::ptr::addr_of_mut!(crate::COMPASS_SOLVER)).write(CompassSolver::new()),
+                CompassInput::build_in(&mut *core::ptr::addr_of_mut!(crate::COMPASS_INPUT)),
+                CompassSolveSlot::build_in(&mut *core::ptr::addr_of_mut!(crate::COMPASS_SOLVE)),
+                CompassSolver::build_in(&mut *core::ptr::addr_of_mut!(crate::COMPASS_SOLVER)),
             )
         };
         let compass_bus = BOARD
@@ -512,7 +513,7 @@ mod app {
             control_rate_hz
         );
 
-        let local = Local {
+        let mut local = Local {
             control_timer,
             step_timer,
             control_clock: clock,
@@ -526,16 +527,9 @@ mod app {
             usb_clock: clock,
             usb: Link::new(link, usb),
             radio: telemetry_radio,
-            link: {
-                let link = match gnss_input {
-                    Some(input) => LinkTask::new(settings, telemetry).with_gnss(input),
-                    None => LinkTask::new(settings, telemetry),
-                };
-                if compass_bus.is_some() {
-                    link.with_compass(compass_input)
-                } else {
-                    link
-                }
+            link: match gnss_input {
+                Some(input) => LinkTask::new(settings, telemetry).with_gnss(input),
+                None => LinkTask::new(settings, telemetry),
             },
             gnss,
             gnss_rx,
@@ -544,6 +538,11 @@ mod app {
             compass_solver,
             background,
         };
+        // Attached where it lies (a `with_compass` on the task by value would add copies of
+        // the whole link task, 4 KB each, to this frame).
+        if local.compass_bus.is_some() {
+            local.link.set_compass(compass_input);
+        }
         (shared, local, init::Monotonics())
     }
 

@@ -64,6 +64,8 @@ use protocol::{
 };
 use serde::{Deserialize, Serialize};
 
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use rtic_core::Mutex;
 
 /// Time between two reads of the sensor, µs: 100 Hz, the rate both drivers configure (the
@@ -216,6 +218,19 @@ impl CalibrationData {
             stride: 1,
             since_kept: 0,
         }
+    }
+
+    /// [`Self::new`] at `slot`, field by field (never 7 KB on a stack).
+    ///
+    /// # Safety
+    /// `slot` is valid for writes and aligned; what it held is overwritten, not dropped.
+    unsafe fn init_in(slot: *mut Self) {
+        addr_of_mut!((*slot).ellipsoid).write(EllipsoidCalibrator::new());
+        // Zero is a valid pair (plain numbers).
+        addr_of_mut!((*slot).pairs).write_bytes(0, 1);
+        addr_of_mut!((*slot).count).write(0);
+        addr_of_mut!((*slot).stride).write(1);
+        addr_of_mut!((*slot).since_kept).write(0);
     }
 
     /// Copy `other` in place (`clone_from`'s default would build the 7 KB copy on the stack
@@ -395,6 +410,20 @@ impl CompassSolveSlot {
         Self { request: None, data: CalibrationData::new(), outcome: None }
     }
 
+    /// [`Self::new`] in place (the board's static).
+    #[inline(never)]
+    pub fn build_in(slot: &mut MaybeUninit<Self>) -> &mut Self {
+        let p = slot.as_mut_ptr();
+        // SAFETY: every field is written through raw field pointers before the reference is
+        // formed.
+        unsafe {
+            addr_of_mut!((*p).request).write(None);
+            addr_of_mut!((*p).outcome).write(None);
+            CalibrationData::init_in(addr_of_mut!((*p).data));
+            slot.assume_init_mut()
+        }
+    }
+
     /// Whether a solve waits for the background task.
     pub fn pending(&self) -> bool {
         self.request.is_some()
@@ -410,6 +439,17 @@ pub struct CompassSolver {
 impl CompassSolver {
     pub const fn new() -> Self {
         Self { data: CalibrationData::new() }
+    }
+
+    /// [`Self::new`] in place (the board's static).
+    #[inline(never)]
+    pub fn build_in(slot: &mut MaybeUninit<Self>) -> &mut Self {
+        // SAFETY: the one field is written through its raw pointer before the reference is
+        // formed.
+        unsafe {
+            CalibrationData::init_in(addr_of_mut!((*slot.as_mut_ptr()).data));
+            slot.assume_init_mut()
+        }
     }
 }
 
@@ -440,9 +480,18 @@ struct Found {
     monitor: HealthMonitor,
 }
 
-/// The compass service (see the module documentation).
+/// The compass service (see the module documentation): its state, and the calibration's store
+/// beside it (7 KB, built in place on the board: [`CompassInput::build_in`]).
 #[derive(Clone, Debug)]
 pub struct CompassInput {
+    s: Service,
+    /// What the calibration gathers (kept in place: never moved or copied whole on a stack).
+    data: CalibrationData,
+}
+
+/// The service's state but the calibration's store (small, built by value).
+#[derive(Clone, Debug)]
+struct Service {
     found: Option<Found>,
     /// The state reported (the monitor's while a sensor is found; `Lost` after a loss until
     /// one is found again).
@@ -460,9 +509,7 @@ pub struct CompassInput {
     health: CompassHealth,
     /// Counters of the sensors lost before (the monitor starts afresh with each sensor found).
     past: (u32, u32, u32),
-    /// What the calibration gathers (kept in place: 7 KB never moved or copied whole on a
-    /// stack), and whether it is gathering now.
-    data: CalibrationData,
+    /// Whether the calibration is gathering now.
     gathering: bool,
     /// When the next trial fit is due while gathering, µs.
     next_trial_us: u64,
@@ -472,15 +519,8 @@ pub struct CompassInput {
     solved: Option<SolvedCalibration>,
 }
 
-impl Default for CompassInput {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl CompassInput {
-    /// Nothing found yet; the first service probes the bus.
-    pub const fn new() -> Self {
+impl Service {
+    const fn new() -> Self {
         Self {
             found: None,
             state: CompassState::Absent,
@@ -511,7 +551,6 @@ impl CompassInput {
                 calibration: CompassCalibrationStatus::Idle,
             },
             past: (0, 0, 0),
-            data: CalibrationData::new(),
             gathering: false,
             next_trial_us: 0,
             solving: None,
@@ -519,25 +558,52 @@ impl CompassInput {
             solved: None,
         }
     }
+}
+
+impl Default for CompassInput {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl CompassInput {
+    /// Nothing found yet; the first service probes the bus.
+    pub const fn new() -> Self {
+        Self { s: Service::new(), data: CalibrationData::new() }
+    }
+
+    /// [`Self::new`] in place, field by field (the board's static: the 7 KB store is never
+    /// built on `init`'s stack and moved).
+    #[inline(never)]
+    pub fn build_in(slot: &mut MaybeUninit<Self>) -> &mut Self {
+        let input = slot.as_mut_ptr();
+        // SAFETY: both fields are written through raw field pointers before the reference is
+        // formed.
+        unsafe {
+            addr_of_mut!((*input).s).write(Service::new());
+            CalibrationData::init_in(addr_of_mut!((*input).data));
+            slot.assume_init_mut()
+        }
+    }
 
     /// Take the parameters: the stored calibration (`None`: not calibrated) and whether the
     /// samples go to the control step.
     pub fn configure(&mut self, calibration: Option<CompassCalibration>, enabled: bool) {
-        self.calibration = calibration;
-        self.enabled = enabled;
+        self.s.calibration = calibration;
+        self.s.enabled = enabled;
     }
 
     /// The attitude filter's latest `q_world_imu` (w x y z), for the calibration's pairs.
     pub fn set_attitude(&mut self, q_world_imu: Option<[f32; 4]>) {
-        self.attitude = q_world_imu;
+        self.s.attitude = q_world_imu;
     }
 
     /// The craft is armed (the control step's snapshot): a calibration gathering ends, refused
     /// (spinning motors' currents would be fitted as iron).
     pub fn set_armed(&mut self, armed: bool) {
-        if armed && core::mem::take(&mut self.gathering) {
-            self.solving = None;
-            self.calibration_status =
+        if armed && core::mem::take(&mut self.s.gathering) {
+            self.s.solving = None;
+            self.s.calibration_status =
                 CompassCalibrationStatus::Refused(CompassCalibrationRefusal::Armed);
         }
     }
@@ -553,19 +619,20 @@ impl CompassInput {
         delay: &mut D,
     ) -> Option<MagneticSample> {
         self.measure_rate(now_us);
-        let Some(found) = self.found else {
-            if now_us >= self.next_probe_us {
-                self.next_probe_us = now_us + COMPASS_PROBE_PERIOD_US;
+        let Some(found) = self.s.found else {
+            if now_us >= self.s.next_probe_us {
+                self.s.next_probe_us = now_us + COMPASS_PROBE_PERIOD_US;
                 self.probe(now_us, bus, delay);
             }
             return None;
         };
-        if now_us < self.next_read_us {
+        if now_us < self.s.next_read_us {
             return None;
         }
-        self.next_read_us = self.next_read_us.saturating_add(COMPASS_READ_PERIOD_US).max(now_us);
+        self.s.next_read_us =
+            self.s.next_read_us.saturating_add(COMPASS_READ_PERIOD_US).max(now_us);
         let (result, monitor) = read(&found, bus);
-        self.found = Some(Found { monitor, ..found });
+        self.s.found = Some(Found { monitor, ..found });
         self.after_read(&result, monitor.health().state)
     }
 
@@ -587,21 +654,21 @@ impl CompassInput {
                 _ => ist8310::Ist8310::new(&mut *bus, address).init(delay).is_ok(),
             };
             if initialised {
-                self.found = Some(Found { sensor, address, monitor: HealthMonitor::new() });
-                self.state = CompassState::Starting;
-                self.next_read_us = now_us + COMPASS_READ_PERIOD_US;
+                self.s.found = Some(Found { sensor, address, monitor: HealthMonitor::new() });
+                self.s.state = CompassState::Starting;
+                self.s.next_read_us = now_us + COMPASS_READ_PERIOD_US;
                 return;
             }
         }
     }
 
     fn measure_rate(&mut self, now_us: u64) {
-        let start = *self.window_start_us.get_or_insert(now_us);
+        let start = *self.s.window_start_us.get_or_insert(now_us);
         let elapsed_us = now_us.saturating_sub(start);
         if elapsed_us >= RATE_WINDOW_US {
-            self.rate_hz = self.window_readings as f32 * 1e6 / elapsed_us as f32;
-            self.window_readings = 0;
-            self.window_start_us = Some(now_us);
+            self.s.rate_hz = self.s.window_readings as f32 * 1e6 / elapsed_us as f32;
+            self.s.window_readings = 0;
+            self.s.window_start_us = Some(now_us);
         }
     }
 
@@ -619,31 +686,31 @@ impl CompassInput {
             DriverState::Stuck => CompassState::Stuck,
             DriverState::Saturated => CompassState::Saturated,
         };
-        if state != self.state {
+        if state != self.s.state {
             let counter = match state {
-                CompassState::Lost => Some(&mut self.health.lost),
-                CompassState::Stuck => Some(&mut self.health.stuck),
-                CompassState::Saturated => Some(&mut self.health.saturated),
+                CompassState::Lost => Some(&mut self.s.health.lost),
+                CompassState::Stuck => Some(&mut self.s.health.stuck),
+                CompassState::Saturated => Some(&mut self.s.health.saturated),
                 _ => None,
             };
             if let Some(counter) = counter {
                 *counter = counter.saturating_add(1);
             }
-            self.state = state;
+            self.s.state = state;
         }
         if state == CompassState::Lost {
             // Dropped: probed for again (a mast plugged back in is initialised afresh).
-            if let Some(found) = self.found.take() {
+            if let Some(found) = self.s.found.take() {
                 let h = found.monitor.health();
-                self.past = (
-                    self.past.0.saturating_add(h.readings),
-                    self.past.1.saturating_add(h.failures),
-                    self.past.2.saturating_add(h.overflows),
+                self.s.past = (
+                    self.s.past.0.saturating_add(h.readings),
+                    self.s.past.1.saturating_add(h.failures),
+                    self.s.past.2.saturating_add(h.overflows),
                 );
             }
-            if core::mem::take(&mut self.gathering) || self.solving == Some(SolveKind::Trial) {
-                self.solving = None;
-                self.calibration_status =
+            if core::mem::take(&mut self.s.gathering) || self.s.solving == Some(SolveKind::Trial) {
+                self.s.solving = None;
+                self.s.calibration_status =
                     CompassCalibrationStatus::Refused(CompassCalibrationRefusal::SensorLost);
             }
             return None;
@@ -652,18 +719,18 @@ impl CompassInput {
         if state != CompassState::Healthy {
             return None;
         }
-        self.window_readings = self.window_readings.saturating_add(1);
-        if self.gathering {
-            self.data.add(&reading.field_ut, self.attitude);
+        self.s.window_readings = self.s.window_readings.saturating_add(1);
+        if self.s.gathering {
+            self.data.add(&reading.field_ut, self.s.attitude);
         }
-        let calibrated = self.calibration.and_then(|c| c.apply(&reading.field_ut));
+        let calibrated = self.s.calibration.and_then(|c| c.apply(&reading.field_ut));
         let field = calibrated.unwrap_or(reading.field_ut);
-        self.field_ut = flight::math::sqrt(field.iter().map(|x| x * x).sum::<f32>());
-        let sample = self.calibration.and_then(|c| c.sample(&reading.field_ut))?;
-        if !self.enabled {
+        self.s.field_ut = flight::math::sqrt(field.iter().map(|x| x * x).sum::<f32>());
+        let sample = self.s.calibration.and_then(|c| c.sample(&reading.field_ut))?;
+        if !self.s.enabled {
             return None;
         }
-        self.health.samples_sent = self.health.samples_sent.wrapping_add(1);
+        self.s.health.samples_sent = self.s.health.samples_sent.wrapping_add(1);
         Some(sample)
     }
 
@@ -672,23 +739,23 @@ impl CompassInput {
         match command {
             CompassCalibrationCommand::Start => {
                 self.data.clear();
-                self.gathering = true;
-                self.solving = None;
-                self.solved = None;
-                self.next_trial_us = now_us + TRIAL_FIT_PERIOD_US;
-                self.calibration_status =
+                self.s.gathering = true;
+                self.s.solving = None;
+                self.s.solved = None;
+                self.s.next_trial_us = now_us + TRIAL_FIT_PERIOD_US;
+                self.s.calibration_status =
                     CompassCalibrationStatus::Gathering { samples: 0, coverage_pct: 0 };
             }
             CompassCalibrationCommand::Finish => {
-                if self.gathering {
-                    self.calibration_status =
+                if self.s.gathering {
+                    self.s.calibration_status =
                         CompassCalibrationStatus::Solving { samples: self.data.samples() };
                 }
             }
             CompassCalibrationCommand::Cancel => {
-                self.gathering = false;
-                self.solving = None;
-                self.calibration_status = CompassCalibrationStatus::Idle;
+                self.s.gathering = false;
+                self.s.solving = None;
+                self.s.calibration_status = CompassCalibrationStatus::Idle;
             }
         }
     }
@@ -723,7 +790,7 @@ impl CompassInput {
         // Only the outcome of the solve asked for last: a trial the background task finished
         // after the final one was asked for (the final request replaced it in the slot, its
         // outcome came after) is dropped.
-        let outcome = match self.solving {
+        let outcome = match self.s.solving {
             Some(kind) => slot.lock(|s| match s.outcome.take() {
                 Some(outcome) if outcome.kind() == kind => Some(outcome),
                 _ => None,
@@ -732,18 +799,18 @@ impl CompassInput {
         };
         match outcome {
             Some(SolveOutcome::Trial { coverage }) => {
-                self.solving = None;
+                self.s.solving = None;
                 if let CompassCalibrationStatus::Gathering { coverage_pct, .. } =
-                    &mut self.calibration_status
+                    &mut self.s.calibration_status
                 {
                     *coverage_pct = percent(coverage);
                 }
             }
             Some(SolveOutcome::Final(result)) => {
-                self.solving = None;
-                self.calibration_status = match result {
+                self.s.solving = None;
+                self.s.calibration_status = match result {
                     Ok(solved) => {
-                        self.solved = Some(solved);
+                        self.s.solved = Some(solved);
                         CompassCalibrationStatus::Stored {
                             residual_ut: solved.residual_ut,
                             field_ut: solved.field_ut,
@@ -756,22 +823,25 @@ impl CompassInput {
             }
             None => {}
         }
-        if let CompassCalibrationStatus::Gathering { samples, .. } = &mut self.calibration_status {
+        if let CompassCalibrationStatus::Gathering { samples, .. } = &mut self.s.calibration_status
+        {
             *samples = self.data.samples();
         }
-        let kind = match self.calibration_status {
-            CompassCalibrationStatus::Solving { .. } if self.solving != Some(SolveKind::Final) => {
+        let kind = match self.s.calibration_status {
+            CompassCalibrationStatus::Solving { .. }
+                if self.s.solving != Some(SolveKind::Final) =>
+            {
                 SolveKind::Final
             }
             CompassCalibrationStatus::Gathering { .. }
-                if self.solving.is_none() && now_us >= self.next_trial_us =>
+                if self.s.solving.is_none() && now_us >= self.s.next_trial_us =>
             {
-                self.next_trial_us = now_us + TRIAL_FIT_PERIOD_US;
+                self.s.next_trial_us = now_us + TRIAL_FIT_PERIOD_US;
                 SolveKind::Trial
             }
             _ => return false,
         };
-        if !self.gathering {
+        if !self.s.gathering {
             return false;
         }
         let data = &self.data;
@@ -781,34 +851,34 @@ impl CompassInput {
             s.outcome = None;
         });
         if kind == SolveKind::Final {
-            self.gathering = false;
+            self.s.gathering = false;
         }
-        self.solving = Some(kind);
+        self.s.solving = Some(kind);
         true
     }
 
     /// A calibration solved and not yet stored: the link task stores it in the parameters
     /// (once).
     pub fn take_solved(&mut self) -> Option<SolvedCalibration> {
-        self.solved.take()
+        self.s.solved.take()
     }
 
     /// The report for `doctor` and `compass calibrate` (protocol `GetCompass`).
     pub fn health(&self) -> CompassHealth {
-        let h = self.found.map(|f| f.monitor.health());
+        let h = self.s.found.map(|f| f.monitor.health());
         CompassHealth {
-            sensor: self.found.map_or(CompassSensor::None, |f| f.sensor),
-            address: self.found.map_or(0, |f| f.address),
-            state: self.state,
-            enabled: self.enabled,
-            calibrated: self.calibration.is_some(),
-            rate_hz: if self.found.is_some() { self.rate_hz } else { 0.0 },
-            field_ut: self.field_ut,
-            readings: self.past.0.saturating_add(h.map_or(0, |h| h.readings)),
-            failures: self.past.1.saturating_add(h.map_or(0, |h| h.failures)),
-            overflows: self.past.2.saturating_add(h.map_or(0, |h| h.overflows)),
-            calibration: self.calibration_status,
-            ..self.health
+            sensor: self.s.found.map_or(CompassSensor::None, |f| f.sensor),
+            address: self.s.found.map_or(0, |f| f.address),
+            state: self.s.state,
+            enabled: self.s.enabled,
+            calibrated: self.s.calibration.is_some(),
+            rate_hz: if self.s.found.is_some() { self.s.rate_hz } else { 0.0 },
+            field_ut: self.s.field_ut,
+            readings: self.s.past.0.saturating_add(h.map_or(0, |h| h.readings)),
+            failures: self.s.past.1.saturating_add(h.map_or(0, |h| h.failures)),
+            overflows: self.s.past.2.saturating_add(h.map_or(0, |h| h.overflows)),
+            calibration: self.s.calibration_status,
+            ..self.s.health
         }
     }
 }

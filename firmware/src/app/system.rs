@@ -578,8 +578,13 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
 
     /// Drive a compass ([`Self::service_compass`]) with `compass`.
     pub fn with_compass(mut self, compass: &'q mut CompassInput) -> Self {
-        self.compass = Some(compass);
+        self.set_compass(compass);
         self
+    }
+
+    /// [`Self::with_compass`] in place.
+    pub fn set_compass(&mut self, compass: &'q mut CompassInput) {
+        self.compass = Some(compass);
     }
 
     /// The compass service, when there is one.
