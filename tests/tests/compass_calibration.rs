@@ -189,3 +189,69 @@ fn the_stored_calibration_gives_headings_within_two_degrees_over_the_random_worl
     }
     println!("worst: seed {}, {:.2}°; horizontal field below 15 µT: {weak:?}", worst.0, worst.1);
 }
+
+/// `configurator-cli compass calibrate`'s flow (`configurator_cli::compass::calibrate`) over
+/// TCP against the application graph serving its links in real time, its compass the
+/// simulator's behind the IST8310's registers, turned by hand: the board gathers while the
+/// configurator shows the progress, solves, stores; the parameters say so over the link, and
+/// `doctor`'s line reads "calibrated". Runs about 20 s (the least gathering time).
+#[test]
+fn compass_calibrate_over_tcp_stores_the_calibration_in_the_parameters() {
+    use configurator_cli::link::Client;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    use std::time::{Duration, Instant};
+
+    let mut links = sim::serve::TcpLinks::bind(0, sim::serve::simulator_board_info("SITL", 3, 4))
+        .expect("a TCP port");
+    let address = links.local_addr().expect("its address");
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop_board = stop.clone();
+    let mut rng = Rng::new(9);
+    let spec = MagnetometerSpec { noise_ut: 0.8, ..MagnetometerSpec::random(&mut rng, 4) };
+    let board = std::thread::spawn(move || {
+        let mut bus = Ist8310Bus::new(SimMagnetometer::new(spec, 9));
+        let settings: Settings<NoFlash> = Settings::without_store();
+        with_system(settings, Default::default(), None, |system| {
+            let start = Instant::now();
+            while !stop_board.load(Ordering::Relaxed) {
+                let now_us = start.elapsed().as_micros() as u64;
+                let q = turning(now_us as f64 * 1e-6);
+                bus.q_world_imu = q;
+                let qf = q.cast::<f32>();
+                system.handoffs.snapshot.pilot.q_world_imu = [qf.w, qf.i, qf.j, qf.k];
+                links.accept();
+                system.pass(now_us, &mut links);
+                system.service_compass(now_us, &mut bus, &mut NoDelay);
+                system.handoffs.commands.clear();
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        });
+    });
+    let stream = std::net::TcpStream::connect(address).expect("connected");
+    stream.set_read_timeout(Some(Duration::from_millis(50))).expect("a read timeout");
+    let mut client = Client::connect(Box::new(stream), "tcp").expect("a handshake");
+    let result = configurator_cli::compass::calibrate(&mut client, 20.0, false);
+    let health = match client.request(&protocol::Request::GetCompass(()), "compass") {
+        Ok(protocol::Reply::Compass(health)) => health,
+        other => panic!("{other:?}"),
+    };
+    let valid = configurator_cli::config::fetch(
+        &mut client,
+        protocol::ParamRef::Name(protocol::text("compass_cal_valid")),
+    )
+    .expect("the parameter");
+    stop.store(true, Ordering::Relaxed);
+    board.join().expect("the board's thread");
+    let text = result.expect("stored");
+    println!("{text}");
+    assert!(text.starts_with("stored: field"), "{text}");
+    assert_eq!(valid.value.as_slice(), &[1.0]);
+    assert!(health.calibrated, "{health:?}");
+    let line = configurator_cli::doctor::compass_line(Some(&health));
+    assert!(
+        line.found.contains("IST8310 at 0x0E") && line.found.ends_with("calibrated"),
+        "{}",
+        line.found
+    );
+}
