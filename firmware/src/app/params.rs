@@ -801,4 +801,30 @@ mod tests {
         assert!(params.set(Param::CatchDetect as usize, &[2.0]).is_err());
         assert!(!params.land_config().catch_detect, "a refused value changes nothing");
     }
+
+    /// A stored compass calibration reads back as stored (the soft iron's six elements as the
+    /// symmetric matrix, the mounting normalised); none before one is stored; a declination
+    /// outside ±90° is refused with its range and changes nothing.
+    #[test]
+    fn a_compass_calibration_is_stored_and_read_back_and_a_bad_declination_is_refused() {
+        use super::super::compass::CompassCalibration;
+        let mut params = Params::default();
+        assert_eq!(params.compass_calibration(), None, "not calibrated by default");
+        assert!(params.compass_enabled());
+        let w = [[1.05, 0.02, -0.01], [0.02, 0.97, 0.03], [-0.01, 0.03, 1.01]];
+        let half = core::f32::consts::FRAC_1_SQRT_2;
+        let stored =
+            CompassCalibration::new([120.0, -45.5, 8.0], w, [half, 0.0, 0.0, half], 0.7).unwrap();
+        params.store_compass_calibration(&stored);
+        let read = params.compass_calibration().expect("stored");
+        assert_eq!(read.offset_ut, stored.offset_ut);
+        assert_eq!(read.soft_iron, w);
+        assert!(read.q_mag_imu.iter().zip(stored.q_mag_imu).all(|(a, b)| (a - b).abs() < 1e-6));
+        assert_eq!(read.noise_ut, 0.7);
+        let index = Param::CompassDeclinationDeg as usize;
+        assert!(matches!(params.set(index, &[95.0]), Err(DeviceError::BadValue { .. })));
+        assert_eq!(params.compass_declination_rad(), 0.0);
+        params.set(index, &[-12.5]).unwrap();
+        assert!((params.compass_declination_rad() - (-12.5f32).to_radians()).abs() < 1e-7);
+    }
 }
