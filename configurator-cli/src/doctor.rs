@@ -37,9 +37,9 @@
 
 use crate::link::{Client, LinkError};
 use protocol::{
-    BoardHealth, ConfigOrigin, ConfigStatus, GnssHealth, GnssInterface, GnssState, ImuDriverState,
-    Info, MotorLinkHealth, Reply, Request, SensorHealth, SetTelemetryRate, Telemetry, Topic,
-    MAX_MOTORS, PROTOCOL_VERSION,
+    BoardHealth, CompassHealth, CompassSensor, CompassState, ConfigOrigin, ConfigStatus,
+    GnssHealth, GnssInterface, GnssState, ImuDriverState, Info, MotorLinkHealth, Reply, Request,
+    SensorHealth, SetTelemetryRate, Telemetry, Topic, MAX_MOTORS, PROTOCOL_VERSION,
 };
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
@@ -175,6 +175,12 @@ impl Line {
             "advice": self.advice,
         })
     }
+}
+
+/// A line that informs and neither passes nor fails (something optional not there, or not set up
+/// yet).
+fn info_line(name: &'static str, checked: &'static str, found: String) -> Line {
+    Line { name, checked, verdict: Verdict::Info, found, advice: None }
 }
 
 fn line(name: &'static str, checked: &'static str, failures: Vec<String>, found: String) -> Line {
@@ -564,13 +570,7 @@ const FIX_GNSS_DEAD_RECKONING: u8 = 4;
 /// The GNSS line from the board's report (`None`: the board has no GNSS port, or its firmware
 /// predates the report). Indoors a receiver finds no fix: that is information, not a failure.
 pub fn gnss_line(gnss: Option<&GnssHealth>) -> Line {
-    let info = |found: String| Line {
-        name: "gnss",
-        checked: GNSS_CHECKED,
-        verdict: Verdict::Info,
-        found,
-        advice: None,
-    };
+    let info = |found: String| info_line("gnss", GNSS_CHECKED, found);
     let Some(gnss) = gnss else {
         return info(
             "no GNSS port: positions come from motion capture or a ground station only".into(),
@@ -623,6 +623,68 @@ pub fn gnss_line(gnss: Option<&GnssHealth>) -> Line {
                 ))
             }
         }
+    }
+}
+
+const COMPASS_CHECKED: &str = "compass (I²C magnetometer: found, rate, field, calibrated)";
+
+/// The compass line from the board's report (`None`: no compass bus, or a firmware before
+/// protocol 1.17). No compass, or one not calibrated yet, is information: the compass is for
+/// the heading outdoors. A sensor lost, stuck or saturated fails.
+pub fn compass_line(compass: Option<&CompassHealth>) -> Line {
+    let info = |found: String| info_line("compass", COMPASS_CHECKED, found);
+    let Some(compass) = compass else {
+        return info(
+            "no compass bus: the heading comes from motion capture or the GNSS track".into(),
+        );
+    };
+    let sensor = match compass.sensor {
+        CompassSensor::Ist8310 => "IST8310",
+        CompassSensor::Qmc5883l => "QMC5883L",
+        CompassSensor::None => "none",
+    };
+    let calibrated = if compass.calibrated {
+        "calibrated".to_string()
+    } else {
+        "not calibrated: run `configurator-cli compass calibrate`".to_string()
+    };
+    let found = format!(
+        "{sensor} at 0x{:02X}, {:.0} Hz, field {:.1} µT, {calibrated}{}",
+        compass.address,
+        compass.rate_hz,
+        compass.field_ut,
+        if compass.enabled { "" } else { " (compass_enabled = 0: not used)" }
+    );
+    match compass.state {
+        CompassState::Absent => info(
+            "no compass found at 0x0C, 0x0D or 0x0E: for a heading outdoors connect the GNSS              mast's SCL and SDA to the board's I²C pads"
+                .into(),
+        ),
+        CompassState::Lost => line(
+            "compass",
+            COMPASS_CHECKED,
+            vec![format!(
+                "the compass stopped answering ({} times since start-up): check its SCL and SDA                  wires and its supply; the board probes for it every second",
+                compass.lost
+            )],
+            "lost".into(),
+        ),
+        CompassState::Stuck => line(
+            "compass",
+            COMPASS_CHECKED,
+            vec!["the compass repeats the same reading: it stopped converting; power it off                   and on"
+                .into()],
+            found,
+        ),
+        CompassState::Saturated => line(
+            "compass",
+            COMPASS_CHECKED,
+            vec!["the field is beyond the sensor's range: a magnet, a speaker or a power wire                   next to it; move the mast away"
+                .into()],
+            found,
+        ),
+        CompassState::Starting | CompassState::Healthy if !compass.calibrated => info(found),
+        CompassState::Starting | CompassState::Healthy => line("compass", COMPASS_CHECKED, Vec::new(), found),
     }
 }
 
@@ -998,6 +1060,11 @@ pub fn run(
         _ => None,
     };
     emit(gnss_line(gnss.as_ref()), &mut lines);
+    let compass = match optional(client, Request::GetCompass(()), "the compass request")? {
+        Some(Reply::Compass(compass)) => Some(compass),
+        _ => None,
+    };
+    emit(compass_line(compass.as_ref()), &mut lines);
     let battery = match optional(client, Request::GetBattery(()), "the battery request")? {
         Some(Reply::Battery(battery)) => Some(battery),
         _ => None,
@@ -1247,6 +1314,38 @@ mod tests {
         let lost = gnss_line(Some(&GnssHealth { state: GnssState::Lost, ..receiving }));
         assert_eq!(lost.verdict, Verdict::Fail);
         assert!(lost.advice.unwrap().contains("TX wire"));
+    }
+
+    #[test]
+    fn the_compass_line_names_the_sensor_and_asks_for_a_calibration_and_fails_a_lost_one() {
+        assert_eq!(compass_line(None).verdict, Verdict::Info);
+        let healthy = CompassHealth {
+            sensor: CompassSensor::Ist8310,
+            address: 0x0E,
+            state: CompassState::Healthy,
+            enabled: true,
+            calibrated: true,
+            rate_hz: 99.6,
+            field_ut: 48.3,
+            ..CompassHealth::default()
+        };
+        let pass = compass_line(Some(&healthy));
+        assert_eq!(pass.verdict, Verdict::Pass);
+        assert!(
+            pass.found.contains("IST8310 at 0x0E, 100 Hz, field 48.3 µT, calibrated"),
+            "{}",
+            pass.found
+        );
+        let raw = compass_line(Some(&CompassHealth { calibrated: false, ..healthy }));
+        assert_eq!(raw.verdict, Verdict::Info);
+        assert!(raw.found.contains("not calibrated: run `configurator-cli compass calibrate`"));
+        let absent = compass_line(Some(&CompassHealth::default()));
+        assert_eq!(absent.verdict, Verdict::Info);
+        assert!(absent.found.contains("no compass found"));
+        let lost =
+            compass_line(Some(&CompassHealth { state: CompassState::Lost, lost: 2, ..healthy }));
+        assert_eq!(lost.verdict, Verdict::Fail);
+        assert!(lost.advice.unwrap().contains("SCL and SDA"));
     }
 
     /// An IMU window of `n` samples at 2 kHz: white noise of `gyro_sigma` rad/s and

@@ -5,6 +5,7 @@
 //! - [`config`]: the board's parameters: get, set, dump, diff, apply;
 //! - [`connect`]: finding and opening a board, a TCP endpoint or an in-process SITL;
 //! - [`doctor`]: the bring-up check for a first power-up;
+//! - [`compass`]: the guided compass calibration and the compass's report in words;
 //! - [`identify`]: the guided throw-and-fly identification;
 //! - [`land`]: the guided landing (the request, then the craft followed to its touchdown);
 //! - [`keys`]: the link keys shared with boards, for signed requests over a radio;
@@ -15,6 +16,7 @@
 //! - [`record`]: telemetry topics written to CSV;
 //! - [`shell`]: the interactive shell (line editing, completion, history).
 
+pub mod compass;
 pub mod config;
 pub mod connect;
 pub mod doctor;

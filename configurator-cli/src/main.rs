@@ -202,6 +202,9 @@ enum Command {
     /// Guided calibration on the board.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
+    /// The compass on the GNSS mast: `compass calibrate`.
+    #[command(subcommand)]
+    Compass(CompassCommand),
     /// Throw-and-fly identification: arm, throw the craft, and the board pulses each motor,
     /// learns its actuators and flies on what it learned. MOTORS WILL SPIN. The learned model
     /// goes into the parameters (`save` stores it).
@@ -327,6 +330,18 @@ enum CalibrateCommand {
         /// Give up after this long without a throw, s.
         #[arg(long, default_value_t = 120.0)]
         timeout_s: f64,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum CompassCommand {
+    /// Fit the compass's hard and soft iron and its mounting: turn the craft by hand through
+    /// every orientation (disarmed, motors off, away from steel) while the board gathers; it
+    /// solves and stores the result only when both fits succeed (`save` keeps it).
+    Calibrate {
+        /// Gather for this long, s (stops earlier once the coverage reaches 70 %).
+        #[arg(long, default_value_t = 60.0)]
+        duration_s: f64,
     },
 }
 
@@ -556,6 +571,12 @@ fn board_command(command: &Command) -> Result<BoardCommand, Failure> {
             }
             BoardCommand::Calibrate { yes: *yes, max_throws: *max_throws, timeout_s: *timeout_s }
         }
+        Command::Compass(CompassCommand::Calibrate { duration_s }) => {
+            if !(duration_s.is_finite() && (10.0..=600.0).contains(duration_s)) {
+                return Err(input(format!("--duration-s {duration_s} is outside 10 to 600 s")));
+            }
+            BoardCommand::CompassCalibrate { duration_s: *duration_s }
+        }
         Command::Identify { yes, timeout_s, disarm_after_s, land_after_s, record } => {
             check_timeout_s(*timeout_s)?;
             for (option, hold_s) in
@@ -685,6 +706,9 @@ enum BoardCommand {
         yes: bool,
         max_throws: u8,
         timeout_s: f64,
+    },
+    CompassCalibrate {
+        duration_s: f64,
     },
     Identify {
         yes: bool,
@@ -1135,6 +1159,10 @@ fn run_on_board(
         }
         BoardCommand::Calibrate { yes, max_throws, timeout_s } => {
             calibrate_imu_offset(client, yes, max_throws, timeout_s, cli.json)
+        }
+        BoardCommand::CompassCalibrate { duration_s } => {
+            configurator_cli::compass::calibrate(client, duration_s, cli.json)
+                .map_err(Failure::from)
         }
         BoardCommand::Identify { yes, options, record } => {
             identify(client, yes, options, record.as_deref(), cli.json)

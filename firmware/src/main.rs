@@ -11,9 +11,9 @@
 //! | `imu_data_ready` | EXTI2 (ICM-42688-P INT1), 8 kHz | 3 | starts the SPI DMA read of one sample (returns at once) |
 //! | `imu_transfer_done` | DMA1 stream 0 complete | 3 | ends the read, adds the sample to the 8 kHz → 2 kHz mean |
 //! | `motor_burst_0..2` | DMA1 streams 2–4 complete (the motor timers' DShot bursts) | 4 | switches the timer's outputs to capture the ESCs' bidirectional answers (a few dozen register writes, 28 µs after the step started the frame; the answer starts 30 µs after the frame, too soon to wait for the step to end) |
-//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port and the telemetry radio's UART (`radio_baud`): requests routed, telemetry, configuration saves (flash erase); the GNSS receiver serviced ([`LinkTask::service_gnss`](firmware::app::system::LinkTask::service_gnss): its fixes to the control queue); then a restart if one was asked for |
+//! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port and the telemetry radio's UART (`radio_baud`): requests routed, telemetry, configuration saves (flash erase); the GNSS receiver serviced ([`LinkTask::service_gnss`](firmware::app::system::LinkTask::service_gnss): its fixes to the control queue); the compass serviced ([`LinkTask::service_compass`](firmware::app::system::LinkTask::service_compass): a read every 10 ms on I2C1, about 0.2 ms, its samples to the control queue, a calibration's solve handed to `background`); then a restart if one was asked for |
 //! | `gnss_received` | USART2 (the GNSS UART's receive FIFO) | 3 | moves the received bytes into the queue the link pass reads (`board::gnss`: no DMA stream is left for it) |
-//! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the link's work, the learner-sample queue drained, results published |
+//! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the link's work, the learner-sample queue drained, results published; then a compass calibration's solve, if one waits ([`run_compass_solve`](firmware::app::compass::run_compass_solve)) |
 //! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
 //! What each task does, and in which order, is the portable application graph's
@@ -100,6 +100,21 @@ static mut GNSS_QUEUE: core::mem::MaybeUninit<firmware::board::gnss::GnssQueue> 
 static mut GNSS_INPUT: core::mem::MaybeUninit<firmware::app::gnss::GnssInput> =
     core::mem::MaybeUninit::uninit();
 
+/// The compass service, its calibration's handoff and the background task's solver (about 7 KB
+/// each with a calibration's store; AXI SRAM, NOLOAD: `init` writes them).
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.compass"]
+static mut COMPASS_INPUT: core::mem::MaybeUninit<firmware::app::compass::CompassInput> =
+    core::mem::MaybeUninit::uninit();
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.compass"]
+static mut COMPASS_SOLVE: core::mem::MaybeUninit<firmware::app::compass::CompassSolveSlot> =
+    core::mem::MaybeUninit::uninit();
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.compass"]
+static mut COMPASS_SOLVER: core::mem::MaybeUninit<firmware::app::compass::CompassSolver> =
+    core::mem::MaybeUninit::uninit();
+
 /// The box beside the log's ring for the control loop's state at an arming (9 KB; AXI SRAM,
 /// NOLOAD: `init` writes its state byte only, `Mailbox::init_in`).
 #[cfg(target_os = "none")]
@@ -116,6 +131,7 @@ mod app {
         motor_burst_1, motor_burst_2, usb_service,
     };
     use firmware::app::card::CardLog;
+    use firmware::app::compass::{CompassInput, CompassSolveSlot, CompassSolver};
     use firmware::app::gnss::GnssInput;
     use firmware::app::hal::Motors;
     use firmware::app::log::{LogRing, LogSink, Logger, NoCard};
@@ -129,8 +145,9 @@ mod app {
     use firmware::board::config::{clock_plan, silicon_revision, TIME_BASE_HZ};
     use firmware::board::flash::ConfigSectors;
     use firmware::board::gnss::{self, BoardGnss, GnssQueue, GnssRx};
+    use firmware::board::i2c::BoardI2c;
     use firmware::board::identity::{uid_hex, UID_HEX_CHARS};
-    use firmware::board::imu::BoardImu;
+    use firmware::board::imu::{BoardImu, CycleDelay};
     use firmware::board::motors::{BoardMotors, BurstCompletion};
     use firmware::board::radio::BoardRadio;
     use firmware::board::receiver::BoardReceiver;
@@ -183,6 +200,9 @@ mod app {
         /// into it (locked per entry), `usb_service` reads and deletes its files (locked per
         /// chunk).
         log: Logger<'static>,
+        /// The compass calibration's solves: `usb_service` copies in what was gathered and
+        /// takes the outcome, `background` solves (each locked for a copy).
+        compass_solve: &'static mut CompassSolveSlot,
     }
 
     /// Each task's own state.
@@ -212,6 +232,12 @@ mod app {
         gnss: Option<BoardGnss>,
         /// Its receive interrupt's end.
         gnss_rx: Option<GnssRx>,
+        /// The compass's I²C bus, serviced by the link pass (`None`: no compass bus), and the
+        /// busy wait of its sensor's initialisation.
+        compass_bus: Option<BoardI2c>,
+        compass_delay: CycleDelay,
+        /// The compass calibration's solver (`background`).
+        compass_solver: &'static mut CompassSolver,
         /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads), and
         /// the link task's end of the telemetry ring (one record per control step).
         link: LinkTask<'static, ConfigSectors>,
@@ -442,6 +468,19 @@ mod app {
             }
             None => (None, None, None),
         };
+        // The compass's bus (the GNSS mast's SCL/SDA), probed for a sensor from the first pass.
+        // SAFETY: `init` runs once, before any task: these are the statics' only references.
+        // Built in place: 7 KB each, never on this stack.
+        let (compass_input, compass_solve, compass_solver) = unsafe {
+            (
+                CompassInput::build_in(&mut *core::ptr::addr_of_mut!(crate::COMPASS_INPUT)),
+                CompassSolveSlot::build_in(&mut *core::ptr::addr_of_mut!(crate::COMPASS_SOLVE)),
+                CompassSolver::build_in(&mut *core::ptr::addr_of_mut!(crate::COMPASS_SOLVER)),
+            )
+        };
+        let compass_bus = BOARD
+            .compass
+            .map(|wiring| BoardI2c::new(wiring, ccdr.clocks.pclk1().raw(), cycles_per_us));
         let link = LinkServer::new(board_info);
         let shared = Shared {
             snapshot: control.snapshot(),
@@ -452,6 +491,7 @@ mod app {
             imu,
             log: Logger::new(log_consumer, sink, BOARD.name, config.rate_hz)
                 .with_params(settings.params()),
+            compass_solve,
         };
 
         // The control tick at the application's rate (2 kHz), started last so the first step
@@ -473,7 +513,7 @@ mod app {
             control_rate_hz
         );
 
-        let local = Local {
+        let mut local = Local {
             control_timer,
             step_timer,
             control_clock: clock,
@@ -493,8 +533,16 @@ mod app {
             },
             gnss,
             gnss_rx,
+            compass_bus,
+            compass_delay: CycleDelay { cycles_per_us },
+            compass_solver,
             background,
         };
+        // Attached where it lies (a `with_compass` on the task by value would add copies of
+        // the whole link task, 4 KB each, to this frame).
+        if local.compass_bus.is_some() {
+            local.link.set_compass(compass_input);
+        }
         (shared, local, init::Monotonics())
     }
 
@@ -562,13 +610,13 @@ mod app {
         #[task(binds = DMA1_STR4, priority = 4, local = [burst_2])]
         fn motor_burst_2(cx: motor_burst_2::Context);
 
-        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, radio, gnss, link], shared = [snapshot, results, board, commands, work, log])]
+        #[task(binds = OTG_FS, priority = 2, local = [usb_clock, usb, radio, gnss, compass_bus, compass_delay, link], shared = [snapshot, results, board, commands, work, log, compass_solve])]
         fn usb_service(cx: usb_service::Context);
 
         #[task(binds = USART2, priority = 3, local = [gnss_rx])]
         fn gnss_received(cx: gnss_received::Context);
 
-        #[task(priority = 1, local = [background], shared = [results, work, log])]
+        #[task(priority = 1, local = [background, compass_solver], shared = [results, work, log, compass_solve])]
         fn background(cx: background::Context);
     }
 }
@@ -582,7 +630,10 @@ mod tasks {
         background, control_tick, gnss_received, imu_data_ready, imu_transfer_done, motor_burst_0,
         motor_burst_1, motor_burst_2, usb_service,
     };
-    use firmware::app::system::{run_background, PassShared, Restart, TickHardware, TickShared};
+    use firmware::app::compass::{run_compass_solve, CompassSolveSlot};
+    use firmware::app::system::{
+        run_background, Mutex, PassShared, Restart, TickHardware, TickShared,
+    };
     use firmware::board::bootloader;
     use firmware::board::timing::{cycles_per_us, step_stats};
     use protocol::StepTime;
@@ -678,7 +729,20 @@ mod tasks {
         if let Some(gnss) = cx.local.gnss.as_mut() {
             cx.local.link.service_gnss(now_us, gnss, &mut shared.commands);
         }
-        if outcome.background_due {
+        // The compass: a read when one is due (every 10 ms, about 0.2 ms of I²C), its sample to
+        // the control queue, a calibration's solve handed to the background task.
+        let mut solve_due = false;
+        if let Some(bus) = cx.local.compass_bus.as_mut() {
+            solve_due = cx.local.link.service_compass(
+                now_us,
+                bus,
+                cx.local.compass_delay,
+                &mut shared.commands,
+                &mut shared.snapshot,
+                &mut SlotLock(cx.shared.compass_solve),
+            );
+        }
+        if outcome.background_due || solve_due {
             let _ = background::spawn();
         }
         if let Some(restart) = outcome.restart {
@@ -704,5 +768,16 @@ mod tasks {
     pub fn background(cx: background::Context) {
         let (mut work, mut results, mut log) = (cx.shared.work, cx.shared.results, cx.shared.log);
         run_background(cx.local.background, Some(&mut log), &mut work, &mut results);
+        run_compass_solve(cx.local.compass_solver, &mut SlotLock(cx.shared.compass_solve));
+    }
+
+    /// An RTIC resource holding a `&'static mut` to a handoff, locked as the handoff itself.
+    struct SlotLock<M>(M);
+
+    impl<M: Mutex<T = &'static mut CompassSolveSlot>> Mutex for SlotLock<M> {
+        type T = CompassSolveSlot;
+        fn lock<R>(&mut self, f: impl FnOnce(&mut CompassSolveSlot) -> R) -> R {
+            self.0.lock(|slot| f(slot))
+        }
     }
 }

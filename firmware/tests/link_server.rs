@@ -972,3 +972,39 @@ fn log_files_are_listed_in_pages_read_in_chunks_and_deleted_with_typed_refusals(
         Err(DeviceError::NoSuchLog { number: 3 })
     ));
 }
+
+/// The compass over the link: `GetCompass` answers the service's report (`Unsupported` without
+/// a compass bus); a calibration's start is refused while armed and without a sensor, its
+/// finish without a gathering, each with a typed error and nothing routed; accepted, it reaches
+/// the compass service.
+#[test]
+fn the_compass_report_and_its_calibration_requests_are_checked_on_the_link() {
+    let mut host = Host::new();
+    host.handshake();
+    let start = Request::CompassCalibration(CompassCalibrationCommand::Start);
+    assert_eq!(host.request(&Request::GetCompass(()), 2), Err(DeviceError::Unsupported));
+    assert_eq!(host.request(&start, 3), Err(DeviceError::Unsupported));
+    let healthy = CompassHealth {
+        sensor: CompassSensor::Qmc5883l,
+        address: 0x0D,
+        state: CompassState::Healthy,
+        rate_hz: 100.0,
+        field_ut: 49.0,
+        ..CompassHealth::default()
+    };
+    host.view.compass = Some(CompassHealth { state: CompassState::Absent, ..healthy });
+    assert_eq!(host.request(&start, 4), Err(DeviceError::NotReady));
+    host.view.compass = Some(healthy);
+    assert_eq!(host.request(&Request::GetCompass(()), 5), Ok(Reply::Compass(healthy)));
+    host.view.control.armed = true;
+    assert_eq!(host.request(&start, 6), Err(DeviceError::RefusedWhileArmed));
+    let finish = Request::CompassCalibration(CompassCalibrationCommand::Finish);
+    host.view.control.armed = false;
+    assert_eq!(host.request(&finish, 7), Err(DeviceError::NotReady));
+    assert_eq!(host.server.take_request(), None, "nothing refused was routed");
+    assert_eq!(host.request(&start, 8), Ok(Reply::Done));
+    assert_eq!(
+        host.server.take_request(),
+        Some(LinkRequest::Compass(CompassCalibrationCommand::Start))
+    );
+}

@@ -18,8 +18,8 @@
 //! does not check, so a new number cannot slip in unchecked.
 
 use firmware::targets::h743::{
-    self, adc, dma, dmamux, exti, gpio, rcc, spi, syscfg, tim, usart, RccEnable, RccRegister, Spi,
-    Timer, Uart,
+    self, adc, dma, dmamux, exti, gpio, i2c, rcc, spi, syscfg, tim, usart, I2c, RccEnable,
+    RccRegister, Spi, Timer, Uart,
 };
 use firmware::targets::{DmaStream, Port};
 use std::cell::Cell;
@@ -251,6 +251,13 @@ fn check_rcc(c: &mut Check) {
         };
         enable(&format!("uart({uart:?})"), h743::uart(uart).enable, register, mask);
     }
+    for bus in [I2c::I2c1, I2c::I2c2] {
+        let mask = match bus {
+            I2c::I2c1 => written(&rb.apb1lenr, |w| w.i2c1en().set_bit()),
+            I2c::I2c2 => written(&rb.apb1lenr, |w| w.i2c2en().set_bit()),
+        };
+        enable(&format!("i2c({bus:?})"), h743::i2c(bus).enable, RccRegister::Apb1L, mask);
+    }
     enable(
         "ADC12_ENABLE",
         h743::ADC12_ENABLE,
@@ -291,6 +298,7 @@ fn check_gpio(c: &mut Check) {
     c.same("gpio::MODER", gpio::MODER, fake.offset(&rb.moder));
     c.same("gpio::OSPEEDR", gpio::OSPEEDR, fake.offset(&rb.ospeedr));
     c.same("gpio::PUPDR", gpio::PUPDR, fake.offset(&rb.pupdr));
+    c.same("gpio::OTYPER", gpio::OTYPER, fake.offset(&rb.otyper));
     c.same("gpio::IDR", gpio::IDR, fake.offset(&rb.idr));
     c.same("gpio::BSRR", gpio::BSRR, fake.offset(&rb.bsrr));
     c.same("gpio::AFRL", gpio::AFRL, fake.offset(&rb.afrl));
@@ -1095,6 +1103,61 @@ fn check_adc(c: &mut Check) {
     c.names.insert("adc::SMP_810_CYCLES".into());
 }
 
+fn check_i2c(c: &mut Check) {
+    for bus in [I2c::I2c1, I2c::I2c2] {
+        let base = match bus {
+            I2c::I2c1 => pac::I2C1::PTR as u32,
+            I2c::I2c2 => pac::I2C2::PTR as u32,
+        };
+        c.same(&format!("i2c({bus:?}).base"), h743::i2c(bus).base, base);
+    }
+    let fake = Fake::<pac::i2c1::RegisterBlock>::new();
+    let rb = fake.block();
+    let facts = [
+        ("i2c::CR1", i2c::CR1, fake.offset(&rb.cr1)),
+        ("i2c::CR2", i2c::CR2, fake.offset(&rb.cr2)),
+        ("i2c::TIMINGR", i2c::TIMINGR, fake.offset(&rb.timingr)),
+        ("i2c::ISR", i2c::ISR, fake.offset(&rb.isr)),
+        ("i2c::ICR", i2c::ICR, fake.offset(&rb.icr)),
+        ("i2c::RXDR", i2c::RXDR, fake.offset(&rb.rxdr)),
+        ("i2c::TXDR", i2c::TXDR, fake.offset(&rb.txdr)),
+        ("i2c::CR1_PE", i2c::CR1_PE, written(&rb.cr1, |w| w.pe().set_bit())),
+        // A 7-bit address sits in SADD's bits 7:1 (RM0433 §47.7.2).
+        (
+            "i2c::CR2_SADD_SHIFT",
+            1 << i2c::CR2_SADD_SHIFT,
+            written(&rb.cr2, |w| w.sadd().bits(0b10)),
+        ),
+        ("i2c::CR2_RD_WRN", i2c::CR2_RD_WRN, written(&rb.cr2, |w| w.rd_wrn().set_bit())),
+        ("i2c::CR2_START", i2c::CR2_START, written(&rb.cr2, |w| w.start().set_bit())),
+        ("i2c::CR2_STOP", i2c::CR2_STOP, written(&rb.cr2, |w| w.stop().set_bit())),
+        (
+            "i2c::CR2_NBYTES_SHIFT",
+            1 << i2c::CR2_NBYTES_SHIFT,
+            written(&rb.cr2, |w| w.nbytes().bits(1)),
+        ),
+        ("i2c::CR2_AUTOEND", i2c::CR2_AUTOEND, written(&rb.cr2, |w| w.autoend().set_bit())),
+        ("i2c::ISR_TXIS", i2c::ISR_TXIS, read_mask(&rb.isr, |r| r.txis().bit_is_set())),
+        ("i2c::ISR_RXNE", i2c::ISR_RXNE, read_mask(&rb.isr, |r| r.rxne().bit_is_set())),
+        ("i2c::ISR_NACKF", i2c::ISR_NACKF, read_mask(&rb.isr, |r| r.nackf().bit_is_set())),
+        ("i2c::ISR_STOPF", i2c::ISR_STOPF, read_mask(&rb.isr, |r| r.stopf().bit_is_set())),
+        ("i2c::ISR_TC", i2c::ISR_TC, read_mask(&rb.isr, |r| r.tc().bit_is_set())),
+        ("i2c::ISR_BERR", i2c::ISR_BERR, read_mask(&rb.isr, |r| r.berr().bit_is_set())),
+        ("i2c::ISR_ARLO", i2c::ISR_ARLO, read_mask(&rb.isr, |r| r.arlo().bit_is_set())),
+        ("i2c::ISR_BUSY", i2c::ISR_BUSY, read_mask(&rb.isr, |r| r.busy().bit_is_set())),
+        (
+            "i2c::ICR_ALL",
+            i2c::ICR_ALL,
+            written(&rb.icr, |w| {
+                w.nackcf().set_bit().stopcf().set_bit().berrcf().set_bit().arlocf().set_bit()
+            }),
+        ),
+    ];
+    for (name, ours, pac) in facts {
+        c.same(name, ours, pac);
+    }
+}
+
 /// Every comparison (`finish` reports the mismatches).
 fn check_all() -> Check {
     let mut c = Check::default();
@@ -1106,6 +1169,7 @@ fn check_all() -> Check {
     check_timers(&mut c);
     check_spi(&mut c);
     check_usart(&mut c);
+    check_i2c(&mut c);
     check_adc(&mut c);
     c
 }

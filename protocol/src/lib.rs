@@ -24,7 +24,7 @@ pub use table::DecodeError;
 
 /// This protocol's version. Bump the minor for additions an older peer can ignore, the major
 /// for anything else (any change to the golden bytes of an existing message).
-pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 16 };
+pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 17 };
 
 /// Hash of the message table: FNV-1a (64 bit) of `messages.rs` with comments and white space
 /// removed. Equal hashes mean both sides were built from the same table.

@@ -291,6 +291,8 @@ pub enum Reply {
     Identification(IdentificationStatus),
     /// Answer to [`Request::GetGnss`]. Protocol 1.16.
     Gnss(GnssHealth),
+    /// Answer to [`Request::GetCompass`]. Protocol 1.17.
+    Compass(CompassHealth),
 }
 
 /// How the latest throw-to-fly identification was made (protocol 1.12,
@@ -942,6 +944,128 @@ pub struct GnssHealth {
     pub checksum_errors: u32,
 }
 
+/// The compass (an I²C magnetometer) as its service sees it (protocol 1.17,
+/// [`Request::GetCompass`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub struct CompassHealth {
+    /// Which sensor answered (`None`: none found yet).
+    pub sensor: CompassSensor,
+    /// Its 7-bit I²C address (0 while none is found).
+    pub address: u8,
+    pub state: CompassState,
+    /// The `compass_enabled` parameter: samples go to the control step only when set.
+    pub enabled: bool,
+    /// A calibration (hard and soft iron, mounting) is stored (`compass_cal_valid`): samples go
+    /// to the control step only then.
+    pub calibrated: bool,
+    /// Valid readings a second over the last second, Hz.
+    pub rate_hz: f32,
+    /// Strength of the newest valid field, µT: calibrated when a calibration is stored, raw
+    /// (hard iron included) otherwise; NaN before any reading.
+    pub field_ut: f32,
+    /// Valid readings, failed reads (bus errors, no new data) and overflowing reads since
+    /// start-up.
+    pub readings: u32,
+    pub failures: u32,
+    pub overflows: u32,
+    /// Times the sensor was declared lost, stuck or saturated since start-up.
+    pub lost: u16,
+    pub stuck: u16,
+    pub saturated: u16,
+    /// Calibrated samples handed to the control step since start-up.
+    pub samples_sent: u32,
+    /// The calibration procedure ([`Request::CompassCalibration`]).
+    pub calibration: CompassCalibrationStatus,
+}
+
+/// Which magnetometer (protocol 1.17).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CompassSensor {
+    /// Nothing answered at 0x0C, 0x0D or 0x0E.
+    #[default]
+    None,
+    /// iSentek IST8310 (0x0C or 0x0E).
+    Ist8310,
+    /// QST QMC5883L (0x0D).
+    Qmc5883l,
+}
+
+/// Where the compass stands (protocol 1.17).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CompassState {
+    /// No sensor found: probing the bus about once a second.
+    #[default]
+    Absent,
+    /// Found and configured, no valid reading yet.
+    Starting,
+    /// Valid readings arrive and change.
+    Healthy,
+    /// Ten reads in a row failed: unplugged or unpowered; probing again.
+    Lost,
+    /// 25 identical readings in a row: the sensor stopped converting.
+    Stuck,
+    /// Ten overflowing reads in a row: a magnet or a current next to the sensor.
+    Saturated,
+}
+
+/// What the host asks of the compass calibration (protocol 1.17).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CompassCalibrationCommand {
+    /// Forget what was gathered and gather afresh: turn the craft through every orientation.
+    /// Refused while armed ([`DeviceError::RefusedWhileArmed`]) and without a working sensor
+    /// ([`DeviceError::NotReady`]).
+    Start,
+    /// Stop gathering and solve; the result (stored or refused) shows in
+    /// [`CompassHealth::calibration`]. [`DeviceError::NotReady`] when nothing is gathering.
+    Finish,
+    /// Stop gathering; nothing is stored.
+    Cancel,
+}
+
+/// The compass calibration's progress and outcome (protocol 1.17).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Default)]
+pub enum CompassCalibrationStatus {
+    /// None running since start-up (or cancelled).
+    #[default]
+    Idle,
+    /// Gathering: samples taken and the sphere's coverage of the latest trial fit, per cent
+    /// (the fit needs 20 %; a hemisphere gives 25 %, the whole sphere 100 %).
+    Gathering { samples: u32, coverage_pct: u8 },
+    /// Solving the samples gathered (the background task).
+    Solving { samples: u32 },
+    /// Solved and stored in the parameters (saved by `save`): the fit's RMS residual and field
+    /// strength, µT, its coverage, per cent, and the mounting's standard deviation, degrees.
+    Stored { residual_ut: f32, field_ut: f32, coverage_pct: u8, mounting_std_deg: f32 },
+    /// Refused: nothing was stored.
+    Refused(CompassCalibrationRefusal),
+}
+
+/// Why a compass calibration was refused (protocol 1.17). Nothing was stored.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub enum CompassCalibrationRefusal {
+    /// Fewer samples than the fit needs (100): turn longer.
+    TooFewSamples { samples: u32 },
+    /// The samples do not lie on an ellipsoid: not one field turned through orientations.
+    NotAnEllipsoid,
+    /// The samples span too little of the sphere (per cent, 20 needed): turn through more
+    /// orientations, both sides up, nose up and down.
+    InsufficientCoverage { coverage_pct: u8 },
+    /// The samples lie too far from the fitted ellipsoid (more than 10 % of the field): a
+    /// motor running, steel nearby, or a broken sensor.
+    ResidualTooLarge { residual_ut: f32, field_ut: f32 },
+    /// Too few samples with an attitude for the mounting (50 needed).
+    TooFewAttitudes { samples: u32 },
+    /// The craft was turned about one axis only: the mounting cannot be told (turn about two
+    /// axes: roll or pitch as well as yaw).
+    NotTurnedAboutTwoAxes { observability: f32 },
+    /// The fit failed numerically (non-finite sums).
+    Numerical,
+    /// The sensor was lost while gathering.
+    SensorLost,
+    /// The craft was armed while gathering (the motors' currents would be fitted as iron).
+    Armed,
+}
+
 /// Where the GNSS driver stands (protocol 1.16).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum GnssState {
@@ -1328,6 +1452,13 @@ crate::table::message_table! {
         /// The GNSS receiver ([`Reply::Gnss`]); `Unsupported` on a device without a GNSS port.
         /// Protocol 1.16.
         0x21 => GetGnss(()),
+        /// The compass ([`Reply::Compass`]); `Unsupported` on a device without a compass bus.
+        /// Protocol 1.17.
+        0x22 => GetCompass(()),
+        /// Start, finish or cancel the compass calibration → `Done`; refused while armed, and
+        /// `NotReady` as [`CompassCalibrationCommand`] says; `Unsupported` without a compass
+        /// bus. Signed over an untrusted link (it stores parameters). Protocol 1.17.
+        0x23 => CompassCalibration(CompassCalibrationCommand),
     }
 }
 

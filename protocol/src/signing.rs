@@ -109,7 +109,8 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::EscCommand(_)
         | Request::SetLinkKey(_)
         | Request::DeleteLog(_)
-        | Request::Land(()) => true,
+        | Request::Land(())
+        | Request::CompassCalibration(_) => true,
         Request::Hello(_)
         | Request::GetInfo(())
         | Request::GetStatus(())
@@ -127,7 +128,8 @@ pub fn commands_the_craft(request: &Request) -> bool {
         | Request::ReadLog(_)
         | Request::GetBattery(())
         | Request::GetIdentification(())
-        | Request::GetGnss(()) => false,
+        | Request::GetGnss(())
+        | Request::GetCompass(()) => false,
     }
 }
 

@@ -97,6 +97,8 @@ fn any_request() -> impl Strategy<Value = Request> {
             Just(Request::GetIdentification(())),
             Just(Request::Land(())),
             Just(Request::GetGnss(())),
+            Just(Request::GetCompass(())),
+            Just(Request::CompassCalibration(protocol::CompassCalibrationCommand::Finish)),
         ],
     ]
 }

@@ -63,7 +63,7 @@ fn a_healthy_sitl_passes_every_line_with_the_motors_spun_on_their_own_outputs() 
     assert_eq!(code, Some(0), "{stderr}\n{lines:#?}");
     assert_eq!(
         names(&lines),
-        ["link", "imu", "flash", "receiver", "gnss", "battery", "esc", "spin"]
+        ["link", "imu", "flash", "receiver", "gnss", "compass", "battery", "esc", "spin"]
     );
     assert!(failing(&lines).is_empty(), "{lines:#?}");
     assert!(stderr.contains("all checks passed"), "{stderr}");
@@ -127,7 +127,7 @@ fn a_silent_esc_fails_the_esc_line_naming_the_motor() {
     let esc = line(&lines, "esc");
     assert!(esc["found"].as_str().unwrap().contains("motor 2 of 0–3 reports NO speed"), "{esc}");
     assert!(esc["advice"].as_str().unwrap().contains("check motor 2's ESC"), "{esc}");
-    assert!(stderr.contains("2 of 8 checks failed: esc, spin"), "{stderr}");
+    assert!(stderr.contains("2 of 9 checks failed: esc, spin"), "{stderr}");
 }
 
 #[test]

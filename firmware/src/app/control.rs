@@ -104,6 +104,9 @@ pub enum ControlCommand {
     PositionFix(super::pilot::PositionFix),
     /// Where to hold while poses arrive (the link refuses non-finite values).
     PositionSetpoint(PositionSetpoint),
+    /// A calibrated magnetic field in the IMU's axes (`super::compass`): handed to the pilot
+    /// (`Pilot::magnetic_field`); one with a non-finite value or noise is ignored.
+    MagneticField(super::compass::MagneticSample),
     /// The parameters changed: take these (applied when nothing is armed; kept until then).
     Configure(ControlSettings),
     /// Spin `motor` at `command` (clamped to [`MOTOR_TEST_MAX_COMMAND`]) until
@@ -670,6 +673,11 @@ impl<'q> ControlLoop<'q> {
             }
             ControlCommand::PositionSetpoint(setpoint) => {
                 self.state.pilot.set_position_setpoint(&setpoint);
+            }
+            ControlCommand::MagneticField(sample) => {
+                if sample.is_valid() {
+                    self.state.pilot.magnetic_field(&sample, now_us);
+                }
             }
             ControlCommand::Configure(settings) => self.state.pending_settings = Some(settings),
             ControlCommand::MotorTest { motor, command } => {
@@ -1404,5 +1412,25 @@ mod tests {
         control.step(0, &mut NanImu, &mut NoMotors);
         assert_eq!(control.snapshot().imu_missing, 1);
         assert!(consumer.pop().is_none());
+    }
+
+    /// A magnetic sample reaches the pilot with its time; one with a NaN, or no noise, changes
+    /// nothing; a disarm forgets it.
+    #[test]
+    fn a_magnetic_sample_reaches_the_pilot_and_a_bad_one_changes_nothing() {
+        use super::super::compass::MagneticSample;
+        let mut queue = SampleQueue::new();
+        let (producer, _consumer) = split_queue(&mut queue);
+        let mut control = ControlLoop::new(ControlConfig::default(), producer);
+        let good = MagneticSample { field_imu_ut: [20.0, -3.0, 44.0], noise_ut: 0.6 };
+        control.command(ControlCommand::MagneticField(good), 1_000);
+        assert_eq!(control.state.pilot.latest_magnetic_field(), Some((good, 1_000)));
+        let nan = MagneticSample { field_imu_ut: [f32::NAN, 0.0, 0.0], noise_ut: 0.6 };
+        control.command(ControlCommand::MagneticField(nan), 2_000);
+        let silent = MagneticSample { noise_ut: 0.0, ..good };
+        control.command(ControlCommand::MagneticField(silent), 3_000);
+        assert_eq!(control.state.pilot.latest_magnetic_field(), Some((good, 1_000)));
+        control.command(ControlCommand::Disarm, 4_000);
+        assert_eq!(control.state.pilot.latest_magnetic_field(), None);
     }
 }

@@ -52,6 +52,8 @@ pub enum LinkRequest {
     Reboot,
     /// Restart into the ROM bootloader (USB DFU), likewise.
     RebootToBootloader,
+    /// For the compass service (`super::compass::CompassInput::command`), checked already.
+    Compass(protocol::CompassCalibrationCommand),
 }
 
 /// Per-topic streaming state.
@@ -91,6 +93,8 @@ pub struct LinkServer {
     motor_test_started: Option<u8>,
     /// The host asked for a restart ([`LinkServer::take_request`]).
     reboot_requested: Option<LinkRequest>,
+    /// A compass calibration command for the compass service.
+    compass_command: Option<protocol::CompassCalibrationCommand>,
     /// Failsafe counts already reported as events.
     failsafes_reported: FailsafeCounters,
     /// Landings begun and touchdowns already reported as events.
@@ -153,6 +157,7 @@ impl LinkServer {
             motor_test_timeouts_reported: 0,
             motor_test_started: None,
             reboot_requested: None,
+            compass_command: None,
             failsafes_reported: FailsafeCounters::default(),
             landings_reported: (0, 0),
             trusted: true,
@@ -199,6 +204,9 @@ impl LinkServer {
         }
         if let Some(command) = self.background_commands.pop_front() {
             return Some(LinkRequest::Background(command));
+        }
+        if let Some(command) = self.compass_command.take() {
+            return Some(LinkRequest::Compass(command));
         }
         self.reboot_requested.take()
     }
@@ -698,6 +706,18 @@ impl LinkServer {
             Request::GetFlight(()) => Ok(Reply::Flight(flight_telemetry(view))),
             Request::GetBoard(()) => Ok(Reply::Board(view.board)),
             Request::GetGnss(()) => view.gnss.map(Reply::Gnss).ok_or(DeviceError::Unsupported),
+            Request::GetCompass(()) => {
+                view.compass.map(Reply::Compass).ok_or(DeviceError::Unsupported)
+            }
+            Request::CompassCalibration(command) => {
+                let health = view.compass.ok_or(DeviceError::Unsupported)?;
+                super::compass::CompassInput::check_command(&health, command, armed)?;
+                if self.compass_command.is_some() {
+                    return Err(DeviceError::Busy);
+                }
+                self.compass_command = Some(command);
+                Ok(Reply::Done)
+            }
             Request::GetHealth(()) => Ok(Reply::Health(sensor_health(view))),
             Request::GetIdentification(()) => Ok(Reply::Identification(IdentificationStatus {
                 speeds_modelled: view.background.learned.speeds_modelled,

@@ -85,9 +85,10 @@ pub enum BackgroundWork {
 /// the learner samples each piece of work was taken at ([`id::WORK_AT`], instead of
 /// [`id::WORK`]); 5 the position fixes with their own accuracy ([`LoggedCommand::PositionFix`]:
 /// a GNSS receiver's); 6 the control loop's state at the head of a file that begins at an
-/// arming ([`id::ARMING`], [`id::STATE`]). A reader reads every earlier version, and refuses
-/// later ones.
-pub const LOG_FORMAT_VERSION: u16 = 6;
+/// arming ([`id::ARMING`], [`id::STATE`]); 7 the compass's calibrated fields
+/// ([`LoggedCommand::MagneticField`]), and the pilot's latest one in that state. A reader reads
+/// every earlier version, and refuses later ones.
+pub const LOG_FORMAT_VERSION: u16 = 7;
 
 /// Rate of the learner's and the flight's snapshots in a log, Hz: a G1 estimate converges over
 /// tenths of a second and a hover's position error moves at a few hertz, so 25 Hz shows both;
@@ -317,6 +318,8 @@ pub enum LoggedCommand {
     Sticks(Option<crate::drivers::crsf::StickInput>),
     /// A position fix with its own accuracy ([`ControlCommand::PositionFix`], format 5).
     PositionFix(super::pilot::PositionFix),
+    /// A calibrated magnetic field ([`ControlCommand::MagneticField`], format 7).
+    MagneticField(super::compass::MagneticSample),
 }
 
 /// A command applied before step `step`.
@@ -491,6 +494,7 @@ impl LoggedCommand {
             ControlCommand::Land(reason) => Self::Land(reason),
             ControlCommand::Sticks(sticks) => Self::Sticks(sticks),
             ControlCommand::PositionFix(fix) => Self::PositionFix(fix),
+            ControlCommand::MagneticField(sample) => Self::MagneticField(sample),
         }
     }
 
@@ -514,6 +518,7 @@ impl LoggedCommand {
             Self::Land(reason) => ControlCommand::Land(reason),
             Self::Sticks(sticks) => ControlCommand::Sticks(sticks),
             Self::PositionFix(fix) => ControlCommand::PositionFix(fix),
+            Self::MagneticField(sample) => ControlCommand::MagneticField(sample),
         })
     }
 }

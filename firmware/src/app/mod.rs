@@ -17,6 +17,7 @@ mod background;
 pub mod battery;
 pub mod card;
 pub mod catch;
+pub mod compass;
 mod control;
 pub mod gnss;
 pub mod hal;
@@ -110,6 +111,9 @@ pub struct StatusView {
     /// The GNSS receiver, on a board with a GNSS port (what [`protocol::Request::GetGnss`]
     /// answers).
     pub gnss: Option<protocol::GnssHealth>,
+    /// The compass, on a board with a compass bus (what [`protocol::Request::GetCompass`]
+    /// answers).
+    pub compass: Option<protocol::CompassHealth>,
 }
 
 /// Whether a pose or setpoint (position, m; heading, rad) is finite: what the link, the control

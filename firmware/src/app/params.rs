@@ -189,6 +189,25 @@ registry! {
     GnssLatencyS = "gnss_latency_s", 1, Real, "s", 0.0, super::pilot::MAX_POSE_LATENCY_S,
         [super::gnss::DEFAULT_GNSS_LATENCY_S], false,
         "age of a GNSS solution when it arrives (M8-M10: 0.05-0.15)";
+    // The compass on the GNSS mast's I²C (`super::compass`): learned by `compass calibrate`,
+    // except whether to use it and the declination.
+    CompassEnabled = "compass_enabled", 1, Flag, "", 0.0, 1.0, [1.0], false,
+        "1: a calibrated compass's samples go to the pilot; 0: never";
+    CompassCalValid = "compass_cal_valid", 1, Flag, "", 0.0, 1.0, [0.0], true,
+        "1: the compass_* calibration below is stored (compass calibrate)";
+    CompassHardIronUt = "compass_hard_iron_ut", 3, Real, "µT", -MAX_HARD_IRON_UT,
+        MAX_HARD_IRON_UT, [0.0], true,
+        "hard-iron offset b, subtracted from the raw field, sensor axes";
+    CompassSoftIron = "compass_soft_iron", 6, Real, "", -MAX_SOFT_IRON, MAX_SOFT_IRON,
+        [1.0, 1.0, 1.0, 0.0, 0.0, 0.0], true,
+        "soft-iron matrix W (symmetric): xx yy zz xy xz yz";
+    CompassMountQ = "compass_mount_q", 4, Real, "", -1.0, 1.0, [1.0, 0.0, 0.0, 0.0], true,
+        "q_mag_imu: rotation from IMU axes to the compass's, w x y z";
+    CompassNoiseUt = "compass_noise_ut", 1, Real, "µT", MIN_COMPASS_NOISE_UT, 20.0,
+        [super::compass::DEFAULT_COMPASS_NOISE_UT], true,
+        "compass noise per axis after calibration (the fit's RMS residual)";
+    CompassDeclinationDeg = "compass_declination_deg", 1, Real, "°", -90.0, 90.0, [0.0], false,
+        "magnetic declination, east of true north (a map or NOAA's calculator)";
     ImuFaultTimeoutS = "imu_fault_timeout_s", 1, Real, "s", 0.0, 0.1,
         [super::hal::IMU_FAULT_TIMEOUT_S], false,
         "armed: bad IMU samples held (last good) this long, then failsafe";
@@ -233,6 +252,16 @@ registry! {
     CatchDetect = "catch_detect", 1, Flag, "", 0.0, 1.0, [1.0], false,
         "in flight: stop the motors when a hand grabs the craft (0: never)";
 }
+
+/// Largest hard-iron offset a parameter accepts, µT: beyond the IST8310's ±1,600 µT X/Y range
+/// half the range would be gone; a craft's permanent magnetisation is a few hundred µT at most.
+const MAX_HARD_IRON_UT: f32 = 1_000.0;
+/// Largest soft-iron element a parameter accepts (dimensionless): a soft iron near the identity
+/// is a few per cent off; 3 leaves room for a sensor's scale error of either sign.
+const MAX_SOFT_IRON: f32 = 3.0;
+/// Smallest compass noise a parameter accepts, µT: a hundredth of the best sensor's (the fit's
+/// residual of a perfect turn would otherwise claim no noise at all).
+const MIN_COMPASS_NOISE_UT: f32 = 0.01;
 
 /// How much further than a calibrated IMU offset the throw detector's free-fall check allows
 /// the IMU to be from the centre of gravity, m: the calibration's 95 % semi-axes are below
@@ -347,6 +376,45 @@ impl Params {
     /// `gnss_latency_s`.
     pub fn gnss_latency_s(&self) -> f32 {
         self.scalar(Param::GnssLatencyS)
+    }
+
+    /// The compass calibration stored by `compass calibrate`, when `compass_cal_valid` is set
+    /// and its mounting quaternion is not degenerate (normalised here).
+    pub fn compass_calibration(&self) -> Option<super::compass::CompassCalibration> {
+        if self.scalar(Param::CompassCalValid) != 1.0 {
+            return None;
+        }
+        let s = self.get(Param::CompassSoftIron);
+        let q = self.get(Param::CompassMountQ);
+        super::compass::CompassCalibration::new(
+            vec3(self.get(Param::CompassHardIronUt)),
+            [[s[0], s[3], s[4]], [s[3], s[1], s[5]], [s[4], s[5], s[2]]],
+            [q[0], q[1], q[2], q[3]],
+            self.scalar(Param::CompassNoiseUt),
+        )
+    }
+
+    /// Store a compass calibration (`compass calibrate`): `compass_cal_valid` set.
+    pub fn store_compass_calibration(&mut self, calibration: &super::compass::CompassCalibration) {
+        let w = calibration.soft_iron;
+        self.set_learned(Param::CompassHardIronUt, &calibration.offset_ut);
+        self.set_learned(
+            Param::CompassSoftIron,
+            &[w[0][0], w[1][1], w[2][2], w[0][1], w[0][2], w[1][2]],
+        );
+        self.set_learned(Param::CompassMountQ, &calibration.q_mag_imu);
+        self.set_learned(Param::CompassNoiseUt, &[calibration.noise_ut]);
+        self.set_learned(Param::CompassCalValid, &[1.0]);
+    }
+
+    /// Whether a calibrated compass's samples go to the pilot (`compass_enabled`).
+    pub fn compass_enabled(&self) -> bool {
+        self.scalar(Param::CompassEnabled) == 1.0
+    }
+
+    /// `compass_declination_deg`, in radians (east of true north positive).
+    pub fn compass_declination_rad(&self) -> f32 {
+        self.scalar(Param::CompassDeclinationDeg).to_radians()
     }
 
     pub fn log_always(&self) -> bool {
@@ -732,5 +800,31 @@ mod tests {
         assert!(!params.land_config().catch_detect);
         assert!(params.set(Param::CatchDetect as usize, &[2.0]).is_err());
         assert!(!params.land_config().catch_detect, "a refused value changes nothing");
+    }
+
+    /// A stored compass calibration reads back as stored (the soft iron's six elements as the
+    /// symmetric matrix, the mounting normalised); none before one is stored; a declination
+    /// outside ±90° is refused with its range and changes nothing.
+    #[test]
+    fn a_compass_calibration_is_stored_and_read_back_and_a_bad_declination_is_refused() {
+        use super::super::compass::CompassCalibration;
+        let mut params = Params::default();
+        assert_eq!(params.compass_calibration(), None, "not calibrated by default");
+        assert!(params.compass_enabled());
+        let w = [[1.05, 0.02, -0.01], [0.02, 0.97, 0.03], [-0.01, 0.03, 1.01]];
+        let half = core::f32::consts::FRAC_1_SQRT_2;
+        let stored =
+            CompassCalibration::new([120.0, -45.5, 8.0], w, [half, 0.0, 0.0, half], 0.7).unwrap();
+        params.store_compass_calibration(&stored);
+        let read = params.compass_calibration().expect("stored");
+        assert_eq!(read.offset_ut, stored.offset_ut);
+        assert_eq!(read.soft_iron, w);
+        assert!(read.q_mag_imu.iter().zip(stored.q_mag_imu).all(|(a, b)| (a - b).abs() < 1e-6));
+        assert_eq!(read.noise_ut, 0.7);
+        let index = Param::CompassDeclinationDeg as usize;
+        assert!(matches!(params.set(index, &[95.0]), Err(DeviceError::BadValue { .. })));
+        assert_eq!(params.compass_declination_rad(), 0.0);
+        params.set(index, &[-12.5]).unwrap();
+        assert!((params.compass_declination_rad() - (-12.5f32).to_radians()).abs() < 1e-7);
     }
 }

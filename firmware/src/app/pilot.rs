@@ -77,6 +77,7 @@ use protocol::{
 };
 
 use super::catch::{CatchDetector, CatchSignals};
+use super::compass::MagneticSample;
 use super::hal::{ImuSample, MAX_MOTORS};
 pub use super::landing::LandConfig;
 use super::landing::{FlyAway, Touchdown, TouchdownSigns};
@@ -630,6 +631,8 @@ pub struct Pilot {
     flyaway_origin_ned_m: Option<Vector3<f32>>,
     /// The hand-catch detector (`super::catch`).
     catch: CatchDetector,
+    /// The latest calibrated magnetic field and its arrival time, µs (`super::compass`).
+    magnetic_field: Option<(MagneticSample, u64)>,
     status: PilotStatus,
 }
 
@@ -678,6 +681,7 @@ impl Pilot {
             hold_wait_from_mps: 0.0,
             flyaway_origin_ned_m: None,
             catch: CatchDetector::new(rate_hz),
+            magnetic_field: None,
             status: PilotStatus::default(),
         }
     }
@@ -844,6 +848,20 @@ impl Pilot {
         self.last_pose_us = Some(now_us);
         self.heading_rad = Some(pose.heading_rad);
         self.last_fix_had_velocity = false;
+    }
+
+    /// A calibrated magnetic field in the IMU's axes that arrived at `now_us` (the compass):
+    /// kept, the latest only, with its time. Invalid samples are ignored.
+    pub fn magnetic_field(&mut self, sample: &MagneticSample, now_us: u64) {
+        if sample.is_valid() {
+            self.magnetic_field = Some((*sample, now_us));
+        }
+    }
+
+    /// The latest magnetic field and its arrival time, µs ([`Pilot::magnetic_field`]).
+    #[cfg(test)]
+    pub(crate) fn latest_magnetic_field(&self) -> Option<(MagneticSample, u64)> {
+        self.magnetic_field
     }
 
     /// A position fix with its own accuracy and no heading (a GNSS solution) that arrived at
@@ -1543,6 +1561,7 @@ impl Pilot {
         self.hold_wait_s = 0.0;
         self.flyaway_origin_ned_m = None;
         self.catch.stop();
+        self.magnetic_field = None;
         self.steady_s = 0.0;
         self.status.flying = false;
         self.status.piloted = None;

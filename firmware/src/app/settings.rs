@@ -522,7 +522,14 @@ mod tests {
         background.imu_offset.ci95_semi_axes_m = [0.004, 0.002, 0.001];
         let control =
             crate::app::control::ControlSnapshot { phase: FlightPhase::Done, ..Default::default() };
-        StatusView { control, background, step_time: None, board: Default::default(), gnss: None }
+        StatusView {
+            control,
+            background,
+            step_time: None,
+            board: Default::default(),
+            gnss: None,
+            compass: None,
+        }
     }
 
     #[test]

@@ -28,6 +28,7 @@ use embedded_storage::nor_flash::NorFlash;
 pub use rtic_core::{Exclusive, Mutex};
 
 use super::battery::{BatteryMonitor, LowBattery};
+use super::compass::{run_compass_solve, CompassInput, CompassSolveSlot, CompassSolver};
 use super::gnss::GnssInput;
 use super::hal::{BatterySensor, GnssPort, Imu, ImuSample, Motors, Port, PortClosed, Uart};
 use super::log::{
@@ -39,6 +40,7 @@ use super::{
     Background, BackgroundResults, ControlCommand, ControlLoop, ControlSettings, ControlSnapshot,
     LinkRequest, LinkServer, Params, Settings, StatusView, StepConsumer, CONTROL_RATE_HZ,
 };
+use crate::drivers::compass::{DelayUs, I2cRegisterBus};
 use flight::learner::FlightPhase;
 use protocol::{BoardHealth, StepTime};
 
@@ -92,12 +94,23 @@ pub struct Handoffs {
     pub commands: ControlQueue,
     /// Work for the background task: pushed by the link pass, taken by its next run.
     pub work: WorkQueue,
+    /// The compass calibration's solves: what the compass service gathered, copied in by the
+    /// link task, solved by the background task, the outcome copied back
+    /// (`super::compass::run_compass_solve`).
+    pub compass: CompassSolveSlot,
 }
 
 impl Handoffs {
     /// The handoffs at start-up.
     pub fn new(snapshot: ControlSnapshot, results: BackgroundResults, board: BoardHealth) -> Self {
-        Self { snapshot, results, board, commands: ControlQueue::new(), work: WorkQueue::new() }
+        Self {
+            snapshot,
+            results,
+            board,
+            commands: ControlQueue::new(),
+            work: WorkQueue::new(),
+            compass: CompassSolveSlot::new(),
+        }
     }
 }
 
@@ -543,11 +556,98 @@ pub struct LinkTask<'q, F: NorFlash> {
     gnss: Option<&'q mut GnssInput>,
     /// Position fixes dropped because the control queue was full, since start-up.
     dropped_fixes: u32,
+    /// The compass service (about 8 KB with its calibration's store: on the board a static of
+    /// its own, like the GNSS driver).
+    compass: Option<&'q mut CompassInput>,
+    /// Magnetic samples dropped because the control queue was full, since start-up.
+    dropped_magnetic: u32,
 }
 
 impl<'q, F: NorFlash> LinkTask<'q, F> {
     pub fn new(settings: Settings<F>, telemetry: StepConsumer<'q>) -> Self {
-        Self { settings, telemetry, dropped_work: 0, gnss: None, dropped_fixes: 0 }
+        Self {
+            settings,
+            telemetry,
+            dropped_work: 0,
+            gnss: None,
+            dropped_fixes: 0,
+            compass: None,
+            dropped_magnetic: 0,
+        }
+    }
+
+    /// Drive a compass ([`Self::service_compass`]) with `compass`.
+    pub fn with_compass(mut self, compass: &'q mut CompassInput) -> Self {
+        self.set_compass(compass);
+        self
+    }
+
+    /// [`Self::with_compass`] in place.
+    pub fn set_compass(&mut self, compass: &'q mut CompassInput) {
+        self.compass = Some(compass);
+    }
+
+    /// The compass service, when there is one.
+    pub fn compass(&self) -> Option<&CompassInput> {
+        self.compass.as_deref()
+    }
+
+    /// The compass service, mutably: for a simulator or a test that drives the calibration
+    /// without a link (a link's request goes through [`Self::pass`]).
+    pub fn compass_mut(&mut self) -> Option<&mut CompassInput> {
+        self.compass.as_deref_mut()
+    }
+
+    /// Magnetic samples dropped because the control queue was full, since start-up.
+    pub fn dropped_magnetic(&self) -> u32 {
+        self.dropped_magnetic
+    }
+
+    /// Service the compass on `bus` at `now_us` (`CompassInput::service`), with the parameters
+    /// in force and the attitude filter's latest quaternion from `snapshot`: a calibrated
+    /// field goes to the control step's queue as [`ControlCommand::MagneticField`]; then the
+    /// calibration's exchange with the background task through `solve`, and a solved
+    /// calibration stored in the parameters (saved by `save`). Returns whether a solve waits
+    /// for the background task (the board runs it). Call it from a low-priority context, at
+    /// least at the sensor's 100 Hz (the board: every link pass; it reads when due).
+    #[allow(clippy::too_many_arguments)]
+    pub fn service_compass<B, D, C, S, K>(
+        &mut self,
+        now_us: u64,
+        bus: &mut B,
+        delay: &mut D,
+        commands: &mut C,
+        snapshot: &mut S,
+        solve: &mut K,
+    ) -> bool
+    where
+        B: I2cRegisterBus,
+        D: DelayUs,
+        C: Mutex<T = ControlQueue>,
+        S: Mutex<T = ControlSnapshot>,
+        K: Mutex<T = CompassSolveSlot>,
+    {
+        let Some(compass) = self.compass.as_mut() else { return false };
+        let params = self.settings.params();
+        compass.configure(params.compass_calibration(), params.compass_enabled());
+        let (q_world_imu, armed) =
+            snapshot.lock(|snapshot| (snapshot.pilot.q_world_imu, snapshot.armed));
+        compass.set_attitude(Some(q_world_imu));
+        compass.set_armed(armed);
+        if let Some(sample) = compass.service(now_us, bus, delay) {
+            let command = ControlCommand::MagneticField(sample);
+            if !commands.lock(|queue| queue_command(queue, command)) {
+                self.dropped_magnetic = self.dropped_magnetic.wrapping_add(1);
+            }
+        }
+        let due = compass.exchange(now_us, solve);
+        if let Some(solved) = compass.take_solved() {
+            self.settings.update(|params| params.store_compass_calibration(&solved.calibration));
+            // In force at once, as stored (clamped into the parameters' ranges).
+            let params = self.settings.params();
+            compass.configure(params.compass_calibration(), params.compass_enabled());
+        }
+        due
     }
 
     /// Drive a GNSS receiver ([`Self::service_gnss`]) with `gnss` (made from the parameters at
@@ -639,6 +739,7 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
             step_time,
             board: shared.board.lock(|board| *board),
             gnss: self.gnss.as_deref().map(GnssInput::health),
+            compass: self.compass.as_deref().map(CompassInput::health),
         };
         let settings = &mut self.settings;
         // Erased here: the server's request handling, inlined into this pass, would otherwise be
@@ -657,6 +758,7 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
         logs.snapshot(now_us, &view);
 
         let mut outcome = PassOutcome::default();
+        let mut compass_command = None;
         let mut work = heapless::Vec::<BackgroundWork, WORK_QUEUE_LEN>::new();
         let mut dropped_work = 0u32;
         let mut push_work = |item: BackgroundWork, work: &mut heapless::Vec<_, WORK_QUEUE_LEN>| {
@@ -678,6 +780,7 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
                         LinkRequest::RebootToBootloader => {
                             outcome.restart = Some(Restart::Bootloader);
                         }
+                        LinkRequest::Compass(command) => compass_command = Some(command),
                     }
                 }
             });
@@ -690,6 +793,9 @@ impl<'q, F: NorFlash> LinkTask<'q, F> {
             }
         });
         self.dropped_work = self.dropped_work.wrapping_add(dropped_work);
+        if let (Some(command), Some(compass)) = (compass_command, self.compass.as_mut()) {
+            compass.command(command, now_us);
+        }
         if !work.is_empty() {
             shared.work.lock(|queue| {
                 for item in work {
@@ -763,6 +869,8 @@ pub struct System<'q, F: NorFlash> {
     pub handoffs: Handoffs,
     /// The flight log's writer, run with the background task (`None`: no log).
     pub log: Option<Logger<'q>>,
+    /// The compass calibration's solver, run with the background task.
+    pub compass_solver: CompassSolver,
 }
 
 impl<'q, F: NorFlash> System<'q, F> {
@@ -831,6 +939,7 @@ impl<'q, F: NorFlash> System<'q, F> {
             &mut Exclusive(&mut handoffs.work),
             &mut Exclusive(&mut handoffs.results),
         );
+        run_compass_solve(&mut self.compass_solver, &mut Exclusive(&mut handoffs.compass));
     }
 
     /// End the flight log's file in order (what waits is written first): the application
@@ -870,6 +979,29 @@ impl<'q, F: NorFlash> System<'q, F> {
         self.link.service_gnss(now_us, port, &mut commands);
     }
 
+    /// Service the compass on `bus` at `now_us`, as the board's link task does after each pass
+    /// ([`LinkTask::service_compass`]): its new sample waits in the control queue; a solve it
+    /// asks for runs at once, as the board's background task would.
+    pub fn service_compass<B: I2cRegisterBus, D: DelayUs>(
+        &mut self,
+        now_us: u64,
+        bus: &mut B,
+        delay: &mut D,
+    ) {
+        let handoffs = &mut self.handoffs;
+        let due = self.link.service_compass(
+            now_us,
+            bus,
+            delay,
+            &mut Exclusive(&mut handoffs.commands),
+            &mut Exclusive(&mut handoffs.snapshot),
+            &mut Exclusive(&mut handoffs.compass),
+        );
+        if due {
+            self.run_background();
+        }
+    }
+
     /// The control step's latest snapshot.
     pub fn snapshot(&self) -> ControlSnapshot {
         self.control.control().snapshot()
@@ -883,6 +1015,7 @@ impl<'q, F: NorFlash> System<'q, F> {
             step_time: None,
             board: self.handoffs.board,
             gnss: self.link.gnss().map(GnssInput::health),
+            compass: self.link.compass().map(CompassInput::health),
         }
     }
 }
@@ -919,6 +1052,8 @@ pub fn with_logged_system<F: NorFlash, R>(
     // at start-up, serviced by [`System::service_gnss`] when a receiver is simulated.
     let mut gnss =
         GnssInput::new(settings.params().gnss_config(), settings.params().gnss_latency_s());
+    // And a compass bus, serviced by [`System::service_compass`] when a sensor is simulated.
+    let mut compass = CompassInput::new();
     let mut log_ring = super::log::LogRing::new();
     let mut arming = super::log::ArmingBox::new();
     let (log_producer, log_consumer) = super::log::split_log(&mut log_ring, &mut arming);
@@ -941,8 +1076,10 @@ pub fn with_logged_system<F: NorFlash, R>(
         ),
         None => (control, None),
     };
-    let link = LinkTask::new(settings, ring_consumer).with_gnss(&mut gnss);
-    let mut system = System { control, link, background, handoffs, log };
+    let link =
+        LinkTask::new(settings, ring_consumer).with_gnss(&mut gnss).with_compass(&mut compass);
+    let compass_solver = CompassSolver::new();
+    let mut system = System { control, link, background, handoffs, log, compass_solver };
     let result = f(&mut system);
     (result, system.link.into_settings())
 }

@@ -96,6 +96,17 @@ pub fn alternate(alt: AltPin, pull_up: bool) {
     }
 }
 
+/// [`alternate`] as an open-drain output with the pull-up on: the lines of an I²C bus (the
+/// device's own pull-ups, where fitted, are stronger than the pin's 40 kΩ).
+pub fn alternate_open_drain(alt: AltPin) {
+    let pin = alt.pin;
+    // SAFETY: as in `alternate`: this pin's own bit of its port's OTYPER.
+    unsafe {
+        modify(gpio_base(pin) + gpio::OTYPER, 0, 1 << pin.number);
+    }
+    alternate(alt, true);
+}
+
 /// Make `pin` a push-pull output at `high`.
 pub fn output(pin: Pin, high: bool) {
     enable_clock(h743::gpio_enable(pin.port));

@@ -14,6 +14,7 @@ pub mod chip;
 pub mod config;
 pub mod flash;
 pub mod gnss;
+pub mod i2c;
 pub mod identity;
 pub mod imu;
 pub mod motors;

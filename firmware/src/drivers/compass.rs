@@ -46,6 +46,23 @@ pub trait I2cRegisterBus {
     }
 }
 
+/// A borrowed bus is a bus: the application's compass service is handed the board's bus for
+/// each call and builds its driver around the borrow.
+impl<B: I2cRegisterBus + ?Sized> I2cRegisterBus for &mut B {
+    type Error = B::Error;
+    fn write_register(&mut self, address: u8, reg: u8, value: u8) -> Result<(), Self::Error> {
+        (**self).write_register(address, reg, value)
+    }
+    fn read_registers(
+        &mut self,
+        address: u8,
+        first_reg: u8,
+        buf: &mut [u8],
+    ) -> Result<(), Self::Error> {
+        (**self).read_registers(address, first_reg, buf)
+    }
+}
+
 pub use super::icm42688::DelayUs;
 
 /// What can go wrong talking to a compass.

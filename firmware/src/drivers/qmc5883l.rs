@@ -98,6 +98,17 @@ impl<B: I2cRegisterBus> Qmc5883l<B> {
         Self { bus, address, monitor: HealthMonitor::new() }
     }
 
+    /// Wrap a bus for a sensor already initialised, carrying on the health report `monitor`
+    /// (a service that borrows the bus for each read keeps the monitor between reads).
+    pub const fn resume(bus: B, address: u8, monitor: HealthMonitor) -> Self {
+        Self { bus, address, monitor }
+    }
+
+    /// The health monitor, to carry over to the next [`Self::resume`].
+    pub fn monitor(&self) -> HealthMonitor {
+        self.monitor
+    }
+
     /// Give the bus back.
     pub fn release(self) -> B {
         self.bus

@@ -48,6 +48,13 @@ pub enum Uart {
     Usart6,
 }
 
+/// I²C peripherals.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum I2c {
+    I2c1,
+    I2c2,
+}
+
 /// Timers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Timer {
@@ -75,6 +82,9 @@ pub enum Function {
     SdmmcCk,
     SdmmcCmd,
     SdmmcData(u8),
+    /// An I²C peripheral's clock and data lines (open drain).
+    I2cScl(I2c),
+    I2cSda(I2c),
 }
 
 /// An RCC clock-enable register (offsets in the RCC block, RM0433 §8.7).
@@ -153,6 +163,8 @@ pub mod gpio {
     pub const MODER: u32 = 0x00;
     pub const OSPEEDR: u32 = 0x08;
     pub const PUPDR: u32 = 0x0C;
+    /// OTYPER: bit n set makes pin n open drain.
+    pub const OTYPER: u32 = 0x04;
     pub const IDR: u32 = 0x10;
     pub const BSRR: u32 = 0x18;
     /// AFRL (pins 0–7); AFRH (pins 8–15) is the next word.
@@ -409,6 +421,58 @@ pub mod spi {
     pub const SR_EOT: u32 = 1 << 3;
     /// Every clearable flag.
     pub const IFCR_ALL: u32 = 0xFF8;
+}
+
+/// I²C registers and bits (RM0433 §47.7).
+pub mod i2c {
+    pub const CR1: u32 = 0x00;
+    pub const CR2: u32 = 0x04;
+    pub const TIMINGR: u32 = 0x10;
+    pub const ISR: u32 = 0x18;
+    pub const ICR: u32 = 0x1C;
+    pub const RXDR: u32 = 0x24;
+    pub const TXDR: u32 = 0x28;
+    pub const CR1_PE: u32 = 1 << 0;
+    /// CR2: SADD (bits 7:1 hold a 7-bit address), RD_WRN, START, STOP, NBYTES (bits 23:16),
+    /// AUTOEND.
+    pub const CR2_SADD_SHIFT: u32 = 1;
+    pub const CR2_RD_WRN: u32 = 1 << 10;
+    pub const CR2_START: u32 = 1 << 13;
+    pub const CR2_STOP: u32 = 1 << 14;
+    pub const CR2_NBYTES_SHIFT: u32 = 16;
+    pub const CR2_AUTOEND: u32 = 1 << 25;
+    pub const ISR_TXIS: u32 = 1 << 1;
+    pub const ISR_RXNE: u32 = 1 << 2;
+    pub const ISR_NACKF: u32 = 1 << 4;
+    pub const ISR_STOPF: u32 = 1 << 5;
+    pub const ISR_TC: u32 = 1 << 6;
+    pub const ISR_BERR: u32 = 1 << 8;
+    pub const ISR_ARLO: u32 = 1 << 9;
+    pub const ISR_BUSY: u32 = 1 << 15;
+    /// ICR: NACKCF, STOPCF, BERRCF, ARLOCF (the flags the transfers end on).
+    pub const ICR_ALL: u32 = (1 << 4) | (1 << 5) | (1 << 8) | (1 << 9);
+}
+
+/// An I²C peripheral's facts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct I2cInfo {
+    pub base: u32,
+    pub enable: RccEnable,
+}
+
+/// I2C1 and I2C2 (RM0433 §2.3; RCC_APB1LENR.I2C1EN bit 21, I2C2EN bit 22). Their kernel clock is
+/// rcc_pclk1 by default (RCC_D2CCIP2R.I2C123SEL = 0).
+pub const fn i2c(i2c: I2c) -> I2cInfo {
+    match i2c {
+        I2c::I2c1 => I2cInfo {
+            base: 0x4000_5400,
+            enable: RccEnable { register: RccRegister::Apb1L, bit: 21 },
+        },
+        I2c::I2c2 => I2cInfo {
+            base: 0x4000_5800,
+            enable: RccEnable { register: RccRegister::Apb1L, bit: 22 },
+        },
+    }
 }
 
 /// USART registers and bits (RM0433 §48.7).
@@ -704,6 +768,13 @@ const ALTERNATE_FUNCTIONS: &[(Pin, Function, u8)] = {
         (pin(C, 11), SdmmcData(3), 12),
         (pin(C, 12), SdmmcCk, 12),
         (pin(D, 2), SdmmcCmd, 12),
+        // I2C1 (AF4): SCL PB6 or PB8, SDA PB7 or PB9. I2C2 (AF4): SCL PB10, SDA PB11.
+        (pin(B, 6), I2cScl(I2c::I2c1), 4),
+        (pin(B, 7), I2cSda(I2c::I2c1), 4),
+        (pin(B, 8), I2cScl(I2c::I2c1), 4),
+        (pin(B, 9), I2cSda(I2c::I2c1), 4),
+        (pin(B, 10), I2cScl(I2c::I2c2), 4),
+        (pin(B, 11), I2cSda(I2c::I2c2), 4),
     ]
 };
 

@@ -17,11 +17,11 @@
 //! the receiver, DMA1 S6/S7 and DMA2 S0–S5 to capture the ESCs' bidirectional answers on M1–M8,
 //! DMA2 S7 for ECC-safe flash reads.
 
-use super::h743::{Function, Spi, Timer, Uart};
+use super::h743::{Function, I2c, Spi, Timer, Uart};
 use super::Port::{A, B, C, D};
 use super::{
-    pin, AltPin, BatterySensing, BoardDescription, DmaStream, FlashLayout, GnssWiring, ImuWiring,
-    MotorOutput, MotorTimer, Pin, SdCardWiring, UartWiring,
+    pin, AltPin, BatterySensing, BoardDescription, DmaStream, FlashLayout, GnssWiring, I2cWiring,
+    ImuWiring, MotorOutput, MotorTimer, Pin, SdCardWiring, UartWiring,
 };
 
 const fn alt(pin: Pin, function: Function, af: u8) -> AltPin {
@@ -98,6 +98,14 @@ pub const MATEK_H743_V3: BoardDescription = BoardDescription {
         uart: Uart::Usart2,
         rx: alt(pin(D, 6), Function::UartRx(Uart::Usart2), 7),
         tx: alt(pin(D, 5), Function::UartTx(Uart::Usart2), 7),
+    }),
+    // The compass of a GNSS mast on I2C1, pads SCL/SDA = PB6/PB7 (AF4): Betaflight's
+    // MATEKH743 config.h (I2C1_SCL_PIN PB6, I2C1_SDA_PIN PB7, MAG_I2C_INSTANCE I2C1); the
+    // barometer is on I2C2 (PB10/PB11), which this firmware leaves alone.
+    compass: Some(I2cWiring {
+        i2c: I2c::I2c1,
+        scl: alt(pin(B, 6), Function::I2cScl(I2c::I2c1), 4),
+        sda: alt(pin(B, 7), Function::I2cSda(I2c::I2c1), 4),
     }),
     // The VBAT and CURR pads on PC0 (ADC1_INP10) and PC1 (ADC1_INP11): the board's divider
     // (11 V a volt) and 40 A a volt for the current sensor, as ArduPilot's MatekH743

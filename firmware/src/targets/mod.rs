@@ -161,6 +161,14 @@ pub struct GnssWiring {
     pub tx: AltPin,
 }
 
+/// An I²C bus (`board::i2c`): the peripheral and its clock and data pads (open drain).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct I2cWiring {
+    pub i2c: h743::I2c,
+    pub scl: AltPin,
+    pub sda: AltPin,
+}
+
 /// The flight battery's sensing: the pack through a resistor divider and a current sensor's
 /// output, each on an ADC1 input (`board::battery`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -265,6 +273,8 @@ pub struct BoardDescription {
     pub telemetry_radio: UartWiring,
     /// The GNSS receiver's port (`None`: the board has none).
     pub gnss: Option<GnssWiring>,
+    /// The I²C bus of the GNSS mast's compass (`None`: the board has none).
+    pub compass: Option<I2cWiring>,
     /// The flight battery's voltage and current.
     pub battery: BatterySensing,
     /// USB OTG2 full-speed pins (D−, D+).
@@ -355,7 +365,10 @@ impl BoardDescription {
         let gnss = self.gnss.iter().flat_map(|gnss| {
             [(gnss.rx, Function::UartRx(gnss.uart)), (gnss.tx, Function::UartTx(gnss.uart))]
         });
-        fixed.into_iter().chain(motors).chain(sdcard).chain(gnss)
+        let compass = self.compass.iter().flat_map(|bus| {
+            [(bus.scl, Function::I2cScl(bus.i2c)), (bus.sda, Function::I2cSda(bus.i2c))]
+        });
+        fixed.into_iter().chain(motors).chain(sdcard).chain(gnss).chain(compass)
     }
 
     /// Every DMA stream the board uses.
@@ -573,6 +586,50 @@ pub const fn uart_brr(kernel_clock_hz: u32, baud: u32) -> u32 {
     (kernel_clock_hz + baud / 2) / baud
 }
 
+/// Fast-mode I²C's timing (NXP UM10204 rev. 7, table 10), ns: SCL low at least 1,300 and high
+/// at least 600 (we give 1,350 and 800, so that with the peripheral's synchronisation and a
+/// 300 ns rise the clock stays at or below 400 kHz); the data set-up before SCL rises, at least
+/// the 300 ns longest rise plus 100 ns; the data hold after SCL falls, past the 300 ns longest
+/// fall less the peripheral's 50 ns analog filter (RM0433 §47.4.10, "I2C timings").
+pub const I2C_FAST_LOW_NS: u32 = 1_350;
+pub const I2C_FAST_HIGH_NS: u32 = 800;
+pub const I2C_FAST_SETUP_NS: u32 = 400;
+pub const I2C_FAST_HOLD_NS: u32 = 250;
+/// The prescaled I²C clock's period aimed at, ns: fine enough for the hold, coarse enough that
+/// SCL low fits its 8-bit field at every kernel clock up to 200 MHz.
+const I2C_TICK_NS: u32 = 50;
+
+/// I2C_TIMINGR for 400 kHz fast mode from the kernel clock `kernel_hz` (RM0433 §47.7.5: PRESC
+/// bits 31:28, SCLDEL 23:20, SDADEL 19:16, SCLH 15:8, SCLL 7:0; each time is its field plus one
+/// prescaled ticks, SDADEL's is its field).
+pub const fn i2c_fast_timingr(kernel_hz: u32) -> u32 {
+    const fn min(a: u32, b: u32) -> u32 {
+        if a < b {
+            a
+        } else {
+            b
+        }
+    }
+    // Prescaled ticks for at least `ns`.
+    const fn ticks(ns: u32, kernel_hz: u32, presc: u32) -> u32 {
+        let tick_ps = (presc as u64 + 1) * 1_000_000_000_000 / kernel_hz as u64;
+        (ns as u64 * 1_000).div_ceil(tick_ps) as u32
+    }
+    let per_tick = (kernel_hz as u64 * I2C_TICK_NS as u64).div_ceil(1_000_000_000) as u32;
+    let presc = if per_tick == 0 {
+        0
+    } else if per_tick > 16 {
+        15
+    } else {
+        per_tick - 1
+    };
+    let scll = min(ticks(I2C_FAST_LOW_NS, kernel_hz, presc).saturating_sub(1), 255);
+    let sclh = min(ticks(I2C_FAST_HIGH_NS, kernel_hz, presc).saturating_sub(1), 255);
+    let scldel = min(ticks(I2C_FAST_SETUP_NS, kernel_hz, presc).saturating_sub(1), 15);
+    let sdadel = min(ticks(I2C_FAST_HOLD_NS, kernel_hz, presc), 15);
+    (presc << 28) | (scldel << 20) | (sdadel << 16) | (sclh << 8) | scll
+}
+
 /// The SPI clock divider exponent (CFG1.MBR: divide by 2^(MBR+1)) for the fastest clock not
 /// above `max_hz` from `kernel_hz`; 7 (÷256) at most.
 pub const fn spi_mbr(kernel_hz: u32, max_hz: u32) -> u8 {
@@ -629,6 +686,29 @@ mod tests {
         assert_eq!(spi_mbr(64_000_000, 16_000_000), 1);
         assert_eq!(spi_mbr(64_000_000, 2_000_000), 4);
         assert_eq!(spi_mbr(64_000_000, 1), 7);
+    }
+
+    /// At the kernel clocks the board runs I2C1 from (pclk1: 100 and 120 MHz) and a slow one,
+    /// the fields meet fast mode's minima and the clock's period (low + high + the peripheral's
+    /// three-tick synchronisation + a 300 ns rise) is no faster than 400 kHz nor slower than
+    /// 320 kHz.
+    #[test]
+    fn i2c_fast_mode_timing_meets_the_specification() {
+        for kernel_hz in [100_000_000u32, 120_000_000, 64_000_000, 16_000_000] {
+            let t = i2c_fast_timingr(kernel_hz);
+            let presc = t >> 28;
+            let tick_ns = f64::from(presc + 1) * 1e9 / f64::from(kernel_hz);
+            let low_ns = f64::from((t & 0xFF) + 1) * tick_ns;
+            let high_ns = f64::from(((t >> 8) & 0xFF) + 1) * tick_ns;
+            let setup_ns = f64::from(((t >> 20) & 0xF) + 1) * tick_ns;
+            let hold_ns = f64::from((t >> 16) & 0xF) * tick_ns;
+            assert!(low_ns >= 1_300.0 && high_ns >= 600.0, "{kernel_hz}: {low_ns} {high_ns}");
+            assert!(setup_ns >= 400.0 && (250.0..=600.0).contains(&hold_ns), "{kernel_hz}");
+            let sync_ns = 3.0 * 1e9 / f64::from(kernel_hz);
+            let period_ns = low_ns + high_ns + 2.0 * sync_ns + 300.0;
+            let scl_khz = 1e6 / period_ns;
+            assert!((320.0..=400.0).contains(&scl_khz), "{kernel_hz} Hz: {scl_khz} kHz");
+        }
     }
 
     #[test]
