@@ -987,7 +987,7 @@ impl InterferenceEstimator {
 }
 
 /// The interference monitor's reference and tolerances.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MonitorConfig {
     /// Low-pass time constant of the deviations, s.
     pub time_constant_s: f32,
@@ -1025,7 +1025,7 @@ pub struct InterferenceStatus {
 
 /// Detects interference the compensation left: the calibrated field's strength and inclination
 /// against their values with the motors off (see the module documentation).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct InterferenceMonitor {
     config: MonitorConfig,
     reference_norm_ut: f32,

@@ -119,6 +119,8 @@ pub enum DanceError {
     Calibration(CalibrationError),
     /// The alignment refused the pairs.
     Alignment(AlignmentError),
+    /// What was fitted is no calibration the board stores (a value not finite).
+    NotStorable,
 }
 
 /// What a dance gave the board, and what it was.

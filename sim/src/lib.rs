@@ -7,6 +7,7 @@ pub mod bridge;
 pub mod calibration;
 pub mod compass_calibration;
 pub mod compass_chip;
+pub mod compass_feed;
 pub mod dshot;
 pub mod dynamics;
 pub mod faults;

@@ -25,6 +25,7 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::airframe::Airframe;
 use crate::board::{SimBoard, SimConfig};
+use crate::compass_feed::CompassFeed;
 use crate::dynamics::State;
 use crate::gnss::{GnssFeed, GnssModelConfig, GnssTruth};
 use crate::hand::GrabSpec;
@@ -292,9 +293,9 @@ pub struct FlyConfig {
     /// control step as a position fix without heading.
     pub gnss: Option<GnssModelConfig>,
     /// A compass on the craft, its field, iron, mounting, noise and motor interference
-    /// (`crate::magnetometer`; the random world's `compass` aspect draws it). Stored with the
-    /// case only: the flight does not use it yet (issue 55: the firmware's heading is wired
-    /// separately).
+    /// (`crate::magnetometer`; the random world's `compass` aspect draws it): calibrated by
+    /// the user's dance before the flight and read by the firmware's compass service
+    /// (`crate::compass_feed`).
     pub compass: Option<MagnetometerSpec>,
 }
 
@@ -612,6 +613,14 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             board.motors_mut().set_bidirectional(false);
             changed |= user_params.set(Param::MotorBidirDshot as usize, &[0.0]).is_ok();
         }
+        // A compass: the user's calibration dance before the flight, and the local declination
+        // (`crate::compass_feed`); a refused dance leaves the craft without one.
+        let mut compass = config.compass.as_ref().and_then(|spec| {
+            let feed = CompassFeed::new(spec, config.board.seed).ok()?;
+            let declination = [feed.declination_deg()];
+            changed |= user_params.set(Param::CompassDeclinationDeg as usize, &declination).is_ok();
+            Some(feed)
+        });
         let user_settings = ControlSettings::from(&user_params);
         if changed {
             app.background.configure(&user_params);
@@ -724,6 +733,15 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     app.command(ControlCommand::PositionFix(fix), now_us);
                 }
             }
+            if let Some(feed) = &mut compass {
+                let q_world_imu =
+                    board.physics().state().attitude() * airframe.q_imu_body().inverse();
+                let thrust: Vec<f64> =
+                    board.motors().commands().iter().map(|&u| f64::from(u)).collect();
+                if let Some(sample) = feed.step(board.time_s(), &q_world_imu, &thrust, now_us) {
+                    app.command(ControlCommand::MagneticField(sample), now_us);
+                }
+            }
             {
                 let (imu, motors) = board.ports();
                 app.step(now_us, imu, motors);
@@ -778,13 +796,13 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 );
                 eprintln!(
                     "t {:6.2} s  pos {:6.2} {:6.2} {:6.2} m  vel {:5.2} {:5.2} {:5.2} m/s  rate {:6.1} °/s  \
-                     flying {} hold {} aligned {} {:5.1}° sp {:5.2} {:5.2} {:5.2}  est {:5.2} {:5.2} {:5.2}  tilt err {:5.1}°  sat {:04b}",
+                     flying {} hold {} aligned {} {:5.1}° compass {} sp {:5.2} {:5.2} {:5.2}  est {:5.2} {:5.2} {:5.2}  tilt err {:5.1}°  sat {:04b}",
                     since_release,
                     state.position_ned_m.x, state.position_ned_m.y, state.position_ned_m.z,
                     state.velocity_ned_mps.x, state.velocity_ned_mps.y, state.velocity_ned_mps.z,
                     state.rate_body_rad_s.norm().to_degrees(),
                     p.flying, p.position_hold, p.heading_aligned, p.heading_alignment_rad.to_degrees(),
-                    p.position_sp_ned_m[0], p.position_sp_ned_m[1], p.position_sp_ned_m[2],
+                    p.compass_heading, p.position_sp_ned_m[0], p.position_sp_ned_m[1], p.position_sp_ned_m[2],
                     p.velocity_ned_mps[0], p.velocity_ned_mps[1], p.velocity_ned_mps[2],
                     p.tilt_error_rad.to_degrees(), p.saturated,
                 );

@@ -147,6 +147,8 @@ pub struct ControlSettings {
     /// where the user says the ESCs cannot report (`motor_bidir_dshot` = 0; 98.6 % of 1,000
     /// random worlds hovered, docs/benchmarks.md).
     pub arm_without_speeds: bool,
+    /// The compass's declination, rad, east of true north positive (`compass_declination_deg`).
+    pub compass_declination_rad: f32,
 }
 
 impl Default for ControlSettings {
@@ -163,6 +165,7 @@ impl Default for ControlSettings {
             mode_channel: crate::drivers::crsf::RcLinkConfig::default().mode.channel as u8,
             imu_fault_timeout_s: super::hal::IMU_FAULT_TIMEOUT_S,
             arm_without_speeds: false,
+            compass_declination_rad: 0.0,
         }
     }
 }
@@ -181,6 +184,7 @@ impl From<&super::params::Params> for ControlSettings {
             mode_channel: params.mode_channel(),
             imu_fault_timeout_s: params.imu_fault_timeout_s(),
             arm_without_speeds: params.arms_without_speeds(),
+            compass_declination_rad: params.compass_declination_rad(),
         }
     }
 }
@@ -765,6 +769,7 @@ impl<'q> ControlLoop<'q> {
         self.state.pilot.configure_pose(settings.pose);
         self.state.pilot.configure_landing(settings.land);
         self.state.pilot.configure_sticks(settings.sticks);
+        self.state.pilot.configure_compass(settings.compass_declination_rad);
         self.state.settings = settings;
     }
 

@@ -18,6 +18,7 @@ pub mod battery;
 pub mod card;
 pub mod catch;
 pub mod compass;
+mod compass_heading;
 mod control;
 pub mod gnss;
 pub mod hal;

@@ -78,6 +78,7 @@ use protocol::{
 
 use super::catch::{CatchDetector, CatchSignals};
 use super::compass::MagneticSample;
+use super::compass_heading::CompassHeading;
 use super::hal::{ImuSample, MAX_MOTORS};
 pub use super::landing::LandConfig;
 use super::landing::{FlyAway, Touchdown, TouchdownSigns};
@@ -516,6 +517,9 @@ pub struct PilotStatus {
     pub heading_aligned: bool,
     /// That yaw, rad (0 until known).
     pub heading_alignment_rad: f32,
+    /// The compass steers the heading now (`super::compass_heading`: a fresh, undisturbed
+    /// field in a steady flight, no motion-capture heading).
+    pub compass_heading: bool,
     /// The position setpoint while holding one, world NED, m.
     pub position_sp_ned_m: [f32; 3],
     /// Rate setpoint, thrust frame, rad/s.
@@ -631,8 +635,8 @@ pub struct Pilot {
     flyaway_origin_ned_m: Option<Vector3<f32>>,
     /// The hand-catch detector (`super::catch`).
     catch: CatchDetector,
-    /// The latest calibrated magnetic field and its arrival time, µs (`super::compass`).
-    magnetic_field: Option<(MagneticSample, u64)>,
+    /// The compass's field and heading (`super::compass_heading`).
+    compass: CompassHeading,
     status: PilotStatus,
 }
 
@@ -681,7 +685,7 @@ impl Pilot {
             hold_wait_from_mps: 0.0,
             flyaway_origin_ned_m: None,
             catch: CatchDetector::new(rate_hz),
-            magnetic_field: None,
+            compass: CompassHeading::default(),
             status: PilotStatus::default(),
         }
     }
@@ -748,6 +752,11 @@ impl Pilot {
             self.navigation = PositionEstimator::new(crossover_for_noise(config.noise_m));
             self.alignment = HeadingAlignment::new(config.noise_m);
         }
+    }
+
+    /// Take the compass's declination, rad (east of true north positive).
+    pub fn configure_compass(&mut self, declination_rad: f32) {
+        self.compass.configure(declination_rad);
     }
 
     /// The status.
@@ -853,15 +862,13 @@ impl Pilot {
     /// A calibrated magnetic field in the IMU's axes that arrived at `now_us` (the compass):
     /// kept, the latest only, with its time. Invalid samples are ignored.
     pub fn magnetic_field(&mut self, sample: &MagneticSample, now_us: u64) {
-        if sample.is_valid() {
-            self.magnetic_field = Some((*sample, now_us));
-        }
+        self.compass.sample(sample, now_us);
     }
 
     /// The latest magnetic field and its arrival time, µs ([`Pilot::magnetic_field`]).
     #[cfg(test)]
     pub(crate) fn latest_magnetic_field(&self) -> Option<(MagneticSample, u64)> {
-        self.magnetic_field
+        self.compass.latest()
     }
 
     /// A position fix with its own accuracy and no heading (a GNSS solution) that arrived at
@@ -875,8 +882,13 @@ impl Pilot {
         }
         let [horizontal_m, _] = fix.sigma_m;
         let ratio = horizontal_m / self.alignment.noise_m();
-        if self.alignment.yaw_rad().is_none() && !(0.5..=2.0).contains(&ratio) {
+        let assumed = self.alignment.yaw_is_assumed();
+        if (self.alignment.yaw_rad().is_none() || assumed) && !(0.5..=2.0).contains(&ratio) {
             self.alignment = HeadingAlignment::new(horizontal_m);
+            if assumed {
+                // The compass's world is still the fixes'.
+                self.alignment.assume_yaw(0.0);
+            }
         }
         let velocity = fix.velocity_ned_mps.map(|v| (Vector3::from(v), fix.velocity_sigma_mps));
         let fix = Fix {
@@ -970,6 +982,10 @@ impl Pilot {
         let steady = gyro.norm() < STEADY_RATE_RAD_S
             && (f.norm() - STANDARD_GRAVITY_MPS2).abs()
                 < flight::attitude::ACCEL_TRUST_BAND * STANDARD_GRAVITY_MPS2;
+        let still = gyro.norm() < STILL_RATE_RAD_S
+            && (f.norm() - STANDARD_GRAVITY_MPS2).abs() < STILL_ACCEL_MPS2;
+        let compass_yaw =
+            self.compass.step(now_us, &self.attitude.quaternion(), still_allowed && still);
         let heading = match (pose_fresh && steady, self.heading_rad) {
             (true, Some(pose_heading)) => {
                 let q_filter = self.attitude.quaternion();
@@ -985,6 +1001,13 @@ impl Pilot {
                 self.heading_offset_rad = None;
                 None
             }
+        };
+        let from_compass =
+            compass_yaw.filter(|_| heading.is_none() && steady && self.heading_rad.is_none());
+        self.status.compass_heading = from_compass.is_some();
+        let heading = match from_compass {
+            Some(yaw) => Some(self.compass_filter_heading(yaw)),
+            None => heading,
         };
         // The accelerometer measures the thrust, which is also what accelerates the craft: a
         // sustained manoeuvre (braking from 5 m/s) would pull the filter's "level" towards the
@@ -1032,8 +1055,6 @@ impl Pilot {
         }
         let q = self.q_world_imu();
         let _ = self.navigation.predict(&q, &f, dt_s);
-        let still = gyro.norm() < STILL_RATE_RAD_S
-            && (f.norm() - STANDARD_GRAVITY_MPS2).abs() < STILL_ACCEL_MPS2;
         if still_allowed && still {
             self.navigation.hold_still();
             self.alignment.hold_still();
@@ -1048,6 +1069,33 @@ impl Pilot {
         status.velocity_ned_mps = nav.velocity_ned_mps.into();
         status.has_fix = nav.has_fix;
         self.velocity_imu_mps = q.inverse_transform_vector(&nav.velocity_ned_mps).into();
+    }
+
+    /// The heading that steers the attitude filter from the compass's `yaw_rad` (the IMU's, from
+    /// true north: the fixes' north). Without a heading alignment yet, the filter's yaw is set to
+    /// it at once and the alignment assumes its world is the fixes' (yaw 0), so a hold needs no
+    /// motion to start and nothing drifts while it waits; the alignment's evidence keeps
+    /// gathering and replaces the 0 with what the fixes show (a compass error, a wrong
+    /// declination). With an alignment, the filter is held at the compass's heading less it,
+    /// which keeps the two worlds' yaw where the alignment found it while the gyro drifts.
+    fn compass_filter_heading(&mut self, yaw_rad: f32) -> f32 {
+        if self.alignment.yaw_rad().is_none() {
+            let q = self.attitude.quaternion();
+            let turn = flight::math::rotation_about(
+                &Vector3::z_axis(),
+                flight::attitude::wrap_pi(yaw_rad - yaw_of(&q)),
+            );
+            if self.attitude.reset_to(turn * q).is_ok() {
+                // The filter's world turned: the dead reckoning and the estimator's velocity
+                // with it.
+                let velocity = turn * self.navigation.state().velocity_ned_mps;
+                self.navigation.set_velocity(&velocity);
+                self.alignment = HeadingAlignment::new(self.alignment.noise_m());
+                self.alignment.assume_yaw(0.0);
+                self.heading_offset_rad = None;
+            }
+        }
+        flight::attitude::wrap_pi(yaw_rad - self.alignment_yaw_rad())
     }
 
     /// The yaw from the filter's world to the poses' world, rad (0 until known).
@@ -1561,7 +1609,7 @@ impl Pilot {
         self.hold_wait_s = 0.0;
         self.flyaway_origin_ned_m = None;
         self.catch.stop();
-        self.magnetic_field = None;
+        self.compass.forget_sample();
         self.steady_s = 0.0;
         self.status.flying = false;
         self.status.piloted = None;
@@ -1836,5 +1884,42 @@ mod tests {
         let target = filter_heading(&turned, &q_imu_level, level_yaw);
         let correction = flight::attitude::wrap_pi(target - imu_heading(&turned));
         assert!((correction + 0.1745).abs() < 1e-4, "{} °", correction.to_degrees());
+    }
+
+    /// A disarmed craft sitting still with a calibrated compass knows its heading before it is
+    /// thrown: the filter's yaw is set to the compass's (true north: the field's azimuth plus
+    /// the declination) and the alignment to the fixes' world assumed, so a hold can start
+    /// without a move. Without the compass the alignment waits for motion.
+    #[test]
+    fn a_still_craft_with_a_compass_knows_its_heading_before_the_throw() {
+        let declination = 0.2f32;
+        let true_yaw = 1.1f32;
+        // 50 µT at 60° of dip; magnetic north `declination` east of true north.
+        let (h, v) = (50.0 * libm::cosf(1.047), 50.0 * libm::sinf(1.047));
+        let world = Vector3::new(h * libm::cosf(declination), h * libm::sinf(declination), v);
+        let q_true = UnitQuaternion::from_euler_angles(0.0, 0.0, true_yaw);
+        let field = q_true.inverse() * world;
+        let still =
+            ImuSample { gyro_rad_s: [0.0; 3], accel_mps2: [0.0, 0.0, -STANDARD_GRAVITY_MPS2] };
+        for with_compass in [true, false] {
+            let mut pilot = Pilot::new(2000.0);
+            pilot.configure_compass(declination);
+            for k in 0..4000u64 {
+                let now_us = 1_000 + k * 500;
+                if with_compass && k % 20 == 0 {
+                    let sample = MagneticSample { field_imu_ut: field.into(), noise_ut: 0.5 };
+                    pilot.magnetic_field(&sample, now_us);
+                }
+                pilot.observe(&still, now_us, true);
+            }
+            assert_eq!(pilot.status().heading_aligned, with_compass);
+            if with_compass {
+                assert!(pilot.status().compass_heading);
+                let [w, x, y, z] = pilot.status().q_world_imu;
+                let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+                let error = flight::attitude::wrap_pi(yaw_of(&q) - true_yaw);
+                assert!(error.abs() < 0.5f32.to_radians(), "{:.2}°", error.to_degrees());
+            }
+        }
     }
 }

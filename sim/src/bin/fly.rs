@@ -50,9 +50,11 @@
 //! hold errors and how many learned their heading, with the seeds that did not hold.
 //!
 //! `--compass` (or `--vary compass`) draws a compass for every run (`sim::world`, aspect
-//! `compass`: `sim::magnetometer`'s ranges) and stores it with the case (`FlyConfig::compass`,
-//! shown by `fly case --seed N --compass`); the flight does not use it yet (issue 55: the
-//! firmware's heading is wired separately), so every figure is the one without it.
+//! `compass`: `sim::magnetometer`'s ranges, shown by `fly case --seed N --compass`) and flies
+//! it: the user's calibration dance before the flight, the chip's registers read by the
+//! firmware's compass service, its calibrated field to the pilot, which takes the heading from
+//! it (`sim::compass_feed`, `firmware::app::compass_heading`). The compass draws nothing else:
+//! with `--gnss` the same seeds fly the same worlds with and without it.
 //!
 //! Every command takes the motion capture's `--mocap-rate-hz`, `--mocap-jitter-ms`,
 //! `--mocap-latency-ms`, `--mocap-noise-mm`, `--mocap-heading-noise-deg`,
@@ -174,8 +176,7 @@ struct WorldArgs {
     gnss_random: bool,
     /// Draw a compass for every run (the `compass` aspect: field 25–65 µT, dip ±70°,
     /// declination ±30°, hard iron ±300 µT, soft iron 20 %, any mounting, 0.3–2 µT of noise,
-    /// 50–100 Hz, motor interference up to 50 %), stored with the case; the flight does not use
-    /// it yet.
+    /// 50–100 Hz, motor interference up to 50 %), calibrated by the user's dance and flown.
     #[arg(long)]
     compass: bool,
     /// Do not give the firmware the airframe's true IMU offset (a board never calibrated: it
@@ -250,8 +251,8 @@ fn case(
     gnss: &Option<GnssModelConfig>,
     args: &WorldArgs,
 ) -> (Airframe, FlyConfig) {
-    // The compass changes nothing the flight sees (yet): the nominal world stays nominal, its
-    // motion capture the command line's, with a compass drawn beside it.
+    // The compass is drawn on its own stream: the nominal world stays nominal, its motion
+    // capture the command line's, with a compass on the craft.
     let world_aspects = randomising(aspects);
     let (mut airframe, mut config) = if world_aspects.is_empty() {
         let (airframe, mut config) = random_case(seed);
@@ -274,8 +275,8 @@ fn case(
     (airframe, config)
 }
 
-/// The aspects that change the flown world: all but the compass, which is only stored with the
-/// case (`FlyConfig::compass`).
+/// The aspects of the world around the craft: all but the compass, which is drawn onto the
+/// nominal or random world after them (`FlyConfig::compass`).
 fn randomising(aspects: &[Aspect]) -> Vec<Aspect> {
     aspects.iter().copied().filter(|a| *a != Aspect::Compass).collect()
 }
@@ -867,7 +868,7 @@ fn main() -> ExitCode {
                 println!("ESC speed telemetry: none (motor_bidir_dshot = 0)");
             }
             if aspects.contains(&Aspect::Compass) {
-                println!("compass: drawn per run and stored with the case (not flown yet)");
+                println!("compass: drawn per run, calibrated by the user's dance, flown");
             }
             let end = args.end;
             let results = monte_carlo(runs, seed, threads, &progress, |seed| {
