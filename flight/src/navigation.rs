@@ -1167,7 +1167,8 @@ impl HeadingAlignment {
     /// shows as a yaw of its own). Ignored when the fixes have already given a yaw, or not finite.
     pub fn assume_yaw(&mut self, yaw_rad: f32) {
         if yaw_rad.is_finite() && (self.trusted_yaw_rad.is_none() || self.yaw_assumed) {
-            self.trusted_yaw_rad = Some(crate::attitude::wrap_pi(yaw_rad));
+            // Wrapped to (−π, π] as the evidence's `atan2` gives it.
+            self.trusted_yaw_rad = Some(libm::atan2f(libm::sinf(yaw_rad), libm::cosf(yaw_rad)));
             self.yaw_assumed = true;
         }
     }
