@@ -657,14 +657,14 @@ pub fn compass_line(compass: Option<&CompassHealth>) -> Line {
     );
     match compass.state {
         CompassState::Absent => info(
-            "no compass found at 0x0C, 0x0D or 0x0E: for a heading outdoors connect the GNSS              mast's SCL and SDA to the board's I²C pads"
+            "no compass found at 0x0C, 0x0D or 0x0E: for a heading outdoors connect the GNSS mast's SCL and SDA to the board's I²C pads"
                 .into(),
         ),
         CompassState::Lost => line(
             "compass",
             COMPASS_CHECKED,
             vec![format!(
-                "the compass stopped answering ({} times since start-up): check its SCL and SDA                  wires and its supply; the board probes for it every second",
+                "the compass stopped answering ({} times since start-up): check its SCL and SDA wires and its supply; the board probes for it every second",
                 compass.lost
             )],
             "lost".into(),
@@ -672,14 +672,14 @@ pub fn compass_line(compass: Option<&CompassHealth>) -> Line {
         CompassState::Stuck => line(
             "compass",
             COMPASS_CHECKED,
-            vec!["the compass repeats the same reading: it stopped converting; power it off                   and on"
+            vec!["the compass repeats the same reading: it stopped converting; power it off and on"
                 .into()],
             found,
         ),
         CompassState::Saturated => line(
             "compass",
             COMPASS_CHECKED,
-            vec!["the field is beyond the sensor's range: a magnet, a speaker or a power wire                   next to it; move the mast away"
+            vec!["the field is beyond the sensor's range: a magnet, a speaker or a power wire next to it; move the mast away"
                 .into()],
             found,
         ),
@@ -751,12 +751,12 @@ pub fn battery_line(battery: Option<&protocol::BatteryStatus>) -> Line {
     let mut failures = Vec::new();
     if !(MIN_REST_CELL_V..=MAX_REST_CELL_V).contains(&cell_v) {
         failures.push(format!(
-            "{cell_v:.2} V a cell is outside what a lithium cell at rest reads ({MIN_REST_CELL_V}–             {MAX_REST_CELL_V} V): measure the pack with a multimeter; if it differs, the              board's voltage divider is not the one its board file assumes"
+            "{cell_v:.2} V a cell is outside what a lithium cell at rest reads ({MIN_REST_CELL_V}–{MAX_REST_CELL_V} V): measure the pack with a multimeter; if it differs, the board's voltage divider is not the one its board file assumes"
         ));
     }
     if !(MIN_REST_CURRENT_A..=MAX_REST_CURRENT_A).contains(&battery.current_a) {
         failures.push(format!(
-            "{:.2} A with the motors stopped (a board draws 0.3–1.5 A): the current sensor's              scale or offset is not the one the board file assumes, or something draws too much",
+            "{:.2} A with the motors stopped (a board draws 0.3–1.5 A): the current sensor's scale or offset is not the one the board file assumes, or something draws too much",
             battery.current_a
         ));
     }

@@ -150,11 +150,11 @@ impl std::fmt::Display for DeviceErrorText {
             }
             DeviceError::LogOffsetPastEnd { number, size_bytes } => write!(
                 f,
-                "log {number} holds only {size_bytes} bytes (a partial download longer than the                  log is not one of it)"
+                "log {number} holds only {size_bytes} bytes (a partial download longer than the log is not one of it)"
             ),
             DeviceError::LogBeingWritten { number } => write!(
                 f,
-                "log {number} is still being written (the craft is armed or just disarmed); try                  again once it has closed"
+                "log {number} is still being written (the craft is armed or just disarmed); try again once it has closed"
             ),
             DeviceError::LogStorageFailed => write!(f, "the board's log storage failed"),
         }

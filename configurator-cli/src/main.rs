@@ -47,6 +47,10 @@ struct Cli {
     /// sitl-flash.bin in the user's data directory, as `sitl` uses.
     #[arg(long, global = true, requires = "sitl")]
     sitl_flash_file: Option<std::path::PathBuf>,
+    /// With --sitl: a compass on the simulated GNSS mast (drawn as the random world draws one:
+    /// iron, mounting, noise, the motors' field), calibrated by a simulated user's dance.
+    #[arg(long, global = true, requires = "sitl")]
+    sitl_compass: bool,
     /// Print JSON instead of text.
     #[arg(long, global = true)]
     json: bool,
@@ -756,6 +760,15 @@ fn with_board(cli: &Cli, command: BoardCommand) -> Result<String, Failure> {
             // The built-in simulator has a person to throw the craft for `identify`.
             hand_throws_to_fly: true,
             faults,
+            compass: cli
+                .sitl_compass
+                .then(|| {
+                    use sim::world::{random_world_case, Aspect};
+                    random_world_case(sim::sitl::SitlConfig::default().seed, &[Aspect::Compass])
+                        .1
+                        .compass
+                })
+                .flatten(),
             ..Default::default()
         };
         let sitl = match sim::sitl::Sitl::start(&config) {

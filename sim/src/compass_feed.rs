@@ -29,24 +29,35 @@ pub struct CompassFeed {
     declination_deg: f32,
 }
 
+/// The compass `spec` on the craft as the user leaves it: the calibration their dance (drawn
+/// from `seed`) stored, and the chip it was read from, ready to be read in flight; or why the
+/// dance's fit was refused.
+pub fn calibrated_chip(
+    spec: &MagnetometerSpec,
+    seed: u64,
+) -> Result<(CompassCalibration, SimCompassChip), DanceError> {
+    let dance = calibration_dance(spec, seed, DANCE_S)?;
+    let c = dance.calibration;
+    let soft_iron = [0, 1, 2].map(|i| [0, 1, 2].map(|j| c.soft_iron[(i, j)]));
+    let q = dance.alignment.q_mag_imu.into_inner();
+    let calibration = CompassCalibration::new(
+        c.offset_ut.into(),
+        soft_iron,
+        [q.w, q.i, q.j, q.k],
+        c.residual_ut.max(f32::EPSILON),
+    )
+    .ok_or(DanceError::NotStorable)?;
+    let chip = SimCompassChip::new(dance.chip, spec.clone(), seed ^ 0x434F_4D50_4153_5300);
+    Ok((calibration, chip))
+}
+
 impl CompassFeed {
     /// The compass `spec` after the user's calibration dance (drawn from `seed`), or why the
     /// dance's fit was refused.
     pub fn new(spec: &MagnetometerSpec, seed: u64) -> Result<Self, DanceError> {
-        let dance = calibration_dance(spec, seed, DANCE_S)?;
-        let c = dance.calibration;
-        let soft_iron = [0, 1, 2].map(|i| [0, 1, 2].map(|j| c.soft_iron[(i, j)]));
-        let q = dance.alignment.q_mag_imu.into_inner();
-        let calibration = CompassCalibration::new(
-            c.offset_ut.into(),
-            soft_iron,
-            [q.w, q.i, q.j, q.k],
-            c.residual_ut.max(f32::EPSILON),
-        )
-        .ok_or(DanceError::NotStorable)?;
+        let (calibration, chip) = calibrated_chip(spec, seed)?;
         let mut input = Box::<CompassInput>::default();
         input.configure(Some(calibration), true);
-        let chip = SimCompassChip::new(dance.chip, spec.clone(), seed ^ 0x434F_4D50_4153_5300);
         Ok(Self {
             chip: SharedCompassChip::new(chip),
             input,

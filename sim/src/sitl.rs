@@ -87,6 +87,11 @@ pub struct SitlConfig {
     /// latency), each solution with a 3D fix reaching the control step as a position fix
     /// without heading, as the board's GNSS UART hands them over.
     pub gnss: Option<crate::gnss::GnssModelConfig>,
+    /// A compass on the craft (`crate::magnetometer`): calibrated by the user's dance before
+    /// start-up (stored as `compass calibrate` stores it, not saved) and read through its
+    /// chip's registers by the firmware's compass service after each link pass, as the board's
+    /// link task reads its I²C sensor (`crate::compass_feed`).
+    pub compass: Option<crate::magnetometer::MagnetometerSpec>,
     /// A steady wind for the whole run: the air's velocity, world NED, m/s (drag acts on the
     /// airspeed; [`crate::board::WorldEffects::steady_wind_ned_mps`]).
     pub wind_ned_mps: [f64; 3],
@@ -174,6 +179,7 @@ impl Default for SitlConfig {
             mocap: false,
             mocap_udp: None,
             gnss: None,
+            compass: None,
             wind_ned_mps: [0.0; 3],
             motion_capture: crate::recovery::MotionCaptureConfig::default(),
             imu_offset_m: None,
@@ -236,6 +242,9 @@ pub enum SitlError {
     LogDir { path: PathBuf, source: std::io::Error },
     #[error("cannot open a UDP socket for the motion-capture poses: {0}")]
     MocapUdp(std::io::Error),
+    /// The simulated user's compass calibration was refused (`crate::compass_calibration`).
+    #[error("the compass's calibration dance was refused: {0:?}")]
+    Compass(crate::compass_calibration::DanceError),
 }
 
 /// A running SITL. Stops when dropped.
@@ -356,6 +365,10 @@ impl Sitl {
             hand_throws_to_fly: config.hand_throws_to_fly,
             mocap: config.mocap,
             gnss: config.gnss.clone(),
+            compass: match &config.compass {
+                Some(spec) => Some(SitlCompass::new(spec, config.seed)?),
+                None => None,
+            },
             wind_ned_mps: config.wind_ned_mps,
             motion_capture: config.motion_capture,
             mocap_udp: match config.mocap_udp {
@@ -417,6 +430,7 @@ struct Runner {
     motion_capture: crate::recovery::MotionCaptureConfig,
     mocap_udp: Option<MocapSender>,
     gnss: Option<crate::gnss::GnssModelConfig>,
+    compass: Option<SitlCompass>,
     wind_ned_mps: [f64; 3],
     /// The simulated pilot's radio, when there is one (it goes on across restarts).
     radio: Option<crate::radio::RcTransmitter>,
@@ -491,6 +505,15 @@ impl Runner {
                         if let Some(index) = firmware::app::params::find(name) {
                             let _ = params.set(index, &[value as f32]);
                         }
+                    }
+                });
+            }
+            if let Some(compass) = &self.compass {
+                // The user's calibration and declination in force from start-up (not saved).
+                settings.update(|params| {
+                    params.store_compass_calibration(&compass.calibration);
+                    if let Some(index) = firmware::app::params::find(b"compass_declination_deg") {
+                        let _ = params.set(index, &[compass.declination_deg]);
                     }
                 });
             }
@@ -590,6 +613,12 @@ impl Runner {
                     }
                 }
             }
+            if let Some(compass) = &mut self.compass {
+                let q_world_imu = state.attitude() * self.airframe.q_imu_body().inverse();
+                let motors = clock.board.motors();
+                let thrust: Vec<f64> = motors.commands().iter().map(|&u| f64::from(u)).collect();
+                compass.chip.update(clock.board.time_s(), &q_world_imu, &thrust);
+            }
             if let Some(port) = gnss.as_mut() {
                 let truth = crate::gnss::GnssTruth {
                     position_ned_m: state.position_ned_m,
@@ -616,6 +645,10 @@ impl Runner {
             if let Some(port) = gnss.as_mut() {
                 // The board's link task services the receiver after each pass.
                 system.service_gnss(now_us, port);
+            }
+            if let Some(compass) = &mut self.compass {
+                // And the compass on its I²C bus.
+                system.service_compass(now_us, &mut compass.chip, &mut compass.delay);
             }
             if let Some(tcp) = &mut self.tcp {
                 tcp.drop_closed();
@@ -656,6 +689,28 @@ struct Clock<'b> {
     boot_us: u64,
     /// Wall-clock start of the SITL.
     start: Instant,
+}
+
+/// The SITL's compass: the chip on the craft, the calibration the user's dance stored, the
+/// declination they set.
+struct SitlCompass {
+    chip: crate::compass_chip::SimCompassChip,
+    delay: crate::compass_chip::CountingDelay,
+    calibration: firmware::app::compass::CompassCalibration,
+    declination_deg: f32,
+}
+
+impl SitlCompass {
+    fn new(spec: &crate::magnetometer::MagnetometerSpec, seed: u64) -> Result<Self, SitlError> {
+        let (calibration, chip) =
+            crate::compass_feed::calibrated_chip(spec, seed).map_err(SitlError::Compass)?;
+        Ok(Self {
+            chip,
+            delay: crate::compass_chip::CountingDelay::default(),
+            calibration,
+            declination_deg: spec.declination_rad.to_degrees() as f32,
+        })
+    }
 }
 
 impl Clock<'_> {

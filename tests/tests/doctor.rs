@@ -93,6 +93,23 @@ fn a_healthy_sitl_passes_every_line_with_the_motors_spun_on_their_own_outputs() 
     }
 }
 
+/// A SITL with a compass on its GNSS mast (`--sitl-compass`: the simulated chip behind the
+/// firmware's own driver, calibrated by a simulated user): the compass line finds the sensor,
+/// reads it at its 100 Hz service rate, sees the Earth's field, and says it is calibrated.
+#[test]
+fn a_sitl_with_a_compass_reports_it_found_read_and_calibrated() {
+    let (code, lines, stderr) = doctor("compass", &["--sitl-compass"], false);
+    assert_eq!(code, Some(0), "{stderr}\n{lines:#?}");
+    let compass = line(&lines, "compass")["found"].as_str().unwrap();
+    assert!(compass.contains("IST8310") || compass.contains("QMC5883L"), "{compass}");
+    assert!(compass.ends_with("calibrated"), "{compass}");
+    let rate_hz = number_after(compass, ",");
+    assert!((50.0..=110.0).contains(&rate_hz), "{compass}");
+    let field_ut = number_after(compass, "field");
+    // The raw field: the Earth's 25–65 µT plus up to 300 µT of hard iron per axis.
+    assert!((10.0..600.0).contains(&field_ut), "{compass}");
+}
+
 /// The octocopter: eight motors, slower ones (292 rad/s at 8 % against 100 rad/s of idle in the
 /// simulator) than the quad's.
 #[test]

@@ -91,6 +91,12 @@ struct Args {
     motion_capture: sim::recovery::MotionCaptureArgs,
     #[command(flatten)]
     gnss: sim::gnss::GnssArgs,
+    /// A compass on the GNSS mast, drawn from --seed as the random world draws one (field,
+    /// hard and soft iron, mounting, noise, the motors' interference: `sim::magnetometer`),
+    /// calibrated by a simulated user's dance before start-up and read through its chip's
+    /// registers by the firmware's compass service (`doctor` shows it).
+    #[arg(long)]
+    compass: bool,
     /// A steady wind for the whole run: the air's velocity north, east, down, m/s (e.g.
     /// `0,4,0`: 4 m/s blowing towards the east), each within ±20.
     #[arg(
@@ -226,6 +232,12 @@ fn main() -> std::process::ExitCode {
         mocap: args.mocap,
         mocap_udp: args.mocap_udp,
         gnss: gnss.clone(),
+        compass: args
+            .compass
+            .then(|| {
+                sim::world::random_world_case(args.seed, &[sim::world::Aspect::Compass]).1.compass
+            })
+            .flatten(),
         wind_ned_mps,
         motion_capture,
         rc_script: args.rc.clone(),
@@ -287,6 +299,9 @@ fn main() -> std::process::ExitCode {
     }
     if let Some([x, y, z]) = args.acc_bias_mps2 {
         println!("  accelerometer bias: ({x}, {y}, {z}) m/s², IMU axes");
+    }
+    if args.compass {
+        println!("  compass: drawn from the seed, calibrated by a simulated user's dance");
     }
     if let Some(g) = &gnss {
         println!(
