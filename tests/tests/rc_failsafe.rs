@@ -284,5 +284,10 @@ fn in_the_sitl_the_kill_switch_is_reported_in_the_status() {
     };
     assert_eq!(report["flight"]["last_failsafe"], "Kill", "{report:#}");
     assert_eq!(report["flight"]["failsafes"]["kill"], 1);
-    assert_eq!(report["armed"], false);
+    // `status` asks for the arming state before the flight's record: a kill between the two
+    // requests shows as armed with the kill reported. Asked again after it, the craft is
+    // disarmed.
+    let after = status(&port);
+    assert_eq!(after["armed"], false, "{after:#}");
+    assert_eq!(after["flight"]["last_failsafe"], "Kill", "{after:#}");
 }
