@@ -181,6 +181,41 @@ fn a_flight_on_gnss_fixes_replays_exactly_without_a_receiver() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A flight on GNSS fixes with a compass on the mast (log format 7): the compass's calibrated
+/// fields are logged as commands, the pilot's compass state (the motors-off reference, the
+/// heading it last trusted) with the rest, and the replay is exact without the sensor.
+#[test]
+fn a_flight_on_gnss_with_a_compass_replays_exactly_without_the_sensors() {
+    let _alone = one_at_a_time();
+    let dir = scratch_dir("compass");
+    let compass = sim::world::random_world_case(3, &[sim::world::Aspect::Compass]).1.compass;
+    let config = SitlConfig {
+        pty: false,
+        speed: 5.0,
+        throw_to_fly: true,
+        hand_throws_to_fly: true,
+        gnss: Some(sim::gnss::GnssModelConfig { rate_hz: 10.0, ..Default::default() }),
+        compass,
+        log_dir: Some(dir.clone()),
+        log_always: true,
+        ..SitlConfig::default()
+    };
+    let file = fly_logged(&config);
+    let fields = records(&file)
+        .iter()
+        .filter(|r| match r {
+            LogRecord::Command(c) => {
+                matches!(c.command, firmware::app::log::LoggedCommand::MagneticField(_))
+            }
+            _ => false,
+        })
+        .count();
+    // 100 Hz over at least 6 s of the run.
+    assert!(fields >= 500, "{fields} compass fields logged");
+    assert_exact_flight(&file, config.log_always);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn an_octorotor_armed_by_the_pilots_switches_with_motion_capture_on_a_loaded_machine_replays_exactly_from_its_arming(
 ) {
