@@ -222,6 +222,30 @@ fn navigation_regions() {
         alignment.fix_velocity(black_box(velocity), 0.05, 0.1)
     });
     black_box(state.0.yaw_rad());
+    compass_region();
+}
+
+/// What the pilot does with each compass sample (`firmware::app::compass_heading`, 100 Hz, in
+/// the control step): the interference monitor's update and the tilt-compensated heading
+/// (`flight::magnetometer`), for a 48 µT field at 63° of dip seen from a craft tilted 10°.
+fn compass_region() {
+    use flight::magnetometer::{
+        tilt_compensated_heading, HeadingConfig, InterferenceMonitor, MonitorConfig,
+    };
+    let q = UnitQuaternion::from_euler_angles(0.17f32, -0.05, 1.1);
+    let world = Vector3::new(21.4f32, 1.1, 42.9);
+    let field = q.inverse() * world;
+    let monitor = InterferenceMonitor::new(MonitorConfig::default(), &world, &UnitQuaternion::identity());
+    let mut state = (monitor, field, q);
+    let heading = region(&mut state, |(monitor, field, q)| {
+        let status = monitor.update(black_box(field), q, 0.01);
+        (!status.disturbed)
+            .then(|| tilt_compensated_heading(field, q, &HeadingConfig::default()).ok())
+            .flatten()
+    });
+    if heading.is_none() {
+        fail("compass: an undisturbed field gave no heading");
+    }
 }
 
 /// Fails the bench unless `flight::math::sqrt` (`vsqrt.f32` here) and `flight::math::hypot`
@@ -961,6 +985,9 @@ fn main() -> ! {
     );
     hprintln!("bench-m7 region: navigation part: a GNSS fix refused (multipath)");
     hprintln!("bench-m7 region: navigation part: the heading alignment's velocity fix");
+    hprintln!(
+        "bench-m7 region: compass part: a field sample's monitor update and tilt-compensated heading (100 Hz)"
+    );
 
     let mut nothing = 0u32;
     region(&mut nothing, |n| black_box(*n));
