@@ -443,21 +443,7 @@ mod tests {
             let dt = 1.0 / spec.rate_hz;
             let mut t = 0.0f64;
             while t < 61.0 {
-                let collective = if t < 1.0 { 0.0 } else { 0.5 + 0.35 * (0.3 * t).sin() };
-                let thrust: Vec<f64> = (0..4)
-                    .map(|_| {
-                        if t < 1.0 {
-                            0.0
-                        } else {
-                            (collective + rng.range(-0.1, 0.1)).clamp(0.0, 1.0)
-                        }
-                    })
-                    .collect();
-                let q = UnitQuaternion::from_euler_angles(
-                    0.3 * (0.9 * t).sin(),
-                    0.3 * (0.5 * t).cos(),
-                    0.2 * t,
-                );
+                let (thrust, q) = flight::testing::interference_flight(t, 4, &mut rng);
                 if let Some(m) = sensor.update(t, &q, &thrust) {
                     let thrust: Vec<f32> = thrust.iter().map(|&u| u as f32).collect();
                     let field = calibration.apply(&m.cast());

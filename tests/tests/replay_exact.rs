@@ -149,46 +149,15 @@ fn a_tilted_hexarotor_armed_by_identify_over_tcp_replays_exactly_from_its_arming
     armed_by_identify_over_tcp(false);
 }
 
-/// A flight on a GNSS receiver instead of motion capture (log format 5): its fixes are logged as
-/// commands with their accuracies, so the replay needs no receiver and is exact.
-#[test]
-fn a_flight_on_gnss_fixes_replays_exactly_without_a_receiver() {
-    let _alone = one_at_a_time();
-    let dir = scratch_dir("gnss");
-    let config = SitlConfig {
-        pty: false,
-        speed: 5.0,
-        throw_to_fly: true,
-        hand_throws_to_fly: true,
-        gnss: Some(sim::gnss::GnssModelConfig { rate_hz: 10.0, ..Default::default() }),
-        log_dir: Some(dir.clone()),
-        log_always: true,
-        ..SitlConfig::default()
-    };
-    let file = fly_logged(&config);
-    let fixes = records(&file)
-        .iter()
-        .filter(|r| match r {
-            LogRecord::Command(c) => {
-                matches!(c.command, firmware::app::log::LoggedCommand::PositionFix(_))
-            }
-            _ => false,
-        })
-        .count();
-    // 10 Hz over at least 6 s of the run.
-    assert!(fixes >= 50, "{fixes} GNSS fixes logged");
-    assert_exact_flight(&file, config.log_always);
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// A flight on GNSS fixes with a compass on the mast (log format 7): the compass's calibrated
-/// fields are logged as commands, the pilot's compass state (the motors-off reference, the
-/// heading it last trusted) with the rest, and the replay is exact without the sensor.
-#[test]
-fn a_flight_on_gnss_with_a_compass_replays_exactly_without_the_sensors() {
-    let _alone = one_at_a_time();
-    let dir = scratch_dir("compass");
-    let compass = sim::world::random_world_case(3, &[sim::world::Aspect::Compass]).1.compass;
+/// A throw-to-fly on a 10 Hz GNSS receiver, with `compass` on the mast if any, logged from
+/// start-up into the scratch directory `name`: the log file, and how many of its commands
+/// `logged` picks.
+fn fly_on_gnss(
+    name: &str,
+    compass: Option<sim::magnetometer::MagnetometerSpec>,
+    logged: fn(&firmware::app::log::LoggedCommand) -> bool,
+) -> (PathBuf, PathBuf, usize) {
+    let dir = scratch_dir(name);
     let config = SitlConfig {
         pty: false,
         speed: 5.0,
@@ -201,18 +170,41 @@ fn a_flight_on_gnss_with_a_compass_replays_exactly_without_the_sensors() {
         ..SitlConfig::default()
     };
     let file = fly_logged(&config);
-    let fields = records(&file)
+    let count = records(&file)
         .iter()
-        .filter(|r| match r {
-            LogRecord::Command(c) => {
-                matches!(c.command, firmware::app::log::LoggedCommand::MagneticField(_))
-            }
-            _ => false,
-        })
+        .filter(|r| matches!(r, LogRecord::Command(c) if logged(&c.command)))
         .count();
+    (dir, file, count)
+}
+
+/// A flight on a GNSS receiver instead of motion capture (log format 5): its fixes are logged as
+/// commands with their accuracies, so the replay needs no receiver and is exact.
+#[test]
+fn a_flight_on_gnss_fixes_replays_exactly_without_a_receiver() {
+    let _alone = one_at_a_time();
+    let (dir, file, fixes) = fly_on_gnss("gnss", None, |c| {
+        matches!(c, firmware::app::log::LoggedCommand::PositionFix(_))
+    });
+    // 10 Hz over at least 6 s of the run.
+    assert!(fixes >= 50, "{fixes} GNSS fixes logged");
+    assert_exact_flight(&file, true);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A flight on GNSS fixes with a compass on the mast (log format 7): the compass's calibrated
+/// fields are logged as commands, the pilot's compass state (the motors-off reference, the
+/// heading it last trusted) with the rest, and the replay is exact without the sensor.
+#[test]
+fn a_flight_on_gnss_with_a_compass_replays_exactly_without_the_sensors() {
+    let _alone = one_at_a_time();
+    let compass = sim::world::random_world_case(3, &[sim::world::Aspect::Compass]).1.compass;
+    assert!(compass.is_some(), "no compass drawn");
+    let (dir, file, fields) = fly_on_gnss("compass", compass, |c| {
+        matches!(c, firmware::app::log::LoggedCommand::MagneticField(_))
+    });
     // 100 Hz over at least 6 s of the run.
     assert!(fields >= 500, "{fields} compass fields logged");
-    assert_exact_flight(&file, config.log_always);
+    assert_exact_flight(&file, true);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -553,21 +553,7 @@ fn interference_compensated_within_2_degrees() {
         let n = 3_000;
         for k in 0..n {
             let t = f64::from(k) / 50.0;
-            let collective = if t < 1.0 { 0.0 } else { 0.5 + 0.35 * (0.3 * t).sin() };
-            let u: std::vec::Vec<f64> = (0..motors)
-                .map(|_| {
-                    if t < 1.0 {
-                        0.0
-                    } else {
-                        (collective + rng.range(-0.1, 0.1)).clamp(0.0, 1.0)
-                    }
-                })
-                .collect();
-            let q = UnitQuaternion::from_euler_angles(
-                0.3 * (0.9 * t).sin(),
-                0.3 * (0.5 * t).cos(),
-                0.2 * t,
-            );
+            let (u, q) = crate::testing::interference_flight(t, motors, &mut rng);
             let raw = sensor.clean(&q, &raw_interference(&u))
                 + Vector3::from_fn(|_, _| rng.normal() * sensor.noise_ut);
             let m = calibration.apply(&raw.cast::<f32>());
