@@ -467,6 +467,9 @@ pub struct FlyReport {
     pub hold_window_s: f64,
     /// Fraction of that window's steps flown in position hold (1: held throughout).
     pub hold_coverage: f64,
+    /// RMS of the body rate's norm over the window's steps in position hold, rad/s: how calmly
+    /// the craft holds (the attitude loops flying the estimate's noise show here first).
+    pub hold_rate_rms_rad_s: Option<f64>,
     /// `PoseLost` failsafes counted over the run.
     pub pose_lost: u16,
     /// Position fixes the firmware refused as outliers (`flight::navigation::OUTLIER_SIGMAS`).
@@ -655,6 +658,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             max_hold_error_horizontal_m: None,
             hold_window_s,
             hold_coverage: 0.0,
+            hold_rate_rms_rad_s: None,
             pose_lost: 0,
             fixes_rejected: 0,
             heading_aligned_s: None,
@@ -694,6 +698,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             .then(|| MotionCapture::with_config(config.motion_capture, config.board.seed));
         let mut gnss = config.gnss.as_ref().map(|model| GnssFeed::new(model, config.board.seed));
         let (mut window_steps, mut window_hold_steps) = (0u64, 0u64);
+        // The body rate's squares over the window's steps in position hold, and their count.
+        let (mut window_rate_sum2, mut window_rate_steps) = (0.0f64, 0u64);
         let mut hover_since: Option<f64> = None;
         let mut release_z: Option<f64> = None;
         // When the excitation ended (the phase became `Done`), s.
@@ -795,12 +801,15 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                     p.specific_force_sp_ned_mps2[2]
                 );
                 eprintln!(
-                    "t {:6.2} s  pos {:6.2} {:6.2} {:6.2} m  vel {:5.2} {:5.2} {:5.2} m/s  rate {:6.1} °/s  \
+                    "t {:6.2} s  pos {:6.2} {:6.2} {:6.2} m  vel {:5.2} {:5.2} {:5.2} m/s  rate {:6.1} °/s ({:6.1} {:6.1} {:6.1})  \
                      flying {} hold {} aligned {} {:5.1}° compass {} sp {:5.2} {:5.2} {:5.2}  est {:5.2} {:5.2} {:5.2}  tilt err {:5.1}°  sat {:04b}",
                     since_release,
                     state.position_ned_m.x, state.position_ned_m.y, state.position_ned_m.z,
                     state.velocity_ned_mps.x, state.velocity_ned_mps.y, state.velocity_ned_mps.z,
                     state.rate_body_rad_s.norm().to_degrees(),
+                    state.rate_body_rad_s.x.to_degrees(),
+                    state.rate_body_rad_s.y.to_degrees(),
+                    state.rate_body_rad_s.z.to_degrees(),
                     p.flying, p.position_hold, p.heading_aligned, p.heading_alignment_rad.to_degrees(),
                     p.compass_heading, p.position_sp_ned_m[0], p.position_sp_ned_m[1], p.position_sp_ned_m[2],
                     p.velocity_ned_mps[0], p.velocity_ned_mps[1], p.velocity_ned_mps[2],
@@ -867,6 +876,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                         + gnss.as_ref().and_then(GnssFeed::origin_ned_m).unwrap_or_else(Vector3::zeros);
                     report.setpoint_ned_m = Some(sp);
                     if in_window {
+                        window_rate_sum2 += state.rate_body_rad_s.norm_squared();
+                        window_rate_steps += 1;
                         let error = (state.position_ned_m - sp).norm();
                         let worst = report.max_hold_error_m.get_or_insert(0.0);
                         *worst = worst.max(error);
@@ -1028,6 +1039,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
         report.fixes_rejected = pilot.fixes_rejected;
         report.hold_coverage =
             if window_steps > 0 { window_hold_steps as f64 / window_steps as f64 } else { 0.0 };
+        report.hold_rate_rms_rad_s =
+            (window_rate_steps > 0).then(|| (window_rate_sum2 / window_rate_steps as f64).sqrt());
         report
     })
 }

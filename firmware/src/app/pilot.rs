@@ -587,8 +587,9 @@ pub struct Pilot {
     last_pose_us: Option<u64>,
     /// A pose or fix that arrived and is taken after the next prediction.
     pending_fix: Option<PendingFix>,
-    /// The latest fix brought a velocity (a GNSS receiver's).
-    last_fix_had_velocity: bool,
+    /// The latest fix's velocity noise (a GNSS receiver's; `None` for a pose without one), m/s,
+    /// the time since the fix before it and its age, s.
+    last_fix_velocity_noise: Option<(f32, f32, f32)>,
     /// What the poses are assumed to be.
     pose_config: PoseConfig,
     heading_rad: Option<f32>,
@@ -664,7 +665,7 @@ impl Pilot {
             requested_sp: None,
             last_pose_us: None,
             pending_fix: None,
-            last_fix_had_velocity: false,
+            last_fix_velocity_noise: None,
             pose_config: PoseConfig::default(),
             heading_rad: None,
             tilted_s: 0.0,
@@ -856,7 +857,7 @@ impl Pilot {
         self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
         self.last_pose_us = Some(now_us);
         self.heading_rad = Some(pose.heading_rad);
-        self.last_fix_had_velocity = false;
+        self.last_fix_velocity_noise = None;
     }
 
     /// A calibrated magnetic field in the IMU's axes that arrived at `now_us` (the compass):
@@ -901,7 +902,7 @@ impl Pilot {
         self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
         self.last_pose_us = Some(now_us);
         self.heading_rad = None;
-        self.last_fix_had_velocity = velocity.is_some();
+        self.last_fix_velocity_noise = velocity.map(|(_, noise)| (noise, fix.dt_fix_s, fix.age_s));
     }
 
     /// Time since the previous pose or fix arrived, s (0.01 s for the first).
@@ -1411,10 +1412,18 @@ impl Pilot {
         // No faster than the estimator trusts the fixes' positions (their noise: the one the
         // heading alignment follows, `Pilot::fix`): motion capture's millimetre leaves the
         // gain as the motors allow, a receiver's decimetres lower it.
-        let with_velocity = self.last_fix_had_velocity;
+        let with_velocity = self.last_fix_velocity_noise.is_some();
         let crossover =
             flight::navigation::position_crossover(self.alignment.noise_m(), with_velocity);
         controller.cap_position_gain(crossover);
+        // No faster than the estimator's velocity is quiet (GNSS velocity's noise; motion
+        // capture brings none and is not bound).
+        if let Some((noise_mps, dt_fix_s, age_s)) = self.last_fix_velocity_noise {
+            let estimate_noise_mps =
+                flight::navigation::velocity_estimate_noise_mps(noise_mps, dt_fix_s, age_s);
+            controller
+                .cap_hold_velocity_gain(flight::controller::max_velocity_gain(estimate_noise_mps));
+        }
         Ok(controller)
     }
 

@@ -306,6 +306,10 @@ fn print_report(name: &str, report: &FlyReport) {
         report.hold_window_s,
         report.max_hold_error_m.unwrap_or(f64::NAN)
     );
+    println!(
+        "  body rate in position hold over that window: {:.1} °/s RMS",
+        report.hold_rate_rms_rad_s.unwrap_or(f64::NAN).to_degrees()
+    );
     let blocks = |b: Option<[f64; 2]>| match b {
         Some([force, rotation]) => {
             format!("force {:.2} %, rotation {:.2} %", 100.0 * force, 100.0 * rotation)
@@ -424,6 +428,14 @@ fn print_after_recovery(results: &[sim::recovery::CaseResult]) {
     }
     println!("after the recovery ({} runs that recovered):", ends.len());
     print_quantiles("  fastest horizontal speed", &speeds, 1.0, " m/s");
+    let hold_rates: Vec<f64> =
+        results.iter().filter_map(|r| r.report.hold_rate_rms_rad_s).collect();
+    print_quantiles(
+        "  body rate in the hold window (RMS)",
+        &hold_rates,
+        180.0 / std::f64::consts::PI,
+        " °/s",
+    );
     let distances: Vec<f64> = ends.iter().map(|(_, d)| *d).collect();
     print_quantiles("  distance at the end from where it recovered", &distances, 1.0, " m");
     let far: Vec<String> = ends
