@@ -10,10 +10,12 @@
 //!
 //! The byte layouts (little-endian, fixed-size, versioned) are in `docs/sim-bridge.md` and in
 //! [`SensorPacket`] and [`MotorPacket`]. Version 2 lets the sensor packet carry an external pose
-//! (what motion capture would give the board) and a GNSS receiver's solution ([`GnssSolution`]:
+//! (what motion capture would give the board), a GNSS receiver's solution ([`GnssSolution`]:
 //! what a u-blox receiver would send it, which the bridge encodes as the receiver's NAV-PVT
-//! bytes and hands to the firmware's own driver, as the board's GNSS UART would); version 1
-//! packets stay valid.
+//! bytes and hands to the firmware's own driver, as the board's GNSS UART would) and the field a
+//! compass measures (written into a simulated IST8310's registers, which the firmware's own
+//! compass service reads over its I²C driver, as on the board: [`BridgeServer::step`]); version
+//! 1 packets stay valid.
 //!
 //! [`serve_firmware`] is the loop behind `scenario bridge`: the firmware application behind the
 //! bridge, optionally serving the configurator protocol on TCP meanwhile.
@@ -21,13 +23,17 @@
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
 use std::time::{Duration, Instant};
 
+use firmware::app::compass::CompassCalibration;
 use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, MAX_MOTORS};
 use firmware::app::system::TickHardware;
 use firmware::app::ControlCommand;
+use firmware::drivers::compass::{DelayUs, I2cRegisterBus};
 use firmware::drivers::ubx::{FixType, GnssConfig, GnssFix};
+use nalgebra::UnitQuaternion;
 use protocol::{ExternalPose, LearnerFailure};
 
 use crate::board::{CONTROL_PERIOD_US, CONTROL_RATE_HZ};
+use crate::compass_chip::{ChipKind, CountingDelay, Nack, SimCompassChip};
 use crate::gnss::BoardGnss;
 use crate::radio::RcTransmitter;
 use crate::scenario::{FirmwareApp, FlightApp};
@@ -52,6 +58,16 @@ pub const POSE_LEN: usize = 16;
 pub const FLAG_GNSS: u16 = 1 << 1;
 /// Length of the GNSS solution in a sensor packet, bytes ([`GnssSolution`]).
 pub const GNSS_LEN: usize = 52;
+/// Sensor-packet flag (version 2 and later): the magnetic field the compass measures follows,
+/// after the pose and the GNSS solution when they are present.
+pub const FLAG_MAGNETOMETER: u16 = 1 << 2;
+/// Length of the magnetometer block in a sensor packet, bytes: the field, IMU axes (3 × f32,
+/// µT).
+pub const MAGNETOMETER_LEN: usize = 12;
+/// The compass chip the magnetometer blocks are written into: an IST8310 (0.3 µT/LSB, valid
+/// within ±1600 µT on x and y and ±2500 µT on z), at the address of a GNSS mast's (0x0E), the
+/// chip the firmware probes first.
+pub const BRIDGE_COMPASS_CHIP: ChipKind = ChipKind::Ist8310;
 /// Magic of the sensor packet, bytes 0–3 (ASCII).
 pub const SENSOR_MAGIC: [u8; 4] = *b"FCSN";
 /// Magic of the motor packet, bytes 0–3 (ASCII).
@@ -60,8 +76,10 @@ pub const MOTOR_MAGIC: [u8; 4] = *b"FCMO";
 pub const SENSOR_HEADER_LEN: usize = 48;
 /// Motor packet header length before the commands, bytes.
 pub const MOTOR_HEADER_LEN: usize = 16;
-/// Longest packet, bytes (version-2 sensor packet with 8 motors, a pose and a GNSS solution).
-pub const MAX_PACKET_LEN: usize = SENSOR_HEADER_LEN + 4 * MAX_MOTORS + POSE_LEN + GNSS_LEN;
+/// Longest packet, bytes (version-2 sensor packet with 8 motors, a pose, a GNSS solution and a
+/// magnetometer block).
+pub const MAX_PACKET_LEN: usize =
+    SENSOR_HEADER_LEN + 4 * MAX_MOTORS + POSE_LEN + GNSS_LEN + MAGNETOMETER_LEN;
 
 /// Why a packet or an exchange failed.
 #[derive(Debug, thiserror::Error)]
@@ -72,8 +90,8 @@ pub enum BridgeError {
     /// Nothing arrived in time.
     #[error("no packet within {0:?}")]
     Timeout(Duration),
-    /// The packet is shorter than its header, its motor count, its pose or its GNSS solution
-    /// needs.
+    /// The packet is shorter than its header, its motor count, or the optional blocks its flags
+    /// announce (pose, GNSS solution, magnetometer) need.
     #[error("packet of {len} bytes is too short: {need} bytes needed")]
     TooShort {
         /// Received length.
@@ -101,14 +119,15 @@ impl From<std::io::Error> for BridgeError {
     }
 }
 
-/// Simulator → application, `48 + 4m` bytes, `+ 16` with a pose, `+ 52` with a GNSS solution.
+/// Simulator → application, `48 + 4m` bytes, `+ 16` with a pose, `+ 52` with a GNSS solution,
+/// `+ 12` with a magnetometer block.
 ///
 /// | offset | type | field |
 /// |---|---|---|
 /// | 0 | `[u8; 4]` | magic `"FCSN"` |
 /// | 4 | `u8` | version (1 or 2) |
 /// | 5 | `u8` | motor count m (1–8) |
-/// | 6 | `u16` | flags: bit 0 ([`FLAG_POSE`]) = a pose follows, bit 1 ([`FLAG_GNSS`]) = a GNSS solution follows (version 2; ignored in version 1) |
+/// | 6 | `u16` | flags: bit 0 ([`FLAG_POSE`]) = a pose follows, bit 1 ([`FLAG_GNSS`]) = a GNSS solution follows, bit 2 ([`FLAG_MAGNETOMETER`]) = a magnetometer block follows (version 2; ignored in version 1) |
 /// | 8 | `u64` | sequence number, echoed in the reply |
 /// | 16 | `f64` | simulation time, s |
 /// | 24 | `f32 × 3` | gyro, rad/s, IMU axes |
@@ -117,10 +136,12 @@ impl From<std::io::Error> for BridgeError {
 /// | 48 + 4m | `f32 × 3` | with [`FLAG_POSE`]: position of the centre of gravity, world NED, m |
 /// | 60 + 4m | `f32` | with [`FLAG_POSE`]: heading (yaw of the body frame about world z), rad |
 /// | 48 + 4m (+ 16 after a pose) | 52 bytes | with [`FLAG_GNSS`]: the GNSS solution ([`GnssSolution`]) |
+/// | 48 + 4m (+ 16 after a pose, + 52 after a GNSS solution) | `f32 × 3` | with [`FLAG_MAGNETOMETER`]: the magnetic field the compass measures, IMU axes, µT |
 ///
-/// [`SensorPacket::encode`] writes version 2 when [`SensorPacket::pose`] or
-/// [`SensorPacket::gnss`] is set or [`SensorPacket::version`] is 2 or more, version 1 otherwise;
-/// [`SensorPacket::decode`] fills `version` from the packet.
+/// [`SensorPacket::encode`] writes version 2 when [`SensorPacket::pose`],
+/// [`SensorPacket::gnss`] or [`SensorPacket::magnetometer_ut`] is set or
+/// [`SensorPacket::version`] is 2 or more, version 1 otherwise; [`SensorPacket::decode`] fills
+/// `version` from the packet.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorPacket {
     /// Version to write (1 or 2; a pose always makes it 2); as received when decoded.
@@ -138,10 +159,15 @@ pub struct SensorPacket {
     /// The external pose (version 2 with [`FLAG_POSE`]): motion capture's centre-of-gravity
     /// position and heading.
     pub pose: Option<ExternalPose>,
-    /// A GNSS receiver's solution (version 2 with [`FLAG_GNSS`]). With the pose, the only
-    /// measurements of the world that cross the bridge besides the IMU's and the motors', and
-    /// only when sent.
+    /// A GNSS receiver's solution (version 2 with [`FLAG_GNSS`]). With the pose and the
+    /// magnetometer block, the only measurements of the world that cross the bridge besides the
+    /// IMU's and the motors', and only when sent.
     pub gnss: Option<GnssSolution>,
+    /// The magnetic field the compass measures (version 2 with [`FLAG_MAGNETOMETER`]), µT, in
+    /// the IMU's axes (the gyro's and the accelerometer's): the Earth's field plus whatever
+    /// iron, motor interference and noise the simulator models. Decoded as sent, non-finite
+    /// values included ([`BridgeServer::step`] does not use such a block).
+    pub magnetometer_ut: Option<[f32; 3]>,
 }
 
 /// A GNSS receiver's navigation solution as the sensor packet carries it ([`FLAG_GNSS`]): the
@@ -354,22 +380,24 @@ fn write_header(
 }
 
 impl SensorPacket {
-    /// The version [`SensorPacket::encode`] writes: 2 with a pose, a GNSS solution or when
-    /// `version` ≥ 2, else 1.
+    /// The version [`SensorPacket::encode`] writes: 2 with a pose, a GNSS solution, a
+    /// magnetometer block or when `version` ≥ 2, else 1.
     pub fn wire_version(&self) -> u8 {
-        if self.pose.is_some() || self.gnss.is_some() {
+        if self.pose.is_some() || self.gnss.is_some() || self.magnetometer_ut.is_some() {
             2
         } else {
             wire_version(self.version)
         }
     }
 
-    /// The packet's bytes: `48 + 4m`, `+ 16` with a pose, `+ 52` with a GNSS solution.
+    /// The packet's bytes: `48 + 4m`, `+ 16` with a pose, `+ 52` with a GNSS solution, `+ 12`
+    /// with a magnetometer block, in that order.
     pub fn encode(&self) -> Vec<u8> {
         let m = self.motor_count as usize;
         let flags = if self.pose.is_some() { FLAG_POSE } else { 0 }
-            | if self.gnss.is_some() { FLAG_GNSS } else { 0 };
-        let mut out = Vec::with_capacity(SENSOR_HEADER_LEN + 4 * m + POSE_LEN + GNSS_LEN);
+            | if self.gnss.is_some() { FLAG_GNSS } else { 0 }
+            | if self.magnetometer_ut.is_some() { FLAG_MAGNETOMETER } else { 0 };
+        let mut out = Vec::with_capacity(MAX_PACKET_LEN);
         let version = self.wire_version();
         write_header(&mut out, SENSOR_MAGIC, version, self.motor_count, flags, self.sequence);
         out.extend_from_slice(&self.time_s.to_le_bytes());
@@ -387,12 +415,15 @@ impl SensorPacket {
         if let Some(gnss) = &self.gnss {
             gnss.encode(&mut out);
         }
+        for v in self.magnetometer_ut.iter().flatten() {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
         out
     }
 
     /// Parses a packet. Version 1 ignores the flags; version 2 reads the pose when bit 0 of the
-    /// flags is set and then the GNSS solution when bit 1 is (other bits are ignored). Bytes
-    /// after the packet are ignored.
+    /// flags is set, then the GNSS solution when bit 1 is, then the magnetometer block when bit
+    /// 2 is (other bits are ignored). Bytes after the packet are ignored.
     pub fn decode(bytes: &[u8]) -> Result<Self, BridgeError> {
         let (version, m) = check_header(bytes, SENSOR_MAGIC, SENSOR_HEADER_LEN)?;
         let mut speeds_rad_s = [None; MAX_MOTORS];
@@ -419,6 +450,8 @@ impl SensorPacket {
             heading_rad: f32_at(bytes, at + 12),
         });
         let gnss = block(FLAG_GNSS, GNSS_LEN)?.map(|at| GnssSolution::decode(bytes, at));
+        let magnetometer_ut = block(FLAG_MAGNETOMETER, MAGNETOMETER_LEN)?
+            .map(|at| [f32_at(bytes, at), f32_at(bytes, at + 4), f32_at(bytes, at + 8)]);
         Ok(Self {
             version,
             sequence: u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")),
@@ -431,6 +464,7 @@ impl SensorPacket {
             speeds_rad_s,
             pose,
             gnss,
+            magnetometer_ut,
         })
     }
 }
@@ -505,7 +539,51 @@ pub struct BridgeServer {
     /// The board's GNSS UART and the firmware's receiver code behind it, fed the packets' GNSS
     /// solutions as NAV-PVT bytes.
     gnss: BoardGnss,
+    /// The board's compass bus, the packets' magnetometer blocks in its chip's registers.
+    compass: CompassBus,
+    /// The compass drivers' waits (simulated time does not pass during a step's service).
+    compass_delay: CountingDelay,
     buf: [u8; 1500],
+}
+
+/// The board's I²C compass bus behind the bridge: nothing acknowledges (a board without a GNSS
+/// mast) until the first packet with a finite magnetometer block puts a [`BRIDGE_COMPASS_CHIP`]
+/// on it; from then on the chip converts the latest finite field the packets gave, as a sensor
+/// on a mast does (its registers, status bits, conversion time, quantisation and range:
+/// `crate::compass_chip`).
+#[derive(Debug, Default)]
+struct CompassBus(Option<SimCompassChip>);
+
+impl CompassBus {
+    /// A packet's magnetometer block at `now_s`, s (a non-finite one is no block: the chip keeps
+    /// the last field), then the chip's conversions due by then.
+    fn receive(&mut self, field_ut: Option<[f32; 3]>, now_s: f64) {
+        if let Some(field_ut) = field_ut.filter(|f| f.iter().all(|x| x.is_finite())) {
+            let field_ut = field_ut.map(f64::from);
+            match &mut self.0 {
+                Some(chip) => chip.give_field_ut(field_ut),
+                None => {
+                    self.0 = Some(SimCompassChip::with_given_field(BRIDGE_COMPASS_CHIP, field_ut))
+                }
+            }
+        }
+        if let Some(chip) = &mut self.0 {
+            // A given field needs no attitude or thrusts.
+            chip.update(now_s, &UnitQuaternion::identity(), &[]);
+        }
+    }
+}
+
+impl I2cRegisterBus for CompassBus {
+    type Error = Nack;
+
+    fn write_register(&mut self, address: u8, reg: u8, value: u8) -> Result<(), Nack> {
+        self.0.as_mut().ok_or(Nack)?.write_register(address, reg, value)
+    }
+
+    fn read_registers(&mut self, address: u8, first_reg: u8, buf: &mut [u8]) -> Result<(), Nack> {
+        self.0.as_mut().ok_or(Nack)?.read_registers(address, first_reg, buf)
+    }
 }
 
 /// Why a GNSS latency was refused ([`BridgeServer::set_gnss_latency_s`]).
@@ -527,6 +605,8 @@ impl BridgeServer {
                 speeds_rad_s: [None; MAX_MOTORS],
             },
             gnss: board_gnss(f64::from(firmware::app::gnss::DEFAULT_GNSS_LATENCY_S)),
+            compass: CompassBus::default(),
+            compass_delay: CountingDelay::default(),
             buf: [0; 1500],
         })
     }
@@ -556,8 +636,12 @@ impl BridgeServer {
     /// [`ControlCommand::ExternalPose`] at the packet's time; then the GNSS solution, as the
     /// receiver's NAV-PVT bytes through the firmware's driver, which hands a new 3D fix to the
     /// application as [`ControlCommand::PositionFix`] (the driver runs every packet, so its
-    /// search, configuration and loss of the receiver keep the packets' time). Returns the
-    /// packet answered.
+    /// search, configuration and loss of the receiver keep the packets' time); then the
+    /// magnetometer block goes into the compass chip's registers (a non-finite one is not used:
+    /// the chip keeps the previous field). After the step the application's compass service
+    /// runs ([`FlightApp::service_compass`]: the firmware's reads the chip over its own driver
+    /// when a reading is due, every 10 ms, and hands a calibrated field to the next step), as
+    /// the board's link task runs it. Returns the packet answered.
     /// Malformed packets are answered with nothing and reported as errors (the caller decides
     /// whether to go on).
     pub fn step<A: FlightApp>(
@@ -587,7 +671,9 @@ impl BridgeServer {
         if let Some(fix) = self.gnss.receive(nav_pvt.as_ref().map_or(&[], |f| &f[..]), now_us) {
             app.command(ControlCommand::PositionFix(fix), now_us);
         }
+        self.compass.receive(sensor.magnetometer_ut, now_us as f64 * 1e-6);
         app.step(now_us, &mut imu, &mut self.motors);
+        app.service_compass(now_us, &mut self.compass, &mut self.compass_delay);
         let reply = MotorPacket {
             version: sensor.version,
             sequence: sensor.sequence,
@@ -757,6 +843,15 @@ impl FlightApp for WithRadio<'_, '_> {
     fn command(&mut self, command: ControlCommand, now_us: u64) {
         self.app.command(command, now_us);
     }
+
+    fn service_compass<B: I2cRegisterBus, D: DelayUs>(
+        &mut self,
+        now_us: u64,
+        bus: &mut B,
+        delay: &mut D,
+    ) {
+        self.app.service_compass(now_us, bus, delay);
+    }
 }
 
 /// What [`serve_firmware`] reports as it serves (the `scenario bridge` command prints each on
@@ -810,6 +905,60 @@ pub fn set_no_speed_telemetry(app: &mut FirmwareApp<'_>) {
         // A flag's 0 is always within its range.
         let _ = params.set(firmware::app::Param::MotorBidirDshot as usize, &[0.0]);
     });
+}
+
+/// The compass calibration `scenario bridge --compass-calibrated` stores: no hard iron, no soft
+/// iron (the identity), the chip's axes the IMU's (the mounting the identity), and the
+/// firmware's default noise per axis ([`firmware::app::compass::DEFAULT_COMPASS_NOISE_UT`],
+/// 1 µT, the middle of what these sensors give after their averaging). The magnetometer blocks'
+/// fields then reach the pilot as sent (to the chip's 0.3 µT), already calibrated.
+pub fn identity_compass_calibration() -> CompassCalibration {
+    let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let noise_ut = firmware::app::compass::DEFAULT_COMPASS_NOISE_UT;
+    CompassCalibration::new([0.0; 3], identity, [1.0, 0.0, 0.0, 0.0], noise_ut)
+        .expect("finite, a unit quaternion, a positive noise")
+}
+
+/// Why a compass declination was refused ([`configure_compass`]).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("compass declination {0}° is outside {min}..={max}°", min = declination_range_deg().0,
+        max = declination_range_deg().1)]
+pub struct CompassDeclinationError(pub f32);
+
+/// The range of `compass_declination_deg`, degrees.
+pub fn declination_range_deg() -> (f32, f32) {
+    let spec = firmware::app::Param::CompassDeclinationDeg.spec();
+    (spec.min, spec.max)
+}
+
+/// Tell the application behind the bridge about its compass, as a user who calibrated theirs
+/// and looked up the local declination: with `calibrated` (`scenario bridge
+/// --compass-calibrated`), [`identity_compass_calibration`] is stored (`compass_cal_valid` = 1),
+/// so the magnetometer blocks' fields reach the pilot as they are; the declination
+/// `declination_deg` (`--compass-declination-deg`: east of true north positive, the parameter
+/// `compass_declination_deg`, within ±90°; outside it, or not finite, it is refused and nothing
+/// changes) always. In force from the first packet (call it before an arm request), for the run
+/// only (the bridge has no flash). Without a calibration the firmware finds and reads the
+/// compass but, as on a board, hands the pilot nothing from it (a raw field's hard iron would
+/// point the heading anywhere).
+pub fn configure_compass(
+    app: &mut FirmwareApp<'_>,
+    calibrated: bool,
+    declination_deg: f32,
+) -> Result<(), CompassDeclinationError> {
+    let (min, max) = declination_range_deg();
+    if !(declination_deg.is_finite() && (min..=max).contains(&declination_deg)) {
+        return Err(CompassDeclinationError(declination_deg));
+    }
+    app.configure(|params| {
+        if calibrated {
+            params.store_compass_calibration(&identity_compass_calibration());
+        }
+        // Within the parameter's range: checked above.
+        let _ =
+            params.set(firmware::app::Param::CompassDeclinationDeg as usize, &[declination_deg]);
+    });
+    Ok(())
 }
 
 /// What the latest identification found, for a person reading the bridge's stderr when it
@@ -1038,6 +1187,7 @@ mod tests {
             speeds_rad_s,
             pose: None,
             gnss: None,
+            magnetometer_ut: None,
         }
     }
 
@@ -1057,6 +1207,7 @@ mod tests {
             speeds_rad_s,
             pose,
             gnss: None,
+            magnetometer_ut: None,
         }
     }
 
@@ -1199,6 +1350,91 @@ mod tests {
         assert!(!none.to_nav_pvt().has_3d_fix());
     }
 
+    /// A field of 48.4 µT at 65° of dip, exactly representable, for byte-exact checks.
+    const FIELD_UT: [f32; 3] = [20.0, -2.5, 44.0];
+
+    /// [`FIELD_UT`]'s 12 bytes, as docs/sim-bridge.md shows them.
+    const FIELD_BYTES: [u8; MAGNETOMETER_LEN] = [
+        0x00, 0x00, 0xA0, 0x41, // x 20.0 µT
+        0x00, 0x00, 0x20, 0xC0, // y -2.5 µT
+        0x00, 0x00, 0x30, 0x42, // z 44.0 µT
+    ];
+
+    /// The doc's magnetometer example: the pose example's packet without its pose, flags bit 2
+    /// and the field after the motor speeds (68 bytes).
+    #[test]
+    fn version_2_golden_bytes_with_a_magnetometer_block_alone() {
+        let packet = SensorPacket { magnetometer_ut: Some(FIELD_UT), ..small(None) };
+        let bytes = packet.encode();
+        let mut expected = small_head(2, 0x04);
+        expected.extend_from_slice(&FIELD_BYTES);
+        assert_eq!(bytes.len(), 48 + 4 * 2 + 12);
+        assert_eq!(bytes, expected);
+        let decoded = SensorPacket::decode(&bytes).unwrap();
+        assert_eq!(decoded, SensorPacket { version: 2, ..packet });
+        assert_eq!(decoded.magnetometer_ut, Some(FIELD_UT));
+        assert_eq!(packet.wire_version(), 2, "a magnetometer block makes it version 2");
+    }
+
+    /// All three blocks: the pose, then the GNSS solution, then the field (136 bytes).
+    #[test]
+    fn version_2_golden_bytes_with_a_pose_a_gnss_solution_and_a_magnetometer_block() {
+        let packet = SensorPacket {
+            version: 2,
+            gnss: Some(GNSS),
+            magnetometer_ut: Some(FIELD_UT),
+            ..small(Some(POSE))
+        };
+        let bytes = packet.encode();
+        let mut expected = SensorPacket { gnss: Some(GNSS), ..small(Some(POSE)) }.encode();
+        expected[6] = 0x07;
+        expected.extend_from_slice(&FIELD_BYTES);
+        assert_eq!(bytes.len(), 48 + 4 * 2 + 16 + 52 + 12);
+        assert_eq!(bytes, expected);
+        assert_eq!(SensorPacket::decode(&bytes).unwrap(), packet);
+        // Non-finite values cross as sent: the server, not the decoder, refuses them.
+        let nan = SensorPacket { magnetometer_ut: Some([f32::NAN, 1.0, 2.0]), ..small(None) };
+        let decoded = SensorPacket::decode(&nan.encode()).unwrap().magnetometer_ut.unwrap();
+        assert!(decoded[0].is_nan() && decoded[1..] == [1.0, 2.0]);
+    }
+
+    /// The compass bus behind the bridge through the firmware's own IST8310 driver: nothing
+    /// answers before the first block; the chip then converts the latest finite field (to its
+    /// 0.3 µT), a non-finite block leaves the previous field in place, and a field beyond the
+    /// chip's ±1600 µT on x is an overflow.
+    #[test]
+    fn the_compass_bus_holds_the_latest_finite_field_behind_the_ist8310s_registers() {
+        use firmware::drivers::compass::CompassError;
+        use firmware::drivers::ist8310::{self, Ist8310};
+        let mut bus = CompassBus::default();
+        let mut delay = CountingDelay::default();
+        bus.receive(None, 0.0);
+        let mut driver = Ist8310::new(&mut bus, ist8310::DEFAULT_ADDRESS);
+        assert_eq!(driver.init(&mut delay), Err(CompassError::Bus(Nack)), "no chip yet");
+        // A non-finite first block puts no chip on the bus either.
+        bus.receive(Some([f32::NAN, 0.0, 0.0]), 0.001);
+        assert!(bus.0.is_none());
+        // The reads of a 100 Hz service, 10 ms apart (a conversion takes 6 ms).
+        let mut t_s = 0.002;
+        let mut read = |bus: &mut CompassBus, block: Option<[f32; 3]>| {
+            bus.receive(block, t_s);
+            t_s += 0.010;
+            bus.receive(None, t_s);
+            Ist8310::new(&mut *bus, ist8310::DEFAULT_ADDRESS).read()
+        };
+        bus.receive(Some(FIELD_UT), 0.002);
+        Ist8310::new(&mut bus, ist8310::DEFAULT_ADDRESS).init(&mut delay).unwrap();
+        let first = read(&mut bus, None).unwrap();
+        for (got, sent) in first.field_ut.iter().zip(FIELD_UT) {
+            assert!((got - sent).abs() <= 0.15 + 1e-4, "{got} µT read, {sent} µT sent");
+        }
+        let second = read(&mut bus, Some([f32::INFINITY, 0.0, 0.0])).unwrap();
+        assert_eq!(second.field_ut, first.field_ut, "the non-finite block was not used");
+        let third = read(&mut bus, Some([-12.3, 4.5, 30.0])).unwrap();
+        assert!((third.field_ut[0] + 12.3).abs() <= 0.15 + 1e-4, "{:?}", third.field_ut);
+        assert_eq!(read(&mut bus, Some([1700.0, 0.0, 0.0])), Err(CompassError::Overflow));
+    }
+
     #[test]
     fn version_2_without_a_pose_has_no_trailer() {
         let packet = SensorPacket { version: 2, ..small(None) };
@@ -1209,19 +1445,20 @@ mod tests {
 
     #[test]
     fn version_1_ignores_the_flags_and_version_2_ignores_unknown_bits() {
-        // Version 1 with bits 0 and 1 set and trailing bytes: no pose, no GNSS solution.
-        let mut v1 = small_head(1, 0x03);
-        v1.extend_from_slice(&[0xAA; 16 + 52]);
+        // Version 1 with bits 0, 1 and 2 set and trailing bytes: no pose, no GNSS solution, no
+        // field.
+        let mut v1 = small_head(1, 0x07);
+        v1.extend_from_slice(&[0xAA; 16 + 52 + 12]);
         v1[7] = 0x80;
         assert_eq!(SensorPacket::decode(&v1).unwrap(), small(None));
-        // Version 2 with unknown bits only: no pose, no solution, no trailer needed.
-        let mut v2 = small_head(2, 0xFC);
+        // Version 2 with unknown bits only (3–15): no block, no trailer needed.
+        let mut v2 = small_head(2, 0xF8);
         v2[7] = 0xFF;
         let decoded = SensorPacket::decode(&v2).unwrap();
-        assert_eq!((decoded.pose, decoded.gnss), (None, None));
-        // Version 2 with bit 0 and unknown bits (2 and 3, 14): the pose.
+        assert_eq!((decoded.pose, decoded.gnss, decoded.magnetometer_ut), (None, None, None));
+        // Version 2 with bit 0 and unknown bits (3 and 4, 14): the pose.
         let mut v2 = small(Some(POSE)).encode();
-        v2[6] |= 0x0C;
+        v2[6] |= 0x18;
         v2[7] = 0x40;
         assert_eq!(SensorPacket::decode(&v2).unwrap().pose, Some(POSE));
     }
@@ -1319,6 +1556,41 @@ mod tests {
             SensorPacket::decode(&alone[..123]),
             Err(BridgeError::TooShort { len: 123, need: 124 })
         ));
-        assert_eq!(MAX_PACKET_LEN, 48 + 4 * 8 + 16 + 52);
+        // Announcing a magnetometer block it does not carry in full, alone (m = 6: 72 + 12),
+        // after a pose (72 + 16 + 12), after a GNSS solution (72 + 52 + 12) and after both
+        // (72 + 16 + 52 + 12); cut anywhere from the block's start to its last byte, the need
+        // is the whole packet, and a cut in an earlier block names that block's end.
+        for (pose, gnss, need) in [
+            (None, None, 84),
+            (Some(POSE), None, 100),
+            (None, Some(GNSS), 136),
+            (Some(POSE), Some(GNSS), 152),
+        ] {
+            let bytes =
+                SensorPacket { pose, gnss, magnetometer_ut: Some(FIELD_UT), ..sensor() }.encode();
+            assert_eq!(bytes.len(), need);
+            for len in [need - MAGNETOMETER_LEN, need - 1] {
+                assert!(
+                    matches!(
+                        SensorPacket::decode(&bytes[..len]),
+                        Err(BridgeError::TooShort { len: l, need: n }) if l == len && n == need
+                    ),
+                    "{len} of {need} bytes"
+                );
+            }
+            assert!(SensorPacket::decode(&bytes).is_ok());
+        }
+        let with_all = SensorPacket {
+            pose: Some(POSE),
+            gnss: Some(GNSS),
+            magnetometer_ut: Some(FIELD_UT),
+            ..sensor()
+        }
+        .encode();
+        assert!(matches!(
+            SensorPacket::decode(&with_all[..100]),
+            Err(BridgeError::TooShort { len: 100, need: 140 })
+        ));
+        assert_eq!(MAX_PACKET_LEN, 48 + 4 * 8 + 16 + 52 + 12);
     }
 }

@@ -15,7 +15,10 @@
 //! interference and noise of its [`MagnetometerSpec`]), drawn when a conversion completes in
 //! simulated time ([`SimCompassChip::update`], called from the physics with the attitude and the
 //! motors' thrusts), quantised to the chip's LSB (rounded), little-endian (low byte first, X, Y,
-//! Z) in both chips.
+//! Z) in both chips. A chip made with [`SimCompassChip::with_given_field`] senses a field given
+//! from outside instead (an external simulator's, through `crate::bridge`): each conversion takes
+//! the latest one given ([`SimCompassChip::give_field_ut`]) as it is, its noise and iron the
+//! giver's.
 //!
 //! | | IST8310 (iSentek datasheet, `firmware::drivers::ist8310`) | QMC5883L (QST datasheet rev. 1.0, `firmware::drivers::qmc5883l`) |
 //! |---|---|---|
@@ -175,12 +178,22 @@ pub struct ChipFaults {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Nack;
 
+/// What a chip's conversions sample.
+#[derive(Clone, Debug)]
+enum Sensed {
+    /// A simulated magnetometer in the simulator's world, at the attitude and thrusts
+    /// [`SimCompassChip::update`] is given.
+    World(Box<SimMagnetometer>),
+    /// The latest field given from outside, µT, sensor axes ([`SimCompassChip::give_field_ut`]).
+    Given(Vector3<f64>),
+}
+
 /// One simulated compass chip and the field it senses (see the module documentation).
 #[derive(Clone, Debug)]
 pub struct SimCompassChip {
     kind: ChipKind,
     address: u8,
-    sensor: SimMagnetometer,
+    sensed: Sensed,
     registers: [u8; 256],
     now_s: f64,
     faults: ChipFaults,
@@ -195,10 +208,21 @@ impl SimCompassChip {
     /// A chip of `kind` at its default address, sensing `spec` with noise fixed by `seed`, just
     /// powered (registers at their power-on values, no conversion running).
     pub fn new(kind: ChipKind, spec: MagnetometerSpec, seed: u64) -> Self {
+        Self::sensing(kind, Sensed::World(Box::new(SimMagnetometer::new(spec, seed))))
+    }
+
+    /// A chip of `kind` at its default address, just powered, sensing `field_ut` (µT, sensor
+    /// axes) and then whatever [`Self::give_field_ut`] gives it: no world, no noise of its own
+    /// (its conversions quantise the given field to the LSB and nothing else).
+    pub fn with_given_field(kind: ChipKind, field_ut: [f64; 3]) -> Self {
+        Self::sensing(kind, Sensed::Given(Vector3::from(field_ut)))
+    }
+
+    fn sensing(kind: ChipKind, sensed: Sensed) -> Self {
         let mut chip = Self {
             kind,
             address: kind.default_address(),
-            sensor: SimMagnetometer::new(spec, seed),
+            sensed,
             registers: [0; 256],
             now_s: 0.0,
             faults: ChipFaults::default(),
@@ -230,9 +254,20 @@ impl SimCompassChip {
         self.address
     }
 
-    /// The sensor's spec.
-    pub fn spec(&self) -> &MagnetometerSpec {
-        self.sensor.spec()
+    /// The simulated sensor's spec (`None` for a chip given its field from outside).
+    pub fn spec(&self) -> Option<&MagnetometerSpec> {
+        match &self.sensed {
+            Sensed::World(sensor) => Some(sensor.spec()),
+            Sensed::Given(_) => None,
+        }
+    }
+
+    /// The field the conversions from now on sample, µT, sensor axes, until the next one given
+    /// (the chip senses it from then on, whatever it sensed before). Non-finite values are the
+    /// caller's to refuse: a conversion writes what the field rounds to, clamped to 16 bits (NaN as
+    /// 0).
+    pub fn give_field_ut(&mut self, field_ut: [f64; 3]) {
+        self.sensed = Sensed::Given(Vector3::from(field_ut));
     }
 
     /// The field of the latest conversion that reached the data registers, µT, sensor axes,
@@ -283,7 +318,7 @@ impl SimCompassChip {
 
     /// Advance the chip to `now_s` (simulated time, s, not decreasing), completing the
     /// conversions due with the field at the attitude `q_world_imu` and the motors' normalised
-    /// thrusts `thrust`.
+    /// thrusts `thrust` (both unused by a chip given its field from outside).
     pub fn update(&mut self, now_s: f64, q_world_imu: &UnitQuaternion<f64>, thrust: &[f64]) {
         self.now_s = now_s.max(self.now_s);
         let Some(due_s) = self.conversion_due_s else {
@@ -319,7 +354,10 @@ impl SimCompassChip {
         }
         status |= map.drdy;
         if !self.frozen() {
-            let mut field = self.sensor.sample(q_world_imu, thrust);
+            let mut field = match &mut self.sensed {
+                Sensed::World(sensor) => sensor.sample(q_world_imu, thrust),
+                Sensed::Given(field) => *field,
+            };
             if let Some(magnet) = self.faults.magnet.filter(|m| self.now_s >= m.from_s) {
                 field += Vector3::from(magnet.field_ut);
             }

@@ -23,6 +23,7 @@ use firmware::app::log::LogSink;
 use firmware::app::radio::Receiver;
 use firmware::app::system::{with_logged_system, with_system, LogTarget, System, TickHardware};
 use firmware::app::{ControlCommand, NoFlash, Settings};
+use firmware::drivers::compass::{DelayUs, I2cRegisterBus};
 use nalgebra::Vector3;
 
 use crate::airframe::{Airframe, AirframeError, STANDARD_GRAVITY_MPS2};
@@ -40,6 +41,17 @@ pub trait FlightApp {
     /// A command from another task (a link, the bridge's external pose) at time `now_us`, before
     /// the next step. Applications without commands ignore it.
     fn command(&mut self, _command: ControlCommand, _now_us: u64) {}
+
+    /// The compass on the board's I²C bus at `now_us`, after a step, as the board's link task
+    /// services it (the bridge's magnetometer blocks reach the firmware so). Applications
+    /// without a compass service ignore it.
+    fn service_compass<B: I2cRegisterBus, D: DelayUs>(
+        &mut self,
+        _now_us: u64,
+        _bus: &mut B,
+        _delay: &mut D,
+    ) {
+    }
 }
 
 /// The firmware application as the board runs it: the application graph
@@ -60,6 +72,17 @@ impl<F: NorFlash> FlightApp for System<'_, F> {
     /// Queued for the next tick, as a link pass queues what a host asked.
     fn command(&mut self, command: ControlCommand, _now_us: u64) {
         self.submit(command);
+    }
+
+    /// The firmware's compass service ([`System::service_compass`]): a reading when one is due,
+    /// its calibrated field queued for the next tick.
+    fn service_compass<B: I2cRegisterBus, D: DelayUs>(
+        &mut self,
+        now_us: u64,
+        bus: &mut B,
+        delay: &mut D,
+    ) {
+        System::service_compass(self, now_us, bus, delay);
     }
 }
 

@@ -1,8 +1,9 @@
 //! The lockstep bridge round-trips packets over loopback UDP, bounded by timeouts; version 2
-//! carries an external pose and a GNSS receiver's solutions to the application; the firmware
-//! behind the bridge is armed for throw-to-fly and excites the motors when the simulator throws
-//! the craft, and flies and holds on poses or on GNSS solutions; the configurator protocol is
-//! served on TCP meanwhile.
+//! carries an external pose, a GNSS receiver's solutions and a compass's field to the
+//! application (the field through a simulated IST8310 and the firmware's own compass service);
+//! the firmware behind the bridge is armed for throw-to-fly and excites the motors when the
+//! simulator throws the craft, and flies and holds on poses or on GNSS solutions, with a compass
+//! knowing its heading before the throw; the configurator protocol is served on TCP meanwhile.
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -10,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::app::{ControlCommand, ControlSnapshot};
+use firmware::drivers::compass::{DelayUs, I2cRegisterBus};
 use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request, Response};
 use sim::airframe::Airframe;
 use sim::board::{SimBoard, SimConfig};
@@ -61,6 +63,7 @@ fn bridge_round_trips_a_packet_over_loopback() {
         speeds_rad_s,
         pose: None,
         gnss: None,
+        magnetometer_ut: None,
     };
     let reply = client.exchange(&packet, TIMEOUT).unwrap();
     assert_eq!(reply.sequence, 41);
@@ -138,6 +141,7 @@ fn sensor_packet(board: &SimBoard, sequence: u64, pose: Option<ExternalPose>) ->
         speeds_rad_s: board.motors().speeds_rad_s(),
         pose,
         gnss: None,
+        magnetometer_ut: None,
     }
 }
 
@@ -271,6 +275,7 @@ fn a_version_2_gnss_solution_reaches_the_application_as_a_fix_through_the_receiv
             speeds_rad_s: [None; MAX_MOTORS],
             pose: None,
             gnss: Some(solution(sequence / per_solution)),
+            magnetometer_ut: None,
         };
         let reply = client.exchange(&packet, TIMEOUT).unwrap();
         assert_eq!((reply.version, reply.sequence), (2, sequence));
@@ -498,27 +503,136 @@ fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
     assert_eq!(snapshot.external_pose.map(|(pose, _)| pose), Some(POSE));
 }
 
+/// The compass through the bridge without `--compass-calibrated`, seen over TCP with the
+/// protocol's `GetCompass` (what `configurator-cli doctor` shows): before any magnetometer block
+/// nothing answers on the compass bus; after the first block (0.2 s into the packets) the
+/// firmware's service finds the IST8310 at 0x0E at its next probe of the bus (once a second
+/// while none is found: at 1.0 s) and reads the packets' field at 100 Hz through its driver (the
+/// field's strength as sent, within the 0.3 µT quantisation and the noise), but, uncalibrated,
+/// hands the pilot nothing: no sample sent, no compass heading, the heading not aligned. A field that
+/// stops changing (a simulator that sends no noise, or stops sending: the chip holds the last
+/// block) is, after 25 identical reads, a stuck sensor.
+#[test]
+fn uncalibrated_the_bridges_compass_is_found_and_read_but_steers_nothing() {
+    use protocol::{CompassSensor, CompassState};
+    use sim::magnetometer::{MagnetometerSpec, SimMagnetometer};
+    let links = TcpLinks::bind(0, simulator_board_info("BRIDGE", 1, 0)).unwrap();
+    let tcp = links.local_addr().unwrap();
+    let (addr, handle) = firmware_bridge(false, Some(links), Duration::from_millis(400));
+    let mut host = Host::connect(tcp);
+    let hello = Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: protocol::SCHEMA_HASH };
+    assert!(matches!(host.request(Request::Hello(hello)), Ok(Reply::Hello(_))));
+    let mut compass = || match host.request(Request::GetCompass(())) {
+        Ok(Reply::Compass(health)) => health,
+        other => panic!("expected the compass's health, got {other:?}"),
+    };
+    let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
+    let airframe = Airframe::builtin("paper-quad").unwrap();
+    let mut board = SimBoard::new(&airframe, &SimConfig::default());
+    let spec = MagnetometerSpec::default();
+    let mut magnetometer = SimMagnetometer::new(spec.clone(), 7);
+    let mut sequence = 0u64;
+    let mut send = |seconds: f64, field: &mut dyn FnMut(&SimBoard) -> Option<[f32; 3]>| {
+        for _ in 0..(seconds * 2000.0).round() as u64 {
+            board.tick();
+            let packet = SensorPacket {
+                version: 2,
+                magnetometer_ut: field(&board),
+                ..sensor_packet(&board, sequence, None)
+            };
+            client.exchange(&packet, TIMEOUT).unwrap();
+            sequence += 1;
+        }
+    };
+    send(0.2, &mut |_| None);
+    let before = compass();
+    assert_eq!((before.sensor, before.state), (CompassSensor::None, CompassState::Absent));
+    // 2 s of the sensor's readings (100 Hz, 0.5 µT of noise), the craft still in the hand.
+    let q_imu_body = airframe.q_imu_body();
+    send(2.0, &mut |board| {
+        let q_world_imu = board.physics().state().attitude() * q_imu_body.inverse();
+        let b = magnetometer.update(board.time_s(), &q_world_imu, &[])?;
+        Some([b.x as f32, b.y as f32, b.z as f32])
+    });
+    let read = compass();
+    assert_eq!((read.sensor, read.address), (CompassSensor::Ist8310, 0x0E), "{read:?}");
+    assert_eq!(read.state, CompassState::Healthy, "{read:?}");
+    assert!(!read.calibrated && read.enabled, "{read:?}");
+    assert!((98.0..=102.0).contains(&read.rate_hz), "{read:?}");
+    // Found by the probe at 1.0005 s (the first was at the first packet), read from 10 ms
+    // later to 2.2 s: 119 reads.
+    assert!((118..=120).contains(&read.readings), "{read:?}");
+    assert!((read.field_ut - spec.strength_ut as f32).abs() < 1.5, "{read:?}");
+    assert_eq!((read.failures, read.samples_sent), (0, 0), "{read:?}");
+    eprintln!(
+        "uncalibrated compass through the bridge: {} reads at {:.1} Hz, |B| {:.2} µT (sent {} µT), \
+         {} samples to the pilot",
+        read.readings, read.rate_hz, read.field_ut, spec.strength_ut, read.samples_sent
+    );
+    // The same field, exactly, for 0.3 s: 30 identical reads.
+    send(0.3, &mut |_| Some([20.0, -2.5, 44.0]));
+    let frozen = compass();
+    assert_eq!((frozen.state, frozen.stuck), (CompassState::Stuck, 1), "{frozen:?}");
+    drop(host);
+    let (summary, snapshot, _) = handle.join().unwrap();
+    assert_eq!(summary.steps, 5000);
+    assert!(!snapshot.pilot.compass_heading && !snapshot.pilot.heading_aligned);
+}
+
 /// The firmware behind the bridge, recording what its pilot did at every step.
 struct Recorded<'a, 'q> {
     app: &'a mut sim::scenario::FirmwareApp<'q>,
-    /// Per step: flying, holding a position, the position setpoint (NED, m).
-    log: Vec<(bool, bool, [f32; 3])>,
+    /// Per step, what the pilot and the compass service said after it.
+    log: Vec<StepRecord>,
     /// The first position fix the application was given: the step it came before, and its
     /// position (NED about the fixes' origin, m).
     first_fix: Option<(usize, [f32; 3])>,
+}
+
+/// One step of [`Recorded`].
+#[derive(Clone, Copy, Debug)]
+struct StepRecord {
+    flying: bool,
+    /// Holding a position.
+    hold: bool,
+    /// The position setpoint, NED, m.
+    setpoint_ned_m: [f32; 3],
+    /// The pilot's `q_world_imu` (w, x, y, z) and whether its heading is aligned with the
+    /// fixes' world and the compass steers it.
+    q_world_imu: [f32; 4],
+    heading_aligned: bool,
+    compass_heading: bool,
+    /// The compass service's report (as of the previous step's service).
+    compass: Option<protocol::CompassHealth>,
 }
 
 impl FlightApp for Recorded<'_, '_> {
     fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
         self.app.step(now_us, imu, motors);
         let pilot = self.app.snapshot().pilot;
-        self.log.push((pilot.flying, pilot.position_hold, pilot.position_sp_ned_m));
+        self.log.push(StepRecord {
+            flying: pilot.flying,
+            hold: pilot.position_hold,
+            setpoint_ned_m: pilot.position_sp_ned_m,
+            q_world_imu: pilot.q_world_imu,
+            heading_aligned: pilot.heading_aligned,
+            compass_heading: pilot.compass_heading,
+            compass: self.app.status_view().compass,
+        });
     }
     fn command(&mut self, command: ControlCommand, now_us: u64) {
         if let ControlCommand::PositionFix(fix) = &command {
             self.first_fix.get_or_insert((self.log.len(), fix.position_ned_m));
         }
         self.app.command(command, now_us);
+    }
+    fn service_compass<B: I2cRegisterBus, D: DelayUs>(
+        &mut self,
+        now_us: u64,
+        bus: &mut B,
+        delay: &mut D,
+    ) {
+        self.app.service_compass(now_us, bus, delay);
     }
 }
 
@@ -542,14 +656,14 @@ enum PositionSource {
 /// same times, so the two runs agree exactly; the tolerances say what "the same recovery" means).
 #[test]
 fn the_seed_paper_throw_flown_through_the_bridge_recovers_as_in_the_built_in_simulator() {
-    fly_the_seed_paper_through_the_bridge(0.0, PositionSource::MotionCapture(100.0));
+    fly_the_seed_paper_through_the_bridge(0.0, PositionSource::MotionCapture(100.0), None);
 }
 
 /// The same with a real hand's release (the push tapers off over 15 ms) and a pose in every
 /// packet (2 kHz), as an external simulator may send them (issue 28).
 #[test]
 fn a_tapering_release_and_a_pose_in_every_packet_recover_and_hold_through_the_bridge() {
-    fly_the_seed_paper_through_the_bridge(0.015, PositionSource::MotionCapture(2000.0));
+    fly_the_seed_paper_through_the_bridge(0.015, PositionSource::MotionCapture(2000.0), None);
 }
 
 /// Outdoors through the bridge: no pose, a GNSS receiver's solutions instead (flags bit 1), as
@@ -569,14 +683,55 @@ fn a_gnss_receivers_solutions_and_no_pose_recover_and_hold_through_the_bridge() 
         vertical_sigma_m: 0.45,
         ..GnssModelConfig::default()
     };
-    fly_the_seed_paper_through_the_bridge(0.0, PositionSource::Gnss(receiver));
+    fly_the_seed_paper_through_the_bridge(0.0, PositionSource::Gnss(receiver), None);
 }
 
+/// The receiver of [`a_gnss_receivers_solutions_and_no_pose_recover_and_hold_through_the_bridge`]
+/// and a compass (flags bit 2): Zürich's field (48 µT, 63.5° of dip) with magnetic north 10°
+/// east of true north, the sensor's 0.5 µT of noise per axis, a new field every 10 ms (in every
+/// twentieth packet: the packets between leave the last one in place), no iron, in the IMU's
+/// axes; the bridge told it is calibrated and the declination (`scenario bridge
+/// --compass-calibrated --compass-declination-deg 10`). The craft rests in the hand turned
+/// 115° from north, where the attitude filter, which starts level and pointing north, knows
+/// nothing of that. After 0.5 s in the hand, before the throw, the firmware reports the
+/// IST8310 found, healthy and calibrated, the compass steering the heading, the heading aligned
+/// with the fixes' world (no fix has shown one yet: the compass's), and its attitude within 3°
+/// of the truth (declination included). Then it recovers and holds within 1 m horizontally, as
+/// without the compass.
+#[test]
+fn a_compass_through_the_bridge_gives_the_still_craft_its_heading_before_the_throw() {
+    let receiver = GnssModelConfig {
+        rate_hz: 10.0,
+        latency_s: 0.1,
+        horizontal_sigma_m: 0.3,
+        vertical_sigma_m: 0.45,
+        ..GnssModelConfig::default()
+    };
+    let compass = sim::magnetometer::MagnetometerSpec {
+        declination_rad: 10f64.to_radians(),
+        ..sim::magnetometer::MagnetometerSpec::default()
+    };
+    fly_the_seed_paper_through_the_bridge(0.0, PositionSource::Gnss(receiver), Some(compass));
+}
+
+/// Where the craft rests in the hand with a compass, yaw from north, rad (115°: far from the
+/// attitude filter's start at 0, so only a heading from the compass puts it right).
+const COMPASS_START_YAW_RAD: f64 = 2.0;
+
 /// The seed paper's throw with the hand letting go over `taper_s`, the position from `source`,
-/// through the bridge and in the built-in simulator.
-fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
+/// through the bridge and in the built-in simulator. With `compass`, the simulator sends that
+/// magnetometer's readings (flags bit 2, the bridge told they are calibrated), the craft rests
+/// turned [`COMPASS_START_YAW_RAD`], and what the firmware knows before the throw is checked
+/// instead of the built-in run's figures (whose compass is calibrated by a simulated user's
+/// dance, not given as calibrated).
+fn fly_the_seed_paper_through_the_bridge(
+    taper_s: f64,
+    source: PositionSource,
+    compass: Option<sim::magnetometer::MagnetometerSpec>,
+) {
     use sim::gnss::{GnssTruth, SimGnss};
     use sim::identification::TrueModel;
+    use sim::magnetometer::SimMagnetometer;
     use sim::recovery::{
         fly, FlyConfig, MotionCapture, MotionCaptureConfig, Outcome, HOVER_CLIMB_MPS, HOVER_HOLD_S,
         HOVER_RATE_RAD_S, HOVER_TILT_RAD,
@@ -586,6 +741,10 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
     let mut config = FlyConfig::paper();
     config.flight_s = 8.0;
     config.throw.taper_s = taper_s;
+    if compass.is_some() {
+        config.board.start_attitude =
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, COMPASS_START_YAW_RAD);
+    }
     // The hold's bound, m: the issue's, 3-D with motion capture, horizontal on GNSS (whose
     // vertical error is 1.5 times its horizontal).
     let (hold_bound_m, horizontal_only) = match &source {
@@ -600,8 +759,11 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
             (1.0, true)
         }
     };
-    let builtin = fly(&airframe, &config);
-    assert_eq!(builtin.outcome, Outcome::Flying, "{builtin:?}");
+    let builtin = compass.is_none().then(|| fly(&airframe, &config));
+    if let Some(builtin) = &builtin {
+        assert_eq!(builtin.outcome, Outcome::Flying, "{builtin:?}");
+    }
+    let declination_deg = compass.as_ref().map(|spec| spec.declination_rad.to_degrees() as f32);
 
     let truth = TrueModel::of(&airframe);
     let r = truth.r_imu_m;
@@ -614,6 +776,9 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
     let handle = std::thread::spawn(move || {
         with_firmware_app(|app| {
             app.background.set_imu_offset(Some(r_imu_m));
+            if let Some(declination_deg) = declination_deg {
+                sim::bridge::configure_compass(app, true, declination_deg).unwrap();
+            }
             app.submit(ControlCommand::ArmThrowToFly);
             let mut recorded = Recorded { app, log: Vec::new(), first_fix: None };
             loop {
@@ -633,6 +798,8 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
     let mut mocap = (config.gnss.is_none())
         .then(|| MotionCapture::with_config(config.motion_capture, config.board.seed));
     let mut gnss = config.gnss.clone().map(|receiver| SimGnss::new(receiver, config.board.seed));
+    let mut magnetometer =
+        compass.clone().map(|spec| SimMagnetometer::new(spec, config.board.seed));
     let mut client = BridgeClient::connect("127.0.0.1:0", addr).unwrap();
     let spec = config.throw.spec();
     let mut states = Vec::new();
@@ -656,9 +823,15 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
         assert!(delivered.len() <= 1, "one solution per 2 kHz packet at most");
         let solution = delivered.last().map(|d| d.fix);
         solutions.push(solution);
+        // The compass's field in the IMU's axes when the sensor has a new one (100 Hz).
+        let q_world_imu = state.attitude() * airframe.q_imu_body().inverse();
+        let thrust: Vec<f64> = board.motors().commands().iter().map(|&u| f64::from(u)).collect();
+        let field =
+            magnetometer.as_mut().and_then(|m| m.update(board.time_s(), &q_world_imu, &thrust));
         let packet = SensorPacket {
             version: 2,
             gnss: solution.as_ref().map(GnssSolution::from_nav_pvt),
+            magnetometer_ut: field.map(|b| [b.x as f32, b.y as f32, b.z as f32]),
             ..sensor_packet(&board, sequence, pose)
         };
         let reply = client.exchange(&packet, TIMEOUT).unwrap();
@@ -690,15 +863,16 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
     // The built-in run's measures (`sim::recovery::fly`), from the truth and the pilot's log.
     let thrust_dir_body =
         airframe.q_imu_body().inverse() * (truth.q_thrust_to_imu * nalgebra::Vector3::z() * -1.0);
-    let hold_window_s = builtin.hold_window_s;
+    // `sim::recovery::fly`'s window.
+    let hold_window_s = config.hold_window_s.min(config.flight_s * 0.8);
     let (mut hover_since, mut release_to_hover_s, mut hold_error_m) = (None, None, None::<f64>);
-    for ((t_s, state), (flying, hold, sp)) in states.iter().zip(&log) {
+    for ((t_s, state), step) in states.iter().zip(&log) {
         let since_release = t_s - released_s;
-        if since_release < 0.0 || !flying {
+        if since_release < 0.0 || !step.flying {
             continue;
         }
-        if *hold && *t_s >= end_s - hold_window_s {
-            let sp = nalgebra::Vector3::from(*sp).cast::<f64>() + origin_ned_m;
+        if step.hold && *t_s >= end_s - hold_window_s {
+            let sp = nalgebra::Vector3::from(step.setpoint_ned_m).cast::<f64>() + origin_ned_m;
             let offset = state.position_ned_m - sp;
             let error = if horizontal_only { offset.xy().norm() } else { offset.norm() };
             hold_error_m = Some(hold_error_m.unwrap_or(0.0).max(error));
@@ -716,9 +890,45 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
             hover_since = None;
         }
     }
-    assert!(log.last().unwrap().0, "still flying at the end");
+    assert!(log.last().unwrap().flying, "still flying at the end");
     let bridge_hover_s = release_to_hover_s.expect("hovered through the bridge");
     let bridge_error_m = hold_error_m.expect("held a position through the bridge");
+    let horizontally = if horizontal_only { " horizontally" } else { "" };
+    let Some(builtin) = builtin else {
+        // With a compass: what the firmware knew before the throw, in the last step in the hand.
+        let throw_step = states.iter().position(|(t_s, _)| *t_s >= released_s).unwrap();
+        let before = throw_step.min(1000) - 1;
+        let step = &log[before];
+        let health = step.compass.expect("a compass service");
+        assert_eq!(health.sensor, protocol::CompassSensor::Ist8310, "{health:?}");
+        assert_eq!(health.address, 0x0E, "{health:?}");
+        assert_eq!(health.state, protocol::CompassState::Healthy, "{health:?}");
+        assert!(health.calibrated && health.enabled, "{health:?}");
+        // 0.5 s in the hand at 100 Hz, the first read 10 ms after the chip was found.
+        assert!((45..=50).contains(&health.samples_sent), "{health:?}");
+        // The field as sent (no iron, identity calibration): 48 µT within the noise.
+        assert!((health.field_ut - 48.0).abs() < 2.0, "{health:?}");
+        assert!(step.compass_heading && step.heading_aligned, "{step:?}");
+        let [w, x, y, z] = step.q_world_imu.map(f64::from);
+        let q_pilot =
+            nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+        let q_true = states[before].1.attitude() * airframe.q_imu_body().inverse();
+        let error_deg = q_pilot.angle_to(&q_true).to_degrees();
+        let first_heading_s = log.iter().position(|s| s.compass_heading).unwrap() as f64 * 0.0005;
+        eprintln!(
+            "paper quad with a compass, {source:?}: the compass steers the heading from \
+             {first_heading_s:.4} s; before the throw {} samples, the attitude {error_deg:.2}° \
+             from the truth (the craft turned {:.0}°); release → hover {bridge_hover_s:.4} s, \
+             worst distance from the setpoint{horizontally} over the last {hold_window_s:.1} s \
+             {bridge_error_m:.4} m",
+            health.samples_sent,
+            COMPASS_START_YAW_RAD.to_degrees()
+        );
+        assert!(error_deg < 3.0, "the attitude {error_deg:.2}° from the truth");
+        assert!(bridge_error_m < hold_bound_m, "held within {bridge_error_m} m");
+        return;
+    };
+    assert_eq!(hold_window_s, builtin.hold_window_s);
     let builtin_hover_s = builtin.release_to_hover_s.expect("hovered in the built-in simulator");
     let builtin_error_m = if horizontal_only {
         builtin.max_hold_error_horizontal_m
@@ -728,9 +938,8 @@ fn fly_the_seed_paper_through_the_bridge(taper_s: f64, source: PositionSource) {
     .expect("held in the built-in simulator");
     eprintln!(
         "paper quad, taper {taper_s} s, {source:?}, release → hover: bridge {bridge_hover_s:.4} s, \
-         built-in {builtin_hover_s:.4} s; worst distance from the setpoint{} over the last \
-         {hold_window_s:.1} s: bridge {bridge_error_m:.4} m, built-in {builtin_error_m:.4} m",
-        if horizontal_only { " horizontally" } else { "" }
+         built-in {builtin_hover_s:.4} s; worst distance from the setpoint{horizontally} over the \
+         last {hold_window_s:.1} s: bridge {bridge_error_m:.4} m, built-in {builtin_error_m:.4} m",
     );
     assert!(bridge_error_m < hold_bound_m, "held within {bridge_error_m} m");
     assert!((bridge_hover_s - builtin_hover_s).abs() <= 0.1, "release → hover differs");

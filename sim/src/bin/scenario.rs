@@ -104,6 +104,19 @@ enum Command {
         #[arg(long, value_name = "MS", default_value_t = sim::gnss::GnssArgs::LATENCY_MS,
               value_parser = parse_gnss_latency_ms)]
         gnss_latency_ms: f64,
+        /// The magnetometer blocks are calibrated fields (no hard or soft iron, the IMU's axes):
+        /// store an identity compass calibration at start, as a user's `compass calibrate`
+        /// would store theirs, so the firmware's pilot uses the compass for its heading. Without
+        /// it the firmware finds and reads the compass but, as on a board without a calibration,
+        /// does not use it.
+        #[arg(long)]
+        compass_calibrated: bool,
+        /// The local magnetic declination, degrees east of true north (-90 to 90; the parameter
+        /// `compass_declination_deg`): the compass's heading is magnetic north plus it, the
+        /// GNSS solutions' (true) north.
+        #[arg(long, value_name = "DEG", default_value_t = 0.0, allow_negative_numbers = true,
+              value_parser = parse_compass_declination_deg)]
+        compass_declination_deg: f32,
         /// Also serve the configurator protocol on TCP at 127.0.0.1:PORT (0 picks a free one),
         /// as the SITL does: `configurator-cli --tcp 127.0.0.1:PORT status`.
         #[arg(long, value_name = "PORT")]
@@ -160,6 +173,49 @@ fn parse_gnss_latency_ms(text: &str) -> Result<f64, String> {
         return Err(format!("{text} ms is out of range: allowed [0, {max_ms:.0}] ms"));
     }
     Ok(ms)
+}
+
+/// What the bridge's command line puts in force before the first packet.
+struct BridgeStart {
+    imu_offset_mm: Option<[f32; 3]>,
+    no_speed_telemetry: bool,
+    compass_calibrated: bool,
+    compass_declination_deg: f32,
+    throw_to_fly: bool,
+}
+
+impl BridgeStart {
+    /// The parameters first, then the IMU offset, then the arming: a change of the parameters
+    /// hands them to the background task, whose configured IMU offset is then the parameters'
+    /// (none stored in a bridge: `serve_firmware` stores the offset given here from the
+    /// background's), so an offset set before would be lost.
+    fn apply(&self, app: &mut scenario::FirmwareApp<'_>) -> Result<()> {
+        if self.no_speed_telemetry {
+            sim::bridge::set_no_speed_telemetry(app);
+        }
+        if self.compass_calibrated || self.compass_declination_deg != 0.0 {
+            let (calibrated, declination_deg) =
+                (self.compass_calibrated, self.compass_declination_deg);
+            sim::bridge::configure_compass(app, calibrated, declination_deg)?;
+        }
+        if self.imu_offset_mm.is_some() {
+            app.background.set_imu_offset(self.imu_offset_mm);
+        }
+        if self.throw_to_fly {
+            app.submit(ControlCommand::ArmThrowToFly);
+        }
+        Ok(())
+    }
+}
+
+/// The bridge's `--compass-declination-deg`: within the parameter's range (±90°).
+fn parse_compass_declination_deg(text: &str) -> Result<f32, String> {
+    let deg: f32 = text.parse().map_err(|_| format!("`{text}` is not a number of degrees"))?;
+    let (min, max) = sim::bridge::declination_range_deg();
+    if !(min..=max).contains(&deg) {
+        return Err(format!("{text}° is out of range: allowed [{min:.0}, {max:.0}]°"));
+    }
+    Ok(deg)
 }
 
 fn parse_idle_timeout_s(text: &str) -> Result<f64, String> {
@@ -327,6 +383,8 @@ fn run(cli: Cli) -> Result<()> {
             imu_offset_mm,
             no_speed_telemetry,
             gnss_latency_ms,
+            compass_calibrated,
+            compass_declination_deg,
             tcp_port,
             rc,
             log_dir,
@@ -356,6 +414,12 @@ fn run(cli: Cli) -> Result<()> {
                      identified from the commands and the body's response"
                 );
             }
+            if compass_calibrated {
+                eprintln!(
+                    "compass: the magnetometer blocks taken as calibrated (identity calibration \
+                     stored), declination {compass_declination_deg}°"
+                );
+            }
             if let Some([x, y, z]) = imu_offset_mm {
                 eprintln!(
                     "IMU offset for the learner: ({:.1}, {:.1}, {:.1}) mm, IMU axes",
@@ -378,15 +442,14 @@ fn run(cli: Cli) -> Result<()> {
             };
             let sink = logs.as_mut().map(|logs| logs as &mut dyn firmware::app::log::LogSink);
             let result = with_logged_firmware_app(sink, "BRIDGE", receiver, |app| {
-                if imu_offset_mm.is_some() {
-                    app.background.set_imu_offset(imu_offset_mm);
-                }
-                if no_speed_telemetry {
-                    sim::bridge::set_no_speed_telemetry(app);
-                }
-                if throw_to_fly {
-                    app.submit(ControlCommand::ArmThrowToFly);
-                }
+                let start = BridgeStart {
+                    imu_offset_mm,
+                    no_speed_telemetry,
+                    compass_calibrated,
+                    compass_declination_deg,
+                    throw_to_fly,
+                };
+                start.apply(app)?;
                 let summary = serve_firmware(
                     &mut server,
                     app,
@@ -466,6 +529,56 @@ mod tests {
         for bad in ["201", "-1", "NaN", "soon"] {
             let error = latency(&[&format!("--gnss-latency-ms={bad}")]).expect_err(bad);
             assert_eq!(error.kind(), ErrorKind::ValueValidation, "{bad}");
+            assert!(error.to_string().contains(bad), "{error}");
+        }
+    }
+
+    /// Every start-up option together: the IMU offset survives the parameters' changes (no speed
+    /// telemetry, the compass's calibration and declination), which hand the background task
+    /// the parameters' offset (none); each is in force.
+    #[test]
+    fn the_bridges_start_up_keeps_the_imu_offset_given_with_the_parameters_it_changes() {
+        let start = BridgeStart {
+            imu_offset_mm: Some([0.012, -0.003, -0.02]),
+            no_speed_telemetry: true,
+            compass_calibrated: true,
+            compass_declination_deg: -7.5,
+            throw_to_fly: false,
+        };
+        with_firmware_app(|app| {
+            start.apply(app).unwrap();
+            assert_eq!(app.background.configured_imu_offset(), start.imu_offset_mm);
+            let params = app.link.settings().params();
+            assert!(!params.bidirectional_dshot());
+            let calibration = sim::bridge::identity_compass_calibration();
+            assert_eq!(params.compass_calibration(), Some(calibration));
+            assert_eq!(params.compass_declination_rad(), (-7.5f32).to_radians());
+        });
+    }
+
+    /// `--compass-calibrated` is off unless given; `--compass-declination-deg` defaults to 0,
+    /// takes the parameter's ±90° (negative values west) and refuses anything else as a usage
+    /// error naming the value.
+    #[test]
+    fn the_bridges_compass_flags_are_parsed_and_the_declination_checked() {
+        let compass = |args: &[&str]| {
+            let cli = Cli::try_parse_from([&["scenario", "bridge"], args].concat());
+            cli.map(|cli| match cli.command {
+                Command::Bridge { compass_calibrated, compass_declination_deg, .. } => {
+                    (compass_calibrated, compass_declination_deg)
+                }
+                _ => panic!("not the bridge"),
+            })
+        };
+        assert_eq!(compass(&[]).unwrap(), (false, 0.0));
+        assert_eq!(compass(&["--compass-calibrated"]).unwrap(), (true, 0.0));
+        let west = compass(&["--compass-calibrated", "--compass-declination-deg", "-12.5"]);
+        assert_eq!(west.unwrap(), (true, -12.5));
+        assert_eq!(compass(&["--compass-declination-deg=90"]).unwrap(), (false, 90.0));
+        for bad in ["90.5", "-91", "NaN", "east"] {
+            let error = compass(&[&format!("--compass-declination-deg={bad}")]).expect_err(bad);
+            assert_eq!(error.kind(), ErrorKind::ValueValidation, "{bad}");
+            assert_eq!(error.exit_code(), 2, "{bad}");
             assert!(error.to_string().contains(bad), "{error}");
         }
     }
