@@ -1,5 +1,8 @@
-//! What the two I²C compass drivers share: the register bus, their errors, a reading, and the
-//! health report that tells a lost or stuck sensor from a working one.
+//! What the two I²C compass drivers share: the register bus, their errors, a reading, the
+//! health report that tells a lost or stuck sensor from a working one, and the device
+//! ([`CompassDevice`]: its bus, address and health, the reset-and-identify and
+//! write-then-verify steps both initialisations take); each driver adds its chip's `init` and
+//! `read` for its own chip type.
 //!
 //! Why: a compass on a GNSS mast hangs at the end of a cable on an I²C bus that picks up motor
 //! noise; a connector shaken loose, a sensor that stops converting (its registers frozen at the
@@ -346,5 +349,89 @@ mod tests {
         }
         let h = monitor.health();
         assert_eq!((h.state, h.overflows, h.readings), (CompassState::Saturated, 10, 0));
+    }
+}
+
+/// One compass chip `C` at `address` on `bus`, with the health report of its reads. The chip
+/// type only selects the driver (`super::ist8310::Ist8310`, `super::qmc5883l::Qmc5883l`),
+/// whose `init` and `read` are written for its own `CompassDevice<B, Chip>`.
+#[derive(Debug)]
+pub struct CompassDevice<B, C> {
+    pub(super) bus: B,
+    pub(super) address: u8,
+    monitor: HealthMonitor,
+    chip: core::marker::PhantomData<C>,
+}
+
+impl<B: I2cRegisterBus, C> CompassDevice<B, C> {
+    /// Wrap a bus; nothing is sent until the driver's `init`.
+    pub const fn new(bus: B, address: u8) -> Self {
+        Self::resume(bus, address, HealthMonitor::new())
+    }
+
+    /// Wrap a bus for a sensor already initialised, carrying on the health report `monitor`
+    /// (a service that borrows the bus for each read keeps the monitor between reads).
+    pub const fn resume(bus: B, address: u8, monitor: HealthMonitor) -> Self {
+        Self { bus, address, monitor, chip: core::marker::PhantomData }
+    }
+
+    /// The health monitor, to carry over to the next [`Self::resume`].
+    pub fn monitor(&self) -> HealthMonitor {
+        self.monitor
+    }
+
+    /// Give the bus back.
+    pub fn release(self) -> B {
+        self.bus
+    }
+
+    /// The health report of the reads so far.
+    pub fn health(&self) -> CompassHealth {
+        self.monitor.health()
+    }
+
+    /// Count one read's result in the health report and pass it on.
+    pub(super) fn recorded(
+        &mut self,
+        result: Result<CompassReading, CompassError<B::Error>>,
+    ) -> Result<CompassReading, CompassError<B::Error>> {
+        self.monitor.record(&result);
+        result
+    }
+
+    /// Write `value` to the reset register `reset`, wait `wait_us`, and check that the identity
+    /// register `identity` reads `expected` ([`CompassError::WrongDevice`] otherwise).
+    pub(super) fn reset_and_identify<D: DelayUs>(
+        &mut self,
+        delay: &mut D,
+        (reset, value): (u8, u8),
+        wait_us: u32,
+        (identity, expected): (u8, u8),
+    ) -> Result<(), CompassError<B::Error>> {
+        self.bus.write_one(self.address, reset, value)?;
+        delay.delay_us(wait_us);
+        let read = self.bus.read_one(self.address, identity)?;
+        if read != expected {
+            return Err(CompassError::WrongDevice { expected, read });
+        }
+        Ok(())
+    }
+
+    /// Write each `(register, value)`, then read each back ([`CompassError::ConfigMismatch`] at
+    /// the first that differs).
+    pub(super) fn write_verified(
+        &mut self,
+        config: &[(u8, u8)],
+    ) -> Result<(), CompassError<B::Error>> {
+        for &(register, value) in config {
+            self.bus.write_one(self.address, register, value)?;
+        }
+        for &(register, written) in config {
+            let read = self.bus.read_one(self.address, register)?;
+            if read != written {
+                return Err(CompassError::ConfigMismatch { register, written, read });
+            }
+        }
+        Ok(())
     }
 }

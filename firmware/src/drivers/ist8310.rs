@@ -3,8 +3,8 @@
 //!
 //! Why: the IST8310 is the compass of many GNSS masts (and of DJI's RoboMaster development
 //! board); the heading outdoors comes from it where it is fitted (`flight::magnetometer`). The
-//! board adapts its I²C peripheral to [`I2cRegisterBus`], calls [`Ist8310::init`] once, then
-//! [`Ist8310::read`] at [`MEASUREMENT_RATE_HZ`] or slower: each read collects the measurement
+//! board adapts its I²C peripheral to [`I2cRegisterBus`], calls [`Ist8310`]'s `init` once, then
+//! its `read` at [`MEASUREMENT_RATE_HZ`] or slower: each read collects the measurement
 //! the previous one started and starts the next.
 //!
 //! Register map and values (iSentek IST8310 datasheet, section "register map"; the same values
@@ -23,7 +23,7 @@
 //! The field stays in the sensor's axes; the mounting is learned (`flight::magnetometer`).
 
 use super::compass::{
-    le_i16, CompassError, CompassHealth, CompassReading, DelayUs, HealthMonitor, I2cRegisterBus,
+    le_i16, CompassDevice, CompassError, CompassReading, DelayUs, I2cRegisterBus,
 };
 
 /// The 7-bit I²C address with CAD0 and CAD1 high, as GNSS masts wire it.
@@ -92,59 +92,20 @@ pub fn decode<E>(bytes: &[u8; READ_LEN]) -> Result<CompassReading, CompassError<
     Ok(CompassReading { raw, field_ut: raw.map(|r| f32::from(r) * UT_PER_LSB) })
 }
 
-/// The IST8310 on an [`I2cRegisterBus`].
+/// The IST8310 chip: selects this driver's `init` and `read` for a [`CompassDevice`].
 #[derive(Debug)]
-pub struct Ist8310<B> {
-    bus: B,
-    address: u8,
-    monitor: HealthMonitor,
-}
+pub enum Chip {}
 
-impl<B: I2cRegisterBus> Ist8310<B> {
-    /// Wrap a bus; nothing is sent until [`Ist8310::init`].
-    pub const fn new(bus: B, address: u8) -> Self {
-        Self { bus, address, monitor: HealthMonitor::new() }
-    }
+/// The IST8310 on an [`I2cRegisterBus`].
+pub type Ist8310<B> = CompassDevice<B, Chip>;
 
-    /// Wrap a bus for a sensor already initialised, carrying on the health report `monitor`
-    /// (a service that borrows the bus for each read keeps the monitor between reads).
-    pub const fn resume(bus: B, address: u8, monitor: HealthMonitor) -> Self {
-        Self { bus, address, monitor }
-    }
-
-    /// The health monitor, to carry over to the next [`Self::resume`].
-    pub fn monitor(&self) -> HealthMonitor {
-        self.monitor
-    }
-
-    /// Give the bus back.
-    pub fn release(self) -> B {
-        self.bus
-    }
-
-    /// The health report of the reads so far.
-    pub fn health(&self) -> CompassHealth {
-        self.monitor.health()
-    }
-
+impl<B: I2cRegisterBus> CompassDevice<B, Chip> {
     /// Soft reset, wait, check WAI, set the averaging and pulse duration, read them back, and
     /// start the first measurement. Nothing more is written after a WAI mismatch.
     pub fn init<D: DelayUs>(&mut self, delay: &mut D) -> Result<(), CompassError<B::Error>> {
-        self.bus.write_one(self.address, reg::CNTL2, CNTL2_SOFT_RESET)?;
-        delay.delay_us(SOFT_RESET_WAIT_US);
-        let wai = self.bus.read_one(self.address, reg::WAI)?;
-        if wai != WAI_VALUE {
-            return Err(CompassError::WrongDevice { expected: WAI_VALUE, read: wai });
-        }
-        for (register, value) in [(reg::AVGCNTL, AVGCNTL_16_TIMES), (reg::PDCNTL, PDCNTL_NORMAL)] {
-            self.bus.write_one(self.address, register, value)?;
-        }
-        for (register, value) in [(reg::AVGCNTL, AVGCNTL_16_TIMES), (reg::PDCNTL, PDCNTL_NORMAL)] {
-            let read = self.bus.read_one(self.address, register)?;
-            if read != value {
-                return Err(CompassError::ConfigMismatch { register, written: value, read });
-            }
-        }
+        let (reset, identity) = ((reg::CNTL2, CNTL2_SOFT_RESET), (reg::WAI, WAI_VALUE));
+        self.reset_and_identify(delay, reset, SOFT_RESET_WAIT_US, identity)?;
+        self.write_verified(&[(reg::AVGCNTL, AVGCNTL_16_TIMES), (reg::PDCNTL, PDCNTL_NORMAL)])?;
         self.bus.write_one(self.address, reg::CNTL1, CNTL1_SINGLE_MEASUREMENT)
     }
 
@@ -166,8 +127,7 @@ impl<B: I2cRegisterBus> Ist8310<B> {
                 _ => result,
             }
         };
-        self.monitor.record(&result);
-        result
+        self.recorded(result)
     }
 }
 

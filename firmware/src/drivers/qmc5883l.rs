@@ -4,7 +4,7 @@
 //! Why: the QMC5883L is the compass of the inexpensive GNSS masts (the "HMC5883L" of many
 //! modules is in fact this chip); the heading outdoors comes from it where it is fitted
 //! (`flight::magnetometer`). The board adapts its I²C peripheral to [`I2cRegisterBus`], calls
-//! [`Qmc5883l::init`] once, then [`Qmc5883l::read`] at [`OUTPUT_RATE_HZ`].
+//! [`Qmc5883l`]'s `init` once, then its `read` at [`OUTPUT_RATE_HZ`].
 //!
 //! Register map and values (QST QMC5883L datasheet rev. 1.0, section 9 "register map" and
 //! table 2 "specifications"; the same configuration as ArduPilot's `AP_Compass_QMC5883L`):
@@ -24,7 +24,7 @@
 //! data then status would always report "not ready". The field stays in the sensor's axes.
 
 use super::compass::{
-    le_i16, CompassError, CompassHealth, CompassReading, DelayUs, HealthMonitor, I2cRegisterBus,
+    le_i16, CompassDevice, CompassError, CompassReading, DelayUs, I2cRegisterBus,
 };
 
 /// The 7-bit I²C address (fixed).
@@ -84,73 +84,34 @@ pub fn decode<E>(status: u8, data: &[u8; 6]) -> Result<CompassReading, CompassEr
     Ok(CompassReading { raw, field_ut: raw.map(|r| f32::from(r) * UT_PER_LSB) })
 }
 
-/// The QMC5883L on an [`I2cRegisterBus`].
+/// The QMC5883L chip: selects this driver's `init` and `read` for a [`CompassDevice`].
 #[derive(Debug)]
-pub struct Qmc5883l<B> {
-    bus: B,
-    address: u8,
-    monitor: HealthMonitor,
-}
+pub enum Chip {}
 
-impl<B: I2cRegisterBus> Qmc5883l<B> {
-    /// Wrap a bus; nothing is sent until [`Qmc5883l::init`].
-    pub const fn new(bus: B, address: u8) -> Self {
-        Self { bus, address, monitor: HealthMonitor::new() }
-    }
+/// The QMC5883L on an [`I2cRegisterBus`].
+pub type Qmc5883l<B> = CompassDevice<B, Chip>;
 
-    /// Wrap a bus for a sensor already initialised, carrying on the health report `monitor`
-    /// (a service that borrows the bus for each read keeps the monitor between reads).
-    pub const fn resume(bus: B, address: u8, monitor: HealthMonitor) -> Self {
-        Self { bus, address, monitor }
-    }
-
-    /// The health monitor, to carry over to the next [`Self::resume`].
-    pub fn monitor(&self) -> HealthMonitor {
-        self.monitor
-    }
-
-    /// Give the bus back.
-    pub fn release(self) -> B {
-        self.bus
-    }
-
-    /// The health report of the reads so far.
-    pub fn health(&self) -> CompassHealth {
-        self.monitor.health()
-    }
-
+impl<B: I2cRegisterBus> CompassDevice<B, Chip> {
     /// Soft reset, wait, check the chip ID, write the SET/RESET period and control 1 (which
     /// starts continuous measurement), and read both back. Nothing more is written after a chip
     /// ID mismatch.
     pub fn init<D: DelayUs>(&mut self, delay: &mut D) -> Result<(), CompassError<B::Error>> {
-        self.bus.write_one(self.address, reg::CONTROL2, CONTROL2_SOFT_RESET)?;
-        delay.delay_us(SOFT_RESET_WAIT_US);
-        let id = self.bus.read_one(self.address, reg::CHIP_ID)?;
-        if id != CHIP_ID_VALUE {
-            return Err(CompassError::WrongDevice { expected: CHIP_ID_VALUE, read: id });
-        }
-        let config =
-            [(reg::SET_RESET_PERIOD, SET_RESET_PERIOD_VALUE), (reg::CONTROL1, CONTROL1_VALUE)];
-        for (register, value) in config {
-            self.bus.write_one(self.address, register, value)?;
-        }
-        for (register, value) in config {
-            let read = self.bus.read_one(self.address, register)?;
-            if read != value {
-                return Err(CompassError::ConfigMismatch { register, written: value, read });
-            }
-        }
-        Ok(())
+        let (reset, identity) =
+            ((reg::CONTROL2, CONTROL2_SOFT_RESET), (reg::CHIP_ID, CHIP_ID_VALUE));
+        self.reset_and_identify(delay, reset, SOFT_RESET_WAIT_US, identity)?;
+        self.write_verified(&[
+            (reg::SET_RESET_PERIOD, SET_RESET_PERIOD_VALUE),
+            (reg::CONTROL1, CONTROL1_VALUE),
+        ])
     }
 
     /// Read the status, then (when ready) the data; the health report counts the result.
     pub fn read(&mut self) -> Result<CompassReading, CompassError<B::Error>> {
-        let result = self.read_inner();
-        self.monitor.record(&result);
-        result
+        let result = self.read_unrecorded();
+        self.recorded(result)
     }
 
-    fn read_inner(&mut self) -> Result<CompassReading, CompassError<B::Error>> {
+    fn read_unrecorded(&mut self) -> Result<CompassReading, CompassError<B::Error>> {
         let status = self.bus.read_one(self.address, reg::STATUS)?;
         if status & STATUS_DRDY == 0 {
             return Err(CompassError::NotReady);
