@@ -347,7 +347,9 @@ impl Controller {
     /// A bound that is not finite and positive, or above the gain, changes nothing.
     #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn cap_position_gain(&mut self, k_position_max: f32) {
-        let gains = self.gains;
+        // The hold's own gains: a velocity bound set before (`Self::cap_hold_velocity_gain`)
+        // stays.
+        let gains = *self.position.gains();
         if !(k_position_max.is_finite()
             && k_position_max > 0.0
             && k_position_max < gains.k_position)
@@ -362,7 +364,8 @@ impl Controller {
         };
         if let Ok(position) = PositionController::with_limits(capped, *self.position.limits()) {
             self.position = position;
-            self.gains = capped;
+            self.gains.k_position = capped.k_position;
+            self.gains.k_velocity_integral = capped.k_velocity_integral;
         }
     }
 
@@ -801,6 +804,15 @@ mod tests {
         let fraction = hold.k_velocity_integral / (hold.k_velocity * hold.k_position);
         assert!((fraction - crate::position::VELOCITY_INTEGRAL_ZERO_FRACTION).abs() < 1e-6);
         assert_eq!(*controller.gains(), before, "the attitude loops and the level hold");
+        // With the position loop capped too, in either order, the same hold.
+        let k_position_max = 0.5 * hold.k_position;
+        let mut position_first = Controller::new(model, [0.0; 3], config).unwrap();
+        position_first.cap_position_gain(k_position_max);
+        position_first.cap_hold_velocity_gain(bound);
+        controller.cap_position_gain(k_position_max);
+        assert_eq!(*position_first.hold_gains(), *controller.hold_gains());
+        assert_eq!(controller.hold_gains().k_velocity, bound);
+        assert_eq!(controller.hold_gains().k_position, k_position_max);
         // Nothing to bound: motion capture's velocity, a bound above the gain, bad input.
         for k in [max_velocity_gain(0.0), 2.0 * before.k_velocity, f32::NAN, -1.0] {
             let mut unbound = Controller::new(model, [0.0; 3], config).unwrap();

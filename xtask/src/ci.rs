@@ -43,7 +43,7 @@ pub fn test(args: &[String]) -> Result<()> {
         }
         util::run(command.args(["--", "-D", "warnings"]))
     })?;
-    step("test: all host tests", || util::run(util::cargo().args(["test", "--workspace"])))?;
+    step("test: all host tests", crate::test_runner::run_all)?;
     step(
         "test: the firmware flown in RotorPy, a simulator we did not write (2 airframes)",
         thirdparty::test,

@@ -6,6 +6,7 @@ mod bench;
 mod build;
 mod ci;
 mod telemetry;
+mod test_runner;
 mod thirdparty;
 mod util;
 
