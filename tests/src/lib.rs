@@ -21,11 +21,23 @@ pub fn sitl_binary() -> PathBuf {
     BINARY.get_or_init(|| build_binary("sim", "sitl")).clone()
 }
 
-/// Build the binary `bin` of `package` in this test's profile; returns its path.
+/// Set by `cargo xtask test` once `cargo test --workspace --no-run` has built every test binary
+/// and, with them, the workspace's executables that have integration tests of their own (`sitl`,
+/// `configurator-cli`), with the test build's features: the helpers then take those instead of
+/// building them again with a feature resolution of their own, which compiled every
+/// dependency a second time (docs/benchmarks.md, "The test command").
+pub const PREBUILT_ENV: &str = "FC_TEST_EXECUTABLES_BUILT";
+
+/// Build the binary `bin` of `package` in this test's profile (or take it as built, see
+/// [`PREBUILT_ENV`]); returns its path.
 fn build_binary(package: &str, bin: &str) -> PathBuf {
     // target/<profile>/deps/<test> → target/<profile>
     let exe = std::env::current_exe().expect("test executable path");
     let profile_dir = exe.parent().and_then(|deps| deps.parent()).expect("target dir");
+    let prebuilt = profile_dir.join(bin);
+    if std::env::var_os(PREBUILT_ENV).is_some() && prebuilt.is_file() {
+        return prebuilt;
+    }
     let release = profile_dir.file_name().is_some_and(|name| name == "release");
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let mut build = Command::new(cargo);

@@ -8,7 +8,8 @@
 //! flows, the SD card) 158 s of it; two at a time they take 166 s. Here `cargo test --no-run`
 //! builds every test binary once, and they then run
 //! [`CONCURRENT_BINARIES`] at a time, each as `cargo test` would run it: from its package's
-//! directory, with `CARGO_MANIFEST_DIR` and `CARGO_PKG_NAME` set, its tests on their own threads.
+//! directory, with `CARGO_MANIFEST_DIR` and `CARGO_PKG_NAME` set, its tests on their own threads,
+//! and told that the executables the end-to-end tests drive are built ([`PREBUILT_ENV`]).
 //! Each binary's output is printed whole when it ends (never interleaved), with its time; every
 //! binary runs even after one fails, and the step fails naming each that did. The doc-tests run
 //! after, with `cargo test --doc`.
@@ -26,6 +27,11 @@ use std::time::Instant;
 /// simulations are not slowed much, while a binary that waits on the clock leaves its core to
 /// the other).
 pub const CONCURRENT_BINARIES: usize = 2;
+
+/// Told to every test binary: `cargo test --no-run` has built the workspace's executables the
+/// end-to-end tests drive (`sitl`, and `configurator-cli` through its own integration test),
+/// so their helpers take them as built (`tests/src/lib.rs`, the same name).
+const PREBUILT_ENV: &str = "FC_TEST_EXECUTABLES_BUILT";
 
 /// One test binary `cargo test --no-run` built.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,6 +126,8 @@ fn run_one(binary: &TestBinary) -> bool {
     let started = Instant::now();
     let output = Command::new(&binary.executable)
         .current_dir(&binary.package_dir)
+        // The executables were built with the test binaries (`tests::PREBUILT_ENV`).
+        .env(PREBUILT_ENV, "1")
         .env("CARGO_MANIFEST_DIR", &binary.package_dir)
         .env("CARGO_PKG_NAME", &binary.package)
         .output();
