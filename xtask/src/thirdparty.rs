@@ -80,6 +80,11 @@ struct Options {
     /// Give the bridge no IMU offset (no `--imu-offset-mm`).
     unknown_imu_offset: bool,
     client_args: Vec<String>,
+    /// The dev-profile `scenario` is already built, by `cargo test --workspace --no-run` with
+    /// the test build's features (`cargo xtask test`): building it again with `cargo build -p
+    /// sim`, whose feature resolution is its own, compiled every dependency a second time. Not
+    /// a command-line option.
+    bridge_built: bool,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -100,6 +105,7 @@ impl Options {
             no_speed_telemetry: false,
             unknown_imu_offset: false,
             client_args: Vec::new(),
+            bridge_built: false,
         };
         let mut named = Vec::new();
         let mut iter = args.iter();
@@ -165,7 +171,7 @@ pub fn thirdparty(args: &[String]) -> Result<()> {
         if args.len() > 1 {
             bail!("`--test` takes no other arguments (it is what `cargo xtask test` runs)");
         }
-        return test();
+        return test(false);
     }
     run(&Options::parse(args)?)
 }
@@ -178,20 +184,33 @@ pub fn thirdparty(args: &[String]) -> Result<()> {
 /// it already, while a release build of `sim` (fat LTO) costs minutes on two cores, and the
 /// bridge's share of a flight is small either way (0.4 s of CPU for 15 s of flight, the same in
 /// both profiles, against about 20 s for the Python client; the flights are identical).
-pub fn test() -> Result<()> {
+/// `bridge_built`: `cargo xtask test` has just built the dev-profile bridge with the test build
+/// (see `Options::bridge_built`); `cargo xtask thirdparty --test` builds it.
+pub fn test(bridge_built: bool) -> Result<()> {
     let python = ensure_venv()?;
     util::run(
         Command::new(&python).args(["-m", "unittest", "test_thirdparty"]).current_dir(client_dir()),
     )
     .context("the RotorPy client's unit tests failed")?;
-    run(&Options::parse(&["--dev-bridge".to_string()])?)?;
-    let no_speed = ["--dev-bridge", "--airframe", TEST_NO_SPEED_AIRFRAME, "--no-speed-telemetry"];
-    let unknown_offset =
-        ["--dev-bridge", "--airframe", TEST_UNKNOWN_OFFSET_AIRFRAME, "--unknown-imu-offset"];
+    let parse = |args: &[&str]| -> Result<Options> {
+        let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        Ok(Options { bridge_built, ..Options::parse(&args)? })
+    };
+    run(&parse(&["--dev-bridge"])?)?;
+    // The first run has built the bridge if it was not.
+    let parse =
+        |args: &[&str]| -> Result<Options> { Ok(Options { bridge_built: true, ..parse(args)? }) };
+    let no_speed =
+        parse(&["--dev-bridge", "--airframe", TEST_NO_SPEED_AIRFRAME, "--no-speed-telemetry"])?;
+    let unknown_offset = parse(&[
+        "--dev-bridge",
+        "--airframe",
+        TEST_UNKNOWN_OFFSET_AIRFRAME,
+        "--unknown-imu-offset",
+    ])?;
     let (no_speed, unknown_offset) = std::thread::scope(|scope| {
-        let no_speed = scope.spawn(|| run(&Options::parse(&no_speed.map(String::from))?));
-        let unknown_offset =
-            scope.spawn(|| run(&Options::parse(&unknown_offset.map(String::from))?));
+        let no_speed = scope.spawn(|| run(&no_speed));
+        let unknown_offset = scope.spawn(|| run(&unknown_offset));
         (no_speed.join(), unknown_offset.join())
     });
     no_speed.expect("a flight thread panicked")?;
@@ -243,14 +262,17 @@ fn run(options: &Options) -> Result<()> {
             })
             .collect::<Result<_>>()?,
     };
-    let mut build = util::cargo();
-    build.args(["build", "-p", "sim", "--bin", "scenario"]);
-    if options.release_bridge {
-        build.arg("--release");
-    }
-    util::run(&mut build)?;
     let profile_dir = if options.release_bridge { "release" } else { "debug" };
     let scenario = util::root().join("target").join(profile_dir).join("scenario");
+    let built = options.bridge_built && !options.release_bridge && scenario.is_file();
+    if !built {
+        let mut build = util::cargo();
+        build.args(["build", "-p", "sim", "--bin", "scenario"]);
+        if options.release_bridge {
+            build.arg("--release");
+        }
+        util::run(&mut build)?;
+    }
 
     eprintln!(
         "\nflying {} airframe(s) in RotorPy, taper {} ms ({}), {}, {}, {} at a time…",
