@@ -150,12 +150,14 @@ const POSE: ExternalPose = ExternalPose { position_ned_m: [0.5, -1.25, -2.0], he
 /// Runs the firmware application behind a bridge in a thread (armed for throw-to-fly if asked),
 /// serving TCP links too if given, until `idle` passes without a packet; returns the run's
 /// summary and the control loop's final snapshot.
+/// The bridge's thread: its summary, the last snapshot and its log lines when it ends.
+type BridgeThread = std::thread::JoinHandle<(BridgeSummary, ControlSnapshot, Vec<String>)>;
+
 fn firmware_bridge(
     arm: bool,
     mut links: Option<TcpLinks>,
     idle: Duration,
-) -> (std::net::SocketAddr, std::thread::JoinHandle<(BridgeSummary, ControlSnapshot, Vec<String>)>)
-{
+) -> (std::net::SocketAddr, BridgeThread) {
     let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
     let addr = server.local_addr().unwrap();
     let handle = std::thread::spawn(move || {
@@ -449,13 +451,19 @@ impl Host {
     }
 }
 
-#[test]
-fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
+/// An unarmed bridge that serves the configurator on TCP (no packet sent yet): its packet
+/// address, its thread, its TCP address and a host connected there.
+fn bridge_with_configurator() -> (std::net::SocketAddr, BridgeThread, std::net::SocketAddr, Host) {
     let links = TcpLinks::bind(0, simulator_board_info("BRIDGE", 1, 0)).unwrap();
     let tcp = links.local_addr().unwrap();
     let (addr, handle) = firmware_bridge(false, Some(links), Duration::from_millis(400));
+    (addr, handle, tcp, Host::connect(tcp))
+}
+
+#[test]
+fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
     // No packet yet: the links are served while the bridge waits.
-    let mut host = Host::connect(tcp);
+    let (addr, handle, tcp, mut host) = bridge_with_configurator();
     let hello = Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: protocol::SCHEMA_HASH };
     match host.request(Request::Hello(hello)) {
         Ok(Reply::Hello(info)) => {
@@ -516,10 +524,7 @@ fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
 fn uncalibrated_the_bridges_compass_is_found_and_read_but_steers_nothing() {
     use protocol::{CompassSensor, CompassState};
     use sim::magnetometer::{MagnetometerSpec, SimMagnetometer};
-    let links = TcpLinks::bind(0, simulator_board_info("BRIDGE", 1, 0)).unwrap();
-    let tcp = links.local_addr().unwrap();
-    let (addr, handle) = firmware_bridge(false, Some(links), Duration::from_millis(400));
-    let mut host = Host::connect(tcp);
+    let (addr, handle, _, mut host) = bridge_with_configurator();
     let hello = Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: protocol::SCHEMA_HASH };
     assert!(matches!(host.request(Request::Hello(hello)), Ok(Reply::Hello(_))));
     let mut compass = || match host.request(Request::GetCompass(())) {
