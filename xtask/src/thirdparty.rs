@@ -430,7 +430,7 @@ fn client_dir() -> PathBuf {
 
 /// The virtualenv's python, creating the venv and installing the pinned requirements if the
 /// venv is missing or was made from another `requirements.txt`.
-fn ensure_venv() -> Result<PathBuf> {
+pub fn ensure_venv() -> Result<PathBuf> {
     let venv = util::root().join("target").join("thirdparty-venv");
     let python = venv.join("bin").join("python");
     let requirements = client_dir().join("requirements.txt");
