@@ -351,7 +351,7 @@ impl Allocator {
             crossed |= du_min[j] > du_max[j];
         }
         if largest > MAX_INPUT_MAGNITUDE.to_bits() || crossed {
-            return refusal(m, g, [dv, du_min, du_max, du_pref]);
+            return refusal(m, g, dv, du_min, du_max, du_pref);
         }
 
         // The stacked problem A du ≈ b, A by columns.
@@ -454,15 +454,18 @@ impl Allocator {
 }
 
 /// Why the input of an m-motor call was refused (non-finite first, then out of range, then
-/// crossed bounds), and the fallback. `vectors` as [`all_inputs`] takes them.
+/// crossed bounds), and the fallback.
 #[cold]
 #[inline(never)]
 fn refusal(
     m: usize,
     g: &[[f32; MAX_MOTORS]; VIRTUAL_CONTROLS],
-    vectors: [&[f32]; 4],
+    dv: &[f32; VIRTUAL_CONTROLS],
+    du_min: &[f32; MAX_MOTORS],
+    du_max: &[f32; MAX_MOTORS],
+    du_pref: &[f32; MAX_MOTORS],
 ) -> AllocationResult {
-    let all = |test: fn(f32) -> bool| all_inputs(m, g, vectors, test);
+    let all = |test: fn(f32) -> bool| all_inputs(m, g, [dv, du_min, du_max, du_pref], test);
     let failure = if !all(f32::is_finite) {
         AllocationFailure::NonFinite
     } else if !all(|x| x.abs() <= MAX_INPUT_MAGNITUDE) {
@@ -470,7 +473,6 @@ fn refusal(
     } else {
         AllocationFailure::Bounds
     };
-    let [_, du_min, du_max, _] = vectors;
     fallback(m, du_min, du_max, failure)
 }
 
@@ -489,20 +491,19 @@ fn all_inputs(
     every.all(|values| values.iter().all(|&x| test(x)))
 }
 
-/// The refusal: zero increment moved into whichever of the first `m` bounds are finite and
-/// ordered.
+/// The refusal: zero increment moved into whichever bounds are finite and ordered.
 #[cold]
 #[inline(never)]
 fn fallback(
     m: usize,
-    du_min: &[f32],
-    du_max: &[f32],
+    du_min: &[f32; MAX_MOTORS],
+    du_max: &[f32; MAX_MOTORS],
     failure: AllocationFailure,
 ) -> AllocationResult {
     let mut du = [0.0f32; MAX_MOTORS];
-    for ((d, &lo), &hi) in du.iter_mut().zip(du_min).zip(du_max).take(m) {
-        if lo.is_finite() && hi.is_finite() && lo <= hi {
-            *d = clamp(0.0, lo, hi);
+    for j in 0..m {
+        if du_min[j].is_finite() && du_max[j].is_finite() && du_min[j] <= du_max[j] {
+            du[j] = clamp(0.0, du_min[j], du_max[j]);
         }
     }
     AllocationResult {
