@@ -797,15 +797,18 @@ pub enum LandReason {
     Caught,
 }
 
-/// Why a failsafe acted (protocol 1.4).
+/// Why a failsafe acted (protocol 1.4). `I` is what an identification failure carries: on the
+/// wire the learner's [`LearnerFailure`]; the firmware's pilot keeps its own, narrower type in
+/// this very list (`firmware::app::Failsafe`: one list of reasons, the same variants in the same
+/// order, so the same bytes).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FailsafeReason {
+pub enum FailsafeReason<I = LearnerFailure> {
     /// A motor command was not finite or outside [0, 1]: zero was written instead.
     BadCommand,
     /// The control allocation failed for many consecutive steps.
     AllocationFailed,
     /// The identification produced no flyable model (the learner's failure says why).
-    Identification(LearnerFailure),
+    Identification(I),
     /// The thrust axis stayed far from up for too long.
     AttitudeLost,
     /// The IMU stopped delivering samples.
@@ -818,6 +821,23 @@ pub enum FailsafeReason {
     RcLost,
     /// The pilot's kill switch.
     Kill,
+}
+
+impl<I> FailsafeReason<I> {
+    /// The same reason, an identification's failure turned by `f`.
+    pub fn map_identification<J>(self, f: impl FnOnce(I) -> J) -> FailsafeReason<J> {
+        match self {
+            Self::BadCommand => FailsafeReason::BadCommand,
+            Self::AllocationFailed => FailsafeReason::AllocationFailed,
+            Self::Identification(failure) => FailsafeReason::Identification(f(failure)),
+            Self::AttitudeLost => FailsafeReason::AttitudeLost,
+            Self::ImuLost => FailsafeReason::ImuLost,
+            Self::ImuFault => FailsafeReason::ImuFault,
+            Self::PoseLost => FailsafeReason::PoseLost,
+            Self::RcLost => FailsafeReason::RcLost,
+            Self::Kill => FailsafeReason::Kill,
+        }
+    }
 }
 
 /// What a failsafe did (protocol 1.4).

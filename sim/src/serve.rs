@@ -459,24 +459,25 @@ pub fn parse_imu_offset_mm(text: &str) -> Result<[f32; 3], String> {
 /// Largest accepted IMU offset component, mm.
 pub const MAX_IMU_OFFSET_MM: f64 = 1000.0;
 
-/// A configurator's side of the protocol over TCP, just enough for the unit tests.
-#[cfg(test)]
-pub(crate) struct TestHost {
+/// A configurator's side of the protocol over TCP, just enough for tests: this crate's own and
+/// its integration tests (`tests/bridge.rs`). Panics where a test would fail: no connection, no
+/// answer within 2 s, the server closing the connection.
+pub struct TestHost {
     stream: TcpStream,
     decoder: protocol::Decoder,
     seq: u16,
 }
 
-#[cfg(test)]
 impl TestHost {
-    pub(crate) fn connect(addr: SocketAddr) -> Self {
+    /// Connects to a server's TCP port at `addr`.
+    pub fn connect(addr: SocketAddr) -> Self {
         let stream = TcpStream::connect(addr).unwrap();
         stream.set_read_timeout(Some(std::time::Duration::from_millis(10))).unwrap();
         Self { stream, decoder: protocol::Decoder::new(), seq: 0 }
     }
 
     /// Sends `request` and waits (up to 2 s) for its response.
-    pub(crate) fn request(&mut self, request: protocol::Request) -> protocol::Response {
+    pub fn request(&mut self, request: protocol::Request) -> protocol::Response {
         use protocol::DeviceMessage;
         self.seq += 1;
         let mut frame = [0u8; 256];
@@ -502,7 +503,7 @@ impl TestHost {
     }
 
     /// The handshake.
-    pub(crate) fn hello(&mut self) -> protocol::Response {
+    pub fn hello(&mut self) -> protocol::Response {
         self.request(protocol::Request::Hello(protocol::Hello {
             protocol: protocol::PROTOCOL_VERSION,
             schema_hash: protocol::SCHEMA_HASH,

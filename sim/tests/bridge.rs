@@ -5,14 +5,13 @@
 //! simulator throws the craft, and flies and holds on poses or on GNSS solutions, with a compass
 //! knowing its heading before the throw; the configurator protocol is served on TCP meanwhile.
 
-use std::io::{Read, Write};
-use std::net::TcpStream;
-use std::time::{Duration, Instant};
+use std::net::SocketAddr;
+use std::time::Duration;
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::app::{ControlCommand, ControlSnapshot};
 use firmware::drivers::compass::{DelayUs, I2cRegisterBus};
-use protocol::{Decoder, DeviceMessage, ExternalPose, Hello, Reply, Request, Response};
+use protocol::{ExternalPose, Reply, Request};
 use sim::airframe::Airframe;
 use sim::board::{SimBoard, SimConfig};
 use sim::bridge::{
@@ -21,7 +20,7 @@ use sim::bridge::{
 };
 use sim::gnss::GnssModelConfig;
 use sim::scenario::{with_firmware_app, FlightApp, ScenarioConfig, ScenarioKind};
-use sim::serve::{simulator_board_info, TcpLinks};
+use sim::serve::{simulator_board_info, TcpLinks, TestHost};
 
 /// Echoes what it saw into the commands: |gyro x|, the first motor speed / 1000, and the time.
 struct Echo;
@@ -157,7 +156,7 @@ fn firmware_bridge(
     arm: bool,
     mut links: Option<TcpLinks>,
     idle: Duration,
-) -> (std::net::SocketAddr, BridgeThread) {
+) -> (SocketAddr, BridgeThread) {
     let mut server = BridgeServer::bind("127.0.0.1:0").unwrap();
     let addr = server.local_addr().unwrap();
     let handle = std::thread::spawn(move || {
@@ -412,60 +411,20 @@ fn not_armed_the_firmware_never_commands_the_motors() {
     assert_eq!(all, 0.0);
 }
 
-/// A configurator's side of the protocol over TCP, just enough for the test.
-struct Host {
-    stream: TcpStream,
-    decoder: Decoder,
-    seq: u16,
-}
-
-impl Host {
-    fn connect(addr: std::net::SocketAddr) -> Self {
-        let stream = TcpStream::connect(addr).unwrap();
-        stream.set_read_timeout(Some(Duration::from_millis(10))).unwrap();
-        Self { stream, decoder: Decoder::new(), seq: 100 }
-    }
-
-    fn request(&mut self, request: Request) -> Response {
-        self.seq += 1;
-        let mut frame = [0u8; 256];
-        let n = request.encode(self.seq, &mut frame).unwrap();
-        self.stream.write_all(&frame[..n]).unwrap();
-        let deadline = Instant::now() + TIMEOUT;
-        let mut buffer = [0u8; 512];
-        while Instant::now() < deadline {
-            let Ok(n) = self.stream.read(&mut buffer) else { continue };
-            assert!(n > 0, "the bridge closed the connection");
-            for &byte in &buffer[..n] {
-                if let Some(Ok(frame)) = self.decoder.push(byte) {
-                    let seq = frame.seq;
-                    if let Ok(DeviceMessage::Response(response)) = DeviceMessage::decode(&frame) {
-                        if seq == self.seq {
-                            return response;
-                        }
-                    }
-                }
-            }
-        }
-        panic!("no answer to request {}", self.seq);
-    }
-}
-
 /// An unarmed bridge that serves the configurator on TCP (no packet sent yet): its packet
 /// address, its thread, its TCP address and a host connected there.
-fn bridge_with_configurator() -> (std::net::SocketAddr, BridgeThread, std::net::SocketAddr, Host) {
+fn bridge_with_configurator() -> (SocketAddr, BridgeThread, SocketAddr, TestHost) {
     let links = TcpLinks::bind(0, simulator_board_info("BRIDGE", 1, 0)).unwrap();
     let tcp = links.local_addr().unwrap();
     let (addr, handle) = firmware_bridge(false, Some(links), Duration::from_millis(400));
-    (addr, handle, tcp, Host::connect(tcp))
+    (addr, handle, tcp, TestHost::connect(tcp))
 }
 
 #[test]
 fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
     // No packet yet: the links are served while the bridge waits.
     let (addr, handle, tcp, mut host) = bridge_with_configurator();
-    let hello = Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: protocol::SCHEMA_HASH };
-    match host.request(Request::Hello(hello)) {
+    match host.hello() {
         Ok(Reply::Hello(info)) => {
             assert_eq!(info.board.as_str(), "BRIDGE");
             assert_eq!(info.motor_count, 0, "no packet yet");
@@ -499,8 +458,8 @@ fn the_bridge_serves_the_configurator_on_tcp_and_passes_its_commands_on() {
         other => panic!("expected the status, got {other:?}"),
     }
     // A second connection now reports the packets' motor count.
-    let mut second = Host::connect(tcp);
-    match second.request(Request::Hello(hello)) {
+    let mut second = TestHost::connect(tcp);
+    match second.hello() {
         Ok(Reply::Hello(info)) => assert_eq!(info.motor_count, 4),
         other => panic!("expected the hello reply, got {other:?}"),
     }
@@ -525,8 +484,7 @@ fn uncalibrated_the_bridges_compass_is_found_and_read_but_steers_nothing() {
     use protocol::{CompassSensor, CompassState};
     use sim::magnetometer::{MagnetometerSpec, SimMagnetometer};
     let (addr, handle, _, mut host) = bridge_with_configurator();
-    let hello = Hello { protocol: protocol::PROTOCOL_VERSION, schema_hash: protocol::SCHEMA_HASH };
-    assert!(matches!(host.request(Request::Hello(hello)), Ok(Reply::Hello(_))));
+    assert!(matches!(host.hello(), Ok(Reply::Hello(_))));
     let mut compass = || match host.request(Request::GetCompass(())) {
         Ok(Reply::Compass(health)) => health,
         other => panic!("expected the compass's health, got {other:?}"),

@@ -281,7 +281,7 @@ fn assert_imu_fault_disarms(
     assert_eq!(after.last().unwrap().failsafes, counts, "{name}: only {failsafe:?} counted");
     assert_eq!(
         flight.events,
-        vec![(failsafe.reason(), FailsafeAction::Disarmed, 1)],
+        vec![(firmware::app::failsafe_reason(failsafe), FailsafeAction::Disarmed, 1)],
         "{name}: the link's events"
     );
     (flight, reaction)

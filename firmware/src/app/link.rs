@@ -11,7 +11,7 @@
 
 use super::log::{FileRead, LogFileError, LogFiles};
 use super::params;
-use super::pilot::{failsafe_counter, Failsafe, FAILSAFE_KINDS};
+use super::pilot::{failsafe_action, failsafe_counter, failsafe_reason, Failsafe, FAILSAFE_KINDS};
 use super::settings::{Settings, SignatureCheck};
 use super::telemetry::{flight_telemetry, learner_telemetry, sensor_health, StepRecord};
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
@@ -440,8 +440,8 @@ impl LinkServer {
                 _ => kind,
             };
             let event = Event::Failsafe {
-                reason: failsafe.reason(),
-                action: failsafe.action(),
+                reason: failsafe_reason(failsafe),
+                action: failsafe_action(failsafe),
                 count: now,
             };
             if self.send_event(event).is_err() {

@@ -46,8 +46,8 @@ pub use hal::IMU_FAULT_TIMEOUT_S;
 pub use link::{LinkRequest, LinkServer, TELEMETRY_SHARE_PCT, TX_CAPACITY};
 pub use params::{Param, Params};
 pub use pilot::{
-    count_failsafe, failsafe_counter, Failsafe, FailsafeCounts, IdentificationFailure, PilotStatus,
-    PoseConfig, PositionFix, MAX_POSE_LATENCY_S,
+    count_failsafe, failsafe_action, failsafe_counter, failsafe_reason, Failsafe, FailsafeCounts,
+    IdentificationFailure, PilotStatus, PoseConfig, PositionFix, MAX_POSE_LATENCY_S,
 };
 pub use queue::{
     split_queue, LearnerSample, RingConsumer, RingProducer, SampleConsumer, SampleProducer,

@@ -374,57 +374,25 @@ impl Default for PoseConfig {
     }
 }
 
-/// Why flight stopped or changed mode.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum Failsafe {
-    /// A command was not finite or outside [0, 1]: zero written, disarmed.
-    BadCommand,
-    /// The allocation failed for `ALLOCATION_FAILURE_STEPS` steps (10 ms at 2 kHz): disarmed.
-    AllocationFailed,
-    /// The identification produced no flyable model: disarmed.
-    Identification(IdentificationFailure),
-    /// The thrust axis stayed far from up too long: disarmed.
-    AttitudeLost,
-    /// The IMU stopped delivering: disarmed.
-    ImuLost,
-    /// The IMU delivered implausible samples (non-finite, stuck, saturated).
-    ImuFault,
-    /// The external pose stopped arriving: level hold without position.
-    PoseLost,
-    /// The radio link was lost.
-    RcLost,
-    /// The pilot's kill switch: disarmed.
-    Kill,
+/// Why flight stopped or changed mode: the protocol's list of reasons, an identification's
+/// failure in the pilot's own terms ([`IdentificationFailure`]; the same variants in the same
+/// order, so the same bytes in the flight log). What each does: [`failsafe_action`]; a command
+/// out of [0, 1], a failed allocation (`ALLOCATION_FAILURE_STEPS` steps, 10 ms at 2 kHz), no
+/// flyable model, a thrust axis far from up too long, a lost IMU and the kill switch disarm.
+pub type Failsafe = FailsafeReason<IdentificationFailure>;
+
+/// The reason as the protocol names it.
+pub fn failsafe_reason(failsafe: Failsafe) -> FailsafeReason {
+    failsafe.map_identification(IdentificationFailure::learner_failure)
 }
 
-impl Failsafe {
-    /// The reason as the protocol names it.
-    pub fn reason(self) -> FailsafeReason {
-        match self {
-            Failsafe::BadCommand => FailsafeReason::BadCommand,
-            Failsafe::AllocationFailed => FailsafeReason::AllocationFailed,
-            Failsafe::Identification(failure) => {
-                FailsafeReason::Identification(failure.learner_failure())
-            }
-            Failsafe::AttitudeLost => FailsafeReason::AttitudeLost,
-            Failsafe::ImuLost => FailsafeReason::ImuLost,
-            Failsafe::ImuFault => FailsafeReason::ImuFault,
-            Failsafe::PoseLost => FailsafeReason::PoseLost,
-            Failsafe::RcLost => FailsafeReason::RcLost,
-            Failsafe::Kill => FailsafeReason::Kill,
-        }
-    }
-}
-
-impl Failsafe {
-    /// What the control step does about it.
-    pub fn action(self) -> FailsafeAction {
-        match self {
-            Failsafe::PoseLost => FailsafeAction::LevelHold,
-            // In flight (its only counted case) the craft lands: `super::radio`.
-            Failsafe::RcLost => FailsafeAction::Land,
-            _ => FailsafeAction::Disarmed,
-        }
+/// What the control step does about `failsafe`.
+pub fn failsafe_action(failsafe: Failsafe) -> FailsafeAction {
+    match failsafe {
+        Failsafe::PoseLost => FailsafeAction::LevelHold,
+        // In flight (its only counted case) the craft lands: `super::radio`.
+        Failsafe::RcLost => FailsafeAction::Land,
+        _ => FailsafeAction::Disarmed,
     }
 }
 

@@ -14,7 +14,7 @@
 //! them exactly as streamed (`super::log`), so both read them from here.
 
 use super::hal::{ImuSample, MAX_MOTORS};
-use super::pilot::Failsafe;
+use super::pilot::failsafe_reason;
 use super::queue::{RingConsumer, RingProducer};
 use super::StatusView;
 use flight::learner::AxisStatus;
@@ -159,7 +159,7 @@ pub fn flight_telemetry(view: &StatusView) -> FlightTelemetry {
         pose_fresh: pilot.has_fix,
         allocation_failures: pilot.allocation_failures,
         saturated: pilot.saturated,
-        last_failsafe: pilot.last_failsafe.map(Failsafe::reason),
+        last_failsafe: pilot.last_failsafe.map(failsafe_reason),
         failsafes: pilot.failsafes,
     }
 }

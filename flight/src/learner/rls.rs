@@ -368,9 +368,9 @@ fn symmetric_product<const INLINE: bool>(packed: &[f64], x: &[f64], a: &mut [f64
             }
         } else {
             if INLINE {
-                dot_and_axpy_inline(tail0, tail1, &x[i + 2..], tail, x0, x1)
+                dot_and_axpy_inline(tail0, tail1, &x[i + 2..], tail, (x0, x1))
             } else {
-                dot_and_axpy(tail0, tail1, &x[i + 2..], tail, x0, x1)
+                dot_and_axpy(tail0, tail1, &x[i + 2..], tail, (x0, x1))
             }
         };
         head[i] += d0 * x0 + p01 * x1 + dot0;
@@ -391,12 +391,7 @@ fn symmetric_product<const INLINE: bool>(packed: &[f64], x: &[f64], a: &mut [f64
 /// `P ← scale(P − gain · a aᵀ)` on the packed upper triangle of `P` (`a.len()` rows), rows in
 /// pairs as in [`symmetric_product`].
 #[inline(always)]
-fn downdate<const INLINE: bool>(
-    packed: &mut [f64],
-    a: &[f64],
-    gain: f64,
-    scale: impl Fn(f64) -> f64 + Copy,
-) {
+fn downdate<const INLINE: bool>(packed: &mut [f64], a: &[f64], gain: f64, scale: impl Scale) {
     let n = a.len();
     let mut rows = packed;
     let mut i = 0;
@@ -415,9 +410,9 @@ fn downdate<const INLINE: bool>(
         *d1 = scale(*d1 - g1 * a[i + 1]);
         if !tail0.is_empty() {
             if INLINE {
-                rows_downdate_inline(tail0, tail1, &a[i + 2..], g0, g1, scale);
+                rows_downdate_inline(tail0, tail1, &a[i + 2..], (g0, g1), scale);
             } else {
-                rows_downdate(tail0, tail1, &a[i + 2..], g0, g1, scale);
+                rows_downdate(tail0, tail1, &a[i + 2..], (g0, g1), scale);
             }
         }
         i += 2;
@@ -427,31 +422,29 @@ fn downdate<const INLINE: bool>(
     }
 }
 
+/// What a downdate writes each entry through: the identity, or the division by λ (as a product
+/// by `1/λ`).
+trait Scale: Fn(f64) -> f64 + Copy {}
+
+impl<F: Fn(f64) -> f64 + Copy> Scale for F {}
+
+/// A value for each of two rows (row 0's, row 1's). The Rust ABI passes a pair of scalars as
+/// two scalars, so a `Pair` argument compiles as two `f64` arguments would (the same code,
+/// `cargo xtask bench-m7`'s learner rows unchanged).
+type Pair = (f64, f64);
+
 /// Two rows' tails: `row0_j ← scale(row0_j − g0 a_j)` and the same for `row1` with `g1`. Not
 /// inlined: a small loop of its own keeps its registers (inlined into the update, the loop
 /// spilled to the stack on every entry).
 #[inline(never)]
-fn rows_downdate(
-    row0: &mut [f64],
-    row1: &mut [f64],
-    a: &[f64],
-    g0: f64,
-    g1: f64,
-    scale: impl Fn(f64) -> f64,
-) {
-    rows_downdate_inline(row0, row1, a, g0, g1, scale)
+fn rows_downdate(row0: &mut [f64], row1: &mut [f64], a: &[f64], g: Pair, scale: impl Scale) {
+    rows_downdate_inline(row0, row1, a, g, scale)
 }
 
 /// [`rows_downdate`] inlined (rows of a constant length, unrolled by the compiler).
 #[inline(always)]
-fn rows_downdate_inline(
-    row0: &mut [f64],
-    row1: &mut [f64],
-    a: &[f64],
-    g0: f64,
-    g1: f64,
-    scale: impl Fn(f64) -> f64,
-) {
+fn rows_downdate_inline(row0: &mut [f64], row1: &mut [f64], a: &[f64], g: Pair, scale: impl Scale) {
+    let (g0, g1) = g;
     for ((p0, p1), aj) in row0.iter_mut().zip(row1).zip(a) {
         *p0 = scale(*p0 - g0 * aj);
         *p1 = scale(*p1 - g1 * aj);
@@ -460,13 +453,13 @@ fn rows_downdate_inline(
 
 /// Two rows' tails: `Σ_j row0_j x_j` and `Σ_j row1_j x_j` (rows whose own regressors are zero).
 #[inline(never)]
-fn dot2(row0: &[f64], row1: &[f64], x: &[f64]) -> (f64, f64) {
+fn dot2(row0: &[f64], row1: &[f64], x: &[f64]) -> Pair {
     dot2_inline(row0, row1, x)
 }
 
 /// [`dot2`] inlined.
 #[inline(always)]
-fn dot2_inline(row0: &[f64], row1: &[f64], x: &[f64]) -> (f64, f64) {
+fn dot2_inline(row0: &[f64], row1: &[f64], x: &[f64]) -> Pair {
     let (mut dot0, mut dot1) = (0.0, 0.0);
     for ((p0, p1), xj) in row0.iter().zip(row1).zip(x) {
         dot0 += p0 * xj;
@@ -476,29 +469,16 @@ fn dot2_inline(row0: &[f64], row1: &[f64], x: &[f64]) -> (f64, f64) {
 }
 
 /// Two rows' tails: `Σ_j row0_j x_j` and `Σ_j row1_j x_j`, and `acc_j += row0_j x0 + row1_j x1`
-/// on the way. Not inlined, for the same reason as [`rows_downdate`].
+/// on the way (`x01`: `(x0, x1)`). Not inlined, for the same reason as [`rows_downdate`].
 #[inline(never)]
-fn dot_and_axpy(
-    row0: &[f64],
-    row1: &[f64],
-    x: &[f64],
-    acc: &mut [f64],
-    x0: f64,
-    x1: f64,
-) -> (f64, f64) {
-    dot_and_axpy_inline(row0, row1, x, acc, x0, x1)
+fn dot_and_axpy(row0: &[f64], row1: &[f64], x: &[f64], acc: &mut [f64], x01: Pair) -> Pair {
+    dot_and_axpy_inline(row0, row1, x, acc, x01)
 }
 
 /// [`dot_and_axpy`] inlined.
 #[inline(always)]
-fn dot_and_axpy_inline(
-    row0: &[f64],
-    row1: &[f64],
-    x: &[f64],
-    acc: &mut [f64],
-    x0: f64,
-    x1: f64,
-) -> (f64, f64) {
+fn dot_and_axpy_inline(row0: &[f64], row1: &[f64], x: &[f64], acc: &mut [f64], x01: Pair) -> Pair {
+    let (x0, x1) = x01;
     let (mut dot0, mut dot1) = (0.0, 0.0);
     for (((p0, p1), xj), aj) in row0.iter().zip(row1).zip(x).zip(acc) {
         dot0 += p0 * xj;
