@@ -445,13 +445,15 @@ const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 /// sample on which every motor has been pulsed and all are back below a pulse (the last motor's
 /// pulse ends `0.05 (m − 1) + 0.075` s in, `synthetic_sample`, seen three samples later through
 /// the learner's command delay), and the samples measured one by one from two before it: the
-/// learner solves the lag candidates' regressions (52, as many a sample as
-/// `no_speed::SCORING_WORK_PER_MOTOR` allows), then learns from the held samples, at most
+/// learner solves the lag candidates' regressions (52, a few rows or columns at a time, as
+/// many a sample as `no_speed::SCORING_WORK_PER_MOTOR` allows), then learns from the held
+/// samples (the means over `no_speed::HOLD_INTERVAL_S`), at most
 /// `no_speed::RELEASE_PER_SAMPLE` a sample.
 const NO_SPEED_ENDS: [(usize, usize); 2] = [(4, 453), (8, 853)];
 
 /// Samples measured at each excitation's end ([`NO_SPEED_ENDS`]): the candidates' regressions
-/// and the first of the catch-up.
+/// and the first of the catch-up (every one of the six rows of the effectiveness regression
+/// among its samples).
 const NO_SPEED_END_MEASURED: usize = 60;
 
 /// Samples of pulses the learner without speed telemetry is primed with (0.2 s: three motors
@@ -906,11 +908,12 @@ fn main() -> ! {
         for n in seen - 2..seen - 2 + NO_SPEED_END_MEASURED {
             hprintln!(
                 "bench-m7 region: learner m={}, no speed telemetry, sample {} at the excitation's \
-                 end (from {}: the lag candidates' regressions, a work budget a sample, then at \
-                 most {} held samples learned from)",
+                 end (from {}: the lag candidates' regressions, a work budget a sample, then the \
+                 held samples, means over {} ms, at most {} a sample)",
                 m,
                 n,
                 seen,
+                1000.0 * flight::learner::no_speed::HOLD_INTERVAL_S,
                 flight::learner::no_speed::RELEASE_PER_SAMPLE
             );
         }
