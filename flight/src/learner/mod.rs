@@ -1069,10 +1069,10 @@ mod tests {
             pulses / stride
         });
         // After the last pulse: the last period's pending candidates, the candidates'
-        // regressions (a budget of work a sample: a quad's all 52 within 16 samples), then the
-        // catch-up, a held sample a sample (and the learner's command delay, a few samples).
+        // regressions (a budget of work a sample: a quad's 52 within 110 samples, 55 ms), then
+        // the catch-up, a held sample a sample (and the learner's command delay, a few samples).
         let spread = learned / no_speed::RELEASE_PER_SAMPLE;
-        let scoring = no_speed::TAU_GRID_S.len() + 16;
+        let scoring = no_speed::TAU_GRID_S.len() + 110;
         let most = scoring + (learned * stride).div_ceil(stride - 1) + 8;
         assert!(after >= spread && after <= most, "caught up {after} samples after the pulses");
         assert!(!learner.model().pending);

@@ -53,22 +53,44 @@
 //! plain ones), so both sides see one filter. The specific force is taken one period back, where
 //! the central difference of the filtered rates gives its angular acceleration. The regressions
 //! stop at the last pulse's end; the candidates' regressions are then solved for their
-//! residuals, as many a sample as a budget of work allows ([`SCORING_WORK_PER_MOTOR`]: a
-//! quad's whole candidate, an octorotor's half; three of `4m` unknowns and one of `m + 9` per
-//! candidate: all 52 in one sample were 880,000 instructions on a quad), and the lag is chosen
-//! with the last. Until then the published τ is the prior.
+//! residuals (three of `4m` unknowns and one of `m + 9` per candidate: all 52 in one sample
+//! were 880,000 instructions on a quad), each loaded, factored and solved a row, a column or an
+//! output at a time ([`Solve`]), as many steps a sample as a budget of work allows
+//! ([`SCORING_WORK_PER_MOTOR`]), and the lag is chosen with the last. Until then the published
+//! τ is the prior.
 //!
 //! **The effectiveness regression waits for the lag.** It never forgets, so what it learned
 //! from speeds modelled with the lag of the first pulses, still far off, would stay. The
-//! samples (rates, specific force, commands) are held in a ring ([`EFFECTIVENESS_HOLD_S`]) and
-//! released to it from the end of the excitation (every motor pulsed and all back below
-//! [`PULSE_COMMAND`]), their speeds modelled with the lag identified over every pulse, at most
-//! [`RELEASE_PER_SAMPLE`] a sample: the catch-up is spread over the samples that follow (up to
-//! 104 ms on 1,000 random worlds, the lag's choice included), so that no control period carries it all (a quad's 450 held
-//! samples were 4.9 M instructions, 10 ms at 480 MHz in one sample, an octorotor's up to 40 ms:
-//! longer than the sample queue to the task that runs the learner). Until it is done the
+//! samples are held in a ring ([`EFFECTIVENESS_HOLD_S`]) as their means over
+//! [`HOLD_INTERVAL_S`] (4 ms: the rates, the specific force, the nominal curve's steady speed
+//! for the commands) and released to it from the end of the excitation (every motor pulsed and
+//! all back below [`PULSE_COMMAND`]), their speeds modelled with the lag identified over every
+//! pulse, [`RELEASE_PER_SAMPLE`] a sample. Without speed telemetry the effectiveness
+//! regression runs at the held samples' rate throughout (250 Hz at 2 kHz: its filters designed
+//! for it, its six rows in turn, each at 41.7 Hz on increments over 24 ms), in the free fall
+//! before the excitation ([`CommandSpeedModel::prime`]) and in flight after it too, and so does
+//! the in-flight IMU-offset fit on its samples. The catch-up is spread over the samples that
+//! follow, each within the learner's per-sample budget: the backlog shrinks by 7 held samples
+//! in 8 control samples, as fast as releasing 8 full-rate samples a sample did (a quad's 450
+//! held samples were 4.9 M instructions, 10 ms at 480 MHz, in one sample; 8 a sample were up
+//! to 76,000 instructions on a quad and 146,000 on an octorotor). Until it is done the
 //! published model says `pending` and the control step waits for it before engaging
 //! (`firmware::app::control`, `ENGAGE_WAIT_MAX_S`).
+//!
+//! The held samples' assumption, in seconds and hertz: what the effectiveness regression
+//! learns from lies below 40 Hz (the pulses carry 5–40 Hz, and every signal passes its 20 Hz
+//! low-pass), so a mean over 4 ms keeps it (it passes 20 Hz with 1 % less, 40 Hz with 4 %
+//! less, alike on both sides of the regression), and what the mean folds onto the band from
+//! above 125 Hz is attenuated by the mean itself (its zeros at multiples of 250 Hz) and then by
+//! the 20 Hz low-pass. Rotor vibration (100–500 Hz) and gyro noise up to 3× the ICM-42688-P's
+//! are what the simulator's random world draws against it. The modelled speed of a held sample
+//! is the root mean square over its interval of the lag's exact response to the interval's
+//! mean target ([`CommandSpeedModel::release`]), so that its square is the interval's mean of
+//! `x²`, as the rates are their interval's mean. What it costs: each row's regressions come at
+//! 41.7 Hz instead of 333 Hz, and on 1,000 random worlds G1 at the excitation's end is about
+//! 2 percentage points further off and the thrust axis at engagement about 1° in median
+//! (docs/benchmarks.md, "Identification without speed telemetry"); the same with a 2 ms
+//! interval learned as the full rate did but caught up in 148 ms instead of 60.
 //!
 //! **Assumptions, stated** (the simulator's randomised world, `sim::world`, draws across them):
 //! - one time constant for every motor (the world's motors differ by ±10 %), in
@@ -82,12 +104,11 @@
 //!   low-pass as the effectiveness signals.
 //!
 //! Cost (`cargo xtask bench-m7`, docs/benchmarks.md): during the excitation at most
-//! 10,021 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
-//! the last period's candidates, then the candidates' regressions, as many a sample as
-//! [`SCORING_WORK_PER_MOTOR`] allows (a quad's four, one candidate, a sample), then the catch-up of [`RELEASE_PER_SAMPLE`] held samples a sample (each about what a learner
-//! sample with telemetry costs): 76,051 instructions a sample at most on a quad,
-//! 151,317 on an octorotor, which the learner's task keeps up with at 2 kHz. The ring holds 1,700 samples (≈ 100 KB), the candidates' sums
-//! ≈ 120 KB (the board's image: AXI SRAM 450,304 B of 524,288).
+//! 10,342 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
+//! the last period's candidates, then the candidates' regressions, a budget of work a sample
+//! ([`SCORING_WORK_PER_MOTOR`]), then the catch-up, one held sample a sample (about what a
+//! learner sample with telemetry costs): CATCHUP_FIGURES. The ring holds 213 held samples
+//! (14 KB; 1,700 samples, 122 KB, before they were means), the candidates' sums ≈ 120 KB.
 
 // Index loops are kept where they run over axes and motors side by side (several arrays per
 // index), as in `effectiveness`.
@@ -145,13 +166,14 @@ pub const EFFECTIVENESS_HOLD_S: f32 = 0.85;
 /// low-pass ([`super::EFFECTIVENESS_CUTOFF_HZ`]), so 2 kHz samples are nearly the same
 /// information; the interval's mean passes 20 Hz with 1 % less and 40 Hz with 4 % less
 /// (`sinc(f T)`, the same on the rates, the specific force and the modelled speeds, which are
-/// the interval's means too: no lag between them), and it attenuates what it folds onto the
-/// band: the rotors' vibration (100–500 Hz) falls on the mean's zeros at multiples of 250 Hz or
-/// near them, and white gyro noise is averaged as the regression's own filter would. It
-/// serves two ends: the ring holds 8 times fewer samples (13 KB instead of 100 KB), and the
-/// backlog after the excitation shrinks by 7 of 8 a control sample while one held sample a
-/// sample is learned from ([`RELEASE_PER_SAMPLE`]), as fast as learning 8 full-rate samples a
-/// sample did, each sample within the learner's budget.
+/// the interval's means too: no lag between them). Below 125 Hz nothing folds, and the 20 Hz
+/// low-pass at 250 Hz takes what lies above the band (100 Hz by 28 dB); what folds onto the
+/// 0–40 Hz band comes from within 40 Hz of 250 Hz or 500 Hz (rotor vibration there), which
+/// the mean attenuates by 15–23 dB (21–28 dB near 500 Hz), where the full-rate low-pass took
+/// 40 dB or more. It serves two ends: the ring holds 8 times fewer samples (14 KB instead of
+/// 122 KB), and the backlog after the excitation shrinks by 7 of 8 a control sample while one
+/// held sample a sample is learned from ([`RELEASE_PER_SAMPLE`]), as fast as learning 8
+/// full-rate samples a sample did, each sample within the learner's budget.
 pub const HOLD_INTERVAL_S: f32 = 0.004;
 
 /// Most samples held: [`EFFECTIVENESS_HOLD_S`] at the held rate (250 Hz, [`HOLD_INTERVAL_S`]),
@@ -607,9 +629,15 @@ impl LagHypothesis {
     /// force (3: `m + 9` unknowns, three outputs), given the shared offset terms' sums.
     fn load_row(&self, m: usize, shared: &SharedSums, part: usize, r: usize, solve: &mut Solve) {
         if part < 3 {
-            let row = axis_regressor(m, part, r);
-            for c in 0..=r {
-                solve.gram[r][c] = self.gram[packed_index(row, axis_regressor(m, part, c))];
+            let row = solve.index[r];
+            let first = row * (row + 1) / 2;
+            for (g, &column) in solve.gram[r][..=r].iter_mut().zip(&solve.index) {
+                // Both orders: the regressors of the other axes' products interleave.
+                *g = if column <= row {
+                    self.gram[first + column]
+                } else {
+                    self.gram[column * (column + 1) / 2 + row]
+                };
             }
             solve.xy[r][0] = self.rate_xy[part][row];
             return;
@@ -640,17 +668,21 @@ const RESIDUAL_PARTS: usize = 4;
 pub const SCORING_PARTS: usize = RESIDUAL_PARTS * TAU_GRID_S.len();
 
 /// Work of the candidates' regressions a sample may take after the excitation's end, per motor,
-/// in f64 multiply-adds (and copies) of their Cholesky factorisations ([`Solve`]): the budget
-/// is checked before each step (a row loaded, a column factored, an output solved), so a sample
-/// takes at most this and one step more, the largest an octorotor's 16 × 16 = 256. 1,400 a
-/// motor is a quad's 5,600 and an octorotor's 11,200, at about 1.5 Cortex-M7 instructions each
-/// at most 9,000 and 18,000 instructions a sample (`cargo xtask bench-m7`), within the
-/// learner's 12,000 and 24,000 (issue 56). Every candidate's four regressions take a quad's
-/// about 37,000 of them (7 samples, 3.5 ms), an octorotor's about 250,000 (23 samples,
-/// 11 ms). A compute budget per control period, not a window: the regressions are solved
-/// sooner the faster they are. (Before: whole regressions a sample, 64,000 and 128,000
-/// instructions a motor, over the learner's budget.)
-pub const SCORING_WORK_PER_MOTOR: u32 = 1_400;
+/// in f64 multiply-adds (and copies) of their Cholesky factorisations ([`Solve`]), each step
+/// (a row loaded, a column factored, an output solved) counted [`SCORING_STEP_WORK`] more: the
+/// budget is checked before each step, so a sample takes at most this and one step more, the
+/// largest an octorotor's column of 16 × 17. 280 a motor is a quad's 1,120 and an octorotor's
+/// 2,240, within the learner's 12,000 and 24,000 Cortex-M7 instructions a sample with the
+/// rest of its work (issue 56, `cargo xtask bench-m7`: a unit costs 6–7 instructions; at 400 a
+/// motor the quad's samples reached 13,152 and the octorotor's 28,800). All 52 regressions
+/// then take a quad about 95 samples (48 ms), an octorotor about 170 (85 ms). A compute
+/// budget per control period, not a window: the regressions are solved sooner the faster they
+/// are. (Before: whole regressions a sample, 64,000 and 128,000 instructions a motor.)
+pub const SCORING_WORK_PER_MOTOR: u32 = 280;
+
+/// What one step of the candidates' regressions costs besides its multiply-adds, in the units
+/// of [`SCORING_WORK_PER_MOTOR`]: the step's own bookkeeping.
+const SCORING_STEP_WORK: u32 = 30;
 
 /// One of the candidates' regressions being solved ([`CommandSpeedModel::score_next`]): its
 /// sums of squares loaded row by row into a square array, factored (Cholesky, in place) column
@@ -669,6 +701,8 @@ struct Solve {
     failed: bool,
     /// The part of each output's `Σ y²` the fit explains, `bᵀ (G + ridge·I)⁻¹ b`.
     explained: [f64; 3],
+    /// A rate axis's regressors among the five per motor ([`axis_regressor`]).
+    index: [usize; AXIS_PARAMETERS_MAX],
 }
 
 impl Solve {
@@ -684,25 +718,26 @@ impl Solve {
     /// Column `j` of the Cholesky factor of `G + ridge·I` (`n × n`, lower triangle, rows
     /// `..n` loaded); its work in multiply-adds.
     fn factor_column(&mut self, j: usize, n: usize, ridge: f64) -> u32 {
-        let gram = &mut self.gram;
-        gram[j][j] += ridge;
-        let mut d = gram[j][j];
-        for k in 0..j {
-            d -= gram[j][k] * gram[j][k];
-        }
+        let n = n.min(AXIS_PARAMETERS_MAX);
+        let j = j.min(n - 1);
+        let (above, below) = self.gram.split_at_mut(j + 1);
+        let row_j = &mut above[j];
+        row_j[j] += ridge;
+        // The products in order, subtracted one by one (the arithmetic of the whole solve
+        // before it was spread, result for result).
+        let (done, rest) = row_j.split_at_mut(j);
+        let d = done.iter().fold(rest[0], |d, &l| d - l * l);
         // Not positive, or NaN from non-finite sums.
         if d.is_nan() || d <= 0.0 {
             self.failed = true;
             return j as u32;
         }
         let d = libm::sqrt(d);
-        gram[j][j] = d;
-        for i in j + 1..n {
-            let mut s = gram[i][j];
-            for k in 0..j {
-                s -= gram[i][k] * gram[j][k];
-            }
-            gram[i][j] = s / d;
+        rest[0] = d;
+        for row_i in &mut below[..n - j - 1] {
+            let (left, right) = row_i.split_at_mut(j);
+            let s = left.iter().zip(done.iter()).fold(right[0], |s, (a, b)| s - a * b);
+            right[0] = s / d;
         }
         ((n - j) * (j + 1)) as u32
     }
@@ -710,14 +745,12 @@ impl Solve {
     /// Output `o` through the factor: `|L⁻¹ b|²` into `explained[o]`; its work in
     /// multiply-adds.
     fn solve_output(&mut self, o: usize, n: usize) -> u32 {
+        let n = n.min(AXIS_PARAMETERS_MAX);
         let mut w = [0.0f64; AXIS_PARAMETERS_MAX];
         let mut explained = 0.0;
-        for i in 0..n {
-            let mut s = self.xy[i][o];
-            for k in 0..i {
-                s -= self.gram[i][k] * w[k];
-            }
-            w[i] = s / self.gram[i][i];
+        for (i, (row, xy)) in self.gram[..n].iter().zip(&self.xy).enumerate() {
+            let s = row[..i].iter().zip(&w[..i]).fold(xy[o], |s, (a, b)| s - a * b);
+            w[i] = s / row[i];
             explained += w[i] * w[i];
         }
         self.explained[o] = explained;
@@ -752,12 +785,6 @@ fn axis_regressor(m: usize, a: usize, j: usize) -> usize {
     }
     let (i, other) = ((j - 2 * m) / 2, (j - 2 * m) % 2);
     2 * m + 3 * i + (a + 1 + other) % 3
-}
-
-/// Index of the element `(r, c)` of a packed lower triangle.
-fn packed_index(r: usize, c: usize) -> usize {
-    let (r, c) = if r >= c { (r, c) } else { (c, r) };
-    r * (r + 1) / 2 + c
 }
 
 /// The sums every candidate's specific-force regression shares (the offset terms do not depend
@@ -1298,14 +1325,20 @@ impl CommandSpeedModel {
             let solve = &mut self.solve;
             if solve.loaded < size {
                 let r = solve.loaded;
+                if r == 0 && part < 3 {
+                    for (k, index) in solve.index[..size].iter_mut().enumerate() {
+                        *index = axis_regressor(m, part, k);
+                    }
+                    spent += SCORING_STEP_WORK;
+                }
                 self.hypotheses[j].load_row(m, &self.shared_sums, part, r, solve);
                 solve.loaded += 1;
-                spent += r as u32 + 1;
+                spent += SCORING_STEP_WORK + r as u32 + 1;
             } else if solve.factored < size && !solve.failed {
-                spent += solve.factor_column(solve.factored, size, ridge);
+                spent += SCORING_STEP_WORK + solve.factor_column(solve.factored, size, ridge);
                 solve.factored += 1;
             } else if solve.solved < outputs && !solve.failed {
-                spent += solve.solve_output(solve.solved, size);
+                spent += SCORING_STEP_WORK + solve.solve_output(solve.solved, size);
                 solve.solved += 1;
             } else {
                 // Solved (or failed: nothing explained): the residuals, `Σ y²` less the part
