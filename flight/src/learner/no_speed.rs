@@ -87,27 +87,21 @@
 //! is the root mean square over its interval of the lag's exact response to the interval's
 //! mean target ([`CommandSpeedModel::release`]), so that its square is the interval's mean of
 //! `x²`, as the rates are their interval's mean. What it costs: each row's regressions come at
-//! 41.7 Hz instead of 333 Hz, and on 1,000 random worlds G1 at the excitation's end is about
-//! 2 percentage points further off and the thrust axis at engagement about 1° in median
-//! (docs/benchmarks.md, "Identification without speed telemetry"); the same with a 2 ms
-//! interval learned as the full rate did but caught up in 148 ms instead of 60.
-//!
-//! **Assumptions, stated** (the simulator's randomised world, `sim::world`, draws across them):
-//! - one time constant for every motor (the world's motors differ by ±10 %), in
-//!   [`TAU_MIN_S`]–[`TAU_MAX_S`];
-//! - the ESC curve is unknown and not identified: the nominal curve ([`NOMINAL_KAPPA`],
-//!   [`NOMINAL_IDLE_FRACTION`]) sits in the middle of the families seen (the papers' κ 0–1;
-//!   thrust `kδ² + (1 − k)δ`; speed `δ^p`, p 0.6–1.4; idle 3–15 % of full speed). A curve unlike
-//!   it biases τ and, through the modelled speeds, G1 (a bank of eight candidate curves chosen
-//!   by the same residuals did not help: docs/benchmarks.md);
-//! - gyro noise up to 3× the ICM-42688-P's and rotor vibration: filtered by the same 20 Hz
-//!   low-pass as the effectiveness signals.
+//! 41.7 Hz instead of 333 Hz, and on 1,000 random worlds G1 per unit thrust at the excitation's
+//! end is 1–2 percentage points further off in median (force 17.1 → 18.3 %, torque 18.2 →
+//! 20.2 %) and the thrust axis at engagement 1.79 → 2.39° in median, 4.80 → 7.43° at the 90th
+//! percentile, the crafts hovering as often (docs/benchmarks.md, "The catch-up within the
+//! learner's budget"); a 2 ms interval learned what every sample did but caught up in 148 ms
+//! in median instead of 60.
 //!
 //! Cost (`cargo xtask bench-m7`, docs/benchmarks.md): during the excitation at most
 //! 10,342 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
 //! the last period's candidates, then the candidates' regressions, a budget of work a sample
 //! ([`SCORING_WORK_PER_MOTOR`]), then the catch-up, one held sample a sample (about what a
-//! learner sample with telemetry costs): CATCHUP_FIGURES. The ring holds 213 held samples
+//! learner sample with telemetry costs): at most 11,221 instructions a sample on a quad and
+//! 22,365 on an octorotor, within the learner's 12,000 and 24,000 (up to 74,265 and 145,843
+//! when 8 full-rate samples were learned from a sample); the octorotor's last pulse's sample,
+//! the lag regression, is 27,438. The ring holds 213 held samples
 //! (14 KB; 1,700 samples, 122 KB, before they were means), the candidates' sums ≈ 120 KB.
 
 // Index loops are kept where they run over axes and motors side by side (several arrays per
