@@ -445,14 +445,13 @@ const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 /// sample on which every motor has been pulsed and all are back below a pulse (the last motor's
 /// pulse ends `0.05 (m − 1) + 0.075` s in, `synthetic_sample`, seen three samples later through
 /// the learner's command delay), and the samples measured one by one from two before it: the
-/// learner solves the lag candidates' regressions (52, as many a sample as
-/// `no_speed::SCORING_WORK_PER_MOTOR` allows), then learns from the held samples, at most
-/// `no_speed::RELEASE_PER_SAMPLE` a sample.
-const NO_SPEED_ENDS: [(usize, usize); 2] = [(4, 453), (8, 853)];
-
-/// Samples measured at each excitation's end ([`NO_SPEED_ENDS`]): the candidates' regressions
-/// and the first of the catch-up.
-const NO_SPEED_END_MEASURED: usize = 60;
+/// learner solves the lag candidates' regressions (52, a few rows or columns at a time, as
+/// many a sample as `no_speed::SCORING_WORK_PER_MOTOR` allows), then learns from the held
+/// samples (the means over `no_speed::HOLD_INTERVAL_S`), at most
+/// `no_speed::RELEASE_PER_SAMPLE` a sample. The third: the samples measured at each end, the
+/// pending candidates, all the candidates' regressions and the first of the catch-up (every
+/// one of the six rows of the effectiveness regression among them).
+const NO_SPEED_ENDS: [(usize, usize, usize); 2] = [(4, 453, 150), (8, 853, 280)];
 
 /// Samples of pulses the learner without speed telemetry is primed with (0.2 s: three motors
 /// pulsed, the lag regressions learning).
@@ -467,7 +466,7 @@ fn no_speed_regions() {
     // SAFETY: the only reference to the slot, in this single-threaded harness.
     let slot = unsafe { &mut *core::ptr::addr_of_mut!(SLOT) };
     let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
-    for (m, seen) in NO_SPEED_ENDS {
+    for (m, seen, measured_at_end) in NO_SPEED_ENDS {
         let Ok(learner) = slot.build(m, config) else { fail("learner without speeds") };
         let first = seen - 2;
         let mut rate = [7.0f32, 7.0, 1.7];
@@ -480,7 +479,7 @@ fn no_speed_regions() {
                     .contains(&n)
             } else {
                 false
-            } || (first..first + NO_SPEED_END_MEASURED).contains(&n);
+            } || (first..first + measured_at_end).contains(&n);
             if measured {
                 let mut state = (&mut *learner, gyro, accel, commands, speeds);
                 region(&mut state, |(learner, gyro, accel, commands, speeds)| {
@@ -497,7 +496,7 @@ fn no_speed_regions() {
         if learner.model().pending || learner.model().samples == 0 {
             fail("the held samples were not learned from after the excitation's end");
         }
-        if n < first + NO_SPEED_END_MEASURED {
+        if n < first + measured_at_end {
             fail("the catch-up ended before the measured samples");
         }
         hprintln!(
@@ -897,20 +896,21 @@ fn main() -> ! {
     for m in BOUNDED_MOTOR_COUNTS {
         hprintln!("bench-m7 region: thrust-axis bounded search m={} (one motor capped)", m);
     }
-    for (m, seen) in NO_SPEED_ENDS {
+    for (m, seen, measured_at_end) in NO_SPEED_ENDS {
         if m == 4 {
             for k in 1..=NO_SPEED_MEASURED_SAMPLES {
                 hprintln!("bench-m7 region: learner step m=4, no speed telemetry, sample {}", k);
             }
         }
-        for n in seen - 2..seen - 2 + NO_SPEED_END_MEASURED {
+        for n in seen - 2..seen - 2 + measured_at_end {
             hprintln!(
                 "bench-m7 region: learner m={}, no speed telemetry, sample {} at the excitation's \
-                 end (from {}: the lag candidates' regressions, a work budget a sample, then at \
-                 most {} held samples learned from)",
+                 end (from {}: the lag candidates' regressions, a work budget a sample, then the \
+                 held samples, means over {} ms, at most {} a sample)",
                 m,
                 n,
                 seen,
+                1000.0 * flight::learner::no_speed::HOLD_INTERVAL_S,
                 flight::learner::no_speed::RELEASE_PER_SAMPLE
             );
         }

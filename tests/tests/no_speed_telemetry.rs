@@ -92,15 +92,16 @@ fn without_speed_telemetry_random_airframes_hover() {
     assert!(held >= 25, "held {held} of {WORLDS}");
 }
 
-/// Random worlds 14, 70 and 84 without speed telemetry: both blocks of G1 24-55 % off and the
-/// lag 7-27 ms off at the excitation's end, so that the hover of the learned model leaves the
-/// motor bounds (u* outside by 0.01-0.11) and none within them was ever found; they were
-/// refused (`NoHover`) and fell from their apex. The learner now publishes the axis of u*
-/// clamped to the bounds as its last resort, and INDI, which finds the torque balance from its
-/// own measurements, holds each of them within 0.3 m.
+/// Random worlds without speed telemetry whose hover of the learned model leaves the motor
+/// bounds (G1 and the lag far off at the excitation's end) and none within them was ever found:
+/// they were refused (`NoHover`) and fell from their apex. The learner now publishes the axis of
+/// u* clamped to the bounds as its last resort, and INDI, which finds the torque balance from its
+/// own measurements, holds each of them within 0.3 m. Seeds 33, 70 and 89 since the held samples
+/// became 4 ms means (issue 56: `fly monte-carlo --world random --no-speed-telemetry` lists u*
+/// outside by 0.10, 0.23, 0.18; 14 and 84, the seeds before, now engage within the bounds).
 #[test]
 fn without_speed_telemetry_a_hover_outside_the_bounds_is_flown_on_its_clamped_axis() {
-    for seed in [14, 70, 84] {
+    for seed in [33, 70, 89] {
         let (airframe, mut config) = world::random_world_case(seed, &Aspect::ALL);
         config.speed_telemetry = false;
         let report = fly(&airframe, &config);

@@ -434,7 +434,9 @@ impl<'q> Background<'q> {
         }
         if phase == FlightPhase::Released {
             if let Some(learner) = self.learner.get_mut() {
-                learner.prime(sample.imu.gyro_rad_s, sample.imu.accel_mps2, &sample.speeds_rad_s);
+                let (gyro, accel) = (sample.imu.gyro_rad_s, sample.imu.accel_mps2);
+                let velocity = sample.velocity_imu_mps;
+                learner.prime_carrying(gyro, accel, &sample.speeds_rad_s, velocity);
             }
             self.update_offset_fit(sample);
         }
@@ -518,17 +520,18 @@ impl<'q> Background<'q> {
         if !self.offset_fitting {
             return;
         }
-        let from_learner = self.speeds_modelled() && sample.phase != FlightPhase::Released;
+        let from_learner = self.speeds_modelled();
         let fit = &mut self.offset_fit;
         let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
         let summed_before = fit.samples();
         if from_learner {
             // No speed reported: the samples the learner learned from in this step, with the
             // speeds it modelled for them from the commands with the lag it identified, and the
-            // velocity carried with each. It holds the excitation's samples until that lag is
-            // known, then releases them, so the fit sees the same samples in the same order, a
-            // little later. (Released, the motors are off: the fit holds its zero speeds
-            // through the reports' NaNs, below.)
+            // velocity carried with each: the means over `no_speed::HOLD_INTERVAL_S`, the fit
+            // built for their rate (`restart_learner`). It holds the excitation's samples until
+            // that lag is known, then releases them, so the fit sees the same samples in the
+            // same order, a little later. (Released, the motors are off: the learner's means
+            // of the free fall, with zero speeds, `Learner::prime_carrying`.)
             if let Some(learner) = self.learner.get() {
                 learner.for_each_released(|gyro_rad_s, accel_mps2, speeds_rad_s, velocity| {
                     fit.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..motors], velocity);
@@ -596,8 +599,14 @@ impl<'q> Background<'q> {
         let fitting = self.offset_fit_enabled && source == ImuOffsetSource::Zero;
         let age_s = if self.speeds_modelled() { MODELLED_SPEED_AGE_S } else { self.speed_age_s };
         let lag_s = age_s - flight::learner::IMU_GROUP_DELAY_S;
+        // Without speed telemetry the fit takes the learner's held samples, at their rate.
+        let fit_rate_hz = if self.speeds_modelled() {
+            flight::learner::no_speed::held_rate_hz(self.rate_hz)
+        } else {
+            self.rate_hz
+        };
         self.offset_fitting =
-            fitting && self.offset_fit.reset(usize::from(motor_count), self.rate_hz, lag_s);
+            fitting && self.offset_fit.reset(usize::from(motor_count), fit_rate_hz, lag_s);
     }
 
     /// Whether the learner models the motor speeds from the commands: the ESCs report none

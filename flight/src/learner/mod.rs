@@ -379,8 +379,16 @@ impl Learner {
             return Err(LearnerError::MotorCount { motors });
         }
         check_offset(config.r_imu_m)?;
-        let slow = BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, config.rate_hz)
-            .map_err(LearnerError::Filter)?;
+        // Without speed telemetry the effectiveness regression learns from the held samples,
+        // the means over `no_speed::HOLD_INTERVAL_S`, at their rate.
+        let effectiveness_rate_hz = if config.speed_telemetry {
+            config.rate_hz
+        } else {
+            no_speed::held_rate_hz(config.rate_hz)
+        };
+        let slow =
+            BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, effectiveness_rate_hz)
+                .map_err(LearnerError::Filter)?;
         let fast = BiquadCoefficients::butterworth_lowpass(MOTOR_MODEL_CUTOFF_HZ, config.rate_hz)
             .map_err(LearnerError::Filter)?;
         let motor = MotorModelEstimator::new(fast, config.rate_hz, config.motor_rls);
@@ -408,7 +416,7 @@ impl Learner {
             EffectivenessEstimator::build_at(
                 addr_of_mut!((*learner).effectiveness),
                 motors,
-                config.rate_hz,
+                effectiveness_rate_hz,
                 slow,
                 config.r_imu_m,
                 config.speed_report_lag_s,
@@ -564,16 +572,17 @@ impl Learner {
         self.armed |= driving[..m].iter().any(|&d| d > 0.0)
             || speeds_rad_s[..m].iter().any(|&s| s > RUNNING_SPEED_RAD_S);
         if !self.config.speed_telemetry {
-            // The lag regression now; the effectiveness regression on the held samples, with
-            // speeds modelled with the lag identified since (`no_speed::CommandSpeedModel::hold`).
-            // At most `RELEASE_PER_SAMPLE` a sample: the catch-up after the excitation is
-            // spread over the samples that follow it (the model says `pending` until done).
+            // The lag regression now; the effectiveness regression on the held samples (the
+            // means over `no_speed::HOLD_INTERVAL_S`), with speeds modelled with the lag
+            // identified since (`no_speed::CommandSpeedModel::hold`). At most
+            // `RELEASE_PER_SAMPLE` a sample: the catch-up after the excitation is spread over
+            // the samples that follow it (the model says `pending` until done).
             let choosing = !self.command_speeds.chosen();
             self.command_speeds.update(gyro_rad_s, accel_mps2, &driving, self.armed, true);
             self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed, carried);
             let pending = self.model.pending;
             // The sample that chose the lag spent its share on the regressions
-            // (`no_speed::SAMPLE_WORK_PER_MOTOR`): the catch-up starts with the next.
+            // (`no_speed::SCORING_WORK_PER_MOTOR`): the catch-up starts with the next.
             let release = if choosing && self.command_speeds.chosen() {
                 0
             } else {
@@ -656,20 +665,45 @@ impl Learner {
         accel_mps2: [f32; 3],
         speeds: &[f32; MAX_MOTORS],
     ) {
-        self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
-        if !self.config.speed_telemetry {
-            // Motors off: the lag regression's filters settle on the free tumble.
-            self.command_speeds.update(gyro_rad_s, accel_mps2, &[0.0; MAX_MOTORS], false, false);
+        self.prime_carrying(gyro_rad_s, accel_mps2, speeds, [0.0; 3]);
+    }
+
+    /// [`Learner::prime`], with `carried` as in [`Learner::update_carrying`]: without speed
+    /// telemetry the effectiveness filters run on the means over
+    /// [`no_speed::HOLD_INTERVAL_S`] (at its rate, as they learn), each handed back with its
+    /// zero speeds once complete ([`Learner::for_each_released`]).
+    pub fn prime_carrying(
+        &mut self,
+        gyro_rad_s: [f32; 3],
+        accel_mps2: [f32; 3],
+        speeds: &[f32; MAX_MOTORS],
+        carried: [f32; 3],
+    ) {
+        if self.config.speed_telemetry {
+            self.effectiveness.prime(gyro_rad_s, accel_mps2, &speeds[..self.motors]);
+            return;
+        }
+        // Motors off: the lag regression's filters settle on the free tumble.
+        self.command_speeds.update(gyro_rad_s, accel_mps2, &[0.0; MAX_MOTORS], false, false);
+        self.released_len = 0;
+        if let Some(mean) = self.command_speeds.prime(gyro_rad_s, accel_mps2, carried) {
+            let speeds = &mean.speeds_rad_s[..self.motors];
+            self.effectiveness.prime(mean.gyro_rad_s, mean.accel_mps2, speeds);
+            self.released[0] = mean;
+            self.released_len = 1;
         }
     }
 
     /// Without speed telemetry, each held sample the latest [`Learner::update_carrying`] learned
     /// from, oldest first: its body rates (rad/s) and specific force (m/s², IMU axes), the speeds
     /// modelled for it with the lag identified (rad/s, per [`no_speed::NOMINAL_FULL_SPEED_RAD_S`])
-    /// and what was carried with it. None during the excitation (the samples are held until
-    /// its lag is known), up to [`no_speed::RELEASE_PER_SAMPLE`] while catching up after it,
-    /// then each sample as it comes; none with speed telemetry. What the in-flight IMU-offset fit regresses on where no speed is reported
-    /// (`firmware::app::background`).
+    /// and what was carried with it: the means over [`no_speed::HOLD_INTERVAL_S`]
+    /// ([`no_speed::held_rate_hz`], 250 Hz at 2 kHz). None during the excitation (the samples
+    /// are held until its lag is known), up to [`no_speed::RELEASE_PER_SAMPLE`] while catching
+    /// up after it, then each as it is complete; in the free fall before it
+    /// ([`Learner::prime_carrying`]) each as it is complete, with zero speeds; none with speed
+    /// telemetry. What the in-flight IMU-offset fit regresses on where no speed is reported
+    /// (`firmware::app::background`), at that rate.
     pub fn for_each_released(
         &self,
         mut f: impl FnMut([f32; 3], [f32; 3], &[f32; MAX_MOTORS], [f32; 3]),
@@ -983,9 +1017,10 @@ mod tests {
     }
 
     /// Without speed telemetry the excitation's samples reach the effectiveness regression
-    /// once the lag is chosen after its end, at most `RELEASE_PER_SAMPLE` a sample: the
-    /// catch-up is spread over the samples after it, and the model says `pending` until the
-    /// last held sample is learned from, when it is published at once.
+    /// once the lag is chosen after its end, as their means over `HOLD_INTERVAL_S` (one held
+    /// sample in eight control samples), at most `RELEASE_PER_SAMPLE` a sample: the catch-up is
+    /// spread over the samples after it, and the model says `pending` until the last held
+    /// sample is learned from, when it is published at once.
     #[test]
     fn without_speed_telemetry_the_catch_up_is_spread_and_the_model_pending_until_done() {
         let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
@@ -1014,21 +1049,31 @@ mod tests {
         let mut low = [0.0; MAX_MOTORS];
         low[..4].fill(0.05);
         let mut after = 0;
+        let mut released = 0;
         while learner.model().pending {
             let (gyro, accel) = body(pulses + after);
             learner.update(gyro, accel, &low, &no_speeds);
+            let mut count = 0;
+            learner.for_each_released(|_, _, _, _| count += 1);
+            assert!(count <= no_speed::RELEASE_PER_SAMPLE, "{count} released in one sample");
+            released += count;
             after += 1;
             assert!(after < 2 * pulses, "still pending {after} samples after the excitation");
         }
-        // Every sample of the attempt learned from, eight a sample and one added each.
+        // Every held sample of the attempt learned from: one in eight control samples, one a
+        // sample, one more held in every eight.
+        let stride = no_speed::hold_stride(2000.0);
         let learned = (learner.model().samples - before) as usize;
-        assert!(learned >= pulses, "learned from {learned} of at least {pulses} samples");
+        assert_eq!(learned, released);
+        assert!(learned >= pulses / stride, "learned from {learned} of at least {} samples", {
+            pulses / stride
+        });
         // After the last pulse: the last period's pending candidates, the candidates'
-        // regressions (at least one a sample), then the catch-up (and the learner's command
-        // delay, a few samples).
-        let spread = pulses / no_speed::RELEASE_PER_SAMPLE;
-        let scoring = no_speed::TAU_GRID_S.len() + no_speed::SCORING_PARTS;
-        let most = scoring + learned.div_ceil(no_speed::RELEASE_PER_SAMPLE - 1) + 8;
+        // regressions (a budget of work a sample: a quad's 52 within 110 samples, 55 ms), then
+        // the catch-up, a held sample a sample (and the learner's command delay, a few samples).
+        let spread = learned / no_speed::RELEASE_PER_SAMPLE;
+        let scoring = no_speed::TAU_GRID_S.len() + 110;
+        let most = scoring + (learned * stride).div_ceil(stride - 1) + 8;
         assert!(after >= spread && after <= most, "caught up {after} samples after the pulses");
         assert!(!learner.model().pending);
     }
