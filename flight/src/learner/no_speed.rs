@@ -174,14 +174,19 @@ pub const HOLD_INTERVAL_S: f32 = 0.004;
 /// rounded up.
 pub const HELD_SAMPLES_MAX: usize = 213;
 
-/// Control samples per held sample at `rate_hz`: [`HOLD_INTERVAL_S`] (8 at 2 kHz, at least 1).
-pub fn hold_stride(rate_hz: f32) -> usize {
-    let stride = libm::roundf(HOLD_INTERVAL_S * rate_hz);
-    if stride >= 1.0 {
-        stride as usize
+/// Control samples in `interval_s` at `rate_hz`, rounded, at least one.
+fn samples_in(interval_s: f32, rate_hz: f32) -> usize {
+    let samples = libm::roundf(interval_s * rate_hz);
+    if samples >= 1.0 {
+        samples as usize
     } else {
         1
     }
+}
+
+/// Control samples per held sample at `rate_hz`: [`HOLD_INTERVAL_S`] (8 at 2 kHz, at least 1).
+pub fn hold_stride(rate_hz: f32) -> usize {
+    samples_in(HOLD_INTERVAL_S, rate_hz)
 }
 
 /// The rate of the held samples, Hz, at the control rate `rate_hz`: what the effectiveness
@@ -874,12 +879,7 @@ pub struct CommandSpeedModel {
 
 /// Samples in one regression period at `rate_hz` (at least one).
 pub fn period_samples(rate_hz: f32) -> usize {
-    let samples = libm::roundf(LAG_REGRESSION_PERIOD_S * rate_hz);
-    if samples >= 1.0 {
-        samples as usize
-    } else {
-        1
-    }
+    samples_in(LAG_REGRESSION_PERIOD_S, rate_hz)
 }
 
 /// The rate the lag regressions run at, Hz: the rate of the samples over
@@ -1428,28 +1428,37 @@ mod tests {
         identify_with_gap(tau, curve, None)
     }
 
-    /// As [`identify`], the gyro reading NaN on sample `nan_at`.
-    fn identify_with_gap(tau: f32, curve: impl Fn(f32) -> f32, nan_at: Option<usize>) -> f32 {
-        use crate::learner::excitation::{Excitation, ExcitationConfig};
-        let rate_hz = 2000.0;
-        let dt = 1.0 / rate_hz;
+    /// The test quad's angular acceleration per squared speed, per axis and motor.
+    const QUAD_TORQUE_PER_SPEED2: [[f32; 4]; 3] = [
+        [300.0, -300.0, 300.0, -300.0],
+        [300.0, 300.0, -300.0, -300.0],
+        [40.0, -40.0, -40.0, 40.0],
+    ];
+    /// Its tumble at the excitation's start, rad/s.
+    const QUAD_TUMBLE_RAD_S: [f32; 3] = [3.0, -2.0, 1.0];
+
+    /// A quad's model at `rate_hz`, on the heap.
+    fn quad_model(rate_hz: f32) -> std::boxed::Box<CommandSpeedModel> {
         let lowpass =
             BiquadCoefficients::butterworth_lowpass(LAG_LOWPASS_HZ, regression_rate_hz(rate_hz))
                 .unwrap();
         let mut slot = std::boxed::Box::<CommandSpeedModel>::new_uninit();
         // SAFETY: a fresh, aligned allocation, every field written by `build_at`.
-        let mut model = unsafe {
+        unsafe {
             CommandSpeedModel::build_at(slot.as_mut_ptr(), 4, rate_hz, lowpass);
             slot.assume_init()
-        };
+        }
+    }
+
+    /// As [`identify`], the gyro reading NaN on sample `nan_at`.
+    fn identify_with_gap(tau: f32, curve: impl Fn(f32) -> f32, nan_at: Option<usize>) -> f32 {
+        use crate::learner::excitation::{Excitation, ExcitationConfig};
+        let rate_hz = 2000.0;
+        let dt = 1.0 / rate_hz;
+        let mut model = quad_model(rate_hz);
         let mut excitation = Excitation::new(ExcitationConfig::default(), 4);
-        let c = [
-            [300.0, -300.0, 300.0, -300.0],
-            [300.0, 300.0, -300.0, -300.0],
-            [40.0, -40.0, -40.0, 40.0],
-        ];
-        let mut speed = [0.0f32; 4];
-        let mut rate = [3.0f32, -2.0, 1.0];
+        let c = QUAD_TORQUE_PER_SPEED2;
+        let (mut speed, mut rate) = ([0.0f32; 4], QUAD_TUMBLE_RAD_S);
         let mut n = 0;
         let mut finished = false;
         loop {
@@ -1494,15 +1503,7 @@ mod tests {
         use crate::learner::EFFECTIVENESS_CUTOFF_HZ;
         let rate_hz = 2000.0;
         let dt = 1.0 / rate_hz;
-        let lowpass =
-            BiquadCoefficients::butterworth_lowpass(LAG_LOWPASS_HZ, regression_rate_hz(rate_hz))
-                .unwrap();
-        let mut slot = std::boxed::Box::<CommandSpeedModel>::new_uninit();
-        // SAFETY: a fresh, aligned allocation, every field written by `build_at`.
-        let mut model = unsafe {
-            CommandSpeedModel::build_at(slot.as_mut_ptr(), 4, rate_hz, lowpass);
-            slot.assume_init()
-        };
+        let mut model = quad_model(rate_hz);
         let rls = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
         let estimator = |rate_hz: f32| {
             let filter =
@@ -1517,13 +1518,8 @@ mod tests {
         let mut held = estimator(held_rate_hz(rate_hz));
         let mut samples = std::vec::Vec::new();
         let mut excitation = Excitation::new(ExcitationConfig::default(), 4);
-        let c = [
-            [300.0, -300.0, 300.0, -300.0],
-            [300.0, 300.0, -300.0, -300.0],
-            [40.0, -40.0, -40.0, 40.0],
-        ];
-        let mut speed = [0.0f32; 4];
-        let mut rate = [3.0f32, -2.0, 1.0];
+        let c = QUAD_TORQUE_PER_SPEED2;
+        let (mut speed, mut rate) = ([0.0f32; 4], QUAD_TUMBLE_RAD_S);
         let (mut finished, mut chosen_at, mut n) = (false, None, 0);
         loop {
             let out = excitation.update(rate, None, dt);
