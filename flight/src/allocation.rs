@@ -351,7 +351,7 @@ impl Allocator {
             crossed |= du_min[j] > du_max[j];
         }
         if largest > MAX_INPUT_MAGNITUDE.to_bits() || crossed {
-            return refusal(m, g, dv, du_min, du_max, du_pref);
+            return refusal(m, g, [dv, du_min, du_max, du_pref]);
         }
 
         // The stacked problem A du ≈ b, A by columns.
@@ -454,18 +454,16 @@ impl Allocator {
 }
 
 /// Why the input of an m-motor call was refused (non-finite first, then out of range, then
-/// crossed bounds), and the fallback.
+/// crossed bounds), and the fallback. `inputs`: dv, then the three per-motor bounds (min, max,
+/// preferred), as [`all_inputs`] reads them.
 #[cold]
 #[inline(never)]
 fn refusal(
     m: usize,
     g: &[[f32; MAX_MOTORS]; VIRTUAL_CONTROLS],
-    dv: &[f32; VIRTUAL_CONTROLS],
-    du_min: &[f32; MAX_MOTORS],
-    du_max: &[f32; MAX_MOTORS],
-    du_pref: &[f32; MAX_MOTORS],
+    inputs: [&[f32]; 4],
 ) -> AllocationResult {
-    let all = |test: fn(f32) -> bool| all_inputs(m, g, [dv, du_min, du_max, du_pref], test);
+    let all = |test: fn(f32) -> bool| all_inputs(m, g, inputs, test);
     let failure = if !all(f32::is_finite) {
         AllocationFailure::NonFinite
     } else if !all(|x| x.abs() <= MAX_INPUT_MAGNITUDE) {
@@ -473,6 +471,7 @@ fn refusal(
     } else {
         AllocationFailure::Bounds
     };
+    let [_, du_min, du_max, _] = inputs;
     fallback(m, du_min, du_max, failure)
 }
 
@@ -496,8 +495,8 @@ fn all_inputs(
 #[inline(never)]
 fn fallback(
     m: usize,
-    du_min: &[f32; MAX_MOTORS],
-    du_max: &[f32; MAX_MOTORS],
+    du_min: &[f32],
+    du_max: &[f32],
     failure: AllocationFailure,
 ) -> AllocationResult {
     let mut du = [0.0f32; MAX_MOTORS];
