@@ -63,7 +63,7 @@ pub const LEARN_AFTER_EXCITATION_S: f32 = 0.1;
 /// vibration on the gyro (the random world's): after a gentle throw the hover's share of these
 /// 2 s biases the rotational rows, and the 99th percentile ends at 24 % against 20 % at
 /// engagement; 0.5 s would halve that tail but also cut the in-flight IMU-offset fit, which
-/// shares this window (docs/benchmarks.md, "Issue 32 closed": found, not fixed).
+/// shares this window (docs/benchmarks.md, "One throw, no calibration": found, not fixed).
 pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
 
 /// How often the in-flight IMU-offset fit is solved while it takes samples, s (two Cholesky
