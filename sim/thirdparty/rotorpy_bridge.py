@@ -14,8 +14,13 @@ airframe.
     rotorpy_bridge.py list                       # airframes (JSON): name, motors, IMU offset
     rotorpy_bridge.py fly --airframe hummingbird --bridge 127.0.0.1:9003 [--taper-ms 15] ...
 
+Outdoors: ``--gnss`` sends a simulated u-blox receiver's solutions instead of motion capture's poses
+(``gnss.py``; run the bridge with ``--gnss-latency-ms`` equal to ``--gnss-latency-ms`` here), and
+``--wind-ned-mps N,E,D`` blows a steady wind through RotorPy's drag model.
+
 ``fly`` prints one JSON summary line on stdout and exits 0 when the craft recovered to a hover and
-held within 0.3 m, 1 when it did not, 2 on bad arguments, 3 when the bridge did not answer.
+held within 0.3 m (1 m with ``--gnss``), 1 when it did not, 2 on bad arguments, 3 when the bridge
+did not answer.
 """
 
 import argparse
@@ -23,8 +28,11 @@ import json
 import math
 import sys
 
+import numpy as np
+
 from airframes import by_name, library
-from flight import HOLD_BOUND_M, BridgeTimeout, fly
+from flight import BridgeTimeout, fly
+from gnss import GnssReceiver
 from hand import HandConfig
 
 
@@ -72,6 +80,21 @@ def _parser():
     f.add_argument("--no-speed-telemetry", action="store_true",
                    help="ESCs without bidirectional DShot: send NaN for every rotor speed (run "
                         "the bridge with --no-speed-telemetry)")
+    f.add_argument("--gnss", action="store_true",
+                   help="a GNSS receiver's solutions instead of motion capture's poses")
+    f.add_argument("--gnss-noise-m", type=float, default=0.3,
+                   help="its position error per horizontal axis, m (1.5x vertically), wandering "
+                        "over --gnss-correlation-s (default 0.3)")
+    f.add_argument("--gnss-correlation-s", type=float, default=20.0,
+                   help="how long its position error takes to change, s (default 20)")
+    f.add_argument("--gnss-velocity-noise-mps", type=float, default=0.05,
+                   help="its velocity noise per axis, m/s (default 0.05)")
+    f.add_argument("--gnss-rate-hz", type=float, default=10.0, help="solutions a second (10)")
+    f.add_argument("--gnss-latency-ms", type=float, default=100.0,
+                   help="how late each solution arrives, ms, 0-200 (default 100: tell the "
+                        "bridge the same with its --gnss-latency-ms)")
+    f.add_argument("--wind-ned-mps", type=_vector, default=(0.0, 0.0, 0.0),
+                   help="a steady wind, m/s, north,east,down (default 0,0,0)")
     return parser
 
 
@@ -116,6 +139,18 @@ def main(argv=None):
             spin_axis_frd=args.spin_axis or airframe.spin_axis_frd,
         )
         hand.validate()
+        gnss = None
+        if args.gnss:
+            gnss = {
+                "noise_m": args.gnss_noise_m,
+                "rate_hz": args.gnss_rate_hz,
+                "latency_s": args.gnss_latency_ms / 1000.0,
+                "velocity_noise_mps": args.gnss_velocity_noise_mps,
+                "correlation_s": args.gnss_correlation_s,
+            }
+            GnssReceiver(np.random.default_rng(0), **gnss)  # its arguments checked now
+        if not all(abs(c) <= 20.0 for c in args.wind_ned_mps):
+            raise ValueError("--wind-ned-mps must be within ±20 m/s on each axis")
     except (KeyError, ValueError) as error:
         print(f"rotorpy_bridge: {error}", file=sys.stderr)
         return 2
@@ -125,7 +160,8 @@ def main(argv=None):
         report = fly(airframe, hand, args.bridge, flight_s=args.flight_s,
                      hold_window_s=args.hold_window_s, start_height_m=args.start_height_m,
                      seed=args.seed, trace=trace,
-                     speed_telemetry=not args.no_speed_telemetry)
+                     speed_telemetry=not args.no_speed_telemetry, gnss=gnss,
+                     wind_ned_mps=args.wind_ned_mps)
     except BridgeTimeout as error:
         print(f"rotorpy_bridge: {error}", file=sys.stderr)
         return 3
@@ -133,7 +169,7 @@ def main(argv=None):
     print(
         f"{airframe.name}, taper {report['taper_ms']} ms ({report['taper_shape']}): "
         f"{report['verdict']}; release → hover {report['release_to_hover_s']} s, hold error "
-        f"{report['hold_error_m']} m (bound {HOLD_BOUND_M} m), lowest {report['min_height_m']} m, "
+        f"{report['hold_error_m']} m (bound {report['hold_bound_m']} m), lowest {report['min_height_m']} m, "
         f"{report['wall_s']} s wall",
         file=sys.stderr,
     )

@@ -8,9 +8,9 @@ import unittest
 import numpy as np
 
 from airframes import library
-from bridge_packets import PacketError, decode_motor, encode_sensor
+from bridge_packets import GnssSolution, PacketError, decode_motor, encode_sensor
 from esc import Esc, steady_speed_fraction
-from flight import STEP_S, _rk4_step
+from flight import STEP_S, _angle_rad, _rk4_step, _wanted_thrust_axis
 from frames import (
     C_FRD_FLU,
     C_NED_ENU,
@@ -21,6 +21,7 @@ from frames import (
     rotation_about,
     rotation_from_quat_xyzw,
 )
+from gnss import ORIGIN_HEIGHT_M, ORIGIN_LAT_DEG, ORIGIN_LON_DEG, GnssReceiver, metres_per_degree
 from hand import FREE, GRAVITY_MPS2, Hand, HandConfig
 from imu_mount import ImuMount
 from rotorpy.vehicles.multirotor import Multirotor
@@ -47,6 +48,32 @@ class Packets(unittest.TestCase):
         packet = encode_sensor(7, 0.0, (0, 0, 0), (0, 0, -9.81), (1.0, 2.0, 3.0, 4.0))
         self.assertEqual(len(packet), 48 + 16)
         self.assertEqual(packet[6:8], b"\x00\x00")
+
+    def test_the_documented_gnss_solution_byte_for_byte(self):
+        # docs/sim-bridge.md, "GNSS solutions": the pose example's packet without its pose and
+        # with a 3D fix at 47.5° N, 8.5° E, 456 m, moving (0.5, -0.25, 0.125) m/s.
+        expected = bytes.fromhex(
+            "46 43 53 4E 02 02 02 00  02 01 00 00 00 00 00 00"
+            "00 00 00 00 00 00 E0 3F"
+            "00 00 80 3F 00 00 80 BF  00 00 00 00"
+            "00 00 00 00 00 00 00 00  00 00 00 C0"
+            "00 00 00 40 00 00 C0 7F"
+            "00 42 06 12 03 01 10 00"
+            "00 00 00 00 00 C0 47 40  00 00 00 00 00 00 21 40"
+            "00 00 E4 43"
+            "00 00 00 3F 00 00 80 BE  00 00 00 3E"
+            "00 00 00 3F 00 00 80 3F  00 00 80 3E".replace(" ", "")
+        )
+        solution = GnssSolution(302_400_000, 47.5, 8.5, 456.0, (0.5, -0.25, 0.125),
+                                h_acc_m=0.5, v_acc_m=1.0, s_acc_mps=0.25)
+        packet = encode_sensor(0x0102, 0.5, (1, -1, 0), (0, 0, -2), (2.0, None), gnss=solution)
+        self.assertEqual(len(packet), 108)
+        self.assertEqual(packet, expected)
+        with_pose = encode_sensor(0x0102, 0.5, (1, -1, 0), (0, 0, -2), (2.0, None),
+                                  pose=(1.5, -2.0, -0.5, 0.25), gnss=solution)
+        self.assertEqual(len(with_pose), 124)
+        self.assertEqual(with_pose[6:8], b"\x03\x00")
+        self.assertEqual(with_pose[-52:], expected[-52:])
 
     def test_a_motor_packet_is_read_and_a_wrong_one_refused(self):
         good = b"FCMO" + bytes([2, 2, 0, 0]) + (5).to_bytes(8, "little")
@@ -86,6 +113,64 @@ class Frames(unittest.TestCase):
             rot = rotation_about(rng.normal(size=3), rng.uniform(-math.pi, math.pi))
             np.testing.assert_allclose(rotation_from_quat_xyzw(quat_xyzw_from_rotation(rot)), rot,
                                        atol=1e-12)
+
+
+class Receiver(unittest.TestCase):
+    def test_solutions_come_at_its_rate_late_by_its_latency(self):
+        receiver = GnssReceiver(np.random.default_rng(1), noise_m=0.0, rate_hz=10.0,
+                                latency_s=0.1, velocity_noise_mps=0.0)
+        arrivals = []
+        for n in range(int(round(2.0 / STEP_S))):
+            t = n * STEP_S
+            # The craft flies north at 2 m/s from the origin.
+            solution = receiver.step(t, (2.0 * t, 0.0, -1.0), (2.0, 0.0, 0.0))
+            if solution is not None:
+                arrivals.append((t, solution))
+        self.assertEqual(len(arrivals), 19)  # epochs 0.0-1.8 s arrive by 1.9 s
+        north_per_deg, _ = metres_per_degree(ORIGIN_LAT_DEG, ORIGIN_HEIGHT_M)
+        for k, (t, solution) in enumerate(arrivals):
+            self.assertAlmostEqual(t, 0.1 * k + 0.1, places=6)
+            # It describes the epoch 0.1 s before it arrived, at 2 m/s.
+            north_m = (solution.latitude_deg - ORIGIN_LAT_DEG) * north_per_deg
+            self.assertAlmostEqual(north_m, 2.0 * 0.1 * k, places=6)
+            self.assertAlmostEqual(solution.longitude_deg, ORIGIN_LON_DEG)
+            self.assertAlmostEqual(solution.height_m, ORIGIN_HEIGHT_M + 1.0, places=4)
+            self.assertEqual(solution.time_of_week_ms - arrivals[0][1].time_of_week_ms, 100 * k)
+
+    def test_a_metre_of_latitude_is_the_meridians(self):
+        # WGS-84 at 47.4° N, 500 m: the meridian radius M = a(1 - e²)/W³ ≈ 6,370.6 km, so one
+        # degree is 111.19 km (111.13 at 45°, 111.23 at 50°); a degree of longitude is
+        # N cos φ ≈ 75.49 km (78.85 at 45°, 71.70 at 50°).
+        north, east = metres_per_degree(47.4, 500.0)
+        self.assertAlmostEqual(north / 1000.0, 111.19, delta=0.01)
+        self.assertAlmostEqual(east / 1000.0, 75.49, delta=0.01)
+
+    def test_its_error_wanders_with_the_stated_spread_and_accuracies(self):
+        noise_m = 0.3
+        receiver = GnssReceiver(np.random.default_rng(7), noise_m=noise_m, rate_hz=10.0,
+                                latency_s=0.0, velocity_noise_mps=0.1, correlation_s=2.0)
+        errors, steps = [], []
+        north_per_deg, east_per_deg = metres_per_degree(ORIGIN_LAT_DEG, ORIGIN_HEIGHT_M)
+        for k in range(20_000):  # 2,000 s: 1,000 correlation times
+            solution = receiver.step(0.1 * k, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+            errors.append(((solution.latitude_deg - ORIGIN_LAT_DEG) * north_per_deg,
+                           (solution.longitude_deg - ORIGIN_LON_DEG) * east_per_deg))
+            steps.append(solution.velocity_ned_mps)
+        errors = np.array(errors)
+        # σ per axis within 10 % (1,000 independent stretches), and hAcc its RMS (√2 σ).
+        np.testing.assert_allclose(errors.std(axis=0), noise_m, rtol=0.1)
+        self.assertAlmostEqual(solution.h_acc_m, math.sqrt(2.0) * noise_m)
+        # Correlated over 2 s: errors 1 s apart correlate as exp(-1 s / 2 s) = 0.61.
+        for axis in range(2):
+            e = errors[:, axis]
+            self.assertAlmostEqual(np.corrcoef(e[:-10], e[10:])[0, 1], math.exp(-0.5), delta=0.05)
+        np.testing.assert_allclose(np.array(steps).std(axis=0), 0.1, rtol=0.1)
+        self.assertAlmostEqual(solution.s_acc_mps, math.sqrt(3.0) * 0.1)
+
+    def test_a_receiver_out_of_range_is_refused(self):
+        for bad in ({"rate_hz": 0.0}, {"latency_s": 0.5}, {"noise_m": math.nan}):
+            with self.assertRaises(ValueError):
+                GnssReceiver(np.random.default_rng(0), **bad)
 
 
 class EscCurve(unittest.TestCase):
@@ -134,7 +219,7 @@ class ImuAndHand(unittest.TestCase):
         imu = self.imu((0.01, 0.02, -0.03), np.eye(3))
         state = _free_body(self.airframe, (0, 0, 0))
         state[6:10] = quat_xyzw_from_rotation(r_enu_flu(np.eye(3)))
-        _, rate, force = _rk4_step(self.model, hand, imu, state, 0.0,
+        _, rate, force, _ = _rk4_step(self.model, hand, imu, state, 0.0,
                                    np.zeros(self.airframe.params["num_rotors"]))
         np.testing.assert_allclose(imu.rotation_imu_flu @ force, [0, 0, -GRAVITY_MPS2], atol=1e-9)
         np.testing.assert_allclose(rate, 0.0, atol=1e-12)
@@ -150,11 +235,38 @@ class ImuAndHand(unittest.TestCase):
         w_flu = np.array([0.0, 0.0, 10.0])  # about body up: no Euler torque for this inertia
         state = _free_body(self.airframe, w_flu)
         self.assertEqual(hand.phase(10.0), FREE)
-        _, _, force = _rk4_step(model, hand, imu, state, 10.0,
+        _, _, force, _ = _rk4_step(model, hand, imu, state, 10.0,
                                 np.zeros(self.airframe.params["num_rotors"]))
         r_flu = C_FRD_FLU @ np.array([0.02, 0.0, 0.0])
         expected = np.cross(w_flu, np.cross(w_flu, r_flu))  # -|Ω|² r: 2 m/s² inwards
         np.testing.assert_allclose(force, expected, atol=1e-9)
+
+    def test_the_wanted_thrust_axis_leans_into_the_wind_by_the_drag_and_is_up_in_still_air(self):
+        # Level, rotors at the speed that carries the weight, at rest in RotorPy's drag model.
+        model = Multirotor(self.airframe.params, control_abstraction="cmd_motor_speeds",
+                           aero=True)
+        m = self.airframe.params["num_rotors"]
+        hover = math.sqrt(self.airframe.params["mass"] * GRAVITY_MPS2
+                          / (m * self.airframe.params["k_eta"]))
+        hand = Hand(HandConfig(hold_s=1.0), STEP_S)
+        imu = self.imu((0.0, 0.0, 0.0), np.eye(3))
+        up = np.array([0.0, 0.0, 1.0])
+        for wind_east_mps in (0.0, 4.0):
+            state = _free_body(self.airframe, (0, 0, 0))
+            state[6:10] = quat_xyzw_from_rotation(r_enu_flu(np.eye(3)))
+            state[13:16] = (wind_east_mps, 0.0, 0.0)
+            state[16:16 + m] = hover
+            _, _, _, accel = _rk4_step(model, hand, imu, state, 10.0, np.full(m, hover))
+            wanted = _wanted_thrust_axis(up, accel)
+            # The wind pushes the craft east (along the air's motion): only a thrust leaning west,
+            # into the wind, cancels it, by atan(drag / weight).
+            lean = math.atan2(accel[0], GRAVITY_MPS2)
+            self.assertAlmostEqual(_angle_rad(wanted, up), abs(lean), delta=1e-3)
+            if wind_east_mps == 0.0:
+                self.assertLess(_angle_rad(wanted, up), math.radians(0.01))
+            else:
+                self.assertGreater(accel[0], 0.1)
+                self.assertLess(wanted[0], 0.0)
 
     def test_the_throw_releases_at_the_asked_velocity_and_rate_whatever_the_taper(self):
         for taper_s, shape in ((0.0, "cosine"), (0.015, "cosine"), (0.03, "linear")):
@@ -168,7 +280,7 @@ class ImuAndHand(unittest.TestCase):
             peak_force = 0.0
             last_force = None
             for i in range(n):
-                state, _, force = _rk4_step(self.model, hand, imu, state, i * STEP_S,
+                state, _, force, _ = _rk4_step(self.model, hand, imu, state, i * STEP_S,
                                             np.zeros(self.airframe.params["num_rotors"]))
                 peak_force = max(peak_force, float(np.linalg.norm(force)))
                 last_force = float(np.linalg.norm(force))
