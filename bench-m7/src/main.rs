@@ -548,6 +548,7 @@ impl ClosedLoop {
             accel_mps2: accel,
             q_world_imu: q,
             navigation: *self.navigation.state(),
+            unexplained_torque: false,
         };
         match self.controller.update(&input, &self.guidance) {
             Ok(output) => output.indi,
@@ -711,6 +712,7 @@ fn closed_loop_regions(m: usize, learner: &Learner) {
             accel_mps2: accel,
             q_world_imu: closed.attitude.quaternion(),
             navigation: *closed.navigation.state(),
+            unexplained_torque: false,
         };
         let mut state = (closed.controller.clone(), input, closed.guidance);
         let _ = region(&mut state, |(c, input, guidance)| c.update(black_box(input), guidance));

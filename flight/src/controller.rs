@@ -288,6 +288,13 @@ pub struct ControllerInput {
     pub q_world_imu: UnitQuaternion<f32>,
     /// Position and velocity of the CoG.
     pub navigation: NavigationState,
+    /// A torque the learned model does not explain acts on the body beyond what a free body
+    /// meets (the hand-catch detector's sign, `firmware::app::catch`: a hand, a damaged
+    /// propeller). The measured thrust direction then follows the specific force at
+    /// [`THRUST_DIRECTION_TIME_S`] even in a hold: what tilts the craft then is not a drag to lean
+    /// into, and a hand's tilt taken up within [`THRUST_DIRECTION_HOLD_TIME_S`] left the rate loop
+    /// nothing to ask, so the hand went unnoticed.
+    pub unexplained_torque: bool,
 }
 
 /// What one step decided, for the motors and for telemetry.
@@ -572,8 +579,11 @@ impl Controller {
         let to_thrust = self.indi.model().q_imu_thrust.inverse();
         let rate = to_thrust * Vector3::from(input.gyro_rad_s);
         let holding = matches!(guidance, Guidance::Position { .. });
-        let trim_time_s =
-            if holding { THRUST_DIRECTION_HOLD_TIME_S } else { THRUST_DIRECTION_TIME_S };
+        let trim_time_s = if holding && !input.unexplained_torque {
+            THRUST_DIRECTION_HOLD_TIME_S
+        } else {
+            THRUST_DIRECTION_TIME_S
+        };
         let specific_force = self.indi.state().specific_force_mps2;
         self.thrust_direction.update(&specific_force, &rate, trim_time_s, dt_s);
         let command = attitude_loop(

@@ -170,6 +170,8 @@ struct Watch {
     bound_rad_s2: f32,
     /// How long both signs have held, s.
     held_s: f32,
+    /// Whether the last step's unexplained departure was beyond its bound.
+    departing: bool,
     /// How long it has watched, s: it decides once the baseline has settled
     /// ([`CATCH_BASELINE_S`]).
     watched_s: f32,
@@ -229,6 +231,15 @@ impl CatchDetector {
         self.watch.map(|w| w.bound_rad_s2)
     }
 
+    /// Whether the last step's unexplained angular acceleration departed from its average beyond
+    /// the bound (module doc): a torque that the model does not explain and that a free body
+    /// does not meet acts on the craft. The controller then stops taking the craft's tilt for a
+    /// drag ([`flight::controller::ControllerInput::unexplained_torque`]), so a hand's tilt stays
+    /// a tilt the rate loop asks back, and its tracking error persists.
+    pub fn departing(&self) -> bool {
+        self.watch.is_some_and(|w| w.departing)
+    }
+
     /// Stop watching (not flying freely now); the next watched step starts afresh.
     pub fn stop(&mut self) {
         self.watch = None;
@@ -264,6 +275,7 @@ impl CatchDetector {
                     tracking_peak_rad_s2: 0.0,
                     bound_rad_s2: CATCH_TORQUE_FRACTION * bound_rad_s2,
                     held_s: 0.0,
+                    departing: false,
                     watched_s: 0.0,
                 })
             }
@@ -294,7 +306,8 @@ impl CatchDetector {
         let across_squared = (deviation.norm_squared() - along * along).max(0.0);
         let along_beyond = (libm::fabsf(along) - CATCH_STEADY_SHARE * level).max(0.0);
         let departure_squared = across_squared + along_beyond * along_beyond;
-        let held = departure_squared > unexplained_bound * unexplained_bound
+        watch.departing = departure_squared > unexplained_bound * unexplained_bound;
+        let held = watch.departing
             && tracking_now > CATCH_TRACKING_SHARE * bound
             && tracking_now >= CATCH_DECAY_RATIO * watch.tracking_peak_rad_s2;
         watch.held_s = if held { watch.held_s + dt_s } else { 0.0 };

@@ -1485,6 +1485,7 @@ impl Pilot {
             accel_mps2: imu.accel_mps2,
             q_world_imu: self.q_world_imu(),
             navigation: nav,
+            unexplained_torque: self.catch.departing(),
         };
         let Some(controller) = &mut self.controller else {
             return Ok([0.0; MAX_MOTORS]);
