@@ -95,13 +95,15 @@
 //! in median instead of 60.
 //!
 //! Cost (`cargo xtask bench-m7`, docs/benchmarks.md): during the excitation at most
-//! 10,342 Cortex-M7 instructions a sample on the quad, within the learner's 12,000; after it,
-//! the last period's candidates, then the candidates' regressions, a budget of work a sample
-//! ([`SCORING_WORK_PER_MOTOR`]), then the catch-up, one held sample a sample (about what a
-//! learner sample with telemetry costs): at most 11,221 instructions a sample on a quad and
-//! 22,365 on an octorotor, within the learner's 12,000 and 24,000 (up to 74,265 and 145,843
-//! when 8 full-rate samples were learned from a sample); the octorotor's last pulse's sample,
-//! the lag regression, is 27,438. The ring holds 213 held samples
+//! 8,558 Cortex-M7 instructions a sample on the quad and 19,056 on the octorotor (a
+//! candidate's sample: its filters and its `5m (5m + 1)/2` products, [`add_outer_lower`]),
+//! within the learner's 12,000 and 24,000; after it, the last period's candidates, then the
+//! candidates' regressions, a budget of work a sample ([`SCORING_WORK_PER_MOTOR`]), then the
+//! catch-up, one held sample a sample (about what a learner sample with telemetry costs): at
+//! most 11,161 instructions a sample on a quad and 22,201 on an octorotor (up to 74,265 and
+//! 145,843 when 8 full-rate samples were learned from a sample). The catch-up's last sample,
+//! which also stages and publishes the model to engage on, is more: 28,009 on the octorotor's
+//! case of `bench-m7`, beyond the samples it measures. The ring holds 213 held samples
 //! (14 KB; 1,700 samples, 122 KB, before they were means), the candidates' sums ≈ 120 KB.
 
 // Index loops are kept where they run over axes and motors side by side (several arrays per
@@ -382,7 +384,7 @@ impl Curve {
             return 0.0;
         }
         let d = if command.is_finite() { command.clamp(0.0, 1.0) } else { 0.0 };
-        let shape = self.kappa * d + (1.0 - self.kappa) * libm::sqrtf(d);
+        let shape = self.kappa * d + (1.0 - self.kappa) * crate::math::sqrt(d);
         self.idle + (1.0 - self.idle) * shape
     }
 }
@@ -594,24 +596,15 @@ impl LagHypothesis {
         }
         if shared.learn {
             let n = 5 * m;
-            let mut k = 0;
-            for r in 0..n {
-                let zr = z[r];
-                for c in 0..=r {
-                    self.gram[k] += f64::from(zr * z[c]);
-                    k += 1;
-                }
-                for a in 0..3 {
-                    self.rate_xy[a][r] += f64::from(zr * shared.rate[a]);
+            add_outer_lower(&mut self.gram, &z[..n]);
+            for (xy, rate) in self.rate_xy.iter_mut().zip(shared.rate) {
+                for (xy, &zr) in xy[..n].iter_mut().zip(&z[..n]) {
+                    *xy += f64::from(zr * rate);
                 }
             }
             let b = &self.band_previous;
-            let mut k = 0;
+            add_outer_lower(&mut self.band_gram, &b[..m]);
             for r in 0..m {
-                for c in 0..=r {
-                    self.band_gram[k] += f64::from(b[r] * b[c]);
-                    k += 1;
-                }
                 for t in 0..9 {
                     self.band_offset[r][t] += f64::from(b[r] * shared.offset_terms[t]);
                 }
@@ -654,6 +647,24 @@ impl LagHypothesis {
         let first = t * (t + 1) / 2;
         solve.gram[r][m..=r].copy_from_slice(&shared.offset_gram[first..=first + t]);
         solve.xy[r] = shared.offset_force[t];
+    }
+}
+
+/// `z zᵀ` added to the sums of squares `packed` (its lower triangle packed by rows: row `r`
+/// holds columns `0..=r` from `r (r + 1)/2`), each product formed in `f32` and summed in `f64`,
+/// row by row over slices: an index with an inclusive range per row took 20 Cortex-M7
+/// instructions an entry, 16,500 of an octorotor candidate's 40 × 41 / 2 (`cargo xtask
+/// bench-m7`). A `packed` shorter than `z`'s triangle takes the rows that fit.
+fn add_outer_lower(packed: &mut [f64], z: &[f32]) {
+    let mut rows = packed;
+    for (r, &zr) in z.iter().enumerate() {
+        let Some((row, rest)) = core::mem::take(&mut rows).split_at_mut_checked(r + 1) else {
+            return;
+        };
+        for (sum, &zc) in row.iter_mut().zip(z) {
+            *sum += f64::from(zr * zc);
+        }
+        rows = rest;
     }
 }
 
@@ -1247,12 +1258,8 @@ impl CommandSpeedModel {
         self.warm_periods = self.warm_periods.saturating_add(1);
         if learn {
             let sums = &mut self.shared_sums;
-            let mut k = 0;
+            add_outer_lower(&mut sums.offset_gram, &offset_terms);
             for t in 0..9 {
-                for u in 0..=t {
-                    sums.offset_gram[k] += f64::from(offset_terms[t] * offset_terms[u]);
-                    k += 1;
-                }
                 for a in 0..3 {
                     sums.offset_force[t][a] += f64::from(offset_terms[t] * self.shared.force[a]);
                 }
