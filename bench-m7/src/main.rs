@@ -1194,14 +1194,15 @@ fn main() -> ! {
         let filter = flight::filters::BiquadCoefficients::butterworth_lowpass(20.0, 2000.0)
             .unwrap_or_else(|_| fail("filter"));
         let config = flight::learner::rls::RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
-        let mut est = flight::learner::effectiveness::EffectivenessEstimator::new(
-            4,
-            2000.0,
+        use flight::learner::effectiveness::{EffectivenessEstimator, EffectivenessSetup};
+        let mut est = EffectivenessEstimator::new(EffectivenessSetup {
+            motors: 4,
+            rate_hz: 2000.0,
             filter,
-            [0.01, 0.0, 0.0],
-            3e-4,
-            config,
-        );
+            r_imu_m: [0.01, 0.0, 0.0],
+            speed_lag_s: 3e-4,
+            rls: config,
+        });
         let mut rate = [7.0f32, 7.0, 1.7];
         for n in 0..400 {
             let ((gyro, accel, _c, speeds), angular) =

@@ -198,31 +198,32 @@ pub struct EffectivenessEstimator {
     rotation: Rls<ROT_PARAMETERS_MAX, 1, { packed_len(ROT_PARAMETERS_MAX) }>,
 }
 
+/// What an [`EffectivenessEstimator`] is built for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EffectivenessSetup {
+    /// Motors (clamped to 1..=8).
+    pub motors: usize,
+    /// Rate of the samples it is fed, Hz.
+    pub rate_hz: f32,
+    /// The low-pass every signal goes through.
+    pub filter: BiquadCoefficients,
+    /// Where the accelerometer sits from the centre of gravity, IMU axes, m: its readings are
+    /// moved to the centre of gravity.
+    pub r_imu_m: [f32; 3],
+    /// How much older the speed reports are than the IMU samples they come with, s
+    /// (compensated by moving the filtered squared speeds forward along their derivative).
+    pub speed_lag_s: f32,
+    /// The regressions' RLS tuning.
+    pub rls: RlsConfig,
+}
+
 impl EffectivenessEstimator {
-    /// An estimator for `motors` motors (clamped to 1..=8) at `rate_hz`, filtering with `filter`,
-    /// moving the accelerometer to the centre of gravity with `r_imu_m` (IMU axes, m), with speed
-    /// reports `speed_lag_s` older than the IMU samples they come with (compensated by moving
-    /// the filtered squared speeds forward along their derivative).
-    pub fn new(
-        motors: usize,
-        rate_hz: f32,
-        filter: BiquadCoefficients,
-        r_imu_m: [f32; 3],
-        speed_lag_s: f32,
-        config: RlsConfig,
-    ) -> Self {
+    /// An estimator for `setup`.
+    pub fn new(setup: EffectivenessSetup) -> Self {
         let mut slot = MaybeUninit::uninit();
         // SAFETY: a local slot, valid and aligned; `build_at` writes every field.
         unsafe {
-            Self::build_at(
-                slot.as_mut_ptr(),
-                motors,
-                rate_hz,
-                filter,
-                r_imu_m,
-                speed_lag_s,
-                config,
-            );
+            Self::build_at(slot.as_mut_ptr(), setup);
             slot.assume_init()
         }
     }
@@ -232,15 +233,9 @@ impl EffectivenessEstimator {
     ///
     /// # Safety
     /// `this` must be valid for writes and aligned; every field is written before use.
-    pub(crate) unsafe fn build_at(
-        this: *mut Self,
-        motors: usize,
-        rate_hz: f32,
-        filter: BiquadCoefficients,
-        r_imu_m: [f32; 3],
-        speed_lag_s: f32,
-        config: RlsConfig,
-    ) {
+    pub(crate) unsafe fn build_at(this: *mut Self, setup: EffectivenessSetup) {
+        let EffectivenessSetup { motors, rate_hz, filter, r_imu_m, speed_lag_s, rls: config } =
+            setup;
         let motors = motors.clamp(1, MAX_MOTORS);
         addr_of_mut!((*this).motors).write(motors);
         addr_of_mut!((*this).decimation).write(1);
@@ -762,8 +757,15 @@ mod tests {
         let config = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
         // Speeds sampled at the end of each 2 kHz sample, the gyro averaged over it: the speeds
         // are 187.5 µs *newer* than the IMU sample.
-        let mut est = EffectivenessEstimator::new(m, 2000.0, filter, [0.0; 3], -187.5e-6, config)
-            .with_decimation(decimation);
+        let mut est = EffectivenessEstimator::new(EffectivenessSetup {
+            motors: m,
+            rate_hz: 2000.0,
+            filter,
+            r_imu_m: [0.0; 3],
+            speed_lag_s: -187.5e-6,
+            rls: config,
+        })
+        .with_decimation(decimation);
         if let Some(variance) = exact_inertia {
             let j = inertia / inertia.trace();
             let mut prior = InertiaPrior::sphere();

@@ -38,7 +38,7 @@ use crate::filters::{BiquadCoefficients, FilterDesignError};
 use crate::thrust_axis::{self, HoverProblem, ThrustAxisSolver};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
-use effectiveness::{EffectivenessEstimator, Regression};
+use effectiveness::{EffectivenessEstimator, EffectivenessSetup, Regression};
 use excitation::{Excitation, ExcitationConfig};
 use motor_model::{MotorModel, MotorModelEstimator};
 use no_speed::CommandSpeedModel;
@@ -415,12 +415,14 @@ impl Learner {
             }
             EffectivenessEstimator::build_at(
                 addr_of_mut!((*learner).effectiveness),
-                motors,
-                effectiveness_rate_hz,
-                slow,
-                config.r_imu_m,
-                config.speed_report_lag_s,
-                config.effectiveness_rls,
+                EffectivenessSetup {
+                    motors,
+                    rate_hz: effectiveness_rate_hz,
+                    filter: slow,
+                    r_imu_m: config.r_imu_m,
+                    speed_lag_s: config.speed_report_lag_s,
+                    rls: config.effectiveness_rls,
+                },
             );
             CommandSpeedModel::build_at(
                 addr_of_mut!((*learner).command_speeds),

@@ -1504,7 +1504,7 @@ mod tests {
     /// rate. The relative RMS errors of the force and torque blocks of each, and the control
     /// samples from the lag's choice to the last held sample released, one a sample.
     fn g1_full_rate_and_held(tau: f32) -> ([f32; 2], [f32; 2], [f32; 2], usize) {
-        use crate::learner::effectiveness::EffectivenessEstimator;
+        use crate::learner::effectiveness::{EffectivenessEstimator, EffectivenessSetup};
         use crate::learner::excitation::{Excitation, ExcitationConfig};
         use crate::learner::rls::RlsConfig;
         use crate::learner::EFFECTIVENESS_CUTOFF_HZ;
@@ -1516,9 +1516,14 @@ mod tests {
             let filter =
                 BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, rate_hz).unwrap();
             // The speeds modelled at the end of each sample, the rates its mean over it.
-            std::boxed::Box::new(EffectivenessEstimator::new(
-                4, rate_hz, filter, [0.0; 3], 0.0, rls,
-            ))
+            std::boxed::Box::new(EffectivenessEstimator::new(EffectivenessSetup {
+                motors: 4,
+                rate_hz,
+                filter,
+                r_imu_m: [0.0; 3],
+                speed_lag_s: 0.0,
+                rls,
+            }))
         };
         let mut full = estimator(rate_hz);
         let mut modelled = estimator(rate_hz);
