@@ -26,13 +26,15 @@
 //!   curve the rate setpoint falls at α, which the rate loop is given as a feed-forward angular
 //!   acceleration so it does not lag behind the planned deceleration. Within 30° of the wanted
 //!   axis the loop is exactly the published one.
-//! - **Thrust**: the magnitude of the wanted specific force, whatever the tilt (ours). Projecting
-//!   it on the current thrust axis, as a level flight controller would, starves a tumbling craft
-//!   of rotor speed: near idle the differential thrust that stops the spin is small, and the
-//!   craft falls spinning. Measured on 300 Monte Carlo throws (`fly monte-carlo --runs 300`):
-//!   projected with a floor of 20 % of the magnitude, 21 hit the ground; floors of 50 % and
-//!   80 %, 16 and 12; the full magnitude, 4; the projection only beyond 30°, 10; more than the
-//!   magnitude (1/cos of the tilt up to 60°), 13.
+//! - **Thrust**: the magnitude of the wanted specific force, whatever the tilt (ours), as long as
+//!   the thrust axis points above the horizon. Projecting it on the current thrust axis, as a
+//!   level flight controller would, starves a tumbling craft of rotor speed: near idle the
+//!   differential thrust that stops the spin is small, and the craft falls spinning. Measured on
+//!   300 Monte Carlo throws (`fly monte-carlo --runs 300`): projected with a floor of 20 % of the
+//!   magnitude, 21 hit the ground; floors of 50 % and 80 %, 16 and 12; the full magnitude, 4;
+//!   the projection only beyond 30°, 10; more than the magnitude (1/cos of the tilt up to 60°),
+//!   13. Below the horizon every newton of thrust pushes the fall on: there a quarter of it
+//!   ([`INVERTED_THRUST_FRACTION`]).
 //! - **Gains** from the slowest motor's τ ([`crate::position::Gains`], published).
 //!
 //! A plain struct with [`Controller::update`]; the application decides when it runs and what
@@ -67,12 +69,30 @@ pub const TILT_DECELERATION_FRACTION: f32 = 0.25;
 /// square-root term only speeds up recoveries from large tilts.
 pub const LINEAR_TILT_RAD: f32 = 30.0 * core::f32::consts::PI / 180.0;
 
-/// Largest vertical acceleration the level hold asks for, m/s² (1 g, ours). The level hold is
-/// what catches a falling craft after the excitation; the published 5 m/s² is a position-control
-/// limit and would take a second and 2.5 m to stop a 5 m/s fall. Twice the hover thrust is within
-/// reach of any craft that can be thrown to fly (thrust-to-weight ≥ 2); a weaker one saturates
-/// and the allocation keeps the attitude first.
+/// Largest vertical acceleration angle mode asks for, and the level hold downwards, m/s² (1 g,
+/// ours): the motors cannot pull, so a craft sinks at most at g with them at idle.
 pub const LEVEL_MAX_VERTICAL_ACCEL_MPS2: f32 = STANDARD_GRAVITY_MPS2;
+
+/// Largest upward acceleration the level hold asks for, m/s² (2 g, ours): the level hold is what
+/// catches a craft falling after the excitation, and the ground is the limit. What it assumes of
+/// the world: a throw of the 2.5–4.5 m from a hand 1–2 m up engages 0.5–0.95 s after the
+/// release, 3.5–6.5 m above the ground, falling at up to 3 m/s and possibly on its back; the
+/// turn-over adds 2–3 m/s of fall (0.2–0.3 s at g). Braking a fall of 6 m/s takes 1.8 m at 1 g and
+/// 0.9 m at 2 g, beside the metres the fall itself took: 1,000 random worlds lost 5 such craft
+/// in wind at 1 g (docs/benchmarks.md). The published 5 m/s² is a position-control limit and
+/// would take 3.6 m. Three times the hover thrust is within reach of the median random airframe
+/// (thrust-to-weight 2.5–5); a weaker one saturates and the allocation keeps the attitude first
+/// (its weights: the thrust gives way before roll and pitch).
+pub const LEVEL_MAX_BRAKING_ACCEL_MPS2: f32 = 2.0 * STANDARD_GRAVITY_MPS2;
+
+/// The thrust asked while the thrust axis points below the horizon, as a fraction of the wanted
+/// specific force's magnitude (ours). Upside down, thrust adds to the fall: the level hold's 2–3 g
+/// on a craft on its back accelerates it down at 3–4 g while it turns over (seed 280 of the random
+/// world in wind: engaged 104° from up at 5.5 m, falling at 1.6 m/s, it reached 8 m/s before it was
+/// level and hit the ground). Less thrust costs turning authority (a quad's differential thrust
+/// is bounded by its collective): with none, a slow octorotor turned too slowly (seed 694 of the
+/// same world hit the ground); a quarter and a half both saved it.
+pub const INVERTED_THRUST_FRACTION: f32 = 0.25;
 
 /// Natural frequency of angle mode's tilt reference, rad/s (ours): a stick step is followed by
 /// a critically damped second-order reference, its rate and acceleration fed forward; at
@@ -513,22 +533,15 @@ impl Controller {
                 // 1,000 random airframes the hold is better with it (held 96.5 % → 98.9 %).
                 (f + nav.accel_bias_ned_mps2, yaw_rad)
             }
-            Guidance::Level { yaw_rad, velocity_ned_mps, vertical_speed_mps, max_up_mps2 } => {
-                // Zero velocity: the velocity loop's P alone (no integral on a drifting estimate).
-                // Vertically the thrust acts through the motors alone, not behind the attitude
-                // loop: the rate loop's gain (designed around the motor lag) applies there.
-                let velocity_error = velocity_ned_mps - Vector3::new(0.0, 0.0, vertical_speed_mps);
-                let gain =
-                    Vector3::new(self.gains.k_velocity, self.gains.k_velocity, self.gains.k_rate);
-                let accel = crate::position::limit_horizontal_vertical(
-                    &(-velocity_error.component_mul(&gain)),
-                    crate::position::MAX_ACCEL_MPS2,
-                    LEVEL_MAX_VERTICAL_ACCEL_MPS2,
-                );
-                let mut f = accel - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
-                f.z = f.z.max(-max_up_mps2);
-                (crate::position::limit_tilt(&f), yaw_rad)
-            }
+            Guidance::Level { yaw_rad, velocity_ned_mps, vertical_speed_mps, max_up_mps2 } => (
+                level_specific_force(
+                    &velocity_ned_mps,
+                    vertical_speed_mps,
+                    max_up_mps2,
+                    &self.gains,
+                ),
+                yaw_rad,
+            ),
             Guidance::Tilt {
                 forward_rad,
                 right_rad,
@@ -620,6 +633,33 @@ impl Controller {
     }
 }
 
+/// The level hold's wanted specific force, world NED, m/s²: the velocity `velocity_ned_mps`
+/// (world NED, m/s) brought to zero horizontally and to `vertical_speed_mps` (positive down)
+/// vertically, the upward specific force at most `max_up_mps2`, tilted at most
+/// [`crate::position::MAX_TILT_RAD`] from vertical. The velocity loop's P alone (no integral on a
+/// drifting estimate); vertically the thrust acts through the motors alone, not behind the
+/// attitude loop, so the rate loop's gain (designed around the motor lag) applies there, up to
+/// [`LEVEL_MAX_BRAKING_ACCEL_MPS2`] upwards and [`LEVEL_MAX_VERTICAL_ACCEL_MPS2`] downwards.
+pub fn level_specific_force(
+    velocity_ned_mps: &Vector3<f32>,
+    vertical_speed_mps: f32,
+    max_up_mps2: f32,
+    gains: &Gains,
+) -> Vector3<f32> {
+    let velocity_error = velocity_ned_mps - Vector3::new(0.0, 0.0, vertical_speed_mps);
+    let gain = Vector3::new(gains.k_velocity, gains.k_velocity, gains.k_rate);
+    let mut accel = crate::position::limit_horizontal_vertical(
+        &(-velocity_error.component_mul(&gain)),
+        crate::position::MAX_ACCEL_MPS2,
+        LEVEL_MAX_BRAKING_ACCEL_MPS2,
+    );
+    // Downwards no faster than a fall with the motors at idle (NED: z down).
+    accel.z = accel.z.min(LEVEL_MAX_VERTICAL_ACCEL_MPS2);
+    let mut f = accel - Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
+    f.z = f.z.max(-max_up_mps2);
+    crate::position::limit_tilt(&f)
+}
+
 /// A tilt demand (thrust-frame x and y of `accel_rad_s2`) turned to where the craft will point
 /// once it takes effect, `lag_s` later: a craft yawing at `yaw_rate_rad_s` sees every world-fixed
 /// axis turn by `−yaw_rate · lag` about its z meanwhile, so an angular acceleration demanded about
@@ -702,7 +742,8 @@ pub fn tilt_rate_and_feed_forward(
 /// the motors pushing the craft towards `−thrust_down_t` (unit, thrust frame; (0, 0, 1) for the
 /// model's axis, see [`ThrustDirection`]), planning to decelerate large tilts at
 /// `tilt_decel_rad_s2` ([`tilt_rate_rad_s`]). With `thrust_along_measured` (a position hold)
-/// the thrust asked gives `|f_sp|` along the measured direction, else along the thrust axis.
+/// the thrust asked gives `|f_sp|` along the measured direction, else along the thrust axis
+/// ([`INVERTED_THRUST_FRACTION`] of it while that points below the horizon).
 ///
 /// Why only in a hold: there the vertical is the slow position loop's, and a force 1/cos θ − 1
 /// too large (10 % at the cone) holds the craft off its setpoint by a static error (the random
@@ -749,7 +790,15 @@ pub fn attitude_loop(
     // INDI holds the thrust-frame z of the measured specific force at `−thrust`; with the motors
     // pushing along `thrust_down_t`, θ off that z, the force along it is `thrust / cos θ`, so
     // ask `|f_sp| cos θ` of z for `|f_sp|` along the wanted direction.
-    let thrust_mps2 = if thrust_along_measured { f_norm * thrust_down_t.z } else { f_norm };
+    // Outside a hold, the whole magnitude (module doc), but a quarter of it while the motors push
+    // below the horizon (`thrust_down_t` pointing up in the world: NED z < 0).
+    let thrust_mps2 = if thrust_along_measured {
+        f_norm * thrust_down_t.z
+    } else if (q_world_thrust * thrust_down_t).z < 0.0 {
+        f_norm * INVERTED_THRUST_FRACTION
+    } else {
+        f_norm
+    };
     AttitudeCommand {
         rate_sp_rad_s: rate_sp,
         accel_ff_rad_s2: accel_ff,
@@ -967,6 +1016,115 @@ mod tests {
             let force_along_down = command.thrust_mps2 / down.z;
             let wanted = f_sp.norm();
             assert!((force_along_down - wanted).abs() < 1e-4 * wanted, "{theta_deg}°");
+        }
+    }
+
+    /// The recovery's rules: today's, or before 2026-12-03 (the whole thrust whatever the
+    /// attitude, braking at 1 g).
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    enum Rules {
+        Now,
+        Before,
+    }
+
+    /// A planar craft (two motors, thrust axis `φ` from up in the x–z plane) engaged on its
+    /// back while falling, flown by the level hold ([`level_specific_force`]) and the attitude
+    /// loop ([`attitude_loop`]) through an ideal allocation that keeps the differential thrust
+    /// first (as the WLS weights do) and motors of lag `tau_s`. Returns the height lost from the
+    /// engagement until the fall has stopped, m (infinite if it has not within 3 s).
+    fn height_to_stop_a_fall(
+        axis_from_up_rad: f32,
+        falling_mps: f32,
+        thrust_to_weight: f32,
+        arm_m: f32,
+        tau_s: f32,
+        rules: Rules,
+    ) -> f32 {
+        let g = STANDARD_GRAVITY_MPS2;
+        let dt = 1.0 / 2000.0;
+        let gains = Gains::from_tau(tau_s);
+        // Per unit mass: each motor gives up to half the thrust; the inertia is that of the
+        // random airframes (radius of gyration 0.6 arm), so α = (t₁ − t₂) · arm / (0.6 arm)².
+        let motor_max = 0.5 * thrust_to_weight * g;
+        let alpha_per_diff = arm_m / (0.36 * arm_m * arm_m);
+        let tilt_decel = TILT_DECELERATION_FRACTION * 0.5 * (2.0 * motor_max) * alpha_per_diff;
+        let (mut phi, mut phi_rate) = (axis_from_up_rad, 0.0f32);
+        let (mut vx, mut vz, mut z) = (0.0f32, falling_mps, 0.0f32);
+        let mut thrust = [0.0f32; 2];
+        for _ in 0..6000 {
+            let mut f_sp =
+                level_specific_force(&Vector3::new(vx, 0.0, vz), 0.0, f32::INFINITY, &gains);
+            if rules == Rules::Before {
+                f_sp.z = f_sp.z.max(-2.0 * g);
+                f_sp = crate::position::limit_tilt(&f_sp);
+            }
+            // The thrust frame's z (the craft's down) is (−sin φ, 0, cos φ): a rotation by −φ
+            // about y, whose rate is −φ̇.
+            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -phi);
+            let rate = Vector3::new(0.0, -phi_rate, 0.0);
+            let command =
+                attitude_loop(&q, &Vector3::z(), &rate, &f_sp, 0.0, &gains, tilt_decel, false);
+            let accel_y =
+                (command.rate_sp_rad_s.y - rate.y) * gains.k_rate + command.accel_ff_rad_s2.y;
+            let diff = clamp(-accel_y / alpha_per_diff, -motor_max, motor_max);
+            let asked = match rules {
+                Rules::Now => command.thrust_mps2,
+                Rules::Before => f_sp.norm(),
+            };
+            let sum = clamp(asked, diff.abs(), 2.0 * motor_max - diff.abs());
+            for (t, wanted) in thrust.iter_mut().zip([0.5 * (sum + diff), 0.5 * (sum - diff)]) {
+                *t += (wanted - *t) * (dt / tau_s);
+            }
+            let total = thrust[0] + thrust[1];
+            phi_rate += (thrust[0] - thrust[1]) * alpha_per_diff * dt;
+            phi += phi_rate * dt;
+            vx += total * libm::sinf(phi) * dt;
+            vz += (g - total * libm::cosf(phi)) * dt;
+            z += vz * dt;
+            if vz <= 0.0 {
+                return z;
+            }
+        }
+        f32::INFINITY
+    }
+
+    /// The lowest throw a user brings (the 2.5 m apex from a hand 1.5 m up) engages
+    /// 0.95 s after the release (an octorotor's 0.8 s excitation after the 0.15 s release delay)
+    /// 3.7 m above the ground, falling at 2.4 m/s, in any attitude. The random world's crafts
+    /// (thrust-to-weight 2.5–5, arms of 66–165 mm, motors of 15–60 ms) engaged so, falling at
+    /// 3 m/s: every one engaged within 90° of up, and every one with motors of 30 ms or faster
+    /// in any attitude, stops its fall with 0.5 m to spare; and in every attitude today's rules
+    /// lose less height than the whole thrust upside down and a 1 g brake did (on its back, 175°
+    /// from up: 3.3–8.1 m before, 1.7–4.5 m now). The large slow crafts on their backs (165 mm
+    /// arms, 45–60 ms motors: 3.0–4.5 m) need more than such a throw leaves: they turn over at
+    /// their motors' pace, which no thrust rule changes.
+    #[test]
+    fn a_craft_engaged_on_its_back_stops_its_fall_within_the_height_a_low_throw_leaves() {
+        extern crate std;
+        let budget_m = 3.7 - 0.5;
+        for (arm_m, tau_s) in [(0.066, 0.015), (0.11, 0.03), (0.165, 0.045), (0.165, 0.06)] {
+            for thrust_to_weight in [2.5f32, 3.5, 5.0] {
+                for axis_deg in [0.0f32, 60.0, 90.0, 120.0, 150.0, 175.0] {
+                    let lost = |rules| {
+                        height_to_stop_a_fall(
+                            axis_deg.to_radians(),
+                            3.0,
+                            thrust_to_weight,
+                            arm_m,
+                            tau_s,
+                            rules,
+                        )
+                    };
+                    let (now, before) = (lost(Rules::Now), lost(Rules::Before));
+                    let case = std::format!(
+                        "arm {arm_m} m, τ {tau_s} s, T/W {thrust_to_weight}, {axis_deg}° from up"
+                    );
+                    assert!(now < before, "{case}: {now:.2} m, before {before:.2} m");
+                    if tau_s <= 0.03 || axis_deg <= 90.0 {
+                        assert!(now < budget_m, "{case}: {now:.2} m");
+                    }
+                }
+            }
         }
     }
 

@@ -493,6 +493,12 @@ pub struct FlyReport {
     /// angle between its down and the true down (tilt) and its yaw error about the vertical
     /// (heading), when the controller engaged and when the hold window began.
     pub attitude_error_at_engage_deg: Option<[f64; 2]>,
+    /// When the controller engaged, against the truth: the height of the centre of gravity
+    /// above the ground (m), its vertical speed (m/s, positive down) and the angle of the true
+    /// thrust axis from up (degrees): how much fall the recovery had to stop, and in what height.
+    pub engaged_height_m: Option<f64>,
+    pub engaged_descent_mps: Option<f64>,
+    pub engaged_axis_from_up_deg: Option<f64>,
     pub attitude_error_at_window_deg: Option<[f64; 2]>,
     /// Angle between the learned and the true hover thrust direction, degrees
     /// ([`Scores::axis_angle_rad`]): the learner's model when the controller engaged and at the
@@ -669,6 +675,9 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             refinements: 0,
             reforms: 0,
             attitude_error_at_engage_deg: None,
+            engaged_height_m: None,
+            engaged_descent_mps: None,
+            engaged_axis_from_up_deg: None,
             attitude_error_at_window_deg: None,
             axis_error_at_engage_deg: None,
             engaged_clamped_by: None,
@@ -793,6 +802,8 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                 let down_true = q_true.inverse() * Vector3::z();
                 let down_filter = q_filter.inverse() * Vector3::z();
                 eprint!("filter tilt err {:5.2}°  ", down_true.angle(&down_filter).to_degrees());
+                let up_ned = state.attitude() * thrust_dir_body;
+                eprint!("axis from up {:5.1}°  ", (-up_ned.z).clamp(-1.0, 1.0).acos().to_degrees());
                 eprint!(
                     "true align {:6.1}°  f_sp {:5.2} {:5.2} {:5.2}  ",
                     true_alignment.to_degrees(),
@@ -855,6 +866,13 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                         .map(|axis| f64::from(axis.clamped_by));
                 }
                 let q_true = state.attitude() * airframe.q_imu_body().inverse();
+                if report.engaged_height_m.is_none() {
+                    let up_ned = state.attitude() * thrust_dir_body;
+                    report.engaged_height_m = Some(-state.position_ned_m.z);
+                    report.engaged_descent_mps = Some(state.velocity_ned_mps.z);
+                    report.engaged_axis_from_up_deg =
+                        Some((-up_ned.z).clamp(-1.0, 1.0).acos().to_degrees());
+                }
                 if report.attitude_error_at_engage_deg.is_none() {
                     report.attitude_error_at_engage_deg =
                         Some(attitude_error_deg(snapshot.pilot.q_world_imu, &q_true));
@@ -1043,6 +1061,20 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             (window_rate_steps > 0).then(|| (window_rate_sum2 / window_rate_steps as f64).sqrt());
         report
     })
+}
+
+/// The craft's thrust-to-weight ratio: the net force of every motor at full speed over the
+/// weight (tilted rotors' sideways parts cancel in the sum).
+pub fn thrust_to_weight(airframe: &Airframe) -> f64 {
+    let force: Vector3<f64> = (0..airframe.rotor_count())
+        .map(|i| {
+            let motor = airframe.rotor_motor(i);
+            airframe.thrust_axis(i)
+                * motor.thrust_coefficient_n_per_rad2_s2
+                * motor.omega_max_rad_s.powi(2)
+        })
+        .sum();
+    force.norm() / (airframe.mass_kg * crate::airframe::STANDARD_GRAVITY_MPS2)
 }
 
 /// Heading of the body frame: yaw of its x axis about world z, rad.

@@ -113,10 +113,12 @@ fn without_speed_telemetry_the_offset_is_fitted_on_the_modelled_speeds() {
     // samples until that lag is known; the fit takes the same samples, with those speeds and
     // the velocity carried beside each, when the learner releases them. Before, it was not run
     // without speeds, and the craft flew its own rows learned with no offset (about 50 % off).
-    // Over 1,000 random worlds: median 4.3 mm, 90th 14.4 mm (docs/algorithms/imu-offset.md);
-    // with the excitation's samples left out (the release delay and the flight only) 9.6 and
-    // 25.2 mm.
-    let (errors, sorted) = random_world_fit_errors_mm(10, false);
-    let median = 0.5 * (sorted[4] + sorted[5]);
+    // Over 1,000 random worlds: median 4.3 mm, 90th 16.3 mm (`fly monte-carlo --world random
+    // --unknown-imu-offset --no-speed-telemetry`, 2026-12-03); with the excitation's samples
+    // left out (the release delay and the flight only) 9.6 and 25.2 mm. About a third of the
+    // worlds lie above 8 mm, so the median of 10 moved with a few of them (5.4 → 8.2 mm when the
+    // recovery's thrust rules changed, while the 1,000 worlds' went 4.33 → 4.29 mm): 30 worlds.
+    let (errors, sorted) = random_world_fit_errors_mm(30, false);
+    let median = 0.5 * (sorted[14] + sorted[15]);
     assert!(median < 8.0, "median {median} mm: {errors:?}");
 }

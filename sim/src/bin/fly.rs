@@ -301,6 +301,13 @@ fn print_report(name: &str, report: &FlyReport) {
         report.release_to_hover_s.unwrap_or(f64::NAN)
     );
     println!("  worst drop below the release point {:.2} m", report.max_drop_below_release_m);
+    if let (Some(height), Some(descent), Some(axis)) =
+        (report.engaged_height_m, report.engaged_descent_mps, report.engaged_axis_from_up_deg)
+    {
+        println!(
+            "  engaged {height:.2} m above the ground, falling at {descent:.2} m/s, thrust axis {axis:.0}° from up"
+        );
+    }
     println!(
         "  worst distance from the position setpoint over the last {:.0} s: {:.3} m",
         report.hold_window_s,
@@ -846,8 +853,9 @@ fn main() -> ExitCode {
                 println!("world: {config:#?}");
             }
             println!(
-                "case {seed}: {} motors, rate {:.0?} °/s, apex {:.2} m, sideways {:.2?} m/s",
+                "case {seed}: {} motors, thrust-to-weight {:.2}, rate {:.0?} °/s, apex {:.2} m, sideways {:.2?} m/s",
                 airframe.rotor_count(),
+                sim::recovery::thrust_to_weight(&airframe),
                 config.throw.rate_body_rad_s.map(f64::to_degrees).as_slice(),
                 config.throw.apex_m,
                 config.throw.horizontal_mps
