@@ -468,11 +468,17 @@ mod tests {
     #[test]
     fn the_balance_starts_from_the_prior_and_refuses_a_non_finite_one() {
         use flight::filters::BiquadCoefficients;
-        use flight::learner::effectiveness::EffectivenessEstimator;
+        use flight::learner::effectiveness::{EffectivenessEstimator, EffectivenessSetup};
         use flight::learner::rls::RlsConfig;
         let filter = BiquadCoefficients::butterworth_lowpass(20.0, 2000.0).unwrap();
-        let config = RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 };
-        let mut estimator = EffectivenessEstimator::new(4, 2000.0, filter, [0.0; 3], 0.0, config);
+        let mut estimator = EffectivenessEstimator::new(EffectivenessSetup {
+            motors: 4,
+            rate_hz: 2000.0,
+            filter,
+            r_imu_m: [0.0; 3],
+            speed_lag_s: 0.0,
+            rls: RlsConfig { lambda: 1.0, p0: 1e6, p_max: 1e10 },
+        });
         let j = multirotor();
         let prior = fit(&tumble(j, 0.0, Vector3::new(5.0, -3.0, 4.0), 0.005));
         estimator.set_inertia_prior(&prior);
