@@ -122,6 +122,27 @@ static mut COMPASS_SOLVER: core::mem::MaybeUninit<firmware::app::compass::Compas
 static mut ARMING: core::mem::MaybeUninit<firmware::app::log::ArmingBox> =
     core::mem::MaybeUninit::uninit();
 
+/// The tasks' largest states, built where they lie by `init` rather than returned to RTIC by
+/// value: RTIC 1 takes `init`'s resources by value, and at opt-level "z" each by-value move of a
+/// 4-9 KB state kept its own copy in `init`'s frame (65 KB of it; docs/budget.md). The control
+/// task stays in DTCM (the 2 kHz step's data, zero wait states); the links and the log writer
+/// too (they are serviced at 1 kHz).
+#[cfg(target_os = "none")]
+static mut CONTROL: core::mem::MaybeUninit<firmware::app::system::ControlTask<'static>> =
+    core::mem::MaybeUninit::uninit();
+#[cfg(target_os = "none")]
+static mut USB_LINK: core::mem::MaybeUninit<
+    firmware::app::system::Link<firmware::board::usb::UsbSerial>,
+> = core::mem::MaybeUninit::uninit();
+#[cfg(target_os = "none")]
+static mut RADIO_LINK: core::mem::MaybeUninit<
+    Option<firmware::app::system::Link<firmware::board::radio::BoardRadio>>,
+> = core::mem::MaybeUninit::uninit();
+#[cfg(target_os = "none")]
+static mut LINK_TASK: core::mem::MaybeUninit<
+    firmware::app::system::LinkTask<'static, firmware::board::flash::ConfigSectors>,
+> = core::mem::MaybeUninit::uninit();
+
 // The RTIC application: resources, initialisation and the task table.
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32h7xx_hal::pac, peripherals = true, dispatchers = [DCMI])]
@@ -212,7 +233,7 @@ mod app {
         step_timer: StepTimer,
         control_clock: MicrosClock,
         /// The control loop and the pilot's receiver policy.
-        control: ControlTask<'static>,
+        control: &'static mut ControlTask<'static>,
         motors: BoardMotors,
         /// Each motor timer's switch to capture, for its burst task (`None`: no such timer, or
         /// ESCs without bidirectional DShot).
@@ -225,9 +246,9 @@ mod app {
         battery: BoardBattery,
         usb_clock: MicrosClock,
         /// The USB CDC port and its protocol endpoint.
-        usb: Link<UsbSerial>,
+        usb: &'static mut Link<UsbSerial>,
         /// The telemetry radio's UART and its (untrusted) protocol endpoint, when configured.
-        radio: Option<Link<BoardRadio>>,
+        radio: &'static mut Option<Link<BoardRadio>>,
         /// The GNSS receiver's UART, serviced by the link pass (`None`: no GNSS port).
         gnss: Option<BoardGnss>,
         /// Its receive interrupt's end.
@@ -240,7 +261,7 @@ mod app {
         compass_solver: &'static mut CompassSolver,
         /// The parameters and their store in flash bank 2 (`board::flash`: ECC-safe reads), and
         /// the link task's end of the telemetry ring (one record per control step).
-        link: LinkTask<'static, ConfigSectors>,
+        link: &'static mut LinkTask<'static, ConfigSectors>,
         /// The learner, the thrust-axis solver and the IMU-offset estimator (with the drag
         /// model's store of a throw's blocks): 55 KB that only the lowest-priority task touches,
         /// in AXI SRAM so that DTCM keeps room for the stack, built there in place by `init`
@@ -406,7 +427,13 @@ mod app {
         let config = ControlConfig::default();
         let (producer, consumer) = split_queue(cx.local.samples);
         let (ring_producer, telemetry) = split_queue(cx.local.step_ring);
-        let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
+        // SAFETY: `init` runs once, before any task: this is the static's only reference.
+        let control = unsafe {
+            (*core::ptr::addr_of_mut!(crate::CONTROL))
+                .write(ControlTask::new(ControlLoop::new(config, producer), Some(radio)))
+        };
+        control.set_log(log_producer);
+        control.control_mut().set_telemetry(ring_producer);
         // SAFETY: `init` runs once, before any task: this is the storage's only reference.
         let storage = unsafe { &mut *core::ptr::addr_of_mut!(crate::BACKGROUND) };
         let background = Background::build_in(storage, consumer, config.rate_hz);
@@ -439,13 +466,19 @@ mod app {
         };
         // The telemetry radio (`radio_baud`, read at start-up as the ESCs' protocol is): the
         // same protocol as USB on an untrusted link with the radio's byte budget.
-        let telemetry_radio = settings.params().radio_baud().map(|baud| {
-            let port = BoardRadio::new(BOARD.telemetry_radio, ccdr.clocks.pclk2().raw(), baud);
-            let server = LinkServer::new(board_info.clone())
-                .untrusted()
-                .with_byte_rate(firmware::board::radio::byte_rate(baud));
-            Link::new(server, port)
-        });
+        // SAFETY: as above.
+        let telemetry_radio = unsafe {
+            (*core::ptr::addr_of_mut!(crate::RADIO_LINK)).write(settings.params().radio_baud().map(
+                |baud| {
+                    let port =
+                        BoardRadio::new(BOARD.telemetry_radio, ccdr.clocks.pclk2().raw(), baud);
+                    let server = LinkServer::new(board_info.clone())
+                        .untrusted()
+                        .with_byte_rate(firmware::board::radio::byte_rate(baud));
+                    Link::new(server, port)
+                },
+            ))
+        };
         // The GNSS receiver's port (pads TX2/RX2), searched for from start-up at every rate.
         let (gnss_rx, gnss, gnss_input) = match BOARD.gnss {
             Some(wiring) => {
@@ -483,7 +516,7 @@ mod app {
             .map(|wiring| BoardI2c::new(wiring, ccdr.clocks.pclk1().raw(), cycles_per_us));
         let link = LinkServer::new(board_info);
         let shared = Shared {
-            snapshot: control.snapshot(),
+            snapshot: control.control().snapshot(),
             results: background.results(),
             board,
             commands: ControlQueue::new(),
@@ -513,11 +546,11 @@ mod app {
             control_rate_hz
         );
 
-        let mut local = Local {
+        let local = Local {
             control_timer,
             step_timer,
             control_clock: clock,
-            control: ControlTask::new(control, Some(radio)).with_log(log_producer),
+            control,
             burst_0: motors.completion(0),
             burst_1: motors.completion(1),
             burst_2: motors.completion(2),
@@ -525,11 +558,14 @@ mod app {
             receiver,
             battery,
             usb_clock: clock,
-            usb: Link::new(link, usb),
+            // SAFETY: as above, the statics' only references.
+            usb: unsafe { (*core::ptr::addr_of_mut!(crate::USB_LINK)).write(Link::new(link, usb)) },
             radio: telemetry_radio,
-            link: match gnss_input {
-                Some(input) => LinkTask::new(settings, telemetry).with_gnss(input),
-                None => LinkTask::new(settings, telemetry),
+            link: unsafe {
+                (*core::ptr::addr_of_mut!(crate::LINK_TASK)).write(match gnss_input {
+                    Some(input) => LinkTask::new(settings, telemetry).with_gnss(input),
+                    None => LinkTask::new(settings, telemetry),
+                })
             },
             gnss,
             gnss_rx,

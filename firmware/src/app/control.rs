@@ -628,8 +628,14 @@ impl<'q> ControlLoop<'q> {
 
     /// Write one [`StepRecord`] per step into `ring` for the link's per-step telemetry.
     pub fn with_telemetry(mut self, ring: StepProducer<'q>) -> Self {
-        self.telemetry = Some(ring);
+        self.set_telemetry(ring);
         self
+    }
+
+    /// Publish telemetry to `ring` from now on, where the loop lies (a board builds it in
+    /// place).
+    pub fn set_telemetry(&mut self, ring: StepProducer<'q>) {
+        self.telemetry = Some(ring);
     }
 
     /// Carry out a command from another task (takes effect in this step or the next).

@@ -201,8 +201,13 @@ impl<'q> ControlTask<'q> {
     /// Hand every step's inputs and outputs, and every command applied, to the flight log
     /// through `ring` (one fixed-layout copy per step; a full ring drops the entry, counted).
     pub fn with_log(mut self, ring: LogProducer<'q>) -> Self {
-        self.log = Some(ring);
+        self.set_log(ring);
         self
+    }
+
+    /// Log to `ring` from now on, where the task lies (a board builds it in place).
+    pub fn set_log(&mut self, ring: LogProducer<'q>) {
+        self.log = Some(ring);
     }
 
     /// The control loop (for inspection; commands go through the queue).
