@@ -162,12 +162,12 @@ impl std::fmt::Display for DeviceErrorText {
 }
 
 /// Whether a paired configurator signs `request`: what commands the craft
-/// ([`signing::commands_the_craft`]), and a disarm. A disarm needs no signature to be obeyed,
+/// ([`protocol::commands_the_craft`]), and a disarm. A disarm needs no signature to be obeyed,
 /// but since protocol 1.14 an unsigned one over an untrusted link (a radio) lands a flying craft
 /// instead of stopping it, as anyone on the channel may have sent it; the paired configurator's
 /// signed disarm stops the motors at once.
 pub fn signed_when_paired(request: &Request) -> bool {
-    signing::commands_the_craft(request) || matches!(request, Request::Disarm(()))
+    protocol::commands_the_craft(request) || matches!(request, Request::Disarm(()))
 }
 
 /// Motors named by a bit mask, numbered from 1 as on the craft: "1, 3".

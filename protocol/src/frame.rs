@@ -213,3 +213,79 @@ pub fn encode_signed<T: Serialize + ?Sized>(
     out[encoded] = 0;
     Ok(encoded + 1)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::signing::{
+        mac, LinkKey, Signer, KEY_LEN, SIGNATURE_LEN, SIGNED_FLAG, TIMESTAMP_LEN,
+    };
+
+    const KEY: LinkKey = [7; KEY_LEN];
+    const SIGNER: Signer = Signer { key: KEY, session: 0x0123_4567_89AB_CDEF };
+
+    fn decode_one(bytes: &[u8]) -> (u8, u16, Vec<u8>, Option<(u64, bool)>) {
+        let mut decoder = Decoder::new();
+        let mut out = None;
+        for &byte in bytes {
+            if let Some(result) = decoder.push(byte) {
+                let frame = result.expect("a valid frame");
+                let signature =
+                    frame.signature.map(|s| (s.timestamp, s.verify(&KEY, SIGNER.session)));
+                out = Some((frame.id, frame.seq, frame.payload.to_vec(), signature));
+            }
+        }
+        out.expect("one frame")
+    }
+
+    #[test]
+    fn a_signed_frame_decodes_to_its_message_and_verifies_only_under_its_key_and_session() {
+        let mut out = [0u8; MAX_FRAME_LEN];
+        let timestamp = 0x0000_1234_5678_9ABC;
+        let len = encode_signed(0x0B, 300, &(1.5f32, 7u8), &SIGNER, timestamp, &mut out).unwrap();
+        let (id, seq, payload, signature) = decode_one(&out[..len]);
+        assert_eq!((id, seq), (0x0B, 300), "the flag is removed from the id");
+        assert_eq!(postcard::from_bytes::<(f32, u8)>(&payload).unwrap(), (1.5, 7));
+        assert_eq!(signature, Some((timestamp, true)));
+
+        let mut decoder = Decoder::new();
+        for &byte in &out[..len - 1] {
+            assert!(decoder.push(byte).is_none());
+        }
+        let frame = decoder.push(0).unwrap().unwrap();
+        let signature = frame.signature.unwrap();
+        assert!(!signature.verify(&[8; KEY_LEN], SIGNER.session), "another key");
+        assert!(!signature.verify(&KEY, SIGNER.session ^ 1), "another session (a restart)");
+    }
+
+    #[test]
+    fn an_unsigned_frame_has_no_signature_and_a_changed_byte_of_a_signed_one_fails() {
+        let mut out = [0u8; MAX_FRAME_LEN];
+        let len = encode(0x0B, 3, &42u32, &mut out).unwrap();
+        assert_eq!(decode_one(&out[..len]).3, None);
+
+        // Change the payload under a recomputed CRC: the CRC passes, the MAC does not.
+        let mut raw = [0u8; MAX_RAW_LEN];
+        let n = postcard::to_slice(&(0x0Bu8 | SIGNED_FLAG, 3u16, 42u32), &mut raw).unwrap().len();
+        raw[n..n + TIMESTAMP_LEN].copy_from_slice(&[1, 0, 0, 0, 0, 0]);
+        let tag = mac(&KEY, SIGNER.session, &raw[..n + TIMESTAMP_LEN]);
+        raw[n + TIMESTAMP_LEN..n + SIGNATURE_LEN].copy_from_slice(&tag);
+        raw[n - 1] ^= 1; // the payload's last byte
+        let crc = CRC.checksum(&raw[..n + SIGNATURE_LEN]);
+        raw[n + SIGNATURE_LEN..n + SIGNATURE_LEN + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
+        let mut framed = vec![0u8; MAX_FRAME_LEN];
+        let m = cobs::encode(&raw[..n + SIGNATURE_LEN + CRC_LEN], &mut framed);
+        framed[m] = 0;
+        assert_eq!(decode_one(&framed[..=m]).3, Some((1, false)));
+    }
+
+    #[test]
+    fn a_request_too_long_to_sign_is_refused() {
+        let mut out = [0u8; MAX_FRAME_LEN];
+        let big = [1u8; 240];
+        assert_eq!(
+            encode_signed(0x0B, 1, &big[..], &SIGNER, 1, &mut out),
+            Err(EncodeError::BufferFull)
+        );
+    }
+}

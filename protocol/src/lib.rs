@@ -1,6 +1,7 @@
 //! Every message that crosses the link between the configurator and the flight controller.
 //!
 //! - [`messages`]: the one table of message types and ids;
+//! - [`access`]: which requests an untrusted link must sign;
 //! - [`esc`]: the ESC commands (DShot special commands) a host may send;
 //! - [`frame`]: postcard in COBS frames with a CRC-32C, a streaming decoder that never panics;
 //! - [`signing`]: requests signed with HMAC-SHA256, for links anyone may hear (a radio);
@@ -10,12 +11,14 @@
 //! Behaviour (who answers what) lives in `firmware::app` and the configurator, not here.
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 
+pub mod access;
 pub mod esc;
 pub mod frame;
 pub mod messages;
 pub mod signing;
 mod table;
 
+pub use access::commands_the_craft;
 pub use esc::DshotCommand;
 pub use frame::{Decoder, EncodeError, Frame, FrameError, MAX_FRAME_LEN};
 pub use messages::*;

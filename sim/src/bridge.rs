@@ -24,10 +24,9 @@ use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
 use std::time::{Duration, Instant};
 
 use firmware::app::compass::CompassCalibration;
-use firmware::app::hal::{Imu, ImuSample, Motors, NoBattery, MAX_MOTORS};
-use firmware::app::system::TickHardware;
+use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::app::ControlCommand;
-use firmware::drivers::compass::{DelayUs, I2cRegisterBus};
+use firmware::drivers::compass::I2cRegisterBus;
 use firmware::drivers::ubx::{FixType, GnssConfig, GnssFix};
 use nalgebra::UnitQuaternion;
 use protocol::{ExternalPose, LearnerFailure};
@@ -36,7 +35,7 @@ use crate::board::{CONTROL_PERIOD_US, CONTROL_RATE_HZ};
 use crate::compass_chip::{ChipKind, CountingDelay, Nack, SimCompassChip};
 use crate::gnss::BoardGnss;
 use crate::radio::RcTransmitter;
-use crate::scenario::{FirmwareApp, FlightApp};
+use crate::scenario::{AroundFirmware, AroundStep, FirmwareApp, FlightApp};
 use crate::serve::TcpLinks;
 
 /// Port the flight-application side listens on (Betaflight SITL's FDM input port).
@@ -768,10 +767,7 @@ pub fn serve_firmware(
         }
         let wait =
             (idle_timeout - idle).min(if links.is_some() { LINK_WAIT } else { idle_timeout });
-        let stepped = match radio.as_deref_mut() {
-            Some(radio) => server.step(&mut WithRadio { app, radio }, wait),
-            None => server.step(app, wait),
-        };
+        let stepped = server.step(&mut AroundFirmware { app, around: radio.as_deref_mut() }, wait);
         let link_pass_due = match stepped {
             Ok((sensor, _)) => {
                 last_datagram = Instant::now();
@@ -825,32 +821,14 @@ pub fn serve_firmware(
     }
 }
 
-/// The firmware with the pilot's simulated radio: each step first advances the radio to the
-/// packet's time, then the control tick reads its bytes (the board's receiver UART).
-struct WithRadio<'a, 'q> {
-    app: &'a mut FirmwareApp<'q>,
-    radio: &'a mut RcTransmitter,
-}
-
-impl FlightApp for WithRadio<'_, '_> {
-    fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
-        self.radio.advance(now_us);
-        // The external simulator sends no battery (docs/sim-bridge.md).
-        let battery = &mut NoBattery;
-        self.app.tick(now_us, TickHardware { imu, motors, radio_bytes: self.radio, battery });
-    }
-
-    fn command(&mut self, command: ControlCommand, now_us: u64) {
-        self.app.command(command, now_us);
-    }
-
-    fn service_compass<B: I2cRegisterBus, D: DelayUs>(
-        &mut self,
-        now_us: u64,
-        bus: &mut B,
-        delay: &mut D,
-    ) {
-        self.app.service_compass(now_us, bus, delay);
+/// The pilot's simulated radio around the firmware's step (when there is one): advanced to each
+/// packet's time before the control tick reads its bytes (the board's receiver UART). The
+/// external simulator sends no battery (docs/sim-bridge.md).
+impl AroundStep for Option<&mut RcTransmitter> {
+    fn radio(&mut self, now_us: u64) -> Option<&mut RcTransmitter> {
+        let radio = self.as_deref_mut()?;
+        radio.advance(now_us);
+        Some(radio)
     }
 }
 

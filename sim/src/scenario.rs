@@ -12,7 +12,8 @@
 //!   (400, 400, 100) °/s, no catch: the application must recover, or the craft hits the ground.
 //!
 //! The application is anything implementing [`FlightApp`]: [`FirmwareApp`] (the firmware's
-//! application graph, exactly as the board and the SITL run it), [`NoApp`] (reads the IMU,
+//! application graph, exactly as the board and the SITL run it), [`AroundFirmware`] (the same
+//! with a pilot's radio, or a look at each step: [`AroundStep`]), [`NoApp`] (reads the IMU,
 //! commands nothing) or [`OpenLoop`] (a scenario-supplied command function of time).
 
 use std::io::Write;
@@ -30,6 +31,7 @@ use crate::airframe::{Airframe, AirframeError, STANDARD_GRAVITY_MPS2};
 use crate::board::{SimBoard, SimConfig, SIM_BOARD_HEALTH};
 use crate::hand::{HandPhase, ThrowSpec};
 use crate::log::CsvLog;
+use crate::radio::RcTransmitter;
 
 /// A flight application stepped at 2 kHz on the simulated board's ports.
 /// The same shape as `firmware::app::ControlLoop::step`, so the firmware's loop, the bridge and
@@ -83,6 +85,59 @@ impl<F: NorFlash> FlightApp for System<'_, F> {
         delay: &mut D,
     ) {
         System::service_compass(self, now_us, bus, delay);
+    }
+}
+
+/// What an [`AroundFirmware`] adds to the firmware's step: the pilot's radio, a look at the
+/// commands and at the application after each step. Each does nothing by default.
+pub trait AroundStep {
+    /// The pilot's radio for the step at `now_us` (µs), advanced to that time: the control tick
+    /// reads its bytes as the board's receiver UART. `None`: no receiver.
+    fn radio(&mut self, _now_us: u64) -> Option<&mut RcTransmitter> {
+        None
+    }
+
+    /// Sees a command before the firmware takes it.
+    fn see_command(&mut self, _command: &ControlCommand) {}
+
+    /// Sees the application after its step.
+    fn after_step(&mut self, _app: &FirmwareApp<'_>) {}
+}
+
+/// The firmware application with what an [`AroundStep`] adds; commands and the compass service
+/// go to the firmware unchanged, so a wrapper states only what it adds.
+pub struct AroundFirmware<'a, 'q, S> {
+    /// The firmware.
+    pub app: &'a mut FirmwareApp<'q>,
+    /// What it adds.
+    pub around: S,
+}
+
+impl<S: AroundStep> FlightApp for AroundFirmware<'_, '_, S> {
+    /// The firmware's step, with the radio's bytes when there is a radio (no battery either way).
+    fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
+        match self.around.radio(now_us) {
+            Some(radio_bytes) => {
+                let battery = &mut NoBattery;
+                self.app.tick(now_us, TickHardware { imu, motors, radio_bytes, battery });
+            }
+            None => FlightApp::step(self.app, now_us, imu, motors),
+        }
+        self.around.after_step(self.app);
+    }
+
+    fn command(&mut self, command: ControlCommand, now_us: u64) {
+        self.around.see_command(&command);
+        FlightApp::command(self.app, command, now_us);
+    }
+
+    fn service_compass<B: I2cRegisterBus, D: DelayUs>(
+        &mut self,
+        now_us: u64,
+        bus: &mut B,
+        delay: &mut D,
+    ) {
+        FlightApp::service_compass(self.app, now_us, bus, delay);
     }
 }
 

@@ -10,7 +10,6 @@ use std::time::Duration;
 
 use firmware::app::hal::{Imu, ImuSample, Motors, MAX_MOTORS};
 use firmware::app::{ControlCommand, ControlSnapshot};
-use firmware::drivers::compass::{DelayUs, I2cRegisterBus};
 use protocol::{ExternalPose, Reply, Request};
 use sim::airframe::Airframe;
 use sim::board::{SimBoard, SimConfig};
@@ -19,7 +18,10 @@ use sim::bridge::{
     GnssSolution, SensorPacket,
 };
 use sim::gnss::GnssModelConfig;
-use sim::scenario::{with_firmware_app, FlightApp, ScenarioConfig, ScenarioKind};
+use sim::scenario::{
+    with_firmware_app, AroundFirmware, AroundStep, FirmwareApp, FlightApp, ScenarioConfig,
+    ScenarioKind,
+};
 use sim::serve::{simulator_board_info, TcpLinks, TestHost};
 
 /// Echoes what it saw into the commands: |gyro x|, the first motor speed / 1000, and the time.
@@ -542,9 +544,9 @@ fn uncalibrated_the_bridges_compass_is_found_and_read_but_steers_nothing() {
     assert!(!snapshot.pilot.compass_heading && !snapshot.pilot.heading_aligned);
 }
 
-/// The firmware behind the bridge, recording what its pilot did at every step.
-struct Recorded<'a, 'q> {
-    app: &'a mut sim::scenario::FirmwareApp<'q>,
+/// What the pilot of the firmware behind the bridge did at every step.
+#[derive(Default)]
+struct Recorded {
     /// Per step, what the pilot and the compass service said after it.
     log: Vec<StepRecord>,
     /// The first position fix the application was given: the step it came before, and its
@@ -569,10 +571,15 @@ struct StepRecord {
     compass: Option<protocol::CompassHealth>,
 }
 
-impl FlightApp for Recorded<'_, '_> {
-    fn step<I: Imu, M: Motors>(&mut self, now_us: u64, imu: &mut I, motors: &mut M) {
-        self.app.step(now_us, imu, motors);
-        let pilot = self.app.snapshot().pilot;
+impl AroundStep for Recorded {
+    fn see_command(&mut self, command: &ControlCommand) {
+        if let ControlCommand::PositionFix(fix) = command {
+            self.first_fix.get_or_insert((self.log.len(), fix.position_ned_m));
+        }
+    }
+
+    fn after_step(&mut self, app: &FirmwareApp<'_>) {
+        let pilot = app.snapshot().pilot;
         self.log.push(StepRecord {
             flying: pilot.flying,
             hold: pilot.position_hold,
@@ -580,22 +587,8 @@ impl FlightApp for Recorded<'_, '_> {
             q_world_imu: pilot.q_world_imu,
             heading_aligned: pilot.heading_aligned,
             compass_heading: pilot.compass_heading,
-            compass: self.app.status_view().compass,
+            compass: app.status_view().compass,
         });
-    }
-    fn command(&mut self, command: ControlCommand, now_us: u64) {
-        if let ControlCommand::PositionFix(fix) = &command {
-            self.first_fix.get_or_insert((self.log.len(), fix.position_ned_m));
-        }
-        self.app.command(command, now_us);
-    }
-    fn service_compass<B: I2cRegisterBus, D: DelayUs>(
-        &mut self,
-        now_us: u64,
-        bus: &mut B,
-        delay: &mut D,
-    ) {
-        self.app.service_compass(now_us, bus, delay);
     }
 }
 
@@ -743,11 +736,13 @@ fn fly_the_seed_paper_through_the_bridge(
                 sim::bridge::configure_compass(app, true, declination_deg).unwrap();
             }
             app.submit(ControlCommand::ArmThrowToFly);
-            let mut recorded = Recorded { app, log: Vec::new(), first_fix: None };
+            let mut recorded = AroundFirmware { app, around: Recorded::default() };
             loop {
                 match server.step(&mut recorded, Duration::from_millis(500)) {
                     Ok(_) => {}
-                    Err(BridgeError::Timeout(_)) => return (recorded.log, recorded.first_fix),
+                    Err(BridgeError::Timeout(_)) => {
+                        return (recorded.around.log, recorded.around.first_fix)
+                    }
                     Err(error) => panic!("bridge: {error}"),
                 }
             }

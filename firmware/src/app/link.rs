@@ -17,7 +17,6 @@ use super::telemetry::{flight_telemetry, learner_telemetry, sensor_health, StepR
 use super::{BackgroundCommand, BoardInfo, ControlCommand, StatusView};
 use embedded_storage::nor_flash::NorFlash;
 use flight::learner::FlightPhase;
-use protocol::signing;
 use protocol::text as short_text;
 use protocol::{
     CalibrationThrow, Capabilities, ConfigStatus, ControlStatus, ControlTelemetry, DecodeError,
@@ -178,7 +177,7 @@ impl LinkServer {
     }
 
     /// This link is heard by others (a telemetry radio): requests that configure, arm, spin or
-    /// steer the craft ([`signing::commands_the_craft`]) are carried out only when signed with
+    /// steer the craft ([`protocol::commands_the_craft`]) are carried out only when signed with
     /// the paired key, and the key itself cannot be set over it.
     pub fn untrusted(mut self) -> Self {
         self.trusted = false;
@@ -258,7 +257,7 @@ impl LinkServer {
                     Ok(self.stranger_disarm(view))
                 }
                 Ok(request) => {
-                    commands = signing::commands_the_craft(&request);
+                    commands = protocol::commands_the_craft(&request);
                     match self.authorise(&request, signature) {
                         Ok(()) => self.handle(request, now_us, view, settings, logs),
                         Err(refusal) => Err(refusal),
@@ -501,7 +500,7 @@ impl LinkServer {
         match signature {
             _ if matches!(request, Request::Disarm(())) => Ok(()),
             SignatureCheck::Accepted => Ok(()),
-            SignatureCheck::Unsigned if self.trusted || !signing::commands_the_craft(request) => {
+            SignatureCheck::Unsigned if self.trusted || !protocol::commands_the_craft(request) => {
                 Ok(())
             }
             SignatureCheck::Unsigned => {
