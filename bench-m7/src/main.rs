@@ -24,7 +24,7 @@ use flight::allocation::{AllocationConfig, Allocator};
 use flight::attitude::{AttitudeConfig, AttitudeFilter};
 use flight::controller::{Controller, ControllerInput, Guidance};
 use flight::indi::{IndiConfig, IndiModel, IndiOutput, IndiReference};
-use flight::learner::{AxisStatus, LearnedModel, Learner, LearnerConfig, MAX_MOTORS};
+use flight::learner::{AxisStatus, LearnedModel, Learner, LearnerConfig, LearnerSlot, MAX_MOTORS};
 use flight::navigation::PositionEstimator;
 use flight::thrust_axis::{HoverProblem, ThrustAxisSolver, MOTORS_MAX};
 use imu_offset::in_flight::OffsetFit;
@@ -454,45 +454,89 @@ fn primed_learner(m: usize, force_seen: bool) -> Learner {
 /// round-robin work.
 const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 
-/// The learners without speed telemetry measured at the excitation's end: motor count, the
+/// The learners without speed telemetry measured at the excitation's end: motor count, and the
 /// sample on which every motor has been pulsed and all are back below a pulse (the last motor's
 /// pulse ends `0.05 (m − 1) + 0.075` s in, `synthetic_sample`, seen three samples later through
-/// the learner's command delay), and the samples measured one by one from two before it: the
-/// learner solves the lag candidates' regressions (52, a few rows or columns at a time, as
-/// many a sample as `no_speed::SCORING_WORK_PER_MOTOR` allows), then learns from the held
-/// samples (the means over `no_speed::HOLD_INTERVAL_S`), at most
-/// `no_speed::RELEASE_PER_SAMPLE` a sample. The third: the samples measured at each end, the
-/// pending candidates, all the candidates' regressions and the first of the catch-up (every
-/// one of the six rows of the effectiveness regression among them).
-const NO_SPEED_ENDS: [(usize, usize, usize); 2] = [(4, 453, 150), (8, 853, 280)];
+/// the learner's command delay). Every sample is measured on its own from two before it until
+/// [`NO_SPEED_AFTER_PUBLICATION`] after the one that publishes the model to engage on
+/// (`LearnedModel::pending` cleared: [`no_speed_publications`]): the pending candidates; the
+/// lag candidates' regressions (52, a few rows or columns at a time, as many a sample as
+/// `no_speed::SCORING_WORK_PER_MOTOR` allows); the catch-up, the held samples (the means over
+/// `no_speed::HOLD_INTERVAL_S`) learned from, at most `no_speed::RELEASE_PER_SAMPLE` a sample
+/// (every one of the six rows of the effectiveness regression among them); the catch-up's last
+/// held sample, the model's staging and its publication; and what follows.
+const NO_SPEED_ENDS: [(usize, usize); 2] = [(4, 453), (8, 853)];
+
+/// Samples measured after the one that publishes the model without speed telemetry: the
+/// learner going on with each held sample as it completes.
+const NO_SPEED_AFTER_PUBLICATION: usize = 2;
 
 /// Samples of pulses the learner without speed telemetry is primed with (0.2 s: three motors
 /// pulsed, the lag regressions learning).
 const NO_SPEED_PRIMING_SAMPLES: usize = 400;
 
+/// Feeds a learner without speed telemetry of `m` motors, built in `slot`, the synthetic
+/// excitation from its first sample until `step` says stop: `step(n, learner, sample)` runs
+/// sample `n` into the learner and returns whether to go on.
+fn drive_no_speed(
+    slot: &mut LearnerSlot,
+    m: usize,
+    mut step: impl FnMut(usize, &mut Learner, Sample) -> bool,
+) {
+    let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
+    let Ok(learner) = slot.build(m, config) else { fail("learner without speeds") };
+    let mut rate = [7.0f32, 7.0, 1.7];
+    let mut n = 0;
+    loop {
+        let (sample, angular) = synthetic_sample(m, 0.7, n as f32 / 2000.0, rate);
+        if !step(n, learner, sample) {
+            return;
+        }
+        for k in 0..3 {
+            rate[k] += angular[k] / 2000.0;
+        }
+        n += 1;
+    }
+}
+
+/// For each of [`NO_SPEED_ENDS`], the sample that publishes the model to engage on (the first
+/// after which `LearnedModel::pending` is clear), found by a run of its own (nothing
+/// measured), so that the regions can be named before they run.
+fn no_speed_publications(slot: &mut LearnerSlot) -> [usize; 2] {
+    NO_SPEED_ENDS.map(|(m, seen)| {
+        let mut published = None;
+        drive_no_speed(slot, m, |n, learner, (gyro, accel, commands, speeds)| {
+            learner.update(gyro, accel, &commands, &speeds);
+            if !learner.model().pending {
+                published = Some(n);
+            }
+            published.is_none() && n < 4 * seen
+        });
+        match published {
+            Some(n) if n >= seen => n,
+            _ => fail("the held samples were not learned from after the excitation's end"),
+        }
+    })
+}
+
 /// The learner without speed telemetry (`flight::learner::no_speed`, issue 32): the quad's in
 /// the middle of its excitation (the lag regressions and the held samples), and the quad's and
-/// the octorotor's at the excitation's end, each sample measured on its own.
-fn no_speed_regions() {
-    use flight::learner::LearnerSlot;
-    static mut SLOT: LearnerSlot = LearnerSlot::empty();
-    // SAFETY: the only reference to the slot, in this single-threaded harness.
-    let slot = unsafe { &mut *core::ptr::addr_of_mut!(SLOT) };
-    let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
-    for (m, seen, measured_at_end) in NO_SPEED_ENDS {
-        let Ok(learner) = slot.build(m, config) else { fail("learner without speeds") };
+/// the octorotor's at the excitation's end until after the model's publication
+/// (`published`, [`no_speed_publications`]), each sample measured on its own.
+fn no_speed_regions(slot: &mut LearnerSlot, published: [usize; 2]) {
+    for ((m, seen), published) in NO_SPEED_ENDS.into_iter().zip(published) {
         let first = seen - 2;
-        let mut rate = [7.0f32, 7.0, 1.7];
-        let mut n = 0;
-        while learner.model().pending && n < 4 * seen {
-            let ((gyro, accel, commands, speeds), angular) =
-                synthetic_sample(m, 0.7, n as f32 / 2000.0, rate);
+        let last = published + NO_SPEED_AFTER_PUBLICATION;
+        let mut published_on = None;
+        let mut learned = 0;
+        let mut tau_s = 0.0;
+        drive_no_speed(slot, m, |n, learner, (gyro, accel, commands, speeds)| {
             let measured = if m == 4 {
                 (NO_SPEED_PRIMING_SAMPLES..NO_SPEED_PRIMING_SAMPLES + NO_SPEED_MEASURED_SAMPLES)
                     .contains(&n)
             } else {
                 false
-            } || (first..first + measured_at_end).contains(&n);
+            } || (first..=last).contains(&n);
             if measured {
                 let mut state = (&mut *learner, gyro, accel, commands, speeds);
                 region(&mut state, |(learner, gyro, accel, commands, speeds)| {
@@ -501,24 +545,24 @@ fn no_speed_regions() {
             } else {
                 learner.update(gyro, accel, &commands, &speeds);
             }
-            for k in 0..3 {
-                rate[k] += angular[k] / 2000.0;
+            if published_on.is_none() && !learner.model().pending {
+                published_on = Some(n);
+                learned = learner.model().samples;
+                tau_s = learner.model().tau_max_s();
             }
-            n += 1;
-        }
-        if learner.model().pending || learner.model().samples == 0 {
-            fail("the held samples were not learned from after the excitation's end");
-        }
-        if n < first + measured_at_end {
-            fail("the catch-up ended before the measured samples");
+            n < last
+        });
+        if published_on != Some(published) || learned == 0 {
+            fail("the model without speeds was not published on the sample named");
         }
         hprintln!(
-            "bench-m7 check: m={} lag without speeds {} ms, {} samples learned, caught up {} \
-             samples after the excitation's end",
+            "bench-m7 check: m={} lag without speeds {} ms, {} samples learned, the model \
+             published {} samples after the excitation's end (sample {})",
             m,
-            1000.0 * learner.model().tau_max_s(),
-            learner.model().samples,
-            n - seen
+            1000.0 * tau_s,
+            learned,
+            published - seen,
+            published
         );
     }
 }
@@ -1096,22 +1140,33 @@ fn main() -> ! {
     for m in BOUNDED_MOTOR_COUNTS {
         hprintln!("bench-m7 region: thrust-axis bounded search m={} (one motor capped)", m);
     }
-    for (m, seen, measured_at_end) in NO_SPEED_ENDS {
+    // The learner without speed telemetry, built in place (25 KB: never on the stack).
+    static mut NO_SPEED_SLOT: LearnerSlot = LearnerSlot::empty();
+    // SAFETY: the only reference to the slot, in this single-threaded harness.
+    let no_speed_slot = unsafe { &mut *core::ptr::addr_of_mut!(NO_SPEED_SLOT) };
+    let published = no_speed_publications(no_speed_slot);
+    for ((m, seen), published) in NO_SPEED_ENDS.into_iter().zip(published) {
         if m == 4 {
             for k in 1..=NO_SPEED_MEASURED_SAMPLES {
                 hprintln!("bench-m7 region: learner step m=4, no speed telemetry, sample {}", k);
             }
         }
-        for n in seen - 2..seen - 2 + measured_at_end {
+        for n in seen - 2..=published + NO_SPEED_AFTER_PUBLICATION {
+            let what = match n.cmp(&published) {
+                core::cmp::Ordering::Less => "",
+                core::cmp::Ordering::Equal => ": the model published (caught up)",
+                core::cmp::Ordering::Greater => ": after the publication",
+            };
             hprintln!(
                 "bench-m7 region: learner m={}, no speed telemetry, sample {} at the excitation's \
                  end (from {}: the lag candidates' regressions, a work budget a sample, then the \
-                 held samples, means over {} ms, at most {} a sample)",
+                 held samples, means over {} ms, at most {} a sample){}",
                 m,
                 n,
                 seen,
                 1000.0 * flight::learner::no_speed::HOLD_INTERVAL_S,
-                flight::learner::no_speed::RELEASE_PER_SAMPLE
+                flight::learner::no_speed::RELEASE_PER_SAMPLE,
+                what
             );
         }
     }
@@ -1235,7 +1290,7 @@ fn main() -> ! {
         }
     }
 
-    no_speed_regions();
+    no_speed_regions(no_speed_slot, published);
 
     let sample = AlignedSample {
         index: 7,

@@ -339,6 +339,11 @@ pub struct Learner {
     staging: LearnedModel,
     /// `Some(every G1 column informed)` once the first half of a publication is done.
     staged: Option<bool>,
+    /// Without speed telemetry, once the catch-up's last held sample has been learned from:
+    /// the force rows in effect then ([`Self::force_rows`]) for the model to engage on, which
+    /// the next sample stages (unless that sample's force row x did) and publishes with its
+    /// thrust axis, learning nothing beside ([`Learner::update_carrying`]).
+    caught_up: Option<Option<[[f32; MAX_MOTORS]; 3]>>,
     model: LearnedModel,
     /// The specific-force rows of G1 (per unit squared speed) fitted elsewhere, published and
     /// solved for the thrust axis in place of the learner's own ([`Learner::set_force_rows`]).
@@ -441,6 +446,7 @@ impl Learner {
             addr_of_mut!((*learner).samples).write(0);
             addr_of_mut!((*learner).staging).write(empty);
             addr_of_mut!((*learner).staged).write(None);
+            addr_of_mut!((*learner).caught_up).write(None);
             addr_of_mut!((*learner).model).write(empty);
             addr_of_mut!((*learner).force_rows).write(None);
             addr_of_mut!((*learner).fallback_rows).write(None);
@@ -475,6 +481,7 @@ impl Learner {
         self.samples = 0;
         self.staging = self.model;
         self.staged = None;
+        self.caught_up = None;
         self.force_rows = None;
         self.fallback_rows = None;
         self.fallback_pending = false;
@@ -582,6 +589,21 @@ impl Learner {
             let choosing = !self.command_speeds.chosen();
             self.command_speeds.update(gyro_rad_s, accel_mps2, &driving, self.armed, true);
             self.command_speeds.hold(gyro_rad_s, accel_mps2, &driving, self.armed, carried);
+            self.released_len = 0;
+            if let Some(rows) = self.caught_up.take() {
+                // Caught up on the last sample: the model to engage on, staged and published
+                // with its thrust axis. Nothing is learned beside it (a held sample completed
+                // now waits for the next sample), so the estimates are the ones the last held
+                // sample left, and the force rows are the ones in effect then.
+                if self.staged.is_none() {
+                    let own = core::mem::replace(&mut self.force_rows, rows);
+                    self.stage();
+                    self.force_rows = own;
+                }
+                self.staging.pending = false;
+                self.publish_staged();
+                return;
+            }
             let pending = self.model.pending;
             // The sample that chose the lag spent its share on the regressions
             // (`no_speed::SCORING_WORK_PER_MOTOR`): the catch-up starts with the next.
@@ -590,17 +612,24 @@ impl Learner {
             } else {
                 no_speed::RELEASE_PER_SAMPLE
             };
-            self.released_len = 0;
+            // Whether the last sample learned from staged the model (its force row x).
+            let mut staged_now = false;
             for _ in 0..release {
                 let Some(held) = self.command_speeds.release() else { break };
-                self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
+                staged_now = self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
                 self.released[self.released_len] = held;
                 self.released_len += 1;
             }
             if pending && !self.command_speeds.pending() {
-                // Caught up: the model to engage on, published now.
-                self.stage();
-                self.publish_staged();
+                // Caught up: the model to engage on, staged and published with its thrust axis
+                // on the next sample (already staged when the last held sample's force row x
+                // did it, from the same estimates). This sample's regression, a staging and a
+                // solve together (until 2026-12-04, the staging twice after a force row x) were
+                // the catch-up's most expensive sample (docs/budget.md).
+                if !staged_now {
+                    self.staged = None;
+                }
+                self.caught_up = Some(self.force_rows);
             }
             return;
         }
@@ -612,14 +641,16 @@ impl Learner {
         self.learn(gyro_rad_s, accel_mps2, speeds_rad_s);
     }
 
-    /// The effectiveness regression on one sample, and the publication.
+    /// The effectiveness regression on one sample, and the publication; whether the model was
+    /// staged last, from the estimates this sample left (its force row x: the publication's
+    /// first half, [`PUBLISH_INTERVAL_SAMPLES`]).
     #[inline(always)]
     fn learn(
         &mut self,
         gyro_rad_s: [f32; 3],
         accel_mps2: [f32; 3],
         speeds_rad_s: &[f32; MAX_MOTORS],
-    ) {
+    ) -> bool {
         let regression =
             self.effectiveness.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..self.motors]);
         self.samples = self.samples.saturating_add(1);
@@ -655,6 +686,7 @@ impl Learner {
         if self.fallback_pending && !solved && self.staged.is_none() {
             self.solve_fallback();
         }
+        regression == Regression::ForceRow(0)
     }
 
     /// One sample of the free fall before the excitation (motors off): the effectiveness
@@ -1022,7 +1054,7 @@ mod tests {
     /// once the lag is chosen after its end, as their means over `HOLD_INTERVAL_S` (one held
     /// sample in eight control samples), at most `RELEASE_PER_SAMPLE` a sample: the catch-up is
     /// spread over the samples after it, and the model says `pending` until the last held
-    /// sample is learned from, when it is published at once.
+    /// sample is learned from, and is published on the next sample.
     #[test]
     fn without_speed_telemetry_the_catch_up_is_spread_and_the_model_pending_until_done() {
         let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
@@ -1319,5 +1351,80 @@ mod tests {
         // Its own rows are published again (clamped): the hover within the bounds is kept.
         assert_eq!(learner.model().axis_status, AxisStatus::NoHover);
         assert_eq!(learner.model().thrust_axis, Some(axis));
+    }
+
+    /// Without speed telemetry the model to engage on is published on the sample after the one
+    /// that learns from the catch-up's last held sample, staged there (or by that sample's
+    /// force row x) and solved for its thrust axis, nothing learned beside. It is the model the
+    /// caught-up sample published at once until 2026-12-04 (staged, again after a force row x,
+    /// and solved in the same sample), one sample later, whichever of the six effectiveness
+    /// regressions the last held sample ran (the lead-in of idle motors shifts it by held
+    /// samples), and force rows handed in between the two samples do not change it.
+    #[test]
+    fn without_speed_telemetry_the_caught_up_model_is_published_a_sample_later_unchanged() {
+        let config = LearnerConfig { speed_telemetry: false, ..LearnerConfig::default() };
+        let stride = no_speed::hold_stride(2000.0);
+        let thrust = QUAD_THRUST_PER_SPEED2;
+        let arms = [[0.106f32, 0.106], [-0.106, 0.106], [-0.106, -0.106], [0.106, -0.106]];
+        let no_speeds = [f32::NAN; MAX_MOTORS];
+        // Samples learned since the last publication when the catch-up ended: which of the six
+        // regressions its last held sample ran (0: force row y, which publishes; 5: force row
+        // x, which stages).
+        let mut last_rows = std::collections::BTreeSet::new();
+        for lead in 0..4 * usize::from(PUBLISH_INTERVAL_SAMPLES) {
+            let lead_in = lead * stride;
+            let mut learner = Learner::new(4, config).unwrap();
+            let mut rate = [5.0f32, -4.0, 1.5];
+            let mut at_once: Option<Learner> = None;
+            for n in 0..4000usize {
+                // Motors near idle for the lead-in, then each pulsed once in turn, 50 ms apart.
+                let t_s = n.saturating_sub(lead_in) as f32 / 2000.0;
+                let mut commands = [0.0f32; MAX_MOTORS];
+                let mut angular = [0.0f32; 3];
+                for i in 0..4 {
+                    let phase = t_s - 0.05 * i as f32;
+                    let pulsed = n >= lead_in && (0.0..0.075).contains(&phase);
+                    commands[i] = if pulsed { 0.6 } else { 0.1 };
+                    let speed = 3000.0 * libm::sqrtf(commands[i]);
+                    let force = thrust * speed * speed;
+                    let spin = if i % 2 == 0 { 0.015 } else { -0.015 };
+                    angular[0] -= arms[i][1] * force / 0.01;
+                    angular[1] += arms[i][0] * force / 0.01;
+                    angular[2] += spin * force / 0.02;
+                }
+                let force_z = -thrust * commands[..4].iter().map(|c| 9e6 * c).sum::<f32>();
+                learner.update(rate, [0.0, 0.0, force_z], &commands, &no_speeds);
+                for k in 0..3 {
+                    rate[k] += angular[k] / 2000.0 + 0.3 * libm::sinf(0.01 * n as f32) / 2000.0;
+                }
+                if let Some(reference) = at_once.take() {
+                    assert!(learner.caught_up.is_none());
+                    assert!(!learner.model().pending, "published a sample after the catch-up");
+                    assert_eq!(learner.model(), reference.model(), "lead-in {lead}");
+                    assert_eq!(learner.released_len, 0, "nothing learned beside the solve");
+                    // Every column informed: the publication solved for the thrust axis (this
+                    // crude excitation's model finds no hover within the motor bounds).
+                    assert_ne!(learner.model().axis_status, AxisStatus::Waiting);
+                    break;
+                }
+                if learner.caught_up.is_some() {
+                    assert!(learner.model().pending, "not yet published");
+                    last_rows.insert(learner.since_publish);
+                    // The path until 2026-12-04: staged (again) and published at once.
+                    let mut reference = learner.clone();
+                    reference.stage();
+                    reference.publish_staged();
+                    assert!(!reference.model().pending);
+                    at_once = Some(reference);
+                    // Force rows handed in after the catch-up's last sample wait for the next
+                    // publication.
+                    let mut rows = quad_force_rows();
+                    rows[0][lead % 4] = 1e-7;
+                    assert!(learner.set_force_rows(Some(rows)));
+                }
+            }
+            assert!(!learner.model().pending, "lead-in {lead}: never caught up");
+        }
+        assert!(last_rows.into_iter().eq(0..PUBLISH_INTERVAL_SAMPLES), "every regression last");
     }
 }

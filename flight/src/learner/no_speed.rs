@@ -95,16 +95,17 @@
 //! in median instead of 60.
 //!
 //! Cost (`cargo xtask bench-m7`, docs/benchmarks.md): during the excitation at most
-//! 8,558 Cortex-M7 instructions a sample on the quad and 19,056 on the octorotor (a
+//! 8,572 Cortex-M7 instructions a sample on the quad and 19,071 on the octorotor (a
 //! candidate's sample: its filters and its `5m (5m + 1)/2` products, [`add_outer_lower`]),
 //! within the learner's 12,000 and 24,000; after it, the last period's candidates, then the
 //! candidates' regressions, a budget of work a sample ([`SCORING_WORK_PER_MOTOR`]), then the
-//! catch-up, one held sample a sample (about what a learner sample with telemetry costs): at
-//! most 11,161 instructions a sample on a quad and 22,201 on an octorotor (up to 74,265 and
-//! 145,843 when 8 full-rate samples were learned from a sample). The catch-up's last sample,
-//! which also stages and publishes the model to engage on, is more: 28,009 on the octorotor's
-//! case of `bench-m7`, beyond the samples it measures. The ring holds 213 held samples
-//! (14 KB; 1,700 samples, 122 KB, before they were means), the candidates' sums ≈ 120 KB.
+//! catch-up, one held sample a sample (about what a learner sample with telemetry costs), and
+//! the sample after its last, which stages and publishes the model to engage on
+//! (`Learner::update_carrying`): at most 11,183 instructions a sample on a quad and 22,226 on
+//! an octorotor (up to 74,265 and 145,843 when 8 full-rate samples were learned from a sample;
+//! 18,078 and 28,016 when the last held sample's own sample also published the model). The
+//! ring holds 213 held samples (14 KB; 1,700 samples, 122 KB, before they were means), the
+//! candidates' sums ≈ 120 KB.
 
 // Index loops are kept where they run over axes and motors side by side (several arrays per
 // index), as in `effectiveness`.
