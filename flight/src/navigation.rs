@@ -1179,10 +1179,6 @@ pub struct HeadingAlignment {
     evidence: f32,
     /// The yaw, once the evidence sufficed.
     trusted_yaw_rad: Option<f32>,
-    /// The rotation about the vertical by `trusted_yaw_rad` (the identity without one), formed
-    /// when the yaw changes (a few times a second at most) rather than by each of the several
-    /// users in every 2 kHz step: about 70 Cortex-M7 instructions each (`math::rotation_about`).
-    trusted_turn: UnitQuaternion<f32>,
     /// The velocity fixes' alignment, from the first velocity fix on.
     velocity: Option<VelocityAlignment>,
     /// Capture time of the latest velocity fix taken, s.
@@ -1223,7 +1219,6 @@ impl HeadingAlignment {
             noise_var: 0.0,
             evidence: 0.0,
             trusted_yaw_rad: None,
-            trusted_turn: UnitQuaternion::identity(),
             velocity: None,
             last_velocity_t_s: None,
             yaw_from_velocity: false,
@@ -1370,7 +1365,7 @@ impl HeadingAlignment {
     ) {
         let alignment = self.velocity.get_or_insert_with(|| VelocityAlignment::new(noise_mps));
         if let Some(yaw) = alignment.add(VelocityPoint { t_s, fix: *velocity_ned_mps, dead }) {
-            self.trust(yaw);
+            self.trusted_yaw_rad = Some(yaw);
             self.yaw_from_velocity = true;
             self.yaw_assumed = false;
         }
@@ -1414,7 +1409,7 @@ impl HeadingAlignment {
             && self.evidence >= self.evidence_needed()
             && self.evidence >= ALIGNMENT_SIGNIFICANCE * crate::math::sqrt(self.noise_var)
         {
-            self.trust(libm::atan2f(self.cross, self.dot));
+            self.trusted_yaw_rad = Some(libm::atan2f(self.cross, self.dot));
             self.yaw_assumed = false;
         }
     }
@@ -1479,18 +1474,6 @@ impl HeadingAlignment {
         self.trusted_yaw_rad
     }
 
-    /// The rotation from the filter's world to the fixes' world: about the vertical by
-    /// [`Self::yaw_rad`], the identity until it is known.
-    pub fn turn(&self) -> UnitQuaternion<f32> {
-        self.trusted_turn
-    }
-
-    /// Take `yaw_rad` as the yaw, and its rotation with it.
-    fn trust(&mut self, yaw_rad: f32) {
-        self.trusted_yaw_rad = Some(yaw_rad);
-        self.trusted_turn = crate::math::rotation_about(&Vector3::z_axis(), yaw_rad);
-    }
-
     /// Take `yaw_rad` as the yaw until the fixes' own evidence gives one: a compass that has
     /// already turned the filter's world to the fixes' north assumes 0. The evidence keeps
     /// gathering, and once it suffices its yaw replaces the assumed one (a compass's error then
@@ -1498,7 +1481,7 @@ impl HeadingAlignment {
     pub fn assume_yaw(&mut self, yaw_rad: f32) {
         if yaw_rad.is_finite() && (self.trusted_yaw_rad.is_none() || self.yaw_assumed) {
             // Wrapped to (−π, π] as the evidence's `atan2` gives it.
-            self.trust(libm::atan2f(libm::sinf(yaw_rad), libm::cosf(yaw_rad)));
+            self.trusted_yaw_rad = Some(libm::atan2f(libm::sinf(yaw_rad), libm::cosf(yaw_rad)));
             self.yaw_assumed = true;
         }
     }

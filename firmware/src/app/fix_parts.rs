@@ -156,7 +156,8 @@ pub fn alignment_fixes(outcome: FixOutcome) -> bool {
 /// The yaw from the filter's world to the fixes' world applied to `filter_world` (none until
 /// the alignment has one).
 pub fn aligned_world(alignment: &HeadingAlignment, filter_world: &Vector3<f32>) -> Vector3<f32> {
-    alignment.turn() * filter_world
+    let yaw = alignment.yaw_rad().unwrap_or(0.0);
+    flight::math::rotation_about(&Vector3::z_axis(), yaw) * filter_world
 }
 
 /// The heading alignment has taken `fix` (its `age_s` holding at `at_us`); when it found the

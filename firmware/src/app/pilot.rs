@@ -1022,7 +1022,8 @@ impl Pilot {
             self.accel_world_mps2 = Vector3::zeros();
             self.previous_velocity_mps = None;
         }
-        let to_filter_world = self.alignment.turn().inverse();
+        let to_filter_world =
+            flight::math::rotation_about(&Vector3::z_axis(), -self.alignment_yaw_rad());
         let accel_imu =
             self.attitude.quaternion().inverse() * (to_filter_world * self.accel_world_mps2);
         let _ = self.attitude.update(&gyro, &(f - accel_imu), heading, dt_s);
@@ -1083,7 +1084,8 @@ impl Pilot {
 
     /// The attitude of the IMU in the poses' world (the filter's world until aligned).
     fn q_world_imu(&self) -> UnitQuaternion<f32> {
-        self.alignment.turn() * self.attitude.quaternion()
+        flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad())
+            * self.attitude.quaternion()
     }
 
     /// The velocity by dead reckoning since the last rest, in the world the controller sees.
