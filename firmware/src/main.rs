@@ -125,8 +125,8 @@ static mut ARMING: core::mem::MaybeUninit<firmware::app::log::ArmingBox> =
 /// The tasks' largest states, built where they lie by `init` rather than returned to RTIC by
 /// value: RTIC 1 takes `init`'s resources by value, and at opt-level "z" each by-value move of a
 /// 4-9 KB state kept its own copy in `init`'s frame (65 KB of it; docs/budget.md). The control
-/// task stays in DTCM (the 2 kHz step's data, zero wait states); the links and the log writer
-/// too (they are serviced at 1 kHz).
+/// task stays in DTCM (the 2 kHz step's data, zero wait states); the links and the link task
+/// too (serviced at 1 kHz). The log writer (2 KB) and the queues are still returned by value.
 #[cfg(target_os = "none")]
 static mut CONTROL: core::mem::MaybeUninit<firmware::app::system::ControlTask<'static>> =
     core::mem::MaybeUninit::uninit();
