@@ -4,6 +4,7 @@
 //! must wait for a disarm is refused while armed; a motor test stops by itself.
 
 use configurator_cli::connect::{connect, Target};
+use configurator_cli::plot::{CLIP_ONLY_BEYOND, CONVERGED_MARGIN};
 use protocol::{Event, MotorTest, Reply, Request, SetTelemetryRate, Telemetry, Topic};
 use serde_json::Value;
 use sim::sitl::{Sitl, SitlConfig};
@@ -374,7 +375,10 @@ fn plot_of_an_octorotor_throw_and_fly_is_readable() {
     let (_sitl, port) = start(&flash, config);
     let csv = flash.with_extension("csv");
     let csv_arg = csv.to_str().unwrap();
-    let args = ["identify", "--yes", "--timeout-s", "20", "--disarm-after-s", "2"];
+    // Recorded 4 s past the excitation: the in-flight IMU-offset fit replaces the force rows
+    // about 0.8 s after it (the earlier plateau is a transient the axis may clip), and the
+    // converged axis fits the recording's second half, which then starts after that.
+    let args = ["identify", "--yes", "--timeout-s", "20", "--disarm-after-s", "4"];
     ok(&port, &[&args[..], &["--record", csv_arg]].concat());
     let png = flash.with_extension("png");
     let report: Value =
@@ -405,8 +409,16 @@ fn plot_of_an_octorotor_throw_and_fly_is_readable() {
             .collect();
         let (min, max) = last.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
         assert!(lo < min && max < hi, "{panel}: learned {min}..{max} beyond the axis {lo}..{hi}");
+        // The axis promises them at least 1 / (2 × 1.5) of its height: it clips the transients
+        // only where that gains a factor CLIP_ONLY_BEYOND, around the converged spread widened
+        // by CONVERGED_MARGIN each side (10 % allowed for the tail's settling).
+        let promised = 1.0 / (CLIP_ONLY_BEYOND * (1.0 + 2.0 * CONVERGED_MARGIN));
         let share = (max - min) / (hi - lo);
-        assert!(share > 0.4, "{panel}: the learned values use {:.0} % of the axis", share * 100.0);
+        assert!(
+            share > 0.9 * promised,
+            "{panel}: the learned values use {:.0} % of the axis",
+            share * 100.0
+        );
         // 8 motors + 3 line styles (+ the marker of clipped samples), not 24 columns.
         let clipped = a["clipped_samples"].as_u64().unwrap() > 0;
         assert_eq!(a["legend_entries"], 8 + 3 + u64::from(clipped), "{a}");
