@@ -39,6 +39,8 @@ use tumble::TumbleInertia;
 mod app {
     pub mod battery;
     pub mod catch;
+    pub mod compass_heading;
+    pub mod fix_parts;
     pub mod hal;
     pub mod landing;
     pub mod sticks;
@@ -230,17 +232,18 @@ fn navigation_regions() {
 /// (`flight::magnetometer`), for a 48 µT field at 63° of dip seen from a craft tilted 10°.
 fn compass_region() {
     use flight::magnetometer::{
-        tilt_compensated_heading, HeadingConfig, InterferenceMonitor, MonitorConfig,
+        tilt_compensated_yaw, HeadingConfig, InterferenceMonitor, MonitorConfig,
     };
     let q = UnitQuaternion::from_euler_angles(0.17f32, -0.05, 1.1);
     let world = Vector3::new(21.4f32, 1.1, 42.9);
     let field = q.inverse() * world;
-    let monitor = InterferenceMonitor::new(MonitorConfig::default(), &world, &UnitQuaternion::identity());
+    let monitor =
+        InterferenceMonitor::new(MonitorConfig::default(), &world, &UnitQuaternion::identity());
     let mut state = (monitor, field, q);
     let heading = region(&mut state, |(monitor, field, q)| {
         let status = monitor.update(black_box(field), q, 0.01);
         (!status.disturbed)
-            .then(|| tilt_compensated_heading(field, q, &HeadingConfig::default()).ok())
+            .then(|| tilt_compensated_yaw(field, q, &HeadingConfig::default()).ok())
             .flatten()
     });
     if heading.is_none() {
@@ -371,10 +374,20 @@ const LEARNER_CYCLE: [&str; 6] = [
 ];
 
 /// The closed-loop control-step regions of each learner airframe (`closed_loop_regions`).
-const CLOSED_LOOP_REGIONS: [&str; 3] = [
+const CLOSED_LOOP_REGIONS: [&str; 13] = [
     "hover, position hold",
     "hover, position hold, pose fix (position estimator corrected)",
     "recovery 10 ms after a 60° tilt, position hold (allocation saturated)",
+    "hover on GNSS, solution part 1 of 8: the position compared with the estimate of its time",
+    "hover on GNSS, solution part 2 of 8: the velocity compared",
+    "hover on GNSS, solution part 3 of 8: the gains from the stated accuracies",
+    "hover on GNSS, solution part 4 of 8: the correction (velocity, accelerometer bias)",
+    "hover on GNSS, solution part 5 of 8: the heading alignment's position (its slot closed)",
+    "hover on GNSS, solution part 6 of 8: the heading alignment's window",
+    "hover on GNSS, solution part 7 of 8: the alignment's dead-reckoned velocity of the fix's time",
+    "hover on GNSS, solution part 8 of 8: the alignment's velocity (yaw trusted)",
+    "hover on GNSS steered by the compass, sample part 1 of 2: interference monitor",
+    "hover on GNSS steered by the compass, sample part 2 of 2: tilt-compensated heading",
 ];
 
 /// The parts of the hover step on their own.
@@ -587,6 +600,12 @@ impl ClosedLoop {
             let _ = self.navigation.correct(position, FIX_EVERY_STEPS as f32 * DT_S);
         }
         let _ = self.navigation.predict(&q, &f, DT_S);
+        self.control(gyro, accel, q)
+    }
+
+    /// The controller's half of a step at the attitude `q`.
+    #[inline(always)]
+    fn control(&mut self, gyro: [f32; 3], accel: [f32; 3], q: UnitQuaternion<f32>) -> IndiOutput {
         let input = ControllerInput {
             gyro_rad_s: gyro,
             accel_mps2: accel,
@@ -599,6 +618,88 @@ impl ClosedLoop {
             Err(_) => fail("controller step refused"),
         }
     }
+
+    /// One step outdoors, as `firmware::app::pilot` runs it: the compass's part and its heading
+    /// steering the filter (the yaw less the alignment's, which is 0 for the compass's world),
+    /// the heading alignment's and the estimator's predictions, and the GNSS solution's part
+    /// (`firmware::app::fix_parts`) or the start of a solution waiting. `now_us`: the step's
+    /// time.
+    #[inline(always)]
+    fn step_outdoors(
+        &mut self,
+        gyro: [f32; 3],
+        accel: [f32; 3],
+        outdoors: &mut Outdoors,
+        now_us: u64,
+    ) -> IndiOutput {
+        let w = Vector3::from(gyro);
+        let f = Vector3::from(accel) - w.cross(&w.cross(&self.r_imu_m));
+        let busy = outdoors.part.is_some() || outdoors.waiting.is_some();
+        let yaw = outdoors.compass.step(now_us, &self.attitude.quaternion(), false, busy);
+        let heading = yaw.map(|yaw| flight::attitude::wrap_pi(yaw - outdoors.alignment_yaw()));
+        let _ = self.attitude.update(&w, &f, heading, DT_S);
+        let q = self.attitude.quaternion();
+        let gravity = Vector3::new(0.0, 0.0, flight::navigation::STANDARD_GRAVITY_MPS2);
+        outdoors.alignment.predict(&(q * f + gravity), DT_S);
+        let _ = self.navigation.predict(&q, &f, DT_S);
+        if outdoors.part.is_some() {
+            let navigation = &mut self.navigation;
+            app::fix_parts::step(&mut outdoors.part, navigation, &mut outdoors.alignment, now_us);
+        } else if let Some(fix) = outdoors.waiting.take() {
+            app::fix_parts::start(&mut outdoors.part, &self.navigation, &fix, now_us);
+        }
+        self.control(gyro, accel, q)
+    }
+}
+
+/// What a step outdoors adds to the closed loop: the heading alignment, the GNSS solution
+/// waiting or being taken, and the compass.
+#[derive(Clone)]
+struct Outdoors {
+    alignment: flight::navigation::HeadingAlignment,
+    waiting: Option<flight::navigation::Fix>,
+    part: Option<app::fix_parts::FixParts>,
+    compass: app::compass_heading::CompassHeading,
+}
+
+impl Outdoors {
+    fn alignment_yaw(&self) -> f32 {
+        self.alignment.yaw_rad().unwrap_or(0.0)
+    }
+}
+
+/// The yaw between the fixes' world and the filter's in the outdoor regions, rad.
+const OUTDOOR_YAW_RAD: f32 = 0.5;
+
+/// A heading alignment for a receiver's 0.3 m and 5 cm/s that found its yaw
+/// ([`OUTDOOR_YAW_RAD`]) on 6 s of circles at 2 m/s² (10 Hz fixes, 100 ms late), so that each
+/// velocity fix evaluates the yaw again, as in a flight after the alignment.
+fn aligned_alignment() -> flight::navigation::HeadingAlignment {
+    let mut alignment = flight::navigation::HeadingAlignment::new(0.3);
+    let turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), OUTDOOR_YAW_RAD);
+    let omega = 2.0f32;
+    let (a, latency_s) = (2.0f32, 0.1f32);
+    // Circles: v = (a/ω)(sin ωt, −cos ωt), the filter's world.
+    let velocity =
+        |t: f32| Vector3::new(libm::sinf(omega * t), -libm::cosf(omega * t), 0.0) * (a / omega);
+    let position = |t: f32| {
+        Vector3::new(-libm::cosf(omega * t), -libm::sinf(omega * t), 0.0) * (a / (omega * omega))
+    };
+    let steps = (6.0 / DT_S) as usize;
+    for n in 0..steps {
+        let t = n as f32 * DT_S;
+        let accel = Vector3::new(libm::cosf(omega * t), libm::sinf(omega * t), 0.0) * a;
+        alignment.predict(&accel, DT_S);
+        if n % 200 == 0 && t > latency_s {
+            let then = t - latency_s;
+            alignment.fix(&(turn * position(then)), latency_s);
+            alignment.fix_velocity(&(turn * velocity(then)), 0.05, latency_s);
+        }
+    }
+    if alignment.yaw_rad().is_none() {
+        fail("outdoors: the alignment found no yaw");
+    }
+    alignment
 }
 
 /// A hover sample of a craft flying `model`: a small wobble of the body rate (rad/s) and the
@@ -742,6 +843,8 @@ fn closed_loop_regions(m: usize, learner: &Learner) {
         out.saturated
     );
 
+    outdoor_regions(m, &hover, n);
+
     // The parts of the hover step.
     let w = Vector3::from(gyro);
     let f = Vector3::from(accel);
@@ -824,6 +927,101 @@ fn closed_loop_regions(m: usize, learner: &Learner) {
     let caught = region(&mut state, |(detector, signals)| detector.update(black_box(signals)));
     if caught {
         fail("a hover taken for a hand");
+    }
+}
+
+/// The hover of `hover` (`n` steps flown) outdoors: 1 s with GNSS solutions at 10 Hz, 100 ms
+/// late, taken in parts as the firmware does, and compass samples at 100 Hz; then the eight
+/// steps of one more solution and the two of a compass sample, each a region (in the order of
+/// [`CLOSED_LOOP_REGIONS`]).
+fn outdoor_regions(m: usize, hover: &ClosedLoop, n: usize) {
+    use app::compass_heading::{CompassHeading, MagneticSample};
+    let model = *hover.controller.indi().model();
+    let mut closed = hover.clone();
+    let mut outdoors = Outdoors {
+        alignment: aligned_alignment(),
+        waiting: None,
+        part: None,
+        compass: CompassHeading::default(),
+    };
+    // A 48 µT field at 63° of dip in the fixes' world (the filter's turned by the alignment's
+    // yaw), magnetic north 2.9° east of true north, in the IMU's axes: the motors-off reference
+    // from a second of still samples, then flight samples.
+    let world = Vector3::new(21.4f32, 1.1, 42.9);
+    outdoors.compass.configure(libm::atan2f(world.y, world.x));
+    // The field seen at the filter's attitude turned by the alignment's yaw: the compass then
+    // agrees with the filter's heading, as in a steady flight.
+    let sample = |q_filter: &UnitQuaternion<f32>, outdoors: &Outdoors| {
+        let turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), outdoors.alignment_yaw());
+        MagneticSample { field_imu_ut: ((turn * q_filter).inverse() * world).into(), noise_ut: 0.5 }
+    };
+    let q0 = closed.attitude.quaternion();
+    for k in 0..100u64 {
+        outdoors.compass.sample(&sample(&q0, &outdoors), 10_000 * k + 1);
+        outdoors.compass.step(10_000 * k + 1, &q0, true, false);
+        outdoors.compass.step(10_000 * k + 501, &q0, true, false);
+    }
+    let fix = |k: usize| flight::navigation::Fix {
+        position_ned_m: Vector3::new(0.02 * libm::sinf(k as f32), -0.01, 0.01),
+        sigma_m: [0.3, 0.45],
+        velocity: Some((Vector3::new(0.01, -0.02 * libm::cosf(k as f32), 0.0), 0.05)),
+        age_s: 0.1,
+        dt_fix_s: 0.1,
+    };
+    let t0_us = 1_000_000u64;
+    let time_us = |k: usize| t0_us + (k as u64) * 500;
+    // 1 s: a solution every 200 steps, a compass sample every 20 (none with a solution's part).
+    let steps = 2000;
+    for k in 0..steps {
+        let (gyro, accel) = hover_sample(&model, n + k);
+        if k % 200 == 0 {
+            outdoors.waiting = Some(fix(k));
+        }
+        if k % 20 == 10 {
+            let field = sample(&closed.attitude.quaternion(), &outdoors);
+            outdoors.compass.sample(&field, time_us(k));
+        }
+        closed.step_outdoors(gyro, accel, &mut outdoors, time_us(k));
+    }
+    if outdoors.part.is_some() || closed.navigation.rejected() > 0 {
+        fail("outdoors: a solution was refused or not taken");
+    }
+    // One more solution: its eight parts, each a region.
+    outdoors.waiting = Some(fix(steps));
+    for part in 0..8 {
+        let k = steps + part;
+        let (gyro, accel) = hover_sample(&model, n + k);
+        let mut state = (closed.clone(), outdoors.clone(), gyro, accel);
+        let _ = region(&mut state, |(c, o, gyro, accel)| {
+            c.step_outdoors(black_box(*gyro), *accel, o, time_us(k))
+        });
+        (closed, outdoors) = (state.0, state.1);
+    }
+    if outdoors.part.is_some() {
+        fail("outdoors: the solution took more than eight parts");
+    }
+    // A compass sample: its two parts.
+    let field = sample(&closed.attitude.quaternion(), &outdoors);
+    outdoors.compass.sample(&field, time_us(steps + 8));
+    for part in 0..2 {
+        let k = steps + 8 + part;
+        let (gyro, accel) = hover_sample(&model, n + k);
+        let mut state = (closed.clone(), outdoors.clone(), gyro, accel);
+        let _ = region(&mut state, |(c, o, gyro, accel)| {
+            c.step_outdoors(black_box(*gyro), *accel, o, time_us(k))
+        });
+        (closed, outdoors) = (state.0, state.1);
+    }
+    let q = closed.attitude.quaternion();
+    match outdoors.compass.step(time_us(steps + 10), &q, false, false) {
+        Some(yaw) => hprintln!(
+            "bench-m7 check: outdoors m={}: compass heading {} rad, alignment yaw {:?} rad, {} fixes refused",
+            m,
+            yaw,
+            outdoors.alignment.yaw_rad(),
+            closed.navigation.rejected()
+        ),
+        None => fail("outdoors: the compass gave no heading"),
     }
 }
 

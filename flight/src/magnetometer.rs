@@ -120,7 +120,7 @@
 
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
-use crate::attitude::{wrap_pi, yaw_of};
+use crate::attitude::wrap_pi;
 
 /// The calibration's coordinate scale, µT: samples are shifted to the first one and divided by
 /// this, so the quadric's monomials are of order 1 (a typical Earth field; the geomagnetic
@@ -1154,6 +1154,32 @@ pub fn tilt_compensated_heading(
     q_world_imu: &UnitQuaternion<f32>,
     config: &HeadingConfig,
 ) -> Result<Heading, HeadingError> {
+    let (yaw_rad, std_rad, f, horizontal_ut) = tilt_compensated(field_imu_ut, q_world_imu, config)?;
+    Ok(Heading {
+        yaw_rad,
+        std_rad,
+        horizontal_ut,
+        inclination_rad: libm::atan2f(f.z, horizontal_ut),
+    })
+}
+
+/// [`tilt_compensated_heading`]'s yaw and its standard deviation alone, rad: one arctangent
+/// fewer (the inclination), for the pilot's every compass sample.
+pub fn tilt_compensated_yaw(
+    field_imu_ut: &Vector3<f32>,
+    q_world_imu: &UnitQuaternion<f32>,
+    config: &HeadingConfig,
+) -> Result<(f32, f32), HeadingError> {
+    let (yaw_rad, std_rad, _, _) = tilt_compensated(field_imu_ut, q_world_imu, config)?;
+    Ok((yaw_rad, std_rad))
+}
+
+/// The yaw and its standard deviation, the field in the world and its horizontal strength.
+fn tilt_compensated(
+    field_imu_ut: &Vector3<f32>,
+    q_world_imu: &UnitQuaternion<f32>,
+    config: &HeadingConfig,
+) -> Result<(f32, f32, Vector3<f32>, f32), HeadingError> {
     let f = q_world_imu * field_imu_ut;
     if !finite3(&f) || !q_world_imu.coords.iter().all(|x| x.is_finite()) {
         return Err(HeadingError::NotFinite);
@@ -1162,15 +1188,14 @@ pub fn tilt_compensated_heading(
     if !(horizontal_ut >= config.min_horizontal_ut) {
         return Err(HeadingError::HorizontalFieldTooWeak { horizontal_ut });
     }
-    let yaw_rad = wrap_pi(config.declination_rad + yaw_of(q_world_imu) - libm::atan2f(f.y, f.x));
+    // The IMU's yaw (`yaw_of`, its x axis's azimuth) less the field's azimuth, in one
+    // arctangent: the angle from the field to the x axis, both seen from above.
+    let x = q_world_imu * Vector3::x();
+    let turn = libm::atan2f(x.y * f.x - x.x * f.y, x.x * f.x + x.y * f.y);
+    let yaw_rad = wrap_pi(config.declination_rad + turn);
     let noise = config.noise_ut / horizontal_ut;
     let tilt = f.z / horizontal_ut * config.tilt_std_rad;
-    Ok(Heading {
-        yaw_rad,
-        std_rad: crate::math::sqrt(noise * noise + tilt * tilt),
-        horizontal_ut,
-        inclination_rad: libm::atan2f(f.z, horizontal_ut),
-    })
+    Ok((yaw_rad, crate::math::sqrt(noise * noise + tilt * tilt), f, horizontal_ut))
 }
 
 #[cfg(test)]

@@ -252,29 +252,85 @@ pub enum FixOutcome {
     Rejected,
 }
 
-/// Values at past times, one every [`HISTORY_SPACING_S`], with their ages; no allocation.
+/// Resolution of the histories' clock, s (1/16 µs): a control period of 2 kHz is 8,000 ticks,
+/// one of 3.2 kHz 5,000, so every usual period is a whole number of ticks; others are rounded by
+/// at most 31 ns a step. A `u32` of ticks wraps after 268 s, far beyond the time any kept value
+/// spans ([`HISTORY_LEN`] pushes); ages are differences, exact across the wrap.
+const TICK_S: f32 = 1.0 / 16_000_000.0;
+
+/// [`HISTORY_SPACING_S`] in ticks.
+const HISTORY_SPACING_TICKS: u32 = (HISTORY_SPACING_S / TICK_S + 0.5) as u32;
+
+/// Corrections [`History`] keeps unapplied (one per fix whose time lies within the history).
+/// A receiver's fixes at 10 Hz leave at most three within its span; a fourth, or a faster
+/// source's, folds the oldest into the values (a loop over the values since its fix's time).
+const PENDING_CORRECTIONS: usize = 4;
+
+/// A correction made at a fix's time and carried forward through the model: a value `τ` after
+/// the fix's time changes by `dp + dv τ − db τ²/2`. It applies to the values kept between the
+/// fix's time and the moment it was made (those pushed later were pushed from the corrected
+/// estimate).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
+struct Correction {
+    /// The history's clock when it was made, ticks.
+    made_ticks: u32,
+    /// The fix's age then, s.
+    age_s: f32,
+    dp: Vector3<f32>,
+    dv: Vector3<f32>,
+    db: Vector3<f32>,
+}
+
+impl Correction {
+    /// What it adds to a value kept `age_then_s` before it was made: nothing to values older
+    /// than its fix.
+    fn at(&self, age_then_s: f32) -> Vector3<f32> {
+        let tau = self.age_s - age_then_s;
+        if tau > 0.0 {
+            self.dp + self.dv * tau - self.db * (0.5 * tau * tau)
+        } else {
+            Vector3::zeros()
+        }
+    }
+}
+
+/// Values at past times, one every [`HISTORY_SPACING_S`], with their times; no allocation.
+///
+/// **Constant work per step and per fix.** Each value keeps the clock's reading when it was
+/// kept, so time passing changes nothing stored, and a value of a given age is found from the
+/// spacing at once (a step or two of search where the spacing was irregular). A fix's
+/// correction is not added to every value since the fix's time: it is kept as it was made
+/// ([`Correction`]), and a value read is the kept one plus the pending corrections that apply to
+/// it, the same sum the values would hold had each been shifted.
 #[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct History {
     #[serde(with = "crate::serde_array")]
     values: [Vector3<f32>; HISTORY_LEN],
-    /// Age of each value at the last push, s.
+    /// The clock when each value was kept, ticks ([`TICK_S`]).
     #[serde(with = "crate::serde_array")]
-    ages_s: [f32; HISTORY_LEN],
+    times_ticks: [u32; HISTORY_LEN],
+    /// The clock, ticks (wrapping).
+    clock_ticks: u32,
     /// Index of the newest value.
     newest: usize,
     len: usize,
-    /// Time since the last push, s.
-    since_push_s: f32,
+    /// Corrections not yet in the values: a ring, the oldest at `pending_head`.
+    pending: [Correction; PENDING_CORRECTIONS],
+    pending_head: usize,
+    pending_len: usize,
 }
 
 impl Default for History {
     fn default() -> Self {
         Self {
             values: [Vector3::zeros(); HISTORY_LEN],
-            ages_s: [0.0; HISTORY_LEN],
+            times_ticks: [0; HISTORY_LEN],
+            clock_ticks: 0,
             newest: 0,
             len: 0,
-            since_push_s: 0.0,
+            pending: [Correction::default(); PENDING_CORRECTIONS],
+            pending_head: 0,
+            pending_len: 0,
         }
     }
 }
@@ -282,19 +338,16 @@ impl Default for History {
 impl History {
     /// Time went on by `dt_s`; `current` is the value now.
     fn advance(&mut self, dt_s: f32, current: &Vector3<f32>) {
-        self.since_push_s += dt_s;
-        if self.since_push_s < HISTORY_SPACING_S && self.len > 0 {
+        self.clock_ticks = self.clock_ticks.wrapping_add((dt_s / TICK_S + 0.5) as u32);
+        if self.len > 0
+            && self.clock_ticks.wrapping_sub(self.times_ticks[self.newest]) < HISTORY_SPACING_TICKS
+        {
             return;
-        }
-        for k in 0..self.len {
-            let i = self.index(k);
-            self.ages_s[i] += self.since_push_s;
         }
         self.newest = (self.newest + 1) % HISTORY_LEN;
         self.values[self.newest] = *current;
-        self.ages_s[self.newest] = 0.0;
+        self.times_ticks[self.newest] = self.clock_ticks;
         self.len = (self.len + 1).min(HISTORY_LEN);
-        self.since_push_s = 0.0;
     }
 
     /// Index of the `k`-th newest value.
@@ -302,21 +355,61 @@ impl History {
         (self.newest + HISTORY_LEN - k) % HISTORY_LEN
     }
 
+    /// Age of the value at `index`, s.
+    fn age_s(&self, index: usize) -> f32 {
+        self.clock_ticks.wrapping_sub(self.times_ticks[index]) as f32 * TICK_S
+    }
+
+    /// The value at `index` with the pending corrections that apply to it.
+    fn value(&self, index: usize) -> Vector3<f32> {
+        let mut value = self.values[index];
+        let time = self.times_ticks[index];
+        for c in 0..self.pending_len {
+            let correction = &self.pending[(self.pending_head + c) % PENDING_CORRECTIONS];
+            // Kept at or before the correction was made (ages then, wrapping differences).
+            let before = correction.made_ticks.wrapping_sub(time);
+            if before <= self.clock_ticks.wrapping_sub(time) {
+                value += correction.at(before as f32 * TICK_S);
+            }
+        }
+        value
+    }
+
     /// The value `age_s` ago (`current` now), linear between the kept ones; the oldest kept one
     /// for older ages.
     fn at(&self, age_s: f32, current: &Vector3<f32>) -> Vector3<f32> {
-        let (mut newer_age, mut newer) = (0.0, *current);
-        for k in 0..self.len {
-            let i = self.index(k);
-            let age = self.ages_s[i] + self.since_push_s;
-            if age >= age_s {
-                let span = age - newer_age;
-                let w = if span > 0.0 { (age_s - newer_age) / span } else { 0.0 };
-                return newer + (self.values[i] - newer) * w.clamp(0.0, 1.0);
-            }
-            (newer_age, newer) = (age, self.values[i]);
+        if self.len == 0 {
+            return *current;
         }
-        newer
+        // The first value at least `age_s` old: from the spacing, then a step or two.
+        let newest_age = self.age_s(self.newest);
+        let mut k = if age_s <= newest_age {
+            0
+        } else {
+            let steps = (age_s - newest_age) * (1.0 / HISTORY_SPACING_S);
+            (steps as usize + 1).min(self.len - 1)
+        };
+        while k + 1 < self.len && self.age_s(self.index(k)) < age_s {
+            k += 1;
+        }
+        while k > 0 && self.age_s(self.index(k - 1)) >= age_s {
+            k -= 1;
+        }
+        let i = self.index(k);
+        let age = self.age_s(i);
+        if age < age_s {
+            // Older than everything kept.
+            return self.value(i);
+        }
+        let (newer_age, newer) = if k == 0 {
+            (0.0, *current)
+        } else {
+            let j = self.index(k - 1);
+            (self.age_s(j), self.value(j))
+        };
+        let span = age - newer_age;
+        let w = if span > 0.0 { (age_s - newer_age) / span } else { 0.0 };
+        newer + (self.value(i) - newer) * crate::math::clamp(w, 0.0, 1.0)
     }
 
     /// The rate of change `age_s` ago (per second; `current` now): the central difference over
@@ -329,15 +422,51 @@ impl History {
         (self.at(newer_age, current) - self.at(older_age, current)) / (older_age - newer_age)
     }
 
-    /// Add `change(age_s − age)` to every value younger than `age_s`.
-    fn shift(&mut self, age_s: f32, change: impl Fn(f32) -> Vector3<f32>) {
-        for k in 0..self.len {
-            let i = self.index(k);
-            let age = self.ages_s[i] + self.since_push_s;
-            if age >= age_s {
-                break;
+    /// Add `dp + dv τ − db τ²/2` to every value younger than `age_s`, `τ` after that time
+    /// (a correction made at a fix's time): kept pending ([`Correction`]).
+    fn shift(&mut self, age_s: f32, dp: Vector3<f32>, dv: Vector3<f32>, db: Vector3<f32>) {
+        if self.len == 0 || age_s <= 0.0 {
+            return;
+        }
+        // Corrections whose values are all gone apply to nothing any more.
+        let oldest = self.times_ticks[self.index(self.len - 1)];
+        while self.pending_len > 0
+            && self.clock_ticks.wrapping_sub(self.pending[self.pending_head].made_ticks)
+                > self.clock_ticks.wrapping_sub(oldest)
+        {
+            self.drop_oldest(1, false);
+        }
+        if self.pending_len == PENDING_CORRECTIONS {
+            self.drop_oldest(1, true);
+        }
+        let slot = (self.pending_head + self.pending_len) % PENDING_CORRECTIONS;
+        self.pending[slot] = Correction { made_ticks: self.clock_ticks, age_s, dp, dv, db };
+        self.pending_len += 1;
+    }
+
+    /// Remove the `n` oldest pending corrections (at most as many as are pending), added to
+    /// the values first when `fold`.
+    fn drop_oldest(&mut self, n: usize, fold: bool) {
+        let n = n.min(self.pending_len);
+        for _ in 0..n {
+            let correction = self.pending[self.pending_head];
+            self.pending_head = (self.pending_head + 1) % PENDING_CORRECTIONS;
+            self.pending_len -= 1;
+            if fold {
+                for k in 0..self.len {
+                    let i = self.index(k);
+                    let before = correction.made_ticks.wrapping_sub(self.times_ticks[i]);
+                    if before > self.clock_ticks.wrapping_sub(self.times_ticks[i]) {
+                        // Kept after the correction was made.
+                        continue;
+                    }
+                    let age_then_s = before as f32 * TICK_S;
+                    if age_then_s >= correction.age_s {
+                        break;
+                    }
+                    self.values[i] += correction.at(age_then_s);
+                }
             }
-            self.values[i] += change(age_s - age);
         }
     }
 }
@@ -502,12 +631,11 @@ impl PositionEstimator {
     /// `db`, carried forward through the model to now and to the history since then (a bias
     /// change changes the acceleration by −Δb from then on).
     fn carry_forward(&mut self, age_s: f32, dp: Vector3<f32>, dv: Vector3<f32>, db: Vector3<f32>) {
-        let carried = move |tau: f32| dp + dv * tau - db * (0.5 * tau * tau);
         let s = &mut self.state;
-        s.position_ned_m += carried(age_s);
+        s.position_ned_m += dp + dv * age_s - db * (0.5 * age_s * age_s);
         s.velocity_ned_mps += dv - db * age_s;
         s.accel_bias_ned_mps2 += db;
-        self.history.shift(age_s, carried);
+        self.history.shift(age_s, dp, dv, db);
     }
 
     /// A fix arrived and was taken: the estimate has a fix again.
@@ -530,6 +658,19 @@ impl PositionEstimator {
     /// refused and counted, until refusals have lasted [`MAX_REJECT_S`]; a velocity beyond
     /// `max(`[`MIN_VELOCITY_GATE_MPS`]`,`[`OUTLIER_SIGMAS`]` × √3 σ_v)` is left out.
     pub fn correct_fix(&mut self, fix: &Fix) -> Result<FixOutcome, NavigationError> {
+        let mut innovation = self.innovation(fix)?;
+        self.velocity_innovation(&mut innovation, 0.0);
+        let weights = weigh(&innovation);
+        Ok(self.apply(&innovation, &weights, 0.0))
+    }
+
+    /// The first part of [`Self::correct_fix`]: `fix` checked and its position compared with
+    /// the estimate of its time; nothing changed. The other parts ([`Self::velocity_innovation`],
+    /// [`weigh`], [`Self::apply`]) may each run in a later control step: a fix is 50–150 ms old
+    /// when it arrives, and splitting keeps each step's share of the work small
+    /// (`firmware::app::fix_parts`). No other fix may be applied in between: the innovation is
+    /// the difference with a history that fix would change.
+    pub fn innovation(&self, fix: &Fix) -> Result<Innovation, NavigationError> {
         let Fix { position_ned_m, sigma_m, velocity, age_s, dt_fix_s } = *fix;
         let age_ok = age_s.is_finite() && (0.0..=MAX_FIX_AGE_S).contains(&age_s);
         let sigma_ok = sigma_m.iter().all(|x| x.is_finite() && *x > 0.0);
@@ -544,16 +685,36 @@ impl PositionEstimator {
         {
             return Err(NavigationError::BadInput);
         }
+        let error = position_ned_m - self.history.at(age_s, &self.state.position_ned_m);
+        Ok(Innovation { fix: *fix, error, velocity_error: None })
+    }
+
+    /// The second part of [`Self::correct_fix`]: the fix's velocity (if any) compared with the
+    /// estimate of its time, `later_s` after [`Self::innovation`] (the fix is then that much
+    /// older).
+    pub fn velocity_innovation(&self, innovation: &mut Innovation, later_s: f32) {
+        let Some((velocity, noise)) = innovation.fix.velocity else { return };
+        let age_s = (innovation.fix.age_s + later_s.max(0.0)).min(MAX_FIX_AGE_S);
+        let slope = self.history.slope_at(age_s, &self.state.position_ned_m);
+        innovation.velocity_error = Some((velocity - slope, noise));
+    }
+
+    /// The last part of [`Self::correct_fix`]: the gate and the correction of an
+    /// `innovation` with its `weights` ([`weigh`]), `later_s` after [`Self::innovation`] (the
+    /// correction is carried forward over the fix's age plus `later_s`).
+    pub fn apply(
+        &mut self,
+        innovation: &Innovation,
+        weights: &Weights,
+        later_s: f32,
+    ) -> FixOutcome {
+        let Innovation { fix, error, .. } = *innovation;
+        let later_s = if later_s.is_finite() { later_s.max(0.0) } else { 0.0 };
+        let age_s = (fix.age_s + later_s).min(MAX_FIX_AGE_S);
+        let sigma_m = fix.sigma_m;
+        let velocity_error = weights.velocity.map(|(ev, _, _)| ev);
         let s = self.state;
-        let predicted = self.history.at(age_s, &s.position_ned_m);
-        let error = position_ned_m - predicted;
-        let velocity_error =
-            velocity.map(|(v, noise)| (v - self.history.slope_at(age_s, &s.position_ned_m), noise));
         let restart = !self.fixed_once || self.since_fix_s > FIX_TIMEOUT_S;
-        // A horizontal accuracy is the RMS of the 2D error: √2 σ; a 3D velocity's √3 σ.
-        let velocity_error = velocity_error.filter(|(ev, noise)| {
-            crate::math::norm(ev) <= (OUTLIER_SIGMAS * SQRT_3 * noise).max(MIN_VELOCITY_GATE_MPS)
-        });
         let t = self.since_taken_s;
         let gate = |rms_m: f32| {
             (OUTLIER_SIGMAS * rms_m).max(MIN_OUTLIER_GATE_M) + OUTLIER_DRIFT_AIDED_MPS * t
@@ -564,33 +725,19 @@ impl PositionEstimator {
                 || error.z.abs() > gate(sigma_m[1]));
         let outcome = if restart || (outlier && t >= MAX_REJECT_S) {
             // The whole track moves onto the fix, and turns to its velocity.
-            let dv = velocity_error.map_or_else(Vector3::zeros, |(dv, _)| dv);
+            let dv = velocity_error.unwrap_or_else(Vector3::zeros);
             self.carry_forward(age_s, error, dv, Vector3::zeros());
             FixOutcome::Reset
         } else {
-            // The gains once per fix: horizontal and vertical (once when their noise is the
-            // same, as motion capture's), and the velocity's.
-            let position_gains = |sigma: f32| match velocity_error {
-                None => gains(crossover_for_noise(sigma), dt_fix_s),
-                Some(_) => (-libm::expm1f(-position_crossover(sigma, true) * dt_fix_s), 0.0, 0.0),
-            };
-            let horizontal = position_gains(sigma_m[0]);
-            let vertical =
-                if sigma_m[1] == sigma_m[0] { horizontal } else { position_gains(sigma_m[1]) };
-            // A double pole of the velocity and bias error at exp(−ω T).
-            let velocity_gains = velocity_error.map(|(ev, noise)| {
-                let m = -libm::expm1f(-velocity_crossover(noise, dt_fix_s) * dt_fix_s);
-                (ev, 2.0 * m - m * m, m * m / dt_fix_s)
-            });
             let (mut dp, mut dv, mut db) = (Vector3::zeros(), Vector3::zeros(), Vector3::zeros());
             for i in 0..3 {
-                let (k_p, k_v, k_b) = if i < 2 { horizontal } else { vertical };
+                let (k_p, k_v, k_b) = if i < 2 { weights.horizontal } else { weights.vertical };
                 let b = s.accel_bias_ned_mps2[i];
                 // An outlier's position teaches nothing; its velocity (a Doppler measurement
                 // multipath hardly moves) still does.
                 let e = if outlier { 0.0 } else { error[i] };
                 dp[i] = e * k_p;
-                let new_b = match velocity_gains {
+                let new_b = match weights.velocity {
                     None => {
                         dv[i] = e * k_v;
                         b - e * k_b
@@ -609,13 +756,65 @@ impl PositionEstimator {
                 let since_taken_s = self.since_taken_s;
                 self.fix_taken();
                 self.since_taken_s = since_taken_s;
-                return Ok(FixOutcome::Rejected);
+                return FixOutcome::Rejected;
             }
             FixOutcome::Taken
         };
         self.fix_taken();
-        Ok(outcome)
+        outcome
     }
+}
+
+/// A fix compared with the estimates of its time ([`PositionEstimator::innovation`] and
+/// [`PositionEstimator::velocity_innovation`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Innovation {
+    /// The fix.
+    pub fix: Fix,
+    /// Its position less the estimate of its time, m.
+    pub error: Vector3<f32>,
+    /// Its velocity less the estimate of its time, m/s, with the velocity's noise (once
+    /// compared).
+    pub velocity_error: Option<(Vector3<f32>, f32)>,
+}
+
+/// How much of an innovation the estimator takes ([`weigh`]): the gains `(k_p, k_v, k_b)` of
+/// the position, horizontal and vertical, and the velocity's error with its gains `(k_v, k_b)`
+/// when it passed its gate.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Weights {
+    /// The horizontal position's gains (1, 1/s, 1/s²).
+    pub horizontal: (f32, f32, f32),
+    /// The vertical position's gains.
+    pub vertical: (f32, f32, f32),
+    /// The velocity's error (m/s) and its gains (1, 1/s), when it passed its gate.
+    pub velocity: Option<(Vector3<f32>, f32, f32)>,
+}
+
+/// The third part of [`PositionEstimator::correct_fix`], from the fix alone (no state): the
+/// velocity's gate (`max(`[`MIN_VELOCITY_GATE_MPS`]`,`[`OUTLIER_SIGMAS`]` × √3 σ_v)`: beyond, it is
+/// left out), then the gains by the fix's stated accuracy: the position's at the crossover
+/// [`crossover_for_noise`] of its noise (horizontal and vertical each their own, once when the
+/// same, as motion capture's); with a velocity, the velocity's and the bias's at the
+/// [`velocity_crossover`] of its noise (a double pole at `exp(−ω T)`), and the position's then
+/// first-order at [`POSITION_WITH_VELOCITY_FACTOR`] of its crossover.
+pub fn weigh(innovation: &Innovation) -> Weights {
+    let Fix { sigma_m, dt_fix_s, .. } = innovation.fix;
+    // A 3D velocity's RMS error is √3 σ.
+    let velocity_error = innovation.velocity_error.filter(|(ev, noise)| {
+        crate::math::norm(ev) <= (OUTLIER_SIGMAS * SQRT_3 * noise).max(MIN_VELOCITY_GATE_MPS)
+    });
+    let position_gains = |sigma: f32| match velocity_error {
+        None => gains(crossover_for_noise(sigma), dt_fix_s),
+        Some(_) => (-libm::expm1f(-position_crossover(sigma, true) * dt_fix_s), 0.0, 0.0),
+    };
+    let horizontal = position_gains(sigma_m[0]);
+    let vertical = if sigma_m[1] == sigma_m[0] { horizontal } else { position_gains(sigma_m[1]) };
+    let velocity = velocity_error.map(|(ev, noise)| {
+        let m = -libm::expm1f(-velocity_crossover(noise, dt_fix_s) * dt_fix_s);
+        (ev, 2.0 * m - m * m, m * m / dt_fix_s)
+    });
+    Weights { horizontal, vertical, velocity }
 }
 
 /// The correction gains `(k_p, k_v, k_b)` (1, 1/s, 1/s²) that put the three poles of the error
@@ -845,8 +1044,9 @@ impl VelocityAlignment {
         }
         let yaw = libm::atan2f(self.cross, self.dot);
         // What the plain yaw leaves unexplained per window, as an acceleration: the weighted
-        // mean of `Δf − R(yaw) Δd`, over the window's length.
-        let (sin, cos) = (libm::sinf(yaw), libm::cosf(yaw));
+        // mean of `Δf − R(yaw) Δd`, over the window's length. The yaw's sine and cosine are
+        // the sums' over their length (the evidence, positive here).
+        let (sin, cos) = (self.cross / self.evidence, self.dot / self.evidence);
         let [sdx, sdy] = self.sum_dead;
         let [sfx, sfy] = self.sum_fix;
         let bias_x = (sfx - (cos * sdx - sin * sdy)) / self.weight;
@@ -961,6 +1161,8 @@ pub struct HeadingAlignment {
     history: History,
     /// The slot being filled.
     open: Slot,
+    /// A slot closed whose window waits ([`Self::close_window`]).
+    closed: Option<Slot>,
     /// Closed slots, newest at `head`.
     #[serde(with = "crate::serde_array")]
     slots: [Slot; ALIGNMENT_SLOTS],
@@ -1006,6 +1208,7 @@ impl HeadingAlignment {
             dead_velocity: Vector3::zeros(),
             history: History::default(),
             open: Slot::default(),
+            closed: None,
             slots: [Slot::default(); ALIGNMENT_SLOTS],
             head: 0,
             filled: 0,
@@ -1065,6 +1268,9 @@ impl HeadingAlignment {
                 *t -= CLOCK_REBASE_S;
             }
             self.open.t_s -= CLOCK_REBASE_S;
+            if let Some(closed) = &mut self.closed {
+                closed.t_s -= CLOCK_REBASE_S;
+            }
             for slot in &mut self.slots {
                 slot.t_s -= CLOCK_REBASE_S;
             }
@@ -1079,6 +1285,14 @@ impl HeadingAlignment {
     /// [`MAX_FIX_AGE_S`]; others are ignored, as are non-finite positions and fixes older than
     /// the previous one).
     pub fn fix(&mut self, position_ned_m: &Vector3<f32>, age_s: f32) {
+        self.slot_fix(position_ned_m, age_s);
+        self.close_window();
+    }
+
+    /// The first half of [`Self::fix`]: the position into its slot. A slot it closes waits
+    /// for [`Self::close_window`] (in a later step, `firmware::app::fix_parts`), or for the next
+    /// slot to close.
+    pub fn slot_fix(&mut self, position_ned_m: &Vector3<f32>, age_s: f32) {
         let age_ok = age_s.is_finite() && (0.0..=MAX_FIX_AGE_S).contains(&age_s);
         if !position_ned_m.iter().all(|x| x.is_finite()) || !age_ok {
             return;
@@ -1091,8 +1305,8 @@ impl HeadingAlignment {
         let dead = self.history.at(age_s, &self.dead_position);
         let slot_s = self.window_s / ALIGNMENT_SLOTS_PER_WINDOW as f32;
         if self.open.n > 0 && t_s - self.open_first_t_s >= slot_s {
-            let closed = self.open;
-            self.push(closed);
+            self.close_window();
+            self.closed = Some(self.open);
             self.open = Slot::default();
         }
         if self.open.n == 0 {
@@ -1107,9 +1321,30 @@ impl HeadingAlignment {
     /// Once they give the yaw it is the one trusted (the positions' is the fallback of a source
     /// without velocity). Non-finite values and a non-positive noise are ignored.
     pub fn fix_velocity(&mut self, velocity_ned_mps: &Vector3<f32>, noise_mps: f32, age_s: f32) {
+        let dead = self.dead_velocity_at(age_s);
+        self.fix_velocity_with(velocity_ned_mps, noise_mps, age_s, &dead);
+    }
+
+    /// The dead-reckoned velocity `age_s` ago (0 to [`MAX_FIX_AGE_S`]), the filter's world,
+    /// m/s: the first half of [`Self::fix_velocity`], which [`Self::fix_velocity_with`] completes
+    /// (in a later step, `firmware::app::fix_parts`).
+    pub fn dead_velocity_at(&self, age_s: f32) -> Vector3<f32> {
+        self.history.slope_at(age_s, &self.dead_position)
+    }
+
+    /// [`Self::fix_velocity`] with the dead-reckoned velocity of the fix's time
+    /// `dead_mps` ([`Self::dead_velocity_at`] its age then), `age_s` being the fix's age now.
+    pub fn fix_velocity_with(
+        &mut self,
+        velocity_ned_mps: &Vector3<f32>,
+        noise_mps: f32,
+        age_s: f32,
+        dead_mps: &Vector3<f32>,
+    ) {
         let age_ok = age_s.is_finite() && (0.0..=MAX_FIX_AGE_S).contains(&age_s);
         let noise_ok = noise_mps.is_finite() && noise_mps > 0.0;
-        if !velocity_ned_mps.iter().all(|x| x.is_finite()) || !age_ok || !noise_ok {
+        let finite = velocity_ned_mps.iter().chain(dead_mps.iter()).all(|x| x.is_finite());
+        if !finite || !age_ok || !noise_ok {
             return;
         }
         let t_s = self.clock_s - age_s;
@@ -1117,12 +1352,30 @@ impl HeadingAlignment {
             return;
         }
         self.last_velocity_t_s = Some(t_s);
-        let dead = self.history.slope_at(age_s, &self.dead_position);
+        self.take_velocity(t_s, velocity_ned_mps, noise_mps, *dead_mps);
+    }
+
+    /// A velocity fix of the time `t_s` with the dead-reckoned velocity `dead` of that time.
+    fn take_velocity(
+        &mut self,
+        t_s: f32,
+        velocity_ned_mps: &Vector3<f32>,
+        noise_mps: f32,
+        dead: Vector3<f32>,
+    ) {
         let alignment = self.velocity.get_or_insert_with(|| VelocityAlignment::new(noise_mps));
         if let Some(yaw) = alignment.add(VelocityPoint { t_s, fix: *velocity_ned_mps, dead }) {
             self.trusted_yaw_rad = Some(yaw);
             self.yaw_from_velocity = true;
             self.yaw_assumed = false;
+        }
+    }
+
+    /// The second half of [`Self::fix`]: the window that ends at the slot the position
+    /// closed, if it did.
+    pub fn close_window(&mut self) {
+        if let Some(slot) = self.closed.take() {
+            self.push(slot);
         }
     }
 
@@ -1164,25 +1417,34 @@ impl HeadingAlignment {
     /// The slots' means at time `t_s`, linear between the two slots around it. `None` before
     /// the oldest slot kept or after the newest.
     fn interpolate(&self, t_s: f32) -> Option<WindowPoint> {
-        let mut newer: Option<&Slot> = None;
-        for k in 0..self.filled {
-            let slot = &self.slots[(self.head + ALIGNMENT_SLOTS - k) % ALIGNMENT_SLOTS];
-            if slot.t_s <= t_s {
-                let Some(newer) = newer else {
-                    // Later than the newest slot: not a point of a window.
-                    return None;
-                };
-                let span = newer.t_s - slot.t_s;
-                let a = if span > 0.0 { ((t_s - slot.t_s) / span).clamp(0.0, 1.0) } else { 0.0 };
-                return Some(WindowPoint {
-                    fix: slot.fix + (newer.fix - slot.fix) * a,
-                    dead: slot.dead + (newer.dead - slot.dead) * a,
-                    noise_factor: (1.0 - a) * (1.0 - a) / slot.n as f32 + a * a / newer.n as f32,
-                });
-            }
-            newer = Some(slot);
+        let filled = self.filled;
+        let slot_at = |k: usize| &self.slots[(self.head + ALIGNMENT_SLOTS - k) % ALIGNMENT_SLOTS];
+        if filled < 2 || slot_at(0).t_s <= t_s {
+            // Later than the newest slot: not a point of a window.
+            return None;
         }
-        None
+        // The newest slot at or before `t_s`: from the slots' mean spacing, then a step or two.
+        let (newest, oldest) = (slot_at(0).t_s, slot_at(filled - 1).t_s);
+        let spacing = (newest - oldest) / (filled - 1) as f32;
+        let guess = if spacing > 0.0 { (newest - t_s) / spacing } else { 1.0 };
+        let mut k = crate::math::clamp(guess, 1.0, (filled - 1) as f32) as usize;
+        while k > 1 && slot_at(k - 1).t_s <= t_s {
+            k -= 1;
+        }
+        while k < filled && slot_at(k).t_s > t_s {
+            k += 1;
+        }
+        if k == filled {
+            return None;
+        }
+        let (slot, newer) = (slot_at(k), slot_at(k - 1));
+        let span = newer.t_s - slot.t_s;
+        let a = if span > 0.0 { ((t_s - slot.t_s) / span).clamp(0.0, 1.0) } else { 0.0 };
+        Some(WindowPoint {
+            fix: slot.fix + (newer.fix - slot.fix) * a,
+            dead: slot.dead + (newer.dead - slot.dead) * a,
+            noise_factor: (1.0 - a) * (1.0 - a) / slot.n as f32 + a * a / newer.n as f32,
+        })
     }
 
     /// The craft is at rest: the dead-reckoned velocity is zero.
@@ -1244,6 +1506,43 @@ impl HeadingAlignment {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A history's pending corrections read as the values shifted at once: fixes 5–100 ms
+    /// apart (so that more than `PENDING_CORRECTIONS` lie within the history and the oldest
+    /// fold), 0–0.2 s late, read at every age after each.
+    #[test]
+    fn pending_corrections_read_as_values_shifted_at_once() {
+        let (mut lazy, mut eager) = (History::default(), History::default());
+        let mut rng = crate::rng::Rng::new(5);
+        let mut small =
+            |scale: f64| rng.unit_vector().cast::<f32>() * (scale * rng.uniform()) as f32;
+        let (mut position, mut velocity) = (Vector3::zeros(), Vector3::new(0.5f32, -0.2, 0.1));
+        let (mut next_fix, mut folded) = (40usize, 0usize);
+        for k in 0..6000usize {
+            let dt_s = 0.0005;
+            velocity += small(0.01);
+            position += velocity * dt_s;
+            lazy.advance(dt_s, &position);
+            eager.advance(dt_s, &position);
+            if k != next_fix {
+                continue;
+            }
+            let age_s = (k % 7) as f32 * 0.03;
+            let (dp, dv, db) = (small(0.3), small(0.2), small(0.05));
+            position += dp + dv * age_s - db * (0.5 * age_s * age_s);
+            folded += usize::from(lazy.pending_len == PENDING_CORRECTIONS);
+            lazy.shift(age_s, dp, dv, db);
+            eager.shift(age_s, dp, dv, db);
+            eager.drop_oldest(eager.pending_len, true);
+            for a in 0..70 {
+                let age_s = a as f32 * 0.0037;
+                let (l, e) = (lazy.at(age_s, &position), eager.at(age_s, &position));
+                assert!((l - e).norm() < 1e-4, "step {k}, age {age_s}: {l:?} against {e:?}");
+            }
+            next_fix = k + [10, 200, 30, 120, 60][k % 5];
+        }
+        assert!(folded > 10, "{folded} folds");
+    }
 
     /// A tilted attitude: the fixes' velocity gains a constant 1 m/s² (g · sin 6°) the dead
     /// reckoning does not see, while the craft moves with a swinging velocity on top of a steady

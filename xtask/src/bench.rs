@@ -240,7 +240,9 @@ const BOUNDED_SEARCH_ARG: &str = "--bounded-search";
 const QEMU_PACKAGE: &str = "qemu-system-arm";
 
 /// Instruction counts on QEMU's Cortex-M7; prints a table of every region with its target and
-/// one of the issue 56 targets, and fails listing every target missed (`missed`).
+/// one of the issue 56 targets, and fails listing every target missed (`missed`). With
+/// `BENCH_M7_PROFILE` set to region numbers (comma-separated, in run order, 0 the marker
+/// overhead's), each of those regions' instructions are also listed by function.
 /// `--bounded-search` adds the thrust-axis bounded-search regions (it compiles `flight` with its
 /// feature, as the firmware does not). The learner without speed telemetry is in every run, as
 /// in the firmware's one image (issue 56).
@@ -303,7 +305,10 @@ pub fn m7(args: &[String]) -> Result<()> {
         std::io::Read::read_to_string(&mut stdout_pipe, &mut text).map(|_| text)
     });
     let trace = BufReader::with_capacity(1 << 20, child.stderr.take().context("no stderr pipe")?);
-    let counts = count_regions(trace, start, end)?;
+    let profiled: Vec<usize> = std::env::var("BENCH_M7_PROFILE")
+        .map(|v| v.split(',').filter_map(|x| x.trim().parse().ok()).collect())
+        .unwrap_or_default();
+    let (counts, profiles) = count_regions(trace, start, end, &profiled)?;
     let status = child.wait()?;
     let stdout = reader.join().map_err(|_| anyhow::anyhow!("stdout reader panicked"))??;
     if !status.success() {
@@ -333,6 +338,28 @@ pub fn m7(args: &[String]) -> Result<()> {
         println!("{line}");
     }
     print_targets(&rows);
+    if !profiles.is_empty() {
+        let mut functions: Vec<(&String, &(u32, u32))> =
+            symbols.iter().filter(|(_, s)| s.1 > 0).collect();
+        functions.sort_by_key(|(_, s)| s.0);
+        for (index, profile) in profiles {
+            let mut by_function: HashMap<String, u64> = HashMap::new();
+            for (pc, n) in profile {
+                let name = functions
+                    .iter()
+                    .rev()
+                    .find(|(_, s)| s.0 <= pc && pc < s.0 + s.1)
+                    .map_or_else(|| format!("{pc:#x}"), |(name, _)| name.to_string());
+                *by_function.entry(name).or_default() += n;
+            }
+            let mut list: Vec<_> = by_function.into_iter().collect();
+            list.sort_by_key(|(_, n)| std::cmp::Reverse(*n));
+            println!("profile of region {index} ({}):", names.get(index).unwrap_or(&"?"));
+            for (name, n) in list {
+                println!("  {n:6} {name}");
+            }
+        }
+    }
     let missed = missed(&rows);
     if !missed.is_empty() {
         bail!("bench-m7: {} target(s) missed:\n  {}", missed.len(), missed.join("\n  "));
@@ -379,7 +406,14 @@ fn elf_symbols(path: &Path) -> Result<HashMap<String, (u32, u32)>> {
 
 /// For each execution of the start marker, the number of trace lines from the first
 /// instruction after it returns up to (not including) the first instruction of the end marker.
-fn count_regions(trace: impl BufRead, start: (u32, u32), end: (u32, u32)) -> Result<Vec<u64>> {
+#[allow(clippy::type_complexity)]
+fn count_regions(
+    trace: impl BufRead,
+    start: (u32, u32),
+    end: (u32, u32),
+    profiled: &[usize],
+) -> Result<(Vec<u64>, Vec<(usize, HashMap<u32, u64>)>)> {
+    let mut profiles: Vec<(usize, HashMap<u32, u64>)> = Vec::new();
     let in_start = |pc: u32| pc >= start.0 && pc < start.0 + start.1.max(2);
     let mut counts = Vec::new();
     let mut inside_start = false;
@@ -409,10 +443,18 @@ fn count_regions(trace: impl BufRead, start: (u32, u32), end: (u32, u32)) -> Res
                 counting = None;
             } else {
                 *count += 1;
+                if profiled.contains(&counts.len()) {
+                    if profiles.last().is_none_or(|(i, _)| *i != counts.len()) {
+                        profiles.push((counts.len(), HashMap::new()));
+                    }
+                    if let Some((_, p)) = profiles.last_mut() {
+                        *p.entry(pc).or_default() += 1;
+                    }
+                }
             }
         }
     }
-    Ok(counts)
+    Ok((counts, profiles))
 }
 
 /// Install QEMU with the distribution's package manager when it is missing (as `cargo xtask

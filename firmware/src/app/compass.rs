@@ -62,7 +62,6 @@ use protocol::{
     CompassCalibrationCommand, CompassCalibrationRefusal, CompassCalibrationStatus, CompassHealth,
     CompassSensor, CompassState,
 };
-use serde::{Deserialize, Serialize};
 
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
@@ -104,23 +103,7 @@ const PROBES: [(CompassSensor, u8); 3] = [
     (CompassSensor::Qmc5883l, qmc5883l::DEFAULT_ADDRESS),
 ];
 
-/// One calibrated field for the control step (`super::ControlCommand::MagneticField`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MagneticSample {
-    /// The calibrated field, IMU axes, µT.
-    pub field_imu_ut: [f32; 3],
-    /// Its noise, one standard deviation per axis, µT.
-    pub noise_ut: f32,
-}
-
-impl MagneticSample {
-    /// Every value finite and the noise positive (what the control step takes).
-    pub fn is_valid(&self) -> bool {
-        self.field_imu_ut.iter().all(|x| x.is_finite())
-            && self.noise_ut.is_finite()
-            && self.noise_ut > 0.0
-    }
-}
+pub use super::compass_heading::MagneticSample;
 
 /// A stored compass calibration: hard iron, soft iron, mounting, noise.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -25,11 +25,30 @@
 //!   in a steady flight (slow, near 1 g), where a tilt error `e` turns it by about `e · tan(dip)`.
 
 use flight::magnetometer::{
-    tilt_compensated_heading, HeadingConfig, InterferenceMonitor, MonitorConfig,
+    tilt_compensated_yaw, HeadingConfig, InterferenceMonitor, MonitorConfig,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
-use super::compass::MagneticSample;
+use super::hal::elapsed_s;
+
+/// One calibrated field for the control step (`super::ControlCommand::MagneticField`; the
+/// compass service makes it, `super::compass`).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct MagneticSample {
+    /// The calibrated field, IMU axes, µT.
+    pub field_imu_ut: [f32; 3],
+    /// Its noise, one standard deviation per axis, µT.
+    pub noise_ut: f32,
+}
+
+impl MagneticSample {
+    /// Every value finite and the noise positive (what the control step takes).
+    pub fn is_valid(&self) -> bool {
+        self.field_imu_ut.iter().all(|x| x.is_finite())
+            && self.noise_ut.is_finite()
+            && self.noise_ut > 0.0
+    }
+}
 
 /// How old the latest sample may be and still give a heading, s (ours): the service reads the
 /// sensor every 10 ms; five periods.
@@ -50,8 +69,10 @@ pub const MAX_HEADING_STD_RAD: f32 = 5.0 * core::f32::consts::PI / 180.0;
 pub struct CompassHeading {
     /// The latest calibrated field and its arrival time, µs.
     latest: Option<(MagneticSample, u64)>,
-    /// Arrival time of the latest sample taken, µs.
+    /// Arrival time of the latest sample taken (its heading found), µs.
     taken_us: u64,
+    /// Arrival time of the latest sample the monitor saw, µs.
+    monitored_us: u64,
     /// The field averaged in the filter's world while disarmed and still, µT.
     still_world_ut: Option<Vector3<f32>>,
     monitor: Option<InterferenceMonitor>,
@@ -93,36 +114,51 @@ impl CompassHeading {
     /// `q_filter` (its yaw does not matter), when the latest sample is fresh and trusted.
     /// `still_disarmed`: the motors are off and the craft still, so the sample joins the
     /// reference.
+    ///
+    /// A new sample is taken in two parts, one per step, each a fraction of the control step's
+    /// budget: the interference monitor (or the motors-off reference), then the heading; until
+    /// the second, the previous sample's heading stands (at 100 Hz, 10 ms older). `busy`: the
+    /// step carries other work (a GNSS solution's part, `super::fix_parts`), and the sample
+    /// waits for a step that does not (the parts last four steps, 2 ms; a sample stays fresh
+    /// for [`FRESH_S`]).
     pub fn step(
         &mut self,
         now_us: u64,
         q_filter: &UnitQuaternion<f32>,
         still_disarmed: bool,
+        busy: bool,
     ) -> Option<f32> {
         let (sample, at_us) = self.latest?;
-        if now_us.saturating_sub(at_us) as f32 * 1e-6 > FRESH_S {
+        if elapsed_s(at_us, now_us) > FRESH_S {
             self.yaw_rad = None;
             return None;
         }
-        if at_us == self.taken_us {
+        if at_us == self.taken_us || busy {
             return self.yaw_rad;
         }
-        let dt_s = if self.taken_us == 0 { 0.01 } else { (at_us - self.taken_us) as f32 * 1e-6 };
-        self.taken_us = at_us;
         let field = Vector3::from(sample.field_imu_ut);
-        if still_disarmed {
-            let world = q_filter * field;
-            let a = (dt_s / REFERENCE_TIME_S).min(1.0);
-            let average = self.still_world_ut.map_or(world, |mean| mean + (world - mean) * a);
-            self.still_world_ut = Some(average);
-            self.monitor = Some(InterferenceMonitor::new(
-                MonitorConfig::default(),
-                &average,
-                &UnitQuaternion::identity(),
-            ));
-        } else if let Some(monitor) = &mut self.monitor {
-            monitor.update(&field, q_filter, dt_s);
+        if at_us != self.monitored_us {
+            // Part 1: the monitor, `dt_s` after the previous sample it saw.
+            let dt_s =
+                if self.monitored_us == 0 { 0.01 } else { elapsed_s(self.monitored_us, at_us) };
+            self.monitored_us = at_us;
+            if still_disarmed {
+                let world = q_filter * field;
+                let a = (dt_s / REFERENCE_TIME_S).min(1.0);
+                let average = self.still_world_ut.map_or(world, |mean| mean + (world - mean) * a);
+                self.still_world_ut = Some(average);
+                self.monitor = Some(InterferenceMonitor::new(
+                    MonitorConfig::default(),
+                    &average,
+                    &UnitQuaternion::identity(),
+                ));
+            } else if let Some(monitor) = &mut self.monitor {
+                monitor.update(&field, q_filter, dt_s);
+            }
+            return self.yaw_rad;
         }
+        // Part 2: the heading.
+        self.taken_us = at_us;
         let trusted = self.monitor.is_some_and(|monitor| !monitor.status().disturbed);
         let config = HeadingConfig {
             declination_rad: self.declination_rad,
@@ -130,10 +166,10 @@ impl CompassHeading {
             ..HeadingConfig::default()
         };
         self.yaw_rad = trusted
-            .then(|| tilt_compensated_heading(&field, q_filter, &config).ok())
+            .then(|| tilt_compensated_yaw(&field, q_filter, &config).ok())
             .flatten()
-            .filter(|heading| heading.std_rad <= MAX_HEADING_STD_RAD)
-            .map(|heading| heading.yaw_rad);
+            .filter(|(_, std_rad)| *std_rad <= MAX_HEADING_STD_RAD)
+            .map(|(yaw_rad, _)| yaw_rad);
         self.yaw_rad
     }
 }
@@ -171,11 +207,16 @@ mod tests {
         // The filter's yaw is arbitrary; its tilt is right.
         let q_filter = UnitQuaternion::from_euler_angles(0.0, 0.2, -2.0);
         compass.sample(&sample, 1_000);
-        assert_eq!(compass.step(1_000, &q_filter, false), None, "no reference yet");
+        assert_eq!(compass.step(1_000, &q_filter, false, false), None, "no reference yet");
+        assert_eq!(compass.step(1_500, &q_filter, false, false), None, "no reference yet");
         compass.sample(&sample, 11_000);
-        let yaw = compass.step(11_000, &q_filter, true).expect("a heading");
+        // The monitor's part, then the heading's; a busy step in between does neither.
+        assert_eq!(compass.step(11_000, &q_filter, true, false), None, "the monitor's part");
+        assert_eq!(compass.step(11_500, &q_filter, true, true), None, "a busy step");
+        let yaw = compass.step(12_000, &q_filter, true, false).expect("a heading");
         assert!(wrap_pi(yaw - flight::attitude::yaw_of(&q_true)).abs() < 0.01, "{yaw}");
-        assert_eq!(compass.step(11_000 + 60_000, &q_filter, false), None, "stale");
+        assert_eq!(compass.step(12_500, &q_filter, true, true), Some(yaw), "kept");
+        assert_eq!(compass.step(11_000 + 60_000, &q_filter, false, false), None, "stale");
     }
 
     /// Motors' interference of a quarter of the field, off the reference: no heading, where
@@ -189,21 +230,24 @@ mod tests {
         for _ in 0..200 {
             t_us += 10_000;
             compass.sample(&field(0.3, 0.0, Vector3::zeros()).0, t_us);
-            assert!(compass.step(t_us, &q_filter, true).is_some());
+            compass.step(t_us, &q_filter, true, false);
+            assert!(compass.step(t_us + 500, &q_filter, true, false).is_some());
         }
         let extra = Vector3::new(0.0, 12.0, -6.0);
         let mut last = None;
         for _ in 0..200 {
             t_us += 10_000;
             compass.sample(&field(0.3, 0.0, extra).0, t_us);
-            last = compass.step(t_us, &q_filter, false);
+            compass.step(t_us, &q_filter, false, false);
+            last = compass.step(t_us + 500, &q_filter, false, false);
         }
         assert_eq!(last, None, "the disturbed field was trusted");
         // Back without the motors' field: trusted again.
         for _ in 0..300 {
             t_us += 10_000;
             compass.sample(&field(0.3, 0.0, Vector3::zeros()).0, t_us);
-            last = compass.step(t_us, &q_filter, false);
+            compass.step(t_us, &q_filter, false, false);
+            last = compass.step(t_us + 500, &q_filter, false, false);
         }
         let yaw = last.expect("a heading");
         assert!(wrap_pi(yaw - 0.3).abs() < 0.01, "{yaw}");

@@ -183,3 +183,11 @@ pub struct PortClosed;
 /// increments. Measured (`tests/tests/faults.rs`): 39 bad samples (19.5 ms) of every kind, in
 /// the recovery and in hover, are ridden through; the paper quad recovers and holds its position.
 pub const IMU_FAULT_TIMEOUT_S: f32 = 0.02;
+
+/// Seconds from `since_us` to `now_us` (0 when `now_us` is earlier), through a 32-bit count
+/// of microseconds (71 minutes at most, then saturated): the Cortex-M7 converts that in one
+/// instruction, where a 64-bit one is a library call of about 30 (`cargo xtask bench-m7`).
+pub fn elapsed_s(since_us: u64, now_us: u64) -> f32 {
+    let us = now_us.saturating_sub(since_us).min(u64::from(u32::MAX)) as u32;
+    us as f32 * 1e-6
+}

@@ -20,6 +20,7 @@ pub mod catch;
 pub mod compass;
 mod compass_heading;
 mod control;
+pub mod fix_parts;
 pub mod gnss;
 pub mod hal;
 pub mod landing;

@@ -67,7 +67,7 @@ use flight::controller::{Controller, ControllerInput, ControllerOutput, Guidance
 use flight::indi::{IndiConfig, IndiModel, ModelError};
 use flight::learner::{AxisStatus, LearnedModel};
 use flight::navigation::{
-    crossover_for_noise, Fix, FixOutcome, HeadingAlignment, PositionEstimator, MAX_FIX_AGE_S,
+    crossover_for_noise, Fix, FixOutcome, HeadingAlignment, PositionEstimator,
     STANDARD_GRAVITY_MPS2,
 };
 use nalgebra::{UnitQuaternion, Vector3};
@@ -79,6 +79,7 @@ use protocol::{
 use super::catch::{CatchDetector, CatchSignals};
 use super::compass::MagneticSample;
 use super::compass_heading::CompassHeading;
+use super::fix_parts::{self, FixParts};
 use super::hal::{ImuSample, MAX_MOTORS};
 pub use super::landing::LandConfig;
 use super::landing::{FlyAway, Touchdown, TouchdownSigns};
@@ -350,6 +351,9 @@ struct PendingFix {
     /// The fix; its `age_s` is the latency alone until it is taken.
     fix: Fix,
     arrived_us: u64,
+    /// A fix with its own accuracy ([`Pilot::fix`], a GNSS solution): taken in parts, one per
+    /// step (`super::fix_parts`); a pose is taken whole.
+    in_parts: bool,
 }
 
 /// Default pose noise, m, one standard deviation per axis: motion capture (the `pose_noise_m`
@@ -555,6 +559,8 @@ pub struct Pilot {
     last_pose_us: Option<u64>,
     /// A pose or fix that arrived and is taken after the next prediction.
     pending_fix: Option<PendingFix>,
+    /// The GNSS solution being taken, part by part (`super::fix_parts`).
+    fix_part: Option<FixParts>,
     /// The latest fix's velocity noise (a GNSS receiver's; `None` for a pose without one), m/s,
     /// the time since the fix before it and its age, s.
     last_fix_velocity_noise: Option<(f32, f32, f32)>,
@@ -633,6 +639,7 @@ impl Pilot {
             requested_sp: None,
             last_pose_us: None,
             pending_fix: None,
+            fix_part: None,
             last_fix_velocity_noise: None,
             pose_config: PoseConfig::default(),
             heading_rad: None,
@@ -822,7 +829,7 @@ impl Pilot {
             age_s: self.pose_config.latency_s,
             dt_fix_s: self.since_last_fix_s(now_us),
         };
-        self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
+        self.pending_fix = Some(PendingFix { fix, arrived_us: now_us, in_parts: false });
         self.last_pose_us = Some(now_us);
         self.heading_rad = Some(pose.heading_rad);
         self.last_fix_velocity_noise = None;
@@ -867,7 +874,7 @@ impl Pilot {
             age_s: fix.latency_s,
             dt_fix_s: self.since_last_fix_s(now_us),
         };
-        self.pending_fix = Some(PendingFix { fix, arrived_us: now_us });
+        self.pending_fix = Some(PendingFix { fix, arrived_us: now_us, in_parts: true });
         self.last_pose_us = Some(now_us);
         self.heading_rad = None;
         self.last_fix_velocity_noise = velocity.map(|(_, noise)| (noise, fix.dt_fix_s, fix.age_s));
@@ -876,54 +883,55 @@ impl Pilot {
     /// Time since the previous pose or fix arrived, s (0.01 s for the first).
     fn since_last_fix_s(&self, now_us: u64) -> f32 {
         self.last_pose_us
-            .map(|t| now_us.saturating_sub(t) as f32 * 1e-6)
+            .map(|t| super::hal::elapsed_s(t, now_us))
             .filter(|dt| *dt > 0.0)
             .unwrap_or(0.01)
     }
 
     /// Take the waiting fix, the estimates being at `now_us`: it describes the craft its
-    /// latency before its arrival.
+    /// latency before its arrival. A pose is taken whole; a GNSS solution one part per step
+    /// (`super::fix_parts`), and a fix that arrives meanwhile waits for the parts to end.
     fn take_fix(&mut self, now_us: u64) {
-        let Some(PendingFix { mut fix, arrived_us }) = self.pending_fix.take() else { return };
-        let since_arrival_s = now_us.saturating_sub(arrived_us) as f32 * 1e-6;
-        fix.age_s = (fix.age_s + since_arrival_s).min(MAX_FIX_AGE_S);
+        if self.fix_part.is_some() {
+            let outcome = fix_parts::step(
+                &mut self.fix_part,
+                &mut self.navigation,
+                &mut self.alignment,
+                now_us,
+            );
+            if outcome == Some(FixOutcome::Rejected) {
+                self.status.fixes_rejected = self.status.fixes_rejected.wrapping_add(1);
+            }
+            return;
+        }
+        let Some(PendingFix { mut fix, arrived_us, in_parts }) = self.pending_fix.take() else {
+            return;
+        };
+        fix.age_s = fix_parts::age_at(&fix, arrived_us, now_us);
+        if in_parts {
+            fix_parts::start(&mut self.fix_part, &self.navigation, &fix, now_us);
+            return;
+        }
         let outcome = self.navigation.correct_fix(&fix);
         if outcome == Ok(FixOutcome::Rejected) {
             self.status.fixes_rejected = self.status.fixes_rejected.wrapping_add(1);
         }
         if let Ok(outcome) = outcome {
-            let (position, age_s) = (fix.position_ned_m, fix.age_s);
-            let before = self.alignment.yaw_rad();
-            // The estimator refuses a position that strays from its prediction, but before the
-            // alignment that prediction is flown in the wrong world: a craft whose filter is
-            // tilted accelerates where its dead reckoning sees nothing, and every fix would be
-            // refused while it drifts (the random receiver world's seed 131: 9 s without a
-            // velocity for the alignment, 25 m/s). The velocity alignment compares differences
-            // over its window and needs no prediction; a Doppler velocity hardly moves with
-            // multipath. Refused positions stay out of the position alignment.
-            if outcome != FixOutcome::Rejected {
-                self.alignment.fix(&position, age_s);
+            let aligned_before = self.alignment.yaw_rad().is_some();
+            if fix_parts::alignment_fixes(outcome) {
+                self.alignment.fix(&fix.position_ned_m, fix.age_s);
             }
             if let Some((velocity, noise)) = fix.velocity {
-                self.alignment.fix_velocity(&velocity, noise, age_s);
+                self.alignment.fix_velocity(&velocity, noise, fix.age_s);
             }
-            if self.alignment.yaw_rad().is_some() && before.is_none() {
-                // The accelerometer's world turned: restart the velocity from the velocity fix
-                // carried forward by the dead reckoning since its time, or without one from
-                // the dead reckoning alone. Before the alignment nothing corrected the filter's
-                // tilt, and the dead reckoning missed what a tilted filter makes the craft do
-                // (the random receiver world's seed 315: 12° after an 845 °/s tumble, the dead
-                // reckoning at 2.2 m/s where the fixes said 7.8 m/s, and a hold that braked on
-                // the former went on for 3 s).
-                let restart = match fix.velocity {
-                    Some((velocity, _)) => {
-                        let since = self.alignment.dead_reckoned_change_since_mps(age_s);
-                        velocity + self.aligned_world(&since)
-                    }
-                    None => self.dead_reckoned_velocity(),
-                };
-                self.navigation.set_velocity(&restart);
-            }
+            fix_parts::restart_if_aligned(
+                &mut self.navigation,
+                &self.alignment,
+                &fix,
+                now_us,
+                now_us,
+                aligned_before,
+            );
         }
     }
 
@@ -953,8 +961,10 @@ impl Pilot {
                 < flight::attitude::ACCEL_TRUST_BAND * STANDARD_GRAVITY_MPS2;
         let still = gyro.norm() < STILL_RATE_RAD_S
             && (f.norm() - STANDARD_GRAVITY_MPS2).abs() < STILL_ACCEL_MPS2;
+        // A GNSS solution's part runs in this step: a new compass sample waits.
+        let busy = self.fix_part.is_some() || self.pending_fix.is_some_and(|p| p.in_parts);
         let compass_yaw =
-            self.compass.step(now_us, &self.attitude.quaternion(), still_allowed && still);
+            self.compass.step(now_us, &self.attitude.quaternion(), still_allowed && still, busy);
         let heading = match (pose_fresh && steady, self.heading_rad) {
             (true, Some(pose_heading)) => {
                 let q_filter = self.attitude.quaternion();
@@ -1085,7 +1095,7 @@ impl Pilot {
 
     /// A vector of the filter's world turned into the world the controller sees.
     fn aligned_world(&self, filter_world: &Vector3<f32>) -> Vector3<f32> {
-        flight::math::rotation_about(&Vector3::z_axis(), self.alignment_yaw_rad()) * filter_world
+        fix_parts::aligned_world(&self.alignment, filter_world)
     }
 
     /// What to fly now: the position setpoint when poses arrive and the world is aligned, else
