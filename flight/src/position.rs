@@ -47,7 +47,8 @@
 //! the hold. A gust's extra drag `Δa` is rejected by the proportional loops alone until the
 //! integral catches up: a static error of `Δa / (k_velocity k_position)` (0.5 m for turbulence
 //! of σ = 1.5 m/s in an 8 m/s wind on that airframe). On the craft the measured thrust direction
-//! (`crate::controller`, 0.1 s in a hold) feeds part of it back first. Tested on a point mass
+//! (`crate::controller`, 0.1 s in a hold) and the hold's disturbance estimate
+//! (`crate::controller::DisturbanceEstimate`) feed most of it back first. Tested on a point mass
 //! with that drag: zero steady error, the integral equal to the drag, a 4 m/s gust's excursion
 //! within the static error, and back.
 //!
