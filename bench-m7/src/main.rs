@@ -870,7 +870,9 @@ fn closed_loop_regions(m: usize, learner: &Learner) {
         angular_accel_rad_s2: Vector3::new(0.5, -0.3, 0.1),
     };
     let mut state = (hover.controller.indi().clone(), gyro, accel, reference);
-    let _ = region(&mut state, |(indi, gyro, accel, r)| indi.update(black_box(*gyro), *accel, r));
+    let _ = region(&mut state, |(indi, gyro, accel, r)| {
+        indi.update(black_box(*gyro), *accel, r).copied()
+    });
     black_box(&state);
 
     // The allocation alone on the model's G1: a hover-sized increment, then one no motor set

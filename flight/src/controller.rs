@@ -722,7 +722,7 @@ impl Controller {
             specific_force_z_mps2: -command.thrust_mps2,
             angular_accel_rad_s2: accel_sp,
         };
-        let indi = self.indi.update(input.gyro_rad_s, input.accel_mps2, &reference)?;
+        let indi = *self.indi.update(input.gyro_rad_s, input.accel_mps2, &reference)?;
         Ok(ControllerOutput {
             indi,
             q_world_thrust,

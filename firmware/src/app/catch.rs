@@ -456,7 +456,7 @@ mod tests {
             let thrust: f32 =
                 (0..model.motors).map(|j| model.g1[2][j] * u_true[j] * effectiveness[j]).sum();
             let force = q_imu_thrust * Vector3::new(0.0, 0.0, thrust - thrust_trim);
-            let out = indi.update(gyro.into(), force.into(), &reference).unwrap();
+            let out = *indi.update(gyro.into(), force.into(), &reference).unwrap();
             for (j, u) in u_true.iter_mut().enumerate().take(model.motors) {
                 let gain = DT_S / (model.motor[j].tau_s + DT_S);
                 *u += (out.u[j] - *u) * gain;
