@@ -104,7 +104,7 @@ fn tick_regions() {
 /// at the radio's rate) and position mode's velocity turned into the world (when the heading
 /// has turned 2°).
 fn pilot_regions() {
-    use app::landing::{FlyAway, LandConfig, Touchdown, TouchdownSigns};
+    use app::landing::{FlyAway, LandConfig, ThrustScale, Touchdown, TouchdownSigns};
     use app::sticks::{move_setpoint, StickConfig};
     use drivers::crsf::StickInput;
     use protocol::LandReason;
@@ -140,6 +140,7 @@ fn pilot_regions() {
             u_hover: &hover,
             g1_up_mps2: &g1,
             specific_force_thrust_mps2: [0.1, -0.2, -9.6],
+            flown: ThrustScale::default(),
             tilt_rate_rad_s: 0.02,
             accel_mps2: [0.3, 9.1, -3.2],
             // With fixes: the ground contact's stage is followed too.

@@ -82,7 +82,7 @@ use super::compass_heading::CompassHeading;
 use super::fix_parts::{self, FixParts};
 use super::hal::{ImuSample, MAX_MOTORS};
 pub use super::landing::LandConfig;
-use super::landing::{FlyAway, Touchdown, TouchdownSigns};
+use super::landing::{FlyAway, ThrustScale, Touchdown, TouchdownSigns};
 use super::sticks::{move_setpoint, StickConfig, StickDemand};
 use crate::drivers::crsf::StickInput;
 
@@ -592,6 +592,8 @@ pub struct Pilot {
     steady_s: f32,
     /// The landing in progress.
     touchdown: Option<Touchdown>,
+    /// The thrust measured against the flying model's, for the touchdown (reset with the model).
+    thrust_scale: ThrustScale,
     /// How long the fixes have been lost in this flight, s.
     pose_lost_s: f32,
     /// The fly-away detector.
@@ -654,6 +656,7 @@ impl Pilot {
             stick_velocity: None,
             steady_s: 0.0,
             touchdown: None,
+            thrust_scale: ThrustScale::default(),
             pose_lost_s: 0.0,
             flyaway: FlyAway::default(),
             unaligned_s: 0.0,
@@ -1246,11 +1249,16 @@ impl Pilot {
         gyro_rad_s: &[f32; 3],
         accel_mps2: &[f32; 3],
     ) -> bool {
-        let (Some(touchdown), Some(controller)) = (&mut self.touchdown, &self.controller) else {
-            return false;
-        };
+        let Some(controller) = &self.controller else { return false };
         let model = controller.indi().model();
         let motors = model.motors.min(MAX_MOTORS);
+        let specific_force_thrust_mps2 = controller.indi().state().specific_force_mps2.into();
+        let Some(touchdown) = &mut self.touchdown else {
+            // Flying, not landing: the thrust measured against the model, for the touchdown.
+            let (u, g1_up) = (&output.indi.u[..motors], &model.g1[2][..motors]);
+            self.thrust_scale.update(u, g1_up, specific_force_thrust_mps2, 1.0 / self.rate_hz);
+            return false;
+        };
         let nav = *self.navigation.state();
         // Tipping, not turning about the thrust axis: a craft on its gear may still yaw.
         let rate = model.q_imu_thrust.inverse() * Vector3::from(*gyro_rad_s);
@@ -1259,7 +1267,8 @@ impl Pilot {
             u_idle: &model.u_idle[..motors],
             u_hover: &model.u_hover[..motors],
             g1_up_mps2: &model.g1[2][..motors],
-            specific_force_thrust_mps2: controller.indi().state().specific_force_mps2.into(),
+            specific_force_thrust_mps2,
+            flown: self.thrust_scale,
             tilt_rate_rad_s: libm::hypotf(rate.x, rate.y),
             accel_mps2: *accel_mps2,
             fix_vertical_speed_mps: nav.has_fix.then_some(nav.velocity_ned_mps.z),
@@ -1336,6 +1345,7 @@ impl Pilot {
         self.yaw_sp_filter_rad =
             yaw_of(&(self.attitude.quaternion() * controller.indi().model().q_imu_thrust));
         self.controller = Some(controller);
+        self.thrust_scale = ThrustScale::default();
         // The heading's reference frame changes to the thrust frame: a new steady stretch.
         self.heading_offset_rad = None;
         self.tilted_s = 0.0;
