@@ -142,10 +142,8 @@ impl ThrustScale {
     ) {
         let pushed_up_mps2: f32 = u.iter().zip(g1_up_mps2).map(|(u, g1)| -g1 * u).sum();
         let measured_up_mps2 = -specific_force_thrust_mps2[2];
-        if !(pushed_up_mps2 > THRUST_SCALE_MIN_PUSH_G * STANDARD_GRAVITY_MPS2)
-            || !measured_up_mps2.is_finite()
-            || !dt_s.is_finite()
-        {
+        let pushing = pushed_up_mps2 > THRUST_SCALE_MIN_PUSH_G * STANDARD_GRAVITY_MPS2;
+        if !pushing || !measured_up_mps2.is_finite() || !dt_s.is_finite() {
             return;
         }
         let (low, high) = THRUST_SCALE_RANGE;
