@@ -104,7 +104,7 @@ pub const THRUST_SCALE_MIN_PUSH_G: f32 = 0.3;
 /// thrust flies no hover to measure it in.
 pub const THRUST_SCALE_RANGE: (f32, f32) = (0.25, 4.0);
 
-/// The thrust measured against the learned model's ([`TouchdownSigns::thrust_scale`]): the
+/// The thrust measured against the learned model's ([`TouchdownSigns::flown`]): the
 /// upward specific force the IMU measures over the one the model says the commands push with,
 /// low-passed over [`THRUST_SCALE_TIME_S`] while flying and not landing (the pilot stops it
 /// when a landing begins, for the ground carries the craft then). Both sides are the thrust
@@ -118,7 +118,8 @@ pub const THRUST_SCALE_RANGE: (f32, f32) = (0.25, 4.0);
 pub struct ThrustScale {
     /// Measured over modelled thrust; 1 before a sample.
     scale: f32,
-    /// The commands' sum that flew, normalised thrust (meaningful once `sampled`).
+    /// The commands' sum that flew, normalised thrust (meaningful once `sampled`; finite: a
+    /// non-finite command makes the push non-finite, and no sample is taken).
     flown_u_sum: f32,
     sampled: bool,
 }
@@ -399,11 +400,9 @@ impl Touchdown {
     pub fn step(&mut self, signs: &TouchdownSigns<'_>, dt_s: f32) -> TouchdownStep {
         let motors = signs.u.len().min(signs.u_idle.len()).min(signs.u_hover.len());
         let motors = motors.min(signs.g1_up_mps2.len());
-        // The model scaled by the thrust measured against it before the landing: its hover is
-        // `u_hover / scale`, its push `scale` times its G1's.
-        let (low_scale, high_scale) = THRUST_SCALE_RANGE;
+        // What the flight before the landing measured (`ThrustScale`, bounded where it is
+        // taken): the hover that flew, and the model's push times the thrust measured over it.
         let flown = &signs.flown;
-        let scale = flown.scale().clamp(low_scale, high_scale);
         let mut thrust = 0.0;
         let (mut idle, mut hover) = (0.0, 0.0);
         let mut pushed_up_mps2 = 0.0;
@@ -414,9 +413,9 @@ impl Touchdown {
             pushed_up_mps2 -= signs.g1_up_mps2[i] * signs.u[i];
         }
         // The hover that flew, else the model's.
-        let hover = flown.flown_u_sum().filter(|u| u.is_finite()).unwrap_or(hover).max(idle);
+        let hover = flown.flown_u_sum().unwrap_or(hover).max(idle);
         let low = idle + TOUCHDOWN_THRUST_FRACTION * (hover - idle);
-        pushed_up_mps2 *= scale;
+        pushed_up_mps2 *= flown.scale();
         let force_up_g = -signs.specific_force_thrust_mps2[2] / STANDARD_GRAVITY_MPS2;
         // What the motors' commands push with, by the learned model: the ground carries the
         // difference. On the ground INDI's torque demands (against the gear's friction) can

@@ -1242,7 +1242,8 @@ impl Pilot {
     }
 
     /// Whether a landing craft rests on the ground in this step (see [`Touchdown`]), and so
-    /// the landing is over.
+    /// the landing is over. In a flight not landing, the step's sample of the thrust measured
+    /// against the model ([`ThrustScale`]) that the landing to come reads.
     fn touched_down(
         &mut self,
         output: &ControllerOutput,
