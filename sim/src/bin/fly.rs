@@ -142,6 +142,12 @@ enum Command {
         batch: BatchArgs,
         #[command(flatten)]
         world: WorldArgs,
+        /// Also write one line per run to this file (CSV: seed, verdict, motors, the slowest
+        /// motor's τ in ms, the steady wind and the turbulence's σ in m/s, its correlation time
+        /// in s, the worst distance from the setpoint over the hold and its horizontal part in m,
+        /// the share of the hold window flown in position hold, release → hover in s).
+        #[arg(long)]
+        runs_csv: Option<std::path::PathBuf>,
     },
 }
 
@@ -484,6 +490,37 @@ fn print_by_motor_tau(results: &[sim::recovery::CaseResult]) {
             100.0 * held as f64 / of.len() as f64
         );
     }
+}
+
+/// The runs as CSV, one line each after a header (`--runs-csv`); empty fields where a figure
+/// does not exist (no wind drawn, no hold flown).
+fn runs_csv_text(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects]) -> String {
+    let optional = |x: Option<f64>| x.map(|x| format!("{x:.4}")).unwrap_or_default();
+    let mut text = String::from(
+        "seed,verdict,motors,slowest_tau_ms,wind_mps,turbulence_sigma_mps,turbulence_correlation_s,worst_hold_m,worst_hold_horizontal_m,hold_coverage,release_to_hover_s\n",
+    );
+    for (r, world) in results.iter().zip(worlds) {
+        let wind = nalgebra::Vector3::from(world.steady_wind_ned_mps).norm();
+        let (sigma, correlation) = match &world.turbulence {
+            Some(t) => (Some(t.sigma_ned_mps[0]), Some(t.correlation_s)),
+            None => (None, None),
+        };
+        text += &format!(
+            "{},{:?},{},{:.1},{:.3},{},{},{},{},{:.3},{}\n",
+            r.seed,
+            r.verdict,
+            r.motors,
+            r.slowest_motor_tau_s * 1e3,
+            wind,
+            optional(sigma),
+            optional(correlation),
+            optional(r.report.max_hold_error_m),
+            optional(r.report.max_hold_error_horizontal_m),
+            r.report.hold_coverage,
+            optional(r.report.release_to_hover_s),
+        );
+    }
+    text
 }
 
 /// How far from where it recovered a craft with a fresh pose may end its flight, m (issue 53).
@@ -862,7 +899,11 @@ fn main() -> ExitCode {
             );
             print_report(&format!("case {seed}"), &fly(&airframe, &config));
         }
-        Command::MonteCarlo { batch: BatchArgs { runs, seed, threads }, world: world_args } => {
+        Command::MonteCarlo {
+            batch: BatchArgs { runs, seed, threads },
+            world: world_args,
+            runs_csv,
+        } => {
             let aspects = match checked_aspects(&world_args, motion_capture, &args.gnss) {
                 Ok(aspects) => aspects,
                 Err(code) => return code,
@@ -1157,6 +1198,19 @@ fn main() -> ExitCode {
                 }
             }
             print_by_motor_tau(&results);
+            if let Some(path) = runs_csv {
+                let worlds: Vec<WorldEffects> = results
+                    .iter()
+                    .map(|r| {
+                        case(r.seed, &aspects, motion_capture, &gnss, &world_args).1.board.world
+                    })
+                    .collect();
+                if let Err(e) = std::fs::write(&path, runs_csv_text(&results, &worlds)) {
+                    eprintln!("fly: cannot write {}: {e}", path.display());
+                    return ExitCode::from(2);
+                }
+                println!("one line per run: {}", path.display());
+            }
         }
     }
     ExitCode::SUCCESS
