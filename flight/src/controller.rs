@@ -43,7 +43,9 @@
 //!   hold, a 25° cone); what the attitude loop has not yet turned away of a gust's change is
 //!   estimated against the commands ([`DisturbanceEstimate`], over 0.2 s, bounded at 3 m/s²) and
 //!   half of it fed forward. Turbulence correlated over less than the attitude loop's lag
-//!   (`1/k_attitude`: 0.2 s for a 25 ms motor, 0.5 s for a 60 ms one) passes to the position loop.
+//!   passes to the position loop; a hold's attitude loop is faster than the published one for
+//!   that (`crate::position::Gains::for_hold`: `1/k_attitude` 0.14 s for a 25 ms motor and
+//!   0.28 s for a 60 ms one, instead of 0.21 and 0.5 s).
 //!
 //! A plain struct with [`Controller::update`]; the application decides when it runs and what
 //! happens when it reports trouble.
@@ -282,8 +284,8 @@ pub const DISTURBANCE_MAX_MPS2: f32 = 3.0;
 /// The measured thrust direction ([`ThrustDirection`]) already points thrust *and drag* along
 /// the wanted specific force, so a steady wind needs nothing more; but it acts through the
 /// attitude loop, and what that loop has not yet turned away of a gust's drag (a high-pass at
-/// about `k_attitude`: 16–45 % of the push of turbulence correlated over 1–3 s for a 60 ms motor,
-/// whose `k_attitude` is 2 /s) reaches the position loop, whose static error for it is `Δa / (k_velocity k_position)`. The measured force minus
+/// about `k_attitude`: 16–45 % of the push of turbulence correlated over 1–3 s for a 60 ms motor
+/// on the published `k_attitude` of 2 /s; the hold's is 3.6 /s) reaches the position loop, whose static error for it is `Δa / (k_velocity k_position)`. The measured force minus
 /// the command passed through the rate loop's lag `1/k_rate` and the attitude loop's
 /// `1/k_attitude` is that part, whatever the command did: fed forward with the opposite sign
 /// ([`DISTURBANCE_FEED_FORWARD_FRACTION`] of it), the attitude loop starts turning it away at
@@ -433,6 +435,9 @@ pub struct Controller {
     tilt_decel_rad_s2: f32,
     thrust_direction: ThrustDirection,
     disturbance: DisturbanceEstimate,
+    /// The bounds on the hold's position and velocity loops, 1/s ([`Self::cap_position_gain`],
+    /// [`Self::cap_hold_velocity_gain`]; infinite: none).
+    hold_bounds: [f32; 2],
     /// Angle mode's tilt reference, forward and right: angles (rad) and rates (rad/s); `None`
     /// outside angle mode.
     stick_tilt: Option<[(f32, f32); 2]>,
@@ -449,72 +454,51 @@ impl Controller {
             tilt_decel_rad_s2,
             thrust_direction: ThrustDirection::default(),
             disturbance: DisturbanceEstimate::default(),
+            hold_bounds: [f32::INFINITY; 2],
             stick_tilt: None,
             indi: Indi::new(model, r_imu_m, config)?,
-            position: PositionController::new(gains),
+            position: PositionController::new(gains.for_hold()),
             gains,
             rate_hz: config.rate_hz,
         })
     }
 
-    /// Lower the position loop's gain to at most `k_position_max` (1/s: m/s per m), the
-    /// velocity-loop integral with it (its zero stays at the same fraction of the position
-    /// loop's bandwidth): with noisy fixes (GNSS) a position loop faster than the estimator's
-    /// trust in them (`crate::navigation::position_crossover`) only turns their noise into tilt.
-    /// A bound that is not finite and positive, or above the gain, changes nothing.
+    /// Lower the position hold's position-loop gain to at most `k_position_max` (1/s: m/s per
+    /// m): with noisy fixes (GNSS) a position loop faster than the estimator's trust in them
+    /// (`crate::navigation::position_crossover`) only turns their noise into tilt. The loops
+    /// inside it follow ([`Gains::for_hold_within`]). A bound that is not finite and positive,
+    /// or above the gain, changes nothing; bounds set before stay.
     #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn cap_position_gain(&mut self, k_position_max: f32) {
-        // The hold's own gains: a velocity bound set before (`Self::cap_hold_velocity_gain`)
-        // stays.
-        let gains = *self.position.gains();
-        if !(k_position_max.is_finite()
-            && k_position_max > 0.0
-            && k_position_max < gains.k_position)
-        {
-            return;
-        }
-        let scale = k_position_max / gains.k_position;
-        let capped = Gains {
-            k_position: k_position_max,
-            k_velocity_integral: gains.k_velocity_integral * scale,
-            ..gains
-        };
-        if let Ok(position) = PositionController::with_limits(capped, *self.position.limits()) {
-            self.position = position;
-            self.gains.k_position = capped.k_position;
-            self.gains.k_velocity_integral = capped.k_velocity_integral;
+        if k_position_max.is_finite() && k_position_max > 0.0 {
+            self.hold_bounds[0] = self.hold_bounds[0].min(k_position_max);
+            self.form_hold();
         }
     }
 
     /// Lower the position hold's velocity-loop gain to at most `k_velocity_max` (1/s: m/s² per
-    /// m/s), the position loop behind it to keep its damping ([`crate::position::ZETA_POSITION`])
-    /// and the integral with both: with a noisy velocity (GNSS) a velocity loop faster than
-    /// [`max_velocity_gain`] turns the estimate's noise into tilt. The level hold keeps its gain:
-    /// before the heading is known it must stop the drift a tumble's tilt error leaves, and
-    /// softened as well (to half the velocity crossover) it let 31 of 1,000 random receiver
-    /// worlds end more than 10 m from where they recovered instead of 14 (`fly --gnss --end land
-    /// monte-carlo --world random --gnss-random`). A bound that is not finite and positive, or
-    /// above the gain, changes nothing.
+    /// m/s), the loops around and inside it with it ([`Gains::for_hold_within`]): with a noisy
+    /// velocity (GNSS) a velocity loop faster than [`max_velocity_gain`] turns the estimate's
+    /// noise into tilt. The level hold keeps its gain: before the heading is known it must stop
+    /// the drift a tumble's tilt error leaves, and softened as well (to half the velocity
+    /// crossover) it let 31 of 1,000 random receiver worlds end more than 10 m from where they
+    /// recovered instead of 14 (`fly --gnss --end land monte-carlo --world random
+    /// --gnss-random`). A bound that is not finite and positive, or above the gain, changes
+    /// nothing; bounds set before stay.
     #[inline] // configuration, not the step: compiled by its caller (crate doc)
     pub fn cap_hold_velocity_gain(&mut self, k_velocity_max: f32) {
-        let gains = *self.position.gains();
-        if !(k_velocity_max.is_finite()
-            && k_velocity_max > 0.0
-            && k_velocity_max < gains.k_velocity)
-        {
-            return;
+        if k_velocity_max.is_finite() && k_velocity_max > 0.0 {
+            self.hold_bounds[1] = self.hold_bounds[1].min(k_velocity_max);
+            self.form_hold();
         }
-        let zeta = crate::position::ZETA_POSITION;
-        let k_position = gains.k_position.min(k_velocity_max / (4.0 * zeta * zeta));
-        let capped = Gains {
-            k_velocity: k_velocity_max,
-            k_position,
-            k_velocity_integral: k_velocity_max
-                * crate::position::VELOCITY_INTEGRAL_ZERO_FRACTION
-                * k_position,
-            ..gains
-        };
-        if let Ok(position) = PositionController::with_limits(capped, *self.position.limits()) {
+    }
+
+    /// The hold's position controller on the attitude loops' gains within the bounds set, in
+    /// whatever order they were set.
+    fn form_hold(&mut self) {
+        let [k_position_max, k_velocity_max] = self.hold_bounds;
+        let gains = self.gains.for_hold_within(k_position_max, k_velocity_max);
+        if let Ok(position) = PositionController::with_limits(gains, *self.position.limits()) {
             self.position = position;
         }
     }
@@ -697,7 +681,13 @@ impl Controller {
             dt_s,
         );
         let f_sp = Vector3::new(f_sp.x + push[0], f_sp.y + push[1], f_sp.z);
-        let lag_s = 1.0 / self.gains.k_attitude;
+        // A hold turns with its own, faster attitude loop (`Gains::for_hold`).
+        let attitude_gains = if holding {
+            Gains { k_attitude: self.position.gains().k_attitude, ..self.gains }
+        } else {
+            self.gains
+        };
+        let lag_s = 1.0 / attitude_gains.k_attitude;
         let second_s = 1.0 / self.gains.k_rate;
         self.disturbance.commanded([f_sp.x, f_sp.y], lag_s, second_s, dt_s);
         let command = attitude_loop(
@@ -706,7 +696,7 @@ impl Controller {
             &rate,
             &f_sp,
             yaw_sp,
-            &self.gains,
+            &attitude_gains,
             self.tilt_decel_rad_s2,
             holding,
         );
@@ -946,11 +936,12 @@ mod tests {
         let config = IndiConfig { rate_hz: 2000.0, ..IndiConfig::default() };
         let mut controller = Controller::new(model, [0.0; 3], config).unwrap();
         let before = *controller.gains();
-        assert_eq!(*controller.hold_gains(), before);
+        assert_eq!(*controller.hold_gains(), before.for_hold());
         // A receiver's 0.15 m/s at 10 Hz, 100 ms late: 0.1 m/s in the estimate.
         let noise_mps = crate::navigation::velocity_estimate_noise_mps(0.15, 0.1, 0.1);
         let bound = max_velocity_gain(noise_mps);
-        assert!(bound < before.k_velocity, "bound {bound}, gain {}", before.k_velocity);
+        let hold_before = before.for_hold();
+        assert!(bound < hold_before.k_velocity, "bound {bound}, gain {}", hold_before.k_velocity);
         assert!(
             (bound * noise_mps - HOLD_VELOCITY_NOISE_ACCEL_MPS2).abs() < 1e-6,
             "the bound makes {} m/s² of the estimate's noise",
@@ -974,10 +965,10 @@ mod tests {
         assert_eq!(controller.hold_gains().k_velocity, bound);
         assert_eq!(controller.hold_gains().k_position, k_position_max);
         // Nothing to bound: motion capture's velocity, a bound above the gain, bad input.
-        for k in [max_velocity_gain(0.0), 2.0 * before.k_velocity, f32::NAN, -1.0] {
+        for k in [max_velocity_gain(0.0), 2.0 * hold_before.k_velocity, f32::NAN, -1.0] {
             let mut unbound = Controller::new(model, [0.0; 3], config).unwrap();
             unbound.cap_hold_velocity_gain(k);
-            assert_eq!(*unbound.hold_gains(), before, "bound {k}");
+            assert_eq!(*unbound.hold_gains(), hold_before, "bound {k}");
         }
     }
 

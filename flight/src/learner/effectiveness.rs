@@ -628,10 +628,7 @@ impl EffectivenessEstimator {
     /// referring `P` to one-sample increments, × 4, would delay it to 221.5 ms; with the six of
     /// the angular-momentum balance: 166.5 ms).
     pub fn information_left(&self, i: usize, p0: f32) -> (f32, f32) {
-        let force = (0..3).map(|k| self.force.p_diag(3 * i + k)).fold(0.0, f32::max);
-        let torque_p = |k| self.rotation.p_diag(Self::torque_index(self.motors, i, k));
-        let torque = (0..3).map(torque_p).fold(0.0, f32::max);
-        (force / p0, torque / p0)
+        self.column_statistics(i, p0).1
     }
 
     /// Relative standard deviation of column `i` of G1f and of G1τ (one σ of the column's norm
@@ -640,29 +637,39 @@ impl EffectivenessEstimator {
     /// samples are about `decimation` times larger and the covariance of the same data about
     /// `decimation` times smaller, so their product is about `decimation` times larger.
     pub fn column_relative_std(&self, i: usize) -> (f32, f32) {
+        self.column_statistics(i, 1.0).0
+    }
+
+    /// [`Self::column_relative_std`] and [`Self::information_left`] of motor `i` together: both
+    /// read the same covariance diagonals, read once here (the learner's staging asks for both
+    /// of every motor), and the square root is the FPU's (`crate::math::sqrt`, libm's value bit
+    /// for bit; `libm::sqrtf` is a software loop of about 50 instructions).
+    pub fn column_statistics(&self, i: usize, p0: f32) -> ((f32, f32), (f32, f32)) {
         let per_sample = 1.0 / f32::from(self.decimation);
         let relative = |rls_p: f32, var: [f32; 3], theta: [f32; 3]| {
             let norm2 = theta.iter().map(|t| t * t).sum::<f32>();
             let var_sum = var.iter().sum::<f32>() * rls_p * per_sample;
             if norm2 > 0.0 {
-                libm::sqrtf(var_sum / norm2)
+                crate::math::sqrt(var_sum / norm2)
             } else {
                 f32::INFINITY
             }
         };
+        let force_p = (0..3).map(|k| self.force.p_diag(3 * i + k)).fold(0.0, f32::max);
+        let torque_p = (0..3)
+            .map(|k| self.rotation.p_diag(Self::torque_index(self.motors, i, k)))
+            .fold(0.0, f32::max);
         let f = relative(
-            (0..3).map(|k| self.force.p_diag(3 * i + k)).fold(0.0, f32::max),
+            force_p,
             [self.force.error_var(0); 3],
             core::array::from_fn(|k| self.force.theta(3 * i + k, 0)),
         );
         let t = relative(
-            (0..3)
-                .map(|k| self.rotation.p_diag(Self::torque_index(self.motors, i, k)))
-                .fold(0.0, f32::max),
+            torque_p,
             [self.rotation.error_var(0); 3],
             core::array::from_fn(|k| self.rotation.theta(Self::torque_index(self.motors, i, k), 0)),
         );
-        (f, t)
+        ((f, t), (force_p / p0, torque_p / p0))
     }
 }
 

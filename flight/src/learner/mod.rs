@@ -782,12 +782,11 @@ impl Learner {
             if model.motor[i].converged {
                 model.motors_converged |= 1 << i;
             }
-            let (force_std, torque_std) = self.effectiveness.column_relative_std(i);
+            let ((force_std, torque_std), (force_left, torque_left)) =
+                self.effectiveness.column_statistics(i, self.config.effectiveness_rls.p0);
             if force_std.max(torque_std) < G1_CONVERGED_RELATIVE_STD {
                 model.g1_converged |= 1 << i;
             }
-            let (force_left, torque_left) =
-                self.effectiveness.information_left(i, self.config.effectiveness_rls.p0);
             all_informed &= force_left.max(torque_left) < AXIS_INFORMATION_FRACTION;
         }
         self.staged = Some(all_informed);
