@@ -183,6 +183,12 @@ impl Gains {
             .max(self.k_attitude);
         let k_velocity = k_attitude / (4.0 * ZETA_VELOCITY * ZETA_VELOCITY);
         let k_position = k_velocity / (4.0 * ZETA_POSITION * ZETA_POSITION);
+        self.with_outer_loops(k_attitude, k_velocity, k_position)
+    }
+
+    /// These gains' rate loop and τ with the attitude, velocity and position loops given, 1/s,
+    /// and the velocity integral made on them ([`VELOCITY_INTEGRAL_ZERO_FRACTION`]).
+    fn with_outer_loops(&self, k_attitude: f32, k_velocity: f32, k_position: f32) -> Self {
         Self {
             k_attitude,
             k_velocity,
@@ -223,13 +229,7 @@ impl Gains {
         let k_attitude = asked(k_velocity, fast.k_velocity, velocity_ratio, fast.k_attitude)
             .max(self.k_attitude)
             .min(fast.k_attitude);
-        Self {
-            k_attitude,
-            k_velocity,
-            k_position,
-            k_velocity_integral: k_velocity * VELOCITY_INTEGRAL_ZERO_FRACTION * k_position,
-            ..*self
-        }
+        self.with_outer_loops(k_attitude, k_velocity, k_position)
     }
 
     /// Whether every gain is finite and positive (the integral may be zero).

@@ -36,7 +36,12 @@ fn thirty_random_worlds_all_hover_and_most_hold_within_0_3_m() {
 
 /// Random-world case `seed` flown once, its verdict printed.
 fn fly_random_world(seed: u64) -> (FlyReport, Verdict) {
-    let (airframe, config) = world::random_world_case(seed, &Aspect::ALL);
+    fly_world(seed, &Aspect::ALL)
+}
+
+/// Case `seed` of the world with `aspects` drawn, flown once, its verdict printed.
+fn fly_world(seed: u64, aspects: &[Aspect]) -> (FlyReport, Verdict) {
+    let (airframe, config) = world::random_world_case(seed, aspects);
     let report = fly(&airframe, &config);
     let verdict = Verdict::of(&report);
     eprintln!(
@@ -160,14 +165,7 @@ fn slow_motors_in_a_turbulent_8_mps_wind_hold_within_0_3_m() {
     let mut windy = Aspect::ALL.to_vec();
     windy.push(Aspect::Wind);
     for seed in [84, 187, 627] {
-        let (airframe, config) = world::random_world_case(seed, &windy);
-        let report = fly(&airframe, &config);
-        let verdict = Verdict::of(&report);
-        eprintln!(
-            "seed {seed}: {verdict:?}, hold {:?} m over {:.0} % of the window",
-            report.max_hold_error_m,
-            100.0 * report.hold_coverage
-        );
+        let (report, verdict) = fly_world(seed, &windy);
         assert_eq!(verdict, Verdict::Held, "seed {seed}: {:?} m", report.max_hold_error_m);
         assert!(report.hold_coverage > 0.5, "seed {seed}: in hold {:.2}", report.hold_coverage);
     }
