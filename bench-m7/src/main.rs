@@ -941,6 +941,15 @@ fn outdoor_regions(m: usize, hover: &ClosedLoop, n: usize) {
     use app::compass_heading::{CompassHeading, MagneticSample};
     let model = *hover.controller.indi().model();
     let mut closed = hover.clone();
+    // The hold bounded for the receiver as `firmware::app::pilot` bounds it when it forms the
+    // controller: its position loop by the fixes' 0.3 m, its velocity loop by their velocity's
+    // noise (the solutions below). Unbounded, the hold a motion-capture hover flies chases
+    // these open-loop samples' fixes harder than any receiver's hold does, and the octorotor's
+    // allocation then works 1,600 instructions more a step.
+    closed.controller.cap_position_gain(flight::navigation::position_crossover(0.3, true));
+    closed.controller.cap_hold_velocity_gain(flight::controller::max_velocity_gain(
+        flight::navigation::velocity_estimate_noise_mps(0.05, 0.1, 0.1),
+    ));
     let mut outdoors = Outdoors {
         alignment: aligned_alignment(),
         waiting: None,
