@@ -616,35 +616,12 @@ impl EffectivenessEstimator {
         g2
     }
 
-    /// How much has been learned about motor `i`'s columns: the covariance diagonal of its
-    /// squared-speed regressor relative to the prior, for the force and the rotational rows
-    /// (1: nothing yet; small: well excited).
-    ///
-    /// Not rescaled for the decimation: the learner's gate on it
-    /// ([`super::AXIS_INFORMATION_FRACTION`]) is crossed in the first milliseconds of a pulse,
-    /// while the prior still dominates `P`, and the decimated regressions cross it when the
-    /// every-sample ones did (the simulator's paper quad, measured with four regressions per
-    /// cycle: first thrust axis 163.5 ms into the excitation, 161.5 ms at every sample;
-    /// referring `P` to one-sample increments, × 4, would delay it to 221.5 ms; with the six of
-    /// the angular-momentum balance: 166.5 ms).
-    pub fn information_left(&self, i: usize, p0: f32) -> (f32, f32) {
-        self.column_statistics(i, p0).1
-    }
-
-    /// Relative standard deviation of column `i` of G1f and of G1τ (one σ of the column's norm
-    /// over the norm), from the covariance and the a-priori residuals. Referred to increments
-    /// over one sample, as it was defined: the residuals of increments over `decimation`
-    /// samples are about `decimation` times larger and the covariance of the same data about
-    /// `decimation` times smaller, so their product is about `decimation` times larger.
-    pub fn column_relative_std(&self, i: usize) -> (f32, f32) {
-        self.column_statistics(i, 1.0).0
-    }
-
-    /// [`Self::column_relative_std`] and [`Self::information_left`] of motor `i` together: both
-    /// read the same covariance diagonals, read once here (the learner's staging asks for both
-    /// of every motor), and the square root is the FPU's (`crate::math::sqrt`, libm's value bit
-    /// for bit; `libm::sqrtf` is a software loop of about 50 instructions).
-    pub fn column_statistics(&self, i: usize, p0: f32) -> ((f32, f32), (f32, f32)) {
+    /// What is known of motor `i`'s columns ([`ColumnStatistics`]), the information left with
+    /// the prior's diagonal `p0`. Both figures read the same covariance diagonals, read once
+    /// here (the learner's staging asks for both of every motor), and the square root is the
+    /// FPU's (`crate::math::sqrt`, libm's value bit for bit; `libm::sqrtf` is a software loop of
+    /// about 50 instructions).
+    pub fn column_statistics(&self, i: usize, p0: f32) -> ColumnStatistics {
         let per_sample = 1.0 / f32::from(self.decimation);
         let relative = |rls_p: f32, var: [f32; 3], theta: [f32; 3]| {
             let norm2 = theta.iter().map(|t| t * t).sum::<f32>();
@@ -669,8 +646,31 @@ impl EffectivenessEstimator {
             [self.rotation.error_var(0); 3],
             core::array::from_fn(|k| self.rotation.theta(Self::torque_index(self.motors, i, k), 0)),
         );
-        ((f, t), (force_p / p0, torque_p / p0))
+        ColumnStatistics { relative_std: (f, t), information_left: (force_p / p0, torque_p / p0) }
     }
+}
+
+/// What is known of one motor's columns of G1, force rows then rotational rows
+/// ([`EffectivenessEstimator::column_statistics`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ColumnStatistics {
+    /// Relative standard deviation of the column of G1f and of G1τ (one σ of the column's norm
+    /// over the norm), from the covariance and the a-priori residuals. Referred to increments
+    /// over one sample, as it was defined: the residuals of increments over `decimation`
+    /// samples are about `decimation` times larger and the covariance of the same data about
+    /// `decimation` times smaller, so their product is about `decimation` times larger.
+    pub relative_std: (f32, f32),
+    /// How much has been learned: the covariance diagonal of the motor's squared-speed
+    /// regressor relative to the prior (1: nothing yet; small: well excited).
+    ///
+    /// Not rescaled for the decimation: the learner's gate on it
+    /// ([`super::AXIS_INFORMATION_FRACTION`]) is crossed in the first milliseconds of a pulse,
+    /// while the prior still dominates `P`, and the decimated regressions cross it when the
+    /// every-sample ones did (the simulator's paper quad, measured with four regressions per
+    /// cycle: first thrust axis 163.5 ms into the excitation, 161.5 ms at every sample;
+    /// referring `P` to one-sample increments, × 4, would delay it to 221.5 ms; with the six of
+    /// the angular-momentum balance: 166.5 ms).
+    pub information_left: (f32, f32),
 }
 
 /// A first-order high-pass (DC blocker) over `N` channels: `y[n] = p·y[n−1] + x[n] − x[n−1]`.

@@ -782,8 +782,9 @@ impl Learner {
             if model.motor[i].converged {
                 model.motors_converged |= 1 << i;
             }
+            let columns = self.effectiveness.column_statistics(i, self.config.effectiveness_rls.p0);
             let ((force_std, torque_std), (force_left, torque_left)) =
-                self.effectiveness.column_statistics(i, self.config.effectiveness_rls.p0);
+                (columns.relative_std, columns.information_left);
             if force_std.max(torque_std) < G1_CONVERGED_RELATIVE_STD {
                 model.g1_converged |= 1 << i;
             }
