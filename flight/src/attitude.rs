@@ -5,7 +5,9 @@
 //! ```text
 //! ω̂   = gyro − b                                         (b: gyro-bias estimate, body axes)
 //! d̂   = q⁻¹·(0, 0, 1)                                    (world down as the filter sees it, body)
-//! e_a = (−f/|f|) × d̂                 only while |f| is within ±20 % of g and |ω̂| ≤ 1 rad/s
+//! r̂   = q⁻¹·(g − a)/|g − a|   (the specific force's direction expected, body; d̂ when a = 0)
+//! e_a = (−f/|f|) × r̂        only while |f| is within ±20 % of g of |g − a|, |g − a| ≥ 0.8 g
+//!                           and |ω̂| ≤ 1 rad/s
 //! e_h = wrap(ψ_ext − ψ̂) · d̂          only while an external heading ψ_ext is given
 //! b  ← b − (k_i e_a + k_ih e_h) dt    (each only from small errors; clamped)
 //! q  ← q ⊗ exp(½ (gyro − b + k_p e_a + k_h e_h) dt)
@@ -20,7 +22,8 @@
 //! works: the time step is passed with every sample and the gains are continuous-time. The cross
 //! product `e_a` has no component about the vertical, so the accelerometer never moves the yaw;
 //! the heading term `e_h` is a rotation about world down (expressed in body axes) and moves only
-//! the yaw. Without an external heading the yaw drifts on the gyro alone and
+//! the yaw. The acceleration `a` (world) is zero unless it is known from elsewhere
+//! ([`AttitudeFilter::update_accelerating`]: position fixes). Without an external heading the yaw drifts on the gyro alone and
 //! [`AttitudeFilter::heading_is_external`] says so.
 //!
 //! The filter estimates `q_world_body`: the attitude of whatever frame the gyro and accelerometer
@@ -42,6 +45,12 @@ pub use crate::thrust_axis::EulerZyx;
 /// Band of |f| around g within which the accelerometer corrects the tilt, fraction of g
 /// (±20 %, published; docs/algorithms/indi.md).
 pub const ACCEL_TRUST_BAND: f32 = 0.2;
+
+/// Smallest magnitude of the expected specific force, `|g − a|`, for which its direction
+/// corrects the tilt, fraction of g (ours: the lower edge of the published band, so that with
+/// no acceleration known the rule is the published one; below it a craft falls almost freely
+/// and the direction is mostly the error of the acceleration known).
+pub const MIN_REFERENCE_FRACTION_OF_G: f32 = 1.0 - ACCEL_TRUST_BAND;
 
 /// Largest tilt error (sine of the angle) the gyro-bias integral learns from: 10° (ours). Above
 /// it the error is an attitude error (a start, a manoeuvre), and integrating it would wind up a
@@ -278,7 +287,34 @@ impl AttitudeFilter {
         heading_rad: Option<f32>,
         dt_s: f32,
     ) -> Result<(), AttitudeError> {
-        let finite = gyro_rad_s.iter().chain(f_mps2.iter()).all(|x| x.is_finite())
+        self.update_accelerating(gyro_rad_s, f_mps2, &Vector3::zeros(), heading_rad, dt_s)
+    }
+
+    /// One sample, as [`AttitudeFilter::update`], of a craft whose acceleration
+    /// `accel_world_mps2` (world NED, m/s²) is known from elsewhere (position fixes). The
+    /// accelerometer then measures `a − g` rather than `−g`, and the tilt is corrected towards
+    /// that reference: `d̂` becomes the reference's direction `(g − a)/|g − a|` seen through the
+    /// estimate. Whether the accelerometer is trusted is judged by magnitudes alone (|f| within
+    /// ±20 % of g of |g − a|), which no attitude error changes. Taking `q⁻¹ a` out of the
+    /// accelerometer instead would rotate `a` by the very error to be corrected: after a
+    /// spinning tumble left the estimate 20-30° off while the craft accelerated at 10 m/s²,
+    /// `|f − q⁻¹ a|` stayed 12-17 m/s², outside the band, and the error was never corrected
+    /// (Monte Carlo seed 828 of `fly --end land --world random --wind`: a fly-away). The
+    /// reference must be at least half of g for its direction to mean anything; below that
+    /// (a craft falling freely) the gyro runs alone.
+    pub fn update_accelerating(
+        &mut self,
+        gyro_rad_s: &Vector3<f32>,
+        f_mps2: &Vector3<f32>,
+        accel_world_mps2: &Vector3<f32>,
+        heading_rad: Option<f32>,
+        dt_s: f32,
+    ) -> Result<(), AttitudeError> {
+        let finite = gyro_rad_s
+            .iter()
+            .chain(f_mps2.iter())
+            .chain(accel_world_mps2.iter())
+            .all(|x| x.is_finite())
             && heading_rad.is_none_or(f32::is_finite)
             && dt_s > 0.0
             && dt_s.is_finite();
@@ -294,11 +330,20 @@ impl AttitudeFilter {
         let rate_rad_s = gyro_rad_s - self.bias_rad_s;
         let down_est = self.q_world_body.inverse() * Vector3::z();
 
+        // The specific force expected, world axes, with its magnitude and direction ("down" as
+        // the accelerometer sees it); world down itself when nothing else accelerates the craft.
+        let reference_world = Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2) - accel_world_mps2;
+        let reference_norm = crate::math::norm(&reference_world);
         let f_norm = crate::math::norm(f_mps2);
-        self.accel_used =
-            in_gravity_band(f_norm) && crate::math::norm(&rate_rad_s) <= c.max_rate_for_accel_rad_s;
-        let tilt_error =
-            if self.accel_used { (-f_mps2 / f_norm).cross(&down_est) } else { Vector3::zeros() };
+        self.accel_used = reference_norm >= MIN_REFERENCE_FRACTION_OF_G * STANDARD_GRAVITY_MPS2
+            && in_trust_band(f_norm, reference_norm)
+            && crate::math::norm(&rate_rad_s) <= c.max_rate_for_accel_rad_s;
+        let tilt_error = if self.accel_used {
+            let reference_est = self.q_world_body.inverse() * (reference_world / reference_norm);
+            (-f_mps2 / f_norm).cross(&reference_est)
+        } else {
+            Vector3::zeros()
+        };
 
         self.heading_external = heading_rad.is_some();
         let x_world = self.q_world_body * Vector3::x();
@@ -364,7 +409,13 @@ impl AttitudeFilter {
 
 /// Whether a specific-force magnitude (m/s²) is within [`ACCEL_TRUST_BAND`] of g.
 fn in_gravity_band(f_norm_mps2: f32) -> bool {
-    (f_norm_mps2 - STANDARD_GRAVITY_MPS2).abs() <= ACCEL_TRUST_BAND * STANDARD_GRAVITY_MPS2
+    in_trust_band(f_norm_mps2, STANDARD_GRAVITY_MPS2)
+}
+
+/// Whether a specific-force magnitude (m/s²) is within [`ACCEL_TRUST_BAND`] (a fraction of g)
+/// of the magnitude expected, `reference_mps2`.
+fn in_trust_band(f_norm_mps2: f32, reference_mps2: f32) -> bool {
+    (f_norm_mps2 - reference_mps2).abs() <= ACCEL_TRUST_BAND * STANDARD_GRAVITY_MPS2
 }
 
 /// The unit quaternion of the rotation vector `phi` (rad): `exp(½ φ)`, exact for any angle.
@@ -553,6 +604,45 @@ mod tests {
     }
 
     #[test]
+    fn a_25_degree_error_while_accelerating_at_10_m_per_s2_is_corrected_against_the_known_acceleration(
+    ) {
+        // A craft leaning 45° to accelerate at g horizontally (the fixes show it), its estimate
+        // 25° off about the body's y axis (a tumble's gyro errors). The reference `g − a` is
+        // 1.41 g, so |f| = 1.41 g: far outside ±20 % of g, but equal to what is expected. The
+        // filter corrects towards the reference: with k_p 1 rad/s the error falls as e^(−t),
+        // below 1° within 4 s (the bias integral weighted for 10 m/s² as the firmware weights
+        // it, `sensitivity_weight`). Taking `q⁻¹ a` out of f instead, through the wrong estimate,
+        // leaves |f − q⁻¹ a| 7 m/s² from g: never trusted, the error never corrected.
+        let accel = Vector3::new(G, 0.0, 0.0);
+        let config = AttitudeConfig { k_p: 1.0, k_i: 0.25, ..AttitudeConfig::default() }
+            .with_acceleration_removed(G);
+        let q_true = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 45f32.to_radians());
+        let f = q_true.inverse() * (accel - Vector3::new(0.0, 0.0, G));
+        let q_off = q_true * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 0.436);
+        let error_deg = |filter: &AttitudeFilter| filter.quaternion().angle_to(&q_true).to_degrees();
+
+        let mut referenced = AttitudeFilter::new(config);
+        referenced.reset_to(q_off).unwrap();
+        let mut subtracted = referenced;
+        for _ in 0..(4 * RATE_HZ as usize) {
+            referenced.update_accelerating(&Vector3::zeros(), &f, &accel, None, DT).unwrap();
+            assert!(referenced.accel_used());
+            let f_less_a = f - subtracted.quaternion().inverse() * accel;
+            subtracted.update(&Vector3::zeros(), &f_less_a, None, DT).unwrap();
+        }
+        assert!(error_deg(&referenced) < 1.0, "{}°", error_deg(&referenced));
+        assert!(!subtracted.accel_used());
+        assert!((error_deg(&subtracted) - 25.0).abs() < 0.1, "{}°", error_deg(&subtracted));
+
+        // A craft falling almost freely (the reference below 0.8 g): the gyro runs alone.
+        let falling = Vector3::new(0.0, 0.0, 0.5 * G);
+        let f_falling = q_true.inverse() * (falling - Vector3::new(0.0, 0.0, G));
+        referenced.reset_to(q_off).unwrap();
+        referenced.update_accelerating(&Vector3::zeros(), &f_falling, &falling, None, DT).unwrap();
+        assert!(!referenced.accel_used());
+    }
+
+    #[test]
     fn one_g_while_turning_fast_is_not_trusted() {
         let mut filter = started(UnitQuaternion::identity());
         // 1 g, but 30° off and at 1.5 rad/s: a tumble passing through 1 g.
@@ -728,6 +818,10 @@ mod tests {
         assert_eq!(filter.update(&zero, &f, None, f32::NAN), Err(AttitudeError::BadInput));
         assert_eq!(filter.update(&zero, &f, None, 0.0), Err(AttitudeError::BadInput));
         assert_eq!(filter.update(&zero, &f, None, -DT), Err(AttitudeError::BadInput));
+        assert_eq!(
+            filter.update_accelerating(&zero, &f, &nan, None, DT),
+            Err(AttitudeError::BadInput)
+        );
         let bad_q = UnitQuaternion::new_unchecked(Quaternion::new(f32::NAN, 0.0, 0.0, 0.0));
         assert_eq!(filter.reset_to(bad_q), Err(AttitudeError::BadInput));
         assert_eq!(filter, before);

@@ -782,8 +782,9 @@ impl<'q> ControlLoop<'q> {
     /// Take what the background task published: the learned model (copied only when it changed)
     /// and the IMU offset it was learned with. Call it with the latest results before a step.
     ///
-    /// Returns whether it adopted them (a new model version reached the pilot): the tick logs
-    /// that step, so a replay hands the control step the same results at the same step.
+    /// Returns whether it adopted them (a new model version or IMU offset reached the pilot):
+    /// the tick logs that step, so a replay hands the control step the same results at the
+    /// same step.
     pub fn receive(&mut self, results: &BackgroundResults) -> bool {
         // The samples learned from, and whether it is pending: a restarted learner's first model
         // has learned from none, as the one before the first attempt had.
@@ -792,7 +793,9 @@ impl<'q> ControlLoop<'q> {
             pending: results.learned.pending,
             learning_ended: results.learning_ended,
         };
-        if self.state.model_version == Some(version) {
+        // The offset changes alone between attempts (configured, calibrated), the model not.
+        let offset_new = self.state.pilot.imu_offset_m() != Some(results.learner_r_imu_m);
+        if self.state.model_version == Some(version) && !offset_new {
             return false;
         }
         self.state.model_version = Some(version);
@@ -1187,6 +1190,26 @@ mod tests {
         assert_eq!(motors.commands, vec![0.0; 4]);
         assert_eq!(control.snapshot().pilot.failsafes.rc_lost, 1);
         while consumer.pop().is_some() {}
+    }
+
+    /// The IMU offset configured (or calibrated) reaches the control step's compensation before
+    /// any attempt, so that a throw's push, spinning the craft up, is compensated.
+    #[test]
+    fn the_configured_imu_offset_reaches_the_pilot_before_any_attempt() {
+        let mut queue = SampleQueue::new();
+        let (producer, consumer) = split_queue(&mut queue);
+        let mut control = ControlLoop::new(ControlConfig::default(), producer);
+        let mut background = super::super::background::Background::new(consumer, 2000);
+        assert!(control.receive(&background.results()));
+        assert_eq!(control.state.pilot.imu_offset_m(), Some([0.0; 3]));
+        let r_imu_m = [0.012, -0.03, 0.004];
+        background.set_imu_offset(Some(r_imu_m));
+        assert!(control.receive(&background.results()), "an offset alone is adopted");
+        assert_eq!(control.state.pilot.imu_offset_m(), Some(r_imu_m));
+        assert!(!control.receive(&background.results()), "and only once");
+        background.set_imu_offset(None);
+        assert!(control.receive(&background.results()));
+        assert_eq!(control.state.pilot.imu_offset_m(), Some([0.0; 3]), "back to none known");
     }
 
     #[test]

@@ -768,6 +768,12 @@ impl Pilot {
         self.model.as_ref().is_some_and(|(learned, _)| learned.pending)
     }
 
+    /// The IMU offset (IMU axes, m) published with the model
+    /// ([`Pilot::set_model`]), the accelerometer's compensation's.
+    pub fn imu_offset_m(&self) -> Option<[f32; 3]> {
+        self.model.as_ref().map(|(_, r_imu_m)| *r_imu_m)
+    }
+
     /// The model the background task published, with the IMU offset it was learned with, and
     /// whether the attempt's learning has ended (the model is final).
     pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3], learning_ended: bool) {
@@ -943,7 +949,7 @@ impl Pilot {
     pub fn observe(&mut self, imu: &ImuSample, now_us: u64, still_allowed: bool) {
         let dt_s = 1.0 / self.rate_hz;
         let gyro = Vector3::from(imu.gyro_rad_s);
-        let r = self.model.map(|(_, r)| Vector3::from(r)).unwrap_or_else(Vector3::zeros);
+        let r = Vector3::from(self.imu_offset_m().unwrap_or([0.0; 3]));
         // The accelerometer at the CoG; the Ω̇ × r term is left out (a raw derivative is too
         // noisy, and the filter only uses the accelerometer near 1 g, where Ω̇ is small).
         let f = Vector3::from(imu.accel_mps2) - gyro.cross(&gyro.cross(&r));
@@ -993,8 +999,8 @@ impl Pilot {
         };
         // The accelerometer measures the thrust, which is also what accelerates the craft: a
         // sustained manoeuvre (braking from 5 m/s) would pull the filter's "level" towards the
-        // thrust by degrees. With fixes the acceleration is known: the filter gets the
-        // accelerometer minus it, i.e. gravity alone.
+        // thrust by degrees. With fixes the acceleration is known: the filter corrects the tilt
+        // towards the specific force it implies, `a − g` (`AttitudeFilter::update_accelerating`).
         let aligned = self.alignment.yaw_rad().is_some();
         let nav_before = self.navigation.state();
         let compensated = pose_fresh && aligned && nav_before.has_fix;
@@ -1027,9 +1033,8 @@ impl Pilot {
         }
         let to_filter_world =
             flight::math::rotation_about(&Vector3::z_axis(), -self.alignment_yaw_rad());
-        let accel_imu =
-            self.attitude.quaternion().inverse() * (to_filter_world * self.accel_world_mps2);
-        let _ = self.attitude.update(&gyro, &(f - accel_imu), heading, dt_s);
+        let accel_filter_world = to_filter_world * self.accel_world_mps2;
+        let _ = self.attitude.update_accelerating(&gyro, &f, &accel_filter_world, heading, dt_s);
         let q_filter = self.attitude.quaternion();
         if f.iter().all(|x| x.is_finite()) {
             let gravity = Vector3::new(0.0, 0.0, STANDARD_GRAVITY_MPS2);
