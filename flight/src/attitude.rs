@@ -619,7 +619,8 @@ mod tests {
         let q_true = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 45f32.to_radians());
         let f = q_true.inverse() * (accel - Vector3::new(0.0, 0.0, G));
         let q_off = q_true * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 0.436);
-        let error_deg = |filter: &AttitudeFilter| filter.quaternion().angle_to(&q_true).to_degrees();
+        let error_deg =
+            |filter: &AttitudeFilter| filter.quaternion().angle_to(&q_true).to_degrees();
 
         let mut referenced = AttitudeFilter::new(config);
         referenced.reset_to(q_off).unwrap();

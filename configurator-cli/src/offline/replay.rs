@@ -353,12 +353,15 @@ pub fn replay(
         if let Some((_, state)) = &arming {
             // The board's control loop as it stood before the arming command; the results it
             // had adopted then are the ones it keeps until the log shows another adoption (only
-            // their version is compared: `ControlLoop::receive`).
+            // their version and IMU offset are compared: `ControlLoop::receive`).
             system.control.control_mut().restore(*state);
             if let Some(version) = system.control.control().model_version() {
                 handed.learned.samples = version.samples;
                 handed.learned.pending = version.pending;
                 handed.learning_ended = version.learning_ended;
+            }
+            if let Some(r_imu_m) = system.control.control().imu_offset_m() {
+                handed.learner_r_imu_m = r_imu_m;
             }
         }
         for record in &log.records {

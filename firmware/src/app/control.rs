@@ -616,6 +616,12 @@ impl<'q> ControlLoop<'q> {
         self.state.model_version
     }
 
+    /// The IMU offset the step compensates the accelerometer with (IMU axes, m), as adopted
+    /// with the background task's results ([`Self::receive`]; `None` before any).
+    pub fn imu_offset_m(&self) -> Option<[f32; 3]> {
+        self.state.pilot.imu_offset_m()
+    }
+
     /// Learner samples handed to the background task so far (those its ring took).
     pub fn samples_handed(&self) -> u32 {
         self.samples.accepted()
