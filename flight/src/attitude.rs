@@ -328,7 +328,6 @@ impl AttitudeFilter {
         }
         let c = self.config;
         let rate_rad_s = gyro_rad_s - self.bias_rad_s;
-        let down_est = self.q_world_body.inverse() * Vector3::z();
 
         // The specific force expected, world axes, with its magnitude and direction ("down" as
         // the accelerometer sees it); world down itself when nothing else accelerates the craft.
@@ -346,17 +345,21 @@ impl AttitudeFilter {
         };
 
         self.heading_external = heading_rad.is_some();
-        let x_world = self.q_world_body * Vector3::x();
-        let heading_defined =
-            crate::math::hypot(x_world.x, x_world.y) >= HEADING_DEFINED_MIN_HORIZONTAL;
-        let yaw_error_rad = match heading_rad {
-            Some(heading) if heading_defined => {
-                wrap_pi(heading - libm::atan2f(x_world.y, x_world.x))
+        // The heading's error, rad, and the rotation about world down, body axes, that corrects
+        // it; none without a heading or while it is undefined (and then neither rotation of the
+        // attitude is computed: the outdoor step, the control step's worst, has no heading).
+        let (yaw_error_rad, heading_error) = match heading_rad {
+            Some(heading) => {
+                let x_world = self.q_world_body * Vector3::x();
+                if crate::math::hypot(x_world.x, x_world.y) >= HEADING_DEFINED_MIN_HORIZONTAL {
+                    let error = wrap_pi(heading - libm::atan2f(x_world.y, x_world.x));
+                    (error, (self.q_world_body.inverse() * Vector3::z()) * error)
+                } else {
+                    (0.0, Vector3::zeros())
+                }
             }
-            _ => 0.0,
+            None => (0.0, Vector3::zeros()),
         };
-        // A rotation about world down, in body axes, per radian of heading error.
-        let heading_error = down_est * yaw_error_rad;
 
         let mut bias = self.bias_rad_s;
         if self.accel_used && crate::math::norm(&tilt_error) < BIAS_LEARNING_MAX_ERROR {
