@@ -256,7 +256,19 @@ const COMPENSATED_ATTITUDE: AttitudeConfig = AttitudeConfig {
     k_i_heading: 0.0,
     max_bias_rad_s: 0.1,
     max_rate_for_accel_rad_s: COMPENSATED_MAX_RATE_FOR_ACCEL_RAD_S,
+    large_error_gain: 1.0,
 };
+
+/// The compensated tuning with fixes of motion-capture grade (noise up to
+/// `flight::navigation::CROSSOVER_NOISE_REFERENCE_M`, 1 cm): their acceleration is known well
+/// enough in direction that a large, lasting disagreement with the accelerometer is the
+/// estimate's error, corrected up to three times faster (`AttitudeConfig::large_error_gain`).
+/// After a tumble that left the estimate 10-30° off, the slow correction let the craft fly on it
+/// (Monte Carlo seeds 355 and 389 of `fly --world random`, fly-away landings). Not with a
+/// receiver's decimetres: its acceleration, from 10 Hz fixes 0.1 s late, is not (1,000 windy
+/// worlds on GNSS: 2 more runs came down with it).
+const COMPENSATED_ATTITUDE_PRECISE: AttitudeConfig =
+    AttitudeConfig { large_error_gain: 3.0, ..COMPENSATED_ATTITUDE };
 
 /// Largest body rate at which the accelerometer, with the fixes' acceleration taken out,
 /// corrects the tilt, rad/s (ours; 1 rad/s without the fixes, `flight::attitude`). What the
@@ -1024,8 +1036,10 @@ impl Pilot {
             // worse (99.0 → 97.9 %), whose tilt, pulled off by the recovery's braking without
             // any sensitivity error, then returned more slowly, during the hold
             // (docs/benchmarks.md, issue 28).
-            let config =
-                COMPENSATED_ATTITUDE.with_acceleration_removed(self.accel_world_mps2.norm());
+            let precise =
+                self.alignment.noise_m() <= flight::navigation::CROSSOVER_NOISE_REFERENCE_M;
+            let tuning = if precise { COMPENSATED_ATTITUDE_PRECISE } else { COMPENSATED_ATTITUDE };
+            let config = tuning.with_acceleration_removed(self.accel_world_mps2.norm());
             let _ = self.attitude.set_config(config);
         } else {
             self.accel_world_mps2 = Vector3::zeros();
