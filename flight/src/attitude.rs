@@ -23,8 +23,9 @@
 //! product `e_a` has no component about the vertical, so the accelerometer never moves the yaw;
 //! the heading term `e_h` is a rotation about world down (expressed in body axes) and moves only
 //! the yaw. The acceleration `a` (world) is zero unless it is known from elsewhere
-//! ([`AttitudeFilter::update_accelerating`]: position fixes). Without an external heading the yaw drifts on the gyro alone and
-//! [`AttitudeFilter::heading_is_external`] says so.
+//! ([`AttitudeFilter::update_accelerating`]: position fixes), and then a large, lasting `e_a`
+//! may be corrected faster ([`AttitudeConfig::large_error_gain`]). Without an external heading
+//! the yaw drifts on the gyro alone and [`AttitudeFilter::heading_is_external`] says so.
 //!
 //! The filter estimates `q_world_body`: the attitude of whatever frame the gyro and accelerometer
 //! are expressed in (pass them in thrust-frame axes to estimate the thrust frame). The
@@ -213,7 +214,7 @@ pub struct AttitudeFilter {
     accel_used: bool,
     heading_external: bool,
     /// The tilt error the accelerometer showed, low-passed over [`LARGE_ERROR_FILTER_S`] (only
-    /// while [`AttitudeConfig::large_error_gain`] is above 1).
+    /// while [`AttitudeConfig::large_error_gain`] is above 1; cleared by a restart).
     tilt_error_smoothed: Vector3<f32>,
 }
 
@@ -268,6 +269,7 @@ impl AttitudeFilter {
         }
         self.q_world_body = crate::math::normalized_quaternion(q);
         self.initialised = true;
+        self.tilt_error_smoothed = Vector3::zeros();
         Ok(())
     }
 
@@ -300,6 +302,7 @@ impl AttitudeFilter {
         self.q_world_body =
             crate::math::rotation_about(&Vector3::z_axis(), yaw_wanted - yaw_now) * tilt;
         self.initialised = true;
+        self.tilt_error_smoothed = Vector3::zeros();
         Ok(())
     }
 
@@ -328,9 +331,10 @@ impl AttitudeFilter {
     /// accelerometer instead would rotate `a` by the very error to be corrected: after a
     /// spinning tumble left the estimate 20-30° off while the craft accelerated at 10 m/s²,
     /// `|f − q⁻¹ a|` stayed 12-17 m/s², outside the band, and the error was never corrected
-    /// (Monte Carlo seed 828 of `fly --end land --world random --wind`: a fly-away). The
-    /// reference must be at least half of g for its direction to mean anything; below that
-    /// (a craft falling freely) the gyro runs alone.
+    /// (Monte Carlo seeds 508 and 639 of `fly --end land --world random --wind`: fly-aways,
+    /// held since). The reference must be at least [`MIN_REFERENCE_FRACTION_OF_G`] of g for its
+    /// direction to mean anything; below that (a craft falling almost freely) the gyro runs
+    /// alone.
     pub fn update_accelerating(
         &mut self,
         gyro_rad_s: &Vector3<f32>,

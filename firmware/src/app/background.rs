@@ -276,9 +276,10 @@ impl<'q> Background<'q> {
     /// is the one in use: published, so that the control step's attitude filter and
     /// navigation take the centripetal term out of the accelerometer from the start, the
     /// throw's push included. That push spins the craft up to 15 rad/s, where `ω² r` is
-    /// 11 m/s² for an IMU 5 cm off: left in, the heading alignment learned from the push a yaw
-    /// 110° off and the craft flew away (Monte Carlo seed 355 of `fly --end land --world random
-    /// --wind`). An attempt keeps the offset it started with (`restart_learner`).
+    /// 11 m/s² for an IMU 5 cm off, and the heading alignment learns its first yaw from the
+    /// push's dead reckoning. Until the first attempt's learner started (at the release) the
+    /// offset was zero even with one configured. An attempt keeps the offset it started with
+    /// (`restart_learner`).
     fn publish_offset_between_attempts(&mut self) {
         if self.previous_phase == FlightPhase::Idle {
             let (r_imu_m, source) = self.learner_offset();
