@@ -358,20 +358,26 @@ const IN_FLIGHT_FIT_MOTOR_COUNTS: [usize; 2] = [4, 8];
 /// Motor counts of the learner regions.
 const LEARNER_MOTOR_COUNTS: [usize; 2] = [4, 8];
 
-/// Samples the learner is primed with: the next one then runs the first force row of a cycle of
-/// the six effectiveness regressions and stages the model for publication
-/// (`flight::learner::effectiveness::REGRESSION_DECIMATION`, `flight::learner::
-/// PUBLISH_INTERVAL_SAMPLES`; the regressions start with the seventh sample).
+/// Samples the learner is primed with: the next one then begins the first force row of a cycle
+/// of the six effectiveness regressions, each row's turn two samples at 2 kHz
+/// (`flight::learner::effectiveness::MAX_ROW_RATE_HZ`; the regressions start with the fifteenth
+/// sample: two for the filters, a cycle of twelve centred samples).
 const LEARNER_PRIMING_SAMPLES: usize = 1202;
 
 /// What each sample of one cycle of the learner runs besides the motor models and the filters.
-const LEARNER_CYCLE: [&str; 6] = [
-    "sample 1: force row x, model staged (copy, convergence statistics)",
-    "sample 2: force row y, thrust-axis solve, model published",
-    "sample 3: force row z",
-    "sample 4: rotational row x",
-    "sample 5: rotational row y",
-    "sample 6: rotational row z",
+const LEARNER_CYCLE: [&str; 12] = [
+    "sample 1: force row x begun (its whole update)",
+    "sample 2: force row x's turn ends, model staged (copy, convergence statistics)",
+    "sample 3: force row y begun",
+    "sample 4: force row y's turn ends, thrust-axis solve, model published",
+    "sample 5: force row z begun",
+    "sample 6: force row z's turn ends",
+    "sample 7: rotational row x begun (its product P x and the parameters)",
+    "sample 8: rotational row x's turn ends (its covariance downdate)",
+    "sample 9: rotational row y begun",
+    "sample 10: rotational row y's turn ends",
+    "sample 11: rotational row z begun",
+    "sample 12: rotational row z's turn ends",
 ];
 
 /// The closed-loop control-step regions of each learner airframe (`closed_loop_regions`).
@@ -1197,10 +1203,10 @@ fn main() -> ! {
         for what in LEARNER_CYCLE {
             hprintln!("bench-m7 region: learner step m={}, {}", m, what);
         }
-        hprintln!("bench-m7 region: learner cycle m={}: the same six samples in one region", m);
+        hprintln!("bench-m7 region: learner cycle m={}: the same twelve samples in one region", m);
         hprintln!(
-            "bench-m7 region: learner step m={}, sample 3 after its own rows found no hover: \
-             force row z, thrust-axis solve on the fallback rows, model published",
+            "bench-m7 region: learner step m={}, sample 6 after its own rows found no hover: \
+             force row z's turn ends, thrust-axis solve on the fallback rows, model published",
             m
         );
         for what in CLOSED_LOOP_REGIONS {
@@ -1210,8 +1216,10 @@ fn main() -> ! {
             hprintln!("bench-m7 region: closed-loop part m={}: {}", m, what);
         }
     }
-    hprintln!("bench-m7 region: learner part: effectiveness update m=4, force-row sample (filters, one force row)");
-    hprintln!("bench-m7 region: learner part: effectiveness update m=4, rotational-row sample (filters, one rotational row)");
+    hprintln!("bench-m7 region: learner part: effectiveness update m=4, a force row begun (filters, its whole update)");
+    hprintln!("bench-m7 region: learner part: effectiveness update m=4, a force row's turn ends (filters)");
+    hprintln!("bench-m7 region: learner part: effectiveness update m=4, a rotational row begun (filters, its product P x)");
+    hprintln!("bench-m7 region: learner part: effectiveness update m=4, a rotational row's turn ends (filters, its downdate)");
     hprintln!("bench-m7 region: learner part: one motor model update");
     hprintln!("bench-m7 region: learner part: RLS update, 29 regressors, 1 output (one quad rotational row)");
     hprintln!(
@@ -1393,14 +1401,14 @@ fn main() -> ! {
 
     // Background learner steps in the middle of an identification, for a quad and an
     // octorotor: the motor models and the filters on every sample, and the effectiveness
-    // regressions one per sample in turn (`flight::learner::effectiveness::
-    // REGRESSION_DECIMATION`), the model staged in the first sample of each cycle and published
-    // with a thrust-axis solve in the second (`LEARNER_CYCLE`). Each sample is measured on its
+    // regressions in turn, a row over two samples (`flight::learner::effectiveness::
+    // MAX_ROW_RATE_HZ`), the model staged in the second sample of each cycle and published
+    // with a thrust-axis solve in the fourth (`LEARNER_CYCLE`). Each sample is measured on its
     // own (the worst is the figure the background task must meet on every sample), then the
-    // six together from the same state.
+    // twelve together from the same state.
     for m in LEARNER_MOTOR_COUNTS {
         let primed = primed_learner(m, true);
-        let samples: [Sample; 6] = core::array::from_fn(|k| {
+        let samples: [Sample; 12] = core::array::from_fn(|k| {
             synthetic_sample(m, 0.7, 0.601 + k as f32 / 2000.0, [7.0, 7.0, 1.7]).0
         });
         let mut learner = primed.clone();
@@ -1423,8 +1431,8 @@ fn main() -> ! {
         }
         // The same cycle where the learner's own force rows find no hover and the fallback
         // rows (the airframe's, per squared speed) are given
-        // (`Learner::set_fallback_force_rows`): the publication (sample 2) finds none, and the
-        // next sample solves on the fallback rows.
+        // (`Learner::set_fallback_force_rows`): the publication (sample 4) finds none, and the
+        // next sample that ends a row's turn (6) solves on the fallback rows.
         let mut blind = primed_learner(m, false);
         if blind.model().thrust_axis.is_some() {
             fail("the learner's own rows found a hover with no force seen");
@@ -1438,10 +1446,10 @@ fn main() -> ! {
             }
         }
         blind.set_fallback_force_rows(Some(fallback));
-        for (gyro, _, commands, speeds) in &samples[..2] {
+        for (gyro, _, commands, speeds) in &samples[..5] {
             blind.update(*gyro, [0.0; 3], commands, speeds);
         }
-        let (gyro, _, commands, speeds) = samples[2];
+        let (gyro, _, commands, speeds) = samples[5];
         let mut state = (blind, gyro, commands, speeds);
         region(&mut state, |(learner, gyro, commands, speeds)| {
             learner.update(*gyro, [0.0; 3], black_box(commands), black_box(speeds))
@@ -1469,7 +1477,7 @@ fn main() -> ! {
             rls: config,
         });
         let mut rate = [7.0f32, 7.0, 1.7];
-        for n in 0..400 {
+        for n in 0..402 {
             let ((gyro, accel, _c, speeds), angular) =
                 synthetic_sample(4, 0.7, n as f32 / 2000.0, rate);
             est.update(gyro, accel, &speeds[..4]);
@@ -1477,8 +1485,9 @@ fn main() -> ! {
                 rate[k] += angular[k] / 2000.0;
             }
         }
-        // 400 samples: the next runs force row z, the one after rotational row x.
-        for t in [0.2, 0.2005] {
+        // 402 samples: the next begins force row z; then its turn ends, then rotational row x
+        // begins and its turn ends.
+        for t in [0.201, 0.2015, 0.202, 0.2025] {
             let ((gyro, accel, _c, speeds), _) = synthetic_sample(4, 0.7, t, rate);
             let mut state = (est, gyro, accel, speeds);
             region(&mut state, |(est, gyro, accel, speeds)| {

@@ -61,6 +61,27 @@ const LEARNER_QUAD_TARGET: u64 = 12_000;
 /// of its catch-up without speed telemetry.
 const LEARNER_OCTO_TARGET: u64 = 24_000;
 
+/// Issue 56: the worst control period's load, percent of the period, at the planned cycles per
+/// instruction on the slower silicon (docs/budget.md, "Time"): the octorotor's worst
+/// closed-loop step, its DShot answers decoded and frames encoded, and the worst sample of its
+/// learner (the background task, which runs beside the closed loop in the in-flight
+/// refinement), with an IMU offset known.
+const PERIOD_LOAD_TARGET_PERCENT: f64 = 25.0;
+/// Cycles per instruction planned for: the worst case of docs/budget.md's band (dependent FPU
+/// chains, branch mispredictions, instruction-cache misses to flash).
+const PLANNED_CYCLES_PER_INSTRUCTION: f64 = 1.5;
+/// sys_ck of the H743's older silicon (revision Y), Hz; revision V runs at 480 MHz.
+const SLOWER_CLOCK_HZ: f64 = 400e6;
+/// The control period, s (2 kHz).
+const CONTROL_PERIOD_S: f64 = 1.0 / 2000.0;
+/// What a control period's worst case adds up: for each part, the region-name prefixes whose
+/// worst region it takes (the DShot row is the sum of its two regions).
+const PERIOD_PARTS: [(&str, &[&str]); 3] = [
+    ("control step, octorotor", &["closed-loop step m=8, "]),
+    ("DShot, 8 motors", &["dshot: decode 8 ", "dshot: encode 8 "]),
+    ("learner, octorotor, per sample", &["learner step m=8, "]),
+];
+
 /// Issue 53: what the pilot's sticks and the landing add to one control step, instructions
 /// (the worst step: position mode's setpoint moved with the fly-away detector counting; a
 /// landing's touchdown detector).
@@ -360,11 +381,85 @@ pub fn m7(args: &[String]) -> Result<()> {
             }
         }
     }
-    let missed = missed(&rows);
+    let mut missed = missed(&rows);
+    let load = period_load(&rows);
+    println!(
+        "\nWorst control period (octorotor, CPI {PLANNED_CYCLES_PER_INSTRUCTION} at {} MHz):",
+        SLOWER_CLOCK_HZ / 1e6
+    );
+    for (what, region, instructions) in &load.parts {
+        println!("  {what}: {instructions} ({region})");
+    }
+    println!(
+        "  {} instructions, {:.1} µs, {:.1} % of the period (target ≤ {PERIOD_LOAD_TARGET_PERCENT} %)",
+        load.instructions,
+        load.percent * CONTROL_PERIOD_S * 1e4,
+        load.percent
+    );
+    missed.extend(load.missed());
     if !missed.is_empty() {
         bail!("bench-m7: {} target(s) missed:\n  {}", missed.len(), missed.join("\n  "));
     }
     Ok(())
+}
+
+/// The worst control period's work ([`PERIOD_PARTS`]) and its load.
+struct PeriodLoad {
+    /// Each part: what, the region it took (the worst of its prefix, or the sum), instructions.
+    parts: Vec<(&'static str, String, u64)>,
+    instructions: u64,
+    /// Percent of the control period at [`PLANNED_CYCLES_PER_INSTRUCTION`] and
+    /// [`SLOWER_CLOCK_HZ`].
+    percent: f64,
+    /// Parts no region measured.
+    unmeasured: Vec<&'static str>,
+}
+
+impl PeriodLoad {
+    /// The miss, if any: over the target, or a part not measured.
+    fn missed(&self) -> Option<String> {
+        if !self.unmeasured.is_empty() {
+            return Some(format!(
+                "worst control-period load: no region measured {}",
+                self.unmeasured.join(", ")
+            ));
+        }
+        (self.percent > PERIOD_LOAD_TARGET_PERCENT).then(|| {
+            format!(
+                "worst control-period load: {:.1} % > {PERIOD_LOAD_TARGET_PERCENT} % ({} \
+                 instructions; issue 56)",
+                self.percent, self.instructions
+            )
+        })
+    }
+}
+
+/// The worst control period of [`PERIOD_PARTS`] from the measured `rows`.
+fn period_load(rows: &[Row]) -> PeriodLoad {
+    let mut load =
+        PeriodLoad { parts: Vec::new(), instructions: 0, percent: 0.0, unmeasured: Vec::new() };
+    for (what, prefixes) in PERIOD_PARTS {
+        let mut sum = 0;
+        let mut names = Vec::new();
+        for prefix in prefixes {
+            match rows
+                .iter()
+                .filter(|row| row.name.starts_with(prefix))
+                .max_by_key(|row| row.instructions)
+            {
+                Some(row) => {
+                    sum += row.instructions;
+                    names.push(row.name.clone());
+                }
+                None => load.unmeasured.push(what),
+            }
+        }
+        load.instructions += sum;
+        load.parts.push((what, names.join(" + "), sum));
+    }
+    let seconds = load.instructions as f64 * PLANNED_CYCLES_PER_INSTRUCTION / SLOWER_CLOCK_HZ;
+    load.percent = 100.0 * seconds / CONTROL_PERIOD_S;
+    load
 }
 
 /// Addresses (Thumb bit cleared) and sizes of the function symbols of a 32-bit little-endian
@@ -516,8 +611,8 @@ mod tests {
         "closed-loop step m=4, hover, position hold",
         "closed-loop step m=8, recovery 10 ms after a 60° tilt, position hold (allocation saturated)",
         "learner step m=4, no speed telemetry, sample 3",
-        "learner step m=4, sample 2: force row y, thrust-axis solve, model published",
-        "learner step m=8, sample 4: rotational row x",
+        "learner step m=4, sample 4: force row y's turn ends, thrust-axis solve, model published",
+        "learner step m=8, sample 7: rotational row x begun (its product P x and the parameters)",
         "learner m=4, no speed telemetry, sample 451 at the excitation's end",
         "learner m=8, no speed telemetry, sample 851 at the excitation's end",
         "pilot step: a landing, the touchdown detector (no fixes)",
@@ -552,7 +647,7 @@ mod tests {
         }
         // Regions without a target of their own.
         for name in [
-            "learner cycle m=4: the same six samples in one region",
+            "learner cycle m=4: the same twelve samples in one region",
             "closed-loop part m=8: allocation solve, hover increment (warm start)",
             "thrust-axis bounded search m=8 (one motor capped)",
             "imu-offset RLS update",
@@ -586,6 +681,35 @@ mod tests {
         let missed = missed(&rows(&DEFAULT_REGIONS, &figures));
         assert_eq!(missed.len(), 1);
         assert!(missed[0].contains("9638 instructions > 8000"), "{missed:?}");
+    }
+
+    /// The worst period adds the octorotor's worst step, its DShot and its learner's worst
+    /// sample: the figures of 2026-12-04 (the learner's rows whole in one sample) are a 30 %
+    /// load and a miss; a learner sample that leaves the sum within 33,333 instructions (25 %
+    /// of 500 µs at 400 MHz and 1.5 cycles an instruction) is not; a part unmeasured is.
+    #[test]
+    fn the_worst_control_period_over_a_quarter_is_a_miss() {
+        let names = [
+            "closed-loop step m=8, hover on GNSS, solution part 1 of 8",
+            "closed-loop step m=8, hover, position hold",
+            "dshot: decode 8 bidirectional answers",
+            "dshot: encode 8 bidirectional throttle frames",
+            "learner step m=8, sample 7: rotational row x begun (its product P x and the parameters)",
+            "learner step m=8, sample 3: force row z",
+            "learner step m=4, sample 4: rotational row x",
+        ];
+        let load = |learner: u64| {
+            period_load(&rows(&names, &[11_784, 10_612, 4_035, 344, learner, 12_966, 30_000]))
+        };
+        let before = load(23_790);
+        assert_eq!(before.instructions, 11_784 + 4_035 + 344 + 23_790);
+        assert!((before.percent - 30.0).abs() < 0.1, "{}", before.percent);
+        assert!(before.missed().is_some_and(|m| m.contains("30.0 % > 25 %")));
+        let within = 33_333 - 11_784 - 4_035 - 344;
+        assert_eq!(load(within).missed(), None);
+        assert!(load(within + 1).missed().is_some());
+        let no_dshot = period_load(&rows(&names[..2], &[11_784, 10_612]));
+        assert!(no_dshot.missed().is_some_and(|m| m.contains("DShot")), "unmeasured");
     }
 
     #[test]

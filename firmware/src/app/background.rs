@@ -52,7 +52,7 @@ pub const LEARN_AFTER_EXCITATION_S: f32 = 0.1;
 
 /// How long the learner goes on learning once the craft flies on the learned model, s: the
 /// in-flight refinement (the pilot's controller follows at a lower gain,
-/// `pilot::IN_FLIGHT_REFINEMENT_GAIN`). The recovery from the throw is a large manoeuvre the
+/// `pilot::IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S`). The recovery from the throw is a large manoeuvre the
 /// model was not yet fitted to and refines it; a steady hover afterwards is closed-loop data
 /// whose motor changes answer the gyro's own noise, and it biases the rotational rows: flown
 /// 60 s on the simulator with no limit, racer-5in's roll and pitch rows went from 1.2 % to 20 %

@@ -97,19 +97,22 @@ pub const LOST_ATTITUDE_TILT_RAD: f32 = 150.0 * core::f32::consts::PI / 180.0;
 /// craft released upside down needs a few hundred milliseconds to turn over.
 pub const LOST_ATTITUDE_S: f32 = 1.0;
 
-/// Fraction of the way the flying controller's G1 and G2 move towards each model the learner
-/// publishes in flight (every sixth sample, 3 ms at 2 kHz, for the first
-/// `background::REFINE_IN_FLIGHT_S` of the flight): the "lower gain" of the in-flight
-/// refinement, a time constant of 0.1 s on the learner's own changes, which are slow (it keeps
-/// its covariance from the excitation, λ = 1). The thrust frame the controller engaged with stays
+/// Time constant with which the flying controller's G1 and G2 follow the models the learner
+/// publishes in flight (once a cycle of its regressions, every 6 ms at 2 kHz, for the first
+/// `background::REFINE_IN_FLIGHT_S` of the flight), s: each model moves them by
+/// `1 − exp(−t/τ)` of the way, `t` the time the learner learned from since the model before
+/// ([`flight::learner::LearnedModel::learned_s`]). The "lower gain" of the in-flight
+/// refinement, on the learner's own changes, which are slow (it keeps its covariance from the
+/// excitation, λ = 1). Until 2026-12-05 a fraction of 0.03 per model, published every 3 ms:
+/// the same 0.1 s with speed telemetry, 0.8 s without (a model every 24 ms). The thrust frame the controller engaged with stays
 /// (re-framing in flight would step the attitude reference), unless the learned axis moves
 /// beyond [`REFORM_AXIS_CHANGE_RAD`]. Ours, measured on the simulator's
 /// Monte Carlo (1,000 random airframes, `fly monte-carlo`): without the refinement 915 held
 /// within 0.3 m, 59 hovered looser, 99th percentile of the worst distance from the setpoint
-/// 1.54 m; at 0.003 per model 915 / 60 / 1.15 m; at 0.03 920 / 55 / 1.02 m. With forgetting in
-/// flight (λ = 0.9985 per regression, 2 s) only 861 held: hover excites the actuators too little
-/// for a forgetting estimator.
-pub const IN_FLIGHT_REFINEMENT_GAIN: f32 = 0.03;
+/// 1.54 m; at 0.003 per model (1 s) 915 / 60 / 1.15 m; at 0.03 (0.1 s) 920 / 55 / 1.02 m. With
+/// forgetting in flight (λ = 0.9985 per regression, 2 s) only 861 held: hover excites the
+/// actuators too little for a forgetting estimator.
+pub const IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S: f32 = 0.1;
 
 /// Change of the learned thrust axis, from the one the controller flies, beyond which the
 /// controller is formed afresh in flight on the latest model, rad (15°). Below it the flown
@@ -520,7 +523,7 @@ pub struct PilotStatus {
     pub last_failsafe: Option<Failsafe>,
     pub failsafes: FailsafeCounts,
     /// Models from the learner the flying controller moved towards (the in-flight
-    /// refinement, `IN_FLIGHT_REFINEMENT_GAIN`), since start-up.
+    /// refinement, `IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S`), since start-up.
     pub refinements: u32,
     /// Controllers formed afresh in flight on a thrust axis that moved by more than
     /// [`REFORM_AXIS_CHANGE_RAD`], since start-up.
@@ -790,6 +793,9 @@ impl Pilot {
     /// whether the attempt's learning has ended (the model is final).
     pub fn set_model(&mut self, model: &LearnedModel, r_imu_m: [f32; 3], learning_ended: bool) {
         let offset_changed = self.model.is_some_and(|(_, before)| before != r_imu_m);
+        let learned_since_s = self.model.map_or(0.0, |(before, _)| {
+            (model.learned_s(self.rate_hz) - before.learned_s(self.rate_hz)).max(0.0)
+        });
         self.model = Some((*model, r_imu_m));
         // In flight the learner keeps learning (the background task feeds it while the craft
         // flies); the controller follows at a lower gain, in the frame it engaged with, and
@@ -799,7 +805,11 @@ impl Pilot {
         // taken at once (from zero to a few centimetres: at hover's rates and angular
         // accelerations the accelerometer's compensation moves by a fraction of a m/s²).
         if let Some(controller) = &mut self.controller {
-            let gain = if learning_ended { 1.0 } else { IN_FLIGHT_REFINEMENT_GAIN };
+            let gain = if learning_ended {
+                1.0
+            } else {
+                1.0 - libm::expf(-learned_since_s / IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S)
+            };
             if controller.refine_effectiveness(model, gain) {
                 self.status.refinements = self.status.refinements.wrapping_add(1);
             }

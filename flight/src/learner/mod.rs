@@ -12,7 +12,7 @@
 //!   the [`crate::thrust_axis`] solver on the learned G1. It publishes a [`LearnedModel`]: the
 //!   interface the controller (INDI) builds on. Every sample runs the motor models and the
 //!   filters but only one of the six effectiveness regressions, and the publication is split
-//!   over two samples ([`PUBLISH_INTERVAL_SAMPLES`]), so that the worst sample stays within the
+//!   over two samples ([`Learner::update`]), so that the worst sample stays within the
 //!   background task's budget on the Cortex-M7 (docs/benchmarks.md, issue 7).
 //!
 //! Units of the learned effectiveness: G1 is kept per unit *squared motor speed* (m/s² or rad/s²
@@ -60,18 +60,6 @@ pub const MOTOR_MODEL_CUTOFF_HZ: f32 = 40.0;
 pub const AXIS_INFORMATION_FRACTION: f32 = 0.05;
 /// Relative one-sigma uncertainty of a G1 column below which it counts as converged.
 pub const G1_CONVERGED_RELATIVE_STD: f32 = 0.02;
-
-/// Most samples between two publications of the [`LearnedModel`] while the effectiveness
-/// regressions do not run (filters starting, gaps).
-///
-/// While they run (one per sample, six per cycle: [`effectiveness::REGRESSION_DECIMATION`]),
-/// the model is published once per cycle in two halves that share a sample with the cheaper
-/// force-row regressions, never with the rotational ones: the sample of force row x stages the
-/// model (the copy of G1, G2 and the motor models, the convergence statistics), the sample of
-/// force row y solves the thrust axis of the staged G1 and publishes the whole at once. No
-/// sample pays for the copy, the statistics and the solve together (docs/benchmarks.md,
-/// issue 7); the published model is one sample older than the estimators.
-pub const PUBLISH_INTERVAL_SAMPLES: u8 = effectiveness::REGRESSION_DECIMATION;
 
 /// A reported speed above which a motor counts as running (armed ESC), rad/s: far below any
 /// idle speed (300 rad/s on a 3-inch quad), far above DShot's speed resolution at standstill.
@@ -287,6 +275,19 @@ impl LearnedModel {
         g1
     }
 
+    /// How much of the attempt this model learned from, s, at the control rate `rate_hz`: its
+    /// samples, each a control period, or each a held sample's interval when the speeds were
+    /// modelled ([`no_speed::held_rate_hz`]).
+    pub fn learned_s(&self, rate_hz: f32) -> f32 {
+        let sample_rate_hz =
+            if self.speeds_modelled { no_speed::held_rate_hz(rate_hz) } else { rate_hz };
+        if sample_rate_hz > 0.0 {
+            self.samples as f32 / sample_rate_hz
+        } else {
+            0.0
+        }
+    }
+
     /// Largest time constant of the motors, s (0 before any is known).
     pub fn tau_max_s(&self) -> f32 {
         self.motor[..usize::from(self.motors).min(MAX_MOTORS)]
@@ -335,7 +336,7 @@ pub struct Learner {
     since_publish: u8,
     /// Samples learned from.
     samples: u32,
-    /// The model being published (see [`PUBLISH_INTERVAL_SAMPLES`]).
+    /// The model being published (see [`Learner::update`]).
     staging: LearnedModel,
     /// `Some(every G1 column informed)` once the first half of a publication is done.
     staged: Option<bool>,
@@ -545,9 +546,18 @@ impl Learner {
     }
 
     /// One control-rate sample: IMU (IMU axes), the commands applied in this step and the motor
-    /// speeds reported in it (rad/s; NaN where a motor did not report). The model is published
-    /// every sixth sample (see [`PUBLISH_INTERVAL_SAMPLES`]), so [`Learner::model`] may be up
-    /// to six samples behind.
+    /// speeds reported in it (rad/s; NaN where a motor did not report).
+    ///
+    /// The [`LearnedModel`] is published once per cycle of the six effectiveness regressions
+    /// ([`effectiveness::EffectivenessEstimator::cycle_samples`]: twelve samples at the 2 kHz
+    /// control rate, six held samples without speed telemetry), and as often while the
+    /// regressions do not run (filters starting, gaps), so [`Learner::model`] may be up to a
+    /// cycle behind. While they run, in two halves that share a sample with the cheaper force
+    /// rows' turns, never with the balance's: the last sample of force row x's turn stages the
+    /// model (the copy of G1, G2 and the motor models, the convergence statistics), the last of
+    /// force row y's solves the thrust axis of the staged G1 and publishes the whole at once. No
+    /// sample pays for the copy, the statistics and the solve together, nor for either beside
+    /// half a balance row (docs/budget.md, issue 56).
     pub fn update(
         &mut self,
         gyro_rad_s: [f32; 3],
@@ -594,7 +604,9 @@ impl Learner {
                 // Caught up on the last sample: the model to engage on, staged and published
                 // with its thrust axis. Nothing is learned beside it (a held sample completed
                 // now waits for the next sample), so the estimates are the ones the last held
-                // sample left, and the force rows are the ones in effect then.
+                // sample left (its row's update finished first), and the force rows are the
+                // ones in effect then.
+                self.effectiveness.finish_pending();
                 if self.staged.is_none() {
                     let own = core::mem::replace(&mut self.force_rows, rows);
                     self.stage();
@@ -617,8 +629,18 @@ impl Learner {
             for _ in 0..release {
                 let Some(held) = self.command_speeds.release() else { break };
                 staged_now = self.learn(held.gyro_rad_s, held.accel_mps2, &held.speeds_rad_s);
+                if pending {
+                    // Catching up, a row a sample: its update finished in its own sample, as
+                    // spreading it would only move its work into the next row's (or into the
+                    // sample that publishes the model to engage on, after the last).
+                    self.effectiveness.finish_pending();
+                }
                 self.released[self.released_len] = held;
                 self.released_len += 1;
+            }
+            if self.released_len == 0 {
+                // The row the last held sample began goes on in the samples between.
+                self.effectiveness.advance();
             }
             if pending && !self.command_speeds.pending() {
                 // Caught up: the model to engage on, staged and published with its thrust axis
@@ -643,7 +665,7 @@ impl Learner {
 
     /// The effectiveness regression on one sample, and the publication; whether the model was
     /// staged last, from the estimates this sample left (its force row x: the publication's
-    /// first half, [`PUBLISH_INTERVAL_SAMPLES`]).
+    /// first half, [`Learner::update`]).
     #[inline(always)]
     fn learn(
         &mut self,
@@ -665,7 +687,7 @@ impl Learner {
                 self.publish_staged();
                 true
             }
-            Regression::ForceRow(_) | Regression::RotationRow(_) => false,
+            Regression::Begun | Regression::ForceRow(_) | Regression::RotationRow(_) => false,
             // Every sample publishes (no decimation: studies, not the firmware, with no budget a
             // sample): the fallback follows in the same sample.
             Regression::All => {
@@ -674,7 +696,7 @@ impl Learner {
                 false
             }
             Regression::None => {
-                let due = self.since_publish >= PUBLISH_INTERVAL_SAMPLES;
+                let due = self.since_publish >= self.effectiveness.cycle_samples();
                 if due {
                     self.stage();
                     self.publish_staged();
@@ -683,7 +705,12 @@ impl Learner {
             }
         };
         // Never beside a staged model: its rows would be replaced before its solve.
-        if self.fallback_pending && !solved && self.staged.is_none() {
+        // Nor beside a row begun (its first sample carries the row's larger half).
+        if self.fallback_pending
+            && !solved
+            && self.staged.is_none()
+            && regression != Regression::Begun
+        {
             self.solve_fallback();
         }
         regression == Regression::ForceRow(0)
@@ -815,8 +842,19 @@ impl Learner {
             clamped_or_none => {
                 model.axis_status = AxisStatus::NoHover;
                 let none_within = !has_hover_within_bounds(model);
-                if let (Ok(axis), true) = (clamped_or_none, none_within) {
-                    model.thrust_axis = Some(axis);
+                // The last resort is this model's clamped axis (a hover within the bounds
+                // found earlier is kept). When this model says the motors together cannot lift
+                // the craft, an axis an earlier one clamped is dropped if the speeds were
+                // measured: the seed paper's quad at a quarter of its thrust (0.82 of its
+                // weight) flew one left by a model of the excitation and hit the ground instead
+                // of being refused. Not if they were modelled from the commands: the nominal
+                // curve's full speed can be tens of percent off, and 3 of 1,000 random worlds
+                // without speed telemetry (323, 444, 936) said so at the end and held on the
+                // earlier axis.
+                match clamped_or_none {
+                    Ok(axis) if none_within => model.thrust_axis = Some(axis),
+                    Err(_) if none_within && !model.speeds_modelled => model.thrust_axis = None,
+                    _ => {}
                 }
                 self.fallback_pending = none_within && self.fallback_rows.is_some();
             }
@@ -1112,9 +1150,6 @@ mod tests {
         assert!(!learner.model().pending);
     }
 
-    /// The model is published once per cycle of the six effectiveness regressions (staged in
-    /// one sample, published with the thrust axis in the next), and every
-    /// [`PUBLISH_INTERVAL_SAMPLES`] while a gap keeps the regressions from running.
     /// The slot builds a learner in place, rebuilds it for another motor count, and a refused
     /// build leaves it empty; a learner built in place equals one built by value.
     #[test]
@@ -1160,14 +1195,18 @@ mod tests {
         }
     }
 
+    /// The model is published once per cycle of the six effectiveness regressions (staged in
+    /// the last sample of force row x's turn, published with the thrust axis in the last of
+    /// force row y's), and every cycle while a gap keeps the regressions from running.
     #[test]
     fn the_model_is_published_once_per_cycle_and_through_gaps() {
         let mut learner = Learner::new(4, LearnerConfig::default()).unwrap();
+        assert_eq!(learner.effectiveness.cycle_samples(), 12, "2 kHz: two samples a row");
         let mut publications = std::vec::Vec::new();
         let mut last = learner.model().samples;
-        for n in 0..40 {
+        for n in 0..80 {
             let (gyro, accel, commands, mut speeds) = sample(n);
-            if (30..40).contains(&n) {
+            if (50..80).contains(&n) {
                 speeds[0] = f32::NAN;
             }
             learner.update(gyro, accel, &commands, &speeds);
@@ -1178,14 +1217,15 @@ mod tests {
             }
         }
         // (sample index, samples learned from). The filters take two samples, the regressions
-        // six centred ones: they run from sample 8, force row x staging at 8, 14, ... and force
-        // row y publishing at 9, 15, ... what was learned from 9, 15, ... samples. Before that,
-        // and from the gap at sample 30 on (each sample restarts the filters): every sixth.
-        let expected = [(5, 6), (9, 9), (15, 15), (21, 21), (27, 27)];
+        // twelve centred ones: they run from sample 14 (force row x's turn, 14 and 15), force row
+        // x staging at 15, 27, ... what was learned from 16, 28, ... samples, and force row y
+        // publishing it at 17, 29, ... Before that, and from the gap at sample 50 on (each
+        // sample restarts the filters): every twelfth.
+        let expected = [(11, 12), (17, 16), (29, 28), (41, 40)];
         assert_eq!(&publications[..expected.len()], &expected);
         let gap: std::vec::Vec<usize> =
             publications[expected.len()..].iter().map(|p| p.0).collect();
-        assert_eq!(gap, [33, 39]);
+        assert_eq!(gap, [53, 65, 77]);
         assert!(learner.model().motor[1].a_rad_s != 0.0, "the motor models learned");
     }
 
@@ -1371,7 +1411,9 @@ mod tests {
         // regressions its last held sample ran (0: force row y, which publishes; 5: force row
         // x, which stages).
         let mut last_rows = std::collections::BTreeSet::new();
-        for lead in 0..4 * usize::from(PUBLISH_INTERVAL_SAMPLES) {
+        let cycle = Learner::new(4, config).unwrap().effectiveness.cycle_samples();
+        assert_eq!(cycle, 6, "one held sample a row");
+        for lead in 0..4 * usize::from(cycle) {
             let lead_in = lead * stride;
             let mut learner = Learner::new(4, config).unwrap();
             let mut rate = [5.0f32, -4.0, 1.5];
@@ -1410,8 +1452,10 @@ mod tests {
                 if learner.caught_up.is_some() {
                     assert!(learner.model().pending, "not yet published");
                     last_rows.insert(learner.since_publish);
-                    // The path until 2026-12-04: staged (again) and published at once.
+                    // The path until 2026-12-04: staged (again) and published at once, from
+                    // the estimates the last held sample left (its row's update finished).
                     let mut reference = learner.clone();
+                    reference.effectiveness.finish_pending();
                     reference.stage();
                     reference.publish_staged();
                     assert!(!reference.model().pending);
@@ -1425,6 +1469,6 @@ mod tests {
             }
             assert!(!learner.model().pending, "lead-in {lead}: never caught up");
         }
-        assert!(last_rows.into_iter().eq(0..PUBLISH_INTERVAL_SAMPLES), "every regression last");
+        assert!(last_rows.into_iter().eq(0..cycle), "every regression last");
     }
 }

@@ -52,6 +52,8 @@ pub enum RlsError {
     NonFinite,
     /// The regressor vector's length is not the estimator's `n`.
     Length { expected: usize, got: usize },
+    /// [`Rls::advance`] on an update that was not begun, or is finished.
+    NotBegun,
 }
 
 /// Tuning of an [`Rls`].
@@ -170,7 +172,7 @@ impl<const N: usize, const M: usize, const L: usize> Rls<N, M, L> {
     /// entries.
     #[inline]
     fn row_start(&self, i: usize) -> usize {
-        i * (2 * self.n + 1 - i) / 2
+        packed_start(self.n, i)
     }
 
     /// Number of regressors.
@@ -247,40 +249,141 @@ impl<const N: usize, const M: usize, const L: usize> Rls<N, M, L> {
         // A small estimator using all its regressors (a motor model: 4 of 4) runs the update
         // with its count as a constant, so that every loop unrolls into straight-line code: on
         // the octorotor the learner makes eight such updates a sample.
+        let mut update = Update::new();
         if N <= UNROLLED_MAX && self.n == N {
-            self.update_with::<true>(N, x, y)
+            self.begin_with(N, x, y, &mut update)?;
+            self.run_with::<true>(N, &mut update, usize::MAX)
         } else {
-            self.update_with::<false>(self.n, x, y)
+            self.begin(x, y, &mut update)?;
+            self.run_with::<false>(self.n, &mut update, usize::MAX)
         }
+        .unwrap_or(Err(RlsError::NotBegun))
     }
 
-    /// [`Rls::update`] for `n == self.n` regressors; `INLINE`: the row loops inlined (for a
-    /// constant `n`).
-    #[inline(always)]
-    fn update_with<const INLINE: bool>(
+    /// Begins an update with regressors `x` (length `n`) and outputs `y` in `update`, which
+    /// [`Rls::advance`] then carries out; the estimator is not changed until then. Whatever
+    /// `update` held is dropped: finish an update before beginning the next on the same
+    /// estimator. Refused, with nothing begun, for the errors [`Rls::update`] refuses.
+    pub fn begin(
+        &self,
+        x: &[f32],
+        y: &[f32; M],
+        update: &mut Update<N, M>,
+    ) -> Result<(), RlsError> {
+        self.begin_with(self.n, x, y, update)
+    }
+
+    /// Carries `update` (begun by [`Rls::begin`] on this estimator, which must not have been
+    /// updated or reset since) on by at most about `budget` covariance entries of work: the
+    /// product `P x` reads each stored entry once, the downdate writes each once, so a whole
+    /// update is `2 · n (n + 1)/2` entries, taken in pairs of rows. Returns `None` while the
+    /// update goes on, the a-priori errors once it is complete, or an error: refused on the way
+    /// (a non-finite `xᵀ P x`; nothing changed) or nothing begun ([`RlsError::NotBegun`]).
+    ///
+    /// Why: one update of the learner's angular-momentum balance (53 regressors on the
+    /// octorotor) is 18,000 instructions on the Cortex-M7; spread over two samples it keeps
+    /// every sample of the background task within its share of a control period
+    /// (docs/budget.md).
+    pub fn advance(
         &mut self,
+        update: &mut Update<N, M>,
+        budget: usize,
+    ) -> Option<Result<[f32; M], RlsError>> {
+        self.run_with::<false>(self.n, update, budget)
+    }
+
+    /// [`Rls::begin`] for `n == self.n` regressors.
+    #[inline(always)]
+    fn begin_with(
+        &self,
         n: usize,
         x: &[f32],
         y: &[f32; M],
-    ) -> Result<[f32; M], RlsError> {
+        update: &mut Update<N, M>,
+    ) -> Result<(), RlsError> {
         if x.len() != n {
             return Err(RlsError::Length { expected: n, got: x.len() });
         }
         if !(x.iter().all(|v| v.is_finite()) && y.iter().all(|v| v.is_finite())) {
             return Err(RlsError::NonFinite);
         }
-        let mut x_store = [0.0f64; N];
-        for (d, v) in x_store.iter_mut().zip(x) {
+        for (d, v) in update.x.iter_mut().zip(x) {
             *d = f64::from(*v);
         }
-        let x = &x_store[..n];
-        // a = P x, with tr P and the largest diagonal entry on the way.
-        let mut a_store = [0.0f64; N];
-        let a = &mut a_store[..n];
-        let (trace, max_diag) =
-            symmetric_product::<INLINE>(self.p.get(..packed_len(n)).unwrap_or(&[]), x, a);
-        let a = &*a;
-        let lambda = if max_diag > f64::from(self.config.p_max) {
+        update.a = [0.0; N];
+        update.y = *y;
+        update.trace = 0.0;
+        update.max_diag = 0.0;
+        update.stage = Stage::Product { row: 0 };
+        Ok(())
+    }
+
+    /// [`Rls::advance`] for `n == self.n` regressors; `INLINE`: the row loops inlined (for a
+    /// constant `n`).
+    #[inline(always)]
+    fn run_with<const INLINE: bool>(
+        &mut self,
+        n: usize,
+        update: &mut Update<N, M>,
+        budget: usize,
+    ) -> Option<Result<[f32; M], RlsError>> {
+        let mut budget = budget;
+        if let Stage::Product { row } = update.stage {
+            // a = P x, with tr P and the largest diagonal entry on the way.
+            let packed = self.p.get(..packed_len(n)).unwrap_or(&[]);
+            let (next, used) = symmetric_product::<INLINE>(
+                packed,
+                &update.x[..n],
+                &mut update.a[..n],
+                Rows { first: row, budget },
+                (&mut update.trace, &mut update.max_diag),
+            );
+            if next < n {
+                update.stage = Stage::Product { row: next };
+                return None;
+            }
+            budget = budget.saturating_sub(used);
+            if let Err(error) = self.take_gain(n, update) {
+                update.stage = Stage::Idle;
+                return Some(Err(error));
+            }
+            update.stage = Stage::Downdate { row: 0 };
+        }
+        let Stage::Downdate { row } = update.stage else {
+            return Some(Err(RlsError::NotBegun));
+        };
+        // Covariance: P ← (P − α K xᵀ P)/λ with K xᵀ P = a aᵀ/(λ + s) (`take_gain`). Only the
+        // upper triangle is stored, so P stays exactly symmetric. With λ = 1 (the usual case) no
+        // entry is multiplied by 1/λ.
+        let packed = self.p.get_mut(..packed_len(n)).unwrap_or(&mut []);
+        let (a, gain, inv_lambda) = (&update.a[..n], update.gain, update.inv_lambda);
+        let rows = Rows { first: row, budget };
+        let next = if inv_lambda == 1.0 {
+            downdate::<INLINE>(packed, a, gain, |v| v, rows)
+        } else {
+            downdate::<INLINE>(packed, a, gain, |v| v * inv_lambda, rows)
+        };
+        if next < n {
+            update.stage = Stage::Downdate { row: next };
+            return None;
+        }
+        update.stage = Stage::Idle;
+        let w = 1.0 / f64::from(self.noise_window.min(self.updates as f32 + 1.0));
+        for k in 0..M {
+            let e = update.error[k];
+            self.error_var[k] += w * (e * e - self.error_var[k]);
+        }
+        self.updates = self.updates.saturating_add(1);
+        Some(Ok(update.error.map(|e| e as f32)))
+    }
+
+    /// Between the product and the downdate: λ, the a-priori errors, the parameter update
+    /// θₖ += K eₖ with K = P x / (λ + s), and the downdate's gain. Refused (nothing changed) when
+    /// `λ + xᵀ P x` is not a positive finite number.
+    #[inline(always)]
+    fn take_gain(&mut self, n: usize, update: &mut Update<N, M>) -> Result<(), RlsError> {
+        let (x, a) = (&update.x[..n], &update.a[..n]);
+        let lambda = if update.max_diag > f64::from(self.config.p_max) {
             1.0 / f64::from(WINDUP_SHRINK)
         } else {
             f64::from(self.config.lambda)
@@ -299,56 +402,122 @@ impl<const N: usize, const M: usize, const L: usize> Rls<N, M, L> {
             return Err(RlsError::NonFinite);
         }
         let inv = 1.0 / denominator;
-        // A-priori errors and parameter update θₖ += K eₖ with K = P x / (λ + s).
-        let mut error = [0.0f64; M];
-        for ((e, y), p) in error.iter_mut().zip(y).zip(&predicted) {
+        for ((e, y), p) in update.error.iter_mut().zip(&update.y).zip(&predicted) {
             *e = f64::from(*y) - p;
         }
         for (theta, aj) in self.theta[..n].iter_mut().zip(a) {
             let kj = aj * inv;
-            for (t, e) in theta.iter_mut().zip(&error) {
+            for (t, e) in theta.iter_mut().zip(&update.error) {
                 *t += kj * e;
             }
         }
-        // Covariance: P ← (P − α K xᵀ P)/λ with K xᵀ P = a aᵀ/(λ + s); the trace it removes is
-        // ‖a‖²/(λ + s), limited to MAX_TRACE_DECREASE of tr P by α ≤ 1. Only the upper triangle
-        // is stored, so P stays exactly symmetric. With λ = 1 (the usual case) no entry is
-        // multiplied by 1/λ.
+        // The trace the downdate removes is ‖a‖²/(λ + s), limited to MAX_TRACE_DECREASE of
+        // tr P by α ≤ 1.
         let removed = norm2 * inv;
-        let limit = f64::from(MAX_TRACE_DECREASE) * trace;
+        let limit = f64::from(MAX_TRACE_DECREASE) * update.trace;
         let alpha = if removed > limit && removed > 0.0 { limit / removed } else { 1.0 };
-        let gain = alpha * inv;
-        let packed = self.p.get_mut(..packed_len(n)).unwrap_or(&mut []);
-        if lambda == 1.0 {
-            downdate::<INLINE>(packed, a, gain, |v| v);
-        } else {
-            let inv_lambda = 1.0 / lambda;
-            downdate::<INLINE>(packed, a, gain, |v| v * inv_lambda);
-        }
-        let w = 1.0 / f64::from(self.noise_window.min(self.updates as f32 + 1.0));
-        for k in 0..M {
-            self.error_var[k] += w * (error[k] * error[k] - self.error_var[k]);
-        }
-        self.updates = self.updates.saturating_add(1);
-        Ok(error.map(|e| e as f32))
+        update.gain = alpha * inv;
+        update.inv_lambda = if lambda == 1.0 { 1.0 } else { 1.0 / lambda };
+        Ok(())
     }
 }
 
-/// `a = P x` from the packed upper triangle of `P` (`x.len()` rows), and `(tr P, max P_ii)`: a
-/// stored row gives its own entry of `a` its dot product with `x` and, mirrored, every later
-/// entry its `P_ij x_i`. Rows go in pairs, which share the loads of `x_j` and `a_j` and halve
-/// the loop set-ups (the rows are short: 23 regressors on a quad).
+/// An update of an [`Rls`] in progress ([`Rls::begin`], [`Rls::advance`]): its regressors, the
+/// product `P x` so far and where it stands.
+#[derive(Clone, Copy, Debug)]
+pub struct Update<const N: usize, const M: usize> {
+    x: [f64; N],
+    /// `P x` (complete once the product is).
+    a: [f64; N],
+    y: [f32; M],
+    stage: Stage,
+    trace: f64,
+    max_diag: f64,
+    /// A-priori errors (once the product is complete).
+    error: [f64; M],
+    /// The downdate's `α/(λ + s)`, and `1/λ`.
+    gain: f64,
+    inv_lambda: f64,
+}
+
+/// Where an [`Update`] stands: the next pair of rows of `P` to read or to write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    /// Nothing begun, or finished.
+    Idle,
+    Product {
+        row: usize,
+    },
+    Downdate {
+        row: usize,
+    },
+}
+
+impl<const N: usize, const M: usize> Update<N, M> {
+    /// Nothing begun.
+    pub const fn new() -> Self {
+        Self {
+            x: [0.0; N],
+            a: [0.0; N],
+            y: [0.0; M],
+            stage: Stage::Idle,
+            trace: 0.0,
+            max_diag: 0.0,
+            error: [0.0; M],
+            gain: 0.0,
+            inv_lambda: 1.0,
+        }
+    }
+
+    /// Whether an update is begun and not finished.
+    pub fn is_pending(&self) -> bool {
+        self.stage != Stage::Idle
+    }
+
+    /// Drops the update in progress (the estimator it was begun on was reset).
+    pub fn cancel(&mut self) {
+        self.stage = Stage::Idle;
+    }
+}
+
+impl<const N: usize, const M: usize> Default for Update<N, M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The rows a product or a downdate takes on: from `first`, pairs of rows until `budget`
+/// entries have been taken (at least one pair) or the rows end.
+#[derive(Clone, Copy)]
+struct Rows {
+    first: usize,
+    budget: usize,
+}
+
+/// `a += P x` from the packed upper triangle of `P` (`x.len()` rows), on `rows`, and the
+/// diagonal's trace and largest entry into `diagonal`: a stored row gives its own entry of `a`
+/// (`(tr P, max P_ii)` so far) its dot product with `x` and, mirrored, every later entry its `P_ij x_i`. Rows go in pairs,
+/// which share the loads of `x_j` and `a_j` and halve the loop set-ups (the rows are short: 23
+/// regressors on a quad). Returns the row to go on from (`x.len()` once done) and the entries
+/// read.
 #[inline(always)]
-fn symmetric_product<const INLINE: bool>(packed: &[f64], x: &[f64], a: &mut [f64]) -> (f64, f64) {
+fn symmetric_product<const INLINE: bool>(
+    packed: &[f64],
+    x: &[f64],
+    a: &mut [f64],
+    rows: Rows,
+    diagonal: (&mut f64, &mut f64),
+) -> (usize, usize) {
     let n = x.len().min(a.len());
-    let (mut trace, mut max_diag) = (0.0f64, 0.0f64);
-    let mut rows = packed;
-    let mut i = 0;
-    while i + 1 < n {
+    let (mut trace, mut max_diag) = (*diagonal.0, *diagonal.1);
+    let mut i = rows.first;
+    let mut left = packed.get(packed_start(n, i)..).unwrap_or(&[]);
+    let mut used = 0;
+    while i + 1 < n && used < rows.budget {
         // Rows i (P_ii, P_i,i+1, tail0) and i + 1 (P_i+1,i+1, tail1); tails over j ≥ i + 2.
-        let (row0, rest) = rows.split_at(n - i);
+        let (row0, rest) = left.split_at(n - i);
         let (row1, rest) = rest.split_at(n - i - 1);
-        rows = rest;
+        left = rest;
         let (Some(([d0, p01], tail0)), Some((&d1, tail1))) =
             (row0.split_first_chunk::<2>(), row1.split_first())
         else {
@@ -366,39 +535,50 @@ fn symmetric_product<const INLINE: bool>(packed: &[f64], x: &[f64], a: &mut [f64
             } else {
                 dot2(tail0, tail1, &x[i + 2..])
             }
+        } else if INLINE {
+            dot_and_axpy_inline(tail0, tail1, &x[i + 2..], tail, (x0, x1))
         } else {
-            if INLINE {
-                dot_and_axpy_inline(tail0, tail1, &x[i + 2..], tail, (x0, x1))
-            } else {
-                dot_and_axpy(tail0, tail1, &x[i + 2..], tail, (x0, x1))
-            }
+            dot_and_axpy(tail0, tail1, &x[i + 2..], tail, (x0, x1))
         };
         head[i] += d0 * x0 + p01 * x1 + dot0;
         head[i + 1] += p01 * x0 + d1 * x1 + dot1;
         trace += d0 + d1;
         max_diag = max_diag.max(*d0).max(d1);
+        used += row0.len() + row1.len();
         i += 2;
     }
-    if let (Some(&d), true) = (rows.first(), i < n) {
+    if let (Some(&d), true) = (left.first(), i + 1 == n && used < rows.budget) {
         // The last row of an odd n: its diagonal only.
         a[i] += d * x[i];
         trace += d;
         max_diag = max_diag.max(d);
+        used += 1;
+        i += 1;
     }
-    (trace, max_diag)
+    (*diagonal.0, *diagonal.1) = (trace, max_diag);
+    (i, used)
 }
 
-/// `P ← scale(P − gain · a aᵀ)` on the packed upper triangle of `P` (`a.len()` rows), rows in
-/// pairs as in [`symmetric_product`].
+/// `P ← scale(P − gain · a aᵀ)` on the packed upper triangle of `P` (`a.len()` rows), on `rows`,
+/// rows in pairs as in [`symmetric_product`]. Returns the row to go on from (`a.len()` once
+/// done).
 #[inline(always)]
-fn downdate<const INLINE: bool>(packed: &mut [f64], a: &[f64], gain: f64, scale: impl Scale) {
+fn downdate<const INLINE: bool>(
+    packed: &mut [f64],
+    a: &[f64],
+    gain: f64,
+    scale: impl Scale,
+    rows: Rows,
+) -> usize {
     let n = a.len();
-    let mut rows = packed;
-    let mut i = 0;
-    while i + 1 < n {
-        let (row0, rest) = core::mem::take(&mut rows).split_at_mut(n - i);
+    let mut i = rows.first;
+    let mut left = packed.get_mut(packed_start(n, i)..).unwrap_or(&mut []);
+    let mut used = 0;
+    while i + 1 < n && used < rows.budget {
+        let (row0, rest) = core::mem::take(&mut left).split_at_mut(n - i);
         let (row1, rest) = rest.split_at_mut(n - i - 1);
-        rows = rest;
+        left = rest;
+        used += row0.len() + row1.len();
         let (Some(([d0, p01], tail0)), Some((d1, tail1))) =
             (row0.split_first_chunk_mut::<2>(), row1.split_first_mut())
         else {
@@ -417,9 +597,18 @@ fn downdate<const INLINE: bool>(packed: &mut [f64], a: &[f64], gain: f64, scale:
         }
         i += 2;
     }
-    if let (Some(d), true) = (rows.first_mut(), i < n) {
+    if let (Some(d), true) = (left.first_mut(), i + 1 == n && used < rows.budget) {
         *d = scale(*d - a[i] * gain * a[i]);
+        i += 1;
     }
+    i
+}
+
+/// Index of `P[i][i]` in the packed upper triangle of an `n × n` matrix: rows `0..i` hold
+/// `n, n − 1, …, n − i + 1` entries.
+#[inline(always)]
+const fn packed_start(n: usize, i: usize) -> usize {
+    i * (2 * n + 1 - i) / 2
 }
 
 /// What a downdate writes each entry through: the identity, or the division by λ (as a product
@@ -495,6 +684,61 @@ fn dot_and_axpy_inline(row0: &[f64], row1: &[f64], x: &[f64], acc: &mut [f64], x
 mod tests {
     use super::*;
     use crate::rng::Rng;
+
+    /// An update spread over several calls of [`Rls::advance`] leaves exactly what the same
+    /// update at once leaves, for any budget (odd `n`, the wind-up's λ > 1 and the trace guard
+    /// included), taking about `n (n + 1) / budget` calls; a refused begin begins nothing, and
+    /// carrying on nothing says so.
+    #[test]
+    fn an_update_spread_over_calls_equals_the_update_at_once() {
+        const N: usize = 23;
+        let config = RlsConfig { lambda: 0.999, p0: 100.0, p_max: 150.0 };
+        let entries = N * (N + 1);
+        for budget in [1, 7, 40, 100, packed_len(N), entries] {
+            let mut at_once = Rls::<N, 3, { packed_len(N) }>::new(N, config);
+            let mut spread = at_once.clone();
+            let mut update = Update::new();
+            let mut rng = Rng::new(11);
+            let mut calls_most = 0;
+            for step in 0..600 {
+                let (x, y) = sample(&mut rng, step, 1.0);
+                let expected = at_once.update(&x, &y);
+                spread.begin(&x, &y, &mut update).unwrap();
+                let mut calls = 0;
+                let got = loop {
+                    calls += 1;
+                    if let Some(result) = spread.advance(&mut update, budget) {
+                        break result;
+                    }
+                    assert!(calls < 2 * entries, "budget {budget}: never finished");
+                };
+                calls_most = calls_most.max(calls);
+                assert_eq!(got, expected, "budget {budget}, step {step}");
+                assert!(!update.is_pending());
+                for i in 0..N {
+                    for j in 0..N {
+                        let (a, b) = (spread.covariance(i, j), at_once.covariance(i, j));
+                        assert_eq!(a.to_bits(), b.to_bits(), "budget {budget}: P[{i}][{j}]");
+                    }
+                    for k in 0..3 {
+                        assert_eq!(spread.theta(i, k).to_bits(), at_once.theta(i, k).to_bits());
+                    }
+                }
+            }
+            // Each call takes whole pairs of rows until its budget is used: at least one pair.
+            let rows_of_pairs = N.div_ceil(2);
+            let most = (entries.div_ceil(budget) + 2).min(2 * rows_of_pairs + 1);
+            assert!(calls_most <= most, "budget {budget}: {calls_most} calls > {most}");
+        }
+        let mut rls = Rls::<N, 3, { packed_len(N) }>::new(N, config);
+        let mut update = Update::new();
+        assert_eq!(rls.advance(&mut update, 100), Some(Err(RlsError::NotBegun)));
+        let mut x = [1.0f32; N];
+        x[4] = f32::NAN;
+        assert_eq!(rls.begin(&x, &[0.0; 3], &mut update), Err(RlsError::NonFinite));
+        assert!(!update.is_pending());
+        assert_eq!(rls.updates(), 0);
+    }
 
     #[test]
     fn recovers_shared_regressor_parameters_of_three_outputs() {
