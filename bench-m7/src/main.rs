@@ -1192,7 +1192,12 @@ fn main() -> ! {
     hprintln!("bench-m7 region: imu-offset estimator per sample, held");
     hprintln!("bench-m7 region: imu-offset estimator per sample, free fall");
     for m in IN_FLIGHT_FIT_MOTOR_COUNTS {
-        hprintln!("bench-m7 region: imu-offset in-flight fit per sample m={}, summed", m);
+        hprintln!(
+            "bench-m7 region: imu-offset in-flight fit per sample m={}, summed (W and its first row)",
+            m
+        );
+        hprintln!("bench-m7 region: imu-offset in-flight fit per sample m={}, its second row", m);
+        hprintln!("bench-m7 region: imu-offset in-flight fit per sample m={}, its third row", m);
         hprintln!(
             "bench-m7 region: imu-offset in-flight fit m={}, 4 samples: one 2 ms sum interval",
             m
@@ -1349,9 +1354,9 @@ fn main() -> ! {
 
     // The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32; the background task
     // runs it beside the learner on a throw-to-fly that knows no offset): a tumble with the
-    // motors pulsed, 0.8 s in, one sample that goes into the sums, the 2 ms interval it begins,
-    // and one solve (the cost only: the synthetic tumble is not physical enough for the fit to
-    // be right).
+    // motors pulsed, 0.8 s in, one sample that goes into the sums and the two after it (a row
+    // each), the 2 ms interval it begins, and one solve (the cost only: the synthetic tumble is
+    // not physical enough for the fit to be right).
     for m in IN_FLIGHT_FIT_MOTOR_COUNTS {
         let Some(mut fit) = OffsetFit::new(m, 2000.0, 0.0) else { fail("in-flight fit") };
         let tumble = |n: usize| {
@@ -1368,22 +1373,29 @@ fn main() -> ! {
             let velocity = [4.0 * cos, -4.0 * sin, 2.0 + libm::sinf(3.0 * t)];
             ([omega.x, omega.y, omega.z], [accel.x, accel.y, accel.z], speeds, velocity)
         };
-        // Up to a sample that goes into the sums (one in every `SUM_INTERVAL_S`): the worst.
+        // Up to a sample that begins going into the sums (one in every `SUM_INTERVAL_S`).
         let mut n = 0;
         loop {
             let (gyro, accel, speeds, velocity) = tumble(n);
             let mut next = fit.clone();
             next.update(gyro, accel, &speeds[..m], velocity);
-            if n >= 1600 && next.samples() > fit.samples() {
+            if n >= 1600 && next.summing() && !fit.summing() {
                 break;
             }
             fit = next;
             n += 1;
         }
-        let mut state = (fit.clone(), tumble(n));
-        region(&mut state, |(fit, (gyro, accel, speeds, velocity))| {
-            fit.update(black_box(*gyro), *accel, &speeds[..m], *velocity)
-        });
+        let mut each = fit.clone();
+        for k in 0..3 {
+            let mut state = (each, tumble(n + k));
+            region(&mut state, |(fit, (gyro, accel, speeds, velocity))| {
+                fit.update(black_box(*gyro), *accel, &speeds[..m], *velocity)
+            });
+            each = state.0;
+        }
+        if each.summing() {
+            fail("the in-flight fit's sample was not summed in three calls");
+        }
         let samples: [_; 4] = core::array::from_fn(|k| tumble(n + k));
         let mut four = (fit, samples);
         region(&mut four, |(fit, samples)| {

@@ -121,7 +121,8 @@
 //! `f64` numbers (13.5 KB, was 670 with `K` and `Q` alone), and the solve's three 33 × 33
 //! matrices (26 KB, [`SolveScratch`], kept by the caller: the board's in static memory); 36 biquad channels on every sample
 //! (was 26), and every [`SUM_INTERVAL_S`] (500 Hz) one sample into the sums: about 950
-//! multiply-adds at `m = 4` (1,230 at `m = 8`; with `K` and `Q` alone 340 and 500); per solve
+//! multiply-adds at `m = 4` (1,230 at `m = 8`; with `K` and `Q` alone 340 and 500), a third of
+//! them (a row) on the sample and on each of the two after it ([`OffsetFit::advance`]); per solve
 //! two Cholesky inverses (`W` padded to 8 × 8, `S` 33 × 33).
 //!
 //! Uncertainty: `σ²` from the residual sum of squares, widened by the samples per independent
@@ -404,6 +405,24 @@ pub struct OffsetFit {
     /// `Σₖ Σ fₖ²`.
     yy: f64,
     samples: u32,
+    /// A sample being summed a row at a time ([`OffsetFit::advance`]), if any.
+    summing: Option<Summing>,
+}
+
+/// A sample going into the sums one row per call: `W` and its first row with the sample, the
+/// other two rows on the calls after it ([`OffsetFit::advance`]). Why: its three rows in one
+/// call were 21,900 Cortex-M7 instructions on the octorotor, beside the learner's sample in the
+/// background task's worst (docs/budget.md).
+#[derive(Clone, Copy, Debug)]
+struct Summing {
+    /// The squared speeds (per [`SPEED2_SCALE`], moved forward by the report lag), `m` of them.
+    s: [f64; MAX_MOTORS],
+    /// The offset's regressors, one row per axis.
+    x: [[f64; 3]; 3],
+    drag: [f32; DRAG_CHANNELS],
+    f: Vector3<f32>,
+    /// The next row to add.
+    row: usize,
 }
 
 impl OffsetFit {
@@ -432,6 +451,7 @@ impl OffsetFit {
             d: [0.0; SHARED],
             yy: 0.0,
             samples: 0,
+            summing: None,
         };
         fit.reset(motors, rate_hz, speed_lag_s).then_some(fit)
     }
@@ -464,12 +484,43 @@ impl OffsetFit {
         self.d.fill(0.0);
         self.yy = 0.0;
         self.samples = 0;
+        self.summing = None;
         true
     }
 
-    /// Samples fitted so far (one every [`SUM_INTERVAL_S`]).
+    /// Samples fitted so far (one every [`SUM_INTERVAL_S`]), each counted once all its rows
+    /// are in the sums.
     pub fn samples(&self) -> u32 {
         self.samples
+    }
+
+    /// Whether a sample is going into the sums, rows of it still to add
+    /// ([`OffsetFit::advance`]).
+    pub fn summing(&self) -> bool {
+        self.summing.is_some()
+    }
+
+    /// Adds the next row of the sample being summed, if any: [`OffsetFit::update`] does it on
+    /// every call; call it on the samples in between when the fit is fed fewer samples than
+    /// the caller's (the held samples without speed telemetry), so that a sample's rows are
+    /// spread over the caller's samples too.
+    pub fn advance(&mut self) {
+        let Some(mut summing) = self.summing.take() else { return };
+        let m = self.motors;
+        self.accumulate_row(summing.row, &summing.s[..m], &summing.x, &summing.drag, &summing.f);
+        summing.row += 1;
+        if summing.row < 3 {
+            self.summing = Some(summing);
+        } else {
+            self.samples = self.samples.saturating_add(1);
+        }
+    }
+
+    /// Adds every row left of the sample being summed (before the next is begun).
+    fn finish_summing(&mut self) {
+        while self.summing.is_some() {
+            self.advance();
+        }
     }
 
     /// How many samples a second go into the sums, Hz (1 / [`SUM_INTERVAL_S`], or the sample
@@ -490,6 +541,7 @@ impl OffsetFit {
         speeds_rad_s: &[f32],
         velocity_imu_mps: [f32; 3],
     ) {
+        self.advance();
         if self.skip > 0 {
             self.skip -= 1;
             return;
@@ -542,61 +594,61 @@ impl OffsetFit {
         let x = regressor(&centre[PRODUCTS], &rate_dot);
         let accel = Vector3::from_column_slice(&centre[ACCEL]);
         let drag: [f32; DRAG_CHANNELS] = core::array::from_fn(|k| centre[DRAG.start + k]);
-        self.accumulate(&s[..m], &x, &drag, &accel);
-    }
-
-    fn accumulate(
-        &mut self,
-        s: &[f64],
-        x: &[[f64; 3]; 3],
-        drag: &[f32; DRAG_CHANNELS],
-        f: &Vector3<f32>,
-    ) {
         // The symmetric blocks `W` and `C` are accumulated in their upper triangles only.
-        let m = s.len();
+        self.finish_summing();
         for i in 0..m {
             for j in i..m {
                 self.w[i][j] += s[i] * s[j];
             }
         }
-        for k in 0..3 {
-            let y = f64::from(f[k]);
-            // φₖ in the columns it touches (ROW_INDEX[k]): X_k, e_k, then row k of `K` on `v`
-            // and of `Q` on `|v| v`.
-            let [x0, x1, x2] = x[k];
-            let drag = drag.map(f64::from);
-            let mut phi = [0.0; ROW_UNKNOWNS];
-            phi[..10].copy_from_slice(&[
-                x0, x1, x2, 1.0, drag[0], drag[1], drag[2], drag[3], drag[4], drag[5],
-            ]);
-            for ((phi, factor), cubic) in
-                phi[10..].iter_mut().zip(ROW_CUBIC_FACTOR[k]).zip(&drag[6..])
-            {
-                *phi = f64::from(factor) * cubic;
-            }
-            if k == 2 {
-                // `Q_zz`: `Q`'s isotropic part, `|v| v`, is also `T`'s (the gradient of `|v|⁴`):
-                // without this regressor `Q_zz` is left to the prior (zero) and the two do not
-                // share a direction, which would leave the solve singular but for the prior.
-                phi[9] = 0.0;
-            }
-            let index = ROW_INDEX[k].map(usize::from);
-            for i in 0..m {
-                for (p, v) in self.p[k][i].iter_mut().zip(&phi) {
-                    *p += s[i] * v;
-                }
-                self.q[k][i] += s[i] * y;
-            }
-            for a in 0..ROW_UNKNOWNS {
-                let row = &mut self.c[index[a]];
-                for b in a..ROW_UNKNOWNS {
-                    row[index[b]] += phi[a] * phi[b];
-                }
-                self.d[index[a]] += phi[a] * y;
-            }
-            self.yy += y * y;
+        self.summing = Some(Summing { s, x, drag, f: accel, row: 0 });
+        self.advance();
+    }
+
+    /// Row `k` of one sample into the sums: `Pₖ`, `qₖ`, `C`, `d` and `Σ fₖ²`.
+    fn accumulate_row(
+        &mut self,
+        k: usize,
+        s: &[f64],
+        x: &[[f64; 3]; 3],
+        drag: &[f32; DRAG_CHANNELS],
+        f: &Vector3<f32>,
+    ) {
+        let m = s.len();
+        let y = f64::from(f[k]);
+        // φₖ in the columns it touches (ROW_INDEX[k]): X_k, e_k, then row k of `K` on `v`
+        // and of `Q` on `|v| v`.
+        let [x0, x1, x2] = x[k];
+        let drag = drag.map(f64::from);
+        let mut phi = [0.0; ROW_UNKNOWNS];
+        phi[..10].copy_from_slice(&[
+            x0, x1, x2, 1.0, drag[0], drag[1], drag[2], drag[3], drag[4], drag[5],
+        ]);
+        for ((phi, factor), cubic) in phi[10..].iter_mut().zip(ROW_CUBIC_FACTOR[k]).zip(&drag[6..])
+        {
+            *phi = f64::from(factor) * cubic;
         }
-        self.samples = self.samples.saturating_add(1);
+        if k == 2 {
+            // `Q_zz`: `Q`'s isotropic part, `|v| v`, is also `T`'s (the gradient of `|v|⁴`):
+            // without this regressor `Q_zz` is left to the prior (zero) and the two do not
+            // share a direction, which would leave the solve singular but for the prior.
+            phi[9] = 0.0;
+        }
+        let index = ROW_INDEX[k].map(usize::from);
+        for i in 0..m {
+            for (p, v) in self.p[k][i].iter_mut().zip(&phi) {
+                *p += s[i] * v;
+            }
+            self.q[k][i] += s[i] * y;
+        }
+        for a in 0..ROW_UNKNOWNS {
+            let row = &mut self.c[index[a]];
+            for b in a..ROW_UNKNOWNS {
+                row[index[b]] += phi[a] * phi[b];
+            }
+            self.d[index[a]] += phi[a] * y;
+        }
+        self.yy += y * y;
     }
 
     /// The offset fitted so far, with its 95 % ellipsoid ([`Self::estimate_in`] with a
@@ -1033,6 +1085,12 @@ mod tests {
             for _ in 0..samples {
                 fit.update([1.0, 0.0, 0.0], [0.0, 0.0, -9.8], &[1000.0; 4], [0.0; 3]);
             }
+            // The last sample's rows go in on the calls after it (one row a call).
+            let counted = fit.samples() + u32::from(fit.summing());
+            assert_eq!(counted, sum_rate_hz as u32, "at {rate_hz} Hz");
+            fit.advance();
+            fit.advance();
+            assert!(!fit.summing());
             assert_eq!(fit.samples(), sum_rate_hz as u32, "at {rate_hz} Hz");
         }
         let fit = OffsetFit::new(4, 400.0, 0.0).unwrap();

@@ -549,10 +549,16 @@ impl<'q> Background<'q> {
             // that lag is known, then releases them, so the fit sees the same samples in the
             // same order, a little later. (Released, the motors are off: the learner's means
             // of the free fall, with zero speeds, `Learner::prime_carrying`.)
+            let mut released = false;
             if let Some(learner) = self.learner.get() {
                 learner.for_each_released(|gyro_rad_s, accel_mps2, speeds_rad_s, velocity| {
                     fit.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..motors], velocity);
+                    released = true;
                 });
+            }
+            if !released {
+                // The rows of the last held sample go into the sums on the samples between.
+                fit.advance();
             }
         } else {
             fit.update(
