@@ -475,8 +475,10 @@ const NO_SPEED_MEASURED_SAMPLES: usize = 13;
 const NO_SPEED_ENDS: [(usize, usize); 2] = [(4, 453), (8, 853)];
 
 /// Samples measured after the one that publishes the model without speed telemetry: the
-/// learner going on with each held sample as it completes.
-const NO_SPEED_AFTER_PUBLICATION: usize = 2;
+/// learner going on with each held sample as it completes, as in flight (a held sample every
+/// 4 ms begins a regression row, the sample after it finishes the row's update): six held
+/// samples, a cycle of the rows.
+const NO_SPEED_AFTER_PUBLICATION: usize = 48;
 
 /// Samples of pulses the learner without speed telemetry is primed with (0.2 s: three motors
 /// pulsed, the lag regressions learning).
@@ -1173,7 +1175,7 @@ fn main() -> ! {
             let what = match n.cmp(&published) {
                 core::cmp::Ordering::Less => "",
                 core::cmp::Ordering::Equal => ": the model published (caught up)",
-                core::cmp::Ordering::Greater => ": after the publication",
+                core::cmp::Ordering::Greater => ": after the publication (as in flight)",
             };
             hprintln!(
                 "bench-m7 region: learner m={}, no speed telemetry, sample {} at the excitation's \

@@ -104,7 +104,8 @@ pub const LOST_ATTITUDE_S: f32 = 1.0;
 /// ([`flight::learner::LearnedModel::learned_s`]). The "lower gain" of the in-flight
 /// refinement, on the learner's own changes, which are slow (it keeps its covariance from the
 /// excitation, λ = 1). Until 2026-12-05 a fraction of 0.03 per model, published every 3 ms:
-/// the same 0.1 s with speed telemetry, 0.8 s without (a model every 24 ms). The thrust frame the controller engaged with stays
+/// the same 0.1 s with speed telemetry, 0.8 s without (a model every 24 ms). The thrust frame
+/// the controller engaged with stays
 /// (re-framing in flight would step the attitude reference), unless the learned axis moves
 /// beyond [`REFORM_AXIS_CHANGE_RAD`]. Ours, measured on the simulator's
 /// Monte Carlo (1,000 random airframes, `fly monte-carlo`): without the refinement 915 held
@@ -113,6 +114,17 @@ pub const LOST_ATTITUDE_S: f32 = 1.0;
 /// forgetting in flight (λ = 0.9985 per regression, 2 s) only 861 held: hover excites the
 /// actuators too little for a forgetting estimator.
 pub const IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S: f32 = 0.1;
+
+/// The fraction of the way to a model learned `learned_since_s` after the one before that the
+/// flying controller moves ([`IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S`]); 0 for no time or a
+/// non-finite one.
+fn refinement_gain(learned_since_s: f32) -> f32 {
+    if learned_since_s > 0.0 {
+        1.0 - libm::expf(-learned_since_s / IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S)
+    } else {
+        0.0
+    }
+}
 
 /// Change of the learned thrust axis, from the one the controller flies, beyond which the
 /// controller is formed afresh in flight on the latest model, rad (15°). Below it the flown
@@ -805,11 +817,7 @@ impl Pilot {
         // taken at once (from zero to a few centimetres: at hover's rates and angular
         // accelerations the accelerometer's compensation moves by a fraction of a m/s²).
         if let Some(controller) = &mut self.controller {
-            let gain = if learning_ended {
-                1.0
-            } else {
-                1.0 - libm::expf(-learned_since_s / IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S)
-            };
+            let gain = if learning_ended { 1.0 } else { refinement_gain(learned_since_s) };
             if controller.refine_effectiveness(model, gain) {
                 self.status.refinements = self.status.refinements.wrapping_add(1);
             }
@@ -1670,6 +1678,25 @@ fn quaternion_array(q: &UnitQuaternion<f32>) -> [f32; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The in-flight refinement follows the learner with its time constant whatever the models'
+    /// cadence: ten models 6 ms apart move the controller as far as twenty 3 ms apart (within
+    /// rounding) and as one 60 ms later; the old 0.03 a model at 3 ms is the same 0.1 s; a model
+    /// that learned nothing new (or a time that is not a number) moves it not at all.
+    #[test]
+    fn the_refinement_follows_with_its_time_constant_whatever_the_models_cadence() {
+        let left_after =
+            |models: i32, interval_s: f32| (1.0 - refinement_gain(interval_s)).powi(models);
+        let expected = libm::expf(-0.06 / IN_FLIGHT_REFINEMENT_TIME_CONSTANT_S);
+        for (models, interval_s) in [(10, 0.006), (20, 0.003), (1, 0.06), (2, 0.03)] {
+            let left = left_after(models, interval_s);
+            assert!((left - expected).abs() < 1e-5, "{models} × {interval_s} s: {left}");
+        }
+        assert!((refinement_gain(0.003) - 0.03).abs() < 5e-4);
+        assert_eq!(refinement_gain(0.0), 0.0);
+        assert_eq!(refinement_gain(f32::NAN), 0.0);
+        assert_eq!(refinement_gain(-1.0), 0.0);
+    }
 
     /// The nudge's velocity triangle, integrated, at the motion-capture quarter (0.4 s) and at a
     /// GNSS receiver's (1 s, half a 2 s velocity window): each cycle ends at rest where it

@@ -528,9 +528,9 @@ impl EffectivenessEstimator {
         self.decimation
     }
 
-    /// Carries the row update in progress on by one sample's share of work: half of the
-    /// balance's update (its product `P x` or its downdate, `n (n + 1)/2` covariance entries
-    /// each; a force row's whole update is less). [`EffectivenessEstimator::update`] does it
+    /// Carries the row update in progress on by one sample's share of work: half of a balance
+    /// row's update and formation (`work_per_sample`; a force row's whole update is
+    /// less). [`EffectivenessEstimator::update`] does it
     /// on every sample; call it on the samples in between when the estimator is fed fewer
     /// samples than the caller's (the held samples without speed telemetry), so that a row
     /// begun in one is finished in the next.

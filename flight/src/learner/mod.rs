@@ -1305,6 +1305,40 @@ mod tests {
         }
     }
 
+    /// A model that says the motors together cannot lift the craft drops the last-resort axis an
+    /// earlier model clamped when the speeds were measured (the craft is refused rather than
+    /// flown into the ground), and keeps it when they were modelled from the commands (whose
+    /// nominal full speed can be far off); a hover within the bounds found earlier is kept.
+    #[test]
+    fn a_too_weak_verdict_drops_an_earlier_clamped_axis_only_with_measured_speeds() {
+        let mut learner = Learner::new(4, LearnerConfig::default()).unwrap();
+        pulse_quad(&mut learner, 1.0, 0..1600);
+        let model = *learner.model();
+        let found = model.thrust_axis.expect("an axis on its own rows");
+        let clamped = LearnedThrustAxis { clamped_by: 0.3, ..found };
+        for (earlier, modelled, kept) in
+            [(clamped, false, false), (clamped, true, true), (found, false, true)]
+        {
+            let mut weak = learner.clone();
+            weak.staging = model;
+            weak.staging.thrust_axis = Some(earlier);
+            weak.staging.speeds_modelled = modelled;
+            // A tenth of the thrust: every motor at full command lifts a tenth of the weight.
+            for row in weak.staging.g1_per_speed2[..3].iter_mut() {
+                row.iter_mut().for_each(|v| *v *= 0.1);
+            }
+            weak.staged = Some(true);
+            weak.publish_staged();
+            assert_eq!(weak.model().axis_status, AxisStatus::NoHover);
+            assert_eq!(
+                weak.model().thrust_axis,
+                kept.then_some(earlier),
+                "clamped by {}, speeds modelled: {modelled}",
+                earlier.clamped_by
+            );
+        }
+    }
+
     /// Where the learner's own force rows find no hover (here its accelerometer saw no motor's
     /// force), the fallback rows give it an axis a sample after a publication, and the
     /// publications after it solve on the learner's own again, keeping that axis; without
