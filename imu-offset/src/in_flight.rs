@@ -116,9 +116,10 @@
 //! 33), where `Pₖ = Σ s φₖᵀ` and `C = Σₖ Σ φₖ φₖᵀ`, `φₖ = (X_k, e_k, d_k)`; G1f follows by back
 //! substitution. Row k's `φₖ` touches 20 of the 33 (`r`, `c_k`, row k of `K` and of `Q`:
 //! `(K v)_k = Σ_j K_kj v_j`, and ten entries of `T`), so `Pₖ` is kept in those 20 columns and
-//! `C` accumulated in their 210 pairs. The drag's unknowns get a vanishing prior (`10⁻⁹` of the
-//! mean diagonal): their regressors are all zero when no velocity was ever known. About 1,690
-//! `f64` numbers (13.5 KB, was 670 with `K` and `Q` alone), and the solve's three 33 × 33
+//! each row's share of `C` accumulated in its 210 pairs, packed (`C` is their sum, formed for a
+//! solve). The drag's unknowns get a vanishing prior (`10⁻⁹` of the mean diagonal): their
+//! regressors are all zero when no velocity was ever known. About 1,260 `f64` numbers (10.1 KB;
+//! 1,690 with `C` kept whole, 670 with `K` and `Q` alone), and the solve's three 33 × 33
 //! matrices (26 KB, [`SolveScratch`], kept by the caller: the board's in static memory); 36 biquad channels on every sample
 //! (was 26), and every [`SUM_INTERVAL_S`] (500 Hz) one sample into the sums: about 950
 //! multiply-adds at `m = 4` (1,230 at `m = 8`; with `K` and `Q` alone 340 and 500), a third of
@@ -220,6 +221,15 @@ const DRAG_CHANNELS: usize = 6 + CUBICS.len();
 /// `K` and of `Q` (3 each), and the ten entries of `T` whose monomial has a factor `v_k`. The
 /// others are zero in it.
 const ROW_UNKNOWNS: usize = 10 + CUBICS.len();
+
+/// Pairs `(a, b)`, `a ≤ b`, of one row's unknowns: its upper triangle.
+const ROW_PAIRS: usize = ROW_UNKNOWNS * (ROW_UNKNOWNS + 1) / 2;
+
+/// Where the pair `(a, b)`, `a ≤ b < ROW_UNKNOWNS`, of one row's unknowns lies in its upper
+/// triangle packed by rows (row `a` holds `ROW_UNKNOWNS − a` pairs).
+const fn row_pair(a: usize, b: usize) -> usize {
+    a * (2 * ROW_UNKNOWNS + 1 - a) / 2 + (b - a)
+}
 
 /// Index of the symmetric 3 × 3 matrix's entry (i, j) = (j, i) in the order xx, xy, xz, yy, yz,
 /// zz.
@@ -396,12 +406,14 @@ pub struct OffsetFit {
     w: [[f64; MAX_MOTORS]; MAX_MOTORS],
     /// `Pₖ = Σ s φₖᵀ`, per row k, in the columns [`ROW_INDEX`]`[k]` (the others are zero).
     p: [[[f64; ROW_UNKNOWNS]; MAX_MOTORS]; 3],
-    /// `C = Σₖ Σ φₖ φₖᵀ` (upper triangle).
-    c: [[f64; SHARED]; SHARED],
+    /// `Σ φₖ φₖᵀ` per row k, over the columns [`ROW_INDEX`]`[k]` only: their upper triangle
+    /// packed by rows ([`row_pair`]). `C` (33 × 33) is their sum, formed for a solve: added here
+    /// contiguously, each multiply-add is a third of what it cost through the index table.
+    c_rows: [[f64; ROW_PAIRS]; 3],
     /// `qₖ = Σ s fₖ`.
     q: [[f64; MAX_MOTORS]; 3],
-    /// `d = Σₖ Σ φₖ fₖ`.
-    d: [f64; SHARED],
+    /// `Σ φₖ fₖ` per row k, over the columns [`ROW_INDEX`]`[k]`; `d` is their sum.
+    d_rows: [[f64; ROW_UNKNOWNS]; 3],
     /// `Σₖ Σ fₖ²`.
     yy: f64,
     samples: u32,
@@ -446,9 +458,9 @@ impl OffsetFit {
             until_sum: 0,
             w: [[0.0; MAX_MOTORS]; MAX_MOTORS],
             p: [[[0.0; ROW_UNKNOWNS]; MAX_MOTORS]; 3],
-            c: [[0.0; SHARED]; SHARED],
+            c_rows: [[0.0; ROW_PAIRS]; 3],
             q: [[0.0; MAX_MOTORS]; 3],
-            d: [0.0; SHARED],
+            d_rows: [[0.0; ROW_UNKNOWNS]; 3],
             yy: 0.0,
             samples: 0,
             summing: None,
@@ -479,9 +491,9 @@ impl OffsetFit {
         self.lagged.iter_mut().for_each(|row| row.fill(0.0));
         self.w.iter_mut().for_each(|row| row.fill(0.0));
         self.p.iter_mut().flatten().for_each(|row| row.fill(0.0));
-        self.c.iter_mut().for_each(|row| row.fill(0.0));
+        self.c_rows.iter_mut().for_each(|row| row.fill(0.0));
         self.q.iter_mut().for_each(|row| row.fill(0.0));
-        self.d.fill(0.0);
+        self.d_rows.iter_mut().for_each(|row| row.fill(0.0));
         self.yy = 0.0;
         self.samples = 0;
         self.summing = None;
@@ -634,19 +646,20 @@ impl OffsetFit {
             // share a direction, which would leave the solve singular but for the prior.
             phi[9] = 0.0;
         }
-        let index = ROW_INDEX[k].map(usize::from);
         for i in 0..m {
             for (p, v) in self.p[k][i].iter_mut().zip(&phi) {
                 *p += s[i] * v;
             }
             self.q[k][i] += s[i] * y;
         }
-        for a in 0..ROW_UNKNOWNS {
-            let row = &mut self.c[index[a]];
-            for b in a..ROW_UNKNOWNS {
-                row[index[b]] += phi[a] * phi[b];
+        let mut pairs = self.c_rows[k].as_mut_slice();
+        for (a, (&phi_a, d)) in phi.iter().zip(&mut self.d_rows[k]).enumerate() {
+            let (row, rest) = pairs.split_at_mut(ROW_UNKNOWNS - a);
+            for (c, phi_b) in row.iter_mut().zip(&phi[a..]) {
+                *c += phi_a * phi_b;
             }
-            self.d[index[a]] += phi[a] * y;
+            pairs = rest;
+            *d += phi_a * y;
         }
         self.yy += y * y;
     }
@@ -682,18 +695,30 @@ impl OffsetFit {
         }
         let w_inv = spd_inverse(&w).ok_or(OffsetFitError::NotDetermined)?;
         let SolveScratch { schur, factor, inverse: schur_inv } = scratch;
-        for (a, row) in schur.iter_mut().enumerate() {
-            for (b, v) in row.iter_mut().enumerate() {
-                *v = self.c[a.min(b)][a.max(b)];
+        // C and d: each row's sums in its columns, added up.
+        schur.iter_mut().for_each(|row| row.fill(0.0));
+        let mut d = [0.0; SHARED];
+        for k in 0..3 {
+            let index = ROW_INDEX[k].map(usize::from);
+            for a in 0..ROW_UNKNOWNS {
+                for b in a..ROW_UNKNOWNS {
+                    let (i, j) = (index[a], index[b]);
+                    let v = self.c_rows[k][row_pair(a, b)];
+                    schur[i][j] += v;
+                    if i != j {
+                        schur[j][i] += v;
+                    }
+                }
+                d[index[a]] += self.d_rows[k][a];
             }
         }
         // The velocity drag with a vanishing prior: its regressors are all zero when the
         // velocity was never known, and then it must not make the solve singular.
-        let trace: f64 = (0..SHARED).map(|a| self.c[a][a]).sum();
+        let trace: f64 = (0..SHARED).map(|a| schur[a][a]).sum();
         for a in DRAG_UNKNOWNS..SHARED {
             schur[a][a] += 1e-9 * trace / SHARED as f64 + 1e-12;
         }
-        let mut t = self.d;
+        let mut t = d;
         let mut explained = 0.0;
         for k in 0..3 {
             // W⁻¹ Pₖ (m × ROW_UNKNOWNS, in Pₖ's columns) and W⁻¹ qₖ.
