@@ -429,7 +429,7 @@ pub fn m7(args: &[String]) -> Result<()> {
             fit.instructions,
             fit.name,
             instructions,
-            load.percent * instructions as f64 / load.instructions.max(1) as f64
+            load_percent(instructions)
         );
     }
     if !missed.is_empty() {
@@ -509,9 +509,15 @@ fn period_load(rows: &[Row], parts: &[PeriodPart]) -> PeriodLoad {
         load.instructions += sum;
         load.parts.push((what, names.join(" + "), sum));
     }
-    let seconds = load.instructions as f64 * PLANNED_CYCLES_PER_INSTRUCTION / SLOWER_CLOCK_HZ;
-    load.percent = 100.0 * seconds / CONTROL_PERIOD_S;
+    load.percent = load_percent(load.instructions);
     load
+}
+
+/// What `instructions` take of the control period, percent, at
+/// [`PLANNED_CYCLES_PER_INSTRUCTION`] and [`SLOWER_CLOCK_HZ`].
+fn load_percent(instructions: u64) -> f64 {
+    let seconds = instructions as f64 * PLANNED_CYCLES_PER_INSTRUCTION / SLOWER_CLOCK_HZ;
+    100.0 * seconds / CONTROL_PERIOD_S
 }
 
 /// Addresses (Thumb bit cleared) and sizes of the function symbols of a 32-bit little-endian

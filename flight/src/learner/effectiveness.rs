@@ -91,8 +91,8 @@ pub const HIGH_PASS_HZ: f32 = 20.0;
 /// task must finish every sample within its share of a control period on the Cortex-M7).
 pub const REGRESSIONS: u8 = 6;
 
-/// Rows of the regressions started per second at most, Hz. Above this sample rate each row
-/// takes two samples ([`MAX_SAMPLES_PER_ROW`]): at the 2 kHz control rate a row every 1 ms, each
+/// Sample rate above which each row's turn takes two samples ([`MAX_SAMPLES_PER_ROW`]) instead
+/// of one, Hz: up to 2 kHz, at most 1,000 rows are begun a second. At the 2 kHz control rate a row every 1 ms, each
 /// row every 6 ms (167 Hz), the increments spanning twelve samples; at the 250 Hz of the held
 /// samples without speed telemetry a row every sample, each every 24 ms. Nothing is lost that
 /// the regressions use: every signal has been through the 20 Hz low-pass at the full rate first
@@ -508,6 +508,8 @@ impl EffectivenessEstimator {
         let k = (count % decimation) as usize;
         let (row, part) = (k / samples_per_row, k % samples_per_row);
         if part == 0 {
+            // Normally finished by now (the row before took its samples); after a gap, here.
+            self.finish_pending();
             if row < 3 {
                 self.regress_force_row(row, &last, &now);
             } else {
@@ -597,7 +599,6 @@ impl EffectivenessEstimator {
         x[n] = y[k];
         let all = 0..n + 1;
         self.force_high_pass[k].apply(&mut x, [all], self.high_pass_pole);
-        self.finish_pending();
         // Refused (a non-finite regressor): nothing begun, as the update would change nothing.
         let _ = self.force.begin(&x[..n], &[x[n]], &mut self.force_update);
     }
@@ -637,7 +638,6 @@ impl EffectivenessEstimator {
         // The other axes' torque regressors stay zero: not filtered.
         let channels = [k * m..(k + 1) * m, 3 * m..n + 1];
         self.rotation_high_pass[k].apply(&mut x, channels, self.high_pass_pole);
-        self.finish_pending();
         let _ = self.rotation.begin(&x[..n], &[x[n]], &mut self.rotation_update);
     }
 
