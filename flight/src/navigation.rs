@@ -131,6 +131,17 @@ pub const MIN_VELOCITY_GATE_MPS: f32 = 1.0;
 /// onto it.
 pub const MAX_REJECT_S: f32 = 5.0;
 
+/// Velocities refused for this long in a row are taken as the truth, and the whole track with
+/// them, s (ours). A receiver's velocity is a Doppler measurement: multipath that moves its
+/// position by metres hardly moves it, and a glitch lasts a solution or two. A lasting
+/// disagreement is the dead reckoning's: a tumble leaves the attitude 20–35° off (a gyro's
+/// sensitivity and cross-axis errors of a few per cent at 1,000 °/s), the prediction then
+/// accelerates by `g sin` of it, 3–6 m/s², past the velocity's gate within a few tenths of a
+/// second, and a refused velocity would leave only the slow position correction to hold it
+/// (Monte Carlo seeds 508 and 679 of `fly --gnss monte-carlo --world random --wind`: the velocity
+/// 3 m/s off, the craft flown to the ground and 20 m away). Two or three solutions at 5–10 Hz.
+pub const VELOCITY_MAX_REJECT_S: f32 = 0.3;
+
 /// Acceleration error of the velocity prediction that the velocity crossover balances
 /// against a fix's velocity noise, m/s² (ours: 1° of tilt error is 0.17 m/s²).
 pub const VELOCITY_DRIFT_ACCEL_MPS2: f32 = 0.15;
@@ -505,6 +516,8 @@ pub struct PositionEstimator {
     history: History,
     /// Time since the last fix taken (not refused), s.
     since_taken_s: f32,
+    /// Time since the last fix's velocity was taken (not refused), s.
+    since_velocity_taken_s: f32,
     /// Fixes refused as outliers since start-up.
     rejected: u32,
 }
@@ -531,6 +544,7 @@ impl PositionEstimator {
             fixed_once: false,
             history: History::default(),
             since_taken_s: f32::INFINITY,
+            since_velocity_taken_s: f32::INFINITY,
             rejected: 0,
         }
     }
@@ -583,6 +597,7 @@ impl PositionEstimator {
         self.history.advance(dt_s, &s.position_ned_m);
         self.since_fix_s += dt_s;
         self.since_taken_s += dt_s;
+        self.since_velocity_taken_s += dt_s;
         s.has_fix = self.since_fix_s <= FIX_TIMEOUT_S;
         Ok(())
     }
@@ -656,7 +671,9 @@ impl PositionEstimator {
     /// [`OUTLIER_SIGMAS`]` × its RMS error) + `[`OUTLIER_DRIFT_AIDED_MPS`]` t`, `t` since the last
     /// position taken; only a fix with a velocity, see there) is
     /// refused and counted, until refusals have lasted [`MAX_REJECT_S`]; a velocity beyond
-    /// `max(`[`MIN_VELOCITY_GATE_MPS`]`,`[`OUTLIER_SIGMAS`]` × √3 σ_v)` is left out.
+    /// `max(`[`MIN_VELOCITY_GATE_MPS`]`,`[`OUTLIER_SIGMAS`]` × √3 σ_v)` is left out, until
+    /// velocities have been refused for [`VELOCITY_MAX_REJECT_S`]: then the whole track moves
+    /// onto the fix (a [`FixOutcome::Reset`]).
     pub fn correct_fix(&mut self, fix: &Fix) -> Result<FixOutcome, NavigationError> {
         let mut innovation = self.innovation(fix)?;
         self.velocity_innovation(&mut innovation, 0.0);
@@ -723,10 +740,20 @@ impl PositionEstimator {
             && (crate::math::hypot(error.x, error.y)
                 > gate(core::f32::consts::SQRT_2 * sigma_m[0])
                 || error.z.abs() > gate(sigma_m[1]));
-        let outcome = if restart || (outlier && t >= MAX_REJECT_S) {
-            // The whole track moves onto the fix, and turns to its velocity.
-            let dv = velocity_error.unwrap_or_else(Vector3::zeros);
+        let velocity_refused = innovation.velocity_error.is_some() && velocity_error.is_none();
+        let velocity_lost =
+            velocity_refused && self.since_velocity_taken_s >= VELOCITY_MAX_REJECT_S;
+        if innovation.velocity_error.is_some() && !velocity_refused {
+            self.since_velocity_taken_s = 0.0;
+        }
+        let outcome = if restart || velocity_lost || (outlier && t >= MAX_REJECT_S) {
+            // The whole track moves onto the fix, and turns to its velocity (taken whatever its
+            // gate said: the estimate it was compared with is the one being replaced).
+            let dv = innovation.velocity_error.map_or_else(Vector3::zeros, |(ev, _)| ev);
             self.carry_forward(age_s, error, dv, Vector3::zeros());
+            if innovation.velocity_error.is_some() {
+                self.since_velocity_taken_s = 0.0;
+            }
             FixOutcome::Reset
         } else {
             let (mut dp, mut dv, mut db) = (Vector3::zeros(), Vector3::zeros(), Vector3::zeros());
@@ -2114,6 +2141,70 @@ mod tests {
         let offset = nav.state().position_ned_m.x - swing(20.0).0.x;
         assert!((offset - 4.0).abs() < 1.0, "moved by {offset} m");
         assert!(rms > 3.0, "the last 10 s follow the jump: RMS {rms} m from the truth");
+    }
+
+    #[test]
+    fn a_velocity_glitch_is_refused_and_a_lasting_disagreement_moves_the_estimate_onto_the_fixes() {
+        // A receiver (0.3 m, Doppler 0.05 m/s, 10 Hz, 0.1 s late) over a craft hovering still,
+        // its dead reckoning exact: the fix of `glitch_at` carries a velocity 5 m/s off.
+        let hover_f = Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_MPS2);
+        let fix = |velocity_ned_mps: Vector3<f32>| Fix {
+            position_ned_m: Vector3::zeros(),
+            sigma_m: [0.3, 0.45],
+            velocity: Some((velocity_ned_mps, 0.05)),
+            age_s: 0.1,
+            dt_fix_s: 0.1,
+        };
+        let mut nav = PositionEstimator::default();
+        let mut outcomes = [FixOutcome::Rejected; 20];
+        let glitch = Vector3::new(5.0, 0.0, 0.0);
+        for k in 0..20 {
+            for _ in 0..200 {
+                nav.predict(&level(), &hover_f, DT).unwrap();
+            }
+            let v = if k == 10 { glitch } else { Vector3::zeros() };
+            outcomes[k] = nav.correct_fix(&fix(v)).unwrap();
+            assert!(nav.state().velocity_ned_mps.norm() < 1e-3, "fix {k}: {:?}", nav.state());
+        }
+        assert_eq!(outcomes[0], FixOutcome::Reset, "the first fix starts the track");
+        assert!(outcomes[1..].iter().all(|o| *o == FixOutcome::Taken), "{outcomes:?}");
+        // A tumble left the dead reckoning 3 m/s off (its attitude tilted, its prediction
+        // accelerating): the true velocities are refused for VELOCITY_MAX_REJECT_S, then
+        // taken with the whole track, whatever the fixes' rate.
+        for rate_hz in [5.0f32, 10.0] {
+            let mut nav = PositionEstimator::default();
+            let every = (2000.0 / rate_hz) as usize;
+            let mut reset_at_s = None;
+            for k in 0..10 {
+                if k == 1 {
+                    nav.set_velocity(&Vector3::new(3.0, 0.0, 0.0));
+                }
+                for _ in 0..every {
+                    nav.predict(&level(), &hover_f, DT).unwrap();
+                }
+                let outcome =
+                    nav.correct_fix(&Fix { dt_fix_s: 1.0 / rate_hz, ..fix(Vector3::zeros()) });
+                let since_wrong_s = (k as f32 - 1.0) / rate_hz;
+                let v = nav.state().velocity_ned_mps.norm();
+                if k >= 1 && reset_at_s.is_none() {
+                    if outcome == Ok(FixOutcome::Reset) {
+                        reset_at_s = Some(since_wrong_s);
+                    } else {
+                        assert!(v > 2.0, "{rate_hz} Hz, fix {k}: {v} m/s");
+                    }
+                }
+                if reset_at_s.is_some() {
+                    assert!(v < 0.05, "{rate_hz} Hz, fix {k}: {v} m/s");
+                    assert!(nav.state().position_ned_m.norm() < 0.05, "{:?}", nav.state());
+                }
+            }
+            let reset_at_s = reset_at_s.unwrap_or(f32::INFINITY);
+            assert!(
+                reset_at_s >= VELOCITY_MAX_REJECT_S - 1.5 / rate_hz
+                    && reset_at_s <= VELOCITY_MAX_REJECT_S + 1.0 / rate_hz,
+                "{rate_hz} Hz: reset {reset_at_s} s after the velocity went wrong"
+            );
+        }
     }
 
     #[test]

@@ -357,6 +357,8 @@ pub struct GnssFeed {
     /// Where the fixes' world has its origin in the simulator's, NED, m: the first fix's
     /// measured position, its error included.
     origin_ned_m: Option<Vector3<f64>>,
+    /// The position error of the last solution that reached the board, NED, m.
+    last_error_ned_m: Option<Vector3<f64>>,
 }
 
 impl GnssFeed {
@@ -372,6 +374,7 @@ impl GnssFeed {
                 model.latency_s,
             ),
             origin_ned_m: None,
+            last_error_ned_m: None,
         }
     }
 
@@ -389,6 +392,9 @@ impl GnssFeed {
         for solution in &delivered {
             bytes.extend_from_slice(&solution.fix.to_frame());
         }
+        if let Some(last) = delivered.last() {
+            self.last_error_ned_m = Some(last.error_ned_m);
+        }
         let fix = self.board.receive(&bytes, now_us)?;
         if self.origin_ned_m.is_none() {
             let home = self.receiver.config().home;
@@ -402,6 +408,12 @@ impl GnssFeed {
     /// Where the fixes' world has its origin in the simulator's, NED, m, once a fix came.
     pub fn origin_ned_m(&self) -> Option<Vector3<f64>> {
         self.origin_ned_m
+    }
+
+    /// The position error the receiver gave the last solution that reached the board, NED, m:
+    /// what a craft holding on the fixes holds on top of its own control error.
+    pub fn last_error_ned_m(&self) -> Option<Vector3<f64>> {
+        self.last_error_ned_m
     }
 }
 

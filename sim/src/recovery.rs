@@ -463,6 +463,10 @@ pub struct FlyReport {
     pub max_hold_error_m: Option<f64>,
     /// The same, horizontally (a GNSS fix's vertical error is 1.5–2.5 times its horizontal), m.
     pub max_hold_error_horizontal_m: Option<f64>,
+    /// The largest horizontal error of the receiver's own solutions over the same steps, m
+    /// (`None` without a receiver): the part of `max_hold_error_horizontal_m` no controller
+    /// can take out.
+    pub max_fix_error_horizontal_m: Option<f64>,
     /// The window over which `max_hold_error_m` was measured, s.
     pub hold_window_s: f64,
     /// Fraction of that window's steps flown in position hold (1: held throughout).
@@ -662,6 +666,7 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
             setpoint_ned_m: None,
             max_hold_error_m: None,
             max_hold_error_horizontal_m: None,
+            max_fix_error_horizontal_m: None,
             hold_window_s,
             hold_coverage: 0.0,
             hold_rate_rms_rad_s: None,
@@ -902,6 +907,11 @@ pub fn fly(airframe: &Airframe, config: &FlyConfig) -> FlyReport {
                         let horizontal = (state.position_ned_m - sp).xy().norm();
                         let worst = report.max_hold_error_horizontal_m.get_or_insert(0.0);
                         *worst = worst.max(horizontal);
+                        if let Some(fix_error) = gnss.as_ref().and_then(GnssFeed::last_error_ned_m)
+                        {
+                            let worst = report.max_fix_error_horizontal_m.get_or_insert(0.0);
+                            *worst = worst.max(fix_error.xy().norm());
+                        }
                     }
                 }
                 let hovering = state.rate_body_rad_s.norm() < HOVER_RATE_RAD_S

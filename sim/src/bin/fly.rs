@@ -497,7 +497,7 @@ fn print_by_motor_tau(results: &[sim::recovery::CaseResult]) {
 fn runs_csv_text(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects]) -> String {
     let optional = |x: Option<f64>| x.map(|x| format!("{x:.4}")).unwrap_or_default();
     let mut text = String::from(
-        "seed,verdict,motors,slowest_tau_ms,wind_mps,turbulence_sigma_mps,turbulence_correlation_s,worst_hold_m,worst_hold_horizontal_m,hold_coverage,release_to_hover_s\n",
+        "seed,verdict,motors,slowest_tau_ms,wind_mps,turbulence_sigma_mps,turbulence_correlation_s,worst_hold_m,worst_hold_horizontal_m,hold_coverage,release_to_hover_s,worst_fix_error_horizontal_m\n",
     );
     for (r, world) in results.iter().zip(worlds) {
         let wind = nalgebra::Vector3::from(world.steady_wind_ned_mps).norm();
@@ -506,7 +506,7 @@ fn runs_csv_text(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects])
             None => (None, None),
         };
         text += &format!(
-            "{},{:?},{},{:.1},{:.3},{},{},{},{},{:.3},{}\n",
+            "{},{:?},{},{:.1},{:.3},{},{},{},{},{:.3},{},{}\n",
             r.seed,
             r.verdict,
             r.motors,
@@ -518,6 +518,7 @@ fn runs_csv_text(results: &[sim::recovery::CaseResult], worlds: &[WorldEffects])
             optional(r.report.max_hold_error_horizontal_m),
             r.report.hold_coverage,
             optional(r.report.release_to_hover_s),
+            optional(r.report.max_fix_error_horizontal_m),
         );
     }
     text
@@ -1039,6 +1040,28 @@ fn main() -> ExitCode {
                 "  held within 1 m horizontally: {within_1_m} of {runs} runs ({:.1} %)",
                 100.0 * within_1_m as f64 / runs.max(1) as f64
             );
+            let fix_errors: Vec<f64> =
+                results.iter().filter_map(|r| r.report.max_fix_error_horizontal_m).collect();
+            if !fix_errors.is_empty() {
+                // What holding on the fixes cannot take out: their own error.
+                print_quantiles(
+                    "  the receiver's own worst horizontal error over those steps",
+                    &fix_errors,
+                    1.0,
+                    " m",
+                );
+                let beyond: Vec<String> = results
+                    .iter()
+                    .filter(|r| r.report.max_fix_error_horizontal_m.is_some_and(|e| e > 1.0))
+                    .map(|r| r.seed.to_string())
+                    .collect();
+                println!(
+                    "  the receiver alone beyond 1 m: {} runs{}{}",
+                    beyond.len(),
+                    if beyond.is_empty() { "" } else { ", seeds " },
+                    beyond.join(", ")
+                );
+            }
             // A hold starts once the craft has stopped (firmware::app::pilot): how much of the
             // window it covered, over the runs that hovered.
             let coverage: Vec<f64> = results
