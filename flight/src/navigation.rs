@@ -2158,12 +2158,12 @@ mod tests {
         let mut nav = PositionEstimator::default();
         let mut outcomes = [FixOutcome::Rejected; 20];
         let glitch = Vector3::new(5.0, 0.0, 0.0);
-        for k in 0..20 {
+        for (k, outcome) in outcomes.iter_mut().enumerate() {
             for _ in 0..200 {
                 nav.predict(&level(), &hover_f, DT).unwrap();
             }
             let v = if k == 10 { glitch } else { Vector3::zeros() };
-            outcomes[k] = nav.correct_fix(&fix(v)).unwrap();
+            *outcome = nav.correct_fix(&fix(v)).unwrap();
             assert!(nav.state().velocity_ned_mps.norm() < 1e-3, "fix {k}: {:?}", nav.state());
         }
         assert_eq!(outcomes[0], FixOutcome::Reset, "the first fix starts the track");

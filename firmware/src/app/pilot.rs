@@ -596,6 +596,9 @@ pub struct Pilot {
     heading_rad: Option<f32>,
     /// Time the tilt has been beyond the limit, s.
     tilted_s: f32,
+    /// Whether the heading to hold has been taken since the controller took over
+    /// ([`Pilot::capture_heading`]).
+    heading_captured: bool,
     /// The previous flying step had a fix.
     flying_with_fix: bool,
     /// The fixes stopped during this flight (and have not come back): level hold on the
@@ -673,6 +676,7 @@ impl Pilot {
             pose_config: PoseConfig::default(),
             heading_rad: None,
             tilted_s: 0.0,
+            heading_captured: false,
             flying_with_fix: false,
             fixes_lost: false,
             reform_pending: false,
@@ -851,6 +855,25 @@ impl Pilot {
     fn hold_requested(&mut self, setpoint: &PositionSetpoint) {
         self.position_sp_ned_m = Some(Vector3::from(setpoint.position_ned_m));
         self.yaw_sp_filter_rad = setpoint.heading_rad - self.alignment_yaw_rad();
+        self.heading_captured = true;
+    }
+
+    /// Until the craft first turns slower than [`STEADY_RATE_RAD_S`] about the vertical after
+    /// the controller took over, the heading to hold follows the one it has: the attitude loop
+    /// then only stops the spin. Held from the take-over instead, the heading error of a craft
+    /// still spinning from its throw (300–600 °/s) flips sign every half turn (it is wrapped
+    /// to ±180°), and the loop asks full yaw rate one way, then the other; where the motors turn
+    /// the craft more easily one way than the other that kept it spinning for the whole flight
+    /// (planar pentacopters, three rotors one way and two the other, 2.3 against 14 rad/s² of
+    /// yaw at hover: 100–380 °/s, Monte Carlo seeds 481 and 910 of `fly --world random`).
+    fn capture_heading(&mut self, gyro_rad_s: &Vector3<f32>) {
+        let Some(controller) = &self.controller else { return };
+        if self.heading_captured {
+            return;
+        }
+        let q_filter = self.attitude.quaternion();
+        self.yaw_sp_filter_rad = yaw_of(&(q_filter * controller.indi().model().q_imu_thrust));
+        self.heading_captured = (q_filter * gyro_rad_s).z.abs() < STEADY_RATE_RAD_S;
     }
 
     /// An external pose (position of the CoG, heading) that arrived at `now_us`. Its position
@@ -1382,6 +1405,7 @@ impl Pilot {
         controller.start(imu.gyro_rad_s, imu.accel_mps2, commands, speeds_rad_s);
         self.yaw_sp_filter_rad =
             yaw_of(&(self.attitude.quaternion() * controller.indi().model().q_imu_thrust));
+        self.heading_captured = false;
         self.controller = Some(controller);
         self.thrust_scale = ThrustScale::default();
         // The heading's reference frame changes to the thrust frame: a new steady stretch.
@@ -1528,11 +1552,15 @@ impl Pilot {
                 None => self.position_sp_ned_m = Some(nav.position_ned_m),
             }
         }
+        self.capture_heading(&Vector3::from(imu.gyro_rad_s));
         self.guidance = match self
             .sticks
             .filter(|_| self.steady_s >= STICKS_TAKE_OVER_S && self.touchdown.is_none())
         {
-            Some(sticks) => self.stick_guidance(&sticks, &nav, can_hold),
+            Some(sticks) => {
+                self.heading_captured = true;
+                self.stick_guidance(&sticks, &nav, can_hold)
+            }
             None => {
                 self.status.piloted = None;
                 self.guidance_now(self.position_sp_ned_m)
@@ -1842,6 +1870,50 @@ mod tests {
         assert_eq!(pilot.status.reforms, 1);
         assert!(flown(&pilot).angle_to(&q) < 1e-5, "20°: flying the new axis");
         assert!(pilot.flying());
+    }
+
+    /// A craft that takes over still spinning about the vertical holds the heading it has once
+    /// the spin has slowed below `STEADY_RATE_RAD_S`, not the one it had at the take-over: until
+    /// then the heading to hold turns with it, and once taken a later turn does not move it.
+    #[test]
+    fn the_heading_held_is_taken_once_the_throws_spin_has_stopped() {
+        let learned = flight::testing::models::learned_quad();
+        let mut pilot = Pilot::new(2000.0);
+        pilot.set_model(&learned, [0.0; 3], false);
+        let q_imu_thrust = learned.thrust_axis.unwrap().rotation_thrust_to_imu().unwrap();
+        pilot.attitude.reset_to(q_imu_thrust.inverse()).unwrap();
+        let up = q_imu_thrust * Vector3::new(0.0, 0.0, -STANDARD_GRAVITY_MPS2);
+        // A yaw rate about the world's vertical (the thrust frame's z), in IMU axes.
+        let spinning = |rate_rad_s: f32| ImuSample {
+            gyro_rad_s: (q_imu_thrust * Vector3::new(0.0, 0.0, rate_rad_s)).into(),
+            accel_mps2: up.into(),
+        };
+        pilot.engage(&spinning(5.0), &[0.3; MAX_MOTORS], &[f32::NAN; MAX_MOTORS]).unwrap();
+        let at_take_over = pilot.yaw_sp_filter_rad;
+        let mut now_us = 0;
+        let mut fly = |pilot: &mut Pilot, imu: &ImuSample, steps: u64| {
+            for _ in 0..steps {
+                now_us += 500;
+                pilot.observe(imu, now_us, false);
+                pilot.step(imu, now_us).unwrap();
+            }
+        };
+        // 0.2 s at 5 rad/s: a turn of 1 rad, and the heading to hold with it.
+        fly(&mut pilot, &spinning(5.0), 400);
+        let turned = flight::attitude::wrap_pi(pilot.yaw_sp_filter_rad - at_take_over);
+        assert!((turned - 1.0).abs() < 0.05, "the setpoint turned by {turned} rad");
+        // Slowed to 0.2 rad/s: taken there and held, through a later turn.
+        fly(&mut pilot, &spinning(0.2), 1);
+        let captured = pilot.yaw_sp_filter_rad;
+        fly(&mut pilot, &spinning(0.2), 200);
+        fly(&mut pilot, &spinning(3.0), 200);
+        assert_eq!(pilot.yaw_sp_filter_rad, captured);
+        // A controller taking over again (a new flight) takes the heading afresh.
+        pilot.engage(&spinning(5.0), &[0.3; MAX_MOTORS], &[f32::NAN; MAX_MOTORS]).unwrap();
+        let at_take_over = pilot.yaw_sp_filter_rad;
+        fly(&mut pilot, &spinning(5.0), 400);
+        let turned = flight::attitude::wrap_pi(pilot.yaw_sp_filter_rad - at_take_over);
+        assert!((turned - 1.0).abs() < 0.05, "again: the setpoint turned by {turned} rad");
     }
 
     /// A pilot flying the learned quad, hovering (its thrust, IMU +y, up), and asked to land.

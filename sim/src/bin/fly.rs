@@ -145,7 +145,8 @@ enum Command {
         /// Also write one line per run to this file (CSV: seed, verdict, motors, the slowest
         /// motor's τ in ms, the steady wind and the turbulence's σ in m/s, its correlation time
         /// in s, the worst distance from the setpoint over the hold and its horizontal part in m,
-        /// the share of the hold window flown in position hold, release → hover in s).
+        /// the share of the hold window flown in position hold, release → hover in s, and on a
+        /// GNSS receiver its own worst horizontal error over the hold in m).
         #[arg(long)]
         runs_csv: Option<std::path::PathBuf>,
     },
