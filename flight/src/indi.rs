@@ -57,6 +57,36 @@ use crate::math::clamp;
 /// Cut-off of the synchronising low-pass on Ω, f and u₀, Hz (published; docs/algorithms/indi.md).
 pub const SYNC_CUTOFF_HZ: f32 = 15.0;
 
+/// Natural frequency of INDI's own closed loop, rad/s: the response of the angular acceleration
+/// to its demand through motors of lag `tau_s` synchronised by the 2nd-order Butterworth at
+/// `cutoff_hz` (`H`) is `1/(1 + sτ(1 − H))`, whose denominator `τs³ + (1 + √2ωτ)s² + √2ωs + ω²`
+/// (`ω = 2π f_c`) has one real pole and a lightly damped pair (damping 0.27 at τ = 16 ms and
+/// 15 Hz, 58 rad/s; 0.14 at 50 ms, 35 rad/s): the pair's frequency. `None` for inputs that are
+/// not positive numbers.
+pub fn inner_mode_rad_s(tau_s: f32, cutoff_hz: f32) -> Option<f32> {
+    if !(tau_s > 0.0 && tau_s.is_finite() && cutoff_hz > 0.0 && cutoff_hz.is_finite()) {
+        return None;
+    }
+    let w = 2.0 * core::f32::consts::PI * cutoff_hz;
+    let s2w = core::f32::consts::SQRT_2 * w;
+    // Monic: s³ + a s² + b s + c.
+    let (a, b, c) = ((1.0 + s2w * tau_s) / tau_s, s2w / tau_s, w * w / tau_s);
+    // The real root: Newton's steps from −a (left of the root; the cubic is concave there,
+    // left of its inflection −a/3, so they approach it from the left).
+    let mut r = -a;
+    for _ in 0..30 {
+        let f = ((r + a) * r + b) * r + c;
+        let df = (3.0 * r + 2.0 * a) * r + b;
+        if !(df.abs() > 0.0) {
+            break;
+        }
+        r -= f / df;
+    }
+    // (s − r)(s² + p s + q): q = −c / r.
+    let q = -c / r;
+    (q > 0.0 && q.is_finite()).then(|| crate::math::sqrt(q))
+}
+
 /// Floor of the motor speed in the G2 term, fraction of ω_full: `ω_full²/(2τω₀)` grows without
 /// bound as ω₀ → 0. The published floor is 0.1; ours is 0.3 (measured): with 0.1, a craft whose
 /// motors sit near idle after a tumble sees a rotor-reaction yaw gain five times its hover value,
@@ -565,6 +595,50 @@ impl Indi {
 mod tests {
     use super::*;
     use crate::testing::models::learned_quad;
+
+    /// The inner mode is the complex pair of `τs³ + (1 + √2ωτ)s² + √2ωs + ω²`: found here
+    /// independently, by Newton's method in the complex plane from a point near the imaginary
+    /// axis, and compared by magnitude; the mode slows as the motors do; nonsense inputs give
+    /// none.
+    #[test]
+    fn the_inner_mode_is_the_lightly_damped_pair_of_indis_own_loop() {
+        for (tau_s, cutoff_hz) in [(0.0157f32, 15.0f32), (0.03, 15.0), (0.05, 15.0), (0.02, 30.0)] {
+            let w = 2.0 * core::f64::consts::PI * f64::from(cutoff_hz);
+            let t = f64::from(tau_s);
+            let s2w = core::f64::consts::SQRT_2 * w;
+            // z = (re, im); p(z) and p'(z) by Horner's rule in complex arithmetic.
+            let mul = |a: (f64, f64), b: (f64, f64)| (a.0 * b.0 - a.1 * b.1, a.0 * b.1 + a.1 * b.0);
+            let coefficients = [t, 1.0 + s2w * t, s2w, w * w];
+            let mut z = (-1.0, 0.5 * w);
+            for _ in 0..200 {
+                let (mut p, mut dp) = ((0.0, 0.0), (0.0, 0.0));
+                for c in coefficients {
+                    dp = (mul(dp, z).0 + p.0, mul(dp, z).1 + p.1);
+                    p = (mul(p, z).0 + c, mul(p, z).1);
+                }
+                let d = dp.0 * dp.0 + dp.1 * dp.1;
+                let step = ((p.0 * dp.0 + p.1 * dp.1) / d, (p.1 * dp.0 - p.0 * dp.1) / d);
+                z = (z.0 - step.0, z.1 - step.1);
+            }
+            assert!(z.1.abs() > 1.0, "τ {tau_s}: converged to a real root {z:?}");
+            let expected = (z.0 * z.0 + z.1 * z.1).sqrt();
+            let mode = f64::from(inner_mode_rad_s(tau_s, cutoff_hz).unwrap());
+            assert!(
+                (mode - expected).abs() < 1e-3 * expected,
+                "τ {tau_s}: {mode} against {expected}"
+            );
+            let damping = -z.0 / expected;
+            assert!(damping > 0.0 && damping < 0.5, "τ {tau_s}: damping {damping}");
+        }
+        let fast = inner_mode_rad_s(0.0157, 15.0).unwrap();
+        assert!((fast - 58.4).abs() < 1.0, "{fast} rad/s");
+        assert!(inner_mode_rad_s(0.05, 15.0).unwrap() < fast);
+        for (tau_s, cutoff_hz) in
+            [(0.0, 15.0), (-0.01, 15.0), (f32::NAN, 15.0), (0.02, 0.0), (0.02, f32::INFINITY)]
+        {
+            assert_eq!(inner_mode_rad_s(tau_s, cutoff_hz), None, "τ {tau_s}, {cutoff_hz} Hz");
+        }
+    }
 
     /// The refinement moves G1 and G2 the given fraction towards the new estimate, in the frame
     /// and per unit of the thrust the model was built with; the motor models, the frame and

@@ -61,7 +61,9 @@ use nalgebra::Vector3;
 use crate::math::clamp;
 use crate::navigation::STANDARD_GRAVITY_MPS2;
 
-/// Damping of the rate loop around the motors' lag τ (published): `k_rate = 1/(4ζ²τ)`.
+/// Damping of the rate loop around the motors' lag τ (published): `k_rate = 1/(4ζ²τ)`. The
+/// controller takes a slower τ for motors fast enough to bring that gain near INDI's own mode
+/// (`crate::controller::RATE_TO_INNER_MODE`).
 pub const ZETA_RATE: f32 = 0.9;
 /// Damping of the attitude loop around the rate loop (published).
 pub const ZETA_ATTITUDE: f32 = 0.8;
