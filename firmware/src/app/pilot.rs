@@ -134,9 +134,9 @@ fn refinement_gain(learned_since_s: f32) -> f32 {
 /// off by 50–70° in the crafts that never hovered (rows learned with `r = 0` through a fast
 /// tumble), while the learner's axis after 0.5–2 s of flight was within a few degrees. Ours:
 /// 15° is five times the median error of a good engagement (docs/algorithms/imu-offset.md).
-/// The controller is formed in the step that takes over, as at the engagement: 11,010
-/// instructions for a quad, 12,669 for an octorotor (`cargo xtask bench-m7`), beside the step's
-/// 9,600: about 45 µs of the 500 µs period, once.
+/// The controller is formed in the step that takes over, as at the engagement: 14,759
+/// instructions for a quad, 16,220 for an octorotor (`cargo xtask bench-m7`, 2026-12-05), beside
+/// the step's 7,900–11,900: at most about 105 µs of the 500 µs period, once.
 pub const REFORM_AXIS_CHANGE_RAD: f32 = 15.0 * core::f32::consts::PI / 180.0;
 
 /// Rate below which the external heading steers the filter, rad/s (30 °/s: hover, not a
