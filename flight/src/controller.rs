@@ -464,10 +464,9 @@ impl Controller {
         let tau_max = model.motor[..model.motors].iter().map(|m| m.tau_s).fold(0.0, f32::max);
         // The rate loop at most RATE_TO_INNER_MODE of INDI's own mode: fast motors (τ below about
         // 26 ms at 15 Hz) take the gains of a slower one.
-        let tau_gains =
-            crate::indi::inner_mode_rad_s(tau_max, config.sync_cutoff_hz).map_or(tau_max, |mode| {
-                let zeta = crate::position::ZETA_RATE;
-                tau_max.max(1.0 / (4.0 * zeta * zeta * RATE_TO_INNER_MODE * mode))
+        let tau_gains = crate::indi::inner_mode_rad_s(tau_max, config.sync_cutoff_hz)
+            .map_or(tau_max, |mode| {
+                tau_max.max(crate::position::tau_for_rate_gain(RATE_TO_INNER_MODE * mode))
             });
         let gains = Gains::from_tau(tau_gains);
         let tilt_decel_rad_s2 = TILT_DECELERATION_FRACTION * tilt_authority_rad_s2(&model);

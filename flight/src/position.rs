@@ -65,6 +65,15 @@ use crate::navigation::STANDARD_GRAVITY_MPS2;
 /// controller takes a slower τ for motors fast enough to bring that gain near INDI's own mode
 /// (`crate::controller::RATE_TO_INNER_MODE`).
 pub const ZETA_RATE: f32 = 0.9;
+/// `k_rate τ`'s reciprocal: `4ζ²` for [`ZETA_RATE`].
+const RATE_GAIN_PER_TAU: f32 = 4.0 * ZETA_RATE * ZETA_RATE;
+
+/// The motors' time constant, s, for which [`Gains::from_tau`] gives the rate gain `k_rate`
+/// (1/s): `1/(4ζ² k_rate)`, the inverse of its published rule.
+pub fn tau_for_rate_gain(k_rate: f32) -> f32 {
+    1.0 / (RATE_GAIN_PER_TAU * k_rate)
+}
+
 /// Damping of the attitude loop around the rate loop (published).
 pub const ZETA_ATTITUDE: f32 = 0.8;
 /// Damping of the velocity loop around the attitude loop (published).
@@ -160,7 +169,7 @@ impl Gains {
         } else {
             TAU_RANGE_S.1
         };
-        let k_rate = 1.0 / (4.0 * ZETA_RATE * ZETA_RATE * tau);
+        let k_rate = 1.0 / (RATE_GAIN_PER_TAU * tau);
         let k_attitude = k_rate / (4.0 * ZETA_ATTITUDE * ZETA_ATTITUDE);
         let k_velocity = k_attitude / (4.0 * ZETA_VELOCITY * ZETA_VELOCITY);
         let k_position = k_velocity / (4.0 * ZETA_POSITION * ZETA_POSITION);
