@@ -424,7 +424,11 @@ fn plot_of_an_octorotor_throw_and_fly_is_readable() {
         assert_eq!(a["legend_entries"], 8 + 3 + u64::from(clipped), "{a}");
     }
     // The recorded roll and yaw wrap at ±180° (jumps of nearly 360° between two rows); drawn
-    // unwrapped, no step between two rows exceeds 10°, and the axis runs past 180°.
+    // unwrapped, no step between two rows is more than a quarter turn, and the axis runs past
+    // 180°. A quarter turn, not the 10° of the rows' usual spacing: the rows come as the
+    // telemetry reaches the recorder (their times are its arrivals), further apart on a loaded
+    // machine (a step of 11.8° under `cargo xtask test`, in a tumble of 1,000 °/s), while a wrap
+    // left in, or one unwrapped the wrong way, is 360° in one row.
     let wrapped = |name: &str| {
         let v: Vec<f64> = column(name).iter().flatten().copied().collect();
         v.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max)
@@ -434,7 +438,7 @@ fn plot_of_an_octorotor_throw_and_fly_is_readable() {
         let drawn = configurator_cli::plot::unwrap_deg(column(name));
         let steps = drawn.windows(2).filter_map(|w| Some((w[1]? - w[0]?).abs()));
         let largest = steps.fold(0.0, f64::max);
-        assert!(largest < 10.0, "{name}: a step of {largest:.1}° between two rows");
+        assert!(largest < 90.0, "{name}: a step of {largest:.1}° between two rows");
     }
     let (lo, hi, _) = axis("attitude");
     assert!(lo < -180.0 || hi > 180.0, "attitude axis {lo}..{hi}: not unwrapped");
