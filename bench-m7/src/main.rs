@@ -43,6 +43,7 @@ mod app {
     pub mod fix_parts;
     pub mod hal;
     pub mod landing;
+    pub mod offset_fit;
     pub mod sticks;
 }
 
@@ -305,6 +306,78 @@ fn region<I, O>(inputs: &mut I, f: impl FnOnce(&mut I) -> O) -> O {
     let out = f(inputs);
     bench_region_end(&out as *const O as *const u8);
     out
+}
+
+/// The background task's part of a sample with the in-flight IMU-offset fit in its own task
+/// (`firmware::app::offset_fit`), octorotor: its room and the worker's progress checked, the
+/// sample pushed, its count kept, and the estimates due taken back (none; one).
+const FIT_HANDOFF_CASES: [&str; 2] = [
+    "octorotor sample with an estimate due, taken back (the background task's part)",
+    "octorotor sample: checked, pushed, counted, none due (the background task's part)",
+];
+
+/// [`FIT_HANDOFF_CASES`]: a tumble with the motors pulsed fed through the rings, the worker
+/// caught up between samples (outside the regions); run once to find the sample an estimate
+/// is due at, then again to measure it and the one after it.
+fn fit_handoff_regions() {
+    use app::offset_fit::{FitHandoff, FitWork, OffsetFitWorker};
+    static mut HANDOFF: FitHandoff = FitHandoff::new();
+    static mut WORKER: core::mem::MaybeUninit<OffsetFitWorker<'static>> =
+        core::mem::MaybeUninit::uninit();
+    let work = |tag: u32| {
+        let t = tag as f32 / 2000.0;
+        let (sin, cos) = (libm::sinf(9.0 * t), libm::cosf(9.0 * t));
+        FitWork::Sample {
+            gyro_rad_s: [6.0 * cos, 6.0 * sin, 1.5 + libm::sinf(7.0 * t)],
+            accel_mps2: [0.5 * sin, -0.4 * cos, -9.8 + 0.3 * sin],
+            speeds_rad_s: core::array::from_fn(|i| {
+                if (tag / 100) % 8 == i as u32 {
+                    1600.0
+                } else {
+                    1000.0
+                }
+            }),
+            velocity_imu_mps: [4.0 * cos, -4.0 * sin, 2.0],
+        }
+    };
+    let mut due_at = None;
+    for pass in 0..2 {
+        // SAFETY: the statics' only references, in this single-threaded harness; the first
+        // pass's ends are gone before the second splits the rings again.
+        let handoff = unsafe { &mut *core::ptr::addr_of_mut!(HANDOFF) };
+        *handoff = FitHandoff::new();
+        let (mut client, ends) = handoff.split(2000.0);
+        let worker =
+            OffsetFitWorker::build_in(unsafe { &mut *core::ptr::addr_of_mut!(WORKER) }, ends);
+        client.start(0, 8, 2000.0, 0.0);
+        for tag in 1..4_000u32 {
+            let mut applied = false;
+            let item = work(tag);
+            let mut sample = |client: &mut app::offset_fit::FitClient<'_>| {
+                let ready = client.ready_for(tag);
+                let pushed = client.push(tag, black_box(item));
+                client.end_sample(tag);
+                client.take_due(tag, |estimate| applied |= estimate.is_some());
+                ready && pushed
+            };
+            let measured = pass == 1 && due_at.is_some_and(|due| tag == due || tag == due + 1);
+            let ok =
+                if measured { region(&mut client, |c| sample(c)) } else { sample(&mut client) };
+            if !ok {
+                fail("in-flight fit hand-off: the client was not ready");
+            }
+            if applied && due_at.is_none() {
+                due_at = Some(tag);
+            }
+            worker.run_pending();
+            if pass == 1 && due_at.is_some_and(|due| tag > due) {
+                break;
+            }
+        }
+        if due_at.is_none() {
+            fail("in-flight fit hand-off: no estimate came back");
+        }
+    }
 }
 
 /// A multirotor: `motors` rotors on a circle of radius 0.15 m with alternating spin, ±10 %
@@ -1206,6 +1279,9 @@ fn main() -> ! {
         );
         hprintln!("bench-m7 region: imu-offset in-flight fit solve m={}", m);
     }
+    for what in FIT_HANDOFF_CASES {
+        hprintln!("bench-m7 region: in-flight fit hand-off, {}", what);
+    }
     for m in LEARNER_MOTOR_COUNTS {
         for what in LEARNER_CYCLE {
             hprintln!("bench-m7 region: learner step m={}, {}", m, what);
@@ -1412,6 +1488,8 @@ fn main() -> ! {
         }
         black_box(&state);
     }
+
+    fit_handoff_regions();
 
     // Background learner steps in the middle of an identification, for a quad and an
     // octorotor: the motor models and the filters on every sample, and the effectiveness

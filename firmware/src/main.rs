@@ -14,7 +14,7 @@
 //! | `usb_service` | OTG2 (`OTG_FS`) interrupt, also pended | 2 | [`LinkTask::pass`](firmware::app::system::LinkTask::pass) on the USB CDC port and the telemetry radio's UART (`radio_baud`): requests routed, telemetry, configuration saves (flash erase); the GNSS receiver serviced ([`LinkTask::service_gnss`](firmware::app::system::LinkTask::service_gnss): its fixes to the control queue); the compass serviced ([`LinkTask::service_compass`](firmware::app::system::LinkTask::service_compass): a read every 10 ms on I2C1, about 0.2 ms, its samples to the control queue, a calibration's solve handed to `background`); then a restart if one was asked for |
 //! | `gnss_received` | USART2 (the GNSS UART's receive FIFO) | 3 | moves the received bytes into the queue the link pass reads (`board::gnss`: no DMA stream is left for it) |
 //! | `background` | software task (dispatcher `DCMI`) | 1 | [`run_background`](firmware::app::system::run_background): the link's work, the learner-sample queue drained, results published; then a compass calibration's solve, if one waits ([`run_compass_solve`](firmware::app::compass::run_compass_solve)) |
-//! | `idle` | — | 0 | reports the control step's longest duration over defmt, sleeps (`wfi`) |
+//! | `idle` | — | 0 | the in-flight IMU-offset fit (`app::offset_fit`), reports the control step's longest duration over defmt, sleeps (`wfi`) |
 //!
 //! What each task does, and in which order, is the portable application graph's
 //! ([`firmware::app::system`], which the simulators run too); this file only binds its entry
@@ -73,6 +73,17 @@ fn defmt_panic() -> ! {
 #[cfg(target_os = "none")]
 #[link_section = ".axisram.background"]
 static mut BACKGROUND: core::mem::MaybeUninit<firmware::app::Background<'static>> =
+    core::mem::MaybeUninit::uninit();
+
+/// The in-flight IMU-offset fit's task (AXI SRAM, NOLOAD): its rings, and the worker that
+/// `init` builds in place (`OffsetFitWorker::build_in`, 40 KB) and `idle` runs.
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.offset_fit"]
+static mut OFFSET_FIT_HANDOFF: core::mem::MaybeUninit<firmware::app::offset_fit::FitHandoff> =
+    core::mem::MaybeUninit::uninit();
+#[cfg(target_os = "none")]
+#[link_section = ".axisram.offset_fit"]
+static mut OFFSET_FIT: core::mem::MaybeUninit<firmware::app::offset_fit::OffsetFitWorker<'static>> =
     core::mem::MaybeUninit::uninit();
 
 /// The flight log's storage (AXI SRAM, NOLOAD; `init` writes it): the ring from the control
@@ -156,6 +167,7 @@ mod app {
     use firmware::app::gnss::GnssInput;
     use firmware::app::hal::Motors;
     use firmware::app::log::{LogRing, LogSink, Logger, NoCard};
+    use firmware::app::offset_fit::{FitHandoff, OffsetFitWorker};
     use firmware::app::radio::Receiver;
     use firmware::app::system::{ControlQueue, ControlTask, Link, LinkTask, WorkQueue};
     use firmware::app::{
@@ -267,6 +279,9 @@ mod app {
         /// in AXI SRAM so that DTCM keeps room for the stack, built there in place by `init`
         /// ([`BACKGROUND`]; docs/budget.md).
         background: &'static mut Background<'static>,
+        /// The in-flight IMU-offset fit (`idle`): 40 KB in AXI SRAM like the background's,
+        /// built there in place by `init` ([`OFFSET_FIT`]).
+        offset_fit: &'static mut OffsetFitWorker<'static>,
     }
 
     #[init(local = [
@@ -435,8 +450,19 @@ mod app {
         control.set_log(log_producer);
         control.control_mut().set_telemetry(ring_producer);
         // SAFETY: `init` runs once, before any task: this is the storage's only reference.
+        // SAFETY: as above, the static's only reference.
+        let handoff = unsafe {
+            (*core::ptr::addr_of_mut!(crate::OFFSET_FIT_HANDOFF)).write(FitHandoff::new())
+        };
+        let (fit_client, fit_ends) = handoff.split(f32::from(config.rate_hz));
+        // SAFETY: as above.
+        let offset_fit = OffsetFitWorker::build_in(
+            unsafe { &mut *core::ptr::addr_of_mut!(crate::OFFSET_FIT) },
+            fit_ends,
+        );
+        // SAFETY: as above.
         let storage = unsafe { &mut *core::ptr::addr_of_mut!(crate::BACKGROUND) };
-        let background = Background::build_in(storage, consumer, config.rate_hz);
+        let background = Background::build_in(storage, consumer, fit_client, config.rate_hz);
         let mut serial = heapless::String::new();
         // The 24-character UID always fits the protocol's 32-byte field.
         let _ = serial.push_str(uid_text);
@@ -573,6 +599,7 @@ mod app {
             compass_delay: CycleDelay { cycles_per_us },
             compass_solver,
             background,
+            offset_fit,
         };
         // Attached where it lies (a `with_compass` on the task by value would add copies of
         // the whole link task, 4 KB each, to this frame).
@@ -582,19 +609,24 @@ mod app {
         (shared, local, init::Monotonics())
     }
 
-    /// Between interrupts: report the control step's timing over defmt when it changed, then
-    /// sleep until the next interrupt. defmt-rtt writes with interrupts masked for the few µs a
+    /// Between interrupts: the in-flight IMU-offset fit's waiting work
+    /// (`firmware::app::offset_fit`: below every task, nothing waits for it but the estimate's
+    /// hand-back 20 ms later), then report the control step's timing over defmt when it
+    /// changed, then sleep until the next interrupt (work pushed after the fit's run waits for
+    /// it: at most one control period). defmt-rtt writes with interrupts masked for the few µs a
     /// message takes and, built with `disable-blocking-mode`, drops messages rather than wait
     /// for the probe, so logging here delays the control interrupt by microseconds at most.
     ///
     /// Likewise the microSD card's write time (`board::sdcard::card_stats`): when its longest
     /// block write grows, and every 4,096 blocks (about 12 s of log).
     #[idle(local = [
+        offset_fit,
         reported: StepStats = StepStats { max_us: 0, overruns: 0 },
         card_reported: CardStats = CardStats { write_max_us: 0, blocks: 0 },
     ])]
     fn idle(cx: idle::Context) -> ! {
         loop {
+            cx.local.offset_fit.run_pending();
             let stats = step_stats();
             if stats != *cx.local.reported {
                 defmt::info!(

@@ -500,6 +500,17 @@ impl OffsetFit {
         true
     }
 
+    /// Whether a fit can be sampled at `rate_hz` (the learner's 20 Hz filter needs it):
+    /// [`Self::reset`] succeeds exactly then.
+    pub fn supports_rate(rate_hz: f32) -> bool {
+        BiquadCoefficients::butterworth_lowpass(EFFECTIVENESS_CUTOFF_HZ, rate_hz).is_ok()
+    }
+
+    /// Motors fitted (1..=8).
+    pub fn motors(&self) -> usize {
+        self.motors
+    }
+
     /// Samples fitted so far (one every [`SUM_INTERVAL_S`]), each counted once all its rows
     /// are in the sums.
     pub fn samples(&self) -> u32 {

@@ -275,13 +275,16 @@ enum Bench {
 /// A tilted hexarotor's application in process, the bench acting at the given times (s), its
 /// background task lagging the control step 0 to 25 steps at random (as on the board, where it
 /// runs when the higher-priority tasks leave it time; its queue holds 63 samples) and the link
-/// pass's work waiting for it. Logs into `dir`; returns the background's lags, in steps.
+/// pass's work waiting for it; the in-flight IMU-offset fit's task (the board's `idle`: no
+/// offset is known) runs after a background run at random, three times in ten, or when the
+/// background task waits for it. Logs into `dir`; returns the background's lags, in steps, and
+/// how often it waited for the fit.
 fn fly_with_a_lagging_background(
     dir: &Path,
     log_always: bool,
     bench: &[(f64, Bench)],
     ticks: u32,
-) -> Vec<u32> {
+) -> (Vec<u32>, u32) {
     let airframe = sim::airframe::Airframe::load("hex-tilted").unwrap();
     let mut board = sim::board::SimBoard::new(&airframe, &sim::board::SimConfig::default());
     let mut sink = sim::log_dir::LogDir::create(dir).unwrap();
@@ -292,6 +295,7 @@ fn fly_with_a_lagging_background(
     });
     let mut rng = flight::rng::Rng::new(54);
     let mut lags = Vec::new();
+    let mut waited_for_fit = 0;
     let mut due = bench.iter().peekable();
     let log = Some(LogTarget { sink: &mut sink, board: "SITL" });
     let health = sim::board::SIM_BOARD_HEALTH;
@@ -323,7 +327,16 @@ fn fly_with_a_lagging_background(
                 system.pass_alone(now_us, &mut NoLinks);
             }
             if wait == 0 {
-                system.run_background();
+                let mut fit_now = rng.uniform() < 0.3;
+                loop {
+                    system.run_background_alone();
+                    let waits = system.background.waits_for_offset_fit();
+                    if !(fit_now || waits) || system.offset_fit.run_pending() == 0 {
+                        break;
+                    }
+                    waited_for_fit += u32::from(waits);
+                    fit_now = false;
+                }
                 wait = (rng.uniform() * 26.0) as u32;
                 lags.push(wait);
             } else {
@@ -334,7 +347,7 @@ fn fly_with_a_lagging_background(
         system.run_background();
         system.finish_log();
     });
-    lags
+    (lags, waited_for_fit)
 }
 
 /// The board's background task runs when the higher-priority tasks leave it time: its results
@@ -348,7 +361,9 @@ fn a_background_task_lagging_the_control_step_at_random_replays_exactly() {
     let _alone = one_at_a_time();
     let dir = scratch_dir("lagging");
     let bench = [(0.0, Bench::Arm), (1.0, Bench::Throw)];
-    let lags = fly_with_a_lagging_background(&dir, true, &bench, MIN_STEPS as u32 + 1_000);
+    let (lags, waited_for_fit) =
+        fly_with_a_lagging_background(&dir, true, &bench, MIN_STEPS as u32 + 1_000);
+    assert!(waited_for_fit > 0, "the in-flight fit was never late");
     let mean_lag = lags.iter().sum::<u32>() as f64 / lags.len() as f64;
     assert!((10.0..15.0).contains(&mean_lag), "the background ran every {mean_lag} steps");
     let bytes = std::fs::read(dir.join("LOG00001.BIN")).unwrap();

@@ -80,10 +80,12 @@ type Pattern = (&'static str, &'static str);
 /// A part of a control period: what, and the patterns whose worst regions it adds up.
 type PeriodPart = (&'static str, &'static [Pattern]);
 /// The worst control periods, each checked against [`PERIOD_LOAD_TARGET_PERCENT`]: with speed
-/// telemetry (the answers decoded, the learner's samples in flight as in its excitation) and
+/// telemetry (the answers decoded, the learner's samples in flight as in its excitation),
 /// without (frames only; in flight a held sample every 4 ms begins a regression row and the
-/// sample after it finishes its update: the samples after the model's publication).
-const PERIODS: [(&str, [PeriodPart; 3]); 2] = [
+/// sample after it finishes its update: the samples after the model's publication), and with no
+/// IMU offset known (the background task hands each sample to the in-flight fit, which runs in
+/// `idle`: [`FIT_IDLE`]).
+const PERIODS: [(&str, [PeriodPart; 3]); 3] = [
     (
         "with speed telemetry",
         [
@@ -103,10 +105,38 @@ const PERIODS: [(&str, [PeriodPart; 3]); 2] = [
             ),
         ],
     ),
+    (
+        "with no IMU offset known",
+        [
+            ("control step, octorotor", &[("closed-loop step m=8, ", "")]),
+            ("DShot, 8 motors", &[("dshot: decode 8 ", ""), ("dshot: encode 8 ", "")]),
+            (
+                "learner, octorotor, per sample, and the sample handed to the in-flight fit",
+                &[("learner step m=8, ", ""), (FIT_HANDOFF_PREFIX, "")],
+            ),
+        ],
+    ),
 ];
 
-/// The in-flight IMU-offset fit's samples on the octorotor (`bench-m7`'s region names).
-const IN_FLIGHT_FIT_OCTO_PREFIX: &str = "imu-offset in-flight fit per sample m=8, ";
+/// The background task's part of a sample for the in-flight IMU-offset fit (`bench-m7`'s
+/// region names).
+const FIT_HANDOFF_PREFIX: &str = "in-flight fit hand-off, ";
+
+/// The in-flight IMU-offset fit in `idle` (`firmware::app::offset_fit`): each estimate is taken
+/// back [`FIT_HANDBACK_S`] after the sample that completed it, and the background task waits
+/// for it beyond that, its samples held in their queue. The worst such wait: a solve and the
+/// hand-back's sum intervals done in the idle time the worst period with no offset known leaves,
+/// less the hand-back; a miss above [`FIT_WAIT_TARGET_S`].
+const FIT_IDLE: (&str, &str) =
+    ("imu-offset in-flight fit solve m=8", "imu-offset in-flight fit m=8, 4 samples");
+/// `firmware::app::offset_fit::OFFSET_FIT_HANDBACK_S`, s.
+const FIT_HANDBACK_S: f64 = 0.005;
+/// `imu_offset::in_flight::SUM_INTERVAL_S`, s: a 2 ms interval's four samples are a region.
+const FIT_SUM_INTERVAL_S: f64 = 0.002;
+/// Longest wait of the background task for the fit, s: half of what its sample queue holds
+/// (`firmware::app::SAMPLE_QUEUE_LEN`, 63 usable samples at 2 kHz), the rest for the USB link's
+/// bursts and a board busier than planned.
+const FIT_WAIT_TARGET_S: f64 = 0.5 * 63.0 * CONTROL_PERIOD_S;
 
 /// Issue 53: what the pilot's sticks and the landing add to one control step, instructions
 /// (the worst step: position mode's setpoint moved with the fly-away detector counting; a
@@ -414,28 +444,90 @@ pub fn m7(args: &[String]) -> Result<()> {
         print_period(which, load);
         missed.extend(load.missed());
     }
-    let load = &loads[0];
-    // Not a target: with no IMU offset known the in-flight fit's sample runs beside the
-    // learner's for the first 2 s of a flight (docs/budget.md).
-    if let Some(fit) = rows
-        .iter()
-        .filter(|row| row.name.starts_with(IN_FLIGHT_FIT_OCTO_PREFIX))
-        .max_by_key(|row| row.instructions)
-    {
-        let instructions = load.instructions + fit.instructions;
-        println!(
-            "  with no IMU offset known, + the in-flight fit's worst sample {} ({}): {} \
-             instructions, {:.1} % (not a target)",
-            fit.instructions,
-            fit.name,
-            instructions,
-            load_percent(instructions)
-        );
-    }
+    let fit = fit_idle_wait(&rows, &loads[2]);
+    print_fit_idle(&fit);
+    missed.extend(fit.missed());
     if !missed.is_empty() {
         bail!("bench-m7: {} target(s) missed:\n  {}", missed.len(), missed.join("\n  "));
     }
     Ok(())
+}
+
+/// The in-flight fit's work within a hand-back, done in idle time ([`FIT_IDLE`]).
+struct FitIdleWait {
+    /// The solve's and a sum interval's instructions (`None`: not measured).
+    solve: Option<u64>,
+    interval: Option<u64>,
+    /// The work within a hand-back, instructions; its time, and the fraction of the time left
+    /// idle by the worst period.
+    instructions: u64,
+    work_s: f64,
+    idle_fraction: f64,
+}
+
+impl FitIdleWait {
+    /// How long the work takes in the idle time, s.
+    fn done_after_s(&self) -> f64 {
+        self.work_s / self.idle_fraction
+    }
+
+    /// The background task's longest wait for it, s.
+    fn wait_s(&self) -> f64 {
+        (self.done_after_s() - FIT_HANDBACK_S).max(0.0)
+    }
+
+    fn missed(&self) -> Option<String> {
+        if self.solve.is_none() || self.interval.is_none() {
+            return Some("in-flight fit in idle: its solve or sum interval not measured".into());
+        }
+        (self.wait_s() > FIT_WAIT_TARGET_S).then(|| {
+            format!(
+                "in-flight fit in idle: the background task waits {:.1} ms for it > {:.1} ms",
+                self.wait_s() * 1e3,
+                FIT_WAIT_TARGET_S * 1e3
+            )
+        })
+    }
+}
+
+/// The fit's worst work within a hand-back (a solve and the hand-back's sum intervals) in the
+/// idle time the worst period `worst` leaves, at the planned cycles per instruction.
+fn fit_idle_wait(rows: &[Row], worst: &PeriodLoad) -> FitIdleWait {
+    let find = |prefix: &str| {
+        rows.iter().filter(|r| r.name.starts_with(prefix)).map(|r| r.instructions).max()
+    };
+    let (solve, interval) = (find(FIT_IDLE.0), find(FIT_IDLE.1));
+    let intervals = (FIT_HANDBACK_S / FIT_SUM_INTERVAL_S).ceil() as u64;
+    let instructions = solve.unwrap_or(0) + intervals * interval.unwrap_or(0);
+    let work_s = instructions as f64 * PLANNED_CYCLES_PER_INSTRUCTION / SLOWER_CLOCK_HZ;
+    FitIdleWait {
+        solve,
+        interval,
+        instructions,
+        work_s,
+        idle_fraction: 1.0 - worst.percent / 100.0,
+    }
+}
+
+/// Prints [`fit_idle_wait`].
+fn print_fit_idle(fit: &FitIdleWait) {
+    println!(
+        "\nThe in-flight IMU-offset fit in idle (octorotor, CPI {PLANNED_CYCLES_PER_INSTRUCTION} at \
+         {} MHz): a solve ({} instructions) and the sum intervals of its {:.1} ms hand-back ({} \
+         each), {} instructions, {:.2} ms of work, done after {:.2} ms in the {:.0} % the worst \
+         period with no offset known leaves idle: the background task waits {:.2} ms for it \
+         (target ≤ {:.1} ms, half its sample queue)",
+        SLOWER_CLOCK_HZ / 1e6,
+        fit.solve.unwrap_or(0),
+        FIT_HANDBACK_S * 1e3,
+        fit.interval.unwrap_or(0),
+        fit.instructions,
+        fit.work_s * 1e3,
+        fit.done_after_s() * 1e3,
+        fit.idle_fraction * 100.0,
+        fit.wait_s() * 1e3,
+        FIT_WAIT_TARGET_S * 1e3
+    );
 }
 
 /// A worst control period's work (one of [`PERIODS`]) and its load.
@@ -785,6 +877,40 @@ mod tests {
             period_load(&rows(&without, &[11_000, 4_035, 344, 23_000, 15_000]), &PERIODS[1].1);
         assert_eq!(load.instructions, 11_000 + 344 + 15_000);
         assert_eq!(load.missed(), None);
+    }
+
+    /// With no IMU offset known the background task's hand-off joins the learner's worst
+    /// sample in the worst period; the fit itself, in idle, may hold the background task up
+    /// for at most half its sample queue.
+    #[test]
+    fn the_fit_in_idle_may_hold_the_background_task_up_for_half_its_queue() {
+        let names = [
+            "closed-loop step m=8, hover, position hold",
+            "dshot: decode 8 bidirectional answers",
+            "dshot: encode 8 bidirectional throttle frames",
+            "learner step m=8, sample 7: rotational row x begun (its product P x and the parameters)",
+            "in-flight fit hand-off, octorotor sample with an estimate due, taken back (…)",
+            "in-flight fit hand-off, octorotor sample: checked, pushed, counted, none due (…)",
+            "imu-offset in-flight fit m=8, 4 samples: one 2 ms sum interval",
+            "imu-offset in-flight fit solve m=8",
+        ];
+        let figures = |solve: u64| [11_839, 4_035, 387, 15_646, 420, 180, 25_502, solve];
+        let load = period_load(&rows(&names, &figures(1_070_000)), &PERIODS[2].1);
+        assert_eq!(load.instructions, 11_839 + 4_035 + 387 + 15_646 + 420);
+        assert_eq!(load.missed(), None);
+        let fit = fit_idle_wait(&rows(&names, &figures(1_070_000)), &load);
+        // A solve and three 2 ms intervals (5 ms): 1.15 M instructions, 4.3 ms at 1.5 cycles
+        // and 400 MHz, done after 5.7 ms in the 76 % left idle: 0.7 ms of waiting.
+        assert_eq!(fit.instructions, 1_070_000 + 3 * 25_502);
+        assert!((fit.work_s - 4.3e-3).abs() < 0.01e-3, "{}", fit.work_s);
+        assert!((fit.wait_s() - 0.66e-3).abs() < 0.05e-3, "{}", fit.wait_s());
+        assert_eq!(fit.missed(), None);
+        // A solve four times slower: 16 ms of waiting, over half the queue's 31.5 ms.
+        let slow = fit_idle_wait(&rows(&names, &figures(4_300_000)), &load);
+        assert!(slow.wait_s() > FIT_WAIT_TARGET_S, "{}", slow.wait_s());
+        assert!(slow.missed().is_some_and(|m| m.contains("> 15.8 ms")), "{:?}", slow.missed());
+        let unmeasured = fit_idle_wait(&rows(&names[..6], &figures(0)[..6]), &load);
+        assert!(unmeasured.missed().is_some());
     }
 
     #[test]

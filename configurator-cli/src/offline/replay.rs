@@ -35,6 +35,7 @@ use firmware::app::log::{
     phase_code, phase_from_code, ArmingRecord, ArmingTag, Header, LogReader, LogRecord,
     LoggedCommand, LoggedWork, ParamsAssembler, ReadStats, StepLogRecord, LOG_FORMAT_VERSION,
 };
+use firmware::app::offset_fit::OffsetFitWorker;
 use firmware::app::params::{find, Params, LAYOUT_HASH, SPECS};
 use firmware::app::system::{with_system, BackgroundWork, Exclusive, TickHardware, TickShared};
 use firmware::app::{
@@ -244,10 +245,14 @@ impl BackgroundScript {
         }
     }
 
-    /// Every waiting sample, one at a time, with the work due between them.
-    fn advance(&mut self, worker: &mut Background<'_>) {
+    /// Every waiting sample, one at a time, with the work due between them; the in-flight
+    /// IMU-offset fit's task caught up before each (its estimates are applied a fixed number
+    /// of samples after the one that completed them, so when it ran on the board does not
+    /// matter: `firmware::app::offset_fit`).
+    fn advance(&mut self, worker: &mut Background<'_>, offset_fit: &mut OffsetFitWorker<'_>) {
         loop {
             self.take_due_work(worker);
+            offset_fit.run_pending();
             if !worker.run_one() {
                 break;
             }
@@ -463,7 +468,7 @@ pub fn replay(
                             board: Exclusive(&mut handoffs.board),
                         };
                         system.control.tick(step.t_us, hardware, &mut shared);
-                        script.advance(&mut system.background);
+                        script.advance(&mut system.background, &mut system.offset_fit);
                     } else {
                         system.tick(step.t_us, hardware);
                     }
@@ -519,7 +524,7 @@ pub fn replay(
             }
         }
         run.learned = if exact {
-            script.advance(&mut system.background);
+            script.advance(&mut system.background, &mut system.offset_fit);
             system.background.results_ref().learned
         } else {
             system.handoffs.results.learned

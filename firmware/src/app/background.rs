@@ -20,7 +20,9 @@
 //!   the speeds from the commands (`LearnerConfig::speed_telemetry`, `flight::learner::no_speed`;
 //!   the published model's `speeds_modelled` says so).
 //! - The IMU offset fitted in flight (`imu_offset::in_flight`, issue 32) when none is known
-//!   (no calibration stored, the onboard estimate not well determined): on the learner's samples
+//!   (no calibration stored, the onboard estimate not well determined), in a task of its own
+//!   below this one (`super::offset_fit`: this task hands it each sample's work and takes its
+//!   estimates back a fixed time after the sample that completed them): on the learner's samples
 //!   from the release, jointly with the force rows of G1, with the reported speeds or, without
 //!   speed telemetry, the speeds the learner modelled for the samples it learns from (it holds
 //!   the excitation's until their lag is known: `Learner::for_each_released`, the velocity
@@ -34,13 +36,14 @@
 //! Results reach the other tasks through [`BackgroundResults`], copied under a short lock by the
 //! board, never computed under it.
 
+use super::offset_fit::{FitClient, FitWork};
 use super::queue::{LearnerSample, SampleConsumer};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use flight::learner::MODELLED_SPEED_AGE_S;
 use flight::learner::{FlightPhase, LearnedModel, LearnerConfig, LearnerSlot};
 use flight::slot::Slot;
-use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate, SolveScratch};
+use imu_offset::in_flight::{OffsetFit, OffsetFitEstimate};
 use imu_offset::{ImuOffsetEstimator, Verdict};
 use nalgebra::Vector3;
 use protocol::{ImuOffsetSource, ImuOffsetStatus, OffsetAdvice};
@@ -65,10 +68,6 @@ pub const LEARN_AFTER_EXCITATION_S: f32 = 0.1;
 /// engagement; 0.5 s would halve that tail but also cut the in-flight IMU-offset fit, which
 /// shares this window (docs/benchmarks.md, "One throw, no calibration": found, not fixed).
 pub const REFINE_IN_FLIGHT_S: f32 = 2.0;
-
-/// How often the in-flight IMU-offset fit is solved while it takes samples, s (two Cholesky
-/// inverses each, 8 × 8 and 18 × 18: about 0.5 ms on the board, docs/benchmarks.md).
-pub const OFFSET_FIT_SOLVE_INTERVAL_S: f32 = 0.1;
 
 /// Longest wait of the control step at the end of the excitation for a model this task is still
 /// learning from samples already
@@ -194,21 +193,24 @@ pub struct Background<'q> {
     refine_samples: u32,
     /// Whether each attempt fits the IMU offset in flight ([`Background::set_offset_fit`]).
     offset_fit_enabled: bool,
-    /// The in-flight IMU-offset fit of the latest attempt, when [`Self::offset_fitting`]: reset
-    /// in place for each attempt (14 KB), never moved.
-    offset_fit: OffsetFit,
+    /// The in-flight IMU-offset fit's task ([`super::offset_fit`]): this end hands it the
+    /// samples and takes its estimates back.
+    offset_fit: FitClient<'q>,
     /// Whether this attempt fits the offset in flight ([`Self::offset_fit`]).
     offset_fitting: bool,
-    /// Its solve's matrices (26 KB): here, in the task's static state, not on its stack.
-    offset_scratch: SolveScratch,
     results: BackgroundResults,
 }
 
 impl<'q> Background<'q> {
-    /// The background worker for samples taken once per control step at `control_rate_hz`.
-    pub fn new(samples: SampleConsumer<'q>, control_rate_hz: u16) -> Self {
+    /// The background worker for samples taken once per control step at `control_rate_hz`,
+    /// with its end of the in-flight IMU-offset fit's task (`super::offset_fit`).
+    pub fn new(
+        samples: SampleConsumer<'q>,
+        offset_fit: FitClient<'q>,
+        control_rate_hz: u16,
+    ) -> Self {
         let mut slot = MaybeUninit::uninit();
-        Self::build_in(&mut slot, samples, control_rate_hz);
+        Self::build_in(&mut slot, samples, offset_fit, control_rate_hz);
         // SAFETY: `build_in` wrote every field.
         unsafe { slot.assume_init() }
     }
@@ -219,6 +221,7 @@ impl<'q> Background<'q> {
     pub fn build_in<'s>(
         slot: &'s mut MaybeUninit<Self>,
         samples: SampleConsumer<'q>,
+        offset_fit: FitClient<'q>,
         control_rate_hz: u16,
     ) -> &'s mut Self {
         let rate_hz = control_rate_hz.max(1);
@@ -256,10 +259,8 @@ impl<'q> Background<'q> {
             let refine = (REFINE_IN_FLIGHT_S * f32::from(rate_hz)) as u32;
             addr_of_mut!((*worker).refine_samples).write(refine);
             addr_of_mut!((*worker).offset_fit_enabled).write(true);
-            // Zero bytes are a valid fit and scratch (plain numbers), written in place.
-            addr_of_mut!((*worker).offset_fit).write_bytes(0, 1);
+            addr_of_mut!((*worker).offset_fit).write(offset_fit);
             addr_of_mut!((*worker).offset_fitting).write(false);
-            addr_of_mut!((*worker).offset_scratch).write_bytes(0, 1);
             addr_of_mut!((*worker).results).write(BackgroundResults::default());
             slot.assume_init_mut()
         }
@@ -298,7 +299,15 @@ impl<'q> Background<'q> {
     pub fn set_offset_fit(&mut self, enabled: bool) {
         self.offset_fit_enabled = enabled;
         if !enabled {
+            self.stop_offset_fit();
+        }
+    }
+
+    /// The attempt's in-flight fit abandoned (its estimates to come are dropped).
+    fn stop_offset_fit(&mut self) {
+        if self.offset_fitting {
             self.offset_fitting = false;
+            self.offset_fit.stop(self.results.samples_processed);
         }
     }
 
@@ -362,22 +371,39 @@ impl<'q> Background<'q> {
         self.configured_offset_m
     }
 
-    /// Process every waiting sample. Returns the number processed.
+    /// Process every waiting sample, unless the in-flight fit's task must catch up first
+    /// ([`Self::waits_for_offset_fit`]). Returns the number processed.
     pub fn run_pending(&mut self) -> u32 {
         let mut processed = 0;
-        while let Some(sample) = self.samples.pop() {
-            self.process(&sample);
+        while self.run_one() {
             processed += 1;
         }
         processed
     }
 
-    /// Process the oldest waiting sample; false: none waited. (A replay steps the worker one
-    /// sample at a time to reach the results the board's control step adopted.)
+    /// Process the oldest waiting sample; false: none waited, or the in-flight fit's task must
+    /// catch up first. (A replay steps the worker one sample at a time to reach the results the
+    /// board's control step adopted.)
     pub fn run_one(&mut self) -> bool {
+        if self.waits_for_offset_fit() {
+            return false;
+        }
         let Some(sample) = self.samples.pop() else { return false };
         self.process(&sample);
         true
+    }
+
+    /// Whether samples wait (processed by the next run, or held while
+    /// [`Self::waits_for_offset_fit`]).
+    pub fn has_waiting_samples(&self) -> bool {
+        self.samples.has_waiting()
+    }
+
+    /// Whether the next sample must wait for the in-flight fit's task: its estimates are applied
+    /// a fixed time after the sample that completed them (`super::offset_fit`), and that one's
+    /// work is not finished yet, or its ring has no room for a sample's work.
+    pub fn waits_for_offset_fit(&self) -> bool {
+        !self.offset_fit.ready_for(self.results.samples_processed.wrapping_add(1))
     }
 
     /// The latest results.
@@ -414,6 +440,7 @@ impl<'q> Background<'q> {
             self.results.imu_offset.in_free_fall = false;
         }
         self.update_learner(sample);
+        self.offset_fit.end_sample(self.results.samples_processed);
     }
 
     /// Whether the craft has been unpowered for [`MOTORS_OFF_SETTLE_S`] at `sample`: not armed
@@ -531,17 +558,26 @@ impl<'q> Background<'q> {
         self.results.imu_offset_fitted_in_flight = true;
     }
 
-    /// One sample into the in-flight IMU-offset fit, solved every
-    /// [`OFFSET_FIT_SOLVE_INTERVAL_S`].
+    /// One sample's work for the in-flight IMU-offset fit's task, and the estimates due back
+    /// now (`super::offset_fit`: each a fixed time after the sample that completed it).
     fn update_offset_fit(&mut self, sample: &LearnerSample) {
         if !self.offset_fitting {
             return;
         }
-        let from_learner = self.speeds_modelled();
+        let tag = self.results.samples_processed;
         let fit = &mut self.offset_fit;
-        let motors = usize::from(sample.motor_count).min(sample.speeds_rad_s.len());
-        let summed_before = fit.samples();
-        if from_learner {
+        let mut lost = false;
+        if self.speed_telemetry {
+            lost |= !fit.push(
+                tag,
+                FitWork::Sample {
+                    gyro_rad_s: sample.imu.gyro_rad_s,
+                    accel_mps2: sample.imu.accel_mps2,
+                    speeds_rad_s: sample.speeds_rad_s,
+                    velocity_imu_mps: sample.velocity_imu_mps,
+                },
+            );
+        } else {
             // No speed reported: the samples the learner learned from in this step, with the
             // speeds it modelled for them from the commands with the lag it identified, and the
             // velocity carried with each: the means over `no_speed::HOLD_INTERVAL_S`, the fit
@@ -552,28 +588,30 @@ impl<'q> Background<'q> {
             let mut released = false;
             if let Some(learner) = self.learner.get() {
                 learner.for_each_released(|gyro_rad_s, accel_mps2, speeds_rad_s, velocity| {
-                    fit.update(gyro_rad_s, accel_mps2, &speeds_rad_s[..motors], velocity);
+                    let work = FitWork::Sample {
+                        gyro_rad_s,
+                        accel_mps2,
+                        speeds_rad_s: *speeds_rad_s,
+                        velocity_imu_mps: velocity,
+                    };
+                    lost |= !fit.push(tag, work);
                     released = true;
                 });
             }
             if !released {
                 // The rows of the last held sample go into the sums on the samples between.
-                fit.advance();
+                lost |= !fit.push(tag, FitWork::Advance);
             }
-        } else {
-            fit.update(
-                sample.imu.gyro_rad_s,
-                sample.imu.accel_mps2,
-                &sample.speeds_rad_s[..motors],
-                sample.velocity_imu_mps,
-            );
         }
-        // Solved when the sums have grown by an interval's worth (the fit sums one sample in
-        // every few: counting its own samples, not ours).
-        let per_solve = libm::roundf(OFFSET_FIT_SOLVE_INTERVAL_S * fit.sum_rate_hz()).max(1.0);
-        let summed = fit.samples();
-        if summed != summed_before && summed.is_multiple_of(per_solve as u32) {
-            self.results.flight_offset = fit.estimate_in(&mut self.offset_scratch).ok();
+        if lost {
+            // Never with `waits_for_offset_fit` kept: a fit missing samples is no fit.
+            self.stop_offset_fit();
+            return;
+        }
+        let results = &mut self.results;
+        let learner = &mut self.learner;
+        fit.take_due(tag, |estimate| {
+            results.flight_offset = estimate;
             // Every estimate's rows, usable or not, are the learner's fallback
             // (`Learner::set_fallback_force_rows`): its own, learned with no offset, also carry
             // the tumble's rotation at the IMU (`Ω × (Ω × r)`, `Ω̇_free × r`), which no motor
@@ -582,12 +620,10 @@ impl<'q> Background<'q> {
             // the fit's rows are uncertain only along `[δr]× G1τ`, directions a hover's torque
             // balance does not use. 1,000 random worlds (seeds 5001–6000): 3 refused for no
             // hover, none with the fallback (docs/benchmarks.md).
-            if let (Some(estimate), Some(learner)) =
-                (&self.results.flight_offset, self.learner.get_mut())
-            {
+            if let (Some(estimate), Some(learner)) = (&estimate, learner.get_mut()) {
                 learner.set_fallback_force_rows(Some(estimate.g1f_per_speed2));
             }
-        }
+        });
     }
 
     /// A new identification for `motor_count` motors: the learner (re)built or restarted with
@@ -628,8 +664,12 @@ impl<'q> Background<'q> {
         } else {
             self.rate_hz
         };
-        self.offset_fitting =
-            fitting && self.offset_fit.reset(usize::from(motor_count), fit_rate_hz, lag_s);
+        self.stop_offset_fit();
+        if fitting && OffsetFit::supports_rate(fit_rate_hz) {
+            self.offset_fitting = true;
+            let tag = self.results.samples_processed;
+            self.offset_fit.start(tag, motor_count, fit_rate_hz, lag_s);
+        }
     }
 
     /// Whether the learner models the motor speeds from the commands: the ESCs report none
@@ -803,7 +843,9 @@ mod tests {
         let (bias_rad_s, noise_rad_s, accel_noise_mps2) = ([0.01, -0.02, 0.005], 0.002, 0.03);
         let mut queue = SampleQueue::new();
         let (mut producer, consumer) = split_queue(&mut queue);
-        let mut background = Background::new(consumer, 2000);
+        let mut fit_handoff = super::super::offset_fit::FitHandoff::new();
+        let (fit_client, _fit_ends) = fit_handoff.split(2000.0);
+        let mut background = Background::new(consumer, fit_client, 2000);
         let mut rng = flight::rng::Rng::new(0x2545_f491_4f6c_dd1d);
         // 2.5 s at 2 kHz: two full windows, the second one published when the third starts.
         for step in 0..5000u64 {
@@ -834,7 +876,9 @@ mod tests {
     fn free_fall_seen(powered: Option<(FlightPhase, bool, f32)>) -> bool {
         let mut queue = SampleQueue::new();
         let (mut producer, consumer) = split_queue(&mut queue);
-        let mut background = Background::new(consumer, 2000);
+        let mut fit_handoff = super::super::offset_fit::FitHandoff::new();
+        let (fit_client, _fit_ends) = fit_handoff.split(2000.0);
+        let mut background = Background::new(consumer, fit_client, 2000);
         let mut rng = flight::rng::Rng::new(7);
         let mut seen = false;
         for step in 0..1800u64 {

@@ -1205,7 +1205,9 @@ mod tests {
         let mut queue = SampleQueue::new();
         let (producer, consumer) = split_queue(&mut queue);
         let mut control = ControlLoop::new(ControlConfig::default(), producer);
-        let mut background = super::super::background::Background::new(consumer, 2000);
+        let mut fit_handoff = super::super::offset_fit::FitHandoff::new();
+        let (fit_client, _fit_ends) = fit_handoff.split(2000.0);
+        let mut background = super::super::background::Background::new(consumer, fit_client, 2000);
         assert!(control.receive(&background.results()));
         assert_eq!(control.state.pilot.imu_offset_m(), Some([0.0; 3]));
         let r_imu_m = [0.012, -0.03, 0.004];

@@ -7,7 +7,9 @@
 //! - [`LinkServer`] (middle priority, USB): the protocol, answering from a [`StatusView`] and
 //!   streaming the step records;
 //! - [`Background`] (lowest priority): drains the queue and runs what is too slow for the step;
-//!   with it, the flight log's writer ([`log::Logger`]) drains the log ring to a [`log::LogSink`].
+//!   with it, the flight log's writer ([`log::Logger`]) drains the log ring to a [`log::LogSink`];
+//! - below it, in the board's `idle`, the in-flight IMU-offset fit ([`offset_fit`]), fed and read
+//!   back by the background task.
 //!
 //! The parts share nothing but small `Copy` snapshots ([`ControlSnapshot`],
 //! [`BackgroundResults`]), which the board copies under a short lock: no computation ever happens
@@ -26,6 +28,7 @@ pub mod hal;
 pub mod landing;
 mod link;
 pub mod log;
+pub mod offset_fit;
 pub mod params;
 mod pilot;
 mod queue;

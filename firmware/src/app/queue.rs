@@ -103,6 +103,11 @@ impl<T> RingConsumer<'_, T> {
     pub fn pop(&mut self) -> Option<T> {
         self.inner.dequeue()
     }
+
+    /// Whether items wait.
+    pub fn has_waiting(&self) -> bool {
+        self.inner.ready()
+    }
 }
 
 /// One value handed from a task to a lower-priority one, too large for a ring's slot (the

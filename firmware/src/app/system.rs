@@ -35,6 +35,7 @@ use super::log::{
     Adoption, ArmingTag, FileRead, LogEntry, LogFileError, LogFileList, LogFiles, LogProducer,
     LogSink, Logger, StepEntry,
 };
+use super::offset_fit::{FitHandoff, OffsetFitWorker};
 use super::radio::{CraftState, Receiver};
 use super::{
     Background, BackgroundResults, ControlCommand, ControlLoop, ControlSettings, ControlSnapshot,
@@ -871,6 +872,9 @@ pub struct System<'q, F: NorFlash> {
     pub control: ControlTask<'q>,
     pub link: LinkTask<'q, F>,
     pub background: Background<'q>,
+    /// The in-flight IMU-offset fit's task, run after the background task as the board's
+    /// `idle` runs it (`super::offset_fit`).
+    pub offset_fit: OffsetFitWorker<'q>,
     pub handoffs: Handoffs,
     /// The flight log's writer, run with the background task (`None`: no log).
     pub log: Option<Logger<'q>>,
@@ -937,6 +941,21 @@ impl<'q, F: NorFlash> System<'q, F> {
 
     /// The background task's run (see [`run_background`]).
     pub fn run_background(&mut self) {
+        loop {
+            self.run_background_alone();
+            // Then the fit, as `idle` does between the tasks' runs; and the background task
+            // again if its samples waited for the fit (a slow board's case: here the fit
+            // keeps up with each tick).
+            let fitted = self.offset_fit.run_pending();
+            if fitted == 0 || !self.background.has_waiting_samples() {
+                break;
+            }
+        }
+    }
+
+    /// The background task's run alone: the in-flight IMU-offset fit's task does not run after
+    /// it (a test that makes it lag, as the board's `idle` may).
+    pub fn run_background_alone(&mut self) {
         let handoffs = &mut self.handoffs;
         run_background(
             &mut self.background,
@@ -1068,7 +1087,10 @@ pub fn with_logged_system<F: NorFlash, R>(
     let (ring_producer, ring_consumer) = super::split_queue(&mut ring);
     let config = super::ControlConfig::default();
     let control = ControlLoop::new(config, producer).with_telemetry(ring_producer);
-    let background = Background::new(consumer, config.rate_hz);
+    let mut fit_handoff = FitHandoff::new();
+    let (fit_client, fit_ends) = fit_handoff.split(f32::from(config.rate_hz));
+    let offset_fit = OffsetFitWorker::new(fit_ends);
+    let background = Background::new(consumer, fit_client, config.rate_hz);
     let handoffs = Handoffs::new(control.snapshot(), background.results(), board);
     let control = ControlTask::new(control, radio);
     let (control, log) = match log {
@@ -1084,7 +1106,8 @@ pub fn with_logged_system<F: NorFlash, R>(
     let link =
         LinkTask::new(settings, ring_consumer).with_gnss(&mut gnss).with_compass(&mut compass);
     let compass_solver = CompassSolver::new();
-    let mut system = System { control, link, background, handoffs, log, compass_solver };
+    let mut system =
+        System { control, link, background, offset_fit, handoffs, log, compass_solver };
     let result = f(&mut system);
     (result, system.link.into_settings())
 }
