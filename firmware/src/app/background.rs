@@ -440,6 +440,12 @@ impl<'q> Background<'q> {
             self.results.imu_offset.in_free_fall = false;
         }
         self.update_learner(sample);
+        // On every sample, learning or not: the estimate of the attempt's last samples comes
+        // back after them (applied as the learning path applies it), and those of an abandoned
+        // attempt leave the ring.
+        if self.take_offset_fit_estimates() {
+            self.apply_offset_fit(sample.flying);
+        }
         self.offset_fit.end_sample(self.results.samples_processed);
     }
 
@@ -518,6 +524,7 @@ impl<'q> Background<'q> {
             self.results.learned = *learner.model();
         }
         self.update_offset_fit(sample);
+        self.take_offset_fit_estimates();
         self.apply_offset_fit(sample.flying);
     }
 
@@ -558,8 +565,7 @@ impl<'q> Background<'q> {
         self.results.imu_offset_fitted_in_flight = true;
     }
 
-    /// One sample's work for the in-flight IMU-offset fit's task, and the estimates due back
-    /// now (`super::offset_fit`: each a fixed time after the sample that completed it).
+    /// One sample's work for the in-flight IMU-offset fit's task (`super::offset_fit`).
     fn update_offset_fit(&mut self, sample: &LearnerSample) {
         if !self.offset_fitting {
             return;
@@ -606,11 +612,19 @@ impl<'q> Background<'q> {
         if lost {
             // Never with `waits_for_offset_fit` kept: a fit missing samples is no fit.
             self.stop_offset_fit();
-            return;
         }
+    }
+
+    /// The in-flight fit's estimates due at this sample (`super::offset_fit`: the hand-back
+    /// after the sample that completed them) into the results and the learner; those of an
+    /// attempt since abandoned are dropped. Whether one was taken.
+    fn take_offset_fit_estimates(&mut self) -> bool {
+        let tag = self.results.samples_processed;
         let results = &mut self.results;
         let learner = &mut self.learner;
-        fit.take_due(tag, |estimate| {
+        let mut taken = false;
+        self.offset_fit.take_due(tag, |estimate| {
+            taken = true;
             results.flight_offset = estimate;
             // Every estimate's rows, usable or not, are the learner's fallback
             // (`Learner::set_fallback_force_rows`): its own, learned with no offset, also carry
@@ -624,6 +638,7 @@ impl<'q> Background<'q> {
                 learner.set_fallback_force_rows(Some(estimate.g1f_per_speed2));
             }
         });
+        taken
     }
 
     /// A new identification for `motor_count` motors: the learner (re)built or restarted with

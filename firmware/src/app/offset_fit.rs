@@ -64,7 +64,9 @@ const HANDBACK_HISTORY: usize = 64;
 /// samples the background task processes in one run after a wait.
 pub const FIT_WORK_LEN: usize = 64;
 
-/// The estimates' ring: one solve every 0.1 s against a 5 ms hand-back.
+/// The estimates' ring: one solve every 0.1 s of fitted samples against a 5 ms hand-back, and
+/// the client takes every due one on every sample (those of an abandoned attempt too), so it
+/// holds one at a time; the worker waits while it is full.
 const ESTIMATES_LEN: usize = 4;
 
 /// Most work items one background sample pushes: a start or a stop, and a sample or an advance
@@ -425,6 +427,40 @@ mod tests {
         assert_eq!(restarted[..2], on_time[..2]);
         assert!(restarted[2].0 > on_time[2].0 + 100, "the old attempt's estimate was applied");
         assert!(restarted[2].1.unwrap().samples < on_time[2].1.unwrap().samples);
+    }
+
+    /// Attempts abandoned just after a solve leave their estimates on the way back; the client
+    /// drops them as they fall due, so the estimates' ring never fills and holds the worker
+    /// (and with it the client) up, however many attempts there are.
+    #[test]
+    fn abandoned_attempts_estimates_never_hold_the_fit_up() {
+        let mut handoff = FitHandoff::new();
+        let (mut client, ends) = handoff.split(2000.0);
+        let mut worker = OffsetFitWorker::new(ends);
+        let mut tag = 0;
+        for _attempt in 0..2 * ESTIMATES_LEN {
+            tag += 1;
+            client.start(tag, 4, 2000.0, 0.0);
+            let solved_at = worker.ends.estimates.len() + 1;
+            while worker.ends.estimates.len() < solved_at {
+                assert!(client.ready_for(tag + 1), "held up at sample {tag}");
+                tag += 1;
+                assert!(client.push(tag, sample(tag)));
+                client.end_sample(tag);
+                client.take_due(tag, |_| panic!("an estimate applied before its hand-back"));
+                worker.run_pending();
+            }
+            client.stop(tag);
+            // The rest of the hand-back, no work pushed: the estimate is dropped, not applied.
+            let handback = libm::roundf(OFFSET_FIT_HANDBACK_S * 2000.0) as u32;
+            for _ in 0..handback {
+                tag += 1;
+                client.end_sample(tag);
+                client.take_due(tag, |_| panic!("an abandoned attempt's estimate applied"));
+                worker.run_pending();
+            }
+            assert_eq!(worker.ends.estimates.len(), 0);
+        }
     }
 
     /// A ring with no room for a sample's work holds the client; so does a worker that has not
