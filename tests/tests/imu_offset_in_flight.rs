@@ -128,3 +128,20 @@ fn without_speed_telemetry_the_offset_is_fitted_on_the_modelled_speeds() {
     let median = 0.5 * (sorted[14] + sorted[15]);
     assert!(median < 8.0, "median {median} mm: {errors:?}");
 }
+
+/// `cargo xtask bench-m7` checks the background task's wait for the fit in `idle` with the
+/// hand-back and the sum interval restated in `xtask` (which builds none of the firmware's
+/// crates): they must be the firmware's, or the check would judge another design.
+#[test]
+fn bench_m7s_check_of_the_fit_in_idle_uses_the_firmwares_hand_back_and_sum_interval() {
+    let bench = include_str!("../../xtask/src/bench.rs");
+    let restated = |name: &str| -> f32 {
+        let prefix = format!("const {name}: f64 = ");
+        let line = bench.lines().find_map(|l| l.strip_prefix(&prefix)).unwrap_or_else(|| {
+            panic!("xtask/src/bench.rs no longer states {name}");
+        });
+        line.trim_end_matches(';').parse().unwrap()
+    };
+    assert_eq!(restated("FIT_HANDBACK_S"), firmware::app::offset_fit::OFFSET_FIT_HANDBACK_S);
+    assert_eq!(restated("FIT_SUM_INTERVAL_S"), imu_offset::in_flight::SUM_INTERVAL_S);
+}

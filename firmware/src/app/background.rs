@@ -679,11 +679,13 @@ impl<'q> Background<'q> {
         } else {
             self.rate_hz
         };
-        self.stop_offset_fit();
         if fitting && OffsetFit::supports_rate(fit_rate_hz) {
+            // A start resets the worker's fit and drops the earlier attempt's estimates.
             self.offset_fitting = true;
             let tag = self.results.samples_processed;
             self.offset_fit.start(tag, motor_count, fit_rate_hz, lag_s);
+        } else {
+            self.stop_offset_fit();
         }
     }
 

@@ -291,11 +291,6 @@ impl<'q> OffsetFitWorker<'q> {
         processed
     }
 
-    /// Whether work waits.
-    pub fn has_waiting(&self) -> bool {
-        self.ends.work.ready()
-    }
-
     fn process(&mut self, item: FitItem) {
         match item.work {
             FitWork::Start { epoch, motors, rate_hz, lag_s } => {
